@@ -1,0 +1,87 @@
+"""Input validation helpers: every error names the argument, the value and what was expected."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+
+
+def as_tensor(value, name: str, *, dtype=None, device=None) -> torch.Tensor:
+    """Convert a number, sequence or tensor to a tensor, with a clear error otherwise."""
+    if isinstance(value, torch.Tensor):
+        t = value
+        if dtype is not None or device is not None:
+            t = t.to(dtype=dtype or t.dtype, device=device or t.device)
+        return t
+    try:
+        return torch.as_tensor(value, dtype=dtype or torch.get_default_dtype(), device=device)
+    except (TypeError, ValueError, RuntimeError) as err:
+        raise TypeError(f"{name}: expected a number or tensor, got {type(value).__name__} ({value!r})") from err
+
+
+def check_finite(t: torch.Tensor, name: str) -> None:
+    if not torch.isfinite(t).all():
+        bad = (~torch.isfinite(t)).sum().item()
+        raise ValueError(f"{name}: expected finite values, found {bad} NaN/Inf entries")
+
+
+def check_nonnegative(t: torch.Tensor, name: str) -> None:
+    check_finite(t, name)
+    if (t < 0).any():
+        raise ValueError(f"{name}: expected non-negative values, minimum is {t.min().item():.6g}")
+
+
+def check_positive(value, name: str) -> torch.Tensor:
+    t = as_tensor(value, name)
+    check_finite(t, name)
+    if (t <= 0).any():
+        raise ValueError(f"{name}: expected a positive value, got {t.min().item():.6g}")
+    return t
+
+
+def check_rank(t: torch.Tensor, ranks: int | Sequence[int], name: str, layout: str) -> None:
+    ranks = (ranks,) if isinstance(ranks, int) else tuple(ranks)
+    if t.dim() not in ranks:
+        raise ValueError(f"{name}: expected a tensor of shape {layout}, got shape {tuple(t.shape)}")
+
+
+def check_wavelengths(w: torch.Tensor, name: str = "wavelengths_nm") -> torch.Tensor:
+    """Wavelength grids are 1-D, finite, positive and strictly increasing (nm)."""
+    if not isinstance(w, torch.Tensor):
+        w = torch.as_tensor(w, dtype=torch.get_default_dtype())
+    if w.dim() == 0:
+        w = w.reshape(1)
+    check_rank(w, 1, name, "[L]")
+    if w.numel() == 0:
+        raise ValueError(f"{name}: expected at least one wavelength, got an empty grid")
+    check_finite(w, name)
+    if (w <= 0).any():
+        raise ValueError(f"{name}: expected positive wavelengths in nm, got minimum {w.min().item():.6g}")
+    if w.numel() > 1 and not (w[1:] > w[:-1]).all():
+        raise ValueError(f"{name}: expected a strictly increasing wavelength grid, got {w.tolist()}")
+    return w
+
+
+def batch_param(value, name: str, batch: int, *, dtype, device, positive: bool = False) -> torch.Tensor:
+    """A per-sample scalar as a tensor of shape [B] (a scalar broadcasts)."""
+    t = as_tensor(value, name, dtype=dtype, device=device)
+    if t.dim() > 1:
+        raise ValueError(f"{name}: expected a scalar or a [B] tensor, got shape {tuple(t.shape)}")
+    t = t.reshape(-1)
+    if t.numel() not in (1, batch):
+        raise ValueError(f"{name}: expected 1 or {batch} values (one per batch sample), got {t.numel()}")
+    check_finite(t, name)
+    if positive and (t <= 0).any():
+        raise ValueError(f"{name}: expected positive values, got {t.min().item():.6g}")
+    return t.expand(batch) if t.numel() == 1 else t
+
+
+def isclose_grid(a: torch.Tensor, b: torch.Tensor) -> bool:
+    return a.shape == b.shape and bool(torch.allclose(a.double().cpu(), b.double().cpu(), rtol=0, atol=1e-6))
+
+
+def round_half_away(x: float) -> int:
+    """MATLAB ``round``: halves away from zero."""
+    return int(math.copysign(math.floor(abs(x) + 0.5), x))

@@ -1,0 +1,1 @@
+"""Subcommands of the ``isettorch`` CLI, one module each (see ``isettorch.cli``)."""

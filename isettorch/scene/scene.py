@@ -1,0 +1,140 @@
+"""`Scene`: spectral radiance of a planar scene at a distance, in photons/s/sr/m^2/nm."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import ClassVar
+
+import torch
+
+from .. import spectral
+from .._checks import as_tensor, check_nonnegative, check_rank
+from ..image import SpectralImage, angle_for_extent, extent_for_angle
+
+
+@dataclasses.dataclass(eq=False, repr=False)
+class Scene(SpectralImage):
+    """Spectral radiance ``photons [B, L, H, W]`` (photons/s/sr/m^2/nm) of a plane at ``distance_m``.
+
+    Args:
+        photons: radiance, non-negative and finite; ``[L, H, W]`` is taken as a batch of one.
+        wavelengths_nm: grid ``[L]`` (nm), strictly increasing.
+        hfov_deg: horizontal field of view (deg), scalar or ``[B]``.
+        distance_m: distance of the scene plane (m), scalar or ``[B]``; default 1.2 (ISETCam).
+        illuminant_photons: optional ``[B, L]`` (or ``[L]``) radiance of a perfect white under the
+            scene's light, in the photons' units (so reflectance = photons / illuminant).
+
+    Example:
+        >>> s = Scene(torch.ones(1, 31, 8, 8), torch.arange(400., 701., 10.), hfov_deg=10.0)
+        >>> s.sample_spacing_m.shape
+        torch.Size([1])
+    """
+
+    hfov_deg: torch.Tensor | float = 10.0
+    distance_m: torch.Tensor | float = 1.2
+    illuminant_photons: torch.Tensor | None = None
+
+    _batch_fields: ClassVar[tuple[str, ...]] = ("hfov_deg", "distance_m")
+    _units: ClassVar[str] = "photons/s/sr/m^2/nm"
+
+    def __post_init__(self, validate: bool = True) -> None:
+        super().__post_init__(validate)
+        if (self.hfov_deg >= 180).any():
+            raise ValueError(f"hfov_deg: expected a field of view below 180 deg, got {self.hfov_deg.tolist()}")
+        ill = self.illuminant_photons
+        if ill is not None:
+            ill = as_tensor(ill, "illuminant_photons", dtype=self.dtype, device=self.device)
+            if ill.dim() == 1:
+                ill = ill.unsqueeze(0)
+            check_rank(ill, 2, "illuminant_photons", "[B, L] or [L]")
+            if ill.shape[-1] != self.num_wavelengths or ill.shape[0] not in (1, self.batch_size):
+                raise ValueError(
+                    f"illuminant_photons: expected shape [{self.batch_size}, {self.num_wavelengths}] (or [L]), "
+                    f"got {tuple(ill.shape)}"
+                )
+            if validate:
+                check_nonnegative(ill.detach(), "illuminant_photons")
+            self.illuminant_photons = ill.expand(self.batch_size, -1)
+
+    # --- geometry ------------------------------------------------------------------------
+    @property
+    def width_m(self) -> torch.Tensor:
+        """Width of the scene plane (m) [B]: 2 d tan(hfov / 2)."""
+        return extent_for_angle(self.hfov_deg, self.distance_m)
+
+    @property
+    def sample_spacing_m(self) -> torch.Tensor:
+        """Spacing of the samples on the scene plane (m) [B]; samples are square."""
+        return self.width_m / self.width
+
+    @property
+    def height_m(self) -> torch.Tensor:
+        return self.sample_spacing_m * self.height
+
+    @property
+    def vfov_deg(self) -> torch.Tensor:
+        """Vertical field of view (deg) [B]."""
+        return angle_for_extent(self.height_m, self.distance_m)
+
+    def crop(self, top: int, left: int, height: int, width: int) -> Scene:
+        """A window of the scene; the sample spacing is kept, so the FOV shrinks accordingly."""
+        p = self._crop_photons(top, left, height, width)
+        return self.replace(photons=p, hfov_deg=angle_for_extent(self.sample_spacing_m * width, self.distance_m))
+
+    # --- photometry ------------------------------------------------------------------------
+    def luminance(self) -> torch.Tensor:
+        """Luminance image (cd/m^2) [B, 1, H, W]."""
+        return self.photometric()
+
+    def mean_luminance(self) -> torch.Tensor:
+        """Mean luminance (cd/m^2) [B]."""
+        return self.luminance().mean(dim=(1, 2, 3))
+
+    def set_mean_luminance(self, cd_m2) -> Scene:
+        """Scale radiance (and illuminant) so the mean luminance is ``cd_m2`` (scalar or [B])."""
+        target = as_tensor(cd_m2, "cd_m2", dtype=self.dtype, device=self.device).reshape(-1)
+        if (target < 0).any() or not torch.isfinite(target).all():
+            raise ValueError(f"cd_m2: expected a non-negative finite luminance, got {target.tolist()}")
+        current = self.mean_luminance()
+        if (current <= 0).any():
+            raise ValueError("set_mean_luminance: the scene is black (mean luminance 0), it cannot be scaled")
+        k = (target / current).reshape(-1, 1, 1, 1)
+        ill = None if self.illuminant_photons is None else self.illuminant_photons * k.reshape(-1, 1)
+        return self.replace(photons=self.photons * k, illuminant_photons=ill)
+
+    def illuminant_luminance(self) -> torch.Tensor | None:
+        """Luminance (cd/m^2) of a perfect white under the scene's illuminant [B], or None."""
+        if self.illuminant_photons is None:
+            return None
+        return spectral.luminance(self.illuminant_photons, self.wavelengths_nm, dim=-1).squeeze(-1)
+
+    def reflectance(self) -> torch.Tensor:
+        """photons / illuminant [B, L, H, W] (needs an illuminant)."""
+        if self.illuminant_photons is None:
+            raise ValueError("reflectance: this scene has no illuminant_photons")
+        ill = self.illuminant_photons[:, :, None, None]
+        return self.photons / ill.clamp_min(torch.finfo(self.dtype).tiny)
+
+    def _preview_white_y(self, xyz_img: torch.Tensor) -> torch.Tensor:
+        y = self.illuminant_luminance()
+        return super()._preview_white_y(xyz_img) if y is None else y
+
+    @staticmethod
+    def cat(scenes: list[Scene]) -> Scene:
+        """Concatenate scenes of the same size and wavelength grid along the batch."""
+        if not scenes:
+            raise ValueError("scenes: expected at least one Scene")
+        first = scenes[0]
+        for i, s in enumerate(scenes[1:], 1):
+            if s.photons.shape[1:] != first.photons.shape[1:] or not torch.equal(s.wavelengths_nm,
+                                                                                    first.wavelengths_nm):
+                raise ValueError(f"scenes[{i}]: expected shape {tuple(first.photons.shape[1:])} and the same "
+                                 f"wavelengths, got {tuple(s.photons.shape[1:])}")
+        has_ill = [s.illuminant_photons is not None for s in scenes]
+        ill = torch.cat([s.illuminant_photons for s in scenes]) if all(has_ill) else None
+        return first.replace(
+            photons=torch.cat([s.photons for s in scenes]),
+            hfov_deg=torch.cat([s.hfov_deg for s in scenes]),
+            distance_m=torch.cat([s.distance_m for s in scenes]),
+            illuminant_photons=ill,
+        )

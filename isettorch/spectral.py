@@ -1,0 +1,347 @@
+"""Wavelength grids, spectral resampling, photons <-> energy, CIE colour matching functions,
+luminosity and illuminants, and luminance / XYZ of spectral images.
+
+Conventions
+-----------
+* Wavelengths are 1-D tensors in nm, strictly increasing; non-uniform grids are allowed.
+* Spectral integrals use the grid's own sample widths (:func:`wavelength_weights`): on a uniform
+  grid every sample has the weight of the step (ISETCam's rectangle rule, ``binwidth * sum``);
+  on a non-uniform grid a sample's weight is half the distance between its neighbours (the
+  end samples take the full width to their single neighbour, which equals the uniform rule).
+  A single-wavelength grid has a weight of 1 nm (ISETCam's ``sceneGet(scene, 'binwidth')``).
+* :func:`resample` interpolates linearly and returns **0 outside the data's range**
+  (as ISETCam's ``interp1(..., 'linear', 0)``), so a filter never invents response where it
+  was not measured.
+* Tabulated CIE data come from colour-science, converted to tensors once and cached per
+  (grid, dtype, device); returned tensors are fresh copies.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+import torch
+
+from . import constants
+from ._checks import check_rank, check_wavelengths
+
+__all__ = [
+    "default_wavelengths",
+    "wavelength_weights",
+    "resample",
+    "photons_to_energy",
+    "energy_to_photons",
+    "cmfs",
+    "luminosity",
+    "illuminant",
+    "illuminant_names",
+    "blackbody",
+    "daylight",
+    "luminance",
+    "xyz",
+    "spectral_integral",
+]
+
+OBSERVERS = {
+    "1931": "CIE 1931 2 Degree Standard Observer",
+    "1931_2": "CIE 1931 2 Degree Standard Observer",
+    "1964": "CIE 1964 10 Degree Standard Observer",
+    "1964_10": "CIE 1964 10 Degree Standard Observer",
+}
+
+
+def default_wavelengths(start_nm: float = 400.0, stop_nm: float = 700.0, step_nm: float = 10.0,
+                        *, dtype=None, device=None) -> torch.Tensor:
+    """The grid ``start:step:stop`` in nm (inclusive), ISETCam's default is 400:10:700."""
+    if step_nm <= 0:
+        raise ValueError(f"step_nm: expected a positive step, got {step_nm}")
+    if stop_nm < start_nm:
+        raise ValueError(f"stop_nm: expected stop_nm >= start_nm ({start_nm}), got {stop_nm}")
+    n = int(math.floor((stop_nm - start_nm) / step_nm + 1e-9)) + 1
+    return start_nm + step_nm * torch.arange(n, dtype=dtype or torch.get_default_dtype(), device=device)
+
+
+def wavelength_weights(wavelengths_nm: torch.Tensor) -> torch.Tensor:
+    """Integration weight (nm) of each sample of a wavelength grid; see the module notes."""
+    w = check_wavelengths(wavelengths_nm)
+    if w.numel() == 1:
+        return torch.ones_like(w)
+    d = w[1:] - w[:-1]
+    out = torch.empty_like(w)
+    out[0] = d[0]
+    out[-1] = d[-1]
+    if w.numel() > 2:
+        out[1:-1] = 0.5 * (d[1:] + d[:-1])
+    return out
+
+
+def resample(values: torch.Tensor, src_nm, dst_nm, dim: int = -1) -> torch.Tensor:
+    """Linear interpolation of spectra from grid ``src_nm`` to ``dst_nm`` along ``dim``; 0 outside.
+
+    Differentiable with respect to ``values``.
+
+    Example:
+        >>> resample(torch.tensor([0., 1.]), torch.tensor([400., 500.]), torch.tensor([450., 600.]))
+        tensor([0.5000, 0.0000])
+    """
+    src = check_wavelengths(torch.as_tensor(src_nm), "src_nm").to(values.device, torch.float64)
+    dst = check_wavelengths(torch.as_tensor(dst_nm), "dst_nm").to(values.device, torch.float64)
+    if values.shape[dim] != src.numel():
+        raise ValueError(
+            f"values: expected {src.numel()} samples along dim {dim} to match src_nm, got {values.shape[dim]}"
+        )
+    v = values.movedim(dim, -1)
+    if src.numel() == dst.numel() and torch.equal(src, dst):
+        return values.clone()
+    if src.numel() == 1:
+        hit = (dst == src[0]).to(v.dtype)
+        return (v[..., :1] * hit).movedim(-1, dim)
+    idx = (torch.searchsorted(src, dst, right=True) - 1).clamp(0, src.numel() - 2)
+    x0, x1 = src[idx], src[idx + 1]
+    t = ((dst - x0) / (x1 - x0)).to(v.dtype)
+    inside = ((dst >= src[0]) & (dst <= src[-1])).to(v.dtype)
+    out = (v[..., idx] * (1 - t) + v[..., idx + 1] * t) * inside
+    return out.movedim(-1, dim)
+
+
+def _spectral_shape(wavelengths_nm: torch.Tensor, x: torch.Tensor, dim: int) -> torch.Tensor:
+    shape = [1] * x.dim()
+    shape[dim] = -1
+    return wavelengths_nm.to(x.device, x.dtype).reshape(shape)
+
+
+def photons_to_energy(photons: torch.Tensor, wavelengths_nm, dim: int = -3, *, h: float | None = None,
+                      c: float | None = None) -> torch.Tensor:
+    """Photon spectral quantity (photons/s/...) to energy (W/...): ``E = N h c / lambda``.
+
+    Source: Planck-Einstein relation; h, c from CODATA 2018 unless given (ISETCam ``Quanta2Energy``).
+    """
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    if photons.shape[dim] != w.numel():
+        raise ValueError(f"photons: expected {w.numel()} wavelengths along dim {dim}, got {photons.shape[dim]}")
+    h = constants.PLANCK_J_S if h is None else h
+    c = constants.SPEED_OF_LIGHT_M_PER_S if c is None else c
+    return photons * (h * c) / (_spectral_shape(w, photons, dim) * 1e-9)
+
+
+def energy_to_photons(energy: torch.Tensor, wavelengths_nm, dim: int = -3, *, h: float | None = None,
+                      c: float | None = None) -> torch.Tensor:
+    """Energy spectral quantity (W/...) to photons (photons/s/...): ``N = E lambda / (h c)``."""
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    if energy.shape[dim] != w.numel():
+        raise ValueError(f"energy: expected {w.numel()} wavelengths along dim {dim}, got {energy.shape[dim]}")
+    h = constants.PLANCK_J_S if h is None else h
+    c = constants.SPEED_OF_LIGHT_M_PER_S if c is None else c
+    return energy * (_spectral_shape(w, energy, dim) * 1e-9) / (h * c)
+
+
+# ---------------------------------------------------------------------------------------------
+# Tabulated data from colour-science (loaded once, numpy on the native grid)
+
+
+@functools.cache
+def _native_cmfs(observer: str) -> tuple[np.ndarray, np.ndarray]:
+    import colour
+
+    key = OBSERVERS.get(str(observer))
+    if key is None:
+        raise ValueError(f"observer: expected one of {sorted(OBSERVERS)}, got {observer!r}")
+    m = colour.MSDS_CMFS[key]
+    return np.asarray(m.wavelengths, float), np.asarray(m.values, float).T.copy()
+
+
+@functools.cache
+def _native_vlambda() -> tuple[np.ndarray, np.ndarray]:
+    import colour
+
+    sd = colour.colorimetry.SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"]
+    return np.asarray(sd.wavelengths, float), np.asarray(sd.values, float)
+
+
+_FLUORESCENT = {f"F{i}": f"FL{i}" for i in range(1, 13)}
+
+
+def illuminant_names() -> list[str]:
+    """Names accepted by :func:`illuminant` (besides ``D<cct>`` and ``blackbody<cct>``)."""
+    return ["D65", "D50", "D55", "D75", "A", "E", "equal_energy", "equal_photon", *_FLUORESCENT]
+
+
+@functools.cache
+def _native_illuminant(name: str) -> tuple[np.ndarray, np.ndarray]:
+    import colour
+
+    if name in ("D65", "D50", "D55", "D75", "A"):
+        sd = colour.SDS_ILLUMINANTS[name]
+    elif name in _FLUORESCENT:
+        sd = colour.SDS_ILLUMINANTS[_FLUORESCENT[name]]
+    else:  # pragma: no cover - guarded by illuminant()
+        raise KeyError(name)
+    return np.asarray(sd.wavelengths, float), np.asarray(sd.values, float)
+
+
+def _key(w: torch.Tensor) -> tuple:
+    return tuple(float(x) for x in w.detach().double().cpu().tolist())
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_on_grid(kind: str, arg, grid: tuple, dtype: torch.dtype, device: str) -> torch.Tensor:
+    dst = torch.tensor(grid, dtype=torch.float64)
+    if kind == "cmfs":
+        src, vals = _native_cmfs(arg)
+    elif kind == "vlambda":
+        src, vals = _native_vlambda()
+    elif kind == "illuminant":
+        src, vals = _native_illuminant(arg)
+    else:  # pragma: no cover
+        raise KeyError(kind)
+    out = resample(torch.from_numpy(vals), torch.from_numpy(src), dst, dim=-1)
+    return out.to(dtype=dtype, device=device)
+
+
+def _grid_args(wavelengths_nm, dtype, device):
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
+    device = device or w.device
+    return w, dtype, device
+
+
+def cmfs(wavelengths_nm, observer: str = "1931", *, dtype=None, device=None) -> torch.Tensor:
+    """CIE colour matching functions [3, L] (x-bar, y-bar, z-bar) on the given grid.
+
+    Source: CIE 015:2018 tables as shipped by colour-science (``colour.MSDS_CMFS``); ``observer`` is
+    ``"1931"`` (2 degree) or ``"1964"`` (10 degree). Zero outside 360-830 nm.
+    """
+    if str(observer) not in OBSERVERS:
+        raise ValueError(f"observer: expected one of {sorted(OBSERVERS)}, got {observer!r}")
+    w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
+    return _cached_on_grid("cmfs", str(observer), _key(w), dtype, str(device)).clone()
+
+
+def luminosity(wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
+    """Photopic luminous efficiency V(lambda) [L] (CIE 1924, colour.SDS_LEFS_PHOTOPIC)."""
+    w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
+    return _cached_on_grid("vlambda", None, _key(w), dtype, str(device)).clone()
+
+
+def blackbody(temperature_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
+    """Planck spectral radiance (energy units), normalised to 100 at 560 nm [L].
+
+    Source: Planck's law, ``B = 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)``.
+    """
+    if not (temperature_k > 0 and math.isfinite(temperature_k)):
+        raise ValueError(f"temperature_k: expected a positive temperature in kelvin, got {temperature_k}")
+    w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
+    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
+
+    def planck(lam_nm):
+        lam = lam_nm * 1e-9
+        return 2 * h * c**2 / lam**5 / torch.expm1(h * c / (lam * k * temperature_k))
+
+    ww = w.to(torch.float64)
+    spd = planck(ww) / planck(torch.tensor(560.0, dtype=torch.float64)) * 100.0
+    return spd.to(dtype=dtype, device=device)
+
+
+def daylight(cct_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
+    """CIE D-series daylight at correlated colour temperature ``cct_k`` (4000-25000 K) [L].
+
+    Source: CIE 015:2018 daylight model (``colour.sd_CIE_illuminant_D_series``). The CCT is on the
+    current (ITS-90) scale, so 6504 K gives D65's chromaticity.
+    """
+    if not (4000 <= cct_k <= 25000):
+        raise ValueError(f"cct_k: expected a daylight CCT in [4000, 25000] K, got {cct_k}")
+    w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
+    return _daylight_cached(float(cct_k), _key(w), dtype, str(device)).clone()
+
+
+@functools.lru_cache(maxsize=256)
+def _daylight_cached(cct_k: float, grid: tuple, dtype, device: str) -> torch.Tensor:
+    import colour
+
+    xy = colour.temperature.CCT_to_xy_CIE_D(cct_k)
+    sd = colour.sd_CIE_illuminant_D_series(xy)
+    out = resample(torch.tensor(sd.values, dtype=torch.float64), torch.tensor(sd.wavelengths, dtype=torch.float64),
+                   torch.tensor(grid, dtype=torch.float64))
+    return out.to(dtype=dtype, device=device)
+
+
+def illuminant(name: str, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
+    """Relative spectral power (energy units) of a named illuminant on the given grid [L].
+
+    Names: ``D65``, ``D50``, ``D55``, ``D75``, ``A``, ``F1``..``F12`` (CIE tables via colour-science),
+    ``D<cct>`` (e.g. ``D5000``, CIE daylight at that CCT), ``blackbody<T>`` / ``BB<T>`` (Planck),
+    ``E`` / ``equal_energy`` (flat in energy, 100) and ``equal_photon`` (flat in photons, energy
+    proportional to 1/lambda, 100 at 560 nm).
+    """
+    w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
+    if not isinstance(name, str):
+        raise TypeError(f"name: expected an illuminant name (str), got {type(name).__name__}")
+    key = name.strip()
+    up = key.upper()
+    if up in ("E", "EQUAL_ENERGY", "EE"):
+        return torch.full((w.numel(),), 100.0, dtype=dtype, device=device)
+    if up in ("EQUAL_PHOTON", "EP"):
+        return (560.0 / w.to(torch.float64) * 100.0).to(dtype=dtype, device=device)
+    if up in ("D65", "D50", "D55", "D75", "A") or up in _FLUORESCENT:
+        return _cached_on_grid("illuminant", up, _key(w), dtype, str(device)).clone()
+    if up.startswith("FL") and f"F{up[2:]}" in _FLUORESCENT:
+        return _cached_on_grid("illuminant", f"F{up[2:]}", _key(w), dtype, str(device)).clone()
+    for prefix in ("BLACKBODY", "BB"):
+        if up.startswith(prefix):
+            try:
+                return blackbody(float(key[len(prefix):]), w, dtype=dtype, device=device)
+            except ValueError as err:
+                raise ValueError(f"name: could not read a temperature from {name!r}: {err}") from err
+    if up.startswith("D"):
+        try:
+            cct = float(key[1:])
+        except ValueError:
+            cct = None
+        if cct is not None:
+            return daylight(cct, w, dtype=dtype, device=device)
+    raise ValueError(
+        f"name: unknown illuminant {name!r}; expected one of {illuminant_names()}, 'D<cct>' or 'blackbody<T>'"
+    )
+
+
+def spectral_integral(x: torch.Tensor, weights: torch.Tensor, wavelengths_nm, dim: int = -3) -> torch.Tensor:
+    """``sum_lambda x(lambda) * weights[k](lambda) * dlambda`` -> the spectral axis becomes K channels.
+
+    ``weights`` is [K, L] (or [L], giving K = 1).
+    """
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    dim = dim % x.dim()
+    if x.shape[dim] != w.numel():
+        raise ValueError(f"x: expected {w.numel()} wavelengths along dim {dim}, got {x.shape[dim]}")
+    wts = weights if weights.dim() == 2 else weights.reshape(1, -1)
+    check_rank(wts, 2, "weights", "[K, L]")
+    dl = wavelength_weights(w).to(x.device, x.dtype)
+    m = wts.to(x.device, x.dtype) * dl
+    out = torch.tensordot(x.movedim(dim, -1), m, dims=([-1], [1]))
+    return out.movedim(-1, dim)
+
+
+def luminance(photons: torch.Tensor, wavelengths_nm, dim: int = -3, *, h: float | None = None,
+              c: float | None = None) -> torch.Tensor:
+    """Photometric quantity of a spectral photon image: ``683 * sum E(l) V(l) dl`` with E in W/...
+
+    Radiance in photons/s/sr/m^2/nm gives luminance in cd/m^2; irradiance in photons/s/m^2/nm gives
+    illuminance in lux. The spectral axis ``dim`` becomes size 1. Source: CIE 015:2018, Km = 683 lm/W.
+    """
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    e = photons_to_energy(photons, w, dim, h=h, c=c)
+    v = luminosity(w, dtype=photons.dtype, device=photons.device)
+    return constants.KM_LM_PER_W * spectral_integral(e, v, w, dim)
+
+
+def xyz(photons: torch.Tensor, wavelengths_nm, dim: int = -3, *, observer: str = "1931") -> torch.Tensor:
+    """CIE XYZ (absolute: Y in cd/m^2 for radiance, lux for irradiance) of a photon image.
+
+    ``X = 683 sum E(l) xbar(l) dl`` etc. (CIE 015:2018). The spectral axis becomes 3 channels.
+    """
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    e = photons_to_energy(photons, w, dim)
+    return constants.KM_LM_PER_W * spectral_integral(e, cmfs(w, observer, dtype=photons.dtype,
+                                                             device=photons.device), w, dim)

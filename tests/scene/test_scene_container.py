@@ -1,0 +1,80 @@
+"""The Scene container: validation, geometry, photometry."""
+
+import math
+
+import pytest
+import torch
+
+from isettorch import Scene, spectral
+
+
+def _scene(b=2, l=31, h=6, w=8, **kw):
+    return Scene(torch.rand(b, l, h, w, dtype=torch.float64) * 1e16, spectral.default_wavelengths(
+        dtype=torch.float64)[:l], **kw)
+
+
+def test_geometry():
+    s = _scene(hfov_deg=10.0, distance_m=2.0)
+    width = 2 * 2.0 * math.tan(math.radians(5))
+    assert torch.allclose(s.sample_spacing_m, torch.full((2,), width / 8, dtype=torch.float64))
+    vfov = 2 * math.degrees(math.atan(6 / 8 * math.tan(math.radians(5))))
+    assert s.vfov_deg[0].item() == pytest.approx(vfov, rel=1e-12)
+    c = s.crop(1, 2, 4, 4)
+    assert torch.allclose(c.sample_spacing_m, s.sample_spacing_m)
+    assert c.photons.shape == (2, 31, 4, 4)
+    assert torch.equal(c.photons, s.photons[:, :, 1:5, 2:6])
+
+
+def test_set_mean_luminance_exact():
+    s = _scene().set_mean_luminance(100.0)
+    assert torch.allclose(s.mean_luminance(), torch.full((2,), 100.0, dtype=torch.float64), rtol=1e-5)
+    s32 = _scene().to(dtype=torch.float32).set_mean_luminance(torch.tensor([100.0, 3.0]))
+    assert torch.allclose(s32.mean_luminance(), torch.tensor([100.0, 3.0]), rtol=1e-5)
+
+
+def test_set_mean_luminance_scales_illuminant():
+    w = spectral.default_wavelengths(dtype=torch.float64)
+    ill = spectral.energy_to_photons(spectral.illuminant("D65", w), w, dim=0)
+    s = Scene(0.5 * ill[None, :, None, None].expand(1, -1, 4, 4), w, illuminant_photons=ill)
+    s2 = s.set_mean_luminance(50.0)
+    assert torch.allclose(s2.reflectance(), torch.full_like(s2.photons, 0.5), rtol=1e-9)
+    assert s2.illuminant_luminance().item() == pytest.approx(100.0, rel=1e-9)
+
+
+def test_xyz_y_is_luminance_and_srgb_range():
+    s = _scene()
+    assert torch.allclose(s.xyz()[:, 1:2], s.luminance(), rtol=1e-9)
+    rgb = s.srgb()
+    assert rgb.shape == (2, 3, 6, 8) and rgb.min() >= 0 and rgb.max() <= 1
+
+
+def test_resample_wavelengths_and_to_and_index():
+    s = _scene()
+    r = s.resample_wavelengths(spectral.default_wavelengths(400, 700, 5, dtype=torch.float64))
+    assert r.num_wavelengths == 61
+    assert torch.allclose(r.photons[:, ::2], s.photons)
+    assert s.to(dtype=torch.float32).photons.dtype == torch.float32
+    assert s[1].batch_size == 1 and torch.equal(s[1].photons[0], s.photons[1])
+    both = Scene.cat([s[0], s[1]])
+    assert torch.equal(both.photons, s.photons)
+
+
+@pytest.mark.parametrize("photons,wave,match", [
+    (torch.full((1, 3, 2, 2), float("nan")), torch.tensor([400.0, 500.0, 600.0]), "finite"),
+    (-torch.ones(1, 3, 2, 2), torch.tensor([400.0, 500.0, 600.0]), "non-negative"),
+    (torch.ones(3, 2), torch.tensor([400.0, 500.0, 600.0]), r"\[B, L, H, W\]"),
+    (torch.ones(1, 3, 2, 2), torch.tensor([400.0, 500.0]), "expected 3 wavelengths"),
+    (torch.ones(1, 3, 2, 2), torch.tensor([400.0, 600.0, 500.0]), "strictly increasing"),
+])
+def test_bad_input(photons, wave, match):
+    with pytest.raises(ValueError, match=match):
+        Scene(photons, wave)
+
+
+def test_bad_fov_and_distance():
+    with pytest.raises(ValueError, match="hfov_deg"):
+        _scene(hfov_deg=-1.0)
+    with pytest.raises(ValueError, match="distance_m"):
+        _scene(distance_m=0.0)
+    with pytest.raises(ValueError, match="hfov_deg"):
+        _scene(hfov_deg=[1.0, 2.0, 3.0])

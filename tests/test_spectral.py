@@ -1,0 +1,138 @@
+"""Spectral core against analytic values and colour-science."""
+
+import colour
+import numpy as np
+import pytest
+import torch
+
+from isettorch import constants, spectral
+
+
+def test_683_cd_per_m2_at_555nm():
+    w = torch.tensor([555.0], dtype=torch.float64)
+    photons = spectral.energy_to_photons(torch.ones(1, 1, 1, dtype=torch.float64), w, dim=0)
+    lum = spectral.luminance(photons, w, dim=0)
+    # V(555) = 1 in the CIE 1924 table; 1 W/sr/m^2/nm over the 1 nm bin of a single-wavelength grid.
+    assert abs(lum.item() - 683.0) / 683.0 < 1e-3
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_photon_energy_round_trip(dtype):
+    w = spectral.default_wavelengths(380, 780, 5, dtype=dtype)
+    x = torch.rand(2, w.numel(), 3, 4, dtype=dtype) * 1e17
+    back = spectral.energy_to_photons(spectral.photons_to_energy(x, w, dim=1), w, dim=1)
+    assert torch.allclose(back, x, rtol=1e-6, atol=0)
+
+
+def test_photon_energy_value():
+    w = torch.tensor([500.0], dtype=torch.float64)
+    e = spectral.photons_to_energy(torch.ones(1, dtype=torch.float64), w, dim=0)
+    expected = constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S / 500e-9
+    assert e.item() == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize("step", [1, 5, 10, 20])
+def test_uniform_luminance_independent_of_step(step):
+    # Equal-energy radiance of 1e-3 W/sr/m^2/nm: the luminance is 683 * integral V = 683 * 106.857 * 1e-3.
+    w = spectral.default_wavelengths(380, 780, step, dtype=torch.float64)
+    e = torch.full((w.numel(), 1, 1), 1e-3, dtype=torch.float64)
+    lum = spectral.luminance(spectral.energy_to_photons(e, w, dim=0), w, dim=0).item()
+    v = colour.colorimetry.SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"]
+    reference = 683.0 * 1e-3 * np.trapezoid(v.values, v.wavelengths)
+    assert abs(lum - reference) / reference < 5e-3
+
+
+def test_resample_linear_and_zero_outside():
+    src = torch.tensor([400.0, 500.0, 600.0])
+    vals = torch.tensor([[0.0, 1.0, 3.0]])
+    out = spectral.resample(vals, src, torch.tensor([390.0, 400.0, 450.0, 550.0, 600.0, 601.0]))
+    assert torch.allclose(out, torch.tensor([[0.0, 0.0, 0.5, 2.0, 3.0, 0.0]]))
+
+
+def test_resample_matches_numpy_on_nonuniform_grid():
+    rng = np.random.default_rng(0)
+    src = np.sort(rng.uniform(380, 780, 40))
+    vals = rng.random(40)
+    dst = np.sort(rng.uniform(src[0], src[-1], 57))
+    out = spectral.resample(torch.from_numpy(vals), torch.from_numpy(src), torch.from_numpy(dst)).numpy()
+    assert np.allclose(out, np.interp(dst, src, vals), atol=1e-12)
+
+
+def test_wavelength_weights_nonuniform():
+    w = torch.tensor([400.0, 410.0, 430.0, 460.0])
+    assert torch.allclose(spectral.wavelength_weights(w), torch.tensor([10.0, 15.0, 25.0, 30.0]))
+    assert spectral.wavelength_weights(torch.tensor([550.0])).item() == 1.0
+
+
+def test_luminance_on_nonuniform_grid_matches_fine_grid():
+    fine = spectral.default_wavelengths(400, 700, 1, dtype=torch.float64)
+    # a jittered grid with steps between 2 and 8 nm
+    steps = torch.from_numpy(np.random.default_rng(1).uniform(2, 8, 200))
+    coarse = 400 + torch.cumsum(torch.cat([torch.zeros(1, dtype=torch.float64), steps]), 0)
+    coarse = coarse[coarse <= 700]
+    d65 = spectral.illuminant("blackbody5000", fine)
+    d65_c = spectral.illuminant("blackbody5000", coarse)
+    lf = spectral.luminance(spectral.energy_to_photons(d65, fine, dim=0), fine, dim=0)
+    lc = spectral.luminance(spectral.energy_to_photons(d65_c, coarse, dim=0), coarse, dim=0)
+    assert abs(lc.item() / lf.item() - 1) < 5e-3
+
+
+def test_cmfs_match_colour_science():
+    w = spectral.default_wavelengths(380, 780, 5, dtype=torch.float64)
+    ref = colour.MSDS_CMFS["CIE 1964 10 Degree Standard Observer"].copy().align(
+        colour.SpectralShape(380, 780, 5)).values.T
+    assert np.allclose(spectral.cmfs(w, "1964").numpy(), ref, atol=1e-12)
+
+
+def test_illuminants():
+    w = spectral.default_wavelengths(400, 700, 10, dtype=torch.float64)
+    d65 = spectral.illuminant("D65", w).numpy()
+    assert np.allclose(d65, colour.SDS_ILLUMINANTS["D65"][w.numpy()], rtol=1e-9)
+    # D6504 on the modern scale is D65 (CIE 015:2018 note); the tabulated D65 is rounded, so ~1e-3.
+    assert np.allclose(spectral.illuminant("D6504", w).numpy(), d65, rtol=5e-3)
+    f2 = spectral.illuminant("F2", w).numpy()
+    assert np.allclose(f2, colour.SDS_ILLUMINANTS["FL2"][w.numpy()], rtol=1e-9)
+    # Planck: the peak of a 5000 K blackbody is at 2.897771955e-3 / 5000 m = 579.55 nm (Wien).
+    fine = spectral.default_wavelengths(400, 700, 0.5, dtype=torch.float64)
+    bb = spectral.illuminant("blackbody5000", fine)
+    assert abs(fine[bb.argmax()].item() - 579.55) <= 0.5
+    ep = spectral.energy_to_photons(spectral.illuminant("equal_photon", w), w, dim=0)
+    assert torch.allclose(ep, ep[0].expand_as(ep), rtol=1e-12)
+
+
+def test_daylight_cct_chromaticity():
+    w = spectral.default_wavelengths(360, 830, 5, dtype=torch.float64)
+    for cct in (4000, 5500, 10000):
+        spd = spectral.illuminant(f"D{cct}", w).numpy()
+        sd = colour.SpectralDistribution(dict(zip(w.numpy(), spd)))
+        xy = colour.XYZ_to_xy(colour.sd_to_XYZ(sd))
+        got = colour.temperature.xy_to_CCT(xy, method="CIE Illuminant D Series")
+        assert abs(got - cct) / cct < 0.01
+
+
+@pytest.mark.parametrize("bad,match", [
+    ("D65x", "unknown illuminant"),
+    ("D1000", "cct_k"),
+    ("blackbody-5", "temperature"),
+])
+def test_bad_illuminant_names(bad, match):
+    with pytest.raises(ValueError, match=match):
+        spectral.illuminant(bad, spectral.default_wavelengths())
+
+
+def test_bad_grids():
+    with pytest.raises(ValueError, match="strictly increasing"):
+        spectral.resample(torch.ones(3), torch.tensor([400.0, 500.0, 450.0]), torch.tensor([420.0]))
+    with pytest.raises(ValueError, match="src_nm"):
+        spectral.resample(torch.ones(3), torch.tensor([400.0, 500.0]), torch.tensor([420.0]))
+    with pytest.raises(ValueError, match="finite"):
+        spectral.wavelength_weights(torch.tensor([400.0, float("nan")]))
+    with pytest.raises(ValueError, match="observer"):
+        spectral.cmfs(spectral.default_wavelengths(), "1950")
+
+
+def test_resample_is_differentiable():
+    src = torch.tensor([400.0, 500.0, 600.0], dtype=torch.float64)
+    vals = torch.rand(3, dtype=torch.float64, requires_grad=True)
+    dst = torch.tensor([420.0, 590.0], dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda v: spectral.resample(v, src, dst), (vals,))
