@@ -1,0 +1,185 @@
+"""CIELAB, chromaticity and colour differences against colour-science and the Sharma et al. (2005) table."""
+
+import colour
+import numpy as np
+import pytest
+import torch
+
+from isettorch.metrics import (
+    color_accuracy,
+    delta_e,
+    lab_to_xyz,
+    macbeth_reference_xyz,
+    srgb_to_xyz,
+    xyz_to_lab,
+    xyz_to_srgb,
+    xyz_to_uv,
+    xyz_to_xy,
+)
+
+# Sharma, Wu and Dalal, "The CIEDE2000 color-difference formula: implementation notes, supplementary test data,
+# and mathematical observations", Color Res. Appl. 30(1), 2005, table 1 (all 34 pairs; the same values as
+# colour-science's test_delta_E_CIE2000_Sharma2004, which skips pair 14 for a platform-dependent atan2).
+SHARMA_LAB1 = [
+    [50.0000, 2.6772, -79.7751], [50.0000, 3.1571, -77.2803], [50.0000, 2.8361, -74.0200],
+    [50.0000, -1.3802, -84.2814], [50.0000, -1.1848, -84.8006], [50.0000, -0.9009, -85.5211],
+    [50.0000, 0.0000, 0.0000], [50.0000, -1.0000, 2.0000], [50.0000, 2.4900, -0.0010],
+    [50.0000, 2.4900, -0.0010], [50.0000, 2.4900, -0.0010], [50.0000, 2.4900, -0.0010],
+    [50.0000, -0.0010, 2.4900], [50.0000, -0.0010, 2.4900], [50.0000, -0.0010, 2.4900],
+    [50.0000, 2.5000, 0.0000], [50.0000, 2.5000, 0.0000], [50.0000, 2.5000, 0.0000],
+    [50.0000, 2.5000, 0.0000], [50.0000, 2.5000, 0.0000], [50.0000, 2.5000, 0.0000],
+    [50.0000, 2.5000, 0.0000], [50.0000, 2.5000, 0.0000], [50.0000, 2.5000, 0.0000],
+    [60.2574, -34.0099, 36.2677], [63.0109, -31.0961, -5.8663], [61.2901, 3.7196, -5.3901],
+    [35.0831, -44.1164, 3.7933], [22.7233, 20.0904, -46.6940], [36.4612, 47.8580, 18.3852],
+    [90.8027, -2.0831, 1.4410], [90.9257, -0.5406, -0.9208], [6.7747, -0.2908, -2.4247],
+    [2.0776, 0.0795, -1.1350],
+]
+SHARMA_LAB2 = [
+    [50.0000, 0.0000, -82.7485], [50.0000, 0.0000, -82.7485], [50.0000, 0.0000, -82.7485],
+    [50.0000, 0.0000, -82.7485], [50.0000, 0.0000, -82.7485], [50.0000, 0.0000, -82.7485],
+    [50.0000, -1.0000, 2.0000], [50.0000, 0.0000, 0.0000], [50.0000, -2.4900, 0.0009],
+    [50.0000, -2.4900, 0.0010], [50.0000, -2.4900, 0.0011], [50.0000, -2.4900, 0.0012],
+    [50.0000, 0.0009, -2.4900], [50.0000, 0.0010, -2.4900], [50.0000, 0.0011, -2.4900],
+    [50.0000, 0.0000, -2.5000], [73.0000, 25.0000, -18.0000], [61.0000, -5.0000, 29.0000],
+    [56.0000, -27.0000, -3.0000], [58.0000, 24.0000, 15.0000], [50.0000, 3.1736, 0.5854],
+    [50.0000, 3.2972, 0.0000], [50.0000, 1.8634, 0.5757], [50.0000, 3.2592, 0.3350],
+    [60.4626, -34.1751, 39.4387], [62.8187, -29.7946, -4.0864], [61.4292, 2.2480, -4.9620],
+    [35.0232, -40.0716, 1.5901], [23.0331, 14.9730, -42.5619], [36.2715, 50.5065, 21.2231],
+    [91.1528, -1.6435, 0.0447], [88.6381, -0.8985, -0.7239], [5.8714, -0.0985, -2.2286],
+    [0.9033, -0.0636, -0.5514],
+]
+SHARMA_DE2000 = [
+    2.0425, 2.8615, 3.4412, 1.0000, 1.0000, 1.0000, 2.3669, 2.3669, 7.1792, 7.1792, 7.2195, 7.2195, 4.8045, 4.8045,
+    4.7461, 4.3065, 27.1492, 22.8977, 31.9030, 19.4535, 1.0000, 1.0000, 1.0000, 1.0000, 1.2644, 1.2630, 1.8731,
+    1.8645, 2.0373, 1.4146, 1.4441, 1.5381, 0.6377, 0.9082,
+]
+
+D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+
+
+def _rng_xyz(n, seed=0):
+    g = np.random.default_rng(seed)
+    x = g.uniform(0.0, 1.1, (n, 3))
+    x[: n // 4] *= 0.005  # the linear segment of the CIELAB function
+    return x
+
+
+def test_ciede2000_sharma_table():
+    lab1 = torch.tensor(SHARMA_LAB1, dtype=torch.float64)
+    lab2 = torch.tensor(SHARMA_LAB2, dtype=torch.float64)
+    assert len(SHARMA_DE2000) == 34
+    de = delta_e(lab1, lab2, "2000", dim=-1)
+    np.testing.assert_allclose(de.numpy(), SHARMA_DE2000, atol=1e-4, rtol=0)
+    np.testing.assert_allclose(delta_e(lab2, lab1, "2000", dim=-1).numpy(), SHARMA_DE2000, atol=1e-4, rtol=0)
+    # float32, image layout (B, 3, H, W)
+    img1 = lab1.float().T.reshape(1, 3, 2, 17)
+    img2 = lab2.float().T.reshape(1, 3, 2, 17)
+    de32 = delta_e(img1, img2).reshape(-1)
+    np.testing.assert_allclose(de32.numpy(), SHARMA_DE2000, atol=2e-3, rtol=0)
+
+
+@pytest.mark.parametrize("white_name", ["D65", "D50", "A"])
+def test_lab_against_colour(white_name):
+    white_xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"][white_name]
+    white = colour.xy_to_XYZ(white_xy)
+    xyz = _rng_xyz(400)
+    ref = colour.XYZ_to_Lab(xyz, white_xy)
+    lab = xyz_to_lab(torch.tensor(xyz), torch.tensor(white), dim=-1)
+    np.testing.assert_allclose(lab.numpy(), ref, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(xyz_to_lab(torch.tensor(xyz), white_name, dim=-1).numpy(), ref, atol=1e-6, rtol=0)
+    back = lab_to_xyz(torch.tensor(ref), torch.tensor(white), dim=-1)
+    np.testing.assert_allclose(back.numpy(), colour.Lab_to_XYZ(ref, white_xy), atol=1e-9, rtol=0)
+    np.testing.assert_allclose(back.numpy(), xyz, atol=1e-9, rtol=0)
+
+
+def test_lab_image_layout_per_sample_white():
+    xyz = _rng_xyz(2 * 4 * 5, seed=1)
+    img = torch.tensor(xyz).reshape(2, 4, 5, 3).permute(0, 3, 1, 2)  # (B, 3, H, W)
+    whites_xy = [D65, colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["A"]]
+    whites = torch.tensor(np.array([colour.xy_to_XYZ(w) for w in whites_xy]))
+    lab = xyz_to_lab(img, whites)
+    assert lab.shape == (2, 3, 4, 5)
+    for b in range(2):
+        ref = colour.XYZ_to_Lab(img[b].permute(1, 2, 0).numpy(), whites_xy[b])
+        np.testing.assert_allclose(lab[b].permute(1, 2, 0).numpy(), ref, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("method,ref_fn", [
+    ("76", lambda a, b: colour.difference.delta_E_CIE1976(a, b)),
+    ("94", lambda a, b: colour.difference.delta_E_CIE1994(a, b)),
+    ("2000", lambda a, b: colour.difference.delta_E_CIE2000(a, b)),
+])
+def test_delta_e_against_colour(method, ref_fn):
+    g = np.random.default_rng(2)
+    lab1 = np.c_[g.uniform(0, 100, 500), g.uniform(-100, 100, (500, 2))]
+    lab2 = lab1 + g.normal(0, 8, (500, 3))
+    de = delta_e(torch.tensor(lab1), torch.tensor(lab2), method, dim=-1)
+    np.testing.assert_allclose(de.numpy(), ref_fn(lab1, lab2), atol=1e-6, rtol=0)
+
+
+def test_delta_e_94_textiles_against_colour():
+    from isettorch.metrics import delta_e_94
+
+    g = np.random.default_rng(3)
+    lab1 = np.c_[g.uniform(0, 100, 200), g.uniform(-80, 80, (200, 2))]
+    lab2 = lab1 + g.normal(0, 5, (200, 3))
+    de = delta_e_94(torch.tensor(lab1), torch.tensor(lab2), dim=-1, textiles=True)
+    np.testing.assert_allclose(de.numpy(), colour.difference.delta_E_CIE1994(lab1, lab2, textiles=True), atol=1e-6)
+
+
+def test_chromaticity_against_colour():
+    xyz = _rng_xyz(300, seed=4) + 1e-3
+    xy = xyz_to_xy(torch.tensor(xyz), dim=-1)
+    np.testing.assert_allclose(xy.numpy(), colour.XYZ_to_xy(xyz), atol=1e-12)
+    uv = xyz_to_uv(torch.tensor(xyz), dim=-1)
+    ref = colour.Luv_to_uv(colour.XYZ_to_Luv(xyz, D65), D65)
+    np.testing.assert_allclose(uv.numpy(), ref, atol=1e-9)
+
+
+def test_srgb_kornia_against_colour():
+    rgb = np.random.default_rng(5).uniform(0, 1, (100, 3))
+    xyz = srgb_to_xyz(torch.tensor(rgb), dim=-1)
+    np.testing.assert_allclose(xyz.numpy(), colour.sRGB_to_XYZ(rgb), atol=5e-4)  # kornia: 6-decimal matrix
+    np.testing.assert_allclose(xyz_to_srgb(xyz, dim=-1).numpy(), rgb, atol=1e-6)
+
+
+def test_gradients_finite_and_gradcheck():
+    g = torch.Generator().manual_seed(0)
+    lab1 = (torch.rand(6, 3, generator=g, dtype=torch.float64) * torch.tensor([100.0, 60, 60]) - torch.tensor(
+        [0, 30.0, 30])).requires_grad_()
+    lab2 = (lab1.detach() + torch.randn(6, 3, generator=g, dtype=torch.float64)).requires_grad_()
+    for m in ("76", "94", "2000"):
+        assert torch.autograd.gradcheck(lambda a, b, m=m: delta_e(a, b, m, dim=-1), (lab1, lab2))
+    # identical and neutral colours: no NaN gradients (sqrt(0), atan2(0, 0))
+    neutral = torch.tensor([[50.0, 0.0, 0.0], [20.0, 1.0, -2.0], [0.0, 0.0, 0.0]], dtype=torch.float64,
+                           requires_grad=True)
+    other = torch.tensor([[50.0, 0.0, 0.0], [20.0, 1.0, -2.0], [10.0, 0.0, 0.0]], dtype=torch.float64,
+                         requires_grad=True)
+    for m in ("76", "94", "2000"):
+        d = delta_e(neutral, other, m, dim=-1).sum()
+        ga, gb = torch.autograd.grad(d, (neutral, other))
+        assert torch.isfinite(ga).all() and torch.isfinite(gb).all(), m
+    xyz = torch.tensor([[0.0, 0.0, 0.0], [0.2, 0.3, 0.1]], dtype=torch.float64, requires_grad=True)
+    (gx,) = torch.autograd.grad(xyz_to_lab(xyz, "D65", dim=-1).sum() + xyz_to_uv(xyz, dim=-1).sum(), (xyz,))
+    assert torch.isfinite(gx).all()
+
+
+def test_color_accuracy_report():
+    ref, names = macbeth_reference_xyz()
+    assert ref.shape == (24, 3) and len(names) == 24
+    g = torch.Generator().manual_seed(1)
+    rendered = ref * (1 + 0.05 * torch.randn(2, 24, 3, generator=g, dtype=torch.float64))
+    acc = color_accuracy(rendered, ref, white="D50")
+    d50 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D50"]
+    expect = colour.difference.delta_E_CIE2000(colour.XYZ_to_Lab(ref.numpy(), d50),
+                                               colour.XYZ_to_Lab(rendered.numpy(), d50))
+    np.testing.assert_allclose(acc.delta_e.numpy(), expect, atol=1e-6)
+    np.testing.assert_allclose(acc.mean.numpy(), expect.mean(-1), atol=1e-6)
+    np.testing.assert_allclose(acc.max.numpy(), expect.max(-1), atol=1e-6)
+    assert "mean" in acc.report()
+    same = color_accuracy(ref, ref, white="D50", method="76")
+    assert same.max.item() == 0.0
+    with pytest.raises(ValueError, match="method"):
+        color_accuracy(ref, ref, method="1999")
+    with pytest.raises(ValueError, match="xyz"):
+        xyz_to_lab(torch.rand(4, 2), dim=-1)
