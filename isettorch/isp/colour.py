@@ -1,0 +1,612 @@
+"""Colour stages of the image processor: illuminant correction, sensor -> XYZ, XYZ -> display, encoding.
+
+Conventions
+-----------
+* Images are ``[B, C, H, W]``; colour matrices are **left-multiplying** ``[K, C]`` (``out = M @ pixel``),
+  optionally batched ``[B, K, C]``. ISETCam stores the transposed, right-multiplying matrix
+  (``imageLinearTransform(img, T)``, ``T = M.T``).
+* Spectral data follow :mod:`isettorch.spectral`: illuminants are energy SPDs ``[L]`` (W/...), sensor QE
+  is per photon ``[C, L]``, so sensor responses are ``sum QE * photons * R * dl`` and XYZ is
+  ``683 sum cmf * energy * R * dl`` (CIE 015:2018). A sensor whose QE is a linear combination of the
+  *photon* colour matching functions ``cmf(l) * h c / l`` (ISETCam's ``XYZQuanta``) is colorimetric.
+* Every matrix a stage uses is kept as a buffer or attribute so it can be inspected and replaced.
+
+References: ISETCam ``imageSensorTransform``, ``ieColorTransform``, ``imageIlluminantCorrection``,
+``ieInternal2Display``, ``displayRender``; IEC 61966-2-1:1999 (sRGB).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import torch
+from torch import nn
+
+from .. import spectral
+from .._checks import as_tensor, check_finite, check_rank, check_wavelengths
+from ..image import XYZ_TO_LINEAR_SRGB
+from ..image import srgb_encode as _srgb_encode
+
+__all__ = [
+    "apply_matrix",
+    "apply_gains",
+    "fit_colour_matrix",
+    "reflectance_set",
+    "sensor_responses",
+    "xyz_responses",
+    "sensor_to_xyz_matrix",
+    "white_xyz",
+    "gray_world_gains",
+    "white_world_gains",
+    "illuminant_gains",
+    "ILLUMINANT_CORRECTION_METHODS",
+    "display_rgb_to_xyz_matrix",
+    "xyz_to_display_matrix",
+    "srgb_encode",
+    "srgb_decode",
+    "IlluminantCorrection",
+    "SensorToXYZ",
+    "XYZToDisplay",
+    "DisplayEncode",
+]
+
+
+# ---------------------------------------------------------------------------------------------
+# Linear algebra on images
+
+
+def _check_image(img: torch.Tensor, name: str = "img") -> None:
+    if not isinstance(img, torch.Tensor):
+        raise TypeError(f"{name}: expected a torch.Tensor (B, C, H, W), got {type(img).__name__}")
+    check_rank(img, 4, name, "(B, C, H, W)")
+
+
+def apply_matrix(img: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
+    """Apply a colour matrix to every pixel: ``out[b, k] = sum_c M[k, c] img[b, c]``.
+
+    Args:
+        img: (B, C, H, W).
+        matrix: (K, C) or (B, K, C), left-multiplying (ISETCam's ``T`` is ``matrix.T``).
+
+    Returns:
+        (B, K, H, W).
+
+    Example:
+        >>> apply_matrix(torch.ones(1, 3, 2, 2), torch.eye(3)).shape
+        torch.Size([1, 3, 2, 2])
+    """
+    _check_image(img)
+    m = matrix.to(img.dtype)
+    if m.dim() not in (2, 3) or m.shape[-1] != img.shape[1]:
+        raise ValueError(f"matrix: expected shape (K, {img.shape[1]}) or (B, K, {img.shape[1]}) for an image with "
+                         f"{img.shape[1]} channels, got {tuple(m.shape)}")
+    if m.dim() == 2:
+        return torch.einsum("kc,bchw->bkhw", m, img)
+    if m.shape[0] not in (1, img.shape[0]):
+        raise ValueError(f"matrix: expected a batch of 1 or {img.shape[0]} matrices, got {m.shape[0]}")
+    return torch.einsum("bkc,bchw->bkhw", m.expand(img.shape[0], -1, -1), img)
+
+
+def apply_gains(img: torch.Tensor, gains: torch.Tensor) -> torch.Tensor:
+    """Per-channel gains (a diagonal matrix): (B, C, H, W) * gains (C,) or (B, C)."""
+    _check_image(img)
+    g = gains.to(img.dtype)
+    if g.dim() == 1:
+        g = g.unsqueeze(0)
+    if g.dim() != 2 or g.shape[-1] != img.shape[1] or g.shape[0] not in (1, img.shape[0]):
+        raise ValueError(f"gains: expected shape ({img.shape[1]},) or ({img.shape[0]}, {img.shape[1]}), "
+                         f"got {tuple(gains.shape)}")
+    return img * g[:, :, None, None]
+
+
+def fit_colour_matrix(source: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Least-squares colour matrix ``M`` (K, C) minimising ``||source @ M.T - target||_F``.
+
+    Args:
+        source: (N, C) responses of N samples (e.g. sensor RGB of the Macbeth patches).
+        target: (N, K) the desired values (e.g. their XYZ).
+
+    Returns:
+        (K, C), solved in float64 (``torch.linalg.lstsq``), returned in ``source``'s dtype.
+        Differentiable for full-rank ``source``.
+
+    Reference: ISETCam ``imageSensorTransform`` (``T = sensorResponse \\ targetResponse``).
+
+    Example:
+        >>> s = torch.rand(24, 3, dtype=torch.float64); m = torch.rand(3, 3, dtype=torch.float64)
+        >>> torch.allclose(fit_colour_matrix(s, s @ m.T), m)
+        True
+    """
+    check_rank(source, 2, "source", "(N, C)")
+    check_rank(target, 2, "target", "(N, K)")
+    if source.shape[0] != target.shape[0]:
+        raise ValueError(f"target: expected {source.shape[0]} rows to match source, got {target.shape[0]}")
+    if source.shape[0] < source.shape[1]:
+        raise ValueError(f"source: expected at least as many samples as channels, got shape {tuple(source.shape)}")
+    check_finite(source.detach(), "source")
+    check_finite(target.detach(), "target")
+    dtype = source.dtype if source.is_floating_point() else torch.get_default_dtype()
+    a = source.to(torch.float64)
+    b = target.to(device=a.device, dtype=torch.float64)
+    # Scale columns so the fit is well conditioned whatever the units (photons vs cd/m^2).
+    col = a.abs().amax(dim=0).clamp_min(torch.finfo(torch.float64).tiny)
+    sol = torch.linalg.lstsq(a / col, b, driver="gelsd" if a.device.type == "cpu" else None).solution
+    return (sol / col[:, None]).T.to(dtype)
+
+
+# ---------------------------------------------------------------------------------------------
+# Spectral responses of reflectance sets
+
+
+@functools.cache
+def _colour_checker_native() -> tuple:
+    import colour
+    import numpy as np
+
+    checker = colour.SDS_COLOURCHECKERS["BabelColor Average"]
+    sds = list(checker.values())
+    return np.asarray(sds[0].wavelengths, float), np.stack([np.asarray(sd.values, float) for sd in sds])
+
+
+@functools.cache
+def _rawtoaces_native() -> tuple:
+    import numpy as np
+    from colour.characterisation import read_training_data_rawtoaces_v1
+
+    msds = read_training_data_rawtoaces_v1()
+    return np.asarray(msds.wavelengths, float), np.asarray(msds.values, float).T.copy()
+
+
+def _macbeth_reflectances(w: torch.Tensor) -> torch.Tensor:
+    """The scene package's Macbeth reflectances when present (so fit and chart agree), else BabelColor."""
+    try:
+        from ..scene import macbeth_reflectances  # provided by the scene generators
+    except ImportError:
+        macbeth_reflectances = None
+    if macbeth_reflectances is not None:
+        r = torch.as_tensor(macbeth_reflectances(w))
+        if r.dim() == 2 and r.shape[-1] == w.numel():
+            return r.to(torch.float64).reshape(-1, w.numel())
+    src, vals = _colour_checker_native()
+    return spectral.resample(torch.from_numpy(vals), torch.from_numpy(src), w.to(torch.float64).cpu())
+
+
+REFLECTANCE_SETS = ("macbeth", "rawtoaces190", "macbeth+rawtoaces190")
+
+
+def reflectance_set(name: str, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
+    """Surface reflectances (N, L) on a grid: ``"macbeth"`` (24 ColorChecker patches, the scene package's
+    chart, else colour-science's BabelColor average), ``"rawtoaces190"`` (the 190 training reflectances of
+    the Academy's rawtoaces IDT, via colour-science) or ``"macbeth+rawtoaces190"``.
+
+    Reference: ISETCam ``imageSensorTransform`` surfaces ``'mcc'`` / ``'multisurface'``.
+    """
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
+    key = str(name).lower()
+    if key in ("macbeth", "mcc"):
+        r = _macbeth_reflectances(w)
+    elif key in ("rawtoaces190", "multisurface"):
+        src, vals = _rawtoaces_native()
+        r = spectral.resample(torch.from_numpy(vals), torch.from_numpy(src), w.to(torch.float64).cpu())
+    elif key == "macbeth+rawtoaces190":
+        r = torch.cat([reflectance_set("macbeth", w, dtype=torch.float64).cpu(),
+                       reflectance_set("rawtoaces190", w, dtype=torch.float64).cpu()])
+    else:
+        raise ValueError(f"name: unknown reflectance set {name!r}; expected one of {list(REFLECTANCE_SETS)}")
+    return r.to(dtype=dtype, device=device or w.device)
+
+
+def _illuminant_energy(illuminant, w: torch.Tensor) -> torch.Tensor:
+    if isinstance(illuminant, str):
+        return spectral.illuminant(illuminant, w, dtype=torch.float64)
+    t = as_tensor(illuminant, "illuminant", dtype=torch.float64).reshape(-1)
+    if t.numel() != w.numel():
+        raise ValueError(f"illuminant: expected an energy SPD with {w.numel()} samples (one per wavelength), "
+                         f"got {t.numel()}")
+    check_finite(t, "illuminant")
+    return t.to(w.device)
+
+
+def sensor_responses(qe: torch.Tensor, wavelengths_nm, illuminant="D65", reflectances=None) -> torch.Tensor:
+    """Sensor responses (N, C) of surfaces under an illuminant: ``sum_l R(l) P(l) QE_c(l) dl``.
+
+    ``P`` is the illuminant in photons (from its energy SPD); units are relative (ISETCam
+    ``imageSensorTransform``: ``sensorQE' * diag(illQuanta) * surRef``). ``reflectances`` is (N, L)
+    or a set name (default ``"macbeth"``).
+    """
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm)).to(torch.float64)
+    check_rank(qe, 2, "qe", "(C, L)")
+    if qe.shape[-1] != w.numel():
+        raise ValueError(f"qe: expected {w.numel()} wavelengths (last dim), got shape {tuple(qe.shape)}")
+    refl = reflectance_set(reflectances or "macbeth", w) if reflectances is None or isinstance(reflectances, str) \
+        else as_tensor(reflectances, "reflectances")
+    e = _illuminant_energy(illuminant, w.to(qe.device))
+    p = spectral.energy_to_photons(e, w.to(qe.device), dim=0)
+    dl = spectral.wavelength_weights(w).to(qe.device)
+    return (refl.to(qe.device, torch.float64) * (p * dl)) @ qe.to(torch.float64).T
+
+
+def xyz_responses(wavelengths_nm, illuminant="D65", reflectances=None, observer: str = "1931") -> torch.Tensor:
+    """CIE XYZ (N, 3) of surfaces under an illuminant, ``683 sum R E cmf dl`` (CIE 015:2018)."""
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm)).to(torch.float64)
+    refl = reflectance_set(reflectances or "macbeth", w) if reflectances is None or isinstance(reflectances, str) \
+        else as_tensor(reflectances, "reflectances")
+    e = _illuminant_energy(illuminant, w)
+    cmf = spectral.cmfs(w, observer, dtype=torch.float64)
+    dl = spectral.wavelength_weights(w)
+    return 683.0 * (refl.to(torch.float64).cpu() * (e.cpu() * dl)) @ cmf.T
+
+
+def sensor_to_xyz_matrix(qe: torch.Tensor, wavelengths_nm, illuminant="D65", surfaces="macbeth",
+                         observer: str = "1931") -> torch.Tensor:
+    """Sensor -> XYZ matrix (3, C) fitted by least squares on surfaces under an illuminant.
+
+    With ``surfaces="macbeth"`` and ``illuminant="D65"`` this is ISETCam's ``'MCC optimized'``
+    conversion (``ieColorTransform(sensor, 'XYZ', 'D65', 'mcc')``). The matrix maps the sensor's
+    response (in QE x photon units, any common scale) to XYZ in the same scale.
+
+    Args:
+        qe: (C, L) spectral quantum efficiency on ``wavelengths_nm``.
+        illuminant: a name for :func:`isettorch.spectral.illuminant` or an energy SPD (L,).
+        surfaces: a :func:`reflectance_set` name or reflectances (N, L).
+
+    Example:
+        >>> w = torch.arange(400., 701., 10.)
+        >>> q = spectral.cmfs(w) * 1e-3 / w  # photon CMFs: a colorimetric sensor
+        >>> m = sensor_to_xyz_matrix(q, w); m.shape
+        torch.Size([3, 3])
+    """
+    src = sensor_responses(qe, wavelengths_nm, illuminant, surfaces)
+    tgt = xyz_responses(wavelengths_nm, illuminant, surfaces, observer).to(src.device)
+    return fit_colour_matrix(src, tgt).to(qe.dtype if qe.is_floating_point() else torch.get_default_dtype())
+
+
+def white_xyz(illuminant="D65", wavelengths_nm=None, observer: str = "1931") -> torch.Tensor:
+    """XYZ (3,) of a perfect white under an illuminant, normalised to Y = 1."""
+    w = spectral.default_wavelengths(380.0, 780.0, 5.0, dtype=torch.float64) if wavelengths_nm is None \
+        else check_wavelengths(torch.as_tensor(wavelengths_nm)).to(torch.float64)
+    xyz = xyz_responses(w, illuminant, torch.ones(1, w.numel(), dtype=torch.float64), observer)[0]
+    return xyz / xyz[1]
+
+
+# ---------------------------------------------------------------------------------------------
+# Illuminant correction (white balance)
+
+
+def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channel: int, name: str) -> torch.Tensor:
+    # ISETCam grayWorld/whiteWorld: D_c = (white_c / white_ref) * (avg_ref / avg_c).
+    if (means.detach() <= 0).any():
+        raise ValueError(f"{name}: every channel needs a positive mean to be balanced, got channel means "
+                         f"{means.detach().tolist()}")
+    wt = white.to(means.dtype).to(means.device)
+    if wt.dim() == 1:
+        wt = wt.unsqueeze(0)
+    if wt.shape[-1] != means.shape[-1]:
+        raise ValueError(f"white: expected {means.shape[-1]} channel values, got shape {tuple(white.shape)}")
+    if (wt.detach() <= 0).any():
+        raise ValueError(f"white: expected positive channel values of the target white, got {wt.tolist()}")
+    r = reference_channel
+    return (wt / wt[:, r:r + 1]) * (means[:, r:r + 1] / means)
+
+
+def _default_white(img: torch.Tensor, white) -> torch.Tensor:
+    if white is None:
+        return torch.ones(img.shape[1], dtype=img.dtype, device=img.device)
+    return as_tensor(white, "white", dtype=img.dtype, device=img.device)
+
+
+def gray_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0) -> torch.Tensor:
+    """Gray-world gains (B, C): after them every channel mean is proportional to ``white``.
+
+    Args:
+        img: (B, C, H, W), linear.
+        white: (C,) or (B, C) channel values of the target white in the image's space (default all ones,
+            ISETCam's assumption in sensor space; in XYZ use :func:`white_xyz`).
+        reference_channel: the channel whose gain is 1 (ISETCam keeps the first).
+
+    Reference: Buchsbaum, J. Franklin Inst. 310 (1980); ISETCam ``imageIlluminantCorrection`` (grayWorld).
+    """
+    _check_image(img)
+    return _gains_from_means(img.mean(dim=(-2, -1)), _default_white(img, white), reference_channel, "img")
+
+
+def white_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0,
+                      criterion: float = 0.7) -> torch.Tensor:
+    """White-world gains (B, C): the mean of the bright pixels (those where the channel with the
+    highest maximum is >= ``criterion`` x its maximum) is mapped to ``white``.
+
+    Reference: ISETCam ``imageIlluminantCorrection`` (whiteWorld, criterion 0.7).
+    """
+    _check_image(img)
+    if not 0 < criterion <= 1:
+        raise ValueError(f"criterion: expected a fraction in (0, 1], got {criterion}")
+    flat = img.flatten(2)  # B, C, N
+    peak = flat.detach().amax(dim=2)  # B, C
+    plane = peak.argmax(dim=1)  # B
+    bright_plane = flat.detach()[torch.arange(img.shape[0], device=img.device), plane]  # B, N
+    mask = (bright_plane >= criterion * peak.amax(dim=1, keepdim=True)).to(img.dtype)  # B, N
+    means = (flat * mask[:, None]).sum(2) / mask.sum(1, keepdim=True).clamp_min(1)
+    return _gains_from_means(means, _default_white(img, white), reference_channel, "img")
+
+
+ILLUMINANT_CORRECTION_METHODS = ("none", "gray_world", "white_world", "manual")
+
+
+def illuminant_gains(img: torch.Tensor, method: str = "gray_world", white=None, gains=None,
+                     reference_channel: int = 0, criterion: float = 0.7) -> torch.Tensor:
+    """Gains (B, C) for an illuminant-correction ``method`` in ``ILLUMINANT_CORRECTION_METHODS``."""
+    _check_image(img)
+    key = str(method).lower().replace(" ", "_").replace("-", "_")
+    if key == "none":
+        return torch.ones(img.shape[0], img.shape[1], dtype=img.dtype, device=img.device)
+    if key in ("gray_world", "grey_world"):
+        return gray_world_gains(img, white, reference_channel)
+    if key == "white_world":
+        return white_world_gains(img, white, reference_channel, criterion)
+    if key == "manual":
+        if gains is None:
+            raise ValueError("gains: method 'manual' needs gains (C,) or (B, C), got None")
+        g = as_tensor(gains, "gains", dtype=img.dtype, device=img.device)
+        g = g.unsqueeze(0) if g.dim() == 1 else g
+        if g.dim() != 2 or g.shape[-1] != img.shape[1]:
+            raise ValueError(f"gains: expected ({img.shape[1]},) or (B, {img.shape[1]}), got {tuple(g.shape)}")
+        return g.expand(img.shape[0], -1)
+    raise ValueError(f"method: unknown illuminant correction {method!r}; expected one of "
+                     f"{list(ILLUMINANT_CORRECTION_METHODS)}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Display
+
+
+def display_rgb_to_xyz_matrix(primaries_energy: torch.Tensor, wavelengths_nm, observer: str = "1931") -> torch.Tensor:
+    """XYZ of a display's primaries at full drive, as the columns of a (3, 3) matrix.
+
+    ``primaries_energy`` is (3, L) (or (L, 3)) spectral radiance in W/sr/m^2/nm, so the matrix is in
+    cd/m^2 and its row sums are the white point; ``683 sum spd cmf dl`` (CIE 015:2018; ISETCam
+    ``displayGet(d, 'rgb2xyz')`` transposed).
+    """
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    spd = as_tensor(primaries_energy, "primaries_energy")
+    check_rank(spd, 2, "primaries_energy", "(3, L)")
+    if spd.shape[0] != 3 and spd.shape[1] == 3:
+        spd = spd.T
+    if spd.shape != (3, w.numel()):
+        raise ValueError(f"primaries_energy: expected shape (3, {w.numel()}), got {tuple(spd.shape)}")
+    check_finite(spd, "primaries_energy")
+    cmf = spectral.cmfs(w, observer, dtype=torch.float64, device=spd.device)
+    dl = spectral.wavelength_weights(w).to(spd.device, torch.float64)
+    return 683.0 * (cmf * dl) @ spd.to(torch.float64).T
+
+
+def xyz_to_display_matrix(rgb_to_xyz: torch.Tensor, relative: bool = True) -> torch.Tensor:
+    """Inverse of a display's RGB -> XYZ matrix (3, 3). With ``relative`` the display white has Y = 1,
+    so XYZ scaled to a white of Y = 1 maps that white to RGB (1, 1, 1) (ISETCam ``ieInternal2Display``)."""
+    m = as_tensor(rgb_to_xyz, "rgb_to_xyz").to(torch.float64)
+    if m.shape != (3, 3):
+        raise ValueError(f"rgb_to_xyz: expected a (3, 3) matrix, got {tuple(m.shape)}")
+    if relative:
+        m = m / m[1].sum()
+    return torch.linalg.inv(m)
+
+
+def srgb_encode(linear: torch.Tensor, clip: bool = True) -> torch.Tensor:
+    """IEC 61966-2-1 sRGB encoding of linear values; clipped to [0, 1] first when ``clip``."""
+    return _srgb_encode(linear.clamp(0, 1) if clip else linear.clamp_min(0))
+
+
+def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
+    """IEC 61966-2-1 sRGB decoding (encoded -> linear)."""
+    return torch.where(encoded <= 0.04045, encoded / 12.92,
+                       ((encoded.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
+
+
+# ---------------------------------------------------------------------------------------------
+# Thin modules
+
+
+class IlluminantCorrection(nn.Module):
+    """Illuminant correction (white balance) by per-channel gains, in sensor space or in XYZ.
+
+    Args:
+        method: ``"none"``, ``"gray_world"``, ``"white_world"`` or ``"manual"``.
+        space: ``"xyz"`` (after the sensor -> XYZ matrix, ISETCam's default place) or ``"sensor"``.
+        gains: manual gains (C,) when ``method="manual"``.
+        reference_channel: channel whose gain is 1 (ISETCam: the first).
+        criterion: bright-pixel threshold of white world (ISETCam: 0.7).
+
+    ``forward(img, white)`` returns the corrected (B, C, H, W) image; the gains it used are kept in
+    ``last_gains`` (B, C).
+
+    Example:
+        >>> ic = IlluminantCorrection("gray_world", space="sensor")
+        >>> out = ic(torch.rand(1, 3, 4, 4) + 0.1, white=torch.ones(3))
+        >>> torch.allclose(out.mean((-2, -1)), out.mean((-2, -1))[:, :1].expand(-1, 3))
+        True
+    """
+
+    def __init__(self, method: str = "none", space: str = "xyz", gains=None, reference_channel: int = 0,
+                 criterion: float = 0.7) -> None:
+        super().__init__()
+        key = str(method).lower().replace(" ", "_").replace("-", "_")
+        key = "gray_world" if key == "grey_world" else key
+        if key not in ILLUMINANT_CORRECTION_METHODS:
+            raise ValueError(f"method: unknown illuminant correction {method!r}; expected one of "
+                             f"{list(ILLUMINANT_CORRECTION_METHODS)}")
+        if space not in ("xyz", "sensor"):
+            raise ValueError(f"space: expected 'xyz' or 'sensor', got {space!r}")
+        if key == "manual" and gains is None:
+            raise ValueError("gains: method 'manual' needs gains (C,), got None")
+        self.method = key
+        self.space = space
+        self.reference_channel = int(reference_channel)
+        self.criterion = float(criterion)
+        self.register_buffer("gains", None if gains is None else as_tensor(gains, "gains").reshape(-1))
+        self.register_buffer("last_gains", None, persistent=False)
+
+    def forward(self, img: torch.Tensor, white=None) -> torch.Tensor:
+        g = illuminant_gains(img, self.method, white, self.gains, self.reference_channel, self.criterion)
+        self.last_gains = g.detach()
+        return img if self.method == "none" else apply_gains(img, g)
+
+    def extra_repr(self) -> str:
+        return f"method={self.method!r}, space={self.space!r}"
+
+
+class SensorToXYZ(nn.Module):
+    """Sensor -> XYZ colour matrix (3, C): given, or fitted on surfaces under an illuminant.
+
+    Args:
+        matrix: a fixed (3, C) matrix; if None it is fitted by :meth:`fit` from the sensor's QE.
+        illuminant, surfaces, observer: the fit's settings (:func:`sensor_to_xyz_matrix`); the default is
+            ISETCam's ``'MCC optimized'`` (Macbeth chart under D65).
+        learnable: make the matrix an ``nn.Parameter``.
+        normalize: scale the fitted matrix so that a perfect white under ``illuminant`` whose brightest
+            channel is at the white level (sensor value 1) maps to Y = 1 (exposure-referred XYZ).
+
+    Buffers: ``matrix`` (3, C) and ``sensor_white`` (C,), the sensor's response to that white (max 1).
+
+    Example:
+        >>> w = torch.arange(400., 701., 10.)
+        >>> s2x = SensorToXYZ().fit(spectral.cmfs(w) / w, w)
+        >>> s2x(torch.rand(2, 3, 4, 4)).shape
+        torch.Size([2, 3, 4, 4])
+    """
+
+    def __init__(self, matrix=None, illuminant="D65", surfaces="macbeth", observer: str = "1931",
+                 learnable: bool = False, normalize: bool = True) -> None:
+        super().__init__()
+        self.illuminant = illuminant
+        self.surfaces = surfaces
+        self.observer = observer
+        self.learnable = bool(learnable)
+        self.normalize = bool(normalize)
+        self._fit_key = None
+        self.register_buffer("matrix", None)
+        self.register_buffer("sensor_white", None)
+        if matrix is not None:
+            self.set_matrix(as_tensor(matrix, "matrix"))
+
+    def set_matrix(self, matrix: torch.Tensor) -> SensorToXYZ:
+        """Use a given (3, C) matrix (a buffer, or a parameter when ``learnable``) from now on."""
+        check_rank(matrix, 2, "matrix", "(3, C)")
+        if matrix.shape[0] != 3:
+            raise ValueError(f"matrix: expected shape (3, C), got {tuple(matrix.shape)}")
+        self._buffers.pop("matrix", None)
+        self._parameters.pop("matrix", None)
+        if self.learnable:
+            self.matrix = nn.Parameter(matrix.detach().clone())
+        else:
+            self.register_buffer("matrix", matrix.detach().clone())
+        self._fit_key = "fixed"
+        return self
+
+    def fit(self, qe: torch.Tensor, wavelengths_nm) -> SensorToXYZ:
+        """Fit the matrix to a sensor's QE (C, L) on ``wavelengths_nm`` (cached per QE and grid)."""
+        w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+        key = (tuple(qe.shape), float(qe.detach().double().sum()), tuple(w.detach().double().cpu().tolist()))
+        if self._fit_key == "fixed" or self._fit_key == key:
+            return self
+        q = qe.detach().to(torch.float64)
+        m = sensor_to_xyz_matrix(q, w, self.illuminant, self.surfaces, self.observer)
+        white = sensor_responses(q, w, self.illuminant, torch.ones(1, w.numel(), dtype=torch.float64))[0]
+        white = white / white.amax()
+        if self.normalize:
+            # The white under the fit's illuminant, at the white level in its brightest channel, -> Y = 1.
+            m = m / (m[1] @ white)
+        dtype = qe.dtype if qe.is_floating_point() else torch.get_default_dtype()
+        self.set_matrix(m.to(device=qe.device, dtype=dtype))
+        self.sensor_white = white.to(device=qe.device, dtype=dtype)
+        self._fit_key = key
+        return self
+
+    def forward(self, img: torch.Tensor) -> torch.Tensor:
+        if self.matrix is None:
+            raise RuntimeError("SensorToXYZ: no matrix yet; pass one or call fit(qe, wavelengths_nm)")
+        return apply_matrix(img, self.matrix)
+
+    def extra_repr(self) -> str:
+        return f"illuminant={self.illuminant!r}, surfaces={self.surfaces!r}, fitted={self.matrix is not None}"
+
+
+def _display_primaries(display) -> tuple[torch.Tensor, torch.Tensor]:
+    """(spd (3, L) energy, wavelengths (L,)) of a display object (duck-typed adapter)."""
+    for spd_name in ("primaries_spd", "spd", "primaries_energy", "spectra"):
+        spd = getattr(display, spd_name, None)
+        if spd is not None:
+            break
+    w = getattr(display, "wavelengths_nm", None)
+    if spd is None or w is None:
+        raise TypeError(f"display: expected 'srgb', a (3, 3) RGB->XYZ matrix or an object with primaries' SPDs "
+                        f"and wavelengths_nm, got {type(display).__name__}")
+    spd = torch.as_tensor(spd)
+    return (spd if spd.shape[0] == 3 else spd.T), torch.as_tensor(w)
+
+
+class XYZToDisplay(nn.Module):
+    """XYZ -> linear display RGB (3, 3), relative: XYZ with the white at Y = 1 maps to RGB (1, 1, 1) for the
+    display's white.
+
+    Args:
+        display: ``"srgb"`` (IEC 61966-2-1 matrix, D65 white), a display object with primaries' SPDs
+            (``isettorch.scene.display.Display``), or a (3, 3) RGB -> XYZ matrix (columns = primaries' XYZ).
+
+    Buffers: ``matrix`` (XYZ -> RGB), ``rgb_to_xyz``, ``white_point_xyz`` (3,), and the attribute
+    ``max_luminance_cd_m2`` (Y of the display white, None for sRGB, which is relative).
+
+    Reference: ISETCam ``ieInternal2Display`` (``T = inv(displaySPD' * internalCMF)``).
+    """
+
+    def __init__(self, display="srgb", observer: str = "1931") -> None:
+        super().__init__()
+        if isinstance(display, str):
+            if display.lower() not in ("srgb", "rec709", "bt709"):
+                raise ValueError(f"display: expected 'srgb', a Display or a (3, 3) matrix, got {display!r}")
+            inv = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64)
+            rgb_to_xyz = torch.linalg.inv(inv)
+            max_lum = None
+            self.name = "sRGB"
+        else:
+            if isinstance(display, torch.Tensor) and display.shape == (3, 3):
+                rgb_to_xyz = display.to(torch.float64)
+            else:
+                spd, w = _display_primaries(display)
+                rgb_to_xyz = display_rgb_to_xyz_matrix(spd, w, observer)
+            max_lum = float(rgb_to_xyz[1].sum())
+            inv = xyz_to_display_matrix(rgb_to_xyz, relative=True)
+            self.name = getattr(display, "name", "display")
+        self.max_luminance_cd_m2 = max_lum
+        dtype = torch.get_default_dtype()
+        self.register_buffer("matrix", inv.to(dtype))
+        self.register_buffer("rgb_to_xyz", rgb_to_xyz.to(dtype))
+        self.register_buffer("white_point_xyz", (rgb_to_xyz.sum(1) / rgb_to_xyz[1].sum()).to(dtype))
+
+    def forward(self, xyz: torch.Tensor) -> torch.Tensor:
+        return apply_matrix(xyz, self.matrix)
+
+    def extra_repr(self) -> str:
+        return f"display={self.name!r}, max_luminance_cd_m2={self.max_luminance_cd_m2}"
+
+
+class DisplayEncode(nn.Module):
+    """Encode linear display RGB for storage: ``"srgb"`` (IEC 61966-2-1), ``"linear"`` or a gamma (float).
+    Values are clipped to [0, 1] first (``clip=True``)."""
+
+    def __init__(self, encoding="srgb", clip: bool = True) -> None:
+        super().__init__()
+        if not (encoding in ("srgb", "linear") or (isinstance(encoding, (int, float)) and encoding > 0)):
+            raise ValueError(f"encoding: expected 'srgb', 'linear' or a positive gamma, got {encoding!r}")
+        self.encoding = encoding
+        self.clip = bool(clip)
+
+    def forward(self, linear: torch.Tensor) -> torch.Tensor:
+        x = linear.clamp(0, 1) if self.clip else linear
+        if self.encoding == "srgb":
+            return _srgb_encode(x.clamp_min(0))
+        if self.encoding == "linear":
+            return x
+        return x.clamp_min(torch.finfo(x.dtype).tiny) ** (1.0 / float(self.encoding))
+
+    def extra_repr(self) -> str:
+        return f"encoding={self.encoding!r}, clip={self.clip}"

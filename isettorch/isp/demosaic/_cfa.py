@@ -1,0 +1,174 @@
+"""CFA helpers shared by the demosaic methods: pattern parsing, channel masks, boundary padding that matches
+scipy.ndimage's modes, small separable/2-D convolutions, and mosaicking (sampling an image through a CFA)."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+_CHANNEL = {"R": 0, "G": 1, "B": 2}
+
+
+def check_raw(raw, name: str = "raw") -> torch.Tensor:
+    """A mosaic is a floating tensor of shape (B, 1, H, W)."""
+    if not isinstance(raw, torch.Tensor):
+        raise TypeError(f"{name}: expected a torch.Tensor of shape (B, 1, H, W), got {type(raw).__name__}")
+    if raw.dim() != 4 or raw.shape[1] != 1:
+        raise ValueError(f"{name}: expected a tensor of shape (B, 1, H, W), got shape {tuple(raw.shape)}")
+    if not raw.is_floating_point():
+        raise TypeError(f"{name}: expected a floating-point tensor (float32 or float64), got dtype {raw.dtype}")
+    return raw
+
+
+def check_bayer_pattern(pattern) -> str:
+    """Normalise a Bayer pattern string ('RGGB', 'BGGR', 'GRBG', 'GBRG'; row-major, top-left first)."""
+    if not isinstance(pattern, str):
+        raise TypeError(f"pattern: expected one of {BAYER_PATTERNS} as a string, got {type(pattern).__name__}")
+    p = pattern.upper()
+    if p not in BAYER_PATTERNS:
+        raise ValueError(f"pattern: expected one of {BAYER_PATTERNS}, got {pattern!r}")
+    return p
+
+
+def bayer_index_map(pattern: str, device=None) -> torch.Tensor:
+    """The 2x2 channel-index map (0 = R, 1 = G, 2 = B) of a Bayer pattern, as a long tensor [2, 2].
+
+    Example:
+        >>> bayer_index_map("GRBG").tolist()
+        [[1, 0], [2, 1]]
+    """
+    p = check_bayer_pattern(pattern)
+    return torch.tensor([[_CHANNEL[p[0]], _CHANNEL[p[1]]], [_CHANNEL[p[2]], _CHANNEL[p[3]]]], device=device)
+
+
+def check_index_map(index_map, num_channels: int | None, height: int, width: int) -> tuple[torch.Tensor, int]:
+    """Validate a CFA index map [ph, pw] of channel indices; returns it (long, CPU) and the channel count."""
+    if not isinstance(index_map, torch.Tensor):
+        raise TypeError(f"index_map: expected a long tensor [ph, pw] of channel indices, "
+                        f"got {type(index_map).__name__}")
+    if index_map.dim() != 2 or index_map.numel() == 0:
+        raise ValueError(f"index_map: expected a non-empty tensor of shape [ph, pw], "
+                         f"got shape {tuple(index_map.shape)}")
+    if index_map.is_floating_point() or index_map.is_complex() or index_map.dtype == torch.bool:
+        raise TypeError(f"index_map: expected an integer (long) tensor of channel indices, "
+                        f"got dtype {index_map.dtype}")
+    idx = index_map.detach().to("cpu", torch.long)
+    if num_channels is None:
+        num_channels = int(idx.max()) + 1
+    if not isinstance(num_channels, int) or num_channels < 1:
+        raise ValueError(f"num_channels: expected a positive integer, got {num_channels!r}")
+    if idx.min() < 0 or idx.max() >= num_channels:
+        raise ValueError(f"index_map: expected channel indices in [0, {num_channels - 1}], got {idx.tolist()}")
+    missing = sorted(set(range(num_channels)) - set(idx.flatten().tolist()))
+    if missing:
+        raise ValueError(f"index_map: every channel must be sampled at least once, channels {missing} are absent "
+                         f"from {idx.tolist()}")
+    ph, pw = idx.shape
+    if height < ph or width < pw:
+        raise ValueError(f"raw: expected at least one full CFA period ({ph}x{pw}), got an image of {height}x{width}")
+    return idx, num_channels
+
+
+def tile(index_map: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """Repeat a [ph, pw] map over an [H, W] grid (top-left aligned)."""
+    ph, pw = index_map.shape
+    reps = (-(-height // ph), -(-width // pw))
+    return index_map.repeat(*reps)[:height, :width]
+
+
+def channel_masks(index_map: torch.Tensor, num_channels: int, height: int, width: int, *, dtype, device
+                  ) -> torch.Tensor:
+    """One-hot sampling masks (1, C, H, W) of a CFA tiled over the image."""
+    full = tile(index_map.to(device), height, width)
+    return (full[None] == torch.arange(num_channels, device=device)[:, None, None]).to(dtype)[None]
+
+
+def bayer_masks(pattern: str, height: int, width: int, device) -> dict[str, torch.Tensor]:
+    """Boolean masks (1, 1, H, W) of a Bayer mosaic: R, G, B sites and the rows/columns that hold R or B."""
+    full = tile(bayer_index_map(pattern, device=device), height, width)[None, None]
+    r, g, b = full == 0, full == 1, full == 2
+    return {
+        "R": r, "G": g, "B": b,
+        "R_row": r.any(dim=-1, keepdim=True).expand_as(r), "R_col": r.any(dim=-2, keepdim=True).expand_as(r),
+        "B_row": b.any(dim=-1, keepdim=True).expand_as(b), "B_col": b.any(dim=-2, keepdim=True).expand_as(b),
+    }
+
+
+def _fold(n: int, before: int, after: int, mode: str, device) -> torch.Tensor:
+    """Source indices for padding an axis of length n, like scipy.ndimage's boundary modes."""
+    idx = torch.arange(-before, n + after, device=device)
+    if mode == "symmetric":  # scipy 'reflect' (half-sample symmetric): d c b a | a b c d | d c b a
+        period = 2 * n
+        idx = idx % period
+        return torch.where(idx >= n, period - 1 - idx, idx)
+    if mode == "mirror":  # scipy 'mirror', torch 'reflect' (whole-sample): d c b | a b c d | c b a
+        if n == 1:
+            return torch.zeros_like(idx)
+        period = 2 * n - 2
+        idx = idx % period
+        return torch.where(idx >= n, period - idx, idx)
+    raise ValueError(f"mode: expected 'symmetric', 'mirror' or 'zeros', got {mode!r}")
+
+
+def pad(x: torch.Tensor, py: int, px: int, mode: str) -> torch.Tensor:
+    """Pad the last two dims by (py, px) on each side. mode: 'symmetric' (scipy 'reflect'), 'mirror' (scipy
+    'mirror' = torch 'reflect') or 'zeros' (scipy 'constant')."""
+    if py == 0 and px == 0:
+        return x
+    if mode == "zeros":
+        return F.pad(x, (px, px, py, py))
+    h, w = x.shape[-2:]
+    if mode == "mirror" and py < h and px < w:
+        return F.pad(x, (px, px, py, py), mode="reflect")
+    if py:
+        x = x.index_select(-2, _fold(h, py, py, mode, x.device))
+    if px:
+        x = x.index_select(-1, _fold(w, px, px, mode, x.device))
+    return x
+
+
+def correlate(x: torch.Tensor, kernels: torch.Tensor, mode: str) -> torch.Tensor:
+    """Depthwise 2-D correlation of x (N, C, H, W) with kernels (C, kh, kw) (odd sizes), same-size output."""
+    c, kh, kw = kernels.shape
+    xp = pad(x, kh // 2, kw // 2, mode)
+    return F.conv2d(xp, kernels.to(x)[:, None], groups=c)
+
+
+def correlate_h(x: torch.Tensor, taps, mode: str) -> torch.Tensor:
+    """Correlate every channel along the width with the same 1-D taps."""
+    k = torch.as_tensor(taps, dtype=x.dtype, device=x.device).reshape(1, 1, 1, -1).expand(x.shape[1], 1, 1, -1)
+    return F.conv2d(pad(x, 0, k.shape[-1] // 2, mode), k, groups=x.shape[1])
+
+
+def correlate_v(x: torch.Tensor, taps, mode: str) -> torch.Tensor:
+    """Correlate every channel along the height with the same 1-D taps."""
+    k = torch.as_tensor(taps, dtype=x.dtype, device=x.device).reshape(1, 1, -1, 1).expand(x.shape[1], 1, -1, 1)
+    return F.conv2d(pad(x, k.shape[-2] // 2, 0, mode), k, groups=x.shape[1])
+
+
+def mosaic(image: torch.Tensor, pattern="RGGB") -> torch.Tensor:
+    """Sample an image through a CFA: (B, C, H, W) -> (B, 1, H, W), noise-free.
+
+    Args:
+        image: (B, C, H, W); C = 3 (R, G, B) for a Bayer pattern string.
+        pattern: a Bayer pattern string ('RGGB', 'BGGR', 'GRBG', 'GBRG') or a long index map [ph, pw] of
+            channel indices into C.
+
+    Example:
+        >>> mosaic(torch.rand(2, 3, 8, 8), "RGGB").shape
+        torch.Size([2, 1, 8, 8])
+    """
+    if not isinstance(image, torch.Tensor) or image.dim() != 4:
+        raise ValueError(f"image: expected a tensor of shape (B, C, H, W), got "
+                         f"{tuple(image.shape) if isinstance(image, torch.Tensor) else type(image).__name__}")
+    h, w = image.shape[-2:]
+    if isinstance(pattern, str):
+        idx = bayer_index_map(pattern)
+        if image.shape[1] != 3:
+            raise ValueError(f"image: a Bayer pattern needs 3 channels (R, G, B), got shape {tuple(image.shape)}")
+        idx, _ = check_index_map(idx, 3, h, w)
+    else:
+        idx, _ = check_index_map(pattern, image.shape[1], h, w)
+    full = tile(idx.to(image.device), h, w)[None, None].expand(image.shape[0], 1, h, w)
+    return image.gather(1, full)

@@ -1,0 +1,262 @@
+"""Learned demosaicing: a compact residual CNN on top of Malvar-He-Cutler, trained on synthetic isettorch scenes.
+
+The network (:class:`DemosaicNet`) works on the packed 2x2 Bayer planes at half resolution: its input is the
+four raw planes, the space-to-depth Malvar-He-Cutler (MHC) estimate and, for the joint denoise+demosaic variant,
+two planes with the noise model's parameters; it predicts a correction of the MHC estimate (12 channels,
+depth-to-space back to full resolution). The last layer is zero-initialised, so an untrained network *is* MHC.
+
+``load_pretrained()`` returns the checkpoint shipped in ``isettorch/assets`` (trained by
+``training/train_demosaic.py`` on synthetic scenes only; the JSON beside it records how). Importing this module
+registers the demosaic method ``"learned"`` with :mod:`isettorch.isp.demosaic` when that module is available.
+
+References:
+    H. S. Malvar, L. He, R. Cutler, "High-quality linear interpolation for demosaicing of Bayer-patterned color
+    images", ICASSP 2004.
+    M. Gharbi, G. Chaurasia, S. Paris, F. Durand, "Deep joint demosaicking and denoising", SIGGRAPH Asia 2016.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = [
+    "BAYER_PATTERNS",
+    "demosaic_malvar_torch",
+    "DemosaicNet",
+    "demosaic_learned",
+    "load_pretrained",
+    "pretrained_info",
+    "PRETRAINED_PATH",
+]
+
+BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+ASSETS = Path(__file__).resolve().parent.parent / "assets"
+PRETRAINED_PATH = ASSETS / "demosaic_learned.pt"
+
+# Malvar, He, Cutler (ICASSP 2004), Fig. 2 filters (x 1/8): G at R/B; R(B) at G in an R(B) row; R(B) at G in an
+# R(B) column; R at B (and B at R).
+_MHC = torch.tensor([
+    [[0, 0, -2, 0, 0], [0, 0, 4, 0, 0], [-2, 4, 8, 4, -2], [0, 0, 4, 0, 0], [0, 0, -2, 0, 0]],
+    [[0, 0, 1, 0, 0], [0, -2, 0, -2, 0], [-2, 8, 10, 8, -2], [0, -2, 0, -2, 0], [0, 0, 1, 0, 0]],
+    [[0, 0, -2, 0, 0], [0, -2, 8, -2, 0], [1, 0, 10, 0, 1], [0, -2, 8, -2, 0], [0, 0, -2, 0, 0]],
+    [[0, 0, -3, 0, 0], [0, 4, 0, 4, 0], [-3, 0, 12, 0, -3], [0, 4, 0, 4, 0], [0, 0, -3, 0, 0]],
+], dtype=torch.float64) / 16.0
+
+
+def _check_raw(raw: torch.Tensor, name: str = "raw") -> torch.Tensor:
+    if not isinstance(raw, torch.Tensor):
+        raise TypeError(f"{name}: expected a torch.Tensor [B, 1, H, W], got {type(raw).__name__}")
+    if raw.dim() == 2:
+        raw = raw[None, None]
+    elif raw.dim() == 3:
+        raw = raw[:, None]
+    if raw.dim() != 4 or raw.shape[1] != 1:
+        raise ValueError(f"{name}: expected shape [B, 1, H, W], got {tuple(raw.shape)}")
+    if not raw.is_floating_point():
+        raise TypeError(f"{name}: expected a floating-point tensor, got {raw.dtype}")
+    if raw.shape[-2] % 2 or raw.shape[-1] % 2 or raw.shape[-2] < 4 or raw.shape[-1] < 4:
+        raise ValueError(f"{name}: expected even height and width of at least 4, got {tuple(raw.shape[-2:])}")
+    return raw
+
+
+def _check_pattern(pattern: str) -> str:
+    if not isinstance(pattern, str) or pattern.upper() not in BAYER_PATTERNS:
+        raise ValueError(f"pattern: expected one of {BAYER_PATTERNS}, got {pattern!r}")
+    return pattern.upper()
+
+
+def _to_rggb(raw: torch.Tensor, pattern: str) -> tuple[torch.Tensor, int, int]:
+    """Reflect-pad one row/column so the mosaic starts with an R pixel; returns the offsets to crop back."""
+    dy = 1 if pattern in ("GBRG", "BGGR") else 0
+    dx = 1 if pattern in ("GRBG", "BGGR") else 0
+    if dy or dx:
+        raw = F.pad(raw, (dx, dx, dy, dy), mode="reflect")
+    return raw, dy, dx
+
+
+def _rggb_malvar(raw: torch.Tensor) -> torch.Tensor:
+    """MHC on an RGGB mosaic [B, 1, H, W] (even size) -> [B, 3, H, W]; mirror boundary (as colour-demosaicing)."""
+    k = _MHC.to(raw.device, raw.dtype)[:, None]
+    f = F.conv2d(F.pad(raw, (2, 2, 2, 2), mode="reflect"), k)  # [B, 4, H, W]
+    g_rb, at_g_row, at_g_col, rb_br = f.unbind(1)
+    x = raw[:, 0]
+    h, w = x.shape[-2:]
+    yy = torch.arange(h, device=raw.device)[:, None] % 2
+    xx = torch.arange(w, device=raw.device)[None, :] % 2
+    is_r = (yy == 0) & (xx == 0)
+    is_b = (yy == 1) & (xx == 1)
+    is_g_rrow = (yy == 0) & (xx == 1)
+    is_g_brow = (yy == 1) & (xx == 0)
+    r = torch.where(is_r, x, torch.where(is_b, rb_br, torch.where(is_g_rrow, at_g_row, at_g_col)))
+    g = torch.where(is_r | is_b, g_rb, x)
+    b = torch.where(is_b, x, torch.where(is_r, rb_br, torch.where(is_g_brow, at_g_row, at_g_col)))
+    return torch.stack([r, g, b], 1)
+
+
+def demosaic_malvar_torch(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
+    """Malvar-He-Cutler (2004) demosaicing, batched and differentiable.
+
+    Args:
+        raw: Bayer mosaic ``(B, 1, H, W)`` (H, W even).
+        pattern: one of ``RGGB``, ``BGGR``, ``GRBG``, ``GBRG`` (top-left 2x2 block, row-major).
+
+    Returns:
+        ``(B, 3, H, W)`` RGB (not clipped).
+
+    Example:
+        >>> demosaic_malvar_torch(torch.rand(1, 1, 8, 8)).shape
+        torch.Size([1, 3, 8, 8])
+
+    Reference: Malvar, He, Cutler, ICASSP 2004 (the filters of colour-demosaicing's
+    ``demosaicing_CFA_Bayer_Malvar2004``, mirror boundary).
+    """
+    raw = _check_raw(raw)
+    pattern = _check_pattern(pattern)
+    x, dy, dx = _to_rggb(raw, pattern)
+    out = _rggb_malvar(x)
+    return out[..., dy:dy + raw.shape[-2], dx:dx + raw.shape[-1]]
+
+
+class DemosaicNet(nn.Module):
+    """Residual demosaic (and optionally denoise) CNN on packed Bayer planes; corrects the MHC estimate.
+
+    Args:
+        channels: width of the hidden layers.
+        depth: number of hidden 3x3 conv layers at half resolution (>= 1).
+        noise_inputs: number of per-image noise parameters fed as constant planes (0 for noise-free).
+
+    Shapes:
+        forward(raw (B, 1, H, W) RGGB, noise (B, noise_inputs) optional) -> (B, 3, H, W).
+
+    Example:
+        >>> net = DemosaicNet(channels=16, depth=2)
+        >>> net(torch.rand(2, 1, 16, 16)).shape
+        torch.Size([2, 3, 16, 16])
+    """
+
+    def __init__(self, channels: int = 48, depth: int = 6, noise_inputs: int = 0):
+        super().__init__()
+        if int(channels) < 1 or int(depth) < 1 or int(noise_inputs) < 0:
+            raise ValueError(f"channels, depth, noise_inputs: expected >=1, >=1, >=0, got {channels}, {depth}, "
+                             f"{noise_inputs}")
+        self.channels, self.depth, self.noise_inputs = int(channels), int(depth), int(noise_inputs)
+        layers: list[nn.Module] = [nn.Conv2d(4 + 12 + self.noise_inputs, self.channels, 3, padding=1),
+                                   nn.ReLU(inplace=True)]
+        for _ in range(self.depth - 1):
+            layers += [nn.Conv2d(self.channels, self.channels, 3, padding=1), nn.ReLU(inplace=True)]
+        self.body = nn.Sequential(*layers)
+        self.head = nn.Conv2d(self.channels, 12, 3, padding=1)
+        nn.init.zeros_(self.head.weight)  # start exactly at MHC
+        nn.init.zeros_(self.head.bias)
+
+    def config(self) -> dict:
+        return {"channels": self.channels, "depth": self.depth, "noise_inputs": self.noise_inputs}
+
+    def forward(self, raw: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
+        raw = _check_raw(raw)
+        base = _rggb_malvar(raw)
+        feats = [F.pixel_unshuffle(raw, 2), F.pixel_unshuffle(base, 2)]
+        if self.noise_inputs:
+            if noise is None:
+                noise = torch.zeros(raw.shape[0], self.noise_inputs, dtype=raw.dtype, device=raw.device)
+            noise = torch.as_tensor(noise, dtype=raw.dtype, device=raw.device).reshape(raw.shape[0], -1)
+            if noise.shape[1] != self.noise_inputs:
+                raise ValueError(f"noise: expected shape [B, {self.noise_inputs}], got {tuple(noise.shape)}")
+            h, w = raw.shape[-2] // 2, raw.shape[-1] // 2
+            feats.append(noise[:, :, None, None].expand(-1, -1, h, w))
+        elif noise is not None:
+            raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
+        x = torch.cat(feats, 1)
+        return base + F.pixel_shuffle(self.head(self.body(x)), 2)
+
+
+def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: DemosaicNet | None = None,
+                     noise: torch.Tensor | None = None) -> torch.Tensor:
+    """Demosaic a Bayer mosaic with a :class:`DemosaicNet` (default: the shipped checkpoint).
+
+    Args:
+        raw: ``(B, 1, H, W)`` mosaic, values relative to white = 1 (as the network was trained).
+        pattern: Bayer pattern, one of ``RGGB``, ``BGGR``, ``GRBG``, ``GBRG``.
+        model: a network; ``None`` loads :func:`load_pretrained` (cached).
+        noise: ``(B, noise_inputs)`` noise parameters for a joint denoise+demosaic network.
+
+    Returns:
+        ``(B, 3, H, W)`` RGB (not clipped).
+    """
+    raw = _check_raw(raw)
+    pattern = _check_pattern(pattern)
+    if model is None:
+        model = load_pretrained(device=raw.device, dtype=raw.dtype)
+    x, dy, dx = _to_rggb(raw, pattern)
+    if x.shape[-2] % 2 or x.shape[-1] % 2:  # pragma: no cover - pads are symmetric so sizes stay even
+        raise ValueError("raw: internal padding produced an odd size")
+    out = model(x, noise)
+    return out[..., dy:dy + raw.shape[-2], dx:dx + raw.shape[-1]]
+
+
+def load_checkpoint(path: str | Path, *, device=None, dtype=None) -> tuple[DemosaicNet, dict]:
+    """Load a checkpoint written by ``training/train_demosaic.py`` (``torch.load(weights_only=True)``).
+
+    Returns the network (in eval mode) and the checkpoint's metadata dict.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no checkpoint at {path}")
+    ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    if not isinstance(ckpt, dict) or "model" not in ckpt or "net_config" not in ckpt:
+        raise ValueError(f"path: {path} is not a DemosaicNet checkpoint (expected keys 'model' and 'net_config')")
+    net = DemosaicNet(**ckpt["net_config"])
+    net.load_state_dict(ckpt["model"])
+    net.eval().requires_grad_(False)
+    if device is not None or dtype is not None:
+        net.to(device=device, dtype=dtype)
+    return net, {k: v for k, v in ckpt.items() if k not in ("model", "optimizer")}
+
+
+@functools.lru_cache(maxsize=8)
+def _pretrained(device: str, dtype: torch.dtype) -> DemosaicNet:
+    return load_checkpoint(PRETRAINED_PATH, device=device, dtype=dtype)[0]
+
+
+def load_pretrained(*, device=None, dtype=torch.float32) -> DemosaicNet:
+    """The shipped noise-free :class:`DemosaicNet` (``isettorch/assets/demosaic_learned.pt``), eval mode, frozen.
+
+    Example:
+        >>> net = load_pretrained()
+        >>> net(torch.rand(1, 1, 32, 32)).shape
+        torch.Size([1, 3, 32, 32])
+    """
+    return _pretrained(str(torch.device(device or "cpu")), dtype)
+
+
+def pretrained_info() -> dict:
+    """The training record shipped beside the checkpoint (command, config, data, wall time, hardware, scores)."""
+    p = PRETRAINED_PATH.with_suffix(".json")
+    return json.loads(p.read_text()) if p.is_file() else {}
+
+
+def _register() -> None:
+    try:
+        from . import demosaic as _dm
+    except ImportError:  # the demosaic module is optional for this file
+        return
+    reg = getattr(_dm, "register_method", None)
+    if reg is None:
+        return
+
+    def _learned(raw, pattern="RGGB", **kwargs):
+        return demosaic_learned(raw, pattern, **kwargs)
+
+    try:
+        reg("learned", _learned)
+    except (ValueError, KeyError):  # already registered (module re-import)
+        pass
+
+
+_register()
