@@ -1,5 +1,36 @@
 """Scenes: the `Scene` container and its generators (charts, test patterns, spectral images)."""
 
+from .macbeth import macbeth, macbeth_patch_names, macbeth_patch_slices, macbeth_reflectances
+from .patterns import (
+    checkerboard,
+    frequency_sweep,
+    grid_lines,
+    hdr_chart,
+    monochromatic,
+    point_array,
+    ramp,
+    slanted_edge,
+    star,
+    uniform,
+    zone_plate,
+)
 from .scene import Scene
 
-__all__ = ["Scene"]
+__all__ = [
+    "Scene",
+    "macbeth",
+    "macbeth_reflectances",
+    "macbeth_patch_names",
+    "macbeth_patch_slices",
+    "uniform",
+    "monochromatic",
+    "ramp",
+    "frequency_sweep",
+    "slanted_edge",
+    "point_array",
+    "grid_lines",
+    "star",
+    "checkerboard",
+    "zone_plate",
+    "hdr_chart",
+]
