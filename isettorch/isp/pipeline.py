@@ -1,0 +1,261 @@
+"""`ImageProcessor`: raw mosaic -> display image, as a composition of replaceable stages.
+
+    demosaic -> [illuminant correction in sensor space] -> sensor -> XYZ -> [illuminant correction in XYZ]
+             -> XYZ -> display -> scaling -> encoding
+
+Every stage is a submodule (``ip.demosaic``, ``ip.illuminant_correction``, ``ip.sensor_to_xyz``,
+``ip.xyz_to_display``, ``ip.encode``) and can be replaced by any module with the same call signature.
+``forward(raw)`` returns an :class:`ISPResult` with every stage's output and the matrices used.
+
+Reference: ISETCam ``ipCompute`` (``ipComputeSingle``: Demosaic, imageSensorCorrection,
+imageIlluminantCorrection, displayRender); Farrell et al., SPIE 2004, section 2.4.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+from torch import nn
+
+from .._checks import check_wavelengths
+from .colour import (
+    DisplayEncode,
+    IlluminantCorrection,
+    SensorToXYZ,
+    XYZToDisplay,
+    white_xyz,
+)
+
+__all__ = ["ImageProcessor", "ISPResult", "DemosaicStage", "SCALINGS"]
+
+#: How linear display RGB is scaled before encoding.
+#: ``"adaptive"``: ISETCam ``displayRender`` for analog sensors: the image maximum becomes the ratio of the raw
+#: maximum to the white level (a dark capture stays dark). ``"exposure"``: no image-dependent scaling; the
+#: sensor -> XYZ matrix maps a white at the white level to Y = 1 (needs a normalised SensorToXYZ).
+#: ``"max"``: the image maximum becomes 1.
+SCALINGS = ("adaptive", "exposure", "max")
+
+
+@dataclasses.dataclass
+class ISPResult:
+    """Outputs of every :class:`ImageProcessor` stage (tensors (B, C, H, W); None where a stage did not run).
+
+    ``input``: the mosaic scaled to 0 at the black level and 1 at the white level (B, 1, H, W).
+    ``demosaiced``: sensor channels in CFA channel order. ``sensor_balanced``: after a sensor-space
+    illuminant correction (else the demosaiced image). ``xyz``: relative XYZ before, ``xyz_balanced`` after an
+    XYZ-space correction. ``display_linear``: linear display RGB after scaling, not clipped. ``image``: the
+    encoded output (B, 3, H, W). Matrices: ``gains`` (B, C), ``sensor_to_xyz`` (3, C), ``xyz_to_display``
+    (3, 3), ``scale`` (B,) the factor of the scaling stage.
+    """
+
+    image: torch.Tensor
+    input: torch.Tensor | None = None
+    demosaiced: torch.Tensor | None = None
+    sensor_balanced: torch.Tensor | None = None
+    xyz: torch.Tensor | None = None
+    xyz_balanced: torch.Tensor | None = None
+    display_linear: torch.Tensor | None = None
+    gains: torch.Tensor | None = None
+    sensor_to_xyz: torch.Tensor | None = None
+    xyz_to_display: torch.Tensor | None = None
+    scale: torch.Tensor | None = None
+
+    def stages(self) -> dict[str, torch.Tensor]:
+        """The image stages that ran, in pipeline order."""
+        names = ("input", "demosaiced", "sensor_balanced", "xyz", "xyz_balanced", "display_linear", "image")
+        return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
+
+
+class DemosaicStage(nn.Module):
+    """Demosaic for any CFA: Bayer layouts use ``method`` of :func:`isettorch.isp.demosaic.demosaic`; other
+    CFAs (CMY, RGBW, ...) use the generic method on the CFA's index map (``fallback``, bilinear by default).
+
+    ``forward(mosaic (B, 1, H, W), cfa) -> (B, C, H, W)`` in the CFA's channel order.
+    """
+
+    def __init__(self, method="bilinear", fallback: str = "bilinear") -> None:
+        super().__init__()
+        from .demosaic import Demosaic
+
+        self.method = method if isinstance(method, str) else type(method).__name__
+        self.bayer = Demosaic(method)
+        self.fallback = fallback
+
+    def forward(self, mosaic: torch.Tensor, cfa) -> torch.Tensor:
+        from .demosaic import demosaic
+
+        if cfa.is_bayer and cfa.channel_names[:3] == ["R", "G", "B"]:
+            return self.bayer(mosaic, cfa.bayer_pattern)
+        return demosaic(mosaic, cfa.index_map.to(mosaic.device), self.fallback, num_channels=cfa.num_channels)
+
+    def extra_repr(self) -> str:
+        return f"method={self.method!r}, fallback={self.fallback!r}"
+
+
+def _sensor_qe(sensor, wavelengths_nm: torch.Tensor) -> torch.Tensor:
+    """Spectral QE (C, L) of a sensor-like object on a grid (adapter over the sensor package's API)."""
+    from ..sensor.filters import SpectralQE
+
+    if isinstance(sensor, SpectralQE):
+        return sensor(wavelengths_nm)
+    for name in ("spectral_qe", "qe"):
+        attr = getattr(sensor, name, None)
+        if attr is None:
+            continue
+        qe = attr(wavelengths_nm) if callable(attr) else attr
+        if isinstance(qe, torch.Tensor) and qe.dim() == 2 and qe.shape[-1] == wavelengths_nm.numel():
+            return qe
+    raise TypeError(f"sensor: expected an object whose spectral_qe(wavelengths_nm) gives (C, L), got "
+                    f"{type(sensor).__name__}")
+
+
+class ImageProcessor(nn.Module):
+    """Image processor: raw mosaic -> encoded display image.
+
+    Args:
+        demosaic: a method name (``"bilinear"``, ``"malvar2004"``, ``"menon2007"``, ...) or a module
+            ``(mosaic, cfa) -> (B, C, H, W)``.
+        illuminant_correction: ``"none"``, ``"gray_world"``, ``"white_world"``, ``"manual"`` or an
+            :class:`IlluminantCorrection`.
+        correction_space: ``"xyz"`` (ISETCam) or ``"sensor"``.
+        correction_white: the illuminant whose white the correction targets (ISETCam: D65). In sensor space
+            the target is the sensor value that the colour matrix renders as that white.
+        gains: manual gains for ``"manual"``.
+        sensor_to_xyz: a :class:`SensorToXYZ` (default: MCC optimised under D65, ISETCam's default) or a
+            (3, C) matrix.
+        display: ``"srgb"``, a display object with primaries' SPDs, or an :class:`XYZToDisplay`.
+        encoding: ``"srgb"``, ``"linear"`` or a gamma.
+        scaling: one of ``SCALINGS``.
+        clip_negative_xyz: clip XYZ at 0 after the matrix (ISETCam ``imageSensorCorrection``).
+        fit_wavelengths_nm: grid on which the colour matrix is fitted from the sensor's QE (400:10:700).
+        monochrome_divisor: ``"white_level"`` or ``"voltage_swing"`` (ISETCam: input / voltage swing).
+
+    Example:
+        >>> ip = ImageProcessor(illuminant_correction="gray_world")
+        >>> ip.sensor_to_xyz.set_matrix(torch.eye(3))  # doctest: +ELLIPSIS
+        SensorToXYZ(...)
+        >>> from isettorch.sensor.raw import RawImage
+        >>> out = ip(RawImage(torch.rand(1, 1, 8, 8), "volts", "GBRG", white_level=1.0))
+        >>> out.image.shape
+        torch.Size([1, 3, 8, 8])
+    """
+
+    def __init__(self, demosaic="bilinear", illuminant_correction="none", correction_space: str = "xyz",
+                 correction_white="D65", gains=None, sensor_to_xyz=None, display="srgb", encoding="srgb",
+                 scaling: str = "adaptive", clip_negative_xyz: bool = True, fit_wavelengths_nm=None,
+                 monochrome_divisor: str = "white_level") -> None:
+        super().__init__()
+        self.demosaic = demosaic if isinstance(demosaic, nn.Module) else DemosaicStage(demosaic)
+        if isinstance(illuminant_correction, nn.Module):
+            self.illuminant_correction = illuminant_correction
+        else:
+            self.illuminant_correction = IlluminantCorrection(illuminant_correction, correction_space, gains)
+        if sensor_to_xyz is None:
+            sensor_to_xyz = SensorToXYZ()
+        elif not isinstance(sensor_to_xyz, nn.Module):
+            sensor_to_xyz = SensorToXYZ(matrix=sensor_to_xyz)
+        self.sensor_to_xyz = sensor_to_xyz
+        self.xyz_to_display = display if isinstance(display, nn.Module) else XYZToDisplay(display)
+        self.encode = encoding if isinstance(encoding, nn.Module) else DisplayEncode(encoding)
+        if scaling not in SCALINGS:
+            raise ValueError(f"scaling: expected one of {list(SCALINGS)}, got {scaling!r}")
+        if monochrome_divisor not in ("white_level", "voltage_swing"):
+            raise ValueError(f"monochrome_divisor: expected 'white_level' or 'voltage_swing', got "
+                             f"{monochrome_divisor!r}")
+        self.scaling = scaling
+        self.clip_negative_xyz = bool(clip_negative_xyz)
+        self.monochrome_divisor = monochrome_divisor
+        self.correction_white = correction_white
+        self.register_buffer("white_xyz", white_xyz(correction_white).to(torch.get_default_dtype()))
+        w = torch.arange(400.0, 701.0, 10.0) if fit_wavelengths_nm is None else torch.as_tensor(fit_wavelengths_nm)
+        self.fit_wavelengths_nm = check_wavelengths(w.to(torch.float64))
+
+    # --- preparation ---------------------------------------------------------------------------
+    def fit(self, sensor) -> ImageProcessor:
+        """Fit the colour matrix to a sensor (anything with ``spectral_qe(wavelengths_nm)``) or a QE (C, L)
+        on ``fit_wavelengths_nm``. Cached: refitting the same sensor is free."""
+        fit = getattr(self.sensor_to_xyz, "fit", None)
+        if fit is None:
+            return self
+        qe = sensor if isinstance(sensor, torch.Tensor) else _sensor_qe(sensor, self.fit_wavelengths_nm)
+        dev = self.white_xyz.device
+        # Fitted in float64 on the processor's device; apply_matrix casts to the image's dtype.
+        fit(qe.detach().to(device=dev, dtype=torch.float64), self.fit_wavelengths_nm.to(dev))
+        return self
+
+    # --- stages ------------------------------------------------------------------------------
+    def _normalized_input(self, raw) -> torch.Tensor:
+        if raw.white_level is None:
+            raise ValueError("raw: the image processor needs raw.white_level (the saturation value) to scale the "
+                             "mosaic, got None")
+        return raw.normalized()
+
+    def _sensor_white_target(self, matrix: torch.Tensor) -> torch.Tensor:
+        # The sensor value that the colour matrix renders as the correction white (least squares for C > 3).
+        target = self.white_xyz.to(matrix.dtype).to(matrix.device)
+        return torch.linalg.lstsq(matrix.double(), target.double()[:, None]).solution[:, 0].to(matrix.dtype)
+
+    def forward(self, raw) -> ISPResult:
+        """Process a :class:`~isettorch.sensor.raw.RawImage`; returns an :class:`ISPResult`."""
+        x = self._normalized_input(raw)
+        if raw.cfa.is_monochrome:
+            # ISETCam ipCompute: a monochrome sensor skips the colour pipeline (FORMAT.md 4.10).
+            if self.monochrome_divisor == "voltage_swing":
+                if raw.voltage_swing_v is None:
+                    raise ValueError("raw: monochrome_divisor='voltage_swing' needs raw.voltage_swing_v")
+                mono = (raw.data - raw.black_level) / raw.voltage_swing_v
+            else:
+                mono = x
+            return ISPResult(image=mono.expand(-1, 3, -1, -1), input=x, display_linear=mono.expand(-1, 3, -1, -1))
+        sensor = self.demosaic(x, raw.cfa)
+        return self.from_demosaiced(sensor, input_max=x.flatten(1).amax(1), _input=x)
+
+    def from_demosaiced(self, sensor: torch.Tensor, input_max: torch.Tensor | None = None,
+                        _input: torch.Tensor | None = None) -> ISPResult:
+        """Run the colour stages on a demosaiced image (B, C, H, W) relative to the white level (resume point
+        for a user-modified or externally demosaiced image). ``input_max`` (B,) is the raw maximum used by
+        the ``"adaptive"`` scaling (default: the image maximum)."""
+        if sensor.dim() != 4:
+            raise ValueError(f"sensor: expected a demosaiced image (B, C, H, W), got shape {tuple(sensor.shape)}")
+        m = self.sensor_to_xyz.matrix if hasattr(self.sensor_to_xyz, "matrix") else None
+        if m is None:
+            raise RuntimeError("ImageProcessor: the sensor -> XYZ matrix is not set; call ip.fit(sensor) (Camera "
+                               "does it) or pass sensor_to_xyz=matrix")
+        ic = self.illuminant_correction
+        space = getattr(ic, "space", "xyz")
+        balanced = sensor
+        gains = None
+        if space == "sensor":
+            balanced = ic(sensor, white=self._sensor_white_target(m))
+            gains = getattr(ic, "last_gains", None)
+        xyz = self.sensor_to_xyz(balanced)
+        if self.clip_negative_xyz:
+            xyz = xyz.clamp_min(0)
+        xyz_bal = xyz
+        if space == "xyz":
+            xyz_bal = ic(xyz, white=self.white_xyz.to(xyz.dtype))
+            gains = getattr(ic, "last_gains", None)
+        rgb = self.xyz_to_display(xyz_bal)
+        scale = self._scale(rgb, sensor, input_max)
+        display = rgb * scale[:, None, None, None]
+        return ISPResult(image=self.encode(display), input=_input, demosaiced=sensor, sensor_balanced=balanced,
+                         xyz=xyz, xyz_balanced=xyz_bal, display_linear=display, gains=gains,
+                         sensor_to_xyz=m, xyz_to_display=getattr(self.xyz_to_display, "matrix", None), scale=scale)
+
+    def _scale(self, rgb: torch.Tensor, sensor: torch.Tensor, input_max: torch.Tensor | None) -> torch.Tensor:
+        ones = torch.ones(rgb.shape[0], dtype=rgb.dtype, device=rgb.device)
+        if self.scaling == "exposure":
+            return ones
+        peak = rgb.flatten(1).amax(1)
+        if (peak.detach() <= 0).any():
+            raise ValueError("ImageProcessor: the rendered image is black (maximum <= 0); it cannot be scaled with "
+                             f"scaling={self.scaling!r}; use scaling='exposure'")
+        if self.scaling == "max":
+            return ones / peak
+        # ISETCam displayRender ('analog'): img / max(img) * (max volts / voltage swing).
+        ratio = sensor.flatten(1).amax(1) if input_max is None else input_max.to(rgb.dtype)
+        return ratio.clamp_min(0) / peak
+
+    def extra_repr(self) -> str:
+        return f"scaling={self.scaling!r}, clip_negative_xyz={self.clip_negative_xyz}"

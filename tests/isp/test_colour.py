@@ -1,0 +1,205 @@
+"""Colour stages: least-squares matrix fit, colorimetric recovery, white balance, display and encoding.
+
+References: numpy.linalg.lstsq (independent solver), colour-science (CIE data, sRGB, dE2000),
+ISETCam imageIlluminantCorrection (gray/white world formulas).
+"""
+
+import colour
+import numpy as np
+import pytest
+import torch
+
+from isettorch import spectral
+from isettorch.isp.colour import (
+    DisplayEncode,
+    IlluminantCorrection,
+    SensorToXYZ,
+    XYZToDisplay,
+    apply_gains,
+    apply_matrix,
+    display_rgb_to_xyz_matrix,
+    fit_colour_matrix,
+    gray_world_gains,
+    illuminant_gains,
+    reflectance_set,
+    sensor_responses,
+    sensor_to_xyz_matrix,
+    srgb_decode,
+    srgb_encode,
+    white_world_gains,
+    white_xyz,
+    xyz_responses,
+)
+
+W = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+
+
+def _nikon_qe(w=W):
+    cam = colour.MSDS_CAMERA_SENSITIVITIES["Nikon 5100 (NPL)"]
+    return spectral.resample(torch.tensor(cam.values.T.copy()), torch.tensor(cam.wavelengths), w)
+
+
+def test_apply_matrix_matches_numpy_and_batched():
+    g = torch.Generator().manual_seed(0)
+    img = torch.rand(2, 4, 3, 5, generator=g, dtype=torch.float64)
+    m = torch.rand(3, 4, generator=g, dtype=torch.float64)
+    ref = np.einsum("kc,bchw->bkhw", m.numpy(), img.numpy())
+    np.testing.assert_allclose(apply_matrix(img, m).numpy(), ref, rtol=1e-12)
+    mb = torch.stack([m, 2 * m])
+    out = apply_matrix(img, mb)
+    np.testing.assert_allclose(out[1].numpy(), 2 * ref[1], rtol=1e-12)
+    with pytest.raises(ValueError, match="matrix"):
+        apply_matrix(img, torch.eye(3))
+
+
+def test_fit_matches_numpy_lstsq_on_random_and_on_macbeth():
+    g = torch.Generator().manual_seed(1)
+    src = torch.rand(30, 3, generator=g, dtype=torch.float64)
+    tgt = torch.rand(30, 3, generator=g, dtype=torch.float64)
+    ref = np.linalg.lstsq(src.numpy(), tgt.numpy(), rcond=None)[0].T  # ISETCam T = A \ B, M = T'
+    np.testing.assert_allclose(fit_colour_matrix(src, tgt).numpy(), ref, rtol=1e-10, atol=1e-12)
+
+    # The MCC-optimised Nikon matrix, with the responses computed independently in numpy.
+    qe = _nikon_qe().numpy()
+    refl = reflectance_set("macbeth", W).numpy()
+    e = spectral.illuminant("D65", W, dtype=torch.float64).numpy()
+    p = e * (W.numpy() * 1e-9) / (6.62607015e-34 * 299792458.0)
+    cmf = spectral.cmfs(W, dtype=torch.float64).numpy()
+    a = (refl * p * 10.0) @ qe.T
+    b = 683.0 * (refl * e * 10.0) @ cmf.T
+    ref = np.linalg.lstsq(a, b, rcond=None)[0].T
+    np.testing.assert_allclose(sensor_to_xyz_matrix(_nikon_qe(), W).numpy(), ref, rtol=1e-8)
+
+
+def test_colorimetric_sensor_recovers_xyz_exactly():
+    # QE a linear combination of the photon-counting CMFs (cmf * hc / lambda, ISETCam XYZQuanta).
+    mix = torch.tensor([[0.2, 0.7, 0.1], [0.05, 0.9, 0.05], [0.3, 0.1, 0.6]], dtype=torch.float64)
+    qe = mix @ (spectral.cmfs(W, dtype=torch.float64) / W) * 50
+    m = sensor_to_xyz_matrix(qe, W)  # fitted on the Macbeth chart under D65
+    # ... and tested on 190 other surfaces under illuminant A.
+    s = sensor_responses(qe, W, "A", "rawtoaces190")
+    x = xyz_responses(W, "A", "rawtoaces190")
+    np.testing.assert_allclose((s @ m.T).numpy(), x.numpy(), rtol=1e-9, atol=1e-9 * x.abs().max().item())
+
+
+def test_xyz_responses_match_colour_science():
+    refl = reflectance_set("macbeth", W)[:3]
+    x = xyz_responses(W, "D65", refl)
+    x = x / xyz_responses(W, "D65", torch.ones(1, W.numel(), dtype=torch.float64))[0, 1]
+    shape = colour.SpectralShape(400, 700, 10)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
+    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    for i in range(3):
+        sd = colour.SpectralDistribution(dict(zip(W.tolist(), refl[i].tolist())))
+        ref = colour.sd_to_XYZ(sd, cmfs, ill, method="Integration") / 100
+        np.testing.assert_allclose(x[i].numpy(), ref, rtol=2e-3)
+
+
+def test_nikon_mcc_optimised_delta_e_below_2():
+    qe = _nikon_qe()
+    m = sensor_to_xyz_matrix(qe, W)
+    est = sensor_responses(qe, W, "D65") @ m.T
+    true = xyz_responses(W, "D65")
+    white = xyz_responses(W, "D65", torch.ones(1, W.numel(), dtype=torch.float64))[0]
+    xy_w = colour.XYZ_to_xy(white.numpy())
+    de = colour.delta_E(colour.XYZ_to_Lab(est.numpy() / white[1].item(), xy_w),
+                        colour.XYZ_to_Lab(true.numpy() / white[1].item(), xy_w), method="CIE 2000")
+    assert de.mean() < 2.0, de.mean()
+
+
+def test_gray_world_gains_follow_isetcam_formula():
+    g = torch.Generator().manual_seed(2)
+    img = torch.rand(2, 3, 6, 7, generator=g, dtype=torch.float64) + 0.05
+    white = torch.tensor([0.95, 1.0, 1.09], dtype=torch.float64)
+    gains = gray_world_gains(img, white)
+    avg = img.mean((-2, -1))
+    ref = (white / white[0]) * (avg[:, :1] / avg)  # ISETCam grayWorld: D = whiteRatio .* avg(1) ./ avg
+    np.testing.assert_allclose(gains.numpy(), ref.numpy(), rtol=1e-12)
+    out_mean = apply_gains(img, gains).mean((-2, -1))
+    np.testing.assert_allclose((out_mean / out_mean[:, :1]).numpy(), (white / white[0]).expand(2, 3).numpy(),
+                               rtol=1e-12)
+
+
+def test_white_world_uses_bright_pixels_of_brightest_plane():
+    img = torch.zeros(1, 3, 1, 4, dtype=torch.float64)
+    img[0, :, 0] = torch.tensor([[1.0, 0.8, 0.1, 0.2], [0.5, 0.4, 0.2, 0.1], [0.25, 0.2, 0.9, 0.05]]).T.T
+    # channel 0 has the highest max (1.0); bright pixels: channel-0 value >= 0.7 -> columns 0 and 1
+    gains = white_world_gains(img)
+    brt = img[0, :, 0, :2].mean(-1)
+    np.testing.assert_allclose(gains[0].numpy(), (brt[0] / brt).numpy(), rtol=1e-12)
+
+
+def test_illuminant_gains_methods_and_errors():
+    img = torch.rand(1, 3, 4, 4, dtype=torch.float64) + 0.1
+    assert torch.equal(illuminant_gains(img, "none"), torch.ones(1, 3, dtype=torch.float64))
+    man = illuminant_gains(img, "manual", gains=[1.0, 2.0, 3.0])
+    assert man.tolist() == [[1.0, 2.0, 3.0]]
+    with pytest.raises(ValueError, match="method"):
+        illuminant_gains(img, "grey_wrld")
+    with pytest.raises(ValueError, match="gains"):
+        illuminant_gains(img, "manual")
+    with pytest.raises(ValueError, match="positive mean"):
+        gray_world_gains(torch.zeros(1, 3, 2, 2))
+    with pytest.raises(ValueError, match="space"):
+        IlluminantCorrection("gray_world", space="lab")
+
+
+def test_srgb_encoding_matches_colour_science():
+    x = torch.linspace(0, 1, 101, dtype=torch.float64)
+    np.testing.assert_allclose(srgb_encode(x).numpy(), colour.cctf_encoding(x.numpy(), "sRGB"), atol=1e-12)
+    np.testing.assert_allclose(srgb_decode(srgb_encode(x)).numpy(), x.numpy(), atol=1e-12)
+    enc = DisplayEncode("srgb")(torch.tensor([-0.5, 0.5, 2.0], dtype=torch.float64))
+    assert enc[0] == 0 and enc[2].item() == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(DisplayEncode(2.2)(torch.tensor([0.5], dtype=torch.float64)).numpy(), 0.5 ** (1 / 2.2))
+
+
+def test_srgb_display_matrix_and_white():
+    d = XYZToDisplay("srgb")
+    ref = colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB
+    # colour-science uses the standard's 4-decimal matrix; ours is derived from the primaries (4e-4 apart).
+    np.testing.assert_allclose(d.matrix.numpy(), ref, atol=5e-4)
+    d65 = white_xyz("D65")
+    np.testing.assert_allclose(apply_matrix(d65.reshape(1, 3, 1, 1).float(), d.matrix).flatten().numpy(),
+                               [1.0, 1.0, 1.0], atol=2e-3)
+
+
+def test_display_from_primary_spds():
+    # Gaussian primaries; the matrix columns are the primaries' XYZ (colour-science, k = 683).
+    lam = W
+    spd = torch.stack([torch.exp(-0.5 * ((lam - c) / 20) ** 2) for c in (610.0, 540.0, 460.0)]) * 1e-3
+    rgb2xyz = display_rgb_to_xyz_matrix(spd, W)
+    shape = colour.SpectralShape(400, 700, 10)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
+    for i in range(3):
+        sd = colour.SpectralDistribution(dict(zip(W.tolist(), spd[i].tolist())))
+        ref = colour.sd_to_XYZ(sd, cmfs, k=683, method="Integration")
+        np.testing.assert_allclose(rgb2xyz[:, i].numpy(), ref, rtol=1e-6)
+
+    class _Display:
+        name = "gauss"
+        wavelengths_nm = W
+        primaries_spd = spd
+
+    d = XYZToDisplay(_Display())
+    assert d.max_luminance_cd_m2 == pytest.approx(rgb2xyz[1].sum().item())
+    white = d.white_point_xyz.double().reshape(1, 3, 1, 1)
+    np.testing.assert_allclose(d(white).flatten().numpy(), [1, 1, 1], atol=1e-5)
+
+
+def test_sensor_to_xyz_module_normalised_white_and_gradients():
+    qe = _nikon_qe()
+    s2x = SensorToXYZ().fit(qe, W)
+    white = s2x.sensor_white
+    assert white.max().item() == pytest.approx(1.0)
+    y = apply_matrix(white.reshape(1, -1, 1, 1), s2x.matrix)[0, 1, 0, 0]
+    assert y.item() == pytest.approx(1.0, rel=1e-10)
+    # Chromaticity of the white matches D65's (within the fit's residual).
+    xyz_w = apply_matrix(white.reshape(1, -1, 1, 1), s2x.matrix).flatten().numpy()
+    np.testing.assert_allclose(colour.XYZ_to_xy(xyz_w), colour.XYZ_to_xy(white_xyz("D65").numpy()), atol=5e-3)
+    learn = SensorToXYZ(learnable=True).fit(qe, W)
+    img = torch.rand(1, 3, 2, 2, dtype=torch.float64)
+    learn(img).sum().backward()
+    assert learn.matrix.grad is not None and learn.matrix.grad.abs().sum() > 0
+    src = torch.rand(10, 3, dtype=torch.float64, requires_grad=True)
+    tgt = torch.rand(10, 3, dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda s: fit_colour_matrix(s, tgt), (src,))
