@@ -1,0 +1,359 @@
+"""``isettorch parity CASE.npz [...]``: check optics and sensor against ISETCam reference cases.
+
+Each case (``isetcam-parity/FORMAT.md``) is run with its own parameters and ISETCam's conventions
+(fixed exposure, noise off, Gaussian pre-blur + point sampling, analog gain divides, N-bit ADC without
+clamp), and every stage is compared with the case's arrays:
+
+=========================  ==================================================================  ===========
+stage                      compared quantity                                                    tolerance
+=========================  ==================================================================  ===========
+``oi_photons``             our ISETCam-compatible OI vs ``oi_photons`` (relative, pixels above  1e-4
+                           1 % of the max)
+``mean_illuminance``       mean illuminance of our OI vs ``oi_mean_illuminance_lux`` (relative)  2e-3
+``sensor_current``         pixel current (A) from the case OI vs ``sensor_signal_current_a``    1e-4 rel.
+``sensor_volts``           volts from the **case** OI vs ``sensor_volts`` (absolute V)          1e-5 V
+``sensor_dv``              DN from the case OI vs ``sensor_dv``: exact at >= 99.9 % of pixels,  1 DN
+                           within 1 elsewhere
+``*_from_our_oi``          the same sensor stages run on our OI (informational: not in verdict)
+=========================  ==================================================================  ===========
+
+``mean_rel_err`` is the mean of ``|ours - ref| / |ref|`` over reference values above 1 % of the max;
+``max_err`` is the stage's tolerance quantity (max relative error for OI/current/illuminance, max
+absolute volts, max absolute DN). Stages without data in a case are reported as skipped.
+Exit code 0 when every checked stage is within tolerance, 1 otherwise, 2 when a case cannot be read.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+TOL = {"oi_photons": 1e-4, "mean_illuminance": 2e-3, "sensor_current": 1e-4, "sensor_volts": 1e-5,
+       "sensor_dv": 1.0}
+DV_EXACT_FRACTION = 0.999
+
+
+def register(sub) -> None:
+    p = sub.add_parser("parity", help="check optics and sensor stages against ISETCam parity cases (.npz)")
+    p.add_argument("cases", nargs="+", help="parity case files (isetcam-parity/FORMAT.md)")
+    p.add_argument("--json", action="store_true", help="print a JSON report instead of a table")
+    p.add_argument("--repeat", type=int, default=0, metavar="N",
+                   help="time each stage N times after a warm-up and report the median seconds")
+    p.set_defaults(func=run)
+
+
+# --- case reading ------------------------------------------------------------------------------
+
+
+def _scalar(d, key, default=None):
+    if key not in d.files:
+        if default is None:
+            raise KeyError(key)
+        return default
+    return d[key].item() if d[key].ndim == 0 else d[key]
+
+
+def load_case(path: str | Path) -> dict:
+    """Read a parity case into plain numpy values (``np.load(..., allow_pickle=False)``)."""
+    import numpy as np
+
+    with np.load(path, allow_pickle=False) as d:
+        return {k: d[k] for k in d.files}
+
+
+def case_cfa(case: dict):
+    """The case's CFA: the pattern (``sensor_cfa_pattern``, 1-based) over the filter order of
+    ``sensor_filter_names``, letters from ``sensor_filter_letters`` (or the names' first letters)."""
+    import numpy as np
+
+    from ..sensor.cfa import CFA, KNOWN_LETTERS
+
+    names = [str(n) for n in np.atleast_1d(case["sensor_filter_names"])]
+    if "sensor_filter_letters" in case:
+        letters = list(str(case["sensor_filter_letters"]).upper())
+    else:
+        letters = [n[:1].upper() for n in names]
+    if len(letters) != len(names) or len(set(letters)) != len(letters) or \
+            any(x not in KNOWN_LETTERS for x in letters):
+        letters = names  # fall back to the full filter names as channel names
+    if "sensor_cfa_pattern" in case:
+        pat = np.atleast_2d(np.asarray(case["sensor_cfa_pattern"], dtype=np.int64))
+        if pat.min() < 1 or pat.max() > len(names):
+            raise ValueError(f"sensor_cfa_pattern: expected 1-based indices into {len(names)} filters, got {pat}")
+        cell = [[letters[i - 1] for i in row] for row in pat]
+        cfa = CFA(cell, channel_names=letters)
+        s = str(case.get("sensor_cfa", ""))
+        if s and all(len(x) == 1 for x in letters) and cfa.pattern != s.upper():
+            raise ValueError(f"sensor_cfa: {s!r} disagrees with sensor_cfa_pattern ({cfa.pattern!r})")
+        return cfa
+    return CFA(str(case["sensor_cfa"]), channel_names=letters)
+
+
+def build_sensor(case: dict, preblur_size: int | None = None):
+    """A :class:`~isettorch.sensor.Sensor` with the case's parameters and ISETCam's conventions."""
+    import torch
+
+    from ..sensor import Sensor, SpectralQE
+
+    cfa = case_cfa(case)
+    wave = torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1)
+    qe = torch.as_tensor(case["sensor_spectral_qe"], dtype=torch.float64).reshape(cfa.num_channels, -1)
+    q = str(case.get("sensor_quantization", "analog")).strip().lower()
+    bits = None if q in ("analog", "0", "") else int(q)
+    return Sensor(
+        rows=int(case["sensor_rows"]), cols=int(case["sensor_cols"]),
+        pixel_size_m=float(case["sensor_pixel_size_m"]), fill_factor=float(case["sensor_fill_factor"]), cfa=cfa,
+        spectral_qe=SpectralQE(qe, wave, cfa.channel_names),
+        conversion_gain_v_per_e=float(case["sensor_conversion_gain_v_per_e"]),
+        voltage_swing_v=float(case["sensor_voltage_swing_v"]), exposure_s=float(case["sensor_exposure_s"]),
+        analog_gain=float(case.get("sensor_analog_gain", 1.0)),
+        analog_offset_v=float(case.get("sensor_analog_offset", 0.0)), gain_convention="isetcam",
+        adc_bits=bits, adc_mode="isetcam", shot_noise="off", sampling="isetcam", preblur_size=preblur_size,
+        output_units="volts", name=str(case.get("case_name", "")),
+    )
+
+
+def case_oi(case: dict):
+    """The case's own optical image as an :class:`~isettorch.optics.OpticalImage` (float64)."""
+    import torch
+
+    from ..optics.optical_image import OpticalImage
+
+    return OpticalImage(torch.as_tensor(case["oi_photons"], dtype=torch.float64)[None],
+                        torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1),
+                        sample_spacing_m=float(case["oi_sample_spacing_m"]),
+                        pad_rows=int(case.get("oi_pad_rows", 0)), pad_cols=int(case.get("oi_pad_cols", 0)),
+                        validate=False)
+
+
+def _optics_function():
+    """The optics engineer's ISETCam-compatible ``compute_oi`` (None if it is not available)."""
+    try:
+        from ..optics import isetcam as mod
+    except ImportError:
+        return None
+    return getattr(mod, "compute_oi", None)
+
+
+def compute_our_oi(case: dict, fn):
+    import torch
+
+    return fn(torch.as_tensor(case["scene_photons"], dtype=torch.float64),
+              torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1),
+              float(case["scene_hfov_deg"]), float(case["scene_distance_m"]), float(case["optics_f_number"]),
+              float(case["optics_focal_length_m"]),
+              torch.as_tensor(case["optics_transmittance"], dtype=torch.float64).reshape(-1)
+              if "optics_transmittance" in case else None,
+              offaxis="skip" if str(case.get("optics_offaxis", "cos4th")).lower() in ("skip", "none") else "cos4th")
+
+
+def mean_illuminance(photons, wavelengths_nm, vlambda=None):
+    """ISETCam mean illuminance (lux) [B]: ``683 binwidth sum V E`` with ISETCam's h, c (FORMAT 4.1)."""
+    import torch
+
+    from .. import constants, spectral
+
+    w = wavelengths_nm.to(torch.float64)
+    v = spectral.luminosity(w, dtype=torch.float64) if vlambda is None else \
+        torch.as_tensor(vlambda, dtype=torch.float64).reshape(-1)
+    bw = float(w[1] - w[0]) if w.numel() > 1 else 1.0
+    e = photons.to(torch.float64) * (constants.ISETCAM["h"] * constants.ISETCAM["c"]) / (w[:, None, None] * 1e-9)
+    return constants.KM_LM_PER_W * bw * torch.einsum("...lhw,l->...hw", e, v).mean(dim=(-2, -1))
+
+
+# --- comparisons ---------------------------------------------------------------------------------
+
+
+def _rel_stats(ours, ref, tol):
+    import numpy as np
+
+    ours = np.asarray(ours, np.float64)
+    ref = np.asarray(ref, np.float64)
+    if ours.shape != ref.shape:
+        return {"ok": False, "error": f"shape {ours.shape} != reference {ref.shape}", "mean_rel_err": None,
+                "max_err": None}
+    mask = np.abs(ref) > 0.01 * np.abs(ref).max() if np.abs(ref).max() > 0 else np.ones(ref.shape, bool)
+    rel = np.abs(ours - ref)[mask] / np.abs(ref)[mask] if np.abs(ref).max() > 0 else np.abs(ours - ref)[mask]
+    mx = float(rel.max()) if rel.size else 0.0
+    return {"mean_rel_err": float(rel.mean()) if rel.size else 0.0, "max_err": mx, "tolerance": tol,
+            "ok": bool(mx <= tol)}
+
+
+def _abs_stats(ours, ref, tol):
+    import numpy as np
+
+    ours = np.asarray(ours, np.float64)
+    ref = np.asarray(ref, np.float64)
+    if ours.shape != ref.shape:
+        return {"ok": False, "error": f"shape {ours.shape} != reference {ref.shape}", "mean_rel_err": None,
+                "max_err": None}
+    err = np.abs(ours - ref)
+    big = np.abs(ref) > 0.01 * np.abs(ref).max() if np.abs(ref).max() > 0 else np.zeros(ref.shape, bool)
+    mean_rel = float((err[big] / np.abs(ref[big])).mean()) if big.any() else 0.0
+    return {"mean_rel_err": mean_rel, "max_err": float(err.max()), "mean_abs_err": float(err.mean()),
+            "tolerance": tol, "ok": bool(err.max() <= tol)}
+
+
+def _dv_stats(ours, ref):
+    import numpy as np
+
+    out = _abs_stats(ours, ref, TOL["sensor_dv"])
+    if "error" in out:
+        return out
+    exact = float((np.asarray(ours, np.float64) == np.asarray(ref, np.float64)).mean())
+    out["exact_fraction"] = exact
+    out["ok"] = bool(out["max_err"] <= 1.0 and exact >= DV_EXACT_FRACTION)
+    return out
+
+
+def _median_seconds(fn, repeat: int) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def run_case(path: str | Path, repeat: int = 0) -> dict:
+    """Run one case; returns ``{"name", "path", "stages": {stage: {...}}, "ok"}``."""
+    import numpy as np
+    import torch
+
+    from .. import constants
+
+    case = load_case(path)
+    name = str(case.get("case_name", Path(path).stem))
+    stages: dict[str, dict] = {}
+    notes: list[str] = []
+    w = torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1)
+    vl = case.get("vlambda")
+
+    # Optics stage
+    fn = _optics_function()
+    our_oi = None
+    if fn is None:
+        stages["oi_photons"] = {"skipped": "isettorch.optics.isetcam.compute_oi is not available", "ok": None}
+    else:
+        our_oi = compute_our_oi(case, fn)
+        stages["oi_photons"] = _rel_stats(our_oi.photons[0].numpy(), case["oi_photons"], TOL["oi_photons"])
+        if repeat > 0:
+            stages["oi_photons"]["seconds"] = _median_seconds(lambda: compute_our_oi(case, fn), repeat)
+        dx = float(our_oi.sample_spacing_m[0])
+        ref_dx = float(case["oi_sample_spacing_m"])
+        if abs(dx - ref_dx) > 1e-9 * ref_dx:
+            notes.append(f"our OI sample spacing {dx:.10g} m differs from the case's {ref_dx:.10g} m")
+    if "oi_mean_illuminance_lux" in case:
+        src = our_oi.photons[0] if our_oi is not None else torch.as_tensor(case["oi_photons"], dtype=torch.float64)
+        lux = float(mean_illuminance(src, w, vl))
+        ref = float(case["oi_mean_illuminance_lux"])
+        rel = abs(lux - ref) / abs(ref) if ref else abs(lux)
+        stages["mean_illuminance"] = {"mean_rel_err": rel, "max_err": rel, "tolerance": TOL["mean_illuminance"],
+                                      "ok": bool(rel <= TOL["mean_illuminance"]), "value_lux": lux, "ref_lux": ref,
+                                      "source": "our OI" if our_oi is not None else "case OI"}
+    else:
+        stages["mean_illuminance"] = {"skipped": "no oi_mean_illuminance_lux", "ok": None}
+
+    # Sensor stage: ISETCam's pre-blur size from the case kernel when stored (FORMAT 4.6 step 2).
+    from ..sensor.sampling import isetcam_preblur_size
+
+    k_ours = isetcam_preblur_size(float(case["sensor_pixel_size_m"]), float(case["oi_sample_spacing_m"]))
+    k = k_ours
+    if "sensor_regrid_kernel" in case:
+        k = int(np.atleast_2d(case["sensor_regrid_kernel"]).shape[0])
+        if k != k_ours:
+            notes.append(f"pre-blur kernel: case has k={k}, ceil(pitch/dx) gives {k_ours}; using the case's")
+    sensor = build_sensor(case, preblur_size=k)
+    for label, oi in (("", case_oi(case)), ("_from_our_oi", our_oi)):
+        if oi is None:
+            for st in ("sensor_current", "sensor_volts", "sensor_dv"):
+                stages[st + label] = {"skipped": "no OI of our own (optics unavailable)", "ok": None}
+            continue
+        with torch.no_grad():
+            raw = sensor(oi, noise=False)
+        volts = raw.data[0, 0]
+        res = {}
+        if "sensor_signal_current_a" in case:
+            current = (sensor.electron_rate(oi) * constants.ISETCAM["q"])[0, 0]
+            res["sensor_current"] = _rel_stats(current.numpy(), case["sensor_signal_current_a"],
+                                               TOL["sensor_current"])
+        else:
+            res["sensor_current"] = {"skipped": "no sensor_signal_current_a", "ok": None}
+        res["sensor_volts"] = _abs_stats(volts.numpy(), case["sensor_volts"], TOL["sensor_volts"])
+        if repeat > 0 and not label:
+            def _sensor_once(oi=oi):
+                with torch.no_grad():
+                    sensor(oi, noise=False)
+            res["sensor_volts"]["seconds"] = _median_seconds(_sensor_once, repeat)
+        if "sensor_dv" in case:
+            if sensor.adc_bits is None:
+                res["sensor_dv"] = {"ok": False, "error": "case has sensor_dv but quantization is analog",
+                                    "mean_rel_err": None, "max_err": None}
+            else:
+                res["sensor_dv"] = _dv_stats(sensor.volts_to_dn(volts).numpy(), case["sensor_dv"])
+        else:
+            res["sensor_dv"] = {"skipped": "analog sensor (no sensor_dv)", "ok": None}
+        for st, v in res.items():
+            if label and "skipped" not in v:
+                v["informational"] = True
+            stages[st + label] = v
+    ok = all(v["ok"] for v in stages.values() if v.get("ok") is not None and not v.get("informational"))
+    return {"name": name, "path": str(path), "stages": stages, "notes": notes, "ok": ok}
+
+
+def _fmt(x, spec=".3e"):
+    return "-" if x is None else format(x, spec)
+
+
+def _table(results: list[dict], out) -> None:
+    print(f"{'case / stage':<42} {'mean_rel_err':>12} {'max_err':>10} {'tol':>8} {'seconds':>9}  verdict", file=out)
+    for r in results:
+        print(f"{r['name']}  ({r['path']})", file=out)
+        if "error" in r:
+            print(f"  ERROR: {r['error']}", file=out)
+            continue
+        for st, v in r["stages"].items():
+            if "skipped" in v:
+                print(f"  {st:<40} {'':>12} {'':>10} {'':>8} {'':>9}  skipped: {v['skipped']}", file=out)
+                continue
+            verdict = "ok" if v["ok"] else "FAIL"
+            if v.get("informational"):
+                verdict += " (info)"
+            if "exact_fraction" in v:
+                verdict += f"  exact {100 * v['exact_fraction']:.3f}%"
+            if "error" in v:
+                verdict += f"  {v['error']}"
+            secs = _fmt(v.get("seconds"), ".4f")
+            print(f"  {st:<40} {_fmt(v.get('mean_rel_err')):>12} {_fmt(v.get('max_err')):>10} "
+                  f"{_fmt(v.get('tolerance'), '.0e'):>8} {secs:>9}  {verdict}", file=out)
+        for n in r.get("notes", []):
+            print(f"  note: {n}", file=out)
+    ok = all(r.get("ok") for r in results)
+    print(f"overall: {'ok' if ok else 'FAIL'}", file=out)
+
+
+def run(args) -> int:
+    if args.repeat < 0:
+        print(f"--repeat: expected a non-negative count, got {args.repeat}", file=sys.stderr)
+        return 2
+    results = []
+    code = 0
+    for path in args.cases:
+        try:
+            results.append(run_case(path, repeat=args.repeat))
+        except (OSError, KeyError, ValueError, TypeError) as err:
+            results.append({"name": Path(path).stem, "path": str(path), "error": f"{type(err).__name__}: {err}",
+                            "stages": {}, "ok": False})
+            code = 2
+    ok = all(r["ok"] for r in results)
+    if args.json:
+        print(json.dumps({"cases": results, "ok": ok}, indent=2))
+    else:
+        _table(results, sys.stdout)
+    if code:
+        return code
+    return 0 if ok else 1

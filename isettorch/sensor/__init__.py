@@ -1,0 +1,17 @@
+"""Sensor: optical-image irradiance -> raw mosaic (`RawImage`), with CFA, spectral QE, pixel
+geometry and sampling, exposure, noise and ADC; presets and sensor metrics."""
+
+from . import metrics
+from .cfa import CFA, CFA_LIBRARY, KNOWN_LETTERS
+from .exposure import AE_METHODS, auto_exposure
+from .filters import SpectralQE, filter_set, filter_set_names, ir_cut_filter, photodiode_qe
+from .noise import quantize_ste, round_half_away, shot_noise
+from .raw import RawImage
+from .sampling import isetcam_preblur, isetcam_preblur_kernel, sample_area, sample_point
+from .sensor import PRESETS, Sensor
+
+__all__ = [
+    "AE_METHODS", "CFA", "CFA_LIBRARY", "KNOWN_LETTERS", "PRESETS", "RawImage", "Sensor", "SpectralQE",
+    "auto_exposure", "filter_set", "filter_set_names", "ir_cut_filter", "isetcam_preblur", "isetcam_preblur_kernel",
+    "metrics", "photodiode_qe", "quantize_ste", "round_half_away", "sample_area", "sample_point", "shot_noise",
+]

@@ -1,0 +1,48 @@
+"""Auto-exposure: choose the exposure that puts a statistic of the (noise-free) signal at a target.
+
+Methods (``AE_METHODS``), each applied to the volts a 1 s exposure would give (after analog gain,
+as ISETCam measures them):
+
+* ``'luminance'``: the brightest pixel to 95 % of the voltage swing (ISETCam ``aeLuminance``: the
+  brightest region to 0.95 x swing; computed noise-free here, ISETCam adds read noise, FORMAT 4.5).
+* ``'mean'``: the mean signal to ``target`` x swing (default 0.18, the mid-grey convention).
+* ``'percentile'``: the ``percentile`` (default 99) of the signal to ``target`` x swing (default 0.95).
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["AE_METHODS", "auto_exposure"]
+
+AE_METHODS = {"luminance": 0.95, "mean": 0.18, "percentile": 0.95}
+
+
+def auto_exposure(volts_per_s: torch.Tensor, voltage_swing_v: float, method: str = "luminance", *,
+                  target: float | None = None, percentile: float = 99.0, max_exposure_s: float = 10.0
+                  ) -> torch.Tensor:
+    """Exposure times ``[B]`` (s) from the noise-free volts of a 1 s exposure ``[B, 1, H, W]``.
+
+    ``t = target * swing / stat(volts at 1 s)`` (the response is linear in t, FORMAT 4.5); a black image
+    gets ``max_exposure_s``.
+
+    Example:
+        >>> auto_exposure(torch.full((1, 1, 2, 2), 2.0), 1.0)
+        tensor([0.4750])
+    """
+    if method not in AE_METHODS:
+        raise ValueError(f"method: expected one of {sorted(AE_METHODS)}, got {method!r}")
+    if not 0 < percentile <= 100:
+        raise ValueError(f"percentile: expected a value in (0, 100], got {percentile}")
+    target = AE_METHODS[method] if target is None else float(target)
+    if not 0 < target <= 1:
+        raise ValueError(f"target: expected a fraction of the voltage swing in (0, 1], got {target}")
+    flat = volts_per_s.detach().flatten(1)
+    if method == "luminance":
+        stat = flat.amax(dim=1)
+    elif method == "mean":
+        stat = flat.mean(dim=1)
+    else:
+        stat = torch.quantile(flat, percentile / 100.0, dim=1)
+    t = target * voltage_swing_v / stat.clamp_min(torch.finfo(stat.dtype).tiny)
+    return torch.where(stat > 0, t.clamp(max=max_exposure_s), torch.full_like(t, max_exposure_s))

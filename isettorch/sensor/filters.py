@@ -1,0 +1,231 @@
+"""Filter spectra and the sensor's combined spectral QE (colour filter x IR filter x photodiode QE).
+
+Sets (``filter_set(name)``):
+
+* ``'isetcam_rgb'``: ISETCam's default r, g, b colour filters (``sensorCreate('bayer')``,
+  400:10:700 nm, as exported in the ISETCam parity files; ISETCam is MIT-licensed).
+* ``'isetcam_cmy'``: a complementary c, y, m set derived from those (C = G + B, Y = R + G,
+  M = R + B). ISETCam-like, not ISETCam's own ``cym`` data.
+* ``'nikon_5100'``, ``'sigma_sdmerill'``: measured camera sensitivities (NPL) shipped by
+  colour-science (``colour.MSDS_CAMERA_SENSITIVITIES``), peak 1 per channel.
+* ``'clear'``: an unfiltered (W) pixel, 1 everywhere.
+
+:class:`SpectralQE` holds the spectra on their native grid and resamples them once per image
+wavelength grid (linear, 0 outside: ISETCam ``interp1(..., 'linear', 0)``), cached; with
+``learnable=True`` the filters are ``nn.Parameter`` s kept non-negative through a softplus.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from .. import spectral
+from .._checks import as_tensor, check_nonnegative, check_wavelengths
+from .cfa import CFA
+
+__all__ = ["SpectralQE", "filter_set", "filter_set_names", "ir_cut_filter", "photodiode_qe"]
+
+_W_ISETCAM = np.arange(400.0, 701.0, 10.0)
+# ISETCam default RGB colour filters (sensorCreate 'bayer'), rows r, g, b on 400:10:700 nm.
+_ISETCAM_RGB = np.array([
+    (0.0140164, 0.0102675, 0.00923432, 0.00917831, 0.00450524, 0.00513995, 0.00889905, 0.00713447, 0.00325176,
+     0.00214099, 0.00777862, 0.0146442, 0.029668, 0.040335, 0.0247388, 0.005429, 0.0184696, 0.07857, 0.166173,
+     0.25683, 0.321085, 0.355688, 0.370592, 0.373002, 0.373756, 0.37556, 0.374743, 0.381796, 0.379445, 0.383556,
+     0.386465),
+    (0.00547684, 0.00860536, 0.0151353, 0.0274845, 0.0255677, 0.0148096, 0.0265698, 0.0361583, 0.0156433,
+     0.00814119, 0.0605258, 0.159176, 0.255407, 0.322691, 0.347794, 0.340355, 0.308176, 0.249427, 0.184743,
+     0.11449, 0.0615279, 0.0244296, 0.00729874, 0.00147736, 0.00192891, 0.00390602, 0.00473499, 0.00421449,
+     0.00277486, 0.00179227, 0.00190116),
+    (0.00889835, 0.0636692, 0.140264, 0.188636, 0.219425, 0.240199, 0.262235, 0.287592, 0.290768, 0.26705,
+     0.216613, 0.142948, 0.0769114, 0.0336076, 0.0106071, 0.00200537, 0.000918868, 0.00126649, 0.00104359,
+     0.000575687, 0.000258136, 0.000185377, 0.000181836, 0.000167078, 0.000161256, 0.000216523, 0.000312547,
+     0.000380075, 0.000586042, 0.000928747, 0.00162867),
+])
+
+_COLOUR_CAMERAS = {"nikon_5100": "Nikon 5100 (NPL)", "sigma_sdmerill": "Sigma SDMerill (NPL)"}
+
+
+def filter_set_names() -> list[str]:
+    return ["isetcam_rgb", "isetcam_cmy", *_COLOUR_CAMERAS, "clear"]
+
+
+@functools.cache
+def _filter_set_np(name: str) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    if name == "isetcam_rgb":
+        return _W_ISETCAM, _ISETCAM_RGB, ("R", "G", "B")
+    if name == "isetcam_cmy":
+        r, g, b = _ISETCAM_RGB
+        return _W_ISETCAM, np.stack([g + b, r + g, r + b]), ("C", "Y", "M")
+    if name in _COLOUR_CAMERAS:
+        import colour
+
+        m = colour.MSDS_CAMERA_SENSITIVITIES[_COLOUR_CAMERAS[name]]
+        vals = np.asarray(m.values, float).T
+        return np.asarray(m.wavelengths, float), vals / vals.max(axis=1, keepdims=True), ("R", "G", "B")
+    if name == "clear":
+        return np.array([300.0, 1100.0]), np.ones((1, 2)), ("W",)
+    raise ValueError(f"name: unknown filter set {name!r}; expected one of {filter_set_names()}")
+
+
+def filter_set(name: str, wavelengths_nm=None, *, dtype=None, device=None):
+    """A named set of filter spectra: ``(wavelengths [Ln], spectra [C, Ln], letters)``.
+
+    With ``wavelengths_nm`` the spectra are resampled onto that grid (linear, 0 outside).
+    """
+    w, v, letters = _filter_set_np(str(name).lower())
+    wt = torch.tensor(w, dtype=torch.float64)
+    vt = torch.tensor(v, dtype=torch.float64)
+    if wavelengths_nm is not None:
+        dst = check_wavelengths(torch.as_tensor(wavelengths_nm)).to(torch.float64).cpu()
+        vt = spectral.resample(vt, wt, dst)
+        wt = dst
+    dtype = dtype or torch.get_default_dtype()
+    return wt.to(dtype=dtype, device=device), vt.to(dtype=dtype, device=device), letters
+
+
+def ir_cut_filter(wavelengths_nm, cutoff_nm: float = 650.0, edge_width_nm: float = 10.0, *, dtype=None,
+                  device=None) -> torch.Tensor:
+    """A smooth IR-cut (short-pass) filter [L]: ``1 / (1 + exp((lambda - cutoff) / width))``.
+
+    A logistic edge, transmitting 0.5 at ``cutoff_nm``; a common model of a dichroic hot mirror.
+    """
+    if not edge_width_nm > 0:
+        raise ValueError(f"edge_width_nm: expected a positive width, got {edge_width_nm}")
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm)).to(torch.float64)
+    out = torch.sigmoid(-(w - cutoff_nm) / edge_width_nm)
+    return out.to(dtype=dtype or torch.get_default_dtype(), device=device)
+
+
+def photodiode_qe(wavelengths_nm, value: float = 1.0, *, dtype=None, device=None) -> torch.Tensor:
+    """Photodiode QE [L]: a constant (ISETCam's default pixel QE is 1 at every wavelength)."""
+    if not 0 <= value <= 1:
+        raise ValueError(f"value: expected a quantum efficiency in [0, 1], got {value}")
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    return torch.full((w.numel(),), float(value), dtype=dtype or torch.get_default_dtype(), device=device)
+
+
+def _inv_softplus(x: torch.Tensor, floor: float = 1e-8) -> torch.Tensor:
+    x = x.clamp_min(floor)
+    return x + torch.log(-torch.expm1(-x))
+
+
+class SpectralQE(nn.Module):
+    """Combined spectral QE ``[C, L]`` = colour filters x IR filter x photodiode QE.
+
+    Args:
+        filters: ``[C, Ln]`` transmittances on ``wavelengths_nm`` (non-negative).
+        wavelengths_nm: native grid ``[Ln]`` (nm).
+        channel_names: C names (CFA letters such as 'R', 'G', 'B').
+        ir_filter, pixel_qe: optional ``[Ln]`` spectra on the same grid (default 1).
+        learnable: make the filters ``nn.Parameter`` s, kept non-negative by a softplus.
+
+    Example:
+        >>> qe = SpectralQE.from_cfa(CFA('GBRG'))
+        >>> qe(torch.arange(400., 701., 10.)).shape
+        torch.Size([3, 31])
+    """
+
+    def __init__(self, filters, wavelengths_nm, channel_names: Sequence[str], *, ir_filter=None, pixel_qe=None,
+                 learnable: bool = False) -> None:
+        super().__init__()
+        w = check_wavelengths(as_tensor(wavelengths_nm, "wavelengths_nm", dtype=torch.float64))
+        f = as_tensor(filters, "filters", dtype=torch.float64)
+        if f.dim() == 1:
+            f = f[None]
+        if f.dim() != 2 or f.shape[1] != w.numel():
+            raise ValueError(f"filters: expected shape [C, {w.numel()}] to match wavelengths_nm, got {tuple(f.shape)}")
+        check_nonnegative(f, "filters")
+        if len(channel_names) != f.shape[0]:
+            raise ValueError(f"channel_names: expected {f.shape[0]} names, got {list(channel_names)}")
+        extra = torch.ones_like(w)
+        for label, spd in (("ir_filter", ir_filter), ("pixel_qe", pixel_qe)):
+            if spd is not None:
+                s = as_tensor(spd, label, dtype=torch.float64).reshape(-1)
+                if s.numel() != w.numel():
+                    raise ValueError(f"{label}: expected {w.numel()} values on wavelengths_nm, got {s.numel()}")
+                check_nonnegative(s, label)
+                extra = extra * s
+        self.channel_names = list(channel_names)
+        self.learnable = bool(learnable)
+        self.register_buffer("wavelengths_nm", w)
+        self.register_buffer("extra", extra)
+        if learnable:
+            self.raw_filters = nn.Parameter(_inv_softplus(f))
+        else:
+            self.register_buffer("fixed_filters", f)
+        self._cache: dict = {}
+
+    @classmethod
+    def from_cfa(cls, cfa: CFA, filters: str | dict = "isetcam_rgb", *, ir_filter=None, pixel_qe=None,
+                 learnable: bool = False, wavelengths_nm=None) -> SpectralQE:
+        """Filters for each CFA channel, looked up by letter in a named set.
+
+        ``filters`` is a set name (letters R, G, B from an RGB set; C, Y, M from ``'isetcam_cmy'``; W is
+        clear) or a dict ``{channel_name: (wavelengths [Ln], spectrum [Ln])}`` for user spectra.
+        ``ir_filter``/``pixel_qe`` are given on ``wavelengths_nm`` (default 400:10:700).
+        """
+        grid = torch.tensor(_W_ISETCAM) if wavelengths_nm is None else torch.as_tensor(wavelengths_nm,
+                                                                                        dtype=torch.float64)
+        rows = []
+        for name in cfa.channel_names:
+            if isinstance(filters, dict):
+                if name not in filters:
+                    raise ValueError(f"filters: no spectrum for CFA channel {name!r}; got keys {sorted(filters)}")
+                w_src, s_src = filters[name]
+                rows.append(spectral.resample(torch.as_tensor(s_src, dtype=torch.float64),
+                                              torch.as_tensor(w_src, dtype=torch.float64), grid))
+                continue
+            sets = [filters, "isetcam_cmy", "clear"] if name in "CYMW" else [filters]
+            for s in sets:
+                _, vals, letters = filter_set(s, grid, dtype=torch.float64)
+                if name in letters:
+                    rows.append(vals[letters.index(name)])
+                    break
+            else:
+                raise ValueError(f"filters: the set {filters!r} has no filter for CFA channel {name!r}; "
+                                 f"pass a dict of user spectra")
+        return cls(torch.stack(rows), grid, cfa.channel_names, ir_filter=ir_filter, pixel_qe=pixel_qe,
+                   learnable=learnable)
+
+    @property
+    def filters(self) -> torch.Tensor:
+        """Colour filter transmittances on the native grid ``[C, Ln]``."""
+        if self.learnable:
+            return nn.functional.softplus(self.raw_filters)
+        return self.fixed_filters
+
+    @property
+    def num_channels(self) -> int:
+        return len(self.channel_names)
+
+    def native(self) -> torch.Tensor:
+        """Combined QE on the native grid ``[C, Ln]``."""
+        return self.filters * self.extra
+
+    def forward(self, wavelengths_nm: torch.Tensor, *, dtype=None, device=None) -> torch.Tensor:
+        """Combined QE on ``wavelengths_nm`` ``[C, L]`` (resampled once per grid; cached unless learnable)."""
+        w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+        dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
+        device = device or w.device
+        if self.learnable:
+            return spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device)).to(
+                dtype=dtype, device=device)
+        key = (tuple(w.detach().double().cpu().tolist()), dtype, str(device), self.fixed_filters._version)
+        out = self._cache.get(key)
+        if out is None:
+            if len(self._cache) > 16:
+                self._cache.clear()
+            out = spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device,
+                                                                              torch.float64))
+            out = out.to(dtype=dtype, device=device)
+            self._cache[key] = out
+        return out
+
+    def _apply(self, fn, *args, **kwargs):
+        self._cache = {}
+        return super()._apply(fn, *args, **kwargs)

@@ -1,0 +1,73 @@
+"""Sensor noise sources and differentiable rounding.
+
+* Photon (and dark-electron) shot noise: exact Poisson with a straight-through gradient
+  (``torch.poisson`` alone has zero gradient), a reparameterised Gaussian ``mu + sqrt(mu) z``, or off.
+* Gaussian read noise, fixed-pattern maps (DSNU, PRNU, column offsets) as standard-normal
+  draws scaled at use, and round-half-away-from-zero quantisation with a straight-through estimator.
+
+Every random draw takes an explicit ``torch.Generator``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["SHOT_NOISE_MODES", "safe_sqrt", "shot_noise", "normal", "round_half_away", "quantize_ste",
+           "fixed_pattern_draws"]
+
+SHOT_NOISE_MODES = ("poisson", "gaussian", "off")
+
+
+def safe_sqrt(x: torch.Tensor) -> torch.Tensor:
+    """sqrt with a finite gradient (0) at x <= 0: no sqrt(0) trap at zero light."""
+    pos = x > 0
+    return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.zeros_like(x))
+
+
+def normal(like: torch.Tensor, generator: torch.Generator | None, shape=None) -> torch.Tensor:
+    """Standard normal draws with ``like``'s dtype/device (``shape`` defaults to ``like.shape``)."""
+    return torch.randn(like.shape if shape is None else shape, generator=generator, dtype=like.dtype,
+                       device=like.device)
+
+
+def shot_noise(mean_e: torch.Tensor, mode: str = "poisson", generator: torch.Generator | None = None
+               ) -> torch.Tensor:
+    """Electron counts with Poisson statistics around ``mean_e`` (any shape, electrons, >= 0).
+
+    ``'poisson'``: exact Poisson draws; the gradient passes straight through (d out / d mean = 1).
+    ``'gaussian'``: ``mean + sqrt(mean) z`` (reparameterised, same first two moments).
+    ``'off'``: the mean. Source: photon transfer / EMVA 1288 (variance = mean in electrons).
+    """
+    if mode == "off":
+        return mean_e
+    if mode == "poisson":
+        draw = torch.poisson(mean_e.detach().clamp_min(0), generator=generator)
+        return mean_e + (draw - mean_e).detach()
+    if mode == "gaussian":
+        return mean_e + safe_sqrt(mean_e) * normal(mean_e, generator)
+    raise ValueError(f"shot_noise: expected mode in {SHOT_NOISE_MODES}, got {mode!r}")
+
+
+def round_half_away(x: torch.Tensor) -> torch.Tensor:
+    """MATLAB ``round``: halves away from zero (``torch.round`` rounds halves to even)."""
+    return torch.sign(x) * torch.floor(x.abs() + 0.5)
+
+
+def quantize_ste(x: torch.Tensor) -> torch.Tensor:
+    """Round half away from zero in the forward pass, identity gradient (straight-through estimator)."""
+    return x + (round_half_away(x) - x).detach()
+
+
+def fixed_pattern_draws(rows: int, cols: int, seed: int, *, dtype=torch.float64, device=None
+                        ) -> dict[str, torch.Tensor]:
+    """Standard-normal maps for the fixed-pattern noise of one sensor instance, from its seed.
+
+    Returns ``{'dsnu': [rows, cols], 'prnu': [rows, cols], 'column': [cols]}``; drawn on the CPU in
+    float64 so the pattern is the same on every device and dtype.
+    """
+    g = torch.Generator().manual_seed(int(seed))
+    dsnu = torch.randn(rows, cols, generator=g, dtype=torch.float64)
+    prnu = torch.randn(rows, cols, generator=g, dtype=torch.float64)
+    column = torch.randn(cols, generator=g, dtype=torch.float64)
+    return {k: v.to(dtype=dtype, device=device) for k, v in
+            {"dsnu": dsnu, "prnu": prnu, "column": column}.items()}

@@ -1,0 +1,115 @@
+"""`RawImage`: a sensor mosaic with the metadata a real raw file carries."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import torch
+
+from .cfa import CFA
+
+__all__ = ["RawImage", "RAW_UNITS"]
+
+RAW_UNITS = ("electrons", "volts", "dn")
+
+
+@dataclasses.dataclass(eq=False, repr=False)
+class RawImage:
+    """The sensor's mosaic ``data [B, 1, H, W]`` in ``units`` (``'electrons'``, ``'volts'`` or ``'dn'``).
+
+    Args:
+        data: the (noisy) mosaic.
+        units: what ``data`` holds.
+        cfa: the colour filter array (its unit cell tiles from pixel [0, 0]).
+        black_level, white_level: in ``units`` (DN for quantised raws), the value of no light and of
+            saturation.
+        exposure_s, analog_gain: per-sample ``[B]``.
+        conversion_gain_v_per_e, voltage_swing_v, pixel_size_m, fill_factor: the pixel.
+        adc_bits: ADC bit depth (None for an analog readout).
+        noise: the noise parameters used (dict of floats / strings).
+        noise_free: optional mosaic without any noise, same units (a training target).
+        electrons: optional mean electrons per pixel (noise-free, before clipping).
+
+    Example:
+        >>> raw = RawImage(torch.zeros(1, 1, 4, 4), 'volts', CFA('RGGB'))
+        >>> raw.channel_masks().shape
+        torch.Size([3, 4, 4])
+    """
+
+    data: torch.Tensor
+    units: str
+    cfa: CFA
+    black_level: float = 0.0
+    white_level: float | None = None
+    exposure_s: torch.Tensor | None = None
+    analog_gain: torch.Tensor | None = None
+    analog_offset_v: float = 0.0
+    conversion_gain_v_per_e: float | None = None
+    voltage_swing_v: float | None = None
+    pixel_size_m: float | None = None
+    fill_factor: float | None = None
+    adc_bits: int | None = None
+    noise: dict[str, Any] = dataclasses.field(default_factory=dict)
+    noise_free: torch.Tensor | None = None
+    electrons: torch.Tensor | None = None
+    metadata: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.data, torch.Tensor):
+            raise TypeError(f"data: expected a torch.Tensor [B, 1, H, W], got {type(self.data).__name__}")
+        if self.data.dim() != 4 or self.data.shape[1] != 1:
+            raise ValueError(f"data: expected shape [B, 1, H, W], got {tuple(self.data.shape)}")
+        if self.units not in RAW_UNITS:
+            raise ValueError(f"units: expected one of {RAW_UNITS}, got {self.units!r}")
+        if not isinstance(self.cfa, CFA):
+            self.cfa = CFA(self.cfa)
+        for name in ("noise_free", "electrons"):
+            v = getattr(self, name)
+            if v is not None and v.shape != self.data.shape:
+                raise ValueError(f"{name}: expected shape {tuple(self.data.shape)} like data, got {tuple(v.shape)}")
+
+    @property
+    def batch_size(self) -> int:
+        return self.data.shape[0]
+
+    @property
+    def height(self) -> int:
+        return self.data.shape[2]
+
+    @property
+    def width(self) -> int:
+        return self.data.shape[3]
+
+    def replace(self, **changes) -> RawImage:
+        return dataclasses.replace(self, **changes)
+
+    def _map(self, fn) -> RawImage:
+        changes = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, torch.Tensor):
+                changes[f.name] = fn(v)
+        return self.replace(**changes)
+
+    def to(self, device=None, dtype=None) -> RawImage:
+        """Move every tensor to a device and/or floating dtype."""
+        return self._map(lambda t: t.to(device=device, dtype=dtype) if t.is_floating_point() else t.to(device))
+
+    def detach(self) -> RawImage:
+        return self._map(lambda t: t.detach())
+
+    def channel_masks(self) -> torch.Tensor:
+        """One-hot CFA masks ``[C, H, W]`` in the data's dtype/device."""
+        return self.cfa.masks(self.height, self.width, dtype=self.data.dtype, device=self.data.device)
+
+    def normalized(self) -> torch.Tensor:
+        """``(data - black) / (white - black)``: 0 at black, 1 at saturation ``[B, 1, H, W]``."""
+        if self.white_level is None:
+            raise ValueError("normalized: this raw has no white_level")
+        return (self.data - self.black_level) / (self.white_level - self.black_level)
+
+    def __repr__(self) -> str:
+        return (f"RawImage(data={tuple(self.data.shape)} {self.data.dtype} on {self.data.device}, "
+                f"units={self.units!r}, "
+                f"cfa={self.cfa!r}, black={self.black_level}, white={self.white_level}, bits={self.adc_bits})")

@@ -1,0 +1,420 @@
+"""`Sensor`: optical-image irradiance -> raw mosaic (electrons, volts or DN), with noise and ADC.
+
+Signal chain (per pixel, ISETCam ``sensorCompute`` / Farrell et al. SPIE 2004 / EMVA 1288):
+
+1. electrons/s = area (or point) sample of ``sum_lambda E(lambda) QE_c(lambda) dlambda`` x pixel area x fill
+   factor (x optional pixel vignetting);
+2. mean photo-electrons = rate x exposure (x (1 + PRNU) when PRNU is on);
+3. + dark electrons (dark current x exposure), shot noise on the total (Poisson / Gaussian / off);
+4. volts = electrons x conversion gain + read noise + DSNU + column offsets (with CDS the fixed offsets
+   cancel and the read noise is sampled twice: reset and signal);
+5. analog gain and offset: ``(v + offset) * gain`` (default) or ISETCam's ``(v + offset) / gain``;
+6. clip to ``[0, voltage swing]`` (down to ``-black level`` when a black level is set);
+7. ADC with N bits: ``round(v / (swing / 2^N)) + black level``, clamped to ``2^N - 1`` (default) or
+   unclamped (ISETCam, FORMAT 4.6 step 9). Rounding is straight-through for gradients.
+
+``noise_free`` in the output is the same chain with no dark signal, noise or fixed pattern, and no
+rounding (a training target).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+from torch import nn
+
+from .._checks import batch_param
+from ..optics.optical_image import OpticalImage
+from . import noise as _noise
+from .cfa import CFA
+from .exposure import AE_METHODS, auto_exposure
+from .filters import SpectralQE
+from .raw import RawImage
+from .sampling import electron_rate_density, isetcam_preblur, isetcam_preblur_size, sample_area, sample_point
+
+__all__ = ["Sensor", "PRESETS", "SAMPLING_MODES"]
+
+SAMPLING_MODES = ("area", "isetcam")
+
+# Presets. Values in SI; dark current in e-/s (ISETCam gives V/s: 1 mV/s / 1e-4 V/e- = 10 e-/s).
+PRESETS: dict[str, dict[str, Any]] = {
+    # ISETCam sensorCreate default (sensorCreate.m / pixelCreate.m, commit 3b10ec1): 2.8 um, fill 0.75,
+    # 1e-4 V/e-, 1 V swing, dark 1 mV/s, read noise 1 mV, GRBG Bayer, analog readout.
+    "isetcam_default": dict(pixel_size_m=2.8e-6, fill_factor=0.75, conversion_gain_v_per_e=1e-4, voltage_swing_v=1.0,
+                            dark_current_e_per_s=10.0, read_noise_v=1e-3, cfa="GRBG", adc_bits=None,
+                            rows=72, cols=88),
+    # IMX363-like phone sensor (1.4 um BSI dual-pixel, 12 MP; typical public numbers for this pixel class:
+    # ~6000 e- full well, ~2 e- read noise, 10-bit raw). Not manufacturer-measured values.
+    "imx363": dict(pixel_size_m=1.4e-6, fill_factor=1.0, conversion_gain_v_per_e=8e-5, voltage_swing_v=0.48,
+                   dark_current_e_per_s=5.0, read_noise_v=1.6e-4, dsnu_sigma_v=8e-5, prnu_sigma_percent=0.6,
+                   cfa="RGGB", adc_bits=10, black_level_dn=64, rows=3024, cols=4032),
+    # Farrell, Xiao, Catrysse, Wandell, "A simulation tool for evaluating digital camera image quality",
+    # SPIE 5294 (2004), CDS sensor: 4 um, 50 % fill, dark 10 e-/s, read 50 e-, 15 uV/e-, DSNU 2 mV,
+    # PRNU 0, 1 V swing, 16 ms.
+    "iset2004_cds": dict(pixel_size_m=4e-6, fill_factor=0.5, conversion_gain_v_per_e=15e-6, voltage_swing_v=1.0,
+                         dark_current_e_per_s=10.0, read_noise_v=50 * 15e-6, dsnu_sigma_v=2e-3,
+                         prnu_sigma_percent=0.0, exposure_s=0.016, cds=True, cfa="GRBG", adc_bits=None),
+}
+
+
+class Sensor(nn.Module):
+    """An image sensor: pixel geometry, CFA and spectral QE, exposure, noise, analog gain and ADC.
+
+    Args:
+        rows, cols: sensor size in pixels (None: as many pixels as fit in the OI's unpadded area).
+        pixel_size_m: pixel pitch (square pixels, no gaps); fill_factor: photodiode area / pixel area.
+        cfa: a :class:`CFA` or pattern string.
+        spectral_qe: a :class:`SpectralQE` (default: ``filters`` for the CFA's letters x ``ir_filter`` x
+            ``pixel_qe``); ``learnable_filters`` makes the filters ``nn.Parameter`` s.
+        conversion_gain_v_per_e, voltage_swing_v: the pixel's output; well capacity = swing / gain.
+        exposure_s: exposure (s), scalar or ``[B]``; ``auto_exposure`` (``'luminance'``, ``'mean'``,
+            ``'percentile'``) overrides it; ``ae_target`` / ``ae_percentile`` tune it.
+        analog_gain, analog_offset_v: ``gain_convention='multiply'`` (default) gives ``(v + offset) * gain``,
+            ``'isetcam'`` gives ISETCam's ``(v + offset) / gain``.
+        adc_bits: None for an analog (volts) readout, else N; ``adc_mode='clamp'`` clamps to ``2^N - 1``,
+            ``'isetcam'`` does not (so the swing maps to ``2^N``). ``black_level_dn`` is added to DN.
+        shot_noise: ``'poisson'`` (straight-through gradient), ``'gaussian'`` or ``'off'``.
+        read_noise_v, dark_current_e_per_s, dsnu_sigma_v, prnu_sigma_percent, column_fpn_sigma_v: noise.
+        fpn_mode: ``'fixed'`` (drawn once from ``seed``, stored as buffers) or ``'per_frame'`` (ISETCam redraws
+            DSNU/PRNU on every call).
+        cds: correlated double sampling (fixed offsets cancel, read noise sampled twice).
+        vignetting: optional pixel vignetting / etendue map ``[rows, cols]`` (or scalar) multiplying the signal.
+        sampling: ``'area'`` (integrate over the photodiode, default) or ``'isetcam'`` (ISETCam's Gaussian
+            pre-blur + bilinear point sampling at pixel centres); ``preblur_size`` overrides ISETCam's k.
+        output_units: ``'dn'`` (default when ``adc_bits``), ``'volts'`` (default otherwise) or ``'electrons'``.
+        seed: seed of the fixed patterns and of the default temporal-noise generator.
+
+    Example:
+        >>> s = Sensor.preset('isetcam_default', rows=4, cols=6, read_noise_v=0, dark_current_e_per_s=0)
+        >>> oi = OpticalImage(torch.full((1, 31, 8, 8), 1e15), torch.arange(400., 701., 10.), sample_spacing_m=2e-6)
+        >>> s(oi, exposure_s=0.01).data.shape
+        torch.Size([1, 1, 4, 6])
+
+    Reference: J. Farrell et al., "A simulation tool for evaluating digital camera image quality", SPIE 2004;
+    EMVA Standard 1288 release 4.0; ISETCam ``sensorCompute``.
+    """
+
+    def __init__(self, *, rows: int | None = None, cols: int | None = None, pixel_size_m: float = 2.8e-6,
+                 fill_factor: float = 0.75, cfa: CFA | str = "GRBG", spectral_qe: SpectralQE | None = None,
+                 filters: str | dict = "isetcam_rgb", ir_filter=None, pixel_qe=None, learnable_filters: bool = False,
+                 conversion_gain_v_per_e: float = 1e-4, voltage_swing_v: float = 1.0, exposure_s=0.01,
+                 auto_exposure: str | None = None, ae_target: float | None = None, ae_percentile: float = 99.0,
+                 analog_gain=1.0, analog_offset_v: float = 0.0, gain_convention: str = "multiply",
+                 adc_bits: int | None = None, adc_mode: str = "clamp", black_level_dn: float = 0.0,
+                 shot_noise: str = "poisson", read_noise_v: float = 0.0, dark_current_e_per_s: float = 0.0,
+                 dsnu_sigma_v: float = 0.0, prnu_sigma_percent: float = 0.0, column_fpn_sigma_v: float = 0.0,
+                 fpn_mode: str = "fixed", cds: bool = False, vignetting=None, sampling: str = "area",
+                 preblur_size: int | None = None, output_units: str | None = None, seed: int = 0,
+                 name: str = "") -> None:
+        super().__init__()
+        for label, v in (("rows", rows), ("cols", cols)):
+            if v is not None and (not isinstance(v, int) or v < 1):
+                raise ValueError(f"{label}: expected a positive integer pixel count or None, got {v!r}")
+        for label, v in (("pixel_size_m", pixel_size_m), ("conversion_gain_v_per_e", conversion_gain_v_per_e),
+                         ("voltage_swing_v", voltage_swing_v)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{label}: expected a positive number, got {v!r}")
+        if not 0 < fill_factor <= 1:
+            raise ValueError(f"fill_factor: expected a value in (0, 1], got {fill_factor!r}")
+        for label, v in (("read_noise_v", read_noise_v), ("dark_current_e_per_s", dark_current_e_per_s),
+                         ("dsnu_sigma_v", dsnu_sigma_v), ("prnu_sigma_percent", prnu_sigma_percent),
+                         ("column_fpn_sigma_v", column_fpn_sigma_v), ("black_level_dn", black_level_dn)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"{label}: expected a non-negative number, got {v!r}")
+        choices = {"gain_convention": (gain_convention, ("multiply", "isetcam")),
+                   "adc_mode": (adc_mode, ("clamp", "isetcam")),
+                   "shot_noise": (shot_noise, _noise.SHOT_NOISE_MODES),
+                   "fpn_mode": (fpn_mode, ("fixed", "per_frame")), "sampling": (sampling, SAMPLING_MODES)}
+        for label, (v, allowed) in choices.items():
+            if v not in allowed:
+                raise ValueError(f"{label}: expected one of {allowed}, got {v!r}")
+        if auto_exposure is not None and auto_exposure not in AE_METHODS:
+            raise ValueError(f"auto_exposure: expected None or one of {sorted(AE_METHODS)}, got {auto_exposure!r}")
+        if adc_bits is not None and (not isinstance(adc_bits, int) or not 1 <= adc_bits <= 32):
+            raise ValueError(f"adc_bits: expected None (analog) or an integer in 1..32, got {adc_bits!r}")
+        if output_units not in (None, "dn", "volts", "electrons"):
+            raise ValueError(f"output_units: expected None, 'dn', 'volts' or 'electrons', got {output_units!r}")
+        if output_units == "dn" and adc_bits is None:
+            raise ValueError("output_units: 'dn' needs adc_bits (the sensor has an analog readout)")
+        if preblur_size is not None and (not isinstance(preblur_size, int) or preblur_size < 1):
+            raise ValueError(f"preblur_size: expected None or a positive integer, got {preblur_size!r}")
+
+        self.cfa = cfa if isinstance(cfa, CFA) else CFA(cfa)
+        if spectral_qe is None:
+            spectral_qe = SpectralQE.from_cfa(self.cfa, filters, ir_filter=ir_filter, pixel_qe=pixel_qe,
+                                              learnable=learnable_filters)
+        if spectral_qe.channel_names != self.cfa.channel_names:
+            raise ValueError(f"spectral_qe: channel names {spectral_qe.channel_names} differ from the CFA's "
+                             f"{self.cfa.channel_names}")
+        self.spectral_qe = spectral_qe
+        self.rows, self.cols = rows, cols
+        self.pixel_size_m = float(pixel_size_m)
+        self.fill_factor = float(fill_factor)
+        self.conversion_gain_v_per_e = float(conversion_gain_v_per_e)
+        self.voltage_swing_v = float(voltage_swing_v)
+        self.exposure_s = exposure_s
+        self.auto_exposure = auto_exposure
+        self.ae_target = ae_target
+        self.ae_percentile = ae_percentile
+        self.analog_gain = analog_gain
+        self.analog_offset_v = float(analog_offset_v)
+        self.gain_convention = gain_convention
+        self.adc_bits = adc_bits
+        self.adc_mode = adc_mode
+        self.black_level_dn = float(black_level_dn)
+        self.shot_noise = shot_noise
+        self.read_noise_v = float(read_noise_v)
+        self.dark_current_e_per_s = float(dark_current_e_per_s)
+        self.dsnu_sigma_v = float(dsnu_sigma_v)
+        self.prnu_sigma_percent = float(prnu_sigma_percent)
+        self.column_fpn_sigma_v = float(column_fpn_sigma_v)
+        self.fpn_mode = fpn_mode
+        self.cds = bool(cds)
+        self.sampling = sampling
+        self.preblur_size = preblur_size
+        self.output_units = output_units or ("dn" if adc_bits is not None else "volts")
+        self.seed = int(seed)
+        self.name = name
+        if vignetting is not None:
+            vignetting = torch.as_tensor(vignetting, dtype=torch.float64)
+            if (vignetting < 0).any() or not torch.isfinite(vignetting).all():
+                raise ValueError("vignetting: expected finite non-negative factors")
+        self.register_buffer("vignetting", vignetting)
+        # Fixed-pattern maps (standard normal), drawn from the seed on first use for a given size.
+        self.register_buffer("fpn_dsnu", None)
+        self.register_buffer("fpn_prnu", None)
+        self.register_buffer("fpn_column", None)
+        self._generators: dict[str, torch.Generator] = {}
+
+    # --- construction helpers ------------------------------------------------------------
+    @classmethod
+    def preset(cls, name: str, **overrides) -> Sensor:
+        """A named sensor (``PRESETS``: 'isetcam_default', 'imx363', 'iset2004_cds'), with overrides."""
+        key = str(name).lower()
+        if key not in PRESETS:
+            raise ValueError(f"name: unknown sensor preset {name!r}; expected one of {sorted(PRESETS)}")
+        kw = dict(PRESETS[key])
+        kw.update(overrides)
+        kw.setdefault("name", key)
+        return cls(**kw)
+
+    @property
+    def well_capacity_e(self) -> float:
+        """Electrons at the voltage swing: swing / conversion gain (ISETCam ``pixelGet('well capacity')``)."""
+        return self.voltage_swing_v / self.conversion_gain_v_per_e
+
+    @property
+    def pixel_area_m2(self) -> float:
+        return self.pixel_size_m ** 2
+
+    @property
+    def lsb_v(self) -> float | None:
+        """ADC step in volts (swing / 2^N), None for analog."""
+        return None if self.adc_bits is None else self.voltage_swing_v / 2 ** self.adc_bits
+
+    @property
+    def white_level_dn(self) -> float | None:
+        if self.adc_bits is None:
+            return None
+        return float(2 ** self.adc_bits) if self.adc_mode == "isetcam" else float(2 ** self.adc_bits - 1)
+
+    def set_size_to_fov(self, hfov_deg: float, image_distance_m: float) -> Sensor:
+        """Set cols so the sensor spans ``hfov_deg`` at ``image_distance_m`` (rows keep the aspect ratio),
+        rounded to whole CFA cells (ISETCam ``sensorSetSizeToFOV``). Returns self."""
+        aspect = (self.rows / self.cols) if (self.rows and self.cols) else 1.0
+        width = 2 * image_distance_m * math.tan(math.radians(hfov_deg) / 2)
+        ph, pw = self.cfa.shape
+        cols = max(pw, round(width / self.pixel_size_m / pw) * pw)
+        rows = max(ph, round(cols * aspect / ph) * ph)
+        self.rows, self.cols = int(rows), int(cols)
+        self.fpn_dsnu = self.fpn_prnu = self.fpn_column = None
+        return self
+
+    def size_for(self, oi: OpticalImage) -> tuple[int, int]:
+        """(rows, cols): the configured size, else what fits in the OI's unpadded area in whole CFA cells."""
+        if self.rows is not None and self.cols is not None:
+            return self.rows, self.cols
+        dx = float(oi.sample_spacing_m[0])
+        ph, pw = self.cfa.shape
+        h = (oi.height - 2 * oi.pad_rows) * dx
+        w = (oi.width - 2 * oi.pad_cols) * dx
+        rows = self.rows or max(ph, int(h / self.pixel_size_m) // ph * ph)
+        cols = self.cols or max(pw, int(w / self.pixel_size_m) // pw * pw)
+        return rows, cols
+
+    # --- randomness -----------------------------------------------------------------------
+    def _default_generator(self, device: torch.device) -> torch.Generator:
+        key = str(device)
+        g = self._generators.get(key)
+        if g is None:
+            g = torch.Generator(device=device).manual_seed(self.seed + 1)
+            self._generators[key] = g
+        return g
+
+    def fixed_pattern(self, rows: int, cols: int, *, dtype, device) -> dict[str, torch.Tensor]:
+        """The sensor's fixed-pattern standard-normal maps (drawn once from ``seed``, stored as buffers)."""
+        if self.fpn_dsnu is None or tuple(self.fpn_dsnu.shape) != (rows, cols):
+            d = _noise.fixed_pattern_draws(rows, cols, self.seed, dtype=torch.float64)
+            self.fpn_dsnu, self.fpn_prnu, self.fpn_column = d["dsnu"], d["prnu"], d["column"]
+        return {"dsnu": self.fpn_dsnu.to(dtype=dtype, device=device),
+                "prnu": self.fpn_prnu.to(dtype=dtype, device=device),
+                "column": self.fpn_column.to(dtype=dtype, device=device)}
+
+    # --- stages ----------------------------------------------------------------------------
+    def qe(self, oi: OpticalImage) -> torch.Tensor:
+        """Combined spectral QE on the OI's wavelengths ``[C, L]`` (cached per grid)."""
+        return self.spectral_qe(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device)
+
+    def electron_rate(self, oi: OpticalImage) -> torch.Tensor:
+        """Mean photo-electrons per second per pixel ``[B, 1, rows, cols]`` (before PRNU and noise)."""
+        if not isinstance(oi, OpticalImage):
+            raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
+        rows, cols = self.size_for(oi)
+        density = electron_rate_density(oi.photons, self.qe(oi), oi.wavelengths_nm)  # e-/s/m^2 per filter
+        dx = oi.sample_spacing_m
+        if self.sampling == "isetcam":
+            planes = []
+            spacings = dx.detach().cpu().tolist()
+            groups = [slice(None)] if len(set(spacings)) == 1 else [slice(i, i + 1) for i in range(len(spacings))]
+            for sl in groups:
+                k = self.preblur_size or isetcam_preblur_size(self.pixel_size_m, dx[sl][0].item())
+                # ISETCam regridOI2ISA + interp2 at pixel centres; pixel current = scd x ff x pitch^2.
+                planes.append(sample_point(isetcam_preblur(density[sl], k), dx[sl], self.pixel_size_m, rows, cols))
+            sampled = torch.cat(planes) if len(planes) > 1 else planes[0]
+        else:
+            sampled = sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor)
+        rate = self.cfa.mosaic(sampled) * (self.fill_factor * self.pixel_area_m2)
+        if self.vignetting is not None:
+            rate = rate * self.vignetting.to(rate.dtype).to(rate.device)
+        return rate
+
+    def _analog(self, volts: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
+        g = gain.reshape(-1, 1, 1, 1)
+        if self.gain_convention == "isetcam":
+            if self.analog_offset_v == 0 and bool((gain == 1).all()):
+                return volts
+            return (volts + self.analog_offset_v) / g  # ISETCam sensorComputeImage divides by the gain
+        return (volts + self.analog_offset_v) * g
+
+    def _clip_low_v(self) -> float:
+        return -self.black_level_dn * self.lsb_v if self.adc_bits is not None else 0.0
+
+    def _readout(self, pixel_volts: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
+        """Pixel volts -> clipped volts at the ADC input (electrons output: pixel volts clipped to the swing)."""
+        if self.output_units == "electrons":
+            return pixel_volts.clamp(0, self.voltage_swing_v)
+        return self._analog(pixel_volts, gain).clamp(self._clip_low_v(), self.voltage_swing_v)
+
+    def _to_units(self, volts: torch.Tensor, *, quantize: bool) -> torch.Tensor:
+        """Clipped analog volts -> output units (DN with ADC rounding and clamping)."""
+        if self.output_units == "volts":
+            return volts
+        if self.output_units == "electrons":
+            return volts / self.conversion_gain_v_per_e
+        return self.volts_to_dn(volts, quantize=quantize)
+
+    def volts_to_dn(self, volts: torch.Tensor, *, quantize: bool = True) -> torch.Tensor:
+        """ADC: clipped volts -> DN, ``round(v / (swing / 2^N)) + black`` (clamped to ``2^N - 1`` unless
+        ``adc_mode='isetcam'``; ISETCam ``analog2digital`` 'linear')."""
+        if self.adc_bits is None:
+            raise ValueError("volts_to_dn: the sensor has an analog readout (adc_bits is None)")
+        x = volts / self.lsb_v
+        if quantize:
+            x = _noise.quantize_ste(x)  # MATLAB round: halves away from zero
+        x = x + self.black_level_dn
+        if self.adc_mode == "clamp":
+            x = x.clamp(max=2 ** self.adc_bits - 1)
+        return x
+
+    def exposure_for(self, oi: OpticalImage, rate: torch.Tensor | None = None, analog_gain=None) -> torch.Tensor:
+        """The exposure ``[B]`` (s): fixed, or from auto-exposure on the noise-free volts (after gain)."""
+        b = oi.batch_size
+        if self.auto_exposure is None:
+            return batch_param(self.exposure_s, "exposure_s", b, dtype=oi.dtype, device=oi.device, positive=True)
+        rate = self.electron_rate(oi) if rate is None else rate
+        gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
+                           dtype=oi.dtype, device=oi.device, positive=True)
+        v1 = self._analog(rate * self.conversion_gain_v_per_e, gain) - self._analog(torch.zeros_like(rate), gain)
+        return auto_exposure(v1, self.voltage_swing_v, self.auto_exposure, target=self.ae_target,
+                             percentile=self.ae_percentile).to(oi.dtype)
+
+    # --- forward -----------------------------------------------------------------------------
+    def forward(self, oi: OpticalImage, *, exposure_s=None, analog_gain=None, noise: bool = True,
+                generator: torch.Generator | None = None) -> RawImage:
+        """Simulate a capture of ``oi``; returns a :class:`RawImage` ``[B, 1, rows, cols]``.
+
+        Args:
+            oi: the optical image (photons/s/m^2/nm) ``[B, L, H, W]``.
+            exposure_s, analog_gain: per-call overrides, scalar or ``[B]`` (an explicit exposure also
+                overrides auto-exposure).
+            noise: False gives the noise-free capture (no dark signal, noise or fixed pattern).
+            generator: torch.Generator for the temporal noise (default: the sensor's own, seeded from ``seed``).
+        """
+        b = oi.batch_size
+        dtype, device = oi.dtype, oi.device
+        rate = self.electron_rate(oi)
+        if exposure_s is not None:
+            t = batch_param(exposure_s, "exposure_s", b, dtype=dtype, device=device, positive=True)
+        else:
+            t = self.exposure_for(oi, rate, analog_gain)
+        gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
+                           dtype=dtype, device=device, positive=True)
+        cg = self.conversion_gain_v_per_e
+        photo_e = rate * t.reshape(-1, 1, 1, 1)
+        rows, cols = photo_e.shape[-2:]
+        swing = self.voltage_swing_v
+
+        clean_v = self._readout(photo_e * cg, gain)
+        noise_free = self._to_units(clean_v, quantize=False)
+
+        if noise:
+            g = generator if generator is not None else self._default_generator(device)
+            if self.fpn_mode == "fixed":
+                fp = self.fixed_pattern(rows, cols, dtype=dtype, device=device)
+                fp = {k: v.expand(b, 1, *v.shape) if k != "column" else v.expand(b, 1, 1, cols)
+                      for k, v in fp.items()}
+            else:  # ISETCam sensorAddNoise / noiseFPN: new DSNU/PRNU images on every call
+                fp = {"dsnu": _noise.normal(photo_e, g), "prnu": _noise.normal(photo_e, g),
+                      "column": _noise.normal(photo_e, g, (b, 1, 1, cols))}
+            signal_e = photo_e
+            if self.prnu_sigma_percent > 0:  # PRNU: per-pixel gain of the photo signal (EMVA 1288)
+                signal_e = signal_e * (1 + self.prnu_sigma_percent / 100 * fp["prnu"])
+            if self.dark_current_e_per_s > 0:
+                signal_e = signal_e + self.dark_current_e_per_s * t.reshape(-1, 1, 1, 1)
+            electrons = _noise.shot_noise(signal_e, self.shot_noise, g)
+            volts = electrons * cg
+            if self.read_noise_v > 0:
+                volts = volts + self.read_noise_v * _noise.normal(volts, g)
+                if self.cds:  # reset sample has its own read noise
+                    volts = volts - self.read_noise_v * _noise.normal(volts, g)
+            if not self.cds:  # CDS subtracts the reset level, cancelling fixed offsets
+                if self.dsnu_sigma_v > 0:
+                    volts = volts + self.dsnu_sigma_v * fp["dsnu"]
+                if self.column_fpn_sigma_v > 0:
+                    volts = volts + self.column_fpn_sigma_v * fp["column"]
+            data = self._to_units(self._readout(volts, gain), quantize=True)
+        else:
+            data = self._to_units(clean_v, quantize=True)
+
+        white = {"volts": swing, "electrons": swing / cg, "dn": self.white_level_dn}[self.output_units]
+        black = self.black_level_dn if self.output_units == "dn" else 0.0
+        return RawImage(
+            data=data, units=self.output_units, cfa=self.cfa, black_level=black, white_level=white,
+            exposure_s=t, analog_gain=gain, analog_offset_v=self.analog_offset_v,
+            conversion_gain_v_per_e=cg, voltage_swing_v=swing, pixel_size_m=self.pixel_size_m,
+            fill_factor=self.fill_factor, adc_bits=self.adc_bits, noise=self.noise_parameters(enabled=noise),
+            noise_free=noise_free, electrons=photo_e,
+            metadata={"sensor": self.name, "sampling": self.sampling, "gain_convention": self.gain_convention},
+        )
+
+    def noise_parameters(self, enabled: bool = True) -> dict[str, Any]:
+        return {"enabled": enabled, "shot_noise": self.shot_noise, "read_noise_v": self.read_noise_v,
+                "dark_current_e_per_s": self.dark_current_e_per_s, "dsnu_sigma_v": self.dsnu_sigma_v,
+                "prnu_sigma_percent": self.prnu_sigma_percent, "column_fpn_sigma_v": self.column_fpn_sigma_v,
+                "fpn_mode": self.fpn_mode, "cds": self.cds, "seed": self.seed}
+
+    def extra_repr(self) -> str:
+        return (f"name={self.name!r}, size={self.rows}x{self.cols}, pixel={self.pixel_size_m * 1e6:g} um, "
+                f"fill={self.fill_factor}, cfa={self.cfa!r}, bits={self.adc_bits}, sampling={self.sampling!r}")
