@@ -1,0 +1,231 @@
+"""`ShiftInvariantLens`: the part every shift-invariant optics shares.
+
+scene radiance -> camera equation x transmittance -> relative illumination -> OTF blur (FFT) -> OpticalImage.
+Subclasses provide the OTF (:meth:`otf`), how far the PSF reaches (:meth:`psf_margin_m`) and, optionally, a
+test for a negligible blur (:meth:`blur_negligible`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+
+import torch
+from torch import nn
+
+from .. import spectral
+from .._checks import as_tensor, batch_param, check_nonnegative, check_wavelengths
+from ..scene.scene import Scene
+from . import geometry
+from .blur import PAD_MODES, blur_fft, extend
+from .optical_image import OpticalImage
+
+__all__ = ["ShiftInvariantLens"]
+
+_CACHE_SIZE = 8
+
+
+class ShiftInvariantLens(nn.Module):
+    """Base class of the shift-invariant optics (thin lens, camera equation, relative illumination, OTF blur).
+
+    Args:
+        f_number: f-number ``N`` (scalar or ``[B]``), an ``nn.Parameter`` when ``learn_f_number``.
+        focal_length_m: focal length (m), scalar or ``[B]``.
+        transmittance: lens transmittance T(lambda): None (1), a scalar, or ``[K]`` values on
+            ``transmittance_wavelengths_nm`` (resampled linearly to the scene grid, 0 outside) or, without a
+            grid, ``[L]`` values on the scene's own grid.
+        relative_illumination: ``'cos4th'`` (default, cos^4 law at the image distance), ``'isetcam'``
+            (ISETCam's finite-aperture ``cos4th.m`` formula, with the thin-lens magnification) or None.
+        camera_equation: ``'isetcam'`` (``pi / (1 + 4 N^2 (1 + |m|)^2)``) or ``'paraxial'``
+            (``pi / (4 N^2 (1 + |m|)^2)``); see :func:`geometry.camera_equation_factor`.
+        pad_mode: ``'zero'``, ``'mean'``, ``'edge'`` or a number: what lies beyond the scene's edges.
+        psf_tolerance: fraction of the line-spread energy allowed beyond the padding margin (sets how far
+            the image is padded; it bounds both the wrap-around and, for ``crop=``, the missed light).
+        blur_skip_tolerance: the blur is skipped when the OTF differs from 1 by less than this at every
+            frequency of the grid (only where the optics can tell cheaply, e.g. diffraction-limited).
+        margin: force the padding margin (samples per side) instead of deriving it from ``psf_tolerance``.
+        max_margin_factor: cap of the derived margin, in units of the scene's larger side.
+        learn_f_number: make ``f_number`` a trainable ``nn.Parameter``.
+    """
+
+    def __init__(self, f_number=4.0, focal_length_m=3.862755099e-3, transmittance=None,
+                 transmittance_wavelengths_nm=None, *, relative_illumination: str | None = "cos4th",
+                 camera_equation: str = "isetcam", pad_mode="zero", psf_tolerance: float = 1e-3,
+                 blur_skip_tolerance: float = 1e-3, margin: int | None = None, max_margin_factor: float = 2.0,
+                 learn_f_number: bool = False, dtype=torch.float64) -> None:
+        super().__init__()
+        n = as_tensor(f_number, "f_number", dtype=dtype).detach().clone()
+        if n.dim() > 1 or not torch.isfinite(n).all() or (n <= 0).any():
+            raise ValueError(f"f_number: expected a positive scalar or [B] tensor, got {n.tolist()}")
+        self.f_number = nn.Parameter(n, requires_grad=learn_f_number)
+        fl = as_tensor(focal_length_m, "focal_length_m", dtype=dtype).detach().clone()
+        if fl.dim() > 1 or not torch.isfinite(fl).all() or (fl <= 0).any():
+            raise ValueError(f"focal_length_m: expected a positive scalar or [B] tensor, got {fl.tolist()}")
+        self.register_buffer("focal_length_m", fl)
+        if transmittance is None:
+            self.transmittance = None
+        else:
+            t = as_tensor(transmittance, "transmittance", dtype=dtype).detach().clone().reshape(-1)
+            check_nonnegative(t, "transmittance")
+            self.register_buffer("transmittance", t)
+        if transmittance_wavelengths_nm is None:
+            self.transmittance_wavelengths_nm = None
+        else:
+            tw = check_wavelengths(as_tensor(transmittance_wavelengths_nm, "transmittance_wavelengths_nm",
+                                             dtype=dtype), "transmittance_wavelengths_nm")
+            n_t = 0 if self.transmittance is None else self.transmittance.numel()
+            if tw.numel() != n_t:
+                raise ValueError(f"transmittance_wavelengths_nm: expected {n_t} wavelengths (one per "
+                                 f"transmittance value), got {tw.numel()}")
+            self.register_buffer("transmittance_wavelengths_nm", tw)
+        if relative_illumination not in (None, "none", "cos4th", "isetcam"):
+            raise ValueError(f"relative_illumination: expected None, 'cos4th' or 'isetcam', "
+                             f"got {relative_illumination!r}")
+        if camera_equation not in ("isetcam", "paraxial"):
+            raise ValueError(f"camera_equation: expected 'isetcam' or 'paraxial', got {camera_equation!r}")
+        if not (pad_mode in PAD_MODES or (isinstance(pad_mode, (int, float)) and not isinstance(pad_mode, bool))):
+            raise ValueError(f"pad_mode: expected one of {PAD_MODES} or a number, got {pad_mode!r}")
+        if not (0 < psf_tolerance < 1):
+            raise ValueError(f"psf_tolerance: expected a value in (0, 1), got {psf_tolerance}")
+        if not (0 <= blur_skip_tolerance < 1):
+            raise ValueError(f"blur_skip_tolerance: expected a value in [0, 1), got {blur_skip_tolerance}")
+        if margin is not None and (not isinstance(margin, int) or margin < 0):
+            raise ValueError(f"margin: expected None or a non-negative int, got {margin!r}")
+        self.relative_illumination = relative_illumination
+        self.camera_equation = camera_equation
+        self.pad_mode = pad_mode
+        self.psf_tolerance = float(psf_tolerance)
+        self.blur_skip_tolerance = float(blur_skip_tolerance)
+        self.margin = margin
+        self.max_margin_factor = float(max_margin_factor)
+        self._otf_cache: OrderedDict = OrderedDict()
+
+    # --- to override --------------------------------------------------------------------------------
+    def otf(self, fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor,
+            ) -> torch.Tensor:
+        """OTF ``[B, L, My, Mx]`` at frequencies ``fy [B, My]``, ``fx [B, Mx]`` (cycles/m), DC = 1."""
+        raise NotImplementedError
+
+    def psf_margin_m(self, wavelengths_nm: torch.Tensor, f_number: torch.Tensor) -> torch.Tensor:
+        """How far (m) the PSF reaches at ``psf_tolerance``, ``[B]``."""
+        raise NotImplementedError
+
+    def blur_negligible(self, dx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor) -> bool:
+        return False
+
+    def _otf_key(self) -> tuple:
+        return ()
+
+    # --- shared ---------------------------------------------------------------------------------------
+    def batch_f_number(self, batch: int, dtype, device) -> torch.Tensor:
+        return batch_param(self.f_number.to(dtype=dtype, device=device), "f_number", batch, dtype=dtype,
+                           device=device, positive=True)
+
+    def batch_focal_length(self, batch: int, dtype, device) -> torch.Tensor:
+        return batch_param(self.focal_length_m, "focal_length_m", batch, dtype=dtype, device=device, positive=True)
+
+    def transmittance_on(self, wavelengths_nm: torch.Tensor) -> torch.Tensor | None:
+        """Lens transmittance on a wavelength grid ``[L]`` (None when it is 1)."""
+        t = self.transmittance
+        if t is None:
+            return None
+        t = t.to(wavelengths_nm.dtype)
+        if t.numel() == 1:
+            return t.expand(wavelengths_nm.numel())
+        if self.transmittance_wavelengths_nm is None:
+            if t.numel() != wavelengths_nm.numel():
+                raise ValueError(f"transmittance: expected {wavelengths_nm.numel()} values on the scene's grid "
+                                 f"(or give transmittance_wavelengths_nm), got {t.numel()}")
+            return t
+        return spectral.resample(t, self.transmittance_wavelengths_nm, wavelengths_nm)
+
+    def _requires_grad(self) -> bool:
+        return torch.is_grad_enabled() and any(p.requires_grad for p in self.parameters())
+
+    def _otf_fn(self, wavelengths_nm, f_number, dx):
+        def fn(fy, fx):
+            if self._requires_grad():
+                return self.otf(fy, fx, wavelengths_nm, f_number)
+            key = (fy.shape[-1], fx.shape[-1], tuple(dx.tolist()), tuple(wavelengths_nm.tolist()),
+                   tuple(f_number.tolist()), self._otf_key(), fy.dtype, str(fy.device))
+            hit = self._otf_cache.get(key)
+            if hit is None:
+                hit = self.otf(fy, fx, wavelengths_nm, f_number).detach()
+                self._otf_cache[key] = hit
+                if len(self._otf_cache) > _CACHE_SIZE:
+                    self._otf_cache.popitem(last=False)
+            return hit
+        return fn
+
+    def clear_cache(self) -> None:
+        self._otf_cache.clear()
+
+    def margin_samples(self, scene_shape: tuple[int, int], dx: torch.Tensor, wavelengths_nm, f_number) -> int:
+        if self.margin is not None:
+            return self.margin
+        m = self.psf_margin_m(wavelengths_nm, f_number).detach()
+        samples = int(math.ceil(float((m / dx.detach()).max())))
+        return min(samples, int(math.ceil(self.max_margin_factor * max(scene_shape))))
+
+    def forward(self, scene: Scene, crop: tuple[int, int, int, int] | None = None) -> OpticalImage:
+        """Scene -> optical image.
+
+        Args:
+            scene: `Scene` with photons ``(B, L, H, W)``.
+            crop: optional window ``(top, left, height, width)`` in samples of the full (padded) optical
+                image: only that window is computed (with the sources within the PSF margin of it).
+
+        Returns:
+            `OpticalImage` ``(B, L, H + 2 pad_rows, W + 2 pad_cols)`` (or the window), photons/s/m^2/nm, on a grid
+            centred on the optical axis. For a window, ``metadata['window']`` is its ``(top, left)`` in the
+            full image and ``metadata['full_shape']`` / ``metadata['full_pad']`` the full size and padding.
+        """
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
+        x = scene.photons
+        b, nl, h, w = x.shape
+        dt, dev = x.dtype, x.device
+        wave = scene.wavelengths_nm
+        n = self.batch_f_number(b, dt, dev)
+        f = self.batch_focal_length(b, dt, dev)
+        d_o = scene.distance_m
+        d_i = geometry.image_distance(f, d_o)
+        mag = -d_i / d_o
+        dx = geometry.image_sample_spacing(scene.hfov_deg, w, d_i)
+        # camera equation (ISETCam oiCalculateIrradiance), transmittance, relative illumination
+        k = geometry.camera_equation_factor(n, mag, paraxial=self.camera_equation == "paraxial")
+        irr = x * k.reshape(-1, 1, 1, 1)
+        t = self.transmittance_on(wave)
+        if t is not None:
+            irr = irr * t.to(device=dev).reshape(1, -1, 1, 1)
+        ys = (torch.arange(h, dtype=dt, device=dev) - (h - 1) / 2)[None, :] * dx[:, None]
+        xs = (torch.arange(w, dtype=dt, device=dev) - (w - 1) / 2)[None, :] * dx[:, None]
+        ri = geometry.relative_illumination(self.relative_illumination, ys, xs, d_i, n, mag)
+        if ri is not None:
+            irr = irr * ri
+        return self._blur_to_oi(irr, wave, dx, n, f, d_i, crop, name=scene.name)
+
+    def _blur_to_oi(self, irr, wave, dx, n, f, d_i, crop, name=""):
+        h, w = irr.shape[-2:]
+        if self.blur_negligible(dx, wave, n):
+            margin = 0 if self.margin is None else self.margin
+            pr, pc = margin, margin
+            if crop is None:
+                out = extend(irr, (-pr, h + pr), (-pc, w + pc), self.pad_mode)
+            else:
+                top, left, wh, ww = crop
+                if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr
+                        and left + ww <= w + 2 * pc):
+                    raise ValueError(f"crop: window {crop} does not fit in the {h + 2 * pr}x{w + 2 * pc} optical "
+                                     f"image")
+                out = extend(irr, (top - pr, top - pr + wh), (left - pc, left - pc + ww), self.pad_mode)
+        else:
+            margin = self.margin_samples((h, w), dx, wave, n)
+            out, (pr, pc) = blur_fft(irr, self._otf_fn(wave, n, dx), dx, (margin, margin), self.pad_mode,
+                                     window=crop)
+        meta = {"full_shape": (h + 2 * pr, w + 2 * pc), "full_pad": (pr, pc)}
+        if crop is not None:
+            meta["window"] = (crop[0], crop[1])
+        return OpticalImage(out, wave, name=name, metadata=meta, sample_spacing_m=dx, focal_length_m=f,
+                            f_number=n, image_distance_m=d_i, pad_rows=pr if crop is None else 0,
+                            pad_cols=pc if crop is None else 0, validate=False)

@@ -1,0 +1,122 @@
+"""FFT application of a shift-invariant OTF as a linear convolution, with padding only as wide as the PSF.
+
+Layout: images ``[B, L, H, W]``; an OTF callback ``otf_fn(fy [B, My], fx [B, Mx // 2 + 1]) -> [B|1, L, My, Mx//2+1]``
+gets the FFT frequencies in cycles/m of each batch sample's grid (spacing ``dx [B]``) and returns the transfer
+function there (real, or complex for asymmetric PSFs), with DC at index 0.
+
+Two cases:
+
+* **full output** (``window=None``): the image is padded by at least ``margin`` samples per side (rounded up to
+  an FFT-friendly size), the OTF is applied on that padded grid and the **whole padded grid is returned**.
+  The transfer function at every FFT frequency is exactly the OTF, and power is conserved exactly (the kernel
+  sums to OTF(0) = 1 and nothing is cropped). Light further than ``margin`` from the image would wrap around
+  to the other side; ``margin`` is chosen so that this is below the optics' ``psf_tolerance``.
+* **window** ``(top, left, height, width)`` in the coordinates of that full output: only the window is
+  computed, from the sources within ``margin`` of it, on a buffer large enough that nothing wraps around into
+  the window (the error is the PSF energy beyond ``margin``).
+
+Pad modes: ``'zero'`` (nothing outside the scene), ``'mean'`` (each wavelength's mean), ``'edge'`` (replicate
+the border), or a number (a constant fill).
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["next_fast_size", "full_padding", "blur_fft", "PAD_MODES"]
+
+PAD_MODES = ("zero", "mean", "edge")
+
+
+def next_fast_size(n: int, parity: int | None = None) -> int:
+    """Smallest ``m >= n`` whose prime factors are 2, 3, 5 (and ``m % 2 == parity`` if given)."""
+    m = max(int(n), 1)
+    while True:
+        if parity is None or m % 2 == parity:
+            k = m
+            for p in (2, 3, 5):
+                while k % p == 0:
+                    k //= p
+            if k == 1:
+                return m
+        m += 1
+
+
+def full_padding(size: int, margin: int) -> int:
+    """Per-side padding of the full output: at least ``margin``, with ``size + 2 pad`` an FFT-friendly size."""
+    if margin <= 0:
+        return 0
+    return (next_fast_size(size + 2 * margin, parity=size % 2) - size) // 2
+
+
+def _fill_value(x: torch.Tensor, pad_mode) -> torch.Tensor | None:
+    if pad_mode == "zero":
+        return torch.zeros((), dtype=x.dtype, device=x.device)
+    if pad_mode == "mean":
+        return x.mean(dim=(-2, -1), keepdim=True)
+    if pad_mode == "edge":
+        return None
+    if isinstance(pad_mode, (int, float)) and not isinstance(pad_mode, bool):
+        return torch.as_tensor(float(pad_mode), dtype=x.dtype, device=x.device)
+    raise ValueError(f"pad_mode: expected one of {PAD_MODES} or a number, got {pad_mode!r}")
+
+
+def extend(x: torch.Tensor, rows: tuple[int, int], cols: tuple[int, int], pad_mode) -> torch.Tensor:
+    """The image on rows ``[r0, r1)`` and cols ``[c0, c1)`` of its infinite extension by ``pad_mode``."""
+    h, w = x.shape[-2:]
+    ri = torch.arange(rows[0], rows[1], device=x.device)
+    ci = torch.arange(cols[0], cols[1], device=x.device)
+    inside_r = (ri >= 0) & (ri < h)
+    inside_c = (ci >= 0) & (ci < w)
+    if bool(inside_r.all()) and bool(inside_c.all()):
+        return x[..., rows[0]:rows[1], cols[0]:cols[1]]
+    fill = _fill_value(x, pad_mode)
+    out = x.index_select(-2, ri.clamp(0, h - 1)).index_select(-1, ci.clamp(0, w - 1))
+    if fill is None:  # edge
+        return out
+    inside = inside_r[:, None] & inside_c[None, :]
+    return torch.where(inside, out, fill)
+
+
+def _convolve(buf: torch.Tensor, otf_fn, dx: torch.Tensor) -> torch.Tensor:
+    my, mx = buf.shape[-2:]
+    d = dx.to(buf.dtype).reshape(-1, 1)
+    fy = torch.fft.fftfreq(my, device=buf.device, dtype=buf.dtype)[None, :] / d
+    fx = torch.fft.rfftfreq(mx, device=buf.device, dtype=buf.dtype)[None, :] / d
+    otf = otf_fn(fy, fx)
+    return torch.fft.irfft2(torch.fft.rfft2(buf) * otf, s=(my, mx))
+
+
+def blur_fft(x: torch.Tensor, otf_fn, dx: torch.Tensor, margin: tuple[int, int], pad_mode="zero",
+             window: tuple[int, int, int, int] | None = None) -> tuple[torch.Tensor, tuple[int, int]]:
+    """Blur ``x [B, L, H, W]`` by the OTF; see the module docstring.
+
+    Args:
+        x: image ``(B, L, H, W)``.
+        otf_fn: callback giving the OTF on the FFT frequencies (cycles/m).
+        dx: sample spacing ``(B,)`` (m).
+        margin: ``(rows, cols)``: how far (samples) the PSF reaches, at the optics' tolerance.
+        pad_mode: ``'zero'``, ``'mean'``, ``'edge'`` or a number.
+        window: ``(top, left, height, width)`` in full-output samples, or None for the full output.
+
+    Returns:
+        ``(out, (pad_rows, pad_cols))``: the full padded output ``(B, L, H + 2 pr, W + 2 pc)`` (or the window)
+        and the per-side padding of the full output.
+    """
+    h, w = x.shape[-2:]
+    pr, pc = full_padding(h, margin[0]), full_padding(w, margin[1])
+    _fill_value(x, pad_mode)  # validates pad_mode
+    if window is None:
+        buf = extend(x, (-pr, h + pr), (-pc, w + pc), pad_mode)
+        return _convolve(buf, otf_fn, dx), (pr, pc)
+    top, left, wh, ww = window
+    if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr and left + ww <= w + 2 * pc):
+        raise ValueError(f"crop: window (top={top}, left={left}, height={wh}, width={ww}) does not fit in the "
+                         f"{h + 2 * pr}x{w + 2 * pc} optical image (scene {h}x{w} padded by {pr}, {pc})")
+    mr, mc = max(margin[0], 0), max(margin[1], 0)
+    r0, c0 = top - pr - mr, left - pc - mc  # source window in scene coordinates
+    buf = extend(x, (r0, r0 + wh + 2 * mr), (c0, c0 + ww + 2 * mc), pad_mode)
+    my, mx = next_fast_size(wh + 2 * mr), next_fast_size(ww + 2 * mc)
+    buf = torch.nn.functional.pad(buf, (0, mx - buf.shape[-1], 0, my - buf.shape[-2]))
+    out = _convolve(buf, otf_fn, dx)
+    return out[..., mr:mr + wh, mc:mc + ww], (pr, pc)

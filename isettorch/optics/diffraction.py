@@ -1,0 +1,98 @@
+"""Diffraction-limited optics: the incoherent OTF of an aberration-free circular pupil."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .base import ShiftInvariantLens
+from .isetcam import compute_oi
+
+__all__ = ["dl_otf", "dl_mtf_1d", "DiffractionLimitedOptics"]
+
+
+def dl_mtf_1d(s: torch.Tensor) -> torch.Tensor:
+    """Diffraction-limited MTF of a circular pupil at normalised frequency ``s = f / f_c`` (``f_c = 1 / (lambda N)``):
+    ``(2/pi)(acos s - s sqrt(1 - s^2))`` for ``s < 1``, else 0 (Goodman, Introduction to Fourier Optics, 6.31;
+    ISETCam ``dlCore``). Gradients are finite everywhere (the branch for ``s >= 1`` is never differentiated).
+    """
+    inside = s < 1
+    ss = torch.where(inside, s, torch.zeros_like(s))
+    val = (2 / math.pi) * (torch.acos(ss) - ss * torch.sqrt(1 - ss * ss))
+    return torch.where(inside, val, torch.zeros_like(val))
+
+
+def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor,
+           ) -> torch.Tensor:
+    """Diffraction-limited OTF ``[B, L, My, Mx]`` at frequencies ``fy [B, My]``, ``fx [B, Mx]`` (cycles/m).
+
+    Cutoff ``1 / (lambda N)`` (Goodman 6.31). ``f_number`` is ``[B]``, ``wavelengths_nm`` ``[L]``.
+    """
+    rho = torch.sqrt(fy[:, :, None] ** 2 + fx[:, None, :] ** 2)  # [B, My, Mx]
+    lam_n = wavelengths_nm.to(rho.dtype)[None, :] * 1e-9 * f_number.to(rho.dtype).reshape(-1, 1)  # [B, L]
+    return dl_mtf_1d(rho[:, None] * lam_n[:, :, None, None])
+
+
+class DiffractionLimitedOptics(ShiftInvariantLens):
+    """Aberration-free lens: camera equation, relative illumination and the diffraction-limited OTF.
+
+    Args:
+        f_number: f-number (scalar or ``[B]``; trainable with ``learn_f_number=True``).
+        focal_length_m: focal length (m), scalar or ``[B]``. Default ISETCam's 3.862755 mm.
+        pad_mode: ``'zero'`` (default), ``'mean'``, ``'edge'``, a number, or ``'isetcam'``: ISETCam's
+            ``oiCompute`` exactly (:func:`isettorch.optics.isetcam.compute_oi`: ``round(size/8)`` padding with
+            ``max * 1e-9``, its grids, ``abs(ifft2)``, cos4th with ``d = f, m = 0``; ``crop`` then slices).
+        Other arguments: see :class:`~isettorch.optics.base.ShiftInvariantLens`.
+
+    The default (physically sound) mode uses the thin-lens image distance everywhere (sample spacing, cos^4),
+    the textbook FFT frequency grid, no ``abs``, and pads by ``2 lambda_max N / (pi^3 tol)`` (the distance
+    beyond which the diffraction line-spread function holds less than ``tol`` of its energy; its tail is
+    ``2 lambda N / (pi^3 a)``, from the MTF's slope ``-4/pi`` at 0). On the ISETCam Macbeth case (64x96, f/4,
+    3.86 mm, 1.2 m) it differs from ISETCam by: spacing +0.32 % (ISETCam computes the OTF and cos4th at
+    ``d = f`` but returns the spacing for the image distance), cos^4 vs ISETCam's finite-aperture formula
+    (max 0.26 %), and the blur (ISETCam's circular convolution over its ``size/8`` pad, odd-n grid stretch
+    and cutoff in cycles/deg): median 0.2 %, max 2.5 % over pixels above 1 % of max (measured in
+    ``tests/optics/test_isetcam_parity.py``).
+
+    Example:
+        >>> optics = DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3)
+        >>> oi = optics(scene)  # doctest: +SKIP
+
+    Reference: Goodman, Introduction to Fourier Optics (3rd ed.), 6.3; ISETCam ``opticsDLCompute``.
+    """
+
+    def __init__(self, f_number=4.0, focal_length_m=3.862755099e-3, transmittance=None,
+                 transmittance_wavelengths_nm=None, **kwargs) -> None:
+        pad_mode = kwargs.get("pad_mode", "zero")
+        self.isetcam = pad_mode == "isetcam"
+        if self.isetcam:
+            kwargs["pad_mode"] = "zero"
+        super().__init__(f_number, focal_length_m, transmittance, transmittance_wavelengths_nm, **kwargs)
+
+    def otf(self, fy, fx, wavelengths_nm, f_number):
+        return dl_otf(fy, fx, wavelengths_nm, f_number)
+
+    def psf_margin_m(self, wavelengths_nm, f_number):
+        # line-spread tail beyond a: 2 lambda N / (pi^3 a)  (asymptotic, from the MTF slope -4/pi at 0)
+        lam = wavelengths_nm.max() * 1e-9
+        return 2 * lam * f_number / (math.pi**3 * self.psf_tolerance)
+
+    def blur_negligible(self, dx, wavelengths_nm, f_number):
+        # max |1 - OTF| on the grid is at the corner frequency sqrt(2) / (2 dx)
+        s = (math.sqrt(2) / (2 * dx)) * wavelengths_nm.max() * 1e-9 * f_number
+        dev = 1 - dl_mtf_1d(s.detach())
+        return bool((dev <= self.blur_skip_tolerance).all())
+
+    def forward(self, scene, crop=None):
+        if not self.isetcam:
+            return super().forward(scene, crop)
+        b = scene.batch_size
+        dt, dev = scene.dtype, scene.device
+        t = self.transmittance_on(scene.wavelengths_nm)
+        oi = compute_oi(scene.photons, scene.wavelengths_nm, scene.hfov_deg, scene.distance_m,
+                        self.batch_f_number(b, dt, dev), self.batch_focal_length(b, dt, dev), t,
+                        offaxis="skip" if self.relative_illumination in (None, "none") else "cos4th")
+        if crop is not None:
+            oi = oi.crop(*crop)
+        return oi
