@@ -1,0 +1,131 @@
+import colour
+import numpy as np
+import pytest
+import torch
+from scipy.interpolate import RegularGridInterpolator
+from scipy.signal import convolve2d
+from skimage.measure import block_reduce
+
+from isettorch.sensor import CFA, SpectralQE, filter_set, ir_cut_filter, isetcam_preblur, isetcam_preblur_kernel
+from isettorch.sensor.sampling import isetcam_preblur_size, sample_area, sample_point
+
+
+def test_colour_camera_sensitivities_match_colour_science():
+    w, v, letters = filter_set("nikon_5100", dtype=torch.float64)
+    m = colour.MSDS_CAMERA_SENSITIVITIES["Nikon 5100 (NPL)"]
+    ref = np.asarray(m.values).T
+    np.testing.assert_allclose(v.numpy(), ref / ref.max(axis=1, keepdims=True), rtol=1e-12)
+    assert letters == ("R", "G", "B")
+    # resampled onto a coarse grid: linear interpolation, 0 outside the measured 400-680 nm of the Sigma data
+    grid = np.array([390.0, 405.0, 500.0, 690.0])
+    _, vs, _ = filter_set("sigma_sdmerill", grid, dtype=torch.float64)
+    ms = colour.MSDS_CAMERA_SENSITIVITIES["Sigma SDMerill (NPL)"]
+    raw = np.asarray(ms.values).T
+    raw = raw / raw.max(axis=1, keepdims=True)
+    for c in range(3):
+        expected = np.interp(grid, ms.wavelengths, raw[c], left=0.0, right=0.0)
+        np.testing.assert_allclose(vs[c].numpy(), expected, rtol=1e-12, atol=1e-15)
+
+
+def test_spectral_qe_resample_and_cache():
+    qe = SpectralQE.from_cfa(CFA("GBRG"), ir_filter=ir_cut_filter(torch.arange(400.0, 701.0, 10.0), 650, 10))
+    w = torch.tensor([395.0, 455.0, 700.0, 720.0], dtype=torch.float64)
+    out = qe(w)
+    assert out.shape == (3, 4)
+    native = qe.native().numpy()
+    for c in range(3):
+        np.testing.assert_allclose(out[c].numpy(), np.interp(w.numpy(), np.arange(400, 701, 10), native[c],
+                                                             left=0, right=0), rtol=1e-12)
+    assert out[:, 0].abs().sum() == 0 and out[:, 3].abs().sum() == 0
+    assert qe(w) is qe(w)  # resampled once per grid
+    # IR cut: 0.5 at the cutoff, logistic edge
+    ir = ir_cut_filter(torch.tensor([650.0, 700.0]), 650, 10)
+    np.testing.assert_allclose(ir.numpy(), [0.5, 1 / (1 + np.exp(5))], rtol=1e-6)
+
+
+def test_cmy_and_errors():
+    qe = SpectralQE.from_cfa(CFA("YCMY"))
+    w, rgb, _ = filter_set("isetcam_rgb", dtype=torch.float64)
+    c, y, m = qe.native()
+    torch.testing.assert_close(c, rgb[1] + rgb[2])
+    torch.testing.assert_close(y, rgb[0] + rgb[1])
+    with pytest.raises(ValueError, match="no filter for CFA channel 'E'"):
+        SpectralQE.from_cfa(CFA("RG/EB"))
+    with pytest.raises(ValueError, match="filters: expected non-negative"):
+        SpectralQE(torch.tensor([[0.5, -0.1]]), torch.tensor([400.0, 500.0]), ["R"])
+
+
+def test_learnable_filters_nonnegative_and_trainable():
+    qe = SpectralQE.from_cfa(CFA("RGGB"), learnable=True)
+    assert any(p.requires_grad for p in qe.parameters())
+    native0 = qe.native().detach().clone()
+    w = torch.arange(400.0, 701.0, 10.0)
+    np.testing.assert_allclose(native0.numpy(), filter_set("isetcam_rgb")[1].numpy(), atol=1e-6)
+    opt = torch.optim.SGD(qe.parameters(), lr=10.0)
+    for _ in range(20):
+        opt.zero_grad()
+        (qe(w) ** 2).sum().backward()  # push the filters towards zero
+        opt.step()
+    assert (qe.native() >= 0).all()
+    assert qe.native().sum() < native0.sum()
+
+
+def test_preblur_kernel_is_fspecial():
+    k = 5
+    g = isetcam_preblur_kernel(k).numpy()
+    o = np.arange(k) - (k - 1) / 2
+    ref = np.exp(-(o[:, None] ** 2 + o[None] ** 2) / (2 * (k / 4) ** 2))
+    np.testing.assert_allclose(g, ref / ref.sum(), rtol=1e-14)
+    np.testing.assert_allclose(isetcam_preblur_kernel(2).numpy(), np.full((2, 2), 0.25))
+    assert isetcam_preblur_size(2.8e-6, 7.06e-6) == 1
+    assert isetcam_preblur_size(3.5e-6, 1e-6) == 4
+
+
+@pytest.mark.parametrize("k", [2, 3, 4, 5])
+def test_preblur_matches_matlab_conv2_same(k):
+    rng = np.random.default_rng(k)
+    a = rng.random((2, 9, 11))
+    g = isetcam_preblur_kernel(k).numpy()
+    out = isetcam_preblur(torch.from_numpy(a)[None], k)[0].numpy()
+    for c in range(2):
+        full = convolve2d(a[c], g, mode="full")  # MATLAB conv2 'same' keeps full[k//2 : k//2 + n]
+        np.testing.assert_allclose(out[c], full[k // 2:k // 2 + 9, k // 2:k // 2 + 11], rtol=1e-12, atol=1e-15)
+    if k == 2:  # the half-sample shift of FORMAT.md 4.6 step 2
+        np.testing.assert_allclose(out[0, 3, 4], a[0, 3:5, 4:6].mean())
+        np.testing.assert_allclose(out[0, 8, 10], a[0, 8, 10] / 4)
+
+
+def test_point_sampling_matches_scipy_bilinear():
+    rng = np.random.default_rng(0)
+    img = rng.random((1, 2, 13, 17))
+    dx = 1.3e-6
+    pitch = 1.7e-6
+    rows, cols = 12, 15  # reaches slightly outside the OI on purpose
+    out = sample_point(torch.from_numpy(img), torch.tensor([dx], dtype=torch.float64), pitch, rows, cols)[0]
+    ys = (np.arange(13) - 6) * dx
+    xs = (np.arange(17) - 8) * dx
+    py = (np.arange(rows) - (rows - 1) / 2) * pitch
+    px = (np.arange(cols) - (cols - 1) / 2) * pitch
+    pts = np.stack(np.meshgrid(py, px, indexing="ij"), -1)
+    for c in range(2):
+        ref = RegularGridInterpolator((ys, xs), img[0, c], bounds_error=False, fill_value=0.0)(pts)
+        np.testing.assert_allclose(out[c].numpy(), ref, rtol=1e-10, atol=1e-12)
+    assert (out[:, 0, :] == 0).all()  # first row lies outside the OI: ISETCam NaN -> 0
+
+
+def test_area_sampling_block_mean_and_conservation():
+    rng = np.random.default_rng(1)
+    img = rng.random((1, 1, 12, 18))
+    # pixels of exactly 3 x 3 OI samples, aligned with the OI grid: block means (skimage)
+    out = sample_area(torch.from_numpy(img), torch.tensor([1e-6], dtype=torch.float64), 3e-6, 4, 6)
+    np.testing.assert_allclose(out[0, 0].numpy(), block_reduce(img[0, 0], (3, 3), np.mean), rtol=1e-12)
+    # pixels smaller than OI samples (piecewise-constant model): each pixel takes its sample's value
+    small = sample_area(torch.from_numpy(img), torch.tensor([2e-6], dtype=torch.float64), 1e-6, 24, 36)
+    np.testing.assert_allclose(small[0, 0].numpy(), np.kron(img[0, 0], np.ones((2, 2))), rtol=1e-12)
+    # fill factor 1/4: a 1 um photodiode centred between two OI samples on each axis covers half of each
+    ff = sample_area(torch.from_numpy(img), torch.tensor([1e-6], dtype=torch.float64), 2e-6, 6, 9, fill_factor=0.25)
+    np.testing.assert_allclose(ff[0, 0].numpy(), block_reduce(img[0, 0], (2, 2), np.mean), rtol=1e-12)
+    # conservation: 5 x 5 pixels of 2.4 um tiling a 12 x 12 um OI keep the total signal
+    sq = torch.from_numpy(img[..., :12, :12].copy())
+    tot = sample_area(sq, torch.tensor([1e-6], dtype=torch.float64), 2.4e-6, 5, 5)
+    np.testing.assert_allclose(tot.sum().item() * 2.4**2, sq.sum().item(), rtol=1e-12)
