@@ -1,5 +1,7 @@
 """Scenes: the `Scene` container and its generators (charts, test patterns, spectral images)."""
 
+from .dead_leaves import dead_leaves
+from .display import Display, display_names
 from .macbeth import macbeth, macbeth_patch_names, macbeth_patch_slices, macbeth_reflectances
 from .patterns import (
     checkerboard,
@@ -14,6 +16,7 @@ from .patterns import (
     uniform,
     zone_plate,
 )
+from .reflectance import from_rgb, reflectance_scene
 from .scene import Scene
 
 __all__ = [
@@ -33,4 +36,9 @@ __all__ = [
     "checkerboard",
     "zone_plate",
     "hdr_chart",
+    "dead_leaves",
+    "reflectance_scene",
+    "from_rgb",
+    "Display",
+    "display_names",
 ]
