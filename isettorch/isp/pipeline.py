@@ -71,26 +71,46 @@ class DemosaicStage(nn.Module):
     """Demosaic for any CFA: Bayer layouts use ``method`` of :func:`isettorch.isp.demosaic.demosaic`; other
     CFAs (CMY, RGBW, ...) use the generic method on the CFA's index map (``fallback``, bilinear by default).
 
+    ``border="reflect"`` mirrors the mosaic by one pixel first (which keeps a 2x2 CFA's phase) and crops the
+    result, as ISETCam ``ieBilinear`` does; ``border="method"`` leaves the borders to the method.
+
     ``forward(mosaic (B, 1, H, W), cfa) -> (B, C, H, W)`` in the CFA's channel order.
     """
 
-    def __init__(self, method="bilinear", fallback: str = "bilinear") -> None:
+    def __init__(self, method="bilinear", fallback: str = "bilinear", border: str = "method", **kwargs) -> None:
         super().__init__()
         from .demosaic import Demosaic
 
+        if border not in ("method", "reflect"):
+            raise ValueError(f"border: expected 'method' or 'reflect', got {border!r}")
         self.method = method if isinstance(method, str) else type(method).__name__
-        self.bayer = Demosaic(method)
+        self.bayer = Demosaic(method, **kwargs)
         self.fallback = fallback
+        self.border = border
 
     def forward(self, mosaic: torch.Tensor, cfa) -> torch.Tensor:
+        from ..sensor.cfa import CFA
         from .demosaic import demosaic
 
+        pad = 0
+        if self.border == "reflect" and min(mosaic.shape[-2:]) > 1:
+            ph, pw = cfa.shape
+            pad = 1
+            mosaic = nn.functional.pad(mosaic, (1, 1, 1, 1), mode="reflect")
+            # Mirroring by one pixel keeps the CFA only for cells of period <= 2; the padded image starts at
+            # cell position (-1, -1), i.e. (ph - 1, pw - 1).
+            if ph > 2 or pw > 2:
+                raise ValueError(f"border: 'reflect' needs a CFA cell of at most 2x2, got {cfa.shape}")
+            cell = [[cfa.cell[(i - 1) % ph][(j - 1) % pw] for j in range(pw)] for i in range(ph)]
+            cfa = CFA(cell, cfa.channel_names)
         if cfa.is_bayer and cfa.channel_names[:3] == ["R", "G", "B"]:
-            return self.bayer(mosaic, cfa.bayer_pattern)
-        return demosaic(mosaic, cfa.index_map.to(mosaic.device), self.fallback, num_channels=cfa.num_channels)
+            out = self.bayer(mosaic, cfa.bayer_pattern)
+        else:
+            out = demosaic(mosaic, cfa.index_map.to(mosaic.device), self.fallback, num_channels=cfa.num_channels)
+        return out[..., pad:out.shape[-2] - pad, pad:out.shape[-1] - pad] if pad else out
 
     def extra_repr(self) -> str:
-        return f"method={self.method!r}, fallback={self.fallback!r}"
+        return f"method={self.method!r}, fallback={self.fallback!r}, border={self.border!r}"
 
 
 def _sensor_qe(sensor, wavelengths_nm: torch.Tensor) -> torch.Tensor:

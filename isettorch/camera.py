@@ -1,0 +1,244 @@
+"""`Camera`: scene -> optics -> sensor -> image processor, with every intermediate on request.
+
+Reference: Farrell, Xiao, Catrysse, Wandell, "A simulation tool for evaluating digital camera image quality",
+SPIE 5294 (2004): the four ISET modules (scene, optics, sensor, processor), each inspectable and replaceable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import inspect
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from .isp.pipeline import DemosaicStage, ImageProcessor, ISPResult
+
+__all__ = ["Camera", "CameraOutput", "load_config", "CONFIG_SECTIONS"]
+
+
+@dataclasses.dataclass
+class CameraOutput:
+    """Everything a camera computed: the final ``image`` (B, 3, H, W) and the intermediates.
+
+    ``scene``, ``optical_image``, ``raw`` (a :class:`~isettorch.sensor.raw.RawImage`) and ``isp`` (an
+    :class:`~isettorch.isp.pipeline.ISPResult` with the demosaiced, white-balanced, XYZ and display stages and
+    the matrices used); None for the stages a resumed run did not compute.
+    """
+
+    image: torch.Tensor
+    scene: Any = None
+    optical_image: Any = None
+    raw: Any = None
+    isp: ISPResult | None = None
+
+    def __getattr__(self, name: str):
+        # Convenience: out.demosaiced, out.xyz, ... read from the ISP result.
+        if name not in ("isp",) and self.isp is not None and hasattr(self.isp, name):
+            return getattr(self.isp, name)
+        raise AttributeError(f"CameraOutput has no attribute {name!r}")
+
+
+class Camera(nn.Module):
+    """A camera: ``optics`` (scene -> OpticalImage), ``sensor`` (OpticalImage -> RawImage) and ``isp``
+    (RawImage -> ISPResult). Each is a submodule that can be replaced (``camera.isp = MyISP()``).
+
+    Args:
+        optics, sensor: modules (e.g. :class:`~isettorch.optics.DiffractionLimitedOptics`,
+            :class:`~isettorch.sensor.Sensor`).
+        isp: an :class:`~isettorch.isp.pipeline.ImageProcessor` (default ISETCam-like).
+        noise: simulate sensor noise (False: the noise-free capture).
+
+    Example:
+        >>> cam = Camera.from_config("configs/cameras/default.yaml")  # doctest: +SKIP
+        >>> out = cam(scene, return_intermediates=True)  # doctest: +SKIP
+        >>> out.raw.data, out.isp.xyz, out.image  # doctest: +SKIP
+        >>> edited = out.optical_image.replace(photons=out.optical_image.photons * 2)  # doctest: +SKIP
+        >>> cam.from_optical_image(edited)  # doctest: +SKIP
+    """
+
+    def __init__(self, optics: nn.Module, sensor: nn.Module, isp: nn.Module | None = None, noise: bool = True,
+                 name: str = "") -> None:
+        super().__init__()
+        self.optics = optics
+        self.sensor = sensor
+        self.isp = isp if isp is not None else ImageProcessor()
+        self.noise = bool(noise)
+        self.name = name
+
+    # --- pipeline ------------------------------------------------------------------------------
+    def forward(self, scene, return_intermediates: bool = False, *, exposure_s=None, generator=None):
+        """Render a :class:`~isettorch.scene.Scene`; returns the image (B, 3, H, W) or a :class:`CameraOutput`."""
+        oi = self.optics(scene)
+        out = self.from_optical_image(oi, True, exposure_s=exposure_s, generator=generator)
+        out.scene = scene
+        return out if return_intermediates else out.image
+
+    def from_optical_image(self, oi, return_intermediates: bool = False, *, exposure_s=None, generator=None):
+        """Resume from an optical image (e.g. one a user modified)."""
+        kwargs = {"noise": self.noise}
+        if exposure_s is not None:
+            kwargs["exposure_s"] = exposure_s
+        if generator is not None:
+            kwargs["generator"] = generator
+        raw = self.sensor(oi, **kwargs)
+        out = self.from_raw(raw, True)
+        out.optical_image = oi
+        return out if return_intermediates else out.image
+
+    def from_raw(self, raw, return_intermediates: bool = False):
+        """Resume from a raw image (the sensor's output, possibly modified)."""
+        fit = getattr(self.isp, "fit", None)
+        if fit is not None:
+            fit(self.sensor)
+        res = self.isp(raw)
+        image = res.image if isinstance(res, ISPResult) else res
+        out = CameraOutput(image=image, raw=raw, isp=res if isinstance(res, ISPResult) else None)
+        return out if return_intermediates else out.image
+
+    def from_demosaiced(self, demosaiced: torch.Tensor, return_intermediates: bool = False):
+        """Resume from a demosaiced sensor image (B, C, H, W), relative to the white level."""
+        self.isp.fit(self.sensor)
+        res = self.isp.from_demosaiced(demosaiced)
+        out = CameraOutput(image=res.image, isp=res)
+        return out if return_intermediates else out.image
+
+    def extra_repr(self) -> str:
+        return f"name={self.name!r}, noise={self.noise}"
+
+    # --- configuration -------------------------------------------------------------------------
+    @classmethod
+    def from_config(cls, config) -> Camera:
+        """Build a camera from a YAML file (``yaml.safe_load``) or a dict; see ``configs/cameras/*.yaml``.
+
+        Unknown or mistyped keys raise a ``ValueError`` naming the key, its section and the closest valid key.
+        """
+        return build_camera(load_config(config) if not isinstance(config, dict) else config)
+
+
+# ---------------------------------------------------------------------------------------------
+# Configuration
+
+
+CONFIG_SECTIONS = ("name", "description", "optics", "sensor", "isp", "camera")
+OPTICS_TYPES = ("diffraction_limited",)
+ISP_KEYS = {
+    "demosaic": str, "demosaic_border": str, "demosaic_fallback": str, "illuminant_correction": str,
+    "correction_space": str, "correction_white": str, "gains": list, "sensor_conversion": dict, "display": str,
+    "encoding": (str, float, int), "scaling": str, "clip_negative_xyz": bool, "monochrome_divisor": str,
+}
+SENSOR_CONVERSION_KEYS = {"method": str, "illuminant": str, "surfaces": str, "observer": str, "matrix": list,
+                          "normalize": bool, "learnable": bool}
+CAMERA_KEYS = {"noise": bool}
+DEMOSAIC_ALIASES = {"adaptive": "menon2007"}
+
+
+def _unknown(key: str, valid, where: str) -> ValueError:
+    close = difflib.get_close_matches(str(key), list(valid), n=1, cutoff=0.5)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return ValueError(f"config: unknown key {key!r} in {where}{hint} (valid keys: {sorted(valid)})")
+
+
+def _check_keys(section: dict, schema: dict, where: str) -> None:
+    if not isinstance(section, dict):
+        raise TypeError(f"config: {where} must be a mapping, got {type(section).__name__}")
+    for key, value in section.items():
+        if key not in schema:
+            raise _unknown(key, schema, where)
+        expected = schema[key]
+        if value is not None and expected is not None and not isinstance(value, expected):
+            names = expected.__name__ if isinstance(expected, type) else "/".join(t.__name__ for t in expected)
+            raise TypeError(f"config: {where}.{key} must be {names}, got {type(value).__name__} ({value!r})")
+
+
+def _signature_keys(fn) -> dict:
+    params = inspect.signature(fn).parameters
+    return {n: None for n, p in params.items() if n != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+
+
+def load_config(path) -> dict:
+    """Read a camera YAML file safely (``yaml.safe_load``)."""
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"path: camera config {str(path)!r} does not exist")
+    with p.open() as fh:
+        cfg = yaml.safe_load(fh)
+    if not isinstance(cfg, dict):
+        raise ValueError(f"path: {str(path)!r} must hold a YAML mapping with sections {list(CONFIG_SECTIONS)}")
+    return cfg
+
+
+def _build_optics(cfg: dict) -> nn.Module:
+    from .optics import DiffractionLimitedOptics
+
+    cfg = dict(cfg)
+    kind = cfg.pop("type", "diffraction_limited")
+    if kind not in OPTICS_TYPES:
+        raise _unknown(kind, OPTICS_TYPES, "optics.type")
+    keys = _signature_keys(DiffractionLimitedOptics.__init__)
+    keys.update(_signature_keys(DiffractionLimitedOptics.__mro__[1].__init__))
+    keys.pop("dtype", None)
+    _check_keys(cfg, keys, "optics")
+    return DiffractionLimitedOptics(**cfg)
+
+
+def _build_sensor(cfg: dict) -> nn.Module:
+    from .sensor import PRESETS, Sensor
+
+    cfg = dict(cfg)
+    preset = cfg.pop("preset", None)
+    keys = _signature_keys(Sensor.__init__)
+    keys.pop("spectral_qe", None)
+    _check_keys(cfg, keys, "sensor")
+    if isinstance(cfg.get("exposure_s"), list):
+        cfg["exposure_s"] = torch.tensor(cfg["exposure_s"])
+    if preset is None:
+        return Sensor(**cfg)
+    if preset not in PRESETS:
+        raise _unknown(preset, PRESETS, "sensor.preset")
+    return Sensor.preset(preset, **cfg)
+
+
+def _build_isp(cfg: dict) -> ImageProcessor:
+    from .isp.colour import SensorToXYZ
+
+    _check_keys(cfg, ISP_KEYS, "isp")
+    cfg = dict(cfg)
+    method = cfg.pop("demosaic", "bilinear")
+    method = DEMOSAIC_ALIASES.get(method, method)
+    demosaic = DemosaicStage(method, fallback=cfg.pop("demosaic_fallback", "bilinear"),
+                             border=cfg.pop("demosaic_border", "method"))
+    conv = dict(cfg.pop("sensor_conversion", {}) or {})
+    _check_keys(conv, SENSOR_CONVERSION_KEYS, "isp.sensor_conversion")
+    method = conv.pop("method", "mcc_optimized")
+    if method not in ("mcc_optimized", "multisurface", "matrix"):
+        raise _unknown(method, ("mcc_optimized", "multisurface", "matrix"), "isp.sensor_conversion.method")
+    if method == "multisurface":
+        conv.setdefault("surfaces", "macbeth+rawtoaces190")
+    if method == "matrix" and "matrix" not in conv:
+        raise ValueError("config: isp.sensor_conversion.method 'matrix' needs isp.sensor_conversion.matrix (3 x C)")
+    matrix = conv.pop("matrix", None)
+    s2x = SensorToXYZ(matrix=torch.tensor(matrix, dtype=torch.get_default_dtype()) if matrix is not None else None,
+                      **conv)
+    return ImageProcessor(demosaic=demosaic, sensor_to_xyz=s2x, **cfg)
+
+
+def build_camera(cfg: dict) -> Camera:
+    """Build a :class:`Camera` from a config mapping (see :meth:`Camera.from_config`)."""
+    if not isinstance(cfg, dict):
+        raise TypeError(f"config: expected a mapping, got {type(cfg).__name__}")
+    for key in cfg:
+        if key not in CONFIG_SECTIONS:
+            raise _unknown(key, CONFIG_SECTIONS, "the top level")
+    for section in ("optics", "sensor"):
+        if section not in cfg:
+            raise ValueError(f"config: missing section {section!r} (sections: {list(CONFIG_SECTIONS)})")
+    cam_cfg = cfg.get("camera") or {}
+    _check_keys(cam_cfg, CAMERA_KEYS, "camera")
+    return Camera(_build_optics(cfg["optics"] or {}), _build_sensor(cfg["sensor"] or {}),
+                  _build_isp(cfg.get("isp") or {}), noise=cam_cfg.get("noise", True), name=str(cfg.get("name", "")))

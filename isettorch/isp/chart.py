@@ -1,0 +1,64 @@
+"""Colour accuracy of a rendered Macbeth chart: patch means and dE against the chart's true colours.
+
+The true colours are computed from the same reflectances the scene uses (:func:`isettorch.isp.colour.
+reflectance_set` ``"macbeth"``) under the scene's illuminant, so the comparison measures only the camera.
+Reference: ISETCam ``macbethColorError`` / ``macbethCompareIdeal`` (white-patch scaling, CIELAB dE).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .colour import reflectance_set, white_xyz, xyz_responses
+
+__all__ = ["patch_means", "macbeth_true_xyz", "macbeth_delta_e", "WHITE_PATCH"]
+
+#: Index of the white patch (row 4, column 1) in reading order.
+WHITE_PATCH = 18
+
+
+def patch_means(img: torch.Tensor, grid: tuple[int, int] = (4, 6), fraction: float = 0.5) -> torch.Tensor:
+    """Mean of the central ``fraction`` of each cell of a ``grid`` chart filling the image: (B, C, H, W) ->
+    (B, P, C), patches in reading order."""
+    if img.dim() != 4:
+        raise ValueError(f"img: expected (B, C, H, W), got shape {tuple(img.shape)}")
+    if not 0 < fraction <= 1:
+        raise ValueError(f"fraction: expected a value in (0, 1], got {fraction}")
+    rows, cols = grid
+    h, w = img.shape[-2:]
+    out = []
+    for r in range(rows):
+        for c in range(cols):
+            cy, cx = (r + 0.5) * h / rows, (c + 0.5) * w / cols
+            hy, hx = max(0.5, fraction * h / rows / 2), max(0.5, fraction * w / cols / 2)
+            y0, y1 = int(round(cy - hy)), max(int(round(cy - hy)) + 1, int(round(cy + hy)))
+            x0, x1 = int(round(cx - hx)), max(int(round(cx - hx)) + 1, int(round(cx + hx)))
+            out.append(img[:, :, y0:y1, x0:x1].mean(dim=(-2, -1)))
+    return torch.stack(out, dim=1)
+
+
+def macbeth_true_xyz(illuminant="D65", wavelengths_nm=None, observer: str = "1931") -> torch.Tensor:
+    """True XYZ (24, 3) of the chart's patches under ``illuminant``, scaled so a perfect white has Y = 1."""
+    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64) if wavelengths_nm is None \
+        else torch.as_tensor(wavelengths_nm, dtype=torch.float64)
+    xyz = xyz_responses(w, illuminant, reflectance_set("macbeth", w), observer)
+    white = xyz_responses(w, illuminant, torch.ones(1, w.numel(), dtype=torch.float64), observer)[0]
+    return xyz / white[1]
+
+
+def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = "2000", wavelengths_nm=None,
+                    scale_to_white: bool = True):
+    """dE of rendered patch XYZ (B, 24, 3) (or (24, 3)) against the true chart under ``illuminant``.
+
+    With ``scale_to_white`` the rendered values are scaled so the white patch's Y equals its true Y (the
+    camera's exposure is arbitrary). CIELAB white: the illuminant's perfect white (Y = 1).
+    Returns :class:`isettorch.metrics.difference.ColorAccuracy` (per-patch ``delta_e``, ``mean``, ``max``).
+    """
+    from ..metrics import color_accuracy
+
+    x = rendered_xyz.to(torch.float64)
+    ref = macbeth_true_xyz(illuminant, wavelengths_nm).to(x.device)
+    if scale_to_white:
+        x = x * (ref[WHITE_PATCH, 1] / x[..., WHITE_PATCH:WHITE_PATCH + 1, 1:2])
+    white = white_xyz(illuminant).to(x.device)
+    return color_accuracy(x, ref, white=white, method=method)

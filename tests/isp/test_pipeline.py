@@ -1,0 +1,109 @@
+"""ImageProcessor: stage order, replaceable stages, batching, monochrome, ISETCam parity of the machinery."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from isettorch.isp.colour import SensorToXYZ, sensor_responses
+from isettorch.isp.pipeline import DemosaicStage, ImageProcessor
+from isettorch.sensor.cfa import CFA
+from isettorch.sensor.filters import SpectralQE
+from isettorch.sensor.raw import RawImage
+
+W = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+PARITY = Path("/work/shared/isetcam-parity/macbeth_d65_default.npz")
+
+
+def _uniform_raw(pattern: str, illuminant: str, reflectance: float = 0.5, size: int = 8, level: float = 0.6):
+    """Raw mosaic of a uniform neutral surface: every pixel has its channel's response to R x illuminant."""
+    cfa = CFA(pattern)
+    qe = SpectralQE.from_cfa(cfa)(W, dtype=torch.float64)
+    resp = sensor_responses(qe, W, illuminant, torch.full((1, W.numel()), reflectance, dtype=torch.float64))[0]
+    resp = resp / resp.max() * level
+    planes = resp.reshape(1, -1, 1, 1).expand(1, -1, size, size)
+    return RawImage(cfa.mosaic(planes.contiguous()), "volts", cfa, white_level=1.0, voltage_swing_v=1.0), qe
+
+
+@pytest.mark.parametrize("pattern", ["GBRG", "YCMY"])
+@pytest.mark.parametrize("space", ["xyz", "sensor"])
+def test_gray_world_makes_neutral_surface_under_a_neutral(pattern, space):
+    raw, qe = _uniform_raw(pattern, "A")
+    ip = ImageProcessor(illuminant_correction="gray_world", correction_space=space, scaling="max").double()
+    ip.fit(qe)
+    rgb = ip(raw).display_linear.mean((-2, -1))[0]
+    assert (rgb / rgb.mean() - 1).abs().max() < 0.01, rgb
+    # Without the correction the same surface is far from neutral (the test can fail).
+    ip_none = ImageProcessor(illuminant_correction="none", scaling="max").double()
+    ip_none.fit(qe)
+    rgb = ip_none(raw).display_linear.mean((-2, -1))[0]
+    assert (rgb / rgb.mean() - 1).abs().max() > 0.1
+
+
+def test_stages_order_shapes_and_matrices():
+    raw, qe = _uniform_raw("GBRG", "D65")
+    ip = ImageProcessor(illuminant_correction="gray_world", scaling="adaptive").double().fit(qe)
+    out = ip(raw)
+    assert list(out.stages()) == ["input", "demosaiced", "sensor_balanced", "xyz", "xyz_balanced",
+                                  "display_linear", "image"]
+    torch.testing.assert_close(out.xyz, torch.einsum("kc,bchw->bkhw", out.sensor_to_xyz, out.demosaiced))
+    torch.testing.assert_close(out.xyz_balanced, out.xyz * out.gains[:, :, None, None])
+    # adaptive: display maximum = raw maximum / white level (ISETCam displayRender)
+    assert out.display_linear.max().item() == pytest.approx(raw.data.max().item(), rel=1e-9)
+    assert ip.sensor_to_xyz.matrix.shape == (3, 3) and ip.xyz_to_display.matrix.shape == (3, 3)
+
+
+def test_replace_stages_and_batch():
+    raw, qe = _uniform_raw("GBRG", "D65", size=6)
+    g = torch.Generator().manual_seed(0)
+    data = raw.data * (0.5 + torch.rand(2, 1, 6, 6, generator=g, dtype=torch.float64))
+    raw2 = raw.replace(data=data)
+    ip = ImageProcessor(scaling="exposure", sensor_to_xyz=SensorToXYZ()).double().fit(qe)
+    both = ip(raw2).image
+    for i in range(2):
+        torch.testing.assert_close(both[i:i + 1], ip(raw2.replace(data=data[i:i + 1])).image)
+
+    class Nearest(torch.nn.Module):
+        def forward(self, mosaic, cfa):
+            from isettorch.isp.demosaic import demosaic_nearest_cfa
+            return demosaic_nearest_cfa(mosaic, cfa.index_map, cfa.num_channels)
+
+    ip.demosaic = Nearest()
+    ip.encode = torch.nn.Identity()
+    out = ip(raw2)
+    torch.testing.assert_close(out.image, out.display_linear)
+
+
+def test_monochrome_skips_colour():
+    raw = RawImage(torch.rand(1, 1, 4, 4, dtype=torch.float64) * 0.8, "volts", CFA("W"), white_level=2.0,
+                   voltage_swing_v=1.0)
+    out = ImageProcessor()(raw)
+    torch.testing.assert_close(out.image, (raw.data / 2.0).expand(-1, 3, -1, -1))
+    out = ImageProcessor(monochrome_divisor="voltage_swing")(raw)  # ISETCam: input / voltage swing
+    torch.testing.assert_close(out.image, raw.data.expand(-1, 3, -1, -1))
+    assert out.xyz is None
+
+
+def test_needs_matrix_and_white_level():
+    raw, _ = _uniform_raw("GBRG", "D65")
+    with pytest.raises(RuntimeError, match="fit"):
+        ImageProcessor()(raw)
+    with pytest.raises(ValueError, match="white_level"):
+        ImageProcessor()(raw.replace(white_level=None))
+    with pytest.raises(ValueError, match="scaling"):
+        ImageProcessor(scaling="auto")
+
+
+@pytest.mark.skipif(not PARITY.exists(), reason="ISETCam parity case not available")
+def test_isetcam_ip_machinery_parity():
+    # With ISETCam's own matrices, our stages reproduce ipCompute's result (bilinear with mirrored border,
+    # clip negative XYZ, adaptive scaling) to float32 precision.
+    d = np.load(PARITY, allow_pickle=False)
+    volts = torch.tensor(d["sensor_volts"], dtype=torch.float64)[None, None]
+    t_sensor, t_display = torch.tensor(d["ip_T_sensor"]), torch.tensor(d["ip_T_display"])
+    raw = RawImage(volts, "volts", CFA(str(d["sensor_cfa"])), white_level=1.0, voltage_swing_v=1.0)
+    ip = ImageProcessor(demosaic=DemosaicStage("bilinear", border="reflect"), sensor_to_xyz=t_sensor.T,
+                        display=torch.linalg.inv(t_display.T), encoding="linear").double()
+    ref = torch.tensor(d["ip_result"]).permute(2, 0, 1)[None].double()
+    assert (ip(raw).image - ref).abs().max().item() < 2e-6
