@@ -20,24 +20,26 @@ __all__ = ["demosaic_nearest", "demosaic_bilinear", "demosaic_generic", "demosai
 
 
 def _nearest_sources(index_map: torch.Tensor, num_channels: int) -> torch.Tensor:
-    """For each channel and CFA phase, the (dy, dx) offset to the nearest sample of that channel inside the same
-    CFA period; ties prefer the same row, then row-major order. Returns a long tensor [C, ph, pw, 2]."""
+    """For each channel and CFA phase, the (dy, dx) offset to the nearest sample of that channel in the period-sized
+    window above and to the left (dy in (-ph, 0], dx in (-pw, 0]); ties prefer the same row. Offsets depend only
+    on the CFA phase, not on where periods start, so the method is shift-consistent. Returns long [C, ph, pw, 2]."""
     ph, pw = index_map.shape
     out = torch.zeros(num_channels, ph, pw, 2, dtype=torch.long)
-    sites = {c: [(qy, qx) for qy in range(ph) for qx in range(pw) if index_map[qy, qx] == c]
-             for c in range(num_channels)}
-    for c in range(num_channels):
-        for py in range(ph):
-            for px in range(pw):
-                qy, qx = min(sites[c], key=lambda q: (abs(q[0] - py) + abs(q[1] - px), abs(q[0] - py), q))
-                out[c, py, px, 0], out[c, py, px, 1] = qy - py, qx - px
+    window = sorted(((dy, dx) for dy in range(-ph + 1, 1) for dx in range(-pw + 1, 1)),
+                    key=lambda d: (abs(d[0]) + abs(d[1]), abs(d[0]), -d[0], -d[1]))
+    for py in range(ph):
+        for px in range(pw):
+            for c in range(num_channels):
+                out[c, py, px] = torch.tensor(next(d for d in window
+                                                   if index_map[(py + d[0]) % ph, (px + d[1]) % pw] == c))
     return out
 
 
 def demosaic_nearest_cfa(raw: torch.Tensor, index_map: torch.Tensor, num_channels: int | None = None
                          ) -> torch.Tensor:
     """Nearest-neighbour replication for any periodic CFA: every pixel takes, for each channel, the value of the
-    closest sample of that channel inside its own CFA period (Losson et al. 2010, section 3.1).
+    closest sample of that channel above and to its left, within one CFA period (Losson et al. 2010, section 3.1);
+    on the top/left border, the sample one period further in.
 
     Args:
         raw: mosaic (B, 1, H, W).
@@ -54,16 +56,16 @@ def demosaic_nearest_cfa(raw: torch.Tensor, index_map: torch.Tensor, num_channel
     off = _nearest_sources(idx, c)[:, torch.arange(h)[:, None] % ph, torch.arange(w)[None, :] % pw]  # C,H,W,2
     sy = torch.arange(h)[:, None] + off[..., 0]
     sx = torch.arange(w)[None, :] + off[..., 1]
-    # In a partial last period the nearest sample can fall outside the image: use the same phase one period back.
-    sy = torch.where(sy >= h, sy - ph, sy)
-    sx = torch.where(sx >= w, sx - pw, sx)
+    # On the top/left border the sample can fall outside the image: use the same phase one period further in.
+    sy = torch.where(sy < 0, sy + ph, sy)
+    sx = torch.where(sx < 0, sx + pw, sx)
     src = (sy * w + sx).reshape(-1).to(raw.device)
     return raw.flatten(1).index_select(1, src).reshape(raw.shape[0], c, h, w)
 
 
 def demosaic_nearest(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
-    """Nearest-neighbour replication demosaic of a Bayer mosaic (Losson et al. 2010, section 3.1): in each 2x2
-    period, R and B are copied to the other three sites and G to the R/B site of its own row.
+    """Nearest-neighbour replication demosaic of a Bayer mosaic (Losson et al. 2010, section 3.1): each missing
+    value is copied from the closest site of that colour to the left, above, or above-left (G from the left).
 
     Args:
         raw: mosaic (B, 1, H, W), float32 or float64, any device.
@@ -91,7 +93,7 @@ def demosaic_generic(raw: torch.Tensor, index_map: torch.Tensor, num_channels: i
     ``(K * (raw m_c)) / (K * m_c)`` at the sites where c is missing, the measured value where it is sampled.
     K is the separable triangle of size (2ph-1, 2pw-1), so every channel has a sample in its support; the
     image and masks are padded by half-sample symmetric reflection, so borders need no special case. On a
-    Bayer CFA this is bilinear interpolation (equal to ``demosaic_bilinear`` with ``normalize_border=True``).
+    Bayer CFA this is bilinear interpolation (equal to ``demosaic_bilinear`` away from the one-pixel border).
 
     Args:
         raw: mosaic (B, 1, H, W), float32 or float64, any device; H >= ph, W >= pw.
