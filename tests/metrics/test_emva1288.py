@@ -1,0 +1,91 @@
+"""EMVA 1288 on frames drawn from a direct sensor model with known K, QE, read noise, DSNU and PRNU."""
+
+import math
+
+import pytest
+import torch
+
+from isettorch.metrics import emva1288
+
+K_DN_PER_E = 0.4
+QE = 0.6
+READ_NOISE_E = 6.0
+DSNU_E = 4.0
+PRNU = 0.01
+OFFSET_DN = 100.0
+MAX_DN = 4095.0
+H = W = 64
+N_FRAMES = 16
+
+
+def make_frames(seed=0, levels=20, n_frames=N_FRAMES, per_level_dark=True):
+    """Direct camera model: electrons = Poisson(QE mu_p (1 + PRNU map)) + DSNU map + N(0, read noise);
+    DN = clip(round(K electrons + offset), 0, 4095). The fixed patterns are drawn once."""
+    g = torch.Generator().manual_seed(seed)
+    prnu_map = PRNU * torch.randn(H, W, generator=g, dtype=torch.float64)
+    dsnu_map = DSNU_E * torch.randn(H, W, generator=g, dtype=torch.float64)
+    full_scale_e = (MAX_DN - OFFSET_DN) / K_DN_PER_E
+    mu_p = torch.linspace(0.0, 1.15 * full_scale_e / QE, levels, dtype=torch.float64)
+
+    def expose(photons):
+        rate = (QE * photons * (1 + prnu_map)).expand(n_frames, H, W)
+        e = torch.poisson(rate, generator=g) + dsnu_map + READ_NOISE_E * torch.randn(n_frames, H, W, generator=g,
+                                                                                   dtype=torch.float64)
+        return torch.clamp(torch.round(K_DN_PER_E * e + OFFSET_DN), 0, MAX_DN)
+
+    bright = torch.stack([expose(float(p)) for p in mu_p])
+    dark = torch.stack([expose(0.0) for _ in range(levels)]) if per_level_dark else expose(0.0)
+    return bright, dark, mu_p, prnu_map, dsnu_map
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return make_frames()
+
+
+def test_recovers_known_parameters(frames):
+    bright, dark, mu_p, prnu_map, dsnu_map = frames
+    res = emva1288(bright, dark, photons_per_pixel=mu_p)
+    assert float(res.system_gain_dn_per_e) == pytest.approx(K_DN_PER_E, rel=0.02)
+    assert float(res.quantum_efficiency) == pytest.approx(QE, rel=0.02)
+    assert float(res.dark_noise_e) == pytest.approx(READ_NOISE_E, rel=0.02)
+    # the realised fixed patterns (sample std) are the truth for DSNU and PRNU
+    assert float(res.dsnu1288_e) == pytest.approx(float(dsnu_map.std()), rel=0.02)
+    assert float(res.prnu1288_percent) == pytest.approx(100 * float(prnu_map.std() / (1 + prnu_map).mean()), rel=0.02)
+    # dark noise in DN includes quantisation: K^2 sigma_d^2 + 1/12
+    assert float(res.dark_noise_dn) == pytest.approx(math.sqrt(K_DN_PER_E**2 * READ_NOISE_E**2 + 1 / 12), rel=0.02)
+    # saturation just below the clipping point, (4095 - 100) / K = 9987.5 e-
+    full_scale_e = (MAX_DN - OFFSET_DN) / K_DN_PER_E
+    assert 0.85 * full_scale_e < float(res.saturation_capacity_e) <= full_scale_e
+    # dynamic range per EMVA 4.0: mu_e.sat / (sigma_y.dark / K + 1/2), with the true sigma_y.dark and K
+    mu_e_min = math.sqrt(K_DN_PER_E**2 * READ_NOISE_E**2 + 1 / 12) / K_DN_PER_E + 0.5
+    expect_dr_db = 20 * math.log10(float(res.saturation_capacity_e) / mu_e_min)
+    assert float(res.dynamic_range_db) == pytest.approx(expect_dr_db, abs=0.2)
+    # measured SNR against the EMVA model with the true parameters, at the mid level
+    i = res.spatial_index
+    e = QE * float(mu_p[i])
+    snr_true = e / math.sqrt(READ_NOISE_E**2 + 1 / 12 / K_DN_PER_E**2 + e)
+    assert float(res.snr[i]) == pytest.approx(snr_true, rel=0.02)
+    assert float(res.snr_model(mu_p[i])) == pytest.approx(snr_true, rel=0.02)
+    text = res.report()
+    assert "System gain" in text and "PRNU1288" in text
+
+
+def test_single_dark_stack_and_no_photons():
+    bright, dark, mu_p, _, dsnu_map = make_frames(seed=1, levels=16, n_frames=4, per_level_dark=False)
+    assert dark.shape == (4, H, W)
+    res = emva1288(bright, dark)
+    assert res.quantum_efficiency is None
+    assert float(res.system_gain_dn_per_e) == pytest.approx(K_DN_PER_E, rel=0.02)
+    assert float(res.dsnu1288_e) == pytest.approx(float(dsnu_map.std()), rel=0.03)
+    with pytest.raises(ValueError, match="quantum efficiency"):
+        res.snr_model(mu_p)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="bright"):
+        emva1288(torch.zeros(5, 1, 8, 8), torch.zeros(2, 8, 8))
+    with pytest.raises(ValueError, match="dark"):
+        emva1288(torch.zeros(5, 2, 8, 8), torch.zeros(3, 2, 8, 8))
+    with pytest.raises(ValueError, match="photons_per_pixel"):
+        emva1288(torch.rand(5, 2, 8, 8) + 1, torch.rand(2, 8, 8), photons_per_pixel=[1.0, 2.0])
