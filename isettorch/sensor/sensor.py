@@ -352,6 +352,8 @@ class Sensor(nn.Module):
             noise: False gives the noise-free capture (no dark signal, noise or fixed pattern).
             generator: torch.Generator for the temporal noise (default: the sensor's own, seeded from ``seed``).
         """
+        if not isinstance(oi, OpticalImage):
+            raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
         b = oi.batch_size
         dtype, device = oi.dtype, oi.device
         rate = self.electron_rate(oi)

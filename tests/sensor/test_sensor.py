@@ -1,0 +1,280 @@
+import math
+
+import pytest
+import torch
+
+from isettorch import constants, spectral
+from isettorch.optics import OpticalImage
+from isettorch.sensor import CFA, PRESETS, RawImage, Sensor, SpectralQE, metrics
+
+W3 = torch.tensor([450.0, 550.0, 650.0], dtype=torch.float64)
+
+
+def flat_qe(cfa, value=0.5, w=W3):
+    return SpectralQE(torch.full((cfa.num_channels, w.numel()), value, dtype=torch.float64), w, cfa.channel_names)
+
+
+def uniform_oi(level=1e15, size=(16, 16), b=1, dx=2e-6):
+    return OpticalImage(torch.full((b, 3, *size), level, dtype=torch.float64), W3, sample_spacing_m=dx)
+
+
+def simple_sensor(**kw):
+    cfa = kw.pop("cfa", CFA("mono"))
+    base = dict(rows=6, cols=8, pixel_size_m=2e-6, fill_factor=0.5, cfa=cfa, spectral_qe=flat_qe(cfa),
+                conversion_gain_v_per_e=1e-4, voltage_swing_v=1.0, exposure_s=0.01, shot_noise="off")
+    base.update(kw)
+    return Sensor(**base)
+
+
+@pytest.mark.parametrize("sampling", ["area", "isetcam"])
+def test_uniform_signal_chain_analytic(sampling):
+    s = simple_sensor(sampling=sampling, output_units="electrons")
+    raw = s(uniform_oi(), noise=False)
+    # electrons = E * QE * dlambda * L * pitch^2 * ff * t (ISETCam SignalCurrentDensity x area x t / q)
+    expected = 1e15 * 0.5 * 100 * 3 * (2e-6) ** 2 * 0.5 * 0.01
+    torch.testing.assert_close(raw.data, torch.full_like(raw.data, expected), rtol=1e-12, atol=0)
+    assert raw.units == "electrons" and raw.white_level == pytest.approx(1e4)
+    volts = simple_sensor(sampling=sampling)(uniform_oi(), noise=False)
+    torch.testing.assert_close(volts.data, torch.full_like(volts.data, expected * 1e-4), rtol=1e-12, atol=0)
+
+
+def test_gain_conventions_clipping_and_adc():
+    e = 1e15 * 0.5 * 100 * 3 * 4e-12 * 0.5 * 0.01 * 1e-4  # 0.03 V
+    mult = simple_sensor(analog_gain=2.0)(uniform_oi(), noise=False).data
+    iset = simple_sensor(analog_gain=2.0, gain_convention="isetcam")(uniform_oi(), noise=False).data
+    assert mult[0, 0, 0, 0].item() == pytest.approx(2 * e, rel=1e-12)
+    assert iset[0, 0, 0, 0].item() == pytest.approx(e / 2, rel=1e-12)
+    off = simple_sensor(analog_gain=2.0, analog_offset_v=0.01)(uniform_oi(), noise=False).data
+    assert off[0, 0, 0, 0].item() == pytest.approx(2 * (e + 0.01), rel=1e-12)
+    sat = simple_sensor(exposure_s=10.0)(uniform_oi(), noise=False).data
+    assert torch.all(sat == 1.0)  # clipped at the voltage swing
+    # ADC: saturation is 2^N - 1 by default, 2^N in ISETCam's mode (FORMAT 4.6 step 9)
+    assert torch.all(simple_sensor(exposure_s=10.0, adc_bits=10)(uniform_oi(), noise=False).data == 1023)
+    assert torch.all(simple_sensor(exposure_s=10.0, adc_bits=10, adc_mode="isetcam")(uniform_oi(),
+                                                                                        noise=False).data == 1024)
+    s = simple_sensor(adc_bits=8, black_level_dn=16)
+    lsb = 1.0 / 256
+    v = torch.tensor([0.5, 1.5, 2.5, 3.49]) * lsb
+    assert s.volts_to_dn(v).tolist() == [17, 18, 19, 19]  # round half away from zero, plus black level
+    raw = s(uniform_oi(), noise=False)
+    assert raw.units == "dn" and raw.black_level == 16 and raw.white_level == 255
+    assert raw.data[0, 0, 0, 0].item() == math.floor(e / lsb + 0.5) + 16
+
+
+def test_batched_exposure_and_gain_equal_one_at_a_time():
+    torch.manual_seed(0)
+    photons = torch.rand(3, 3, 16, 16, dtype=torch.float64) * 1e15
+    oi = OpticalImage(photons, W3, sample_spacing_m=torch.tensor([2e-6, 2.5e-6, 1.5e-6]))
+    s = simple_sensor(cfa=CFA("RGGB"), spectral_qe=flat_qe(CFA("RGGB")), dsnu_sigma_v=1e-3,
+                      prnu_sigma_percent=1.0, column_fpn_sigma_v=5e-4, adc_bits=12)
+    t = torch.tensor([0.01, 0.02, 0.005], dtype=torch.float64)
+    g = torch.tensor([1.0, 2.0, 4.0], dtype=torch.float64)
+    for sampling in ("area", "isetcam"):
+        s.sampling = sampling
+        batched = s(oi, exposure_s=t, analog_gain=g)
+        for i in range(3):
+            one = s(oi[i], exposure_s=t[i], analog_gain=g[i])
+            torch.testing.assert_close(batched.data[i:i + 1], one.data, rtol=0, atol=0)
+            torch.testing.assert_close(batched.noise_free[i:i + 1], one.noise_free, rtol=1e-15, atol=0)
+        assert torch.equal(batched.exposure_s, t)
+
+
+def test_fixed_pattern_noise_fixed_across_frames_and_seeded():
+    kw = dict(dsnu_sigma_v=2e-3, prnu_sigma_percent=2.0, column_fpn_sigma_v=1e-3, rows=64, cols=64)
+    s = simple_sensor(seed=1, **kw)
+    oi = uniform_oi(size=(140, 140))
+    a, b = s(oi).data, s(oi).data
+    assert torch.equal(a, b)  # FPN identical across frames (no temporal noise configured)
+    c = simple_sensor(seed=2, **kw)(oi).data
+    assert not torch.allclose(a, c)
+    d = simple_sensor(seed=1, **kw)(oi).data
+    assert torch.equal(a, d)  # a new instance with the same seed has the same pattern
+    assert "fpn_dsnu" in dict(s.named_buffers())
+    # ISETCam mode redraws the patterns on every call
+    r = simple_sensor(seed=1, fpn_mode="per_frame", **kw)
+    assert not torch.equal(r(oi).data, r(oi).data)
+    # DSNU alone: offsets with the configured sigma (4096 pixels: 1.1 % standard error of the std)
+    dark = simple_sensor(seed=3, dsnu_sigma_v=2e-3, rows=64, cols=64, analog_offset_v=0.1)
+    v = dark(uniform_oi(0.0, size=(140, 140))).data - 0.1
+    assert v.std().item() == pytest.approx(2e-3, rel=0.05)
+    # CDS cancels the fixed offsets
+    cds = simple_sensor(seed=3, dsnu_sigma_v=2e-3, column_fpn_sigma_v=1e-3, cds=True, analog_offset_v=0.1)
+    assert torch.allclose(cds(uniform_oi(0.0)).data, torch.full((1, 1, 6, 8), 0.1, dtype=torch.float64))
+
+
+def test_zero_noise_stages_are_skipped():
+    s = simple_sensor(shot_noise="off")
+    raw = s(uniform_oi())
+    assert torch.equal(raw.data, raw.noise_free)
+
+
+def test_gradcheck_noise_free_chain():
+    cfa = CFA("GBRG")
+    s = simple_sensor(cfa=cfa, spectral_qe=flat_qe(cfa), rows=3, cols=4)
+    photons = (torch.rand(1, 3, 5, 6, dtype=torch.float64) * 1e14).requires_grad_()
+    t = torch.tensor([0.01], dtype=torch.float64, requires_grad=True)
+    scale = torch.tensor(1e-14, dtype=torch.float64)
+
+    def f(p, t):
+        oi = OpticalImage(p / scale, W3, sample_spacing_m=2e-6, validate=False)
+        return s(oi, exposure_s=t, noise=False).noise_free
+
+    for sampling in ("area", "isetcam"):
+        s.sampling = sampling
+        assert torch.autograd.gradcheck(f, (photons.detach() * scale, t), eps=1e-6, atol=1e-8)
+
+
+def _mean_output_grad_matches_fd(sensor, photons, t, qe_param=None):
+    """d(sum of noisy output)/d input (straight-through) vs central differences of the noise-free mean."""
+    def mean_out(p, tt):
+        return sensor(OpticalImage(p, W3, sample_spacing_m=2e-6, validate=False), exposure_s=tt,
+                      noise=False).noise_free.sum()
+
+    p = photons.clone().requires_grad_()
+    tt = t.clone().requires_grad_()
+    g = torch.Generator().manual_seed(0)
+    noisy = sensor(OpticalImage(p, W3, sample_spacing_m=2e-6, validate=False), exposure_s=tt, generator=g).data
+    params = [p, tt] + ([qe_param] if qe_param is not None else [])
+    grads = torch.autograd.grad(noisy.sum(), params)
+    for gr in grads:
+        assert torch.isfinite(gr).all()
+    # exposure
+    h = 1e-6
+    fd_t = (mean_out(photons, t + h) - mean_out(photons, t - h)) / (2 * h)
+    assert grads[1].item() == pytest.approx(fd_t.item(), rel=1e-6)
+    # irradiance (one entry)
+    e = torch.zeros_like(photons)
+    e[0, 1, 5, 6] = 1e12
+    fd_p = (mean_out(photons + e, t) - mean_out(photons - e, t)) / (2 * 1e12)
+    assert grads[0][0, 1, 5, 6].item() == pytest.approx(fd_p.item(), rel=1e-6)
+    return grads
+
+
+def test_gradients_of_mean_output_match_finite_differences():
+    cfa = CFA("RGGB")
+    qe = SpectralQE(torch.tensor([[0.6, 0.1, 0.05], [0.1, 0.7, 0.1], [0.05, 0.1, 0.5]], dtype=torch.float64), W3,
+                    cfa.channel_names, learnable=True)
+    s = simple_sensor(cfa=cfa, spectral_qe=qe, rows=6, cols=8, shot_noise="poisson", read_noise_v=1e-4)
+    torch.manual_seed(1)
+    photons = torch.rand(1, 3, 16, 16, dtype=torch.float64) * 1e15
+    t = torch.tensor([0.01], dtype=torch.float64)
+    grads = _mean_output_grad_matches_fd(s, photons, t, qe.raw_filters)
+    # QE (softplus parameter): central difference on one filter entry
+    h = 1e-6
+    with torch.no_grad():
+        base = qe.raw_filters.clone()
+
+        def mean_out():
+            return s(OpticalImage(photons, W3, sample_spacing_m=2e-6), exposure_s=t, noise=False).noise_free.sum()
+
+        qe.raw_filters[1, 1] = base[1, 1] + h
+        up = mean_out()
+        qe.raw_filters[1, 1] = base[1, 1] - h
+        down = mean_out()
+        qe.raw_filters.copy_(base)
+    assert grads[2][1, 1].item() == pytest.approx(((up - down) / (2 * h)).item(), rel=1e-5)
+
+
+def test_gradients_finite_at_zero_light():
+    for mode in ("poisson", "gaussian"):
+        s = simple_sensor(shot_noise=mode, read_noise_v=0.0, dark_current_e_per_s=0.0, adc_bits=10)
+        p = torch.zeros(1, 3, 16, 16, dtype=torch.float64, requires_grad=True)
+        t = torch.tensor([0.01], dtype=torch.float64, requires_grad=True)
+        out = s(OpticalImage(p, W3, sample_spacing_m=2e-6, validate=False), exposure_s=t).data
+        gp, gt = torch.autograd.grad(out.sum(), (p, t))
+        assert torch.isfinite(gp).all() and torch.isfinite(gt).all()
+        assert gp.abs().sum() > 0  # the response to the first photons is not lost
+
+
+def test_auto_exposure_methods():
+    torch.manual_seed(2)
+    oi = OpticalImage(torch.rand(2, 3, 16, 16, dtype=torch.float64) * 1e15, W3, sample_spacing_m=2e-6)
+    for method, target in (("luminance", 0.95), ("mean", 0.18), ("percentile", 0.95)):
+        s = simple_sensor(auto_exposure=method, analog_gain=2.0, gain_convention="isetcam")
+        raw = s(oi, noise=False)
+        v = raw.noise_free.flatten(1)
+        stat = {"luminance": v.amax(1), "mean": v.mean(1), "percentile": torch.quantile(v, 0.99, dim=1)}[method]
+        torch.testing.assert_close(stat, torch.full_like(stat, target), rtol=1e-9, atol=0)
+        assert raw.exposure_s.shape == (2,)
+    # ISETCam measures after the (dividing) gain: gain 2 doubles the exposure
+    t1 = simple_sensor(auto_exposure="luminance").exposure_for(oi)
+    t2 = simple_sensor(auto_exposure="luminance", analog_gain=2.0, gain_convention="isetcam").exposure_for(oi)
+    torch.testing.assert_close(t2, 2 * t1)
+
+
+def test_presets_and_metrics():
+    d = Sensor.preset("isetcam_default")
+    assert d.pixel_size_m == 2.8e-6 and d.fill_factor == 0.75 and d.cfa.pattern == "GRBG"
+    assert d.well_capacity_e == pytest.approx(1e4)
+    assert d.dark_current_e_per_s * d.conversion_gain_v_per_e == pytest.approx(1e-3)  # 1 mV/s
+    p = Sensor.preset("iset2004_cds")
+    assert metrics.well_capacity_e(p) == pytest.approx(1 / 15e-6)
+    assert p.read_noise_v / p.conversion_gain_v_per_e == pytest.approx(50.0)
+    assert p.dsnu_sigma_v == 2e-3 and p.exposure_s == 0.016 and p.cds
+    imx = Sensor.preset("imx363", rows=8, cols=8)
+    assert imx.adc_bits == 10 and imx.pixel_size_m == 1.4e-6
+    with pytest.raises(ValueError, match="unknown sensor preset"):
+        Sensor.preset("nope")
+    assert set(PRESETS) >= {"isetcam_default", "imx363", "iset2004_cds"}
+    # SNR: shot-noise limited sensor -> sqrt(S); 2004 CDS sensor dark floor = sqrt(2 * 50^2 + 10 * 0.016) e-
+    ideal = simple_sensor(shot_noise="poisson")
+    assert metrics.pixel_snr(ideal, 400.0).item() == pytest.approx(20.0)
+    floor = math.sqrt(2 * 50.0**2 + 10 * 0.016)
+    assert metrics.dynamic_range_db(p) == pytest.approx(20 * math.log10((1 / 15e-6) / floor))
+    assert metrics.pixel_snr_db(p, 1e4).item() == pytest.approx(
+        20 * math.log10(1e4 / math.sqrt(1e4 + floor**2)))
+
+
+def test_iso_saturation_against_colour_science():
+    import colour
+    import numpy as np
+
+    s = Sensor.preset("isetcam_default")
+    w = np.arange(400, 701, 10.0)
+    e = np.asarray(colour.SDS_ILLUMINANTS["D65"][w])  # tabulated at these wavelengths
+    v = np.asarray(colour.colorimetry.SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"][w])
+    lux = 683 * np.sum(e * v) * 10
+    photons = e / lux * w * 1e-9 / (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S)
+    qe = s.spectral_qe(torch.tensor(w)).numpy()
+    per_lux_s = (qe * photons).sum(1) * 10 * (2.8e-6) ** 2 * 0.75
+    np.testing.assert_allclose(metrics.electrons_per_lux_second(s).numpy(), per_lux_s, rtol=1e-6)
+    assert metrics.iso_saturation(s) == pytest.approx(78 / (1e4 / per_lux_s.max()), rel=1e-6)
+
+
+def test_raw_image_to_and_checks():
+    raw = simple_sensor(adc_bits=10)(uniform_oi(), noise=False)
+    r32 = raw.to(dtype=torch.float32)
+    assert r32.data.dtype == torch.float32 and r32.noise_free.dtype == torch.float32
+    assert r32.exposure_s.dtype == torch.float32
+    assert torch.equal(raw.normalized(), raw.data / 1023)
+    with pytest.raises(ValueError, match="units"):
+        RawImage(torch.zeros(1, 1, 2, 2), "lux", CFA("mono"))
+    with pytest.raises(ValueError, match=r"\[B, 1, H, W\]"):
+        RawImage(torch.zeros(1, 3, 2, 2), "volts", CFA("mono"))
+
+
+def test_input_errors():
+    with pytest.raises(ValueError, match="fill_factor"):
+        simple_sensor(fill_factor=1.5)
+    with pytest.raises(ValueError, match="read_noise_v"):
+        simple_sensor(read_noise_v=-1.0)
+    with pytest.raises(ValueError, match="sampling"):
+        simple_sensor(sampling="nearest")
+    with pytest.raises(ValueError, match="exposure_s"):
+        simple_sensor()(uniform_oi(), exposure_s=-1.0)
+    with pytest.raises(TypeError, match="OpticalImage"):
+        simple_sensor()(torch.ones(1, 3, 8, 8))
+
+
+def test_size_to_oi_and_fov():
+    s = Sensor(pixel_size_m=2.8e-6, cfa="GBRG")
+    oi = OpticalImage(torch.ones(1, 3, 80, 120, dtype=torch.float64), W3, sample_spacing_m=7.063304871579908e-6,
+                      pad_rows=8, pad_cols=12)
+    rows, cols = s.size_for(oi)
+    assert rows % 2 == 0 and cols % 2 == 0
+    assert cols * 2.8e-6 <= 96 * 7.063304871579908e-6 < (cols + 2) * 2.8e-6
+    # ISETCam sensorSetSizeToFOV: 10 deg at the parity case's focal plane -> 242 columns (FORMAT case)
+    s2 = Sensor(rows=72, cols=88, pixel_size_m=2.8e-6, cfa="GBRG").set_size_to_fov(10.0, 0.0038752293174003525)
+    assert s2.cols == 242
+    w = spectral.default_wavelengths()
+    assert s.qe(OpticalImage(torch.ones(1, 31, 4, 4), w)).shape == (3, 31)
