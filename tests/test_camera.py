@@ -1,0 +1,105 @@
+"""Camera: end-to-end colour accuracy, white balance through the whole chain, intermediates, resuming,
+configs."""
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from isettorch.camera import Camera
+from isettorch.isp.chart import macbeth_delta_e, patch_means
+from isettorch.isp.colour import srgb_decode
+from isettorch.isp.pipeline import ImageProcessor
+from isettorch.optics import DiffractionLimitedOptics
+from isettorch.scene import macbeth, uniform
+from isettorch.sensor import Sensor
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "cameras"
+
+
+def _camera(filters="nikon_5100", cfa="RGGB", **isp):
+    # 9 um pixels: the sensor (50 x 74) just fits the 10 deg chart's optical image (f = 3.86 mm).
+    sensor = Sensor(cfa=cfa, filters=filters, auto_exposure="luminance", pixel_size_m=9e-6)
+    isp.setdefault("scaling", "exposure")
+    isp.setdefault("clip_negative_xyz", False)
+    return Camera(DiffractionLimitedOptics(f_number=4.0), sensor, ImageProcessor(**isp), noise=False)
+
+
+def test_nikon_camera_mcc_optimised_macbeth_delta_e_below_2():
+    cam = _camera().double()
+    out = cam(macbeth(patch_size=8, dtype=torch.float64), return_intermediates=True)
+    acc = macbeth_delta_e(patch_means(out.isp.xyz), "D65")
+    assert acc.mean.item() < 2.0, acc.delta_e
+    # The encoded sRGB output, decoded and compared with the chart's true colours, is as accurate.
+    srgb_to_xyz = torch.linalg.inv(cam.isp.xyz_to_display.matrix.double())
+    xyz = torch.einsum("kc,bchw->bkhw", srgb_to_xyz, srgb_decode(out.image))
+    assert macbeth_delta_e(patch_means(xyz), "D65").mean.item() < 2.0
+    # Without a colour matrix (identity) the same camera is far off: the test can fail.
+    cam.isp.sensor_to_xyz.set_matrix(torch.eye(3, dtype=torch.float64))
+    out = cam(macbeth(patch_size=8, dtype=torch.float64), return_intermediates=True)
+    assert macbeth_delta_e(patch_means(out.isp.xyz), "D65").mean.item() > 5.0
+
+
+@pytest.mark.parametrize("space", ["xyz", "sensor"])
+def test_gray_world_neutral_scene_under_illuminant_a(space):
+    cam = _camera(filters="isetcam_rgb", cfa="GBRG", illuminant_correction="gray_world",
+                  correction_space=space).double()
+    scene = uniform("A", size=16, dtype=torch.float64)
+    out = cam(scene, return_intermediates=True)
+    rgb = out.isp.display_linear[..., 4:-4, 4:-4].mean((-2, -1))[0]
+    assert (rgb / rgb.mean() - 1).abs().max().item() < 0.01, rgb
+
+
+def test_intermediates_resume_and_batch():
+    cam = _camera(filters="isetcam_rgb")
+    scene = macbeth(patch_size=4)
+    out = cam(scene, return_intermediates=True)
+    assert out.optical_image is not None and out.raw.data.shape == (1, 1, 50, 74)
+    assert out.image.shape == (1, 3, 50, 74) and out.demosaiced.shape == (1, 3, 50, 74)
+    torch.testing.assert_close(cam.from_raw(out.raw), out.image)
+    torch.testing.assert_close(cam.from_optical_image(out.optical_image), out.image)
+    # A user edit of the optical image (half the light, fixed exposure) halves the linear output.
+    t = out.raw.exposure_s
+    half = out.optical_image.replace(photons=out.optical_image.photons * 0.5)
+    res = cam.from_optical_image(half, True, exposure_s=t)
+    torch.testing.assert_close(res.isp.display_linear, 0.5 * out.isp.display_linear, rtol=1e-4, atol=1e-6)
+    # Batched scenes give the per-scene results.
+    two = type(scene).cat([scene, scene.set_mean_luminance(50.0)])
+    both = cam(two, exposure_s=t)
+    torch.testing.assert_close(both[:1], cam(scene, exposure_s=t))
+
+
+def test_camera_to_float64():
+    cam = _camera(filters="isetcam_rgb").to(torch.float64)
+    img = cam(macbeth(patch_size=4, dtype=torch.float64))
+    assert img.dtype == torch.float64 and torch.isfinite(img).all()
+
+
+@pytest.mark.parametrize("name", ["default", "paper2004_cds", "imx363"])
+def test_configs_load_and_run(name):
+    cam = Camera.from_config(CONFIGS / f"{name}.yaml")
+    cam.sensor.rows, cam.sensor.cols = 24, 32
+    img = cam(macbeth(patch_size=4))
+    assert img.shape == (1, 3, 24, 32) and torch.isfinite(img).all() and img.max() > 0.1
+
+
+def test_config_errors_name_the_key(tmp_path):
+    import yaml
+
+    cfg = yaml.safe_load((CONFIGS / "default.yaml").read_text())
+    bad = dict(cfg, sensor=dict(cfg["sensor"], pixel_size=3e-6))
+    with pytest.raises(ValueError, match=r"'pixel_size'.*sensor.*did you mean 'pixel_size_m'"):
+        Camera.from_config(bad)
+    bad = dict(cfg, isp=dict(cfg["isp"], illuminant_corection="gray_world"))
+    with pytest.raises(ValueError, match=r"'illuminant_corection'.*'illuminant_correction'"):
+        Camera.from_config(bad)
+    bad = dict(cfg, optik={})
+    with pytest.raises(ValueError, match=r"'optik'.*'optics'"):
+        Camera.from_config(bad)
+    bad = dict(cfg, isp=dict(cfg["isp"], scaling=3))
+    with pytest.raises(TypeError, match="isp.scaling"):
+        Camera.from_config(bad)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(dict(cfg, optics=dict(cfg["optics"], fnumber=2.0))))
+    with pytest.raises(ValueError, match=r"'fnumber'.*'f_number'"):
+        Camera.from_config(path)
