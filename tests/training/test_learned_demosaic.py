@@ -1,0 +1,111 @@
+"""isettorch.isp.learned: the MHC base against colour-demosaicing, the network's residual design, the shipped
+checkpoint against Malvar-He-Cutler on benchmark crops, and the demosaic registry hook."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from isettorch.isp import learned
+from isettorch.isp.learned import DemosaicNet, demosaic_learned, demosaic_malvar_torch
+
+cd = pytest.importorskip("colour_demosaicing")
+KODAK = Path("/work/shared/data/kodak24")
+MCM = Path("/work/shared/data/mcmaster18")
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "BGGR", "GRBG", "GBRG"])
+def test_malvar_matches_colour_demosaicing(pattern):
+    # Interior pixels (2 px from the border, where the 5x5 filters need no padding) must agree exactly.
+    img = np.random.default_rng(0).random((12, 16, 3))
+    m = cd.mosaicing_CFA_Bayer(img, pattern)
+    ref = cd.demosaicing_CFA_Bayer_Malvar2004(m, pattern)
+    out = demosaic_malvar_torch(torch.from_numpy(m)[None, None], pattern)[0].permute(1, 2, 0).numpy()
+    np.testing.assert_allclose(out[2:-2, 2:-2], ref[2:-2, 2:-2], atol=1e-12)
+
+
+def test_untrained_network_is_mhc_and_keeps_known_samples_trainable():
+    torch.manual_seed(0)
+    raw = torch.rand(2, 1, 16, 20)
+    net = DemosaicNet(channels=8, depth=2)
+    torch.testing.assert_close(net(raw), demosaic_malvar_torch(raw), rtol=0, atol=1e-6)
+    # the last layer starts at zero, but its gradient does not vanish (training can leave MHC)
+    loss = (net(raw) - torch.rand(2, 3, 16, 20)).abs().mean()
+    loss.backward()
+    assert net.head.weight.grad.abs().sum() > 0
+
+
+def test_patterns_are_shifts_of_rggb():
+    # A GRBG mosaic of an image is the RGGB mosaic of the image shifted by one column: away from the borders the
+    # learned demosaic of both must give the same RGB.
+    torch.manual_seed(1)
+    net = DemosaicNet(channels=8, depth=2)
+    torch.nn.init.normal_(net.head.weight, std=0.05)
+    img = torch.rand(1, 3, 24, 26, dtype=torch.float64)
+    net = net.double()
+    grbg = cd.mosaicing_CFA_Bayer(img[0].permute(1, 2, 0).numpy(), "GRBG")
+    rggb = cd.mosaicing_CFA_Bayer(img[0, :, :, 1:-1].permute(1, 2, 0).numpy(), "RGGB")
+    a = demosaic_learned(torch.from_numpy(grbg)[None, None], "GRBG", model=net)
+    b = demosaic_learned(torch.from_numpy(rggb)[None, None], "RGGB", model=net)
+    torch.testing.assert_close(a[..., 8:-8, 9:-9], b[..., 8:-8, 8:-8])
+
+
+def test_bad_inputs():
+    with pytest.raises(ValueError, match="pattern"):
+        demosaic_malvar_torch(torch.rand(1, 1, 8, 8), "RGBW")
+    with pytest.raises(ValueError, match="raw"):
+        demosaic_malvar_torch(torch.rand(1, 3, 8, 8))
+    with pytest.raises(ValueError, match="raw"):
+        demosaic_malvar_torch(torch.rand(1, 1, 7, 8))
+    with pytest.raises(FileNotFoundError, match="path"):
+        learned.load_checkpoint("/nonexistent/ckpt.pt")
+
+
+def _cpsnr(a, b):
+    return float(10 * torch.log10(1 / (a.clamp(0, 1) - b).pow(2).mean()))
+
+
+def _crops(folder, n, size=128):
+    from PIL import Image
+
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".tif"))[:n]
+    out = []
+    for p in files:
+        a = np.asarray(Image.open(p).convert("RGB"), dtype=np.float32) / 255.0
+        h, w = a.shape[0] // 2 - size // 2, a.shape[1] // 2 - size // 2
+        h, w = h - h % 2, w - w % 2
+        out.append(torch.from_numpy(a[h:h + size, w:w + size]).permute(2, 0, 1))
+    return torch.stack(out)
+
+
+@pytest.mark.skipif(not learned.PRETRAINED_PATH.is_file(), reason="no shipped checkpoint")
+@pytest.mark.parametrize("folder", [KODAK, MCM])
+def test_shipped_checkpoint_beats_malvar_on_benchmark_crops(folder):
+    if not folder.is_dir():
+        pytest.skip(f"{folder} not available")
+    img = _crops(folder, 4)
+    raw = torch.from_numpy(np.stack([cd.mosaicing_CFA_Bayer(i.permute(1, 2, 0).numpy(), "RGGB") for i in img]))
+    raw = raw[:, None].float()
+    c = 10
+    mhc = _cpsnr(demosaic_malvar_torch(raw)[..., c:-c, c:-c], img[..., c:-c, c:-c])
+    ours = _cpsnr(demosaic_learned(raw)[..., c:-c, c:-c], img[..., c:-c, c:-c])
+    assert ours > mhc + 0.3, (ours, mhc)
+
+
+@pytest.mark.skipif(not learned.PRETRAINED_PATH.is_file(), reason="no shipped checkpoint")
+def test_shipped_checkpoint_loads_safely_and_has_record():
+    ck = torch.load(learned.PRETRAINED_PATH, map_location="cpu", weights_only=True)
+    assert set(ck) >= {"model", "net_config"}
+    info = learned.pretrained_info()
+    assert {"command", "config", "wall_s", "hardware", "data"} <= set(info)
+    net = learned.load_pretrained()
+    assert not any(p.requires_grad for p in net.parameters())
+
+
+@pytest.mark.skipif(not learned.PRETRAINED_PATH.is_file(), reason="no shipped checkpoint")
+def test_registered_as_demosaic_method():
+    dm = pytest.importorskip("isettorch.isp.demosaic")
+    raw = torch.rand(1, 1, 16, 16)
+    out = dm.demosaic(raw, "RGGB", method="learned")
+    torch.testing.assert_close(out, demosaic_learned(raw, "RGGB"))

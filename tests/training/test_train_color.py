@@ -1,0 +1,78 @@
+"""training/train_color.py: Bradford adaptation vs colour-science, rendering invariants, MCC fit, smoke run."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from training import train_color  # noqa: E402
+
+colour = pytest.importorskip("colour")
+
+
+def test_bradford_matches_colour_science():
+    rng = np.random.default_rng(0)
+    xyz = rng.random((5, 3))
+    white = np.array([1.0985, 1.0, 0.3558])  # illuminant A, Y = 1
+    ref = colour.adaptation.chromatic_adaptation_VonKries(xyz, white, train_color.D65_XYZ.numpy(),
+                                                           transform="Bradford")
+    ours = train_color.bradford_to_d65(torch.from_numpy(xyz)[None], torch.from_numpy(white)[None])[0]
+    np.testing.assert_allclose(ours.numpy(), ref, rtol=1e-10, atol=1e-12)
+
+
+def test_delta_e_2000_matches_colour_science():
+    rng = np.random.default_rng(1)
+    a = rng.random((50, 3)) * [100, 120, 120] - [0, 60, 60]
+    b = a + rng.standard_normal((50, 3)) * 3
+    ref = colour.delta_E(a, b, method="CIE 2000")
+    ours = train_color.delta_e_2000(torch.from_numpy(a), torch.from_numpy(b))
+    np.testing.assert_allclose(ours.numpy(), ref, rtol=1e-9, atol=1e-9)
+
+
+def test_render_white_balance_and_adapted_white():
+    data = train_color.ColorData("nikon_5100")
+    g = torch.Generator().manual_seed(0)
+    for _ in range(3):
+        spd = data.illuminant(g)
+        ones = torch.ones(2, train_color.WAVELENGTHS.numel(), dtype=torch.float64)
+        rgb, white, xyz = data.render(ones, spd)
+        # a perfect white reflector: camera RGB (1, 1, 1) after von Kries, XYZ adapted exactly to D65 (Y = 1)
+        torch.testing.assert_close(rgb, torch.ones_like(rgb))
+        torch.testing.assert_close(xyz, train_color.D65_XYZ.expand(2, 3), rtol=1e-10, atol=1e-12)
+        assert torch.isclose(white.sum(), torch.tensor(1.0, dtype=torch.float64))
+
+
+def test_lstsq_matrix_recovers_a_linear_map():
+    g = torch.Generator().manual_seed(2)
+    m = torch.randn(2, 3, 3, generator=g, dtype=torch.float64)
+    rgb = torch.rand(2, 24, 3, generator=g, dtype=torch.float64)
+    torch.testing.assert_close(train_color.lstsq_matrix(rgb, rgb @ m.transpose(-1, -2)), m)
+
+
+def test_untrained_chart_model_is_the_mcc_matrix():
+    g = torch.Generator().manual_seed(3)
+    rgb, chart_rgb = torch.rand(2, 10, 3, generator=g), torch.rand(2, 24, 3, generator=g)
+    chart_xyz = torch.rand(2, 24, 3, generator=g)
+    white = torch.full((2, 3), 1 / 3)
+    net = train_color.ColorNet(torch.eye(3), "mlp", 8, "chart")
+    expected = rgb @ train_color.lstsq_matrix(chart_rgb, chart_xyz).transpose(-1, -2)
+    torch.testing.assert_close(net(rgb, white, chart_rgb, chart_xyz), expected)
+    with pytest.raises(ValueError, match="chart_rgb"):
+        net(rgb, white)
+
+
+def test_color_smoke_run(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("seed: 0\nmodels: [matrix]\nhidden: 8\ndata: {scenes_per_batch: 4, reflectances_per_scene: 8}\n"
+                   "optim: {lr: 1.0e-3, steps: 2}\nval: {scenes: 4, reflectances_per_scene: 8, every: 1}\n")
+    assert train_color.main(["--config", str(cfg), "--out", str(tmp_path / "o"), "--threads", "1"]) == 0
+    rec = json.loads((tmp_path / "o" / "record.json").read_text())
+    assert rec["final"]["step"] == 2 and np.isfinite(rec["final"]["matrix"])
+    ck = torch.load(tmp_path / "o" / "color_models.pt", weights_only=True)
+    assert "matrix" in ck["models"]

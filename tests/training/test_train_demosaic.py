@@ -1,0 +1,113 @@
+"""training/train_demosaic.py: smoke run, exact resume, reproducible batches, CPSNR convention, torchrun DDP."""
+
+import csv
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from training import common, synth, train_demosaic  # noqa: E402
+
+SMOKE = ROOT / "configs" / "train" / "demosaic_smoke.yaml"
+
+
+def test_cpsnr_matches_skimage():
+    metrics = pytest.importorskip("skimage.metrics")
+    rng = np.random.default_rng(0)
+    a = rng.random((3, 20, 24))
+    b = np.clip(a + 0.05 * rng.standard_normal(a.shape), 0, 1)
+    ref = metrics.peak_signal_noise_ratio(a[:, 3:-3, 3:-3], b[:, 3:-3, 3:-3], data_range=1.0)
+    ours = common.cpsnr(torch.from_numpy(b)[None], torch.from_numpy(a)[None], crop=3)
+    assert float(ours) == pytest.approx(ref, abs=1e-9)
+
+
+def test_synthetic_white_balance_and_mosaic():
+    s = synth.SceneSampler(size=16, n_shapes=4)
+    g = torch.Generator().manual_seed(0)
+    # a perfect white reflector gives camera RGB (1, 1, 1) after von Kries white balance, for any draw
+    ones = torch.ones(1, synth.WAVELENGTHS.numel(), dtype=torch.float64)
+    for _ in range(5):
+        ill = s.illuminants[int(torch.randint(0, len(s.illuminants), (1,), generator=g))]
+        m = (ill * s.dl)[:, None] * s.sensitivity(g).T
+        torch.testing.assert_close(ones @ m / m.sum(0), torch.ones(1, 3, dtype=torch.float64))
+    rgb = torch.rand(2, 3, 4, 6)
+    raw = synth.mosaic_rggb(rgb)
+    assert torch.equal(raw[:, 0, 0::2, 0::2], rgb[:, 0, 0::2, 0::2])
+    assert torch.equal(raw[:, 0, 0::2, 1::2], rgb[:, 1, 0::2, 1::2])
+    assert torch.equal(raw[:, 0, 1::2, 0::2], rgb[:, 1, 1::2, 0::2])
+    assert torch.equal(raw[:, 0, 1::2, 1::2], rgb[:, 2, 1::2, 1::2])
+
+
+def test_batches_depend_only_on_seed():
+    cfg = common.load_config(SMOKE)
+    s = train_demosaic.make_sampler(cfg)
+    a = train_demosaic.make_batch(s, cfg, 123, 2, 0.5)
+    b = train_demosaic.make_batch(s, cfg, 123, 2, 0.5)
+    c = train_demosaic.make_batch(s, cfg, 124, 2, 0.5)
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+    assert not torch.equal(a[1], c[1])
+    assert a[1].min() >= 0 and a[1].max() <= 1
+
+
+def test_noise_model_variance():
+    # var = a x + b (Poisson-Gaussian photon transfer): check the empirical variance of the added noise
+    g = torch.Generator().manual_seed(0)
+    raw = torch.full((2, 1, 200, 200), 0.25)
+    ab = torch.tensor([[1e-3, 1e-5], [4e-3, 0.0]])
+    noisy = train_demosaic.add_noise(raw, ab, g)
+    var = (noisy - raw).flatten(1).var(1)
+    expected = ab[:, 0] * 0.25 + ab[:, 1]
+    torch.testing.assert_close(var, expected, rtol=0.03, atol=0)
+
+
+def test_smoke_training_resume(tmp_path):
+    out = tmp_path / "run"
+    args = ["--config", str(SMOKE), "--out", str(out), "--no-progress", "--threads", "1"]
+    assert train_demosaic.main(args + ["--steps", "4", "--stop-after", "2"]) == 0
+    ck = torch.load(out / "last.pt", map_location="cpu", weights_only=True)
+    assert ck["step"] == 2
+    assert (out / "best.pt").is_file() and (out / "curves.png").stat().st_size > 1000
+    # resume: continues from step 2 to 4 and gives the same weights as an uninterrupted 4-step run
+    assert train_demosaic.main(args + ["--steps", "4"]) == 0
+    resumed = torch.load(out / "last.pt", map_location="cpu", weights_only=True)
+    assert resumed["step"] == 4
+    straight = tmp_path / "straight"
+    assert train_demosaic.main(["--config", str(SMOKE), "--out", str(straight), "--no-progress", "--threads", "1",
+                                "--steps", "4"]) == 0
+    ref = torch.load(straight / "last.pt", map_location="cpu", weights_only=True)
+    for k, v in ref["model"].items():
+        torch.testing.assert_close(resumed["model"][k], v, rtol=0, atol=1e-6)
+    rows = list(csv.DictReader(open(straight / "history.csv")))
+    assert [int(r["step"]) for r in rows] == [2, 4]
+    assert [r["lr"] for r in rows] == [r["lr"] for r in csv.DictReader(open(out / "history.csv"))]
+    assert all(np.isfinite(float(r["train_loss"])) and float(r["val_cpsnr"]) > 10 for r in rows)
+    # the trained weights moved away from the zero-initialised head
+    assert ref["model"]["head.weight"].abs().sum() > 0
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_torchrun_ddp_two_processes(tmp_path):
+    out = tmp_path / "ddp"
+    env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=str(ROOT))
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port",
+           str(_free_port()), str(ROOT / "training" / "train_demosaic.py"), "--config", str(SMOKE), "--out", str(out),
+           "--steps", "2", "--no-progress", "--threads", "1", "--device", "cpu"]
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rec = json.loads((out / "record.json").read_text())
+    assert rec["world_size"] == 2 and rec["steps"] == 2
+    assert torch.load(out / "last.pt", map_location="cpu", weights_only=True)["step"] == 2

@@ -1,0 +1,123 @@
+"""Shared helpers for the training scripts: config loading, distributed setup, CPSNR, curves, benchmark folders."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import platform
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+
+def load_config(path: str | Path, overrides: list[str] | None = None) -> dict:
+    """Read a YAML config (``yaml.safe_load``) and apply ``key.sub=value`` overrides (values parsed as YAML)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config: no file at {path}")
+    cfg = yaml.safe_load(path.read_text())
+    if not isinstance(cfg, dict):
+        raise ValueError(f"config: expected a YAML mapping in {path}, got {type(cfg).__name__}")
+    for item in overrides or []:
+        if "=" not in item:
+            raise ValueError(f"override: expected key.sub=value, got {item!r}")
+        key, value = item.split("=", 1)
+        node = cfg
+        parts = key.split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise ValueError(f"override: {key!r} goes through a non-mapping value")
+        node[parts[-1]] = yaml.safe_load(value)
+    return cfg
+
+
+def dist_setup(backend: str | None = None) -> tuple[int, int, bool]:
+    """Initialise torch.distributed when run under torchrun (WORLD_SIZE > 1); returns (rank, world, is_dist)."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return 0, 1, False
+    import torch.distributed as dist
+
+    if not dist.is_initialized():
+        dist.init_process_group(backend or ("nccl" if torch.cuda.is_available() else "gloo"))
+    return dist.get_rank(), dist.get_world_size(), True
+
+
+def dist_cleanup(is_dist: bool) -> None:
+    if is_dist:
+        import torch.distributed as dist
+
+        dist.barrier()
+        dist.destroy_process_group()
+
+
+def cpsnr(pred: torch.Tensor, target: torch.Tensor, crop: int = 0) -> torch.Tensor:
+    """Colour PSNR (dB) per image: 10 log10(1 / MSE) over all three channels, after clipping to [0, 1].
+
+    The convention of /work/shared/data/README.md (MSE over the whole image, ``crop`` border pixels excluded).
+    """
+    if crop:
+        pred, target = pred[..., crop:-crop, crop:-crop], target[..., crop:-crop, crop:-crop]
+    mse = (pred.clamp(0, 1) - target).double().pow(2).flatten(1).mean(1)
+    return 10 * torch.log10(1.0 / mse.clamp_min(1e-20))
+
+
+def read_benchmark(folder: str | Path, limit: int | None = None) -> list[tuple[str, torch.Tensor]]:
+    """Images of a benchmark folder as [1, 3, H, W] float64 in [0, 1] (8-bit / 255, scored as linear values)."""
+    from PIL import Image
+
+    folder = Path(folder)
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".bmp"))
+    if not files:
+        raise FileNotFoundError(f"folder: no images in {folder}")
+    out = []
+    for p in files[:limit]:
+        a = np.asarray(Image.open(p).convert("RGB"), dtype=np.float64) / 255.0
+        out.append((p.name, torch.from_numpy(a).permute(2, 0, 1)[None].contiguous()))
+    return out
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    if not rows:
+        return
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+
+
+def plot_curves(path: Path, rows: list[dict], keys: list[tuple[str, str]], title: str, log_y: bool = False) -> None:
+    """Plot columns ``keys`` ([(column, label)]) of ``rows`` against 'step' into a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(keys), figsize=(5 * len(keys), 3.6))
+    axes = np.atleast_1d(axes)
+    for ax, (col, label) in zip(axes, keys):
+        pts = [(r["step"], r[col]) for r in rows if r.get(col) not in (None, "") and math.isfinite(float(r[col]))]
+        if pts:
+            ax.plot(*zip(*pts), marker="." if len(pts) < 50 else None)
+        ax.set_xlabel("step")
+        ax.set_ylabel(label)
+        if log_y:
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def hardware() -> dict:
+    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+            "cpu_count": os.cpu_count(), "torch": torch.__version__, "threads": torch.get_num_threads(),
+            "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}

@@ -1,0 +1,281 @@
+"""Train the compact demosaic CNN (:class:`isettorch.isp.learned.DemosaicNet`) on synthetic scenes made on the fly.
+
+Usage::
+
+    python training/train_demosaic.py --config configs/train/demosaic_noise_free.yaml [--out DIR] [--steps N]
+    torchrun --nproc_per_node 2 training/train_demosaic.py --config ...   # DistributedDataParallel (gloo on CPU)
+
+Every batch depends only on (seed, step, rank), so a run resumes exactly from its last checkpoint
+(``--resume``, or automatically when ``out/last.pt`` exists). Validation uses held-out synthetic scenes (their
+own seeds, never drawn for training); the model with the best validation CPSNR is kept as ``best.pt``. Kodak and
+McMaster are scored only for reporting (``eval.benchmarks``), never for selection. Checkpoints are read with
+``torch.load(weights_only=True)``. Outputs: ``last.pt``, ``best.pt``, ``history.csv``, ``curves.png``,
+``record.json``.
+
+The joint denoise+demosaic variant (``noise.enabled: true``) adds heteroscedastic sensor noise at a random gain
+per image: ``var = a * x + b`` (Poisson shot noise of ``x / a`` electrons plus Gaussian read noise, the
+photon-transfer model of EMVA 1288), with ``a = gain / full_well_e`` and ``b = (read_noise_e * a)^2``;
+``(sqrt(a), sqrt(b))`` are given to the network as two extra input planes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from isettorch.isp.learned import DemosaicNet, demosaic_malvar_torch  # noqa: E402
+from training import common  # noqa: E402
+from training.synth import SceneSampler, augment_flips, encode, mosaic_rggb  # noqa: E402
+
+VAL_SEED_OFFSET = 1_000_003_000  # validation scenes use seeds far from any training (seed, step, rank)
+
+
+def make_sampler(cfg: dict) -> SceneSampler:
+    d = cfg.get("data", {})
+    source = d.get("source", "synth")
+    if source != "synth":
+        raise ValueError(f"data.source: expected 'synth', got {source!r}")
+    return SceneSampler(size=int(d.get("patch", 96)), n_shapes=int(d.get("n_shapes", 50)),
+                        sensitivities=d.get("sensitivities", "all"))
+
+
+def noise_params(batch: int, cfg: dict, g: torch.Generator) -> torch.Tensor:
+    """[B, 2] (a, b) of ``var = a x + b`` at log-uniform random gains (x relative to white = 1)."""
+    n = cfg["noise"]
+    lo, hi = float(n.get("gain_min", 1.0)), float(n.get("gain_max", 32.0))
+    gain = lo * (hi / lo) ** torch.rand(batch, generator=g)
+    a = gain / float(n.get("full_well_e", 10000.0))
+    b = (float(n.get("read_noise_e", 3.0)) * a) ** 2
+    return torch.stack([a, b], 1)
+
+
+def add_noise(raw: torch.Tensor, ab: torch.Tensor, g: torch.Generator) -> torch.Tensor:
+    """Poisson-Gaussian noise, Gaussian approximation var = a x + b (EMVA 1288 photon transfer)."""
+    var = ab[:, 0, None, None, None] * raw.clamp_min(0) + ab[:, 1, None, None, None]
+    return raw + var.sqrt() * torch.randn(raw.shape, generator=g)
+
+
+def noise_features(ab: torch.Tensor) -> torch.Tensor:
+    return torch.stack([ab[:, 0].sqrt() * 10.0, ab[:, 1].sqrt() * 100.0], 1)
+
+
+def make_batch(sampler: SceneSampler, cfg: dict, seed: int, batch: int, p_gamma: float):
+    """(raw [B,1,H,W], target [B,3,H,W], noise features [B,2] or None) for one (seed)."""
+    g = torch.Generator().manual_seed(int(seed))
+    rgb = encode(sampler.sample(batch, g), g, p_gamma=p_gamma)
+    rgb = augment_flips(rgb, g)
+    raw = mosaic_rggb(rgb)
+    feats = None
+    if cfg.get("noise", {}).get("enabled", False):
+        ab = noise_params(batch, cfg, g)
+        raw = add_noise(raw, ab, g)
+        feats = noise_features(ab)
+    return raw, rgb, feats
+
+
+def make_validation(sampler_cfg: dict, cfg: dict) -> list:
+    v = cfg.get("val", {})
+    vcfg = dict(sampler_cfg)
+    vcfg["data"] = dict(cfg.get("data", {}), patch=int(v.get("size", 128)))
+    sampler = make_sampler(vcfg)
+    n, bs = int(v.get("images", 32)), 8
+    return [make_batch(sampler, cfg, int(cfg.get("seed", 0)) + VAL_SEED_OFFSET + i, bs,
+                       float(cfg.get("data", {}).get("p_gamma", 0.7))) for i in range(0, n, bs)]
+
+
+@torch.no_grad()
+def validate(net: torch.nn.Module, val: list, device) -> dict:
+    net.eval()
+    ps, pm = [], []
+    for raw, rgb, feats in val:
+        raw, rgb = raw.to(device), rgb.to(device)
+        out = net(raw, None if feats is None else feats.to(device))
+        ps.append(common.cpsnr(out, rgb, crop=4))
+        pm.append(common.cpsnr(demosaic_malvar_torch(raw), rgb, crop=4))
+    net.train()
+    return {"val_cpsnr": float(torch.cat(ps).mean()), "val_cpsnr_mhc": float(torch.cat(pm).mean())}
+
+
+@torch.no_grad()
+def benchmark(net: torch.nn.Module, folder: str, device, crop: int = 10, limit: int | None = None) -> float:
+    """Mean CPSNR on a benchmark folder (RGGB, noise-free, clip, crop); reporting only."""
+    net.eval()
+    vals = []
+    for _, img in common.read_benchmark(folder, limit):
+        img = img.float().to(device)
+        h, w = img.shape[-2] // 2 * 2, img.shape[-1] // 2 * 2
+        img = img[..., :h, :w]
+        feats = torch.zeros(1, net.noise_inputs, device=device) if net.noise_inputs else None
+        vals.append(float(common.cpsnr(net(mosaic_rggb(img), feats), img, crop=crop)))
+    net.train()
+    return sum(vals) / len(vals)
+
+
+def progress(step: int, wall_s: float, cfg: dict) -> float:
+    """Fraction of the run done: by steps, or by wall time when ``optim.time_budget_s`` is set (whichever first)."""
+    o = cfg["optim"]
+    t = step / max(1, int(o["steps"]))
+    budget = float(o.get("time_budget_s", 0) or 0)
+    return max(t, wall_s / budget) if budget > 0 else t
+
+
+def lr_at(step: int, frac: float, cfg: dict) -> float:
+    o = cfg["optim"]
+    warm = int(o.get("warmup", 50))
+    lr, lr_min = float(o["lr"]), float(o.get("lr_min", 1e-5))
+    if step < warm:
+        return lr * (step + 1) / warm
+    t = min(1.0, frac)
+    return lr_min + 0.5 * (lr - lr_min) * (1 + math.cos(math.pi * t))  # cosine decay (Loshchilov & Hutter 2017)
+
+
+def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, history: list, wall_s: float) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "step": step, "net_config": net.config(),
+                "train_config": json.dumps(cfg), "best_val_cpsnr": best, "history": json.dumps(history),
+                "wall_s": wall_s}, tmp)
+    tmp.replace(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--config", required=True)
+    ap.add_argument("--out", default=None, help="output folder (default: config 'out')")
+    ap.add_argument("--steps", type=int, default=None, help="override optim.steps")
+    ap.add_argument("--resume", default=None, help="checkpoint to resume from (default: OUT/last.pt if present)")
+    ap.add_argument("--threads", type=int, default=None, help="torch threads per process")
+    ap.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
+    ap.add_argument("--set", nargs="*", default=[], help="config overrides key.sub=value")
+    ap.add_argument("--stop-after", type=int, default=None,
+                    help="stop (with a checkpoint) after this many steps in this invocation; resume later")
+    ap.add_argument("--no-progress", action="store_true")
+    args = ap.parse_args(argv)
+
+    cfg = common.load_config(args.config, args.set)
+    if args.steps is not None:
+        cfg.setdefault("optim", {})["steps"] = args.steps
+    rank, world, is_dist = common.dist_setup()
+    threads = args.threads or int(cfg.get("threads", 0))
+    if threads:
+        torch.set_num_threads(threads)
+    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    if device.type == "cuda" and is_dist:
+        device = torch.device("cuda", rank % torch.cuda.device_count())
+    out = Path(args.out or cfg.get("out", "out/train_demosaic"))
+    out.mkdir(parents=True, exist_ok=True)
+    seed = int(cfg.get("seed", 0))
+
+    net_cfg = dict(cfg.get("net", {}))
+    if cfg.get("noise", {}).get("enabled", False):
+        net_cfg["noise_inputs"] = 2
+    torch.manual_seed(seed)  # identical initial weights on every rank
+    net = DemosaicNet(**net_cfg).to(device)
+    opt = torch.optim.Adam(net.parameters(), lr=float(cfg["optim"]["lr"]))
+    step, best, history, wall0 = 0, -math.inf, [], 0.0
+    resume = Path(args.resume) if args.resume else out / "last.pt"
+    if resume.is_file():
+        ck = torch.load(resume, map_location="cpu", weights_only=True)
+        net.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        step, best = int(ck["step"]), float(ck["best_val_cpsnr"])
+        history, wall0 = json.loads(ck["history"]), float(ck.get("wall_s", 0.0))
+        if rank == 0:
+            print(f"resumed from {resume} at step {step}", flush=True)
+    model = net
+    if is_dist:
+        model = torch.nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda"
+                                                          else None)
+
+    sampler = make_sampler(cfg)
+    val = make_validation(cfg, cfg) if rank == 0 else None
+    total = int(cfg["optim"]["steps"])
+    batch = int(cfg["data"].get("batch", 16)) // world
+    p_gamma = float(cfg["data"].get("p_gamma", 0.7))
+    loss_kind = cfg["optim"].get("loss", "l1")
+    val_every = int(cfg.get("val", {}).get("every", 200))
+    ckpt_every = int(cfg.get("checkpoint_every", 100))
+    bench = cfg.get("eval", {}).get("benchmarks", {}) or {}
+    bench_every = int(cfg.get("eval", {}).get("every", 0))
+    t_start = time.time()
+    pbar = None
+    if rank == 0 and not args.no_progress:
+        from tqdm import tqdm
+
+        pbar = tqdm(total=total, initial=step, dynamic_ncols=True, file=sys.stdout)
+    run_loss, run_n = 0.0, 0
+    frac = progress(step, wall0, cfg)
+    stop_at = step + args.stop_after if args.stop_after else None
+    while frac < 1.0 and (stop_at is None or step < stop_at):
+        lr = lr_at(step, frac, cfg)
+        for grp in opt.param_groups:
+            grp["lr"] = lr
+        raw, rgb, feats = make_batch(sampler, cfg, seed * 1_000_003 + step * 1009 + rank, batch, p_gamma)
+        raw, rgb = raw.to(device), rgb.to(device)
+        outp = model(raw, None if feats is None else feats.to(device))
+        loss = F.l1_loss(outp, rgb) if loss_kind == "l1" else F.mse_loss(outp, rgb)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        step += 1
+        run_loss += loss.item()
+        run_n += 1
+        if pbar is not None:
+            pbar.update(1)
+            pbar.set_postfix(loss=f"{float(loss):.4f}", lr=f"{lr:.1e}")
+        frac = progress(step, wall0 + time.time() - t_start, cfg)
+        if is_dist:  # every rank stops at the same step
+            import torch.distributed as dist
+
+            f = torch.tensor([frac], dtype=torch.float64)
+            dist.all_reduce(f, op=dist.ReduceOp.MAX)
+            frac = float(f)
+        last = frac >= 1.0 or step == stop_at
+        if rank == 0 and (step % val_every == 0 or last):
+            row = {"step": step, "wall_s": round(wall0 + time.time() - t_start, 1), "lr": lr,
+                   "train_loss": run_loss / max(run_n, 1)}
+            run_loss, run_n = 0.0, 0
+            row.update(validate(net, val, device))
+            if bench and bench_every and (step % bench_every == 0 or last):
+                for name, folder in bench.items():
+                    row[f"{name}_crop10"] = benchmark(net, folder, device)
+            history.append(row)
+            msg = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items())
+            if pbar is not None:
+                pbar.write(msg)
+            else:
+                print(msg, flush=True)
+            if row["val_cpsnr"] > best:
+                best = row["val_cpsnr"]
+                save_checkpoint(out / "best.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start)
+            common.write_csv(out / "history.csv", history)
+            cols = [("train_loss", f"train {loss_kind} loss"), ("val_cpsnr", "val CPSNR (dB)")]
+            cols += [(f"{k}_crop10", f"{k} CPSNR crop10 (dB)") for k in bench if any(f"{k}_crop10" in r
+                                                                                   for r in history)]
+            common.plot_curves(out / "curves.png", history, cols, f"DemosaicNet {net.config()}")
+        if rank == 0 and (step % ckpt_every == 0 or last):
+            save_checkpoint(out / "last.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start)
+    if pbar is not None:
+        pbar.close()
+    if rank == 0:
+        record = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if argv is None else argv,
+                  "config": cfg, "world_size": world, "steps": step, "best_val_cpsnr": best,
+                  "wall_s": round(wall0 + time.time() - t_start, 1), "hardware": common.hardware(),
+                  "final": history[-1] if history else {}}
+        (out / "record.json").write_text(json.dumps(record, indent=2, default=str))
+    common.dist_cleanup(is_dist)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
