@@ -1,33 +1,126 @@
-"""``isettorch demo``: render the built-in scenes and write images and a short report to ``--out``."""
+"""``isettorch demo``: render the built-in scenes through a camera and write images and a short report.
+
+Scenes: Macbeth ColorChecker (D65), slanted edge, frequency sweep and dead leaves, each with a field of view
+chosen so the sensor is about ``--size`` pixels wide. Outputs in ``--out``: ``<scene>.png`` (the camera's
+sRGB image), ``<scene>_scene.png`` (the scene's ideal sRGB preview), ``report.json`` and ``report.md``
+(Macbeth mean/max dE2000, exposure, per-scene sensor illuminance, and the SNR of the gray patches).
+"""
 
 from __future__ import annotations
 
 import json
+import math
+import time
 from pathlib import Path
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "cameras" / "default.yaml"
 
 
 def register(sub) -> None:
-    p = sub.add_parser("demo", help="render built-in scenes and write images and a report to --out")
+    p = sub.add_parser("demo", help="render built-in scenes through a camera; write images and a report to --out")
     p.add_argument("--out", default="out", help="output folder (default: out)")
+    p.add_argument("--size", type=int, default=256, help="sensor width in pixels (about; default 256)")
+    p.add_argument("--config", default=None, help="camera YAML (default: configs/cameras/default.yaml)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
     p.set_defaults(func=run)
+
+
+def _save_png(img, path: Path) -> None:
+    import torch
+    from PIL import Image
+
+    a = (img.detach().clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).cpu().numpy()
+    Image.fromarray(a).save(path)
+
+
+def _gray_patch_snr(raw, cfa_channel: int = 1) -> list[float]:
+    """SNR (dB) of the six gray patches (19-24) of a Macbeth raw: mean / std of one channel's pixels."""
+    import torch
+
+    x = raw.data[0, 0].double() - raw.black_level
+    mask = raw.channel_masks()[cfa_channel].bool()
+    h, w = x.shape
+    out = []
+    for c in range(6):
+        rows = slice(int(3.25 * h / 4), int(3.75 * h / 4))
+        cols = slice(int((c + 0.25) * w / 6), int((c + 0.75) * w / 6))
+        v = x[rows, cols][mask[rows, cols]]
+        std = v.std()
+        out.append(float(20 * torch.log10(v.mean() / std)) if std > 0 else math.inf)
+    return out
 
 
 def run(args) -> int:
     import torch
-    from PIL import Image
 
-    from .. import spectral
-    from ..scene import Scene
+    from ..camera import Camera
+    from ..isp.chart import macbeth_delta_e, patch_means
+    from ..scene import frequency_sweep, macbeth, slanted_edge
+    from ..scene.dead_leaves import dead_leaves
 
+    if args.size < 16:
+        raise SystemExit(f"--size: expected at least 16 pixels, got {args.size}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    w = spectral.default_wavelengths()
-    ill = spectral.energy_to_photons(spectral.illuminant("D65", w), w, dim=0)
-    scene = Scene(ill[None, :, None, None].expand(1, -1, 64, 64).clone(), w, name="uniform D65",
-                  illuminant_photons=ill).set_mean_luminance(100.0)
-    rgb = (scene.srgb()[0].permute(1, 2, 0).clamp(0, 1) * 255).round().to(torch.uint8).numpy()
-    Image.fromarray(rgb).save(out / "uniform_d65.png")
-    report = {"scenes": [{"name": scene.name, "mean_luminance_cd_m2": float(scene.mean_luminance()[0])}]}
+    config = Path(args.config) if args.config else DEFAULT_CONFIG
+    cam = Camera.from_config(config)
+    n = args.size
+    # Field of view for a sensor about n pixels wide: 2 atan(n p / 2 f).
+    f = float(cam.optics.focal_length_m.reshape(-1)[0])
+    hfov = math.degrees(2 * math.atan(n * cam.sensor.pixel_size_m / (2 * f)))
+    scenes = {
+        "macbeth": macbeth("D65", patch_size=max(4, n // 6), hfov_deg=hfov),
+        "slanted_edge": slanted_edge(n, hfov_deg=hfov),
+        "frequency_sweep": frequency_sweep(n, hfov_deg=hfov),
+        "dead_leaves": dead_leaves(n, seed=args.seed, hfov_deg=hfov),
+    }
+    gen = torch.Generator().manual_seed(args.seed)
+    report = {"camera": cam.name or config.stem, "config": str(config), "size": n, "hfov_deg": hfov, "scenes": {}}
+    for name, scene in scenes.items():
+        t0 = time.perf_counter()
+        res = cam(scene, return_intermediates=True, generator=gen)
+        elapsed = time.perf_counter() - t0
+        _save_png(res.image[0], out / f"{name}.png")
+        _save_png(scene.srgb()[0], out / f"{name}_scene.png")
+        entry = {
+            "image": f"{name}.png",
+            "sensor_pixels": list(res.raw.data.shape[-2:]),
+            "scene_mean_luminance_cd_m2": float(scene.mean_luminance()[0]),
+            "sensor_mean_illuminance_lux": float(res.optical_image.mean_illuminance()[0]),
+            "exposure_s": float(res.raw.exposure_s[0]),
+            "render_seconds": round(elapsed, 3),
+        }
+        if name == "macbeth":
+            acc = macbeth_delta_e(patch_means(res.isp.xyz), "D65")
+            snr = _gray_patch_snr(res.raw)
+            entry.update({"delta_e2000_mean": float(acc.mean[0]), "delta_e2000_max": float(acc.max[0]),
+                          "delta_e2000_per_patch": [round(float(v), 3) for v in acc.delta_e[0]],
+                          "gray_patch_snr_db": [round(v, 2) for v in snr]})
+        report["scenes"][name] = entry
     (out / "report.json").write_text(json.dumps(report, indent=2))
-    print(json.dumps(report, indent=2))
+    m = report["scenes"]["macbeth"]
+    lines = [
+        f"# isettorch demo: camera `{report['camera']}`",
+        "",
+        f"Config `{config}`; sensor about {n} pixels wide; scene field of view {hfov:.2f} deg.",
+        "",
+        "## Macbeth ColorChecker under D65",
+        "",
+        f"- colour error (CIEDE2000, white-patch scaled, vs the true XYZ): mean **{m['delta_e2000_mean']:.2f}**,"
+        f" max **{m['delta_e2000_max']:.2f}**",
+        f"- exposure {m['exposure_s'] * 1e3:.2f} ms at {m['sensor_mean_illuminance_lux']:.2f} lux mean sensor "
+        "illuminance",
+        "- SNR of the gray patches (white -> black, green pixels, dB): "
+        + ", ".join(f"{v:.1f}" for v in m["gray_patch_snr_db"]),
+        "",
+        "## Scenes",
+        "",
+        "| scene | image | sensor px | exposure (ms) | illuminance (lux) | render (s) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, e in report["scenes"].items():
+        lines.append(f"| {name} | {e['image']} | {e['sensor_pixels'][0]}x{e['sensor_pixels'][1]} | "
+                     f"{e['exposure_s'] * 1e3:.2f} | {e['sensor_mean_illuminance_lux']:.2f} | {e['render_seconds']} |")
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
     return 0
