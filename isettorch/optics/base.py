@@ -140,7 +140,8 @@ class ShiftInvariantLens(nn.Module):
         return spectral.resample(t, self.transmittance_wavelengths_nm, wavelengths_nm)
 
     def _requires_grad(self) -> bool:
-        return torch.is_grad_enabled() and any(p.requires_grad for p in self.parameters())
+        return torch.is_grad_enabled() and (self.f_number.requires_grad
+                                            or any(p.requires_grad for p in self.parameters()))
 
     def _otf_fn(self, wavelengths_nm, f_number, dx):
         def fn(fy, fx):

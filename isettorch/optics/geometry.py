@@ -20,6 +20,15 @@ __all__ = [
 ]
 
 
+def _t(x, like: torch.Tensor | None = None) -> torch.Tensor:
+    """A tensor; Python numbers become float64 (or ``like``'s dtype/device) so no precision is lost."""
+    if isinstance(x, torch.Tensor):
+        return x
+    if like is not None and like.is_floating_point():
+        return torch.as_tensor(x, dtype=like.dtype, device=like.device)
+    return torch.as_tensor(x, dtype=torch.float64)
+
+
 def image_distance(focal_length_m, object_distance_m) -> torch.Tensor:
     """Thin-lens image distance ``d_i = 1 / (1/f - 1/d_o)`` (m); Gaussian lens equation (Hecht, Optics, 5.17).
 
@@ -29,8 +38,8 @@ def image_distance(focal_length_m, object_distance_m) -> torch.Tensor:
         >>> image_distance(torch.tensor(0.05), torch.tensor(1.0))
         tensor(0.0526)
     """
-    f = torch.as_tensor(focal_length_m)
-    s = torch.as_tensor(object_distance_m, dtype=f.dtype if f.is_floating_point() else None)
+    f = _t(focal_length_m, object_distance_m if isinstance(object_distance_m, torch.Tensor) else None)
+    s = _t(object_distance_m, f)
     if bool((s <= f).any()):
         raise ValueError(f"object_distance_m: expected a distance beyond the focal length {f.tolist()} m, "
                          f"got {s.tolist()} m (no real image)")
@@ -39,7 +48,8 @@ def image_distance(focal_length_m, object_distance_m) -> torch.Tensor:
 
 def magnification(focal_length_m, object_distance_m) -> torch.Tensor:
     """Lateral magnification ``m = -d_i / d_o`` (negative: the image is inverted); ISETCam ``opticsGet 'mag'``."""
-    return -image_distance(focal_length_m, object_distance_m) / torch.as_tensor(object_distance_m)
+    d_i = image_distance(focal_length_m, object_distance_m)
+    return -d_i / _t(object_distance_m, d_i)
 
 
 def image_sample_spacing(hfov_deg, n_cols: int, image_distance_m) -> torch.Tensor:
@@ -47,7 +57,8 @@ def image_sample_spacing(hfov_deg, n_cols: int, image_distance_m) -> torch.Tenso
 
     Equal to the scene-plane pitch times ``|m|`` (the scene at ``d_o`` maps to ``d_i``); ISETCam ``oiGet 'width'``.
     """
-    return 2 * torch.as_tensor(image_distance_m) * torch.tan(torch.deg2rad(torch.as_tensor(hfov_deg)) / 2) / n_cols
+    d = _t(image_distance_m, hfov_deg if isinstance(hfov_deg, torch.Tensor) else None)
+    return 2 * d * torch.tan(torch.deg2rad(_t(hfov_deg, d)) / 2) / n_cols
 
 
 def camera_equation_factor(f_number, magnification_=0.0, *, paraxial: bool = False) -> torch.Tensor:
@@ -60,8 +71,8 @@ def camera_equation_factor(f_number, magnification_=0.0, *, paraxial: bool = Fal
 
     Multiply by the lens transmittance ``T(lambda)`` for the full camera equation.
     """
-    n = torch.as_tensor(f_number)
-    nw2 = 4 * n**2 * (1 + torch.as_tensor(magnification_).abs()) ** 2
+    n = _t(f_number)
+    nw2 = 4 * n**2 * (1 + _t(magnification_, n).abs()) ** 2
     return math.pi / nw2 if paraxial else math.pi / (1 + nw2)
 
 

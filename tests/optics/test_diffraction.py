@@ -1,0 +1,210 @@
+"""Diffraction-limited optics: Airy pattern, MTF, power, linear convolution, batching, pad modes."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy import special
+
+from isettorch import Scene
+from isettorch.optics import DiffractionLimitedOptics, geometry
+
+F = 4e-3
+FAR = 1e4  # scene distance: image distance = f to 1.6e-7
+
+
+def _point_scene(n=64, lam_n_over_dx=16.0, wave=(550.0,), fnum=4.0, pos=None, dtype=torch.float64):
+    """A one-sample point source on an n x n scene whose image-plane spacing is lambda N / lam_n_over_dx."""
+    lam = wave[0] * 1e-9
+    dx = lam * fnum / lam_n_over_dx
+    d_i = 1 / (1 / F - 1 / FAR)
+    hfov = 2 * math.degrees(math.atan(n * dx / (2 * d_i)))
+    x = torch.zeros(1, len(wave), n, n, dtype=dtype)
+    r, c = pos or (n // 2, n // 2)
+    x[:, :, r, c] = 1.0
+    return Scene(x, torch.tensor(wave, dtype=dtype), hfov_deg=hfov, distance_m=FAR), dx
+
+
+def _radial_profile(img, r0, c0):
+    return img[r0, c0:]
+
+
+def test_airy_pattern():
+    scene, dx = _point_scene()
+    optics = DiffractionLimitedOptics(4.0, F, relative_illumination=None)
+    oi = optics(scene)
+    assert oi.sample_spacing_m.item() == pytest.approx(dx, rel=1e-6)
+    img = oi.photons[0, 0].numpy()
+    r0, c0 = np.unravel_index(np.argmax(img), img.shape)
+    prof = img[r0, c0:] / img[r0, c0]
+    lam_n = 550e-9 * 4.0
+    # first dark ring: discrete minimum refined by a parabola
+    i = int(np.argmax(np.diff(prof) > 0))
+    a, b, c = prof[i - 1], prof[i], prof[i + 1]
+    ring = (i + 0.5 * (a - c) / (a - 2 * b + c)) * dx / lam_n
+    assert ring == pytest.approx(1.2197, rel=1e-2)
+    # FWHM: linear interpolation of the half-maximum crossing
+    j = int(np.argmax(prof < 0.5))
+    half = (j - 1 + (prof[j - 1] - 0.5) / (prof[j - 1] - prof[j])) * dx
+    assert 2 * half / lam_n == pytest.approx(1.0290, rel=1e-2)
+    # encircled energy inside the first dark ring
+    yy, xx = np.mgrid[:img.shape[0], :img.shape[1]]
+    r = np.hypot(yy - r0, xx - c0) * dx
+    ee = img[r <= 1.2197 * lam_n].sum() / img.sum()
+    assert ee == pytest.approx(0.8378, rel=5e-3)
+
+
+def test_applied_mtf_is_analytic():
+    wave = (450.0, 550.0, 650.0)
+    scene, dx = _point_scene(n=48, lam_n_over_dx=1.5, wave=wave)
+    optics = DiffractionLimitedOptics(torch.tensor(4.0), F, relative_illumination=None)
+    oi = optics(scene)
+    pr, pc = oi.pad_rows, oi.pad_cols
+    inp = torch.zeros_like(oi.photons)
+    inp[:, :, pr + 24, pc + 24] = oi.photons.sum(dim=(-2, -1))  # the irradiance impulse the lens received
+    mtf = (torch.fft.fft2(oi.photons).abs() / torch.fft.fft2(inp).abs())[0].numpy()
+    my, mx = oi.photons.shape[-2:]
+    fy, fx = np.fft.fftfreq(my, dx), np.fft.fftfreq(mx, dx)
+    rho = np.hypot(fy[:, None], fx[None, :])
+    for k, lam in enumerate(wave):
+        s = np.minimum(rho * lam * 1e-9 * 4.0, 1.0)
+        ref = 2 / np.pi * (np.arccos(s) - s * np.sqrt(1 - s * s))
+        assert np.abs(mtf[k] - ref).max() < 1e-3
+
+
+def test_power_conserved_and_camera_equation():
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(2, 3, 20, 24, generator=g, dtype=torch.float64) * 1e15
+    scene = Scene(x, torch.tensor([450.0, 550.0, 650.0], dtype=torch.float64), hfov_deg=[2.0, 1.0], distance_m=1.2)
+    for mode in ("isetcam", "paraxial"):
+        optics = DiffractionLimitedOptics([2.0, 8.0], F, relative_illumination=None, camera_equation=mode)
+        oi = optics(scene)
+        d_i = 1 / (1 / F - 1 / 1.2)
+        m = d_i / 1.2
+        n = torch.tensor([2.0, 8.0], dtype=torch.float64)
+        k = math.pi / (4 * n**2 * (1 + m) ** 2 + (1 if mode == "isetcam" else 0))
+        expected = x.sum(dim=(-2, -1)) * k[:, None]
+        torch.testing.assert_close(oi.photons.sum(dim=(-2, -1)), expected, rtol=1e-5, atol=0)
+
+
+def test_linear_convolution_no_wraparound():
+    # bright point 1 sample from the left edge; lambda N = 4 dx: a wide PSF on a 32-sample scene
+    scene, dx = _point_scene(n=32, lam_n_over_dx=4.0, pos=(16, 1))
+    lam_n = 550e-9 * 4.0
+    optics = DiffractionLimitedOptics(4.0, F, relative_illumination=None)
+    oi = optics(scene)
+    pr, pc = oi.pad_rows, oi.pad_cols
+    img = oi.photons[0, 0].numpy() / oi.photons.sum().item()
+    # the independent answer: the Airy pattern (sampled, band-limited since dx < lambda N / 2) at the right edge
+    cols = np.arange(32)
+    x = np.pi * np.hypot(0, (cols - 1) * dx) / lam_n
+    airy = np.where(x > 0, (2 * special.j1(np.maximum(x, 1e-12)) / np.maximum(x, 1e-12)) ** 2, 1.0)
+    airy *= (np.pi / 4) * (dx / lam_n) ** 2  # peak of the normalised PSF times the sample area
+    got = img[pr + 16, pc + cols]
+    assert abs(got[1] - airy[1]) < 1e-3 * airy[1]
+    # values ~1e-5 (peak 0.049): what wraps around is below 1e-6 (2e-5 of the peak); measured 4e-7
+    assert np.abs(got[-4:] - airy[-4:]).max() < 1e-6
+    # the same blur with no padding (circular over the scene) does leak onto the opposite edge
+    wrap = DiffractionLimitedOptics(4.0, F, relative_illumination=None, margin=0)(scene).photons[0, 0].numpy()
+    wrap = wrap / wrap.sum()
+    assert np.abs(wrap[16, -4:] - airy[-4:]).max() > 1e-3
+
+
+def test_batched_equals_one_at_a_time():
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(2, 2, 16, 20, generator=g, dtype=torch.float64) * 1e15
+    w = torch.tensor([500.0, 600.0], dtype=torch.float64)
+    both = Scene(x, w, hfov_deg=[0.5, 0.3], distance_m=[1.2, 3.0])
+    optics = DiffractionLimitedOptics(torch.tensor([2.8, 11.0], dtype=torch.float64), F, margin=6)
+    out = optics(both)
+    for i, n in enumerate([2.8, 11.0]):
+        one = DiffractionLimitedOptics(n, F, margin=6)(both[i])
+        torch.testing.assert_close(out.photons[i:i + 1], one.photons, rtol=1e-10, atol=0)
+        torch.testing.assert_close(out.sample_spacing_m[i], one.sample_spacing_m[0])
+
+
+def test_crop_window_matches_full():
+    g = torch.Generator().manual_seed(2)
+    x = torch.rand(1, 2, 24, 30, generator=g, dtype=torch.float64) * 1e15
+    scene = Scene(x, torch.tensor([450.0, 650.0], dtype=torch.float64), hfov_deg=0.4, distance_m=1.2)
+    optics = DiffractionLimitedOptics(4.0, F, psf_tolerance=1e-3)
+    full = optics(scene)
+    pr, pc = full.pad_rows, full.pad_cols
+    for top, left in ((pr + 5, pc + 7), (pr - 4, pc + 20), (3, 2)):  # inside, across the edge, far in the pad
+        part = optics(scene, crop=(top, left, 10, 12))
+        ref = full.photons[..., top:top + 10, left:left + 12]
+        assert part.photons.shape == ref.shape
+        # the error bound is the light beyond the margin: psf_tolerance of the scene's level
+        assert (part.photons - ref).abs().max() < 1e-3 * full.photons.max()
+        assert part.metadata["window"] == (top, left)
+    with pytest.raises(ValueError, match="crop"):
+        optics(scene, crop=(0, 0, 1000, 5))
+
+
+@pytest.mark.parametrize("mode", ["edge", "mean"])
+def test_uniform_scene_stays_uniform_with_edge_and_mean_padding(mode):
+    x = torch.full((1, 2, 12, 14), 3e15, dtype=torch.float64)
+    scene = Scene(x, torch.tensor([450.0, 650.0], dtype=torch.float64), hfov_deg=0.3, distance_m=1.2)
+    oi = DiffractionLimitedOptics(8.0, F, relative_illumination=None, pad_mode=mode)(scene)
+    k = geometry.camera_equation_factor(torch.tensor(8.0, dtype=torch.float64),
+                                        geometry.magnification(F, 1.2)).item()
+    torch.testing.assert_close(oi.photons, torch.full_like(oi.photons, 3e15 * k), rtol=1e-10, atol=0)
+    zero = DiffractionLimitedOptics(8.0, F, relative_illumination=None, pad_mode="zero")(scene)
+    assert zero.photons[0, 0, zero.pad_rows, zero.pad_cols] < 0.5 * 3e15 * k  # a dark border pulls the corner down
+
+
+def test_blur_skipped_when_psf_is_far_below_a_sample():
+    g = torch.Generator().manual_seed(3)
+    x = torch.rand(1, 1, 8, 8, generator=g, dtype=torch.float64)
+    # lambda N = 0.55 um; samples of 1 mm: max |1 - OTF| = 4/pi * 0.55e-6 / (sqrt(2) 1e-3) = 5e-4 < 1e-3
+    d_i = 1 / (1 / F - 1 / 1.2)
+    hfov = 2 * math.degrees(math.atan(8 * 1e-3 / (2 * d_i)))
+    scene = Scene(x, torch.tensor([550.0], dtype=torch.float64), hfov_deg=hfov, distance_m=1.2)
+    fast = DiffractionLimitedOptics(1.0, F, relative_illumination=None)(scene)
+    slow = DiffractionLimitedOptics(1.0, F, relative_illumination=None, blur_skip_tolerance=0.0)(scene)
+    assert fast.pad_rows == 0 and fast.photons.shape == x.shape
+    pr = slow.pad_rows
+    core = slow.photons[..., pr:pr + 8, pr:pr + 8]
+    assert (fast.photons - core).abs().max() <= 1e-3 * fast.photons.max()
+
+
+def test_geometry_formulas():
+    d_i = geometry.image_distance(0.05, torch.tensor(1.0, dtype=torch.float64)).item()
+    assert d_i == pytest.approx(1 / 19, rel=1e-12)
+    assert geometry.magnification(0.05, 0.1).item() == pytest.approx(-1.0)
+    y = torch.zeros(1, 1, dtype=torch.float64)
+    xs = torch.tensor([[0.0, 1.0]], dtype=torch.float64)
+    c4 = geometry.cos4th(y, xs, 1.0)
+    assert c4[0, 0, 0].tolist() == pytest.approx([1.0, 0.25])  # cos 45 deg ^ 4
+    # ISETCam's finite-aperture formula: 1 on axis, and below cos^4 growth off axis for a fast lens
+    xs2 = torch.linspace(0, 2e-3, 5, dtype=torch.float64)[None]
+    fin = geometry.cos4th_isetcam(torch.zeros(1, 1, dtype=torch.float64), xs2, 4e-3, 2.0)
+    assert fin[0, 0, 0, 0].item() == pytest.approx(1.0, abs=1e-12)
+    assert (fin[0, 0, 0, 1:] < 1).all()
+    with pytest.raises(ValueError, match="object_distance_m"):
+        geometry.image_distance(torch.tensor(0.05), torch.tensor(0.01))
+
+
+def test_gradcheck_f_number():
+    x = torch.rand(1, 2, 6, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(4)) * 1e3
+    scene = Scene(x, torch.tensor([500.0, 600.0], dtype=torch.float64), hfov_deg=0.1, distance_m=1.2)
+
+    optics = DiffractionLimitedOptics(4.0, F, margin=3, learn_f_number=True)
+
+    def fn(n):
+        return torch.func.functional_call(optics, {"f_number": n}, (scene,)).photons
+
+    n = torch.tensor(4.0, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(fn, (n,), eps=1e-6, atol=1e-6, rtol=1e-4, fast_mode=True)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="f_number"):
+        DiffractionLimitedOptics(-1.0)
+    with pytest.raises(ValueError, match="pad_mode"):
+        DiffractionLimitedOptics(4.0, pad_mode="reflect")
+    with pytest.raises(ValueError, match="relative_illumination"):
+        DiffractionLimitedOptics(4.0, relative_illumination="cos3")
+    with pytest.raises(TypeError, match="scene"):
+        DiffractionLimitedOptics(4.0)(torch.ones(1, 1, 4, 4))
