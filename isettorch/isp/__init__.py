@@ -25,3 +25,33 @@ __all__ = [
     # evaluation
     "cpsnr", "evaluate_demosaic",
 ]
+
+# colour stages, pipeline and chart evaluation (appended by the colour/camera engineer)
+from .chart import macbeth_delta_e, macbeth_true_xyz, patch_means  # noqa: E402
+from .colour import (  # noqa: E402
+    DisplayEncode,
+    IlluminantCorrection,
+    SensorToXYZ,
+    XYZToDisplay,
+    apply_gains,
+    apply_matrix,
+    fit_colour_matrix,
+    gray_world_gains,
+    illuminant_gains,
+    reflectance_set,
+    sensor_responses,
+    sensor_to_xyz_matrix,
+    srgb_decode,
+    srgb_encode,
+    white_world_gains,
+    white_xyz,
+    xyz_responses,
+)
+from .pipeline import DemosaicStage, ImageProcessor, ISPResult  # noqa: E402
+
+__all__ += [
+    "DisplayEncode", "IlluminantCorrection", "SensorToXYZ", "XYZToDisplay", "apply_gains", "apply_matrix",
+    "fit_colour_matrix", "gray_world_gains", "illuminant_gains", "reflectance_set", "sensor_responses",
+    "sensor_to_xyz_matrix", "srgb_decode", "srgb_encode", "white_world_gains", "white_xyz", "xyz_responses",
+    "DemosaicStage", "ImageProcessor", "ISPResult", "macbeth_delta_e", "macbeth_true_xyz", "patch_means",
+]
