@@ -9,7 +9,8 @@ from ._cfa import bayer_masks, check_bayer_pattern, check_raw, correlate, correl
 __all__ = ["demosaic_menon2007"]
 
 # Menon et al. (2007) eq. 2-3: h0 (bilinear) + h1 (Laplacian correction) along one direction.
-_H_GREEN = (-0.25, 0.5, 0.5, 0.5, -0.25)
+_H0 = (0.0, 0.5, 0.0, 0.5, 0.0)
+_H1 = (-0.25, 0.0, 0.5, 0.0, -0.25)
 # Menon et al. (2007) eq. 8: classifier window over the current and the two previous columns (horizontal
 # direction); written as a correlation kernel (colour-demosaicing applies it by convolution, i.e. flipped).
 _K_DECISION = ((1.0, 0.0, 1.0, 0.0, 0.0),
@@ -64,8 +65,8 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     zero = raw.new_zeros(())
 
     # Directional green estimates (eq. 2-3) and the colour differences at R/B sites.
-    g_h = torch.where(is_g, raw, _h(raw, _H_GREEN))
-    g_v = torch.where(is_g, raw, _v(raw, _H_GREEN))
+    g_h = torch.where(is_g, raw, _h(raw, _H0) + _h(raw, _H1))
+    g_v = torch.where(is_g, raw, _v(raw, _H0) + _v(raw, _H1))
     c_h = torch.where(is_g, zero, raw - g_h)
     c_v = torch.where(is_g, zero, raw - g_v)
     # Gradients of the colour differences between sites two apart (eq. 7), then summed over the window (eq. 8).

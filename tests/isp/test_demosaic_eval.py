@@ -1,0 +1,128 @@
+"""Benchmark scoring and the ``demosaic-eval`` command: CPSNR against an independent numpy computation with
+colour-demosaicing, on generated images and on crops of the shared benchmark sets (skipped when absent)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import colour_demosaicing as cd
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from isettorch.cli import main
+from isettorch.isp import cpsnr, demosaic, demosaic_bilinear, evaluate_demosaic
+
+REPO = Path(__file__).resolve().parents[2]
+DATA = Path(os.environ.get("ISETTORCH_DATA", REPO / ".." / "shared" / "data"))
+REFERENCE = {"bilinear_colour": cd.demosaicing_CFA_Bayer_bilinear, "malvar2004": cd.demosaicing_CFA_Bayer_Malvar2004,
+             "menon2007": cd.demosaicing_CFA_Bayer_Menon2007}
+
+
+def _bilinear_colour(raw, pattern):
+    return demosaic_bilinear(raw, pattern, normalize_border=False)
+
+
+def _numpy_cpsnr(image_u8, method, pattern="RGGB", crop=0):
+    """The benchmark convention, written independently with numpy and colour-demosaicing."""
+    truth = image_u8.astype(np.float64) / 255
+    out = np.clip(REFERENCE[method](cd.mosaicing_CFA_Bayer(truth, pattern), pattern), 0, 1)
+    sl = slice(crop, -crop if crop else None)
+    return 10 * np.log10(1 / np.mean((out[sl, sl] - truth[sl, sl]) ** 2)), out
+
+
+def _smooth_images(n, h, w, seed=0):
+    rng = np.random.default_rng(seed)
+    ims = []
+    for _ in range(n):
+        y, x = np.mgrid[0:h, 0:w] / max(h, w)
+        f = rng.uniform(2, 8, size=3)
+        base = [0.5 + 0.4 * np.sin(f[c] * x + (c + 1) * y * f[(c + 1) % 3]) for c in range(3)]
+        ims.append(np.clip(np.stack(base, -1) * 255 + rng.normal(0, 6, (h, w, 3)), 0, 255).round().astype(np.uint8))
+    return ims
+
+
+def test_cpsnr_analytic():
+    ref = torch.full((2, 3, 8, 8), 0.5, dtype=torch.float64)
+    est = ref + 0.1  # MSE 0.01 -> 20 dB
+    est[1, :, 0, :] = 0.5 + 0.4  # a wrong border row in the second image only
+    np.testing.assert_allclose(cpsnr(est, ref, crop=1).numpy(), [20.0, 20.0], atol=1e-12)
+    mse1 = (0.01 * (64 - 8) + 0.16 * 8) / 64
+    np.testing.assert_allclose(cpsnr(est, ref).numpy(), [20.0, 10 * np.log10(1 / mse1)], atol=1e-12)
+    with pytest.raises(ValueError, match="crop"):
+        cpsnr(est, ref, crop=4)
+
+
+@pytest.mark.parametrize("method", ["malvar2004", "menon2007"])
+@pytest.mark.parametrize("pattern", ["RGGB", "GBRG"])
+def test_evaluate_matches_numpy_reference(method, pattern):
+    ims = _smooth_images(2, 30, 26, seed=1)
+    res = evaluate_demosaic([(f"im{i}", a) for i, a in enumerate(ims)], method, pattern, crop=3)
+    expected = [_numpy_cpsnr(a, method, pattern, crop=3)[0] for a in ims]
+    # Menon's direction choice compares two sums; where they tie in exact arithmetic, rounding decides, in a
+    # different order in scipy and torch (a few pixels in a thousand): compare scores to 0.05 dB there.
+    tol = 0.05 if method == "menon2007" else 1e-9
+    np.testing.assert_allclose([r["cpsnr"] for r in res["images"]], expected, rtol=0, atol=tol)
+    assert res["mean_cpsnr"] == pytest.approx(np.mean(expected), abs=tol)
+
+
+def test_cli_json(tmp_path, capsys):
+    ims = _smooth_images(3, 24, 20, seed=2)
+    names = ["a.png", "b.png", "c.tif"]
+    for name, a in zip(names, ims):
+        Image.fromarray(a).save(tmp_path / name)
+    (tmp_path / "notes.txt").write_text("ignored")
+    assert main(["demosaic-eval", str(tmp_path), "--method", "malvar2004", "--pattern", "GRBG", "--crop", "2",
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert set(res) == {"method", "pattern", "crop", "mean_cpsnr", "ms_per_image", "images"}
+    assert (res["method"], res["pattern"], res["crop"]) == ("malvar2004", "GRBG", 2)
+    assert [r["name"] for r in res["images"]] == names
+    expected = [_numpy_cpsnr(a, "malvar2004", "GRBG", crop=2)[0] for a in ims]
+    np.testing.assert_allclose([r["cpsnr"] for r in res["images"]], expected, rtol=0, atol=1e-9)
+    assert res["mean_cpsnr"] == pytest.approx(np.mean(expected), abs=1e-9)
+    assert res["ms_per_image"] > 0
+
+    assert main(["demosaic-eval", str(tmp_path), "--method", "nearest"]) == 0
+    out = capsys.readouterr().out
+    assert "mean CPSNR" in out and "c.tif" in out
+
+
+def test_cli_errors(tmp_path):
+    with pytest.raises(ValueError, match="no .png"):
+        main(["demosaic-eval", str(tmp_path), "--json"])
+    Image.fromarray(np.zeros((8, 8), np.uint8)).save(tmp_path / "grey.png")
+    with pytest.raises(ValueError, match="grey.png.*mode 'L'"):
+        main(["demosaic-eval", str(tmp_path)])
+
+
+def _benchmark_crops():
+    if not DATA.is_dir():
+        pytest.skip(f"benchmark images not found at {DATA} (set ISETTORCH_DATA)")
+    picks = [("kodak24/01.png", 200, 300), ("kodak24/19.png", 300, 150), ("mcmaster18/1.tif", 100, 100)]
+    out = []
+    for rel, y, x in picks:
+        path = DATA / rel
+        if not path.exists():
+            pytest.skip(f"benchmark image {path} not found")
+        with Image.open(path) as im:
+            out.append((rel, np.asarray(im.convert("RGB"))[y:y + 96, x:x + 96]))
+    return out
+
+
+@pytest.mark.parametrize("method", sorted(REFERENCE))
+def test_benchmark_crops_agree_with_colour_demosaicing(method):
+    fn = _bilinear_colour if method == "bilinear_colour" else method
+    for name, a in _benchmark_crops():
+        truth = torch.from_numpy(a.astype(np.float64) / 255).permute(2, 0, 1)[None]
+        for crop in (0, 10):
+            ref_score, ref_out = _numpy_cpsnr(a, method, crop=crop)
+            ours = evaluate_demosaic([(name, a)], fn, "RGGB", crop)["mean_cpsnr"]
+            assert abs(ours - ref_score) < 0.05, (name, crop, ours, ref_score)
+        out = demosaic(torch.from_numpy(cd.mosaicing_CFA_Bayer(a / 255.0, "RGGB"))[None, None], "RGGB", fn)
+        agree = np.isclose(out[0].permute(1, 2, 0).clamp(0, 1).numpy(), ref_out, rtol=0, atol=1e-9).mean()
+        assert agree > (0.99 if method == "menon2007" else 0.999999), (name, agree)  # Menon: rounding-decided ties
+        assert truth.shape[-2:] == (96, 96)
