@@ -1,0 +1,110 @@
+"""Dead leaves: determinism, occlusion order, coverage statistics, radius distribution."""
+
+import numpy as np
+import pytest
+import scipy.stats
+import torch
+
+from isettorch.scene import dead_leaves, macbeth_reflectances
+
+F64 = torch.float64
+
+
+def test_seed_determinism():
+    a = dead_leaves(24, seed=7, dtype=F64)
+    b = dead_leaves(24, seed=7, dtype=F64)
+    c = dead_leaves(24, generator=torch.Generator().manual_seed(7), dtype=F64)
+    d = dead_leaves(24, seed=8, dtype=F64)
+    assert torch.equal(a.photons, b.photons) and torch.equal(a.photons, c.photons)
+    assert not torch.equal(a.photons, d.photons)
+    batch = dead_leaves(24, seed=7, batch_size=2, dtype=F64)
+    assert torch.equal(batch.metadata["labels"][0], a.metadata["labels"][0])  # sample 0 is the single draw
+    assert torch.allclose(batch.photons[:1], a.photons, rtol=1e-12)
+    assert not torch.equal(batch.photons[0], batch.photons[1])
+
+
+def test_front_to_back_occlusion():
+    """Each pixel shows the first drawn disk that covers its centre (recomputed by brute force)."""
+    s = dead_leaves((20, 28), rmin_px=1.5, rmax_px=6.0, seed=3, dtype=F64)
+    labels = s.metadata["labels"][0]
+    centres, radii = s.metadata["centres_px"][0], s.metadata["radii_px"][0]
+    assert (labels >= 0).all() and s.metadata["uncovered_fraction"] == [0.0]
+    yy, xx = torch.meshgrid(torch.arange(20, dtype=F64), torch.arange(28, dtype=F64), indexing="ij")
+    inside = (yy[None] - centres[:, 0, None, None]) ** 2 + (xx[None] - centres[:, 1, None, None]) ** 2 \
+        <= radii[:, None, None] ** 2
+    first = torch.where(inside.any(0), inside.to(torch.uint8).argmax(0), -1)
+    assert torch.equal(first, labels)
+    # the last disk kept is the one that covered the last pixel
+    assert labels.max().item() == radii.numel() - 1
+    # one flat grey level per visible disk
+    refl = s.reflectance()[0]
+    assert torch.allclose(refl, refl[:1].expand_as(refl), rtol=1e-9)
+    for lab in torch.unique(labels)[:20].tolist():
+        v = refl[0][labels == lab]
+        assert torch.allclose(v, v[:1].expand_as(v), rtol=1e-9)
+        assert 0.05 - 1e-9 <= v[0].item() <= 0.95 + 1e-9
+
+
+def _expected_disk_area(alpha, rmin, rmax):
+    r = np.linspace(rmin, rmax, 200001)
+    pdf = r ** -alpha
+    return np.trapezoid(np.pi * r**2 * pdf, r) / np.trapezoid(pdf, r)
+
+
+def test_coverage_fraction_boolean_model():
+    """With n disks, a pixel is uncovered with probability (1 - E[pi r^2] / A)^n, A the area the centres are
+    drawn from (the image extended by rmax on each side)."""
+    rows, cols, rmin, rmax, alpha, n = 32, 32, 1.0, 8.0, 3.0, 200
+    s = dead_leaves((rows, cols), alpha=alpha, rmin_px=rmin, rmax_px=rmax, num_disks=n, batch_size=8, seed=11,
+                    dtype=F64)
+    area = (rows - 1 + 2 * rmax) * (cols - 1 + 2 * rmax)
+    expected = (1 - _expected_disk_area(alpha, rmin, rmax) / area) ** n
+    measured = float(np.mean(s.metadata["uncovered_fraction"]))
+    assert 0.2 < expected < 0.6
+    assert measured == pytest.approx(expected, abs=0.04)
+    # uncovered pixels are black (reflectance 0)
+    for i in range(8):
+        assert (s.photons[i][:, s.metadata["labels"][i] < 0] == 0).all()
+    assert all(len(r) == n for r in s.metadata["radii_px"])
+
+
+def test_radius_distribution_power_law():
+    alpha, rmin, rmax = 3.0, 1.0, 20.0
+    s = dead_leaves(16, alpha=alpha, rmin_px=rmin, rmax_px=rmax, num_disks=3000, seed=5, dtype=F64)
+    r = s.metadata["radii_px"][0].numpy()
+    assert r.min() >= rmin and r.max() <= rmax
+
+    def cdf(a):
+        return lambda x: (x ** (1 - a) - rmin ** (1 - a)) / (rmax ** (1 - a) - rmin ** (1 - a))
+
+    assert scipy.stats.kstest(r, cdf(alpha)).pvalue > 0.01
+    assert scipy.stats.kstest(r, cdf(2.5)).pvalue < 1e-6  # the test tells exponents apart
+
+
+def test_macbeth_and_custom_reflectances():
+    s = dead_leaves(16, reflectances="macbeth", seed=2, dtype=F64)
+    refl = s.reflectance()[0].reshape(31, -1).T  # [pixels, L]
+    mac = macbeth_reflectances(s.wavelengths_nm)
+    dist = torch.cdist(refl, mac, compute_mode="donot_use_mm_for_euclid_dist").amin(dim=1)
+    assert dist.max() < 1e-9
+    table = torch.tensor([[0.2] * 31, [0.6] * 31], dtype=F64)
+    s2 = dead_leaves(16, reflectances=table, seed=2, dtype=F64)
+    vals = torch.unique(s2.reflectance()[0].round(decimals=9))
+    assert vals.tolist() == [0.2, 0.6]
+
+
+@pytest.mark.parametrize("kwargs,exc,match", [
+    ({"size": -8}, ValueError, "size"),
+    ({"alpha": 0.0}, ValueError, "alpha"),
+    ({"rmin_px": 5.0, "rmax_px": 2.0}, ValueError, "rmax_px"),
+    ({"seed": None}, ValueError, "seed"),
+    ({"generator": 3}, TypeError, "generator"),
+    ({"reflectances": "rainbow"}, ValueError, "reflectances"),
+    ({"reflectances": torch.ones(4, 7)}, ValueError, "reflectances"),
+    ({"num_disks": 0}, ValueError, "num_disks"),
+    ({"reflectance_range": (0.8, 0.2)}, ValueError, "reflectance_range"),
+])
+def test_errors(kwargs, exc, match):
+    kwargs = {"size": 8, **kwargs}
+    with pytest.raises(exc, match=match):
+        dead_leaves(**kwargs)
