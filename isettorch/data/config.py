@@ -1,0 +1,176 @@
+"""Validated configuration for synthetic data: nested dicts of defaults, merged with a user's YAML.
+
+An unknown key, or a value of the wrong type, raises ``ValueError`` naming the dotted key.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = ["SCENE_DEFAULTS", "CAMERA_DEFAULTS", "SYNTH_DEFAULTS", "merge_config", "load_config", "seed_for"]
+
+SCENE_DEFAULTS: dict[str, Any] = {
+    "height": 128,
+    "width": 128,
+    "wavelengths_nm": [400.0, 700.0, 10.0],  # start, stop, step (inclusive)
+    "palette_size": 8,
+    "layouts": {"dead_leaves": 0.4, "gradients": 0.1, "edges": 0.15, "lines": 0.15, "textures": 0.2},
+    "reflectance_model": "mixed",  # pca | sigmoid | mixed
+    "pca_fraction": 0.5,
+    "illuminants": {"daylight": 0.4, "blackbody": 0.2, "fluorescent": 0.2, "led": 0.2},
+    "cct_range_k": {"daylight": [4000.0, 25000.0], "blackbody": [2000.0, 10000.0], "led": [2700.0, 6500.0]},
+    "two_light_probability": 0.25,  # a second light across the image (smooth transition)
+    "shadow_probability": 0.25,  # a cast shadow lit only by skylight
+    "shadow_ambient": [0.02, 0.3],  # skylight luminance relative to the direct light
+    "second_light_ratio": [0.3, 3.0],  # luminance of light 2 / light 1
+    "hdr_decades": [0.0, 3.0],  # illumination range across the image, log10(max / min)
+    "mean_luminance_cd_m2": [1.0, 5000.0],  # log-uniform
+    "hfov_deg": [4.0, 20.0],
+    "distance_m": 1.2,
+}
+
+CAMERA_DEFAULTS: dict[str, Any] = {
+    "f_number": [2.0, 2.8, 4.0, 5.6, 8.0],  # discrete stops: OTFs are cached per (stop, pixel size)
+    "focal_length_m": 4e-3,
+    "pixel_size_m": [1.4e-6, 2.0e-6, 2.8e-6],
+    "fill_factor": 0.9,
+    "full_well_e": [6000.0, 20000.0],
+    "read_noise_e": [1.0, 6.0],
+    "dark_current_e_per_s": [0.5, 20.0],
+    "dsnu_sigma_e": [0.0, 2.0],
+    "prnu_sigma_percent": [0.0, 1.5],
+    "analog_gain": [1.0, 16.0],  # log-uniform; ISO = 100 x gain
+    "bits": 12,
+    "black_level_dn": 64.0,
+    "exposure_ev": [-2.0, 1.0],  # relative to auto exposure (98th percentile at 80 % of full well)
+    "peak_qe": [0.35, 0.6],
+    "cfa_patterns": ["RGGB"],  # any of RGGB, GRBG, GBRG, BGGR; one drawn per sample
+    "qe_variation": 0.0,  # 0 = the nominal curves; > 0 shifts each channel by up to this many x 10 nm
+    "margin_px": 4,  # scene border rendered beyond the sensor so blurring needs no padding
+}
+
+SYNTH_DEFAULTS: dict[str, Any] = {
+    "seed": 0,
+    "shard_size": 64,
+    "dtype": "float32",
+    "scene": SCENE_DEFAULTS,
+    "camera": CAMERA_DEFAULTS,
+}
+
+
+def _merge(defaults: dict, user: dict, path: str) -> dict:
+    if not isinstance(user, dict):
+        raise ValueError(f"{path or 'config'}: expected a mapping, got {type(user).__name__}")
+    out = copy.deepcopy(defaults)
+    for key, value in user.items():
+        where = f"{path}.{key}" if path else str(key)
+        if key not in defaults:
+            raise ValueError(f"{where}: unknown config key; expected one of {sorted(defaults)}")
+        ref = defaults[key]
+        if isinstance(ref, dict) and key not in ("layouts", "illuminants", "cct_range_k"):
+            out[key] = _merge(ref, value, where)
+        elif isinstance(ref, dict):
+            if not isinstance(value, dict):
+                raise ValueError(f"{where}: expected a mapping, got {value!r}")
+            allowed = set(ref)
+            bad = [k for k in value if k not in allowed]
+            if bad:
+                raise ValueError(f"{where}.{bad[0]}: unknown key; expected one of {sorted(allowed)}")
+            out[key] = dict(value) if key != "cct_range_k" else {**ref, **value}
+        elif isinstance(ref, bool) or isinstance(value, bool):
+            if type(ref) is not type(value):
+                raise ValueError(f"{where}: expected {type(ref).__name__}, got {value!r}")
+            out[key] = value
+        elif isinstance(ref, (int, float)):
+            if isinstance(value, (list, tuple)) and key not in ("focal_length_m", "fill_factor", "bits",
+                                                                "black_level_dn", "seed", "shard_size",
+                                                                "height", "width", "palette_size", "margin_px"):
+                out[key] = list(value)
+            elif not isinstance(value, (int, float)):
+                raise ValueError(f"{where}: expected a number, got {value!r}")
+            else:
+                out[key] = type(ref)(value) if isinstance(ref, int) and float(value).is_integer() else value
+        elif isinstance(ref, list):
+            if isinstance(value, (int, float)) and len(ref) == 2:
+                out[key] = [value, value]
+            elif not isinstance(value, (list, tuple)):
+                raise ValueError(f"{where}: expected a list, got {value!r}")
+            else:
+                out[key] = list(value)
+        elif isinstance(ref, str):
+            if not isinstance(value, str):
+                raise ValueError(f"{where}: expected a string, got {value!r}")
+            out[key] = value
+        else:  # pragma: no cover
+            out[key] = value
+    return out
+
+
+def _check_range(cfg: dict, key: str, path: str, lo_bound: float = -float("inf")) -> None:
+    v = cfg[key]
+    if isinstance(v, (int, float)):
+        return
+    if len(v) != 2 or not all(isinstance(x, (int, float)) for x in v) or not lo_bound <= v[0] <= v[1]:
+        raise ValueError(f"{path}.{key}: expected [lo, hi] with {lo_bound} <= lo <= hi, got {v!r}")
+
+
+def merge_config(user: dict | None, defaults: dict = SYNTH_DEFAULTS, path: str = "") -> dict:
+    """Defaults overridden by ``user``; validates keys, types and ranges."""
+    cfg = _merge(defaults, user or {}, path)
+    scene = cfg.get("scene", cfg if "layouts" in cfg else None)
+    if scene is not None:
+        sp = f"{path}.scene" if "scene" in cfg else path or "scene"
+        for k in ("hdr_decades", "mean_luminance_cd_m2", "hfov_deg", "shadow_ambient", "second_light_ratio"):
+            _check_range(scene, k, sp, 0.0)
+        for k in ("layouts", "illuminants"):
+            ws = scene[k]
+            if not ws or any((not isinstance(x, (int, float))) or x < 0 for x in ws.values()) or \
+                    sum(ws.values()) <= 0:
+                raise ValueError(f"{sp}.{k}: expected non-negative weights with a positive sum, got {ws!r}")
+        if scene["reflectance_model"] not in ("pca", "sigmoid", "mixed"):
+            raise ValueError(f"{sp}.reflectance_model: expected pca, sigmoid or mixed, got "
+                             f"{scene['reflectance_model']!r}")
+        wl = scene["wavelengths_nm"]
+        if len(wl) != 3 or wl[2] <= 0 or wl[1] < wl[0]:
+            raise ValueError(f"{sp}.wavelengths_nm: expected [start, stop, step] with step > 0, got {wl!r}")
+    cam = cfg.get("camera")
+    if cam is not None:
+        bad = [p for p in cam["cfa_patterns"] if p not in ("RGGB", "GRBG", "GBRG", "BGGR")]
+        if bad or not cam["cfa_patterns"]:
+            raise ValueError(f"camera.cfa_patterns: expected Bayer patterns from RGGB, GRBG, GBRG, BGGR, got "
+                             f"{cam['cfa_patterns']!r}")
+        for k in ("full_well_e", "read_noise_e", "dark_current_e_per_s", "dsnu_sigma_e", "prnu_sigma_percent",
+                  "analog_gain", "peak_qe"):
+            _check_range(cam, k, "camera", 0.0)
+        _check_range(cam, "exposure_ev", "camera")
+    if "dtype" in cfg and cfg["dtype"] not in ("float32", "float64"):
+        raise ValueError(f"dtype: expected float32 or float64, got {cfg['dtype']!r}")
+    return cfg
+
+
+def load_config(path: str | Path) -> dict:
+    """Read a YAML config (``yaml.safe_load``) and validate it against :data:`SYNTH_DEFAULTS`."""
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        raise ValueError(f"config: could not read YAML from {str(p)!r}: {err}") from err
+    return merge_config(data or {})
+
+
+_MASK64 = (1 << 64) - 1
+
+
+def seed_for(seed: int, index: int, stream: int = 0) -> int:
+    """A 63-bit seed for item ``index`` of a dataset seeded with ``seed`` (SplitMix64 finaliser, Steele et al.,
+    "Fast splittable pseudorandom number generators", OOPSLA 2014). Depends only on its arguments, so an item
+    is identical on any worker or rank."""
+    z = (int(seed) * 0x9E3779B97F4A7C15 + int(index) * 0xD1B54A32D192ED03 + int(stream) * 0x8CB92BA72F3D8DD7
+         + 0x632BE59BD9B4E019) & _MASK64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
+    return (z ^ (z >> 31)) & ((1 << 63) - 1)

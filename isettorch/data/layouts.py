@@ -1,0 +1,259 @@
+"""Spatial layouts for synthetic scenes.
+
+Every layout returns a *material map*: two palette indices per pixel and a blend weight,
+``(index_a [H, W] long, index_b [H, W] long, t [H, W] in [0, 1])``; the scene's reflectance at a pixel is
+``(1 - t) R[index_a] + t R[index_b]``, a convex combination, so it stays in [0, 1]. Geometry is drawn from
+one ``torch.Generator`` (CPU) and evaluated on the requested device.
+
+Statistics (documented, and what the defaults produce):
+
+* ``dead_leaves``: 60-200 occluding leaves (disks, rotated rectangles and ellipses) with radii from the
+  scale-invariant density p(r) ~ r^-3 on [1.5 px, 0.6 * size] (Lee, Mumford & Huang, "Occlusion models for
+  natural images", IJCV 41, 2001), uniform positions; 50 % of leaves are textured: a sinusoidal grating
+  (0.02-0.45 cycles/px, any orientation) or a linear gradient blending two palette colours.
+* ``gradients``: a smooth linear or radial ramp between two colours, plus a low-frequency
+  (<= 2 cycles per image) modulation.
+* ``edges``: 1-5 straight lines at uniform orientations in [0, pi), through uniform points; each cell of
+  the arrangement takes its own colour (sharp, 1-sample transitions).
+* ``lines``: 3-12 thin lines (0.5-3 px wide) and 2-6 text-like glyphs of 2-5 short strokes each
+  (stroke 0.7-2.5 px), anti-aliased by the distance to each segment.
+* ``textures``: 1-3 regions (split by straight edges) each holding a fine periodic pattern: sine or
+  square gratings and checkerboards at 0.15-0.95 cycles/px (beyond the 0.5 cycles/px Nyquist limit and
+  beyond a Bayer sensor's 0.25 cycles/px per-colour limit, to provoke aliasing), or a zone plate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+__all__ = ["LAYOUTS", "render_layout", "dead_leaves", "gradients", "edges", "lines", "textures"]
+
+
+def _u(g: torch.Generator, *shape, lo: float = 0.0, hi: float = 1.0) -> torch.Tensor:
+    return lo + (hi - lo) * torch.rand(shape, generator=g, dtype=torch.float64)
+
+
+def _ri(g: torch.Generator, lo: int, hi: int, *shape) -> torch.Tensor:
+    """Integers in [lo, hi] inclusive."""
+    return torch.randint(lo, hi + 1, shape if shape else (), generator=g)
+
+
+def _grid(h: int, w: int, device, dtype=torch.float32):
+    y = torch.arange(h, device=device, dtype=dtype)[:, None].expand(h, w)
+    x = torch.arange(w, device=device, dtype=dtype)[None, :].expand(h, w)
+    return y, x
+
+
+def _grating(phase_arg: torch.Tensor, kind: torch.Tensor) -> torch.Tensor:
+    """0.5 + 0.5 * wave, kind 0 = sine, 1 = square."""
+    s = torch.sin(phase_arg)
+    sq = (s >= 0).to(s.dtype)
+    return torch.where(kind == 1, sq, 0.5 + 0.5 * s)
+
+
+def _leaf_inside(dy, dx, r, aspect, cos_t, sin_t, shape):
+    """Whether offsets (dy, dx) from a leaf's centre fall inside it; shape 0 disk, 1 rotated rectangle,
+    2 rotated ellipse (all tensors broadcast)."""
+    pu, pv = (dx * cos_t + dy * sin_t) / r, (-dx * sin_t + dy * cos_t) / (r * aspect)
+    rect = torch.maximum(pu.abs(), pv.abs())
+    ell = pu * pu + pv * pv
+    disk = (dx * dx + dy * dy) / (r * r)
+    return torch.where(shape == 1, rect, torch.where(shape == 2, ell, disk)) <= 1
+
+
+def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype):
+    """Index (0-based, drawing order) of the topmost leaf at each pixel [H, W]; 0 where no leaf covers.
+
+    Leaves are evaluated only on a square patch around their centre (bucketed by radius), and the
+    painter's order is resolved with a scatter-max of the drawing order, so the cost scales with the
+    leaves' total area rather than (number of leaves x image size).
+    """
+    n = r.numel()
+    order = torch.arange(1, n + 1, device=device)
+    top = torch.zeros(h * w, dtype=torch.long, device=device)
+    reach = r * math.sqrt(2.0)  # a rotated square's half-diagonal bounds every shape
+    edges_px = [4, 8, 16, 32]
+    lo = 0.0
+    for half in edges_px + [None]:
+        sel = (reach > lo) & ((reach <= half) if half is not None else torch.ones_like(reach, dtype=torch.bool))
+        lo = half if half is not None else lo
+        idx = sel.nonzero().flatten()
+        if idx.numel() == 0:
+            continue
+        if half is None or 2 * half + 1 >= max(h, w):
+            oy = torch.arange(h, device=device, dtype=dtype)[None, :, None]
+            ox = torch.arange(w, device=device, dtype=dtype)[None, None, :]
+            py, px = oy.expand(1, h, w), ox.expand(1, h, w)
+        else:
+            off = torch.arange(-half - 1, half + 2, device=device, dtype=dtype)
+            base_y = torch.round(cy[idx]).to(device=device, dtype=dtype)
+            base_x = torch.round(cx[idx]).to(device=device, dtype=dtype)
+            py = base_y[:, None, None] + off[None, :, None]
+            px = base_x[:, None, None] + off[None, None, :]
+        def v(t, idx=idx):  # noqa: E306
+            return t[idx].to(device=device, dtype=dtype)[:, None, None]
+        inside = _leaf_inside(py - v(cy), px - v(cx), v(r), v(aspect), torch.cos(v(theta)), torch.sin(v(theta)),
+                              shape[idx].to(device)[:, None, None])
+        valid = inside & (py >= 0) & (py < h) & (px >= 0) & (px < w)
+        flat = (py.clamp(0, h - 1) * w + px.clamp(0, w - 1)).long().expand_as(valid)
+        vals = torch.where(valid, order[idx][:, None, None], torch.zeros((), dtype=torch.long, device=device))
+        top.scatter_reduce_(0, flat.reshape(-1), vals.reshape(-1), reduce="amax")
+    return (top.clamp_min(1) - 1).reshape(h, w)
+
+
+def dead_leaves(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.float32):
+    """Textured dead-leaves layout (see module notes)."""
+    n = int(_ri(g, 60, 200))
+    rmin, rmax = 1.5, 0.6 * max(h, w)
+    # Inverse CDF of p(r) ~ r^-3 on [rmin, rmax] (Lee, Mumford & Huang 2001).
+    u = _u(g, n)
+    r = (rmin**-2 - u * (rmin**-2 - rmax**-2)) ** -0.5
+    cy, cx = _u(g, n, lo=-0.1 * h, hi=1.1 * h), _u(g, n, lo=-0.1 * w, hi=1.1 * w)
+    shape = _ri(g, 0, 2, n)  # 0 disk, 1 rotated rectangle, 2 ellipse
+    theta = _u(g, n, hi=math.pi)
+    aspect = _u(g, n, lo=0.3, hi=1.0)
+    ca, cb = _ri(g, 0, k - 1, n), _ri(g, 0, k - 1, n)
+    tex = _ri(g, 0, 3, n)  # 0, 1 flat, 2 grating, 3 gradient
+    freq = _u(g, n, lo=0.02, hi=0.45)
+    tdir = _u(g, n, hi=math.pi)
+    phase = _u(g, n, hi=2 * math.pi)
+    sq = _ri(g, 0, 1, n)
+
+    def d(x):
+        return x.to(device=device, dtype=dtype)
+
+    top = _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype)
+    y, x = _grid(h, w, device, dtype)
+    ia, ib = ca.to(device)[top], cb.to(device)[top]
+    tx = tex.to(device)[top]
+    ang = d(tdir).to(device)[top]
+    proj = x * torch.cos(ang) + y * torch.sin(ang)
+    grat = _grating(2 * math.pi * d(freq)[top] * proj + d(phase)[top], sq.to(device)[top])
+    # Gradient across the leaf: position along the texture direction relative to the leaf's centre and size.
+    rel = ((x - d(cx)[top]) * torch.cos(ang) + (y - d(cy)[top]) * torch.sin(ang)) / (2 * d(r)[top]) + 0.5
+    t = torch.where(tx == 2, grat, torch.where(tx == 3, rel.clamp(0, 1), torch.zeros_like(grat)))
+    return ia, ib, t
+
+
+def gradients(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.float32):
+    """Smooth linear or radial ramps between two colours with a gentle modulation."""
+    y, x = _grid(h, w, device, dtype)
+    yn, xn = y / max(h - 1, 1), x / max(w - 1, 1)
+    radial = bool(_ri(g, 0, 1))
+    a = float(_u(g, 1, hi=2 * math.pi))
+    cy, cx = float(_u(g, 1)), float(_u(g, 1))
+    if radial:
+        base = torch.sqrt((yn - cy) ** 2 + (xn - cx) ** 2 + 1e-12) / math.sqrt(2)
+    else:
+        base = (xn - 0.5) * math.cos(a) + (yn - 0.5) * math.sin(a) + 0.5
+    f1, f2, p1 = float(_u(g, 1, lo=0.2, hi=2.0)), float(_u(g, 1, hi=math.pi)), float(_u(g, 1, hi=2 * math.pi))
+    mod = 0.15 * torch.sin(2 * math.pi * f1 * (xn * math.cos(f2) + yn * math.sin(f2)) + p1)
+    t = (base + mod)
+    t = (t - t.min()) / (t.max() - t.min()).clamp_min(1e-6)
+    ia = torch.full((h, w), int(_ri(g, 0, k - 1)), device=device)
+    ib = torch.full((h, w), int(_ri(g, 0, k - 1)), device=device)
+    return ia, ib, t
+
+
+def _cells(h, w, g, n_lines, device, dtype):
+    """Cell code of an arrangement of ``n_lines`` random lines (bit i = side of line i)."""
+    y, x = _grid(h, w, device, dtype)
+    code = torch.zeros(h, w, dtype=torch.long, device=device)
+    for i in range(n_lines):
+        a = float(_u(g, 1, hi=math.pi))
+        py, px = float(_u(g, 1, lo=0.15 * h, hi=0.85 * h)), float(_u(g, 1, lo=0.15 * w, hi=0.85 * w))
+        side = ((x - px) * math.sin(a) - (y - py) * math.cos(a)) > 0
+        code = code + (side.long() << i)
+    return code
+
+
+def edges(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.float32):
+    """Sharp straight edges at uniformly random orientations; each cell has its own colour."""
+    n_lines = int(_ri(g, 1, 5))
+    code = _cells(h, w, g, n_lines, device, dtype)
+    colours = _ri(g, 0, k - 1, 2**n_lines).to(device)
+    ia = colours[code]
+    return ia, ia, torch.zeros(h, w, device=device, dtype=dtype)
+
+
+def _segment_distance(y, x, y0, x0, y1, x1):
+    """Distance of each pixel to each segment: [N, H, W]."""
+    vy, vx = (y1 - y0)[:, None, None], (x1 - x0)[:, None, None]
+    wy, wx = y[None] - y0[:, None, None], x[None] - x0[:, None, None]
+    tt = ((wy * vy + wx * vx) / (vy * vy + vx * vx).clamp_min(1e-9)).clamp(0, 1)
+    return torch.sqrt((wy - tt * vy) ** 2 + (wx - tt * vx) ** 2 + 1e-12)
+
+
+def lines(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.float32):
+    """Thin lines across the image and text-like glyphs made of short strokes, anti-aliased."""
+    n_lines = int(_ri(g, 3, 12))
+    a = _u(g, n_lines, hi=math.pi)
+    py, px = _u(g, n_lines, hi=h), _u(g, n_lines, hi=w)
+    L = 2.0 * (h + w)
+    segs = [torch.stack([py - L * torch.sin(a), px - L * torch.cos(a), py + L * torch.sin(a),
+                         px + L * torch.cos(a)], 1)]
+    widths = [_u(g, n_lines, lo=0.5, hi=3.0)]
+    n_glyphs = int(_ri(g, 2, 6))
+    for _ in range(n_glyphs):
+        size = float(_u(g, 1, lo=6.0, hi=0.3 * min(h, w) + 6.0))
+        gy, gx = float(_u(g, 1, hi=h)), float(_u(g, 1, hi=w))
+        ns = int(_ri(g, 2, 5))
+        pts = torch.stack([gy + size * _u(g, ns + 1), gx + 0.7 * size * _u(g, ns + 1)], 1)
+        segs.append(torch.cat([pts[:-1], pts[1:]], 1))
+        widths.append(torch.full((ns,), float(_u(g, 1, lo=0.7, hi=2.5)), dtype=torch.float64))
+    seg = torch.cat(segs).to(device=device, dtype=dtype)
+    wid = torch.cat(widths).to(device=device, dtype=dtype)
+    y, x = _grid(h, w, device, dtype)
+    dist = _segment_distance(y, x, seg[:, 0], seg[:, 1], seg[:, 2], seg[:, 3])
+    # Coverage of a pixel by a stroke of width wid: linear ramp over one pixel (box-filtered edge).
+    cover = (wid[:, None, None] / 2 + 0.5 - dist).clamp(0, 1).amax(dim=0)
+    ia = torch.full((h, w), int(_ri(g, 0, k - 1)), device=device)
+    ib = torch.full((h, w), int(_ri(g, 0, k - 1)), device=device)
+    return ia, ib, cover
+
+
+def textures(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.float32):
+    """Fine periodic textures (gratings, checkerboards, zone plates) in 1-3 regions."""
+    n_split = int(_ri(g, 0, 1))
+    code = _cells(h, w, g, n_split, device, dtype) if n_split else torch.zeros(h, w, dtype=torch.long,
+                                                                               device=device)
+    y, x = _grid(h, w, device, dtype)
+    t = torch.zeros(h, w, device=device, dtype=dtype)
+    ia = torch.zeros(h, w, dtype=torch.long, device=device)
+    ib = torch.zeros(h, w, dtype=torch.long, device=device)
+    for region in range(2**n_split):
+        m = code == region
+        kind = int(_ri(g, 0, 3))
+        f = float(_u(g, 1, lo=0.15, hi=0.95))
+        a = float(_u(g, 1, hi=math.pi))
+        ph = float(_u(g, 1, hi=2 * math.pi))
+        if kind <= 1:  # sine / square grating
+            arg = 2 * math.pi * f * (x * math.cos(a) + y * math.sin(a)) + ph
+            pat = _grating(arg, torch.tensor(kind, device=device))
+        elif kind == 2:  # checkerboard (period 1/f px, rotated)
+            u_, v_ = x * math.cos(a) + y * math.sin(a), -x * math.sin(a) + y * math.cos(a)
+            pat = ((torch.floor(2 * f * u_) + torch.floor(2 * f * v_)) % 2).to(dtype)
+        else:  # zone plate: local frequency grows linearly to f_max at the corners
+            cy, cx = float(_u(g, 1, hi=h)), float(_u(g, 1, hi=w))
+            r2 = (x - cx) ** 2 + (y - cy) ** 2
+            kk = math.pi * f / max(h, w)
+            pat = 0.5 + 0.5 * torch.cos(kk * r2 + ph)
+        t = torch.where(m, pat, t)
+        ia = torch.where(m, int(_ri(g, 0, k - 1)), ia)
+        ib = torch.where(m, int(_ri(g, 0, k - 1)), ib)
+    return ia, ib, t
+
+
+LAYOUTS = {"dead_leaves": dead_leaves, "gradients": gradients, "edges": edges, "lines": lines,
+           "textures": textures}
+
+
+def render_layout(name: str, h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.float32):
+    """Dispatch to a layout by name; returns ``(index_a, index_b, t)`` (see module notes)."""
+    if name not in LAYOUTS:
+        raise ValueError(f"name: expected a layout in {sorted(LAYOUTS)}, got {name!r}")
+    if h < 2 or w < 2 or k < 1:
+        raise ValueError(f"layout size: expected h, w >= 2 and k >= 1, got h={h}, w={w}, k={k}")
+    return LAYOUTS[name](h, w, k, g, device=device, dtype=dtype)

@@ -1,0 +1,216 @@
+"""Random multispectral scenes: layouts x random reflectances x (mixed, HDR) illumination.
+
+Radiance at pixel x and wavelength l (photons/s/sr/m^2/nm)::
+
+    L(x, l) = k * gain(x) * R(x, l) * (a(x) E1(l) + b(x) E2(l))
+
+* ``R`` in [0, 1]: a convex blend of two palette reflectances (:mod:`.layouts`, :mod:`.spectra`).
+* ``E1, E2``: random illuminants, each scaled to a luminance of 1 cd/m^2 as the radiance of a perfect
+  white (ISETCam's illuminant convention). ``a = 1, b = 0`` for one light; a smooth transition
+  ``a = 1 - m, b = r m`` for two lights; a cast shadow ``a = 1 - s`` (soft-edged mask), ``b = q`` (skylight,
+  daylight at 7000-20000 K, luminance fraction ``q``) for shadows.
+* ``gain = 10^(D (f - 1/2))`` with ``f`` a smooth field spanning exactly [0, 1], so illumination spans
+  ``D`` decades (``hdr_decades``).
+* ``k``: sets the mean luminance to a log-uniform draw from ``mean_luminance_cd_m2``.
+
+Every draw comes from a ``torch.Generator`` seeded by ``seed_for(seed, index)``: an item depends only on
+``(seed, index)``, on any worker, rank or batch composition.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .. import spectral
+from ..scene import Scene
+from . import layouts as _layouts
+from . import spectra as _spectra
+from .config import SCENE_DEFAULTS, merge_config, seed_for
+
+__all__ = ["generate_scene", "SyntheticSceneDataset", "collate_scenes", "scene_wavelengths"]
+
+
+def scene_wavelengths(cfg: dict, dtype=torch.float32, device=None) -> torch.Tensor:
+    start, stop, step = cfg["wavelengths_nm"]
+    return spectral.default_wavelengths(start, stop, step, dtype=dtype, device=device)
+
+
+def _choice(weights: dict, g: torch.Generator) -> str:
+    names = sorted(weights)
+    p = torch.tensor([float(weights[n]) for n in names], dtype=torch.float64)
+    return names[int(torch.multinomial(p / p.sum(), 1, generator=g))]
+
+
+def _uniform(rng, g: torch.Generator, log: bool = False) -> float:
+    if isinstance(rng, (int, float)):
+        return float(rng)
+    lo, hi = float(rng[0]), float(rng[1])
+    u = float(torch.rand((), generator=g, dtype=torch.float64))
+    if log and lo > 0:
+        return math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo)))
+    return lo + u * (hi - lo)
+
+
+def _smooth_field(h: int, w: int, g: torch.Generator, device, dtype, max_cycles: float = 1.5) -> torch.Tensor:
+    """Sum of three random low-frequency sinusoids, rescaled to span exactly [0, 1]."""
+    y = torch.linspace(0, 1, h, device=device, dtype=dtype)[:, None]
+    x = torch.linspace(0, 1, w, device=device, dtype=dtype)[None, :]
+    f = torch.zeros(h, w, device=device, dtype=dtype)
+    for _ in range(3):
+        fr = _uniform([0.3, max_cycles], g)
+        a = _uniform([0, math.pi], g)
+        ph = _uniform([0, 2 * math.pi], g)
+        f = f + torch.sin(2 * math.pi * fr * (x * math.cos(a) + y * math.sin(a)) + ph)
+    lo, hi = f.min(), f.max()
+    return (f - lo) / (hi - lo).clamp_min(1e-6)
+
+
+def _white_photons(spd_energy: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Illuminant SPD (energy) -> photons, scaled so a perfect white has a luminance of 1 cd/m^2."""
+    p = spectral.energy_to_photons(spd_energy.to(torch.float64), w.to(torch.float64), dim=-1)
+    y = spectral.luminance(p, w.to(torch.float64), dim=-1)
+    return p / y
+
+
+def _luminance_weights(w: torch.Tensor) -> torch.Tensor:
+    """Row vector v [L] with luminance = v . photons: 683 V(l) h c / l dl (CIE 015:2018; photons -> watts)."""
+    ones = torch.eye(w.numel(), dtype=w.dtype, device=w.device)
+    return spectral.luminance(ones, w, dim=-1).reshape(-1)
+
+
+def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, device=None,
+                   dtype=torch.float32, hfov_deg: float | None = None, size: tuple[int, int] | None = None) -> Scene:
+    """Scene number ``index`` of the synthetic distribution ``config`` (see :data:`SCENE_DEFAULTS`).
+
+    Args:
+        index, seed: the item's identity; the result depends only on these and the config.
+        config: scene config (keys of ``SCENE_DEFAULTS``; missing keys take the defaults).
+        hfov_deg, size: overrides (used by the camera-pair dataset to match a sensor).
+    Returns:
+        a `Scene` of batch 1 with ``illuminant_photons`` (the main light) and ``metadata`` describing the draw.
+
+    Example:
+        >>> s = generate_scene(3, seed=0, config={"height": 32, "width": 32})
+        >>> tuple(s.photons.shape)
+        (1, 31, 32, 32)
+    """
+    full = config is not None and set(config) == set(SCENE_DEFAULTS)
+    cfg = config if full else merge_config(config, SCENE_DEFAULTS, "scene")
+    g = torch.Generator().manual_seed(seed_for(seed, index))
+    h, wd = size if size is not None else (cfg["height"], cfg["width"])
+    wl = scene_wavelengths(cfg, dtype=torch.float64)
+    k = int(cfg["palette_size"])
+
+    layout = _choice(cfg["layouts"], g)
+    palette = _spectra.random_reflectances(k, wl, g, model=cfg["reflectance_model"], pca_fraction=cfg["pca_fraction"])
+    ia, ib, t = _layouts.render_layout(layout, h, wd, k, g, device=device, dtype=dtype)
+    pal = palette.to(device=device, dtype=dtype).T.contiguous()  # [L, K]
+    ta = t.reshape(-1)
+    refl = pal.index_select(1, ia.reshape(-1)).mul_(1 - ta).add_(pal.index_select(1, ib.reshape(-1)).mul_(ta))
+    kind1 = _choice(cfg["illuminants"], g)
+    spd1, cct1, name1 = _spectra.random_illuminant(kind1, wl, g, cfg["cct_range_k"].get(kind1))
+    e1 = _white_photons(spd1, wl)
+    u_two, u_shadow = (float(torch.rand((), generator=g, dtype=torch.float64)) for _ in range(2))
+    two = u_two < cfg["two_light_probability"]
+    shadow = (not two) and u_shadow < cfg["shadow_probability"]
+    e2 = torch.zeros_like(e1)
+    cct2, name2, ratio = float("nan"), "", 0.0
+    a = torch.ones(h, wd, device=device, dtype=dtype)
+    b = torch.zeros(h, wd, device=device, dtype=dtype)
+    y, x = torch.meshgrid(torch.arange(h, device=device, dtype=dtype), torch.arange(wd, device=device, dtype=dtype),
+                          indexing="ij")
+    if two or shadow:
+        if two:
+            kind2 = _choice(cfg["illuminants"], g)
+            spd2, cct2, name2 = _spectra.random_illuminant(kind2, wl, g, cfg["cct_range_k"].get(kind2))
+            ratio = _uniform(cfg["second_light_ratio"], g, log=True)
+        else:
+            spd2, cct2, name2 = _spectra.random_illuminant("daylight", wl, g, (7000.0, 20000.0))
+            ratio = _uniform(cfg["shadow_ambient"], g, log=True)
+        e2 = _white_photons(spd2, wl)
+        ang = _uniform([0, 2 * math.pi], g)
+        py, px = _uniform([0.2 * h, 0.8 * h], g), _uniform([0.2 * wd, 0.8 * wd], g)
+        signed = (x - px) * math.cos(ang) + (y - py) * math.sin(ang)
+        if two:  # smooth transition between the lights over 10-60 % of the image
+            width = _uniform([0.1, 0.6], g) * max(h, wd)
+            m = torch.sigmoid(signed / (width / 4))
+            a, b = 1 - m, ratio * m
+        else:  # shadow: half-plane or disk, soft edge 0.3-3 px (penumbra)
+            soft = _uniform([0.3, 3.0], g)
+            if float(torch.rand((), generator=g)) < 0.5:
+                rad = _uniform([0.15, 0.45], g) * min(h, wd)
+                signed = rad - torch.sqrt((x - px) ** 2 + (y - py) ** 2 + 1e-12)
+            s = torch.sigmoid(signed / soft)
+            a, b = 1 - s, torch.full_like(s, ratio)
+    decades = _uniform(cfg["hdr_decades"], g)
+    gain = 10 ** (decades * (_smooth_field(h, wd, g, device, dtype) - 0.5)) if decades > 0 else \
+        torch.ones(h, wd, device=device, dtype=dtype)
+    e1d, e2d = e1.to(device=device, dtype=dtype), e2.to(device=device, dtype=dtype)
+    # refl becomes the unscaled radiance [L, H*W], in place
+    if two or shadow:
+        refl.mul_(e1d[:, None] * a.reshape(1, -1) + e2d[:, None] * b.reshape(1, -1))
+    else:
+        refl.mul_(e1d[:, None])
+    refl.mul_(gain.reshape(1, -1))
+
+    target = _uniform(cfg["mean_luminance_cd_m2"], g, log=True)
+    hfov = hfov_deg if hfov_deg is not None else _uniform(cfg["hfov_deg"], g)
+    distance = _uniform(cfg["distance_m"], g)
+    wl_t = wl.to(device=device, dtype=dtype)
+    mean_lum = (_luminance_weights(wl_t) @ refl).mean()
+    scale = target / mean_lum.clamp_min(torch.finfo(dtype).tiny)
+    photons = refl.mul_(scale).reshape(1, -1, h, wd)
+    meta = {"index": int(index), "seed": int(seed), "layout": layout, "illuminant": name1, "cct_k": cct1,
+            "illuminant2": name2, "cct2_k": cct2, "light2_ratio": ratio, "two_lights": two, "shadow": shadow,
+            "hdr_decades": decades, "mean_luminance_cd_m2": target}
+    return Scene(photons, wl_t, name=f"synthetic-{seed}-{index}", metadata=meta, hfov_deg=hfov,
+                 distance_m=distance, illuminant_photons=(e1d * scale)[None])
+
+
+class SyntheticSceneDataset(torch.utils.data.Dataset):
+    """A map-style dataset of ``length`` random scenes; item ``i`` depends only on ``(seed, i)``.
+
+    Args:
+        length: number of items.
+        seed: dataset seed.
+        config: scene config (see :data:`isettorch.data.config.SCENE_DEFAULTS`); validated.
+        dtype, device: where scenes are built (CPU is right inside DataLoader workers).
+
+    Example:
+        >>> ds = SyntheticSceneDataset(10, seed=1, config={"height": 16, "width": 16})
+        >>> loader = torch.utils.data.DataLoader(ds, batch_size=4, collate_fn=collate_scenes)
+        >>> next(iter(loader)).photons.shape
+        torch.Size([4, 31, 16, 16])
+    """
+
+    def __init__(self, length: int, seed: int = 0, config: dict | None = None, *, dtype=torch.float32,
+                 device=None):
+        if int(length) < 0:
+            raise ValueError(f"length: expected a non-negative number of items, got {length}")
+        self.length = int(length)
+        self.seed = int(seed)
+        self.config = merge_config(config, SCENE_DEFAULTS, "scene")
+        self.dtype = dtype
+        self.device = device
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __getitem__(self, index: int) -> Scene:
+        if not -self.length <= index < self.length:
+            raise IndexError(f"index: expected 0 <= index < {self.length}, got {index}")
+        index = index % self.length
+        return generate_scene(index, self.seed, self.config, device=self.device, dtype=self.dtype)
+
+
+def collate_scenes(scenes: list[Scene]) -> Scene:
+    """Batch scenes with `Scene.cat`; per-item metadata is kept as ``metadata["items"]`` (a list of dicts)
+    and the numeric fields also as [B] tensors (``metadata["cct_k"]`` ...)."""
+    batch = Scene.cat(scenes)
+    items = [s.metadata for s in scenes]
+    meta = {"items": items}
+    for key in ("index", "cct_k", "hdr_decades", "mean_luminance_cd_m2"):
+        meta[key] = torch.tensor([m[key] for m in items], dtype=torch.float64 if key != "index" else torch.long)
+    return batch.replace(metadata=meta, name="synthetic-batch")

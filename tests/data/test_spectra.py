@@ -1,0 +1,106 @@
+"""Random reflectances and illuminants, checked against colour-science."""
+
+import colour
+import numpy as np
+import pytest
+import torch
+
+from isettorch.data import spectra
+
+W5 = torch.arange(380.0, 781.0, 5.0, dtype=torch.float64)
+W10 = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+
+
+def _ohno_cct(spd: torch.Tensor, w: torch.Tensor) -> float:
+    xy = spectra.chromaticity_xy(spd[None], w)[0].numpy()
+    return float(colour.temperature.uv_to_CCT_Ohno2013(colour.xy_to_UCS_uv(xy))[0])
+
+
+@pytest.mark.parametrize("model", ["pca", "sigmoid", "mixed"])
+def test_reflectances_in_unit_interval_and_smooth(model):
+    g = torch.Generator().manual_seed(1)
+    r = spectra.random_reflectances(3000, W10, g, model=model)
+    assert r.shape == (3000, 31)
+    assert float(r.min()) >= 0.0 and float(r.max()) <= 1.0
+    # as smooth as measured reflectances: 99 % of spectra have no second difference (10 nm grid) beyond the
+    # largest one among the measured sets (colour-science's ColorCheckers, TCS, CQS; 0.131)
+    d2 = (r[:, 2:] - 2 * r[:, 1:-1] + r[:, :-2]).abs().amax(dim=1)
+    assert float(torch.quantile(d2, 0.99)) <= 0.131 and float(d2.max()) < 0.25
+    # and diverse: they span most of [0, 1]
+    assert float(r.min()) < 0.05 and float(r.max()) > 0.9
+
+
+def test_pca_basis_reconstructs_measured_colorchecker():
+    """Maloney (1986): a few (8) components describe measured reflectances; check on BabelColor patches."""
+    mean, basis, _ = spectra.reflectance_basis(W10, 8, dtype=torch.float64)
+    cc = colour.SDS_COLOURCHECKERS["BabelColor Average"]
+    rmse = []
+    for sd in cc.values():
+        r = torch.tensor(np.interp(W10.numpy(), sd.wavelengths, sd.values))
+        coef = torch.linalg.lstsq(basis.T, (r - mean)[:, None]).solution[:, 0]
+        rmse.append(float(((mean + coef @ basis - r) ** 2).mean().sqrt()))
+    assert max(rmse) < 0.02
+
+
+def test_sigmoid_polynomial_matches_colour_jakob2019():
+    c = torch.tensor([[3.0, -2.0, 0.5], [-8.0, 1.0, -1.0]], dtype=torch.float64)
+    ours = spectra.sigmoid_polynomial_reflectance(c, W5)
+    shape = colour.SpectralShape(380, 780, 5)
+    for i in range(2):
+        c0, c1, c2 = c[i].tolist()
+        # (c0 u^2 + c1 u + c2), u = (l - 550) / 150, expanded in l (colour uses l in nm)
+        a = c0 / 150**2
+        b = -2 * c0 * 550 / 150**2 + c1 / 150
+        cc = c0 * 550**2 / 150**2 - c1 * 550 / 150 + c2
+        ref = colour.recovery.sd_Jakob2019(np.array([a, b, cc]), shape).values
+        np.testing.assert_allclose(ours[i].numpy(), ref, rtol=0, atol=1e-9)
+
+
+def test_daylight_matches_colour_d_series():
+    for cct in (4000.0, 6504.0, 15000.0):
+        ours = spectra.daylight_spd(torch.tensor([cct]), W5)[0].numpy()
+        ref = colour.sd_CIE_illuminant_D_series(colour.temperature.CCT_to_xy_CIE_D(cct))
+        # colour rounds M1, M2 to 3 decimals (CIE 015); ours does not
+        np.testing.assert_allclose(ours, ref[W5.numpy()], rtol=2e-3, atol=1e-3)
+
+
+def test_fluorescent_is_cie_table():
+    ours = spectra.fluorescent_spd(torch.tensor([2, 11]), W10)
+    for row, name in zip(ours, ("FL2", "FL11")):
+        sd = colour.SDS_ILLUMINANTS[name]
+        np.testing.assert_allclose(row.numpy(), sd[W10.numpy()], rtol=1e-9)
+
+
+@pytest.mark.parametrize("kind,lo,hi,tol", [("daylight", 4000.0, 25000.0, 0.005), ("blackbody", 2000.0, 10000.0, 0.002),
+                                            ("led", 2700.0, 6500.0, 0.002)])
+def test_illuminant_cct_as_asked(kind, lo, hi, tol):
+    g = torch.Generator().manual_seed(7)
+    ccts = []
+    for _ in range(6):
+        spd, cct, _ = spectra.random_illuminant(kind, W5, g, (lo, hi))
+        assert lo <= cct <= hi
+        assert abs(_ohno_cct(spd, W5) / cct - 1) < tol
+        ccts.append(cct)
+    assert max(ccts) - min(ccts) > 0.1 * (hi - lo)  # not stuck
+
+
+def test_led_spectrum_shape():
+    spd = spectra.led_spd(torch.tensor([3000.0, 6000.0]), W5)
+    peak_nm = W5[spd.argmax(dim=1)]
+    assert float(spd.min()) >= 0
+    # the narrow blue pump peak is at 450 nm; warm LEDs put more of their power in the phosphor band
+    assert float(peak_nm[1]) == 450.0
+    long_fraction = spd[:, W5 > 500].sum(dim=1) / spd.sum(dim=1)
+    assert 0.7 < float(long_fraction[0]) and float(long_fraction[1]) < float(long_fraction[0])
+
+
+def test_bad_arguments():
+    g = torch.Generator().manual_seed(0)
+    with pytest.raises(ValueError, match="cct_k"):
+        spectra.daylight_spd(torch.tensor([3000.0]), W10)
+    with pytest.raises(ValueError, match="kind"):
+        spectra.random_illuminant("laser", W10, g)
+    with pytest.raises(ValueError, match="model"):
+        spectra.random_reflectances(2, W10, g, model="rgb")
+    with pytest.raises(ValueError, match="numbers"):
+        spectra.fluorescent_spd(torch.tensor([13]), W10)
