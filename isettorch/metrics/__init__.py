@@ -13,12 +13,15 @@ _LAZY = {
     "DeltaE": "difference", "color_accuracy": "difference", "ColorAccuracy": "difference",
     "macbeth_reference_xyz": "difference",
     "scielab": "spatial_cielab", "SCIELAB": "spatial_cielab", "scielab_filters": "spatial_cielab",
+    "scielab_filter": "spatial_cielab", "samples_per_degree": "spatial_cielab",
     # image fidelity
-    "psnr": "fidelity", "cpsnr": "fidelity", "ssim": "fidelity",
+    "psnr": "fidelity", "cpsnr": "fidelity", "ssim": "fidelity", "mse": "fidelity", "PSNR": "fidelity",
+    "SSIM": "fidelity",
     # sharpness
-    "esfr": "sfr", "SFRResult": "sfr", "find_edge_roi": "sfr",
+    "esfr": "sfr", "ESFR": "sfr", "SFRResult": "sfr", "find_edge_roi": "sfr",
     # noise
-    "snr_uniform": "snr", "snr_curve": "snr", "dynamic_range_db": "snr",
+    "snr_uniform": "snr", "snr_curve": "snr", "dynamic_range_db": "snr", "pixel_snr": "snr",
+    "dynamic_range_from_curve": "snr",
     "emva1288": "emva", "EMVA1288Result": "emva",
 }
 

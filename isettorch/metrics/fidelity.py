@@ -1,0 +1,115 @@
+"""Full-reference image fidelity: PSNR, CPSNR (the demosaicing convention) and SSIM.
+
+PSNR is computed here, per image, because ``kornia.metrics.psnr`` pools one MSE over the whole batch; SSIM is
+``kornia.metrics.ssim`` (Gaussian window 11, sigma 1.5, K1 = 0.01, K2 = 0.03) averaged over its valid region,
+which is scikit-image's ``structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False)``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .._checks import check_positive
+
+
+def _pair(image: torch.Tensor, target: torch.Tensor, crop: int) -> tuple[torch.Tensor, torch.Tensor]:
+    for name, t in (("image", image), ("target", target)):
+        if not isinstance(t, torch.Tensor):
+            raise TypeError(f"{name}: expected a torch.Tensor, got {type(t).__name__}")
+    if image.shape != target.shape:
+        raise ValueError(f"target: expected the shape of image {tuple(image.shape)}, got {tuple(target.shape)}")
+    if image.dim() not in (3, 4):
+        raise ValueError(f"image: expected (B, C, H, W) or (C, H, W), got shape {tuple(image.shape)}")
+    crop = int(crop)
+    if crop < 0 or 2 * crop >= min(image.shape[-2:]):
+        raise ValueError(f"crop: expected 0 <= crop < {min(image.shape[-2:]) // 2}, got {crop}")
+    if crop:
+        image, target = image[..., crop:-crop, crop:-crop], target[..., crop:-crop, crop:-crop]
+    if not image.is_floating_point():
+        image = image.to(torch.get_default_dtype())
+    return image, target.to(image.dtype)
+
+
+def mse(image: torch.Tensor, target: torch.Tensor, crop: int = 0) -> torch.Tensor:
+    """Mean squared error per image over (C, H, W): :math:`(B)` (or a scalar for (C, H, W))."""
+    a, b = _pair(image, target, crop)
+    return ((a - b) ** 2).mean(dim=(-3, -2, -1))
+
+
+def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, crop: int = 0) -> torch.Tensor:
+    """Peak signal-to-noise ratio per image, 10 log10(data_range^2 / MSE), the MSE over (C, H, W).
+
+    Args:
+        image: :math:`(B, C, H, W)` or :math:`(C, H, W)`.
+        target: same shape.
+        data_range: the peak value (1 for [0, 1] images, 255 for 8-bit).
+        crop: border pixels excluded on every side.
+
+    Returns:
+        :math:`(B)` in dB (``inf`` for identical images).
+
+    Example:
+        >>> psnr(torch.ones(1, 1, 4, 4), torch.full((1, 1, 4, 4), 0.9))  # doctest: +SKIP
+        tensor([20.])
+
+    Reference: e.g. Wang et al., IEEE TIP 13(4), 2004, eq. 1 context; scikit-image ``peak_signal_noise_ratio``.
+    """
+    r = float(check_positive(data_range, "data_range"))
+    return 10.0 * torch.log10(r**2 / mse(image, target, crop))
+
+
+def cpsnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, crop: int = 0) -> torch.Tensor:
+    """Colour PSNR of demosaicing benchmarks: one MSE over the three channels of each image (same as :func:`psnr`
+    on (B, 3, H, W), with a check for 3 channels). ``crop`` excludes a border (the benchmarks report 0 and 10)."""
+    if image.dim() < 3 or image.shape[-3] != 3:
+        raise ValueError(f"image: expected 3 colour channels in dim -3, got shape {tuple(image.shape)}")
+    return psnr(image, target, data_range, crop)
+
+
+def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, window_size: int = 11,
+         crop: int = 0, return_map: bool = False) -> torch.Tensor:
+    """Structural similarity (Wang et al. 2004) per image, via ``kornia.metrics.ssim`` with a Gaussian window
+    (sigma 1.5), averaged over channels and the valid (unpadded) region.
+
+    Returns:
+        :math:`(B)` mean SSIM, or the valid-region map :math:`(B, C, H', W')` with ``return_map``.
+
+    Reference: Z. Wang, A. C. Bovik, H. R. Sheikh, E. P. Simoncelli, "Image quality assessment: from error
+    visibility to structural similarity", IEEE TIP 13(4), 2004.
+    """
+    from kornia.metrics import ssim as kornia_ssim
+
+    a, b = _pair(image, target, crop)
+    squeeze = a.dim() == 3
+    if squeeze:
+        a, b = a.unsqueeze(0), b.unsqueeze(0)
+    if min(a.shape[-2:]) < window_size:
+        raise ValueError(f"image: expected at least {window_size}x{window_size} pixels after crop, got "
+                         f"{tuple(a.shape[-2:])}")
+    m = kornia_ssim(a, b, window_size, max_val=float(check_positive(data_range, "data_range")), padding="valid")
+    if return_map:
+        return m[0] if squeeze else m
+    out = m.mean(dim=(-3, -2, -1))
+    return out[0] if squeeze else out
+
+
+class PSNR(torch.nn.Module):
+    """Module form of :func:`psnr`."""
+
+    def __init__(self, data_range: float = 1.0, crop: int = 0) -> None:
+        super().__init__()
+        self.data_range, self.crop = data_range, crop
+
+    def forward(self, image: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        return psnr(image, target, self.data_range, self.crop)
+
+
+class SSIM(torch.nn.Module):
+    """Module form of :func:`ssim`."""
+
+    def __init__(self, data_range: float = 1.0, window_size: int = 11) -> None:
+        super().__init__()
+        self.data_range, self.window_size = data_range, window_size
+
+    def forward(self, image: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        return ssim(image, target, self.data_range, self.window_size)

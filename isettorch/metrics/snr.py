@@ -1,0 +1,111 @@
+"""Signal-to-noise ratio of uniform regions, pixel SNR versus signal, and dynamic range."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .._checks import as_tensor, check_finite, check_nonnegative
+
+
+def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, db: bool = False) -> torch.Tensor:
+    """SNR of a nominally uniform region: mean / standard deviation (ddof = 1) over its pixels.
+
+    Args:
+        image: :math:`(..., H, W)`, e.g. (B, C, H, W); every leading index is one region.
+        roi: (row0, row1, col0, col1), end-exclusive; the whole image when None.
+        db: return 20 log10(SNR).
+
+    Returns:
+        :math:`(...)`. The noise is the total (temporal + fixed-pattern) spatial noise of one frame; for the temporal
+        part alone use :func:`snr_curve` on a frame stack. (ISO 15739:2013 section 6 without its high-pass step.)
+    """
+    if not isinstance(image, torch.Tensor) or image.dim() < 2:
+        raise ValueError(f"image: expected a tensor (..., H, W), got "
+                         f"{tuple(image.shape) if isinstance(image, torch.Tensor) else type(image).__name__}")
+    if roi is not None:
+        r0, r1, c0, c1 = (int(v) for v in roi)
+        if not (0 <= r0 < r1 <= image.shape[-2] and 0 <= c0 < c1 <= image.shape[-1]) or (r1 - r0) * (c1 - c0) < 2:
+            raise ValueError(f"roi: expected (row0, row1, col0, col1) inside {tuple(image.shape[-2:])} with at least "
+                             f"2 pixels, got {roi}")
+        image = image[..., r0:r1, c0:c1]
+    x = image.flatten(-2)
+    if not x.is_floating_point():
+        x = x.to(torch.get_default_dtype())
+    snr = x.mean(-1) / x.std(-1)
+    return 20.0 * torch.log10(snr) if db else snr
+
+
+def snr_curve(frames: torch.Tensor, dark: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    """Pixel SNR against signal from frame stacks at several signal levels.
+
+    Args:
+        frames: :math:`(M, N, H, W)`: M signal levels, N >= 2 frames of a uniform field each.
+        dark: optional dark frames :math:`(N, H, W)` or :math:`(M, N, H, W)`; their mean is subtracted from
+            the signal.
+
+    Returns:
+        dict with ``signal`` [M] (mean minus dark mean), ``noise_temporal`` [M] (per-pixel std over frames, rms
+        over pixels), ``noise_total`` [M] (std over all pixels and frames), ``snr_temporal`` and ``snr_total`` [M].
+    """
+    if not isinstance(frames, torch.Tensor) or frames.dim() != 4 or frames.shape[1] < 2:
+        raise ValueError(f"frames: expected (M, N, H, W) with N >= 2, got "
+                         f"{tuple(frames.shape) if isinstance(frames, torch.Tensor) else type(frames).__name__}")
+    f = frames if frames.is_floating_point() else frames.to(torch.get_default_dtype())
+    check_finite(f.detach(), "frames")
+    mean = f.mean(dim=(1, 2, 3))
+    if dark is not None:
+        d = dark.to(f.dtype)
+        if d.dim() == 3:
+            mean_dark = d.mean()
+        elif d.dim() == 4 and d.shape[0] == f.shape[0]:
+            mean_dark = d.mean(dim=(1, 2, 3))
+        else:
+            raise ValueError(f"dark: expected (N, H, W) or (M, N, H, W) with M = {f.shape[0]}, got {tuple(d.shape)}")
+        signal = mean - mean_dark
+    else:
+        signal = mean
+    noise_t = f.var(dim=1).mean(dim=(1, 2)).sqrt()
+    noise_total = f.flatten(1).std(dim=1)
+    return dict(signal=signal, noise_temporal=noise_t, noise_total=noise_total, snr_temporal=signal / noise_t,
+                snr_total=signal / noise_total)
+
+
+def pixel_snr(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu=0.0, dark_current_e=0.0, db: bool = False):
+    """Model pixel SNR: S / sqrt(S + D + sigma_read^2 + sigma_dsnu^2 + (prnu S)^2), all in electrons
+    (shot noise of signal S and dark electrons D, read noise, DSNU, PRNU as a fraction; ISETCam pixelSNR and
+    sensorSNR, Farrell et al. 2004)."""
+    s = as_tensor(signal_e, "signal_e", dtype=torch.float64)
+    check_nonnegative(s, "signal_e")
+    var = (s + float(dark_current_e) + float(read_noise_e) ** 2 + float(dsnu_e) ** 2 + (float(prnu) * s) ** 2)
+    snr = s / torch.sqrt(var.clamp_min(torch.finfo(s.dtype).tiny))
+    return 20.0 * torch.log10(snr) if db else snr
+
+
+def dynamic_range_db(max_signal, noise_floor) -> torch.Tensor:
+    """Dynamic range 20 log10(max signal / noise floor) in dB, e.g. (full-well - dark) / read noise in electrons
+    (ISETCam pixelDR; EMVA 1288 uses mu_sat / mu_min, see :func:`~isettorch.metrics.emva1288`)."""
+    m = as_tensor(max_signal, "max_signal", dtype=torch.float64)
+    n = as_tensor(noise_floor, "noise_floor", dtype=torch.float64)
+    if (m <= 0).any() or (n <= 0).any():
+        raise ValueError(f"max_signal, noise_floor: expected positive values, got {m.tolist()} and {n.tolist()}")
+    return 20.0 * torch.log10(m / n)
+
+
+def dynamic_range_from_curve(signal: torch.Tensor, snr: torch.Tensor, max_signal=None) -> torch.Tensor:
+    """Dynamic range (dB) from a measured SNR curve: max signal over the signal at which SNR = 1 (linearly
+    interpolated in log-log). ``max_signal`` defaults to the largest signal of the curve."""
+    s, r = signal.detach().to(torch.float64), snr.detach().to(torch.float64)
+    order = torch.argsort(s)
+    s, r = s[order], r[order]
+    keep = (s > 0) & (r > 0)
+    s, r = s[keep], r[keep]
+    above = (r >= 1).nonzero()
+    if above.numel() == 0 or int(above[0]) == 0:
+        raise ValueError("snr: the curve must start below SNR = 1 and cross it to find the noise floor")
+    i = int(above[0])
+    ls0, ls1, lr0, lr1 = math.log(s[i - 1]), math.log(s[i]), math.log(r[i - 1]), math.log(r[i])
+    s_min = math.exp(ls0 + (0 - lr0) * (ls1 - ls0) / (lr1 - lr0))
+    top = float(s.max()) if max_signal is None else float(max_signal)
+    return dynamic_range_db(top, s_min)

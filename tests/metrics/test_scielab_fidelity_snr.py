@@ -1,0 +1,126 @@
+"""S-CIELAB properties, PSNR/SSIM against scikit-image, SNR helpers against direct statistics."""
+
+import math
+
+import colour
+import numpy as np
+import pytest
+import torch
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+from isettorch.metrics import (
+    cpsnr,
+    dynamic_range_db,
+    dynamic_range_from_curve,
+    pixel_snr,
+    psnr,
+    samples_per_degree,
+    scielab,
+    scielab_filter,
+    snr_curve,
+    snr_uniform,
+    ssim,
+)
+
+D65_XY = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+D65 = colour.xy_to_XYZ(D65_XY)
+
+
+def _random_xyz(shape, seed):
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(*shape, generator=g, dtype=torch.float64) * torch.tensor([0.9, 1.0, 1.0]).reshape(3, 1, 1)
+
+
+def test_scielab_self_is_zero():
+    x = _random_xyz((2, 3, 24, 24), 0)
+    de = scielab(x, x.clone(), torch.tensor(D65), samples_per_degree=20)
+    assert de.shape == (2, 24, 24)
+    assert float(de.abs().max()) == 0.0
+
+
+@pytest.mark.parametrize("method,ref", [("76", colour.difference.delta_E_CIE1976),
+                                        ("2000", colour.difference.delta_E_CIE2000)])
+@pytest.mark.parametrize("convention", ["isetcam", "paper"])
+def test_scielab_uniform_patches_equal_cielab(method, ref, convention):
+    xyz_a, xyz_b = np.array([0.30, 0.25, 0.20]), np.array([0.28, 0.27, 0.35])
+    a = torch.tensor(xyz_a).reshape(1, 3, 1, 1).expand(1, 3, 32, 32)
+    b = torch.tensor(xyz_b).reshape(1, 3, 1, 1).expand(1, 3, 32, 32)
+    de = scielab(a, b, torch.tensor(D65), samples_per_degree=40, method=method, convention=convention)
+    expect = ref(colour.XYZ_to_Lab(xyz_a, D65_XY), colour.XYZ_to_Lab(xyz_b, D65_XY))
+    np.testing.assert_allclose(de.numpy(), np.full((1, 32, 32), expect), atol=1e-6)
+
+
+def test_scielab_blurs_chroma_more_than_luminance():
+    # Two gratings of 8 cycles/degree with the same pointwise CIELAB error against their mean colour:
+    # the isoluminant red-green one must lose more of its error than the luminance one (Zhang and Wandell 1997).
+    spd = 64
+    x = torch.arange(64, dtype=torch.float64)
+    s = torch.sin(2 * math.pi * 8 * x / spd).reshape(1, 1, 1, 64).expand(1, 1, 64, 64)
+    base = torch.tensor([0.3, 0.3, 0.3], dtype=torch.float64).reshape(1, 3, 1, 1)
+    lum = base * (1 + 0.1 * s)
+    rg = base + 0.03 * s * torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64).reshape(1, 3, 1, 1)
+    mean = base.expand(1, 3, 64, 64)
+    d_lum = scielab(lum, mean, "D65", spd)[..., 16:48, 16:48].mean()
+    d_rg = scielab(rg, mean, "D65", spd)[..., 16:48, 16:48].mean()
+    from isettorch.metrics import delta_e, xyz_to_lab
+    p_lum = delta_e(xyz_to_lab(lum, "D65"), xyz_to_lab(mean, "D65"), "76").mean()
+    p_rg = delta_e(xyz_to_lab(rg, "D65"), xyz_to_lab(mean, "D65"), "76").mean()
+    assert d_rg / p_rg < 0.5 * d_lum / p_lum
+    # the filters preserve the mean colour
+    f = scielab_filter(rg, spd)
+    assert torch.allclose(f.mean(dim=(-2, -1)), rg.mean(dim=(-2, -1)), atol=1e-3)
+
+
+def test_scielab_gradients_and_samples_per_degree():
+    a = _random_xyz((1, 3, 16, 16), 1).requires_grad_()
+    b = _random_xyz((1, 3, 16, 16), 2)
+    de = scielab(a, b, "D65", samples_per_degree=10).mean()
+    (g,) = torch.autograd.grad(de, a)
+    assert torch.isfinite(g).all()
+    # 100 dpi at 0.5 m: 0.5 * tan(1 deg)-ish = 8.727 mm per degree -> 34.36 samples
+    assert samples_per_degree(0.5, 100) == pytest.approx(100 / 25.4 * 1000 * 0.5 * 2 * math.tan(math.radians(0.5)))
+    assert samples_per_degree(0.5, 100) == pytest.approx(34.36, abs=0.01)
+
+
+def test_psnr_ssim_against_skimage():
+    g = np.random.default_rng(0)
+    a = g.uniform(0, 1, (2, 3, 40, 36))
+    b = np.clip(a + g.normal(0, 0.08, a.shape), 0, 1)
+    ta, tb = torch.tensor(a), torch.tensor(b)
+    p = psnr(ta, tb)
+    s = ssim(ta, tb)
+    for i in range(2):
+        assert float(p[i]) == pytest.approx(peak_signal_noise_ratio(a[i], b[i], data_range=1.0), abs=1e-9)
+        ref = structural_similarity(a[i], b[i], data_range=1.0, channel_axis=0, gaussian_weights=True, sigma=1.5,
+                                    use_sample_covariance=False)
+        assert float(s[i]) == pytest.approx(ref, abs=1e-7)
+    # float32 and 8-bit range
+    s32 = ssim(ta.float() * 255, tb.float() * 255, data_range=255.0)
+    assert float(s32[0]) == pytest.approx(float(s[0]), abs=1e-5)
+    # CPSNR with a 10-pixel border crop equals skimage's PSNR on the cropped images
+    c = cpsnr(ta, tb, crop=10)
+    assert float(c[1]) == pytest.approx(peak_signal_noise_ratio(a[1, :, 10:-10, 10:-10], b[1, :, 10:-10, 10:-10],
+                                                                data_range=1.0), abs=1e-9)
+    with pytest.raises(ValueError, match="3 colour channels"):
+        cpsnr(ta[:, :2], tb[:, :2])
+
+
+def test_snr_helpers():
+    g = torch.Generator().manual_seed(3)
+    patch = 50 + 2.5 * torch.randn(4, 64, 64, generator=g, dtype=torch.float64)
+    s = snr_uniform(patch)
+    np.testing.assert_allclose(s.numpy(), [p.mean() / p.std(ddof=1) for p in patch.numpy()], rtol=1e-12)
+    assert float(snr_uniform(patch, roi=(0, 32, 0, 32), db=True)[0]) == pytest.approx(
+        20 * math.log10(float(patch[0, :32, :32].mean() / patch[0, :32, :32].std())), rel=1e-12)
+    # Poisson frames: temporal SNR = sqrt(mean) (shot-noise limit); with read noise it follows the pixel model
+    means = torch.tensor([2.0, 10.0, 100.0, 1000.0], dtype=torch.float64)
+    frames = torch.poisson(means.reshape(4, 1, 1, 1).expand(4, 8, 32, 32), generator=g)
+    read = 3.0 * torch.randn(4, 8, 32, 32, generator=g, dtype=torch.float64)
+    curve = snr_curve(frames + read)
+    np.testing.assert_allclose(curve["snr_temporal"].numpy(), pixel_snr(means, read_noise_e=3.0).numpy(), rtol=0.03)
+    # dynamic range: a 10000 e- well and 3 e- read noise
+    assert float(dynamic_range_db(10000.0, 3.0)) == pytest.approx(20 * math.log10(10000 / 3))
+    sig = torch.logspace(-1, 4, 200, dtype=torch.float64)
+    dr = dynamic_range_from_curve(sig, pixel_snr(sig, read_noise_e=3.0))
+    s_min = 0.5 + math.sqrt(0.25 + 9.0)  # SNR = 1: S^2 = S + 9
+    assert float(dr) == pytest.approx(20 * math.log10(1e4 / s_min), abs=0.01)
