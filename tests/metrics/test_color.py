@@ -177,6 +177,7 @@ def test_color_accuracy_report():
     np.testing.assert_allclose(acc.mean.numpy(), expect.mean(-1), atol=1e-6)
     np.testing.assert_allclose(acc.max.numpy(), expect.max(-1), atol=1e-6)
     assert "mean" in acc.report()
+    assert len(acc.plot().axes[0].patches) == 24
     same = color_accuracy(ref, ref, white="D50", method="76")
     assert same.max.item() == 0.0
     with pytest.raises(ValueError, match="method"):

@@ -89,3 +89,9 @@ def test_bad_input():
         emva1288(torch.zeros(5, 2, 8, 8), torch.zeros(3, 2, 8, 8))
     with pytest.raises(ValueError, match="photons_per_pixel"):
         emva1288(torch.rand(5, 2, 8, 8) + 1, torch.rand(2, 8, 8), photons_per_pixel=[1.0, 2.0])
+
+
+def test_plot(frames):
+    bright, dark, mu_p, _, _ = frames
+    fig = emva1288(bright[:, :2], dark[:, :2], photons_per_pixel=mu_p).plot()
+    assert len(fig.axes) == 3

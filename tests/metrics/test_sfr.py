@@ -101,3 +101,19 @@ def test_bad_input():
         esfr(straight, auto_roi=False)
     with pytest.raises(ValueError, match="roi"):
         esfr(straight, roi=(0, 50, 0, 10))
+
+
+def test_noisy_edge_and_plot(edges):
+    g = torch.Generator().manual_seed(0)
+    noisy = edges[4] + 0.005 * torch.randn(edges[4].shape, generator=g, dtype=torch.float64)
+    res = esfr(noisy, auto_roi=False)
+    assert float(res.mtf50) == pytest.approx(0.4353, rel=0.03)
+    fig = res.plot(pixel_pitch_m=PITCH_M)
+    assert len(fig.axes[0].lines) == 3  # the SFR and the two guide lines
+
+
+def test_too_few_rows_for_oversampling():
+    # 1 degree over 12 rows: the edge moves 0.2 px, so most 4x bins stay empty
+    img = slanted_edge(8, height=12, width=32, angle_deg=1.0)
+    with pytest.raises(ValueError, match="empty"):
+        esfr(img, auto_roi=False)
