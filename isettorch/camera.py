@@ -129,6 +129,7 @@ ISP_KEYS = {
     "demosaic": str, "demosaic_border": str, "demosaic_fallback": str, "illuminant_correction": str,
     "correction_space": str, "correction_white": str, "gains": list, "sensor_conversion": dict, "display": str,
     "encoding": (str, float, int), "scaling": str, "clip_negative_xyz": bool, "monochrome_divisor": str,
+    "scaling_percentile": (float, int),
 }
 SENSOR_CONVERSION_KEYS = {"method": str, "illuminant": str, "surfaces": str, "observer": str, "matrix": list,
                           "normalize": bool, "learnable": bool}

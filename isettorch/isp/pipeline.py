@@ -33,8 +33,9 @@ __all__ = ["ImageProcessor", "ISPResult", "DemosaicStage", "SCALINGS"]
 #: ``"adaptive"``: ISETCam ``displayRender`` for analog sensors: the image maximum becomes the ratio of the raw
 #: maximum to the white level (a dark capture stays dark). ``"exposure"``: no image-dependent scaling; the
 #: sensor -> XYZ matrix maps a white at the white level to Y = 1 (needs a normalised SensorToXYZ).
-#: ``"max"``: the image maximum becomes 1.
-SCALINGS = ("adaptive", "exposure", "max")
+#: ``"max"``: the image maximum becomes 1. ``"percentile"``: the ``scaling_percentile`` (default 99) of the
+#: linear display values becomes 1 (robust to noise and demosaic outliers).
+SCALINGS = ("adaptive", "exposure", "max", "percentile")
 
 
 @dataclasses.dataclass
@@ -149,6 +150,7 @@ class ImageProcessor(nn.Module):
         scaling: one of ``SCALINGS``.
         clip_negative_xyz: clip XYZ at 0 after the matrix (ISETCam ``imageSensorCorrection``).
         fit_wavelengths_nm: grid on which the colour matrix is fitted from the sensor's QE (400:10:700).
+        scaling_percentile: the percentile used by ``scaling="percentile"``.
         monochrome_divisor: ``"white_level"`` or ``"voltage_swing"`` (ISETCam: input / voltage swing).
 
     Example:
@@ -164,7 +166,7 @@ class ImageProcessor(nn.Module):
     def __init__(self, demosaic="bilinear", illuminant_correction="none", correction_space: str = "xyz",
                  correction_white="D65", gains=None, sensor_to_xyz=None, display="srgb", encoding="srgb",
                  scaling: str = "adaptive", clip_negative_xyz: bool = True, fit_wavelengths_nm=None,
-                 monochrome_divisor: str = "white_level") -> None:
+                 monochrome_divisor: str = "white_level", scaling_percentile: float = 99.0) -> None:
         super().__init__()
         self.demosaic = demosaic if isinstance(demosaic, nn.Module) else DemosaicStage(demosaic)
         if isinstance(illuminant_correction, nn.Module):
@@ -183,7 +185,10 @@ class ImageProcessor(nn.Module):
         if monochrome_divisor not in ("white_level", "voltage_swing"):
             raise ValueError(f"monochrome_divisor: expected 'white_level' or 'voltage_swing', got "
                              f"{monochrome_divisor!r}")
+        if not 0 < scaling_percentile <= 100:
+            raise ValueError(f"scaling_percentile: expected a value in (0, 100], got {scaling_percentile}")
         self.scaling = scaling
+        self.scaling_percentile = float(scaling_percentile)
         self.clip_negative_xyz = bool(clip_negative_xyz)
         self.monochrome_divisor = monochrome_divisor
         self.correction_white = correction_white
@@ -267,11 +272,14 @@ class ImageProcessor(nn.Module):
         ones = torch.ones(rgb.shape[0], dtype=rgb.dtype, device=rgb.device)
         if self.scaling == "exposure":
             return ones
-        peak = rgb.flatten(1).amax(1)
+        if self.scaling == "percentile":
+            peak = torch.quantile(rgb.detach().flatten(1), self.scaling_percentile / 100.0, dim=1)
+        else:
+            peak = rgb.flatten(1).amax(1)
         if (peak.detach() <= 0).any():
             raise ValueError("ImageProcessor: the rendered image is black (maximum <= 0); it cannot be scaled with "
                              f"scaling={self.scaling!r}; use scaling='exposure'")
-        if self.scaling == "max":
+        if self.scaling in ("max", "percentile"):
             return ones / peak
         # ISETCam displayRender ('analog'): img / max(img) * (max volts / voltage swing).
         ratio = sensor.flatten(1).amax(1) if input_max is None else input_max.to(rgb.dtype)
