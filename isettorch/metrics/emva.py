@@ -239,8 +239,8 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
     M = bright.shape[0]
     if M < 3:
         raise ValueError(f"bright: expected at least 3 exposure levels, got {M}")
-    b = bright.detach().to(torch.float64)
-    d = dark.detach().to(torch.float64)
+    b = bright.detach()
+    d = dark.detach()
     if d.dim() == 3:
         d = d.unsqueeze(0)
     if d.dim() != 4 or d.shape[1] < 2 or d.shape[-2:] != b.shape[-2:] or d.shape[0] not in (1, M):
@@ -248,9 +248,11 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
                          f"{tuple(b.shape[-2:])}, got {tuple(dark.shape)}")
     check_finite(b, "bright")
     check_finite(d, "dark")
-    mu_y, var_y = _temporal_stats(b)
-    mu_d, var_d = _temporal_stats(d)
-    mu_d, var_d = mu_d.expand(M), var_d.expand(M)
+    # level by level in float64, so a large stack is never copied whole
+    stats_b = [_temporal_stats(b[m].to(torch.float64)) for m in range(M)]
+    stats_d = [_temporal_stats(d[m].to(torch.float64)) for m in range(d.shape[0])]
+    mu_y, var_y = (torch.stack(t) for t in zip(*stats_b))
+    mu_d, var_d = (torch.stack(t).expand(M) for t in zip(*stats_d))
 
     mu_p = None
     if photons_per_pixel is not None:
@@ -295,8 +297,8 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
     si = int(spatial_index)
     if not 0 <= si < M:
         raise ValueError(f"spatial_index: expected 0..{M - 1}, got {spatial_index}")
-    s2_y, mean_b = _spatial_var(b[si])
-    s2_yd, mean_d = _spatial_var(d[si if d.shape[0] == M else 0])
+    s2_y, mean_b = _spatial_var(b[si].to(torch.float64))
+    s2_yd, mean_d = _spatial_var(d[si if d.shape[0] == M else 0].to(torch.float64))
     s2_y, s2_yd, mean_b, mean_d = (t.cpu() for t in (s2_y, s2_yd, mean_b, mean_d))
     dsnu_dn = torch.sqrt(s2_yd.clamp_min(0.0))
     prnu = 100.0 * torch.sqrt((s2_y - s2_yd).clamp_min(0.0)) / (mean_b - mean_d)
