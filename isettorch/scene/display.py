@@ -167,12 +167,29 @@ class Display(nn.Module):
                    name=key, **kwargs)
 
     # --- colorimetry -----------------------------------------------------------------------
-    def primaries_on(self, wavelengths_nm=None, *, dtype=None, device=None) -> torch.Tensor:
-        """Primaries [3, L'] (W/sr/m^2/nm) resampled linearly to a grid (0 outside the display's range)."""
+    def primaries_on(self, wavelengths_nm=None, *, sampling: str = "average", dtype=None, device=None
+                     ) -> torch.Tensor:
+        """Primaries [3, L'] (W/sr/m^2/nm) on another wavelength grid (0 outside the display's range).
+
+        ``sampling="average"`` (default): each sample is the mean of the (piecewise-linear) primary over the
+        sample's band (its integration weight, :func:`isettorch.spectral.wavelength_weights`), so the power in
+        every band is kept; ``"point"``: linear interpolation at the sample (ISETCam ``interp1``), which misses
+        narrow emission lines on coarse grids (CRT white on 400:10:700: luminance -1.9 % with point sampling,
+        -0.06 % averaged). On the display's own grid the primaries are returned as they are.
+        """
         spd = self.primaries_spd
         if wavelengths_nm is not None:
             w = check_wavelengths(as_tensor(wavelengths_nm, "wavelengths_nm"), "wavelengths_nm")
-            spd = spectral.resample(spd, self.wavelengths_nm, w.to(spd.device, torch.float64))
+            w = w.to(spd.device, torch.float64)
+            src = self.wavelengths_nm.to(torch.float64)
+            if not (w.numel() == src.numel() and torch.allclose(w, src, rtol=0, atol=1e-9)):
+                if sampling == "point":
+                    spd = spectral.resample(spd, src, w)
+                elif sampling == "average":
+                    half = 0.5 * spectral.wavelength_weights(w)
+                    spd = _band_average(spd, src, w - half, w + half)
+                else:
+                    raise ValueError(f"sampling: expected 'average' or 'point', got {sampling!r}")
         return spd.to(dtype=dtype or spd.dtype, device=device or spd.device)
 
     def xyz_matrix(self, wavelengths_nm=None, observer: str = "1931") -> torch.Tensor:
@@ -253,6 +270,22 @@ class Display(nn.Module):
         eotf = self.eotf_kind if self.gamma is None else f"gamma {self.gamma:g}"
         return (f"name={self.name!r}, eotf={eotf}, dpi={self.dpi:g}, viewing_distance_m={self.viewing_distance_m:g}, "
                 f"max_luminance_cd_m2={self.max_luminance_cd_m2:.4g}")
+
+
+def _band_average(values: torch.Tensor, src: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
+    """Mean of piecewise-linear spectra ``values`` [K, N] (knots ``src``, 0 outside) over bands [lo, hi] [L]."""
+    seg = src[1:] - src[:-1]
+    slope = (values[:, 1:] - values[:, :-1]) / seg
+    cum = torch.cat([torch.zeros_like(values[:, :1]),
+                     torch.cumsum(0.5 * (values[:, 1:] + values[:, :-1]) * seg, dim=1)], dim=1)  # exact: linear
+
+    def primitive(x):  # integral from src[0] to x, clamped to the data's range (0 outside)
+        x = x.clamp(src[0], src[-1])
+        k = (torch.searchsorted(src, x, right=True) - 1).clamp(0, src.numel() - 2)
+        dx = x - src[k]
+        return cum[:, k] + values[:, k] * dx + 0.5 * slope[:, k] * dx**2
+
+    return (primitive(hi) - primitive(lo)) / (hi - lo)
 
 
 def _check_rgb(rgb, name: str, encoded: bool = False) -> None:
