@@ -234,14 +234,14 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
     vl = case.get("vlambda")
 
     # Optics stage
-    fn = _optics_function()
     our_oi = None
     scene_keys = ("scene_photons", "scene_hfov_deg", "scene_distance_m", "optics_f_number", "optics_focal_length_m")
     missing = [key for key in scene_keys if key not in case]
-    if fn is None:
-        stages["oi_photons"] = {"skipped": "isettorch.optics.isetcam.compute_oi is not available", "ok": None}
-    elif missing:
+    fn = None if missing else _optics_function()
+    if missing:
         stages["oi_photons"] = {"skipped": f"case lacks {', '.join(missing)}", "ok": None}
+    elif fn is None:
+        stages["oi_photons"] = {"skipped": "isettorch.optics.isetcam.compute_oi is not available", "ok": None}
     else:
         our_oi = compute_our_oi(case, fn)
         stages["oi_photons"] = _rel_stats(our_oi.photons[0].numpy(), case["oi_photons"], TOL["oi_photons"])

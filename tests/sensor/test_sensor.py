@@ -10,6 +10,12 @@ from isettorch.sensor import CFA, PRESETS, RawImage, Sensor, SpectralQE, metrics
 W3 = torch.tensor([450.0, 550.0, 650.0], dtype=torch.float64)
 
 
+def assert_close(actual, expected, rtol=1.3e-6, atol=1e-5):
+    """torch.allclose with the error in the message (torch.testing's first call costs seconds of imports)."""
+    assert actual.shape == expected.shape, (actual.shape, expected.shape)
+    assert torch.allclose(actual, expected, rtol=rtol, atol=atol), (actual - expected).abs().max().item()
+
+
 def flat_qe(cfa, value=0.5, w=W3):
     return SpectralQE(torch.full((cfa.num_channels, w.numel()), value, dtype=torch.float64), w, cfa.channel_names)
 
@@ -32,10 +38,10 @@ def test_uniform_signal_chain_analytic(sampling):
     raw = s(uniform_oi(), noise=False)
     # electrons = E * QE * dlambda * L * pitch^2 * ff * t (ISETCam SignalCurrentDensity x area x t / q)
     expected = 1e15 * 0.5 * 100 * 3 * (2e-6) ** 2 * 0.5 * 0.01
-    torch.testing.assert_close(raw.data, torch.full_like(raw.data, expected), rtol=1e-12, atol=0)
+    assert_close(raw.data, torch.full_like(raw.data, expected), rtol=1e-12, atol=0)
     assert raw.units == "electrons" and raw.white_level == pytest.approx(1e4)
     volts = simple_sensor(sampling=sampling)(uniform_oi(), noise=False)
-    torch.testing.assert_close(volts.data, torch.full_like(volts.data, expected * 1e-4), rtol=1e-12, atol=0)
+    assert_close(volts.data, torch.full_like(volts.data, expected * 1e-4), rtol=1e-12, atol=0)
 
 
 def test_gain_conventions_clipping_and_adc():
@@ -74,8 +80,8 @@ def test_batched_exposure_and_gain_equal_one_at_a_time():
         batched = s(oi, exposure_s=t, analog_gain=g)
         for i in range(3):
             one = s(oi[i], exposure_s=t[i], analog_gain=g[i])
-            torch.testing.assert_close(batched.data[i:i + 1], one.data, rtol=0, atol=0)
-            torch.testing.assert_close(batched.noise_free[i:i + 1], one.noise_free, rtol=1e-15, atol=0)
+            assert_close(batched.data[i:i + 1], one.data, rtol=0, atol=0)
+            assert_close(batched.noise_free[i:i + 1], one.noise_free, rtol=1e-15, atol=0)
         assert torch.equal(batched.exposure_s, t)
 
 
@@ -194,12 +200,12 @@ def test_auto_exposure_methods():
         raw = s(oi, noise=False)
         v = raw.noise_free.flatten(1)
         stat = {"luminance": v.amax(1), "mean": v.mean(1), "percentile": torch.quantile(v, 0.99, dim=1)}[method]
-        torch.testing.assert_close(stat, torch.full_like(stat, target), rtol=1e-9, atol=0)
+        assert_close(stat, torch.full_like(stat, target), rtol=1e-9, atol=0)
         assert raw.exposure_s.shape == (2,)
     # ISETCam measures after the (dividing) gain: gain 2 doubles the exposure
     t1 = simple_sensor(auto_exposure="luminance").exposure_for(oi)
     t2 = simple_sensor(auto_exposure="luminance", analog_gain=2.0, gain_convention="isetcam").exposure_for(oi)
-    torch.testing.assert_close(t2, 2 * t1)
+    assert_close(t2, 2 * t1)
 
 
 def test_presets_and_metrics():
