@@ -127,7 +127,8 @@ CONFIG_SECTIONS = ("name", "description", "optics", "sensor", "isp", "camera")
 OPTICS_TYPES = ("diffraction_limited",)
 ISP_KEYS = {
     "demosaic": str, "demosaic_border": str, "demosaic_fallback": str, "illuminant_correction": str,
-    "correction_space": str, "correction_white": str, "gains": list, "sensor_conversion": dict, "display": str,
+    "correction_space": str, "correction_white": str, "gains": list, "sensor_conversion": dict,
+    "display": (str, list),
     "encoding": (str, float, int), "scaling": str, "clip_negative_xyz": bool, "monochrome_divisor": str,
     "scaling_percentile": (float, int),
 }
@@ -226,6 +227,10 @@ def _build_isp(cfg: dict) -> ImageProcessor:
     matrix = conv.pop("matrix", None)
     s2x = SensorToXYZ(matrix=torch.tensor(matrix, dtype=torch.get_default_dtype()) if matrix is not None else None,
                       **conv)
+    if isinstance(cfg.get("display"), list):  # a display given by its RGB -> XYZ matrix (columns: primaries)
+        cfg["display"] = torch.tensor(cfg["display"], dtype=torch.float64)
+        if cfg["display"].shape != (3, 3):
+            raise ValueError(f"config: isp.display as a matrix must be 3 x 3, got {list(cfg['display'].shape)}")
     return ImageProcessor(demosaic=demosaic, sensor_to_xyz=s2x, **cfg)
 
 

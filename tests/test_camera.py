@@ -58,6 +58,7 @@ def test_intermediates_resume_and_batch():
     assert out.image.shape == (1, 3, 50, 74) and out.demosaiced.shape == (1, 3, 50, 74)
     torch.testing.assert_close(cam.from_raw(out.raw), out.image)
     torch.testing.assert_close(cam.from_optical_image(out.optical_image), out.image)
+    torch.testing.assert_close(cam.from_demosaiced(out.demosaiced), out.image)
     # A user edit of the optical image (half the light, fixed exposure) halves the linear output.
     t = out.raw.exposure_s
     half = out.optical_image.replace(photons=out.optical_image.photons * 0.5)

@@ -502,6 +502,17 @@ class SensorToXYZ(nn.Module):
         self._fit_key = "fixed"
         return self
 
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # A fitted matrix in a checkpoint fills an unfitted module (its buffers start as None).
+        for name in ("matrix", "sensor_white"):
+            key = prefix + name
+            if key in state_dict and getattr(self, name) is None:
+                if name == "matrix":
+                    self.set_matrix(state_dict[key])
+                else:
+                    self.sensor_white = state_dict[key].clone()
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     def fit(self, qe: torch.Tensor, wavelengths_nm) -> SensorToXYZ:
         """Fit the matrix to a sensor's QE (C, L) on ``wavelengths_nm`` (cached per QE and grid)."""
         w = check_wavelengths(torch.as_tensor(wavelengths_nm))
@@ -549,8 +560,9 @@ class XYZToDisplay(nn.Module):
     display's white.
 
     Args:
-        display: ``"srgb"`` (IEC 61966-2-1 matrix, D65 white), a display object with primaries' SPDs
-            (``isettorch.scene.display.Display``), or a (3, 3) RGB -> XYZ matrix (columns = primaries' XYZ).
+        display: ``"srgb"`` (IEC 61966-2-1 matrix, D65 white), a preset name of
+            :meth:`isettorch.scene.display.Display.create` (``"lcd"``, ``"crt"``, ``"apple"``), a display object
+            with primaries' SPDs, or a (3, 3) RGB -> XYZ matrix (columns = primaries' XYZ).
 
     Buffers: ``matrix`` (XYZ -> RGB), ``rgb_to_xyz``, ``white_point_xyz`` (3,), and the attribute
     ``max_luminance_cd_m2`` (Y of the display white, None for sRGB, which is relative).
@@ -560,9 +572,15 @@ class XYZToDisplay(nn.Module):
 
     def __init__(self, display="srgb", observer: str = "1931") -> None:
         super().__init__()
+        self.display = None  # the display object, when one was given (for its transfer function)
+        if isinstance(display, str) and display.lower() not in ("srgb", "rec709", "bt709"):
+            from ..scene.display import Display, display_names
+
+            if display.lower() not in display_names():
+                raise ValueError(f"display: expected 'srgb', one of {display_names()}, a Display or a (3, 3) "
+                                 f"matrix, got {display!r}")
+            display = Display.create(display.lower())
         if isinstance(display, str):
-            if display.lower() not in ("srgb", "rec709", "bt709"):
-                raise ValueError(f"display: expected 'srgb', a Display or a (3, 3) matrix, got {display!r}")
             inv = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64)
             rgb_to_xyz = torch.linalg.inv(inv)
             max_lum = None
@@ -573,6 +591,7 @@ class XYZToDisplay(nn.Module):
             else:
                 spd, w = _display_primaries(display)
                 rgb_to_xyz = display_rgb_to_xyz_matrix(spd, w, observer)
+                object.__setattr__(self, "display", display)  # not a submodule: only its EOTF is used
             max_lum = float(rgb_to_xyz[1].sum())
             inv = xyz_to_display_matrix(rgb_to_xyz, relative=True)
             self.name = getattr(display, "name", "display")
@@ -590,18 +609,23 @@ class XYZToDisplay(nn.Module):
 
 
 class DisplayEncode(nn.Module):
-    """Encode linear display RGB for storage: ``"srgb"`` (IEC 61966-2-1), ``"linear"`` or a gamma (float).
-    Values are clipped to [0, 1] first (``clip=True``)."""
+    """Encode linear display RGB for storage: ``"srgb"`` (IEC 61966-2-1), ``"linear"``, a gamma (float) or a
+    display object (its ``inverse_eotf``). Values are clipped to [0, 1] first (``clip=True``)."""
 
     def __init__(self, encoding="srgb", clip: bool = True) -> None:
         super().__init__()
-        if not (encoding in ("srgb", "linear") or (isinstance(encoding, (int, float)) and encoding > 0)):
-            raise ValueError(f"encoding: expected 'srgb', 'linear' or a positive gamma, got {encoding!r}")
+        if hasattr(encoding, "inverse_eotf"):  # a display: encode with its own transfer function
+            object.__setattr__(self, "display", encoding)
+            encoding = "display"
+        elif not (encoding in ("srgb", "linear") or (isinstance(encoding, (int, float)) and encoding > 0)):
+            raise ValueError(f"encoding: expected 'srgb', 'linear', a positive gamma or a display, got {encoding!r}")
         self.encoding = encoding
         self.clip = bool(clip)
 
     def forward(self, linear: torch.Tensor) -> torch.Tensor:
         x = linear.clamp(0, 1) if self.clip else linear
+        if self.encoding == "display":
+            return self.display.inverse_eotf(x.clamp_min(0))
         if self.encoding == "srgb":
             return _srgb_encode(x.clamp_min(0))
         if self.encoding == "linear":

@@ -145,8 +145,9 @@ class ImageProcessor(nn.Module):
         gains: manual gains for ``"manual"``.
         sensor_to_xyz: a :class:`SensorToXYZ` (default: MCC optimised under D65, ISETCam's default) or a
             (3, C) matrix.
-        display: ``"srgb"``, a display object with primaries' SPDs, or an :class:`XYZToDisplay`.
-        encoding: ``"srgb"``, ``"linear"`` or a gamma.
+        display: ``"srgb"``, a display preset name (``"lcd"``, ``"crt"``, ``"apple"``), a display object with
+            primaries' SPDs, a (3, 3) RGB -> XYZ matrix, or an :class:`XYZToDisplay`.
+        encoding: ``"srgb"``, ``"linear"``, a gamma, or ``"display"`` (the display's own transfer function).
         scaling: one of ``SCALINGS``.
         clip_negative_xyz: clip XYZ at 0 after the matrix (ISETCam ``imageSensorCorrection``).
         fit_wavelengths_nm: grid on which the colour matrix is fitted from the sensor's QE (400:10:700).
@@ -179,6 +180,8 @@ class ImageProcessor(nn.Module):
             sensor_to_xyz = SensorToXYZ(matrix=sensor_to_xyz)
         self.sensor_to_xyz = sensor_to_xyz
         self.xyz_to_display = display if isinstance(display, nn.Module) else XYZToDisplay(display)
+        if isinstance(encoding, str) and encoding == "display":  # the display's own transfer function
+            encoding = DisplayEncode(getattr(self.xyz_to_display, "display", None) or "srgb")
         self.encode = encoding if isinstance(encoding, nn.Module) else DisplayEncode(encoding)
         if scaling not in SCALINGS:
             raise ValueError(f"scaling: expected one of {list(SCALINGS)}, got {scaling!r}")
