@@ -15,22 +15,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from isettorch.isp import demosaic_bilinear, evaluate_demosaic
+from isettorch.isp import evaluate_demosaic
 from isettorch.isp.evaluation import load_images
 
 DATA = Path(os.environ.get("ISETTORCH_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data"))
 SETS = {"kodak24": "Kodak", "mcmaster18": "McM"}
 
 
-def bilinear_colour_border(raw, pattern):
-    return demosaic_bilinear(raw, pattern, normalize_border=False)
-
-
 def reference_scores(images, name, crops):
     """colour-demosaicing 0.2 on the same noise-free mosaics, scored the same way (numpy)."""
     import colour_demosaicing as cd
 
-    fn = {"bilinear": cd.demosaicing_CFA_Bayer_bilinear, "malvar2004": cd.demosaicing_CFA_Bayer_Malvar2004,
+    fn = {"bilinear_colour": cd.demosaicing_CFA_Bayer_bilinear, "malvar2004": cd.demosaicing_CFA_Bayer_Malvar2004,
           "menon2007": cd.demosaicing_CFA_Bayer_Menon2007}[name]
     scores = {c: [] for c in crops}
     ms = []
@@ -50,21 +46,21 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--no-reference", action="store_true")
-    ap.add_argument("--methods", default="nearest,bilinear,bilinear_colour_border,malvar2004,menon2007")
+    ap.add_argument("--methods", default="nearest,bilinear,bilinear_colour,malvar2004,menon2007")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     rows = []
     for folder, label in SETS.items():
         images = load_images(DATA / folder)
         for m in args.methods.split(","):
-            method = bilinear_colour_border if m == "bilinear_colour_border" else m
+            method = m
             row = {"set": label, "method": m}
             for crop in (0, 10):
                 r = evaluate_demosaic(images, method, "RGGB", crop)
                 row[f"crop{crop}"] = r["mean_cpsnr"]
             row["ms_float64"] = r["ms_per_image"]
             row["ms_float32"] = evaluate_demosaic(images[:6], method, "RGGB", 0, dtype=torch.float32)["ms_per_image"]
-            if not args.no_reference and m in ("bilinear", "malvar2004", "menon2007"):
+            if not args.no_reference and m in ("bilinear_colour", "malvar2004", "menon2007"):
                 ref, ms = reference_scores(images, m, (0, 10))
                 row.update({"ref_crop0": ref[0], "ref_crop10": ref[10], "ref_ms": ms})
             rows.append(row)

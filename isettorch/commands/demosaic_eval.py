@@ -12,7 +12,8 @@ def register(sub) -> None:
     p = sub.add_parser("demosaic-eval", help="score a demosaic method (CPSNR, ms/image) on a folder of 8-bit images")
     p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif images")
     p.add_argument("--method", default="bilinear",
-                   help="nearest, bilinear, malvar2004, menon2007 or a registered method such as learned")
+                   help="nearest, bilinear, bilinear_colour (colour-demosaicing border), malvar2004, menon2007, or a "
+                        "registered method such as learned")
     p.add_argument("--pattern", default="RGGB", help="Bayer pattern of the simulated mosaic (default RGGB)")
     p.add_argument("--crop", type=int, default=0, help="border excluded from the score, pixels (default 0)")
     p.add_argument("--dtype", choices=("float32", "float64"), default="float64", help="compute dtype")

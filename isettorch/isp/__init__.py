@@ -6,6 +6,7 @@ from .demosaic import (
     bayer_index_map,
     demosaic,
     demosaic_bilinear,
+    demosaic_bilinear_colour,
     demosaic_generic,
     demosaic_malvar2004,
     demosaic_menon2007,
@@ -19,7 +20,8 @@ from .evaluation import cpsnr, evaluate_demosaic
 
 __all__ = [
     # demosaic
-    "METHODS", "Demosaic", "bayer_index_map", "demosaic", "demosaic_bilinear", "demosaic_generic",
+    "METHODS", "Demosaic", "bayer_index_map", "demosaic", "demosaic_bilinear", "demosaic_bilinear_colour",
+    "demosaic_generic",
     "demosaic_malvar2004", "demosaic_menon2007", "demosaic_nearest", "demosaic_nearest_cfa", "get_method",
     "mosaic", "register_method",
     # evaluation

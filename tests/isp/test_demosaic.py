@@ -31,7 +31,7 @@ demosaic_pkg = importlib.import_module("isettorch.isp.demosaic")
 PATTERNS = ["RGGB", "BGGR", "GRBG", "GBRG"]
 BUILTIN = ["nearest", "bilinear", "malvar2004", "menon2007"]
 REFERENCE = {
-    "bilinear": (lambda raw, p: demosaic_bilinear(raw, p, normalize_border=False), cd.demosaicing_CFA_Bayer_bilinear),
+    "bilinear_colour": (METHODS["bilinear_colour"], cd.demosaicing_CFA_Bayer_bilinear),
     "malvar2004": (demosaic_malvar2004, cd.demosaicing_CFA_Bayer_Malvar2004),
     "menon2007": (demosaic_menon2007, cd.demosaicing_CFA_Bayer_Menon2007),
 }

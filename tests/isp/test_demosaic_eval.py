@@ -14,16 +14,12 @@ import torch
 from PIL import Image
 
 from isettorch.cli import main
-from isettorch.isp import cpsnr, demosaic, demosaic_bilinear, evaluate_demosaic
+from isettorch.isp import cpsnr, demosaic, evaluate_demosaic
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = Path(os.environ.get("ISETTORCH_DATA", REPO / ".." / "shared" / "data"))
 REFERENCE = {"bilinear_colour": cd.demosaicing_CFA_Bayer_bilinear, "malvar2004": cd.demosaicing_CFA_Bayer_Malvar2004,
              "menon2007": cd.demosaicing_CFA_Bayer_Menon2007}
-
-
-def _bilinear_colour(raw, pattern):
-    return demosaic_bilinear(raw, pattern, normalize_border=False)
 
 
 def _numpy_cpsnr(image_u8, method, pattern="RGGB", crop=0):
@@ -115,14 +111,13 @@ def _benchmark_crops():
 
 @pytest.mark.parametrize("method", sorted(REFERENCE))
 def test_benchmark_crops_agree_with_colour_demosaicing(method):
-    fn = _bilinear_colour if method == "bilinear_colour" else method
     for name, a in _benchmark_crops():
         truth = torch.from_numpy(a.astype(np.float64) / 255).permute(2, 0, 1)[None]
         for crop in (0, 10):
             ref_score, ref_out = _numpy_cpsnr(a, method, crop=crop)
-            ours = evaluate_demosaic([(name, a)], fn, "RGGB", crop)["mean_cpsnr"]
+            ours = evaluate_demosaic([(name, a)], method, "RGGB", crop)["mean_cpsnr"]
             assert abs(ours - ref_score) < 0.05, (name, crop, ours, ref_score)
-        out = demosaic(torch.from_numpy(cd.mosaicing_CFA_Bayer(a / 255.0, "RGGB"))[None, None], "RGGB", fn)
+        out = demosaic(torch.from_numpy(cd.mosaicing_CFA_Bayer(a / 255.0, "RGGB"))[None, None], "RGGB", method)
         agree = np.isclose(out[0].permute(1, 2, 0).clamp(0, 1).numpy(), ref_out, rtol=0, atol=1e-9).mean()
         assert agree > (0.99 if method == "menon2007" else 0.999999), (name, agree)  # Menon: rounding-decided ties
         assert truth.shape[-2:] == (96, 96)

@@ -20,8 +20,14 @@ from .linear import demosaic_bilinear, demosaic_generic, demosaic_malvar2004, de
 from .menon2007 import demosaic_menon2007
 
 __all__ = ["BAYER_PATTERNS", "METHODS", "Demosaic", "bayer_index_map", "demosaic", "demosaic_bilinear",
-           "demosaic_generic", "demosaic_malvar2004", "demosaic_menon2007", "demosaic_nearest",
-           "demosaic_nearest_cfa", "get_method", "mosaic", "register_method"]
+           "demosaic_bilinear_colour", "demosaic_generic", "demosaic_malvar2004", "demosaic_menon2007",
+           "demosaic_nearest", "demosaic_nearest_cfa", "get_method", "mosaic", "register_method"]
+
+def demosaic_bilinear_colour(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
+    """Bilinear exactly as colour-demosaicing 0.2 computes it, border included (``normalize_border=False``): the
+    reference for its published CPSNR at crop 0; the border is biased (a constant image is not kept constant)."""
+    return demosaic_bilinear(raw, pattern, normalize_border=False)
+
 
 #: Bayer demosaic methods: name -> callable(raw (B, 1, H, W), pattern: str) -> RGB (B, 3, H, W).
 METHODS: dict[str, Callable] = {
@@ -29,6 +35,7 @@ METHODS: dict[str, Callable] = {
     "bilinear": demosaic_bilinear,
     "malvar2004": demosaic_malvar2004,
     "menon2007": demosaic_menon2007,
+    "bilinear_colour": demosaic_bilinear_colour,
 }
 
 # Methods that live in optional modules, imported on first use (the module registers itself).

@@ -3,6 +3,8 @@ scipy.ndimage's modes, small separable/2-D convolutions, and mosaicking (samplin
 
 from __future__ import annotations
 
+import functools
+
 import torch
 import torch.nn.functional as F
 
@@ -77,22 +79,36 @@ def tile(index_map: torch.Tensor, height: int, width: int) -> torch.Tensor:
     return index_map.repeat(*reps)[:height, :width]
 
 
-def channel_masks(index_map: torch.Tensor, num_channels: int, height: int, width: int, *, dtype, device
-                  ) -> torch.Tensor:
-    """One-hot sampling masks (1, C, H, W) of a CFA tiled over the image."""
-    full = tile(index_map.to(device), height, width)
+def idx_key(index_map: torch.Tensor) -> tuple:
+    """A hashable copy of an index map (for caches)."""
+    return tuple(map(tuple, index_map.tolist()))
+
+
+@functools.lru_cache(maxsize=32)
+def _channel_masks(key: tuple, num_channels: int, height: int, width: int, dtype, device) -> torch.Tensor:
+    full = tile(torch.tensor(key, device=device), height, width)
     return (full[None] == torch.arange(num_channels, device=device)[:, None, None]).to(dtype)[None]
 
 
+def channel_masks(index_map: torch.Tensor, num_channels: int, height: int, width: int, *, dtype, device
+                  ) -> torch.Tensor:
+    """One-hot sampling masks (1, C, H, W) of a CFA tiled over the image (cached; do not modify in place)."""
+    return _channel_masks(idx_key(index_map), num_channels, height, width, dtype, torch.device(device))
+
+
+@functools.lru_cache(maxsize=32)
 def bayer_masks(pattern: str, height: int, width: int, device) -> dict[str, torch.Tensor]:
-    """Boolean masks (1, 1, H, W) of a Bayer mosaic: R, G, B sites and the rows/columns that hold R or B."""
+    """Boolean masks (1, 1, H, W) of a Bayer mosaic: R, G, B sites and the rows/columns that hold R or B
+    (cached; do not modify in place)."""
     full = tile(bayer_index_map(pattern, device=device), height, width)[None, None]
     r, g, b = full == 0, full == 1, full == 2
-    return {
+    m = {
         "R": r, "G": g, "B": b,
         "R_row": r.any(dim=-1, keepdim=True).expand_as(r), "R_col": r.any(dim=-2, keepdim=True).expand_as(r),
         "B_row": b.any(dim=-1, keepdim=True).expand_as(b), "B_col": b.any(dim=-2, keepdim=True).expand_as(b),
     }
+    m["G_in_R_row"], m["G_in_B_row"] = g & m["R_row"], g & m["B_row"]
+    return m
 
 
 def _fold(n: int, before: int, after: int, mode: str, device) -> torch.Tensor:
@@ -121,6 +137,12 @@ def pad(x: torch.Tensor, py: int, px: int, mode: str) -> torch.Tensor:
     h, w = x.shape[-2:]
     if mode == "mirror" and py < h and px < w:
         return F.pad(x, (px, px, py, py), mode="reflect")
+    if mode == "symmetric" and py <= h and px <= w:
+        if py:
+            x = torch.cat([x[..., :py, :].flip(-2), x, x[..., h - py:, :].flip(-2)], dim=-2)
+        if px:
+            x = torch.cat([x[..., :px].flip(-1), x, x[..., w - px:].flip(-1)], dim=-1)
+        return x
     if py:
         x = x.index_select(-2, _fold(h, py, py, mode, x.device))
     if px:
@@ -128,23 +150,49 @@ def pad(x: torch.Tensor, py: int, px: int, mode: str) -> torch.Tensor:
     return x
 
 
-def correlate(x: torch.Tensor, kernels: torch.Tensor, mode: str) -> torch.Tensor:
-    """Depthwise 2-D correlation of x (N, C, H, W) with kernels (C, kh, kw) (odd sizes), same-size output."""
-    c, kh, kw = kernels.shape
+def _shift_add(xp: torch.Tensor, kernel, h: int, w: int) -> torch.Tensor:
+    """Correlate a padded plane with a small constant kernel (nested sequences of floats) by summing shifted
+    slices, one per distinct weight: cheaper than conv2d for the sparse 3x3/5x5 kernels here, in any dtype."""
+    by_weight: dict[float, list[tuple[int, int]]] = {}
+    for dy, row in enumerate(kernel):
+        for dx, wt in enumerate(row):
+            if wt != 0:
+                by_weight.setdefault(float(wt), []).append((dy, dx))
+    acc = None
+    for wt, offsets in by_weight.items():
+        part = None
+        for dy, dx in offsets:
+            sl = xp[..., dy:dy + h, dx:dx + w]
+            part = sl.clone() if part is None else part.add_(sl)
+        acc = part.mul_(wt) if acc is None else acc.add_(part, alpha=wt)
+    if acc is None:
+        return xp.new_zeros(xp.shape[:-2] + (h, w))
+    return acc
+
+
+def correlate(x: torch.Tensor, kernels, mode: str) -> torch.Tensor:
+    """Depthwise 2-D correlation, same-size output: channel c of x (N, C, H, W) with kernels[c], a constant
+    odd-sized kernel given as nested sequences of floats (one kernel may serve all C channels)."""
+    kernels = list(kernels)
+    c = x.shape[1]
+    if len(kernels) not in (1, c):
+        raise ValueError(f"kernels: expected 1 or {c} kernels, got {len(kernels)}")
+    kh, kw = len(kernels[0]), len(kernels[0][0])
+    h, w = x.shape[-2:]
     xp = pad(x, kh // 2, kw // 2, mode)
-    return F.conv2d(xp, kernels.to(x)[:, None], groups=c)
+    if len(kernels) == 1:
+        return _shift_add(xp, kernels[0], h, w)
+    return torch.cat([_shift_add(xp[:, i:i + 1], k, h, w) for i, k in enumerate(kernels)], dim=1)
 
 
 def correlate_h(x: torch.Tensor, taps, mode: str) -> torch.Tensor:
-    """Correlate every channel along the width with the same 1-D taps."""
-    k = torch.as_tensor(taps, dtype=x.dtype, device=x.device).reshape(1, 1, 1, -1).expand(x.shape[1], 1, 1, -1)
-    return F.conv2d(pad(x, 0, k.shape[-1] // 2, mode), k, groups=x.shape[1])
+    """Correlate every channel along the width with the same constant 1-D taps (odd length)."""
+    return correlate(x, [[list(taps)]], mode)
 
 
 def correlate_v(x: torch.Tensor, taps, mode: str) -> torch.Tensor:
-    """Correlate every channel along the height with the same 1-D taps."""
-    k = torch.as_tensor(taps, dtype=x.dtype, device=x.device).reshape(1, 1, -1, 1).expand(x.shape[1], 1, -1, 1)
-    return F.conv2d(pad(x, k.shape[-2] // 2, 0, mode), k, groups=x.shape[1])
+    """Correlate every channel along the height with the same constant 1-D taps (odd length)."""
+    return correlate(x, [[[t] for t in taps]], mode)
 
 
 def mosaic(image: torch.Tensor, pattern="RGGB") -> torch.Tensor:

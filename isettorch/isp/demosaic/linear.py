@@ -3,9 +3,12 @@ Malvar-He-Cutler (2004)."""
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from ._cfa import (
+    _shift_add,
     bayer_index_map,
     bayer_masks,
     channel_masks,
@@ -13,6 +16,8 @@ from ._cfa import (
     check_index_map,
     check_raw,
     correlate,
+    idx_key,
+    pad,
 )
 
 __all__ = ["demosaic_nearest", "demosaic_bilinear", "demosaic_generic", "demosaic_malvar2004",
@@ -50,17 +55,23 @@ def demosaic_nearest_cfa(raw: torch.Tensor, index_map: torch.Tensor, num_channel
         (B, C, H, W).
     """
     raw = check_raw(raw)
-    h, w = raw.shape[-2:]
+    bsz, _, h, w = raw.shape
     idx, c = check_index_map(index_map, num_channels, h, w)
     ph, pw = idx.shape
-    off = _nearest_sources(idx, c)[:, torch.arange(h)[:, None] % ph, torch.arange(w)[None, :] % pw]  # C,H,W,2
-    sy = torch.arange(h)[:, None] + off[..., 0]
-    sx = torch.arange(w)[None, :] + off[..., 1]
-    # On the top/left border the sample can fall outside the image: use the same phase one period further in.
-    sy = torch.where(sy < 0, sy + ph, sy)
-    sx = torch.where(sx < 0, sx + pw, sx)
-    src = (sy * w + sx).reshape(-1).to(raw.device)
-    return raw.flatten(1).index_select(1, src).reshape(raw.shape[0], c, h, w)
+    offsets = _nearest_sources(idx, c).tolist()
+    # Pad top/left by one period minus one with the same phase one period further in (raw row -k <- row ph - k).
+    xp = torch.cat([raw[..., 1:ph, :], raw], dim=-2)
+    xp = torch.cat([xp[..., 1:pw], xp], dim=-1)
+    out = raw.new_empty(bsz, c, h, w)
+    for py in range(ph):
+        ny = len(range(py, h, ph))
+        for px in range(pw):
+            nx = len(range(px, w, pw))
+            for ch in range(c):
+                dy, dx = offsets[ch][py][px]
+                y0, x0 = py + dy + ph - 1, px + dx + pw - 1
+                out[:, ch, py::ph, px::pw] = xp[:, 0, y0:y0 + (ny - 1) * ph + 1:ph, x0:x0 + (nx - 1) * pw + 1:pw]
+    return out
 
 
 def demosaic_nearest(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
@@ -81,11 +92,9 @@ def demosaic_nearest(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
     return demosaic_nearest_cfa(raw, bayer_index_map(check_bayer_pattern(pattern)), 3)
 
 
-def _tent(ph: int, pw: int, dtype, device) -> torch.Tensor:
+def _tent(ph: int, pw: int) -> list[list[float]]:
     """Separable triangle kernel of size (2ph-1, 2pw-1): bilinear interpolation weights for period (ph, pw)."""
-    ty = ph - torch.arange(-(ph - 1), ph, dtype=dtype, device=device).abs()
-    tx = pw - torch.arange(-(pw - 1), pw, dtype=dtype, device=device).abs()
-    return ty[:, None] * tx[None, :]
+    return [[float((ph - abs(dy)) * (pw - abs(dx))) for dx in range(-pw + 1, pw)] for dy in range(-ph + 1, ph)]
 
 
 def demosaic_generic(raw: torch.Tensor, index_map: torch.Tensor, num_channels: int | None = None) -> torch.Tensor:
@@ -113,7 +122,7 @@ def demosaic_generic(raw: torch.Tensor, index_map: torch.Tensor, num_channels: i
     h, w = raw.shape[-2:]
     idx, c = check_index_map(index_map, num_channels, h, w)
     masks = channel_masks(idx, c, h, w, dtype=raw.dtype, device=raw.device)
-    kernel = _tent(*idx.shape, raw.dtype, raw.device).expand(c, -1, -1)
+    kernel = [_tent(*idx.shape)]
     num = correlate(raw * masks, kernel, "symmetric")
     den = correlate(masks, kernel, "symmetric")
     return torch.where(masks > 0, raw, num / den)
@@ -150,12 +159,18 @@ def demosaic_bilinear(raw: torch.Tensor, pattern: str = "RGGB", *, normalize_bor
     if h < 2 or w < 2:
         raise ValueError(f"raw: expected at least 2x2 pixels for a Bayer mosaic, got {h}x{w}")
     masks = channel_masks(idx, 3, h, w, dtype=raw.dtype, device=raw.device)
-    kernel = torch.tensor([_H_RB, _H_G, _H_RB], dtype=raw.dtype, device=raw.device)
+    kernel = [_H_RB, _H_G, _H_RB]
     out = correlate(raw * masks, kernel, "symmetric")
     if normalize_border:
-        weight = correlate(masks, kernel, "symmetric")  # exactly 1 away from the border
-        out = out / weight
+        out = out / _bilinear_weight(idx_key(idx), h, w, raw.dtype, raw.device)
     return out
+
+
+@functools.lru_cache(maxsize=32)
+def _bilinear_weight(key: tuple, h: int, w: int, dtype, device) -> torch.Tensor:
+    """Kernel weight that falls on samples of each channel: exactly 1 away from the one-pixel border."""
+    masks = channel_masks(torch.tensor(key), 3, h, w, dtype=dtype, device=device)
+    return correlate(masks, [_H_RB, _H_G, _H_RB], "symmetric")
 
 
 # Malvar, He & Cutler (2004), Fig. 2: gradient-corrected bilinear kernels (x 1/8).
@@ -164,11 +179,12 @@ _RB_AT_G_ROW = [[0, 0, 0.5, 0, 0], [0, -1, 0, -1, 0], [-1, 4, 5, 4, -1], [0, -1,
 _RB_AT_BR = [[0, 0, -1.5, 0, 0], [0, 2, 0, 2, 0], [-1.5, 0, 6, 0, -1.5], [0, 2, 0, 2, 0], [0, 0, -1.5, 0, 0]]
 
 
-def _malvar_kernels(dtype, device) -> torch.Tensor:
-    row = torch.tensor(_RB_AT_G_ROW, dtype=dtype, device=device)
-    k = torch.stack([torch.tensor(_G_AT_RB, dtype=dtype, device=device), row, row.T,
-                     torch.tensor(_RB_AT_BR, dtype=dtype, device=device)])
-    return k / 8
+def _scaled(kernel, factor: float) -> list[list[float]]:
+    return [[v * factor for v in row] for row in kernel]
+
+
+_MALVAR = [_scaled(_G_AT_RB, 1 / 8), _scaled(_RB_AT_G_ROW, 1 / 8), _scaled(list(zip(*_RB_AT_G_ROW)), 1 / 8),
+           _scaled(_RB_AT_BR, 1 / 8)]
 
 
 def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
@@ -192,15 +208,13 @@ def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tenso
         color images", ICASSP 2004.
     """
     raw = check_raw(raw)
-    bsz, _, h, w = raw.shape
+    h, w = raw.shape[-2:]
     m = bayer_masks(check_bayer_pattern(pattern), h, w, raw.device)
-    k = _malvar_kernels(raw.dtype, raw.device)
-    # candidates: 0 raw, 1 G at R/B, 2 R/B at G in a row of that colour, 3 ... in a column of it, 4 R at B / B at R
-    cand = torch.cat([raw, correlate(raw.expand(-1, 4, -1, -1), k, "symmetric")], dim=1)
-    g_in_r_row, g_in_b_row = m["G"] & m["R_row"], m["G"] & m["B_row"]
-    zero = torch.zeros_like(m["R"], dtype=torch.long)
-    sel_r = zero + 2 * g_in_r_row + 3 * g_in_b_row + 4 * m["B"]
-    sel_g = zero + 1 * (m["R"] | m["B"])
-    sel_b = zero + 2 * g_in_b_row + 3 * g_in_r_row + 4 * m["R"]
-    sel = torch.cat([sel_r, sel_g, sel_b], dim=1).expand(bsz, 3, h, w)
-    return cand.gather(1, sel)
+    xp = pad(raw, 2, 2, "symmetric")
+    g_at_rb, rb_row, rb_col, rb_diag = (_shift_add(xp, k, h, w) for k in _MALVAR)
+    # rb_row: R (B) at a green site in a row of R (B); rb_col: ... in a column of it; rb_diag: R at B, B at R.
+    g_in_r_row, g_in_b_row = m["G_in_R_row"], m["G_in_B_row"]
+    r = torch.where(m["R"], raw, torch.where(g_in_r_row, rb_row, torch.where(g_in_b_row, rb_col, rb_diag)))
+    g = torch.where(m["G"], raw, g_at_rb)
+    b = torch.where(m["B"], raw, torch.where(g_in_b_row, rb_row, torch.where(g_in_r_row, rb_col, rb_diag)))
+    return torch.cat([r, g, b], dim=1)

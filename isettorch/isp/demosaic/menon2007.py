@@ -18,6 +18,7 @@ _K_DECISION = ((1.0, 0.0, 1.0, 0.0, 0.0),
                (3.0, 0.0, 3.0, 0.0, 0.0),
                (0.0, 1.0, 0.0, 0.0, 0.0),
                (1.0, 0.0, 1.0, 0.0, 0.0))
+_K_DECISION_T = tuple(zip(*_K_DECISION))
 _K_PAIR = (0.5, 0.0, 0.5)
 _K_MEAN3 = (1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0)
 
@@ -72,9 +73,8 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     # Gradients of the colour differences between sites two apart (eq. 7), then summed over the window (eq. 8).
     d_h = (c_h - pad(c_h, 0, 2, "mirror")[..., 4:]).abs()
     d_v = (c_v - pad(c_v, 2, 0, "mirror")[..., 4:, :]).abs()
-    k = torch.tensor(_K_DECISION, dtype=raw.dtype, device=raw.device)
-    delta_h = correlate(d_h, k[None], "zeros")
-    delta_v = correlate(d_v, k.T[None], "zeros")
+    delta_h = correlate(d_h, [_K_DECISION], "zeros")
+    delta_v = correlate(d_v, [_K_DECISION_T], "zeros")
     horizontal = delta_v >= delta_h
     g = torch.where(horizontal, g_h, g_v)
 
