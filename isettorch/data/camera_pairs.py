@@ -79,6 +79,16 @@ def _bradford(src_xyz: torch.Tensor, dst_xyz: torch.Tensor) -> torch.Tensor:
     return torch.linalg.inv(m) @ torch.diag(d / s) @ m
 
 
+def _matmul_fixed_order(a: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``a [K, C] @ x [C, N]`` summed in a fixed order, so results are bitwise identical whatever the number
+    of threads (a multi-threaded GEMM may split the sum differently in the main process and in DataLoader
+    workers, which would break bitwise reproducibility by (seed, index))."""
+    out = a[:, :1] * x[:1]
+    for c in range(1, a.shape[1]):
+        out = out.addcmul_(a[:, c:c + 1], x[c:c + 1])
+    return out
+
+
 def _pick(values, g: torch.Generator):
     if isinstance(values, (int, float)):
         return float(values)
@@ -160,7 +170,7 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
     dl = spectral.wavelength_weights(wave)
     to_watts = (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S) / (wave * 1e-9)  # h c / lambda
     weights = torch.cat([qe.to(dtype) * dl, constants.KM_LM_PER_W * spectral.cmfs(wave, dtype=dtype) * to_watts * dl])
-    dens6 = (weights @ oi.photons.reshape(oi.num_wavelengths, -1)).reshape(1, 6, h, w)
+    dens6 = _matmul_fixed_order(weights, oi.photons.reshape(oi.num_wavelengths, -1)).reshape(1, 6, h, w)
     if abs(float(oi.sample_spacing_m[0]) / pitch - 1) < 1e-4:
         # One OI sample per pixel and the photodiode (side pitch sqrt(fill)) inside it: area sampling of a
         # piecewise-constant irradiance returns the sample itself.
@@ -193,7 +203,7 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
     xyz = xyz_img * scale
     cat = _bradford(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
     m_srgb = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat
-    lin = torch.einsum("ij,bjhw->bihw", m_srgb.to(dtype), xyz)
+    lin = _matmul_fixed_order(m_srgb.to(dtype), xyz.reshape(3, -1)).reshape(1, 3, h, w)
     srgb = srgb_encode(lin.clamp(0, 1))
 
     meta_s = scene.metadata

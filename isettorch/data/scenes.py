@@ -74,6 +74,27 @@ def _white_photons(spd_energy: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     return p / y
 
 
+def _matvec_fixed_order(v: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``v [C] @ x [C, N]`` accumulated in a fixed order (bitwise independent of the thread count)."""
+    out = x[0] * v[0]
+    for c in range(1, x.shape[0]):
+        out = out.add_(x[c], alpha=float(v[c]))
+    return out
+
+
+def fixed_order_mean(x: torch.Tensor, block: int = 1024) -> torch.Tensor:
+    """Mean of all elements, summed in a fixed order whatever the number of threads (float64 accumulation).
+
+    A plain ``x.mean()`` over more than torch's parallel grain (32768 elements) is split across threads and
+    its rounding depends on the thread count; here each row of ``block`` elements is reduced on one thread.
+    """
+    flat = x.reshape(-1).to(torch.float64)
+    n = flat.numel()
+    pad = (-n) % block
+    rows = torch.nn.functional.pad(flat, (0, pad)).reshape(-1, block).sum(dim=1)
+    return (rows.cumsum(0)[-1] / n).to(x.dtype)  # cumsum runs sequentially
+
+
 def _luminance_weights(w: torch.Tensor) -> torch.Tensor:
     """Row vector v [L] with luminance = v . photons: 683 V(l) h c / l dl (CIE 015:2018; photons -> watts)."""
     ones = torch.eye(w.numel(), dtype=w.dtype, device=w.device)
@@ -116,7 +137,7 @@ def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, dev
     two = u_two < cfg["two_light_probability"]
     shadow = (not two) and u_shadow < cfg["shadow_probability"]
     e2 = torch.zeros_like(e1)
-    cct2, name2, ratio = float("nan"), "", 0.0
+    cct2, name2, ratio = 0.0, "", 0.0
     a = torch.ones(h, wd, device=device, dtype=dtype)
     b = torch.zeros(h, wd, device=device, dtype=dtype)
     y, x = torch.meshgrid(torch.arange(h, device=device, dtype=dtype), torch.arange(wd, device=device, dtype=dtype),
@@ -159,7 +180,7 @@ def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, dev
     hfov = hfov_deg if hfov_deg is not None else _uniform(cfg["hfov_deg"], g)
     distance = _uniform(cfg["distance_m"], g)
     wl_t = wl.to(device=device, dtype=dtype)
-    mean_lum = (_luminance_weights(wl_t) @ refl).mean()
+    mean_lum = fixed_order_mean(_matvec_fixed_order(_luminance_weights(wl_t), refl))
     scale = target / mean_lum.clamp_min(torch.finfo(dtype).tiny)
     photons = refl.mul_(scale).reshape(1, -1, h, wd)
     meta = {"index": int(index), "seed": int(seed), "layout": layout, "illuminant": name1, "cct_k": cct1,
