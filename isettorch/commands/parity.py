@@ -92,6 +92,23 @@ def case_cfa(case: dict):
     return CFA(str(case["sensor_cfa"]), channel_names=letters)
 
 
+def quantization_bits(case: dict) -> int | None:
+    """ADC bits from ``sensor_quantization`` ('analog' or '10', '10 bit'), else ``sensor_quantization_bits``."""
+    import re
+
+    q = str(case.get("sensor_quantization", "")).strip().lower()
+    if q == "analog":
+        return None
+    m = re.search(r"\d+", q)
+    if m:
+        return int(m.group()) or None
+    if "sensor_quantization_bits" in case:
+        return int(case["sensor_quantization_bits"]) or None
+    if q:
+        raise ValueError(f"sensor_quantization: expected 'analog' or a bit count such as '10', got {q!r}")
+    return None
+
+
 def build_sensor(case: dict, preblur_size: int | None = None):
     """A :class:`~isettorch.sensor.Sensor` with the case's parameters and ISETCam's conventions."""
     import torch
@@ -101,8 +118,7 @@ def build_sensor(case: dict, preblur_size: int | None = None):
     cfa = case_cfa(case)
     wave = torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1)
     qe = torch.as_tensor(case["sensor_spectral_qe"], dtype=torch.float64).reshape(cfa.num_channels, -1)
-    q = str(case.get("sensor_quantization", "analog")).strip().lower()
-    bits = None if q in ("analog", "0", "") else int(q)
+    bits = quantization_bits(case)
     return Sensor(
         rows=int(case["sensor_rows"]), cols=int(case["sensor_cols"]),
         pixel_size_m=float(case["sensor_pixel_size_m"]), fill_factor=float(case["sensor_fill_factor"]), cfa=cfa,
@@ -298,7 +314,9 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
                 res["sensor_dv"] = {"ok": False, "error": "case has sensor_dv but quantization is analog",
                                     "mean_rel_err": None, "max_err": None}
             else:
-                res["sensor_dv"] = _dv_stats(sensor.volts_to_dn(volts).numpy(), case["sensor_dv"])
+                # ISETCam quantizes its single-precision volts (FORMAT 4.7)
+                dn = sensor.volts_to_dn(volts.to(torch.float32).to(torch.float64))
+                res["sensor_dv"] = _dv_stats(dn.numpy(), case["sensor_dv"])
         else:
             res["sensor_dv"] = {"skipped": "analog sensor (no sensor_dv)", "ok": None}
         for st, v in res.items():
