@@ -223,3 +223,56 @@ def augment_flips(img: torch.Tensor, g: torch.Generator) -> torch.Tensor:
 
 def numpy_seed(seed: int) -> np.random.Generator:  # for callers that need numpy draws
     return np.random.default_rng(seed)
+
+
+class IsetScenePool:
+    """Crops of isettorch.data synthetic scenes (``generate_scene``), rendered to white-balanced camera RGB.
+
+    Generating a spectral scene costs far more than a training step on CPU, so a pool of ``pool`` scenes is kept
+    and ``refresh`` new ones replace the oldest at every step: at step ``s`` the pool holds scene indices
+    ``[s * refresh, s * refresh + pool)``, so the pool (and every batch) depends only on (seed, step) and a run
+    resumes exactly. The camera sensitivities of each scene are drawn from ``sampler`` (same cameras as
+    :class:`SceneSampler`); white balance uses the scene's illuminant (``Scene.illuminant_photons``).
+    """
+
+    def __init__(self, sampler: SceneSampler, seed: int = 0, scene_size: int = 128, pool: int = 32,
+                 refresh: int = 1, config: dict | None = None):
+        if scene_size < sampler.size:
+            raise ValueError(f"scene_size: expected at least the patch size {sampler.size}, got {scene_size}")
+        self.sampler, self.seed, self.scene_size = sampler, int(seed), int(scene_size)
+        self.pool_size, self.refresh = int(pool), int(refresh)
+        self.config = dict(config or {}, height=self.scene_size, width=self.scene_size)
+        self.scenes: dict[int, torch.Tensor] = {}
+
+    def render(self, index: int) -> torch.Tensor:
+        from isettorch.data import generate_scene
+
+        s = generate_scene(index, seed=self.seed, config=self.config, dtype=torch.float32)
+        w = s.wavelengths_nm.to(torch.float64)
+        g = torch.Generator().manual_seed(self.seed * 7_919 + index)
+        sens = spectral.resample(self.sampler.sensitivity(g), WAVELENGTHS, w)  # [3, L]
+        m = (sens * spectral.wavelength_weights(w)).float()  # photon counting: sum_l S(l) N(l) dl
+        rgb = torch.einsum("cl,lhw->chw", m, s.photons[0])
+        white = m @ s.illuminant_photons[0]  # the main light's perfect white (von Kries)
+        return (rgb / white[:, None, None]).clamp_min(0)
+
+    def advance(self, step: int) -> None:
+        lo = step * self.refresh
+        keep = range(lo, lo + self.pool_size)
+        for k in [k for k in self.scenes if k not in keep]:
+            del self.scenes[k]
+        for k in keep:
+            if k not in self.scenes:
+                self.scenes[k] = self.render(k)
+
+    def sample(self, batch: int, step: int, g: torch.Generator) -> torch.Tensor:
+        """[B, 3, size, size] random crops (even offsets keep the Bayer phase) from the pool at ``step``."""
+        self.advance(step)
+        keys = sorted(self.scenes)
+        p, n = self.sampler.size, self.scene_size
+        out = []
+        for _ in range(batch):
+            img = self.scenes[keys[int(torch.randint(0, len(keys), (1,), generator=g))]]
+            y, x = (2 * int(torch.randint(0, (n - p) // 2 + 1, (1,), generator=g)) for _ in range(2))
+            out.append(img[:, y:y + p, x:x + p])
+        return torch.stack(out)

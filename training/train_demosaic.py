@@ -36,18 +36,41 @@ if str(ROOT) not in sys.path:
 
 from isettorch.isp.learned import DemosaicNet, demosaic_malvar_torch  # noqa: E402
 from training import common  # noqa: E402
-from training.synth import SceneSampler, augment_flips, encode, mosaic_rggb  # noqa: E402
+from training.synth import IsetScenePool, SceneSampler, augment_flips, encode, mosaic_rggb  # noqa: E402
 
 VAL_SEED_OFFSET = 1_000_003_000  # validation scenes use seeds far from any training (seed, step, rank)
+
+
+SOURCES = ("synth", "isettorch", "mix")
 
 
 def make_sampler(cfg: dict) -> SceneSampler:
     d = cfg.get("data", {})
     source = d.get("source", "synth")
-    if source != "synth":
-        raise ValueError(f"data.source: expected 'synth', got {source!r}")
+    if source not in SOURCES:
+        raise ValueError(f"data.source: expected one of {SOURCES}, got {source!r}")
     return SceneSampler(size=int(d.get("patch", 96)), n_shapes=int(d.get("n_shapes", 50)),
                         sensitivities=d.get("sensitivities", "all"))
+
+
+def make_pool(sampler: SceneSampler, cfg: dict, seed: int) -> IsetScenePool | None:
+    """The isettorch.data scene pool for sources 'isettorch' and 'mix' (None for 'synth')."""
+    d = cfg.get("data", {})
+    if d.get("source", "synth") == "synth":
+        return None
+    return IsetScenePool(sampler, seed=seed, scene_size=int(d.get("scene_size", 128)),
+                         pool=int(d.get("pool", 64)), refresh=int(d.get("refresh", 2)),
+                         config=d.get("scene_config"))
+
+
+def iset_count(cfg: dict, batch: int) -> int:
+    d = cfg.get("data", {})
+    src = d.get("source", "synth")
+    if src == "synth":
+        return 0
+    if src == "isettorch":
+        return batch
+    return int(round(batch * float(d.get("iset_fraction", 0.5))))
 
 
 def noise_params(batch: int, cfg: dict, g: torch.Generator) -> torch.Tensor:
@@ -70,10 +93,15 @@ def noise_features(ab: torch.Tensor) -> torch.Tensor:
     return torch.stack([ab[:, 0].sqrt() * 10.0, ab[:, 1].sqrt() * 100.0], 1)
 
 
-def make_batch(sampler: SceneSampler, cfg: dict, seed: int, batch: int, p_gamma: float):
-    """(raw [B,1,H,W], target [B,3,H,W], noise features [B,2] or None) for one (seed)."""
+def make_batch(sampler: SceneSampler, cfg: dict, seed: int, batch: int, p_gamma: float,
+               pool: IsetScenePool | None = None, step: int = 0):
+    """(raw [B,1,H,W], target [B,3,H,W], noise features [B,2] or None) for one (seed, step)."""
     g = torch.Generator().manual_seed(int(seed))
-    rgb = encode(sampler.sample(batch, g), g, p_gamma=p_gamma)
+    n_iset = iset_count(cfg, batch) if pool is not None else 0
+    parts = [sampler.sample(batch - n_iset, g)] if batch - n_iset else []
+    if n_iset:
+        parts.append(pool.sample(n_iset, step, g))
+    rgb = encode(torch.cat(parts), g, p_gamma=p_gamma)
     rgb = augment_flips(rgb, g)
     raw = mosaic_rggb(rgb)
     feats = None
@@ -88,10 +116,13 @@ def make_validation(sampler_cfg: dict, cfg: dict) -> list:
     v = cfg.get("val", {})
     vcfg = dict(sampler_cfg)
     vcfg["data"] = dict(cfg.get("data", {}), patch=int(v.get("size", 128)))
+    vcfg["data"]["scene_size"] = max(int(v.get("size", 128)), int(vcfg["data"].get("scene_size", 128)))
     sampler = make_sampler(vcfg)
+    vseed = int(cfg.get("seed", 0)) + VAL_SEED_OFFSET
+    pool = make_pool(sampler, vcfg, vseed)  # held-out isettorch scenes: their own seed
     n, bs = int(v.get("images", 32)), 8
-    return [make_batch(sampler, cfg, int(cfg.get("seed", 0)) + VAL_SEED_OFFSET + i, bs,
-                       float(cfg.get("data", {}).get("p_gamma", 0.7))) for i in range(0, n, bs)]
+    return [make_batch(sampler, vcfg, vseed + i, bs, float(cfg.get("data", {}).get("p_gamma", 0.7)), pool, i)
+            for i in range(0, n, bs)]
 
 
 @torch.no_grad()
@@ -104,7 +135,8 @@ def validate(net: torch.nn.Module, val: list, device) -> dict:
         ps.append(common.cpsnr(out, rgb, crop=4))
         pm.append(common.cpsnr(demosaic_malvar_torch(raw), rgb, crop=4))
     net.train()
-    return {"val_cpsnr": float(torch.cat(ps).mean()), "val_cpsnr_mhc": float(torch.cat(pm).mean())}
+    v, m = float(torch.cat(ps).mean()), float(torch.cat(pm).mean())
+    return {"val_cpsnr": v, "val_cpsnr_mhc": m, "val_gain_db": v - m}
 
 
 @torch.no_grad()
@@ -190,6 +222,11 @@ def main(argv: list[str] | None = None) -> int:
         opt.load_state_dict(ck["optimizer"])
         step, best = int(ck["step"]), float(ck["best_val_cpsnr"])
         history, wall0 = json.loads(ck["history"]), float(ck.get("wall_s", 0.0))
+        old = json.loads(ck["train_config"])
+        if (old.get("data"), old.get("val"), old.get("noise")) != (cfg.get("data"), cfg.get("val"), cfg.get("noise")):
+            best = -math.inf  # the validation set changed: earlier best scores are not comparable
+            if rank == 0:
+                print("data/val config changed since the checkpoint: best-model selection restarts", flush=True)
         if rank == 0:
             print(f"resumed from {resume} at step {step}", flush=True)
     model = net
@@ -198,11 +235,12 @@ def main(argv: list[str] | None = None) -> int:
                                                           else None)
 
     sampler = make_sampler(cfg)
+    pool = make_pool(sampler, cfg, seed * 1_000_003 + rank)
     val = make_validation(cfg, cfg) if rank == 0 else None
     total = int(cfg["optim"]["steps"])
     batch = int(cfg["data"].get("batch", 16)) // world
     p_gamma = float(cfg["data"].get("p_gamma", 0.7))
-    loss_kind = cfg["optim"].get("loss", "l1")
+    loss_kind = cfg["optim"].get("loss", "l2")
     val_every = int(cfg.get("val", {}).get("every", 200))
     ckpt_every = int(cfg.get("checkpoint_every", 100))
     bench = cfg.get("eval", {}).get("benchmarks", {}) or {}
@@ -220,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
         lr = lr_at(step, frac, cfg)
         for grp in opt.param_groups:
             grp["lr"] = lr
-        raw, rgb, feats = make_batch(sampler, cfg, seed * 1_000_003 + step * 1009 + rank, batch, p_gamma)
+        raw, rgb, feats = make_batch(sampler, cfg, seed * 1_000_003 + step * 1009 + rank, batch, p_gamma, pool, step)
         raw, rgb = raw.to(device), rgb.to(device)
         outp = model(raw, None if feats is None else feats.to(device))
         loss = F.l1_loss(outp, rgb) if loss_kind == "l1" else F.mse_loss(outp, rgb)
@@ -259,7 +297,8 @@ def main(argv: list[str] | None = None) -> int:
                 best = row["val_cpsnr"]
                 save_checkpoint(out / "best.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start)
             common.write_csv(out / "history.csv", history)
-            cols = [("train_loss", f"train {loss_kind} loss"), ("val_cpsnr", "val CPSNR (dB)")]
+            cols = [("train_loss", f"train {loss_kind} loss"), ("val_cpsnr", "val CPSNR (dB)"),
+                    ("val_gain_db", "val CPSNR - MHC (dB)")]
             cols += [(f"{k}_crop10", f"{k} CPSNR crop10 (dB)") for k in bench if any(f"{k}_crop10" in r
                                                                                    for r in history)]
             common.plot_curves(out / "curves.png", history, cols, f"DemosaicNet {net.config()}")
