@@ -87,12 +87,8 @@ def uniform(spectrum="D65", size=32, wavelengths=None, *, mean_luminance_cd_m2=_
     w, dt, dev = _grid_and_dtype(wavelengths, dtype, device)
     pattern = torch.ones(rows, cols, dtype=dt, device=dev)
     name = f"uniform {spectrum}" if isinstance(spectrum, str) else "uniform"
-    return pattern_scene(pattern, _named(spectrum, w, "spectrum"), w, name=name,
+    return pattern_scene(pattern, illuminant_energy(spectrum, w, "spectrum"), w, name=name,
                          **_common_kwargs(hfov_deg, distance_m, mean_luminance_cd_m2))
-
-
-def _named(spectrum, w, name):
-    return illuminant_energy(spectrum, w, name)
 
 
 def monochromatic(wavelength_nm: float = 550.0, size=32, wavelengths=None, *, mean_luminance_cd_m2=_M,
@@ -378,7 +374,8 @@ def zone_plate(size=128, max_frequency_cpp: float = 0.5, *, illuminant="D65", wa
     """Circular zone plate ``0.5 (1 + cos(pi f_max r^2 / R))``, R = min(H, W) / 2, r from the centre (pixels).
 
     The local radial frequency is ``f_max r / R`` cycles per pixel: 0 at the centre and ``max_frequency_cpp``
-    (default the Nyquist limit, 0.5) at the middle of the nearest border. ISETCam: ``sceneCreate('zone plate')``.
+    (default the Nyquist limit, 0.5) at the middle of the nearest border; towards the corners it exceeds that
+    (up to sqrt(2) f_max) and aliases, as ISETCam's does. ISETCam: ``sceneCreate('zone plate')``.
 
     Example:
         >>> zone_plate(16).photons.shape

@@ -101,11 +101,14 @@ def from_rgb(rgb: torch.Tensor, display="lcd", wavelengths=None, *, dpi: float |
         rgb = rgb.unsqueeze(0)
     if rgb.dim() != 4 or rgb.shape[1] != 3:
         raise ValueError(f"rgb: expected shape [B, 3, H, W] (or [3, H, W]), got {tuple(rgb.shape)}")
+    if not rgb.is_floating_point():
+        raise TypeError(f"rgb: expected a floating tensor of encoded values in [0, 1], got {rgb.dtype} "
+                        "(convert 8-bit images with rgb.float() / 255)")
     if isinstance(display, str):
         display = Display.create(display)
     elif not isinstance(display, Display):
         raise TypeError(f"display: expected a display name or a Display, got {type(display).__name__}")
-    w = resolve_grid(wavelengths, dtype or (rgb.dtype if rgb.is_floating_point() else None), device or rgb.device)
+    w = resolve_grid(wavelengths, dtype or rgb.dtype, device or rgb.device)
     rgb = rgb.to(dtype=w.dtype, device=w.device)
     pitch_dpi = display.dpi if dpi is None else check_float(dpi, "dpi", low=0.0, low_open=True)
     dist = display.viewing_distance_m if viewing_distance_m is None else check_float(

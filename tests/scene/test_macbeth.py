@@ -22,20 +22,23 @@ def _patch_xyz_relative(scene, patch_size):
     return torch.stack([xyz[:, r, c].mean(dim=(1, 2)) for r, c in macbeth_patch_slices(patch_size)]) / white_y * 100
 
 
-@pytest.mark.parametrize("start,stop,step,linear", [(400, 700, 10, False), (380, 730, 5, True)])
+@pytest.mark.parametrize("start,stop,step,linear", [(400, 700, 10, False), (380, 730, 5, True), (400, 700, 1, True)])
 def test_xyz_matches_colour_science(start, stop, step, linear):
     """colour.sd_to_XYZ 'Integration' (rectangle rule, k = 100 / sum(S ybar)) on the same grid and data.
 
     10 nm: the data's native samples (no interpolation anywhere, CMFs and D65 are exact samples of their
-    1 nm / 5 nm tables). 5 nm: the reflectances are interpolated, so colour-science is told to interpolate
-    linearly too (its default is Sprague); D65 is native at 5 nm.
+    1 nm / 5 nm tables). 5 nm and 1 nm: the reflectances (and at 1 nm D65) are interpolated, so colour-science
+    is told to interpolate linearly too, as isettorch does (colour-science's default is Sprague).
     """
     shape = colour.SpectralShape(start, stop, step)
     w = torch.arange(start, stop + step / 2, step, dtype=torch.float64)
     scene = macbeth("D65", patch_size=2, wavelengths=w, dtype=torch.float64)
     ours = _patch_xyz_relative(scene, 2)
     cmfs = CMFS.copy().align(shape)
-    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    ill = colour.SDS_ILLUMINANTS["D65"].copy()
+    if linear:
+        ill = colour.SpectralDistribution(ill.values, ill.wavelengths, interpolator=colour.LinearInterpolator)
+    ill = ill.align(shape)
     ref = []
     for name in macbeth_patch_names():
         sd = SOURCE[name].copy()
