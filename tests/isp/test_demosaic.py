@@ -237,3 +237,20 @@ def test_lazy_method_is_imported_on_first_use(tmp_path, monkeypatch):
         METHODS.pop("lazy_test", None)
     with pytest.raises(ValueError, match="absent_test.*isettorch_no_such_module"):
         get_method("absent_test")
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "GBRG"])
+def test_menon_without_refining_matches_colour_demosaicing(pattern):
+    raw = _raw((1, 1, 17, 22), seed=13)
+    expected = cd.demosaicing_CFA_Bayer_Menon2007(raw[0, 0].numpy(), pattern, refining_step=False)
+    np.testing.assert_allclose(_to_np(demosaic(raw, pattern, "menon2007", refine=False)), expected, rtol=0, atol=1e-12)
+
+
+def test_demosaic_module_by_name():
+    raw = _raw((2, 1, 12, 12), seed=14)
+    stage = Demosaic("malvar2004", pattern="BGGR")
+    torch.testing.assert_close(stage(raw), demosaic_malvar2004(raw, "BGGR"), rtol=0, atol=0)
+    torch.testing.assert_close(stage(raw, "GRBG"), demosaic_malvar2004(raw, "GRBG"), rtol=0, atol=0)
+    assert "malvar2004" in repr(stage) and len(stage.state_dict()) == 0
+    with pytest.raises(ValueError, match="method.*'no_such'"):
+        Demosaic("no_such")
