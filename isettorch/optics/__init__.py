@@ -1,9 +1,12 @@
 """Optics: scene radiance -> sensor-plane irradiance (`OpticalImage`)."""
 
-from . import geometry, isetcam
+from . import analysis, geometry, isetcam
 from .base import ShiftInvariantLens
 from .diffraction import DiffractionLimitedOptics, dl_mtf_1d, dl_otf
 from .optical_image import OpticalImage
+from .psf_otf import otf_from_psf
+from .shift_invariant import ShiftInvariantOptics
+from .wavefront import WavefrontOptics, defocus_diopters_to_zernike_um, zernike_basis, zernike_nm
 
 __all__ = [
     "OpticalImage",
@@ -11,6 +14,13 @@ __all__ = [
     "DiffractionLimitedOptics",
     "dl_otf",
     "dl_mtf_1d",
+    "ShiftInvariantOptics",
+    "WavefrontOptics",
+    "zernike_nm",
+    "zernike_basis",
+    "defocus_diopters_to_zernike_um",
+    "otf_from_psf",
+    "analysis",
     "geometry",
     "isetcam",
 ]

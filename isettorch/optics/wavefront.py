@@ -1,0 +1,230 @@
+"""Wavefront (Zernike) optics: pupil function -> PSF by FFT -> OTF, differentiable in the aberrations and f-number."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import torch
+from torch import nn
+
+from .._checks import as_tensor
+from .base import ShiftInvariantLens
+from .diffraction import dl_otf
+
+__all__ = ["zernike_nm", "zernike_basis", "defocus_diopters_to_zernike_um", "WavefrontOptics"]
+
+
+def zernike_nm(j: int) -> tuple[int, int]:
+    """OSA/ANSI single index ``j`` (0-based) -> radial order ``n`` and azimuthal frequency ``m`` (ANSI Z80.28)."""
+    if j < 0:
+        raise ValueError(f"j: expected a non-negative OSA/ANSI index, got {j}")
+    n = int(math.ceil((-3 + math.sqrt(9 + 8 * j)) / 2))
+    return n, 2 * j - n * (n + 2)
+
+
+def zernike_basis(num: int, rho: torch.Tensor, theta: torch.Tensor) -> torch.Tensor:
+    """Orthonormal Zernike polynomials ``Z_j(rho, theta)``, j = 0..num-1 (OSA/ANSI order, unit RMS on the disc).
+
+    ``Z = sqrt((2 - delta_m0)(n + 1)) R_n^|m|(rho) {cos(m theta) if m >= 0, sin(|m| theta) if m < 0}``
+    (Thibos et al., J. Refract. Surg. 18, 2002). Returns ``[num, *rho.shape]``.
+    """
+    out = []
+    for j in range(num):
+        n, m = zernike_nm(j)
+        am = abs(m)
+        r = torch.zeros_like(rho)
+        for s in range((n - am) // 2 + 1):
+            c = (-1) ** s * math.factorial(n - s) / (
+                math.factorial(s) * math.factorial((n + am) // 2 - s) * math.factorial((n - am) // 2 - s))
+            r = r + c * rho ** (n - 2 * s)
+        norm = math.sqrt((2 if m != 0 else 1) * (n + 1))
+        ang = torch.cos(am * theta) if m >= 0 else torch.sin(am * theta)
+        out.append(norm * r * ang)
+    return torch.stack(out)
+
+
+def defocus_diopters_to_zernike_um(diopters, pupil_diameter_m):
+    """Defocus (diopters) -> OSA Zernike ``c_2^0`` (um): ``c = D r^2 / (4 sqrt 3)`` with r the pupil radius in mm
+    (Thibos et al. 2004, "Power vectors"; ISETCam ``wvfDefocusDioptersToMicrons``)."""
+    d = pupil_diameter_m if isinstance(pupil_diameter_m, torch.Tensor) else torch.tensor(pupil_diameter_m,
+                                                                                          dtype=torch.float64)
+    r_mm = d * 1e3 / 2
+    dd = diopters if isinstance(diopters, torch.Tensor) else torch.tensor(diopters, dtype=r_mm.dtype)
+    return dd * r_mm**2 / (4 * math.sqrt(3))
+
+
+def _autocorrelation(field: torch.Tensor) -> torch.Tensor:
+    """Autocorrelation of a pupil field ``[..., P, P]`` at integer shifts ``[..., 2P, 2P]`` (DC at 0): the DFT of
+    its PSF ``|FFT_2P(field)|^2`` (Wiener-Khinchin; zero padding to 2P makes it non-circular)."""
+    p = field.shape[-1]
+    amp = torch.fft.fft2(field, s=(2 * p, 2 * p))
+    return torch.fft.fft2(amp.real**2 + amp.imag**2)
+
+
+def _pupil_psf(field: torch.Tensor) -> torch.Tensor:
+    p = field.shape[-1]
+    amp = torch.fft.fft2(field, s=(2 * p, 2 * p))
+    psf = amp.real**2 + amp.imag**2
+    return psf / psf.sum(dim=(-2, -1), keepdim=True)
+
+
+def _interp_centered(table: torch.Tensor, jy: torch.Tensor, jx: torch.Tensor) -> torch.Tensor:
+    """Bilinear interpolation of complex ``table [B, L, K, K]`` (DC at ``K // 2``) at index offsets ``jy [B, L, My]``,
+    ``jx [B, L, Mx]`` from DC; 0 beyond the table."""
+    b, nl, k, _ = table.shape
+    img = torch.stack([table.real, table.imag], dim=2).reshape(b * nl, 2, k, k)
+    gy = -1 + 2 * (jy + k // 2) / (k - 1)  # align_corners=True: index i <-> -1 + 2 i / (k - 1)
+    gx = -1 + 2 * (jx + k // 2) / (k - 1)
+    my, mx = gy.shape[-1], gx.shape[-1]
+    grid = torch.stack([gx[:, :, None, :].expand(-1, -1, my, -1), gy[:, :, :, None].expand(-1, -1, -1, mx)], dim=-1)
+    out = torch.nn.functional.grid_sample(img, grid.reshape(b * nl, my, mx, 2), mode="bilinear",
+                                          padding_mode="zeros", align_corners=True)
+    out = out.reshape(b, nl, 2, my, mx)
+    return torch.complex(out[:, :, 0], out[:, :, 1])
+
+
+class WavefrontOptics(ShiftInvariantLens):
+    """Optics described by its wavefront aberration: Zernike coefficients (OSA/ANSI, um) over the pupil.
+
+    The pupil function ``A(rho) exp(2 pi i W(rho, theta) / lambda)`` is sampled with ``pupil_samples`` across
+    the diameter (edge samples weighted by their area inside the disc), the PSF is ``|FFT|^2`` at spacing
+    ``lambda N / 2``, and its OTF is evaluated exactly at the optical image's FFT frequencies
+    (:func:`otf_from_psf`). Differentiable with respect to ``zernike_um`` and ``f_number``.
+
+    Args:
+        zernike_um: coefficients ``[J]`` or ``[B, J]`` (um); ``j = 4`` is defocus, ``j = 12`` primary spherical.
+        f_number: f-number (``N = focal length / pupil diameter``). Or give ``pupil_diameter_m`` instead.
+        focal_length_m: focal length (m).
+        defocus_diopters: extra defocus added to ``c_4`` (converted with the current pupil diameter).
+        pupil_samples: samples across the pupil (even); the PSF window is ``pupil_samples * lambda N`` wide.
+        learn_zernike, learn_f_number: make them trainable ``nn.Parameter``s.
+        Other arguments: see :class:`~isettorch.optics.base.ShiftInvariantLens`.
+
+    The Zernike polynomials use ``x`` along increasing columns and ``y`` along increasing rows.
+
+    Example:
+        >>> optics = WavefrontOptics(torch.zeros(15), f_number=4.0, focal_length_m=4e-3, defocus_diopters=1.0)
+    """
+
+    def __init__(self, zernike_um=None, f_number=None, focal_length_m=3.862755099e-3, *, pupil_diameter_m=None,
+                 defocus_diopters=0.0, pupil_samples: int = 64, learn_zernike: bool = False,
+                 learn_f_number: bool = False, transmittance=None, transmittance_wavelengths_nm=None,
+                 dtype=torch.float64, **kwargs) -> None:
+        if (f_number is None) == (pupil_diameter_m is None):
+            if f_number is None:
+                f_number = 4.0
+            else:
+                raise ValueError("f_number / pupil_diameter_m: give one of them, not both")
+        if f_number is None:
+            d = as_tensor(pupil_diameter_m, "pupil_diameter_m", dtype=dtype)
+            if (d <= 0).any():
+                raise ValueError(f"pupil_diameter_m: expected a positive diameter, got {d.tolist()}")
+            f_number = as_tensor(focal_length_m, "focal_length_m", dtype=dtype) / d
+        super().__init__(f_number, focal_length_m, transmittance, transmittance_wavelengths_nm,
+                         learn_f_number=learn_f_number, dtype=dtype, **kwargs)
+        z = torch.zeros(1, dtype=dtype) if zernike_um is None else as_tensor(zernike_um, "zernike_um", dtype=dtype)
+        z = z.detach().clone()
+        if z.dim() not in (1, 2) or not torch.isfinite(z).all():
+            raise ValueError(f"zernike_um: expected finite coefficients [J] or [B, J], got shape {tuple(z.shape)}")
+        if z.shape[-1] < 5:
+            z = torch.cat([z, torch.zeros(*z.shape[:-1], 5 - z.shape[-1], dtype=dtype)], dim=-1)
+        self.zernike_um = nn.Parameter(z, requires_grad=learn_zernike)
+        dd = as_tensor(defocus_diopters, "defocus_diopters", dtype=dtype)
+        if not torch.isfinite(dd).all():
+            raise ValueError(f"defocus_diopters: expected finite values, got {dd.tolist()}")
+        self.register_buffer("defocus_diopters", dd.detach().clone())
+        if not isinstance(pupil_samples, int) or pupil_samples < 8 or pupil_samples % 2:
+            raise ValueError(f"pupil_samples: expected an even int >= 8, got {pupil_samples!r}")
+        self.pupil_samples = pupil_samples
+        # pupil grid: sample centres at (i + 1/2) delta - 1, delta = 2 / P; soft edge = area inside the disc
+        p = pupil_samples
+        u = (torch.arange(p, dtype=dtype) + 0.5) * (2 / p) - 1
+        yy, xx = torch.meshgrid(u, u, indexing="ij")
+        rho = torch.sqrt(xx**2 + yy**2)
+        theta = torch.atan2(yy, xx)
+        sub = 8  # aperture coverage by 8x8 supersampling of each pupil sample
+        us = ((torch.arange(p * sub, dtype=dtype) + 0.5) * (2 / (p * sub)) - 1)
+        ys, xs = torch.meshgrid(us, us, indexing="ij")
+        cover = ((xs**2 + ys**2) <= 1).to(dtype).reshape(p, sub, p, sub).mean(dim=(1, 3))
+        self.register_buffer("aperture", cover)
+        self.register_buffer("basis", zernike_basis(z.shape[-1], rho.clamp(max=1.5), theta) * (cover > 0))
+
+    def _otf_key(self) -> tuple:
+        return (tuple(self.zernike_um.detach().reshape(-1).tolist()), tuple(self.defocus_diopters.reshape(-1).tolist()),
+                self.pupil_samples)
+
+    def _requires_grad(self) -> bool:
+        return super()._requires_grad() or (torch.is_grad_enabled() and self.zernike_um.requires_grad)
+
+    def coefficients(self, batch: int, f_number: torch.Tensor) -> torch.Tensor:
+        """Zernike coefficients ``[B, J]`` (um) including ``defocus_diopters``."""
+        z = self.zernike_um.to(f_number.dtype)
+        z = z.expand(batch, -1) if z.dim() == 1 or z.shape[0] == 1 else z
+        if z.shape[0] != batch:
+            raise ValueError(f"zernike_um: expected 1 or {batch} rows (one per batch sample), got {z.shape[0]}")
+        dd = self.defocus_diopters.to(f_number.dtype)
+        if bool((dd != 0).any()):
+            diam = self.batch_focal_length(batch, f_number.dtype, f_number.device) / f_number
+            c4 = defocus_diopters_to_zernike_um(dd, diam)
+            z = z + torch.nn.functional.one_hot(torch.tensor(4), z.shape[-1]).to(z.dtype) * c4.reshape(-1, 1)
+        return z
+
+    def psf_native(self, wavelengths_nm: torch.Tensor, f_number: torch.Tensor):
+        """The PSF on its own grid: ``(psf [B, L, K, K], spacing [B, L])`` with spacing ``lambda N / 2``."""
+        b = f_number.shape[0]
+        z = self.coefficients(b, f_number)
+        psf = torch.fft.fftshift(_pupil_psf(self._field(z, wavelengths_nm.to(z.dtype))), dim=(-2, -1))
+        spacing = wavelengths_nm.to(z.dtype)[None, :] * 1e-9 * f_number.reshape(-1, 1) / 2
+        return psf, spacing
+
+    def otf(self, fy, fx, wavelengths_nm, f_number):
+        """OTF at ``fy [B, My]``, ``fx [B, Mx]`` (cycles/m): ``OTF_DL(f) * <exp(i (phi(u + s) - phi(u)))>``.
+
+        The OTF of a pupil ``A exp(i phi)`` is the diffraction-limited OTF (the overlap area of two shifted
+        discs, analytic, :func:`dl_otf`) times the mean phase factor over that overlap (Goodman 7.4). The mean is
+        the ratio of two discrete autocorrelations (aberrated pupil / bare aperture) on the sampled pupil,
+        interpolated bilinearly to the requested frequencies: the pixelated pupil edge cancels in the ratio, so
+        zero aberrations give the analytic OTF exactly, and the smooth phase average converges quickly with
+        ``pupil_samples``. (Fourier-transforming the sampled PSF instead errs by ~1/pupil_samples: the
+        diffraction tail wraps around the PSF window.)
+        """
+        b = f_number.shape[0]
+        z = self.coefficients(b, f_number)
+        w = wavelengths_nm.to(z.dtype)
+        dl = dl_otf(fy, fx, w, f_number)
+        num = _autocorrelation(self._field(z, w))  # [B, L, K, K]
+        den = _autocorrelation(self.aperture.to(z.dtype)).real
+        ok = den > 1e-9 * den[0, 0]
+        ratio = torch.where(ok, num / torch.where(ok, den, torch.ones_like(den)), torch.zeros_like(num))
+        ratio = torch.fft.fftshift(ratio, dim=(-2, -1))
+        k = ratio.shape[-1]
+        # frequency f <-> pupil shift f * lambda * d, i.e. index offset f * K * (lambda N / 2)
+        scale = (k * w[None, :] * 1e-9 * f_number.reshape(-1, 1) / 2)[:, :, None]
+        h = _interp_centered(ratio, fy.to(z.dtype)[:, None, :] * scale, fx.to(z.dtype)[:, None, :] * scale)
+        return h * dl
+
+    def _field(self, z: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        w_um = torch.einsum("bj,jpq->bpq", z, self.basis.to(z.dtype))
+        phase = 2 * math.pi * w_um[:, None] / (w[None, :, None, None] * 1e-3)
+        inside = self.aperture > 0
+        step = torch.maximum((phase[..., 1:, :] - phase[..., :-1, :]).detach().abs().masked_fill(
+            ~(inside[1:, :] & inside[:-1, :]), 0).amax(), (phase[..., :, 1:] - phase[..., :, :-1]).detach().abs(
+            ).masked_fill(~(inside[:, 1:] & inside[:, :-1]), 0).amax())
+        if step > math.pi / 2:
+            warnings.warn(f"WavefrontOptics: the pupil phase changes by {step.item():.2f} rad between pupil samples "
+                          f"(> pi/2); increase pupil_samples ({self.pupil_samples})", stacklevel=3)
+        return torch.polar(self.aperture.to(z.dtype).expand_as(phase), phase)
+
+    def psf_margin_m(self, wavelengths_nm, f_number):
+        """Diffraction tail (as :class:`DiffractionLimitedOptics`) plus the geometric blur radius
+        ``2 N max|grad_rho W|`` (the largest transverse ray aberration, Welford, Aberrations of Optical Systems)."""
+        lam_n = wavelengths_nm.max() * 1e-9 * f_number
+        b = f_number.shape[0]
+        z = self.coefficients(b, f_number).detach()
+        w_um = torch.einsum("bj,jpq->bpq", z, self.basis.to(z.dtype))
+        inside = self.aperture > 0
+        dy = (w_um[:, 1:, :] - w_um[:, :-1, :]).abs().masked_fill(~(inside[1:, :] & inside[:-1, :]), 0)
+        dx = (w_um[:, :, 1:] - w_um[:, :, :-1]).abs().masked_fill(~(inside[:, 1:] & inside[:, :-1]), 0)
+        grad_rho_m = torch.maximum(dy.flatten(1).amax(1), dx.flatten(1).amax(1)) * 1e-6 * self.pupil_samples / 2
+        return 2 * lam_n / (math.pi**3 * self.psf_tolerance) + 2 * f_number.detach() * grad_rho_m

@@ -1,0 +1,130 @@
+"""Wavefront (Zernike) optics against the diffraction limit, a direct Fraunhofer integral, ray optics, gradcheck."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy import integrate, special
+
+from isettorch import Scene
+from isettorch.optics import (
+    DiffractionLimitedOptics,
+    WavefrontOptics,
+    analysis,
+    defocus_diopters_to_zernike_um,
+    zernike_basis,
+    zernike_nm,
+)
+
+LAM, N, F = 550e-9, 4.0, 4e-3
+LAM_N = LAM * N
+
+
+def test_zernike_indexing_and_orthonormality():
+    # ANSI Z80.28 / OSA single index order
+    assert [zernike_nm(j) for j in range(10)] == [(0, 0), (1, -1), (1, 1), (2, -2), (2, 0), (2, 2), (3, -3),
+                                                  (3, -1), (3, 1), (3, 3)]
+    assert zernike_nm(12) == (4, 0)  # primary spherical
+    u = (torch.arange(300, dtype=torch.float64) + 0.5) / 150 - 1
+    yy, xx = torch.meshgrid(u, u, indexing="ij")
+    rho, th = torch.sqrt(xx**2 + yy**2), torch.atan2(yy, xx)
+    inside = rho <= 1
+    z = zernike_basis(15, rho, th)[:, inside]
+    gram = z @ z.T / inside.sum()
+    torch.testing.assert_close(gram, torch.eye(15, dtype=torch.float64), atol=2e-2, rtol=0)
+    # defocus Z_2^0 = sqrt(3)(2 rho^2 - 1)
+    torch.testing.assert_close(zernike_basis(5, rho, th)[4], math.sqrt(3) * (2 * rho**2 - 1))
+
+
+def test_defocus_conversion():
+    # 1 D over a 6 mm pupil: c = D r^2 / (4 sqrt 3) = 9 / (4 sqrt 3) um (Thibos 2004)
+    assert float(defocus_diopters_to_zernike_um(1.0, 6e-3)) == pytest.approx(9 / (4 * math.sqrt(3)), rel=1e-12)
+
+
+def test_zero_coefficients_match_diffraction_limit():
+    wf = WavefrontOptics(torch.zeros(15), f_number=N, focal_length_m=F, pupil_samples=64)
+    dl = DiffractionLimitedOptics(N, F)
+    dx = LAM_N / 4
+    for w in ([450.0, 550.0, 650.0],):
+        a = analysis.psf(wf, w, dx, 96)
+        b = analysis.psf(dl, w, dx, 96)
+        assert ((a - b).abs().amax(dim=(-2, -1)) / b.amax(dim=(-2, -1))).max() < 1e-3
+
+
+def _fraunhofer_profile(c4_um, r_m):
+    """Independent reference: PSF(r) / PSF_DL(0) = |int_0^1 exp(i 2 pi W / lambda) J0(pi r rho / (lambda N)) 2 rho
+    d rho|^2 for the rotationally symmetric pupil with W = c4 sqrt(3)(2 rho^2 - 1) (Born & Wolf 8.8)."""
+    rho = np.linspace(0, 1, 8001)
+    ph = np.exp(1j * 2 * np.pi * c4_um * np.sqrt(3) * (2 * rho**2 - 1) / (LAM * 1e6))
+    return np.array([abs(integrate.simpson(ph * special.j0(np.pi * r * rho / LAM_N) * 2 * rho, x=rho)) ** 2
+                     for r in r_m])
+
+
+@pytest.mark.parametrize("diopters", [1.5, 4.0])
+def test_defocus_psf_matches_fraunhofer_integral(diopters):
+    wf = WavefrontOptics(None, f_number=N, focal_length_m=F, defocus_diopters=diopters, pupil_samples=64)
+    c4 = float(defocus_diopters_to_zernike_um(diopters, F / N))
+    dx = LAM_N / 4
+    p = analysis.psf(wf, [550.0], dx, 128)[0, 0]
+    dl_peak = (math.pi / 4) * (dx / LAM_N) ** 2  # sampled Airy peak of a unit-sum PSF
+    got = (p[64, 64:] / dl_peak).numpy()
+    ref = _fraunhofer_profile(c4, np.arange(64) * dx)
+    assert np.abs(got - ref).max() < 2e-3  # relative to the diffraction-limited peak; measured ~5e-4
+    assert ref[0] < 0.8  # the defocus is not negligible
+
+
+def test_tilt_moves_the_psf_by_the_ray_aberration():
+    c_um = 0.1  # OSA j = 1: W = c 2 rho sin(theta) -> transverse shift 2 c d / R = 4 c N along +rows
+    wf = WavefrontOptics(torch.tensor([0.0, c_um]), f_number=N, focal_length_m=F)
+    f = torch.tensor([[0.1, 0.2]], dtype=torch.float64) / LAM_N
+    otf = wf.otf(f, torch.zeros(1, 1, dtype=torch.float64), torch.tensor([550.0], dtype=torch.float64),
+                 torch.tensor([N], dtype=torch.float64))[0, 0, :, 0]
+    shift = -torch.angle(otf) / (2 * math.pi * f[0])
+    torch.testing.assert_close(shift, torch.full_like(shift, 4 * c_um * 1e-6 * N), rtol=1e-2, atol=0)
+
+
+def _small_scene():
+    g = torch.Generator().manual_seed(5)
+    x = torch.rand(1, 1, 6, 6, generator=g, dtype=torch.float64)
+    d_i = 1 / (1 / F - 1 / 1.2)
+    hfov = 2 * math.degrees(math.atan(6 * LAM_N / 2 / (2 * d_i)))  # samples of lambda N / 2
+    return Scene(x, torch.tensor([550.0], dtype=torch.float64), hfov_deg=hfov, distance_m=1.2)
+
+
+def test_gradcheck_zernike_and_f_number():
+    scene = _small_scene()
+    wf = WavefrontOptics(torch.zeros(6), f_number=N, focal_length_m=F, pupil_samples=16, margin=2,
+                         learn_zernike=True, learn_f_number=True)
+
+    def fn(z, n):
+        return torch.func.functional_call(wf, {"zernike_um": z, "f_number": n}, (scene,)).photons
+
+    z = torch.tensor([0.0, 0.02, -0.03, 0.05, 0.08, -0.04], dtype=torch.float64, requires_grad=True)
+    n = torch.tensor(N, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(fn, (z, n), eps=1e-7, atol=1e-7, rtol=1e-3, fast_mode=True)
+    # the parameters really are learnable: a loss moves them
+    wf(scene).photons.sum().backward()
+    assert wf.zernike_um.grad is not None and wf.f_number.grad is not None
+
+
+def test_batched_coefficients_equal_one_at_a_time():
+    scene = _small_scene()
+    both = Scene.cat([scene, scene])
+    z = torch.tensor([[0, 0, 0, 0, 0.05], [0, 0.03, 0, 0, -0.1]], dtype=torch.float64)
+    out = WavefrontOptics(z, f_number=torch.tensor([4.0, 5.6], dtype=torch.float64), focal_length_m=F,
+                          pupil_samples=16, margin=4)(both)
+    for i, n in enumerate([4.0, 5.6]):
+        one = WavefrontOptics(z[i], f_number=n, focal_length_m=F, pupil_samples=16, margin=4)(scene)
+        torch.testing.assert_close(out.photons[i:i + 1], one.photons, rtol=1e-10, atol=1e-14)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="pupil_samples"):
+        WavefrontOptics(None, pupil_samples=7)
+    with pytest.raises(ValueError, match="f_number / pupil_diameter_m"):
+        WavefrontOptics(None, f_number=4.0, pupil_diameter_m=1e-3)
+    with pytest.raises(ValueError, match="zernike_um"):
+        WavefrontOptics(torch.full((3,), float("nan")))
+    with pytest.raises(ValueError, match="j"):
+        zernike_nm(-1)
