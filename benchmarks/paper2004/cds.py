@@ -25,26 +25,11 @@ from pathlib import Path
 import torch
 
 from isettorch.camera import Camera
+from isettorch.isp.chart import gray_patch_snr_db
 from isettorch.scene import macbeth
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "cameras" / "paper2004_cds.yaml"
 LUX = (17.4, 1.74)
-
-
-def _gray_snr_db(raw) -> list[float]:
-    """SNR (dB) of the six gray patches: mean noise-free signal / std of (noisy - noise-free), green pixels of
-    each patch's central half (so the lens' cos^4 shading across a patch does not count as noise)."""
-    sig = raw.noise_free[0, 0].double() - raw.black_level
-    res = raw.data[0, 0].double() - raw.noise_free[0, 0].double()
-    mask = raw.channel_masks()[1].bool()
-    h, w = sig.shape
-    out = []
-    for c in range(6):
-        r = slice(int(3.25 * h / 4), int(3.75 * h / 4))
-        k = slice(int((c + 0.25) * w / 6), int((c + 0.75) * w / 6))
-        m = mask[r, k]
-        out.append(round(float(20 * torch.log10(sig[r, k][m].mean() / res[r, k][m].std())), 2))
-    return out
 
 
 def run(out: Path, cols: int = 800, seed: int = 0) -> dict:
@@ -77,7 +62,7 @@ def run(out: Path, cols: int = 800, seed: int = 0) -> dict:
                      "mean_signal_mv": round(float(raw.noise_free.mean()) * 1e3, 3),
                      "noise_std_mv": round(noise_v * 1e3, 4),
                      "noise_std_electrons": round(noise_v / raw.conversion_gain_v_per_e, 1),
-                     "gray_patch_snr_db": _gray_snr_db(raw)}
+                     "gray_patch_snr_db": [round(v, 2) for v in gray_patch_snr_db(raw, 1)]}
             results.append(entry)
             images[(lux, cds)] = res.image[0]
             print(f"{lux:6.2f} lux  CDS {'on ' if cds else 'off'}  signal {entry['mean_signal_mv']:8.3f} mV  "

@@ -33,28 +33,16 @@ def _save_png(img, path: Path) -> None:
     Image.fromarray(a).save(path)
 
 
-def _gray_patch_snr(raw, cfa_channel: int = 1) -> list[float]:
-    """SNR (dB) of the six gray patches (19-24) of a Macbeth raw: mean / std of one channel's pixels."""
-    import torch
-
-    x = raw.data[0, 0].double() - raw.black_level
-    mask = raw.channel_masks()[cfa_channel].bool()
-    h, w = x.shape
-    out = []
-    for c in range(6):
-        rows = slice(int(3.25 * h / 4), int(3.75 * h / 4))
-        cols = slice(int((c + 0.25) * w / 6), int((c + 0.75) * w / 6))
-        v = x[rows, cols][mask[rows, cols]]
-        std = v.std()
-        out.append(float(20 * torch.log10(v.mean() / std)) if std > 0 else math.inf)
-    return out
+def _inner(oi):
+    """The optical image without the optics' padding (the scene's area, which the sensor sees)."""
+    return oi.crop(oi.pad_rows, oi.pad_cols, oi.height - 2 * oi.pad_rows, oi.width - 2 * oi.pad_cols)
 
 
 def run(args) -> int:
     import torch
 
     from ..camera import Camera
-    from ..isp.chart import macbeth_delta_e, patch_means
+    from ..isp.chart import gray_patch_snr_db, macbeth_delta_e, patch_means
     from ..scene import frequency_sweep, macbeth, slanted_edge
     from ..scene.dead_leaves import dead_leaves
 
@@ -86,13 +74,13 @@ def run(args) -> int:
             "image": f"{name}.png",
             "sensor_pixels": list(res.raw.data.shape[-2:]),
             "scene_mean_luminance_cd_m2": float(scene.mean_luminance()[0]),
-            "sensor_mean_illuminance_lux": float(res.optical_image.mean_illuminance()[0]),
+            "sensor_mean_illuminance_lux": float(_inner(res.optical_image).mean_illuminance()[0]),
             "exposure_s": float(res.raw.exposure_s[0]),
             "render_seconds": round(elapsed, 3),
         }
         if name == "macbeth":
             acc = macbeth_delta_e(patch_means(res.isp.xyz), "D65")
-            snr = _gray_patch_snr(res.raw)
+            snr = gray_patch_snr_db(res.raw)
             entry.update({"delta_e2000_mean": float(acc.mean[0]), "delta_e2000_max": float(acc.max[0]),
                           "delta_e2000_per_patch": [round(float(v), 3) for v in acc.delta_e[0]],
                           "gray_patch_snr_db": [round(v, 2) for v in snr]})
@@ -110,7 +98,7 @@ def run(args) -> int:
         f" max **{m['delta_e2000_max']:.2f}**",
         f"- exposure {m['exposure_s'] * 1e3:.2f} ms at {m['sensor_mean_illuminance_lux']:.2f} lux mean sensor "
         "illuminance",
-        "- SNR of the gray patches (white -> black, green pixels, dB): "
+        "- SNR of the gray patches (white -> black, green pixels, noise-free mean / noise std, dB): "
         + ", ".join(f"{v:.1f}" for v in m["gray_patch_snr_db"]),
         "",
         "## Scenes",

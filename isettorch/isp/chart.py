@@ -11,7 +11,7 @@ import torch
 
 from .colour import reflectance_set, white_xyz, xyz_responses
 
-__all__ = ["patch_means", "macbeth_true_xyz", "macbeth_delta_e", "WHITE_PATCH"]
+__all__ = ["patch_means", "macbeth_true_xyz", "macbeth_delta_e", "gray_patch_snr_db", "WHITE_PATCH"]
 
 #: Index of the white patch (row 4, column 1) in reading order.
 WHITE_PATCH = 18
@@ -62,3 +62,26 @@ def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = 
         x = x * (ref[WHITE_PATCH, 1] / x[..., WHITE_PATCH:WHITE_PATCH + 1, 1:2])
     white = white_xyz(illuminant).to(x.device)
     return color_accuracy(x, ref, white=white, method=method)
+
+
+def gray_patch_snr_db(raw, channel: int | None = None, fraction: float = 0.5) -> list[float]:
+    """SNR (dB) of the six gray patches (white -> black) of a Macbeth raw that fills the sensor:
+    ``20 log10(mean noise-free signal / std(noisy - noise-free))`` over one CFA channel's pixels (default the
+    channel with most pixels, G of a Bayer) in each patch's central ``fraction``; using the noise-free
+    signal keeps lens shading and blur out of the noise. Needs ``raw.noise_free``."""
+    if raw.noise_free is None:
+        raise ValueError("raw: gray_patch_snr_db needs raw.noise_free (the sensor's noise-free capture)")
+    masks = raw.channel_masks()
+    c = int(masks.flatten(1).sum(1).argmax()) if channel is None else channel
+    sig = raw.noise_free[0, 0].double() - raw.black_level
+    res = raw.data[0, 0].double() - raw.noise_free[0, 0].double()
+    mask = masks[c].bool()
+    h, w = sig.shape
+    out = []
+    for k in range(6):
+        r = slice(int((3.5 - fraction / 2) * h / 4), int((3.5 + fraction / 2) * h / 4))
+        col = slice(int((k + 0.5 - fraction / 2) * w / 6), int((k + 0.5 + fraction / 2) * w / 6))
+        m = mask[r, col]
+        s, n = sig[r, col][m].mean(), res[r, col][m].std()
+        out.append(float(20 * torch.log10(s / n)) if n > 0 else float("inf"))
+    return out
