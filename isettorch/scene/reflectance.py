@@ -85,13 +85,15 @@ def from_rgb(rgb: torch.Tensor, display="lcd", wavelengths=None, *, dpi: float |
         rgb: encoded RGB [B, 3, H, W] (or [3, H, W]) in [0, 1].
         display: ``"lcd"`` (sRGB chromaticities and EOTF), ``"crt"``, ``"apple"`` (see :meth:`Display.create`)
             or a :class:`Display`.
-        wavelengths: scene grid [L] (nm), default 400:10:700; the primaries are resampled linearly onto it.
+        wavelengths: scene grid [L] (nm), default 400:10:700; the primaries are band-averaged onto it
+            (:meth:`Display.primaries_on`), so the white's luminance moves by < 0.1 % on 400:10:700.
         dpi, viewing_distance_m: override the display's.
         mean_luminance_cd_m2: None (default) keeps the display's absolute radiance (ISETCam's behaviour when no
             mean luminance is given); a value rescales the scene.
 
     Example:
-        >>> s = from_rgb(torch.ones(1, 3, 2, 2), "lcd", torch.arange(380., 781., 5.))
+        >>> lcd = Display.create("lcd")
+        >>> s = from_rgb(torch.ones(1, 3, 2, 2), lcd, lcd.wavelengths_nm)  # on the display's own grid
         >>> round(s.mean_luminance().item(), 3)
         100.0
     """
