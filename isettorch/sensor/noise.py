@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["SHOT_NOISE_MODES", "safe_sqrt", "shot_noise", "normal", "round_half_away", "quantize_ste",
-           "fixed_pattern_draws"]
+__all__ = ["SHOT_NOISE_MODES", "safe_sqrt", "shot_noise", "isetcam_shot_noise", "normal", "round_half_away",
+           "quantize_ste", "fixed_pattern_draws"]
 
 SHOT_NOISE_MODES = ("poisson", "gaussian", "off")
 
@@ -46,6 +46,19 @@ def shot_noise(mean_e: torch.Tensor, mode: str = "poisson", generator: torch.Gen
     if mode == "gaussian":
         return mean_e + safe_sqrt(mean_e) * normal(mean_e, generator)
     raise ValueError(f"shot_noise: expected mode in {SHOT_NOISE_MODES}, got {mode!r}")
+
+
+def isetcam_shot_noise(mean_e: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    """ISETCam ``noiseShot``: ``round(e + sqrt(e) z)`` where e >= 25 electrons, Poisson below (FORMAT 4.8 step 2).
+
+    Straight-through gradient, as :func:`shot_noise`.
+    """
+    m = mean_e.detach().clamp_min(0)
+    low = m < 25
+    gauss = round_half_away(m + torch.sqrt(m) * normal(m, generator))
+    pois = torch.poisson(torch.where(low, m, torch.zeros_like(m)), generator=generator)
+    draw = torch.where(low, pois, gauss)
+    return mean_e + (draw - mean_e).detach()
 
 
 def round_half_away(x: torch.Tensor) -> torch.Tensor:

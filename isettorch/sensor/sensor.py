@@ -79,6 +79,8 @@ class Sensor(nn.Module):
         read_noise_v, dark_current_e_per_s, dsnu_sigma_v, prnu_sigma_percent, column_fpn_sigma_v: noise.
         fpn_mode: ``'fixed'`` (drawn once from ``seed``, stored as buffers) or ``'per_frame'`` (ISETCam redraws
             DSNU/PRNU on every call).
+        noise_model: ``'physical'`` (PRNU scales the photo signal before shot noise; EMVA 1288) or ``'isetcam'``
+            (ISETCam's order: dark, shot with Gaussian-rounded counts above 25 e-, read, then ``v (1 + PRNU) + DSNU``).
         cds: correlated double sampling (fixed offsets cancel, read noise sampled twice).
         vignetting: optional pixel vignetting / etendue map ``[rows, cols]`` (or scalar) multiplying the signal.
         sampling: ``'area'`` (integrate over the photodiode, default) or ``'isetcam'`` (ISETCam's Gaussian
@@ -105,7 +107,8 @@ class Sensor(nn.Module):
                  adc_bits: int | None = None, adc_mode: str = "clamp", black_level_dn: float = 0.0,
                  shot_noise: str = "poisson", read_noise_v: float = 0.0, dark_current_e_per_s: float = 0.0,
                  dsnu_sigma_v: float = 0.0, prnu_sigma_percent: float = 0.0, column_fpn_sigma_v: float = 0.0,
-                 fpn_mode: str = "fixed", cds: bool = False, vignetting=None, sampling: str = "area",
+                 fpn_mode: str = "fixed", noise_model: str = "physical", cds: bool = False, vignetting=None,
+                 sampling: str = "area",
                  preblur_size: int | None = None, output_units: str | None = None, seed: int = 0,
                  name: str = "") -> None:
         super().__init__()
@@ -126,7 +129,8 @@ class Sensor(nn.Module):
         choices = {"gain_convention": (gain_convention, ("multiply", "isetcam")),
                    "adc_mode": (adc_mode, ("clamp", "isetcam")),
                    "shot_noise": (shot_noise, _noise.SHOT_NOISE_MODES),
-                   "fpn_mode": (fpn_mode, ("fixed", "per_frame")), "sampling": (sampling, SAMPLING_MODES)}
+                   "fpn_mode": (fpn_mode, ("fixed", "per_frame")), "sampling": (sampling, SAMPLING_MODES),
+                   "noise_model": (noise_model, ("physical", "isetcam"))}
         for label, (v, allowed) in choices.items():
             if v not in allowed:
                 raise ValueError(f"{label}: expected one of {allowed}, got {v!r}")
@@ -171,6 +175,7 @@ class Sensor(nn.Module):
         self.prnu_sigma_percent = float(prnu_sigma_percent)
         self.column_fpn_sigma_v = float(column_fpn_sigma_v)
         self.fpn_mode = fpn_mode
+        self.noise_model = noise_model
         self.cds = bool(cds)
         self.sampling = sampling
         self.preblur_size = preblur_size
@@ -365,7 +370,6 @@ class Sensor(nn.Module):
                            dtype=dtype, device=device, positive=True)
         cg = self.conversion_gain_v_per_e
         photo_e = rate * t.reshape(-1, 1, 1, 1)
-        rows, cols = photo_e.shape[-2:]
         swing = self.voltage_swing_v
 
         clean_v = self._readout(photo_e * cg, gain)
@@ -373,29 +377,7 @@ class Sensor(nn.Module):
 
         if noise:
             g = generator if generator is not None else self._default_generator(device)
-            if self.fpn_mode == "fixed":
-                fp = self.fixed_pattern(rows, cols, dtype=dtype, device=device)
-                fp = {k: v.expand(b, 1, *v.shape) if k != "column" else v.expand(b, 1, 1, cols)
-                      for k, v in fp.items()}
-            else:  # ISETCam sensorAddNoise / noiseFPN: new DSNU/PRNU images on every call
-                fp = {"dsnu": _noise.normal(photo_e, g), "prnu": _noise.normal(photo_e, g),
-                      "column": _noise.normal(photo_e, g, (b, 1, 1, cols))}
-            signal_e = photo_e
-            if self.prnu_sigma_percent > 0:  # PRNU: per-pixel gain of the photo signal (EMVA 1288)
-                signal_e = signal_e * (1 + self.prnu_sigma_percent / 100 * fp["prnu"])
-            if self.dark_current_e_per_s > 0:
-                signal_e = signal_e + self.dark_current_e_per_s * t.reshape(-1, 1, 1, 1)
-            electrons = _noise.shot_noise(signal_e, self.shot_noise, g)
-            volts = electrons * cg
-            if self.read_noise_v > 0:
-                volts = volts + self.read_noise_v * _noise.normal(volts, g)
-                if self.cds:  # reset sample has its own read noise
-                    volts = volts - self.read_noise_v * _noise.normal(volts, g)
-            if not self.cds:  # CDS subtracts the reset level, cancelling fixed offsets
-                if self.dsnu_sigma_v > 0:
-                    volts = volts + self.dsnu_sigma_v * fp["dsnu"]
-                if self.column_fpn_sigma_v > 0:
-                    volts = volts + self.column_fpn_sigma_v * fp["column"]
+            volts = self._noisy_pixel_volts(photo_e, t, g)
             data = self._to_units(self._readout(volts, gain), quantize=True)
         else:
             data = self._to_units(clean_v, quantize=True)
@@ -411,11 +393,58 @@ class Sensor(nn.Module):
             metadata={"sensor": self.name, "sampling": self.sampling, "gain_convention": self.gain_convention},
         )
 
+    def _fixed_or_fresh_patterns(self, like: torch.Tensor, g: torch.Generator | None) -> dict[str, torch.Tensor]:
+        b, _, rows, cols = like.shape
+        if self.fpn_mode == "fixed":
+            fp = self.fixed_pattern(rows, cols, dtype=like.dtype, device=like.device)
+            return {"dsnu": fp["dsnu"].expand(b, 1, rows, cols), "prnu": fp["prnu"].expand(b, 1, rows, cols),
+                    "column": fp["column"].expand(b, 1, 1, cols)}
+        # ISETCam sensorAddNoise / noiseFPN: new DSNU/PRNU images on every call
+        return {"dsnu": _noise.normal(like, g), "prnu": _noise.normal(like, g),
+                "column": _noise.normal(like, g, (b, 1, 1, cols))}
+
+    def _noisy_pixel_volts(self, photo_e: torch.Tensor, t: torch.Tensor, g: torch.Generator | None) -> torch.Tensor:
+        """Pixel volts (before analog gain and clipping) with dark signal, shot, read and fixed-pattern noise."""
+        cg = self.conversion_gain_v_per_e
+        tt = t.reshape(-1, 1, 1, 1)
+        fp = self._fixed_or_fresh_patterns(photo_e, g)
+        if self.noise_model == "isetcam":
+            # ISETCam sensorAddNoise order (FORMAT 4.8): dark, shot (noiseShot), read, then v (1 + PRNU) + DSNU
+            electrons = photo_e + self.dark_current_e_per_s * tt if self.dark_current_e_per_s > 0 else photo_e
+            if self.shot_noise != "off":
+                electrons = _noise.isetcam_shot_noise(electrons, g)
+            volts = electrons * cg
+            if self.read_noise_v > 0:
+                volts = volts + self.read_noise_v * _noise.normal(volts, g)
+            if self.prnu_sigma_percent > 0:
+                volts = volts * (1 + self.prnu_sigma_percent / 100 * fp["prnu"])
+            if self.dsnu_sigma_v > 0:
+                volts = volts + self.dsnu_sigma_v * fp["dsnu"]
+            if self.column_fpn_sigma_v > 0:
+                volts = volts + self.column_fpn_sigma_v * fp["column"]
+            return volts
+        signal_e = photo_e
+        if self.prnu_sigma_percent > 0:  # PRNU: per-pixel gain of the photo signal (EMVA 1288)
+            signal_e = signal_e * (1 + self.prnu_sigma_percent / 100 * fp["prnu"])
+        if self.dark_current_e_per_s > 0:
+            signal_e = signal_e + self.dark_current_e_per_s * tt
+        volts = _noise.shot_noise(signal_e, self.shot_noise, g) * cg
+        if self.read_noise_v > 0:
+            volts = volts + self.read_noise_v * _noise.normal(volts, g)
+            if self.cds:  # the reset sample has its own read noise
+                volts = volts - self.read_noise_v * _noise.normal(volts, g)
+        if not self.cds:  # CDS subtracts the reset level, cancelling the fixed offsets
+            if self.dsnu_sigma_v > 0:
+                volts = volts + self.dsnu_sigma_v * fp["dsnu"]
+            if self.column_fpn_sigma_v > 0:
+                volts = volts + self.column_fpn_sigma_v * fp["column"]
+        return volts
+
     def noise_parameters(self, enabled: bool = True) -> dict[str, Any]:
         return {"enabled": enabled, "shot_noise": self.shot_noise, "read_noise_v": self.read_noise_v,
                 "dark_current_e_per_s": self.dark_current_e_per_s, "dsnu_sigma_v": self.dsnu_sigma_v,
                 "prnu_sigma_percent": self.prnu_sigma_percent, "column_fpn_sigma_v": self.column_fpn_sigma_v,
-                "fpn_mode": self.fpn_mode, "cds": self.cds, "seed": self.seed}
+                "fpn_mode": self.fpn_mode, "noise_model": self.noise_model, "cds": self.cds, "seed": self.seed}
 
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, size={self.rows}x{self.cols}, pixel={self.pixel_size_m * 1e6:g} um, "

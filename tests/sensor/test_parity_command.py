@@ -174,3 +174,28 @@ def test_shared_cases_pass_json(capsys):
         if st["oi_photons"]["ok"] is not None:
             assert st["oi_photons"]["max_err"] <= 1e-4 and "seconds" in st["oi_photons"]
         assert "sensor_volts_from_our_oi" in st
+
+
+def test_noise_statistics_stage_against_format_formula(tmp_path):
+    # uniform field, ISETCam noise model: residual std = sqrt(prnu^2 v^2 + cg v + cg^2/12 + read^2 + dsnu^2)
+    path = tmp_path / "noise.npz"
+    spec = dict(SYNTHETIC["grbg_analog_small_pixels"], rows=40, cols=50, peak_volts=0.4)
+    data = make_case(path, seed=9, **spec)
+    oi = np.full_like(data["oi_photons"], data["oi_photons"].mean())
+    data["oi_photons"] = oi
+    current, volts, _ = reference_sensor(oi, spec["wave"], data["sensor_spectral_qe"], data["sensor_cfa_pattern"],
+                                         spec["dx"], spec["pitch"], 0.75, 40, 50, float(data["sensor_exposure_s"]),
+                                         1e-4, 1.0, 1.0, 0.0, 0)
+    data.update(sensor_volts=volts, sensor_signal_current_a=current, sensor_read_noise_v=np.float64(1e-3),
+                sensor_dark_voltage_v_per_s=np.float64(1e-3), sensor_dsnu_sigma_v=np.float64(2e-3),
+                sensor_prnu_sigma_percent=np.float64(1.0), noise_nruns=np.int64(20))
+    t = float(data["sensor_exposure_s"])
+    idx = np.tile(data["sensor_cfa_pattern"] - 1, (20, 25))
+    v = np.array([volts[idx == c].mean() for c in range(3)]) + 1e-3 * t
+    data["noise_resid_std_v"] = np.sqrt((0.01 * v) ** 2 + 1e-4 * v + 1e-8 / 12 + 1e-6 + 4e-6)
+    data["noise_resid_mean_v"] = np.full(3, 1e-3 * t)
+    np.savez(path, **data)
+    st = parity.run_case(path)["stages"]["noise_stats"]
+    assert st["informational"] and st["ok"], st
+    assert st["max_err"] < 0.02
+    np.testing.assert_allclose(st["resid_mean_v"], 1e-3 * t, atol=6e-5)

@@ -284,3 +284,22 @@ def test_size_to_oi_and_fov():
     assert s2.cols == 242
     w = spectral.default_wavelengths()
     assert s.qe(OpticalImage(torch.ones(1, 31, 4, 4), w)).shape == (3, 31)
+
+
+def test_isetcam_noise_model_residual_std():
+    # FORMAT 4.8: residual std = sqrt(prnu^2 (v + dt)^2 + cg (v + dt) + cg^2 / 12 + read^2 + dsnu^2)
+    cg, read, dsnu, prnu, dark_v, t = 1e-4, 1e-3, 2e-3, 1.0, 1e-3, 0.05
+    s = simple_sensor(rows=200, cols=250, noise_model="isetcam", fpn_mode="per_frame", shot_noise="poisson",
+                      read_noise_v=read, dsnu_sigma_v=dsnu, prnu_sigma_percent=prnu,
+                      dark_current_e_per_s=dark_v / cg, exposure_s=t)
+    oi = uniform_oi(level=0.3 / (0.5 * 100 * 3 * 4e-12 * 0.5 * t * cg), size=(210, 260))
+    raw = s(oi, generator=torch.Generator().manual_seed(0))
+    resid = (raw.data - raw.noise_free).flatten()
+    v = 0.3 + dark_v * t
+    expected = math.sqrt((prnu / 100 * v) ** 2 + cg * v + cg**2 / 12 + read**2 + dsnu**2)
+    assert resid.std().item() == pytest.approx(expected, rel=0.01)  # 50 000 pixels: 0.3 % standard error
+    assert resid.mean().item() == pytest.approx(dark_v * t, abs=3 * expected / math.sqrt(resid.numel()))
+    # few electrons: Poisson counts (integers x cg)
+    low = simple_sensor(noise_model="isetcam", shot_noise="poisson", rows=50, cols=50)
+    e = low(uniform_oi(level=1e12, size=(60, 60))).data / cg
+    assert torch.allclose(e, e.round(), atol=1e-6)
