@@ -1,0 +1,179 @@
+"""Spectral OpenEXR in the layout of Fichet, Pacanowski & Wilkie, "An OpenEXR layout for spectral images",
+JCGT 10(3), 2021.
+
+Layout (as in the paper and its reference implementation, and colour-science's ``fichet2021`` module):
+
+* one FLOAT channel per wavelength; emissive spectra are Stokes component 0 and named
+  ``S0.<value><unit>`` and reflective ones ``T.<value><unit>``, with the value written with a **comma** as
+  decimal separator (the dot separates layers in OpenEXR), e.g. ``S0.550,000000nm``;
+* a header attribute ``spectralLayoutVersion`` = ``"1.0"``, and ``emissiveUnits`` (``"W.m^-2.sr^-1"``:
+  spectral radiance per nm) for emissive images;
+* isettorch adds the scene geometry as header attributes ``isettorch.hfov_deg``, ``isettorch.distance_m``
+  (floats), ``isettorch.radianceUnits`` (string) and, when the scene has one, ``isettorch.illuminant``
+  (float vector, same units as the channels).
+
+Values are stored as float32, so a float32 array written and read back is bitwise identical.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import constants, spectral
+
+__all__ = ["write_spectral_exr", "read_spectral_exr", "write_scene_exr", "read_scene_exr", "channel_name",
+           "parse_channel_name"]
+
+LAYOUT_VERSION = "1.0"
+EMISSIVE_UNITS = "W.m^-2.sr^-1"
+_PREFIX_EXP = {"Y": 24, "Z": 21, "E": 18, "P": 15, "T": 12, "G": 9, "M": 6, "k": 3, "h": 2, "da": 1, "": 0, "d": -1,
+               "c": -2, "m": -3, "u": -6, "n": -9, "p": -12, "f": -15, "a": -18, "z": -21, "y": -24}
+# Fichet et al. 2021, sec. 3: <component>.<number with ',' decimal separator><SI prefix><m | Hz>
+_CHANNEL = re.compile(r"^(S0|S1|S2|S3|T)\.(\d*,?\d*(?:[eE][-+]?\d+)?)(da|[YZEPTGMkhdcmunpfazy])?(m|Hz)$")
+
+
+def channel_name(wavelength_nm: float, component: str = "S0") -> str:
+    """Fichet et al. channel name of a wavelength: ``channel_name(550) == 'S0.550,000000nm'``."""
+    return f"{component}.{float(wavelength_nm):.6f}".replace(".", ",").replace(",", ".", 1) + "nm"
+
+
+def parse_channel_name(name: str) -> tuple[str, float] | None:
+    """``(component, wavelength_nm)`` of a Fichet et al. channel name, or None for other channels."""
+    m = _CHANNEL.match(name)
+    if m is None or m.group(2) in ("", ","):
+        return None
+    value = float(m.group(2).replace(",", "."))
+    exp = _PREFIX_EXP[m.group(3) or ""]
+    if m.group(4) == "m":  # exact for nm (10 ** 0)
+        return m.group(1), value * 10 ** (exp + 9) if exp + 9 >= 0 else value / 10 ** -(exp + 9)
+    if value <= 0:
+        return None
+    return m.group(1), constants.SPEED_OF_LIGHT_M_PER_S / (value * 10.0**exp) * 1e9  # frequency (Hz) -> nm
+
+
+def _as_numpy_f32(data, name: str) -> np.ndarray:
+    a = data.detach().cpu().numpy() if isinstance(data, torch.Tensor) else np.asarray(data)
+    if a.ndim != 3:
+        raise ValueError(f"{name}: expected a cube [L, H, W], got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name}: expected finite values")
+    return np.ascontiguousarray(a.astype(np.float32, copy=False))
+
+
+def write_spectral_exr(path, data, wavelengths_nm, *, component: str = "S0", attributes: dict | None = None,
+                       compression: str = "zip") -> Path:
+    """Write a spectral cube ``[L, H, W]`` (float32) with one channel per wavelength (Fichet et al. 2021).
+
+    Args:
+        component: ``'S0'`` (emissive, adds ``emissiveUnits``) or ``'T'`` (reflective / transmissive).
+        attributes: extra header attributes (str, float, int or float arrays).
+        compression: ``'zip'``, ``'piz'`` or ``'none'`` (all lossless for float32).
+    """
+    import OpenEXR
+
+    a = _as_numpy_f32(data, "data")
+    w = np.asarray(torch.as_tensor(wavelengths_nm, dtype=torch.float64).cpu(), dtype=float).reshape(-1)
+    if w.size != a.shape[0]:
+        raise ValueError(f"wavelengths_nm: expected {a.shape[0]} wavelengths (one per band), got {w.size}")
+    if component not in ("S0", "T"):
+        raise ValueError(f"component: expected 'S0' (emissive) or 'T' (reflective), got {component!r}")
+    comp = {"zip": OpenEXR.ZIP_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}
+    if compression not in comp:
+        raise ValueError(f"compression: expected one of {sorted(comp)}, got {compression!r}")
+    names = [channel_name(x, component) for x in w]
+    if len(set(names)) != len(names):
+        raise ValueError(f"wavelengths_nm: expected distinct wavelengths (to 1e-6 nm), got {w.tolist()}")
+    header = {"compression": comp[compression], "type": OpenEXR.scanlineimage,
+              "spectralLayoutVersion": LAYOUT_VERSION}
+    if component == "S0":
+        header["emissiveUnits"] = EMISSIVE_UNITS
+    header.update(attributes or {})
+    p = Path(path)
+    OpenEXR.File(header, {n: a[i] for i, n in enumerate(names)}).write(str(p))
+    return p
+
+
+def read_spectral_exr(path) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """Read a Fichet et al. spectral EXR: ``(data [L, H, W] float32, wavelengths_nm [L] float64, header)``.
+
+    Emissive (``S0``) channels are returned when present, else reflective (``T``) ones; bands are sorted by
+    wavelength. Raises ValueError for unreadable files and files without spectral channels.
+    """
+    import OpenEXR
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"path: no such file {str(p)!r}")
+    try:
+        f = OpenEXR.File(str(p))
+        header = dict(f.header())
+        chans = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
+    except Exception as err:  # OpenEXR raises RuntimeError / others for corrupt or truncated files
+        raise ValueError(f"path: {str(p)!r} is not a readable OpenEXR file ({err})") from err
+    parsed = {}
+    for name in chans:
+        r = parse_channel_name(name)
+        if r is not None:
+            parsed.setdefault(r[0], []).append((r[1], name))
+    comp = "S0" if "S0" in parsed else "T" if "T" in parsed else None
+    if comp is None:
+        raise ValueError(f"path: {str(p)!r} has no spectral channels in the Fichet et al. 2021 layout "
+                         f"(names like 'S0.550,000000nm'); channels are {sorted(chans)[:8]}")
+    bands = sorted(parsed[comp])
+    data = np.stack([chans[n].astype(np.float32, copy=False) for _, n in bands])
+    header["component"] = comp
+    return torch.from_numpy(data), torch.tensor([w for w, _ in bands], dtype=torch.float64), header
+
+
+def write_scene_exr(path, scene, index: int = 0, *, compression: str = "zip") -> Path:
+    """Write sample ``index`` of a `Scene` as an emissive spectral EXR: radiance in W/sr/m^2/nm (float32),
+    with its FOV, distance and (if any) illuminant in the header."""
+    from ..scene import Scene
+
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
+    s = scene[index]
+    energy = spectral.photons_to_energy(s.photons[0].to(torch.float64), s.wavelengths_nm.to(torch.float64), dim=0)
+    attrs = {"isettorch.hfov_deg": float(s.hfov_deg[0]), "isettorch.distance_m": float(s.distance_m[0]),
+             "isettorch.radianceUnits": "W.sr^-1.m^-2.nm^-1"}
+    if s.name:
+        attrs["isettorch.name"] = s.name
+    if s.illuminant_photons is not None:
+        ill = spectral.photons_to_energy(s.illuminant_photons[0].to(torch.float64),
+                                         s.wavelengths_nm.to(torch.float64), dim=0)
+        attrs["isettorch.illuminant"] = ill.numpy().astype(np.float32)
+    return write_spectral_exr(path, energy, s.wavelengths_nm, component="S0", attributes=attrs,
+                              compression=compression)
+
+
+def read_scene_exr(path, *, hfov_deg: float | None = None, distance_m: float | None = None, dtype=torch.float32):
+    """Read an emissive spectral EXR as a `Scene` (radiance W/sr/m^2/nm -> photons/s/sr/m^2/nm).
+
+    FOV and distance come from the ``isettorch.*`` attributes, else from the arguments, else ISETCam's
+    defaults (10 deg, 1.2 m; recorded in ``metadata['defaulted']``).
+    """
+    from ..scene import Scene
+
+    data, w, header = read_spectral_exr(path)
+    if header["component"] != "S0":
+        raise ValueError(f"path: {str(path)!r} holds reflective (T) channels, not emissive radiance (S0)")
+    defaulted = []
+    hfov = hfov_deg if hfov_deg is not None else header.get("isettorch.hfov_deg")
+    if hfov is None:
+        hfov, defaulted = 10.0, defaulted + ["hfov_deg"]
+    dist = distance_m if distance_m is not None else header.get("isettorch.distance_m")
+    if dist is None:
+        dist, defaulted = 1.2, defaulted + ["distance_m"]
+    photons = spectral.energy_to_photons(data.to(torch.float64), w, dim=0)
+    ill = header.get("isettorch.illuminant")
+    ill_p = None
+    if ill is not None:
+        ill_p = spectral.energy_to_photons(torch.as_tensor(np.asarray(ill), dtype=torch.float64), w, dim=0)
+        ill_p = ill_p.to(dtype)
+    meta = {"source": str(path), "defaulted": defaulted, "emissiveUnits": header.get("emissiveUnits")}
+    return Scene(photons.to(dtype)[None], w.to(dtype), name=str(header.get("isettorch.name", Path(path).stem)),
+                 metadata=meta, hfov_deg=float(hfov), distance_m=float(dist), illuminant_photons=ill_p)

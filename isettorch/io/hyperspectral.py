@@ -1,0 +1,158 @@
+"""Loaders for public hyperspectral image sets (the files must already be on disk; nothing is downloaded).
+
+* **CAVE** (Yasuma et al., "Generalized assorted pixel camera", IEEE TIP 19(9), 2010): one 16-bit
+  grayscale PNG per band, ``<name>_ms_01.png`` ... ``<name>_ms_31.png`` for 400, 410, ..., 700 nm, in a folder
+  ``<name>_ms/``. The values are reflectance-like (relative to a white reference), so the scene is
+  rendered under an illuminant (default D65).
+* **KAIST** (Choi et al., "High-quality hyperspectral reconstruction using a spectral prior", ACM TOG 36(6),
+  2017): OpenEXR with one channel per band; channel names carry the wavelength (``'420'``, ``'w420nm'``,
+  ``'S0.420,000000nm'``). Values are relative spectral radiance.
+* **ICVL** (Arad & Ben-Shahar, ECCV 2016) and **ARAD / NTIRE** (Arad et al., NTIRE 2020/2022 challenges):
+  MATLAB v7.3 (HDF5) files holding ``rad`` (ICVL) or ``cube`` (ARAD), ``(rows, cols, bands)`` in MATLAB
+  order, and ``bands`` (nm). Values are relative spectral radiance.
+
+Relative radiances are taken in energy units, converted to photons and scaled to ``mean_luminance_cd_m2``
+(ISETCam's ``sceneAdjustLuminance``; 100 cd/m^2 by default).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import spectral
+
+__all__ = ["load_cave", "load_kaist", "load_icvl", "load_arad"]
+
+_CAVE_BAND = re.compile(r"_ms_(\d{2})\.png$", re.IGNORECASE)
+
+
+def _radiance_scene(energy: np.ndarray, wave: np.ndarray, name: str, source: str, hfov_deg: float,
+                    mean_luminance_cd_m2: float | None, dtype, illuminant_photons=None):
+    from ..scene import Scene
+
+    e = torch.as_tensor(np.ascontiguousarray(energy), dtype=torch.float64)
+    if not torch.isfinite(e).all() or (e < 0).any():
+        raise ValueError(f"{source}: expected finite non-negative values, got min {float(e.min()):.6g}")
+    w = torch.as_tensor(wave, dtype=torch.float64)
+    photons = spectral.energy_to_photons(e, w, dim=0)[None]
+    s = Scene(photons.to(dtype), w.to(dtype), name=name, metadata={"source": source}, hfov_deg=hfov_deg,
+              illuminant_photons=illuminant_photons)
+    if mean_luminance_cd_m2 is not None:
+        s = s.set_mean_luminance(mean_luminance_cd_m2)
+    return s
+
+
+def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0,
+              dtype=torch.float32):
+    """Read a CAVE scene folder (PNG per band) as a `Scene` lit by ``illuminant``."""
+    from PIL import Image
+
+    root = Path(folder)
+    if not root.is_dir():
+        raise ValueError(f"folder: no such directory {str(root)!r}")
+    files = sorted((int(m.group(1)), f) for f in root.rglob("*.png") if (m := _CAVE_BAND.search(f.name)))
+    if not files:
+        raise ValueError(f"folder: {str(root)!r} holds no CAVE band images (<name>_ms_NN.png)")
+    numbers = [n for n, _ in files]
+    if numbers != list(range(1, len(files) + 1)):
+        raise ValueError(f"folder: expected consecutive CAVE bands 01..{len(files):02d}, got {numbers}")
+    bands = []
+    for _, f in files:
+        try:
+            with Image.open(f) as im:
+                im.load()
+                a = np.asarray(im)
+        except Exception as err:
+            raise ValueError(f"{str(f)!r}: not a readable PNG ({type(err).__name__}: {err})") from err
+        if a.ndim == 3:  # a few CAVE bands are stored as RGB(A); the channels are equal
+            a = a[..., 0]
+        scale = 65535.0 if a.dtype == np.uint16 or a.max() > 255 else 255.0
+        bands.append(a.astype(np.float64) / scale)
+    shapes = {b.shape for b in bands}
+    if len(shapes) != 1:
+        raise ValueError(f"folder: CAVE bands differ in size: {sorted(shapes)}")
+    refl = np.stack(bands)
+    wave = 400.0 + 10.0 * np.arange(refl.shape[0])
+    w = torch.as_tensor(wave, dtype=torch.float64)
+    ill_e = spectral.illuminant(illuminant, w, dtype=torch.float64)
+    energy = refl * ill_e.numpy()[:, None, None]
+    ill_p = spectral.energy_to_photons(ill_e, w, dim=0).to(dtype)
+    name = files[0][1].name[: _CAVE_BAND.search(files[0][1].name).start()]
+    return _radiance_scene(energy, wave, name, str(root), hfov_deg, mean_luminance_cd_m2, dtype, ill_p)
+
+
+_NUMBER = re.compile(r"(\d+(?:[.,]\d+)?)")
+
+
+def load_kaist(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
+    """Read a KAIST hyperspectral EXR (one channel per band, wavelength in the channel name) as a `Scene`."""
+    import OpenEXR
+
+    from .exr import parse_channel_name
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"path: no such file {str(p)!r}")
+    try:
+        chans = {k: np.asarray(v.pixels) for k, v in OpenEXR.File(str(p)).channels().items()}
+    except Exception as err:
+        raise ValueError(f"path: {str(p)!r} is not a readable OpenEXR file ({err})") from err
+    bands = []
+    for name, a in chans.items():
+        fichet = parse_channel_name(name)
+        if fichet is not None:
+            bands.append((fichet[1], a))
+            continue
+        m = _NUMBER.search(name)
+        if m is not None and 300.0 <= float(m.group(1).replace(",", ".")) <= 1100.0:
+            bands.append((float(m.group(1).replace(",", ".")), a))
+    if not bands:
+        raise ValueError(f"path: {str(p)!r} has no channels named by wavelength (e.g. '420', 'w420nm'); "
+                         f"channels are {sorted(chans)[:8]}")
+    bands.sort(key=lambda x: x[0])
+    wave = np.array([b[0] for b in bands])
+    if np.any(np.diff(wave) <= 0):
+        raise ValueError(f"path: duplicate band wavelengths {wave.tolist()}")
+    cube = np.stack([b[1].astype(np.float64) for b in bands])
+    return _radiance_scene(cube, wave, p.stem, str(p), hfov_deg, mean_luminance_cd_m2, dtype)
+
+
+def _load_h5_cube(path, keys: tuple[str, ...]):
+    import h5py
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"path: no such file {str(p)!r}")
+    try:
+        with h5py.File(str(p), "r") as f:
+            key = next((k for k in keys if k in f), None)
+            if key is None:
+                raise ValueError(f"path: {str(p)!r} holds none of the datasets {list(keys)}; it has {sorted(f.keys())}")
+            cube = np.asarray(f[key][()], dtype=np.float64)
+            bands = np.asarray(f["bands"][()], dtype=np.float64).reshape(-1) if "bands" in f else None
+    except ValueError:
+        raise
+    except Exception as err:  # h5py raises OSError for truncated or non-HDF5 files
+        raise ValueError(f"path: {str(p)!r} is not a readable MATLAB v7.3 / HDF5 file ({err})") from err
+    if cube.ndim != 3:
+        raise ValueError(f"{key}: expected a 3-D cube, got shape {cube.shape}")
+    # MATLAB (rows, cols, bands) is stored by HDF5 as (bands, cols, rows)
+    cube = np.transpose(cube, (0, 2, 1))
+    if bands is None:
+        bands = 400.0 + 10.0 * np.arange(cube.shape[0])
+    if bands.size != cube.shape[0]:
+        raise ValueError(f"bands: expected {cube.shape[0]} wavelengths to match {key}, got {bands.size}")
+    return p, cube, bands
+
+
+def load_icvl(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
+    """Read an ICVL (``rad`` + ``bands``) or ARAD (``cube`` + ``bands``) MATLAB v7.3 file as a `Scene`."""
+    p, cube, bands = _load_h5_cube(path, ("rad", "cube"))
+    return _radiance_scene(cube, bands, p.stem, str(p), hfov_deg, mean_luminance_cd_m2, dtype)
+
+
+load_arad = load_icvl

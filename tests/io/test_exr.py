@@ -1,0 +1,74 @@
+"""Spectral OpenEXR (Fichet et al. 2021): exact float32 round trip, channel names seen by OpenEXR itself."""
+
+import numpy as np
+import OpenEXR
+import pytest
+import torch
+
+from isettorch import spectral
+from isettorch.io import read_scene_exr, read_spectral_exr, write_scene_exr, write_spectral_exr
+from isettorch.io.exr import channel_name, parse_channel_name
+from isettorch.scene import Scene
+
+
+def test_round_trip_is_exact_and_openexr_sees_documented_channels(tmp_path):
+    rng = np.random.default_rng(0)
+    data = (rng.random((4, 5, 7)) * 10 ** rng.uniform(-3, 3, (4, 5, 7))).astype(np.float32)
+    w = [450.0, 500.0, 550.5, 600.25]
+    p = write_spectral_exr(tmp_path / "a.exr", data, w)
+    back, w_back, header = read_spectral_exr(p)
+    assert back.dtype == torch.float32 and np.array_equal(back.numpy(), data)
+    assert w_back.tolist() == w
+    f = OpenEXR.File(str(p))  # the OpenEXR package's own reader
+    names = sorted(f.channels())
+    assert names == ["S0.450,000000nm", "S0.500,000000nm", "S0.550,500000nm", "S0.600,250000nm"]
+    assert f.header()["spectralLayoutVersion"] == "1.0"
+    assert f.header()["emissiveUnits"] == "W.m^-2.sr^-1"
+    assert np.array_equal(f.channels()["S0.550,500000nm"].pixels, data[2])
+
+
+def test_scene_round_trip_keeps_radiance_and_metadata(tmp_path):
+    w = torch.arange(400.0, 701.0, 50.0)
+    g = torch.Generator().manual_seed(0)
+    photons = torch.rand(2, w.numel(), 6, 8, generator=g) * 1e16
+    ill = torch.rand(2, w.numel(), generator=g) * 1e16
+    scene = Scene(photons, w, name="rt", hfov_deg=[12.5, 3.0], distance_m=[2.0, 5.0], illuminant_photons=ill)
+    p = write_scene_exr(tmp_path / "s.exr", scene, index=1)
+    # stored channels are the float32 spectral radiance in W/sr/m^2/nm
+    stored = OpenEXR.File(str(p)).channels()["S0.450,000000nm"].pixels
+    energy = spectral.photons_to_energy(photons[1].double(), w.double(), dim=0)[1].float().numpy()
+    assert np.array_equal(stored, energy)
+    back = read_scene_exr(p)
+    torch.testing.assert_close(back.photons, photons[1:2], rtol=1e-6, atol=0)
+    assert float(back.hfov_deg[0]) == pytest.approx(3.0) and float(back.distance_m[0]) == pytest.approx(5.0)
+    torch.testing.assert_close(back.illuminant_photons, ill[1:2], rtol=1e-6, atol=0)
+    assert back.metadata["defaulted"] == []
+
+
+def test_channel_names_and_units():
+    assert channel_name(550) == "S0.550,000000nm"
+    assert channel_name(412.5, "T") == "T.412,500000nm"
+    assert parse_channel_name("S0.550,000000nm") == ("S0", 550.0)
+    assert parse_channel_name("T.0,55um")[1] == pytest.approx(550.0)
+    # frequency: c / 545.0771 THz = 550 nm
+    assert parse_channel_name("S0.545,0771THz")[1] == pytest.approx(550.0, rel=1e-6)
+    assert parse_channel_name("R") is None and parse_channel_name("S0.abcnm") is None
+
+
+def test_corrupt_truncated_and_non_spectral_files(tmp_path):
+    p = write_spectral_exr(tmp_path / "a.exr", np.ones((3, 16, 16), np.float32), [500.0, 550.0, 600.0])
+    raw = p.read_bytes()
+    (tmp_path / "cut.exr").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ValueError, match="not a readable OpenEXR"):
+        read_spectral_exr(tmp_path / "cut.exr")
+    (tmp_path / "junk.exr").write_bytes(b"not an exr file at all" * 10)
+    with pytest.raises(ValueError, match="not a readable OpenEXR"):
+        read_spectral_exr(tmp_path / "junk.exr")
+    rgb = {c: np.zeros((4, 4), np.float32) for c in "RGB"}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, rgb).write(str(tmp_path / "rgb.exr"))
+    with pytest.raises(ValueError, match="no spectral channels"):
+        read_spectral_exr(tmp_path / "rgb.exr")
+    with pytest.raises(ValueError, match="wavelengths_nm"):
+        write_spectral_exr(tmp_path / "b.exr", np.ones((2, 4, 4), np.float32), [500.0])
+    with pytest.raises(ValueError, match="no such file"):
+        read_spectral_exr(tmp_path / "missing.exr")

@@ -1,0 +1,98 @@
+"""CAVE (PNG per band), KAIST (EXR) and ICVL / ARAD (MATLAB v7.3 via h5py) loaders on small files."""
+
+import h5py
+import numpy as np
+import OpenEXR
+import pytest
+import torch
+from PIL import Image
+
+from isettorch import spectral
+from isettorch.io import load_arad, load_cave, load_icvl, load_kaist
+
+
+def _write_cave(folder, refl16):
+    d = folder / "toy_ms" / "toy_ms"
+    d.mkdir(parents=True)
+    for k in range(refl16.shape[0]):
+        Image.fromarray(refl16[k]).save(d / f"toy_ms_{k + 1:02d}.png")
+    return folder / "toy_ms"
+
+
+def test_cave_reflectance_under_d65(tmp_path):
+    rng = np.random.default_rng(0)
+    refl16 = rng.integers(1000, 65535, size=(31, 6, 5), dtype=np.uint16)
+    root = _write_cave(tmp_path, refl16)
+    s = load_cave(root, dtype=torch.float64)
+    assert s.photons.shape == (1, 31, 6, 5) and s.wavelengths_nm[0] == 400 and s.wavelengths_nm[-1] == 700
+    np.testing.assert_allclose(s.reflectance()[0].numpy(), refl16 / 65535.0, rtol=1e-10)
+    assert float(s.mean_luminance()) == pytest.approx(100.0)
+    # the illuminant is D65 (relative, in photons)
+    d65 = spectral.energy_to_photons(spectral.illuminant("D65", s.wavelengths_nm), s.wavelengths_nm, dim=0)
+    ratio = s.illuminant_photons[0] / d65
+    assert float(ratio.max() / ratio.min()) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_cave_errors(tmp_path):
+    refl16 = np.full((31, 4, 4), 30000, dtype=np.uint16)
+    root = _write_cave(tmp_path, refl16)
+    band = root / "toy_ms" / "toy_ms_07.png"
+    raw = band.read_bytes()
+    band.write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ValueError, match="toy_ms_07.png"):
+        load_cave(root)
+    band.unlink()
+    with pytest.raises(ValueError, match="consecutive"):
+        load_cave(root)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="no CAVE band"):
+        load_cave(tmp_path / "empty")
+    with pytest.raises(ValueError, match="no such directory"):
+        load_cave(tmp_path / "missing")
+
+
+def test_kaist_exr(tmp_path):
+    rng = np.random.default_rng(1)
+    cube = rng.random((4, 3, 5)).astype(np.float32) + 0.1
+    names = ["w420nm", "w430nm", "w440nm", "w450nm"]
+    chans = {n: cube[i] for i, n in enumerate(names)}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, {n: chans[n] for n in reversed(names)}).write(
+        str(tmp_path / "k.exr"))
+    s = load_kaist(tmp_path / "k.exr", dtype=torch.float64)
+    assert s.wavelengths_nm.tolist() == [420.0, 430.0, 440.0, 450.0]
+    # radiance (energy) -> photons, then one scale factor for the whole scene
+    e = spectral.photons_to_energy(s.photons[0], s.wavelengths_nm, dim=0).numpy()
+    k = e / cube
+    assert k.max() / k.min() == pytest.approx(1.0, abs=1e-6)
+    (tmp_path / "bad.exr").write_bytes(b"\x76\x2f\x31\x01" + b"\x00" * 20)
+    with pytest.raises(ValueError, match="not a readable OpenEXR"):
+        load_kaist(tmp_path / "bad.exr")
+
+
+@pytest.mark.parametrize("key,loader", [("rad", load_icvl), ("cube", load_arad)])
+def test_icvl_arad_v73(tmp_path, key, loader):
+    rng = np.random.default_rng(2)
+    cube = rng.random((6, 4, 3)) + 0.05  # MATLAB order (rows, cols, bands)
+    bands = np.array([400.0, 450.0, 500.0])
+    with h5py.File(tmp_path / "f.mat", "w", userblock_size=512) as f:  # v7.3 files are HDF5 with a userblock
+        f.create_dataset(key, data=cube.T)  # HDF5 holds MATLAB arrays transposed: (bands, cols, rows)
+        f.create_dataset("bands", data=bands[None, :].T)
+    s = loader(tmp_path / "f.mat", dtype=torch.float64)
+    assert s.photons.shape == (1, 3, 6, 4)
+    e = spectral.photons_to_energy(s.photons[0], s.wavelengths_nm, dim=0).numpy()
+    k = e / np.transpose(cube, (2, 0, 1))
+    assert k.max() / k.min() == pytest.approx(1.0, abs=1e-9)
+    assert s.wavelengths_nm.tolist() == bands.tolist()
+
+
+def test_icvl_errors(tmp_path):
+    with h5py.File(tmp_path / "f.mat", "w") as f:
+        f.create_dataset("rad", data=np.ones((3, 4, 5)))
+    raw = (tmp_path / "f.mat").read_bytes()
+    (tmp_path / "cut.mat").write_bytes(raw[: len(raw) // 3])
+    with pytest.raises(ValueError, match="not a readable"):
+        load_icvl(tmp_path / "cut.mat")
+    with h5py.File(tmp_path / "other.mat", "w") as f:
+        f.create_dataset("foo", data=np.ones((3, 4, 5)))
+    with pytest.raises(ValueError, match="rad"):
+        load_icvl(tmp_path / "other.mat")

@@ -1,0 +1,76 @@
+"""ISETCam scene .mat import: struct layout (scene.data.photons, scene.spectrum.wave, wAngular, distance)."""
+
+import h5py
+import numpy as np
+import pytest
+import scipy.io
+import torch
+
+from isettorch.io import read_isetcam_scene
+
+
+def _scene_struct(photons, wave, **extra):
+    s = {"type": "scene", "name": "unit test", "data": {"photons": photons}, "spectrum": {"wave": wave},
+         "wAngular": 12.5, "distance": 2.0}
+    s.update(extra)
+    return s
+
+
+def test_reads_isetcam_struct_layout(tmp_path):
+    rng = np.random.default_rng(1)
+    wave = np.arange(400.0, 701.0, 10.0)
+    photons = (rng.random((5, 7, wave.size)) * 1e15).astype(np.float32)  # (rows, cols, wave)
+    ill = np.linspace(1e15, 2e15, wave.size)
+    scipy.io.savemat(tmp_path / "s.mat", {"scene": _scene_struct(photons, wave,
+                                                                  illuminant={"data": {"photons": ill}})})
+    s = read_isetcam_scene(tmp_path / "s.mat")
+    assert s.photons.shape == (1, 31, 5, 7)
+    # ISETCam (row, col, wave) -> isettorch [B, wave, row, col]
+    assert float(s.photons[0, 4, 2, 6]) == float(photons[2, 6, 4])
+    assert torch.equal(s.photons[0], torch.from_numpy(photons).permute(2, 0, 1))
+    assert s.wavelengths_nm.tolist() == wave.tolist()
+    assert float(s.hfov_deg[0]) == 12.5 and float(s.distance_m[0]) == 2.0
+    assert s.name == "unit test"
+    torch.testing.assert_close(s.illuminant_photons[0], torch.tensor(ill, dtype=torch.float32))
+
+
+def test_compressed_photons_are_decoded(tmp_path):
+    wave = np.array([450.0, 550.0, 650.0])
+    codes = np.array([[[0, 65535, 32768]]], dtype=np.uint16)  # (1, 1, 3)
+    data = {"photons": codes, "dmin": 1e14, "dmax": 3e14, "bitDepth": 16}
+    scipy.io.savemat(tmp_path / "c.mat", {"scene": {"data": data, "spectrum": {"wave": wave}, "wAngular": 5.0,
+                                                    "distance": 1.2}})
+    s = read_isetcam_scene(tmp_path / "c.mat", dtype=torch.float64)
+    expected = 1e14 + codes[0, 0].astype(float) * 2e14 / 65535  # ieUncompressData
+    np.testing.assert_allclose(s.photons[0, :, 0, 0].numpy(), expected, rtol=1e-12)
+
+
+def test_v73_hdf5_file(tmp_path):
+    wave = np.array([500.0, 600.0])
+    photons = np.arange(2 * 3 * 2, dtype=np.float64).reshape(2, 3, 2) * 1e14 + 1.0
+    with h5py.File(tmp_path / "v73.mat", "w") as f:
+        g = f.create_group("scene")
+        g.create_group("data").create_dataset("photons", data=photons.T)  # MATLAB column-major on disk
+        g.create_group("spectrum").create_dataset("wave", data=wave[None, :].T)
+        g.create_dataset("wAngular", data=np.array([[8.0]]))
+        g.create_dataset("distance", data=np.array([[3.0]]))
+    s = read_isetcam_scene(tmp_path / "v73.mat", dtype=torch.float64)
+    assert torch.equal(s.photons[0], torch.from_numpy(photons).permute(2, 0, 1))
+    assert float(s.hfov_deg[0]) == 8.0 and float(s.distance_m[0]) == 3.0
+
+
+def test_bad_files(tmp_path):
+    wave = np.arange(400.0, 701.0, 100.0)
+    scipy.io.savemat(tmp_path / "ok.mat", {"scene": _scene_struct(np.ones((4, 4, 4)), wave)})
+    raw = (tmp_path / "ok.mat").read_bytes()
+    (tmp_path / "cut.mat").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ValueError, match="not a readable MATLAB"):
+        read_isetcam_scene(tmp_path / "cut.mat")
+    with pytest.raises(ValueError, match="variable"):
+        read_isetcam_scene(tmp_path / "ok.mat", variable="oi")
+    scipy.io.savemat(tmp_path / "bad.mat", {"scene": _scene_struct(np.ones((4, 4, 3)), wave)})
+    with pytest.raises(ValueError, match="scene.data.photons"):
+        read_isetcam_scene(tmp_path / "bad.mat")
+    scipy.io.savemat(tmp_path / "neg.mat", {"scene": _scene_struct(-np.ones((2, 2, 4)), wave)})
+    with pytest.raises(ValueError, match="photons"):
+        read_isetcam_scene(tmp_path / "neg.mat")
