@@ -22,7 +22,7 @@ from ._common import (
 from .macbeth import macbeth_reflectances
 from .scene import Scene
 
-__all__ = ["dead_leaves", "sample_power_law_radii"]
+__all__ = ["dead_leaves", "sample_power_law_radii", "expected_disk_area_px2"]
 
 _CHUNK = 4096  # disks drawn per call to the generator
 

@@ -6,6 +6,7 @@ import scipy.stats
 import torch
 
 from isettorch.scene import dead_leaves, macbeth_reflectances
+from isettorch.scene.dead_leaves import expected_disk_area_px2
 
 F64 = torch.float64
 
@@ -49,6 +50,11 @@ def _expected_disk_area(alpha, rmin, rmax):
     r = np.linspace(rmin, rmax, 200001)
     pdf = r ** -alpha
     return np.trapezoid(np.pi * r**2 * pdf, r) / np.trapezoid(pdf, r)
+
+
+@pytest.mark.parametrize("alpha", [1.0, 2.0, 3.0, 4.5])
+def test_expected_disk_area_closed_form(alpha):
+    assert expected_disk_area_px2(alpha, 1.5, 30.0) == pytest.approx(_expected_disk_area(alpha, 1.5, 30.0), rel=1e-6)
 
 
 def test_coverage_fraction_boolean_model():
