@@ -242,8 +242,10 @@ def pretrained_info() -> dict:
 
 
 def _register() -> None:
-    try:
-        from . import demosaic as _dm
+    import importlib
+
+    try:  # by module path: the package's __init__ exports a function of the same name
+        _dm = importlib.import_module(__name__.rsplit(".", 1)[0] + ".demosaic")
     except ImportError:  # the demosaic module is optional for this file
         return
     reg = getattr(_dm, "register_method", None)

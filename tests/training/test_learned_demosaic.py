@@ -109,3 +109,25 @@ def test_registered_as_demosaic_method():
     raw = torch.rand(1, 1, 16, 16)
     out = dm.demosaic(raw, "RGGB", method="learned")
     torch.testing.assert_close(out, demosaic_learned(raw, "RGGB"))
+
+
+@pytest.mark.skipif(not learned.PRETRAINED_PATH.is_file(), reason="no shipped checkpoint")
+def test_usable_as_the_camera_demosaic():
+    # The default camera (GRBG sensor) with demosaic: learned renders a Macbeth chart like the Malvar camera does.
+    camera_mod = pytest.importorskip("isettorch.camera")
+    macbeth = pytest.importorskip("isettorch.scene.macbeth")
+    import yaml
+
+    cfg = yaml.safe_load((Path(__file__).resolve().parents[2] / "configs" / "cameras" / "default.yaml").read_text())
+    cfg["camera"]["noise"] = False
+    scene = macbeth.macbeth("D65", patch_size=8)
+    outs = {}
+    for method in ("learned", "malvar2004"):
+        cfg["isp"]["demosaic"] = method
+        cam = camera_mod.Camera.from_config(cfg)
+        with torch.no_grad():
+            outs[method] = cam(scene)
+    a, b = outs["learned"], outs["malvar2004"]
+    assert torch.isfinite(a).all() and a.shape == b.shape
+    c = 6
+    assert (a - b)[..., c:-c, c:-c].abs().mean() < 0.02
