@@ -10,8 +10,9 @@ Signal chain (per pixel, ISETCam ``sensorCompute`` / Farrell et al. SPIE 2004 / 
    cancel and the read noise is sampled twice: reset and signal);
 5. analog gain and offset: ``(v + offset) * gain`` (default) or ISETCam's ``(v + offset) / gain``;
 6. clip to ``[0, voltage swing]`` (down to ``-black level`` when a black level is set);
-7. ADC with N bits: ``round(v / (swing / 2^N)) + black level``, clamped to ``2^N - 1`` (default) or
-   unclamped (ISETCam, FORMAT 4.6 step 9). Rounding is straight-through for gradients.
+7. ADC with N bits: ``round(v / lsb) + black level``; by default the swing spans the codes from the black
+   level to ``2^N - 1`` (clamped there); ISETCam's mode uses ``lsb = swing / 2^N`` without a clamp (FORMAT 4.6
+   step 9). Rounding is straight-through for gradients.
 
 ``noise_free`` in the output is the same chain with no dark signal, noise or fixed pattern, and no
 rounding (a training target).
@@ -73,8 +74,9 @@ class Sensor(nn.Module):
             ``'percentile'``) overrides it; ``ae_target`` / ``ae_percentile`` tune it.
         analog_gain, analog_offset_v: ``gain_convention='multiply'`` (default) gives ``(v + offset) * gain``,
             ``'isetcam'`` gives ISETCam's ``(v + offset) / gain``.
-        adc_bits: None for an analog (volts) readout, else N; ``adc_mode='clamp'`` clamps to ``2^N - 1``,
-            ``'isetcam'`` does not (so the swing maps to ``2^N``). ``black_level_dn`` is added to DN.
+        adc_bits: None for an analog (volts) readout, else N; ``adc_mode='clamp'`` maps the swing onto the codes
+            from ``black_level_dn`` to ``2^N - 1`` and clamps there; ``'isetcam'`` uses ``swing / 2^N`` steps
+            and no clamp (so the swing maps to ``2^N``). ``black_level_dn`` is added to DN.
         shot_noise: ``'poisson'`` (straight-through gradient), ``'gaussian'`` or ``'off'``.
         read_noise_v, dark_current_e_per_s, dsnu_sigma_v, prnu_sigma_percent, column_fpn_sigma_v: noise.
         fpn_mode: ``'fixed'`` (drawn once from ``seed``, stored as buffers) or ``'per_frame'`` (ISETCam redraws
@@ -138,6 +140,8 @@ class Sensor(nn.Module):
             raise ValueError(f"auto_exposure: expected None or one of {sorted(AE_METHODS)}, got {auto_exposure!r}")
         if adc_bits is not None and (not isinstance(adc_bits, int) or not 1 <= adc_bits <= 32):
             raise ValueError(f"adc_bits: expected None (analog) or an integer in 1..32, got {adc_bits!r}")
+        if adc_bits is not None and black_level_dn >= 2 ** adc_bits - 1:
+            raise ValueError(f"black_level_dn: expected a level below 2^{adc_bits} - 1, got {black_level_dn}")
         if output_units not in (None, "dn", "volts", "electrons"):
             raise ValueError(f"output_units: expected None, 'dn', 'volts' or 'electrons', got {output_units!r}")
         if output_units == "dn" and adc_bits is None:
@@ -216,8 +220,13 @@ class Sensor(nn.Module):
 
     @property
     def lsb_v(self) -> float | None:
-        """ADC step in volts (swing / 2^N), None for analog."""
-        return None if self.adc_bits is None else self.voltage_swing_v / 2 ** self.adc_bits
+        """ADC step in volts, None for analog. ISETCam mode: ``swing / 2^N`` (``analog2digital``). Default: the
+        swing spans the codes from the black level to ``2^N - 1``, ``swing / (2^N - 1 - black)``."""
+        if self.adc_bits is None:
+            return None
+        if self.adc_mode == "isetcam":
+            return self.voltage_swing_v / 2 ** self.adc_bits
+        return self.voltage_swing_v / (2 ** self.adc_bits - 1 - self.black_level_dn)
 
     @property
     def white_level_dn(self) -> float | None:
@@ -321,7 +330,7 @@ class Sensor(nn.Module):
         return self.volts_to_dn(volts, quantize=quantize)
 
     def volts_to_dn(self, volts: torch.Tensor, *, quantize: bool = True) -> torch.Tensor:
-        """ADC: clipped volts -> DN, ``round(v / (swing / 2^N)) + black`` (clamped to ``2^N - 1`` unless
+        """ADC: clipped volts -> DN, ``round(v / lsb_v) + black`` (clamped to ``2^N - 1`` unless
         ``adc_mode='isetcam'``; ISETCam ``analog2digital`` 'linear')."""
         if self.adc_bits is None:
             raise ValueError("volts_to_dn: the sensor has an analog readout (adc_bits is None)")
