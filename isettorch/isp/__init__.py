@@ -1,10 +1,13 @@
-"""Image processor: demosaic, colour, pipelines. One import line per module; ``__all__`` lists the public names."""
+"""Image processor: demosaic, colour, pipelines. One import line per module; ``__all__`` lists the public names.
 
+``demosaic`` here is the ``isettorch.isp.demosaic`` package, which is callable: ``demosaic(raw, "RGGB", "menon2007")``.
+"""
+
+from . import demosaic
 from .demosaic import (
     METHODS,
     Demosaic,
     bayer_index_map,
-    demosaic,
     demosaic_bilinear,
     demosaic_bilinear_colour,
     demosaic_generic,

@@ -254,3 +254,14 @@ def test_demosaic_module_by_name():
     assert "malvar2004" in repr(stage) and len(stage.state_dict()) == 0
     with pytest.raises(ValueError, match="method.*'no_such'"):
         Demosaic("no_such")
+
+
+def test_package_is_the_callable_entry_point():
+    # ``from isettorch.isp import demosaic`` must work both as the function and as the namespace, so that
+    # ``from . import demosaic`` inside isettorch.isp (e.g. in a plug-in) finds ``register_method``.
+    import isettorch.isp as isp
+
+    raw = _raw((1, 1, 8, 8), seed=15)
+    assert isp.demosaic is demosaic_pkg and callable(isp.demosaic)
+    assert isp.demosaic.register_method is register_method and isp.demosaic.METHODS is METHODS
+    torch.testing.assert_close(isp.demosaic(raw, "RGGB", "malvar2004"), demosaic_malvar2004(raw, "RGGB"))
