@@ -17,7 +17,7 @@ from .. import spectral
 from .._checks import as_tensor, batch_param, check_nonnegative, check_wavelengths
 from ..scene.scene import Scene
 from . import geometry
-from .blur import PAD_MODES, blur_fft, extend
+from .blur import PAD_MODES, blur_fft, extend, full_padding
 from .optical_image import OpticalImage
 
 __all__ = ["ShiftInvariantLens"]
@@ -168,6 +168,34 @@ class ShiftInvariantLens(nn.Module):
         samples = int(math.ceil(float((m / dx.detach()).max())))
         return min(samples, int(math.ceil(self.max_margin_factor * max(scene_shape))))
 
+    def _geometry(self, scene: Scene):
+        b, _, _, w = scene.photons.shape
+        dt, dev = scene.dtype, scene.device
+        n = self.batch_f_number(b, dt, dev)
+        f = self.batch_focal_length(b, dt, dev)
+        d_i = geometry.image_distance(f, scene.distance_m)
+        dx = geometry.image_sample_spacing(scene.hfov_deg, w, d_i)
+        return n, f, d_i, dx
+
+    def plan(self, scene: Scene) -> dict:
+        """The full optical image's geometry, without computing it (for choosing a ``crop`` window).
+
+        Returns a dict with ``full_shape`` (H2, W2), ``pad`` (rows, cols per side), ``sample_spacing_m`` ``[B]``,
+        ``image_distance_m`` ``[B]`` and ``margin`` (samples the PSF reaches at ``psf_tolerance``; a window
+        needs this much of the scene beyond it, which ``forward`` takes care of).
+        """
+        h, w = scene.photons.shape[-2:]
+        n, _, d_i, dx = self._geometry(scene)
+        wave = scene.wavelengths_nm
+        if self.blur_negligible(dx, wave, n):
+            margin = 0 if self.margin is None else self.margin
+            pr = pc = margin
+        else:
+            margin = self.margin_samples((h, w), dx, wave, n)
+            pr, pc = full_padding(h, margin), full_padding(w, margin)
+        return {"full_shape": (h + 2 * pr, w + 2 * pc), "pad": (pr, pc), "sample_spacing_m": dx,
+                "image_distance_m": d_i, "margin": margin}
+
     def forward(self, scene: Scene, crop: tuple[int, int, int, int] | None = None) -> OpticalImage:
         """Scene -> optical image.
 
@@ -187,12 +215,8 @@ class ShiftInvariantLens(nn.Module):
         b, nl, h, w = x.shape
         dt, dev = x.dtype, x.device
         wave = scene.wavelengths_nm
-        n = self.batch_f_number(b, dt, dev)
-        f = self.batch_focal_length(b, dt, dev)
-        d_o = scene.distance_m
-        d_i = geometry.image_distance(f, d_o)
-        mag = -d_i / d_o
-        dx = geometry.image_sample_spacing(scene.hfov_deg, w, d_i)
+        n, f, d_i, dx = self._geometry(scene)
+        mag = -d_i / scene.distance_m
         # camera equation (ISETCam oiCalculateIrradiance), transmittance, relative illumination
         k = geometry.camera_equation_factor(n, mag, paraxial=self.camera_equation == "paraxial")
         irr = x * k.reshape(-1, 1, 1, 1)

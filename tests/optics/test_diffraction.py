@@ -208,3 +208,21 @@ def test_bad_arguments():
         DiffractionLimitedOptics(4.0, relative_illumination="cos3")
     with pytest.raises(TypeError, match="scene"):
         DiffractionLimitedOptics(4.0)(torch.ones(1, 1, 4, 4))
+
+
+def test_plan_float32_and_isetcam_plan():
+    g = torch.Generator().manual_seed(6)
+    x = torch.rand(1, 3, 16, 20, generator=g, dtype=torch.float64) * 1e15
+    scene = Scene(x, torch.tensor([450.0, 550.0, 650.0], dtype=torch.float64), hfov_deg=0.6, distance_m=1.2)
+    optics = DiffractionLimitedOptics(2.8, F)
+    plan = optics.plan(scene)
+    oi = optics(scene)
+    assert plan["full_shape"] == tuple(oi.photons.shape[-2:]) and plan["pad"] == (oi.pad_rows, oi.pad_cols)
+    torch.testing.assert_close(plan["sample_spacing_m"], oi.sample_spacing_m)
+    oi32 = optics(scene.to(dtype=torch.float32))
+    assert oi32.photons.dtype == torch.float32
+    torch.testing.assert_close(oi32.photons.double(), oi.photons, rtol=1e-4, atol=1e-4 * oi.photons.max().item())
+    iso = DiffractionLimitedOptics(2.8, F, pad_mode="isetcam")
+    p2, o2 = iso.plan(scene), iso(scene)
+    assert p2["full_shape"] == tuple(o2.photons.shape[-2:]) and p2["pad"] == (2, 3)
+    torch.testing.assert_close(p2["sample_spacing_m"], o2.sample_spacing_m)
