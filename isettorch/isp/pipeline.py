@@ -30,9 +30,10 @@ from .colour import (
 __all__ = ["ImageProcessor", "ISPResult", "DemosaicStage", "SCALINGS"]
 
 #: How linear display RGB is scaled before encoding.
-#: ``"adaptive"``: ISETCam ``displayRender`` for analog sensors: the image maximum becomes the ratio of the raw
-#: maximum to the white level (a dark capture stays dark). ``"exposure"``: no image-dependent scaling; the
-#: sensor -> XYZ matrix maps a white at the white level to Y = 1 (needs a normalised SensorToXYZ).
+#: ``"adaptive"``: ISETCam ``displayRender``: for an analog (volts/electrons) raw the image maximum becomes the
+#: ratio of the raw maximum to the white level (a dark capture stays dark); for a quantized (DN) raw it becomes 1.
+#: ``"exposure"``: no image-dependent scaling; the sensor -> XYZ matrix maps a white at the white level to Y = 1
+#: (needs a normalised SensorToXYZ).
 #: ``"max"``: the image maximum becomes 1. ``"percentile"``: the ``scaling_percentile`` (default 99) of the
 #: linear display values becomes 1 (robust to noise and demosaic outliers).
 SCALINGS = ("adaptive", "exposure", "max", "percentile")
@@ -237,7 +238,13 @@ class ImageProcessor(nn.Module):
                 mono = x
             return ISPResult(image=mono.expand(-1, 3, -1, -1), input=x, display_linear=mono.expand(-1, 3, -1, -1))
         sensor = self.demosaic(x, raw.cfa)
-        return self.from_demosaiced(sensor, input_max=x.flatten(1).amax(1), _input=x)
+        if raw.units == "dn":
+            # ISETCam displayRender, quantized sensor ('linear'): the image maximum becomes 1.
+            peak = torch.ones(x.shape[0], dtype=x.dtype, device=x.device)
+        else:
+            # ISETCam displayRender, analog sensor: the image maximum becomes max volts / voltage swing.
+            peak = x.flatten(1).amax(1)
+        return self.from_demosaiced(sensor, input_max=peak, _input=x)
 
     def from_demosaiced(self, sensor: torch.Tensor, input_max: torch.Tensor | None = None,
                         _input: torch.Tensor | None = None) -> ISPResult:

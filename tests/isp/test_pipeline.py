@@ -157,3 +157,12 @@ def test_display_presets_and_display_encoding():
     torch.testing.assert_close(ip.encode(x), x ** (1 / 2.2))  # Apple display: gamma 2.2
     with pytest.raises(ValueError, match="display"):
         ImageProcessor(display="oled")
+
+
+def test_adaptive_scaling_quantized_raw_max_is_one():
+    # ISETCam displayRender for a quantized sensor: the image maximum becomes 1 (analog: max volts / swing).
+    raw, qe = _uniform_raw("GBRG", "D65", level=0.3)
+    dn = raw.replace(data=(raw.data * 1023).round() + 64, units="dn", black_level=64.0, white_level=1087.0)
+    ip = ImageProcessor().double().fit(qe)
+    assert ip(dn).display_linear.max().item() == pytest.approx(1.0, rel=1e-12)
+    assert ip(raw).display_linear.max().item() == pytest.approx(0.3, rel=1e-9)
