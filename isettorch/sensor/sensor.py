@@ -10,9 +10,8 @@ Signal chain (per pixel, ISETCam ``sensorCompute`` / Farrell et al. SPIE 2004 / 
    cancel and the read noise is sampled twice: reset and signal);
 5. analog gain and offset: ``(v + offset) * gain`` (default) or ISETCam's ``(v + offset) / gain``;
 6. clip to ``[0, voltage swing]`` (down to ``-black level`` when a black level is set);
-7. ADC with N bits: ``round(v / lsb) + black level``; by default the swing spans the codes from the black
-   level to ``2^N - 1`` (clamped there); ISETCam's mode uses ``lsb = swing / 2^N`` without a clamp (FORMAT 4.6
-   step 9). Rounding is straight-through for gradients.
+7. ADC with N bits: ``round(v / (swing / 2^N)) + black level``, clamped to ``2^N - 1`` (default) or
+   unclamped (ISETCam, FORMAT 4.6 step 9). Rounding is straight-through for gradients.
 
 ``noise_free`` in the output is the same chain with no dark signal, noise or fixed pattern, and no
 rounding (a training target).
@@ -74,9 +73,9 @@ class Sensor(nn.Module):
             ``'percentile'``) overrides it; ``ae_target`` / ``ae_percentile`` tune it.
         analog_gain, analog_offset_v: ``gain_convention='multiply'`` (default) gives ``(v + offset) * gain``,
             ``'isetcam'`` gives ISETCam's ``(v + offset) / gain``.
-        adc_bits: None for an analog (volts) readout, else N; ``adc_mode='clamp'`` maps the swing onto the codes
-            from ``black_level_dn`` to ``2^N - 1`` and clamps there; ``'isetcam'`` uses ``swing / 2^N`` steps
-            and no clamp (so the swing maps to ``2^N``). ``black_level_dn`` is added to DN.
+        adc_bits: None for an analog (volts) readout, else N; steps of ``swing / 2^N``; ``adc_mode='clamp'``
+            clamps to ``2^N - 1``, ``'isetcam'`` does not (so the swing maps to ``2^N``). ``black_level_dn`` is
+            added to DN (auto-exposure then aims below the top code, see ``usable_swing_v``).
         shot_noise: ``'poisson'`` (straight-through gradient), ``'gaussian'`` or ``'off'``.
         read_noise_v, dark_current_e_per_s, dsnu_sigma_v, prnu_sigma_percent, column_fpn_sigma_v: noise.
         fpn_mode: ``'fixed'`` (drawn once from ``seed``, stored as buffers) or ``'per_frame'`` (ISETCam redraws
@@ -220,13 +219,15 @@ class Sensor(nn.Module):
 
     @property
     def lsb_v(self) -> float | None:
-        """ADC step in volts, None for analog. ISETCam mode: ``swing / 2^N`` (``analog2digital``). Default: the
-        swing spans the codes from the black level to ``2^N - 1``, ``swing / (2^N - 1 - black)``."""
-        if self.adc_bits is None:
-            return None
-        if self.adc_mode == "isetcam":
-            return self.voltage_swing_v / 2 ** self.adc_bits
-        return self.voltage_swing_v / (2 ** self.adc_bits - 1 - self.black_level_dn)
+        """ADC step in volts, ``swing / 2^N`` (ISETCam ``analog2digital``), None for analog."""
+        return None if self.adc_bits is None else self.voltage_swing_v / 2 ** self.adc_bits
+
+    @property
+    def usable_swing_v(self) -> float:
+        """Volts that reach the top code: the swing, or less when a black level pushes ``2^N - 1`` below it."""
+        if self.adc_bits is None or self.adc_mode == "isetcam":
+            return self.voltage_swing_v
+        return min(self.voltage_swing_v, (2 ** self.adc_bits - 1 - self.black_level_dn) * self.lsb_v)
 
     @property
     def white_level_dn(self) -> float | None:
@@ -351,7 +352,7 @@ class Sensor(nn.Module):
         gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
                            dtype=oi.dtype, device=oi.device, positive=True)
         v1 = self._analog(rate * self.conversion_gain_v_per_e, gain) - self._analog(torch.zeros_like(rate), gain)
-        return auto_exposure(v1, self.voltage_swing_v, self.auto_exposure, target=self.ae_target,
+        return auto_exposure(v1, self.usable_swing_v, self.auto_exposure, target=self.ae_target,
                              percentile=self.ae_percentile).to(oi.dtype)
 
     # --- forward -----------------------------------------------------------------------------

@@ -35,7 +35,7 @@ def test_photon_transfer_recovers_configuration():
         dark.append(sensor(dark_oi, exposure_s=t, generator=g).data[:, 0])
     res = emva1288(torch.stack(bright), torch.stack(dark))
     lsb = sensor.lsb_v
-    assert lsb == 1.0 / (2**bits - 1 - black)  # the swing spans black .. 2^N - 1
+    assert lsb == 1.0 / 2**bits
     got_cg = float(res.system_gain_dn_per_e) * lsb  # K (DN/e-) x LSB (V/DN)
     got_read = float(res.dark_noise_e) * cg
     got_dsnu = float(res.dsnu1288_e) * cg

@@ -59,7 +59,7 @@ def test_gain_conventions_clipping_and_adc():
     assert torch.all(simple_sensor(exposure_s=10.0, adc_bits=10, adc_mode="isetcam")(uniform_oi(),
                                                                                         noise=False).data == 1024)
     s = simple_sensor(adc_bits=8, black_level_dn=16)
-    lsb = 1.0 / (255 - 16)  # the swing spans the codes 16 .. 255
+    lsb = 1.0 / 256
     assert s.lsb_v == lsb
     v = torch.tensor([0.5, 1.5, 2.5, 3.49]) * lsb
     assert s.volts_to_dn(v).tolist() == [17, 18, 19, 19]  # round half away from zero, plus black level
@@ -68,7 +68,10 @@ def test_gain_conventions_clipping_and_adc():
     assert raw.data[0, 0, 0, 0].item() == math.floor(e / lsb + 0.5) + 16
     full = simple_sensor(adc_bits=8, black_level_dn=16, exposure_s=10.0)(uniform_oi(), noise=False)
     assert torch.all(full.data == 255) and torch.all(full.noise_free == 255)
-    assert simple_sensor(adc_bits=8, adc_mode="isetcam").lsb_v == 1 / 256
+    # auto-exposure with a black level aims at 95 % of the volts that reach code 255
+    ae = simple_sensor(adc_bits=8, black_level_dn=16, auto_exposure="luminance")(uniform_oi(), noise=False)
+    assert s.usable_swing_v == pytest.approx(239 / 256)
+    assert ae.noise_free.max().item() == pytest.approx(16 + 0.95 * 239, rel=1e-9)
 
 
 def test_batched_exposure_and_gain_equal_one_at_a_time():
