@@ -1,0 +1,850 @@
+"""Speed against error: timings of scene -> optics -> sensor -> ISP and of the knobs that trade accuracy for
+speed, each with its error against the most accurate setting, plus peers (NumPy reference, colour-demosaicing,
+kornia) measured in the same run.
+
+Every result is a row ``{"name", "group", "seconds_median", "error", "error_unit", ...}``:
+
+* ``seconds_median``: median wall time of ``repeats`` runs after ``warmup`` runs (CUDA synchronised).
+* ``error``: the primary error of the row against the reference of its group, in ``error_unit``; ``None``
+  only for pure timing rows (stage timings) that have nothing to be compared with. Knob rows also carry
+  ``errors = {"volts_rel", "de2000_mean", "cpsnr_db"}`` (sensor volts relative RMS, mean CIEDE2000 of the
+  rendered sRGB images, colour PSNR of the rendered images; CPSNR is None when the images are identical).
+* ``reference: True`` marks the most accurate setting of a group (its error is 0 by construction).
+* ``ratio``: for the "model only what the scene needs" rows, time / time of the full-work row.
+
+Knob groups (each varies one knob from the most accurate setting of that knob, with the others at the
+library defaults, on a scene made of a Macbeth chart next to a frequency sweep, fixed exposure, noise off):
+wavelength step, OTF wavelength grouping, padding, spatial sampling, dtype, shot-noise mode (error: relative
+difference of the noise standard deviation against exact Poisson), and a fitted low-dimensional spectral basis.
+
+Example:
+    >>> from isettorch.bench import run_benchmarks
+    >>> result = run_benchmarks(quick=True)  # doctest: +SKIP
+    >>> print(format_table(result))  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+
+__all__ = ["run_benchmarks", "format_table", "plot_pareto", "time_call", "machine_info", "ROW_KEYS"]
+
+ROW_KEYS = ("name", "seconds_median", "error", "error_unit")
+PITCH_M = 2.8e-6  # ISETCam default pixel
+FOCAL_M = 3.862755099e-3  # ISETCam default focal length
+DISTANCE_M = 1.2
+REPO = Path(__file__).resolve().parents[1]
+
+
+# --------------------------------------------------------------------------------------------------------------
+# timing
+
+
+def _sync(device) -> None:
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1, device="cpu") -> tuple[float, Any, list]:
+    """Median wall time of ``fn()`` over ``repeats`` runs after ``warmup`` runs (synchronised on CUDA).
+
+    Returns ``(median_s, last_result, times_s)``.
+    """
+    out = None
+    for _ in range(warmup):
+        out = fn()
+        _sync(device)
+    times = []
+    for _ in range(max(1, repeats)):
+        _sync(device)
+        t0 = time.perf_counter()
+        out = fn()
+        _sync(device)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out, times
+
+
+def machine_info(device="cpu") -> dict:
+    """Where the numbers were measured: CPU, core count, torch threads, load average, versions."""
+    info = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+            "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(), "torch": torch.__version__,
+            "python": sys.version.split()[0], "device": str(device)}
+    try:
+        with open("/proc/cpuinfo") as fh:
+            names = [ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")]
+        if names:
+            info["processor"] = names[0]
+    except OSError:
+        pass
+    if hasattr(os, "getloadavg"):
+        info["load_average_start"] = [round(x, 2) for x in os.getloadavg()]
+    if torch.device(device).type == "cuda":
+        info["gpu"] = torch.cuda.get_device_name(device)
+    return info
+
+
+# --------------------------------------------------------------------------------------------------------------
+# the standard camera
+
+
+def _image_distance() -> float:
+    return 1.0 / (1.0 / FOCAL_M - 1.0 / DISTANCE_M)  # thin lens
+
+
+def hfov_for(n_cols: int, pitch_m: float = PITCH_M) -> float:
+    """Horizontal FOV (deg) at which one scene sample lands on one pixel: 2 atan(pitch W / (2 d_i))."""
+    return math.degrees(2 * math.atan(pitch_m * n_cols / (2 * _image_distance())))
+
+
+def wavelengths(step_nm: float, dtype=torch.float64) -> torch.Tensor:
+    return torch.arange(400.0, 700.0 + step_nm / 2, step_nm, dtype=dtype)
+
+
+def sweep_scene(n: int, w: torch.Tensor | None = None, dtype=torch.float32, device="cpu"):
+    from .scene import frequency_sweep
+
+    w = wavelengths(10.0) if w is None else w
+    return frequency_sweep(n, wavelengths=w, hfov_deg=hfov_for(n), dtype=dtype, device=device)
+
+
+def knob_scene(patch: int, w: torch.Tensor, dtype=torch.float64, device="cpu"):
+    """A Macbeth chart (4 x 6 patches of ``patch`` px) next to a frequency sweep of the same height (D65):
+    colour for dE, edges and fine detail for the spatial knobs, a black surround for the padding."""
+    from .scene import Scene, frequency_sweep, macbeth
+
+    h = 4 * patch
+    mb = macbeth(patch_size=patch, wavelengths=w, dtype=torch.float64)
+    sw = frequency_sweep((h, h), wavelengths=w, dtype=torch.float64, contrast_ramp=False)
+    sw_ph = sw.photons * (mb.photons.mean() / sw.photons.mean())
+    photons = torch.cat([mb.photons, sw_ph], dim=-1)
+    return Scene(photons.to(dtype), w.to(dtype), hfov_deg=hfov_for(photons.shape[-1]), distance_m=DISTANCE_M,
+                 name="macbeth+sweep").to(device=device)
+
+
+def make_optics(**kw):
+    from .optics import DiffractionLimitedOptics
+
+    return DiffractionLimitedOptics(f_number=4.0, focal_length_m=FOCAL_M, **kw)
+
+
+def make_sensor(rows: int, cols: int, *, exposure_s: float = 0.01, noise: bool = False, **kw):
+    """ISETCam default preset (GRBG, 2.8 um, fill 0.75); noise parameters zeroed unless ``noise``."""
+    from .sensor import Sensor
+
+    quiet = {} if noise else {"read_noise_v": 0.0, "dark_current_e_per_s": 0.0, "shot_noise": "off"}
+    quiet.update(kw)
+    return Sensor.preset("isetcam_default", rows=rows, cols=cols, exposure_s=exposure_s, **quiet)
+
+
+def make_isp(sensor, device="cpu"):
+    from .isp import ImageProcessor
+
+    ip = ImageProcessor().to(device)
+    ip.fit(sensor)
+    return ip
+
+
+def fixed_exposure(sensor, oi, fraction: float = 0.8) -> float:
+    """Exposure (s) that puts the brightest noise-free pixel at ``fraction`` of the swing."""
+    rate = sensor.electron_rate(oi).double()
+    return float(fraction * sensor.voltage_swing_v / (sensor.conversion_gain_v_per_e * rate.max()))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# errors
+
+
+def volts_rel(v: torch.Tensor, ref: torch.Tensor) -> float:
+    """Relative RMS difference ||v - ref|| / ||ref|| (float64)."""
+    v, ref = v.detach().double().cpu(), ref.detach().double().cpu()
+    return float(torch.linalg.vector_norm(v - ref) / torch.linalg.vector_norm(ref))
+
+
+def render_errors(img: torch.Tensor, ref: torch.Tensor) -> dict:
+    """Mean CIEDE2000 and CPSNR (dB) between two encoded sRGB renders (B, 3, H, W) in [0, 1]."""
+    from .metrics import cpsnr, delta_e_2000, srgb_to_xyz, xyz_to_lab
+
+    a = img.detach().double().cpu().clamp(0, 1)
+    b = ref.detach().double().cpu().clamp(0, 1)
+    de = delta_e_2000(xyz_to_lab(srgb_to_xyz(b)), xyz_to_lab(srgb_to_xyz(a)))
+    mse = float(((a - b) ** 2).mean())
+    return {"de2000_mean": float(de.mean()), "cpsnr_db": None if mse == 0 else float(cpsnr(a, b))}
+
+
+def _row(name: str, group: str, seconds: float | None, error: float | None, unit: str | None, **extra) -> dict:
+    row = {"name": name, "group": group, "seconds_median": None if seconds is None else float(seconds),
+           "error": None if error is None else float(error), "error_unit": unit}
+    row.update(extra)
+    return row
+
+
+# --------------------------------------------------------------------------------------------------------------
+# 1. end-to-end stage timings
+
+
+def pipeline_rows(sizes, repeats: int, device, dtype=torch.float32, log=print) -> list[dict]:
+    """Scene -> optics -> sensor (noise on) -> ISP at each size (31 bands), per stage."""
+    rows = []
+    for n in sizes:
+        log(f"  pipeline {n}x{n}x31")
+        w = wavelengths(10.0)
+        optics = make_optics().to(device)
+        sensor = make_sensor(n, n, noise=True, read_noise_v=1e-3, dark_current_e_per_s=10.0, shot_noise="poisson")
+        sensor = sensor.to(device)
+        isp = make_isp(sensor, device)
+        scene0 = sweep_scene(n, w, dtype, device)
+        with torch.no_grad():
+            t_exp = fixed_exposure(sensor, optics(scene0))
+        stages = {"scene": [], "optics": [], "sensor": [], "isp": []}
+        reps = repeats if n < 1024 else max(2, repeats - 2)
+        for i in range(reps + 1):  # first run is the warm-up
+            with torch.no_grad():
+                marks = [time.perf_counter()]
+                scene = sweep_scene(n, w, dtype, device)
+                _sync(device)
+                marks.append(time.perf_counter())
+                oi = optics(scene)
+                _sync(device)
+                marks.append(time.perf_counter())
+                raw = sensor(oi, exposure_s=t_exp)
+                _sync(device)
+                marks.append(time.perf_counter())
+                isp(raw)
+                _sync(device)
+                marks.append(time.perf_counter())
+            if i:
+                for k, (a, b) in zip(stages, zip(marks[:-1], marks[1:])):
+                    stages[k].append(b - a)
+            del scene, oi, raw
+        total = [sum(v) for v in zip(*stages.values())]
+        tag = f"{n}x{n}x31"
+        for k, v in stages.items():
+            rows.append(_row(f"pipeline_{k}_{tag}", "pipeline", statistics.median(v), None, None,
+                             note=f"{str(dtype).replace('torch.', '')}, {len(v)} runs"))
+        rows.append(_row(f"pipeline_total_{tag}", "pipeline", statistics.median(total), None, None,
+                         note="scene + optics + sensor (Poisson, read, dark noise) + ISP (bilinear, MCC, sRGB)"))
+        del optics, sensor, isp, scene0
+    return rows
+
+
+# --------------------------------------------------------------------------------------------------------------
+# 2. stable rows to compare with ISETCam
+
+
+def stable_rows(n: int, repeats: int, device, log=print) -> list[dict]:
+    """``optics_{n}x{n}x31`` (DL f/4, ISETCam-compatible padding) and ``sensor_{n}x{n}x31`` (ISETCam default
+    preset, noise off, fixed exposure, sensor sized to the scene's FOV as ``sensorSetSizeToFOV``) on a
+    frequency sweep of n x n x 31 (ISETCam ``sceneCreate('sweep frequency')``, FOV 10 deg), float32."""
+    from .scene import frequency_sweep
+    from .sensor import Sensor
+
+    log(f"  stable rows {n}x{n}x31")
+    scene = frequency_sweep(n, wavelengths=wavelengths(10.0), dtype=torch.float32, device=device)
+    optics = make_optics(pad_mode="isetcam").to(device)
+    with torch.no_grad():
+        t_o, oi, _ = time_call(lambda: optics(scene), repeats, 1, device)
+    sensor = Sensor.preset("isetcam_default", read_noise_v=0.0, dark_current_e_per_s=0.0, shot_noise="off",
+                           exposure_s=0.01, sampling="isetcam")
+    sensor.set_size_to_fov(float(scene.hfov_deg[0]), float(oi.image_distance_m[0]))
+    sensor = sensor.to(device)
+    with torch.no_grad():
+        t_s, raw, _ = time_call(lambda: sensor(oi, noise=False), repeats, 1, device)
+    tag = f"{n}x{n}x31"
+    return [
+        _row(f"optics_{tag}", "isetcam_compare", t_o, None, None,
+             note=f"DiffractionLimitedOptics f/4 pad_mode='isetcam' -> OI {tuple(oi.photons.shape[-2:])}, float32"),
+        _row(f"sensor_{tag}", "isetcam_compare", t_s, None, None,
+             note=f"isetcam_default {raw.data.shape[-2]}x{raw.data.shape[-1]} px, sampling='isetcam', noise off, "
+                  f"exposure 0.01 s, float32"),
+    ]
+
+
+# --------------------------------------------------------------------------------------------------------------
+# 3. knobs
+
+
+class _GroupedOTFOptics:
+    """Emulated OTF wavelength grouping: each band uses the OTF of its group's centre wavelength."""
+
+    @staticmethod
+    def make(group_nm: float, **kw):
+        from .optics import DiffractionLimitedOptics, dl_otf
+
+        class Grouped(DiffractionLimitedOptics):
+            def otf(self, fy, fx, wavelengths_nm, f_number):
+                return dl_otf(fy, fx, group_centres(wavelengths_nm, group_nm), f_number)
+
+        return Grouped(f_number=4.0, focal_length_m=FOCAL_M, **kw)
+
+
+def group_centres(w: torch.Tensor, group_nm: float) -> torch.Tensor:
+    """Each wavelength replaced by the mean wavelength of its group (bins of ``group_nm`` from 400 nm)."""
+    idx = torch.floor((w - 400.0) / group_nm + 1e-9).long()
+    out = torch.empty_like(w)
+    for g in idx.unique():
+        sel = idx == g
+        out[sel] = w[sel].mean()
+    return out
+
+
+def _irradiance(optics, scene):
+    """The optics' camera equation x relative illumination, before the blur (same steps as
+    ``ShiftInvariantLens.forward``); returns (irradiance, dx, f_number)."""
+    from .optics import geometry
+
+    x = scene.photons
+    b, _, h, w = x.shape
+    dt, dev = x.dtype, x.device
+    n = optics.batch_f_number(b, dt, dev)
+    f = optics.batch_focal_length(b, dt, dev)
+    d_i = geometry.image_distance(f, scene.distance_m)
+    mag = -d_i / scene.distance_m
+    dx = geometry.image_sample_spacing(scene.hfov_deg, w, d_i)
+    irr = x * geometry.camera_equation_factor(n, mag).reshape(-1, 1, 1, 1)
+    ys = (torch.arange(h, dtype=dt, device=dev) - (h - 1) / 2)[None, :] * dx[:, None]
+    xs = (torch.arange(w, dtype=dt, device=dev) - (w - 1) / 2)[None, :] * dx[:, None]
+    ri = geometry.relative_illumination(optics.relative_illumination, ys, xs, d_i, n, mag)
+    return (irr if ri is None else irr * ri), dx, n
+
+
+def fused_grouped_volts(scene, optics, sensor, group_nm: float, exposure_s: float):
+    """OTF grouping made fast: within a group every band has the same OTF, so the QE integration commutes with
+    the blur: blur(sum_{l in g} QE_c(l) E_l dl) = sum_{l in g} QE_c(l) blur(E_l) dl. G x C FFT planes instead of
+    L. Returns the noise-free volts (B, 1, rows, cols) (same area sampling and clipping as the Sensor)."""
+    from . import spectral
+    from .optics import dl_otf
+    from .optics.blur import blur_fft
+    from .sensor.sampling import sample_area
+
+    irr, dx, n = _irradiance(optics, scene)
+    w = scene.wavelengths_nm
+    qe = sensor.qe(scene) * spectral.wavelength_weights(w).to(irr.dtype)  # [C, L]
+    idx = torch.floor((w - 400.0) / group_nm + 1e-9).long()
+    groups = [idx == g for g in idx.unique()]
+    centres = torch.stack([w[s].mean() for s in groups])
+    c = qe.shape[0]
+    dens = torch.cat([torch.einsum("blhw,cl->bchw", irr[:, s], qe[:, s]) for s in groups], dim=1)  # [B, G*C, H, W]
+    otf_w = centres.repeat_interleave(c)
+
+    def otf_fn(fy, fx):
+        return dl_otf(fy, fx, otf_w, n)
+
+    margin = optics.margin_samples(irr.shape[-2:], dx, w, n)
+    out, _ = blur_fft(dens, otf_fn, dx, (margin, margin), optics.pad_mode)
+    out = out.reshape(out.shape[0], len(groups), c, *out.shape[-2:]).sum(1)  # [B, C, H2, W2]
+    sampled = sample_area(out, dx, sensor.pixel_size_m, sensor.rows, sensor.cols, sensor.fill_factor)
+    rate = sensor.cfa.mosaic(sampled) * (sensor.fill_factor * sensor.pixel_area_m2)
+    return (rate * exposure_s * sensor.conversion_gain_v_per_e).clamp(0, sensor.voltage_swing_v)
+
+
+def fit_basis(scene, k: int):
+    """PCA basis (K, L) of the scene's spectra (SVD of a pixel subsample, no mean removal) and coefficient
+    images (B, K, H, W)."""
+    x = scene.photons
+    b, nl, h, w = x.shape
+    flat = x.movedim(1, -1).reshape(-1, nl)
+    sub = flat[:: max(1, flat.shape[0] // 20000)]
+    _, _, vh = torch.linalg.svd(sub.double(), full_matrices=False)
+    basis = vh[:k].to(x.dtype)  # [K, L], orthonormal rows
+    coef = torch.einsum("bl...,kl->bk...", x.reshape(b, nl, h, w), basis)
+    return basis, coef
+
+
+def basis_volts(scene, optics, sensor, basis, coef, exposure_s: float):
+    """Low-dimensional spectral basis: E(l) ~ sum_k a_k B_k(l). Each coefficient image is blurred once with the
+    OTF at its basis' energy-weighted centre wavelength (sum l B_k^2 / sum B_k^2) and the QE integral of each
+    basis vector is precomputed: K FFT planes instead of L."""
+    from . import spectral
+    from .optics import dl_otf
+    from .optics.blur import blur_fft
+    from .sensor.sampling import sample_area
+
+    w = scene.wavelengths_nm
+    irr, dx, n = _irradiance(optics, _Photons(coef, scene))  # camera equation, cos^4: wavelength free
+    centres = (basis.double() ** 2 * w.double()).sum(1) / (basis.double() ** 2).sum(1)
+    qe = sensor.qe(scene) * spectral.wavelength_weights(w).to(irr.dtype)  # [C, L]
+    m = qe @ basis.T  # [C, K]: QE integral of each basis vector
+
+    def otf_fn(fy, fx):
+        return dl_otf(fy, fx, centres.to(irr.dtype), n)
+
+    margin = optics.margin_samples(irr.shape[-2:], dx, w, n)
+    out, _ = blur_fft(irr, otf_fn, dx, (margin, margin), optics.pad_mode)
+    dens = torch.einsum("bkhw,ck->bchw", out, m)
+    sampled = sample_area(dens, dx, sensor.pixel_size_m, sensor.rows, sensor.cols, sensor.fill_factor)
+    rate = sensor.cfa.mosaic(sampled) * (sensor.fill_factor * sensor.pixel_area_m2)
+    return (rate * exposure_s * sensor.conversion_gain_v_per_e).clamp(0, sensor.voltage_swing_v)
+
+
+class _Photons:
+    """Duck-typed scene carrying coefficient images (possibly negative) for :func:`_irradiance`."""
+
+    def __init__(self, photons, like):
+        self.photons, self.distance_m, self.hfov_deg = photons, like.distance_m, like.hfov_deg
+
+
+def _raw_from_volts(volts, sensor, exposure_s):
+    from .sensor import RawImage
+
+    return RawImage(data=volts, units="volts", cfa=sensor.cfa, white_level=sensor.voltage_swing_v,
+                    exposure_s=torch.tensor([exposure_s]), voltage_swing_v=sensor.voltage_swing_v,
+                    conversion_gain_v_per_e=sensor.conversion_gain_v_per_e)
+
+
+def knob_rows(patch: int, repeats: int, device, log=print) -> tuple[list[dict], list[dict]]:
+    """Every accuracy-for-speed knob with its measured error; returns (rows, skipped)."""
+    rows, skipped = [], []
+    f64 = torch.float64
+
+    def setup(w, dtype=f64):
+        scene = knob_scene(patch, w, dtype=dtype, device=device)
+        h, wd = scene.photons.shape[-2:]
+        return scene, h, wd
+
+    # reference geometry and exposure (10 nm, float64, defaults)
+    scene10, h, wd = setup(wavelengths(10.0))
+    sensor = make_sensor(h, wd).to(device)
+    isp = make_isp(sensor, device)
+    with torch.no_grad():
+        t_exp = fixed_exposure(sensor, make_optics().to(device)(scene10))
+
+    def run(optics, scene, sens=None, noise=False):
+        sens = sens or sensor
+        with torch.no_grad():
+            raw = sens(optics(scene), exposure_s=t_exp, noise=noise)
+            return raw, isp(raw).image
+
+    def measure(name, group, fn, ref, ref_flag=False, note=""):
+        try:
+            t, (volts, img), _ = time_call(fn, repeats, 1, device)
+        except (RuntimeError, NotImplementedError, TypeError) as exc:
+            msg = str(exc).splitlines()[0][:160]
+            skipped.append({"name": name, "group": group, "reason": msg})
+            log(f"    {name}: skipped ({msg})")
+            return None
+        if ref is None:
+            ref = (volts, img)
+        errs = {"volts_rel": volts_rel(volts, ref[0]), **render_errors(img, ref[1])}
+        if not all(math.isfinite(v) for v in errs.values() if v is not None):
+            skipped.append({"name": name, "group": group, "reason": f"non-finite result {errs}"})
+            log(f"    {name}: skipped (non-finite)")
+            return None
+        rows.append(_row(name, group, t, errs["volts_rel"], "volts (rel RMS)", errors=errs, reference=ref_flag,
+                         note=note))
+        log(f"    {name}: {t:.3f} s, volts rel {errs['volts_rel']:.2e}, dE {errs['de2000_mean']:.3g}")
+        return ref
+
+    def vi(raw_img):
+        raw, img = raw_img
+        return raw.data, img
+
+    # wavelength step (the scene is generated on each grid; reference 1 nm)
+    log("  knob: wavelength step")
+    ref = None
+    for step in (1.0, 5.0, 10.0, 20.0):
+        sc, _, _ = setup(wavelengths(step))
+        optics = make_optics().to(device)
+        ref = measure(f"wavelength_step_{int(step)}nm", "wavelength_step", lambda o=optics, s=sc: vi(run(o, s)), ref,
+                      step == 1.0, f"{sc.num_wavelengths} bands") or ref
+        del sc
+
+    # fitted spectral basis (PCA of the 1 nm scene; reference: the full 1 nm simulation)
+    log("  knob: spectral basis")
+    sc1, _, _ = setup(wavelengths(1.0))
+    optics = make_optics().to(device)
+    for k in (3, 6):
+        def fn(k=k):
+            with torch.no_grad():
+                basis, coef = fit_basis(sc1, k)
+                volts = basis_volts(sc1, optics, sensor, basis, coef, t_exp)
+                return volts, isp(_raw_from_volts(volts, sensor, t_exp)).image
+        try:
+            measure(f"spectral_basis_k{k}", "wavelength_step", fn, ref, False,
+                    f"PCA of the 1 nm scene, {k} coefficient planes blurred at centre wavelengths (fit included)")
+        except Exception as exc:  # noqa: BLE001 - an emulation; report, do not abort the benchmark
+            skipped.append({"name": f"spectral_basis_k{k}", "group": "wavelength_step", "reason": repr(exc)[:160]})
+
+    # OTF wavelength grouping (emulated: OTF at group centres; fast path fuses the QE integral into the blur)
+    log("  knob: OTF grouping")
+    optics = make_optics().to(device)
+    ref = measure("otf_per_band_10nm", "otf_grouping", lambda: vi(run(optics, scene10)), None, True,
+                  "31 OTFs, 31 FFT planes")
+    for g in (50.0, 100.0, 300.0):
+        gopt = _GroupedOTFOptics.make(g).to(device)
+        ng = int(group_centres(scene10.wavelengths_nm, g).unique().numel())
+        measure(f"otf_grouped_{int(g)}nm_emulated", "otf_grouping", lambda o=gopt: vi(run(o, scene10)), ref, False,
+                f"{ng} OTFs applied per band (31 FFT planes): the error of grouping, no speed-up")
+
+        def fused(g=g):
+            with torch.no_grad():
+                volts = fused_grouped_volts(scene10, optics, sensor, g, t_exp)
+                return volts, isp(_raw_from_volts(volts, sensor, t_exp)).image
+        measure(f"otf_grouped_{int(g)}nm_fused", "otf_grouping", fused, ref, False,
+                f"{ng} groups x 3 channels = {3 * ng} FFT planes (QE integral inside each group first)")
+
+    # padding width (reference: psf_tolerance 1e-5)
+    log("  knob: padding")
+    ref = None
+    for label, kw in (("pad_tol_1e-5", {"psf_tolerance": 1e-5}), ("pad_tol_1e-3_default", {}),
+                      ("pad_tol_1e-2", {"psf_tolerance": 1e-2}), ("pad_margin_4px", {"margin": 4}),
+                      ("pad_margin_0px", {"margin": 0}), ("pad_isetcam", {"pad_mode": "isetcam"})):
+        optics = make_optics(**kw).to(device)
+        note = str(kw or "default")
+        if label == "pad_isetcam":
+            note += " (round(size/8) pad; also ISETCam's grid, abs() and cos4th conventions)"
+        ref = measure(label, "padding", lambda o=optics: vi(run(o, scene10)), ref, ref is None, note) or ref
+
+    # spatial sampling: pixels 4x the OI sample pitch (reference: area integration over the photodiode)
+    log("  knob: sampling")
+    optics = make_optics().to(device)
+    ref = None
+    sub = 4
+    sc_fine = scene10.replace(hfov_deg=torch.full_like(scene10.hfov_deg, hfov_for(wd // sub)))
+    for label, kw in (("area", {"sampling": "area"}), ("isetcam", {"sampling": "isetcam"}),
+                      ("point", {"sampling": "isetcam", "preblur_size": 1})):
+        sens = make_sensor(h // sub, wd // sub, **kw).to(device)
+        note = {"area": "photodiode area integral (exact for the OI's piecewise-constant samples)",
+                "isetcam": "ISETCam: Gaussian pre-blur (k = 4) + bilinear point sampling at pixel centres",
+                "point": "bilinear point sampling at pixel centres, no pre-blur"}[label]
+        ref = measure(f"sampling_{label}", "sampling", lambda s=sens: vi(run(optics, sc_fine, s)), ref,
+                      label == "area", f"{note}; {sub}x{sub} OI samples per pixel") or ref
+
+    # dtype (reference float64)
+    log("  knob: dtype")
+    ref = None
+    for dt in (torch.float64, torch.float32, torch.bfloat16, torch.float16):
+        sc = scene10.to(dtype=dt)
+        optics = make_optics().to(device)
+        name = f"dtype_{str(dt).replace('torch.', '')}"
+        ref = measure(name, "dtype", lambda o=optics, s=sc: vi(run(o, s)), ref, dt == torch.float64,
+                      "scene, optics, sensor and ISP in this dtype") or ref
+
+    # shot-noise mode: error = relative difference of the noise std against exact Poisson (statistical)
+    log("  knob: shot noise")
+    optics = make_optics().to(device)
+    with torch.no_grad():
+        oi = optics(scene10)
+        clean = sensor(oi, exposure_s=t_exp, noise=False).data
+    std_ref = None
+    for mode in ("poisson", "gaussian", "off"):
+        sens = make_sensor(h, wd, noise=True, shot_noise=mode, read_noise_v=0.0, dark_current_e_per_s=0.0).to(device)
+        with torch.no_grad():
+            t, raw, _ = time_call(lambda s=sens: s(oi, exposure_s=t_exp, noise=True), repeats, 1, device)
+        std = float((raw.data - clean).double().std())
+        std_ref = std if std_ref is None else std_ref
+        err = abs(std / std_ref - 1)
+        rows.append(_row(f"shot_noise_{mode}", "shot_noise", t, err, "noise std (rel)", reference=mode == "poisson",
+                         note=f"sensor stage only; noise std {std:.3e} V"))
+        log(f"    shot_noise_{mode}: {t:.3f} s, std err {err:.2e}")
+    return rows, skipped
+
+
+# --------------------------------------------------------------------------------------------------------------
+# 4. model only what the scene needs
+
+
+def proportional_rows(n: int, repeats: int, device, log=print) -> list[dict]:
+    """3 bands vs 31, a small sensor on a large OI (crop before blur), zero-noise settings."""
+    rows = []
+    log(f"  proportional cost ({n}x{n})")
+    optics = make_optics().to(device)
+    sensor = make_sensor(n, n).to(device)
+    w31, w3 = wavelengths(10.0), torch.tensor([450.0, 550.0, 650.0], dtype=torch.float64)
+    times = {}
+    for label, w in (("31", w31), ("3", w3)):
+        sc = sweep_scene(n, w, torch.float32, device)
+        with torch.no_grad():
+            times[label], _, _ = time_call(lambda s=sc: sensor(optics(s), noise=False), repeats, 1, device)
+    rows.append(_row(f"bands_31_{n}x{n}", "proportional", times["31"], None, None, ratio=1.0,
+                     note="optics + sensor, 31-band scene"))
+    rows.append(_row(f"bands_3_{n}x{n}", "proportional", times["3"], None, None, ratio=times["3"] / times["31"],
+                     note="optics + sensor, 3-band scene (ideal ratio 3/31 = 0.097)"))
+
+    # small sensor (n/8 px) at the centre of a large optical image: crop before blur vs blur everything
+    sc = sweep_scene(n, w31, torch.float32, device)
+    small = max(16, n // 8) // 2 * 2
+    sens_small = make_sensor(small, small).to(device)
+    with torch.no_grad():
+        full_oi = optics(sc)
+    ph, pw = full_oi.photons.shape[-2:]
+    dx_ratio = PITCH_M / float(full_oi.sample_spacing_m[0])
+    win = int(math.ceil(small * dx_ratio)) + 4
+    win += (ph - win) % 2  # keep the window centred on the axis
+    top, left = (ph - win) // 2, (pw - win) // 2
+    with torch.no_grad():
+        t_full, raw_full, _ = time_call(lambda: sens_small(optics(sc), noise=False), repeats, 1, device)
+        t_crop, raw_crop, _ = time_call(lambda: sens_small(optics(sc, crop=(top, left, win, win)), noise=False),
+                                        repeats, 1, device)
+    err = volts_rel(raw_crop.data, raw_full.data)
+    area = (win * win) / (ph * pw)
+    rows.append(_row(f"crop_off_{small}px_sensor_on_{n}x{n}", "proportional", t_full, 0.0, "volts (rel RMS)",
+                     ratio=1.0, reference=True, note="blur the whole padded OI, then sample the small sensor"))
+    rows.append(_row(f"crop_on_{small}px_sensor_on_{n}x{n}", "proportional", t_crop, err, "volts (rel RMS)",
+                     ratio=t_crop / t_full, note=f"optics(crop=window {win}x{win}); window/OI area {area:.3f}"))
+
+    # zero-noise settings: every noise stage skipped vs all of them on
+    with torch.no_grad():
+        oi = optics(sc)
+    noisy = make_sensor(n, n, noise=True, shot_noise="poisson", read_noise_v=1e-3, dark_current_e_per_s=10.0,
+                        dsnu_sigma_v=1e-3, prnu_sigma_percent=0.5, column_fpn_sigma_v=1e-4).to(device)
+    quiet = make_sensor(n, n, noise=True, shot_noise="off").to(device)
+    with torch.no_grad():
+        t_noisy, _, _ = time_call(lambda: noisy(oi, noise=True), repeats, 1, device)
+        t_quiet, _, _ = time_call(lambda: quiet(oi, noise=True), repeats, 1, device)
+    rows.append(_row(f"noise_all_on_{n}x{n}", "proportional", t_noisy, None, None, ratio=1.0,
+                     note="sensor stage: Poisson shot, read, dark, DSNU, PRNU, column FPN"))
+    rows.append(_row(f"noise_all_zero_{n}x{n}", "proportional", t_quiet, None, None, ratio=t_quiet / t_noisy,
+                     note="sensor stage with every noise parameter 0 (stages skipped)"))
+    return rows
+
+
+# --------------------------------------------------------------------------------------------------------------
+# 5. peers
+
+
+def load_numpy_reference():
+    path = REPO / "benchmarks" / "numpy_reference.py"
+    if not path.is_file():
+        return None
+    spec = importlib.util.spec_from_file_location("isettorch_numpy_reference", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def numpy_reference_rows(sizes, repeats: int, log=print) -> tuple[list[dict], list[dict]]:
+    """The NumPy reference against isettorch (float64, CPU) on the same optics + sensor work."""
+    ref = load_numpy_reference()
+    if ref is None:
+        return [], [{"name": "numpy_reference", "group": "peer_pipeline", "reason": "benchmarks/numpy_reference.py "
+                     "not found (not a source checkout)"}]
+    rows = []
+    for n in sizes:
+        log(f"  numpy reference {n}x{n}x31")
+        sc = sweep_scene(n, wavelengths(10.0), torch.float64, "cpu")
+        optics = make_optics()
+        sensor = make_sensor(n, n)
+        with torch.no_grad():
+            t_i, raw, _ = time_call(lambda s=sc, o=optics, se=sensor: se(o(s), noise=False), repeats, 1, "cpu")
+            oi = optics(sc)
+        qe = sensor.qe(oi).numpy()
+        cell = sensor.cfa.index_map.numpy()
+        kw = dict(hfov_deg=float(sc.hfov_deg[0]), distance_m=DISTANCE_M, f_number=4.0, focal_length_m=FOCAL_M,
+                  pad=(oi.pad_rows, oi.pad_cols), qe=qe, cfa_index=cell, rows=n, cols=n, pixel_size_m=PITCH_M,
+                  fill_factor=sensor.fill_factor, exposure_s=0.01,
+                  conversion_gain_v_per_e=sensor.conversion_gain_v_per_e,
+                  voltage_swing_v=sensor.voltage_swing_v)
+        photons = sc.photons[0].numpy()
+        w = sc.wavelengths_nm.numpy()
+        t_n, v_np, _ = time_call(lambda p=photons, w=w, kw=kw: ref.simulate(p, w, **kw), max(1, repeats - 1), 1, "cpu")
+        err = volts_rel(raw.data[0, 0], torch.from_numpy(v_np))
+        tag = f"{n}x{n}x31"
+        rows.append(_row(f"isettorch_optics_sensor_{tag}", "peer_pipeline", t_i, 0.0, "volts (rel RMS)",
+                         reference=True, note="float64, noise off, area sampling"))
+        rows.append(_row(f"numpy_reference_{tag}", "peer_pipeline", t_n, err, "volts (rel RMS)",
+                         ratio=t_n / t_i, note="benchmarks/numpy_reference.py, float64, same padding"))
+    return rows, []
+
+
+def demosaic_rows(n: int, repeats: int, device, log=print) -> tuple[list[dict], list[dict]]:
+    """Demosaic: isettorch methods vs colour-demosaicing and kornia on a generated image (dead leaves with
+    Macbeth reflectances, its ideal sRGB preview): median time and CPSNR (dB) against the full-colour truth."""
+    import numpy as np
+
+    from .isp import demosaic, mosaic
+    from .metrics import cpsnr
+    from .scene import dead_leaves
+
+    log(f"  demosaic peers {n}x{n}")
+    truth = dead_leaves(n, reflectances="macbeth", seed=0, dtype=torch.float32).srgb().clamp(0, 1)
+    truth = truth.to(device)
+    raw = mosaic(truth, "RGGB")
+    rows, skipped = [], []
+    unit = "CPSNR dB vs truth (higher is better)"
+
+    def add(name, fn, out_to_tensor, note):
+        try:
+            t, out, _ = time_call(fn, repeats, 1, device)
+        except Exception as exc:  # noqa: BLE001 - a peer that fails is reported, not fatal
+            skipped.append({"name": name, "group": "peer_demosaic", "reason": repr(exc)[:160]})
+            return
+        score = float(cpsnr(out_to_tensor(out).clamp(0, 1).double().cpu(), truth.double().cpu(), crop=10))
+        rows.append(_row(name, "peer_demosaic", t, score, unit, note=note))
+        log(f"    {name}: {t * 1e3:.1f} ms, {score:.2f} dB")
+
+    for m in ("bilinear", "malvar2004", "menon2007"):
+        add(f"demosaic_isettorch_{m}_{n}", lambda m=m: demosaic(raw, "RGGB", m), lambda x: x,
+            f"isettorch.isp.demosaic, float32, {device}")
+    try:
+        import colour_demosaicing as cd
+
+        raw_np = raw[0, 0].double().cpu().numpy()
+        for m, fn in (("bilinear", cd.demosaicing_CFA_Bayer_bilinear),
+                      ("malvar2004", cd.demosaicing_CFA_Bayer_Malvar2004),
+                      ("menon2007", cd.demosaicing_CFA_Bayer_Menon2007)):
+            add(f"demosaic_colour_{m}_{n}", lambda fn=fn: fn(raw_np, "RGGB"),
+                lambda x: torch.from_numpy(np.ascontiguousarray(x)).permute(2, 0, 1)[None],
+                "colour-demosaicing (NumPy, float64, CPU)")
+    except ImportError:
+        skipped.append({"name": "demosaic_colour", "group": "peer_demosaic", "reason": "colour-demosaicing missing"})
+    try:
+        import kornia
+
+        add(f"demosaic_kornia_bilinear_{n}", lambda: kornia.color.raw_to_rgb(raw, kornia.color.CFA.BG),
+            lambda x: x, f"kornia.color.raw_to_rgb (CFA.BG = RGGB cell), float32, {device}")
+    except ImportError:
+        skipped.append({"name": "demosaic_kornia", "group": "peer_demosaic", "reason": "kornia missing"})
+    return rows, skipped
+
+
+def pairs_per_second(n_items: int, log=print) -> tuple[float | None, str]:
+    """Training-pair throughput of ``isettorch.data`` CameraPairDataset at 128 x 128 (one process)."""
+    try:
+        from .data.camera_pairs import CameraPairDataset
+    except ImportError as exc:
+        return None, f"CameraPairDataset unavailable ({exc})"
+    log(f"  CameraPairDataset 128x128, {n_items} items")
+    ds = CameraPairDataset(n_items + 1, seed=0, scene={"height": 128, "width": 128})
+    ds[0]  # warm-up (caches)
+    t0 = time.perf_counter()
+    for i in range(1, n_items + 1):
+        ds[i]
+    dt = time.perf_counter() - t0
+    return n_items / dt, f"CameraPairDataset(128x128, 31 bands), single process, {n_items} items after 1 warm-up"
+
+
+# --------------------------------------------------------------------------------------------------------------
+# driver, table and plot
+
+
+def run_benchmarks(*, quick: bool = False, device="cpu", sizes=None, stable_size: int | None = None,
+                   knob_patch: int | None = None, repeats: int | None = None, peers: bool = True,
+                   pairs: bool = True, log: Callable[[str], None] | None = None) -> dict:
+    """Run the standard set; returns ``{"rows": [...], "skipped": [...], "pairs_per_s", "pairs_note",
+    "machine", "settings", "seconds_total"}``.
+
+    ``quick`` skips 1024^2 and uses fewer repeats and smaller knob scenes. ``sizes`` (pipeline sizes),
+    ``stable_size`` (the ISETCam-comparison rows), ``knob_patch`` (Macbeth patch size of the knob scene) and
+    ``repeats`` override the defaults.
+    """
+    log = log or (lambda s: None)
+    device = torch.device(device)
+    t_start = time.perf_counter()
+    sizes = list(sizes or ((128, 512) if quick else (128, 512, 1024)))
+    stable_size = stable_size or 512
+    knob_patch = knob_patch or (16 if quick else 32)
+    repeats = repeats or (2 if quick else 5)
+    info = machine_info(device)
+    rows, skipped = [], []
+    log("pipeline stages")
+    rows += pipeline_rows(sizes, repeats, device, log=log)
+    rows += stable_rows(stable_size, max(2, repeats - 2), device, log=log)
+    log("knobs")
+    r, s = knob_rows(knob_patch, max(1, repeats - 2), device, log=log)
+    rows += r
+    skipped += s
+    log("model only what the scene needs")
+    rows += proportional_rows(min(512, max(sizes)), max(1, repeats - 2), device, log=log)
+    if peers:
+        log("peers")
+        r, s = numpy_reference_rows([min(sizes), min(512, max(sizes))] if not quick else [min(sizes)],
+                                    max(1, repeats - 2), log=log)
+        rows += r
+        skipped += s
+        r, s = demosaic_rows(min(512, max(sizes)), max(1, repeats - 2), device, log=log)
+        rows += r
+        skipped += s
+    pps, note = (None, "skipped (pairs=False)")
+    if pairs:
+        pps, note = pairs_per_second(2 if quick else 6, log=log)
+    if hasattr(os, "getloadavg"):
+        info["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
+    return {"rows": rows, "skipped": skipped, "pairs_per_s": pps, "pairs_note": note, "machine": info,
+            "settings": {"quick": quick, "sizes": sizes, "stable_size": stable_size, "knob_patch": knob_patch,
+                         "repeats": repeats, "device": str(device)},
+            "seconds_total": time.perf_counter() - t_start}
+
+
+def _fmt(x, spec=".3g") -> str:
+    if x is None:
+        return "-"
+    return format(x, spec)
+
+
+def format_table(result: dict) -> str:
+    """A Markdown table of every row (time, error, unit, ratio, note)."""
+    lines = ["| name | group | median s | error | unit | dE2000 | CPSNR dB | ratio | note |",
+             "|---|---|---:|---:|---|---:|---:|---:|---|"]
+    for r in result["rows"]:
+        e = r.get("errors") or {}
+        lines.append(f"| {r['name']}{' (ref)' if r.get('reference') else ''} | {r['group']} | "
+                     f"{_fmt(r['seconds_median'], '.4f')} | {_fmt(r['error'], '.3g')} | {r['error_unit'] or '-'} | "
+                     f"{_fmt(e.get('de2000_mean'), '.3g')} | {_fmt(e.get('cpsnr_db'), '.1f')} | "
+                     f"{_fmt(r.get('ratio'), '.3f')} | {r.get('note', '')} |")
+    pps = result.get("pairs_per_s")
+    lines.append("")
+    lines.append(f"training pairs/s: {_fmt(pps, '.2f')} ({result.get('pairs_note', '')})")
+    for s in result.get("skipped", []):
+        lines.append(f"skipped: {s['name']} ({s['reason']})")
+    return "\n".join(lines)
+
+
+def pareto_front(points: list[tuple[float, float]]) -> list[int]:
+    """Indices of the points not dominated in (time, error), both to be minimised, sorted by time."""
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], math.inf
+    for i in order:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def plot_pareto(result: dict, path) -> Path:
+    """Time vs sensor-volts error of the knob rows (log-log; errors of 0 drawn at the floor), with the Pareto
+    front over all knob rows. Returns the path of the PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    knob_groups = ("wavelength_step", "otf_grouping", "padding", "sampling", "dtype")
+    rows = [r for r in result["rows"] if r["group"] in knob_groups and r["error"] is not None]
+    floor = 1e-17
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    markers = dict(zip(knob_groups, "osD^v"))
+    for g in knob_groups:
+        sel = [r for r in rows if r["group"] == g]
+        if sel:
+            ax.scatter([r["seconds_median"] for r in sel], [max(r["error"], floor) for r in sel], label=g,
+                       marker=markers[g], s=40)
+            for r in sel:
+                ax.annotate(r["name"], (r["seconds_median"], max(r["error"], floor)), fontsize=6,
+                            xytext=(3, 3), textcoords="offset points")
+    pts = [(r["seconds_median"], max(r["error"], floor)) for r in rows]
+    if pts:
+        front = pareto_front(pts)
+        ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k--", lw=1, label="Pareto front")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("median time, optics + sensor + ISP (s)")
+    ax.set_ylabel("sensor volts error vs most accurate setting (relative RMS)")
+    ax.set_title("isettorch: speed against error (errors of 0 drawn at 1e-17)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

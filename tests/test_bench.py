@@ -1,0 +1,118 @@
+"""Smoke test of ``isettorch bench --json --quick`` on tiny sizes: the JSON schema, finite errors, reference rows
+at error 0, and the cross-checks the benchmark makes (independent NumPy pipeline, colour-demosaicing, the
+grouped-OTF identity). Timings are never asserted."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+
+from isettorch import bench
+from isettorch.cli import main
+
+KNOB_GROUPS = ("wavelength_step", "otf_grouping", "padding", "sampling", "dtype", "shot_noise")
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory):
+    torch.set_num_threads(1)
+    png = tmp_path_factory.mktemp("bench") / "pareto.png"
+    import io
+    from contextlib import redirect_stdout
+
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        rc = main(["bench", "--json", "--quick", "--sizes", "32", "--stable-size", "32", "--knob-patch", "4",
+                   "--repeats", "1", "--plot", str(png)])
+    assert rc == 0
+    out = json.loads(buf.getvalue())
+    out["_png"] = png
+    return out
+
+
+def _rows(result, group=None):
+    return {r["name"]: r for r in result["rows"] if group is None or r["group"] == group}
+
+
+def test_schema(result):
+    assert set(result) >= {"rows", "skipped", "pairs_per_s", "pairs_note", "machine", "settings"}
+    names = [r["name"] for r in result["rows"]]
+    assert len(names) == len(set(names)), "row names must be unique"
+    for r in result["rows"]:
+        assert set(bench.ROW_KEYS) <= set(r)
+        assert isinstance(r["name"], str) and r["name"]
+        assert isinstance(r["seconds_median"], float) and r["seconds_median"] > 0
+        assert (r["error"] is None) == (r["error_unit"] is None)
+        if r["error"] is not None:
+            assert math.isfinite(r["error"]) and r["error"] >= 0
+    rows = _rows(result)
+    assert "optics_32x32x31" in rows and "sensor_32x32x31" in rows  # stable names (512 in the standard run)
+    assert result["pairs_per_s"] is None or (math.isfinite(result["pairs_per_s"]) and result["pairs_per_s"] > 0)
+    assert result["_png"].stat().st_size > 10_000  # the time-vs-error plot was written
+
+
+def test_every_knob_group_has_one_reference_at_zero_error(result):
+    for g in KNOB_GROUPS:
+        rows = _rows(result, g)
+        assert len(rows) >= 2, g
+        refs = [r for r in rows.values() if r.get("reference")]
+        assert len(refs) == 1, g
+        assert refs[0]["error"] == 0.0
+        assert all(r["error"] is not None for r in rows.values())
+        for r in rows.values():
+            if "errors" in r and r.get("reference"):
+                assert r["errors"]["de2000_mean"] == 0.0 and r["errors"]["cpsnr_db"] is None
+
+
+def test_knob_errors_physically_ordered(result):
+    ws = _rows(result, "wavelength_step")
+    # coarser spectral sampling of the same scene: larger error against 1 nm
+    assert 0 < ws["wavelength_step_5nm"]["error"] < ws["wavelength_step_20nm"]["error"]
+    dt = _rows(result, "dtype")
+    assert 0 < dt["dtype_float32"]["error"] < 1e-5  # float32 rounding, relative to float64
+    pad = _rows(result, "padding")
+    # light wrapping around without padding vs the optics' default margin (tolerance 1e-3 of the LSF energy)
+    assert pad["pad_tol_1e-3_default"]["error"] < pad["pad_margin_0px"]["error"]
+    noise = _rows(result, "shot_noise")
+    assert noise["shot_noise_off"]["error"] == pytest.approx(1.0)  # no noise at all: 100 % of the std missing
+
+
+def test_grouped_otf_fast_path_matches_emulation(result):
+    """blur(sum_g QE E) = sum_g QE blur(E) when a group shares its OTF: the fused path has the same error."""
+    g = _rows(result, "otf_grouping")
+    for width in (50, 100, 300):
+        emu, fused = g[f"otf_grouped_{width}nm_emulated"], g[f"otf_grouped_{width}nm_fused"]
+        assert fused["error"] == pytest.approx(emu["error"], rel=1e-6, abs=1e-12)
+
+
+def test_peers_agree(result):
+    peers = _rows(result, "peer_pipeline")
+    np_rows = [r for n, r in peers.items() if n.startswith("numpy_reference")]
+    assert np_rows and all(r["error"] < 1e-10 for r in np_rows)  # independent NumPy physics, float64
+    dem = _rows(result, "peer_demosaic")
+    # bilinear demosaic: isettorch, colour-demosaicing and kornia score the same CPSNR on the same mosaic
+    ours, theirs = dem["demosaic_isettorch_bilinear_32"]["error"], dem["demosaic_colour_bilinear_32"]["error"]
+    assert ours == pytest.approx(theirs, abs=0.05)
+    crop = _rows(result, "proportional")
+    on = [r for n, r in crop.items() if n.startswith("crop_on")]
+    assert on and on[0]["error"] < 1e-3  # crop before blur: only the PSF energy beyond the margin is missed
+
+
+def test_pareto_front():
+    pts = [(1.0, 0.5), (2.0, 0.1), (1.5, 0.6), (3.0, 0.1), (0.5, 1.0)]
+    assert bench.pareto_front(pts) == [4, 0, 1]
+
+
+def test_group_centres():
+    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    c = bench.group_centres(w, 100.0)
+    assert c[0] == 445.0 and c[9] == 445.0 and c[10] == 545.0 and c[-1] == 700.0
+    assert c.unique().numel() == 4
+
+
+def test_bad_arguments(capsys):
+    assert main(["bench", "--sizes", "abc"]) == 2
+    assert "--sizes" in capsys.readouterr().err
