@@ -70,8 +70,10 @@ class ISPResult:
 
 
 class DemosaicStage(nn.Module):
-    """Demosaic for any CFA: Bayer layouts use ``method`` of :func:`isettorch.isp.demosaic.demosaic`; other
-    CFAs (CMY, RGBW, ...) use the generic method on the CFA's index map (``fallback``, bilinear by default).
+    """Demosaic for any CFA: Bayer-like 2x2 layouts (RGB Bayer, and 3-filter cells with one filter on a
+    diagonal such as CMY 'YCMY', mapped onto a Bayer pattern) use ``method`` of
+    :func:`isettorch.isp.demosaic.demosaic`; other CFAs (RGBW, X-Trans, ...) use the generic method on the
+    CFA's index map (``fallback``, bilinear by default).
 
     ``border="reflect"`` mirrors the mosaic by one pixel first (which keeps a 2x2 CFA's phase) and crops the
     result, as ISETCam ``ieBilinear`` does; ``border="method"`` leaves the borders to the method.
@@ -105,14 +107,37 @@ class DemosaicStage(nn.Module):
                 raise ValueError(f"border: 'reflect' needs a CFA cell of at most 2x2, got {cfa.shape}")
             cell = [[cfa.cell[(i - 1) % ph][(j - 1) % pw] for j in range(pw)] for i in range(ph)]
             cfa = CFA(cell, cfa.channel_names)
-        if cfa.is_bayer and cfa.channel_names[:3] == ["R", "G", "B"]:
+        pseudo = _pseudo_bayer(cfa)
+        if cfa.is_bayer and cfa.channel_names == ["R", "G", "B"]:
             out = self.bayer(mosaic, cfa.bayer_pattern)
+        elif pseudo is not None:
+            pattern, order = pseudo
+            out = self.bayer(mosaic, pattern)[:, order]
         else:
             out = demosaic(mosaic, cfa.index_map.to(mosaic.device), self.fallback, num_channels=cfa.num_channels)
         return out[..., pad:out.shape[-2] - pad, pad:out.shape[-1] - pad] if pad else out
 
     def extra_repr(self) -> str:
         return f"method={self.method!r}, fallback={self.fallback!r}, border={self.border!r}"
+
+
+def _pseudo_bayer(cfa) -> tuple[str, list[int]] | None:
+    """A 2x2 CFA of 3 channels with one filter on a diagonal (Bayer RGB, CMY 'YCMY', ...) as a Bayer pattern
+    string (the diagonal filter as G, the others as R then B in reading order) and the index of each CFA
+    channel in the Bayer method's RGB output; None for other CFAs."""
+    if cfa.shape != (2, 2) or cfa.num_channels != 3:
+        return None
+    cell = cfa.index_map.tolist()
+    if cell[0][0] == cell[1][1] and cell[0][1] != cell[1][0] != cell[0][0]:
+        diag, others = cell[0][0], [cell[0][1], cell[1][0]]
+    elif cell[0][1] == cell[1][0] and cell[0][0] != cell[1][1] != cell[0][1]:
+        diag, others = cell[0][1], [cell[0][0], cell[1][1]]
+    else:
+        return None
+    letter = {diag: "G", others[0]: "R", others[1]: "B"}
+    pattern = "".join(letter[i] for row in cell for i in row)
+    rgb_index = {"R": 0, "G": 1, "B": 2}
+    return pattern, [rgb_index[letter[c]] for c in range(3)]
 
 
 def _sensor_qe(sensor, wavelengths_nm: torch.Tensor) -> torch.Tensor:

@@ -166,3 +166,18 @@ def test_adaptive_scaling_quantized_raw_max_is_one():
     ip = ImageProcessor().double().fit(qe)
     assert ip(dn).display_linear.max().item() == pytest.approx(1.0, rel=1e-12)
     assert ip(raw).display_linear.max().item() == pytest.approx(0.3, rel=1e-9)
+
+
+@pytest.mark.parametrize("pattern", ["YCMY", "CYYM"])
+def test_cmy_cfa_uses_bayer_methods(pattern):
+    # A 3-filter 2x2 cell with one filter on a diagonal is demosaicked as a Bayer pattern; bilinear equals the
+    # generic CFA bilinear in the interior and keeps the measured samples.
+    from isettorch.isp.demosaic import demosaic
+
+    cfa = CFA(pattern)
+    x = torch.rand(2, 1, 12, 12, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+    out = DemosaicStage("bilinear")(x, cfa)
+    ref = demosaic(x, cfa.index_map, "bilinear", num_channels=3)
+    torch.testing.assert_close(out[..., 2:-2, 2:-2], ref[..., 2:-2, 2:-2])
+    torch.testing.assert_close(cfa.mosaic(out), x)
+    assert DemosaicStage("menon2007")(x, cfa).shape == (2, 3, 12, 12)
