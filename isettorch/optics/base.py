@@ -25,6 +25,14 @@ __all__ = ["ShiftInvariantLens"]
 _CACHE_SIZE = 8
 
 
+def _check_crop(crop) -> None:
+    if crop is None:
+        return
+    if not (isinstance(crop, (tuple, list)) and len(crop) == 4 and all(isinstance(v, int) for v in crop)):
+        raise ValueError(f"crop: expected None or (top, left, height, width) ints in optical-image samples, "
+                         f"got {crop!r}")
+
+
 class ShiftInvariantLens(nn.Module):
     """Base class of the shift-invariant optics (thin lens, camera equation, relative illumination, OTF blur).
 
@@ -211,6 +219,7 @@ class ShiftInvariantLens(nn.Module):
         """
         if not isinstance(scene, Scene):
             raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
+        _check_crop(crop)
         x = scene.photons
         b, nl, h, w = x.shape
         dt, dev = x.dtype, x.device

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from .base import ShiftInvariantLens
+from .base import ShiftInvariantLens, _check_crop
 from .isetcam import compute_oi
 
 __all__ = ["dl_otf", "dl_mtf_1d", "DiffractionLimitedOptics"]
@@ -108,5 +108,9 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
                         self.batch_f_number(b, dt, dev), self.batch_focal_length(b, dt, dev), t,
                         offaxis="skip" if self.relative_illumination in (None, "none") else "cos4th")
         if crop is not None:
+            _check_crop(crop)
+            full = (oi.height, oi.width)
+            pad = (oi.pad_rows, oi.pad_cols)
             oi = oi.crop(*crop)
+            oi.metadata = {"full_shape": full, "full_pad": pad, "window": (crop[0], crop[1])}
         return oi

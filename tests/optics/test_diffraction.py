@@ -140,6 +140,10 @@ def test_crop_window_matches_full():
         assert part.metadata["window"] == (top, left)
     with pytest.raises(ValueError, match="crop"):
         optics(scene, crop=(0, 0, 1000, 5))
+    with pytest.raises(ValueError, match="crop"):
+        optics(scene, crop=(0, 0, 5))
+    iso = DiffractionLimitedOptics(4.0, F, pad_mode="isetcam")
+    torch.testing.assert_close(iso(scene, crop=(2, 3, 10, 12)).photons, iso(scene).photons[..., 2:12, 3:15])
 
 
 @pytest.mark.parametrize("mode", ["edge", "mean"])
