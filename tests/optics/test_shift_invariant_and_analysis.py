@@ -114,3 +114,18 @@ def test_photometric_camera_equation_and_to():
     # transmittance on its own wavelength grid is resampled to the scene's
     opt2 = DiffractionLimitedOptics(4.0, F, transmittance=[0.5, 1.0], transmittance_wavelengths_nm=[400.0, 700.0])
     torch.testing.assert_close(opt2.transmittance_on(w), 0.5 + 0.5 * (w - 400) / 300)
+
+
+@pytest.mark.parametrize("tol", [1e-2, 1e-3])
+def test_margin_rule_bounds_the_line_spread_tail(tol):
+    # the padding margin 2 lambda N / (pi^3 tol) leaves at most tol of the line-spread energy beyond it
+    dl = DiffractionLimitedOptics(4.0, F, psf_tolerance=tol)
+    lam_n = 650e-9 * 4.0
+    margin = dl.psf_margin_m(torch.tensor([450.0, 650.0], dtype=torch.float64),
+                             torch.tensor([4.0], dtype=torch.float64)).item()
+    dx = lam_n / 8
+    size = 2 * int(8 * margin / dx)
+    line = analysis.lsf(dl, [650.0], dx, size)[0, 0]
+    x = (torch.arange(size, dtype=torch.float64) - size // 2) * dx
+    tail = line[x > margin].sum().item()
+    assert tol / 2 < tail <= tol * 1.02
