@@ -94,11 +94,12 @@ def _interp_last(x: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
         i1 = i0 + 1
         t = pos - i0.to(pos.dtype)
     valid = ((pos >= 0) & (pos <= n - 1)).to(x.dtype)
+    t = t.to(x.dtype)
     shape = (b, *x.shape[1:-1], pos.shape[-1])
     view = (b,) + (1,) * (x.dim() - 2) + (pos.shape[-1],)
     x0 = x.gather(-1, i0.reshape(view).expand(shape))
     x1 = x.gather(-1, i1.reshape(view).expand(shape))
-    t = t.reshape(view).to(x.dtype)
+    t = t.reshape(view)
     return (x0 * (1 - t) + x1 * t) * valid.reshape(view)
 
 
@@ -108,8 +109,9 @@ def sample_point(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_
 
     ``x [B, C, H2, W2]`` on the OI grid -> ``[B, C, rows, cols]``.
     """
-    px = pixel_centre_index(x.shape[-1], cols, pixel_size_m, oi_sample_spacing_m).to(x.dtype)
-    py = pixel_centre_index(x.shape[-2], rows, pixel_size_m, oi_sample_spacing_m).to(x.dtype)
+    # positions in float64: a float32 index of a wide OI would lose ~1e-4 of a sample
+    px = pixel_centre_index(x.shape[-1], cols, pixel_size_m, oi_sample_spacing_m.to(torch.float64))
+    py = pixel_centre_index(x.shape[-2], rows, pixel_size_m, oi_sample_spacing_m.to(torch.float64))
     out = _interp_last(x, px)
     return _interp_last(out.transpose(-1, -2), py).transpose(-1, -2)
 
