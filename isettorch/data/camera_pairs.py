@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import math
+import time
 
 import numpy as np
 import torch
@@ -72,6 +73,15 @@ def nikon_d5100_qe(wavelengths_nm, peak_qe: float = 0.5, shift_nm=(0.0, 0.0, 0.0
     return torch.stack(rows) * peak_qe
 
 
+@functools.lru_cache(maxsize=16)
+def _xyz_weights(grid: tuple) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(W [3, L], dl [L])`` in float64 with ``XYZ = W @ photons``: 683 cmf(l) h c / l dl (CIE 015:2018)."""
+    w = torch.tensor(grid, dtype=torch.float64)
+    dl = spectral.wavelength_weights(w)
+    to_watts = (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S) / (w * 1e-9)
+    return constants.KM_LM_PER_W * spectral.cmfs(w, dtype=torch.float64) * to_watts * dl, dl
+
+
 def _bradford(src_xyz: torch.Tensor, dst_xyz: torch.Tensor) -> torch.Tensor:
     """von Kries adaptation in Bradford cone space: ``M^-1 diag(M dst / M src) M`` (CIE 160:2004)."""
     m = torch.tensor(_BRADFORD, dtype=torch.float64)
@@ -95,6 +105,20 @@ def _pick(values, g: torch.Generator):
     return values[int(torch.randint(len(values), (), generator=g))]
 
 
+class _Clock:
+    """Adds the time since the previous call to ``timings[stage]`` (no-op without a dict)."""
+
+    def __init__(self, timings: dict | None):
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def __call__(self, stage: str) -> None:
+        if self.timings is not None:
+            now = time.perf_counter()
+            self.timings[stage] = self.timings.get(stage, 0.0) + now - self.last
+            self.last = now
+
+
 class _Cache:
     """Per-process caches of optics modules (one per f-number and focal length, each with its OTF cache)."""
 
@@ -112,8 +136,13 @@ class _Cache:
 
 
 def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype=torch.float32,
-                cache: _Cache | None = None) -> dict:
-    """One camera training pair for ``(seed, index)`` (see the module notes for the outputs)."""
+                cache: _Cache | None = None, timings: dict | None = None) -> dict:
+    """One camera training pair for ``(seed, index)`` (see the module notes for the outputs).
+
+    ``timings``: optional dict accumulating the seconds spent per stage (scene, optics, sensor, targets,
+    setup), for benchmarks.
+    """
+    clock = _Clock(timings)
     from ..optics.blur import full_padding
     from ..optics.geometry import image_distance
     from ..sensor import CFA, Sensor, SpectralQE
@@ -148,12 +177,15 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
                                                                                        dtype=torch.float64)))
     ws = w + 2 * m
     hfov = math.degrees(2 * math.atan(pitch * ws / (2 * d_i)))
+    clock("setup")
     scene = generate_scene(index, seed, scene_cfg, dtype=dtype, hfov_deg=hfov, size=(h + 2 * m, ws))
+    clock("scene")
     optics = cache.get_optics(f_number, focal, m)
     pr, pc = full_padding(h + 2 * m, m), full_padding(ws, m)
     with torch.no_grad():
         oi = optics(scene, crop=(pr + m, pc + m, h, w))
     wave = scene.wavelengths_nm
+    clock("optics")
 
     cfa = CFA(pattern)
     qe_native = nikon_d5100_qe(_nikon_native()[0], peak, shifts)
@@ -165,11 +197,11 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
                     dark_current_e_per_s=dark, dsnu_sigma_v=dsnu_e * cg, prnu_sigma_percent=prnu,
                     fpn_mode="per_frame", seed=noise_seed)
     qe = sensor.qe(oi)  # [3, L]
+    clock("setup")
     # One pass over the spectral cube: per-channel electron-rate density (e-/s/m^2, as the sensor's
     # electron_rate_density) and absolute XYZ (683 sum E cmf dl, CIE 015:2018) at every OI sample.
-    dl = spectral.wavelength_weights(wave)
-    to_watts = (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S) / (wave * 1e-9)  # h c / lambda
-    weights = torch.cat([qe.to(dtype) * dl, constants.KM_LM_PER_W * spectral.cmfs(wave, dtype=dtype) * to_watts * dl])
+    xyz_w, dl = _xyz_weights(tuple(wave.tolist()))
+    weights = torch.cat([qe.to(dtype) * dl.to(dtype), xyz_w.to(dtype)])
     dens6 = _matmul_fixed_order(weights, oi.photons.reshape(oi.num_wavelengths, -1)).reshape(1, 6, h, w)
     if abs(float(oi.sample_spacing_m[0]) / pitch - 1) < 1e-4:
         # One OI sample per pixel and the photodiode (side pitch sqrt(fill)) inside it: area sampling of a
@@ -180,14 +212,17 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
     rate_rgb = sampled6[:, :3] * (fill * pitch * pitch)  # e-/s per pixel and channel
     xyz_img = sampled6[:, 3:]
     # Auto-exposure: the 98th percentile of the brightest channel at 80 % of full scale (after gain), x 2^EV.
-    p98 = torch.quantile(rate_rgb.amax(dim=1).flatten().double(), 0.98).clamp_min(1e-30)
+    peak = rate_rgb.amax(dim=1).flatten()
+    p98 = peak.kthvalue(max(1, math.ceil(0.98 * peak.numel()))).values.double().clamp_min(1e-30)
     exposure = float(0.8 * full_well / gain / p98) * 2.0**ev
     lsb = 1.0 / 2**bits
     white = float(2**bits - 1)
     span = white - black
     ng = torch.Generator().manual_seed(noise_seed)
+    clock("targets")
     with torch.no_grad():
         raw = sensor(oi, exposure_s=exposure, analog_gain=gain, noise=True, generator=ng)
+    clock("sensor")
     # electrons -> normalised units: e * cg * gain / lsb / span (Sensor: volts = e cg, x gain, / lsb, + black)
     to_norm = cg * gain / lsb / span
     cam_rgb = (rate_rgb * exposure * cg * gain).clamp(max=1.0) / lsb
@@ -195,9 +230,8 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
 
     # XYZ at sensor resolution, exposure-matched: white under light 1 has Y = its green camera value.
     white_p = scene.illuminant_photons[0].to(torch.float64)
-    w64 = wave.to(torch.float64)
-    white_xyz = spectral.xyz(white_p, w64, dim=-1)
-    white_cam = spectral.spectral_integral(white_p, qe.to(torch.float64), w64, dim=-1)
+    white_xyz = (xyz_w * white_p).sum(dim=1)
+    white_cam = (qe.to(torch.float64) * dl * white_p).sum(dim=1)
     k_white = white_cam[1] / white_xyz[1]  # e-/s/m^2 per (cd/m^2-equivalent) on both sides of the optics
     scale = float(k_white) * fill * pitch * pitch * exposure * to_norm
     xyz = xyz_img * scale
@@ -228,6 +262,7 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
         "hdr_decades": meta_s["hdr_decades"], "mean_luminance_cd_m2": meta_s["mean_luminance_cd_m2"],
     }
     meta = {k: (v if isinstance(v, torch.Tensor) else torch.tensor(v, dtype=dtype)) for k, v in meta.items()}
+    clock("targets")
     return {
         "raw": ((raw.data[0] - black) / span).to(dtype),
         "noise_free_raw": ((raw.noise_free[0] - black) / span).to(dtype),

@@ -19,11 +19,12 @@ Every draw comes from a ``torch.Generator`` seeded by ``seed_for(seed, index)``:
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
 
-from .. import spectral
+from .. import constants, spectral
 from ..scene import Scene
 from . import layouts as _layouts
 from . import spectra as _spectra
@@ -69,9 +70,9 @@ def _smooth_field(h: int, w: int, g: torch.Generator, device, dtype, max_cycles:
 
 def _white_photons(spd_energy: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """Illuminant SPD (energy) -> photons, scaled so a perfect white has a luminance of 1 cd/m^2."""
-    p = spectral.energy_to_photons(spd_energy.to(torch.float64), w.to(torch.float64), dim=-1)
-    y = spectral.luminance(p, w.to(torch.float64), dim=-1)
-    return p / y
+    w64 = w.to(torch.float64)
+    p = spd_energy.to(torch.float64) * (w64 * 1e-9) / (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S)
+    return p / (_luminance_weights(w64) * p).sum()
 
 
 def _matvec_fixed_order(v: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -97,8 +98,14 @@ def fixed_order_mean(x: torch.Tensor, block: int = 1024) -> torch.Tensor:
 
 def _luminance_weights(w: torch.Tensor) -> torch.Tensor:
     """Row vector v [L] with luminance = v . photons: 683 V(l) h c / l dl (CIE 015:2018; photons -> watts)."""
-    ones = torch.eye(w.numel(), dtype=w.dtype, device=w.device)
-    return spectral.luminance(ones, w, dim=-1).reshape(-1)
+    return _luminance_weights_cached(tuple(w.tolist()), w.dtype, str(w.device))
+
+
+@functools.lru_cache(maxsize=32)
+def _luminance_weights_cached(grid: tuple, dtype, device: str) -> torch.Tensor:
+    w = torch.tensor(grid, dtype=torch.float64)
+    ones = torch.eye(w.numel(), dtype=torch.float64)
+    return spectral.luminance(ones, w, dim=-1).reshape(-1).to(dtype=dtype, device=device)
 
 
 def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, device=None,
@@ -186,8 +193,9 @@ def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, dev
     meta = {"index": int(index), "seed": int(seed), "layout": layout, "illuminant": name1, "cct_k": cct1,
             "illuminant2": name2, "cct2_k": cct2, "light2_ratio": ratio, "two_lights": two, "shadow": shadow,
             "hdr_decades": decades, "mean_luminance_cd_m2": target}
+    # validate=False: non-negative and finite by construction (reflectance in [0, 1] x positive lights)
     return Scene(photons, wl_t, name=f"synthetic-{seed}-{index}", metadata=meta, hfov_deg=hfov,
-                 distance_m=distance, illuminant_photons=(e1d * scale)[None])
+                 distance_m=distance, illuminant_photons=(e1d * scale)[None], validate=False)
 
 
 class SyntheticSceneDataset(torch.utils.data.Dataset):

@@ -212,6 +212,12 @@ def blackbody_spd(temperature_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     return (100.0 * planck / ref).to(dtype=dtype, device=w.device)
 
 
+@functools.lru_cache(maxsize=16)
+def _fluorescent_table(grid: tuple) -> torch.Tensor:
+    w = torch.tensor(grid, dtype=torch.float64)
+    return torch.stack([spectral.illuminant(f"F{i}", w, dtype=torch.float64) for i in range(1, 13)])
+
+
 def fluorescent_spd(numbers: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     """CIE fluorescent illuminants F<n> (n in 1..12) ``[N, L]`` (colour-science tables)."""
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
@@ -219,7 +225,7 @@ def fluorescent_spd(numbers: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     bad = [x for x in nums if not 1 <= x <= 12]
     if bad:
         raise ValueError(f"numbers: expected CIE fluorescent numbers 1..12, got {bad}")
-    table = torch.stack([spectral.illuminant(f"F{i}", w, dtype=torch.float64) for i in range(1, 13)])
+    table = _fluorescent_table(_key(w))
     dtype = w.dtype if w.is_floating_point() else torch.get_default_dtype()
     return table[torch.tensor(nums) - 1].to(dtype=dtype, device=w.device)
 
@@ -265,7 +271,7 @@ def _uv(spd_energy: torch.Tensor, wavelengths_nm) -> torch.Tensor:
 
 
 def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=None, phosphor_fwhm_nm=None,
-            iterations: int = 32) -> torch.Tensor:
+            iterations: int = 26) -> torch.Tensor:
     """Phosphor-converted white LED ``[N, L]`` (energy, peak 100) whose CCT is ``cct_k`` [N].
 
     The pump : phosphor ratio is found by bisection so that the LED lies on the isotemperature line of
@@ -309,6 +315,11 @@ def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=No
     return spd.to(dtype=dtype, device=w.device)
 
 
+@functools.cache
+def _fluorescent_cct(num: int) -> float:
+    return float(cct_mccamy(chromaticity_xy(fluorescent_spd(torch.tensor([num]), _FINE), _FINE))[0])
+
+
 def random_illuminant(kind: str, wavelengths_nm, generator: torch.Generator, cct_range_k=None):
     """One random illuminant of ``kind``: returns ``(spd [L] energy, cct_k float, name str)``.
 
@@ -323,8 +334,7 @@ def random_illuminant(kind: str, wavelengths_nm, generator: torch.Generator, cct
     if kind == "fluorescent":
         num = int(torch.randint(1, 13, (), generator=generator))
         spd = fluorescent_spd(torch.tensor([num]), w)[0]
-        fine = torch.arange(380.0, 781.0, 5.0, dtype=torch.float64)
-        cct = float(cct_mccamy(chromaticity_xy(fluorescent_spd(torch.tensor([num]), fine), fine))[0])
+        cct = _fluorescent_cct(num)
         return spd, cct, f"F{num}"
     lo, hi = cct_range_k if cct_range_k is not None else defaults[kind]
     if not 0 < lo <= hi:
