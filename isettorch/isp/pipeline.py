@@ -311,14 +311,14 @@ class ImageProcessor(nn.Module):
             peak = torch.quantile(rgb.detach().flatten(1), self.scaling_percentile / 100.0, dim=1)
         else:
             peak = rgb.flatten(1).amax(1)
-        if (peak.detach() <= 0).any():
-            raise ValueError("ImageProcessor: the rendered image is black (maximum <= 0); it cannot be scaled with "
-                             f"scaling={self.scaling!r}; use scaling='exposure'")
+        # A black render (peak <= 0: no light, or everything outside the display gamut) stays black: scale 0.
+        lit = peak > 0
+        safe = torch.where(lit, peak, torch.ones_like(peak))
         if self.scaling in ("max", "percentile"):
-            return ones / peak
+            return torch.where(lit, ones / safe, torch.zeros_like(peak))
         # ISETCam displayRender ('analog'): img / max(img) * (max volts / voltage swing).
         ratio = sensor.flatten(1).amax(1) if input_max is None else input_max.to(rgb.dtype)
-        return ratio.clamp_min(0) / peak
+        return torch.where(lit, ratio.clamp_min(0) / safe, torch.zeros_like(peak))
 
     def extra_repr(self) -> str:
         return f"scaling={self.scaling!r}, clip_negative_xyz={self.clip_negative_xyz}"

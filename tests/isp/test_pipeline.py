@@ -95,6 +95,16 @@ def test_needs_matrix_and_white_level():
         ImageProcessor(scaling="auto")
 
 
+@pytest.mark.parametrize("scaling", ["adaptive", "max", "percentile", "exposure"])
+def test_black_raw_renders_black_with_finite_gradients(scaling):
+    ip = ImageProcessor(scaling=scaling, sensor_to_xyz=torch.eye(3))
+    x = torch.zeros(2, 1, 4, 4, requires_grad=True)
+    out = ip(RawImage(x, "volts", CFA("GBRG"), white_level=1.0))
+    assert out.image.abs().max().item() == 0
+    out.image.sum().backward()
+    assert torch.isfinite(x.grad).all()
+
+
 @pytest.mark.skipif(not PARITY.exists(), reason="ISETCam parity case not available")
 def test_isetcam_ip_machinery_parity():
     # With ISETCam's own matrices, our stages reproduce ipCompute's result (bilinear with mirrored border,
