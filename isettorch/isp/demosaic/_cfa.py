@@ -150,24 +150,42 @@ def pad(x: torch.Tensor, py: int, px: int, mode: str) -> torch.Tensor:
     return x
 
 
-def _shift_add(xp: torch.Tensor, kernel, h: int, w: int) -> torch.Tensor:
+def _shift_add(xp: torch.Tensor, kernel, h: int, w: int, oy: int = 0, ox: int = 0) -> torch.Tensor:
     """Correlate a padded plane with a small constant kernel (nested sequences of floats) by summing shifted
-    slices, one per distinct weight: cheaper than conv2d for the sparse 3x3/5x5 kernels here, in any dtype."""
+    slices ``xp[..., oy + dy : oy + dy + h, ox + dx : ox + dx + w]``, one multiply per distinct weight: cheaper
+    than conv2d for the sparse 3x3/5x5 kernels here, in any dtype."""
     by_weight: dict[float, list[tuple[int, int]]] = {}
     for dy, row in enumerate(kernel):
         for dx, wt in enumerate(row):
             if wt != 0:
-                by_weight.setdefault(float(wt), []).append((dy, dx))
+                by_weight.setdefault(float(wt), []).append((oy + dy, ox + dx))
     acc = None
     for wt, offsets in by_weight.items():
-        part = None
-        for dy, dx in offsets:
-            sl = xp[..., dy:dy + h, dx:dx + w]
-            part = sl.clone() if part is None else part.add_(sl)
-        acc = part.mul_(wt) if acc is None else acc.add_(part, alpha=wt)
+        slices = [xp[..., y:y + h, x:x + w] for y, x in offsets]
+        if len(slices) == 1:
+            if acc is None:
+                acc = slices[0] * wt
+            else:
+                acc.add_(slices[0], alpha=wt)
+            continue
+        part = slices[0] + slices[1]
+        for sl in slices[2:]:
+            part.add_(sl)
+        if acc is None:
+            acc = part.mul_(wt) if wt != 1.0 else part
+        else:
+            acc.add_(part, alpha=wt)
     if acc is None:
         return xp.new_zeros(xp.shape[:-2] + (h, w))
     return acc
+
+
+def correlate_hv(x: torch.Tensor, taps, mode: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """Correlate every channel with the same constant 1-D taps along the width and along the height (one pad)."""
+    r = len(taps) // 2
+    h, w = x.shape[-2:]
+    xp = pad(x, r, r, mode)
+    return (_shift_add(xp, [list(taps)], h, w, oy=r), _shift_add(xp, [[t] for t in taps], h, w, ox=r))
 
 
 def correlate(x: torch.Tensor, kernels, mode: str) -> torch.Tensor:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from ._cfa import bayer_masks, check_bayer_pattern, check_raw, correlate, correlate_h, correlate_v, pad
+from ._cfa import bayer_masks, check_bayer_pattern, check_raw, correlate, correlate_hv, pad
 
 __all__ = ["demosaic_menon2007"]
 
@@ -23,12 +23,8 @@ _K_PAIR = (0.5, 0.0, 0.5)
 _K_MEAN3 = (1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0)
 
 
-def _h(x, taps):
-    return correlate_h(x, taps, "mirror")
-
-
-def _v(x, taps):
-    return correlate_v(x, taps, "mirror")
+def _hv(x, taps):
+    return correlate_hv(x, taps, "mirror")
 
 
 def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool = True) -> torch.Tensor:
@@ -66,8 +62,10 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     zero = raw.new_zeros(())
 
     # Directional green estimates (eq. 2-3) and the colour differences at R/B sites.
-    g_h = torch.where(is_g, raw, _h(raw, _H0) + _h(raw, _H1))
-    g_v = torch.where(is_g, raw, _v(raw, _H0) + _v(raw, _H1))
+    h0_h, h0_v = _hv(raw, _H0)
+    h1_h, h1_v = _hv(raw, _H1)
+    g_h = torch.where(is_g, raw, h0_h + h1_h)
+    g_v = torch.where(is_g, raw, h0_v + h1_v)
     c_h = torch.where(is_g, zero, raw - g_h)
     c_v = torch.where(is_g, zero, raw - g_v)
     # Gradients of the colour differences between sites two apart (eq. 7), then summed over the window (eq. 8).
@@ -82,8 +80,8 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     r = torch.where(is_r, raw, zero)
     b = torch.where(is_b, raw, zero)
     rbg = torch.cat([r, b, g], dim=1)
-    hh, vv = _h(rbg, _K_PAIR), _v(rbg, _K_PAIR)
-    g_in_r_row, g_in_b_row = is_g & m["R_row"], is_g & m["B_row"]
+    hh, vv = _hv(rbg, _K_PAIR)
+    g_in_r_row, g_in_b_row = m["G_in_R_row"], m["G_in_B_row"]
     r = torch.where(g_in_r_row, g + hh[:, 0:1] - hh[:, 2:3], r)
     r = torch.where(g_in_b_row, g + vv[:, 0:1] - vv[:, 2:3], r)
     b = torch.where(g_in_b_row, g + hh[:, 1:2] - hh[:, 2:3], b)
@@ -91,7 +89,7 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     # Red at blue sites and blue at red sites, along the chosen direction (eq. 10). The neighbours used are green
     # sites, so both updates read the planes as they are now.
     rb = torch.cat([r, b], dim=1)
-    hh, vv = _h(rb, _K_PAIR), _v(rb, _K_PAIR)
+    hh, vv = _hv(rb, _K_PAIR)
     r_at_b = torch.where(horizontal, b + hh[:, 0:1] - hh[:, 1:2], b + vv[:, 0:1] - vv[:, 1:2])
     b_at_r = torch.where(horizontal, r + hh[:, 1:2] - hh[:, 0:1], r + vv[:, 1:2] - vv[:, 0:1])
     r = torch.where(is_b, r_at_b, r)
@@ -103,23 +101,24 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
 
 def _refine(r, g, b, m, horizontal):
     """Refining step (Menon et al. 2007, section III-C): smooth the colour differences along the chosen direction."""
-    is_r, is_g, is_b = m["R"], m["G"], m["B"]
+    is_r, is_b = m["R"], m["B"]
     # Green at R/B sites from the 3-tap mean of R-G (B-G) along the chosen direction.
     diff = torch.cat([r - g, b - g], dim=1)
-    smooth = torch.where(horizontal, _h(diff, _K_MEAN3), _v(diff, _K_MEAN3))
+    smooth = torch.where(horizontal, *_hv(diff, _K_MEAN3))
     g = torch.where(is_r, r - smooth[:, 0:1], g)
     g = torch.where(is_b, b - smooth[:, 1:2], g)
     # Red and blue at green sites from the refreshed colour differences.
     diff = torch.cat([r - g, b - g], dim=1)
-    hh, vv = _h(diff, _K_PAIR), _v(diff, _K_PAIR)
-    g_in_b_row, g_in_r_row = is_g & m["B_row"], is_g & m["R_row"]
+    hh, vv = _hv(diff, _K_PAIR)
+    g_in_b_row, g_in_r_row = m["G_in_B_row"], m["G_in_R_row"]
+    # (a green site in a row of B is in a column of R, and vice versa)
     r = torch.where(g_in_b_row, g + vv[:, 0:1], r)
-    r = torch.where(is_g & m["B_col"], g + hh[:, 0:1], r)
+    r = torch.where(g_in_r_row, g + hh[:, 0:1], r)
     b = torch.where(g_in_r_row, g + vv[:, 1:2], b)
-    b = torch.where(is_g & m["R_col"], g + hh[:, 1:2], b)
+    b = torch.where(g_in_b_row, g + hh[:, 1:2], b)
     # Red at blue sites and blue at red sites from the R-B difference.
     r_b = r - b
-    smooth = torch.where(horizontal, _h(r_b, _K_MEAN3), _v(r_b, _K_MEAN3))
+    smooth = torch.where(horizontal, *_hv(r_b, _K_MEAN3))
     r = torch.where(is_b, b + smooth, r)
     b = torch.where(is_r, r - smooth, b)
     return r, g, b
