@@ -43,7 +43,7 @@ def _nearest_sources(index_map: torch.Tensor, num_channels: int) -> torch.Tensor
 def demosaic_nearest_cfa(raw: torch.Tensor, index_map: torch.Tensor, num_channels: int | None = None
                          ) -> torch.Tensor:
     """Nearest-neighbour replication for any periodic CFA: every pixel takes, for each channel, the value of the
-    closest sample of that channel above and to its left, within one CFA period (Losson et al. 2010, section 3.1);
+    closest sample of that channel above and to its left, within one CFA period (Losson et al. 2010);
     on the top/left border, the sample one period further in.
 
     Args:
@@ -75,7 +75,7 @@ def demosaic_nearest_cfa(raw: torch.Tensor, index_map: torch.Tensor, num_channel
 
 
 def demosaic_nearest(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
-    """Nearest-neighbour replication demosaic of a Bayer mosaic (Losson et al. 2010, section 3.1): each missing
+    """Nearest-neighbour replication demosaic of a Bayer mosaic (Losson et al. 2010): each missing
     value is copied from the closest site of that colour to the left, above, or above-left (G from the left).
 
     Args:
@@ -128,13 +128,13 @@ def demosaic_generic(raw: torch.Tensor, index_map: torch.Tensor, num_channels: i
     return torch.where(masks > 0, raw, num / den)
 
 
-# Losson et al. (2010) eq. 3.3-3.4 (the kernels of colour-demosaicing's bilinear method).
+# Bilinear kernels (Losson, Macaire & Yang 2010, "Comparison of color demosaicing methods"; as colour-demosaicing).
 _H_G = [[0.0, 0.25, 0.0], [0.25, 1.0, 0.25], [0.0, 0.25, 0.0]]
 _H_RB = [[0.25, 0.5, 0.25], [0.5, 1.0, 0.5], [0.25, 0.5, 0.25]]
 
 
 def demosaic_bilinear(raw: torch.Tensor, pattern: str = "RGGB", *, normalize_border: bool = True) -> torch.Tensor:
-    """Bilinear demosaic of a Bayer mosaic (Losson et al. 2010, section 3.2): each channel's samples convolved
+    """Bilinear demosaic of a Bayer mosaic (Losson et al. 2010): each channel's samples convolved
     with a 3x3 kernel, the image extended by half-sample symmetric reflection (scipy 'reflect').
 
     Args:

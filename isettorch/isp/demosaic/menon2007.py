@@ -8,11 +8,12 @@ from ._cfa import bayer_masks, check_bayer_pattern, check_raw, correlate, correl
 
 __all__ = ["demosaic_menon2007"]
 
-# Menon et al. (2007) eq. 2-3: h0 (bilinear) + h1 (Laplacian correction) along one direction.
+# Menon et al. (2007): directional green filter h0 (bilinear) + h1 (Laplacian correction), applied separately
+# as colour-demosaicing does (the rounding then matches, and so do its direction decisions).
 _H0 = (0.0, 0.5, 0.0, 0.5, 0.0)
 _H1 = (-0.25, 0.0, 0.5, 0.0, -0.25)
-# Menon et al. (2007) eq. 8: classifier window over the current and the two previous columns (horizontal
-# direction); written as a correlation kernel (colour-demosaicing applies it by convolution, i.e. flipped).
+# Menon et al. (2007): decision window over the current and the two previous columns (horizontal direction),
+# written as a correlation kernel (colour-demosaicing applies it by convolution, i.e. flipped).
 _K_DECISION = ((1.0, 0.0, 1.0, 0.0, 0.0),
                (0.0, 1.0, 0.0, 0.0, 0.0),
                (3.0, 0.0, 3.0, 0.0, 0.0),
@@ -40,7 +41,7 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     Args:
         raw: mosaic (B, 1, H, W), float32 or float64, any device; H, W >= 2.
         pattern: 'RGGB', 'BGGR', 'GRBG' or 'GBRG' (row-major, top-left first).
-        refine: apply the refining step (section III-C of the paper).
+        refine: apply the paper's refining step (colour differences smoothed again along the chosen direction).
 
     Returns:
         RGB (B, 3, H, W), not clipped.
@@ -61,14 +62,14 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     is_r, is_g, is_b = m["R"], m["G"], m["B"]
     zero = raw.new_zeros(())
 
-    # Directional green estimates (eq. 2-3) and the colour differences at R/B sites.
+    # Directional green estimates and the colour differences at R/B sites.
     h0_h, h0_v = _hv(raw, _H0)
     h1_h, h1_v = _hv(raw, _H1)
     g_h = torch.where(is_g, raw, h0_h + h1_h)
     g_v = torch.where(is_g, raw, h0_v + h1_v)
     c_h = torch.where(is_g, zero, raw - g_h)
     c_v = torch.where(is_g, zero, raw - g_v)
-    # Gradients of the colour differences between sites two apart (eq. 7), then summed over the window (eq. 8).
+    # Gradients of the colour differences between sites two apart, summed over the decision window.
     d_h = (c_h - pad(c_h, 0, 2, "mirror")[..., 4:]).abs()
     d_v = (c_v - pad(c_v, 2, 0, "mirror")[..., 4:, :]).abs()
     delta_h = correlate(d_h, [_K_DECISION], "zeros")
@@ -76,7 +77,7 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     horizontal = delta_v >= delta_h
     g = torch.where(horizontal, g_h, g_v)
 
-    # Red and blue at green sites: bilinear on R-G / B-G along the row or column holding that colour (eq. 9).
+    # Red and blue at green sites: bilinear on R-G / B-G along the row or column holding that colour.
     r = torch.where(is_r, raw, zero)
     b = torch.where(is_b, raw, zero)
     rbg = torch.cat([r, b, g], dim=1)
@@ -86,7 +87,7 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     r = torch.where(g_in_b_row, g + vv[:, 0:1] - vv[:, 2:3], r)
     b = torch.where(g_in_b_row, g + hh[:, 1:2] - hh[:, 2:3], b)
     b = torch.where(g_in_r_row, g + vv[:, 1:2] - vv[:, 2:3], b)
-    # Red at blue sites and blue at red sites, along the chosen direction (eq. 10). The neighbours used are green
+    # Red at blue sites and blue at red sites, along the chosen direction. The neighbours used are green
     # sites, so both updates read the planes as they are now.
     rb = torch.cat([r, b], dim=1)
     hh, vv = _hv(rb, _K_PAIR)
@@ -100,7 +101,7 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
 
 
 def _refine(r, g, b, m, horizontal):
-    """Refining step (Menon et al. 2007, section III-C): smooth the colour differences along the chosen direction."""
+    """Refining step (Menon et al. 2007): smooth the colour differences along the chosen direction."""
     is_r, is_b = m["R"], m["B"]
     # Green at R/B sites from the 3-tap mean of R-G (B-G) along the chosen direction.
     diff = torch.cat([r - g, b - g], dim=1)
