@@ -60,3 +60,6 @@ __all__ += [
     "sensor_to_xyz_matrix", "srgb_decode", "srgb_encode", "white_world_gains", "white_xyz", "xyz_responses",
     "DemosaicStage", "ImageProcessor", "ISPResult", "macbeth_delta_e", "macbeth_true_xyz", "patch_means",
 ]
+from .isetcam import ip_result_from_case, isetcam_image_processor  # noqa: E402
+
+__all__ += ["ip_result_from_case", "isetcam_image_processor"]

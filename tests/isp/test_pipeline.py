@@ -191,3 +191,21 @@ def test_cmy_cfa_uses_bayer_methods(pattern):
     torch.testing.assert_close(out[..., 2:-2, 2:-2], ref[..., 2:-2, 2:-2])
     torch.testing.assert_close(cfa.mosaic(out), x)
     assert DemosaicStage("menon2007")(x, cfa).shape == (2, 3, 12, 12)
+
+
+@pytest.mark.skipif(not PARITY.exists(), reason="ISETCam parity case not available")
+def test_ip_result_from_case_public_and_monochrome_quirk():
+    from isettorch.isp.isetcam import ip_result_from_case
+
+    d = np.load(PARITY, allow_pickle=False)
+    ours, ref = ip_result_from_case(d)  # the case's own matrices: only our stages differ
+    assert np.abs(ours - ref).max() < 2e-6
+    ours, ref = ip_result_from_case(d, use_case_matrices=False)  # our MCC fit
+    assert np.abs(ours - ref).mean() < 2e-3
+    # FORMAT 4.10: a quantized monochrome sensor gives ip_result = dv (input / voltage swing), repeated x3.
+    case = {k: d[k] for k in d.files if not k.startswith("ip_T")}
+    dv = np.round(d["sensor_volts"] * 1024.0).astype(np.float32)
+    case.update(sensor_cfa=np.array("W"), sensor_filter_names=np.array(["w"]), sensor_quantization=np.array("10"),
+                sensor_dv=dv)
+    ours, _ = ip_result_from_case(case)
+    np.testing.assert_array_equal(ours, np.repeat(dv[..., None], 3, axis=2).astype(np.float64))

@@ -1,0 +1,76 @@
+"""ISETCam's default image processor (``ipCompute(ipCreate, sensor)``) and an IP stage for the parity cases.
+
+``isetcam_image_processor()`` configures :class:`~isettorch.isp.pipeline.ImageProcessor` as ISETCam's default
+``ipCreate`` (FORMAT.md 4.10): bilinear demosaic with ISETCam's mirrored border (``ieBilinear``), 'MCC
+optimized' sensor -> XYZ (clipped at 0), no illuminant correction, XYZ -> display, 'adaptive' scaling
+(``displayRender``: max = max volts / swing for analog sensors, 1 for quantized ones), linear output (ISETCam's
+``ip.data.result`` is linear display RGB), and a monochrome sensor copied as ``input / voltage swing``.
+
+``ip_result_from_case(case)`` runs it on a parity case's sensor data and returns ours and ISETCam's
+``ip_result`` (both ``[rows, cols, 3]``).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .pipeline import DemosaicStage, ImageProcessor
+
+__all__ = ["isetcam_image_processor", "ip_result_from_case"]
+
+
+def isetcam_image_processor(display="srgb", sensor_to_xyz=None) -> ImageProcessor:
+    """ISETCam's default processor. ``display``: ``"srgb"``, a display, or a (3, 3) RGB -> XYZ matrix (ISETCam's
+    default is the 'LCD-Apple' display, whose spectra we do not ship; parity cases carry its matrix).
+    ``sensor_to_xyz``: a fixed (3, C) matrix, else fitted on the Macbeth chart under D65 by ``fit``."""
+    return ImageProcessor(demosaic=DemosaicStage("bilinear", border="reflect"), illuminant_correction="none",
+                          correction_space="xyz", sensor_to_xyz=sensor_to_xyz, display=display, encoding="linear",
+                          scaling="adaptive", clip_negative_xyz=True, monochrome_divisor="voltage_swing")
+
+
+def ip_result_from_case(case, use_case_matrices: bool = True, dtype=torch.float64):
+    """Run ISETCam's default processor on a parity case (a dict or ``np.load`` result, FORMAT.md).
+
+    With ``use_case_matrices`` the case's ``ip_T_sensor`` and ``ip_T_display`` are used (so only our stages
+    are tested); otherwise the sensor matrix is fitted from ``sensor_spectral_qe`` (and the display matrix
+    still comes from the case when present, as we do not ship ISETCam's LCD-Apple spectra).
+    Returns ``(ours, reference)``, numpy ``[rows, cols, 3]`` (reference None when the case has no ``ip_result``).
+    """
+    import numpy as np
+
+    from ..sensor.cfa import CFA
+    from ..sensor.raw import RawImage
+
+    def get(key, default=None):
+        files = case.files if hasattr(case, "files") else case.keys()
+        return case[key] if key in files else default
+
+    quant = str(get("sensor_quantization", "analog")).strip().lower()
+    swing = float(get("sensor_voltage_swing_v", 1.0))
+    dv = get("sensor_dv")
+    if quant != "analog" and dv is not None:
+        bits = int(get("sensor_quantization_bits", 0)) or int("".join(c for c in quant if c.isdigit()) or 0)
+        data, units, white = np.asarray(dv, float), "dn", float(2 ** bits) if bits else float(np.max(dv))
+    else:
+        data, units, white = np.asarray(get("sensor_volts"), float), "volts", swing
+    names = [str(n) for n in np.atleast_1d(get("sensor_filter_names", []))]
+    cfa_letters = str(get("sensor_cfa"))
+    letters = [n[0].upper() for n in names] if names else None
+    if letters and len(set(letters)) != len(letters):
+        letters = None
+    cfa = CFA(cfa_letters, channel_names=letters) if letters else CFA(cfa_letters)
+    raw = RawImage(torch.as_tensor(data, dtype=dtype)[None, None], units, cfa, white_level=white,
+                   voltage_swing_v=swing)
+    t_display = get("ip_T_display")
+    display = "srgb" if t_display is None else torch.linalg.inv(torch.as_tensor(t_display, dtype=torch.float64).T)
+    t_sensor = get("ip_T_sensor") if use_case_matrices else None
+    ip = isetcam_image_processor(display, None if t_sensor is None else
+                                 torch.as_tensor(t_sensor, dtype=torch.float64).T).to(dtype)
+    if t_sensor is None and not cfa.is_monochrome:
+        w = torch.as_tensor(get("wavelengths_nm"), dtype=torch.float64)
+        qe = torch.as_tensor(get("sensor_spectral_qe"), dtype=torch.float64)
+        ip.fit_wavelengths_nm = w
+        ip.fit(qe)
+    ours = ip(raw).image[0].permute(1, 2, 0).detach().cpu().numpy()
+    ref = get("ip_result")
+    return ours, None if ref is None else np.asarray(ref)
