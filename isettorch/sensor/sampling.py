@@ -117,21 +117,30 @@ def sample_point(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_
 
 
 def _box_mean_last(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
-    """Mean of the piecewise-constant signal x (sample m covers [m-0.5, m+0.5]) over [lo, hi] (index units),
-    zero outside the image. ``lo, hi [B, n]``. Exact, via the cumulative integral."""
+    """Mean over [lo, hi] (index units, ``lo, hi [B, n]``) of the irradiance reconstructed from the samples of
+    ``x`` along its last axis: linear between samples (as ISETCam's ``interp2``), constant over the outer half
+    samples, zero beyond (so the integral over the image is the sum of the samples). Exact, via the cumulative
+    integral of that piecewise-linear function."""
     n = x.shape[-1]
     b = x.shape[0]
-    work = x.to(torch.float64)
-    s = torch.cat([torch.zeros_like(work[..., :1]), work.cumsum(-1)], dim=-1)  # S[k] = sum_{m<k} x[m]
+    a = x.to(torch.float64)
+    a0, alast = a[..., :1], a[..., -1:]
+    trap = torch.cat([torch.zeros_like(a0), (0.5 * (a[..., :-1] + a[..., 1:])).cumsum(-1)], dim=-1)  # [.., n]
     view = (b,) + (1,) * (x.dim() - 2) + (lo.shape[-1],)
     shape = (b, *x.shape[1:-1], lo.shape[-1])
 
-    def integral(edge):
-        e = (edge.to(torch.float64) + 0.5).clamp(0, n)
-        i = e.detach().floor().clamp(max=n - 1).long()
-        frac = (e - i.to(e.dtype)).reshape(view)
-        idx = i.reshape(view).expand(shape)
-        return s.gather(-1, idx) + frac * work.gather(-1, idx)
+    def integral(edge):  # F(edge) = integral of the reconstruction from -0.5 to edge
+        q = edge.to(torch.float64).clamp(-0.5, n - 0.5)
+        m = q.detach().floor().clamp(0, max(n - 2, 0)).long()
+        u = (q - m.to(q.dtype)).reshape(view)
+        q = q.reshape(view)
+        idx = m.reshape(view).expand(shape)
+        am = a.gather(-1, idx)
+        am1 = a.gather(-1, (idx + 1).clamp(max=n - 1))
+        mid = 0.5 * a0 + trap.gather(-1, idx) + am * u + (am1 - am) * u * u / 2
+        left = (q + 0.5) * a0
+        right = 0.5 * a0 + trap[..., -1:] + (q - (n - 1)) * alast
+        return torch.where(q < 0, left, torch.where(q >= n - 1, right, mid))
 
     width = (hi - lo).to(torch.float64).reshape(view)
     return ((integral(hi) - integral(lo)) / width).to(x.dtype)
@@ -141,8 +150,9 @@ def sample_area(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_m
                 fill_factor: float = 1.0) -> torch.Tensor:
     """Mean of ``x`` over each pixel's photodiode: a centred square of side ``pitch * sqrt(fill_factor)``.
 
-    The irradiance is taken as constant over each OI sample (the OI's own sampling model) and zero
-    outside the OI; the integral is exact for that model, for pixels larger or smaller than the samples.
+    The irradiance between OI samples is the bilinear interpolation of the samples (the reconstruction
+    ISETCam's point sampling uses), constant over the outer half samples and zero beyond; the integral is exact
+    for that model, for pixels larger or smaller than the samples. Small pixels tend to point sampling.
     ``x [B, C, H2, W2]`` -> ``[B, C, rows, cols]``.
     """
     if not 0 < fill_factor <= 1:
