@@ -130,7 +130,7 @@ ISP_KEYS = {
     "correction_space": str, "correction_white": str, "gains": list, "sensor_conversion": dict,
     "display": (str, list),
     "encoding": (str, float, int), "scaling": str, "clip_negative_xyz": bool, "monochrome_divisor": str,
-    "scaling_percentile": (float, int),
+    "scaling_percentile": (float, int), "adapt_to_display_white": bool,
 }
 SENSOR_CONVERSION_KEYS = {"method": str, "illuminant": str, "surfaces": str, "observer": str, "matrix": list,
                           "normalize": bool, "learnable": bool}

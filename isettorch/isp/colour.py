@@ -41,6 +41,7 @@ __all__ = [
     "illuminant_gains",
     "ILLUMINANT_CORRECTION_METHODS",
     "display_rgb_to_xyz_matrix",
+    "bradford_matrix",
     "xyz_to_display_matrix",
     "srgb_encode",
     "srgb_decode",
@@ -564,13 +565,19 @@ class XYZToDisplay(nn.Module):
             :meth:`isettorch.scene.display.Display.create` (``"lcd"``, ``"crt"``, ``"apple"``), a display object
             with primaries' SPDs, or a (3, 3) RGB -> XYZ matrix (columns = primaries' XYZ).
 
-    Buffers: ``matrix`` (XYZ -> RGB), ``rgb_to_xyz``, ``white_point_xyz`` (3,), and the attribute
-    ``max_luminance_cd_m2`` (Y of the display white, None for sRGB, which is relative).
+        adapt_from: None (ISETCam: no adaptation), or the white of the XYZ data (an illuminant name such as
+            ``"D65"`` or an XYZ (3,)) to adapt to the display's white with the Bradford transform, so that white
+            renders as RGB (1, 1, 1) on a display whose white point differs.
 
-    Reference: ISETCam ``ieInternal2Display`` (``T = inv(displaySPD' * internalCMF)``).
+    Buffers: ``matrix`` (XYZ -> RGB, including any adaptation), ``rgb_to_xyz``, ``white_point_xyz`` (3,),
+    ``adaptation`` (3, 3; identity without ``adapt_from``), and the attribute ``max_luminance_cd_m2`` (Y of the
+    display white, None for sRGB, which is relative).
+
+    Reference: ISETCam ``ieInternal2Display`` (``T = inv(displaySPD' * internalCMF)``); Bradford: Lam (1985),
+    as in CIE 159:2004 / ICC.1 Annex E.
     """
 
-    def __init__(self, display="srgb", observer: str = "1931") -> None:
+    def __init__(self, display="srgb", observer: str = "1931", adapt_from=None) -> None:
         super().__init__()
         self.display = None  # the display object, when one was given (for its transfer function)
         if isinstance(display, str) and display.lower() not in ("srgb", "rec709", "bt709"):
@@ -597,15 +604,36 @@ class XYZToDisplay(nn.Module):
             self.name = getattr(display, "name", "display")
         self.max_luminance_cd_m2 = max_lum
         dtype = torch.get_default_dtype()
+        white = rgb_to_xyz.sum(1) / rgb_to_xyz[1].sum()
+        cat = torch.eye(3, dtype=torch.float64)
+        if adapt_from is not None:
+            src = white_xyz(adapt_from) if isinstance(adapt_from, str) else \
+                as_tensor(adapt_from, "adapt_from", dtype=torch.float64).reshape(3)
+            cat = bradford_matrix(src, white)
+            inv = inv @ cat
+        self.register_buffer("adaptation", cat.to(dtype))
         self.register_buffer("matrix", inv.to(dtype))
         self.register_buffer("rgb_to_xyz", rgb_to_xyz.to(dtype))
-        self.register_buffer("white_point_xyz", (rgb_to_xyz.sum(1) / rgb_to_xyz[1].sum()).to(dtype))
+        self.register_buffer("white_point_xyz", white.to(dtype))
 
     def forward(self, xyz: torch.Tensor) -> torch.Tensor:
         return apply_matrix(xyz, self.matrix)
 
     def extra_repr(self) -> str:
         return f"display={self.name!r}, max_luminance_cd_m2={self.max_luminance_cd_m2}"
+
+
+# Bradford cone-response matrix (Lam 1985; CIE 159:2004).
+_BRADFORD = ((0.8951, 0.2664, -0.1614), (-0.7502, 1.7135, 0.0367), (0.0389, -0.0685, 1.0296))
+
+
+def bradford_matrix(source_white: torch.Tensor, target_white: torch.Tensor) -> torch.Tensor:
+    """Chromatic adaptation (3, 3) from ``source_white`` to ``target_white`` (XYZ, any common scale):
+    ``M^-1 diag(M w_t / M w_s) M`` with the Bradford matrix M (von Kries in sharpened cone space)."""
+    m = torch.tensor(_BRADFORD, dtype=torch.float64)
+    ws = as_tensor(source_white, "source_white", dtype=torch.float64).reshape(3)
+    wt = as_tensor(target_white, "target_white", dtype=torch.float64).reshape(3)
+    return torch.linalg.inv(m) @ torch.diag((m @ wt) / (m @ ws)) @ m
 
 
 class DisplayEncode(nn.Module):

@@ -178,6 +178,8 @@ class ImageProcessor(nn.Module):
         clip_negative_xyz: clip XYZ at 0 after the matrix (ISETCam ``imageSensorCorrection``).
         fit_wavelengths_nm: grid on which the colour matrix is fitted from the sensor's QE (400:10:700).
         scaling_percentile: the percentile used by ``scaling="percentile"``.
+        adapt_to_display_white: adapt XYZ from ``correction_white`` to the display's white (Bradford), so a
+            display whose white is not D65 still renders white as RGB (1, 1, 1) (ISETCam does not).
         monochrome_divisor: ``"white_level"`` or ``"voltage_swing"`` (ISETCam: input / voltage swing).
 
     Example:
@@ -193,7 +195,8 @@ class ImageProcessor(nn.Module):
     def __init__(self, demosaic="bilinear", illuminant_correction="none", correction_space: str = "xyz",
                  correction_white="D65", gains=None, sensor_to_xyz=None, display="srgb", encoding="srgb",
                  scaling: str = "adaptive", clip_negative_xyz: bool = True, fit_wavelengths_nm=None,
-                 monochrome_divisor: str = "white_level", scaling_percentile: float = 99.0) -> None:
+                 monochrome_divisor: str = "white_level", scaling_percentile: float = 99.0,
+                 adapt_to_display_white: bool = False) -> None:
         super().__init__()
         self.demosaic = demosaic if isinstance(demosaic, nn.Module) else DemosaicStage(demosaic)
         if isinstance(illuminant_correction, nn.Module):
@@ -205,7 +208,8 @@ class ImageProcessor(nn.Module):
         elif not isinstance(sensor_to_xyz, nn.Module):
             sensor_to_xyz = SensorToXYZ(matrix=sensor_to_xyz)
         self.sensor_to_xyz = sensor_to_xyz
-        self.xyz_to_display = display if isinstance(display, nn.Module) else XYZToDisplay(display)
+        self.xyz_to_display = display if isinstance(display, nn.Module) else XYZToDisplay(
+            display, adapt_from=correction_white if adapt_to_display_white else None)
         if isinstance(encoding, str) and encoding == "display":  # the display's own transfer function
             encoding = DisplayEncode(getattr(self.xyz_to_display, "display", None) or "srgb")
         self.encode = encoding if isinstance(encoding, nn.Module) else DisplayEncode(encoding)

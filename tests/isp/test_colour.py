@@ -203,3 +203,16 @@ def test_sensor_to_xyz_module_normalised_white_and_gradients():
     src = torch.rand(10, 3, dtype=torch.float64, requires_grad=True)
     tgt = torch.rand(10, 3, dtype=torch.float64)
     assert torch.autograd.gradcheck(lambda s: fit_colour_matrix(s, tgt), (src,))
+
+
+def test_bradford_adaptation_matches_colour_science_and_whitens_display():
+    from isettorch.isp.colour import bradford_matrix
+
+    a, b = white_xyz("D65"), white_xyz("A")
+    ref = colour.adaptation.matrix_chromatic_adaptation_VonKries(a.numpy(), b.numpy(), transform="Bradford")
+    np.testing.assert_allclose(bradford_matrix(a, b).numpy(), ref, atol=1e-12)
+    d65 = white_xyz("D65").reshape(1, 3, 1, 1)
+    adapted = XYZToDisplay("apple", adapt_from="D65").double()
+    np.testing.assert_allclose(adapted(d65).flatten().numpy(), [1, 1, 1], atol=1e-6)
+    plain = XYZToDisplay("apple").double()  # the Apple display's white is not D65: D65 renders tinted
+    assert (plain(d65).flatten() - 1).abs().max() > 0.05
