@@ -277,3 +277,17 @@ def test_package_is_the_callable_entry_point():
     assert isp.demosaic is demosaic_pkg and callable(isp.demosaic)
     assert isp.demosaic.register_method is register_method and isp.demosaic.METHODS is METHODS
     torch.testing.assert_close(isp.demosaic(raw, "RGGB", "malvar2004"), demosaic_malvar2004(raw, "RGGB"))
+
+
+def test_gradients_after_a_call_in_inference_mode():
+    # Masks are cached per size: ones first built under inference_mode must still work with autograd later.
+    raw = _raw((1, 1, 14, 10), seed=16)
+    with torch.inference_mode():
+        for method in [*BUILTIN, "bilinear_colour"]:
+            demosaic(raw, "BGGR", method)
+        demosaic_generic(raw, torch.tensor([[0, 1], [2, 0]]), 3)
+    x = raw.clone().requires_grad_(True)
+    for method in [*BUILTIN, "bilinear_colour"]:
+        demosaic(x, "BGGR", method).sum().backward()
+    demosaic_generic(x, torch.tensor([[0, 1], [2, 0]]), 3).sum().backward()
+    assert torch.isfinite(x.grad).all() and x.grad.abs().sum() > 0

@@ -166,11 +166,12 @@ def demosaic_bilinear(raw: torch.Tensor, pattern: str = "RGGB", *, normalize_bor
     return out
 
 
-@functools.lru_cache(maxsize=32)
+@functools.lru_cache(maxsize=4)  # full-size masks: keep few (a 24 MP frame is ~0.1-0.3 GB)
 def _bilinear_weight(key: tuple, h: int, w: int, dtype, device) -> torch.Tensor:
     """Kernel weight that falls on samples of each channel: exactly 1 away from the one-pixel border."""
-    masks = channel_masks(torch.tensor(key), 3, h, w, dtype=dtype, device=device)
-    return correlate(masks, [_H_RB, _H_G, _H_RB], "symmetric")
+    with torch.inference_mode(False):  # cached: must stay usable by autograd after a call in inference mode
+        masks = channel_masks(torch.tensor(key), 3, h, w, dtype=dtype, device=device)
+        return correlate(masks, [_H_RB, _H_G, _H_RB], "symmetric")
 
 
 # Malvar, He & Cutler (2004), Fig. 2: gradient-corrected bilinear kernels (x 1/8).
