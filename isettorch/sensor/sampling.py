@@ -116,7 +116,28 @@ def sample_point(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_
     return _interp_last(out.transpose(-1, -2), py).transpose(-1, -2)
 
 
-def _box_mean_last(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
+def _box_mean_constant(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
+    """Mean of the piecewise-constant signal x (sample m covers [m-0.5, m+0.5]) over [lo, hi] (index units),
+    zero outside the image. ``lo, hi [B, n]``. Exact, via the cumulative integral."""
+    n = x.shape[-1]
+    b = x.shape[0]
+    work = x.to(torch.float64)
+    s = torch.cat([torch.zeros_like(work[..., :1]), work.cumsum(-1)], dim=-1)  # S[k] = sum_{m<k} x[m]
+    view = (b,) + (1,) * (x.dim() - 2) + (lo.shape[-1],)
+    shape = (b, *x.shape[1:-1], lo.shape[-1])
+
+    def integral(edge):
+        e = (edge.to(torch.float64) + 0.5).clamp(0, n)
+        i = e.detach().floor().clamp(max=n - 1).long()
+        frac = (e - i.to(e.dtype)).reshape(view)
+        idx = i.reshape(view).expand(shape)
+        return s.gather(-1, idx) + frac * work.gather(-1, idx)
+
+    width = (hi - lo).to(torch.float64).reshape(view)
+    return ((integral(hi) - integral(lo)) / width).to(x.dtype)
+
+
+def _box_mean_linear(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
     """Mean over [lo, hi] (index units, ``lo, hi [B, n]``) of the irradiance reconstructed from the samples of
     ``x`` along its last axis: linear between samples (as ISETCam's ``interp2``), constant over the outer half
     samples, zero beyond (so the integral over the image is the sum of the samples). Exact, via the cumulative
@@ -146,20 +167,28 @@ def _box_mean_last(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch
     return ((integral(hi) - integral(lo)) / width).to(x.dtype)
 
 
+RECONSTRUCTIONS = {"constant": _box_mean_constant, "linear": _box_mean_linear}
+
+
 def sample_area(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_m: float, rows: int, cols: int,
-                fill_factor: float = 1.0) -> torch.Tensor:
+                fill_factor: float = 1.0, reconstruction: str = "constant") -> torch.Tensor:
     """Mean of ``x`` over each pixel's photodiode: a centred square of side ``pitch * sqrt(fill_factor)``.
 
-    The irradiance between OI samples is the bilinear interpolation of the samples (the reconstruction
-    ISETCam's point sampling uses), constant over the outer half samples and zero beyond; the integral is exact
-    for that model, for pixels larger or smaller than the samples. Small pixels tend to point sampling.
+    ``reconstruction`` says what the irradiance is between OI samples: ``'constant'`` (each sample is the
+    mean over its cell, a finite-volume view: a pixel that coincides with a sample returns it) or ``'linear'``
+    (bilinear between samples, as ISETCam's point sampling, constant over the outer half samples; small
+    photodiodes then tend to point sampling). Zero outside the OI; both conserve the total signal and are
+    exact integrals of their model, for pixels larger or smaller than the samples.
     ``x [B, C, H2, W2]`` -> ``[B, C, rows, cols]``.
     """
     if not 0 < fill_factor <= 1:
         raise ValueError(f"fill_factor: expected a value in (0, 1], got {fill_factor}")
+    if reconstruction not in RECONSTRUCTIONS:
+        raise ValueError(f"reconstruction: expected one of {sorted(RECONSTRUCTIONS)}, got {reconstruction!r}")
+    box = RECONSTRUCTIONS[reconstruction]
     dx = oi_sample_spacing_m.reshape(-1, 1).to(torch.float64)
     half = pixel_size_m * math.sqrt(fill_factor) / 2 / dx
     px = pixel_centre_index(x.shape[-1], cols, pixel_size_m, oi_sample_spacing_m.to(torch.float64))
     py = pixel_centre_index(x.shape[-2], rows, pixel_size_m, oi_sample_spacing_m.to(torch.float64))
-    out = _box_mean_last(x, px - half, px + half)
-    return _box_mean_last(out.transpose(-1, -2), py - half, py + half).transpose(-1, -2)
+    out = box(x, px - half, px + half)
+    return box(out.transpose(-1, -2), py - half, py + half).transpose(-1, -2)

@@ -36,7 +36,7 @@ from .sampling import electron_rate_density, isetcam_preblur, isetcam_preblur_si
 
 __all__ = ["Sensor", "PRESETS", "SAMPLING_MODES"]
 
-SAMPLING_MODES = ("area", "isetcam")
+SAMPLING_MODES = ("area", "area_linear", "isetcam")
 
 # Presets. Values in SI; dark current in e-/s (ISETCam gives V/s: 1 mV/s / 1e-4 V/e- = 10 e-/s).
 PRESETS: dict[str, dict[str, Any]] = {
@@ -84,8 +84,9 @@ class Sensor(nn.Module):
             (ISETCam's order: dark, shot with Gaussian-rounded counts above 25 e-, read, then ``v (1 + PRNU) + DSNU``).
         cds: correlated double sampling (fixed offsets cancel, read noise sampled twice).
         vignetting: optional pixel vignetting / etendue map ``[rows, cols]`` (or scalar) multiplying the signal.
-        sampling: ``'area'`` (integrate over the photodiode, default) or ``'isetcam'`` (ISETCam's Gaussian
-            pre-blur + bilinear point sampling at pixel centres); ``preblur_size`` overrides ISETCam's k.
+        sampling: ``'area'`` (integrate over the photodiode, OI samples as cell means; default),
+            ``'area_linear'`` (integrate the bilinear reconstruction of the OI) or ``'isetcam'`` (ISETCam's
+            Gaussian pre-blur + bilinear point sampling at pixel centres); ``preblur_size`` overrides ISETCam's k.
         output_units: ``'dn'`` (default when ``adc_bits``), ``'volts'`` (default otherwise) or ``'electrons'``.
         seed: seed of the fixed patterns and of the default temporal-noise generator.
 
@@ -299,7 +300,8 @@ class Sensor(nn.Module):
                 planes.append(sample_point(isetcam_preblur(density[sl], k), dx[sl], self.pixel_size_m, rows, cols))
             sampled = torch.cat(planes) if len(planes) > 1 else planes[0]
         else:
-            sampled = sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor)
+            recon = "linear" if self.sampling == "area_linear" else "constant"
+            sampled = sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor, recon)
         rate = self.cfa.mosaic(sampled) * (self.fill_factor * self.pixel_area_m2)
         if self.vignetting is not None:
             rate = rate * self.vignetting.to(rate.dtype).to(rate.device)

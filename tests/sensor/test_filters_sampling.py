@@ -4,6 +4,7 @@ import pytest
 import torch
 from scipy.interpolate import RegularGridInterpolator
 from scipy.signal import convolve2d
+from skimage.measure import block_reduce
 
 from isettorch.sensor import CFA, SpectralQE, filter_set, ir_cut_filter, isetcam_preblur, isetcam_preblur_kernel
 from isettorch.sensor.sampling import isetcam_preblur_size, sample_area, sample_point
@@ -138,7 +139,8 @@ def test_area_sampling_against_numerical_integration():
     rng = np.random.default_rng(1)
     img = rng.random((1, 1, 12, 18))
     dx, pitch, rows, cols, ff = 1e-6, 2.3e-6, 5, 8, 0.6
-    out = sample_area(torch.from_numpy(img), torch.tensor([dx], dtype=torch.float64), pitch, rows, cols, ff)
+    out = sample_area(torch.from_numpy(img), torch.tensor([dx], dtype=torch.float64), pitch, rows, cols, ff,
+                      reconstruction="linear")
     half = pitch * np.sqrt(ff) / 2 / dx
     cy = (12 - 1) / 2 + (np.arange(rows) - (rows - 1) / 2) * pitch / dx
     cx = (18 - 1) / 2 + (np.arange(cols) - (cols - 1) / 2) * pitch / dx
@@ -146,17 +148,39 @@ def test_area_sampling_against_numerical_integration():
     np.testing.assert_allclose(out[0, 0].numpy(), ref, rtol=1e-7, atol=1e-9)
 
 
-def test_area_sampling_limits_and_conservation():
-    rng = np.random.default_rng(2)
-    img = torch.from_numpy(rng.random((1, 2, 12, 12)))
+def test_area_sampling_constant_block_means():
+    rng = np.random.default_rng(1)
+    img = rng.random((1, 1, 12, 18))
     dx = torch.tensor([1e-6], dtype=torch.float64)
-    # conservation: 5 x 5 pixels of 2.4 um tiling the 12 x 12 um OI keep the total signal
-    tot = sample_area(img, dx, 2.4e-6, 5, 5)
+    # pixels of exactly 3 x 3 OI samples, aligned with the OI grid: block means (skimage)
+    out = sample_area(torch.from_numpy(img), dx, 3e-6, 4, 6)
+    np.testing.assert_allclose(out[0, 0].numpy(), block_reduce(img[0, 0], (3, 3), np.mean), rtol=1e-12)
+    # pixels smaller than OI samples: each pixel takes its sample's value
+    small = sample_area(torch.from_numpy(img), torch.tensor([2e-6], dtype=torch.float64), 1e-6, 24, 36)
+    np.testing.assert_allclose(small[0, 0].numpy(), np.kron(img[0, 0], np.ones((2, 2))), rtol=1e-12)
+    # fill factor 1/4: a 1 um photodiode centred between two OI samples on each axis covers half of each
+    ff = sample_area(torch.from_numpy(img), dx, 2e-6, 6, 9, fill_factor=0.25)
+    np.testing.assert_allclose(ff[0, 0].numpy(), block_reduce(img[0, 0], (2, 2), np.mean), rtol=1e-12)
+    with pytest.raises(ValueError, match="reconstruction"):
+        sample_area(torch.from_numpy(img), dx, 2e-6, 6, 9, reconstruction="cubic")
+
+
+@pytest.mark.parametrize("recon", ["constant", "linear"])
+def test_area_sampling_conservation(recon):
+    img = torch.from_numpy(np.random.default_rng(2).random((1, 2, 12, 12)))
+    dx = torch.tensor([1e-6], dtype=torch.float64)
+    # 5 x 5 pixels of 2.4 um tiling the 12 x 12 um OI keep the total signal
+    tot = sample_area(img, dx, 2.4e-6, 5, 5, reconstruction=recon)
     np.testing.assert_allclose(tot.sum((-1, -2)).numpy() * 2.4**2, img.sum((-1, -2)).numpy(), rtol=1e-12)
+
+
+def test_area_sampling_linear_limits():
+    img = torch.from_numpy(np.random.default_rng(3).random((1, 2, 12, 12)))
+    dx = torch.tensor([1e-6], dtype=torch.float64)
     # tiny photodiodes tend to ISETCam's bilinear point sampling
-    small = sample_area(img, dx, 0.7e-6, 15, 15, fill_factor=1e-10)
+    small = sample_area(img, dx, 0.7e-6, 15, 15, fill_factor=1e-10, reconstruction="linear")
     np.testing.assert_allclose(small.numpy(), sample_point(img, dx, 0.7e-6, 15, 15).numpy(), rtol=0, atol=1e-5)
     # a linear ramp is reproduced exactly inside the image (the mean of a linear function is its centre value)
     ramp = torch.arange(12, dtype=torch.float64).expand(1, 1, 12, 12).clone()
-    r = sample_area(ramp, dx, 2e-6, 4, 4)
+    r = sample_area(ramp, dx, 2e-6, 4, 4, reconstruction="linear")
     np.testing.assert_allclose(r[0, 0, 0].numpy(), 5.5 + (np.arange(4) - 1.5) * 2, rtol=1e-12)

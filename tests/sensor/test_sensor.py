@@ -32,7 +32,7 @@ def simple_sensor(**kw):
     return Sensor(**base)
 
 
-@pytest.mark.parametrize("sampling", ["area", "isetcam"])
+@pytest.mark.parametrize("sampling", ["area", "area_linear", "isetcam"])
 def test_uniform_signal_chain_analytic(sampling):
     s = simple_sensor(sampling=sampling, output_units="electrons")
     raw = s(uniform_oi(), noise=False)
@@ -82,7 +82,7 @@ def test_batched_exposure_and_gain_equal_one_at_a_time():
                       prnu_sigma_percent=1.0, column_fpn_sigma_v=5e-4, adc_bits=12)
     t = torch.tensor([0.01, 0.02, 0.005], dtype=torch.float64)
     g = torch.tensor([1.0, 2.0, 4.0], dtype=torch.float64)
-    for sampling in ("area", "isetcam"):
+    for sampling in ("area", "area_linear", "isetcam"):
         s.sampling = sampling
         batched = s(oi, exposure_s=t, analog_gain=g)
         for i in range(3):
@@ -132,7 +132,7 @@ def test_gradcheck_noise_free_chain():
         oi = OpticalImage(p / scale, W3, sample_spacing_m=2e-6, validate=False)
         return s(oi, exposure_s=t, noise=False).noise_free
 
-    for sampling in ("area", "isetcam"):
+    for sampling in ("area", "area_linear", "isetcam"):
         s.sampling = sampling
         assert torch.autograd.gradcheck(f, (photons.detach() * scale, t), eps=1e-6, atol=1e-8)
 
