@@ -279,7 +279,7 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
         stages["mean_illuminance"] = {"skipped": "no oi_mean_illuminance_lux", "ok": None}
 
     # Sensor stage: ISETCam's pre-blur size from the case kernel when stored (FORMAT 4.6 step 2).
-    from ..sensor.sampling import isetcam_preblur_size
+    from ..sensor.sampling import isetcam_preblur_kernel, isetcam_preblur_size
 
     k_ours = isetcam_preblur_size(float(case["sensor_pixel_size_m"]), float(case["oi_sample_spacing_m"]))
     k = k_ours
@@ -287,6 +287,10 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
         k = int(np.atleast_2d(case["sensor_regrid_kernel"]).shape[0])
         if k != k_ours:
             notes.append(f"pre-blur kernel: case has k={k}, ceil(pitch/dx) gives {k_ours}; using the case's")
+        kern = np.atleast_2d(np.asarray(case["sensor_regrid_kernel"], np.float64))
+        if kern.shape == (k, k) and np.abs(kern - isetcam_preblur_kernel(k).numpy()).max() > 1e-9:
+            notes.append(f"pre-blur kernel values differ from fspecial('gaussian', {k}, {k}/4) by "
+                         f"{np.abs(kern - isetcam_preblur_kernel(k).numpy()).max():.3g}")
     sensor = build_sensor(case, preblur_size=k)
     for label, oi in (("", case_oi(case)), ("_from_our_oi", our_oi)):
         if oi is None:

@@ -236,9 +236,19 @@ class Sensor(nn.Module):
             return None
         return float(2 ** self.adc_bits) if self.adc_mode == "isetcam" else float(2 ** self.adc_bits - 1)
 
-    def set_size_to_fov(self, hfov_deg: float, image_distance_m: float) -> Sensor:
+    def set_size_to_fov(self, hfov_deg: float, image_distance_m) -> Sensor:
         """Set cols so the sensor spans ``hfov_deg`` at ``image_distance_m`` (rows keep the aspect ratio),
-        rounded to whole CFA cells (ISETCam ``sensorSetSizeToFOV``). Returns self."""
+        rounded to whole CFA cells (ISETCam ``sensorSetSizeToFOV``). ``image_distance_m`` may be an
+        :class:`OpticalImage` (its image distance, else focal length). Returns self."""
+        if isinstance(image_distance_m, OpticalImage):
+            oi = image_distance_m
+            d = oi.image_distance_m if oi.image_distance_m is not None else oi.focal_length_m
+            if d is None:
+                raise ValueError("image_distance_m: the OpticalImage has neither image_distance_m nor focal_length_m")
+            image_distance_m = float(d[0])
+        if not image_distance_m > 0 or not 0 < hfov_deg < 180:
+            raise ValueError(f"hfov_deg, image_distance_m: expected 0 < hfov < 180 deg and a positive distance, got "
+                             f"{hfov_deg}, {image_distance_m}")
         aspect = (self.rows / self.cols) if (self.rows and self.cols) else 1.0
         width = 2 * image_distance_m * math.tan(math.radians(hfov_deg) / 2)
         ph, pw = self.cfa.shape

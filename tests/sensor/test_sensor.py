@@ -288,7 +288,9 @@ def test_size_to_oi_and_fov():
     assert cols * 2.8e-6 <= 96 * 7.063304871579908e-6 < (cols + 2) * 2.8e-6
     # ISETCam sensorSetSizeToFOV: 10 deg at the parity case's focal plane -> 242 columns (FORMAT case)
     s2 = Sensor(rows=72, cols=88, pixel_size_m=2.8e-6, cfa="GBRG").set_size_to_fov(10.0, 0.0038752293174003525)
-    assert s2.cols == 242
+    assert s2.cols == 242 and s2.rows == 198  # the parity case's 198 x 242 (aspect of the 72 x 88 default)
+    oi2 = oi.replace(image_distance_m=torch.tensor([0.0038752293174003525], dtype=torch.float64))
+    assert Sensor(rows=72, cols=88, cfa="GBRG").set_size_to_fov(10.0, oi2).cols == 242
     w = spectral.default_wavelengths()
     assert s.qe(OpticalImage(torch.ones(1, 31, 4, 4), w)).shape == (3, 31)
 
