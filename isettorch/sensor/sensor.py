@@ -417,13 +417,21 @@ class Sensor(nn.Module):
 
     def _fixed_or_fresh_patterns(self, like: torch.Tensor, g: torch.Generator | None) -> dict[str, torch.Tensor]:
         b, _, rows, cols = like.shape
+        if self.dsnu_sigma_v == 0 and self.prnu_sigma_percent == 0 and self.column_fpn_sigma_v == 0:
+            return {}  # no fixed-pattern stage: nothing drawn
         if self.fpn_mode == "fixed":
             fp = self.fixed_pattern(rows, cols, dtype=like.dtype, device=like.device)
             return {"dsnu": fp["dsnu"].expand(b, 1, rows, cols), "prnu": fp["prnu"].expand(b, 1, rows, cols),
                     "column": fp["column"].expand(b, 1, 1, cols)}
-        # ISETCam sensorAddNoise / noiseFPN: new DSNU/PRNU images on every call
-        return {"dsnu": _noise.normal(like, g), "prnu": _noise.normal(like, g),
-                "column": _noise.normal(like, g, (b, 1, 1, cols))}
+        # ISETCam sensorAddNoise / noiseFPN: new DSNU/PRNU images on every call (only those in use)
+        out = {}
+        if self.dsnu_sigma_v > 0:
+            out["dsnu"] = _noise.normal(like, g)
+        if self.prnu_sigma_percent > 0:
+            out["prnu"] = _noise.normal(like, g)
+        if self.column_fpn_sigma_v > 0:
+            out["column"] = _noise.normal(like, g, (b, 1, 1, cols))
+        return out
 
     def _noisy_pixel_volts(self, photo_e: torch.Tensor, t: torch.Tensor, g: torch.Generator | None) -> torch.Tensor:
         """Pixel volts (before analog gain and clipping) with dark signal, shot, read and fixed-pattern noise."""
