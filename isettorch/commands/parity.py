@@ -113,7 +113,7 @@ def build_sensor(case: dict, preblur_size: int | None = None):
     """A :class:`~isettorch.sensor.Sensor` with the case's parameters and ISETCam's conventions."""
     import torch
 
-    from ..sensor import Sensor, SpectralQE
+    from ..sensor import ISETCAM_CONVENTIONS, Sensor, SpectralQE
 
     cfa = case_cfa(case)
     wave = torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1)
@@ -126,9 +126,8 @@ def build_sensor(case: dict, preblur_size: int | None = None):
         conversion_gain_v_per_e=float(case["sensor_conversion_gain_v_per_e"]),
         voltage_swing_v=float(case["sensor_voltage_swing_v"]), exposure_s=float(case["sensor_exposure_s"]),
         analog_gain=float(case.get("sensor_analog_gain", 1.0)),
-        analog_offset_v=float(case.get("sensor_analog_offset", 0.0)), gain_convention="isetcam",
-        adc_bits=bits, adc_mode="isetcam", shot_noise="off", sampling="isetcam", preblur_size=preblur_size,
-        output_units="volts", name=str(case.get("case_name", "")),
+        analog_offset_v=float(case.get("sensor_analog_offset", 0.0)), adc_bits=bits, shot_noise="off",
+        preblur_size=preblur_size, output_units="volts", name=str(case.get("case_name", "")), **ISETCAM_CONVENTIONS,
     )
 
 
@@ -347,7 +346,7 @@ def noise_stats(case: dict, sensor, oi) -> dict:
     sensor.dark_current_e_per_s = float(case.get("sensor_dark_voltage_v_per_s", 0.0)) / cg
     sensor.dsnu_sigma_v = float(case.get("sensor_dsnu_sigma_v", 0.0))
     sensor.prnu_sigma_percent = float(case.get("sensor_prnu_sigma_percent", 0.0))
-    sensor.noise_model, sensor.fpn_mode, sensor.shot_noise = "isetcam", "per_frame", "poisson"
+    sensor.shot_noise = "poisson"  # noise model and per-frame DSNU/PRNU: ISETCAM_CONVENTIONS
     runs = int(case.get("noise_nruns", 20))
     g = torch.Generator().manual_seed(0)
     idx = sensor.cfa.channel_index(sensor.rows, sensor.cols).numpy()

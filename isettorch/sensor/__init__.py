@@ -8,10 +8,11 @@ from .filters import SpectralQE, filter_set, filter_set_names, ir_cut_filter, ph
 from .noise import quantize_ste, round_half_away, shot_noise
 from .raw import RawImage
 from .sampling import isetcam_preblur, isetcam_preblur_kernel, sample_area, sample_point
-from .sensor import PRESETS, Sensor
+from .sensor import ISETCAM_CONVENTIONS, PRESETS, Sensor
 
 __all__ = [
-    "AE_METHODS", "CFA", "CFA_LIBRARY", "KNOWN_LETTERS", "PRESETS", "RawImage", "Sensor", "SpectralQE",
+    "AE_METHODS", "CFA", "CFA_LIBRARY", "ISETCAM_CONVENTIONS", "KNOWN_LETTERS", "PRESETS", "RawImage", "Sensor",
+    "SpectralQE",
     "auto_exposure", "filter_set", "filter_set_names", "ir_cut_filter", "isetcam_preblur", "isetcam_preblur_kernel",
     "metrics", "photodiode_qe", "quantize_ste", "round_half_away", "sample_area", "sample_point", "shot_noise",
 ]

@@ -34,7 +34,13 @@ from .filters import SpectralQE
 from .raw import RawImage
 from .sampling import electron_rate_density, isetcam_preblur, isetcam_preblur_size, sample_area, sample_point
 
-__all__ = ["Sensor", "PRESETS", "SAMPLING_MODES"]
+__all__ = ["Sensor", "PRESETS", "SAMPLING_MODES", "ISETCAM_CONVENTIONS"]
+
+# Every ISETCam behaviour that differs from the documented default, for ``Sensor(..., **ISETCAM_CONVENTIONS)``:
+# Gaussian pre-blur + point sampling, analog gain divides, ADC without clamp, ISETCam noise order with
+# DSNU/PRNU redrawn on every call (FORMAT.md 4.6, 4.8).
+ISETCAM_CONVENTIONS: dict[str, str] = {"sampling": "isetcam", "gain_convention": "isetcam", "adc_mode": "isetcam",
+                                       "noise_model": "isetcam", "fpn_mode": "per_frame"}
 
 SAMPLING_MODES = ("area", "area_linear", "isetcam")
 
