@@ -75,7 +75,7 @@ def main() -> None:
     lines = [f"host: {platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, "
              f"load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f}, torch {torch.__version__}",
              "", f"| bands | 1 thread: wall ms/pair | CPU ms/pair | {args.workers} workers: pairs/s | "
-             f"CPU-bound estimate on {args.workers} cores: pairs/s | stages (ms/pair, 1 thread) |",
+             f"CPU-bound estimate on {args.workers} cores: pairs/s | stages (CPU ms/pair, 1 thread) |",
              "|---|---|---|---|---|---|"]
     for bands in args.bands:
         st = per_stage(bands, args.size, max(20, args.count // 4))

@@ -106,15 +106,16 @@ def _pick(values, g: torch.Generator):
 
 
 class _Clock:
-    """Adds the time since the previous call to ``timings[stage]`` (no-op without a dict)."""
+    """Adds the CPU time (``time.process_time``: robust to other processes sharing the cores) since the previous
+    call to ``timings[stage]`` (no-op without a dict)."""
 
     def __init__(self, timings: dict | None):
         self.timings = timings
-        self.last = time.perf_counter()
+        self.last = time.process_time()
 
     def __call__(self, stage: str) -> None:
         if self.timings is not None:
-            now = time.perf_counter()
+            now = time.process_time()
             self.timings[stage] = self.timings.get(stage, 0.0) + now - self.last
             self.last = now
 
@@ -139,7 +140,7 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
                 cache: _Cache | None = None, timings: dict | None = None) -> dict:
     """One camera training pair for ``(seed, index)`` (see the module notes for the outputs).
 
-    ``timings``: optional dict accumulating the seconds spent per stage (scene, optics, sensor, targets,
+    ``timings``: optional dict accumulating the CPU seconds spent per stage (scene, optics, sensor, targets,
     setup), for benchmarks.
     """
     clock = _Clock(timings)

@@ -57,7 +57,8 @@ def test_distributed_sampler_covers_every_item_once():
 
 def test_items_do_not_depend_on_the_thread_count():
     """Main process (several threads) and DataLoader workers (one thread) must build identical items."""
-    ds = CameraPairDataset(2, seed=1, scene={"height": 192, "width": 192, "wavelengths_nm": [400.0, 700.0, 30.0]})
+    # large enough (> 32768 elements per plane) for torch to split reductions and GEMMs across threads
+    ds = CameraPairDataset(2, seed=1, scene={"height": 192, "width": 192, "wavelengths_nm": [400.0, 700.0, 50.0]})
     before = torch.get_num_threads()
     try:
         torch.set_num_threads(2)

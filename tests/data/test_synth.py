@@ -112,9 +112,9 @@ def test_cli_in_process_and_subprocess(reference, tmp_path, capsys):
     bad.write_text("scene:\n  heigth: 16\n")
     assert main(["synth", "--config", str(bad), "--out", str(tmp_path / "b"), "--count", "2"]) == 2
     assert "scene.heigth" in capsys.readouterr().err
-    # a separate process with a DataLoader worker produces the same bytes
+    # a separate process produces the same bytes
     r = subprocess.run([sys.executable, "-m", "isettorch.cli", "synth", "--config", str(cfg), "--out",
-                        str(tmp_path / "c"), "--count", str(COUNT), "--workers", "1", "--no-progress"],
+                        str(tmp_path / "c"), "--count", str(COUNT), "--no-progress"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert _checksums(tmp_path / "c") == _checksums(ref_out)
