@@ -35,7 +35,10 @@ def electron_rate_density(photons: torch.Tensor, qe: torch.Tensor, wavelengths_n
     if qe.dim() != 2 or qe.shape[1] != photons.shape[1]:
         raise ValueError(f"qe: expected shape [C, {photons.shape[1]}] matching photons' wavelengths, "
                          f"got {tuple(qe.shape)}")
-    return spectral.spectral_integral(photons, qe.to(photons.dtype), wavelengths_nm, dim=1)
+    dl = spectral.wavelength_weights(torch.as_tensor(wavelengths_nm)).to(photons.device, photons.dtype)
+    m = qe.to(photons.dtype) * dl  # [C, L]
+    b, n_l, h, w = photons.shape
+    return (m @ photons.reshape(b, n_l, h * w)).reshape(b, -1, h, w)  # a contiguous GEMM over the cube
 
 
 def isetcam_preblur_size(pixel_size_m: float, oi_sample_spacing_m: float) -> int:
