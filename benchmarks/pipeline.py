@@ -1,7 +1,7 @@
 """Speed against error of the isettorch pipeline (the standard set of ``isettorch bench``), saved for RESULTS.md.
 
-Writes ``<out>/pipeline.json`` (every row, the machine, the settings), ``<out>/pipeline_table.md`` (the table)
-and ``<out>/pareto.png`` (time vs sensor-volts error of the knob rows, Pareto front), and prints the table.
+Writes ``<out>/pipeline.json`` (every row, the machine, the settings), ``<out>/pipeline_table.md`` (one table
+per section) and ``<out>/pareto.png`` (time vs sensor-volts error of the knob rows, Pareto front), and prints the table.
 
     python benchmarks/pipeline.py [--quick] [--device cpu|cuda] [--threads N] [--out benchmarks]
 """
@@ -34,7 +34,7 @@ def main(argv=None) -> int:
                                   log=lambda s: print(s, file=sys.stderr, flush=True))
     result["plot"] = str(bench.plot_pareto(result, out / "pareto.png"))
     (out / "pipeline.json").write_text(json.dumps(result, indent=1, allow_nan=False) + "\n")
-    table = bench.format_table(result)
+    table = bench.format_report(result)
     (out / "pipeline_table.md").write_text(table + "\n")
     print(table)
     m = result["machine"]

@@ -38,7 +38,7 @@ from typing import Any
 
 import torch
 
-__all__ = ["run_benchmarks", "format_table", "plot_pareto", "time_call", "machine_info", "ROW_KEYS"]
+__all__ = ["run_benchmarks", "format_table", "format_report", "plot_pareto", "time_call", "machine_info", "ROW_KEYS"]
 
 ROW_KEYS = ("name", "seconds_median", "error", "error_unit")
 PITCH_M = 2.8e-6  # ISETCam default pixel
@@ -819,6 +819,53 @@ def format_table(result: dict) -> str:
     for s in result.get("skipped", []):
         lines.append(f"skipped: {s['name']} ({s['reason']})")
     return "\n".join(lines)
+
+
+SECTIONS = (
+    ("End-to-end stage timings (frequency sweep, 31 bands, float32)", ("pipeline",)),
+    ("Rows to compare with ISETCam doing the same work", ("isetcam_compare",)),
+    ("Knobs: speed against error (Macbeth + sweep scene, noise off, fixed exposure)",
+     ("wavelength_step", "otf_grouping", "padding", "sampling", "dtype")),
+    ("Shot-noise mode (error: relative difference of the noise std against exact Poisson)", ("shot_noise",)),
+    ("Model only what the scene needs (ratio = time / time of the full-work row)", ("proportional",)),
+    ("Peer: NumPy reference pipeline (same physics, float64)", ("peer_pipeline",)),
+    ("Peers: demosaic on a generated image (dead leaves, Macbeth reflectances, 10 px border excluded)",
+     ("peer_demosaic",)),
+)
+
+
+def format_report(result: dict) -> str:
+    """The rows as one Markdown table per section (what RESULTS.md shows)."""
+    out = []
+    m = result.get("machine", {})
+    out.append(f"Machine: {m.get('processor')}, {m.get('cpu_count')} CPUs, {m.get('torch_threads')} torch threads, "
+               f"torch {m.get('torch')}, device {m.get('device')}; load average {m.get('load_average_start')} at "
+               f"start, {m.get('load_average_end')} at the end; total {result.get('seconds_total', 0):.0f} s.")
+    for title, groups in SECTIONS:
+        rows = [r for r in result["rows"] if r["group"] in groups]
+        if not rows:
+            continue
+        out += ["", f"### {title}", ""]
+        knob = any("errors" in r for r in rows)
+        if knob:
+            out += ["| row | median s | volts err (rel RMS) | mean dE2000 | CPSNR dB | note |",
+                    "|---|---:|---:|---:|---:|---|"]
+        else:
+            out += ["| row | median s | error | unit | ratio | note |", "|---|---:|---:|---|---:|---|"]
+        for r in rows:
+            name = f"{r['name']}{' (ref)' if r.get('reference') else ''}"
+            if knob:
+                e = r.get("errors") or {}
+                out.append(f"| {name} | {_fmt(r['seconds_median'], '.3f')} | {_fmt(r['error'], '.2e')} | "
+                           f"{_fmt(e.get('de2000_mean'), '.3g')} | {_fmt(e.get('cpsnr_db'), '.1f')} | "
+                           f"{r.get('note', '')} |")
+            else:
+                out.append(f"| {name} | {_fmt(r['seconds_median'], '.3f')} | {_fmt(r['error'], '.3g')} | "
+                           f"{r['error_unit'] or '-'} | {_fmt(r.get('ratio'), '.3f')} | {r.get('note', '')} |")
+    out += ["", f"Training pairs/s: {_fmt(result.get('pairs_per_s'), '.2f')} ({result.get('pairs_note', '')})"]
+    for s in result.get("skipped", []):
+        out.append(f"- skipped {s['name']}: {s['reason']}")
+    return "\n".join(out)
 
 
 def pareto_front(points: list[tuple[float, float]]) -> list[int]:

@@ -116,3 +116,10 @@ def test_group_centres():
 def test_bad_arguments(capsys):
     assert main(["bench", "--sizes", "abc"]) == 2
     assert "--sizes" in capsys.readouterr().err
+
+
+def test_report_lists_every_row(result):
+    text = bench.format_report(result)
+    assert "### Knobs" in text and "Training pairs/s" in text
+    for r in result["rows"]:
+        assert f"| {r['name']}" in text
