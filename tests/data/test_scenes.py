@@ -63,9 +63,29 @@ def test_layout_statistics():
     # edges: piecewise-constant cells, every orientation possible
     ia, ib, t = layouts.edges(64, 64, 8, g)
     assert torch.equal(ia, ib) and float(t.abs().max()) == 0.0
-    # dead leaves: many distinct leaves, some textured
+    # dead leaves: many distinct leaves, some textured, coverage as the Boolean model predicts
     ia, ib, t = layouts.dead_leaves(64, 64, 8, g)
     assert ia.unique().numel() >= 3 and 0.0 <= float(t.min()) and float(t.max()) <= 1.0
+    covered = []
+    for _ in range(4):
+        n = int(torch.randint(400, 801, (), generator=g))
+        r = layouts.dead_leaves_radii(n, 2.5, 0.6 * 128, g)
+        cy, cx = torch.rand(n, generator=g) * 153.6 - 12.8, torch.rand(n, generator=g) * 153.6 - 12.8
+        top = layouts._paint_leaves(128, 128, cy.double(), cx.double(), r, torch.zeros(n, dtype=torch.float64),
+                                    torch.ones(n, dtype=torch.float64), torch.zeros(n, dtype=torch.long), None,
+                                    torch.float32)
+        # brute force check of the patch-based painter on disks, and the coverage
+        yy, xx = torch.meshgrid(torch.arange(128.0), torch.arange(128.0), indexing="ij")
+        d2 = (yy[None] - cy[:, None, None]) ** 2 + (xx[None] - cx[:, None, None]) ** 2
+        inside = d2 <= r.float()[:, None, None] ** 2
+        order = torch.arange(1, n + 1)[:, None, None]
+        brute = (inside * order).amax(dim=0)
+        assert torch.equal(top, brute.clamp_min(1) - 1)
+        covered.append(float((brute > 0).float().mean()))
+    # Boolean model: 1 - exp(-n E[pi r^2] / area) with E[r^2] = 2 ln(rmax/rmin) / (rmin^-2 - rmax^-2)
+    er2 = 2 * math.log(76.8 / 2.5) / (2.5**-2 - 76.8**-2)
+    expected = 1 - math.exp(-600 * math.pi * er2 / 153.6**2)
+    assert sum(covered) / len(covered) == pytest.approx(expected, abs=0.04)
     # textures: energy near Nyquist (fine periodic patterns provoke aliasing)
     for _ in range(5):
         _, _, t = layouts.textures(64, 64, 8, g)
@@ -82,11 +102,13 @@ def test_layout_statistics():
 def test_dead_leaves_radius_distribution_is_scale_invariant():
     """p(r) ~ r^-3 (Lee, Mumford & Huang 2001): P(r > 2 r0) / P(r > r0) = 1/4 away from the bounds."""
     g = torch.Generator().manual_seed(0)
-    rmin, rmax = 1.5, 0.6 * 128
-    u = torch.rand(200000, generator=g, dtype=torch.float64)
-    r = (rmin**-2 - u * (rmin**-2 - rmax**-2)) ** -0.5
-    p3, p6 = float((r > 3).double().mean()), float((r > 6).double().mean())
-    assert p6 / p3 == pytest.approx((6**-2 - rmax**-2) / (3**-2 - rmax**-2), rel=0.03)
+    rmin, rmax = 2.5, 0.6 * 128
+    r = layouts.dead_leaves_radii(200000, rmin, rmax, g)
+    assert float(r.min()) >= rmin and float(r.max()) <= rmax
+    p5, p10 = float((r > 5).double().mean()), float((r > 10).double().mean())
+    # survival function of p(r) ~ r^-3: S(r) = (r^-2 - rmax^-2) / (rmin^-2 - rmax^-2)
+    assert p5 == pytest.approx((5**-2 - rmax**-2) / (rmin**-2 - rmax**-2), rel=0.02)
+    assert p10 / p5 == pytest.approx((10**-2 - rmax**-2) / (5**-2 - rmax**-2), rel=0.03)
 
 
 def test_determinism_by_seed_and_index():
