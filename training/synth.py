@@ -78,7 +78,7 @@ class SceneSampler:
     ``sample(batch, generator)`` returns ``[B, 3, size, size]`` float32.
     """
 
-    def __init__(self, size: int = 96, n_shapes: int = 60, sensitivities: str = "all", pool: int = 384):
+    def __init__(self, size: int = 96, n_shapes: int = 60, sensitivities: str = "all", pool: int = 12):
         if size < 8 or size % 2:
             raise ValueError(f"size: expected an even size >= 8, got {size}")
         if sensitivities not in ("all", "cameras", "srgb"):
@@ -98,7 +98,7 @@ class SceneSampler:
     def reflectances(self, n: int, g: torch.Generator) -> torch.Tensor:
         """[n, L] reflectances in [0, 1]: sigmoid polynomials, ColorChecker patches (scaled) and greys."""
         kind = torch.rand(n, generator=g, dtype=torch.float64)
-        coef = torch.randn(n, 3, generator=g, dtype=torch.float64) * torch.tensor([2.0, 6.0, 10.0],
+        coef = torch.randn(n, 3, generator=g, dtype=torch.float64) * torch.tensor([2.0, 5.0, 8.0],
                                                                                   dtype=torch.float64)
         sig = torch.sigmoid(coef @ self.t_powers)
         sig = sig * (0.05 + 0.95 * torch.rand(n, 1, generator=g, dtype=torch.float64))
@@ -172,23 +172,43 @@ class SceneSampler:
             d_half = torch.maximum(v_, (u_ ** 2 + v_ ** 2).sqrt() - 2.5 * rr)
             d = torch.where(kind < 0.35, d_disc, torch.where(kind < 0.7, d_rect,
                                                              torch.where(kind < 0.85, d_line, d_half)))
-            blur = (0.3 + 1.2 * rnd(batch) ** 2)[:, None, None]
+            blur = (0.3 + 1.7 * rnd(batch) ** 2)[:, None, None]
             alpha = (0.5 - d / (2 * blur)).clamp(0, 1)[:, None]  # anti-aliased coverage
             # texture: flat, grating (up to near Nyquist), shading, or blotchy two-material mix
-            c1, c2 = pick(), pick()
+            # natural scenes: few materials, most edges are changes of intensity (shading, illumination) at a
+            # constant chromaticity, which is the inter-channel correlation demosaicing relies on
+            bright = (0.15 + 0.85 * rnd(batch))[:, None, None, None]
+            c1 = pick() * bright
+            c2 = torch.where(rnd(batch)[:, None, None, None] < 0.5, c1 * (0.2 + 0.6 * rnd(batch))[:, None, None, None],
+                             pick() * bright)
             tk = rnd(batch)[:, None, None, None]
-            freq = (0.02 + 0.46 * rnd(batch) ** 1.5)[:, None, None]
+            freq = (0.02 + 0.46 * rnd(batch) ** 2.5)[:, None, None]
             phi = torch.atan2(torch.randn(batch, generator=g), torch.randn(batch, generator=g))
             grating = 0.5 + 0.5 * torch.sin(2 * math.pi * freq * u_ + phi[:, None, None])
             grating = torch.where(rnd(batch)[:, None, None] < 0.3, (grating > 0.5).float(), grating)[:, None]
             shade = (1 + (0.8 * rnd(batch) - 0.4)[:, None, None] * v_ / rr.clamp_min(1))[:, None].clamp(0.2, 2)
             low = torch.rand(batch, 1, 6, 6, generator=g)
             blot = F.interpolate(low, size=(s, s), mode="bicubic", align_corners=False).clamp(0, 1)
-            colour = torch.where(tk < 0.45, c1, torch.where(
+            colour = torch.where(tk < 0.55, c1, torch.where(
                 tk < 0.7, c1 * grating + c2 * (1 - grating),
                 torch.where(tk < 0.85, c1 * shade, c1 * blot + c2 * (1 - blot))))
             img = img * (1 - alpha) + colour * alpha
-        return img.clamp_min(0)
+        return (img * self.pink_texture(batch, g)).clamp_min(0)
+
+    def pink_texture(self, batch: int, g: torch.Generator) -> torch.Tensor:
+        """[B, 3, S, S] multiplicative 1/f^beta texture (natural-image power spectrum, Field 1987), mostly achromatic:
+        the fine, low-contrast stochastic detail of natural surfaces that flat shapes lack."""
+        s = self.size
+        fy = torch.fft.fftfreq(s)[:, None]
+        fx = torch.fft.rfftfreq(s)[None, :]
+        f = torch.sqrt(fx ** 2 + fy ** 2).clamp_min(1.0 / s)
+        beta = (0.8 + 0.8 * torch.rand(batch, generator=g))[:, None, None, None]
+        white = torch.randn(batch, 2, s, s, generator=g)
+        tex = torch.fft.irfft2(torch.fft.rfft2(white) / f ** beta, s=(s, s))
+        tex = tex / tex.flatten(2).std(-1)[..., None, None].clamp_min(1e-8)
+        amp = (0.12 * torch.rand(batch, generator=g) ** 1.5)[:, None, None, None]
+        lum, chroma = tex[:, :1], tex[:, 1:2] * torch.tensor([1.0, 0.0, -1.0]).reshape(1, 3, 1, 1)
+        return (1 + amp * (lum + 0.15 * chroma)).clamp_min(0.05)
 
 
 def encode(img: torch.Tensor, g: torch.Generator, p_gamma: float = 0.7, exposure=(0.6, 1.3)) -> torch.Tensor:
