@@ -911,8 +911,9 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
 
 
 def plot_pareto(result: dict, path) -> Path:
-    """Time vs sensor-volts error of the knob rows (log-log; errors of 0 drawn at the floor), with the Pareto
-    front over all knob rows. Returns the path of the PNG."""
+    """Time vs sensor-volts error of the knob rows (log-log), one colour per knob with its own Pareto front
+    (each knob is measured against its own most accurate setting, drawn on the "0 (ref)" line). Returns the
+    path of the PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -920,28 +921,34 @@ def plot_pareto(result: dict, path) -> Path:
 
     knob_groups = ("wavelength_step", "otf_grouping", "padding", "sampling", "dtype")
     rows = [r for r in result["rows"] if r["group"] in knob_groups and r["error"] is not None]
-    floor = 1e-17
-    fig, ax = plt.subplots(figsize=(8, 5.5))
+    floor = 1e-9
+    fig, ax = plt.subplots(figsize=(9, 6))
     markers = dict(zip(knob_groups, "osD^v"))
+    colours = dict(zip(knob_groups, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
     for g in knob_groups:
         sel = [r for r in rows if r["group"] == g]
-        if sel:
-            ax.scatter([r["seconds_median"] for r in sel], [max(r["error"], floor) for r in sel], label=g,
-                       marker=markers[g], s=40)
-            for r in sel:
-                ax.annotate(r["name"], (r["seconds_median"], max(r["error"], floor)), fontsize=6,
-                            xytext=(3, 3), textcoords="offset points")
-    pts = [(r["seconds_median"], max(r["error"], floor)) for r in rows]
-    if pts:
+        if not sel:
+            continue
+        pts = [(r["seconds_median"], max(r["error"], floor)) for r in sel]
+        ax.scatter(*zip(*pts), label=g, marker=markers[g], s=42, color=colours[g], zorder=3)
         front = pareto_front(pts)
-        ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k--", lw=1, label="Pareto front")
+        ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "--", lw=1, color=colours[g], zorder=2)
+        for r, p in zip(sel, pts):
+            label = r["name"].removeprefix(g + "_").removeprefix("wavelength_step_").removeprefix("otf_")
+            ax.annotate(label, p, fontsize=6.5, xytext=(4, 3), textcoords="offset points", color=colours[g])
     ax.set_xscale("log")
     ax.set_yscale("log")
+    ax.set_ylim(floor / 3, 1)
+    ticks = [floor] + [10.0**k for k in range(-8, 1, 2)]
+    ax.set_yticks(ticks, ["0 (ref)"] + [f"1e{k}" for k in range(-8, 1, 2)])
+    ax.axhline(floor * 1.8, color="0.7", lw=0.8)
     ax.set_xlabel("median time, optics + sensor + ISP (s)")
-    ax.set_ylabel("sensor volts error vs most accurate setting (relative RMS)")
-    ax.set_title("isettorch: speed against error (errors of 0 drawn at 1e-17)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.set_ylabel("sensor volts error vs the knob's most accurate setting (relative RMS)")
+    m = result.get("machine", {})
+    ax.set_title(f"isettorch speed against error (dashed: Pareto front per knob; {m.get('cpu_count')} CPUs, "
+                 f"{m.get('device')})", fontsize=10)
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=120)
