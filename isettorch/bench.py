@@ -14,13 +14,22 @@ Every result is a row ``{"name", "group", "seconds_median", "error", "error_unit
 
 Knob groups (each varies one knob from the most accurate setting of that knob, with the others at the
 library defaults, on a scene made of a Macbeth chart next to a frequency sweep, fixed exposure, noise off):
-wavelength step, OTF wavelength grouping, padding, spatial sampling, dtype, shot-noise mode (error: relative
-difference of the noise standard deviation against exact Poisson), and a fitted low-dimensional spectral basis.
+wavelength step (ISETCam's rectangle rule, and the trapezoid rule emulated), a fitted low-dimensional
+spectral basis, OTF wavelength grouping (emulated, and a fused fast path), padding, spatial sampling
+(4 x 4 OI samples per pixel), dtype (float64/float32; bfloat16/float16 after a float32 optics stage because
+CPU FFTs have no half kernels), shot-noise mode at normal and low light (error: relative difference of the
+noise standard deviation against exact Poisson, pooled over frames).
+
+Emulations live here, not in the library: the OTF grouping (``group_centres``, ``fused_grouped_volts``) and
+the spectral basis (``fit_basis``, ``basis_volts``) reuse the optics' geometry and FFT blur and the sensor's
+area sampling, and are checked against the full simulation by their measured errors.
 
 Example:
-    >>> from isettorch.bench import run_benchmarks
+    >>> from isettorch.bench import run_benchmarks, format_report
     >>> result = run_benchmarks(quick=True)  # doctest: +SKIP
-    >>> print(format_table(result))  # doctest: +SKIP
+    >>> print(format_report(result))  # doctest: +SKIP
+
+Reference: the timing conventions of ``torch.utils.benchmark`` (warm-up excluded, CUDA synchronised, median).
 """
 
 from __future__ import annotations
