@@ -287,22 +287,27 @@ class _GroupedOTFOptics:
     """Emulated OTF wavelength grouping: each band uses the OTF of its group's centre wavelength."""
 
     @staticmethod
-    def make(group_nm: float, **kw):
+    def make(n_groups: int, **kw):
         from .optics import DiffractionLimitedOptics, dl_otf
 
         class Grouped(DiffractionLimitedOptics):
             def otf(self, fy, fx, wavelengths_nm, f_number):
-                return dl_otf(fy, fx, group_centres(wavelengths_nm, group_nm), f_number)
+                return dl_otf(fy, fx, group_centres(wavelengths_nm, n_groups), f_number)
 
         return Grouped(f_number=4.0, focal_length_m=FOCAL_M, **kw)
 
 
-def group_centres(w: torch.Tensor, group_nm: float) -> torch.Tensor:
-    """Each wavelength replaced by the mean wavelength of its group (bins of ``group_nm`` from 400 nm)."""
-    idx = torch.floor((w - 400.0) / group_nm + 1e-9).long()
+def wavelength_groups(n_bands: int, n_groups: int) -> list[torch.Tensor]:
+    """Band indices split into ``n_groups`` contiguous groups of (nearly) equal size."""
+    if not 1 <= n_groups <= n_bands:
+        raise ValueError(f"n_groups: expected 1..{n_bands}, got {n_groups}")
+    return list(torch.tensor_split(torch.arange(n_bands), n_groups))
+
+
+def group_centres(w: torch.Tensor, n_groups: int) -> torch.Tensor:
+    """Each wavelength replaced by the mean wavelength of its group (``n_groups`` contiguous groups)."""
     out = torch.empty_like(w)
-    for g in idx.unique():
-        sel = idx == g
+    for sel in wavelength_groups(w.numel(), n_groups):
         out[sel] = w[sel].mean()
     return out
 
@@ -327,7 +332,7 @@ def _irradiance(optics, scene):
     return (irr if ri is None else irr * ri), dx, n
 
 
-def fused_grouped_volts(scene, optics, sensor, group_nm: float, exposure_s: float):
+def fused_grouped_volts(scene, optics, sensor, n_groups: int, exposure_s: float):
     """OTF grouping made fast: within a group every band has the same OTF, so the QE integration commutes with
     the blur: blur(sum_{l in g} QE_c(l) E_l dl) = sum_{l in g} QE_c(l) blur(E_l) dl. G x C FFT planes instead of
     L. Returns the noise-free volts (B, 1, rows, cols) (same area sampling and clipping as the Sensor)."""
@@ -339,8 +344,7 @@ def fused_grouped_volts(scene, optics, sensor, group_nm: float, exposure_s: floa
     irr, dx, n = _irradiance(optics, scene)
     w = scene.wavelengths_nm
     qe = sensor.qe(scene) * spectral.wavelength_weights(w).to(irr.dtype)  # [C, L]
-    idx = torch.floor((w - 400.0) / group_nm + 1e-9).long()
-    groups = [idx == g for g in idx.unique()]
+    groups = wavelength_groups(w.numel(), n_groups)
     centres = torch.stack([w[s].mean() for s in groups])
     c = qe.shape[0]
     dens = torch.cat([torch.einsum("blhw,cl->bchw", irr[:, s], qe[:, s]) for s in groups], dim=1)  # [B, G*C, H, W]
@@ -515,17 +519,18 @@ def knob_rows(patch: int, repeats: int, device, log=print) -> tuple[list[dict], 
     optics = make_optics().to(device)
     ref = measure("otf_per_band_10nm", "otf_grouping", lambda: vi(run(optics, scene10)), None, True,
                   "31 OTFs, 31 FFT planes")
-    for g in (50.0, 100.0, 300.0):
-        gopt = _GroupedOTFOptics.make(g).to(device)
-        ng = int(group_centres(scene10.wavelengths_nm, g).unique().numel())
-        measure(f"otf_grouped_{int(g)}nm_emulated", "otf_grouping", lambda o=gopt: vi(run(o, scene10)), ref, False,
-                f"{ng} OTFs applied per band (31 FFT planes): the error of grouping, no speed-up")
+    for ng in (8, 4, 2, 1):
+        gopt = _GroupedOTFOptics.make(ng).to(device)
+        spans = ", ".join(f"{int(scene10.wavelengths_nm[i[0]])}-{int(scene10.wavelengths_nm[i[-1]])}"
+                          for i in wavelength_groups(scene10.num_wavelengths, ng))
+        measure(f"otf_groups_{ng}_emulated", "otf_grouping", lambda o=gopt: vi(run(o, scene10)), ref, False,
+                f"{ng} OTFs ({spans} nm) applied per band (31 FFT planes): the error of grouping, no speed-up")
 
-        def fused(g=g):
+        def fused(ng=ng):
             with torch.no_grad():
-                volts = fused_grouped_volts(scene10, optics, sensor, g, t_exp)
+                volts = fused_grouped_volts(scene10, optics, sensor, ng, t_exp)
                 return volts, isp(_raw_from_volts(volts, sensor, t_exp)).image
-        measure(f"otf_grouped_{int(g)}nm_fused", "otf_grouping", fused, ref, False,
+        measure(f"otf_groups_{ng}_fused", "otf_grouping", fused, ref, False,
                 f"{ng} groups x 3 channels = {3 * ng} FFT planes (QE integral inside each group first)")
 
     # padding width (reference: psf_tolerance 1e-5)
