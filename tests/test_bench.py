@@ -117,6 +117,11 @@ def test_group_centres():
 def test_bad_arguments(capsys):
     assert main(["bench", "--sizes", "abc"]) == 2
     assert "--sizes" in capsys.readouterr().err
+    assert main(["bench", "--threads", "0"]) == 2
+    assert "--threads" in capsys.readouterr().err
+    if not torch.cuda.is_available():
+        assert main(["bench", "--device", "cuda"]) == 2
+        assert "CUDA is not available" in capsys.readouterr().err
 
 
 def test_report_lists_every_row(result):
