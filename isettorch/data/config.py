@@ -50,7 +50,7 @@ CAMERA_DEFAULTS: dict[str, Any] = {
     "peak_qe": [0.35, 0.6],
     "cfa_patterns": ["RGGB"],  # any of RGGB, GRBG, GBRG, BGGR; one drawn per sample
     "qe_variation": 0.0,  # 0 = the nominal curves; > 0 shifts each channel by up to this many x 10 nm
-    "margin_px": 4,  # scene border rendered beyond the sensor so blurring needs no padding
+    "margin_px": 8,  # scene border beyond the sensor (blur support); 128 + 2 x 8 = 144 is an FFT-friendly size
 }
 
 SYNTH_DEFAULTS: dict[str, Any] = {
