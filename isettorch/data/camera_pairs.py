@@ -29,6 +29,7 @@ Outputs (a dict of tensors; images in **normalised raw units**: 0 = black level,
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import time
@@ -136,13 +137,34 @@ class _Cache:
         return self.optics[key]
 
 
+@contextlib.contextmanager
+def _one_thread():
+    """Run with one intra-op thread: some torch kernels (e.g. ``irfft2`` at some sizes, GEMM) round differently
+    with more threads, and DataLoader workers always use one, so this keeps items bitwise identical in the
+    main process and in workers."""
+    n = torch.get_num_threads()
+    if n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+
+
 def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype=torch.float32,
                 cache: _Cache | None = None, timings: dict | None = None) -> dict:
     """One camera training pair for ``(seed, index)`` (see the module notes for the outputs).
 
     ``timings``: optional dict accumulating the CPU seconds spent per stage (scene, optics, sensor, targets,
-    setup), for benchmarks.
+    setup), for benchmarks. Runs single-threaded (see :func:`_one_thread`).
     """
+    with _one_thread():
+        return _render_pair(index, seed, scene_cfg, camera_cfg, dtype=dtype, cache=cache, timings=timings)
+
+
+def _render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype, cache, timings) -> dict:
     clock = _Clock(timings)
     from ..optics.blur import full_padding
     from ..optics.geometry import image_distance
