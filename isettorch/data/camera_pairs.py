@@ -29,7 +29,6 @@ Outputs (a dict of tensors; images in **normalised raw units**: 0 = black level,
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 import time
@@ -39,7 +38,7 @@ import torch
 
 from .. import constants, spectral
 from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
-from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, seed_for
+from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for
 from .scenes import _uniform, generate_scene
 
 __all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "META_KEYS", "nikon_d5100_qe"]
@@ -137,30 +136,14 @@ class _Cache:
         return self.optics[key]
 
 
-@contextlib.contextmanager
-def _one_thread():
-    """Run with one intra-op thread: some torch kernels (e.g. ``irfft2`` at some sizes, GEMM) round differently
-    with more threads, and DataLoader workers always use one, so this keeps items bitwise identical in the
-    main process and in workers."""
-    n = torch.get_num_threads()
-    if n == 1:
-        yield
-        return
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(n)
-
-
 def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype=torch.float32,
                 cache: _Cache | None = None, timings: dict | None = None) -> dict:
     """One camera training pair for ``(seed, index)`` (see the module notes for the outputs).
 
     ``timings``: optional dict accumulating the CPU seconds spent per stage (scene, optics, sensor, targets,
-    setup), for benchmarks. Runs single-threaded (see :func:`_one_thread`).
+    setup), for benchmarks. Runs single-threaded (see :func:`config.one_thread`).
     """
-    with _one_thread():
+    with one_thread():
         return _render_pair(index, seed, scene_cfg, camera_cfg, dtype=dtype, cache=cache, timings=timings)
 
 

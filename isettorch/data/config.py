@@ -5,13 +5,16 @@ An unknown key, or a value of the wrong type, raises ``ValueError`` naming the d
 
 from __future__ import annotations
 
+import contextlib
 import copy
 from pathlib import Path
 from typing import Any
 
+import torch
 import yaml
 
-__all__ = ["SCENE_DEFAULTS", "CAMERA_DEFAULTS", "SYNTH_DEFAULTS", "merge_config", "load_config", "seed_for"]
+__all__ = ["SCENE_DEFAULTS", "CAMERA_DEFAULTS", "SYNTH_DEFAULTS", "merge_config", "load_config", "seed_for",
+           "one_thread"]
 
 SCENE_DEFAULTS: dict[str, Any] = {
     "height": 128,
@@ -174,3 +177,19 @@ def seed_for(seed: int, index: int, stream: int = 0) -> int:
     z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
     z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
     return (z ^ (z >> 31)) & ((1 << 63) - 1)
+
+
+@contextlib.contextmanager
+def one_thread():
+    """Run with one intra-op thread: some torch kernels (e.g. ``irfft2`` at some sizes, GEMM) round differently
+    with more threads, and DataLoader workers always use one, so this keeps items bitwise identical in the
+    main process and in workers (and costs nothing inside workers)."""
+    n = torch.get_num_threads()
+    if n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)

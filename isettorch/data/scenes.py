@@ -28,7 +28,7 @@ from .. import constants, spectral
 from ..scene import Scene
 from . import layouts as _layouts
 from . import spectra as _spectra
-from .config import SCENE_DEFAULTS, merge_config, seed_for
+from .config import SCENE_DEFAULTS, merge_config, one_thread, seed_for
 
 __all__ = ["generate_scene", "SyntheticSceneDataset", "collate_scenes", "scene_wavelengths"]
 
@@ -124,6 +124,11 @@ def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, dev
         >>> tuple(s.photons.shape)
         (1, 31, 32, 32)
     """
+    with one_thread():
+        return _generate_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size)
+
+
+def _generate_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> Scene:
     full = config is not None and set(config) == set(SCENE_DEFAULTS)
     cfg = config if full else merge_config(config, SCENE_DEFAULTS, "scene")
     g = torch.Generator().manual_seed(seed_for(seed, index))
