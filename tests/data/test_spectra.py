@@ -84,6 +84,17 @@ def test_illuminant_cct_as_asked(kind, lo, hi, tol):
     assert max(ccts) - min(ccts) > 0.1 * (hi - lo)  # not stuck
 
 
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_daylight_cct_with_colour_xy_to_cct():
+    """colour.xy_to_CCT's default method inverts the CIE daylight locus: it must return the asked CCT."""
+    g = torch.Generator().manual_seed(3)
+    for _ in range(5):
+        spd, cct, _ = spectra.random_illuminant("daylight", W5, g)
+        xy = spectra.chromaticity_xy(spd[None], W5)[0].numpy()
+        # compared in mired (1e6 / T), the scale CCTs are drawn on: 0.5 mired is ~20 K at 6500 K
+        assert 1e6 / float(colour.xy_to_CCT(xy)) == pytest.approx(1e6 / cct, abs=0.5)
+
+
 def test_led_spectrum_shape():
     spd = spectra.led_spd(torch.tensor([3000.0, 6000.0]), W5)
     peak_nm = W5[spd.argmax(dim=1)]
