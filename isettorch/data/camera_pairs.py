@@ -41,7 +41,8 @@ from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
 from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for
 from .scenes import _uniform, generate_scene
 
-__all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "META_KEYS", "nikon_d5100_qe"]
+__all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "render_pairs", "batch_loader", "META_KEYS",
+           "nikon_d5100_qe"]
 
 CHANNELS = ("R", "G", "B")
 ILLUMINANT_CODES = {"daylight": 0, "blackbody": 1, "led": 2}  # F<n> -> 10 + n
@@ -136,6 +137,41 @@ class _Cache:
         return self.optics[key]
 
 
+def _draw_camera(index: int, seed: int, scene_cfg: dict, cam: dict) -> dict:
+    """The camera draws of item ``(seed, index)`` (fixed order), and the scene FOV that puts one scene sample on
+    one pixel. Shared by the reference and the factored paths."""
+    from ..optics.geometry import image_distance
+
+    g = torch.Generator().manual_seed(seed_for(seed, index, stream=1))
+    h, w = int(scene_cfg["height"]), int(scene_cfg["width"])
+    m = int(cam["margin_px"])
+    d = {"h": h, "w": w, "m": m}
+    d["f_number"] = float(_pick(cam["f_number"], g))
+    d["pitch"] = pitch = float(_pick(cam["pixel_size_m"], g))
+    d["focal"] = focal = float(_pick(cam["focal_length_m"], g))
+    d["fill"] = float(cam["fill_factor"])
+    d["full_well"] = _uniform(cam["full_well_e"], g, log=True)
+    d["read_e"] = _uniform(cam["read_noise_e"], g)
+    d["dark"] = _uniform(cam["dark_current_e_per_s"], g, log=True)
+    d["dsnu_e"] = _uniform(cam["dsnu_sigma_e"], g)
+    d["prnu"] = _uniform(cam["prnu_sigma_percent"], g)
+    d["gain"] = _uniform(cam["analog_gain"], g, log=True)
+    d["ev"] = _uniform(cam["exposure_ev"], g)
+    d["peak"] = _uniform(cam["peak_qe"], g)
+    d["pattern"] = str(_pick(cam["cfa_patterns"], g))
+    var = float(cam["qe_variation"])
+    d["shifts"] = ((torch.rand(3, generator=g, dtype=torch.float64) * 2 - 1) * 10.0 * var).tolist()
+    d["bits"], d["black"] = int(cam["bits"]), float(cam["black_level_dn"])
+    d["noise_seed"] = seed_for(seed, index, stream=2)
+    # Scene FOV so that one scene sample lands on one pixel: pitch = 2 d_i tan(hfov / 2) / W_s.
+    distance = _uniform(scene_cfg["distance_m"], torch.Generator().manual_seed(seed_for(seed, index)))
+    d_i = float(image_distance(torch.tensor(focal, dtype=torch.float64), torch.tensor(distance,
+                                                                                       dtype=torch.float64)))
+    d["ws"] = ws = w + 2 * m
+    d["hfov"] = math.degrees(2 * math.atan(pitch * ws / (2 * d_i)))
+    return d
+
+
 def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype=torch.float32,
                 cache: _Cache | None = None, timings: dict | None = None) -> dict:
     """One camera training pair for ``(seed, index)`` (see the module notes for the outputs).
@@ -150,39 +186,16 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
 def _render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype, cache, timings) -> dict:
     clock = _Clock(timings)
     from ..optics.blur import full_padding
-    from ..optics.geometry import image_distance
     from ..sensor import CFA, Sensor, SpectralQE
     from ..sensor.sampling import sample_area
 
     cache = cache or _Cache()
-    cam = camera_cfg
-    g = torch.Generator().manual_seed(seed_for(seed, index, stream=1))
-    h, w = int(scene_cfg["height"]), int(scene_cfg["width"])
-    m = int(cam["margin_px"])
-    f_number = float(_pick(cam["f_number"], g))
-    pitch = float(_pick(cam["pixel_size_m"], g))
-    focal = float(_pick(cam["focal_length_m"], g))
-    fill = float(cam["fill_factor"])
-    full_well = _uniform(cam["full_well_e"], g, log=True)
-    read_e = _uniform(cam["read_noise_e"], g)
-    dark = _uniform(cam["dark_current_e_per_s"], g, log=True)
-    dsnu_e = _uniform(cam["dsnu_sigma_e"], g)
-    prnu = _uniform(cam["prnu_sigma_percent"], g)
-    gain = _uniform(cam["analog_gain"], g, log=True)
-    ev = _uniform(cam["exposure_ev"], g)
-    peak = _uniform(cam["peak_qe"], g)
-    pattern = str(_pick(cam["cfa_patterns"], g))
-    var = float(cam["qe_variation"])
-    shifts = ((torch.rand(3, generator=g, dtype=torch.float64) * 2 - 1) * 10.0 * var).tolist()
-    bits, black = int(cam["bits"]), float(cam["black_level_dn"])
-    noise_seed = seed_for(seed, index, stream=2)
-
-    # Scene FOV so that one scene sample lands on one pixel: pitch = 2 d_i tan(hfov / 2) / W_s.
-    distance = _uniform(scene_cfg["distance_m"], torch.Generator().manual_seed(seed_for(seed, index)))
-    d_i = float(image_distance(torch.tensor(focal, dtype=torch.float64), torch.tensor(distance,
-                                                                                       dtype=torch.float64)))
-    ws = w + 2 * m
-    hfov = math.degrees(2 * math.atan(pitch * ws / (2 * d_i)))
+    d = _draw_camera(index, seed, scene_cfg, camera_cfg)
+    h, w, m = d["h"], d["w"], d["m"]
+    f_number, pitch, focal, fill = d["f_number"], d["pitch"], d["focal"], d["fill"]
+    full_well, read_e, dark, dsnu_e, prnu = d["full_well"], d["read_e"], d["dark"], d["dsnu_e"], d["prnu"]
+    gain, ev, peak, pattern, shifts = d["gain"], d["ev"], d["peak"], d["pattern"], d["shifts"]
+    bits, black, noise_seed, hfov, ws = d["bits"], d["black"], d["noise_seed"], d["hfov"], d["ws"]
     clock("setup")
     scene = generate_scene(index, seed, scene_cfg, dtype=dtype, hfov_deg=hfov, size=(h + 2 * m, ws))
     clock("scene")
@@ -280,6 +293,222 @@ def _render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dt
     }
 
 
+@functools.lru_cache(maxsize=64)
+def _nikon_unit_on(grid: tuple, shifts: tuple) -> torch.Tensor:
+    w_src, vals = _nikon_native()
+    w = torch.tensor(grid, dtype=torch.float64)
+    return torch.stack([spectral.resample(torch.from_numpy(vals[c]), torch.from_numpy(w_src) + float(shifts[c]), w)
+                        for c in range(3)])
+
+
+def _factored_radiance(f: dict, dtype) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The scene of :func:`scenes._draw_scene` factors as ``L(x, l) = sum_j maps_j(x) spectra_j(l)``:
+
+    ``R = (1 - t) P[ia] + t P[ib]`` is linear in the K palette reflectances and the light is ``a E1 + b E2``, so
+    ``maps = gain [(1 - t) 1(ia = k) + t 1(ib = k)] x (a | b)`` ``[J, H, W]`` (J = K for one light, 2K for two)
+    and ``spectra = scale P_k E1 | scale P_k E2`` ``[J, L]`` (float64), with ``scale`` setting the mean luminance
+    exactly as :func:`generate_scene` does. Returns ``(maps, spectra, white [L])`` (white: light 1, scaled).
+    """
+    from .scenes import _luminance_weights
+
+    t, ia, ib = f["t"], f["ia"], f["ib"]
+    h, w = t.shape
+    k = f["palette"].shape[0]
+    coef = torch.zeros(k, h * w, dtype=dtype)
+    coef.scatter_add_(0, ia.reshape(1, -1), (1 - t).reshape(1, -1).to(dtype))
+    coef.scatter_add_(0, ib.reshape(1, -1), t.reshape(1, -1).to(dtype))
+    coef.mul_(f["gain"].reshape(1, -1).to(dtype))
+    pal = f["palette"].to(torch.float64)
+    if f["a"] is not None:
+        maps = torch.cat([coef * f["a"].reshape(1, -1).to(dtype), coef * f["b"].reshape(1, -1).to(dtype)])
+        spectra = torch.cat([pal * f["e1"], pal * f["e2"]])
+    else:
+        maps, spectra = coef, pal * f["e1"]
+    # mean luminance = sum_j (v . spectra_j) mean_x maps_j (CIE 015:2018 via _luminance_weights), in float64
+    lum = spectra @ _luminance_weights(f["wl"])
+    mean_lum = float((maps.to(torch.float64).sum(dim=1) * lum).sum()) / (h * w)
+    scale = f["target"] / max(mean_lum, torch.finfo(dtype).tiny)
+    return maps.reshape(-1, h, w), spectra * scale, f["e1"] * scale
+
+
+def render_pairs(indices, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype=torch.float32,
+                 cache: _Cache | None = None, timings: dict | None = None) -> dict:
+    """Camera training pairs for ``(seed, i)``, ``i`` in ``indices``, batched (the format of :func:`collate_pairs`).
+
+    The same draws and the same physics as :func:`render_pair` (the reference, which runs the `Scene` ->
+    `DiffractionLimitedOptics` -> `Sensor` modules), computed in a different order, exactly (no approximation):
+
+    * the radiance is never built as an ``[L, H, W]`` cube: it is ``sum_j maps_j(x) spectra_j(l)`` with J = 8
+      (one light) or 16 (two lights) terms (:func:`_factored_radiance`);
+    * optics, by linearity: ``FFT(L_l) = sum_j spectra_j(l) FFT(maps_j)`` (J FFTs instead of L), times the
+      diffraction OTF of each wavelength, then projected on the 6 spectral weightings needed downstream (camera
+      R, G, B electron rates and CIE XYZ) **in the Fourier domain**, so only 6 inverse FFTs are done;
+    * the sensor takes those electron rates directly (:meth:`Sensor.capture`): with one OI sample per pixel,
+      area sampling is the identity, so it is not recomputed.
+
+    Results differ from :func:`render_pair` only by float rounding (tests: noise-free targets within ~1e-5 of
+    the image maximum; the noisy raw's Poisson/ADC draws can differ by one count where a rate moved by a
+    rounding error). Deterministic: an item depends only on ``(seed, index)``, not on the batch it is in, the
+    number of threads or workers (bitwise, tested), as each item's FFTs, matrix products and noise draws are
+    computed on their own (one intra-op thread).
+    """
+    with one_thread():
+        return collate_pairs(_render_pairs([int(i) for i in indices], seed, scene_cfg, camera_cfg, dtype=dtype,
+                                           cache=cache, timings=timings))
+
+
+def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings) -> dict:
+    from ..optics import geometry
+    from ..optics.blur import next_fast_size
+    from ..optics.diffraction import dl_otf
+    from ..sensor import CFA, Sensor, SpectralQE
+    from .scenes import _draw_scene
+
+    if not indices:
+        raise ValueError("indices: expected at least one index")
+    clock = _Clock(timings)
+    cache = cache or _Cache()
+    draws = [_draw_camera(i, seed, scene_cfg, camera_cfg) for i in indices]
+    h, w, m = draws[0]["h"], draws[0]["w"], draws[0]["m"]
+    hs, ws = h + 2 * m, w + 2 * m
+    my, mx = next_fast_size(hs), next_fast_size(ws)
+    clock("setup")
+    scenes = []
+    for i, d in zip(indices, draws):
+        f = _draw_scene(i, seed, scene_cfg, device=None, dtype=dtype, hfov_deg=d["hfov"], size=(hs, ws))
+        scenes.append((f, *_factored_radiance(f, dtype)))
+    wave64 = scenes[0][0]["wl"]
+    wave = wave64.to(dtype)
+    grid = tuple(wave64.tolist())
+    xyz_w, dl = _xyz_weights(grid)
+    clock("scene")
+
+    # Optics: camera equation and cos^4 (spatial, so they multiply the maps), then the OTF per wavelength.
+    spatial, otfs = [], []
+    for d, (f, _, _, _) in zip(draws, scenes):
+        n = torch.tensor([d["f_number"]], dtype=dtype)
+        fl = torch.tensor([d["focal"]], dtype=dtype)
+        dist = torch.tensor([f["distance"]], dtype=dtype)
+        d_i = geometry.image_distance(fl, dist)
+        dx = geometry.image_sample_spacing(torch.tensor([f["hfov"]], dtype=dtype), ws, d_i)
+        mag = -d_i / dist
+        k_cam = geometry.camera_equation_factor(n, mag)  # ISETCam oiCalculateIrradiance
+        ys = (torch.arange(hs, dtype=dtype) - (hs - 1) / 2)[None, :] * dx[:, None]
+        xs = (torch.arange(ws, dtype=dtype) - (ws - 1) / 2)[None, :] * dx[:, None]
+        spatial.append(geometry.cos4th(ys, xs, d_i)[0, 0] * k_cam[0])
+        key = ("otf", d["f_number"], float(dx[0]), grid, my, mx, dtype)
+        otf = cache.optics.get(key)
+        if otf is None and cache.get_optics(d["f_number"], d["focal"], m).blur_negligible(dx, wave, n):
+            otf = torch.ones(len(grid), my * (mx // 2 + 1), 2, dtype=dtype)  # as the optics: blur skipped
+            cache.optics[key] = otf
+        if otf is None:
+            fy = torch.fft.fftfreq(my, dtype=dtype)[None, :] / dx.reshape(-1, 1)
+            fx = torch.fft.rfftfreq(mx, dtype=dtype)[None, :] / dx.reshape(-1, 1)
+            # [L, My*Mx', 2]: the same real OTF for the real and imaginary parts (a contiguous multiply)
+            otf = dl_otf(fy, fx, wave, n)[0].reshape(len(grid), -1, 1).expand(-1, -1, 2).contiguous()
+            cache.optics[key] = otf
+        otfs.append((otf, dx))
+    sizes = [s[1].shape[0] for s in scenes]
+    src = torch.cat([s[1] * q for s, q in zip(scenes, spatial)])  # [sum J, Hs, Ws]
+    if (my, mx) != (hs, ws):
+        src = torch.nn.functional.pad(src, (0, mx - ws, 0, my - hs))
+    spec = torch.view_as_real(torch.fft.rfft2(src)).reshape(src.shape[0], -1)  # [sum J, My*Mx'*2]
+    cfas, qes, proj = [], [], []
+    j0 = 0
+    for d, (_, _, spectra, _), (otf, _), nj in zip(draws, scenes, otfs, sizes):
+        cfa = CFA(d["pattern"])
+        qe_module = SpectralQE(_nikon_unit_on(tuple(_nikon_native()[0].tolist()), tuple(d["shifts"])) * d["peak"],
+                               _nikon_native()[0], cfa.channel_names)
+        qe = qe_module(wave, dtype=dtype)
+        weights = torch.cat([qe.to(dtype) * dl.to(dtype), xyz_w.to(dtype)])  # [6, L]
+        cube = (spectra.T.to(dtype) @ spec[j0:j0 + nj]).reshape(len(grid), -1, 2)  # FFT of the radiance [L, F, 2]
+        cube.mul_(otf)
+        proj.append(weights @ cube.reshape(len(grid), -1))  # [6, F * 2]
+        cfas.append(cfa)
+        qes.append((qe_module, qe))
+        j0 += nj
+    proj = torch.stack(proj).reshape(len(indices), 6, my, mx // 2 + 1, 2)
+    dens6 = torch.fft.irfft2(torch.view_as_complex(proj), s=(my, mx))[..., m:m + h, m:m + w]
+    clock("optics")
+    items = []
+    for b, (i, d) in enumerate(zip(indices, draws)):
+        f, _, _, white_p = scenes[b]
+        items.append(_targets_and_capture(i, d, f, white_p, dens6[b:b + 1], cfas[b], qes[b], wave, xyz_w, dl,
+                                          dtype, clock, Sensor))
+    return items
+
+
+def _targets_and_capture(index, d, f, white_p, dens6, cfa, qe_pair, wave, xyz_w, dl, dtype, clock, sensor_cls):
+    h, w, pitch, fill = d["h"], d["w"], d["pitch"], d["fill"]
+    full_well, gain, bits, black = d["full_well"], d["gain"], d["bits"], d["black"]
+    read_e, dark, dsnu_e, prnu = d["read_e"], d["dark"], d["dsnu_e"], d["prnu"]
+    qe_module, qe = qe_pair
+    rate_rgb = dens6[:, :3] * (fill * pitch * pitch)  # e-/s per pixel and channel
+    xyz_img = dens6[:, 3:]
+    # Auto-exposure: the 98th percentile of the brightest channel at 80 % of full scale (after gain), x 2^EV.
+    peak = rate_rgb.amax(dim=1).flatten()
+    p98 = peak.kthvalue(max(1, math.ceil(0.98 * peak.numel()))).values.double().clamp_min(1e-30)
+    exposure = float(0.8 * full_well / gain / p98) * 2.0 ** d["ev"]
+    lsb = 1.0 / 2**bits
+    white = float(2**bits - 1)
+    span = white - black
+    cg = 1.0 / full_well  # volts per electron with a 1 V swing: well capacity = full_well
+    clock("targets")
+    sensor = sensor_cls(rows=h, cols=w, pixel_size_m=pitch, fill_factor=fill, cfa=cfa, spectral_qe=qe_module,
+                        conversion_gain_v_per_e=cg, voltage_swing_v=1.0, analog_gain=gain, adc_bits=bits,
+                        black_level_dn=black, shot_noise="poisson", read_noise_v=read_e * cg,
+                        dark_current_e_per_s=dark, dsnu_sigma_v=dsnu_e * cg, prnu_sigma_percent=prnu,
+                        fpn_mode="per_frame", seed=d["noise_seed"])
+    ng = torch.Generator().manual_seed(d["noise_seed"])
+    with torch.no_grad():
+        raw = sensor.capture(cfa.mosaic(rate_rgb), exposure_s=exposure, analog_gain=gain, noise=True, generator=ng)
+    clock("sensor")
+    to_norm = cg * gain / lsb / span
+    cam_rgb = (rate_rgb * exposure * cg * gain).clamp(max=1.0) / lsb
+    cam_rgb = cam_rgb.clamp(max=span) / span
+    white_p = white_p.to(torch.float64)
+    white_xyz = (xyz_w * white_p).sum(dim=1)
+    white_cam = (qe.to(torch.float64) * dl * white_p).sum(dim=1)
+    k_white = white_cam[1] / white_xyz[1]
+    scale = float(k_white) * fill * pitch * pitch * exposure * to_norm
+    xyz = xyz_img * scale
+    cat = _bradford(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
+    m_srgb = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat
+    lin = _matmul_fixed_order(m_srgb.to(dtype), xyz.reshape(3, -1)).reshape(1, 3, h, w)
+    srgb = srgb_encode(lin.clamp(0, 1))
+    meta = _meta(index, d, f["meta"], exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave, dtype)
+    clock("targets")
+    return {"raw": ((raw.data[0] - black) / span).to(dtype),
+            "noise_free_raw": ((raw.noise_free[0] - black) / span).to(dtype),
+            "camera_rgb": cam_rgb[0].to(dtype), "xyz": xyz[0].to(dtype), "linear_srgb": lin[0].to(dtype),
+            "srgb": srgb[0].to(dtype), "meta": meta}
+
+
+def _meta(index, d, meta_s, exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave, dtype) -> dict:
+    name = meta_s["illuminant"]
+    code = ILLUMINANT_CODES.get(name, 10 + int(name[1:]) if name.startswith("F") else -1)
+    quant_var = 1.0 / 12.0 / span**2
+    gain, read_e, dsnu_e, dark = d["gain"], d["read_e"], d["dsnu_e"], d["dark"]
+    meta = {
+        "index": torch.tensor(index, dtype=torch.long),
+        "exposure_s": exposure, "analog_gain": gain, "iso": 100.0 * gain, "f_number": d["f_number"],
+        "focal_length_m": d["focal"], "pixel_size_m": d["pitch"], "full_well_e": d["full_well"],
+        "read_noise_e": read_e, "dark_current_e_per_s": dark, "dsnu_sigma_e": dsnu_e,
+        "prnu_sigma_percent": d["prnu"], "black_level_dn": d["black"], "white_level_dn": white,
+        # Poisson-Gaussian noise model in normalised units: var(x) = noise_gain * x + noise_floor_var
+        # (Foi et al., "Practical Poissonian-Gaussian noise modeling", IEEE TIP 17(10), 2008).
+        "noise_gain": to_norm,
+        "noise_floor_var": (read_e**2 + dsnu_e**2 + dark * exposure) * to_norm**2 + quant_var,
+        "cfa": cfa.index_map.clone(),
+        "cct_k": meta_s["cct_k"], "illuminant_code": torch.tensor(code, dtype=torch.long),
+        "white_camera_rgb": (white_cam / white_cam[1]).to(dtype),
+        "white_xyz": (white_xyz / white_xyz[1]).to(dtype),
+        "qe": qe.to(dtype), "wavelengths_nm": wave.to(dtype),
+        "hdr_decades": meta_s["hdr_decades"], "mean_luminance_cd_m2": meta_s["mean_luminance_cd_m2"],
+    }
+    return {k: (v if isinstance(v, torch.Tensor) else torch.tensor(v, dtype=dtype)) for k, v in meta.items()}
+
+
 class CameraPairDataset(torch.utils.data.Dataset):
     """Map-style dataset of camera training pairs; item ``i`` depends only on ``(seed, i)``.
 
@@ -288,19 +517,32 @@ class CameraPairDataset(torch.utils.data.Dataset):
         seed: dataset seed.
         scene: scene config (keys of ``SCENE_DEFAULTS``), camera: camera config (keys of ``CAMERA_DEFAULTS``).
         dtype: float32 (default) or float64.
+        method: ``'factored'`` (default, :func:`render_pairs`: the same physics computed in a faster, exact order)
+            or ``'reference'`` (:func:`render_pair`: the `Scene` -> optics -> `Sensor` modules, one item at a
+            time). They agree to float rounding (see :func:`render_pairs`).
+
+    ``ds[i]`` is one item; ``ds[[i, j, ...]]`` (or :meth:`get_batch`) a whole batch in the format of
+    :func:`collate_pairs`, computed batched (the same values as collating ``ds[i]``, bitwise), which is how
+    :func:`batch_loader` feeds a ``DataLoader``.
 
     Example:
         >>> ds = CameraPairDataset(8, seed=0, scene={"height": 32, "width": 32})
         >>> batch = collate_pairs([ds[0], ds[1]])
         >>> batch["raw"].shape, batch["meta"]["exposure_s"].shape
         (torch.Size([2, 1, 32, 32]), torch.Size([2]))
+        >>> ds.get_batch([0, 1])["raw"].shape
+        torch.Size([2, 1, 32, 32])
     """
 
+    METHODS = ("factored", "reference")
+
     def __init__(self, length: int, seed: int = 0, scene: dict | None = None, camera: dict | None = None, *,
-                 dtype=torch.float32):
+                 dtype=torch.float32, method: str = "factored"):
         if int(length) < 0:
             raise ValueError(f"length: expected a non-negative number of items, got {length}")
-        self.length, self.seed, self.dtype = int(length), int(seed), dtype
+        if method not in self.METHODS:
+            raise ValueError(f"method: expected one of {self.METHODS}, got {method!r}")
+        self.length, self.seed, self.dtype, self.method = int(length), int(seed), dtype, method
         self.scene_config = merge_config(scene, SCENE_DEFAULTS, "scene")
         self.camera_config = merge_config(camera, CAMERA_DEFAULTS, "camera")
         if self.scene_config["height"] % 2 or self.scene_config["width"] % 2:
@@ -311,11 +553,67 @@ class CameraPairDataset(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return self.length
 
-    def __getitem__(self, index: int) -> dict:
+    def _check_index(self, index) -> int:
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) and not (
+                isinstance(index, torch.Tensor) and index.dim() == 0 and not index.is_floating_point()):
+            raise TypeError(f"index: expected an integer, got {index!r}")
+        index = int(index)
         if not -self.length <= index < self.length:
             raise IndexError(f"index: expected 0 <= index < {self.length}, got {index}")
-        return render_pair(index % self.length, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
-                           cache=self._cache)
+        return index % self.length
+
+    def __getitem__(self, index):
+        if isinstance(index, (list, tuple, range)) or (isinstance(index, torch.Tensor) and index.dim() == 1):
+            return self.get_batch(index)
+        index = self._check_index(index)
+        if self.method == "reference":
+            return render_pair(index, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
+                               cache=self._cache)
+        with one_thread():
+            return _render_pairs([index], self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
+                                 cache=self._cache, timings=None)[0]
+
+    def get_batch(self, indices) -> dict:
+        """Items ``indices`` as one batch (``collate_pairs`` format), generated together (one FFT call per batch,
+        shared caches); bitwise equal to ``collate_pairs([self[i] for i in indices])``."""
+        idx = [self._check_index(i) for i in (indices.tolist() if isinstance(indices, torch.Tensor) else indices)]
+        if not idx:
+            raise ValueError("indices: expected at least one index")
+        if self.method == "reference":
+            return collate_pairs([self[i] for i in idx])
+        return render_pairs(idx, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
+                            cache=self._cache)
+
+
+def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool = False, sampler=None,
+                 generator: torch.Generator | None = None, drop_last: bool = False, num_workers: int = 0,
+                 **loader_kwargs) -> torch.utils.data.DataLoader:
+    """A ``DataLoader`` whose workers generate whole batches (:meth:`CameraPairDataset.get_batch`).
+
+    Yields the same batches, bitwise, as ``DataLoader(dataset, batch_size, sampler=..., collate_fn=collate_pairs)``
+    with the same sampler (items depend only on ``(seed, index)``), for any ``num_workers``.
+
+    Args:
+        batch_size: items per batch. shuffle / generator: a ``RandomSampler`` (seeded by ``generator``) instead
+            of the sequential order; ``sampler``: any index sampler (e.g. ``DistributedSampler``) instead.
+        drop_last, num_workers, loader_kwargs: passed on (``BatchSampler`` / ``DataLoader``).
+
+    Example:
+        >>> ds = CameraPairDataset(8, seed=0, scene={"height": 16, "width": 16})
+        >>> [b["raw"].shape[0] for b in batch_loader(ds, 3)]
+        [3, 3, 2]
+    """
+    if not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size: expected a positive integer, got {batch_size!r}")
+    if sampler is None:
+        sampler = (torch.utils.data.RandomSampler(dataset, generator=generator) if shuffle
+                   else torch.utils.data.SequentialSampler(dataset))
+    elif shuffle:
+        raise ValueError("shuffle: expected False when a sampler is given (the sampler sets the order)")
+    batches = torch.utils.data.BatchSampler(sampler, batch_size, drop_last)
+    # the loader draws its workers' base seed from the same generator first, exactly as DataLoader(shuffle=True)
+    return torch.utils.data.DataLoader(dataset, sampler=batches, batch_size=None, num_workers=num_workers,
+                                       generator=generator, **loader_kwargs)
 
 
 def collate_pairs(items: list[dict]) -> dict:

@@ -128,7 +128,15 @@ def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, dev
         return _generate_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size)
 
 
-def _generate_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> Scene:
+def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> dict:
+    """Every random draw of scene ``(seed, index)`` (in a fixed order), before the radiance cube is assembled.
+
+    Returns the factors of ``L(x, l) = k gain(x) R(x, l) (a(x) E1(l) + b(x) E2(l))`` (module notes):
+    ``palette [K, L]`` (float64), ``ia, ib [H, W]`` (long), ``t [H, W]``, ``e1, e2 [L]`` (float64, white = 1
+    cd/m^2), ``a, b [H, W]`` (None for one light), ``gain [H, W]``, ``target`` (mean luminance), ``hfov``,
+    ``distance``, ``wl`` (float64), ``meta``. :func:`generate_scene` and the factored camera-pair path
+    (``camera_pairs.render_pairs``) both build on it, so they draw exactly the same scene.
+    """
     full = config is not None and set(config) == set(SCENE_DEFAULTS)
     cfg = config if full else merge_config(config, SCENE_DEFAULTS, "scene")
     g = torch.Generator().manual_seed(seed_for(seed, index))
@@ -139,9 +147,6 @@ def _generate_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> Sc
     layout = _choice(cfg["layouts"], g)
     palette = _spectra.random_reflectances(k, wl, g, model=cfg["reflectance_model"], pca_fraction=cfg["pca_fraction"])
     ia, ib, t = _layouts.render_layout(layout, h, wd, k, g, device=device, dtype=dtype)
-    pal = palette.to(device=device, dtype=dtype).T.contiguous()  # [L, K]
-    ta = t.reshape(-1)
-    refl = pal.index_select(1, ia.reshape(-1)).mul_(1 - ta).add_(pal.index_select(1, ib.reshape(-1)).mul_(ta))
     kind1 = _choice(cfg["illuminants"], g)
     spd1, cct1, name1 = _spectra.random_illuminant(kind1, wl, g, cfg["cct_range_k"].get(kind1))
     e1 = _white_photons(spd1, wl)
@@ -150,11 +155,10 @@ def _generate_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> Sc
     shadow = (not two) and u_shadow < cfg["shadow_probability"]
     e2 = torch.zeros_like(e1)
     cct2, name2, ratio = 0.0, "", 0.0
-    a = torch.ones(h, wd, device=device, dtype=dtype)
-    b = torch.zeros(h, wd, device=device, dtype=dtype)
-    y, x = torch.meshgrid(torch.arange(h, device=device, dtype=dtype), torch.arange(wd, device=device, dtype=dtype),
-                          indexing="ij")
+    a = b = None
     if two or shadow:
+        y, x = torch.meshgrid(torch.arange(h, device=device, dtype=dtype),
+                              torch.arange(wd, device=device, dtype=dtype), indexing="ij")
         if two:
             kind2 = _choice(cfg["illuminants"], g)
             spd2, cct2, name2 = _spectra.random_illuminant(kind2, wl, g, cfg["cct_range_k"].get(kind2))
@@ -180,27 +184,38 @@ def _generate_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> Sc
     decades = _uniform(cfg["hdr_decades"], g)
     gain = 10 ** (decades * (_smooth_field(h, wd, g, device, dtype) - 0.5)) if decades > 0 else \
         torch.ones(h, wd, device=device, dtype=dtype)
-    e1d, e2d = e1.to(device=device, dtype=dtype), e2.to(device=device, dtype=dtype)
-    # refl becomes the unscaled radiance [L, H*W], in place
-    if two or shadow:
-        refl.mul_(e1d[:, None] * a.reshape(1, -1) + e2d[:, None] * b.reshape(1, -1))
-    else:
-        refl.mul_(e1d[:, None])
-    refl.mul_(gain.reshape(1, -1))
-
     target = _uniform(cfg["mean_luminance_cd_m2"], g, log=True)
     hfov = hfov_deg if hfov_deg is not None else _uniform(cfg["hfov_deg"], g)
     distance = _uniform(cfg["distance_m"], g)
-    wl_t = wl.to(device=device, dtype=dtype)
-    mean_lum = fixed_order_mean(_matvec_fixed_order(_luminance_weights(wl_t), refl))
-    scale = target / mean_lum.clamp_min(torch.finfo(dtype).tiny)
-    photons = refl.mul_(scale).reshape(1, -1, h, wd)
     meta = {"index": int(index), "seed": int(seed), "layout": layout, "illuminant": name1, "cct_k": cct1,
             "illuminant2": name2, "cct2_k": cct2, "light2_ratio": ratio, "two_lights": two, "shadow": shadow,
             "hdr_decades": decades, "mean_luminance_cd_m2": target}
+    return {"palette": palette, "ia": ia, "ib": ib, "t": t, "e1": e1, "e2": e2, "a": a, "b": b, "gain": gain,
+            "target": target, "hfov": hfov, "distance": distance, "wl": wl, "meta": meta}
+
+
+def _generate_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> Scene:
+    f = _draw_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size)
+    h, wd = f["t"].shape
+    pal = f["palette"].to(device=device, dtype=dtype).T.contiguous()  # [L, K]
+    ta = f["t"].reshape(-1)
+    ia, ib, a, b = f["ia"], f["ib"], f["a"], f["b"]
+    refl = pal.index_select(1, ia.reshape(-1)).mul_(1 - ta).add_(pal.index_select(1, ib.reshape(-1)).mul_(ta))
+    e1d, e2d = f["e1"].to(device=device, dtype=dtype), f["e2"].to(device=device, dtype=dtype)
+    # refl becomes the unscaled radiance [L, H*W], in place
+    if a is not None:
+        refl.mul_(e1d[:, None] * a.reshape(1, -1) + e2d[:, None] * b.reshape(1, -1))
+    else:
+        refl.mul_(e1d[:, None])
+    refl.mul_(f["gain"].reshape(1, -1))
+
+    wl_t = f["wl"].to(device=device, dtype=dtype)
+    mean_lum = fixed_order_mean(_matvec_fixed_order(_luminance_weights(wl_t), refl))
+    scale = f["target"] / mean_lum.clamp_min(torch.finfo(dtype).tiny)
+    photons = refl.mul_(scale).reshape(1, -1, h, wd)
     # validate=False: non-negative and finite by construction (reflectance in [0, 1] x positive lights)
-    return Scene(photons, wl_t, name=f"synthetic-{seed}-{index}", metadata=meta, hfov_deg=hfov,
-                 distance_m=distance, illuminant_photons=(e1d * scale)[None], validate=False)
+    return Scene(photons, wl_t, name=f"synthetic-{seed}-{index}", metadata=f["meta"], hfov_deg=f["hfov"],
+                 distance_m=f["distance"], illuminant_photons=(e1d * scale)[None], validate=False)
 
 
 class SyntheticSceneDataset(torch.utils.data.Dataset):

@@ -387,13 +387,42 @@ class Sensor(nn.Module):
         """
         if not isinstance(oi, OpticalImage):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
-        b = oi.batch_size
-        dtype, device = oi.dtype, oi.device
         rate = self.electron_rate(oi)
-        if exposure_s is not None:
-            t = batch_param(exposure_s, "exposure_s", b, dtype=dtype, device=device, positive=True)
-        else:
-            t = self.exposure_for(oi, rate, analog_gain)
+        if exposure_s is None:
+            exposure_s = self.exposure_for(oi, rate, analog_gain)
+        return self.capture(rate, exposure_s=exposure_s, analog_gain=analog_gain, noise=noise, generator=generator)
+
+    def capture(self, electron_rate: torch.Tensor, *, exposure_s=None, analog_gain=None, noise: bool = True,
+                generator: torch.Generator | None = None) -> RawImage:
+        """The capture from a precomputed mean electron rate (what :meth:`forward` does after
+        :meth:`electron_rate`): exposure, noise, analog gain, ADC.
+
+        Args:
+            electron_rate: mean photo-electrons/s per pixel ``(B, 1, rows, cols)``, e.g. from :meth:`electron_rate`
+                (callers that already hold the per-channel irradiance integrals avoid recomputing them).
+            exposure_s: scalar or ``[B]``; None uses the sensor's fixed ``exposure_s`` (auto-exposure needs
+                :meth:`forward` or :meth:`exposure_for`).
+            analog_gain, noise, generator: as in :meth:`forward`.
+
+        Example:
+            >>> s = Sensor(rows=2, cols=2, cfa="RGGB", adc_bits=10)
+            >>> s.capture(torch.full((1, 1, 2, 2), 1e4), exposure_s=0.01, noise=False).data.shape
+            torch.Size([1, 1, 2, 2])
+        """
+        rate = electron_rate
+        if not isinstance(rate, torch.Tensor) or rate.dim() != 4 or rate.shape[1] != 1:
+            raise ValueError(f"electron_rate: expected a (B, 1, rows, cols) tensor, got "
+                             f"{tuple(rate.shape) if isinstance(rate, torch.Tensor) else type(rate).__name__}")
+        if not bool(torch.isfinite(rate).all()) or bool((rate < 0).any()):
+            raise ValueError("electron_rate: expected finite, non-negative electrons/s")
+        b = rate.shape[0]
+        dtype, device = rate.dtype, rate.device
+        if exposure_s is None:
+            if self.auto_exposure is not None:
+                raise ValueError(f"exposure_s: auto_exposure={self.auto_exposure!r} needs the optical image; "
+                                 f"call forward(oi) or pass exposure_s (e.g. from exposure_for)")
+            exposure_s = self.exposure_s
+        t = batch_param(exposure_s, "exposure_s", b, dtype=dtype, device=device, positive=True)
         gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
                            dtype=dtype, device=device, positive=True)
         cg = self.conversion_gain_v_per_e
