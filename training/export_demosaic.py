@@ -40,6 +40,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(learned.ASSETS))
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--data", default="", help="text describing the training data for the record")
+    ap.add_argument("--name", default="demosaic_learned", help="file stem in the assets folder")
+    ap.add_argument("--half", action="store_true", help="store the weights as float16 (half the size)")
+    ap.add_argument("--no-bench", action="store_true", help="skip the Kodak/McMaster scores (noisy variants)")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     run = Path(args.run)
@@ -49,8 +52,9 @@ def main(argv: list[str] | None = None) -> int:
     net.eval().requires_grad_(False)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    pt = out / "demosaic_learned.pt"
-    torch.save({"model": {k: v.float().contiguous() for k, v in net.state_dict().items()},
+    pt = out / f"{args.name}.pt"
+    store = torch.float16 if args.half else torch.float32
+    torch.save({"model": {k: v.to(store).contiguous() for k, v in net.state_dict().items()},
                 "net_config": ck["net_config"], "step": int(ck["step"]),
                 "best_val_cpsnr": float(ck["best_val_cpsnr"])}, pt)
 
@@ -61,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
 
     scores: dict = {}
     for name, folder in BENCHMARKS.items():
-        if not Path(folder).is_dir():
+        if args.no_bench or not Path(folder).is_dir():
             continue
         for crop in args.crops:
             res = evaluate_demosaic(folder, method, "RGGB", crop, dtype=torch.float32)
@@ -74,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = json.loads(ck["train_config"])
     info = {
         "file": pt.name,
+        "stored_dtype": str(store),
         "command": rec.get("command", "python training/train_demosaic.py --config configs/train/"
                                       "demosaic_noise_free.yaml"),
         "config": cfg,
@@ -92,20 +97,23 @@ def main(argv: list[str] | None = None) -> int:
                                 "image averaged; Kodak/McMaster were never used for training or selection",
         "anchors_cpsnr_db_crop0_crop10": ANCHORS,
     }
-    (out / "demosaic_learned.json").write_text(json.dumps(info, indent=2, default=str))
+    (out / f"{args.name}.json").write_text(json.dumps(info, indent=2, default=str))
     lines = ["# Shipped learned demosaic (`isettorch.isp.learned.load_pretrained()`)", "",
              f"- command: `{info['command']}`", f"- network: DemosaicNet {ck['net_config']}, "
              f"{info['parameters']} parameters", f"- data: {json.dumps(info['data'], default=str)}",
              f"- checkpoint: {args.which} by synthetic validation CPSNR, step {ck['step']}, "
              f"training wall time {info['wall_s']} s", f"- hardware: {json.dumps(info['hardware'], default=str)}",
-             "", "| method | Kodak crop0 | Kodak crop10 | McM crop0 | McM crop10 |", "|---|---|---|---|---|"]
-    for m, a in ANCHORS.items():
+             f"- synthetic validation (held out): {json.dumps(info['validation_synthetic'])}"]
+    if scores:
+        lines += ["", "| method | Kodak crop0 | Kodak crop10 | McM crop0 | McM crop10 |", "|---|---|---|---|---|"]
+    for m, a in (ANCHORS.items() if scores else ()):
         lines.append(f"| {m} (README anchor) | {a['kodak24'][0]} | {a['kodak24'][1]} | {a['mcmaster18'][0]} | "
                      f"{a['mcmaster18'][1]} |")
     k, mc = scores.get("kodak24", {}), scores.get("mcmaster18", {})
-    lines.append(f"| **learned (this file)** | {k.get('crop0')} | {k.get('crop10')} | {mc.get('crop0')} | "
-                 f"{mc.get('crop10')} |")
-    (out / "demosaic_learned.md").write_text("\n".join(lines) + "\n")
+    if scores:
+            lines.append(f"| **learned (this file)** | {k.get('crop0')} | {k.get('crop10')} | {mc.get('crop0')} | "
+                     f"{mc.get('crop10')} |")
+    (out / f"{args.name}.md").write_text("\n".join(lines) + "\n")
     print(json.dumps(scores))
     return 0
 

@@ -6,8 +6,11 @@ two planes with the noise model's parameters; it predicts a correction of the MH
 depth-to-space back to full resolution). The last layer is zero-initialised, so an untrained network *is* MHC.
 
 ``load_pretrained()`` returns the checkpoint shipped in ``isettorch/assets`` (trained by
-``training/train_demosaic.py`` on synthetic scenes only; the JSON beside it records how). Importing this module
-registers the demosaic method ``"learned"`` with :mod:`isettorch.isp.demosaic` when that module is available.
+``training/train_demosaic.py`` on synthetic spectral scenes only, never on Kodak/McMaster; the JSON beside it
+records the command, config, data, wall time, hardware and benchmark scores). Inputs are values relative to white
+= 1 (white-balanced, linear or display-encoded: both were in the training data). Importing this module registers
+the demosaic method ``"learned"`` with :mod:`isettorch.isp.demosaic` (``demosaic(raw, "RGGB", method="learned")``,
+``isettorch demosaic-eval DIR --method learned``, camera configs with ``isp.demosaic: learned``).
 
 References:
     H. S. Malvar, L. He, R. Cutler, "High-quality linear interpolation for demosaicing of Bayer-patterned color
@@ -38,6 +41,8 @@ __all__ = [
 BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 PRETRAINED_PATH = ASSETS / "demosaic_learned.pt"
+#: shipped variants: the noise-free network and the joint denoise+demosaic network (noise inputs (a, b))
+PRETRAINED = {"noise_free": PRETRAINED_PATH, "joint_denoise": ASSETS / "demosaic_learned_denoise.pt"}
 
 # Malvar, He, Cutler (ICASSP 2004), Fig. 2 filters (x 1/8): G at R/B; R(B) at G in an R(B) row; R(B) at G in an
 # R(B) column; R at B (and B at R).
@@ -220,24 +225,34 @@ def load_checkpoint(path: str | Path, *, device=None, dtype=None) -> tuple[Demos
 
 
 @functools.lru_cache(maxsize=8)
-def _pretrained(device: str, dtype: torch.dtype) -> DemosaicNet:
-    return load_checkpoint(PRETRAINED_PATH, device=device, dtype=dtype)[0]
+def _pretrained(variant: str, device: str, dtype: torch.dtype) -> DemosaicNet:
+    return load_checkpoint(PRETRAINED[variant], device=device, dtype=dtype)[0]
 
 
-def load_pretrained(*, device=None, dtype=torch.float32) -> DemosaicNet:
-    """The shipped noise-free :class:`DemosaicNet` (``isettorch/assets/demosaic_learned.pt``), eval mode, frozen.
+def _check_variant(variant: str) -> str:
+    if variant not in PRETRAINED:
+        raise ValueError(f"variant: expected one of {sorted(PRETRAINED)}, got {variant!r}")
+    return variant
+
+
+def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.float32) -> DemosaicNet:
+    """A shipped :class:`DemosaicNet` (``isettorch/assets``), eval mode, frozen.
+
+    ``variant="noise_free"`` (``demosaic_learned.pt``) or ``"joint_denoise"`` (``demosaic_learned_denoise.pt``,
+    which takes ``noise = [sqrt(a) * 10, sqrt(b) * 100]`` for a mosaic with variance ``a x + b``; see
+    ``training/train_demosaic.py``).
 
     Example:
         >>> net = load_pretrained()
         >>> net(torch.rand(1, 1, 32, 32)).shape
         torch.Size([1, 3, 32, 32])
     """
-    return _pretrained(str(torch.device(device or "cpu")), dtype)
+    return _pretrained(_check_variant(variant), str(torch.device(device or "cpu")), dtype)
 
 
-def pretrained_info() -> dict:
-    """The training record shipped beside the checkpoint (command, config, data, wall time, hardware, scores)."""
-    p = PRETRAINED_PATH.with_suffix(".json")
+def pretrained_info(variant: str = "noise_free") -> dict:
+    """The training record shipped beside a checkpoint (command, config, data, wall time, hardware, scores)."""
+    p = PRETRAINED[_check_variant(variant)].with_suffix(".json")
     return json.loads(p.read_text()) if p.is_file() else {}
 
 

@@ -131,3 +131,24 @@ def test_usable_as_the_camera_demosaic():
     assert torch.isfinite(a).all() and a.shape == b.shape
     c = 6
     assert (a - b)[..., c:-c, c:-c].abs().mean() < 0.02
+
+
+@pytest.mark.skipif(not learned.PRETRAINED["joint_denoise"].is_file(), reason="no shipped denoise checkpoint")
+def test_joint_denoise_checkpoint_beats_malvar_on_noisy_crops():
+    # Kodak crops with Poisson-Gaussian noise var = a x + b (gain 16 on a 10000 e- full well, 3 e- read noise):
+    # the joint network, told (a, b), must beat MHC on the noisy mosaic against the clean image.
+    if not KODAK.is_dir():
+        pytest.skip("Kodak not available")
+    img = _crops(KODAK, 3)
+    raw = torch.from_numpy(np.stack([cd.mosaicing_CFA_Bayer(i.permute(1, 2, 0).numpy(), "RGGB") for i in img]))
+    raw = raw[:, None].float()
+    a, b = 16 / 10000, (3 * 16 / 10000) ** 2
+    g = torch.Generator().manual_seed(0)
+    noisy = raw + torch.sqrt(a * raw + b) * torch.randn(raw.shape, generator=g)
+    net = learned.load_pretrained("joint_denoise")
+    feats = torch.tensor([[a ** 0.5 * 10, b ** 0.5 * 100]]).expand(len(img), 2)
+    ours = _cpsnr(demosaic_learned(noisy, "RGGB", model=net, noise=feats), img)
+    mhc = _cpsnr(demosaic_malvar_torch(noisy), img)
+    assert ours > mhc + 1.0, (ours, mhc)
+    with pytest.raises(ValueError, match="variant"):
+        learned.load_pretrained("nope")
