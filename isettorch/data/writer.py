@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-from .camera_pairs import CameraPairDataset, collate_pairs
+from .camera_pairs import CameraPairDataset
 from .config import merge_config
 
 __all__ = ["write_dataset", "config_hash", "sha256_file", "verify_dataset", "FORMAT_VERSION"]
@@ -147,8 +147,8 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
     ds = CameraPairDataset(count, seed=int(cfg["seed"]), scene=cfg["scene"], camera=cfg["camera"], dtype=dtype)
     batches = [list(range(f * size, min((f + 1) * size, count))) for f in todo]
     if batches:
-        loader = torch.utils.data.DataLoader(ds, batch_sampler=batches, num_workers=workers,
-                                             collate_fn=collate_pairs)
+        # each shard is generated as one batch (CameraPairDataset.get_batch; bitwise the collated items)
+        loader = torch.utils.data.DataLoader(ds, sampler=batches, batch_size=None, num_workers=workers)
         bar = None
         if progress:
             from tqdm import tqdm
