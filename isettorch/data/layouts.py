@@ -211,6 +211,34 @@ def _segment_distance(y, x, y0, x0, y1, x1):
     return torch.sqrt((wy - tt * vy) ** 2 + (wx - tt * vx) ** 2 + 1e-12)
 
 
+def _stroke_cover(h: int, w: int, seg: torch.Tensor, wid: torch.Tensor) -> torch.Tensor:
+    """Max coverage ``clamp(wid / 2 + 0.5 - distance, 0, 1)`` of short strokes ``seg [N, 4]`` (y0, x0, y1, x1) at
+    each pixel ``[H, W]``, evaluated only on each stroke's bounding box (widened by its reach ``wid / 2 + 0.5``,
+    beyond which the coverage is 0), with the same expressions as :func:`_segment_distance` per (pixel, stroke)."""
+    top = torch.zeros(h * w, dtype=seg.dtype)
+    if seg.shape[0] == 0:
+        return top.reshape(h, w)
+    s64, reach = seg.detach().cpu().double(), wid.detach().cpu().double() / 2 + 0.5 + 1e-3
+    y0 = torch.ceil(torch.minimum(s64[:, 0], s64[:, 2]) - reach).long().clamp(0, h)
+    y1 = (torch.floor(torch.maximum(s64[:, 0], s64[:, 2]) + reach).long() + 1).clamp(0, h)
+    x0 = torch.ceil(torch.minimum(s64[:, 1], s64[:, 3]) - reach).long().clamp(0, w)
+    x1 = (torch.floor(torch.maximum(s64[:, 1], s64[:, 3]) + reach).long() + 1).clamp(0, w)
+    y1, x1 = torch.maximum(y0, y1), torch.maximum(x0, x1)
+    sx = x1 - x0
+    cnt = (y1 - y0) * sx
+    k = torch.repeat_interleave(torch.arange(seg.shape[0]), cnt)
+    local = torch.arange(k.numel()) - torch.repeat_interleave(cnt.cumsum(0) - cnt, cnt)
+    py, px = y0[k] + torch.div(local, sx[k], rounding_mode="floor"), x0[k] + local % sx[k]
+    sc, wc = seg.cpu(), wid.cpu()
+    a_y, a_x = sc[k, 0], sc[k, 1]
+    vy, vx = sc[k, 2] - a_y, sc[k, 3] - a_x
+    wy, wx = py.to(seg.dtype) - a_y, px.to(seg.dtype) - a_x
+    tt = ((wy * vy + wx * vx) / (vy * vy + vx * vx).clamp_min(1e-9)).clamp(0, 1)
+    dist = torch.sqrt((wy - tt * vy) ** 2 + (wx - tt * vx) ** 2 + 1e-12)
+    cover = (wc[k] / 2 + 0.5 - dist).clamp(0, 1)
+    return top.scatter_reduce_(0, py * w + px, cover, reduce="amax").reshape(h, w)
+
+
 def lines(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.float32):
     """Thin lines across the image and text-like glyphs made of short strokes, anti-aliased."""
     n_lines = int(_ri(g, 3, 12))
@@ -231,9 +259,11 @@ def lines(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.f
     seg = torch.cat(segs).to(device=device, dtype=dtype)
     wid = torch.cat(widths).to(device=device, dtype=dtype)
     y, x = _grid(h, w, device, dtype)
-    dist = _segment_distance(y, x, seg[:, 0], seg[:, 1], seg[:, 2], seg[:, 3])
+    s_l, w_l = seg[:n_lines], wid[:n_lines]
+    dist = _segment_distance(y, x, s_l[:, 0], s_l[:, 1], s_l[:, 2], s_l[:, 3])
     # Coverage of a pixel by a stroke of width wid: linear ramp over one pixel (box-filtered edge).
-    cover = (wid[:, None, None] / 2 + 0.5 - dist).clamp(0, 1).amax(dim=0)
+    cover = (w_l[:, None, None] / 2 + 0.5 - dist).clamp(0, 1).amax(dim=0)
+    cover = torch.maximum(cover, _stroke_cover(h, w, seg[n_lines:], wid[n_lines:]).to(cover.device))
     ia = torch.full((h, w), int(_ri(g, 0, k - 1)), device=device)
     ib = torch.full((h, w), int(_ri(g, 0, k - 1)), device=device)
     return ia, ib, cover

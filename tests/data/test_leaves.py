@@ -30,3 +30,17 @@ def test_painter_equals_brute_force_for_all_shapes():
         brute = (inside * torch.arange(1, n + 1)[:, None, None]).amax(dim=0)
         assert torch.equal(top, brute.clamp_min(1) - 1)
         assert len(set(shape[brute[brute > 0] - 1].tolist())) == 3  # every shape is on top somewhere
+
+
+def test_stroke_cover_equals_full_image_evaluation():
+    """Strokes evaluated on their bounding boxes give the same coverage as every stroke on every pixel."""
+    g = torch.Generator().manual_seed(3)
+    h, w, n = 40, 52, 30
+    p0 = torch.rand(n, 2, generator=g) * torch.tensor([h * 1.2, w * 1.2]) - 4
+    seg = torch.cat([p0, p0 + (torch.rand(n, 2, generator=g) - 0.5) * 30], dim=1)  # some leave the image
+    wid = 0.5 + 2.5 * torch.rand(n, generator=g)
+    yy, xx = layouts._grid(h, w, None, torch.float32)
+    dist = layouts._segment_distance(yy, xx, seg[:, 0], seg[:, 1], seg[:, 2], seg[:, 3])
+    brute = (wid[:, None, None] / 2 + 0.5 - dist).clamp(0, 1).amax(dim=0)
+    got = layouts._stroke_cover(h, w, seg, wid)
+    assert torch.equal(got, brute) and float(brute.max()) == 1.0 and float((brute > 0).float().mean()) > 0.1
