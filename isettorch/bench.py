@@ -445,7 +445,7 @@ def knob_rows(patch: int, repeats: int, device, log=print) -> tuple[list[dict], 
     def measure(name, group, fn, ref, ref_flag=False, note=""):
         try:
             t, (volts, img), _ = time_call(fn, repeats, 1, device)
-        except (RuntimeError, NotImplementedError, TypeError) as exc:
+        except (RuntimeError, NotImplementedError, TypeError, ValueError) as exc:
             msg = str(exc).splitlines()[0][:160]
             skipped.append({"name": name, "group": group, "reason": msg})
             log(f"    {name}: skipped ({msg})")
