@@ -301,6 +301,16 @@ def _nikon_unit_on(grid: tuple, shifts: tuple) -> torch.Tensor:
                         for c in range(3)])
 
 
+@functools.lru_cache(maxsize=64)
+def _unit_qe(pattern: str, shifts: tuple):
+    """The D5100 `SpectralQE` with peak QE 1 for a CFA pattern and channel shifts (cached: it resamples once per
+    grid); an item's QE is this times its peak QE."""
+    from ..sensor import CFA, SpectralQE
+
+    native = _nikon_native()[0]
+    return SpectralQE(_nikon_unit_on(tuple(native.tolist()), shifts), native, CFA(pattern).channel_names)
+
+
 def _factored_radiance(f: dict, dtype) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The scene of :func:`scenes._draw_scene` factors as ``L(x, l) = sum_j maps_j(x) spectra_j(l)``:
 
@@ -361,7 +371,7 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     from ..optics import geometry
     from ..optics.blur import next_fast_size
     from ..optics.diffraction import dl_otf
-    from ..sensor import CFA, Sensor, SpectralQE
+    from ..sensor import CFA, Sensor
     from .scenes import _draw_scene
 
     if not indices:
@@ -417,9 +427,8 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     j0 = 0
     for d, (_, _, spectra, _), (otf, _), nj in zip(draws, scenes, otfs, sizes):
         cfa = CFA(d["pattern"])
-        qe_module = SpectralQE(_nikon_unit_on(tuple(_nikon_native()[0].tolist()), tuple(d["shifts"])) * d["peak"],
-                               _nikon_native()[0], cfa.channel_names)
-        qe = qe_module(wave, dtype=dtype)
+        qe_module = _unit_qe(d["pattern"], tuple(d["shifts"]))  # peak 1 (the capture itself does not use QE)
+        qe = (qe_module(wave, dtype=torch.float64) * d["peak"]).to(dtype)  # linear resampling commutes with peak
         weights = torch.cat([qe.to(dtype) * dl.to(dtype), xyz_w.to(dtype)])  # [6, L]
         cube = (spectra.T.to(dtype) @ spec[j0:j0 + nj]).reshape(len(grid), -1, 2)  # FFT of the radiance [L, F, 2]
         cube.mul_(otf)
