@@ -363,8 +363,8 @@ def render_pairs(indices, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype
     computed on their own (one intra-op thread).
     """
     with one_thread():
-        return collate_pairs(_render_pairs([int(i) for i in indices], seed, scene_cfg, camera_cfg, dtype=dtype,
-                                           cache=cache, timings=timings))
+        return _render_pairs([int(i) for i in indices], seed, scene_cfg, camera_cfg, dtype=dtype, cache=cache,
+                             timings=timings)
 
 
 def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings) -> dict:
@@ -439,58 +439,74 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     proj = torch.stack(proj).reshape(len(indices), 6, my, mx // 2 + 1, 2)
     dens6 = torch.fft.irfft2(torch.view_as_complex(proj), s=(my, mx))[..., m:m + h, m:m + w]
     clock("optics")
-    items = []
-    for b, (i, d) in enumerate(zip(indices, draws)):
-        f, _, _, white_p = scenes[b]
-        items.append(_targets_and_capture(i, d, f, white_p, dens6[b:b + 1], cfas[b], qes[b], wave, xyz_w, dl,
-                                          dtype, clock, Sensor))
-    return items
+    return _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, dl, dtype, clock, Sensor)
 
 
-def _targets_and_capture(index, d, f, white_p, dens6, cfa, qe_pair, wave, xyz_w, dl, dtype, clock, sensor_cls):
-    h, w, pitch, fill = d["h"], d["w"], d["pitch"], d["fill"]
-    full_well, gain, bits, black = d["full_well"], d["gain"], d["bits"], d["black"]
-    read_e, dark, dsnu_e, prnu = d["read_e"], d["dark"], d["dsnu_e"], d["prnu"]
-    qe_module, qe = qe_pair
-    rate_rgb = dens6[:, :3] * (fill * pitch * pitch)  # e-/s per pixel and channel
+def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, dl, dtype, clock, sensor_cls):
+    """Exposure, the sensor capture (per item: its own noise generator) and the targets, batched; returns the
+    batch dict (the format of :func:`collate_pairs`)."""
+    nb = len(indices)
+    h, w, bits, black = draws[0]["h"], draws[0]["w"], draws[0]["bits"], draws[0]["black"]
+
+    def col(values, dt=dtype):  # per-item scalars as a [B, 1, 1, 1] tensor
+        return torch.tensor(values, dtype=dt).reshape(nb, 1, 1, 1)
+
+    rate_rgb = dens6[:, :3] * col([d["fill"] * d["pitch"] * d["pitch"] for d in draws])  # e-/s per pixel
     xyz_img = dens6[:, 3:]
     # Auto-exposure: the 98th percentile of the brightest channel at 80 % of full scale (after gain), x 2^EV.
-    peak = rate_rgb.amax(dim=1).flatten()
-    p98 = peak.kthvalue(max(1, math.ceil(0.98 * peak.numel()))).values.double().clamp_min(1e-30)
-    exposure = float(0.8 * full_well / gain / p98) * 2.0 ** d["ev"]
+    peak = rate_rgb.amax(dim=1).flatten(1)
+    p98 = peak.kthvalue(max(1, math.ceil(0.98 * peak.shape[1])), dim=1).values.double().clamp_min(1e-30)
+    exposure = [float(0.8 * d["full_well"] / d["gain"] / p98[b]) * 2.0 ** d["ev"] for b, d in enumerate(draws)]
     lsb = 1.0 / 2**bits
     white = float(2**bits - 1)
     span = white - black
-    cg = 1.0 / full_well  # volts per electron with a 1 V swing: well capacity = full_well
+    cg = [1.0 / d["full_well"] for d in draws]  # volts per electron with a 1 V swing: well capacity = full_well
     clock("targets")
-    sensor = sensor_cls(rows=h, cols=w, pixel_size_m=pitch, fill_factor=fill, cfa=cfa, spectral_qe=qe_module,
-                        conversion_gain_v_per_e=cg, voltage_swing_v=1.0, analog_gain=gain, adc_bits=bits,
-                        black_level_dn=black, shot_noise="poisson", read_noise_v=read_e * cg,
-                        dark_current_e_per_s=dark, dsnu_sigma_v=dsnu_e * cg, prnu_sigma_percent=prnu,
-                        fpn_mode="per_frame", seed=d["noise_seed"])
-    ng = torch.Generator().manual_seed(d["noise_seed"])
-    with torch.no_grad():
-        raw = sensor.capture(cfa.mosaic(rate_rgb), exposure_s=exposure, analog_gain=gain, noise=True, generator=ng)
+    raws, clean = [], []
+    for b, d in enumerate(draws):
+        sensor = sensor_cls(rows=h, cols=w, pixel_size_m=d["pitch"], fill_factor=d["fill"], cfa=cfas[b],
+                            spectral_qe=qes[b][0], conversion_gain_v_per_e=cg[b], voltage_swing_v=1.0,
+                            analog_gain=d["gain"], adc_bits=bits, black_level_dn=black, shot_noise="poisson",
+                            read_noise_v=d["read_e"] * cg[b], dark_current_e_per_s=d["dark"],
+                            dsnu_sigma_v=d["dsnu_e"] * cg[b], prnu_sigma_percent=d["prnu"], fpn_mode="per_frame",
+                            seed=d["noise_seed"])
+        ng = torch.Generator().manual_seed(d["noise_seed"])
+        with torch.no_grad():
+            raw = sensor.capture(cfas[b].mosaic(rate_rgb[b:b + 1]), exposure_s=exposure[b], analog_gain=d["gain"],
+                                 noise=True, generator=ng)
+        raws.append(raw.data)
+        clean.append(raw.noise_free)
     clock("sensor")
-    to_norm = cg * gain / lsb / span
-    cam_rgb = (rate_rgb * exposure * cg * gain).clamp(max=1.0) / lsb
+    gain = [d["gain"] for d in draws]
+    to_norm = [cg[b] * gain[b] / lsb / span for b in range(nb)]
+    cam_rgb = (rate_rgb * col(exposure) * col(cg) * col(gain)).clamp(max=1.0) / lsb
     cam_rgb = cam_rgb.clamp(max=span) / span
-    white_p = white_p.to(torch.float64)
-    white_xyz = (xyz_w * white_p).sum(dim=1)
-    white_cam = (qe.to(torch.float64) * dl * white_p).sum(dim=1)
-    k_white = white_cam[1] / white_xyz[1]
-    scale = float(k_white) * fill * pitch * pitch * exposure * to_norm
-    xyz = xyz_img * scale
-    cat = _bradford(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
-    m_srgb = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat
-    lin = _matmul_fixed_order(m_srgb.to(dtype), xyz.reshape(3, -1)).reshape(1, 3, h, w)
+    scales, mats, metas = [], [], []
+    for b, d in enumerate(draws):
+        white_p = scenes[b][3].to(torch.float64)
+        qe = qes[b][1]
+        white_xyz = (xyz_w * white_p).sum(dim=1)
+        white_cam = (qe.to(torch.float64) * dl * white_p).sum(dim=1)
+        k_white = white_cam[1] / white_xyz[1]  # e-/s/m^2 per (cd/m^2-equivalent) on both sides of the optics
+        scales.append(float(k_white) * d["fill"] * d["pitch"] * d["pitch"] * exposure[b] * to_norm[b])
+        cat = _bradford(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
+        mats.append(torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat)
+        metas.append(_meta(indices[b], d, scenes[b][0]["meta"], exposure[b], to_norm[b], span, white, cfas[b],
+                           white_cam, white_xyz, qe, wave, dtype))
+    xyz = xyz_img * col(scales)
+    m_srgb = torch.stack(mats).to(dtype)[..., None]  # [B, 3, 3, 1]
+    x3 = xyz.reshape(nb, 3, -1)
+    lin = m_srgb[:, :, 0] * x3[:, :1]  # fixed summation order, as _matmul_fixed_order
+    for c in (1, 2):
+        lin = lin.addcmul_(m_srgb[:, :, c], x3[:, c:c + 1])
+    lin = lin.reshape(nb, 3, h, w)
     srgb = srgb_encode(lin.clamp(0, 1))
-    meta = _meta(index, d, f["meta"], exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave, dtype)
+    out = {"raw": ((torch.cat(raws) - black) / span).to(dtype),
+           "noise_free_raw": ((torch.cat(clean) - black) / span).to(dtype),
+           "camera_rgb": cam_rgb.to(dtype), "xyz": xyz.to(dtype), "linear_srgb": lin.to(dtype),
+           "srgb": srgb.to(dtype), "meta": {k: torch.stack([m[k] for m in metas]) for k in metas[0]}}
     clock("targets")
-    return {"raw": ((raw.data[0] - black) / span).to(dtype),
-            "noise_free_raw": ((raw.noise_free[0] - black) / span).to(dtype),
-            "camera_rgb": cam_rgb[0].to(dtype), "xyz": xyz[0].to(dtype), "linear_srgb": lin[0].to(dtype),
-            "srgb": srgb[0].to(dtype), "meta": meta}
+    return out
 
 
 def _meta(index, d, meta_s, exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave, dtype) -> dict:
@@ -579,8 +595,9 @@ class CameraPairDataset(torch.utils.data.Dataset):
             return render_pair(index, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
                                cache=self._cache)
         with one_thread():
-            return _render_pairs([index], self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
-                                 cache=self._cache, timings=None)[0]
+            batch = _render_pairs([index], self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
+                                  cache=self._cache, timings=None)
+        return {k: ({m: t[0] for m, t in v.items()} if isinstance(v, dict) else v[0]) for k, v in batch.items()}
 
     def get_batch(self, indices) -> dict:
         """Items ``indices`` as one batch (``collate_pairs`` format), generated together (one FFT call per batch,
