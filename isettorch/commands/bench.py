@@ -65,7 +65,7 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(result, indent=1, allow_nan=False))
     else:
-        print(bench.format_table(result))
+        print(bench.format_report(result))
         print(f"\ntotal {result['seconds_total']:.1f} s on {result['machine']['processor']} "
               f"({result['machine']['cpu_count']} CPUs, {result['machine']['torch_threads']} torch threads)")
     return 0
