@@ -418,26 +418,25 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             otf = dl_otf(fy, fx, wave, n)[0].reshape(len(grid), -1, 1).expand(-1, -1, 2).contiguous()
             cache.optics[key] = otf
         otfs.append((otf, dx))
-    sizes = [s[1].shape[0] for s in scenes]
-    src = torch.cat([s[1] * q for s, q in zip(scenes, spatial)])  # [sum J, Hs, Ws]
-    if (my, mx) != (hs, ws):
-        src = torch.nn.functional.pad(src, (0, mx - ws, 0, my - hs))
-    spec = torch.view_as_real(torch.fft.rfft2(src)).reshape(src.shape[0], -1)  # [sum J, My*Mx'*2]
-    cfas, qes, proj = [], [], []
-    j0 = 0
-    for d, (_, _, spectra, _), (otf, _), nj in zip(draws, scenes, otfs, sizes):
+    # One item at a time: the FFT buffers of a whole batch (~J x 144 x 144 complex per item) do not stay in cache,
+    # which made batched transforms ~2x slower per item on CPU; per item, results are the same bitwise.
+    cfas, qes, dens = [], [], []
+    for d, (_, maps, spectra, _), q, (otf, _) in zip(draws, scenes, spatial, otfs):
         cfa = CFA(d["pattern"])
         qe_module = _unit_qe(d["pattern"], tuple(d["shifts"]))  # peak 1 (the capture itself does not use QE)
         qe = (qe_module(wave, dtype=torch.float64) * d["peak"]).to(dtype)  # linear resampling commutes with peak
         weights = torch.cat([qe.to(dtype) * dl.to(dtype), xyz_w.to(dtype)])  # [6, L]
-        cube = (spectra.T.to(dtype) @ spec[j0:j0 + nj]).reshape(len(grid), -1, 2)  # FFT of the radiance [L, F, 2]
+        src = maps * q
+        if (my, mx) != (hs, ws):
+            src = torch.nn.functional.pad(src, (0, mx - ws, 0, my - hs))
+        spec = torch.view_as_real(torch.fft.rfft2(src)).reshape(src.shape[0], -1)  # [J, My*Mx'*2]
+        cube = (spectra.T.to(dtype) @ spec).reshape(len(grid), -1, 2)  # FFT of the radiance [L, F, 2]
         cube.mul_(otf)
-        proj.append(weights @ cube.reshape(len(grid), -1))  # [6, F * 2]
+        proj = (weights @ cube.reshape(len(grid), -1)).reshape(6, my, mx // 2 + 1, 2)  # 6 weightings
+        dens.append(torch.fft.irfft2(torch.view_as_complex(proj), s=(my, mx))[:, m:m + h, m:m + w])
         cfas.append(cfa)
         qes.append((qe_module, qe))
-        j0 += nj
-    proj = torch.stack(proj).reshape(len(indices), 6, my, mx // 2 + 1, 2)
-    dens6 = torch.fft.irfft2(torch.view_as_complex(proj), s=(my, mx))[..., m:m + h, m:m + w]
+    dens6 = torch.stack(dens)
     clock("optics")
     return _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, dl, dtype, clock, Sensor)
 
@@ -600,8 +599,8 @@ class CameraPairDataset(torch.utils.data.Dataset):
         return {k: ({m: t[0] for m, t in v.items()} if isinstance(v, dict) else v[0]) for k, v in batch.items()}
 
     def get_batch(self, indices) -> dict:
-        """Items ``indices`` as one batch (``collate_pairs`` format), generated together (one FFT call per batch,
-        shared caches); bitwise equal to ``collate_pairs([self[i] for i in indices])``."""
+        """Items ``indices`` as one batch (``collate_pairs`` format), generated together (targets and exposure
+        vectorised over the batch, one collation); bitwise equal to ``collate_pairs([self[i] for i in indices])``."""
         idx = [self._check_index(i) for i in (indices.tolist() if isinstance(indices, torch.Tensor) else indices)]
         if not idx:
             raise ValueError("indices: expected at least one index")
