@@ -1,7 +1,10 @@
 """Camera training pairs: random scene -> diffraction-limited optics -> noisy sensor, with aligned targets.
 
 Built on :class:`isettorch.optics.DiffractionLimitedOptics` and :class:`isettorch.sensor.Sensor` directly
-(a local adapter until ``isettorch.Camera`` is available). For each index:
+(a local adapter until ``isettorch.Camera`` is available). Two exact ways to compute a pair:
+:func:`render_pair` (``method="reference"``: the Scene -> optics -> Sensor modules on the full spectral cube) and
+:func:`render_pairs` (``method="factored"``, the default, ~2x faster: the same draws and physics reordered by
+linearity; see its docstring and ``benchmarks/THROUGHPUT.md``). For each index:
 
 1. a random camera: f-number and pixel pitch from discrete lists (so OTFs are cached), full well, read
    noise, dark current, DSNU, PRNU, analog gain (log-uniform), exposure (auto-exposure x 2^EV), CFA phase,
