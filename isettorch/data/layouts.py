@@ -110,19 +110,19 @@ def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype):
     cnt = ((y1 - y0) * sx)[perm]
     leaf = torch.repeat_interleave(perm, cnt)
     local = torch.arange(leaf.numel()) - torch.repeat_interleave(cnt.cumsum(0) - cnt, cnt)
-    sxl = sx[leaf]
-    py, px = y0[leaf] + torch.div(local, sxl, rounding_mode="floor"), x0[leaf] + local % sxl
+    y0l, x0l, sxl = torch.stack([y0, x0, sx], 1)[leaf].unbind(-1)  # one gather of a per-leaf table
+    py, px = y0l + torch.div(local, sxl, rounding_mode="floor"), x0l + local % sxl
     per_shape = torch.zeros(3, dtype=torch.long).index_add_(0, shape[perm], cnt).tolist()
-    cos_t, sin_t = torch.cos(theta.to(dtype)), torch.sin(theta.to(dtype))
-    params = [t.to(dtype) for t in (cy, cx, r, aspect)]
+    # per-leaf float32 parameters (cos/sin evaluated per leaf, as before), gathered per point in one pass
+    table = torch.stack([cy.to(dtype), cx.to(dtype), r.to(dtype), aspect.to(dtype), torch.cos(theta.to(dtype)),
+                         torch.sin(theta.to(dtype))], 1)
     inside = []
     start = 0
     for shape_id, count in enumerate(per_shape):
         if count:
-            lf = leaf[start:start + count]
-            c_y, c_x, rr, asp = (t[lf] for t in params)
+            c_y, c_x, rr, asp, ct, st = table[leaf[start:start + count]].unbind(-1)
             inside.append(_leaf_metric(py[start:start + count].to(dtype) - c_y, px[start:start + count].to(dtype) - c_x,
-                                       rr, asp, cos_t[lf], sin_t[lf], shape_id))
+                                       rr, asp, ct, st, shape_id))
         start += count
     top = torch.zeros(h * w, dtype=torch.long)
     if inside:
@@ -151,13 +151,16 @@ def dead_leaves(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=t
 
     top = _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype)
     y, x = _grid(h, w, device, dtype)
-    ia, ib = ca.to(device)[top], cb.to(device)[top]
-    tx = tex.to(device)[top]
-    ang = d(tdir).to(device)[top]
-    proj = x * torch.cos(ang) + y * torch.sin(ang)
-    grat = _grating(2 * math.pi * d(freq)[top] * proj + d(phase)[top], sq.to(device)[top])
+    # per-pixel leaf attributes: one gather from a per-leaf table for the integers and one for the floats
+    ints = torch.stack([ca, cb, tex, sq], 1).to(device)[top].unbind(-1)
+    ia, ib, tx, sq_px = (v.contiguous() for v in ints)
+    ang, fr, ph, c_x, c_y, rr = (v.contiguous() for v in d(torch.stack([tdir, freq, phase, cx, cy, r], 1))[top]
+                                 .unbind(-1))
+    cos_a, sin_a = torch.cos(ang), torch.sin(ang)
+    proj = x * cos_a + y * sin_a
+    grat = _grating(2 * math.pi * fr * proj + ph, sq_px)
     # Gradient across the leaf: position along the texture direction relative to the leaf's centre and size.
-    rel = ((x - d(cx)[top]) * torch.cos(ang) + (y - d(cy)[top]) * torch.sin(ang)) / (2 * d(r)[top]) + 0.5
+    rel = ((x - c_x) * cos_a + (y - c_y) * sin_a) / (2 * rr) + 0.5
     t = torch.where(tx == 2, grat, torch.where(tx == 3, rel.clamp(0, 1), torch.zeros_like(grat)))
     return ia, ib, t
 
