@@ -399,28 +399,31 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     # Optics: camera equation and cos^4 (spatial, so they multiply the maps), then the OTF per wavelength.
     spatial, otfs = [], []
     for d, (f, _, _, _) in zip(draws, scenes):
-        n = torch.tensor([d["f_number"]], dtype=dtype)
-        fl = torch.tensor([d["focal"]], dtype=dtype)
-        dist = torch.tensor([f["distance"]], dtype=dtype)
-        d_i = geometry.image_distance(fl, dist)
-        dx = geometry.image_sample_spacing(torch.tensor([f["hfov"]], dtype=dtype), ws, d_i)
-        mag = -d_i / dist
-        k_cam = geometry.camera_equation_factor(n, mag)  # ISETCam oiCalculateIrradiance
-        ys = (torch.arange(hs, dtype=dtype) - (hs - 1) / 2)[None, :] * dx[:, None]
-        xs = (torch.arange(ws, dtype=dtype) - (ws - 1) / 2)[None, :] * dx[:, None]
-        spatial.append(geometry.cos4th(ys, xs, d_i)[0, 0] * k_cam[0])
-        key = ("otf", d["f_number"], float(dx[0]), grid, my, mx, dtype)
-        otf = cache.optics.get(key)
-        if otf is None and cache.get_optics(d["f_number"], d["focal"], m).blur_negligible(dx, wave, n):
-            otf = torch.ones(len(grid), my * (mx // 2 + 1), 2, dtype=dtype)  # as the optics: blur skipped
-            cache.optics[key] = otf
-        if otf is None:
-            fy = torch.fft.fftfreq(my, dtype=dtype)[None, :] / dx.reshape(-1, 1)
-            fx = torch.fft.rfftfreq(mx, dtype=dtype)[None, :] / dx.reshape(-1, 1)
-            # [L, My*Mx', 2]: the same real OTF for the real and imaginary parts (a contiguous multiply)
-            otf = dl_otf(fy, fx, wave, n)[0].reshape(len(grid), -1, 1).expand(-1, -1, 2).contiguous()
-            cache.optics[key] = otf
-        otfs.append((otf, dx))
+        geo_key = ("geometry", d["f_number"], d["focal"], f["distance"], f["hfov"], hs, ws, grid, dtype)
+        geo = cache.optics.get(geo_key)  # a few discrete cameras: the spatial factor and OTF repeat
+        if geo is None:
+            n = torch.tensor([d["f_number"]], dtype=dtype)
+            fl = torch.tensor([d["focal"]], dtype=dtype)
+            dist = torch.tensor([f["distance"]], dtype=dtype)
+            d_i = geometry.image_distance(fl, dist)
+            dx = geometry.image_sample_spacing(torch.tensor([f["hfov"]], dtype=dtype), ws, d_i)
+            mag = -d_i / dist
+            k_cam = geometry.camera_equation_factor(n, mag)  # ISETCam oiCalculateIrradiance
+            ys = (torch.arange(hs, dtype=dtype) - (hs - 1) / 2)[None, :] * dx[:, None]
+            xs = (torch.arange(ws, dtype=dtype) - (ws - 1) / 2)[None, :] * dx[:, None]
+            q = geometry.cos4th(ys, xs, d_i)[0, 0] * k_cam[0]
+            if cache.get_optics(d["f_number"], d["focal"], m).blur_negligible(dx, wave, n):
+                otf = torch.ones(len(grid), my * (mx // 2 + 1), 2, dtype=dtype)  # as the optics: blur skipped
+            else:
+                fy = torch.fft.fftfreq(my, dtype=dtype)[None, :] / dx.reshape(-1, 1)
+                fx = torch.fft.rfftfreq(mx, dtype=dtype)[None, :] / dx.reshape(-1, 1)
+                # [L, My*Mx', 2]: the same real OTF for the real and imaginary parts (a contiguous multiply)
+                otf = dl_otf(fy, fx, wave, n)[0].reshape(len(grid), -1, 1).expand(-1, -1, 2).contiguous()
+            geo = cache.optics[geo_key] = (q, otf, dx)
+            if len(cache.optics) > 256:  # bounded (continuous distance or FOV ranges would never repeat)
+                cache.optics.clear()
+        spatial.append(geo[0])
+        otfs.append((geo[1], geo[2]))
     # One item at a time: the FFT buffers of a whole batch (~J x 144 x 144 complex per item) do not stay in cache,
     # which made batched transforms ~2x slower per item on CPU; per item, results are the same bitwise.
     cfas, qes, dens = [], [], []
