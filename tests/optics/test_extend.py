@@ -1,0 +1,30 @@
+"""Image extension used by the blur, against numpy.pad on the same windows."""
+
+import numpy as np
+import pytest
+import torch
+
+from isettorch.optics.blur import extend
+
+WINDOWS = [(-3, 10, -4, 13), (0, 7, 0, 9), (2, 5, -1, 4), (-5, 2, 8, 20), (8, 12, 0, 9), (-20, -10, -3, 3)]
+
+
+@pytest.mark.parametrize("mode", ["zero", "mean", "edge", 2.5])
+@pytest.mark.parametrize("window", WINDOWS)
+def test_extend_matches_numpy_pad(mode, window):
+    rng = np.random.default_rng(0)
+    x = rng.random((2, 3, 7, 9))
+    r0, r1, c0, c1 = window
+    big = 40  # pad far enough that every window lies inside the padded array
+    if mode == "edge":
+        padded = np.pad(x, ((0, 0), (0, 0), (big, big), (big, big)), mode="edge")
+    else:
+        padded = np.empty((2, 3, 7 + 2 * big, 9 + 2 * big))
+        fill = {"zero": np.zeros((2, 3, 1, 1)), "mean": x.mean(axis=(-2, -1), keepdims=True)}.get(
+            mode, np.full((2, 3, 1, 1), mode))
+        padded[:] = fill
+        padded[..., big:big + 7, big:big + 9] = x
+    ref = padded[..., r0 + big:r1 + big, c0 + big:c1 + big]
+    out = extend(torch.from_numpy(x), (r0, r1), (c0, c1), mode).numpy()
+    assert out.shape == ref.shape
+    np.testing.assert_array_equal(out, ref)
