@@ -359,11 +359,18 @@ def render_pairs(indices, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype
     * the sensor takes those electron rates directly (:meth:`Sensor.capture`): with one OI sample per pixel,
       area sampling is the identity, so it is not recomputed.
 
-    Results differ from :func:`render_pair` only by float rounding (tests: noise-free targets within ~1e-5 of
-    the image maximum; the noisy raw's Poisson/ADC draws can differ by one count where a rate moved by a
+    Results differ from :func:`render_pair` only by float rounding (measured 7e-7 of the image maximum in float32,
+    1e-15 in float64; in the noisy raw ~0.1 % of pixels get another Poisson or ADC draw where a rate moved by a
     rounding error). Deterministic: an item depends only on ``(seed, index)``, not on the batch it is in, the
     number of threads or workers (bitwise, tested), as each item's FFTs, matrix products and noise draws are
     computed on their own (one intra-op thread).
+
+    Example:
+        >>> from isettorch.data.config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config
+        >>> scene = merge_config({"height": 16, "width": 16}, SCENE_DEFAULTS, "scene")
+        >>> camera = merge_config({}, CAMERA_DEFAULTS, "camera")
+        >>> render_pairs([3, 1], 0, scene, camera)["camera_rgb"].shape
+        torch.Size([2, 3, 16, 16])
     """
     with one_thread():
         return _render_pairs([int(i) for i in indices], seed, scene_cfg, camera_cfg, dtype=dtype, cache=cache,
