@@ -76,11 +76,13 @@ def main(argv: list[str] | None = None) -> int:
     rec_path = run / "record.json"
     rec = json.loads(rec_path.read_text()) if rec_path.is_file() else {}
     cfg = json.loads(ck["train_config"])
+    command = rec.get("command", "train_demosaic.py --config configs/train/demosaic_noise_free.yaml")
+    if isinstance(command, str) and command.startswith("train_demosaic.py"):
+        command = "python training/" + command
     info = {
         "file": pt.name,
         "stored_dtype": str(store),
-        "command": rec.get("command", "python training/train_demosaic.py --config configs/train/"
-                                      "demosaic_noise_free.yaml"),
+        "command": command,
         "config": cfg,
         "net_config": ck["net_config"],
         "parameters": sum(p.numel() for p in net.parameters()),

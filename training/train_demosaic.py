@@ -307,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     if pbar is not None:
         pbar.close()
     if rank == 0:
-        record = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if argv is None else argv,
+        record = {"command": " ".join(["python training/train_demosaic.py", *sys.argv[1:]]) if argv is None else argv,
                   "config": cfg, "world_size": world, "steps": step, "best_val_cpsnr": best,
                   "wall_s": round(wall0 + time.time() - t_start, 1), "hardware": common.hardware(),
                   "final": history[-1] if history else {}}
