@@ -491,8 +491,10 @@ def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, 
     clock("sensor")
     gain = [d["gain"] for d in draws]
     to_norm = [cg[b] * gain[b] / lsb / span for b in range(nb)]
-    cam_rgb = (rate_rgb * col(exposure) * col(cg) * col(gain)).clamp(max=1.0) / lsb
-    cam_rgb = cam_rgb.clamp(max=span) / span
+    # (x clamped at 1) / lsb, clamped at span, / span, in place: lsb = 2^-bits makes x / lsb exact and span <
+    # 2^bits, so min(min(x, 1) / lsb, span) = min(x 2^bits, span), bitwise.
+    cam_rgb = (rate_rgb * col(exposure)).mul_(col(cg)).mul_(col(gain))
+    cam_rgb = cam_rgb.mul_(2.0**bits).clamp_(max=span).div_(span)
     scales, mats, metas = [], [], []
     for b, d in enumerate(draws):
         white_p = scenes[b][3].to(torch.float64)
@@ -505,14 +507,14 @@ def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, 
         mats.append(torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat)
         metas.append(_meta(indices[b], d, scenes[b][0]["meta"], exposure[b], to_norm[b], span, white, cfas[b],
                            white_cam, white_xyz, qe, wave, dtype))
-    xyz = xyz_img * col(scales)
+    xyz = xyz_img.mul_(col(scales))  # in place: dens6 is not used any more
     m_srgb = torch.stack(mats).to(dtype)[..., None]  # [B, 3, 3, 1]
     x3 = xyz.reshape(nb, 3, -1)
     lin = m_srgb[:, :, 0] * x3[:, :1]  # fixed summation order, as _matmul_fixed_order
     for c in (1, 2):
         lin = lin.addcmul_(m_srgb[:, :, c], x3[:, c:c + 1])
     lin = lin.reshape(nb, 3, h, w)
-    srgb = srgb_encode(lin.clamp(0, 1))
+    srgb = srgb_encode(lin.clamp(0, 1), inplace=True)
     out = {"raw": ((torch.cat(raws) - black) / span).to(dtype),
            "noise_free_raw": ((torch.cat(clean) - black) / span).to(dtype),
            "camera_rgb": cam_rgb.to(dtype), "xyz": xyz.to(dtype), "linear_srgb": lin.to(dtype),

@@ -1,6 +1,7 @@
 """The factored, batched camera-pair path: agreement with the module-by-module reference, bitwise batch, thread and
 worker invariance, and the exact factorisation of the synthetic radiance."""
 
+import numpy as np
 import pytest
 import torch
 from torch.utils.data import DataLoader
@@ -129,3 +130,18 @@ def test_factored_is_exact_in_float64():
     for k in IMAGES[:4]:
         assert fast[k].dtype == torch.float64 and _rel_max(fast[k], ref[k]) < 1e-12, k
     assert float((fast["raw"] != ref["raw"]).double().mean()) < 1e-3
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_srgb_encode_inplace_is_bitwise_the_same(dtype):
+    """The in-place sRGB encoding used for the targets: bitwise the out-of-place one, and IEC 61966-2-1 (colour)."""
+    import colour
+
+    from isettorch.image import srgb_encode
+
+    x = torch.cat([torch.linspace(0, 0.01, 101, dtype=dtype), torch.rand(1000, generator=torch.Generator()
+                                                                          .manual_seed(0), dtype=dtype)])
+    ref = srgb_encode(x)
+    assert torch.equal(srgb_encode(x.clone(), inplace=True), ref)
+    np.testing.assert_allclose(ref.double().numpy(), colour.cctf_encoding(x.double().numpy(), "sRGB"),
+                               atol=1e-12 if dtype == torch.float64 else 2e-7)

@@ -115,3 +115,12 @@ def test_bad_arguments():
         spectra.random_reflectances(2, W10, g, model="rgb")
     with pytest.raises(ValueError, match="numbers"):
         spectra.fluorescent_spd(torch.tensor([13]), W10)
+
+
+def test_led_closed_form_matches_converged_bisection():
+    """The closed-form pump : phosphor ratio is the root the bisection converges to (60 steps: |d log r| ~ 1e-17),
+    including CCTs outside the reachable range, where both return an end of the log-ratio interval."""
+    t = torch.tensor([1000.0, 2700.0, 4100.0, 6500.0, 12000.0, 1e6], dtype=torch.float64)
+    closed = spectra.led_spd(t, W10)
+    bisect = spectra.led_spd(t, W10, iterations=60)
+    np.testing.assert_allclose(closed.numpy(), bisect.numpy(), rtol=1e-11, atol=1e-12)
