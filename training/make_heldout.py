@@ -1,0 +1,50 @@
+"""Write held-out synthetic scenes as 8-bit PNGs for ``isettorch demosaic-eval`` (seeds never drawn in training).
+
+Usage::
+
+    python training/make_heldout.py --out out/heldout_synth --n 24 --size 256 [--source synth|isettorch]
+    isettorch demosaic-eval out/heldout_synth --method learned --crop 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from training.synth import IsetScenePool, SceneSampler, encode  # noqa: E402
+
+HELDOUT_SEED = 3_000_029_000  # far from the training (seed, step, rank) and validation seeds
+
+
+def main(argv: list[str] | None = None) -> int:
+    from PIL import Image
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--n", type=int, default=24)
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--source", choices=("synth", "isettorch"), default="synth")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    sampler = SceneSampler(size=args.size, n_shapes=int(50 * (args.size / 80) ** 1.0))
+    pool = IsetScenePool(sampler, seed=HELDOUT_SEED, scene_size=args.size, pool=args.n, refresh=1)
+    for i in range(args.n):
+        g = torch.Generator().manual_seed(HELDOUT_SEED + i)
+        img = sampler.sample(1, g) if args.source == "synth" else pool.render(i)[None]
+        x = encode(img, g, p_gamma=0.8)[0].permute(1, 2, 0).numpy()
+        Image.fromarray(np.round(x * 255).astype(np.uint8)).save(out / f"{args.source}_{i:03d}.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
