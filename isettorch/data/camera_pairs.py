@@ -333,13 +333,15 @@ def _factored_radiance(f: dict, dtype) -> tuple[torch.Tensor, torch.Tensor, torc
     coef.mul_(f["gain"].reshape(1, -1).to(dtype))
     pal = f["palette"].to(torch.float64)
     if f["a"] is not None:
-        maps = torch.cat([coef * f["a"].reshape(1, -1).to(dtype), coef * f["b"].reshape(1, -1).to(dtype)])
+        maps = torch.empty(2 * k, h * w, dtype=dtype)
+        torch.mul(coef, f["a"].reshape(1, -1).to(dtype), out=maps[:k])
+        torch.mul(coef, f["b"].reshape(1, -1).to(dtype), out=maps[k:])
         spectra = torch.cat([pal * f["e1"], pal * f["e2"]])
     else:
         maps, spectra = coef, pal * f["e1"]
     # mean luminance = sum_j (v . spectra_j) mean_x maps_j (CIE 015:2018 via _luminance_weights), in float64
     lum = spectra @ _luminance_weights(f["wl"])
-    mean_lum = float((maps.to(torch.float64).sum(dim=1) * lum).sum()) / (h * w)
+    mean_lum = float((maps.sum(dim=1, dtype=torch.float64) * lum).sum()) / (h * w)
     scale = f["target"] / max(mean_lum, torch.finfo(dtype).tiny)
     return maps.reshape(-1, h, w), spectra * scale, f["e1"] * scale
 
@@ -439,7 +441,7 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
         qe_module = _unit_qe(d["pattern"], tuple(d["shifts"]))  # peak 1 (the capture itself does not use QE)
         qe = (qe_module(wave, dtype=torch.float64) * d["peak"]).to(dtype)  # linear resampling commutes with peak
         weights = torch.cat([qe.to(dtype) * dl.to(dtype), xyz_w.to(dtype)])  # [6, L]
-        src = maps * q
+        src = maps.mul_(q)  # in place: the maps are not used after the optics
         if (my, mx) != (hs, ws):
             src = torch.nn.functional.pad(src, (0, mx - ws, 0, my - hs))
         spec = torch.view_as_real(torch.fft.rfft2(src)).reshape(src.shape[0], -1)  # [J, My*Mx'*2]

@@ -154,9 +154,10 @@ def dead_leaves(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=t
     # per-pixel leaf attributes: one gather from a per-leaf table for the integers and one for the floats
     ints = torch.stack([ca, cb, tex, sq], 1).to(device)[top].unbind(-1)
     ia, ib, tx, sq_px = (v.contiguous() for v in ints)
-    ang, fr, ph, c_x, c_y, rr = (v.contiguous() for v in d(torch.stack([tdir, freq, phase, cx, cy, r], 1))[top]
-                                 .unbind(-1))
-    cos_a, sin_a = torch.cos(ang), torch.sin(ang)
+    # cos / sin of the texture direction per leaf, then gathered (the same float32 values as per pixel)
+    ang = d(tdir)
+    cos_a, sin_a, fr, ph, c_x, c_y, rr = (v.contiguous() for v in torch.stack(
+        [torch.cos(ang), torch.sin(ang), d(freq), d(phase), d(cx), d(cy), d(r)], 1)[top].unbind(-1))
     proj = x * cos_a + y * sin_a
     grat = _grating(2 * math.pi * fr * proj + ph, sq_px)
     # Gradient across the leaf: position along the texture direction relative to the leaf's centre and size.
