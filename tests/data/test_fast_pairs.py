@@ -48,7 +48,7 @@ def test_factorisation_rebuilds_generate_scene():
     """sum_j maps_j(x) spectra_j(l) equals the radiance cube that generate_scene assembles (both lights cases)."""
     cfg = merge_config({"height": 24, "width": 20, "two_light_probability": 0.5, "shadow_probability": 0.5},
                        SCENE_DEFAULTS, "scene")
-    kinds = set()
+    kinds, used = set(), set()
     for i in range(6):
         f = _draw_scene(i, 2, cfg, device=None, dtype=torch.float64, hfov_deg=None, size=None)
         maps, spectra, white = _factored_radiance(f, torch.float64)
@@ -56,9 +56,15 @@ def test_factorisation_rebuilds_generate_scene():
         scene = generate_scene(i, 2, cfg, dtype=torch.float64)
         torch.testing.assert_close(cube[None], scene.photons, rtol=1e-10, atol=0)
         torch.testing.assert_close(white[None], scene.illuminant_photons, rtol=1e-10, atol=0)
-        assert maps.shape[0] == (16 if f["a"] is not None else 8)
+        # one term per palette colour the layout uses (with a non-zero weight) and light; unused ones left out
+        t, ia, ib = f["t"], f["ia"], f["ib"]
+        n_used = sum(bool(((ia == k) & (t < 1)).any() or ((ib == k) & (t > 0)).any()) for k in range(8))
+        assert maps.shape[0] == (2 if f["a"] is not None else 1) * n_used
+        assert bool((maps.flatten(1).amax(dim=1) > 0).all())
         kinds.add(f["a"] is not None)
+        used.add(n_used)
     assert kinds == {True, False}
+    assert len(used) > 1  # layouts using different numbers of colours were covered
 
 
 def test_batch_equals_items_bitwise_in_any_order():
