@@ -16,6 +16,17 @@ The joint denoise+demosaic variant (``noise.enabled: true``) adds heteroscedasti
 per image: ``var = a * x + b`` (Poisson shot noise of ``x / a`` electrons plus Gaussian read noise, the
 photon-transfer model of EMVA 1288), with ``a = gain / full_well_e`` and ``b = (read_noise_e * a)^2``;
 ``(sqrt(a), sqrt(b))`` are given to the network as two extra input planes.
+
+``data.source: camera_pairs`` draws batches from :class:`isettorch.data.camera_pairs.CameraPairDataset` instead
+(scene -> diffraction-limited optics -> the isettorch sensor with its own noise model; ``data.scene`` /
+``data.camera`` are passed to the dataset). Input: the noisy quantised raw mosaic (``noise.enabled: true``, the
+joint variant) or ``noise_free_raw`` (noise-free variant); target: ``camera_rgb``; all in normalised raw units
+(0 = black, 1 = white level; camera RGB, not white-balanced). Noise inputs from each item's metadata: the dataset's
+Poisson-Gaussian model ``var = a x + b`` in normalised units (Foi et al., IEEE TIP 2008) has
+``a = meta['noise_gain']`` (normalised units per electron, so shot noise gives ``a x``) and
+``b = meta['noise_floor_var']`` (read noise, DSNU, dark current and quantisation); PRNU (multiplicative,
+< 1.5 %) is left out of the model. Items are rendered ``patch + 2`` pixels wide and cropped at the offset that
+puts an R pixel top-left, so every Bayer order the dataset draws reaches the network as RGGB.
 """
 
 from __future__ import annotations
@@ -41,14 +52,81 @@ from training.synth import IsetScenePool, SceneSampler, augment_flips, encode, m
 VAL_SEED_OFFSET = 1_000_003_000  # validation scenes use seeds far from any training (seed, step, rank)
 
 
-SOURCES = ("synth", "isettorch", "mix")
+SOURCES = ("synth", "isettorch", "mix", "camera_pairs")
+TEST_SEED_OFFSET = 2_000_006_000  # held-out camera-pair items for evaluation (dataset seed = seed + this)
 
 
-def make_sampler(cfg: dict) -> SceneSampler:
+def rggb_offset(index_map: torch.Tensor) -> tuple[int, int]:
+    """(dy, dx) of the R pixel (channel 0) in a 2x2 Bayer cell ``index_map`` (R, G, B = 0, 1, 2)."""
+    im = index_map.tolist()
+    for dy in (0, 1):
+        for dx in (0, 1):
+            if im[dy][dx] == 0 and im[1 - dy][1 - dx] == 2:
+                return dy, dx
+    raise ValueError(f"cfa: expected a 2x2 Bayer cell (R, G, G, B), got {im}")
+
+
+class CameraPairSource:
+    """Training batches from :class:`isettorch.data.camera_pairs.CameraPairDataset` (source ``camera_pairs``).
+
+    ``batch(batch_seed, n)`` renders items ``batch_seed * n + i`` (i < n) of one dataset (seed ``cfg.seed +
+    seed_offset``), so a batch depends only on (seed, step, rank) like the other sources, and crops each to
+    ``patch x patch`` RGGB. Returns (raw [B,1,P,P], camera_rgb [B,3,P,P], noise features [B,2] or None).
+    """
+
+    LENGTH = 2**62
+
+    def __init__(self, cfg: dict, seed_offset: int = 0):
+        from isettorch.data.camera_pairs import CameraPairDataset
+        from isettorch.data.config import CAMERA_DEFAULTS
+        from isettorch.isp.learned import BAYER_PATTERNS
+
+        d = cfg.get("data", {})
+        self.patch = int(d.get("patch", 80))
+        if self.patch < 4 or self.patch % 2:
+            raise ValueError(f"data.patch: expected an even size >= 4, got {self.patch}")
+        self.noisy = bool(cfg.get("noise", {}).get("enabled", False))
+        scene = dict(d.get("scene") or {}, height=self.patch + 2, width=self.patch + 2)
+        camera = dict(d.get("camera") or {})
+        pats = camera.get("cfa_patterns", CAMERA_DEFAULTS["cfa_patterns"])
+        bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
+        if bad:
+            raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
+        self.ds = CameraPairDataset(self.LENGTH, seed=int(cfg.get("seed", 0)) + int(seed_offset), scene=scene,
+                                    camera=camera)
+
+    def indices(self, batch_seed: int, n: int) -> list[int]:
+        return [(int(batch_seed) * n + i) % self.LENGTH for i in range(n)]
+
+    def batch(self, batch_seed: int, n: int):
+        return pair_batch(self.ds.get_batch(self.indices(batch_seed, n)), self.patch, self.noisy)
+
+
+def pair_batch(b: dict, patch: int, noisy: bool):
+    """(raw, camera_rgb, noise features or None) cropped to ``patch`` RGGB from a camera-pair batch.
+
+    Noise features: ``noise_features((a, b))`` with ``a = meta['noise_gain']``, ``b = meta['noise_floor_var']``
+    (``var = a x + b`` in normalised units, the dataset's Poisson-Gaussian model)."""
+    src = b["raw"] if noisy else b["noise_free_raw"]
+    raws, rgbs = [], []
+    for i in range(src.shape[0]):
+        dy, dx = rggb_offset(b["meta"]["cfa"][i])
+        raws.append(src[i, :, dy:dy + patch, dx:dx + patch])
+        rgbs.append(b["camera_rgb"][i, :, dy:dy + patch, dx:dx + patch])
+    feats = None
+    if noisy:
+        ab = torch.stack([b["meta"]["noise_gain"], b["meta"]["noise_floor_var"]], 1).float()
+        feats = noise_features(ab)
+    return torch.stack(raws).float(), torch.stack(rgbs).float(), feats
+
+
+def make_sampler(cfg: dict, seed_offset: int = 0) -> SceneSampler | CameraPairSource:
     d = cfg.get("data", {})
     source = d.get("source", "synth")
     if source not in SOURCES:
         raise ValueError(f"data.source: expected one of {SOURCES}, got {source!r}")
+    if source == "camera_pairs":
+        return CameraPairSource(cfg, seed_offset)
     return SceneSampler(size=int(d.get("patch", 96)), n_shapes=int(d.get("n_shapes", 50)),
                         sensitivities=d.get("sensitivities", "all"))
 
@@ -56,7 +134,7 @@ def make_sampler(cfg: dict) -> SceneSampler:
 def make_pool(sampler: SceneSampler, cfg: dict, seed: int) -> IsetScenePool | None:
     """The isettorch.data scene pool for sources 'isettorch' and 'mix' (None for 'synth')."""
     d = cfg.get("data", {})
-    if d.get("source", "synth") == "synth":
+    if d.get("source", "synth") in ("synth", "camera_pairs"):
         return None
     return IsetScenePool(sampler, seed=seed, scene_size=int(d.get("scene_size", 128)),
                          pool=int(d.get("pool", 64)), refresh=int(d.get("refresh", 2)),
@@ -96,6 +174,8 @@ def noise_features(ab: torch.Tensor) -> torch.Tensor:
 def make_batch(sampler: SceneSampler, cfg: dict, seed: int, batch: int, p_gamma: float,
                pool: IsetScenePool | None = None, step: int = 0):
     """(raw [B,1,H,W], target [B,3,H,W], noise features [B,2] or None) for one (seed, step)."""
+    if isinstance(sampler, CameraPairSource):
+        return sampler.batch(seed, batch)
     g = torch.Generator().manual_seed(int(seed))
     n_iset = iset_count(cfg, batch) if pool is not None else 0
     parts = [sampler.sample(batch - n_iset, g)] if batch - n_iset else []
@@ -117,7 +197,7 @@ def make_validation(sampler_cfg: dict, cfg: dict) -> list:
     vcfg = dict(sampler_cfg)
     vcfg["data"] = dict(cfg.get("data", {}), patch=int(v.get("size", 128)))
     vcfg["data"]["scene_size"] = max(int(v.get("size", 128)), int(vcfg["data"].get("scene_size", 128)))
-    sampler = make_sampler(vcfg)
+    sampler = make_sampler(vcfg, VAL_SEED_OFFSET)  # camera_pairs: its own dataset seed
     vseed = int(cfg.get("seed", 0)) + VAL_SEED_OFFSET
     pool = make_pool(sampler, vcfg, vseed)  # held-out isettorch scenes: their own seed
     n, bs = int(v.get("images", 32)), 8
@@ -216,6 +296,14 @@ def main(argv: list[str] | None = None) -> int:
     opt = torch.optim.Adam(net.parameters(), lr=float(cfg["optim"]["lr"]))
     step, best, history, wall0 = 0, -math.inf, [], 0.0
     resume = Path(args.resume) if args.resume else out / "last.pt"
+    init = cfg.get("init")
+    if init and not resume.is_file():  # start from another checkpoint's weights (fresh optimizer and schedule)
+        ck = torch.load(init, map_location="cpu", weights_only=True)
+        if ck["net_config"] != net.config():
+            raise ValueError(f"init: {init} has net_config {ck['net_config']}, expected {net.config()}")
+        net.load_state_dict({k: v.float() for k, v in ck["model"].items()})
+        if rank == 0:
+            print(f"initialised from {init}", flush=True)
     if resume.is_file():
         ck = torch.load(resume, map_location="cpu", weights_only=True)
         net.load_state_dict(ck["model"])
