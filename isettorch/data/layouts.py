@@ -110,24 +110,26 @@ def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype):
     cnt = ((y1 - y0) * sx)[perm]
     leaf = torch.repeat_interleave(perm, cnt)
     local = torch.arange(leaf.numel()) - torch.repeat_interleave(cnt.cumsum(0) - cnt, cnt)
-    y0l, x0l, sxl = torch.stack([y0, x0, sx], 1)[leaf].unbind(-1)  # one gather of a per-leaf table
-    py, px = y0l + torch.div(local, sxl, rounding_mode="floor"), x0l + local % sxl
+    # one gather of a per-leaf table (index_select: rows come out contiguous, much faster than t[idx] on CPU)
+    y0l, x0l, sxl = torch.stack([y0, x0, sx]).index_select(1, leaf).unbind(0)
+    row = torch.div(local, sxl, rounding_mode="floor")  # integer division once (slow on CPU), not twice
+    py, px = y0l + row, x0l + (local - row * sxl)
     per_shape = torch.zeros(3, dtype=torch.long).index_add_(0, shape[perm], cnt).tolist()
     # per-leaf float32 parameters (cos/sin evaluated per leaf, as before), gathered per point in one pass
     table = torch.stack([cy.to(dtype), cx.to(dtype), r.to(dtype), aspect.to(dtype), torch.cos(theta.to(dtype)),
-                         torch.sin(theta.to(dtype))], 1)
+                         torch.sin(theta.to(dtype))])
     inside = []
     start = 0
     for shape_id, count in enumerate(per_shape):
         if count:
-            c_y, c_x, rr, asp, ct, st = table[leaf[start:start + count]].unbind(-1)
+            c_y, c_x, rr, asp, ct, st = table.index_select(1, leaf[start:start + count]).unbind(0)
             inside.append(_leaf_metric(py[start:start + count].to(dtype) - c_y, px[start:start + count].to(dtype) - c_x,
                                        rr, asp, ct, st, shape_id))
         start += count
     top = torch.zeros(h * w, dtype=torch.long)
     if inside:
         keep = torch.cat(inside)
-        top.scatter_reduce_(0, (py * w + px)[keep], leaf[keep] + 1, reduce="amax")
+        top.scatter_reduce_(0, (py * w + px).masked_select(keep), leaf.masked_select(keep) + 1, reduce="amax")
     return (top.clamp_min(1) - 1).reshape(h, w).to(device)
 
 
@@ -152,12 +154,13 @@ def dead_leaves(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=t
     top = _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype)
     y, x = _grid(h, w, device, dtype)
     # per-pixel leaf attributes: one gather from a per-leaf table for the integers and one for the floats
-    ints = torch.stack([ca, cb, tex, sq], 1).to(device)[top].unbind(-1)
+    ints = torch.stack([ca, cb, tex, sq]).to(device).index_select(1, top.reshape(-1)).reshape(4, h, w).unbind(0)
     ia, ib, tx, sq_px = (v.contiguous() for v in ints)
     # cos / sin of the texture direction per leaf, then gathered (the same float32 values as per pixel)
     ang = d(tdir)
     cos_a, sin_a, fr, ph, c_x, c_y, rr = (v.contiguous() for v in torch.stack(
-        [torch.cos(ang), torch.sin(ang), d(freq), d(phase), d(cx), d(cy), d(r)], 1)[top].unbind(-1))
+        [torch.cos(ang), torch.sin(ang), d(freq), d(phase), d(cx), d(cy), d(r)]).index_select(1, top.reshape(-1))
+        .reshape(7, h, w).unbind(0))
     proj = x * cos_a + y * sin_a
     grat = _grating(2 * math.pi * fr * proj + ph, sq_px)
     # Gradient across the leaf: position along the texture direction relative to the leaf's centre and size.
