@@ -206,7 +206,7 @@ def edges(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.f
     n_lines = int(_ri(g, 1, 5))
     code = _cells(h, w, g, n_lines, device, dtype)
     colours = _ri(g, 0, k - 1, 2**n_lines).to(device)
-    ia = colours[code]
+    ia = colours.index_select(0, code.reshape(-1)).reshape(h, w)
     return ia, ia, torch.zeros(h, w, device=device, dtype=dtype)
 
 
@@ -235,14 +235,17 @@ def _stroke_cover(h: int, w: int, seg: torch.Tensor, wid: torch.Tensor) -> torch
     cnt = (y1 - y0) * sx
     k = torch.repeat_interleave(torch.arange(seg.shape[0]), cnt)
     local = torch.arange(k.numel()) - torch.repeat_interleave(cnt.cumsum(0) - cnt, cnt)
-    py, px = y0[k] + torch.div(local, sx[k], rounding_mode="floor"), x0[k] + local % sx[k]
+    # gathers with index_select (much faster than advanced indexing on CPU; the same values)
+    y0k, x0k, sxk = torch.stack([y0, x0, sx]).index_select(1, k).unbind(0)
+    row = torch.div(local, sxk, rounding_mode="floor")
+    py, px = y0k + row, x0k + (local - row * sxk)
     sc, wc = seg.cpu(), wid.cpu()
-    a_y, a_x = sc[k, 0], sc[k, 1]
-    vy, vx = sc[k, 2] - a_y, sc[k, 3] - a_x
+    a_y, a_x, b_y, b_x, wk = torch.cat([sc.T, wc[None]]).index_select(1, k).unbind(0)
+    vy, vx = b_y - a_y, b_x - a_x
     wy, wx = py.to(seg.dtype) - a_y, px.to(seg.dtype) - a_x
     tt = ((wy * vy + wx * vx) / (vy * vy + vx * vx).clamp_min(1e-9)).clamp(0, 1)
     dist = torch.sqrt((wy - tt * vy) ** 2 + (wx - tt * vx) ** 2 + 1e-12)
-    cover = (wc[k] / 2 + 0.5 - dist).clamp(0, 1)
+    cover = (wk / 2 + 0.5 - dist).clamp(0, 1)
     return top.scatter_reduce_(0, py * w + px, cover, reduce="amax").reshape(h, w)
 
 
