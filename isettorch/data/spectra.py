@@ -48,6 +48,25 @@ def _key(w: torch.Tensor) -> tuple:
     return tuple(float(x) for x in w.detach().double().cpu().tolist())
 
 
+_VALID_GRIDS: set = set()
+
+
+def _checked(wavelengths_nm) -> torch.Tensor:
+    """``check_wavelengths`` once per distinct grid (a scene calls the spectra functions ~8 times on the same
+    grid; each full check costs ~40 us of small tensor ops). A grid is remembered by its exact values, dtype and
+    device, so an invalid grid (NaN never equals itself) is always checked, and raises."""
+    w = torch.as_tensor(wavelengths_nm)
+    if w.dim() != 1:
+        return check_wavelengths(w)
+    key = (w.dtype, str(w.device), tuple(w.detach().cpu().tolist()))
+    if key not in _VALID_GRIDS:
+        check_wavelengths(w)
+        if len(_VALID_GRIDS) > 256:  # bounded
+            _VALID_GRIDS.clear()
+        _VALID_GRIDS.add(key)
+    return w
+
+
 # ------------------------------------------------------------------------------------------------
 # Reflectances
 
@@ -95,7 +114,7 @@ def reflectance_basis(wavelengths_nm, n_components: int = 8, *, dtype=None, devi
 
     The basis is fitted (SVD) on 400-700 nm; outside that range it is 0 (see `spectral.resample`).
     """
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = _checked(wavelengths_nm)
     if not 1 <= n_components <= 12:
         raise ValueError(f"n_components: expected 1..12 principal components, got {n_components}")
     dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
@@ -122,7 +141,7 @@ def sigmoid_polynomial_reflectance(coefficients: torch.Tensor, wavelengths_nm) -
     Returns:
         ``[N, L]`` reflectances, strictly inside (0, 1).
     """
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = _checked(wavelengths_nm)
     c = coefficients
     u = ((w.to(c.device, c.dtype) - 550.0) / 150.0)
     x = c[:, :1] * u**2 + c[:, 1:2] * u + c[:, 2:3]
@@ -143,7 +162,7 @@ def random_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *, m
         >>> bool((r >= 0).all() and (r <= 1).all())
         True
     """
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = _checked(wavelengths_nm)
     if model not in ("pca", "sigmoid", "mixed"):
         raise ValueError(f"model: expected 'pca', 'sigmoid' or 'mixed', got {model!r}")
     dtype = w.dtype if w.is_floating_point() else torch.get_default_dtype()
@@ -179,7 +198,7 @@ def daylight_spd(cct_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     Source: CIE 015:2018 eqs. 4.7-4.12 (x_D polynomials in 1/T, y_D = -3 x^2 + 2.87 x - 0.275, M1, M2),
     the same convention as ``colour.temperature.CCT_to_xy_CIE_D`` (6504 K gives D65).
     """
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = _checked(wavelengths_nm)
     t = torch.as_tensor(cct_k, dtype=torch.float64).reshape(-1)
     if ((t < 4000) | (t > 25000)).any():
         raise ValueError(f"cct_k: expected daylight CCTs in [4000, 25000] K, got {t.tolist()}")
@@ -200,7 +219,7 @@ def blackbody_spd(temperature_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     """Planck spectra ``[N, L]`` (energy, 100 at 560 nm). Source: Planck's law (CODATA h, c, k)."""
     from .. import constants
 
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = _checked(wavelengths_nm)
     t = torch.as_tensor(temperature_k, dtype=torch.float64).reshape(-1, 1)
     if (t <= 0).any() or not torch.isfinite(t).all():
         raise ValueError(f"temperature_k: expected positive temperatures, got {t.flatten().tolist()}")
@@ -220,7 +239,7 @@ def _fluorescent_table(grid: tuple) -> torch.Tensor:
 
 def fluorescent_spd(numbers: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     """CIE fluorescent illuminants F<n> (n in 1..12) ``[N, L]`` (colour-science tables)."""
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = _checked(wavelengths_nm)
     nums = [int(x) for x in torch.as_tensor(numbers).reshape(-1).tolist()]
     bad = [x for x in nums if not 1 <= x <= 12]
     if bad:
@@ -244,7 +263,7 @@ def _led_parts(w: torch.Tensor, pump_nm: torch.Tensor, phosphor_nm: torch.Tensor
 
 def chromaticity_xy(spd_energy: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     """CIE 1931 xy ``[N, 2]`` of spectra ``[N, L]`` (energy units)."""
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = _checked(wavelengths_nm)
     cm = spectral.cmfs(w, dtype=spd_energy.dtype, device=spd_energy.device)
     xyz = spectral.spectral_integral(spd_energy, cm, w, dim=-1)
     return xyz[..., :2] / xyz.sum(dim=-1, keepdim=True)
@@ -280,7 +299,7 @@ def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=No
     the comment below); an integer runs the former bisection in ``log r`` with that many steps (26 gave
     ``|d log r| <= 1.3e-7``).
     """
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = _checked(wavelengths_nm)
     t = torch.as_tensor(cct_k, dtype=torch.float64).reshape(-1)
     n = t.numel()
 
@@ -352,7 +371,7 @@ def random_illuminant(kind: str, wavelengths_nm, generator: torch.Generator, cct
     defaults = {"daylight": (4000.0, 25000.0), "blackbody": (2000.0, 10000.0), "led": (2700.0, 6500.0)}
     if kind not in ILLUMINANT_KINDS:
         raise ValueError(f"kind: expected one of {ILLUMINANT_KINDS}, got {kind!r}")
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = _checked(wavelengths_nm)
     u = float(torch.rand((), generator=generator, dtype=torch.float64))
     if kind == "fluorescent":
         num = int(torch.randint(1, 13, (), generator=generator))

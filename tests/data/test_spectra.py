@@ -124,3 +124,16 @@ def test_led_closed_form_matches_converged_bisection():
     closed = spectra.led_spd(t, W10)
     bisect = spectra.led_spd(t, W10, iterations=60)
     np.testing.assert_allclose(closed.numpy(), bisect.numpy(), rtol=1e-11, atol=1e-12)
+
+
+def test_wavelength_checks_are_remembered_only_for_valid_grids():
+    """Grids are validated once per distinct grid; invalid ones raise every time, whatever was called before."""
+    g = torch.Generator().manual_seed(0)
+    spectra.random_reflectances(2, W10, g)
+    for bad in (torch.flip(W10, [0]), torch.tensor([400.0, float("nan"), 700.0]), torch.tensor([-1.0, 500.0])):
+        for _ in range(2):
+            with pytest.raises(ValueError, match="wavelengths_nm"):
+                spectra.random_reflectances(2, bad, g)
+            with pytest.raises(ValueError, match="wavelengths_nm"):
+                spectra.daylight_spd(torch.tensor([5000.0]), bad)
+    assert spectra.blackbody_spd(torch.tensor([5000.0]), W10.tolist()).shape == (1, W10.numel())
