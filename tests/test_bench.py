@@ -45,6 +45,7 @@ def test_schema(result):
         assert set(bench.ROW_KEYS) <= set(r)
         assert isinstance(r["name"], str) and r["name"]
         assert isinstance(r["seconds_median"], float) and r["seconds_median"] > 0
+        assert 0 < r["seconds_min"] <= r["seconds_median"]  # fastest run <= median
         assert (r["error"] is None) == (r["error_unit"] is None)
         if r["error"] is not None:
             assert math.isfinite(r["error"]) and r["error"] >= 0
