@@ -43,6 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--name", default="demosaic_learned", help="file stem in the assets folder")
     ap.add_argument("--half", action="store_true", help="store the weights as float16 (half the size)")
     ap.add_argument("--no-bench", action="store_true", help="skip the Kodak/McMaster scores (noisy variants)")
+    ap.add_argument("--heldout", default=None,
+                    help="JSON written by training/eval_camera_pairs.py, added to the record (held-out camera pairs)")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     run = Path(args.run)
@@ -76,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     rec_path = run / "record.json"
     rec = json.loads(rec_path.read_text()) if rec_path.is_file() else {}
     cfg = json.loads(ck["train_config"])
+    selected_by = ("held-out camera-pair validation CPSNR" if cfg.get("data", {}).get("source") == "camera_pairs"
+                   else "synthetic validation CPSNR")
+    heldout = json.loads(Path(args.heldout).read_text()) if args.heldout else None
     command = rec.get("command", "train_demosaic.py --config configs/train/demosaic_noise_free.yaml")
     if isinstance(command, str) and command.startswith("train_demosaic.py"):
         command = "python training/" + command
@@ -87,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         "net_config": ck["net_config"],
         "parameters": sum(p.numel() for p in net.parameters()),
         "data": args.data or cfg.get("data"),
-        "checkpoint": {"which": args.which, "step": int(ck["step"]), "selected_by": "synthetic validation CPSNR"},
+        "checkpoint": {"which": args.which, "step": int(ck["step"]), "selected_by": selected_by},
         "wall_s": round(float(ck.get("wall_s", 0.0)), 1),
         "total_run_wall_s": rec.get("wall_s"),
         "hardware": rec.get("hardware"),
@@ -99,13 +104,22 @@ def main(argv: list[str] | None = None) -> int:
                                 "image averaged; Kodak/McMaster were never used for training or selection",
         "anchors_cpsnr_db_crop0_crop10": ANCHORS,
     }
+    if heldout:
+        info["heldout_camera_pairs"] = heldout
     (out / f"{args.name}.json").write_text(json.dumps(info, indent=2, default=str))
     lines = ["# Shipped learned demosaic (`isettorch.isp.learned.load_pretrained()`)", "",
              f"- command: `{info['command']}`", f"- network: DemosaicNet {ck['net_config']}, "
              f"{info['parameters']} parameters", f"- data: {json.dumps(info['data'], default=str)}",
-             f"- checkpoint: {args.which} by synthetic validation CPSNR, step {ck['step']}, "
+             f"- checkpoint: {args.which} by {selected_by}, step {ck['step']}, "
              f"training wall time {info['wall_s']} s", f"- hardware: {json.dumps(info['hardware'], default=str)}",
-             f"- synthetic validation (held out): {json.dumps(info['validation_synthetic'])}"]
+             f"- validation (held out): {json.dumps(info['validation_synthetic'])}"]
+    if heldout:
+        lines += ["", f"Held-out camera pairs ({heldout['items']} items {heldout['size']}x{heldout['size']}, dataset "
+                  f"seed {heldout['dataset_seed']}, input {heldout['input']} -> camera_rgb, CPSNR dB, crop "
+                  f"{heldout['crop']}; halves split at the median noise gain {heldout['noise_gain_median']:.3g}):", "",
+                  "| method | mean | low-noise half | high-noise half |", "|---|---|---|---|"]
+        for m, v in heldout["cpsnr_db"].items():
+            lines.append(f"| {m} | {v['mean']} | {v['low_noise_half']} | {v['high_noise_half']} |")
     if scores:
         lines += ["", "| method | Kodak crop0 | Kodak crop10 | McM crop0 | McM crop10 |", "|---|---|---|---|---|"]
     for m, a in (ANCHORS.items() if scores else ()):

@@ -240,7 +240,10 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
 
     ``variant="noise_free"`` (``demosaic_learned.pt``) or ``"joint_denoise"`` (``demosaic_learned_denoise.pt``,
     which takes ``noise = [sqrt(a) * 10, sqrt(b) * 100]`` for a mosaic with variance ``a x + b``; see
-    ``training/train_demosaic.py``).
+    ``training/train_demosaic.py``). The joint network was trained on :mod:`isettorch.data.camera_pairs`
+    (noisy raw in normalised units, 0 = black, 1 = white level, not white-balanced -> ``camera_rgb``; ``a`` and
+    ``b`` are an item's ``meta['noise_gain']`` and ``meta['noise_floor_var']``), starting from a model trained on
+    synthetic white-balanced scenes.
 
     Example:
         >>> net = load_pretrained()
