@@ -86,3 +86,17 @@ def test_smoke_training_resume(tmp_path):
     rows = list(csv.DictReader(open(straight / "history.csv")))
     assert all(np.isfinite(float(r["train_loss"])) and float(r["val_cpsnr"]) > 10 for r in rows)
     assert b["model"]["head.weight"].abs().sum() > 0
+
+
+def test_eval_camera_pairs_untrained_net_is_mhc():
+    # a DemosaicNet with its zero-initialised head outputs exactly MHC, so both must score the same on held-out items
+    from isettorch.isp.learned import DemosaicNet
+    from training import eval_camera_pairs
+
+    cfg = common.load_config(SMOKE)
+    torch.manual_seed(0)
+    res = eval_camera_pairs.evaluate(cfg, {"zero": DemosaicNet(8, 2, noise_inputs=2)}, items=3, size=24, crop=2,
+                                     batch=2)
+    assert res["dataset_seed"] == cfg["seed"] + train_demosaic.TEST_SEED_OFFSET and res["items"] == 3
+    assert res["cpsnr_db"]["zero"] == res["cpsnr_db"]["mhc"]
+    assert 10 < res["cpsnr_db"]["mhc"]["mean"] < 80
