@@ -262,28 +262,9 @@ def _render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dt
     lin = _matmul_fixed_order(m_srgb.to(dtype), xyz.reshape(3, -1)).reshape(1, 3, h, w)
     srgb = srgb_encode(lin.clamp(0, 1))
 
-    meta_s = scene.metadata
-    name = meta_s["illuminant"]
-    code = ILLUMINANT_CODES.get(name, 10 + int(name[1:]) if name.startswith("F") else -1)
-    quant_var = 1.0 / 12.0 / span**2
-    meta = {
-        "index": torch.tensor(index, dtype=torch.long),
-        "exposure_s": exposure, "analog_gain": gain, "iso": 100.0 * gain, "f_number": f_number,
-        "focal_length_m": focal, "pixel_size_m": pitch, "full_well_e": full_well, "read_noise_e": read_e,
-        "dark_current_e_per_s": dark, "dsnu_sigma_e": dsnu_e, "prnu_sigma_percent": prnu,
-        "black_level_dn": black, "white_level_dn": white,
-        # Poisson-Gaussian noise model in normalised units: var(x) = noise_gain * x + noise_floor_var
-        # (Foi et al., "Practical Poissonian-Gaussian noise modeling", IEEE TIP 17(10), 2008).
-        "noise_gain": to_norm,
-        "noise_floor_var": (read_e**2 + dsnu_e**2 + dark * exposure) * to_norm**2 + quant_var,
-        "cfa": cfa.index_map.clone(),
-        "cct_k": meta_s["cct_k"], "illuminant_code": torch.tensor(code, dtype=torch.long),
-        "white_camera_rgb": (white_cam / white_cam[1]).to(dtype),
-        "white_xyz": (white_xyz / white_xyz[1]).to(dtype),
-        "qe": qe.to(dtype), "wavelengths_nm": wave.to(dtype),
-        "hdr_decades": meta_s["hdr_decades"], "mean_luminance_cd_m2": meta_s["mean_luminance_cd_m2"],
-    }
-    meta = {k: (v if isinstance(v, torch.Tensor) else torch.tensor(v, dtype=dtype)) for k, v in meta.items()}
+    d = {"gain": gain, "read_e": read_e, "dsnu_e": dsnu_e, "dark": dark, "f_number": f_number, "focal": focal,
+         "pitch": pitch, "full_well": full_well, "prnu": prnu, "black": black}
+    meta = _meta(index, d, scene.metadata, exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave, dtype)
     clock("targets")
     return {
         "raw": ((raw.data[0] - black) / span).to(dtype),
