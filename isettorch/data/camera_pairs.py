@@ -41,6 +41,7 @@ import torch
 
 from .. import constants, spectral
 from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
+from ..isp.colour import bradford_matrix
 from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for
 from .scenes import _uniform, generate_scene
 
@@ -54,8 +55,6 @@ META_KEYS = ("index", "exposure_s", "analog_gain", "iso", "f_number", "focal_len
              "black_level_dn", "white_level_dn", "noise_gain", "noise_floor_var", "cfa", "cct_k", "illuminant_code",
              "white_camera_rgb", "white_xyz", "qe", "wavelengths_nm", "hdr_decades", "mean_luminance_cd_m2")
 
-# Bradford cone response matrix (Lam 1985; as in colour-science CHROMATIC_ADAPTATION_TRANSFORMS['Bradford']).
-_BRADFORD = ((0.8951, 0.2664, -0.1614), (-0.7502, 1.7135, 0.0367), (0.0389, -0.0685, 1.0296))
 _D65_XYZ = (0.95047, 1.0, 1.08883)  # IEC 61966-2-1 white, Y = 1
 
 
@@ -84,13 +83,6 @@ def _xyz_weights(grid: tuple) -> tuple[torch.Tensor, torch.Tensor]:
     dl = spectral.wavelength_weights(w)
     to_watts = (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S) / (w * 1e-9)
     return constants.KM_LM_PER_W * spectral.cmfs(w, dtype=torch.float64) * to_watts * dl, dl
-
-
-def _bradford(src_xyz: torch.Tensor, dst_xyz: torch.Tensor) -> torch.Tensor:
-    """von Kries adaptation in Bradford cone space: ``M^-1 diag(M dst / M src) M`` (CIE 160:2004)."""
-    m = torch.tensor(_BRADFORD, dtype=torch.float64)
-    s, d = m @ src_xyz.to(torch.float64), m @ dst_xyz.to(torch.float64)
-    return torch.linalg.inv(m) @ torch.diag(d / s) @ m
 
 
 def _matmul_fixed_order(a: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -257,7 +249,7 @@ def _render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dt
     k_white = white_cam[1] / white_xyz[1]  # e-/s/m^2 per (cd/m^2-equivalent) on both sides of the optics
     scale = float(k_white) * fill * pitch * pitch * exposure * to_norm
     xyz = xyz_img * scale
-    cat = _bradford(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
+    cat = bradford_matrix(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
     m_srgb = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat
     lin = _matmul_fixed_order(m_srgb.to(dtype), xyz.reshape(3, -1)).reshape(1, 3, h, w)
     srgb = srgb_encode(lin.clamp(0, 1))
@@ -493,7 +485,7 @@ def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, 
         white_cam = (qe.to(torch.float64) * dl * white_p).sum(dim=1)
         k_white = white_cam[1] / white_xyz[1]  # e-/s/m^2 per (cd/m^2-equivalent) on both sides of the optics
         scales.append(float(k_white) * d["fill"] * d["pitch"] * d["pitch"] * exposure[b] * to_norm[b])
-        cat = _bradford(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
+        cat = bradford_matrix(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
         mats.append(torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat)
         metas.append(_meta(indices[b], d, scenes[b][0]["meta"], exposure[b], to_norm[b], span, white, cfas[b],
                            white_cam, white_xyz, qe, wave, dtype))
