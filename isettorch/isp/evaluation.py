@@ -37,14 +37,9 @@ def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: 
     if estimate.shape != reference.shape or estimate.dim() != 4:
         raise ValueError(f"estimate, reference: expected equal shapes (B, C, H, W), got {tuple(estimate.shape)} "
                          f"and {tuple(reference.shape)}")
-    h, w = estimate.shape[-2:]
-    if not isinstance(crop, int) or crop < 0 or 2 * crop >= min(h, w):
-        raise ValueError(f"crop: expected an integer in [0, {(min(h, w) - 1) // 2}] for a {h}x{w} image, got {crop!r}")
-    if crop:
-        estimate = estimate[..., crop:h - crop, crop:w - crop]
-        reference = reference[..., crop:h - crop, crop:w - crop]
-    mse = (estimate - reference).square().flatten(1).mean(1)
-    return 10 * torch.log10(peak**2 / mse)
+    from ..metrics.fidelity import psnr  # one PSNR implementation (per image, MSE over C, H, W)
+
+    return psnr(estimate, reference, data_range=peak, crop=crop)
 
 
 def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
