@@ -78,3 +78,17 @@ def test_bad_fov_and_distance():
         _scene(distance_m=0.0)
     with pytest.raises(ValueError, match="hfov_deg"):
         _scene(hfov_deg=[1.0, 2.0, 3.0])
+
+
+def test_plots_save_png(tmp_path):
+    from isettorch import scene as scenes
+
+    s = scenes.macbeth(patch_size=4)
+    fig = s.plot_srgb()
+    fig.savefig(tmp_path / "srgb.png")
+    # mean radiance of the top-left (dark skin) patch; the plotted line is exactly that region's mean spectrum
+    fig2 = s.plot_spectrum(rows=slice(0, 4), cols=slice(0, 4))
+    fig2.savefig(tmp_path / "spd.png")
+    line = fig2.axes[0].lines[0]
+    assert torch.allclose(torch.as_tensor(line.get_ydata(), dtype=s.dtype), s.photons[0, :, :4, :4].mean(dim=(-2, -1)))
+    assert (tmp_path / "srgb.png").stat().st_size > 0 and (tmp_path / "spd.png").stat().st_size > 0
