@@ -8,7 +8,6 @@ photons' dtype and device, so they broadcast over the batch.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any, ClassVar
 
 import torch
@@ -230,5 +229,3 @@ def extent_for_angle(angle_deg: torch.Tensor, distance_m: torch.Tensor) -> torch
     """Extent (m) subtended by a full angle at a distance: 2 d tan(a / 2)."""
     return 2 * distance_m * torch.tan(torch.deg2rad(angle_deg) / 2)
 
-
-DEG = math.pi / 180
