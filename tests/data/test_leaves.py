@@ -1,4 +1,4 @@
-"""The bounding-box dead-leaves painter equals the brute-force painter (every leaf tested on every pixel)."""
+"""The run-based dead-leaves painter equals the brute-force painter (every leaf tested on every pixel)."""
 
 import math
 
@@ -10,25 +10,40 @@ from isettorch.data import layouts
 def test_painter_equals_brute_force_for_all_shapes():
     g = torch.Generator().manual_seed(7)
     h, w = 48, 40
-    for _ in range(3):
+    for trial in range(4):
         n = 300
         r = layouts.dead_leaves_radii(n, 1.5, 30.0, g)
         cy = torch.rand(n, generator=g, dtype=torch.float64) * 1.2 * h - 0.1 * h
         cx = torch.rand(n, generator=g, dtype=torch.float64) * 1.2 * w - 0.1 * w
         shape = torch.randint(0, 3, (n,), generator=g)
         theta = torch.rand(n, generator=g, dtype=torch.float64) * math.pi
+        if trial == 3:  # axis-aligned leaves: sin t = 0 exactly (a slab with a zero coefficient)
+            theta = torch.zeros(n, dtype=torch.float64)
         aspect = 0.3 + 0.7 * torch.rand(n, generator=g, dtype=torch.float64)
         top = layouts._paint_leaves(h, w, cy, cx, r, theta, aspect, shape, None, torch.float32)
         yy = torch.arange(h, dtype=torch.float32)[None, :, None]
         xx = torch.arange(w, dtype=torch.float32)[None, None, :]
 
         def v(t):
-            return t.float()[:, None, None]
+            return t.double()[:, None, None]
 
-        inside = layouts._leaf_inside(yy - v(cy), xx - v(cx), v(r), v(aspect), torch.cos(v(theta)),
-                                      torch.sin(v(theta)), shape[:, None, None])
+        # float64 brute force; the painter solves each row's run in float64 too, so they may only disagree
+        # where a pixel centre lies within rounding of a leaf's boundary
+        yy, xx = yy.double(), xx.double()
+        dy, dx = yy - v(cy), xx - v(cx)
+        inside = layouts._leaf_inside(dy, dx, v(r), v(aspect), torch.cos(v(theta)), torch.sin(v(theta)),
+                                      shape[:, None, None])
         brute = (inside * torch.arange(1, n + 1)[:, None, None]).amax(dim=0)
-        assert torch.equal(top, brute.clamp_min(1) - 1)
+        differ = top != brute.clamp_min(1) - 1
+        assert int(differ.sum()) <= 2
+        if differ.any():  # every disagreement is a boundary tie: some leaf's metric within 1e-9 of 1
+            pu = (dx * torch.cos(v(theta)) + dy * torch.sin(v(theta))) / v(r)
+            pv = (-dx * torch.sin(v(theta)) + dy * torch.cos(v(theta))) / (v(r) * v(aspect))
+            sh = shape[:, None, None]
+            metric = torch.where(sh == 1, torch.maximum(pu.abs(), pv.abs()),
+                                 torch.where(sh == 2, pu * pu + pv * pv, (dx * dx + dy * dy) / v(r) ** 2))
+            assert bool(((metric - 1).abs() < 1e-9).any(dim=0)[differ].all())
+        assert top.sum() > 0
         assert len(set(shape[brute[brute > 0] - 1].tolist())) == 3  # every shape is on top somewhere
 
 
