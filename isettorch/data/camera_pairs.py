@@ -135,8 +135,6 @@ class _Cache:
 def _draw_camera(index: int, seed: int, scene_cfg: dict, cam: dict) -> dict:
     """The camera draws of item ``(seed, index)`` (fixed order), and the scene FOV that puts one scene sample on
     one pixel. Shared by the reference and the factored paths."""
-    from ..optics.geometry import image_distance
-
     g = torch.Generator().manual_seed(seed_for(seed, index, stream=1))
     h, w = int(scene_cfg["height"]), int(scene_cfg["width"])
     m = int(cam["margin_px"])
@@ -158,10 +156,14 @@ def _draw_camera(index: int, seed: int, scene_cfg: dict, cam: dict) -> dict:
     d["shifts"] = ((torch.rand(3, generator=g, dtype=torch.float64) * 2 - 1) * 10.0 * var).tolist()
     d["bits"], d["black"] = int(cam["bits"]), float(cam["black_level_dn"])
     d["noise_seed"] = seed_for(seed, index, stream=2)
-    # Scene FOV so that one scene sample lands on one pixel: pitch = 2 d_i tan(hfov / 2) / W_s.
-    distance = _uniform(scene_cfg["distance_m"], torch.Generator().manual_seed(seed_for(seed, index)))
-    d_i = float(image_distance(torch.tensor(focal, dtype=torch.float64), torch.tensor(distance,
-                                                                                       dtype=torch.float64)))
+    # The object distance is drawn here (camera stream, last) and imposed on the scene, so the FOV below and the
+    # scene's geometry agree for a distance range too. Scene FOV so that one scene sample lands on one pixel:
+    # pitch = 2 d_i tan(hfov / 2) / W_s.
+    d["distance"] = distance = _uniform(scene_cfg["distance_m"], g)
+    if not distance > focal:
+        raise ValueError(f"scene.distance_m: expected object distances beyond the focal length {focal} m, "
+                         f"got {distance}")
+    d_i = 1.0 / (1.0 / focal - 1.0 / distance)  # thin lens, as optics.geometry.image_distance (Hecht 5.17)
     d["ws"] = ws = w + 2 * m
     d["hfov"] = math.degrees(2 * math.atan(pitch * ws / (2 * d_i)))
     return d
@@ -192,7 +194,8 @@ def _render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dt
     gain, ev, peak, pattern, shifts = d["gain"], d["ev"], d["peak"], d["pattern"], d["shifts"]
     bits, black, noise_seed, hfov, ws = d["bits"], d["black"], d["noise_seed"], d["hfov"], d["ws"]
     clock("setup")
-    scene = generate_scene(index, seed, scene_cfg, dtype=dtype, hfov_deg=hfov, size=(h + 2 * m, ws))
+    scene = generate_scene(index, seed, scene_cfg, dtype=dtype, hfov_deg=hfov, size=(h + 2 * m, ws),
+                           distance_m=d["distance"])
     clock("scene")
     optics = cache.get_optics(f_number, focal, m)
     pr, pc = full_padding(h + 2 * m, m), full_padding(ws, m)
@@ -287,6 +290,16 @@ def _unit_qe(pattern: str, shifts: tuple):
     return SpectralQE(_nikon_unit_on(tuple(native.tolist()), shifts), native, CFA(pattern).channel_names)
 
 
+@functools.lru_cache(maxsize=64)
+def _camera_parts(pattern: str, shifts: tuple, grid: tuple):
+    """``(CFA, SpectralQE with peak 1, its QE [3, L] float64 on grid)`` of a pattern and channel shifts (cached:
+    a few discrete cameras repeat; the CFA and QE modules are not modified by a capture)."""
+    from ..sensor import CFA
+
+    qe_module = _unit_qe(pattern, shifts)
+    return CFA(pattern), qe_module, qe_module(torch.tensor(grid, dtype=torch.float64), dtype=torch.float64)
+
+
 def _factored_radiance(f: dict, dtype) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The scene of :func:`scenes._draw_scene` factors as ``L(x, l) = sum_j maps_j(x) spectra_j(l)``:
 
@@ -363,7 +376,7 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     from ..optics import geometry
     from ..optics.blur import next_fast_size
     from ..optics.diffraction import dl_otf
-    from ..sensor import CFA, Sensor
+    from ..sensor import Sensor
     from .scenes import _draw_scene
 
     if not indices:
@@ -377,7 +390,8 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     clock("setup")
     scenes = []
     for i, d in zip(indices, draws):
-        f = _draw_scene(i, seed, scene_cfg, device=None, dtype=dtype, hfov_deg=d["hfov"], size=(hs, ws))
+        f = _draw_scene(i, seed, scene_cfg, device=None, dtype=dtype, hfov_deg=d["hfov"], size=(hs, ws),
+                        distance_m=d["distance"])
         scenes.append((f, *_factored_radiance(f, dtype)))
     wave64 = scenes[0][0]["wl"]
     wave = wave64.to(dtype)
@@ -417,10 +431,9 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     # which made batched transforms ~2x slower per item on CPU; per item, results are the same bitwise.
     cfas, qes, dens = [], [], []
     for d, (_, maps, spectra, _), q, (otf, _) in zip(draws, scenes, spatial, otfs):
-        cfa = CFA(d["pattern"])
-        qe_module = _unit_qe(d["pattern"], tuple(d["shifts"]))  # peak 1 (the capture itself does not use QE)
-        qe = (qe_module(wave, dtype=torch.float64) * d["peak"]).to(dtype)  # linear resampling commutes with peak
-        weights = torch.cat([qe.to(dtype) * dl.to(dtype), xyz_w.to(dtype)])  # [6, L]
+        cfa, qe_module, unit_qe = _camera_parts(d["pattern"], tuple(d["shifts"]), grid)
+        qe = (unit_qe * d["peak"]).to(dtype)  # linear resampling commutes with the peak scale
+        weights = torch.cat([qe * dl.to(dtype), xyz_w.to(dtype)])  # [6, L]
         src = maps.mul_(q)  # in place: the maps are not used after the optics
         if (my, mx) != (hs, ws):
             src = torch.nn.functional.pad(src, (0, mx - ws, 0, my - hs))
@@ -433,14 +446,54 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
         qes.append((qe_module, qe))
     dens6 = torch.stack(dens)
     clock("optics")
-    return _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, dl, dtype, clock, Sensor)
+    return _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, dl, dtype, clock, Sensor,
+                                cache)
 
 
-def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, dl, dtype, clock, sensor_cls):
+def _sensor_for(cache: _Cache, d: dict, cfa, qe_module, sensor_cls):
+    """The `Sensor` of item ``d``: one module per discrete camera (pixel pitch, fill factor, CFA, QE curves, ADC),
+    built and validated once, then given the item's continuous parameters (conversion gain from the full well,
+    read noise, dark current, DSNU, PRNU, analog gain: plain float attributes read at capture time). Building a
+    `Sensor` per item cost ~0.2 ms (nn.Module set-up and argument checks); the values are the same."""
+    key = ("sensor", d["pitch"], d["fill"], d["pattern"], tuple(d["shifts"]), d["bits"], d["black"])
+    sensor = cache.optics.get(key)
+    if sensor is None:
+        sensor = cache.optics[key] = sensor_cls(
+            rows=d["h"], cols=d["w"], pixel_size_m=d["pitch"], fill_factor=d["fill"], cfa=cfa, spectral_qe=qe_module,
+            conversion_gain_v_per_e=1.0 / d["full_well"], voltage_swing_v=1.0, analog_gain=d["gain"],
+            adc_bits=d["bits"], black_level_dn=d["black"], shot_noise="poisson", fpn_mode="per_frame")
+    cg = 1.0 / d["full_well"]  # volts per electron with a 1 V swing: well capacity = full_well
+    sensor.conversion_gain_v_per_e = cg
+    sensor.analog_gain = d["gain"]
+    sensor.read_noise_v = d["read_e"] * cg
+    sensor.dark_current_e_per_s = d["dark"]
+    sensor.dsnu_sigma_v = d["dsnu_e"] * cg
+    sensor.prnu_sigma_percent = d["prnu"]
+    sensor.seed = d["noise_seed"]
+    return sensor
+
+
+def _views(shapes: dict, dtype) -> dict:
+    """Contiguous tensors ``{key: [shape]}`` that are views of **one** storage: a DataLoader worker then ships the
+    whole batch as one shared-memory block instead of one per tensor (measured: the main process's share of the
+    work per batch falls by ~half, a ~10 % higher rate with 2 workers on 2 cores)."""
+    sizes = [math.prod(shape) for shape in shapes.values()]
+    flat = torch.empty(sum(sizes), dtype=dtype)
+    out, start = {}, 0
+    for (key, shape), size in zip(shapes.items(), sizes):
+        out[key] = flat[start:start + size].view(shape)
+        start += size
+    return out
+
+
+def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, dl, dtype, clock, sensor_cls,
+                         cache):
     """Exposure, the sensor capture (per item: its own noise generator) and the targets, batched; returns the
-    batch dict (the format of :func:`collate_pairs`)."""
+    batch dict (the format of :func:`collate_pairs`; every image and float field in one storage)."""
     nb = len(indices)
     h, w, bits, black = draws[0]["h"], draws[0]["w"], draws[0]["bits"], draws[0]["black"]
+    img = _views({k: (nb, c, h, w) for k, c in (("raw", 1), ("noise_free_raw", 1), ("camera_rgb", 3), ("xyz", 3),
+                                                 ("linear_srgb", 3), ("srgb", 3))}, dtype)
 
     def col(values, dt=dtype):  # per-item scalars as a [B, 1, 1, 1] tensor
         return torch.tensor(values, dtype=dt).reshape(nb, 1, 1, 1)
@@ -456,27 +509,21 @@ def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, 
     span = white - black
     cg = [1.0 / d["full_well"] for d in draws]  # volts per electron with a 1 V swing: well capacity = full_well
     clock("targets")
-    raws, clean = [], []
     for b, d in enumerate(draws):
-        sensor = sensor_cls(rows=h, cols=w, pixel_size_m=d["pitch"], fill_factor=d["fill"], cfa=cfas[b],
-                            spectral_qe=qes[b][0], conversion_gain_v_per_e=cg[b], voltage_swing_v=1.0,
-                            analog_gain=d["gain"], adc_bits=bits, black_level_dn=black, shot_noise="poisson",
-                            read_noise_v=d["read_e"] * cg[b], dark_current_e_per_s=d["dark"],
-                            dsnu_sigma_v=d["dsnu_e"] * cg[b], prnu_sigma_percent=d["prnu"], fpn_mode="per_frame",
-                            seed=d["noise_seed"])
+        sensor = _sensor_for(cache, d, cfas[b], qes[b][0], sensor_cls)
         ng = torch.Generator().manual_seed(d["noise_seed"])
         with torch.no_grad():
             raw = sensor.capture(cfas[b].mosaic(rate_rgb[b:b + 1]), exposure_s=exposure[b], analog_gain=d["gain"],
                                  noise=True, generator=ng)
-        raws.append(raw.data)
-        clean.append(raw.noise_free)
+        torch.sub(raw.data, black, out=img["raw"][b:b + 1]).div_(span)
+        torch.sub(raw.noise_free, black, out=img["noise_free_raw"][b:b + 1]).div_(span)
     clock("sensor")
     gain = [d["gain"] for d in draws]
     to_norm = [cg[b] * gain[b] / lsb / span for b in range(nb)]
     # (x clamped at 1) / lsb, clamped at span, / span, in place: lsb = 2^-bits makes x / lsb exact and span <
     # 2^bits, so min(min(x, 1) / lsb, span) = min(x 2^bits, span), bitwise.
     cam_rgb = (rate_rgb * col(exposure)).mul_(col(cg)).mul_(col(gain))
-    cam_rgb = cam_rgb.mul_(2.0**bits).clamp_(max=span).div_(span)
+    torch.div(cam_rgb.mul_(2.0**bits).clamp_(max=span), span, out=img["camera_rgb"])
     scales, mats, metas = [], [], []
     for b, d in enumerate(draws):
         white_p = scenes[b][3].to(torch.float64)
@@ -487,31 +534,30 @@ def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, 
         scales.append(float(k_white) * d["fill"] * d["pitch"] * d["pitch"] * exposure[b] * to_norm[b])
         cat = bradford_matrix(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
         mats.append(torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat)
-        metas.append(_meta(indices[b], d, scenes[b][0]["meta"], exposure[b], to_norm[b], span, white, cfas[b],
-                           white_cam, white_xyz, qe, wave, dtype))
-    xyz = xyz_img.mul_(col(scales))  # in place: dens6 is not used any more
+        metas.append(_meta_values(indices[b], d, scenes[b][0]["meta"], exposure[b], to_norm[b], span, white,
+                                  cfas[b], white_cam, white_xyz, qe, wave))
+    xyz = torch.mul(xyz_img, col(scales), out=img["xyz"])
     m_srgb = torch.stack(mats).to(dtype)[..., None]  # [B, 3, 3, 1]
     x3 = xyz.reshape(nb, 3, -1)
-    lin = m_srgb[:, :, 0] * x3[:, :1]  # fixed summation order, as _matmul_fixed_order
+    lin = img["linear_srgb"].view(nb, 3, -1)
+    torch.mul(m_srgb[:, :, 0], x3[:, :1], out=lin)  # fixed summation order, as _matmul_fixed_order
     for c in (1, 2):
-        lin = lin.addcmul_(m_srgb[:, :, c], x3[:, c:c + 1])
-    lin = lin.reshape(nb, 3, h, w)
-    srgb = srgb_encode(lin.clamp(0, 1), inplace=True)
-    out = {"raw": ((torch.cat(raws) - black) / span).to(dtype),
-           "noise_free_raw": ((torch.cat(clean) - black) / span).to(dtype),
-           "camera_rgb": cam_rgb.to(dtype), "xyz": xyz.to(dtype), "linear_srgb": lin.to(dtype),
-           "srgb": srgb.to(dtype), "meta": {k: torch.stack([m[k] for m in metas]) for k in metas[0]}}
+        lin.addcmul_(m_srgb[:, :, c], x3[:, c:c + 1])
+    img["srgb"].copy_(srgb_encode(img["linear_srgb"].clamp(0, 1), inplace=True))
+    out = dict(img)
+    out["meta"] = _batch_meta(metas, dtype)
     clock("targets")
     return out
 
 
-def _meta(index, d, meta_s, exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave, dtype) -> dict:
+def _meta_values(index, d, meta_s, exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave) -> dict:
+    """The metadata of one item (:data:`META_KEYS`) as Python numbers and tensors (see :func:`_meta`)."""
     name = meta_s["illuminant"]
     code = ILLUMINANT_CODES.get(name, 10 + int(name[1:]) if name.startswith("F") else -1)
     quant_var = 1.0 / 12.0 / span**2
     gain, read_e, dsnu_e, dark = d["gain"], d["read_e"], d["dsnu_e"], d["dark"]
-    meta = {
-        "index": torch.tensor(index, dtype=torch.long),
+    return {
+        "index": int(index),
         "exposure_s": exposure, "analog_gain": gain, "iso": 100.0 * gain, "f_number": d["f_number"],
         "focal_length_m": d["focal"], "pixel_size_m": d["pitch"], "full_well_e": d["full_well"],
         "read_noise_e": read_e, "dark_current_e_per_s": dark, "dsnu_sigma_e": dsnu_e,
@@ -520,14 +566,42 @@ def _meta(index, d, meta_s, exposure, to_norm, span, white, cfa, white_cam, whit
         # (Foi et al., "Practical Poissonian-Gaussian noise modeling", IEEE TIP 17(10), 2008).
         "noise_gain": to_norm,
         "noise_floor_var": (read_e**2 + dsnu_e**2 + dark * exposure) * to_norm**2 + quant_var,
-        "cfa": cfa.index_map.clone(),
-        "cct_k": meta_s["cct_k"], "illuminant_code": torch.tensor(code, dtype=torch.long),
-        "white_camera_rgb": (white_cam / white_cam[1]).to(dtype),
-        "white_xyz": (white_xyz / white_xyz[1]).to(dtype),
-        "qe": qe.to(dtype), "wavelengths_nm": wave.to(dtype),
+        "cfa": cfa.index_map,
+        "cct_k": meta_s["cct_k"], "illuminant_code": int(code),
+        "white_camera_rgb": white_cam / white_cam[1],
+        "white_xyz": white_xyz / white_xyz[1],
+        "qe": qe, "wavelengths_nm": wave,
         "hdr_decades": meta_s["hdr_decades"], "mean_luminance_cd_m2": meta_s["mean_luminance_cd_m2"],
     }
-    return {k: (v if isinstance(v, torch.Tensor) else torch.tensor(v, dtype=dtype)) for k, v in meta.items()}
+
+
+_LONG_META = ("index", "illuminant_code", "cfa")
+
+
+def _meta(index, d, meta_s, exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave, dtype) -> dict:
+    """One item's metadata as tensors: long for ``index``, ``illuminant_code``, ``cfa``; ``dtype`` otherwise."""
+    values = _meta_values(index, d, meta_s, exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave)
+    return {k: (v.to(torch.long if k in _LONG_META else dtype).clone() if isinstance(v, torch.Tensor)
+                else torch.tensor(v, dtype=torch.long if k in _LONG_META else dtype)) for k, v in values.items()}
+
+
+def _batch_meta(metas: list[dict], dtype) -> dict:
+    """Per-item metadata values -> ``[B, ...]`` tensors, the same values as stacking :func:`_meta` items, in one
+    storage per dtype (scalars converted once per key for the whole batch)."""
+    nb = len(metas)
+    shapes = {k: (nb, *(tuple(v.shape) if isinstance(v, torch.Tensor) else ())) for k, v in metas[0].items()}
+    floats = _views({k: s for k, s in shapes.items() if k not in _LONG_META}, dtype)
+    longs = _views({k: shapes[k] for k in _LONG_META}, torch.long)
+    out = {}
+    for key in metas[0]:
+        dst = longs[key] if key in _LONG_META else floats[key]
+        first = metas[0][key]
+        if isinstance(first, torch.Tensor):
+            dst.copy_(torch.stack([m[key] for m in metas]))
+        else:
+            dst.copy_(torch.tensor([m[key] for m in metas], dtype=dst.dtype))
+        out[key] = dst
+    return out
 
 
 class CameraPairDataset(torch.utils.data.Dataset):

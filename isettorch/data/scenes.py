@@ -20,6 +20,7 @@ Every draw comes from a ``torch.Generator`` seeded by ``seed_for(seed, index)``:
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 
 import torch
@@ -39,9 +40,15 @@ def scene_wavelengths(cfg: dict, dtype=torch.float32, device=None) -> torch.Tens
 
 
 def _choice(weights: dict, g: torch.Generator) -> str:
+    """A key of ``weights`` drawn with probability proportional to its weight (inverse CDF of one uniform draw,
+    names in sorted order; ``torch.multinomial`` cost ~60 us per call)."""
     names = sorted(weights)
-    p = torch.tensor([float(weights[n]) for n in names], dtype=torch.float64)
-    return names[int(torch.multinomial(p / p.sum(), 1, generator=g))]
+    cum = list(itertools.accumulate(float(weights[n]) for n in names))
+    u = float(torch.rand((), generator=g, dtype=torch.float64)) * cum[-1]
+    for n, c in zip(names, cum):
+        if u < c and float(weights[n]) > 0:
+            return n
+    return [n for n in names if float(weights[n]) > 0][-1]  # u rounded up to the total
 
 
 def _uniform(rng, g: torch.Generator, log: bool = False) -> float:
@@ -116,13 +123,15 @@ def _luminance_weights_cached(grid: tuple, dtype, device: str) -> torch.Tensor:
 
 
 def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, device=None,
-                   dtype=torch.float32, hfov_deg: float | None = None, size: tuple[int, int] | None = None) -> Scene:
+                   dtype=torch.float32, hfov_deg: float | None = None, size: tuple[int, int] | None = None,
+                   distance_m: float | None = None) -> Scene:
     """Scene number ``index`` of the synthetic distribution ``config`` (see :data:`SCENE_DEFAULTS`).
 
     Args:
         index, seed: the item's identity; the result depends only on these and the config.
         config: scene config (keys of ``SCENE_DEFAULTS``; missing keys take the defaults).
-        hfov_deg, size: overrides (used by the camera-pair dataset to match a sensor).
+        hfov_deg, size, distance_m: overrides (used by the camera-pair dataset to match a sensor; an override is
+            not drawn, the other draws are unchanged).
     Returns:
         a `Scene` of batch 1 with ``illuminant_photons`` (the main light) and ``metadata`` describing the draw.
 
@@ -132,10 +141,11 @@ def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, dev
         (1, 31, 32, 32)
     """
     with one_thread():
-        return _generate_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size)
+        return _generate_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size,
+                               distance_m=distance_m)
 
 
-def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> dict:
+def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size, distance_m=None) -> dict:
     """Every random draw of scene ``(seed, index)`` (in a fixed order), before the radiance cube is assembled.
 
     Returns the factors of ``L(x, l) = k gain(x) R(x, l) (a(x) E1(l) + b(x) E2(l))`` (module notes):
@@ -194,7 +204,7 @@ def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> dict:
         else torch.ones(h, wd, device=device, dtype=dtype)
     target = _uniform(cfg["mean_luminance_cd_m2"], g, log=True)
     hfov = hfov_deg if hfov_deg is not None else _uniform(cfg["hfov_deg"], g)
-    distance = _uniform(cfg["distance_m"], g)
+    distance = distance_m if distance_m is not None else _uniform(cfg["distance_m"], g)
     meta = {"index": int(index), "seed": int(seed), "layout": layout, "illuminant": name1, "cct_k": cct1,
             "illuminant2": name2, "cct2_k": cct2, "light2_ratio": ratio, "two_lights": two, "shadow": shadow,
             "hdr_decades": decades, "mean_luminance_cd_m2": target}
@@ -202,8 +212,9 @@ def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> dict:
             "target": target, "hfov": hfov, "distance": distance, "wl": wl, "meta": meta}
 
 
-def _generate_scene(index, seed, config, *, device, dtype, hfov_deg, size) -> Scene:
-    f = _draw_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size)
+def _generate_scene(index, seed, config, *, device, dtype, hfov_deg, size, distance_m=None) -> Scene:
+    f = _draw_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size,
+                    distance_m=distance_m)
     h, wd = f["t"].shape
     pal = f["palette"].to(device=device, dtype=dtype).T.contiguous()  # [L, K]
     ta = f["t"].reshape(-1)

@@ -42,7 +42,7 @@ def shot_noise(mean_e: torch.Tensor, mode: str = "poisson", generator: torch.Gen
         return mean_e
     if mode == "poisson":
         draw = torch.poisson(mean_e.detach().clamp_min(0), generator=generator)
-        return mean_e + (draw - mean_e).detach()
+        return mean_e + (draw - mean_e).detach() if _needs_grad(mean_e) else draw
     if mode == "gaussian":
         return mean_e + safe_sqrt(mean_e) * normal(mean_e, generator)
     raise ValueError(f"shot_noise: expected mode in {SHOT_NOISE_MODES}, got {mode!r}")
@@ -68,7 +68,13 @@ def round_half_away(x: torch.Tensor) -> torch.Tensor:
 
 def quantize_ste(x: torch.Tensor) -> torch.Tensor:
     """Round half away from zero in the forward pass, identity gradient (straight-through estimator)."""
-    return x + (round_half_away(x) - x).detach()
+    return x + (round_half_away(x) - x).detach() if _needs_grad(x) else round_half_away(x)
+
+
+def _needs_grad(x: torch.Tensor) -> bool:
+    """Whether a straight-through estimator must be built for ``x``; without one the exact rounded / drawn value
+    is returned (``x + (y - x)`` can differ from ``y`` by a rounding step)."""
+    return x.requires_grad and torch.is_grad_enabled()
 
 
 def fixed_pattern_draws(rows: int, cols: int, seed: int, *, dtype=torch.float64, device=None

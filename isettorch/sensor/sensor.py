@@ -329,7 +329,7 @@ class Sensor(nn.Module):
             if self.analog_offset_v == 0 and bool((gain == 1).all()):
                 return volts
             return (volts + self.analog_offset_v) / g  # ISETCam sensorComputeImage divides by the gain
-        return (volts + self.analog_offset_v) * g
+        return (volts + self.analog_offset_v) * g if self.analog_offset_v != 0 else volts * g
 
     def _clip_low_v(self) -> float:
         return -self.black_level_dn * self.lsb_v if self.adc_bits is not None else 0.0
@@ -413,7 +413,8 @@ class Sensor(nn.Module):
         if not isinstance(rate, torch.Tensor) or rate.dim() != 4 or rate.shape[1] != 1:
             raise ValueError(f"electron_rate: expected a (B, 1, rows, cols) tensor, got "
                              f"{tuple(rate.shape) if isinstance(rate, torch.Tensor) else type(rate).__name__}")
-        if not bool(torch.isfinite(rate).all()) or bool((rate < 0).any()):
+        lo, hi = torch.aminmax(rate)  # one pass; NaN propagates to both
+        if not (float(lo) >= 0 and math.isfinite(float(hi))):
             raise ValueError("electron_rate: expected finite, non-negative electrons/s")
         b = rate.shape[0]
         dtype, device = rate.dtype, rate.device

@@ -25,11 +25,13 @@ def _rel_max(a, b):
     return float(((a - b).abs().amax(dim=(1, 2, 3)) / b.abs().amax(dim=(1, 2, 3)).clamp_min(1e-30)).max())
 
 
-@pytest.mark.parametrize("size,extra", [(32, {}), (26, {"two_light_probability": 1.0})])
+@pytest.mark.parametrize("size,extra", [(32, {}), (26, {"two_light_probability": 1.0}),
+                                        (24, {"distance_m": [0.3, 5.0]})])
 def test_factored_matches_reference(size, extra):
     """Same draws, same physics: noise-free targets within float rounding of the module chain (the reference);
     the noisy raw differs only where a rounding-level change of the rate flips a Poisson or ADC draw.
-    26 + 2 x 8 = 42 samples is not 5-smooth: the FFT buffer is padded (to 45) as in blur_fft."""
+    26 + 2 x 8 = 42 samples is not 5-smooth: the FFT buffer is padded (to 45) as in blur_fft. A range of object
+    distances: the scene's distance is the one the camera's FOV was computed for (one scene sample per pixel)."""
     scene = {**SCENE, "height": size, "width": size, **extra}
     cam = {"cfa_patterns": ["RGGB", "GBRG", "GRBG", "BGGR"], "qe_variation": 1.0}
     ds = CameraPairDataset(6, seed=11, scene=scene, camera=cam)
