@@ -43,28 +43,67 @@ __all__ = [
 
 ILLUMINANT_KINDS = ("daylight", "blackbody", "fluorescent", "led")
 
+# Implementation note: the synthetic-scene generator calls these functions once per scene on tiny inputs
+# (1 CCT, 8 reflectances, ~31 wavelengths), where each torch op costs ~3-5 us of dispatch and numpy ~0.5-1 us.
+# The float64 maths therefore runs in numpy on per-grid constants cached as numpy arrays, and converts to torch
+# once, at the end. When an input tensor requires grad, the same formulas run in torch instead (``xp`` below is
+# ``numpy`` or ``torch``), so the spectra stay differentiable with respect to CCTs and LED parameters.
+
 
 def _key(w: torch.Tensor) -> tuple:
     return tuple(float(x) for x in w.detach().double().cpu().tolist())
 
 
-_VALID_GRIDS: set = set()
+_GRIDS: dict = {}
 
 
-def _checked(wavelengths_nm) -> torch.Tensor:
-    """``check_wavelengths`` once per distinct grid (a scene calls the spectra functions ~8 times on the same
-    grid; each full check costs ~40 us of small tensor ops). A grid is remembered by its exact values, dtype and
+def _grid(wavelengths_nm) -> tuple[torch.Tensor, tuple]:
+    """``(w, key)``: the grid as a tensor, validated (``check_wavelengths``) once per distinct grid, and its values
+    as a tuple of floats (the key of the per-grid caches). A scene calls the spectra functions ~8 times on the same
+    grid; each full check costs ~40 us of small tensor ops. A grid is remembered by its exact values, dtype and
     device, so an invalid grid (NaN never equals itself) is always checked, and raises."""
     w = torch.as_tensor(wavelengths_nm)
     if w.dim() != 1:
-        return check_wavelengths(w)
-    key = (w.dtype, str(w.device), tuple(w.detach().cpu().tolist()))
-    if key not in _VALID_GRIDS:
+        w = check_wavelengths(w)  # raises, or gives a 0-d grid its length-1 shape
+    values = tuple(w.tolist())
+    key = _GRIDS.get((w.dtype, w.device, values))
+    if key is None:
         check_wavelengths(w)
-        if len(_VALID_GRIDS) > 256:  # bounded
-            _VALID_GRIDS.clear()
-        _VALID_GRIDS.add(key)
-    return w
+        if len(_GRIDS) > 256:  # bounded
+            _GRIDS.clear()
+        key = tuple(float(x) for x in values)
+        _GRIDS[(w.dtype, w.device, values)] = key
+    return w, key
+
+
+def _checked(wavelengths_nm) -> torch.Tensor:
+    return _grid(wavelengths_nm)[0]
+
+
+def _out_dtype(w: torch.Tensor) -> torch.dtype:
+    return w.dtype if w.is_floating_point() else torch.get_default_dtype()
+
+
+def _to_torch(a: np.ndarray, dtype: torch.dtype, device) -> torch.Tensor:
+    """The one numpy -> torch conversion at the end of each call (``a`` is a fresh array, never a cached one)."""
+    return torch.from_numpy(a).to(dtype=dtype, device=device)
+
+
+def _needs_grad(*values) -> bool:
+    return torch.is_grad_enabled() and any(isinstance(v, torch.Tensor) and v.requires_grad for v in values)
+
+
+def _f64(value, xp) -> np.ndarray | torch.Tensor:
+    """A float64 vector ``[N]`` on the CPU: numpy for ``xp is np``, else a torch tensor (keeps the autograd graph)."""
+    if xp is np and isinstance(value, torch.Tensor):
+        return value.detach().to(device="cpu", dtype=torch.float64).reshape(-1).numpy()
+    t = torch.as_tensor(value, dtype=torch.float64).reshape(-1)
+    return t.cpu() if xp is torch else t.numpy()
+
+
+def _const(a: np.ndarray, xp):
+    """A cached numpy constant for the array module ``xp`` (shared memory, never written to)."""
+    return a if xp is np else torch.from_numpy(a)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -114,23 +153,41 @@ def reflectance_basis(wavelengths_nm, n_components: int = 8, *, dtype=None, devi
 
     The basis is fitted (SVD) on 400-700 nm; outside that range it is 0 (see `spectral.resample`).
     """
-    w = _checked(wavelengths_nm)
+    w, key = _grid(wavelengths_nm)
     if not 1 <= n_components <= 12:
         raise ValueError(f"n_components: expected 1..12 principal components, got {n_components}")
     dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
-    return _pca_on_grid(int(n_components), _key(w), dtype, str(device or w.device))
+    return _pca_on_grid(int(n_components), key, dtype, str(device or w.device))
 
 
-def _pca_reflectances(n: int, w: torch.Tensor, generator: torch.Generator, spread: float = 1.0,
-                      margin: float = 1e-3) -> torch.Tensor:
-    mean, basis, std = reflectance_basis(w, dtype=w.dtype, device=w.device)
-    coef = torch.randn(n, std.numel(), generator=generator, dtype=w.dtype).to(w.device) * std * spread
-    dev = coef @ basis  # [n, L]
+_NP_DTYPES = {torch.float32: np.float32, torch.float64: np.float64}
+
+
+@functools.lru_cache(maxsize=64)
+def _reflectance_model(grid: tuple, dtype: torch.dtype, margin: float = 1e-3) -> tuple[np.ndarray, ...]:
+    """numpy constants of both reflectance models on a grid, in ``dtype`` (float32 or float64): PCA mean [L],
+    basis [K, L], std [K], the room to the upper / lower bound ``1 - margin - mean``, ``mean - margin`` [L], and the
+    Jakob-Hanika normalised wavelength ``u = (lambda - 550) / 150`` [L]."""
+    mean, basis, std = (x.numpy() for x in _pca_on_grid(8, grid, dtype, "cpu"))
+    u = ((torch.tensor(grid, dtype=torch.float64).to(dtype) - 550.0) / 150.0).numpy()
+    return mean, basis, std, 1 - margin - mean, mean - margin, u
+
+
+def _pca_reflectances(coef: np.ndarray, mean, basis, std, room_up, room_down, spread: float = 1.0) -> np.ndarray:
+    """PCA spectra from standard-normal draws ``coef`` [n, K] (numpy), contracted towards the mean to stay in
+    [margin, 1 - margin]."""
+    dev = (coef * std * spread) @ basis  # [n, L]
     # Largest alpha <= 1 keeping mean + alpha * dev inside [margin, 1 - margin] (mean is strictly inside).
-    up = torch.where(dev > 0, (1 - margin - mean) / dev.clamp_min(1e-12), torch.full_like(dev, math.inf))
-    lo = torch.where(dev < 0, (mean - margin) / (-dev).clamp_min(1e-12), torch.full_like(dev, math.inf))
-    alpha = torch.minimum(up, lo).amin(dim=1, keepdim=True).clamp(max=1.0)
+    up = np.where(dev > 0, room_up / np.maximum(dev, 1e-12), np.inf)
+    lo = np.where(dev < 0, room_down / np.maximum(-dev, 1e-12), np.inf)
+    alpha = np.minimum(np.minimum(up, lo).min(axis=1, keepdims=True), 1.0)
     return mean + alpha * dev
+
+
+def _sigmoid_polynomial(c, u, xp):
+    """Jakob & Hanika (2019) ``S(c0 u^2 + c1 u + c2)`` for coefficients ``c`` [N, 3] and ``u`` [L] in ``xp``."""
+    x = c[:, :1] * u**2 + c[:, 1:2] * u + c[:, 2:3]
+    return 0.5 + x / (2 * xp.sqrt(1 + x * x))  # Jakob & Hanika 2019, eq. 2
 
 
 def sigmoid_polynomial_reflectance(coefficients: torch.Tensor, wavelengths_nm) -> torch.Tensor:
@@ -144,8 +201,7 @@ def sigmoid_polynomial_reflectance(coefficients: torch.Tensor, wavelengths_nm) -
     w = _checked(wavelengths_nm)
     c = coefficients
     u = ((w.to(c.device, c.dtype) - 550.0) / 150.0)
-    x = c[:, :1] * u**2 + c[:, 1:2] * u + c[:, 2:3]
-    return 0.5 + x / (2 * torch.sqrt(1 + x * x))  # Jakob & Hanika 2019, eq. 2
+    return _sigmoid_polynomial(c, u, torch)
 
 
 def random_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *, model: str = "mixed",
@@ -162,21 +218,26 @@ def random_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *, m
         >>> bool((r >= 0).all() and (r <= 1).all())
         True
     """
-    w = _checked(wavelengths_nm)
+    w, key = _grid(wavelengths_nm)
     if model not in ("pca", "sigmoid", "mixed"):
         raise ValueError(f"model: expected 'pca', 'sigmoid' or 'mixed', got {model!r}")
-    dtype = w.dtype if w.is_floating_point() else torch.get_default_dtype()
-    w = w.to(dtype)
-    pca = _pca_reflectances(n, w, generator)
+    dtype = _out_dtype(w)
+    calc = dtype if dtype in _NP_DTYPES else torch.float64  # numpy has no bfloat16: other dtypes work in float64
+    mean, basis, std, room_up, room_down, u = _reflectance_model(key, calc)
+    # Every model makes the same draws, in this order, so a generator state gives the same spectra in all of them.
+    pca_coef = torch.randn(n, std.size, generator=generator, dtype=dtype).to(calc).numpy()
     # Coefficient scales chosen so spectra range from flat greys to saturated, single-peaked colours.
-    coef = torch.randn(n, 3, generator=generator, dtype=dtype) * torch.tensor([3.0, 2.5, 1.5], dtype=dtype)
-    sig = sigmoid_polynomial_reflectance(coef.to(w.device), w)
-    pick = torch.rand(n, 1, generator=generator, dtype=dtype).to(w.device)
+    sig_coef = torch.randn(n, 3, generator=generator, dtype=dtype).to(calc).numpy() \
+        * np.array([3.0, 2.5, 1.5], dtype=_NP_DTYPES[calc])
+    pick = torch.rand(n, 1, generator=generator, dtype=dtype).to(calc).numpy()
     if model == "pca":
-        return pca
-    if model == "sigmoid":
-        return sig
-    return torch.where(pick < pca_fraction, pca, sig)
+        out = _pca_reflectances(pca_coef, mean, basis, std, room_up, room_down)
+    elif model == "sigmoid":
+        out = _sigmoid_polynomial(sig_coef, u, np)
+    else:
+        out = np.where(pick < pca_fraction, _pca_reflectances(pca_coef, mean, basis, std, room_up, room_down),
+                       _sigmoid_polynomial(sig_coef, u, np))
+    return _to_torch(out, dtype, w.device)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -184,12 +245,26 @@ def random_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *, m
 
 
 @functools.lru_cache(maxsize=64)
-def _daylight_basis(grid: tuple, dtype, device: str) -> torch.Tensor:
+def _daylight_basis(grid: tuple) -> np.ndarray:
+    """CIE daylight basis S0, S1, S2 on a grid, float64 [3, L]."""
     from colour.colorimetry import SDS_BASIS_FUNCTIONS_CIE_ILLUMINANT_D_SERIES as S
 
     src = torch.tensor(np.asarray(S["S0"].wavelengths, float))
     vals = torch.tensor(np.stack([np.asarray(S[k].values, float) for k in ("S0", "S1", "S2")]))
-    return spectral.resample(vals, src, torch.tensor(grid, dtype=torch.float64)).to(dtype=dtype, device=device)
+    return spectral.resample(vals, src, torch.tensor(grid, dtype=torch.float64)).numpy()
+
+
+def _daylight(t, grid: tuple, xp):
+    """CIE daylight [N, L] for CCTs ``t`` [N] (float64, numpy or torch ``xp``)."""
+    xd = xp.where(t <= 7000,
+                  -4.6070e9 / t**3 + 2.9678e6 / t**2 + 0.09911e3 / t + 0.244063,
+                  -2.0064e9 / t**3 + 1.9018e6 / t**2 + 0.24748e3 / t + 0.237040)
+    yd = -3.0 * xd**2 + 2.870 * xd - 0.275
+    m = 0.0241 + 0.2562 * xd - 0.7341 * yd
+    m1 = (-1.3515 - 1.7703 * xd + 5.9114 * yd) / m
+    m2 = (0.0300 - 31.4424 * xd + 30.0717 * yd) / m
+    b = _const(_daylight_basis(grid), xp)
+    return b[0] + m1[:, None] * b[1] + m2[:, None] * b[2]
 
 
 def daylight_spd(cct_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
@@ -198,66 +273,78 @@ def daylight_spd(cct_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     Source: CIE 015:2018 eqs. 4.7-4.12 (x_D polynomials in 1/T, y_D = -3 x^2 + 2.87 x - 0.275, M1, M2),
     the same convention as ``colour.temperature.CCT_to_xy_CIE_D`` (6504 K gives D65).
     """
-    w = _checked(wavelengths_nm)
-    t = torch.as_tensor(cct_k, dtype=torch.float64).reshape(-1)
+    w, key = _grid(wavelengths_nm)
+    xp = torch if _needs_grad(cct_k) else np
+    t = _f64(cct_k, xp)
     if ((t < 4000) | (t > 25000)).any():
         raise ValueError(f"cct_k: expected daylight CCTs in [4000, 25000] K, got {t.tolist()}")
-    xd = torch.where(t <= 7000,
-                     -4.6070e9 / t**3 + 2.9678e6 / t**2 + 0.09911e3 / t + 0.244063,
-                     -2.0064e9 / t**3 + 1.9018e6 / t**2 + 0.24748e3 / t + 0.237040)
-    yd = -3.0 * xd**2 + 2.870 * xd - 0.275
-    m = 0.0241 + 0.2562 * xd - 0.7341 * yd
-    m1 = (-1.3515 - 1.7703 * xd + 5.9114 * yd) / m
-    m2 = (0.0300 - 31.4424 * xd + 30.0717 * yd) / m
-    b = _daylight_basis(_key(w), torch.float64, "cpu")
-    spd = b[0] + m1[:, None] * b[1] + m2[:, None] * b[2]
-    dtype = w.dtype if w.is_floating_point() else torch.get_default_dtype()
-    return spd.to(dtype=dtype, device=w.device)
+    spd = _daylight(t, key, xp)
+    return (_to_torch(spd, _out_dtype(w), w.device) if xp is np
+            else spd.to(dtype=_out_dtype(w), device=w.device))
+
+
+@functools.lru_cache(maxsize=64)
+def _planck_grid(grid: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Per-grid factors of Planck's law, float64 [L]: ``2 h c^2 / lambda^5`` and ``lambda k`` (SI units)."""
+    from .. import constants
+
+    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
+    lam = np.asarray(grid, dtype=np.float64) * 1e-9
+    return 2 * h * c**2 / lam**5, lam * k
+
+
+def _blackbody(t, grid: tuple, xp):
+    """Planck spectra [N, L] for temperatures ``t`` [N, 1], 100 at 560 nm (float64, numpy or torch ``xp``)."""
+    from .. import constants
+
+    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
+    a, lam_k = (_const(x, xp) for x in _planck_grid(grid))
+    planck = a / xp.expm1(h * c / (lam_k * t))  # Planck's law: 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)
+    ref = 2 * h * c**2 / 560e-9**5 / xp.expm1(h * c / (560e-9 * k * t))
+    return 100.0 * planck / ref
 
 
 def blackbody_spd(temperature_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     """Planck spectra ``[N, L]`` (energy, 100 at 560 nm). Source: Planck's law (CODATA h, c, k)."""
-    from .. import constants
-
-    w = _checked(wavelengths_nm)
-    t = torch.as_tensor(temperature_k, dtype=torch.float64).reshape(-1, 1)
-    if (t <= 0).any() or not torch.isfinite(t).all():
+    w, key = _grid(wavelengths_nm)
+    xp = torch if _needs_grad(temperature_k) else np
+    t = _f64(temperature_k, xp).reshape(-1, 1)
+    if (t <= 0).any() or not xp.isfinite(t).all():
         raise ValueError(f"temperature_k: expected positive temperatures, got {t.flatten().tolist()}")
-    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
-    lam = w.to(torch.float64).cpu() * 1e-9
-    planck = 2 * h * c**2 / lam**5 / torch.expm1(h * c / (lam * k * t))
-    ref = 2 * h * c**2 / 560e-9**5 / torch.expm1(h * c / (560e-9 * k * t))
-    dtype = w.dtype if w.is_floating_point() else torch.get_default_dtype()
-    return (100.0 * planck / ref).to(dtype=dtype, device=w.device)
+    if xp is torch:
+        return _blackbody(t, key, xp).to(dtype=_out_dtype(w), device=w.device)
+    with np.errstate(over="ignore"):  # exp overflow (a cold body, short wavelengths) gives 0 power, as in torch
+        return _to_torch(_blackbody(t, key, xp), _out_dtype(w), w.device)
 
 
 @functools.lru_cache(maxsize=16)
-def _fluorescent_table(grid: tuple) -> torch.Tensor:
+def _fluorescent_table(grid: tuple) -> np.ndarray:
+    """CIE F1-F12 on a grid, float64 [12, L]."""
     w = torch.tensor(grid, dtype=torch.float64)
-    return torch.stack([spectral.illuminant(f"F{i}", w, dtype=torch.float64) for i in range(1, 13)])
+    return torch.stack([spectral.illuminant(f"F{i}", w, dtype=torch.float64) for i in range(1, 13)]).numpy()
 
 
 def fluorescent_spd(numbers: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     """CIE fluorescent illuminants F<n> (n in 1..12) ``[N, L]`` (colour-science tables)."""
-    w = _checked(wavelengths_nm)
+    w, key = _grid(wavelengths_nm)
     nums = [int(x) for x in torch.as_tensor(numbers).reshape(-1).tolist()]
     bad = [x for x in nums if not 1 <= x <= 12]
     if bad:
         raise ValueError(f"numbers: expected CIE fluorescent numbers 1..12, got {bad}")
-    table = _fluorescent_table(_key(w))
-    dtype = w.dtype if w.is_floating_point() else torch.get_default_dtype()
-    return table[torch.tensor(nums) - 1].to(dtype=dtype, device=w.device)
+    return _to_torch(_fluorescent_table(key)[np.asarray(nums, dtype=np.intp) - 1], _out_dtype(w), w.device)
 
 
 _FINE = torch.arange(380.0, 781.0, 5.0, dtype=torch.float64)
+_FINE_KEY = tuple(_FINE.tolist())
 
 
-def _led_parts(w: torch.Tensor, pump_nm: torch.Tensor, phosphor_nm: torch.Tensor, phosphor_fwhm_nm: torch.Tensor):
-    lam = w.to(torch.float64).cpu()[None]
+def _led_parts(lam, pump_nm, phosphor_nm, phosphor_fwhm_nm, xp):
+    """Pump and phosphor emission [N, L] on wavelengths ``lam`` [L] (nm), both peaking at 1."""
+    lam = lam[None]
     # Blue InGaN pump ~20 nm FWHM; YAG-like phosphor modelled as a broad Gaussian (Schubert, "Light-Emitting
     # Diodes", 2nd ed., ch. 21: phosphor-converted white LEDs).
-    pump = torch.exp(-4 * math.log(2) * ((lam - pump_nm[:, None]) / 20.0) ** 2)
-    phos = torch.exp(-4 * math.log(2) * ((lam - phosphor_nm[:, None]) / phosphor_fwhm_nm[:, None]) ** 2)
+    pump = xp.exp(-4 * math.log(2) * ((lam - pump_nm[:, None]) / 20.0) ** 2)
+    phos = xp.exp(-4 * math.log(2) * ((lam - phosphor_nm[:, None]) / phosphor_fwhm_nm[:, None]) ** 2)
     return pump, phos
 
 
@@ -276,17 +363,65 @@ def cct_mccamy(xy: torch.Tensor) -> torch.Tensor:
 
 
 @functools.lru_cache(maxsize=8)
-def _cmf_weights(grid: tuple) -> torch.Tensor:
-    """CIE 1931 CMFs times the integration weights on a grid, float64 [3, L] (for fast repeated integrals)."""
+def _cmf_weights(grid: tuple) -> np.ndarray:
+    """CIE 1931 CMFs times the integration weights on a grid, float64 [L, 3] (for fast repeated integrals)."""
     w = torch.tensor(grid, dtype=torch.float64)
-    return spectral.cmfs(w, dtype=torch.float64) * spectral.wavelength_weights(w)
+    return np.ascontiguousarray((spectral.cmfs(w, dtype=torch.float64) * spectral.wavelength_weights(w)).numpy().T)
 
 
-def _uv(spd_energy: torch.Tensor, wavelengths_nm) -> torch.Tensor:
-    """CIE 1960 UCS uv ``[N, 2]``: u = 4X / (X + 15Y + 3Z), v = 6Y / (X + 15Y + 3Z) (CIE 015:2018)."""
-    x, y, z = (spd_energy.to(torch.float64) @ _cmf_weights(_key(torch.as_tensor(wavelengths_nm))).T).unbind(-1)
+def _uv(xyz):
+    """CIE 1960 UCS (u, v), each [N], of XYZ [N, 3]: u = 4X / (X + 15Y + 3Z), v = 6Y / (X + 15Y + 3Z)
+    (CIE 015:2018)."""
+    x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     d = x + 15 * y + 3 * z
-    return torch.stack([4 * x / d, 6 * y / d], dim=-1)
+    return 4 * x / d, 6 * y / d
+
+
+def _led(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, grid: tuple, iterations, xp):
+    """LED spectra [N, L] (peak 100) for CCTs ``t`` and LED parameters [N] (float64, numpy or torch ``xp``)."""
+    pump, phos = _led_parts(_const(np.asarray(grid, dtype=np.float64), xp), pump_nm, phosphor_nm, phosphor_fwhm_nm,
+                            xp)
+    # The CCT is defined by the isotemperature line: the normal to the Planckian locus in CIE 1960 uv
+    # through the locus point at T (CIE 015:2018 sec. 9.5). Mixing is linear in XYZ, so the LED's uv moves on
+    # a straight segment from pump to phosphor and the signed distance along the locus tangent is monotone
+    # in the ratio: bisection in log(phosphor / pump), evaluated on a fine 5 nm grid (independent of the scene's).
+    fpump, fphos = _led_parts(_const(np.asarray(_FINE_KEY), xp), pump_nm, phosphor_nm, phosphor_fwhm_nm, xp)
+    cw = _const(_cmf_weights(_FINE_KEY), xp)  # [81, 3]
+    tt = t[:, None]
+    u_t, v_t = _uv(_blackbody(tt, _FINE_KEY, xp) @ cw)
+    u_hi, v_hi = _uv(_blackbody(tt * 1.001, _FINE_KEY, xp) @ cw)
+    u_lo, v_lo = _uv(_blackbody(tt / 1.001, _FINE_KEY, xp) @ cw)
+    tan_u, tan_v = u_hi - u_lo, v_hi - v_lo
+    if iterations is None:
+        # Closed form. With XYZ_s = cmf . spd_s (s = pump, phosphor) and D = X + 15 Y + 3 Z, the mixture
+        # pump + r phosphor has uv = (4 X, 6 Y) / D with X = X_p + r X_f, ... (CIE 015:2018), so
+        # D(r) ((uv(r) - uv_t) . tangent) = A_p + r A_f, A_s = (4 X_s - u_t D_s) t_u + (6 Y_s - v_t D_s) t_v:
+        # D > 0, hence the isotemperature condition is linear in r and r = -A_p / A_f (exact). As the
+        # bisection did, log r is kept in [-8, 10] (an unreachable CCT gives the nearest end).
+        xyz_p, xyz_f = fpump @ cw, fphos @ cw  # [N, 3]
+
+        def lin(xyz):
+            d = xyz[:, 0] + 15 * xyz[:, 1] + 3 * xyz[:, 2]
+            return (4 * xyz[:, 0] - u_t * d) * tan_u + (6 * xyz[:, 1] - v_t * d) * tan_v
+
+        a_p, a_f = lin(xyz_p), lin(xyz_f)
+        r = -a_p / a_f
+        # too hot (A_p + r A_f > 0) for every r > 0 -> the upper end; never too hot -> the lower end
+        hot_everywhere = (a_f >= 0) & (a_p + a_f > 0) | (r <= 0) & (a_p > 0)
+        log_r = xp.where(r > 0, xp.log(xp.clip(r, 1e-300, None)), -math.inf)
+        log_r = xp.clip(xp.where(hot_everywhere, 10.0, log_r), -8.0, 10.0)
+    else:
+        lo = xp.zeros_like(t) - 8.0
+        hi = xp.zeros_like(t) + 10.0
+        for _ in range(int(iterations)):
+            mid = (lo + hi) / 2
+            u, v = _uv((fpump + xp.exp(mid)[:, None] * fphos) @ cw)
+            too_hot = (u - u_t) * tan_u + (v - v_t) * tan_v > 0  # need more phosphor
+            lo = xp.where(too_hot, mid, lo)
+            hi = xp.where(too_hot, hi, mid)
+        log_r = (lo + hi) / 2
+    spd = pump + xp.exp(log_r)[:, None] * phos
+    return 100 * spd / xp.amax(spd, axis=1, keepdims=True)
 
 
 def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=None, phosphor_fwhm_nm=None,
@@ -299,62 +434,22 @@ def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=No
     the comment below); an integer runs the former bisection in ``log r`` with that many steps (26 gave
     ``|d log r| <= 1.3e-7``).
     """
-    w = _checked(wavelengths_nm)
-    t = torch.as_tensor(cct_k, dtype=torch.float64).reshape(-1)
-    n = t.numel()
+    w, key = _grid(wavelengths_nm)
+    xp = torch if _needs_grad(cct_k, pump_nm, phosphor_nm, phosphor_fwhm_nm) else np
+    t = _f64(cct_k, xp)
+    n = t.shape[0]
 
     def per(v, default):
-        return torch.full((n,), default, dtype=torch.float64) if v is None else \
-            torch.as_tensor(v, dtype=torch.float64).reshape(-1).expand(n)
+        v = _f64(default if v is None else v, xp)
+        return xp.broadcast_to(v, (n,))
 
     if phosphor_nm is None:  # warm-white LEDs use red-shifted phosphors
-        phosphor_nm = (560.0 + 0.012 * (6500.0 - t)).clamp(555.0, 610.0)
-    pump, phos = _led_parts(w, per(pump_nm, 450.0), per(phosphor_nm, 565.0), per(phosphor_fwhm_nm, 120.0))
-    # The CCT is defined by the isotemperature line: the normal to the Planckian locus in CIE 1960 uv
-    # through the locus point at T (CIE 015:2018 sec. 9.5). Mixing is linear in XYZ, so the LED's uv moves on
-    # a straight segment from pump to phosphor and the signed distance along the locus tangent is monotone
-    # in the ratio: bisection in log(phosphor / pump), evaluated on a fine 5 nm grid (independent of the scene's).
-    fine = _FINE
-    fpump, fphos = _led_parts(fine, per(pump_nm, 450.0), per(phosphor_nm, 565.0), per(phosphor_fwhm_nm, 120.0))
-    uv_t = _uv(blackbody_spd(t, fine), fine)
-    fine_key = _key(fine)
-    cw = _cmf_weights(fine_key).T
-    tangent = _uv(blackbody_spd(t * 1.001, fine), fine) - _uv(blackbody_spd(t / 1.001, fine), fine)
-    if iterations is None:
-        # Closed form. With XYZ_s = cmf . spd_s (s = pump, phosphor) and D = X + 15 Y + 3 Z, the mixture
-        # pump + r phosphor has uv = (4 X, 6 Y) / D with X = X_p + r X_f, ... (CIE 015:2018), so
-        # D(r) ((uv(r) - uv_t) . tangent) = A_p + r A_f, A_s = (4 X_s - u_t D_s) t_u + (6 Y_s - v_t D_s) t_v:
-        # D > 0, hence the isotemperature condition is linear in r and r = -A_p / A_f (exact). As the
-        # bisection did, log r is kept in [-8, 10] (an unreachable CCT gives the nearest end).
-        xyz_p, xyz_f = fpump @ cw, fphos @ cw  # [N, 3]
-
-        def lin(xyz):
-            d = xyz[:, 0] + 15 * xyz[:, 1] + 3 * xyz[:, 2]
-            return ((4 * xyz[:, 0] - uv_t[:, 0] * d) * tangent[:, 0]
-                    + (6 * xyz[:, 1] - uv_t[:, 1] * d) * tangent[:, 1])
-
-        a_p, a_f = lin(xyz_p), lin(xyz_f)
-        r = -a_p / a_f
-        # too hot (A_p + r A_f > 0) for every r > 0 -> the upper end; never too hot -> the lower end
-        hot_everywhere = (a_f >= 0) & (a_p + a_f > 0) | (r <= 0) & (a_p > 0)
-        log_r = torch.where(r > 0, torch.log(r.clamp_min(1e-300)), torch.full_like(r, -math.inf))
-        log_r = torch.where(hot_everywhere, torch.full_like(r, 10.0), log_r).clamp(-8.0, 10.0)
-        spd = pump + torch.exp(log_r)[:, None] * phos
-    else:
-        lo = torch.full((n,), -8.0, dtype=torch.float64)
-        hi = torch.full((n,), 10.0, dtype=torch.float64)
-        for _ in range(int(iterations)):
-            mid = (lo + hi) / 2
-            x, y, z = ((fpump + torch.exp(mid)[:, None] * fphos) @ cw).unbind(-1)
-            d = x + 15 * y + 3 * z
-            uv = torch.stack([4 * x / d, 6 * y / d], dim=-1)
-            too_hot = ((uv - uv_t) * tangent).sum(dim=1) > 0  # need more phosphor
-            lo = torch.where(too_hot, mid, lo)
-            hi = torch.where(too_hot, hi, mid)
-        spd = pump + torch.exp((lo + hi) / 2)[:, None] * phos
-    spd = 100 * spd / spd.amax(dim=1, keepdim=True)
-    dtype = w.dtype if w.is_floating_point() else torch.get_default_dtype()
-    return spd.to(dtype=dtype, device=w.device)
+        phosphor_nm = xp.clip(560.0 + 0.012 * (6500.0 - t), 555.0, 610.0)
+    pump, phos, fwhm = per(pump_nm, 450.0), per(phosphor_nm, 565.0), per(phosphor_fwhm_nm, 120.0)
+    if xp is torch:
+        return _led(t, pump, phos, fwhm, key, iterations, xp).to(dtype=_out_dtype(w), device=w.device)
+    with np.errstate(all="ignore"):  # as in torch: inf / nan follow IEEE rules silently
+        return _to_torch(_led(t, pump, phos, fwhm, key, iterations, xp), _out_dtype(w), w.device)
 
 
 @functools.cache
@@ -371,17 +466,30 @@ def random_illuminant(kind: str, wavelengths_nm, generator: torch.Generator, cct
     defaults = {"daylight": (4000.0, 25000.0), "blackbody": (2000.0, 10000.0), "led": (2700.0, 6500.0)}
     if kind not in ILLUMINANT_KINDS:
         raise ValueError(f"kind: expected one of {ILLUMINANT_KINDS}, got {kind!r}")
-    w = _checked(wavelengths_nm)
+    w, key = _grid(wavelengths_nm)
+    dtype = _out_dtype(w)
     u = float(torch.rand((), generator=generator, dtype=torch.float64))
     if kind == "fluorescent":
         num = int(torch.randint(1, 13, (), generator=generator))
-        spd = fluorescent_spd(torch.tensor([num]), w)[0]
-        cct = _fluorescent_cct(num)
-        return spd, cct, f"F{num}"
+        spd = _fluorescent_table(key)[num - 1].copy()
+        return _to_torch(spd, dtype, w.device), _fluorescent_cct(num), f"F{num}"
     lo, hi = cct_range_k if cct_range_k is not None else defaults[kind]
     if not 0 < lo <= hi:
         raise ValueError(f"cct_range_k: expected 0 < lo <= hi, got {(lo, hi)}")
     mired = 1e6 / hi + u * (1e6 / lo - 1e6 / hi)
     cct = 1e6 / mired
-    fn = {"daylight": daylight_spd, "blackbody": blackbody_spd, "led": led_spd}[kind]
-    return fn(torch.tensor([cct]), w)[0], cct, kind
+    # The public functions' numpy path, called directly on the CCT. The spectrum is computed for the CCT rounded
+    # to torch's default dtype (float32 by default), as ``torch.tensor([cct])`` did before; the rounding moves the
+    # CCT by < 1e-7 relative.
+    t = np.array([cct], dtype=_NP_DTYPES.get(torch.get_default_dtype(), np.float64)).astype(np.float64)
+    with np.errstate(all="ignore"):
+        if kind == "daylight":
+            if not 4000 <= cct <= 25000:
+                raise ValueError(f"cct_k: expected daylight CCTs in [4000, 25000] K, got {t.tolist()}")
+            spd = _daylight(t, key, np)
+        elif kind == "blackbody":
+            spd = _blackbody(t[:, None], key, np)
+        else:
+            phosphor = np.clip(560.0 + 0.012 * (6500.0 - t), 555.0, 610.0)
+            spd = _led(t, np.full(1, 450.0), phosphor, np.full(1, 120.0), key, None, np)
+    return _to_torch(spd[0], dtype, w.device), cct, kind
