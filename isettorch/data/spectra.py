@@ -161,6 +161,7 @@ def reflectance_basis(wavelengths_nm, n_components: int = 8, *, dtype=None, devi
 
 
 _NP_DTYPES = {torch.float32: np.float32, torch.float64: np.float64}
+_SIGMOID_SCALE = {d: np.array([3.0, 2.5, 1.5], dtype=nd) for d, nd in _NP_DTYPES.items()}  # see random_reflectances
 
 
 @functools.lru_cache(maxsize=64)
@@ -178,9 +179,10 @@ def _pca_reflectances(coef: np.ndarray, mean, basis, std, room_up, room_down, sp
     [margin, 1 - margin]."""
     dev = (coef * std * spread) @ basis  # [n, L]
     # Largest alpha <= 1 keeping mean + alpha * dev inside [margin, 1 - margin] (mean is strictly inside).
-    up = np.where(dev > 0, room_up / np.maximum(dev, 1e-12), np.inf)
-    lo = np.where(dev < 0, room_down / np.maximum(-dev, 1e-12), np.inf)
-    alpha = np.minimum(np.minimum(up, lo).min(axis=1, keepdims=True), 1.0)
+    # Per sample: room / |dev| towards the side dev points to (dev = 0 gives inf); |dev| < 1e-12 gives a ratio > 1
+    # (the rooms are >= 1e-3 wide), which the cap at 1 removes, as clamping |dev| at 1e-12 did.
+    ratio = np.where(dev > 0, room_up, room_down) / np.abs(dev)
+    alpha = np.minimum(ratio.min(axis=1, keepdims=True), 1.0)
     return mean + alpha * dev
 
 
@@ -225,18 +227,21 @@ def random_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *, m
     calc = dtype if dtype in _NP_DTYPES else torch.float64  # numpy has no bfloat16: other dtypes work in float64
     mean, basis, std, room_up, room_down, u = _reflectance_model(key, calc)
     # Every model makes the same draws, in this order, so a generator state gives the same spectra in all of them.
-    pca_coef = torch.randn(n, std.size, generator=generator, dtype=dtype).to(calc).numpy()
+    pca_coef = torch.randn(n, std.size, generator=generator, dtype=dtype)
     # Coefficient scales chosen so spectra range from flat greys to saturated, single-peaked colours.
-    sig_coef = torch.randn(n, 3, generator=generator, dtype=dtype).to(calc).numpy() \
-        * np.array([3.0, 2.5, 1.5], dtype=_NP_DTYPES[calc])
-    pick = torch.rand(n, 1, generator=generator, dtype=dtype).to(calc).numpy()
-    if model == "pca":
-        out = _pca_reflectances(pca_coef, mean, basis, std, room_up, room_down)
-    elif model == "sigmoid":
-        out = _sigmoid_polynomial(sig_coef, u, np)
-    else:
-        out = np.where(pick < pca_fraction, _pca_reflectances(pca_coef, mean, basis, std, room_up, room_down),
-                       _sigmoid_polynomial(sig_coef, u, np))
+    sig_coef = torch.randn(n, 3, generator=generator, dtype=dtype)
+    pick = torch.rand(n, 1, generator=generator, dtype=dtype)
+    if dtype != calc:
+        pca_coef, sig_coef, pick = pca_coef.to(calc), sig_coef.to(calc), pick.to(calc)
+    pca_coef, sig_coef, pick = pca_coef.numpy(), sig_coef.numpy() * _SIGMOID_SCALE[calc], pick.numpy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if model == "pca":
+            out = _pca_reflectances(pca_coef, mean, basis, std, room_up, room_down)
+        elif model == "sigmoid":
+            out = _sigmoid_polynomial(sig_coef, u, np)
+        else:
+            out = np.where(pick < pca_fraction, _pca_reflectances(pca_coef, mean, basis, std, room_up, room_down),
+                           _sigmoid_polynomial(sig_coef, u, np))
     return _to_torch(out, dtype, w.device)
 
 
@@ -377,21 +382,30 @@ def _uv(xyz):
     return 4 * x / d, 6 * y / d
 
 
+@functools.lru_cache(maxsize=16)
+def _led_grid(grid: tuple) -> np.ndarray:
+    """The scene's grid followed by the fine 5 nm grid of the CCT condition, float64 [L + 81] (nm)."""
+    return np.asarray(grid + _FINE_KEY, dtype=np.float64)
+
+
 def _led(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, grid: tuple, iterations, xp):
     """LED spectra [N, L] (peak 100) for CCTs ``t`` and LED parameters [N] (float64, numpy or torch ``xp``)."""
-    pump, phos = _led_parts(_const(np.asarray(grid, dtype=np.float64), xp), pump_nm, phosphor_nm, phosphor_fwhm_nm,
-                            xp)
+    # pump and phosphor on the scene's grid and, after it, on the fine grid (one evaluation for both)
+    both_pump, both_phos = _led_parts(_const(_led_grid(grid), xp), pump_nm, phosphor_nm, phosphor_fwhm_nm, xp)
+    n_scene = len(grid)
+    pump, phos = both_pump[:, :n_scene], both_phos[:, :n_scene]
+    fpump, fphos = both_pump[:, n_scene:], both_phos[:, n_scene:]
     # The CCT is defined by the isotemperature line: the normal to the Planckian locus in CIE 1960 uv
     # through the locus point at T (CIE 015:2018 sec. 9.5). Mixing is linear in XYZ, so the LED's uv moves on
     # a straight segment from pump to phosphor and the signed distance along the locus tangent is monotone
     # in the ratio: bisection in log(phosphor / pump), evaluated on a fine 5 nm grid (independent of the scene's).
-    fpump, fphos = _led_parts(_const(np.asarray(_FINE_KEY), xp), pump_nm, phosphor_nm, phosphor_fwhm_nm, xp)
     cw = _const(_cmf_weights(_FINE_KEY), xp)  # [81, 3]
-    tt = t[:, None]
-    u_t, v_t = _uv(_blackbody(tt, _FINE_KEY, xp) @ cw)
-    u_hi, v_hi = _uv(_blackbody(tt * 1.001, _FINE_KEY, xp) @ cw)
-    u_lo, v_lo = _uv(_blackbody(tt / 1.001, _FINE_KEY, xp) @ cw)
-    tan_u, tan_v = u_hi - u_lo, v_hi - v_lo
+    # Planckian locus at T and, for its tangent, at T * 1.001 and T / 1.001 (one evaluation for the three)
+    n = t.shape[0]
+    u, v = _uv(_blackbody((np.concatenate if xp is np else torch.cat)([t, t * 1.001, t / 1.001])[:, None],
+                          _FINE_KEY, xp) @ cw)
+    u_t, v_t = u[:n], v[:n]
+    tan_u, tan_v = u[n:2 * n] - u[2 * n:], v[n:2 * n] - v[2 * n:]
     if iterations is None:
         # Closed form. With XYZ_s = cmf . spd_s (s = pump, phosphor) and D = X + 15 Y + 3 Z, the mixture
         # pump + r phosphor has uv = (4 X, 6 Y) / D with X = X_p + r X_f, ... (CIE 015:2018), so

@@ -137,3 +137,38 @@ def test_wavelength_checks_are_remembered_only_for_valid_grids():
             with pytest.raises(ValueError, match="wavelengths_nm"):
                 spectra.daylight_spd(torch.tensor([5000.0]), bad)
     assert spectra.blackbody_spd(torch.tensor([5000.0]), W10.tolist()).shape == (1, W10.numel())
+
+
+def test_blackbody_matches_colour_planck_law():
+    """Planck's law with the exact CODATA 2018 second radiation constant c2 = h c / k, normalised at 560 nm."""
+    c2 = 6.62607015e-34 * 299_792_458.0 / 1.380649e-23
+    temps = torch.tensor([1500.0, 2856.0, 6500.0, 20000.0], dtype=torch.float64)
+    ours = spectra.blackbody_spd(temps, W5).numpy()
+    for row, t in zip(ours, temps.tolist()):
+        ref = colour.sd_blackbody(t, colour.SpectralShape(380, 780, 5), c2=c2).values
+        np.testing.assert_allclose(row, 100 * ref / ref[W5.numpy() == 560.0], rtol=1e-12)
+
+
+def test_illuminants_are_differentiable_in_cct():
+    """Inputs that require grad take the torch path: autograd gradients agree with finite differences."""
+    t = torch.tensor([4500.0, 9000.0], dtype=torch.float64, requires_grad=True)
+    for fn in (spectra.daylight_spd, spectra.blackbody_spd, spectra.led_spd):
+        assert torch.autograd.gradcheck(lambda x, fn=fn: fn(x, W10), (t,), eps=1e-3, atol=1e-6, rtol=1e-5)
+    # the torch path gives the numpy path's spectra
+    for fn in (spectra.daylight_spd, spectra.blackbody_spd, spectra.led_spd):
+        np.testing.assert_allclose(fn(t, W10).detach().numpy(), fn(t.detach(), W10).numpy(), rtol=1e-11)
+
+
+@pytest.mark.parametrize("kind", ["daylight", "blackbody", "led", "fluorescent"])
+def test_random_illuminant_is_the_public_spectrum(kind):
+    """random_illuminant's inlined path gives the spectrum of the public function at the CCT it reports."""
+    g = torch.Generator().manual_seed(5)
+    for _ in range(3):
+        spd, cct, name = spectra.random_illuminant(kind, W10, g)
+        if kind == "fluorescent":
+            ref = spectra.fluorescent_spd(torch.tensor([int(name[1:])]), W10)[0]
+        else:
+            fn = {"daylight": spectra.daylight_spd, "blackbody": spectra.blackbody_spd, "led": spectra.led_spd}[kind]
+            ref = fn(torch.tensor([cct], dtype=torch.float64), W10)[0]
+        assert spd.dtype == W10.dtype and spd.shape == W10.shape
+        np.testing.assert_allclose(spd.numpy(), ref.numpy(), rtol=1e-6)  # computed at the CCT rounded to float32
