@@ -50,10 +50,6 @@ ILLUMINANT_KINDS = ("daylight", "blackbody", "fluorescent", "led")
 # ``numpy`` or ``torch``), so the spectra stay differentiable with respect to CCTs and LED parameters.
 
 
-def _key(w: torch.Tensor) -> tuple:
-    return tuple(float(x) for x in w.detach().double().cpu().tolist())
-
-
 _GRIDS: dict = {}
 
 
@@ -97,6 +93,8 @@ def _f64(value, xp) -> np.ndarray | torch.Tensor:
     """A float64 vector ``[N]`` on the CPU: numpy for ``xp is np``, else a torch tensor (keeps the autograd graph)."""
     if xp is np and isinstance(value, torch.Tensor):
         return value.detach().to(device="cpu", dtype=torch.float64).reshape(-1).numpy()
+    if xp is np and isinstance(value, np.ndarray) and value.dtype == np.float64:
+        return value.reshape(-1)
     t = torch.as_tensor(value, dtype=torch.float64).reshape(-1)
     return t.cpu() if xp is torch else t.numpy()
 
@@ -261,6 +259,8 @@ def _daylight_basis(grid: tuple) -> np.ndarray:
 
 def _daylight(t, grid: tuple, xp):
     """CIE daylight [N, L] for CCTs ``t`` [N] (float64, numpy or torch ``xp``)."""
+    if ((t < 4000) | (t > 25000)).any():
+        raise ValueError(f"cct_k: expected daylight CCTs in [4000, 25000] K, got {t.tolist()}")
     xd = xp.where(t <= 7000,
                   -4.6070e9 / t**3 + 2.9678e6 / t**2 + 0.09911e3 / t + 0.244063,
                   -2.0064e9 / t**3 + 1.9018e6 / t**2 + 0.24748e3 / t + 0.237040)
@@ -281,8 +281,6 @@ def daylight_spd(cct_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     w, key = _grid(wavelengths_nm)
     xp = torch if _needs_grad(cct_k) else np
     t = _f64(cct_k, xp)
-    if ((t < 4000) | (t > 25000)).any():
-        raise ValueError(f"cct_k: expected daylight CCTs in [4000, 25000] K, got {t.tolist()}")
     spd = _daylight(t, key, xp)
     return (_to_torch(spd, _out_dtype(w), w.device) if xp is np
             else spd.to(dtype=_out_dtype(w), device=w.device))
@@ -388,6 +386,24 @@ def _led_grid(grid: tuple) -> np.ndarray:
     return np.asarray(grid + _FINE_KEY, dtype=np.float64)
 
 
+def _led_params(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, xp):
+    """``led_spd``'s pump, phosphor peak and phosphor FWHM (nm), float64 [N] (a scalar broadcasts), defaults set."""
+    n = t.shape[0]
+
+    def per(v, default, name):
+        if v is None:
+            return np.full(n, default) if xp is np else torch.full((n,), default, dtype=torch.float64)
+        v = _f64(v, xp)
+        if v.shape[0] not in (1, n):
+            raise ValueError(f"{name}: expected 1 or {n} values (one per CCT), got {v.shape[0]}")
+        return xp.broadcast_to(v, (n,))
+
+    if phosphor_nm is None:  # warm-white LEDs use red-shifted phosphors
+        phosphor_nm = xp.clip(560.0 + 0.012 * (6500.0 - t), 555.0, 610.0)
+    return (per(pump_nm, 450.0, "pump_nm"), per(phosphor_nm, 565.0, "phosphor_nm"),
+            per(phosphor_fwhm_nm, 120.0, "phosphor_fwhm_nm"))
+
+
 def _led(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, grid: tuple, iterations, xp):
     """LED spectra [N, L] (peak 100) for CCTs ``t`` and LED parameters [N] (float64, numpy or torch ``xp``)."""
     # pump and phosphor on the scene's grid and, after it, on the fine grid (one evaluation for both)
@@ -451,19 +467,11 @@ def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=No
     w, key = _grid(wavelengths_nm)
     xp = torch if _needs_grad(cct_k, pump_nm, phosphor_nm, phosphor_fwhm_nm) else np
     t = _f64(cct_k, xp)
-    n = t.shape[0]
-
-    def per(v, default):
-        v = _f64(default if v is None else v, xp)
-        return xp.broadcast_to(v, (n,))
-
-    if phosphor_nm is None:  # warm-white LEDs use red-shifted phosphors
-        phosphor_nm = xp.clip(560.0 + 0.012 * (6500.0 - t), 555.0, 610.0)
-    pump, phos, fwhm = per(pump_nm, 450.0), per(phosphor_nm, 565.0), per(phosphor_fwhm_nm, 120.0)
+    params = _led_params(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, xp)
     if xp is torch:
-        return _led(t, pump, phos, fwhm, key, iterations, xp).to(dtype=_out_dtype(w), device=w.device)
+        return _led(t, *params, key, iterations, xp).to(dtype=_out_dtype(w), device=w.device)
     with np.errstate(all="ignore"):  # as in torch: inf / nan follow IEEE rules silently
-        return _to_torch(_led(t, pump, phos, fwhm, key, iterations, xp), _out_dtype(w), w.device)
+        return _to_torch(_led(t, *params, key, iterations, xp), _out_dtype(w), w.device)
 
 
 @functools.cache
@@ -498,12 +506,9 @@ def random_illuminant(kind: str, wavelengths_nm, generator: torch.Generator, cct
     t = np.array([cct], dtype=_NP_DTYPES.get(torch.get_default_dtype(), np.float64)).astype(np.float64)
     with np.errstate(all="ignore"):
         if kind == "daylight":
-            if not 4000 <= cct <= 25000:
-                raise ValueError(f"cct_k: expected daylight CCTs in [4000, 25000] K, got {t.tolist()}")
             spd = _daylight(t, key, np)
         elif kind == "blackbody":
             spd = _blackbody(t[:, None], key, np)
         else:
-            phosphor = np.clip(560.0 + 0.012 * (6500.0 - t), 555.0, 610.0)
-            spd = _led(t, np.full(1, 450.0), phosphor, np.full(1, 120.0), key, None, np)
+            spd = _led(t, *_led_params(t, None, None, None, np), key, None, np)
     return _to_torch(spd[0], dtype, w.device), cct, kind
