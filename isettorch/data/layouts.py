@@ -97,7 +97,6 @@ def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype):
     bounding boxes) and the painter's order is resolved by a scatter-max of the drawing order. Exact up to the
     float64 rounding of the run ends (the tests compare with the brute-force per-pixel test).
     """
-    n = r.numel()
     sn, cs = theta.sin(), theta.cos()
     ra = r * aspect
     asn, acs = sn.abs(), cs.abs()
@@ -106,28 +105,48 @@ def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype):
     ey = torch.where(shape == 0, r, ey)
     y0 = torch.ceil(cy - ey).long().clamp(0, h)
     nrows = ((torch.floor(cy + ey).long() + 1).clamp(0, h) - y0).clamp_min(0)
-    leaf = torch.repeat_interleave(torch.arange(n), nrows)  # leaf of each (leaf, row) pair
-    starts = nrows.cumsum(0) - nrows
-    table = torch.stack([cy, cx, r, ra, cs, sn, y0.to(torch.float64), starts.to(torch.float64),
-                         shape.to(torch.float64)]).index_select(1, leaf)
-    c_y, c_x, rr, rra, c, s, y0r, st, shp = table.unbind(0)
+    # (leaf, row) pairs grouped by shape, so each shape's run formula is evaluated on its own rows only
+    perm = torch.argsort(shape, stable=True)
+    nrows_p = nrows.index_select(0, perm)
+    leaf = torch.repeat_interleave(perm, nrows_p)
+    rows_per_shape = torch.zeros(3, dtype=torch.long).index_add_(0, shape.index_select(0, perm), nrows_p).tolist()
+    starts_p = torch.zeros_like(nrows).index_copy_(0, perm, nrows_p.cumsum(0) - nrows_p)
+    table = torch.stack([cy, cx, r, ra, cs, sn, y0.to(torch.float64), starts_p.to(torch.float64)]).index_select(1, leaf)
+    c_y, c_x, rr, rra, c, s, y0r, st = table.unbind(0)
     y = y0r + (torch.arange(leaf.numel(), dtype=torch.float64) - st)
     dy = y - c_y
-    q = rr * rr - dy * dy  # disk
-    hd = torch.sqrt(q.clamp_min(0))
-    lo_d, hi_d = torch.where(q >= 0, -hd, math.inf), torch.where(q >= 0, hd, -math.inf)
-    ir2, ia2 = 1 / (rr * rr), 1 / (rra * rra)  # ellipse
-    qa = c * c * ir2 + s * s * ia2
-    qb = 2 * dy * c * s * (ir2 - ia2)
-    qc = dy * dy * (s * s * ir2 + c * c * ia2) - 1
-    disc = qb * qb - 4 * qa * qc
-    sd = torch.sqrt(disc.clamp_min(0))
-    lo_e = torch.where(disc >= 0, (-qb - sd) / (2 * qa), math.inf)
-    hi_e = torch.where(disc >= 0, (-qb + sd) / (2 * qa), -math.inf)
-    l1, h1 = _interval(c, dy * s, rr)  # rectangle
-    l2, h2 = _interval(-s, dy * c, rra)
-    lo = torch.where(shp == 0, lo_d, torch.where(shp == 1, torch.maximum(l1, l2), lo_e))
-    hi = torch.where(shp == 0, hi_d, torch.where(shp == 1, torch.minimum(h1, h2), hi_e))
+    los, his = [], []
+    start = 0
+    for shape_id, count in enumerate(rows_per_shape):
+        sl = slice(start, start + count)
+        start += count
+        if not count:
+            continue
+        dy_, rr_ = dy[sl], rr[sl]
+        if shape_id == 0:  # disk: dx^2 <= r^2 - dy^2
+            q = rr_ * rr_ - dy_ * dy_
+            hd = torch.sqrt(q.clamp_min(0))
+            los.append(torch.where(q >= 0, -hd, math.inf))
+            his.append(torch.where(q >= 0, hd, -math.inf))
+        elif shape_id == 1:  # rectangle: |dx cos t + dy sin t| <= r and |-dx sin t + dy cos t| <= r a
+            c_, s_ = c[sl], s[sl]
+            l1, h1 = _interval(c_, dy_ * s_, rr_)
+            l2, h2 = _interval(-s_, dy_ * c_, rra[sl])
+            los.append(torch.maximum(l1, l2))
+            his.append(torch.minimum(h1, h2))
+        else:  # ellipse: ((dx c + dy s) / r)^2 + ((-dx s + dy c) / (r a))^2 <= 1, i.e. A dx^2 + B dx + C <= 0
+            c_, s_, rra_ = c[sl], s[sl], rra[sl]
+            ir2, ia2 = 1 / (rr_ * rr_), 1 / (rra_ * rra_)
+            qa = c_ * c_ * ir2 + s_ * s_ * ia2
+            qb = 2 * dy_ * c_ * s_ * (ir2 - ia2)
+            qc = dy_ * dy_ * (s_ * s_ * ir2 + c_ * c_ * ia2) - 1
+            disc = qb * qb - 4 * qa * qc
+            sd = torch.sqrt(disc.clamp_min(0))
+            los.append(torch.where(disc >= 0, (-qb - sd) / (2 * qa), math.inf))
+            his.append(torch.where(disc >= 0, (-qb + sd) / (2 * qa), -math.inf))
+    if not los:  # no leaf reaches the image
+        return torch.zeros(h, w, dtype=torch.long, device=device)
+    lo, hi = torch.cat(los), torch.cat(his)
     xl = torch.ceil(c_x + lo).clamp(0, w).long()
     xr = torch.floor(c_x + hi).clamp(-1, w - 1).long()
     cnt = (xr - xl + 1).clamp_min(0)

@@ -23,6 +23,7 @@ import functools
 import itertools
 import math
 
+import numpy as np
 import torch
 
 from .. import constants, spectral
@@ -65,20 +66,21 @@ def _smooth_field(h: int, w: int, g: torch.Generator, device, dtype, max_cycles:
     """Sum of three random low-frequency sinusoids, rescaled to span exactly [0, 1].
 
     Each plane wave is separable, ``sin(A x + B y + p) = sin(A x) cos(B y + p) + cos(A x) sin(B y + p)``, so the
-    sum is a rank-6 product ``[H, 6] @ [6, W]`` of 1-D factors (float64) instead of three full-image sines.
+    sum is a rank-6 product ``[H, 6] @ [6, W]`` of 1-D factors (float64, built in numpy: a few tiny vectors)
+    instead of three full-image sines.
     """
-    y = torch.linspace(0, 1, h, dtype=torch.float64)[:, None]
-    x = torch.linspace(0, 1, w, dtype=torch.float64)[None, :]
+    y = np.linspace(0.0, 1.0, h)[:, None]
+    x = np.linspace(0.0, 1.0, w)[None, :]
     cols, rows = [], []
     for _ in range(3):
         fr = _uniform([0.3, max_cycles], g)
         a = _uniform([0, math.pi], g)
         ph = _uniform([0, 2 * math.pi], g)
         ay, ax = 2 * math.pi * fr * math.sin(a) * y + ph, 2 * math.pi * fr * math.cos(a) * x
-        cols += [torch.cos(ay), torch.sin(ay)]
-        rows += [torch.sin(ax), torch.cos(ax)]
-    f = torch.cat(cols, dim=1) @ torch.cat(rows, dim=0)
-    lo, hi = f.min(), f.max()
+        cols += [np.cos(ay), np.sin(ay)]
+        rows += [np.sin(ax), np.cos(ax)]
+    f = torch.from_numpy(np.concatenate(cols, axis=1)) @ torch.from_numpy(np.concatenate(rows, axis=0))
+    lo, hi = torch.aminmax(f)
     return ((f - lo) / (hi - lo).clamp_min(1e-6)).to(device=device, dtype=dtype)
 
 
