@@ -274,15 +274,27 @@ def _stroke_cover(h: int, w: int, seg: torch.Tensor, wid: torch.Tensor) -> torch
     return top.scatter_reduce_(0, py * w + px, cover, reduce="amax").reshape(h, w)
 
 
+def _line_cover(h: int, w: int, py: torch.Tensor, px: torch.Tensor, a: torch.Tensor, wid: torch.Tensor, device,
+                dtype) -> torch.Tensor:
+    """Max coverage ``clamp(wid / 2 + 0.5 - distance, 0, 1)`` over lines through ``(py, px)`` with direction
+    ``(sin a, cos a)`` (float64 [N]) at each pixel ``[H, W]``. The distance to a line is the perpendicular one,
+    ``|(y - py) cos a - (x - px) sin a|``, separable: ``[N, H, 1] - [N, 1, W]`` of float64 factors."""
+    yy = torch.arange(h, dtype=torch.float64)[None, :] - py[:, None]
+    xx = torch.arange(w, dtype=torch.float64)[None, :] - px[:, None]
+    along_y = (yy * torch.cos(a)[:, None]).to(device=device, dtype=dtype)[:, :, None]
+    along_x = (xx * torch.sin(a)[:, None]).to(device=device, dtype=dtype)[:, None, :]
+    dist = (along_y - along_x).abs_()
+    # Coverage of a pixel by a stroke of width wid: linear ramp over one pixel (box-filtered edge).
+    return dist.neg_().add_(wid.to(device=device, dtype=dtype)[:, None, None] / 2 + 0.5).clamp_(0, 1).amax(dim=0)
+
+
 def lines(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.float32):
     """Thin lines across the image and text-like glyphs made of short strokes, anti-aliased."""
     n_lines = int(_ri(g, 3, 12))
-    a = _u(g, n_lines, hi=math.pi)
+    a = _u(g, n_lines, hi=math.pi)  # direction (sin a, cos a) in (y, x)
     py, px = _u(g, n_lines, hi=h), _u(g, n_lines, hi=w)
-    L = 2.0 * (h + w)
-    segs = [torch.stack([py - L * torch.sin(a), px - L * torch.cos(a), py + L * torch.sin(a),
-                         px + L * torch.cos(a)], 1)]
-    widths = [_u(g, n_lines, lo=0.5, hi=3.0)]
+    line_width = _u(g, n_lines, lo=0.5, hi=3.0)
+    segs, widths = [], []
     n_glyphs = int(_ri(g, 2, 6))
     for _ in range(n_glyphs):
         size = float(_u(g, 1, lo=6.0, hi=0.3 * min(h, w) + 6.0))
@@ -291,14 +303,10 @@ def lines(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.f
         pts = torch.stack([gy + size * _u(g, ns + 1), gx + 0.7 * size * _u(g, ns + 1)], 1)
         segs.append(torch.cat([pts[:-1], pts[1:]], 1))
         widths.append(torch.full((ns,), float(_u(g, 1, lo=0.7, hi=2.5)), dtype=torch.float64))
-    seg = torch.cat(segs).to(device=device, dtype=dtype)
-    wid = torch.cat(widths).to(device=device, dtype=dtype)
-    y, x = _grid(h, w, device, dtype)
-    s_l, w_l = seg[:n_lines], wid[:n_lines]
-    dist = _segment_distance(y, x, s_l[:, 0], s_l[:, 1], s_l[:, 2], s_l[:, 3])
-    # Coverage of a pixel by a stroke of width wid: linear ramp over one pixel (box-filtered edge).
-    cover = (w_l[:, None, None] / 2 + 0.5 - dist).clamp(0, 1).amax(dim=0)
-    cover = torch.maximum(cover, _stroke_cover(h, w, seg[n_lines:], wid[n_lines:]).to(cover.device))
+    cover = _line_cover(h, w, py, px, a, line_width.to(dtype), device, dtype)
+    strokes = _stroke_cover(h, w, torch.cat(segs).to(device=device, dtype=dtype),
+                            torch.cat(widths).to(device=device, dtype=dtype))
+    cover = torch.maximum(cover, strokes.to(cover.device))
     ia = torch.full((h, w), int(_ri(g, 0, k - 1)), device=device)
     ib = torch.full((h, w), int(_ri(g, 0, k - 1)), device=device)
     return ia, ib, cover

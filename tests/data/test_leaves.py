@@ -59,3 +59,22 @@ def test_stroke_cover_equals_full_image_evaluation():
     brute = (wid[:, None, None] / 2 + 0.5 - dist).clamp(0, 1).amax(dim=0)
     got = layouts._stroke_cover(h, w, seg, wid)
     assert torch.equal(got, brute) and float(brute.max()) == 1.0 and float((brute > 0).float().mean()) > 0.1
+
+
+def test_long_lines_cover_equals_segment_distance():
+    """The lines layout's separable perpendicular distance equals the distance to segments reaching far beyond
+    the image (how the lines are defined), to float32 rounding."""
+    g = torch.Generator().manual_seed(4)
+    h, w, n = 36, 44, 9
+    a = torch.rand(n, generator=g, dtype=torch.float64) * math.pi
+    py = torch.rand(n, generator=g, dtype=torch.float64) * h
+    px = torch.rand(n, generator=g, dtype=torch.float64) * w
+    wid = 0.5 + 2.5 * torch.rand(n, generator=g, dtype=torch.float64)
+    got = layouts._line_cover(h, w, py, px, a, wid, None, torch.float32)
+    big = 2.0 * (h + w)
+    yy, xx = layouts._grid(h, w, None, torch.float64)
+    dist = layouts._segment_distance(yy, xx, py - big * a.sin(), px - big * a.cos(), py + big * a.sin(),
+                                     px + big * a.cos())
+    ref = (wid[:, None, None] / 2 + 0.5 - dist).clamp(0, 1).amax(dim=0)
+    assert float((got.double() - ref).abs().max()) < 1e-5 and float(ref.max()) == 1.0
+    assert 0.05 < float((ref > 0).double().mean()) < 0.9
