@@ -42,7 +42,7 @@ import torch
 from .. import constants, spectral
 from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
 from ..isp.colour import bradford_matrix
-from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for
+from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for, tune_allocator
 from .scenes import _uniform, generate_scene
 
 __all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "render_pairs", "batch_loader", "META_KEYS",
@@ -328,7 +328,9 @@ def _factored_radiance(f: dict, dtype) -> tuple[torch.Tensor, torch.Tensor, torc
         maps, spectra = coef, pal * f["e1"]
     # mean luminance = sum_j (v . spectra_j) mean_x maps_j (CIE 015:2018 via _luminance_weights), in float64
     lum = spectra @ _luminance_weights(f["wl"])
-    mean_lum = float((maps.sum(dim=1, dtype=torch.float64) * lum).sum()) / (h * w)
+    # (per-map sums accumulated in the maps' dtype: torch's cascade sum, ~1e-7 relative in float32, 5x faster
+    # than converting every pixel to float64)
+    mean_lum = float((maps.sum(dim=1).to(torch.float64) * lum).sum()) / (h * w)
     scale = f["target"] / max(mean_lum, torch.finfo(dtype).tiny)
     # Terms whose map is 0 everywhere (palette entries the layout does not use: ~40 % of them, as most layouts
     # but dead leaves use 2-4 of the 8 colours) add exactly 0 to the radiance: dropped, so the optics do fewer FFTs.
@@ -681,9 +683,20 @@ class CameraPairDataset(torch.utils.data.Dataset):
                             cache=self._cache)
 
 
+def _tuned_worker_init(user_init):
+    """A DataLoader ``worker_init_fn`` that applies :func:`config.tune_allocator` and then ``user_init``."""
+    return functools.partial(_worker_init, user_init)
+
+
+def _worker_init(user_init, worker_id: int) -> None:
+    tune_allocator()
+    if user_init is not None:
+        user_init(worker_id)
+
+
 def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool = False, sampler=None,
                  generator: torch.Generator | None = None, drop_last: bool = False, num_workers: int = 0,
-                 **loader_kwargs) -> torch.utils.data.DataLoader:
+                 tune_worker_allocator: bool = True, **loader_kwargs) -> torch.utils.data.DataLoader:
     """A ``DataLoader`` whose workers generate whole batches (:meth:`CameraPairDataset.get_batch`).
 
     Yields the same batches, bitwise, as ``DataLoader(dataset, batch_size, sampler=..., collate_fn=collate_pairs)``
@@ -693,6 +706,9 @@ def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool =
         batch_size: items per batch. shuffle / generator: a ``RandomSampler`` (seeded by ``generator``) instead
             of the sequential order; ``sampler``: any index sampler (e.g. ``DistributedSampler``) instead.
         drop_last, num_workers, loader_kwargs: passed on (``BatchSampler`` / ``DataLoader``).
+        tune_worker_allocator: apply :func:`isettorch.data.config.tune_allocator` in each worker process (keeps
+            freed tensors in the worker's heap: ~13 % less CPU per pair; workers' resident memory stays at its
+            peak). Values are unaffected.
 
     Example:
         >>> ds = CameraPairDataset(8, seed=0, scene={"height": 16, "width": 16})
@@ -708,6 +724,8 @@ def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool =
         raise ValueError("shuffle: expected False when a sampler is given (the sampler sets the order)")
     batches = torch.utils.data.BatchSampler(sampler, batch_size, drop_last)
     # the loader draws its workers' base seed from the same generator first, exactly as DataLoader(shuffle=True)
+    if tune_worker_allocator and num_workers > 0:
+        loader_kwargs["worker_init_fn"] = _tuned_worker_init(loader_kwargs.get("worker_init_fn"))
     return torch.utils.data.DataLoader(dataset, sampler=batches, batch_size=None, num_workers=num_workers,
                                        generator=generator, **loader_kwargs)
 

