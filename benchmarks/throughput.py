@@ -37,6 +37,7 @@ from isettorch.data.camera_pairs import (
     render_pair,
     render_pairs,
 )
+from isettorch.data.config import tune_allocator
 
 STEPS = {31: 10.0, 16: 20.0, 11: 30.0, 7: 50.0}
 
@@ -134,6 +135,11 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--loader-batches", type=int, nargs="*", default=[32],
+                    help="extra batch sizes for the batched loader with workers")
+    ap.add_argument("--no-tune", action="store_true",
+                    help="do not apply isettorch.data.config.tune_allocator() in the main process (workers of "
+                         "batch_loader always apply it)")
     ap.add_argument("--threads", type=int, default=2, help="torch intra-op threads of the main process")
     ap.add_argument("--bands", type=int, nargs="*", default=[16, 7], choices=sorted(STEPS),
                     help="opt-in spectral samplings to compare with 31 bands")
@@ -142,11 +148,13 @@ def main() -> None:
     ap.add_argument("--markdown", default=None, help="append the results to this file")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    tuned = False if args.no_tune else tune_allocator()
     w, b, reps = args.workers, args.batch, args.repeats
     n = max(b, args.count // b * b)  # whole batches per timed chunk
     head = (f"host: {platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, torch "
             f"{torch.__version__}, {args.threads} intra-op threads, {args.size}x{args.size}, batch {b}, "
-            f"{n} pairs x {reps} runs (median), load average at start {load()}")
+            f"{n} pairs x {reps} runs (median), allocator tuned in the main process: {tuned} (always in "
+            f"batch_loader workers), load average at start {load()}")
     print(head, flush=True)
     lines = ["| path (31 bands) | workers | pairs/s (measured) | main-process CPU ms/pair | load |",
              "|---|---|---|---|---|"]
@@ -164,6 +172,10 @@ def main() -> None:
     for workers in (0, w):
         row("factored, batched", workers, loader_rate(31, args.size, n, workers, batched=True, batch=b,
                                                       repeats=reps))
+    for bb in args.loader_batches:
+        nb = max(bb, args.count // bb * bb)
+        row(f"factored, batched, batch {bb}", w, loader_rate(31, args.size, nb, w, batched=True, batch=bb,
+                                                              repeats=reps))
     stage_lines = ["| method (31 bands) | CPU ms/pair (1 thread) | 2 dedicated cores: pairs/s (2000 / CPU ms) | "
                    "stages (CPU ms/pair) |", "|---|---|---|---|"]
     for method in ("reference", "factored"):

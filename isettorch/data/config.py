@@ -208,8 +208,9 @@ def tune_allocator() -> bool:
     trimmed. Generating a batch of camera pairs allocates and frees tens of MB of such temporaries. This sets
     ``M_MMAP_THRESHOLD`` to 32 MiB (glibc's maximum), ``M_TRIM_THRESHOLD`` to 1 GiB and ``M_TOP_PAD`` to 256 MiB:
     measured 7.1 -> 6.2 CPU ms per 128 x 128 pair (``benchmarks/THROUGHPUT.md``). The cost: memory freed inside
-    the process is kept for reuse (its resident size stays near its peak). :func:`batch_loader` applies it in its
-    worker processes; call it yourself to get it in a process that generates data in its main thread.
+    the process is kept for reuse (its resident size stays near its peak). ``CameraPairDataset`` applies it in
+    DataLoader worker processes (``tune_worker_allocator=True``); call it yourself to get it in a process that
+    generates data in its main thread.
     No-op (returns False) where the C library is not glibc.
     """
     if not sys.platform.startswith("linux"):

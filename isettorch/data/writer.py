@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-from .camera_pairs import CameraPairDataset, _tuned_worker_init
+from .camera_pairs import CameraPairDataset
 from .config import merge_config
 
 __all__ = ["write_dataset", "config_hash", "sha256_file", "verify_dataset", "FORMAT_VERSION"]
@@ -148,8 +148,7 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
     batches = [list(range(f * size, min((f + 1) * size, count))) for f in todo]
     if batches:
         # each shard is generated as one batch (CameraPairDataset.get_batch; bitwise the collated items)
-        loader = torch.utils.data.DataLoader(ds, sampler=batches, batch_size=None, num_workers=workers,
-                                             worker_init_fn=_tuned_worker_init(None) if workers else None)
+        loader = torch.utils.data.DataLoader(ds, sampler=batches, batch_size=None, num_workers=workers)
         bar = None
         if progress:
             from tqdm import tqdm

@@ -1,5 +1,9 @@
 """DataLoader workers and DistributedSampler: every item exactly once, bitwise identical everywhere."""
 
+import platform
+import sys
+
+import pytest
 import torch
 from torch.utils.data import DataLoader
 from torch.utils.data.distributed import DistributedSampler
@@ -69,3 +73,30 @@ def test_items_do_not_depend_on_the_thread_count():
         torch.set_num_threads(before)
     for k in ("raw", "noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb"):
         assert torch.equal(a[k], b[k]), k
+
+
+class _TunedFlag(CameraPairDataset):
+    """Reports, with each item, whether this process has applied tune_allocator."""
+
+    def __getitem__(self, index):
+        item = super().__getitem__(index)
+        from isettorch.data import camera_pairs
+
+        return {"raw": item["raw"], "tuned": torch.tensor(camera_pairs._WORKER_TUNED is True)}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc", reason="glibc mallopt")
+def test_allocator_tuned_in_workers_only_and_values_unchanged():
+    """Workers apply tune_allocator before their first item (the main process never does), and the items are
+    bitwise those of the main process."""
+    from isettorch.data import camera_pairs
+
+    ds = _TunedFlag(4, seed=3, scene={"height": 16, "width": 16, "wavelengths_nm": [400.0, 700.0, 50.0]})
+    main = [ds[i] for i in range(4)]
+    assert camera_pairs._WORKER_TUNED is None  # the main process never tunes
+    got = list(DataLoader(ds, batch_size=None, num_workers=2))
+    assert all(bool(g["tuned"]) for g in got)
+    for a, b in zip(main, got):
+        assert torch.equal(a["raw"], b["raw"])
+    off = _TunedFlag(2, seed=3, scene={"height": 16, "width": 16}, tune_worker_allocator=False)
+    assert not any(bool(g["tuned"]) for g in DataLoader(off, batch_size=None, num_workers=1))
