@@ -46,7 +46,7 @@ from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, s
 from .scenes import _uniform, generate_scene
 
 __all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "render_pairs", "batch_loader", "META_KEYS",
-           "nikon_d5100_qe"]
+           "TARGETS", "check_targets", "nikon_d5100_qe"]
 
 CHANNELS = ("R", "G", "B")
 ILLUMINANT_CODES = {"daylight": 0, "blackbody": 1, "led": 2}  # F<n> -> 10 + n
@@ -56,6 +56,19 @@ META_KEYS = ("index", "exposure_s", "analog_gain", "iso", "f_number", "focal_len
              "white_camera_rgb", "white_xyz", "qe", "wavelengths_nm", "hdr_decades", "mean_luminance_cd_m2")
 
 _D65_XYZ = (0.95047, 1.0, 1.08883)  # IEC 61966-2-1 white, Y = 1
+TARGETS = ("noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb")  # besides "raw" and "meta"
+_TARGET_CHANNELS = {"noise_free_raw": 1, "camera_rgb": 3, "xyz": 3, "linear_srgb": 3, "srgb": 3}
+
+
+def check_targets(targets) -> tuple[str, ...]:
+    """``targets`` (names from :data:`TARGETS`, any order) in canonical order; ValueError naming a bad one."""
+    if isinstance(targets, str):
+        targets = (targets,)
+    names = tuple(targets)
+    bad = [t for t in names if t not in TARGETS]
+    if bad:
+        raise ValueError(f"targets: expected names from {TARGETS}, got {bad[0]!r}")
+    return tuple(t for t in TARGETS if t in names)
 
 
 @functools.cache
@@ -342,7 +355,7 @@ def _factored_radiance(f: dict, dtype) -> tuple[torch.Tensor, torch.Tensor, torc
 
 
 def render_pairs(indices, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype=torch.float32,
-                 cache: _Cache | None = None, timings: dict | None = None) -> dict:
+                 cache: _Cache | None = None, timings: dict | None = None, targets=TARGETS) -> dict:
     """Camera training pairs for ``(seed, i)``, ``i`` in ``indices``, batched (the format of :func:`collate_pairs`).
 
     The same draws and the same physics as :func:`render_pair` (the reference, which runs the `Scene` ->
@@ -369,12 +382,13 @@ def render_pairs(indices, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype
         >>> render_pairs([3, 1], 0, scene, camera)["camera_rgb"].shape
         torch.Size([2, 3, 16, 16])
     """
+    targets = check_targets(targets)
     with one_thread():
         return _render_pairs([int(i) for i in indices], seed, scene_cfg, camera_cfg, dtype=dtype, cache=cache,
-                             timings=timings)
+                             timings=timings, targets=targets)
 
 
-def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings) -> dict:
+def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings, targets=TARGETS) -> dict:
     from ..optics import geometry
     from ..optics.blur import next_fast_size
     from ..optics.diffraction import dl_otf
@@ -433,12 +447,14 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     # which made batched transforms ~2x slower per item on CPU; per item, results are the same bitwise.
     cfas, qes = [], []
     nf = my * (mx // 2 + 1) * 2  # real and imaginary parts of the rFFT grid
-    cube_buf, proj_buf = torch.empty(len(grid), nf, dtype=dtype), torch.empty(6, nf, dtype=dtype)
-    dens6 = torch.empty(len(draws), 6, h, w, dtype=dtype)
+    # camera R, G, B, then CIE XYZ only when a colour target is asked (fewer projections and inverse FFTs)
+    nch = 6 if {"xyz", "linear_srgb", "srgb"} & set(targets) else 3
+    cube_buf, proj_buf = torch.empty(len(grid), nf, dtype=dtype), torch.empty(nch, nf, dtype=dtype)
+    dens6 = torch.empty(len(draws), nch, h, w, dtype=dtype)
     for b, (d, (_, maps, spectra, _), q, (otf, _)) in enumerate(zip(draws, scenes, spatial, otfs)):
         cfa, qe_module, unit_qe = _camera_parts(d["pattern"], tuple(d["shifts"]), grid)
         qe = (unit_qe * d["peak"]).to(dtype)  # linear resampling commutes with the peak scale
-        weights = torch.cat([qe * dl.to(dtype), xyz_w.to(dtype)])  # [6, L]
+        weights = torch.cat([qe * dl.to(dtype), xyz_w.to(dtype)])[:nch]  # [6 or 3, L]
         src = maps.mul_(q)  # in place: the maps are not used after the optics
         if (my, mx) != (hs, ws):
             src = torch.nn.functional.pad(src, (0, mx - ws, 0, my - hs))
@@ -447,14 +463,14 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
         # multi-MB tensors per item cost page faults: ~25 % of this loop)
         torch.mm(spectra.T.to(dtype), spec, out=cube_buf)
         cube_buf.mul_(otf.view(len(grid), -1))
-        torch.mm(weights, cube_buf, out=proj_buf)  # 6 weightings
-        proj = torch.view_as_complex(proj_buf.view(6, my, mx // 2 + 1, 2))
+        torch.mm(weights, cube_buf, out=proj_buf)  # 6 (or 3) weightings
+        proj = torch.view_as_complex(proj_buf.view(nch, my, mx // 2 + 1, 2))
         dens6[b] = torch.fft.irfft2(proj, s=(my, mx))[:, m:m + h, m:m + w]
         cfas.append(cfa)
         qes.append((qe_module, qe))
     clock("optics")
     return _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, dl, dtype, clock, Sensor,
-                                cache)
+                                cache, targets)
 
 
 def _sensor_for(cache: _Cache, d: dict, cfa, qe_module, sensor_cls):
@@ -493,20 +509,19 @@ def _views(shapes: dict, dtype) -> dict:
     return out
 
 
-def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, dl, dtype, clock, sensor_cls,
-                         cache):
-    """Exposure, the sensor capture (per item: its own noise generator) and the targets, batched; returns the
-    batch dict (the format of :func:`collate_pairs`; every image and float field in one storage)."""
+def _targets_and_capture(indices, draws, scenes, dens, cfas, qes, wave, xyz_w, dl, dtype, clock, sensor_cls,
+                         cache, targets=TARGETS):
+    """Exposure, the sensor capture (per item: its own noise generator) and the requested targets, batched;
+    returns the batch dict (the format of :func:`collate_pairs`; every image and float field in one storage).
+    ``dens``: ``[B, 3 or 6, H, W]`` camera R, G, B electron-rate densities, then XYZ when a colour target is asked."""
     nb = len(indices)
     h, w, bits, black = draws[0]["h"], draws[0]["w"], draws[0]["bits"], draws[0]["black"]
-    img = _views({k: (nb, c, h, w) for k, c in (("raw", 1), ("noise_free_raw", 1), ("camera_rgb", 3), ("xyz", 3),
-                                                 ("linear_srgb", 3), ("srgb", 3))}, dtype)
+    img = _views({k: (nb, c, h, w) for k, c in (("raw", 1), *((t, _TARGET_CHANNELS[t]) for t in targets))}, dtype)
 
     def col(values, dt=dtype):  # per-item scalars as a [B, 1, 1, 1] tensor
         return torch.tensor(values, dtype=dt).reshape(nb, 1, 1, 1)
 
-    rate_rgb = dens6[:, :3] * col([d["fill"] * d["pitch"] * d["pitch"] for d in draws])  # e-/s per pixel
-    xyz_img = dens6[:, 3:]
+    rate_rgb = dens[:, :3] * col([d["fill"] * d["pitch"] * d["pitch"] for d in draws])  # e-/s per pixel
     # Auto-exposure: the 98th percentile of the brightest channel at 80 % of full scale (after gain), x 2^EV.
     peak = rate_rgb.amax(dim=1).flatten(1)
     p98 = peak.kthvalue(max(1, math.ceil(0.98 * peak.shape[1])), dim=1).values.double().clamp_min(1e-30)
@@ -523,14 +538,16 @@ def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, 
             raw = sensor.capture(cfas[b].mosaic(rate_rgb[b:b + 1]), exposure_s=exposure[b], analog_gain=d["gain"],
                                  noise=True, generator=ng)
         torch.sub(raw.data, black, out=img["raw"][b:b + 1]).div_(span)
-        torch.sub(raw.noise_free, black, out=img["noise_free_raw"][b:b + 1]).div_(span)
+        if "noise_free_raw" in img:
+            torch.sub(raw.noise_free, black, out=img["noise_free_raw"][b:b + 1]).div_(span)
     clock("sensor")
     gain = [d["gain"] for d in draws]
     to_norm = [cg[b] * gain[b] / lsb / span for b in range(nb)]
-    # (x clamped at 1) / lsb, clamped at span, / span, in place: lsb = 2^-bits makes x / lsb exact and span <
-    # 2^bits, so min(min(x, 1) / lsb, span) = min(x 2^bits, span), bitwise.
-    cam_rgb = (rate_rgb * col(exposure)).mul_(col(cg)).mul_(col(gain))
-    torch.div(cam_rgb.mul_(2.0**bits).clamp_(max=span), span, out=img["camera_rgb"])
+    if "camera_rgb" in img:
+        # (x clamped at 1) / lsb, clamped at span, / span, in place: lsb = 2^-bits makes x / lsb exact and span <
+        # 2^bits, so min(min(x, 1) / lsb, span) = min(x 2^bits, span), bitwise.
+        cam_rgb = (rate_rgb * col(exposure)).mul_(col(cg)).mul_(col(gain))
+        torch.div(cam_rgb.mul_(2.0**bits).clamp_(max=span), span, out=img["camera_rgb"])
     scales, mats, metas = [], [], []
     for b, d in enumerate(draws):
         white_p = scenes[b][3].to(torch.float64)
@@ -543,14 +560,17 @@ def _targets_and_capture(indices, draws, scenes, dens6, cfas, qes, wave, xyz_w, 
         mats.append(torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat)
         metas.append(_meta_values(indices[b], d, scenes[b][0]["meta"], exposure[b], to_norm[b], span, white,
                                   cfas[b], white_cam, white_xyz, qe, wave))
-    xyz = torch.mul(xyz_img, col(scales), out=img["xyz"])
-    m_srgb = torch.stack(mats).to(dtype)[..., None]  # [B, 3, 3, 1]
-    x3 = xyz.reshape(nb, 3, -1)
-    lin = img["linear_srgb"].view(nb, 3, -1)
-    torch.mul(m_srgb[:, :, 0], x3[:, :1], out=lin)  # fixed summation order, as _matmul_fixed_order
-    for c in (1, 2):
-        lin.addcmul_(m_srgb[:, :, c], x3[:, c:c + 1])
-    img["srgb"].copy_(srgb_encode(img["linear_srgb"].clamp(0, 1), inplace=True))
+    if dens.shape[1] == 6:
+        xyz = torch.mul(dens[:, 3:], col(scales), out=img.get("xyz"))
+        if "linear_srgb" in img or "srgb" in img:
+            m_srgb = torch.stack(mats).to(dtype)[..., None]  # [B, 3, 3, 1]
+            x3 = xyz.reshape(nb, 3, -1)
+            lin = img["linear_srgb"].view(nb, 3, -1) if "linear_srgb" in img else torch.empty_like(x3)
+            torch.mul(m_srgb[:, :, 0], x3[:, :1], out=lin)  # fixed summation order, as _matmul_fixed_order
+            for c in (1, 2):
+                lin.addcmul_(m_srgb[:, :, c], x3[:, c:c + 1])
+            if "srgb" in img:
+                img["srgb"].copy_(srgb_encode(lin.view(nb, 3, h, w).clamp(0, 1), inplace=True))
     out = dict(img)
     out["meta"] = _batch_meta(metas, dtype)
     clock("targets")
@@ -625,6 +645,10 @@ class CameraPairDataset(torch.utils.data.Dataset):
         method: ``'factored'`` (default, :func:`render_pairs`: the same physics computed in a faster, exact order)
             or ``'reference'`` (:func:`render_pair`: the `Scene` -> optics -> `Sensor` modules, one item at a
             time). They agree to float rounding (see :func:`render_pairs`).
+        targets: the targets to compute, from :data:`TARGETS` (default all; ``raw`` and ``meta`` are always
+            there). The factored path computes only what is asked: without ``xyz``/``linear_srgb``/``srgb`` the
+            optics project on 3 weightings instead of 6 (3 fewer inverse FFTs); fewer targets also mean less
+            data to move between DataLoader workers and the main process.
         tune_worker_allocator: inside a DataLoader worker process, apply
             :func:`isettorch.data.config.tune_allocator` once before the first item (freed tensors stay in the
             worker's heap instead of being unmapped and page-faulted again: ~13 % less CPU per pair; the worker's
@@ -646,7 +670,7 @@ class CameraPairDataset(torch.utils.data.Dataset):
     METHODS = ("factored", "reference")
 
     def __init__(self, length: int, seed: int = 0, scene: dict | None = None, camera: dict | None = None, *,
-                 dtype=torch.float32, method: str = "factored", tune_worker_allocator: bool = True):
+                 dtype=torch.float32, method: str = "factored", targets=TARGETS, tune_worker_allocator: bool = True):
         if int(length) < 0:
             raise ValueError(f"length: expected a non-negative number of items, got {length}")
         if method not in self.METHODS:
@@ -658,6 +682,7 @@ class CameraPairDataset(torch.utils.data.Dataset):
             raise ValueError(f"scene.height/width: expected even sizes (whole Bayer cells), got "
                              f"{self.scene_config['height']}x{self.scene_config['width']}")
         self._cache = _Cache()
+        self.targets = check_targets(targets)
         self.tune_worker_allocator = bool(tune_worker_allocator)
 
     def __len__(self) -> int:
@@ -683,11 +708,12 @@ class CameraPairDataset(torch.utils.data.Dataset):
         index = self._check_index(index)
         self._maybe_tune()
         if self.method == "reference":
-            return render_pair(index, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
+            item = render_pair(index, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
                                cache=self._cache)
+            return {k: v for k, v in item.items() if k in ("raw", "meta", *self.targets)}
         with one_thread():
             batch = _render_pairs([index], self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
-                                  cache=self._cache, timings=None)
+                                  cache=self._cache, timings=None, targets=self.targets)
         return {k: ({m: t[0] for m, t in v.items()} if isinstance(v, dict) else v[0]) for k, v in batch.items()}
 
     def get_batch(self, indices) -> dict:
@@ -700,7 +726,7 @@ class CameraPairDataset(torch.utils.data.Dataset):
         if self.method == "reference":
             return collate_pairs([self[i] for i in idx])
         return render_pairs(idx, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
-                            cache=self._cache)
+                            cache=self._cache, targets=self.targets)
 
 
 def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool = False, sampler=None,

@@ -153,3 +153,24 @@ def test_srgb_encode_inplace_is_bitwise_the_same(dtype):
     assert torch.equal(srgb_encode(x.clone(), inplace=True), ref)
     np.testing.assert_allclose(ref.double().numpy(), colour.cctf_encoding(x.double().numpy(), "sRGB"),
                                atol=1e-12 if dtype == torch.float64 else 2e-7)
+
+
+def test_targets_subset_is_the_same_computation():
+    """Asking for fewer targets returns exactly those keys; their values equal the full computation (bitwise when
+    a colour target keeps the 6 projections; to float rounding when only camera channels are projected)."""
+    scene = {"height": 16, "width": 16, "wavelengths_nm": [400.0, 700.0, 20.0]}
+    full = CameraPairDataset(4, seed=5, scene=scene).get_batch(range(4))
+    srgb_only = CameraPairDataset(4, seed=5, scene=scene, targets=["srgb"]).get_batch(range(4))
+    assert set(srgb_only) == {"raw", "srgb", "meta"}
+    assert torch.equal(srgb_only["srgb"], full["srgb"]) and torch.equal(srgb_only["raw"], full["raw"])
+    cam = CameraPairDataset(4, seed=5, scene=scene, targets=("camera_rgb",))
+    got = cam.get_batch(range(4))
+    assert set(got) == {"raw", "camera_rgb", "meta"}
+    assert _rel_max(got["camera_rgb"], full["camera_rgb"]) < 1e-6
+    assert float((got["raw"] != full["raw"]).double().mean()) < 0.01
+    item = cam[2]
+    assert torch.equal(item["camera_rgb"], got["camera_rgb"][2])
+    ref = CameraPairDataset(4, seed=5, scene=scene, targets=("xyz",), method="reference")[1]
+    assert set(ref) == {"raw", "xyz", "meta"}
+    with pytest.raises(ValueError, match="targets"):
+        CameraPairDataset(4, targets=("rgb",))
