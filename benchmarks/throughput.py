@@ -30,6 +30,7 @@ import time
 import torch
 
 from isettorch.data.camera_pairs import (
+    TARGETS,
     CameraPairDataset,
     _Cache,
     batch_loader,
@@ -52,11 +53,12 @@ def load() -> str:
 
 
 def loader_rate(bands: int, size: int, count: int, workers: int, *, method: str = "factored", batched: bool = False,
-                batch: int = 16, repeats: int = 3, seed: int = 0) -> tuple[float, float]:
+                batch: int = 16, repeats: int = 3, seed: int = 0, targets=TARGETS) -> tuple[float, float]:
     """(median pairs/s, median main-process CPU ms per pair) of one DataLoader over ``(repeats + 1) x count`` fresh
     items, timed in consecutive chunks of ``count`` items; the first chunk (worker start-up, caches) is the
     warm-up and is not counted. Caches are warmed in the main process first, so forked workers inherit them."""
-    ds = CameraPairDataset((repeats + 1) * count, seed=seed, scene=scene_cfg(bands, size), method=method)
+    ds = CameraPairDataset((repeats + 1) * count, seed=seed, scene=scene_cfg(bands, size), method=method,
+                           targets=targets)
     ds.get_batch([0])
     if batched:
         loader = batch_loader(ds, batch, num_workers=workers)
@@ -172,6 +174,8 @@ def main() -> None:
     for workers in (0, w):
         row("factored, batched", workers, loader_rate(31, args.size, n, workers, batched=True, batch=b,
                                                       repeats=reps))
+    row("factored, batched, targets raw + camera_rgb only", w,
+        loader_rate(31, args.size, n, w, batched=True, batch=b, repeats=reps, targets=("camera_rgb",)))
     for bb in args.loader_batches:
         nb = max(bb, args.count // bb * bb)
         row(f"factored, batched, batch {bb}", w, loader_rate(31, args.size, nb, w, batched=True, batch=bb,
