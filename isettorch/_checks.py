@@ -66,6 +66,12 @@ def check_wavelengths(w: torch.Tensor, name: str = "wavelengths_nm") -> torch.Te
 
 def batch_param(value, name: str, batch: int, *, dtype, device, positive: bool = False) -> torch.Tensor:
     """A per-sample scalar as a tensor of shape [B] (a scalar broadcasts)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):  # fast path: checked as a Python number
+        if not math.isfinite(value):
+            raise ValueError(f"{name}: expected finite values, found 1 NaN/Inf entries")
+        if positive and value <= 0:
+            raise ValueError(f"{name}: expected positive values, got {value:.6g}")
+        return torch.full((batch,), value, dtype=dtype or torch.get_default_dtype(), device=device)
     t = as_tensor(value, name, dtype=dtype, device=device)
     if t.dim() > 1:
         raise ValueError(f"{name}: expected a scalar or a [B] tensor, got shape {tuple(t.shape)}")

@@ -548,22 +548,20 @@ def _targets_and_capture(indices, draws, scenes, dens, cfas, qes, wave, xyz_w, d
         # 2^bits, so min(min(x, 1) / lsb, span) = min(x 2^bits, span), bitwise.
         cam_rgb = (rate_rgb * col(exposure)).mul_(col(cg)).mul_(col(gain))
         torch.div(cam_rgb.mul_(2.0**bits).clamp_(max=span), span, out=img["camera_rgb"])
-    scales, mats, metas = [], [], []
-    for b, d in enumerate(draws):
-        white_p = scenes[b][3].to(torch.float64)
-        qe = qes[b][1]
-        white_xyz = (xyz_w * white_p).sum(dim=1)
-        white_cam = (qe.to(torch.float64) * dl * white_p).sum(dim=1)
-        k_white = white_cam[1] / white_xyz[1]  # e-/s/m^2 per (cd/m^2-equivalent) on both sides of the optics
-        scales.append(float(k_white) * d["fill"] * d["pitch"] * d["pitch"] * exposure[b] * to_norm[b])
-        cat = bradford_matrix(white_xyz / white_xyz[1], torch.tensor(_D65_XYZ, dtype=torch.float64))
-        mats.append(torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat)
-        metas.append(_meta_values(indices[b], d, scenes[b][0]["meta"], exposure[b], to_norm[b], span, white,
-                                  cfas[b], white_cam, white_xyz, qe, wave))
+    # the main light's white (per item, rows of one batched reduction each): XYZ, camera response, adaptation
+    white_p = torch.stack([sc[3] for sc in scenes]).to(torch.float64)  # [B, L]
+    white_xyz = (xyz_w * white_p[:, None]).sum(dim=-1)  # [B, 3]
+    white_cam = (torch.stack([q[1] for q in qes]).to(torch.float64) * dl * white_p[:, None]).sum(dim=-1)
+    k_white = (white_cam[:, 1] / white_xyz[:, 1]).tolist()  # e-/s/m^2 per (cd/m^2-equivalent), both sides
+    scales = [k_white[b] * d["fill"] * d["pitch"] * d["pitch"] * exposure[b] * to_norm[b] for b, d in enumerate(draws)]
+    cat = bradford_matrix(white_xyz / white_xyz[:, 1:2], torch.tensor(_D65_XYZ, dtype=torch.float64))  # [B, 3, 3]
+    mats = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat
+    metas = [_meta_values(indices[b], d, scenes[b][0]["meta"], exposure[b], to_norm[b], span, white, cfas[b],
+                          white_cam[b], white_xyz[b], qes[b][1], wave) for b, d in enumerate(draws)]
     if dens.shape[1] == 6:
         xyz = torch.mul(dens[:, 3:], col(scales), out=img.get("xyz"))
         if "linear_srgb" in img or "srgb" in img:
-            m_srgb = torch.stack(mats).to(dtype)[..., None]  # [B, 3, 3, 1]
+            m_srgb = mats.to(dtype)[..., None]  # [B, 3, 3, 1]
             x3 = xyz.reshape(nb, 3, -1)
             lin = img["linear_srgb"].view(nb, 3, -1) if "linear_srgb" in img else torch.empty_like(x3)
             torch.mul(m_srgb[:, :, 0], x3[:, :1], out=lin)  # fixed summation order, as _matmul_fixed_order

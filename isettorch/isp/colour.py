@@ -628,12 +628,22 @@ _BRADFORD = ((0.8951, 0.2664, -0.1614), (-0.7502, 1.7135, 0.0367), (0.0389, -0.0
 
 
 def bradford_matrix(source_white: torch.Tensor, target_white: torch.Tensor) -> torch.Tensor:
-    """Chromatic adaptation (3, 3) from ``source_white`` to ``target_white`` (XYZ, any common scale):
-    ``M^-1 diag(M w_t / M w_s) M`` with the Bradford matrix M (von Kries in sharpened cone space)."""
+    """Chromatic adaptation ``(..., 3, 3)`` from ``source_white`` to ``target_white`` (XYZ ``(..., 3)``, any common
+    scale; the two broadcast): ``M^-1 diag(M w_t / M w_s) M`` with the Bradford matrix M (von Kries in sharpened
+    cone space; Lam 1985, as in CIE 160:2004 and colour-science's ``matrix_chromatic_adaptation_VonKries``)."""
     m = torch.tensor(_BRADFORD, dtype=torch.float64)
-    ws = as_tensor(source_white, "source_white", dtype=torch.float64).reshape(3)
-    wt = as_tensor(target_white, "target_white", dtype=torch.float64).reshape(3)
-    return torch.linalg.inv(m) @ torch.diag((m @ wt) / (m @ ws)) @ m
+    ws = as_tensor(source_white, "source_white", dtype=torch.float64)
+    wt = as_tensor(target_white, "target_white", dtype=torch.float64)
+    for name, w in (("source_white", ws), ("target_white", wt)):
+        if w.dim() == 0 or w.shape[-1] != 3:
+            raise ValueError(f"{name}: expected XYZ values of shape (..., 3), got {tuple(w.shape)}")
+    gain = (wt @ m.T) / (ws @ m.T)  # cone-response ratios (..., 3)
+    return _bradford_inverse() @ (gain[..., :, None] * m)
+
+
+@functools.cache
+def _bradford_inverse() -> torch.Tensor:
+    return torch.linalg.inv(torch.tensor(_BRADFORD, dtype=torch.float64))
 
 
 class DisplayEncode(nn.Module):

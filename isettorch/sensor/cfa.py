@@ -165,11 +165,21 @@ class CFA:
     # --- tiling --------------------------------------------------------------------------
     def channel_index(self, height: int, width: int, *, device=None) -> torch.Tensor:
         """Channel index of every pixel ``[H, W]`` (long), the cell tiled from pixel [0, 0]."""
+        return self._tiled(height, width, device).clone()
+
+    def _tiled(self, height: int, width: int, device) -> torch.Tensor:
+        """:meth:`channel_index` from a small per-instance cache (read-only: callers must not modify it)."""
         if height < 1 or width < 1:
             raise ValueError(f"height, width: expected positive sizes, got {height}x{width}")
-        ph, pw = self.shape
-        reps = (-(-height // ph), -(-width // pw))
-        return self.index_map.to(device).repeat(*reps)[:height, :width]
+        key = (height, width, str(device))
+        cache = self.__dict__.setdefault("_index_cache", {})
+        if key not in cache:  # the tiling of a size repeats (e.g. every frame of a dataset): built once
+            ph, pw = self.shape
+            reps = (-(-height // ph), -(-width // pw))
+            if len(cache) > 16:
+                cache.clear()
+            cache[key] = self.index_map.to(device).repeat(*reps)[:height, :width]
+        return cache[key]
 
     def masks(self, height: int, width: int, *, dtype=None, device=None) -> torch.Tensor:
         """One-hot channel masks ``[C, H, W]`` (1 where the pixel has that filter)."""
@@ -181,7 +191,7 @@ class CFA:
         """Keep each pixel's own channel: ``[B, C, H, W]`` -> ``[B, 1, H, W]``."""
         if channels.dim() != 4 or channels.shape[1] != self.num_channels:
             raise ValueError(f"channels: expected shape [B, {self.num_channels}, H, W], got {tuple(channels.shape)}")
-        idx = self.channel_index(channels.shape[2], channels.shape[3], device=channels.device)
+        idx = self._tiled(channels.shape[2], channels.shape[3], channels.device)
         return channels.gather(1, idx.expand(channels.shape[0], 1, -1, -1))
 
 
