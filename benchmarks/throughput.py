@@ -156,7 +156,7 @@ def main() -> None:
     head = (f"host: {platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, torch "
             f"{torch.__version__}, {args.threads} intra-op threads, {args.size}x{args.size}, batch {b}, "
             f"{n} pairs x {reps} runs (median), allocator tuned in the main process: {tuned} (always in "
-            f"batch_loader workers), load average at start {load()}")
+            f"DataLoader workers), load average at start {load()}")
     print(head, flush=True)
     lines = ["| path (31 bands) | workers | pairs/s (measured) | main-process CPU ms/pair | load |",
              "|---|---|---|---|---|"]
