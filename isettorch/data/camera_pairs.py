@@ -762,10 +762,21 @@ def collate_pairs(items: list[dict]) -> dict:
     """Stack items into batched tensors: images ``[B, C, H, W]``, every metadata field ``[B, ...]``."""
     if not items:
         raise ValueError("items: expected at least one item")
-    out = {}
-    for key, value in items[0].items():
-        if isinstance(value, dict):
-            out[key] = {k: torch.stack([it[key][k] for it in items]) for k in value}
-        else:
-            out[key] = torch.stack([it[key] for it in items])
-    return out
+    # like the batched path, one storage per dtype (a DataLoader worker ships one shared-memory block each)
+    flat = {(key, k): v for key, value in items[0].items()
+            for k, v in (value.items() if isinstance(value, dict) else [(None, value)])}
+    groups: dict = {}
+    for name, v in flat.items():
+        groups.setdefault((v.dtype, v.device), {})[name] = (len(items), *v.shape)
+    out: dict = {}
+    for (dtype, device), shapes in groups.items():
+        views = _views(shapes, dtype) if device.type == "cpu" else {n: None for n in shapes}
+        for (key, k), dst in views.items():
+            vals = [it[key] if k is None else it[key][k] for it in items]
+            stacked = torch.stack(vals, out=dst) if dst is not None else torch.stack(vals)
+            if k is None:
+                out[key] = stacked
+            else:
+                out.setdefault(key, {})[k] = stacked
+    return {key: ({k: out[key][k] for k in value} if isinstance(value, dict) else out[key])
+            for key, value in items[0].items()}
