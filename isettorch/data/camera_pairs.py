@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 import time
 
 import numpy as np
@@ -478,7 +479,9 @@ def _sensor_for(cache: _Cache, d: dict, cfa, qe_module, sensor_cls):
     built and validated once, then given the item's continuous parameters (conversion gain from the full well,
     read noise, dark current, DSNU, PRNU, analog gain: plain float attributes read at capture time). Building a
     `Sensor` per item cost ~0.2 ms (nn.Module set-up and argument checks); the values are the same."""
-    key = ("sensor", d["pitch"], d["fill"], d["pattern"], tuple(d["shifts"]), d["bits"], d["black"])
+    # per thread: the module's noise attributes are set per item, so threads sharing a dataset must not share it
+    key = ("sensor", d["pitch"], d["fill"], d["pattern"], tuple(d["shifts"]), d["bits"], d["black"],
+           threading.get_ident())
     sensor = cache.optics.get(key)
     if sensor is None:
         sensor = cache.optics[key] = sensor_cls(

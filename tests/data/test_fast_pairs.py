@@ -174,3 +174,16 @@ def test_targets_subset_is_the_same_computation():
     assert set(ref) == {"raw", "xyz", "meta"}
     with pytest.raises(ValueError, match="targets"):
         CameraPairDataset(4, targets=("rgb",))
+
+
+def test_threads_sharing_a_dataset_get_the_same_items():
+    """Batches generated concurrently by threads sharing one dataset (and its caches) equal serial ones."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    ds = CameraPairDataset(32, seed=9, scene={"height": 16, "width": 16, "wavelengths_nm": [400.0, 700.0, 30.0]})
+    chunks = [list(range(i, i + 4)) for i in range(0, 32, 4)]
+    serial = [CameraPairDataset(32, seed=9, scene=ds.scene_config).get_batch(c) for c in chunks]
+    with ThreadPoolExecutor(4) as ex:
+        threaded = list(ex.map(ds.get_batch, chunks))
+    for a, b in zip(serial, threaded):
+        assert torch.equal(a["raw"], b["raw"]) and torch.equal(a["meta"]["read_noise_e"], b["meta"]["read_noise_e"])
