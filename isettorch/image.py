@@ -23,13 +23,17 @@ XYZ_TO_LINEAR_SRGB = (
 )
 
 
-def srgb_encode(linear: torch.Tensor, *, inplace: bool = False) -> torch.Tensor:
+def srgb_encode(linear: torch.Tensor, *, inplace: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
     """IEC 61966-2-1 sRGB transfer function (input clipped to [0, 1] by the caller).
 
     ``inplace=True`` uses ``linear`` as scratch space (its values are overwritten) and fewer temporaries: bitwise
-    the same result, ~2x faster on CPU; not for tensors that need gradients.
+    the same result, ~2x faster on CPU; not for tensors that need gradients. ``out``: write the result there
+    (same shape; ``linear`` is left unchanged), with fewer passes still; also bitwise the same.
     """
     low = linear <= 0.0031308
+    if out is not None:
+        torch.clamp(linear, min=0.0031308, out=out).pow_(1 / 2.4).mul_(1.055).sub_(0.055)
+        return out.masked_scatter_(low, linear.masked_select(low).mul_(12.92))
     if inplace:
         out = linear.clamp_min(0.0031308).pow_(1 / 2.4).mul_(1.055).sub_(0.055)
         return torch.where(low, linear.mul_(12.92), out, out=out)

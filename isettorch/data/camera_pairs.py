@@ -571,7 +571,7 @@ def _targets_and_capture(indices, draws, scenes, dens, cfas, qes, wave, xyz_w, d
             for c in (1, 2):
                 lin.addcmul_(m_srgb[:, :, c], x3[:, c:c + 1])
             if "srgb" in img:
-                img["srgb"].copy_(srgb_encode(lin.view(nb, 3, h, w).clamp(0, 1), inplace=True))
+                srgb_encode(lin.view(nb, 3, h, w).clamp(0, 1), out=img["srgb"])
     out = dict(img)
     out["meta"] = _batch_meta(metas, dtype)
     clock("targets")

@@ -142,7 +142,8 @@ def test_factored_is_exact_in_float64():
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_srgb_encode_inplace_is_bitwise_the_same(dtype):
-    """The in-place sRGB encoding used for the targets: bitwise the out-of-place one, and IEC 61966-2-1 (colour)."""
+    """The in-place and ``out=`` sRGB encodings used for the targets: bitwise the out-of-place one, and IEC
+    61966-2-1 (colour)."""
     import colour
 
     from isettorch.image import srgb_encode
@@ -151,6 +152,9 @@ def test_srgb_encode_inplace_is_bitwise_the_same(dtype):
                                                                           .manual_seed(0), dtype=dtype)])
     ref = srgb_encode(x)
     assert torch.equal(srgb_encode(x.clone(), inplace=True), ref)
+    out = torch.full_like(x, float("nan"))
+    keep = x.clone()
+    assert srgb_encode(x, out=out) is out and torch.equal(out, ref) and torch.equal(x, keep)
     np.testing.assert_allclose(ref.double().numpy(), colour.cctf_encoding(x.double().numpy(), "sRGB"),
                                atol=1e-12 if dtype == torch.float64 else 2e-7)
 
