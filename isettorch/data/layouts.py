@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 __all__ = ["LAYOUTS", "render_layout", "dead_leaves", "dead_leaves_radii", "gradients", "edges", "lines", "textures"]
@@ -75,14 +76,14 @@ def _leaf_inside(dy, dx, r, aspect, cos_t, sin_t, shape):
     return torch.where(shape == 1, rect, torch.where(shape == 2, ell, disk)) <= 1
 
 
-def _interval(k: torch.Tensor, o: torch.Tensor, b: torch.Tensor):
+def _interval(k: np.ndarray, o: np.ndarray, b: np.ndarray):
     """The range ``[lo, hi]`` of ``dx`` with ``|k dx + o| <= b`` (elementwise, float64); for ``k == 0`` it is
     everything or nothing."""
-    safe = torch.where(k == 0, torch.ones_like(k), k)
+    safe = np.where(k == 0, 1.0, k)
     e1, e2 = (-b - o) / safe, (b - o) / safe
-    ok = o.abs() <= b
-    lo = torch.where(k == 0, torch.where(ok, -math.inf, math.inf), torch.minimum(e1, e2))
-    hi = torch.where(k == 0, torch.where(ok, math.inf, -math.inf), torch.maximum(e1, e2))
+    ok = np.abs(o) <= b
+    lo = np.where(k == 0, np.where(ok, -np.inf, np.inf), np.minimum(e1, e2))
+    hi = np.where(k == 0, np.where(ok, np.inf, -np.inf), np.maximum(e1, e2))
     return lo, hi
 
 
@@ -95,26 +96,27 @@ def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype):
     intersection of two slabs ``|dx cos t + dy sin t| <= r``, ``|-dx sin t + dy cos t| <= r a``. Only the
     covered pixels are then enumerated (the leaves' total area, ~50k points at 144 x 144, instead of their
     bounding boxes) and the painter's order is resolved by a scatter-max of the drawing order. Exact up to the
-    float64 rounding of the run ends (the tests compare with the brute-force per-pixel test).
+    float64 rounding of the run ends (the tests compare with the brute-force per-pixel test). The per-row stage
+    (~5k rows of a few elementwise formulas) runs in numpy: at that size its per-call cost is ~2x lower than
+    torch's (same IEEE float64 operations).
     """
-    sn, cs = theta.sin(), theta.cos()
+    sn, cs = (v.numpy() for v in (theta.sin(), theta.cos()))
+    cy, cx, r, aspect, shape = (v.numpy() for v in (cy, cx, r, aspect, shape))
     ra = r * aspect
-    asn, acs = sn.abs(), cs.abs()
+    asn, acs = np.abs(sn), np.abs(cs)
     # half-height of each leaf: rectangle r |sin t| + r a |cos t|; ellipse sqrt((r sin t)^2 + (r a cos t)^2)
-    ey = torch.where(shape == 1, r * asn + ra * acs, torch.sqrt((r * asn) ** 2 + (ra * acs) ** 2))
-    ey = torch.where(shape == 0, r, ey)
-    y0 = torch.ceil(cy - ey).long().clamp(0, h)
-    nrows = ((torch.floor(cy + ey).long() + 1).clamp(0, h) - y0).clamp_min(0)
+    ey = np.where(shape == 1, r * asn + ra * acs, np.sqrt((r * asn) ** 2 + (ra * acs) ** 2))
+    ey = np.where(shape == 0, r, ey)
+    y0 = np.clip(np.ceil(cy - ey), 0, h).astype(np.int64)
+    nrows = np.maximum(np.clip(np.floor(cy + ey).astype(np.int64) + 1, 0, h) - y0, 0)
     # (leaf, row) pairs grouped by shape, so each shape's run formula is evaluated on its own rows only
-    perm = torch.argsort(shape, stable=True)
-    nrows_p = nrows.index_select(0, perm)
-    leaf = torch.repeat_interleave(perm, nrows_p)
-    rows_per_shape = torch.zeros(3, dtype=torch.long).index_add_(0, shape.index_select(0, perm), nrows_p).tolist()
-    starts_p = torch.zeros_like(nrows).index_copy_(0, perm, nrows_p.cumsum(0) - nrows_p)
-    table = torch.stack([cy, cx, r, ra, cs, sn, y0.to(torch.float64), starts_p.to(torch.float64)]).index_select(1, leaf)
-    c_y, c_x, rr, rra, c, s, y0r, st = table.unbind(0)
-    y = y0r + (torch.arange(leaf.numel(), dtype=torch.float64) - st)
-    dy = y - c_y
+    perm = np.argsort(shape, kind="stable")
+    nrows_p = nrows[perm]
+    leaf = np.repeat(perm, nrows_p)
+    rows_per_shape = np.bincount(shape[perm], weights=nrows_p, minlength=3).astype(np.int64).tolist()
+    y = y0[leaf] + (np.arange(leaf.size) - np.repeat(np.cumsum(nrows_p) - nrows_p, nrows_p))
+    c_x, rr, rra, c, s = cx[leaf], r[leaf], ra[leaf], cs[leaf], sn[leaf]
+    dy = y - cy[leaf]
     los, his = [], []
     start = 0
     for shape_id, count in enumerate(rows_per_shape):
@@ -125,15 +127,15 @@ def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype):
         dy_, rr_ = dy[sl], rr[sl]
         if shape_id == 0:  # disk: dx^2 <= r^2 - dy^2
             q = rr_ * rr_ - dy_ * dy_
-            hd = torch.sqrt(q.clamp_min(0))
-            los.append(torch.where(q >= 0, -hd, math.inf))
-            his.append(torch.where(q >= 0, hd, -math.inf))
+            hd = np.sqrt(np.maximum(q, 0))
+            los.append(np.where(q >= 0, -hd, np.inf))
+            his.append(np.where(q >= 0, hd, -np.inf))
         elif shape_id == 1:  # rectangle: |dx cos t + dy sin t| <= r and |-dx sin t + dy cos t| <= r a
             c_, s_ = c[sl], s[sl]
             l1, h1 = _interval(c_, dy_ * s_, rr_)
             l2, h2 = _interval(-s_, dy_ * c_, rra[sl])
-            los.append(torch.maximum(l1, l2))
-            his.append(torch.minimum(h1, h2))
+            los.append(np.maximum(l1, l2))
+            his.append(np.minimum(h1, h2))
         else:  # ellipse: ((dx c + dy s) / r)^2 + ((-dx s + dy c) / (r a))^2 <= 1, i.e. A dx^2 + B dx + C <= 0
             c_, s_, rra_ = c[sl], s[sl], rra[sl]
             ir2, ia2 = 1 / (rr_ * rr_), 1 / (rra_ * rra_)
@@ -141,20 +143,21 @@ def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype):
             qb = 2 * dy_ * c_ * s_ * (ir2 - ia2)
             qc = dy_ * dy_ * (s_ * s_ * ir2 + c_ * c_ * ia2) - 1
             disc = qb * qb - 4 * qa * qc
-            sd = torch.sqrt(disc.clamp_min(0))
-            los.append(torch.where(disc >= 0, (-qb - sd) / (2 * qa), math.inf))
-            his.append(torch.where(disc >= 0, (-qb + sd) / (2 * qa), -math.inf))
+            sd = np.sqrt(np.maximum(disc, 0))
+            los.append(np.where(disc >= 0, (-qb - sd) / (2 * qa), np.inf))
+            his.append(np.where(disc >= 0, (-qb + sd) / (2 * qa), -np.inf))
     if not los:  # no leaf reaches the image
         return torch.zeros(h, w, dtype=torch.long, device=device)
-    lo, hi = torch.cat(los), torch.cat(his)
-    xl = torch.ceil(c_x + lo).clamp(0, w).long()
-    xr = torch.floor(c_x + hi).clamp(-1, w - 1).long()
-    cnt = (xr - xl + 1).clamp_min(0)
+    lo, hi = np.concatenate(los), np.concatenate(his)
+    xl = np.clip(np.ceil(c_x + lo), 0, w).astype(np.int64)
+    xr = np.clip(np.floor(c_x + hi), -1, w - 1).astype(np.int64)
+    cnt = np.maximum(xr - xl + 1, 0)
     # pixel = y w + xl + (position within the run): one repeat of a per-run base plus a global arange
-    base = y.long() * w + xl - (cnt.cumsum(0) - cnt)
-    pix = torch.repeat_interleave(base, cnt) + torch.arange(int(cnt.sum()))
+    base = y * w + xl - (np.cumsum(cnt) - cnt)
+    counts = torch.from_numpy(cnt)
+    pix = torch.repeat_interleave(torch.from_numpy(base), counts) + torch.arange(int(cnt.sum()))
     top = torch.zeros(h * w, dtype=torch.long)
-    top.scatter_reduce_(0, pix, torch.repeat_interleave(leaf + 1, cnt), reduce="amax")
+    top.scatter_reduce_(0, pix, torch.repeat_interleave(torch.from_numpy(leaf + 1), counts), reduce="amax")
     return (top.clamp_min(1) - 1).reshape(h, w).to(device)
 
 
