@@ -398,10 +398,54 @@ def _led_params(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, xp):
             raise ValueError(f"{name}: expected 1 or {n} values (one per CCT), got {v.shape[0]}")
         return xp.broadcast_to(v, (n,))
 
-    if phosphor_nm is None:  # warm-white LEDs use red-shifted phosphors
-        phosphor_nm = xp.clip(560.0 + 0.012 * (6500.0 - t), 555.0, 610.0)
+    if phosphor_nm is None:
+        if pump_nm is None and phosphor_fwhm_nm is None:  # the phosphor that puts the LED on the Planckian locus
+            phosphor_nm = _on_locus_phosphor(t, xp)
+        else:  # warm-white LEDs use red-shifted phosphors
+            phosphor_nm = xp.clip(560.0 + 0.012 * (6500.0 - t), 555.0, 610.0)
     return (per(pump_nm, 450.0, "pump_nm"), per(phosphor_nm, 565.0, "phosphor_nm"),
             per(phosphor_fwhm_nm, 120.0, "phosphor_fwhm_nm"))
+
+
+@functools.cache
+def _on_locus_table() -> tuple[np.ndarray, np.ndarray]:
+    """``(mired [M], phosphor peak nm [M])``: for the default pump (450 nm, 20 nm FWHM) and phosphor width (120 nm),
+    the phosphor peak whose chromaticity is collinear in CIE 1960 uv with the pump and the Planckian locus point at
+    1e6 / mired K, so that the pump + phosphor mixture on that CCT's isotemperature line lies on the locus (Duv 0,
+    as ANSI C78.377 asks of white LEDs within +-0.006). Solved on a 0.25 nm grid of peaks (480-700 nm) with linear
+    interpolation of the sign change; where no peak in that range reaches the locus, the nearest end."""
+    cw = _cmf_weights(_FINE_KEY)
+    lam = np.asarray(_FINE_KEY)
+    peaks = np.arange(480.0, 700.01, 0.25)
+    up, vp = _uv(_led_parts(lam, np.array([450.0]), np.array([565.0]), np.array([120.0]), np)[0] @ cw)
+    uf, vf = _uv(_led_parts(lam, np.full(peaks.size, 450.0), peaks, np.full(peaks.size, 120.0), np)[1] @ cw)
+    mired = np.arange(40.0, 1000.01, 1.0)
+    ut, vt = _uv(_blackbody(1e6 / mired[:, None], _FINE_KEY, np) @ cw)
+    cross = (uf[None] - up) * (vt[:, None] - vp) - (vf[None] - vp) * (ut[:, None] - up)  # [M, peaks]
+    sign = np.signbit(cross)
+    change = sign[:, 1:] != sign[:, :-1]
+    first = np.where(change.any(axis=1), change.argmax(axis=1), -1)
+    out = np.empty(mired.size)
+    for i, j in enumerate(first):
+        if j < 0:  # unreachable: the end whose cross product is smaller
+            out[i] = peaks[0] if abs(cross[i, 0]) < abs(cross[i, -1]) else peaks[-1]
+        else:
+            c0, c1 = cross[i, j], cross[i, j + 1]
+            out[i] = peaks[j] + (peaks[j + 1] - peaks[j]) * c0 / (c0 - c1)
+    return mired, out
+
+
+def _on_locus_phosphor(t, xp):
+    """Default phosphor peak (nm) [N] for CCTs ``t`` [N] (K): :func:`_on_locus_table` interpolated linearly in mired
+    (differentiable in ``t`` on the torch path)."""
+    mired, peak = _on_locus_table()
+    if xp is np:
+        return np.interp(1e6 / t, mired, peak)
+    m = (1e6 / t).clamp(float(mired[0]), float(mired[-1]))
+    grid, val = torch.from_numpy(mired), torch.from_numpy(peak)
+    j = torch.searchsorted(grid, m.detach()).clamp(1, grid.numel() - 1)
+    m0, m1, p0, p1 = grid[j - 1], grid[j], val[j - 1], val[j]
+    return p0 + (p1 - p0) * (m - m0) / (m1 - m0)
 
 
 def _led(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, grid: tuple, iterations, xp):
@@ -459,7 +503,10 @@ def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=No
     """Phosphor-converted white LED ``[N, L]`` (energy, peak 100) whose CCT is ``cct_k`` [N].
 
     The pump : phosphor ratio ``r`` puts the LED on the isotemperature line of ``cct_k`` (more phosphor lowers
-    the CCT). Defaults: pump 450 nm, phosphor ``560 + 0.012 (6500 - T)`` nm (555-610) with 120 nm FWHM.
+    the CCT). Defaults: pump 450 nm, phosphor FWHM 120 nm, and the phosphor peak that puts the LED on the
+    Planckian locus (|Duv| <= 3e-5 over 1800-20000 K by colour-science's Ohno 2013; ANSI C78.377 allows
+    +-0.006 for white LEDs): ~564 nm at 6500 K to ~598 nm at 2700 K (:func:`_on_locus_table`). With a custom pump or width and no phosphor peak, the peak is
+    ``560 + 0.012 (6500 - T)`` nm (555-610).
     ``iterations=None`` (default) solves for ``r`` in closed form (exact: the condition is linear in ``r``, see
     the comment below); an integer runs the former bisection in ``log r`` with that many steps (26 gave
     ``|d log r| <= 1.3e-7``).

@@ -105,6 +105,22 @@ def test_led_spectrum_shape():
     assert 0.7 < float(long_fraction[0]) and float(long_fraction[1]) < float(long_fraction[0])
 
 
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_default_leds_are_on_the_planckian_locus():
+    """Default white LEDs sit on the Planckian locus at their CCT (colour-science's Ohno 2013 CCT and Duv): white
+    LEDs are binned within Duv +-0.006 (ANSI C78.377); a fixed phosphor peak put warm LEDs at Duv -0.035."""
+    t = torch.tensor([1800.0, 2700.0, 3000.0, 3500.0, 4000.0, 5000.0, 6500.0, 10000.0])
+    spd = spectra.led_spd(t, W5)
+    for row, cct in zip(spd, t.tolist()):
+        xy = spectra.chromaticity_xy(row[None], W5)[0].numpy()
+        ohno_cct, duv = colour.temperature.uv_to_CCT_Ohno2013(colour.xy_to_UCS_uv(xy))
+        assert abs(duv) < 2e-4 and abs(ohno_cct / cct - 1) < 2e-3, (cct, duv)
+    # a custom pump keeps the former peak rule (and its off-locus tint)
+    custom = spectra.led_spd(torch.tensor([2700.0]), W5, pump_nm=455.0)[0]
+    xy = spectra.chromaticity_xy(custom[None], W5)[0].numpy()
+    assert colour.temperature.uv_to_CCT_Ohno2013(colour.xy_to_UCS_uv(xy))[1] < -0.01
+
+
 def test_bad_arguments():
     g = torch.Generator().manual_seed(0)
     with pytest.raises(ValueError, match="cct_k"):
