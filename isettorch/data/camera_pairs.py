@@ -657,7 +657,9 @@ class CameraPairDataset(torch.utils.data.Dataset):
 
     ``ds[i]`` is one item; ``ds[[i, j, ...]]`` (or :meth:`get_batch`) a whole batch in the format of
     :func:`collate_pairs`, computed batched (the same values as collating ``ds[i]``, bitwise), which is how
-    :func:`batch_loader` feeds a ``DataLoader``.
+    :func:`batch_loader` feeds a ``DataLoader``. The images of a batch (and of an item) are contiguous views of one
+    storage, the metadata of one per dtype, so DataLoader workers ship few shared-memory blocks; ``torch.save`` of
+    a single field stores that whole storage: ``.clone()`` it first.
 
     Example:
         >>> ds = CameraPairDataset(8, seed=0, scene={"height": 32, "width": 32})
