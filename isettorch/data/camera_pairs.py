@@ -47,7 +47,7 @@ from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, s
 from .scenes import _uniform, generate_scene
 
 __all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "render_pairs", "batch_loader", "META_KEYS",
-           "TARGETS", "check_targets", "nikon_d5100_qe"]
+           "TARGETS", "GENERATOR_VERSION", "check_targets", "nikon_d5100_qe"]
 
 CHANNELS = ("R", "G", "B")
 ILLUMINANT_CODES = {"daylight": 0, "blackbody": 1, "led": 2}  # F<n> -> 10 + n
@@ -58,6 +58,10 @@ META_KEYS = ("index", "exposure_s", "analog_gain", "iso", "f_number", "focal_len
 
 _D65_XYZ = (0.95047, 1.0, 1.08883)  # IEC 61966-2-1 white, Y = 1
 TARGETS = ("noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb")  # besides "raw" and "meta"
+# Bumped whenever the item of a given (seed, index, config) changes (draw order, layouts, spectra, physics), so
+# that `isettorch synth` never resumes a dataset with shards of another version (it enters the config hash).
+# 2: 2026-11-22 third speed round (inverse-CDF choices, one-draw leaf parameters, on-locus LEDs, camera distance).
+GENERATOR_VERSION = 2
 _TARGET_CHANNELS = {"noise_free_raw": 1, "camera_rgb": 3, "xyz": 3, "linear_srgb": 3, "srgb": 3}
 
 

@@ -505,8 +505,8 @@ def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=No
     The pump : phosphor ratio ``r`` puts the LED on the isotemperature line of ``cct_k`` (more phosphor lowers
     the CCT). Defaults: pump 450 nm, phosphor FWHM 120 nm, and the phosphor peak that puts the LED on the
     Planckian locus (|Duv| <= 3e-5 over 1800-20000 K by colour-science's Ohno 2013; ANSI C78.377 allows
-    +-0.006 for white LEDs): ~564 nm at 6500 K to ~598 nm at 2700 K (:func:`_on_locus_table`). With a custom pump or width and no phosphor peak, the peak is
-    ``560 + 0.012 (6500 - T)`` nm (555-610).
+    +-0.006 for white LEDs): ~564 nm at 6500 K to ~598 nm at 2700 K (:func:`_on_locus_table`). With a custom
+    pump or width and no phosphor peak, the peak is ``560 + 0.012 (6500 - T)`` nm (555-610).
     ``iterations=None`` (default) solves for ``r`` in closed form (exact: the condition is linear in ``r``, see
     the comment below); an integer runs the former bisection in ``log r`` with that many steps (26 gave
     ``|d log r| <= 1.3e-7``).

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-from .camera_pairs import CameraPairDataset
+from .camera_pairs import GENERATOR_VERSION, CameraPairDataset
 from .config import merge_config
 
 __all__ = ["write_dataset", "config_hash", "sha256_file", "verify_dataset", "FORMAT_VERSION"]
@@ -40,8 +40,10 @@ FORMAT_VERSION = 1
 
 
 def config_hash(config: dict, count: int) -> str:
-    """sha256 of the canonical JSON of the (validated) config and the item count."""
-    blob = json.dumps({"config": config, "count": int(count), "format": FORMAT_VERSION}, sort_keys=True)
+    """sha256 of the canonical JSON of the (validated) config, the item count, the file format and the generator
+    version (``camera_pairs.GENERATOR_VERSION``: shards written by a generator that draws other items never match)."""
+    blob = json.dumps({"config": config, "count": int(count), "format": FORMAT_VERSION,
+                       "generator": GENERATOR_VERSION}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -180,7 +182,8 @@ def _write_manifest(out: Path, cfg: dict, chash: str, count: int, size: int, n_f
             continue
         if rec.get("config_sha256") == chash:
             shards.append(rec)
-    manifest = {"format_version": FORMAT_VERSION, "config": cfg, "config_sha256": chash, "count": count,
+    manifest = {"format_version": FORMAT_VERSION, "generator_version": GENERATOR_VERSION, "config": cfg,
+                "config_sha256": chash, "count": count,
                 "shard_size": size, "num_files": n_files, "shards": shards, "complete": len(shards) == n_files}
     _atomic_write_bytes(out / "manifest.json", json.dumps(manifest, indent=1, sort_keys=True).encode())
     return manifest

@@ -75,6 +75,22 @@ def test_resume_after_abort_gives_identical_files(reference, tmp_path):
     assert again == [1] and _checksums(tmp_path) == _checksums(ref_out)
 
 
+def test_shards_of_another_generator_version_are_rebuilt(tmp_path, monkeypatch):
+    """A dataset started by a generator that draws other items is not resumed: its shards are written again."""
+    from isettorch.data import writer
+
+    first = []
+    write_dataset(CFG, tmp_path, 4, progress=False, on_shard_written=first.append)
+    assert first == [0, 1]
+    again = []
+    write_dataset(CFG, tmp_path, 4, progress=False, on_shard_written=again.append)
+    assert again == []  # same version: nothing to do
+    monkeypatch.setattr(writer, "GENERATOR_VERSION", writer.GENERATOR_VERSION + 1)
+    rebuilt = []
+    manifest = write_dataset(CFG, tmp_path, 4, progress=False, on_shard_written=rebuilt.append)
+    assert rebuilt == [0, 1] and manifest["generator_version"] == writer.GENERATOR_VERSION
+
+
 def test_ranks_and_shards_split_the_files(reference, tmp_path, monkeypatch):
     ref_out, _ = reference
     seen = {}
