@@ -135,8 +135,9 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
         except ValueError:
             prev = {}
         if prev.get("config_sha256") not in (None, chash):
-            raise ValueError(f"out: {str(out)!r} holds a dataset made with another config or count "
-                             f"(config_sha256 {prev.get('config_sha256')}); use a new folder")
+            raise ValueError(f"out: {str(out)!r} holds a dataset made with another config, count or generator "
+                             f"version (config_sha256 {prev.get('config_sha256')}, generator version "
+                             f"{prev.get('generator_version', 1)}, this one {GENERATOR_VERSION}); use a new folder")
     size = int(cfg["shard_size"])
     if size < 1:
         raise ValueError(f"shard_size: expected a positive number of items per shard, got {size}")

@@ -75,20 +75,22 @@ def test_resume_after_abort_gives_identical_files(reference, tmp_path):
     assert again == [1] and _checksums(tmp_path) == _checksums(ref_out)
 
 
-def test_shards_of_another_generator_version_are_rebuilt(tmp_path, monkeypatch):
-    """A dataset started by a generator that draws other items is not resumed: its shards are written again."""
+def test_a_dataset_of_another_generator_version_is_never_resumed(tmp_path, monkeypatch):
+    """A folder holding shards drawn by another generator version is refused (not mixed); its shards would not
+    match anyway (the version enters the config hash)."""
     from isettorch.data import writer
 
     first = []
-    write_dataset(CFG, tmp_path, 4, progress=False, on_shard_written=first.append)
-    assert first == [0, 1]
+    manifest = write_dataset(CFG, tmp_path, 4, progress=False, on_shard_written=first.append)
+    assert first == [0, 1] and manifest["generator_version"] == writer.GENERATOR_VERSION
     again = []
     write_dataset(CFG, tmp_path, 4, progress=False, on_shard_written=again.append)
     assert again == []  # same version: nothing to do
+    old_hash = writer.config_hash(manifest["config"], 4)
     monkeypatch.setattr(writer, "GENERATOR_VERSION", writer.GENERATOR_VERSION + 1)
-    rebuilt = []
-    manifest = write_dataset(CFG, tmp_path, 4, progress=False, on_shard_written=rebuilt.append)
-    assert rebuilt == [0, 1] and manifest["generator_version"] == writer.GENERATOR_VERSION
+    assert writer.config_hash(manifest["config"], 4) != old_hash
+    with pytest.raises(ValueError, match="generator version"):
+        write_dataset(CFG, tmp_path, 4, progress=False)
 
 
 def test_ranks_and_shards_split_the_files(reference, tmp_path, monkeypatch):
