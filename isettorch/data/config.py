@@ -62,6 +62,8 @@ SYNTH_DEFAULTS: dict[str, Any] = {
     "seed": 0,
     "shard_size": 64,
     "dtype": "float32",
+    # targets written besides raw and meta (camera_pairs.TARGETS; fewer = smaller shards and faster generation)
+    "targets": ["noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb"],
     "scene": SCENE_DEFAULTS,
     "camera": CAMERA_DEFAULTS,
 }

@@ -147,7 +147,8 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
     todo = [f for f in mine if _shard_complete(out, f, chash) is None]
 
     dtype = torch.float64 if cfg["dtype"] == "float64" else torch.float32
-    ds = CameraPairDataset(count, seed=int(cfg["seed"]), scene=cfg["scene"], camera=cfg["camera"], dtype=dtype)
+    ds = CameraPairDataset(count, seed=int(cfg["seed"]), scene=cfg["scene"], camera=cfg["camera"], dtype=dtype,
+                           targets=cfg["targets"])
     batches = [list(range(f * size, min((f + 1) * size, count))) for f in todo]
     if batches:
         # each shard is generated as one batch (CameraPairDataset.get_batch; bitwise the collated items)
