@@ -483,16 +483,19 @@ def _sensor_for(cache: _Cache, d: dict, cfa, qe_module, sensor_cls):
     built and validated once, then given the item's continuous parameters (conversion gain from the full well,
     read noise, dark current, DSNU, PRNU, analog gain: plain float attributes read at capture time). Building a
     `Sensor` per item cost ~0.2 ms (nn.Module set-up and argument checks); the values are the same."""
-    # per thread: the module's noise attributes are set per item, so threads sharing a dataset must not share it
-    key = ("sensor", d["pitch"], d["fill"], d["pattern"], tuple(d["shifts"]), d["bits"], d["black"],
-           threading.get_ident())
+    # per thread: the module's noise attributes are set per item, so threads sharing a dataset must not share it;
+    # not per QE shift (continuous with qe_variation > 0): the item's QE module is set like the noise parameters
+    key = ("sensor", d["pitch"], d["fill"], d["pattern"], d["bits"], d["black"], threading.get_ident())
     sensor = cache.optics.get(key)
     if sensor is None:
+        if len(cache.optics) > 256:  # bounded
+            cache.optics.clear()
         sensor = cache.optics[key] = sensor_cls(
             rows=d["h"], cols=d["w"], pixel_size_m=d["pitch"], fill_factor=d["fill"], cfa=cfa, spectral_qe=qe_module,
             conversion_gain_v_per_e=1.0 / d["full_well"], voltage_swing_v=1.0, analog_gain=d["gain"],
             adc_bits=d["bits"], black_level_dn=d["black"], shot_noise="poisson", fpn_mode="per_frame")
     cg = 1.0 / d["full_well"]  # volts per electron with a 1 V swing: well capacity = full_well
+    sensor.spectral_qe = qe_module
     sensor.conversion_gain_v_per_e = cg
     sensor.analog_gain = d["gain"]
     sensor.read_noise_v = d["read_e"] * cg
