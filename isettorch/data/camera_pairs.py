@@ -508,8 +508,8 @@ def _sensor_for(cache: _Cache, d: dict, cfa, qe_module, sensor_cls):
 
 def _views(shapes: dict, dtype) -> dict:
     """Contiguous tensors ``{key: [shape]}`` that are views of **one** storage: a DataLoader worker then ships the
-    whole batch as one shared-memory block instead of one per tensor (measured: the main process's share of the
-    work per batch falls by ~half, a ~10 % higher rate with 2 workers on 2 cores)."""
+    whole batch as one shared-memory block instead of one per tensor (measured with 2 workers on 2 cores: the main
+    process's CPU per pair 0.57 -> 0.21 ms, 217 -> 234 pairs/s)."""
     sizes = [math.prod(shape) for shape in shapes.values()]
     flat = torch.empty(sum(sizes), dtype=dtype)
     out, start = {}, 0
