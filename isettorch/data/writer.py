@@ -15,6 +15,9 @@ Each file is written to a temporary name and renamed (``os.replace``, atomic on 
 any point leaves only complete shards (and possibly a stale ``*.tmp*`` file). Items depend only on
 ``(seed, index)``, so a resumed run writes byte-identical shards.
 
+Reading back: :class:`ShardDataset` (map-style; item ``i`` equals ``CameraPairDataset(...)[i]`` of the same
+config, bitwise), e.g. ``DataLoader(ShardDataset(out), batch_size=16, collate_fn=collate_pairs, shuffle=True)``.
+
 Work split: files are dealt round-robin to ``num_shards x world_size`` processes; process
 ``shard * world_size + rank`` takes files ``f`` with ``f % (num_shards * world_size) == that``. Under
 ``torchrun`` the rank and world size come from the ``RANK`` / ``WORLD_SIZE`` environment variables.
@@ -31,10 +34,10 @@ from pathlib import Path
 
 import torch
 
-from .camera_pairs import GENERATOR_VERSION, CameraPairDataset
+from .camera_pairs import GENERATOR_VERSION, CameraPairDataset, collate_pairs
 from .config import merge_config
 
-__all__ = ["write_dataset", "config_hash", "sha256_file", "verify_dataset", "FORMAT_VERSION"]
+__all__ = ["write_dataset", "config_hash", "sha256_file", "verify_dataset", "ShardDataset", "FORMAT_VERSION"]
 
 FORMAT_VERSION = 1
 
@@ -208,3 +211,77 @@ def verify_dataset(out) -> list[str]:
     if not manifest.get("complete"):
         problems.append(f"incomplete: {len(manifest.get('shards', []))} of {manifest.get('num_files')} shards")
     return problems
+
+
+class ShardDataset(torch.utils.data.Dataset):
+    """The items of a dataset written by :func:`write_dataset` / ``isettorch synth``, read back from its shards.
+
+    Item ``i`` is item ``i % shard_size`` of shard ``i // shard_size``: the same dict (images, ``meta``) as
+    ``CameraPairDataset(count, seed, scene, camera, targets=...)[i]`` with the dataset's config, bitwise. Shards are
+    loaded lazily (``torch.load(weights_only=True)``) and the last ``cache_shards`` loaded are kept per process, so
+    a shuffled loader reads each shard about ``count / (shard_size x cache_shards)``-fold less often than items.
+
+    Args:
+        root: the dataset folder (with ``manifest.json``).
+        verify: check every shard's sha256 against the manifest first (reads everything once).
+        cache_shards: shards kept in memory per process (DataLoader workers each have their own).
+
+    Raises ValueError when the manifest is missing or unreadable, the dataset is incomplete (resume the ``synth``
+    run first), or (``verify=True``) a shard is missing or corrupt; a shard that fails to load names its file.
+
+    Example:
+        >>> ds = ShardDataset("data/synth")  # doctest: +SKIP
+        >>> loader = torch.utils.data.DataLoader(ds, batch_size=16, shuffle=True, collate_fn=collate_pairs)
+    """
+
+    def __init__(self, root, *, verify: bool = False, cache_shards: int = 2):
+        self.root = Path(root)
+        try:
+            manifest = json.loads((self.root / "manifest.json").read_text())
+        except (OSError, ValueError) as err:
+            raise ValueError(f"root: {str(self.root)!r} has no readable manifest.json ({err})") from err
+        if not manifest.get("complete"):
+            raise ValueError(f"root: {str(self.root)!r} holds an incomplete dataset ({len(manifest.get('shards', []))}"
+                             f" of {manifest.get('num_files')} shards); run the same synth command again to finish it")
+        if verify:
+            problems = verify_dataset(self.root)
+            if problems:
+                raise ValueError(f"root: {str(self.root)!r} failed verification: {'; '.join(problems[:5])}")
+        if int(cache_shards) < 1:
+            raise ValueError(f"cache_shards: expected at least 1 shard, got {cache_shards}")
+        self.manifest = manifest
+        self.count, self.shard_size = int(manifest["count"]), int(manifest["shard_size"])
+        self.files = {int(rec["first_index"]) // self.shard_size: rec["file"] for rec in manifest["shards"]}
+        self.cache_shards = int(cache_shards)
+        self._cache: dict[int, dict] = {}
+
+    def __len__(self) -> int:
+        return self.count
+
+    def _shard(self, f: int) -> dict:
+        shard = self._cache.pop(f, None)
+        if shard is None:
+            path = self.root / self.files[f]
+            try:
+                shard = torch.load(path, weights_only=True)
+            except Exception as err:  # torch raises several types for truncated / foreign files
+                raise ValueError(f"{path}: not a readable shard ({type(err).__name__}: {err})") from err
+            while len(self._cache) >= self.cache_shards:
+                self._cache.pop(next(iter(self._cache)))  # least recently used first
+        self._cache[f] = shard  # most recently used last
+        return shard
+
+    def __getitem__(self, index):
+        if isinstance(index, bool) or not isinstance(index, int) and not (
+                isinstance(index, torch.Tensor) and index.dim() == 0 and not index.is_floating_point()):
+            raise TypeError(f"index: expected an integer, got {index!r}")
+        index = int(index)
+        if not -self.count <= index < self.count:
+            raise IndexError(f"index: expected 0 <= index < {self.count}, got {index}")
+        f, j = divmod(index % self.count, self.shard_size)
+        shard = self._shard(f)
+        return {k: ({m: t[j] for m, t in v.items()} if isinstance(v, dict) else v[j]) for k, v in shard.items()}
+
+    def get_batch(self, indices) -> dict:
+        """Items ``indices`` collated (:func:`camera_pairs.collate_pairs` format)."""
+        return collate_pairs([self[i] for i in indices])

@@ -150,3 +150,43 @@ def test_targets_option_writes_only_those(tmp_path):
     assert float((shard["camera_rgb"] - full["camera_rgb"]).abs().max()) < 1e-6
     with pytest.raises(ValueError, match="targets"):
         write_dataset({**CFG, "targets": ["rgb"]}, tmp_path / "bad", 2, progress=False)
+
+
+def test_shard_dataset_reads_back_the_items(reference, tmp_path):
+    """ShardDataset(out)[i] is CameraPairDataset(...)[i] of the same config, bitwise; it loads through a DataLoader;
+    incomplete, corrupt or truncated datasets raise errors naming the problem."""
+    from isettorch.data.camera_pairs import collate_pairs
+    from isettorch.data.writer import ShardDataset
+
+    out, _ = reference
+    shards = ShardDataset(out, verify=True, cache_shards=1)
+    ds = CameraPairDataset(COUNT, seed=5, scene=CFG["scene"])
+    assert len(shards) == COUNT
+    for i in (0, 3, 6, -1):
+        a, b = shards[i], ds[i % COUNT]
+        assert set(a) == set(b)
+        for k in ("raw", "noise_free_raw", "camera_rgb", "srgb"):
+            assert torch.equal(a[k], b[k]), k
+        for k, v in b["meta"].items():
+            assert torch.equal(a["meta"][k], v), k
+    with pytest.raises(IndexError):
+        shards[COUNT]
+    batches = list(torch.utils.data.DataLoader(shards, batch_size=3, collate_fn=collate_pairs))
+    assert [b["raw"].shape[0] for b in batches] == [3, 3, 1]
+    assert batches[1]["meta"]["index"].tolist() == [3, 4, 5]
+    assert torch.equal(shards.get_batch([4, 1])["xyz"], ds.get_batch([4, 1])["xyz"])
+
+    half = tmp_path / "half"
+    write_dataset(CFG, half, COUNT, shard=0, num_shards=2, progress=False)
+    with pytest.raises(ValueError, match="incomplete"):
+        ShardDataset(half)
+    with pytest.raises(ValueError, match="manifest"):
+        ShardDataset(tmp_path / "nothing")
+    broken = tmp_path / "broken"
+    write_dataset(CFG, broken, COUNT, progress=False)
+    data = (broken / "shard-00001.pt").read_bytes()
+    (broken / "shard-00001.pt").write_bytes(data[: len(data) // 2])  # truncated
+    with pytest.raises(ValueError, match="checksum"):
+        ShardDataset(broken, verify=True)
+    with pytest.raises(ValueError, match="shard-00001.pt"):
+        ShardDataset(broken)[2]
