@@ -92,8 +92,9 @@ class CameraPairSource:
         bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
         if bad:
             raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
+        # only the targets demosaicking uses: no colour targets, so 3 spectral projections instead of 6
         self.ds = CameraPairDataset(self.LENGTH, seed=int(cfg.get("seed", 0)) + int(seed_offset), scene=scene,
-                                    camera=camera)
+                                    camera=camera, targets=("noise_free_raw", "camera_rgb"))
 
     def indices(self, batch_seed: int, n: int) -> list[int]:
         return [(int(batch_seed) * n + i) % self.LENGTH for i in range(n)]
