@@ -32,6 +32,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from .camera_pairs import GENERATOR_VERSION, CameraPairDataset, collate_pairs
@@ -272,7 +273,7 @@ class ShardDataset(torch.utils.data.Dataset):
         return shard
 
     def __getitem__(self, index):
-        if isinstance(index, bool) or not isinstance(index, int) and not (
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) and not (
                 isinstance(index, torch.Tensor) and index.dim() == 0 and not index.is_floating_point()):
             raise TypeError(f"index: expected an integer, got {index!r}")
         index = int(index)

@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import torch
 import yaml
@@ -171,6 +172,10 @@ def test_shard_dataset_reads_back_the_items(reference, tmp_path):
             assert torch.equal(a["meta"][k], v), k
     with pytest.raises(IndexError):
         shards[COUNT]
+    with pytest.raises(TypeError, match="index"):
+        shards[1.5]
+    assert torch.equal(shards[np.int64(5)]["raw"], ds[5]["raw"]) and torch.equal(shards[torch.tensor(5)]["raw"],
+                                                                              ds[5]["raw"])
     batches = list(torch.utils.data.DataLoader(shards, batch_size=3, collate_fn=collate_pairs))
     assert [b["raw"].shape[0] for b in batches] == [3, 3, 1]
     assert batches[1]["meta"]["index"].tolist() == [3, 4, 5]
