@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
 
@@ -91,3 +92,15 @@ def isclose_grid(a: torch.Tensor, b: torch.Tensor) -> bool:
 def round_half_away(x: float) -> int:
     """MATLAB ``round``: halves away from zero."""
     return int(math.copysign(math.floor(abs(x) + 0.5), x))
+
+
+def dataset_index(index, length: int) -> int:
+    """A map-style dataset's item index as an int in ``[0, length)`` (negative indices count from the end):
+    TypeError unless an integer (Python, numpy or a 0-d integer tensor), IndexError outside ``[-length, length)``."""
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) and not (
+            isinstance(index, torch.Tensor) and index.dim() == 0 and not index.is_floating_point()):
+        raise TypeError(f"index: expected an integer, got {index!r}")
+    index = int(index)
+    if not -length <= index < length:
+        raise IndexError(f"index: expected 0 <= index < {length}, got {index}")
+    return index % length

@@ -41,6 +41,7 @@ import numpy as np
 import torch
 
 from .. import constants, spectral
+from .._checks import dataset_index
 from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
 from ..isp.colour import bradford_matrix
 from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for, tune_allocator
@@ -704,13 +705,7 @@ class CameraPairDataset(torch.utils.data.Dataset):
             _WORKER_TUNED = tune_allocator()
 
     def _check_index(self, index) -> int:
-        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) and not (
-                isinstance(index, torch.Tensor) and index.dim() == 0 and not index.is_floating_point()):
-            raise TypeError(f"index: expected an integer, got {index!r}")
-        index = int(index)
-        if not -self.length <= index < self.length:
-            raise IndexError(f"index: expected 0 <= index < {self.length}, got {index}")
-        return index % self.length
+        return dataset_index(index, self.length)
 
     def __getitem__(self, index):
         if isinstance(index, (list, tuple, range)) or (isinstance(index, torch.Tensor) and index.dim() == 1):

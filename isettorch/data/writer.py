@@ -32,9 +32,9 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
 import torch
 
+from .._checks import dataset_index
 from .camera_pairs import GENERATOR_VERSION, CameraPairDataset, collate_pairs
 from .config import merge_config
 
@@ -273,13 +273,7 @@ class ShardDataset(torch.utils.data.Dataset):
         return shard
 
     def __getitem__(self, index):
-        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) and not (
-                isinstance(index, torch.Tensor) and index.dim() == 0 and not index.is_floating_point()):
-            raise TypeError(f"index: expected an integer, got {index!r}")
-        index = int(index)
-        if not -self.count <= index < self.count:
-            raise IndexError(f"index: expected 0 <= index < {self.count}, got {index}")
-        f, j = divmod(index % self.count, self.shard_size)
+        f, j = divmod(dataset_index(index, self.count), self.shard_size)
         shard = self._shard(f)
         return {k: ({m: t[j] for m, t in v.items()} if isinstance(v, dict) else v[j]) for k, v in shard.items()}
 
