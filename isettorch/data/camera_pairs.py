@@ -136,10 +136,12 @@ class _Clock:
 
 
 class _Cache:
-    """Per-process caches of optics modules (one per f-number and focal length, each with its OTF cache)."""
+    """Per-process caches: ``optics`` holds the optics modules (one per f-number and focal length, each with its OTF
+    cache) and the factored path's geometry / OTF tables; ``sensors`` one `Sensor` per discrete camera and thread."""
 
     def __init__(self):
         self.optics = {}
+        self.sensors = {}
 
     def get_optics(self, f_number: float, focal_length_m: float, margin: int):
         from ..optics import DiffractionLimitedOptics
@@ -486,12 +488,12 @@ def _sensor_for(cache: _Cache, d: dict, cfa, qe_module, sensor_cls):
     `Sensor` per item cost ~0.2 ms (nn.Module set-up and argument checks); the values are the same."""
     # per thread: the module's noise attributes are set per item, so threads sharing a dataset must not share it;
     # not per QE shift (continuous with qe_variation > 0): the item's QE module is set like the noise parameters
-    key = ("sensor", d["pitch"], d["fill"], d["pattern"], d["bits"], d["black"], threading.get_ident())
-    sensor = cache.optics.get(key)
+    key = (d["pitch"], d["fill"], d["pattern"], d["bits"], d["black"], threading.get_ident())
+    sensor = cache.sensors.get(key)
     if sensor is None:
-        if len(cache.optics) > 256:  # bounded
-            cache.optics.clear()
-        sensor = cache.optics[key] = sensor_cls(
+        if len(cache.sensors) > 256:  # bounded
+            cache.sensors.clear()
+        sensor = cache.sensors[key] = sensor_cls(
             rows=d["h"], cols=d["w"], pixel_size_m=d["pitch"], fill_factor=d["fill"], cfa=cfa, spectral_qe=qe_module,
             conversion_gain_v_per_e=1.0 / d["full_well"], voltage_swing_v=1.0, analog_gain=d["gain"],
             adc_bits=d["bits"], black_level_dn=d["black"], shot_noise="poisson", fpn_mode="per_frame")

@@ -235,18 +235,10 @@ def edges(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.f
     return ia, ia, torch.zeros(h, w, device=device, dtype=dtype)
 
 
-def _segment_distance(y, x, y0, x0, y1, x1):
-    """Distance of each pixel to each segment: [N, H, W]."""
-    vy, vx = (y1 - y0)[:, None, None], (x1 - x0)[:, None, None]
-    wy, wx = y[None] - y0[:, None, None], x[None] - x0[:, None, None]
-    tt = ((wy * vy + wx * vx) / (vy * vy + vx * vx).clamp_min(1e-9)).clamp(0, 1)
-    return torch.sqrt((wy - tt * vy) ** 2 + (wx - tt * vx) ** 2 + 1e-12)
-
-
 def _stroke_cover(h: int, w: int, seg: torch.Tensor, wid: torch.Tensor) -> torch.Tensor:
     """Max coverage ``clamp(wid / 2 + 0.5 - distance, 0, 1)`` of short strokes ``seg [N, 4]`` (y0, x0, y1, x1) at
     each pixel ``[H, W]``, evaluated only on each stroke's bounding box (widened by its reach ``wid / 2 + 0.5``,
-    beyond which the coverage is 0), with the same expressions as :func:`_segment_distance` per (pixel, stroke)."""
+    beyond which the coverage is 0), the distance to each segment (clamped projection) per (pixel, stroke)."""
     top = torch.zeros(h * w, dtype=seg.dtype)
     if seg.shape[0] == 0:
         return top.reshape(h, w)

@@ -7,6 +7,15 @@ import torch
 from isettorch.data import layouts
 
 
+def _segment_distance(y, x, y0, x0, y1, x1):
+    """Brute-force reference: distance of each pixel to each segment [N, H, W] (clamped projection on the segment;
+    the same expressions as layouts._stroke_cover per (pixel, stroke))."""
+    vy, vx = (y1 - y0)[:, None, None], (x1 - x0)[:, None, None]
+    wy, wx = y[None] - y0[:, None, None], x[None] - x0[:, None, None]
+    tt = ((wy * vy + wx * vx) / (vy * vy + vx * vx).clamp_min(1e-9)).clamp(0, 1)
+    return torch.sqrt((wy - tt * vy) ** 2 + (wx - tt * vx) ** 2 + 1e-12)
+
+
 def test_painter_equals_brute_force_for_all_shapes():
     g = torch.Generator().manual_seed(7)
     h, w = 48, 40
@@ -55,7 +64,7 @@ def test_stroke_cover_equals_full_image_evaluation():
     seg = torch.cat([p0, p0 + (torch.rand(n, 2, generator=g) - 0.5) * 30], dim=1)  # some leave the image
     wid = 0.5 + 2.5 * torch.rand(n, generator=g)
     yy, xx = layouts._grid(h, w, None, torch.float32)
-    dist = layouts._segment_distance(yy, xx, seg[:, 0], seg[:, 1], seg[:, 2], seg[:, 3])
+    dist = _segment_distance(yy, xx, seg[:, 0], seg[:, 1], seg[:, 2], seg[:, 3])
     brute = (wid[:, None, None] / 2 + 0.5 - dist).clamp(0, 1).amax(dim=0)
     got = layouts._stroke_cover(h, w, seg, wid)
     assert torch.equal(got, brute) and float(brute.max()) == 1.0 and float((brute > 0).float().mean()) > 0.1
@@ -73,7 +82,7 @@ def test_long_lines_cover_equals_segment_distance():
     got = layouts._line_cover(h, w, py, px, a, wid, None, torch.float32)
     big = 2.0 * (h + w)
     yy, xx = layouts._grid(h, w, None, torch.float64)
-    dist = layouts._segment_distance(yy, xx, py - big * a.sin(), px - big * a.cos(), py + big * a.sin(),
+    dist = _segment_distance(yy, xx, py - big * a.sin(), px - big * a.cos(), py + big * a.sin(),
                                      px + big * a.cos())
     ref = (wid[:, None, None] / 2 + 0.5 - dist).clamp(0, 1).amax(dim=0)
     assert float((got.double() - ref).abs().max()) < 1e-5 and float(ref.max()) == 1.0
