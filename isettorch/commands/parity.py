@@ -182,14 +182,23 @@ def mean_illuminance(photons, wavelengths_nm, vlambda=None):
 # --- comparisons ---------------------------------------------------------------------------------
 
 
+def _paired(ours, ref):
+    """(ours, ref) as float64 arrays, and the failure record when their shapes differ (else None)."""
+    import numpy as np
+
+    ours, ref = np.asarray(ours, np.float64), np.asarray(ref, np.float64)
+    if ours.shape != ref.shape:
+        return ours, ref, {"ok": False, "error": f"shape {ours.shape} != reference {ref.shape}",
+                           "mean_rel_err": None, "max_err": None}
+    return ours, ref, None
+
+
 def _rel_stats(ours, ref, tol):
     import numpy as np
 
-    ours = np.asarray(ours, np.float64)
-    ref = np.asarray(ref, np.float64)
-    if ours.shape != ref.shape:
-        return {"ok": False, "error": f"shape {ours.shape} != reference {ref.shape}", "mean_rel_err": None,
-                "max_err": None}
+    ours, ref, failed = _paired(ours, ref)
+    if failed:
+        return failed
     mask = np.abs(ref) > 0.01 * np.abs(ref).max() if np.abs(ref).max() > 0 else np.ones(ref.shape, bool)
     rel = np.abs(ours - ref)[mask] / np.abs(ref)[mask] if np.abs(ref).max() > 0 else np.abs(ours - ref)[mask]
     mx = float(rel.max()) if rel.size else 0.0
@@ -200,11 +209,9 @@ def _rel_stats(ours, ref, tol):
 def _abs_stats(ours, ref, tol):
     import numpy as np
 
-    ours = np.asarray(ours, np.float64)
-    ref = np.asarray(ref, np.float64)
-    if ours.shape != ref.shape:
-        return {"ok": False, "error": f"shape {ours.shape} != reference {ref.shape}", "mean_rel_err": None,
-                "max_err": None}
+    ours, ref, failed = _paired(ours, ref)
+    if failed:
+        return failed
     err = np.abs(ours - ref)
     big = np.abs(ref) > 0.01 * np.abs(ref).max() if np.abs(ref).max() > 0 else np.zeros(ref.shape, bool)
     mean_rel = float((err[big] / np.abs(ref[big])).mean()) if big.any() else 0.0
