@@ -87,7 +87,7 @@ def _interval(k: np.ndarray, o: np.ndarray, b: np.ndarray):
     return lo, hi
 
 
-def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype):
+def _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device):
     """Index (0-based, drawing order) of the topmost leaf at each pixel [H, W]; 0 where no leaf covers.
 
     Leaves are convex, so on each image row a leaf covers one run of pixel centres ``x`` in ``[cx + lo, cx +
@@ -175,7 +175,7 @@ def dead_leaves(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=t
     tex = _ri(g, 0, 3, n)  # 0, 1 flat, 2 grating, 3 gradient
     sq = _ri(g, 0, 1, n)
 
-    top = _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device, dtype)
+    top = _paint_leaves(h, w, cy, cx, r, theta, aspect, shape, device)
     y, x = _grid(h, w, device, dtype)
     # per-pixel leaf attributes: 1-D gathers (3x faster on CPU than one gather along dim 1 of a [4, n] table)
     flat = top.reshape(-1)

@@ -29,7 +29,7 @@ def test_painter_equals_brute_force_for_all_shapes():
         if trial == 3:  # axis-aligned leaves: sin t = 0 exactly (a slab with a zero coefficient)
             theta = torch.zeros(n, dtype=torch.float64)
         aspect = 0.3 + 0.7 * torch.rand(n, generator=g, dtype=torch.float64)
-        top = layouts._paint_leaves(h, w, cy, cx, r, theta, aspect, shape, None, torch.float32)
+        top = layouts._paint_leaves(h, w, cy, cx, r, theta, aspect, shape, None)
         yy = torch.arange(h, dtype=torch.float32)[None, :, None]
         xx = torch.arange(w, dtype=torch.float32)[None, None, :]
 

@@ -72,9 +72,8 @@ def test_layout_statistics():
         r = layouts.dead_leaves_radii(n, 2.5, 0.6 * 128, g)
         cy, cx = torch.rand(n, generator=g) * 153.6 - 12.8, torch.rand(n, generator=g) * 153.6 - 12.8
         top = layouts._paint_leaves(128, 128, cy.double(), cx.double(), r, torch.zeros(n, dtype=torch.float64),
-                                    torch.ones(n, dtype=torch.float64), torch.zeros(n, dtype=torch.long), None,
-                                    torch.float32)
-        # brute force check of the patch-based painter on disks, and the coverage
+                                    torch.ones(n, dtype=torch.float64), torch.zeros(n, dtype=torch.long), None)
+        # brute force check of the run-based painter on disks, and the coverage
         yy, xx = torch.meshgrid(torch.arange(128.0), torch.arange(128.0), indexing="ij")
         d2 = (yy[None] - cy[:, None, None]) ** 2 + (xx[None] - cx[:, None, None]) ** 2
         inside = d2 <= r.float()[:, None, None] ** 2
