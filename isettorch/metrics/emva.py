@@ -312,3 +312,44 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
         mean_dn=mu_y, mean_dark_dn=mu_d, var_dn2=var_y, var_dark_dn2=var_d, snr=snr, photons_per_pixel=mu_p,
         saturation_index=sat, fit_max_index=fit_max, spatial_index=si,
     )
+
+
+# --- noise components for calibration (used by isettorch.sensor.calibration) ---------------------------------
+
+
+def temporal_noise_components(stack: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Mean and temporal variance components of an ``(N, H, W)`` frame stack (N >= 2), DN and DN^2.
+
+    Model per frame f: y = m(i, j) + g_f + r_f(i) + c_f(j) + e_f(i, j): fixed pattern m, a global offset g, row
+    offsets r (var s_r^2), column offsets c (s_c^2) and pixel-wise noise e (s_e^2; shot, read, quantisation).
+    After removing each frame's spatial mean (EMVA 1288 4.0 eq. 29), the per-pixel temporal variance V_p, the
+    temporal variance of the row means V_R and of the column means V_C are, in expectation (a = 1 - 1/H,
+    b = 1 - 1/W): V_R = a (s_r^2 + s_e^2 / W), V_C = b (s_c^2 + s_e^2 / H),
+    V_p = (1 - 1/HW) s_e^2 + a s_r^2 + b s_c^2, solved here for s_e^2, s_r^2, s_c^2 (row-noise estimation from
+    row means: Wei et al. CVPR 2020, ELD, section 3.2; EMVA 1288 4.0 section 8.3 row/column spectrograms).
+
+    Returns ``mean`` (mu_y), ``var`` (V_p, EMVA sigma^2_y), ``var_pixel`` (s_e^2), ``var_row`` (s_r^2),
+    ``var_col`` (s_c^2), ``average`` (the frame average ``(H, W)``), ``frames`` (N); all float64.
+    """
+    x = stack.to(torch.float64)
+    n, h, w = x.shape[-3:]
+    centred = x - x.mean(dim=(-2, -1), keepdim=True)
+    v_p = centred.var(dim=-3, unbiased=True).mean(dim=(-2, -1))
+    v_r = centred.mean(dim=-1).var(dim=-2, unbiased=True).mean(dim=-1)
+    v_c = centred.mean(dim=-2).var(dim=-2, unbiased=True).mean(dim=-1)
+    a, b = 1 - 1 / h, 1 - 1 / w
+    s_e = (v_p - v_r - v_c) / (1 - 1 / (h * w) - a / w - b / h)
+    s_r = v_r / a - s_e / w
+    s_c = v_c / b - s_e / h
+    return {"mean": x.mean(dim=(-3, -2, -1)), "var": v_p, "var_pixel": s_e, "var_row": s_r, "var_col": s_c,
+            "average": x.mean(dim=-3), "frames": n}
+
+
+def spatial_variance(average: torch.Tensor, temporal_var, frames: int, reference: torch.Tensor | None = None,
+                     reference_temporal_var=0.0, reference_frames: int = 1) -> torch.Tensor:
+    """Spatial variance of a frame-averaged image with the temporal residue removed (EMVA 1288 4.0 section 8.2):
+    ``s^2 = var(average - reference) - sigma^2 / N - sigma^2_ref / N_ref`` (``reference``: e.g. the dark average at
+    the same exposure, subtracted pixel by pixel so the DSNU cancels in a PRNU estimate)."""
+    img = average if reference is None else average - reference
+    resid = temporal_var / frames + (0.0 if reference is None else reference_temporal_var / reference_frames)
+    return img.var(unbiased=True) - resid
