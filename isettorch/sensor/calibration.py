@@ -101,8 +101,9 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     # saturation: flats at the top level whose temporal variance has collapsed (all pixels clipped)
     top = mu_f.max()
     peak = int(np.argmax(vp_f))
-    saturated = (mu_f >= top - 0.005 * (top - black)) & (vp_f < 0.25 * vp_f.max())
-    if saturated.all():
+    at_top = mu_f >= top - 0.005 * (top - black)
+    saturated = at_top & (vp_f < 0.25 * vp_f.max())
+    if at_top.all():
         raise ValueError(f"channel {name}: every flat is saturated (mean {top:.1f} DN, no temporal variance), e.g. "
                          f"{folder(ms_f[0])}; add shorter exposures")
     sat_signal = float(signal[saturated].mean()) if saturated.any() else float(signal[peak])
