@@ -42,16 +42,18 @@ def run(args) -> int:
     import json
     import sys
 
-    from ..sensor.calibration import calibrate_directory, write_sensor_config
+    from ..io.frames import read_capture
+    from ..sensor.calibration import calibrate_capture, write_sensor_config
 
     try:
-        result = calibrate_directory(args.directory, progress=not args.quiet)
+        capture = read_capture(args.directory, progress=not args.quiet)
+        result = calibrate_capture(capture, progress=not args.quiet)
         if args.out:
             write_sensor_config(result, args.out)
         if args.report:
             from ..metrics.emva import calibration_figures
 
-            calibration_figures(result, args.directory, args.report)
+            result["report_figures"] = calibration_figures(result, capture, args.report)
     except ValueError as err:
         print(f"isettorch calibrate: error: {err}", file=sys.stderr)
         return 2

@@ -353,3 +353,107 @@ def spatial_variance(average: torch.Tensor, temporal_var, frames: int, reference
     img = average if reference is None else average - reference
     resid = temporal_var / frames + (0.0 if reference is None else reference_temporal_var / reference_frames)
     return img.var(unbiased=True) - resid
+
+
+def spectrogram(image: torch.Tensor, axis: str = "horizontal") -> tuple[torch.Tensor, torch.Tensor]:
+    """EMVA 1288 4.0 section 8.3 spectrogram of a frame-averaged image ``(H, W)``: the square root of the mean power
+    spectrum of its rows (``'horizontal'``) or columns (``'vertical'``), mean removed, in the image's units.
+    Returns (frequency in cycles/pixel [0, 0.5], amplitude); a flat spectrogram is white (pixel-wise) noise, peaks are
+    periodic patterns, a rise at low frequency is shading."""
+    x = image.to(torch.float64)
+    if axis == "vertical":
+        x = x.T
+    elif axis != "horizontal":
+        raise ValueError(f"axis: expected 'horizontal' or 'vertical', got {axis!r}")
+    x = x - x.mean()
+    n = x.shape[-1]
+    power = (torch.fft.rfft(x, dim=-1).abs() ** 2 / n).mean(dim=0)
+    return torch.fft.rfftfreq(n, dtype=torch.float64), torch.sqrt(power)
+
+
+def calibration_figures(result: dict, capture, out_dir) -> list[str]:
+    """The EMVA 1288 report figures of a calibration (``isettorch calibrate --report``) as PNG in ``out_dir``:
+    photon transfer, SNR, linearity, and DSNU / PRNU spectrograms (EMVA 1288 4.0 sections 6-8). ``capture`` is the
+    :class:`~isettorch.io.frames.Capture` (or its directory). Returns the written paths."""
+    from pathlib import Path
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    if not hasattr(capture, "dark"):
+        from ..io.frames import read_capture
+
+        capture = read_capture(capture)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    colour = result["cfa"] is not None
+    ptcs = result["photon_transfer"] if colour else {"W": result["photon_transfer"]}
+    gain = result["conversion_gain_dn_per_e"]
+    gain = gain if colour else {"W": gain}
+    written = []
+
+    def save(fig, name):
+        p = out / name
+        fig.tight_layout()
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        written.append(str(p))
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for n, p in ptcs.items():
+        x, y, lin = np.array(p["signal_dn"]), np.array(p["variance_minus_dark_dn2"]), np.array(p["linear"])
+        h = ax.plot(x, y, "o", ms=4, label=f"{n}")[0]
+        ax.plot(x[lin], gain[n] * x[lin], "-", color=h.get_color(), label=f"{n}: K = {gain[n]:.4g} DN/e-")
+    ax.set(xlabel="mu_y - mu_y.dark (DN)", ylabel="sigma^2_y - sigma^2_y.dark (DN^2)", title="Photon transfer")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    save(fig, "photon_transfer.png")
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for n, p in ptcs.items():
+        x, v = np.array(p["signal_dn"]), np.array(p["variance_dn2"])
+        ok = x > 0
+        e = x[ok] / gain[n]
+        ax.loglog(e, x[ok] / np.sqrt(v[ok]), "o", ms=4, label=f"{n} measured")
+        grid = np.logspace(np.log10(max(e.min(), 1.0)), np.log10(e.max()), 100)
+        dark_var = np.array(p["dark_variance_dn2"])[0] / gain[n] ** 2  # e-^2 (read + quantisation)
+        ax.loglog(grid, grid / np.sqrt(grid + dark_var), "-", lw=1, label=f"{n} model (EMVA eq. 19)")
+    ax.set(xlabel="mu_e (electrons)", ylabel="SNR", title="Signal-to-noise ratio")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, which="both")
+    save(fig, "snr.png")
+
+    fig, axes = plt.subplots(2, 1, figsize=(6, 6), sharex=True)
+    for n, p in ptcs.items():
+        t, x, lin = np.array(p["exposure_ms"]), np.array(p["signal_dn"]), np.array(p["linear"])
+        slope = float((t[lin] * x[lin]).sum() / (t[lin] ** 2).sum())
+        axes[0].plot(t, x, "o", ms=4, label=n)
+        axes[0].plot(t[lin], slope * t[lin], "-", lw=1)
+        sel = lin & (x > 0)
+        axes[1].plot(t[sel], 100 * (x[sel] / (slope * t[sel]) - 1), "o-", ms=4, label=n)
+    axes[0].set(ylabel="mu_y - mu_y.dark (DN)", title="Linearity")
+    axes[1].set(xlabel="exposure (ms)", ylabel="linearity error (%)")
+    for a in axes:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    save(fig, "linearity.png")
+
+    d0 = torch.from_numpy(capture.dark[min(capture.dark)]).mean(dim=0)
+    ms = result["photon_transfer"][next(iter(ptcs))]["prnu_exposure_ms"] if colour else \
+        result["photon_transfer"]["prnu_exposure_ms"]
+    dms = ms if ms in capture.dark else min(capture.dark, key=lambda k: abs(k - ms))
+    flat = torch.from_numpy(capture.flat[ms]).mean(dim=0) - torch.from_numpy(capture.dark[dms]).mean(dim=0)
+    for name, img, unit in (("dsnu", d0, "DN"), ("prnu", flat, "DN")):
+        fig, ax = plt.subplots(figsize=(6, 4.5))
+        for axis in ("horizontal", "vertical"):
+            f, a = spectrogram(img, axis)
+            ax.semilogy(f[1:].numpy(), a[1:].numpy(), lw=0.8, label=axis)
+        ax.set(xlabel="frequency (cycles/pixel)", ylabel=f"amplitude ({unit})",
+               title=f"{name.upper()} spectrogram (EMVA 1288 section 8.3)")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3, which="both")
+        save(fig, f"spectrogram_{name}.png")
+    return written

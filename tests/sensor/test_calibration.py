@@ -223,3 +223,31 @@ def test_unsaturated_capture_warns_and_nulls_full_well(good_capture):
     res = calibrate_directory(good_capture)
     assert res["full_well_e"] is None
     assert any("no flat reaches saturation" in w for w in res["warnings"])
+
+
+def test_report_figures(tmp_path, capsys, good_capture):
+    from PIL import Image
+
+    res = _cli_json(capsys, good_capture, "--report", tmp_path / "rep")
+    names = sorted(Path(p).name for p in res["report_figures"])
+    assert names == ["linearity.png", "photon_transfer.png", "snr.png", "spectrogram_dsnu.png",
+                     "spectrogram_prnu.png"]
+    for p in res["report_figures"]:
+        with Image.open(p) as im:
+            assert im.size[0] > 300 and im.format == "PNG"
+
+
+def test_spectrogram_finds_a_periodic_column_pattern():
+    """EMVA 8.3 spectrogram: a column pattern of period 8 gives a horizontal peak at 1/8 cycles/pixel, nothing
+    vertical; white noise of std s gives a flat amplitude s."""
+    from isettorch.metrics.emva import spectrogram
+
+    g = torch.Generator().manual_seed(0)
+    white = torch.randn(256, 512, generator=g, dtype=torch.float64)
+    f, a = spectrogram(white)
+    assert float((a[1:] ** 2).mean()) == pytest.approx(1.0, rel=0.02)
+    cols = 3 * torch.cos(2 * torch.pi * torch.arange(512) / 8).expand(256, 512) + white
+    f, a = spectrogram(cols, "horizontal")
+    assert float(f[int(a.argmax())]) == pytest.approx(1 / 8)
+    fv, av = spectrogram(cols, "vertical")
+    assert float(av[1:].max()) < 2.0  # f = 0 holds the column offsets themselves
