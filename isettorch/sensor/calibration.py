@@ -35,8 +35,8 @@ __all__ = ["calibrate_capture", "calibrate_directory", "sensor_config", "write_s
            "simulate_capture", "photon_transfer_curve", "CALIBRATION_FIELDS"]
 
 CALIBRATION_FIELDS = ("conversion_gain_dn_per_e", "read_noise_e", "row_noise_e", "column_noise_e",
-                      "dark_current_e_per_s", "dsnu_e", "prnu_percent", "full_well_e", "black_level_dn",
-                      "quantum_efficiency")
+                      "dark_current_e_per_s", "dsnu_e", "dark_shading_e_per_s", "prnu_percent", "full_well_e",
+                      "black_level_dn", "quantum_efficiency")
 _LINEAR_FRACTION = 0.7  # EMVA 1288 4.0 section 6.3 / reference implementation: fits up to 70 % of saturation
 
 
@@ -65,12 +65,36 @@ def _stats(planes: list[np.ndarray]) -> dict[str, Any]:
     return out
 
 
-def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """Least-squares (slope, intercept); a single point gives slope 0."""
+def _line(x: np.ndarray, y: np.ndarray, sd: np.ndarray | None = None) -> tuple[float, float]:
+    """Least-squares (slope, intercept), weighted by 1 / sd^2 when the standard errors ``sd`` are given; a single
+    point gives slope 0."""
     if len(x) < 2 or np.ptp(x) == 0:
         return 0.0, float(np.mean(y))
-    slope, icpt = np.polyfit(x, y, 1)
+    slope, icpt = np.polyfit(x, y, 1, w=None if sd is None else 1 / sd)
     return float(slope), float(icpt)
+
+
+def _dsnu_fit(dark: dict[float, dict]) -> tuple[float, float]:
+    """(DSNU variance at the shortest exposure, its growth b in DN^2/s^2): the spatial variances of the frame-averaged
+    darks (temporal residue removed, EMVA 8.2) fitted as a + b t^2 (a fixed offset pattern plus a dark-current
+    non-uniformity / dark shading growing with t; PMN, Feng et al. 2022), weighted by their standard errors, so
+    every dark level contributes to the estimate at the shortest exposure."""
+    ms = sorted(dark)
+    t = np.array(ms) * 1e-3
+    s2, sd = [], []
+    for k in ms:
+        d = dark[k]
+        v = [float(spatial_variance(a, d["var"], d["frames"])) for a in d["averages"]]
+        pixels = sum(a.numel() for a in d["averages"])
+        s2.append(float(np.mean(v)))
+        sd.append(math.sqrt(2 / pixels) * (abs(s2[-1]) + d["var"] / d["frames"]))  # sd of a variance estimate
+    s2, sd = np.array(s2), np.array(sd)
+    if len(ms) >= 3 and np.ptp(t) > 0:
+        (b, a), cov = np.polyfit(t ** 2, s2, 1, w=1 / sd, cov="unscaled")
+        if b > 3 * math.sqrt(cov[0, 0]):  # keep the growth only where it is significant (3 standard errors)
+            return float(a + b * t[0] ** 2), float(b)
+    w = 1 / sd ** 2
+    return float((w * s2).sum() / w.sum()), 0.0
 
 
 def _origin(x: np.ndarray, y: np.ndarray) -> float:
@@ -84,7 +108,13 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     mu_d = np.array([dark[k]["mean"] for k in sorted(dark)])
     vp_d = np.array([dark[k]["var_pixel"] for k in sorted(dark)])
     dc_dn, black = _line(t_d, mu_d)
-    vslope, vicpt = _line(t_d, vp_d)
+    # the pixel-wise dark variance grows with the dark shot noise; weights 1 / var^2 (the standard error of a
+    # variance estimate is proportional to it), so the extrapolation to zero exposure rests on the short exposures
+    vslope, vicpt = _line(t_d, vp_d, vp_d)
+    if len(t_d) < 2:
+        warnings.append(f"channel {name}: one dark exposure only: the dark current and the extrapolation to zero "
+                        f"exposure need at least 2; dark_current_e_per_s is null, black level and read noise are "
+                        f"taken at {t_d[0] * 1e3:g} ms")
     ms_f = np.array(sorted(flat))
 
     def dark_at(ms: float, key: str) -> float:  # the dark at a flat's exposure: measured, else the fitted line
@@ -132,18 +162,28 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     row_var = float(np.mean([d["var_row"] for d in dark.values()]))
     col_var = float(np.mean([d["var_col"] for d in dark.values()]))
 
-    d0 = dark[min(dark)]
-    dsnu2 = float(np.mean([float(spatial_variance(a, d0["var"], d0["frames"])) for a in d0["averages"]]))
+    dsnu2, shading_b = _dsnu_fit(dark)
 
-    # PRNU at the unsaturated level nearest half saturation, against the dark of the same (or nearest) exposure
+    # PRNU: (s^2 / signal^2) of the dark-subtracted flat averages (EMVA 8.2, the dark of the same or nearest exposure
+    # subtracted pixel by pixel), combined over the linear levels and the one nearest half saturation, each weighted
+    # by its standard error (a single level with few frames is dominated by the temporal residue when PRNU is small)
     cand = np.flatnonzero(~saturated & (signal > 0))
-    i = int(cand[np.argmin(np.abs(signal[cand] - 0.5 * sat_signal))])
-    ms = ms_f[i]
-    dms = ms if ms in dark else min(dark, key=lambda k: abs(k - ms))
-    fd, dd = flat[ms], dark[dms]
-    shift = dark_at(ms, "mean") - dd["mean"]
-    prnu2 = np.mean([float(spatial_variance(a, fd["var"], fd["frames"], b + shift, dd["var"], dd["frames"]))
-                     / signal[i] ** 2 for a, b in zip(fd["averages"], dd["averages"])])
+    half = int(cand[np.argmin(np.abs(signal[cand] - 0.5 * sat_signal))])
+    est, sds = [], []
+    for i in sorted(set(np.flatnonzero(linear).tolist()) | {half}):
+        ms = ms_f[i]
+        dms = ms if ms in dark else min(dark, key=lambda k: abs(k - ms))
+        fd, dd = flat[ms], dark[dms]
+        shift = dark_at(ms, "mean") - dd["mean"]
+        v = np.mean([float(spatial_variance(a, fd["var"], fd["frames"], b + shift, dd["var"], dd["frames"]))
+                     for a, b in zip(fd["averages"], dd["averages"])])
+        pixels = sum(a.numel() for a in fd["averages"])
+        total = abs(v) + fd["var"] / fd["frames"] + dd["var"] / dd["frames"]
+        est.append(v / signal[i] ** 2)
+        sds.append(math.sqrt(2 / pixels) * total / signal[i] ** 2)
+    w = 1 / np.array(sds) ** 2
+    prnu2 = float((w * np.array(est)).sum() / w.sum())
+    ms = ms_f[half]
 
     full_well = float((mu_f[saturated].mean() - black) / K) if saturated.any() else None
     if full_well is None:
@@ -159,8 +199,9 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
         "read_noise_e": math.sqrt(max(read_var, 0.0)) / K,
         "row_noise_e": math.sqrt(max(row_var, 0.0)) / K,
         "column_noise_e": math.sqrt(max(col_var, 0.0)) / K,
-        "dark_current_e_per_s": dc_dn / K,
+        "dark_current_e_per_s": dc_dn / K if len(t_d) >= 2 else None,
         "dsnu_e": math.sqrt(max(dsnu2, 0.0)) / K,
+        "dark_shading_e_per_s": math.sqrt(shading_b) / K,
         "prnu_percent": 100 * math.sqrt(max(prnu2, 0.0)),
         "full_well_e": full_well,
         "black_level_dn": black,
@@ -214,16 +255,17 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
         t = np.array(sorted(allp)) * 1e-3
         dc_dn, black = _line(t, np.array([allp[k]["mean"] for k in sorted(allp)]))
         K = float(np.mean([per[n]["conversion_gain_dn_per_e"] for n in names]))
-        d0 = allp[min(allp)]
-        dsnu2 = float(np.mean([float(spatial_variance(a, d0["var"], d0["frames"])) for a in d0["averages"]]))
-        fw = [per[n]["full_well_e"] for n in names]
+        dsnu2, shading_b = _dsnu_fit(allp)
+        fw = [per[n]["full_well_e"] for n in names if per[n]["full_well_e"] is not None]
         sensor = {"conversion_gain_dn_per_e": K,
                   "read_noise_e": float(np.sqrt(np.mean([per[n]["read_noise_e"] ** 2 for n in names]))),
                   "row_noise_e": float(np.sqrt(np.mean([per[n]["row_noise_e"] ** 2 for n in names]))),
                   "column_noise_e": float(np.sqrt(np.mean([per[n]["column_noise_e"] ** 2 for n in names]))),
-                  "dark_current_e_per_s": dc_dn / K, "dsnu_e": math.sqrt(max(dsnu2, 0.0)) / K,
+                  "dark_current_e_per_s": dc_dn / K if len(t) >= 2 else None, "dsnu_e": math.sqrt(max(dsnu2, 0.0)) / K,
+                  "dark_shading_e_per_s": math.sqrt(shading_b) / K,
                   "prnu_percent": float(np.sqrt(np.mean([per[n]["prnu_percent"] ** 2 for n in names]))),
-                  "full_well_e": None if any(v is None for v in fw) else float(np.mean(fw)),
+                  # one clip level in electrons for the sensor: the channels that reach it
+                  "full_well_e": float(np.mean(fw)) if fw else None,
                   "black_level_dn": black, "quantum_efficiency": None}
         out["sensor"] = sensor
         out["photon_transfer"] = {n: per[n]["photon_transfer"] for n in names}
@@ -250,12 +292,17 @@ def sensor_config(result: dict) -> dict[str, Any]:
     lsb_v = 1.0 / 2 ** bits
     cg = s["conversion_gain_dn_per_e"] * lsb_v
     rows, cols = (int(v) for v in result["frame_shape"])
+    dsnu_t_s = min(result["photon_transfer"][n]["dark_exposure_ms"][0] for n in result["photon_transfer"]) * 1e-3 \
+        if result.get("cfa") else result["photon_transfer"]["dark_exposure_ms"][0] * 1e-3
     cfg = {"rows": rows, "cols": cols, "pixel_size_m": float(result["pixel_size_m"]), "fill_factor": 1.0,
            "cfa": result["cfa"] or "mono", "adc_bits": bits, "voltage_swing_v": 1.0, "conversion_gain_v_per_e": cg,
            "black_level_dn": max(0.0, round(float(s["black_level_dn"]), 4)),
            "read_noise_v": s["read_noise_e"] * cg, "row_noise_v": s["row_noise_e"] * cg,
-           "column_noise_v": s["column_noise_e"] * cg, "dark_current_e_per_s": max(0.0, s["dark_current_e_per_s"]),
-           "dsnu_sigma_v": s["dsnu_e"] * cg, "prnu_sigma_percent": s["prnu_percent"],
+           "column_noise_v": s["column_noise_e"] * cg,
+           "dark_current_e_per_s": max(0.0, s["dark_current_e_per_s"] or 0.0),
+           # the DSNU at t = 0: the shortest exposure's minus the dark shading grown by then
+           "dsnu_sigma_v": math.sqrt(max(s["dsnu_e"] ** 2 - (s["dark_shading_e_per_s"] * dsnu_t_s) ** 2, 0.0)) * cg,
+           "dark_shading_e_per_s": s["dark_shading_e_per_s"], "prnu_sigma_percent": s["prnu_percent"],
            "full_well_e": s["full_well_e"], "shot_noise": "poisson"}
     return {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in cfg.items()}
 
