@@ -13,7 +13,11 @@ from __future__ import annotations
 
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="calibrate a sensor's noise and gain from dark and flat frames (EMVA 1288)")
-    p.add_argument("directory", metavar="DIR", help="capture folder (capture.yaml, dark_<ms>ms/, flat_<ms>ms/)")
+    p.add_argument("directory", metavar="DIR", help="capture folder (capture.yaml, dark_<ms>ms/, flat_<ms>ms/), or one "
+                   "raw frame (PNG/TIFF/npy/DNG/camera raw) for a quick Poisson-Gaussian estimate (Foi et al. 2008)")
+    p.add_argument("--black-level", type=float, default=None,
+                   help="single raw: black level in DN (default: the raw file's, else 0)")
+    p.add_argument("--cfa", default=None, help="single raw: CFA pattern (default: the raw file's, else mono)")
     p.add_argument("--json", action="store_true", help="print the full result as JSON on stdout")
     p.add_argument("--out", default=None, metavar="SENSOR.yaml",
                    help="write a sensor config (Sensor.from_config / the sensor: section of a camera YAML)")
@@ -38,6 +42,37 @@ def _summary(result: dict) -> str:
     return "\n".join(lines)
 
 
+def _single(args) -> int:
+    import json
+    import sys
+
+    from ..io.frames import RAW_SUFFIXES, read_frame
+    from ..sensor.noise_estimation import estimate_poisson_gaussian
+
+    try:
+        black, white, cfa = args.black_level, None, args.cfa
+        if args.directory.lower().endswith(RAW_SUFFIXES):
+            from ..io.raw import read_raw
+
+            raw = read_raw(args.directory)
+            data = raw.data
+            black = float(sum(raw.black_level_dn) / len(raw.black_level_dn)) if black is None else black
+            white, cfa = raw.white_level_dn, cfa or raw.cfa
+        else:
+            data = read_frame(args.directory)
+        res = estimate_poisson_gaussian(data, cfa=cfa, black_level_dn=black or 0.0, white_level_dn=white)
+    except ValueError as err:
+        print(f"isettorch calibrate: error: {err}", file=sys.stderr)
+        return 2
+    res.update({"file": args.directory, "cfa": cfa, "black_level_dn": black or 0.0})
+    if args.json:
+        print(json.dumps(res, indent=2))
+    else:
+        print(f"{args.directory}: sigma^2 = a y + b with a = {res['a']:.4g} DN/e- (conversion gain), "
+              f"b = {res['b']:.4g} DN^2 (read noise {res['read_noise_dn']:.3g} DN = {res['read_noise_e']:.3g} e-)")
+    return 0
+
+
 def run(args) -> int:
     import json
     import sys
@@ -45,6 +80,10 @@ def run(args) -> int:
     from ..io.frames import read_capture
     from ..sensor.calibration import calibrate_capture, write_sensor_config
 
+    from pathlib import Path
+
+    if Path(args.directory).is_file():
+        return _single(args)
     try:
         capture = read_capture(args.directory, progress=not args.quiet)
         result = calibrate_capture(capture, progress=not args.quiet)

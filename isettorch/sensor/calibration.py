@@ -74,6 +74,19 @@ def _line(x: np.ndarray, y: np.ndarray, sd: np.ndarray | None = None) -> tuple[f
     return float(slope), float(icpt)
 
 
+def _spatial_sd(fixed_var: float, stats: dict, averages, other: dict | None = None) -> float:
+    """Standard error of a spatial-variance estimate of frame averages: the pixel-wise part is sampled by every pixel,
+    the temporal row (column) residue only by the rows (columns), sd^2 = 2 v_pix^2 / pixels + 2 v_row^2 / rows + ..."""
+    pixels = sum(a.numel() for a in averages)
+    rows, cols = averages[0].shape
+    v_pix, v_row, v_col = fixed_var, 0.0, 0.0
+    for st in (stats, other) if other is not None else (stats,):
+        v_pix += max(st["var_pixel"], 0.0) / st["frames"]
+        v_row += max(st["var_row"], 0.0) / st["frames"]
+        v_col += max(st["var_col"], 0.0) / st["frames"]
+    return math.sqrt(2 * v_pix ** 2 / pixels + 2 * v_row ** 2 / rows + 2 * v_col ** 2 / cols)
+
+
 def _dsnu_fit(dark: dict[float, dict]) -> tuple[float, float]:
     """(DSNU variance at the shortest exposure, its growth b in DN^2/s^2): the spatial variances of the frame-averaged
     darks (temporal residue removed, EMVA 8.2) fitted as a + b t^2 (a fixed offset pattern plus a dark-current
@@ -85,9 +98,8 @@ def _dsnu_fit(dark: dict[float, dict]) -> tuple[float, float]:
     for k in ms:
         d = dark[k]
         v = [float(spatial_variance(a, d["var"], d["frames"])) for a in d["averages"]]
-        pixels = sum(a.numel() for a in d["averages"])
         s2.append(float(np.mean(v)))
-        sd.append(math.sqrt(2 / pixels) * (abs(s2[-1]) + d["var"] / d["frames"]))  # sd of a variance estimate
+        sd.append(_spatial_sd(abs(s2[-1]), d, d["averages"]))
     s2, sd = np.array(s2), np.array(sd)
     if len(ms) >= 3 and np.ptp(t) > 0:
         (b, a), cov = np.polyfit(t ** 2, s2, 1, w=1 / sd, cov="unscaled")
@@ -177,10 +189,8 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
         shift = dark_at(ms, "mean") - dd["mean"]
         v = np.mean([float(spatial_variance(a, fd["var"], fd["frames"], b + shift, dd["var"], dd["frames"]))
                      for a, b in zip(fd["averages"], dd["averages"])])
-        pixels = sum(a.numel() for a in fd["averages"])
-        total = abs(v) + fd["var"] / fd["frames"] + dd["var"] / dd["frames"]
         est.append(v / signal[i] ** 2)
-        sds.append(math.sqrt(2 / pixels) * total / signal[i] ** 2)
+        sds.append(_spatial_sd(abs(v), fd, fd["averages"], dd) / signal[i] ** 2)
     w = 1 / np.array(sds) ** 2
     prnu2 = float((w * np.array(est)).sum() / w.sum())
     ms = ms_f[half]
