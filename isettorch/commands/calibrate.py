@@ -76,11 +76,10 @@ def _single(args) -> int:
 def run(args) -> int:
     import json
     import sys
+    from pathlib import Path
 
     from ..io.frames import read_capture
     from ..sensor.calibration import calibrate_capture, write_sensor_config
-
-    from pathlib import Path
 
     if Path(args.directory).is_file():
         return _single(args)

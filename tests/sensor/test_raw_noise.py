@@ -13,14 +13,15 @@ import numpy_capture as nc  # noqa: E402
 from isettorch.sensor.noise_estimation import estimate_poisson_gaussian  # noqa: E402
 
 
-def _scene(h=512, w=512, seed=0):
-    """A clean image in DN with smooth gradients and sharp-edged discs (edges must not bias the fit)."""
+def _scene(h=768, w=768, seed=0):
+    """A clean image in DN, 2 to 3000 DN (half of it below 750 DN, where b shows), smooth gradients and sharp-edged
+    discs (edges must not bias the fit)."""
     rng = np.random.default_rng(seed)
-    yy, xx = np.mgrid[0:h, 0:w] / max(h, w)
-    img = 60 + 2500 * xx * (0.3 + 0.7 * yy)
+    yy, xx = np.mgrid[0:h, 0:w]
+    img = 2 + 3000 * (xx / w) ** 2 * (0.6 + 0.4 * yy / h)
     for _ in range(25):
         cy, cx, r = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(10, 60)
-        img[(np.mgrid[0:h, 0:w][0] - cy) ** 2 + (np.mgrid[0:h, 0:w][1] - cx) ** 2 < r * r] = rng.uniform(50, 3000)
+        img[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = rng.uniform(2, 3000)
     return img
 
 
@@ -37,7 +38,7 @@ def test_foi_fit_recovers_known_a_b(a, b):
 
 def test_foi_fit_on_a_bayer_mosaic_with_black_level_and_clipping():
     rng = np.random.default_rng(2)
-    y = _scene(seed=3) * np.tile([[1.0, 0.6], [0.6, 0.4]], (256, 256))  # channel gains of a Bayer mosaic
+    y = _scene(seed=3) * np.tile([[1.0, 0.6], [0.6, 0.4]], (384, 384))  # channel gains of a Bayer mosaic
     a, b, black, white = 0.8, 9.0, 256.0, 2800.0
     z = np.clip(np.round(a * rng.poisson(y / a) + np.sqrt(b) * rng.standard_normal(y.shape) + black), 0, white)
     res = estimate_poisson_gaussian(z, cfa="RGGB", black_level_dn=black, white_level_dn=white)
@@ -56,7 +57,7 @@ def test_single_raw_cli(tmp_path, capsys):
     from isettorch.io.frames import write_frame
 
     rng = np.random.default_rng(4)
-    z = np.round(0.5 * rng.poisson(_scene(seed=5) / 0.5) + 2 * rng.standard_normal((512, 512)) + 100)
+    z = np.round(0.5 * rng.poisson(_scene(seed=5) / 0.5) + 2 * rng.standard_normal((768, 768)) + 100)
     write_frame(tmp_path / "one.png", z)
     assert main(["calibrate", str(tmp_path / "one.png"), "--json", "--quiet", "--black-level", "100"]) == 0
     res = json.loads(capsys.readouterr().out)
