@@ -250,6 +250,11 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
                 f[ms] = _stats(p[n])
                 bar.update(1)
             stats[n] = (d, f)
+    for ms, stack in capture.dark.items():  # a pedestal too low for the dark noise: the statistics are biased
+        frac = float((stack <= 0).mean())
+        if frac > 1e-3:
+            warnings.append(f"{capture.folders.get(('dark', ms), f'dark_{ms:g}ms')}: {100 * frac:.2g} % of the pixels "
+                            f"are at 0 DN (clipped below the black level); dark statistics are biased")
     per = {n: _channel(n, d, f, capture.photons_per_pixel, capture.folders, warnings) for n, (d, f) in stats.items()}
     out: dict[str, Any] = {"cfa": capture.cfa, "bit_depth": capture.bit_depth, "pixel_size_m": capture.pixel_size_m,
                            "frame_shape": list(next(iter(capture.dark.values())).shape[-2:]),

@@ -32,6 +32,7 @@ from .cfa import CFA
 from .exposure import AE_METHODS, auto_exposure
 from .filters import SpectralQE
 from .noise_terms import NoiseTerms
+from .presets_emva import EMVA_PRESETS
 from .raw import RawImage
 from .sampling import electron_rate_density, isetcam_preblur, isetcam_preblur_size, sample_area, sample_point
 
@@ -64,6 +65,8 @@ PRESETS: dict[str, dict[str, Any]] = {
                          dark_current_e_per_s=10.0, read_noise_v=50 * 15e-6, dsnu_sigma_v=2e-3,
                          prnu_sigma_percent=0.0, exposure_s=0.016, cds=True, cfa="GRBG", adc_bits=None),
 }
+
+PRESETS.update(EMVA_PRESETS)  # EMVA 1288 datasheet presets (presets_emva.py)
 
 
 class Sensor(nn.Module):
