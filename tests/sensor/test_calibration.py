@@ -41,7 +41,7 @@ def _assert_bounds(err):
 @pytest.mark.parametrize("cfa, suffix", [(None, ".png"), ("RGGB", ".tif")])
 def test_numpy_truth_is_recovered(tmp_path, capsys, cfa, suffix):
     truth = dict(nc.TRUTH, qe=nc.BAYER_QE if cfa else {"W": 0.6})
-    dark, flat, photons = nc.simulate(truth, cfa=cfa, seed=3)
+    dark, flat, photons = nc.simulate(truth, cfa=cfa, seed=3, frames=2)  # EMVA's minimum: 2 frames per level
     root = nc.write_capture(tmp_path / "cap", dark, flat, bits=truth["bits"], cfa=cfa, photons=photons,
                             suffix=suffix)
     res = _cli_json(capsys, root)
@@ -96,7 +96,7 @@ def test_round_trip_isettorch_sensor(tmp_path, capsys, cfa):
     _assert_bounds(nc.relative_errors(res, truth))
 
 
-@pytest.mark.parametrize("cfa", [None, "RGGB"])
+@pytest.mark.parametrize("cfa", ["RGGB"])  # Bayer: the harder case (per-channel curves, 1/4 of the pixels each)
 def test_sensor_config_reproduces_photon_transfer(tmp_path, capsys, cfa):
     """--out writes a Sensor config; simulating the capture with it reproduces the measured mean-variance curve
     (the straight line through the unsaturated (mean, temporal variance) points, evaluated at every level) within
