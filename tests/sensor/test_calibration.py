@@ -251,3 +251,21 @@ def test_spectrogram_finds_a_periodic_column_pattern():
     assert float(f[int(a.argmax())]) == pytest.approx(1 / 8)
     fv, av = spectrogram(cols, "vertical")
     assert float(av[1:].max()) < 2.0  # f = 0 holds the column offsets themselves
+
+
+def test_sensor_yaml_is_a_camera_sensor_section(tmp_path, capsys, good_capture):
+    """The --out file's `sensor:` section drops into a camera YAML (Camera.from_config) unchanged."""
+    import yaml
+
+    from isettorch.camera import Camera
+
+    out = tmp_path / "s.yaml"
+    res = _cli_json(capsys, good_capture, "--out", out)
+    cfg = {"optics": {"type": "diffraction_limited", "f_number": 2.0, "focal_length_m": 0.004},
+           **yaml.safe_load(out.read_text())}
+    cam = Camera.from_config(cfg)
+    k = cam.sensor.conversion_gain_v_per_e / cam.sensor.lsb_v  # DN/e-
+    assert k == pytest.approx(res["conversion_gain_dn_per_e"], rel=1e-9)
+    assert cam.sensor.read_noise_v / cam.sensor.conversion_gain_v_per_e == pytest.approx(res["read_noise_e"])
+    assert cam.sensor.noise_terms.row_noise_v / cam.sensor.conversion_gain_v_per_e == pytest.approx(
+        res["row_noise_e"])
