@@ -136,6 +136,11 @@ class NoiseTerms:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "seed"}
 
     @property
+    def active(self) -> bool:
+        """Whether any term is on."""
+        return any(getattr(self, f.name) not in (0, 0.0, None) for f in dataclasses.fields(self) if f.name != "seed")
+
+    @property
     def has_fixed_patterns(self) -> bool:
         return self.dark_shading_e_per_s > 0 or self.hot_pixel_fraction > 0 or self.dead_pixel_fraction > 0
 

@@ -212,6 +212,9 @@ class Sensor(nn.Module):
                                       dark_shading_e_per_s=dark_shading_e_per_s, hot_pixel_fraction=hot_pixel_fraction,
                                       hot_pixel_dark_current_e_per_s=hot_pixel_dark_current_e_per_s,
                                       dead_pixel_fraction=dead_pixel_fraction, full_well_e=full_well_e, seed=self.seed)
+        if noise_model == "isetcam" and self.noise_terms.active:
+            raise ValueError(f"noise_model: 'isetcam' has none of the noise terms {self.noise_terms.as_dict()}; use "
+                             f"noise_model='physical'")
         # Fixed-pattern maps (standard normal), drawn from the seed on first use for a given size.
         self.register_buffer("fpn_dsnu", None)
         self.register_buffer("fpn_prnu", None)

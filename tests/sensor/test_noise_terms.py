@@ -155,3 +155,10 @@ def test_row_noise_gradient_reaches_the_input():
     r = torch.full((1, 1, 8, 8), 1e5, dtype=torch.float64, requires_grad=True)
     s.capture(r, exposure_s=0.01, generator=torch.Generator().manual_seed(0)).data.sum().backward()
     assert torch.allclose(r.grad, torch.full_like(r, 1e-4 * 0.01))
+
+
+def test_isetcam_noise_model_refuses_the_terms():
+    """ISETCam's noise order has no row noise etc.: asking for both is an error, not a silent drop."""
+    with pytest.raises(ValueError, match="noise_model: 'isetcam'"):
+        _sensor(noise_model="isetcam", row_noise_v=1e-3)
+    assert not _sensor(noise_model="isetcam").noise_terms.active
