@@ -312,3 +312,148 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
         mean_dn=mu_y, mean_dark_dn=mu_d, var_dn2=var_y, var_dark_dn2=var_d, snr=snr, photons_per_pixel=mu_p,
         saturation_index=sat, fit_max_index=fit_max, spatial_index=si,
     )
+
+
+# --- noise components for calibration (used by isettorch.sensor.calibration) ---------------------------------
+
+
+def temporal_noise_components(stack: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Mean and temporal variance components of an ``(N, H, W)`` frame stack (N >= 2), DN and DN^2.
+
+    Model per frame f: y = m(i, j) + g_f + r_f(i) + c_f(j) + e_f(i, j): fixed pattern m, a global offset g, row
+    offsets r (var s_r^2), column offsets c (s_c^2) and pixel-wise noise e (s_e^2; shot, read, quantisation).
+    After removing each frame's spatial mean (EMVA 1288 4.0 eq. 29), the per-pixel temporal variance V_p, the
+    temporal variance of the row means V_R and of the column means V_C are, in expectation (a = 1 - 1/H,
+    b = 1 - 1/W): V_R = a (s_r^2 + s_e^2 / W), V_C = b (s_c^2 + s_e^2 / H),
+    V_p = (1 - 1/HW) s_e^2 + a s_r^2 + b s_c^2, solved here for s_e^2, s_r^2, s_c^2 (row-noise estimation from
+    row means: Wei et al. CVPR 2020, ELD, section 3.2; EMVA 1288 4.0 section 8.3 row/column spectrograms).
+
+    Returns ``mean`` (mu_y), ``var`` (V_p, EMVA sigma^2_y), ``var_pixel`` (s_e^2), ``var_row`` (s_r^2),
+    ``var_col`` (s_c^2), ``average`` (the frame average ``(H, W)``), ``frames`` (N); all float64.
+    """
+    x = stack.to(torch.float64)
+    n, h, w = x.shape[-3:]
+    centred = x - x.mean(dim=(-2, -1), keepdim=True)
+    v_p = centred.var(dim=-3, unbiased=True).mean(dim=(-2, -1))
+    v_r = centred.mean(dim=-1).var(dim=-2, unbiased=True).mean(dim=-1)
+    v_c = centred.mean(dim=-2).var(dim=-2, unbiased=True).mean(dim=-1)
+    a, b = 1 - 1 / h, 1 - 1 / w
+    s_e = (v_p - v_r - v_c) / (1 - 1 / (h * w) - a / w - b / h)
+    s_r = v_r / a - s_e / w
+    s_c = v_c / b - s_e / h
+    return {"mean": x.mean(dim=(-3, -2, -1)), "var": v_p, "var_pixel": s_e, "var_row": s_r, "var_col": s_c,
+            "average": x.mean(dim=-3), "frames": n}
+
+
+def spatial_variance(average: torch.Tensor, temporal_var, frames: int, reference: torch.Tensor | None = None,
+                     reference_temporal_var=0.0, reference_frames: int = 1) -> torch.Tensor:
+    """Spatial variance of a frame-averaged image with the temporal residue removed (EMVA 1288 4.0 section 8.2):
+    ``s^2 = var(average - reference) - sigma^2 / N - sigma^2_ref / N_ref`` (``reference``: e.g. the dark average at
+    the same exposure, subtracted pixel by pixel so the DSNU cancels in a PRNU estimate)."""
+    img = average if reference is None else average - reference
+    resid = temporal_var / frames + (0.0 if reference is None else reference_temporal_var / reference_frames)
+    return img.var(unbiased=True) - resid
+
+
+def spectrogram(image: torch.Tensor, axis: str = "horizontal") -> tuple[torch.Tensor, torch.Tensor]:
+    """EMVA 1288 4.0 section 8.3 spectrogram of a frame-averaged image ``(H, W)``: the square root of the mean power
+    spectrum of its rows (``'horizontal'``) or columns (``'vertical'``), mean removed, in the image's units.
+    Returns (frequency in cycles/pixel [0, 0.5], amplitude); a flat spectrogram is white (pixel-wise) noise, peaks are
+    periodic patterns, a rise at low frequency is shading."""
+    x = image.to(torch.float64)
+    if axis == "vertical":
+        x = x.T
+    elif axis != "horizontal":
+        raise ValueError(f"axis: expected 'horizontal' or 'vertical', got {axis!r}")
+    x = x - x.mean()
+    n = x.shape[-1]
+    power = (torch.fft.rfft(x, dim=-1).abs() ** 2 / n).mean(dim=0)
+    return torch.fft.rfftfreq(n, dtype=torch.float64), torch.sqrt(power)
+
+
+def calibration_figures(result: dict, capture, out_dir) -> list[str]:
+    """The EMVA 1288 report figures of a calibration (``isettorch calibrate --report``) as PNG in ``out_dir``:
+    photon transfer, SNR, linearity, and DSNU / PRNU spectrograms (EMVA 1288 4.0 sections 6-8). ``capture`` is the
+    :class:`~isettorch.io.frames.Capture` (or its directory). Returns the written paths."""
+    from pathlib import Path
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    if not hasattr(capture, "dark"):
+        from ..io.frames import read_capture
+
+        capture = read_capture(capture)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    colour = result["cfa"] is not None
+    ptcs = result["photon_transfer"] if colour else {"W": result["photon_transfer"]}
+    gain = result["conversion_gain_dn_per_e"]
+    gain = gain if colour else {"W": gain}
+    written = []
+
+    def save(fig, name):
+        p = out / name
+        fig.tight_layout()
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        written.append(str(p))
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for n, p in ptcs.items():
+        x, y, lin = np.array(p["signal_dn"]), np.array(p["variance_minus_dark_dn2"]), np.array(p["linear"])
+        h = ax.plot(x, y, "o", ms=4, label=f"{n}")[0]
+        ax.plot(x[lin], gain[n] * x[lin], "-", color=h.get_color(), label=f"{n}: K = {gain[n]:.4g} DN/e-")
+    ax.set(xlabel="mu_y - mu_y.dark (DN)", ylabel="sigma^2_y - sigma^2_y.dark (DN^2)", title="Photon transfer")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    save(fig, "photon_transfer.png")
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for n, p in ptcs.items():
+        x, v = np.array(p["signal_dn"]), np.array(p["variance_dn2"])
+        ok = x > 0
+        e = x[ok] / gain[n]
+        ax.loglog(e, x[ok] / np.sqrt(v[ok]), "o", ms=4, label=f"{n} measured")
+        grid = np.logspace(np.log10(max(e.min(), 1.0)), np.log10(e.max()), 100)
+        dark_var = np.array(p["dark_variance_dn2"])[0] / gain[n] ** 2  # e-^2 (read + quantisation)
+        ax.loglog(grid, grid / np.sqrt(grid + dark_var), "-", lw=1, label=f"{n} model (EMVA eq. 19)")
+    ax.set(xlabel="mu_e (electrons)", ylabel="SNR", title="Signal-to-noise ratio")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, which="both")
+    save(fig, "snr.png")
+
+    fig, axes = plt.subplots(2, 1, figsize=(6, 6), sharex=True)
+    for n, p in ptcs.items():
+        t, x, lin = np.array(p["exposure_ms"]), np.array(p["signal_dn"]), np.array(p["linear"])
+        slope = float((t[lin] * x[lin]).sum() / (t[lin] ** 2).sum())
+        axes[0].plot(t, x, "o", ms=4, label=n)
+        axes[0].plot(t[lin], slope * t[lin], "-", lw=1)
+        sel = lin & (x > 0)
+        axes[1].plot(t[sel], 100 * (x[sel] / (slope * t[sel]) - 1), "o-", ms=4, label=n)
+    axes[0].set(ylabel="mu_y - mu_y.dark (DN)", title="Linearity")
+    axes[1].set(xlabel="exposure (ms)", ylabel="linearity error (%)")
+    for a in axes:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    save(fig, "linearity.png")
+
+    d0 = torch.from_numpy(capture.dark[min(capture.dark)]).mean(dim=0)
+    ms = result["photon_transfer"][next(iter(ptcs))]["prnu_exposure_ms"] if colour else \
+        result["photon_transfer"]["prnu_exposure_ms"]
+    dms = ms if ms in capture.dark else min(capture.dark, key=lambda k: abs(k - ms))
+    flat = torch.from_numpy(capture.flat[ms]).mean(dim=0) - torch.from_numpy(capture.dark[dms]).mean(dim=0)
+    for name, img, unit in (("dsnu", d0, "DN"), ("prnu", flat, "DN")):
+        fig, ax = plt.subplots(figsize=(6, 4.5))
+        for axis in ("horizontal", "vertical"):
+            f, a = spectrogram(img, axis)
+            ax.semilogy(f[1:].numpy(), a[1:].numpy(), lw=0.8, label=axis)
+        ax.set(xlabel="frequency (cycles/pixel)", ylabel=f"amplitude ({unit})",
+               title=f"{name.upper()} spectrogram (EMVA 1288 section 8.3)")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3, which="both")
+        save(fig, f"spectrogram_{name}.png")
+    return written

@@ -31,6 +31,8 @@ from . import noise as _noise
 from .cfa import CFA
 from .exposure import AE_METHODS, auto_exposure
 from .filters import SpectralQE
+from .noise_terms import NoiseTerms
+from .presets_emva import EMVA_PRESETS
 from .raw import RawImage
 from .sampling import electron_rate_density, isetcam_preblur, isetcam_preblur_size, sample_area, sample_point
 
@@ -63,6 +65,8 @@ PRESETS: dict[str, dict[str, Any]] = {
                          dark_current_e_per_s=10.0, read_noise_v=50 * 15e-6, dsnu_sigma_v=2e-3,
                          prnu_sigma_percent=0.0, exposure_s=0.016, cds=True, cfa="GRBG", adc_bits=None),
 }
+
+PRESETS.update(EMVA_PRESETS)  # EMVA 1288 datasheet presets (presets_emva.py)
 
 
 class Sensor(nn.Module):
@@ -118,7 +122,11 @@ class Sensor(nn.Module):
                  fpn_mode: str = "fixed", noise_model: str = "physical", cds: bool = False, vignetting=None,
                  sampling: str = "area",
                  preblur_size: int | None = None, output_units: str | None = None, seed: int = 0,
-                 name: str = "") -> None:
+                 name: str = "",
+                 row_noise_v: float = 0.0, column_noise_v: float = 0.0, read_noise_tukey_lambda: float | None = None,
+                 dark_shading_e_per_s: float = 0.0, hot_pixel_fraction: float = 0.0,
+                 hot_pixel_dark_current_e_per_s: float = 0.0, dead_pixel_fraction: float = 0.0,
+                 full_well_e: float | None = None) -> None:
         super().__init__()
         for label, v in (("rows", rows), ("cols", cols)):
             if v is not None and (not isinstance(v, int) or v < 1):
@@ -197,6 +205,16 @@ class Sensor(nn.Module):
             if (vignetting < 0).any() or not torch.isfinite(vignetting).all():
                 raise ValueError("vignetting: expected finite non-negative factors")
         self.register_buffer("vignetting", vignetting)
+        # Real-raw noise terms (row/column banding, Tukey read noise, dark shading, defects, full well):
+        # isettorch.sensor.noise_terms; all off by default.
+        self.noise_terms = NoiseTerms(row_noise_v=row_noise_v, column_noise_v=column_noise_v,
+                                      read_noise_tukey_lambda=read_noise_tukey_lambda,
+                                      dark_shading_e_per_s=dark_shading_e_per_s, hot_pixel_fraction=hot_pixel_fraction,
+                                      hot_pixel_dark_current_e_per_s=hot_pixel_dark_current_e_per_s,
+                                      dead_pixel_fraction=dead_pixel_fraction, full_well_e=full_well_e, seed=self.seed)
+        if noise_model == "isetcam" and self.noise_terms.active:
+            raise ValueError(f"noise_model: 'isetcam' has none of the noise terms {self.noise_terms.as_dict()}; use "
+                             f"noise_model='physical'")
         # Fixed-pattern maps (standard normal), drawn from the seed on first use for a given size.
         self.register_buffer("fpn_dsnu", None)
         self.register_buffer("fpn_prnu", None)
@@ -214,6 +232,15 @@ class Sensor(nn.Module):
         kw.update(overrides)
         kw.setdefault("name", key)
         return cls(**kw)
+
+    @classmethod
+    def from_config(cls, config, **overrides) -> Sensor:
+        """A sensor from a YAML file (``yaml.safe_load``) or a mapping of constructor arguments, e.g. the output of
+        ``isettorch calibrate DIR --out SENSOR.yaml``; a top-level ``sensor:`` section (camera YAML) and a
+        ``preset:`` key are accepted."""
+        from .calibration import load_sensor_config
+
+        return load_sensor_config(config, **overrides)
 
     @property
     def well_capacity_e(self) -> float:
@@ -494,11 +521,13 @@ class Sensor(nn.Module):
             signal_e = signal_e * (1 + self.prnu_sigma_percent / 100 * fp["prnu"])
         if self.dark_current_e_per_s > 0:
             signal_e = signal_e + self.dark_current_e_per_s * tt
-        volts = _noise.shot_noise(signal_e, self.shot_noise, g) * cg
+        nt = self.noise_terms  # hot pixels, full well, dead pixels, dark shading, row/column noise (noise_terms.py)
+        signal_e = nt.mean_dark_e(signal_e, tt)
+        volts = nt.after_shot(_noise.shot_noise(signal_e, self.shot_noise, g), tt, cg, g)
         if self.read_noise_v > 0:
-            volts = volts + self.read_noise_v * _noise.normal(volts, g)
+            volts = volts + self.read_noise_v * nt.read_noise_draw(volts, g)
             if self.cds:  # the reset sample has its own read noise
-                volts = volts - self.read_noise_v * _noise.normal(volts, g)
+                volts = volts - self.read_noise_v * nt.read_noise_draw(volts, g)
         if not self.cds:  # CDS subtracts the reset level, cancelling the fixed offsets
             if self.dsnu_sigma_v > 0:
                 volts = volts + self.dsnu_sigma_v * fp["dsnu"]
@@ -510,7 +539,8 @@ class Sensor(nn.Module):
         return {"enabled": enabled, "shot_noise": self.shot_noise, "read_noise_v": self.read_noise_v,
                 "dark_current_e_per_s": self.dark_current_e_per_s, "dsnu_sigma_v": self.dsnu_sigma_v,
                 "prnu_sigma_percent": self.prnu_sigma_percent, "column_fpn_sigma_v": self.column_fpn_sigma_v,
-                "fpn_mode": self.fpn_mode, "noise_model": self.noise_model, "cds": self.cds, "seed": self.seed}
+                "fpn_mode": self.fpn_mode, "noise_model": self.noise_model, "cds": self.cds, "seed": self.seed,
+                **self.noise_terms.as_dict()}
 
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, size={self.rows}x{self.cols}, pixel={self.pixel_size_m * 1e6:g} um, "

@@ -1,0 +1,217 @@
+"""Calibration captures on disk: ``capture.yaml`` and ``dark_<ms>ms/`` / ``flat_<ms>ms/`` folders of raw frames.
+
+Layout (``isettorch calibrate DIR``)::
+
+    DIR/capture.yaml        bit_depth, pixel_size_m, [black_level_dn], [cfa], [photons_per_pixel: {ms: photons}]
+    DIR/dark_<ms>ms/*.png   >= 2 frames per exposure (16-bit PNG, 16-bit TIFF, .npy, or camera raws via rawpy),
+    DIR/flat_<ms>ms/*.tif   values in DN, from dark to saturation
+
+Every problem (missing keys, a folder with one frame, an unreadable file, a shape that differs) raises a
+``ValueError`` naming the file or folder; nothing is skipped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Capture", "read_capture", "read_frame", "write_frame", "FRAME_SUFFIXES", "RAW_SUFFIXES"]
+
+FRAME_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
+# Camera raws read through rawpy (optional extra ``raw``): DNG and the common vendor formats.
+RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".rw2", ".orf", ".pef", ".srw")
+CAPTURE_KEYS = {"bit_depth", "pixel_size_m", "black_level_dn", "cfa", "photons_per_pixel"}
+_FOLDER = re.compile(r"^(dark|flat)_([0-9]+(?:\.[0-9]+)?)ms$")
+
+
+@dataclasses.dataclass
+class Capture:
+    """A calibration capture in memory. ``dark`` / ``flat`` map exposure (ms) -> ``(N, H, W)`` float64 DN."""
+
+    bit_depth: int
+    pixel_size_m: float
+    cfa: str | None
+    black_level_dn: float | None
+    photons_per_pixel: dict[float, float] | None
+    dark: dict[float, np.ndarray]
+    flat: dict[float, np.ndarray]
+    folders: dict[tuple[str, float], str]  # (kind, ms) -> folder path, for error messages
+
+
+def read_frame(path: str | Path) -> np.ndarray:
+    """One raw frame in DN as a 2-D float64 array: 16-bit PNG/TIFF (PIL/tifffile), ``.npy`` (no pickle) or a
+    camera raw (DNG, CR2, NEF, ... via rawpy: the unprocessed mosaic ``raw_image_visible``)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            arr = np.load(path, allow_pickle=False)
+        elif suffix in (".tif", ".tiff"):
+            import tifffile
+
+            arr = tifffile.imread(path)
+        elif suffix == ".png":
+            from PIL import Image
+
+            with Image.open(path) as im:
+                if im.mode not in ("I;16", "I;16B", "I;16L", "I"):
+                    raise ValueError(f"expected a 16-bit greyscale PNG, got PIL mode {im.mode!r}")
+                arr = np.asarray(im)
+        elif suffix in RAW_SUFFIXES:
+            from .raw import read_raw
+
+            arr = read_raw(path).data
+        else:
+            raise ValueError(f"unknown frame type {suffix!r}; expected one of {FRAME_SUFFIXES + RAW_SUFFIXES}")
+    except ImportError:
+        raise
+    except Exception as err:  # any reader failure: name the file
+        raise ValueError(f"{path}: cannot read the frame ({err})") from err
+    if arr.ndim != 2 or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise ValueError(f"{path}: expected a 2-D numeric frame (H, W) in DN, got shape {arr.shape} dtype {arr.dtype}")
+    arr = arr.astype(np.float64)
+    if not np.isfinite(arr).all() or arr.min() < 0:
+        raise ValueError(f"{path}: expected finite non-negative DN values")
+    return arr
+
+
+def write_frame(path: str | Path, frame) -> None:
+    """Write a 2-D DN frame as 16-bit PNG/TIFF or ``.npy`` (by suffix); PNG/TIFF need integers in 0..65535."""
+    path = Path(path)
+    arr = np.asarray(frame)
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        np.save(path, arr, allow_pickle=False)
+        return
+    if arr.min() < 0 or arr.max() > 65535 or not np.array_equal(arr, np.round(arr)):
+        raise ValueError(f"frame: a 16-bit {suffix} needs integers in 0..65535, got {arr.min()}..{arr.max()}")
+    arr16 = arr.astype(np.uint16)
+    if suffix == ".png":
+        from PIL import Image
+
+        Image.fromarray(arr16).save(path)
+    elif suffix in (".tif", ".tiff"):
+        import tifffile
+
+        tifffile.imwrite(path, arr16)
+    else:
+        raise ValueError(f"path: expected a .png, .tif, .tiff or .npy name, got {path.name!r}")
+
+
+def _read_yaml(path: Path) -> dict:
+    import yaml
+
+    if not path.is_file():
+        raise ValueError(f"{path}: missing capture.yaml (bit_depth, pixel_size_m, optional black_level_dn, cfa, "
+                         f"photons_per_pixel)")
+    try:
+        cfg = yaml.safe_load(path.read_text())
+    except Exception as err:
+        raise ValueError(f"{path}: cannot parse YAML ({err})") from err
+    if not isinstance(cfg, dict):
+        raise ValueError(f"{path}: expected a mapping of keys, got {type(cfg).__name__}")
+    unknown = set(cfg) - CAPTURE_KEYS
+    if unknown:
+        raise ValueError(f"{path}: unknown key(s) {sorted(unknown)}; expected {sorted(CAPTURE_KEYS)}")
+    for key in ("bit_depth", "pixel_size_m"):
+        if key not in cfg:
+            raise ValueError(f"{path}: missing key {key!r} (required: bit_depth, pixel_size_m)")
+    bd = cfg["bit_depth"]
+    if not isinstance(bd, int) or not 1 <= bd <= 32:
+        raise ValueError(f"{path}: bit_depth: expected an integer in 1..32, got {bd!r}")
+    px = cfg["pixel_size_m"]
+    if not isinstance(px, (int, float)) or not (math.isfinite(px) and 0 < px < 1e-3):
+        raise ValueError(f"{path}: pixel_size_m: expected a pitch in metres (e.g. 3.45e-6), got {px!r}")
+    bl = cfg.get("black_level_dn")
+    if bl is not None and (not isinstance(bl, (int, float)) or not 0 <= bl < 2 ** bd):
+        raise ValueError(f"{path}: black_level_dn: expected a number in [0, 2^{bd}), got {bl!r}")
+    cfa = cfg.get("cfa")
+    if cfa is not None:
+        from ..sensor.cfa import CFA
+
+        try:
+            CFA(str(cfa))
+        except Exception as err:
+            raise ValueError(f"{path}: cfa: {err}") from err
+    ppp = cfg.get("photons_per_pixel")
+    if ppp is not None:
+        if not isinstance(ppp, dict):
+            raise ValueError(f"{path}: photons_per_pixel: expected a mapping {{exposure_ms: photons}}, got {ppp!r}")
+        try:
+            ppp = {float(k): float(v) for k, v in ppp.items()}
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{path}: photons_per_pixel: expected numbers, got {cfg['photons_per_pixel']!r}") from err
+        if any(v < 0 or not math.isfinite(v) for v in ppp.values()):
+            raise ValueError(f"{path}: photons_per_pixel: expected non-negative photon counts")
+    return {"bit_depth": bd, "pixel_size_m": float(px), "black_level_dn": bl, "cfa": cfa, "photons_per_pixel": ppp}
+
+
+def _frame_files(folder: Path) -> list[Path]:
+    files = []
+    for p in sorted(folder.iterdir()):
+        if p.name.startswith("."):
+            continue  # hidden files (.DS_Store, ...) are not frames
+        if p.is_dir() or p.suffix.lower() not in FRAME_SUFFIXES + RAW_SUFFIXES:
+            raise ValueError(f"{p}: not a frame; expected only {FRAME_SUFFIXES + RAW_SUFFIXES} files in {folder}")
+        files.append(p)
+    if len(files) < 2:
+        raise ValueError(f"{folder}: expected at least 2 frames (temporal noise needs a stack), found {len(files)}")
+    return files
+
+
+def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
+    """Read a calibration capture folder (see the module docstring); frames become float64 DN stacks."""
+    root = Path(directory)
+    if not root.is_dir():
+        raise ValueError(f"{root}: not a directory")
+    cfg = _read_yaml(root / "capture.yaml")
+    folders: dict[tuple[str, float], Path] = {}
+    for p in sorted(root.iterdir()):
+        if not p.is_dir() or p.name.startswith("."):
+            continue
+        m = _FOLDER.match(p.name)
+        if not m:
+            raise ValueError(f"{p}: unexpected folder; expected dark_<exposure_ms>ms or flat_<exposure_ms>ms")
+        key = (m.group(1), float(m.group(2)))
+        if key in folders:
+            raise ValueError(f"{p}: the same exposure as {folders[key]}")
+        folders[key] = p
+    for kind in ("dark", "flat"):
+        if not any(k == kind for k, _ in folders):
+            raise ValueError(f"{root}: no {kind}_<exposure_ms>ms folders; a calibration needs dark and flat stacks")
+    limit = 2 ** cfg["bit_depth"] - 1
+    jobs = [(k, folders[k], _frame_files(folders[k])) for k in sorted(folders)]
+    total = sum(len(f) for _, _, f in jobs)
+    from tqdm.auto import tqdm
+
+    stacks: dict[str, dict[float, np.ndarray]] = {"dark": {}, "flat": {}}
+    shape = None
+    first = None
+    with tqdm(total=total, desc="reading frames", unit="frame", disable=not progress) as bar:
+        for (kind, ms), _folder, files in jobs:
+            frames = []
+            for f in files:
+                arr = read_frame(f)
+                if shape is None:
+                    shape, first = arr.shape, f
+                elif arr.shape != shape:
+                    raise ValueError(f"{f}: shape {arr.shape} differs from {shape} of {first}")
+                if arr.max() > limit:
+                    raise ValueError(f"{f}: values up to {arr.max():g} DN exceed 2^bit_depth - 1 = {limit} "
+                                     f"(bit_depth {cfg['bit_depth']} in capture.yaml; are the values shifted left?)")
+                frames.append(arr)
+                bar.update(1)
+            stacks[kind][ms] = np.stack(frames)
+    ppp = cfg["photons_per_pixel"]
+    if ppp is not None:
+        missing = sorted(ms for ms in stacks["flat"] if ms not in ppp)
+        if missing:
+            raise ValueError(f"{root / 'capture.yaml'}: photons_per_pixel has no value for flat exposure(s) "
+                             f"{missing} ms")
+    return Capture(bit_depth=cfg["bit_depth"], pixel_size_m=cfg["pixel_size_m"], cfa=cfg["cfa"],
+                   black_level_dn=cfg["black_level_dn"], photons_per_pixel=ppp, dark=stacks["dark"],
+                   flat=stacks["flat"], folders={k: str(v) for k, v in folders.items()})

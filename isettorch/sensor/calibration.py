@@ -1,0 +1,396 @@
+"""Sensor calibration from dark and flat frame stacks (EMVA 1288 release 4.0 photon-transfer method), and the
+sensor config it writes.
+
+Per CFA channel (the sub-images of one colour; a monochrome sensor is one channel 'W'), from the statistics of
+:func:`isettorch.metrics.emva.temporal_noise_components` at every exposure t:
+
+* black level (DN): intercept of the mean dark signal against t; dark current (e-/s): its slope over K;
+* conversion gain K (DN/e-): slope through the origin of the pixel-wise temporal variance (row and column noise
+  removed) minus the dark's at the same t, against the dark-subtracted mean (EMVA 1288 eq. 9), over the linear range:
+  levels below 70 % of the saturation signal and before the variance peak;
+* read noise (e-): pixel-wise temporal dark variance extrapolated to t = 0 (intercept of a line in t), minus the
+  quantisation variance 1/12 DN^2 (EMVA eq. 5), square root, over K; row noise and quantisation are not in it;
+* row noise (e-): std of the per-frame row offsets from the temporal variance of the row means (ELD, Wei et al.
+  2020), averaged over the dark levels; column noise likewise;
+* DSNU (e-): spatial std of the frame-averaged dark at the shortest exposure minus the temporal residue
+  sigma^2 / N (EMVA section 8.2), over K;
+* PRNU (%): spatial std of the frame-averaged flat minus the dark average (pixel by pixel) at the level nearest half
+  saturation, temporal residues removed, over its mean;
+* full well (e-): mean of the fully saturated flats above the black level, over K (the simulator's clip level);
+* quantum efficiency: slope through the origin of the mean electrons against photons per pixel (linear range).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..metrics.emva import S2_QUANTIZATION_DN2, spatial_variance, temporal_noise_components
+
+__all__ = ["calibrate_capture", "calibrate_directory", "sensor_config", "write_sensor_config", "load_sensor_config",
+           "simulate_capture", "photon_transfer_curve", "CALIBRATION_FIELDS"]
+
+CALIBRATION_FIELDS = ("conversion_gain_dn_per_e", "read_noise_e", "row_noise_e", "column_noise_e",
+                      "dark_current_e_per_s", "dsnu_e", "dark_shading_e_per_s", "prnu_percent", "full_well_e",
+                      "black_level_dn", "quantum_efficiency")
+_LINEAR_FRACTION = 0.7  # EMVA 1288 4.0 section 6.3 / reference implementation: fits up to 70 % of saturation
+
+
+def _planes(stack: np.ndarray, cfa: str | None) -> dict[str, list[np.ndarray]]:
+    """``(N, H, W)`` -> {channel letter: [sub-image stacks]} (one stack 'W' for a monochrome sensor)."""
+    if cfa is None:
+        return {"W": [stack]}
+    from .cfa import CFA
+
+    c = CFA(str(cfa))
+    ph, pw = c.shape
+    out: dict[str, list[np.ndarray]] = {}
+    for dy in range(ph):
+        for dx in range(pw):
+            out.setdefault(c.cell[dy][dx], []).append(stack[:, dy::ph, dx::pw])
+    return out
+
+
+def _stats(planes: list[np.ndarray]) -> dict[str, Any]:
+    """Temporal components averaged over the sub-images of one channel (keeps the averages for spatial stats)."""
+    comps = [temporal_noise_components(torch.from_numpy(np.ascontiguousarray(p))) for p in planes]
+    out = {k: float(sum(float(c[k]) for c in comps) / len(comps))
+           for k in ("mean", "var", "var_pixel", "var_row", "var_col")}
+    out["averages"] = [c["average"] for c in comps]
+    out["frames"] = comps[0]["frames"]
+    return out
+
+
+def _line(x: np.ndarray, y: np.ndarray, sd: np.ndarray | None = None) -> tuple[float, float]:
+    """Least-squares (slope, intercept), weighted by 1 / sd^2 when the standard errors ``sd`` are given; a single
+    point gives slope 0."""
+    if len(x) < 2 or np.ptp(x) == 0:
+        return 0.0, float(np.mean(y))
+    slope, icpt = np.polyfit(x, y, 1, w=None if sd is None else 1 / sd)
+    return float(slope), float(icpt)
+
+
+def _spatial_sd(fixed_var: float, stats: dict, averages, other: dict | None = None) -> float:
+    """Standard error of a spatial-variance estimate of frame averages: the pixel-wise part is sampled by every pixel,
+    the temporal row (column) residue only by the rows (columns), sd^2 = 2 v_pix^2 / pixels + 2 v_row^2 / rows + ..."""
+    pixels = sum(a.numel() for a in averages)
+    rows, cols = averages[0].shape
+    v_pix, v_row, v_col = fixed_var, 0.0, 0.0
+    for st in (stats, other) if other is not None else (stats,):
+        v_pix += max(st["var_pixel"], 0.0) / st["frames"]
+        v_row += max(st["var_row"], 0.0) / st["frames"]
+        v_col += max(st["var_col"], 0.0) / st["frames"]
+    return math.sqrt(2 * v_pix ** 2 / pixels + 2 * v_row ** 2 / rows + 2 * v_col ** 2 / cols)
+
+
+def _dsnu_fit(dark: dict[float, dict]) -> tuple[float, float]:
+    """(DSNU variance at the shortest exposure, its growth b in DN^2/s^2): the spatial variances of the frame-averaged
+    darks (temporal residue removed, EMVA 8.2) fitted as a + b t^2 (a fixed offset pattern plus a dark-current
+    non-uniformity / dark shading growing with t; PMN, Feng et al. 2022), weighted by their standard errors, so
+    every dark level contributes to the estimate at the shortest exposure."""
+    ms = sorted(dark)
+    t = np.array(ms) * 1e-3
+    s2, sd = [], []
+    for k in ms:
+        d = dark[k]
+        v = [float(spatial_variance(a, d["var"], d["frames"])) for a in d["averages"]]
+        s2.append(float(np.mean(v)))
+        sd.append(_spatial_sd(abs(s2[-1]), d, d["averages"]))
+    s2, sd = np.array(s2), np.array(sd)
+    if len(ms) >= 3 and np.ptp(t) > 0:
+        (b, a), cov = np.polyfit(t ** 2, s2, 1, w=1 / sd, cov="unscaled")
+        if b > 3 * math.sqrt(cov[0, 0]):  # keep the growth only where it is significant (3 standard errors)
+            return float(a + b * t[0] ** 2), float(b)
+    w = 1 / sd ** 2
+    return float((w * s2).sum() / w.sum()), 0.0
+
+
+def _origin(x: np.ndarray, y: np.ndarray) -> float:
+    """Slope of y = a x through the origin (EMVA 1288 reference implementation ``LinearB0``)."""
+    return float((x * y).sum() / (x * x).sum())
+
+
+def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photons: dict[float, float] | None,
+             folders: dict, warnings: list[str]) -> dict[str, Any]:
+    t_d = np.array(sorted(dark)) * 1e-3
+    mu_d = np.array([dark[k]["mean"] for k in sorted(dark)])
+    vp_d = np.array([dark[k]["var_pixel"] for k in sorted(dark)])
+    dc_dn, black = _line(t_d, mu_d)
+    # the pixel-wise dark variance grows with the dark shot noise; weights 1 / var^2 (the standard error of a
+    # variance estimate is proportional to it), so the extrapolation to zero exposure rests on the short exposures
+    vslope, vicpt = _line(t_d, vp_d, vp_d)
+    if len(t_d) < 2:
+        warnings.append(f"channel {name}: one dark exposure only: the dark current and the extrapolation to zero "
+                        f"exposure need at least 2; dark_current_e_per_s is null, black level and read noise are "
+                        f"taken at {t_d[0] * 1e3:g} ms")
+    ms_f = np.array(sorted(flat))
+
+    def dark_at(ms: float, key: str) -> float:  # the dark at a flat's exposure: measured, else the fitted line
+        if ms in dark:
+            return dark[ms][key]
+        return (black + dc_dn * ms * 1e-3) if key == "mean" else (vicpt + vslope * ms * 1e-3)
+
+    mu_f = np.array([flat[k]["mean"] for k in ms_f])
+    vp_f = np.array([flat[k]["var_pixel"] for k in ms_f])
+    signal = mu_f - np.array([dark_at(k, "mean") for k in ms_f])
+    dvar = vp_f - np.array([dark_at(k, "var_pixel") for k in ms_f])
+    folder = lambda ms: folders.get(("flat", ms), f"flat_{ms:g}ms")  # noqa: E731
+
+    # saturation: flats at the top level whose temporal variance has collapsed (all pixels clipped)
+    top = mu_f.max()
+    peak = int(np.argmax(vp_f))
+    at_top = mu_f >= top - 0.005 * (top - black)
+    saturated = at_top & (vp_f < 0.25 * vp_f.max())
+    if at_top.all():
+        raise ValueError(f"channel {name}: every flat is saturated (mean {top:.1f} DN, no temporal variance), e.g. "
+                         f"{folder(ms_f[0])}; add shorter exposures")
+    sat_signal = float(signal[saturated].mean()) if saturated.any() else float(signal[peak])
+    linear = (signal <= _LINEAR_FRACTION * sat_signal) & (np.arange(len(ms_f)) <= peak) & ~saturated & (signal > 0)
+    if linear.sum() < 3:
+        raise ValueError(f"channel {name}: only {int(linear.sum())} flat exposure(s) in the linear range (signal above"
+                         f" the dark and below 70 % of saturation: {[folder(m) for m in ms_f[linear]]}); the gain "
+                         f"needs at least 3")
+    K = _origin(signal[linear], dvar[linear])
+    # robustness: drop levels whose variance/signal ratio departs from the fit by more than 5 % (non-linearity
+    # near saturation, a bad stack), refit
+    keep = linear & (np.abs(dvar / np.where(signal > 0, signal, 1) / K - 1) < 0.05)
+    if keep.sum() >= 3 and keep.sum() < linear.sum():
+        K = _origin(signal[keep], dvar[keep])
+        dropped = [folder(m) for m in ms_f[linear & ~keep]]
+        warnings.append(f"channel {name}: photon-transfer outliers left out of the gain fit: {dropped}")
+        linear = keep
+    if not K > 0:
+        raise ValueError(f"channel {name}: the photon-transfer slope is not positive (K = {K:.4g} DN/e-); are dark and "
+                         f"flat folders swapped?")
+
+    read_var = vicpt - S2_QUANTIZATION_DN2
+    if read_var < 0:
+        warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below the "
+                        f"quantisation variance 1/12 DN^2; read noise reported as 0")
+    row_var = float(np.mean([d["var_row"] for d in dark.values()]))
+    col_var = float(np.mean([d["var_col"] for d in dark.values()]))
+
+    dsnu2, shading_b = _dsnu_fit(dark)
+
+    # PRNU: (s^2 / signal^2) of the dark-subtracted flat averages (EMVA 8.2, the dark of the same or nearest exposure
+    # subtracted pixel by pixel), combined over the linear levels and the one nearest half saturation, each weighted
+    # by its standard error (a single level with few frames is dominated by the temporal residue when PRNU is small)
+    cand = np.flatnonzero(~saturated & (signal > 0))
+    half = int(cand[np.argmin(np.abs(signal[cand] - 0.5 * sat_signal))])
+    est, sds = [], []
+    for i in sorted(set(np.flatnonzero(linear).tolist()) | {half}):
+        ms = ms_f[i]
+        dms = ms if ms in dark else min(dark, key=lambda k: abs(k - ms))
+        fd, dd = flat[ms], dark[dms]
+        shift = dark_at(ms, "mean") - dd["mean"]
+        v = np.mean([float(spatial_variance(a, fd["var"], fd["frames"], b + shift, dd["var"], dd["frames"]))
+                     for a, b in zip(fd["averages"], dd["averages"])])
+        est.append(v / signal[i] ** 2)
+        sds.append(_spatial_sd(abs(v), fd, fd["averages"], dd) / signal[i] ** 2)
+    w = 1 / np.array(sds) ** 2
+    prnu2 = float((w * np.array(est)).sum() / w.sum())
+    ms = ms_f[half]
+
+    full_well = float((mu_f[saturated].mean() - black) / K) if saturated.any() else None
+    if full_well is None:
+        warnings.append(f"channel {name}: no flat reaches saturation (brightest {folder(ms_f[-1])}); full_well_e is "
+                        f"null")
+    qe = None
+    if photons is not None:
+        mu_p = np.array([photons[m] for m in ms_f])
+        if (mu_p[linear] > 0).sum() >= 2:
+            qe = _origin(mu_p[linear], signal[linear] / K)
+    return {
+        "conversion_gain_dn_per_e": K,
+        "read_noise_e": math.sqrt(max(read_var, 0.0)) / K,
+        "row_noise_e": math.sqrt(max(row_var, 0.0)) / K,
+        "column_noise_e": math.sqrt(max(col_var, 0.0)) / K,
+        "dark_current_e_per_s": dc_dn / K if len(t_d) >= 2 else None,
+        "dsnu_e": math.sqrt(max(dsnu2, 0.0)) / K,
+        "dark_shading_e_per_s": math.sqrt(shading_b) / K,
+        "prnu_percent": 100 * math.sqrt(max(prnu2, 0.0)),
+        "full_well_e": full_well,
+        "black_level_dn": black,
+        "quantum_efficiency": qe,
+        "photon_transfer": {"exposure_ms": ms_f.tolist(), "signal_dn": signal.tolist(),
+                            "variance_dn2": vp_f.tolist(), "variance_minus_dark_dn2": dvar.tolist(),
+                            "dark_exposure_ms": (t_d * 1e3).tolist(), "dark_mean_dn": mu_d.tolist(),
+                            "dark_variance_dn2": vp_d.tolist(), "linear": linear.tolist(),
+                            "saturated": saturated.tolist(), "prnu_exposure_ms": float(ms)},
+    }
+
+
+def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
+    """Calibrate a :class:`~isettorch.io.frames.Capture`; returns the JSON-ready result.
+
+    Monochrome: every field of ``CALIBRATION_FIELDS`` is a number (electrons unless named otherwise; null where it
+    cannot be measured, with the reason in ``warnings``). Colour (``cfa`` set): every field is ``{channel: value}``
+    (the sub-images of one letter pooled), and ``sensor`` holds one value per field for the whole sensor (gain,
+    read/row/column noise, PRNU: means over channels; dark current, DSNU, black level: from all pixels).
+    """
+    from tqdm.auto import tqdm
+
+    warnings: list[str] = []
+    dark_p = {ms: _planes(s, capture.cfa) for ms, s in capture.dark.items()}
+    flat_p = {ms: _planes(s, capture.cfa) for ms, s in capture.flat.items()}
+    names = list(next(iter(dark_p.values())))
+    stats: dict[str, tuple[dict, dict]] = {}
+    with tqdm(total=len(names) * (len(dark_p) + len(flat_p)), desc="statistics", unit="stack",
+              disable=not progress) as bar:
+        for n in names:
+            d, f = {}, {}
+            for ms, p in dark_p.items():
+                d[ms] = _stats(p[n])
+                bar.update(1)
+            for ms, p in flat_p.items():
+                f[ms] = _stats(p[n])
+                bar.update(1)
+            stats[n] = (d, f)
+    for ms, stack in capture.dark.items():  # a pedestal too low for the dark noise: the statistics are biased
+        frac = float((stack <= 0).mean())
+        if frac > 1e-3:
+            warnings.append(f"{capture.folders.get(('dark', ms), f'dark_{ms:g}ms')}: {100 * frac:.2g} % of the pixels "
+                            f"are at 0 DN (clipped below the black level); dark statistics are biased")
+    per = {n: _channel(n, d, f, capture.photons_per_pixel, capture.folders, warnings) for n, (d, f) in stats.items()}
+    out: dict[str, Any] = {"cfa": capture.cfa, "bit_depth": capture.bit_depth, "pixel_size_m": capture.pixel_size_m,
+                           "frame_shape": list(next(iter(capture.dark.values())).shape[-2:]),
+                           "black_level_dn_nominal": capture.black_level_dn}
+    if capture.cfa is None:
+        res = per["W"]
+        out.update({k: res[k] for k in CALIBRATION_FIELDS})
+        out["photon_transfer"] = res["photon_transfer"]
+    else:
+        for k in CALIBRATION_FIELDS:
+            out[k] = {n: per[n][k] for n in names}
+        allp = {ms: _stats([p for n in names for p in dark_p[ms][n]]) for ms in dark_p}
+        t = np.array(sorted(allp)) * 1e-3
+        dc_dn, black = _line(t, np.array([allp[k]["mean"] for k in sorted(allp)]))
+        K = float(np.mean([per[n]["conversion_gain_dn_per_e"] for n in names]))
+        dsnu2, shading_b = _dsnu_fit(allp)
+        fw = [per[n]["full_well_e"] for n in names if per[n]["full_well_e"] is not None]
+        sensor = {"conversion_gain_dn_per_e": K,
+                  "read_noise_e": float(np.sqrt(np.mean([per[n]["read_noise_e"] ** 2 for n in names]))),
+                  "row_noise_e": float(np.sqrt(np.mean([per[n]["row_noise_e"] ** 2 for n in names]))),
+                  "column_noise_e": float(np.sqrt(np.mean([per[n]["column_noise_e"] ** 2 for n in names]))),
+                  "dark_current_e_per_s": dc_dn / K if len(t) >= 2 else None, "dsnu_e": math.sqrt(max(dsnu2, 0.0)) / K,
+                  "dark_shading_e_per_s": math.sqrt(shading_b) / K,
+                  "prnu_percent": float(np.sqrt(np.mean([per[n]["prnu_percent"] ** 2 for n in names]))),
+                  # one clip level in electrons for the sensor: the channels that reach it
+                  "full_well_e": float(np.mean(fw)) if fw else None,
+                  "black_level_dn": black, "quantum_efficiency": None}
+        out["sensor"] = sensor
+        out["photon_transfer"] = {n: per[n]["photon_transfer"] for n in names}
+    out["warnings"] = warnings
+    return out
+
+
+def calibrate_directory(directory, *, progress: bool = False) -> dict[str, Any]:
+    """Read ``directory`` (:func:`isettorch.io.frames.read_capture`) and calibrate it."""
+    from ..io.frames import read_capture
+
+    return calibrate_capture(read_capture(directory, progress=progress), progress=progress)
+
+
+def _scalars(result: dict) -> dict:
+    return result["sensor"] if result.get("cfa") else {k: result[k] for k in CALIBRATION_FIELDS}
+
+
+def sensor_config(result: dict) -> dict[str, Any]:
+    """Sensor constructor arguments reproducing a calibration: a 1 V swing, so the ADC step is 2^-bits V and the
+    conversion gain K x step V/e-; noise terms in volts at the pixel; the photodiode clips at the full well."""
+    s = _scalars(result)
+    bits = int(result["bit_depth"])
+    lsb_v = 1.0 / 2 ** bits
+    cg = s["conversion_gain_dn_per_e"] * lsb_v
+    rows, cols = (int(v) for v in result["frame_shape"])
+    dsnu_t_s = min(result["photon_transfer"][n]["dark_exposure_ms"][0] for n in result["photon_transfer"]) * 1e-3 \
+        if result.get("cfa") else result["photon_transfer"]["dark_exposure_ms"][0] * 1e-3
+    cfg = {"rows": rows, "cols": cols, "pixel_size_m": float(result["pixel_size_m"]), "fill_factor": 1.0,
+           "cfa": result["cfa"] or "mono", "adc_bits": bits, "voltage_swing_v": 1.0, "conversion_gain_v_per_e": cg,
+           "black_level_dn": max(0.0, round(float(s["black_level_dn"]), 4)),
+           "read_noise_v": s["read_noise_e"] * cg, "row_noise_v": s["row_noise_e"] * cg,
+           "column_noise_v": s["column_noise_e"] * cg,
+           "dark_current_e_per_s": max(0.0, s["dark_current_e_per_s"] or 0.0),
+           # the DSNU at t = 0: the shortest exposure's minus the dark shading grown by then
+           "dsnu_sigma_v": math.sqrt(max(s["dsnu_e"] ** 2 - (s["dark_shading_e_per_s"] * dsnu_t_s) ** 2, 0.0)) * cg,
+           "dark_shading_e_per_s": s["dark_shading_e_per_s"], "prnu_sigma_percent": s["prnu_percent"],
+           "full_well_e": s["full_well_e"], "shot_noise": "poisson"}
+    return {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in cfg.items()}
+
+
+def write_sensor_config(result: dict, path) -> dict[str, Any]:
+    """Write :func:`sensor_config` as ``sensor:`` YAML (the section a camera YAML takes); returns the mapping."""
+    import yaml
+
+    cfg = sensor_config(result)
+    header = ("# Sensor calibrated by `isettorch calibrate` (EMVA 1288 photon transfer); load with\n"
+              "# Sensor.from_config(path) or paste the section into a camera YAML.\n")
+    qe = result.get("quantum_efficiency")
+    if qe is not None:
+        header += f"# measured quantum efficiency: {qe}\n"
+    Path(path).write_text(header + yaml.safe_dump({"sensor": cfg}, sort_keys=False))
+    return cfg
+
+
+def load_sensor_config(config, **overrides):
+    """A :class:`Sensor` from a YAML path or mapping of constructor arguments (``sensor:`` section accepted)."""
+    import yaml
+
+    from .sensor import Sensor
+
+    if isinstance(config, (str, Path)):
+        try:
+            config = yaml.safe_load(Path(config).read_text())
+        except OSError as err:
+            raise ValueError(f"config: cannot read {config} ({err})") from err
+    if not isinstance(config, dict):
+        raise ValueError(f"config: expected a mapping of Sensor arguments, got {type(config).__name__}")
+    cfg = dict(config.get("sensor", config))
+    cfg.update(overrides)
+    preset = cfg.pop("preset", None)
+    try:
+        return Sensor.preset(preset, **cfg) if preset else Sensor(**cfg)
+    except TypeError as err:
+        raise ValueError(f"config: {err}") from err
+
+
+def photon_transfer_curve(flat: dict[float, np.ndarray], dark: dict[float, np.ndarray], cfa: str | None
+                          ) -> dict[str, list[tuple[float, float]]]:
+    """{channel: [(dark-subtracted mean DN, temporal variance DN^2 incl. row noise)] per flat exposure}, darks
+    matched by exposure (EMVA 1288 photon-transfer data)."""
+    out: dict[str, list] = {}
+    for ms in sorted(flat):
+        fp, dp = _planes(flat[ms], cfa), _planes(dark[ms], cfa)
+        for n in fp:
+            f, d = _stats(fp[n]), _stats(dp[n])
+            out.setdefault(n, []).append((f["mean"] - d["mean"], f["var"]))
+    return out
+
+
+def simulate_capture(sensor, result: dict, frames: int = 2, generator: torch.Generator | None = None
+                     ) -> tuple[dict[float, np.ndarray], dict[float, np.ndarray]]:
+    """Simulate the calibrated capture with ``sensor`` (e.g. from :func:`load_sensor_config`): at every flat
+    exposure, a uniform electron rate per channel equal to the measured mean signal (DN) / K / t, and dark frames.
+    Returns ``(flat, dark)``: {exposure_ms: (frames, H, W) DN}."""
+    from .cfa import CFA
+
+    rows, cols = (int(v) for v in result["frame_shape"])
+    ptc = result["photon_transfer"]
+    cfa = CFA(result["cfa"] or "mono")
+    idx = cfa.channel_index(rows, cols)
+    flat, dark = {}, {}
+    for i, ms in enumerate(ptc[cfa.channel_names[0]]["exposure_ms"] if result["cfa"] else ptc["exposure_ms"]):
+        rate = torch.zeros(rows, cols, dtype=torch.float64)
+        k = _scalars(result)["conversion_gain_dn_per_e"]  # the simulated sensor has one gain
+        for c, n in enumerate(cfa.channel_names):
+            p = ptc[n] if result["cfa"] else ptc
+            rate[idx == c] = max(p["signal_dn"][i], 0.0) / k / (ms * 1e-3)
+        rate = rate.expand(frames, 1, rows, cols)
+        t = ms * 1e-3
+        flat[ms] = sensor.capture(rate, exposure_s=t, generator=generator).data[:, 0].numpy()
+        dark[ms] = sensor.capture(torch.zeros_like(rate), exposure_s=t, generator=generator).data[:, 0].numpy()
+    return flat, dark

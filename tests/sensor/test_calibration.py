@@ -1,0 +1,271 @@
+"""`isettorch calibrate`: EMVA 1288 photon-transfer calibration from frames on disk.
+
+Captures are simulated in plain NumPy with known truth (tests/sensor/numpy_capture.py: read, dark current, DSNU,
+PRNU, row noise, full-well clipping, black level, quantisation) and by isettorch's own Sensor (round trip); the
+acceptance bounds are those of issue 17 (gain 2 %, read 3 %, dark 5 %, DSNU/PRNU 10 %, row 15 %, full well 5 %,
+black level 0.5 DN, QE 3 %). benchmarks/calibration_bench.py checks many more truths and seeds.
+"""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent))
+import numpy_capture as nc  # noqa: E402
+
+from isettorch.cli import main  # noqa: E402
+from isettorch.sensor import Sensor  # noqa: E402
+from isettorch.sensor.calibration import (  # noqa: E402
+    calibrate_directory,
+    photon_transfer_curve,
+    simulate_capture,
+)
+
+
+def _cli_json(capsys, *argv):
+    rc = main(["calibrate", *map(str, argv), "--json", "--quiet"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    return json.loads(out.out)
+
+
+def _assert_bounds(err):
+    bad = {k: v for k, v in err.items() if not abs(v) < nc.bound(k)}
+    assert not bad, f"outside the bounds: {bad} (all: {err})"
+
+
+@pytest.mark.parametrize("cfa, suffix", [(None, ".png"), ("RGGB", ".tif")])
+def test_numpy_truth_is_recovered(tmp_path, capsys, cfa, suffix):
+    truth = dict(nc.TRUTH, qe=nc.BAYER_QE if cfa else {"W": 0.6})
+    dark, flat, photons = nc.simulate(truth, cfa=cfa, seed=3, frames=2)  # EMVA's minimum: 2 frames per level
+    root = nc.write_capture(tmp_path / "cap", dark, flat, bits=truth["bits"], cfa=cfa, photons=photons,
+                            suffix=suffix)
+    res = _cli_json(capsys, root)
+    _assert_bounds(nc.relative_errors(res, truth))
+    if cfa:  # per-channel values exist for every field, and the channels agree on the sensor-wide gain
+        assert set(res["conversion_gain_dn_per_e"]) == {"R", "G", "B"}
+        for n, k in res["conversion_gain_dn_per_e"].items():
+            assert abs(k / truth["gain_dn_per_e"] - 1) < 0.02, n
+
+
+def test_second_truth_low_gain_heavy_row_noise(tmp_path, capsys):
+    """A different camera: 14-bit, 1.6 DN/e- (high gain), 1.2 e- read noise, strong row noise, no dark current
+    variation in the bounds' favour."""
+    truth = dict(gain_dn_per_e=1.6, read_noise_e=1.2, dark_current_e_per_s=15.0, dsnu_e=1.5, prnu_percent=0.6,
+                 row_noise_e=0.9, full_well_e=7000.0, black_level_dn=512.0, bits=14, qe={"W": 0.45})
+    dark, flat, photons = nc.simulate(truth, seed=11, exposures_ms=np.round(np.linspace(5, 600, 14), 2),
+                                      saturate_ms=250.0)
+    root = nc.write_capture(tmp_path / "cap", dark, flat, bits=14, photons=photons, suffix=".npy")
+    _assert_bounds(nc.relative_errors(_cli_json(capsys, root), truth))
+
+
+def _sensor_capture(sensor, rate_e_per_s, exposures_ms, frames=3):
+    g = torch.Generator().manual_seed(7)
+    rate = torch.as_tensor(rate_e_per_s, dtype=torch.float64).expand(frames, 1, *rate_e_per_s.shape)
+    dark, flat = {}, {}
+    for ms in exposures_ms:
+        t = ms * 1e-3
+        flat[ms] = sensor.capture(rate, exposure_s=t, generator=g).data[:, 0].numpy()
+        dark[ms] = sensor.capture(torch.zeros_like(rate), exposure_s=t, generator=g).data[:, 0].numpy()
+    return dark, flat
+
+
+@pytest.mark.parametrize("cfa", ["mono", "GRBG"])
+def test_round_trip_isettorch_sensor(tmp_path, capsys, cfa):
+    """Sensor -> frames (16-bit PNG) -> calibrate -> the Sensor's own parameters."""
+    bits, K = 12, 0.5
+    cg = K / 2**bits  # 1 V swing: LSB = 2^-12 V, K = cg / LSB
+    s = Sensor(rows=256, cols=256, cfa=cfa, adc_bits=bits, voltage_swing_v=1.0, conversion_gain_v_per_e=cg,
+               read_noise_v=2.5 * cg, dark_current_e_per_s=80.0, dsnu_sigma_v=3.0 * cg, prnu_sigma_percent=1.5,
+               row_noise_v=0.7 * cg, full_well_e=7000.0, black_level_dn=64, seed=4)
+    qe = {"W": 0.5} if cfa == "mono" else {"R": 0.3, "G": 0.5, "B": 0.25}
+    flux = 7000 / (max(qe.values()) * 0.05)  # photons/pixel/s: the most sensitive channel saturates at 50 ms
+    idx = s.cfa.channel_index(256, 256)
+    qe_map = torch.tensor([qe[n] for n in s.cfa.channel_names], dtype=torch.float64)[idx]
+    exposures = [float(x) for x in np.round(np.linspace(1, 130, 14), 2)]
+    dark, flat = _sensor_capture(s, qe_map * flux, exposures)
+    root = nc.write_capture(tmp_path / "cap", dark, flat, bits=bits, cfa=None if cfa == "mono" else cfa,
+                            photons={ms: flux * ms * 1e-3 for ms in exposures})
+    res = _cli_json(capsys, root)
+    truth = dict(gain_dn_per_e=K, read_noise_e=2.5, dark_current_e_per_s=80.0, dsnu_e=3.0, prnu_percent=1.5,
+                 row_noise_e=0.7, full_well_e=7000.0, black_level_dn=64.0, qe=qe)
+    _assert_bounds(nc.relative_errors(res, truth))
+
+
+@pytest.mark.parametrize("cfa", ["RGGB"])  # Bayer: the harder case (per-channel curves, 1/4 of the pixels each)
+def test_sensor_config_reproduces_photon_transfer(tmp_path, capsys, cfa):
+    """--out writes a Sensor config; simulating the capture with it reproduces the measured mean-variance curve
+    (the straight line through the unsaturated (mean, temporal variance) points, evaluated at every level) within
+    2 %; single points within 3 %."""
+    truth = dict(nc.TRUTH, qe=nc.BAYER_QE if cfa else {"W": 0.6})
+    dark, flat, photons = nc.simulate(truth, cfa=cfa, seed=5, frames=6)  # 6 frames: ~0.5 % per Bayer point
+    root = nc.write_capture(tmp_path / "cap", dark, flat, bits=truth["bits"], cfa=cfa, suffix=".npy")
+    out = tmp_path / "sensor.yaml"
+    res = _cli_json(capsys, root, "--out", out)
+    sensor = Sensor.from_config(out)
+    assert sensor.noise_terms.full_well_e == pytest.approx(res["sensor"]["full_well_e"] if cfa else
+                                                            res["full_well_e"])
+    sim_flat, sim_dark = simulate_capture(sensor, res, frames=6, generator=torch.Generator().manual_seed(1))
+    measured = photon_transfer_curve({k: v.astype(float) for k, v in flat.items()},
+                                     {k: v.astype(float) for k, v in dark.items()}, cfa)
+    simulated = photon_transfer_curve(sim_flat, sim_dark, cfa)
+    checked = 0
+    for n, pts in measured.items():
+        ptc = res["photon_transfer"][n] if cfa else res["photon_transfer"]
+        keep = [i for i, sat in enumerate(ptc["saturated"]) if not sat]
+        m = np.array([pts[i] for i in keep])
+        s = np.array([simulated[n][i] for i in keep])
+        np.testing.assert_allclose(s[:, 0], m[:, 0], rtol=0.02, atol=0.5)  # mean signal, DN
+        # weights 1 / variance: each point counts by its relative error (var of a variance estimate ~ var^2)
+        m_line, s_line = (np.polyfit(a[:, 0], a[:, 1], 1, w=1 / a[:, 1]) for a in (m, s))
+        np.testing.assert_allclose(np.polyval(s_line, m[:, 0]), np.polyval(m_line, m[:, 0]), rtol=0.02)
+        np.testing.assert_allclose(s[:, 1], m[:, 1], rtol=0.03)
+        checked += len(keep)
+    assert checked >= 6
+
+
+# --- bad captures: a clear error naming the folder or file ------------------------------------------------------
+
+@pytest.fixture
+def good_capture(tmp_path):
+    truth = dict(nc.TRUTH)
+    dark, flat, _ = nc.simulate(truth, shape=(32, 32), frames=2, seed=2,
+                                exposures_ms=[1.0, 10.0, 20.0, 30.0, 40.0, 60.0, 90.0])
+    return nc.write_capture(tmp_path / "cap", dark, flat, bits=12, suffix=".npy")
+
+
+def _error(capsys, root) -> str:
+    rc = main(["calibrate", str(root), "--json", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    return err
+
+
+def test_good_small_capture_runs(capsys, good_capture):
+    res = _cli_json(capsys, good_capture)
+    assert res["full_well_e"] is not None
+
+
+def test_one_frame_names_folder(capsys, good_capture):
+    next((good_capture / "flat_20ms").glob("*.npy")).unlink()
+    assert "flat_20ms: expected at least 2 frames" in _error(capsys, good_capture)
+
+
+def test_no_darks(capsys, good_capture):
+    import shutil
+
+    for d in good_capture.glob("dark_*"):
+        shutil.rmtree(d)
+    assert "no dark_<exposure_ms>ms folders" in _error(capsys, good_capture)
+
+
+def test_everything_saturated(capsys, tmp_path):
+    dark, flat, _ = nc.simulate(nc.TRUTH, shape=(32, 32), frames=2, exposures_ms=[100.0, 150.0, 200.0])
+    root = nc.write_capture(tmp_path / "sat", dark, flat, bits=12, suffix=".npy")
+    assert "every flat is saturated" in _error(capsys, root)
+
+
+def test_mismatched_shape_names_file(capsys, good_capture):
+    np.save(good_capture / "dark_10ms" / "frame_001.npy", np.zeros((16, 32), dtype=np.uint16))
+    err = _error(capsys, good_capture)
+    assert "dark_10ms/frame_001.npy: shape (16, 32) differs" in err
+
+
+def test_unreadable_file_names_file(capsys, good_capture):
+    (good_capture / "flat_30ms" / "frame_000.npy").write_bytes(b"not an array")
+    err = _error(capsys, good_capture)
+    assert "flat_30ms/frame_000.npy: cannot read the frame" in err
+
+
+def test_eight_bit_png_rejected(capsys, good_capture):
+    from PIL import Image
+
+    Image.fromarray(np.zeros((32, 32), np.uint8)).save(good_capture / "flat_30ms" / "frame_009.png")
+    assert "frame_009.png: cannot read the frame (expected a 16-bit greyscale PNG" in _error(capsys, good_capture)
+
+
+def test_unknown_file_and_folder(capsys, good_capture):
+    (good_capture / "flat_30ms" / "notes.txt").write_text("x")
+    assert "notes.txt: not a frame" in _error(capsys, good_capture)
+    (good_capture / "flat_30ms" / "notes.txt").unlink()
+    (good_capture / "bright_5ms").mkdir()
+    assert "bright_5ms: unexpected folder" in _error(capsys, good_capture)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("pixel_size_m: 3.45e-6\n", "missing key 'bit_depth'"),
+    ("bit_depth: 12\n", "missing key 'pixel_size_m'"),
+    ("bit_depth: 12\npixel_size_m: 3.45e-6\ngain: 2\n", "unknown key(s) ['gain']"),
+    ("bit_depth: 12\npixel_size_m: 3.45e-6\ncfa: RGXB\n", "cfa:"),
+    ("bit_depth: 8\npixel_size_m: 3.45e-6\n", "exceed 2^bit_depth - 1 = 255"),
+])
+def test_bad_capture_yaml(capsys, good_capture, text, message):
+    (good_capture / "capture.yaml").write_text(text)
+    err = _error(capsys, good_capture)
+    assert "capture.yaml" in err or "exceed" in err
+    assert message in err
+
+
+def test_missing_capture_yaml(capsys, good_capture):
+    (good_capture / "capture.yaml").unlink()
+    assert "missing capture.yaml" in _error(capsys, good_capture)
+
+
+def test_unsaturated_capture_warns_and_nulls_full_well(good_capture):
+    import shutil
+
+    for ms in ("60", "90"):
+        shutil.rmtree(good_capture / f"flat_{ms}ms")
+    res = calibrate_directory(good_capture)
+    assert res["full_well_e"] is None
+    assert any("no flat reaches saturation" in w for w in res["warnings"])
+
+
+def test_report_figures(tmp_path, capsys, good_capture):
+    from PIL import Image
+
+    res = _cli_json(capsys, good_capture, "--report", tmp_path / "rep")
+    names = sorted(Path(p).name for p in res["report_figures"])
+    assert names == ["linearity.png", "photon_transfer.png", "snr.png", "spectrogram_dsnu.png",
+                     "spectrogram_prnu.png"]
+    for p in res["report_figures"]:
+        with Image.open(p) as im:
+            assert im.size[0] > 300 and im.format == "PNG"
+
+
+def test_spectrogram_finds_a_periodic_column_pattern():
+    """EMVA 8.3 spectrogram: a column pattern of period 8 gives a horizontal peak at 1/8 cycles/pixel, nothing
+    vertical; white noise of std s gives a flat amplitude s."""
+    from isettorch.metrics.emva import spectrogram
+
+    g = torch.Generator().manual_seed(0)
+    white = torch.randn(256, 512, generator=g, dtype=torch.float64)
+    f, a = spectrogram(white)
+    assert float((a[1:] ** 2).mean()) == pytest.approx(1.0, rel=0.02)
+    cols = 3 * torch.cos(2 * torch.pi * torch.arange(512) / 8).expand(256, 512) + white
+    f, a = spectrogram(cols, "horizontal")
+    assert float(f[int(a.argmax())]) == pytest.approx(1 / 8)
+    fv, av = spectrogram(cols, "vertical")
+    assert float(av[1:].max()) < 2.0  # f = 0 holds the column offsets themselves
+
+
+def test_sensor_yaml_is_a_camera_sensor_section(tmp_path, capsys, good_capture):
+    """The --out file's `sensor:` section drops into a camera YAML (Camera.from_config) unchanged."""
+    import yaml
+
+    from isettorch.camera import Camera
+
+    out = tmp_path / "s.yaml"
+    res = _cli_json(capsys, good_capture, "--out", out)
+    cfg = {"optics": {"type": "diffraction_limited", "f_number": 2.0, "focal_length_m": 0.004},
+           **yaml.safe_load(out.read_text())}
+    cam = Camera.from_config(cfg)
+    k = cam.sensor.conversion_gain_v_per_e / cam.sensor.lsb_v  # DN/e-
+    assert k == pytest.approx(res["conversion_gain_dn_per_e"], rel=1e-9)
+    assert cam.sensor.read_noise_v / cam.sensor.conversion_gain_v_per_e == pytest.approx(res["read_noise_e"])
+    assert cam.sensor.noise_terms.row_noise_v / cam.sensor.conversion_gain_v_per_e == pytest.approx(
+        res["row_noise_e"])

@@ -1,0 +1,108 @@
+"""Single-raw Poisson-Gaussian estimate (Foi et al. 2008) and camera raws through rawpy."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+import numpy_capture as nc  # noqa: E402
+
+from isettorch.sensor.noise_estimation import estimate_poisson_gaussian  # noqa: E402
+
+
+def _scene(h=768, w=768, seed=0):
+    """A clean image in DN, 2 to 3000 DN (half of it below 750 DN, where b shows), smooth gradients and sharp-edged
+    discs (edges must not bias the fit)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    img = 2 + 3000 * (xx / w) ** 2 * (0.6 + 0.4 * yy / h)
+    for _ in range(25):
+        cy, cx, r = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(10, 60)
+        img[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = rng.uniform(2, 3000)
+    return img
+
+
+@pytest.mark.parametrize("a, b", [(0.6, 4.0), (2.0, 30.0), (0.25, 1.0)])
+def test_foi_fit_recovers_known_a_b(a, b):
+    """z = a Poisson(y / a) + N(0, b): the fit returns a within 3 % and b within 10 %."""
+    rng = np.random.default_rng(1)
+    y = _scene()
+    z = a * rng.poisson(y / a) + np.sqrt(b) * rng.standard_normal(y.shape)
+    res = estimate_poisson_gaussian(z)
+    assert res["a"] == pytest.approx(a, rel=0.03)
+    assert res["b"] == pytest.approx(b, rel=0.10)
+
+
+def test_foi_fit_on_a_bayer_mosaic_with_black_level_and_clipping():
+    rng = np.random.default_rng(2)
+    y = _scene(seed=3) * np.tile([[1.0, 0.6], [0.6, 0.4]], (384, 384))  # channel gains of a Bayer mosaic
+    a, b, black, white = 0.8, 9.0, 256.0, 2800.0
+    z = np.clip(np.round(a * rng.poisson(y / a) + np.sqrt(b) * rng.standard_normal(y.shape) + black), 0, white)
+    res = estimate_poisson_gaussian(z, cfa="RGGB", black_level_dn=black, white_level_dn=white)
+    assert res["a"] == pytest.approx(a, rel=0.03)
+    assert res["b"] == pytest.approx(b + 1 / 12, rel=0.10)  # + the quantisation variance of the rounding
+
+
+def test_foi_fit_needs_a_range_of_signal():
+    with pytest.raises(ValueError, match="range of signal"):
+        estimate_poisson_gaussian(np.full((64, 64), 100.0) + np.random.default_rng(0).standard_normal((64, 64)),
+                                  min_blocks=200, levels=24)
+
+
+def test_single_raw_cli(tmp_path, capsys):
+    from isettorch.cli import main
+    from isettorch.io.frames import write_frame
+
+    rng = np.random.default_rng(4)
+    z = np.round(0.5 * rng.poisson(_scene(seed=5) / 0.5) + 2 * rng.standard_normal((768, 768)) + 100)
+    write_frame(tmp_path / "one.png", z)
+    assert main(["calibrate", str(tmp_path / "one.png"), "--json", "--quiet", "--black-level", "100"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["conversion_gain_dn_per_e"] == pytest.approx(0.5, rel=0.03)
+    assert res["read_noise_dn"] == pytest.approx(np.sqrt(4 + 1 / 12), rel=0.05)
+
+
+# --- camera raws (optional extra 'raw') -------------------------------------------------------------------------
+
+def test_dng_round_trip_through_rawpy(tmp_path):
+    rawpy = pytest.importorskip("rawpy")  # noqa: F841
+    from isettorch.io.raw import read_raw, write_dng
+
+    m = (np.arange(64 * 96).reshape(64, 96) % 4000 + 64).astype(np.uint16)
+    write_dng(tmp_path / "x.dng", m, cfa="GRBG", black_level_dn=64, white_level_dn=4095)
+    r = read_raw(tmp_path / "x.dng")
+    assert np.array_equal(r.data, m) and r.cfa == "GRBG"
+    assert r.black_level_dn == [64.0] * 4 and r.white_level_dn == 4095
+
+
+def test_calibration_from_dng_folders(tmp_path, capsys):
+    """DNG frames (written with write_dng, read by LibRaw) feed the same calibration as PNGs."""
+    pytest.importorskip("rawpy")
+    from isettorch.cli import main
+    from isettorch.io.raw import write_dng
+
+    truth = dict(nc.TRUTH, qe=nc.BAYER_QE)
+    dark, flat, _ = nc.simulate(truth, cfa="RGGB", shape=(128, 128), frames=2, seed=8)
+    root = nc.write_capture(tmp_path / "cap", {}, {}, bits=12, cfa="RGGB")
+    for kind, stacks in (("dark", dark), ("flat", flat)):
+        for ms, stack in stacks.items():
+            d = root / f"{kind}_{ms:g}ms"
+            d.mkdir()
+            for i, f in enumerate(stack):
+                write_dng(d / f"f{i}.dng", f, cfa="RGGB", black_level_dn=100, white_level_dn=4095)
+    assert main(["calibrate", str(root), "--json", "--quiet"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["sensor"]["conversion_gain_dn_per_e"] == pytest.approx(truth["gain_dn_per_e"], rel=0.02)
+    assert res["sensor"]["black_level_dn"] == pytest.approx(100, abs=0.5)
+
+
+def test_unreadable_raw_names_file(tmp_path):
+    pytest.importorskip("rawpy")
+    from isettorch.io.raw import read_raw
+
+    (tmp_path / "bad.dng").write_bytes(b"II*\x00garbage")
+    with pytest.raises(ValueError, match="bad.dng: cannot read the raw file"):
+        read_raw(tmp_path / "bad.dng")
