@@ -45,6 +45,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch.isp import learned  # noqa: E402
 from isettorch.isp.learned import DemosaicNet, demosaic_malvar_torch  # noqa: E402
 from training import common  # noqa: E402
 from training.synth import IsetScenePool, SceneSampler, augment_flips, encode, mosaic_rggb  # noqa: E402
@@ -169,7 +170,7 @@ def add_noise(raw: torch.Tensor, ab: torch.Tensor, g: torch.Generator) -> torch.
 
 
 def noise_features(ab: torch.Tensor) -> torch.Tensor:
-    return torch.stack([ab[:, 0].sqrt() * 10.0, ab[:, 1].sqrt() * 100.0], 1)
+    return learned.noise_features(ab[:, 0], ab[:, 1]).to(ab.dtype)
 
 
 def make_batch(sampler: SceneSampler, cfg: dict, seed: int, batch: int, p_gamma: float,
