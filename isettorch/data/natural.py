@@ -51,7 +51,7 @@ from .config import seed_for
 from .layouts import dead_leaves_radii
 
 __all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "natural_config", "generate_natural", "project", "to_scene",
-           "white_balanced_rgb", "hard_patch_indices", "NaturalSceneDataset"]
+           "white_balanced_rgb", "hard_patch_indices", "NaturalSceneDataset", "DOMAINS", "expose_and_encode"]
 
 NATURAL_DEFAULTS: dict = {
     "size": 128,
@@ -422,6 +422,30 @@ def hard_patch_indices(target: torch.Tensor, estimate: torch.Tensor, keep: float
     err = (target - estimate).pow(2).flatten(1).mean(1)
     n = max(1, int(round(keep * target.shape[0])))
     return err.argsort(descending=True)[:n]
+
+
+#: training domains: linear values, power-law encoded values, or a mix (``encoded_fraction`` of the images encoded)
+DOMAINS = ("linear", "encoded", "mixed")
+
+
+def expose_and_encode(rgb: torch.Tensor, generator: torch.Generator, domain: str = "mixed", *,
+                      encoded_fraction: float = 0.8, exposure=(0.6, 1.3), gamma=(1.8, 2.6)) -> torch.Tensor:
+    """Training images in ``domain`` from linear white-balanced images ``[B, C, H, W]``: a random exposure puts the
+    98th percentile at ``exposure`` (uniform), values are clipped to [0, 1] (saturation), and ``encoded`` images are
+    raised to ``1 / gamma`` (gamma uniform in ``gamma``; sRGB's is ~2.2). Benchmarks such as Kodak are 8-bit encoded
+    images scored as if linear, so the domain is an explicit choice; ``mixed`` encodes ``encoded_fraction``."""
+    if domain not in DOMAINS:
+        raise ValueError(f"domain: expected one of {DOMAINS}, got {domain!r}")
+    if rgb.dim() != 4:
+        raise ValueError(f"rgb: expected [B, C, H, W], got {tuple(rgb.shape)}")
+    b = rgb.shape[0]
+    peak = rgb.flatten(1).quantile(0.98, dim=1).clamp_min(1e-3)
+    k = (exposure[0] + (exposure[1] - exposure[0]) * torch.rand(b, generator=generator)) / peak
+    x = (rgb * k[:, None, None, None]).clamp(0, 1)
+    gam = gamma[0] + (gamma[1] - gamma[0]) * torch.rand(b, generator=generator)
+    frac = {"linear": 0.0, "encoded": 1.0, "mixed": float(encoded_fraction)}[domain]
+    use = (torch.rand(b, generator=generator) < frac)[:, None, None, None]
+    return torch.where(use, x.clamp_min(1e-8) ** (1 / gam[:, None, None, None]), x)
 
 
 class NaturalSceneDataset(torch.utils.data.Dataset):

@@ -32,6 +32,7 @@ __all__ = [
     "recovery_reflectances",
     "srgb_basis_spectra",
     "camera_sensitivities",
+    "random_sensitivities",
     "CAMERA_SENSITIVITY_NAMES",
     "reflectance_basis",
     "random_reflectances",
@@ -645,3 +646,26 @@ def camera_sensitivities(name: str, wavelengths_nm) -> torch.Tensor:
     s = spectral.resample(torch.tensor(np.asarray(m.values), dtype=torch.float64).T,
                           torch.tensor(np.asarray(m.wavelengths), dtype=torch.float64), w.to(torch.float64))
     return s / s.max()
+
+
+def random_sensitivities(wavelengths_nm, generator: torch.Generator, kinds: dict | None = None) -> torch.Tensor:
+    """Channel sensitivities ``[3, L]`` of a random camera: a measured one (:data:`CAMERA_SENSITIVITY_NAMES`),
+    the sRGB CMF camera, or a random Gaussian triplet (peaks 455/540/605 nm +- 15 nm, widths 25-50 nm), chosen
+    with ``kinds`` weights (default measured 0.35, srgb 0.35, gaussian 0.3)."""
+    kinds = dict(kinds or {"measured": 0.35, "srgb": 0.35, "gaussian": 0.3})
+    bad = set(kinds) - {"measured", "srgb", "gaussian"}
+    if bad or not kinds or min(kinds.values()) < 0 or sum(kinds.values()) <= 0:
+        raise ValueError(f"kinds: expected non-negative weights of 'measured', 'srgb', 'gaussian', got {kinds}")
+    names = list(kinds)
+    w = torch.tensor([float(kinds[k]) for k in names], dtype=torch.float64)
+    kind = names[int(torch.multinomial(w / w.sum(), 1, generator=generator))]
+    wl, _ = _grid(wavelengths_nm)
+    if kind == "measured":
+        i = int(torch.randint(0, len(CAMERA_SENSITIVITY_NAMES), (), generator=generator))
+        return camera_sensitivities(CAMERA_SENSITIVITY_NAMES[i], wl)
+    if kind == "srgb":
+        return camera_sensitivities("srgb", wl)
+    peaks = torch.tensor([455.0, 540.0, 605.0], dtype=torch.float64) + 15 * torch.randn(3, generator=generator,
+                                                                                         dtype=torch.float64)
+    widths = 25.0 + 25.0 * torch.rand(3, generator=generator, dtype=torch.float64)
+    return torch.exp(-0.5 * ((wl.to(torch.float64)[None] - peaks[:, None]) / widths[:, None]) ** 2)
