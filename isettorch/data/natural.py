@@ -30,6 +30,9 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   (0.15-0.7 cycles/pixel), thin lines (0.3-2 px) and sharp straight edges, rendered ``supersample`` x finer and
   box-averaged (pixel-area integration), so networks see moire and zipper cases.
 
+Defaults: leaf count, smallest radius and shading exponents were set so the mean power-spectrum slope of 128 px
+scenes is near the published -1.88 (benchmarks/SCENE_STATS.md); nothing was set on a photograph test set.
+
 Every draw comes from one ``torch.Generator`` seeded by ``seed_for(seed, index)``: an item depends only on
 ``(seed, index, config)``. Hard-patch mining (Gharbi, Chaurasia, Paris & Durand, SIGGRAPH Asia 2016) is
 :func:`hard_patch_indices`; a folder of the user's own photos is :class:`isettorch.data.photos.PhotoSceneDataset`.
@@ -63,11 +66,11 @@ NATURAL_DEFAULTS: dict = {
         "illuminant": {"enabled": True, "kinds": {"daylight": 0.4, "blackbody": 0.25, "led": 0.2,
                                                   "fluorescent": 0.15},
                        "mixed_probability": 0.2},
-        "dead_leaves": {"enabled": True, "leaves": [150, 500], "exponent": 3.0, "r_min_px": 1.5,
+        "dead_leaves": {"enabled": True, "leaves": [500, 1200], "exponent": 3.0, "r_min_px": 0.8,
                         "r_max_fraction": 0.5},
         "textured_leaves": {"enabled": True, "probability": 0.5, "noise_exponent": [0.8, 1.6],
                             "grating_cpp": [0.02, 0.3], "kinds": {"noise": 0.4, "grating": 0.25, "colour_line": 0.35}},
-        "colour_correlation": {"enabled": True, "exponent": [0.8, 1.4], "contrast": [0.05, 0.35]},
+        "colour_correlation": {"enabled": True, "exponent": [0.7, 1.2], "contrast": [0.05, 0.35]},
         "depth_layers": {"enabled": True, "probability": 0.4, "foreground_leaves": [3, 12],
                          "defocus_diopters": [0.0, 0.5, 1.0, 2.0], "f_number": 2.0, "focal_length_m": 0.004,
                          "pixel_size_m": 1.4e-6},
