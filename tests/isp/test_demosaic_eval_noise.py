@@ -267,3 +267,19 @@ def test_progress_bar_and_quiet(folder, capsys):
     assert "demosaic-eval bilinear" in capsys.readouterr().err
     assert main(["demosaic-eval", str(d), "--method", "bilinear", "--quiet"]) == 0
     assert "demosaic-eval" not in capsys.readouterr().err
+
+
+def test_cli_noise_flags(folder, capsys):
+    """--noise-sigma / --noise-shot / --seed / --denoise reach evaluate_demosaic: the CLI's score equals the API's."""
+    d, a = folder
+    res = _cli_json(capsys, d, "--method", "malvar2004", "--noise-sigma", "0.01", "--noise-shot", "0.002",
+                    "--seed", "3", "--denoise", "nlmeans")
+    assert (res["noise_sigma"], res["noise_shot"], res["seed"], res["denoise"]) == (0.01, 0.002, 3, "nlmeans")
+    api = ev.evaluate_demosaic([("a.png", a)], "malvar2004", noise_sigma=0.01, noise_shot=0.002, seed=3,
+                               denoise="nlmeans")
+    assert res["mean_cpsnr"] == pytest.approx(api["mean_cpsnr"], abs=1e-9)
+    noisy = _cli_json(capsys, d, "--method", "malvar2004", "--noise-sigma", "0.01", "--noise-shot", "0.002",
+                      "--seed", "3")
+    assert noisy["denoise"] is None and noisy["mean_cpsnr"] != pytest.approx(res["mean_cpsnr"], abs=1e-3)
+    with pytest.raises(ValueError, match="--model-class.*only with --model"):
+        main(["demosaic-eval", str(d), "--model-class", "a:B"])
