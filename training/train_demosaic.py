@@ -229,21 +229,50 @@ def make_sampler(cfg: dict, seed_offset: int = 0, seed: int | None = None, scene
 
 
 def noise_params(batch: int, cfg: dict, g: torch.Generator) -> torch.Tensor:
-    """[B, 2] (a, b) of ``var = a x + b`` at log-uniform random gains (x relative to white = 1): shot noise of
-    ``x / a`` electrons with ``a = gain / full_well_e`` and read noise ``b = (read_noise_e a)^2`` (EMVA 1288)."""
+    """[B, 2] (a, b) of ``var = a x + b`` at log-uniform random gains (x relative to white = 1), the photon-transfer
+    model (EMVA 1288; Foi et al. 2008): shot noise of ``x / a`` electrons, ``a = gain / full_well_e``, and
+    ``b = a^2 (read_noise_e^2 + dsnu_e^2 + dark_e) + q^2 / 12`` (read noise, DSNU, dark-current shot noise after
+    black-level subtraction, and quantisation with step ``q = 1 / (2^bits - 1)`` when ``bits`` is set)."""
     n = cfg["noise"]
     lo, hi = float(n.get("gain_min", 1.0)), float(n.get("gain_max", 32.0))
     gain = lo * (hi / lo) ** torch.rand(batch, generator=g)
     a = gain / float(n.get("full_well_e", 10000.0))
-    b = (float(n.get("read_noise_e", 3.0)) * a) ** 2
-    return torch.stack([a, b], 1)
+    add_e2 = float(n.get("read_noise_e", 3.0)) ** 2 + float(n.get("dsnu_e", 0.0)) ** 2 + float(n.get("dark_e", 0.0))
+    bits = int(n.get("bits", 0) or 0)
+    q2 = (1.0 / (2**bits - 1)) ** 2 / 12 if bits else 0.0
+    return torch.stack([a, a * a * add_e2 + q2], 1)
 
 
-def add_noise(raw: torch.Tensor, ab: torch.Tensor, g: torch.Generator) -> torch.Tensor:
-    """Poisson-Gaussian noise ``var = a x + b`` per image, drawn by the sensor's
-    :func:`isettorch.sensor.noise.poisson_gaussian` (exact Poisson shot noise plus Gaussian read noise)."""
-    return torch.stack([poisson_gaussian(raw[i].clamp_min(0), float(ab[i, 0]), float(ab[i, 1]) ** 0.5, g)
-                        for i in range(raw.shape[0])])
+def add_noise(raw: torch.Tensor, ab: torch.Tensor, g: torch.Generator, noise_cfg: dict | None = None
+              ) -> torch.Tensor:
+    """Sensor noise per image, drawn by :mod:`isettorch.sensor.noise`: PRNU (``prnu_percent``, a fixed-pattern
+    gain map), Poisson shot noise of signal + dark electrons (``dark_e``, subtracted again as a black level), DSNU
+    (``dsnu_e``), Gaussian read noise and ADC quantisation (``bits``), so the variance is ``a x + b`` of
+    :func:`noise_params` (plus the PRNU's ``(prnu x)^2``, left out of the network's noise inputs). With no
+    ``noise_cfg`` it is :func:`isettorch.sensor.noise.poisson_gaussian` (shot + Gaussian floor ``b``)."""
+    from isettorch.sensor.noise import fixed_pattern_draws, normal, round_half_away, shot_noise
+
+    if not noise_cfg:
+        return torch.stack([poisson_gaussian(raw[i].clamp_min(0), float(ab[i, 0]), float(ab[i, 1]) ** 0.5, g)
+                            for i in range(raw.shape[0])])
+    prnu = float(noise_cfg.get("prnu_percent", 0.0)) / 100
+    dark, dsnu = float(noise_cfg.get("dark_e", 0.0)), float(noise_cfg.get("dsnu_e", 0.0))
+    read, bits = float(noise_cfg.get("read_noise_e", 3.0)), int(noise_cfg.get("bits", 0) or 0)
+    out = []
+    for i in range(raw.shape[0]):
+        a = float(ab[i, 0])
+        e = raw[i].clamp_min(0).double() / a  # electrons
+        h, w = e.shape[-2:]
+        fp = fixed_pattern_draws(h, w, int(torch.randint(0, 2**62, (), generator=g)))  # this frame's sensor
+        if prnu:
+            e = e * (1 + prnu * fp["prnu"])
+        e = shot_noise(e + dark, "poisson", g) - dark + dsnu * fp["dsnu"] + read * normal(e, g)
+        x = e * a
+        if bits:
+            levels = 2**bits - 1
+            x = round_half_away(x * levels) / levels
+        out.append(x.to(raw.dtype))
+    return torch.stack(out)
 
 
 def noise_features(ab: torch.Tensor) -> torch.Tensor:
@@ -273,7 +302,9 @@ def make_batch(sampler: ScenePool | CameraPairSource, cfg: dict, seed: int, batc
     feats = None
     if cfg.get("noise", {}).get("enabled", False):
         ab = noise_params(batch, cfg, g)
-        raw = add_noise(raw, ab, g)
+        n = cfg["noise"]
+        extra = any(float(n.get(k, 0) or 0) for k in ("prnu_percent", "dark_e", "dsnu_e", "bits"))
+        raw = add_noise(raw, ab, g, n if extra else None)
         feats = noise_features(ab)
     return raw, rgb, feats
 

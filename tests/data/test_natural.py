@@ -208,3 +208,14 @@ def test_statistics_references():
     with pytest.raises(ValueError, match="image"):
         st.gradient_kurtosis(torch.ones(16, 16))
     assert math.isfinite(st.power_spectrum_slope(x))
+
+
+def test_shipped_generator_config_is_the_defaults():
+    """configs/synth/natural.yaml documents NATURAL_DEFAULTS: it loads without error and equals them."""
+    from pathlib import Path
+
+    import yaml
+
+    path = Path(__file__).resolve().parents[2] / "configs" / "synth" / "natural.yaml"
+    cfg = yaml.safe_load(path.read_text())
+    assert nat.natural_config(cfg) == nat.NATURAL_DEFAULTS

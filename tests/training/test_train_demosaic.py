@@ -135,6 +135,25 @@ def test_smoke_training_resume(tmp_path):
     assert ref["model"]["head.weight"].abs().sum() > 0
 
 
+def test_full_sensor_noise_variance_is_ax_plus_b():
+    """Shot + dark + DSNU + read + 10-bit quantisation: the empirical variance at two levels is a x + b of
+    noise_params (EMVA 1288 photon transfer), PRNU off."""
+    cfg = {"noise": {"gain_min": 4.0, "gain_max": 4.0, "full_well_e": 8000.0, "read_noise_e": 2.0, "dsnu_e": 1.5,
+                     "dark_e": 9.0, "bits": 10}}
+    g = torch.Generator().manual_seed(1)
+    ab = train_demosaic.noise_params(2, cfg, g)
+    a = 4.0 / 8000
+    b = a * a * (4.0 + 2.25 + 9.0) + (1 / 1023) ** 2 / 12
+    torch.testing.assert_close(ab, torch.tensor([[a, b], [a, b]]), rtol=1e-6, atol=0)
+    raw = torch.stack([torch.full((1, 200, 200), 0.1), torch.full((1, 200, 200), 0.5)])
+    noisy = train_demosaic.add_noise(raw, ab, g, cfg["noise"])
+    var = (noisy - raw).flatten(1).var(1)
+    torch.testing.assert_close(var, a * raw.flatten(1)[:, 0] + b, rtol=0.04, atol=0)
+    # quantised to the 10-bit grid; mean preserved (black level subtracted)
+    torch.testing.assert_close(noisy * 1023, (noisy * 1023).round(), rtol=0, atol=1e-3)
+    torch.testing.assert_close(noisy.flatten(1).mean(1), raw.flatten(1)[:, 0], rtol=0, atol=3e-4)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -152,3 +171,16 @@ def test_torchrun_ddp_two_processes(tmp_path):
     rec = json.loads((out / "record.json").read_text())
     assert rec["world_size"] == 2 and rec["steps"] == 2
     assert torch.load(out / "last.pt", map_location="cpu", weights_only=True)["step"] == 2
+
+
+def test_joint_batches_carry_noise_features():
+    cfg = common.load_config(ROOT / "configs" / "train" / "demosaic_joint_denoise.yaml")
+    smoke = common.load_config(SMOKE)
+    cfg["data"], cfg["val"] = smoke["data"], smoke["val"]
+    raw, rgb, feats = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 3, 4)
+    assert feats.shape == (4, 2) and bool((feats > 0).all())
+    noise = raw - train_demosaic.mosaic_rggb(rgb)
+    assert float(noise.std()) > 1e-3
+    # the features are sqrt(a) * 10, sqrt(b) * 100 of noise_params drawn from the same generator position
+    a = (feats[:, 0] / 10) ** 2
+    assert bool(((a >= 1.0 / 10000 * (1 - 1e-5)) & (a <= 64.0 / 10000 * (1 + 1e-5))).all())
