@@ -219,3 +219,23 @@ def test_shipped_generator_config_is_the_defaults():
     path = Path(__file__).resolve().parents[2] / "configs" / "synth" / "natural.yaml"
     cfg = yaml.safe_load(path.read_text())
     assert nat.natural_config(cfg) == nat.NATURAL_DEFAULTS
+
+
+def test_mixed_illuminants_blend_two_lights_smoothly():
+    """Two lights: the maps split into two halves (light 1, light 2) whose per-pixel shares are the same for every
+    material (the light field is spatial, not material-dependent), span a real range and vary smoothly."""
+    cfg = {"size": 48, "components": {"illuminant": {"mixed_probability": 1.0}}}
+    s = nat.generate_natural(0, 3, cfg)
+    k = s["maps"].shape[0] // 2
+    assert len(s["meta"]["illuminants"]) == 2 and s["spectra"].shape[0] == 2 * k
+    m1, m2 = s["maps"][:k].double(), s["maps"][k:].double()
+    total = m1 + m2
+    ok = total > 1e-3
+    share = torch.where(ok, m1 / total.clamp_min(1e-12), torch.nan)
+    present = ok.sum(0) >= 2  # pixels where two or more materials are seen (edges, blends, textures)
+    assert int(present.sum()) > 50
+    spread = torch.nan_to_num(share, nan=-1).amax(0) - torch.nan_to_num(share, nan=2).amin(0)
+    assert float(spread[present].max()) < 1e-5
+    field = torch.nanmean(share, 0)
+    assert float(field.max() - field.min()) > 0.2
+    assert float((field[:, 1:] - field[:, :-1]).abs().max()) < 0.2  # smooth: no jump between neighbours
