@@ -341,17 +341,15 @@ def validate(net: torch.nn.Module, val: list, device) -> dict:
 
 @torch.no_grad()
 def benchmark(net: torch.nn.Module, folder: str, device, crop: int = 10, limit: int | None = None) -> float:
-    """Mean CPSNR on a benchmark folder (RGGB, noise-free, clip, crop); reporting only."""
+    """Mean CPSNR on a benchmark folder with ``isettorch demosaic-eval``'s code (RGGB, noise-free, clip, crop;
+    a noise-input network gets zero noise); reporting only."""
+    from isettorch.isp.evaluation import evaluate_demosaic, load_images
+
     net.eval()
-    vals = []
-    for _, img in common.read_benchmark(folder, limit):
-        img = img.float().to(device)
-        h, w = img.shape[-2] // 2 * 2, img.shape[-1] // 2 * 2
-        img = img[..., :h, :w]
-        feats = torch.zeros(1, net.noise_inputs, device=device) if net.noise_inputs else None
-        vals.append(float(common.cpsnr(net(mosaic_rggb(img), feats), img, crop=crop)))
+    items = load_images(folder)[:limit]
+    res = evaluate_demosaic(items, "learned", "RGGB", crop, model=net, device=device)
     net.train()
-    return sum(vals) / len(vals)
+    return res["mean_cpsnr"]
 
 
 def progress(step: int, wall_s: float, cfg: dict) -> float:
