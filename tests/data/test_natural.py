@@ -239,3 +239,26 @@ def test_mixed_illuminants_blend_two_lights_smoothly():
     field = torch.nanmean(share, 0)
     assert float(field.max() - field.min()) > 0.2
     assert float((field[:, 1:] - field[:, :-1]).abs().max()) < 0.2  # smooth: no jump between neighbours
+
+
+def test_photo_renders_through_the_camera(tmp_path):
+    """A photo of a mid-grey (sRGB 128) half and a white half, lifted and rendered by the Camera (diffraction-limited
+    optics, Nikon D5100 sensor, no noise): in every channel the raw ratio of the halves is the *linear* ratio 0.216
+    (IEC 61966-2-1 decoding of 128/255), not the encoded 0.502; 3 % allows the Airy tails across the edge."""
+    from isettorch.camera import Camera
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.sensor import Sensor
+
+    a = np.full((64, 64, 3), 128, np.uint8)
+    a[:, 32:] = 255
+    Image.fromarray(a).save(tmp_path / "p.png")
+    item = PhotoSceneDataset(tmp_path, size=64, seed=0)[0]
+    scene = nat.to_scene(item, hfov_deg=1.0)  # 64 scene pixels ~ the 32 x 2 um sensor
+    sensor = Sensor(cfa="RGGB", filters="nikon_5100", auto_exposure="luminance", pixel_size_m=2e-6, rows=32, cols=32)
+    raw = Camera(DiffractionLimitedOptics(f_number=4.0), sensor, None, noise=False)(
+        scene, return_intermediates=True).raw.data[0, 0].double()
+    left, right = raw[4:28, 2:12], raw[4:28, 20:30]
+    expected = ((128 / 255 + 0.055) / 1.055) ** 2.4
+    for dy, dx in ((0, 0), (0, 1), (1, 1)):  # R, G, B sites
+        lo, hi = sorted([float(left[dy::2, dx::2].mean()), float(right[dy::2, dx::2].mean())])
+        assert lo / hi == pytest.approx(expected, rel=0.03)
