@@ -234,17 +234,19 @@ def _paint_leaves(cfg, g, maps, n_leaves, r_min, r_max, exponent, alpha=None):
         radii = (r_min**a + u * (r_max**a - r_min**a)) ** (1 / a)
     radii = radii.sort(descending=True).values
     drawn = radii.tolist()  # the drawn sizes (leaves falling outside the image are drawn, then not painted)
-    for r in drawn:
-        cy, cx = _u(g, -0.1 * h, 1.1 * h), _u(g, -0.1 * w, 1.1 * w)
-        shape = _ri(g, 0, 2)
-        aspect, theta = _u(g, 0.3, 1.0), _u(g, 0.0, math.pi)
-        k = _ri(g, 0, n_mat - 1)
+    # every leaf's geometry, material and brightness in one draw per quantity (the texture draws follow per leaf)
+    u = torch.rand(n_leaves, 6, generator=g, dtype=torch.float64).tolist()
+    k_all = torch.randint(0, n_mat, (n_leaves,), generator=g).tolist()
+    for r, (u_y, u_x, u_s, u_a, u_t, u_b), k in zip(drawn, u, k_all):
+        cy, cx = (-0.1 + 1.2 * u_y) * h, (-0.1 + 1.2 * u_x) * w
+        shape = min(2, int(3 * u_s))
+        aspect, theta = 0.3 + 0.7 * u_a, math.pi * u_t
+        brightness = 0.3 ** (1 - u_b)  # log-uniform in [0.3, 1]
         cov, box = _leaf_coverage(h, w, cy, cx, r, aspect, theta, shape)
         if cov is None:
             continue
         y0, y1, x0, x1 = box
         k2, t, shade = _leaf_texture(cfg, g, y1 - y0, x1 - x0, k, n_mat)
-        brightness = math.exp(_u(g, math.log(0.3), 0.0))
         region = maps[:, y0:y1, x0:x1]
         region.mul_(1 - cov)
         contrib = cov * brightness * (shade if shade is not None else 1.0)
@@ -271,11 +273,17 @@ def _defocus_psf(diopters: float, f_number: float, focal_length_m: float, pixel_
 
 
 def _blur(x: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
-    """Convolve [C, H, W] with a centred PSF, reflecting borders."""
+    """Convolve [C, H, W] with a centred odd-sized PSF [S, S] (reflected borders), in the Fourier domain."""
     r = psf.shape[-1] // 2
-    xp = F.pad(x[None], (r, r, r, r), mode="reflect") if min(x.shape[-2:]) > r else \
-        F.pad(x[None], (r, r, r, r), mode="replicate")
-    return F.conv2d(xp.transpose(0, 1), psf.flip(-1, -2)[None, None]).transpose(0, 1)[0]
+    mode = "reflect" if min(x.shape[-2:]) > r else "replicate"
+    xp = F.pad(x[None], (r, r, r, r), mode=mode)[0]
+    hp, wp = xp.shape[-2:]
+    kernel = torch.zeros(hp, wp, dtype=xp.dtype)
+    kernel[:psf.shape[-2], :psf.shape[-1]] = psf.to(xp.dtype)
+    kernel = torch.roll(kernel, (-r, -r), (0, 1))  # PSF centre at the origin
+    out = torch.fft.irfft2(torch.fft.rfft2(xp) * torch.fft.rfft2(kernel), s=(hp, wp))
+    # a non-negative PSF on non-negative maps: only the FFT's round-off (~1e-7 of the peak) can be negative
+    return out[:, r:r + x.shape[-2], r:r + x.shape[-1]].clamp_min(0)
 
 
 def _fine_detail(cfg, g, maps):
