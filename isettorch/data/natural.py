@@ -16,7 +16,8 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   ``mixed_probability`` a second light blended over the image by a smooth field (mixed illumination).
 * ``dead_leaves``: occluding leaves with the scale-invariant radius density ``p(r) ~ r^-3`` (Lee, Mumford & Huang,
   IJCV 2001; Achddou, Gousseau & Ladjal, "Synthetic images as a regularity prior for image restoration neural
-  networks", SSVM 2021 and JMIV 2023), disks / ellipses / rectangles, anti-aliased by their signed distance.
+  networks", SSVM 2021, and their 2023 follow-up), disks / ellipses / rectangles, anti-aliased by their signed
+  distance.
 * ``textured_leaves``: a leaf's interior is flat, or textured with 1/f^s noise (:func:`.textures.power_law_noise`),
   a warped grating, or a colour-line blend of two materials (Omer & Werman, CVPR 2004) (Achddou et al. 2023).
 * ``colour_correlation``: fine detail mostly achromatic: a shared multiplicative shading field (1/f^s, log-normal)
@@ -422,9 +423,9 @@ def to_scene(scene: dict, *, hfov_deg: float = 10.0, distance_m: float = 1.2, dt
 
 
 def hard_patch_indices(target: torch.Tensor, estimate: torch.Tensor, keep: float = 0.1) -> torch.Tensor:
-    """Hard-patch mining (Gharbi et al. 2016, section 4): indices of the ``keep`` fraction of patches with the
-    largest error of a baseline ``estimate`` (e.g. Malvar-He-Cutler) against ``target``, both [N, C, H, W]; MSE
-    per patch, highest first."""
+    """Hard-patch mining (after Gharbi et al. 2016, who mine hard cases with their own metrics): indices of the
+    ``keep`` fraction of patches with the largest error of a baseline ``estimate`` (e.g. Malvar-He-Cutler) against
+    ``target``, both [N, C, H, W]; MSE per patch, highest first."""
     if target.shape != estimate.shape or target.dim() != 4:
         raise ValueError(f"target, estimate: expected equal shapes [N, C, H, W], got {tuple(target.shape)}, "
                          f"{tuple(estimate.shape)}")
