@@ -56,7 +56,7 @@ def main():
             method = m
             row = {"set": label, "method": m}
             for crop in (0, 10):
-                r = evaluate_demosaic(images, method, "RGGB", crop)
+                r = evaluate_demosaic(images, method, "RGGB", crop, dtype=torch.float64)
                 row[f"crop{crop}"] = r["mean_cpsnr"]
             row["ms_float64"] = r["ms_per_image"]
             row["ms_float32"] = evaluate_demosaic(images[:6], method, "RGGB", 0, dtype=torch.float32)["ms_per_image"]

@@ -1,4 +1,4 @@
-"""Shared helpers for the training scripts: config loading, distributed setup, CPSNR, curves, benchmark folders."""
+"""Shared helpers for the training scripts: config loading, distributed setup, CPSNR (the library's), CSV, curves."""
 
 from __future__ import annotations
 
@@ -56,29 +56,11 @@ def dist_cleanup(is_dist: bool) -> None:
 
 
 def cpsnr(pred: torch.Tensor, target: torch.Tensor, crop: int = 0) -> torch.Tensor:
-    """Colour PSNR (dB) per image: 10 log10(1 / MSE) over all three channels, after clipping to [0, 1].
+    """Colour PSNR (dB) per image after clipping ``pred`` to [0, 1]: the library's
+    :func:`isettorch.isp.evaluation.cpsnr` (the convention of /work/shared/data/README.md)."""
+    from isettorch.isp.evaluation import cpsnr as _cpsnr
 
-    The convention of /work/shared/data/README.md (MSE over the whole image, ``crop`` border pixels excluded).
-    """
-    if crop:
-        pred, target = pred[..., crop:-crop, crop:-crop], target[..., crop:-crop, crop:-crop]
-    mse = (pred.clamp(0, 1) - target).double().pow(2).flatten(1).mean(1)
-    return 10 * torch.log10(1.0 / mse.clamp_min(1e-20))
-
-
-def read_benchmark(folder: str | Path, limit: int | None = None) -> list[tuple[str, torch.Tensor]]:
-    """Images of a benchmark folder as [1, 3, H, W] float64 in [0, 1] (8-bit / 255, scored as linear values)."""
-    from PIL import Image
-
-    folder = Path(folder)
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".bmp"))
-    if not files:
-        raise FileNotFoundError(f"folder: no images in {folder}")
-    out = []
-    for p in files[:limit]:
-        a = np.asarray(Image.open(p).convert("RGB"), dtype=np.float64) / 255.0
-        out.append((p.name, torch.from_numpy(a).permute(2, 0, 1)[None].contiguous()))
-    return out
+    return _cpsnr(pred.clamp(0, 1).double(), target.double(), crop)
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:

@@ -2,8 +2,9 @@
 
 Usage::
 
-    python training/make_heldout.py --out out/heldout_synth --n 24 --size 256 [--source synth|isettorch]
-    isettorch demosaic-eval out/heldout_synth --method learned --crop 10
+    python training/make_heldout.py --out out/heldout_natural --n 24 --size 256 [--source natural|isettorch]
+        [--domain mixed]
+    isettorch demosaic-eval out/heldout_natural --method learned --crop 10
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from training.synth import IsetScenePool, SceneSampler, encode  # noqa: E402
+from isettorch.data import natural as nat  # noqa: E402
+from training.train_demosaic import ScenePool  # noqa: E402
 
 HELDOUT_SEED = 3_000_029_000  # far from the training (seed, step, rank) and validation seeds
 
@@ -31,17 +33,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True)
     ap.add_argument("--n", type=int, default=24)
     ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--source", choices=("synth", "isettorch"), default="synth")
+    ap.add_argument("--source", choices=("natural", "isettorch"), default="natural")
+    ap.add_argument("--domain", choices=nat.DOMAINS, default="mixed")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    sampler = SceneSampler(size=args.size, n_shapes=int(50 * (args.size / 80) ** 1.0))
-    pool = IsetScenePool(sampler, seed=HELDOUT_SEED, scene_size=args.size, pool=args.n, refresh=1)
+    pool = ScenePool({"data": {"source": args.source, "patch": args.size, "scene_size": args.size}}, HELDOUT_SEED)
     for i in range(args.n):
         g = torch.Generator().manual_seed(HELDOUT_SEED + i)
-        img = sampler.sample(1, g) if args.source == "synth" else pool.render(i)[None]
-        x = encode(img, g, p_gamma=0.8)[0].permute(1, 2, 0).numpy()
+        x = nat.expose_and_encode(pool.render(i)[None], g, args.domain)[0].permute(1, 2, 0).numpy()
         Image.fromarray(np.round(x * 255).astype(np.uint8)).save(out / f"{args.source}_{i:03d}.png")
     return 0
 

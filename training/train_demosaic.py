@@ -1,5 +1,11 @@
 """Train the compact demosaic CNN (:class:`isettorch.isp.learned.DemosaicNet`) on synthetic scenes made on the fly.
 
+Data come only from the library: ``data.source: natural`` (default; :mod:`isettorch.data.natural`, the
+natural-statistics generator, components switched off with ``data.disable: [name, ...]``), ``isettorch``
+(:func:`isettorch.data.generate_scene`) or ``camera_pairs`` (below). ``data.domain`` (``linear``, ``encoded`` or
+``mixed`` with ``data.encoded_fraction``) is the training domain: Kodak/McMaster are 8-bit encoded sRGB mosaics
+scored as linear, so a linear-domain model and an encoded-domain model are different models.
+
 Usage::
 
     python training/train_demosaic.py --config configs/train/demosaic_noise_free.yaml [--out DIR] [--steps N]
@@ -45,14 +51,19 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch.data import natural as nat  # noqa: E402
+from isettorch.data import spectra as data_spectra  # noqa: E402
+from isettorch.data.config import seed_for  # noqa: E402
+from isettorch.isp import learned  # noqa: E402
+from isettorch.isp.demosaic import mosaic  # noqa: E402
 from isettorch.isp.learned import DemosaicNet, demosaic_malvar_torch  # noqa: E402
+from isettorch.sensor.noise import poisson_gaussian  # noqa: E402
 from training import common  # noqa: E402
-from training.synth import IsetScenePool, SceneSampler, augment_flips, encode, mosaic_rggb  # noqa: E402
 
 VAL_SEED_OFFSET = 1_000_003_000  # validation scenes use seeds far from any training (seed, step, rank)
 
 
-SOURCES = ("synth", "isettorch", "mix", "camera_pairs")
+SOURCES = ("natural", "isettorch", "camera_pairs")
 TEST_SEED_OFFSET = 2_000_006_000  # held-out camera-pair items for evaluation (dataset seed = seed + this)
 
 
@@ -121,89 +132,197 @@ def pair_batch(b: dict, patch: int, noisy: bool):
     return torch.stack(raws).float(), torch.stack(rgbs).float(), feats
 
 
-def make_sampler(cfg: dict, seed_offset: int = 0) -> SceneSampler | CameraPairSource:
+def mosaic_rggb(rgb: torch.Tensor) -> torch.Tensor:
+    """[B, 3, H, W] -> RGGB mosaic [B, 1, H, W] (the library's :func:`isettorch.isp.demosaic.mosaic`)."""
+    return mosaic(rgb, "RGGB")
+
+
+def augment_flips(img: torch.Tensor, g: torch.Generator) -> torch.Tensor:
+    """A random horizontal flip and transpose of the whole batch (even sizes keep the RGGB phase after the
+    mosaic is taken)."""
+    if float(torch.rand(1, generator=g)) < 0.5:
+        img = img.flip(-1)
+    if float(torch.rand(1, generator=g)) < 0.5:
+        img = img.transpose(-1, -2)
+    return img
+
+
+class ScenePool:
+    """White-balanced linear camera-RGB images of generated scenes, rendered once and cropped many times.
+
+    Sources: ``natural`` (:func:`isettorch.data.natural.generate_natural`, config ``data.natural``, components
+    switched off with ``data.disable``) and ``isettorch`` (:func:`isettorch.data.generate_scene`, config
+    ``data.scene_config``). Each scene gets random camera sensitivities (:func:`isettorch.data.spectra.
+    random_sensitivities`, weights ``data.sensitivities``) and is white-balanced for its main light (von Kries).
+    A scene costs far more than a training step on CPU, so ``pool`` scenes are kept and ``refresh`` new ones
+    replace the oldest at every step: at step ``s`` the pool holds scene indices ``[s * refresh, s * refresh +
+    pool)``, so every batch depends only on (seed, step) and a run resumes exactly.
+    """
+
+    def __init__(self, cfg: dict, seed: int, scene_size: int | None = None):
+        d = cfg.get("data", {})
+        self.source = d.get("source", "natural")
+        if self.source == "synth":
+            raise ValueError("data.source: 'synth' (training/synth.py) is retired; use 'natural' (isettorch.data."
+                             "natural), 'isettorch' or 'camera_pairs'")
+        if self.source not in ("natural", "isettorch"):
+            raise ValueError(f"data.source: expected one of {SOURCES}, got {self.source!r}")
+        self.patch = int(d.get("patch", 80))
+        self.scene_size = int(scene_size or d.get("scene_size", 128))
+        if self.patch < 4 or self.patch % 2 or self.scene_size < self.patch:
+            raise ValueError(f"data.patch, data.scene_size: expected an even patch >= 4 and scene_size >= patch, got "
+                             f"{self.patch}, {self.scene_size}")
+        self.seed, self.pool_size, self.refresh = int(seed), int(d.get("pool", 64)), int(d.get("refresh", 2))
+        self.sens_kinds = d.get("sensitivities") if isinstance(d.get("sensitivities"), dict) else None
+        self.natural_cfg = dict(nat.natural_config(dict(d.get("natural") or {}, size=self.scene_size),
+                                                   disable=tuple(d.get("disable") or ())), _checked=True)
+        self.scene_config = dict(d.get("scene_config") or {}, height=self.scene_size, width=self.scene_size)
+        self.scenes: dict[int, torch.Tensor] = {}
+
+    def render(self, index: int) -> torch.Tensor:
+        g = torch.Generator().manual_seed(seed_for(self.seed + 7_919, index))  # the camera's draws
+        if self.source == "natural":
+            s = nat.generate_natural(index, self.seed, self.natural_cfg)
+            sens = data_spectra.random_sensitivities(s["wavelengths_nm"], g, self.sens_kinds)
+            return nat.white_balanced_rgb(s, sens).clamp_min(0)
+        from isettorch import spectral
+        from isettorch.data import generate_scene
+
+        s = generate_scene(index, seed=self.seed, config=self.scene_config, dtype=torch.float32)
+        w = s.wavelengths_nm.to(torch.float64)
+        sens = data_spectra.random_sensitivities(w, g, self.sens_kinds)
+        m = (sens * spectral.wavelength_weights(w)).float()  # photon counting: sum_l S(l) N(l) dl
+        rgb = torch.einsum("cl,lhw->chw", m, s.photons[0])
+        return (rgb / (m @ s.illuminant_photons[0])[:, None, None]).clamp_min(0)
+
+    def advance(self, step: int) -> None:
+        lo = step * self.refresh
+        keep = range(lo, lo + self.pool_size)
+        for k in [k for k in self.scenes if k not in keep]:
+            del self.scenes[k]
+        for k in keep:
+            if k not in self.scenes:
+                self.scenes[k] = self.render(k)
+
+    def sample(self, batch: int, step: int, g: torch.Generator) -> torch.Tensor:
+        """[B, 3, patch, patch] random crops (even offsets keep the Bayer phase) from the pool at ``step``."""
+        self.advance(step)
+        keys = sorted(self.scenes)
+        p, n = self.patch, self.scene_size
+        out = []
+        for _ in range(batch):
+            img = self.scenes[keys[int(torch.randint(0, len(keys), (1,), generator=g))]]
+            y, x = (2 * int(torch.randint(0, (n - p) // 2 + 1, (1,), generator=g)) for _ in range(2))
+            out.append(img[:, y:y + p, x:x + p])
+        return torch.stack(out)
+
+
+def make_sampler(cfg: dict, seed_offset: int = 0, seed: int | None = None, scene_size: int | None = None
+                 ) -> ScenePool | CameraPairSource:
+    """The batch source of ``data.source``: a :class:`ScenePool` or a :class:`CameraPairSource`."""
     d = cfg.get("data", {})
-    source = d.get("source", "synth")
-    if source not in SOURCES:
-        raise ValueError(f"data.source: expected one of {SOURCES}, got {source!r}")
+    source = d.get("source", "natural")
     if source == "camera_pairs":
         return CameraPairSource(cfg, seed_offset)
-    return SceneSampler(size=int(d.get("patch", 96)), n_shapes=int(d.get("n_shapes", 50)),
-                        sensitivities=d.get("sensitivities", "all"))
-
-
-def make_pool(sampler: SceneSampler, cfg: dict, seed: int) -> IsetScenePool | None:
-    """The isettorch.data scene pool for sources 'isettorch' and 'mix' (None for 'synth')."""
-    d = cfg.get("data", {})
-    if d.get("source", "synth") in ("synth", "camera_pairs"):
-        return None
-    return IsetScenePool(sampler, seed=seed, scene_size=int(d.get("scene_size", 128)),
-                         pool=int(d.get("pool", 64)), refresh=int(d.get("refresh", 2)),
-                         config=d.get("scene_config"))
-
-
-def iset_count(cfg: dict, batch: int) -> int:
-    d = cfg.get("data", {})
-    src = d.get("source", "synth")
-    if src == "synth":
-        return 0
-    if src == "isettorch":
-        return batch
-    return int(round(batch * float(d.get("iset_fraction", 0.5))))
+    base = int(cfg.get("seed", 0)) * 1_000_003 if seed is None else int(seed)
+    return ScenePool(cfg, base + int(seed_offset), scene_size)
 
 
 def noise_params(batch: int, cfg: dict, g: torch.Generator) -> torch.Tensor:
-    """[B, 2] (a, b) of ``var = a x + b`` at log-uniform random gains (x relative to white = 1)."""
+    """[B, 2] (a, b) of ``var = a x + b`` at log-uniform random gains (x relative to white = 1), the photon-transfer
+    model (EMVA 1288; Foi et al. 2008): shot noise of ``x / a`` electrons, ``a = gain / full_well_e``, and
+    ``b = a^2 (read_noise_e^2 + dsnu_e^2 + dark_e) + q^2 / 12`` (read noise, DSNU, dark-current shot noise after
+    black-level subtraction, and quantisation with step ``q = 1 / (2^bits - 1)`` when ``bits`` is set)."""
     n = cfg["noise"]
     lo, hi = float(n.get("gain_min", 1.0)), float(n.get("gain_max", 32.0))
     gain = lo * (hi / lo) ** torch.rand(batch, generator=g)
     a = gain / float(n.get("full_well_e", 10000.0))
-    b = (float(n.get("read_noise_e", 3.0)) * a) ** 2
-    return torch.stack([a, b], 1)
+    add_e2 = float(n.get("read_noise_e", 3.0)) ** 2 + float(n.get("dsnu_e", 0.0)) ** 2 + float(n.get("dark_e", 0.0))
+    bits = int(n.get("bits", 0) or 0)
+    q2 = (1.0 / (2**bits - 1)) ** 2 / 12 if bits else 0.0
+    return torch.stack([a, a * a * add_e2 + q2], 1)
 
 
-def add_noise(raw: torch.Tensor, ab: torch.Tensor, g: torch.Generator) -> torch.Tensor:
-    """Poisson-Gaussian noise, Gaussian approximation var = a x + b (EMVA 1288 photon transfer)."""
-    var = ab[:, 0, None, None, None] * raw.clamp_min(0) + ab[:, 1, None, None, None]
-    return raw + var.sqrt() * torch.randn(raw.shape, generator=g)
+def add_noise(raw: torch.Tensor, ab: torch.Tensor, g: torch.Generator, noise_cfg: dict | None = None
+              ) -> torch.Tensor:
+    """Sensor noise per image, drawn by :mod:`isettorch.sensor.noise`: PRNU (``prnu_percent``, a fixed-pattern
+    gain map), Poisson shot noise of signal + dark electrons (``dark_e``, subtracted again as a black level), DSNU
+    (``dsnu_e``), Gaussian read noise and ADC quantisation (``bits``), so the variance is ``a x + b`` of
+    :func:`noise_params` (plus the PRNU's ``(prnu x)^2``, left out of the network's noise inputs). With no
+    ``noise_cfg`` it is :func:`isettorch.sensor.noise.poisson_gaussian` (shot + Gaussian floor ``b``)."""
+    from isettorch.sensor.noise import fixed_pattern_draws, normal, round_half_away, shot_noise
+
+    if not noise_cfg:
+        return torch.stack([poisson_gaussian(raw[i].clamp_min(0), float(ab[i, 0]), float(ab[i, 1]) ** 0.5, g)
+                            for i in range(raw.shape[0])])
+    prnu = float(noise_cfg.get("prnu_percent", 0.0)) / 100
+    dark, dsnu = float(noise_cfg.get("dark_e", 0.0)), float(noise_cfg.get("dsnu_e", 0.0))
+    read, bits = float(noise_cfg.get("read_noise_e", 3.0)), int(noise_cfg.get("bits", 0) or 0)
+    out = []
+    for i in range(raw.shape[0]):
+        a = float(ab[i, 0])
+        e = raw[i].clamp_min(0).double() / a  # electrons
+        h, w = e.shape[-2:]
+        fp = fixed_pattern_draws(h, w, int(torch.randint(0, 2**62, (), generator=g)))  # this frame's sensor
+        if prnu:
+            e = e * (1 + prnu * fp["prnu"])
+        e = shot_noise(e + dark, "poisson", g) - dark + dsnu * fp["dsnu"] + read * normal(e, g)
+        x = e * a
+        if bits:
+            levels = 2**bits - 1
+            x = round_half_away(x * levels) / levels
+        out.append(x.to(raw.dtype))
+    return torch.stack(out)
 
 
 def noise_features(ab: torch.Tensor) -> torch.Tensor:
-    return torch.stack([ab[:, 0].sqrt() * 10.0, ab[:, 1].sqrt() * 100.0], 1)
+    return learned.noise_features(ab[:, 0], ab[:, 1]).to(ab.dtype)
 
 
-def make_batch(sampler: SceneSampler, cfg: dict, seed: int, batch: int, p_gamma: float,
-               pool: IsetScenePool | None = None, step: int = 0):
-    """(raw [B,1,H,W], target [B,3,H,W], noise features [B,2] or None) for one (seed, step)."""
+def make_batch(sampler: ScenePool | CameraPairSource, cfg: dict, seed: int, batch: int, step: int = 0):
+    """(raw [B,1,H,W], target [B,3,H,W], noise features [B,2] or None) for one (seed, step).
+
+    ``data.domain`` (linear | encoded | mixed, ``data.encoded_fraction``) picks the training domain
+    (:func:`isettorch.data.natural.expose_and_encode`); ``data.hard_mining: k`` > 1 draws ``k x batch`` crops and
+    keeps the ``batch`` with the largest Malvar-He-Cutler error (Gharbi et al. 2016)."""
     if isinstance(sampler, CameraPairSource):
         return sampler.batch(seed, batch)
+    d = cfg.get("data", {})
     g = torch.Generator().manual_seed(int(seed))
-    n_iset = iset_count(cfg, batch) if pool is not None else 0
-    parts = [sampler.sample(batch - n_iset, g)] if batch - n_iset else []
-    if n_iset:
-        parts.append(pool.sample(n_iset, step, g))
-    rgb = encode(torch.cat(parts), g, p_gamma=p_gamma)
+    k = int(d.get("hard_mining", 0) or 0)
+    n = batch * k if k > 1 else batch
+    rgb = nat.expose_and_encode(sampler.sample(n, step, g), g, d.get("domain", "mixed"),
+                                encoded_fraction=float(d.get("encoded_fraction", 0.8)))
+    if k > 1:
+        with torch.no_grad():
+            est = demosaic_malvar_torch(mosaic_rggb(rgb))
+        rgb = rgb[nat.hard_patch_indices(rgb, est, keep=1.0 / k)[:batch].sort().values]
     rgb = augment_flips(rgb, g)
     raw = mosaic_rggb(rgb)
     feats = None
     if cfg.get("noise", {}).get("enabled", False):
         ab = noise_params(batch, cfg, g)
-        raw = add_noise(raw, ab, g)
+        n = cfg["noise"]
+        extra = any(float(n.get(k, 0) or 0) for k in ("prnu_percent", "dark_e", "dsnu_e", "bits"))
+        raw = add_noise(raw, ab, g, n if extra else None)
         feats = noise_features(ab)
     return raw, rgb, feats
 
 
-def make_validation(sampler_cfg: dict, cfg: dict) -> list:
+def make_validation(cfg: dict) -> list:
+    """Held-out synthetic validation batches: scenes of their own seed (never drawn in training), whole scenes of
+    ``val.size`` pixels, the training domain and noise; never Kodak/McMaster."""
     v = cfg.get("val", {})
-    vcfg = dict(sampler_cfg)
-    vcfg["data"] = dict(cfg.get("data", {}), patch=int(v.get("size", 128)))
-    vcfg["data"]["scene_size"] = max(int(v.get("size", 128)), int(vcfg["data"].get("scene_size", 128)))
-    sampler = make_sampler(vcfg, VAL_SEED_OFFSET)  # camera_pairs: its own dataset seed
+    size = int(v.get("size", 128))
+    vcfg = json.loads(json.dumps(cfg))
+    vcfg["data"] = dict(cfg.get("data", {}), patch=size, hard_mining=0)
+    vcfg["data"]["scene_size"] = size
     vseed = int(cfg.get("seed", 0)) + VAL_SEED_OFFSET
-    pool = make_pool(sampler, vcfg, vseed)  # held-out isettorch scenes: their own seed
+    sampler = make_sampler(vcfg, VAL_SEED_OFFSET, seed=vseed, scene_size=size)
     n, bs = int(v.get("images", 32)), 8
-    return [make_batch(sampler, vcfg, vseed + i, bs, float(cfg.get("data", {}).get("p_gamma", 0.7)), pool, i)
-            for i in range(0, n, bs)]
+    if isinstance(sampler, ScenePool):  # every validation image a different scene
+        sampler.pool_size, sampler.refresh = bs, bs // 1
+    return [make_batch(sampler, vcfg, vseed + i, min(bs, n - i), i // bs) for i in range(0, n, bs)]
 
 
 @torch.no_grad()
@@ -222,17 +341,15 @@ def validate(net: torch.nn.Module, val: list, device) -> dict:
 
 @torch.no_grad()
 def benchmark(net: torch.nn.Module, folder: str, device, crop: int = 10, limit: int | None = None) -> float:
-    """Mean CPSNR on a benchmark folder (RGGB, noise-free, clip, crop); reporting only."""
+    """Mean CPSNR on a benchmark folder with ``isettorch demosaic-eval``'s code (RGGB, noise-free, clip, crop;
+    a noise-input network gets zero noise); reporting only."""
+    from isettorch.isp.evaluation import evaluate_demosaic, load_images
+
     net.eval()
-    vals = []
-    for _, img in common.read_benchmark(folder, limit):
-        img = img.float().to(device)
-        h, w = img.shape[-2] // 2 * 2, img.shape[-1] // 2 * 2
-        img = img[..., :h, :w]
-        feats = torch.zeros(1, net.noise_inputs, device=device) if net.noise_inputs else None
-        vals.append(float(common.cpsnr(net(mosaic_rggb(img), feats), img, crop=crop)))
+    items = load_images(folder)[:limit]
+    res = evaluate_demosaic(items, "learned", "RGGB", crop, model=net, device=device)
     net.train()
-    return sum(vals) / len(vals)
+    return res["mean_cpsnr"]
 
 
 def progress(step: int, wall_s: float, cfg: dict) -> float:
@@ -259,6 +376,38 @@ def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, his
                 "train_config": json.dumps(cfg), "best_val_cpsnr": best, "history": json.dumps(history),
                 "wall_s": wall_s}, tmp)
     tmp.replace(path)
+
+
+def describe_data(cfg: dict) -> str:
+    """One line saying what the network was trained on (for the model card)."""
+    d, n = cfg.get("data", {}), cfg.get("noise", {})
+    src = d.get("source", "natural")
+    if src == "camera_pairs":
+        what = "isettorch.data.camera_pairs (scene -> optics -> isettorch sensor, its noise model)"
+    elif src == "natural":
+        off = list(d.get("disable") or [])
+        what = (f"isettorch.data.natural scenes ({'all components' if not off else 'without ' + ', '.join(off)}; "
+                f"overrides {d.get('natural') or {}}), random camera sensitivities, white-balanced")
+    else:
+        what = "isettorch.data.generate_scene scenes, random camera sensitivities, white-balanced"
+    dom = d.get("domain", "mixed")
+    dom_txt = f"{dom} domain" + (f" ({d.get('encoded_fraction', 0.8)} encoded)" if dom == "mixed" else "")
+    noise = (f"; Poisson-Gaussian noise at gains {n.get('gain_min', 1.0)}-{n.get('gain_max', 32.0)}"
+             if n.get("enabled") else "; noise-free")
+    return (f"{what}; {d.get('patch', 80)} px patches, batch {d.get('batch', 16)}, {dom_txt}{noise}; selected on "
+            f"held-out synthetic scenes; never Kodak/McMaster")
+
+
+def write_model_card(path: Path, record: dict, net) -> None:
+    """A short markdown model card beside the checkpoints: command, config, data, steps, wall time, hardware."""
+    lines = ["# DemosaicNet model card", "", f"- command: `{record['command']}`",
+             f"- network: DemosaicNet {net.config()}, {sum(p.numel() for p in net.parameters())} parameters",
+             f"- data: {record['data']}", f"- steps: {record['steps']} (world size {record['world_size']})",
+             f"- wall time: {record['wall_s']} s", f"- hardware: `{json.dumps(record['hardware'])}`",
+             f"- best held-out synthetic validation CPSNR: {record['best_val_cpsnr']}",
+             f"- last evaluation: `{json.dumps(record['final'], default=str)}`", "",
+             "## Config", "", "```json", json.dumps(record["config"], indent=2, default=str), "```", ""]
+    path.write_text("\n".join(lines))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -323,12 +472,10 @@ def main(argv: list[str] | None = None) -> int:
         model = torch.nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda"
                                                           else None)
 
-    sampler = make_sampler(cfg)
-    pool = make_pool(sampler, cfg, seed * 1_000_003 + rank)
-    val = make_validation(cfg, cfg) if rank == 0 else None
+    sampler = make_sampler(cfg, seed=seed * 1_000_003 + rank)  # each rank renders its own scenes
+    val = make_validation(cfg) if rank == 0 else None
     total = int(cfg["optim"]["steps"])
     batch = int(cfg["data"].get("batch", 16)) // world
-    p_gamma = float(cfg["data"].get("p_gamma", 0.7))
     loss_kind = cfg["optim"].get("loss", "l2")
     val_every = int(cfg.get("val", {}).get("every", 200))
     ckpt_every = int(cfg.get("checkpoint_every", 100))
@@ -347,7 +494,7 @@ def main(argv: list[str] | None = None) -> int:
         lr = lr_at(step, frac, cfg)
         for grp in opt.param_groups:
             grp["lr"] = lr
-        raw, rgb, feats = make_batch(sampler, cfg, seed * 1_000_003 + step * 1009 + rank, batch, p_gamma, pool, step)
+        raw, rgb, feats = make_batch(sampler, cfg, seed * 1_000_003 + step * 1009 + rank, batch, step)
         raw, rgb = raw.to(device), rgb.to(device)
         outp = model(raw, None if feats is None else feats.to(device))
         loss = F.l1_loss(outp, rgb) if loss_kind == "l1" else F.mse_loss(outp, rgb)
@@ -400,7 +547,9 @@ def main(argv: list[str] | None = None) -> int:
                   "config": cfg, "world_size": world, "steps": step, "best_val_cpsnr": best,
                   "wall_s": round(wall0 + time.time() - t_start, 1), "hardware": common.hardware(),
                   "final": history[-1] if history else {}}
+        record["data"] = describe_data(cfg)
         (out / "record.json").write_text(json.dumps(record, indent=2, default=str))
+        write_model_card(out / "MODEL_CARD.md", record, net)
     common.dist_cleanup(is_dist)
     return 0
 

@@ -1,25 +1,46 @@
 """``isettorch demosaic-eval DIR --method NAME``: CPSNR of a demosaic method on a folder of 8-bit images, with the
-benchmark convention of shared/data/README.md (ground truth = image / 255 as linear; noise-free mosaic; output
-clipped to [0, 1]; CPSNR over the three channels, averaged over images; ``--crop`` excludes a border)."""
+benchmark convention of shared/data/README.md (ground truth = image / 255 as linear; Bayer mosaic; output clipped
+to [0, 1]; CPSNR over the three channels, averaged over images; ``--crop`` excludes a border). ``--noise-sigma`` /
+``--noise-shot`` add seeded Poisson-Gaussian noise to the mosaic, ``--denoise`` runs a classical denoiser before a
+classical demosaic, ``--model`` scores a user's own network (see :mod:`isettorch.isp.evaluation`)."""
 
 from __future__ import annotations
 
 import json
 import math
 
+# Static (the parser is built without importing torch); tests check they equal isp.evaluation's lists.
+METHOD_NAMES = ("bilinear", "bilinear_colour", "learned", "malvar2004", "menon2007", "nearest")
+DENOISER_NAMES = ("nlmeans", "bm3d")
+
 
 def register(sub) -> None:
     p = sub.add_parser("demosaic-eval", help="score a demosaic method (CPSNR, ms/image) on a folder of 8-bit images")
     p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif images")
     p.add_argument("--method", default="bilinear",
-                   help="nearest, bilinear, bilinear_colour (colour-demosaicing border), malvar2004, menon2007, or a "
-                        "registered method such as learned")
+                   help=f"one of {', '.join(METHOD_NAMES)} (bilinear_colour: colour-demosaicing's border; "
+                        f"learned: the shipped network, its joint denoise variant when noise is asked for)")
+    p.add_argument("--model", default=None, metavar="FILE",
+                   help="score your own network instead of --method: a TorchScript archive, a DemosaicNet "
+                        "checkpoint, or a state dict with --model-class (read with torch.load(weights_only=True))")
+    p.add_argument("--model-class", default=None, metavar="MODULE:CLASS",
+                   help="class of a state-dict --model, e.g. mypkg.nets:MyDemosaic (importable from PYTHONPATH)")
+    p.add_argument("--model-kwargs", default=None, metavar="JSON", help="keyword arguments of --model-class (JSON)")
     p.add_argument("--pattern", default="RGGB", help="Bayer pattern of the simulated mosaic (default RGGB)")
     p.add_argument("--crop", type=int, default=0, help="border excluded from the score, pixels (default 0)")
-    p.add_argument("--dtype", choices=("float32", "float64"), default="float64", help="compute dtype")
+    p.add_argument("--noise-sigma", type=float, default=0.0, metavar="S",
+                   help="Gaussian noise std on the [0, 1] mosaic (default 0: noise-free)")
+    p.add_argument("--noise-shot", type=float, default=0.0, metavar="A",
+                   help="Poisson shot-noise gain: variance A x + S^2 (Foi et al. 2008; default 0)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--denoise", choices=DENOISER_NAMES, default=None,
+                   help="denoise the noisy mosaic before a classical demosaic (nlmeans: scikit-image; bm3d: the "
+                        "bm3d package, non-commercial licence, install it yourself)")
+    p.add_argument("--dtype", choices=("float32", "float64"), default="float32", help="compute dtype (float32)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
@@ -30,20 +51,40 @@ def _finite_or_none(x: float):
 def run(args) -> int:
     import torch
 
-    from ..isp.evaluation import evaluate_demosaic
+    from ..isp.evaluation import evaluate_demosaic, load_demosaic_model
 
     if args.threads is not None:
         torch.set_num_threads(args.threads)
-    res = evaluate_demosaic(args.folder, args.method, args.pattern.upper(), args.crop,
-                            dtype=getattr(torch, args.dtype), device=args.device)
+    dtype = getattr(torch, args.dtype)
+    model = None
+    if args.model is not None:
+        kwargs = None
+        if args.model_kwargs is not None:
+            try:
+                kwargs = json.loads(args.model_kwargs)
+            except json.JSONDecodeError as err:
+                raise ValueError(f"--model-kwargs: expected a JSON object, got {args.model_kwargs!r} ({err})") from err
+            if not isinstance(kwargs, dict):
+                raise ValueError(f"--model-kwargs: expected a JSON object, got {args.model_kwargs!r}")
+        model = load_demosaic_model(args.model, args.model_class, kwargs=kwargs, device=args.device, dtype=dtype)
+    elif args.model_class is not None or args.model_kwargs is not None:
+        raise ValueError("--model-class/--model-kwargs: only with --model FILE")
+    res = evaluate_demosaic(args.folder, args.method, args.pattern.upper(), args.crop, dtype=dtype,
+                            device=args.device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
+                            seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet)
     if args.json:
         res["mean_cpsnr"] = _finite_or_none(res["mean_cpsnr"])
         for item in res["images"]:
             item["cpsnr"] = _finite_or_none(item["cpsnr"])
         print(json.dumps(res, indent=2))
         return 0
-    print(f"method {res['method']}  pattern {res['pattern']}  crop {res['crop']}  ({args.dtype}, {args.device})")
+    noise = (f"  noise sigma {res['noise_sigma']:g} shot {res['noise_shot']:g} seed {res['seed']}"
+             if res["noise_sigma"] or res["noise_shot"] else "")
+    den = f"  denoise {res['denoise']}" if res["denoise"] else ""
+    print(f"method {res['method']}  pattern {res['pattern']}  crop {res['crop']}  ({args.dtype}, {args.device})"
+          f"{noise}{den}")
     for item in res["images"]:
         print(f"  {item['name']:<24s} {item['cpsnr']:8.3f} dB  {item['ms']:8.1f} ms")
-    print(f"mean CPSNR {res['mean_cpsnr']:.3f} dB over {len(res['images'])} images, {res['ms_per_image']:.1f} ms/image")
+    print(f"mean CPSNR {res['mean_cpsnr']:.3f} dB over {len(res['images'])} images, {res['ms_per_image']:.1f} "
+          f"ms/image, {res['ms_per_megapixel']:.1f} ms/MP")
     return 0

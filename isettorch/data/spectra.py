@@ -28,6 +28,12 @@ from .. import spectral
 from .._checks import check_wavelengths
 
 __all__ = [
+    "measured_reflectances",
+    "recovery_reflectances",
+    "srgb_basis_spectra",
+    "camera_sensitivities",
+    "random_sensitivities",
+    "CAMERA_SENSITIVITY_NAMES",
     "reflectance_basis",
     "random_reflectances",
     "sigmoid_polynomial_reflectance",
@@ -559,3 +565,107 @@ def random_illuminant(kind: str, wavelengths_nm, generator: torch.Generator, cct
         else:
             spd = _led(t, *_led_params(t, None, None, None, np), key, None, np)
     return _to_torch(spd[0], dtype, w.device), cct, kind
+
+
+# ------------------------------------------------------------------------------------------------
+# Natural palettes and camera sensitivities (the natural-scene generator, :mod:`.natural`)
+
+
+def measured_reflectances(wavelengths_nm, *, dtype=torch.float64) -> torch.Tensor:
+    """The measured reflectances shipped by colour-science (ColorCheckers: BabelColor, N Ohta, ISO 17321-1, PMC;
+    CIE 1995 TCS; NIST CQS 9.0 VS) resampled to the grid: ``[N, L]`` in [0, 1]."""
+    w, _ = _grid(wavelengths_nm)
+    wave, r = _measured_reflectances()
+    out = spectral.resample(torch.from_numpy(r), torch.from_numpy(wave), w.to(torch.float64))
+    return out.clamp(0.0, 1.0).to(dtype)
+
+
+@functools.lru_cache(maxsize=16)
+def _srgb_basis(grid: tuple) -> torch.Tensor:
+    from colour.recovery import MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019 as basis
+
+    b = torch.from_numpy(np.asarray(basis.values, dtype=np.float64)).T  # [3, M], columns R, G, B
+    src = torch.from_numpy(np.asarray(basis.wavelengths, dtype=np.float64))
+    return spectral.resample(b, src, torch.tensor(grid, dtype=torch.float64))
+
+
+def srgb_basis_spectra(wavelengths_nm) -> torch.Tensor:
+    """Mallett & Yuksel's sRGB basis spectra ``[3, L]`` (``colour.recovery``, "Spectral primary decomposition for
+    rendering with sRGB reflectance", EGSR 2019): a linear sRGB triplet ``c`` in [0, 1] is the reflectance
+    ``c @ basis``, in [0, 1] at every wavelength, whose sRGB under D65 is ``c`` (the decomposition is linear, so
+    an RGB image lifts to a factored spectral image of three maps)."""
+    _, key = _grid(wavelengths_nm)
+    return _srgb_basis(key)
+
+
+def recovery_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *, chroma_beta=(1.2, 4.0),
+                          albedo_range=(0.03, 0.9)) -> torch.Tensor:
+    """``n`` reflectances ``[n, L]`` of natural chromaticities upsampled with ``colour.recovery`` (the linear
+    Mallett & Yuksel 2019 sRGB basis, :func:`srgb_basis_spectra`).
+
+    Colours are drawn in HSV of linear sRGB: hue uniform, saturation ~ Beta(``chroma_beta``) (most natural
+    surfaces are weakly saturated; the default's mean is 0.23), value (albedo) log-uniform in ``albedo_range``.
+    """
+    if not 0 < albedo_range[0] < albedo_range[1] <= 1:
+        raise ValueError(f"albedo_range: expected 0 < lo < hi <= 1, got {albedo_range}")
+    hue = torch.rand(n, generator=generator, dtype=torch.float64)
+    from scipy.stats import beta as _beta
+
+    # Beta by inverse CDF of a uniform draw: every random number comes from the generator
+    u = torch.rand(n, generator=generator, dtype=torch.float64).numpy()
+    sat = torch.from_numpy(_beta.ppf(u, float(chroma_beta[0]), float(chroma_beta[1])))
+    lo, hi = (math.log(v) for v in albedo_range)
+    val = torch.exp(lo + (hi - lo) * torch.rand(n, generator=generator, dtype=torch.float64))
+    # HSV -> RGB (Smith 1978)
+    h6 = hue * 6.0
+    k = torch.stack([(5.0 + h6) % 6, (3.0 + h6) % 6, (1.0 + h6) % 6], 1)
+    rgb = val[:, None] * (1 - sat[:, None] * torch.clamp(torch.minimum(k, 4 - k), 0, 1))
+    w, _ = _grid(wavelengths_nm)
+    return (rgb @ srgb_basis_spectra(w)).clamp(0.0, 1.0).to(_out_dtype(w))
+
+
+#: measured camera sensitivities shipped by colour-science (NPL measurements) usable by name
+CAMERA_SENSITIVITY_NAMES = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")
+
+
+def camera_sensitivities(name: str, wavelengths_nm) -> torch.Tensor:
+    """Channel sensitivities ``[3, L]`` (peak 1) of a measured camera (``CAMERA_SENSITIVITY_NAMES``), or
+    ``"srgb"``: the CIE 1931 CMFs through the IEC 61966-2-1 XYZ -> linear sRGB matrix (a camera whose
+    white-balanced output is linear sRGB; negative lobes kept)."""
+    w, key = _grid(wavelengths_nm)
+    if name == "srgb":
+        from ..image import XYZ_TO_LINEAR_SRGB
+
+        return torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ spectral.cmfs(w.to(torch.float64),
+                                                                                   dtype=torch.float64)
+    if name not in CAMERA_SENSITIVITY_NAMES:
+        raise ValueError(f"name: expected one of {CAMERA_SENSITIVITY_NAMES + ('srgb',)}, got {name!r}")
+    import colour
+
+    m = colour.characterisation.MSDS_CAMERA_SENSITIVITIES[name]
+    s = spectral.resample(torch.tensor(np.asarray(m.values), dtype=torch.float64).T,
+                          torch.tensor(np.asarray(m.wavelengths), dtype=torch.float64), w.to(torch.float64))
+    return s / s.max()
+
+
+def random_sensitivities(wavelengths_nm, generator: torch.Generator, kinds: dict | None = None) -> torch.Tensor:
+    """Channel sensitivities ``[3, L]`` of a random camera: a measured one (:data:`CAMERA_SENSITIVITY_NAMES`),
+    the sRGB CMF camera, or a random Gaussian triplet (peaks 455/540/605 nm +- 15 nm, widths 25-50 nm), chosen
+    with ``kinds`` weights (default measured 0.35, srgb 0.35, gaussian 0.3)."""
+    kinds = dict(kinds or {"measured": 0.35, "srgb": 0.35, "gaussian": 0.3})
+    bad = set(kinds) - {"measured", "srgb", "gaussian"}
+    if bad or not kinds or min(kinds.values()) < 0 or sum(kinds.values()) <= 0:
+        raise ValueError(f"kinds: expected non-negative weights of 'measured', 'srgb', 'gaussian', got {kinds}")
+    names = list(kinds)
+    w = torch.tensor([float(kinds[k]) for k in names], dtype=torch.float64)
+    kind = names[int(torch.multinomial(w / w.sum(), 1, generator=generator))]
+    wl, _ = _grid(wavelengths_nm)
+    if kind == "measured":
+        i = int(torch.randint(0, len(CAMERA_SENSITIVITY_NAMES), (), generator=generator))
+        return camera_sensitivities(CAMERA_SENSITIVITY_NAMES[i], wl)
+    if kind == "srgb":
+        return camera_sensitivities("srgb", wl)
+    peaks = torch.tensor([455.0, 540.0, 605.0], dtype=torch.float64) + 15 * torch.randn(3, generator=generator,
+                                                                                         dtype=torch.float64)
+    widths = 25.0 + 25.0 * torch.rand(3, generator=generator, dtype=torch.float64)
+    return torch.exp(-0.5 * ((wl.to(torch.float64)[None] - peaks[:, None]) / widths[:, None]) ** 2)

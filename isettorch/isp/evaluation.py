@@ -1,6 +1,16 @@
 """Demosaic benchmark scoring (the convention of shared/data/README.md): ground truth = 8-bit image / 255 taken as
-linear values; noise-free Bayer mosaic; output clipped to [0, 1]; CPSNR = 10 log10(1 / MSE) with the MSE over the
-three channels of the (optionally cropped) image; the mean CPSNR over images is reported."""
+linear values; Bayer mosaic (noise-free unless asked); output clipped to [0, 1]; CPSNR = 10 log10(1 / MSE) with the
+MSE over the three channels of the (optionally cropped) image; the mean CPSNR over images is reported.
+
+Noisy benchmarks (``noise_sigma``, ``noise_shot``): Poisson-Gaussian noise ``var = a x + sigma^2`` on the [0, 1]
+mosaic, drawn by :func:`isettorch.sensor.noise.poisson_gaussian` from a generator seeded by (seed, image index), in
+float64 on the CPU (the same noise for every dtype, device and method), not clipped. The sequential baseline
+(``denoise``) denoises the mosaic before a classical demosaic: ``nlmeans`` (scikit-image's non-local means, Buades,
+Coll & Morel CVPR 2005) or ``bm3d`` (Dabov et al. IEEE TIP 2007; the ``bm3d`` package, installed by the user: its
+licence allows non-commercial use only, so it is no dependency of isettorch), each on the four CFA sub-planes
+separately, with the generalised Anscombe transform (Makitalo & Foi, IEEE TIP 2013) when the noise is
+signal-dependent. The ``learned`` method takes the joint denoise+demosaic network, given the noise level, when noise
+is asked for."""
 
 from __future__ import annotations
 
@@ -12,11 +22,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .demosaic import demosaic, mosaic
+from .demosaic import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 
-__all__ = ["IMAGE_SUFFIXES", "cpsnr", "evaluate_demosaic", "load_images"]
+__all__ = ["DENOISERS", "IMAGE_SUFFIXES", "available_methods", "cpsnr", "denoise_mosaic", "evaluate_demosaic",
+           "load_demosaic_model", "load_images", "noisy_mosaic"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+#: classical denoisers for the sequential (denoise, then demosaic) baseline
+DENOISERS = ("nlmeans", "bm3d")
+
+
+def available_methods() -> list[str]:
+    """Every demosaic method name ``evaluate_demosaic`` accepts: the registry and its lazily imported methods
+    (``learned``)."""
+    return sorted(set(METHODS) | set(_LAZY_METHODS))
 
 
 def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: float = 1.0) -> torch.Tensor:
@@ -64,50 +83,275 @@ def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
     return out
 
 
+def _image_seed(seed: int, index: int) -> int:
+    """A 63-bit seed for image ``index`` of a run seeded ``seed`` (splitmix64 finaliser; distinct for distinct
+    pairs in practice, independent of the image order of other runs)."""
+    z = (int(seed) * 0x9E3779B97F4A7C15 + int(index) + 1) & (2**64 - 1)
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & (2**64 - 1)
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & (2**64 - 1)
+    return (z ^ (z >> 31)) & (2**63 - 1)
+
+
+def _check_noise(noise_sigma: float, noise_shot: float) -> tuple[float, float]:
+    s, a = float(noise_sigma), float(noise_shot)
+    if not (math.isfinite(s) and s >= 0):
+        raise ValueError(f"noise_sigma: expected a finite standard deviation >= 0 (of the [0, 1] mosaic), "
+                         f"got {noise_sigma}")
+    if not (math.isfinite(a) and a >= 0):
+        raise ValueError(f"noise_shot: expected a finite shot-noise gain a >= 0 (var = a x + sigma^2), "
+                         f"got {noise_shot}")
+    return s, a
+
+
+def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float = 0.0, *, seed: int = 0,
+                 index: int = 0) -> torch.Tensor:
+    """The benchmark's noisy mosaic: ``raw`` (B, 1, H, W) in [0, 1] plus noise of variance ``noise_shot * x +
+    noise_sigma^2`` (:func:`isettorch.sensor.noise.poisson_gaussian`, Foi et al. 2008), drawn in float64 on the CPU
+    from a generator seeded by ``(seed, index)``; returned in ``raw``'s dtype and device, not clipped."""
+    from ..sensor.noise import poisson_gaussian
+
+    s, a = _check_noise(noise_sigma, noise_shot)
+    if s == 0 and a == 0:
+        return raw
+    g = torch.Generator().manual_seed(_image_seed(seed, index))
+    x = raw.detach().to("cpu", torch.float64)
+    return poisson_gaussian(x, a, s, g).to(device=raw.device, dtype=raw.dtype)
+
+
+def _anscombe(z, a, b):
+    """Generalised Anscombe transform (Makitalo & Foi 2013, eq. 2, mu = 0): unit variance for var = a z + b."""
+    return (2.0 / a) * np.sqrt(np.maximum(a * z + 0.375 * a * a + b, 0.0))
+
+
+def _anscombe_inverse(y, a, b):
+    """Algebraic inverse of :func:`_anscombe` (biased at very low counts; Makitalo & Foi 2013 give the exact
+    unbiased one)."""
+    return 0.25 * a * y * y - 0.375 * a - b / a
+
+
+def _denoise_plane(plane: np.ndarray, sigma: float, method: str) -> np.ndarray:
+    if method == "nlmeans":
+        from skimage.restoration import denoise_nl_means
+
+        # h = 0.6 sigma with sigma given and fast mode: scikit-image's documented setting (gallery "Non-local means
+        # denoising for preserving textures"); patch 5 x 5, search 13 x 13. Fixed, never tuned on a test set.
+        return denoise_nl_means(plane, h=0.6 * sigma, sigma=sigma, patch_size=5, patch_distance=6, fast_mode=True)
+    try:
+        import bm3d
+    except ModuleNotFoundError as err:
+        raise ValueError("denoise: 'bm3d' needs the bm3d package (pip install bm3d; its licence allows "
+                         "non-commercial use only, so isettorch does not depend on it)") from err
+    return np.asarray(bm3d.bm3d(plane, sigma_psd=sigma), dtype=np.float64)
+
+
+def denoise_mosaic(raw: torch.Tensor, method: str, noise_sigma: float = 0.0, noise_shot: float = 0.0
+                   ) -> torch.Tensor:
+    """Denoise a Bayer mosaic (B, 1, H, W) with a classical denoiser on each of its four CFA sub-planes (every
+    sub-plane holds one colour, so a grey-level denoiser applies), for noise ``var = noise_shot x + noise_sigma^2``.
+
+    Signal-dependent noise (``noise_shot > 0``) is stabilised with the generalised Anscombe transform first
+    (Makitalo & Foi 2013) and denoised at unit sigma. Returns the same shape, dtype and device.
+    """
+    if method not in DENOISERS:
+        raise ValueError(f"denoise: expected one of {DENOISERS}, got {method!r}")
+    s, a = _check_noise(noise_sigma, noise_shot)
+    if s == 0 and a == 0:
+        raise ValueError(f"denoise: {method!r} needs a noise level (noise_sigma or noise_shot > 0)")
+    if raw.dim() != 4 or raw.shape[1] != 1 or raw.shape[-2] % 2 or raw.shape[-1] % 2:
+        raise ValueError(f"raw: expected a Bayer mosaic (B, 1, H, W) with even H and W, got {tuple(raw.shape)}")
+    x = raw.detach().to("cpu", torch.float64).numpy().copy()
+    b = s * s
+    for i in range(x.shape[0]):
+        for dy in (0, 1):
+            for dx in (0, 1):
+                plane = x[i, 0, dy::2, dx::2]
+                if a > 0:
+                    y = _denoise_plane(_anscombe(plane, a, b), 1.0, method)
+                    x[i, 0, dy::2, dx::2] = _anscombe_inverse(y, a, b)
+                else:
+                    x[i, 0, dy::2, dx::2] = _denoise_plane(plane, s, method)
+    return torch.from_numpy(x).to(device=raw.device, dtype=raw.dtype)
+
+
+def load_demosaic_model(path: str | Path, class_path: str | None = None, *, kwargs: dict | None = None,
+                        device="cpu", dtype=torch.float32) -> torch.nn.Module:
+    """A user's demosaic network from ``path``: a TorchScript archive (``torch.jit.save``), a checkpoint of
+    :class:`isettorch.isp.learned.DemosaicNet` (``training/train_demosaic.py``), or a state dict of the class
+    ``class_path`` (``"package.module:Class"``, built with ``kwargs``). Weights are read with
+    ``torch.load(weights_only=True)`` (no pickle). Returned in eval mode on ``device``/``dtype``.
+
+    The network is called as ``net(raw)`` (``raw`` (B, 1, H, W) Bayer mosaic in [0, 1], pattern as evaluated) and
+    returns (B, 3, H, W); a :class:`DemosaicNet` with noise inputs is also given the noise level.
+    A TorchScript archive holds code: load only your own.
+    """
+    import importlib
+    import zipfile
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"model: expected a TorchScript or state-dict file, {str(path)!r} does not exist")
+    is_script = False
+    if zipfile.is_zipfile(path):
+        with zipfile.ZipFile(path) as zf:
+            is_script = any(n.endswith("constants.pkl") or "/code/" in n for n in zf.namelist())
+    if is_script:
+        if class_path is not None:
+            raise ValueError(f"model_class: {path.name} is a TorchScript archive (it carries its class); "
+                             f"got model_class {class_path!r} as well")
+        net = torch.jit.load(str(path), map_location="cpu")
+        return net.to(device=device, dtype=dtype).eval()
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - the file is not a weights-only checkpoint: say what was expected
+        raise ValueError(f"model: {str(path)!r} is neither a TorchScript archive nor a weights-only state dict "
+                         f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from err
+    if isinstance(state, dict) and "model" in state and "net_config" in state and class_path is None:
+        from .learned import load_checkpoint
+
+        return load_checkpoint(path, device=device, dtype=dtype)[0]
+    if class_path is None:
+        raise ValueError(f"model_class: {path.name} is a state dict; give the network's class as "
+                         f"'package.module:Class'")
+    if not isinstance(class_path, str) or class_path.count(":") != 1:
+        raise ValueError(f"model_class: expected 'package.module:Class', got {class_path!r}")
+    mod_name, cls_name = class_path.split(":")
+    try:
+        cls = getattr(importlib.import_module(mod_name), cls_name)
+    except (ImportError, AttributeError) as err:
+        raise ValueError(f"model_class: cannot import {class_path!r} ({err})") from err
+    net = cls(**(kwargs or {}))
+    if not isinstance(net, torch.nn.Module):
+        raise ValueError(f"model_class: {class_path!r} does not build a torch.nn.Module")
+    if isinstance(state, dict) and "model" in state and isinstance(state["model"], dict):
+        state = state["model"]
+    net.load_state_dict(state)
+    return net.to(device=device, dtype=dtype).eval()
+
+
 def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str = "RGGB", crop: int = 0, *,
-                      dtype: torch.dtype = torch.float64, device="cpu", **kwargs) -> dict:
+                      dtype: torch.dtype = torch.float32, device="cpu", noise_sigma: float = 0.0,
+                      noise_shot: float = 0.0, seed: int = 0, denoise: str | None = None,
+                      model: torch.nn.Module | Callable | None = None, progress: bool = False, **kwargs) -> dict:
     """Score a demosaic method on 8-bit images with the benchmark convention (module docstring).
 
     Args:
         images: a folder of .png/.tif 8-bit RGB images, or an iterable of (name, uint8 [H, W, 3]) pairs.
-        method: a name in ``METHODS`` or a callable (raw, pattern) -> RGB.
+        method: a name in :func:`available_methods` or a callable (raw, pattern) -> RGB.
         pattern: Bayer pattern of the simulated mosaic.
         crop: border width excluded from the score (pixels).
-        dtype, device: where the demosaic runs. kwargs: passed to the method.
+        dtype, device: where the demosaic runs (float32 by default: networks are float32).
+        noise_sigma, noise_shot: noise ``var = noise_shot x + noise_sigma^2`` on the [0, 1] mosaic (0: none).
+        seed: noise seed (image ``i`` uses the generator of ``(seed, i)``).
+        denoise: ``None`` or a name in ``DENOISERS``: denoise the mosaic before a classical demosaic.
+        model: a network ``net(raw) -> RGB`` (e.g. from :func:`load_demosaic_model`); overrides ``method``.
+        progress: show a tqdm progress bar (stderr).
+        kwargs: passed to the method.
 
     Returns:
-        {"method", "pattern", "crop", "mean_cpsnr", "ms_per_image", "images": [{"name", "cpsnr", "ms"}, ...]};
-        ms is the wall time of the demosaic call alone (after one warm-up call).
+        {"method", "pattern", "crop", "noise_sigma", "noise_shot", "seed", "denoise", "dtype", "mean_cpsnr",
+        "ms_per_image", "ms_per_megapixel", "images": [{"name", "cpsnr", "ms"}, ...]}; ms is the wall time of
+        the demosaic (and denoise) call alone, after one warm-up call.
     """
     device = torch.device(device)
+    noise_sigma, noise_shot = _check_noise(noise_sigma, noise_shot)
+    noisy = noise_sigma > 0 or noise_shot > 0
+    if dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype}")
+    if denoise is not None:
+        if denoise not in DENOISERS:
+            raise ValueError(f"denoise: expected one of {DENOISERS} or None, got {denoise!r}")
+        if not noisy:
+            raise ValueError(f"denoise: {denoise!r} needs noise (noise_sigma or noise_shot > 0)")
+        if model is not None or method == "learned":
+            raise ValueError(f"denoise: the sequential baseline is for classical methods; the learned method "
+                             f"denoises itself (got denoise {denoise!r} with method "
+                             f"{'model' if model is not None else method!r})")
+    if model is not None:
+        if not callable(model):
+            raise TypeError(f"model: expected a callable network, got {type(model).__name__}")
+        name = "model:" + type(model).__name__
+    elif isinstance(method, str):
+        if method not in available_methods():
+            raise ValueError(f"method: expected one of {available_methods()}, got {method!r}")
+        get_method(method)
+        name = method
+    elif callable(method):
+        name = type(method).__name__
+    else:
+        raise TypeError(f"method: expected a method name or a callable, got {type(method).__name__}")
     items = load_images(images)
-    results = []
+
+    call = _demosaic_call(method, model, pattern, noise_sigma, noise_shot, device, dtype, kwargs)
 
     def run(raw):
         with torch.no_grad():
-            out = demosaic(raw, pattern, method, **kwargs)
+            if denoise is not None:
+                raw = denoise_mosaic(raw, denoise, noise_sigma, noise_shot)
+            out = call(raw)
         if device.type == "cuda":
             torch.cuda.synchronize(device)
         return out
 
-    for i, (name, array) in enumerate(items):
-        if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
-            raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name} is {array.dtype} {array.shape}")
-        truth = torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
-        raw = mosaic(truth, pattern).to(device=device, dtype=dtype)
-        if i == 0:
-            run(raw)  # warm-up: first-call allocations and kernel selection are not the method's cost
-        t0 = time.perf_counter()
-        out = run(raw)
-        ms = 1e3 * (time.perf_counter() - t0)
-        score = cpsnr(out.to("cpu", torch.float64).clamp(0, 1), truth, crop)[0].item()
-        results.append({"name": name, "cpsnr": score, "ms": ms})
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(items), unit="image", desc=f"demosaic-eval {name}", dynamic_ncols=True)
+    results, pixels = [], []
+    try:
+        for i, (name_i, array) in enumerate(items):
+            if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
+                raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name_i} is {array.dtype} {array.shape}")
+            truth = torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
+            raw = noisy_mosaic(mosaic(truth, pattern), noise_sigma, noise_shot, seed=seed, index=i)
+            raw = raw.to(device=device, dtype=dtype)
+            if i == 0:
+                run(raw)  # warm-up: first-call allocations and kernel selection are not the method's cost
+            t0 = time.perf_counter()
+            out = run(raw)
+            ms = 1e3 * (time.perf_counter() - t0)
+            if out.shape != (1, 3) + tuple(truth.shape[-2:]):
+                raise ValueError(f"method: {name} returned shape {tuple(out.shape)} for a mosaic of "
+                                 f"{tuple(raw.shape)}; expected (1, 3, H, W)")
+            score = cpsnr(out.to("cpu", torch.float64).clamp(0, 1), truth, crop)[0].item()
+            results.append({"name": name_i, "cpsnr": score, "ms": ms})
+            pixels.append(truth.shape[-2] * truth.shape[-1])
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
     scores = [r["cpsnr"] for r in results]
+    ms_all = [r["ms"] for r in results]
     return {
-        "method": method if isinstance(method, str) else type(method).__name__,
+        "method": name,
         "pattern": pattern,
         "crop": crop,
+        "noise_sigma": noise_sigma,
+        "noise_shot": noise_shot,
+        "seed": int(seed),
+        "denoise": denoise,
+        "dtype": str(dtype).replace("torch.", ""),
         "mean_cpsnr": float(np.mean(scores)) if all(map(math.isfinite, scores)) else math.inf,
-        "ms_per_image": float(np.mean([r["ms"] for r in results])),
+        "ms_per_image": float(np.mean(ms_all)),
+        "ms_per_megapixel": float(np.sum(ms_all) / (np.sum(pixels) / 1e6)),
         "images": results,
     }
+
+
+def _demosaic_call(method, model, pattern, noise_sigma, noise_shot, device, dtype, kwargs) -> Callable:
+    """raw -> RGB for the chosen method; the learned method (or a DemosaicNet) gets the noise level."""
+    from . import learned
+
+    noisy = noise_sigma > 0 or noise_shot > 0
+    feats = learned.noise_features(noise_shot, noise_sigma**2).to(device=device, dtype=dtype)
+    if model is not None:
+        net = model
+        if isinstance(net, learned.DemosaicNet):
+            return lambda raw: learned.demosaic_learned(raw, pattern, model=net,
+                                                        noise=feats if net.noise_inputs else None)
+        return lambda raw: net(raw)
+    if method == "learned" and "model" not in kwargs:
+        net = learned.load_pretrained("joint_denoise" if noisy else "noise_free", device=device, dtype=dtype)
+        return lambda raw: learned.demosaic_learned(raw, pattern, model=net, noise=feats if noisy else None, **kwargs)
+    return lambda raw: demosaic(raw, pattern, method, **kwargs)

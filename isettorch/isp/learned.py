@@ -34,6 +34,8 @@ __all__ = [
     "DemosaicNet",
     "demosaic_learned",
     "load_pretrained",
+    "load_checkpoint",
+    "noise_features",
     "pretrained_info",
     "PRETRAINED_PATH",
 ]
@@ -179,6 +181,18 @@ class DemosaicNet(nn.Module):
             raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
         x = torch.cat(feats, 1)
         return base + F.pixel_shuffle(self.head(self.body(x)), 2)
+
+
+def noise_features(shot_gain, read_var) -> torch.Tensor:
+    """The joint network's noise inputs ``[sqrt(a) * 10, sqrt(b) * 100]`` for a mosaic with variance ``a x + b``
+    (Poisson-Gaussian, Foi et al. IEEE TIP 2008; the scales bring typical values to ~1). ``shot_gain`` and
+    ``read_var``: scalars or ``[B]`` tensors (>= 0); returns ``[B, 2]`` (``[1, 2]`` for scalars)."""
+    a = torch.as_tensor(shot_gain, dtype=torch.float64).reshape(-1)
+    b = torch.as_tensor(read_var, dtype=torch.float64).reshape(-1)
+    if not (bool((a >= 0).all()) and bool((b >= 0).all())):
+        raise ValueError(f"shot_gain, read_var: expected values >= 0, got {a.tolist()}, {b.tolist()}")
+    a, b = torch.broadcast_tensors(a, b)
+    return torch.stack([a.sqrt() * 10.0, b.sqrt() * 100.0], 1)
 
 
 def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: DemosaicNet | None = None,

@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 
 __all__ = ["SHOT_NOISE_MODES", "safe_sqrt", "shot_noise", "isetcam_shot_noise", "normal", "round_half_away",
-           "quantize_ste", "fixed_pattern_draws"]
+           "quantize_ste", "fixed_pattern_draws", "poisson_gaussian"]
 
 SHOT_NOISE_MODES = ("poisson", "gaussian", "off")
 
@@ -90,3 +90,25 @@ def fixed_pattern_draws(rows: int, cols: int, seed: int, *, dtype=torch.float64,
     column = torch.randn(cols, generator=g, dtype=torch.float64)
     return {k: v.to(dtype=dtype, device=device) for k, v in
             {"dsnu": dsnu, "prnu": prnu, "column": column}.items()}
+
+
+def poisson_gaussian(signal: torch.Tensor, shot_gain: float = 0.0, read_sigma: float = 0.0,
+                     generator: torch.Generator | None = None, shot_mode: str = "poisson") -> torch.Tensor:
+    """Signal-dependent noise ``var = a x + b`` on a normalised signal ``x`` (Foi, Trimeche, Katkovnik &
+    Egiazarian, "Practical Poissonian-Gaussian noise modeling and fitting", IEEE TIP 2008).
+
+    ``a = shot_gain`` is the signal per electron (shot noise: :func:`shot_noise` of ``x / a`` electrons, scaled
+    back by ``a``), ``b = read_sigma^2`` a Gaussian floor (:func:`normal`). Either may be 0 (that source is
+    skipped, so ``a = 0`` gives additive white Gaussian noise of std ``read_sigma``). Nothing is clipped.
+    """
+    a, s = float(shot_gain), float(read_sigma)
+    if not (a >= 0 and s >= 0):  # also rejects NaN
+        raise ValueError(f"shot_gain, read_sigma: expected finite values >= 0, got {shot_gain}, {read_sigma}")
+    out = signal
+    if a > 0:
+        if bool((signal < 0).any()):
+            raise ValueError("signal: expected values >= 0 for shot noise (shot_gain > 0)")
+        out = shot_noise(signal / a, shot_mode, generator) * a
+    if s > 0:
+        out = out + s * normal(signal, generator)
+    return out

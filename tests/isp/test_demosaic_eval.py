@@ -56,7 +56,7 @@ def test_cpsnr_analytic():
 @pytest.mark.parametrize("pattern", ["RGGB", "GBRG"])
 def test_evaluate_matches_numpy_reference(method, pattern):
     ims = _smooth_images(2, 30, 26, seed=1)
-    res = evaluate_demosaic([(f"im{i}", a) for i, a in enumerate(ims)], method, pattern, crop=3)
+    res = evaluate_demosaic([(f"im{i}", a) for i, a in enumerate(ims)], method, pattern, crop=3, dtype=torch.float64)
     expected = [_numpy_cpsnr(a, method, pattern, crop=3)[0] for a in ims]
     # Menon's direction choice compares two sums; where they tie in exact arithmetic, rounding decides, in a
     # different order in scipy and torch (a few pixels in a thousand): compare scores to 0.05 dB there.
@@ -72,9 +72,10 @@ def test_cli_json(tmp_path, capsys):
         Image.fromarray(a).save(tmp_path / name)
     (tmp_path / "notes.txt").write_text("ignored")
     assert main(["demosaic-eval", str(tmp_path), "--method", "malvar2004", "--pattern", "GRBG", "--crop", "2",
-                 "--json"]) == 0
+                 "--dtype", "float64", "--json", "--quiet"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert set(res) == {"method", "pattern", "crop", "mean_cpsnr", "ms_per_image", "images"}
+    assert set(res) == {"method", "pattern", "crop", "mean_cpsnr", "ms_per_image", "images", "noise_sigma",
+                        "noise_shot", "seed", "denoise", "dtype", "ms_per_megapixel"}
     assert (res["method"], res["pattern"], res["crop"]) == ("malvar2004", "GRBG", 2)
     assert [r["name"] for r in res["images"]] == names
     expected = [_numpy_cpsnr(a, "malvar2004", "GRBG", crop=2)[0] for a in ims]
@@ -115,7 +116,7 @@ def test_benchmark_crops_agree_with_colour_demosaicing(method):
         truth = torch.from_numpy(a.astype(np.float64) / 255).permute(2, 0, 1)[None]
         for crop in (0, 10):
             ref_score, ref_out = _numpy_cpsnr(a, method, crop=crop)
-            ours = evaluate_demosaic([(name, a)], method, "RGGB", crop)["mean_cpsnr"]
+            ours = evaluate_demosaic([(name, a)], method, "RGGB", crop, dtype=torch.float64)["mean_cpsnr"]
             assert abs(ours - ref_score) < 0.05, (name, crop, ours, ref_score)
         out = demosaic(torch.from_numpy(cd.mosaicing_CFA_Bayer(a / 255.0, "RGGB"))[None, None], "RGGB", method)
         agree = np.isclose(out[0].permute(1, 2, 0).clamp(0, 1).numpy(), ref_out, rtol=0, atol=1e-9).mean()

@@ -15,7 +15,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from training import common, synth, train_demosaic  # noqa: E402
+from training import common, train_demosaic  # noqa: E402
 
 SMOKE = ROOT / "configs" / "train" / "demosaic_smoke.yaml"
 
@@ -30,29 +30,59 @@ def test_cpsnr_matches_skimage():
     assert float(ours) == pytest.approx(ref, abs=1e-9)
 
 
-def test_synthetic_white_balance_and_mosaic():
-    s = synth.SceneSampler(size=16, n_shapes=4)
-    g = torch.Generator().manual_seed(0)
-    # a perfect white reflector gives camera RGB (1, 1, 1) after von Kries white balance, for any draw
-    ones = torch.ones(1, synth.WAVELENGTHS.numel(), dtype=torch.float64)
-    for _ in range(5):
-        ill = s.illuminants[int(torch.randint(0, len(s.illuminants), (1,), generator=g))]
-        m = (ill * s.dl)[:, None] * s.sensitivity(g).T
-        torch.testing.assert_close(ones @ m / m.sum(0), torch.ones(1, 3, dtype=torch.float64))
+def test_mosaic_is_rggb():
     rgb = torch.rand(2, 3, 4, 6)
-    raw = synth.mosaic_rggb(rgb)
+    raw = train_demosaic.mosaic_rggb(rgb)
     assert torch.equal(raw[:, 0, 0::2, 0::2], rgb[:, 0, 0::2, 0::2])
     assert torch.equal(raw[:, 0, 0::2, 1::2], rgb[:, 1, 0::2, 1::2])
     assert torch.equal(raw[:, 0, 1::2, 0::2], rgb[:, 1, 1::2, 0::2])
     assert torch.equal(raw[:, 0, 1::2, 1::2], rgb[:, 2, 1::2, 1::2])
 
 
+def test_synth_source_is_retired():
+    cfg = common.load_config(SMOKE)
+    cfg["data"]["source"] = "synth"
+    with pytest.raises(ValueError, match="'synth'.*retired.*natural"):
+        train_demosaic.make_sampler(cfg)
+
+
+def test_training_domain_is_explicit():
+    """linear: values are the exposed linear image (<= 1, no encoding); encoded: a power 1/gamma of it."""
+    cfg = common.load_config(SMOKE)
+    batches = {}
+    for dom in ("linear", "encoded"):
+        cfg["data"]["domain"] = dom
+        batches[dom] = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 5, 4)[1]
+    lin, enc = batches["linear"], batches["encoded"]
+    # same draws: encoded = linear^(1/gamma) with gamma in [1.8, 2.6] per image, so enc >= lin everywhere
+    assert bool((enc >= lin - 1e-6).all()) and float((enc - lin).mean()) > 0.05
+    for i in range(4):
+        m = (lin[i] > 0.05) & (lin[i] < 0.95)
+        gamma = torch.log(lin[i][m]) / torch.log(enc[i][m])
+        assert 1.8 - 1e-3 <= float(gamma.median()) <= 2.6 + 1e-3 and float(gamma.std()) < 1e-3
+    cfg["data"]["domain"] = "srgb"
+    with pytest.raises(ValueError, match="domain.*'srgb'"):
+        train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 5, 4)
+
+
+def test_hard_mining_keeps_the_hardest_crops():
+    cfg = common.load_config(SMOKE)
+    plain = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 9, 4)[1]
+    cfg["data"]["hard_mining"] = 4
+    hard = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 9, 4)[1]
+
+    def mhc_mse(x):
+        return float((train_demosaic.demosaic_malvar_torch(train_demosaic.mosaic_rggb(x)) - x).pow(2).mean())
+
+    assert mhc_mse(hard) > mhc_mse(plain)
+
+
 def test_batches_depend_only_on_seed():
     cfg = common.load_config(SMOKE)
     s = train_demosaic.make_sampler(cfg)
-    a = train_demosaic.make_batch(s, cfg, 123, 2, 0.5)
-    b = train_demosaic.make_batch(s, cfg, 123, 2, 0.5)
-    c = train_demosaic.make_batch(s, cfg, 124, 2, 0.5)
+    a = train_demosaic.make_batch(s, cfg, 123, 2)
+    b = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 123, 2)
+    c = train_demosaic.make_batch(s, cfg, 124, 2)
     assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
     assert not torch.equal(a[1], c[1])
     assert a[1].min() >= 0 and a[1].max() <= 1
@@ -67,6 +97,11 @@ def test_noise_model_variance():
     var = (noisy - raw).flatten(1).var(1)
     expected = ab[:, 0] * 0.25 + ab[:, 1]
     torch.testing.assert_close(var, expected, rtol=0.03, atol=0)
+    # exact Poisson shot noise: counts x / a are integers
+    shot = train_demosaic.add_noise(raw[:1], torch.tensor([[1e-3, 0.0]]), g)
+    counts = shot.double() / 1e-3  # ~250 electrons, float32 storage: integers to 1e-3
+    torch.testing.assert_close(counts, counts.round(), rtol=0, atol=1e-3)
+    assert float((counts - counts.round()).abs().max()) < 1e-3 and float(counts.std()) > 10
 
 
 def test_smoke_training_resume(tmp_path):
@@ -90,8 +125,33 @@ def test_smoke_training_resume(tmp_path):
     assert [int(r["step"]) for r in rows] == [2, 4]
     assert [r["lr"] for r in rows] == [r["lr"] for r in csv.DictReader(open(out / "history.csv"))]
     assert all(np.isfinite(float(r["train_loss"])) and float(r["val_cpsnr"]) > 10 for r in rows)
+    rec = json.loads((straight / "record.json").read_text())
+    assert rec["steps"] == 4 and rec["wall_s"] > 0 and "isettorch.data.natural" in rec["data"]
+    assert "cpu_count" in rec["hardware"] and rec["config"]["data"]["source"] == "natural"
+    card = (straight / "MODEL_CARD.md").read_text()
+    assert "training/train_demosaic.py" in card or "--config" in card
+    assert "steps: 4" in card and "never Kodak/McMaster" in card
     # the trained weights moved away from the zero-initialised head
     assert ref["model"]["head.weight"].abs().sum() > 0
+
+
+def test_full_sensor_noise_variance_is_ax_plus_b():
+    """Shot + dark + DSNU + read + 10-bit quantisation: the empirical variance at two levels is a x + b of
+    noise_params (EMVA 1288 photon transfer), PRNU off."""
+    cfg = {"noise": {"gain_min": 4.0, "gain_max": 4.0, "full_well_e": 8000.0, "read_noise_e": 2.0, "dsnu_e": 1.5,
+                     "dark_e": 9.0, "bits": 10}}
+    g = torch.Generator().manual_seed(1)
+    ab = train_demosaic.noise_params(2, cfg, g)
+    a = 4.0 / 8000
+    b = a * a * (4.0 + 2.25 + 9.0) + (1 / 1023) ** 2 / 12
+    torch.testing.assert_close(ab, torch.tensor([[a, b], [a, b]]), rtol=1e-6, atol=0)
+    raw = torch.stack([torch.full((1, 200, 200), 0.1), torch.full((1, 200, 200), 0.5)])
+    noisy = train_demosaic.add_noise(raw, ab, g, cfg["noise"])
+    var = (noisy - raw).flatten(1).var(1)
+    torch.testing.assert_close(var, a * raw.flatten(1)[:, 0] + b, rtol=0.04, atol=0)
+    # quantised to the 10-bit grid; mean preserved (black level subtracted)
+    torch.testing.assert_close(noisy * 1023, (noisy * 1023).round(), rtol=0, atol=1e-3)
+    torch.testing.assert_close(noisy.flatten(1).mean(1), raw.flatten(1)[:, 0], rtol=0, atol=3e-4)
 
 
 def _free_port() -> int:
@@ -111,3 +171,16 @@ def test_torchrun_ddp_two_processes(tmp_path):
     rec = json.loads((out / "record.json").read_text())
     assert rec["world_size"] == 2 and rec["steps"] == 2
     assert torch.load(out / "last.pt", map_location="cpu", weights_only=True)["step"] == 2
+
+
+def test_joint_batches_carry_noise_features():
+    cfg = common.load_config(ROOT / "configs" / "train" / "demosaic_joint_denoise.yaml")
+    smoke = common.load_config(SMOKE)
+    cfg["data"], cfg["val"] = smoke["data"], smoke["val"]
+    raw, rgb, feats = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 3, 4)
+    assert feats.shape == (4, 2) and bool((feats > 0).all())
+    noise = raw - train_demosaic.mosaic_rggb(rgb)
+    assert float(noise.std()) > 1e-3
+    # the features are sqrt(a) * 10, sqrt(b) * 100 of noise_params drawn from the same generator position
+    a = (feats[:, 0] / 10) ** 2
+    assert bool(((a >= 1.0 / 10000 * (1 - 1e-5)) & (a <= 64.0 / 10000 * (1 + 1e-5))).all())

@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from isettorch.sensor import CFA  # noqa: E402
-from training import common, synth, train_demosaic  # noqa: E402
+from training import common, train_demosaic  # noqa: E402
 
 SMOKE = ROOT / "configs" / "train" / "demosaic_camera_pairs_smoke.yaml"
 
@@ -36,13 +36,13 @@ def test_camera_pair_batches_rggb_and_seed_only():
     cfg = common.load_config(SMOKE)
     cfg["noise"] = {"enabled": False}  # noise-free input: mosaicking camera_rgb must give the raw exactly
     src = train_demosaic.make_sampler(cfg)
-    raw, rgb, feats = train_demosaic.make_batch(src, cfg, 7, 4, 0.0)
+    raw, rgb, feats = train_demosaic.make_batch(src, cfg, 7, 4)
     assert feats is None and raw.shape == (4, 1, 16, 16) and rgb.shape == (4, 3, 16, 16)
     pats = {tuple(src.ds.get_batch(src.indices(7, 4))["meta"]["cfa"][i].flatten().tolist()) for i in range(4)}
     assert len(pats) > 1  # several Bayer orders drawn, all cropped to RGGB below
-    torch.testing.assert_close(raw, synth.mosaic_rggb(rgb), rtol=0, atol=1e-6)
-    again = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 7, 4, 0.0)
-    other = train_demosaic.make_batch(src, cfg, 8, 4, 0.0)
+    torch.testing.assert_close(raw, train_demosaic.mosaic_rggb(rgb), rtol=0, atol=1e-6)
+    again = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 7, 4)
+    other = train_demosaic.make_batch(src, cfg, 8, 4)
     assert torch.equal(raw, again[0]) and torch.equal(rgb, again[1])
     assert not torch.equal(rgb, other[1])
     # validation items come from another dataset seed

@@ -1,0 +1,107 @@
+"""Two demosaic benchmark tables with ``isettorch.isp.evaluation.evaluate_demosaic`` (the ``demosaic-eval`` code):
+
+* ``speed``: CPSNR (crop 10, noise-free) against milliseconds per megapixel (median over images, one call each after
+  a warm-up; float32, CPU threads as given) for every classical and learned method, Kodak and McMaster.
+* ``noise``: Kodak CPSNR (crop 10) at noise sigma 0.01 / 0.02 / 0.05 (seed 0) for menon2007 alone, each classical
+  demosaic after ``--denoise nlmeans`` (and bm3d when installed), and the shipped joint learned model.
+
+Reporting only: Kodak and McMaster are test sets (nothing here selects or tunes anything).
+
+    OMP_NUM_THREADS=1 python benchmarks/demosaic_noise_speed.py speed --out benchmarks/DEMOSAIC_SPEED.md
+    OMP_NUM_THREADS=1 python benchmarks/demosaic_noise_speed.py noise --out benchmarks/DEMOSAIC_NOISE.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from isettorch.isp.evaluation import evaluate_demosaic  # noqa: E402
+
+DATA = Path("/work/shared/data")
+SPEED_METHODS = ("nearest", "bilinear", "malvar2004", "menon2007", "learned")
+
+
+def _median_ms_per_mp(res: dict, sizes: dict) -> float:
+    return statistics.median(r["ms"] / (sizes[r["name"]] / 1e6) for r in res["images"])
+
+
+def _sizes(folder: Path) -> dict:
+    from isettorch.isp.evaluation import load_images
+
+    return {n: a.shape[0] * a.shape[1] for n, a in load_images(folder)}
+
+
+def speed(args) -> list[str]:
+    sets = {"Kodak": Path(args.kodak), "McMaster": Path(args.mcmaster)}
+    sizes = {k: _sizes(v) for k, v in sets.items()}
+    rows = ["| method | Kodak CPSNR | Kodak ms/MP | McMaster CPSNR | McMaster ms/MP |", "|---|---|---|---|---|"]
+    for m in SPEED_METHODS:
+        cells = []
+        for k, folder in sets.items():
+            res = evaluate_demosaic(folder, m, "RGGB", 10, progress=not args.quiet)
+            cells += [f"{res['mean_cpsnr']:.2f}", f"{_median_ms_per_mp(res, sizes[k]):.1f}"]
+        rows.append(f"| {m} | " + " | ".join(cells) + " |")
+        print(rows[-1], flush=True)
+    return rows
+
+
+def noise(args) -> list[str]:
+    folder = Path(args.kodak)
+    sigmas = [float(s) for s in args.sigmas.split(",")]
+    denoisers = ["nlmeans"]
+    try:
+        import bm3d  # noqa: F401
+
+        denoisers.append("bm3d")
+    except ModuleNotFoundError:
+        pass
+    runs = [("menon2007", None)] + [(m, d) for d in denoisers for m in ("malvar2004", "menon2007")]
+    runs.append(("learned", None))
+    rows = ["| method | " + " | ".join(f"sigma {s:g}" for s in sigmas) + " |", "|---" * (len(sigmas) + 1) + "|"]
+    for m, d in runs:
+        cells = []
+        for s in sigmas:
+            res = evaluate_demosaic(folder, m, "RGGB", 10, noise_sigma=s, seed=0, denoise=d, progress=not args.quiet)
+            cells.append(f"{res['mean_cpsnr']:.2f}")
+        name = f"{d} + {m}" if d else (m + (" (joint denoise model)" if m == "learned" else ""))
+        rows.append(f"| {name} | " + " | ".join(cells) + " |")
+        print(rows[-1], flush=True)
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("table", choices=("speed", "noise"))
+    ap.add_argument("--kodak", default=str(DATA / "kodak24"))
+    ap.add_argument("--mcmaster", default=str(DATA / "mcmaster18"))
+    ap.add_argument("--sigmas", default="0.01,0.02,0.05")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--out", default=None, help="write the markdown table here")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    t0 = time.time()
+    rows = (speed if args.table == "speed" else noise)(args)
+    hw = {"platform": platform.platform(), "cpu_count": __import__("os").cpu_count(), "threads": args.threads,
+          "torch": torch.__version__}
+    text = "\n".join(rows) + f"\n\nCrop 10, RGGB, float32, seed 0; wall {time.time() - t0:.0f} s; {json.dumps(hw)}\n"
+    if args.out:
+        Path(args.out).write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,478 @@
+"""Natural-statistics synthetic scenes for training demosaic and denoise networks (one generator, in the library).
+
+A scene is *factored*: ``J`` abundance maps ``[J, H, W]`` times ``J`` spectra ``[J, L]`` (radiance, photons per unit
+map), ``L(x, l) = sum_j map_j(x) spectrum_j(l)``. Materials are palette reflectances under the scene's light;
+the maps say how much of each material a pixel sees (coverage x shading). Because every camera integral is linear
+in radiance, a sensor projects the scene once per spectrum (:func:`project`), and :func:`to_scene` gives the
+dense :class:`~isettorch.scene.Scene` for the :class:`~isettorch.camera.Camera`.
+
+Components (each a key of ``NATURAL_DEFAULTS["components"]``; ``enabled: false`` switches it off, the ablation
+script ``benchmarks/generator_ablation.py`` does that one at a time), named after their source:
+
+* ``palette``: materials from the measured reflectances shipped by colour-science, natural chromaticities
+  upsampled with ``colour.recovery`` (Mallett & Yuksel, EGSR 2019), and smooth random spectra (PCA of the measured
+  set / sigmoid polynomials, Jakob & Hanika, EG 2019); ``materials`` per scene, few, as in natural scenes.
+* ``illuminant``: daylight, blackbody, LED, fluorescent (:func:`.spectra.random_illuminant`), and with
+  ``mixed_probability`` a second light blended over the image by a smooth field (mixed illumination).
+* ``dead_leaves``: occluding leaves with the scale-invariant radius density ``p(r) ~ r^-3`` (Lee, Mumford & Huang,
+  IJCV 2001; Achddou, Gousseau & Ladjal, "Synthetic images as a regularity prior for image restoration neural
+  networks", SSVM 2021, and their 2023 follow-up), disks / ellipses / rectangles, anti-aliased by their signed
+  distance.
+* ``textured_leaves``: a leaf's interior is flat, or textured with 1/f^s noise (:func:`.textures.power_law_noise`),
+  a warped grating, or a colour-line blend of two materials (Omer & Werman, CVPR 2004) (Achddou et al. 2023).
+* ``colour_correlation``: fine detail mostly achromatic: a shared multiplicative shading field (1/f^s, log-normal)
+  modulates every material equally, so intensity changes at fine scales and colour at coarse ones (natural-image
+  colour statistics: Ruderman, Cronin & Chiao, JOSA A 15, 1998). Off: the same 1/f^s field blends each material
+  towards another one instead (fine detail that changes colour).
+* ``depth_layers``: a foreground dead-leaves layer over the background, each defocused by the library's optics
+  (:class:`~isettorch.optics.WavefrontOptics` with ``defocus_diopters``; the PSF at 550 nm blurs the layer's maps and
+  its coverage, then the layers are composited front over back).
+* ``fine_detail``: band-limited detail near and above the sensor's Nyquist frequency: gratings at any angle
+  (0.15-0.7 cycles/pixel), thin lines (0.3-2 px) and sharp straight edges, rendered ``supersample`` x finer and
+  box-averaged (pixel-area integration), so networks see moire and zipper cases.
+
+Defaults: leaf count, smallest radius and shading exponents were set so the mean power-spectrum slope of 128 px
+scenes is near the published -1.88 (benchmarks/SCENE_STATS.md); nothing was set on a photograph test set.
+
+Every draw comes from one ``torch.Generator`` seeded by ``seed_for(seed, index)``: an item depends only on
+``(seed, index, config)``. Hard-patch mining (Gharbi, Chaurasia, Paris & Durand, SIGGRAPH Asia 2016) is
+:func:`hard_patch_indices`; a folder of the user's own photos is :class:`isettorch.data.photos.PhotoSceneDataset`.
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+import math
+
+import torch
+import torch.nn.functional as F
+
+from .. import spectral
+from . import spectra as _spectra
+from . import textures as _tex
+from .config import seed_for
+from .layouts import dead_leaves_radii
+
+__all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "natural_config", "generate_natural", "project", "to_scene",
+           "white_balanced_rgb", "hard_patch_indices", "NaturalSceneDataset", "DOMAINS", "expose_and_encode"]
+
+NATURAL_DEFAULTS: dict = {
+    "size": 128,
+    "wavelengths_nm": [400.0, 700.0, 10.0],
+    "mean_radiance_scale": 1.0,  # the illuminant is scaled to luminance 1 cd/m^2 from a white; x this
+    "components": {
+        "palette": {"enabled": True, "materials": [3, 10], "measured": 0.35, "recovery": 0.35, "random": 0.3,
+                    "grey_probability": 0.15},
+        "illuminant": {"enabled": True, "kinds": {"daylight": 0.4, "blackbody": 0.25, "led": 0.2,
+                                                  "fluorescent": 0.15},
+                       "mixed_probability": 0.2},
+        "dead_leaves": {"enabled": True, "leaves": [500, 1200], "exponent": 3.0, "r_min_px": 0.8,
+                        "r_max_fraction": 0.5},
+        "textured_leaves": {"enabled": True, "probability": 0.5, "noise_exponent": [0.8, 1.6],
+                            "grating_cpp": [0.02, 0.3], "kinds": {"noise": 0.4, "grating": 0.25, "colour_line": 0.35}},
+        "colour_correlation": {"enabled": True, "exponent": [0.7, 1.2], "contrast": [0.05, 0.35]},
+        "depth_layers": {"enabled": True, "probability": 0.4, "foreground_leaves": [3, 12],
+                         "defocus_diopters": [0.0, 0.5, 1.0, 2.0], "f_number": 2.0, "focal_length_m": 0.004,
+                         "pixel_size_m": 1.4e-6},
+        "fine_detail": {"enabled": True, "probability": 0.6, "items": [1, 4], "grating_cpp": [0.15, 0.7],
+                        "line_width_px": [0.3, 2.0], "supersample": 4},
+    },
+}
+COMPONENTS = tuple(NATURAL_DEFAULTS["components"])
+
+
+def natural_config(config: dict | None = None, **overrides) -> dict:
+    """``NATURAL_DEFAULTS`` updated with ``config`` (nested dicts merged); unknown keys raise naming the key.
+    ``overrides``: ``disable=("fine_detail", ...)`` switches components off."""
+    out = copy.deepcopy(NATURAL_DEFAULTS)
+
+    def merge(dst, src, path):
+        for k, v in src.items():
+            if k not in dst:
+                raise ValueError(f"config: unknown key {path + k!r}; expected one of {sorted(dst)}")
+            if isinstance(dst[k], dict) and k != "kinds":
+                if not isinstance(v, dict):
+                    raise ValueError(f"config: {path + k!r} expected a mapping, got {v!r}")
+                merge(dst[k], v, path + k + ".")
+            else:
+                dst[k] = v
+
+    merge(out, config or {}, "")
+    for name in overrides.pop("disable", ()):
+        if name not in COMPONENTS:
+            raise ValueError(f"disable: expected component names from {COMPONENTS}, got {name!r}")
+        out["components"][name]["enabled"] = False
+    if overrides:
+        raise ValueError(f"natural_config: unknown arguments {sorted(overrides)}")
+    size = out["size"]
+    if isinstance(size, bool) or not isinstance(size, int) or size < 16:
+        raise ValueError(f"config: 'size' expected an integer >= 16 pixels, got {size!r}")
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ draws
+
+def _u(g, lo, hi):
+    return lo + (hi - lo) * float(torch.rand((), generator=g, dtype=torch.float64))
+
+
+def _ri(g, lo, hi):
+    return int(torch.randint(int(lo), int(hi) + 1, (), generator=g))
+
+
+def _choice(weights: dict, g) -> str:
+    keys = [k for k, v in weights.items() if v > 0]
+    if not keys:
+        raise ValueError(f"weights: expected at least one positive weight, got {weights}")
+    w = torch.tensor([float(weights[k]) for k in keys], dtype=torch.float64)
+    return keys[int(torch.multinomial(w / w.sum(), 1, generator=g))]
+
+
+def _wavelengths(cfg) -> torch.Tensor:
+    a, b, s = cfg["wavelengths_nm"]
+    return torch.arange(float(a), float(b) + 0.5 * float(s), float(s), dtype=torch.float64)
+
+
+def _palette(cfg, wl, g) -> tuple[torch.Tensor, list[str]]:
+    p = cfg["components"]["palette"]
+    n = _ri(g, *p["materials"])
+    measured = _spectra.measured_reflectances(wl)
+    out, kinds = [], []
+    for _ in range(n):
+        if p["enabled"]:
+            kind = _choice({"measured": p["measured"], "recovery": p["recovery"], "random": p["random"]}, g)
+        else:  # ablation: smooth random spectra only (the previous isettorch.data palette)
+            kind = "random"
+        if kind == "measured":
+            r = measured[int(torch.randint(0, measured.shape[0], (), generator=g))]
+            r = (r * _u(g, 0.3, 1.2)).clamp(0, 1)
+        elif kind == "recovery":
+            r = _spectra.recovery_reflectances(1, wl, g)[0]
+        else:
+            r = _spectra.random_reflectances(1, wl, g, model="mixed")[0].to(torch.float64)
+        if p["enabled"] and float(torch.rand((), generator=g)) < p["grey_probability"]:
+            r, kind = torch.full_like(r, math.exp(_u(g, math.log(0.03), math.log(0.9)))), "grey"
+        out.append(r)
+        kinds.append(kind)
+    return torch.stack(out), kinds
+
+
+def _white_photons(spd_energy, wl):
+    """An illuminant in photons scaled so a perfect white has luminance 1 cd/m^2 (ISETCam's convention)."""
+    ph = spectral.energy_to_photons(spd_energy.to(torch.float64), wl, dim=0)
+    lum = spectral.luminance(ph[:, None, None], wl)
+    return ph / lum.reshape(())
+
+
+def _illuminants(cfg, wl, g, h, w):
+    c = cfg["components"]["illuminant"]
+    kinds = c["kinds"] if c["enabled"] else {"daylight": 1.0}
+    k1 = _choice(kinds, g)
+    e1, cct1, name1 = _spectra.random_illuminant(k1, wl, g, None if c["enabled"] else (6500.0, 6500.0))
+    lights = [(_white_photons(e1, wl), None)]
+    names = [name1]
+    if c["enabled"] and float(torch.rand((), generator=g)) < c["mixed_probability"]:
+        e2, _, name2 = _spectra.random_illuminant(_choice(kinds, g), wl, g)
+        m = torch.sigmoid(_tex.power_law_noise(h, w, 2.5, g, dtype=torch.float64) * _u(g, 1.0, 4.0))
+        ratio = math.exp(_u(g, math.log(0.3), math.log(3.0)))
+        lights = [(lights[0][0], (1 - m).float()), (_white_photons(e2, wl) * ratio, m.float())]
+        names.append(name2)
+    return lights, names, cct1
+
+
+def _leaf_coverage(h, w, cy, cx, r, aspect, theta, shape):
+    """Anti-aliased coverage ([h, w] float32 on the leaf's bounding box) and the box (y0, y1, x0, x1)."""
+    ext = r * max(1.0, aspect) * (1.5 if shape == 2 else 1.0) + 1.5
+    y0, y1 = max(0, int(math.floor(cy - ext))), min(h, int(math.ceil(cy + ext)) + 1)
+    x0, x1 = max(0, int(math.floor(cx - ext))), min(w, int(math.ceil(cx + ext)) + 1)
+    if y0 >= y1 or x0 >= x1:
+        return None, None
+    yy = torch.arange(y0, y1, dtype=torch.float32)[:, None] + 0.5 - cy
+    xx = torch.arange(x0, x1, dtype=torch.float32)[None, :] + 0.5 - cx
+    ct, st = math.cos(theta), math.sin(theta)
+    u, v = xx * ct + yy * st, -xx * st + yy * ct
+    if shape == 0:  # disk
+        d = torch.sqrt(u * u + v * v) - r
+    elif shape == 1:  # ellipse (distance approximated by the scaled radius)
+        q = torch.sqrt((u / r) ** 2 + (v / (r * aspect)) ** 2)
+        d = (q - 1) * r * min(1.0, aspect)
+    else:  # rectangle
+        d = torch.maximum(u.abs() - r, v.abs() - r * aspect)
+    return (0.5 - d).clamp(0, 1), (y0, y1, x0, x1)
+
+
+def _leaf_texture(cfg, g, hh, ww, k, n_mat):
+    """(index_b, t [hh, ww] or None, shade [hh, ww] or None): the leaf's second material and blend, and its
+    own shading; a flat leaf returns (k, None, None)."""
+    c = cfg["components"]["textured_leaves"]
+    if not c["enabled"] or float(torch.rand((), generator=g)) >= c["probability"] or min(hh, ww) < 2:
+        return k, None, None
+    kind = _choice(c["kinds"], g)
+    s = _u(g, *c["noise_exponent"])
+    if kind == "noise":  # achromatic texture: the leaf's own log-normal shading
+        return k, None, torch.exp(_tex.power_law_noise(hh, ww, s, g) * _u(g, 0.1, 0.5))
+    k2 = _ri(g, 0, n_mat - 1)
+    if kind == "grating":
+        f = math.exp(_u(g, math.log(c["grating_cpp"][0]), math.log(c["grating_cpp"][1])))
+        t = _tex.warped_grating(hh, ww, f, _u(g, 0, math.pi), _u(g, 0.0, 3.0), g)
+        if k2 == k:  # same material: an intensity grating
+            return k, None, 0.4 + 0.8 * t
+        return k2, t, None
+    return k2, _tex.colour_line_weights(hh, ww, s, g, contrast=_u(g, 0.5, 2.0)), None
+
+
+def _paint_leaves(cfg, g, maps, n_leaves, r_min, r_max, exponent, alpha=None):
+    """Paint ``n_leaves`` dead leaves back to front onto ``maps`` [K, H, W] in place (and onto ``alpha`` [H, W]
+    when given: the layer's coverage). Radii: ``p(r) ~ r^-exponent`` (inverse CDF; exponent 3 is
+    :func:`.layouts.dead_leaves_radii`); painted large to small so every scale stays visible."""
+    n_mat, h, w = maps.shape
+    if abs(exponent - 3.0) < 1e-12:
+        radii = dead_leaves_radii(n_leaves, r_min, r_max, g)
+    else:
+        u = torch.rand(n_leaves, generator=g, dtype=torch.float64)
+        a = 1.0 - exponent
+        radii = (r_min**a + u * (r_max**a - r_min**a)) ** (1 / a)
+    radii = radii.sort(descending=True).values
+    drawn = radii.tolist()  # the drawn sizes (leaves falling outside the image are drawn, then not painted)
+    # every leaf's geometry, material and brightness in one draw per quantity (the texture draws follow per leaf)
+    u = torch.rand(n_leaves, 6, generator=g, dtype=torch.float64).tolist()
+    k_all = torch.randint(0, n_mat, (n_leaves,), generator=g).tolist()
+    for r, (u_y, u_x, u_s, u_a, u_t, u_b), k in zip(drawn, u, k_all):
+        cy, cx = (-0.1 + 1.2 * u_y) * h, (-0.1 + 1.2 * u_x) * w
+        shape = min(2, int(3 * u_s))
+        aspect, theta = 0.3 + 0.7 * u_a, math.pi * u_t
+        brightness = 0.3 ** (1 - u_b)  # log-uniform in [0.3, 1]
+        cov, box = _leaf_coverage(h, w, cy, cx, r, aspect, theta, shape)
+        if cov is None:
+            continue
+        y0, y1, x0, x1 = box
+        k2, t, shade = _leaf_texture(cfg, g, y1 - y0, x1 - x0, k, n_mat)
+        region = maps[:, y0:y1, x0:x1]
+        region.mul_(1 - cov)
+        contrib = cov * brightness * (shade if shade is not None else 1.0)
+        if t is None:
+            region[k].add_(contrib)
+        else:
+            region[k].add_(contrib * (1 - t))
+            region[k2].add_(contrib * t)
+        if alpha is not None:
+            a_reg = alpha[y0:y1, x0:x1]
+            a_reg.mul_(1 - cov).add_(cov)
+    return drawn
+
+
+@functools.lru_cache(maxsize=32)
+def _defocus_psf(diopters: float, f_number: float, focal_length_m: float, pixel_size_m: float) -> torch.Tensor:
+    """The library's defocus PSF (WavefrontOptics, 550 nm) sampled at the pixel pitch: [S, S] float32, sum 1."""
+    from ..optics import WavefrontOptics
+    from ..optics.analysis import psf
+
+    optics = WavefrontOptics(f_number=f_number, focal_length_m=focal_length_m, defocus_diopters=diopters)
+    p = psf(optics, torch.tensor([550.0], dtype=torch.float64), pixel_size_m, 33)[0, 0]
+    return p.float()
+
+
+def _blur(x: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
+    """Convolve [C, H, W] with a centred odd-sized PSF [S, S] (reflected borders), in the Fourier domain."""
+    r = psf.shape[-1] // 2
+    mode = "reflect" if min(x.shape[-2:]) > r else "replicate"
+    xp = F.pad(x[None], (r, r, r, r), mode=mode)[0]
+    hp, wp = xp.shape[-2:]
+    kernel = torch.zeros(hp, wp, dtype=xp.dtype)
+    kernel[:psf.shape[-2], :psf.shape[-1]] = psf.to(xp.dtype)
+    kernel = torch.roll(kernel, (-r, -r), (0, 1))  # PSF centre at the origin
+    out = torch.fft.irfft2(torch.fft.rfft2(xp) * torch.fft.rfft2(kernel), s=(hp, wp))
+    # a non-negative PSF on non-negative maps: only the FFT's round-off (~1e-7 of the peak) can be negative
+    return out[:, r:r + x.shape[-2], r:r + x.shape[-1]].clamp_min(0)
+
+
+def _fine_detail(cfg, g, maps):
+    """Overlay band-limited items (gratings, thin lines, edges) rendered supersampled and box-averaged."""
+    c = cfg["components"]["fine_detail"]
+    n_mat, h, w = maps.shape
+    ss = int(c["supersample"])
+    kinds = []
+    for _ in range(_ri(g, *c["items"])):
+        kind = ("grating", "line", "edge")[_ri(g, 0, 2)]
+        ang = _u(g, 0.0, math.pi)
+        k = _ri(g, 0, n_mat - 1)
+        yy = (torch.arange(h * ss, dtype=torch.float64)[:, None] + 0.5) / ss
+        xx = (torch.arange(w * ss, dtype=torch.float64)[None, :] + 0.5) / ss
+        u = xx * math.cos(ang) + yy * math.sin(ang)
+        v = -xx * math.sin(ang) + yy * math.cos(ang)
+        cy, cx = _u(g, 0.2 * h, 0.8 * h), _u(g, 0.2 * w, 0.8 * w)
+        u0 = cx * math.cos(ang) + cy * math.sin(ang)
+        v0 = -cx * math.sin(ang) + cy * math.cos(ang)
+        if kind == "grating":  # a patch (half-plane-limited) of a square or sine grating
+            f = _u(g, *c["grating_cpp"])
+            wave = torch.sin(2 * math.pi * f * (u - u0))
+            pattern = (wave > 0).double() if float(torch.rand((), generator=g)) < 0.5 else 0.5 + 0.5 * wave
+            half = _u(g, 0.15, 0.5) * min(h, w)
+            cover = ((u - u0).abs() < half) & ((v - v0).abs() < half)
+            cov = cover.double() * pattern
+        elif kind == "line":
+            width = _u(g, *c["line_width_px"])
+            cov = ((v - v0).abs() < width / 2).double()
+        else:
+            cov = (v > v0).double()
+        cov = F.avg_pool2d(cov[None, None], ss)[0, 0].float()  # pixel-area integration
+        brightness = math.exp(_u(g, math.log(0.2), 0.0))
+        maps.mul_(1 - cov).add_(F.one_hot(torch.tensor(k), n_mat).float()[:, None, None] * cov * brightness)
+        kinds.append(kind)
+    return kinds
+
+
+def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> dict:
+    """Scene ``index`` of the natural-statistics distribution (module docstring), factored.
+
+    Returns ``{"maps": [J, H, W] float32 (>= 0), "spectra": [J, L] float64 (photons/s/sr/m^2/nm per unit map),
+    "wavelengths_nm": [L], "illuminant": [L] (the main light, a perfect white's radiance), "meta": dict}``.
+    ``meta["radii"]`` lists the drawn dead-leaves radii (for the size-law check).
+
+    Example:
+        >>> s = generate_natural(0, seed=1, config={"size": 32})
+        >>> s["maps"].shape[-2:], s["spectra"].shape[-1]
+        (torch.Size([32, 32]), 31)
+    """
+    cfg = config if config is not None and config.get("_checked") else natural_config(config)
+    g = torch.Generator().manual_seed(seed_for(seed, index))
+    h = w = int(cfg["size"])
+    wl = _wavelengths(cfg)
+    comp = cfg["components"]
+    refl, mat_kinds = _palette(cfg, wl, g)
+    n_mat = refl.shape[0]
+    lights, light_names, cct = _illuminants(cfg, wl, g, h, w)
+    maps = torch.zeros(n_mat, h, w)
+    maps[_ri(g, 0, n_mat - 1)] = 1.0  # the background material
+    dl = comp["dead_leaves"]
+    radii: list[float] = []
+    if dl["enabled"]:
+        radii = _paint_leaves(cfg, g, maps, _ri(g, *dl["leaves"]), float(dl["r_min_px"]),
+                              float(dl["r_max_fraction"]) * h, float(dl["exponent"]))
+    else:  # ablation: a few large leaves of uniform size (no scale invariance)
+        radii = _paint_leaves(cfg, g, maps, 12, 0.25 * h, 0.2500001 * h, 0.0)
+    depth = comp["depth_layers"]
+    defocus = None
+    if depth["enabled"] and float(torch.rand((), generator=g)) < depth["probability"]:
+        levels = depth["defocus_diopters"]
+        d_back, d_front = levels[_ri(g, 0, len(levels) - 1)], levels[_ri(g, 0, len(levels) - 1)]
+        fg = torch.zeros_like(maps)
+        alpha = torch.zeros(h, w)
+        _paint_leaves(cfg, g, fg, _ri(g, *depth["foreground_leaves"]), 0.08 * h, 0.35 * h, 3.0, alpha=alpha)
+        args = (float(depth["f_number"]), float(depth["focal_length_m"]), float(depth["pixel_size_m"]))
+        if d_back > 0:
+            maps = _blur(maps, _defocus_psf(float(d_back), *args))
+        if d_front > 0:
+            both = _blur(torch.cat([fg, alpha[None]]), _defocus_psf(float(d_front), *args))
+            fg, alpha = both[:-1], both[-1]
+        maps = maps * (1 - alpha) + fg  # fg is premultiplied by its coverage
+        defocus = (float(d_back), float(d_front))
+    fine: list[str] = []
+    fd = comp["fine_detail"]
+    if fd["enabled"] and float(torch.rand((), generator=g)) < fd["probability"]:
+        fine = _fine_detail(cfg, g, maps)
+    cc = comp["colour_correlation"]
+    s, contrast = _u(g, *cc["exponent"]), _u(g, *cc["contrast"])
+    if cc["enabled"]:  # one achromatic shading field for every material
+        maps = maps * torch.exp(_tex.power_law_noise(h, w, s, g) * contrast)
+    else:  # ablation: the same fine detail, chromatic: a fine-scale blend towards another material
+        t = _tex.colour_line_weights(h, w, s, g) * min(1.0, 2 * contrast)
+        maps = maps * (1 - t) + maps.roll(1, 0) * t
+    scale = float(cfg["mean_radiance_scale"])
+    all_maps, all_spectra = [], []
+    for e, m in lights:
+        all_maps.append(maps if m is None else maps * m)
+        all_spectra.append(refl * (e * scale)[None])
+    meta = {"index": int(index), "seed": int(seed), "materials": mat_kinds, "illuminants": light_names,
+            "cct_k": float(cct), "radii": radii, "defocus_diopters": defocus, "fine_detail": fine,
+            "shading_exponent": s, "shading_contrast": contrast}
+    return {"maps": torch.cat(all_maps), "spectra": torch.cat(all_spectra), "wavelengths_nm": wl,
+            "illuminant": lights[0][0] * scale, "meta": meta}
+
+
+# ------------------------------------------------------------------------------------------------ rendering
+
+def project(scene: dict, sensitivities: torch.Tensor) -> torch.Tensor:
+    """Camera responses ``[C, H, W]`` of a factored scene for channel sensitivities ``[C, L]`` (photon counting:
+    ``sum_l S_c(l) L(x, l) dl``, :func:`isettorch.spectral.wavelength_weights`), one projection per spectrum."""
+    wl = scene["wavelengths_nm"]
+    if sensitivities.dim() != 2 or sensitivities.shape[1] != wl.numel():
+        raise ValueError(f"sensitivities: expected [C, {wl.numel()}] on the scene's grid, got "
+                         f"{tuple(sensitivities.shape)}")
+    m = (scene["spectra"] * spectral.wavelength_weights(wl)[None]) @ sensitivities.to(torch.float64).T  # [J, C]
+    return torch.einsum("jc,jhw->chw", m.float(), scene["maps"])
+
+
+def white_balanced_rgb(scene: dict, sensitivities: torch.Tensor) -> torch.Tensor:
+    """:func:`project` divided by the response to a perfect white under the main light (von Kries), so a white
+    surface is 1 in every channel."""
+    wl = scene["wavelengths_nm"]
+    white = (sensitivities.to(torch.float64) * spectral.wavelength_weights(wl)[None]) @ scene["illuminant"]
+    return project(scene, sensitivities) / white.float()[:, None, None]
+
+
+def to_scene(scene: dict, *, hfov_deg: float = 10.0, distance_m: float = 1.2, dtype=torch.float32):
+    """The dense :class:`~isettorch.scene.Scene` (batch 1) of a factored scene, for the Camera."""
+    from ..scene import Scene
+
+    photons = torch.einsum("jl,jhw->lhw", scene["spectra"].to(dtype), scene["maps"].to(dtype))[None]
+    return Scene(photons, scene["wavelengths_nm"].to(dtype), name=f"natural-{scene['meta']['seed']}-"
+                 f"{scene['meta']['index']}", metadata=scene["meta"], hfov_deg=hfov_deg, distance_m=distance_m,
+                 illuminant_photons=scene["illuminant"].to(dtype)[None])
+
+
+def hard_patch_indices(target: torch.Tensor, estimate: torch.Tensor, keep: float = 0.1) -> torch.Tensor:
+    """Hard-patch mining (after Gharbi et al. 2016, who mine hard cases with their own metrics): indices of the
+    ``keep`` fraction of patches with the largest error of a baseline ``estimate`` (e.g. Malvar-He-Cutler) against
+    ``target``, both [N, C, H, W]; MSE per patch, highest first."""
+    if target.shape != estimate.shape or target.dim() != 4:
+        raise ValueError(f"target, estimate: expected equal shapes [N, C, H, W], got {tuple(target.shape)}, "
+                         f"{tuple(estimate.shape)}")
+    if not 0 < keep <= 1:
+        raise ValueError(f"keep: expected a fraction in (0, 1], got {keep}")
+    err = (target - estimate).pow(2).flatten(1).mean(1)
+    n = max(1, int(round(keep * target.shape[0])))
+    return err.argsort(descending=True)[:n]
+
+
+#: training domains: linear values, power-law encoded values, or a mix (``encoded_fraction`` of the images encoded)
+DOMAINS = ("linear", "encoded", "mixed")
+
+
+def expose_and_encode(rgb: torch.Tensor, generator: torch.Generator, domain: str = "mixed", *,
+                      encoded_fraction: float = 0.8, exposure=(0.6, 1.3), gamma=(1.8, 2.6)) -> torch.Tensor:
+    """Training images in ``domain`` from linear white-balanced images ``[B, C, H, W]``: a random exposure puts the
+    98th percentile at ``exposure`` (uniform), values are clipped to [0, 1] (saturation), and ``encoded`` images are
+    raised to ``1 / gamma`` (gamma uniform in ``gamma``; sRGB's is ~2.2). Benchmarks such as Kodak are 8-bit encoded
+    images scored as if linear, so the domain is an explicit choice; ``mixed`` encodes ``encoded_fraction``."""
+    if domain not in DOMAINS:
+        raise ValueError(f"domain: expected one of {DOMAINS}, got {domain!r}")
+    if rgb.dim() != 4:
+        raise ValueError(f"rgb: expected [B, C, H, W], got {tuple(rgb.shape)}")
+    b = rgb.shape[0]
+    peak = rgb.flatten(1).quantile(0.98, dim=1).clamp_min(1e-3)
+    k = (exposure[0] + (exposure[1] - exposure[0]) * torch.rand(b, generator=generator)) / peak
+    x = (rgb * k[:, None, None, None]).clamp(0, 1)
+    gam = gamma[0] + (gamma[1] - gamma[0]) * torch.rand(b, generator=generator)
+    frac = {"linear": 0.0, "encoded": 1.0, "mixed": float(encoded_fraction)}[domain]
+    use = (torch.rand(b, generator=generator) < frac)[:, None, None, None]
+    return torch.where(use, x.clamp_min(1e-8) ** (1 / gam[:, None, None, None]), x)
+
+
+class NaturalSceneDataset(torch.utils.data.Dataset):
+    """``length`` factored natural scenes; item ``i`` is :func:`generate_natural` ``(i, seed, config)``."""
+
+    def __init__(self, length: int, seed: int = 0, config: dict | None = None):
+        if int(length) < 0:
+            raise ValueError(f"length: expected a non-negative number of items, got {length}")
+        self.length, self.seed = int(length), int(seed)
+        self.config = dict(natural_config(config), _checked=True)
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __getitem__(self, index: int) -> dict:
+        if not 0 <= index < self.length:
+            raise IndexError(f"index: expected 0 <= index < {self.length}, got {index}")
+        return generate_natural(index, self.seed, self.config)

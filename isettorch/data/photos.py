@@ -1,0 +1,88 @@
+"""A folder of the user's own RGB photos as a source of spectral scenes (for users who want their own domain; the
+shipped models use no real photo).
+
+Each photo is decoded from sRGB (IEC 61966-2-1) to linear values, taken as the reflectance of a surface seen
+under a random illuminant, and lifted to spectra with ``colour.recovery``'s linear sRGB basis (Mallett & Yuksel,
+EGSR 2019, :func:`.spectra.srgb_basis_spectra`): ``R(x, l) = sum_c rgb_c(x) B_c(l)``, in [0, 1]. The scene is
+factored (three maps, three spectra), like :func:`.natural.generate_natural`, so :func:`.natural.project`,
+:func:`.natural.white_balanced_rgb` and :func:`.natural.to_scene` render it through a camera.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import spectra as _spectra
+from .config import seed_for
+from .natural import _choice, _wavelengths, _white_photons, natural_config
+
+__all__ = ["PhotoSceneDataset"]
+
+
+class PhotoSceneDataset(torch.utils.data.Dataset):
+    """Random ``size`` x ``size`` crops of the 8-bit RGB photos in ``folder`` (png/tif/jpg), lifted to spectra.
+
+    Item ``i`` is photo ``i % len(photos)`` with a crop, flip and illuminant drawn from ``(seed, i)``; it returns
+    the factored scene dict of :func:`.natural.generate_natural`.
+
+    Args:
+        folder: images (sorted by name). length: items (default: one per photo).
+        size: crop size in pixels (photos smaller than that raise an error naming the file).
+        illuminants: kind weights for :func:`.spectra.random_illuminant`.
+    """
+
+    SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+
+    def __init__(self, folder, size: int = 128, *, length: int | None = None, seed: int = 0,
+                 wavelengths_nm=(400.0, 700.0, 10.0), illuminants: dict | None = None):
+        folder = Path(folder)
+        if not folder.is_dir():
+            raise ValueError(f"folder: expected a directory of RGB photos, got {str(folder)!r}")
+        self.files = sorted(p for p in folder.iterdir() if p.suffix.lower() in self.SUFFIXES)
+        if not self.files:
+            raise ValueError(f"folder: no {'/'.join(self.SUFFIXES)} files in {str(folder)!r}")
+        self.size, self.seed = int(size), int(seed)
+        self.length = len(self.files) if length is None else int(length)
+        self.wl = _wavelengths({"wavelengths_nm": list(wavelengths_nm)})
+        default = natural_config()["components"]["illuminant"]["kinds"]
+        self.illuminants = dict(illuminants or default)
+        self.basis = _spectra.srgb_basis_spectra(self.wl)
+
+    def __len__(self) -> int:
+        return self.length
+
+    def _photo(self, path: Path) -> torch.Tensor:
+        from PIL import Image
+
+        from ..isp.colour import srgb_decode
+
+        with Image.open(path) as im:
+            if im.mode not in ("RGB", "RGBA", "L"):
+                raise ValueError(f"folder: {path.name} has mode {im.mode!r}; expected 8-bit RGB")
+            a = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
+        if min(a.shape[:2]) < self.size:
+            raise ValueError(f"size: {path.name} is {a.shape[1]} x {a.shape[0]}, smaller than the crop {self.size}")
+        return srgb_decode(torch.from_numpy(a).permute(2, 0, 1))
+
+    def __getitem__(self, index: int) -> dict:
+        if not 0 <= index < self.length:
+            raise IndexError(f"index: expected 0 <= index < {self.length}, got {index}")
+        g = torch.Generator().manual_seed(seed_for(self.seed, index))
+        path = self.files[index % len(self.files)]
+        lin = self._photo(path)
+        h, w = lin.shape[-2:]
+        y = int(torch.randint(0, h - self.size + 1, (), generator=g))
+        x = int(torch.randint(0, w - self.size + 1, (), generator=g))
+        crop = lin[:, y:y + self.size, x:x + self.size]
+        if float(torch.rand((), generator=g)) < 0.5:
+            crop = crop.flip(-1)
+        kind = _choice(self.illuminants, g)
+        spd, cct, name = _spectra.random_illuminant(kind, self.wl, g)
+        e = _white_photons(spd, self.wl)
+        meta = {"index": int(index), "seed": self.seed, "photo": path.name, "crop_yx": (y, x), "illuminants": [name],
+                "cct_k": float(cct)}
+        return {"maps": crop.clamp(0, 1).float(), "spectra": self.basis * e[None], "wavelengths_nm": self.wl,
+                "illuminant": e, "meta": meta}

@@ -1,0 +1,268 @@
+"""The natural-statistics scene generator (isettorch.data.natural, textures, statistics, photos): determinism by
+(seed, index), each component's statistics against its specification, and the lifting of photos to spectra."""
+
+from __future__ import annotations
+
+import math
+
+import colour
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from isettorch import spectral
+from isettorch.data import natural as nat
+from isettorch.data import spectra as sp
+from isettorch.data import statistics as st
+from isettorch.data import textures as tex
+from isettorch.data.layouts import dead_leaves_radii
+from isettorch.data.photos import PhotoSceneDataset
+
+WL = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+SMALL = {"size": 48, "components": {"dead_leaves": {"leaves": [40, 80]}}}
+
+
+def test_determinism_by_seed_and_index():
+    a = nat.generate_natural(3, seed=7, config=SMALL)
+    nat.generate_natural(0, seed=7, config=SMALL)  # other draws in between change nothing
+    b = nat.generate_natural(3, seed=7, config=SMALL)
+    assert torch.equal(a["maps"], b["maps"]) and torch.equal(a["spectra"], b["spectra"])
+    c = nat.generate_natural(4, seed=7, config=SMALL)
+    d = nat.generate_natural(3, seed=8, config=SMALL)
+    assert a["meta"]["radii"] != c["meta"]["radii"] and a["meta"]["radii"] != d["meta"]["radii"]  # other draws
+    ds = nat.NaturalSceneDataset(5, seed=7, config=SMALL)
+    assert torch.equal(ds[3]["maps"], a["maps"])
+    assert (a["maps"] >= 0).all() and (a["spectra"] >= 0).all() and torch.isfinite(a["maps"]).all()
+
+
+def test_config_errors_name_the_key():
+    with pytest.raises(ValueError, match="'components.dead_leaves.radius'"):
+        nat.natural_config({"components": {"dead_leaves": {"radius": 3}}})
+    with pytest.raises(ValueError, match="disable.*'fog'"):
+        nat.natural_config(disable=("fog",))
+    cfg = nat.natural_config(disable=("fine_detail", "depth_layers"))
+    assert not cfg["components"]["fine_detail"]["enabled"] and cfg["components"]["palette"]["enabled"]
+
+
+def test_dead_leaves_size_law_exponent():
+    """The radii drawn for the scenes follow p(r) ~ r^-3 (Lee, Mumford & Huang 2001): MLE within 0.1."""
+    cfg = nat.natural_config({"size": 64}, disable=("depth_layers", "fine_detail", "textured_leaves"))
+    radii = []
+    for i in range(6):
+        radii += nat.generate_natural(i, seed=1, config=cfg)["meta"]["radii"]
+    lo, hi = cfg["components"]["dead_leaves"]["r_min_px"], cfg["components"]["dead_leaves"]["r_max_fraction"] * 64
+    alpha = st.power_law_exponent_mle(radii, lo, hi)
+    assert len(radii) > 900 and abs(alpha - 3.0) < 0.1, (len(radii), alpha)
+
+
+def test_power_law_mle_recovers_known_exponents():
+    g = torch.Generator().manual_seed(0)
+    r = dead_leaves_radii(40000, 2.0, 200.0, g).numpy()
+    assert st.power_law_exponent_mle(r, 2.0, 200.0) == pytest.approx(3.0, abs=0.03)
+    u = np.random.default_rng(0).uniform(size=40000)  # alpha = 2 by inverse CDF of the truncated law
+    r2 = 1.0 / (1.0 - u * (1 - 1 / 50.0))
+    assert st.power_law_exponent_mle(r2, 1.0, 50.0) == pytest.approx(2.0, abs=0.03)
+
+
+@pytest.mark.parametrize("exponent", [0.8, 1.0, 1.5])
+def test_texture_spectrum_slope(exponent):
+    """1/f^s amplitude -> power-spectrum slope -2s (Field 1987), within 0.15 on the mean of 4 fields."""
+    g = torch.Generator().manual_seed(1)
+    slopes = [st.power_spectrum_slope(tex.power_law_noise(128, 128, exponent, g), f_range=(4.0, 0.4))
+              for _ in range(4)]
+    assert np.mean(slopes) == pytest.approx(-2 * exponent, abs=0.15)
+    x = tex.power_law_noise(64, 96, exponent, g)
+    assert float(x.mean()) == pytest.approx(0, abs=1e-5) and float(x.std()) == pytest.approx(1, abs=1e-5)
+
+
+def test_spectrum_slope_of_white_noise_and_warped_grating():
+    g = torch.Generator().manual_seed(2)
+    assert st.power_spectrum_slope(torch.randn(128, 128, generator=g)) == pytest.approx(0.0, abs=0.15)
+    t = tex.warped_grating(128, 128, 0.1, 0.3, 0.0, g)  # no warp: a pure grating of 0.1 cycles/pixel
+    f, p = st.radial_power_spectrum(t)
+    assert abs(f[np.argmax(p)] - 0.1) < 1.5 / 128
+    assert 0 <= float(t.min()) and float(t.max()) <= 1
+
+
+def test_colour_line_weights_make_colours_on_a_line():
+    """A colour-line texture blends two materials: its pixels' colours are collinear (rank 1 after centring)."""
+    g = torch.Generator().manual_seed(3)
+    t = tex.colour_line_weights(32, 32, 1.2, g)
+    ca, cb = torch.tensor([0.2, 0.5, 0.1]), torch.tensor([0.7, 0.3, 0.6])
+    rgb = (1 - t).reshape(-1, 1) * ca + t.reshape(-1, 1) * cb
+    s = torch.linalg.svdvals(rgb - rgb.mean(0))
+    assert float(s[1] / s[0]) < 1e-5 and float(t.std()) > 0.1
+
+
+def test_colour_correlation_makes_fine_detail_achromatic():
+    """On: the 1/f shading multiplies every material by the same factor at a pixel (intensity only, chromaticity
+    kept). Off: the same field changes the pixel's colour. Compared with the identical scene at zero contrast."""
+    sens = sp.camera_sensitivities("Nikon 5100 (NPL)", WL)
+
+    def rgb(contrast, *off):
+        cfg = nat.natural_config({"size": 48, "components": {"colour_correlation": {"contrast": [contrast] * 2}}},
+                                 disable=off)
+        return nat.white_balanced_rgb(nat.generate_natural(2, 0, cfg), sens).double()
+
+    for off in ((), ("colour_correlation",)):
+        base, detail = rgb(0.0, *off), rgb(0.3, *off)
+        ok = base.min(0).values > 1e-3
+        ratio = (detail / base.clamp_min(1e-12))[:, ok]  # [3, N]
+        spread = float((ratio.std(0) / ratio.mean(0)).mean())  # across channels, per pixel
+        if not off:
+            assert spread < 1e-4 and float(ratio[1].std()) > 0.1  # achromatic, and really modulating
+        else:
+            assert spread > 0.01
+
+
+def test_recovery_reflectances_round_trip_to_srgb():
+    """colour.recovery's basis: the reflectance of a linear sRGB triplet has that sRGB under D65 (to 0.01)."""
+    rgb = torch.tensor([[0.2, 0.5, 0.1], [0.8, 0.1, 0.3], [0.5, 0.5, 0.5]], dtype=torch.float64)
+    basis = sp.srgb_basis_spectra(torch.arange(380.0, 781.0, 5.0, dtype=torch.float64))
+    for c, r in zip(rgb, rgb @ basis):
+        sd = colour.SpectralDistribution(r.numpy(), np.arange(380.0, 781.0, 5.0))
+        xyz = colour.sd_to_XYZ(sd, illuminant=colour.SDS_ILLUMINANTS["D65"]) / 100
+        back = colour.XYZ_to_RGB(xyz, "sRGB", apply_cctf_encoding=False)
+        np.testing.assert_allclose(back, c.numpy(), atol=0.01)
+    g = torch.Generator().manual_seed(0)
+    r = sp.recovery_reflectances(200, WL, g)
+    assert r.shape == (200, 31) and float(r.min()) >= 0 and float(r.max()) <= 1
+
+
+def test_fine_detail_puts_energy_near_nyquist():
+    """Gratings and lines at 0.15-0.7 cycles/pixel: more power above 0.25 cycles/pixel than without them."""
+    def hf(cfg):
+        out = []
+        for i in range(4):
+            m = nat.generate_natural(i, 5, cfg)["maps"].sum(0)
+            f, p = st.radial_power_spectrum(m)
+            out.append(p[f > 0.25].sum() / p.sum())
+        return np.mean(out)
+
+    base = {"size": 64, "components": {"fine_detail": {"probability": 1.0, "items": [3, 3]}}}
+    # the leaves' own fine structure aside (few large flat leaves: the ablation form of dead_leaves)
+    others = ("dead_leaves", "textured_leaves", "depth_layers", "colour_correlation")
+    with_detail, without = hf(nat.natural_config(base, disable=others)), hf(nat.natural_config(
+        base, disable=others + ("fine_detail",)))
+    assert with_detail > 3 * without, (with_detail, without)
+
+
+def test_depth_layers_defocus_with_the_library_psf():
+    psf = nat._defocus_psf(2.0, 2.0, 0.004, 1.4e-6)
+    assert float(psf.sum()) == pytest.approx(1.0, abs=1e-5)
+    sharp = nat._defocus_psf(0.0, 2.0, 0.004, 1.4e-6)
+    assert float(psf.max()) < 0.5 * float(sharp.max())  # defocus spreads the PSF
+    cfg = {"size": 48, "components": {"depth_layers": {"probability": 1.0, "defocus_diopters": [2.0]}}}
+    s = nat.generate_natural(0, 0, cfg)
+    assert s["meta"]["defocus_diopters"] == (2.0, 2.0)
+
+
+def test_project_is_the_spectral_integral_of_the_dense_scene():
+    s = nat.generate_natural(1, 2, SMALL)
+    sens = sp.camera_sensitivities("Nikon 5100 (NPL)", WL)
+    scene = nat.to_scene(s, dtype=torch.float64)
+    dense = torch.einsum("cl,lhw->chw", sens * spectral.wavelength_weights(WL)[None], scene.photons[0])
+    torch.testing.assert_close(nat.project(s, sens).double(), dense, rtol=1e-5, atol=1e-6 * float(dense.max()))
+    # a perfect white under the main light is 1 after white balance: a map of ones on a white spectrum
+    white = {"maps": torch.ones(1, 4, 4), "spectra": s["illuminant"][None], "wavelengths_nm": WL,
+             "illuminant": s["illuminant"]}
+    torch.testing.assert_close(nat.white_balanced_rgb(white, sens), torch.ones(3, 4, 4), rtol=1e-5, atol=1e-6)
+
+
+def test_hard_patch_indices():
+    t = torch.zeros(5, 3, 4, 4)
+    e = t.clone()
+    for i, v in enumerate([0.1, 0.5, 0.0, 0.3, 0.2]):
+        e[i] += v
+    assert nat.hard_patch_indices(t, e, keep=0.4).tolist() == [1, 3]
+    with pytest.raises(ValueError, match="keep"):
+        nat.hard_patch_indices(t, e, keep=0)
+
+
+def test_photo_folder_lifts_to_spectra(tmp_path):
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    Image.fromarray(img).save(tmp_path / "a.png")
+    ds = PhotoSceneDataset(tmp_path, size=32, length=3, seed=1)
+    item = ds[1]
+    assert item["maps"].shape == (3, 32, 32) and item["spectra"].shape == (3, 31)
+    assert torch.equal(ds[1]["maps"], item["maps"])
+    # the maps are the decoded linear sRGB values of the crop (IEC 61966-2-1)
+    y, x = item["meta"]["crop_yx"]
+    enc = img[y:y + 32, x:x + 32].astype(np.float64) / 255
+    lin = np.where(enc <= 0.04045, enc / 12.92, ((enc + 0.055) / 1.055) ** 2.4).transpose(2, 0, 1)
+    m = item["maps"].double().numpy()
+    assert np.allclose(m, lin, atol=1e-6) or np.allclose(m, lin[..., ::-1], atol=1e-6)
+    with pytest.raises(ValueError, match="size.*a.png.*smaller"):
+        PhotoSceneDataset(tmp_path, size=64)[0]
+    with pytest.raises(ValueError, match="folder"):
+        PhotoSceneDataset(tmp_path / "missing")
+
+
+def test_statistics_references():
+    """Gaussian white noise: gradient kurtosis 3; identical channels: gradient correlation 1."""
+    g = torch.Generator().manual_seed(4)
+    x = torch.randn(256, 256, generator=g, dtype=torch.float64)
+    # differences of iid Gaussians are Gaussian: kurtosis 3 (standard error ~ sqrt(24 / N) ~ 0.007)
+    assert st.gradient_kurtosis(x) == pytest.approx(3.0, abs=0.05)
+    rgb = torch.stack([x, 2 * x + 1, torch.randn(256, 256, generator=g, dtype=torch.float64)])
+    assert st.cross_channel_gradient_correlation(rgb, 0, 1) == pytest.approx(1.0, abs=1e-12)
+    assert abs(st.cross_channel_gradient_correlation(rgb, 0, 2)) < 0.02
+    with pytest.raises(ValueError, match="image"):
+        st.gradient_kurtosis(torch.ones(16, 16))
+    assert math.isfinite(st.power_spectrum_slope(x))
+
+
+def test_shipped_generator_config_is_the_defaults():
+    """configs/synth/natural.yaml documents NATURAL_DEFAULTS: it loads without error and equals them."""
+    from pathlib import Path
+
+    import yaml
+
+    path = Path(__file__).resolve().parents[2] / "configs" / "synth" / "natural.yaml"
+    cfg = yaml.safe_load(path.read_text())
+    assert nat.natural_config(cfg) == nat.NATURAL_DEFAULTS
+
+
+def test_mixed_illuminants_blend_two_lights_smoothly():
+    """Two lights: the maps split into two halves (light 1, light 2) whose per-pixel shares are the same for every
+    material (the light field is spatial, not material-dependent), span a real range and vary smoothly."""
+    cfg = {"size": 48, "components": {"illuminant": {"mixed_probability": 1.0}}}
+    s = nat.generate_natural(0, 3, cfg)
+    k = s["maps"].shape[0] // 2
+    assert len(s["meta"]["illuminants"]) == 2 and s["spectra"].shape[0] == 2 * k
+    m1, m2 = s["maps"][:k].double(), s["maps"][k:].double()
+    total = m1 + m2
+    ok = total > 1e-3
+    share = torch.where(ok, m1 / total.clamp_min(1e-12), torch.nan)
+    present = ok.sum(0) >= 2  # pixels where two or more materials are seen (edges, blends, textures)
+    assert int(present.sum()) > 50
+    spread = torch.nan_to_num(share, nan=-1).amax(0) - torch.nan_to_num(share, nan=2).amin(0)
+    assert float(spread[present].max()) < 1e-5
+    field = torch.nanmean(share, 0)
+    assert float(field.max() - field.min()) > 0.2
+    assert float((field[:, 1:] - field[:, :-1]).abs().max()) < 0.2  # smooth: no jump between neighbours
+
+
+def test_photo_renders_through_the_camera(tmp_path):
+    """A photo of a mid-grey (sRGB 128) half and a white half, lifted and rendered by the Camera (diffraction-limited
+    optics, Nikon D5100 sensor, no noise): in every channel the raw ratio of the halves is the *linear* ratio 0.216
+    (IEC 61966-2-1 decoding of 128/255), not the encoded 0.502; 3 % allows the Airy tails across the edge."""
+    from isettorch.camera import Camera
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.sensor import Sensor
+
+    a = np.full((64, 64, 3), 128, np.uint8)
+    a[:, 32:] = 255
+    Image.fromarray(a).save(tmp_path / "p.png")
+    item = PhotoSceneDataset(tmp_path, size=64, seed=0)[0]
+    scene = nat.to_scene(item, hfov_deg=1.0)  # 64 scene pixels ~ the 32 x 2 um sensor
+    sensor = Sensor(cfa="RGGB", filters="nikon_5100", auto_exposure="luminance", pixel_size_m=2e-6, rows=32, cols=32)
+    raw = Camera(DiffractionLimitedOptics(f_number=4.0), sensor, None, noise=False)(
+        scene, return_intermediates=True).raw.data[0, 0].double()
+    left, right = raw[4:28, 2:12], raw[4:28, 20:30]
+    expected = ((128 / 255 + 0.055) / 1.055) ** 2.4
+    for dy, dx in ((0, 0), (0, 1), (1, 1)):  # R, G, B sites
+        lo, hi = sorted([float(left[dy::2, dx::2].mean()), float(right[dy::2, dx::2].mean())])
+        assert lo / hi == pytest.approx(expected, rel=0.03)
