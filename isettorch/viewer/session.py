@@ -182,6 +182,7 @@ class ViewerSession:
         self._cameras: dict[tuple, object] = {}
         self._ois: dict[tuple, object] = {}
         self._raws: dict[tuple, object] = {}
+        self._images: dict[tuple, tuple] = {}
         self.cache_size = 4
         self.camera = None
         self.output = None
@@ -290,19 +291,25 @@ class ViewerSession:
 
     def image(self, window: str) -> np.ndarray:
         """A window's picture, ``[H, W, 3]`` in [0, 1]: the scene's and optical image's sRGB previews, the raw
-        mosaic (0 at black, 1 at saturation; shown with a 1/2.2 display gamma) and the processed image."""
+        mosaic (0 at black, 1 at saturation; shown with a 1/2.2 display gamma) and the processed image. Cached
+        per intermediate, so a change downstream does not recompute the pictures upstream."""
         out = self.output
-        if window == "scene":
-            img = out.scene.srgb()[0]
-        elif window == "oi":
-            img = out.optical_image.srgb()[0]
-        elif window == "sensor":
-            img = out.raw.normalized()[0].clamp(0, 1).pow(1 / 2.2).expand(3, -1, -1)
-        elif window == "ip":
-            img = out.image[0]
-        else:
+        sources = {"scene": out.scene, "oi": out.optical_image, "sensor": out.raw, "ip": out.image}
+        if window not in sources:
             raise ValueError(f"window: expected one of {WINDOWS}, got {window!r}")
-        return img.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy()
+        key = (window, id(sources[window]))
+        if key not in self._images:
+            if window in ("scene", "oi"):
+                img = sources[window].srgb()[0]
+            elif window == "sensor":
+                img = out.raw.normalized()[0].clamp(0, 1).pow(1 / 2.2).expand(3, -1, -1)
+            else:
+                img = out.image[0]
+            if len(self._images) >= 4 * len(WINDOWS):
+                self._images.clear()
+            # keep the source alive with its picture, so its id() is not reused while cached
+            self._images[key] = (sources[window], img.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy())
+        return self._images[key][1]
 
     def spectrum(self, window: str, roi: ROI) -> dict[str, np.ndarray]:
         """Mean spectral radiance (scene, photons/s/sr/m^2/nm) or irradiance (optical image, photons/s/m^2/nm)
