@@ -138,17 +138,26 @@ def make_document(doc, session_factory) -> None:
     p_de.vbar(x="patch", top="delta_e", width=0.8, source=de_src)
     ip_div = Div(name="ip_text", width=IMAGE_PX)
     scene_div, oi_div, sensor_div = (Div(name=f"{w}_text", width=IMAGE_PX) for w in ("scene", "oi", "sensor"))
+    mtf_div = Div(name="mtf_text", width=IMAGE_PX)
 
     # --- updates -----------------------------------------------------------------------
-    def show_images() -> None:
+    shown: dict[str, object] = {}  # what each window / the optics plots show now: push only what changed
+
+    def show_images() -> list[str]:
+        changed = []
         for w in WINDOWS:
             img = s.image(w)
+            if shown.get(w) is img:  # the session caches pictures per intermediate: same object, same picture
+                continue
+            shown[w] = img
+            changed.append(w)
             h, wd = img.shape[:2]
             sources[w].data = {"image": [_rgba(img)], "x": [0], "y": [0], "dw": [wd], "dh": [h]}
             figs[w].x_range.update(start=0, end=wd)
             figs[w].y_range.update(start=0, end=h)
             figs[w].height = max(40, round(IMAGE_PX * h / wd))  # square pixels
             rois[w] = rois[w].fit(h, wd) if w in rois else ROI.centre(h, wd)
+        return changed
 
     def show_roi(w: str) -> None:
         r = rois[w]
@@ -195,6 +204,10 @@ def make_document(doc, session_factory) -> None:
                 ip_div.text = f"{label}; xy = ({cs['roi_xy'][0]:.4f}, {cs['roi_xy'][1]:.4f}) (ΔE: Macbeth scene only)"
 
     def show_optics() -> None:
+        key = (float(s.camera.optics.f_number.reshape(-1)[0]), s.camera.sensor.pixel_size_m)
+        if shown.get("optics") == key:
+            return
+        shown["optics"] = key
         oc = s.optics_curves()
         mtf_src.data = {"frequency_cpmm": list(oc["frequency_cpmm"]),
                         **{f"mtf_{int(k)}": list(v) for k, v in oc["mtf"].items()}}
@@ -203,13 +216,11 @@ def make_document(doc, session_factory) -> None:
         psf_src.data = {"image": [np.flipud(oc["psf"] / oc["psf"].max())], "x": [-n * d / 2], "y": [-n * d / 2],
                         "dw": [n * d], "dh": [n * d]}
         p_psf.title.text = f"PSF 550 nm, f/{oc['f_number']:g} (µm)"
-        oi_div.text = (oi_div.text.split("<br>")[0]
-                       + f"<br>MTF: dashed line = sensor Nyquist {oc['sensor_nyquist_cpmm']:.0f} cy/mm")
+        mtf_div.text = f"MTF: dashed line = sensor Nyquist {oc['sensor_nyquist_cpmm']:.0f} cy/mm"
 
     def refresh(timings=None) -> None:
         t0 = time.perf_counter()
-        show_images()
-        for w in WINDOWS:
+        for w in show_images():
             show_roi(w)
         show_optics()
         t = timings or s.timings
@@ -276,7 +287,7 @@ def make_document(doc, session_factory) -> None:
     images = row(*[column(Div(text=f"<h3>{TITLES[w]}</h3>"), figs[w], width=IMAGE_PX + 10) for w in WINDOWS])
     cols = [
         column(scene_div, p_scene),
-        column(oi_div, p_oi, p_psf, p_mtf),
+        column(oi_div, p_oi, p_psf, p_mtf, mtf_div),
         column(sensor_div, p_hist, stats_table),
         column(ip_div, p_xy, p_de),
     ]
