@@ -41,3 +41,11 @@ def test_bad_inputs_name_the_argument(tmp_path):
     bad.write_text("x")
     with pytest.raises(ValueError, match="scene"):
         ViewerSession("default", scene=str(bad), size=32)
+
+
+def test_view_command_reports_a_bad_config_without_a_traceback(capsys):
+    pytest.importorskip("bokeh", reason="the viewer extra (bokeh) is not installed")
+    from isettorch.cli import main
+
+    assert main(["view", "--config", "no_such_camera", "--no-browser", "--port", "0"]) == 2
+    assert "no_such_camera" in capsys.readouterr().out
