@@ -65,7 +65,7 @@ def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: flo
                  k_H: float = 1.0) -> torch.Tensor:
     """CIEDE2000 colour difference (CIE 142-2001), implemented as in Sharma, Wu and Dalal, "The CIEDE2000
     color-difference formula: implementation notes, supplementary test data, and mathematical observations",
-    Color Res. Appl. 30(1), 2005, eqs. 1-22 (hue rules for C' = 0 and |dh'| > 180 included)."""
+    Color Res. Appl. 30(1), 2005, eqs. 1-22 (hue rules for C' = 0 and abs(dh') > 180 included)."""
     (L1, a1, b1), (L2, a2, b2), _ = _split(lab1, lab2, dim)
     p7 = 25.0**7
     C1 = _safe_sqrt(a1**2 + b1**2)

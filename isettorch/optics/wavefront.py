@@ -98,7 +98,7 @@ class WavefrontOptics(ShiftInvariantLens):
         focal_length_m: focal length (m).
         defocus_diopters: extra defocus added to ``c_4`` (converted with the current pupil diameter).
         pupil_samples: samples across the pupil (even); the PSF window is ``pupil_samples * lambda N`` wide.
-        learn_zernike, learn_f_number: make them trainable ``nn.Parameter``s.
+        learn_zernike, learn_f_number: make them trainable (``nn.Parameter``).
         Other arguments: see :class:`~isettorch.optics.base.ShiftInvariantLens`.
 
     The Zernike polynomials use ``x`` along increasing columns and ``y`` along increasing rows.

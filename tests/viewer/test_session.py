@@ -1,0 +1,51 @@
+"""The viewer's session (no browser): region geometry, config overrides and errors."""
+
+from __future__ import annotations
+
+import pytest
+
+from isettorch.viewer.session import ROI, Settings, ViewerSession, resolve_config
+
+
+def test_roi_from_box_maps_bokeh_y_up_to_rows_and_limits_to_the_image():
+    # A 10 x 20 image shown with y = height - row: the box x 2.4..7.6, y 6.5..9.2 covers rows 0.8..3.5.
+    assert ROI.from_box(2.4, 7.6, 6.5, 9.2, 10, 20) == ROI(0, 4, 2, 8)
+    # Reversed corners give the same region; a box past the edges is limited to the image.
+    assert ROI.from_box(7.6, 2.4, 9.2, 6.5, 10, 20) == ROI(0, 4, 2, 8)
+    assert ROI.from_box(-5, 30, -3, 15, 10, 20) == ROI(0, 10, 0, 20)
+    # A click (zero-area box) still selects one pixel.
+    assert ROI.from_box(3.2, 3.2, 4.7, 4.7, 10, 20) == ROI(5, 6, 3, 4)
+    assert ROI(8, 12, 18, 25).fit(10, 20) == ROI(8, 10, 18, 20)
+    assert ROI.centre(8, 12, 0.5) == ROI(2, 6, 3, 9)
+
+
+def test_camera_config_overrides_use_the_configs_own_keys():
+    s = ViewerSession.__new__(ViewerSession)  # only the config logic, no render
+    s.base_config = {"optics": {"f_number": 4.0}, "sensor": {"auto_exposure": "luminance"}, "isp": {}}
+    s.settings = Settings()
+    cfg = s.camera_config(Settings(f_number=8.0, exposure_ms=2.0, pixel_size_um=1.4, cfa="RGGB", noise=False,
+                                   demosaic="malvar2004"))
+    assert cfg["optics"]["f_number"] == 8.0
+    assert cfg["sensor"] == {"auto_exposure": None, "exposure_s": 0.002, "pixel_size_m": pytest.approx(1.4e-6),
+                             "cfa": "RGGB"}
+    assert cfg["camera"] == {"noise": False} and cfg["isp"] == {"demosaic": "malvar2004"}
+    assert s.base_config["optics"]["f_number"] == 4.0  # the base config is not modified
+
+
+def test_bad_inputs_name_the_argument(tmp_path):
+    with pytest.raises(FileNotFoundError, match="config"):
+        resolve_config("no_such_camera")
+    with pytest.raises(ValueError, match="size"):
+        ViewerSession("default", size=4)
+    bad = tmp_path / "scene.xyz"
+    bad.write_text("x")
+    with pytest.raises(ValueError, match="scene"):
+        ViewerSession("default", scene=str(bad), size=32)
+
+
+def test_view_command_reports_a_bad_config_without_a_traceback(capsys):
+    pytest.importorskip("bokeh", reason="the viewer extra (bokeh) is not installed")
+    from isettorch.cli import main
+
+    assert main(["view", "--config", "no_such_camera", "--no-browser", "--port", "0"]) == 2
+    assert "no_such_camera" in capsys.readouterr().out
