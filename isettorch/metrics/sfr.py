@@ -37,7 +37,10 @@ class SFRResult:
     sfr: torch.Tensor  # [..., F]
     mtf50: torch.Tensor  # [...] cycles/pixel
     mtf_nyquist: torch.Tensor  # [...] SFR at 0.5 cycles/pixel
-    angle_deg: torch.Tensor  # [...] edge angle from the vertical (from the horizontal when horizontal=True)
+    # [...] the edge's tilt from the vertical in degrees, in (-90, 90), positive when its top leans to the right
+    # (y downwards): the convention of :func:`isettorch.scene.slanted_edge`, so esfr(slanted_edge(a)) gives a;
+    # a near-horizontal edge reads near +-90 (horizontal=True)
+    angle_deg: torch.Tensor
     horizontal: torch.Tensor  # [...] bool, True when the edge was near-horizontal (the ROI was transposed)
     esf: list  # per edge, the 4x oversampled ESF [4 * width]
     lsf: list  # per edge, the centred, windowed LSF
@@ -122,7 +125,22 @@ def _edge_fit(a: torch.Tensor) -> tuple[float, float]:
     return _fit_line(torch.stack(locs))
 
 
-def _esfr_single(a: torch.Tensor, max_bin_fill: float):
+def _edge_contrast_to_noise(geo: torch.Tensor) -> tuple[float, float, float]:
+    """(dark level, bright level, noise sigma) of an oriented ROI [R, N] (near-vertical, dark on the left).
+
+    Levels: means of the outer quarters of the columns. Noise: the robust (MAD) standard deviation of the
+    differences between vertically adjacent pixels, which cancel the edge except where it crosses a row:
+    sigma = 1.4826 median|d| / sqrt(2) (d has twice the pixel variance).
+    """
+    R, N = geo.shape
+    q = max(N // 4, 1)
+    dark, bright = float(geo[:, :q].mean()), float(geo[:, -q:].mean())
+    d = (geo[1:] - geo[:-1]).reshape(-1)
+    sigma = 1.4826 * float(d.abs().median()) / math.sqrt(2) if d.numel() else 0.0
+    return dark, bright, sigma
+
+
+def _esfr_single(a: torch.Tensor, max_bin_fill: float, min_cnr: float = 0.0):
     """e-SFR of one ROI [R, N] (float). Returns dict with native frequencies, sfr, esf, lsf, angle, orientation."""
     geo = a.detach().to(torch.float64)
     R, N = geo.shape
@@ -136,6 +154,15 @@ def _esfr_single(a: torch.Tensor, max_bin_fill: float):
         a, geo = a.flip(-1), geo.flip(-1)
     if N < 8 or R < 8:
         raise ValueError(f"image: expected an edge ROI of at least 8x8 pixels, got {R}x{N}")
+    dark, bright, sigma = _edge_contrast_to_noise(geo)
+    step = bright - dark
+    if not step > 1e-3 * max(abs(dark), abs(bright), torch.finfo(torch.float64).tiny):
+        raise ValueError(f"image: no edge in the ROI (flat: dark side mean {dark:.6g}, bright side mean {bright:.6g}); "
+                         "expected a slanted edge between two uniform areas")
+    if sigma > 0 and step / sigma < min_cnr:
+        raise ValueError(f"image: the edge is too noisy for the e-SFR: contrast {step:.4g} / noise sigma {sigma:.4g} = "
+                         f"{step / sigma:.2f} < min_cnr {min_cnr:g}; average frames, use a larger ROI or lower "
+                         "min_cnr (the MTF would be dominated by noise)")
     slope, off = _edge_fit(geo)
     if abs(slope) < 1e-3:
         raise ValueError(f"image: the edge is too close to vertical/horizontal (slope {slope:.2e}); the slanted-edge "
@@ -187,7 +214,11 @@ def _esfr_single(a: torch.Tensor, max_bin_fill: float):
     sfr = sfr * corr.to(sfr)
     cos_a = math.cos(math.atan(slope))
     freq = k * OVERSAMPLING / (nn * cos_a)  # cycles/pixel normal to the edge
-    angle = math.degrees(math.atan(slope)) * (-1 if flip else 1)
+    # Tilt from the vertical in the ROI as given, positive when the top leans right (y down): in the oriented frame
+    # the edge is x = slope y + off, so a positive slope leans left; undo the mirror, then the transpose.
+    angle = math.degrees(math.atan(slope)) * (1 if flip else -1)
+    if horizontal:
+        angle = 90.0 - angle if angle > 0 else -90.0 - angle
     return dict(freq=freq, sfr=sfr, esf=esf, lsf=lsf, angle=angle, horizontal=bool(horizontal))
 
 
@@ -238,7 +269,7 @@ def find_edge_roi(image: torch.Tensor, margin_px: int = 20, trim: float = 0.1) -
 
 
 def esfr(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, auto_roi: bool = True,
-         max_empty_bins: float = 0.1) -> SFRResult:
+         max_empty_bins: float = 0.1, min_cnr: float = 10.0) -> SFRResult:
     """ISO 12233 e-SFR of a slanted edge (sfrmat3/4 method).
 
     Args:
@@ -248,6 +279,14 @@ def esfr(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, auto
         auto_roi: when ``roi`` is None, find the ROI with :func:`find_edge_roi` (on the channel mean); otherwise
             the whole image is the ROI.
         max_empty_bins: fraction of empty 4x-oversampled ESF bins above which a ValueError is raised.
+        min_cnr: smallest edge contrast-to-noise ratio accepted: (bright - dark side mean) / pixel noise sigma,
+            the sigma estimated robustly from differences along the edge. Below it a ValueError is raised instead
+            of a noise-dominated curve. Default 10: measured on 64x64 analytic edges (f/4, f/8; 20 noise seeds),
+            the MTF50 scatters by a median 7-14 % at CNR 10, 4-6 % at 20, 26-39 % at 3. A flat ROI always raises.
+
+    Raises:
+        ValueError: flat or too noisy ROI, an edge too close to vertical/horizontal, too few ESF bins filled,
+            or a ``roi`` outside the image or with inverted bounds (row1 <= row0 or col1 <= col0).
 
     Returns:
         :class:`SFRResult` with ``frequencies`` [F] (cycles/pixel normal to the edge), ``sfr`` [..., F],
@@ -265,6 +304,10 @@ def esfr(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, auto
     if image.dim() not in (2, 3, 4):
         raise ValueError(f"image: expected (H, W), (C, H, W) or (B, C, H, W), got shape {tuple(image.shape)}")
     check_finite(image.detach(), "image")
+    if not (isinstance(min_cnr, (int, float)) and min_cnr >= 0):
+        raise ValueError(f"min_cnr: expected a non-negative number, got {min_cnr!r}")
+    if not (isinstance(max_empty_bins, (int, float)) and 0 <= max_empty_bins <= 1):
+        raise ValueError(f"max_empty_bins: expected a fraction in [0, 1], got {max_empty_bins!r}")
     if not image.is_floating_point():
         image = image.to(torch.get_default_dtype())
     lead = image.shape[:-2]
@@ -281,9 +324,10 @@ def esfr(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, auto
         else:
             r = tuple(int(v) for v in roi)
             if len(r) != 4 or not (0 <= r[0] < r[1] <= flat.shape[-2] and 0 <= r[2] < r[3] <= flat.shape[-1]):
-                raise ValueError(f"roi: expected (row0, row1, col0, col1) inside {tuple(flat.shape[-2:])}, got {roi}")
+                raise ValueError(f"roi: expected (row0, row1, col0, col1), end-exclusive, with 0 <= row0 < row1 <= "
+                                 f"{flat.shape[-2]} and 0 <= col0 < col1 <= {flat.shape[-1]}, got {roi}")
         rois.append(r)
-        results.append(_esfr_single(flat[i, r[0]:r[1], r[2]:r[3]], max_empty_bins))
+        results.append(_esfr_single(flat[i, r[0]:r[1], r[2]:r[3]], max_empty_bins, min_cnr))
     freq = results[0]["freq"].to(device=image.device, dtype=image.dtype)
     sfrs, m50, nyq = [], [], []
     for res in results:
