@@ -67,11 +67,14 @@ def run(args) -> int:
     # Field of view for a sensor about n pixels wide: 2 atan(n p / 2 f).
     f = float(cam.optics.focal_length_m.reshape(-1)[0])
     hfov = math.degrees(2 * math.atan(n * cam.sensor.pixel_size_m / (2 * f)))
+    # Two scene samples per pixel: a scene coarser than the pixel grid would be interpolated by the sensor
+    # (and Camera warns); the optical image keeps the scene's sampling, the sensor has about n pixels across.
+    s = 2 * n
     scenes = {
-        "macbeth": macbeth("D65", patch_size=max(4, n // 6), hfov_deg=hfov),
-        "slanted_edge": slanted_edge(n, hfov_deg=hfov),
-        "frequency_sweep": frequency_sweep(n, hfov_deg=hfov),
-        "dead_leaves": dead_leaves(n, seed=args.seed, hfov_deg=hfov),
+        "macbeth": macbeth("D65", patch_size=max(4, s // 6), hfov_deg=hfov),
+        "slanted_edge": slanted_edge(s, hfov_deg=hfov),
+        "frequency_sweep": frequency_sweep(s, hfov_deg=hfov),
+        "dead_leaves": dead_leaves(s, seed=args.seed, hfov_deg=hfov),
     }
     gen = torch.Generator().manual_seed(args.seed)
     report = {"camera": cam.name or Path(config).stem, "config": str(config), "size": n, "hfov_deg": hfov,
