@@ -159,3 +159,48 @@ def test_inverted_or_empty_roi_is_rejected(edges, roi):
 def test_bad_thresholds(edges, kw):
     with pytest.raises(ValueError, match=next(iter(kw))):
         esfr(edges[8], auto_roi=False, **kw)
+
+
+def _box_pixel_mtf50():
+    return brentq(lambda f: np.sinc(f) - 0.5, 0.1, 0.9)  # 100 % fill square pixel: MTF = sinc(f), 0.6034 cy/px
+
+
+def test_cfa_aware_sfr_on_a_bayer_mosaic():
+    # Friction 2 of issue 18: e-SFR of a raw mosaic. An exact-area edge (box pixels, no optics) seen through a
+    # GRBG mosaic whose filters have gains R 1, G 1.5, B 2: the true MTF is the pixel's sinc in every channel.
+    from isettorch.metrics import esfr_cfa
+    from isettorch.scene import slanted_edge as scene_edge
+    from isettorch.sensor import CFA
+
+    edge = scene_edge(128, 5.0).reflectance()[0, 15]
+    mosaic = edge * (CFA("GRBG").index_map.repeat(64, 64).double() * 0.5 + 1)
+    with pytest.raises(ValueError, match="too noisy"):  # the plain e-SFR sees the CFA pattern as noise
+        esfr(mosaic)
+    lum = esfr_cfa(mosaic, "GRBG")
+    assert float(lum.mtf50) == pytest.approx(float(esfr(edge, auto_roi=False).mtf50), rel=0.01)
+    assert float(lum.mtf50) == pytest.approx(_box_pixel_mtf50(), rel=0.04)
+    ch = esfr_cfa(mosaic, "GRBG", mode="channels")
+    assert ch.channels == ("R", "G", "B") and ch.sfr.shape[0] == 3
+    for m in ch.mtf50.tolist():
+        assert m == pytest.approx(_box_pixel_mtf50(), rel=0.05)
+    assert ch.angle_deg.tolist() == pytest.approx([5.0] * 3, abs=0.05)
+    with pytest.raises(ValueError, match="mode"):
+        esfr_cfa(mosaic, "GRBG", mode="rgb")
+
+
+@pytest.mark.filterwarnings("ignore:the scene is coarser")
+def test_cfa_aware_sfr_through_the_camera_orders_channels_by_wavelength():
+    # Diffraction blur grows with wavelength (cutoff 1 / (lambda N)): R's MTF50 < G's < B's.
+    import isettorch
+    from isettorch.metrics import esfr_cfa
+    from isettorch.scene import slanted_edge as scene_edge
+
+    cam = isettorch.Camera.from_config("default")
+    cam.noise = False
+    f, p = float(cam.optics.focal_length_m), cam.sensor.pixel_size_m
+    hfov = math.degrees(2 * math.atan(128 * p / (2 * f)))
+    raw = cam(scene_edge(512, hfov_deg=hfov), return_intermediates=True).raw
+    r, g, b = esfr_cfa(raw.noise_free[0, 0], raw.cfa, mode="channels").mtf50.tolist()
+    assert r < g < b
+    lum = float(esfr_cfa(raw.noise_free[0, 0], raw.cfa).mtf50)
+    assert r < lum < b
