@@ -117,7 +117,10 @@ class SpectralImage:
         return self.photons.dtype
 
     def replace(self, **changes) -> SpectralImage:
-        """A copy with some fields changed (validation is skipped for internal, trusted changes)."""
+        """A copy with some fields changed (validation is skipped for internal, trusted changes).
+
+        :meth:`Scene.replace <isettorch.scene.Scene.replace>` validates by default (a user's edit of a scene).
+        """
         changes.setdefault("validate", False)
         return dataclasses.replace(self, **changes)
 
@@ -134,10 +137,10 @@ class SpectralImage:
     def to(self, device=None, dtype=None) -> SpectralImage:
         """Move to a device and/or floating dtype (all tensors together)."""
         return self.replace(**self._map_tensors(lambda t: t.to(device=device, dtype=dtype)
-                                                if t.is_floating_point() else t.to(device=device)))
+                                                if t.is_floating_point() else t.to(device=device)), validate=False)
 
     def detach(self) -> SpectralImage:
-        return self.replace(**self._map_tensors(lambda t: t.detach()))
+        return self.replace(**self._map_tensors(lambda t: t.detach()), validate=False)
 
     def __getitem__(self, index) -> SpectralImage:
         """Select batch samples: ``img[0]``, ``img[1:3]``; the batch dimension is kept."""
@@ -150,7 +153,7 @@ class SpectralImage:
                 changes[f] = v[index]
         if getattr(self, "illuminant_photons", None) is not None:
             changes["illuminant_photons"] = self.illuminant_photons[index]
-        return self.replace(**changes)
+        return self.replace(**changes, validate=False)
 
     def __repr__(self) -> str:
         extra = ", ".join(
@@ -170,7 +173,7 @@ class SpectralImage:
                    "wavelengths_nm": new}
         if getattr(self, "illuminant_photons", None) is not None:
             changes["illuminant_photons"] = spectral.resample(self.illuminant_photons, self.wavelengths_nm, new)
-        return self.replace(**changes)
+        return self.replace(**changes, validate=False)  # linear interpolation of checked data
 
     def energy(self) -> torch.Tensor:
         """Spectral image in energy units (W instead of photons/s)."""

@@ -1,6 +1,7 @@
 """Camera: end-to-end colour accuracy, white balance through the whole chain, intermediates, resuming,
 configs."""
 
+import math
 from pathlib import Path
 
 import pytest
@@ -104,3 +105,20 @@ def test_config_errors_name_the_key(tmp_path):
     path.write_text(yaml.safe_dump(dict(cfg, optics=dict(cfg["optics"], fnumber=2.0))))
     with pytest.raises(ValueError, match=r"'fnumber'.*'f_number'"):
         Camera.from_config(path)
+
+
+def test_warns_when_the_scene_is_coarser_than_the_pixels():
+    # Friction 1 of issue 18: a scene sampled more coarsely than the pixels rendered without a word.
+    import warnings
+
+    from isettorch.scene import slanted_edge
+
+    cam = Camera.from_config("default")
+    f, pitch = float(cam.optics.focal_length_m), cam.sensor.pixel_size_m
+    hfov = math.degrees(2 * math.atan(128 * pitch / (2 * f)))  # the sensor is 128 pixels wide
+    with pytest.warns(UserWarning, match=r"coarser than the pixel grid.*pixel pitch 2\.8 um \(2\.0\d pixels per "
+                                         r"sample\).*at least 2\.0\dx more finely"):
+        cam(slanted_edge(64, hfov_deg=hfov))  # 64 samples for 128 pixels
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cam(slanted_edge(256, hfov_deg=hfov))  # 2 samples per pixel: no warning

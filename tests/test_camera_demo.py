@@ -28,3 +28,21 @@ def test_demo_writes_images_and_report(tmp_path):
     assert snr[0] > snr[-1]
     md = (out / "report.md").read_text()
     assert "dE" in md or "CIEDE2000" in md
+
+
+def test_demo_config_typo_is_a_message_and_exit_code_2(tmp_path, capsys):
+    # Friction 11 of issue 18: a typo in the user's camera config is reported, not a traceback.
+    cfg = tmp_path / "cam.yaml"
+    cfg.write_text("optics: {f_numbr: 4.0}\nsensor: {preset: isetcam_default}\n")
+    assert main(["demo", "--out", str(tmp_path / "out"), "--size", "32", "--config", str(cfg)]) == 2
+    err = capsys.readouterr().err
+    assert "f_numbr" in err and "did you mean 'f_number'" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()  # nothing written for a config that does not load
+    assert main(["demo", "--out", str(tmp_path / "out"), "--config", "defualt"]) == 2
+    assert "did you mean 'default'" in capsys.readouterr().err
+
+
+def test_demo_runs_from_any_directory_with_the_builtin_config(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo", "--out", "o", "--size", "32", "--quiet"]) == 0
+    assert (tmp_path / "o" / "macbeth.png").exists()

@@ -58,6 +58,7 @@ from isettorch.isp import learned  # noqa: E402
 from isettorch.isp.demosaic import mosaic  # noqa: E402
 from isettorch.isp.learned import DemosaicNet, demosaic_malvar_torch  # noqa: E402
 from isettorch.sensor.noise import poisson_gaussian  # noqa: E402
+from isettorch.paths import data_path  # noqa: E402
 from training import common  # noqa: E402
 
 VAL_SEED_OFFSET = 1_000_003_000  # validation scenes use seeds far from any training (seed, step, rank)
@@ -522,7 +523,7 @@ def main(argv: list[str] | None = None) -> int:
             row.update(validate(net, val, device))
             if bench and bench_every and (step % bench_every == 0 or last):
                 for name, folder in bench.items():
-                    row[f"{name}_crop10"] = benchmark(net, folder, device)
+                    row[f"{name}_crop10"] = benchmark(net, data_path(folder), device)
             history.append(row)
             msg = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items())
             if pbar is not None:

@@ -10,18 +10,23 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "cameras" / "default.yaml"
+from .._progress import add_quiet_argument, progress
+
+DEFAULT_CONFIG = "default"  # the built-in camera config (isettorch/configs/cameras/default.yaml)
 
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="render built-in scenes through a camera; write images and a report to --out")
     p.add_argument("--out", default="out", help="output folder (default: out)")
     p.add_argument("--size", type=int, default=256, help="sensor width in pixels (about; default 256)")
-    p.add_argument("--config", default=None, help="camera YAML (default: configs/cameras/default.yaml)")
+    p.add_argument("--config", default=DEFAULT_CONFIG,
+                   help="camera: a built-in name (default, imx363, paper2004_cds) or a YAML path (default: default)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
+    add_quiet_argument(p)
     p.set_defaults(func=run)
 
 
@@ -40,6 +45,7 @@ def _inner(oi):
 
 def run(args) -> int:
     import torch
+    import yaml
 
     from ..camera import Camera
     from ..isp.chart import gray_patch_snr_db, macbeth_delta_e, patch_means
@@ -47,24 +53,33 @@ def run(args) -> int:
     from ..scene.dead_leaves import dead_leaves
 
     if args.size < 16:
-        raise SystemExit(f"--size: expected at least 16 pixels, got {args.size}")
+        print(f"isettorch demo: error: --size: expected at least 16 pixels, got {args.size}", file=sys.stderr)
+        return 2
+    config = args.config
+    try:  # a user's config error is a message and exit code 2, not a traceback
+        cam = Camera.from_config(config)
+    except (ValueError, TypeError, FileNotFoundError, yaml.YAMLError) as err:
+        print(f"isettorch demo: error in --config {config}: {err}", file=sys.stderr)
+        return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    config = Path(args.config) if args.config else DEFAULT_CONFIG
-    cam = Camera.from_config(config)
     n = args.size
     # Field of view for a sensor about n pixels wide: 2 atan(n p / 2 f).
     f = float(cam.optics.focal_length_m.reshape(-1)[0])
     hfov = math.degrees(2 * math.atan(n * cam.sensor.pixel_size_m / (2 * f)))
+    # Two scene samples per pixel: a scene coarser than the pixel grid would be interpolated by the sensor
+    # (and Camera warns); the optical image keeps the scene's sampling, the sensor has about n pixels across.
+    s = 2 * n
     scenes = {
-        "macbeth": macbeth("D65", patch_size=max(4, n // 6), hfov_deg=hfov),
-        "slanted_edge": slanted_edge(n, hfov_deg=hfov),
-        "frequency_sweep": frequency_sweep(n, hfov_deg=hfov),
-        "dead_leaves": dead_leaves(n, seed=args.seed, hfov_deg=hfov),
+        "macbeth": macbeth("D65", patch_size=max(4, s // 6), hfov_deg=hfov),
+        "slanted_edge": slanted_edge(s, hfov_deg=hfov),
+        "frequency_sweep": frequency_sweep(s, hfov_deg=hfov),
+        "dead_leaves": dead_leaves(s, seed=args.seed, hfov_deg=hfov),
     }
     gen = torch.Generator().manual_seed(args.seed)
-    report = {"camera": cam.name or config.stem, "config": str(config), "size": n, "hfov_deg": hfov, "scenes": {}}
-    for name, scene in scenes.items():
+    report = {"camera": cam.name or Path(config).stem, "config": str(config), "size": n, "hfov_deg": hfov,
+              "scenes": {}}
+    for name, scene in progress(scenes.items(), total=len(scenes), desc="demo", quiet=args.quiet, unit="scene"):
         t0 = time.perf_counter()
         res = cam(scene, return_intermediates=True, generator=gen)
         elapsed = time.perf_counter() - t0

@@ -18,7 +18,8 @@ def register(sub) -> None:
     p.add_argument("--shard", type=int, default=0, help="this invocation's part (0-based), with --num-shards")
     p.add_argument("--num-shards", type=int, default=1, help="number of parts the files are dealt into")
     p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("-q", "--quiet", "--no-progress", dest="quiet", action="store_true",
+                   help="no progress bar (--no-progress: the former name)")
     p.add_argument("--verify", action="store_true", help="only check the checksums of an existing output")
     p.set_defaults(func=run)
 
@@ -38,7 +39,7 @@ def run(args) -> int:
     try:
         cfg = load_config(args.config) if args.config else None
         manifest = write_dataset(cfg, args.out, args.count, shard=args.shard, num_shards=args.num_shards,
-                                 workers=args.workers, progress=not args.no_progress)
+                                 workers=args.workers, progress=not args.quiet)
     except ValueError as err:
         print(f"isettorch synth: error: {err}", file=sys.stderr)
         return 2

@@ -129,13 +129,29 @@ def read_spectral_exr(path) -> tuple[torch.Tensor, torch.Tensor, dict]:
     return torch.from_numpy(data), torch.tensor([w for w, _ in bands], dtype=torch.float64), header
 
 
-def write_scene_exr(path, scene, index: int = 0, *, compression: str = "zip") -> Path:
-    """Write sample ``index`` of a `Scene` as an emissive spectral EXR: radiance in W/sr/m^2/nm (float32),
-    with its FOV, distance and (if any) illuminant in the header."""
+def write_scene_exr(path, scene, index: int | None = None, *, compression: str = "zip") -> Path | list[Path]:
+    """Write a `Scene` as emissive spectral EXR: radiance in W/sr/m^2/nm (float32), with its FOV, distance and
+    (if any) illuminant in the header.
+
+    ``index``: write that sample only. Otherwise a one-sample scene is written to ``path``, and a batch one file
+    per sample through an ``{i}`` field in ``path`` (``"scene_{i:03d}.exr"``; returns the list of paths); a
+    batch without one raises (it used to write sample 0 only).
+    """
     from ..scene import Scene
 
     if not isinstance(scene, Scene):
         raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
+    template = str(path)
+    if index is None:
+        if "{i" in template:
+            return [write_scene_exr(template.format(i=i), scene, i, compression=compression)
+                    for i in range(scene.batch_size)]
+        if scene.batch_size > 1:
+            raise ValueError(f"scene: a batch of {scene.batch_size}; give index=k for one sample, or a path with an "
+                             "{i} field (e.g. 'scene_{i:03d}.exr') to write one file per sample")
+        index = 0
+    if not -scene.batch_size <= index < scene.batch_size:
+        raise ValueError(f"index: expected a sample index in [0, {scene.batch_size}), got {index}")
     s = scene[index]
     energy = spectral.photons_to_energy(s.photons[0].to(torch.float64), s.wavelengths_nm.to(torch.float64), dim=0)
     attrs = {"isettorch.hfov_deg": float(s.hfov_deg[0]), "isettorch.distance_m": float(s.distance_m[0]),

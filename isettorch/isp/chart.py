@@ -7,6 +7,8 @@ Reference: ISETCam ``macbethColorError`` / ``macbethCompareIdeal`` (white-patch 
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 
 from .colour import reflectance_set, white_xyz, xyz_responses
@@ -61,7 +63,9 @@ def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = 
     if scale_to_white:
         x = x * (ref[WHITE_PATCH, 1] / x[..., WHITE_PATCH:WHITE_PATCH + 1, 1:2])
     white = white_xyz(illuminant).to(x.device)
-    return color_accuracy(x, ref, white=white, method=method)
+    with warnings.catch_warnings():  # the reference is under the render's illuminant by construction
+        warnings.filterwarnings("ignore", message="rendered: the white patch", category=UserWarning)
+        return color_accuracy(x, ref, white=white, method=method)
 
 
 def gray_patch_snr_db(raw, channel: int | None = None, fraction: float = 0.5) -> list[float]:

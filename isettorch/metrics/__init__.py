@@ -18,7 +18,7 @@ _LAZY = {
     "psnr": "fidelity", "cpsnr": "fidelity", "ssim": "fidelity", "mse": "fidelity", "PSNR": "fidelity",
     "SSIM": "fidelity",
     # sharpness
-    "esfr": "sfr", "ESFR": "sfr", "SFRResult": "sfr", "find_edge_roi": "sfr",
+    "esfr": "sfr", "esfr_cfa": "sfr", "ESFR": "sfr", "SFRResult": "sfr", "find_edge_roi": "sfr",
     # noise
     "snr_uniform": "snr", "snr_curve": "snr", "dynamic_range_db": "snr", "pixel_snr": "snr",
     "dynamic_range_from_curve": "snr",

@@ -195,6 +195,12 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
                    space: str = "xyz", patch_names=None) -> ColorAccuracy:
     """Colour accuracy of a rendered chart: per-patch dE, mean, median and max.
 
+    Compare like with like: the reference must be the chart under the illuminant the scene was rendered with,
+    and ``white`` that illuminant's white (:func:`macbeth_reference_xyz` with ``illuminant=``). For a
+    24-patch ColorChecker in XYZ (white patch 19 the brightest), a reference whose white patch does not have
+    the chromaticity of ``white`` raises, and a rendered white patch far (> 0.02 in xy) from the reference's
+    warns: a D65 render scored against the D50 chart values reads mean dE2000 7.2 instead of 3.7 (issue 18).
+
     Args:
         rendered: rendered patch values :math:`(..., P, 3)` (P patches, 24 for a Macbeth chart), XYZ on the
             scale of ``white`` (``space="xyz"``) or CIELAB (``space="lab"``).
@@ -204,8 +210,10 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
         space: "xyz" or "lab".
 
     Example:
-        >>> ref = macbeth_reference_xyz()  # [24, 3], D50, Y_white = 1  # doctest: +SKIP
-        >>> color_accuracy(ref * 1.02, ref, white="D50").mean  # doctest: +SKIP
+        >>> ref, names = macbeth_reference_xyz("D65")  # [24, 3]: the chart under D65, Y_white = 1
+        >>> acc = color_accuracy(ref * torch.tensor([1.02, 1.0, 0.98], dtype=ref.dtype), ref, white="D65")
+        >>> round(float(acc.mean), 2), names[18]
+        (1.75, 'white 9.5 (.05 D)')
 
     Reference: ISO 17321-1:2012 (colour-accuracy evaluation with a colour target); McCamy et al. 1976 (chart).
     """
@@ -224,18 +232,70 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
     else:
         lab_r, lab_ref = rendered, reference
     de = delta_e(lab_ref, lab_r, method, dim=-1)
+    if space == "xyz":
+        _check_chart_whites(rendered, reference, white)
     lab_ref = lab_ref.expand_as(lab_r) if lab_ref.dim() < lab_r.dim() else lab_ref
     return ColorAccuracy(delta_e=de, mean=de.mean(-1), max=de.amax(-1), median=de.median(-1).values,
                          lab_rendered=lab_r, lab_reference=lab_ref, method=str(method), patch_names=patch_names)
 
 
-def macbeth_reference_xyz(dtype=torch.float64) -> tuple[torch.Tensor, tuple[str, ...]]:
-    """X-Rite ColorChecker 24 (after November 2014) reference XYZ under D50 (Y_white = 1) from colour-science,
-    patches in reading order (dark skin ... black); also returns the patch names. Use white="D50" with it."""
+#: Index of the ColorChecker's white patch (row 4, column 1) in reading order.
+_WHITE_PATCH = 18
+#: Largest xy distance between a chart's white patch and the white it is scored against (D65-D50: 0.044;
+#: the published D50 white patch against D50 and the reflectance chart's under D65 against D65: < 0.004).
+_WHITE_XY_TOLERANCE = 0.02
+
+
+def _xy(xyz: torch.Tensor) -> torch.Tensor:
+    return xyz[..., :2] / xyz.sum(-1, keepdim=True).clamp_min(torch.finfo(xyz.dtype).tiny)
+
+
+def _check_chart_whites(rendered: torch.Tensor, reference: torch.Tensor, white) -> None:
+    """Reference white patch vs ``white`` (error) and rendered vs reference white patch (warning), 24 patches."""
+    from .color import _white
+
+    if reference.shape[-2] != 24 or not bool((reference.detach()[..., 1].argmax(-1) == _WHITE_PATCH).all()):
+        return
+    ref_xy = _xy(reference.detach()[..., _WHITE_PATCH, :])
+    w = _white(white, reference.detach()[..., _WHITE_PATCH, :].reshape(-1, 3)).reshape(-1, 3)
+    d_ref = float((ref_xy - _xy(w)).norm(dim=-1).max())
+    if d_ref > _WHITE_XY_TOLERANCE:
+        raise ValueError(
+            f"white: the reference chart's white patch has chromaticity (x, y) = "
+            f"{[round(v, 4) for v in ref_xy.reshape(-1, 2)[0].tolist()]}, {d_ref:.3f} from white {white!r} "
+            f"{[round(v, 4) for v in _xy(w)[0].tolist()]}: reference and white describe different illuminants "
+            "(e.g. the published D50 chart values with white='D65'); use macbeth_reference_xyz(illuminant=...) "
+            "and white=... of the render's illuminant")
+    d_r = float((_xy(rendered.detach()[..., _WHITE_PATCH, :]) - ref_xy).norm(dim=-1).max())
+    if d_r > _WHITE_XY_TOLERANCE:
+        import warnings
+
+        warnings.warn(
+            f"rendered: the white patch's chromaticity is {d_r:.3f} (xy) from the reference's: if the scene was "
+            "rendered under another illuminant than the reference's, compare with "
+            "macbeth_reference_xyz(illuminant=<the render's>) and its white (a D65 render scored against the D50 "
+            "chart reads mean dE2000 7.2 instead of 3.7)", UserWarning, stacklevel=3)
+
+
+def macbeth_reference_xyz(illuminant=None, dtype=torch.float64,
+                          wavelengths_nm=None) -> tuple[torch.Tensor, tuple[str, ...]]:
+    """ColorChecker 24 reference XYZ (24, 3), Y_white = 1, patches in reading order (dark skin ... black), and
+    the patch names.
+
+    ``illuminant=None``: the published X-Rite values (after November 2014) under D50, from colour-science; use
+    ``white="D50"`` with them. ``illuminant`` given (a name such as ``"D65"`` or an energy SPD): the chart's
+    reflectances (the ones :func:`isettorch.scene.macbeth` renders) under that illuminant, computed spectrally
+    (:func:`isettorch.isp.chart.macbeth_true_xyz`); use ``white=illuminant`` with them. Score a render against
+    the chart under the illuminant it was rendered with.
+    """
     import colour
 
     cc = colour.CCS_COLOURCHECKERS["ColorChecker24 - After November 2014"]
     names = tuple(cc.data.keys())
+    if illuminant is not None:
+        from ..isp.chart import macbeth_true_xyz
+
+        return macbeth_true_xyz(illuminant, wavelengths_nm).to(dtype), names
     xyz = colour.xyY_to_XYZ(list(cc.data.values()))
     return torch.as_tensor(xyz, dtype=dtype), names
 

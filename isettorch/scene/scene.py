@@ -56,6 +56,16 @@ class Scene(SpectralImage):
                 check_nonnegative(ill.detach(), "illuminant_photons")
             self.illuminant_photons = ill.expand(self.batch_size, -1)
 
+    def replace(self, **changes) -> Scene:
+        """A copy with some fields changed, checked like a new scene (NaN, inf or negative radiance raise).
+
+        ``validate=False`` skips the value checks; the library passes it only for changes derived from
+        already-checked data (crops, dtype/device moves, batch selection), where a check would only cost time.
+        Changes that touch neither ``photons`` nor ``illuminant_photons`` (metadata, name) check nothing.
+        """
+        changes.setdefault("validate", "photons" in changes or "illuminant_photons" in changes)
+        return dataclasses.replace(self, **changes)
+
     # --- geometry ------------------------------------------------------------------------
     @property
     def width_m(self) -> torch.Tensor:
@@ -79,7 +89,8 @@ class Scene(SpectralImage):
     def crop(self, top: int, left: int, height: int, width: int) -> Scene:
         """A window of the scene; the sample spacing is kept, so the FOV shrinks accordingly."""
         p = self._crop_photons(top, left, height, width)
-        return self.replace(photons=p, hfov_deg=angle_for_extent(self.sample_spacing_m * width, self.distance_m))
+        return self.replace(photons=p, hfov_deg=angle_for_extent(self.sample_spacing_m * width, self.distance_m),
+                            validate=False)
 
     # --- photometry ------------------------------------------------------------------------
     def luminance(self) -> torch.Tensor:
@@ -100,7 +111,7 @@ class Scene(SpectralImage):
             raise ValueError("set_mean_luminance: the scene is black (mean luminance 0), it cannot be scaled")
         k = (target / current).reshape(-1, 1, 1, 1)
         ill = None if self.illuminant_photons is None else self.illuminant_photons * k.reshape(-1, 1)
-        return self.replace(photons=self.photons * k, illuminant_photons=ill)
+        return self.replace(photons=self.photons * k, illuminant_photons=ill, validate=False)  # k finite, >= 0
 
     def illuminant_luminance(self) -> torch.Tensor | None:
         """Luminance (cd/m^2) of a perfect white under the scene's illuminant [B], or None."""
@@ -137,4 +148,5 @@ class Scene(SpectralImage):
             hfov_deg=torch.cat([s.hfov_deg for s in scenes]),
             distance_m=torch.cat([s.distance_m for s in scenes]),
             illuminant_photons=ill,
+            validate=False,  # every part was checked
         )

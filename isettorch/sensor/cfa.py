@@ -140,8 +140,15 @@ class CFA:
 
     @property
     def is_bayer(self) -> bool:
-        """True for the four 2x2 RGB Bayer layouts."""
-        return self.shape == (2, 2) and sorted(x for r in self.cell for x in r) == ["B", "G", "G", "R"]
+        """True for the four 2x2 RGB Bayer layouts (RGGB, BGGR, GRBG, GBRG: the two greens on a diagonal).
+
+        Other orders of the same letters (``'RGBG'`` = RG/BG, greens in a column) are not Bayer: the ISP
+        demosaics them with its generic method on the index map, and the Bayer-only functions reject them.
+        """
+        if self.shape != (2, 2) or sorted(x for r in self.cell for x in r) != ["B", "G", "G", "R"]:
+            return False
+        (a, b), (c, d) = self.cell
+        return (a == d == "G") or (b == c == "G")
 
     @property
     def bayer_pattern(self) -> str | None:

@@ -195,3 +195,16 @@ def test_shard_dataset_reads_back_the_items(reference, tmp_path):
         ShardDataset(broken, verify=True)
     with pytest.raises(ValueError, match="shard-00001.pt"):
         ShardDataset(broken)[2]
+
+
+def test_synth_quiet_flag(tmp_path, capsys):
+    # --quiet (and its former name --no-progress) turns the progress bar off; the summary line stays.
+    from isettorch.cli import main
+
+    for flag in ("--quiet", "--no-progress"):
+        out = tmp_path / flag.strip("-")
+        cfg = tmp_path / "tiny.yaml"
+        cfg.write_text("shard_size: 2\nscene: {height: 16, width: 16}\ncamera: {margin_px: 2}\n")
+        assert main(["synth", "--config", str(cfg), "--out", str(out), "--count", "2", flag]) == 0
+        captured = capsys.readouterr()
+        assert "1/1 shards" in captured.out and "shard/s" not in captured.err and "it/s" not in captured.err

@@ -72,3 +72,20 @@ def test_corrupt_truncated_and_non_spectral_files(tmp_path):
         write_spectral_exr(tmp_path / "b.exr", np.ones((2, 4, 4), np.float32), [500.0])
     with pytest.raises(ValueError, match="no such file"):
         read_spectral_exr(tmp_path / "missing.exr")
+
+
+def test_scene_batch_writes_every_sample_or_refuses(tmp_path):
+    # Friction 12 of issue 18: a batch used to be written as its sample 0 only, silently.
+    w = torch.arange(400.0, 701.0, 100.0)
+    photons = torch.rand(3, w.numel(), 4, 5, generator=torch.Generator().manual_seed(1)) * 1e16
+    scene = Scene(photons, w, hfov_deg=[10.0, 11.0, 12.0])
+    with pytest.raises(ValueError, match=r"a batch of 3.*\{i\}"):
+        write_scene_exr(tmp_path / "s.exr", scene)
+    paths = write_scene_exr(tmp_path / "s_{i:02d}.exr", scene)
+    assert [p.name for p in paths] == ["s_00.exr", "s_01.exr", "s_02.exr"]
+    for i, p in enumerate(paths):
+        back = read_scene_exr(p)
+        torch.testing.assert_close(back.photons, photons[i:i + 1], rtol=1e-6, atol=0)
+        assert float(back.hfov_deg[0]) == pytest.approx(10.0 + i)
+    with pytest.raises(ValueError, match="index"):
+        write_scene_exr(tmp_path / "x.exr", scene, index=3)

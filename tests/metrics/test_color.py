@@ -184,3 +184,42 @@ def test_color_accuracy_report():
         color_accuracy(ref, ref, method="1999")
     with pytest.raises(ValueError, match="xyz"):
         xyz_to_lab(torch.rand(4, 2), dim=-1)
+
+
+def test_macbeth_reference_under_the_render_illuminant_matches_colour_science():
+    # The chart under D65 from the BabelColor average reflectances (those isettorch.scene.macbeth renders),
+    # integrated independently by colour-science on the same 10 nm grid.
+    ref, names = macbeth_reference_xyz("D65")
+    shape = colour.SpectralShape(400, 700, 10)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    sds = colour.characterisation.SDS_COLOURCHECKERS["BabelColor Average"]
+    expect = np.array([colour.sd_to_XYZ(sd.copy().align(shape), cmfs, d65, method="Integration") for sd in
+                       sds.values()]) / 100
+    np.testing.assert_allclose(ref.numpy(), expect, atol=2e-3)
+    assert names[18].startswith("white")
+
+
+@pytest.mark.filterwarnings("ignore:the scene is coarser")  # the issue's setup: macbeth(patch_size=32), 10 deg
+def test_public_colour_accuracy_path_compares_like_with_like():
+    # Friction 4 of issue 18: a D65 render scored with the public path against the D50 chart read mean dE 7.2,
+    # against 3.7 through isp.chart.macbeth_delta_e (the chart under the render's own illuminant).
+    import isettorch
+    from isettorch.isp.chart import WHITE_PATCH, macbeth_delta_e, patch_means
+    from isettorch.scene import macbeth
+
+    cam = isettorch.Camera.from_config("default")
+    cam.noise = False
+    x = patch_means(cam(macbeth("D65", patch_size=32), return_intermediates=True).isp.xyz).double()
+    ref, _ = macbeth_reference_xyz("D65")
+    x = x * (ref[WHITE_PATCH, 1] / x[..., WHITE_PATCH:WHITE_PATCH + 1, 1:2])  # exposure is arbitrary
+    public = color_accuracy(x, ref, white="D65")
+    # same chart, same illuminant; the Lab whites differ only in rounding (CIE D65 xy vs the integrated white)
+    assert float(public.mean) == pytest.approx(float(macbeth_delta_e(x, "D65").mean), abs=1e-3)
+    assert 2.0 < float(public.mean) < 5.0
+    d50, _ = macbeth_reference_xyz()  # published values, D50
+    with pytest.raises(ValueError, match=r"white: the reference chart's white patch .* different illuminants"):
+        color_accuracy(x, d50, white="D65")
+    with pytest.warns(UserWarning, match="rendered under another illuminant"):
+        mismatched = color_accuracy(x, d50, white="D50")
+    assert float(mismatched.mean) > 6.0  # the mismatch the warning is about

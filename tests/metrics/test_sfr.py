@@ -33,7 +33,9 @@ def slanted_edge(f_number, height=96, width=64, angle_deg=ANGLE_DEG, centre=None
     f, w = fc * (x + 1) / 2, w * fc / 2
     cy, cx = centre if centre is not None else ((height - 1) / 2, (width - 1) / 2)
     yy, xx = np.mgrid[0:height, 0:width].astype(float)
-    d = ((xx - cx) * np.cos(th) - (yy - cy) * np.sin(th)).ravel()
+    # signed distance, bright side positive; a positive angle tilts the top of the edge to the right (y down),
+    # the convention of isettorch.scene.slanted_edge and of esfr's angle_deg
+    d = ((xx - cx) * np.cos(th) + (yy - cy) * np.sin(th)).ravel()
     esf = 0.5 + 2 * d * (np.sinc(2 * np.outer(d, f)) @ (analytic_otf(f, f_number, th) * w))
     return torch.tensor(low + (high - low) * esf.reshape(height, width))
 
@@ -65,10 +67,12 @@ def test_mtf50_matches_analytic(edges, f_number, expected):
 def test_orientation_and_polarity_invariance(edges):
     img = edges[8]
     base = esfr(img, auto_roi=False)
-    for variant in (img.T, img.flip(-1), img.flip(-2).T):
+    # transposing an edge tilted by a from the vertical gives one tilted by 90 - a; mirroring gives -a
+    a = float(base.angle_deg)
+    for variant, angle in ((img.T, 90 - a), (img.flip(-1), -a), (img.flip(-2).T, -90 + a)):
         r = esfr(variant, auto_roi=False)
         assert float(r.mtf50) == pytest.approx(float(base.mtf50), rel=1e-6)
-        assert abs(float(r.angle_deg)) == pytest.approx(abs(float(base.angle_deg)), abs=1e-6)
+        assert float(r.angle_deg) == pytest.approx(angle, abs=1e-6)
     assert bool(esfr(img.T, auto_roi=False).horizontal)
 
 
@@ -117,3 +121,86 @@ def test_too_few_rows_for_oversampling():
     img = slanted_edge(8, height=12, width=32, angle_deg=1.0)
     with pytest.raises(ValueError, match="empty"):
         esfr(img, auto_roi=False)
+
+
+@pytest.mark.parametrize("angle", [-80.0, -60.0, -30.0, -5.0, 5.0, 30.0, 60.0, 80.0])
+def test_angle_sign_matches_slanted_edge(angle):
+    # Friction 9 of issue 18: esfr reported the opposite sign of the scene generator's angle.
+    from isettorch.scene import slanted_edge as scene_edge
+
+    img = scene_edge(96, angle).reflectance()[0, 15]  # exact area coverage: the edge is where the scene puts it
+    assert float(esfr(img, auto_roi=False).angle_deg) == pytest.approx(angle, abs=0.1)
+
+
+def test_flat_and_noisy_input_raise_instead_of_nan(edges):
+    # Friction 10 of issue 18: flat or noise-dominated ROIs gave nan or noise curves without a word.
+    with pytest.raises(ValueError, match="no edge in the ROI"):
+        esfr(torch.full((64, 64), 0.5, dtype=torch.float64), auto_roi=False)
+    img = edges[8]  # contrast 0.8
+    g = torch.Generator().manual_seed(0)
+    noisy = img + (0.8 / 3) * torch.randn(img.shape, generator=g, dtype=img.dtype)  # CNR 3
+    msg = r"too noisy.*contrast 0\.[78]\d*.*noise sigma 0\.2[4-9]\d* = [23]\.\d+ < min_cnr 10"
+    with pytest.raises(ValueError, match=msg):
+        esfr(noisy, auto_roi=False)
+    # min_cnr 0: the caller takes the noisy answer knowingly
+    assert torch.isfinite(esfr(noisy, auto_roi=False, min_cnr=0).sfr).all()
+    # a mildly noisy edge (CNR 40) passes, with an MTF50 close to the noise-free one
+    mild = img + (0.8 / 40) * torch.randn(img.shape, generator=g, dtype=img.dtype)
+    assert float(esfr(mild, auto_roi=False).mtf50) == pytest.approx(float(esfr(img, auto_roi=False).mtf50), rel=0.1)
+
+
+@pytest.mark.parametrize("roi", [(40, 10, 0, 64), (0, 64, 50, 10), (10, 10, 0, 64), (-1, 64, 0, 64)])
+def test_inverted_or_empty_roi_is_rejected(edges, roi):
+    with pytest.raises(ValueError, match=r"roi: .*row0 < row1"):
+        esfr(edges[8], roi=roi)
+
+
+@pytest.mark.parametrize("kw", [{"min_cnr": -1.0}, {"max_empty_bins": 1.5}])
+def test_bad_thresholds(edges, kw):
+    with pytest.raises(ValueError, match=next(iter(kw))):
+        esfr(edges[8], auto_roi=False, **kw)
+
+
+def _box_pixel_mtf50():
+    return brentq(lambda f: np.sinc(f) - 0.5, 0.1, 0.9)  # 100 % fill square pixel: MTF = sinc(f), 0.6034 cy/px
+
+
+def test_cfa_aware_sfr_on_a_bayer_mosaic():
+    # Friction 2 of issue 18: e-SFR of a raw mosaic. An exact-area edge (box pixels, no optics) seen through a
+    # GRBG mosaic whose filters have gains R 1, G 1.5, B 2: the true MTF is the pixel's sinc in every channel.
+    from isettorch.metrics import esfr_cfa
+    from isettorch.scene import slanted_edge as scene_edge
+    from isettorch.sensor import CFA
+
+    edge = scene_edge(128, 5.0).reflectance()[0, 15]
+    mosaic = edge * (CFA("GRBG").index_map.repeat(64, 64).double() * 0.5 + 1)
+    with pytest.raises(ValueError, match="too noisy"):  # the plain e-SFR sees the CFA pattern as noise
+        esfr(mosaic)
+    lum = esfr_cfa(mosaic, "GRBG")
+    assert float(lum.mtf50) == pytest.approx(float(esfr(edge, auto_roi=False).mtf50), rel=0.01)
+    assert float(lum.mtf50) == pytest.approx(_box_pixel_mtf50(), rel=0.04)
+    ch = esfr_cfa(mosaic, "GRBG", mode="channels")
+    assert ch.channels == ("R", "G", "B") and ch.sfr.shape[0] == 3
+    for m in ch.mtf50.tolist():
+        assert m == pytest.approx(_box_pixel_mtf50(), rel=0.05)
+    assert ch.angle_deg.tolist() == pytest.approx([5.0] * 3, abs=0.05)
+    with pytest.raises(ValueError, match="mode"):
+        esfr_cfa(mosaic, "GRBG", mode="rgb")
+
+
+@pytest.mark.filterwarnings("ignore:the scene is coarser")
+def test_cfa_aware_sfr_through_the_camera_orders_channels_by_wavelength():
+    # Diffraction blur grows with wavelength (cutoff 1 / (lambda N)): R's MTF50 < G's < B's.
+    import isettorch
+    from isettorch.metrics import esfr_cfa
+    from isettorch.scene import slanted_edge as scene_edge
+
+    cam = isettorch.Camera.from_config("default")
+    cam.noise = False
+    f, p = float(cam.optics.focal_length_m), cam.sensor.pixel_size_m
+    hfov = math.degrees(2 * math.atan(128 * p / (2 * f)))
+    raw = cam(scene_edge(512, hfov_deg=hfov), return_intermediates=True).raw
+    r, g, b = esfr_cfa(raw.noise_free[0, 0], raw.cfa, mode="channels").mtf50.tolist()
+    assert r < g < b
+    lum = float(esfr_cfa(raw.noise_free[0, 0], raw.cfa).mtf50)
+    assert r < lum < b

@@ -92,3 +92,20 @@ def test_plots_save_png(tmp_path):
     line = fig2.axes[0].lines[0]
     assert torch.allclose(torch.as_tensor(line.get_ydata(), dtype=s.dtype), s.photons[0, :, :4, :4].mean(dim=(-2, -1)))
     assert (tmp_path / "srgb.png").stat().st_size > 0 and (tmp_path / "spd.png").stat().st_size > 0
+
+
+def test_replace_validates_like_a_new_scene():
+    # Friction 7 of issue 18: Scene.replace used to skip the NaN / negative check of the constructor.
+    s = Scene(torch.ones(1, 3, 4, 4), torch.tensor([450.0, 550.0, 650.0]), hfov_deg=10.0)
+    bad = s.photons.clone()
+    bad[0, 1, 2, 3] = math.nan
+    with pytest.raises(ValueError, match="photons"):
+        s.replace(photons=bad)
+    with pytest.raises(ValueError, match="photons.*non-negative"):
+        s.replace(photons=-s.photons)
+    with pytest.raises(ValueError, match="illuminant_photons"):
+        s.replace(illuminant_photons=torch.tensor([1.0, math.inf, 1.0]))
+    ok = s.replace(photons=2 * s.photons)
+    assert torch.equal(ok.photons, 2 * s.photons) and torch.equal(ok.hfov_deg, s.hfov_deg)
+    # trusted internal changes keep working without the check
+    assert s.replace(photons=bad, validate=False).photons.isnan().any()

@@ -95,3 +95,29 @@ def test_mosaic_gathers_own_channel():
     out = c.mosaic(x)
     assert out.shape == (2, 1, 4, 4)
     assert torch.equal(out[0, 0], c.channel_index(4, 4).float())
+
+
+@pytest.mark.parametrize("pattern", ["RGBG", "GBGR", "BGRG", "GRGB"])
+def test_non_bayer_orders_of_bayer_letters(pattern):
+    # Friction 3 of issue 18: 'RGBG' (RG/BG: greens in a column) was taken for Bayer and crashed in the ISP.
+    import isettorch
+    from isettorch.isp import demosaic
+    from isettorch.scene import uniform
+    from isettorch.sensor import Sensor
+
+    c = CFA(pattern)
+    assert not c.is_bayer and c.bayer_pattern is None
+    assert all(CFA(p).is_bayer for p in ("RGGB", "BGGR", "GRBG", "GBRG"))
+    # the Bayer-only demosaic functions say what they expected
+    with pytest.raises(ValueError, match=r"pattern: expected one of \('RGGB', 'BGGR', 'GRBG', 'GBRG'\)"):
+        demosaic(torch.rand(1, 1, 8, 8), pattern, "bilinear")
+    # the camera's ISP demosaics it with its generic method: a uniform grey renders the colour a Bayer sensor gives
+    images = {}
+    for p in (pattern, "RGGB"):
+        cam = isettorch.Camera.from_config("default")
+        cam.noise = False
+        cam.sensor = Sensor.preset("isetcam_default", cfa=p)
+        images[p] = cam(uniform(size=64))[0, :, 4:-4, 4:-4]
+    assert torch.isfinite(images[pattern]).all()
+    assert torch.allclose(images[pattern].mean((1, 2)), images["RGGB"].mean((1, 2)), rtol=1e-4)
+    assert (images[pattern].amax((1, 2)) - images[pattern].amin((1, 2))).max() < 1e-3  # uniform, no CFA pattern

@@ -1,0 +1,213 @@
+"""Reading and writing users' RGB images: PNG (8/16-bit), TIFF (8/16-bit, float32) and OpenEXR (float).
+
+Value conventions (what a tensor holds, what a file holds):
+
+- Tensors are ``[B, C, H, W]`` float, **linear** and relative (white = 1), as the ISP produces (``linear_srgb``
+  targets, ``ImageProcessor`` output before encoding) and as ``isettorch.scene.from_rgb`` expects.
+- Integer files (PNG, 8/16-bit TIFF) hold **sRGB-encoded** code values, the convention of every viewer:
+  reading decodes them with the IEC 61966-2-1 sRGB curve (``encoding="linear"`` returns the code values
+  / (2^bits - 1) unchanged instead, e.g. for data already linear such as raw mosaics); writing encodes.
+- Float files (EXR, float32 TIFF) are **linear** (scene-referred, no encoding) in both directions.
+
+Nothing is clipped silently: writing values outside [0, 1] to an integer file raises unless ``clip=True``.
+A batch (B > 1) is written one file per sample through a ``{i}`` field in the path
+(``"out/img_{i:03d}.png"``); without one, a batch raises instead of writing only sample 0.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+__all__ = ["read_image", "write_image", "IMAGE_SUFFIXES"]
+
+IMAGE_SUFFIXES = {".png": "png", ".tif": "tiff", ".tiff": "tiff", ".exr": "exr"}
+_ENCODINGS = ("srgb", "linear")
+_EXR_CHANNELS = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+
+
+def _kind(path: Path) -> str:
+    kind = IMAGE_SUFFIXES.get(path.suffix.lower())
+    if kind is None:
+        raise ValueError(f"path: expected a file ending in one of {sorted(IMAGE_SUFFIXES)}, got {str(path)!r}")
+    return kind
+
+
+def _check_encoding(encoding: str) -> None:
+    if encoding not in _ENCODINGS:
+        raise ValueError(f"encoding: expected one of {_ENCODINGS}, got {encoding!r}")
+
+
+def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """Read an image file as a linear tensor ``[1, C, H, W]`` (C = the file's channels: 1, 3 or 4).
+
+    Args:
+        path: a ``.png``, ``.tif``/``.tiff`` or ``.exr`` file.
+        encoding: how an integer file's code values are encoded: ``"srgb"`` (default: decoded to linear) or
+            ``"linear"`` (code / (2^bits - 1) as is). Float files (EXR, float TIFF) are linear either way.
+        dtype: the returned floating dtype.
+
+    Example:
+        >>> img = read_image("photo.png")  # doctest: +SKIP
+        >>> scene = isettorch.scene.from_rgb(img)  # doctest: +SKIP
+    """
+    from ..isp.colour import srgb_decode
+
+    _check_encoding(encoding)
+    p = Path(path)
+    kind = _kind(p)
+    if not p.is_file():
+        raise FileNotFoundError(f"path: no such file {str(p)!r}")
+    if kind == "exr":
+        a = _read_exr(p)
+    else:
+        try:
+            a = _read_png(p) if kind == "png" else _read_tiff(p)
+        except (ValueError, OSError) as err:
+            raise ValueError(f"path: {str(p)!r} is not a readable {kind.upper()} image ({err})") from err
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim != 3 or a.shape[-1] not in (1, 2, 3, 4):
+        raise ValueError(f"path: {str(p)!r}: expected a gray, RGB or RGBA image, got array shape {a.shape}")
+    t = torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)[None]
+    if a.dtype.kind in "ui":
+        bits = 8 * a.dtype.itemsize
+        t = t.to(torch.float64) / (2**bits - 1)
+        if encoding == "srgb":
+            t = srgb_decode(t)
+    elif a.dtype.kind == "f":
+        t = t.to(torch.float64)
+        if not torch.isfinite(t).all():
+            raise ValueError(f"path: {str(p)!r} holds non-finite values (NaN or inf)")
+    else:
+        raise ValueError(f"path: {str(p)!r}: unsupported sample type {a.dtype}")
+    return t.to(dtype)
+
+
+def _read_png(p: Path) -> np.ndarray:
+    import png  # pypng: 16-bit RGB, which Pillow reads as 8-bit
+
+    try:
+        w, h, rows, info = png.Reader(filename=str(p)).asDirect()  # palette and low bit depths expanded
+        planes = info["planes"]
+        a = np.vstack([np.asarray(r, dtype=np.uint16 if info["bitdepth"] > 8 else np.uint8) for r in rows])
+    except png.Error as err:
+        raise ValueError(str(err)) from err
+    a = a.reshape(h, w, planes)
+    if info["bitdepth"] not in (8, 16):  # 1, 2, 4 bit gray: rescale to 8 bits
+        a = (a.astype(np.uint16) * 255 // (2 ** info["bitdepth"] - 1)).astype(np.uint8)
+    return a
+
+
+def _read_tiff(p: Path) -> np.ndarray:
+    import tifffile
+
+    a = tifffile.imread(str(p))
+    if a.dtype == np.float16 or a.dtype == np.float64:
+        a = a.astype(np.float32)
+    if a.dtype not in (np.uint8, np.uint16, np.float32):
+        raise ValueError(f"expected uint8, uint16 or float32 samples, got {a.dtype}")
+    return a
+
+
+def _read_exr(p: Path) -> np.ndarray:
+    import OpenEXR
+
+    try:
+        chans = {k: np.asarray(v.pixels) for k, v in OpenEXR.File(str(p)).channels().items()}
+    except Exception as err:  # OpenEXR raises RuntimeError / others for corrupt or truncated files
+        raise ValueError(f"path: {str(p)!r} is not a readable OpenEXR file ({err})") from err
+    # OpenEXR may group R, G, B(, A) into one 'RGB' / 'RGBA' channel of shape [H, W, C]
+    for group in ("RGBA", "RGB"):
+        if group in chans:
+            return chans[group].astype(np.float32)
+    for names in (("R", "G", "B", "A"), ("R", "G", "B"), ("Y",)):
+        if all(n in chans for n in names):
+            return np.stack([chans[n] for n in names], axis=-1).astype(np.float32)
+    raise ValueError(f"path: {str(p)!r} has no R, G, B (or Y) channels (channels: {sorted(chans)[:8]}); a spectral "
+                     "EXR reads with isettorch.io.read_spectral_exr")
+
+
+def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int | None = None,
+                clip: bool = False) -> list[Path]:
+    """Write a linear image ``[C, H, W]`` or ``[B, C, H, W]`` (C = 1, 3 or 4) to PNG, TIFF or EXR.
+
+    Args:
+        path: the file; for a batch (B > 1) a pattern with an ``{i}`` field, one file per sample
+            (``"img_{i:03d}.png"``).
+        image: linear values, white = 1.
+        encoding: for integer files, ``"srgb"`` (default: sRGB-encode the linear values, IEC 61966-2-1) or
+            ``"linear"`` (store the linear values as code values). Float files are always linear.
+        bits: PNG 8 (default) or 16; TIFF 8 (default), 16 or 32 (float32); EXR 16 (half) or 32 (default).
+        clip: clip values outside [0, 1] for integer files instead of raising.
+
+    Returns the written paths.
+    """
+    from ..image import srgb_encode
+
+    _check_encoding(encoding)
+    if not isinstance(image, torch.Tensor):
+        raise TypeError(f"image: expected a torch.Tensor [C, H, W] or [B, C, H, W], got {type(image).__name__}")
+    x = image.detach()
+    if x.dim() == 3:
+        x = x[None]
+    if x.dim() != 4 or x.shape[1] not in (1, 3, 4):
+        raise ValueError(f"image: expected [C, H, W] or [B, C, H, W] with C in (1, 3, 4), got {tuple(image.shape)}")
+    if not torch.isfinite(x).all():
+        raise ValueError("image: expected finite values (found NaN or inf)")
+    template = os.fspath(path)
+    if x.shape[0] > 1 and "{i" not in template:
+        raise ValueError(f"path: image is a batch of {x.shape[0]}; give a path with an {{i}} field (e.g. "
+                         f"'img_{{i:03d}}.png') to write one file per sample, or write image[k] for one sample")
+    kind = _kind(Path(template.replace("{", "").replace("}", "")))
+    allowed = {"png": (8, 16), "tiff": (8, 16, 32), "exr": (16, 32)}[kind]
+    bits = bits if bits is not None else (32 if kind == "exr" else 8)
+    if bits not in allowed:
+        raise ValueError(f"bits: expected one of {allowed} for {kind.upper()}, got {bits!r}")
+    integer = bits in (8, 16) and kind != "exr"
+    x = x.to(torch.float64).cpu()
+    if integer:
+        lo, hi = float(x.min()), float(x.max())
+        if (lo < 0 or hi > 1) and not clip:
+            raise ValueError(f"image: values span [{lo:.4g}, {hi:.4g}], outside [0, 1] for a {bits}-bit file; scale "
+                             "the image (white = 1), pass clip=True, or write a float file (EXR, 32-bit TIFF)")
+        x = x.clamp(0, 1)
+        if encoding == "srgb":
+            x = srgb_encode(x)
+        x = (x * (2**bits - 1)).round().to(torch.int64)
+    written = []
+    for i in range(x.shape[0]):
+        p = Path(template.format(i=i)) if "{i" in template else Path(template)
+        a = x[i].permute(1, 2, 0).numpy()
+        if kind == "png":
+            _write_png(p, a.astype(np.uint16 if bits == 16 else np.uint8), bits)
+        elif kind == "tiff":
+            import tifffile
+
+            dt = {8: np.uint8, 16: np.uint16, 32: np.float32}[bits]
+            tifffile.imwrite(str(p), a.astype(dt)[..., 0] if a.shape[-1] == 1 else a.astype(dt),
+                             photometric="minisblack" if a.shape[-1] == 1 else "rgb")
+        else:
+            _write_exr(p, a.astype(np.float16 if bits == 16 else np.float32))
+        written.append(p)
+    return written
+
+
+def _write_png(p: Path, a: np.ndarray, bits: int) -> None:
+    import png
+
+    h, w, c = a.shape
+    writer = png.Writer(width=w, height=h, greyscale=c == 1, alpha=c == 4, bitdepth=bits)
+    with open(p, "wb") as fh:
+        writer.write(fh, a.reshape(h, w * c))
+
+
+def _write_exr(p: Path, a: np.ndarray) -> None:
+    import OpenEXR
+
+    names = _EXR_CHANNELS[a.shape[-1]]
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    OpenEXR.File(header, {n: np.ascontiguousarray(a[..., k]) for k, n in enumerate(names)}).write(str(p))

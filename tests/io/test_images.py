@@ -1,0 +1,104 @@
+"""Users' images: PNG 8/16-bit, TIFF, EXR; sRGB-encoded integer files, linear float files (issue 18, friction 12).
+
+Files written here are read back with independent readers (Pillow, tifffile, OpenEXR) and the sRGB curve is
+checked against colour-science."""
+
+import colour
+import numpy as np
+import OpenEXR
+import pytest
+import tifffile
+import torch
+from PIL import Image
+
+from isettorch.io import read_image, write_image
+
+
+def _ramp(c=3, h=5, w=7):
+    g = torch.Generator().manual_seed(0)
+    return torch.rand(c, h, w, generator=g, dtype=torch.float64)
+
+
+def test_png_8bit_is_srgb_encoded(tmp_path):
+    lin = _ramp()
+    (p,) = write_image(tmp_path / "a.png", lin)
+    stored = np.asarray(Image.open(p))  # independent reader
+    expect = np.round(colour.cctf_encoding(lin.permute(1, 2, 0).numpy(), function="sRGB") * 255)
+    assert stored.dtype == np.uint8 and np.array_equal(stored, expect.astype(np.uint8))
+    back = read_image(p)
+    assert back.shape == (1, 3, 5, 7) and back.dtype == torch.float32
+    np.testing.assert_allclose(back[0].double().numpy(), colour.cctf_decoding(stored / 255, function="sRGB")
+                               .transpose(2, 0, 1), atol=1e-6)
+    # linear 0.5 is code 188 (sRGB(0.5) = 0.7354); 'linear' stores and reads code values as they are
+    (q,) = write_image(tmp_path / "half.png", torch.full((3, 2, 2), 0.5))
+    assert np.asarray(Image.open(q))[0, 0, 0] == 188
+    (r,) = write_image(tmp_path / "lin.png", torch.full((3, 2, 2), 0.5), encoding="linear")
+    assert np.asarray(Image.open(r))[0, 0, 0] == 128
+    assert float(read_image(r, encoding="linear")[0, 0, 0, 0]) == pytest.approx(128 / 255)
+
+
+def test_png_16bit_rgb_round_trip(tmp_path):
+    lin = _ramp()
+    (p,) = write_image(tmp_path / "a16.png", lin, bits=16)
+    codes = np.round(colour.cctf_encoding(lin.permute(1, 2, 0).numpy(), function="sRGB") * 65535)
+    # Pillow reads 16-bit RGB PNGs as 8-bit: its value is the high byte of the stored code
+    assert np.array_equal(np.asarray(Image.open(p).convert("RGB")), (codes // 256).astype(np.uint8))
+    back = read_image(p, dtype=torch.float64)
+    np.testing.assert_allclose(back[0].numpy(), colour.cctf_decoding(codes / 65535, function="sRGB")
+                               .transpose(2, 0, 1), atol=1e-12)
+    assert (back[0] - lin).abs().max() < 1e-4  # 16 bits keep the linear values to 1e-4
+    gray = _ramp(c=1)
+    (g,) = write_image(tmp_path / "g16.png", gray, bits=16, encoding="linear")
+    assert np.array_equal(np.asarray(Image.open(g)), np.round(gray[0].numpy() * 65535).astype(np.uint16))
+    assert read_image(g, encoding="linear").shape == (1, 1, 5, 7)
+
+
+@pytest.mark.parametrize("bits", [8, 16, 32])
+def test_tiff(tmp_path, bits):
+    lin = _ramp()
+    (p,) = write_image(tmp_path / "a.tif", lin, bits=bits)
+    stored = tifffile.imread(p)
+    if bits == 32:  # float TIFF: linear, unchanged
+        assert stored.dtype == np.float32
+        np.testing.assert_array_equal(stored, lin.permute(1, 2, 0).numpy().astype(np.float32))
+    else:
+        full = 2**bits - 1
+        expect = np.round(colour.cctf_encoding(lin.permute(1, 2, 0).numpy(), function="sRGB") * full)
+        assert np.array_equal(stored, expect.astype(stored.dtype))
+    assert (read_image(p, dtype=torch.float64)[0] - lin).abs().max() < {8: 2e-2, 16: 1e-4, 32: 1e-7}[bits]
+
+
+def test_exr_is_linear_float(tmp_path):
+    hdr = _ramp() * 40.0  # scene-referred values beyond 1 are kept
+    (p,) = write_image(tmp_path / "a.exr", hdr)
+    f = OpenEXR.File(str(p)).channels()
+    stored = f["RGB"].pixels if "RGB" in f else np.stack([f[n].pixels for n in "RGB"], -1)
+    np.testing.assert_array_equal(stored, hdr.permute(1, 2, 0).numpy().astype(np.float32))
+    np.testing.assert_array_equal(read_image(p)[0].numpy(), hdr.float().numpy())
+
+
+def test_batches_and_errors(tmp_path):
+    batch = _ramp(c=3).expand(3, -1, -1, -1) * torch.tensor([0.2, 0.5, 1.0], dtype=torch.float64)[:, None, None, None]
+    with pytest.raises(ValueError, match=r"batch of 3.*\{i"):
+        write_image(tmp_path / "b.exr", batch)
+    paths = write_image(tmp_path / "b_{i}.exr", batch)
+    assert [p.name for p in paths] == ["b_0.exr", "b_1.exr", "b_2.exr"]
+    for k, p in enumerate(paths):
+        torch.testing.assert_close(read_image(p, dtype=torch.float64), batch[k:k + 1], rtol=1e-6, atol=1e-7)
+    with pytest.raises(ValueError, match=r"values span \[0, 2\].*clip=True"):
+        write_image(tmp_path / "c.png", torch.tensor([[[0.0, 2.0]]]).expand(3, 1, 2))
+    (c,) = write_image(tmp_path / "c.png", torch.tensor([[[0.0, 2.0]]]).expand(3, 1, 2), clip=True)
+    assert np.asarray(Image.open(c))[0, 1, 0] == 255
+    with pytest.raises(ValueError, match="bits"):
+        write_image(tmp_path / "d.png", _ramp(), bits=32)
+    with pytest.raises(ValueError, match="path: expected a file ending"):
+        write_image(tmp_path / "d.jpg", _ramp())
+    with pytest.raises(ValueError, match="finite"):
+        write_image(tmp_path / "e.exr", torch.full((3, 2, 2), float("nan")))
+    with pytest.raises(ValueError, match="encoding"):
+        read_image(paths[0], encoding="gamma22")
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        read_image(tmp_path / "missing.png")
+    (tmp_path / "bad.png").write_bytes(b"not a png")
+    with pytest.raises(ValueError, match="not a readable PNG"):
+        read_image(tmp_path / "bad.png")
