@@ -57,8 +57,8 @@ from isettorch.data.config import seed_for  # noqa: E402
 from isettorch.isp import learned  # noqa: E402
 from isettorch.isp.demosaic import mosaic  # noqa: E402
 from isettorch.isp.learned import DemosaicNet, demosaic_malvar_torch  # noqa: E402
-from isettorch.sensor.noise import poisson_gaussian  # noqa: E402
 from isettorch.paths import data_path  # noqa: E402
+from isettorch.sensor.noise import poisson_gaussian  # noqa: E402
 from training import common  # noqa: E402
 
 VAL_SEED_OFFSET = 1_000_003_000  # validation scenes use seeds far from any training (seed, step, rank)
