@@ -206,6 +206,6 @@ def test_ip_result_from_case_public_and_monochrome_quirk():
     case = {k: d[k] for k in d.files if not k.startswith("ip_T")}
     dv = np.round(d["sensor_volts"] * 1024.0).astype(np.float32)
     case.update(sensor_cfa=np.array("W"), sensor_filter_names=np.array(["w"]), sensor_quantization=np.array("10"),
-                sensor_dv=dv)
+                sensor_dv=dv, sensor_cfa_pattern=np.array([[1]]), sensor_filter_letters=np.array("w"))  # FORMAT 2
     ours, _ = ip_result_from_case(case)
     np.testing.assert_array_equal(ours, np.repeat(dv[..., None], 3, axis=2).astype(np.float64))
