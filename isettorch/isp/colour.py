@@ -24,8 +24,7 @@ from torch import nn
 
 from .. import spectral
 from .._checks import as_tensor, check_finite, check_rank, check_wavelengths
-from ..image import XYZ_TO_LINEAR_SRGB
-from ..image import srgb_encode as _srgb_encode
+from ..image import XYZ_TO_LINEAR_SRGB, srgb_decode, srgb_encode
 
 __all__ = [
     "apply_matrix",
@@ -392,17 +391,6 @@ def xyz_to_display_matrix(rgb_to_xyz: torch.Tensor, relative: bool = True) -> to
     return torch.linalg.inv(m)
 
 
-def srgb_encode(linear: torch.Tensor, clip: bool = True) -> torch.Tensor:
-    """IEC 61966-2-1 sRGB encoding of linear values; clipped to [0, 1] first when ``clip``."""
-    return _srgb_encode(linear.clamp(0, 1) if clip else linear.clamp_min(0))
-
-
-def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
-    """IEC 61966-2-1 sRGB decoding (encoded -> linear)."""
-    return torch.where(encoded <= 0.04045, encoded / 12.92,
-                       ((encoded.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
-
-
 # ---------------------------------------------------------------------------------------------
 # Thin modules
 
@@ -665,7 +653,7 @@ class DisplayEncode(nn.Module):
         if self.encoding == "display":
             return self.display.inverse_eotf(x.clamp_min(0))
         if self.encoding == "srgb":
-            return _srgb_encode(x.clamp_min(0))
+            return srgb_encode(x, clip=self.clip)
         if self.encoding == "linear":
             return x
         return x.clamp_min(torch.finfo(x.dtype).tiny) ** (1.0 / float(self.encoding))
