@@ -139,16 +139,6 @@ def fit_colour_matrix(source: torch.Tensor, target: torch.Tensor) -> torch.Tenso
 
 
 @functools.cache
-def _colour_checker_native() -> tuple:
-    import colour
-    import numpy as np
-
-    checker = colour.SDS_COLOURCHECKERS["BabelColor Average"]
-    sds = list(checker.values())
-    return np.asarray(sds[0].wavelengths, float), np.stack([np.asarray(sd.values, float) for sd in sds])
-
-
-@functools.cache
 def _rawtoaces_native() -> tuple:
     import numpy as np
     from colour.characterisation import read_training_data_rawtoaces_v1
@@ -158,25 +148,19 @@ def _rawtoaces_native() -> tuple:
 
 
 def _macbeth_reflectances(w: torch.Tensor) -> torch.Tensor:
-    """The scene package's Macbeth reflectances when present (so fit and chart agree), else BabelColor."""
-    try:
-        from ..scene import macbeth_reflectances  # provided by the scene generators
-    except ImportError:
-        macbeth_reflectances = None
-    if macbeth_reflectances is not None:
-        r = torch.as_tensor(macbeth_reflectances(w))
-        if r.dim() == 2 and r.shape[-1] == w.numel():
-            return r.to(torch.float64).reshape(-1, w.numel())
-    src, vals = _colour_checker_native()
-    return spectral.resample(torch.from_numpy(vals), torch.from_numpy(src), w.to(torch.float64).cpu())
+    """The Macbeth chart's reflectances [24, L]: the one loader, :func:`isettorch.scene.macbeth_reflectances`
+    (BabelColor average, end values held outside 380-730 nm), so the fit, the chart and the scene agree."""
+    from ..scene import macbeth_reflectances  # imported on use: isp loads without the scene package
+
+    return macbeth_reflectances(w.to(torch.float64).cpu(), dtype=torch.float64)
 
 
 REFLECTANCE_SETS = ("macbeth", "rawtoaces190", "macbeth+rawtoaces190")
 
 
 def reflectance_set(name: str, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
-    """Surface reflectances (N, L) on a grid: ``"macbeth"`` (24 ColorChecker patches, the scene package's
-    chart, else colour-science's BabelColor average), ``"rawtoaces190"`` (the 190 training reflectances of
+    """Surface reflectances (N, L) on a grid: ``"macbeth"`` (24 ColorChecker patches,
+    :func:`isettorch.scene.macbeth_reflectances`), ``"rawtoaces190"`` (the 190 training reflectances of
     the Academy's rawtoaces IDT, via colour-science) or ``"macbeth+rawtoaces190"``.
 
     Reference: ISETCam ``imageSensorTransform`` surfaces ``'mcc'`` / ``'multisurface'``.
