@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .demosaic import demosaic, mosaic
+from .demosaicing import demosaic, mosaic
 
 __all__ = ["IMAGE_SUFFIXES", "cpsnr", "evaluate_demosaic", "load_images"]
 
