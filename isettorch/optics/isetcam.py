@@ -384,7 +384,15 @@ def compute_oi_factored(maps, spectra, wavelengths_nm, hfov_deg, distance_m, f_n
     planes[:, nj, pr:pr + h, pc:pc + w] = 0
     coef = torch.cat([sw, pad_val[:, None, None].expand(b, 1, nl)], dim=1)  # [B, J+1, L]
     f_maps = _rfft2(planes)  # [B, J+1, H2, W2//2+1]
-    spectrum = f_maps[:, :1] * coef[:, 0, :, None, None]
-    for j in range(1, nj + 1):
-        spectrum = spectrum + f_maps[:, j:j + 1] * coef[:, j, :, None, None]
-    return _finish(spectrum, g, out_dtype, return_details, pad_val)
+    if f_maps.requires_grad:  # differentiable: out of place
+        spectrum = f_maps[:, :1] * coef[:, 0, :, None, None]
+        for j in range(1, nj + 1):
+            spectrum = spectrum + f_maps[:, j:j + 1] * coef[:, j, :, None, None]
+        return _finish(spectrum, g, out_dtype, return_details, pad_val)
+    # sum_j S_j(l) F_j + c F_pad as real arithmetic on (re, im) pairs, one pass per map over the L planes
+    fr = torch.view_as_real(f_maps)  # [B, J+1, H2, W2', 2]
+    pad_term = (fr[:, nj] * pad_val[:, None, None, None].to(work))[:, None]  # c F_pad, [B, 1, H2, W2', 2]
+    out = torch.addcmul(pad_term, fr[:, :1], sw[:, 0, :, None, None, None])  # [B, L, H2, W2', 2]
+    for j in range(1, nj):
+        out.addcmul_(fr[:, j:j + 1], sw[:, j, :, None, None, None])
+    return _finish(torch.view_as_complex(out), g, out_dtype, return_details, pad_val)
