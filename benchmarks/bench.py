@@ -68,11 +68,14 @@ def _sync(device) -> None:
 
 
 class Seconds(float):
-    """A median time (s) that also carries the fastest run (``.min``), the less load-sensitive estimate."""
+    """A median time (s) that also carries the fastest run (``.min``), the less load-sensitive estimate, and the
+    median CPU time of the process per run (``.cpu``, all threads; None where not measured): on a machine shared
+    with other jobs wall time grows with the load, CPU time much less."""
 
-    def __new__(cls, median: float, fastest: float):
+    def __new__(cls, median: float, fastest: float, cpu: float | None = None):
         obj = super().__new__(cls, median)
         obj.min = float(fastest)
+        obj.cpu = None if cpu is None else float(cpu)
         return obj
 
 
@@ -94,14 +97,15 @@ def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1, device="
     for _ in range(warmup):
         out = fn()
         _sync(device)
-    times = []
+    times, cpu = [], []
     while len(times) < max(1, repeats) or (sum(times) < min_time_s and len(times) < max_repeats):
         _sync(device)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         out = fn()
         _sync(device)
         times.append(time.perf_counter() - t0)
-    return Seconds(statistics.median(times), min(times)), out, times
+        cpu.append(time.process_time() - c0)
+    return Seconds(statistics.median(times), min(times), statistics.median(cpu)), out, times
 
 
 def machine_info(device="cpu") -> dict:
@@ -216,6 +220,8 @@ def _row(name: str, group: str, seconds: float | None, error: float | None, unit
            "error": None if error is None else float(error), "error_unit": unit}
     if hasattr(seconds, "min"):
         row["seconds_min"] = seconds.min
+    if getattr(seconds, "cpu", None) is not None:
+        row["cpu_seconds_median"] = seconds.cpu
     row.update(extra)
     return row
 

@@ -50,6 +50,8 @@ def test_schema(result):
         assert isinstance(r["name"], str) and r["name"]
         assert isinstance(r["seconds_median"], float) and r["seconds_median"] > 0
         assert 0 < r["seconds_min"] <= r["seconds_median"]  # fastest run <= median
+        if "cpu_seconds_median" in r:  # process CPU time per run, all threads
+            assert r["cpu_seconds_median"] >= 0
         assert (r["error"] is None) == (r["error_unit"] is None)
         if r["error"] is not None:
             assert math.isfinite(r["error"]) and r["error"] >= 0
