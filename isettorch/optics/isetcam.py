@@ -40,8 +40,8 @@ from .._checks import (
 from .geometry import cos4th_isetcam
 from .optical_image import OpticalImage
 
-__all__ = ["compute_oi", "compute_oi_factored", "unit_frequency_list", "dl_otf_isetcam", "pad_sizes",
-           "mean_illuminance"]
+__all__ = ["compute_oi", "compute_oi_factored", "compute_oi_scene", "unit_frequency_list", "dl_otf_isetcam",
+           "pad_sizes", "mean_illuminance"]
 
 
 def pad_sizes(height: int, width: int) -> tuple[int, int]:
@@ -396,3 +396,14 @@ def compute_oi_factored(maps, spectra, wavelengths_nm, hfov_deg, distance_m, f_n
     for j in range(1, nj):
         out.addcmul_(fr[:, j:j + 1], sw[:, j, :, None, None, None])
     return _finish(torch.view_as_complex(out), g, out_dtype, return_details, pad_val)
+
+
+def compute_oi_scene(scene, f_number, focal_length_m, transmittance=None, *, offaxis: str = "cos4th", **kwargs):
+    """:func:`compute_oi` of a Scene, or :func:`compute_oi_factored` when the scene is factored
+    (``scene.is_factored``: radiance ``sum_j maps [B, J, H, W] x spectra [B, J, L]``): one call for both forms,
+    so a factored scene takes the J + 1 FFT path. ``kwargs`` as :func:`compute_oi` (``dtype``, ``compute_dtype``,
+    ``return_details``)."""
+    args = (scene.wavelengths_nm, scene.hfov_deg, scene.distance_m, f_number, focal_length_m, transmittance)
+    if getattr(scene, "is_factored", False):
+        return compute_oi_factored(scene.maps, scene.spectra, *args, offaxis=offaxis, **kwargs)
+    return compute_oi(scene.photons, *args, offaxis=offaxis, **kwargs)

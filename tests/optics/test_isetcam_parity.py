@@ -253,3 +253,18 @@ def test_gradient_path_matches_and_gradchecks():
     torch.testing.assert_close(slow.detach(), fast, rtol=1e-12, atol=1e-15)
     assert torch.autograd.gradcheck(lambda r: isetcam.compute_oi(r, wave[:2], 12.0, 1.5, 2.8, 4e-3).photons,
                                     (xg,), eps=1e-6, atol=1e-7)
+
+
+def test_compute_oi_scene_dispatches_on_the_factored_form():
+    """A factored scene (duck-typed here: is_factored, maps, spectra) takes the factored path and gives the OI
+    of its dense form; a dense Scene takes compute_oi."""
+    from types import SimpleNamespace
+
+    maps, spectra, wave = _factored_case()
+    dense = Scene(torch.einsum("bjhw,bjl->blhw", maps, spectra), wave, hfov_deg=12.0, distance_m=1.5)
+    fac = SimpleNamespace(is_factored=True, maps=maps, spectra=spectra, wavelengths_nm=wave,
+                          hfov_deg=dense.hfov_deg, distance_m=dense.distance_m)
+    a = isetcam.compute_oi_scene(fac, 2.8, 4e-3)
+    b = isetcam.compute_oi_scene(dense, 2.8, 4e-3)
+    torch.testing.assert_close(a.photons, b.photons, rtol=1e-10, atol=1e-10 * float(b.photons.max()))
+    assert torch.equal(b.photons, isetcam.compute_oi(dense.photons, wave, 12.0, 1.5, 2.8, 4e-3).photons)
