@@ -329,9 +329,10 @@ def stable_rows(n: int, repeats: int, device, log=print) -> list[dict]:
     sc64 = frequency_sweep(n, wavelengths=w, dtype=torch.float64, device=device)
     geo = (float(sc64.hfov_deg[0]), float(sc64.distance_m[0]), 4.0, FOCAL_M)
     with torch.no_grad():
-        ref_oi = compute_oi(sc64.photons, w, *geo)
+        t_r, ref_oi, _ = time_call(lambda: compute_oi(sc64.photons, w, *geo), max(1, repeats // 2), 1, device)
         sensor = isetcam_sensor(geo[0], float(ref_oi.image_distance_m[0])).to(device)
-        ref_v = sensor(ref_oi, noise=False).data
+        t_rs, raw64, _ = time_call(lambda: sensor(ref_oi, noise=False), max(1, repeats // 2), 1, device)
+        ref_v = raw64.data
         sc = sc64.to(dtype=torch.float32)
         maps, spectra = rank1_factors(sc.photons)
         t_o, oi, _ = time_call(lambda: compute_oi_factored(maps, spectra, w, *geo), repeats, 1, device)
@@ -348,6 +349,10 @@ def stable_rows(n: int, repeats: int, device, log=print) -> list[dict]:
                   f"exposure 0.01 s, float32 OI; error of volts after the float32 optics"),
         _row(f"optics_dense_{tag}", "isetcam_compare", t_d, _rel_max(oi_d.photons, ref_oi.photons), unit,
              note=f"optics.isetcam.compute_oi on the dense {tag} cube -> OI {shape}, float32"),
+        _row(f"optics_float64_{tag}", "isetcam_compare", t_r, 0.0, unit, reference=True,
+             note="the reference: optics.isetcam.compute_oi on the dense cube in float64 (what isettorch parity runs)"),
+        _row(f"sensor_float64_{tag}", "isetcam_compare", t_rs, 0.0, unit, reference=True,
+             note="the reference: the same sensor on the float64 OI"),
     ]
 
 
