@@ -746,9 +746,12 @@ def pairs_per_second(n_items: int, log=print) -> tuple[float | None, str]:
 # driver, table and plot
 
 
+SECTION_NAMES = ("pipeline", "isetcam", "knobs", "proportional", "numpy_reference", "demosaic", "pairs")
+
+
 def run_benchmarks(*, quick: bool = False, device="cpu", sizes=None, stable_size: int | None = None,
                    knob_patch: int | None = None, repeats: int | None = None, peers: bool = True,
-                   pairs: bool = True, min_time_s: float | None = None,
+                   pairs: bool = True, min_time_s: float | None = None, only=None,
                    log: Callable[[str], None] | None = None) -> dict:
     """Run the standard set; returns ``{"rows": [...], "skipped": [...], "pairs_per_s", "pairs_note",
     "machine", "settings", "seconds_total"}``.
@@ -756,8 +759,13 @@ def run_benchmarks(*, quick: bool = False, device="cpu", sizes=None, stable_size
     ``quick`` skips 1024^2 and uses fewer repeats and smaller knob scenes. ``sizes`` (pipeline sizes),
     ``stable_size`` (the ISETCam-comparison rows), ``knob_patch`` (Macbeth patch size of the knob scene),
     ``repeats`` and ``min_time_s`` (short calls repeat until they have run this long; 0.5 s, 0 in quick mode)
-    override the defaults.
+    override the defaults. ``only``: run just these sections of ``SECTION_NAMES`` (e.g. ``{"isetcam",
+    "numpy_reference"}`` for the ISETCam-comparison and NumPy-reference rows).
     """
+    only = set(SECTION_NAMES) if only is None else set(only)
+    unknown = only - set(SECTION_NAMES)
+    if unknown:
+        raise ValueError(f"only: unknown sections {sorted(unknown)}; expected some of {list(SECTION_NAMES)}")
     log = log or (lambda s: None)
     device = torch.device(device)
     t_start = time.perf_counter()
@@ -768,32 +776,38 @@ def run_benchmarks(*, quick: bool = False, device="cpu", sizes=None, stable_size
     _TIMING["min_time_s"] = (0.0 if quick else 0.5) if min_time_s is None else float(min_time_s)
     info = machine_info(device)
     rows, skipped = [], []
-    log("pipeline stages")
-    rows += pipeline_rows(sizes, repeats, device, log=log)
-    rows += stable_rows(stable_size, max(2, repeats - 2), device, log=log)
-    log("knobs")
-    r, s = knob_rows(knob_patch, max(1, repeats - 2), device, log=log)
-    rows += r
-    skipped += s
-    log("model only what the scene needs")
-    rows += proportional_rows(min(512, max(sizes)), max(1, repeats - 2), device, log=log)
-    if peers:
+    if "pipeline" in only:
+        log("pipeline stages")
+        rows += pipeline_rows(sizes, repeats, device, log=log)
+    if "isetcam" in only:
+        rows += stable_rows(stable_size, max(2, repeats - 2), device, log=log)
+    if "knobs" in only:
+        log("knobs")
+        r, s = knob_rows(knob_patch, max(1, repeats - 2), device, log=log)
+        rows += r
+        skipped += s
+    if "proportional" in only:
+        log("model only what the scene needs")
+        rows += proportional_rows(min(512, max(sizes)), max(1, repeats - 2), device, log=log)
+    if peers and "numpy_reference" in only:
         log("peers")
         r, s = numpy_reference_rows([min(sizes), min(512, max(sizes))] if not quick else [min(sizes)],
                                     max(1, repeats - 2), log=log)
         rows += r
         skipped += s
+    if peers and "demosaic" in only:
         r, s = demosaic_rows(min(512, max(sizes)), max(1, repeats - 2), device, log=log)
         rows += r
         skipped += s
     pps, note = (None, "skipped (pairs=False)")
-    if pairs:
+    if pairs and "pairs" in only:
         pps, note = pairs_per_second(2 if quick else 6, log=log)
     if hasattr(os, "getloadavg"):
         info["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
     return {"rows": rows, "skipped": skipped, "pairs_per_s": pps, "pairs_note": note, "machine": info,
-            "settings": {"quick": quick, "sizes": sizes, "stable_size": stable_size, "knob_patch": knob_patch,
-                         "repeats": repeats, "min_time_s": _TIMING["min_time_s"], "device": str(device)},
+            "settings": {"only": sorted(only), "quick": quick, "sizes": sizes, "stable_size": stable_size,
+                         "knob_patch": knob_patch, "repeats": repeats, "min_time_s": _TIMING["min_time_s"],
+                         "device": str(device)},
             "seconds_total": time.perf_counter() - t_start}
 
 
@@ -955,6 +969,8 @@ def add_arguments(p) -> None:
     p.add_argument("--no-peers", action="store_true", help="skip the NumPy, colour-demosaicing and kornia peers")
     p.add_argument("--no-pairs", action="store_true", help="skip the CameraPairDataset throughput")
     p.add_argument("--plot", default=None, help="write the time-vs-error PNG here")
+    p.add_argument("--only", default=None, help=f"comma-separated sections to run, of {','.join(SECTION_NAMES)} "
+                                                "(default all)")
 
 
 def check_arguments(args) -> str | None:
@@ -964,6 +980,8 @@ def check_arguments(args) -> str | None:
             _sizes(args.sizes)
     except ValueError as exc:
         return str(exc)
+    if args.only and not set(args.only.split(",")) <= set(SECTION_NAMES):
+        return f"--only: expected sections from {','.join(SECTION_NAMES)}, got {args.only!r}"
     if args.threads is not None and args.threads < 1:
         return f"--threads: expected a positive integer, got {args.threads}"
     try:
@@ -992,7 +1010,7 @@ def main(argv=None) -> int:
     result = run_benchmarks(quick=args.quick, device=torch.device(args.device),
                             sizes=_sizes(args.sizes) if args.sizes else None, stable_size=args.stable_size,
                             knob_patch=args.knob_patch, repeats=args.repeats, peers=not args.no_peers,
-                            pairs=not args.no_pairs, log=log)
+                            pairs=not args.no_pairs, only=args.only.split(",") if args.only else None, log=log)
     if args.plot:
         result["plot"] = str(plot_pareto(result, args.plot))
     if args.json:
