@@ -273,7 +273,7 @@ def compute_oi(scene_photons, wavelengths_nm, hfov_deg, distance_m, f_number, fo
         dtype: dtype of the result (default: the photons' dtype).
         compute_dtype: dtype of the image arithmetic and FFTs (default: the photons' dtype, float64 for
             non-float input). The geometry and the OTF are computed in float64 either way. float32 stays within
-            3e-6 of float64 on the 512^2 x 31 sweep (``benchmarks/RESULTS.md``); ISETCam itself stores float32.
+            2.6e-5 of float64 on the 512^2 x 31 sweep (``benchmarks/RESULTS.md``); ISETCam itself stores float32.
         return_details: also return a dict with the intermediate quantities (cos4th factor, OTF, ...).
 
     Returns:
