@@ -13,9 +13,8 @@ import json
 import sys
 from pathlib import Path
 
+import bench  # benchmarks/bench.py, beside this script
 import torch
-
-from isettorch import bench
 
 
 def main(argv=None) -> int:

@@ -23,21 +23,37 @@ XYZ_TO_LINEAR_SRGB = (
 )
 
 
-def srgb_encode(linear: torch.Tensor, *, inplace: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
-    """IEC 61966-2-1 sRGB transfer function (input clipped to [0, 1] by the caller).
+def srgb_encode(linear: torch.Tensor, *, clip: bool = True, inplace: bool = False,
+                out: torch.Tensor | None = None) -> torch.Tensor:
+    """IEC 61966-2-1 sRGB encoding, linear -> encoded: ``12.92 x`` up to 0.0031308, ``1.055 x^(1/2.4) - 0.055`` above.
+
+    The one clipping rule (every sRGB encoding in isettorch is this function): values below 0, outside the
+    curve's domain, become 0; values above 1 (above white) become 1 when ``clip`` (the default), else follow the
+    same power law (headroom above white is kept).
 
     ``inplace=True`` uses ``linear`` as scratch space (its values are overwritten) and fewer temporaries: bitwise
     the same result, ~2x faster on CPU; not for tensors that need gradients. ``out``: write the result there
     (same shape; ``linear`` is left unchanged), with fewer passes still; also bitwise the same.
+
+    Example:
+        >>> srgb_encode(torch.tensor([-0.5, 0.0, 0.5, 1.0, 2.0]))
+        tensor([0.0000, 0.0000, 0.7354, 1.0000, 1.0000])
     """
+    hi = 1.0 if clip else None
     low = linear <= 0.0031308
     if out is not None:
-        torch.clamp(linear, min=0.0031308, out=out).pow_(1 / 2.4).mul_(1.055).sub_(0.055)
-        return out.masked_scatter_(low, linear.masked_select(low).mul_(12.92))
+        torch.clamp(linear, 0.0031308, hi, out=out).pow_(1 / 2.4).mul_(1.055).sub_(0.055)
+        return out.masked_scatter_(low, linear.masked_select(low).clamp_min_(0).mul_(12.92))
     if inplace:
-        out = linear.clamp_min(0.0031308).pow_(1 / 2.4).mul_(1.055).sub_(0.055)
-        return torch.where(low, linear.mul_(12.92), out, out=out)
-    return torch.where(low, 12.92 * linear, 1.055 * linear.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
+        out = linear.clamp(0.0031308, hi).pow_(1 / 2.4).mul_(1.055).sub_(0.055)
+        return torch.where(low, linear.clamp_min_(0).mul_(12.92), out, out=out)
+    return torch.where(low, 12.92 * linear.clamp_min(0), 1.055 * linear.clamp(0.0031308, hi) ** (1 / 2.4) - 0.055)
+
+
+def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
+    """IEC 61966-2-1 sRGB decoding, encoded -> linear: ``x / 12.92`` up to 0.04045, ``((x + 0.055) / 1.055)^2.4``
+    above (differentiable: no pow at 0). No clipping: the inverse of :func:`srgb_encode` on [0, 1] and above."""
+    return torch.where(encoded <= 0.04045, encoded / 12.92, ((encoded.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
 
 
 def xyz_to_srgb_preview(xyz_img: torch.Tensor, white_y: torch.Tensor) -> torch.Tensor:
@@ -45,7 +61,7 @@ def xyz_to_srgb_preview(xyz_img: torch.Tensor, white_y: torch.Tensor) -> torch.T
     m = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=xyz_img.dtype, device=xyz_img.device)
     scaled = xyz_img / white_y.reshape(-1, 1, 1, 1).clamp_min(torch.finfo(xyz_img.dtype).tiny)
     lin = torch.einsum("ij,bjhw->bihw", m, scaled)
-    return srgb_encode(lin.clamp(0, 1))
+    return srgb_encode(lin)
 
 
 @dataclasses.dataclass(eq=False, repr=False)

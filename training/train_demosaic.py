@@ -55,7 +55,7 @@ from isettorch.data import natural as nat  # noqa: E402
 from isettorch.data import spectra as data_spectra  # noqa: E402
 from isettorch.data.config import seed_for  # noqa: E402
 from isettorch.isp import learned  # noqa: E402
-from isettorch.isp.demosaic import mosaic  # noqa: E402
+from isettorch.isp.demosaicing import mosaic  # noqa: E402
 from isettorch.isp.learned import DemosaicNet, demosaic_malvar_torch  # noqa: E402
 from isettorch.paths import data_path  # noqa: E402
 from isettorch.sensor.noise import poisson_gaussian  # noqa: E402
@@ -134,7 +134,7 @@ def pair_batch(b: dict, patch: int, noisy: bool):
 
 
 def mosaic_rggb(rgb: torch.Tensor) -> torch.Tensor:
-    """[B, 3, H, W] -> RGGB mosaic [B, 1, H, W] (the library's :func:`isettorch.isp.demosaic.mosaic`)."""
+    """[B, 3, H, W] -> RGGB mosaic [B, 1, H, W] (the library's :func:`isettorch.isp.demosaicing.mosaic`)."""
     return mosaic(rgb, "RGGB")
 
 

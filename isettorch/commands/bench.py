@@ -1,71 +1,53 @@
-"""``isettorch bench``: speed against error of the simulation pipeline (see :mod:`isettorch.bench`).
+"""``isettorch bench``: speed against error of the simulation pipeline, run from a source checkout.
 
-Prints a Markdown table (or, with ``--json``, one JSON object: ``rows`` of
-``{"name", "seconds_median", "error", "error_unit", ...}``, ``pairs_per_s``, ``skipped``, ``machine``).
-``--plot PATH`` writes the time-vs-error plot (PNG) with the Pareto front.
+The benchmark lives in ``benchmarks/bench.py`` (next to its peers: the NumPy reference, colour-demosaicing,
+kornia), outside the package, and the package never imports ``benchmarks/``. This command finds that file
+beside the package (or under the current directory) and runs it as a script in a child Python with the same
+arguments, so the peers' imports and helpers never enter the library. ``--json`` prints one JSON object:
+``rows`` of ``{"name", "seconds_median", "seconds_min", "error", "error_unit", ...}``, ``pairs_per_s``,
+``skipped``, ``machine``; ``--plot PATH`` writes the time-vs-error plot (PNG).
 """
 
 from __future__ import annotations
 
-import json
+import os
+import subprocess
 import sys
+from pathlib import Path
+
+SCRIPT = Path("benchmarks") / "bench.py"
 
 
-def _sizes(text: str) -> list[int]:
-    try:
-        out = [int(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        raise ValueError(f"--sizes: expected comma-separated integers such as 128,512, got {text!r}") from None
-    if not out or any(n < 16 for n in out):
-        raise ValueError(f"--sizes: expected sizes >= 16, got {text!r}")
-    return out
+def find_script() -> Path | None:
+    """``benchmarks/bench.py`` of the checkout holding this package, else of the current directory."""
+    here = Path(__file__).resolve().parents[2]  # <checkout>/isettorch/commands/bench.py -> <checkout>
+    for root in (here, Path.cwd()):
+        if (root / SCRIPT).is_file():
+            return root / SCRIPT
+    return None
 
 
 def register(sub) -> None:
-    p = sub.add_parser("bench", help="time the pipeline and its accuracy-for-speed knobs (with errors) and peers")
-    p.add_argument("--json", action="store_true", help="print every row as JSON instead of a table")
-    p.add_argument("--quick", action="store_true", help="fewer repeats, no 1024^2, smaller knob scene")
-    p.add_argument("--device", default="cpu", help="torch device (cpu, cuda, cuda:1, ...; default cpu)")
-    p.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (default: torch's choice)")
-    p.add_argument("--sizes", default=None, help="pipeline sizes, e.g. 128,512,1024 (default per --quick)")
-    p.add_argument("--stable-size", type=int, default=None, help="size of the optics_/sensor_ rows (default 512)")
-    p.add_argument("--knob-patch", type=int, default=None, help="Macbeth patch size of the knob scene (16/32)")
-    p.add_argument("--repeats", type=int, default=None, help="timed repeats per measurement (default 5, quick 2)")
-    p.add_argument("--no-peers", action="store_true", help="skip the NumPy, colour-demosaicing and kornia peers")
-    p.add_argument("--no-pairs", action="store_true", help="skip the CameraPairDataset throughput")
-    p.add_argument("--plot", default=None, help="write the time-vs-error PNG here")
+    # Every argument (``--json``, ``-h``, ...) goes to the script, whose parser defines and checks the options:
+    # this parser takes no options of its own ("+" is never used as a prefix), so it treats them as positionals.
+    p = sub.add_parser("bench", add_help=False, prefix_chars="+",
+                       help="time the pipeline and its accuracy-for-speed knobs (with errors) and peers; "
+                            "needs a source checkout (runs benchmarks/bench.py; `isettorch bench -h` for options)")
+    p.add_argument("args", nargs="*")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    import torch
-
-    from .. import bench
-
-    try:
-        sizes = _sizes(args.sizes) if args.sizes else None
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    script = find_script()
+    if script is None:
+        print(f"error: isettorch bench needs a source checkout: {SCRIPT} was found neither beside the package "
+              f"({Path(__file__).resolve().parents[2]}) nor under the current directory ({Path.cwd()})",
+              file=sys.stderr)
         return 2
-    device = torch.device(args.device)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        print(f"error: --device {args.device}: CUDA is not available on this machine", file=sys.stderr)
-        return 2
-    if args.threads is not None:
-        if args.threads < 1:
-            print(f"error: --threads: expected a positive integer, got {args.threads}", file=sys.stderr)
-            return 2
-        torch.set_num_threads(args.threads)
-    log = (lambda s: print(s, file=sys.stderr, flush=True)) if not args.json else (lambda s: None)
-    result = bench.run_benchmarks(quick=args.quick, device=device, sizes=sizes, stable_size=args.stable_size,
-                                  knob_patch=args.knob_patch, repeats=args.repeats, peers=not args.no_peers,
-                                  pairs=not args.no_pairs, log=log)
-    if args.plot:
-        result["plot"] = str(bench.plot_pareto(result, args.plot))
-    if args.json:
-        print(json.dumps(result, indent=1, allow_nan=False))
-    else:
-        print(bench.format_report(result))
-        print(f"\ntotal {result['seconds_total']:.1f} s on {result['machine']['processor']} "
-              f"({result['machine']['cpu_count']} CPUs, {result['machine']['torch_threads']} torch threads)")
-    return 0
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[2])  # the child imports this same isettorch
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    proc = subprocess.run([sys.executable, str(script), *args.args], env=env, stdout=subprocess.PIPE, text=True)
+    sys.stdout.write(proc.stdout)  # through sys.stdout, so callers that redirect it see the rows
+    sys.stdout.flush()
+    return proc.returncode

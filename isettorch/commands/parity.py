@@ -45,140 +45,6 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-# --- case reading ------------------------------------------------------------------------------
-
-
-def _scalar(d, key, default=None):
-    if key not in d.files:
-        if default is None:
-            raise KeyError(key)
-        return default
-    return d[key].item() if d[key].ndim == 0 else d[key]
-
-
-def load_case(path: str | Path) -> dict:
-    """Read a parity case into plain numpy values (``np.load(..., allow_pickle=False)``)."""
-    import numpy as np
-
-    with np.load(path, allow_pickle=False) as d:
-        return {k: d[k] for k in d.files}
-
-
-def case_cfa(case: dict):
-    """The case's CFA: the pattern (``sensor_cfa_pattern``, 1-based) over the filter order of
-    ``sensor_filter_names``, letters from ``sensor_filter_letters`` (or the names' first letters)."""
-    import numpy as np
-
-    from ..sensor.cfa import CFA, KNOWN_LETTERS
-
-    names = [str(n) for n in np.atleast_1d(case["sensor_filter_names"])]
-    if "sensor_filter_letters" in case:
-        letters = list(str(case["sensor_filter_letters"]).upper())
-    else:
-        letters = [n[:1].upper() for n in names]
-    if len(letters) != len(names) or len(set(letters)) != len(letters) or \
-            any(x not in KNOWN_LETTERS for x in letters):
-        letters = names  # fall back to the full filter names as channel names
-    if "sensor_cfa_pattern" in case:
-        pat = np.atleast_2d(np.asarray(case["sensor_cfa_pattern"], dtype=np.int64))
-        if pat.min() < 1 or pat.max() > len(names):
-            raise ValueError(f"sensor_cfa_pattern: expected 1-based indices into {len(names)} filters, got {pat}")
-        cell = [[letters[i - 1] for i in row] for row in pat]
-        cfa = CFA(cell, channel_names=letters)
-        s = str(case.get("sensor_cfa", ""))
-        if s and all(len(x) == 1 for x in letters) and cfa.pattern != s.upper():
-            raise ValueError(f"sensor_cfa: {s!r} disagrees with sensor_cfa_pattern ({cfa.pattern!r})")
-        return cfa
-    return CFA(str(case["sensor_cfa"]), channel_names=letters)
-
-
-def quantization_bits(case: dict) -> int | None:
-    """ADC bits from ``sensor_quantization`` ('analog' or '10', '10 bit'), else ``sensor_quantization_bits``."""
-    import re
-
-    q = str(case.get("sensor_quantization", "")).strip().lower()
-    if q == "analog":
-        return None
-    m = re.search(r"\d+", q)
-    if m:
-        return int(m.group()) or None
-    if "sensor_quantization_bits" in case:
-        return int(case["sensor_quantization_bits"]) or None
-    if q:
-        raise ValueError(f"sensor_quantization: expected 'analog' or a bit count such as '10', got {q!r}")
-    return None
-
-
-def build_sensor(case: dict, preblur_size: int | None = None):
-    """A :class:`~isettorch.sensor.Sensor` with the case's parameters and ISETCam's conventions."""
-    import torch
-
-    from ..sensor import ISETCAM_CONVENTIONS, Sensor, SpectralQE
-
-    cfa = case_cfa(case)
-    wave = torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1)
-    qe = torch.as_tensor(case["sensor_spectral_qe"], dtype=torch.float64).reshape(cfa.num_channels, -1)
-    bits = quantization_bits(case)
-    return Sensor(
-        rows=int(case["sensor_rows"]), cols=int(case["sensor_cols"]),
-        pixel_size_m=float(case["sensor_pixel_size_m"]), fill_factor=float(case["sensor_fill_factor"]), cfa=cfa,
-        spectral_qe=SpectralQE(qe, wave, cfa.channel_names),
-        conversion_gain_v_per_e=float(case["sensor_conversion_gain_v_per_e"]),
-        voltage_swing_v=float(case["sensor_voltage_swing_v"]), exposure_s=float(case["sensor_exposure_s"]),
-        analog_gain=float(case.get("sensor_analog_gain", 1.0)),
-        analog_offset_v=float(case.get("sensor_analog_offset", 0.0)), adc_bits=bits, shot_noise="off",
-        preblur_size=preblur_size, output_units="volts", name=str(case.get("case_name", "")), **ISETCAM_CONVENTIONS,
-    )
-
-
-def case_oi(case: dict):
-    """The case's own optical image as an :class:`~isettorch.optics.OpticalImage` (float64)."""
-    import torch
-
-    from ..optics.optical_image import OpticalImage
-
-    return OpticalImage(torch.as_tensor(case["oi_photons"], dtype=torch.float64)[None],
-                        torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1),
-                        sample_spacing_m=float(case["oi_sample_spacing_m"]),
-                        pad_rows=int(case.get("oi_pad_rows", 0)), pad_cols=int(case.get("oi_pad_cols", 0)),
-                        validate=False)
-
-
-def _optics_function():
-    """The optics engineer's ISETCam-compatible ``compute_oi`` (None if it is not available)."""
-    try:
-        from ..optics import isetcam as mod
-    except ImportError:
-        return None
-    return getattr(mod, "compute_oi", None)
-
-
-def compute_our_oi(case: dict, fn):
-    import torch
-
-    return fn(torch.as_tensor(case["scene_photons"], dtype=torch.float64),
-              torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1),
-              float(case["scene_hfov_deg"]), float(case["scene_distance_m"]), float(case["optics_f_number"]),
-              float(case["optics_focal_length_m"]),
-              torch.as_tensor(case["optics_transmittance"], dtype=torch.float64).reshape(-1)
-              if "optics_transmittance" in case else None,
-              offaxis="skip" if str(case.get("optics_offaxis", "cos4th")).lower() in ("skip", "none") else "cos4th")
-
-
-def mean_illuminance(photons, wavelengths_nm, vlambda=None):
-    """ISETCam mean illuminance (lux) [B]: ``683 binwidth sum V E`` with ISETCam's h, c (FORMAT 4.1)."""
-    import torch
-
-    from .. import constants, spectral
-
-    w = wavelengths_nm.to(torch.float64)
-    v = spectral.luminosity(w, dtype=torch.float64) if vlambda is None else \
-        torch.as_tensor(vlambda, dtype=torch.float64).reshape(-1)
-    bw = float(w[1] - w[0]) if w.numel() > 1 else 1.0
-    e = photons.to(torch.float64) * (constants.ISETCAM["h"] * constants.ISETCAM["c"]) / (w[:, None, None] * 1e-9)
-    return constants.KM_LM_PER_W * bw * torch.einsum("...lhw,l->...hw", e, v).mean(dim=(-2, -1))
-
-
 # --- comparisons ---------------------------------------------------------------------------------
 
 
@@ -246,36 +112,35 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
     import numpy as np
     import torch
 
-    from .. import constants
+    from .. import constants, spectral
+    from ..io.isetcam import SCENE_KEYS, case_optical_image, case_scene_oi, case_sensor, read_parity_case
+    from ..optics.isetcam import mean_illuminance
 
-    case = load_case(path)
+    case = read_parity_case(path)
     name = str(case.get("case_name", Path(path).stem))
     stages: dict[str, dict] = {}
     notes: list[str] = []
     w = torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1)
-    vl = case.get("vlambda")
+    vl = torch.as_tensor(case["vlambda"], dtype=torch.float64).reshape(-1) if "vlambda" in case else \
+        spectral.luminosity(w, dtype=torch.float64)
 
     # Optics stage
     our_oi = None
-    scene_keys = ("scene_photons", "scene_hfov_deg", "scene_distance_m", "optics_f_number", "optics_focal_length_m")
-    missing = [key for key in scene_keys if key not in case]
-    fn = None if missing else _optics_function()
+    missing = [key for key in SCENE_KEYS if key not in case]
     if missing:
         stages["oi_photons"] = {"skipped": f"case lacks {', '.join(missing)}", "ok": None}
-    elif fn is None:
-        stages["oi_photons"] = {"skipped": "isettorch.optics.isetcam.compute_oi is not available", "ok": None}
     else:
-        our_oi = compute_our_oi(case, fn)
+        our_oi = case_scene_oi(case)
         stages["oi_photons"] = _rel_stats(our_oi.photons[0].numpy(), case["oi_photons"], TOL["oi_photons"])
         if repeat > 0:
-            stages["oi_photons"]["seconds"] = _median_seconds(lambda: compute_our_oi(case, fn), repeat)
+            stages["oi_photons"]["seconds"] = _median_seconds(lambda: case_scene_oi(case), repeat)
         dx = float(our_oi.sample_spacing_m[0])
         ref_dx = float(case["oi_sample_spacing_m"])
         if abs(dx - ref_dx) > 1e-9 * ref_dx:
             notes.append(f"our OI sample spacing {dx:.10g} m differs from the case's {ref_dx:.10g} m")
     if "oi_mean_illuminance_lux" in case:
         src = our_oi.photons[0] if our_oi is not None else torch.as_tensor(case["oi_photons"], dtype=torch.float64)
-        lux = float(mean_illuminance(src, w, vl))
+        lux = float(mean_illuminance(src[None], w, vl)[0])
         ref = float(case["oi_mean_illuminance_lux"])
         rel = abs(lux - ref) / abs(ref) if ref else abs(lux)
         stages["mean_illuminance"] = {"mean_rel_err": rel, "max_err": rel, "tolerance": TOL["mean_illuminance"],
@@ -297,8 +162,8 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
         if kern.shape == (k, k) and np.abs(kern - isetcam_preblur_kernel(k).numpy()).max() > 1e-9:
             notes.append(f"pre-blur kernel values differ from fspecial('gaussian', {k}, {k}/4) by "
                          f"{np.abs(kern - isetcam_preblur_kernel(k).numpy()).max():.3g}")
-    sensor = build_sensor(case, preblur_size=k)
-    for label, oi in (("", case_oi(case)), ("_from_our_oi", our_oi)):
+    sensor = case_sensor(case, preblur_size=k)
+    for label, oi in (("", case_optical_image(case)), ("_from_our_oi", our_oi)):
         if oi is None:
             for st in ("sensor_current", "sensor_volts", "sensor_dv"):
                 stages[st + label] = {"skipped": "no OI of our own (optics unavailable)", "ok": None}
@@ -334,7 +199,7 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
                 v["informational"] = True
             stages[st + label] = v
     if "noise_resid_std_v" in case:
-        stages["noise_stats"] = noise_stats(case, sensor, case_oi(case))
+        stages["noise_stats"] = noise_stats(case, sensor, case_optical_image(case))
     ok = all(v["ok"] for v in stages.values() if v.get("ok") is not None and not v.get("informational"))
     return {"name": name, "path": str(path), "stages": stages, "notes": notes, "ok": ok}
 
@@ -414,7 +279,7 @@ def run(args) -> int:
     for path in args.cases:
         try:
             results.append(run_case(path, repeat=args.repeat))
-        except (OSError, KeyError, ValueError, TypeError) as err:
+        except (OSError, KeyError, ValueError, TypeError) as err:  # unreadable or malformed case: exit 2
             results.append({"name": Path(path).stem, "path": str(path), "error": f"{type(err).__name__}: {err}",
                             "stages": {}, "ok": False})
             code = 2

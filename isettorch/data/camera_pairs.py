@@ -88,11 +88,11 @@ def _nikon_native() -> tuple[np.ndarray, np.ndarray]:
 
 def nikon_d5100_qe(wavelengths_nm, peak_qe: float = 0.5, shift_nm=(0.0, 0.0, 0.0)) -> torch.Tensor:
     """Spectral QE ``[3, L]`` (R, G, B) of the Nikon D5100 (NPL data), peak ``peak_qe``, each channel shifted."""
-    w_src, vals = _nikon_native()
-    w = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
-    rows = [spectral.resample(torch.from_numpy(vals[c]), torch.from_numpy(w_src) + float(shift_nm[c]), w)
-            for c in range(3)]
-    return torch.stack(rows) * peak_qe
+    from ..sensor.filters import filter_set
+
+    w = torch.as_tensor(wavelengths_nm, dtype=torch.float64)  # the one loader: sensor.filters.filter_set
+    return torch.stack([filter_set("nikon_5100", w - float(s), dtype=torch.float64)[1][c]
+                        for c, s in enumerate(shift_nm)]) * peak_qe
 
 
 @functools.lru_cache(maxsize=16)

@@ -1,13 +1,15 @@
 """Image processor: demosaic, colour, pipelines. One import line per module; ``__all__`` lists the public names.
 
-``demosaic`` here is the ``isettorch.isp.demosaic`` package, which is callable: ``demosaic(raw, "RGGB", "menon2007")``.
+Demosaic: the function ``demosaic(raw, "RGGB", "menon2007")`` and its module ``Demosaic("menon2007")``, with the
+method registry (``METHODS``, ``register_method``) of :mod:`isettorch.isp.demosaicing`.
 """
 
-from . import demosaic
-from .demosaic import (
+from .demosaicing import (
+    BAYER_PATTERNS,
     METHODS,
     Demosaic,
     bayer_index_map,
+    demosaic,
     demosaic_bilinear,
     demosaic_bilinear_colour,
     demosaic_generic,
@@ -23,8 +25,8 @@ from .evaluation import cpsnr, evaluate_demosaic
 
 __all__ = [
     # demosaic
-    "METHODS", "Demosaic", "bayer_index_map", "demosaic", "demosaic_bilinear", "demosaic_bilinear_colour",
-    "demosaic_generic",
+    "BAYER_PATTERNS", "METHODS", "Demosaic", "bayer_index_map", "demosaic", "demosaic_bilinear",
+    "demosaic_bilinear_colour", "demosaic_generic",
     "demosaic_malvar2004", "demosaic_menon2007", "demosaic_nearest", "demosaic_nearest_cfa", "get_method",
     "mosaic", "register_method",
     # evaluation

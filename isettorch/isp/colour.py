@@ -24,8 +24,7 @@ from torch import nn
 
 from .. import spectral
 from .._checks import as_tensor, check_finite, check_rank, check_wavelengths
-from ..image import XYZ_TO_LINEAR_SRGB
-from ..image import srgb_encode as _srgb_encode
+from ..image import XYZ_TO_LINEAR_SRGB, srgb_decode, srgb_encode
 
 __all__ = [
     "apply_matrix",
@@ -140,16 +139,6 @@ def fit_colour_matrix(source: torch.Tensor, target: torch.Tensor) -> torch.Tenso
 
 
 @functools.cache
-def _colour_checker_native() -> tuple:
-    import colour
-    import numpy as np
-
-    checker = colour.SDS_COLOURCHECKERS["BabelColor Average"]
-    sds = list(checker.values())
-    return np.asarray(sds[0].wavelengths, float), np.stack([np.asarray(sd.values, float) for sd in sds])
-
-
-@functools.cache
 def _rawtoaces_native() -> tuple:
     import numpy as np
     from colour.characterisation import read_training_data_rawtoaces_v1
@@ -159,25 +148,19 @@ def _rawtoaces_native() -> tuple:
 
 
 def _macbeth_reflectances(w: torch.Tensor) -> torch.Tensor:
-    """The scene package's Macbeth reflectances when present (so fit and chart agree), else BabelColor."""
-    try:
-        from ..scene import macbeth_reflectances  # provided by the scene generators
-    except ImportError:
-        macbeth_reflectances = None
-    if macbeth_reflectances is not None:
-        r = torch.as_tensor(macbeth_reflectances(w))
-        if r.dim() == 2 and r.shape[-1] == w.numel():
-            return r.to(torch.float64).reshape(-1, w.numel())
-    src, vals = _colour_checker_native()
-    return spectral.resample(torch.from_numpy(vals), torch.from_numpy(src), w.to(torch.float64).cpu())
+    """The Macbeth chart's reflectances [24, L]: the one loader, :func:`isettorch.scene.macbeth_reflectances`
+    (BabelColor average, end values held outside 380-730 nm), so the fit, the chart and the scene agree."""
+    from ..scene import macbeth_reflectances  # imported on use: isp loads without the scene package
+
+    return macbeth_reflectances(w.to(torch.float64).cpu(), dtype=torch.float64)
 
 
 REFLECTANCE_SETS = ("macbeth", "rawtoaces190", "macbeth+rawtoaces190")
 
 
 def reflectance_set(name: str, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
-    """Surface reflectances (N, L) on a grid: ``"macbeth"`` (24 ColorChecker patches, the scene package's
-    chart, else colour-science's BabelColor average), ``"rawtoaces190"`` (the 190 training reflectances of
+    """Surface reflectances (N, L) on a grid: ``"macbeth"`` (24 ColorChecker patches,
+    :func:`isettorch.scene.macbeth_reflectances`), ``"rawtoaces190"`` (the 190 training reflectances of
     the Academy's rawtoaces IDT, via colour-science) or ``"macbeth+rawtoaces190"``.
 
     Reference: ISETCam ``imageSensorTransform`` surfaces ``'mcc'`` / ``'multisurface'``.
@@ -390,17 +373,6 @@ def xyz_to_display_matrix(rgb_to_xyz: torch.Tensor, relative: bool = True) -> to
     if relative:
         m = m / m[1].sum()
     return torch.linalg.inv(m)
-
-
-def srgb_encode(linear: torch.Tensor, clip: bool = True) -> torch.Tensor:
-    """IEC 61966-2-1 sRGB encoding of linear values; clipped to [0, 1] first when ``clip``."""
-    return _srgb_encode(linear.clamp(0, 1) if clip else linear.clamp_min(0))
-
-
-def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
-    """IEC 61966-2-1 sRGB decoding (encoded -> linear)."""
-    return torch.where(encoded <= 0.04045, encoded / 12.92,
-                       ((encoded.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -665,7 +637,7 @@ class DisplayEncode(nn.Module):
         if self.encoding == "display":
             return self.display.inverse_eotf(x.clamp_min(0))
         if self.encoding == "srgb":
-            return _srgb_encode(x.clamp_min(0))
+            return srgb_encode(x, clip=self.clip)
         if self.encoding == "linear":
             return x
         return x.clamp_min(torch.finfo(x.dtype).tiny) ** (1.0 / float(self.encoding))

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .demosaic import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
+from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 
 __all__ = ["DENOISERS", "IMAGE_SUFFIXES", "available_methods", "cpsnr", "denoise_mosaic", "evaluate_demosaic",
            "load_demosaic_model", "load_images", "noisy_mosaic"]

@@ -38,27 +38,19 @@ def ip_result_from_case(case, use_case_matrices: bool = True, dtype=torch.float6
     """
     import numpy as np
 
-    from ..sensor.cfa import CFA
+    from ..io.isetcam import case_adc_bits, case_cfa
     from ..sensor.raw import RawImage
 
-    def get(key, default=None):
-        files = case.files if hasattr(case, "files") else case.keys()
-        return case[key] if key in files else default
-
-    quant = str(get("sensor_quantization", "analog")).strip().lower()
+    case = {k: case[k] for k in (case.files if hasattr(case, "files") else case.keys())}
+    get = case.get
     swing = float(get("sensor_voltage_swing_v", 1.0))
     dv = get("sensor_dv")
-    if quant != "analog" and dv is not None:
-        bits = int(get("sensor_quantization_bits", 0)) or int("".join(c for c in quant if c.isdigit()) or 0)
-        data, units, white = np.asarray(dv, float), "dn", float(2 ** bits) if bits else float(np.max(dv))
+    bits = case_adc_bits(case)
+    if bits is not None and dv is not None:
+        data, units, white = np.asarray(dv, float), "dn", float(2 ** bits)
     else:
         data, units, white = np.asarray(get("sensor_volts"), float), "volts", swing
-    names = [str(n) for n in np.atleast_1d(get("sensor_filter_names", []))]
-    cfa_letters = str(get("sensor_cfa"))
-    letters = [n[0].upper() for n in names] if names else None
-    if letters and len(set(letters)) != len(letters):
-        letters = None
-    cfa = CFA(cfa_letters, channel_names=letters) if letters else CFA(cfa_letters)
+    cfa = case_cfa(case)
     raw = RawImage(torch.as_tensor(data, dtype=dtype)[None, None], units, cfa, white_level=white,
                    voltage_swing_v=swing)
     t_display = get("ip_T_display")

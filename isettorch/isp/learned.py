@@ -9,7 +9,7 @@ depth-to-space back to full resolution). The last layer is zero-initialised, so 
 ``training/train_demosaic.py`` on synthetic spectral scenes only, never on Kodak/McMaster; the JSON beside it
 records the command, config, data, wall time, hardware and benchmark scores). Inputs are values relative to white
 = 1 (white-balanced, linear or display-encoded: both were in the training data). Importing this module registers
-the demosaic method ``"learned"`` with :mod:`isettorch.isp.demosaic` (``demosaic(raw, "RGGB", method="learned")``,
+the demosaic method ``"learned"`` with :mod:`isettorch.isp.demosaicing` (``demosaic(raw, "RGGB", method="learned")``,
 ``isettorch demosaic-eval DIR --method learned``, camera configs with ``isp.demosaic: learned``).
 
 References:
@@ -28,6 +28,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
+
 __all__ = [
     "BAYER_PATTERNS",
     "demosaic_malvar_torch",
@@ -40,7 +42,6 @@ __all__ = [
     "PRETRAINED_PATH",
 ]
 
-BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 PRETRAINED_PATH = ASSETS / "demosaic_learned.pt"
 #: shipped variants: the noise-free network and the joint denoise+demosaic network (noise inputs (a, b))
@@ -276,8 +277,8 @@ def pretrained_info(variant: str = "noise_free") -> dict:
 def _register() -> None:
     import importlib
 
-    try:  # by module path: the package's __init__ exports a function of the same name
-        _dm = importlib.import_module(__name__.rsplit(".", 1)[0] + ".demosaic")
+    try:
+        _dm = importlib.import_module(__name__.rsplit(".", 1)[0] + ".demosaicing")
     except ImportError:  # the demosaic module is optional for this file
         return
     reg = getattr(_dm, "register_method", None)

@@ -72,7 +72,7 @@ class ISPResult:
 class DemosaicStage(nn.Module):
     """Demosaic for any CFA: Bayer-like 2x2 layouts (RGB Bayer, and 3-filter cells with one filter on a
     diagonal such as CMY 'YCMY', mapped onto a Bayer pattern) use ``method`` of
-    :func:`isettorch.isp.demosaic.demosaic`; other CFAs (RGBW, X-Trans, ...) use the generic method on the
+    :func:`isettorch.isp.demosaic`; other CFAs (RGBW, X-Trans, ...) use the generic method on the
     CFA's index map (``fallback``, bilinear by default).
 
     ``border="reflect"`` mirrors the mosaic by one pixel first (which keeps a 2x2 CFA's phase) and crops the
@@ -83,7 +83,7 @@ class DemosaicStage(nn.Module):
 
     def __init__(self, method="bilinear", fallback: str = "bilinear", border: str = "method", **kwargs) -> None:
         super().__init__()
-        from .demosaic import Demosaic
+        from .demosaicing import Demosaic
 
         if border not in ("method", "reflect"):
             raise ValueError(f"border: expected 'method' or 'reflect', got {border!r}")
@@ -94,7 +94,7 @@ class DemosaicStage(nn.Module):
 
     def forward(self, mosaic: torch.Tensor, cfa) -> torch.Tensor:
         from ..sensor.cfa import CFA
-        from .demosaic import demosaic
+        from .demosaicing import demosaic
 
         pad = 0
         if self.border == "reflect" and min(mosaic.shape[-2:]) > 1:

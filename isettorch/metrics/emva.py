@@ -14,6 +14,7 @@ import math
 import torch
 
 from .._checks import as_tensor, check_finite
+from .snr import pixel_snr
 
 S2_QUANTIZATION_DN2 = 1.0 / 12.0  # EMVA 1288 4.0 eq. 5: uniform quantisation noise variance, DN^2
 S2_DARK_FLOOR_DN2 = 0.24  # EMVA 1288 4.0 section 6.4: below this sigma_y.dark is quantisation-limited
@@ -59,9 +60,10 @@ class EMVA1288Result:
             raise ValueError("photons_per_pixel: the SNR model needs the quantum efficiency; call emva1288 with "
                              "photons_per_pixel")
         mu_p = as_tensor(photons_per_pixel, "photons_per_pixel", dtype=torch.float64)
-        e = self.quantum_efficiency * mu_p
-        K = self.system_gain_dn_per_e
-        return e / torch.sqrt(self.dark_noise_e**2 + S2_QUANTIZATION_DN2 / K**2 + e)
+        # the one pixel-SNR model (metrics.snr): dark noise as read noise; the quantisation step of 1 DN is 1/K
+        # electrons, so LSB^2 / 12 = S2_QUANTIZATION_DN2 / K^2
+        return pixel_snr(self.quantum_efficiency * mu_p, read_noise_e=self.dark_noise_e,
+                         lsb_e=1.0 / self.system_gain_dn_per_e)
 
     def report(self) -> str:
         """The EMVA 1288 summary table as text."""

@@ -23,15 +23,25 @@ the PSF, no ``abs``); see its docstring for the measured difference.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 
 import torch
 
 from .. import constants
-from .._checks import as_tensor, batch_param, check_nonnegative, check_rank, check_wavelengths, round_half_away
+from .._checks import (
+    as_tensor,
+    batch_param,
+    check_finite,
+    check_nonnegative,
+    check_rank,
+    check_wavelengths,
+    round_half_away,
+)
 from .geometry import cos4th_isetcam
 from .optical_image import OpticalImage
 
-__all__ = ["compute_oi", "unit_frequency_list", "dl_otf_isetcam", "pad_sizes", "mean_illuminance"]
+__all__ = ["compute_oi", "compute_oi_factored", "compute_oi_scene", "unit_frequency_list", "dl_otf_isetcam",
+           "pad_sizes", "mean_illuminance"]
 
 
 def pad_sizes(height: int, width: int) -> tuple[int, int]:
@@ -108,8 +118,150 @@ def mean_illuminance(photons: torch.Tensor, wavelengths_nm: torch.Tensor, vlambd
     return torch.cumsum(v, dim=1)[:, -1].double() / v.shape[1]
 
 
+# OTF half-spectra (rfft layout) and cos4th factors by geometry (wavelengths, f-numbers, focal lengths, FOVs,
+# spacings, shape, dtype, device): a repeated call with the same optics and scene geometry reuses them
+# (DESIGN principle 2: nothing recomputed that can be cached). Least recently used entries go first.
+_CACHE: OrderedDict = OrderedDict()
+_CACHE_SIZE = 16
+
+
+def _remember(key, value: torch.Tensor) -> torch.Tensor:
+    _CACHE[key] = value
+    while len(_CACHE) > _CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return value
+
+
+def _half_otf(wave, n, f, hfov_pad, dx_c, h2: int, w2: int, dtype) -> torch.Tensor:
+    """:func:`dl_otf_isetcam` restricted to the ``rfft2`` half plane ``[B, L, H2, W2 // 2 + 1]``, cached.
+
+    The OTF is real and even on ISETCam's grid (a radial function sampled at ``±f``; ``unitFrequencyList`` is
+    symmetric), so ``OTF * rfft2(img)`` is the half spectrum of ``OTF * fft2(img)`` and ``irfft2`` returns the
+    real part of ``ifft2`` exactly."""
+    key = ("otf", tuple(wave.tolist()), tuple(n.tolist()), tuple(f.tolist()), tuple(hfov_pad.tolist()),
+           tuple(dx_c.tolist()), h2, w2, dtype, str(wave.device))
+    hit = _CACHE.get(key)
+    if hit is not None:
+        _CACHE.move_to_end(key)
+        return hit
+    otf = dl_otf_isetcam(wave, n, f, hfov_pad, dx_c, h2, w2)[0]
+    return _remember(key, otf[..., : w2 // 2 + 1].to(dtype).contiguous())
+
+
+def _use_scipy(x: torch.Tensor) -> bool:
+    """SciPy's pocketfft for CPU tensors that need no gradient: 2-4x faster than torch's CPU ``irfft2`` on
+    640^2 x 31 (``benchmarks/RESULTS.md``); the same transform to float rounding. Gradients take torch's."""
+    return x.device.type == "cpu" and not (torch.is_grad_enabled() and x.requires_grad)
+
+
+def _rfft2(x: torch.Tensor) -> torch.Tensor:
+    if _use_scipy(x):
+        import scipy.fft
+
+        return torch.from_numpy(scipy.fft.rfft2(x.numpy(), workers=torch.get_num_threads()))
+    return torch.fft.rfft2(x)
+
+
+def _irfft2(x: torch.Tensor, s) -> torch.Tensor:
+    if _use_scipy(x):
+        import scipy.fft
+
+        return torch.from_numpy(scipy.fft.irfft2(x.numpy(), s=s, workers=torch.get_num_threads(),
+                                                 overwrite_x=True))
+    return torch.fft.irfft2(x, s=s)
+
+
+def _work_dtype(compute_dtype, like: torch.Tensor) -> torch.dtype:
+    if compute_dtype is None:
+        return like.dtype if like.dtype in (torch.float32, torch.float64) else torch.float64
+    if compute_dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"compute_dtype: expected torch.float32 or torch.float64, got {compute_dtype}")
+    return compute_dtype
+
+
+def _setup(b, nl, h, w, wavelengths_nm, hfov_deg, distance_m, f_number, focal_length_m, transmittance, offaxis,
+           dev):
+    """Validated geometry in float64 (FORMAT.md 4.2-4.4): everything except the image planes."""
+    dt = torch.float64
+    wave = check_wavelengths(as_tensor(wavelengths_nm, "wavelengths_nm", dtype=dt, device=dev))
+    if wave.numel() != nl:
+        raise ValueError(f"wavelengths_nm: expected {nl} wavelengths to match the radiance, got {wave.numel()}")
+    kw = dict(dtype=dt, device=dev, positive=True)
+    hfov = batch_param(hfov_deg, "hfov_deg", b, **kw)
+    dist = batch_param(distance_m, "distance_m", b, **kw)
+    n = batch_param(f_number, "f_number", b, **kw)
+    f = batch_param(focal_length_m, "focal_length_m", b, **kw)
+    if bool((hfov >= 180).any()):
+        raise ValueError(f"hfov_deg: expected a field of view below 180 deg, got {hfov.tolist()}")
+    if bool((dist <= f).any()):
+        raise ValueError(f"distance_m: expected a scene beyond the focal length {f.tolist()}, got {dist.tolist()}")
+    t = torch.ones(nl, dtype=dt, device=dev) if transmittance is None else as_tensor(
+        transmittance, "transmittance", dtype=dt, device=dev).reshape(-1)
+    if t.numel() != nl:
+        raise ValueError(f"transmittance: expected {nl} values (one per wavelength), got {t.numel()}")
+    check_nonnegative(t, "transmittance")
+    if offaxis not in ("cos4th", "skip"):
+        raise ValueError(f"offaxis: expected 'cos4th' or 'skip', got {offaxis!r}")
+
+    # oiCalculateIrradiance: pi / (1 + 4 N^2 (1 + |m|)^2), thin-lens magnification at the scene distance
+    d_img = 1 / (1 / f - 1 / dist)
+    mag = -d_img / dist
+    k = math.pi / (1 + 4 * n**2 * (1 + mag.abs()) ** 2)
+    # geometry inside oiCompute: focal-plane distance f (no depth map yet)
+    dx_c = 2 * f * torch.tan(torch.deg2rad(hfov) / 2) / w
+    cos4 = None
+    if offaxis == "cos4th":
+        # oiGet 'spatialsupport': linspace(-n dx/2 + dx/2, n dx/2 - dx/2, n) on the unpadded grid
+        ys = (torch.arange(h, dtype=dt, device=dev) - (h - 1) / 2)[None, :] * dx_c[:, None]
+        xs = (torch.arange(w, dtype=dt, device=dev) - (w - 1) / 2)[None, :] * dx_c[:, None]
+        # opticsGet 'magnification' without a selected scene is 0 (FORMAT.md 4.3)
+        key = ("cos4", h, w, tuple(dx_c.tolist()), tuple(f.tolist()), tuple(n.tolist()), str(dev))
+        cos4 = _CACHE.get(key)
+        if cos4 is None:
+            cos4 = _remember(key, cos4th_isetcam(ys, xs, f, n, 0.0))  # [B, 1, H, W]
+        else:
+            _CACHE.move_to_end(key)
+    # oiPad: round(size/8) per side
+    pr, pc = pad_sizes(h, w)
+    h2, w2 = h + 2 * pr, w + 2 * pc
+    hfov_pad = 2 * torch.rad2deg(torch.atan((w2 / w) * torch.tan(torch.deg2rad(hfov) / 2)))
+    return dict(wave=wave, n=n, f=f, t=t, k=k, d_img=d_img, mag=mag, dx_c=dx_c, cos4=cos4, pr=pr, pc=pc, h2=h2,
+                w2=w2, hfov_pad=hfov_pad)
+
+
+def _finish(spectrum, g, out_dtype, return_details, pad_val):
+    """``abs(ifft2(OTF * fft2(padded)))`` from the padded image's half spectrum ``[B, L, H2, W2//2+1]``, and the
+    returned OpticalImage (ISETCam ``oiApplyOTF``, FORMAT.md 4.4)."""
+    h2, w2 = g["h2"], g["w2"]
+    otf = _half_otf(g["wave"], g["n"], g["f"], g["hfov_pad"], g["dx_c"], h2, w2, spectrum.real.dtype)
+    if spectrum.requires_grad:
+        spectrum = spectrum * otf
+    else:
+        torch.view_as_real(spectrum).mul_(otf[..., None])  # real x complex as a real product, in place
+    out = _irfft2(spectrum, (h2, w2))
+    out = out.abs() if out.requires_grad else out.abs_()
+    # the returned oi has the scene depth map: focal-plane distance = thin-lens image distance
+    spacing = 2 * g["d_img"] * torch.tan(torch.deg2rad(g["hfov_pad"]) / 2) / w2
+    wave, n, f = g["wave"], g["n"], g["f"]
+    oi = OpticalImage(out.to(out_dtype), wave.to(out_dtype), name="isetcam diffraction limited",
+                      sample_spacing_m=spacing, hfov_deg=g["hfov_pad"], focal_length_m=f, f_number=n,
+                      image_distance_m=g["d_img"], pad_rows=g["pr"], pad_cols=g["pc"], validate=False)
+    if not return_details:
+        return oi
+    otf_full, fx, fy = dl_otf_isetcam(wave, n, f, g["hfov_pad"], g["dx_c"], h2, w2)
+    details = {
+        "cos4th_factor": None if g["cos4"] is None else g["cos4"][:, 0],
+        "otf": otf_full, "fx_cpd": fx, "fy_cpd": fy,
+        "sample_spacing_during_compute_m": g["dx_c"], "focal_plane_distance_during_compute_m": f,
+        "hfov_pad_deg": g["hfov_pad"], "vfov_pad_deg": 2 * torch.rad2deg(torch.atan(0.5 * h2 * g["dx_c"] / f)),
+        "pad_value": pad_val, "magnification": g["mag"],
+    }
+    return oi, details
+
+
 def compute_oi(scene_photons, wavelengths_nm, hfov_deg, distance_m, f_number, focal_length_m,
-               transmittance=None, *, offaxis: str = "cos4th", dtype=None, return_details: bool = False):
+               transmittance=None, *, offaxis: str = "cos4th", dtype=None, compute_dtype=None,
+               return_details: bool = False):
     """ISETCam ``oiCompute`` for diffraction-limited optics, exactly as ISETCam returns it (padded OI).
 
     Args:
@@ -118,7 +270,10 @@ def compute_oi(scene_photons, wavelengths_nm, hfov_deg, distance_m, f_number, fo
         hfov_deg, distance_m, f_number, focal_length_m: scalars or ``(B,)``.
         transmittance: lens transmittance on the scene wavelengths ``(L,)`` (default all ones).
         offaxis: ``'cos4th'`` (ISETCam's default, ``cos4th.m``) or ``'skip'``.
-        dtype: dtype of the result (default: the photons' dtype). The arithmetic runs in float64.
+        dtype: dtype of the result (default: the photons' dtype).
+        compute_dtype: dtype of the image arithmetic and FFTs (default: the photons' dtype, float64 for
+            non-float input). The geometry and the OTF are computed in float64 either way. float32 stays within
+            2.6e-5 of float64 on the 512^2 x 31 sweep (``benchmarks/RESULTS.md``); ISETCam itself stores float32.
         return_details: also return a dict with the intermediate quantities (cos4th factor, OTF, ...).
 
     Returns:
@@ -139,70 +294,116 @@ def compute_oi(scene_photons, wavelengths_nm, hfov_deg, distance_m, f_number, fo
     p = scene_photons.unsqueeze(0) if scene_photons.dim() == 3 else scene_photons
     check_rank(p, 4, "scene_photons", "(L, H, W) or (B, L, H, W)")
     out_dtype = dtype or (p.dtype if p.is_floating_point() else torch.get_default_dtype())
-    check_nonnegative(p.detach(), "scene_photons")
-    dt, dev = torch.float64, p.device
-    p = p.to(dt)
+    lo, hi = torch.aminmax(p.detach())  # one pass; NaN propagates to both
+    if not (math.isfinite(float(lo)) and math.isfinite(float(hi))):
+        check_finite(p.detach(), "scene_photons")  # names the count of NaN/Inf entries
+    if float(lo) < 0:
+        raise ValueError(f"scene_photons: expected non-negative values, minimum is {float(lo):.6g}")
+    work = _work_dtype(compute_dtype, p)
     b, nl, h, w = p.shape
-    wave = check_wavelengths(as_tensor(wavelengths_nm, "wavelengths_nm", dtype=dt, device=dev))
-    if wave.numel() != nl:
-        raise ValueError(f"wavelengths_nm: expected {nl} wavelengths to match scene_photons, got {wave.numel()}")
-    kw = dict(dtype=dt, device=dev, positive=True)
-    hfov = batch_param(hfov_deg, "hfov_deg", b, **kw)
-    dist = batch_param(distance_m, "distance_m", b, **kw)
-    n = batch_param(f_number, "f_number", b, **kw)
-    f = batch_param(focal_length_m, "focal_length_m", b, **kw)
-    if bool((hfov >= 180).any()):
-        raise ValueError(f"hfov_deg: expected a field of view below 180 deg, got {hfov.tolist()}")
-    if bool((dist <= f).any()):
-        raise ValueError(f"distance_m: expected a scene beyond the focal length {f.tolist()}, got {dist.tolist()}")
-    t = torch.ones(nl, dtype=dt, device=dev) if transmittance is None else as_tensor(
-        transmittance, "transmittance", dtype=dt, device=dev).reshape(-1)
-    if t.numel() != nl:
-        raise ValueError(f"transmittance: expected {nl} values (one per wavelength), got {t.numel()}")
-    check_nonnegative(t, "transmittance")
-    if offaxis not in ("cos4th", "skip"):
-        raise ValueError(f"offaxis: expected 'cos4th' or 'skip', got {offaxis!r}")
+    g = _setup(b, nl, h, w, wavelengths_nm, hfov_deg, distance_m, f_number, focal_length_m, transmittance,
+               offaxis, p.device)
+    # irradiance = k T(l) L(l, x) cos4(x) (oiCalculateIrradiance x opticsCos4th), padded (oiPad)
+    scale = (g["k"][:, None] * g["t"][None, :]).to(work)  # [B, L]
+    pr, pc, h2, w2 = g["pr"], g["pc"], g["h2"], g["w2"]
+    cos4 = None if g["cos4"] is None else g["cos4"].to(work)
+    if torch.is_grad_enabled() and p.requires_grad:  # differentiable: no in-place writes
+        irr = p.to(work) * scale[:, :, None, None]
+        irr = irr if cos4 is None else irr * cos4
+        pad_val = irr.amax(dim=(1, 2, 3)) * 1e-9
+        outside = torch.nn.functional.pad(torch.zeros(h, w, dtype=work, device=p.device), (pc, pc, pr, pr), value=1.0)
+        padded = torch.nn.functional.pad(irr, (pc, pc, pr, pr)) + pad_val[:, None, None, None] * outside
+    else:  # the irradiance written straight into the padded buffer
+        padded = torch.empty(b, nl, h2, w2, dtype=work, device=p.device)
+        inner = padded[:, :, pr:pr + h, pc:pc + w]
+        torch.mul(p.to(work), scale[:, :, None, None], out=inner)
+        if cos4 is not None:
+            inner.mul_(cos4)
+        # oiPad value: max(photons) * 1e-9 over all wavelengths
+        pad_val = inner.amax(dim=(1, 2, 3)) * 1e-9
+        if pr or pc:
+            v = pad_val[:, None, None, None]
+            padded[:, :, :pr] = v
+            padded[:, :, pr + h:] = v
+            padded[:, :, pr:pr + h, :pc] = v
+            padded[:, :, pr:pr + h, pc + w:] = v
+    spectrum = _rfft2(padded)
+    del padded
+    return _finish(spectrum, g, out_dtype, return_details, pad_val)
 
-    # oiCalculateIrradiance: thin-lens magnification at the scene distance
-    d_img = 1 / (1 / f - 1 / dist)
-    mag = -d_img / dist
-    k = math.pi / (1 + 4 * n**2 * (1 + mag.abs()) ** 2)
-    irr = k[:, None, None, None] * p * t[None, :, None, None]
 
-    # geometry inside oiCompute: focal-plane distance f (no depth map yet)
-    dx_c = 2 * f * torch.tan(torch.deg2rad(hfov) / 2) / w
-    cos4 = None
-    if offaxis == "cos4th":
-        # oiGet 'spatialsupport': linspace(-n dx/2 + dx/2, n dx/2 - dx/2, n) on the unpadded grid
-        ys = (torch.arange(h, dtype=dt, device=dev) - (h - 1) / 2)[None, :] * dx_c[:, None]
-        xs = (torch.arange(w, dtype=dt, device=dev) - (w - 1) / 2)[None, :] * dx_c[:, None]
-        # opticsGet 'magnification' without a selected scene is 0 (FORMAT.md 4.3)
-        cos4 = cos4th_isetcam(ys, xs, f, n, 0.0)
-        irr = irr * cos4
+def compute_oi_factored(maps, spectra, wavelengths_nm, hfov_deg, distance_m, f_number, focal_length_m,
+                        transmittance=None, *, offaxis: str = "cos4th", dtype=None, compute_dtype=None,
+                        return_details: bool = False):
+    """:func:`compute_oi` of a factored radiance ``L(l, x) = sum_j maps_j(x) spectra_j(l)``: one FFT per map.
 
-    # oiPad: round(size/8) per side, value max(photons) * 1e-9
-    pr, pc = pad_sizes(h, w)
-    h2, w2 = h + 2 * pr, w + 2 * pc
-    pad_val = irr.flatten(1).amax(dim=1) * 1e-9
-    padded = pad_val[:, None, None, None].expand(b, nl, h2, w2).clone()
-    padded[:, :, pr:pr + h, pc:pc + w] = irr
-    hfov_pad = 2 * torch.rad2deg(torch.atan((w2 / w) * torch.tan(torch.deg2rad(hfov) / 2)))
+    Everything before the blur is linear in the radiance and the OTF acts per wavelength, so the padded
+    irradiance's spectrum is ``sum_j S_j(l) rfft2(M_j) + c(l) rfft2(1_pad)``, with ``M_j`` the map times cos4
+    (zero in the padding), ``S_j = k T spectra_j`` and the padding value ``c = max(irradiance) 1e-9`` carried as one
+    more map (the indicator of the padding, ISETCam ``oiPad``). J + 1 forward FFTs instead of L; the L inverse
+    FFTs and the ``abs`` are those of :func:`compute_oi`, and the result equals it to float rounding.
 
-    otf, fx, fy = dl_otf_isetcam(wave, n, f, hfov_pad, dx_c, h2, w2)
-    out = torch.fft.ifft2(otf * torch.fft.fft2(padded)).abs()
+    Args:
+        maps: ``(B, J, H, W)`` (or ``(J, H, W)``), spectra: ``(B, J, L)`` (or ``(J, L)``), in radiance units
+            (photons/s/sr/m^2/nm) when multiplied; their product must be non-negative.
+        the rest: as :func:`compute_oi`.
+    """
+    maps = torch.as_tensor(maps)
+    spectra = torch.as_tensor(spectra)
+    m = maps.unsqueeze(0) if maps.dim() == 3 else maps
+    s = spectra.unsqueeze(0) if spectra.dim() == 2 else spectra
+    check_rank(m, 4, "maps", "(J, H, W) or (B, J, H, W)")
+    check_rank(s, 3, "spectra", "(J, L) or (B, J, L)")
+    if s.shape[1] != m.shape[1] or s.shape[0] not in (1, m.shape[0]) or m.shape[0] not in (1, s.shape[0]):
+        raise ValueError(f"spectra: expected (B, J, L) matching maps (B, J, H, W) = {tuple(m.shape)}, "
+                         f"got {tuple(s.shape)}")
+    out_dtype = dtype or (m.dtype if m.is_floating_point() else torch.get_default_dtype())
+    work = _work_dtype(compute_dtype, m)
+    b = max(m.shape[0], s.shape[0])
+    m, s = m.expand(b, *m.shape[1:]), s.expand(b, *s.shape[1:])
+    nj, h, w = m.shape[1:]
+    nl = s.shape[-1]
+    g = _setup(b, nl, h, w, wavelengths_nm, hfov_deg, distance_m, f_number, focal_length_m, transmittance,
+               offaxis, m.device)
+    mw = m.to(work)
+    if g["cos4"] is not None:
+        mw = mw * g["cos4"].to(work)
+    sw = s.to(work) * (g["k"][:, None] * g["t"][None, :]).to(work)[:, None, :]  # [B, J, L]
+    # max over (x, l) of sum_j M_j(x) S_j(l); rank 1 with non-negative factors: max M x max S
+    if nj == 1 and bool((mw >= 0).all()) and bool((sw >= 0).all()):
+        peak = mw.flatten(1).amax(1) * sw.flatten(1).amax(1)
+    else:
+        peak = torch.stack([torch.einsum("jp,jl->pl", mw[i].flatten(1), sw[i]).amax() for i in range(b)])
+    if bool((peak < 0).any()):
+        raise ValueError("maps, spectra: expected a non-negative radiance (sum_j maps_j spectra_j)")
+    pad_val = peak * 1e-9
+    pr, pc, h2, w2 = g["pr"], g["pc"], g["h2"], g["w2"]
+    planes = torch.zeros(b, nj + 1, h2, w2, dtype=work, device=m.device)
+    planes[:, :nj, pr:pr + h, pc:pc + w] = mw
+    planes[:, nj] = 1
+    planes[:, nj, pr:pr + h, pc:pc + w] = 0
+    coef = torch.cat([sw, pad_val[:, None, None].expand(b, 1, nl)], dim=1)  # [B, J+1, L]
+    f_maps = _rfft2(planes)  # [B, J+1, H2, W2//2+1]
+    if f_maps.requires_grad:  # differentiable: out of place
+        spectrum = f_maps[:, :1] * coef[:, 0, :, None, None]
+        for j in range(1, nj + 1):
+            spectrum = spectrum + f_maps[:, j:j + 1] * coef[:, j, :, None, None]
+        return _finish(spectrum, g, out_dtype, return_details, pad_val)
+    # sum_j S_j(l) F_j + c F_pad as real arithmetic on (re, im) pairs, one pass per map over the L planes
+    fr = torch.view_as_real(f_maps)  # [B, J+1, H2, W2', 2]
+    pad_term = (fr[:, nj] * pad_val[:, None, None, None].to(work))[:, None]  # c F_pad, [B, 1, H2, W2', 2]
+    out = torch.addcmul(pad_term, fr[:, :1], sw[:, 0, :, None, None, None])  # [B, L, H2, W2', 2]
+    for j in range(1, nj):
+        out.addcmul_(fr[:, j:j + 1], sw[:, j, :, None, None, None])
+    return _finish(torch.view_as_complex(out), g, out_dtype, return_details, pad_val)
 
-    # the returned oi has the scene depth map: focal-plane distance = thin-lens image distance
-    spacing = 2 * d_img * torch.tan(torch.deg2rad(hfov_pad) / 2) / w2
-    oi = OpticalImage(out.to(out_dtype), wave.to(out_dtype), name="isetcam diffraction limited",
-                      sample_spacing_m=spacing, hfov_deg=hfov_pad, focal_length_m=f, f_number=n,
-                      image_distance_m=d_img, pad_rows=pr, pad_cols=pc, validate=False)
-    if not return_details:
-        return oi
-    details = {
-        "cos4th_factor": None if cos4 is None else cos4[:, 0],
-        "otf": otf, "fx_cpd": fx, "fy_cpd": fy,
-        "sample_spacing_during_compute_m": dx_c, "focal_plane_distance_during_compute_m": f,
-        "hfov_pad_deg": hfov_pad, "vfov_pad_deg": 2 * torch.rad2deg(torch.atan(0.5 * h2 * dx_c / f)),
-        "pad_value": pad_val, "magnification": mag,
-    }
-    return oi, details
+
+def compute_oi_scene(scene, f_number, focal_length_m, transmittance=None, *, offaxis: str = "cos4th", **kwargs):
+    """:func:`compute_oi` of a Scene, or :func:`compute_oi_factored` when the scene is factored
+    (``scene.is_factored``: radiance ``sum_j maps [B, J, H, W] x spectra [B, J, L]``): one call for both forms,
+    so a factored scene takes the J + 1 FFT path. ``kwargs`` as :func:`compute_oi` (``dtype``, ``compute_dtype``,
+    ``return_details``)."""
+    args = (scene.wavelengths_nm, scene.hfov_deg, scene.distance_m, f_number, focal_length_m, transmittance)
+    if getattr(scene, "is_factored", False):
+        return compute_oi_factored(scene.maps, scene.spectra, *args, offaxis=offaxis, **kwargs)
+    return compute_oi(scene.photons, *args, offaxis=offaxis, **kwargs)

@@ -16,6 +16,7 @@ from torch import nn
 
 from .. import constants, spectral
 from .._checks import as_tensor, check_finite, check_rank, check_wavelengths
+from ..image import srgb_decode, srgb_encode
 from ._common import check_float
 
 __all__ = ["Display", "display_names", "SRGB_PRIMARIES_XY", "D65_XY"]
@@ -28,13 +29,14 @@ _METERS_PER_INCH = 0.0254
 
 
 def srgb_eotf(encoded: torch.Tensor) -> torch.Tensor:
-    """IEC 61966-2-1 decoding, encoded [0, 1] -> linear [0, 1] (differentiable; no pow at 0)."""
-    return torch.where(encoded <= 0.04045, encoded / 12.92, ((encoded.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
+    """IEC 61966-2-1 decoding, encoded -> linear (:func:`isettorch.image.srgb_decode`)."""
+    return srgb_decode(encoded)
 
 
 def srgb_inverse_eotf(linear: torch.Tensor) -> torch.Tensor:
-    """IEC 61966-2-1 encoding, linear [0, 1] -> encoded [0, 1]."""
-    return torch.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
+    """IEC 61966-2-1 encoding, linear -> encoded (:func:`isettorch.image.srgb_encode`: below 0 -> 0, no upper clip,
+    as a display's inverse EOTF)."""
+    return srgb_encode(linear, clip=False)
 
 
 def display_names() -> list[str]:

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import torch
 
-__all__ = ["CFA", "CFA_LIBRARY", "KNOWN_LETTERS", "cfa"]
+__all__ = ["BAYER_PATTERNS", "CFA", "CFA_LIBRARY", "KNOWN_LETTERS", "cfa"]
 
 # Letter -> meaning. 'C' is cyan here; a clear (unfiltered) pixel is 'W' (RCCB/RCCC map C to clear).
 KNOWN_LETTERS = {
@@ -39,6 +39,9 @@ CFA_LIBRARY: dict[str, str] = {
     "XTRANS": "GBGGRG/RGRBGB/GBGGRG/GRGGBG/BGBRGR/GRGGBG",
     "MONO": "W", "MONOCHROME": "W", "W": "W",
 }
+
+# The four 2x2 RGB Bayer layouts of the table (the demosaic methods' patterns).
+BAYER_PATTERNS: tuple[str, ...] = ("RGGB", "BGGR", "GRBG", "GBRG")
 
 
 def _parse(cell) -> list[list[str]]:

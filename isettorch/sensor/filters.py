@@ -7,7 +7,8 @@ Sets (``filter_set(name)``):
 * ``'isetcam_cmy'``: a complementary c, y, m set derived from those (C = G + B, Y = R + G,
   M = R + B). ISETCam-like, not ISETCam's own ``cym`` data.
 * ``'nikon_5100'``, ``'sigma_sdmerill'``: measured camera sensitivities (NPL) shipped by
-  colour-science (``colour.MSDS_CAMERA_SENSITIVITIES``), peak 1 per channel.
+  colour-science (``colour.MSDS_CAMERA_SENSITIVITIES``), scaled so the most sensitive channel peaks at 1 (the
+  channels keep their measured ratios). The one loader of these data (the training-pair generator uses it).
 * ``'clear'``: an unfiltered (W) pixel, 1 everywhere.
 
 :class:`SpectralQE` holds the spectra on their native grid and resamples them once per image
@@ -66,7 +67,10 @@ def _filter_set_np(name: str) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
 
         m = colour.MSDS_CAMERA_SENSITIVITIES[_COLOUR_CAMERAS[name]]
         vals = np.asarray(m.values, float).T
-        return np.asarray(m.wavelengths, float), vals / vals.max(axis=1, keepdims=True), ("R", "G", "B")
+        # one normalisation: the most sensitive channel peaks at 1, the others keep their ratio to it (the ratios
+        # set a camera's raw white balance and per-channel noise); colour-science ships the NPL sets with every
+        # channel at peak 1 already, so on these data it equals a per-channel normalisation
+        return np.asarray(m.wavelengths, float), vals / vals.max(), ("R", "G", "B")
     if name == "clear":
         return np.array([300.0, 1100.0]), np.ones((1, 2)), ("W",)
     raise ValueError(f"name: unknown filter set {name!r}; expected one of {filter_set_names()}")

@@ -1,7 +1,7 @@
 """Sensor figures of merit: well capacity, pixel SNR vs signal, dynamic range, ISO saturation speed.
 
-Noise model (EMVA 1288 release 4.0, eq. 2-6, in electrons): variance = read^2 + dark e- + signal e-
-+ (PRNU x signal)^2 + DSNU^2 + quantisation (LSB^2 / 12).
+Noise model: :func:`isettorch.metrics.snr.noise_variance_e` (EMVA 1288 release 4.0, eq. 2-6, in electrons),
+with the sensor's parameters.
 """
 
 from __future__ import annotations
@@ -11,6 +11,9 @@ import math
 import torch
 
 from .. import spectral
+from ..metrics.snr import dynamic_range_db as _dynamic_range_db
+from ..metrics.snr import noise_variance_e
+from ..metrics.snr import pixel_snr as _pixel_snr
 from .sensor import Sensor
 
 __all__ = ["well_capacity_e", "noise_e", "pixel_snr", "pixel_snr_db", "dynamic_range_db", "iso_saturation",
@@ -22,43 +25,42 @@ def well_capacity_e(sensor: Sensor) -> float:
     return sensor.well_capacity_e
 
 
-def noise_e(sensor: Sensor, signal_e, exposure_s: float | None = None) -> torch.Tensor:
-    """Total noise (electrons rms) at a mean photo-signal ``signal_e`` (EMVA 1288 variance model).
-
-    Read noise, DSNU and the quantisation step are converted from volts at the pixel (analog gain 1).
-    """
-    s = torch.as_tensor(signal_e, dtype=torch.float64)
+def _noise_parameters_e(sensor: Sensor, exposure_s: float | None) -> dict:
+    """The sensor's noise parameters in electrons (volts at the pixel over the conversion gain, analog gain 1),
+    as :func:`isettorch.metrics.snr.noise_variance_e` takes them."""
     t = float(sensor.exposure_s if exposure_s is None else exposure_s)
     cg = sensor.conversion_gain_v_per_e
-    read_e = sensor.read_noise_v / cg * (math.sqrt(2) if sensor.cds else 1.0)
-    dsnu_e = 0.0 if sensor.cds else sensor.dsnu_sigma_v / cg
-    col_e = 0.0 if sensor.cds else sensor.column_fpn_sigma_v / cg
-    dark_e = sensor.dark_current_e_per_s * t
-    quant_var = 0.0 if sensor.lsb_v is None else (sensor.lsb_v / cg) ** 2 / 12
-    prnu = sensor.prnu_sigma_percent / 100
-    shot = s if sensor.shot_noise != "off" else torch.zeros_like(s)
-    var = read_e**2 + dsnu_e**2 + col_e**2 + quant_var + dark_e + shot + (prnu * s) ** 2
-    return torch.sqrt(var)
+    return dict(read_noise_e=sensor.read_noise_v / cg * (math.sqrt(2) if sensor.cds else 1.0),
+                dsnu_e=0.0 if sensor.cds else sensor.dsnu_sigma_v / cg, prnu=sensor.prnu_sigma_percent / 100,
+                dark_current_e=sensor.dark_current_e_per_s * t,
+                column_fpn_e=0.0 if sensor.cds else sensor.column_fpn_sigma_v / cg,
+                lsb_e=None if sensor.lsb_v is None else sensor.lsb_v / cg, shot=sensor.shot_noise != "off")
+
+
+def noise_e(sensor: Sensor, signal_e, exposure_s: float | None = None) -> torch.Tensor:
+    """Total noise (electrons rms) at a mean photo-signal ``signal_e``: :func:`isettorch.metrics.snr.noise_variance_e`
+    with the sensor's parameters (CDS doubles the read-noise variance and removes DSNU and column FPN)."""
+    return torch.sqrt(noise_variance_e(signal_e, **_noise_parameters_e(sensor, exposure_s)))
 
 
 def pixel_snr(sensor: Sensor, signal_e, exposure_s: float | None = None) -> torch.Tensor:
-    """Pixel SNR (ratio) = signal / noise at mean photo-signals ``signal_e`` (electrons)."""
-    s = torch.as_tensor(signal_e, dtype=torch.float64)
-    n = noise_e(sensor, s, exposure_s)
-    return torch.where(n > 0, s / n.clamp_min(1e-300), torch.full_like(s, math.inf))
+    """Pixel SNR (ratio) = signal / noise at mean photo-signals ``signal_e`` (electrons)
+    (:func:`isettorch.metrics.snr.pixel_snr` with the sensor's parameters)."""
+    return _pixel_snr(signal_e, **_noise_parameters_e(sensor, exposure_s))
 
 
 def pixel_snr_db(sensor: Sensor, signal_e, exposure_s: float | None = None) -> torch.Tensor:
     """Pixel SNR in dB: 20 log10(signal / noise) (ISETCam ``pixelSNR``)."""
-    return 20 * torch.log10(pixel_snr(sensor, signal_e, exposure_s))
+    return _pixel_snr(signal_e, db=True, **_noise_parameters_e(sensor, exposure_s))
 
 
 def dynamic_range_db(sensor: Sensor, exposure_s: float | None = None) -> float:
-    """20 log10(well capacity / noise floor in the dark) (EMVA 1288 DR = mu_sat / sigma_dark)."""
+    """20 log10(well capacity / noise floor in the dark) (EMVA 1288 DR = mu_sat / sigma_dark;
+    :func:`isettorch.metrics.snr.dynamic_range_db`); ``inf`` for a noise-free sensor."""
     floor = float(noise_e(sensor, 0.0, exposure_s))
     if floor <= 0:
         return math.inf
-    return 20 * math.log10(sensor.well_capacity_e / floor)
+    return float(_dynamic_range_db(sensor.well_capacity_e, floor))
 
 
 def electrons_per_lux_second(sensor: Sensor, illuminant: str = "D65", wavelengths_nm=None) -> torch.Tensor:

@@ -98,6 +98,11 @@ def _interp_last(x: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
         t = pos - i0.to(pos.dtype)
     valid = ((pos >= 0) & (pos <= n - 1)).to(x.dtype)
     t = t.to(x.dtype)
+    if pos.shape[0] == 1 or bool((pos == pos[:1]).all()):  # one set of positions: 1-D index_select, no gather
+        x0, x1, t0, v0 = x.index_select(-1, i0[0]), x.index_select(-1, i1[0]), t[0], valid[0]
+        if x0.requires_grad or t0.requires_grad:
+            return (x0 * (1 - t0) + x1 * t0) * v0
+        return x0.mul_(1 - t0).add_(x1.mul_(t0)).mul_(v0)  # the same operations, in place
     shape = (b, *x.shape[1:-1], pos.shape[-1])
     view = (b,) + (1,) * (x.dim() - 2) + (pos.shape[-1],)
     x0 = x.gather(-1, i0.reshape(view).expand(shape))

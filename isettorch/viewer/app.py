@@ -256,7 +256,7 @@ def make_document(doc, session_factory) -> None:
     cfas = list(CFAS) if d["cfa"] in CFAS else [d["cfa"], *CFAS]
     w_cfa = RadioButtonGroup(name="cfa_buttons", labels=cfas, active=cfas.index(d["cfa"]))
     w_noise = Toggle(name="noise_toggle", label="noise", active=bool(d["noise"]), width=80)
-    from ..isp.demosaic import METHODS
+    from ..isp.demosaicing import METHODS
 
     methods = [m for m in ("nearest", "bilinear", "malvar2004", "menon2007") if m in METHODS]
     if d["demosaic"] not in methods:

@@ -26,8 +26,8 @@ from isettorch.isp import (
     register_method,
 )
 
-# the sub-package (``isettorch.isp.demosaic`` as an attribute is the function)
-demosaic_pkg = importlib.import_module("isettorch.isp.demosaic")
+# the sub-package with the method registry
+demosaic_pkg = importlib.import_module("isettorch.isp.demosaicing")
 PATTERNS = ["RGGB", "BGGR", "GRBG", "GBRG"]
 BUILTIN = ["nearest", "bilinear", "malvar2004", "menon2007"]
 REFERENCE = {
@@ -268,15 +268,24 @@ def test_demosaic_module_by_name():
         Demosaic("no_such")
 
 
-def test_package_is_the_callable_entry_point():
-    # ``from isettorch.isp import demosaic`` must work both as the function and as the namespace, so that
-    # ``from . import demosaic`` inside isettorch.isp (e.g. in a plug-in) finds ``register_method``.
+def test_one_entry_point_a_function_and_its_module():
+    """``isettorch.isp.demosaic`` is a plain function and ``Demosaic`` the nn.Module over it (no callable
+    module); the registry lives in the sub-package and is exported beside them."""
+    import types
+
     import isettorch.isp as isp
 
     raw = _raw((1, 1, 8, 8), seed=15)
-    assert isp.demosaic is demosaic_pkg and callable(isp.demosaic)
-    assert isp.demosaic.register_method is register_method and isp.demosaic.METHODS is METHODS
-    torch.testing.assert_close(isp.demosaic(raw, "RGGB", "malvar2004"), demosaic_malvar2004(raw, "RGGB"))
+    assert isinstance(isp.demosaic, types.FunctionType) and isp.demosaic is demosaic_pkg.demosaic
+    assert not callable(demosaic_pkg) and issubclass(isp.Demosaic, torch.nn.Module)
+    assert isp.register_method is demosaic_pkg.register_method and isp.METHODS is demosaic_pkg.METHODS
+    ref = demosaic_malvar2004(raw, "RGGB")
+    torch.testing.assert_close(isp.demosaic(raw, "RGGB", "malvar2004"), ref, rtol=0, atol=0)
+    torch.testing.assert_close(isp.Demosaic("malvar2004")(raw, "RGGB"), ref, rtol=0, atol=0)
+    assert isp.BAYER_PATTERNS == ("RGGB", "BGGR", "GRBG", "GBRG")
+    for p in isp.BAYER_PATTERNS:  # the one CFA table: the demosaic index map is the sensor CFA's
+        from isettorch.sensor import CFA
+        assert torch.equal(isp.bayer_index_map(p), CFA(p).index_map)
 
 
 def test_gradients_after_a_call_in_inference_mode():

@@ -17,7 +17,7 @@ from isettorch.cli import main
 from isettorch.commands import demosaic_eval as cmd
 from isettorch.isp import evaluation as ev
 from isettorch.isp import learned
-from isettorch.isp.demosaic import mosaic
+from isettorch.isp.demosaicing import mosaic
 
 
 def _image(h=48, w=40, seed=0):

@@ -66,7 +66,7 @@ def test_replace_stages_and_batch():
 
     class Nearest(torch.nn.Module):
         def forward(self, mosaic, cfa):
-            from isettorch.isp.demosaic import demosaic_nearest_cfa
+            from isettorch.isp.demosaicing import demosaic_nearest_cfa
             return demosaic_nearest_cfa(mosaic, cfa.index_map, cfa.num_channels)
 
     ip.demosaic = Nearest()
@@ -182,7 +182,7 @@ def test_adaptive_scaling_quantized_raw_max_is_one():
 def test_cmy_cfa_uses_bayer_methods(pattern):
     # A 3-filter 2x2 cell with one filter on a diagonal is demosaicked as a Bayer pattern; bilinear equals the
     # generic CFA bilinear in the interior and keeps the measured samples.
-    from isettorch.isp.demosaic import demosaic
+    from isettorch.isp import demosaic
 
     cfa = CFA(pattern)
     x = torch.rand(2, 1, 12, 12, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
@@ -206,6 +206,6 @@ def test_ip_result_from_case_public_and_monochrome_quirk():
     case = {k: d[k] for k in d.files if not k.startswith("ip_T")}
     dv = np.round(d["sensor_volts"] * 1024.0).astype(np.float32)
     case.update(sensor_cfa=np.array("W"), sensor_filter_names=np.array(["w"]), sensor_quantization=np.array("10"),
-                sensor_dv=dv)
+                sensor_dv=dv, sensor_cfa_pattern=np.array([[1]]), sensor_filter_letters=np.array("w"))  # FORMAT 2
     ours, _ = ip_result_from_case(case)
     np.testing.assert_array_equal(ours, np.repeat(dv[..., None], 3, axis=2).astype(np.float64))

@@ -67,6 +67,10 @@ def test_recovers_known_parameters(frames):
     snr_true = e / math.sqrt(READ_NOISE_E**2 + 1 / 12 / K_DN_PER_E**2 + e)
     assert float(res.snr[i]) == pytest.approx(snr_true, rel=0.02)
     assert float(res.snr_model(mu_p[i])) == pytest.approx(snr_true, rel=0.02)
+    # eq. 19 with the fitted parameters, written out (snr_model is the one pixel-SNR model of metrics.snr)
+    e_fit = res.quantum_efficiency * mu_p
+    eq19 = e_fit / torch.sqrt(res.dark_noise_e**2 + (1 / 12) / res.system_gain_dn_per_e**2 + e_fit)
+    torch.testing.assert_close(res.snr_model(mu_p), eq19.double(), rtol=1e-12, atol=0)
     text = res.report()
     assert "System gain" in text and "PRNU1288" in text
 

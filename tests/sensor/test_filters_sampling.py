@@ -21,17 +21,33 @@ def test_colour_camera_sensitivities_match_colour_science():
     w, v, letters = filter_set("nikon_5100", dtype=torch.float64)
     m = colour.MSDS_CAMERA_SENSITIVITIES["Nikon 5100 (NPL)"]
     ref = np.asarray(m.values).T
-    np.testing.assert_allclose(v.numpy(), ref / ref.max(axis=1, keepdims=True), rtol=1e-12)
-    assert letters == ("R", "G", "B")
+    # one normalisation: the most sensitive channel peaks at 1, the others keep the measured ratios
+    np.testing.assert_allclose(v.numpy(), ref / ref.max(), rtol=1e-12)
+    np.testing.assert_allclose(v.numpy().max(axis=1), ref.max(axis=1) / ref.max(), rtol=1e-12)  # NPL: 1, 1, 1
+    assert float(v.max()) == 1.0 and letters == ("R", "G", "B")
     # resampled onto a coarse grid: linear interpolation, 0 outside the measured 400-680 nm of the Sigma data
     grid = np.array([390.0, 405.0, 500.0, 690.0])
     _, vs, _ = filter_set("sigma_sdmerill", grid, dtype=torch.float64)
     ms = colour.MSDS_CAMERA_SENSITIVITIES["Sigma SDMerill (NPL)"]
     raw = np.asarray(ms.values).T
-    raw = raw / raw.max(axis=1, keepdims=True)
+    raw = raw / raw.max()
     for c in range(3):
         expected = np.interp(grid, ms.wavelengths, raw[c], left=0.0, right=0.0)
         np.testing.assert_allclose(vs[c].numpy(), expected, rtol=1e-12, atol=1e-15)
+
+
+def test_pair_generator_qe_is_the_filter_set():
+    """data.camera_pairs.nikon_d5100_qe is filter_set('nikon_5100') x peak, each channel shifted by s nm
+    (its QE at l is the measured one at l - s; linear interpolation, 0 outside the data)."""
+    from isettorch.data.camera_pairs import nikon_d5100_qe
+
+    m = colour.MSDS_CAMERA_SENSITIVITIES["Nikon 5100 (NPL)"]
+    ref = np.asarray(m.values).T / np.asarray(m.values).max()
+    w = np.arange(380.0, 731.0, 7.3)
+    got = nikon_d5100_qe(torch.from_numpy(w), 0.4, (0.0, 10.0, -10.0)).numpy()
+    for c, s in enumerate((0.0, 10.0, -10.0)):
+        np.testing.assert_allclose(got[c], 0.4 * np.interp(w - s, m.wavelengths, ref[c], left=0, right=0),
+                                   rtol=1e-12, atol=1e-15)
 
 
 def test_spectral_qe_resample_and_cache():

@@ -312,3 +312,26 @@ def test_isetcam_noise_model_residual_std():
     low = simple_sensor(noise_model="isetcam", shot_noise="poisson", rows=50, cols=50)
     e = low(uniform_oi(level=1e12, size=(60, 60))).data / cg
     assert torch.allclose(e, e.round(), atol=1e-6)
+
+
+def test_sensor_snr_is_the_metrics_noise_model():
+    """sensor.metrics and metrics.snr share one noise model: every term, written out by hand (EMVA 1288 eq. 2-6)
+    for a sensor with read noise, DSNU, PRNU, column FPN, dark current and a 10-bit ADC."""
+    from isettorch.metrics import snr
+
+    s = simple_sensor(shot_noise="poisson", read_noise_v=2e-4, dsnu_sigma_v=3e-4, prnu_sigma_percent=1.0,
+                      column_fpn_sigma_v=1e-4, dark_current_e_per_s=100.0, adc_bits=10)
+    sig = torch.tensor([0.0, 10.0, 1000.0, 5000.0], dtype=torch.float64)
+    lsb_e = (1.0 / 2**10) / 1e-4  # swing / 2^N in electrons
+    assert s.lsb_v / 1e-4 == pytest.approx(lsb_e)
+    var = sig + 100.0 * 0.01 + 2.0**2 + 3.0**2 + 1.0**2 + (0.01 * sig) ** 2 + lsb_e**2 / 12
+    torch.testing.assert_close(metrics.noise_e(s, sig), var.sqrt(), rtol=1e-12, atol=0)
+    expect = sig / var.sqrt()
+    torch.testing.assert_close(metrics.pixel_snr(s, sig), expect, rtol=1e-12, atol=0)
+    torch.testing.assert_close(snr.pixel_snr(sig, 2.0, 3.0, 0.01, 1.0, column_fpn_e=1.0, lsb_e=lsb_e), expect,
+                               rtol=1e-12, atol=0)
+    assert metrics.dynamic_range_db(s) == pytest.approx(float(snr.dynamic_range_db(1e4, var[0].sqrt())))
+    # a noise-free pixel: SNR inf above zero signal, 0 at zero; dynamic range inf
+    quiet = simple_sensor()
+    assert metrics.pixel_snr(quiet, sig).tolist() == [0.0, math.inf, math.inf, math.inf]
+    assert metrics.dynamic_range_db(quiet) == math.inf

@@ -105,7 +105,7 @@ def test_shipped_checkpoint_loads_safely_and_has_record():
 
 @pytest.mark.skipif(not learned.PRETRAINED_PATH.is_file(), reason="no shipped checkpoint")
 def test_registered_as_demosaic_method():
-    dm = pytest.importorskip("isettorch.isp.demosaic")
+    dm = pytest.importorskip("isettorch.isp.demosaicing")
     raw = torch.rand(1, 1, 16, 16)
     out = dm.demosaic(raw, "RGGB", method="learned")
     torch.testing.assert_close(out, demosaic_learned(raw, "RGGB"))

@@ -1,5 +1,6 @@
 """Demosaicing: Bayer methods behind one entry point with a registry, a generic method for any CFA, and a
-plug-in point for learned methods.
+plug-in point for learned methods. The entry point is the function :func:`demosaic` and its module
+:class:`Demosaic` (exported by :mod:`isettorch.isp`: ``from isettorch.isp import demosaic, Demosaic``).
 
     >>> rgb = demosaic(raw, "RGGB", method="malvar2004")        # (B, 1, H, W) -> (B, 3, H, W)
     >>> Demosaic("menon2007")(raw, "RGGB")
@@ -10,8 +11,6 @@ plug-in point for learned methods.
 from __future__ import annotations
 
 import importlib
-import sys
-import types
 from collections.abc import Callable
 
 import torch
@@ -132,16 +131,3 @@ class Demosaic(nn.Module):
 
     def extra_repr(self) -> str:
         return f"method={self.method_name!r}, pattern={self.pattern!r}"
-
-
-class _CallableModule(types.ModuleType):
-    """``isettorch.isp.demosaic`` is both this package and the entry point: ``isettorch.isp`` exports the package,
-    and calling it runs :func:`demosaic`. So ``from isettorch.isp import demosaic`` gives one object that works as
-    ``demosaic(raw, pattern, method)`` and as the namespace (``demosaic.METHODS``, ``demosaic.register_method``),
-    and ``from . import demosaic`` inside ``isettorch.isp`` never finds a function where the package is expected."""
-
-    def __call__(self, raw: torch.Tensor, pattern="RGGB", method: str | Callable = "bilinear", **kwargs):
-        return demosaic(raw, pattern, method, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule

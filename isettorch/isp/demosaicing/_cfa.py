@@ -8,8 +8,7 @@ import functools
 import torch
 import torch.nn.functional as F
 
-BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
-_CHANNEL = {"R": 0, "G": 1, "B": 2}
+from ...sensor.cfa import BAYER_PATTERNS, CFA  # the one CFA-pattern table
 
 
 def check_raw(raw, name: str = "raw") -> torch.Tensor:
@@ -40,8 +39,7 @@ def bayer_index_map(pattern: str, device=None) -> torch.Tensor:
         >>> bayer_index_map("GRBG").tolist()
         [[1, 0], [2, 1]]
     """
-    p = check_bayer_pattern(pattern)
-    return torch.tensor([[_CHANNEL[p[0]], _CHANNEL[p[1]]], [_CHANNEL[p[2]], _CHANNEL[p[3]]]], device=device)
+    return CFA(check_bayer_pattern(pattern)).index_map.to(device)
 
 
 def check_index_map(index_map, num_channels: int | None, height: int, width: int) -> tuple[torch.Tensor, int]:

@@ -14,18 +14,19 @@ Every result is a row ``{"name", "group", "seconds_median", "error", "error_unit
 
 Knob groups (each varies one knob from the most accurate setting of that knob, with the others at the
 library defaults, on a scene made of a Macbeth chart next to a frequency sweep, fixed exposure, noise off):
-wavelength step (ISETCam's rectangle rule, and the trapezoid rule emulated), a fitted low-dimensional
-spectral basis, OTF wavelength grouping (emulated, and a fused fast path), padding, spatial sampling
-(4 x 4 OI samples per pixel), dtype (float64/float32; bfloat16/float16 after a float32 optics stage because
-CPU FFTs have no half kernels), shot-noise mode at normal and low light (error: relative difference of the
-noise standard deviation against exact Poisson, pooled over frames).
+wavelength step (ISETCam's rectangle rule, and the trapezoid rule emulated), OTF wavelength grouping
+(emulated with the library optics), padding, spatial sampling (4 x 4 OI samples per pixel), dtype
+(float64/float32; bfloat16/float16 after a float32 optics stage because CPU FFTs have no half kernels),
+shot-noise mode at normal and low light (error: relative difference of the noise standard deviation against
+exact Poisson, pooled over frames).
 
-Emulations live here, not in the library: the OTF grouping (``group_centres``, ``fused_grouped_volts``) and
-the spectral basis (``fit_basis``, ``basis_volts``) reuse the optics' geometry and FFT blur and the sensor's
-area sampling, and are checked against the full simulation by their measured errors.
+Every timed row calls the library's own modules (``Camera``'s optics, sensor and ISP, or the ISETCam-compatible
+functions that ``isettorch parity`` checks); peers (NumPy reference, colour-demosaicing, kornia) run on the same
+inputs. This file is the implementation of ``isettorch bench``, which runs it as a script from a source
+checkout (the package never imports ``benchmarks/``).
 
 Example:
-    >>> from isettorch.bench import run_benchmarks, format_report
+    >>> from bench import run_benchmarks, format_report  # with benchmarks/ on sys.path
     >>> result = run_benchmarks(quick=True)  # doctest: +SKIP
     >>> print(format_report(result))  # doctest: +SKIP
 
@@ -67,11 +68,14 @@ def _sync(device) -> None:
 
 
 class Seconds(float):
-    """A median time (s) that also carries the fastest run (``.min``), the less load-sensitive estimate."""
+    """A median time (s) that also carries the fastest run (``.min``), the less load-sensitive estimate, and the
+    median CPU time of the process per run (``.cpu``, all threads; None where not measured): on a machine shared
+    with other jobs wall time grows with the load, CPU time much less."""
 
-    def __new__(cls, median: float, fastest: float):
+    def __new__(cls, median: float, fastest: float, cpu: float | None = None):
         obj = super().__new__(cls, median)
         obj.min = float(fastest)
+        obj.cpu = None if cpu is None else float(cpu)
         return obj
 
 
@@ -93,14 +97,15 @@ def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1, device="
     for _ in range(warmup):
         out = fn()
         _sync(device)
-    times = []
+    times, cpu = [], []
     while len(times) < max(1, repeats) or (sum(times) < min_time_s and len(times) < max_repeats):
         _sync(device)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         out = fn()
         _sync(device)
         times.append(time.perf_counter() - t0)
-    return Seconds(statistics.median(times), min(times)), out, times
+        cpu.append(time.process_time() - c0)
+    return Seconds(statistics.median(times), min(times), statistics.median(cpu)), out, times
 
 
 def machine_info(device="cpu") -> dict:
@@ -140,7 +145,7 @@ def wavelengths(step_nm: float, dtype=torch.float64) -> torch.Tensor:
 
 
 def sweep_scene(n: int, w: torch.Tensor | None = None, dtype=torch.float32, device="cpu"):
-    from .scene import frequency_sweep
+    from isettorch.scene import frequency_sweep
 
     w = wavelengths(10.0) if w is None else w
     return frequency_sweep(n, wavelengths=w, hfov_deg=hfov_for(n), dtype=dtype, device=device)
@@ -149,7 +154,7 @@ def sweep_scene(n: int, w: torch.Tensor | None = None, dtype=torch.float32, devi
 def knob_scene(patch: int, w: torch.Tensor, dtype=torch.float64, device="cpu"):
     """A Macbeth chart (4 x 6 patches of ``patch`` px) next to a frequency sweep of the same height (D65):
     colour for dE, edges and fine detail for the spatial knobs, a black surround for the padding."""
-    from .scene import Scene, frequency_sweep, macbeth
+    from isettorch.scene import Scene, frequency_sweep, macbeth
 
     h = 4 * patch
     mb = macbeth(patch_size=patch, wavelengths=w, dtype=torch.float64)
@@ -161,14 +166,14 @@ def knob_scene(patch: int, w: torch.Tensor, dtype=torch.float64, device="cpu"):
 
 
 def make_optics(**kw):
-    from .optics import DiffractionLimitedOptics
+    from isettorch.optics import DiffractionLimitedOptics
 
     return DiffractionLimitedOptics(f_number=4.0, focal_length_m=FOCAL_M, **kw)
 
 
 def make_sensor(rows: int, cols: int, *, exposure_s: float = 0.01, noise: bool = False, **kw):
     """ISETCam default preset (GRBG, 2.8 um, fill 0.75); noise parameters zeroed unless ``noise``."""
-    from .sensor import Sensor
+    from isettorch.sensor import Sensor
 
     quiet = {} if noise else {"read_noise_v": 0.0, "dark_current_e_per_s": 0.0, "shot_noise": "off"}
     quiet.update(kw)
@@ -176,7 +181,7 @@ def make_sensor(rows: int, cols: int, *, exposure_s: float = 0.01, noise: bool =
 
 
 def make_isp(sensor, device="cpu"):
-    from .isp import ImageProcessor
+    from isettorch.isp import ImageProcessor
 
     ip = ImageProcessor().to(device)
     ip.fit(sensor)
@@ -201,7 +206,7 @@ def volts_rel(v: torch.Tensor, ref: torch.Tensor) -> float:
 
 def render_errors(img: torch.Tensor, ref: torch.Tensor) -> dict:
     """Mean CIEDE2000 and CPSNR (dB) between two encoded sRGB renders (B, 3, H, W) in [0, 1]."""
-    from .metrics import cpsnr, delta_e_2000, srgb_to_xyz, xyz_to_lab
+    from isettorch.metrics import cpsnr, delta_e_2000, srgb_to_xyz, xyz_to_lab
 
     a = img.detach().double().cpu().clamp(0, 1)
     b = ref.detach().double().cpu().clamp(0, 1)
@@ -215,6 +220,8 @@ def _row(name: str, group: str, seconds: float | None, error: float | None, unit
            "error": None if error is None else float(error), "error_unit": unit}
     if hasattr(seconds, "min"):
         row["seconds_min"] = seconds.min
+    if getattr(seconds, "cpu", None) is not None:
+        row["cpu_seconds_median"] = seconds.cpu
     row.update(extra)
     return row
 
@@ -272,31 +279,80 @@ def pipeline_rows(sizes, repeats: int, device, dtype=torch.float32, log=print) -
 # 2. stable rows to compare with ISETCam
 
 
+def rank1_factors(photons: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(maps [B, 1, H, W], spectra [B, 1, L])`` of a rank-1 cube ``photons [B, L, H, W]`` (a pattern times one
+    spectrum, as every ``pattern_scene``): the band sum as the map, the spectrum read at its brightest pixel.
+    Raises if the cube is not rank 1 to float32 rounding (a factored Scene gives its factors directly)."""
+    maps = photons.sum(1, keepdim=True)
+    flat = maps.flatten(1)
+    i = flat.argmax(1)
+    b = torch.arange(photons.shape[0])
+    spectra = (photons.flatten(2)[b, :, i] / flat[b, i][:, None])[:, None, :]  # [B, 1, L]
+    dense = torch.einsum("bjhw,bjl->blhw", maps, spectra)
+    err = float((dense - photons).abs().max() / photons.abs().max())
+    if err > 1e-5:
+        raise ValueError(f"photons: expected a rank-1 cube (pattern x spectrum), reconstruction error {err:.2e}")
+    return maps, spectra
+
+
+def _rel_max(ours: torch.Tensor, ref: torch.Tensor) -> float:
+    """Max |ours - ref| / ref over reference values above 1 % of the max (the ``isettorch parity`` statistic)."""
+    ours, ref = ours.detach().double().cpu(), ref.detach().double().cpu()
+    m = ref.abs() > 0.01 * ref.abs().max()
+    return float(((ours - ref).abs()[m] / ref.abs()[m]).max())
+
+
+def isetcam_sensor(hfov_deg: float, image_distance_m: float, exposure_s: float = 0.01):
+    """The sensor of the ISETCam comparison: ``sensorCreate`` defaults (isetcam_default preset) with ISETCam's
+    conventions (``ISETCAM_CONVENTIONS``, as ``isettorch parity`` builds it), noise off, sized to the OI as
+    ``sensorSetSizeToFOV`` (198 x 242 px for the 10 deg sweep)."""
+    from isettorch.sensor import ISETCAM_CONVENTIONS, Sensor
+
+    sensor = Sensor.preset("isetcam_default", read_noise_v=0.0, dark_current_e_per_s=0.0, shot_noise="off",
+                           exposure_s=exposure_s, **ISETCAM_CONVENTIONS)
+    sensor.set_size_to_fov(hfov_deg, image_distance_m)
+    return sensor
+
+
 def stable_rows(n: int, repeats: int, device, log=print) -> list[dict]:
-    """``optics_{n}x{n}x31`` (DL f/4, ISETCam-compatible padding) and ``sensor_{n}x{n}x31`` (ISETCam default
-    preset, noise off, fixed exposure, sensor sized to the scene's FOV as ``sensorSetSizeToFOV``) on a
-    frequency sweep of n x n x 31 (ISETCam ``sceneCreate('sweep frequency')``, FOV 10 deg), float32."""
-    from .scene import frequency_sweep
-    from .sensor import Sensor
+    """``optics_{n}x{n}x31`` and ``sensor_{n}x{n}x31``: exactly the ISETCam-compatible configuration that
+    ``isettorch parity`` passes with, on ISETCam's ``sceneCreate('sweep frequency', n)`` work (10 deg, 31 bands):
+    :func:`isettorch.optics.isetcam.compute_oi_factored` (``oiCompute``, diffraction limited f/4, the sweep as
+    its rank-1 factors) and a Sensor with ``ISETCAM_CONVENTIONS`` (``sensorCompute``, noise off, 0.01 s), both in
+    float32 (ISETCam's single precision). ``error``: max relative error against the float64 result of the same
+    functions on the dense cube, over values above 1 % of the max. ``optics_dense_*`` times the dense input."""
+    from isettorch.optics.isetcam import compute_oi, compute_oi_factored
+    from isettorch.scene import frequency_sweep
 
     log(f"  stable rows {n}x{n}x31")
-    scene = frequency_sweep(n, wavelengths=wavelengths(10.0), dtype=torch.float32, device=device)
-    optics = make_optics(pad_mode="isetcam").to(device)
+    w = wavelengths(10.0)
+    sc64 = frequency_sweep(n, wavelengths=w, dtype=torch.float64, device=device)
+    geo = (float(sc64.hfov_deg[0]), float(sc64.distance_m[0]), 4.0, FOCAL_M)
     with torch.no_grad():
-        t_o, oi, _ = time_call(lambda: optics(scene), repeats, 1, device)
-    sensor = Sensor.preset("isetcam_default", read_noise_v=0.0, dark_current_e_per_s=0.0, shot_noise="off",
-                           exposure_s=0.01, sampling="isetcam")
-    sensor.set_size_to_fov(float(scene.hfov_deg[0]), float(oi.image_distance_m[0]))
-    sensor = sensor.to(device)
-    with torch.no_grad():
+        t_r, ref_oi, _ = time_call(lambda: compute_oi(sc64.photons, w, *geo), max(1, repeats // 2), 1, device)
+        sensor = isetcam_sensor(geo[0], float(ref_oi.image_distance_m[0])).to(device)
+        t_rs, raw64, _ = time_call(lambda: sensor(ref_oi, noise=False), max(1, repeats // 2), 1, device)
+        ref_v = raw64.data
+        sc = sc64.to(dtype=torch.float32)
+        maps, spectra = rank1_factors(sc.photons)
+        t_o, oi, _ = time_call(lambda: compute_oi_factored(maps, spectra, w, *geo), repeats, 1, device)
+        t_d, oi_d, _ = time_call(lambda: compute_oi(sc.photons, w, *geo), repeats, 1, device)
         t_s, raw, _ = time_call(lambda: sensor(oi, noise=False), repeats, 1, device)
     tag = f"{n}x{n}x31"
+    unit = "max rel. error vs float64 (values > 1 % of max)"
+    shape = tuple(oi.photons.shape[-2:])
     return [
-        _row(f"optics_{tag}", "isetcam_compare", t_o, None, None,
-             note=f"DiffractionLimitedOptics f/4 pad_mode='isetcam' -> OI {tuple(oi.photons.shape[-2:])}, float32"),
-        _row(f"sensor_{tag}", "isetcam_compare", t_s, None, None,
-             note=f"isetcam_default {raw.data.shape[-2]}x{raw.data.shape[-1]} px, sampling='isetcam', noise off, "
-                  f"exposure 0.01 s, float32"),
+        _row(f"optics_{tag}", "isetcam_compare", t_o, _rel_max(oi.photons, ref_oi.photons), unit,
+             note=f"optics.isetcam.compute_oi_factored (rank-1 sweep), f/4 -> OI {shape}, float32"),
+        _row(f"sensor_{tag}", "isetcam_compare", t_s, _rel_max(raw.data, ref_v), unit,
+             note=f"isetcam_default {raw.data.shape[-2]}x{raw.data.shape[-1]} px, ISETCAM_CONVENTIONS, noise off, "
+                  f"exposure 0.01 s, float32 OI; error of volts after the float32 optics"),
+        _row(f"optics_dense_{tag}", "isetcam_compare", t_d, _rel_max(oi_d.photons, ref_oi.photons), unit,
+             note=f"optics.isetcam.compute_oi on the dense {tag} cube -> OI {shape}, float32"),
+        _row(f"optics_float64_{tag}", "isetcam_compare", t_r, 0.0, unit, reference=True,
+             note="the reference: optics.isetcam.compute_oi on the dense cube in float64 (what isettorch parity runs)"),
+        _row(f"sensor_float64_{tag}", "isetcam_compare", t_rs, 0.0, unit, reference=True,
+             note="the reference: the same sensor on the float64 OI"),
     ]
 
 
@@ -309,7 +365,7 @@ class _GroupedOTFOptics:
 
     @staticmethod
     def make(n_groups: int, **kw):
-        from .optics import DiffractionLimitedOptics, dl_otf
+        from isettorch.optics import DiffractionLimitedOptics, dl_otf
 
         class Grouped(DiffractionLimitedOptics):
             def otf(self, fy, fx, wavelengths_nm, f_number):
@@ -331,109 +387,6 @@ def group_centres(w: torch.Tensor, n_groups: int) -> torch.Tensor:
     for sel in wavelength_groups(w.numel(), n_groups):
         out[sel] = w[sel].mean()
     return out
-
-
-def _irradiance(optics, scene):
-    """The optics' camera equation x relative illumination, before the blur (same steps as
-    ``ShiftInvariantLens.forward``); returns (irradiance, dx, f_number)."""
-    from .optics import geometry
-
-    x = scene.photons
-    b, _, h, w = x.shape
-    dt, dev = x.dtype, x.device
-    n = optics.batch_f_number(b, dt, dev)
-    f = optics.batch_focal_length(b, dt, dev)
-    d_i = geometry.image_distance(f, scene.distance_m)
-    mag = -d_i / scene.distance_m
-    dx = geometry.image_sample_spacing(scene.hfov_deg, w, d_i)
-    irr = x * geometry.camera_equation_factor(n, mag).reshape(-1, 1, 1, 1)
-    ys = (torch.arange(h, dtype=dt, device=dev) - (h - 1) / 2)[None, :] * dx[:, None]
-    xs = (torch.arange(w, dtype=dt, device=dev) - (w - 1) / 2)[None, :] * dx[:, None]
-    ri = geometry.relative_illumination(optics.relative_illumination, ys, xs, d_i, n, mag)
-    return (irr if ri is None else irr * ri), dx, n
-
-
-def fused_grouped_volts(scene, optics, sensor, n_groups: int, exposure_s: float):
-    """OTF grouping made fast: within a group every band has the same OTF, so the QE integration commutes with
-    the blur: blur(sum_{l in g} QE_c(l) E_l dl) = sum_{l in g} QE_c(l) blur(E_l) dl. G x C FFT planes instead of
-    L. Returns the noise-free volts (B, 1, rows, cols) (same area sampling and clipping as the Sensor)."""
-    from . import spectral
-    from .optics import dl_otf
-    from .optics.blur import blur_fft
-    from .sensor.sampling import sample_area
-
-    irr, dx, n = _irradiance(optics, scene)
-    w = scene.wavelengths_nm
-    qe = sensor.qe(scene) * spectral.wavelength_weights(w).to(irr.dtype)  # [C, L]
-    groups = wavelength_groups(w.numel(), n_groups)
-    centres = torch.stack([w[s].mean() for s in groups])
-    c = qe.shape[0]
-    dens = torch.cat([torch.einsum("blhw,cl->bchw", irr[:, s], qe[:, s]) for s in groups], dim=1)  # [B, G*C, H, W]
-    otf_w = centres.repeat_interleave(c)
-
-    def otf_fn(fy, fx):
-        return dl_otf(fy, fx, otf_w, n)
-
-    margin = optics.margin_samples(irr.shape[-2:], dx, w, n)
-    out, _ = blur_fft(dens, otf_fn, dx, (margin, margin), optics.pad_mode)
-    out = out.reshape(out.shape[0], len(groups), c, *out.shape[-2:]).sum(1)  # [B, C, H2, W2]
-    sampled = sample_area(out, dx, sensor.pixel_size_m, sensor.rows, sensor.cols, sensor.fill_factor)
-    rate = sensor.cfa.mosaic(sampled) * (sensor.fill_factor * sensor.pixel_area_m2)
-    return (rate * exposure_s * sensor.conversion_gain_v_per_e).clamp(0, sensor.voltage_swing_v)
-
-
-def fit_basis(scene, k: int):
-    """PCA basis (K, L) of the scene's spectra (SVD of a pixel subsample, no mean removal) and coefficient
-    images (B, K, H, W)."""
-    x = scene.photons
-    b, nl, h, w = x.shape
-    flat = x.movedim(1, -1).reshape(-1, nl)
-    sub = flat[:: max(1, flat.shape[0] // 20000)]
-    _, _, vh = torch.linalg.svd(sub.double(), full_matrices=False)
-    basis = vh[:k].to(x.dtype)  # [K, L], orthonormal rows
-    coef = torch.einsum("bl...,kl->bk...", x.reshape(b, nl, h, w), basis)
-    return basis, coef
-
-
-def basis_volts(scene, optics, sensor, basis, coef, exposure_s: float):
-    """Low-dimensional spectral basis: E(l) ~ sum_k a_k B_k(l). Each coefficient image is blurred once with the
-    OTF at its basis' energy-weighted centre wavelength (sum l B_k^2 / sum B_k^2) and the QE integral of each
-    basis vector is precomputed: K FFT planes instead of L."""
-    from . import spectral
-    from .optics import dl_otf
-    from .optics.blur import blur_fft
-    from .sensor.sampling import sample_area
-
-    w = scene.wavelengths_nm
-    irr, dx, n = _irradiance(optics, _Photons(coef, scene))  # camera equation, cos^4: wavelength free
-    centres = (basis.double() ** 2 * w.double()).sum(1) / (basis.double() ** 2).sum(1)
-    qe = sensor.qe(scene) * spectral.wavelength_weights(w).to(irr.dtype)  # [C, L]
-    m = qe @ basis.T  # [C, K]: QE integral of each basis vector
-
-    def otf_fn(fy, fx):
-        return dl_otf(fy, fx, centres.to(irr.dtype), n)
-
-    margin = optics.margin_samples(irr.shape[-2:], dx, w, n)
-    out, _ = blur_fft(irr, otf_fn, dx, (margin, margin), optics.pad_mode)
-    dens = torch.einsum("bkhw,ck->bchw", out, m)
-    sampled = sample_area(dens, dx, sensor.pixel_size_m, sensor.rows, sensor.cols, sensor.fill_factor)
-    rate = sensor.cfa.mosaic(sampled) * (sensor.fill_factor * sensor.pixel_area_m2)
-    return (rate * exposure_s * sensor.conversion_gain_v_per_e).clamp(0, sensor.voltage_swing_v)
-
-
-class _Photons:
-    """Duck-typed scene carrying coefficient images (possibly negative) for :func:`_irradiance`."""
-
-    def __init__(self, photons, like):
-        self.photons, self.distance_m, self.hfov_deg = photons, like.distance_m, like.hfov_deg
-
-
-def _raw_from_volts(volts, sensor, exposure_s):
-    from .sensor import RawImage
-
-    return RawImage(data=volts, units="volts", cfa=sensor.cfa, white_level=sensor.voltage_swing_v,
-                    exposure_s=torch.tensor([exposure_s]), voltage_swing_v=sensor.voltage_swing_v,
-                    conversion_gain_v_per_e=sensor.conversion_gain_v_per_e)
 
 
 def knob_rows(patch: int, repeats: int, device, log=print) -> tuple[list[dict], list[dict]]:
@@ -514,28 +467,7 @@ def knob_rows(patch: int, repeats: int, device, log=print) -> tuple[list[dict], 
                     f"{sc.num_wavelengths} bands, trapezoid rule (emulated: end bands x 0.5)")
         del sc
 
-    # fitted spectral basis (PCA of the 1 nm scene; reference: the full 1 nm simulation)
-    log("  knob: spectral basis")
-    sc1, _, _ = setup(wavelengths(1.0))
-    optics = make_optics().to(device)
-    for k in (3, 6):
-        t0 = time.perf_counter()
-        with torch.no_grad():
-            basis, coef = fit_basis(sc1, k)
-        t_fit = time.perf_counter() - t0
-
-        def fn(basis=basis, coef=coef):
-            with torch.no_grad():
-                volts = basis_volts(sc1, optics, sensor, basis, coef, t_exp)
-                return volts, isp(_raw_from_volts(volts, sensor, t_exp)).image
-        try:
-            measure(f"spectral_basis_k{k}", "wavelength_step", fn, ref, False,
-                    f"scene stored as {k} PCA coefficient planes of its 1 nm spectra, each blurred at its basis' "
-                    f"centre wavelength (one-off fit {t_fit:.2f} s, not timed)")
-        except Exception as exc:  # noqa: BLE001 - an emulation; report, do not abort the benchmark
-            skipped.append({"name": f"spectral_basis_k{k}", "group": "wavelength_step", "reason": repr(exc)[:160]})
-
-    # OTF wavelength grouping (emulated: OTF at group centres; fast path fuses the QE integral into the blur)
+    # OTF wavelength grouping (emulated: the library optics with the OTF of each group's centre wavelength)
     log("  knob: OTF grouping")
     optics = make_optics().to(device)
     ref = measure("otf_per_band_10nm", "otf_grouping", lambda: vi(run(optics, scene10)), None, True,
@@ -547,12 +479,6 @@ def knob_rows(patch: int, repeats: int, device, log=print) -> tuple[list[dict], 
         measure(f"otf_groups_{ng}_emulated", "otf_grouping", lambda o=gopt: vi(run(o, scene10)), ref, False,
                 f"{ng} OTFs ({spans} nm) applied per band (31 FFT planes): the error of grouping, no speed-up")
 
-        def fused(ng=ng):
-            with torch.no_grad():
-                volts = fused_grouped_volts(scene10, optics, sensor, ng, t_exp)
-                return volts, isp(_raw_from_volts(volts, sensor, t_exp)).image
-        measure(f"otf_groups_{ng}_fused", "otf_grouping", fused, ref, False,
-                f"{ng} groups x 3 channels = {3 * ng} FFT planes (QE integral inside each group first)")
 
     # padding width (reference: psf_tolerance 1e-5)
     log("  knob: padding")
@@ -754,9 +680,9 @@ def demosaic_rows(n: int, repeats: int, device, log=print) -> tuple[list[dict], 
     Macbeth reflectances, its ideal sRGB preview): median time and CPSNR (dB) against the full-colour truth."""
     import numpy as np
 
-    from .isp import demosaic, mosaic
-    from .metrics import cpsnr
-    from .scene import dead_leaves
+    from isettorch.isp import demosaic, mosaic
+    from isettorch.metrics import cpsnr
+    from isettorch.scene import dead_leaves
 
     log(f"  demosaic peers {n}x{n}")
     truth = dead_leaves(n, reflectances="macbeth", seed=0, dtype=torch.float32).srgb().clamp(0, 1)
@@ -803,7 +729,7 @@ def demosaic_rows(n: int, repeats: int, device, log=print) -> tuple[list[dict], 
 def pairs_per_second(n_items: int, log=print) -> tuple[float | None, str]:
     """Training-pair throughput of ``isettorch.data`` CameraPairDataset at 128 x 128 (one process)."""
     try:
-        from .data.camera_pairs import CameraPairDataset
+        from isettorch.data.camera_pairs import CameraPairDataset
     except ImportError as exc:
         return None, f"CameraPairDataset unavailable ({exc})"
     log(f"  CameraPairDataset 128x128, {n_items} items")
@@ -820,9 +746,12 @@ def pairs_per_second(n_items: int, log=print) -> tuple[float | None, str]:
 # driver, table and plot
 
 
+SECTION_NAMES = ("pipeline", "isetcam", "knobs", "proportional", "numpy_reference", "demosaic", "pairs")
+
+
 def run_benchmarks(*, quick: bool = False, device="cpu", sizes=None, stable_size: int | None = None,
                    knob_patch: int | None = None, repeats: int | None = None, peers: bool = True,
-                   pairs: bool = True, min_time_s: float | None = None,
+                   pairs: bool = True, min_time_s: float | None = None, only=None,
                    log: Callable[[str], None] | None = None) -> dict:
     """Run the standard set; returns ``{"rows": [...], "skipped": [...], "pairs_per_s", "pairs_note",
     "machine", "settings", "seconds_total"}``.
@@ -830,8 +759,13 @@ def run_benchmarks(*, quick: bool = False, device="cpu", sizes=None, stable_size
     ``quick`` skips 1024^2 and uses fewer repeats and smaller knob scenes. ``sizes`` (pipeline sizes),
     ``stable_size`` (the ISETCam-comparison rows), ``knob_patch`` (Macbeth patch size of the knob scene),
     ``repeats`` and ``min_time_s`` (short calls repeat until they have run this long; 0.5 s, 0 in quick mode)
-    override the defaults.
+    override the defaults. ``only``: run just these sections of ``SECTION_NAMES`` (e.g. ``{"isetcam",
+    "numpy_reference"}`` for the ISETCam-comparison and NumPy-reference rows).
     """
+    only = set(SECTION_NAMES) if only is None else set(only)
+    unknown = only - set(SECTION_NAMES)
+    if unknown:
+        raise ValueError(f"only: unknown sections {sorted(unknown)}; expected some of {list(SECTION_NAMES)}")
     log = log or (lambda s: None)
     device = torch.device(device)
     t_start = time.perf_counter()
@@ -842,32 +776,38 @@ def run_benchmarks(*, quick: bool = False, device="cpu", sizes=None, stable_size
     _TIMING["min_time_s"] = (0.0 if quick else 0.5) if min_time_s is None else float(min_time_s)
     info = machine_info(device)
     rows, skipped = [], []
-    log("pipeline stages")
-    rows += pipeline_rows(sizes, repeats, device, log=log)
-    rows += stable_rows(stable_size, max(2, repeats - 2), device, log=log)
-    log("knobs")
-    r, s = knob_rows(knob_patch, max(1, repeats - 2), device, log=log)
-    rows += r
-    skipped += s
-    log("model only what the scene needs")
-    rows += proportional_rows(min(512, max(sizes)), max(1, repeats - 2), device, log=log)
-    if peers:
+    if "pipeline" in only:
+        log("pipeline stages")
+        rows += pipeline_rows(sizes, repeats, device, log=log)
+    if "isetcam" in only:
+        rows += stable_rows(stable_size, max(2, repeats - 2), device, log=log)
+    if "knobs" in only:
+        log("knobs")
+        r, s = knob_rows(knob_patch, max(1, repeats - 2), device, log=log)
+        rows += r
+        skipped += s
+    if "proportional" in only:
+        log("model only what the scene needs")
+        rows += proportional_rows(min(512, max(sizes)), max(1, repeats - 2), device, log=log)
+    if peers and "numpy_reference" in only:
         log("peers")
         r, s = numpy_reference_rows([min(sizes), min(512, max(sizes))] if not quick else [min(sizes)],
                                     max(1, repeats - 2), log=log)
         rows += r
         skipped += s
+    if peers and "demosaic" in only:
         r, s = demosaic_rows(min(512, max(sizes)), max(1, repeats - 2), device, log=log)
         rows += r
         skipped += s
     pps, note = (None, "skipped (pairs=False)")
-    if pairs:
+    if pairs and "pairs" in only:
         pps, note = pairs_per_second(2 if quick else 6, log=log)
     if hasattr(os, "getloadavg"):
         info["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
     return {"rows": rows, "skipped": skipped, "pairs_per_s": pps, "pairs_note": note, "machine": info,
-            "settings": {"quick": quick, "sizes": sizes, "stable_size": stable_size, "knob_patch": knob_patch,
-                         "repeats": repeats, "min_time_s": _TIMING["min_time_s"], "device": str(device)},
+            "settings": {"only": sorted(only), "quick": quick, "sizes": sizes, "stable_size": stable_size,
+                         "knob_patch": knob_patch, "repeats": repeats, "min_time_s": _TIMING["min_time_s"],
+                         "device": str(device)},
             "seconds_total": time.perf_counter() - t_start}
 
 
@@ -1000,3 +940,88 @@ def plot_pareto(result: dict, path) -> Path:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+# --------------------------------------------------------------------------------------------------------------
+# command line (``isettorch bench`` runs this file as a script with the same arguments)
+
+
+def _sizes(text: str) -> list[int]:
+    try:
+        out = [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise ValueError(f"--sizes: expected comma-separated integers such as 128,512, got {text!r}") from None
+    if not out or any(n < 16 for n in out):
+        raise ValueError(f"--sizes: expected sizes >= 16, got {text!r}")
+    return out
+
+
+def add_arguments(p) -> None:
+    """The options of ``isettorch bench`` (shared by the CLI's parser and this script's)."""
+    p.add_argument("--json", action="store_true", help="print every row as JSON instead of a table")
+    p.add_argument("--quick", action="store_true", help="fewer repeats, no 1024^2, smaller knob scene")
+    p.add_argument("--device", default="cpu", help="torch device (cpu, cuda, cuda:1, ...; default cpu)")
+    p.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (default: torch's choice)")
+    p.add_argument("--sizes", default=None, help="pipeline sizes, e.g. 128,512,1024 (default per --quick)")
+    p.add_argument("--stable-size", type=int, default=None, help="size of the optics_/sensor_ rows (default 512)")
+    p.add_argument("--knob-patch", type=int, default=None, help="Macbeth patch size of the knob scene (16/32)")
+    p.add_argument("--repeats", type=int, default=None, help="timed repeats per measurement (default 5, quick 2)")
+    p.add_argument("--no-peers", action="store_true", help="skip the NumPy, colour-demosaicing and kornia peers")
+    p.add_argument("--no-pairs", action="store_true", help="skip the CameraPairDataset throughput")
+    p.add_argument("--plot", default=None, help="write the time-vs-error PNG here")
+    p.add_argument("--only", default=None, help=f"comma-separated sections to run, of {','.join(SECTION_NAMES)} "
+                                                "(default all)")
+
+
+def check_arguments(args) -> str | None:
+    """The first problem with the options, as an error line naming the option, or None."""
+    try:
+        if args.sizes:
+            _sizes(args.sizes)
+    except ValueError as exc:
+        return str(exc)
+    if args.only and not set(args.only.split(",")) <= set(SECTION_NAMES):
+        return f"--only: expected sections from {','.join(SECTION_NAMES)}, got {args.only!r}"
+    if args.threads is not None and args.threads < 1:
+        return f"--threads: expected a positive integer, got {args.threads}"
+    try:
+        device = torch.device(args.device)
+    except RuntimeError as exc:
+        return f"--device: {exc}"
+    if device.type == "cuda" and not torch.cuda.is_available():
+        return f"--device {args.device}: CUDA is not available on this machine"
+    return None
+
+
+def main(argv=None) -> int:
+    import argparse
+    import json
+
+    ap = argparse.ArgumentParser(prog="isettorch bench", description=__doc__.splitlines()[0])
+    add_arguments(ap)
+    args = ap.parse_args(argv)
+    problem = check_arguments(args)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    log = (lambda s: print(s, file=sys.stderr, flush=True)) if not args.json else (lambda s: None)
+    result = run_benchmarks(quick=args.quick, device=torch.device(args.device),
+                            sizes=_sizes(args.sizes) if args.sizes else None, stable_size=args.stable_size,
+                            knob_patch=args.knob_patch, repeats=args.repeats, peers=not args.no_peers,
+                            pairs=not args.no_pairs, only=args.only.split(",") if args.only else None, log=log)
+    if args.plot:
+        result["plot"] = str(plot_pareto(result, args.plot))
+    if args.json:
+        print(json.dumps(result, indent=1, allow_nan=False))
+    else:
+        print(format_report(result))
+        m = result["machine"]
+        print(f"\ntotal {result['seconds_total']:.1f} s on {m['processor']} ({m['cpu_count']} CPUs, "
+              f"{m['torch_threads']} torch threads)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

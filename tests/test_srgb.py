@@ -1,0 +1,56 @@
+"""The one sRGB encoding (isettorch.image.srgb_encode) and its clipping rule, used by the ISP, displays and
+previews: against colour-science on [0, 1], and the rule outside it (below 0 -> 0; above 1 -> 1 with clip,
+the same power law without)."""
+
+import colour
+import numpy as np
+import pytest
+import torch
+
+from isettorch.image import srgb_decode, srgb_encode
+from isettorch.isp import DisplayEncode
+from isettorch.isp import srgb_encode as isp_srgb_encode
+from isettorch.scene.display import srgb_eotf, srgb_inverse_eotf
+
+
+def test_matches_colour_science_on_unit_interval():
+    x = torch.linspace(0, 1, 1001, dtype=torch.float64)
+    ref = colour.cctf_encoding(x.numpy(), "sRGB")
+    np.testing.assert_allclose(srgb_encode(x).numpy(), ref, atol=1e-12)
+    np.testing.assert_allclose(srgb_decode(srgb_encode(x)).numpy(), x.numpy(), atol=1e-12)
+    np.testing.assert_allclose(srgb_decode(torch.from_numpy(ref)).numpy(), colour.cctf_decoding(ref, "sRGB"),
+                               atol=1e-12)
+
+
+def test_clipping_rule():
+    x = torch.tensor([-1.0, -1e-3, 0.0, 1.0, 1.5, 4.0], dtype=torch.float64)
+    clipped = srgb_encode(x)
+    assert clipped[:3].tolist() == [0.0, 0.0, 0.0]
+    white = 1.055 * 1.0 ** (1 / 2.4) - 0.055  # the curve at 1 (1 - 1e-16 in float64)
+    assert clipped[3:].tolist() == [white] * 3
+    open_top = srgb_encode(x, clip=False)
+    assert open_top[:3].tolist() == [0.0, 0.0, 0.0]
+    expect = 1.055 * x[3:] ** (1 / 2.4) - 0.055  # IEC 61966-2-1 curve continued above white
+    torch.testing.assert_close(open_top[3:], expect, rtol=1e-15, atol=0)
+
+
+@pytest.mark.parametrize("clip", [True, False])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_inplace_and_out_are_bitwise_the_same(clip, dtype):
+    g = torch.Generator().manual_seed(0)
+    x = (torch.rand(2, 3, 17, 19, generator=g, dtype=dtype) * 1.6 - 0.3)
+    x[0, 0, 0, :4] = torch.tensor([0.0031308, 0.0, -0.0, 1.0], dtype=dtype)
+    ref = srgb_encode(x, clip=clip)
+    assert torch.equal(srgb_encode(x.clone(), clip=clip, inplace=True), ref)
+    keep = x.clone()
+    out = torch.empty_like(x)
+    assert srgb_encode(x, clip=clip, out=out) is out and torch.equal(out, ref) and torch.equal(x, keep)
+
+
+def test_every_caller_is_the_one_function():
+    x = torch.linspace(-0.5, 2.0, 101, dtype=torch.float64)
+    assert isp_srgb_encode is srgb_encode
+    assert torch.equal(DisplayEncode("srgb", clip=True)(x), srgb_encode(x))
+    assert torch.equal(DisplayEncode("srgb", clip=False)(x), srgb_encode(x, clip=False))
+    assert torch.equal(srgb_inverse_eotf(x), srgb_encode(x, clip=False))
+    assert torch.equal(srgb_eotf(x), srgb_decode(x))
