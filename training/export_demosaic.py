@@ -24,8 +24,10 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from isettorch.isp import learned  # noqa: E402
+from isettorch.paths import data_path  # noqa: E402
 
-BENCHMARKS = {"kodak24": "/work/shared/data/kodak24", "mcmaster18": "/work/shared/data/mcmaster18"}
+# the shared benchmark folders under $ISETTORCH_DATA (isettorch.paths.data_path); scored for reporting only
+BENCHMARKS = ("kodak24", "mcmaster18")
 # shared/data/README.md anchors (colour-demosaicing 0.2.7), CPSNR dB: crop0 / crop10
 ANCHORS = {"bilinear": {"kodak24": (29.21, 30.25), "mcmaster18": (30.73, 32.31)},
            "malvar2004": {"kodak24": (35.36, 35.79), "mcmaster18": (33.93, 34.45)},
@@ -66,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         return learned.demosaic_learned(raw, pattern, model=net)
 
     scores: dict = {}
-    for name, folder in BENCHMARKS.items():
+    for name, folder in ((n, data_path(n, must_exist=False)) for n in BENCHMARKS):
         if args.no_bench or not Path(folder).is_dir():
             continue
         for crop in args.crops:
