@@ -79,7 +79,7 @@ class LensAnalysis:
 
     # --- rays -----------------------------------------------------------------------------------------
     def rays(self, theta_deg: float, px: torch.Tensor, py: torch.Tensor, wavelength_nm: float,
-             clip: bool = True) -> RayBundle:
+             clip: bool = True, record: bool = False) -> RayBundle:
         """Trace rays of field angle ``theta_deg`` (in the y-z plane) through normalised entrance-pupil points
         ``(px, py)`` (unit circle = paraxial EP at 587.6 nm). Start points lie on the plane through the EP
         centre normal to the rays (a plane wavefront: optical path 0 there)."""
@@ -92,7 +92,7 @@ class LensAnalysis:
         c = torch.zeros_like(q)
         c[..., 2] = ref["ep_z"]
         p0 = q - ((q - c) * d).sum(-1, keepdim=True) * d
-        return self.geometry.trace(p0, d, wavelength_nm, clip=clip)
+        return self.geometry.trace(p0, d, wavelength_nm, clip=clip, record=record)
 
     @staticmethod
     def to_plane(b: RayBundle, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -131,8 +131,11 @@ class LensAnalysis:
 
     def relative_illumination(self, field: float, wavelength_nm: float, samples: int = 256) -> torch.Tensor:
         """Projected solid angle of the vignetted image-space beam over the on-axis one (same wavelength)."""
-        return self._beam_solid_angle(field, wavelength_nm, samples) / self._beam_solid_angle(0.0, wavelength_nm,
-                                                                                                samples)
+        axis = self._beam_solid_angle(0.0, wavelength_nm, samples)
+        if float(axis) <= 0:
+            raise TraceError(f"relative illumination at {wavelength_nm} nm: no on-axis ray passes the clear "
+                             f"apertures")
+        return self._beam_solid_angle(field, wavelength_nm, samples) / axis
 
     def _beam_solid_angle(self, field, wavelength_nm, samples):
         theta = self.field_angle_deg(field)
@@ -193,6 +196,9 @@ class LensAnalysis:
             disc = torch.where(disc > 0, disc, torch.zeros_like(disc))
             return bb.opl + n_img * (-bq - torch.sqrt(disc))
 
+        if not bool(valid.any()):
+            raise TraceError(f"field {field} ({theta:.4g} deg) at {wavelength_nm} nm: every ray of the pupil misses "
+                             f"the lens's clear apertures (fully vignetted); no PSF/MTF")
         opl = opl_to_sphere(b)
         opl_c = opl_to_sphere(chief)[0]
         wl_mm = wavelength_nm * 1e-6
@@ -208,10 +214,32 @@ class LensAnalysis:
         return {"pupil": pupil, "opd_waves": opd_w, "valid": valid, "cutoff_cy_mm": (cut_t, cut_s),
                 "image_point": ipt}
 
-    def otf_grid(self, field, wavelength_nm, samples=128, image_z=None):
+    def sampled_pupil(self, field, wavelength_nm, samples=128, image_z=None, max_samples: int = 512,
+                      max_step_waves: float = 0.25) -> dict:
+        """:meth:`pupil_function` on a grid fine enough for the wavefront: the grid is doubled (from
+        ``samples`` up to ``max_samples``) until neighbouring samples differ by at most ``max_step_waves``
+        (the sampling criterion of the FFT PSF; OpticStudio warns at the same condition)."""
+        n = int(samples)
+        while True:
+            pf = self.pupil_function(field, wavelength_nm, n, image_z)
+            w, v = pf["opd_waves"], pf["valid"]
+            step = 0.0
+            for dim in (0, 1):
+                both = v.narrow(dim, 1, n - 1) & v.narrow(dim, 0, n - 1)
+                dw = (w.narrow(dim, 1, n - 1) - w.narrow(dim, 0, n - 1)).abs()
+                if both.any():
+                    step = max(step, float(dw[both].max()))
+            if step <= max_step_waves or 2 * n > max_samples:
+                pf["samples"] = n
+                pf["max_step_waves"] = step
+                return pf
+            n *= 2
+
+    def otf_grid(self, field, wavelength_nm, samples=128, image_z=None, max_samples: int = 512):
         """OTF on the pupil-shift grid (``[2N, 2N]``, DC at [0, 0]) and the pupil data; shift k along rows is
-        the tangential frequency k / N * cutoff_t."""
-        pf = self.pupil_function(field, wavelength_nm, samples, image_z)
+        the tangential frequency k / N * cutoff_t (N = ``pf['samples']``, adapted to the wavefront)."""
+        pf = self.sampled_pupil(field, wavelength_nm, samples, image_z, max_samples=max_samples)
+        samples = pf["samples"]
         p = pf["pupil"]
         nn_ = 2 * samples
         f = torch.fft.fft2(p, s=(nn_, nn_))
@@ -222,6 +250,7 @@ class LensAnalysis:
     def mtf(self, field: float, wavelength_nm: float, frequencies_cy_mm, samples: int = 128):
         """Tangential and sagittal diffraction MTF at ``frequencies_cy_mm`` (image at the 587.6 nm focus)."""
         otf, pf = self.otf_grid(field, wavelength_nm, samples)
+        samples = pf["samples"]
         mt = otf[:, 0].abs()
         ms = otf[0, :].abs()
         cut_t, cut_s = pf["cutoff_cy_mm"]

@@ -27,8 +27,9 @@ class TraceError(ValueError):
 class RayBundle:
     """Rays after a trace: ``position``, ``direction`` (unit, ``[..., 3]``), optical path ``opl`` and ``valid``."""
 
-    def __init__(self, position, direction, opl, valid):
+    def __init__(self, position, direction, opl, valid, heights=None):
         self.position, self.direction, self.opl, self.valid = position, direction, opl, valid
+        self.heights = heights  # radial height at each surface [S, ...] (when traced with record=True)
 
 
 class LensGeometry:
@@ -92,7 +93,7 @@ class LensGeometry:
         n = self.indices(wavelength_nm)
         one = torch.ones((), dtype=self.dtype, device=self.device)
         ys, u = self._paraxial_trace(one, 0 * one, n)
-        if float(u) == 0:
+        if float(u.detach()) == 0:
             raise TraceError(f"{self.prescription.name}: afocal lens (no paraxial focus)")
         efl = -1.0 / (n[-1] * u)
         bfl = -ys[-1] / u
@@ -105,7 +106,7 @@ class LensGeometry:
         else:
             epd = self.prescription.entrance_pupil_diameter_mm * one
         yc, uc = self._paraxial_trace(-ep_z, one, n)
-        xp_z = -yc[-1] / uc if float(uc) != 0 else torch.full_like(one, math.inf)
+        xp_z = -yc[-1] / uc if float(uc.detach()) != 0 else torch.full_like(one, math.inf)
         return {"efl": efl, "bfl": bfl, "ep_z": ep_z, "epd": epd, "xp_z": xp_z, "n": n, "n_image": n[-1]}
 
     # --- real rays ----------------------------------------------------------------------------------
@@ -124,7 +125,8 @@ class LensGeometry:
                 dz = dz + a * (j + 1) * rho2 ** j
         return z, dz, ok
 
-    def trace(self, position, direction, wavelength_nm: float, clip: bool = True, n=None) -> RayBundle:
+    def trace(self, position, direction, wavelength_nm: float, clip: bool = True, n=None,
+              record: bool = False) -> RayBundle:
         """Trace rays ``position, direction [..., 3]`` (object space, z from the surface-1 vertex) through the
         lens. Returns the rays just after the last surface, with the optical path from the start points.
 
@@ -136,6 +138,7 @@ class LensGeometry:
         opl = torch.zeros(p.shape[:-1], dtype=p.dtype, device=p.device)
         valid = torch.ones(p.shape[:-1], dtype=torch.bool, device=p.device)
         has_asph = self.aspheric.shape[1] > 0
+        heights = []
         for i in range(self.n_surfaces):
             zv = self.vertex_z[i]
             px, py, pz = p[..., 0], p[..., 1], p[..., 2] - zv
@@ -159,6 +162,8 @@ class LensGeometry:
                     t1 = t1 - f / torch.where(fp.abs() > 1e-12, fp, torch.ones_like(fp))
             x, y = x0 + t1 * dx, y0 + t1 * dy
             rho2 = x * x + y * y
+            if record:
+                heights.append(torch.sqrt(rho2))
             _, ds, okd = self._sag_terms(i, rho2)
             ok = ok & okd
             t = t0 + t1
@@ -175,4 +180,4 @@ class LensGeometry:
             cos_t = torch.sqrt(torch.where(kk > 0, kk, torch.ones_like(kk)))
             d = mu * d + (cos_t - mu * cos_i)[..., None] * nrm
             valid = valid & ok
-        return RayBundle(p, d, opl, valid)
+        return RayBundle(p, d, opl, valid, torch.stack(heights) if record else None)
