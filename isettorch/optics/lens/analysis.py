@@ -211,8 +211,10 @@ class LensAnalysis:
         ms = self.rays(theta, torch.tensor([1.0, -1.0], dtype=self.dtype), 0 * one, wavelength_nm, clip=False)
         cut_t = n_img * (mt.direction[0, 1] - mt.direction[1, 1]).abs() / wl_mm
         cut_s = n_img * (ms.direction[0, 0] - ms.direction[1, 0]).abs() / wl_mm
+        orient = (1.0 if float(mt.direction[0, 1] - mt.direction[1, 1]) >= 0 else -1.0,
+                  1.0 if float(ms.direction[0, 0] - ms.direction[1, 0]) >= 0 else -1.0)
         return {"pupil": pupil, "opd_waves": opd_w, "valid": valid, "cutoff_cy_mm": (cut_t, cut_s),
-                "image_point": ipt}
+                "orientation": orient, "image_point": ipt}
 
     def sampled_pupil(self, field, wavelength_nm, samples=128, image_z=None, max_samples: int = 512,
                       max_step_waves: float = 0.25) -> dict:
