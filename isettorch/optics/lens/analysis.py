@@ -235,7 +235,9 @@ class LensAnalysis:
                 pf["samples"] = n
                 pf["max_step_waves"] = step
                 return pf
-            n *= 2
+            # jump straight to the grid the measured slope needs (powers of two above n)
+            need = n * 2 ** math.ceil(math.log2(step / max_step_waves))
+            n = int(min(need, max_samples if max_samples >= 2 * n else n))
 
     def otf_grid(self, field, wavelength_nm, samples=128, image_z=None, max_samples: int = 512):
         """OTF on the pupil-shift grid (``[2N, 2N]``, DC at [0, 0]) and the pupil data; shift k along rows is

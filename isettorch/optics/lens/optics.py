@@ -38,15 +38,19 @@ class LensOptics(nn.Module):
         field_samples: radial field heights at which PSFs are computed (accuracy knob).
         azimuth_samples: azimuths per field height (PSFs rotated exactly; weights interpolated between).
         components: number of eigen-PSFs K (accuracy knob; ``None`` = all, i.e. only the interpolation error).
-        pupil_samples: pupil grid of the FFT PSF (adapted upwards to the wavefront).
+        pupil_samples, max_pupil_samples: pupil grid of the FFT PSF, adapted upwards to the wavefront (at most
+            ``max_pupil_samples``; only the OTF below the optical image's Nyquist frequency is used).
         max_kernel: largest PSF support (samples); a larger blur raises an error naming it.
         distortion_samples: field angles at which distortion and RI are traced (interpolated between).
         ri_samples: pupil grid (per side) of the relative-illumination integral.
+        cache_elements: the per-geometry maps (warp grid, RI x camera equation, eigen-PSF weights, kernel
+            spectra) are cached when they hold at most this many values (else recomputed every call).
         transmittance: scalar lens transmittance (absorption and Fresnel losses are not ray traced).
     """
 
     def __init__(self, lens, *, field_samples: int = 9, azimuth_samples: int = 16, components: int | None = 12,
-                 pupil_samples: int = 64, max_kernel: int = 129, distortion_samples: int = 16, ri_samples: int = 64,
+                 pupil_samples: int = 64, max_pupil_samples: int = 256, max_kernel: int = 129,
+                 distortion_samples: int = 16, ri_samples: int = 64, cache_elements: int = 64 * 2**20,
                  transmittance: float = 1.0, dtype=torch.float64):
         super().__init__()
         self.analysis = lens if isinstance(lens, LensAnalysis) else LensAnalysis(lens)
@@ -59,9 +63,11 @@ class LensOptics(nn.Module):
         if not 0 < transmittance <= 1:
             raise ValueError(f"transmittance: expected a value in (0, 1], got {transmittance}")
         self.field_samples, self.azimuth_samples, self.components = field_samples, azimuth_samples, components
+        self.max_pupil_samples = int(max_pupil_samples)
         self.pupil_samples, self.max_kernel, self.distortion_samples = pupil_samples, max_kernel, distortion_samples
         self.transmittance = float(transmittance)
         self.ri_samples = int(ri_samples)
+        self.cache_elements = int(cache_elements)
         a = self.analysis
         self.register_buffer("focal_length_m", (a.effective_focal_length_mm.detach() * 1e-3).to(dtype))
         self.register_buffer("f_number", a.f_number.detach().to(dtype))
@@ -75,8 +81,9 @@ class LensOptics(nn.Module):
             fr = torch.linspace(0, 1, self.distortion_samples, dtype=torch.float64)
             with torch.no_grad():
                 y = chief_ray_heights_mm(a, fr, wavelength_nm)
-                ri = torch.stack([a.relative_illumination(float(f), wavelength_nm, self.ri_samples)
-                                  for f in fr.tolist()])
+                axis = a._beam_solid_angle(0.0, wavelength_nm, self.ri_samples)
+                ri = torch.stack([a._beam_solid_angle(float(f), wavelength_nm, self.ri_samples)
+                                  for f in fr.tolist()]) / axis
             if not bool((y[1:] > y[:-1]).all()):
                 raise TraceError(f"{a.prescription.name}: chief-ray height is not increasing with field at "
                                  f"{wavelength_nm} nm; the distortion cannot be inverted")
@@ -108,7 +115,8 @@ class LensOptics(nn.Module):
         with torch.no_grad():
             for i, wl in enumerate(wavelengths_nm):
                 for k, f in enumerate(fields.tolist()):
-                    psfs[i, k] = psf_on_grid(otf_sampler(a, f, wl, self.pupil_samples), az, dx_mm, size)
+                    otf = otf_sampler(a, f, wl, self.pupil_samples, self.max_pupil_samples)
+                    psfs[i, k] = psf_on_grid(otf, az, dx_mm, size)
         self._cache[key] = (psfs, radii, size)
         return self._cache[key]
 
@@ -132,6 +140,66 @@ class LensOptics(nn.Module):
 
     def clear_cache(self) -> None:
         self._cache.clear()
+
+    # --- per-geometry plan (cached) ----------------------------------------------------------------
+    def _plan(self, waves, h, w, t_pitch, corner_deg, dt, dev):
+        key = ("plan", waves, h, w, round(t_pitch, 15), str(dt), str(dev), self.field_samples, self.azimuth_samples,
+               self.components)
+        if key in self._cache:
+            return self._cache[key]
+        a = self.analysis
+        efl_mm = float(a.effective_focal_length_mm)
+        dx_mm = efl_mm * t_pitch
+        # image radius reached by the corners, any wavelength
+        r_max = max(float(_interp(torch.tensor([corner_deg], dtype=torch.float64), *self._radial_tables(wl)[:2])[0])
+                    for wl in (waves[0], waves[-1], REFERENCE_WAVELENGTH_NM))
+        bank = self._psf_bank(waves, dx_mm, r_max * 1.0001)
+        m = bank["size"] // 2
+        hh, ww = h + 2 * m, w + 2 * m
+        yy = (torch.arange(hh, dtype=torch.float64) - (hh - 1) / 2) * dx_mm
+        xx = (torch.arange(ww, dtype=torch.float64) - (ww - 1) / 2) * dx_mm
+        gy, gx = torch.meshgrid(yy, xx, indexing="ij")
+        r = torch.sqrt(gx * gx + gy * gy)
+        phi = torch.atan2(gx, gy) % (2 * math.pi)  # from +y towards +x
+        w_r, i_r = _lin_index(r, bank["radii"])
+        pa = phi / (2 * math.pi / self.azimuth_samples)
+        i_a0 = torch.floor(pa).long() % self.azimuth_samples
+        w_a = pa - torch.floor(pa)
+        i_a1 = (i_a0 + 1) % self.azimuth_samples
+        fft_shape = (_fast(hh + 2 * m), _fast(ww + 2 * m))
+        plan = {"m": m, "hh": hh, "ww": ww, "fft_shape": fft_shape, "bank": bank, "gx": gx, "gy": gy, "r": r,
+                "polar": (i_r, w_r, i_a0, i_a1, w_a), "t_pitch": t_pitch, "h": h, "w": w, "waves": waves,
+                "dt": dt, "dev": dev, "efl_mm": efl_mm, "bands": None}
+        if bank["basis"] is not None:
+            k = bank["basis"].shape[0]
+            kern = bank["basis"].reshape(k, 2 * m + 1, 2 * m + 1).to(dt).to(dev)
+            plan["kspec"] = torch.fft.rfft2(kern, s=fft_shape)
+        per_band = hh * ww * (3 + (bank["basis"].shape[0] if bank["basis"] is not None else 0))
+        if per_band * len(waves) <= self.cache_elements:
+            plan["bands"] = [self._band(plan, li) for li in range(len(waves))]
+        self._cache[key] = plan
+        return plan
+
+    def _band(self, plan, li):
+        """Warp grid ``[1, hh, ww, 2]``, gain (camera equation x RI) and eigen-PSF weights of band ``li``."""
+        wl = plan["waves"][li]
+        dt, dev, r, w, h = plan["dt"], plan["dev"], plan["r"], plan["w"], plan["h"]
+        theta_t, y_t, ri_t = self._radial_tables(wl)
+        r_c = r.clamp(max=float(y_t[-1]))
+        # tan(theta) is nearly linear in r and RI nearly linear in r^2: interpolate those (smooth, even laws)
+        t = _interp(r_c, y_t, torch.tan(torch.deg2rad(theta_t)))
+        ri = _interp(r_c * r_c, y_t * y_t, ri_t) * (r <= y_t[-1])
+        scale = torch.where(r > 0, t / torch.where(r > 0, r, torch.ones_like(r)),
+                            torch.full_like(r, 1.0 / plan["efl_mm"]))
+        src_x = plan["gx"] * scale / plan["t_pitch"]  # scene samples from the centre
+        src_y = plan["gy"] * scale / plan["t_pitch"]
+        grid = torch.stack([src_x / (w / 2), src_y / (h / 2)], -1)[None].to(dt).to(dev)
+        # camera equation on axis (ISETCam oiCalculateIrradiance, object at infinity) x transmittance x RI
+        k0 = float(geometry.camera_equation_factor(self.f_number.to(torch.float64), 0.0)) * self.transmittance
+        band = {"grid": grid, "gain": (k0 * ri).to(dt).to(dev)}
+        if plan["bank"]["basis"] is not None:
+            band["weights"] = _bilinear_polar(plan["bank"]["coeff"][li], *plan["polar"]).to(dt).to(dev)
+        return band
 
     # --- forward ----------------------------------------------------------------------------------------
     def forward(self, scene: Scene, crop: tuple[int, int, int, int] | None = None) -> OpticalImage:
@@ -158,56 +226,24 @@ class LensOptics(nn.Module):
         efl_mm = float(a.effective_focal_length_mm)
         dx_mm = efl_mm * t_pitch  # ideal (distortion-free) image pitch
         waves = tuple(float(v) for v in scene.wavelengths_nm.tolist())
-        # image radius reached by the corners, any wavelength
-        r_max = max(float(_interp(torch.tensor([corner_deg], dtype=torch.float64), *self._radial_tables(wl)[:2])[0])
-                    for wl in (waves[0], waves[-1], REFERENCE_WAVELENGTH_NM))
-        bank = self._psf_bank(waves, dx_mm, r_max * 1.0001)
-        m = bank["size"] // 2
-        hh, ww = h + 2 * m, w + 2 * m
-        # output-plane coordinates (mm) of the padded grid, centred on the axis
-        yy = (torch.arange(hh, dtype=torch.float64) - (hh - 1) / 2) * dx_mm
-        xx = (torch.arange(ww, dtype=torch.float64) - (ww - 1) / 2) * dx_mm
-        gy, gx = torch.meshgrid(yy, xx, indexing="ij")
-        r = torch.sqrt(gx * gx + gy * gy)
-        phi = torch.atan2(gx, gy) % (2 * math.pi)  # from +y towards +x
-        # camera equation on axis (ISETCam convention, object at infinity)
-        k0 = float(geometry.camera_equation_factor(self.f_number.to(torch.float64), 0.0)) * self.transmittance
+        plan = self._plan(waves, h, w, t_pitch, corner_deg, dt, dev)
+        m, hh, ww, fft_shape = plan["m"], plan["hh"], plan["ww"], plan["fft_shape"]
         out = torch.zeros(b, nl, hh, ww, dtype=dt, device=dev)
-        w_r, i_r = _lin_index(r, bank["radii"])
-        a_step = 2 * math.pi / self.azimuth_samples
-        pa = phi / a_step
-        i_a0 = torch.floor(pa).long() % self.azimuth_samples
-        w_a = pa - torch.floor(pa)
-        i_a1 = (i_a0 + 1) % self.azimuth_samples
-        fft_shape = (_fast(hh + 2 * m), _fast(ww + 2 * m))
-        for li, wl in enumerate(waves):
-            theta_t, y_t, ri_t = self._radial_tables(wl)
-            r_c = r.clamp(max=float(y_t[-1]))
-            # tan(theta) is nearly linear in r and RI nearly linear in r^2: interpolate those (smooth, even laws)
-            t = _interp(r_c, y_t, torch.tan(torch.deg2rad(theta_t)))
-            ri = _interp(r_c * r_c, y_t * y_t, ri_t) * (r <= y_t[-1])
-            scale = torch.where(r > 0, t / torch.where(r > 0, r, torch.ones_like(r)),
-                                torch.full_like(r, 1.0 / efl_mm))
-            src_x = gx * scale / t_pitch  # scene samples from the centre
-            src_y = gy * scale / t_pitch
-            grid = torch.stack([src_x / (w / 2), src_y / (h / 2)], -1)[None].to(dt)
-            img = F.grid_sample(x[:, li:li + 1], grid.expand(b, -1, -1, -1).to(dev), mode="bilinear",
+        for li in range(nl):
+            band = plan["bands"][li] if plan["bands"] is not None else self._band(plan, li)
+            img = F.grid_sample(x[:, li:li + 1], band["grid"].expand(b, -1, -1, -1), mode="bilinear",
                                 padding_mode="zeros", align_corners=False)[:, 0]  # [B, hh, ww]
-            irr = img * (k0 * ri).to(dt).to(dev)
-            coeff = bank["coeff"][li]  # [F, A, K] or [F, A, s, s]
-            if bank["basis"] is None:
-                out[:, li] = _apply_full(irr, bank["psfs"][li], i_r, w_r, i_a0, i_a1, w_a, m)
+            irr = img * band["gain"]
+            if plan["bank"]["basis"] is None:
+                pol = plan["polar"]
+                out[:, li] = _apply_full(irr, plan["bank"]["psfs"][li], *pol, m)
                 continue
-            wmap = _bilinear_polar(coeff, i_r, w_r, i_a0, i_a1, w_a).to(dt).to(dev)  # [K, hh, ww]
-            kern = bank["basis"].reshape(-1, 2 * m + 1, 2 * m + 1).to(dt).to(dev)
-            src = irr[:, None] * wmap[None]  # [B, K, hh, ww]
-            spec = torch.fft.rfft2(src, s=fft_shape)
-            kspec = torch.fft.rfft2(kern, s=fft_shape)
-            acc = (spec * kspec[None]).sum(1)
+            src = irr[:, None] * band["weights"][None]  # [B, K, hh, ww]
+            acc = (torch.fft.rfft2(src, s=fft_shape) * plan["kspec"][None]).sum(1)
             full = torch.fft.irfft2(acc, s=fft_shape)
             out[:, li] = full[:, m:m + hh, m:m + ww]
         fl = self.focal_length_m.to(dt).expand(b)
-        meta = {"full_shape": (hh, ww), "full_pad": (m, m), "psf_size": bank["size"]}
+        meta = {"full_shape": (hh, ww), "full_pad": (m, m), "psf_size": 2 * m + 1}
         res = OpticalImage(out, scene.wavelengths_nm, name=scene.name, metadata=meta,
                            sample_spacing_m=torch.full((b,), dx_mm * 1e-3, dtype=dt, device=dev), focal_length_m=fl,
                            f_number=self.f_number.to(dt).expand(b), image_distance_m=fl, pad_rows=m, pad_cols=m,
@@ -251,16 +287,21 @@ def _bilinear_polar(coeff, i_r, w_r, i_a0, i_a1, w_a):
     return v.permute(2, 0, 1)
 
 
-def _apply_full(irr, psfs, i_r, w_r, i_a0, i_a1, w_a, m):
-    """Every source sample spread with its own interpolated PSF (the reference the eigen-PSFs approximate)."""
+def _apply_full(irr, psfs, i_r, w_r, i_a0, i_a1, w_a, m, block_rows: int = 64):
+    """Every source sample spread with its own interpolated PSF (the reference the eigen-PSFs approximate),
+    in blocks of source rows to bound memory."""
     s = 2 * m + 1
     coeff = psfs.reshape(psfs.shape[0], psfs.shape[1], s * s)
-    kern = _bilinear_polar(coeff, i_r, w_r, i_a0, i_a1, w_a).to(irr.dtype)  # [s*s, H, W]
     b, hh, ww = irr.shape
     out = torch.zeros(b, hh + 2 * m, ww + 2 * m, dtype=irr.dtype, device=irr.device)
-    for dy in range(s):
-        for dx in range(s):
-            out[:, dy:dy + hh, dx:dx + ww] += irr * kern[dy * s + dx]
+    for r0 in range(0, hh, block_rows):
+        r1 = min(hh, r0 + block_rows)
+        sl = slice(r0, r1)
+        kern = _bilinear_polar(coeff, i_r[sl], w_r[sl], i_a0[sl], i_a1[sl], w_a[sl]).to(irr.dtype)
+        src = irr[:, sl]
+        for dy in range(s):
+            for dx in range(s):
+                out[:, r0 + dy:r1 + dy, dx:dx + ww] += src * kern[dy * s + dx]
     return out[:, m:m + hh, m:m + ww]
 
 
@@ -269,7 +310,8 @@ def render_brute_force(optics: LensOptics, scene: Scene, field_samples: int = 33
     """Reference render: every source sample spread by its own PSF (polar PSF grid as fine as asked, no
     low-rank step); for the accuracy table and tests only (slow)."""
     ref = LensOptics(optics.analysis, field_samples=field_samples, azimuth_samples=azimuth_samples,
-                     components=None, pupil_samples=optics.pupil_samples, max_kernel=optics.max_kernel,
+                     components=None, pupil_samples=optics.pupil_samples,
+                     max_pupil_samples=optics.max_pupil_samples, max_kernel=optics.max_kernel,
                      distortion_samples=optics.distortion_samples, ri_samples=optics.ri_samples,
                      transmittance=optics.transmittance)
     ref._cache = {k: v for k, v in optics._cache.items() if k[0] in ("radial", "psfs")}  # shared tables

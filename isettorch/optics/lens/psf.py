@@ -21,11 +21,12 @@ from .analysis import REFERENCE_WAVELENGTH_NM, LensAnalysis
 __all__ = ["otf_sampler", "psf_on_grid", "chief_ray_heights_mm", "spot_radius_mm"]
 
 
-def otf_sampler(analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int = 64):
+def otf_sampler(analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int = 64,
+                max_samples: int = 256):
     """A function ``(nu_t, nu_s) -> complex OTF`` (cycles/mm along the field direction and across it), standard
     convention OTF(nu) = integral psf(x) exp(-2 pi i nu x) dx, zero beyond the pupil's autocorrelation support."""
     with torch.no_grad():
-        otf, pf = analysis.otf_grid(field, wavelength_nm, samples)
+        otf, pf = analysis.otf_grid(field, wavelength_nm, samples, max_samples=max_samples)
         n = pf["samples"]
         cut_t, cut_s = (float(c) for c in pf["cutoff_cy_mm"])
         # orientation: pupil +y maps to image-space direction cosine M with the sign of dM/dpy
