@@ -290,5 +290,7 @@ def build_camera(cfg: dict) -> Camera:
             raise ValueError(f"config: missing section {section!r} (sections: {list(CONFIG_SECTIONS)})")
     cam_cfg = cfg.get("camera") or {}
     _check_keys(cam_cfg, CAMERA_KEYS, "camera")
-    return Camera(_build_optics(cfg["optics"] or {}), _build_sensor(cfg["sensor"] or {}),
+    from .optics.factory import build_optics  # every optics type (isettorch.optics.factory)
+
+    return Camera(build_optics(cfg["optics"] or {}), _build_sensor(cfg["sensor"] or {}),
                   _build_isp(cfg.get("isp") or {}), noise=cam_cfg.get("noise", True), name=str(cfg.get("name", "")))
