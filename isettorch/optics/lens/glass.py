@@ -4,6 +4,11 @@ The catalogue data (Schott, Ohara, Hoya, CDGM, Hikari, Sumita Sellmeier/Cauchy c
 makers) come from the `opticalglass` package (BSD-3, the glass library of `rayoptics`); nothing is hand-written
 here. A bare glass name is searched **only** in the catalogues the prescription declares, in the declared order,
 so that e.g. ``F2`` in a ``GCAT SCHOTT`` file is Schott's F2 (n_d = 1.62004), never CDGM's F2 (n_d = 1.61293).
+Zemax catalogues that opticalglass does not carry (MISC, ZEONEX, INFRARED, ... : plastics, crystals, silica) are
+looked up, only when the file declares such a catalogue and only after its maker catalogues, in optiland's
+refractiveindex.info material database (optional extra ``lens-reference``; an error names the glass otherwise).
+Those data are not OpticStudio's MISC values (PMMA n_d 1.4906 vs 1.4918), so plastic lenses agree to ~1e-3 in
+index only.
 """
 
 from __future__ import annotations
@@ -50,8 +55,39 @@ def resolve_glass(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS):
             return gf.create_glass(name, key)
         except Exception:  # opticalglass raises GlassNotFoundError (not exported uniformly across versions)
             continue
+    others = [c for c in catalogs if c.upper() not in CATALOGS]
+    if others:
+        g = _optiland_material(name)
+        if g is not None:
+            return g
+        tried.append("optiland database (for " + "/".join(others) + ")")
     raise GlassError(f"glass {name!r}: not found in the prescription's glass catalogues {tried}; expected a "
                      f"glass of one of them (add its catalogue to GCAT, or use a known glass name)")
+
+
+class _OptilandGlass:
+    """Adapter: an optiland material with opticalglass's ``rindex(wavelength_nm)``."""
+
+    def __init__(self, material):
+        self.material = material
+
+    def rindex(self, wavelength_nm: float) -> float:
+        import numpy as np
+
+        return float(np.asarray(self.material.n(wavelength_nm / 1000.0)).ravel()[0])
+
+
+def _optiland_material(name: str):
+    try:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            from optiland.materials import Material
+
+            return _OptilandGlass(Material(name))
+    except Exception:  # not installed, or no such material
+        return None
 
 
 @functools.lru_cache(maxsize=4096)

@@ -205,7 +205,7 @@ def read_zmx(path: str | Path) -> Prescription:
                 g = tok[1]
                 if g.upper() == "MIRROR":
                     raise PrescriptionError(f"{at}: mirrors are not supported (refractive lenses only)")
-                if g.startswith("___BLANK") or (len(tok) > 2 and tok[2] == "1"):
+                if g.startswith("___BLANK"):
                     raise PrescriptionError(f"{at}: model glass {g!r} (index/Abbe solve) is not supported; "
                                             f"expected a catalogue glass name")
                 cur.material = None if g.upper() == "AIR" else g

@@ -24,6 +24,15 @@ def test_catalogue_indices_and_gcat_order():
         refractive_index("N-BK7", 550.0, ("OHARA",))
 
 
+def test_catalogues_opticalglass_lacks_fall_back_to_optiland_only_when_declared():
+    pytest.importorskip("optiland")
+    # PMMA (Zemax MISC catalogue n_d = 1.4918); optiland's refractiveindex.info data give 1.4906: the fallback
+    # is good to ~1e-3 in index only (documented in glass.py)
+    assert refractive_index("PMMA", 587.6, ("SCHOTT", "MISC")) == pytest.approx(1.4918, abs=2e-3)
+    with pytest.raises(GlassError, match="PMMA"):
+        refractive_index("PMMA", 587.6, ("SCHOTT",))
+
+
 def _singlet(t=6.0, r1=50.0, r2=-80.0, stop_after=None, float_by_stop=False):
     surfaces = [{"radius_mm": r1, "thickness_mm": t, "material": "N-BK7"},
                 {"radius_mm": r2, "thickness_mm": 20.0 if stop_after else 60.0}]
