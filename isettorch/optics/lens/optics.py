@@ -48,7 +48,7 @@ class LensOptics(nn.Module):
         transmittance: scalar lens transmittance (absorption and Fresnel losses are not ray traced).
     """
 
-    def __init__(self, lens, *, field_samples: int = 9, azimuth_samples: int = 16, components: int | None = 12,
+    def __init__(self, lens, *, field_samples: int = 13, azimuth_samples: int = 24, components: int | None = 16,
                  pupil_samples: int = 64, max_pupil_samples: int = 256, max_kernel: int = 129,
                  distortion_samples: int = 16, ri_samples: int = 64, cache_elements: int = 64 * 2**20,
                  transmittance: float = 1.0, dtype=torch.float64):
