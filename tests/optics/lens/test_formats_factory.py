@@ -97,7 +97,12 @@ def test_lens_camera_config_renders():
     from isettorch.optics.lens.optics import LensOptics
     from isettorch.scene.scene import Scene
 
-    cfg = Path(__file__).resolve().parents[3] / "configs" / "cameras" / "cooke_lens.yaml"
+    import yaml
+
+    path = Path(__file__).resolve().parents[3] / "configs" / "cameras" / "cooke_lens.yaml"
+    cfg = yaml.safe_load(path.read_text())
+    assert cfg["optics"]["type"] == "lens"
+    cfg["sensor"]["rows"] = cfg["sensor"]["cols"] = 16  # a small window of the optical image for the test
     cam = Camera.from_config(cfg)
     assert isinstance(cam.optics, LensOptics)
     cam.optics = LensOptics(cam.optics.analysis, field_samples=3, azimuth_samples=4, components=4,
