@@ -93,11 +93,11 @@ def test_lens_camera_config_renders():
     pytest.importorskip("opticalglass")
     from pathlib import Path
 
+    import yaml
+
     from isettorch.camera import Camera
     from isettorch.optics.lens.optics import LensOptics
     from isettorch.scene.scene import Scene
-
-    import yaml
 
     path = Path(__file__).resolve().parents[3] / "configs" / "cameras" / "cooke_lens.yaml"
     cfg = yaml.safe_load(path.read_text())
