@@ -64,6 +64,9 @@ class LensGeometry:
         self.aperture_min = torch.tensor([s.aperture_min_mm for s in lens], **kw)
         self.materials = [s.material for s in p.surfaces[:-1]]  # medium before lens surface i (0 = object space)
         self.stop = p.stop_index - 1
+        # OpticStudio without ray aiming: rays fill the paraxial entrance pupil; the stop surface does not clip
+        self.aperture[self.stop] = math.inf
+        self.aperture_min[self.stop] = 0.0
         self.dtype, self.device = dtype, device
         self._cache: dict = {}
 

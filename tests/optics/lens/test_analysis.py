@@ -100,6 +100,19 @@ def test_fully_vignetted_field_is_an_error_not_nan():
         a.mtf(1.0, 587.6, [10.0], samples=32)
 
 
+def test_the_stop_does_not_clip_other_apertures_do():
+    def lens(stop_ap, rear_ap):
+        return LensAnalysis(read_lens_yaml({
+            "aperture": {"entrance_pupil_diameter_mm": 8.0}, "field_angles_deg": [0, 10], "catalogs": ["SCHOTT"],
+            "surfaces": [{"radius_mm": math.inf, "thickness_mm": 5.0, "stop": True, "aperture_mm": stop_ap},
+                         {"radius_mm": 50.0, "thickness_mm": 6.0, "material": "N-BK7"},
+                         {"radius_mm": -80.0, "thickness_mm": 60.0, "aperture_mm": rear_ap}]}))
+    assert float(lens(1.0, None).relative_illumination(1.0, 587.6, 64)) == pytest.approx(
+        float(lens(None, None).relative_illumination(1.0, 587.6, 64)), abs=1e-12)
+    assert float(lens(None, 4.5).relative_illumination(1.0, 587.6, 64)) < float(
+        lens(None, None).relative_illumination(1.0, 587.6, 64)) - 0.05
+
+
 def test_unknown_glass_in_file_named(tmp_path):
     f = tmp_path / "g.yaml"
     f.write_text("aperture: {entrance_pupil_diameter_mm: 4}\ncatalogs: [SCHOTT]\nsurfaces:\n"
