@@ -231,9 +231,10 @@ def test_against_optiland(name):
                                            ("aspheric_singlet", 0.5, 587.6)])
 def test_mtf_against_optiland_fft_mtf(name, field, wl):
     import numpy as np
-    from optiland.mtf import FFTMTF
 
     a, o = _optiland(name)
+    from optiland.mtf import FFTMTF
+
     if a.prescription.float_by_stop:
         o.set_aperture(aperture_type="EPD", value=float(a.ref["epd"]))
     o.set_thickness(float(a.paraxial(587.6)["bfl"]), a.geometry.n_surfaces)
