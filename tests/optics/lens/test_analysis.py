@@ -273,3 +273,36 @@ def test_diffraction_limited_mtf_is_the_analytic_one():
     ref = 2 / math.pi * (torch.arccos(s) - s * torch.sqrt(1 - s * s))
     torch.testing.assert_close(mt, ref, atol=5e-3, rtol=0)
     torch.testing.assert_close(ms, ref, atol=5e-3, rtol=0)
+
+
+def test_wide_angle_100_deg_against_optiland_without_ray_aiming():
+    """A 100 deg retrofocus (optiland samples.objectives.WideAngle100FOV; -50 % distortion, strong pupil
+    aberration) rebuilt from optiland's own surfaces: chief rays through the paraxial entrance pupil agree with
+    optiland's paraxial ray aiming, RI with its rays' direction-cosine hull."""
+    pytest.importorskip("optiland")
+    import warnings
+
+    import numpy as np
+
+    warnings.filterwarnings("ignore")
+    from optiland.samples.objectives import WideAngle100FOV
+
+    o = WideAngle100FOV()
+    o.ray_tracer.set_aiming("paraxial")  # the sample aims rays iteratively; OpticStudio's default does not
+    sg = o.surface_group.surfaces
+    z = [_f(s.geometry.cs.z) for s in sg]
+    surfs = [{"radius_mm": _f(s.geometry.radius), "thickness_mm": z[i + 2] - z[i + 1],
+              "material": getattr(s.material_post, "name", None), "stop": bool(s.is_stop)}
+             for i, s in enumerate(sg[1:-1])]
+    a = LensAnalysis(read_lens_yaml({"aperture": {"entrance_pupil_diameter_mm": _f(o.paraxial.EPD())},
+                                     "field_angles_deg": [0, 35, 50], "catalogs": ["SCHOTT"], "surfaces": surfs}))
+    assert float(a.effective_focal_length_mm) == pytest.approx(_f(o.paraxial.f2()), rel=1e-6)
+    for wl in (486.1, 587.6):
+        o.set_thickness(float(a.paraxial(wl)["bfl"]), a.geometry.n_surfaces)
+        for f in (0.5, 1.0):
+            y, m, nn = _chief(o, f, wl)
+            assert float(a.image_height_mm(f, wl)) == pytest.approx(y, abs=1e-7)
+            assert float(a.chief_ray_angle_deg(f, wl)) == pytest.approx(math.degrees(math.atan2(m, nn)), abs=1e-6)
+    assert float(a.distortion_percent(1.0, 587.6)) < -50
+    assert float(a.relative_illumination(0.5, 587.6, 128)) == pytest.approx(_optiland_ri(o, 0.5, 587.6), abs=0.01)
+    np.testing.assert_array_less(0, float(a.relative_illumination(1.0, 587.6, 64)))
