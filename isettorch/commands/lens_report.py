@@ -91,16 +91,22 @@ def _plots(analysis, report, fields, waves, freqs, out: Path) -> None:
     fig.tight_layout()
     fig.savefig(out / "distortion_ri_mtf.png", dpi=120)
     plt.close(fig)
+    from ..optics.lens.psf import otf_sampler, psf_on_grid
+
+    pitch_mm = 0.5e-3 * analysis.f_number.item() * 0.5876  # lambda N / 2 at 587.6 nm: Nyquist for the PSF
+    size = 97
+    half_um = size // 2 * pitch_mm * 1e3
     fig, axes = plt.subplots(len(waves), len(fields), figsize=(3 * len(fields), 3 * len(waves)), squeeze=False)
     with torch.no_grad():
         for i, wl in enumerate(waves):
             for j, f in enumerate(fields):
-                otf, _ = analysis.otf_grid(f, wl, 64)
-                psf = torch.fft.fftshift(torch.fft.fft2(otf).real)
-                c = psf.shape[0] // 2
-                axes[i, j].imshow(np.sqrt(np.clip(psf[c - 24:c + 24, c - 24:c + 24].numpy(), 0, None)), cmap="gray")
-                axes[i, j].set_title(f"field {f:g}, {wl:g} nm", fontsize=8)
-                axes[i, j].axis("off")
+                psf = psf_on_grid(otf_sampler(analysis, f, wl, 64), torch.zeros(1, dtype=torch.float64), pitch_mm,
+                                  size)[0]
+                axes[i, j].imshow(np.sqrt(psf.numpy()), cmap="gray", origin="lower",
+                                  extent=(-half_um, half_um, -half_um, half_um))
+                axes[i, j].set_title(f"field {f:g}, {wl:g} nm (sqrt)", fontsize=8)
+                axes[i, j].set_xlabel("x (um)", fontsize=7)
+                axes[i, j].set_ylabel("y, field direction (um)", fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "psf_grid.png", dpi=120)
     plt.close(fig)
