@@ -209,6 +209,9 @@ class LensAnalysis:
         one = torch.ones(2, dtype=self.dtype)
         mt = self.rays(theta, 0 * one, torch.tensor([1.0, -1.0], dtype=self.dtype), wavelength_nm, clip=False)
         ms = self.rays(theta, torch.tensor([1.0, -1.0], dtype=self.dtype), 0 * one, wavelength_nm, clip=False)
+        if not bool(mt.valid.all() & ms.valid.all()):
+            raise TraceError(f"field {field} ({theta:.4g} deg) at {wavelength_nm} nm: a marginal ray of the paraxial "
+                             f"entrance pupil misses a surface, so the MTF frequency scale is undefined")
         cut_t = n_img * (mt.direction[0, 1] - mt.direction[1, 1]).abs() / wl_mm
         cut_s = n_img * (ms.direction[0, 0] - ms.direction[1, 0]).abs() / wl_mm
         orient = (1.0 if float(mt.direction[0, 1] - mt.direction[1, 1]) >= 0 else -1.0,
