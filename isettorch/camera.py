@@ -198,7 +198,6 @@ def warn_if_coarser_than_pixels(oi, sensor) -> None:
 
 
 CONFIG_SECTIONS = ("name", "description", "optics", "sensor", "isp", "camera")
-OPTICS_TYPES = ("diffraction_limited",)
 ISP_KEYS = {
     "demosaic": str, "demosaic_border": str, "demosaic_fallback": str, "illuminant_correction": str,
     "correction_space": str, "correction_white": str, "gains": list, "sensor_conversion": dict,
@@ -276,20 +275,6 @@ def load_config(path) -> dict:
     return cfg
 
 
-def _build_optics(cfg: dict) -> nn.Module:
-    from .optics import DiffractionLimitedOptics
-
-    cfg = dict(cfg)
-    kind = cfg.pop("type", "diffraction_limited")
-    if kind not in OPTICS_TYPES:
-        raise _unknown(kind, OPTICS_TYPES, "optics.type")
-    keys = _signature_keys(DiffractionLimitedOptics.__init__)
-    keys.update(_signature_keys(DiffractionLimitedOptics.__mro__[1].__init__))
-    keys.pop("dtype", None)
-    _check_keys(cfg, keys, "optics")
-    return DiffractionLimitedOptics(**cfg)
-
-
 def _build_sensor(cfg: dict) -> nn.Module:
     from .sensor import PRESETS, Sensor
 
@@ -347,5 +332,7 @@ def build_camera(cfg: dict) -> Camera:
             raise ValueError(f"config: missing section {section!r} (sections: {list(CONFIG_SECTIONS)})")
     cam_cfg = cfg.get("camera") or {}
     _check_keys(cam_cfg, CAMERA_KEYS, "camera")
-    return Camera(_build_optics(cfg["optics"] or {}), _build_sensor(cfg["sensor"] or {}),
+    from .optics.factory import build_optics  # every optics type (isettorch.optics.factory)
+
+    return Camera(build_optics(cfg["optics"] or {}), _build_sensor(cfg["sensor"] or {}),
                   _build_isp(cfg.get("isp") or {}), noise=cam_cfg.get("noise", True), name=str(cfg.get("name", "")))

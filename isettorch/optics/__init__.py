@@ -3,6 +3,7 @@
 from . import analysis, geometry, isetcam
 from .base import ShiftInvariantLens
 from .diffraction import DiffractionLimitedOptics, dl_mtf_1d, dl_otf
+from .factory import build_optics
 from .optical_image import OpticalImage
 from .psf_otf import otf_from_psf
 from .shift_invariant import ShiftInvariantOptics
@@ -10,6 +11,7 @@ from .wavefront import WavefrontOptics, defocus_diopters_to_zernike_um, zernike_
 
 __all__ = [
     "OpticalImage",
+    "build_optics",
     "ShiftInvariantLens",
     "DiffractionLimitedOptics",
     "dl_otf",

@@ -1,0 +1,305 @@
+"""Lens analysis from real rays with OpticStudio's default conventions (object at infinity, no ray aiming).
+
+* Rays fill the paraxial entrance pupil (diameter and position from the paraxial trace at 587.6 nm) for every
+  field and wavelength; the chief ray passes through its centre; clear apertures clip, the stop does not.
+* Image height: chief ray on the paraxial image plane of its own wavelength; distortion
+  100 (y - F tan(theta)) / (F tan(theta)) with F the EFL at 587.6 nm (OpticStudio "F-Tan(Theta)" distortion).
+* Relative illumination: projected solid angle (area in direction-cosine space) of the vignetted image-space beam,
+  relative to the on-axis beam at the same wavelength (OpticStudio's "Relative Illumination", after
+  M. Rimmer, "Relative illumination calculations", Proc. SPIE 655, 1986): integral of |d(L,M)/d(px,py)| over
+  the unvignetted pupil.
+* Diffraction PSF/MTF: FFT of the pupil function A exp(2 pi i W / lambda), W = OPD to the reference sphere
+  centred on the chief ray's image point through the paraxial exit pupil (Goodman, *Introduction to Fourier
+  Optics*, 3rd ed., ch. 6), image plane at the 587.6 nm paraxial focus; frequency scale from the real marginal
+  rays' direction cosines: cutoff = n' |M(0, +1) - M(0, -1)| / lambda (tangential), the same with L (sagittal).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .prescription import Prescription, load_lens
+from .trace import LensGeometry, RayBundle, TraceError
+
+__all__ = ["LensAnalysis", "lens_report", "REFERENCE_WAVELENGTH_NM"]
+
+REFERENCE_WAVELENGTH_NM = 587.6
+
+
+class LensAnalysis:
+    """Real-ray analysis of one lens (caches paraxial data per wavelength).
+
+    Args:
+        lens: a :class:`Prescription`, a path or a bundled lens name.
+        curvature_per_mm: optional ``[S]`` tensor of the lens surfaces' curvatures (for gradients).
+    """
+
+    def __init__(self, lens, curvature_per_mm: torch.Tensor | None = None, dtype=torch.float64):
+        self.prescription: Prescription = load_lens(lens)
+        self.geometry = LensGeometry(self.prescription, curvature_per_mm, dtype=dtype)
+        self.dtype = dtype
+        self._par: dict = {}
+
+    def paraxial(self, wavelength_nm: float) -> dict:
+        key = round(float(wavelength_nm), 6)
+        if key not in self._par or self.geometry.curvature.requires_grad:
+            self._par[key] = self.geometry.paraxial(wavelength_nm)
+        return self._par[key]
+
+    @property
+    def ref(self) -> dict:
+        return self.paraxial(REFERENCE_WAVELENGTH_NM)
+
+    @property
+    def effective_focal_length_mm(self) -> torch.Tensor:
+        return self.ref["efl"]
+
+    @property
+    def f_number(self) -> torch.Tensor:
+        """Paraxial image-space f-number EFL / EPD at 587.6 nm (object at infinity)."""
+        return self.ref["efl"] / self.ref["epd"]
+
+    @property
+    def max_field_deg(self) -> float:
+        return self.prescription.max_field_deg
+
+    def image_plane_z(self, wavelength_nm: float) -> torch.Tensor:
+        """Paraxial focus of ``wavelength_nm`` (mm from the surface-1 vertex)."""
+        g = self.geometry
+        return g.vertex_z[-1] + self.paraxial(wavelength_nm)["bfl"]
+
+    def field_angle_deg(self, field: float) -> float:
+        f = float(field)
+        if not (0.0 <= f <= 1.0 + 1e-9):
+            raise TraceError(f"field: {f} is beyond the lens; expected a fraction in [0, 1] of its largest field "
+                             f"angle {self.max_field_deg} deg")
+        return f * self.max_field_deg
+
+    # --- rays -----------------------------------------------------------------------------------------
+    def rays(self, theta_deg: float, px: torch.Tensor, py: torch.Tensor, wavelength_nm: float,
+             clip: bool = True, record: bool = False) -> RayBundle:
+        """Trace rays of field angle ``theta_deg`` (in the y-z plane) through normalised entrance-pupil points
+        ``(px, py)`` (unit circle = paraxial EP at 587.6 nm). Start points lie on the plane through the EP
+        centre normal to the rays (a plane wavefront: optical path 0 there)."""
+        ref = self.ref
+        r = ref["epd"] / 2
+        th = math.radians(theta_deg)
+        d = torch.stack([torch.zeros_like(px), torch.full_like(px, math.sin(th)), torch.full_like(px, math.cos(th))],
+                        -1)
+        q = torch.stack([px * r, py * r, torch.zeros_like(px) + ref["ep_z"]], -1)
+        c = torch.zeros_like(q)
+        c[..., 2] = ref["ep_z"]
+        p0 = q - ((q - c) * d).sum(-1, keepdim=True) * d
+        return self.geometry.trace(p0, d, wavelength_nm, clip=clip, record=record)
+
+    @staticmethod
+    def to_plane(b: RayBundle, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Positions ``[..., 3]`` where rays cross the plane ``z``, and the signed distance travelled."""
+        t = (z - b.position[..., 2]) / b.direction[..., 2]
+        return b.position + t[..., None] * b.direction, t
+
+    def chief_ray(self, field: float, wavelength_nm: float, image_z: torch.Tensor | None = None):
+        """Chief ray at the paraxial image plane (of ``wavelength_nm`` unless ``image_z``): (point, direction)."""
+        theta = self.field_angle_deg(field)
+        z0 = torch.zeros(1, dtype=self.dtype)
+        b = self.rays(theta, z0, z0, wavelength_nm, clip=False)
+        if not bool(b.valid.all()):
+            raise TraceError(f"field {field} ({theta:.4g} deg) at {wavelength_nm} nm: the chief ray misses a "
+                             f"surface or is totally reflected; the field is beyond the lens")
+        z = self.image_plane_z(wavelength_nm) if image_z is None else image_z
+        pt, _ = self.to_plane(b, z)
+        return pt[0], b.direction[0]
+
+    # --- report quantities ------------------------------------------------------------------------
+    def image_height_mm(self, field: float, wavelength_nm: float) -> torch.Tensor:
+        return self.chief_ray(field, wavelength_nm)[0][1]
+
+    def distortion_percent(self, field: float, wavelength_nm: float) -> torch.Tensor:
+        theta = math.radians(self.field_angle_deg(field))
+        y = self.image_height_mm(field, wavelength_nm)
+        if theta == 0.0:
+            return torch.zeros((), dtype=self.dtype)
+        yp = self.effective_focal_length_mm * math.tan(theta)
+        return 100.0 * (y - yp) / yp
+
+    def chief_ray_angle_deg(self, field: float, wavelength_nm: float) -> torch.Tensor:
+        """Image-space chief-ray angle to the axis (deg), positive when the ray rises towards +y."""
+        d = self.chief_ray(field, wavelength_nm)[1]
+        return torch.rad2deg(torch.atan2(d[1], d[2]))
+
+    def relative_illumination(self, field: float, wavelength_nm: float, samples: int = 256) -> torch.Tensor:
+        """Projected solid angle of the vignetted image-space beam over the on-axis one (same wavelength)."""
+        axis = self._beam_solid_angle(0.0, wavelength_nm, samples)
+        if float(axis) <= 0:
+            raise TraceError(f"relative illumination at {wavelength_nm} nm: no on-axis ray passes the clear "
+                             f"apertures")
+        return self._beam_solid_angle(field, wavelength_nm, samples) / axis
+
+    def _beam_solid_angle(self, field, wavelength_nm, samples):
+        theta = self.field_angle_deg(field)
+        u = (torch.arange(samples, dtype=self.dtype) - (samples - 1) / 2) * (2.0 / samples)
+        py, px = torch.meshgrid(u, u, indexing="ij")
+        inside = px * px + py * py <= 1.0
+        px, py = px[inside], py[inside]
+        h = 1e-5
+        b = self.rays(theta, px, py, wavelength_nm, clip=True)
+        bx = self.rays(theta, torch.stack([px + h, px - h]), torch.stack([py, py]), wavelength_nm, clip=False)
+        by = self.rays(theta, torch.stack([px, px]), torch.stack([py + h, py - h]), wavelength_nm, clip=False)
+        dl_dx = (bx.direction[0, :, 0] - bx.direction[1, :, 0]) / (2 * h)
+        dm_dx = (bx.direction[0, :, 1] - bx.direction[1, :, 1]) / (2 * h)
+        dl_dy = (by.direction[0, :, 0] - by.direction[1, :, 0]) / (2 * h)
+        dm_dy = (by.direction[0, :, 1] - by.direction[1, :, 1]) / (2 * h)
+        det = (dl_dx * dm_dy - dl_dy * dm_dx).abs()
+        return torch.where(b.valid, det, torch.zeros_like(det)).sum() * (2.0 / samples) ** 2
+
+    # --- pupil function, PSF, MTF --------------------------------------------------------------------
+    def pupil_function(self, field: float, wavelength_nm: float, samples: int = 128,
+                       image_z: torch.Tensor | None = None) -> dict:
+        """Pupil function on a ``samples x samples`` grid over the entrance pupil (rows = y = field direction).
+
+        Returns a dict: ``pupil`` (complex ``[N, N]``), ``opd_waves`` (0 outside the beam), ``valid``,
+        ``cutoff_cy_mm`` (tangential, sagittal) and ``image_point`` (chief ray at ``image_z``, default the
+        587.6 nm paraxial focus).
+        """
+        theta = self.field_angle_deg(field)
+        zi = self.image_plane_z(REFERENCE_WAVELENGTH_NM) if image_z is None else image_z
+        par = self.paraxial(wavelength_nm)
+        ipt, _ = self.chief_ray(field, wavelength_nm, image_z=zi)
+        z0 = torch.zeros(1, dtype=self.dtype)
+        chief = self.rays(theta, z0, z0, wavelength_nm, clip=False)
+        # reference sphere: centre = chief ray's image point, through the chief ray at the paraxial exit pupil
+        g = self.geometry
+        xp = par["xp_z"]
+        if torch.isfinite(xp) and abs(float(xp)) < 1e6:
+            e, _ = self.to_plane(chief, g.vertex_z[-1] + xp)
+            radius = torch.linalg.vector_norm(e[0] - ipt)
+        else:
+            radius = None
+        u = (torch.arange(samples, dtype=self.dtype) - (samples - 1) / 2) * (2.0 / samples)
+        py, px = torch.meshgrid(u, u, indexing="ij")
+        inside = px * px + py * py <= 1.0
+        b = self.rays(theta, px, py, wavelength_nm, clip=True)
+        valid = b.valid & inside
+        n_img = par["n_image"]
+
+        def opl_to_sphere(bb: RayBundle):
+            if radius is None:  # telecentric image space: reference plane through the chief ray, normal to it
+                dc = chief.direction[0]
+                t = ((ipt - bb.position) * dc).sum(-1) / (bb.direction * dc).sum(-1)
+                return bb.opl + n_img * t
+            rel = bb.position - ipt
+            bq = (rel * bb.direction).sum(-1)
+            cq = (rel * rel).sum(-1) - radius * radius
+            disc = bq * bq - cq
+            disc = torch.where(disc > 0, disc, torch.zeros_like(disc))
+            return bb.opl + n_img * (-bq - torch.sqrt(disc))
+
+        if not bool(valid.any()):
+            raise TraceError(f"field {field} ({theta:.4g} deg) at {wavelength_nm} nm: every ray of the pupil misses "
+                             f"the lens's clear apertures (fully vignetted); no PSF/MTF")
+        opl = opl_to_sphere(b)
+        opl_c = opl_to_sphere(chief)[0]
+        wl_mm = wavelength_nm * 1e-6
+        opd_w = torch.where(valid, (opl - opl_c) / wl_mm, torch.zeros_like(opl))
+        phase = 2 * math.pi * opd_w
+        pupil = torch.polar(valid.to(self.dtype), phase)
+        # frequency scale: real marginal rays' direction cosines (apertures ignored so they always exist)
+        one = torch.ones(2, dtype=self.dtype)
+        mt = self.rays(theta, 0 * one, torch.tensor([1.0, -1.0], dtype=self.dtype), wavelength_nm, clip=False)
+        ms = self.rays(theta, torch.tensor([1.0, -1.0], dtype=self.dtype), 0 * one, wavelength_nm, clip=False)
+        if not bool(mt.valid.all() & ms.valid.all()):
+            raise TraceError(f"field {field} ({theta:.4g} deg) at {wavelength_nm} nm: a marginal ray of the paraxial "
+                             f"entrance pupil misses a surface, so the MTF frequency scale is undefined")
+        cut_t = n_img * (mt.direction[0, 1] - mt.direction[1, 1]).abs() / wl_mm
+        cut_s = n_img * (ms.direction[0, 0] - ms.direction[1, 0]).abs() / wl_mm
+        orient = (1.0 if float(mt.direction[0, 1] - mt.direction[1, 1]) >= 0 else -1.0,
+                  1.0 if float(ms.direction[0, 0] - ms.direction[1, 0]) >= 0 else -1.0)
+        return {"pupil": pupil, "opd_waves": opd_w, "valid": valid, "cutoff_cy_mm": (cut_t, cut_s),
+                "orientation": orient, "image_point": ipt}
+
+    def sampled_pupil(self, field, wavelength_nm, samples=128, image_z=None, max_samples: int = 512,
+                      max_step_waves: float = 0.25) -> dict:
+        """:meth:`pupil_function` on a grid fine enough for the wavefront: the grid is doubled (from
+        ``samples`` up to ``max_samples``) until neighbouring samples differ by at most ``max_step_waves``
+        (the sampling criterion of the FFT PSF; OpticStudio warns at the same condition)."""
+        n = int(samples)
+        while True:
+            pf = self.pupil_function(field, wavelength_nm, n, image_z)
+            w, v = pf["opd_waves"], pf["valid"]
+            step = 0.0
+            for dim in (0, 1):
+                both = v.narrow(dim, 1, n - 1) & v.narrow(dim, 0, n - 1)
+                dw = (w.narrow(dim, 1, n - 1) - w.narrow(dim, 0, n - 1)).abs()
+                if both.any():
+                    step = max(step, float(dw[both].max()))
+            if step <= max_step_waves or 2 * n > max_samples:
+                pf["samples"] = n
+                pf["max_step_waves"] = step
+                return pf
+            # jump straight to the grid the measured slope needs (powers of two above n)
+            need = n * 2 ** math.ceil(math.log2(step / max_step_waves))
+            n = int(min(need, max_samples if max_samples >= 2 * n else n))
+
+    def otf_grid(self, field, wavelength_nm, samples=128, image_z=None, max_samples: int = 512):
+        """OTF on the pupil-shift grid (``[2N, 2N]``, DC at [0, 0]) and the pupil data; shift k along rows is
+        the tangential frequency k / N * cutoff_t (N = ``pf['samples']``, adapted to the wavefront)."""
+        pf = self.sampled_pupil(field, wavelength_nm, samples, image_z, max_samples=max_samples)
+        samples = pf["samples"]
+        p = pf["pupil"]
+        nn_ = 2 * samples
+        f = torch.fft.fft2(p, s=(nn_, nn_))
+        psf = f.real ** 2 + f.imag ** 2
+        otf = torch.fft.ifft2(psf)
+        return otf / otf[0, 0].real, pf
+
+    def mtf(self, field: float, wavelength_nm: float, frequencies_cy_mm, samples: int = 128):
+        """Tangential and sagittal diffraction MTF at ``frequencies_cy_mm`` (image at the 587.6 nm focus)."""
+        otf, pf = self.otf_grid(field, wavelength_nm, samples)
+        samples = pf["samples"]
+        mt = otf[:, 0].abs()
+        ms = otf[0, :].abs()
+        cut_t, cut_s = pf["cutoff_cy_mm"]
+        out = []
+        for m, cut in ((mt, cut_t), (ms, cut_s)):
+            vals = []
+            for nu in frequencies_cy_mm:
+                k = float(nu) / float(cut) * samples
+                if k >= samples:
+                    vals.append(torch.zeros((), dtype=self.dtype))
+                    continue
+                k0 = int(math.floor(k))
+                w = k - k0
+                vals.append((1 - w) * m[k0] + w * m[k0 + 1])
+            out.append(torch.stack(vals))
+        return out[0], out[1]
+
+
+def lens_report(lens, fields=(0.0, 0.7, 1.0), wavelengths_nm=(486.1, 587.6, 656.3),
+                frequencies_cy_mm=(20.0, 40.0, 80.0), pupil_samples: int = 128, ri_samples: int = 256) -> dict:
+    """The ``lens-report`` JSON object (see the module docstring for the conventions)."""
+    a = lens if isinstance(lens, LensAnalysis) else LensAnalysis(lens)
+    for f in fields:
+        a.field_angle_deg(f)
+    rows = []
+    with torch.no_grad():
+        for f in fields:
+            for wl in wavelengths_nm:
+                mt, ms = a.mtf(f, wl, frequencies_cy_mm, pupil_samples)
+                rows.append({
+                    "field": float(f), "wavelength_nm": float(wl),
+                    "image_height_mm": float(a.image_height_mm(f, wl)),
+                    "distortion_percent": float(a.distortion_percent(f, wl)),
+                    "relative_illumination": float(a.relative_illumination(f, wl, ri_samples)),
+                    "chief_ray_angle_deg": float(a.chief_ray_angle_deg(f, wl)),
+                    "mtf_tangential": [float(v) for v in mt],
+                    "mtf_sagittal": [float(v) for v in ms],
+                })
+    for r in rows:
+        for k, v in r.items():
+            vals = v if isinstance(v, list) else [v]
+            if any(not math.isfinite(x) for x in vals):
+                raise TraceError(f"lens-report: non-finite {k} at field {r['field']}, {r['wavelength_nm']} nm")
+    return {"effective_focal_length_mm": float(a.effective_focal_length_mm), "f_number": float(a.f_number),
+            "max_field_deg": float(a.max_field_deg), "rows": rows}

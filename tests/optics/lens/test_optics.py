@@ -1,0 +1,145 @@
+"""LensOptics: camera equation x ray-traced RI, distortion/lateral colour, eigen-PSF accuracy, errors, and a
+gradient fit of a surface curvature to a target spot size."""
+
+import math
+
+import pytest
+import torch
+
+pytest.importorskip("opticalglass")
+
+from isettorch.optics.lens import LensAnalysis, TraceError  # noqa: E402
+from isettorch.optics.lens.optics import LensOptics, render_brute_force  # noqa: E402
+from isettorch.scene.scene import Scene  # noqa: E402
+
+WAVES = torch.tensor([486.1, 587.6, 656.3], dtype=torch.float64)
+
+
+def _hfov(optics, h, w, frac=0.98):
+    t = math.tan(math.radians(optics.analysis.max_field_deg)) * frac
+    return 2 * math.degrees(math.atan(t * w / math.hypot(w, h)))
+
+
+@pytest.fixture(scope="module")
+def cooke():
+    return LensOptics("cooke_triplet", field_samples=5, azimuth_samples=8, components=8, distortion_samples=10)
+
+
+def test_uniform_scene_gives_camera_equation_times_ray_traced_ri(cooke):
+    h = w = 48
+    s = Scene(torch.ones(1, 3, h, w, dtype=torch.float64), WAVES, hfov_deg=_hfov(cooke, h, w))
+    oi = cooke(s)
+    m = oi.pad_rows
+    n = float(cooke.f_number)
+    k0 = math.pi / (1 + 4 * n * n)  # ISETCam camera equation, object at infinity
+    img = oi.photons[0, :, m:m + h, m:m + w]
+    # centre samples: RI = 1 (the PSF conserves energy)
+    c = img[:, h // 2 - 1:h // 2 + 1, w // 2 - 1:w // 2 + 1]
+    torch.testing.assert_close(c, torch.full_like(c, k0), rtol=2e-3, atol=0)
+    # along the +y axis, away from the edges: the analysis's RI at that field (distortion mapped)
+    a = cooke.analysis
+    dx_mm = float(oi.sample_spacing_m[0]) * 1e3
+    row = int(h // 2 + 0.3 * h)
+    y_mm = (row - (h - 1) / 2) * dx_mm
+    # field whose chief ray (587.6 nm) lands at y_mm
+    lo, hi = 0.0, 1.0
+    for _ in range(50):
+        mid = (lo + hi) / 2
+        if float(a.chief_ray(mid, 587.6, image_z=a.image_plane_z(587.6))[0][1]) < y_mm:
+            lo = mid
+        else:
+            hi = mid
+    ri = float(a.relative_illumination(lo, 587.6, 128))
+    got = float(img[1, row, w // 2 - 1:w // 2 + 1].mean()) / k0
+    assert got == pytest.approx(ri, abs=5e-3)
+
+
+def test_point_source_lands_at_chief_ray_height_per_wavelength(cooke):
+    h = w = 64
+    x = torch.zeros(1, 3, h, w, dtype=torch.float64)
+    row = h // 2 + 22  # scene sample offset 22.5 from the centre (even size: centre between samples)
+    x[0, :, row, w // 2] = 1.0
+    x[0, :, row, w // 2 - 1] = 1.0
+    s = Scene(x, WAVES, hfov_deg=_hfov(cooke, h, w))
+    oi = cooke(s)
+    m = oi.pad_rows
+    dx_mm = float(oi.sample_spacing_m[0]) * 1e3
+    t_pitch = 2 * math.tan(math.radians(float(s.hfov_deg[0]) / 2)) / w
+    theta = math.degrees(math.atan((row - (h - 1) / 2) * t_pitch))
+    a = cooke.analysis
+    z = a.image_plane_z(587.6)
+    for li, wl in enumerate(WAVES.tolist()):
+        p = oi.photons[0, li]
+        yy = torch.arange(p.shape[0], dtype=torch.float64) - (p.shape[0] - 1) / 2
+        cy = float((p.sum(1) * yy).sum() / p.sum()) * dx_mm
+        y_chief = float(a.chief_ray(theta / a.max_field_deg, wl, image_z=z)[0][1])
+        # centroid = chief ray + the PSF's own (coma) centroid offset, a few um here; pitch ~ 0.4 mm
+        assert cy == pytest.approx(y_chief, abs=0.05 * dx_mm), wl
+    assert m >= 1
+
+
+def test_eigen_psf_error_shrinks_with_components():
+    h = w = 40
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(1, 2, h, w, generator=g, dtype=torch.float64)
+    # a narrow field so the PSF spans several samples
+    opt = LensOptics("double_gauss", field_samples=4, azimuth_samples=8, components=2, distortion_samples=6,
+                     ri_samples=32)
+    s = Scene(x, torch.tensor([486.1, 656.3], dtype=torch.float64), hfov_deg=_hfov(opt, h, w, 0.9) / 30)
+    ref = render_brute_force(opt, s, field_samples=4, azimuth_samples=8).photons
+    assert ref.shape[-1] > w + 2  # a real blur (PSF wider than 3 samples)
+    errs = []
+    for k in (2, 6, 24):
+        o = LensOptics(opt.analysis, field_samples=4, azimuth_samples=8, components=k, distortion_samples=6,
+                       ri_samples=32)
+        o._cache = dict(opt._cache)
+        e = (o(s).photons - ref).pow(2).mean().sqrt() / ref.pow(2).mean().sqrt()
+        errs.append(float(e))
+    assert errs[0] > errs[1] > errs[2] and errs[2] < 1e-3
+
+
+def test_scene_beyond_the_lens_field_is_an_error(cooke):
+    s = Scene(torch.ones(1, 3, 16, 16, dtype=torch.float64), WAVES, hfov_deg=40.0)
+    with pytest.raises(TraceError, match="hfov_deg"):
+        cooke(s)
+
+
+def _rms_spot(a: LensAnalysis, field, z):
+    u = (torch.arange(16, dtype=torch.float64) - 7.5) / 8
+    py, px = torch.meshgrid(u, u, indexing="ij")
+    m = px * px + py * py <= 1
+    b = a.rays(a.field_angle_deg(field), px[m], py[m], 587.6, clip=False)
+    pts, _ = a.to_plane(b, z)
+    d = pts[..., :2] - pts[..., :2].mean(0)
+    return d.pow(2).sum(-1).mean().sqrt()
+
+
+def test_fit_a_surface_curvature_to_a_target_spot_size():
+    """Gradients from a ray-traced image quantity reach a surface curvature: the autograd derivative of the
+    on-axis RMS spot radius (image plane fixed at the file's) matches a central difference, and Newton steps on
+    the Cooke triplet's last curvature reach a target spot radius of 1.5x the starting one."""
+    base = LensAnalysis("cooke_triplet")
+    c0 = base.geometry.curvature.clone()
+    z = torch.tensor(float(base.geometry.vertex_z[-1] + base.geometry.thickness[-1]), dtype=torch.float64)
+
+    def spot(c):
+        return _rms_spot(LensAnalysis("cooke_triplet", curvature_per_mm=c), 0.0, z)
+
+    cur = c0.clone().requires_grad_(True)
+    (g,) = torch.autograd.grad(spot(cur), cur)
+    h = 1e-7
+    e = torch.zeros_like(c0)
+    e[-1] = h
+    fd = (spot(c0 + e) - spot(c0 - e)) / (2 * h)
+    assert float(g[-1]) == pytest.approx(float(fd), rel=1e-5)
+    target = 1.5 * float(spot(c0))
+    c = c0.clone()
+    for _ in range(12):
+        cur = c.clone().requires_grad_(True)
+        r = spot(cur) - target
+        (g,) = torch.autograd.grad(r, cur)
+        assert torch.isfinite(g).all()
+        c = c.clone()
+        c[-1] = c[-1] - r.detach() / g[-1]
+    assert abs(float(spot(c)) - target) < 1e-9
+    assert float(c[-1]) != float(c0[-1]) and torch.equal(c[:-1], c0[:-1])
