@@ -41,7 +41,8 @@ def setup() -> None:
     pip = [PY, "-m", "pip", "install", "--disable-pip-version-check", "-q"]
     # torch first and pinned: an unpinned torch would pull a multi-GB CUDA build.
     _run(*pip, "-c", ROOT / "constraints.txt", "torch==2.13.0")
-    _run(*pip, "-c", ROOT / "constraints.txt", "-e", f"{ROOT}[test]")
+    # The lens extras (glass catalogue, independent reference tracer) and rawpy so their tests run, not skip.
+    _run(*pip, "-c", ROOT / "constraints.txt", "-e", f"{ROOT}[test,lens,lens-reference,raw]")
     STAMP.write_text(_fingerprint())
 
 
