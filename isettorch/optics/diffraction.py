@@ -88,7 +88,7 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
     def plan(self, scene):
         if not self.isetcam:
             return super().plan(scene)
-        h, w = scene.photons.shape[-2:]
+        h, w = scene.height, scene.width
         from .isetcam import pad_sizes
 
         pr, pc = pad_sizes(h, w)

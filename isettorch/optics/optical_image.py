@@ -9,6 +9,96 @@ import torch
 
 from ..image import SpectralImage, angle_for_extent
 
+__all__ = ["OpticalImage", "FourierFactors"]
+
+
+class FourierFactors:
+    """A factored optical image kept in the Fourier domain: the irradiance at wavelength ``l`` is
+
+    ``E[b, l] = irfft2(otf[b, l] * sum_j spectra[b, j, l] * spec[b, j])[r0:r0 + h, c0:c0 + w]``
+
+    with ``spec [B, J, My, Mx // 2 + 1]`` the rFFT of the J spatial maps (padded buffer, spatial factors such as
+    relative illumination applied), ``spectra [B, J, L]`` (with the camera-equation factor and transmittance),
+    ``otf [B or 1, L, My, Mx // 2 + 1]`` (real or complex) and ``window = (r0, c0, h, w)`` in the buffer.
+    It is what a shift-invariant optics returns for a factored scene: J forward FFTs were done; :meth:`project`
+    on K spectral weightings does K inverse FFTs (instead of L), which is how the sensor integrates its QE.
+    """
+
+    def __init__(self, spec: torch.Tensor, spectra: torch.Tensor, otf: torch.Tensor, size: tuple[int, int],
+                 window: tuple[int, int, int, int]):
+        self.spec, self.spectra, self.otf = spec, spectra, otf
+        self.size = (int(size[0]), int(size[1]))
+        self.window = tuple(int(v) for v in window)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return self.spec.shape[0], self.window[2], self.window[3]
+
+    @property
+    def num_wavelengths(self) -> int:
+        return self.spectra.shape[-1]
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.spectra.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.spectra.device
+
+    def _planes(self, weights: torch.Tensor | None) -> torch.Tensor:
+        b, j = self.spec.shape[:2]
+        my, mx = self.size
+        nf = self.spec.shape[-2] * self.spec.shape[-1]
+        n_l = self.spectra.shape[-1]
+        # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
+        # the same real matrix products act on the real and imaginary parts (view_as_real).
+        cube = self.spectra.transpose(1, 2) @ torch.view_as_real(self.spec).reshape(b, j, 2 * nf)  # [B, L, 2F]
+        otf = self.otf.reshape(self.otf.shape[0], n_l, nf)
+        if otf.is_complex():
+            cube = torch.view_as_real(torch.view_as_complex(cube.view(b, n_l, nf, 2)) * otf).view(b, n_l, 2 * nf)
+        elif cube.requires_grad or otf.requires_grad:
+            cube = (cube.view(b, n_l, nf, 2) * otf[..., None]).view(b, n_l, 2 * nf)
+        else:
+            cube.view(b, n_l, nf, 2).mul_(otf[..., None])
+        if weights is not None:
+            cube = weights.to(cube).T @ cube  # [B, K, 2F]
+        planes = torch.view_as_complex(cube.view(b, -1, *self.spec.shape[-2:], 2))
+        r0, c0, h, w = self.window
+        return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
+
+    def project(self, weights: torch.Tensor) -> torch.Tensor:
+        """``sum_l E[b, l] weights[l, k]`` ``[B, K, h, w]``: K inverse FFTs."""
+        return self._planes(weights)
+
+    def dense(self) -> torch.Tensor:
+        """The irradiance cube ``[B, L, h, w]`` (L inverse FFTs)."""
+        return self._planes(None)
+
+    def select(self, index) -> FourierFactors:
+        otf = self.otf[index] if self.otf.shape[0] > 1 else self.otf
+        return FourierFactors(self.spec[index], self.spectra[index], otf, self.size, self.window)
+
+    def scale(self, k: torch.Tensor) -> FourierFactors:
+        return FourierFactors(self.spec, self.spectra * k.reshape(-1, 1, 1), self.otf, self.size, self.window)
+
+    def crop(self, top: int, left: int, height: int, width: int) -> FourierFactors:
+        r0, c0 = self.window[:2]
+        return FourierFactors(self.spec, self.spectra, self.otf, self.size, (r0 + top, c0 + left, height, width))
+
+    def to(self, device=None, dtype=None) -> FourierFactors:
+        cdt = None if dtype is None else (torch.complex128 if dtype == torch.float64 else torch.complex64)
+        otf_dt = None if dtype is None else (cdt if self.otf.is_complex() else dtype)
+        return FourierFactors(self.spec.to(device=device, dtype=cdt), self.spectra.to(device=device, dtype=dtype),
+                              self.otf.to(device=device, dtype=otf_dt), self.size, self.window)
+
+    def detach(self) -> FourierFactors:
+        return FourierFactors(self.spec.detach(), self.spectra.detach(), self.otf.detach(), self.size, self.window)
+
+    def __repr__(self) -> str:
+        return (f"FourierFactors(J={self.spec.shape[1]}, L={self.spectra.shape[-1]}, buffer={self.size}, "
+                f"window={self.window})")
+
 
 @dataclasses.dataclass(eq=False, repr=False)
 class OpticalImage(SpectralImage):
@@ -74,7 +164,7 @@ class OpticalImage(SpectralImage):
 
         The result is re-centred on its own window (the window's centre becomes the axis).
         """
-        p = self._crop_photons(top, left, height, width)
+        data = self._crop_changes(top, left, height, width)
         d = self.image_distance_m if self.image_distance_m is not None else self.focal_length_m
         hfov = None if d is None else angle_for_extent(self.sample_spacing_m * width, d)
-        return self.replace(photons=p, hfov_deg=hfov, pad_rows=0, pad_cols=0)
+        return self.replace(**data, hfov_deg=hfov, pad_rows=0, pad_cols=0)

@@ -25,6 +25,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from .. import spectral
 from .._checks import batch_param
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
@@ -299,12 +300,26 @@ class Sensor(nn.Module):
         """Combined spectral QE on the OI's wavelengths ``[C, L]`` (cached per grid)."""
         return self.spectral_qe(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device)
 
+    def spectral_weights(self, oi: OpticalImage) -> torch.Tensor:
+        """``QE_c(l) dl`` as ``[L, C]``: the projection from irradiance (photons/s/m^2/nm) to electrons/s/m^2."""
+        dl = spectral.wavelength_weights(oi.wavelengths_nm).to(device=oi.device, dtype=oi.dtype)
+        return (self.qe(oi) * dl).T
+
+    def electron_rate_density(self, oi: OpticalImage) -> torch.Tensor:
+        """Photo-electrons/s/m^2 per channel at every OI sample ``[B, C, H, W]`` (before pixel sampling).
+
+        A factored optical image is projected on the C QE weightings directly (C planes, never the L cube).
+        """
+        if oi.is_factored and oi.__dict__.get("_photons") is None:
+            return oi.project(self.spectral_weights(oi))
+        return electron_rate_density(oi.photons, self.qe(oi), oi.wavelengths_nm)
+
     def electron_rate(self, oi: OpticalImage) -> torch.Tensor:
         """Mean photo-electrons per second per pixel ``[B, 1, rows, cols]`` (before PRNU and noise)."""
         if not isinstance(oi, OpticalImage):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
         rows, cols = self.size_for(oi)
-        density = electron_rate_density(oi.photons, self.qe(oi), oi.wavelengths_nm)  # e-/s/m^2 per filter
+        density = self.electron_rate_density(oi)  # e-/s/m^2 per filter
         dx = oi.sample_spacing_m
         if self.sampling == "isetcam":
             planes = []
