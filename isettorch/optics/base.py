@@ -123,6 +123,7 @@ class ShiftInvariantLens(nn.Module):
         self.margin = margin
         self.max_margin_factor = float(max_margin_factor)
         self._otf_cache: OrderedDict = OrderedDict()
+        self._interleaved_cache: dict = {}
 
     # --- to override --------------------------------------------------------------------------------
     def otf(self, fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor,
@@ -184,6 +185,7 @@ class ShiftInvariantLens(nn.Module):
 
     def clear_cache(self) -> None:
         self._otf_cache.clear()
+        self._interleaved_cache.clear()
 
     def margin_samples(self, scene_shape: tuple[int, int], dx: torch.Tensor, wavelengths_nm, f_number) -> int:
         if self.margin is not None:
@@ -297,9 +299,21 @@ class ShiftInvariantLens(nn.Module):
             buf, (pr, pc), window = fft_buffer(maps, (margin, margin), self.pad_mode, window=crop)
             my, mx = buf.shape[-2:]
             fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
-            otf = self._otf_fn(wave, n, dx)(fy, fx)
+            otf = self._interleaved(self._otf_fn(wave, n, dx)(fy, fx))
             factors = FourierFactors(torch.fft.rfft2(buf), spectra, otf, (my, mx), window)
         return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name)
+
+    def _interleaved(self, otf: torch.Tensor) -> torch.Tensor:
+        """A real OTF ``[B, L, My, Mx']`` as ``[B, L, My, Mx', 2]`` (the same value for the real and imaginary
+        parts; contiguous, so the Fourier-domain product is a plain elementwise multiply), cached with the OTF."""
+        if otf.is_complex() or otf.requires_grad:
+            return otf
+        hit = self._interleaved_cache.get(id(otf))
+        if hit is None or hit[0] is not otf:
+            if len(self._interleaved_cache) >= _CACHE_SIZE:
+                self._interleaved_cache.clear()
+            hit = self._interleaved_cache[id(otf)] = (otf, otf[..., None].expand(*otf.shape, 2).contiguous())
+        return hit[1]
 
     def _oi(self, photons, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, name) -> OpticalImage:
         meta = {"full_shape": (h + 2 * pr, w + 2 * pc), "full_pad": (pr, pc)}

@@ -19,7 +19,8 @@ class FourierFactors:
 
     with ``spec [B, J, My, Mx // 2 + 1]`` the rFFT of the J spatial maps (padded buffer, spatial factors such as
     relative illumination applied), ``spectra [B, J, L]`` (with the camera-equation factor and transmittance),
-    ``otf [B or 1, L, My, Mx // 2 + 1]`` (real or complex) and ``window = (r0, c0, h, w)`` in the buffer.
+    ``otf [B or 1, L, My, Mx // 2 + 1]`` (real or complex; a real one may come interleaved, ``[..., 2]``, the same
+    value for the real and imaginary parts) and ``window = (r0, c0, h, w)`` in the buffer.
     It is what a shift-invariant optics returns for a factored scene: J forward FFTs were done; :meth:`project`
     on K spectral weightings does K inverse FFTs (instead of L), which is how the sensor integrates its QE.
     """
@@ -54,13 +55,17 @@ class FourierFactors:
         # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
         # the same real matrix products act on the real and imaginary parts (view_as_real).
         cube = self.spectra.transpose(1, 2) @ torch.view_as_real(self.spec).reshape(b, j, 2 * nf)  # [B, L, 2F]
-        otf = self.otf.reshape(self.otf.shape[0], n_l, nf)
+        otf = self.otf
         if otf.is_complex():
+            otf = otf.reshape(otf.shape[0], n_l, nf)
             cube = torch.view_as_real(torch.view_as_complex(cube.view(b, n_l, nf, 2)) * otf).view(b, n_l, 2 * nf)
-        elif cube.requires_grad or otf.requires_grad:
-            cube = (cube.view(b, n_l, nf, 2) * otf[..., None]).view(b, n_l, 2 * nf)
         else:
-            cube.view(b, n_l, nf, 2).mul_(otf[..., None])
+            # a real OTF, [.., My, Mx'] or interleaved [.., My, Mx', 2] (the optics' cached, contiguous form)
+            otf = otf.reshape(otf.shape[0], n_l, nf, -1)
+            if cube.requires_grad or otf.requires_grad:
+                cube = (cube.view(b, n_l, nf, 2) * otf).view(b, n_l, 2 * nf)
+            else:
+                cube.view(b, n_l, nf, 2).mul_(otf)
         if weights is not None:
             cube = weights.to(cube).T @ cube  # [B, K, 2F]
         planes = torch.view_as_complex(cube.view(b, -1, *self.spec.shape[-2:], 2))

@@ -319,12 +319,12 @@ class Sensor(nn.Module):
             return oi.project(self.spectral_weights(oi))
         return electron_rate_density(oi.photons, self.qe(oi), oi.wavelengths_nm)
 
-    def electron_rate(self, oi: OpticalImage) -> torch.Tensor:
+    def electron_rate(self, oi: OpticalImage, *, qe_scale=None) -> torch.Tensor:
         """Mean photo-electrons per second per pixel ``[B, 1, rows, cols]`` (before PRNU and noise)."""
-        rates, _ = self.channel_rates(oi)
+        rates, _ = self.channel_rates(oi, qe_scale=qe_scale)
         return self.cfa.mosaic(rates)
 
-    def channel_rates(self, oi: OpticalImage, extra_weights: torch.Tensor | None = None
+    def channel_rates(self, oi: OpticalImage, extra_weights: torch.Tensor | None = None, *, qe_scale=None
                       ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Mean photo-electrons/s of **every** channel at every pixel ``[B, C, rows, cols]`` (the CFA's mosaic of
         it is :meth:`electron_rate`), and optionally other spectral projections sampled the same way.
@@ -333,6 +333,8 @@ class Sensor(nn.Module):
             oi: the optical image.
             extra_weights: optional ``[L, K]`` weightings (e.g. CIE XYZ) projected together with the QE (one pass
                 over the image: for a factored image, one set of inverse FFTs) and area-sampled at the pixels.
+            qe_scale: optional per-sample factor (scalar or ``[B]``) on the spectral QE (e.g. a peak QE drawn per
+                sample), so one module serves sensors that differ only by it.
 
         Returns:
             ``(rates [B, C, rows, cols], extra [B, K, rows, cols] or None)``; ``extra`` is the pixel mean of the
@@ -348,6 +350,10 @@ class Sensor(nn.Module):
         sampled = self.sample(density, oi)
         c = len(self.cfa.channel_names)
         rates = sampled[:, :c] * (self.fill_factor * self.pixel_area_m2)
+        if qe_scale is not None:
+            k = batch_param(qe_scale, "qe_scale", rates.shape[0], dtype=rates.dtype, device=rates.device,
+                            positive=True)
+            rates = rates * k.reshape(-1, 1, 1, 1)
         if self.vignetting is not None:
             rates = rates * self.vignetting.to(rates.dtype).to(rates.device)
         return rates, (sampled[:, c:] if extra_weights is not None else None)
@@ -488,7 +494,7 @@ class Sensor(nn.Module):
 
     # --- forward -----------------------------------------------------------------------------
     def forward(self, oi: OpticalImage, *, exposure_s=None, analog_gain=None, noise: bool = True,
-                generator: torch.Generator | None = None, exposure_ev=None, **levels) -> RawImage:
+                generator: torch.Generator | None = None, exposure_ev=None, qe_scale=None, **levels) -> RawImage:
         """Simulate a capture of ``oi``; returns a :class:`RawImage` ``[B, 1, rows, cols]``.
 
         Args:
@@ -499,13 +505,14 @@ class Sensor(nn.Module):
             generator: torch.Generator for the temporal noise (default: the sensor's own, seeded from ``seed``).
             exposure_ev: exposure compensation (stops, scalar or ``[B]``) applied to the fixed or auto exposure
                 (not to an explicit ``exposure_s``).
+            qe_scale: per-sample factor on the spectral QE (see :meth:`channel_rates`).
             levels: per-call values (scalar or ``[B]``) of :data:`PER_CALL_LEVELS` (``read_noise_v``,
                 ``dark_current_e_per_s``, ``dsnu_sigma_v``, ``prnu_sigma_percent``, ``column_fpn_sigma_v``,
                 ``conversion_gain_v_per_e``), e.g. to randomise noise per sample without rebuilding the module.
         """
         if not isinstance(oi, OpticalImage):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
-        rate = self.electron_rate(oi)
+        rate = self.electron_rate(oi, qe_scale=qe_scale)
         if exposure_s is None:
             exposure_s = self.exposure_for(oi, rate, analog_gain, exposure_ev=exposure_ev,
                                            conversion_gain_v_per_e=levels.get("conversion_gain_v_per_e"))
