@@ -157,6 +157,11 @@ class SpectralFactors:
         return f"SpectralFactors(maps={tuple(self.maps.shape)}, spectra={tuple(self.spectra.shape)})"
 
 
+def _trusted_batch(v, b: int, dtype, device) -> bool:
+    """An internal ``[B]`` field already in shape, dtype and device (skips the checks of ``validate=False``)."""
+    return isinstance(v, torch.Tensor) and v.shape == (b,) and v.dtype == dtype and v.device == device
+
+
 def _get_photons(self) -> torch.Tensor:
     # the dense cube; a factored image builds it on first read (and keeps it): fast paths use project()
     p = self.__dict__.get("_photons")
@@ -224,11 +229,23 @@ class SpectralImage:
         for f in self._batch_fields:
             v = getattr(self, f)
             if v is not None:
+                if not validate and _trusted_batch(v, p.shape[0], p.dtype, p.device):
+                    continue
                 setattr(self, f, batch_param(v, f, p.shape[0], dtype=p.dtype, device=p.device,
                                              positive=True))
 
     def _post_init_factored(self, validate: bool) -> None:
         f = self.factors
+        w = self.wavelengths_nm
+        if not validate and isinstance(w, torch.Tensor) and w.dtype == f.dtype and w.device == f.device \
+                and w.dim() == 1:
+            # trusted internal construction (replace, optics output): the grid was checked when first built
+            for name in self._batch_fields:
+                v = getattr(self, name)
+                if v is not None and not _trusted_batch(v, self.batch_size, f.dtype, f.device):
+                    setattr(self, name, batch_param(v, name, self.batch_size, dtype=f.dtype, device=f.device,
+                                                    positive=True))
+            return
         for attr in ("shape", "dtype", "device", "project", "dense", "select", "scale", "to", "detach"):
             if not hasattr(f, attr):
                 raise TypeError(f"factors: expected a factored spectral image (e.g. SpectralFactors) with "
@@ -245,6 +262,8 @@ class SpectralImage:
         for name in self._batch_fields:
             v = getattr(self, name)
             if v is not None:
+                if not validate and _trusted_batch(v, self.batch_size, f.dtype, f.device):
+                    continue
                 setattr(self, name, batch_param(v, name, self.batch_size, dtype=f.dtype, device=f.device,
                                                 positive=True))
 

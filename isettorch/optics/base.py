@@ -124,6 +124,7 @@ class ShiftInvariantLens(nn.Module):
         self.max_margin_factor = float(max_margin_factor)
         self._otf_cache: OrderedDict = OrderedDict()
         self._interleaved_cache: dict = {}
+        self._geometry_cache: dict = {}
 
     # --- to override --------------------------------------------------------------------------------
     def otf(self, fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor,
@@ -186,6 +187,7 @@ class ShiftInvariantLens(nn.Module):
     def clear_cache(self) -> None:
         self._otf_cache.clear()
         self._interleaved_cache.clear()
+        self._geometry_cache.clear()
 
     def margin_samples(self, scene_shape: tuple[int, int], dx: torch.Tensor, wavelengths_nm, f_number) -> int:
         if self.margin is not None:
@@ -211,7 +213,7 @@ class ShiftInvariantLens(nn.Module):
         needs this much of the scene beyond it, which ``forward`` takes care of).
         """
         h, w = scene.height, scene.width
-        n, _, d_i, dx = self._geometry(scene)
+        _, _, _, n, _, d_i, dx = self._spatial_factors(scene)
         wave = scene.wavelengths_nm
         if self.blur_negligible(dx, wave, n):
             margin = 0 if self.margin is None else self.margin
@@ -255,7 +257,24 @@ class ShiftInvariantLens(nn.Module):
 
     def _spatial_factors(self, scene: Scene):
         """``(k [B], T [L] or None, ri [B, 1, H, W] or None, n, f, d_i, dx)``: the camera-equation factor (ISETCam
-        oiCalculateIrradiance), transmittance and relative illumination that turn radiance into irradiance."""
+        oiCalculateIrradiance), transmittance and relative illumination that turn radiance into irradiance.
+
+        Cached (a few entries) per scene geometry when no gradient is needed: they depend only on the optics'
+        settings, the scene's size, FOV, distance and wavelength grid (a dataset of a few cameras repeats them)."""
+        if self._requires_grad() or scene.hfov_deg.requires_grad or scene.distance_m.requires_grad:
+            return self._compute_spatial_factors(scene)
+        key = (scene.height, scene.width, tuple(scene.hfov_deg.tolist()), tuple(scene.distance_m.tolist()),
+               tuple(scene.wavelengths_nm.tolist()), scene.dtype, str(scene.device), self.f_number._version,
+               self.focal_length_m._version, self.relative_illumination, self.camera_equation,
+               None if self.transmittance is None else self.transmittance._version)
+        hit = self._geometry_cache.get(key)
+        if hit is None:
+            if len(self._geometry_cache) >= 4 * _CACHE_SIZE:
+                self._geometry_cache.clear()
+            hit = self._geometry_cache[key] = self._compute_spatial_factors(scene)
+        return hit
+
+    def _compute_spatial_factors(self, scene: Scene):
         h, w = scene.height, scene.width
         dt, dev = scene.dtype, scene.device
         n, f, d_i, dx = self._geometry(scene)

@@ -20,16 +20,20 @@ AE_METHODS = {"luminance": 0.95, "mean": 0.18, "percentile": 0.95}
 
 def percentile_linear(x: torch.Tensor, percentile: float) -> torch.Tensor:
     """Per-row percentile of ``x [B, N]`` with linear interpolation between order statistics (the definition of
-    ``torch.quantile`` / NumPy's default: position ``p (N - 1)``), by two ``kthvalue`` selections (O(N), ~10x
-    faster than ``torch.quantile``'s sort on CPU)."""
+    ``torch.quantile`` / NumPy's default: position ``p (N - 1)``), by partial selections (``topk`` / ``kthvalue``,
+    O(N): 20-40x faster than ``torch.quantile``'s sort on CPU)."""
     n = x.shape[1]
     pos = percentile / 100.0 * (n - 1)
     lo = int(pos)
     frac = pos - lo
-    a = x.kthvalue(lo + 1, dim=1).values
-    if frac == 0 or lo + 1 >= n:
-        return a
-    b = x.kthvalue(lo + 2, dim=1).values
+    if lo + 1 >= n:
+        return x.amax(dim=1)
+    if 2 * lo >= n:  # a high percentile: the two order statistics are the smallest of the top n - lo values
+        two = x.topk(n - lo, dim=1, sorted=False).values.topk(2, dim=1, largest=False, sorted=True).values
+        a, b = two[:, 0], two[:, 1]
+    else:
+        a = x.kthvalue(lo + 1, dim=1).values
+        b = x.kthvalue(lo + 2, dim=1).values if frac else a
     return a + (b - a) * frac
 
 

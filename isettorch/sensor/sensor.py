@@ -208,6 +208,7 @@ class Sensor(nn.Module):
         self.register_buffer("fpn_prnu", None)
         self.register_buffer("fpn_column", None)
         self._generators: dict[str, torch.Generator] = {}
+        self._weights_cache: dict = {}
 
     # --- construction helpers ------------------------------------------------------------
     @classmethod
@@ -306,9 +307,24 @@ class Sensor(nn.Module):
         return self.spectral_qe(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device)
 
     def spectral_weights(self, oi: OpticalImage) -> torch.Tensor:
-        """``QE_c(l) dl`` as ``[L, C]``: the projection from irradiance (photons/s/m^2/nm) to electrons/s/m^2."""
+        """``QE_c(l) dl`` as ``[L, C]``: the projection from irradiance (photons/s/m^2/nm) to electrons/s/m^2
+        (cached per QE module and grid unless the QE is learnable)."""
+        qe_mod = self.spectral_qe
+        cacheable = not getattr(qe_mod, "learnable", True)
+        if cacheable:
+            key = (id(qe_mod), getattr(getattr(qe_mod, "fixed_filters", None), "_version", None),
+                   tuple(oi.wavelengths_nm.tolist()), oi.dtype, str(oi.device))
+            hit = self._weights_cache.get(key)
+            # the module is kept in the entry: its id cannot be reused while it is cached
+            if hit is not None and hit[0] is qe_mod:
+                return hit[1]
         dl = spectral.wavelength_weights(oi.wavelengths_nm).to(device=oi.device, dtype=oi.dtype)
-        return (self.qe(oi) * dl).T
+        out = (self.qe(oi) * dl).T
+        if cacheable:
+            if len(self._weights_cache) > 16:
+                self._weights_cache.clear()
+            self._weights_cache[key] = (qe_mod, out)
+        return out
 
     def electron_rate_density(self, oi: OpticalImage) -> torch.Tensor:
         """Photo-electrons/s/m^2 per channel at every OI sample ``[B, C, H, W]`` (before pixel sampling).
@@ -452,6 +468,11 @@ class Sensor(nn.Module):
         if value is None:
             return getattr(self, name)
         positive = name == "conversion_gain_v_per_e"
+        if isinstance(value, (int, float)) and not isinstance(value, bool):  # a scalar for the whole batch
+            if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
+                raise ValueError(f"{name}: expected a {'positive' if positive else 'non-negative'} finite value, "
+                                 f"got {value!r}")
+            return float(value)
         t = batch_param(value, name, b, dtype=dtype, device=device, positive=positive)
         if not positive and bool((t < 0).any()):
             raise ValueError(f"{name}: expected non-negative values, got {t.min().item():.6g}")

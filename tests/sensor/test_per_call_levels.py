@@ -69,3 +69,15 @@ def test_exposure_compensation_and_all_channel_readout():
     lin = (rates * raw.exposure_s.reshape(-1, 1, 1, 1)) * k.reshape(-1, 1, 1, 1) + s.black_level_dn
     below = all_channels < s.white_level_dn
     assert torch.allclose(all_channels[below], lin[below], rtol=1e-12)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000])
+def test_percentile_matches_numpy(n):
+    import numpy as np
+
+    from isettorch.sensor.exposure import percentile_linear
+
+    x = torch.rand(3, n, generator=torch.Generator().manual_seed(n), dtype=torch.float64)
+    for p in (0.0, 12.5, 50.0, 98.0, 100.0):
+        np.testing.assert_allclose(percentile_linear(x, p).numpy(), np.percentile(x.numpy(), p, axis=1),
+                                   rtol=1e-14, atol=0)
