@@ -318,8 +318,9 @@ class ShiftInvariantLens(nn.Module):
             buf, (pr, pc), window = fft_buffer(maps, (margin, margin), self.pad_mode, window=crop)
             my, mx = buf.shape[-2:]
             fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
-            otf = self._interleaved(self._otf_fn(wave, n, dx)(fy, fx))
-            factors = FourierFactors(torch.fft.rfft2(buf), spectra, otf, (my, mx), window)
+            otf = self._otf_fn(wave, n, dx)(fy, fx)
+            factors = FourierFactors(torch.fft.rfft2(buf), spectra, self._interleaved(otf), (my, mx), window,
+                                     None if otf.is_complex() else otf)
         return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name)
 
     def _interleaved(self, otf: torch.Tensor) -> torch.Tensor:

@@ -26,8 +26,9 @@ class FourierFactors:
     """
 
     def __init__(self, spec: torch.Tensor, spectra: torch.Tensor, otf: torch.Tensor, size: tuple[int, int],
-                 window: tuple[int, int, int, int]):
+                 window: tuple[int, int, int, int], plain_otf: torch.Tensor | None = None):
         self.spec, self.spectra, self.otf = spec, spectra, otf
+        self.plain_otf = plain_otf  # the real OTF [.., My, Mx'] when ``otf`` is its interleaved copy
         self.size = (int(size[0]), int(size[1]))
         self.window = tuple(int(v) for v in window)
 
@@ -52,6 +53,10 @@ class FourierFactors:
         my, mx = self.size
         nf = self.spec.shape[-2] * self.spec.shape[-1]
         n_l = self.spectra.shape[-1]
+        if weights is not None and not self.otf.is_complex():
+            k = weights.shape[1]
+            if j * k < 2 * (j + k + 1):  # fewer operations folding the spectra and weights into the OTF first
+                return self._planes_folded(weights.to(self.spectra))
         # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
         # the same real matrix products act on the real and imaginary parts (view_as_real).
         cube = self.spectra.transpose(1, 2) @ torch.view_as_real(self.spec).reshape(b, j, 2 * nf)  # [B, L, 2F]
@@ -72,6 +77,26 @@ class FourierFactors:
         r0, c0, h, w = self.window
         return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
 
+    def _planes_folded(self, weights: torch.Tensor) -> torch.Tensor:
+        """The same projection summed in the other order (real OTF): ``H[j, k] = sum_l spectra[j, l] weights[l, k]
+        otf[l]`` (a real [J K, L] x [L, F] product), then ``sum_j H[j, k] spec[j]``: J K L F operations instead of
+        (J + K + 1) 2 L F, and no [L, F] intermediate (a rank-1 sweep: 3 L F instead of 10 L F)."""
+        b, j = self.spec.shape[:2]
+        my, mx = self.size
+        fy, fx = self.spec.shape[-2:]
+        n_l, k = weights.shape
+        otf = self.otf if self.plain_otf is None else self.plain_otf
+        if otf.dim() == 5:  # interleaved [.., My, Mx', 2]: the real part
+            otf = otf[..., 0]
+        otf = otf.reshape(otf.shape[0], n_l, fy * fx)
+        coef = (self.spectra[:, :, None, :] * weights.T[None, None]).reshape(b, j * k, n_l)  # [B, J K, L]
+        h = (coef @ otf).reshape(b, j, k, fy * fx, 1)  # [B, J, K, F]
+        spec = torch.view_as_real(self.spec).reshape(b, j, 1, fy * fx, 2)
+        planes = (h * spec).sum(dim=1) if j > 1 else (h[:, 0] * spec[:, 0])  # [B, K, F, 2]
+        planes = torch.view_as_complex(planes.reshape(b, k, fy, fx, 2).contiguous())
+        r0, c0, hh, ww = self.window
+        return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + hh, c0:c0 + ww]
+
     def project(self, weights: torch.Tensor) -> torch.Tensor:
         """``sum_l E[b, l] weights[l, k]`` ``[B, K, h, w]``: K inverse FFTs."""
         return self._planes(weights)
@@ -81,24 +106,31 @@ class FourierFactors:
         return self._planes(None)
 
     def select(self, index) -> FourierFactors:
-        otf = self.otf[index] if self.otf.shape[0] > 1 else self.otf
-        return FourierFactors(self.spec[index], self.spectra[index], otf, self.size, self.window)
+        def pick(t):
+            return t if t is None or t.shape[0] == 1 else t[index]
+        return FourierFactors(self.spec[index], self.spectra[index], pick(self.otf), self.size, self.window,
+                              pick(self.plain_otf))
 
     def scale(self, k: torch.Tensor) -> FourierFactors:
-        return FourierFactors(self.spec, self.spectra * k.reshape(-1, 1, 1), self.otf, self.size, self.window)
+        return FourierFactors(self.spec, self.spectra * k.reshape(-1, 1, 1), self.otf, self.size, self.window,
+                              self.plain_otf)
 
     def crop(self, top: int, left: int, height: int, width: int) -> FourierFactors:
         r0, c0 = self.window[:2]
-        return FourierFactors(self.spec, self.spectra, self.otf, self.size, (r0 + top, c0 + left, height, width))
+        return FourierFactors(self.spec, self.spectra, self.otf, self.size, (r0 + top, c0 + left, height, width),
+                              self.plain_otf)
 
     def to(self, device=None, dtype=None) -> FourierFactors:
         cdt = None if dtype is None else (torch.complex128 if dtype == torch.float64 else torch.complex64)
         otf_dt = None if dtype is None else (cdt if self.otf.is_complex() else dtype)
+        plain = None if self.plain_otf is None else self.plain_otf.to(device=device, dtype=dtype)
         return FourierFactors(self.spec.to(device=device, dtype=cdt), self.spectra.to(device=device, dtype=dtype),
-                              self.otf.to(device=device, dtype=otf_dt), self.size, self.window)
+                              self.otf.to(device=device, dtype=otf_dt), self.size, self.window, plain)
 
     def detach(self) -> FourierFactors:
-        return FourierFactors(self.spec.detach(), self.spectra.detach(), self.otf.detach(), self.size, self.window)
+        plain = None if self.plain_otf is None else self.plain_otf.detach()
+        return FourierFactors(self.spec.detach(), self.spectra.detach(), self.otf.detach(), self.size, self.window,
+                              plain)
 
     def __repr__(self) -> str:
         return (f"FourierFactors(J={self.spec.shape[1]}, L={self.spectra.shape[-1]}, buffer={self.size}, "

@@ -388,13 +388,14 @@ class Sensor(nn.Module):
                 # ISETCam regridOI2ISA + interp2 at pixel centres; pixel current = scd x ff x pitch^2.
                 planes.append(sample_point(isetcam_preblur(density[sl], k), dx[sl], self.pixel_size_m, rows, cols))
             return torch.cat(planes) if len(planes) > 1 else planes[0]
-        if self.sampling == "area" and (oi.height, oi.width) == (rows, cols):
-            # One OI sample per pixel on the same centred grid: the photodiode (inside its cell) averages a
-            # constant, so area sampling returns the samples (exact; the grids may differ by the geometry's own
-            # float rounding, a few eps of the spacing)
+        dr, dc = oi.height - rows, oi.width - cols
+        if self.sampling == "area" and dr >= 0 and dc >= 0 and dr % 2 == 0 and dc % 2 == 0:
+            # One OI sample per pixel, pixel centres on sample centres (both grids centred on the axis): the
+            # photodiode (inside its cell) averages a constant, so area sampling returns the samples under the
+            # sensor (exact; the spacings may differ by the geometry's own float rounding, a few eps)
             eps = torch.finfo(dx.dtype).eps
             if bool(((dx.detach() / self.pixel_size_m - 1).abs() <= 4 * eps).all()):
-                return density
+                return density[..., dr // 2:dr // 2 + rows, dc // 2:dc // 2 + cols]
         recon = "linear" if self.sampling == "area_linear" else "constant"
         return sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor, recon)
 
