@@ -153,8 +153,10 @@ class Camera(nn.Module):
 
     def from_raw(self, raw, return_intermediates: bool = False):
         """Resume from a raw image (the sensor's output, possibly modified)."""
+        # the ISP reads the sensor's QE from the raw (ImageProcessor.fit_raw); a raw without it (made by hand)
+        # gets the camera's sensor
         fit = getattr(self.isp, "fit", None)
-        if fit is not None:
+        if fit is not None and getattr(raw, "spectral_qe", None) is None:
             fit(self.sensor)
         res = self.isp(raw)
         image = res.image if isinstance(res, ISPResult) else res

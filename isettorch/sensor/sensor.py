@@ -600,6 +600,7 @@ class Sensor(nn.Module):
             fill_factor=self.fill_factor, adc_bits=self.adc_bits, noise=self.noise_parameters(enabled=noise, **lv),
             noise_free=noise_free, electrons=photo_e,
             metadata={"sensor": self.name, "sampling": self.sampling, "gain_convention": self.gain_convention},
+            spectral_qe=self.spectral_qe,
         )
 
     def _fixed_or_fresh_patterns(self, like: torch.Tensor, g: torch.Generator | None, lv: dict
