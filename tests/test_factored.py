@@ -158,3 +158,17 @@ def test_gradients_flow_through_the_factored_path():
 
     assert torch.autograd.gradcheck(lambda m: rate(m, spectra.detach()), (maps,), eps=1e-6, atol=1e-6 * 1e3)
     assert torch.autograd.gradcheck(lambda sp: rate(maps.detach(), sp), (spectra,), eps=1e3, rtol=1e-5, atol=1e-3)
+
+
+def test_camera_runs_on_the_inputs_device_and_dtype(device, dtype):
+    """Scene -> optics -> sensor on the scene's device and dtype, factored all the way (no cube is built)."""
+    from isettorch.camera import Camera
+
+    s = sc.macbeth(patch_size=4, dtype=dtype, device=device)
+    camera = Camera(DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3).to(device),
+                    Sensor(rows=8, cols=12, pixel_size_m=2e-6, cfa="RGGB", adc_bits=10,
+                           auto_exposure="luminance").to(device))
+    out = camera(s, return_intermediates=True, generator=torch.Generator(device=device).manual_seed(0))
+    assert out.optical_image.is_factored and out.optical_image.__dict__.get("_photons") is None
+    for t in (out.raw.data, out.raw.noise_free, out.image):
+        assert t.dtype == dtype and t.device.type == device.type and bool(torch.isfinite(t).all())
