@@ -59,7 +59,11 @@ class FourierFactors:
                 return self._planes_folded(weights.to(self.spectra))
         # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
         # the same real matrix products act on the real and imaginary parts (view_as_real).
-        cube = self.spectra.transpose(1, 2) @ torch.view_as_real(self.spec).reshape(b, j, 2 * nf)  # [B, L, 2F]
+        spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
+        if b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU)
+            cube = torch.mm(self.spectra[0].T, spec[0])[None]  # [1, L, 2F]
+        else:
+            cube = self.spectra.transpose(1, 2) @ spec  # [B, L, 2F]
         otf = self.otf
         if otf.is_complex():
             otf = otf.reshape(otf.shape[0], n_l, nf)
@@ -72,7 +76,8 @@ class FourierFactors:
             else:
                 cube.view(b, n_l, nf, 2).mul_(otf)
         if weights is not None:
-            cube = weights.to(cube).T @ cube  # [B, K, 2F]
+            wt = weights.to(cube).T
+            cube = torch.mm(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
         planes = torch.view_as_complex(cube.view(b, -1, *self.spec.shape[-2:], 2))
         r0, c0, h, w = self.window
         return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
