@@ -365,11 +365,17 @@ class Sensor(nn.Module):
             density = oi.project(w)
         sampled = self.sample(density, oi)
         c = len(self.cfa.channel_names)
-        rates = sampled[:, :c] * (self.fill_factor * self.pixel_area_m2)
-        if qe_scale is not None:
-            k = batch_param(qe_scale, "qe_scale", rates.shape[0], dtype=rates.dtype, device=rates.device,
+        area = self.fill_factor * self.pixel_area_m2
+        if qe_scale is None:
+            rates = sampled[:, :c] * area
+        elif isinstance(qe_scale, (int, float)) and not isinstance(qe_scale, bool):
+            if not (math.isfinite(qe_scale) and qe_scale > 0):
+                raise ValueError(f"qe_scale: expected a positive finite factor, got {qe_scale!r}")
+            rates = sampled[:, :c] * (area * qe_scale)  # one pass
+        else:
+            k = batch_param(qe_scale, "qe_scale", sampled.shape[0], dtype=sampled.dtype, device=sampled.device,
                             positive=True)
-            rates = rates * k.reshape(-1, 1, 1, 1)
+            rates = sampled[:, :c] * (area * k.reshape(-1, 1, 1, 1))
         if self.vignetting is not None:
             rates = rates * self.vignetting.to(rates.dtype).to(rates.device)
         return rates, (sampled[:, c:] if extra_weights is not None else None)
@@ -456,7 +462,9 @@ class Sensor(nn.Module):
             gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
                                dtype=dt, device=dev, positive=True)
             cg = self._level("conversion_gain_v_per_e", conversion_gain_v_per_e, b, dt, dev)
-            v1 = self._analog(rate * cg, gain) - self._analog(torch.zeros_like(rate), gain)
+            v1 = self._analog(rate * cg, gain)
+            if self.analog_offset_v != 0:  # the response to light only
+                v1 = v1 - self._analog(torch.zeros_like(rate), gain)
             t = auto_exposure(v1, self.usable_swing_v, self.auto_exposure, target=self.ae_target,
                               percentile=self.ae_percentile).to(dt)
         if exposure_ev is not None:
