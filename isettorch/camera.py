@@ -78,17 +78,27 @@ class Camera(nn.Module):
         self.name = name
 
     # --- pipeline ------------------------------------------------------------------------------
-    def forward(self, scene, return_intermediates: bool = False, *, exposure_s=None, generator=None):
-        """Render a :class:`~isettorch.scene.Scene`; returns the image (B, 3, H, W) or a :class:`CameraOutput`.
+    def forward(self, scene, return_intermediates: bool = False, *, exposure_s=None, generator=None,
+                **sensor_kwargs):
+        """Render a :class:`~isettorch.scene.Scene` (dense or factored); returns the image (B, 3, H, W) or a
+        :class:`CameraOutput`.
 
         When the sensor has a fixed size smaller than the optical image and the optics can compute a window
         (``plan()`` and ``crop=``), only the window the sensor sees is computed (see :meth:`sensor_window`).
+        A factored scene stays factored through the optics; the sensor projects it on its QE channels.
+        ``sensor_kwargs``: per-call sensor settings (``analog_gain``, ``exposure_ev``, noise levels as scalars or
+        ``[B]`` tensors: :data:`isettorch.sensor.sensor.PER_CALL_LEVELS`).
         """
-        window = self.sensor_window(scene) if self.crop_to_sensor else None
-        oi = self.optics(scene) if window is None else self.optics(scene, crop=window)
-        out = self.from_optical_image(oi, True, exposure_s=exposure_s, generator=generator)
+        oi = self.optical_image(scene)
+        out = self.from_optical_image(oi, True, exposure_s=exposure_s, generator=generator, **sensor_kwargs)
         out.scene = scene
         return out if return_intermediates else out.image
+
+    def optical_image(self, scene):
+        """The optics' output for ``scene``: only the sensor's window when ``crop_to_sensor`` (see
+        :meth:`sensor_window`)."""
+        window = self.sensor_window(scene) if self.crop_to_sensor else None
+        return self.optics(scene) if window is None else self.optics(scene, crop=window)
 
     def sensor_window(self, scene) -> tuple[int, int, int, int] | None:
         """The window ``(top, left, height, width)`` of the full optical image that the sensor samples, or None.
@@ -104,11 +114,18 @@ class Camera(nn.Module):
             return None
         info = plan(scene)
         full_h, full_w = info["full_shape"]
-        dx = float(info["sample_spacing_m"].min())
+        spacing = info["sample_spacing_m"].detach()
+        dx = float(spacing.min())
         pitch = float(self.sensor.pixel_size_m)
         margin = self.sensor_window_margin + math.ceil(pitch / dx)
+        # One OI sample per pixel (the grids coincide to the geometry's float rounding) and area sampling: each
+        # pixel reads only its own sample, so the window is the sensor's footprint (no sampling margin)
+        same_grid = (getattr(self.sensor, "sampling", None) == "area"
+                     and bool(((spacing / pitch - 1).abs() <= 4 * torch.finfo(spacing.dtype).eps).all()))
 
         def extent(n_pixels: int, full: int) -> tuple[int, int]:
+            if same_grid and (full - n_pixels) % 2 == 0:
+                return ((full - n_pixels) // 2, n_pixels) if n_pixels < full else (0, full)
             half = math.ceil(n_pixels * pitch / (2 * dx)) + margin
             size = 2 * half + (full % 2)  # same parity as the full axis, so the window is exactly centred
             if size >= full:
@@ -121,9 +138,10 @@ class Camera(nn.Module):
             return None
         return top, left, height, width
 
-    def from_optical_image(self, oi, return_intermediates: bool = False, *, exposure_s=None, generator=None):
+    def from_optical_image(self, oi, return_intermediates: bool = False, *, exposure_s=None, generator=None,
+                           **sensor_kwargs):
         """Resume from an optical image (e.g. one a user modified)."""
-        kwargs = {"noise": self.noise}
+        kwargs = {"noise": self.noise, **sensor_kwargs}
         if exposure_s is not None:
             kwargs["exposure_s"] = exposure_s
         if generator is not None:
@@ -136,8 +154,10 @@ class Camera(nn.Module):
 
     def from_raw(self, raw, return_intermediates: bool = False):
         """Resume from a raw image (the sensor's output, possibly modified)."""
+        # the ISP reads the sensor's QE from the raw (ImageProcessor.fit_raw); a raw without it (made by hand)
+        # gets the camera's sensor
         fit = getattr(self.isp, "fit", None)
-        if fit is not None:
+        if fit is not None and getattr(raw, "spectral_qe", None) is None:
             fit(self.sensor)
         res = self.isp(raw)
         image = res.image if isinstance(res, ISPResult) else res

@@ -64,14 +64,150 @@ def xyz_to_srgb_preview(xyz_img: torch.Tensor, white_y: torch.Tensor) -> torch.T
     return srgb_encode(lin)
 
 
+
+class SpectralFactors:
+    """A low-rank spectral image ``radiance(b, l, y, x) = sum_j maps[b, j, y, x] * spectra[b, j, l]``.
+
+    ``maps [B, J, H, W]`` and ``spectra [B, J, L]`` in the image's units (any split of the scale between them).
+    The protocol every factored representation implements (see also the Fourier-domain factors of an
+    optical image, :class:`isettorch.optics.optical_image.FourierFactors`): ``shape`` ``(B, H, W)``, ``dtype``,
+    ``device``, ``project(weights [L, K]) -> [B, K, H, W]``, ``dense() -> [B, L, H, W]``, ``select(index)``,
+    ``scale(k [B])``, ``to(device, dtype)``, ``detach()``; optional ``crop``, ``spectral_map``.
+    """
+
+    def __init__(self, maps: torch.Tensor, spectra: torch.Tensor, validate: bool = True):
+        if not isinstance(maps, torch.Tensor) or not isinstance(spectra, torch.Tensor):
+            raise TypeError(f"maps, spectra: expected torch.Tensors, got {type(maps).__name__}, "
+                            f"{type(spectra).__name__}")
+        if maps.dim() == 3:
+            maps = maps.unsqueeze(0)
+        if spectra.dim() == 2:
+            spectra = spectra.unsqueeze(0)
+        check_rank(maps, 4, "maps", "[B, J, H, W] (or [J, H, W])")
+        check_rank(spectra, 3, "spectra", "[B, J, L] (or [J, L])")
+        if not maps.is_floating_point():
+            maps = maps.to(torch.get_default_dtype())
+        spectra = spectra.to(device=maps.device, dtype=maps.dtype)
+        if spectra.shape[1] != maps.shape[1] or spectra.shape[0] not in (1, maps.shape[0]):
+            raise ValueError(f"spectra: expected shape [{maps.shape[0]}, {maps.shape[1]}, L] to match maps "
+                             f"{tuple(maps.shape)}, got {tuple(spectra.shape)}")
+        if validate:
+            check_nonnegative(maps.detach(), "maps")
+            check_nonnegative(spectra.detach(), "spectra")
+        self.maps = maps
+        self.spectra = spectra.expand(maps.shape[0], -1, -1)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        b, _, h, w = self.maps.shape
+        return b, h, w
+
+    @property
+    def rank(self) -> int:
+        return self.maps.shape[1]
+
+    @property
+    def num_wavelengths(self) -> int:
+        return self.spectra.shape[-1]
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.maps.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.maps.device
+
+    def combine(self, coef: torch.Tensor) -> torch.Tensor:
+        """``sum_j coef[b, j, k] maps[b, j]`` ``[B, K, H, W]`` for per-term coefficients ``coef [B, J, K]``."""
+        b, j, h, w = self.maps.shape
+        return (coef.transpose(1, 2) @ self.maps.reshape(b, j, h * w)).reshape(b, -1, h, w)
+
+    def project(self, weights: torch.Tensor) -> torch.Tensor:
+        """``sum_l radiance(l) weights[l, k]`` ``[B, K, H, W]`` without forming the ``[B, L, H, W]`` cube."""
+        return self.combine(self.spectra @ weights.to(self.spectra))
+
+    def spectral_map(self, fn) -> torch.Tensor:
+        """A linear spectral functional ``fn(x, dim) `` (L -> K along ``dim``) of the radiance ``[B, K, H, W]``."""
+        return self.combine(fn(self.spectra, -1))
+
+    def dense(self) -> torch.Tensor:
+        return self.combine(self.spectra)
+
+    def select(self, index) -> SpectralFactors:
+        return SpectralFactors(self.maps[index], self.spectra[index], validate=False)
+
+    def scale(self, k: torch.Tensor) -> SpectralFactors:
+        """Radiance times ``k [B]`` (the spectra carry it)."""
+        return SpectralFactors(self.maps, self.spectra * k.reshape(-1, 1, 1), validate=False)
+
+    def multiply_spectra(self, s: torch.Tensor) -> SpectralFactors:
+        """Radiance times a spectral factor ``s`` ``[L]`` or ``[B, L]``."""
+        return SpectralFactors(self.maps, self.spectra * (s if s.dim() == 1 else s[:, None, :]), validate=False)
+
+    def crop(self, top: int, left: int, height: int, width: int) -> SpectralFactors:
+        return SpectralFactors(self.maps[..., top:top + height, left:left + width], self.spectra, validate=False)
+
+    def resample(self, src_nm: torch.Tensor, dst_nm: torch.Tensor) -> SpectralFactors:
+        """Linear interpolation onto another grid: it acts on the spectra only (it is linear)."""
+        return SpectralFactors(self.maps, spectral.resample(self.spectra, src_nm, dst_nm, dim=-1), validate=False)
+
+    def to(self, device=None, dtype=None) -> SpectralFactors:
+        return SpectralFactors(self.maps.to(device=device, dtype=dtype), self.spectra.to(device=device, dtype=dtype),
+                               validate=False)
+
+    def detach(self) -> SpectralFactors:
+        return SpectralFactors(self.maps.detach(), self.spectra.detach(), validate=False)
+
+    @staticmethod
+    def cat(parts: list[SpectralFactors]) -> SpectralFactors:
+        """Concatenate along the batch; ranks are padded with zero terms to the largest."""
+        j = max(p.rank for p in parts)
+
+        def pad(t, n):  # zero terms along dim 1
+            return torch.cat([t, t.new_zeros(t.shape[0], n - t.shape[1], *t.shape[2:])], 1) if n > t.shape[1] else t
+        return SpectralFactors(torch.cat([pad(p.maps, j) for p in parts]),
+                               torch.cat([pad(p.spectra, j) for p in parts]), validate=False)
+
+    def __repr__(self) -> str:
+        return f"SpectralFactors(maps={tuple(self.maps.shape)}, spectra={tuple(self.spectra.shape)})"
+
+
+def _trusted_batch(v, b: int, dtype, device) -> bool:
+    """An internal ``[B]`` field already in shape, dtype and device (skips the checks of ``validate=False``)."""
+    return isinstance(v, torch.Tensor) and v.shape == (b,) and v.dtype == dtype and v.device == device
+
+
+def _get_photons(self) -> torch.Tensor:
+    # the dense cube; a factored image builds it on first read (and keeps it): fast paths use project()
+    p = self.__dict__.get("_photons")
+    if p is None:
+        f = self.__dict__.get("factors")
+        if f is not None:
+            p = f.dense()
+            self.__dict__["_photons"] = p
+    return p
+
+
+def _set_photons(self, value) -> None:
+    self.__dict__["_photons"] = value
+
+
 @dataclasses.dataclass(eq=False, repr=False)
 class SpectralImage:
-    """Base of `Scene` and `OpticalImage`: photons [B, L, H, W] on a wavelength grid [L] (nm)."""
+    """Base of `Scene` and `OpticalImage`: photons [B, L, H, W] on a wavelength grid [L] (nm), dense or factored.
 
-    photons: torch.Tensor
+    Dense: ``photons [B, L, H, W]``. Factored: ``photons=None`` and ``factors`` a low-rank representation, e.g.
+    :class:`SpectralFactors` (``maps [B, J, H, W]`` x ``spectra [B, J, L]``, see :meth:`from_factors`). A factored
+    image answers ``project`` (and ``xyz``, luminance, ...) without forming the cube; reading ``.photons`` builds
+    the dense cube once (:meth:`to_dense`), so code written for dense images keeps working.
+    """
+
+    photons: torch.Tensor | None
     wavelengths_nm: torch.Tensor
     name: str = ""
     metadata: dict[str, Any] = dataclasses.field(default_factory=dict)
+    factors: Any = None
     validate: dataclasses.InitVar[bool] = True
 
     # names of per-sample [B] fields in subclasses
@@ -79,7 +215,12 @@ class SpectralImage:
     _units: ClassVar[str] = "photons"
 
     def __post_init__(self, validate: bool = True) -> None:
-        p = self.photons
+        p = self.__dict__.get("_photons")
+        if self.factors is not None:
+            if p is not None:
+                raise ValueError("photons: expected None when factors are given (an image is dense or factored)")
+            self._post_init_factored(validate)
+            return
         if not isinstance(p, torch.Tensor):
             raise TypeError(f"photons: expected a torch.Tensor [B, L, H, W], got {type(p).__name__}")
         if p.dim() == 3:
@@ -104,65 +245,181 @@ class SpectralImage:
         for f in self._batch_fields:
             v = getattr(self, f)
             if v is not None:
+                if not validate and _trusted_batch(v, p.shape[0], p.dtype, p.device):
+                    continue
                 setattr(self, f, batch_param(v, f, p.shape[0], dtype=p.dtype, device=p.device,
                                              positive=True))
 
+    def _post_init_factored(self, validate: bool) -> None:
+        f = self.factors
+        w = self.wavelengths_nm
+        if not validate and isinstance(w, torch.Tensor) and w.dtype == f.dtype and w.device == f.device \
+                and w.dim() == 1:
+            # trusted internal construction (replace, optics output): the grid was checked when first built
+            for name in self._batch_fields:
+                v = getattr(self, name)
+                if v is not None and not _trusted_batch(v, self.batch_size, f.dtype, f.device):
+                    setattr(self, name, batch_param(v, name, self.batch_size, dtype=f.dtype, device=f.device,
+                                                    positive=True))
+            return
+        for attr in ("shape", "dtype", "device", "project", "dense", "select", "scale", "to", "detach"):
+            if not hasattr(f, attr):
+                raise TypeError(f"factors: expected a factored spectral image (e.g. SpectralFactors) with "
+                                f"{attr!r}, got {type(f).__name__}")
+        w = self.wavelengths_nm
+        if not isinstance(w, torch.Tensor):
+            w = torch.as_tensor(w, dtype=f.dtype)
+        w = check_wavelengths(w.reshape(-1) if w.dim() == 0 else w).to(device=f.device, dtype=f.dtype)
+        n_l = getattr(f, "num_wavelengths", w.numel())
+        if w.numel() != n_l:
+            raise ValueError(f"wavelengths_nm: expected {n_l} wavelengths to match the factors' spectra, "
+                             f"got {w.numel()}")
+        self.wavelengths_nm = w
+        for name in self._batch_fields:
+            v = getattr(self, name)
+            if v is not None:
+                if not validate and _trusted_batch(v, self.batch_size, f.dtype, f.device):
+                    continue
+                setattr(self, name, batch_param(v, name, self.batch_size, dtype=f.dtype, device=f.device,
+                                                positive=True))
+
+    @classmethod
+    def from_factors(cls, maps: torch.Tensor, spectra: torch.Tensor, wavelengths_nm, **kwargs) -> SpectralImage:
+        """A factored image ``sum_j maps[:, j] spectra[:, j, l]``: ``maps [B, J, H, W]`` (or ``[J, H, W]``),
+        ``spectra [B, J, L]`` (or ``[J, L]``), both non-negative; other fields as for the dense constructor.
+
+        Example:
+            >>> from isettorch.scene import Scene
+            >>> s = Scene.from_factors(torch.ones(1, 4, 4), torch.ones(1, 31), torch.arange(400., 701., 10.))
+            >>> s.is_factored, tuple(s.photons.shape)
+            (True, (1, 31, 4, 4))
+        """
+        validate = kwargs.get("validate", True)
+        return cls(None, wavelengths_nm, factors=SpectralFactors(maps, spectra, validate=validate), **kwargs)
+
     # --- shape and device -------------------------------------------------------------
     @property
+    def is_factored(self) -> bool:
+        """True when the image is held in a factored (low-rank or Fourier-domain) form (see ``factors``)."""
+        return self.factors is not None
+
+    @property
+    def maps(self) -> torch.Tensor:
+        """The spatial maps ``[B, J, H, W]`` of a factored image (:class:`SpectralFactors`)."""
+        if not isinstance(self.factors, SpectralFactors):
+            raise AttributeError(f"maps: this {type(self).__name__} is not factored into maps x spectra")
+        return self.factors.maps
+
+    @property
+    def spectra(self) -> torch.Tensor:
+        """The spectra ``[B, J, L]`` of a factored image (:class:`SpectralFactors`)."""
+        if not isinstance(self.factors, SpectralFactors):
+            raise AttributeError(f"spectra: this {type(self).__name__} is not factored into maps x spectra")
+        return self.factors.spectra
+
+    def to_dense(self) -> SpectralImage:
+        """The same image with a dense ``photons [B, L, H, W]`` (self when it is dense already)."""
+        if self.factors is None:
+            return self
+        cached = self.__dict__.get("_photons")
+        return self.replace(photons=self.factors.dense() if cached is None else cached)
+
+    def project(self, weights: torch.Tensor) -> torch.Tensor:
+        """``out[b, k] = sum_l photons[b, l] weights[l, k]`` ``[B, K, H, W]`` for ``weights [L, K]``.
+
+        A factored image never forms the ``[B, L, H, W]`` cube (J or K planes instead of L).
+        """
+        if not isinstance(weights, torch.Tensor) or weights.dim() != 2 or weights.shape[0] != self.num_wavelengths:
+            raise ValueError(f"weights: expected a [{self.num_wavelengths}, K] tensor (one row per wavelength), "
+                             f"got {tuple(weights.shape) if isinstance(weights, torch.Tensor) else weights!r}")
+        if self.factors is not None and self.__dict__.get("_photons") is None:
+            return self.factors.project(weights.to(device=self.device, dtype=self.dtype))
+        p = self.photons
+        b, n_l, h, w = p.shape
+        return (weights.to(p).T @ p.reshape(b, n_l, h * w)).reshape(b, -1, h, w)
+
+    def _spectral_map(self, fn) -> torch.Tensor:
+        """``fn(x, dim)``: a functional linear along ``dim`` (L -> K), applied to the image ``[B, K, H, W]``."""
+        f = self.factors
+        if f is not None and self.__dict__.get("_photons") is None:
+            if hasattr(f, "spectral_map"):
+                return f.spectral_map(fn)
+            # a linear functional's weights: its response to each wavelength's delta
+            eye = torch.eye(self.num_wavelengths, dtype=self.dtype, device=self.device)
+            return self.project(fn(eye, -1))
+        return fn(self.photons, 1)
+
+    @property
     def batch_size(self) -> int:
-        return self.photons.shape[0]
+        return self.factors.shape[0] if self.factors is not None else self.photons.shape[0]
 
     @property
     def num_wavelengths(self) -> int:
-        return self.photons.shape[1]
+        return self.wavelengths_nm.numel()
 
     @property
     def height(self) -> int:
-        return self.photons.shape[2]
+        return self.factors.shape[1] if self.factors is not None else self.photons.shape[2]
 
     @property
     def width(self) -> int:
-        return self.photons.shape[3]
+        return self.factors.shape[2] if self.factors is not None else self.photons.shape[3]
 
     @property
     def device(self) -> torch.device:
-        return self.photons.device
+        return self.factors.device if self.factors is not None else self.photons.device
 
     @property
     def dtype(self) -> torch.dtype:
-        return self.photons.dtype
+        return self.factors.dtype if self.factors is not None else self.photons.dtype
 
     def replace(self, **changes) -> SpectralImage:
         """A copy with some fields changed (validation is skipped for internal, trusted changes).
 
         :meth:`Scene.replace <isettorch.scene.Scene.replace>` validates by default (a user's edit of a scene).
+        Giving ``photons`` makes the copy dense, giving ``factors`` makes it factored; otherwise it stays as it is
+        (a factored image is not densified).
         """
         changes.setdefault("validate", False)
+        if "photons" in changes and "factors" not in changes:
+            changes["factors"] = None
+        elif "photons" not in changes:
+            if "factors" in changes or self.factors is not None:
+                changes["photons"] = None
         return dataclasses.replace(self, **changes)
 
     def _map_tensors(self, fn) -> dict[str, Any]:
         out = {}
         for f in dataclasses.fields(self):
-            if not f.init:
+            if not f.init or f.name == "factors":
                 continue
-            v = getattr(self, f.name)
+            v = self.__dict__.get("_photons") if f.name == "photons" else getattr(self, f.name)
             if isinstance(v, torch.Tensor):
                 out[f.name] = fn(v)
         return out
 
     def to(self, device=None, dtype=None) -> SpectralImage:
         """Move to a device and/or floating dtype (all tensors together)."""
-        return self.replace(**self._map_tensors(lambda t: t.to(device=device, dtype=dtype)
-                                                if t.is_floating_point() else t.to(device=device)), validate=False)
+        changes = self._map_tensors(lambda t: t.to(device=device, dtype=dtype)
+                                    if t.is_floating_point() else t.to(device=device))
+        if self.factors is not None:
+            changes["factors"] = self.factors.to(device=device, dtype=dtype)
+        return self.replace(**changes, validate=False)
 
     def detach(self) -> SpectralImage:
-        return self.replace(**self._map_tensors(lambda t: t.detach()), validate=False)
+        changes = self._map_tensors(lambda t: t.detach())
+        if self.factors is not None:
+            changes["factors"] = self.factors.detach()
+        return self.replace(**changes, validate=False)
 
     def __getitem__(self, index) -> SpectralImage:
         """Select batch samples: ``img[0]``, ``img[1:3]``; the batch dimension is kept."""
         if isinstance(index, int):
             index = slice(index, index + 1 if index != -1 else None)
-        changes = {"photons": self.photons[index]}
+        if self.factors is not None:
+            changes = {"factors": self.factors.select(index)}
+        else:
+            changes = {"photons": self.photons[index]}
         for f in self._batch_fields:
             v = getattr(self, f)
             if v is not None:
@@ -176,8 +433,10 @@ class SpectralImage:
             f"{f}={getattr(self, f).tolist() if getattr(self, f) is not None else None}" for f in self._batch_fields
         )
         w = self.wavelengths_nm
+        shape = (self.batch_size, self.num_wavelengths, self.height, self.width)
+        form = f", factored {self.factors!r}" if self.factors is not None else ""
         return (
-            f"{type(self).__name__}(name={self.name!r}, photons={tuple(self.photons.shape)} {self.dtype} "
+            f"{type(self).__name__}(name={self.name!r}, photons={shape} {self.dtype}{form} "
             f"on {self.device}, wavelengths={w[0].item():g}..{w[-1].item():g} nm ({w.numel()}), {extra})"
         )
 
@@ -185,8 +444,11 @@ class SpectralImage:
     def resample_wavelengths(self, wavelengths_nm) -> SpectralImage:
         """Linear interpolation onto another grid (0 outside the current range)."""
         new = check_wavelengths(torch.as_tensor(wavelengths_nm)).to(self.device, self.dtype)
-        changes = {"photons": spectral.resample(self.photons, self.wavelengths_nm, new, dim=1),
-                   "wavelengths_nm": new}
+        if self.factors is not None and hasattr(self.factors, "resample"):
+            changes = {"factors": self.factors.resample(self.wavelengths_nm, new), "wavelengths_nm": new}
+        else:
+            changes = {"photons": spectral.resample(self.photons, self.wavelengths_nm, new, dim=1),
+                       "wavelengths_nm": new}
         if getattr(self, "illuminant_photons", None) is not None:
             changes["illuminant_photons"] = spectral.resample(self.illuminant_photons, self.wavelengths_nm, new)
         return self.replace(**changes, validate=False)  # linear interpolation of checked data
@@ -197,11 +459,11 @@ class SpectralImage:
 
     def photometric(self) -> torch.Tensor:
         """683 * sum E V dl: luminance (cd/m^2) of a scene, illuminance (lux) of an OI [B, 1, H, W]."""
-        return spectral.luminance(self.photons, self.wavelengths_nm, dim=1)
+        return self._spectral_map(lambda x, dim: spectral.luminance(x, self.wavelengths_nm, dim=dim))
 
     def xyz(self, observer: str = "1931") -> torch.Tensor:
         """Absolute CIE XYZ [B, 3, H, W] (Y in cd/m^2 for a scene, lux for an optical image)."""
-        return spectral.xyz(self.photons, self.wavelengths_nm, dim=1, observer=observer)
+        return self._spectral_map(lambda x, dim: spectral.xyz(x, self.wavelengths_nm, dim=dim, observer=observer))
 
     def _preview_white_y(self, xyz_img: torch.Tensor) -> torch.Tensor:
         return xyz_img[:, 1].flatten(1).amax(dim=1)
@@ -216,16 +478,30 @@ class SpectralImage:
         """Mean photons of a region [B, L] (rows/cols are slices; default the whole image)."""
         r = rows or slice(None)
         c = cols or slice(None)
+        f = self.factors
+        if isinstance(f, SpectralFactors) and self.__dict__.get("_photons") is None:
+            return (f.maps[:, :, r, c].mean(dim=(-2, -1))[:, :, None] * f.spectra).sum(dim=1)
         return self.photons[:, :, r, c].mean(dim=(-2, -1))
 
-    def _crop_photons(self, top: int, left: int, height: int, width: int) -> torch.Tensor:
+    def _check_window(self, top: int, left: int, height: int, width: int) -> None:
         if not (0 <= top and 0 <= left and height >= 1 and width >= 1
                 and top + height <= self.height and left + width <= self.width):
             raise ValueError(
                 f"crop: window top={top}, left={left}, height={height}, width={width} does not fit in an "
                 f"image of {self.height}x{self.width}"
             )
+
+    def _crop_photons(self, top: int, left: int, height: int, width: int) -> torch.Tensor:
+        self._check_window(top, left, height, width)
         return self.photons[:, :, top:top + height, left:left + width]
+
+    def _crop_changes(self, top: int, left: int, height: int, width: int) -> dict:
+        """``photons`` (or ``factors``) of a window, for ``replace``."""
+        f = self.factors
+        if f is not None and hasattr(f, "crop"):
+            self._check_window(top, left, height, width)
+            return {"factors": f.crop(top, left, height, width)}
+        return {"photons": self._crop_photons(top, left, height, width)}
 
     # --- plots -------------------------------------------------------------------------
     def plot_srgb(self, index: int = 0, ax=None):
@@ -252,3 +528,7 @@ def extent_for_angle(angle_deg: torch.Tensor, distance_m: torch.Tensor) -> torch
     """Extent (m) subtended by a full angle at a distance: 2 d tan(a / 2)."""
     return 2 * distance_m * torch.tan(torch.deg2rad(angle_deg) / 2)
 
+
+
+SpectralImage.photons = property(_get_photons, _set_photons, doc="Dense spectral cube ``[B, L, H, W]`` (built on "
+                                 "first read for a factored image).")

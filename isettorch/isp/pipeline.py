@@ -254,8 +254,23 @@ class ImageProcessor(nn.Module):
         target = self.white_xyz.to(matrix.dtype).to(matrix.device)
         return torch.linalg.lstsq(matrix.double(), target.double()[:, None]).solution[:, 0].to(matrix.dtype)
 
+    def fit_raw(self, raw) -> ImageProcessor:
+        """Fit the colour matrix to the sensor that made ``raw`` (its ``spectral_qe``), once per QE module: what
+        :meth:`forward` does, so a processor needs no separate ``fit(sensor)``. No-op for a raw without QE or a
+        fixed matrix."""
+        qe = getattr(raw, "spectral_qe", None)
+        if qe is None:
+            return self
+        key = (id(qe), getattr(getattr(qe, "fixed_filters", None), "_version", None))
+        if getattr(qe, "learnable", False) or self.__dict__.get("_raw_fit") != (key, qe):
+            self.fit(qe)
+            self.__dict__["_raw_fit"] = (key, qe)
+        return self
+
     def forward(self, raw) -> ISPResult:
-        """Process a :class:`~isettorch.sensor.raw.RawImage`; returns an :class:`ISPResult`."""
+        """Process a :class:`~isettorch.sensor.raw.RawImage`; returns an :class:`ISPResult`. The colour matrix is
+        fitted from the raw's ``spectral_qe`` when it carries one (:meth:`fit_raw`)."""
+        self.fit_raw(raw)
         x = self._normalized_input(raw)
         if raw.cfa.is_monochrome:
             # ISETCam ipCompute: a monochrome sensor skips the colour pipeline (FORMAT.md 4.10).

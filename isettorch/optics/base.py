@@ -3,6 +3,21 @@
 scene radiance -> camera equation x transmittance -> relative illumination -> OTF blur (FFT) -> OpticalImage.
 Subclasses provide the OTF (:meth:`otf`), how far the PSF reaches (:meth:`psf_margin_m`) and, optionally, a
 test for a negligible blur (:meth:`blur_negligible`).
+
+**The optics contract** (what any optics module, shift-invariant or not, implements for `Camera`):
+
+* ``forward(scene, crop=None) -> OpticalImage`` for a dense **and** a factored scene (``scene.is_factored``:
+  ``scene.factors`` is a :class:`~isettorch.image.SpectralFactors`, radiance = sum_j maps_j(x) spectra_j(l)).
+  The valid minimum for a new optics (e.g. a ray-traced, shift-variant lens) is ``scene = scene.to_dense()``
+  first; an optics that is linear per wavelength and shift-invariant does better by transforming the J maps
+  once and returning a factored optical image (``OpticalImage(None, ..., factors=...)``, whose ``factors``
+  implement ``project(weights [L, K]) -> [B, K, H, W]``, ``dense()``, ``select``, ``scale``, ``crop``, ``to``,
+  ``detach``; see :class:`~isettorch.optics.optical_image.FourierFactors`): the sensor then only asks for its K
+  projected planes.
+* optionally ``plan(scene) -> dict`` (``full_shape``, ``pad``, ``sample_spacing_m``, ``image_distance_m``,
+  ``margin``) and ``crop=(top, left, height, width)``, so `Camera` computes only the sensor's window.
+  Neither may read ``scene.photons`` of a factored scene (it would build the cube): use ``scene.height``,
+  ``scene.width``, ``scene.batch_size``, ``scene.dtype``, ``scene.device``.
 """
 
 from __future__ import annotations
@@ -15,10 +30,11 @@ from torch import nn
 
 from .. import spectral
 from .._checks import as_tensor, batch_param, check_nonnegative, check_wavelengths
+from ..image import SpectralFactors
 from ..scene.scene import Scene
 from . import geometry
-from .blur import PAD_MODES, blur_fft, extend, full_padding
-from .optical_image import OpticalImage
+from .blur import PAD_MODES, blur_fft, extend, fft_buffer, fft_frequencies, full_padding
+from .optical_image import FourierFactors, OpticalImage
 
 __all__ = ["ShiftInvariantLens"]
 
@@ -107,6 +123,8 @@ class ShiftInvariantLens(nn.Module):
         self.margin = margin
         self.max_margin_factor = float(max_margin_factor)
         self._otf_cache: OrderedDict = OrderedDict()
+        self._interleaved_cache: dict = {}
+        self._geometry_cache: dict = {}
 
     # --- to override --------------------------------------------------------------------------------
     def otf(self, fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor,
@@ -168,6 +186,8 @@ class ShiftInvariantLens(nn.Module):
 
     def clear_cache(self) -> None:
         self._otf_cache.clear()
+        self._interleaved_cache.clear()
+        self._geometry_cache.clear()
 
     def margin_samples(self, scene_shape: tuple[int, int], dx: torch.Tensor, wavelengths_nm, f_number) -> int:
         if self.margin is not None:
@@ -177,7 +197,7 @@ class ShiftInvariantLens(nn.Module):
         return min(samples, int(math.ceil(self.max_margin_factor * max(scene_shape))))
 
     def _geometry(self, scene: Scene):
-        b, _, _, w = scene.photons.shape
+        b, w = scene.batch_size, scene.width
         dt, dev = scene.dtype, scene.device
         n = self.batch_f_number(b, dt, dev)
         f = self.batch_focal_length(b, dt, dev)
@@ -192,8 +212,8 @@ class ShiftInvariantLens(nn.Module):
         ``image_distance_m`` ``[B]`` and ``margin`` (samples the PSF reaches at ``psf_tolerance``; a window
         needs this much of the scene beyond it, which ``forward`` takes care of).
         """
-        h, w = scene.photons.shape[-2:]
-        n, _, d_i, dx = self._geometry(scene)
+        h, w = scene.height, scene.width
+        _, _, _, n, _, d_i, dx = self._spatial_factors(scene)
         wave = scene.wavelengths_nm
         if self.blur_negligible(dx, wave, n):
             margin = 0 if self.margin is None else self.margin
@@ -220,24 +240,108 @@ class ShiftInvariantLens(nn.Module):
         if not isinstance(scene, Scene):
             raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
         _check_crop(crop)
-        x = scene.photons
-        b, nl, h, w = x.shape
-        dt, dev = x.dtype, x.device
-        wave = scene.wavelengths_nm
+        if scene.is_factored and scene.__dict__.get("_photons") is None and self._factored_ok(scene):
+            return self._forward_factored(scene, crop)
+        # camera equation (ISETCam oiCalculateIrradiance), transmittance, relative illumination
+        k, t, ri, n, f, d_i, dx = self._spatial_factors(scene)
+        irr = scene.photons * k.reshape(-1, 1, 1, 1)
+        if t is not None:
+            irr = irr * t.to(device=irr.device).reshape(1, -1, 1, 1)
+        if ri is not None:
+            irr = irr * ri
+        return self._blur_to_oi(irr, scene.wavelengths_nm, dx, n, f, d_i, crop, name=scene.name)
+
+    def _factored_ok(self, scene: Scene) -> bool:
+        """The factored path needs maps x spectra and a pad mode that is linear in the image."""
+        return isinstance(scene.factors, SpectralFactors) and self.pad_mode in PAD_MODES
+
+    def _spatial_factors(self, scene: Scene):
+        """``(k [B], T [L] or None, ri [B, 1, H, W] or None, n, f, d_i, dx)``: the camera-equation factor (ISETCam
+        oiCalculateIrradiance), transmittance and relative illumination that turn radiance into irradiance.
+
+        Cached (a few entries) per scene geometry when no gradient is needed: they depend only on the optics'
+        settings, the scene's size, FOV, distance and wavelength grid (a dataset of a few cameras repeats them)."""
+        if self._requires_grad() or scene.hfov_deg.requires_grad or scene.distance_m.requires_grad:
+            return self._compute_spatial_factors(scene)
+        key = (scene.height, scene.width, tuple(scene.hfov_deg.tolist()), tuple(scene.distance_m.tolist()),
+               tuple(scene.wavelengths_nm.tolist()), scene.dtype, str(scene.device), self.f_number._version,
+               self.focal_length_m._version, self.relative_illumination, self.camera_equation,
+               None if self.transmittance is None else self.transmittance._version)
+        hit = self._geometry_cache.get(key)
+        if hit is None:
+            if len(self._geometry_cache) >= 4 * _CACHE_SIZE:
+                self._geometry_cache.clear()
+            hit = self._geometry_cache[key] = self._compute_spatial_factors(scene)
+        return hit
+
+    def _compute_spatial_factors(self, scene: Scene):
+        h, w = scene.height, scene.width
+        dt, dev = scene.dtype, scene.device
         n, f, d_i, dx = self._geometry(scene)
         mag = -d_i / scene.distance_m
-        # camera equation (ISETCam oiCalculateIrradiance), transmittance, relative illumination
         k = geometry.camera_equation_factor(n, mag, paraxial=self.camera_equation == "paraxial")
-        irr = x * k.reshape(-1, 1, 1, 1)
-        t = self.transmittance_on(wave)
-        if t is not None:
-            irr = irr * t.to(device=dev).reshape(1, -1, 1, 1)
+        t = self.transmittance_on(scene.wavelengths_nm)
         ys = (torch.arange(h, dtype=dt, device=dev) - (h - 1) / 2)[None, :] * dx[:, None]
         xs = (torch.arange(w, dtype=dt, device=dev) - (w - 1) / 2)[None, :] * dx[:, None]
         ri = geometry.relative_illumination(self.relative_illumination, ys, xs, d_i, n, mag)
+        return k, t, ri, n, f, d_i, dx
+
+    def _forward_factored(self, scene: Scene, crop) -> OpticalImage:
+        """The optics of a factored scene, exactly (by linearity): the spatial factors multiply the J maps, the
+        camera-equation factor and transmittance the J spectra; the maps are transformed once (J rFFTs) and kept
+        with the per-wavelength OTF (:class:`FourierFactors`), so the sensor does K inverse FFTs, not L."""
+        maps, spectra = scene.factors.maps, scene.factors.spectra
+        h, w = scene.height, scene.width
+        wave = scene.wavelengths_nm
+        k, t, ri, n, f, d_i, dx = self._spatial_factors(scene)
+        spectra = spectra * k.reshape(-1, 1, 1)
+        if t is not None:
+            spectra = spectra * t.to(device=spectra.device).reshape(1, 1, -1)
         if ri is not None:
-            irr = irr * ri
-        return self._blur_to_oi(irr, wave, dx, n, f, d_i, crop, name=scene.name)
+            maps = maps * ri
+        if self.blur_negligible(dx, wave, n):
+            # no blur: the irradiance stays maps x spectra (the maps extended like the dense image)
+            margin = 0 if self.margin is None else self.margin
+            pr = pc = margin
+            if crop is None:
+                out = extend(maps, (-pr, h + pr), (-pc, w + pc), self.pad_mode)
+            else:
+                top, left, wh, ww = crop
+                if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr
+                        and left + ww <= w + 2 * pc):
+                    raise ValueError(f"crop: window {crop} does not fit in the {h + 2 * pr}x{w + 2 * pc} optical "
+                                     f"image")
+                out = extend(maps, (top - pr, top - pr + wh), (left - pc, left - pc + ww), self.pad_mode)
+            factors = SpectralFactors(out, spectra, validate=False)
+        else:
+            margin = self.margin_samples((h, w), dx, wave, n)
+            buf, (pr, pc), window = fft_buffer(maps, (margin, margin), self.pad_mode, window=crop)
+            my, mx = buf.shape[-2:]
+            fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
+            otf = self._otf_fn(wave, n, dx)(fy, fx)
+            factors = FourierFactors(torch.fft.rfft2(buf), spectra, self._interleaved(otf), (my, mx), window,
+                                     None if otf.is_complex() else otf)
+        return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name)
+
+    def _interleaved(self, otf: torch.Tensor) -> torch.Tensor:
+        """A real OTF ``[B, L, My, Mx']`` as ``[B, L, My, Mx', 2]`` (the same value for the real and imaginary
+        parts; contiguous, so the Fourier-domain product is a plain elementwise multiply), cached with the OTF."""
+        if otf.is_complex() or otf.requires_grad:
+            return otf
+        hit = self._interleaved_cache.get(id(otf))
+        if hit is None or hit[0] is not otf:
+            if len(self._interleaved_cache) >= _CACHE_SIZE:
+                self._interleaved_cache.clear()
+            hit = self._interleaved_cache[id(otf)] = (otf, otf[..., None].expand(*otf.shape, 2).contiguous())
+        return hit[1]
+
+    def _oi(self, photons, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, name) -> OpticalImage:
+        meta = {"full_shape": (h + 2 * pr, w + 2 * pc), "full_pad": (pr, pc)}
+        if crop is not None:
+            meta["window"] = (crop[0], crop[1])
+        return OpticalImage(photons, wave, name=name, metadata=meta, factors=factors, sample_spacing_m=dx,
+                            focal_length_m=f, f_number=n, image_distance_m=d_i, pad_rows=pr if crop is None else 0,
+                            pad_cols=pc if crop is None else 0, validate=False)
 
     def _blur_to_oi(self, irr, wave, dx, n, f, d_i, crop, name=""):
         h, w = irr.shape[-2:]
@@ -257,9 +361,4 @@ class ShiftInvariantLens(nn.Module):
             margin = self.margin_samples((h, w), dx, wave, n)
             out, (pr, pc) = blur_fft(irr, self._otf_fn(wave, n, dx), dx, (margin, margin), self.pad_mode,
                                      window=crop)
-        meta = {"full_shape": (h + 2 * pr, w + 2 * pc), "full_pad": (pr, pc)}
-        if crop is not None:
-            meta["window"] = (crop[0], crop[1])
-        return OpticalImage(out, wave, name=name, metadata=meta, sample_spacing_m=dx, focal_length_m=f,
-                            f_number=n, image_distance_m=d_i, pad_rows=pr if crop is None else 0,
-                            pad_cols=pc if crop is None else 0, validate=False)
+        return self._oi(out, None, wave, dx, n, f, d_i, crop, h, w, pr, pc, name)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-__all__ = ["next_fast_size", "full_padding", "blur_fft", "PAD_MODES"]
+__all__ = ["next_fast_size", "full_padding", "blur_fft", "fft_buffer", "fft_frequencies", "PAD_MODES"]
 
 PAD_MODES = ("zero", "mean", "edge")
 
@@ -97,11 +97,44 @@ def _extend_gather(x: torch.Tensor, rows: tuple[int, int], cols: tuple[int, int]
 
 def _convolve(buf: torch.Tensor, otf_fn, dx: torch.Tensor) -> torch.Tensor:
     my, mx = buf.shape[-2:]
-    d = dx.to(buf.dtype).reshape(-1, 1)
-    fy = torch.fft.fftfreq(my, device=buf.device, dtype=buf.dtype)[None, :] / d
-    fx = torch.fft.rfftfreq(mx, device=buf.device, dtype=buf.dtype)[None, :] / d
+    fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
     otf = otf_fn(fy, fx)
     return torch.fft.irfft2(torch.fft.rfft2(buf) * otf, s=(my, mx))
+
+
+def fft_buffer(x: torch.Tensor, margin: tuple[int, int], pad_mode="zero",
+               window: tuple[int, int, int, int] | None = None
+               ) -> tuple[torch.Tensor, tuple[int, int], tuple[int, int, int, int]]:
+    """The padded buffer :func:`blur_fft` transforms, the full output's padding and where the output lies in it.
+
+    Returns ``(buf (B, C, My, Mx), (pad_rows, pad_cols), (r0, c0, height, width))``: the blurred image is
+    ``irfft2(rfft2(buf) * OTF)[..., r0:r0 + height, c0:c0 + width]``. Linear in ``x`` for the pad modes
+    ``'zero'``, ``'mean'`` and ``'edge'`` (so a sum of images may be buffered term by term).
+    """
+    h, w = x.shape[-2:]
+    pr, pc = full_padding(h, margin[0]), full_padding(w, margin[1])
+    _fill_value(x, pad_mode)  # validates pad_mode
+    if window is None:
+        buf = extend(x, (-pr, h + pr), (-pc, w + pc), pad_mode)
+        return buf, (pr, pc), (0, 0, h + 2 * pr, w + 2 * pc)
+    top, left, wh, ww = window
+    if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr and left + ww <= w + 2 * pc):
+        raise ValueError(f"crop: window (top={top}, left={left}, height={wh}, width={ww}) does not fit in the "
+                         f"{h + 2 * pr}x{w + 2 * pc} optical image (scene {h}x{w} padded by {pr}, {pc})")
+    mr, mc = max(margin[0], 0), max(margin[1], 0)
+    r0, c0 = top - pr - mr, left - pc - mc  # source window in scene coordinates
+    buf = extend(x, (r0, r0 + wh + 2 * mr), (c0, c0 + ww + 2 * mc), pad_mode)
+    my, mx = next_fast_size(wh + 2 * mr), next_fast_size(ww + 2 * mc)
+    buf = torch.nn.functional.pad(buf, (0, mx - buf.shape[-1], 0, my - buf.shape[-2]))
+    return buf, (pr, pc), (mr, mc, wh, ww)
+
+
+def fft_frequencies(my: int, mx: int, dx: torch.Tensor, *, dtype, device) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(fy [B, My], fx [B, Mx // 2 + 1])`` in cycles/m: the rFFT grid of an ``My x Mx`` buffer of spacing ``dx``."""
+    d = dx.to(dtype).reshape(-1, 1)
+    fy = torch.fft.fftfreq(my, device=device, dtype=dtype)[None, :] / d
+    fx = torch.fft.rfftfreq(mx, device=device, dtype=dtype)[None, :] / d
+    return fy, fx
 
 
 def blur_fft(x: torch.Tensor, otf_fn, dx: torch.Tensor, margin: tuple[int, int], pad_mode="zero",
@@ -120,20 +153,8 @@ def blur_fft(x: torch.Tensor, otf_fn, dx: torch.Tensor, margin: tuple[int, int],
         ``(out, (pad_rows, pad_cols))``: the full padded output ``(B, L, H + 2 pr, W + 2 pc)`` (or the window)
         and the per-side padding of the full output.
     """
-    h, w = x.shape[-2:]
-    pr, pc = full_padding(h, margin[0]), full_padding(w, margin[1])
-    _fill_value(x, pad_mode)  # validates pad_mode
-    if window is None:
-        buf = extend(x, (-pr, h + pr), (-pc, w + pc), pad_mode)
-        return _convolve(buf, otf_fn, dx), (pr, pc)
-    top, left, wh, ww = window
-    if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr and left + ww <= w + 2 * pc):
-        raise ValueError(f"crop: window (top={top}, left={left}, height={wh}, width={ww}) does not fit in the "
-                         f"{h + 2 * pr}x{w + 2 * pc} optical image (scene {h}x{w} padded by {pr}, {pc})")
-    mr, mc = max(margin[0], 0), max(margin[1], 0)
-    r0, c0 = top - pr - mr, left - pc - mc  # source window in scene coordinates
-    buf = extend(x, (r0, r0 + wh + 2 * mr), (c0, c0 + ww + 2 * mc), pad_mode)
-    my, mx = next_fast_size(wh + 2 * mr), next_fast_size(ww + 2 * mc)
-    buf = torch.nn.functional.pad(buf, (0, mx - buf.shape[-1], 0, my - buf.shape[-2]))
+    buf, pad, (r0, c0, oh, ow) = fft_buffer(x, margin, pad_mode, window)
     out = _convolve(buf, otf_fn, dx)
-    return out[..., mr:mr + wh, mc:mc + ww], (pr, pc)
+    if window is None:
+        return out, pad
+    return out[..., r0:r0 + oh, c0:c0 + ow], pad

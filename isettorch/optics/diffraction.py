@@ -7,7 +7,7 @@ import math
 import torch
 
 from .base import ShiftInvariantLens, _check_crop
-from .isetcam import compute_oi
+from .isetcam import compute_oi_scene
 
 __all__ = ["dl_otf", "dl_mtf_1d", "DiffractionLimitedOptics"]
 
@@ -88,7 +88,7 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
     def plan(self, scene):
         if not self.isetcam:
             return super().plan(scene)
-        h, w = scene.photons.shape[-2:]
+        h, w = scene.height, scene.width
         from .isetcam import pad_sizes
 
         pr, pc = pad_sizes(h, w)
@@ -104,9 +104,9 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         b = scene.batch_size
         dt, dev = scene.dtype, scene.device
         t = self.transmittance_on(scene.wavelengths_nm)
-        oi = compute_oi(scene.photons, scene.wavelengths_nm, scene.hfov_deg, scene.distance_m,
-                        self.batch_f_number(b, dt, dev), self.batch_focal_length(b, dt, dev), t,
-                        offaxis="skip" if self.relative_illumination in (None, "none") else "cos4th")
+        # a factored scene takes compute_oi_factored's J + 1 FFT path (never densified)
+        oi = compute_oi_scene(scene, self.batch_f_number(b, dt, dev), self.batch_focal_length(b, dt, dev), t,
+                              offaxis="skip" if self.relative_illumination in (None, "none") else "cos4th")
         if crop is not None:
             _check_crop(crop)
             full = (oi.height, oi.width)

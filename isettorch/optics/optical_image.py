@@ -9,6 +9,138 @@ import torch
 
 from ..image import SpectralImage, angle_for_extent
 
+__all__ = ["OpticalImage", "FourierFactors"]
+
+
+class FourierFactors:
+    """A factored optical image kept in the Fourier domain: the irradiance at wavelength ``l`` is
+
+    ``E[b, l] = irfft2(otf[b, l] * sum_j spectra[b, j, l] * spec[b, j])[r0:r0 + h, c0:c0 + w]``
+
+    with ``spec [B, J, My, Mx // 2 + 1]`` the rFFT of the J spatial maps (padded buffer, spatial factors such as
+    relative illumination applied), ``spectra [B, J, L]`` (with the camera-equation factor and transmittance),
+    ``otf [B or 1, L, My, Mx // 2 + 1]`` (real or complex; a real one may come interleaved, ``[..., 2]``, the same
+    value for the real and imaginary parts) and ``window = (r0, c0, h, w)`` in the buffer.
+    It is what a shift-invariant optics returns for a factored scene: J forward FFTs were done; :meth:`project`
+    on K spectral weightings does K inverse FFTs (instead of L), which is how the sensor integrates its QE.
+    """
+
+    def __init__(self, spec: torch.Tensor, spectra: torch.Tensor, otf: torch.Tensor, size: tuple[int, int],
+                 window: tuple[int, int, int, int], plain_otf: torch.Tensor | None = None):
+        self.spec, self.spectra, self.otf = spec, spectra, otf
+        self.plain_otf = plain_otf  # the real OTF [.., My, Mx'] when ``otf`` is its interleaved copy
+        self.size = (int(size[0]), int(size[1]))
+        self.window = tuple(int(v) for v in window)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return self.spec.shape[0], self.window[2], self.window[3]
+
+    @property
+    def num_wavelengths(self) -> int:
+        return self.spectra.shape[-1]
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.spectra.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.spectra.device
+
+    def _planes(self, weights: torch.Tensor | None) -> torch.Tensor:
+        b, j = self.spec.shape[:2]
+        my, mx = self.size
+        nf = self.spec.shape[-2] * self.spec.shape[-1]
+        n_l = self.spectra.shape[-1]
+        if weights is not None and not self.otf.is_complex():
+            k = weights.shape[1]
+            if j * k < 2 * (j + k + 1):  # fewer operations folding the spectra and weights into the OTF first
+                return self._planes_folded(weights.to(self.spectra))
+        # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
+        # the same real matrix products act on the real and imaginary parts (view_as_real).
+        spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
+        if b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU)
+            cube = torch.mm(self.spectra[0].T, spec[0])[None]  # [1, L, 2F]
+        else:
+            cube = self.spectra.transpose(1, 2) @ spec  # [B, L, 2F]
+        otf = self.otf
+        if otf.is_complex():
+            otf = otf.reshape(otf.shape[0], n_l, nf)
+            cube = torch.view_as_real(torch.view_as_complex(cube.view(b, n_l, nf, 2)) * otf).view(b, n_l, 2 * nf)
+        else:
+            # a real OTF, [.., My, Mx'] or interleaved [.., My, Mx', 2] (the optics' cached, contiguous form)
+            otf = otf.reshape(otf.shape[0], n_l, nf, -1)
+            if cube.requires_grad or otf.requires_grad:
+                cube = (cube.view(b, n_l, nf, 2) * otf).view(b, n_l, 2 * nf)
+            else:
+                cube.view(b, n_l, nf, 2).mul_(otf)
+        if weights is not None:
+            wt = weights.to(cube).T
+            cube = torch.mm(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
+        planes = torch.view_as_complex(cube.view(b, -1, *self.spec.shape[-2:], 2))
+        r0, c0, h, w = self.window
+        return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
+
+    def _planes_folded(self, weights: torch.Tensor) -> torch.Tensor:
+        """The same projection summed in the other order (real OTF): ``H[j, k] = sum_l spectra[j, l] weights[l, k]
+        otf[l]`` (a real [J K, L] x [L, F] product), then ``sum_j H[j, k] spec[j]``: J K L F operations instead of
+        (J + K + 1) 2 L F, and no [L, F] intermediate (a rank-1 sweep: 3 L F instead of 10 L F)."""
+        b, j = self.spec.shape[:2]
+        my, mx = self.size
+        fy, fx = self.spec.shape[-2:]
+        n_l, k = weights.shape
+        otf = self.otf if self.plain_otf is None else self.plain_otf
+        if otf.dim() == 5:  # interleaved [.., My, Mx', 2]: the real part
+            otf = otf[..., 0]
+        otf = otf.reshape(otf.shape[0], n_l, fy * fx)
+        coef = (self.spectra[:, :, None, :] * weights.T[None, None]).reshape(b, j * k, n_l)  # [B, J K, L]
+        h = (coef @ otf).reshape(b, j, k, fy * fx, 1)  # [B, J, K, F]
+        spec = torch.view_as_real(self.spec).reshape(b, j, 1, fy * fx, 2)
+        planes = (h * spec).sum(dim=1) if j > 1 else (h[:, 0] * spec[:, 0])  # [B, K, F, 2]
+        planes = torch.view_as_complex(planes.reshape(b, k, fy, fx, 2).contiguous())
+        r0, c0, hh, ww = self.window
+        return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + hh, c0:c0 + ww]
+
+    def project(self, weights: torch.Tensor) -> torch.Tensor:
+        """``sum_l E[b, l] weights[l, k]`` ``[B, K, h, w]``: K inverse FFTs."""
+        return self._planes(weights)
+
+    def dense(self) -> torch.Tensor:
+        """The irradiance cube ``[B, L, h, w]`` (L inverse FFTs)."""
+        return self._planes(None)
+
+    def select(self, index) -> FourierFactors:
+        def pick(t):
+            return t if t is None or t.shape[0] == 1 else t[index]
+        return FourierFactors(self.spec[index], self.spectra[index], pick(self.otf), self.size, self.window,
+                              pick(self.plain_otf))
+
+    def scale(self, k: torch.Tensor) -> FourierFactors:
+        return FourierFactors(self.spec, self.spectra * k.reshape(-1, 1, 1), self.otf, self.size, self.window,
+                              self.plain_otf)
+
+    def crop(self, top: int, left: int, height: int, width: int) -> FourierFactors:
+        r0, c0 = self.window[:2]
+        return FourierFactors(self.spec, self.spectra, self.otf, self.size, (r0 + top, c0 + left, height, width),
+                              self.plain_otf)
+
+    def to(self, device=None, dtype=None) -> FourierFactors:
+        cdt = None if dtype is None else (torch.complex128 if dtype == torch.float64 else torch.complex64)
+        otf_dt = None if dtype is None else (cdt if self.otf.is_complex() else dtype)
+        plain = None if self.plain_otf is None else self.plain_otf.to(device=device, dtype=dtype)
+        return FourierFactors(self.spec.to(device=device, dtype=cdt), self.spectra.to(device=device, dtype=dtype),
+                              self.otf.to(device=device, dtype=otf_dt), self.size, self.window, plain)
+
+    def detach(self) -> FourierFactors:
+        plain = None if self.plain_otf is None else self.plain_otf.detach()
+        return FourierFactors(self.spec.detach(), self.spectra.detach(), self.otf.detach(), self.size, self.window,
+                              plain)
+
+    def __repr__(self) -> str:
+        return (f"FourierFactors(J={self.spec.shape[1]}, L={self.spectra.shape[-1]}, buffer={self.size}, "
+                f"window={self.window})")
+
 
 @dataclasses.dataclass(eq=False, repr=False)
 class OpticalImage(SpectralImage):
@@ -74,7 +206,7 @@ class OpticalImage(SpectralImage):
 
         The result is re-centred on its own window (the window's centre becomes the axis).
         """
-        p = self._crop_photons(top, left, height, width)
+        data = self._crop_changes(top, left, height, width)
         d = self.image_distance_m if self.image_distance_m is not None else self.focal_length_m
         hfov = None if d is None else angle_for_extent(self.sample_spacing_m * width, d)
-        return self.replace(photons=p, hfov_deg=hfov, pad_rows=0, pad_cols=0)
+        return self.replace(**data, hfov_deg=hfov, pad_rows=0, pad_cols=0)

@@ -8,6 +8,7 @@ import torch
 
 from .. import spectral
 from .._checks import as_tensor, check_finite, check_rank, check_wavelengths
+from ..image import SpectralFactors
 from .scene import Scene
 
 # ISETCam defaults (sceneCreate): 10 deg field of view, 1.2 m distance, 100 cd/m^2 mean luminance.
@@ -99,10 +100,19 @@ def illuminant_energy(illuminant, w: torch.Tensor, name: str = "illuminant") -> 
     return spd
 
 
-def finish(photons: torch.Tensor, w: torch.Tensor, *, hfov_deg, distance_m, mean_luminance_cd_m2,
+def finish(photons, w: torch.Tensor, *, hfov_deg, distance_m, mean_luminance_cd_m2,
            illuminant_photons: torch.Tensor | None = None, name: str = "", metadata: dict | None = None) -> Scene:
-    """Wrap radiance [B, L, H, W] in a `Scene` and scale it to ``mean_luminance_cd_m2`` (None: as is)."""
-    scene = Scene(photons, w, name=name, metadata=dict(metadata or {}), hfov_deg=hfov_deg, distance_m=distance_m,
+    """Wrap radiance in a `Scene` and scale it to ``mean_luminance_cd_m2`` (None: as is).
+
+    ``photons``: a dense ``[B, L, H, W]`` tensor, or ``(maps [B, J, H, W], spectra [B, J, L])`` for a factored
+    scene (:meth:`Scene.from_factors`).
+    """
+    if isinstance(photons, tuple):
+        factors, photons = SpectralFactors(*photons), None
+    else:
+        factors = None
+    scene = Scene(photons, w, factors=factors, name=name, metadata=dict(metadata or {}), hfov_deg=hfov_deg,
+                  distance_m=distance_m,
                   illuminant_photons=illuminant_photons)
     if mean_luminance_cd_m2 is None:
         return scene
@@ -124,8 +134,9 @@ def pattern_scene(pattern: torch.Tensor, illuminant, w: torch.Tensor, *, hfov_de
         pattern = pattern.unsqueeze(0)
     ill_e = illuminant_energy(illuminant, w)
     ill_p = spectral.energy_to_photons(ill_e, w, dim=0)
-    photons = pattern[:, None] * ill_p[None, :, None, None]
-    return finish(photons, w, hfov_deg=hfov_deg, distance_m=distance_m, mean_luminance_cd_m2=mean_luminance_cd_m2,
+    # rank 1: the pattern's map x the illuminant's spectrum
+    return finish((pattern[:, None], ill_p.reshape(1, 1, -1)), w, hfov_deg=hfov_deg, distance_m=distance_m,
+                  mean_luminance_cd_m2=mean_luminance_cd_m2,
                   illuminant_photons=ill_p, name=name, metadata=metadata)
 
 

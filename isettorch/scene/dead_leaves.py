@@ -153,25 +153,28 @@ def dead_leaves(size=128, *, alpha: float = 3.0, rmin_px: float = 1.0, rmax_px: 
         raise TypeError(f"reflectances: expected 'gray', 'macbeth' or a tensor [N, L], got "
                         f"{type(reflectances).__name__}")
 
-    cubes, labels_all, radii_all, centres_all = [], [], [], []
+    # factored: gray leaves are rank 1 (level map x illuminant); leaves drawn from N reflectances are rank N
+    # (one indicator map per reflectance x that reflectance times the illuminant)
+    maps_all, labels_all, radii_all, centres_all = [], [], [], []
     for _ in range(b):
         labels, centres, radii = _leaf_labels(rows, cols, alpha=a, rmin=rmin, rmax=rmax, num_disks=num_disks,
                                               max_disks=max_disks, generator=generator)
         n = radii.numel()
         if refl_set is None:
             levels = lo + (hi - lo) * torch.rand(n, generator=generator, dtype=torch.float64)
-            table = levels[:, None].expand(n, w.numel())
+            maps_all.append(torch.cat([levels, levels.new_zeros(1)])[labels][None])  # label -1: uncovered, 0
         else:
             pick = torch.randint(refl_set.shape[0], (n,), generator=generator)
-            table = refl_set[pick]
-        table = torch.cat([table, torch.zeros(1, w.numel(), dtype=torch.float64)])  # row -1: uncovered
-        cubes.append(table[labels].permute(2, 0, 1))
+            which = torch.cat([pick, pick.new_full((1,), -1)])[labels]  # reflectance index per pixel, -1 none
+            maps_all.append(which[None] == torch.arange(refl_set.shape[0])[:, None, None])
         labels_all.append(labels)
         radii_all.append(radii)
         centres_all.append(centres)
-    refl = torch.stack(cubes).to(dtype=w.dtype, device=w.device)  # [B, L, H, W]
+    maps = torch.stack(maps_all).to(dtype=w.dtype, device=w.device)  # [B, J, H, W]
     ill_p = spectral.energy_to_photons(illuminant_energy(illuminant, w), w, dim=0)
-    photons = refl * ill_p[None, :, None, None]
+    refl_rows = torch.ones(1, w.numel(), dtype=torch.float64) if refl_set is None else refl_set
+    spectra = (refl_rows.to(dtype=w.dtype, device=w.device) * ill_p[None, :]).expand(b, -1, -1)
+    photons = (maps, spectra)
     meta = {"labels": torch.stack(labels_all), "radii_px": radii_all, "centres_px": centres_all, "alpha": a,
             "rmin_px": rmin, "rmax_px": rmax,
             "uncovered_fraction": [float((lab < 0).double().mean()) for lab in labels_all]}

@@ -111,10 +111,13 @@ def macbeth(illuminant="D65", patch_size: int = 16, wavelengths=None, *,
     w = resolve_grid(wavelengths, dtype, device)
     refl = macbeth_reflectances(w)  # [24, L]
     ill_p = spectral.energy_to_photons(illuminant_energy(illuminant, w), w, dim=0)
-    chart = refl.T.reshape(-1, MACBETH_ROWS, MACBETH_COLS)  # [L, 4, 6]
-    chart = chart.repeat_interleave(p, dim=1).repeat_interleave(p, dim=2)
-    photons = (chart * ill_p[:, None, None]).unsqueeze(0)
+    # factored: 24 patch indicator maps x (reflectance x illuminant) spectra
+    n = MACBETH_ROWS * MACBETH_COLS
+    cells = torch.eye(n, dtype=w.dtype, device=w.device).reshape(n, MACBETH_ROWS, MACBETH_COLS)
+    maps = cells.repeat_interleave(p, dim=1).repeat_interleave(p, dim=2).unsqueeze(0)  # [1, 24, 4p, 6p]
+    spectra = (refl * ill_p[None, :]).unsqueeze(0)  # [1, 24, L]
     name = f"macbeth {illuminant}" if isinstance(illuminant, str) else "macbeth"
-    return finish(photons, w, hfov_deg=hfov_deg, distance_m=distance_m, mean_luminance_cd_m2=mean_luminance_cd_m2,
+    return finish((maps, spectra), w, hfov_deg=hfov_deg, distance_m=distance_m,
+                  mean_luminance_cd_m2=mean_luminance_cd_m2,
                   illuminant_photons=ill_p, name=name,
                   metadata={"patch_size": p, "reflectance_source": f"colour-science {_SOURCE}"})

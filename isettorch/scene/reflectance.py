@@ -15,7 +15,7 @@ from ._common import (
     illuminant_energy,
     resolve_grid,
 )
-from .display import Display
+from .display import Display, _check_rgb
 from .scene import Scene
 
 __all__ = ["reflectance_scene", "from_rgb"]
@@ -115,7 +115,11 @@ def from_rgb(rgb: torch.Tensor, display="lcd", wavelengths=None, *, dpi: float |
     pitch_dpi = display.dpi if dpi is None else check_float(dpi, "dpi", low=0.0, low_open=True)
     dist = display.viewing_distance_m if viewing_distance_m is None else check_float(
         viewing_distance_m, "viewing_distance_m", low=0.0, low_open=True)
-    photons = display.rgb_to_radiance(rgb, w)
+    # rank 3 (Display.rgb_to_radiance factored): linear RGB maps x the primaries' photon spectra
+    _check_rgb(rgb, "rgb", encoded=True)
+    linear = display.eotf(rgb)
+    primaries = spectral.energy_to_photons(display.primaries_on(w, dtype=w.dtype, device=w.device), w, dim=-1)
+    photons = (linear, primaries.expand(linear.shape[0], -1, -1))
     white = display.linear_rgb_to_radiance(torch.ones(1, 3, 1, 1, dtype=w.dtype, device=w.device), w)[0, :, 0, 0]
     width_m = rgb.shape[-1] * 0.0254 / pitch_dpi
     hfov = torch.rad2deg(2 * torch.atan(torch.tensor(width_m / (2 * dist), dtype=torch.float64))).item()

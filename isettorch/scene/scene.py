@@ -63,8 +63,8 @@ class Scene(SpectralImage):
         already-checked data (crops, dtype/device moves, batch selection), where a check would only cost time.
         Changes that touch neither ``photons`` nor ``illuminant_photons`` (metadata, name) check nothing.
         """
-        changes.setdefault("validate", "photons" in changes or "illuminant_photons" in changes)
-        return dataclasses.replace(self, **changes)
+        changes.setdefault("validate", any(k in changes for k in ("photons", "factors", "illuminant_photons")))
+        return super().replace(**changes)  # keeps the dense/factored bookkeeping of SpectralImage.replace
 
     # --- geometry ------------------------------------------------------------------------
     @property
@@ -88,9 +88,8 @@ class Scene(SpectralImage):
 
     def crop(self, top: int, left: int, height: int, width: int) -> Scene:
         """A window of the scene; the sample spacing is kept, so the FOV shrinks accordingly."""
-        p = self._crop_photons(top, left, height, width)
-        return self.replace(photons=p, hfov_deg=angle_for_extent(self.sample_spacing_m * width, self.distance_m),
-                            validate=False)
+        hfov = angle_for_extent(self.sample_spacing_m * width, self.distance_m)
+        return self.replace(**self._crop_changes(top, left, height, width), hfov_deg=hfov, validate=False)
 
     # --- photometry ------------------------------------------------------------------------
     def luminance(self) -> torch.Tensor:
@@ -111,6 +110,8 @@ class Scene(SpectralImage):
             raise ValueError("set_mean_luminance: the scene is black (mean luminance 0), it cannot be scaled")
         k = (target / current).reshape(-1, 1, 1, 1)
         ill = None if self.illuminant_photons is None else self.illuminant_photons * k.reshape(-1, 1)
+        if self.factors is not None:
+            return self.replace(factors=self.factors.scale(k.reshape(-1)), illuminant_photons=ill, validate=False)
         return self.replace(photons=self.photons * k, illuminant_photons=ill, validate=False)  # k finite, >= 0
 
     def illuminant_luminance(self) -> torch.Tensor | None:
@@ -136,15 +137,23 @@ class Scene(SpectralImage):
         if not scenes:
             raise ValueError("scenes: expected at least one Scene")
         first = scenes[0]
+
+        def shape(s):
+            return (s.num_wavelengths, s.height, s.width)
         for i, s in enumerate(scenes[1:], 1):
-            if s.photons.shape[1:] != first.photons.shape[1:] or not torch.equal(s.wavelengths_nm,
-                                                                                    first.wavelengths_nm):
-                raise ValueError(f"scenes[{i}]: expected shape {tuple(first.photons.shape[1:])} and the same "
-                                 f"wavelengths, got {tuple(s.photons.shape[1:])}")
+            if shape(s) != shape(first) or not torch.equal(s.wavelengths_nm, first.wavelengths_nm):
+                raise ValueError(f"scenes[{i}]: expected shape {shape(first)} and the same "
+                                 f"wavelengths, got {shape(s)}")
         has_ill = [s.illuminant_photons is not None for s in scenes]
         ill = torch.cat([s.illuminant_photons for s in scenes]) if all(has_ill) else None
+        from ..image import SpectralFactors
+
+        if all(isinstance(s.factors, SpectralFactors) for s in scenes):
+            data = {"factors": SpectralFactors.cat([s.factors for s in scenes])}
+        else:
+            data = {"photons": torch.cat([s.photons for s in scenes])}
         return first.replace(
-            photons=torch.cat([s.photons for s in scenes]),
+            **data,
             hfov_deg=torch.cat([s.hfov_deg for s in scenes]),
             distance_m=torch.cat([s.distance_m for s in scenes]),
             illuminant_photons=ill,

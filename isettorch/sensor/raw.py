@@ -30,6 +30,8 @@ class RawImage:
         noise: the noise parameters used (dict of floats / strings).
         noise_free: optional mosaic without any noise, same units (a training target).
         electrons: optional mean electrons per pixel (noise-free, before clipping).
+        spectral_qe: the sensor's spectral QE per channel (a :class:`~isettorch.sensor.filters.SpectralQE`: its
+            QE on any wavelength grid), so an image processor fits its colour matrix from the raw itself.
 
     Example:
         >>> raw = RawImage(torch.zeros(1, 1, 4, 4), 'volts', CFA('RGGB'))
@@ -54,6 +56,7 @@ class RawImage:
     noise_free: torch.Tensor | None = None
     electrons: torch.Tensor | None = None
     metadata: dict[str, Any] = dataclasses.field(default_factory=dict)
+    spectral_qe: Any = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.data, torch.Tensor):

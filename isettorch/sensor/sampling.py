@@ -124,11 +124,21 @@ def sample_point(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_
     return _interp_last(out.transpose(-1, -2), py).transpose(-1, -2)
 
 
+_BOX_MATRIX_MAX = 1 << 22  # entries of the [n_out, n_in] overlap matrix (32 MB in float64) up to which it is used
+
+
 def _box_mean_constant(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
     """Mean of the piecewise-constant signal x (sample m covers [m-0.5, m+0.5]) over [lo, hi] (index units),
-    zero outside the image. ``lo, hi [B, n]``. Exact, via the cumulative integral."""
+    zero outside the image. ``lo, hi [B, n]``. Exact: the overlap of each pixel with each sample, as a matrix
+    product (a few samples per pixel; fast BLAS) when the matrix is small, else via the cumulative integral."""
     n = x.shape[-1]
     b = x.shape[0]
+    if lo.shape[-1] * n <= _BOX_MATRIX_MAX:
+        m = torch.arange(n, dtype=torch.float64, device=x.device)
+        lo64, hi64 = lo.to(torch.float64)[..., None], hi.to(torch.float64)[..., None]
+        overlap = (torch.minimum(hi64, m + 0.5) - torch.maximum(lo64, m - 0.5)).clamp_min(0)  # [B, n_out, n]
+        weights = (overlap / (hi64 - lo64)).transpose(-1, -2).to(x.dtype)  # [B, n, n_out]
+        return torch.matmul(x, weights.reshape(b, *(1,) * (x.dim() - 3), n, -1))
     work = x.to(torch.float64)
     s = torch.cat([torch.zeros_like(work[..., :1]), work.cumsum(-1)], dim=-1)  # S[k] = sum_{m<k} x[m]
     view = (b,) + (1,) * (x.dim() - 2) + (lo.shape[-1],)

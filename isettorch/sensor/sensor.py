@@ -25,6 +25,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from .. import spectral
 from .._checks import batch_param
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
@@ -36,7 +37,12 @@ from .presets_emva import EMVA_PRESETS
 from .raw import RawImage
 from .sampling import electron_rate_density, isetcam_preblur, isetcam_preblur_size, sample_area, sample_point
 
-__all__ = ["Sensor", "PRESETS", "SAMPLING_MODES", "ISETCAM_CONVENTIONS"]
+__all__ = ["Sensor", "PRESETS", "SAMPLING_MODES", "ISETCAM_CONVENTIONS", "PER_CALL_LEVELS"]
+
+# Levels a call may override per sample (scalar or [B] tensors), e.g. to randomise noise in a training loop
+# without rebuilding the module: ``sensor(oi, read_noise_v=torch.tensor([...]), ...)``.
+PER_CALL_LEVELS = ("conversion_gain_v_per_e", "read_noise_v", "dark_current_e_per_s", "dsnu_sigma_v",
+                   "prnu_sigma_percent", "column_fpn_sigma_v")
 
 # Every ISETCam behaviour that differs from the documented default, for ``Sensor(..., **ISETCAM_CONVENTIONS)``:
 # Gaussian pre-blur + point sampling, analog gain divides, ADC without clamp, ISETCam noise order with
@@ -220,6 +226,7 @@ class Sensor(nn.Module):
         self.register_buffer("fpn_prnu", None)
         self.register_buffer("fpn_column", None)
         self._generators: dict[str, torch.Generator] = {}
+        self._weights_cache: dict = {}
 
     # --- construction helpers ------------------------------------------------------------
     @classmethod
@@ -326,12 +333,84 @@ class Sensor(nn.Module):
         """Combined spectral QE on the OI's wavelengths ``[C, L]`` (cached per grid)."""
         return self.spectral_qe(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device)
 
-    def electron_rate(self, oi: OpticalImage) -> torch.Tensor:
+    def spectral_weights(self, oi: OpticalImage) -> torch.Tensor:
+        """``QE_c(l) dl`` as ``[L, C]``: the projection from irradiance (photons/s/m^2/nm) to electrons/s/m^2
+        (cached per QE module and grid unless the QE is learnable)."""
+        qe_mod = self.spectral_qe
+        cacheable = not getattr(qe_mod, "learnable", True)
+        if cacheable:
+            key = (id(qe_mod), getattr(getattr(qe_mod, "fixed_filters", None), "_version", None),
+                   tuple(oi.wavelengths_nm.tolist()), oi.dtype, str(oi.device))
+            hit = self._weights_cache.get(key)
+            # the module is kept in the entry: its id cannot be reused while it is cached
+            if hit is not None and hit[0] is qe_mod:
+                return hit[1]
+        dl = spectral.wavelength_weights(oi.wavelengths_nm).to(device=oi.device, dtype=oi.dtype)
+        out = (self.qe(oi) * dl).T
+        if cacheable:
+            if len(self._weights_cache) > 16:
+                self._weights_cache.clear()
+            self._weights_cache[key] = (qe_mod, out)
+        return out
+
+    def electron_rate_density(self, oi: OpticalImage) -> torch.Tensor:
+        """Photo-electrons/s/m^2 per channel at every OI sample ``[B, C, H, W]`` (before pixel sampling).
+
+        A factored optical image is projected on the C QE weightings directly (C planes, never the L cube).
+        """
+        if oi.is_factored and oi.__dict__.get("_photons") is None:
+            return oi.project(self.spectral_weights(oi))
+        return electron_rate_density(oi.photons, self.qe(oi), oi.wavelengths_nm)
+
+    def electron_rate(self, oi: OpticalImage, *, qe_scale=None) -> torch.Tensor:
         """Mean photo-electrons per second per pixel ``[B, 1, rows, cols]`` (before PRNU and noise)."""
+        rates, _ = self.channel_rates(oi, qe_scale=qe_scale)
+        return self.cfa.mosaic(rates)
+
+    def channel_rates(self, oi: OpticalImage, extra_weights: torch.Tensor | None = None, *, qe_scale=None
+                      ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Mean photo-electrons/s of **every** channel at every pixel ``[B, C, rows, cols]`` (the CFA's mosaic of
+        it is :meth:`electron_rate`), and optionally other spectral projections sampled the same way.
+
+        Args:
+            oi: the optical image.
+            extra_weights: optional ``[L, K]`` weightings (e.g. CIE XYZ) projected together with the QE (one pass
+                over the image: for a factored image, one set of inverse FFTs) and area-sampled at the pixels.
+            qe_scale: optional per-sample factor (scalar or ``[B]``) on the spectral QE (e.g. a peak QE drawn per
+                sample), so one module serves sensors that differ only by it.
+
+        Returns:
+            ``(rates [B, C, rows, cols], extra [B, K, rows, cols] or None)``; ``extra`` is the pixel mean of the
+            projected irradiance (per m^2, not multiplied by the pixel area).
+        """
         if not isinstance(oi, OpticalImage):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
+        if extra_weights is None:
+            density = self.electron_rate_density(oi)  # e-/s/m^2 per filter
+        else:
+            w = torch.cat([self.spectral_weights(oi), extra_weights.to(device=oi.device, dtype=oi.dtype)], dim=1)
+            density = oi.project(w)
+        sampled = self.sample(density, oi)
+        c = len(self.cfa.channel_names)
+        area = self.fill_factor * self.pixel_area_m2
+        if qe_scale is None:
+            rates = sampled[:, :c] * area
+        elif isinstance(qe_scale, (int, float)) and not isinstance(qe_scale, bool):
+            if not (math.isfinite(qe_scale) and qe_scale > 0):
+                raise ValueError(f"qe_scale: expected a positive finite factor, got {qe_scale!r}")
+            rates = sampled[:, :c] * (area * qe_scale)  # one pass
+        else:
+            k = batch_param(qe_scale, "qe_scale", sampled.shape[0], dtype=sampled.dtype, device=sampled.device,
+                            positive=True)
+            rates = sampled[:, :c] * (area * k.reshape(-1, 1, 1, 1))
+        if self.vignetting is not None:
+            rates = rates * self.vignetting.to(rates.dtype).to(rates.device)
+        return rates, (sampled[:, c:] if extra_weights is not None else None)
+
+    def sample(self, density: torch.Tensor, oi: OpticalImage) -> torch.Tensor:
+        """Per-m^2 planes on the OI grid ``[B, K, H, W]`` -> their value at each pixel ``[B, K, rows, cols]``
+        (the sensor's ``sampling``: area over the photodiode, or ISETCam's pre-blur + point sampling)."""
         rows, cols = self.size_for(oi)
-        density = electron_rate_density(oi.photons, self.qe(oi), oi.wavelengths_nm)  # e-/s/m^2 per filter
         dx = oi.sample_spacing_m
         if self.sampling == "isetcam":
             planes = []
@@ -341,14 +420,17 @@ class Sensor(nn.Module):
                 k = self.preblur_size or isetcam_preblur_size(self.pixel_size_m, dx[sl][0].item())
                 # ISETCam regridOI2ISA + interp2 at pixel centres; pixel current = scd x ff x pitch^2.
                 planes.append(sample_point(isetcam_preblur(density[sl], k), dx[sl], self.pixel_size_m, rows, cols))
-            sampled = torch.cat(planes) if len(planes) > 1 else planes[0]
-        else:
-            recon = "linear" if self.sampling == "area_linear" else "constant"
-            sampled = sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor, recon)
-        rate = self.cfa.mosaic(sampled) * (self.fill_factor * self.pixel_area_m2)
-        if self.vignetting is not None:
-            rate = rate * self.vignetting.to(rate.dtype).to(rate.device)
-        return rate
+            return torch.cat(planes) if len(planes) > 1 else planes[0]
+        dr, dc = oi.height - rows, oi.width - cols
+        if self.sampling == "area" and dr >= 0 and dc >= 0 and dr % 2 == 0 and dc % 2 == 0:
+            # One OI sample per pixel, pixel centres on sample centres (both grids centred on the axis): the
+            # photodiode (inside its cell) averages a constant, so area sampling returns the samples under the
+            # sensor (exact; the spacings may differ by the geometry's own float rounding, a few eps)
+            eps = torch.finfo(dx.dtype).eps
+            if bool(((dx.detach() / self.pixel_size_m - 1).abs() <= 4 * eps).all()):
+                return density[..., dr // 2:dr // 2 + rows, dc // 2:dc // 2 + cols]
+        recon = "linear" if self.sampling == "area_linear" else "constant"
+        return sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor, recon)
 
     def _analog(self, volts: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
         g = gain.reshape(-1, 1, 1, 1)
@@ -367,12 +449,12 @@ class Sensor(nn.Module):
             return pixel_volts.clamp(0, self.voltage_swing_v)
         return self._analog(pixel_volts, gain).clamp(self._clip_low_v(), self.voltage_swing_v)
 
-    def _to_units(self, volts: torch.Tensor, *, quantize: bool) -> torch.Tensor:
+    def _to_units(self, volts: torch.Tensor, *, quantize: bool, cg=None) -> torch.Tensor:
         """Clipped analog volts -> output units (DN with ADC rounding and clamping)."""
         if self.output_units == "volts":
             return volts
         if self.output_units == "electrons":
-            return volts / self.conversion_gain_v_per_e
+            return volts / (self.conversion_gain_v_per_e if cg is None else cg)
         return self.volts_to_dn(volts, quantize=quantize)
 
     def volts_to_dn(self, volts: torch.Tensor, *, quantize: bool = True) -> torch.Tensor:
@@ -388,21 +470,88 @@ class Sensor(nn.Module):
             x = x.clamp(max=2 ** self.adc_bits - 1)
         return x
 
-    def exposure_for(self, oi: OpticalImage, rate: torch.Tensor | None = None, analog_gain=None) -> torch.Tensor:
-        """The exposure ``[B]`` (s): fixed, or from auto-exposure on the noise-free volts (after gain)."""
-        b = oi.batch_size
+    def exposure_for(self, oi: OpticalImage | None, rate: torch.Tensor | None = None, analog_gain=None, *,
+                     exposure_ev=None, conversion_gain_v_per_e=None) -> torch.Tensor:
+        """The exposure ``[B]`` (s): fixed, or from auto-exposure on the noise-free volts (after gain), times
+        ``2^exposure_ev`` (exposure compensation in stops, scalar or ``[B]``; default 0).
+
+        ``oi`` may be None when ``rate`` (the mosaic's electrons/s ``[B, 1, rows, cols]``) is given.
+        """
+        if rate is None and oi is None:
+            raise ValueError("oi, rate: expected an optical image or the electron rate")
+        like = rate if rate is not None else oi.sample_spacing_m
+        b = rate.shape[0] if rate is not None else oi.batch_size
+        dt, dev = like.dtype, like.device
         if self.auto_exposure is None:
-            return batch_param(self.exposure_s, "exposure_s", b, dtype=oi.dtype, device=oi.device, positive=True)
-        rate = self.electron_rate(oi) if rate is None else rate
+            t = batch_param(self.exposure_s, "exposure_s", b, dtype=dt, device=dev, positive=True)
+        else:
+            rate = self.electron_rate(oi) if rate is None else rate
+            gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
+                               dtype=dt, device=dev, positive=True)
+            cg = self._level("conversion_gain_v_per_e", conversion_gain_v_per_e, b, dt, dev)
+            v1 = self._analog(rate * cg, gain)
+            if self.analog_offset_v != 0:  # the response to light only
+                v1 = v1 - self._analog(torch.zeros_like(rate), gain)
+            t = auto_exposure(v1, self.usable_swing_v, self.auto_exposure, target=self.ae_target,
+                              percentile=self.ae_percentile).to(dt)
+        if exposure_ev is not None:
+            ev = batch_param(exposure_ev, "exposure_ev", b, dtype=torch.float64, device=dev)
+            t = t * torch.exp2(ev).to(dt)
+        return t
+
+    def _level(self, name: str, value, b: int, dtype, device):
+        """A level of :data:`PER_CALL_LEVELS`: the module's float, or a per-call value as a ``[B, 1, 1, 1]`` tensor."""
+        if value is None:
+            return getattr(self, name)
+        positive = name == "conversion_gain_v_per_e"
+        if isinstance(value, (int, float)) and not isinstance(value, bool):  # a scalar for the whole batch
+            if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
+                raise ValueError(f"{name}: expected a {'positive' if positive else 'non-negative'} finite value, "
+                                 f"got {value!r}")
+            return float(value)
+        t = batch_param(value, name, b, dtype=dtype, device=device, positive=positive)
+        if not positive and bool((t < 0).any()):
+            raise ValueError(f"{name}: expected non-negative values, got {t.min().item():.6g}")
+        return t.reshape(-1, 1, 1, 1)
+
+    def levels(self, b: int, dtype, device, **overrides) -> dict[str, Any]:
+        """The levels of a capture (:data:`PER_CALL_LEVELS`): the module's floats, with per-call overrides
+        (scalar or ``[B]``) as ``[B, 1, 1, 1]`` tensors. ValueError naming an unknown level."""
+        bad = [k for k in overrides if k not in PER_CALL_LEVELS]
+        if bad:
+            raise ValueError(f"{bad[0]}: not a per-call sensor level; expected one of {PER_CALL_LEVELS}")
+        return {k: self._level(k, overrides.get(k), b, dtype, device) for k in PER_CALL_LEVELS}
+
+    def gain_per_electron(self, analog_gain=None, *, batch: int = 1, dtype=torch.float64, device=None,
+                          conversion_gain_v_per_e=None) -> torch.Tensor:
+        """Output units per photo-electron ``[B]`` on the linear part of the response (no clipping, black level or
+        offset): ``cg x gain / lsb`` for DN (``cg / gain`` with ISETCam's gain), volts: without ``/ lsb``."""
+        gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", batch,
+                           dtype=dtype, device=device, positive=True)
+        cg = self._level("conversion_gain_v_per_e", conversion_gain_v_per_e, batch, dtype, device)
+        cg = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
+        if self.output_units == "electrons":
+            return torch.ones_like(gain)
+        k = cg / gain if self.gain_convention == "isetcam" else cg * gain
+        return k / self.lsb_v if self.output_units == "dn" else k
+
+    def readout(self, electron_rate: torch.Tensor, exposure_s, analog_gain=None, *,
+                conversion_gain_v_per_e=None) -> torch.Tensor:
+        """The noise-free chain (exposure, conversion gain, analog gain, clipping, ADC scale without rounding) for
+        any number of channels ``[B, C, rows, cols]`` -> output units: the ``noise_free`` of a capture, per channel
+        (e.g. of :meth:`channel_rates`: a camera-RGB target with no CFA)."""
+        b = electron_rate.shape[0]
+        dtype, device = electron_rate.dtype, electron_rate.device
+        t = batch_param(exposure_s, "exposure_s", b, dtype=dtype, device=device, positive=True)
         gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
-                           dtype=oi.dtype, device=oi.device, positive=True)
-        v1 = self._analog(rate * self.conversion_gain_v_per_e, gain) - self._analog(torch.zeros_like(rate), gain)
-        return auto_exposure(v1, self.usable_swing_v, self.auto_exposure, target=self.ae_target,
-                             percentile=self.ae_percentile).to(oi.dtype)
+                           dtype=dtype, device=device, positive=True)
+        cg = self._level("conversion_gain_v_per_e", conversion_gain_v_per_e, b, dtype, device)
+        return self._to_units(self._readout(electron_rate * t.reshape(-1, 1, 1, 1) * cg, gain), quantize=False,
+                              cg=cg)
 
     # --- forward -----------------------------------------------------------------------------
     def forward(self, oi: OpticalImage, *, exposure_s=None, analog_gain=None, noise: bool = True,
-                generator: torch.Generator | None = None) -> RawImage:
+                generator: torch.Generator | None = None, exposure_ev=None, qe_scale=None, **levels) -> RawImage:
         """Simulate a capture of ``oi``; returns a :class:`RawImage` ``[B, 1, rows, cols]``.
 
         Args:
@@ -411,16 +560,24 @@ class Sensor(nn.Module):
                 overrides auto-exposure).
             noise: False gives the noise-free capture (no dark signal, noise or fixed pattern).
             generator: torch.Generator for the temporal noise (default: the sensor's own, seeded from ``seed``).
+            exposure_ev: exposure compensation (stops, scalar or ``[B]``) applied to the fixed or auto exposure
+                (not to an explicit ``exposure_s``).
+            qe_scale: per-sample factor on the spectral QE (see :meth:`channel_rates`).
+            levels: per-call values (scalar or ``[B]``) of :data:`PER_CALL_LEVELS` (``read_noise_v``,
+                ``dark_current_e_per_s``, ``dsnu_sigma_v``, ``prnu_sigma_percent``, ``column_fpn_sigma_v``,
+                ``conversion_gain_v_per_e``), e.g. to randomise noise per sample without rebuilding the module.
         """
         if not isinstance(oi, OpticalImage):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
-        rate = self.electron_rate(oi)
+        rate = self.electron_rate(oi, qe_scale=qe_scale)
         if exposure_s is None:
-            exposure_s = self.exposure_for(oi, rate, analog_gain)
-        return self.capture(rate, exposure_s=exposure_s, analog_gain=analog_gain, noise=noise, generator=generator)
+            exposure_s = self.exposure_for(oi, rate, analog_gain, exposure_ev=exposure_ev,
+                                           conversion_gain_v_per_e=levels.get("conversion_gain_v_per_e"))
+        return self.capture(rate, exposure_s=exposure_s, analog_gain=analog_gain, noise=noise, generator=generator,
+                            **levels)
 
     def capture(self, electron_rate: torch.Tensor, *, exposure_s=None, analog_gain=None, noise: bool = True,
-                generator: torch.Generator | None = None) -> RawImage:
+                generator: torch.Generator | None = None, **levels) -> RawImage:
         """The capture from a precomputed mean electron rate (what :meth:`forward` does after
         :meth:`electron_rate`): exposure, noise, analog gain, ADC.
 
@@ -429,7 +586,7 @@ class Sensor(nn.Module):
                 (callers that already hold the per-channel irradiance integrals avoid recomputing them).
             exposure_s: scalar or ``[B]``; None uses the sensor's fixed ``exposure_s`` (auto-exposure needs
                 :meth:`forward` or :meth:`exposure_for`).
-            analog_gain, noise, generator: as in :meth:`forward`.
+            analog_gain, noise, generator, levels: as in :meth:`forward`.
 
         Example:
             >>> s = Sensor(rows=2, cols=2, cfa="RGGB", adc_bits=10)
@@ -453,34 +610,38 @@ class Sensor(nn.Module):
         t = batch_param(exposure_s, "exposure_s", b, dtype=dtype, device=device, positive=True)
         gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
                            dtype=dtype, device=device, positive=True)
-        cg = self.conversion_gain_v_per_e
+        lv = self.levels(b, dtype, device, **levels)
+        cg = lv["conversion_gain_v_per_e"]
         photo_e = rate * t.reshape(-1, 1, 1, 1)
         swing = self.voltage_swing_v
 
         clean_v = self._readout(photo_e * cg, gain)
-        noise_free = self._to_units(clean_v, quantize=False)
+        noise_free = self._to_units(clean_v, quantize=False, cg=cg)
 
         if noise:
             g = generator if generator is not None else self._default_generator(device)
-            volts = self._noisy_pixel_volts(photo_e, t, g)
-            data = self._to_units(self._readout(volts, gain), quantize=True)
+            volts = self._noisy_pixel_volts(photo_e, t, g, lv)
+            data = self._to_units(self._readout(volts, gain), quantize=True, cg=cg)
         else:
-            data = self._to_units(clean_v, quantize=True)
+            data = self._to_units(clean_v, quantize=True, cg=cg)
 
-        white = {"volts": swing, "electrons": swing / cg, "dn": self.white_level_dn}[self.output_units]
+        cg_out = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
+        white = {"volts": swing, "electrons": swing / cg_out, "dn": self.white_level_dn}[self.output_units]
         black = self.black_level_dn if self.output_units == "dn" else 0.0
         return RawImage(
             data=data, units=self.output_units, cfa=self.cfa, black_level=black, white_level=white,
             exposure_s=t, analog_gain=gain, analog_offset_v=self.analog_offset_v,
-            conversion_gain_v_per_e=cg, voltage_swing_v=swing, pixel_size_m=self.pixel_size_m,
-            fill_factor=self.fill_factor, adc_bits=self.adc_bits, noise=self.noise_parameters(enabled=noise),
+            conversion_gain_v_per_e=cg_out, voltage_swing_v=swing, pixel_size_m=self.pixel_size_m,
+            fill_factor=self.fill_factor, adc_bits=self.adc_bits, noise=self.noise_parameters(enabled=noise, **lv),
             noise_free=noise_free, electrons=photo_e,
             metadata={"sensor": self.name, "sampling": self.sampling, "gain_convention": self.gain_convention},
+            spectral_qe=self.spectral_qe,
         )
 
-    def _fixed_or_fresh_patterns(self, like: torch.Tensor, g: torch.Generator | None) -> dict[str, torch.Tensor]:
+    def _fixed_or_fresh_patterns(self, like: torch.Tensor, g: torch.Generator | None, lv: dict
+                                 ) -> dict[str, torch.Tensor]:
         b, _, rows, cols = like.shape
-        if self.dsnu_sigma_v == 0 and self.prnu_sigma_percent == 0 and self.column_fpn_sigma_v == 0:
+        if not (_on(lv["dsnu_sigma_v"]) or _on(lv["prnu_sigma_percent"]) or _on(lv["column_fpn_sigma_v"])):
             return {}  # no fixed-pattern stage: nothing drawn
         if self.fpn_mode == "fixed":
             fp = self.fixed_pattern(rows, cols, dtype=like.dtype, device=like.device)
@@ -488,60 +649,75 @@ class Sensor(nn.Module):
                     "column": fp["column"].expand(b, 1, 1, cols)}
         # ISETCam sensorAddNoise / noiseFPN: new DSNU/PRNU images on every call (only those in use)
         out = {}
-        if self.dsnu_sigma_v > 0:
+        if _on(lv["dsnu_sigma_v"]):
             out["dsnu"] = _noise.normal(like, g)
-        if self.prnu_sigma_percent > 0:
+        if _on(lv["prnu_sigma_percent"]):
             out["prnu"] = _noise.normal(like, g)
-        if self.column_fpn_sigma_v > 0:
+        if _on(lv["column_fpn_sigma_v"]):
             out["column"] = _noise.normal(like, g, (b, 1, 1, cols))
         return out
 
-    def _noisy_pixel_volts(self, photo_e: torch.Tensor, t: torch.Tensor, g: torch.Generator | None) -> torch.Tensor:
-        """Pixel volts (before analog gain and clipping) with dark signal, shot, read and fixed-pattern noise."""
-        cg = self.conversion_gain_v_per_e
+    def _noisy_pixel_volts(self, photo_e: torch.Tensor, t: torch.Tensor, g: torch.Generator | None,
+                           lv: dict | None = None) -> torch.Tensor:
+        """Pixel volts (before analog gain and clipping) with dark signal, shot, read and fixed-pattern noise.
+
+        ``lv``: the capture's levels (:meth:`levels`; floats, or ``[B, 1, 1, 1]`` per-call tensors)."""
+        lv = self.levels(photo_e.shape[0], photo_e.dtype, photo_e.device) if lv is None else lv
+        cg = lv["conversion_gain_v_per_e"]
+        read_v, dark, dsnu_v = lv["read_noise_v"], lv["dark_current_e_per_s"], lv["dsnu_sigma_v"]
+        prnu, column_v = lv["prnu_sigma_percent"], lv["column_fpn_sigma_v"]
         tt = t.reshape(-1, 1, 1, 1)
-        fp = self._fixed_or_fresh_patterns(photo_e, g)
+        fp = self._fixed_or_fresh_patterns(photo_e, g, lv)
         if self.noise_model == "isetcam":
             # ISETCam sensorAddNoise order (FORMAT 4.8): dark, shot (noiseShot), read, then v (1 + PRNU) + DSNU
-            electrons = photo_e + self.dark_current_e_per_s * tt if self.dark_current_e_per_s > 0 else photo_e
+            electrons = photo_e + dark * tt if _on(dark) else photo_e
             if self.shot_noise != "off":
                 electrons = _noise.isetcam_shot_noise(electrons, g)
             volts = electrons * cg
-            if self.read_noise_v > 0:
-                volts = volts + self.read_noise_v * _noise.normal(volts, g)
-            if self.prnu_sigma_percent > 0:
-                volts = volts * (1 + self.prnu_sigma_percent / 100 * fp["prnu"])
-            if self.dsnu_sigma_v > 0:
-                volts = volts + self.dsnu_sigma_v * fp["dsnu"]
-            if self.column_fpn_sigma_v > 0:
-                volts = volts + self.column_fpn_sigma_v * fp["column"]
+            if _on(read_v):
+                volts = volts + read_v * _noise.normal(volts, g)
+            if _on(prnu):
+                volts = volts * (1 + prnu / 100 * fp["prnu"])
+            if _on(dsnu_v):
+                volts = volts + dsnu_v * fp["dsnu"]
+            if _on(column_v):
+                volts = volts + column_v * fp["column"]
             return volts
         signal_e = photo_e
-        if self.prnu_sigma_percent > 0:  # PRNU: per-pixel gain of the photo signal (EMVA 1288)
-            signal_e = signal_e * (1 + self.prnu_sigma_percent / 100 * fp["prnu"])
-        if self.dark_current_e_per_s > 0:
-            signal_e = signal_e + self.dark_current_e_per_s * tt
+        if _on(prnu):  # PRNU: per-pixel gain of the photo signal (EMVA 1288)
+            signal_e = signal_e * (1 + prnu / 100 * fp["prnu"])
+        if _on(dark):
+            signal_e = signal_e + dark * tt
         nt = self.noise_terms  # hot pixels, full well, dead pixels, dark shading, row/column noise (noise_terms.py)
         signal_e = nt.mean_dark_e(signal_e, tt)
         volts = nt.after_shot(_noise.shot_noise(signal_e, self.shot_noise, g), tt, cg, g)
-        if self.read_noise_v > 0:
-            volts = volts + self.read_noise_v * nt.read_noise_draw(volts, g)
+        if _on(read_v):
+            volts = volts + read_v * nt.read_noise_draw(volts, g)
             if self.cds:  # the reset sample has its own read noise
-                volts = volts - self.read_noise_v * nt.read_noise_draw(volts, g)
+                volts = volts - read_v * nt.read_noise_draw(volts, g)
         if not self.cds:  # CDS subtracts the reset level, cancelling the fixed offsets
-            if self.dsnu_sigma_v > 0:
-                volts = volts + self.dsnu_sigma_v * fp["dsnu"]
-            if self.column_fpn_sigma_v > 0:
-                volts = volts + self.column_fpn_sigma_v * fp["column"]
+            if _on(dsnu_v):
+                volts = volts + dsnu_v * fp["dsnu"]
+            if _on(column_v):
+                volts = volts + column_v * fp["column"]
         return volts
 
-    def noise_parameters(self, enabled: bool = True) -> dict[str, Any]:
+    def noise_parameters(self, enabled: bool = True, **levels) -> dict[str, Any]:
+        """The noise settings of a capture (floats, or ``[B]`` tensors for per-call levels)."""
+        lv = {k: (v.reshape(-1) if isinstance(v, torch.Tensor) else v) for k, v in levels.items()
+              if k != "conversion_gain_v_per_e"}
         return {"enabled": enabled, "shot_noise": self.shot_noise, "read_noise_v": self.read_noise_v,
                 "dark_current_e_per_s": self.dark_current_e_per_s, "dsnu_sigma_v": self.dsnu_sigma_v,
                 "prnu_sigma_percent": self.prnu_sigma_percent, "column_fpn_sigma_v": self.column_fpn_sigma_v,
+                **lv,
                 "fpn_mode": self.fpn_mode, "noise_model": self.noise_model, "cds": self.cds, "seed": self.seed,
                 **self.noise_terms.as_dict()}
 
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, size={self.rows}x{self.cols}, pixel={self.pixel_size_m * 1e6:g} um, "
                 f"fill={self.fill_factor}, cfa={self.cfa!r}, bits={self.adc_bits}, sampling={self.sampling!r}")
+
+
+def _on(level) -> bool:
+    """A noise stage runs when its level (float or per-sample tensor) is positive for some sample."""
+    return bool((level > 0).any()) if isinstance(level, torch.Tensor) else level > 0

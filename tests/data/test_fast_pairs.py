@@ -8,14 +8,13 @@ from torch.utils.data import DataLoader
 
 from isettorch.data.camera_pairs import (
     CameraPairDataset,
-    _factored_radiance,
     batch_loader,
     collate_pairs,
     render_pair,
     render_pairs,
 )
 from isettorch.data.config import SCENE_DEFAULTS, merge_config
-from isettorch.data.scenes import _draw_scene, generate_scene
+from isettorch.data.scenes import _draw_scene, _factored_radiance, _luminance_weights, generate_scene
 
 SCENE = {"height": 32, "width": 32, "wavelengths_nm": [400.0, 700.0, 20.0]}
 IMAGES = ("noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb")
@@ -46,18 +45,36 @@ def test_factored_matches_reference(size, extra):
         torch.testing.assert_close(fast["meta"][k], v, rtol=1e-5, atol=0, msg=k)
 
 
+def _dense_radiance(f):
+    """The scene model assembled pixel by pixel (module notes of data/scenes.py), independently of the factors:
+    L = k gain(x) [(1 - t) P[ia] + t P[ib]](l) (a(x) E1(l) + b(x) E2(l)), k setting the mean luminance."""
+    pal = f["palette"].double()  # [K, L]
+    t = f["t"].double()[..., None]
+    refl = (1 - t) * pal[f["ia"]] + t * pal[f["ib"]]  # [H, W, L]
+    a = torch.ones_like(f["t"]) if f["a"] is None else f["a"]
+    b = torch.zeros_like(f["t"]) if f["b"] is None else f["b"]
+    light = a.double()[..., None] * f["e1"] + b.double()[..., None] * f["e2"]
+    cube = (f["gain"].double()[..., None] * refl * light).permute(2, 0, 1)  # [L, H, W]
+    k = f["target"] / float((cube * _luminance_weights(f["wl"])[:, None, None]).sum(0).mean())
+    return cube * k, f["e1"] * k
+
+
 def test_factorisation_rebuilds_generate_scene():
-    """sum_j maps_j(x) spectra_j(l) equals the radiance cube that generate_scene assembles (both lights cases)."""
+    """sum_j maps_j(x) spectra_j(l) of generate_scene's factored scene equals the radiance assembled pixel by pixel
+    (both lights cases), and its mean luminance is the drawn one."""
     cfg = merge_config({"height": 24, "width": 20, "two_light_probability": 0.5, "shadow_probability": 0.5},
                        SCENE_DEFAULTS, "scene")
     kinds, used = set(), set()
     for i in range(6):
         f = _draw_scene(i, 2, cfg, device=None, dtype=torch.float64, hfov_deg=None, size=None)
         maps, spectra, white = _factored_radiance(f, torch.float64)
-        cube = torch.einsum("jhw,jl->lhw", maps, spectra)
+        cube, white_ref = _dense_radiance(f)
         scene = generate_scene(i, 2, cfg, dtype=torch.float64)
-        torch.testing.assert_close(cube[None], scene.photons, rtol=1e-10, atol=0)
-        torch.testing.assert_close(white[None], scene.illuminant_photons, rtol=1e-10, atol=0)
+        assert scene.is_factored
+        torch.testing.assert_close(scene.maps[0], maps, rtol=0, atol=0)
+        torch.testing.assert_close(scene.photons[0], cube, rtol=1e-10, atol=1e-10 * float(cube.max()))
+        torch.testing.assert_close(scene.illuminant_photons[0], white_ref, rtol=1e-10, atol=0)
+        assert float(scene.mean_luminance()) == pytest.approx(f["target"], rel=1e-10)
         # one term per palette colour the layout uses (with a non-zero weight) and light; unused ones left out
         t, ia, ib = f["t"], f["ia"], f["ib"]
         n_used = sum(bool(((ia == k) & (t < 1)).any() or ((ib == k) & (t > 0)).any()) for k in range(8))
@@ -191,3 +208,28 @@ def test_threads_sharing_a_dataset_get_the_same_items():
         threaded = list(ex.map(ds.get_batch, chunks))
     for a, b in zip(serial, threaded):
         assert torch.equal(a["raw"], b["raw"]) and torch.equal(a["meta"]["read_noise_e"], b["meta"]["read_noise_e"])
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_pair_is_the_camera_applied_to_its_scene(dtype):
+    """One simulator: each pair equals `Camera(scene)` of the item's camera, scene, sensor settings and noise seed
+    (camera_for), for the factored scene and for its dense cube."""
+    from isettorch.data.camera_pairs import camera_for
+
+    ds = CameraPairDataset(3, seed=4, scene={**SCENE, "two_light_probability": 0.5}, dtype=dtype,
+                           camera={"cfa_patterns": ["GRBG", "BGGR"], "qe_variation": 1.0})
+    batch = ds.get_batch([0, 1, 2])
+    tol = 1e-5 if dtype == torch.float32 else 1e-12
+    for i in range(3):
+        camera, scene, kw = camera_for(i, 4, ds.scene_config, ds.camera_config, dtype=dtype)
+        assert scene.is_factored
+        for s in (scene, scene.to_dense()):
+            kwi = dict(kw)
+            g = torch.Generator().manual_seed(kwi.pop("noise_seed"))
+            raw = camera(s, return_intermediates=True, generator=g, **kwi).raw
+            span = raw.white_level - raw.black_level
+            nf = (raw.noise_free - raw.black_level) / span
+            assert _rel_max(nf, batch["noise_free_raw"][i:i + 1]) < tol
+            noisy = (raw.data - raw.black_level) / span
+            assert float((noisy != batch["raw"][i:i + 1]).double().mean()) < 2e-3
+            assert float(raw.exposure_s[0]) == pytest.approx(float(batch["meta"]["exposure_s"][i]), rel=tol)

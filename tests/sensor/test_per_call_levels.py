@@ -1,0 +1,83 @@
+"""Per-call sensor levels ([B] tensors), exposure compensation, and the all-channel readout used for targets."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from isettorch.optics.optical_image import OpticalImage
+from isettorch.sensor import Sensor
+
+
+def _oi(dtype=torch.float64, b=1):
+    g = torch.Generator().manual_seed(0)
+    photons = torch.rand(b, 31, 16, 16, generator=g, dtype=dtype) * 1e17
+    return OpticalImage(photons, torch.arange(400.0, 701.0, 10.0, dtype=dtype), sample_spacing_m=2e-6)
+
+
+def test_per_call_read_noise_gives_each_sample_its_own_sigma():
+    """Dark frame, no shot noise: the volts' std is the read noise given per sample (EMVA 1288 dark noise)."""
+    s = Sensor(rows=128, cols=128, cfa="RGGB", shot_noise="off", output_units="volts")
+    rate = torch.zeros(2, 1, 128, 128, dtype=torch.float64)
+    sigma = torch.tensor([1e-3, 4e-3], dtype=torch.float64)
+    # volts are clipped at 0: add an offset so the noise is not clipped
+    s.analog_offset_v = 0.05
+    raw = s.capture(rate, exposure_s=0.01, read_noise_v=sigma, generator=torch.Generator().manual_seed(1))
+    std = raw.data.flatten(1).std(dim=1)
+    # std of 16384 normal samples: relative standard error 1/sqrt(2 n) = 0.55 %
+    assert torch.allclose(std, sigma, rtol=0.03)
+    assert torch.equal(raw.noise["read_noise_v"], sigma)
+
+
+def test_per_call_levels_equal_the_module_levels():
+    oi = _oi()
+    kw = dict(rows=16, cols=16, pixel_size_m=2e-6, cfa="RGGB", adc_bits=10, shot_noise="poisson")
+    levels = dict(read_noise_v=2e-3, dark_current_e_per_s=50.0, dsnu_sigma_v=1e-3, prnu_sigma_percent=1.0,
+                  conversion_gain_v_per_e=5e-5)
+    fixed = Sensor(**kw, fpn_mode="per_frame", **levels)
+    per_call = Sensor(**kw, fpn_mode="per_frame")
+    a = fixed(oi, exposure_s=0.002, generator=torch.Generator().manual_seed(3))
+    b = per_call(oi, exposure_s=0.002, generator=torch.Generator().manual_seed(3),
+                 **{k: torch.tensor([v], dtype=torch.float64) for k, v in levels.items()})
+    assert torch.allclose(a.noise_free, b.noise_free, rtol=1e-14, atol=0)
+    assert float((a.data != b.data).double().mean()) < 1e-3  # same draws (rounding may move a rare ADC step)
+
+
+def test_bad_per_call_level_is_named():
+    s = Sensor(rows=4, cols=4)
+    with pytest.raises(ValueError, match="read_noise_e"):
+        s(_oi(), exposure_s=0.01, read_noise_e=1.0)
+    with pytest.raises(ValueError, match="read_noise_v"):
+        s(_oi(), exposure_s=0.01, read_noise_v=-1.0)
+
+
+def test_exposure_compensation_and_all_channel_readout():
+    oi = _oi(b=2)
+    s = Sensor(rows=16, cols=16, pixel_size_m=2e-6, cfa="RGGB", adc_bits=12, auto_exposure="percentile",
+               ae_percentile=98.0, ae_target=0.8)
+    t0 = s.exposure_for(oi)
+    t1 = s.exposure_for(oi, exposure_ev=torch.tensor([1.0, -2.0]))
+    assert torch.allclose(t1, t0 * torch.tensor([2.0, 0.25], dtype=t0.dtype), rtol=1e-15)
+    rates, xyz = s.channel_rates(oi, extra_weights=torch.ones(31, 1, dtype=torch.float64))
+    assert rates.shape == (2, 3, 16, 16) and xyz.shape == (2, 1, 16, 16)
+    assert torch.allclose(s.cfa.mosaic(rates), s.electron_rate(oi), rtol=1e-14, atol=0)
+    raw = s(oi, noise=False)
+    all_channels = s.readout(rates, raw.exposure_s, raw.analog_gain)
+    assert torch.allclose(s.cfa.mosaic(all_channels), raw.noise_free, rtol=1e-15, atol=0)
+    # the linear response: output units per electron x electrons = noise-free DN above black (below saturation)
+    k = s.gain_per_electron(batch=2)
+    lin = (rates * raw.exposure_s.reshape(-1, 1, 1, 1)) * k.reshape(-1, 1, 1, 1) + s.black_level_dn
+    below = all_channels < s.white_level_dn
+    assert torch.allclose(all_channels[below], lin[below], rtol=1e-12)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000])
+def test_percentile_matches_numpy(n):
+    import numpy as np
+
+    from isettorch.sensor.exposure import percentile_linear
+
+    x = torch.rand(3, n, generator=torch.Generator().manual_seed(n), dtype=torch.float64)
+    for p in (0.0, 12.5, 50.0, 98.0, 100.0):
+        np.testing.assert_allclose(percentile_linear(x, p).numpy(), np.percentile(x.numpy(), p, axis=1),
+                                   rtol=1e-14, atol=0)
