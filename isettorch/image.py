@@ -393,6 +393,8 @@ class SpectralImage:
         for f in dataclasses.fields(self):
             if not f.init or f.name == "factors":
                 continue
+            if f.name == "photons" and self.factors is not None:
+                continue  # a factored image's dense cache (if read) is rebuilt from the moved factors on demand
             v = self.__dict__.get("_photons") if f.name == "photons" else getattr(self, f.name)
             if isinstance(v, torch.Tensor):
                 out[f.name] = fn(v)

@@ -172,3 +172,16 @@ def test_camera_runs_on_the_inputs_device_and_dtype(device, dtype):
     assert out.optical_image.is_factored and out.optical_image.__dict__.get("_photons") is None
     for t in (out.raw.data, out.raw.noise_free, out.image):
         assert t.dtype == dtype and t.device.type == device.type and bool(torch.isfinite(t).all())
+
+
+def test_a_factored_scene_read_densely_still_moves_and_detaches():
+    """Reading ``.photons`` caches the cube; ``to``/``detach`` must then move the factors, not carry both forms
+    (regression: the merged bench hit 'photons: expected None when factors are given')."""
+    from isettorch.scene import frequency_sweep
+
+    sc = frequency_sweep(size=32).to(dtype=torch.float64)
+    dense = sc.photons.clone()
+    moved = sc.to(dtype=torch.float32)
+    assert moved.is_factored and moved.photons.dtype == torch.float32
+    torch.testing.assert_close(moved.photons.double(), dense, rtol=1e-6, atol=0)
+    assert sc.detach().is_factored and torch.equal(sc.detach().photons, dense)
