@@ -546,8 +546,14 @@ class Sensor(nn.Module):
         gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
                            dtype=dtype, device=device, positive=True)
         cg = self._level("conversion_gain_v_per_e", conversion_gain_v_per_e, b, dtype, device)
-        return self._to_units(self._readout(electron_rate * t.reshape(-1, 1, 1, 1) * cg, gain), quantize=False,
-                              cg=cg)
+        photo_e = self._full_well_clip(electron_rate * t.reshape(-1, 1, 1, 1))
+        return self._to_units(self._readout(photo_e * cg, gain), quantize=False, cg=cg)
+
+    def _full_well_clip(self, photo_e: torch.Tensor) -> torch.Tensor:
+        """The photodiode's saturation (``full_well_e``, EMVA 1288 section 4.1) on the noise-free signal, as the
+        noisy chain applies it after shot noise (:meth:`NoiseTerms.after_shot`)."""
+        fw = self.noise_terms.full_well_e
+        return photo_e if fw is None else photo_e.clamp(max=fw)
 
     # --- forward -----------------------------------------------------------------------------
     def forward(self, oi: OpticalImage, *, exposure_s=None, analog_gain=None, noise: bool = True,
@@ -615,7 +621,7 @@ class Sensor(nn.Module):
         photo_e = rate * t.reshape(-1, 1, 1, 1)
         swing = self.voltage_swing_v
 
-        clean_v = self._readout(photo_e * cg, gain)
+        clean_v = self._readout(self._full_well_clip(photo_e) * cg, gain)
         noise_free = self._to_units(clean_v, quantize=False, cg=cg)
 
         if noise:

@@ -162,3 +162,20 @@ def test_isetcam_noise_model_refuses_the_terms():
     with pytest.raises(ValueError, match="noise_model: 'isetcam'"):
         _sensor(noise_model="isetcam", row_noise_v=1e-3)
     assert not _sensor(noise_model="isetcam").noise_terms.active
+
+
+def test_noise_free_output_clips_at_the_full_well():
+    """``noise_free`` (capture and readout) saturates at ``full_well_e`` like the noisy chain, not at the ADC top."""
+    import torch
+
+    from isettorch.sensor import Sensor
+
+    s = Sensor(rows=4, cols=4, cfa="mono", full_well_e=1000.0, conversion_gain_v_per_e=1e-4, voltage_swing_v=1.0,
+               adc_bits=12, output_units="volts", exposure_s=1.0)
+    rate = torch.tensor([500.0, 2000.0], dtype=torch.float64).reshape(2, 1, 1, 1).expand(2, 1, 4, 4)
+    raw = s.capture(rate.contiguous(), exposure_s=1.0, noise=False)
+    nf = raw.noise_free.reshape(2, -1)
+    torch.testing.assert_close(nf[0], torch.full((16,), 500 * 1e-4, dtype=torch.float64))
+    torch.testing.assert_close(nf[1], torch.full((16,), 1000 * 1e-4, dtype=torch.float64))  # not 2000 e-
+    ro = s.readout(rate.contiguous(), 1.0).reshape(2, -1)
+    torch.testing.assert_close(ro, nf)
