@@ -50,8 +50,9 @@ def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: 
         (B,) in dB (inf where the images are equal).
 
     Example:
-        >>> cpsnr(torch.full((1, 3, 4, 4), 0.5), torch.full((1, 3, 4, 4), 0.6)).item()  # 10 log10(1 / 0.01)
-        20.0...
+        >>> est = torch.full((1, 3, 4, 4), 0.5, dtype=torch.float64)
+        >>> round(cpsnr(est, est + 0.1).item(), 9)  # MSE 0.01: 10 log10(1 / 0.01) = 20 dB
+        20.0
     """
     if estimate.shape != reference.shape or estimate.dim() != 4:
         raise ValueError(f"estimate, reference: expected equal shapes (B, C, H, W), got {tuple(estimate.shape)} "
