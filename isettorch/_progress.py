@@ -63,8 +63,9 @@ class _NoBar:
     def set_description(self, *args, **kwargs) -> None:
         pass
 
-    def write(self, *args, **kwargs) -> None:
-        pass
+    def write(self, s: str, file=None, end: str = "\n", nolock: bool = False) -> None:
+        """Print ``s`` as ``tqdm.write`` does (a log line, not bar chatter: it is kept under ``quiet``)."""
+        print(s, file=sys.stdout if file is None else file, end=end, flush=True)
 
     def close(self) -> None:
         pass
@@ -76,6 +77,8 @@ class _NoBar:
         self.close()
 
 
-def add_quiet_argument(parser) -> None:
-    """Add the shared ``-q/--quiet`` flag (no progress bars) to an argparse (sub)parser."""
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+def add_quiet_argument(parser, *aliases: str) -> None:
+    """Add the shared ``-q/--quiet`` flag (no progress bars) to an argparse (sub)parser; ``aliases`` are former
+    names kept working (e.g. ``"--no-progress"``)."""
+    help_ = "no progress bars" + (f" ({', '.join(aliases)}: the former name)" if aliases else "")
+    parser.add_argument("-q", "--quiet", *aliases, dest="quiet", action="store_true", help=help_)

@@ -157,25 +157,18 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
     if batches:
         # each shard is generated as one batch (CameraPairDataset.get_batch; bitwise the collated items)
         loader = torch.utils.data.DataLoader(ds, sampler=batches, batch_size=None, num_workers=workers)
-        bar = None
-        if progress:
-            from tqdm import tqdm
+        from .._progress import progress as progress_bar
 
-            bar = tqdm(total=len(todo), unit="shard", desc=f"synth rank {me}/{procs}", dynamic_ncols=True)
-        try:
+        with progress_bar(total=len(todo), unit="shard", desc=f"synth rank {me}/{procs}", quiet=not progress) as bar:
             for f, batch in zip(todo, loader):
                 pt, js = _shard_names(f)
                 _atomic_save(batch, out / pt)
                 rec = {"file": pt, "sha256": sha256_file(out / pt), "first_index": f * size,
                        "count": int(batch["raw"].shape[0]), "config_sha256": chash, "format_version": FORMAT_VERSION}
                 _atomic_write_bytes(out / js, json.dumps(rec, indent=1, sort_keys=True).encode())
-                if bar is not None:
-                    bar.update(1)
+                bar.update(1)
                 if on_shard_written is not None:
                     on_shard_written(f)
-        finally:
-            if bar is not None:
-                bar.close()
     return _write_manifest(out, cfg, chash, count, size, n_files)
 
 
