@@ -26,7 +26,8 @@ def progress(iterable: Iterable | None = None, total: int | None = None, desc: s
         iterable: what to iterate; ``len()`` gives the total when ``total`` is None.
         total: number of steps (for generators, or a manual bar updated with ``.update(n)``).
         desc: a short label shown before the bar.
-        quiet: no bar at all (the iterable is returned as is; a manual bar becomes a no-op object).
+        quiet: no bar at all (the iterable is returned as is; a manual bar becomes an object whose methods do
+            nothing, except ``write``, which prints its line as ``tqdm.write`` does).
         kwargs: passed to ``tqdm`` (e.g. ``unit="pair"``, ``initial=step``, ``file=sys.stdout``).
     """
     if total is not None and (not isinstance(total, int) or total < 0):
@@ -50,7 +51,7 @@ def _isatty(stream) -> bool:
 
 
 class _NoBar:
-    """Stands in for a manual tqdm bar under ``quiet``: the same methods, doing nothing."""
+    """Stands in for a manual tqdm bar under ``quiet``: the same methods, doing nothing but ``write``."""
 
     n = 0
 
