@@ -20,6 +20,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "sensor"))
 import numpy_capture as nc  # noqa: E402
 
+from isettorch._progress import add_quiet_argument, progress  # noqa: E402
 from isettorch.io.frames import Capture  # noqa: E402
 from isettorch.sensor.calibration import calibrate_capture  # noqa: E402
 
@@ -59,11 +60,12 @@ def main() -> None:
     ap.add_argument("--cases", type=int, default=12, help="random truths per CFA (mono, RGGB)")
     ap.add_argument("--frames", type=int, default=3, help="dark and flat frames per exposure")
     ap.add_argument("--out", default=None)
+    add_quiet_argument(ap)
     args = ap.parse_args()
     rows, worst = [], {}
     t0 = time.perf_counter()
     for cfa in (None, "RGGB"):
-        for i in range(args.cases):
+        for i in progress(range(args.cases), desc=cfa or "mono", unit="case", quiet=args.quiet):
             rng = np.random.default_rng(1000 + i + (500 if cfa else 0))
             truth = random_truth(rng, cfa)
             err = run_case(truth, cfa, seed=i, frames=args.frames)

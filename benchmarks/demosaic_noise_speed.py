@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch._progress import add_quiet_argument  # noqa: E402
 from isettorch.isp.evaluation import evaluate_demosaic  # noqa: E402
 
 DATA = Path("/work/shared/data")
@@ -89,7 +90,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sigmas", default="0.01,0.02,0.05")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", default=None, help="write the markdown table here")
-    ap.add_argument("--quiet", action="store_true")
+    add_quiet_argument(ap)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     t0 = time.time()

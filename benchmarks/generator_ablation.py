@@ -33,7 +33,7 @@ DATA = Path("/work/shared/data")
 def run_one(name: str, disable: list[str], args) -> dict:
     out = Path(args.out) / name.replace(" ", "_")
     sets = [f"data.disable={json.dumps(disable)}", "eval.every=0", *args.set]
-    cmd = ["--config", str(args.config), "--out", str(out), "--steps", str(args.steps), "--no-progress",
+    cmd = ["--config", str(args.config), "--out", str(out), "--steps", str(args.steps), "--quiet",
            "--threads", str(args.threads), "--set", *sets]
     rec_path = out / "record.json"
     if not (rec_path.is_file() and json.loads(rec_path.read_text())["steps"] >= args.steps):

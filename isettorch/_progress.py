@@ -26,7 +26,8 @@ def progress(iterable: Iterable | None = None, total: int | None = None, desc: s
         iterable: what to iterate; ``len()`` gives the total when ``total`` is None.
         total: number of steps (for generators, or a manual bar updated with ``.update(n)``).
         desc: a short label shown before the bar.
-        quiet: no bar at all (the iterable is returned as is; a manual bar becomes a no-op object).
+        quiet: no bar at all (the iterable is returned as is; a manual bar becomes an object whose methods do
+            nothing, except ``write``, which prints its line as ``tqdm.write`` does).
         kwargs: passed to ``tqdm`` (e.g. ``unit="pair"``, ``initial=step``, ``file=sys.stdout``).
     """
     if total is not None and (not isinstance(total, int) or total < 0):
@@ -50,7 +51,7 @@ def _isatty(stream) -> bool:
 
 
 class _NoBar:
-    """Stands in for a manual tqdm bar under ``quiet``: the same methods, doing nothing."""
+    """Stands in for a manual tqdm bar under ``quiet``: the same methods, doing nothing but ``write``."""
 
     n = 0
 
@@ -63,8 +64,9 @@ class _NoBar:
     def set_description(self, *args, **kwargs) -> None:
         pass
 
-    def write(self, *args, **kwargs) -> None:
-        pass
+    def write(self, s: str, file=None, end: str = "\n", nolock: bool = False) -> None:
+        """Print ``s`` as ``tqdm.write`` does (a log line, not bar chatter: it is kept under ``quiet``)."""
+        print(s, file=sys.stdout if file is None else file, end=end, flush=True)
 
     def close(self) -> None:
         pass
@@ -76,6 +78,8 @@ class _NoBar:
         self.close()
 
 
-def add_quiet_argument(parser) -> None:
-    """Add the shared ``-q/--quiet`` flag (no progress bars) to an argparse (sub)parser."""
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+def add_quiet_argument(parser, *aliases: str) -> None:
+    """Add the shared ``-q/--quiet`` flag (no progress bars) to an argparse (sub)parser; ``aliases`` are former
+    names kept working (e.g. ``"--no-progress"``)."""
+    help_ = "no progress bars" + (f" ({', '.join(aliases)}: the former name)" if aliases else "")
+    parser.add_argument("-q", "--quiet", *aliases, dest="quiet", action="store_true", help=help_)

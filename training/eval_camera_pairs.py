@@ -26,19 +26,20 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch._progress import add_quiet_argument, progress  # noqa: E402
 from isettorch.isp.learned import demosaic_malvar_torch, load_checkpoint  # noqa: E402
 from training import common, train_demosaic  # noqa: E402
 
 
 @torch.no_grad()
 def evaluate(cfg: dict, models: dict, items: int = 64, size: int = 128, crop: int = 10, noisy: bool = True,
-             batch: int = 8) -> dict:
+             batch: int = 8, quiet: bool = True) -> dict:
     """Per-method mean CPSNR (dB) over ``items`` held-out camera pairs; also split at the median noise gain."""
     vcfg = dict(cfg, data=dict(cfg.get("data", {}), patch=size), noise={"enabled": noisy})
     src = train_demosaic.CameraPairSource(vcfg, train_demosaic.TEST_SEED_OFFSET)
     scores: dict = {"mhc": []}
     gains = []
-    for start in range(0, items, batch):
+    for start in progress(range(0, items, batch), desc="evaluate", unit="batch", quiet=quiet):
         n = min(batch, items - start)
         b = src.ds.get_batch(list(range(start, start + n)))
         raw, rgb, _ = train_demosaic.pair_batch(b, size, noisy)
@@ -70,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--input", choices=("noisy", "noise_free"), default="noisy")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", default=None, help="write the scores as JSON here")
+    add_quiet_argument(ap)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     cfg = common.load_config(args.config)
@@ -79,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         if not sep:
             raise ValueError(f"--model: expected NAME=PATH, got {spec!r}")
         models[name] = load_checkpoint(path, dtype=torch.float32)[0]
-    res = evaluate(cfg, models, args.items, args.size, args.crop, args.input == "noisy")
+    res = evaluate(cfg, models, args.items, args.size, args.crop, args.input == "noisy", quiet=args.quiet)
     res["models"] = dict(m.split("=", 1) for m in args.model)
     text = json.dumps(res, indent=2)
     print(text)

@@ -20,6 +20,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch._progress import add_quiet_argument, progress  # noqa: E402
 from isettorch.data import natural as nat  # noqa: E402
 from training.train_demosaic import ScenePool  # noqa: E402
 
@@ -35,12 +36,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--source", choices=("natural", "isettorch"), default="natural")
     ap.add_argument("--domain", choices=nat.DOMAINS, default="mixed")
+    add_quiet_argument(ap)
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     pool = ScenePool({"data": {"source": args.source, "patch": args.size, "scene_size": args.size}}, HELDOUT_SEED)
-    for i in range(args.n):
+    for i in progress(range(args.n), desc="held-out", unit="image", quiet=args.quiet):
         g = torch.Generator().manual_seed(HELDOUT_SEED + i)
         x = nat.expose_and_encode(pool.render(i)[None], g, args.domain)[0].permute(1, 2, 0).numpy()
         Image.fromarray(np.round(x * 255).astype(np.uint8)).save(out / f"{args.source}_{i:03d}.png")

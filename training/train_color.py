@@ -38,6 +38,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from isettorch import spectral  # noqa: E402
+from isettorch._progress import add_quiet_argument, progress  # noqa: E402
 from training import common  # noqa: E402
 
 WAVELENGTHS = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
@@ -212,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=None)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--set", nargs="*", default=[])
+    add_quiet_argument(ap)
     args = ap.parse_args(argv)
     cfg = common.load_config(args.config, args.set)
     if args.steps is not None:
@@ -241,6 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     row = {"step": 0, **evaluate(models, val)}
     history.append(row)
     print(json.dumps(row), flush=True)
+    bar = progress(total=steps, desc="train", unit="step", quiet=args.quiet)  # stderr; rows go to stdout
     for step in range(1, steps + 1):
         rgb, wht, tgt, mrgb, mtgt = data.batch(n_scenes, n_refl, seed * 1_000_003 + step)
         lr = float(o["lr"]) * 0.5 * (1 + math.cos(math.pi * step / steps))
@@ -253,13 +256,15 @@ def main(argv: list[str] | None = None) -> int:
             loss.backward()
             opts[k].step()
             losses[f"train_{k}"] = loss.item()
+        bar.update(1)
         if step % int(v.get("every", 100)) == 0 or step == steps:
             row = {"step": step, "wall_s": round(time.time() - t0, 1), **losses, **evaluate(models, val)}
             history.append(row)
-            print(json.dumps(row), flush=True)
+            bar.write(json.dumps(row), file=sys.stdout)
             common.write_csv(out / "history.csv", history)
             cols = [(k, f"held-out mean dE2000 ({k})") for k in models] + [("mcc_lstsq", "MCC matrix dE2000")]
             common.plot_curves(out / "curves.png", history, cols, "colour transform, held-out scenes")
+    bar.close()
     torch.save({"models": {k: m.state_dict() for k, m in models.items()}, "m0": m0,
                 "config": json.dumps(cfg)}, out / "color_models.pt")
     final = history[-1]

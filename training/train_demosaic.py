@@ -51,6 +51,8 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch._progress import add_quiet_argument  # noqa: E402
+from isettorch._progress import progress as progress_bar  # noqa: E402
 from isettorch.data import natural as nat  # noqa: E402
 from isettorch.data import spectra as data_spectra  # noqa: E402
 from isettorch.data.config import seed_for  # noqa: E402
@@ -422,7 +424,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", nargs="*", default=[], help="config overrides key.sub=value")
     ap.add_argument("--stop-after", type=int, default=None,
                     help="stop (with a checkpoint) after this many steps in this invocation; resume later")
-    ap.add_argument("--no-progress", action="store_true")
+    add_quiet_argument(ap, "--no-progress")
     args = ap.parse_args(argv)
 
     cfg = common.load_config(args.config, args.set)
@@ -483,11 +485,8 @@ def main(argv: list[str] | None = None) -> int:
     bench = cfg.get("eval", {}).get("benchmarks", {}) or {}
     bench_every = int(cfg.get("eval", {}).get("every", 0))
     t_start = time.time()
-    pbar = None
-    if rank == 0 and not args.no_progress:
-        from tqdm import tqdm
-
-        pbar = tqdm(total=total, initial=step, dynamic_ncols=True, file=sys.stdout)
+    # the bar on stderr (rank 0 only); the validation rows go to stdout through pbar.write (kept under --quiet)
+    pbar = progress_bar(total=total, initial=step, desc="train", unit="step", quiet=rank != 0 or args.quiet)
     run_loss, run_n = 0.0, 0
     frac = progress(step, wall0, cfg)
     stop_at = step + args.stop_after if args.stop_after else None
@@ -503,11 +502,11 @@ def main(argv: list[str] | None = None) -> int:
         loss.backward()
         opt.step()
         step += 1
-        run_loss += loss.item()
+        loss_value = loss.item()
+        run_loss += loss_value
         run_n += 1
-        if pbar is not None:
-            pbar.update(1)
-            pbar.set_postfix(loss=f"{float(loss):.4f}", lr=f"{lr:.1e}")
+        pbar.update(1)
+        pbar.set_postfix(loss=f"{loss_value:.4f}", lr=f"{lr:.1e}")
         frac = progress(step, wall0 + time.time() - t_start, cfg)
         if is_dist:  # every rank stops at the same step
             import torch.distributed as dist
@@ -526,10 +525,7 @@ def main(argv: list[str] | None = None) -> int:
                     row[f"{name}_crop10"] = benchmark(net, data_path(folder), device)
             history.append(row)
             msg = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items())
-            if pbar is not None:
-                pbar.write(msg)
-            else:
-                print(msg, flush=True)
+            pbar.write(msg, file=sys.stdout)
             if row["val_cpsnr"] > best:
                 best = row["val_cpsnr"]
                 save_checkpoint(out / "best.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start)
@@ -541,8 +537,7 @@ def main(argv: list[str] | None = None) -> int:
             common.plot_curves(out / "curves.png", history, cols, f"DemosaicNet {net.config()}")
         if rank == 0 and (step % ckpt_every == 0 or last):
             save_checkpoint(out / "last.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start)
-    if pbar is not None:
-        pbar.close()
+    pbar.close()
     if rank == 0:
         record = {"command": " ".join(["python training/train_demosaic.py", *sys.argv[1:]]) if argv is None else argv,
                   "config": cfg, "world_size": world, "steps": step, "best_val_cpsnr": best,

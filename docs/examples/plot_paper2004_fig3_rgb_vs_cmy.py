@@ -12,6 +12,8 @@ rendering white), measured on the linear sRGB output with the white patch scaled
 size experiment is ``benchmarks/paper2004/rgb_vs_cmy.py``; here the chart has 8-pixel patches.
 """
 
+import warnings
+
 import matplotlib.pyplot as plt
 import torch
 
@@ -34,6 +36,11 @@ def camera(pattern, filters, method, space):
                          scaling="percentile", clip_negative_xyz=False)
     return Camera(DiffractionLimitedOptics(f_number=4.0), sensor, isp, noise=True)
 
+
+# 8-pixel patches sample the scene about 5x more coarsely than the 2.8 µm pixels; Camera warns that the sensor
+# then interpolates (a blur). Only the means of the central half of each patch are scored, and the blur moves
+# them by < 0.1 ΔE (checked against 40-pixel patches, 25x the cost), so the warning is silenced here.
+warnings.filterwarnings("ignore", message="the scene is coarser than the pixel grid")
 
 fig, axes = plt.subplots(4, 3, figsize=(8, 7))
 results = {}

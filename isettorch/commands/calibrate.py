@@ -10,6 +10,8 @@ Example::
 
 from __future__ import annotations
 
+from .._progress import add_quiet_argument
+
 
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="calibrate a sensor's noise and gain from dark and flat frames (EMVA 1288)")
@@ -22,7 +24,7 @@ def register(sub) -> None:
     p.add_argument("--out", default=None, metavar="SENSOR.yaml",
                    help="write a sensor config (Sensor.from_config / the sensor: section of a camera YAML)")
     p.add_argument("--report", default=None, metavar="FOLDER", help="write the EMVA 1288 figures as PNG")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_argument(p)
     p.set_defaults(func=run)
 
 

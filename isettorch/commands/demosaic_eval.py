@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import math
 
+from .._progress import add_quiet_argument
+
 # Static (the parser is built without importing torch); tests check they equal isp.evaluation's lists.
 METHOD_NAMES = ("bilinear", "bilinear_colour", "learned", "malvar2004", "menon2007", "nearest")
 DENOISER_NAMES = ("nlmeans", "bm3d")
@@ -40,7 +42,7 @@ def register(sub) -> None:
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_argument(p)
     p.set_defaults(func=run)
 
 

@@ -8,6 +8,8 @@ Example::
 
 from __future__ import annotations
 
+from .._progress import add_quiet_argument
+
 
 def register(sub) -> None:
     p = sub.add_parser("synth", help="write synthetic (noisy raw, targets, metadata) training pairs as shards")
@@ -18,8 +20,7 @@ def register(sub) -> None:
     p.add_argument("--shard", type=int, default=0, help="this invocation's part (0-based), with --num-shards")
     p.add_argument("--num-shards", type=int, default=1, help="number of parts the files are dealt into")
     p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
-    p.add_argument("-q", "--quiet", "--no-progress", dest="quiet", action="store_true",
-                   help="no progress bar (--no-progress: the former name)")
+    add_quiet_argument(p, "--no-progress")
     p.add_argument("--verify", action="store_true", help="only check the checksums of an existing output")
     p.set_defaults(func=run)
 

@@ -157,25 +157,18 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
     if batches:
         # each shard is generated as one batch (CameraPairDataset.get_batch; bitwise the collated items)
         loader = torch.utils.data.DataLoader(ds, sampler=batches, batch_size=None, num_workers=workers)
-        bar = None
-        if progress:
-            from tqdm import tqdm
+        from .._progress import progress as progress_bar
 
-            bar = tqdm(total=len(todo), unit="shard", desc=f"synth rank {me}/{procs}", dynamic_ncols=True)
-        try:
+        with progress_bar(total=len(todo), unit="shard", desc=f"synth rank {me}/{procs}", quiet=not progress) as bar:
             for f, batch in zip(todo, loader):
                 pt, js = _shard_names(f)
                 _atomic_save(batch, out / pt)
                 rec = {"file": pt, "sha256": sha256_file(out / pt), "first_index": f * size,
                        "count": int(batch["raw"].shape[0]), "config_sha256": chash, "format_version": FORMAT_VERSION}
                 _atomic_write_bytes(out / js, json.dumps(rec, indent=1, sort_keys=True).encode())
-                if bar is not None:
-                    bar.update(1)
+                bar.update(1)
                 if on_shard_written is not None:
                     on_shard_written(f)
-        finally:
-            if bar is not None:
-                bar.close()
     return _write_manifest(out, cfg, chash, count, size, n_files)
 
 
@@ -230,9 +223,20 @@ class ShardDataset(torch.utils.data.Dataset):
     Raises ValueError when the manifest is missing or unreadable, the dataset is incomplete (resume the ``synth``
     run first), or (``verify=True``) a shard is missing or corrupt; a shard that fails to load names its file.
 
-    Example:
-        >>> ds = ShardDataset("data/synth")  # doctest: +SKIP
-        >>> loader = torch.utils.data.DataLoader(ds, batch_size=16, shuffle=True, collate_fn=collate_pairs)
+    Example (a tiny dataset: 3 items of 16 x 16 pixels in shards of 2):
+        >>> import tempfile
+        >>> cfg = {"seed": 5, "shard_size": 2, "targets": ["srgb"],
+        ...        "scene": {"height": 16, "width": 16, "wavelengths_nm": [400.0, 700.0, 50.0]}}
+        >>> out = tempfile.mkdtemp()
+        >>> write_dataset(cfg, out, 3, progress=False)["complete"]
+        True
+        >>> ds = ShardDataset(out, verify=True)
+        >>> len(ds), tuple(ds[2]["srgb"].shape)
+        (3, (3, 16, 16))
+        >>> loader = torch.utils.data.DataLoader(ds, batch_size=2, shuffle=True, collate_fn=collate_pairs)
+        >>> tuple(next(iter(loader))["raw"].shape)
+        (2, 1, 16, 16)
+        >>> import shutil; shutil.rmtree(out)
     """
 
     def __init__(self, root, *, verify: bool = False, cache_shards: int = 2):

@@ -186,12 +186,12 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
     limit = 2 ** cfg["bit_depth"] - 1
     jobs = [(k, folders[k], _frame_files(folders[k])) for k in sorted(folders)]
     total = sum(len(f) for _, _, f in jobs)
-    from tqdm.auto import tqdm
+    from .._progress import progress as progress_bar
 
     stacks: dict[str, dict[float, np.ndarray]] = {"dark": {}, "flat": {}}
     shape = None
     first = None
-    with tqdm(total=total, desc="reading frames", unit="frame", disable=not progress) as bar:
+    with progress_bar(total=total, desc="reading frames", unit="frame", quiet=not progress) as bar:
         for (kind, ms), _folder, files in jobs:
             frames = []
             for f in files:

@@ -50,8 +50,9 @@ def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: 
         (B,) in dB (inf where the images are equal).
 
     Example:
-        >>> cpsnr(torch.full((1, 3, 4, 4), 0.5), torch.full((1, 3, 4, 4), 0.6)).item()  # 10 log10(1 / 0.01)
-        20.0...
+        >>> est = torch.full((1, 3, 4, 4), 0.5, dtype=torch.float64)
+        >>> round(cpsnr(est, est + 0.1).item(), 9)  # MSE 0.01: 10 log10(1 / 0.01) = 20 dB
+        20.0
     """
     if estimate.shape != reference.shape or estimate.dim() != 4:
         raise ValueError(f"estimate, reference: expected equal shapes (B, C, H, W), got {tuple(estimate.shape)} "
@@ -244,7 +245,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
         seed: noise seed (image ``i`` uses the generator of ``(seed, i)``).
         denoise: ``None`` or a name in ``DENOISERS``: denoise the mosaic before a classical demosaic.
         model: a network ``net(raw) -> RGB`` (e.g. from :func:`load_demosaic_model`); overrides ``method``.
-        progress: show a tqdm progress bar (stderr).
+        progress: show a progress bar (stderr; :func:`isettorch._progress.progress`).
         kwargs: passed to the method.
 
     Returns:
@@ -292,13 +293,11 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
             torch.cuda.synchronize(device)
         return out
 
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    from .._progress import progress as progress_bar
 
-        bar = tqdm(total=len(items), unit="image", desc=f"demosaic-eval {name}", dynamic_ncols=True)
+    bar = progress_bar(total=len(items), unit="image", desc=f"demosaic-eval {name}", quiet=not progress)
     results, pixels = [], []
-    try:
+    with bar:
         for i, (name_i, array) in enumerate(items):
             if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
                 raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name_i} is {array.dtype} {array.shape}")
@@ -316,11 +315,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
             score = cpsnr(out.to("cpu", torch.float64).clamp(0, 1), truth, crop)[0].item()
             results.append({"name": name_i, "cpsnr": score, "ms": ms})
             pixels.append(truth.shape[-2] * truth.shape[-1])
-            if bar is not None:
-                bar.update(1)
-    finally:
-        if bar is not None:
-            bar.close()
+            bar.update(1)
     scores = [r["cpsnr"] for r in results]
     ms_all = [r["ms"] for r in results]
     return {

@@ -232,15 +232,15 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     (the sub-images of one letter pooled), and ``sensor`` holds one value per field for the whole sensor (gain,
     read/row/column noise, PRNU: means over channels; dark current, DSNU, black level: from all pixels).
     """
-    from tqdm.auto import tqdm
+    from .._progress import progress as progress_bar
 
     warnings: list[str] = []
     dark_p = {ms: _planes(s, capture.cfa) for ms, s in capture.dark.items()}
     flat_p = {ms: _planes(s, capture.cfa) for ms, s in capture.flat.items()}
     names = list(next(iter(dark_p.values())))
     stats: dict[str, tuple[dict, dict]] = {}
-    with tqdm(total=len(names) * (len(dark_p) + len(flat_p)), desc="statistics", unit="stack",
-              disable=not progress) as bar:
+    with progress_bar(total=len(names) * (len(dark_p) + len(flat_p)), desc="statistics", unit="stack",
+                      quiet=not progress) as bar:
         for n in names:
             d, f = {}, {}
             for ms, p in dark_p.items():

@@ -300,3 +300,11 @@ def test_gradients_after_a_call_in_inference_mode():
         demosaic(x, "BGGR", method).sum().backward()
     demosaic_generic(x, torch.tensor([[0, 1], [2, 0]]), 3).sum().backward()
     assert torch.isfinite(x.grad).all() and x.grad.abs().sum() > 0
+
+
+def test_unknown_method_error_names_every_method_including_learned():
+    """Issue 18 friction 6: the registry's error lists the lazily registered ``learned`` method too."""
+    from isettorch.isp.demosaicing import get_method
+
+    with pytest.raises(ValueError, match="learned"):
+        get_method("no_such_method")

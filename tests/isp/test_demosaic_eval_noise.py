@@ -265,8 +265,9 @@ def test_progress_bar_and_quiet(folder, capsys):
     d, _ = folder
     assert main(["demosaic-eval", str(d), "--method", "bilinear"]) == 0
     assert "demosaic-eval bilinear" in capsys.readouterr().err
-    assert main(["demosaic-eval", str(d), "--method", "bilinear", "--quiet"]) == 0
-    assert "demosaic-eval" not in capsys.readouterr().err
+    for flag in ("--quiet", "-q"):
+        assert main(["demosaic-eval", str(d), "--method", "bilinear", flag]) == 0
+        assert capsys.readouterr().err == ""
 
 
 def test_cli_noise_flags(folder, capsys):

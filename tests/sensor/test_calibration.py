@@ -145,6 +145,19 @@ def _error(capsys, root) -> str:
     return err
 
 
+def test_progress_bars_and_quiet(capsys, good_capture):
+    # the two bars (reading frames, statistics) go to stderr; -q/--quiet leaves only the warnings there (one line
+    # each, as without it), the result unchanged
+    assert main(["calibrate", str(good_capture), "--json"]) == 0
+    shown = capsys.readouterr()
+    assert "reading frames" in shown.err and "statistics" in shown.err
+    warnings = [f"isettorch calibrate: warning: {w}" for w in json.loads(shown.out)["warnings"]]
+    for flag in ("--quiet", "-q"):
+        assert main(["calibrate", str(good_capture), "--json", flag]) == 0
+        quiet = capsys.readouterr()
+        assert quiet.err.splitlines() == warnings and json.loads(quiet.out) == json.loads(shown.out)
+
+
 def test_good_small_capture_runs(capsys, good_capture):
     res = _cli_json(capsys, good_capture)
     assert res["full_well_e"] is not None

@@ -67,11 +67,15 @@ def test_untrained_chart_model_is_the_mcc_matrix():
         net(rgb, white)
 
 
-def test_color_smoke_run(tmp_path):
+def test_color_smoke_run(tmp_path, capsys):
     cfg = tmp_path / "c.yaml"
     cfg.write_text("seed: 0\nmodels: [matrix]\nhidden: 8\ndata: {scenes_per_batch: 4, reflectances_per_scene: 8}\n"
                    "optim: {lr: 1.0e-3, steps: 2}\nval: {scenes: 4, reflectances_per_scene: 8, every: 1}\n")
-    assert train_color.main(["--config", str(cfg), "--out", str(tmp_path / "o"), "--threads", "1"]) == 0
+    assert train_color.main(["--config", str(cfg), "--out", str(tmp_path / "o"), "--threads", "1", "--quiet"]) == 0
+    # --quiet: no bar on stderr; the JSON rows (steps 0, 1, 2) still on stdout
+    captured = capsys.readouterr()
+    assert "step/s" not in captured.err and "2/2" not in captured.err
+    assert [json.loads(line)["step"] for line in captured.out.splitlines()] == [0, 1, 2]
     rec = json.loads((tmp_path / "o" / "record.json").read_text())
     assert rec["final"]["step"] == 2 and np.isfinite(rec["final"]["matrix"])
     ck = torch.load(tmp_path / "o" / "color_models.pt", weights_only=True)

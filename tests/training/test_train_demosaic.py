@@ -104,7 +104,7 @@ def test_noise_model_variance():
     assert float((counts - counts.round()).abs().max()) < 1e-3 and float(counts.std()) > 10
 
 
-def test_smoke_training_resume(tmp_path):
+def test_smoke_training_resume(tmp_path, capsys):
     out = tmp_path / "run"
     args = ["--config", str(SMOKE), "--out", str(out), "--no-progress", "--threads", "1"]
     assert train_demosaic.main(args + ["--steps", "4", "--stop-after", "2"]) == 0
@@ -116,8 +116,13 @@ def test_smoke_training_resume(tmp_path):
     resumed = torch.load(out / "last.pt", map_location="cpu", weights_only=True)
     assert resumed["step"] == 4
     straight = tmp_path / "straight"
-    assert train_demosaic.main(["--config", str(SMOKE), "--out", str(straight), "--no-progress", "--threads", "1",
+    capsys.readouterr()
+    assert train_demosaic.main(["--config", str(SMOKE), "--out", str(straight), "--quiet", "--threads", "1",
                                 "--steps", "4"]) == 0
+    # --quiet (--no-progress above: its former name): no bar on stderr, the validation rows still on stdout
+    captured = capsys.readouterr()
+    assert "step/s" not in captured.err and "4/4" not in captured.err
+    assert [line.split()[0] for line in captured.out.splitlines() if line.startswith("step=")] == ["step=2", "step=4"]
     ref = torch.load(straight / "last.pt", map_location="cpu", weights_only=True)
     for k, v in ref["model"].items():
         torch.testing.assert_close(resumed["model"][k], v, rtol=0, atol=1e-6)

@@ -70,7 +70,7 @@ def get_method(name: str) -> Callable:
                 raise
             raise ValueError(f"method: {name!r} needs module {_LAZY_METHODS[name]}, which is not installed") from err
     if name not in METHODS:
-        raise ValueError(f"method: expected one of {sorted(METHODS)}, got {name!r}")
+        raise ValueError(f"method: expected one of {sorted(set(METHODS) | set(_LAZY_METHODS))}, got {name!r}")
     return METHODS[name]
 
 
