@@ -208,8 +208,8 @@ def warn_if_coarser_than_pixels(oi, sensor) -> None:
 
         warnings.warn(
             f"the scene is coarser than the pixel grid: optical image samples every {dx * 1e6:.4g} um, pixel pitch "
-            f"{pitch * 1e6:.4g} um ({dx / pitch:.2f} pixels per sample); the sensor interpolates, which blurs the "
-            f"image beyond the optics (lower MTF). Sample the scene at least {dx / pitch:.2f}x more finely "
+            f"{pitch * 1e6:.4g} um ({dx / pitch:.4g} pixels per sample); the sensor interpolates, which blurs the "
+            f"image beyond the optics (lower MTF). Sample the scene at least {dx / pitch:.4g}x more finely "
             "(more samples across the same field of view).", UserWarning, stacklevel=3)
 
 
