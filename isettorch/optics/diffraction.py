@@ -104,9 +104,11 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         b = scene.batch_size
         dt, dev = scene.dtype, scene.device
         t = self.transmittance_on(scene.wavelengths_nm)
-        # a factored scene takes compute_oi_factored's J + 1 FFT path (never densified)
+        # a factored scene takes compute_oi_factored's J + 1 FFT path (never densified) and stays in the Fourier
+        # domain (lazy): the sensor projects it on its K QE weightings (K inverse FFTs, not L)
         oi = compute_oi_scene(scene, self.batch_f_number(b, dt, dev), self.batch_focal_length(b, dt, dev), t,
-                              offaxis="skip" if self.relative_illumination in (None, "none") else "cos4th")
+                              offaxis="skip" if self.relative_illumination in (None, "none") else "cos4th",
+                              lazy=True)
         if crop is not None:
             _check_crop(crop)
             full = (oi.height, oi.width)
