@@ -42,7 +42,9 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         focal_length_m: focal length (m), scalar or ``[B]``. Default ISETCam's 3.862755 mm.
         pad_mode: ``'zero'`` (default), ``'mean'``, ``'edge'``, a number, or ``'isetcam'``: ISETCam's
             ``oiCompute`` exactly (:func:`isettorch.optics.isetcam.compute_oi`: ``round(size/8)`` padding with
-            ``max * 1e-9``, its grids, ``abs(ifft2)``, cos4th with ``d = f, m = 0``; ``crop`` then slices).
+            ``max * 1e-9``, its grids, ``abs(ifft2)``, cos4th with ``d = f, m = 0``; ``crop`` then slices). A factored
+            scene's OI is returned in the Fourier domain (:class:`~isettorch.optics.isetcam.IsetcamFourierFactors`):
+            the sensor projects it on its QE (K inverse FFTs, not L); ``.photons`` gives the dense cube.
         Other arguments: see :class:`~isettorch.optics.base.ShiftInvariantLens`.
 
     The default (physically sound) mode uses the thin-lens image distance everywhere (sample spacing, cos^4),
