@@ -42,7 +42,9 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         focal_length_m: focal length (m), scalar or ``[B]``. Default ISETCam's 3.862755 mm.
         pad_mode: ``'zero'`` (default), ``'mean'``, ``'edge'``, a number, or ``'isetcam'``: ISETCam's
             ``oiCompute`` exactly (:func:`isettorch.optics.isetcam.compute_oi`: ``round(size/8)`` padding with
-            ``max * 1e-9``, its grids, ``abs(ifft2)``, cos4th with ``d = f, m = 0``; ``crop`` then slices).
+            ``max * 1e-9``, its grids, ``abs(ifft2)``, cos4th with ``d = f, m = 0``; ``crop`` then slices). A factored
+            scene's OI is returned in the Fourier domain (:class:`~isettorch.optics.isetcam.IsetcamFourierFactors`):
+            the sensor projects it on its QE (K inverse FFTs, not L); ``.photons`` gives the dense cube.
         Other arguments: see :class:`~isettorch.optics.base.ShiftInvariantLens`.
 
     The default (physically sound) mode uses the thin-lens image distance everywhere (sample spacing, cos^4),
@@ -104,9 +106,11 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         b = scene.batch_size
         dt, dev = scene.dtype, scene.device
         t = self.transmittance_on(scene.wavelengths_nm)
-        # a factored scene takes compute_oi_factored's J + 1 FFT path (never densified)
+        # a factored scene takes compute_oi_factored's J + 1 FFT path (never densified) and stays in the Fourier
+        # domain (lazy): the sensor projects it on its K QE weightings (K inverse FFTs, not L)
         oi = compute_oi_scene(scene, self.batch_f_number(b, dt, dev), self.batch_focal_length(b, dt, dev), t,
-                              offaxis="skip" if self.relative_illumination in (None, "none") else "cos4th")
+                              offaxis="skip" if self.relative_illumination in (None, "none") else "cos4th",
+                              lazy=True)
         if crop is not None:
             _check_crop(crop)
             full = (oi.height, oi.width)

@@ -38,9 +38,10 @@ from .._checks import (
     round_half_away,
 )
 from .geometry import cos4th_isetcam
-from .optical_image import OpticalImage
+from .optical_image import FourierFactors, OpticalImage
 
-__all__ = ["compute_oi", "compute_oi_factored", "compute_oi_scene", "unit_frequency_list", "dl_otf_isetcam",
+__all__ = ["compute_oi", "compute_oi_factored", "IsetcamFourierFactors", "compute_oi_scene", "unit_frequency_list",
+           "dl_otf_isetcam",
            "pad_sizes", "mean_illuminance"]
 
 
@@ -146,6 +147,19 @@ def _half_otf(wave, n, f, hfov_pad, dx_c, h2: int, w2: int, dtype) -> torch.Tens
         return hit
     otf = dl_otf_isetcam(wave, n, f, hfov_pad, dx_c, h2, w2)[0]
     return _remember(key, otf[..., : w2 // 2 + 1].to(dtype).contiguous())
+
+
+def _pad_spectrum(h: int, w: int, pr: int, pc: int, dtype, device) -> torch.Tensor:
+    """``rfft2`` of the indicator of ISETCam's padding (1 outside the ``h x w`` scene, ``oiPad``) ``[1, 1, H2,
+    W2 // 2 + 1]``, cached: one forward FFT fewer per factored call."""
+    key = ("pad", h, w, pr, pc, dtype, str(device))
+    hit = _CACHE.get(key)
+    if hit is not None:
+        _CACHE.move_to_end(key)
+        return hit
+    ind = torch.ones(1, 1, h + 2 * pr, w + 2 * pc, dtype=dtype, device=device)
+    ind[..., pr:pr + h, pc:pc + w] = 0
+    return _remember(key, _rfft2(ind))
 
 
 def _use_scipy(x: torch.Tensor) -> bool:
@@ -332,9 +346,60 @@ def compute_oi(scene_photons, wavelengths_nm, hfov_deg, distance_m, f_number, fo
     return _finish(spectrum, g, out_dtype, return_details, pad_val)
 
 
+class IsetcamFourierFactors(FourierFactors):
+    """:class:`~isettorch.optics.optical_image.FourierFactors` of ISETCam's padded OI (``window`` = the whole
+    padded buffer): :meth:`dense` is ``abs(ifft2(OTF * fft2(padded)))`` as ``oiApplyOTF`` returns it (FORMAT.md
+    4.4); :meth:`project` (the sensor's K planes) is the projection of the blurred irradiance **before** the
+    ``abs``. The two agree exactly wherever the blurred irradiance is non-negative at every wavelength (ISETCam's
+    ``abs`` is then the identity). The irradiance is non-negative, so only the negative lobes of the PSF of
+    ISETCam's truncated OTF (down to -1.8 % of its peak at 512^2, f/4) can make it negative, next to a dark region
+    whose level is below the lobe times its bright neighbour. Measured: no negative value on the 512^2 sweep
+    (minimum 4e-4 of the max, pad included) nor on the Macbeth parity case (2e-4); the tests check it. A scene
+    with exact zeros beside bright areas may differ there: pass it dense (or read ``.photons``)."""
+
+    @classmethod
+    def _of(cls, f: FourierFactors) -> IsetcamFourierFactors:
+        out = cls.__new__(cls)
+        out.__dict__.update(f.__dict__)
+        return out
+
+    def dense(self) -> torch.Tensor:
+        out = super().dense()
+        return out.abs() if out.requires_grad else out.abs_()
+
+    def select(self, index) -> IsetcamFourierFactors:
+        return self._of(super().select(index))
+
+    def scale(self, k: torch.Tensor) -> IsetcamFourierFactors:
+        return self._of(super().scale(k))
+
+    def crop(self, top: int, left: int, height: int, width: int) -> IsetcamFourierFactors:
+        return self._of(super().crop(top, left, height, width))
+
+    def to(self, device=None, dtype=None) -> IsetcamFourierFactors:
+        return self._of(super().to(device, dtype))
+
+    def detach(self) -> IsetcamFourierFactors:
+        return self._of(super().detach())
+
+
+def _lazy_oi(spec, coef, g, out_dtype) -> OpticalImage:
+    """The OI of :func:`compute_oi_factored` (``lazy=True``) kept as its map spectra ``spec [B, J + 1, H2, W2']``,
+    coefficients ``coef [B, J + 1, L]`` and the cached OTF half plane: no inverse FFT until asked."""
+    h2, w2 = g["h2"], g["w2"]
+    otf = _half_otf(g["wave"], g["n"], g["f"], g["hfov_pad"], g["dx_c"], h2, w2, coef.dtype)
+    factors = IsetcamFourierFactors(spec, coef, otf, (h2, w2), (0, 0, h2, w2))
+    if factors.dtype != out_dtype:
+        factors = factors.to(dtype=out_dtype)
+    spacing = 2 * g["d_img"] * torch.tan(torch.deg2rad(g["hfov_pad"]) / 2) / w2
+    return OpticalImage(None, g["wave"].to(out_dtype), name="isetcam diffraction limited", factors=factors,
+                        sample_spacing_m=spacing, hfov_deg=g["hfov_pad"], focal_length_m=g["f"], f_number=g["n"],
+                        image_distance_m=g["d_img"], pad_rows=g["pr"], pad_cols=g["pc"], validate=False)
+
+
 def compute_oi_factored(maps, spectra, wavelengths_nm, hfov_deg, distance_m, f_number, focal_length_m,
                         transmittance=None, *, offaxis: str = "cos4th", dtype=None, compute_dtype=None,
-                        return_details: bool = False):
+                        return_details: bool = False, lazy: bool = False):
     """:func:`compute_oi` of a factored radiance ``L(l, x) = sum_j maps_j(x) spectra_j(l)``: one FFT per map.
 
     Everything before the blur is linear in the radiance and the OTF acts per wavelength, so the padded
@@ -346,6 +411,9 @@ def compute_oi_factored(maps, spectra, wavelengths_nm, hfov_deg, distance_m, f_n
     Args:
         maps: ``(B, J, H, W)`` (or ``(J, H, W)``), spectra: ``(B, J, L)`` (or ``(J, L)``), in radiance units
             (photons/s/sr/m^2/nm) when multiplied; their product must be non-negative.
+        lazy: return the OI in the Fourier domain (:class:`IsetcamFourierFactors`: the J + 1 forward FFTs only);
+            the sensor then asks for its K projected planes (K inverse FFTs instead of L) and ``.photons`` builds
+            the dense, ``abs``-ed cube of ``lazy=False`` on first read. Ignored with ``return_details``.
         the rest: as :func:`compute_oi`.
     """
     maps = torch.as_tensor(maps)
@@ -378,12 +446,13 @@ def compute_oi_factored(maps, spectra, wavelengths_nm, hfov_deg, distance_m, f_n
         raise ValueError("maps, spectra: expected a non-negative radiance (sum_j maps_j spectra_j)")
     pad_val = peak * 1e-9
     pr, pc, h2, w2 = g["pr"], g["pc"], g["h2"], g["w2"]
-    planes = torch.zeros(b, nj + 1, h2, w2, dtype=work, device=m.device)
-    planes[:, :nj, pr:pr + h, pc:pc + w] = mw
-    planes[:, nj] = 1
-    planes[:, nj, pr:pr + h, pc:pc + w] = 0
+    planes = torch.zeros(b, nj, h2, w2, dtype=work, device=m.device)
+    planes[:, :, pr:pr + h, pc:pc + w] = mw
     coef = torch.cat([sw, pad_val[:, None, None].expand(b, 1, nl)], dim=1)  # [B, J+1, L]
-    f_maps = _rfft2(planes)  # [B, J+1, H2, W2//2+1]
+    f_pad = _pad_spectrum(h, w, pr, pc, work, m.device)  # the padding's indicator, cached by geometry
+    f_maps = torch.cat([_rfft2(planes), f_pad.expand(b, 1, *f_pad.shape[-2:])], dim=1)  # [B, J+1, H2, W2//2+1]
+    if lazy and not return_details:
+        return _lazy_oi(f_maps, coef, g, out_dtype)
     if f_maps.requires_grad:  # differentiable: out of place
         spectrum = f_maps[:, :1] * coef[:, 0, :, None, None]
         for j in range(1, nj + 1):
@@ -402,8 +471,9 @@ def compute_oi_scene(scene, f_number, focal_length_m, transmittance=None, *, off
     """:func:`compute_oi` of a Scene, or :func:`compute_oi_factored` when the scene is factored
     (``scene.is_factored``: radiance ``sum_j maps [B, J, H, W] x spectra [B, J, L]``): one call for both forms,
     so a factored scene takes the J + 1 FFT path. ``kwargs`` as :func:`compute_oi` (``dtype``, ``compute_dtype``,
-    ``return_details``)."""
+    ``return_details``), and ``lazy`` (:func:`compute_oi_factored`; a dense scene's OI is dense)."""
     args = (scene.wavelengths_nm, scene.hfov_deg, scene.distance_m, f_number, focal_length_m, transmittance)
+    lazy = kwargs.pop("lazy", False)
     if getattr(scene, "is_factored", False):
-        return compute_oi_factored(scene.maps, scene.spectra, *args, offaxis=offaxis, **kwargs)
+        return compute_oi_factored(scene.maps, scene.spectra, *args, offaxis=offaxis, lazy=lazy, **kwargs)
     return compute_oi(scene.photons, *args, offaxis=offaxis, **kwargs)

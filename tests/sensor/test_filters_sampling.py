@@ -200,3 +200,16 @@ def test_area_sampling_linear_limits():
     ramp = torch.arange(12, dtype=torch.float64).expand(1, 1, 12, 12).clone()
     r = sample_area(ramp, dx, 2e-6, 4, 4, reconstruction="linear")
     np.testing.assert_allclose(r[0, 0, 0].numpy(), 5.5 + (np.arange(4) - 1.5) * 2, rtol=1e-12)
+
+
+@pytest.mark.parametrize("k", [3, 4])
+def test_preblur_gradient_and_float32(k):
+    """The separable pre-blur (two 1-D passes; out of place under autograd) is differentiable (gradcheck) and a
+    float32 input gives the float64 result to float32 rounding."""
+    rng = np.random.default_rng(k)
+    a = torch.from_numpy(rng.random((1, 2, 7, 8))).requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda x: isetcam_preblur(x, k), (a,))
+    ref = isetcam_preblur(a.detach(), k)
+    out = isetcam_preblur(a.detach().float(), k)
+    assert out.dtype == torch.float32
+    torch.testing.assert_close(out.double(), ref, rtol=1e-6, atol=1e-7)
