@@ -205,3 +205,18 @@ def test_build_optics_accepts_focus_distance():
     o = build_optics({"type": "lens", "lens": "cooke_triplet", "focus_distance_m": 2.0, "object_distance": "scene"})
     assert o.focus_distance_m == 2.0 and o.object_distance == "scene"
     assert float(o.analysis.sensor_z) > float(LensAnalysis("cooke_triplet").sensor_z)
+
+
+def test_camera_yaml_accepts_focus_distance():
+    from pathlib import Path
+
+    import yaml
+
+    from isettorch.camera import Camera
+
+    cfg = yaml.safe_load((Path(__file__).resolve().parents[3] / "configs" / "cameras" / "cooke_lens.yaml").read_text())
+    cfg["optics"].update(yaml.safe_load("focus_distance_m: 1.5\nobject_distance: scene\n"))
+    cam = Camera.from_config(cfg)
+    assert isinstance(cam.optics, LensOptics) and cam.optics.focus_distance_m == 1.5
+    with pytest.raises(ValueError, match="focus_distance_m"):
+        Camera.from_config({**cfg, "optics": {**cfg["optics"], "focus_distance_m": -1.0}})
