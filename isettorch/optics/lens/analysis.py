@@ -17,13 +17,13 @@ Finite conjugates (``object_distance_mm``, ``focus_distance_mm``; both default t
 lens-report convention above). Distances are measured from the object (or focus) plane to the first lens vertex
 (OpticStudio's object-surface thickness). The field stays an angle theta from the entrance-pupil centre: the object
 point lies at height -(D + z_EP) tan(theta) on the plane z = -D, so the chief ray is the same ray as at infinity;
-rays start at the object point (spherical wavefront, optical path 0 there) and aim at the paraxial entrance
-pupil. Paraxial image of an object at D: y-nu trace (Smith, *Modern Optical Engineering*, 4th ed., ch. 3) of
-the axial ray y_1 = 1, u_0 = 1 / D; image distance from the last vertex l' = -y_k / u'_k; magnification
-m = n u_0 / (n' u'_k) (Lagrange invariant). Focus: the image plane ("sensor") is the paraxial image of an object
-at ``focus_distance_mm`` at 587.6 nm (a back-focus shift); an object at another distance, or another
-wavelength (longitudinal colour, through the glasses' dispersion), is then out of focus there, which the
-pupil function carries as OPD to the reference sphere centred on the chief ray's point on that plane.
+rays leave the object point aimed at the paraxial entrance pupil, starting (optical path 0) on the spherical
+wavefront about it through the entrance-pupil centre. Paraxial image of an object at D: y-nu trace (Smith, *Modern
+Optical Engineering*, 4th ed., ch. 3) of the axial ray y_1 = 1, u_0 = 1 / D; image distance from the last vertex l'
+= -y_k / u'_k; magnification m = n u_0 / (n' u'_k) (Lagrange invariant). Focus: the image plane ("sensor") is the
+paraxial image of an object at ``focus_distance_mm`` at 587.6 nm (a back-focus shift); an object at another
+distance, or another wavelength (longitudinal colour, through the glasses' dispersion), is then out of focus there,
+which the pupil function carries as OPD to the reference sphere centred on the chief ray's point on that plane.
 """
 
 from __future__ import annotations
@@ -170,7 +170,8 @@ class LensAnalysis:
         """Trace rays of field angle ``theta_deg`` (in the y-z plane) through normalised entrance-pupil points
         ``(px, py)`` (unit circle = paraxial EP at 587.6 nm). Object at infinity: start points lie on the plane
         through the EP centre normal to the rays (a plane wavefront: optical path 0 there). Finite object: rays
-        start at the object point ``(0, -(D + z_EP) tan(theta), -D)`` (optical path 0 there)."""
+        leave the object point ``(0, -(D + z_EP) tan(theta), -D)`` and start (optical path 0) on the sphere
+        about it through the EP centre."""
         ref = self.ref
         r = ref["epd"] / 2
         th = math.radians(theta_deg)
@@ -180,9 +181,15 @@ class LensAnalysis:
             o = torch.zeros_like(q)
             o[..., 1] = -(d_o + ref["ep_z"]) * math.tan(th)
             o[..., 2] = -d_o
-            d = q - o
-            d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
-            return self.geometry.trace(o, d, wavelength_nm, clip=clip, record=record)
+            qo = q - o
+            dist = torch.linalg.vector_norm(qo, dim=-1)
+            d = qo / dist[..., None]
+            # start on the sphere about the object point through the EP centre (equal optical path from the
+            # object point): q - delta d with delta = |q - o| - R computed without cancellation,
+            # |q - o|^2 - R^2 = qx^2 + qy^2 - 2 qy oy, so that far objects keep their OPD precision
+            rad = torch.sqrt(o[..., 1] ** 2 + (d_o + ref["ep_z"]) ** 2)
+            delta = (q[..., 0] ** 2 + q[..., 1] ** 2 - 2 * q[..., 1] * o[..., 1]) / (dist + rad)
+            return self.geometry.trace(q - delta[..., None] * d, d, wavelength_nm, clip=clip, record=record)
         d = torch.stack([torch.zeros_like(px), torch.full_like(px, math.sin(th)), torch.full_like(px, math.cos(th))],
                         -1)
         q = torch.stack([px * r, py * r, torch.zeros_like(px) + ref["ep_z"]], -1)

@@ -220,3 +220,14 @@ def test_camera_yaml_accepts_focus_distance():
     assert isinstance(cam.optics, LensOptics) and cam.optics.focus_distance_m == 1.5
     with pytest.raises(ValueError, match="focus_distance_m"):
         Camera.from_config({**cfg, "optics": {**cfg["optics"], "focus_distance_m": -1.0}})
+
+
+def test_far_object_pupil_function_tends_to_the_infinity_one():
+    # the defocus of an object at D on the infinity focus falls as f^2 / D; far objects must not lose the OPD to
+    # float64 cancellation of their long optical paths (rays start on the object's wavefront sphere near the EP)
+    a = LensAnalysis("cooke_triplet")
+    w_inf = a.pupil_function(0.7, 587.6, 32)["opd_waves"]
+    diffs = [float((a.at(d).pupil_function(0.7, 587.6, 32)["opd_waves"] - w_inf).abs().max())
+             for d in (1e5, 1e7, 1e12)]
+    assert diffs[0] == pytest.approx(100 * diffs[1], rel=0.01)  # ~1 / D
+    assert diffs[2] < 1e-6
