@@ -289,6 +289,7 @@ class LensOptics(nn.Module):
             full = torch.fft.irfft2(acc, s=fft_shape)
             out[:, li] = full[:, m:m + hh, m:m + ww]
         fl = self.focal_length_m.to(dt).expand(b)
+        # image distance as the sensor's FOV sizing reads it: image height per tan(field angle) (EFL at infinity)
         d_img = fl if math.isinf(self.focus_distance_m) else torch.full((b,), efl_mm * 1e-3, dtype=dt, device=dev)
         meta = {"full_shape": (hh, ww), "full_pad": (m, m), "psf_size": 2 * m + 1,
                 "object_distance_m": d_obj, "focus_distance_m": self.focus_distance_m}

@@ -191,6 +191,9 @@ def test_lens_optics_blurs_scenes_off_the_focus_distance():
     exit_to_focus = float(a.ref["bfl"] - a.ref["xp_z"])
     assert spacing[0] / float(inf.sample_spacing_m[0]) == pytest.approx(1 + xp / exit_to_focus, rel=1e-9)
     assert xp == pytest.approx(f * f / (3000.0 - f), rel=0.05)  # ~ Newton's x' = f^2 / (d - f)
+    # a fixed object distance in m is the same conjugate whatever the scene says
+    fixed = LensOptics("cooke_triplet", focus_distance_m=3.0, object_distance=2.0, **kw)(_point_scene(7.0))
+    torch.testing.assert_close(fixed.photons, opt(_point_scene(2.0)).photons, rtol=0, atol=0)
     # default: scenes imaged as if at infinity whatever their distance (the existing behaviour)
     assert torch.equal(inf.photons, LensOptics("cooke_triplet", **kw)(_point_scene(1.2)).photons)
     with pytest.raises(ValueError, match="focus_distance_m"):
