@@ -2,7 +2,8 @@
 
 Types: ``diffraction_limited`` (DiffractionLimitedOptics), ``wavefront`` / ``zernike`` (WavefrontOptics),
 ``psf_file`` (ShiftInvariantOptics from an ``.npz`` with ``psf`` [(L,) K, K], ``psf_spacing_m`` and optionally
-``psf_wavelengths_nm``), ``lens`` (LensOptics from a ``.zmx``/``.yaml`` prescription or a bundled lens name).
+``psf_wavelengths_nm``), ``lens`` (LensOptics from a ``.zmx``/``.yaml`` prescription or a bundled lens name;
+``focus_distance_m`` sets the focus, ``object_distance: scene`` images each scene at its ``distance_m``).
 Keys are checked against each constructor's arguments; a mistyped key names the closest valid one.
 """
 
@@ -44,6 +45,8 @@ def build_optics(config: dict) -> nn.Module:
 
     Example:
         >>> build_optics({"type": "lens", "lens": "cooke_triplet", "components": 8})  # doctest: +SKIP
+        >>> build_optics({"type": "lens", "lens": "cooke_triplet", "focus_distance_m": 2.0,
+        ...               "object_distance": "scene"})  # doctest: +SKIP
     """
     if not isinstance(config, dict):
         raise TypeError(f"config: optics must be a mapping, got {type(config).__name__}")

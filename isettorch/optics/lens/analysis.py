@@ -12,6 +12,18 @@
   centred on the chief ray's image point through the paraxial exit pupil (Goodman, *Introduction to Fourier
   Optics*, 3rd ed., ch. 6), image plane at the 587.6 nm paraxial focus; frequency scale from the real marginal
   rays' direction cosines: cutoff = n' |M(0, +1) - M(0, -1)| / lambda (tangential), the same with L (sagittal).
+
+Finite conjugates (``object_distance_mm``, ``focus_distance_mm``; both default to infinity, which is exactly the
+lens-report convention above). Distances are measured from the object (or focus) plane to the first lens vertex
+(OpticStudio's object-surface thickness). The field stays an angle theta from the entrance-pupil centre: the object
+point lies at height -(D + z_EP) tan(theta) on the plane z = -D, so the chief ray is the same ray as at infinity;
+rays leave the object point aimed at the paraxial entrance pupil, starting (optical path 0) on the spherical
+wavefront about it through the entrance-pupil centre. Paraxial image of an object at D: y-nu trace (Smith, *Modern
+Optical Engineering*, 4th ed., ch. 3) of the axial ray y_1 = 1, u_0 = 1 / D; image distance from the last vertex l'
+= -y_k / u'_k; magnification m = n u_0 / (n' u'_k) (Lagrange invariant). Focus: the image plane ("sensor") is the
+paraxial image of an object at ``focus_distance_mm`` at 587.6 nm (a back-focus shift); an object at another
+distance, or another wavelength (longitudinal colour, through the glasses' dispersion), is then out of focus there,
+which the pupil function carries as OPD to the reference sphere centred on the chief ray's point on that plane.
 """
 
 from __future__ import annotations
@@ -36,11 +48,26 @@ class LensAnalysis:
         curvature_per_mm: optional ``[S]`` tensor of the lens surfaces' curvatures (for gradients).
     """
 
-    def __init__(self, lens, curvature_per_mm: torch.Tensor | None = None, dtype=torch.float64):
-        self.prescription: Prescription = load_lens(lens)
-        self.geometry = LensGeometry(self.prescription, curvature_per_mm, dtype=dtype)
+    def __init__(self, lens, curvature_per_mm: torch.Tensor | None = None, dtype=torch.float64, *,
+                 object_distance_mm: float = math.inf, focus_distance_mm: float = math.inf):
+        if isinstance(lens, LensAnalysis):
+            self.prescription, self.geometry = lens.prescription, lens.geometry
+        else:
+            self.prescription: Prescription = load_lens(lens)
+            self.geometry = LensGeometry(self.prescription, curvature_per_mm, dtype=dtype)
+        for name, v in (("object_distance_mm", object_distance_mm), ("focus_distance_mm", focus_distance_mm)):
+            if not (isinstance(v, (int, float)) and float(v) > 0):
+                raise ValueError(f"{name}: expected a positive distance (mm, object plane to the first lens vertex; "
+                                 f"math.inf for infinity), got {v!r}")
+        self.object_distance_mm = float(object_distance_mm)
+        self.focus_distance_mm = float(focus_distance_mm)
         self.dtype = dtype
         self._par: dict = {}
+
+    def at(self, object_distance_mm: float = math.inf, focus_distance_mm: float = math.inf) -> LensAnalysis:
+        """The same lens (shared geometry) at another object distance and focus."""
+        return LensAnalysis(self, dtype=self.dtype, object_distance_mm=object_distance_mm,
+                            focus_distance_mm=focus_distance_mm)
 
     def paraxial(self, wavelength_nm: float) -> dict:
         key = round(float(wavelength_nm), 6)
@@ -65,10 +92,70 @@ class LensAnalysis:
     def max_field_deg(self) -> float:
         return self.prescription.max_field_deg
 
-    def image_plane_z(self, wavelength_nm: float) -> torch.Tensor:
-        """Paraxial focus of ``wavelength_nm`` (mm from the surface-1 vertex)."""
+    def paraxial_image_distance_mm(self, wavelength_nm: float, object_distance_mm: float | None = None):
+        """Paraxial image of an axial object at ``object_distance_mm`` (default: this analysis's object
+        distance) at ``wavelength_nm``, from the last lens vertex (mm); the back focal length at infinity."""
+        d = self.object_distance_mm if object_distance_mm is None else float(object_distance_mm)
+        if math.isinf(d):
+            return self.paraxial(wavelength_nm)["bfl"]
+        return self._finite_axial(wavelength_nm, d)[0]
+
+    def _finite_axial(self, wavelength_nm, d):
+        """y-nu trace of the axial ray y_1 = 1, u_0 = 1 / d: (image distance from the last vertex, u_0, u'_k)."""
         g = self.geometry
-        return g.vertex_z[-1] + self.paraxial(wavelength_nm)["bfl"]
+        n = g.indices(wavelength_nm)
+        one = torch.ones((), dtype=self.dtype)
+        u0 = one / d
+        ys, u = g._paraxial_trace(one, u0, n)
+        if float(u.detach()) == 0:
+            raise TraceError(f"object_distance_mm: an object at {d} mm is imaged at infinity by "
+                             f"{self.prescription.name} (it lies in the front focal plane)")
+        return -ys[-1] / u, u0, u
+
+    def magnification(self, wavelength_nm: float = REFERENCE_WAVELENGTH_NM) -> torch.Tensor:
+        """Paraxial transverse magnification m = n u_0 / (n' u'_k) of the object plane (0 at infinity)."""
+        if math.isinf(self.object_distance_mm):
+            return torch.zeros((), dtype=self.dtype)
+        _, u0, u = self._finite_axial(wavelength_nm, self.object_distance_mm)
+        n = self.geometry.indices(wavelength_nm)
+        return n[0] * u0 / (n[-1] * u)
+
+    def image_plane_z(self, wavelength_nm: float) -> torch.Tensor:
+        """Paraxial image of the object (at ``object_distance_mm``; the focus at infinity) at ``wavelength_nm``
+        (mm from the surface-1 vertex)."""
+        g = self.geometry
+        return g.vertex_z[-1] + self.paraxial_image_distance_mm(wavelength_nm)
+
+    @property
+    def sensor_z(self) -> torch.Tensor:
+        """The image plane the lens is focused on: the paraxial image of ``focus_distance_mm`` at 587.6 nm
+        (mm from the surface-1 vertex)."""
+        return self.geometry.vertex_z[-1] + self.paraxial_image_distance_mm(REFERENCE_WAVELENGTH_NM,
+                                                                            self.focus_distance_mm)
+
+    def image_height_per_tan_mm(self) -> torch.Tensor:
+        """Paraxial chief-ray height on the sensor plane per unit tan(field angle) (mm); the EFL when focused at
+        infinity, EFL + (back-focus shift) x (paraxial chief-ray slope) otherwise."""
+        if math.isinf(self.focus_distance_mm):
+            return self.effective_focal_length_mm
+        g = self.geometry
+        n = g.indices(REFERENCE_WAVELENGTH_NM)
+        one = torch.ones((), dtype=self.dtype)
+        yc, uc = g._paraxial_trace(-self.ref["ep_z"], one, n)
+        return yc[-1] + (self.sensor_z - g.vertex_z[-1]) * uc
+
+    def working_f_number(self) -> torch.Tensor:
+        """Paraxial image-space working f-number 1 / (2 |u'|) of the axial object's marginal ray (the f-number
+        at infinity); Smith, *Modern Optical Engineering*, ch. 9."""
+        if math.isinf(self.object_distance_mm):
+            return self.f_number
+        d = self.object_distance_mm
+        g = self.geometry
+        n = g.indices(REFERENCE_WAVELENGTH_NM)
+        r = self.ref["epd"] / 2
+        u0 = r / (d + self.ref["ep_z"])  # marginal ray: axial object point to the entrance-pupil rim
+        _, u = g._paraxial_trace(u0 * d, u0, n)
+        return 1.0 / (2 * n[-1] * u.abs())
 
     def field_angle_deg(self, field: float) -> float:
         f = float(field)
@@ -81,11 +168,28 @@ class LensAnalysis:
     def rays(self, theta_deg: float, px: torch.Tensor, py: torch.Tensor, wavelength_nm: float,
              clip: bool = True, record: bool = False) -> RayBundle:
         """Trace rays of field angle ``theta_deg`` (in the y-z plane) through normalised entrance-pupil points
-        ``(px, py)`` (unit circle = paraxial EP at 587.6 nm). Start points lie on the plane through the EP
-        centre normal to the rays (a plane wavefront: optical path 0 there)."""
+        ``(px, py)`` (unit circle = paraxial EP at 587.6 nm). Object at infinity: start points lie on the plane
+        through the EP centre normal to the rays (a plane wavefront: optical path 0 there). Finite object: rays
+        leave the object point ``(0, -(D + z_EP) tan(theta), -D)`` and start (optical path 0) on the sphere
+        about it through the EP centre."""
         ref = self.ref
         r = ref["epd"] / 2
         th = math.radians(theta_deg)
+        if not math.isinf(self.object_distance_mm):
+            d_o = self.object_distance_mm
+            q = torch.stack([px * r, py * r, torch.zeros_like(px) + ref["ep_z"]], -1)
+            o = torch.zeros_like(q)
+            o[..., 1] = -(d_o + ref["ep_z"]) * math.tan(th)
+            o[..., 2] = -d_o
+            qo = q - o
+            dist = torch.linalg.vector_norm(qo, dim=-1)
+            d = qo / dist[..., None]
+            # start on the sphere about the object point through the EP centre (equal optical path from the
+            # object point): q - delta d with delta = |q - o| - R computed without cancellation,
+            # |q - o|^2 - R^2 = qx^2 + qy^2 - 2 qy oy, so that far objects keep their OPD precision
+            rad = torch.sqrt(o[..., 1] ** 2 + (d_o + ref["ep_z"]) ** 2)
+            delta = (q[..., 0] ** 2 + q[..., 1] ** 2 - 2 * q[..., 1] * o[..., 1]) / (dist + rad)
+            return self.geometry.trace(q - delta[..., None] * d, d, wavelength_nm, clip=clip, record=record)
         d = torch.stack([torch.zeros_like(px), torch.full_like(px, math.sin(th)), torch.full_like(px, math.cos(th))],
                         -1)
         q = torch.stack([px * r, py * r, torch.zeros_like(px) + ref["ep_z"]], -1)
@@ -161,10 +265,10 @@ class LensAnalysis:
 
         Returns a dict: ``pupil`` (complex ``[N, N]``), ``opd_waves`` (0 outside the beam), ``valid``,
         ``cutoff_cy_mm`` (tangential, sagittal) and ``image_point`` (chief ray at ``image_z``, default the
-        587.6 nm paraxial focus).
+        sensor plane :attr:`sensor_z`: the 587.6 nm paraxial focus of ``focus_distance_mm``).
         """
         theta = self.field_angle_deg(field)
-        zi = self.image_plane_z(REFERENCE_WAVELENGTH_NM) if image_z is None else image_z
+        zi = self.sensor_z if image_z is None else image_z
         par = self.paraxial(wavelength_nm)
         ipt, _ = self.chief_ray(field, wavelength_nm, image_z=zi)
         z0 = torch.zeros(1, dtype=self.dtype)
@@ -255,7 +359,7 @@ class LensAnalysis:
         return otf / otf[0, 0].real, pf
 
     def mtf(self, field: float, wavelength_nm: float, frequencies_cy_mm, samples: int = 128):
-        """Tangential and sagittal diffraction MTF at ``frequencies_cy_mm`` (image at the 587.6 nm focus)."""
+        """Tangential and sagittal diffraction MTF at ``frequencies_cy_mm`` (image on :attr:`sensor_z`)."""
         otf, pf = self.otf_grid(field, wavelength_nm, samples)
         samples = pf["samples"]
         mt = otf[:, 0].abs()

@@ -6,7 +6,16 @@ equation on axis (ISETCam oiCalculateIrradiance: pi / (1 + 4 N^2), object at inf
 relative illumination RI_lambda(theta); (3) a shift-variant PSF: the PSFs on a polar grid of field heights x
 azimuths (exact rotations), decomposed into K eigen-PSFs with bilinearly interpolated weights
 (``psf.py``). Longitudinal colour is included (every wavelength is imaged on the 587.6 nm paraxial focus).
-The scene is taken to be at infinity (its ``distance_m`` only scales nothing here): the lens is focused at infinity.
+
+Object distance and focus: ``focus_distance_m`` (default infinity) puts the image plane at the 587.6 nm paraxial
+image of an object at that distance (a back-focus shift; distances from the object plane to the first lens
+vertex). ``object_distance="scene"`` takes each scene's ``distance_m`` as the object distance (one per batch), so a
+scene off the focus distance is defocused, by a wavelength-dependent amount (longitudinal colour); the default
+``"infinity"`` images every scene as if at infinity (ISETCam's default scene distance, 1.2 m, is only ~24 focal
+lengths from a 50 mm lens: a lens focused at infinity would blur it by ~0.2 mm). Tables and PSF banks are cached
+per (object distance, focus), distances rounded to 1 um. The image pitch follows the focus: the paraxial
+chief-ray height per tan(field angle) on the sensor plane (the EFL at infinity focus); the camera equation takes
+the paraxial magnification of the object plane (ISETCam oiCalculateIrradiance: pi / (1 + 4 N^2 (1 + |m|)^2)).
 
 Accuracy knob: ``field_samples`` (radial PSF samples), ``azimuth_samples`` and ``components`` (K); the speed and
 error of each setting are in ``benchmarks/LENS.md``.
@@ -46,14 +55,30 @@ class LensOptics(nn.Module):
         cache_elements: the per-geometry maps (warp grid, RI x camera equation, eigen-PSF weights, kernel
             spectra) are cached when they hold at most this many values (else recomputed every call).
         transmittance: scalar lens transmittance (absorption and Fresnel losses are not ray traced).
+        focus_distance_m: object distance the lens is focused at (m, to the first lens vertex; ``math.inf``).
+        object_distance: ``"infinity"`` (default: every scene imaged as if at infinity), ``"scene"`` (each
+            scene's ``distance_m``) or a distance in m.
     """
 
     def __init__(self, lens, *, field_samples: int = 13, azimuth_samples: int = 24, components: int | None = 16,
                  pupil_samples: int = 64, max_pupil_samples: int = 256, max_kernel: int = 129,
                  distortion_samples: int = 16, ri_samples: int = 64, cache_elements: int = 64 * 2**20,
-                 transmittance: float = 1.0, dtype=torch.float64):
+                 transmittance: float = 1.0, focus_distance_m: float = math.inf,
+                 object_distance: str | float = "infinity", dtype=torch.float64):
         super().__init__()
-        self.analysis = lens if isinstance(lens, LensAnalysis) else LensAnalysis(lens)
+        if not (isinstance(focus_distance_m, (int, float)) and float(focus_distance_m) > 0):
+            raise ValueError(f"focus_distance_m: expected a positive distance in m (math.inf for infinity), got "
+                             f"{focus_distance_m!r}")
+        if not (object_distance in ("infinity", "scene") or (isinstance(object_distance, (int, float))
+                                                              and float(object_distance) > 0)):
+            raise ValueError(f"object_distance: expected 'infinity', 'scene' or a positive distance in m, got "
+                             f"{object_distance!r}")
+        self.focus_distance_m = float(focus_distance_m)
+        self.object_distance = object_distance
+        a = lens if isinstance(lens, LensAnalysis) else LensAnalysis(lens)
+        if a.focus_distance_mm != self.focus_distance_m * 1e3 or not math.isinf(a.object_distance_mm):
+            a = a.at(math.inf, self.focus_distance_m * 1e3)
+        self.analysis = a  # object at infinity, this focus
         for name, v, lo in (("field_samples", field_samples, 2), ("azimuth_samples", azimuth_samples, 1),
                             ("pupil_samples", pupil_samples, 16), ("distortion_samples", distortion_samples, 4)):
             if not isinstance(v, int) or v < lo:
@@ -72,12 +97,22 @@ class LensOptics(nn.Module):
         self.register_buffer("focal_length_m", (a.effective_focal_length_mm.detach() * 1e-3).to(dtype))
         self.register_buffer("f_number", a.f_number.detach().to(dtype))
         self._cache: dict = {}
+        self._states = {_conjugate_key(math.inf, self.focus_distance_m): (a, self._cache)}
+        self._a, self._c = a, self._cache
+
+    def _use(self, object_distance_m: float):
+        """Select (creating if new) the analysis and cache of one (object distance, focus) conjugate."""
+        key = _conjugate_key(object_distance_m, self.focus_distance_m)
+        if key not in self._states:
+            self._states[key] = (self.analysis.at(object_distance_m * 1e3, self.focus_distance_m * 1e3), {})
+        self._a, self._c = self._states[key]
+        return self._a
 
     # --- per-wavelength lens data (cached) ------------------------------------------------------------
     def _radial_tables(self, wavelength_nm: float):
         key = ("radial", round(wavelength_nm, 6))
-        if key not in self._cache:
-            a = self.analysis
+        if key not in self._c:
+            a = self._a
             fr = torch.linspace(0, 1, self.distortion_samples, dtype=torch.float64)
             with torch.no_grad():
                 y = chief_ray_heights_mm(a, fr, wavelength_nm)
@@ -87,16 +122,16 @@ class LensOptics(nn.Module):
             if not bool((y[1:] > y[:-1]).all()):
                 raise TraceError(f"{a.prescription.name}: chief-ray height is not increasing with field at "
                                  f"{wavelength_nm} nm; the distortion cannot be inverted")
-            self._cache[key] = (fr * a.max_field_deg, y, ri)
-        return self._cache[key]
+            self._c[key] = (fr * a.max_field_deg, y, ri)
+        return self._c[key]
 
     def _psf_stack(self, wavelengths_nm: tuple[float, ...], dx_mm: float, r_max_mm: float):
         """PSFs ``[L, F, A, s, s]`` on the polar (field height x azimuth) grid, cached."""
         key = ("psfs", wavelengths_nm, round(dx_mm, 12), round(r_max_mm, 9), self.field_samples,
                self.azimuth_samples, self.pupil_samples)
-        if key in self._cache:
-            return self._cache[key]
-        a = self.analysis
+        if key in self._c:
+            return self._c[key]
+        a = self._a
         theta_ref, y_ref, _ = self._radial_tables(REFERENCE_WAVELENGTH_NM)
         radii = torch.linspace(0, r_max_mm, self.field_samples, dtype=torch.float64)
         fields = (_interp(radii, y_ref, theta_ref) / a.max_field_deg).clamp(0, 1)
@@ -117,14 +152,14 @@ class LensOptics(nn.Module):
                 for k, f in enumerate(fields.tolist()):
                     otf = otf_sampler(a, f, wl, self.pupil_samples, self.max_pupil_samples)
                     psfs[i, k] = psf_on_grid(otf, az, dx_mm, size)
-        self._cache[key] = (psfs, radii, size)
-        return self._cache[key]
+        self._c[key] = (psfs, radii, size)
+        return self._c[key]
 
     def _psf_bank(self, wavelengths_nm: tuple[float, ...], dx_mm: float, r_max_mm: float):
         key = ("bank", wavelengths_nm, round(dx_mm, 12), round(r_max_mm, 9), self.field_samples,
                self.azimuth_samples, self.pupil_samples, self.components)
-        if key in self._cache:
-            return self._cache[key]
+        if key in self._c:
+            return self._c[key]
         psfs, radii, size = self._psf_stack(wavelengths_nm, dx_mm, r_max_mm)
         flat = psfs.reshape(-1, size * size)
         if self.components is None or self.components >= min(flat.shape):
@@ -135,20 +170,21 @@ class LensOptics(nn.Module):
             basis = vh[: self.components]  # [K, size^2]
             coeff = (flat @ basis.T).reshape(*psfs.shape[:3], -1)  # [L, F, A, K]
         bank = {"psfs": psfs, "basis": basis, "coeff": coeff, "radii": radii, "size": size}
-        self._cache[key] = bank
+        self._c[key] = bank
         return bank
 
     def clear_cache(self) -> None:
-        self._cache.clear()
+        for _, c in self._states.values():
+            c.clear()
 
     # --- per-geometry plan (cached) ----------------------------------------------------------------
     def _plan(self, waves, h, w, t_pitch, corner_deg, dt, dev):
         key = ("plan", waves, h, w, round(t_pitch, 15), str(dt), str(dev), self.field_samples, self.azimuth_samples,
                self.components)
-        if key in self._cache:
-            return self._cache[key]
-        a = self.analysis
-        efl_mm = float(a.effective_focal_length_mm)
+        if key in self._c:
+            return self._c[key]
+        a = self._a
+        efl_mm = float(a.image_height_per_tan_mm())
         dx_mm = efl_mm * t_pitch
         # image radius reached by the corners, any wavelength
         r_max = max(float(_interp(torch.tensor([corner_deg], dtype=torch.float64), *self._radial_tables(wl)[:2])[0])
@@ -177,7 +213,7 @@ class LensOptics(nn.Module):
         per_band = hh * ww * (3 + (bank["basis"].shape[0] if bank["basis"] is not None else 0))
         if per_band * len(waves) <= self.cache_elements:
             plan["bands"] = [self._band(plan, li) for li in range(len(waves))]
-        self._cache[key] = plan
+        self._c[key] = plan
         return plan
 
     def _band(self, plan, li):
@@ -194,8 +230,9 @@ class LensOptics(nn.Module):
         src_x = plan["gx"] * scale / plan["t_pitch"]  # scene samples from the centre
         src_y = plan["gy"] * scale / plan["t_pitch"]
         grid = torch.stack([src_x / (w / 2), src_y / (h / 2)], -1)[None].to(dt).to(dev)
-        # camera equation on axis (ISETCam oiCalculateIrradiance, object at infinity) x transmittance x RI
-        k0 = float(geometry.camera_equation_factor(self.f_number.to(torch.float64), 0.0)) * self.transmittance
+        # camera equation on axis (ISETCam oiCalculateIrradiance, |m| of the object plane) x transmittance x RI
+        mag = float(self._a.magnification())
+        k0 = float(geometry.camera_equation_factor(self.f_number.to(torch.float64), mag)) * self.transmittance
         band = {"grid": grid, "gain": (k0 * ri).to(dt).to(dev)}
         if plan["bank"]["basis"] is not None:
             band["weights"] = _bilinear_polar(plan["bank"]["coeff"][li], *plan["polar"]).to(dt).to(dev)
@@ -213,7 +250,16 @@ class LensOptics(nn.Module):
         hfov = scene.hfov_deg.reshape(-1)
         if not bool((hfov == hfov[0]).all()):
             raise ValueError(f"scene.hfov_deg: LensOptics needs one field of view per batch, got {hfov.tolist()}")
-        a = self.analysis
+        if self.object_distance == "scene":
+            dist = scene.distance_m.reshape(-1) if isinstance(scene.distance_m, torch.Tensor) else \
+                torch.tensor([float(scene.distance_m)])
+            if not bool((dist == dist[0]).all()):
+                raise ValueError(f"scene.distance_m: LensOptics(object_distance='scene') needs one distance per "
+                                 f"batch, got {dist.tolist()}")
+            d_obj = float(dist[0])
+        else:
+            d_obj = math.inf if self.object_distance == "infinity" else float(self.object_distance)
+        a = self._use(d_obj)
         half_t = math.tan(math.radians(float(hfov[0]) / 2))
         t_pitch = 2 * half_t / w  # tan(angle) per scene sample
         corner_t = t_pitch * math.hypot(w / 2, h / 2)
@@ -223,7 +269,7 @@ class LensOptics(nn.Module):
             raise TraceError(f"scene.hfov_deg: the scene's corners are {corner_deg:.3f} deg off axis, beyond the "
                              f"lens's largest field {a.max_field_deg} deg; reduce hfov_deg to at most "
                              f"{max_hfov:.3f}")
-        efl_mm = float(a.effective_focal_length_mm)
+        efl_mm = float(a.image_height_per_tan_mm())  # the EFL at infinity focus
         dx_mm = efl_mm * t_pitch  # ideal (distortion-free) image pitch
         waves = tuple(float(v) for v in scene.wavelengths_nm.tolist())
         plan = self._plan(waves, h, w, t_pitch, corner_deg, dt, dev)
@@ -243,10 +289,13 @@ class LensOptics(nn.Module):
             full = torch.fft.irfft2(acc, s=fft_shape)
             out[:, li] = full[:, m:m + hh, m:m + ww]
         fl = self.focal_length_m.to(dt).expand(b)
-        meta = {"full_shape": (hh, ww), "full_pad": (m, m), "psf_size": 2 * m + 1}
+        # image distance as the sensor's FOV sizing reads it: image height per tan(field angle) (EFL at infinity)
+        d_img = fl if math.isinf(self.focus_distance_m) else torch.full((b,), efl_mm * 1e-3, dtype=dt, device=dev)
+        meta = {"full_shape": (hh, ww), "full_pad": (m, m), "psf_size": 2 * m + 1,
+                "object_distance_m": d_obj, "focus_distance_m": self.focus_distance_m}
         res = OpticalImage(out, scene.wavelengths_nm, name=scene.name, metadata=meta,
                            sample_spacing_m=torch.full((b,), dx_mm * 1e-3, dtype=dt, device=dev), focal_length_m=fl,
-                           f_number=self.f_number.to(dt).expand(b), image_distance_m=fl, pad_rows=m, pad_cols=m,
+                           f_number=self.f_number.to(dt).expand(b), image_distance_m=d_img, pad_rows=m, pad_cols=m,
                            validate=False)
         if crop is not None:
             top, left, ch, cw = crop
@@ -314,5 +363,13 @@ def render_brute_force(optics: LensOptics, scene: Scene, field_samples: int = 33
                      max_pupil_samples=optics.max_pupil_samples, max_kernel=optics.max_kernel,
                      distortion_samples=optics.distortion_samples, ri_samples=optics.ri_samples,
                      transmittance=optics.transmittance)
-    ref._cache = {k: v for k, v in optics._cache.items() if k[0] in ("radial", "psfs")}  # shared tables
+    ref.focus_distance_m, ref.object_distance = optics.focus_distance_m, optics.object_distance
+    ref._states = {k: (a, {kk: v for kk, v in c.items() if kk[0] in ("radial", "psfs")})  # shared tables
+                   for k, (a, c) in optics._states.items()}
+    ref.analysis, ref._cache = optics.analysis, ref._states[_conjugate_key(math.inf, optics.focus_distance_m)][1]
     return ref(scene)
+
+
+def _conjugate_key(object_distance_m: float, focus_distance_m: float) -> tuple:
+    """Cache key of a conjugate: distances rounded to 1 um (infinity kept)."""
+    return tuple(v if math.isinf(v) else round(v, 6) for v in (float(object_distance_m), float(focus_distance_m)))

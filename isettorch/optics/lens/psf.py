@@ -16,7 +16,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-from .analysis import REFERENCE_WAVELENGTH_NM, LensAnalysis
+from .analysis import LensAnalysis
 
 __all__ = ["otf_sampler", "psf_on_grid", "chief_ray_heights_mm", "spot_radius_mm"]
 
@@ -65,8 +65,8 @@ def psf_on_grid(sampler, azimuths_rad: torch.Tensor, dx_mm: float, size: int) ->
 
 
 def chief_ray_heights_mm(analysis: LensAnalysis, fields: torch.Tensor, wavelength_nm: float) -> torch.Tensor:
-    """Chief-ray image heights (mm) on the 587.6 nm paraxial image plane for field fractions ``fields``."""
-    z = analysis.image_plane_z(REFERENCE_WAVELENGTH_NM)
+    """Chief-ray image heights (mm) on the sensor plane (587.6 nm paraxial focus) for field fractions ``fields``."""
+    z = analysis.sensor_z
     out = []
     for f in fields.tolist():
         out.append(analysis.chief_ray(f, wavelength_nm, image_z=z)[0][1])
@@ -74,12 +74,12 @@ def chief_ray_heights_mm(analysis: LensAnalysis, fields: torch.Tensor, wavelengt
 
 
 def spot_radius_mm(analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int = 24) -> float:
-    """Largest distance of a traced (unvignetted) ray from the chief ray on the 587.6 nm image plane (mm)."""
+    """Largest distance of a traced (unvignetted) ray from the chief ray on the sensor plane (mm)."""
     theta = analysis.field_angle_deg(field)
     u = (torch.arange(samples, dtype=torch.float64) - (samples - 1) / 2) * (2.0 / samples)
     py, px = torch.meshgrid(u, u, indexing="ij")
     m = px * px + py * py <= 1
-    z = analysis.image_plane_z(REFERENCE_WAVELENGTH_NM)
+    z = analysis.sensor_z
     with torch.no_grad():
         b = analysis.rays(theta, px[m], py[m], wavelength_nm)
         pts, _ = analysis.to_plane(b, z)
