@@ -183,17 +183,17 @@ class ScenePool:
     def render(self, index: int) -> torch.Tensor:
         g = torch.Generator().manual_seed(seed_for(self.seed + 7_919, index))  # the camera's draws
         if self.source == "natural":
-            s = nat.generate_natural(index, self.seed, self.natural_cfg)
-            sens = data_spectra.random_sensitivities(s["wavelengths_nm"], g, self.sens_kinds)
-            return nat.white_balanced_rgb(s, sens).clamp_min(0)
-        from isettorch import spectral
-        from isettorch.data import generate_scene
+            s = nat.to_scene(nat.generate_natural(index, self.seed, self.natural_cfg))
+        else:
+            from isettorch.data import generate_scene
 
-        s = generate_scene(index, seed=self.seed, config=self.scene_config, dtype=torch.float32)
+            s = generate_scene(index, seed=self.seed, config=self.scene_config, dtype=torch.float32)
+        from isettorch import spectral
+
         w = s.wavelengths_nm.to(torch.float64)
         sens = data_spectra.random_sensitivities(w, g, self.sens_kinds)
         m = (sens * spectral.wavelength_weights(w)).float()  # photon counting: sum_l S(l) N(l) dl
-        rgb = torch.einsum("cl,lhw->chw", m, s.photons[0])
+        rgb = s.project(m.T)[0]  # the Scene's projection (factored: J maps, no cube)
         return (rgb / (m @ s.illuminant_photons[0])[:, None, None]).clamp_min(0)
 
     def advance(self, step: int) -> None:
