@@ -1,7 +1,9 @@
 """Train the compact demosaic CNN (:class:`isettorch.isp.learned.DemosaicNet`) on synthetic scenes made on the fly.
 
 Data come only from the library: ``data.source: natural`` (default; :mod:`isettorch.data.natural`, the
-natural-statistics generator, components switched off with ``data.disable: [name, ...]``), ``isettorch``
+natural-statistics generator, components switched off with ``data.disable: [name, ...]``, its scenes rendered by
+:class:`isettorch.data.camera_pairs.CameraPairDataset` through the library's Camera: :class:`ScenePool`),
+``isettorch``
 (:func:`isettorch.data.generate_scene`) or ``camera_pairs`` (below). ``data.domain`` (``linear``, ``encoded`` or
 ``mixed`` with ``data.encoded_fraction``) is the training domain: Kodak/McMaster are 8-bit encoded sRGB mosaics
 scored as linear, so a linear-domain model and an encoded-domain model are different models.
