@@ -60,17 +60,20 @@ def main(argv=None) -> int:
     sens = sp.camera_sensitivities("Nikon 5100 (NPL)", wl)
     rows = ["| scenes | spectrum slope | gradient kurtosis | corr. dR-dG | corr. dR-dB |", "|---|---|---|---|---|",
             PUBLISHED]
+    m = (sens * spectral.wavelength_weights(wl)[None]).float()  # photon counting with the band widths
     configs = [("natural (all components)", ())] + [(f"natural without {c}", (c,)) for c in nat.COMPONENTS]
     for name, off in configs:
         cfg = nat.natural_config({"size": args.size}, disable=off)
-        vals = [_stats(nat.white_balanced_rgb(nat.generate_natural(i, args.seed, cfg), sens)) for i in range(args.n)]
+        vals = []
+        for i in range(args.n):
+            sc = nat.to_scene(nat.generate_natural(i, args.seed, cfg))
+            vals.append(_stats(sc.project(m.T)[0] / (sc.illuminant_photons[0] @ m.T)[:, None, None]))
         rows.append(_row(name, vals))
         print(rows[-1], flush=True)
     vals = []
-    m = (sens * spectral.wavelength_weights(wl)[None]).float()
     for i in range(args.n):
         s = generate_scene(i, seed=args.seed, config={"height": args.size, "width": args.size})
-        rgb = torch.einsum("cl,lhw->chw", m, s.photons[0])
+        rgb = s.project(m.T)[0]
         vals.append(_stats(rgb / (m @ s.illuminant_photons[0])[:, None, None]))
     rows.append(_row("isettorch.data.generate_scene (layouts)", vals))
     text = (f"# Scene statistics of the synthetic generators\n\n`python benchmarks/scene_stats.py --n {args.n}` "

@@ -1,7 +1,9 @@
 """Train the compact demosaic CNN (:class:`isettorch.isp.learned.DemosaicNet`) on synthetic scenes made on the fly.
 
 Data come only from the library: ``data.source: natural`` (default; :mod:`isettorch.data.natural`, the
-natural-statistics generator, components switched off with ``data.disable: [name, ...]``), ``isettorch``
+natural-statistics generator, components switched off with ``data.disable: [name, ...]``, its scenes rendered by
+:class:`isettorch.data.camera_pairs.CameraPairDataset` through the library's Camera: :class:`ScenePool`),
+``isettorch``
 (:func:`isettorch.data.generate_scene`) or ``camera_pairs`` (below). ``data.domain`` (``linear``, ``encoded`` or
 ``mixed`` with ``data.encoded_fraction``) is the training domain: Kodak/McMaster are 8-bit encoded sRGB mosaics
 scored as linear, so a linear-domain model and an encoded-domain model are different models.
@@ -150,16 +152,29 @@ def augment_flips(img: torch.Tensor, g: torch.Generator) -> torch.Tensor:
     return img
 
 
+#: the camera of the ``natural`` pool unless ``data.camera`` says otherwise: the sharpest stop and largest pitch of
+#: the camera-pair defaults (Airy radius 1.34 um at 550 nm, f/2, against 2.8 um pixels: little optical blur, as the
+#: network's input is a sharp mosaic), one Bayer order (the pool is cropped at even offsets: RGGB), the nominal
+#: auto-exposure one stop down (98th percentile at 40 % of white: few clipped highlights; expose_and_encode then
+#: sets the training exposure) and channel curves shifted by up to +-5 nm (camera variety).
+POOL_CAMERA = {"f_number": [2.0], "pixel_size_m": [2.8e-6], "cfa_patterns": ["RGGB"], "exposure_ev": [-1.0, -1.0],
+               "qe_variation": 0.5}
+
+
 class ScenePool:
     """White-balanced linear camera-RGB images of generated scenes, rendered once and cropped many times.
 
-    Sources: ``natural`` (:func:`isettorch.data.natural.generate_natural`, config ``data.natural``, components
-    switched off with ``data.disable``) and ``isettorch`` (:func:`isettorch.data.generate_scene`, config
-    ``data.scene_config``). Each scene gets random camera sensitivities (:func:`isettorch.data.spectra.
-    random_sensitivities`, weights ``data.sensitivities``) and is white-balanced for its main light (von Kries).
-    A scene costs far more than a training step on CPU, so ``pool`` scenes are kept and ``refresh`` new ones
-    replace the oldest at every step: at step ``s`` the pool holds scene indices ``[s * refresh, s * refresh +
-    pool)``, so every batch depends only on (seed, step) and a run resumes exactly.
+    Sources: ``natural``: items of :class:`isettorch.data.camera_pairs.CameraPairDataset` with ``scene.generator:
+    natural`` (:func:`isettorch.data.natural.generate_natural`, config ``data.natural``, components switched off with
+    ``data.disable``) rendered by the library's `Camera` (diffraction-limited optics, the D5100 sensor; camera
+    config :data:`POOL_CAMERA` updated by ``data.camera``), noise-free ``camera_rgb`` (every channel at every pixel;
+    its RGGB mosaic is the pair's ``noise_free_raw``) white-balanced by the item's white (von Kries gains from
+    ``meta['white_camera_rgb']``, :func:`isettorch.isp.colour.apply_gains`); ``isettorch``
+    (:func:`isettorch.data.generate_scene`, config ``data.scene_config``) projected by ``Scene.project`` on random
+    camera sensitivities (:func:`isettorch.data.spectra.random_sensitivities`, weights ``data.sensitivities``) and
+    white-balanced for its main light. A scene costs far more than a training step on CPU, so ``pool`` scenes are
+    kept and ``refresh`` new ones replace the oldest at every step: at step ``s`` the pool holds scene indices
+    ``[s * refresh, s * refresh + pool)``, so every batch depends only on (seed, step) and a run resumes exactly.
     """
 
     def __init__(self, cfg: dict, seed: int, scene_size: int | None = None):
@@ -177,25 +192,43 @@ class ScenePool:
                              f"{self.patch}, {self.scene_size}")
         self.seed, self.pool_size, self.refresh = int(seed), int(d.get("pool", 64)), int(d.get("refresh", 2))
         self.sens_kinds = d.get("sensitivities") if isinstance(d.get("sensitivities"), dict) else None
-        self.natural_cfg = dict(nat.natural_config(dict(d.get("natural") or {}, size=self.scene_size),
-                                                   disable=tuple(d.get("disable") or ())), _checked=True)
         self.scene_config = dict(d.get("scene_config") or {}, height=self.scene_size, width=self.scene_size)
+        self.pairs = None
+        if self.source == "natural":
+            if d.get("sensitivities") is not None:
+                raise ValueError("data.sensitivities: the natural source renders through the Camera's sensor (Nikon "
+                                 "D5100 QE, shifted by data.camera.qe_variation); random sensitivities apply to "
+                                 "data.source 'isettorch' only")
+            natural = json.loads(json.dumps(d.get("natural") or {}))
+            disable = tuple(d.get("disable") or ())
+            nat.natural_config(natural, disable=disable)  # validates the options and component names
+            for name in disable:
+                natural.setdefault("components", {}).setdefault(name, {})["enabled"] = False
+            from isettorch.data.camera_pairs import CameraPairDataset
+
+            self.pairs = CameraPairDataset(CameraPairSource.LENGTH, seed=self.seed, scene={
+                "generator": "natural", "natural": natural, "height": self.scene_size, "width": self.scene_size},
+                camera={**POOL_CAMERA, **(d.get("camera") or {})}, targets=("camera_rgb",))
+            if self.pairs.camera_config["cfa_patterns"] != ["RGGB"]:
+                raise ValueError(f"data.camera.cfa_patterns: the natural pool is mosaicked RGGB, expected ['RGGB'], "
+                                 f"got {self.pairs.camera_config['cfa_patterns']}")
         self.scenes: dict[int, torch.Tensor] = {}
 
     def render(self, index: int) -> torch.Tensor:
-        g = torch.Generator().manual_seed(seed_for(self.seed + 7_919, index))  # the camera's draws
         if self.source == "natural":
-            s = nat.generate_natural(index, self.seed, self.natural_cfg)
-            sens = data_spectra.random_sensitivities(s["wavelengths_nm"], g, self.sens_kinds)
-            return nat.white_balanced_rgb(s, sens).clamp_min(0)
+            from isettorch.isp.colour import apply_gains
+
+            item = self.pairs.get_batch([index])
+            return apply_gains(item["camera_rgb"], 1.0 / item["meta"]["white_camera_rgb"])[0].clamp_min(0)
         from isettorch import spectral
         from isettorch.data import generate_scene
 
+        g = torch.Generator().manual_seed(seed_for(self.seed + 7_919, index))  # the camera's draws
         s = generate_scene(index, seed=self.seed, config=self.scene_config, dtype=torch.float32)
         w = s.wavelengths_nm.to(torch.float64)
         sens = data_spectra.random_sensitivities(w, g, self.sens_kinds)
         m = (sens * spectral.wavelength_weights(w)).float()  # photon counting: sum_l S(l) N(l) dl
-        rgb = torch.einsum("cl,lhw->chw", m, s.photons[0])
+        rgb = s.project(m.T)[0]  # the Scene's projection (factored: J maps, no cube)
         return (rgb / (m @ s.illuminant_photons[0])[:, None, None]).clamp_min(0)
 
     def advance(self, step: int) -> None:

@@ -149,6 +149,18 @@ class _Cache:
                                                         margin=margin, pad_mode="zero")
         return self.optics[key]
 
+    def get_built_optics(self, config: dict):
+        """The optics of a ``camera.optics`` mapping (:func:`isettorch.optics.factory.build_optics`), built once
+        per process and config (a ray-traced lens plans its PSFs once per field grid and keeps them)."""
+        import json
+
+        from ..optics.factory import build_optics
+
+        key = ("built", json.dumps(config, sort_keys=True, default=str))
+        if key not in self.optics:
+            self.optics[key] = build_optics(config)
+        return self.optics[key]
+
     def get_camera(self, optics, sensor):
         """The `Camera` of these modules (no ISP: the pairs' targets are spectral projections)."""
         from ..camera import Camera
@@ -189,8 +201,8 @@ def _draw_camera(index: int, seed: int, scene_cfg: dict, cam: dict) -> dict:
     m = int(cam["margin_px"])
     d = {"h": h, "w": w, "m": m}
     d["f_number"] = float(_pick(cam["f_number"], g))
-    d["pitch"] = pitch = float(_pick(cam["pixel_size_m"], g))
-    d["focal"] = focal = float(_pick(cam["focal_length_m"], g))
+    d["pitch"] = float(_pick(cam["pixel_size_m"], g))
+    d["focal"] = float(_pick(cam["focal_length_m"], g))
     d["fill"] = float(cam["fill_factor"])
     d["full_well"] = _uniform(cam["full_well_e"], g, log=True)
     d["read_e"] = _uniform(cam["read_noise_e"], g)
@@ -208,14 +220,54 @@ def _draw_camera(index: int, seed: int, scene_cfg: dict, cam: dict) -> dict:
     # The object distance is drawn here (camera stream, last) and imposed on the scene, so the FOV below and the
     # scene's geometry agree for a distance range too. Scene FOV so that one scene sample lands on one pixel:
     # pitch = 2 d_i tan(hfov / 2) / W_s.
-    d["distance"] = distance = _uniform(scene_cfg["distance_m"], g)
-    if not distance > focal:
-        raise ValueError(f"scene.distance_m: expected object distances beyond the focal length {focal} m, "
-                         f"got {distance}")
-    d_i = 1.0 / (1.0 / focal - 1.0 / distance)  # thin lens, as optics.geometry.image_distance (Hecht 5.17)
-    d["ws"] = ws = w + 2 * m
-    d["hfov"] = math.degrees(2 * math.atan(pitch * ws / (2 * d_i)))
+    d["distance"] = _uniform(scene_cfg["distance_m"], g)
+    d["ws"] = w + 2 * m
+    _set_fov(d)
     return d
+
+
+def _set_fov(d: dict, image_distance_m: float | None = None) -> None:
+    """``d["hfov"]``: the scene FOV that puts one scene sample on one pixel, ``pitch = 2 d_i tan(hfov / 2) / W_s``,
+    with ``d_i`` the thin-lens image distance of the object distance (Hecht 5.17, as
+    ``optics.geometry.image_distance``) unless the optics give their own (a ray-traced lens images at its
+    focal length: ``image_distance_m``)."""
+    focal, distance = d["focal"], d["distance"]
+    if image_distance_m is None:
+        if not distance > focal:
+            raise ValueError(f"scene.distance_m: expected object distances beyond the focal length {focal} m, "
+                             f"got {distance}")
+        image_distance_m = 1.0 / (1.0 / focal - 1.0 / distance)
+    d["hfov"] = math.degrees(2 * math.atan(d["pitch"] * d["ws"] / (2 * image_distance_m)))
+
+
+def _scene_for(index: int, seed: int, scene_cfg: dict, d: dict, dtype):
+    """The factored scene of item ``(seed, index)`` from ``scene.generator``, ``(h + 2 m) x (w + 2 m)`` samples at
+    the FOV and distance of the camera draws ``d``."""
+    size = (d["h"] + 2 * d["m"], d["ws"])
+    if scene_cfg.get("generator", "layouts") == "layouts":
+        return generate_scene(index, seed, scene_cfg, dtype=dtype, hfov_deg=d["hfov"], size=size,
+                              distance_m=d["distance"])
+    return _natural_scene(index, seed, scene_cfg, size, d["hfov"], d["distance"], dtype)
+
+
+def _natural_scene(index: int, seed: int, scene_cfg: dict, size: tuple, hfov_deg: float, distance_m: float, dtype):
+    """A :func:`isettorch.data.natural.generate_natural` scene (options ``scene.natural``, the scene's wavelength
+    grid) as a factored Scene: generated square at the larger side (the generator's draws depend on its size),
+    cropped to ``size`` about the centre, and scaled to a mean luminance drawn log-uniformly from
+    ``scene.mean_luminance_cd_m2`` (its own stream, 3, so the scene's draws are the generator's)."""
+    from .natural import generate_natural, natural_config, to_scene
+
+    n = max(16, *size)
+    cfg = dict(natural_config(dict(scene_cfg["natural"], size=n,
+                                   wavelengths_nm=list(scene_cfg["wavelengths_nm"]))), _checked=True)
+    item = generate_natural(index, seed, cfg)
+    top, left = (n - size[0]) // 2, (n - size[1]) // 2
+    g = torch.Generator().manual_seed(seed_for(seed, index, stream=3))
+    target = _uniform(scene_cfg["mean_luminance_cd_m2"], g, log=True)
+    item = dict(item, maps=item["maps"][:, top:top + size[0], left:left + size[1]],
+                meta=dict(item["meta"], hdr_decades=0.0, mean_luminance_cd_m2=target))
+    scene = to_scene(item, hfov_deg=hfov_deg, distance_m=distance_m, dtype=dtype)
+    return scene.set_mean_luminance(target)
 
 
 @functools.lru_cache(maxsize=64)
@@ -239,8 +291,10 @@ def _unit_qe(pattern: str, shifts: tuple):
 def camera_for(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype=torch.float32,
                cache: _Cache | None = None) -> tuple:
     """The camera of item ``(seed, index)``: ``(camera, scene, sensor_kwargs)`` with ``camera`` an
-    :class:`isettorch.Camera` (diffraction-limited optics and a `Sensor` with the item's QE), the item's factored
-    scene (one scene sample per pixel, ``margin_px`` beyond the sensor on each side) and the per-call sensor
+    :class:`isettorch.Camera` (diffraction-limited optics, or ``camera.optics`` built by
+    :func:`isettorch.optics.factory.build_optics`, and a `Sensor` with the item's QE), the item's factored
+    scene (``scene.generator``: ``layouts`` or ``natural``; one scene sample per pixel, ``margin_px`` beyond the
+    sensor on each side) and the per-call sensor
     settings (analog gain, exposure compensation, noise levels; :data:`isettorch.sensor.sensor.PER_CALL_LEVELS`).
 
     ``camera(scene, return_intermediates=True, generator=torch.Generator().manual_seed(kw.pop("noise_seed")), **kw)``
@@ -248,12 +302,18 @@ def camera_for(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtyp
     """
     cache = cache or _Cache()
     d = _draw_camera(index, seed, scene_cfg, camera_cfg)
-    scene = generate_scene(index, seed, scene_cfg, dtype=dtype, hfov_deg=d["hfov"], size=(d["h"] + 2 * d["m"],
-                                                                                          d["ws"]),
-                           distance_m=d["distance"])
+    optics_cfg = camera_cfg.get("optics") or {}
+    if optics_cfg:  # a configured optics module: its own f-number and focal length (the drawn ones are unused)
+        optics = cache.get_built_optics(optics_cfg)
+        d["f_number"], d["focal"] = float(optics.f_number), float(optics.focal_length_m)
+        # a ray-traced lens images objects at infinity at its focal length (LensOptics: pitch = EFL tan(angle))
+        _set_fov(d, d["focal"] if optics_cfg.get("type") == "lens" else None)
+    else:
+        optics = cache.get_optics(d["f_number"], d["focal"], d["m"])
+    scene = _scene_for(index, seed, scene_cfg, d, dtype)
     sensor = cache.get_sensor(d)
     sensor.spectral_qe = _unit_qe(d["pattern"], tuple(d["shifts"]))  # peak 1; the item's peak is qe_scale
-    camera = cache.get_camera(cache.get_optics(d["f_number"], d["focal"], d["m"]), sensor)
+    camera = cache.get_camera(optics, sensor)
     cg = 1.0 / d["full_well"]  # volts per electron with a 1 V swing: well capacity = full_well
     kwargs = {"analog_gain": d["gain"], "exposure_ev": d["ev"], "qe_scale": d["peak"], "conversion_gain_v_per_e": cg,
               "read_noise_v": d["read_e"] * cg, "dark_current_e_per_s": d["dark"], "dsnu_sigma_v": d["dsnu_e"] * cg,

@@ -19,6 +19,10 @@ __all__ = ["SCENE_DEFAULTS", "CAMERA_DEFAULTS", "SYNTH_DEFAULTS", "merge_config"
            "one_thread", "tune_allocator"]
 
 SCENE_DEFAULTS: dict[str, Any] = {
+    # which scene generator: "layouts" (isettorch.data.scenes.generate_scene, the keys below) or "natural"
+    # (isettorch.data.natural.generate_natural with the options in "natural": NATURAL_DEFAULTS keys but size)
+    "generator": "layouts",
+    "natural": {},
     "height": 128,
     "width": 128,
     "wavelengths_nm": [400.0, 700.0, 10.0],  # start, stop, step (inclusive)
@@ -56,6 +60,11 @@ CAMERA_DEFAULTS: dict[str, Any] = {
     "cfa_patterns": ["RGGB"],  # any of RGGB, GRBG, GBRG, BGGR; one drawn per sample
     "qe_variation": 0.0,  # 0 = the nominal curves; > 0 shifts each channel by up to this many x 10 nm
     "margin_px": 8,  # scene border beyond the sensor (blur support); 128 + 2 x 8 = 144 is an FFT-friendly size
+    # optics: {} = diffraction-limited at the drawn f_number / focal_length_m; else a mapping for
+    # isettorch.optics.factory.build_optics (e.g. {type: lens, lens: cooke_triplet}), whose own f-number and focal
+    # length then replace the drawn ones (f_number / focal_length_m lists are still drawn, so other draws keep
+    # their order)
+    "optics": {},
 }
 
 SYNTH_DEFAULTS: dict[str, Any] = {
@@ -78,7 +87,11 @@ def _merge(defaults: dict, user: dict, path: str) -> dict:
         if key not in defaults:
             raise ValueError(f"{where}: unknown config key; expected one of {sorted(defaults)}")
         ref = defaults[key]
-        if isinstance(ref, dict) and key not in ("layouts", "illuminants", "cct_range_k"):
+        if key in ("natural", "optics") and isinstance(ref, dict) and not ref:  # free mappings, checked below
+            if not isinstance(value, dict):
+                raise ValueError(f"{where}: expected a mapping, got {value!r}")
+            out[key] = copy.deepcopy(value)
+        elif isinstance(ref, dict) and key not in ("layouts", "illuminants", "cct_range_k"):
             out[key] = _merge(ref, value, where)
         elif isinstance(ref, dict):
             if not isinstance(value, dict):
@@ -141,10 +154,22 @@ def merge_config(user: dict | None, defaults: dict = SYNTH_DEFAULTS, path: str =
         if scene["reflectance_model"] not in ("pca", "sigmoid", "mixed"):
             raise ValueError(f"{sp}.reflectance_model: expected pca, sigmoid or mixed, got "
                              f"{scene['reflectance_model']!r}")
+        if scene["generator"] not in ("layouts", "natural"):
+            raise ValueError(f"{sp}.generator: expected 'layouts' or 'natural', got {scene['generator']!r}")
+        if "size" in scene["natural"]:
+            raise ValueError(f"{sp}.natural.size: the natural scene's size follows {sp}.height/width and the "
+                             f"camera margin; remove it (got {scene['natural']['size']!r})")
+        if scene["natural"]:
+            from .natural import natural_config
+
+            try:
+                natural_config(scene["natural"])
+            except ValueError as err:
+                raise ValueError(f"{sp}.natural: {err}") from err
         wl = scene["wavelengths_nm"]
         if len(wl) != 3 or wl[2] <= 0 or wl[1] < wl[0]:
             raise ValueError(f"{sp}.wavelengths_nm: expected [start, stop, step] with step > 0, got {wl!r}")
-    cam = cfg.get("camera")
+    cam = cfg.get("camera", cfg if "cfa_patterns" in cfg else None)
     if cam is not None:
         bad = [p for p in cam["cfa_patterns"] if p not in ("RGGB", "GRBG", "GBRG", "BGGR")]
         if bad or not cam["cfa_patterns"]:
@@ -154,6 +179,12 @@ def merge_config(user: dict | None, defaults: dict = SYNTH_DEFAULTS, path: str =
                   "analog_gain", "peak_qe"):
             _check_range(cam, k, "camera", 0.0)
         _check_range(cam, "exposure_ev", "camera")
+        if cam["optics"]:
+            from ..optics.factory import OPTICS_TYPES
+
+            kind = cam["optics"].get("type", "diffraction_limited")
+            if kind not in OPTICS_TYPES:
+                raise ValueError(f"camera.optics.type: expected one of {list(OPTICS_TYPES)}, got {kind!r}")
     if "dtype" in cfg and cfg["dtype"] not in ("float32", "float64"):
         raise ValueError(f"dtype: expected float32 or float64, got {cfg['dtype']!r}")
     return cfg

@@ -2,9 +2,11 @@
 
 A scene is *factored*: ``J`` abundance maps ``[J, H, W]`` times ``J`` spectra ``[J, L]`` (radiance, photons per unit
 map), ``L(x, l) = sum_j map_j(x) spectrum_j(l)``. Materials are palette reflectances under the scene's light;
-the maps say how much of each material a pixel sees (coverage x shading). Because every camera integral is linear
-in radiance, a sensor projects the scene once per spectrum (:func:`project`), and :func:`to_scene` gives the
-dense :class:`~isettorch.scene.Scene` for the :class:`~isettorch.camera.Camera`.
+the maps say how much of each material a pixel sees (coverage x shading). :func:`to_scene` gives the factored
+:class:`~isettorch.scene.Scene` (``Scene.from_factors``): every spectral integral is the library's (``Scene.project``,
+the :class:`~isettorch.camera.Camera`, which projects each spectrum once), and
+:class:`~isettorch.data.camera_pairs.CameraPairDataset` renders these scenes as camera pairs
+(``scene.generator: natural``).
 
 Components (each a key of ``NATURAL_DEFAULTS["components"]``; ``enabled: false`` switches it off, the ablation
 script ``benchmarks/generator_ablation.py`` does that one at a time), named after their source:
@@ -54,8 +56,8 @@ from . import textures as _tex
 from .config import seed_for
 from .layouts import dead_leaves_radii
 
-__all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "natural_config", "generate_natural", "project", "to_scene",
-           "white_balanced_rgb", "hard_patch_indices", "NaturalSceneDataset", "DOMAINS", "expose_and_encode"]
+__all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "natural_config", "generate_natural", "to_scene",
+           "hard_patch_indices", "NaturalSceneDataset", "DOMAINS", "expose_and_encode"]
 
 NATURAL_DEFAULTS: dict = {
     "size": 128,
@@ -393,33 +395,32 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
 
 # ------------------------------------------------------------------------------------------------ rendering
 
-def project(scene: dict, sensitivities: torch.Tensor) -> torch.Tensor:
-    """Camera responses ``[C, H, W]`` of a factored scene for channel sensitivities ``[C, L]`` (photon counting:
-    ``sum_l S_c(l) L(x, l) dl``, :func:`isettorch.spectral.wavelength_weights`), one projection per spectrum."""
-    wl = scene["wavelengths_nm"]
-    if sensitivities.dim() != 2 or sensitivities.shape[1] != wl.numel():
-        raise ValueError(f"sensitivities: expected [C, {wl.numel()}] on the scene's grid, got "
-                         f"{tuple(sensitivities.shape)}")
-    m = (scene["spectra"] * spectral.wavelength_weights(wl)[None]) @ sensitivities.to(torch.float64).T  # [J, C]
-    return torch.einsum("jc,jhw->chw", m.float(), scene["maps"])
+def to_scene(scene: dict, *, hfov_deg: float = 10.0, distance_m: float = 1.2, dtype=torch.float32,
+             device=None):
+    """The **factored** :class:`~isettorch.scene.Scene` (batch 1: ``maps [1, J, H, W]`` x ``spectra [1, J, L]``,
+    no ``[L, H, W]`` cube) of a :func:`generate_natural` item, with its main light as ``illuminant_photons``.
 
+    Every spectral integral of it is the library's: ``Scene.project`` / the :class:`~isettorch.camera.Camera`
+    (a sensor projects the J spectra on its channels once, then combines the maps).
 
-def white_balanced_rgb(scene: dict, sensitivities: torch.Tensor) -> torch.Tensor:
-    """:func:`project` divided by the response to a perfect white under the main light (von Kries), so a white
-    surface is 1 in every channel."""
-    wl = scene["wavelengths_nm"]
-    white = (sensitivities.to(torch.float64) * spectral.wavelength_weights(wl)[None]) @ scene["illuminant"]
-    return project(scene, sensitivities) / white.float()[:, None, None]
-
-
-def to_scene(scene: dict, *, hfov_deg: float = 10.0, distance_m: float = 1.2, dtype=torch.float32):
-    """The dense :class:`~isettorch.scene.Scene` (batch 1) of a factored scene, for the Camera."""
+    Example:
+        >>> s = to_scene(generate_natural(0, seed=1, config={"size": 32}))
+        >>> s.is_factored, tuple(s.photons.shape)
+        (True, (1, 31, 32, 32))
+    """
     from ..scene import Scene
 
-    photons = torch.einsum("jl,jhw->lhw", scene["spectra"].to(dtype), scene["maps"].to(dtype))[None]
-    return Scene(photons, scene["wavelengths_nm"].to(dtype), name=f"natural-{scene['meta']['seed']}-"
-                 f"{scene['meta']['index']}", metadata=scene["meta"], hfov_deg=hfov_deg, distance_m=distance_m,
-                 illuminant_photons=scene["illuminant"].to(dtype)[None])
+    meta = dict(scene["meta"])
+    if meta.get("illuminants"):
+        meta.setdefault("illuminant", meta["illuminants"][0])
+    # validate=False: maps >= 0 (coverage x shading) and spectra >= 0 (reflectance x light) by construction
+    return Scene.from_factors(scene["maps"].to(device=device, dtype=dtype)[None],
+                              scene["spectra"].to(device=device, dtype=dtype)[None],
+                              scene["wavelengths_nm"].to(device=device, dtype=dtype),
+                              name=f"natural-{scene['meta']['seed']}-{scene['meta']['index']}", metadata=meta,
+                              hfov_deg=hfov_deg, distance_m=distance_m,
+                              illuminant_photons=scene["illuminant"].to(device=device, dtype=dtype)[None],
+                              validate=False)
 
 
 def hard_patch_indices(target: torch.Tensor, estimate: torch.Tensor, keep: float = 0.1) -> torch.Tensor:

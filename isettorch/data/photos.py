@@ -4,8 +4,8 @@ shipped models use no real photo).
 Each photo is decoded from sRGB (IEC 61966-2-1) to linear values, taken as the reflectance of a surface seen
 under a random illuminant, and lifted to spectra with ``colour.recovery``'s linear sRGB basis (Mallett & Yuksel,
 EGSR 2019, :func:`.spectra.srgb_basis_spectra`): ``R(x, l) = sum_c rgb_c(x) B_c(l)``, in [0, 1]. The scene is
-factored (three maps, three spectra), like :func:`.natural.generate_natural`, so :func:`.natural.project`,
-:func:`.natural.white_balanced_rgb` and :func:`.natural.to_scene` render it through a camera.
+factored (three maps, three spectra), like :func:`.natural.generate_natural`, so :func:`.natural.to_scene` makes
+it a factored :class:`~isettorch.scene.Scene` for a :class:`~isettorch.camera.Camera`.
 """
 
 from __future__ import annotations

@@ -233,3 +233,56 @@ def test_a_pair_is_the_camera_applied_to_its_scene(dtype):
             noisy = (raw.data - raw.black_level) / span
             assert float((noisy != batch["raw"][i:i + 1]).double().mean()) < 2e-3
             assert float(raw.exposure_s[0]) == pytest.approx(float(batch["meta"]["exposure_s"][i]), rel=tol)
+
+
+NATURAL = {**SCENE, "generator": "natural", "natural": {"components": {"dead_leaves": {"leaves": [40, 80]}}}}
+
+
+def test_a_natural_pair_is_the_camera_applied_to_its_scene():
+    """scene.generator: natural: the pair is `Camera(scene)` of the natural scene built here directly from
+    generate_natural (square at the scene's size + margins, to_scene, mean luminance set by the Scene), with the
+    item's camera and noise seed; the scene's mean luminance (summed from its dense cube) is the drawn one."""
+    from isettorch import spectral
+    from isettorch.data.camera_pairs import camera_for
+    from isettorch.data.natural import generate_natural, natural_config, to_scene
+
+    ds = CameraPairDataset(2, seed=5, scene=NATURAL, camera={"cfa_patterns": ["GRBG"]})
+    batch = ds.get_batch([0, 1])
+    assert torch.equal(batch["raw"], collate_pairs([ds[0], ds[1]])["raw"])
+    n = 32 + 2 * ds.camera_config["margin_px"]
+    cfg = natural_config({**NATURAL["natural"], "size": n, "wavelengths_nm": SCENE["wavelengths_nm"]})
+    for i in range(2):
+        camera, scene, kw = camera_for(i, 5, ds.scene_config, ds.camera_config)
+        target = scene.metadata["mean_luminance_cd_m2"]
+        assert 1.0 <= target <= 5000.0 and scene.is_factored
+        own = to_scene(generate_natural(i, 5, cfg), hfov_deg=float(scene.hfov_deg.reshape(())),
+                       distance_m=float(scene.distance_m.reshape(()))).set_mean_luminance(target)
+        torch.testing.assert_close(scene.photons, own.photons, rtol=1e-6, atol=0)
+        cube = own.to_dense().photons.double()
+        lum = spectral.luminance(cube, own.wavelengths_nm.double(), dim=1).mean()
+        assert float(lum) == pytest.approx(target, rel=1e-4)
+        g = torch.Generator().manual_seed(kw.pop("noise_seed"))
+        raw = camera(own, return_intermediates=True, generator=g, **kw).raw
+        span = raw.white_level - raw.black_level
+        assert _rel_max((raw.noise_free - raw.black_level) / span, batch["noise_free_raw"][i:i + 1]) < 1e-5
+        assert float((((raw.data - raw.black_level) / span) != batch["raw"][i:i + 1]).double().mean()) < 2e-3
+    # camera_rgb mosaicked is noise_free_raw (the same chain without the CFA), and the targets are finite
+    from isettorch.isp.demosaicing import mosaic
+
+    torch.testing.assert_close(mosaic(batch["camera_rgb"], "GRBG"), batch["noise_free_raw"], rtol=1e-5, atol=1e-6)
+    assert all(bool(torch.isfinite(batch[k]).all()) for k in IMAGES)
+    # determinism by (seed, index): a fresh dataset gives the same item bitwise; another seed another scene
+    assert torch.equal(CameraPairDataset(2, seed=5, scene=NATURAL, camera={"cfa_patterns": ["GRBG"]})[1]["raw"],
+                       batch["raw"][1])
+    assert not torch.equal(CameraPairDataset(2, seed=6, scene=NATURAL)[1]["camera_rgb"], batch["camera_rgb"][1])
+
+
+def test_natural_generator_config_errors():
+    with pytest.raises(ValueError, match="scene.generator"):
+        CameraPairDataset(1, scene={"generator": "fractal"})
+    with pytest.raises(ValueError, match="natural.size"):
+        CameraPairDataset(1, scene={"generator": "natural", "natural": {"size": 64}})
+    with pytest.raises(ValueError, match="scene.natural.*componentz"):
+        CameraPairDataset(1, scene={"generator": "natural", "natural": {"componentz": {}}})
+    with pytest.raises(ValueError, match="camera.optics.type"):
+        CameraPairDataset(1, camera={"optics": {"type": "pinhole"}})

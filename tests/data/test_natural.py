@@ -103,7 +103,9 @@ def test_colour_correlation_makes_fine_detail_achromatic():
     def rgb(contrast, *off):
         cfg = nat.natural_config({"size": 48, "components": {"colour_correlation": {"contrast": [contrast] * 2}}},
                                  disable=off)
-        return nat.white_balanced_rgb(nat.generate_natural(2, 0, cfg), sens).double()
+        scene = nat.to_scene(nat.generate_natural(2, 0, cfg), dtype=torch.float64)
+        return scene.project(sens.T)[0]  # the library's projection of the factored scene (no white balance:
+        # the per-channel ratio below does not need it)
 
     for off in ((), ("colour_correlation",)):
         base, detail = rgb(0.0, *off), rgb(0.3, *off)
@@ -158,16 +160,21 @@ def test_depth_layers_defocus_with_the_library_psf():
     assert s["meta"]["defocus_diopters"] == (2.0, 2.0)
 
 
-def test_project_is_the_spectral_integral_of_the_dense_scene():
+def test_to_scene_is_factored_and_sums_maps_times_spectra():
+    """to_scene gives a factored Scene (no cube) whose radiance is sum_j map_j(x) spectrum_j(l), summed here
+    independently in float64; its projection (Scene.project, what the camera uses) is the integral of that cube."""
     s = nat.generate_natural(1, 2, SMALL)
+    scene = nat.to_scene(s, dtype=torch.float64, hfov_deg=3.0, distance_m=2.0)
+    assert scene.is_factored and scene.maps.shape == (1, *s["maps"].shape)
+    cube = (s["maps"].double()[:, None] * s["spectra"][:, :, None, None]).sum(0)  # [L, H, W]
+    torch.testing.assert_close(scene.photons[0], cube, rtol=1e-12, atol=0)
     sens = sp.camera_sensitivities("Nikon 5100 (NPL)", WL)
-    scene = nat.to_scene(s, dtype=torch.float64)
-    dense = torch.einsum("cl,lhw->chw", sens * spectral.wavelength_weights(WL)[None], scene.photons[0])
-    torch.testing.assert_close(nat.project(s, sens).double(), dense, rtol=1e-5, atol=1e-6 * float(dense.max()))
-    # a perfect white under the main light is 1 after white balance: a map of ones on a white spectrum
-    white = {"maps": torch.ones(1, 4, 4), "spectra": s["illuminant"][None], "wavelengths_nm": WL,
-             "illuminant": s["illuminant"]}
-    torch.testing.assert_close(nat.white_balanced_rgb(white, sens), torch.ones(3, 4, 4), rtol=1e-5, atol=1e-6)
+    w = (sens * spectral.wavelength_weights(WL)[None]).T  # [L, 3] photon counting with the band widths
+    dense = torch.einsum("lc,lhw->chw", w, cube)
+    torch.testing.assert_close(nat.to_scene(s, dtype=torch.float64).project(w)[0], dense, rtol=1e-10, atol=0)
+    assert float(scene.hfov_deg.reshape(())) == pytest.approx(3.0) and float(scene.distance_m.reshape(())) == 2.0
+    torch.testing.assert_close(scene.illuminant_photons[0], s["illuminant"])
+    assert scene.metadata["illuminant"] == s["meta"]["illuminants"][0]
 
 
 def test_hard_patch_indices():

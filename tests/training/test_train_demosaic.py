@@ -189,3 +189,26 @@ def test_joint_batches_carry_noise_features():
     # the features are sqrt(a) * 10, sqrt(b) * 100 of noise_params drawn from the same generator position
     a = (feats[:, 0] / 10) ** 2
     assert bool(((a >= 1.0 / 10000 * (1 - 1e-5)) & (a <= 64.0 / 10000 * (1 + 1e-5))).all())
+
+
+def test_natural_pool_is_the_cameras_noise_free_output():
+    """One simulator: the natural pool's image, un-white-balanced (times the item's white, von Kries) and mosaicked
+    RGGB, is the noise-free raw of `Camera(scene)` for the item's camera and natural scene (camera_for), and a
+    perfect white under the scene's main light is (1, 1, 1) after the white balance (the gains are 1 / white)."""
+    from isettorch.data.camera_pairs import camera_for
+
+    cfg = common.load_config(SMOKE)
+    pool = train_demosaic.make_sampler(cfg)
+    ds = pool.pairs
+    assert ds.scene_config["generator"] == "natural" and ds.camera_config["f_number"] == [2.0]
+    img = pool.render(3)
+    camera, scene, kw = camera_for(3, pool.seed, ds.scene_config, ds.camera_config)
+    g = torch.Generator().manual_seed(kw.pop("noise_seed"))
+    out = camera(scene, return_intermediates=True, generator=g, **kw)
+    raw = out.raw
+    nf = (raw.noise_free - raw.black_level) / (raw.white_level - raw.black_level)
+    white = ds.get_batch([3])["meta"]["white_camera_rgb"][0]  # the white's camera response, G = 1
+    own_white = scene.illuminant_photons[0].double() @ camera.sensor.spectral_weights(out.optical_image).double()
+    torch.testing.assert_close(white.double(), own_white / own_white[1], rtol=1e-5, atol=0)
+    unbalanced = img * white.float()[:, None, None]
+    torch.testing.assert_close(train_demosaic.mosaic_rggb(unbalanced[None]), nf.float(), rtol=1e-5, atol=1e-6)
