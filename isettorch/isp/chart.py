@@ -1,7 +1,8 @@
 """Colour accuracy of a rendered Macbeth chart: patch means and dE against the chart's true colours.
 
-The true colours are computed from the same reflectances the scene uses (:func:`isettorch.isp.colour.
-reflectance_set` ``"macbeth"``) under the scene's illuminant, so the comparison measures only the camera.
+The true colours are computed from the same reflectances the scene uses
+(:func:`isettorch.isp.reflectance_set` ``"macbeth"``) under the scene's illuminant, so the comparison measures
+only the camera.
 Reference: ISETCam ``macbethColorError`` / ``macbethCompareIdeal`` (white-patch scaling, CIELAB dE).
 """
 

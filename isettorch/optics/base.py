@@ -61,7 +61,7 @@ class ShiftInvariantLens(nn.Module):
         relative_illumination: ``'cos4th'`` (default, cos^4 law at the image distance), ``'isetcam'``
             (ISETCam's finite-aperture ``cos4th.m`` formula, with the thin-lens magnification) or None.
         camera_equation: ``'isetcam'`` (``pi / (1 + 4 N^2 (1 + |m|)^2)``) or ``'paraxial'``
-            (``pi / (4 N^2 (1 + |m|)^2)``); see :func:`geometry.camera_equation_factor`.
+            (``pi / (4 N^2 (1 + |m|)^2)``); see :func:`~isettorch.optics.geometry.camera_equation_factor`.
         pad_mode: ``'zero'``, ``'mean'``, ``'edge'`` or a number: what lies beyond the scene's edges.
         psf_tolerance: fraction of the line-spread energy allowed beyond the padding margin (sets how far
             the image is padded; it bounds both the wrap-around and, for ``crop=``, the missed light).

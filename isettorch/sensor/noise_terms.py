@@ -89,7 +89,7 @@ def column_noise(like: torch.Tensor, generator: torch.Generator | None) -> torch
 class NoiseTerms:
     """The extra noise terms of a :class:`~isettorch.sensor.Sensor` (all off at their defaults).
 
-    Attributes:
+    Args:
         row_noise_v: std of the temporal row offsets (V at the pixel, before analog gain), one Gaussian draw per
             row and frame (ELD row noise).
         column_noise_v: std of the temporal column offsets (V), one draw per column and frame.

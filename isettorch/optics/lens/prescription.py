@@ -45,7 +45,7 @@ class Surface:
 class Prescription:
     """A rotationally symmetric sequential lens, object at infinity.
 
-    Attributes:
+    Args:
         surfaces: object, the lens surfaces, image (the image surface's position is not used by the
             analysis, which works on paraxial image planes).
         entrance_pupil_diameter_mm: EPD, or None when ``float_by_stop`` (then derived from the stop).
@@ -242,7 +242,9 @@ def read_zmx(path: str | Path) -> Prescription:
 
 
 def read_lens_yaml(path_or_dict) -> Prescription:
-    """Read the plain YAML form::
+    """Read a lens prescription in the plain YAML form (a file path or an already-parsed dict).
+
+    The form::
 
         name: Cooke triplet
         source: ...
