@@ -29,7 +29,7 @@ from isettorch import spectral  # noqa: E402
 from isettorch.data import generate_scene  # noqa: E402
 from isettorch.data import natural as nat  # noqa: E402
 from isettorch.data import spectra as sp  # noqa: E402
-from isettorch.data import statistics as st  # noqa: E402
+from isettorch.metrics import image_statistics as st  # noqa: E402
 
 PUBLISHED = "| natural images (published) | -1.88 +- 0.43 (van der Schaaf & van Hateren 1996) | >> 3 (heavy-tailed) " \
             "| high (Gunturk et al. 2002) | high |"

@@ -20,8 +20,9 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   IJCV 2001; Achddou, Gousseau & Ladjal, "Synthetic images as a regularity prior for image restoration neural
   networks", SSVM 2021, and their 2023 follow-up), disks / ellipses / rectangles, anti-aliased by their signed
   distance.
-* ``textured_leaves``: a leaf's interior is flat, or textured with 1/f^s noise (:func:`.textures.power_law_noise`),
-  a warped grating, or a colour-line blend of two materials (Omer & Werman, CVPR 2004) (Achddou et al. 2023).
+* ``textured_leaves``: a leaf's interior is flat, or textured with 1/f^s noise
+  (:func:`isettorch.scene.textures.power_law_noise`), a warped grating, or a colour-line blend of two materials
+  (Omer & Werman, CVPR 2004) (Achddou et al. 2023).
 * ``colour_correlation``: fine detail mostly achromatic: a shared multiplicative shading field (1/f^s, log-normal)
   modulates every material equally, so intensity changes at fine scales and colour at coarse ones (natural-image
   colour statistics: Ruderman, Cronin & Chiao, JOSA A 15, 1998). Off: the same 1/f^s field blends each material
@@ -51,8 +52,8 @@ import torch
 import torch.nn.functional as F
 
 from .. import spectral
+from ..scene import textures as _tex
 from . import spectra as _spectra
-from . import textures as _tex
 from .config import seed_for
 from .layouts import dead_leaves_radii
 
@@ -276,17 +277,10 @@ def _defocus_psf(diopters: float, f_number: float, focal_length_m: float, pixel_
 
 
 def _blur(x: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
-    """Convolve [C, H, W] with a centred odd-sized PSF [S, S] (reflected borders), in the Fourier domain."""
-    r = psf.shape[-1] // 2
-    mode = "reflect" if min(x.shape[-2:]) > r else "replicate"
-    xp = F.pad(x[None], (r, r, r, r), mode=mode)[0]
-    hp, wp = xp.shape[-2:]
-    kernel = torch.zeros(hp, wp, dtype=xp.dtype)
-    kernel[:psf.shape[-2], :psf.shape[-1]] = psf.to(xp.dtype)
-    kernel = torch.roll(kernel, (-r, -r), (0, 1))  # PSF centre at the origin
-    out = torch.fft.irfft2(torch.fft.rfft2(xp) * torch.fft.rfft2(kernel), s=(hp, wp))
-    # a non-negative PSF on non-negative maps: only the FFT's round-off (~1e-7 of the peak) can be negative
-    return out[:, r:r + x.shape[-2], r:r + x.shape[-1]].clamp_min(0)
+    """A layer's maps [C, H, W] defocused by the library's PSF (:func:`isettorch.optics.blur.convolve_psf`)."""
+    from ..optics.blur import convolve_psf
+
+    return convolve_psf(x, psf)
 
 
 def _fine_detail(cfg, g, maps):

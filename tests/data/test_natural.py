@@ -14,10 +14,10 @@ from PIL import Image
 from isettorch import spectral
 from isettorch.data import natural as nat
 from isettorch.data import spectra as sp
-from isettorch.data import statistics as st
-from isettorch.data import textures as tex
 from isettorch.data.layouts import dead_leaves_radii
 from isettorch.data.photos import PhotoSceneDataset
+from isettorch.metrics import image_statistics as st
+from isettorch.scene import textures as tex
 
 WL = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
 SMALL = {"size": 48, "components": {"dead_leaves": {"leaves": [40, 80]}}}

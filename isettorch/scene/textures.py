@@ -1,4 +1,5 @@
-"""Procedural textures for the natural-scene generator (:mod:`.natural`); each draws only from its generator.
+"""Procedural textures (scene content) for the natural-scene generator (:mod:`isettorch.data.natural`); each
+draws only from its generator.
 
 * :func:`power_law_noise`: Gaussian noise with amplitude spectrum ``|f|^-s`` (power ``|f|^-2s``): natural images
   have ``s ~ 1`` (Field, JOSA A 4, 1987; van der Schaaf & van Hateren, Vision Res. 36, 1996).
