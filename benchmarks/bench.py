@@ -966,7 +966,10 @@ def _sizes(text: str) -> list[int]:
 
 def add_arguments(p) -> None:
     """The options of ``isettorch bench`` (shared by the CLI's parser and this script's)."""
+    from isettorch._progress import add_quiet_argument
+
     p.add_argument("--json", action="store_true", help="print every row as JSON instead of a table")
+    add_quiet_argument(p)
     p.add_argument("--quick", action="store_true", help="fewer repeats, no 1024^2, smaller knob scene")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda, cuda:1, ...; default cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (default: torch's choice)")
@@ -1014,11 +1017,21 @@ def main(argv=None) -> int:
         return 2
     if args.threads is not None:
         torch.set_num_threads(args.threads)
-    log = (lambda s: print(s, file=sys.stderr, flush=True)) if not args.json else (lambda s: None)
+    from isettorch._progress import progress
+
+    # one step per stage the benchmarks announce (stderr; --quiet: nothing, as every long isettorch job)
+    n_stages = len(args.only.split(",")) if args.only else len(SECTION_NAMES)
+    bar = progress(total=n_stages, desc="bench", unit="stage", quiet=args.quiet)
+
+    def log(stage: str) -> None:
+        bar.set_postfix_str(stage)
+        bar.update(1)
+
     result = run_benchmarks(quick=args.quick, device=torch.device(args.device),
                             sizes=_sizes(args.sizes) if args.sizes else None, stable_size=args.stable_size,
                             knob_patch=args.knob_patch, repeats=args.repeats, peers=not args.no_peers,
                             pairs=not args.no_pairs, only=args.only.split(",") if args.only else None, log=log)
+    bar.close()
     if args.plot:
         result["plot"] = str(plot_pareto(result, args.plot))
     if args.json:
