@@ -116,8 +116,8 @@ def test_warns_when_the_scene_is_coarser_than_the_pixels():
     cam = Camera.from_config("default")
     f, pitch = float(cam.optics.focal_length_m), cam.sensor.pixel_size_m
     hfov = math.degrees(2 * math.atan(128 * pitch / (2 * f)))  # the sensor is 128 pixels wide
-    with pytest.warns(UserWarning, match=r"coarser than the pixel grid.*pixel pitch 2\.8 um \(2\.0\d pixels per "
-                                         r"sample\).*at least 2\.0\dx more finely"):
+    with pytest.warns(UserWarning, match=r"coarser than the pixel grid.*pixel pitch 2\.8 um \(2\.0\d+ pixels per "
+                                         r"sample\).*at least 2\.0\d+x more finely"):
         cam(slanted_edge(64, hfov_deg=hfov))  # 64 samples for 128 pixels
     with warnings.catch_warnings():
         warnings.simplefilter("error")
