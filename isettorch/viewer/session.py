@@ -48,7 +48,7 @@ def _scene_builders():
     )
 
     return {
-        "macbeth": lambda n, hfov, seed: macbeth("D65", patch_size=max(2, n // 6), hfov_deg=hfov),
+        "macbeth": lambda n, hfov, seed: macbeth("D65", patch_size=max(2, -(-n // 6)), hfov_deg=hfov),  # >= n wide
         "slanted_edge": lambda n, hfov, seed: slanted_edge(n, hfov_deg=hfov),
         "frequency_sweep": lambda n, hfov, seed: frequency_sweep(n, hfov_deg=hfov),
         "zone_plate": lambda n, hfov, seed: zone_plate(n, hfov_deg=hfov),
@@ -189,8 +189,14 @@ class ViewerSession:
         self.timings: dict[str, float] = {}
         base = self._camera_for(self._config_key(Settings()))
         f = float(base.optics.focal_length_m.reshape(-1)[0])
-        # Field of view for a sensor about `size` pixels wide: 2 atan(n p / 2 f) (as ``isettorch demo``).
-        self.hfov_deg = math.degrees(2 * math.atan(size * base.sensor.pixel_size_m / (2 * f)))
+        # Field of view for a sensor about `size` pixels wide with one optical-image sample per pixel at the
+        # built-in scenes' distance: the image-plane pitch 2 d_i tan(hfov / 2) / n (optics.geometry.
+        # image_sample_spacing, thin-lens d_i) equal to 0.999 pixel, never coarser than the pixel grid.
+        from ..optics.geometry import image_distance
+        from ..scene._common import DEFAULT_DISTANCE_M
+
+        d_i = float(image_distance(f, DEFAULT_DISTANCE_M))
+        self.hfov_deg = math.degrees(2 * math.atan(0.999 * size * base.sensor.pixel_size_m / (2 * d_i)))
         self.defaults = {"f_number": float(base.optics.f_number.reshape(-1)[0]),
                          "pixel_size_um": base.sensor.pixel_size_m * 1e6, "cfa": base.sensor.cfa.pattern,
                          "noise": base.noise, "demosaic": base.isp.demosaic.method,

@@ -215,9 +215,11 @@ def test_processed_window_delta_e_matches_the_library_for_the_same_camera(page):
     assert de["patch"] == list(range(1, 25))
     cam = Camera.from_config(resolve_config("default"))
     f = float(cam.optics.focal_length_m.reshape(-1)[0])
-    hfov = math.degrees(2 * math.atan(SIZE * cam.sensor.pixel_size_m / (2 * f)))
+    # the viewer's geometry: one optical-image sample per 0.999 pixel at the scene distance (thin lens, 1.2 m)
+    d_i = 1.0 / (1.0 / f - 1.0 / 1.2)
+    hfov = math.degrees(2 * math.atan(0.999 * SIZE * cam.sensor.pixel_size_m / (2 * d_i)))
     with torch.no_grad():
-        out = cam(macbeth("D65", patch_size=SIZE // 6, hfov_deg=hfov), return_intermediates=True,
+        out = cam(macbeth("D65", patch_size=-(-SIZE // 6), hfov_deg=hfov), return_intermediates=True,
                   generator=torch.Generator().manual_seed(0))
     acc = macbeth_delta_e(patch_means(out.isp.xyz.double()), "D65")
     np.testing.assert_allclose(de["delta_e"], acc.delta_e[0].numpy(), rtol=1e-6)
