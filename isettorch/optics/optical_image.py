@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import threading
 from typing import ClassVar
 
 import torch
@@ -10,6 +11,22 @@ import torch
 from ..image import SpectralImage, angle_for_extent
 
 __all__ = ["OpticalImage", "FourierFactors"]
+
+_SCRATCH = threading.local()
+
+
+def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """A per-thread reusable buffer for a large intermediate that is consumed before the call returns (the
+    ``[B, L, 2F]`` Fourier-domain cube: ~2.6 MB at 144^2 x 31 in float32). A fresh tensor of that size is a fresh
+    ``mmap`` whose pages fault on first touch; reusing one was measured ~0.3 ms faster per 128^2 camera pair
+    (``benchmarks/pair_cost.py``). Never returned to a caller, never used when a gradient is needed."""
+    buf = getattr(_SCRATCH, "buf", None)
+    n = 1
+    for v in shape:
+        n *= v
+    if buf is None or buf.dtype != dtype or buf.device != device or buf.numel() < n:
+        buf = _SCRATCH.buf = torch.empty(n, dtype=dtype, device=device)
+    return buf[:n].view(shape)
 
 
 class FourierFactors:
@@ -60,10 +77,16 @@ class FourierFactors:
         # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
         # the same real matrix products act on the real and imaginary parts (view_as_real).
         spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
-        if b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU)
-            cube = torch.mm(self.spectra[0].T, spec[0])[None]  # [1, L, 2F]
+        grad = torch.is_grad_enabled() and (spec.requires_grad or self.spectra.requires_grad
+                                            or self.otf.requires_grad)
+        if grad:
+            cube = torch.mm(self.spectra[0].T, spec[0])[None] if b == 1 else self.spectra.transpose(1, 2) @ spec
+        elif b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU), into a reused buffer
+            cube = _scratch((1, n_l, 2 * nf), spec.dtype, spec.device)
+            torch.mm(self.spectra[0].T.to(spec.dtype), spec[0], out=cube[0])
         else:
-            cube = self.spectra.transpose(1, 2) @ spec  # [B, L, 2F]
+            cube = torch.matmul(self.spectra.transpose(1, 2).to(spec.dtype), spec,
+                                out=_scratch((b, n_l, 2 * nf), spec.dtype, spec.device))  # [B, L, 2F]
         otf = self.otf
         if otf.is_complex():
             otf = otf.reshape(otf.shape[0], n_l, nf)
