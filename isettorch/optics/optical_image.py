@@ -15,17 +15,18 @@ __all__ = ["OpticalImage", "FourierFactors"]
 _SCRATCH = threading.local()
 
 
-def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-    """A per-thread reusable buffer for a large intermediate that is consumed before the call returns (the
-    ``[B, L, 2F]`` Fourier-domain cube: ~2.6 MB at 144^2 x 31 in float32). A fresh tensor of that size is a fresh
-    ``mmap`` whose pages fault on first touch; reusing one was measured ~0.3 ms faster per 128^2 camera pair
-    (``benchmarks/pair_cost.py``). Never returned to a caller, never used when a gradient is needed."""
-    buf = getattr(_SCRATCH, "buf", None)
+def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device, slot: str = "cube") -> torch.Tensor:
+    """A per-thread reusable buffer (one per ``slot``) for a large intermediate that is consumed before the call
+    returns (the ``[B, L, 2F]`` Fourier-domain cube: ~2.6 MB at 144^2 x 31 in float32; the optics' weighted maps
+    before their rFFT). A fresh tensor of that size is a fresh ``mmap`` whose pages fault on first touch (glibc's
+    default for blocks over 128 KiB). Never returned to a caller, never used when a gradient is needed."""
+    buf = getattr(_SCRATCH, slot, None)
     n = 1
     for v in shape:
         n *= v
     if buf is None or buf.dtype != dtype or buf.device != device or buf.numel() < n:
-        buf = _SCRATCH.buf = torch.empty(n, dtype=dtype, device=device)
+        buf = torch.empty(n, dtype=dtype, device=device)
+        setattr(_SCRATCH, slot, buf)
     return buf[:n].view(shape)
 
 
