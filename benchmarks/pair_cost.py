@@ -32,21 +32,22 @@ scene = merge_config({"height": size, "width": size}, SCENE_DEFAULTS, "scene")
 camera = merge_config({}, CAMERA_DEFAULTS, "camera")
 cache = _Cache()
 render_pairs(list(range(10**6, 10**6 + 2 * batch)), 0, scene, camera, cache=cache, targets=TARGETS)  # warm-up
-per = []
+per, stages = [], {}
 for k in range(batches):
     idx = list(range(start + k * batch, start + (k + 1) * batch))
     t0 = time.process_time()
-    render_pairs(idx, 0, scene, camera, cache=cache, targets=TARGETS)
+    render_pairs(idx, 0, scene, camera, cache=cache, targets=TARGETS, timings=stages)
     per.append((time.process_time() - t0) / batch)
-print(json.dumps(per))
+print(json.dumps([per, {key: 1e3 * v / (batch * batches) for key, v in stages.items()}]))
 """
 
 
-def run(checkout: str, size: int, batch: int, batches: int, start: int) -> float:
+def run(checkout: str, size: int, batch: int, batches: int, start: int) -> tuple[float, dict]:
     env = dict(os.environ, PYTHONPATH=checkout, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     out = subprocess.run([sys.executable, "-c", CHILD, str(size), str(batch), str(batches), str(start)], env=env,
                          capture_output=True, text=True, check=True, cwd=checkout)
-    return statistics.median(json.loads(out.stdout.strip().splitlines()[-1])) * 1e3
+    per, stages = json.loads(out.stdout.strip().splitlines()[-1])
+    return statistics.median(per) * 1e3, stages
 
 
 def main() -> None:
@@ -63,10 +64,12 @@ def main() -> None:
     for r in range(a.rounds):
         start = r * a.batches * a.batch
         order = [("other", a.other), ("this", a.this)] if r % 2 == 0 else [("this", a.this), ("other", a.other)]
-        res = {name: run(path, a.size, a.batch, a.batches, start) for name, path in order}
+        runs = {name: run(path, a.size, a.batch, a.batches, start) for name, path in order}
+        res = {name: v[0] for name, v in runs.items()}
         rows.append(res)
-        print(f"round {r}: other {res['other']:.2f} ms/pair, this {res['this']:.2f} ms/pair, "
-              f"ratio {res['this'] / res['other']:.3f}", flush=True)
+        stages = {name: ", ".join(f"{k} {v:.2f}" for k, v in runs[name][1].items()) for name in runs}
+        print(f"round {r}: other {res['other']:.2f} ms/pair ({stages['other']}), this {res['this']:.2f} ms/pair "
+              f"({stages['this']}), ratio {res['this'] / res['other']:.3f}", flush=True)
     med_o = statistics.median(r["other"] for r in rows)
     med_t = statistics.median(r["this"] for r in rows)
     ratio = statistics.median(r["this"] / r["other"] for r in rows)
