@@ -299,12 +299,11 @@ class ShiftInvariantLens(nn.Module):
             spectra = spectra * t.to(device=spectra.device).reshape(1, 1, -1)
         negligible = self.blur_negligible(dx, wave, n)
         if ri is not None:
-            if negligible or torch.is_grad_enabled() and (maps.requires_grad or ri.requires_grad):
+            if (negligible or torch.is_grad_enabled() and (maps.requires_grad or ri.requires_grad)
+                    or ri.dtype != maps.dtype or ri.shape[0] not in (1, maps.shape[0])):
                 maps = maps * ri
             else:  # consumed by the rFFT below: a reused buffer (no fresh multi-MB allocation per call)
-                shape = tuple(torch.broadcast_shapes(maps.shape, ri.shape))
-                out = _scratch(shape, torch.result_type(maps, ri), maps.device, "maps")
-                maps = torch.mul(maps, ri, out=out)
+                maps = torch.mul(maps, ri, out=_scratch(tuple(maps.shape), maps.dtype, maps.device, "maps"))
         if negligible:
             # no blur: the irradiance stays maps x spectra (the maps extended like the dense image)
             margin = 0 if self.margin is None else self.margin
