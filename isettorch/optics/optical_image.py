@@ -101,7 +101,11 @@ class FourierFactors:
                 cube.view(b, n_l, nf, 2).mul_(otf)
         if weights is not None:
             wt = weights.to(cube).T
-            cube = torch.mm(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
+            if b == 1 and not grad:  # into a reused buffer, consumed by the inverse FFT below
+                proj = _scratch((1, wt.shape[0], 2 * nf), cube.dtype, cube.device, "proj")
+                cube = torch.mm(wt, cube[0], out=proj[0])[None]
+            else:
+                cube = torch.mm(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
         planes = torch.view_as_complex(cube.view(b, -1, *self.spec.shape[-2:], 2))
         r0, c0, h, w = self.window
         return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
