@@ -13,6 +13,7 @@ from ..image import SpectralImage, angle_for_extent
 __all__ = ["OpticalImage", "FourierFactors"]
 
 _SCRATCH = threading.local()
+_SCRATCH_MAX_ELEMENTS = 4 * 2**20  # per buffer (16 MiB in float32): a 128^2-256^2 camera pair's intermediates
 
 
 def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device, slot: str = "cube") -> torch.Tensor:
@@ -20,10 +21,12 @@ def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device, s
     returns (the ``[B, L, 2F]`` Fourier-domain cube: ~2.6 MB at 144^2 x 31 in float32; the optics' weighted maps
     before their rFFT). A fresh tensor of that size is a fresh ``mmap`` whose pages fault on first touch (glibc's
     default for blocks over 128 KiB). Never returned to a caller, never used when a gradient is needed."""
-    buf = getattr(_SCRATCH, slot, None)
     n = 1
     for v in shape:
         n *= v
+    if n > _SCRATCH_MAX_ELEMENTS:  # a large problem: its compute dwarfs the allocation; keep no big buffer alive
+        return torch.empty(shape, dtype=dtype, device=device)
+    buf = getattr(_SCRATCH, slot, None)
     if buf is None or buf.dtype != dtype or buf.device != device or buf.numel() < n:
         buf = torch.empty(n, dtype=dtype, device=device)
         setattr(_SCRATCH, slot, buf)
