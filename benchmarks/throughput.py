@@ -153,6 +153,8 @@ def main() -> None:
     ap.add_argument("--error-items", type=int, default=64)
     ap.add_argument("--ab-rounds", type=int, default=8, help="alternating chunks for the interleaved comparison")
     ap.add_argument("--markdown", default=None, help="append the results to this file")
+    ap.add_argument("--loader-only", action="store_true",
+                    help="only the README loader row: batch_loader(ds, --batch, num_workers=--workers), all targets")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     tuned = False if args.no_tune else tune_allocator()
@@ -172,6 +174,11 @@ def main() -> None:
         lines.append(f"| {label} | {workers} | {rate:.0f} | {cpu_txt} | {load()} |")
         print(lines[-1], flush=True)
 
+    if args.loader_only:
+        row("factored, batched (README loader)", w, loader_rate(31, args.size, n, w, batched=True, batch=b,
+                                                                repeats=reps))
+        print(f"load average at end {load()}")
+        return
     row("reference, per item", 0, loader_rate(31, args.size, max(n // 4, b), 0, method="reference", batch=b,
                                              repeats=reps))
     for workers in (0, w):

@@ -34,7 +34,7 @@ from ..image import SpectralFactors
 from ..scene.scene import Scene
 from . import geometry
 from .blur import PAD_MODES, blur_fft, extend, fft_buffer, fft_frequencies, full_padding
-from .optical_image import FourierFactors, OpticalImage
+from .optical_image import FourierFactors, OpticalImage, _scratch
 
 __all__ = ["ShiftInvariantLens"]
 
@@ -297,9 +297,14 @@ class ShiftInvariantLens(nn.Module):
         spectra = spectra * k.reshape(-1, 1, 1)
         if t is not None:
             spectra = spectra * t.to(device=spectra.device).reshape(1, 1, -1)
+        negligible = self.blur_negligible(dx, wave, n)
         if ri is not None:
-            maps = maps * ri
-        if self.blur_negligible(dx, wave, n):
+            if (negligible or torch.is_grad_enabled() and (maps.requires_grad or ri.requires_grad)
+                    or ri.dtype != maps.dtype or ri.shape[0] not in (1, maps.shape[0])):
+                maps = maps * ri
+            else:  # consumed by the rFFT below: a reused buffer (no fresh multi-MB allocation per call)
+                maps = torch.mul(maps, ri, out=_scratch(tuple(maps.shape), maps.dtype, maps.device, "maps"))
+        if negligible:
             # no blur: the irradiance stays maps x spectra (the maps extended like the dense image)
             margin = 0 if self.margin is None else self.margin
             pr = pc = margin

@@ -125,7 +125,8 @@ def fft_buffer(x: torch.Tensor, margin: tuple[int, int], pad_mode="zero",
     r0, c0 = top - pr - mr, left - pc - mc  # source window in scene coordinates
     buf = extend(x, (r0, r0 + wh + 2 * mr), (c0, c0 + ww + 2 * mc), pad_mode)
     my, mx = next_fast_size(wh + 2 * mr), next_fast_size(ww + 2 * mc)
-    buf = torch.nn.functional.pad(buf, (0, mx - buf.shape[-1], 0, my - buf.shape[-2]))
+    if (my, mx) != tuple(buf.shape[-2:]):  # (a no-op F.pad still copies the buffer)
+        buf = torch.nn.functional.pad(buf, (0, mx - buf.shape[-1], 0, my - buf.shape[-2]))
     return buf, (pr, pc), (mr, mc, wh, ww)
 
 

@@ -82,10 +82,20 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         return 2 * lam * f_number / (math.pi**3 * self.psf_tolerance)
 
     def blur_negligible(self, dx, wavelengths_nm, f_number):
-        # max |1 - OTF| on the grid is at the corner frequency sqrt(2) / (2 dx)
-        s = (math.sqrt(2) / (2 * dx)) * wavelengths_nm.max() * 1e-9 * f_number
-        dev = 1 - dl_mtf_1d(s.detach())
-        return bool((dev <= self.blur_skip_tolerance).all())
+        # max |1 - OTF| on the grid is at the corner frequency sqrt(2) / (2 dx); memoised on the plain numbers
+        # (asked twice per camera call, by plan() and forward(), and repeated by a dataset's few cameras)
+        key = (tuple(dx.detach().reshape(-1).tolist()), float(wavelengths_nm.max()),
+               tuple(f_number.detach().reshape(-1).tolist()), self.blur_skip_tolerance)
+        memo = self.__dict__.setdefault("_negligible_memo", {})
+        hit = memo.get(key)
+        if hit is None:
+            s = (math.sqrt(2) / (2 * dx)) * wavelengths_nm.max() * 1e-9 * f_number
+            dev = 1 - dl_mtf_1d(s.detach())
+            hit = bool((dev <= self.blur_skip_tolerance).all())
+            if len(memo) > 256:
+                memo.clear()
+            memo[key] = hit
+        return hit
 
     def plan(self, scene):
         if not self.isetcam:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import threading
 from typing import ClassVar
 
 import torch
@@ -10,6 +11,26 @@ import torch
 from ..image import SpectralImage, angle_for_extent
 
 __all__ = ["OpticalImage", "FourierFactors"]
+
+_SCRATCH = threading.local()
+_SCRATCH_MAX_ELEMENTS = 4 * 2**20  # per buffer (16 MiB in float32): a 128^2-256^2 camera pair's intermediates
+
+
+def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device, slot: str = "cube") -> torch.Tensor:
+    """A per-thread reusable buffer (one per ``slot``) for a large intermediate that is consumed before the call
+    returns (the ``[B, L, 2F]`` Fourier-domain cube: ~2.6 MB at 144^2 x 31 in float32; the optics' weighted maps
+    before their rFFT). A fresh tensor of that size is a fresh ``mmap`` whose pages fault on first touch (glibc's
+    default for blocks over 128 KiB). Never returned to a caller, never used when a gradient is needed."""
+    n = 1
+    for v in shape:
+        n *= v
+    if n > _SCRATCH_MAX_ELEMENTS:  # a large problem: its compute dwarfs the allocation; keep no big buffer alive
+        return torch.empty(shape, dtype=dtype, device=device)
+    buf = getattr(_SCRATCH, slot, None)
+    if buf is None or buf.dtype != dtype or buf.device != device or buf.numel() < n:
+        buf = torch.empty(n, dtype=dtype, device=device)
+        setattr(_SCRATCH, slot, buf)
+    return buf[:n].view(shape)
 
 
 class FourierFactors:
@@ -60,10 +81,16 @@ class FourierFactors:
         # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
         # the same real matrix products act on the real and imaginary parts (view_as_real).
         spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
-        if b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU)
-            cube = torch.mm(self.spectra[0].T, spec[0])[None]  # [1, L, 2F]
+        grad = torch.is_grad_enabled() and (spec.requires_grad or self.spectra.requires_grad
+                                            or self.otf.requires_grad)
+        if grad:
+            cube = torch.mm(self.spectra[0].T, spec[0])[None] if b == 1 else self.spectra.transpose(1, 2) @ spec
+        elif b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU), into a reused buffer
+            cube = _scratch((1, n_l, 2 * nf), spec.dtype, spec.device)
+            torch.mm(self.spectra[0].T.to(spec.dtype), spec[0], out=cube[0])
         else:
-            cube = self.spectra.transpose(1, 2) @ spec  # [B, L, 2F]
+            cube = torch.matmul(self.spectra.transpose(1, 2).to(spec.dtype), spec,
+                                out=_scratch((b, n_l, 2 * nf), spec.dtype, spec.device))  # [B, L, 2F]
         otf = self.otf
         if otf.is_complex():
             otf = otf.reshape(otf.shape[0], n_l, nf)
@@ -77,7 +104,11 @@ class FourierFactors:
                 cube.view(b, n_l, nf, 2).mul_(otf)
         if weights is not None:
             wt = weights.to(cube).T
-            cube = torch.mm(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
+            if b == 1 and not grad:  # into a reused buffer, consumed by the inverse FFT below
+                proj = _scratch((1, wt.shape[0], 2 * nf), cube.dtype, cube.device, "proj")
+                cube = torch.mm(wt, cube[0], out=proj[0])[None]
+            else:
+                cube = torch.mm(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
         planes = torch.view_as_complex(cube.view(b, -1, *self.spec.shape[-2:], 2))
         r0, c0, h, w = self.window
         return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
