@@ -306,17 +306,7 @@ class ShiftInvariantLens(nn.Module):
                 maps = torch.mul(maps, ri, out=_scratch(tuple(maps.shape), maps.dtype, maps.device, "maps"))
         if negligible:
             # no blur: the irradiance stays maps x spectra (the maps extended like the dense image)
-            margin = 0 if self.margin is None else self.margin
-            pr = pc = margin
-            if crop is None:
-                out = extend(maps, (-pr, h + pr), (-pc, w + pc), self.pad_mode)
-            else:
-                top, left, wh, ww = crop
-                if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr
-                        and left + ww <= w + 2 * pc):
-                    raise ValueError(f"crop: window {crop} does not fit in the {h + 2 * pr}x{w + 2 * pc} optical "
-                                     f"image")
-                out = extend(maps, (top - pr, top - pr + wh), (left - pc, left - pc + ww), self.pad_mode)
+            out, pr, pc = self._extend_unblurred(maps, crop)
             factors = SpectralFactors(out, spectra, validate=False)
         else:
             margin = self.margin_samples((h, w), dx, wave, n)
@@ -327,6 +317,18 @@ class ShiftInvariantLens(nn.Module):
             factors = FourierFactors(torch.fft.rfft2(buf), spectra, self._interleaved(otf), (my, mx), window,
                                      None if otf.is_complex() else otf)
         return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name)
+
+    def _extend_unblurred(self, x: torch.Tensor, crop) -> tuple[torch.Tensor, int, int]:
+        """``x`` (irradiance or maps) extended by the optics' margin like a blurred image would be, or the ``crop``
+        window of that extension, when the blur is negligible; returns ``(out, pad_rows, pad_cols)``."""
+        h, w = x.shape[-2:]
+        pr = pc = 0 if self.margin is None else self.margin
+        if crop is None:
+            return extend(x, (-pr, h + pr), (-pc, w + pc), self.pad_mode), pr, pc
+        top, left, wh, ww = crop
+        if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr and left + ww <= w + 2 * pc):
+            raise ValueError(f"crop: window {crop} does not fit in the {h + 2 * pr}x{w + 2 * pc} optical image")
+        return extend(x, (top - pr, top - pr + wh), (left - pc, left - pc + ww), self.pad_mode), pr, pc
 
     def _interleaved(self, otf: torch.Tensor) -> torch.Tensor:
         """A real OTF ``[B, L, My, Mx']`` as ``[B, L, My, Mx', 2]`` (the same value for the real and imaginary
@@ -351,17 +353,7 @@ class ShiftInvariantLens(nn.Module):
     def _blur_to_oi(self, irr, wave, dx, n, f, d_i, crop, name=""):
         h, w = irr.shape[-2:]
         if self.blur_negligible(dx, wave, n):
-            margin = 0 if self.margin is None else self.margin
-            pr, pc = margin, margin
-            if crop is None:
-                out = extend(irr, (-pr, h + pr), (-pc, w + pc), self.pad_mode)
-            else:
-                top, left, wh, ww = crop
-                if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr
-                        and left + ww <= w + 2 * pc):
-                    raise ValueError(f"crop: window {crop} does not fit in the {h + 2 * pr}x{w + 2 * pc} optical "
-                                     f"image")
-                out = extend(irr, (top - pr, top - pr + wh), (left - pc, left - pc + ww), self.pad_mode)
+            out, pr, pc = self._extend_unblurred(irr, crop)
         else:
             margin = self.margin_samples((h, w), dx, wave, n)
             out, (pr, pc) = blur_fft(irr, self._otf_fn(wave, n, dx), dx, (margin, margin), self.pad_mode,
