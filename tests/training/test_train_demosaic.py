@@ -154,9 +154,36 @@ def test_full_sensor_noise_variance_is_ax_plus_b():
     noisy = train_demosaic.add_noise(raw, ab, g, cfg["noise"])
     var = (noisy - raw).flatten(1).var(1)
     torch.testing.assert_close(var, a * raw.flatten(1)[:, 0] + b, rtol=0.04, atol=0)
-    # quantised to the 10-bit grid; mean preserved (black level subtracted)
-    torch.testing.assert_close(noisy * 1023, (noisy * 1023).round(), rtol=0, atol=1e-3)
+    # quantised to the 10-bit grid (the dark electrons pass the ADC, their mean a * dark_e is subtracted after it);
+    # mean preserved (black level and dark frame subtracted)
+    codes = (noisy.double() + a * 9.0) * 1023
+    torch.testing.assert_close(codes, codes.round(), rtol=0, atol=1e-3)
     torch.testing.assert_close(noisy.flatten(1).mean(1), raw.flatten(1)[:, 0], rtol=0, atol=3e-4)
+
+
+def test_sensor_noise_per_image_gains_black_and_prnu():
+    """add_noise is one isettorch Sensor with per-image [B] levels: four images at their own random gains
+    (noise_params, gains 1-64), at black (x = 0: the pedestal keeps read noise and DSNU unclipped, so the mean stays
+    0 and the variance is b) and at x = 0.3, each with variance a x + b (EMVA 1288 photon transfer; Foi et al.
+    2008); PRNU adds (prnu x)^2 (EMVA 1288 eq. 12); the draw is a function of the generator's seed only."""
+    n = {"gain_min": 1.0, "gain_max": 64.0, "full_well_e": 10000.0, "read_noise_e": 3.0, "dsnu_e": 1.0,
+         "dark_e": 5.0, "bits": 12}
+    g = torch.Generator().manual_seed(5)
+    ab = train_demosaic.noise_params(4, {"noise": n}, g)
+    assert float(ab[:, 0].max() / ab[:, 0].min()) > 1.5  # distinct gains in one batch
+    x = torch.tensor([0.0, 0.3, 0.0, 0.3]).reshape(4, 1, 1, 1)
+    raw = x.expand(4, 1, 200, 200).contiguous()
+    state = g.get_state()
+    noisy = train_demosaic.add_noise(raw, ab, g, n)
+    # var of 40000 samples: relative standard error sqrt(2 / n) = 0.7 %
+    torch.testing.assert_close(noisy.flatten(1).var(1), ab[:, 0] * x.flatten() + ab[:, 1], rtol=0.04, atol=0)
+    torch.testing.assert_close(noisy.flatten(1).mean(1), x.flatten(), rtol=0, atol=1e-3)
+    assert torch.equal(train_demosaic.add_noise(raw, ab, torch.Generator().set_state(state), n), noisy)
+    # PRNU 2 % redrawn per frame at x = 0.5: + (0.02 x)^2 = 1e-4, about as large as a x at gain 1
+    prnu = dict(n, prnu_percent=2.0)
+    half = torch.full((4, 1, 200, 200), 0.5)
+    var = train_demosaic.add_noise(half, ab, g, prnu).flatten(1).var(1)
+    torch.testing.assert_close(var, ab[:, 0] * 0.5 + ab[:, 1] + (0.02 * 0.5) ** 2, rtol=0.04, atol=0)
 
 
 def _free_port() -> int:
