@@ -145,7 +145,7 @@ class LensAnalysis:
         return yc[-1] + (self.sensor_z - g.vertex_z[-1]) * uc
 
     def working_f_number(self) -> torch.Tensor:
-        """Paraxial image-space working f-number 1 / (2 |u'|) of the axial object's marginal ray (the f-number
+        """Paraxial image-space working f-number ``1 / (2 |u'|)`` of the axial object's marginal ray (the f-number
         at infinity); Smith, *Modern Optical Engineering*, ch. 9."""
         if math.isinf(self.object_distance_mm):
             return self.f_number

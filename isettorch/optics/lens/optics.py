@@ -15,7 +15,7 @@ scene off the focus distance is defocused, by a wavelength-dependent amount (lon
 lengths from a 50 mm lens: a lens focused at infinity would blur it by ~0.2 mm). Tables and PSF banks are cached
 per (object distance, focus), distances rounded to 1 um. The image pitch follows the focus: the paraxial
 chief-ray height per tan(field angle) on the sensor plane (the EFL at infinity focus); the camera equation takes
-the paraxial magnification of the object plane (ISETCam oiCalculateIrradiance: pi / (1 + 4 N^2 (1 + |m|)^2)).
+the paraxial magnification of the object plane (ISETCam oiCalculateIrradiance: ``pi / (1 + 4 N^2 (1 + |m|)^2)``).
 
 Accuracy knob: ``field_samples`` (radial PSF samples), ``azimuth_samples`` and ``components`` (K); the speed and
 error of each setting are in ``benchmarks/LENS.md``.
