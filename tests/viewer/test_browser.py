@@ -141,7 +141,16 @@ def _drag(page, window: str, frac0: tuple[float, float], frac1: tuple[float, flo
         f"() => Bokeh.documents[0].get_model_by_name('{window}_roi').data.row0[0] !== {before['row0'][0]} || "
         f"Bokeh.documents[0].get_model_by_name('{window}_roi').data.col0[0] !== {before['col0'][0]}",
         timeout=30_000)
-    roi = _model(page, f"{window}_roi")
+    # The drag sends intermediate boxes (row0/col0 change at the first one): wait until the ROI and the
+    # server's answer to it have settled (two reads 0.4 s apart agree) before the test reads them.
+    roi, deadline = _model(page, f"{window}_roi"), time.monotonic() + 30
+    while time.monotonic() < deadline:
+        page.wait_for_timeout(400)
+        again = _model(page, f"{window}_roi")
+        if again == roi:
+            break
+        roi = again
+    page.wait_for_timeout(400)
     return {k: int(roi[k][0]) for k in ("row0", "row1", "col0", "col1")}
 
 
