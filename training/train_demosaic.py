@@ -282,6 +282,17 @@ def noise_params(batch: int, cfg: dict, g: torch.Generator) -> torch.Tensor:
     return torch.stack([a, a * a * add_e2 + q2], 1)
 
 
+def gaussian_params(batch: int, noise_cfg: dict, g: torch.Generator) -> torch.Tensor:
+    """[B, 2] (a, b) = (0, sigma^2) with ``sigma`` log-uniform in [``sigma_min``, ``sigma_max``] (of the [0, 1]
+    mosaic): signal-independent white Gaussian noise, the noise of ``isettorch demosaic-eval --noise-sigma``
+    (``noise.gaussian_fraction`` of every batch is drawn this way)."""
+    lo, hi = float(noise_cfg.get("sigma_min", 0.002)), float(noise_cfg.get("sigma_max", 0.08))
+    if not 0 < lo <= hi:
+        raise ValueError(f"noise.sigma_min, noise.sigma_max: expected 0 < sigma_min <= sigma_max, got {lo}, {hi}")
+    sigma = lo * (hi / lo) ** torch.rand(batch, generator=g)
+    return torch.stack([torch.zeros_like(sigma), sigma * sigma], 1)
+
+
 # Pedestal below black: this many standard deviations of the largest noise floor, so read noise and DSNU at x = 0
 # are not clipped by the sensor's low clip (EMVA 1288 section 4.6 asks for an offset that keeps the dark signal
 # above zero).
@@ -377,7 +388,13 @@ def make_batch(sampler: ScenePool | CameraPairSource, cfg: dict, seed: int, batc
         ab = noise_params(batch, cfg, g)
         n = cfg["noise"]
         extra = any(float(n.get(k, 0) or 0) for k in ("prnu_percent", "dark_e", "dsnu_e", "bits"))
-        raw = add_noise(raw, ab, g, n if extra else None)
+        k_gauss = round(float(n.get("gaussian_fraction", 0.0)) * batch)
+        if k_gauss:  # the first k images: white Gaussian noise only (a = 0), the benchmarks' --noise-sigma model
+            ab[:k_gauss] = gaussian_params(k_gauss, n, g)
+            raw = torch.cat([add_noise(raw[:k_gauss], ab[:k_gauss], g),
+                             add_noise(raw[k_gauss:], ab[k_gauss:], g, n if extra else None)])
+        else:
+            raw = add_noise(raw, ab, g, n if extra else None)
         feats = noise_features(ab)
     return raw, rgb, feats
 
