@@ -27,7 +27,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from isettorch._progress import add_quiet_argument, progress  # noqa: E402
-from isettorch.isp.learned import demosaic_malvar_torch, load_checkpoint  # noqa: E402
+from isettorch.isp.demosaicing import demosaic_malvar2004  # noqa: E402
+from isettorch.isp.learned import load_checkpoint  # noqa: E402
 from training import common, train_demosaic  # noqa: E402
 
 
@@ -45,7 +46,7 @@ def evaluate(cfg: dict, models: dict, items: int = 64, size: int = 128, crop: in
         raw, rgb, _ = train_demosaic.pair_batch(b, size, noisy)
         ab = torch.stack([b["meta"]["noise_gain"], b["meta"]["noise_floor_var"]], 1).float()
         gains.append(ab[:, 0])
-        scores["mhc"].append(common.cpsnr(demosaic_malvar_torch(raw), rgb, crop))
+        scores["mhc"].append(common.cpsnr(demosaic_malvar2004(raw), rgb, crop))
         for name, net in models.items():
             feats = train_demosaic.noise_features(ab) if net.noise_inputs else None
             scores.setdefault(name, []).append(common.cpsnr(net(raw, feats), rgb, crop))

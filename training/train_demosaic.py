@@ -61,8 +61,8 @@ from isettorch.data import natural as nat  # noqa: E402
 from isettorch.data import spectra as data_spectra  # noqa: E402
 from isettorch.data.config import seed_for  # noqa: E402
 from isettorch.isp import learned  # noqa: E402
-from isettorch.isp.demosaicing import mosaic  # noqa: E402
-from isettorch.isp.learned import DemosaicNet, demosaic_malvar_torch  # noqa: E402
+from isettorch.isp.demosaicing import demosaic_malvar2004, mosaic  # noqa: E402
+from isettorch.isp.learned import DemosaicNet  # noqa: E402
 from isettorch.paths import data_path  # noqa: E402
 from isettorch.sensor import Sensor  # noqa: E402
 from isettorch.sensor.noise import poisson_gaussian  # noqa: E402
@@ -379,7 +379,7 @@ def make_batch(sampler: ScenePool | CameraPairSource, cfg: dict, seed: int, batc
                                 encoded_fraction=float(d.get("encoded_fraction", 0.8)))
     if k > 1:
         with torch.no_grad():
-            est = demosaic_malvar_torch(mosaic_rggb(rgb))
+            est = demosaic_malvar2004(mosaic_rggb(rgb))
         rgb = rgb[nat.hard_patch_indices(rgb, est, keep=1.0 / k)[:batch].sort().values]
     rgb = augment_flips(rgb, g)
     raw = mosaic_rggb(rgb)
@@ -423,7 +423,7 @@ def validate(net: torch.nn.Module, val: list, device) -> dict:
         raw, rgb = raw.to(device), rgb.to(device)
         out = net(raw, None if feats is None else feats.to(device))
         ps.append(common.cpsnr(out, rgb, crop=4))
-        pm.append(common.cpsnr(demosaic_malvar_torch(raw), rgb, crop=4))
+        pm.append(common.cpsnr(demosaic_malvar2004(raw), rgb, crop=4))
     net.train()
     v, m = float(torch.cat(ps).mean()), float(torch.cat(pm).mean())
     return {"val_cpsnr": v, "val_cpsnr_mhc": m, "val_gain_db": v - m}

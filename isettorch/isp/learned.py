@@ -29,10 +29,10 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
+from .demosaicing.linear import demosaic_malvar2004
 
 __all__ = [
     "BAYER_PATTERNS",
-    "demosaic_malvar_torch",
     "DemosaicNet",
     "demosaic_learned",
     "load_pretrained",
@@ -46,16 +46,6 @@ ASSETS = Path(__file__).resolve().parent.parent / "assets"
 PRETRAINED_PATH = ASSETS / "demosaic_learned.pt"
 #: shipped variants: the noise-free network and the joint denoise+demosaic network (noise inputs (a, b))
 PRETRAINED = {"noise_free": PRETRAINED_PATH, "joint_denoise": ASSETS / "demosaic_learned_denoise.pt"}
-
-# Malvar, He, Cutler (ICASSP 2004), Fig. 2 filters (x 1/8): G at R/B; R(B) at G in an R(B) row; R(B) at G in an
-# R(B) column; R at B (and B at R).
-_MHC = torch.tensor([
-    [[0, 0, -2, 0, 0], [0, 0, 4, 0, 0], [-2, 4, 8, 4, -2], [0, 0, 4, 0, 0], [0, 0, -2, 0, 0]],
-    [[0, 0, 1, 0, 0], [0, -2, 0, -2, 0], [-2, 8, 10, 8, -2], [0, -2, 0, -2, 0], [0, 0, 1, 0, 0]],
-    [[0, 0, -2, 0, 0], [0, -2, 8, -2, 0], [1, 0, 10, 0, 1], [0, -2, 8, -2, 0], [0, 0, -2, 0, 0]],
-    [[0, 0, -3, 0, 0], [0, 4, 0, 4, 0], [-3, 0, 12, 0, -3], [0, 4, 0, 4, 0], [0, 0, -3, 0, 0]],
-], dtype=torch.float64) / 16.0
-
 
 def _check_raw(raw: torch.Tensor, name: str = "raw") -> torch.Tensor:
     if not isinstance(raw, torch.Tensor):
@@ -86,49 +76,6 @@ def _to_rggb(raw: torch.Tensor, pattern: str) -> tuple[torch.Tensor, int, int]:
     if dy or dx:
         raw = F.pad(raw, (dx, dx, dy, dy), mode="reflect")
     return raw, dy, dx
-
-
-def _rggb_malvar(raw: torch.Tensor) -> torch.Tensor:
-    """MHC on an RGGB mosaic [B, 1, H, W] (even size) -> [B, 3, H, W]; mirror boundary (as colour-demosaicing)."""
-    k = _MHC.to(raw.device, raw.dtype)[:, None]
-    f = F.conv2d(F.pad(raw, (2, 2, 2, 2), mode="reflect"), k)  # [B, 4, H, W]
-    g_rb, at_g_row, at_g_col, rb_br = f.unbind(1)
-    x = raw[:, 0]
-    h, w = x.shape[-2:]
-    yy = torch.arange(h, device=raw.device)[:, None] % 2
-    xx = torch.arange(w, device=raw.device)[None, :] % 2
-    is_r = (yy == 0) & (xx == 0)
-    is_b = (yy == 1) & (xx == 1)
-    is_g_rrow = (yy == 0) & (xx == 1)
-    is_g_brow = (yy == 1) & (xx == 0)
-    r = torch.where(is_r, x, torch.where(is_b, rb_br, torch.where(is_g_rrow, at_g_row, at_g_col)))
-    g = torch.where(is_r | is_b, g_rb, x)
-    b = torch.where(is_b, x, torch.where(is_r, rb_br, torch.where(is_g_brow, at_g_row, at_g_col)))
-    return torch.stack([r, g, b], 1)
-
-
-def demosaic_malvar_torch(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
-    """Malvar-He-Cutler (2004) demosaicing, batched and differentiable.
-
-    Args:
-        raw: Bayer mosaic ``(B, 1, H, W)`` (H, W even).
-        pattern: one of ``RGGB``, ``BGGR``, ``GRBG``, ``GBRG`` (top-left 2x2 block, row-major).
-
-    Returns:
-        ``(B, 3, H, W)`` RGB (not clipped).
-
-    Example:
-        >>> demosaic_malvar_torch(torch.rand(1, 1, 8, 8)).shape
-        torch.Size([1, 3, 8, 8])
-
-    Reference: Malvar, He, Cutler, ICASSP 2004 (the filters of colour-demosaicing's
-    ``demosaicing_CFA_Bayer_Malvar2004``, mirror boundary).
-    """
-    raw = _check_raw(raw)
-    pattern = _check_pattern(pattern)
-    x, dy, dx = _to_rggb(raw, pattern)
-    out = _rggb_malvar(x)
-    return out[..., dy:dy + raw.shape[-2], dx:dx + raw.shape[-1]]
 
 
 class DemosaicNet(nn.Module):
@@ -168,7 +115,7 @@ class DemosaicNet(nn.Module):
 
     def forward(self, raw: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
         raw = _check_raw(raw)
-        base = _rggb_malvar(raw)
+        base = demosaic_malvar2004(raw, "RGGB", boundary="mirror")
         feats = [F.pixel_unshuffle(raw, 2), F.pixel_unshuffle(base, 2)]
         if self.noise_inputs:
             if noise is None:

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from isettorch.isp import learned
-from isettorch.isp.learned import DemosaicNet, demosaic_learned, demosaic_malvar_torch
+from isettorch.isp.demosaicing import demosaic_malvar2004
+from isettorch.isp.learned import DemosaicNet, demosaic_learned
 
 cd = pytest.importorskip("colour_demosaicing")
 KODAK = Path("/work/shared/data/kodak24")
@@ -16,20 +17,22 @@ MCM = Path("/work/shared/data/mcmaster18")
 
 
 @pytest.mark.parametrize("pattern", ["RGGB", "BGGR", "GRBG", "GBRG"])
-def test_malvar_matches_colour_demosaicing(pattern):
-    # Interior pixels (2 px from the border, where the 5x5 filters need no padding) must agree exactly.
+def test_mirror_boundary_malvar_matches_colour_demosaicing(pattern):
+    # The networks' MHC base extends the mosaic by whole-sample mirroring (scipy 'mirror'): colour-demosaicing on
+    # the mosaic mirror-padded by 2 px (numpy 'reflect', the Bayer phase kept), cropped back, is the reference
+    # at every pixel, borders included.
     img = np.random.default_rng(0).random((12, 16, 3))
     m = cd.mosaicing_CFA_Bayer(img, pattern)
-    ref = cd.demosaicing_CFA_Bayer_Malvar2004(m, pattern)
-    out = demosaic_malvar_torch(torch.from_numpy(m)[None, None], pattern)[0].permute(1, 2, 0).numpy()
-    np.testing.assert_allclose(out[2:-2, 2:-2], ref[2:-2, 2:-2], atol=1e-12)
+    ref = cd.demosaicing_CFA_Bayer_Malvar2004(np.pad(m, 2, mode="reflect"), pattern)[2:-2, 2:-2]
+    out = demosaic_malvar2004(torch.from_numpy(m)[None, None], pattern, boundary="mirror")
+    np.testing.assert_allclose(out[0].permute(1, 2, 0).numpy(), ref, atol=1e-12)
 
 
 def test_untrained_network_is_mhc_and_keeps_known_samples_trainable():
     torch.manual_seed(0)
     raw = torch.rand(2, 1, 16, 20)
     net = DemosaicNet(channels=8, depth=2)
-    torch.testing.assert_close(net(raw), demosaic_malvar_torch(raw), rtol=0, atol=1e-6)
+    torch.testing.assert_close(net(raw), demosaic_malvar2004(raw, boundary="mirror"), rtol=0, atol=1e-6)
     # the last layer starts at zero, but its gradient does not vanish (training can leave MHC)
     loss = (net(raw) - torch.rand(2, 3, 16, 20)).abs().mean()
     loss.backward()
@@ -53,11 +56,13 @@ def test_patterns_are_shifts_of_rggb():
 
 def test_bad_inputs():
     with pytest.raises(ValueError, match="pattern"):
-        demosaic_malvar_torch(torch.rand(1, 1, 8, 8), "RGBW")
+        demosaic_malvar2004(torch.rand(1, 1, 8, 8), "RGBW")
     with pytest.raises(ValueError, match="raw"):
-        demosaic_malvar_torch(torch.rand(1, 3, 8, 8))
+        demosaic_malvar2004(torch.rand(1, 3, 8, 8))
+    with pytest.raises(ValueError, match="boundary"):
+        demosaic_malvar2004(torch.rand(1, 1, 8, 8), boundary="wrap")
     with pytest.raises(ValueError, match="raw"):
-        demosaic_malvar_torch(torch.rand(1, 1, 7, 8))
+        DemosaicNet(channels=4, depth=1)(torch.rand(1, 1, 7, 8))
     with pytest.raises(FileNotFoundError, match="path"):
         learned.load_checkpoint("/nonexistent/ckpt.pt")
 
@@ -88,7 +93,7 @@ def test_shipped_checkpoint_beats_malvar_on_benchmark_crops(folder):
     raw = torch.from_numpy(np.stack([cd.mosaicing_CFA_Bayer(i.permute(1, 2, 0).numpy(), "RGGB") for i in img]))
     raw = raw[:, None].float()
     c = 10
-    mhc = _cpsnr(demosaic_malvar_torch(raw)[..., c:-c, c:-c], img[..., c:-c, c:-c])
+    mhc = _cpsnr(demosaic_malvar2004(raw)[..., c:-c, c:-c], img[..., c:-c, c:-c])
     ours = _cpsnr(demosaic_learned(raw)[..., c:-c, c:-c], img[..., c:-c, c:-c])
     assert ours > mhc + 0.3, (ours, mhc)
 
@@ -148,7 +153,7 @@ def test_joint_denoise_checkpoint_beats_malvar_on_noisy_crops():
     net = learned.load_pretrained("joint_denoise")
     feats = torch.tensor([[a ** 0.5 * 10, b ** 0.5 * 100]]).expand(len(img), 2)
     ours = _cpsnr(demosaic_learned(noisy, "RGGB", model=net, noise=feats), img)
-    mhc = _cpsnr(demosaic_malvar_torch(noisy), img)
+    mhc = _cpsnr(demosaic_malvar2004(noisy), img)
     assert ours > mhc + 1.0, (ours, mhc)
     with pytest.raises(ValueError, match="variant"):
         learned.load_pretrained("nope")

@@ -72,7 +72,7 @@ def test_hard_mining_keeps_the_hardest_crops():
     hard = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 9, 4)[1]
 
     def mhc_mse(x):
-        return float((train_demosaic.demosaic_malvar_torch(train_demosaic.mosaic_rggb(x)) - x).pow(2).mean())
+        return float((train_demosaic.demosaic_malvar2004(train_demosaic.mosaic_rggb(x)) - x).pow(2).mean())
 
     assert mhc_mse(hard) > mhc_mse(plain)
 
@@ -210,11 +210,18 @@ def test_joint_batches_carry_noise_features():
     smoke = common.load_config(SMOKE)
     cfg["data"], cfg["val"] = smoke["data"], smoke["val"]
     raw, rgb, feats = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 3, 4)
-    assert feats.shape == (4, 2) and bool((feats > 0).all())
+    n = cfg["noise"]
+    k = round(n["gaussian_fraction"] * 4)
+    assert feats.shape == (4, 2) and k == 2 and bool((feats[:, 1] > 0).all())
     noise = raw - train_demosaic.mosaic_rggb(rgb)
-    assert float(noise.std()) > 1e-3
-    # the features are sqrt(a) * 10, sqrt(b) * 100 of noise_params drawn from the same generator position
-    a = (feats[:, 0] / 10) ** 2
+    # the first k images: white Gaussian noise (a = 0) of the std in their feature sqrt(b) * 100
+    sigma = feats[:k, 1] / 100
+    assert bool((feats[:k, 0] == 0).all())
+    assert bool(((sigma >= n["sigma_min"] * (1 - 1e-6)) & (sigma <= n["sigma_max"] * (1 + 1e-6))).all())
+    torch.testing.assert_close(noise[:k].flatten(1).std(1), sigma, rtol=0.1, atol=0)
+    # the others: sensor noise; the features are sqrt(a) * 10, sqrt(b) * 100 of noise_params
+    assert float(noise[k:].std()) > 1e-3
+    a = (feats[k:, 0] / 10) ** 2
     assert bool(((a >= 1.0 / 10000 * (1 - 1e-5)) & (a <= 64.0 / 10000 * (1 + 1e-5))).all())
 
 

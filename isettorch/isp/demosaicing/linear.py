@@ -188,14 +188,17 @@ _MALVAR = [_scaled(_G_AT_RB, 1 / 8), _scaled(_RB_AT_G_ROW, 1 / 8), _scaled(list(
            _scaled(_RB_AT_BR, 1 / 8)]
 
 
-def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
+def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str = "symmetric") -> torch.Tensor:
     """Malvar-He-Cutler high-quality linear demosaic of a Bayer mosaic: bilinear interpolation corrected by the
     Laplacian of the channel sampled at the site, as four fixed 5x5 kernels (Malvar et al. 2004, Fig. 2). The
     image is extended by half-sample symmetric reflection (scipy 'reflect', as colour-demosaicing does).
+    Differentiable; :class:`isettorch.isp.learned.DemosaicNet` corrects this estimate.
 
     Args:
         raw: mosaic (B, 1, H, W), float32 or float64, any device.
         pattern: 'RGGB', 'BGGR', 'GRBG' or 'GBRG' (row-major, top-left first).
+        boundary: 'symmetric' (default, scipy 'reflect': d c b a | a b c d) or 'mirror' (scipy 'mirror' = torch
+            'reflect': d c b | a b c d), the extension the shipped learned networks were trained with.
 
     Returns:
         RGB (B, 3, H, W), not clipped.
@@ -209,9 +212,11 @@ def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB") -> torch.Tenso
         color images", ICASSP 2004.
     """
     raw = check_raw(raw)
+    if boundary not in ("symmetric", "mirror"):
+        raise ValueError(f"boundary: expected 'symmetric' or 'mirror', got {boundary!r}")
     h, w = raw.shape[-2:]
     m = bayer_masks(check_bayer_pattern(pattern), h, w, raw.device)
-    xp = pad(raw, 2, 2, "symmetric")
+    xp = pad(raw, 2, 2, boundary)
     g_at_rb, rb_row, rb_col, rb_diag = (_shift_add(xp, k, h, w) for k in _MALVAR)
     # rb_row: R (B) at a green site in a row of R (B); rb_col: ... in a column of it; rb_diag: R at B, B at R.
     g_in_r_row, g_in_b_row = m["G_in_R_row"], m["G_in_B_row"]
