@@ -106,6 +106,10 @@ class DemosaicNet(nn.Module):
         for _ in range(self.depth - 1):
             layers += [nn.Conv2d(self.channels, self.channels, 3, padding=1), nn.ReLU(inplace=True)]
         self.body = nn.Sequential(*layers)
+        for m in self.body:  # He et al. (ICCV 2015) init keeps the ReLU activations' scale through any depth
+            if isinstance(m, nn.Conv2d):  # (PyTorch's default shrinks them ~1/sqrt(3) per layer)
+                nn.init.kaiming_normal_(m.weight, nonlinearity="relu")
+                nn.init.zeros_(m.bias)
         self.head = nn.Conv2d(self.channels, 12, 3, padding=1)
         nn.init.zeros_(self.head.weight)  # start exactly at MHC
         nn.init.zeros_(self.head.bias)

@@ -39,6 +39,18 @@ def test_untrained_network_is_mhc_and_keeps_known_samples_trainable():
     assert net.head.weight.grad.abs().sum() > 0
 
 
+def test_deep_body_keeps_activation_scale():
+    # He et al. (ICCV 2015): with kaiming-normal weights a ReLU conv layer keeps E[x^2] of its input, so the mean
+    # square after 11 more layers stays near the first layer's (PyTorch's default init loses ~3x per layer, which
+    # left an 8-deep zero-headed network stuck at MHC for hundreds of steps).
+    torch.manual_seed(0)
+    net = DemosaicNet(channels=64, depth=12)
+    x = torch.cat([torch.nn.functional.pixel_unshuffle(torch.rand(2, 1, 64, 64), 2)] * 4, 1)
+    first = net.body[1](net.body[0](x)).pow(2).mean()
+    last = net.body(x).pow(2).mean()
+    assert 0.25 < float(last / first) < 4.0
+
+
 def test_patterns_are_shifts_of_rggb():
     # A GRBG mosaic of an image is the RGGB mosaic of the image shifted by one column: away from the borders the
     # learned demosaic of both must give the same RGB.
