@@ -24,10 +24,10 @@ if str(ROOT) not in sys.path:
 
 from isettorch.data.natural import COMPONENTS  # noqa: E402
 from isettorch.isp.evaluation import evaluate_demosaic, load_demosaic_model  # noqa: E402
+from isettorch.paths import data_path  # noqa: E402
 from training import train_demosaic  # noqa: E402
 
 CONFIG = ROOT / "configs" / "train" / "demosaic_noise_free.yaml"
-DATA = Path("/work/shared/data")
 
 
 def run_one(name: str, disable: list[str], args) -> dict:
@@ -62,8 +62,8 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=20000, help="the fixed budget of every run")
     ap.add_argument("--out", default="out/ablation")
     ap.add_argument("--components", nargs="*", default=list(COMPONENTS))
-    ap.add_argument("--kodak", default=str(DATA / "kodak24"))
-    ap.add_argument("--mcmaster", default=str(DATA / "mcmaster18"))
+    ap.add_argument("--kodak", default=str(data_path("kodak24", must_exist=False)))
+    ap.add_argument("--mcmaster", default=str(data_path("mcmaster18", must_exist=False)))
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", nargs="*", default=[], help="extra config overrides for every run (key.sub=value)")
     ap.add_argument("--table", default=None, help="write the markdown table here")
