@@ -29,8 +29,9 @@ if str(ROOT) not in sys.path:
 
 from isettorch._progress import add_quiet_argument  # noqa: E402
 from isettorch.isp.evaluation import evaluate_demosaic  # noqa: E402
+from isettorch.paths import data_root  # noqa: E402
 
-DATA = Path("/work/shared/data")
+DATA = data_root()  # $ISETTORCH_DATA (isettorch.paths)
 SPEED_METHODS = ("nearest", "bilinear", "malvar2004", "menon2007", "learned")
 
 
