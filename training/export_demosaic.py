@@ -44,7 +44,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", default="", help="text describing the training data for the record")
     ap.add_argument("--name", default="demosaic_learned", help="file stem in the assets folder")
     ap.add_argument("--half", action="store_true", help="store the weights as float16 (half the size)")
-    ap.add_argument("--no-bench", action="store_true", help="skip the Kodak/McMaster scores (noisy variants)")
+    ap.add_argument("--no-bench", action="store_true", help="skip the Kodak/McMaster scores")
+    ap.add_argument("--noise-sigmas", type=float, nargs="*", default=[],
+                    help="also score the benchmarks (crop 10) with white Gaussian noise of these stds on the [0, 1] "
+                         "mosaic (demosaic-eval --noise-sigma, seed 0; a joint network is given the level)")
     ap.add_argument("--heldout", default=None,
                     help="JSON written by training/eval_camera_pairs.py, added to the record (held-out camera pairs)")
     args = ap.parse_args(argv)
@@ -76,6 +79,10 @@ def main(argv: list[str] | None = None) -> int:
             scores.setdefault(name, {})[f"crop{crop}"] = round(res["mean_cpsnr"], 3)
             scores[name].setdefault("ms_per_image", round(res["ms_per_image"], 1))
             print(name, crop, scores[name], flush=True)
+        for sigma in args.noise_sigmas:
+            res = evaluate_demosaic(folder, "learned", "RGGB", 10, model=net, noise_sigma=sigma, seed=0)
+            scores.setdefault(name, {})[f"sigma{sigma:g}_crop10"] = round(res["mean_cpsnr"], 3)
+            print(name, sigma, scores[name], flush=True)
     history = json.loads(ck["history"])
     rec_path = run / "record.json"
     rec = json.loads(rec_path.read_text()) if rec_path.is_file() else {}
@@ -131,6 +138,14 @@ def main(argv: list[str] | None = None) -> int:
     if scores:
             lines.append(f"| **learned (this file)** | {k.get('crop0')} | {k.get('crop10')} | {mc.get('crop0')} | "
                      f"{mc.get('crop10')} |")
+    if args.noise_sigmas and scores:
+        lines += ["", "Noisy benchmarks (white Gaussian noise of std sigma on the [0, 1] mosaic, seed 0, crop 10; the "
+                  "network is given (a, b) = (0, sigma^2)):", "",
+                  "| set | " + " | ".join(f"sigma {s:g}" for s in args.noise_sigmas) + " |",
+                  "|---|" + "---|" * len(args.noise_sigmas)]
+        for name, sc in scores.items():
+            lines.append(f"| {name} | " + " | ".join(str(sc.get(f"sigma{s:g}_crop10")) for s in args.noise_sigmas)
+                         + " |")
     (out / f"{args.name}.md").write_text("\n".join(lines) + "\n")
     print(json.dumps(scores))
     return 0
