@@ -101,12 +101,14 @@ def nikon_d5100_qe(wavelengths_nm, peak_qe: float = 0.5, shift_nm=(0.0, 0.0, 0.0
 
 
 @functools.lru_cache(maxsize=16)
-def _xyz_weights(grid: tuple) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(W [3, L], dl [L])`` in float64 with ``XYZ = W @ photons``: 683 cmf(l) h c / l dl (CIE 015:2018)."""
+def _xyz_weights(grid: tuple) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(W [3, L], dl [L], W.T)`` in float64 with ``XYZ = W @ photons``: 683 cmf(l) h c / l dl (CIE 015:2018)
+    (``W.T``: the same tensor object on every call, so the sensor's memo of its joint weightings hits)."""
     w = torch.tensor(grid, dtype=torch.float64)
     dl = spectral.wavelength_weights(w)
     to_watts = (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S) / (w * 1e-9)
-    return constants.KM_LM_PER_W * spectral.cmfs(w, dtype=torch.float64) * to_watts * dl, dl
+    xyz = constants.KM_LM_PER_W * spectral.cmfs(w, dtype=torch.float64) * to_watts * dl
+    return xyz, dl, xyz.T
 
 
 def _pick(values, g: torch.Generator):
@@ -393,13 +395,13 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             sensor = camera.sensor
             sensor.spectral_qe = it["qe"]
             oi = camera.optical_image(scene)
-            xyz_w = _xyz_weights(tuple(scene.wavelengths_nm.double().tolist()))[0]
+            xyz_w, _, xyz_wt = _xyz_weights(tuple(scene.wavelengths_nm.tolist()))
             peak = kw.pop("qe_scale")
-            it["rates"], it["xyz_d"] = sensor.channel_rates(oi, xyz_w.T if colour else None, qe_scale=peak)
+            it["rates"], it["xyz_d"] = sensor.channel_rates(oi, xyz_wt if colour else None, qe_scale=peak)
             # the main light's white: its camera response (QE dl projection) and XYZ, for the colour targets
             white_p = scene.illuminant_photons[0].to(torch.float64)
             it["white_cam"] = (white_p @ sensor.spectral_weights(oi).to(torch.float64)) * peak
-            it["white_xyz"] = xyz_w.to(torch.float64) @ white_p
+            it["white_xyz"] = xyz_w @ white_p
             it["qe_meta"] = sensor.qe(oi) * peak
         clock("optics")
         img = None
