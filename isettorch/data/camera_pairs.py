@@ -48,7 +48,7 @@ from .. import constants, spectral
 from .._checks import dataset_index
 from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
 from ..isp.colour import bradford_matrix
-from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for, tune_allocator
+from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, randint_scalar, seed_for, tune_allocator
 from .scenes import _uniform, generate_scene
 
 __all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "render_pairs", "batch_loader", "META_KEYS",
@@ -114,7 +114,7 @@ def _xyz_weights(grid: tuple) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 def _pick(values, g: torch.Generator):
     if isinstance(values, (int, float)):
         return float(values)
-    return values[int(torch.randint(len(values), (), generator=g))]
+    return values[randint_scalar(0, len(values), g)]
 
 
 class _Clock:
