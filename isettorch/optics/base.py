@@ -274,11 +274,14 @@ class ShiftInvariantLens(nn.Module):
         ``derived`` is a fresh dict (nothing memoised) when a gradient is needed."""
         if self._requires_grad() or scene.hfov_deg.requires_grad or scene.distance_m.requires_grad:
             return self._compute_spatial_factors(scene), {}
+        # the optics' own values (not only their version counters: a replaced parameter starts a new counter)
+        t, tw = self.transmittance, self.transmittance_wavelengths_nm
         key = (scene.height, scene.width, tuple(scene.hfov_deg.tolist()), tuple(scene.distance_m.tolist()),
-               tuple(scene.wavelengths_nm.tolist()), scene.dtype, str(scene.device), self.f_number._version,
-               self.focal_length_m._version, self.relative_illumination, self.camera_equation,
-               None if self.transmittance is None else self.transmittance._version, self.margin,
-               self.psf_tolerance, self.blur_skip_tolerance, self.max_margin_factor, self._otf_key())
+               tuple(scene.wavelengths_nm.tolist()), scene.dtype, str(scene.device),
+               tuple(self.f_number.reshape(-1).tolist()), tuple(self.focal_length_m.reshape(-1).tolist()),
+               self.relative_illumination, self.camera_equation, None if t is None else tuple(t.reshape(-1).tolist()),
+               None if tw is None else tuple(tw.reshape(-1).tolist()), self.margin, self.psf_tolerance,
+               self.blur_skip_tolerance, self.max_margin_factor, self._otf_key())
         hit = self._geometry_cache.get(key)
         if hit is None:
             if len(self._geometry_cache) >= 4 * _CACHE_SIZE:
