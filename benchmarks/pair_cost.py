@@ -10,6 +10,7 @@ version's median over rounds and the new/old ratio per round.
 Usage::
 
     python benchmarks/pair_cost.py --other /path/to/old/checkout [--rounds 6] [--batches 6] [--markdown]
+        [--tune-allocator]
 """
 
 from __future__ import annotations
@@ -27,7 +28,10 @@ import json, sys, time, torch
 torch.set_num_threads(1)
 from isettorch.data.camera_pairs import TARGETS, _Cache, render_pairs
 from isettorch.data.config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config
-size, batch, batches, start = (int(a) for a in sys.argv[1:5])
+size, batch, batches, start, tune = (int(a) for a in sys.argv[1:6])
+if tune:  # as in a DataLoader worker (CameraPairDataset's tune_worker_allocator)
+    from isettorch.data.config import tune_allocator
+    tune_allocator()
 scene = merge_config({"height": size, "width": size}, SCENE_DEFAULTS, "scene")
 camera = merge_config({}, CAMERA_DEFAULTS, "camera")
 cache = _Cache()
@@ -42,9 +46,10 @@ print(json.dumps([per, {key: 1e3 * v / (batch * batches) for key, v in stages.it
 """
 
 
-def run(checkout: str, size: int, batch: int, batches: int, start: int) -> tuple[float, dict]:
+def run(checkout: str, size: int, batch: int, batches: int, start: int, tune: bool = False) -> tuple[float, dict]:
     env = dict(os.environ, PYTHONPATH=checkout, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    out = subprocess.run([sys.executable, "-c", CHILD, str(size), str(batch), str(batches), str(start)], env=env,
+    args = [str(v) for v in (size, batch, batches, start, int(tune))]
+    out = subprocess.run([sys.executable, "-c", CHILD, *args], env=env,
                          capture_output=True, text=True, check=True, cwd=checkout)
     per, stages = json.loads(out.stdout.strip().splitlines()[-1])
     return statistics.median(per) * 1e3, stages
@@ -58,13 +63,16 @@ def main() -> None:
     p.add_argument("--batches", type=int, default=6, help="timed batches per subprocess")
     p.add_argument("--batch", type=int, default=16)
     p.add_argument("--size", type=int, default=128)
+    p.add_argument("--tune-allocator", action="store_true",
+                   help="apply isettorch.data.config.tune_allocator in each subprocess first, as CameraPairDataset "
+                        "does in DataLoader workers (freed tensors stay in the heap: no page faults per fresh tensor)")
     p.add_argument("--markdown", action="store_true")
     a = p.parse_args()
     rows = []
     for r in range(a.rounds):
         start = r * a.batches * a.batch
         order = [("other", a.other), ("this", a.this)] if r % 2 == 0 else [("this", a.this), ("other", a.other)]
-        runs = {name: run(path, a.size, a.batch, a.batches, start) for name, path in order}
+        runs = {name: run(path, a.size, a.batch, a.batches, start, a.tune_allocator) for name, path in order}
         res = {name: v[0] for name, v in runs.items()}
         rows.append(res)
         stages = {name: ", ".join(f"{k} {v:.2f}" for k, v in runs[name][1].items()) for name in runs}

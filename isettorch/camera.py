@@ -114,6 +114,23 @@ class Camera(nn.Module):
             return None
         info = plan(scene)
         full_h, full_w = info["full_shape"]
+        # memoised per spacing tensor (an optics' cached geometry returns the same one for a repeated geometry; the
+        # entry keeps it alive, so its id is not reused) and sensor geometry
+        key = (id(info["sample_spacing_m"]), full_h, full_w, rows, cols, float(self.sensor.pixel_size_m),
+               getattr(self.sensor, "sampling", None), self.sensor_window_margin)
+        memo = self.__dict__.setdefault("_window_memo", {})
+        hit = memo.get(key)
+        if hit is not None and hit[0] is info["sample_spacing_m"]:
+            return hit[1]
+        window = self._sensor_window(info, rows, cols)
+        if not info["sample_spacing_m"].requires_grad:
+            if len(memo) > 64:
+                memo.clear()
+            memo[key] = (info["sample_spacing_m"], window)
+        return window
+
+    def _sensor_window(self, info: dict, rows: int, cols: int) -> tuple[int, int, int, int] | None:
+        full_h, full_w = info["full_shape"]
         spacing = info["sample_spacing_m"].detach()
         dx = float(spacing.min())
         pitch = float(self.sensor.pixel_size_m)

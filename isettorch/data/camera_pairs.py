@@ -48,7 +48,7 @@ from .. import constants, spectral
 from .._checks import dataset_index
 from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
 from ..isp.colour import bradford_matrix
-from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for, tune_allocator
+from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, randint_scalar, seed_for, tune_allocator
 from .scenes import _uniform, generate_scene
 
 __all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "render_pairs", "batch_loader", "META_KEYS",
@@ -101,18 +101,20 @@ def nikon_d5100_qe(wavelengths_nm, peak_qe: float = 0.5, shift_nm=(0.0, 0.0, 0.0
 
 
 @functools.lru_cache(maxsize=16)
-def _xyz_weights(grid: tuple) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(W [3, L], dl [L])`` in float64 with ``XYZ = W @ photons``: 683 cmf(l) h c / l dl (CIE 015:2018)."""
+def _xyz_weights(grid: tuple) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(W [3, L], dl [L], W.T)`` in float64 with ``XYZ = W @ photons``: 683 cmf(l) h c / l dl (CIE 015:2018)
+    (``W.T``: the same tensor object on every call, so the sensor's memo of its joint weightings hits)."""
     w = torch.tensor(grid, dtype=torch.float64)
     dl = spectral.wavelength_weights(w)
     to_watts = (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S) / (w * 1e-9)
-    return constants.KM_LM_PER_W * spectral.cmfs(w, dtype=torch.float64) * to_watts * dl, dl
+    xyz = constants.KM_LM_PER_W * spectral.cmfs(w, dtype=torch.float64) * to_watts * dl
+    return xyz, dl, xyz.T
 
 
 def _pick(values, g: torch.Generator):
     if isinstance(values, (int, float)):
         return float(values)
-    return values[int(torch.randint(len(values), (), generator=g))]
+    return values[randint_scalar(0, len(values), g)]
 
 
 class _Clock:
@@ -393,17 +395,18 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             sensor = camera.sensor
             sensor.spectral_qe = it["qe"]
             oi = camera.optical_image(scene)
-            xyz_w = _xyz_weights(tuple(scene.wavelengths_nm.double().tolist()))[0]
+            xyz_w, _, xyz_wt = _xyz_weights(tuple(scene.wavelengths_nm.tolist()))
             peak = kw.pop("qe_scale")
-            it["rates"], it["xyz_d"] = sensor.channel_rates(oi, xyz_w.T if colour else None, qe_scale=peak)
+            it["rates"], it["xyz_d"] = sensor.channel_rates(oi, xyz_wt if colour else None, qe_scale=peak)
             # the main light's white: its camera response (QE dl projection) and XYZ, for the colour targets
             white_p = scene.illuminant_photons[0].to(torch.float64)
             it["white_cam"] = (white_p @ sensor.spectral_weights(oi).to(torch.float64)) * peak
-            it["white_xyz"] = xyz_w.to(torch.float64) @ white_p
+            it["white_xyz"] = xyz_w @ white_p
             it["qe_meta"] = sensor.qe(oi) * peak
         clock("optics")
         img = None
-        for b, it in enumerate(items):
+        raws, noise_free = [], []
+        for it in items:
             sensor, kw = it["camera"].sensor, it["kw"]
             sensor.spectral_qe = it["qe"]
             gain, ev, cg = kw.pop("analog_gain"), kw.pop("exposure_ev"), kw["conversion_gain_v_per_e"]
@@ -414,35 +417,32 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
                 h, w = raw.height, raw.width
                 img = _views({k: (nb, c, h, w) for k, c in (("raw", 1), *((t, _TARGET_CHANNELS[t])
                                                                           for t in targets))}, dtype)
+            raws.append(raw.data)
+            noise_free.append(raw.noise_free)
             black, span = raw.black_level, raw.white_level - raw.black_level
-            torch.sub(raw.data, black, out=img["raw"][b:b + 1]).div_(span)
-            if "noise_free_raw" in img:
-                torch.sub(raw.noise_free, black, out=img["noise_free_raw"][b:b + 1]).div_(span)
             it.update(gain=gain, exposure=exposure, black=black, span=span, white_level=raw.white_level)
+        # normalised raw units, (DN - black) / (white - black), over the whole batch at once when the items share
+        # the levels (the same elementwise operations as item by item)
+        _normalise(img["raw"], raws, items)
+        if "noise_free_raw" in img:
+            _normalise(img["noise_free_raw"], noise_free, items)
         clock("sensor")
         metas = []
-        white_xyz_all, scales = [], []
-        for b, it in enumerate(items):
+        white_xyz_all, scales, cams = [], [], []
+        for it in items:
             camera, scene, kw = it["camera"], it["scene"], it["kw"]
             sensor = camera.sensor
             gain, exposure, cg = it["gain"], it["exposure"], kw["conversion_gain_v_per_e"]
             black, span = it["black"], it["span"]
             if "camera_rgb" in img:  # the sensor chain without the CFA: every channel read out at every pixel
-                cam = sensor.readout(it["rates"], exposure, gain, conversion_gain_v_per_e=cg)
-                torch.sub(cam, black, out=img["camera_rgb"][b:b + 1]).div_(span)
+                cams.append(sensor.readout(it["rates"], exposure, gain, conversion_gain_v_per_e=cg))
             # output units per electron / span: the normalised response (Foi et al. noise gain, XYZ scale)
             to_norm = float(sensor.gain_per_electron(gain, conversion_gain_v_per_e=cg)) / span
             white_cam, white_xyz = it["white_cam"], it["white_xyz"]
             # XYZ scaled so a perfect white under light 1 has Y = its normalised green camera value: the camera's
             # electrons/m^2 per unit Y of that white x pixel area x fill x exposure x normalised units per electron
-            k_white = float(white_cam[1] / white_xyz[1])
-            scale = k_white * sensor.fill_factor * sensor.pixel_area_m2 * float(exposure[0]) * to_norm
-            if colour:
-                if "xyz" in img:
-                    torch.mul(it["xyz_d"], scale, out=img["xyz"][b:b + 1])
-                else:
-                    img.setdefault("_xyz", torch.empty(nb, 3, h, w, dtype=dtype))
-                    torch.mul(it["xyz_d"], scale, out=img["_xyz"][b:b + 1])
+            k_white = white_cam[1].item() / white_xyz[1].item()  # float64: the same division as in torch
+            scale = k_white * sensor.fill_factor * sensor.pixel_area_m2 * exposure[0].item() * to_norm
             d = {"gain": gain, "read_e": kw["read_noise_v"] / cg, "dsnu_e": kw["dsnu_sigma_v"] / cg,
                  "dark": kw["dark_current_e_per_s"], "f_number": float(camera.optics.f_number),
                  "focal": float(camera.optics.focal_length_m), "pitch": sensor.pixel_size_m, "full_well": 1.0 / cg,
@@ -452,6 +452,11 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
                                       scene.wavelengths_nm))
             white_xyz_all.append(white_xyz)
             scales.append(scale)
+        if cams:
+            _normalise(img["camera_rgb"], cams, items)
+        if colour:  # x the items' scales (each rounded to the image dtype, as a Python scalar factor would be)
+            xyz = img["xyz"] if "xyz" in img else img.setdefault("_xyz", torch.empty(nb, 3, h, w, dtype=dtype))
+            torch.cat([it["xyz_d"] for it in items], out=xyz).mul_(torch.tensor(scales, dtype=dtype).view(-1, 1, 1, 1))
     clock("targets")
     if colour:
         xyz = img.get("xyz", img.get("_xyz"))
@@ -470,6 +475,17 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     out["meta"] = _batch_meta(metas, dtype)
     clock("targets")
     return out
+
+
+def _normalise(dst: torch.Tensor, values: list, items: list) -> None:
+    """``dst[b] = (values[b] - black_b) / span_b``: one subtraction and division for the batch when every item has
+    the same black level and span (the same operations, so the same values, as item by item)."""
+    black, span = items[0]["black"], items[0]["span"]
+    if all(it["black"] == black and it["span"] == span for it in items):
+        torch.cat(values, out=dst).sub_(black).div_(span)
+        return
+    for b, (v, it) in enumerate(zip(values, items)):
+        torch.sub(v, it["black"], out=dst[b:b + 1]).div_(it["span"])
 
 
 def _views(shapes: dict, dtype) -> dict:

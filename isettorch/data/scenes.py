@@ -30,7 +30,7 @@ from .. import constants, spectral
 from ..scene import Scene
 from . import layouts as _layouts
 from . import spectra as _spectra
-from .config import SCENE_DEFAULTS, merge_config, one_thread, seed_for
+from .config import SCENE_DEFAULTS, merge_config, one_thread, seed_for, uniform01
 
 __all__ = ["generate_scene", "SyntheticSceneDataset", "collate_scenes", "scene_wavelengths"]
 
@@ -45,7 +45,7 @@ def _choice(weights: dict, g: torch.Generator) -> str:
     names in sorted order; ``torch.multinomial`` cost ~60 us per call)."""
     names = sorted(weights)
     cum = list(itertools.accumulate(float(weights[n]) for n in names))
-    u = float(torch.rand((), generator=g, dtype=torch.float64)) * cum[-1]
+    u = uniform01(g) * cum[-1]
     for n, c in zip(names, cum):
         if u < c and float(weights[n]) > 0:
             return n
@@ -56,7 +56,7 @@ def _uniform(rng, g: torch.Generator, log: bool = False) -> float:
     if isinstance(rng, (int, float)):
         return float(rng)
     lo, hi = float(rng[0]), float(rng[1])
-    u = float(torch.rand((), generator=g, dtype=torch.float64))
+    u = uniform01(g)
     if log and lo > 0:
         return math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo)))
     return lo + u * (hi - lo)
@@ -149,7 +149,7 @@ def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size, distance_
     kind1 = _choice(cfg["illuminants"], g)
     spd1, cct1, name1 = _spectra.random_illuminant(kind1, wl, g, cfg["cct_range_k"].get(kind1))
     e1 = _white_photons(spd1, wl)
-    u_two, u_shadow = (float(torch.rand((), generator=g, dtype=torch.float64)) for _ in range(2))
+    u_two, u_shadow = uniform01(g), uniform01(g)
     two = u_two < cfg["two_light_probability"]
     shadow = (not two) and u_shadow < cfg["shadow_probability"]
     e2 = torch.zeros_like(e1)

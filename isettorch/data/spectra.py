@@ -26,6 +26,7 @@ import torch
 
 from .. import spectral
 from .._checks import check_wavelengths
+from .config import randint_scalar, uniform01
 
 __all__ = [
     "measured_reflectances",
@@ -543,9 +544,9 @@ def random_illuminant(kind: str, wavelengths_nm, generator: torch.Generator, cct
         raise ValueError(f"kind: expected one of {ILLUMINANT_KINDS}, got {kind!r}")
     w, key = _grid(wavelengths_nm)
     dtype = _out_dtype(w)
-    u = float(torch.rand((), generator=generator, dtype=torch.float64))
+    u = uniform01(generator)
     if kind == "fluorescent":
-        num = int(torch.randint(1, 13, (), generator=generator))
+        num = randint_scalar(1, 13, generator)
         spd = _fluorescent_table(key)[num - 1].copy()
         return _to_torch(spd, dtype, w.device), _fluorescent_cct(num), f"F{num}"
     lo, hi = cct_range_k if cct_range_k is not None else defaults[kind]

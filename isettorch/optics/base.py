@@ -30,7 +30,7 @@ from torch import nn
 
 from .. import spectral
 from .._checks import as_tensor, batch_param, check_nonnegative, check_wavelengths
-from ..image import SpectralFactors
+from ..image import SpectralFactors, angle_for_extent
 from ..scene.scene import Scene
 from . import geometry
 from .blur import PAD_MODES, blur_fft, extend, fft_buffer, fft_frequencies, full_padding
@@ -213,16 +213,20 @@ class ShiftInvariantLens(nn.Module):
         needs this much of the scene beyond it, which ``forward`` takes care of).
         """
         h, w = scene.height, scene.width
-        _, _, _, n, _, d_i, dx = self._spatial_factors(scene)
+        (_, _, _, n, _, d_i, dx), derived = self._geometry_entry(scene)
+        hit = derived.get("plan")
+        if hit is not None:
+            return dict(hit)
         wave = scene.wavelengths_nm
-        if self.blur_negligible(dx, wave, n):
+        if self._negligible(derived, dx, wave, n):
             margin = 0 if self.margin is None else self.margin
             pr = pc = margin
         else:
-            margin = self.margin_samples((h, w), dx, wave, n)
+            margin = self._margin(derived, (h, w), dx, wave, n)
             pr, pc = full_padding(h, margin), full_padding(w, margin)
-        return {"full_shape": (h + 2 * pr, w + 2 * pc), "pad": (pr, pc), "sample_spacing_m": dx,
-                "image_distance_m": d_i, "margin": margin}
+        out = derived["plan"] = {"full_shape": (h + 2 * pr, w + 2 * pc), "pad": (pr, pc), "sample_spacing_m": dx,
+                                 "image_distance_m": d_i, "margin": margin}
+        return dict(out)
 
     def forward(self, scene: Scene, crop: tuple[int, int, int, int] | None = None) -> OpticalImage:
         """Scene -> optical image.
@@ -261,17 +265,40 @@ class ShiftInvariantLens(nn.Module):
 
         Cached (a few entries) per scene geometry when no gradient is needed: they depend only on the optics'
         settings, the scene's size, FOV, distance and wavelength grid (a dataset of a few cameras repeats them)."""
+        return self._geometry_entry(scene)[0]
+
+    def _geometry_entry(self, scene: Scene) -> tuple[tuple, dict]:
+        """``(spatial factors, derived)``: :meth:`_spatial_factors` and a dict memoising what else depends only on
+        the same key (the plan, the blur test, the margin, the FFT frequencies and OTF of a buffer size, the
+        optical image's FOV), so a camera call on a repeated geometry does no per-call tensor work for them.
+        ``derived`` is a fresh dict (nothing memoised) when a gradient is needed."""
         if self._requires_grad() or scene.hfov_deg.requires_grad or scene.distance_m.requires_grad:
-            return self._compute_spatial_factors(scene)
+            return self._compute_spatial_factors(scene), {}
+        # the optics' own values (not only their version counters: a replaced parameter starts a new counter)
+        t, tw = self.transmittance, self.transmittance_wavelengths_nm
         key = (scene.height, scene.width, tuple(scene.hfov_deg.tolist()), tuple(scene.distance_m.tolist()),
-               tuple(scene.wavelengths_nm.tolist()), scene.dtype, str(scene.device), self.f_number._version,
-               self.focal_length_m._version, self.relative_illumination, self.camera_equation,
-               None if self.transmittance is None else self.transmittance._version)
+               tuple(scene.wavelengths_nm.tolist()), scene.dtype, str(scene.device),
+               tuple(self.f_number.reshape(-1).tolist()), tuple(self.focal_length_m.reshape(-1).tolist()),
+               self.relative_illumination, self.camera_equation, None if t is None else tuple(t.reshape(-1).tolist()),
+               None if tw is None else tuple(tw.reshape(-1).tolist()), self.margin, self.psf_tolerance,
+               self.blur_skip_tolerance, self.max_margin_factor, self._otf_key())
         hit = self._geometry_cache.get(key)
         if hit is None:
             if len(self._geometry_cache) >= 4 * _CACHE_SIZE:
                 self._geometry_cache.clear()
-            hit = self._geometry_cache[key] = self._compute_spatial_factors(scene)
+            hit = self._geometry_cache[key] = (self._compute_spatial_factors(scene), {})
+        return hit
+
+    def _negligible(self, derived: dict, dx, wave, n) -> bool:
+        hit = derived.get("negligible")
+        if hit is None:
+            hit = derived["negligible"] = self.blur_negligible(dx, wave, n)
+        return hit
+
+    def _margin(self, derived: dict, shape: tuple[int, int], dx, wave, n) -> int:
+        hit = derived.get("margin")
+        if hit is None:
+            hit = derived["margin"] = self.margin_samples(shape, dx, wave, n)
         return hit
 
     def _compute_spatial_factors(self, scene: Scene):
@@ -293,11 +320,11 @@ class ShiftInvariantLens(nn.Module):
         maps, spectra = scene.factors.maps, scene.factors.spectra
         h, w = scene.height, scene.width
         wave = scene.wavelengths_nm
-        k, t, ri, n, f, d_i, dx = self._spatial_factors(scene)
+        (k, t, ri, n, f, d_i, dx), derived = self._geometry_entry(scene)
         spectra = spectra * k.reshape(-1, 1, 1)
         if t is not None:
             spectra = spectra * t.to(device=spectra.device).reshape(1, 1, -1)
-        negligible = self.blur_negligible(dx, wave, n)
+        negligible = self._negligible(derived, dx, wave, n)
         if ri is not None:
             if (negligible or torch.is_grad_enabled() and (maps.requires_grad or ri.requires_grad)
                     or ri.dtype != maps.dtype or ri.shape[0] not in (1, maps.shape[0])):
@@ -309,14 +336,21 @@ class ShiftInvariantLens(nn.Module):
             out, pr, pc = self._extend_unblurred(maps, crop)
             factors = SpectralFactors(out, spectra, validate=False)
         else:
-            margin = self.margin_samples((h, w), dx, wave, n)
+            margin = self._margin(derived, (h, w), dx, wave, n)
             buf, (pr, pc), window = fft_buffer(maps, (margin, margin), self.pad_mode, window=crop)
             my, mx = buf.shape[-2:]
-            fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
-            otf = self._otf_fn(wave, n, dx)(fy, fx)
-            factors = FourierFactors(torch.fft.rfft2(buf), spectra, self._interleaved(otf), (my, mx), window,
+            otf_key = ("otf", my, mx, buf.dtype, str(buf.device))
+            hit = derived.get(otf_key)
+            if hit is None:
+                fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
+                otf = self._otf_fn(wave, n, dx)(fy, fx)
+                hit = (otf, self._interleaved(otf))
+                if not hit[0].requires_grad:
+                    derived[otf_key] = hit
+            otf, inter = hit
+            factors = FourierFactors(torch.fft.rfft2(buf), spectra, inter, (my, mx), window,
                                      None if otf.is_complex() else otf)
-        return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name)
+        return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name, derived)
 
     def _extend_unblurred(self, x: torch.Tensor, crop) -> tuple[torch.Tensor, int, int]:
         """``x`` (irradiance or maps) extended by the optics' margin like a blurred image would be, or the ``crop``
@@ -342,13 +376,18 @@ class ShiftInvariantLens(nn.Module):
             hit = self._interleaved_cache[id(otf)] = (otf, otf[..., None].expand(*otf.shape, 2).contiguous())
         return hit[1]
 
-    def _oi(self, photons, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, name) -> OpticalImage:
+    def _oi(self, photons, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, name, derived=None) -> OpticalImage:
         meta = {"full_shape": (h + 2 * pr, w + 2 * pc), "full_pad": (pr, pc)}
         if crop is not None:
             meta["window"] = (crop[0], crop[1])
+        # the FOV the OpticalImage would derive from its width and image distance, memoised per geometry and width
+        width = (photons if photons is not None else factors).shape[-1]
+        hfov = None if derived is None else derived.get(("hfov", width))
+        if hfov is None and derived is not None and not (dx.requires_grad or d_i.requires_grad):
+            hfov = derived[("hfov", width)] = angle_for_extent(dx * width, d_i)
         return OpticalImage(photons, wave, name=name, metadata=meta, factors=factors, sample_spacing_m=dx,
-                            focal_length_m=f, f_number=n, image_distance_m=d_i, pad_rows=pr if crop is None else 0,
-                            pad_cols=pc if crop is None else 0, validate=False)
+                            hfov_deg=hfov, focal_length_m=f, f_number=n, image_distance_m=d_i,
+                            pad_rows=pr if crop is None else 0, pad_cols=pc if crop is None else 0, validate=False)
 
     def _blur_to_oi(self, irr, wave, dx, n, f, d_i, crop, name=""):
         h, w = irr.shape[-2:]

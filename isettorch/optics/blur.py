@@ -50,6 +50,11 @@ def full_padding(size: int, margin: int) -> int:
     return (next_fast_size(size + 2 * margin, parity=size % 2) - size) // 2
 
 
+def _check_pad_mode(pad_mode) -> None:
+    if not (pad_mode in PAD_MODES or isinstance(pad_mode, (int, float)) and not isinstance(pad_mode, bool)):
+        raise ValueError(f"pad_mode: expected one of {PAD_MODES} or a number, got {pad_mode!r}")
+
+
 def _fill_value(x: torch.Tensor, pad_mode) -> torch.Tensor | None:
     if pad_mode == "zero":
         return torch.zeros((), dtype=x.dtype, device=x.device)
@@ -66,15 +71,18 @@ def extend(x: torch.Tensor, rows: tuple[int, int], cols: tuple[int, int], pad_mo
     """The image on rows ``[r0, r1)`` and cols ``[c0, c1)`` of its infinite extension by ``pad_mode``."""
     h, w = x.shape[-2:]
     (r0, r1), (c0, c1) = rows, cols
-    fill = _fill_value(x, pad_mode)
     # the part of the window inside the image, then F.pad for the rest (5x faster than gathering indices)
     ir0, ir1, ic0, ic1 = max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
     if ir1 <= ir0 or ic1 <= ic0:  # the window lies wholly outside the image
-        return _extend_gather(x, rows, cols, fill)
+        return _extend_gather(x, rows, cols, _fill_value(x, pad_mode))
     core = x[..., ir0:ir1, ic0:ic1]
     pads = (ic0 - c0, c1 - ic1, ir0 - r0, r1 - ir1)
     if not any(pads):
+        _check_pad_mode(pad_mode)
         return core
+    if pad_mode == "zero":
+        return F.pad(core, pads, mode="constant", value=0.0)
+    fill = _fill_value(x, pad_mode)
     if fill is None:  # edge
         flat = core.reshape(-1, 1, *core.shape[-2:])
         return F.pad(flat, pads, mode="replicate").reshape(*core.shape[:-2], r1 - r0, c1 - c0)
@@ -113,7 +121,7 @@ def fft_buffer(x: torch.Tensor, margin: tuple[int, int], pad_mode="zero",
     """
     h, w = x.shape[-2:]
     pr, pc = full_padding(h, margin[0]), full_padding(w, margin[1])
-    _fill_value(x, pad_mode)  # validates pad_mode
+    _check_pad_mode(pad_mode)
     if window is None:
         buf = extend(x, (-pr, h + pr), (-pc, w + pc), pad_mode)
         return buf, (pr, pc), (0, 0, h + 2 * pr, w + 2 * pc)

@@ -76,7 +76,9 @@ class FourierFactors:
         n_l = self.spectra.shape[-1]
         if weights is not None and not self.otf.is_complex():
             k = weights.shape[1]
-            if j * k < 2 * (j + k + 1):  # fewer operations folding the spectra and weights into the OTF first
+            # fewer operations folding the spectra and weights into the OTF first (J K L vs 2 (J + K + 1) L per
+            # frequency); the rule decides the summation order, so it is kept fixed (items bitwise stable)
+            if j * k < 2 * (j + k + 1):
                 return self._planes_folded(weights.to(self.spectra))
         # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
         # the same real matrix products act on the real and imaginary parts (view_as_real).
@@ -121,15 +123,33 @@ class FourierFactors:
         my, mx = self.size
         fy, fx = self.spec.shape[-2:]
         n_l, k = weights.shape
-        otf = self.otf if self.plain_otf is None else self.plain_otf
-        if otf.dim() == 5:  # interleaved [.., My, Mx', 2]: the real part
-            otf = otf[..., 0]
-        otf = otf.reshape(otf.shape[0], n_l, fy * fx)
+        nf = fy * fx
         coef = (self.spectra[:, :, None, :] * weights.T[None, None]).reshape(b, j * k, n_l)  # [B, J K, L]
-        h = (coef @ otf).reshape(b, j, k, fy * fx, 1)  # [B, J, K, F]
-        spec = torch.view_as_real(self.spec).reshape(b, j, 1, fy * fx, 2)
-        planes = (h * spec).sum(dim=1) if j > 1 else (h[:, 0] * spec[:, 0])  # [B, K, F, 2]
-        planes = torch.view_as_complex(planes.reshape(b, k, fy, fx, 2).contiguous())
+        spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
+        grad = torch.is_grad_enabled() and (spec.requires_grad or coef.requires_grad or self.otf.requires_grad)
+        if self.otf.dim() == 5 and not grad:
+            # the interleaved OTF [.., L, My, Mx', 2] (the same value for the real and imaginary parts): H comes
+            # out interleaved, [B, J K, 2F], and each term of the sum over j is a contiguous multiply-add on the
+            # [K, 2F] real view (a broadcast [.., F, 1] x [.., F, 2] product is several times slower on CPU)
+            otf = self.otf.reshape(self.otf.shape[0], n_l, 2 * nf)
+            if b == 1:
+                h = torch.mm(coef[0], otf[0], out=_scratch((j * k, 2 * nf), spec.dtype, spec.device, "cube"))[None]
+            else:
+                h = torch.matmul(coef, otf, out=_scratch((b, j * k, 2 * nf), spec.dtype, spec.device, "cube"))
+            h = h.view(b, j, k, 2 * nf)
+            planes = torch.mul(h[:, 0], spec[:, 0, None], out=_scratch((b, k, 2 * nf), spec.dtype, spec.device,
+                                                                       "proj"))
+            for i in range(1, j):  # in the order of a sum over dim 1
+                planes.add_(h[:, i].mul_(spec[:, i, None]))
+            planes = torch.view_as_complex(planes.view(b, k, fy, fx, 2))
+        else:
+            otf = self.otf if self.plain_otf is None else self.plain_otf
+            if otf.dim() == 5:  # interleaved [.., My, Mx', 2]: the real part
+                otf = otf[..., 0]
+            otf = otf.reshape(otf.shape[0], n_l, nf)
+            h = (coef @ otf).reshape(b, j, k, nf, 1)  # [B, J, K, F]
+            planes = (h * spec.view(b, j, 1, nf, 2)).sum(dim=1) if j > 1 else (h[:, 0] * spec.view(b, 1, nf, 2))
+            planes = torch.view_as_complex(planes.reshape(b, k, fy, fx, 2).contiguous())
         r0, c0, hh, ww = self.window
         return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + hh, c0:c0 + ww]
 

@@ -213,21 +213,28 @@ class SpectralQE(nn.Module):
 
     def forward(self, wavelengths_nm: torch.Tensor, *, dtype=None, device=None) -> torch.Tensor:
         """Combined QE on ``wavelengths_nm`` ``[C, L]`` (resampled once per grid; cached unless learnable)."""
-        w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+        w = torch.as_tensor(wavelengths_nm)
+        if w.dim() == 0:
+            w = w.reshape(1)
         dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
         device = device or w.device
         if self.learnable:
+            w = check_wavelengths(w)
             return spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device)).to(
                 dtype=dtype, device=device)
-        key = (tuple(w.detach().double().cpu().tolist()), dtype, str(device), self.fixed_filters._version)
-        out = self._cache.get(key)
+        # a grid found in the cache was validated when its entry was made: checked on a miss only
+        key = (tuple(w.tolist()) if w.dim() == 1 else None, dtype, str(device),
+               self.fixed_filters._version)
+        out = self._cache.get(key) if key[0] is not None else None
         if out is None:
+            w = check_wavelengths(w)
             if len(self._cache) > 16:
                 self._cache.clear()
             out = spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device,
                                                                               torch.float64))
             out = out.to(dtype=dtype, device=device)
-            self._cache[key] = out
+            if key[0] is not None:
+                self._cache[key] = out
         return out
 
     def _apply(self, fn, *args, **kwargs):

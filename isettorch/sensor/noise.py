@@ -63,7 +63,10 @@ def isetcam_shot_noise(mean_e: torch.Tensor, generator: torch.Generator | None =
 
 def round_half_away(x: torch.Tensor) -> torch.Tensor:
     """MATLAB ``round``: halves away from zero (``torch.round`` rounds halves to even)."""
-    return torch.sign(x) * torch.floor(x.abs() + 0.5)
+    if _needs_grad(x):
+        return torch.sign(x) * torch.floor(x.abs() + 0.5)
+    # the same values (up to the sign of a zero) in one fresh tensor, in place: floor(|x| + 1/2) with x's sign
+    return x.abs().add_(0.5).floor_().copysign_(x)
 
 
 def quantize_ste(x: torch.Tensor) -> torch.Tensor:

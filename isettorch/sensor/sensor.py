@@ -388,8 +388,7 @@ class Sensor(nn.Module):
         if extra_weights is None:
             density = self.electron_rate_density(oi)  # e-/s/m^2 per filter
         else:
-            w = torch.cat([self.spectral_weights(oi), extra_weights.to(device=oi.device, dtype=oi.dtype)], dim=1)
-            density = oi.project(w)
+            density = oi.project(self._joint_weights(oi, extra_weights))
         sampled = self.sample(density, oi)
         c = len(self.cfa.channel_names)
         area = self.fill_factor * self.pixel_area_m2
@@ -406,6 +405,21 @@ class Sensor(nn.Module):
         if self.vignetting is not None:
             rates = rates * self.vignetting.to(rates.dtype).to(rates.device)
         return rates, (sampled[:, c:] if extra_weights is not None else None)
+
+    def _joint_weights(self, oi: OpticalImage, extra: torch.Tensor) -> torch.Tensor:
+        """``[L, C + K]``: the QE weightings then ``extra``'s (memoised per pair of tensors when neither needs a
+        gradient; the entry keeps both alive, so their ids are not reused)."""
+        qe_w = self.spectral_weights(oi)
+        if qe_w.requires_grad or extra.requires_grad:
+            return torch.cat([qe_w, extra.to(device=oi.device, dtype=oi.dtype)], dim=1)
+        key = (id(qe_w), id(extra), extra._version, oi.dtype, str(oi.device))
+        memo = self.__dict__.setdefault("_joint_memo", {})
+        hit = memo.get(key)
+        if hit is None or hit[0] is not qe_w or hit[1] is not extra:
+            if len(memo) > 16:
+                memo.clear()
+            hit = memo[key] = (qe_w, extra, torch.cat([qe_w, extra.to(device=oi.device, dtype=oi.dtype)], dim=1))
+        return hit[2]
 
     def sample(self, density: torch.Tensor, oi: OpticalImage) -> torch.Tensor:
         """Per-m^2 planes on the OI grid ``[B, K, H, W]`` -> their value at each pixel ``[B, K, rows, cols]``
@@ -426,11 +440,26 @@ class Sensor(nn.Module):
             # One OI sample per pixel, pixel centres on sample centres (both grids centred on the axis): the
             # photodiode (inside its cell) averages a constant, so area sampling returns the samples under the
             # sensor (exact; the spacings may differ by the geometry's own float rounding, a few eps)
-            eps = torch.finfo(dx.dtype).eps
-            if bool(((dx.detach() / self.pixel_size_m - 1).abs() <= 4 * eps).all()):
+            if self._same_grid(dx):
                 return density[..., dr // 2:dr // 2 + rows, dc // 2:dc // 2 + cols]
         recon = "linear" if self.sampling == "area_linear" else "constant"
         return sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor, recon)
+
+    def _same_grid(self, dx: torch.Tensor) -> bool:
+        """Whether the OI spacings ``dx [B]`` equal the pixel pitch to a few eps of their dtype (memoised per
+        spacing tensor: an optics' cached geometry returns the same one; the entry keeps it alive)."""
+        key = (id(dx), self.pixel_size_m)
+        memo = self.__dict__.setdefault("_same_grid_memo", {})
+        hit = memo.get(key)
+        if hit is not None and hit[0] is dx:
+            return hit[1]
+        eps = torch.finfo(dx.dtype).eps
+        same = bool(((dx.detach() / self.pixel_size_m - 1).abs() <= 4 * eps).all())
+        if not dx.requires_grad:
+            if len(memo) > 64:
+                memo.clear()
+            memo[key] = (dx, same)
+        return same
 
     def _analog(self, volts: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
         g = gain.reshape(-1, 1, 1, 1)

@@ -154,3 +154,15 @@ def test_config_validation(tmp_path):
     p.write_text("seed: 3\nscene:\n  height: 32\n")
     cfg = load_config(p)
     assert cfg["seed"] == 3 and cfg["scene"]["height"] == 32 and cfg["scene"]["width"] == SCENE_DEFAULTS["width"]
+
+
+def test_scalar_draw_helpers_equal_torch_draws_and_state():
+    from isettorch.data.config import randint_scalar, uniform01
+
+    a, b = torch.Generator().manual_seed(7), torch.Generator().manual_seed(7)
+    for _ in range(50):  # interleaved with tensor draws: both generators must stay in step
+        assert uniform01(a) == float(torch.rand((), generator=b, dtype=torch.float64))
+        assert randint_scalar(3, 17, a) == int(torch.randint(3, 17, (), generator=b))
+        assert torch.equal(torch.randn(5, generator=a), torch.randn(5, generator=b))
+    u = [uniform01(a) for _ in range(1000)]
+    assert 0.0 <= min(u) and max(u) < 1.0 and abs(sum(u) / len(u) - 0.5) < 0.05  # U[0, 1): mean 1/2
