@@ -1,0 +1,52 @@
+"""training/export_demosaic.py: the exported weights are the checkpoint's, and the model card's benchmark scores
+(noise-free and with demosaic-eval's Gaussian noise) are those of isettorch.isp.evaluation on the same folder."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from isettorch.isp.evaluation import evaluate_demosaic  # noqa: E402
+from isettorch.isp.learned import DemosaicNet, load_checkpoint  # noqa: E402
+from training import export_demosaic, train_demosaic  # noqa: E402
+
+imageio = pytest.importorskip("imageio.v3")
+
+
+def test_export_joint_model_card(tmp_path, monkeypatch):
+    torch.manual_seed(0)
+    net = DemosaicNet(channels=8, depth=2, noise_inputs=2)
+    torch.nn.init.normal_(net.head.weight, std=0.02)
+    opt = torch.optim.Adam(net.parameters())
+    cfg = {"data": {"source": "natural"}, "noise": {"enabled": True}}
+    run = tmp_path / "run"
+    run.mkdir()
+    train_demosaic.save_checkpoint(run / "best.pt", net, opt, 7, cfg, 30.0, [{"step": 7, "val_cpsnr": 30.0}], 1.0)
+    # a benchmark folder of two smooth 8-bit images under ISETTORCH_DATA
+    data = tmp_path / "data" / "kodak24"
+    data.mkdir(parents=True)
+    yy, xx = np.mgrid[0:48, 0:64] / 64.0
+    for i in range(2):
+        img = np.stack([np.sin(3 * xx + i), np.cos(2 * yy), xx * yy], -1) * 0.4 + 0.5
+        imageio.imwrite(data / f"{i}.png", (img * 255).round().astype(np.uint8))
+    monkeypatch.setenv("ISETTORCH_DATA", str(tmp_path / "data"))
+    out = tmp_path / "assets"
+    assert export_demosaic.main(["--run", str(run), "--out", str(out), "--name", "jt", "--crops", "10",
+                                 "--noise-sigmas", "0.02"]) == 0
+    exported, _ = load_checkpoint(out / "jt.pt")
+    for k, v in net.state_dict().items():
+        torch.testing.assert_close(exported.state_dict()[k], v, rtol=0, atol=0)
+    card = json.loads((out / "jt.json").read_text())
+    scores = card["benchmarks_cpsnr_db"]["kodak24"]
+    clean = evaluate_demosaic(data, "learned", "RGGB", 10, model=exported)["mean_cpsnr"]
+    noisy = evaluate_demosaic(data, "learned", "RGGB", 10, model=exported, noise_sigma=0.02, seed=0)["mean_cpsnr"]
+    assert scores["crop10"] == pytest.approx(clean, abs=1e-3)
+    assert scores["sigma0.02_crop10"] == pytest.approx(noisy, abs=1e-3)
+    assert noisy < clean - 3  # std 0.02 noise (34 dB PSNR alone) costs far more than 3 dB on smooth images
+    assert "| kodak24 | " in (out / "jt.md").read_text()
