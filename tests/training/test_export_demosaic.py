@@ -12,11 +12,10 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from isettorch.io.images import write_image  # noqa: E402
 from isettorch.isp.evaluation import evaluate_demosaic  # noqa: E402
 from isettorch.isp.learned import DemosaicNet, load_checkpoint  # noqa: E402
 from training import export_demosaic, train_demosaic  # noqa: E402
-
-imageio = pytest.importorskip("imageio.v3")
 
 
 def test_export_joint_model_card(tmp_path, monkeypatch):
@@ -34,7 +33,7 @@ def test_export_joint_model_card(tmp_path, monkeypatch):
     yy, xx = np.mgrid[0:48, 0:64] / 64.0
     for i in range(2):
         img = np.stack([np.sin(3 * xx + i), np.cos(2 * yy), xx * yy], -1) * 0.4 + 0.5
-        imageio.imwrite(data / f"{i}.png", (img * 255).round().astype(np.uint8))
+        write_image(data / f"{i}.png", torch.from_numpy(img).permute(2, 0, 1), encoding="linear", bits=8)
     monkeypatch.setenv("ISETTORCH_DATA", str(tmp_path / "data"))
     out = tmp_path / "assets"
     assert export_demosaic.main(["--run", str(run), "--out", str(out), "--name", "jt", "--crops", "10",
