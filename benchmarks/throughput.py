@@ -58,7 +58,8 @@ def load() -> str:
 
 
 def loader_rate(bands: int, size: int, count: int, workers: int, *, method: str = "factored", batched: bool = False,
-                batch: int = 16, repeats: int = 3, seed: int = 0, targets=TARGETS) -> tuple[float, float]:
+                batch: int = 16, repeats: int = 3, seed: int = 0, targets=TARGETS, shm_slots: bool = True
+                ) -> tuple[float, float]:
     """(median pairs/s, median main-process CPU ms per pair) of one DataLoader over ``(repeats + 1) x count`` fresh
     items, timed in consecutive chunks of ``count`` items; the first chunk (worker start-up, caches) is the
     warm-up and is not counted. Caches are warmed in the main process first, so forked workers inherit them."""
@@ -66,7 +67,7 @@ def loader_rate(bands: int, size: int, count: int, workers: int, *, method: str 
                            targets=targets)
     ds.get_batch([0])
     if batched:
-        loader = batch_loader(ds, batch, num_workers=workers)
+        loader = batch_loader(ds, batch, num_workers=workers, shm_slots=shm_slots)
     else:
         loader = torch.utils.data.DataLoader(ds, batch_size=batch, num_workers=workers, collate_fn=collate_pairs)
     marks, done = [], 0  # (items done, wall, CPU) at each chunk boundary
@@ -155,6 +156,9 @@ def main() -> None:
     ap.add_argument("--markdown", default=None, help="append the results to this file")
     ap.add_argument("--loader-only", action="store_true",
                     help="only the README loader row: batch_loader(ds, --batch, num_workers=--workers), all targets")
+    ap.add_argument("--transport-ab", type=int, default=0, metavar="ROUNDS",
+                    help="with --loader-only: ROUNDS alternating runs of the README loader with the shared-memory "
+                         "slot transport (default) and the stock DataLoader transport (shm_slots=False)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     tuned = False if args.no_tune else tune_allocator()
@@ -174,6 +178,20 @@ def main() -> None:
         lines.append(f"| {label} | {workers} | {rate:.0f} | {cpu_txt} | {load()} |")
         print(lines[-1], flush=True)
 
+    if args.loader_only and args.transport_ab:
+        rates = {True: [], False: []}
+        for r in range(args.transport_ab):
+            for slots in ((True, False) if r % 2 == 0 else (False, True)):
+                rates[slots].append(loader_rate(31, args.size, n, w, batched=True, batch=b, repeats=reps,
+                                                shm_slots=slots)[0])
+            print(f"round {r}: slots {rates[True][-1]:.0f}, stock {rates[False][-1]:.0f} pairs/s, load {load()}",
+                  flush=True)
+        for slots, label in ((True, "shared-memory slots (default)"), (False, "stock transport")):
+            v = rates[slots]
+            print(f"| {label} | {', '.join(f'{x:.0f}' for x in v)} | **{statistics.median(v):.0f}** |")
+        ratio = [a / c for a, c in zip(rates[True], rates[False])]
+        print(f"| slots / stock | {', '.join(f'{x:.3f}' for x in ratio)} | **{statistics.median(ratio):.3f}** |")
+        return
     if args.loader_only:
         row("factored, batched (README loader)", w, loader_rate(31, args.size, n, w, batched=True, batch=b,
                                                                 repeats=reps))

@@ -50,6 +50,7 @@ from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
 from ..isp.colour import bradford_matrix
 from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, randint_scalar, seed_for, tune_allocator
 from .scenes import _uniform, generate_scene
+from .shm_slots import SlotArena, SlotBatchSampler, SlotLoader, SlotRequest
 
 __all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "render_pairs", "batch_loader", "META_KEYS",
            "TARGETS", "GENERATOR_VERSION", "check_targets", "nikon_d5100_qe", "camera_for"]
@@ -369,7 +370,7 @@ def render_pairs(indices, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype
 
 
 def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings, targets=TARGETS,
-                  dense: bool = False) -> dict:
+                  dense: bool = False, alloc=None) -> dict:
     if not indices:
         raise ValueError("indices: expected at least one index")
     clock = _Clock(timings)
@@ -416,7 +417,7 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             if img is None:
                 h, w = raw.height, raw.width
                 img = _views({k: (nb, c, h, w) for k, c in (("raw", 1), *((t, _TARGET_CHANNELS[t])
-                                                                          for t in targets))}, dtype)
+                                                                          for t in targets))}, dtype, alloc)
             raws.append(raw.data)
             noise_free.append(raw.noise_free)
             black, span = raw.black_level, raw.white_level - raw.black_level
@@ -472,7 +473,7 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             srgb_encode(lin.view(nb, 3, h, w).clamp(0, 1), out=img["srgb"])
     img.pop("_xyz", None)
     out = dict(img)
-    out["meta"] = _batch_meta(metas, dtype)
+    out["meta"] = _batch_meta(metas, dtype, alloc)
     clock("targets")
     return out
 
@@ -488,12 +489,13 @@ def _normalise(dst: torch.Tensor, values: list, items: list) -> None:
         torch.sub(v, it["black"], out=dst[b:b + 1]).div_(it["span"])
 
 
-def _views(shapes: dict, dtype) -> dict:
+def _views(shapes: dict, dtype, alloc=None) -> dict:
     """Contiguous tensors ``{key: [shape]}`` that are views of **one** storage: a DataLoader worker then ships the
     whole batch as one shared-memory block instead of one per tensor (measured with 2 workers on 2 cores: the main
-    process's CPU per pair 0.57 -> 0.21 ms, 217 -> 234 pairs/s)."""
+    process's CPU per pair 0.57 -> 0.21 ms, 217 -> 234 pairs/s). ``alloc(numel, dtype)``: where that storage comes
+    from (a worker's shared-memory slot, :mod:`isettorch.data.shm_slots`); a fresh tensor by default."""
     sizes = [math.prod(shape) for shape in shapes.values()]
-    flat = torch.empty(sum(sizes), dtype=dtype)
+    flat = torch.empty(sum(sizes), dtype=dtype) if alloc is None else alloc(sum(sizes), dtype)
     out, start = {}, 0
     for (key, shape), size in zip(shapes.items(), sizes):
         out[key] = flat[start:start + size].view(shape)
@@ -529,13 +531,13 @@ def _meta_values(index, d, meta_s, exposure, to_norm, span, white, cfa, white_ca
 _LONG_META = ("index", "illuminant_code", "cfa")
 
 
-def _batch_meta(metas: list[dict], dtype) -> dict:
+def _batch_meta(metas: list[dict], dtype, alloc=None) -> dict:
     """Per-item metadata values -> ``[B, ...]`` tensors (long for ``index``, ``illuminant_code``, ``cfa``; ``dtype``
     otherwise), in one storage per dtype (scalars converted once per key for the whole batch)."""
     nb = len(metas)
     shapes = {k: (nb, *(tuple(v.shape) if isinstance(v, torch.Tensor) else ())) for k, v in metas[0].items()}
-    floats = _views({k: s for k, s in shapes.items() if k not in _LONG_META}, dtype)
-    longs = _views({k: shapes[k] for k in _LONG_META}, torch.long)
+    floats = _views({k: s for k, s in shapes.items() if k not in _LONG_META}, dtype, alloc)
+    longs = _views({k: shapes[k] for k in _LONG_META}, torch.long, alloc)
     out = {}
     for key in metas[0]:
         dst = longs[key] if key in _LONG_META else floats[key]
@@ -634,13 +636,33 @@ class CameraPairDataset(torch.utils.data.Dataset):
         self._maybe_tune()
         if self.method == "reference":
             return collate_pairs([self[i] for i in idx])
+        if isinstance(indices, SlotRequest) and torch.utils.data.get_worker_info() is not None:
+            return self._slot_batch(idx, indices.slots)
         return render_pairs(idx, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
                             cache=self._cache, targets=self.targets)
+
+    def _slot_batch(self, idx: list[int], slots: int):
+        """In a worker of :func:`batch_loader`: the batch rendered into one of this worker's shared-memory slots,
+        returned as a :class:`~isettorch.data.shm_slots.SlotBatch` handle (or the batch itself, without a free
+        slot); the loader copies it out in the main process."""
+        arena = self.__dict__.get("_arena")
+        if arena is None:
+            arena = self._arena = SlotArena(slots)
+        bump = arena.acquire()
+        try:
+            with one_thread():
+                batch = _render_pairs(idx, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
+                                      cache=self._cache, timings=None, targets=self.targets, alloc=bump)
+        except BaseException:
+            if bump.storage is not None:
+                arena.abandon(bump)
+            raise
+        return arena.finish(batch, bump)
 
 
 def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool = False, sampler=None,
                  generator: torch.Generator | None = None, drop_last: bool = False, num_workers: int = 0,
-                 **loader_kwargs) -> torch.utils.data.DataLoader:
+                 shm_slots: bool = True, **loader_kwargs) -> torch.utils.data.DataLoader:
     """A ``DataLoader`` whose workers generate whole batches (:meth:`CameraPairDataset.get_batch`).
 
     Yields the same batches, bitwise, as ``DataLoader(dataset, batch_size, sampler=..., collate_fn=collate_pairs)``
@@ -650,6 +672,10 @@ def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool =
         batch_size: items per batch. shuffle / generator: a ``RandomSampler`` (seeded by ``generator``) instead
             of the sequential order; ``sampler``: any index sampler (e.g. ``DistributedSampler``) instead.
         drop_last, num_workers, loader_kwargs: passed on (``BatchSampler`` / ``DataLoader``).
+        shm_slots: with workers, ship batches through per-worker shared-memory slots that are reused, copied out
+            in the main process (:mod:`isettorch.data.shm_slots`; the same values, bitwise): measured 300 -> 355
+            pairs/s at 128^2, batch 16, 2 workers on 2 cores (``benchmarks/THROUGHPUT.md``). Not used with
+            ``pin_memory`` or a ``collate_fn`` (they would see the slot handles); False: the stock transport.
 
     Example:
         >>> ds = CameraPairDataset(8, seed=0, scene={"height": 16, "width": 16})
@@ -663,10 +689,17 @@ def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool =
                    else torch.utils.data.SequentialSampler(dataset))
     elif shuffle:
         raise ValueError("shuffle: expected False when a sampler is given (the sampler sets the order)")
-    batches = torch.utils.data.BatchSampler(sampler, batch_size, drop_last)
+    # With workers, each renders into shared-memory slots it reuses and the main process copies batches out
+    # (isettorch.data.shm_slots: no fresh shared memory per batch); not with a user's collate_fn or pinned memory,
+    # which would see the slot handles.
+    slots = shm_slots and num_workers > 0 and not loader_kwargs.get("pin_memory") and "collate_fn" not in loader_kwargs
+    if slots:
+        batches = SlotBatchSampler(sampler, batch_size, drop_last, int(loader_kwargs.get("prefetch_factor") or 2) + 1)
+    else:
+        batches = torch.utils.data.BatchSampler(sampler, batch_size, drop_last)
     # the loader draws its workers' base seed from the same generator first, exactly as DataLoader(shuffle=True)
-    return torch.utils.data.DataLoader(dataset, sampler=batches, batch_size=None, num_workers=num_workers,
-                                       generator=generator, **loader_kwargs)
+    return (SlotLoader if slots else torch.utils.data.DataLoader)(
+        dataset, sampler=batches, batch_size=None, num_workers=num_workers, generator=generator, **loader_kwargs)
 
 
 def collate_pairs(items: list[dict]) -> dict:
