@@ -39,10 +39,14 @@ def run_one(name: str, disable: list[str], args) -> dict:
     if not (rec_path.is_file() and json.loads(rec_path.read_text())["steps"] >= args.steps):
         train_demosaic.main(cmd)
     rec = json.loads(rec_path.read_text())
+    scores_path = out / "scores.json"  # the test-set scores of this run's best checkpoint (reporting only)
+    if scores_path.is_file() and json.loads(scores_path.read_text()).get("steps") == rec["steps"]:
+        return json.loads(scores_path.read_text())
     net = load_demosaic_model(out / "best.pt")
     row = {"name": name, "steps": rec["steps"], "wall_s": rec["wall_s"], "val": rec["best_val_cpsnr"]}
     for key, folder in (("kodak", args.kodak), ("mcmaster", args.mcmaster)):
         row[key] = evaluate_demosaic(folder, "learned", "RGGB", 10, model=net)["mean_cpsnr"]
+    scores_path.write_text(json.dumps(row, indent=1))
     return row
 
 
@@ -67,12 +71,16 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", nargs="*", default=[], help="extra config overrides for every run (key.sub=value)")
     ap.add_argument("--table", default=None, help="write the markdown table here")
+    ap.add_argument("--skip-reference", action="store_true",
+                    help="do not run 'all components' (e.g. a second process sharing --out; the table needs it)")
     args = ap.parse_args(argv)
     bad = [c for c in args.components if c not in COMPONENTS]
     if bad:
         raise ValueError(f"--components: expected names from {COMPONENTS}, got {bad}")
-    rows = [run_one("all components", [], args)]
+    rows = [] if args.skip_reference else [run_one("all components", [], args)]
     rows += [run_one(f"without {c}", [c], args) for c in args.components]
+    if args.skip_reference:  # the table's first row must be "all components": run again without the flag
+        return 0
     text = (f"# Generator ablation (DemosaicNet, {args.steps} steps each, config {Path(args.config).name}, "
             f"overrides {args.set or 'none'})\n\n" + table(rows))
     if args.table:

@@ -32,3 +32,9 @@ def test_ablation_smoke(tmp_path):
     rec = json.loads((tmp_path / "runs" / "without_fine_detail" / "record.json").read_text())
     assert rec["config"]["data"]["disable"] == ["fine_detail"] and rec["steps"] == 2
     assert "without fine_detail" in rec["data"]
+    # a second call reuses each finished run and its saved scores (nothing retrained or re-scored)
+    scores = tmp_path / "runs" / "without_fine_detail" / "scores.json"
+    assert json.loads(scores.read_text())["steps"] == 2
+    before = table.read_text()
+    (ims / "0.png").unlink()  # re-scoring would now fail
+    assert generator_ablation.main(args) == 0 and table.read_text() == before
