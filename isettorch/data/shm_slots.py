@@ -12,7 +12,8 @@ process keeps, and every tensor's dtype, offset and shape). The main process cop
 ordinary memory and marks the slot free again (a flag in the slot's header, read by the worker before reuse), so a
 batch the user holds is never overwritten. A worker with no free slot (the main process is slow to consume, or a
 batch needs more bytes than the slot has) falls back to the stock path for that batch: values are identical either
-way (a byte copy).
+way (a byte copy). Batches the DataLoader itself discards (an epoch abandoned midway with ``persistent_workers``)
+keep their slots marked busy: that worker then uses its remaining slots, and the stock path once none is left.
 
 Used by :func:`isettorch.data.camera_pairs.batch_loader`; the handle never reaches user code.
 """

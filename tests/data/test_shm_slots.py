@@ -111,6 +111,16 @@ def test_worker_batches_through_slots_equal_main_process_batches():
             assert batch["meta"][k].dtype == v.dtype and torch.equal(batch["meta"][k], v), (b, k)
 
 
+def test_persistent_workers_reuse_their_slots_across_epochs():
+    ds = CameraPairDataset(12, seed=3, scene=TINY)
+    loader = batch_loader(ds, 2, num_workers=2, persistent_workers=True)
+    ref = [ds.get_batch([2 * b, 2 * b + 1])["raw"] for b in range(6)]
+    first, second = list(loader), list(loader)
+    assert loader.shipped == {"slot": 6, "stock": 0}  # the slots freed in epoch 1 serve all of epoch 2
+    for got in (first, second):
+        assert all(torch.equal(b["raw"], r) for b, r in zip(got, ref))
+
+
 def test_pinned_or_custom_collate_loaders_use_the_stock_path():
     ds = CameraPairDataset(4, seed=3, scene=TINY)
     assert not isinstance(batch_loader(ds, 2, num_workers=1, collate_fn=lambda b: b), SlotLoader)
