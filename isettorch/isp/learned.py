@@ -119,7 +119,10 @@ class DemosaicNet(nn.Module):
 
     def forward(self, raw: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
         raw = _check_raw(raw)
-        base = demosaic_malvar2004(raw, "RGGB", boundary="mirror")
+        # the MHC base at the input's precision even under autocast (a bfloat16 base would cap the output's
+        # accuracy at ~2^-9 of the signal); only the residual body runs at the autocast precision
+        with torch.autocast(raw.device.type, enabled=False):
+            base = demosaic_malvar2004(raw, "RGGB", boundary="mirror")
         feats = [F.pixel_unshuffle(raw, 2), F.pixel_unshuffle(base, 2)]
         if self.noise_inputs:
             if noise is None:
@@ -132,7 +135,7 @@ class DemosaicNet(nn.Module):
         elif noise is not None:
             raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
         x = torch.cat(feats, 1)
-        return base + F.pixel_shuffle(self.head(self.body(x)), 2)
+        return base + F.pixel_shuffle(self.head(self.body(x)), 2).to(base.dtype)
 
 
 def noise_features(shot_gain, read_var) -> torch.Tensor:

@@ -246,3 +246,97 @@ def test_natural_pool_is_the_cameras_noise_free_output():
     torch.testing.assert_close(white.double(), own_white / own_white[1], rtol=1e-5, atol=0)
     unbalanced = img * white.float()[:, None, None]
     torch.testing.assert_close(train_demosaic.mosaic_rggb(unbalanced[None]), nf.float(), rtol=1e-5, atol=1e-6)
+
+
+def _bank_cfg(tmp_path, count=3):
+    cfg = common.load_config(SMOKE)
+    cfg["data"].update(bank=count, bank_dir=str(tmp_path / "banks"), bank_workers=1)
+    return cfg
+
+
+def test_scene_bank_holds_the_pools_scenes_and_resumes(tmp_path, monkeypatch):
+    """The bank is the pool's scenes 0..N-1 in float16; a deleted chunk is rendered again, the others are read."""
+    monkeypatch.setattr(train_demosaic, "BANK_CHUNK", 2)
+    cfg = _bank_cfg(tmp_path)
+    bank = train_demosaic.make_sampler(cfg)
+    assert isinstance(bank, train_demosaic.SceneBank) and bank.images.dtype == torch.float16
+    pool = train_demosaic.ScenePool(cfg, bank.seed)
+    for i in range(3):
+        torch.testing.assert_close(bank.images[i].float(), pool.render(i), rtol=2.0**-10, atol=1e-7)
+    files = sorted(bank.folder.glob("scenes_*.pt"))
+    assert [f.name for f in files] == ["scenes_0000000_0000002.pt", "scenes_0000002_0000003.pt"]
+    kept = files[0].stat().st_mtime_ns
+    files[1].unlink()
+    again = train_demosaic.make_sampler(cfg)
+    assert torch.equal(again.images, bank.images) and files[0].stat().st_mtime_ns == kept
+    a = train_demosaic.make_batch(bank, cfg, 7, 4)
+    b = train_demosaic.make_batch(again, cfg, 7, 4)
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+
+
+def test_scene_bank_is_keyed_on_the_scenes(tmp_path):
+    """Another scene seed or generator config is another bank; batch, patch and domain keys share one."""
+    cfg = _bank_cfg(tmp_path, 2)
+    folder = train_demosaic.make_sampler(cfg).folder
+    cfg["data"].update(batch=2, patch=16, domain="linear")
+    assert train_demosaic.make_sampler(cfg).folder == folder
+    cfg["data"]["colour_space"] = "linear_srgb"
+    assert train_demosaic.make_sampler(cfg).folder != folder
+    cfg["data"]["bank"] = 0.5
+    with pytest.raises(ValueError, match="data.bank"):
+        train_demosaic.make_sampler(cfg)
+
+
+def test_linear_srgb_pool_renders_grey_as_neutral():
+    """Colorimetric targets: grey materials under one light of any kind are neutral after the Bradford adaptation to
+    D65 (R = G = B in linear sRGB up to the wavelength-dependent diffraction at edges); the camera-RGB pool needs its
+    white balance for the same (its gains are the white's camera response)."""
+    cfg = common.load_config(SMOKE)
+    cfg["data"]["colour_space"] = "linear_srgb"
+    cfg["data"]["natural"]["components"].update(palette={"grey_probability": 1.0},
+                                                illuminant={"mixed_probability": 0.0})
+    pool = train_demosaic.make_sampler(cfg)
+    for i in range(4):
+        img = pool.render(i).double()
+        mean = img.mean((1, 2))
+        torch.testing.assert_close(mean / mean[1], torch.ones(3, dtype=torch.float64), rtol=3e-3, atol=0)
+    cfg["data"]["colour_space"] = "rec2020"
+    with pytest.raises(ValueError, match="data.colour_space"):
+        train_demosaic.make_sampler(cfg)
+
+
+def test_joint_network_starts_as_the_noise_free_one():
+    """init from a noise-free checkpoint: the two noise inputs get zero weights, so the outputs are equal for any
+    noise level; a checkpoint of another width cannot start the network."""
+    torch.manual_seed(0)
+    free = train_demosaic.DemosaicNet(channels=8, depth=2)
+    with torch.no_grad():
+        free.head.weight.normal_(0, 0.1)
+    ck = {"model": free.state_dict(), "net_config": free.config()}
+    joint = train_demosaic.DemosaicNet(channels=8, depth=2, noise_inputs=2)
+    joint.load_state_dict(train_demosaic.init_state(ck, joint))
+    raw = torch.rand(2, 1, 16, 16)
+    torch.testing.assert_close(joint(raw, torch.tensor([[0.3, 2.0], [1.0, 0.1]])), free(raw), rtol=0, atol=0)
+    with pytest.raises(ValueError, match="cannot start"):
+        train_demosaic.init_state(ck, train_demosaic.DemosaicNet(channels=16, depth=2, noise_inputs=2))
+
+
+def test_bfloat16_autocast_runs_only_the_residual_in_bfloat16():
+    """optim.precision bf16: an untrained network (zero head) is exactly the float32 Malvar-He-Cutler estimate under
+    autocast, and a trained one differs from its float32 output only by the residual's bfloat16 rounding (relative
+    step 2^-8 of the residual, not of the signal)."""
+    torch.manual_seed(0)
+    net = train_demosaic.DemosaicNet(channels=8, depth=2).to(memory_format=torch.channels_last)
+    raw = torch.rand(2, 1, 16, 16)
+    base = train_demosaic.demosaic_malvar2004(raw, "RGGB", boundary="mirror")
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = net(raw)
+    assert out.dtype == torch.float32
+    torch.testing.assert_close(out, base, rtol=0, atol=0)
+    net.requires_grad_(False)
+    net.head.weight.normal_(0, 0.05)
+    full = net(raw)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        half = net(raw)
+    residual = (full - base).abs().max()
+    assert 0 < float((half - full).abs().max()) < 0.03 * float(residual)
