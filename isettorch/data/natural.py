@@ -25,8 +25,13 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   (Omer & Werman, CVPR 2004) (Achddou et al. 2023).
 * ``colour_correlation``: fine detail mostly achromatic: a shared multiplicative shading field (1/f^s, log-normal)
   modulates every material equally, so intensity changes at fine scales and colour at coarse ones (natural-image
-  colour statistics: Ruderman, Cronin & Chiao, JOSA A 15, 1998). Off: the same 1/f^s field blends each material
-  towards another one instead (fine detail that changes colour).
+  colour statistics: Ruderman, Cronin & Chiao, JOSA A 15, 1998); a leaf of radius ``r`` takes a new material only
+  with probability ``min(1, r / chromatic_radius_px)`` (else the material under its centre, at its own
+  intensity), and leaf textures and detail items change material with ``chromatic_detail_probability`` (else
+  they modulate intensity), so the high-frequency bands of the colour channels are strongly correlated (Gunturk,
+  Altunbasak & Mersereau, IEEE TIP 11(9), 2002; measured in benchmarks/SCENE_STATS.md). Off: the same 1/f^s field
+  blends each material towards another one instead, and every leaf and item takes a random material (fine detail
+  that changes colour).
 * ``depth_layers``: a foreground dead-leaves layer over the background, each defocused by the library's optics
   (:class:`~isettorch.optics.WavefrontOptics` with ``defocus_diopters``; the PSF at 550 nm blurs the layer's maps and
   its coverage, then the layers are composited front over back).
@@ -48,6 +53,7 @@ import copy
 import functools
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -65,20 +71,22 @@ NATURAL_DEFAULTS: dict = {
     "wavelengths_nm": [400.0, 700.0, 10.0],
     "mean_radiance_scale": 1.0,  # the illuminant is scaled to luminance 1 cd/m^2 from a white; x this
     "components": {
-        "palette": {"enabled": True, "materials": [3, 10], "measured": 0.35, "recovery": 0.35, "random": 0.3,
+        "palette": {"enabled": True, "materials": [2, 8], "measured": 0.35, "recovery": 0.35, "random": 0.3,
                     "grey_probability": 0.15},
         "illuminant": {"enabled": True, "kinds": {"daylight": 0.4, "blackbody": 0.25, "led": 0.2,
                                                   "fluorescent": 0.15},
                        "mixed_probability": 0.2},
         "dead_leaves": {"enabled": True, "leaves": [500, 1200], "exponent": 3.0, "r_min_px": 0.8,
-                        "r_max_fraction": 0.5},
+                        "r_max_fraction": 0.5, "brightness": [0.1, 1.0]},
         "textured_leaves": {"enabled": True, "probability": 0.5, "noise_exponent": [0.8, 1.6],
-                            "grating_cpp": [0.02, 0.3], "kinds": {"noise": 0.4, "grating": 0.25, "colour_line": 0.35}},
-        "colour_correlation": {"enabled": True, "exponent": [0.7, 1.2], "contrast": [0.05, 0.35]},
+                            "grating_cpp": [0.02, 0.3], "kinds": {"noise": 0.4, "grating": 0.25, "colour_line": 0.35},
+                            "min_size_px": 10},
+        "colour_correlation": {"enabled": True, "exponent": [0.7, 1.2], "contrast": [0.05, 0.35],
+                               "chromatic_radius_px": 16.0, "chromatic_detail_probability": 0.25},
         "depth_layers": {"enabled": True, "probability": 0.4, "foreground_leaves": [3, 12],
                          "defocus_diopters": [0.0, 0.5, 1.0, 2.0], "f_number": 2.0, "focal_length_m": 0.004,
                          "pixel_size_m": 1.4e-6},
-        "fine_detail": {"enabled": True, "probability": 0.6, "items": [1, 4], "grating_cpp": [0.15, 0.7],
+        "fine_detail": {"enabled": True, "probability": 0.4, "items": [1, 4], "grating_cpp": [0.15, 0.7],
                         "line_width_px": [0.3, 2.0], "supersample": 4},
     },
 }
@@ -128,8 +136,13 @@ def _choice(weights: dict, g) -> str:
     keys = [k for k, v in weights.items() if v > 0]
     if not keys:
         raise ValueError(f"weights: expected at least one positive weight, got {weights}")
-    w = torch.tensor([float(weights[k]) for k in keys], dtype=torch.float64)
-    return keys[int(torch.multinomial(w / w.sum(), 1, generator=g))]
+    w = [float(weights[k]) for k in keys]
+    u = float(torch.rand((), generator=g, dtype=torch.float64)) * sum(w)  # inverse CDF of one uniform draw
+    for k, wk in zip(keys, w):
+        u -= wk
+        if u < 0:
+            return k
+    return keys[-1]
 
 
 def _wavelengths(cfg) -> torch.Tensor:
@@ -191,44 +204,67 @@ def _leaf_coverage(h, w, cy, cx, r, aspect, theta, shape):
     x0, x1 = max(0, int(math.floor(cx - ext))), min(w, int(math.ceil(cx + ext)) + 1)
     if y0 >= y1 or x0 >= x1:
         return None, None
-    yy = torch.arange(y0, y1, dtype=torch.float32)[:, None] + 0.5 - cy
-    xx = torch.arange(x0, x1, dtype=torch.float32)[None, :] + 0.5 - cx
-    ct, st = math.cos(theta), math.sin(theta)
-    u, v = xx * ct + yy * st, -xx * st + yy * ct
+    # numpy: a leaf is a few dozen pixels, where torch's per-op overhead is most of the cost
+    yy = np.arange(y0, y1, dtype=np.float32)[:, None] + np.float32(0.5 - cy)
+    xx = np.arange(x0, x1, dtype=np.float32)[None, :] + np.float32(0.5 - cx)
+    ct, st = np.float32(math.cos(theta)), np.float32(math.sin(theta))
+    u, v = xx * ct + yy * st, yy * ct - xx * st
     if shape == 0:  # disk
-        d = torch.sqrt(u * u + v * v) - r
+        d = np.sqrt(u * u + v * v) - np.float32(r)
     elif shape == 1:  # ellipse (distance approximated by the scaled radius)
-        q = torch.sqrt((u / r) ** 2 + (v / (r * aspect)) ** 2)
-        d = (q - 1) * r * min(1.0, aspect)
+        q = np.sqrt((u / np.float32(r)) ** 2 + (v / np.float32(r * aspect)) ** 2)
+        d = (q - 1) * np.float32(r * min(1.0, aspect))
     else:  # rectangle
-        d = torch.maximum(u.abs() - r, v.abs() - r * aspect)
-    return (0.5 - d).clamp(0, 1), (y0, y1, x0, x1)
+        d = np.maximum(np.abs(u) - np.float32(r), np.abs(v) - np.float32(r * aspect))
+    return torch.from_numpy(np.clip(np.float32(0.5) - d, 0, 1)), (y0, y1, x0, x1)
+
+
+def _second_material(cfg, g, k, n_mat):
+    """The material a texture or detail item blends with: any of the scene's with the ``colour_correlation``
+    component off; with it on, another one only with ``chromatic_detail_probability`` (fine detail is mostly
+    achromatic: the same material, another intensity)."""
+    cc = cfg["components"]["colour_correlation"]
+    if cc["enabled"] and _u(g, 0.0, 1.0) >= cc["chromatic_detail_probability"]:
+        return k
+    return _ri(g, 0, n_mat - 1)
 
 
 def _leaf_texture(cfg, g, hh, ww, k, n_mat):
     """(index_b, t [hh, ww] or None, shade [hh, ww] or None): the leaf's second material and blend, and its
-    own shading; a flat leaf returns (k, None, None)."""
+    own shading; a flat leaf returns (k, None, None). Leaves whose box is under ``min_size_px`` are flat (a
+    texture on a few pixels is not one)."""
     c = cfg["components"]["textured_leaves"]
-    if not c["enabled"] or float(torch.rand((), generator=g)) >= c["probability"] or min(hh, ww) < 2:
+    if not c["enabled"] or min(hh, ww) < max(2, int(c["min_size_px"])) \
+            or float(torch.rand((), generator=g)) >= c["probability"]:
         return k, None, None
     kind = _choice(c["kinds"], g)
     s = _u(g, *c["noise_exponent"])
     if kind == "noise":  # achromatic texture: the leaf's own log-normal shading
         return k, None, torch.exp(_tex.power_law_noise(hh, ww, s, g) * _u(g, 0.1, 0.5))
-    k2 = _ri(g, 0, n_mat - 1)
+    k2 = _second_material(cfg, g, k, n_mat)
     if kind == "grating":
         f = math.exp(_u(g, math.log(c["grating_cpp"][0]), math.log(c["grating_cpp"][1])))
         t = _tex.warped_grating(hh, ww, f, _u(g, 0, math.pi), _u(g, 0.0, 3.0), g)
-        if k2 == k:  # same material: an intensity grating
-            return k, None, 0.4 + 0.8 * t
-        return k2, t, None
-    return k2, _tex.colour_line_weights(hh, ww, s, g, contrast=_u(g, 0.5, 2.0)), None
+    else:
+        t = _tex.colour_line_weights(hh, ww, s, g, contrast=_u(g, 0.5, 2.0))
+    if k2 == k:  # same material: an intensity texture
+        return k, None, 0.4 + 0.8 * t
+    return k2, t, None
 
 
 def _paint_leaves(cfg, g, maps, n_leaves, r_min, r_max, exponent, alpha=None):
     """Paint ``n_leaves`` dead leaves back to front onto ``maps`` [K, H, W] in place (and onto ``alpha`` [H, W]
     when given: the layer's coverage). Radii: ``p(r) ~ r^-exponent`` (inverse CDF; exponent 3 is
-    :func:`.layouts.dead_leaves_radii`); painted large to small so every scale stays visible."""
+    :func:`.layouts.dead_leaves_radii`); painted large to small so every scale stays visible.
+
+    Materials: with the ``colour_correlation`` component on, a leaf of radius ``r`` takes a new random material
+    with probability ``min(1, r / chromatic_radius_px)`` and otherwise the material already at its centre (a change
+    of intensity only): colour changes at coarse scales, intensity at all scales, as in natural images (the
+    high-frequency bands of R, G and B are strongly correlated: Gunturk, Altunbasak & Mersereau, IEEE TIP 11(9)
+    2002; benchmarks/SCENE_STATS.md). Off (and on an empty layer): every leaf a random material."""
+    cc = cfg["components"]["colour_correlation"]
+    r_chroma = float(cc["chromatic_radius_px"]) if cc["enabled"] else 0.0
+    b_lo, b_hi = (float(b) for b in cfg["components"]["dead_leaves"]["brightness"])
     n_mat, h, w = maps.shape
     if abs(exponent - 3.0) < 1e-12:
         radii = dead_leaves_radii(n_leaves, r_min, r_max, g)
@@ -239,13 +275,17 @@ def _paint_leaves(cfg, g, maps, n_leaves, r_min, r_max, exponent, alpha=None):
     radii = radii.sort(descending=True).values
     drawn = radii.tolist()  # the drawn sizes (leaves falling outside the image are drawn, then not painted)
     # every leaf's geometry, material and brightness in one draw per quantity (the texture draws follow per leaf)
-    u = torch.rand(n_leaves, 6, generator=g, dtype=torch.float64).tolist()
+    u = torch.rand(n_leaves, 7, generator=g, dtype=torch.float64).tolist()
     k_all = torch.randint(0, n_mat, (n_leaves,), generator=g).tolist()
-    for r, (u_y, u_x, u_s, u_a, u_t, u_b), k in zip(drawn, u, k_all):
+    for r, (u_y, u_x, u_s, u_a, u_t, u_b, u_m), k in zip(drawn, u, k_all):
         cy, cx = (-0.1 + 1.2 * u_y) * h, (-0.1 + 1.2 * u_x) * w
+        if r_chroma > 0 and u_m >= r / r_chroma:  # keep the material under the leaf's centre
+            under = maps[:, min(h - 1, max(0, int(cy))), min(w - 1, max(0, int(cx)))]
+            if float(under.max()) > 0:
+                k = int(under.argmax())
         shape = min(2, int(3 * u_s))
         aspect, theta = 0.3 + 0.7 * u_a, math.pi * u_t
-        brightness = 0.3 ** (1 - u_b)  # log-uniform in [0.3, 1]
+        brightness = b_lo * (b_hi / b_lo) ** u_b  # log-uniform in [b_lo, b_hi]
         cov, box = _leaf_coverage(h, w, cy, cx, r, aspect, theta, shape)
         if cov is None:
             continue
@@ -292,7 +332,7 @@ def _fine_detail(cfg, g, maps):
     for _ in range(_ri(g, *c["items"])):
         kind = ("grating", "line", "edge")[_ri(g, 0, 2)]
         ang = _u(g, 0.0, math.pi)
-        k = _ri(g, 0, n_mat - 1)
+        k = _second_material(cfg, g, -1, n_mat)  # -1: the same materials as below it (an intensity change)
         yy = (torch.arange(h * ss, dtype=torch.float64)[:, None] + 0.5) / ss
         xx = (torch.arange(w * ss, dtype=torch.float64)[None, :] + 0.5) / ss
         u = xx * math.cos(ang) + yy * math.sin(ang)
@@ -314,7 +354,10 @@ def _fine_detail(cfg, g, maps):
             cov = (v > v0).double()
         cov = F.avg_pool2d(cov[None, None], ss)[0, 0].float()  # pixel-area integration
         brightness = math.exp(_u(g, math.log(0.2), 0.0))
-        maps.mul_(1 - cov).add_(F.one_hot(torch.tensor(k), n_mat).float()[:, None, None] * cov * brightness)
+        if k < 0:  # achromatic: the materials below, at another intensity
+            maps.mul_(1 - cov + cov * brightness)
+        else:
+            maps.mul_(1 - cov).add_(F.one_hot(torch.tensor(k), n_mat).float()[:, None, None] * cov * brightness)
         kinds.append(kind)
     return kinds
 

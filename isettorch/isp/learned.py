@@ -85,6 +85,10 @@ class DemosaicNet(nn.Module):
         channels: width of the hidden layers.
         depth: number of hidden 3x3 conv layers at half resolution (>= 1).
         noise_inputs: number of per-image noise parameters fed as constant planes (0 for noise-free).
+        residual: after the first layer, pairs of conv layers with identity shortcuts (``x + conv(relu(conv(x)))``,
+            the residual blocks of He et al., CVPR 2016, without batch norm as in EDSR, Lim et al. 2017), so a deep
+            body trains as fast as a shallow one; ``depth - 1`` must then be even. Default False: a plain stack
+            (the earlier checkpoints).
 
     Shapes:
         forward(raw (B, 1, H, W) RGGB, noise (B, noise_inputs) optional) -> (B, 3, H, W).
@@ -95,27 +99,40 @@ class DemosaicNet(nn.Module):
         torch.Size([2, 3, 16, 16])
     """
 
-    def __init__(self, channels: int = 48, depth: int = 6, noise_inputs: int = 0):
+    def __init__(self, channels: int = 48, depth: int = 6, noise_inputs: int = 0, residual: bool = False):
         super().__init__()
         if int(channels) < 1 or int(depth) < 1 or int(noise_inputs) < 0:
             raise ValueError(f"channels, depth, noise_inputs: expected >=1, >=1, >=0, got {channels}, {depth}, "
                              f"{noise_inputs}")
+        if residual and (int(depth) - 1) % 2:
+            raise ValueError(f"depth: a residual body is one layer plus pairs of layers, expected an odd depth, "
+                             f"got {depth}")
         self.channels, self.depth, self.noise_inputs = int(channels), int(depth), int(noise_inputs)
+        self.residual = bool(residual)
         layers: list[nn.Module] = [nn.Conv2d(4 + 12 + self.noise_inputs, self.channels, 3, padding=1),
                                    nn.ReLU(inplace=True)]
-        for _ in range(self.depth - 1):
-            layers += [nn.Conv2d(self.channels, self.channels, 3, padding=1), nn.ReLU(inplace=True)]
+        if self.residual:
+            layers += [_ResidualBlock(self.channels) for _ in range((self.depth - 1) // 2)]
+        else:
+            for _ in range(self.depth - 1):
+                layers += [nn.Conv2d(self.channels, self.channels, 3, padding=1), nn.ReLU(inplace=True)]
         self.body = nn.Sequential(*layers)
-        for m in self.body:  # He et al. (ICCV 2015) init keeps the ReLU activations' scale through any depth
-            if isinstance(m, nn.Conv2d):  # (PyTorch's default shrinks them ~1/sqrt(3) per layer)
+        for m in self.body.modules():  # He et al. (ICCV 2015) init keeps the ReLU activations' scale through
+            if isinstance(m, nn.Conv2d):  # any depth (PyTorch's default shrinks them ~1/sqrt(3) per layer)
                 nn.init.kaiming_normal_(m.weight, nonlinearity="relu")
                 nn.init.zeros_(m.bias)
+        for m in self.body.modules():  # each residual branch starts small: the body starts near its first layer
+            if isinstance(m, _ResidualBlock):
+                m.conv2.weight.data.mul_(0.1)
         self.head = nn.Conv2d(self.channels, 12, 3, padding=1)
         nn.init.zeros_(self.head.weight)  # start exactly at MHC
         nn.init.zeros_(self.head.bias)
 
     def config(self) -> dict:
-        return {"channels": self.channels, "depth": self.depth, "noise_inputs": self.noise_inputs}
+        cfg = {"channels": self.channels, "depth": self.depth, "noise_inputs": self.noise_inputs}
+        if self.residual:  # plain networks keep the config (and checkpoints) they always had
+            cfg["residual"] = True
+        return cfg
 
     def forward(self, raw: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
         raw = _check_raw(raw)
@@ -136,6 +153,18 @@ class DemosaicNet(nn.Module):
             raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
         x = torch.cat(feats, 1)
         return base + F.pixel_shuffle(self.head(self.body(x)), 2).to(base.dtype)
+
+
+class _ResidualBlock(nn.Module):
+    """``x + conv2(relu(conv1(x)))`` (3x3, same width; He et al. 2016, no batch norm as in EDSR)."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(channels, channels, 3, padding=1)
+        self.conv2 = nn.Conv2d(channels, channels, 3, padding=1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.conv2(F.relu(self.conv1(x)))
 
 
 def noise_features(shot_gain, read_var) -> torch.Tensor:
