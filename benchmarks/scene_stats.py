@@ -53,11 +53,21 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None)
+    ap.add_argument("--colour-space", default="d5100", choices=("d5100", "linear_srgb"),
+                    help="d5100: the Nikon D5100's white-balanced camera RGB; linear_srgb: CIE 1931 XYZ through the "
+                         "IEC 61966-2-1 matrix, von Kries-balanced to the scene's white (the training pool's space)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     t0 = time.time()
     wl = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
-    sens = sp.camera_sensitivities("Nikon 5100 (NPL)", wl)
+    if args.colour_space == "d5100":
+        sens = sp.camera_sensitivities("Nikon 5100 (NPL)", wl)
+        space = "Nikon D5100 white-balanced linear RGB"
+    else:
+        from isettorch.isp.colour import XYZ_TO_LINEAR_SRGB
+
+        sens = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ spectral.cmfs(wl, dtype=torch.float64)
+        space = "linear sRGB (CIE 1931 XYZ, IEC 61966-2-1 matrix), white-balanced"
     rows = ["| scenes | spectrum slope | gradient kurtosis | corr. dR-dG | corr. dR-dB |", "|---|---|---|---|---|",
             PUBLISHED]
     m = (sens * spectral.wavelength_weights(wl)[None]).float()  # photon counting with the band widths
@@ -76,8 +86,9 @@ def main(argv=None) -> int:
         rgb = s.project(m.T)[0]
         vals.append(_stats(rgb / (m @ s.illuminant_photons[0])[:, None, None]))
     rows.append(_row("isettorch.data.generate_scene (layouts)", vals))
-    text = (f"# Scene statistics of the synthetic generators\n\n`python benchmarks/scene_stats.py --n {args.n}` "
-            f"(seed {args.seed}, {args.size} px, Nikon D5100 white-balanced linear RGB; mean +- std over scenes; "
+    text = (f"# Scene statistics of the synthetic generators\n\n`python benchmarks/scene_stats.py --n {args.n} "
+            f"--colour-space {args.colour_space}` "
+            f"(seed {args.seed}, {args.size} px, {space}; mean +- std over scenes; "
             f"slope fitted from 4 cycles/image to 0.25 cycles/pixel, Hann window; {time.time() - t0:.0f} s)\n\n"
             + "\n".join(rows) + "\n")
     if args.out:
