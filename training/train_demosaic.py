@@ -565,11 +565,41 @@ def lr_at(step: int, frac: float, cfg: dict) -> float:
     return lr_min + 0.5 * (lr - lr_min) * (1 + math.cos(math.pi * t))  # cosine decay (Loshchilov & Hutter 2017)
 
 
-def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, history: list, wall_s: float) -> None:
+class AdaptiveGradClip:
+    """``optim.clip_grad_factor: k`` (> 0): scale the gradient down to ``k`` times the running mean (EMA, 0.99) of
+    the earlier steps' clipped gradient norms when its norm exceeds that, so one outlier batch cannot throw Adam off
+    (a residual 64 x 13 at lr 1e-3 lost 4 dB of validation CPSNR in one such step). Scale-free: no absolute norm to
+    tune. ``state`` goes into the checkpoint, so a resumed run clips exactly as the uninterrupted one."""
+
+    def __init__(self, factor: float, state: dict | None = None):
+        if factor < 0:
+            raise ValueError(f"optim.clip_grad_factor: expected >= 0 (0 = off), got {factor}")
+        self.factor, self.ema = float(factor), (state or {}).get("ema")
+
+    def state(self) -> dict:
+        return {"ema": self.ema}
+
+    def __call__(self, params) -> float:
+        """Clip the gradients of ``params`` in place; returns the norm before clipping."""
+        params = [p for p in params if p.grad is not None]
+        norm = float(torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(p.grad) for p in params])))
+        if not self.factor:
+            return norm
+        limit = math.inf if self.ema is None else self.factor * self.ema
+        if norm > limit:
+            for p in params:
+                p.grad.mul_(limit / norm)
+        kept = min(norm, limit)
+        self.ema = kept if self.ema is None else 0.99 * self.ema + 0.01 * kept
+        return norm
+
+
+def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, history: list, wall_s: float,
+                    clip: AdaptiveGradClip | None = None) -> None:
     tmp = path.with_suffix(".tmp")
     torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "step": step, "net_config": net.config(),
                 "train_config": json.dumps(cfg), "best_val_cpsnr": best, "history": json.dumps(history),
-                "wall_s": wall_s}, tmp)
+                "wall_s": wall_s, "grad_clip": json.dumps(clip.state() if clip else {})}, tmp)
     tmp.replace(path)
 
 
@@ -663,6 +693,7 @@ def main(argv: list[str] | None = None) -> int:
         net = net.to(memory_format=torch.channels_last)
     opt = torch.optim.Adam(net.parameters(), lr=float(cfg["optim"]["lr"]))
     step, best, history, wall0 = 0, -math.inf, [], 0.0
+    clip_state = None
     resume = Path(args.resume) if args.resume else out / "last.pt"
     init = cfg.get("init")
     if init and not resume.is_file():  # start from another checkpoint's weights (fresh optimizer and schedule)
@@ -676,6 +707,7 @@ def main(argv: list[str] | None = None) -> int:
         opt.load_state_dict(ck["optimizer"])
         step, best = int(ck["step"]), float(ck["best_val_cpsnr"])
         history, wall0 = json.loads(ck["history"]), float(ck.get("wall_s", 0.0))
+        clip_state = json.loads(ck.get("grad_clip", "{}"))
         old = json.loads(ck["train_config"])
         if (old.get("data"), old.get("val"), old.get("noise")) != (cfg.get("data"), cfg.get("val"), cfg.get("noise")):
             best = -math.inf  # the validation set changed: earlier best scores are not comparable
@@ -683,6 +715,7 @@ def main(argv: list[str] | None = None) -> int:
                 print("data/val config changed since the checkpoint: best-model selection restarts", flush=True)
         if rank == 0:
             print(f"resumed from {resume} at step {step}", flush=True)
+    clip = AdaptiveGradClip(float(cfg["optim"].get("clip_grad_factor", 0.0) or 0.0), clip_state)
     model = net
     if is_dist:
         model = torch.nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda"
@@ -717,6 +750,7 @@ def main(argv: list[str] | None = None) -> int:
         loss = F.l1_loss(outp, rgb) if loss_kind == "l1" else F.mse_loss(outp, rgb)
         opt.zero_grad(set_to_none=True)
         loss.backward()
+        clip(net.parameters())
         opt.step()
         step += 1
         loss_value = loss.item()
@@ -745,7 +779,8 @@ def main(argv: list[str] | None = None) -> int:
             pbar.write(msg, file=sys.stdout)
             if row["val_cpsnr"] > best:
                 best = row["val_cpsnr"]
-                save_checkpoint(out / "best.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start)
+                save_checkpoint(out / "best.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start,
+                                clip)
             common.write_csv(out / "history.csv", history)
             cols = [("train_loss", f"train {loss_kind} loss"), ("val_cpsnr", "val CPSNR (dB)"),
                     ("val_gain_db", "val CPSNR - MHC (dB)")]
@@ -753,7 +788,8 @@ def main(argv: list[str] | None = None) -> int:
                                                                                    for r in history)]
             common.plot_curves(out / "curves.png", history, cols, f"DemosaicNet {net.config()}")
         if rank == 0 and (step % ckpt_every == 0 or last):
-            save_checkpoint(out / "last.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start)
+            save_checkpoint(out / "last.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start,
+                            clip)
     pbar.close()
     if rank == 0:
         record = {"command": " ".join(["python training/train_demosaic.py", *sys.argv[1:]]) if argv is None else argv,

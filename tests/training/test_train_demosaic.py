@@ -340,3 +340,30 @@ def test_bfloat16_autocast_runs_only_the_residual_in_bfloat16():
         half = net(raw)
     residual = (full - base).abs().max()
     assert 0 < float((half - full).abs().max()) < 0.03 * float(residual)
+
+
+def test_adaptive_grad_clip_caps_outliers_at_a_multiple_of_the_running_norm():
+    """optim.clip_grad_factor: steady gradients pass untouched; an outlier 100x larger is scaled to exactly
+    factor x the running mean norm; the state resumes the same clipping; factor 0 never clips."""
+    p = torch.nn.Parameter(torch.zeros(4))
+
+    def step(clip, scale):
+        p.grad = torch.full((4,), 0.5 * scale)  # norm = scale
+        return clip([p])
+
+    clip = train_demosaic.AdaptiveGradClip(2.0)
+    for _ in range(20):
+        assert step(clip, 1.0) == pytest.approx(1.0)
+        assert float(p.grad.norm()) == pytest.approx(1.0)
+    assert clip.ema == pytest.approx(1.0)
+    resumed = train_demosaic.AdaptiveGradClip(2.0, clip.state())
+    for c in (clip, resumed):
+        assert step(c, 100.0) == pytest.approx(100.0)
+        assert float(p.grad.norm()) == pytest.approx(2.0)
+    assert clip.state() == resumed.state()
+    off = train_demosaic.AdaptiveGradClip(0.0)
+    step(off, 1.0)
+    step(off, 100.0)
+    assert float(p.grad.norm()) == pytest.approx(100.0)
+    with pytest.raises(ValueError, match="clip_grad_factor"):
+        train_demosaic.AdaptiveGradClip(-1.0)
