@@ -56,6 +56,18 @@ def speed(args) -> list[str]:
             cells += [f"{res['mean_cpsnr']:.2f}", f"{_median_ms_per_mp(res, sizes[k]):.1f}"]
         rows.append(f"| {m} | " + " | ".join(cells) + " |")
         print(rows[-1], flush=True)
+    # the noisy case: the sequential baselines against the joint network, at one noise level
+    s = args.speed_sigma
+    rows += ["", f"With white Gaussian noise, sigma {s:g} (seed 0):", "",
+             "| method | Kodak CPSNR | Kodak ms/MP | McMaster CPSNR | McMaster ms/MP |", "|---|---|---|---|---|"]
+    for m, d in (("menon2007", None), ("malvar2004", "nlmeans"), ("menon2007", "nlmeans"), ("learned", None)):
+        cells = []
+        for k, folder in sets.items():
+            res = evaluate_demosaic(folder, m, "RGGB", 10, noise_sigma=s, seed=0, denoise=d, progress=not args.quiet)
+            cells += [f"{res['mean_cpsnr']:.2f}", f"{_median_ms_per_mp(res, sizes[k]):.1f}"]
+        name = f"{d} + {m}" if d else (m + (" (joint denoise model)" if m == "learned" else ""))
+        rows.append(f"| {name} | " + " | ".join(cells) + " |")
+        print(rows[-1], flush=True)
     return rows
 
 
@@ -89,6 +101,7 @@ def main(argv=None) -> int:
     ap.add_argument("--kodak", default=str(DATA / "kodak24"))
     ap.add_argument("--mcmaster", default=str(DATA / "mcmaster18"))
     ap.add_argument("--sigmas", default="0.01,0.02,0.05")
+    ap.add_argument("--speed-sigma", type=float, default=0.02, help="noise level of the speed table's noisy part")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", default=None, help="write the markdown table here")
     add_quiet_argument(ap)

@@ -238,10 +238,14 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
 
     ``variant="noise_free"`` (``demosaic_learned.pt``) or ``"joint_denoise"`` (``demosaic_learned_denoise.pt``,
     which takes ``noise = [sqrt(a) * 10, sqrt(b) * 100]`` for a mosaic with variance ``a x + b``; see
-    ``training/train_demosaic.py``). The joint network was trained on :mod:`isettorch.data.camera_pairs`
-    (noisy raw in normalised units, 0 = black, 1 = white level, not white-balanced -> ``camera_rgb``; ``a`` and
-    ``b`` are an item's ``meta['noise_gain']`` and ``meta['noise_floor_var']``), starting from a model trained on
-    synthetic white-balanced scenes.
+    ``training/train_demosaic.py``). The joint network is a residual 64 x 13 network trained by
+    ``configs/train/demosaic_joint_denoise.yaml`` on :mod:`isettorch.data.natural` scenes through the Camera
+    (white-balanced linear sRGB targets, 80 % of patches display-encoded; the sensor model's noise: shot, read,
+    dark, DSNU/PRNU, quantisation, with ``a``, ``b`` in the [0, 1] units of the mosaic, and white Gaussian noise,
+    ``a = 0``), starting from a ``demosaic_noise_free.yaml`` run. The noise-free network (32 x 6) predates
+    :mod:`isettorch.data.natural`: it was trained mostly on the retired ``training/synth.py`` scenes and is kept
+    because the natural-scene runs so far are weaker on strongly saturated colours (issue 15). Each JSON beside a
+    checkpoint records its command, config, steps, wall time, hardware and scores.
 
     Example:
         >>> net = load_pretrained()
