@@ -45,6 +45,13 @@ def _sizes(folder: Path) -> dict:
     return {n: a.shape[0] * a.shape[1] for n, a in load_images(folder)}
 
 
+def _label(method: str, denoiser: str | None) -> str:
+    """A noisy-table row's name: the denoiser before the demosaic, or the joint network."""
+    if denoiser:
+        return f"{denoiser} + {method}"
+    return method + (" (joint denoise model)" if method == "learned" else "")
+
+
 def speed(args) -> list[str]:
     sets = {"Kodak": Path(args.kodak), "McMaster": Path(args.mcmaster)}
     sizes = {k: _sizes(v) for k, v in sets.items()}
@@ -65,7 +72,7 @@ def speed(args) -> list[str]:
         for k, folder in sets.items():
             res = evaluate_demosaic(folder, m, "RGGB", 10, noise_sigma=s, seed=0, denoise=d, progress=not args.quiet)
             cells += [f"{res['mean_cpsnr']:.2f}", f"{_median_ms_per_mp(res, sizes[k]):.1f}"]
-        name = f"{d} + {m}" if d else (m + (" (joint denoise model)" if m == "learned" else ""))
+        name = _label(m, d)
         rows.append(f"| {name} | " + " | ".join(cells) + " |")
         print(rows[-1], flush=True)
     return rows
@@ -89,7 +96,7 @@ def noise(args) -> list[str]:
         for s in sigmas:
             res = evaluate_demosaic(folder, m, "RGGB", 10, noise_sigma=s, seed=0, denoise=d, progress=not args.quiet)
             cells.append(f"{res['mean_cpsnr']:.2f}")
-        name = f"{d} + {m}" if d else (m + (" (joint denoise model)" if m == "learned" else ""))
+        name = _label(m, d)
         rows.append(f"| {name} | " + " | ".join(cells) + " |")
         print(rows[-1], flush=True)
     return rows
