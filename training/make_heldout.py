@@ -3,7 +3,7 @@
 Usage::
 
     python training/make_heldout.py --out out/heldout_natural --n 24 --size 256 [--source natural|isettorch]
-        [--domain mixed]
+        [--domain mixed] [--colour-space linear_srgb] [--disable colour_correlation ...]
     isettorch demosaic-eval out/heldout_natural --method learned --crop 10
 """
 
@@ -22,7 +22,7 @@ if str(ROOT) not in sys.path:
 
 from isettorch._progress import add_quiet_argument, progress  # noqa: E402
 from isettorch.data import natural as nat  # noqa: E402
-from training.train_demosaic import ScenePool  # noqa: E402
+from training.train_demosaic import COLOUR_SPACES, ScenePool  # noqa: E402
 
 HELDOUT_SEED = 3_000_029_000  # far from the training (seed, step, rank) and validation seeds
 
@@ -36,12 +36,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--source", choices=("natural", "isettorch"), default="natural")
     ap.add_argument("--domain", choices=nat.DOMAINS, default="mixed")
+    ap.add_argument("--colour-space", choices=COLOUR_SPACES, default="camera_rgb",
+                    help="the scenes' RGB (data.colour_space of the training configs; natural source only)")
+    ap.add_argument("--disable", nargs="*", default=[], metavar="COMPONENT",
+                    help=f"natural-generator components to switch off (from {nat.COMPONENTS}), e.g. colour_correlation "
+                         "for a held-out set with chromatic fine detail")
     add_quiet_argument(ap)
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    pool = ScenePool({"data": {"source": args.source, "patch": args.size, "scene_size": args.size}}, HELDOUT_SEED)
+    data = {"source": args.source, "patch": args.size, "scene_size": args.size, "disable": list(args.disable),
+            "colour_space": args.colour_space}
+    pool = ScenePool({"data": data}, HELDOUT_SEED)
     for i in progress(range(args.n), desc="held-out", unit="image", quiet=args.quiet):
         g = torch.Generator().manual_seed(HELDOUT_SEED + i)
         x = nat.expose_and_encode(pool.render(i)[None], g, args.domain)[0].permute(1, 2, 0).numpy()
