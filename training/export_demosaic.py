@@ -116,8 +116,12 @@ def main(argv: list[str] | None = None) -> int:
     if heldout:
         info["heldout_camera_pairs"] = heldout
     (out / f"{args.name}.json").write_text(json.dumps(info, indent=2, default=str))
-    lines = ["# Shipped learned demosaic (`isettorch.isp.learned.load_pretrained()`)", "",
-             f"- command: `{info['command']}`", f"- network: DemosaicNet {ck['net_config']}, "
+    variant = '"joint_denoise"' if ck["net_config"].get("noise_inputs", 0) else ""
+    lines = [f"# Shipped learned demosaic (`isettorch.isp.learned.load_pretrained({variant})`)", "",
+             f"- command: `{info['command']}`"]
+    if cfg.get("init"):
+        lines.append(f"- initialised from: `{cfg['init']}` (an earlier run's checkpoint: train that run first)")
+    lines += [f"- network: DemosaicNet {ck['net_config']}, "
              f"{info['parameters']} parameters", f"- data: {json.dumps(info['data'], default=str)}",
              f"- checkpoint: {args.which} by {selected_by}, step {ck['step']}, "
              f"training wall time {info['wall_s']} s", f"- hardware: {json.dumps(info['hardware'], default=str)}",

@@ -23,7 +23,7 @@ def test_export_joint_model_card(tmp_path, monkeypatch):
     net = DemosaicNet(channels=8, depth=2, noise_inputs=2)
     torch.nn.init.normal_(net.head.weight, std=0.02)
     opt = torch.optim.Adam(net.parameters())
-    cfg = {"data": {"source": "natural"}, "noise": {"enabled": True}}
+    cfg = {"data": {"source": "natural"}, "noise": {"enabled": True}, "init": "out/noise_free/best.pt"}
     run = tmp_path / "run"
     run.mkdir()
     train_demosaic.save_checkpoint(run / "best.pt", net, opt, 7, cfg, 30.0, [{"step": 7, "val_cpsnr": 30.0}], 1.0)
@@ -48,4 +48,7 @@ def test_export_joint_model_card(tmp_path, monkeypatch):
     assert scores["crop10"] == pytest.approx(clean, abs=1e-3)
     assert scores["sigma0.02_crop10"] == pytest.approx(noisy, abs=1e-3)
     assert noisy < clean - 3  # std 0.02 noise (34 dB PSNR alone) costs far more than 3 dB on smooth images
-    assert "| kodak24 | " in (out / "jt.md").read_text()
+    text = (out / "jt.md").read_text()
+    assert "| kodak24 | " in text
+    assert 'load_pretrained("joint_denoise")' in text.splitlines()[0]  # the card names the variant it documents
+    assert "initialised from: `out/noise_free/best.pt`" in text
