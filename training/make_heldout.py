@@ -4,6 +4,11 @@ Usage::
 
     python training/make_heldout.py --out out/heldout_natural --n 24 --size 256 [--source natural|isettorch]
         [--domain mixed] [--colour-space linear_srgb] [--disable colour_correlation ...]
+        [--channel-gains 1 0.15 0.15 --grain-std 0.005]
+
+``--channel-gains`` and ``--grain-std`` make a stress set for the failure that a colour-ratio prior has on saturated
+colours: green and blue scaled down (the scene's structure stays in all channels) plus seeded Gaussian grain drawn
+independently per channel, before the 8-bit rounding (training/runs/natural_v4_64x13_2026-11-26/PER_IMAGE_KODAK.md).
     isettorch demosaic-eval out/heldout_natural --method learned --crop 10
 """
 
@@ -41,8 +46,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--disable", nargs="*", default=[], metavar="COMPONENT",
                     help=f"natural-generator components to switch off (from {nat.COMPONENTS}), e.g. colour_correlation "
                          "for a held-out set with chromatic fine detail")
+    ap.add_argument("--channel-gains", type=float, nargs=3, default=None, metavar=("R", "G", "B"),
+                    help="scale the encoded image's channels (a stress set: e.g. 1 0.15 0.15 for saturated reds)")
+    ap.add_argument("--grain-std", type=float, default=0.0,
+                    help="std of seeded Gaussian grain added independently to each channel (values in [0, 1])")
     add_quiet_argument(ap)
     args = ap.parse_args(argv)
+    if args.channel_gains is not None and any(not 0 <= c <= 1 for c in args.channel_gains):
+        raise ValueError(f"--channel-gains: expected three values in [0, 1], got {args.channel_gains}")
+    if not args.grain_std >= 0:
+        raise ValueError(f"--grain-std: expected a std >= 0, got {args.grain_std}")
     torch.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -52,6 +65,11 @@ def main(argv: list[str] | None = None) -> int:
     for i in progress(range(args.n), desc="held-out", unit="image", quiet=args.quiet):
         g = torch.Generator().manual_seed(HELDOUT_SEED + i)
         x = nat.expose_and_encode(pool.render(i)[None], g, args.domain)[0].permute(1, 2, 0).numpy()
+        if args.channel_gains is not None:
+            x = x * np.asarray(args.channel_gains, dtype=x.dtype)
+        if args.grain_std > 0:  # values outside [0, 1] after the grain are clipped, as 8-bit storage must
+            grain = torch.randn(x.shape, generator=g, dtype=torch.float64).numpy() * args.grain_std
+            x = np.clip(x + grain, 0, 1)
         Image.fromarray(np.round(x * 255).astype(np.uint8)).save(out / f"{args.source}_{i:03d}.png")
     return 0
 

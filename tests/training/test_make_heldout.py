@@ -33,3 +33,16 @@ def test_deterministic_and_disable_changes_the_scenes(tmp_path):
 def test_bad_component_is_named(tmp_path):
     with pytest.raises(ValueError, match="disable"):
         make_heldout.main(["--out", str(tmp_path), "--n", "1", "--size", "32", "--quiet", "--disable", "sky"])
+
+
+def test_stress_set_gains_and_grain(tmp_path):
+    base = _write(tmp_path / "base").astype(float)
+    dark = _write(tmp_path / "dark", "--channel-gains", "1", "0.25", "0.25").astype(float)
+    np.testing.assert_array_equal(dark[..., 0], base[..., 0])
+    np.testing.assert_allclose(dark[..., 1:], np.round(base[..., 1:] / 255 * 0.25 * 255), atol=1)  # 8-bit rounding
+    grainy = _write(tmp_path / "grain", "--grain-std", "0.02").astype(float)
+    d = (grainy - base) / 255
+    inner = (base > 20) & (base < 235)  # away from the clip at 0 and 1
+    assert abs(d[inner].std() - 0.02) < 0.003  # the grain's std, to the 8-bit rounding's
+    with pytest.raises(ValueError, match="--channel-gains"):
+        make_heldout.main(["--out", str(tmp_path / "x"), "--channel-gains", "1", "2", "1"])
