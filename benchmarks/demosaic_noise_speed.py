@@ -55,26 +55,23 @@ def _label(method: str, denoiser: str | None) -> str:
 def speed(args) -> list[str]:
     sets = {"Kodak": Path(args.kodak), "McMaster": Path(args.mcmaster)}
     sizes = {k: _sizes(v) for k, v in sets.items()}
-    rows = ["| method | Kodak CPSNR | Kodak ms/MP | McMaster CPSNR | McMaster ms/MP |", "|---|---|---|---|---|"]
-    for m in SPEED_METHODS:
+    header = ["| method | Kodak CPSNR | Kodak ms/MP | McMaster CPSNR | McMaster ms/MP |", "|---|---|---|---|---|"]
+
+    def row(name: str, method: str, **kw) -> str:
         cells = []
         for k, folder in sets.items():
-            res = evaluate_demosaic(folder, m, "RGGB", 10, progress=not args.quiet)
+            res = evaluate_demosaic(folder, method, "RGGB", 10, progress=not args.quiet, **kw)
             cells += [f"{res['mean_cpsnr']:.2f}", f"{_median_ms_per_mp(res, sizes[k]):.1f}"]
-        rows.append(f"| {m} | " + " | ".join(cells) + " |")
-        print(rows[-1], flush=True)
+        line = f"| {name} | " + " | ".join(cells) + " |"
+        print(line, flush=True)
+        return line
+
+    rows = header + [row(m, m) for m in SPEED_METHODS]
     # the noisy case: the sequential baselines against the joint network, at one noise level
     s = args.speed_sigma
-    rows += ["", f"With white Gaussian noise, sigma {s:g} (seed 0):", "",
-             "| method | Kodak CPSNR | Kodak ms/MP | McMaster CPSNR | McMaster ms/MP |", "|---|---|---|---|---|"]
-    for m, d in (("menon2007", None), ("malvar2004", "nlmeans"), ("menon2007", "nlmeans"), ("learned", None)):
-        cells = []
-        for k, folder in sets.items():
-            res = evaluate_demosaic(folder, m, "RGGB", 10, noise_sigma=s, seed=0, denoise=d, progress=not args.quiet)
-            cells += [f"{res['mean_cpsnr']:.2f}", f"{_median_ms_per_mp(res, sizes[k]):.1f}"]
-        name = _label(m, d)
-        rows.append(f"| {name} | " + " | ".join(cells) + " |")
-        print(rows[-1], flush=True)
+    rows += ["", f"With white Gaussian noise, sigma {s:g} (seed 0):", "", *header]
+    rows += [row(_label(m, d), m, noise_sigma=s, seed=0, denoise=d)
+             for m, d in (("menon2007", None), ("malvar2004", "nlmeans"), ("menon2007", "nlmeans"), ("learned", None))]
     return rows
 
 
@@ -96,8 +93,7 @@ def noise(args) -> list[str]:
         for s in sigmas:
             res = evaluate_demosaic(folder, m, "RGGB", 10, noise_sigma=s, seed=0, denoise=d, progress=not args.quiet)
             cells.append(f"{res['mean_cpsnr']:.2f}")
-        name = _label(m, d)
-        rows.append(f"| {name} | " + " | ".join(cells) + " |")
+        rows.append(f"| {_label(m, d)} | " + " | ".join(cells) + " |")
         print(rows[-1], flush=True)
     return rows
 

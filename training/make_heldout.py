@@ -27,6 +27,7 @@ if str(ROOT) not in sys.path:
 
 from isettorch._progress import add_quiet_argument, progress  # noqa: E402
 from isettorch.data import natural as nat  # noqa: E402
+from isettorch.sensor.noise import poisson_gaussian  # noqa: E402
 from training.train_demosaic import COLOUR_SPACES, ScenePool  # noqa: E402
 
 HELDOUT_SEED = 3_000_029_000  # far from the training (seed, step, rank) and validation seeds
@@ -67,9 +68,9 @@ def main(argv: list[str] | None = None) -> int:
         x = nat.expose_and_encode(pool.render(i)[None], g, args.domain)[0].permute(1, 2, 0).numpy()
         if args.channel_gains is not None:
             x = x * np.asarray(args.channel_gains, dtype=x.dtype)
-        if args.grain_std > 0:  # values outside [0, 1] after the grain are clipped, as 8-bit storage must
-            grain = torch.randn(x.shape, generator=g, dtype=torch.float64).numpy() * args.grain_std
-            x = np.clip(x + grain, 0, 1)
+        if args.grain_std > 0:  # the sensor's white Gaussian noise (a = 0); clipped to [0, 1], as 8-bit storage must
+            grainy = poisson_gaussian(torch.from_numpy(x).to(torch.float64), 0.0, args.grain_std, g)
+            x = np.clip(grainy.numpy(), 0, 1)
         Image.fromarray(np.round(x * 255).astype(np.uint8)).save(out / f"{args.source}_{i:03d}.png")
     return 0
 
