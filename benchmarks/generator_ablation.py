@@ -6,7 +6,9 @@ selected on the test sets (each run keeps its best checkpoint by held-out *synth
         --table benchmarks/GENERATOR_ABLATION.md [--components palette fine_detail ...] [--set KEY=VALUE ...]
 
 Runs are resumable (each is ``training/train_demosaic.py`` with ``--set data.disable=[name]`` in its own folder; a
-finished run is not retrained). The table: one row per configuration ("all components" first), columns Kodak and
+finished run is not retrained). Every run trains on the current generator (``data.natural={}``:
+``NATURAL_DEFAULTS``, whatever distribution the config pins, e.g. the version-4 one of
+``demosaic_noise_free.yaml``). The table: one row per configuration ("all components" first), columns Kodak and
 McMaster CPSNR and their difference from "all components", the run's steps, wall time and best validation CPSNR.
 A real run needs far more CPU than a test: ~8 configurations x the budget.
 """
@@ -32,7 +34,7 @@ CONFIG = ROOT / "configs" / "train" / "demosaic_noise_free.yaml"
 
 def run_one(name: str, disable: list[str], args) -> dict:
     out = Path(args.out) / name.replace(" ", "_")
-    sets = [f"data.disable={json.dumps(disable)}", "eval.every=0", *args.set]
+    sets = [f"data.disable={json.dumps(disable)}", "data.natural={}", "eval.every=0", *args.set]
     cmd = ["--config", str(args.config), "--out", str(out), "--steps", str(args.steps), "--quiet",
            "--threads", str(args.threads), "--set", *sets]
     rec_path = out / "record.json"

@@ -70,7 +70,9 @@ TARGETS = ("noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb")  # besi
 # 3: 2026-11-25 pairs rendered by the Camera modules (the sensor's auto-exposure on the mosaic, its sampling).
 # 4: 2026-11-26 natural scenes: fine detail mostly achromatic (small leaves keep the material under them, detail
 #    items and leaf textures change material with probability 0.25), 2-8 materials, leaf brightness 0.1-1.
-GENERATOR_VERSION = 4
+# 5: 2026-11-26 natural scenes: colour changes at finer scales (chromatic radius 8 px, detail items and leaf
+#    textures change material with probability 0.5) and independent three-layer grain (component "grain").
+GENERATOR_VERSION = 5
 _TARGET_CHANNELS = {"noise_free_raw": 1, "camera_rgb": 3, "xyz": 3, "linear_srgb": 3, "srgb": 3}
 
 

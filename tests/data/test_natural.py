@@ -102,7 +102,7 @@ def test_colour_correlation_makes_fine_detail_achromatic():
 
     def rgb(contrast, *off):
         cfg = nat.natural_config({"size": 48, "components": {"colour_correlation": {"contrast": [contrast] * 2}}},
-                                 disable=off)
+                                 disable=(*off, "grain"))  # grain (unshaded, per layer) is chromatic on purpose
         scene = nat.to_scene(nat.generate_natural(2, 0, cfg), dtype=torch.float64)
         return scene.project(sens.T)[0]  # the library's projection of the factored scene (no white balance:
         # the per-channel ratio below does not need it)
@@ -291,11 +291,15 @@ def _material_boundary_density(config, n=6, size=64):
 def test_colour_correlation_puts_colour_edges_at_coarse_scales():
     """Natural images change colour at coarse scales and intensity at all scales (their high-frequency colour
     bands are strongly correlated: Gunturk et al., IEEE TIP 2002): with the component on, far fewer neighbouring
-    pixels change material than with it off (every leaf and detail item a random material)."""
-    base = {"components": {"illuminant": {"mixed_probability": 0.0}, "depth_layers": {"enabled": False}}}
+    pixels change material than with it off (every leaf and detail item a random material), and fewer the larger
+    ``chromatic_radius_px`` and the smaller ``chromatic_detail_probability``."""
+    base = {"components": {"illuminant": {"mixed_probability": 0.0}, "depth_layers": {"enabled": False},
+                           "grain": {"enabled": False}}}  # the grain layers would win the argmax on dark pixels
     on = _material_boundary_density(base)
     off = _material_boundary_density(nat.natural_config(base, disable=("colour_correlation",)))
-    assert on < 0.5 * off, (on, off)
+    v4 = {"chromatic_radius_px": 16.0, "chromatic_detail_probability": 0.25}  # version 4: colour coarser still
+    coarse = _material_boundary_density({"components": {**base["components"], "colour_correlation": v4}})
+    assert coarse < 0.5 * off and coarse < on < 0.9 * off, (coarse, on, off)
 
 
 def test_leaves_smaller_than_the_chromatic_radius_keep_the_material_under_them():
@@ -304,6 +308,7 @@ def test_leaves_smaller_than_the_chromatic_radius_keep_the_material_under_them()
     smallest leaf every leaf draws a material, as with the component off."""
     flat = {"size": 48, "components": {"textured_leaves": {"enabled": False}, "fine_detail": {"enabled": False},
                                       "depth_layers": {"enabled": False}, "palette": {"materials": [6, 6]},
+                                      "grain": {"enabled": False},
                                       "colour_correlation": {"chromatic_radius_px": 1e9,
                                                              "chromatic_detail_probability": 0.0}}}
     maps = nat.generate_natural(0, 3, flat)["maps"]
@@ -311,3 +316,68 @@ def test_leaves_smaller_than_the_chromatic_radius_keep_the_material_under_them()
     flat["components"]["colour_correlation"]["chromatic_radius_px"] = 1e-3
     maps = nat.generate_natural(0, 3, flat)["maps"]
     assert int((maps.flatten(1).amax(1) > 0).sum()) >= 5
+
+
+GRAIN = {"size": 96, "components": {"grain": {"probability": 1.0, "exponent": [0.0, 0.0]},
+                                    "illuminant": {"mixed_probability": 0.0}}}
+
+
+def test_grain_dyes_partition_the_spectrum():
+    """The three grain layers (blue, green, red bands) sum to 1 at every wavelength, so equal grain is grey; each
+    peaks in its own band; bad edges are named."""
+    cfg = nat.natural_config()
+    dyes = nat.grain_dyes(cfg, WL)
+    assert dyes.shape == (3, WL.numel()) and (dyes >= 0).all()
+    assert torch.allclose(dyes.sum(0), torch.ones_like(WL), atol=1e-12)
+    assert [float(WL[int(d.argmax())]) for d in dyes] == [400.0, pytest.approx(540.0, abs=20), 700.0]
+    bad = nat.natural_config({"components": {"grain": {"dye_edges_nm": [600.0, 500.0]}}})
+    with pytest.raises(ValueError, match="dye_edges_nm"):
+        nat.grain_dyes(bad, WL)
+
+
+def test_grain_is_independent_per_layer_with_its_specified_mean():
+    """Grain maps: log-normal with mean ``amplitude`` (E[exp(c n - c^2/2)] = 1 for unit Gaussian n), layers
+    uncorrelated (independent draws), and the spectrum of white grain flat (slope ~0, exponent 0)."""
+    s = nat.generate_natural(2, seed=5, config=GRAIN)
+    amp = s["meta"]["grain_amplitude"]
+    lo, hi = nat.NATURAL_DEFAULTS["components"]["grain"]["amplitude"]
+    assert lo <= amp <= hi
+    grain = s["maps"][-3:].double()
+    assert torch.allclose(grain.mean((1, 2)), torch.full((3,), amp, dtype=torch.float64), rtol=0.05)
+    logs = grain.log().flatten(1)
+    assert torch.allclose(logs.std(1), torch.full((3,), 0.7, dtype=torch.float64), rtol=0.05)  # the contrast
+    c = torch.corrcoef(logs)
+    assert (c - torch.eye(3, dtype=torch.float64)).abs().max() < 0.05
+    assert abs(st.power_spectrum_slope(logs[0].reshape(96, 96))) < 0.3
+    assert torch.equal(s["spectra"][-3:], nat.grain_dyes(nat.natural_config(GRAIN), WL) * s["illuminant"][None])
+
+
+def test_grain_draws_last_so_the_other_maps_do_not_change():
+    """With grain off the generator draws exactly the scene it draws with grain on, less the three grain layers
+    (the version-4 distribution is reachable by config: natural.py's docstring)."""
+    on = nat.generate_natural(1, seed=3, config=GRAIN)
+    off = nat.generate_natural(1, seed=3, config=nat.natural_config(GRAIN, disable=("grain",)))
+    assert on["meta"]["grain_amplitude"] is not None and off["meta"]["grain_amplitude"] is None
+    assert torch.equal(on["maps"][:-3], off["maps"]) and torch.equal(on["spectra"][:-3], off["spectra"])
+
+
+def test_training_configs_name_valid_generator_settings():
+    """Every configs/train demosaic config's data.natural is a valid override (a misspelt key would raise only
+    after minutes of bank rendering), and the version-4 pin of the first noise-free stage differs from the
+    defaults exactly where natural.py's docstring says."""
+    from pathlib import Path
+
+    import yaml
+
+    root = Path(__file__).resolve().parents[2] / "configs" / "train"
+    configs = {p.name: yaml.safe_load(p.read_text()) for p in sorted(root.glob("demosaic*.yaml"))}
+    assert "demosaic_noise_free_finetune.yaml" in configs
+    for cfg in configs.values():
+        nat.natural_config((cfg.get("data") or {}).get("natural") or {})  # raises naming the key
+    v4 = nat.natural_config(configs["demosaic_noise_free.yaml"]["data"]["natural"])["components"]
+    v5 = nat.NATURAL_DEFAULTS["components"]
+    changed = {(c, k) for c in v5 for k in v5[c] if v4[c][k] != v5[c][k]}
+    assert changed == {("colour_correlation", "chromatic_radius_px"),
+                       ("colour_correlation", "chromatic_detail_probability"), ("grain", "enabled")}
+    assert configs["demosaic_joint_denoise.yaml"]["data"]["natural"] == configs["demosaic_noise_free.yaml"]["data"][
+        "natural"]  # the joint run shares the first stage's scene bank
