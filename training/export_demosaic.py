@@ -140,8 +140,8 @@ def main(argv: list[str] | None = None) -> int:
                      f"{a['mcmaster18'][1]} |")
     k, mc = scores.get("kodak24", {}), scores.get("mcmaster18", {})
     if scores:
-            lines.append(f"| **learned (this file)** | {k.get('crop0')} | {k.get('crop10')} | {mc.get('crop0')} | "
-                     f"{mc.get('crop10')} |")
+        cell = [d.get(c, "not scored") for d in (k, mc) for c in ("crop0", "crop10")]
+        lines.append(f"| **learned (this file)** | {cell[0]} | {cell[1]} | {cell[2]} | {cell[3]} |")
     if args.noise_sigmas and scores:
         lines += ["", "Noisy benchmarks (white Gaussian noise of std sigma on the [0, 1] mosaic, seed 0, crop 10; the "
                   "network is given (a, b) = (0, sigma^2)):", "",

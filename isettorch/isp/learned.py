@@ -242,10 +242,11 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
     ``configs/train/demosaic_joint_denoise.yaml`` on :mod:`isettorch.data.natural` scenes through the Camera
     (white-balanced linear sRGB targets, 80 % of patches display-encoded; the sensor model's noise: shot, read,
     dark, DSNU/PRNU, quantisation, with ``a``, ``b`` in the [0, 1] units of the mosaic, and white Gaussian noise,
-    ``a = 0``), starting from a ``demosaic_noise_free.yaml`` run. The noise-free network (32 x 6) predates
-    :mod:`isettorch.data.natural`: it was trained mostly on the retired ``training/synth.py`` scenes and is kept
-    because the natural-scene runs so far are weaker on strongly saturated colours (issue 15). Each JSON beside a
-    checkpoint records its command, config, steps, wall time, hardware and scores.
+    ``a = 0``), starting from a ``demosaic_noise_free.yaml`` run. The noise-free network is the same residual
+    64 x 13, trained from :mod:`isettorch.data.natural` scenes only in two stages:
+    ``demosaic_noise_free.yaml`` (generator version 4) then ``demosaic_noise_free_finetune.yaml`` (version 5, with
+    chromatic detail and independent three-layer grain). Each JSON beside a checkpoint records its command, config,
+    steps, wall time, hardware and scores; the model cards (``.md``) add held-out synthetic screens.
 
     Example:
         >>> net = load_pretrained()
