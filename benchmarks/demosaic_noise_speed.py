@@ -67,6 +67,7 @@ def speed(args) -> list[str]:
         return line
 
     rows = header + [row(m, m) for m in SPEED_METHODS]
+    rows.append(row("learned + self-ensemble (2 passes)", "learned", self_ensemble=True))
     # the noisy case: the sequential baselines against the joint network, at one noise level
     s = args.speed_sigma
     rows += ["", f"With white Gaussian noise, sigma {s:g} (seed 0):", "", *header]

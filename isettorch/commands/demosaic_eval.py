@@ -41,6 +41,9 @@ def register(sub) -> None:
     p.add_argument("--dtype", choices=("float32", "float64"), default="float32", help="compute dtype (float32)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--self-ensemble", action="store_true",
+                   help="learned method or a DemosaicNet --model: average the network on the mosaic and its transpose "
+                        "(two passes)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_quiet_argument(p)
     p.set_defaults(func=run)
@@ -71,9 +74,15 @@ def run(args) -> int:
         model = load_demosaic_model(args.model, args.model_class, kwargs=kwargs, device=args.device, dtype=dtype)
     elif args.model_class is not None or args.model_kwargs is not None:
         raise ValueError("--model-class/--model-kwargs: only with --model FILE")
+    extra = {}
+    if args.self_ensemble:
+        if model is None and args.method != "learned":
+            raise ValueError(f"--self-ensemble: only for --method learned or a DemosaicNet --model, got method "
+                             f"{args.method!r}")
+        extra["self_ensemble"] = True
     res = evaluate_demosaic(args.folder, args.method, args.pattern.upper(), args.crop, dtype=dtype,
                             device=args.device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
-                            seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet)
+                            seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet, **extra)
     if args.json:
         res["mean_cpsnr"] = _finite_or_none(res["mean_cpsnr"])
         for item in res["images"]:

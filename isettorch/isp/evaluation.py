@@ -280,6 +280,8 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
         name = type(method).__name__
     else:
         raise TypeError(f"method: expected a method name or a callable, got {type(method).__name__}")
+    if kwargs.get("self_ensemble"):
+        name += " + self-ensemble"
     items = load_images(images)
 
     call = _demosaic_call(method, model, pattern, noise_sigma, noise_shot, device, dtype, kwargs)
@@ -344,7 +346,10 @@ def _demosaic_call(method, model, pattern, noise_sigma, noise_shot, device, dtyp
         net = model
         if isinstance(net, learned.DemosaicNet):
             return lambda raw: learned.demosaic_learned(raw, pattern, model=net,
-                                                        noise=feats if net.noise_inputs else None)
+                                                        noise=feats if net.noise_inputs else None, **kwargs)
+        if kwargs:
+            raise ValueError(f"model: options {sorted(kwargs)} are for a DemosaicNet or the learned method, not "
+                             f"{type(net).__name__}")
         return lambda raw: net(raw)
     if method == "learned" and "model" not in kwargs:
         net = learned.load_pretrained("joint_denoise" if noisy else "noise_free", device=device, dtype=dtype)

@@ -180,7 +180,7 @@ def noise_features(shot_gain, read_var) -> torch.Tensor:
 
 
 def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: DemosaicNet | None = None,
-                     noise: torch.Tensor | None = None) -> torch.Tensor:
+                     noise: torch.Tensor | None = None, self_ensemble: bool = False) -> torch.Tensor:
     """Demosaic a Bayer mosaic with a :class:`DemosaicNet` (default: the shipped checkpoint).
 
     Args:
@@ -188,18 +188,26 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
         pattern: Bayer pattern, one of ``RGGB``, ``BGGR``, ``GRBG``, ``GBRG``.
         model: a network; ``None`` loads :func:`load_pretrained` (cached).
         noise: ``(B, noise_inputs)`` noise parameters for a joint denoise+demosaic network.
+        self_ensemble: average the network on the mosaic and on its transpose (transposed back): an RGGB
+            mosaic transposes to an RGGB mosaic, so both passes are valid inputs (geometric self-ensemble:
+            Timofte, Rothe & Van Gool, CVPR 2016; Lim et al., EDSR+, CVPRW 2017). Two network passes; the result
+            is exactly transpose-equivariant. Default False (one pass).
 
     Returns:
         ``(B, 3, H, W)`` RGB (not clipped).
     """
     raw = _check_raw(raw)
     pattern = _check_pattern(pattern)
+    if not isinstance(self_ensemble, bool):
+        raise ValueError(f"self_ensemble: expected True or False, got {self_ensemble!r}")
     if model is None:
         model = load_pretrained(device=raw.device, dtype=raw.dtype)
     x, dy, dx = _to_rggb(raw, pattern)
     if x.shape[-2] % 2 or x.shape[-1] % 2:  # pragma: no cover - pads are symmetric so sizes stay even
         raise ValueError("raw: internal padding produced an odd size")
     out = model(x, noise)
+    if self_ensemble:
+        out = 0.5 * (out + model(x.transpose(-1, -2), noise).transpose(-1, -2))
     return out[..., dy:dy + raw.shape[-2], dx:dx + raw.shape[-1]]
 
 

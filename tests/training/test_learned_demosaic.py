@@ -169,3 +169,54 @@ def test_joint_denoise_checkpoint_beats_malvar_on_noisy_crops():
     assert ours > mhc + 1.0, (ours, mhc)
     with pytest.raises(ValueError, match="variant"):
         learned.load_pretrained("nope")
+
+
+def test_self_ensemble_is_the_mean_of_both_passes_and_transpose_equivariant():
+    """self_ensemble: the mean of the network on the mosaic and (transposed back) on its transpose, computed here
+    by hand; the result is exactly transpose-equivariant, which one pass of a random network is not. For BGGR the
+    transposed RGGB-aligned mosaic is still RGGB (the pad is symmetric)."""
+    torch.manual_seed(3)
+    net = DemosaicNet(channels=8, depth=3, residual=True).double()
+    torch.nn.init.normal_(net.head.weight, std=0.05)
+    raw = torch.rand(2, 1, 20, 16, dtype=torch.float64)
+    with torch.no_grad():
+        one = demosaic_learned(raw, "RGGB", model=net)
+        two = demosaic_learned(raw, "RGGB", model=net, self_ensemble=True)
+        by_hand = 0.5 * (net(raw) + net(raw.mT).mT)
+        torch.testing.assert_close(two, by_hand, rtol=0, atol=1e-14)
+        swapped = demosaic_learned(raw.mT, "RGGB", model=net, self_ensemble=True)
+        torch.testing.assert_close(swapped, two.mT, rtol=0, atol=1e-14)
+        assert float((demosaic_learned(raw.mT, "RGGB", model=net) - one.mT).abs().max()) > 1e-4
+        bggr = demosaic_learned(raw, "BGGR", model=net, self_ensemble=True)
+        padded = torch.nn.functional.pad(raw, (1, 1, 1, 1), mode="reflect")
+        torch.testing.assert_close(bggr, (0.5 * (net(padded) + net(padded.mT).mT))[..., 1:-1, 1:-1], rtol=0,
+                                   atol=1e-14)
+    with pytest.raises(ValueError, match="self_ensemble"):
+        demosaic_learned(raw, "RGGB", model=net, self_ensemble=1)
+
+
+def test_self_ensemble_through_evaluation_and_cli(tmp_path, capsys):
+    """evaluate_demosaic and demosaic-eval --self-ensemble run the two-pass learned method (a DemosaicNet file),
+    name it, and refuse it for a classical method."""
+    import json
+
+    from PIL import Image
+
+    from isettorch.cli import main
+    from isettorch.isp.evaluation import evaluate_demosaic
+
+    torch.manual_seed(4)
+    net = DemosaicNet(channels=8, depth=3, residual=True)
+    torch.nn.init.normal_(net.head.weight, std=0.05)
+    rng = np.random.default_rng(0)
+    Image.fromarray(rng.integers(0, 256, (24, 20, 3), dtype=np.uint8)).save(tmp_path / "a.png")
+    one = evaluate_demosaic(tmp_path, model=net)
+    two = evaluate_demosaic(tmp_path, model=net, self_ensemble=True)
+    assert two["method"] == "model:DemosaicNet + self-ensemble" and two["mean_cpsnr"] != one["mean_cpsnr"]
+    torch.save({"model": net.state_dict(), "net_config": net.config()}, tmp_path / "net.pt")
+    assert main(["demosaic-eval", str(tmp_path), "--model", str(tmp_path / "net.pt"), "--self-ensemble", "--json",
+                 "--quiet"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["mean_cpsnr"] == pytest.approx(two["mean_cpsnr"], abs=1e-6)
+    with pytest.raises(ValueError, match="--self-ensemble"):
+        main(["demosaic-eval", str(tmp_path), "--method", "menon2007", "--self-ensemble"])
