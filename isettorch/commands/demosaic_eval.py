@@ -74,12 +74,7 @@ def run(args) -> int:
         model = load_demosaic_model(args.model, args.model_class, kwargs=kwargs, device=args.device, dtype=dtype)
     elif args.model_class is not None or args.model_kwargs is not None:
         raise ValueError("--model-class/--model-kwargs: only with --model FILE")
-    extra = {}
-    if args.self_ensemble:
-        if model is None and args.method != "learned":
-            raise ValueError(f"--self-ensemble: only for --method learned or a DemosaicNet --model, got method "
-                             f"{args.method!r}")
-        extra["self_ensemble"] = True
+    extra = {"self_ensemble": True} if args.self_ensemble else {}  # evaluate_demosaic checks the method
     res = evaluate_demosaic(args.folder, args.method, args.pattern.upper(), args.crop, dtype=dtype,
                             device=args.device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
                             seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet, **extra)

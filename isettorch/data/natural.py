@@ -405,6 +405,8 @@ def _grain(cfg, g, h, w) -> tuple[torch.Tensor, float]:
     natural-v4 run and its synthetic stress set, ``training/make_heldout.py --channel-gains``)."""
     c = cfg["components"]["grain"]
     lo, hi = (float(x) for x in c["amplitude"])
+    if not 0 < lo <= hi:
+        raise ValueError(f"grain: expected 0 < amplitude[0] <= amplitude[1] (fractions of a white), got {[lo, hi]}")
     amp = math.exp(_u(g, math.log(lo), math.log(hi)))
     s, contrast = _u(g, *c["exponent"]), float(c["contrast"])
     n = torch.stack([_tex.power_law_noise(h, w, s, g) for _ in range(3)])

@@ -281,6 +281,9 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
     else:
         raise TypeError(f"method: expected a method name or a callable, got {type(method).__name__}")
     if kwargs.get("self_ensemble"):
+        if model is None and method != "learned":
+            raise ValueError(f"self_ensemble (--self-ensemble): only for the learned method or a DemosaicNet model, "
+                             f"got method {method!r}")
         name += " + self-ensemble"
     items = load_images(images)
 

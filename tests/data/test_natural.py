@@ -333,6 +333,8 @@ def test_grain_dyes_partition_the_spectrum():
     bad = nat.natural_config({"components": {"grain": {"dye_edges_nm": [600.0, 500.0]}}})
     with pytest.raises(ValueError, match="dye_edges_nm"):
         nat.grain_dyes(bad, WL)
+    with pytest.raises(ValueError, match="amplitude"):
+        nat.generate_natural(0, 0, {"size": 32, "components": {"grain": {"probability": 1.0, "amplitude": [0, 0.01]}}})
 
 
 def test_grain_is_independent_per_layer_with_its_specified_mean():
