@@ -44,6 +44,7 @@ import argparse
 import functools
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -670,13 +671,18 @@ def main(argv: list[str] | None = None) -> int:
     cfg = common.load_config(args.config, args.set)
     if args.steps is not None:
         cfg.setdefault("optim", {})["steps"] = args.steps
-    rank, world, is_dist = common.dist_setup()
+    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    # the process group's backend follows the device asked for (gloo for --device cpu on a machine with a GPU)
+    rank, world, is_dist = common.dist_setup("nccl" if device.type == "cuda" else "gloo")
     threads = args.threads or int(cfg.get("threads", 0))
     if threads:
         torch.set_num_threads(threads)
-    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     if device.type == "cuda" and is_dist:
-        device = torch.device("cuda", rank % torch.cuda.device_count())
+        local, n_gpu = int(os.environ.get("LOCAL_RANK", rank)), torch.cuda.device_count()
+        if local >= n_gpu:  # NCCL cannot share one GPU between processes
+            raise ValueError(f"--device cuda: torchrun started {world} processes, each needs a GPU of its own and "
+                             f"this node has {n_gpu}; use --device cpu or --nproc_per_node {n_gpu}")
+        device = torch.device("cuda", local)
     out = Path(args.out or cfg.get("out", "out/train_demosaic"))
     out.mkdir(parents=True, exist_ok=True)
     seed = int(cfg.get("seed", 0))

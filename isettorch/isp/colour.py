@@ -76,7 +76,7 @@ def apply_matrix(img: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
         torch.Size([1, 3, 2, 2])
     """
     _check_image(img)
-    m = matrix.to(img.dtype)
+    m = matrix.to(device=img.device, dtype=img.dtype)  # the image's device: a processor left on the CPU still runs
     if m.dim() not in (2, 3) or m.shape[-1] != img.shape[1]:
         raise ValueError(f"matrix: expected shape (K, {img.shape[1]}) or (B, K, {img.shape[1]}) for an image with "
                          f"{img.shape[1]} channels, got {tuple(m.shape)}")
@@ -90,7 +90,7 @@ def apply_matrix(img: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
 def apply_gains(img: torch.Tensor, gains: torch.Tensor) -> torch.Tensor:
     """Per-channel gains (a diagonal matrix): (B, C, H, W) * gains (C,) or (B, C)."""
     _check_image(img)
-    g = gains.to(img.dtype)
+    g = gains.to(device=img.device, dtype=img.dtype)
     if g.dim() == 1:
         g = g.unsqueeze(0)
     if g.dim() != 2 or g.shape[-1] != img.shape[1] or g.shape[0] not in (1, img.shape[0]):
@@ -263,7 +263,7 @@ def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channe
     if (means.detach() <= 0).any():
         raise ValueError(f"{name}: every channel needs a positive mean to be balanced, got channel means "
                          f"{means.detach().tolist()}")
-    wt = white.to(means.dtype).to(means.device)
+    wt = white.to(device=means.device, dtype=means.dtype)
     if wt.dim() == 1:
         wt = wt.unsqueeze(0)
     if wt.shape[-1] != means.shape[-1]:

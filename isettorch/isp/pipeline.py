@@ -251,7 +251,7 @@ class ImageProcessor(nn.Module):
 
     def _sensor_white_target(self, matrix: torch.Tensor) -> torch.Tensor:
         # The sensor value that the colour matrix renders as the correction white (least squares for C > 3).
-        target = self.white_xyz.to(matrix.dtype).to(matrix.device)
+        target = self.white_xyz.to(device=matrix.device, dtype=matrix.dtype)
         return torch.linalg.lstsq(matrix.double(), target.double()[:, None]).solution[:, 0].to(matrix.dtype)
 
     def fit_raw(self, raw) -> ImageProcessor:
@@ -313,7 +313,7 @@ class ImageProcessor(nn.Module):
             xyz = xyz.clamp_min(0)
         xyz_bal = xyz
         if space == "xyz":
-            xyz_bal = ic(xyz, white=self.white_xyz.to(xyz.dtype))
+            xyz_bal = ic(xyz, white=self.white_xyz.to(device=xyz.device, dtype=xyz.dtype))
             gains = getattr(ic, "last_gains", None)
         rgb = self.xyz_to_display(xyz_bal)
         scale = self._scale(rgb, sensor, input_max)
@@ -336,7 +336,7 @@ class ImageProcessor(nn.Module):
         if self.scaling in ("max", "percentile"):
             return torch.where(lit, ones / safe, torch.zeros_like(peak))
         # ISETCam displayRender ('analog'): img / max(img) * (max volts / voltage swing).
-        ratio = sensor.flatten(1).amax(1) if input_max is None else input_max.to(rgb.dtype)
+        ratio = sensor.flatten(1).amax(1) if input_max is None else input_max.to(device=rgb.device, dtype=rgb.dtype)
         return torch.where(lit, ratio.clamp_min(0) / safe, torch.zeros_like(peak))
 
     def extra_repr(self) -> str:
