@@ -9,6 +9,10 @@ Reporting only: Kodak and McMaster are test sets (nothing here selects or tunes 
 
     OMP_NUM_THREADS=1 python benchmarks/demosaic_noise_speed.py speed --out benchmarks/DEMOSAIC_SPEED.md
     OMP_NUM_THREADS=1 python benchmarks/demosaic_noise_speed.py noise --out benchmarks/DEMOSAIC_NOISE.md
+    python benchmarks/demosaic_noise_speed.py speed --device cuda --out benchmarks/DEMOSAIC_SPEED_CUDA.md
+
+On CUDA the timings include ``torch.cuda.synchronize`` (``evaluate_demosaic``); the denoisers (scikit-image) run on
+the CPU, with the mosaic copied there and back.
 """
 
 from __future__ import annotations
@@ -60,7 +64,7 @@ def speed(args) -> list[str]:
     def row(name: str, method: str, **kw) -> str:
         cells = []
         for k, folder in sets.items():
-            res = evaluate_demosaic(folder, method, "RGGB", 10, progress=not args.quiet, **kw)
+            res = evaluate_demosaic(folder, method, "RGGB", 10, device=args.device, progress=not args.quiet, **kw)
             cells += [f"{res['mean_cpsnr']:.2f}", f"{_median_ms_per_mp(res, sizes[k]):.1f}"]
         line = f"| {name} | " + " | ".join(cells) + " |"
         print(line, flush=True)
@@ -92,7 +96,8 @@ def noise(args) -> list[str]:
     for m, d in runs:
         cells = []
         for s in sigmas:
-            res = evaluate_demosaic(folder, m, "RGGB", 10, noise_sigma=s, seed=0, denoise=d, progress=not args.quiet)
+            res = evaluate_demosaic(folder, m, "RGGB", 10, noise_sigma=s, seed=0, denoise=d, device=args.device,
+                                    progress=not args.quiet)
             cells.append(f"{res['mean_cpsnr']:.2f}")
         rows.append(f"| {_label(m, d)} | " + " | ".join(cells) + " |")
         print(rows[-1], flush=True)
@@ -107,6 +112,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sigmas", default="0.01,0.02,0.05")
     ap.add_argument("--speed-sigma", type=float, default=0.02, help="noise level of the speed table's noisy part")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--device", default="cpu", help="where the demosaic runs (cpu, cuda); denoisers run on the CPU")
     ap.add_argument("--out", default=None, help="write the markdown table here")
     add_quiet_argument(ap)
     args = ap.parse_args(argv)
@@ -114,7 +120,9 @@ def main(argv=None) -> int:
     t0 = time.time()
     rows = (speed if args.table == "speed" else noise)(args)
     hw = {"platform": platform.platform(), "cpu_count": __import__("os").cpu_count(), "threads": args.threads,
-          "torch": torch.__version__}
+          "torch": torch.__version__, "device": args.device}
+    if torch.device(args.device).type == "cuda":
+        hw["gpu"] = torch.cuda.get_device_name(torch.device(args.device))
     text = "\n".join(rows) + f"\n\nCrop 10, RGGB, float32, seed 0; wall {time.time() - t0:.0f} s; {json.dumps(hw)}\n"
     if args.out:
         Path(args.out).write_text(text)

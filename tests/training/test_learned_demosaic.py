@@ -171,6 +171,34 @@ def test_joint_denoise_checkpoint_beats_malvar_on_noisy_crops():
         learned.load_pretrained("nope")
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+@pytest.mark.parametrize("variant", ["noise_free", "joint_denoise"])
+def test_shipped_models_on_cuda_match_cpu(variant):
+    # Each shipped network runs on CUDA (loaded there by default when the mosaic is there) and gives the CPU's
+    # output: float32 with TF32 off, so both devices round each convolution in float32; a GRBG mosaic also checks
+    # the pattern shift and padding on the device.
+    if not learned.PRETRAINED[variant].is_file():
+        pytest.skip(f"no shipped {variant} checkpoint")
+    g = torch.Generator().manual_seed(5)
+    raw = torch.nn.functional.avg_pool2d(torch.rand(2, 1, 68, 100, generator=g), 5, 1)  # (2, 1, 64, 96), smooth
+    noise = learned.noise_features(1e-3, 1e-4).float().expand(2, 2) if variant == "joint_denoise" else None
+    cpu_net = learned.load_pretrained(variant)
+    cpu = demosaic_learned(raw, "GRBG", model=cpu_net, noise=noise)
+    tf32 = torch.backends.cudnn.allow_tf32
+    torch.backends.cudnn.allow_tf32 = False
+    try:
+        if variant == "noise_free":
+            gpu = demosaic_learned(raw.cuda(), "GRBG")  # default model: loaded on the mosaic's device
+        else:
+            gpu = demosaic_learned(raw.cuda(), "GRBG", model=learned.load_pretrained(variant, device="cuda"),
+                                   noise=noise.cuda())
+    finally:
+        torch.backends.cudnn.allow_tf32 = tf32
+    assert gpu.device.type == "cuda" and gpu.dtype == torch.float32
+    assert (cpu - raw.mean()).abs().mean() > 0.01  # the outputs compared are images, not zeros
+    torch.testing.assert_close(gpu.cpu(), cpu, rtol=0, atol=1e-4)
+
+
 def test_self_ensemble_is_the_mean_of_both_passes_and_transpose_equivariant():
     """self_ensemble: the mean of the network on the mosaic and (transposed back) on its transpose, computed here
     by hand; the result is exactly transpose-equivariant, which one pass of a random network is not. For BGGR the
