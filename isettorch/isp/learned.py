@@ -251,9 +251,10 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
     (white-balanced linear sRGB targets, 80 % of patches display-encoded; the sensor model's noise: shot, read,
     dark, DSNU/PRNU, quantisation, with ``a``, ``b`` in the [0, 1] units of the mosaic, and white Gaussian noise,
     ``a = 0``), starting from a ``demosaic_noise_free.yaml`` run. The noise-free network is the same residual
-    64 x 13, trained from :mod:`isettorch.data.natural` scenes only in two stages:
-    ``demosaic_noise_free.yaml`` (generator version 4) then ``demosaic_noise_free_finetune.yaml`` (version 5, with
-    chromatic detail and independent three-layer grain). Each JSON beside a checkpoint records its command, config,
+    64 x 13, trained from :mod:`isettorch.data.natural` scenes only in three stages:
+    ``demosaic_noise_free.yaml`` (generator version 4), ``demosaic_noise_free_finetune.yaml`` (version 5, with
+    chromatic detail and independent three-layer grain), then ``demosaic_noise_free_stage3.yaml`` (version 5, a
+    fresh scene bank, lower learning rate). Each JSON beside a checkpoint records its command, config,
     steps, wall time, hardware and scores; the model cards (``.md``) add held-out synthetic screens.
 
     Example:
