@@ -35,15 +35,18 @@ def load_config(path: str | Path, overrides: list[str] | None = None) -> dict:
     return cfg
 
 
-def dist_setup(backend: str | None = None) -> tuple[int, int, bool]:
-    """Initialise torch.distributed when run under torchrun (WORLD_SIZE > 1); returns (rank, world, is_dist)."""
+def dist_setup(device: torch.device) -> tuple[int, int, bool]:
+    """Initialise torch.distributed when run under torchrun (WORLD_SIZE > 1); returns (rank, world, is_dist).
+
+    The backend follows the device the run trains on: NCCL for CUDA, gloo for the CPU (also on a machine with a GPU,
+    where ``--device cpu`` tensors cannot go through NCCL)."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world <= 1:
         return 0, 1, False
     import torch.distributed as dist
 
     if not dist.is_initialized():
-        dist.init_process_group(backend or ("nccl" if torch.cuda.is_available() else "gloo"))
+        dist.init_process_group("nccl" if torch.device(device).type == "cuda" else "gloo")
     return dist.get_rank(), dist.get_world_size(), True
 
 

@@ -672,8 +672,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.steps is not None:
         cfg.setdefault("optim", {})["steps"] = args.steps
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    # the process group's backend follows the device asked for (gloo for --device cpu on a machine with a GPU)
-    rank, world, is_dist = common.dist_setup("nccl" if device.type == "cuda" else "gloo")
+    rank, world, is_dist = common.dist_setup(device)
     threads = args.threads or int(cfg.get("threads", 0))
     if threads:
         torch.set_num_threads(threads)
