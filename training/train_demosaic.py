@@ -637,13 +637,38 @@ def write_model_card(path: Path, record: dict, net) -> None:
 
 
 def init_state(ck: dict, net: DemosaicNet, name: str = "init") -> dict:
-    """The state dict that starts ``net`` from checkpoint ``ck``: its weights as they are when the configs are equal;
-    a noise-free checkpoint starting a joint network (same width and depth, more ``noise_inputs``) gets the extra
-    input channels of the first convolution zeroed, so the joint network starts as the noise-free one."""
+    """The state dict that starts ``net`` from checkpoint ``ck``, computing the same function as ``ck``'s network:
+
+    - equal configs: its weights as they are;
+    - more ``noise_inputs`` (a noise-free checkpoint starting a joint network of the same width and depth): the extra
+      input channels of the first convolution zeroed, so the joint network starts as the noise-free one;
+    - a deeper residual network of the same width (``depth`` larger, both ``residual``): the checkpoint's blocks,
+      then new blocks whose second convolution is zero, each an exact identity at the start (Net2DeeperNet, Chen,
+      Goodfellow & Shlens, ICLR 2016, for residual blocks), while their first convolutions keep ``net``'s He
+      initialisation so the new blocks train from the first step.
+    """
     old, new = dict(ck["net_config"]), net.config()
     state = {k: v.float() for k, v in ck["model"].items()}
     if old == new:
         return state
+    same = ("channels", "residual")
+    deeper = (all(old.get(k) == new.get(k) for k in same) and old.get("residual") and new["depth"] > old["depth"]
+              and old.get("noise_inputs", 0) == new["noise_inputs"])
+    if deeper:
+        fresh = net.state_dict()
+        for key, value in fresh.items():
+            if key not in state:  # a new block: body.<i>.conv1 as initialised, body.<i>.conv2 zero
+                state[key] = torch.zeros_like(value) if ".conv2." in key else value.detach().clone().float()
+        return state
+    if {k: v for k, v in old.items() if k != "noise_inputs"} != {k: v for k, v in new.items() if k != "noise_inputs"} \
+            or old.get("noise_inputs", 0) > new["noise_inputs"]:
+        raise ValueError(f"{name}: net_config {old} cannot start a network {new} (expected the same channels and "
+                         f"depth, and at most its noise_inputs; or a deeper residual network of the same channels "
+                         f"and noise_inputs)")
+    w = state["body.0.weight"]
+    extra = new["noise_inputs"] - old.get("noise_inputs", 0)
+    state["body.0.weight"] = torch.cat([w, w.new_zeros(w.shape[0], extra, *w.shape[2:])], 1)
+    return state
     if {k: v for k, v in old.items() if k != "noise_inputs"} != {k: v for k, v in new.items() if k != "noise_inputs"} \
             or old.get("noise_inputs", 0) > new["noise_inputs"]:
         raise ValueError(f"{name}: net_config {old} cannot start a network {new} (expected the same channels and "

@@ -118,6 +118,9 @@ def test_shipped_checkpoint_loads_safely_and_has_record():
     assert {"command", "config", "wall_s", "hardware", "data"} <= set(info)
     net = learned.load_pretrained()
     assert not any(p.requires_grad for p in net.parameters())
+    shipped = sorted(learned.PRETRAINED_PATH.parent.glob("demosaic_learned*.pt"))
+    assert len(shipped) == 2  # the noise-free and the joint model: each at most 4 MB (issue #15)
+    assert all(f.stat().st_size <= 4_000_000 for f in shipped), [(f.name, f.stat().st_size) for f in shipped]
 
 
 @pytest.mark.skipif(not learned.PRETRAINED_PATH.is_file(), reason="no shipped checkpoint")

@@ -321,6 +321,33 @@ def test_joint_network_starts_as_the_noise_free_one():
         train_demosaic.init_state(ck, train_demosaic.DemosaicNet(channels=16, depth=2, noise_inputs=2))
 
 
+def test_deeper_residual_network_starts_as_the_shallower_one_and_its_new_blocks_learn():
+    """init from a shallower residual checkpoint (Net2DeeperNet): the new blocks are identities, so the deeper
+    network's output equals the checkpoint's exactly; one backward pass gives the new blocks' second convolutions a
+    non-zero gradient (they can learn); a shallower or plain target cannot be started from it."""
+    torch.manual_seed(0)
+    small = train_demosaic.DemosaicNet(channels=8, depth=3, residual=True)
+    with torch.no_grad():
+        small.head.weight.normal_(0, 0.1)
+        small.body[2].conv2.weight.normal_(0, 0.1)
+    ck = {"model": small.state_dict(), "net_config": small.config()}
+    deep = train_demosaic.DemosaicNet(channels=8, depth=7, residual=True)
+    deep.load_state_dict(train_demosaic.init_state(ck, deep))
+    raw = torch.rand(2, 1, 16, 16)
+    out = deep(raw)
+    torch.testing.assert_close(out, small(raw), rtol=0, atol=0)
+    assert len(deep.body) == 2 + 3
+    for i in (3, 4):
+        assert float(deep.body[i].conv2.weight.abs().max()) == 0
+        assert float(deep.body[i].conv1.weight.abs().max()) > 0
+    (out - 0.5).square().mean().backward()
+    assert all(float(deep.body[i].conv2.weight.grad.abs().max()) > 0 for i in (3, 4))
+    for target in (train_demosaic.DemosaicNet(channels=8, depth=1, residual=True),
+                   train_demosaic.DemosaicNet(channels=8, depth=7)):
+        with pytest.raises(ValueError, match="cannot start"):
+            train_demosaic.init_state(ck, target)
+
+
 def test_bfloat16_autocast_runs_only_the_residual_in_bfloat16():
     """optim.precision bf16: an untrained network (zero head) is exactly the float32 Malvar-He-Cutler estimate under
     autocast, and a trained one differs from its float32 output only by the residual's bfloat16 rounding (relative
