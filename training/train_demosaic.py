@@ -647,34 +647,25 @@ def init_state(ck: dict, net: DemosaicNet, name: str = "init") -> dict:
       Goodfellow & Shlens, ICLR 2016, for residual blocks), while their first convolutions keep ``net``'s He
       initialisation so the new blocks train from the first step.
     """
-    old, new = dict(ck["net_config"]), net.config()
+    old, new = {"noise_inputs": 0, **ck["net_config"]}, net.config()
     state = {k: v.float() for k, v in ck["model"].items()}
     if old == new:
         return state
-    same = ("channels", "residual")
-    deeper = (all(old.get(k) == new.get(k) for k in same) and old.get("residual") and new["depth"] > old["depth"]
-              and old.get("noise_inputs", 0) == new["noise_inputs"])
-    if deeper:
-        fresh = net.state_dict()
-        for key, value in fresh.items():
+
+    def but(cfg: dict, key: str) -> dict:
+        return {k: v for k, v in cfg.items() if k != key}
+
+    if old.get("residual") and new["depth"] > old["depth"] and but(old, "depth") == but(new, "depth"):
+        for key, value in net.state_dict().items():
             if key not in state:  # a new block: body.<i>.conv1 as initialised, body.<i>.conv2 zero
                 state[key] = torch.zeros_like(value) if ".conv2." in key else value.detach().clone().float()
         return state
-    if {k: v for k, v in old.items() if k != "noise_inputs"} != {k: v for k, v in new.items() if k != "noise_inputs"} \
-            or old.get("noise_inputs", 0) > new["noise_inputs"]:
+    if but(old, "noise_inputs") != but(new, "noise_inputs") or old["noise_inputs"] > new["noise_inputs"]:
         raise ValueError(f"{name}: net_config {old} cannot start a network {new} (expected the same channels and "
                          f"depth, and at most its noise_inputs; or a deeper residual network of the same channels "
                          f"and noise_inputs)")
     w = state["body.0.weight"]
-    extra = new["noise_inputs"] - old.get("noise_inputs", 0)
-    state["body.0.weight"] = torch.cat([w, w.new_zeros(w.shape[0], extra, *w.shape[2:])], 1)
-    return state
-    if {k: v for k, v in old.items() if k != "noise_inputs"} != {k: v for k, v in new.items() if k != "noise_inputs"} \
-            or old.get("noise_inputs", 0) > new["noise_inputs"]:
-        raise ValueError(f"{name}: net_config {old} cannot start a network {new} (expected the same channels and "
-                         f"depth, and at most its noise_inputs)")
-    w = state["body.0.weight"]
-    extra = new["noise_inputs"] - old.get("noise_inputs", 0)
+    extra = new["noise_inputs"] - old["noise_inputs"]
     state["body.0.weight"] = torch.cat([w, w.new_zeros(w.shape[0], extra, *w.shape[2:])], 1)
     return state
 
