@@ -13,7 +13,10 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
 
 * ``palette``: materials from the measured reflectances shipped by colour-science, natural chromaticities
   upsampled with ``colour.recovery`` (Mallett & Yuksel, EGSR 2019), and smooth random spectra (PCA of the measured
-  set / sigmoid polynomials, Jakob & Hanika, EG 2019); ``materials`` per scene, few, as in natural scenes.
+  set / sigmoid polynomials, Jakob & Hanika, EG 2019); ``materials`` per scene, few, as in natural scenes. With
+  ``dye.probability`` (0 in version 5, so its scenes are unchanged) a non-grey material is made purer by a
+  log-uniform ``dye.concentration`` (Beer-Lambert, :func:`.spectra.dye_concentration`): the dyed and painted
+  surfaces of man-made scenes are more saturated than the measured charts and natural chromaticities.
 * ``illuminant``: daylight, blackbody, LED, fluorescent (:func:`.spectra.random_illuminant`), and with
   ``mixed_probability`` a second light blended over the image by a smooth field (mixed illumination).
 * ``dead_leaves``: occluding leaves with the scale-invariant radius density ``p(r) ~ r^-3`` (Lee, Mumford & Huang,
@@ -89,7 +92,7 @@ NATURAL_DEFAULTS: dict = {
     "mean_radiance_scale": 1.0,  # the illuminant is scaled to luminance 1 cd/m^2 from a white; x this
     "components": {
         "palette": {"enabled": True, "materials": [2, 8], "measured": 0.35, "recovery": 0.35, "random": 0.3,
-                    "grey_probability": 0.15},
+                    "grey_probability": 0.15, "dye": {"probability": 0.0, "concentration": [1.0, 4.0]}},
         "illuminant": {"enabled": True, "kinds": {"daylight": 0.4, "blackbody": 0.25, "led": 0.2,
                                                   "fluorescent": 0.15},
                        "mixed_probability": 0.2},
@@ -169,12 +172,17 @@ def _wavelengths(cfg) -> torch.Tensor:
     return torch.arange(float(a), float(b) + 0.5 * float(s), float(s), dtype=torch.float64)
 
 
-def _palette(cfg, wl, g) -> tuple[torch.Tensor, list[str]]:
+def _palette(cfg, wl, g) -> tuple[torch.Tensor, list[str], list[float]]:
     p = cfg["components"]["palette"]
+    dye = p["dye"]
+    if not 0 <= dye["probability"] <= 1 or not 0 < dye["concentration"][0] <= dye["concentration"][1]:
+        raise ValueError(f"config: 'components.palette.dye' expected a probability in [0, 1] and a concentration "
+                         f"range [lo, hi] with 0 < lo <= hi, got {dye}")
     n = _ri(g, *p["materials"])
     measured = _spectra.measured_reflectances(wl)
-    out, kinds = [], []
+    out, kinds, conc = [], [], []
     for _ in range(n):
+        conc.append(1.0)
         if p["enabled"]:
             kind = _choice({"measured": p["measured"], "recovery": p["recovery"], "random": p["random"]}, g)
         else:  # ablation: smooth random spectra only (the previous isettorch.data palette)
@@ -188,9 +196,12 @@ def _palette(cfg, wl, g) -> tuple[torch.Tensor, list[str]]:
             r = _spectra.random_reflectances(1, wl, g, model="mixed")[0].to(torch.float64)
         if p["enabled"] and float(torch.rand((), generator=g)) < p["grey_probability"]:
             r, kind = torch.full_like(r, math.exp(_u(g, math.log(0.03), math.log(0.9)))), "grey"
+        elif p["enabled"] and dye["probability"] > 0 and float(torch.rand((), generator=g)) < dye["probability"]:
+            conc[-1] = math.exp(_u(g, *map(math.log, dye["concentration"])))
+            r = _spectra.dye_concentration(r, conc[-1])
         out.append(r)
         kinds.append(kind)
-    return torch.stack(out), kinds
+    return torch.stack(out), kinds, conc
 
 
 def _white_photons(spd_energy, wl):
@@ -418,7 +429,8 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
 
     Returns ``{"maps": [J, H, W] float32 (>= 0), "spectra": [J, L] float64 (photons/s/sr/m^2/nm per unit map),
     "wavelengths_nm": [L], "illuminant": [L] (the main light, a perfect white's radiance), "meta": dict}``.
-    ``meta["radii"]`` lists the drawn dead-leaves radii (for the size-law check).
+    ``meta["radii"]`` lists the drawn dead-leaves radii (for the size-law check), ``meta["dye_concentrations"]`` each
+    material's Beer-Lambert concentration (1.0: undyed).
 
     Example:
         >>> s = generate_natural(0, seed=1, config={"size": 32})
@@ -430,7 +442,7 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
     h = w = int(cfg["size"])
     wl = _wavelengths(cfg)
     comp = cfg["components"]
-    refl, mat_kinds = _palette(cfg, wl, g)
+    refl, mat_kinds, dye_conc = _palette(cfg, wl, g)
     n_mat = refl.shape[0]
     lights, light_names, cct = _illuminants(cfg, wl, g, h, w)
     maps = torch.zeros(n_mat, h, w)
@@ -480,9 +492,9 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
     for e, m in lights:
         all_maps.append(maps if m is None else maps * m)
         all_spectra.append(refl * (e * scale)[None])
-    meta = {"index": int(index), "seed": int(seed), "materials": mat_kinds, "illuminants": light_names,
-            "cct_k": float(cct), "radii": radii, "defocus_diopters": defocus, "fine_detail": fine,
-            "shading_exponent": s, "shading_contrast": contrast, "grain_amplitude": grain_amp}
+    meta = {"index": int(index), "seed": int(seed), "materials": mat_kinds, "dye_concentrations": dye_conc,
+            "illuminants": light_names, "cct_k": float(cct), "radii": radii, "defocus_diopters": defocus,
+            "fine_detail": fine, "shading_exponent": s, "shading_contrast": contrast, "grain_amplitude": grain_amp}
     return {"maps": torch.cat(all_maps), "spectra": torch.cat(all_spectra), "wavelengths_nm": wl,
             "illuminant": lights[0][0] * scale, "meta": meta}
 

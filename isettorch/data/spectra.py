@@ -38,6 +38,7 @@ __all__ = [
     "reflectance_basis",
     "random_reflectances",
     "sigmoid_polynomial_reflectance",
+    "dye_concentration",
     "daylight_spd",
     "blackbody_spd",
     "fluorescent_spd",
@@ -248,6 +249,36 @@ def random_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *, m
             out = np.where(pick < pca_fraction, _pca_reflectances(pca_coef, mean, basis, std, room_up, room_down),
                            _sigmoid_polynomial(sig_coef, u, np))
     return _to_torch(out, dtype, w.device)
+
+
+def dye_concentration(reflectance: torch.Tensor, concentration) -> torch.Tensor:
+    """The reflectance of the same colorant at ``concentration`` times its amount: ``r_peak (r / r_peak)^c``.
+
+    Beer-Lambert law: a colorant's absorbance is proportional to its concentration, so its transmittance (and,
+    through a diffuse substrate, the reflectance relative to the substrate) is raised to the power ``c``. The
+    substrate is taken as the spectrum's peak (the least absorbed wavelength keeps its reflectance), so ``c > 1``
+    makes the colour purer at the same peak, ``c < 1`` paler, ``c = 1`` is the identity; zero stays zero.
+    Source: Beer-Lambert (e.g. Wyszecki & Stiles, *Color Science*, 2nd ed., 1982, sec. 1.3; Berns, *Billmeyer and
+    Saltzman's Principles of Color Technology*, 2000, ch. 6).
+
+    Args:
+        reflectance: ``[..., L]`` in [0, 1] (wavelength last).
+        concentration: > 0; a scalar, or a tensor ``[..., 1]`` (one per spectrum).
+
+    Example:
+        >>> dye_concentration(torch.tensor([0.8, 0.4, 0.2]), 2.0)
+        tensor([0.8000, 0.2000, 0.0500])
+    """
+    r = torch.as_tensor(reflectance)
+    if not r.is_floating_point() or r.ndim < 1 or not bool(((r >= 0) & (r <= 1)).all()):
+        raise ValueError(f"reflectance: expected a float tensor [..., L] with values in [0, 1], got "
+                         f"{tuple(r.shape)} {r.dtype}")
+    c = torch.as_tensor(concentration, dtype=r.dtype, device=r.device)
+    if not bool((c > 0).all()) or not bool(torch.isfinite(c).all()):
+        raise ValueError(f"concentration: expected finite values > 0, got {concentration!r}")
+    peak = r.amax(-1, keepdim=True)
+    rel = torch.where(peak > 0, r / torch.where(peak > 0, peak, torch.ones_like(peak)), torch.zeros_like(r))
+    return peak * rel.pow(c)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -383,3 +383,30 @@ def test_training_configs_name_valid_generator_settings():
                        ("colour_correlation", "chromatic_detail_probability"), ("grain", "enabled")}
     assert configs["demosaic_joint_denoise.yaml"]["data"]["natural"] == configs["demosaic_noise_free.yaml"]["data"][
         "natural"]  # the joint run shares the first stage's scene bank
+
+
+def test_dye_component_draws_its_specified_probability_and_concentration_law():
+    """components.palette.dye: a non-grey material is dyed with ``probability`` at a log-uniform concentration in
+    ``concentration`` (binomial and Kolmogorov-Smirnov checks), greys never; off (the default, version 5) every
+    material is undyed and the scene is the one drawn before the option existed (no extra draws)."""
+    from scipy import stats
+
+    cfg = nat.natural_config({"components": {"palette": {"dye": {"probability": 0.4, "concentration": [1.0, 4.0]}}}})
+    wl = nat._wavelengths(cfg)
+    conc, grey_dyed, n_plain = [], 0, 0
+    for i in range(400):
+        _, kinds, c = nat._palette(cfg, wl, torch.Generator().manual_seed(i))
+        for k, ci in zip(kinds, c):
+            if k == "grey":
+                grey_dyed += ci != 1.0
+            else:
+                n_plain += 1
+                conc.append(ci)
+    dyed = np.array([c for c in conc if c != 1.0])
+    assert grey_dyed == 0 and stats.binomtest(len(dyed), n_plain, 0.4).pvalue > 1e-3
+    assert stats.kstest(np.log(dyed) / math.log(4.0), "uniform").pvalue > 1e-3
+    assert dyed.min() >= 1.0 and dyed.max() <= 4.0
+    off = nat.generate_natural(2, seed=5, config=SMALL)
+    assert off["meta"]["dye_concentrations"] == [1.0] * len(off["meta"]["materials"])
+    with pytest.raises(ValueError, match="components.palette.dye"):
+        nat.generate_natural(0, seed=0, config={"components": {"palette": {"dye": {"probability": 1.5}}}})

@@ -188,3 +188,44 @@ def test_random_illuminant_is_the_public_spectrum(kind):
             ref = fn(torch.tensor([cct], dtype=torch.float64), W10)[0]
         assert spd.dtype == W10.dtype and spd.shape == W10.shape
         np.testing.assert_allclose(spd.numpy(), ref.numpy(), rtol=1e-6)  # computed at the CCT rounded to float32
+
+
+def test_dye_concentration_is_beer_lambert():
+    """Absorbance relative to the peak, -log(r / r_peak), scales exactly with the concentration; the peak and zeros
+    stay; c = 1 is the identity; and colour-science's CIELAB chroma of a ColorChecker red grows with c."""
+    r = spectra.measured_reflectances(torch.arange(400.0, 701.0, 10.0, dtype=torch.float64))[:24]
+    for c in (0.5, 1.0, 2.5):
+        d = spectra.dye_concentration(r, c)
+        peak = r.amax(-1, keepdim=True)
+        assert torch.allclose(d.amax(-1, keepdim=True), peak)
+        pos = r > 1e-6
+        rel_in, rel_out = r[pos] / peak.expand_as(r)[pos], d[pos] / peak.expand_as(r)[pos]
+        assert torch.allclose(torch.log(rel_out), c * torch.log(rel_in), atol=1e-9)
+    assert torch.allclose(spectra.dye_concentration(r, 1.0), r, rtol=1e-14, atol=0)
+    per = spectra.dye_concentration(r[:3], torch.tensor([[1.0], [2.0], [3.0]], dtype=torch.float64))
+    assert torch.allclose(per[2], spectra.dye_concentration(r[2], 3.0))
+    z = torch.tensor([0.0, 0.5, 1.0], dtype=torch.float64)
+    assert spectra.dye_concentration(z, 3.0)[0] == 0
+    assert spectra.dye_concentration(torch.zeros(3, dtype=torch.float64), 2.0).eq(0).all()
+
+    shape = colour.SpectralShape(400, 700, 10)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    white = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+
+    def purity(refl):
+        sd = colour.SpectralDistribution(dict(zip(range(400, 701, 10), refl.tolist())))
+        xy = colour.XYZ_to_xy(colour.sd_to_XYZ(sd, cmfs, d65))
+        return float(colour.excitation_purity(xy, white, cmfs))
+
+    sd_red = colour.SDS_COLOURCHECKERS["BabelColor Average"]["red"]
+    red = torch.from_numpy(np.interp(np.arange(400.0, 701.0, 10.0), sd_red.wavelengths, sd_red.values))
+    p1, p2, p4 = (purity(spectra.dye_concentration(red, c)) for c in (1.0, 2.0, 4.0))
+    assert 0.3 < p1 < p2 < p4 < 1
+
+
+def test_dye_concentration_bad_arguments():
+    with pytest.raises(ValueError, match="concentration"):
+        spectra.dye_concentration(torch.tensor([0.5, 0.2]), 0.0)
+    with pytest.raises(ValueError, match="reflectance"):
+        spectra.dye_concentration(torch.tensor([1.5, 0.2]), 2.0)
