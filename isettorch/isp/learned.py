@@ -250,14 +250,12 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
     ``configs/train/demosaic_joint_denoise.yaml`` on :mod:`isettorch.data.natural` scenes through the Camera
     (white-balanced linear sRGB targets, 80 % of patches display-encoded; the sensor model's noise: shot, read,
     dark, DSNU/PRNU, quantisation, with ``a``, ``b`` in the [0, 1] units of the mosaic, and white Gaussian noise,
-    ``a = 0``), starting from a ``demosaic_noise_free.yaml`` run. The noise-free network is a residual 64 x 21,
-    trained from :mod:`isettorch.data.natural` scenes only in five stages: ``demosaic_noise_free.yaml``
-    (64 x 13, generator version 4), ``demosaic_noise_free_finetune.yaml`` (version 5, with chromatic detail and
-    independent three-layer grain), ``demosaic_noise_free_stage3.yaml`` (version 5, a fresh scene bank, lower
-    learning rate), ``demosaic_noise_free_stage4.yaml`` (made 64 x 21 by identity blocks, one GPU) and
-    ``demosaic_noise_free_stage5.yaml`` (version 5, a fresh scene bank, 2 CPU cores). Each JSON beside a
-    checkpoint records its command, config, steps, wall time, hardware and scores; the model cards (``.md``) add
-    held-out synthetic screens.
+    ``a = 0``), starting from a ``demosaic_noise_free.yaml`` run. The noise-free network is the same residual
+    64 x 13, trained from :mod:`isettorch.data.natural` scenes only in three stages:
+    ``demosaic_noise_free.yaml`` (generator version 4), ``demosaic_noise_free_finetune.yaml`` (version 5, with
+    chromatic detail and independent three-layer grain), then ``demosaic_noise_free_stage3.yaml`` (version 5, a
+    fresh scene bank, lower learning rate). Each JSON beside a checkpoint records its command, config,
+    steps, wall time, hardware and scores; the model cards (``.md``) add held-out synthetic screens.
 
     Example:
         >>> net = load_pretrained()
