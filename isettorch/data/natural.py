@@ -175,7 +175,10 @@ def _wavelengths(cfg) -> torch.Tensor:
 def _palette(cfg, wl, g) -> tuple[torch.Tensor, list[str], list[float]]:
     p = cfg["components"]["palette"]
     dye = p["dye"]
-    if not 0 <= dye["probability"] <= 1 or not 0 < dye["concentration"][0] <= dye["concentration"][1]:
+    conc_range = dye["concentration"]
+    if (not isinstance(dye["probability"], (int, float)) or not 0 <= dye["probability"] <= 1
+            or not isinstance(conc_range, (list, tuple)) or len(conc_range) != 2
+            or not all(isinstance(c, (int, float)) for c in conc_range) or not 0 < conc_range[0] <= conc_range[1]):
         raise ValueError(f"config: 'components.palette.dye' expected a probability in [0, 1] and a concentration "
                          f"range [lo, hi] with 0 < lo <= hi, got {dye}")
     n = _ri(g, *p["materials"])

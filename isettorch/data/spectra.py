@@ -258,8 +258,8 @@ def dye_concentration(reflectance: torch.Tensor, concentration) -> torch.Tensor:
     through a diffuse substrate, the reflectance relative to the substrate) is raised to the power ``c``. The
     substrate is taken as the spectrum's peak (the least absorbed wavelength keeps its reflectance), so ``c > 1``
     makes the colour purer at the same peak, ``c < 1`` paler, ``c = 1`` is the identity; zero stays zero.
-    Source: Beer-Lambert (e.g. Wyszecki & Stiles, *Color Science*, 2nd ed., 1982, sec. 1.3; Berns, *Billmeyer and
-    Saltzman's Principles of Color Technology*, 2000, ch. 6).
+    Source: the Beer-Lambert law for colorant layers (Wyszecki & Stiles, *Color Science*, 2nd ed., 1982; Berns,
+    *Billmeyer and Saltzman's Principles of Color Technology*, 3rd ed., 2000).
 
     Args:
         reflectance: ``[..., L]`` in [0, 1] (wavelength last).

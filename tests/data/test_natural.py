@@ -410,3 +410,5 @@ def test_dye_component_draws_its_specified_probability_and_concentration_law():
     assert off["meta"]["dye_concentrations"] == [1.0] * len(off["meta"]["materials"])
     with pytest.raises(ValueError, match="components.palette.dye"):
         nat.generate_natural(0, seed=0, config={"components": {"palette": {"dye": {"probability": 1.5}}}})
+    with pytest.raises(ValueError, match="components.palette.dye"):
+        nat.generate_natural(0, seed=0, config={"components": {"palette": {"dye": {"concentration": 2.0}}}})
