@@ -141,6 +141,12 @@ def natural_config(config: dict | None = None, **overrides) -> dict:
     size = out["size"]
     if isinstance(size, bool) or not isinstance(size, int) or size < 16:
         raise ValueError(f"config: 'size' expected an integer >= 16 pixels, got {size!r}")
+    dye = out["components"]["palette"]["dye"]
+    prob, conc = dye["probability"], dye["concentration"]
+    if (not isinstance(prob, (int, float)) or not 0 <= prob <= 1 or not isinstance(conc, (list, tuple))
+            or len(conc) != 2 or not all(isinstance(c, (int, float)) for c in conc) or not 0 < conc[0] <= conc[1]):
+        raise ValueError(f"config: 'components.palette.dye' expected a probability in [0, 1] and a concentration "
+                         f"range [lo, hi] with 0 < lo <= hi, got {dye}")
     return out
 
 
@@ -175,12 +181,6 @@ def _wavelengths(cfg) -> torch.Tensor:
 def _palette(cfg, wl, g) -> tuple[torch.Tensor, list[str], list[float]]:
     p = cfg["components"]["palette"]
     dye = p["dye"]
-    conc_range = dye["concentration"]
-    if (not isinstance(dye["probability"], (int, float)) or not 0 <= dye["probability"] <= 1
-            or not isinstance(conc_range, (list, tuple)) or len(conc_range) != 2
-            or not all(isinstance(c, (int, float)) for c in conc_range) or not 0 < conc_range[0] <= conc_range[1]):
-        raise ValueError(f"config: 'components.palette.dye' expected a probability in [0, 1] and a concentration "
-                         f"range [lo, hi] with 0 < lo <= hi, got {dye}")
     n = _ri(g, *p["materials"])
     measured = _spectra.measured_reflectances(wl)
     out, kinds, conc = [], [], []

@@ -277,8 +277,7 @@ def dye_concentration(reflectance: torch.Tensor, concentration) -> torch.Tensor:
     if not bool((c > 0).all()) or not bool(torch.isfinite(c).all()):
         raise ValueError(f"concentration: expected finite values > 0, got {concentration!r}")
     peak = r.amax(-1, keepdim=True)
-    rel = torch.where(peak > 0, r / torch.where(peak > 0, peak, torch.ones_like(peak)), torch.zeros_like(r))
-    return peak * rel.pow(c)
+    return peak * (r / peak.clamp_min(torch.finfo(r.dtype).tiny)).pow(c)  # an all-zero spectrum stays zero
 
 
 # ------------------------------------------------------------------------------------------------

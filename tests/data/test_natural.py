@@ -388,7 +388,7 @@ def test_training_configs_name_valid_generator_settings():
 def test_dye_component_draws_its_specified_probability_and_concentration_law():
     """components.palette.dye: a non-grey material is dyed with ``probability`` at a log-uniform concentration in
     ``concentration`` (binomial and Kolmogorov-Smirnov checks), greys never; off (the default, version 5) every
-    material is undyed and the scene is the one drawn before the option existed (no extra draws)."""
+    material is undyed; a bad setting raises naming the key."""
     from scipy import stats
 
     cfg = nat.natural_config({"components": {"palette": {"dye": {"probability": 0.4, "concentration": [1.0, 4.0]}}}})

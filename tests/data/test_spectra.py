@@ -192,7 +192,7 @@ def test_random_illuminant_is_the_public_spectrum(kind):
 
 def test_dye_concentration_is_beer_lambert():
     """Absorbance relative to the peak, -log(r / r_peak), scales exactly with the concentration; the peak and zeros
-    stay; c = 1 is the identity; and colour-science's CIELAB chroma of a ColorChecker red grows with c."""
+    stay; c = 1 is the identity; and colour-science's excitation purity of a ColorChecker red grows with c."""
     r = spectra.measured_reflectances(torch.arange(400.0, 701.0, 10.0, dtype=torch.float64))[:24]
     for c in (0.5, 1.0, 2.5):
         d = spectra.dye_concentration(r, c)
