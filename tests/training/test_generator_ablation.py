@@ -16,15 +16,21 @@ from benchmarks import generator_ablation  # noqa: E402
 SMOKE = ROOT / "configs" / "train" / "demosaic_smoke.yaml"
 
 
-def test_ablation_smoke(tmp_path):
+def _setup(tmp_path, seed):
+    """Two random 32 px test images (standing in for both test sets) and the tiny ablation's arguments."""
     ims = tmp_path / "ims"
     ims.mkdir()
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     for i in range(2):
         Image.fromarray(rng.integers(0, 256, (32, 32, 3), dtype=np.uint8)).save(ims / f"{i}.png")
     table = tmp_path / "table.md"
     args = ["--config", str(SMOKE), "--steps", "2", "--out", str(tmp_path / "runs"), "--components", "fine_detail",
             "--kodak", str(ims), "--mcmaster", str(ims), "--table", str(table)]
+    return ims, table, args
+
+
+def test_ablation_smoke(tmp_path):
+    ims, table, args = _setup(tmp_path, 0)
     assert generator_ablation.main(args) == 0
     lines = [ln for ln in table.read_text().splitlines() if ln.startswith("| ")]
     assert lines[0].startswith("| generator | Kodak | d Kodak")
@@ -44,14 +50,7 @@ def test_ablation_smoke(tmp_path):
 def test_ablation_seeds(tmp_path):
     """``--seeds 0 1``: each configuration trained once per seed (its own folder and ``seed``); the table's means,
     differences and pooled standard error agree with numpy on the per-run saved scores."""
-    ims = tmp_path / "ims"
-    ims.mkdir()
-    rng = np.random.default_rng(1)
-    for i in range(2):
-        Image.fromarray(rng.integers(0, 256, (32, 32, 3), dtype=np.uint8)).save(ims / f"{i}.png")
-    table = tmp_path / "table.md"
-    base = ["--config", str(SMOKE), "--steps", "2", "--out", str(tmp_path / "runs"), "--components", "fine_detail",
-            "--kodak", str(ims), "--mcmaster", str(ims), "--table", str(table)]
+    _, table, base = _setup(tmp_path, 1)
     assert generator_ablation.main(base + ["--seeds", "0", "1"]) == 0
     scores = {}
     for s in (0, 1):
