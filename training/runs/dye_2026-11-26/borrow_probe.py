@@ -1,0 +1,40 @@
+"""Which channel's grain leaks into which channel's estimate? On the 24 held-out v5 stress scenes (green and blue
+x 0.15 plus independent grain, std 0.005) the grain is the stress image minus the same scene without grain
+(`out/heldout_v5_sat`). At the sites of the RGGB mosaic where channel s was sampled, its sample carries s's grain,
+which is independent of the other channels' truth there; an estimator that transfers s's detail into channel c
+makes c's error there correlate with s's grain. Reported: the least-squares slope of c's error on s's grain at
+s's sites (0: nothing transferred). Malvar-He-Cutler transfers by design (fixed fractions of the sampled channel's
+Laplacian: Malvar, He & Cutler, ICASSP 2004). Diagnostic, not a selection (no test set is read)."""
+import json
+
+import torch
+
+from isettorch.isp.demosaicing import bayer_index_map, demosaic, mosaic
+from isettorch.isp.evaluation import load_demosaic_model, load_images
+from isettorch.isp.learned import demosaic_learned
+
+torch.set_num_threads(2)
+net = load_demosaic_model("out/train_demosaic_noise_free_stage3/best.pt")
+crop = 10
+pairs = [(s, c) for s in range(3) for c in range(3) if s != c]
+acc = {m: {p: [0.0, 0.0] for p in pairs} for m in ("malvar2004", "stage3")}
+for (n1, sat), (n2, st) in zip(load_images("out/heldout_v5_sat"), load_images("out/heldout_v5_stress")):
+    assert n1 == n2
+    sat_t = torch.tensor(sat, dtype=torch.float64).permute(2, 0, 1) / 255
+    st_t = torch.tensor(st, dtype=torch.float64).permute(2, 0, 1) / 255
+    grain = (st_t - sat_t)[:, crop:-crop, crop:-crop]
+    raw = mosaic(st_t[None].float(), "RGGB")
+    h, w = st_t.shape[-2:]
+    idx = bayer_index_map("RGGB").repeat(h // 2, w // 2)[crop:-crop, crop:-crop]
+    outs = {"malvar2004": demosaic(raw, "RGGB", "malvar2004")[0].double(),
+            "stage3": demosaic_learned(raw, "RGGB", model=net)[0].double().detach()}
+    for m, o in outs.items():
+        err = (o - st_t)[:, crop:-crop, crop:-crop]
+        for s, c in pairs:
+            x, y = grain[s][idx == s], err[c][idx == s]
+            acc[m][s, c][0] += float((x * y).sum())
+            acc[m][s, c][1] += float((x * x).sum())
+res = {m: {f"{'RGB'[s]}_grain_into_{'RGB'[c]}": v[0] / v[1] for (s, c), v in d.items()} for m, d in acc.items()}
+for m, d in res.items():
+    print(f"{m:10s} " + " ".join(f"{k} {v:+.3f}" for k, v in d.items()))
+json.dump(res, open("training/runs/dye_2026-11-26/borrow_probe.json", "w"), indent=1)
