@@ -14,10 +14,11 @@ from isettorch.isp.evaluation import load_demosaic_model, load_images
 from isettorch.isp.learned import demosaic_learned
 
 torch.set_num_threads(2)
-net = load_demosaic_model("out/train_demosaic_noise_free_stage3/best.pt")
+runs = {"stage1 (v4, no grain)": "", "stage3": "_stage3", "stage5": "_stage5", "dye": "_dye"}
+nets = {k: load_demosaic_model(f"out/train_demosaic_noise_free{r}/best.pt") for k, r in runs.items()}
 crop = 10
 pairs = [(s, c) for s in range(3) for c in range(3) if s != c]
-acc = {m: {p: [0.0, 0.0] for p in pairs} for m in ("malvar2004", "stage3")}
+acc = {m: {p: [0.0, 0.0] for p in pairs} for m in ("malvar2004", *nets)}
 for (n1, sat), (n2, st) in zip(load_images("out/heldout_v5_sat"), load_images("out/heldout_v5_stress")):
     assert n1 == n2
     sat_t = torch.tensor(sat, dtype=torch.float64).permute(2, 0, 1) / 255
@@ -27,7 +28,7 @@ for (n1, sat), (n2, st) in zip(load_images("out/heldout_v5_sat"), load_images("o
     h, w = st_t.shape[-2:]
     idx = bayer_index_map("RGGB").repeat(h // 2, w // 2)[crop:-crop, crop:-crop]
     outs = {"malvar2004": demosaic(raw, "RGGB", "malvar2004")[0].double(),
-            "stage3": demosaic_learned(raw, "RGGB", model=net)[0].double().detach()}
+            **{k: demosaic_learned(raw, "RGGB", model=n)[0].double().detach() for k, n in nets.items()}}
     for m, o in outs.items():
         err = (o - st_t)[:, crop:-crop, crop:-crop]
         for s, c in pairs:
@@ -36,5 +37,5 @@ for (n1, sat), (n2, st) in zip(load_images("out/heldout_v5_sat"), load_images("o
             acc[m][s, c][1] += float((x * x).sum())
 res = {m: {f"{'RGB'[s]}_grain_into_{'RGB'[c]}": v[0] / v[1] for (s, c), v in d.items()} for m, d in acc.items()}
 for m, d in res.items():
-    print(f"{m:10s} " + " ".join(f"{k} {v:+.3f}" for k, v in d.items()))
+    print(f"{m:22s} " + " ".join(f"{k} {v:+.3f}" for k, v in d.items()))
 json.dump(res, open("training/runs/dye_2026-11-26/borrow_probe.json", "w"), indent=1)
