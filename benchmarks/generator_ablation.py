@@ -71,8 +71,8 @@ def table(rows: list[dict]) -> str:
 def seed_table(rows: dict[str, list[dict]], seeds: list[int]) -> str:
     """``rows``: configuration name -> one score row per seed ("all components" first). Each configuration's mean over
     the seeds, its difference from the reference's, and the standard error of such a difference, ``s sqrt(2 / n)``
-    with ``s^2`` the between-seed sample variance pooled over all rows (n seeds per row; Student, the two-sample
-    standard error of a difference of means with a pooled variance)."""
+    with ``s^2`` the between-seed sample variance pooled over all rows (n seeds per row): the two-sample standard
+    error of a difference of means with a pooled variance, as in Student's t test."""
     n = len(seeds)
     means = {name: {k: sum(r[k] for r in rs) / n for k in ("kodak", "mcmaster", "val")} for name, rs in rows.items()}
     ref = means[next(iter(rows))]
