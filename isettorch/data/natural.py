@@ -45,6 +45,12 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   that sum to 1), log-normal with a mean of ``amplitude`` (log-uniform) of a white: fine structure that R, G and
   B do *not* share, as in colour film's three emulsion layers (Newson, Delon & Galerne, Computer Graphics Forum
   36(8), 2017) and a photograph's per-channel residual noise, also in the dark channels of saturated colours.
+  With ``relative.probability`` (0 in version 5, so its scenes are unchanged) the grain also *multiplies* each
+  layer: every material's reflectance ``r`` becomes ``r sum_k d_k m_k(x)`` (``d_k`` the layer bands, ``m_k``
+  independent log-normal fields of mean 1 and log-std ``relative.contrast``), as a fluctuation of each emulsion
+  layer's dye density scales the light that layer passes (Beer-Lambert). Such detail is in proportion to each
+  channel's *own* signal, so a weak channel's fine structure is not a scaled copy of the bright one's: version-5
+  networks copy the weak channels' detail into red scaled ~3x (``training/runs/dye_2026-11-26/README.md``).
 
 Defaults: leaf count, smallest radius and shading exponents were set so the mean power-spectrum slope of 128 px
 scenes is near the published -1.88 (benchmarks/SCENE_STATS.md). The colour-correlation defaults (version 4:
@@ -109,7 +115,8 @@ NATURAL_DEFAULTS: dict = {
         "fine_detail": {"enabled": True, "probability": 0.4, "items": [1, 4], "grating_cpp": [0.15, 0.7],
                         "line_width_px": [0.3, 2.0], "supersample": 4},
         "grain": {"enabled": True, "probability": 0.5, "amplitude": [0.002, 0.015], "exponent": [0.0, 0.6],
-                  "contrast": 0.7, "dye_edges_nm": [490.0, 580.0], "dye_width_nm": 12.0},
+                  "contrast": 0.7, "dye_edges_nm": [490.0, 580.0], "dye_width_nm": 12.0,
+                  "relative": {"probability": 0.0, "contrast": [0.05, 0.4]}},
     },
 }
 COMPONENTS = tuple(NATURAL_DEFAULTS["components"])
@@ -141,13 +148,18 @@ def natural_config(config: dict | None = None, **overrides) -> dict:
     size = out["size"]
     if isinstance(size, bool) or not isinstance(size, int) or size < 16:
         raise ValueError(f"config: 'size' expected an integer >= 16 pixels, got {size!r}")
-    dye = out["components"]["palette"]["dye"]
-    prob, conc = dye["probability"], dye["concentration"]
-    if (not isinstance(prob, (int, float)) or not 0 <= prob <= 1 or not isinstance(conc, (list, tuple))
-            or len(conc) != 2 or not all(isinstance(c, (int, float)) for c in conc) or not 0 < conc[0] <= conc[1]):
-        raise ValueError(f"config: 'components.palette.dye' expected a probability in [0, 1] and a concentration "
-                         f"range [lo, hi] with 0 < lo <= hi, got {dye}")
+    _check_optional(out["components"]["palette"]["dye"], "palette.dye", "concentration")
+    _check_optional(out["components"]["grain"]["relative"], "grain.relative", "contrast")
     return out
+
+
+def _check_optional(block: dict, name: str, key: str) -> None:
+    """An optional draw's settings: ``probability`` in [0, 1] and a range ``key`` = [lo, hi] with 0 < lo <= hi."""
+    prob, rng = block["probability"], block[key]
+    if (not isinstance(prob, (int, float)) or not 0 <= prob <= 1 or not isinstance(rng, (list, tuple))
+            or len(rng) != 2 or not all(isinstance(c, (int, float)) for c in rng) or not 0 < rng[0] <= rng[1]):
+        raise ValueError(f"config: 'components.{name}' expected a probability in [0, 1] and a {key} range [lo, hi] "
+                         f"with 0 < lo <= hi, got {block}")
 
 
 # ------------------------------------------------------------------------------------------------ draws
@@ -433,7 +445,8 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
     Returns ``{"maps": [J, H, W] float32 (>= 0), "spectra": [J, L] float64 (photons/s/sr/m^2/nm per unit map),
     "wavelengths_nm": [L], "illuminant": [L] (the main light, a perfect white's radiance), "meta": dict}``.
     ``meta["radii"]`` lists the drawn dead-leaves radii (for the size-law check), ``meta["dye_concentrations"]`` each
-    material's Beer-Lambert concentration (1.0: undyed).
+    material's Beer-Lambert concentration (1.0: undyed), ``meta["relative_grain_contrast"]`` the log-std of the
+    multiplicative grain (``None``: none drawn; with it every material's map is split into three layer maps).
 
     Example:
         >>> s = generate_natural(0, seed=1, config={"size": 32})
@@ -490,6 +503,17 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
         grain, grain_amp = _grain(cfg, g, h, w)
         maps = torch.cat([maps, grain])
         refl = torch.cat([refl, grain_dyes(cfg, wl)])
+    rel, rel_contrast = gr["relative"], None
+    if gr["enabled"] and rel["probability"] > 0 and float(torch.rand((), generator=g)) < rel["probability"]:
+        # r(l) sum_k d_k(l) m_k(x) for every material: map j x layer k carries spectrum r_j d_k (exact, as the
+        # layers sum to 1); the additive grain layers (after the n_mat materials) are left as they are
+        rel_contrast = _u(g, *rel["contrast"])
+        s_rel = _u(g, *gr["exponent"])
+        mod = torch.stack([torch.exp(rel_contrast * _tex.power_law_noise(h, w, s_rel, g) - 0.5 * rel_contrast**2)
+                           for _ in range(3)])
+        dyes = grain_dyes(cfg, wl)
+        maps = torch.cat([(maps[:n_mat, None] * mod[None]).flatten(0, 1), maps[n_mat:]])
+        refl = torch.cat([(refl[:n_mat, None] * dyes[None]).flatten(0, 1), refl[n_mat:]])
     scale = float(cfg["mean_radiance_scale"])
     all_maps, all_spectra = [], []
     for e, m in lights:
@@ -497,7 +521,8 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
         all_spectra.append(refl * (e * scale)[None])
     meta = {"index": int(index), "seed": int(seed), "materials": mat_kinds, "dye_concentrations": dye_conc,
             "illuminants": light_names, "cct_k": float(cct), "radii": radii, "defocus_diopters": defocus,
-            "fine_detail": fine, "shading_exponent": s, "shading_contrast": contrast, "grain_amplitude": grain_amp}
+            "fine_detail": fine, "shading_exponent": s, "shading_contrast": contrast, "grain_amplitude": grain_amp,
+            "relative_grain_contrast": rel_contrast}
     return {"maps": torch.cat(all_maps), "spectra": torch.cat(all_spectra), "wavelengths_nm": wl,
             "illuminant": lights[0][0] * scale, "meta": meta}
 

@@ -363,6 +363,44 @@ def test_grain_draws_last_so_the_other_maps_do_not_change():
     assert torch.equal(on["maps"][:-3], off["maps"]) and torch.equal(on["spectra"][:-3], off["spectra"])
 
 
+REL = {"size": 96, "components": {"grain": {"probability": 0.0, "exponent": [0.0, 0.0],
+                                            "relative": {"probability": 1.0}},
+                                  "illuminant": {"mixed_probability": 0.0}}}
+
+
+def test_relative_grain_multiplies_each_layer_with_its_specified_law():
+    """components.grain.relative: the scene drawn without it (every earlier draw is the same) times
+    ``sum_k d_k(l) m_k(x)`` exactly (m solved from three wavelengths predicts all 31), with ``m_k`` log-normal of mean
+    1 and log-std the drawn contrast, independent between layers; each material becomes three layer maps; off in the
+    defaults (version 5); a bad setting raises naming the key."""
+    on = nat.generate_natural(4, seed=2, config=REL)
+    off_cfg = nat.natural_config(REL)
+    off_cfg["components"]["grain"]["relative"]["probability"] = 0.0
+    off = nat.generate_natural(4, seed=2, config=off_cfg)
+    assert off["meta"]["relative_grain_contrast"] is None and on["maps"].shape[0] == 3 * off["maps"].shape[0]
+    c = on["meta"]["relative_grain_contrast"]
+    assert 0.05 <= c <= 0.4
+
+    def radiance(s):
+        return torch.einsum("jhw,jl->lhw", s["maps"].double(), s["spectra"])
+
+    r_on, r_off = radiance(on), radiance(off)
+    assert (r_off > 1e-9 * r_off.max()).all()
+    ratio = (r_on / r_off).flatten(1)  # [L, H*W]
+    dyes = nat.grain_dyes(nat.natural_config(REL), WL)  # [3, L]
+    pick = [0, 14, 30]  # 400, 540, 700 nm
+    m = torch.linalg.solve(dyes[:, pick].T, ratio[pick])  # [3, H*W]: the layer fields
+    assert torch.allclose(dyes.T @ m, ratio, rtol=1e-4, atol=0)
+    assert torch.allclose(m.mean(1), torch.ones(3, dtype=torch.float64), atol=0.03)
+    logs = m.log()
+    assert torch.allclose(logs.std(1), torch.full((3,), c, dtype=torch.float64), rtol=0.05)
+    assert (torch.corrcoef(logs) - torch.eye(3, dtype=torch.float64)).abs().max() < 0.05
+    assert nat.NATURAL_DEFAULTS["components"]["grain"]["relative"]["probability"] == 0.0
+    assert nat.generate_natural(0, seed=1, config={"size": 32})["meta"]["relative_grain_contrast"] is None
+    with pytest.raises(ValueError, match="components.grain.relative"):
+        nat.natural_config({"components": {"grain": {"relative": {"contrast": [0.4, 0.1]}}}})
+
+
 def test_training_configs_name_valid_generator_settings():
     """Every configs/train demosaic config's data.natural is a valid override (a misspelt key would raise only
     after minutes of bank rendering), and the version-4 pin of the first noise-free stage differs from the
