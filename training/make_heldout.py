@@ -15,6 +15,7 @@ independently per channel, before the 8-bit rounding (training/runs/natural_v4_6
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -47,6 +48,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--disable", nargs="*", default=[], metavar="COMPONENT",
                     help=f"natural-generator components to switch off (from {nat.COMPONENTS}), e.g. colour_correlation "
                          "for a held-out set with chromatic fine detail")
+    ap.add_argument("--natural", default=None, metavar="JSON",
+                    help='generator options (data.natural of the training configs), e.g. '
+                         '\'{"components": {"grain": {"relative": {"probability": 0.5}}}}\': a held-out set drawn '
+                         'with a candidate generator\'s options')
     ap.add_argument("--channel-gains", type=float, nargs=3, default=None, metavar=("R", "G", "B"),
                     help="scale the encoded image's channels (a stress set: e.g. 1 0.15 0.15 for saturated reds)")
     ap.add_argument("--grain-std", type=float, default=0.0,
@@ -57,11 +62,17 @@ def main(argv: list[str] | None = None) -> int:
         raise ValueError(f"--channel-gains: expected three values in [0, 1], got {args.channel_gains}")
     if not args.grain_std >= 0:
         raise ValueError(f"--grain-std: expected a std >= 0, got {args.grain_std}")
+    try:
+        natural = json.loads(args.natural) if args.natural is not None else {}
+    except json.JSONDecodeError as e:
+        raise ValueError(f"--natural: expected a JSON mapping of generator options, got {args.natural!r} ({e})") from e
+    if not isinstance(natural, dict):
+        raise ValueError(f"--natural: expected a JSON mapping of generator options, got {args.natural!r}")
     torch.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     data = {"source": args.source, "patch": args.size, "scene_size": args.size, "disable": list(args.disable),
-            "colour_space": args.colour_space}
+            "colour_space": args.colour_space, "natural": natural}
     pool = ScenePool({"data": data}, HELDOUT_SEED)
     for i in progress(range(args.n), desc="held-out", unit="image", quiet=args.quiet):
         g = torch.Generator().manual_seed(HELDOUT_SEED + i)

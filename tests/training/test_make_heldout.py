@@ -46,3 +46,15 @@ def test_stress_set_gains_and_grain(tmp_path):
     assert abs(d[inner].std() - 0.02) < 0.003  # the grain's std, to the 8-bit rounding's
     with pytest.raises(ValueError, match="--channel-gains"):
         make_heldout.main(["--out", str(tmp_path / "x"), "--channel-gains", "1", "2", "1"])
+
+
+def test_generator_options_draw_another_set(tmp_path):
+    """--natural: a held-out set drawn with a candidate generator's options (here the multiplicative grain); '{}' is
+    the default set, byte for byte; bad JSON or an unknown option raises naming it."""
+    a = _write(tmp_path / "a")
+    np.testing.assert_array_equal(_write(tmp_path / "b", "--natural", "{}"), a)
+    rel = _write(tmp_path / "rel", "--natural", '{"components": {"grain": {"relative": {"probability": 1.0}}}}')
+    assert np.abs(rel.astype(int) - a.astype(int)).mean() > 0.5
+    for bad, match in (("{oops", "--natural"), ("[1]", "--natural"), ('{"components": {"sky": {}}}', "sky")):
+        with pytest.raises(ValueError, match=match):
+            make_heldout.main(["--out", str(tmp_path / "x"), "--n", "1", "--size", "32", "--quiet", "--natural", bad])
