@@ -47,7 +47,8 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   36(8), 2017) and a photograph's per-channel residual noise, also in the dark channels of saturated colours.
   With ``relative.probability`` (0 in version 5, so its scenes are unchanged) the grain also *multiplies* each
   layer: every material's reflectance ``r`` becomes ``r sum_k d_k m_k(x)`` (``d_k`` the layer bands, ``m_k``
-  independent log-normal fields of mean 1 and log-std ``relative.contrast``), as a fluctuation of each emulsion
+  independent log-normal fields of mean 1 and log-std ``relative.contrast``; its default 0.01-0.08 is the additive
+  grain's ``amplitude`` relative to an 18 % grey), as a fluctuation of each emulsion
   layer's dye density scales the light that layer passes (Beer-Lambert). Such detail is in proportion to each
   channel's *own* signal, so a weak channel's fine structure is not a scaled copy of the bright one's: version-5
   networks copy the weak channels' detail into red scaled ~3x (``training/runs/dye_2026-11-26/README.md``).
@@ -116,7 +117,7 @@ NATURAL_DEFAULTS: dict = {
                         "line_width_px": [0.3, 2.0], "supersample": 4},
         "grain": {"enabled": True, "probability": 0.5, "amplitude": [0.002, 0.015], "exponent": [0.0, 0.6],
                   "contrast": 0.7, "dye_edges_nm": [490.0, 580.0], "dye_width_nm": 12.0,
-                  "relative": {"probability": 0.0, "contrast": [0.05, 0.4]}},
+                  "relative": {"probability": 0.0, "contrast": [0.01, 0.08]}},
     },
 }
 COMPONENTS = tuple(NATURAL_DEFAULTS["components"])

@@ -379,7 +379,8 @@ def test_relative_grain_multiplies_each_layer_with_its_specified_law():
     off = nat.generate_natural(4, seed=2, config=off_cfg)
     assert off["meta"]["relative_grain_contrast"] is None and on["maps"].shape[0] == 3 * off["maps"].shape[0]
     c = on["meta"]["relative_grain_contrast"]
-    assert 0.05 <= c <= 0.4
+    lo, hi = nat.NATURAL_DEFAULTS["components"]["grain"]["relative"]["contrast"]
+    assert lo <= c <= hi
 
     def radiance(s):
         return torch.einsum("jhw,jl->lhw", s["maps"].double(), s["spectra"])

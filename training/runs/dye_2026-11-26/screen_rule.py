@@ -10,35 +10,27 @@ of the three means.
 Ship the candidate if (a) its score beats the incumbent's, (b) none of its three means is more than 0.05 dB below
 the incumbent's, and (c) no held-out scene is below MHC on any set. Otherwise the incumbent stays.
 Kodak/McMaster are scored afterwards, for reporting only.
+The code was refactored later the same day to call training/heldout_screen.py (one implementation of the rule);
+the rule, sets and output are unchanged (re-run: the same means and decision).
 """
 import json
+import sys
 
 import torch
 
-from isettorch.isp.evaluation import evaluate_demosaic, load_demosaic_model
+sys.path.insert(0, ".")
+from training.heldout_screen import screen  # noqa: E402
 
-torch.set_num_threads(2)
 SETS = ["out/heldout_v5", "out/heldout_v5_stress", "out/heldout_stress"]
 PATHS = {"stage3": "out/train_demosaic_noise_free_stage3/best.pt", "dye": "out/train_demosaic_noise_free_dye/best.pt"}
 
 if __name__ == "__main__":
-    res = {}
-    mhc = {s: [i["cpsnr"] for i in evaluate_demosaic(s, "malvar2004", "RGGB", 10)["images"]] for s in SETS}
-    for name, path in PATHS.items():
-        net, row = load_demosaic_model(path), {}
-        for s in SETS:
-            r = evaluate_demosaic(s, "learned", "RGGB", 10, model=net)
-            v = [i["cpsnr"] for i in r["images"]]
-            row[s] = {"mean": r["mean_cpsnr"], "below_mhc": sum(a < b for a, b in zip(v, mhc[s])),
-                      "worst_vs_mhc": min(a - b for a, b in zip(v, mhc[s])),
-                      "per_image": {i["name"]: i["cpsnr"] for i in r["images"]}}
-        row["score"] = sum(row[s]["mean"] for s in SETS) / 3
-        res[name] = row
-        print(name, " ".join(f"{row[s]['mean']:.3f}({row[s]['below_mhc']})" for s in SETS),
-              f"score {row['score']:.3f}", flush=True)
-    a, b = res["dye"], res["stage3"]
-    ok = (a["score"] > b["score"] and all(a[s]["mean"] >= b[s]["mean"] - 0.05 for s in SETS)
-          and all(a[s]["below_mhc"] == 0 for s in SETS))
-    res["decision"] = "dye" if ok else "stage3"
+    torch.set_num_threads(2)
+    r = screen(PATHS["stage3"], PATHS["dye"], SETS)
+    res = {"stage3": r["incumbent"], "dye": r["candidate"],
+           "decision": "dye" if r["decision"] == "candidate" else "stage3"}
+    for name in ("stage3", "dye"):
+        row = res[name]
+        print(name, " ".join(f"{row[s]['mean']:.3f}({row[s]['below_mhc']})" for s in SETS), f"score {row['score']:.3f}")
     print("ship:", res["decision"])
     json.dump(res, open("training/runs/dye_2026-11-26/screen_heldout.json", "w"), indent=1)

@@ -1,0 +1,42 @@
+"""training/heldout_screen.py: the shipping rule on two tiny held-out sets, with the shipped network against a copy
+whose output head is scaled down (a worse network)."""
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from isettorch.isp.evaluation import evaluate_demosaic, load_demosaic_model  # noqa: E402
+from training import heldout_screen, make_heldout  # noqa: E402
+
+SHIPPED = ROOT / "isettorch" / "assets" / "demosaic_learned.pt"
+
+
+def test_screen_rule_and_scores(tmp_path):
+    sets = []
+    for k, extra in enumerate(([], ["--channel-gains", "1", "0.5", "0.5"])):
+        folder = tmp_path / f"set{k}"
+        assert make_heldout.main(["--out", str(folder), "--n", "2", "--size", "48", "--quiet", *extra]) == 0
+        sets.append(str(folder))
+    state = torch.load(SHIPPED, weights_only=True)
+    state["model"] = {k: v * 0.3 if k.startswith("head.") else v for k, v in state["model"].items()}
+    worse = tmp_path / "worse.pt"
+    torch.save(state, worse)
+    res = heldout_screen.screen(str(worse), str(SHIPPED), sets)
+    assert res["decision"] == "candidate"  # the shipped network beats its damaged copy on every set
+    net = load_demosaic_model(SHIPPED)
+    means = [evaluate_demosaic(s, "learned", "RGGB", 10, model=net)["mean_cpsnr"] for s in sets]
+    assert res["candidate"]["score"] == pytest.approx(sum(means) / 2, abs=1e-9)
+    assert res["candidate"][sets[0]]["mean"] > res["incumbent"][sets[0]]["mean"] + 0.5
+    assert heldout_screen.screen(str(SHIPPED), str(worse), sets)["decision"] == "incumbent"
+    out = tmp_path / "res.json"
+    assert heldout_screen.main(["--incumbent", str(SHIPPED), "--candidate", str(SHIPPED), "--sets", *sets,
+                                "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["decision"] == "incumbent"  # a tie does not ship: the score must beat it
+    with pytest.raises(ValueError, match="sets"):
+        heldout_screen.screen(str(SHIPPED), str(SHIPPED), [])
