@@ -48,10 +48,10 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   With ``relative.probability`` (0 in version 5, so its scenes are unchanged) the grain also *multiplies* each
   layer: every material's reflectance ``r`` becomes ``r sum_k d_k m_k(x)`` (``d_k`` the layer bands, ``m_k``
   independent log-normal fields of mean 1 and log-std ``relative.contrast``; its default 0.01-0.08 is the additive
-  grain's ``amplitude`` relative to an 18 % grey), as a fluctuation of each emulsion
-  layer's dye density scales the light that layer passes (Beer-Lambert). Such detail is in proportion to each
-  channel's *own* signal, so a weak channel's fine structure is not a scaled copy of the bright one's: version-5
-  networks copy the weak channels' detail into red scaled ~3x (``training/runs/dye_2026-11-26/README.md``).
+  grain's ``amplitude`` relative to an 18 % grey), as a fluctuation of each emulsion layer's dye density scales the
+  light that layer passes (Beer-Lambert). Such detail is in proportion to each channel's *own* signal, so a weak
+  channel's fine structure is not a scaled copy of the bright one's: version-5 networks copy the weak channels'
+  detail into red scaled ~3x (``training/runs/dye_2026-11-26/README.md``).
 
 Defaults: leaf count, smallest radius and shading exponents were set so the mean power-spectrum slope of 128 px
 scenes is near the published -1.88 (benchmarks/SCENE_STATS.md). The colour-correlation defaults (version 4:
