@@ -363,9 +363,9 @@ def _balanced_mosaic(mosaic: torch.Tensor, index_map: torch.Tensor) -> torch.Ten
     (pixels on the edge are few; noise is symmetric about each plateau). For a neutral edge this removes the
     filters' different gains and leaves a full-resolution achromatic edge.
     """
-    ph, pw = index_map.shape
-    h, w = mosaic.shape
-    idx = index_map.repeat((h + ph - 1) // ph, (w + pw - 1) // pw)[:h, :w].to(mosaic.device)
+    from ..isp.demosaicing._cfa import tile
+
+    idx = tile(index_map, *mosaic.shape).to(mosaic.device)
     out = torch.empty_like(mosaic)
     for c in idx.unique().tolist():
         sel = idx == c
@@ -448,8 +448,9 @@ def esfr_cfa(mosaic: torch.Tensor, cfa, mode: str = "luminance", roi: tuple[int,
                     min_cnr=min_cnr)
     # Channels: every channel's pixels at their true positions, projected on the edge fitted to the balanced
     # mosaic, binned at 1/4 sensor pixel (sub-sampling each channel would bin at 1/4 of the cell instead).
-    h, w = mosaic.shape
-    idx = index_map.repeat((h + ph - 1) // ph, (w + pw - 1) // pw)[:h, :w]
+    from ..isp.demosaicing._cfa import tile
+
+    idx = tile(index_map, *mosaic.shape)
     geo = _balanced_mosaic(mosaic.detach(), index_map)
     chans = sorted(int(c) for c in idx.unique())
     results = [_esfr_single(mosaic, max_empty_bins, min_cnr, geo=geo, mask=idx == c) for c in chans]

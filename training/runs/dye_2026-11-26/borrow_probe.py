@@ -10,6 +10,7 @@ import json
 import torch
 
 from isettorch.isp.demosaicing import bayer_index_map, demosaic, mosaic
+from isettorch.isp.demosaicing._cfa import tile
 from isettorch.isp.evaluation import load_demosaic_model, load_images
 from isettorch.isp.learned import demosaic_learned
 
@@ -26,7 +27,7 @@ for (n1, sat), (n2, st) in zip(load_images("out/heldout_v5_sat"), load_images("o
     grain = (st_t - sat_t)[:, crop:-crop, crop:-crop]
     raw = mosaic(st_t[None].float(), "RGGB")
     h, w = st_t.shape[-2:]
-    idx = bayer_index_map("RGGB").repeat(h // 2, w // 2)[crop:-crop, crop:-crop]
+    idx = tile(bayer_index_map("RGGB"), h, w)[crop:-crop, crop:-crop]
     outs = {"malvar2004": demosaic(raw, "RGGB", "malvar2004")[0].double(),
             **{k: demosaic_learned(raw, "RGGB", model=n)[0].double().detach() for k, n in nets.items()}}
     for m, o in outs.items():

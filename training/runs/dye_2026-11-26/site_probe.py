@@ -7,6 +7,7 @@ import json
 import torch
 
 from isettorch.isp.demosaicing import bayer_index_map, demosaic, mosaic
+from isettorch.isp.demosaicing._cfa import tile
 from isettorch.isp.evaluation import load_demosaic_model, load_images
 from isettorch.isp.learned import demosaic_learned
 
@@ -21,7 +22,7 @@ for name, folder in (("gains only", "out/heldout_v5_sat"), ("stress", "out/heldo
         t = torch.tensor(im, dtype=torch.float64).permute(2, 0, 1) / 255
         raw = mosaic(t[None].float(), "RGGB")
         h, w = t.shape[-2:]
-        idx = bayer_index_map("RGGB").repeat(h // 2, w // 2)[crop:-crop, crop:-crop]
+        idx = tile(bayer_index_map("RGGB"), h, w)[crop:-crop, crop:-crop]
         outs = {"malvar2004": demosaic(raw, "RGGB", "malvar2004")[0].double(),
                 "stage3": demosaic_learned(raw, "RGGB", model=net)[0].double().detach()}
         for c in range(3):
