@@ -363,7 +363,7 @@ def _balanced_mosaic(mosaic: torch.Tensor, index_map: torch.Tensor) -> torch.Ten
     (pixels on the edge are few; noise is symmetric about each plateau). For a neutral edge this removes the
     filters' different gains and leaves a full-resolution achromatic edge.
     """
-    from ..isp.demosaicing._cfa import tile
+    from ..sensor.cfa import tile
 
     idx = tile(index_map, *mosaic.shape).to(mosaic.device)
     out = torch.empty_like(mosaic)
@@ -448,7 +448,7 @@ def esfr_cfa(mosaic: torch.Tensor, cfa, mode: str = "luminance", roi: tuple[int,
                     min_cnr=min_cnr)
     # Channels: every channel's pixels at their true positions, projected on the edge fitted to the balanced
     # mosaic, binned at 1/4 sensor pixel (sub-sampling each channel would bin at 1/4 of the cell instead).
-    from ..isp.demosaicing._cfa import tile
+    from ..sensor.cfa import tile
 
     idx = tile(index_map, *mosaic.shape)
     geo = _balanced_mosaic(mosaic.detach(), index_map)

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import torch
 
-__all__ = ["BAYER_PATTERNS", "CFA", "CFA_LIBRARY", "KNOWN_LETTERS", "cfa"]
+__all__ = ["BAYER_PATTERNS", "CFA", "CFA_LIBRARY", "KNOWN_LETTERS", "cfa", "tile"]
 
 # Letter -> meaning. 'C' is cyan here; a clear (unfiltered) pixel is 'W' (RCCB/RCCC map C to clear).
 KNOWN_LETTERS = {
@@ -42,6 +42,14 @@ CFA_LIBRARY: dict[str, str] = {
 
 # The four 2x2 RGB Bayer layouts of the table (the demosaic methods' patterns).
 BAYER_PATTERNS: tuple[str, ...] = ("RGGB", "BGGR", "GRBG", "GBRG")
+
+
+def tile(index_map: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """Repeat a ``[ph, pw]`` map over an ``[H, W]`` grid, top-left aligned (the one CFA tiling: the sensor, the
+    demosaic methods and the SFR metrics all call it)."""
+    ph, pw = index_map.shape
+    reps = (-(-height // ph), -(-width // pw))
+    return index_map.repeat(*reps)[:height, :width]
 
 
 def _parse(cell) -> list[list[str]]:
@@ -184,11 +192,9 @@ class CFA:
         key = (height, width, str(device))
         cache = self.__dict__.setdefault("_index_cache", {})
         if key not in cache:  # the tiling of a size repeats (e.g. every frame of a dataset): built once
-            ph, pw = self.shape
-            reps = (-(-height // ph), -(-width // pw))
             if len(cache) > 16:
                 cache.clear()
-            cache[key] = self.index_map.to(device).repeat(*reps)[:height, :width]
+            cache[key] = tile(self.index_map.to(device), height, width)
         return cache[key]
 
     def masks(self, height: int, width: int, *, dtype=None, device=None) -> torch.Tensor:

@@ -8,7 +8,7 @@ import functools
 import torch
 import torch.nn.functional as F
 
-from ...sensor.cfa import BAYER_PATTERNS, CFA  # the one CFA-pattern table
+from ...sensor.cfa import BAYER_PATTERNS, CFA, tile  # the one CFA-pattern table and its tiling
 
 
 def check_raw(raw, name: str = "raw") -> torch.Tensor:
@@ -68,13 +68,6 @@ def check_index_map(index_map, num_channels: int | None, height: int, width: int
     if height < ph or width < pw:
         raise ValueError(f"raw: expected at least one full CFA period ({ph}x{pw}), got an image of {height}x{width}")
     return idx, num_channels
-
-
-def tile(index_map: torch.Tensor, height: int, width: int) -> torch.Tensor:
-    """Repeat a [ph, pw] map over an [H, W] grid (top-left aligned)."""
-    ph, pw = index_map.shape
-    reps = (-(-height // ph), -(-width // pw))
-    return index_map.repeat(*reps)[:height, :width]
 
 
 def idx_key(index_map: torch.Tensor) -> tuple:

@@ -10,9 +10,9 @@ import json
 import torch
 
 from isettorch.isp.demosaicing import bayer_index_map, demosaic, mosaic
-from isettorch.isp.demosaicing._cfa import tile
 from isettorch.isp.evaluation import load_demosaic_model, load_images
 from isettorch.isp.learned import demosaic_learned
+from isettorch.sensor.cfa import tile
 
 torch.set_num_threads(2)
 runs = {"stage1 (v4, no grain)": "", "stage3": "_stage3", "stage5": "_stage5", "dye": "_dye"}

@@ -7,9 +7,9 @@ import json
 import torch
 
 from isettorch.isp.demosaicing import bayer_index_map, demosaic, mosaic
-from isettorch.isp.demosaicing._cfa import tile
 from isettorch.isp.evaluation import load_demosaic_model, load_images
 from isettorch.isp.learned import demosaic_learned
+from isettorch.sensor.cfa import tile
 
 torch.set_num_threads(2)
 net = load_demosaic_model("out/train_demosaic_noise_free_stage3/best.pt")
