@@ -15,7 +15,8 @@ from isettorch.isp.learned import demosaic_learned
 from isettorch.sensor.cfa import tile
 
 torch.set_num_threads(2)
-runs = {"stage1 (v4, no grain)": "", "stage3": "_stage3", "stage5": "_stage5", "dye": "_dye"}
+runs = {"stage1 (v4, no grain)": "", "stage3": "_stage3", "stage5": "_stage5", "dye": "_dye",
+        "relgrain": "_relgrain"}
 nets = {k: load_demosaic_model(f"out/train_demosaic_noise_free{r}/best.pt") for k, r in runs.items()}
 crop = 10
 pairs = [(s, c) for s in range(3) for c in range(3) if s != c]

@@ -28,6 +28,6 @@ if __name__ == "__main__":  # [--candidate PATH] for a dry run of this script
     torch.set_num_threads(2)
     cand = sys.argv[sys.argv.index("--candidate") + 1] if "--candidate" in sys.argv else \
         "out/train_demosaic_noise_free_relgrain/best.pt"
-    out = "training/runs/relgrain_plan/screen_heldout.json" if "--candidate" not in sys.argv else \
+    out = "training/runs/relgrain_2026-11-26/screen_heldout.json" if "--candidate" not in sys.argv else \
         "out/relgrain_screen_dryrun.json"
     raise SystemExit(main(["--incumbent", INCUMBENT, "--candidate", cand, "--sets", *SETS, "--out", out]))
