@@ -415,7 +415,7 @@ def esfr_cfa(mosaic: torch.Tensor, cfa, mode: str = "luminance", roi: tuple[int,
     Reference: ISO 12233:2017 annex D (e-SFR) applied to a CFA; Burns, "Slanted-edge MTF for digital camera and
     scanner analysis" (PICS 2000) for the per-colour-record analysis.
     """
-    from ..sensor.cfa import CFA
+    from ..sensor.cfa import CFA, tile
 
     if mode not in ("luminance", "channels"):
         raise ValueError(f"mode: expected 'luminance' or 'channels', got {mode!r}")
@@ -448,8 +448,6 @@ def esfr_cfa(mosaic: torch.Tensor, cfa, mode: str = "luminance", roi: tuple[int,
                     min_cnr=min_cnr)
     # Channels: every channel's pixels at their true positions, projected on the edge fitted to the balanced
     # mosaic, binned at 1/4 sensor pixel (sub-sampling each channel would bin at 1/4 of the cell instead).
-    from ..sensor.cfa import tile
-
     idx = tile(index_map, *mosaic.shape)
     geo = _balanced_mosaic(mosaic.detach(), index_map)
     chans = sorted(int(c) for c in idx.unique())
