@@ -394,3 +394,64 @@ def test_adaptive_grad_clip_caps_outliers_at_a_multiple_of_the_running_norm():
     assert float(p.grad.norm()) == pytest.approx(100.0)
     with pytest.raises(ValueError, match="clip_grad_factor"):
         train_demosaic.AdaptiveGradClip(-1.0)
+
+
+def _teacher(tmp_path, noise_inputs=0):
+    torch.manual_seed(3)
+    net = train_demosaic.DemosaicNet(channels=8, depth=2, noise_inputs=noise_inputs)
+    with torch.no_grad():  # a non-trivial head: the untrained network is MHC, which is transpose-equivariant
+        for p in net.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    path = tmp_path / f"teacher{noise_inputs}.pt"
+    torch.save({"model": net.state_dict(), "net_config": net.config()}, path)
+    return net.eval(), path
+
+
+def test_distill_target_is_the_teachers_self_ensemble_and_transpose_equivariant(tmp_path):
+    net, path = _teacher(tmp_path)
+    teacher, w, ens = train_demosaic.load_teacher({"distill": {"teacher": str(path), "weight": 0.25}}, "cpu")
+    assert (w, ens) == (0.25, True)
+    g = torch.Generator().manual_seed(0)
+    rgb = torch.rand(2, 3, 12, 16, generator=g)
+    raw = train_demosaic.mosaic_rggb(torch.rand(2, 3, 12, 16, generator=g))
+    with torch.no_grad():  # the mean of the network on the mosaic and on its transpose, from the network itself
+        two = 0.5 * (net(raw) + net(raw.transpose(-1, -2)).transpose(-1, -2))
+    target = train_demosaic.distill_target(raw, rgb, None, teacher, w, ens)
+    torch.testing.assert_close(target, 0.75 * rgb + 0.25 * two, rtol=0, atol=1e-6)
+    one = train_demosaic.distill_target(raw, rgb, None, teacher, 1.0, False)
+    with torch.no_grad():
+        torch.testing.assert_close(one, net(raw), rtol=0, atol=1e-6)
+        assert (one - two).abs().max() > 1e-3  # the teacher is not equivariant; its ensemble is, exactly:
+    t_raw = raw.transpose(-1, -2)  # an RGGB mosaic transposes to an RGGB mosaic
+    torch.testing.assert_close(train_demosaic.distill_target(t_raw, rgb.transpose(-1, -2), None, teacher, 1.0, True),
+                               train_demosaic.distill_target(raw, rgb, None, teacher, 1.0, True).transpose(-1, -2),
+                               rtol=0, atol=1e-6)
+
+
+def test_distill_config_errors_name_the_key(tmp_path):
+    _, path = _teacher(tmp_path)
+    for bad, key in (({"teacher": str(path), "weight": 0}, "distill.weight"),
+                     ({"teacher": str(path), "self_ensemble": "yes"}, "distill.self_ensemble"),
+                     ({"weight": 1.0}, "distill.teacher"), ({"teacher": str(path), "alpha": 1}, "distill: unknown")):
+        with pytest.raises(ValueError, match=key):
+            train_demosaic.load_teacher({"distill": bad}, "cpu")
+    with pytest.raises(ValueError, match="noise inputs"):  # a noise-free teacher for a joint run
+        train_demosaic.load_teacher({"distill": {"teacher": str(path)}, "noise": {"enabled": True}}, "cpu")
+
+
+def test_distillation_run_trains_towards_the_teacher(tmp_path):
+    """A student started from its teacher (one pass, weight 1) has a zero loss and no gradient: the targets are the
+    teacher's outputs on the same mosaics, not the scenes."""
+    _, path = _teacher(tmp_path)
+    args = ["--config", str(SMOKE), "--out", str(tmp_path / "run"), "--quiet", "--threads", "1", "--steps", "2",
+            "--set", f"init={path}", f"distill={{teacher: {path}, weight: 1.0, self_ensemble: false}}"]
+    assert train_demosaic.main(args) == 0
+    rows = list(csv.DictReader(open(tmp_path / "run" / "history.csv")))
+    assert [float(r["train_loss"]) for r in rows] == [0.0]
+    rec = json.loads((tmp_path / "run" / "record.json").read_text())
+    assert rec["config"]["distill"]["teacher"] == str(path)
+    # the same run towards the scenes has a loss
+    args[-1] = f"distill={{teacher: {path}, weight: 0.5, self_ensemble: false}}"
+    args[3] = str(tmp_path / "half")
+    assert train_demosaic.main(args) == 0
+    assert float(next(csv.DictReader(open(tmp_path / "half" / "history.csv")))["train_loss"]) > 1e-5
