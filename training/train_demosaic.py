@@ -41,7 +41,8 @@ puts an R pixel top-left, so every Bayer order the dataset draws reaches the net
 where ``teacher`` is a trained checkpoint's output on the same mosaic (:func:`distill_target`; knowledge
 distillation, Hinton, Vinyals & Dean 2015). With ``self_ensemble`` the teacher's output is its geometric
 self-ensemble (:func:`isettorch.isp.learned.demosaic_learned`, the mean over the mosaic and its transpose), so a
-one-pass student is taught the two-pass network's exactly transpose-equivariant output.
+one-pass student is taught the two-pass network's exactly transpose-equivariant output; ``self_ensemble: dihedral``
+teaches the eight-pass ensemble over flips and transposes.
 """
 
 from __future__ import annotations
@@ -511,7 +512,7 @@ def make_batch(sampler: ScenePool | CameraPairSource, cfg: dict, seed: int, batc
     return raw, rgb, feats
 
 
-def load_teacher(cfg: dict, device) -> tuple[DemosaicNet | None, float, bool]:
+def load_teacher(cfg: dict, device) -> tuple[DemosaicNet | None, float, bool | str]:
     """(teacher network in eval mode or None, weight, self_ensemble) from the config's ``distill`` block."""
     d = cfg.get("distill") or {}
     if not d:
@@ -523,8 +524,8 @@ def load_teacher(cfg: dict, device) -> tuple[DemosaicNet | None, float, bool]:
     if not 0.0 < weight <= 1.0:
         raise ValueError(f"distill.weight: expected a value in (0, 1], got {weight}")
     ens = d.get("self_ensemble", True)
-    if not isinstance(ens, bool):
-        raise ValueError(f"distill.self_ensemble: expected true or false, got {ens!r}")
+    if ens not in learned.SELF_ENSEMBLES or not isinstance(ens, (bool, str)):
+        raise ValueError(f"distill.self_ensemble: expected true, false, transpose or dihedral, got {ens!r}")
     if "teacher" not in d:
         raise ValueError("distill.teacher: expected the path of a DemosaicNet checkpoint")
     teacher, _ = learned.load_checkpoint(d["teacher"], device=device)
@@ -537,9 +538,10 @@ def load_teacher(cfg: dict, device) -> tuple[DemosaicNet | None, float, bool]:
 
 @torch.no_grad()
 def distill_target(raw: torch.Tensor, rgb: torch.Tensor, feats: torch.Tensor | None, teacher: DemosaicNet,
-                   weight: float, self_ensemble: bool) -> torch.Tensor:
+                   weight: float, self_ensemble: bool | str) -> torch.Tensor:
     """``(1 - weight) * rgb + weight * teacher(raw)`` (float32); the teacher's output through the library's
-    :func:`~isettorch.isp.learned.demosaic_learned` (RGGB), its self-ensemble when ``self_ensemble``."""
+    :func:`~isettorch.isp.learned.demosaic_learned` (RGGB), its self-ensemble when ``self_ensemble`` (True or
+    ``"transpose"``: two passes; ``"dihedral"``: eight)."""
     out = learned.demosaic_learned(raw, "RGGB", model=teacher, noise=feats, self_ensemble=self_ensemble)
     return torch.lerp(rgb, out.float(), weight)
 

@@ -41,9 +41,11 @@ def register(sub) -> None:
     p.add_argument("--dtype", choices=("float32", "float64"), default="float32", help="compute dtype (float32)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
-    p.add_argument("--self-ensemble", action="store_true",
+    p.add_argument("--self-ensemble", action="store_const", const="transpose", default=None,
                    help="learned method or a DemosaicNet --model: average the network on the mosaic and its transpose "
                         "(two passes)")
+    p.add_argument("--dihedral-ensemble", dest="self_ensemble", action="store_const", const="dihedral",
+                   help="like --self-ensemble, over the eight flips and transposes of the mosaic (eight passes)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_quiet_argument(p)
     p.set_defaults(func=run)
@@ -74,7 +76,7 @@ def run(args) -> int:
         model = load_demosaic_model(args.model, args.model_class, kwargs=kwargs, device=args.device, dtype=dtype)
     elif args.model_class is not None or args.model_kwargs is not None:
         raise ValueError("--model-class/--model-kwargs: only with --model FILE")
-    extra = {"self_ensemble": True} if args.self_ensemble else {}  # evaluate_demosaic checks the method
+    extra = {"self_ensemble": args.self_ensemble} if args.self_ensemble else {}  # evaluate_demosaic checks the method
     res = evaluate_demosaic(args.folder, args.method, args.pattern.upper(), args.crop, dtype=dtype,
                             device=args.device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
                             seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet, **extra)

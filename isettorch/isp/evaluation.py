@@ -284,7 +284,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
         if model is None and method != "learned":
             raise ValueError(f"self_ensemble (--self-ensemble): only for the learned method or a DemosaicNet model, "
                              f"got method {method!r}")
-        name += " + self-ensemble"
+        name += " + self-ensemble" if kwargs["self_ensemble"] in (True, "transpose") else " + dihedral self-ensemble"
     items = load_images(images)
 
     call = _demosaic_call(method, model, pattern, noise_sigma, noise_shot, device, dtype, kwargs)

@@ -179,8 +179,13 @@ def noise_features(shot_gain, read_var) -> torch.Tensor:
     return torch.stack([a.sqrt() * 10.0, b.sqrt() * 100.0], 1)
 
 
+SELF_ENSEMBLES = (False, True, "transpose", "dihedral")
+# flipped dims of an even-sized RGGB mosaic -> the Bayer pattern it then has
+_FLIPS = {(): "RGGB", (-1,): "GRBG", (-2,): "GBRG", (-2, -1): "BGGR"}
+
+
 def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: DemosaicNet | None = None,
-                     noise: torch.Tensor | None = None, self_ensemble: bool = False) -> torch.Tensor:
+                     noise: torch.Tensor | None = None, self_ensemble: bool | str = False) -> torch.Tensor:
     """Demosaic a Bayer mosaic with a :class:`DemosaicNet` (default: the shipped checkpoint).
 
     Args:
@@ -191,23 +196,32 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
         self_ensemble: average the network on the mosaic and on its transpose (transposed back): an RGGB
             mosaic transposes to an RGGB mosaic, so both passes are valid inputs (geometric self-ensemble:
             Timofte, Rothe & Van Gool, CVPR 2016; Lim et al., EDSR+, CVPRW 2017). Two network passes; the result
-            is exactly transpose-equivariant. Default False (one pass).
+            is exactly transpose-equivariant. Default False (one pass). ``"transpose"`` is the same as True.
+            ``"dihedral"``: the eight symmetries of the square (Lim et al.'s x8 ensemble): the mosaic flipped
+            horizontally is a GRBG mosaic, vertically GBRG, both BGGR, so each flip is demosaicked as its own
+            pattern with the transpose ensemble and flipped back, and the eight outputs averaged; exactly
+            equivariant under flips and the transpose; eight passes.
 
     Returns:
         ``(B, 3, H, W)`` RGB (not clipped).
     """
     raw = _check_raw(raw)
     pattern = _check_pattern(pattern)
-    if not isinstance(self_ensemble, bool):
-        raise ValueError(f"self_ensemble: expected True or False, got {self_ensemble!r}")
+    if self_ensemble not in SELF_ENSEMBLES or not isinstance(self_ensemble, (bool, str)):
+        raise ValueError(f"self_ensemble: expected one of {SELF_ENSEMBLES}, got {self_ensemble!r}")
     if model is None:
         model = load_pretrained(device=raw.device, dtype=raw.dtype)
     x, dy, dx = _to_rggb(raw, pattern)
     if x.shape[-2] % 2 or x.shape[-1] % 2:  # pragma: no cover - pads are symmetric so sizes stay even
         raise ValueError("raw: internal padding produced an odd size")
-    out = model(x, noise)
-    if self_ensemble:
-        out = 0.5 * (out + model(x.transpose(-1, -2), noise).transpose(-1, -2))
+    if self_ensemble == "dihedral":
+        out = torch.stack([demosaic_learned(x.flip(dims), flipped, model=model, noise=noise,
+                                            self_ensemble=True).flip(dims)
+                           for dims, flipped in _FLIPS.items()]).mean(0)
+    else:
+        out = model(x, noise)
+        if self_ensemble:
+            out = 0.5 * (out + model(x.transpose(-1, -2), noise).transpose(-1, -2))
     return out[..., dy:dy + raw.shape[-2], dx:dx + raw.shape[-1]]
 
 

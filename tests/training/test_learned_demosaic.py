@@ -224,6 +224,36 @@ def test_self_ensemble_is_the_mean_of_both_passes_and_transpose_equivariant():
                                    atol=1e-14)
     with pytest.raises(ValueError, match="self_ensemble"):
         demosaic_learned(raw, "RGGB", model=net, self_ensemble=1)
+    with pytest.raises(ValueError, match="self_ensemble"):
+        demosaic_learned(raw, "RGGB", model=net, self_ensemble="rotate")
+
+
+def test_dihedral_self_ensemble_is_the_mean_over_flips_and_transposes():
+    """self_ensemble="dihedral": the mean over the eight symmetries of the square, computed here by hand: a flipped
+    RGGB mosaic is GRBG (columns), GBRG (rows) or BGGR (both); each is reflect-padded by one pixel on the flipped axes
+    so it starts with R again, run through the network and its transpose, cropped and flipped back. The result is
+    exactly transpose-equivariant and differs from the two-pass ensemble for a network that is not flip-equivariant."""
+    torch.manual_seed(5)
+    net = DemosaicNet(channels=8, depth=3, residual=True).double()
+    torch.nn.init.normal_(net.head.weight, std=0.05)
+    raw = torch.rand(2, 1, 20, 16, dtype=torch.float64)
+    F = torch.nn.functional
+
+    def two(x):
+        return 0.5 * (net(x) + net(x.mT).mT)
+
+    with torch.no_grad():
+        outs = [two(raw),
+                two(F.pad(raw.flip(-1), (1, 1, 0, 0), mode="reflect"))[..., 1:-1].flip(-1),
+                two(F.pad(raw.flip(-2), (0, 0, 1, 1), mode="reflect"))[..., 1:-1, :].flip(-2),
+                two(F.pad(raw.flip(-2, -1), (1, 1, 1, 1), mode="reflect"))[..., 1:-1, 1:-1].flip(-2, -1)]
+        by_hand = sum(outs) / 4
+        eight = demosaic_learned(raw, "RGGB", model=net, self_ensemble="dihedral")
+        torch.testing.assert_close(eight, by_hand, rtol=0, atol=1e-14)
+        torch.testing.assert_close(demosaic_learned(raw.mT, "RGGB", model=net, self_ensemble="dihedral"), eight.mT,
+                                   rtol=0, atol=1e-14)
+        assert float((eight - two(raw)).abs().max()) > 1e-4
+        assert demosaic_learned(raw, "RGGB", model=net, self_ensemble="transpose").equal(two(raw))
 
 
 def test_self_ensemble_through_evaluation_and_cli(tmp_path, capsys):
@@ -251,3 +281,9 @@ def test_self_ensemble_through_evaluation_and_cli(tmp_path, capsys):
     assert res["mean_cpsnr"] == pytest.approx(two["mean_cpsnr"], abs=1e-6)
     with pytest.raises(ValueError, match="--self-ensemble"):
         main(["demosaic-eval", str(tmp_path), "--method", "menon2007", "--self-ensemble"])
+    eight = evaluate_demosaic(tmp_path, model=net, self_ensemble="dihedral")
+    assert eight["method"] == "model:DemosaicNet + dihedral self-ensemble"
+    assert eight["mean_cpsnr"] not in (one["mean_cpsnr"], two["mean_cpsnr"])
+    assert main(["demosaic-eval", str(tmp_path), "--model", str(tmp_path / "net.pt"), "--dihedral-ensemble", "--json",
+                 "--quiet"]) == 0
+    assert json.loads(capsys.readouterr().out)["mean_cpsnr"] == pytest.approx(eight["mean_cpsnr"], abs=1e-6)

@@ -15,6 +15,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from isettorch.isp.learned import demosaic_learned  # noqa: E402
 from training import common, train_demosaic  # noqa: E402
 
 SMOKE = ROOT / "configs" / "train" / "demosaic_smoke.yaml"
@@ -422,6 +423,13 @@ def test_distill_target_is_the_teachers_self_ensemble_and_transpose_equivariant(
     with torch.no_grad():
         torch.testing.assert_close(one, net(raw), rtol=0, atol=1e-6)
         assert (one - two).abs().max() > 1e-3  # the teacher is not equivariant; its ensemble is, exactly:
+    teacher8, _, ens8 = train_demosaic.load_teacher({"distill": {"teacher": str(path), "self_ensemble": "dihedral"}},
+                                                    "cpu")
+    assert ens8 == "dihedral"
+    eight = train_demosaic.distill_target(raw, rgb, None, teacher8, 1.0, ens8)
+    torch.testing.assert_close(eight, demosaic_learned(raw, model=net, self_ensemble="dihedral"), rtol=0,
+                               atol=1e-6)
+    assert (eight - two).abs().max() > 1e-4
     t_raw = raw.transpose(-1, -2)  # an RGGB mosaic transposes to an RGGB mosaic
     torch.testing.assert_close(train_demosaic.distill_target(t_raw, rgb.transpose(-1, -2), None, teacher, 1.0, True),
                                train_demosaic.distill_target(raw, rgb, None, teacher, 1.0, True).transpose(-1, -2),
