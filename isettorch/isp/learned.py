@@ -199,8 +199,9 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
             is exactly transpose-equivariant. Default False (one pass). ``"transpose"`` is the same as True.
             ``"dihedral"``: the eight symmetries of the square (Lim et al.'s x8 ensemble): the mosaic flipped
             horizontally is a GRBG mosaic, vertically GBRG, both BGGR, so each flip is demosaicked as its own
-            pattern with the transpose ensemble and flipped back, and the eight outputs averaged; exactly
-            equivariant under flips and the transpose; eight passes.
+            pattern with the transpose ensemble and flipped back, and the eight outputs averaged; eight passes.
+            Exactly transpose-equivariant; flip-equivariant away from the borders (a flipped input is another
+            Bayer pattern, so it gets the one-pixel pad).
 
     Returns:
         ``(B, 3, H, W)`` RGB (not clipped).
