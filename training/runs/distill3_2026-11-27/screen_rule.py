@@ -1,0 +1,29 @@
+"""Shipping screen for the third distillation round (configs/train/demosaic_noise_free_distill3.yaml: the dihedral
+teacher), written on 2026-11-27 at about 03:25 UTC, before the run was started (so before any of its checkpoints
+existed). The same rule and sets as the first two rounds' screens (training/runs/distill_2026-11-27/screen_rule.py).
+
+Incumbent: the shipped network, distill-2 (out/train_demosaic_noise_free_distill2/best.pt), one pass.
+Candidate: out/train_demosaic_noise_free_distill3/best.pt, one pass (``--candidate`` overrides it for a dry run).
+Sets (24 x 256 px each, crop 10, RGGB): out/heldout_v5, out/heldout_v5_stress, out/heldout_stress and
+out/heldout_v5_relgrain. Score: the mean of the four means.
+Ship the candidate if (a) its score beats the incumbent's, (b) none of its four means is more than 0.05 dB below the
+incumbent's, and (c) no held-out scene is below MHC on any set. Otherwise the incumbent stays.
+Kodak/McMaster and the scikit-image photos are scored afterwards, for reporting only.
+"""
+import sys
+
+import torch
+
+sys.path.insert(0, ".")
+from training.heldout_screen import main  # noqa: E402
+
+SETS = ["out/heldout_v5", "out/heldout_v5_stress", "out/heldout_stress", "out/heldout_v5_relgrain"]
+INCUMBENT = "out/train_demosaic_noise_free_distill2/best.pt"
+
+if __name__ == "__main__":  # [--candidate PATH] for a dry run of this script
+    torch.set_num_threads(2)
+    cand = sys.argv[sys.argv.index("--candidate") + 1] if "--candidate" in sys.argv else \
+        "out/train_demosaic_noise_free_distill3/best.pt"
+    out = "training/runs/distill3_2026-11-27/screen_heldout.json" if "--candidate" not in sys.argv else \
+        "out/distill3_screen_dryrun.json"
+    raise SystemExit(main(["--incumbent", INCUMBENT, "--candidate", cand, "--sets", *SETS, "--out", out]))
