@@ -65,5 +65,18 @@ def main(argv=None) -> int:
     return 0
 
 
+def run_rule(incumbent: str, candidate: str, sets: list[str], out: str, dry_run_out: str, argv=None) -> int:
+    """A run's pre-registered screen (its ``screen_rule.py`` names the checkpoints, sets and result file): 2 torch
+    threads, then :func:`main`. ``--candidate PATH`` in ``argv`` (default ``sys.argv``) scores that checkpoint
+    instead, a dry run of the rule, and writes ``dry_run_out`` instead of ``out``."""
+    import torch
+
+    argv = sys.argv[1:] if argv is None else argv
+    torch.set_num_threads(2)
+    if "--candidate" in argv:
+        candidate, out = argv[argv.index("--candidate") + 1], dry_run_out
+    return main(["--incumbent", incumbent, "--candidate", candidate, "--sets", *sets, "--out", out])
+
+
 if __name__ == "__main__":
     raise SystemExit(main())

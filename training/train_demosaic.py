@@ -523,9 +523,7 @@ def load_teacher(cfg: dict, device) -> tuple[DemosaicNet | None, float, bool | s
     weight = float(d.get("weight", 1.0))
     if not 0.0 < weight <= 1.0:
         raise ValueError(f"distill.weight: expected a value in (0, 1], got {weight}")
-    ens = d.get("self_ensemble", True)
-    if ens not in learned.SELF_ENSEMBLES or not isinstance(ens, (bool, str)):
-        raise ValueError(f"distill.self_ensemble: expected true, false, transpose or dihedral, got {ens!r}")
+    ens = learned.check_self_ensemble(d.get("self_ensemble", True), "distill.self_ensemble")
     if "teacher" not in d:
         raise ValueError("distill.teacher: expected the path of a DemosaicNet checkpoint")
     teacher, _ = learned.load_checkpoint(d["teacher"], device=device)

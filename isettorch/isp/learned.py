@@ -184,6 +184,14 @@ SELF_ENSEMBLES = (False, True, "transpose", "dihedral")
 _FLIPS = {(): "RGGB", (-1,): "GRBG", (-2,): "GBRG", (-2, -1): "BGGR"}
 
 
+def check_self_ensemble(value, name: str = "self_ensemble") -> bool | str:
+    """``value`` if it is one of :data:`SELF_ENSEMBLES` (a bool or a name, not 0 or 1), else a ValueError naming
+    ``name``."""
+    if value not in SELF_ENSEMBLES or not isinstance(value, (bool, str)):
+        raise ValueError(f"{name}: expected one of {SELF_ENSEMBLES}, got {value!r}")
+    return value
+
+
 def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: DemosaicNet | None = None,
                      noise: torch.Tensor | None = None, self_ensemble: bool | str = False) -> torch.Tensor:
     """Demosaic a Bayer mosaic with a :class:`DemosaicNet` (default: the shipped checkpoint).
@@ -208,8 +216,7 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
     """
     raw = _check_raw(raw)
     pattern = _check_pattern(pattern)
-    if self_ensemble not in SELF_ENSEMBLES or not isinstance(self_ensemble, (bool, str)):
-        raise ValueError(f"self_ensemble: expected one of {SELF_ENSEMBLES}, got {self_ensemble!r}")
+    check_self_ensemble(self_ensemble)
     if model is None:
         model = load_pretrained(device=raw.device, dtype=raw.dtype)
     x, dy, dx = _to_rggb(raw, pattern)

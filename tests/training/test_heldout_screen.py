@@ -40,3 +40,13 @@ def test_screen_rule_and_scores(tmp_path):
     assert json.loads(out.read_text())["decision"] == "incumbent"  # a tie does not ship: the score must beat it
     with pytest.raises(ValueError, match="sets"):
         heldout_screen.screen(str(SHIPPED), str(SHIPPED), [])
+    # run_rule, a run's pre-registered screen: its own candidate and result file, or with --candidate a dry run
+    # that scores the given checkpoint and writes the dry-run file instead
+    rule_out, dry_out = tmp_path / "rule.json", tmp_path / "dry.json"
+    assert heldout_screen.run_rule(str(SHIPPED), str(worse), sets[:1], str(rule_out), str(dry_out), argv=[]) == 0
+    assert json.loads(rule_out.read_text())["decision"] == "incumbent" and not dry_out.exists()
+    assert heldout_screen.run_rule(str(worse), str(worse), sets[:1], str(rule_out), str(dry_out),
+                                   argv=["--candidate", str(SHIPPED)]) == 0
+    dry = json.loads(dry_out.read_text())
+    assert dry["decision"] == "candidate" and dry["candidate"]["path"] == str(SHIPPED)
+    assert json.loads(rule_out.read_text())["decision"] == "incumbent"  # the rule's own file is left alone

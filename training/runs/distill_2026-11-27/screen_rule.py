@@ -16,18 +16,13 @@ Kodak/McMaster and the scikit-image photos are scored afterwards, for reporting 
 """
 import sys
 
-import torch
-
 sys.path.insert(0, ".")
-from training.heldout_screen import main  # noqa: E402
+from training.heldout_screen import run_rule  # noqa: E402
 
 SETS = ["out/heldout_v5", "out/heldout_v5_stress", "out/heldout_stress", "out/heldout_v5_relgrain"]
 INCUMBENT = "out/train_demosaic_noise_free_stage3/best.pt"
 
 if __name__ == "__main__":  # [--candidate PATH] for a dry run of this script
-    torch.set_num_threads(2)
-    cand = sys.argv[sys.argv.index("--candidate") + 1] if "--candidate" in sys.argv else \
-        "out/train_demosaic_noise_free_distill/best.pt"
-    out = "training/runs/distill_2026-11-27/screen_heldout.json" if "--candidate" not in sys.argv else \
-        "out/distill_screen_dryrun.json"
-    raise SystemExit(main(["--incumbent", INCUMBENT, "--candidate", cand, "--sets", *SETS, "--out", out]))
+    raise SystemExit(run_rule(INCUMBENT, "out/train_demosaic_noise_free_distill/best.pt", SETS,
+                              "training/runs/distill_2026-11-27/screen_heldout.json",
+                              "out/distill_screen_dryrun.json"))

@@ -16,18 +16,13 @@ Reported, not part of the rule: the G -> R and B -> R grain-transfer slopes of b
 """
 import sys
 
-import torch
-
 sys.path.insert(0, ".")
-from training.heldout_screen import main  # noqa: E402
+from training.heldout_screen import run_rule  # noqa: E402
 
 SETS = ["out/heldout_v5", "out/heldout_v5_stress", "out/heldout_stress", "out/heldout_v5_relgrain"]
 INCUMBENT = "out/train_demosaic_noise_free_stage3/best.pt"
 
 if __name__ == "__main__":  # [--candidate PATH] for a dry run of this script
-    torch.set_num_threads(2)
-    cand = sys.argv[sys.argv.index("--candidate") + 1] if "--candidate" in sys.argv else \
-        "out/train_demosaic_noise_free_relgrain/best.pt"
-    out = "training/runs/relgrain_2026-11-26/screen_heldout.json" if "--candidate" not in sys.argv else \
-        "out/relgrain_screen_dryrun.json"
-    raise SystemExit(main(["--incumbent", INCUMBENT, "--candidate", cand, "--sets", *SETS, "--out", out]))
+    raise SystemExit(run_rule(INCUMBENT, "out/train_demosaic_noise_free_relgrain/best.pt", SETS,
+                              "training/runs/relgrain_2026-11-26/screen_heldout.json",
+                              "out/relgrain_screen_dryrun.json"))
