@@ -71,10 +71,12 @@ def run_rule(incumbent: str, candidate: str, sets: list[str], out: str, dry_run_
     instead, a dry run of the rule, and writes ``dry_run_out`` instead of ``out``."""
     import torch
 
-    argv = sys.argv[1:] if argv is None else argv
+    ap = argparse.ArgumentParser(description="a run's pre-registered held-out screen")
+    ap.add_argument("--candidate", default=None, metavar="PATH", help="score this checkpoint instead (a dry run)")
+    dry = ap.parse_args(sys.argv[1:] if argv is None else argv).candidate
+    if dry is not None:
+        candidate, out = dry, dry_run_out
     torch.set_num_threads(2)
-    if "--candidate" in argv:
-        candidate, out = argv[argv.index("--candidate") + 1], dry_run_out
     return main(["--incumbent", incumbent, "--candidate", candidate, "--sets", *sets, "--out", out])
 
 
