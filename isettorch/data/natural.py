@@ -52,6 +52,12 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   light that layer passes (Beer-Lambert). Such detail is in proportion to each channel's *own* signal, so a weak
   channel's fine structure is not a scaled copy of the bright one's: version-5 networks copy the weak channels'
   detail into red scaled ~3x (``training/runs/dye_2026-11-26/README.md``).
+* ``specular``: with ``probability`` (0 in version 5, so its scenes are unchanged) the interface reflection of the
+  dichromatic reflection model (Shafer 1985): on glossy materials a fine log-normal sheen texture, in proportion to
+  the material's body map, reflects the illuminant's own spectrum (neutral interface reflection, Lee, Breneman &
+  Schulte 1990), so it adds the same light to R, G and B whatever the material's colour. Shading alone makes a
+  channel's fine detail proportional to its level (a colour-ratio world); photographs lie between ratio and
+  difference (``benchmarks/SCENE_STATS.md``, the detail-ratio exponent).
 
 Defaults: leaf count, smallest radius and shading exponents were set so the mean power-spectrum slope of 128 px
 scenes is near the published -1.88 (benchmarks/SCENE_STATS.md). The colour-correlation defaults (version 4:
@@ -118,6 +124,8 @@ NATURAL_DEFAULTS: dict = {
         "grain": {"enabled": True, "probability": 0.5, "amplitude": [0.002, 0.015], "exponent": [0.0, 0.6],
                   "contrast": 0.7, "dye_edges_nm": [490.0, 580.0], "dye_width_nm": 12.0,
                   "relative": {"probability": 0.0, "contrast": [0.01, 0.08]}},
+        "specular": {"enabled": True, "probability": 0.0, "amplitude": [0.02, 0.3], "glossy_fraction": 0.5,
+                     "exponent": [0.3, 1.2], "contrast": [0.3, 1.0]},
     },
 }
 COMPONENTS = tuple(NATURAL_DEFAULTS["components"])
@@ -151,6 +159,11 @@ def natural_config(config: dict | None = None, **overrides) -> dict:
         raise ValueError(f"config: 'size' expected an integer >= 16 pixels, got {size!r}")
     _check_optional(out["components"]["palette"]["dye"], "palette.dye", "concentration")
     _check_optional(out["components"]["grain"]["relative"], "grain.relative", "contrast")
+    _check_optional(out["components"]["specular"], "specular", "amplitude")
+    sp = out["components"]["specular"]
+    if not isinstance(sp["glossy_fraction"], (int, float)) or not 0 < sp["glossy_fraction"] <= 1:
+        raise ValueError(f"config: 'components.specular.glossy_fraction' expected a fraction in (0, 1], "
+                         f"got {sp['glossy_fraction']!r}")
     return out
 
 
@@ -440,6 +453,24 @@ def _grain(cfg, g, h, w) -> tuple[torch.Tensor, float]:
     return amp * torch.exp(contrast * n - 0.5 * contrast**2), amp
 
 
+def _specular(cfg, g, body: torch.Tensor) -> tuple[torch.Tensor, float]:
+    """The ``specular`` component's map ``[H, W]`` and its amplitude: interface reflection of the dichromatic
+    reflection model (Shafer, "Using color to separate reflection components", Color Res. Appl. 10(4), 1985), whose
+    spectrum is the illuminant's (neutral interface reflection: Lee, Breneman & Schulte, "Modeling light reflection
+    for computer color vision", IEEE PAMI 12(4), 1990). On each glossy material (each with ``glossy_fraction``) it is
+    ``a t(x)`` times that material's body map (its coverage, brightness and shading), ``t = exp(c n - c^2 / 2)`` a
+    log-normal texture of mean 1 from unit-std 1/f^s noise ``n``: sheen on fur, hair, skin and foliage, fine detail
+    that adds the *same* light to R, G and B whatever the material's colour, where the shading multiplies each
+    channel by its own level. Photographs mix both; a generator with shading alone teaches a colour-ratio prior."""
+    c = cfg["components"]["specular"]
+    amp = math.exp(_u(g, *map(math.log, c["amplitude"])))
+    s, contrast = _u(g, *c["exponent"]), _u(g, *c["contrast"])
+    glossy = (torch.rand(body.shape[0], generator=g) < float(c["glossy_fraction"])).float()
+    h, w = body.shape[-2:]
+    t = torch.exp(contrast * _tex.power_law_noise(h, w, s, g) - 0.5 * contrast**2)
+    return amp * t * (glossy[:, None, None] * body).sum(0), amp
+
+
 def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> dict:
     """Scene ``index`` of the natural-statistics distribution (module docstring), factored.
 
@@ -498,6 +529,7 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
     else:  # ablation: the same fine detail, chromatic: a fine-scale blend towards another material
         t = _tex.colour_line_weights(h, w, s, g) * min(1.0, 2 * contrast)
         maps = maps * (1 - t) + maps.roll(1, 0) * t
+    body = maps  # the materials' body-reflection maps (coverage x brightness x shading), for ``specular``
     grain_amp = None
     gr = comp["grain"]  # drawn last: with it off, every earlier draw is unchanged
     if gr["enabled"] and float(torch.rand((), generator=g)) < gr["probability"]:
@@ -515,6 +547,12 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
         dyes = grain_dyes(cfg, wl)
         maps = torch.cat([(maps[:n_mat, None] * mod[None]).flatten(0, 1), maps[n_mat:]])
         refl = torch.cat([(refl[:n_mat, None] * dyes[None]).flatten(0, 1), refl[n_mat:]])
+    spec_amp = None
+    sp = comp["specular"]  # drawn last: with probability 0 (version 5) no draw is made and the scene is unchanged
+    if sp["enabled"] and sp["probability"] > 0 and float(torch.rand((), generator=g)) < sp["probability"]:
+        spec, spec_amp = _specular(cfg, g, body)
+        maps = torch.cat([maps, spec[None]])
+        refl = torch.cat([refl, torch.ones(1, refl.shape[1], dtype=refl.dtype)])
     scale = float(cfg["mean_radiance_scale"])
     all_maps, all_spectra = [], []
     for e, m in lights:
@@ -523,7 +561,7 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
     meta = {"index": int(index), "seed": int(seed), "materials": mat_kinds, "dye_concentrations": dye_conc,
             "illuminants": light_names, "cct_k": float(cct), "radii": radii, "defocus_diopters": defocus,
             "fine_detail": fine, "shading_exponent": s, "shading_contrast": contrast, "grain_amplitude": grain_amp,
-            "relative_grain_contrast": rel_contrast}
+            "relative_grain_contrast": rel_contrast, "specular_amplitude": spec_amp}
     return {"maps": torch.cat(all_maps), "spectra": torch.cat(all_spectra), "wavelengths_nm": wl,
             "illuminant": lights[0][0] * scale, "meta": meta}
 
