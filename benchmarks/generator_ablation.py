@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from isettorch.data.natural import COMPONENTS  # noqa: E402
+from isettorch.data.natural import COMPONENTS, DEFAULT_COMPONENTS  # noqa: E402
 from isettorch.isp.evaluation import evaluate_demosaic, load_demosaic_model  # noqa: E402
 from isettorch.paths import data_path  # noqa: E402
 from training import train_demosaic  # noqa: E402
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
     ap.add_argument("--config", default=str(CONFIG))
     ap.add_argument("--steps", type=int, default=20000, help="the fixed budget of every run")
     ap.add_argument("--out", default="out/ablation")
-    ap.add_argument("--components", nargs="*", default=list(COMPONENTS))
+    ap.add_argument("--components", nargs="*", default=list(DEFAULT_COMPONENTS))
     ap.add_argument("--kodak", default=str(data_path("kodak24", must_exist=False)))
     ap.add_argument("--mcmaster", default=str(data_path("mcmaster18", must_exist=False)))
     ap.add_argument("--threads", type=int, default=1)

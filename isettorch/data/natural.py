@@ -96,7 +96,7 @@ from . import spectra as _spectra
 from .config import seed_for
 from .layouts import dead_leaves_radii
 
-__all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "natural_config", "generate_natural", "to_scene",
+__all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "DEFAULT_COMPONENTS", "natural_config", "generate_natural", "to_scene",
            "hard_patch_indices", "NaturalSceneDataset", "DOMAINS", "expose_and_encode"]
 
 NATURAL_DEFAULTS: dict = {
@@ -129,6 +129,8 @@ NATURAL_DEFAULTS: dict = {
     },
 }
 COMPONENTS = tuple(NATURAL_DEFAULTS["components"])
+#: the components that draw in the default (version-5) scenes; ``specular`` is drawn only with a probability > 0
+DEFAULT_COMPONENTS = tuple(c for c in COMPONENTS if NATURAL_DEFAULTS["components"][c].get("probability", 1) > 0)
 
 
 def natural_config(config: dict | None = None, **overrides) -> dict:
@@ -164,6 +166,12 @@ def natural_config(config: dict | None = None, **overrides) -> dict:
     if not isinstance(sp["glossy_fraction"], (int, float)) or not 0 < sp["glossy_fraction"] <= 1:
         raise ValueError(f"config: 'components.specular.glossy_fraction' expected a fraction in (0, 1], "
                          f"got {sp['glossy_fraction']!r}")
+    for key, lo_ok, hi_ok in (("exponent", 0.0, 4.0), ("contrast", 0.0, 3.0)):
+        r = sp[key]
+        if (not isinstance(r, (list, tuple)) or len(r) != 2 or not all(isinstance(c, (int, float)) for c in r)
+                or not lo_ok <= r[0] <= r[1] <= hi_ok):
+            raise ValueError(f"config: 'components.specular.{key}' expected a range [lo, hi] with "
+                             f"{lo_ok} <= lo <= hi <= {hi_ok}, got {r!r}")
     return out
 
 
@@ -453,22 +461,26 @@ def _grain(cfg, g, h, w) -> tuple[torch.Tensor, float]:
     return amp * torch.exp(contrast * n - 0.5 * contrast**2), amp
 
 
-def _specular(cfg, g, body: torch.Tensor) -> tuple[torch.Tensor, float]:
-    """The ``specular`` component's map ``[H, W]`` and its amplitude: interface reflection of the dichromatic
-    reflection model (Shafer, "Using color to separate reflection components", Color Res. Appl. 10(4), 1985), whose
-    spectrum is the illuminant's (neutral interface reflection: Lee, Breneman & Schulte, "Modeling light reflection
-    for computer color vision", IEEE PAMI 12(4), 1990). On each glossy material (each with ``glossy_fraction``) it is
-    ``a t(x)`` times that material's body map (its coverage, brightness and shading), ``t = exp(c n - c^2 / 2)`` a
-    log-normal texture of mean 1 from unit-std 1/f^s noise ``n``: sheen on fur, hair, skin and foliage, fine detail
-    that adds the *same* light to R, G and B whatever the material's colour, where the shading multiplies each
-    channel by its own level. Photographs mix both; a generator with shading alone teaches a colour-ratio prior."""
+def _specular(cfg, g, body: torch.Tensor) -> tuple[torch.Tensor, dict]:
+    """The ``specular`` component's map ``[H, W]`` and its draws (amplitude, contrast, exponent, glossy materials):
+    interface reflection of the dichromatic reflection model (Shafer, "Using color to separate reflection
+    components", Color Res. Appl. 10(4), 1985), whose spectrum is the illuminant's (neutral interface reflection:
+    Lee, Breneman & Schulte, "Modeling light reflection for computer color vision", IEEE PAMI 12(4), 1990).
+
+    On each glossy material (each one glossy with ``glossy_fraction``) it is ``a t(x)`` times that material's body
+    map (coverage, brightness and shading); ``t = exp(c n - c^2 / 2)`` is a log-normal texture of mean 1 from
+    unit-std 1/f^s noise ``n``. It models sheen on fur, hair, skin and foliage: fine detail that adds light of the
+    illuminant's colour (the same to R, G and B under a white light) whatever the material's colour, where shading
+    multiplies each channel by its own level. Photographs mix both; shading alone teaches a colour-ratio prior."""
     c = cfg["components"]["specular"]
     amp = math.exp(_u(g, *map(math.log, c["amplitude"])))
     s, contrast = _u(g, *c["exponent"]), _u(g, *c["contrast"])
     glossy = (torch.rand(body.shape[0], generator=g) < float(c["glossy_fraction"])).float()
     h, w = body.shape[-2:]
     t = torch.exp(contrast * _tex.power_law_noise(h, w, s, g) - 0.5 * contrast**2)
-    return amp * t * (glossy[:, None, None] * body).sum(0), amp
+    spec = amp * t * (glossy[:, None, None] * body).sum(0)
+    return spec, {"amplitude": amp, "contrast": contrast, "exponent": s,
+                  "glossy": [int(j) for j in torch.nonzero(glossy).flatten()]}
 
 
 def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> dict:
@@ -478,7 +490,9 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
     "wavelengths_nm": [L], "illuminant": [L] (the main light, a perfect white's radiance), "meta": dict}``.
     ``meta["radii"]`` lists the drawn dead-leaves radii (for the size-law check), ``meta["dye_concentrations"]`` each
     material's Beer-Lambert concentration (1.0: undyed), ``meta["relative_grain_contrast"]`` the log-std of the
-    multiplicative grain (``None``: none drawn; with it every material's map is split into three layer maps).
+    multiplicative grain (``None``: none drawn; with it every material's map is split into three layer maps),
+    ``meta["specular"]`` the sheen's draws (``None``: none drawn; else its map is the last, with the illuminant's
+    spectrum).
 
     Example:
         >>> s = generate_natural(0, seed=1, config={"size": 32})
@@ -547,10 +561,10 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
         dyes = grain_dyes(cfg, wl)
         maps = torch.cat([(maps[:n_mat, None] * mod[None]).flatten(0, 1), maps[n_mat:]])
         refl = torch.cat([(refl[:n_mat, None] * dyes[None]).flatten(0, 1), refl[n_mat:]])
-    spec_amp = None
+    spec_meta = None
     sp = comp["specular"]  # drawn last: with probability 0 (version 5) no draw is made and the scene is unchanged
     if sp["enabled"] and sp["probability"] > 0 and float(torch.rand((), generator=g)) < sp["probability"]:
-        spec, spec_amp = _specular(cfg, g, body)
+        spec, spec_meta = _specular(cfg, g, body)
         maps = torch.cat([maps, spec[None]])
         refl = torch.cat([refl, torch.ones(1, refl.shape[1], dtype=refl.dtype)])
     scale = float(cfg["mean_radiance_scale"])
@@ -561,7 +575,7 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
     meta = {"index": int(index), "seed": int(seed), "materials": mat_kinds, "dye_concentrations": dye_conc,
             "illuminants": light_names, "cct_k": float(cct), "radii": radii, "defocus_diopters": defocus,
             "fine_detail": fine, "shading_exponent": s, "shading_contrast": contrast, "grain_amplitude": grain_amp,
-            "relative_grain_contrast": rel_contrast, "specular_amplitude": spec_amp}
+            "relative_grain_contrast": rel_contrast, "specular": spec_meta}
     return {"maps": torch.cat(all_maps), "spectra": torch.cat(all_spectra), "wavelengths_nm": wl,
             "illuminant": lights[0][0] * scale, "meta": meta}
 

@@ -6,6 +6,11 @@
   (kurtosis >> 3, a Gaussian's; Huang & Mumford, CVPR 1999; Simoncelli & Olshausen, Annu. Rev. Neurosci. 2001).
 * :func:`cross_channel_gradient_correlation`: correlation of the derivatives of two colour channels (high in natural
   images: edges are mostly changes of intensity; Gunturk et al., IEEE SPM 2005 for the demosaicing consequence).
+* :func:`detail_ratio_exponent`: how a channel's fine detail scales with the channel's own level, pooled over
+  windows: 1 where detail multiplies every channel alike (shading; the constant-hue or colour-ratio demosaicking
+  prior: Cok, US patent 4,642,678, 1987; Kimmel, IEEE TIP 8(9), 1999), 0 where it adds the same amount to every
+  channel (the colour-difference prior: Hamilton & Adams, US patent 5,629,734, 1997; Pei & Tam, IEEE TCSVT 13(6),
+  2003).
 * :func:`power_law_exponent_mle`: maximum-likelihood exponent of a truncated power-law sample (dead-leaves radii).
 """
 
@@ -17,7 +22,7 @@ import numpy as np
 import torch
 
 __all__ = ["power_spectrum_slope", "gradient_kurtosis", "cross_channel_gradient_correlation",
-           "power_law_exponent_mle", "radial_power_spectrum"]
+           "detail_ratio_exponent", "power_law_exponent_mle", "radial_power_spectrum"]
 
 
 def _check_image(img: torch.Tensor, name: str = "image") -> torch.Tensor:
@@ -88,6 +93,58 @@ def cross_channel_gradient_correlation(rgb: torch.Tensor, a: int = 0, b: int = 1
     if den == 0:
         raise ValueError("rgb: a channel is constant, the correlation is undefined")
     return float((ga * gb).sum()) / den
+
+
+def _tiles(t: torch.Tensor, window: int) -> torch.Tensor:
+    """[C, H, W] -> [C, T, window^2]: the whole ``window`` x ``window`` tiles (a remainder is dropped)."""
+    c, h, w = t.shape[0], t.shape[1] // window, t.shape[2] // window
+    t = t[:, : h * window, : w * window].reshape(c, h, window, w, window)
+    return t.permute(0, 1, 3, 2, 4).reshape(c, h * w, window * window)
+
+
+def detail_ratio_exponent(images, window: int = 16, min_contrast: float = 0.01, min_correlation: float = 0.8,
+                          min_level: float = 0.02) -> tuple[float, int]:
+    """(exponent ``beta``, number of window pairs) with ``slope ~ (level ratio)^beta``, fitted by least squares on
+    log axes over every ``window`` x ``window`` window of every image and the channel pairs (R, G) and (B, G).
+
+    In a window, ``slope`` is the least-squares gain of channel ``a``'s fine detail (a 4-neighbour Laplacian) on
+    channel ``b``'s, and ``level ratio`` the ratio of their window means. Detail that multiplies every channel alike
+    (shading) gives ``beta = 1``; detail that adds the same amount to each channel gives ``beta = 0``; both are
+    invariant to a per-image scale. Windows whose detail is weak (Laplacian std below ``min_contrast`` of the mean),
+    dark (mean below ``min_level``) or not shared (correlation below ``min_correlation``) are skipped.
+
+    Args:
+        images: iterable of ``[3, H, W]`` tensors (R, G, B; linear or encoded, the exponent reads differently: a
+            power-law encoding keeps 1 at 1 and moves 0 to ``(gamma - 1) / gamma``).
+    """
+    if isinstance(window, bool) or not isinstance(window, int) or window < 4:
+        raise ValueError(f"window: expected an integer >= 4 pixels, got {window!r}")
+    xs, ys = [], []
+    for n, img in enumerate(images):
+        if not isinstance(img, torch.Tensor) or img.dim() != 3 or img.shape[0] != 3 or min(img.shape[1:]) < window + 2:
+            raise ValueError(f"images[{n}]: expected a [3, H, W] tensor with H, W >= window + 2, got "
+                             f"{tuple(img.shape) if isinstance(img, torch.Tensor) else type(img).__name__}")
+        x = img.to(torch.float64)
+        lap = 4 * x[:, 1:-1, 1:-1] - x[:, :-2, 1:-1] - x[:, 2:, 1:-1] - x[:, 1:-1, :-2] - x[:, 1:-1, 2:]
+        lev = x[:, 1:-1, 1:-1]
+        d, m = _tiles(lap, window), _tiles(lev, window).mean(2)  # [3, T, window^2], [3, T]
+        d = d - d.mean(2, keepdim=True)
+        for a in (0, 2):
+            da, db = d[a], d[1]
+            saa, sbb, sab = (da * da).sum(1), (db * db).sum(1), (da * db).sum(1)
+            sd = (sbb / da.shape[1]).sqrt(), (saa / da.shape[1]).sqrt()
+            ok = ((m[a] > min_level) & (m[1] > min_level) & (sd[0] > min_contrast * m[1])
+                  & (sd[1] > min_contrast * m[a]) & (sab > 0))
+            corr = sab / (saa * sbb).clamp_min(1e-300).sqrt()
+            ok &= corr > min_correlation
+            xs.append((m[a][ok] / m[1][ok]).log())
+            ys.append((sab[ok] / sbb[ok]).log())
+    xv, yv = torch.cat(xs), torch.cat(ys)
+    if xv.numel() < 10 or float(xv.std()) < 1e-3:
+        raise ValueError(f"images: {xv.numel()} usable windows with level-ratio spread "
+                         f"{float(xv.std()) if xv.numel() > 1 else 0.0:.3g}; need at least 10 with different colours")
+    xc = xv - xv.mean()
+    return float((xc * (yv - yv.mean())).sum() / (xc * xc).sum()), int(xv.numel())
 
 
 def power_law_exponent_mle(samples, lo: float, hi: float) -> float:

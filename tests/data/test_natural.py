@@ -118,6 +118,51 @@ def test_colour_correlation_makes_fine_detail_achromatic():
             assert spread > 0.01
 
 
+def test_detail_ratio_exponent_reads_ratio_and_difference_detail():
+    """Smoothly varying colours with fine texture: multiplied into every channel (shading) gives exponent 1, added
+    alike to every channel gives 0, half of each in between; a per-image scale changes nothing; too few usable
+    windows is an error."""
+    g = torch.Generator().manual_seed(0)
+    yy, xx = torch.meshgrid(torch.arange(130.0), torch.arange(130.0), indexing="ij")
+    imgs = {"mult": [], "add": [], "both": []}
+    for _ in range(6):
+        ph = torch.rand(3, 2, generator=g, dtype=torch.float64) * 6.28
+        level = torch.stack([0.45 + 0.4 * torch.sin(xx / 37 + ph[c, 0]) * torch.cos(yy / 29 + ph[c, 1])
+                             for c in range(3)])  # [3, H, W], 0.05-0.85, nearly constant over 16 px
+        n = torch.randn(130, 130, generator=g, dtype=torch.float64)
+        imgs["mult"].append(level * (1 + 0.1 * n))
+        imgs["add"].append(level + 0.05 * n)
+        imgs["both"].append(level * (1 + 0.05 * n) + 0.025 * n)
+    b_mult, count = st.detail_ratio_exponent(imgs["mult"])
+    assert abs(b_mult - 1.0) < 0.02 and count > 200
+    assert abs(st.detail_ratio_exponent(imgs["add"])[0]) < 0.02
+    assert 0.2 < st.detail_ratio_exponent(imgs["both"])[0] < 0.8
+    assert st.detail_ratio_exponent([3.0 * i for i in imgs["mult"]])[0] == pytest.approx(b_mult, abs=1e-9)
+    with pytest.raises(ValueError, match="images"):
+        st.detail_ratio_exponent([torch.full((3, 40, 40), 0.5, dtype=torch.float64)])
+
+
+def test_specular_lowers_the_detail_ratio_exponent_of_rendered_scenes():
+    """Rendered to linear sRGB through the library's projection (white-balanced, as benchmarks/scene_stats.py),
+    version-5 scenes are a colour-ratio world (exponent near 1: shading multiplies every channel); with the
+    ``specular`` sheen in every scene the exponent falls (illuminant-coloured detail is added alike to R, G, B)."""
+    from isettorch.isp.colour import XYZ_TO_LINEAR_SRGB
+
+    m = (torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ spectral.cmfs(WL, dtype=torch.float64)
+         * spectral.wavelength_weights(WL)[None])
+
+    def beta(probability):
+        cfg = nat.natural_config({"size": 96, "components": {"specular": {"probability": probability}}})
+        out = []
+        for i in range(12):
+            sc = nat.to_scene(nat.generate_natural(i, 4, cfg), dtype=torch.float64)
+            out.append(sc.project(m.T)[0] / (sc.illuminant_photons[0] @ m.T)[:, None, None])
+        return st.detail_ratio_exponent(out)[0]
+
+    b5, bs = beta(0.0), beta(1.0)
+    assert 0.9 < b5 < 1.1 and bs < b5 - 0.12  # 0.92 -> 0.75 here; 0.97 -> 0.70-0.77 on 2 x 32 scenes of 128 px
+
+
 def test_recovery_reflectances_round_trip_to_srgb():
     """colour.recovery's basis: the reflectance of a linear sRGB triplet has that sRGB under D65 (to 0.01)."""
     rgb = torch.tensor([[0.2, 0.5, 0.1], [0.8, 0.1, 0.3], [0.5, 0.5, 0.5]], dtype=torch.float64)
@@ -400,6 +445,51 @@ def test_relative_grain_multiplies_each_layer_with_its_specified_law():
     assert nat.generate_natural(0, seed=1, config={"size": 32})["meta"]["relative_grain_contrast"] is None
     with pytest.raises(ValueError, match="components.grain.relative"):
         nat.natural_config({"components": {"grain": {"relative": {"contrast": [0.4, 0.1]}}}})
+
+
+SPEC = {"size": 96, "components": {"specular": {"probability": 1.0}, "illuminant": {"mixed_probability": 0.0}}}
+
+
+def test_specular_adds_illuminant_coloured_sheen_with_its_specified_law():
+    """components.specular (dichromatic interface reflection): the scene drawn without it (every earlier draw is the
+    same) plus one map whose spectrum is the illuminant's exactly, so the added radiance is rank one, proportional to
+    the light at every pixel (neutral interface reflection); the map divided by the glossy materials' body maps is
+    ``a t`` with ``t`` log-normal of mean 1 and log-std the drawn contrast; off in the defaults (version 5); a bad
+    setting raises naming the key."""
+    glossy_scenes = 0
+    for index in range(5):
+        on = nat.generate_natural(index, seed=5, config=SPEC)
+        off_cfg = nat.natural_config(SPEC)
+        off_cfg["components"]["specular"]["probability"] = 0.0
+        off = nat.generate_natural(index, seed=5, config=off_cfg)
+        sp = on["meta"]["specular"]
+        assert off["meta"]["specular"] is None and sp is not None
+        assert torch.equal(on["maps"][:-1], off["maps"]) and torch.equal(on["spectra"][:-1], off["spectra"])
+        assert torch.equal(on["spectra"][-1], on["illuminant"])
+        if not sp["glossy"]:
+            assert float(on["maps"][-1].abs().max()) == 0.0
+            continue
+        added = (torch.einsum("jhw,jl->lhw", on["maps"].double(), on["spectra"])
+                 - torch.einsum("jhw,jl->lhw", off["maps"].double(), off["spectra"]))
+        shape = added.flatten(1).sum(1)
+        assert torch.allclose(added.flatten(1), shape[:, None] / shape.sum() * added.flatten(1).sum(0)[None],
+                              rtol=1e-6, atol=1e-12 * float(added.abs().max()))
+        c = nat.NATURAL_DEFAULTS["components"]["specular"]
+        assert c["amplitude"][0] <= sp["amplitude"] <= c["amplitude"][1]
+        assert c["contrast"][0] <= sp["contrast"] <= c["contrast"][1]
+        n_mat = len(on["meta"]["materials"])
+        body = off["maps"][:n_mat][sp["glossy"]].sum(0).double()
+        keep = body > 1e-6 * body.max()
+        t = on["maps"][-1].double()[keep] / body[keep] / sp["amplitude"]
+        assert abs(float(t.mean()) - 1.0) < 0.1
+        assert abs(float(t.log().std()) - sp["contrast"]) < 0.1 * sp["contrast"] + 0.02
+        glossy_scenes += 1
+    assert glossy_scenes >= 3
+    assert nat.NATURAL_DEFAULTS["components"]["specular"]["probability"] == 0.0
+    assert nat.generate_natural(0, seed=1, config={"size": 32})["meta"]["specular"] is None
+    for bad in ({"glossy_fraction": 0.0}, {"contrast": [0.5, 0.1]}, {"amplitude": [0.0, 0.1]}):
+        with pytest.raises(ValueError, match="components.specular"):
+            nat.natural_config({"components": {"specular": bad}})
 
 
 def test_training_configs_name_valid_generator_settings():
