@@ -55,7 +55,7 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
 * ``specular``: with ``probability`` (0 in version 5, so its scenes are unchanged) the interface reflection of the
   dichromatic reflection model (Shafer 1985): on glossy materials a fine log-normal sheen texture, in proportion to
   the material's body map, reflects the illuminant's own spectrum (neutral interface reflection, Lee, Breneman &
-  Schulte 1990), so it adds the same light to R, G and B whatever the material's colour. Shading alone makes a
+  Schulte 1990): it adds light of the illuminant's colour whatever the material's colour. Shading alone makes a
   channel's fine detail proportional to its level (a colour-ratio world); photographs lie between ratio and
   difference (``benchmarks/SCENE_STATS.md``, the detail-ratio exponent).
 
