@@ -1,9 +1,9 @@
 """Shipping screen for the specmix run (configs/train/demosaic_noise_free_specmix.yaml: the specular run continued for
-1800 s with the sheen in half the scenes, a fresh bank), written on 2026-11-27 at about 08:45 UTC, before the run was
-started (so before any of its checkpoints existed). The same rule, incumbent and five sets as the specular run's
-screen (training/runs/specular_2026-11-27/screen_rule.py), unchanged although that screen rejected a network that
-then scored higher on every photograph set (its README): changing the rule after seeing Kodak would be selecting on
-Kodak.
+1800 s with the sheen in half the scenes, a fresh bank), written on 2026-11-27 at about 08:33 UTC (commit c631ce8),
+before the run was started (so before any of its checkpoints existed). The same rule, incumbent and five sets as the
+specular run's screen (training/runs/specular_2026-11-27/screen_rule.py), unchanged although that screen rejected a
+network that then scored higher on every photograph set (its README): changing the rule after seeing Kodak would be
+selecting on Kodak.
 
 Incumbent: the shipped network, distill-4 (out/train_demosaic_noise_free_distill4/best.pt: the asset of 7ce47d7),
 one pass.

@@ -1,8 +1,8 @@
-"""Shipping screen for the specular run (configs/train/demosaic_noise_free_specular.yaml: distill-4 continued for
-3600 s on generator version 5 with components.specular on in every scene, own targets, a fresh bank), written on
-2026-11-27 at about 08:05 UTC, before the run was started (so before any of its checkpoints existed). The rule of the
-earlier screens (training/heldout_screen.py), on the four sets of the distillation rounds plus one set drawn with the
-candidate generator's option, as the relative-grain screen did for its run.
+"""Shipping screen for the specular run (configs/train/demosaic_noise_free_specular.yaml: distill-4 continued for 3600 s
+on generator version 5 with components.specular on in every scene, own targets, a fresh bank), written on 2026-11-27
+at about 07:23 UTC (commit 0dac932), before the run was started (so before any of its checkpoints existed). The rule
+of the earlier screens (training/heldout_screen.py), on the four sets of the distillation rounds plus one set drawn
+with the candidate generator's option, as the relative-grain screen did for its run.
 
 Incumbent: the shipped network, distill-4 (out/train_demosaic_noise_free_distill4/best.pt: the asset of 7ce47d7),
 one pass.
