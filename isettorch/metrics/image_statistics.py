@@ -109,9 +109,10 @@ def detail_ratio_exponent(images, window: int = 16, min_contrast: float = 0.01, 
 
     In a window, ``slope`` is the least-squares gain of channel ``a``'s fine detail (a 4-neighbour Laplacian) on
     channel ``b``'s, and ``level ratio`` the ratio of their window means. Detail that multiplies every channel alike
-    (shading) gives ``beta = 1``; detail that adds the same amount to each channel gives ``beta = 0``; both are
-    invariant to a per-image scale. Windows whose detail is weak (Laplacian std below ``min_contrast`` of the mean),
-    dark (mean below ``min_level``) or not shared (correlation below ``min_correlation``) are skipped.
+    (shading) gives ``beta = 1``; detail that adds the same amount to each channel gives ``beta = 0``; a per-image
+    scale changes neither (as long as no window crosses ``min_level``). Windows whose detail is weak (Laplacian std
+    below ``min_contrast`` of the mean), dark (mean below ``min_level``) or not shared (correlation below
+    ``min_correlation``) are skipped.
 
     Args:
         images: iterable of ``[3, H, W]`` tensors (R, G, B; linear or encoded, the exponent reads differently: a
