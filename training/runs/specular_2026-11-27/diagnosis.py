@@ -19,13 +19,9 @@ from skimage import io
 
 sys.path.insert(0, ".")
 from benchmarks.demosaic_package_photos import package_photos  # noqa: E402
-from isettorch.isp.evaluation import _demosaic_call, load_demosaic_model, mosaic  # noqa: E402
+from isettorch.image import srgb_decode  # noqa: E402
+from isettorch.isp.evaluation import _demosaic_call, cpsnr, load_demosaic_model, mosaic  # noqa: E402
 from isettorch.metrics.image_statistics import detail_ratio_exponent  # noqa: E402
-
-
-def srgb_decode(x: torch.Tensor) -> torch.Tensor:
-    """IEC 61966-2-1 sRGB transfer function, inverted."""
-    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
 
 
 def as_tensor(a: np.ndarray) -> torch.Tensor:
@@ -56,9 +52,10 @@ def main() -> None:
         for m, (method, model) in methods.items():
             call = _demosaic_call(method, model, "RGGB", 0.0, 0.0, torch.device("cpu"), torch.float32, {})
             with torch.no_grad():
-                e = (call(raw).double().clamp(0, 1) - truth)[0, :, c:-c, c:-c]
+                est = call(raw).double().clamp(0, 1)
+            e = (est - truth)[0, :, c:-c, c:-c]
             lum = e.mean(0)
-            row = {"cpsnr": float(10 * np.log10(1 / float((e ** 2).mean()))),
+            row = {"cpsnr": cpsnr(est, truth, c)[0].item(),
                    "mse_rgb": [float(x) for x in (e ** 2).mean((1, 2))],
                    "mse_luminance_share": float(3 * (lum ** 2).mean() / (e ** 2).sum(0).mean())}
             res["errors"].setdefault(name, {})[m] = row
