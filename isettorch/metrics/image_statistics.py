@@ -133,9 +133,9 @@ def detail_ratio_exponent(images, window: int = 16, min_contrast: float = 0.01, 
         for a in (0, 2):
             da, db = d[a], d[1]
             saa, sbb, sab = (da * da).sum(1), (db * db).sum(1), (da * db).sum(1)
-            sd = (sbb / da.shape[1]).sqrt(), (saa / da.shape[1]).sqrt()
-            ok = ((m[a] > min_level) & (m[1] > min_level) & (sd[0] > min_contrast * m[1])
-                  & (sd[1] > min_contrast * m[a]) & (sab > 0))
+            sd_a, sd_b = (saa / da.shape[1]).sqrt(), (sbb / da.shape[1]).sqrt()
+            ok = ((m[a] > min_level) & (m[1] > min_level) & (sd_a > min_contrast * m[a])
+                  & (sd_b > min_contrast * m[1]) & (sab > 0))
             corr = sab / (saa * sbb).clamp_min(1e-300).sqrt()
             ok &= corr > min_correlation
             xs.append((m[a][ok] / m[1][ok]).log())
