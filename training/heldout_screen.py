@@ -19,30 +19,53 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+import torch  # noqa: E402
+
 from isettorch.isp.evaluation import evaluate_demosaic, load_demosaic_model  # noqa: E402
 
 
-def screen(incumbent: str, candidate: str, sets: list[str], tolerance_db: float = 0.05) -> dict:
-    """Score both checkpoints on every set; returns per-network rows (per-set mean, scenes below MHC, worst margin
-    over MHC, per-image CPSNR, score) and ``decision``: ``"candidate"`` or ``"incumbent"``."""
+def mhc_scores(sets: list[str]) -> dict:
+    """Malvar-He-Cutler's per-image CPSNR on each set (the floor of the rule's condition c)."""
+    return {s: [i["cpsnr"] for i in evaluate_demosaic(s, "malvar2004", "RGGB", 10)["images"]] for s in sets}
+
+
+def score_network(net, sets: list[str], mhc: dict) -> dict:
+    """One network's row: per set its mean, scenes below MHC, worst margin over MHC and per-image CPSNR; and the
+    score (the mean of the set means); with a checkpoint path, ``path`` too. ``net``: a module or a checkpoint path
+    (:func:`load_demosaic_model`)."""
     if not sets:
         raise ValueError("sets: expected at least one held-out folder")
-    res = {}
-    mhc = {s: [i["cpsnr"] for i in evaluate_demosaic(s, "malvar2004", "RGGB", 10)["images"]] for s in sets}
-    for name, path in (("incumbent", incumbent), ("candidate", candidate)):
-        net, row = load_demosaic_model(path), {"path": str(path)}
-        for s in sets:
-            r = evaluate_demosaic(s, "learned", "RGGB", 10, model=net)
-            v = [i["cpsnr"] for i in r["images"]]
-            row[s] = {"mean": r["mean_cpsnr"], "below_mhc": sum(a < b for a, b in zip(v, mhc[s])),
-                      "worst_vs_mhc": min(a - b for a, b in zip(v, mhc[s])),
-                      "per_image": {i["name"]: i["cpsnr"] for i in r["images"]}}
-        row["score"] = sum(row[s]["mean"] for s in sets) / len(sets)
-        res[name] = row
-    a, b = res["candidate"], res["incumbent"]
-    ok = (a["score"] > b["score"] and all(a[s]["mean"] >= b[s]["mean"] - tolerance_db for s in sets)
-          and all(a[s]["below_mhc"] == 0 for s in sets))
-    res["decision"] = "candidate" if ok else "incumbent"
+    row = {}
+    if not isinstance(net, torch.nn.Module):
+        row["path"] = str(net)
+        net = load_demosaic_model(net)
+    for s in sets:
+        r = evaluate_demosaic(s, "learned", "RGGB", 10, model=net)
+        v = [i["cpsnr"] for i in r["images"]]
+        row[s] = {"mean": r["mean_cpsnr"], "below_mhc": sum(a < b for a, b in zip(v, mhc[s])),
+                  "worst_vs_mhc": min(a - b for a, b in zip(v, mhc[s])),
+                  "per_image": {i["name"]: i["cpsnr"] for i in r["images"]}}
+    row["score"] = sum(row[s]["mean"] for s in sets) / len(sets)
+    return row
+
+
+def passes(candidate: dict, incumbent: dict, sets: list[str], tolerance_db: float = 0.05) -> bool:
+    """The rule on two rows of :func:`score_network`: a higher score, no set mean more than ``tolerance_db`` below
+    the incumbent's, and no scene below MHC on any set."""
+    return (candidate["score"] > incumbent["score"]
+            and all(candidate[s]["mean"] >= incumbent[s]["mean"] - tolerance_db for s in sets)
+            and all(candidate[s]["below_mhc"] == 0 for s in sets))
+
+
+def screen(incumbent: str, candidate: str, sets: list[str], tolerance_db: float = 0.05) -> dict:
+    """Score both checkpoints on every set; returns per-network rows (:func:`score_network`) and ``decision``:
+    ``"candidate"`` or ``"incumbent"``."""
+    if not sets:
+        raise ValueError("sets: expected at least one held-out folder")
+    mhc = mhc_scores(sets)
+    res = {"incumbent": score_network(incumbent, sets, mhc), "candidate": score_network(candidate, sets, mhc)}
+    res["decision"] = ("candidate" if passes(res["candidate"], res["incumbent"], sets, tolerance_db)
+                       else "incumbent")
     return res
 
 
@@ -69,8 +92,6 @@ def run_rule(incumbent: str, candidate: str, sets: list[str], out: str, dry_run_
     """A run's pre-registered screen (its ``screen_rule.py`` names the checkpoints, sets and result file): 2 torch
     threads, then :func:`main`. ``--candidate PATH`` in ``argv`` (default ``sys.argv``) scores that checkpoint
     instead, a dry run of the rule, and writes ``dry_run_out`` instead of ``out``."""
-    import torch
-
     ap = argparse.ArgumentParser(description="a run's pre-registered held-out screen")
     ap.add_argument("--candidate", default=None, metavar="PATH", help="score this checkpoint instead (a dry run)")
     dry = ap.parse_args(sys.argv[1:] if argv is None else argv).candidate
