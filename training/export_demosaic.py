@@ -48,6 +48,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--noise-sigmas", type=float, nargs="*", default=[],
                     help="also score the benchmarks (crop 10) with white Gaussian noise of these stds on the [0, 1] "
                          "mosaic (demosaic-eval --noise-sigma, seed 0; a joint network is given the level)")
+    ap.add_argument("--command", default=None,
+                    help="the command that made the checkpoint, for the record (default: the run's record.json); "
+                         "e.g. a weight interpolation's script")
+    ap.add_argument("--selected-by", default=None, help="how the checkpoint was chosen, for the record")
     ap.add_argument("--heldout", default=None,
                     help="JSON written by training/eval_camera_pairs.py, added to the record (held-out camera pairs)")
     args = ap.parse_args(argv)
@@ -87,10 +91,11 @@ def main(argv: list[str] | None = None) -> int:
     rec_path = run / "record.json"
     rec = json.loads(rec_path.read_text()) if rec_path.is_file() else {}
     cfg = json.loads(ck["train_config"])
-    selected_by = ("held-out camera-pair validation CPSNR" if cfg.get("data", {}).get("source") == "camera_pairs"
-                   else "synthetic validation CPSNR")
+    selected_by = args.selected_by or ("held-out camera-pair validation CPSNR"
+                                       if cfg.get("data", {}).get("source") == "camera_pairs"
+                                       else "synthetic validation CPSNR")
     heldout = json.loads(Path(args.heldout).read_text()) if args.heldout else None
-    command = rec.get("command", "train_demosaic.py --config configs/train/demosaic_noise_free.yaml")
+    command = args.command or rec.get("command", "train_demosaic.py --config configs/train/demosaic_noise_free.yaml")
     if isinstance(command, str) and command.startswith("train_demosaic.py"):
         command = "python training/" + command
     info = {
