@@ -52,3 +52,25 @@ def test_export_joint_model_card(tmp_path, monkeypatch):
     assert "| kodak24 | " in text
     assert 'load_pretrained("joint_denoise")' in text.splitlines()[0]  # the card names the variant it documents
     assert "initialised from: `out/noise_free/best.pt`" in text
+
+
+def test_export_records_given_command_and_selection(tmp_path):
+    """--command / --selected-by (a checkpoint not made by train_demosaic.py, e.g. a weight interpolation) replace the
+    run record's command and the default selection text in the JSON and the card."""
+    net = DemosaicNet(channels=8, depth=2)
+    run = tmp_path / "run"
+    run.mkdir()
+    train_demosaic.save_checkpoint(run / "best.pt", net, torch.optim.Adam(net.parameters()), 3,
+                                   {"data": {"source": "natural"}}, 30.0, [], 1.0)
+    (run / "record.json").write_text(json.dumps({"command": "train_demosaic.py --config a.yaml"}))
+    out = tmp_path / "assets"
+    assert export_demosaic.main(["--run", str(run), "--out", str(out), "--no-bench"]) == 0
+    card = json.loads((out / "demosaic_learned.json").read_text())
+    assert card["command"] == "python training/train_demosaic.py --config a.yaml"
+    assert card["checkpoint"]["selected_by"] == "synthetic validation CPSNR"
+    assert export_demosaic.main(["--run", str(run), "--out", str(out), "--no-bench", "--command", "python w.py",
+                                 "--selected-by", "a held-out screen"]) == 0
+    card = json.loads((out / "demosaic_learned.json").read_text())
+    assert card["command"] == "python w.py" and card["checkpoint"]["selected_by"] == "a held-out screen"
+    text = (out / "demosaic_learned.md").read_text()
+    assert "- command: `python w.py`" in text and "best by a held-out screen" in text

@@ -50,3 +50,19 @@ def test_screen_rule_and_scores(tmp_path):
     dry = json.loads(dry_out.read_text())
     assert dry["decision"] == "candidate" and dry["candidate"]["path"] == str(SHIPPED)
     assert json.loads(rule_out.read_text())["decision"] == "incumbent"  # the rule's own file is left alone
+
+
+def test_passes_rule_boundaries():
+    """The rule on hand-made rows: the score must beat the incumbent's, a set may fall by the tolerance and no more,
+    and one scene below MHC fails it."""
+    sets = ["a", "b"]
+
+    def row(a, b, below=0):
+        return {"a": {"mean": a, "below_mhc": below}, "b": {"mean": b, "below_mhc": 0}, "score": (a + b) / 2}
+
+    inc = row(40.0, 36.0)
+    assert heldout_screen.passes(row(40.5, 35.95), inc, sets)  # +0.5 / -0.05: inside the guard
+    assert not heldout_screen.passes(row(40.5, 35.9), inc, sets)  # -0.1 on one set
+    assert heldout_screen.passes(row(40.5, 35.9), inc, sets, tolerance_db=0.1)
+    assert not heldout_screen.passes(row(40.0, 36.0), inc, sets)  # a tie does not ship
+    assert not heldout_screen.passes(row(40.5, 36.5, below=1), inc, sets)  # a scene below MHC
