@@ -57,6 +57,22 @@ def passes(candidate: dict, incumbent: dict, sets: list[str], tolerance_db: floa
             and all(candidate[s]["below_mhc"] == 0 for s in sets))
 
 
+def interpolate_checkpoints(alpha: float, start: dict, finetuned: dict) -> dict:
+    """The checkpoint of ``(1 - alpha) start + alpha finetuned`` (weight-space interpolation, "WiSE-FT": Wortsman et
+    al., CVPR 2022): ``start``'s record with its weights replaced (float32) and its optimizer state dropped. The two
+    must be the same architecture (same ``net_config`` and parameter names)."""
+    if not 0 <= alpha <= 1:
+        raise ValueError(f"alpha: expected a weight in [0, 1], got {alpha}")
+    if set(start["model"]) != set(finetuned["model"]) or start["net_config"] != finetuned["net_config"]:
+        raise ValueError("start, finetuned: expected checkpoints of the same architecture (net_config and parameter "
+                         f"names), got {start['net_config']} and {finetuned['net_config']}")
+    out = dict(start)
+    out["model"] = {k: (1 - alpha) * start["model"][k].float() + alpha * finetuned["model"][k].float()
+                    for k in start["model"]}
+    out.pop("optimizer", None)
+    return out
+
+
 def screen(incumbent: str, candidate: str, sets: list[str], tolerance_db: float = 0.05) -> dict:
     """Score both checkpoints on every set; returns per-network rows (:func:`score_network`) and ``decision``:
     ``"candidate"`` or ``"incumbent"``."""

@@ -22,55 +22,29 @@ means is more than 0.05 dB below the incumbent's, and (c) no held-out scene is b
 Kodak/McMaster and the scikit-image photos are scored afterwards for the chosen network only, for reporting.
 
     python training/runs/wise_specular_2026-11-27/wise_rule.py   (from the repository root; ~4 minutes on 2 cores)
-Writes wise_screen.json here and the chosen network's checkpoint to out/wise_specular/best.pt.
+Writes wise_screen.json here and the chosen network's checkpoint to out/wise_specular/best.pt. (The screen's code was
+moved afterwards, unchanged in what it computes, to training.reproduce_demosaic.wise_select, the one implementation
+that the one-command reproduction also runs; this file now calls it. One difference: with no alpha passing it now
+writes distill-4 itself to out/wise_specular/best.pt.)
 """
 import json
 import sys
 from pathlib import Path
 
-import torch
-
 sys.path.insert(0, ".")
-from isettorch.isp.learned import DemosaicNet  # noqa: E402
-from training.heldout_screen import mhc_scores, passes, score_network  # noqa: E402
+from training.reproduce_demosaic import HELDOUT, WISE, wise_select  # noqa: E402
 
 SETS = ["out/heldout_v5", "out/heldout_v5_stress", "out/heldout_stress", "out/heldout_v5_relgrain",
         "out/heldout_spec1"]
 INCUMBENT = "out/train_demosaic_noise_free_distill4/best.pt"
 SPECULAR = "out/train_demosaic_noise_free_specular/best.pt"
-ALPHAS = [k / 10 for k in range(1, 10)]
 HERE = Path(__file__).resolve().parent
-
-
-def interpolate(alpha: float, d4: dict, sp: dict) -> dict:
-    """The checkpoint of W(alpha): D4's record with its weights replaced by the interpolation."""
-    if set(d4["model"]) != set(sp["model"]) or d4["net_config"] != sp["net_config"]:
-        raise ValueError("the two endpoints must be the same architecture")
-    out = dict(d4)
-    out["model"] = {k: (1 - alpha) * d4["model"][k].float() + alpha * sp["model"][k].float() for k in d4["model"]}
-    out.pop("optimizer", None)
-    return out
-
+assert SETS == list(HELDOUT) and INCUMBENT == WISE["start"] and SPECULAR == WISE["finetuned"]
+assert WISE["alphas"] == [k / 10 for k in range(1, 10)]
 
 if __name__ == "__main__":
+    import torch
+
     torch.set_num_threads(2)
-    d4, sp = (torch.load(p, map_location="cpu", weights_only=True) for p in (INCUMBENT, SPECULAR))
-    mhc = mhc_scores(SETS)
-    res = {"incumbent": score_network(INCUMBENT, SETS, mhc)}
-    print("incumbent", " ".join(f"{res['incumbent'][s]['mean']:.3f}" for s in SETS),
-          f"score {res['incumbent']['score']:.3f}", flush=True)
-    for a in ALPHAS:
-        net = DemosaicNet(**d4["net_config"])
-        net.load_state_dict(interpolate(a, d4, sp)["model"])
-        row = score_network(net.eval(), SETS, mhc)
-        row["passes"] = passes(row, res["incumbent"], SETS)
-        res[f"a{a:.1f}"] = row
-        print(f"a{a:.1f}", " ".join(f"{row[s]['mean']:.3f}({row[s]['below_mhc']})" for s in SETS),
-              f"score {row['score']:.3f}", "passes" if row["passes"] else "", flush=True)
-    ok = [k for k in res if k != "incumbent" and res[k]["passes"]]
-    res["decision"] = max(ok, key=lambda k: res[k]["score"]) if ok else "incumbent"
-    print("ship:", res["decision"])
+    _, res = wise_select(SETS, INCUMBENT, SPECULAR, "out/wise_specular")
     (HERE / "wise_screen.json").write_text(json.dumps(res, indent=1))
-    if ok:
-        Path("out/wise_specular").mkdir(parents=True, exist_ok=True)
-        torch.save(interpolate(float(res["decision"][1:]), d4, sp), "out/wise_specular/best.pt")

@@ -1,0 +1,92 @@
+"""training/reproduce_demosaic.py: the shipped models' training chains are consistent (every step starts from, and
+every teacher is, a checkpoint an earlier step writes), a broken chain is refused, and the interpolation screen
+chooses and writes the network its rule says; training.heldout_screen.interpolate_checkpoints is exact."""
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from isettorch.isp.learned import DemosaicNet  # noqa: E402
+from training import heldout_screen, make_heldout, reproduce_demosaic  # noqa: E402
+
+SHIPPED = ROOT / "isettorch" / "assets" / "demosaic_learned.pt"
+
+
+def test_chains_are_consistent_and_end_where_the_selection_starts():
+    nf = reproduce_demosaic.check_chain(reproduce_demosaic.CHAINS["noise_free"])
+    outs = [c["out"] + "/best.pt" for c in nf]
+    assert reproduce_demosaic.WISE["start"] in outs and outs[-1] == reproduce_demosaic.WISE["finetuned"]
+    assert all(c["init"] == o for c, o in zip(nf[1:], outs[:-1]))  # a straight line of continuations
+    joint = reproduce_demosaic.check_chain(reproduce_demosaic.CHAINS["joint_denoise"])
+    assert joint[-1]["noise"]["enabled"] and joint[-1]["init"] == joint[0]["out"] + "/best.pt"
+
+
+def test_broken_chain_is_refused(tmp_path):
+    (tmp_path / "a.yaml").write_text("out: out/a\n")
+    (tmp_path / "b.yaml").write_text("out: out/b\ninit: out/a/best.pt\ndistill: {teacher: out/x/best.pt}\n")
+    (tmp_path / "c.yaml").write_text("out: out/c\ninit: out/z/best.pt\n")
+    with pytest.raises(ValueError, match="'b' reads distill.teacher 'out/x/best.pt'"):
+        reproduce_demosaic.check_chain(["a", "b"], tmp_path)
+    with pytest.raises(ValueError, match="'c' reads init"):
+        reproduce_demosaic.check_chain(["a", "c"], tmp_path)
+    with pytest.raises(ValueError, match="does not exist"):
+        reproduce_demosaic.check_chain(["a", "missing"], tmp_path)
+
+
+def test_dry_run_lists_the_steps(capsys):
+    assert reproduce_demosaic.main(["noise_free", "--dry-run"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].endswith("configs/train/demosaic_noise_free.yaml --no-progress")
+    assert sum("train_demosaic.py" in line for line in lines) == len(reproduce_demosaic.CHAINS["noise_free"])
+    assert sum("make_heldout.py" in line for line in lines) == 5 and "export_demosaic.py" in lines[-1]
+    with pytest.raises(SystemExit):
+        reproduce_demosaic.main(["colour", "--dry-run"])
+
+
+def test_interpolate_checkpoints_exact():
+    torch.manual_seed(0)
+    a, b = (DemosaicNet(channels=8, depth=2) for _ in range(2))
+    ca = {"model": a.state_dict(), "net_config": {"channels": 8, "depth": 2}, "optimizer": {}, "step": 3}
+    cb = {"model": b.state_dict(), "net_config": {"channels": 8, "depth": 2}}
+    for alpha, want in ((0.0, a.state_dict()), (1.0, b.state_dict())):
+        got = heldout_screen.interpolate_checkpoints(alpha, ca, cb)["model"]
+        for k, v in want.items():
+            torch.testing.assert_close(got[k], v.float(), rtol=0, atol=0)
+    half = heldout_screen.interpolate_checkpoints(0.5, ca, cb)
+    k = "head.weight"
+    torch.testing.assert_close(half["model"][k], (a.state_dict()[k] + b.state_dict()[k]) / 2)
+    assert half["step"] == 3 and "optimizer" not in half  # the start's record, without its optimizer state
+    with pytest.raises(ValueError, match="alpha"):
+        heldout_screen.interpolate_checkpoints(1.5, ca, cb)
+    cc = {"model": DemosaicNet(channels=8, depth=3).state_dict(), "net_config": {"channels": 8, "depth": 3}}
+    with pytest.raises(ValueError, match="same architecture"):
+        heldout_screen.interpolate_checkpoints(0.5, ca, cc)
+
+
+def test_wise_select_ships_the_best_passing_alpha(tmp_path):
+    """Start = the shipped network with its output head damaged, fine-tune = the shipped network: the screen must
+    pick an alpha > 0, write exactly that interpolation, and keep the start when the roles are swapped."""
+    sets = []
+    for k, extra in enumerate(([], ["--channel-gains", "1", "0.5", "0.5"])):
+        folder = tmp_path / f"set{k}"
+        assert make_heldout.main(["--out", str(folder), "--n", "2", "--size", "48", "--quiet", *extra]) == 0
+        sets.append(str(folder))
+    good = torch.load(SHIPPED, weights_only=True)
+    bad = {**good, "model": {k: v * 0.3 if k.startswith("head.") else v for k, v in good["model"].items()}}
+    torch.save(bad, tmp_path / "bad.pt")
+    how, res = reproduce_demosaic.wise_select(sets, tmp_path / "bad.pt", SHIPPED, tmp_path / "w")
+    chosen = res["decision"]
+    assert chosen != "incumbent" and res[chosen]["passes"] and f"W({float(chosen[1:])})" in how
+    assert all(res[chosen]["score"] >= r["score"] for k, r in res.items() if k.startswith("a") and r["passes"])
+    written = torch.load(tmp_path / "w" / "best.pt", weights_only=True)["model"]
+    want = heldout_screen.interpolate_checkpoints(float(chosen[1:]), bad, good)["model"]
+    assert all(torch.equal(written[k], want[k]) for k in want)
+    how, res = reproduce_demosaic.wise_select(sets, SHIPPED, tmp_path / "bad.pt", tmp_path / "w2")
+    assert res["decision"] == "incumbent" and "passed no alpha" in how
+    written = torch.load(tmp_path / "w2" / "best.pt", weights_only=True)["model"]
+    assert all(torch.equal(written[k], good["model"][k]) for k in good["model"])
