@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from isettorch.isp.learned import DemosaicNet  # noqa: E402
-from training import heldout_screen, make_heldout, reproduce_demosaic  # noqa: E402
+from training import heldout_screen, reproduce_demosaic  # noqa: E402
 
 SHIPPED = ROOT / "isettorch" / "assets" / "demosaic_learned.pt"
 
@@ -68,25 +68,19 @@ def test_interpolate_checkpoints_exact():
         heldout_screen.interpolate_checkpoints(0.5, ca, cc)
 
 
-def test_wise_select_ships_the_best_passing_alpha(tmp_path):
+def test_wise_select_ships_the_best_passing_alpha(tmp_path, tiny_heldout_sets, damaged_shipped):
     """Start = the shipped network with its output head damaged, fine-tune = the shipped network: the screen must
     pick an alpha > 0, write exactly that interpolation, and keep the start when the roles are swapped."""
-    sets = []
-    for k, extra in enumerate(([], ["--channel-gains", "1", "0.5", "0.5"])):
-        folder = tmp_path / f"set{k}"
-        assert make_heldout.main(["--out", str(folder), "--n", "2", "--size", "48", "--quiet", *extra]) == 0
-        sets.append(str(folder))
-    good = torch.load(SHIPPED, weights_only=True)
-    bad = {**good, "model": {k: v * 0.3 if k.startswith("head.") else v for k, v in good["model"].items()}}
-    torch.save(bad, tmp_path / "bad.pt")
-    how, res = reproduce_demosaic.wise_select(sets, tmp_path / "bad.pt", SHIPPED, tmp_path / "w")
+    sets = tiny_heldout_sets
+    good, bad = (torch.load(p, weights_only=True) for p in (SHIPPED, damaged_shipped))
+    how, res = reproduce_demosaic.wise_select(sets, damaged_shipped, SHIPPED, tmp_path / "w")
     chosen = res["decision"]
     assert chosen != "incumbent" and res[chosen]["passes"] and f"W({float(chosen[1:])})" in how
     assert all(res[chosen]["score"] >= r["score"] for k, r in res.items() if k.startswith("a") and r["passes"])
     written = torch.load(tmp_path / "w" / "best.pt", weights_only=True)["model"]
     want = heldout_screen.interpolate_checkpoints(float(chosen[1:]), bad, good)["model"]
     assert all(torch.equal(written[k], want[k]) for k in want)
-    how, res = reproduce_demosaic.wise_select(sets, SHIPPED, tmp_path / "bad.pt", tmp_path / "w2")
+    how, res = reproduce_demosaic.wise_select(sets, SHIPPED, damaged_shipped, tmp_path / "w2")
     assert res["decision"] == "incumbent" and "passed no alpha" in how
     written = torch.load(tmp_path / "w2" / "best.pt", weights_only=True)["model"]
     assert all(torch.equal(written[k], good["model"][k]) for k in good["model"])
