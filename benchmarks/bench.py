@@ -1013,7 +1013,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     problem = check_arguments(args)
     if problem:
-        print(f"error: {problem}", file=sys.stderr)
+        print(f"isettorch bench: {problem}", file=sys.stderr)  # the CLI's one-line convention (isettorch.cli)
         return 2
     if args.threads is not None:
         torch.set_num_threads(args.threads)

@@ -1,11 +1,19 @@
 """The ``isettorch`` command. Subcommands live in ``isettorch/commands/<name>.py``; each module defines
 ``register(subparsers)`` which adds its parser and sets ``func`` (a callable taking the parsed
-args and returning an exit code). Modules are discovered automatically."""
+args and returning an exit code). Modules are discovered automatically.
+
+Errors: bad input to a subcommand is one line on stderr, ``isettorch <command>: <message>``, and exit code 2
+(argparse's own errors also exit 2). A command signals bad input by raising ``ValueError`` or ``OSError``
+(``FileNotFoundError``, ``PermissionError``, ...) with a message that names the argument; a message that starts
+with the name of one of the command's parameters (``noise_sigma: ...``, as the library's functions name theirs)
+is shown with the command line's spelling (``--noise-sigma: ...``). Any other exception is a bug and keeps its
+traceback; ``isettorch --traceback COMMAND ...`` or ``ISETTORCH_DEBUG=1`` re-raises input errors too."""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 
@@ -15,6 +23,8 @@ from . import __version__, commands
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="isettorch", description="Physically based camera simulation in PyTorch.")
     parser.add_argument("--version", action="version", version=f"isettorch {__version__}")
+    parser.add_argument("--traceback", action="store_true",
+                        help="show the Python traceback of an input error (as ISETTORCH_DEBUG=1 does)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
@@ -24,13 +34,46 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: The exception types that mean "bad input" (a missing file, a value out of range): one line and exit code 2.
+INPUT_ERRORS = (ValueError, OSError)
+
+
+def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """The subcommands' parsers of :func:`build_parser`'s parser, by name."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    return {}
+
+
+def _spelled(message: str, parser: argparse.ArgumentParser | None) -> str:
+    """``message`` on one line; a leading ``<dest>:`` of one of the command's parameters becomes its option string
+    (``noise_sigma:`` -> ``--noise-sigma:``) or its metavar (a positional ``folder`` -> ``DIR:``)."""
+    message = " ".join(line.strip() for line in message.splitlines() if line.strip())
+    head, sep, rest = message.partition(":")
+    if parser is None or not sep:
+        return message
+    for action in parser._actions:
+        if action.dest == head and action.dest != "help":
+            name = max(action.option_strings, key=len) if action.option_strings else action.metavar or head
+            return f"{name}:{rest}"
+    return message
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    return int(args.func(args) or 0)
+    try:
+        return int(args.func(args) or 0)
+    except INPUT_ERRORS as err:
+        if args.traceback or os.environ.get("ISETTORCH_DEBUG", "") not in ("", "0"):
+            raise
+        message = _spelled(str(err) or type(err).__name__, subcommands(parser).get(args.command))
+        print(f"isettorch {args.command}: {message}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -40,7 +40,7 @@ def register(sub) -> None:
 def run(args) -> int:
     script = find_script()
     if script is None:
-        print(f"error: isettorch bench needs a source checkout: {SCRIPT} was found neither beside the package "
+        print(f"isettorch bench: needs a source checkout: {SCRIPT} was found neither beside the package "
               f"({Path(__file__).resolve().parents[2]}) nor under the current directory ({Path.cwd()})",
               file=sys.stderr)
         return 2

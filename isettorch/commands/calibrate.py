@@ -46,26 +46,21 @@ def _summary(result: dict) -> str:
 
 def _single(args) -> int:
     import json
-    import sys
 
     from ..io.frames import RAW_SUFFIXES, read_frame
     from ..sensor.noise_estimation import estimate_poisson_gaussian
 
-    try:
-        black, white, cfa = args.black_level, None, args.cfa
-        if args.directory.lower().endswith(RAW_SUFFIXES):
-            from ..io.raw import read_raw
+    black, white, cfa = args.black_level, None, args.cfa  # errors: ValueError, one line (isettorch.cli)
+    if args.directory.lower().endswith(RAW_SUFFIXES):
+        from ..io.raw import read_raw
 
-            raw = read_raw(args.directory)
-            data = raw.data
-            black = float(sum(raw.black_level_dn) / len(raw.black_level_dn)) if black is None else black
-            white, cfa = raw.white_level_dn, cfa or raw.cfa
-        else:
-            data = read_frame(args.directory)
-        res = estimate_poisson_gaussian(data, cfa=cfa, black_level_dn=black or 0.0, white_level_dn=white)
-    except ValueError as err:
-        print(f"isettorch calibrate: error: {err}", file=sys.stderr)
-        return 2
+        raw = read_raw(args.directory)
+        data = raw.data
+        black = float(sum(raw.black_level_dn) / len(raw.black_level_dn)) if black is None else black
+        white, cfa = raw.white_level_dn, cfa or raw.cfa
+    else:
+        data = read_frame(args.directory)
+    res = estimate_poisson_gaussian(data, cfa=cfa, black_level_dn=black or 0.0, white_level_dn=white)
     res.update({"file": args.directory, "cfa": cfa, "black_level_dn": black or 0.0})
     if args.json:
         print(json.dumps(res, indent=2))
@@ -83,20 +78,19 @@ def run(args) -> int:
     from ..io.frames import read_capture
     from ..sensor.calibration import calibrate_capture, write_sensor_config
 
+    if not Path(args.directory).exists():
+        raise FileNotFoundError(f"DIR: no such capture folder or raw frame {args.directory!r}")
     if Path(args.directory).is_file():
         return _single(args)
-    try:
-        capture = read_capture(args.directory, progress=not args.quiet)
-        result = calibrate_capture(capture, progress=not args.quiet)
-        if args.out:
-            write_sensor_config(result, args.out)
-        if args.report:
-            from ..metrics.emva import calibration_figures
+    # bad input raises ValueError, which the CLI shows as one line (isettorch.cli)
+    capture = read_capture(args.directory, progress=not args.quiet)
+    result = calibrate_capture(capture, progress=not args.quiet)
+    if args.out:
+        write_sensor_config(result, args.out)
+    if args.report:
+        from ..metrics.emva import calibration_figures
 
-            result["report_figures"] = calibration_figures(result, capture, args.report)
-    except ValueError as err:
-        print(f"isettorch calibrate: error: {err}", file=sys.stderr)
-        return 2
+        result["report_figures"] = calibration_figures(result, capture, args.report)
     if args.json:
         print(json.dumps(result, indent=2))
     else:

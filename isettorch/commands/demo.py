@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -53,14 +52,12 @@ def run(args) -> int:
     from ..scene.dead_leaves import dead_leaves
 
     if args.size < 16:
-        print(f"isettorch demo: error: --size: expected at least 16 pixels, got {args.size}", file=sys.stderr)
-        return 2
+        raise ValueError(f"--size: expected at least 16 pixels, got {args.size}")
     config = args.config
-    try:  # a user's config error is a message and exit code 2, not a traceback
+    try:  # a user's config error is one line and exit code 2 (isettorch.cli), not a traceback
         cam = Camera.from_config(config)
-    except (ValueError, TypeError, FileNotFoundError, yaml.YAMLError) as err:
-        print(f"isettorch demo: error in --config {config}: {err}", file=sys.stderr)
-        return 2
+    except (ValueError, TypeError, OSError, yaml.YAMLError) as err:
+        raise ValueError(f"--config {config}: {err}") from err
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     n = args.size

@@ -55,14 +55,50 @@ def _finite_or_none(x: float):
     return x if math.isfinite(x) else None
 
 
+def _check_args(args) -> None:
+    """Bad input named by its argument (``DIR``, ``--noise-sigma``, ...) before any work; ValueError otherwise."""
+    from pathlib import Path
+
+    if not Path(args.folder).is_dir():
+        raise FileNotFoundError(f"DIR: no such folder {args.folder!r}")
+    for flag, value in (("--noise-sigma", args.noise_sigma), ("--noise-shot", args.noise_shot)):
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{flag}: expected a finite value >= 0, got {value}")
+    if args.crop < 0:
+        raise ValueError(f"--crop: expected a border of >= 0 pixels, got {args.crop}")
+    if args.threads is not None and args.threads < 1:
+        raise ValueError(f"--threads: expected a positive number of threads, got {args.threads}")
+    if args.model is not None and not Path(args.model).is_file():
+        raise FileNotFoundError(f"--model: no such file {args.model!r} (expected a TorchScript archive or a "
+                                f"weights file)")
+
+
+def _check_device(name: str):
+    import torch
+
+    try:
+        device = torch.device(name)
+    except RuntimeError as err:
+        raise ValueError(f"--device: {err}") from err
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"--device: {name!r}, but CUDA is not available on this machine")
+    return device
+
+
 def run(args) -> int:
     import torch
 
-    from ..isp.evaluation import evaluate_demosaic, load_demosaic_model
+    from ..isp.evaluation import evaluate_demosaic, load_demosaic_model, load_images
 
+    _check_args(args)
+    device = _check_device(args.device)
     if args.threads is not None:
         torch.set_num_threads(args.threads)
     dtype = getattr(torch, args.dtype)
+    try:  # read the images first: a bad one is named with DIR (the library's message names "images")
+        images = load_images(args.folder)
+    except ValueError as err:
+        raise ValueError(f"DIR: {str(err).removeprefix('images: ')}") from err
     model = None
     if args.model is not None:
         kwargs = None
@@ -73,12 +109,12 @@ def run(args) -> int:
                 raise ValueError(f"--model-kwargs: expected a JSON object, got {args.model_kwargs!r} ({err})") from err
             if not isinstance(kwargs, dict):
                 raise ValueError(f"--model-kwargs: expected a JSON object, got {args.model_kwargs!r}")
-        model = load_demosaic_model(args.model, args.model_class, kwargs=kwargs, device=args.device, dtype=dtype)
+        model = load_demosaic_model(args.model, args.model_class, kwargs=kwargs, device=device, dtype=dtype)
     elif args.model_class is not None or args.model_kwargs is not None:
         raise ValueError("--model-class/--model-kwargs: only with --model FILE")
     extra = {"self_ensemble": args.self_ensemble} if args.self_ensemble else {}  # evaluate_demosaic checks the method
-    res = evaluate_demosaic(args.folder, args.method, args.pattern.upper(), args.crop, dtype=dtype,
-                            device=args.device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
+    res = evaluate_demosaic(images, args.method, args.pattern.upper(), args.crop, dtype=dtype,
+                            device=device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
                             seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet, **extra)
     if args.json:
         res["mean_cpsnr"] = _finite_or_none(res["mean_cpsnr"])

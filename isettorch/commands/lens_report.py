@@ -9,7 +9,6 @@ otherwise a table, and plots (PSF grid, MTF against field, distortion, relative 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 
@@ -17,9 +16,9 @@ def _floats(s: str, what: str) -> list[float]:
     try:
         vals = [float(v) for v in s.split(",") if v.strip()]
     except ValueError:
-        raise SystemExit(f"lens-report: {what}: expected comma-separated numbers, got {s!r}") from None
+        raise ValueError(f"{what}: expected comma-separated numbers, got {s!r}") from None
     if not vals:
-        raise SystemExit(f"lens-report: {what}: expected at least one value, got {s!r}")
+        raise ValueError(f"{what}: expected at least one value, got {s!r}")
     return vals
 
 
@@ -36,17 +35,14 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..optics.lens import GlassError, LensAnalysis, PrescriptionError, TraceError, lens_report
+    from ..optics.lens import LensAnalysis, lens_report
 
     fields = _floats(args.fields, "--fields")
     waves = _floats(args.wavelengths_nm, "--wavelengths-nm")
     freqs = _floats(args.frequencies_cy_mm, "--frequencies-cy-mm")
-    try:
-        analysis = LensAnalysis(args.lens)
-        report = lens_report(analysis, fields, waves, freqs, pupil_samples=args.pupil_samples)
-    except (PrescriptionError, GlassError, TraceError, FileNotFoundError) as e:
-        print(f"lens-report: {e}", file=sys.stderr)
-        return 2
+    # PrescriptionError, GlassError and TraceError are ValueErrors: one line and exit code 2 (isettorch.cli)
+    analysis = LensAnalysis(args.lens)
+    report = lens_report(analysis, fields, waves, freqs, pupil_samples=args.pupil_samples)
     if args.json:
         print(json.dumps(report))
         return 0

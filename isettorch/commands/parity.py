@@ -272,8 +272,7 @@ def _table(results: list[dict], out) -> None:
 
 def run(args) -> int:
     if args.repeat < 0:
-        print(f"--repeat: expected a non-negative count, got {args.repeat}", file=sys.stderr)
-        return 2
+        raise ValueError(f"--repeat: expected a non-negative count, got {args.repeat}")
     results = []
     code = 0
     for path in args.cases:
@@ -282,6 +281,9 @@ def run(args) -> int:
         except (OSError, KeyError, ValueError, TypeError) as err:  # unreadable or malformed case: exit 2
             results.append({"name": Path(path).stem, "path": str(path), "error": f"{type(err).__name__}: {err}",
                             "stages": {}, "ok": False})
+            # the CLI's convention, one line per bad case on stderr (the report on stdout keeps the others)
+            print(f"isettorch parity: CASE {path}: {type(err).__name__}: " + " ".join(str(err).split()),
+                  file=sys.stderr)
             code = 2
     ok = all(r["ok"] for r in results)
     if args.json:

@@ -27,23 +27,23 @@ def register(sub) -> None:
 
 def run(args) -> int:
     import sys
+    from pathlib import Path
 
     from ..data.config import load_config
     from ..data.writer import verify_dataset, write_dataset
 
     if args.verify:
+        if not Path(args.out).is_dir():
+            raise FileNotFoundError(f"--out: no such dataset folder {args.out!r} to --verify")
         problems = verify_dataset(args.out)
         for line in problems:
             print(line, file=sys.stderr)
         print("ok" if not problems else f"{len(problems)} problem(s)")
         return 0 if not problems else 1
-    try:
-        cfg = load_config(args.config) if args.config else None
-        manifest = write_dataset(cfg, args.out, args.count, shard=args.shard, num_shards=args.num_shards,
-                                 workers=args.workers, progress=not args.quiet)
-    except ValueError as err:
-        print(f"isettorch synth: error: {err}", file=sys.stderr)
-        return 2
+    # bad input raises ValueError naming the option ("count: ..." is shown as "--count: ...", isettorch.cli)
+    cfg = load_config(args.config) if args.config else None
+    manifest = write_dataset(cfg, args.out, args.count, shard=args.shard, num_shards=args.num_shards,
+                             workers=args.workers, progress=not args.quiet)
     done = len(manifest["shards"])
     print(f"{done}/{manifest['num_files']} shards in {args.out}" + (" (complete)" if manifest["complete"] else ""))
     return 0

@@ -24,19 +24,22 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    import sys
+
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f"--port: expected 0..65535, got {args.port}")
+    if args.size < 16:
+        raise ValueError(f"--size: expected at least 16 samples, got {args.size}")
     try:
         import bokeh  # noqa: F401
     except ImportError:
-        print("isettorch view: needs Bokeh; install the viewer extra: pip install 'isettorch[viewer]'")
+        print("isettorch view: needs Bokeh; install the viewer extra: pip install 'isettorch[viewer]'", file=sys.stderr)
         return 2
     from ..viewer import serve
 
-    if not 0 <= args.port <= 65535:
-        raise SystemExit(f"--port: expected 0..65535, got {args.port}")
-    try:
+    try:  # ValueError / OSError (a bad --config or --scene): one line and exit code 2 (isettorch.cli)
         serve(args.config, args.scene, args.size, args.seed, port=args.port, address=args.address,
               open_browser=not args.no_browser)
-    except (FileNotFoundError, ValueError, TypeError) as err:
-        print(f"isettorch view: {err}")
-        return 2
+    except TypeError as err:  # a config value of the wrong type
+        raise ValueError(f"--config {args.config}: {err}") from err
     return 0

@@ -77,10 +77,13 @@ def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
         raise ValueError(f"images: no {'/'.join(IMAGE_SUFFIXES)} files in {str(folder)!r}")
     out = []
     for f in files:
-        with Image.open(f) as im:
-            if im.mode != "RGB":
-                raise ValueError(f"images: expected 8-bit RGB images, {f.name} has mode {im.mode!r}")
-            out.append((f.name, np.asarray(im)))
+        try:
+            with Image.open(f) as im:
+                if im.mode != "RGB":
+                    raise ValueError(f"images: expected 8-bit RGB images, {f.name} has mode {im.mode!r}")
+                out.append((f.name, np.asarray(im)))
+        except OSError as err:  # not an image, truncated, unreadable: name the file
+            raise ValueError(f"images: cannot read {f.name} in {str(folder)!r} as an image ({err})") from err
     return out
 
 

@@ -48,4 +48,4 @@ def test_view_command_reports_a_bad_config_without_a_traceback(capsys):
     from isettorch.cli import main
 
     assert main(["view", "--config", "no_such_camera", "--no-browser", "--port", "0"]) == 2
-    assert "no_such_camera" in capsys.readouterr().out
+    assert "no_such_camera" in capsys.readouterr().err
