@@ -107,9 +107,13 @@ def _f64(value, xp) -> np.ndarray | torch.Tensor:
     return t.cpu() if xp is torch else t.numpy()
 
 
-def _const(a: np.ndarray, xp):
-    """A cached numpy constant for the array module ``xp`` (shared memory, never written to)."""
-    return a if xp is np else torch.from_numpy(a)
+def _const(a: np.ndarray, xp, like=None):
+    """A cached numpy constant for the array module ``xp`` (shared memory, never written to); on the torch path, on
+    the device of the tensor ``like`` (the batched generator draws on the training device)."""
+    if xp is np:
+        return a
+    t = torch.from_numpy(a)
+    return t if like is None or like.device == t.device else t.to(like.device)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -180,15 +184,18 @@ def _reflectance_model(grid: tuple, dtype: torch.dtype, margin: float = 1e-3) ->
     return mean, basis, std, 1 - margin - mean, mean - margin, u
 
 
-def _pca_reflectances(coef: np.ndarray, mean, basis, std, room_up, room_down, spread: float = 1.0) -> np.ndarray:
-    """PCA spectra from standard-normal draws ``coef`` [n, K] (numpy), contracted towards the mean to stay in
-    [margin, 1 - margin]."""
+def _pca_reflectances(coef: np.ndarray, mean, basis, std, room_up, room_down, spread: float = 1.0, xp=np):
+    """PCA spectra from standard-normal draws ``coef`` [..., n, K] (numpy, or torch tensors with ``xp=torch``: the
+    batched generator), contracted towards the mean to stay in [margin, 1 - margin]."""
     dev = (coef * std * spread) @ basis  # [n, L]
     # Largest alpha <= 1 keeping mean + alpha * dev inside [margin, 1 - margin] (mean is strictly inside).
     # Per sample: room / |dev| towards the side dev points to (dev = 0 gives inf); |dev| < 1e-12 gives a ratio > 1
     # (the rooms are >= 1e-3 wide), which the cap at 1 removes, as clamping |dev| at 1e-12 did.
-    ratio = np.where(dev > 0, room_up, room_down) / np.abs(dev)
-    alpha = np.minimum(ratio.min(axis=1, keepdims=True), 1.0)
+    ratio = xp.where(dev > 0, room_up, room_down) / xp.abs(dev)
+    if xp is np:
+        alpha = np.minimum(ratio.min(axis=-1, keepdims=True), 1.0)
+    else:
+        alpha = ratio.amin(dim=-1, keepdim=True).clamp(max=1.0)
     return mean + alpha * dev
 
 
@@ -305,7 +312,7 @@ def _daylight(t, grid: tuple, xp):
     m = 0.0241 + 0.2562 * xd - 0.7341 * yd
     m1 = (-1.3515 - 1.7703 * xd + 5.9114 * yd) / m
     m2 = (0.0300 - 31.4424 * xd + 30.0717 * yd) / m
-    b = _const(_daylight_basis(grid), xp)
+    b = _const(_daylight_basis(grid), xp, t)
     return b[0] + m1[:, None] * b[1] + m2[:, None] * b[2]
 
 
@@ -338,7 +345,7 @@ def _blackbody(t, grid: tuple, xp):
     from .. import constants
 
     h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
-    a, lam_k = (_const(x, xp) for x in _planck_grid(grid))
+    a, lam_k = (_const(x, xp, t) for x in _planck_grid(grid))
     planck = a / xp.expm1(h * c / (lam_k * t))  # Planck's law: 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)
     ref = 2 * h * c**2 / 560e-9**5 / xp.expm1(h * c / (560e-9 * k * t))
     return 100.0 * planck / ref
@@ -429,7 +436,9 @@ def _led_params(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, xp):
 
     def per(v, default, name):
         if v is None:
-            return np.full(n, default) if xp is np else torch.full((n,), default, dtype=torch.float64)
+            if xp is np:
+                return np.full(n, default)
+            return torch.full((n,), default, dtype=torch.float64, device=t.device)
         v = _f64(v, xp)
         if v.shape[0] not in (1, n):
             raise ValueError(f"{name}: expected 1 or {n} values (one per CCT), got {v.shape[0]}")
@@ -479,7 +488,7 @@ def _on_locus_phosphor(t, xp):
     if xp is np:
         return np.interp(1e6 / t, mired, peak)
     m = (1e6 / t).clamp(float(mired[0]), float(mired[-1]))
-    grid, val = torch.from_numpy(mired), torch.from_numpy(peak)
+    grid, val = torch.from_numpy(mired).to(t.device), torch.from_numpy(peak).to(t.device)
     j = torch.searchsorted(grid, m.detach()).clamp(1, grid.numel() - 1)
     m0, m1, p0, p1 = grid[j - 1], grid[j], val[j - 1], val[j]
     return p0 + (p1 - p0) * (m - m0) / (m1 - m0)
@@ -488,7 +497,7 @@ def _on_locus_phosphor(t, xp):
 def _led(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, grid: tuple, iterations, xp):
     """LED spectra [N, L] (peak 100) for CCTs ``t`` and LED parameters [N] (float64, numpy or torch ``xp``)."""
     # pump and phosphor on the scene's grid and, after it, on the fine grid (one evaluation for both)
-    both_pump, both_phos = _led_parts(_const(_led_grid(grid), xp), pump_nm, phosphor_nm, phosphor_fwhm_nm, xp)
+    both_pump, both_phos = _led_parts(_const(_led_grid(grid), xp, t), pump_nm, phosphor_nm, phosphor_fwhm_nm, xp)
     n_scene = len(grid)
     pump, phos = both_pump[:, :n_scene], both_phos[:, :n_scene]
     fpump, fphos = both_pump[:, n_scene:], both_phos[:, n_scene:]
@@ -496,7 +505,7 @@ def _led(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, grid: tuple, iterations, xp)
     # through the locus point at T (CIE 015:2018 sec. 9.5). Mixing is linear in XYZ, so the LED's uv moves on
     # a straight segment from pump to phosphor and the signed distance along the locus tangent is monotone
     # in the ratio: bisection in log(phosphor / pump), evaluated on a fine 5 nm grid (independent of the scene's).
-    cw = _const(_cmf_weights(_FINE_KEY), xp)  # [81, 3]
+    cw = _const(_cmf_weights(_FINE_KEY), xp, t)  # [81, 3]
     # Planckian locus at T and, for its tangent, at T * 1.001 and T / 1.001 (one evaluation for the three)
     n = t.shape[0]
     u, v = _uv(_blackbody((np.concatenate if xp is np else torch.cat)([t, t * 1.001, t / 1.001])[:, None],

@@ -1,0 +1,261 @@
+"""PairStream: batches generated on a device through the Camera modules.
+
+Distribution tests compare summary statistics of the stream with CameraPairDataset / generate_scene (the per-item
+generators) by a two-sample z test: a statistic's means differ by less than 4 combined standard errors (both
+samples are fixed by their seeds, so a test passes or fails deterministically; at 4 sigma an unlucky seed would
+fail with probability ~6e-5 per statistic if the distributions were equal). The leaf-size law is checked with
+Kolmogorov-Smirnov against its closed-form CDF.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from isettorch import spectral
+from isettorch.data import PairStream
+from isettorch.data.batched import LAYOUT_CODES, draw_layout_scenes
+from isettorch.data.camera_pairs import META_KEYS, CameraPairDataset
+from isettorch.data.config import SCENE_DEFAULTS, merge_config, seed_for
+from isettorch.data.scenes import _luminance_weights, generate_scene
+
+SMALL = {"height": 32, "width": 32}
+
+
+def _z_close(a, b, n_sigma=4.0):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    se = math.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size)
+    return abs(a.mean() - b.mean()) <= n_sigma * se, (a.mean(), b.mean(), se)
+
+
+def test_batch_shapes_keys_units_and_repeatable():
+    stream = PairStream(4, seed=3, scene=SMALL)
+    batch = stream.batch(2)
+    ref = CameraPairDataset(4, seed=3, scene=SMALL).get_batch([0, 1, 2, 3])
+    assert set(batch) == set(ref)
+    for key, v in ref.items():
+        if key == "meta":
+            assert set(batch["meta"]) == set(META_KEYS)
+            for m, t in v.items():
+                assert batch["meta"][m].shape == t.shape, m
+                assert batch["meta"][m].dtype == t.dtype, m
+        else:
+            assert batch[key].shape == v.shape and batch[key].dtype == v.dtype and batch[key].device.type == "cpu"
+    # normalised raw units: black 0, white 1
+    assert float(batch["raw"].max()) <= 1.0 and float(batch["noise_free_raw"].min()) >= 0.0
+    again = PairStream(4, seed=3, scene=SMALL).batch(2)
+    for key in ("raw", "noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb"):
+        assert torch.equal(batch[key], again[key]), key
+    for m in META_KEYS:
+        assert torch.equal(batch["meta"][m], again["meta"][m]), m
+    assert batch["meta"]["index"].tolist() == [8, 9, 10, 11]
+    assert not torch.equal(stream.batch(3)["raw"], batch["raw"])
+    assert not batch["raw"].requires_grad
+    it = iter(stream)
+    assert torch.equal(next(it)["raw"], stream.batch(0)["raw"])
+    assert torch.equal(next(it)["raw"], stream.batch(1)["raw"])
+
+
+def test_stream_equals_camera_on_drawn_scenes():
+    """Each group's camera applied to the drawn scene with the same settings gives the stream's batch: the
+    noise-free raw to float rounding, and (one group, camera_rgb only: the same projections) the noisy raw exactly
+    from the same generator state."""
+    stream = PairStream(6, seed=1, scene=SMALL, camera={"pixel_size_m": [1.4e-6, 2.8e-6]})
+    batch = stream.batch(0)
+    groups = stream.draw(0)
+    for grp in groups:
+        out = grp.camera(grp.scene, return_intermediates=True, **grp.kwargs)
+        raw = out.raw
+        nf = (raw.noise_free - raw.black_level) / (raw.white_level - raw.black_level)
+        torch.testing.assert_close(nf, batch["noise_free_raw"][grp.index], rtol=2e-5, atol=2e-6)
+    one = PairStream(5, seed=4, scene=SMALL, camera={"pixel_size_m": [2.0e-6]}, targets=("camera_rgb",))
+    (grp,) = one.draw(7)
+    g = torch.Generator().manual_seed(seed_for(4, 7, stream=2))
+    raw = grp.camera(grp.scene, return_intermediates=True, generator=g, **grp.kwargs).raw
+    assert torch.equal((raw.data - raw.black_level) / (raw.white_level - raw.black_level), one.batch(7)["raw"])
+
+
+def test_camera_module_receives_gradients():
+    from isettorch import Camera
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.sensor import Sensor
+
+    optics = DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3, learn_f_number=True)
+    sensor = Sensor(rows=16, cols=16, pixel_size_m=2.0e-6, cfa="RGGB", learnable_filters=True,
+                    exposure_s=torch.tensor(0.01, requires_grad=True), read_noise_v=1e-3)
+    camera = Camera(optics, sensor)
+    stream = PairStream(2, seed=0, scene={"height": 16, "width": 16}, camera=camera, targets=("camera_rgb",),
+                        grad=True)
+    batch = stream.batch(0)
+    loss = batch["raw"].mean() + batch["camera_rgb"].mean()
+    loss.backward()
+    filt = [p for n, p in sensor.named_parameters() if p.requires_grad]
+    assert filt, "the sensor's learnable filters"
+    for p in (optics.f_number, sensor.exposure_s, *filt):
+        assert p.grad is not None and torch.isfinite(p.grad).all() and float(p.grad.abs().sum()) > 0
+    # f-number: a larger aperture (smaller N) gives more light, so the mean signal falls with N
+    assert float(optics.f_number.grad) < 0
+    # default: no graph
+    no_grad = PairStream(2, seed=0, scene={"height": 16, "width": 16}, camera=camera, targets=("camera_rgb",))
+    assert not no_grad.batch(0)["raw"].requires_grad
+
+
+def test_bad_input_names_the_argument():
+    with pytest.raises(ValueError, match="batch_size"):
+        PairStream(0)
+    with pytest.raises(ValueError, match="scene.generator"):
+        PairStream(2, scene={"generator": "natural"})
+    with pytest.raises(ValueError, match="dtype"):
+        PairStream(2, dtype=torch.float16)
+    with pytest.raises(ValueError, match="rank"):
+        PairStream(2, rank=2, world_size=2)
+    with pytest.raises(ValueError, match="k:"):
+        PairStream(2, scene=SMALL).batch(-1)
+    with pytest.raises(ValueError, match="scene.height"):
+        PairStream(2, scene={"height": 31, "width": 32})
+
+
+# --- the same distribution as the per-item generators ---------------------------------------------------------
+
+def _scene_stats(maps, spectra, wl, h, w):
+    """Per item: log mean luminance, mean chromaticity x, y and the mean |gradient| of log luminance."""
+    v = _luminance_weights(wl.to(torch.float64))
+    cmf = spectral.cmfs(wl.to(torch.float64), dtype=torch.float64).T  # [L, 3]
+    lum = torch.einsum("bjl,l->bj", spectra.to(torch.float64), v)
+    y_img = torch.einsum("bj,bjhw->bhw", lum, maps.to(torch.float64))
+    xyz = torch.einsum("bjl,lc,bj->bc", spectra.to(torch.float64), cmf, maps.to(torch.float64).mean((-2, -1)))
+    xy = xyz[:, :2] / xyz.sum(1, keepdim=True)
+    logy = torch.log(y_img.clamp_min(1e-9))
+    grad = (logy[:, 1:, :] - logy[:, :-1, :]).abs().mean((1, 2)) + (logy[:, :, 1:] - logy[:, :, :-1]).abs().mean((1, 2))
+    return {"log_lum": torch.log(y_img.mean((1, 2))), "x": xy[:, 0], "y": xy[:, 1], "grad": grad}
+
+
+def test_scene_distribution_matches_generate_scene():
+    n, size = 192, 32
+    cfg = merge_config(SMALL, SCENE_DEFAULTS, "scene")
+    g = torch.Generator().manual_seed(11)
+    parts = [draw_layout_scenes(64, g, cfg, size=(size, size), device="cpu", dtype=torch.float64)
+             for _ in range(n // 64)]
+    wl = parts[0]["wavelengths_nm"]
+    stream_stats = {}
+    for p in parts:
+        for key, v in _scene_stats(p["maps"], p["spectra"], wl, size, size).items():
+            stream_stats.setdefault(key, []).append(v)
+    stream_stats = {k: torch.cat(v).numpy() for k, v in stream_stats.items()}
+    item_stats: dict = {}
+    layouts = []
+    for i in range(n):
+        s = generate_scene(i, 5, cfg, dtype=torch.float64)
+        for key, v in _scene_stats(s.maps, s.spectra, wl, size, size).items():
+            item_stats.setdefault(key, []).append(v)
+        layouts.append(LAYOUT_CODES.index(s.metadata["layout"]))
+    item_stats = {k: torch.cat(v).numpy() for k, v in item_stats.items()}
+    for key in stream_stats:
+        ok, info = _z_close(stream_stats[key], item_stats[key])
+        assert ok, (key, info)
+    # the layout mix: proportions within 4 standard errors of the configured weights
+    weights = np.array([cfg["layouts"][name] for name in LAYOUT_CODES])
+    p = weights / weights.sum()
+    codes = torch.cat([q["meta"]["layout"] for q in parts]).numpy()
+    for sample in (codes, np.asarray(layouts)):
+        freq = np.bincount(sample, minlength=len(p)) / sample.size
+        assert np.all(np.abs(freq - p) <= 4 * np.sqrt(p * (1 - p) / sample.size)), freq
+
+
+def test_leaf_size_law():
+    """Dead-leaf radii follow p(r) ~ r^-3 on [2.5, 0.6 size] (Lee, Mumford & Huang 2001): KS test against the
+    closed-form CDF F(r) = (rmin^-2 - r^-2) / (rmin^-2 - rmax^-2)."""
+    from scipy import stats
+
+    cfg = merge_config({"layouts": {"dead_leaves": 1.0}}, SCENE_DEFAULTS, "scene")
+    g = torch.Generator().manual_seed(2)
+    out = draw_layout_scenes(8, g, cfg, size=(64, 64), device="cpu")
+    r = out["meta"]["leaf_radius"]
+    count = out["meta"]["leaf_count"]
+    assert bool(((count >= 400) & (count <= 800)).all())
+    radii = torch.cat([r[b, :int(count[b])] for b in range(8)]).numpy()
+    rmin, rmax = 2.5, 0.6 * 64
+
+    def cdf(x):
+        return (rmin**-2 - np.clip(x, rmin, rmax) ** -2) / (rmin**-2 - rmax**-2)
+
+    assert stats.kstest(radii, cdf).pvalue > 1e-3
+
+
+def test_pair_distribution_matches_camera_pair_dataset():
+    n = 64
+    stream = PairStream(16, seed=9, scene=SMALL)
+    sb = [stream.batch(k) for k in range(n // 16)]
+    db = CameraPairDataset(n, seed=9, scene=SMALL).get_batch(list(range(n)))
+
+    def stats_of(batch):
+        cam = batch["camera_rgb"].to(torch.float64)
+        lin = batch["linear_srgb"].to(torch.float64)
+        lum = cam.mean(1)
+        g = (lum[:, 1:] - lum[:, :-1]).abs().mean((1, 2)) / lum.mean((1, 2)).clamp_min(1e-6)
+        return {"log_exposure": torch.log(batch["meta"]["exposure_s"].to(torch.float64)),
+                "raw_mean": batch["raw"].to(torch.float64).mean((1, 2, 3)),
+                "rg": cam[:, 0].mean((1, 2)) / cam[:, 1].mean((1, 2)),
+                "bg": cam[:, 2].mean((1, 2)) / cam[:, 1].mean((1, 2)),
+                "lin_r": lin[:, 0].mean((1, 2)), "rel_grad": g,
+                "log_lum": torch.log(batch["meta"]["mean_luminance_cd_m2"].to(torch.float64)),
+                "noise_gain": batch["meta"]["noise_gain"].to(torch.float64)}
+
+    s = {k: torch.cat([stats_of(b)[k] for b in sb]).numpy() for k in stats_of(sb[0])}
+    d = {k: v.numpy() for k, v in stats_of(db).items()}
+    for key in s:
+        ok, info = _z_close(s[key], d[key])
+        assert ok, (key, info)
+
+
+# --- distributed -------------------------------------------------------------------------------------------------
+
+def _ddp_worker(rank: int, world: int, init_file: str, out_dir: str):
+    torch.distributed.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
+    try:
+        stream = PairStream(2, seed=5, scene={"height": 16, "width": 16}, targets=("camera_rgb",))
+        it = iter(stream)
+        got = [next(it) for _ in range(2)]
+        torch.save({"rank": stream.rank, "world": stream.world_size,
+                    "index": [b["meta"]["index"] for b in got], "raw": [b["raw"] for b in got]},
+                   os.path.join(out_dir, f"rank{rank}.pt"))
+        torch.distributed.barrier()
+    finally:
+        torch.distributed.destroy_process_group()
+
+
+def test_distributed_ranks_draw_disjoint_batches(tmp_path):
+    """Two gloo processes: rank r of W iterates over batches k W + r (no batch drawn twice, none skipped)."""
+    torch.multiprocessing.spawn(_ddp_worker, args=(2, str(tmp_path / "init"), str(tmp_path)), nprocs=2)
+    single = PairStream(2, seed=5, scene={"height": 16, "width": 16}, targets=("camera_rgb",), rank=0, world_size=1)
+    seen = []
+    for rank in range(2):
+        rec = torch.load(tmp_path / f"rank{rank}.pt", weights_only=True)
+        assert (rec["rank"], rec["world"]) == (rank, 2)
+        for step, (index, raw) in enumerate(zip(rec["index"], rec["raw"])):
+            k = step * 2 + rank
+            assert index.tolist() == [2 * k, 2 * k + 1]
+            assert torch.equal(raw, single.batch(k)["raw"])
+            seen.append(k)
+    assert sorted(seen) == [0, 1, 2, 3]
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_stream_matches_cpu_rendering_of_the_same_scene():
+    """CUDA renders a fixed drawn scene as the CPU does (1e-5 relative, TF32 off)."""
+    torch.backends.cuda.matmul.allow_tf32 = False
+    torch.backends.cudnn.allow_tf32 = False
+    stream = PairStream(4, seed=0, scene=SMALL, camera={"pixel_size_m": [2.0e-6]}, targets=("camera_rgb",))
+    (grp,) = stream.draw(0)
+    cpu = grp.camera(grp.scene, return_intermediates=True, noise=False, **grp.kwargs).raw.noise_free
+    cam = grp.camera.to("cuda")
+    scene = grp.scene.to("cuda")
+    kw = {k: v.to("cuda") for k, v in grp.kwargs.items()}
+    gpu = cam(scene, return_intermediates=True, noise=False, **kw).raw.noise_free
+    torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-5, atol=1e-6)
+    batch = PairStream(4, seed=0, scene=SMALL, device="cuda").batch(0)
+    assert batch["raw"].device.type == "cuda" and batch["meta"]["exposure_s"].device.type == "cuda"
