@@ -19,7 +19,34 @@ from . import spectra as _spectra
 from .config import seed_for
 from .natural import _choice, _wavelengths, _white_photons, natural_config
 
-__all__ = ["PhotoSceneDataset"]
+__all__ = ["PhotoSceneDataset", "lift_srgb"]
+
+
+def lift_srgb(image, wavelengths_nm=(400.0, 700.0, 10.0)) -> dict:
+    """A photograph as a factored reflectance (the lift :class:`PhotoSceneDataset` applies to its crops).
+
+    ``image``: 8-bit ``uint8 [H, W, 3]`` (as read from a file) or encoded sRGB in [0, 1] ``[3, H, W]``. It is
+    decoded (IEC 61966-2-1) to linear sRGB ``c(x)`` and lifted with Mallett & Yuksel's basis (EGSR 2019,
+    :func:`.spectra.srgb_basis_spectra`): ``R(x, l) = sum_c c_c(x) B_c(l)``, in [0, 1], whose sRGB under D65 is
+    ``c``. Returns ``{"maps": [3, H, W] float64 linear sRGB, "reflectance": [3, L] float64 basis,
+    "wavelengths_nm": [L]}``; multiply the reflectance by an illuminant's photons for a scene's spectra.
+    """
+    from ..image import srgb_decode
+
+    if isinstance(image, np.ndarray):
+        if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+            raise ValueError(f"image: expected a uint8 [H, W, 3] array, got {image.dtype} {image.shape}")
+        enc = torch.from_numpy(image.astype(np.float64) / 255.0).permute(2, 0, 1)
+    else:
+        enc = torch.as_tensor(image, dtype=torch.float64)
+        if enc.dim() != 3 or enc.shape[0] != 3:
+            raise ValueError(f"image: expected encoded sRGB [3, H, W], got shape {tuple(enc.shape)}")
+        if not bool(((enc >= 0) & (enc <= 1)).all()):
+            raise ValueError("image: expected encoded sRGB values in [0, 1]")
+    wl = _wavelengths({"wavelengths_nm": list(wavelengths_nm)}) if not isinstance(wavelengths_nm, torch.Tensor) \
+        else wavelengths_nm
+    return {"maps": srgb_decode(enc).clamp(0, 1), "reflectance": _spectra.srgb_basis_spectra(wl).to(torch.float64),
+            "wavelengths_nm": wl}
 
 
 class PhotoSceneDataset(torch.utils.data.Dataset):

@@ -35,7 +35,8 @@ from torch import nn
 
 from .filters import _W_ISETCAM, SpectralQE, filter_set
 
-__all__ = ["FIXED_FILTERS", "MAX_SLOPE_PER_NM", "FilterBank", "max_slope_per_nm", "raised_cosine_bands",
+__all__ = ["FIXED_FILTERS", "MAX_SLOPE_PER_NM", "FilterBank", "check_manufacturable", "max_slope_per_nm",
+           "raised_cosine_bands",
            "smooth_band_transmittance"]
 
 #: the steepest transmittance slope (per nm) a design may have (module docstring)
@@ -65,6 +66,22 @@ def smooth_band_transmittance(amplitudes: torch.Tensor, offsets: torch.Tensor, b
 def max_slope_per_nm(max_log_odds: float, band_width_nm: float) -> float:
     """The bound ``pi A / (4 w)`` on ``|dT/dl|`` of a learned filter (module docstring)."""
     return math.pi * max_log_odds / (4 * band_width_nm)
+
+
+def check_manufacturable(filters: torch.Tensor, wavelengths_nm: torch.Tensor, name: str = "filters") -> None:
+    """ValueError naming ``name`` unless the transmittances ``[K, L]`` are finite, in [0, 1], and no steeper than
+    :data:`MAX_SLOPE_PER_NM` between neighbouring samples of ``wavelengths_nm``."""
+    f = torch.as_tensor(filters, dtype=torch.float64)
+    w = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
+    if not bool(torch.isfinite(f).all()):
+        raise ValueError(f"{name}: expected finite transmittances")
+    if float(f.min()) < 0 or float(f.max()) > 1:
+        raise ValueError(f"{name}: expected transmittances in [0, 1], got [{float(f.min()):.6g}, {float(f.max()):.6g}]")
+    if w.numel() > 1:
+        slope = float(((f[:, 1:] - f[:, :-1]) / (w[1:] - w[:-1])).abs().max())
+        if slope > MAX_SLOPE_PER_NM + 1e-12:
+            raise ValueError(f"{name}: a transmittance changes by {slope:.4g} per nm, steeper than the "
+                             f"manufacturable {MAX_SLOPE_PER_NM} per nm")
 
 
 class FilterBank(SpectralQE):
@@ -130,6 +147,22 @@ class FilterBank(SpectralQE):
         self.raw_amplitudes = nn.Parameter(self._initial_raw(n, centres, seed), requires_grad=learnable and n > 0)
         self.raw_offsets = nn.Parameter(torch.zeros(n, dtype=torch.float64), requires_grad=learnable and n > 0)
         self.learnable = learnable and n > 0
+
+    @classmethod
+    def from_table(cls, filters, wavelengths_nm, names: Sequence[str], *, pixel_qe=None) -> FilterBank:
+        """A fixed bank of tabulated transmittances ``[K, L]`` on ``wavelengths_nm`` (e.g. a design file's exported
+        filters). ValueError unless every value is in [0, 1] and the slopes are within :data:`MAX_SLOPE_PER_NM`
+        (:func:`check_manufacturable`); ``pixel_qe`` ``[L]``: the rest of the QE (IR filter x photodiode)."""
+        f = torch.as_tensor(filters, dtype=torch.float64)
+        w = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
+        if f.dim() != 2 or f.shape[1] != w.numel():
+            raise ValueError(f"filters: expected shape [K, {w.numel()}] to match wavelengths_nm, got {tuple(f.shape)}")
+        check_manufacturable(f, w, "filters")
+        bank = cls(["W"] * f.shape[0], w, learnable=False, names=names, pixel_qe=pixel_qe)
+        with torch.no_grad():
+            bank.fixed_filters.copy_(f)
+        bank.spec = ["table"] * f.shape[0]
+        return bank
 
     def _initial_raw(self, n: int, centres: torch.Tensor, seed: int) -> torch.Tensor:
         """Band-pass starts: filter i peaks near the i-th of n evenly spaced wavelengths (+ a seeded perturbation)."""

@@ -1,0 +1,49 @@
+"""``isettorch design-eval DESIGN DIR [--lux L ...] [--seed S] [--json]``: score a camera design (filters, mosaic
+and reconstruction network, :mod:`isettorch.design`) on a folder of 8-bit RGB photographs, each lifted to spectra
+(the photograph as a reflectance under D65, Mallett & Yuksel's sRGB basis) and rendered through the design's camera
+at each light level with the same noise seed for every design: per-image and mean CPSNR against the photograph in
+sRGB (crop 10, the demosaic scoring convention) and mean CIEDE2000.
+
+DESIGN is a design file or a shipped name (bayer_rgb, ycmy, rgbw, learned)."""
+
+from __future__ import annotations
+
+import json
+
+from .._progress import add_quiet_argument
+
+# Static (the parser is built without importing torch); a test checks it equals isettorch.design's list.
+SHIPPED_NAMES = ("bayer_rgb", "ycmy", "rgbw", "learned")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("design-eval", help="score a camera design (filters, mosaic, network) on a folder of photos")
+    p.add_argument("design", metavar="DESIGN",
+                   help=f"a design file (.pt) or a shipped design: {', '.join(SHIPPED_NAMES)}")
+    p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif photographs")
+    p.add_argument("--lux", type=float, nargs="+", default=None, metavar="L",
+                   help="scene illuminance(s) in lux (default: every level the design was trained for)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed, the same for every design (default 0)")
+    p.add_argument("--crop", type=int, default=10, help="border excluded from the scores, pixels (default 10)")
+    p.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    add_quiet_argument(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..design import evaluate_design
+
+    res = evaluate_design(args.design, args.folder, args.lux, seed=args.seed, crop=args.crop, device=args.device,
+                          progress=not args.quiet)
+    if args.json:
+        print(json.dumps(res, indent=2))
+        return 0
+    keys = list(res["mean_cpsnr"])
+    print(f"design {res['design']}  seed {res['seed']}  crop {res['crop']}  (CPSNR dB / mean dE2000)")
+    print(f"  {'image':<24s}" + "".join(f"{k + ' lux':>20s}" for k in keys))
+    for item in res["images"]:
+        print(f"  {item['name']:<24s}" + "".join(f"{item['cpsnr'][k]:11.2f} / {item['de2000'][k]:6.2f}"
+                                                  for k in keys))
+    print(f"  {'mean':<24s}" + "".join(f"{res['mean_cpsnr'][k]:11.2f} / {res['mean_de2000'][k]:6.2f}" for k in keys))
+    return 0

@@ -1,0 +1,447 @@
+"""Camera designs: a sensor design (filter bank + mosaic, :mod:`isettorch.sensor.design`) in a camera with fixed
+optics and a stated exposure rule, a reconstruction network per scene light level, and the design file.
+
+**Light level.** A scene is a surface of reflectance ``R(x, l)`` lit by an illuminant (D65 by default) of
+illuminance ``E`` lux; a Lambertian surface has radiance ``L = E R / pi`` (so a perfect white has luminance
+``E / pi`` cd/m^2; Wyszecki & Stiles, Color Science, 2nd ed., 1982, section 4.3).
+
+**Exposure rule** (``incident``: an incident-light meter on a white card, then shutter, then gain). ``t_white``
+is the sensor's own luminance auto-exposure (:func:`isettorch.sensor.auto_exposure`, ``'luminance'``: the
+brightest pixel to ``target`` x the usable swing) of a perfect white under the scene's light, through the same
+optics and mosaic, at unit gain. The exposure is ``t = min(t_white, max_exposure_s)`` (the exposure limit) and the
+analog gain ``min(t_white / t, max_analog_gain)`` (ISO raised once the shutter is at its limit, as a camera's
+program mode does): bright scenes are exposed so a white reads ``target`` of full scale in the most sensitive
+filter (a design with clear pixels gets a shorter exposure), dim scenes get ``max_exposure_s``, fewer photons and
+more gain (the read noise is added before the gain, the ADC after it).
+
+**Network input.** The raw mosaic, black-subtracted, divided by the noise-free capture of that white card
+(pixel by pixel): a perfect white reads 1 in every pixel whatever the filter, exposure or vignetting; the
+network (:class:`~isettorch.isp.mosaic_net.MosaicReconstructionNet`) maps it, with the filter weights, to linear
+sRGB relative to the white.
+
+**Design file** (``torch.save`` of a dict, read with ``torch.load(weights_only=True)``): ``format``,
+``version``, ``name``, ``config`` (optics, sensor, exposure, scene, network, training: plain values),
+``wavelengths_nm [L]``, ``filter_names``, ``filter_spec`` (``'learned'`` or a letter per filter), ``filters
+[K, L]`` (transmittances, checked manufacturable on save and load), ``pixel_qe [L]`` (the rest of the QE),
+``mosaic [P, Q]`` (hard filter indices), ``levels`` (``[{"lux", "network": {"kwargs", "state_dict"}}]``) and
+``card`` (markdown).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from . import spectral
+from .isp.mosaic_net import MosaicReconstructionNet
+from .optics import DiffractionLimitedOptics
+from .optics.geometry import image_distance
+from .scene import Scene
+from .sensor.design import design_sensor, fixed_design, learned_design
+from .sensor.filter_bank import FilterBank, check_manufacturable
+from .sensor.mosaic import LearnedMosaic
+
+__all__ = ["DESIGN_DEFAULTS", "DESIGN_FORMAT", "DesignCamera", "SHIPPED_DESIGNS", "design_card", "design_path",
+           "evaluate_design", "make_design",
+           "illuminant_photons", "linear_srgb_of_reflectance", "load_design", "save_design"]
+
+DESIGN_FORMAT = "isettorch-design"
+DESIGN_VERSION = 1
+
+#: designs shipped with the package (``isettorch/assets/design_<name>.pt``), produced by ``training/codesign.py``
+SHIPPED_DESIGNS = ("bayer_rgb", "ycmy", "rgbw", "learned")
+
+#: the camera every design shares (``config`` overrides any key); units in the names
+DESIGN_DEFAULTS: dict[str, dict[str, Any]] = {
+    "optics": {"f_number": 2.0, "focal_length_m": 3.862755099e-3},
+    # ISETCam's default pixel (2.8 um, fill 0.75, 1e-4 V/e-, 1 V swing: 10000 e- well) with a modern 2 e- read
+    # noise, 10 e-/s dark current and a 10-bit ADC
+    "sensor": {"pixel_size_m": 2.8e-6, "fill_factor": 0.75, "conversion_gain_v_per_e": 1e-4, "voltage_swing_v": 1.0,
+               "read_noise_v": 2e-4, "dark_current_e_per_s": 10.0, "adc_bits": 10, "shot_noise": "poisson"},
+    "exposure": {"rule": "incident", "target": 0.9, "max_exposure_s": 1.0 / 30, "max_analog_gain": 16.0},
+    "scene": {"illuminant": "D65", "distance_m": 1.2, "wavelengths_nm": [400.0, 700.0, 10.0]},
+    "network": {"width": 32, "depth": 4},
+}
+
+
+def _merge(defaults: dict, overrides: dict | None) -> dict:
+    out = copy.deepcopy(defaults)
+    for section, values in (overrides or {}).items():
+        if section in out and isinstance(out[section], dict):
+            if not isinstance(values, dict):
+                raise ValueError(f"config.{section}: expected a mapping, got {values!r}")
+            unknown = [k for k in values if k not in out[section]]
+            if unknown and section != "sensor":  # the sensor takes any Sensor argument
+                raise ValueError(f"config.{section}.{unknown[0]}: unknown key; expected one of {sorted(out[section])}")
+            out[section].update(values)
+        else:
+            out[section] = copy.deepcopy(values)
+    return out
+
+
+def lux_key(lux: float) -> str:
+    """A light level as a module name (``10`` -> ``'10'``, ``0.5`` -> ``'0p5'``)."""
+    return f"{float(lux):g}".replace(".", "p").replace("-", "m")
+
+
+def illuminant_photons(wavelengths_nm: torch.Tensor, lux: float, illuminant: str = "D65") -> torch.Tensor:
+    """Radiance of a perfect white Lambertian surface ``[L]`` (photons/s/sr/m^2/nm) under ``lux`` of the named
+    illuminant: luminance ``lux / pi`` cd/m^2 (module docstring)."""
+    if not (isinstance(lux, (int, float)) and math.isfinite(lux) and lux > 0):
+        raise ValueError(f"lux: expected a positive illuminance, got {lux!r}")
+    wl = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
+    ph = spectral.energy_to_photons(spectral.illuminant(illuminant, wl, dtype=torch.float64), wl, dim=0)
+    lum = spectral.luminance(ph[:, None, None], wl).reshape(())
+    return ph * (lux / math.pi / lum)
+
+
+def linear_srgb_of_reflectance(reflectance: torch.Tensor, wavelengths_nm, illuminant: str = "D65") -> torch.Tensor:
+    """Linear sRGB ``[..., 3]`` of reflectances ``[..., L]`` under ``illuminant``, relative to a perfect white
+    (Y_white = 1): CIE 1931 XYZ (:func:`isettorch.spectral.xyz`) through kornia's XYZ -> linear sRGB matrix (D65).
+    The target of a reconstruction network (for the lift of a photograph under D65: the photograph's values)."""
+    from kornia.color import xyz_to_rgb
+
+    wl = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
+    e = illuminant_photons(wl, 1.0, illuminant)
+    r = torch.as_tensor(reflectance, dtype=torch.float64)
+    xyz = spectral.xyz((r * e)[..., None, None], wl, dim=-3)[..., 0, 0]
+    white = spectral.xyz(e[:, None, None], wl, dim=-3)[1, 0, 0]
+    lin = xyz_to_rgb((xyz / white).reshape(-1, 3).T.reshape(1, 3, -1, 1))
+    return lin.reshape(3, -1).T.reshape(*r.shape[:-1], 3)
+
+
+class DesignCamera(nn.Module):
+    """A sensor design in the shared camera: optics, the design's sensor, the exposure rule and one
+    reconstruction network per light level (module docstring).
+
+    Args:
+        bank, mosaic: the sensor design (:func:`isettorch.sensor.design.fixed_design` / ``learned_design``).
+        config: overrides of :data:`DESIGN_DEFAULTS` (sections ``optics``, ``sensor``, ``exposure``, ``scene``,
+            ``network``; others, e.g. ``training``, are kept as they are).
+        lux: the light levels to hold a network for.
+        name: the design's name.
+    """
+
+    def __init__(self, bank: FilterBank, mosaic: LearnedMosaic, config: dict | None = None, lux=(), *,
+                 name: str = "", learn_f_number: bool = False) -> None:
+        super().__init__()
+        self.config = _merge(DESIGN_DEFAULTS, config)
+        self.name = name
+        cfg = self.config
+        if cfg["exposure"]["rule"] != "incident":
+            raise ValueError(f"config.exposure.rule: expected 'incident', got {cfg['exposure']['rule']!r}")
+        for key in ("target", "max_exposure_s", "max_analog_gain"):
+            v = cfg["exposure"][key]
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"config.exposure.{key}: expected a positive number, got {v!r}")
+        self.optics = DiffractionLimitedOptics(f_number=float(cfg["optics"]["f_number"]),
+                                               focal_length_m=float(cfg["optics"]["focal_length_m"]),
+                                               learn_f_number=learn_f_number)
+        self.sensor = design_sensor(bank, mosaic, auto_exposure="luminance",
+                                    ae_target=float(cfg["exposure"]["target"]), **cfg["sensor"])
+        self.networks = nn.ModuleDict()
+        for level in lux:
+            self.add_level(float(level))
+
+    @property
+    def bank(self) -> FilterBank:
+        return self.sensor.spectral_qe
+
+    @property
+    def mosaic(self) -> LearnedMosaic:
+        return self.sensor.cfa
+
+    @property
+    def lux_levels(self) -> list[float]:
+        return sorted(float(n.replace("p", ".").replace("m", "-")) for n in self.networks)
+
+    def add_level(self, lux: float, network: nn.Module | None = None) -> nn.Module:
+        """Add (or replace) the network of light level ``lux``; a new one has ``config.network``'s size."""
+        if network is None:
+            network = MosaicReconstructionNet(self.bank.num_channels, **self.config["network"])
+        self.networks[lux_key(lux)] = network
+        return network
+
+    def network(self, lux: float) -> nn.Module:
+        key = lux_key(lux)
+        if key not in self.networks:
+            raise ValueError(f"lux: the design {self.name!r} has no network for {lux:g} lux; it has "
+                             f"{self.lux_levels}")
+        return self.networks[key]
+
+    # --- scenes ---------------------------------------------------------------------------------
+    @property
+    def wavelengths_nm(self) -> torch.Tensor:
+        lo, hi, step = (float(v) for v in self.config["scene"]["wavelengths_nm"])
+        return spectral.default_wavelengths(lo, hi, step).to(torch.float64)
+
+    def scene(self, maps: torch.Tensor, reflectance: torch.Tensor, lux: float, *, dtype=None) -> Scene:
+        """The factored scene ``sum_j maps_j(x) R_j(l) E(l)``: ``maps [B, J, H, W]``, ``reflectance [B, J, L]`` or
+        ``[J, L]`` on :attr:`wavelengths_nm`, lit by ``lux`` of ``config.scene.illuminant``, one scene sample per
+        pixel (the FOV ``2 atan(pitch W / 2 d_i)``, ``d_i`` the thin-lens image distance)."""
+        if maps.dim() != 4:
+            raise ValueError(f"maps: expected (B, J, H, W), got {tuple(maps.shape)}")
+        dtype = dtype or maps.dtype
+        wl = self.wavelengths_nm
+        refl = reflectance if reflectance.dim() == 3 else reflectance[None].expand(maps.shape[0], -1, -1)
+        if refl.shape[:2] != maps.shape[:2] or refl.shape[-1] != wl.numel():
+            raise ValueError(f"reflectance: expected ({maps.shape[0]}, {maps.shape[1]}, {wl.numel()}), got "
+                             f"{tuple(refl.shape)}")
+        e = illuminant_photons(wl, lux, self.config["scene"]["illuminant"])
+        d = self.config["scene"]["distance_m"]
+        d_i = float(image_distance(torch.tensor(float(self.config["optics"]["focal_length_m"]), dtype=torch.float64),
+                                   torch.tensor(float(d), dtype=torch.float64)))
+        hfov = math.degrees(2 * math.atan(self.sensor.pixel_size_m * maps.shape[-1] / (2 * d_i)))
+        dev = maps.device
+        return Scene.from_factors(maps.to(dtype), (refl.to(dev, torch.float64) * e.to(dev)).to(dtype),
+                                  wl.to(device=dev, dtype=dtype), hfov_deg=hfov, distance_m=d,
+                                  illuminant_photons=e.to(device=dev, dtype=dtype)[None].expand(maps.shape[0], -1),
+                                  validate=False)
+
+    # --- capture --------------------------------------------------------------------------------
+    def capture(self, scene: Scene, *, generator: torch.Generator | None = None, noise: bool = True) -> dict:
+        """Render ``scene`` through the optics and the design's sensor with the exposure rule.
+
+        Returns ``{"input": [B, 1, H, W] white-normalised raw, "weights": [K, H, W] filter weights, "raw":
+        RawImage, "exposure_s": [B], "analog_gain": [B]}``.
+        """
+        b, h, w = scene.batch_size, scene.height, scene.width
+        sensor = self.sensor
+        sensor.rows, sensor.cols = h, w
+        oi = self.optics(scene)
+        # the white card: a perfect white under the scene's light, through the same optics and mosaic
+        white_scene = Scene.from_factors(torch.ones(b, 1, h, w, dtype=scene.dtype, device=scene.device),
+                                         scene.illuminant_photons[:, None, :].to(scene.dtype), scene.wavelengths_nm,
+                                         hfov_deg=scene.hfov_deg, distance_m=scene.distance_m, validate=False)
+        white_rates, _ = sensor.channel_rates(self.optics(white_scene))
+        white_mosaic = sensor.cfa.mosaic(white_rates)
+        rule = self.config["exposure"]
+        t_white = sensor.exposure_for(None, white_mosaic, 1.0)
+        t = t_white.clamp(max=float(rule["max_exposure_s"]))
+        gain = (t_white / t).clamp(max=float(rule["max_analog_gain"]))
+        raw = sensor(oi, exposure_s=t, analog_gain=gain, generator=generator, noise=noise)
+        white = sensor.capture(white_mosaic, exposure_s=t, analog_gain=gain, noise=False).noise_free
+        black = raw.black_level
+        x = (raw.data - black) / (white - black)
+        weights = sensor.cfa.weights(h, w, dtype=x.dtype, device=x.device)
+        return {"input": x, "weights": weights, "raw": raw, "exposure_s": t, "analog_gain": gain}
+
+    def forward(self, scene: Scene, lux: float, *, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Linear sRGB ``[B, 3, H, W]`` (white = 1) reconstructed by the network of ``lux``."""
+        cap = self.capture(scene, generator=generator)
+        net = self.network(lux)
+        p = next(net.parameters())
+        return net(cap["input"].to(p.dtype), cap["weights"].to(p.dtype))
+
+
+# ------------------------------------------------------------------------------------------------ design files
+
+def _plain(value):
+    """Config values as plain Python (a design file holds no pickled objects)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, torch.Tensor):
+        return value.tolist()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    raise ValueError(f"config: {value!r} ({type(value).__name__}) cannot be stored in a design file")
+
+
+def design_card(camera: DesignCamera, results: dict | None = None) -> str:
+    """A markdown card: the design, its camera, the exposure rule, the levels and (optionally) results
+    ``{"<lux>": {"cpsnr": dB, "de2000": value}}``."""
+    bank, mosaic, cfg = camera.bank, camera.mosaic, camera.config
+    cell = "\n".join("    " + " ".join(f"{x:>3s}" for x in row) for row in mosaic.cell)
+    frac = ", ".join(f"{k} {v:.0%}" for k, v in mosaic.fraction().items())
+    lines = [f"# Camera design `{camera.name or 'unnamed'}`", "",
+             f"Filters ({bank.num_channels}): "
+             + ", ".join(f"{n} ({s})" for n, s in zip(bank.channel_names, bank.spec)),
+             "", f"Mosaic {mosaic.shape[0]}x{mosaic.shape[1]} ({frac}):", "", cell, "",
+             f"Optics: diffraction-limited, f/{cfg['optics']['f_number']:g}, focal length "
+             f"{cfg['optics']['focal_length_m'] * 1e3:g} mm.",
+             "Sensor: " + ", ".join(f"{k} {v}" for k, v in cfg["sensor"].items()) + ".",
+             f"Exposure: incident-light rule, a white card to {cfg['exposure']['target']:g} of full scale, at most "
+             f"{cfg['exposure']['max_exposure_s']:.4g} s, then analog gain up to "
+             f"{cfg['exposure']['max_analog_gain']:g}.",
+             f"Scenes: reflectance under {cfg['scene']['illuminant']} at the trained light levels "
+             f"{', '.join(f'{v:g}' for v in camera.lux_levels)} lux; network {cfg['network']}.",
+             "Manufacturable: transmittances in [0, 1], slopes within 0.05 / nm (checked on save and load); one filter "
+             "per pixel."]
+    if cfg.get("training"):
+        lines += ["", "Training: " + ", ".join(f"{k} {v}" for k, v in cfg["training"].items()) + "."]
+    if results:
+        lines += ["", "| lux | CPSNR (dB) | mean dE2000 |", "|---|---|---|"]
+        lines += [f"| {k} | {v['cpsnr']:.2f} | {v['de2000']:.2f} |" for k, v in results.items()]
+    return "\n".join(lines) + "\n"
+
+
+def save_design(camera: DesignCamera, path, *, card: str | None = None) -> Path:
+    """Write ``camera`` as a design file (module docstring): filters sampled on the bank's grid, the hard mosaic,
+    every level's network weights, the config and a card. ValueError when a filter is not manufacturable."""
+    bank, mosaic = camera.bank, camera.mosaic
+    filters = bank.filters.detach().to(torch.float64).cpu().clone()
+    check_manufacturable(filters, bank.wavelengths_nm, "filters")
+    levels = []
+    for lux in camera.lux_levels:
+        net = camera.network(lux)
+        kwargs = getattr(net, "kwargs", None)
+        if not isinstance(net, MosaicReconstructionNet) or kwargs is None:
+            raise ValueError(f"networks: expected MosaicReconstructionNet modules, got {type(net).__name__}")
+        levels.append({"lux": float(lux), "network": {"kwargs": dict(kwargs), "state_dict": {
+            k: v.detach().cpu().clone() for k, v in net.state_dict().items()}}})
+    payload = {"format": DESIGN_FORMAT, "version": DESIGN_VERSION, "name": camera.name,
+               "config": _plain(camera.config), "wavelengths_nm": bank.wavelengths_nm.detach().cpu().clone(),
+               "filter_names": list(bank.channel_names), "filter_spec": list(bank.spec), "filters": filters,
+               "pixel_qe": bank.extra.detach().cpu().clone(), "mosaic": mosaic.index_map.clone(), "levels": levels,
+               "card": card if card is not None else design_card(camera)}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(payload, path)
+    return path
+
+
+def design_path(design) -> Path:
+    """A design file's path: an existing path as given, or a shipped name (:data:`SHIPPED_DESIGNS`) in the
+    package's assets. FileNotFoundError when a shipped design is not in this installation yet."""
+    p = Path(design)
+    if p.is_file():
+        return p
+    name = str(design)
+    if name in SHIPPED_DESIGNS:
+        asset = Path(__file__).parent / "assets" / f"design_{name}.pt"
+        if asset.is_file():
+            return asset
+        raise FileNotFoundError(
+            f"design: the shipped design {name!r} is not in this installation yet ({asset} is missing): the shipped "
+            f"designs are produced by training/codesign.py (configs/train/codesign_*.yaml); pass a design file's path "
+            f"instead")
+    raise FileNotFoundError(f"design: {name!r} is neither a design file nor a shipped design "
+                            f"({', '.join(SHIPPED_DESIGNS)})")
+
+
+def load_design(design, *, device=None) -> DesignCamera:
+    """A :class:`DesignCamera` (in eval mode: hard mosaic) from a design file or a shipped name, read with
+    ``torch.load(weights_only=True)``."""
+    path = design_path(design)
+    try:
+        d = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - any unreadable file is the same error for the user
+        raise ValueError(f"design: {str(path)!r} is not a readable design file ({err})") from err
+    if not isinstance(d, dict) or d.get("format") != DESIGN_FORMAT:
+        raise ValueError(f"design: {str(path)!r} is not an {DESIGN_FORMAT} file")
+    if d.get("version") != DESIGN_VERSION:
+        raise ValueError(f"design: {str(path)!r} has format version {d.get('version')!r}; this isettorch reads "
+                         f"version {DESIGN_VERSION}")
+    names = list(d["filter_names"])
+    bank = FilterBank.from_table(d["filters"], d["wavelengths_nm"], names, pixel_qe=d["pixel_qe"])
+    bank.spec = list(d.get("filter_spec", bank.spec))
+    index = torch.as_tensor(d["mosaic"], dtype=torch.long)
+    mosaic = LearnedMosaic(names, pattern=index, learnable=False)
+    camera = DesignCamera(bank, mosaic, d["config"], name=str(d.get("name", path.stem)))
+    for level in d["levels"]:
+        net = MosaicReconstructionNet(**level["network"]["kwargs"])
+        net.load_state_dict(level["network"]["state_dict"])
+        camera.add_level(float(level["lux"]), net)
+    camera.card = str(d.get("card", ""))
+    return camera.to(device=device).eval() if device is not None else camera.eval()
+
+
+def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name: str | None = None) -> DesignCamera:
+    """A :class:`DesignCamera` from a design spec: a fixed design's name (``'bayer_rgb'``, ``'ycmy'``, ``'rgbw'``)
+    or a mapping ``{"filters": [...], "mosaic_shape": [P, Q], "relax": ...}`` for a learned design."""
+    if isinstance(spec, str):
+        bank, mosaic = fixed_design(spec)
+        return DesignCamera(bank, mosaic, config, lux, name=name or spec)
+    if not isinstance(spec, dict):
+        raise ValueError(f"design: expected a fixed design name or a mapping, got {spec!r}")
+    unknown = [k for k in spec if k not in ("filters", "mosaic_shape", "relax", "band_width_nm", "max_log_odds")]
+    if unknown:
+        raise ValueError(f"design.{unknown[0]}: unknown key; expected filters, mosaic_shape, relax, band_width_nm, "
+                         f"max_log_odds")
+    bank_kwargs = {k: float(spec[k]) for k in ("band_width_nm", "max_log_odds") if k in spec}
+    bank, mosaic = learned_design(tuple(spec.get("filters", ("learned", "learned", "learned", "W"))),
+                                  tuple(spec.get("mosaic_shape", (4, 4))), seed=seed,
+                                  relax=spec.get("relax", "softmax"), bank_kwargs=bank_kwargs)
+    return DesignCamera(bank, mosaic, config, lux, name=name or "learned")
+
+
+# ------------------------------------------------------------------------------------------------ evaluation
+
+def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, device="cpu",
+                    dtype: torch.dtype = torch.float32, progress: bool = False) -> dict:
+    """Score a design on 8-bit RGB photographs: each is lifted to spectra (:func:`isettorch.data.photos.lift_srgb`:
+    the photograph as reflectance, Mallett & Yuksel's sRGB basis) under ``config.scene.illuminant`` (D65) at each
+    light level, rendered through the design's camera with the noise of generator ``seed_for(seed, image index,
+    stream=round(1000 lux))`` (the same for every design), reconstructed by the level's network and compared
+    with the photograph in sRGB (output clipped to [0, 1] and encoded, IEC 61966-2-1): CPSNR (MSE over the
+    channels, a ``crop``-pixel border excluded: :func:`isettorch.isp.evaluation.cpsnr`) and the mean CIEDE2000
+    (CIELAB D65) over the same pixels.
+
+    Args:
+        design: a :class:`DesignCamera`, a design file or a shipped name.
+        images: a folder of .png/.tif images or an iterable of ``(name, uint8 [H, W, 3])``.
+        lux: light levels (default: every level the design holds a network for).
+
+    Returns:
+        ``{"design", "lux": [...], "seed", "crop", "mean_cpsnr": {"<lux>": dB}, "mean_de2000": {"<lux>": value},
+        "images": [{"name", "cpsnr": {"<lux>": dB}, "de2000": {"<lux>": value}}]}``.
+    """
+    import numpy as np
+
+    from ._progress import progress as progress_bar
+    from .data.config import seed_for
+    from .data.photos import lift_srgb
+    from .image import srgb_encode
+    from .isp.evaluation import cpsnr, load_images
+    from .metrics.color import srgb_to_xyz, xyz_to_lab
+    from .metrics.difference import delta_e_2000
+
+    camera = design if isinstance(design, DesignCamera) else load_design(design)
+    levels = camera.lux_levels if lux is None else [float(v) for v in lux]
+    if not levels:
+        raise ValueError(f"lux: the design {camera.name!r} holds no network; give a design trained for a light level")
+    for v in levels:
+        camera.network(v)  # ValueError naming the levels it has
+    if not isinstance(crop, int) or crop < 0:
+        raise ValueError(f"crop: expected a non-negative integer, got {crop!r}")
+    device = torch.device(device)
+    camera = camera.to(device).eval()
+    items = load_images(images)
+    keys = [f"{v:g}" for v in levels]
+    per_image = []
+    bar = progress_bar(total=len(items) * len(levels), unit="render", desc=f"design-eval {camera.name}",
+                       quiet=not progress)
+    with bar, torch.no_grad():
+        for i, (name, array) in enumerate(items):
+            if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
+                raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name} is {array.dtype} {array.shape}")
+            if min(array.shape[:2]) <= 2 * crop:
+                raise ValueError(f"crop: {name} is {array.shape[1]} x {array.shape[0]}, too small for a {crop}-pixel "
+                                 f"border")
+            lifted = lift_srgb(array, camera.wavelengths_nm)
+            truth = torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
+            lab_truth = xyz_to_lab(srgb_to_xyz(truth))
+            row = {"name": name, "cpsnr": {}, "de2000": {}}
+            for key, v in zip(keys, levels):
+                g = torch.Generator(device=device).manual_seed(seed_for(seed, i, stream=round(1000 * v)))
+                scene = camera.scene(lifted["maps"][None].to(device), lifted["reflectance"].to(device), v,
+                                     dtype=dtype)
+                out = camera(scene, v, generator=g).to("cpu", torch.float64)
+                srgb = srgb_encode(out.clamp(0, 1))
+                row["cpsnr"][key] = float(cpsnr(srgb, truth, crop)[0])
+                de = delta_e_2000(xyz_to_lab(srgb_to_xyz(srgb)), lab_truth)
+                h, w = de.shape[-2:]
+                row["de2000"][key] = float(de[..., crop:h - crop, crop:w - crop].mean())
+                bar.update(1)
+            per_image.append(row)
+    return {"design": camera.name, "lux": levels, "seed": int(seed), "crop": crop,
+            "mean_cpsnr": {k: float(np.mean([r["cpsnr"][k] for r in per_image])) for k in keys},
+            "mean_de2000": {k: float(np.mean([r["de2000"][k] for r in per_image])) for k in keys},
+            "images": per_image}

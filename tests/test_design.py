@@ -1,0 +1,181 @@
+"""Camera designs (isettorch.design): the exposure rule and white normalisation, the design file, and
+``isettorch design-eval`` on a tiny folder of generated images with a tiny untrained design made here."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from isettorch import design as D
+from isettorch.cli import main
+from isettorch.commands import design_eval
+from isettorch.isp.mosaic_net import MosaicReconstructionNet
+
+TINY = {"network": {"width": 4, "depth": 1}}
+
+
+@pytest.fixture(scope="module")
+def photos(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("photos")
+    g = np.random.default_rng(0)
+    for i in range(2):
+        img = (g.random((36, 40, 3)) * 255).astype(np.uint8)
+        Image.fromarray(img).save(folder / f"img{i}.png")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def design_file(tmp_path_factory):
+    torch.manual_seed(0)
+    cam = D.make_design({"filters": ["learned", "learned", "G", "W"], "mosaic_shape": [2, 2]}, TINY, lux=(1, 100))
+    return D.save_design(cam, tmp_path_factory.mktemp("designs") / "tiny.pt")
+
+
+def test_illuminant_gives_the_stated_illuminance():
+    """A perfect white under E lux has luminance E / pi (Lambertian)."""
+    wl = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    e = D.illuminant_photons(wl, 10.0)
+    from isettorch import spectral
+    assert float(spectral.luminance(e[:, None, None], wl)) == pytest.approx(10 / math.pi, rel=1e-12)
+
+
+def test_white_normalised_input_reads_the_reflectance():
+    """Noise-free, a uniform grey of reflectance rho reads rho in every pixel whatever its filter, at any light
+    level (the white card normalisation), to within the ADC's rounding."""
+    for name in ("bayer_rgb", "rgbw"):
+        cam = D.make_design(name, TINY)
+        for lux in (1.0, 100.0):
+            scene = cam.scene(torch.ones(1, 1, 12, 12, dtype=torch.float64),
+                              torch.full((1, 31), 0.4, dtype=torch.float64), lux)
+            cap = cam.capture(scene, noise=False)
+            raw = cap["raw"]
+            # one DN of rounding relative to the white's reading at that pixel
+            white = (raw.data - raw.black_level) / cap["input"]
+            tol = float((0.5 / white).max()) + 1e-9
+            assert float((cap["input"] - 0.4).abs().max()) <= tol, (name, lux)
+            assert tol < 0.05
+
+
+def test_exposure_rule_caps_dim_scenes_and_shortens_with_clear_pixels():
+    """At 1000 lux the white card sets the exposure (a W pixel's reading limits RGBW: t_bayer / t_rgbw = the ratio
+    of the two designs' brightest white readings); at 1 lux both reach the limit and the gain rises by as much as
+    the exposure falls short (up to the gain limit)."""
+    bayer, rgbw = D.make_design("bayer_rgb", TINY), D.make_design("rgbw", TINY)
+    flat = (torch.ones(1, 1, 8, 8, dtype=torch.float64), torch.full((1, 31), 0.5, dtype=torch.float64))
+    t, gain = {}, {}
+    for cam in (bayer, rgbw):
+        for lux in (1.0, 10.0, 1000.0):
+            cap = cam.capture(cam.scene(*flat, lux), noise=False)
+            t[cam.name, lux], gain[cam.name, lux] = float(cap["exposure_s"]), float(cap["analog_gain"])
+    t_max = D.DESIGN_DEFAULTS["exposure"]["max_exposure_s"]
+    assert t["bayer_rgb", 1.0] == t["rgbw", 1.0] == pytest.approx(t_max)
+    assert t["rgbw", 1000.0] < t["bayer_rgb", 1000.0] < t_max
+    assert gain["bayer_rgb", 1000.0] == gain["rgbw", 1000.0] == 1.0
+    assert gain["bayer_rgb", 1.0] == D.DESIGN_DEFAULTS["exposure"]["max_analog_gain"]
+    # 10 lux, RGBW: shutter at its limit, the gain makes up the rest (white exposure scales as 1 / lux)
+    assert gain["rgbw", 10.0] == pytest.approx(t["rgbw", 1000.0] * 100 / t_max, rel=1e-9)
+    from isettorch.sensor.filters import filter_set
+    wl = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    e = D.illuminant_photons(wl, 1.0).numpy()
+    _, rgb, _ = filter_set("isetcam_rgb", wl, dtype=torch.float64)
+    ratio = e.sum() / max(float((e * rgb[c].numpy()).sum()) for c in range(3))
+    # within the diffraction tails the finite card loses beyond its edges (more at long wavelengths: 0.3 % here)
+    assert t["bayer_rgb", 1000.0] / t["rgbw", 1000.0] == pytest.approx(ratio, rel=5e-3)
+
+
+def test_design_file_round_trip(design_file):
+    cam = D.load_design(design_file)
+    d = torch.load(design_file, weights_only=True)  # plain tensors and values only
+    assert d["format"] == "isettorch-design" and d["filter_names"] == ["F0", "F1", "G", "W"]
+    assert cam.lux_levels == [1.0, 100.0] and not cam.mosaic.learnable and not cam.bank.learnable
+    torch.testing.assert_close(cam.bank.filters, d["filters"], rtol=0, atol=0)
+    assert torch.equal(cam.mosaic.index_map, d["mosaic"]) and "Camera design" in d["card"]
+    # every level's network restored: the same output on the same input
+    w = cam.mosaic.weights(8, 8)
+    x = torch.rand(1, 1, 8, 8)
+    net = MosaicReconstructionNet(4, width=4, depth=1)
+    net.load_state_dict(d["levels"][1]["network"]["state_dict"])
+    torch.testing.assert_close(cam.network(100.0)(x, w), net(x, w), rtol=0, atol=0)
+    # the card of a reloaded design names its filters (as learned) and levels
+    card = D.design_card(cam)
+    assert "F0 (learned)" in card and "W (W)" in card and "1, 100 lux" in card
+
+
+def test_design_file_rejects_what_cannot_be_built(design_file, tmp_path):
+    d = torch.load(design_file, weights_only=True)
+    d["filters"] = d["filters"] * 1.5  # the clear filter now transmits 150 %
+    bad = tmp_path / "bad.pt"
+    torch.save(d, bad)
+    with pytest.raises(ValueError, match=r"filters: expected transmittances in \[0, 1\]"):
+        D.load_design(bad)
+    d = torch.load(design_file, weights_only=True)
+    d["version"] = 99
+    torch.save(d, bad)
+    with pytest.raises(ValueError, match="format version 99"):
+        D.load_design(bad)
+    with pytest.raises(FileNotFoundError, match="shipped design 'learned' is not in this installation yet"):
+        D.load_design("learned")
+    with pytest.raises(FileNotFoundError, match="neither a design file nor a shipped design"):
+        D.load_design("no_such_design")
+
+
+def test_evaluate_design_scores_agree_with_scikit_image_and_colour(design_file, photos):
+    """The per-image CPSNR is scikit-image's PSNR of the cropped sRGB images, the dE2000 colour-science's."""
+    import colour
+    from skimage.metrics import peak_signal_noise_ratio
+
+    from isettorch.data.config import seed_for
+    from isettorch.data.photos import lift_srgb
+    from isettorch.image import srgb_encode
+
+    res = D.evaluate_design(design_file, photos, seed=3)
+    assert res["lux"] == [1.0, 100.0] and list(res["mean_cpsnr"]) == ["1", "100"]
+    cam = D.load_design(design_file)
+    img = np.asarray(Image.open(photos / "img1.png"))
+    lifted = lift_srgb(img)
+    g = torch.Generator().manual_seed(seed_for(3, 1, stream=100000))
+    with torch.no_grad():
+        out = cam(cam.scene(lifted["maps"][None], lifted["reflectance"], 100.0, dtype=torch.float32), 100.0,
+                  generator=g)
+    srgb = srgb_encode(out.double().clamp(0, 1))[0].permute(1, 2, 0).numpy()[10:-10, 10:-10]
+    truth = (img / 255.0)[10:-10, 10:-10]
+    assert res["images"][1]["cpsnr"]["100"] == pytest.approx(peak_signal_noise_ratio(truth, srgb, data_range=1.0),
+                                                             abs=1e-6)
+    lab = [colour.XYZ_to_Lab(colour.sRGB_to_XYZ(x)) for x in (srgb, truth)]
+    assert res["images"][1]["de2000"]["100"] == pytest.approx(float(colour.delta_E(*lab, method="CIE 2000").mean()),
+                                                              rel=2e-3)
+    assert res["mean_cpsnr"]["100"] == pytest.approx(np.mean([r["cpsnr"]["100"] for r in res["images"]]))
+    # the noise is a function of the seed: the same seed gives the same scores, another seed others
+    assert D.evaluate_design(design_file, photos, [100], seed=3)["mean_cpsnr"]["100"] == res["mean_cpsnr"]["100"]
+    assert D.evaluate_design(design_file, photos, [100], seed=4)["mean_cpsnr"]["100"] != res["mean_cpsnr"]["100"]
+    with pytest.raises(ValueError, match="no network for 10 lux"):
+        D.evaluate_design(design_file, photos, [10])
+
+
+def test_design_eval_command(design_file, photos, capsys):
+    assert design_eval.SHIPPED_NAMES == D.SHIPPED_DESIGNS
+    assert main(["design-eval", str(design_file), str(photos), "--lux", "100", "--seed", "3", "--json",
+                 "--quiet"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) >= {"design", "lux", "mean_cpsnr", "mean_de2000", "images"}
+    ref = D.evaluate_design(design_file, photos, [100], seed=3)
+    assert out["mean_cpsnr"] == ref["mean_cpsnr"] and out["lux"] == [100.0]
+    assert [r["name"] for r in out["images"]] == ["img0.png", "img1.png"]
+    assert main(["design-eval", str(design_file), str(photos), "--quiet"]) == 0
+    table = capsys.readouterr().out
+    assert "1 lux" in table and "100 lux" in table and "mean" in table
+
+
+def test_network_checks_its_inputs():
+    net = MosaicReconstructionNet(3, width=4, depth=1)
+    with pytest.raises(ValueError, match="weights"):
+        net(torch.rand(1, 1, 8, 8), torch.rand(4, 8, 8))
+    with pytest.raises(ValueError, match="raw"):
+        net(torch.rand(1, 2, 8, 8), torch.rand(3, 8, 8))
+    with pytest.raises(ValueError, match="width"):
+        MosaicReconstructionNet(3, width=0)
