@@ -19,9 +19,16 @@ generation itself runs on one thread per process, see ``config.one_thread``):
 The main process applies ``isettorch.data.config.tune_allocator()`` unless ``--no-tune`` (DataLoader workers of
 ``CameraPairDataset`` always do).
 
+``--stream --device cpu|cuda`` measures :class:`isettorch.data.PairStream` instead (batches drawn and rendered on
+the device, consumed in the main process): pairs/s at 128^2 and 256^2 with all targets and with raw + camera_rgb
+only, peak device memory, the README loader (``batch_loader(CameraPairDataset(...), 16, num_workers=2)``) in the
+same run on CPU, and the share of a ``train_demosaic`` step spent in data (the same step fed by the stream against
+a fixed in-memory batch). Each row is the median of ``--repeats`` timed runs after a warm-up batch.
+
 Usage::
 
     python benchmarks/throughput.py [--count 256] [--workers 2] [--markdown benchmarks/THROUGHPUT.md]
+    python benchmarks/throughput.py --stream --device cpu [--count 256] [--markdown benchmarks/THROUGHPUT.md]
 """
 
 from __future__ import annotations
@@ -136,8 +143,118 @@ def band_error(bands: int, size: int, count: int, seed: int = 0) -> dict:
     return out
 
 
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def stream_rate(size: int, count: int, batch: int, device: torch.device, targets=TARGETS, repeats: int = 3,
+                seed: int = 0) -> tuple[float, float]:
+    """(pairs/s, peak memory MB) of ``PairStream(batch, scene size)`` consumed in this process: the median of
+    ``repeats`` runs of ``count // batch`` batches, after one warm-up batch (peak CUDA memory allocated, or the
+    process's peak resident memory on CPU)."""
+    import resource
+
+    from isettorch.data import PairStream
+
+    stream = PairStream(batch, seed=seed, scene={"height": size, "width": size}, targets=targets, device=device)
+    stream.batch(10_000)  # warm-up: caches, imports, OTF rows of the first cameras
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+    nb = max(1, count // batch)
+    rates, k = [], 0
+    for _ in range(repeats):
+        _sync(device)
+        t0 = time.perf_counter()
+        for _ in range(nb):
+            stream.batch(k)
+            k += 1
+        _sync(device)
+        rates.append(nb * batch / (time.perf_counter() - t0))
+    peak = (torch.cuda.max_memory_allocated(device) if device.type == "cuda"
+            else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024) / 2**20
+    return statistics.median(rates), peak
+
+
+def data_share(device: torch.device, steps: int = 8, repeats: int = 3) -> dict:
+    """Seconds per ``train_demosaic`` step (the default DemosaicNet, batch 16, 80 px patches, Adam) fed by the
+    stream against the same step on one fixed in-memory batch, and the share of the step spent in data."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    import torch.nn.functional as F
+
+    from isettorch.isp.learned import DemosaicNet
+    from training import train_demosaic
+
+    cfg = {"seed": 0, "data": {"source": "stream", "device": str(device), "patch": 80, "batch": 16, "camera": {}},
+           "noise": {"enabled": False}}
+    src = train_demosaic.make_sampler(cfg, device=device, batch=16)
+    net = DemosaicNet().to(device)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
+    fixed = src.batch(0, 16)[:2]
+
+    def step(raw, rgb):
+        loss = F.mse_loss(net(raw), rgb)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+    def timed(fetch) -> float:
+        out = []
+        for r in range(repeats):
+            _sync(device)
+            t0 = time.perf_counter()
+            for i in range(steps):
+                step(*fetch(r * steps + i + 1))
+            _sync(device)
+            out.append((time.perf_counter() - t0) / steps)
+        return statistics.median(out)
+
+    step(*fixed)
+    t_fixed = timed(lambda i: fixed)
+    t_stream = timed(lambda i: src.batch(i, 16)[:2])
+    return {"fixed_s": t_fixed, "stream_s": t_stream, "share": 1 - t_fixed / t_stream, "ratio": t_stream / t_fixed}
+
+
+def stream_main(args) -> None:
+    device = torch.device(args.device)
+    b, reps = args.batch, args.repeats
+    name = torch.cuda.get_device_name(device) if device.type == "cuda" else (platform.processor()
+                                                                               or platform.machine())
+    head = (f"PairStream on {device} ({name}), {os.cpu_count()} logical CPUs, torch {torch.__version__}, "
+            f"{args.threads} intra-op threads, batch {b}, {args.count} pairs x {reps} runs (median), 31 bands, "
+            f"load average at start {load()}")
+    print(head, flush=True)
+    lines = ["| source | size | targets | pairs/s | peak memory (MB) | load |", "|---|---|---|---|---|---|"]
+    if device.type == "cpu":
+        n = max(b, args.count // b * b)
+        rate, _ = loader_rate(31, 128, n, args.workers, batched=True, batch=b, repeats=reps)
+        lines.append(f"| batch_loader(CameraPairDataset, {b}, num_workers={args.workers}) | 128 | all | {rate:.0f} "
+                     f"| | {load()} |")
+        print(lines[-1], flush=True)
+    for size in (128, 256):
+        for label, targets in (("all", TARGETS), ("raw + camera_rgb", ("camera_rgb",))):
+            count = args.count if size == 128 else max(b, args.count // 4)
+            rate, peak = stream_rate(size, count, b, device, targets, reps)
+            lines.append(f"| PairStream (main process) | {size} | {label} | {rate:.0f} | {peak:.0f} | {load()} |")
+            print(lines[-1], flush=True)
+    share = data_share(device, repeats=reps)
+    share_line = (f"train_demosaic step (DemosaicNet default, batch 16, 80 px): {share['stream_s'] * 1e3:.1f} ms fed "
+                  f"by the stream, {share['fixed_s'] * 1e3:.1f} ms on a fixed in-memory batch: data "
+                  f"{100 * share['share']:.0f} % of the step (ratio {share['ratio']:.2f}x)")
+    print(share_line, flush=True)
+    text = "\n".join([head, "", *lines, "", share_line, "", f"load average at end {load()}"])
+    if args.markdown:
+        with open(args.markdown, "a") as f:
+            f.write(f"\n### PairStream, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}\n\n" + text + "\n")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--stream", action="store_true", help="measure isettorch.data.PairStream (see the notes)")
+    ap.add_argument("--device", default="cpu", help="with --stream: the device the stream generates on")
     ap.add_argument("--count", type=int, default=256, help="pairs per timed run")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=128)
@@ -162,6 +279,9 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     tuned = False if args.no_tune else tune_allocator()
+    if args.stream:
+        stream_main(args)
+        return
     w, b, reps = args.workers, args.batch, args.repeats
     n = max(b, args.count // b * b)  # whole batches per timed chunk
     head = (f"host: {platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, torch "

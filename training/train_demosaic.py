@@ -26,6 +26,9 @@ photon-transfer model of EMVA 1288), with ``a = gain / full_well_e`` and ``b = (
 ``(sqrt(a), sqrt(b))`` are given to the network as two extra input planes. With dark current, DSNU, PRNU or
 ``bits`` set, the noise is drawn by one :class:`isettorch.sensor.Sensor` with per-image levels (:func:`add_noise`).
 
+``data.source: stream`` (with ``data.device``, default the training device) draws the same kind of batches from
+:class:`isettorch.data.PairStream`, generated and rendered on that device (:class:`StreamSource`).
+
 ``data.source: camera_pairs`` draws batches from :class:`isettorch.data.camera_pairs.CameraPairDataset` instead
 (scene -> diffraction-limited optics -> the isettorch sensor with its own noise model; ``data.scene`` /
 ``data.camera`` are passed to the dataset). Input: the noisy quantised raw mosaic (``noise.enabled: true``, the
@@ -79,7 +82,8 @@ from training import common  # noqa: E402
 VAL_SEED_OFFSET = 1_000_003_000  # validation scenes use seeds far from any training (seed, step, rank)
 
 
-SOURCES = ("natural", "isettorch", "camera_pairs")
+SOURCES = ("natural", "isettorch", "camera_pairs", "stream")
+LOG_EVERY = 10  # steps between reads of the loss for the progress bar (a host read synchronises the device)
 #: colour spaces of the ``natural`` pool's images: the white-balanced camera RGB of the pool's sensor (Nikon D5100
 #: QE), or the scene's colorimetric linear sRGB (the Camera's ``linear_srgb`` target: CIE XYZ at the sensor,
 #: Bradford-adapted to D65, IEC 61966-2-1 primaries), the space of display-referred photographs such as Kodak
@@ -136,6 +140,53 @@ class CameraPairSource:
 
     def batch(self, batch_seed: int, n: int):
         return pair_batch(self.ds.get_batch(self.indices(batch_seed, n)), self.patch, self.noisy)
+
+
+class StreamSource:
+    """Training batches from :class:`isettorch.data.PairStream` (source ``stream``): scenes drawn and rendered by
+    the Camera modules on ``data.device`` (default: the training device), batch ``step * world + rank`` of a stream
+    seeded ``cfg.seed + seed_offset`` (so a batch depends only on (seed, step, rank) and ranks never share one),
+    cropped on the device to ``patch x patch`` RGGB (no per-item host read). Same inputs and targets as
+    :class:`CameraPairSource`: (raw [B,1,P,P], camera_rgb [B,3,P,P], noise features [B,2] or None)."""
+
+    def __init__(self, cfg: dict, seed_offset: int = 0, device=None, batch: int | None = None):
+        from isettorch.data import PairStream
+        from isettorch.data.config import CAMERA_DEFAULTS
+        from isettorch.isp.learned import BAYER_PATTERNS
+
+        d = cfg.get("data", {})
+        self.patch = int(d.get("patch", 80))
+        if self.patch < 4 or self.patch % 2:
+            raise ValueError(f"data.patch: expected an even size >= 4, got {self.patch}")
+        self.noisy = bool(cfg.get("noise", {}).get("enabled", False))
+        camera = dict(d.get("camera") or {})
+        pats = camera.get("cfa_patterns", CAMERA_DEFAULTS["cfa_patterns"])
+        bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
+        if bad:
+            raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
+        dev = torch.device(d.get("device") or device or "cpu")
+        self.batch_size = int(batch or d.get("batch", 16))
+        self.stream = PairStream(self.batch_size, seed=int(cfg.get("seed", 0)) + int(seed_offset),
+                                 scene=dict(d.get("scene") or {}, height=self.patch + 2, width=self.patch + 2),
+                                 camera=camera, targets=("noise_free_raw", "camera_rgb"), device=dev)
+
+    def batch(self, step: int, n: int):
+        if n != self.batch_size:
+            raise ValueError(f"data.batch: the stream draws batches of {self.batch_size}, asked for {n}")
+        b = self.stream.batch(int(step) * self.stream.world_size + self.stream.rank)
+        src = b["raw"] if self.noisy else b["noise_free_raw"]
+        # the offset (dy, dx) of the R pixel in each item's 2x2 cell, read on the device; the four shifted crops
+        # are gathered, so every Bayer order reaches the network as RGGB
+        pos = (b["meta"]["cfa"].reshape(n, 4) == 0).float().argmax(1)  # R is channel 0
+
+        def crop(img):
+            shifts = torch.stack([img[:, :, dy:dy + self.patch, dx:dx + self.patch] for dy in (0, 1) for dx in (0, 1)])
+            return shifts[pos, torch.arange(n, device=img.device)]
+
+        feats = None
+        if self.noisy:
+            feats = noise_features(torch.stack([b["meta"]["noise_gain"], b["meta"]["noise_floor_var"]], 1).float())
+        return crop(src).float(), crop(b["camera_rgb"]).float(), feats
 
 
 def pair_batch(b: dict, patch: int, noisy: bool):
@@ -367,13 +418,15 @@ class SceneBank(ScenePool):
 
 
 def make_sampler(cfg: dict, seed_offset: int = 0, seed: int | None = None, scene_size: int | None = None,
-                 progress: bool = False) -> ScenePool | CameraPairSource:
-    """The batch source of ``data.source``: a :class:`ScenePool` (a :class:`SceneBank` with ``data.bank``) or a
-    :class:`CameraPairSource`."""
+                 progress: bool = False, device=None, batch: int | None = None):
+    """The batch source of ``data.source``: a :class:`ScenePool` (a :class:`SceneBank` with ``data.bank``), a
+    :class:`CameraPairSource` or a :class:`StreamSource` (on ``device``, batches of ``batch``)."""
     d = cfg.get("data", {})
     source = d.get("source", "natural")
     if source == "camera_pairs":
         return CameraPairSource(cfg, seed_offset)
+    if source == "stream":
+        return StreamSource(cfg, seed_offset, device=device, batch=batch)
     base = int(cfg.get("seed", 0)) * 1_000_003 if seed is None else int(seed)
     if d.get("bank") and not seed_offset:  # validation (its own seed offset) renders its own scenes
         return SceneBank(cfg, base, scene_size, progress=progress)
@@ -476,7 +529,7 @@ def noise_features(ab: torch.Tensor) -> torch.Tensor:
     return learned.noise_features(ab[:, 0], ab[:, 1]).to(ab.dtype)
 
 
-def make_batch(sampler: ScenePool | CameraPairSource, cfg: dict, seed: int, batch: int, step: int = 0):
+def make_batch(sampler, cfg: dict, seed: int, batch: int, step: int = 0):
     """(raw [B,1,H,W], target [B,3,H,W], noise features [B,2] or None) for one (seed, step).
 
     ``data.domain`` (linear | encoded | mixed, ``data.encoded_fraction``) picks the training domain
@@ -484,6 +537,8 @@ def make_batch(sampler: ScenePool | CameraPairSource, cfg: dict, seed: int, batc
     keeps the ``batch`` with the largest Malvar-He-Cutler error (Gharbi et al. 2016)."""
     if isinstance(sampler, CameraPairSource):
         return sampler.batch(seed, batch)
+    if isinstance(sampler, StreamSource):
+        return sampler.batch(step, batch)
     d = cfg.get("data", {})
     g = torch.Generator().manual_seed(int(seed))
     k = int(d.get("hard_mining", 0) or 0)
@@ -553,8 +608,11 @@ def make_validation(cfg: dict) -> list:
     vcfg["data"] = dict(cfg.get("data", {}), patch=size, hard_mining=0)
     vcfg["data"]["scene_size"] = size
     vseed = int(cfg.get("seed", 0)) + VAL_SEED_OFFSET
-    sampler = make_sampler(vcfg, VAL_SEED_OFFSET, seed=vseed, scene_size=size)
     n, bs = int(v.get("images", 32)), 8
+    sampler = make_sampler(vcfg, VAL_SEED_OFFSET, seed=vseed, scene_size=size, batch=bs)
+    if isinstance(sampler, StreamSource):  # whole batches of bs on the stream (the last one cut to n)
+        return [tuple(None if x is None else x[:min(bs, n - i)] for x in make_batch(sampler, vcfg, vseed, bs, i // bs))
+                for i in range(0, n, bs)]
     if isinstance(sampler, ScenePool):  # every validation image a different scene
         sampler.pool_size, sampler.refresh = bs, bs // 1
     return [make_batch(sampler, vcfg, vseed + i, min(bs, n - i), i // bs) for i in range(0, n, bs)]
@@ -649,6 +707,9 @@ def describe_data(cfg: dict) -> str:
     src = d.get("source", "natural")
     if src == "camera_pairs":
         what = "isettorch.data.camera_pairs (scene -> optics -> isettorch sensor, its noise model)"
+    elif src == "stream":
+        what = (f"isettorch.data.PairStream on {d.get('device') or 'the training device'} (scene -> optics -> "
+                f"isettorch sensor, its noise model)")
     elif src == "natural":
         off = list(d.get("disable") or [])
         what = (f"isettorch.data.natural scenes ({'all components' if not off else 'without ' + ', '.join(off)}; "
@@ -783,7 +844,8 @@ def main(argv: list[str] | None = None) -> int:
 
     # each rank renders its own scenes; data.scene_seed (default: the run's seed) lets runs share scenes (a bank)
     scene_seed = int(cfg.get("data", {}).get("scene_seed", seed))
-    sampler = make_sampler(cfg, seed=scene_seed * 1_000_003 + rank, progress=rank == 0 and not args.quiet)
+    sampler = make_sampler(cfg, seed=scene_seed * 1_000_003 + rank, progress=rank == 0 and not args.quiet,
+                           device=device, batch=int(cfg["data"].get("batch", 16)) // world)
     val = make_validation(cfg) if rank == 0 else None
     teacher, distill_w, distill_ens = load_teacher(cfg, device)
     total = int(cfg["optim"]["steps"])
@@ -819,11 +881,11 @@ def main(argv: list[str] | None = None) -> int:
         clip(net.parameters())
         opt.step()
         step += 1
-        loss_value = loss.item()
-        run_loss += loss_value
+        run_loss = run_loss + loss.detach()  # on the device: read back only when logging (no sync per step)
         run_n += 1
         pbar.update(1)
-        pbar.set_postfix(loss=f"{loss_value:.4f}", lr=f"{lr:.1e}")
+        if step % LOG_EVERY == 0:
+            pbar.set_postfix(loss=f"{loss.item():.4f}", lr=f"{lr:.1e}")
         frac = progress(step, wall0 + time.time() - t_start, cfg)
         if is_dist:  # every rank stops at the same step
             import torch.distributed as dist
@@ -834,7 +896,7 @@ def main(argv: list[str] | None = None) -> int:
         last = frac >= 1.0 or step == stop_at
         if rank == 0 and (step % val_every == 0 or last):
             row = {"step": step, "wall_s": round(wall0 + time.time() - t_start, 1), "lr": lr,
-                   "train_loss": run_loss / max(run_n, 1)}
+                   "train_loss": float(run_loss) / max(run_n, 1)}
             run_loss, run_n = 0.0, 0
             row.update(validate(net, val, device))
             if bench and bench_every and (step % bench_every == 0 or last):

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import OrderedDict
 
 import torch
 
@@ -109,6 +110,7 @@ class PairStream:
             raise ValueError(f"rank: expected 0 <= rank < world_size = {world_size}, got {rank}")
         self.rank, self.world_size = int(rank), int(world_size)
         self._cache = _Cache()
+        self._otf_rows: OrderedDict = OrderedDict()  # shared by the groups' optics (DiffractionLimitedOptics)
 
     # --- iteration ------------------------------------------------------------------------------------------
     def __iter__(self):
@@ -189,11 +191,8 @@ class PairStream:
                     if optics_cfg.get("type") == "lens" else None
                 focal = optics.focal_length_m.detach().reshape(-1)[0].to(torch.float64)
             else:
-                from ..optics import DiffractionLimitedOptics
-
                 focal = d["focal"][idx]
-                optics = DiffractionLimitedOptics(f_number=d["f_number"][idx], focal_length_m=focal, margin=m,
-                                                  pad_mode="zero").to(dev)
+                optics = self._optics_for(pitch, d["f_number"][idx], focal, m)
                 image_distance = None
             sensor = self._cache.get_sensor({"pitch": pitch, "fill": float(self.camera_config["fill_factor"]),
                                              "pattern": pattern, "bits": int(self.camera_config["bits"]),
@@ -214,6 +213,17 @@ class PairStream:
                   "prnu_sigma_percent": d["prnu"][idx]}
             groups.append(StreamGroup(idx, camera, scene, kw, k))
         return groups
+
+    def _optics_for(self, pitch: float, f_number: torch.Tensor, focal_length_m: torch.Tensor, margin: int):
+        """The diffraction-limited optics of a group, with the items' ``[b]`` f-numbers and focal lengths. A new
+        module per group (a group's camera stays valid after later batches), sharing one cache of OTF rows per
+        (f-number, spacing) across batches, so a batch's OTF is assembled from rows, not evaluated again."""
+        from ..optics import DiffractionLimitedOptics
+
+        optics = DiffractionLimitedOptics(f_number=f_number, focal_length_m=focal_length_m, margin=margin,
+                                          pad_mode="zero").to(self.device)
+        optics._otf_rows = self._otf_rows
+        return optics
 
     @staticmethod
     def _hfov(pitch, focal, distance, width):

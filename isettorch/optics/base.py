@@ -123,10 +123,15 @@ class ShiftInvariantLens(nn.Module):
         self.margin = margin
         self.max_margin_factor = float(max_margin_factor)
         self._otf_cache: OrderedDict = OrderedDict()
+        self._otf_rows: OrderedDict = OrderedDict()
         self._interleaved_cache: dict = {}
         self._geometry_cache: dict = {}
 
     # --- to override --------------------------------------------------------------------------------
+    # True when item b of :meth:`otf` depends only on ``fy[b], fx[b], f_number[b]`` and the module's fixed settings
+    # (no other per-item state), so OTF rows may be cached per item (:meth:`_otf_by_item`)
+    otf_rows_independent = False
+
     def otf(self, fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor,
             ) -> torch.Tensor:
         """OTF ``[B, L, My, Mx]`` at frequencies ``fy [B, My]``, ``fx [B, Mx]`` (cycles/m), DC = 1."""
@@ -177,15 +182,35 @@ class ShiftInvariantLens(nn.Module):
                    tuple(f_number.tolist()), self._otf_key(), fy.dtype, str(fy.device))
             hit = self._otf_cache.get(key)
             if hit is None:
-                hit = self.otf(fy, fx, wavelengths_nm, f_number).detach()
+                hit = self._otf_by_item(fy, fx, wavelengths_nm, f_number, dx, key)
                 self._otf_cache[key] = hit
                 if len(self._otf_cache) > _CACHE_SIZE:
                     self._otf_cache.popitem(last=False)
             return hit
         return fn
 
+    def _otf_by_item(self, fy, fx, wavelengths_nm, f_number, dx, key) -> torch.Tensor:
+        """The OTF ``[B, L, My, Mx']`` of a batch whose items have their own f-number and spacing ``[B]``, built
+        from per-item rows cached by (f-number, spacing): a training stream draws each batch's f-numbers from a
+        few stops, so a new combination of known items costs a copy, not an OTF evaluation."""
+        n = f_number.reshape(-1)
+        if not self.otf_rows_independent or n.numel() == 1 or dx.numel() != n.numel():
+            return self.otf(fy, fx, wavelengths_nm, f_number).detach()
+        rows = []
+        for b, (n_b, dx_b) in enumerate(zip(key[4], key[2])):
+            row_key = (key[0], key[1], dx_b, key[3], n_b, *key[5:])
+            row = self._otf_rows.get(row_key)
+            if row is None:
+                row = self.otf(fy[b:b + 1], fx[b:b + 1], wavelengths_nm, n[b:b + 1]).detach()
+                self._otf_rows[row_key] = row
+                if len(self._otf_rows) > 8 * _CACHE_SIZE:
+                    self._otf_rows.popitem(last=False)
+            rows.append(row)
+        return torch.cat(rows)
+
     def clear_cache(self) -> None:
         self._otf_cache.clear()
+        self._otf_rows.clear()
         self._interleaved_cache.clear()
         self._geometry_cache.clear()
 

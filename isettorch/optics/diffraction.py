@@ -73,6 +73,8 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
             kwargs["pad_mode"] = "zero"
         super().__init__(f_number, focal_length_m, transmittance, transmittance_wavelengths_nm, **kwargs)
 
+    otf_rows_independent = True  # the OTF of item b depends only on its frequencies and f-number
+
     def otf(self, fy, fx, wavelengths_nm, f_number):
         return dl_otf(fy, fx, wavelengths_nm, f_number)
 
