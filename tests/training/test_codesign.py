@@ -1,0 +1,79 @@
+"""training/codesign.py: the scene sources, the targets, and a tiny end-to-end run that exports a design file which
+loads and evaluates."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from isettorch.design import evaluate_design, load_design, make_design  # noqa: E402
+from isettorch.sensor.filter_bank import MAX_SLOPE_PER_NM  # noqa: E402
+from training import codesign  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def photos(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cd_photos")
+    g = np.random.default_rng(1)
+    for i in range(2):
+        Image.fromarray((g.random((30, 34, 3)) * 255).astype(np.uint8)).save(folder / f"p{i}.png")
+    return folder
+
+
+def test_sources_give_reflectances_and_the_photo_target_is_the_photo(photos):
+    cam = make_design("bayer_rgb")
+    cfg = codesign.merged_config({"data": {"folder": str(photos)}})
+    maps, refl = codesign.source_layouts(0, 2, 16, cam, cfg, 0)
+    assert maps.shape[:2] == refl.shape[:2] and maps.shape[-2:] == (16, 16) and refl.shape[-1] == 31
+    assert float(refl.min()) >= 0 and float(refl.max()) <= 1  # a single light's spectra / its white
+    again = codesign.source_layouts(0, 2, 16, cam, cfg, 0)
+    assert torch.equal(maps, again[0]) and torch.equal(refl, again[1])  # a batch is a function of (seed, k)
+    maps, refl = codesign.source_photos(3, 2, 16, cam, cfg, 0)
+    # the lifted photograph's linear sRGB under D65 is the photograph (Mallett & Yuksel's basis, within 1 %)
+    torch.testing.assert_close(codesign.targets(maps, refl, cam), maps, rtol=0, atol=0.011)
+    maps, refl = codesign.source_natural(0, 2, 16, cam, cfg, 0)
+    assert maps.shape[0] == 2 and float(refl.max()) <= 1 + 1e-6 and float(refl.min()) >= 0
+
+
+def test_config_rejects_unknown_keys():
+    with pytest.raises(ValueError, match="config.optim.stepz"):
+        codesign.merged_config({"optim": {"stepz": 3}})
+    with pytest.raises(ValueError, match="config.lux"):
+        codesign.merged_config({"lux": [0]})
+    with pytest.raises(ValueError, match="data.source"):
+        codesign.train({"data": {"source": "nope"}, "optim": {"steps": 1}})
+
+
+def test_tiny_run_exports_a_manufacturable_design(tmp_path, photos):
+    out = tmp_path / "run"
+    record = codesign.train({"out": str(out), "threads": 1, "lux": [2, 50],
+                             "design": {"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
+                             "camera": {"network": {"width": 4, "depth": 1}},
+                             "data": {"size": 16, "batch": 2}, "optim": {"steps": 4},
+                             "val": {"batches": 1, "every": 2}}, quiet=True)
+    assert set(record["val_cpsnr"]) == {"2", "50"}
+    for name in ("design.pt", "card.md", "history.csv", "curves.png", "filters.png", "record.json"):
+        assert (out / name).is_file(), name
+    cam = load_design(out / "design.pt")
+    assert cam.lux_levels == [2.0, 50.0] and cam.name == "learned"
+    f = cam.bank.filters
+    assert bool(((f >= 0) & (f <= 1)).all())
+    assert float(((f[:, 1:] - f[:, :-1]) / 10).abs().max()) <= MAX_SLOPE_PER_NM
+    # the exported mosaic is the trained one's hard pattern, one filter per pixel
+    rec = json.loads((out / "record.json").read_text())
+    assert cam.mosaic.cell == rec["mosaic"]
+    w = cam.mosaic.weights(4, 4)
+    assert bool(((w == 0) | (w == 1)).all())
+    res = evaluate_design(out / "design.pt", photos, crop=2)
+    assert set(res["mean_cpsnr"]) == {"2", "50"} and all(np.isfinite(v) for v in res["mean_cpsnr"].values())
+    assert "steps 4" in cam.card

@@ -1,0 +1,327 @@
+"""Design a camera through its gradients: the colour filters, the mosaic and a reconstruction network learned
+together (issue 36), or a fixed design's network alone with the same data and budget.
+
+Usage::
+
+    python training/codesign.py --config configs/train/codesign_learned.yaml [--set key.sub=value ...]
+
+Each step draws a batch of spectral scenes (a pluggable source, :data:`SOURCES`: ``layouts`` are PairStream's
+device-batched scenes, :func:`isettorch.data.batched.draw_layout_scenes`; ``photos`` random crops of a folder of
+photographs lifted to spectra, :func:`isettorch.data.photos.lift_srgb`; ``natural``
+:func:`isettorch.data.natural.generate_natural`), takes each scene's reflectance (its spectra divided by its
+light's white), lights it with D65 at one of the configured light levels (lux, in turn), renders it through the
+design's camera (:class:`isettorch.design.DesignCamera`: fixed optics, the design sensor with its photon and read
+noise, the incident-light exposure rule and the ADC, all differentiable) and reconstructs linear sRGB with that
+level's network. The loss is the L1 distance to the scene's linear sRGB under D65 (white = 1) plus the L1 distance
+in encoded sRGB (the metric's space). The filters and mosaic logits (a learned design) share one optimiser group,
+the networks another; the mosaic's softmax temperature falls geometrically (``mosaic.temperature_*``), then the
+mosaic is read hard with straight-through gradients (``mosaic.straight_through_after``).
+
+Outputs in ``out``: ``design.pt`` (the design file: filters, hard mosaic, network weights per level, config, card),
+``card.md``, ``history.csv``, ``curves.png``, ``filters.png`` (filters and mosaic) and ``record.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from isettorch.data.config import seed_for  # noqa: E402
+from isettorch.design import (  # noqa: E402
+    DesignCamera,
+    design_card,
+    linear_srgb_of_reflectance,
+    make_design,
+    save_design,
+)
+from isettorch.image import srgb_encode  # noqa: E402
+from isettorch.sensor.mosaic import temperature_schedule  # noqa: E402
+from training import common  # noqa: E402
+
+DEFAULTS: dict = {
+    "seed": 0,
+    "threads": None,
+    "out": "out/codesign",
+    "name": None,
+    "design": "bayer_rgb",
+    "camera": {},
+    "lux": [1.0, 10.0, 100.0],
+    "data": {"source": "layouts", "size": 64, "batch": 8, "scene": {}, "folder": None, "natural": {}},
+    "optim": {"steps": 2000, "lr": 1.0e-3, "design_lr": 2.0e-2, "lr_min": 1.0e-5, "srgb_weight": 1.0},
+    "mosaic": {"temperature_start": 1.0, "temperature_end": 0.03, "anneal_fraction": 0.7,
+               "straight_through_after": 0.8},
+    "val": {"batches": 2, "every": 200, "seed_offset": 1_000_003, "crop": 4},
+    "loss_crop": 4,
+}
+
+
+def merged_config(cfg: dict) -> dict:
+    """``cfg`` over :data:`DEFAULTS` (one level deep for the sections); unknown top-level keys raise."""
+    out = json.loads(json.dumps(DEFAULTS))
+    for key, value in cfg.items():
+        if key not in out:
+            raise ValueError(f"config.{key}: unknown key; expected one of {sorted(out)}")
+        if isinstance(out[key], dict) and key not in ("camera",) and isinstance(value, dict):
+            unknown = [k for k in value if k not in out[key]]
+            if unknown:
+                raise ValueError(f"config.{key}.{unknown[0]}: unknown key; expected one of {sorted(out[key])}")
+            out[key].update(value)
+        else:
+            out[key] = value
+    if not out["lux"] or any(not (float(v) > 0) for v in out["lux"]):
+        raise ValueError(f"config.lux: expected positive light levels, got {out['lux']!r}")
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ scene sources
+# A source is ``fn(k, n, size, camera, cfg, seed) -> (maps [n, J, size, size], reflectance [n, J, L])`` on the
+# camera's wavelength grid: batch ``k`` depends only on (seed, k, cfg).
+
+def _reflectance_of(spectra: torch.Tensor, white: torch.Tensor) -> torch.Tensor:
+    """Reflectance = radiance spectra / the light's white radiance (single-light scenes)."""
+    return spectra / white[:, None, :].clamp_min(torch.finfo(white.dtype).tiny)
+
+
+def source_layouts(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, seed: int):
+    """PairStream's scenes (:func:`isettorch.data.batched.draw_layout_scenes`), one light, no shadows or HDR."""
+    from isettorch.data.batched import draw_layout_scenes
+    from isettorch.data.config import SCENE_DEFAULTS, merge_config
+
+    lo, hi, step = camera.config["scene"]["wavelengths_nm"]
+    scene_cfg = merge_config({"two_light_probability": 0.0, "shadow_probability": 0.0, "hdr_decades": [0.0, 0.0],
+                              "height": size, "width": size, "wavelengths_nm": [lo, hi, step],
+                              **cfg["data"]["scene"]}, SCENE_DEFAULTS, "scene")
+    g = torch.Generator().manual_seed(seed_for(seed, k, stream=0))
+    drawn = draw_layout_scenes(n, g, scene_cfg, size=(size, size), device="cpu", dtype=torch.float32)
+    return drawn["maps"], _reflectance_of(drawn["spectra"], drawn["white"]).float()
+
+
+def source_natural(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, seed: int):
+    """:func:`isettorch.data.natural.generate_natural` scenes under one daylight (their reflectances)."""
+    from isettorch.data.natural import generate_natural, natural_config
+
+    lo, hi, step = camera.config["scene"]["wavelengths_nm"]
+    ncfg = natural_config(dict(cfg["data"]["natural"], size=size, wavelengths_nm=[lo, hi, step]))
+    ncfg["components"]["illuminant"]["enabled"] = False  # one 6500 K daylight: spectra / white = reflectance
+    items = [generate_natural(k * n + i, seed, ncfg) for i in range(n)]
+    j = max(it["maps"].shape[0] for it in items)
+
+    def pad(t, dim_size):
+        return torch.cat([t, t.new_zeros(dim_size - t.shape[0], *t.shape[1:])]) if t.shape[0] < dim_size else t
+
+    maps = torch.stack([pad(it["maps"], j) for it in items])
+    refl = torch.stack([pad(_reflectance_of(it["spectra"][None], it["illuminant"][None])[0], j) for it in items])
+    return maps, refl.float()
+
+
+def source_photos(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, seed: int):
+    """Random ``size`` crops (and flips) of the photographs in ``data.folder``, lifted to spectra."""
+    import numpy as np
+
+    from isettorch.data.photos import lift_srgb
+    from isettorch.isp.evaluation import load_images
+
+    folder = cfg["data"]["folder"]
+    if not folder:
+        raise ValueError("data.folder: the photos source needs a folder of 8-bit RGB .png/.tif photographs")
+    cache = source_photos.__dict__.setdefault("cache", {})
+    if folder not in cache:
+        cache[folder] = load_images(common_path(folder))
+    photos = cache[folder]
+    g = torch.Generator().manual_seed(seed_for(seed, k, stream=0))
+    maps, refl = [], None
+    for _ in range(n):
+        name, arr = photos[int(torch.randint(len(photos), (), generator=g))]
+        h, w = arr.shape[:2]
+        if min(h, w) < size:
+            raise ValueError(f"data.size: {name} is {w} x {h}, smaller than the crop {size}")
+        y, x = (int(torch.randint(d - size + 1, (), generator=g)) for d in (h, w))
+        crop = np.ascontiguousarray(arr[y:y + size, x:x + size])
+        if float(torch.rand((), generator=g)) < 0.5:
+            crop = np.ascontiguousarray(crop[:, ::-1])
+        lifted = lift_srgb(crop, camera.wavelengths_nm)
+        maps.append(lifted["maps"].float())
+        refl = lifted["reflectance"].float()
+    return torch.stack(maps), refl[None].expand(n, -1, -1)
+
+
+def common_path(folder: str) -> Path:
+    from isettorch.paths import data_path
+
+    return data_path(folder)
+
+
+SOURCES = {"layouts": source_layouts, "natural": source_natural, "photos": source_photos}
+
+
+def targets(maps: torch.Tensor, reflectance: torch.Tensor, camera: DesignCamera) -> torch.Tensor:
+    """Linear sRGB ``[B, 3, H, W]`` of the scene under D65 (white = 1): each material's colour
+    (:func:`isettorch.design.linear_srgb_of_reflectance`) weighted by its map."""
+    rgb = linear_srgb_of_reflectance(reflectance.double(), camera.wavelengths_nm,
+                                     camera.config["scene"]["illuminant"])  # [B, J, 3]
+    return torch.einsum("bjc,bjhw->bchw", rgb.to(maps.dtype), maps)
+
+
+# ------------------------------------------------------------------------------------------------ training
+
+def _loss(out: torch.Tensor, target: torch.Tensor, crop: int, srgb_weight: float) -> torch.Tensor:
+    if crop:
+        out, target = out[..., crop:-crop, crop:-crop], target[..., crop:-crop, crop:-crop]
+    lin = (out - target).abs().mean()
+    enc = (srgb_encode(out.clamp(0, 1)) - srgb_encode(target.clamp(0, 1))).abs().mean()
+    return lin + srgb_weight * enc
+
+
+def validate(camera: DesignCamera, cfg: dict, source) -> dict:
+    """Mean CPSNR (dB, sRGB) per light level on the held-out batches (hard mosaic, fixed noise)."""
+    was = camera.training
+    camera.eval()
+    v = cfg["val"]
+    out = {}
+    with torch.no_grad():
+        for lux in cfg["lux"]:
+            scores = []
+            for b in range(int(v["batches"])):
+                seed = int(cfg["seed"]) + int(v["seed_offset"])
+                maps, refl = source(b, int(cfg["data"]["batch"]), int(cfg["data"]["size"]), camera, cfg, seed)
+                scene = camera.scene(maps, refl, float(lux))
+                g = torch.Generator().manual_seed(seed_for(seed, b, stream=round(1000 * float(lux))))
+                pred = camera(scene, float(lux), generator=g)
+                target = targets(maps, refl, camera)
+                scores.append(common.cpsnr(srgb_encode(pred.clamp(0, 1)), srgb_encode(target.clamp(0, 1)),
+                                           int(v["crop"])))
+            out[f"{float(lux):g}"] = float(torch.cat(scores).mean())
+    camera.train(was)
+    return out
+
+
+def plot_design(path: Path, camera: DesignCamera) -> None:
+    """The filters (transmittance against wavelength) and the hard mosaic cell."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    bank, mosaic = camera.bank, camera.mosaic
+    wl = bank.wavelengths_nm.numpy()
+    f = bank.filters.detach().numpy()
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6), gridspec_kw={"width_ratios": [2, 1]})
+    colours = []
+    for i, name in enumerate(bank.channel_names):
+        line, = a.plot(wl, f[i], label=name)
+        colours.append(line.get_color())
+    a.set_xlabel("wavelength (nm)")
+    a.set_ylabel("transmittance")
+    a.set_ylim(0, 1.02)
+    a.legend(fontsize=8)
+    a.grid(alpha=0.3)
+    idx = mosaic.index_map.numpy()
+    from matplotlib.colors import ListedColormap
+
+    b.imshow(idx, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5)
+    for (r, c), v in __import__("numpy").ndenumerate(idx):
+        b.text(c, r, bank.channel_names[v], ha="center", va="center", fontsize=8, color="white")
+    b.set_xticks([])
+    b.set_yticks([])
+    b.set_title("mosaic")
+    fig.suptitle(f"design {camera.name}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def train(cfg: dict, *, quiet: bool = False) -> dict:
+    cfg = merged_config(cfg)
+    if cfg["threads"]:
+        torch.set_num_threads(int(cfg["threads"]))
+    seed = int(cfg["seed"])
+    torch.manual_seed(seed)
+    source = SOURCES.get(cfg["data"]["source"])
+    if source is None:
+        raise ValueError(f"data.source: expected one of {sorted(SOURCES)}, got {cfg['data']['source']!r}")
+    name = cfg["name"] or (cfg["design"] if isinstance(cfg["design"], str) else "learned")
+    levels = [float(v) for v in cfg["lux"]]
+    camera = make_design(cfg["design"], dict(cfg["camera"]), levels, seed=seed, name=name).train()
+    o = cfg["optim"]
+    steps = int(o["steps"])
+    design_params = [p for n, p in camera.named_parameters() if p.requires_grad and not n.startswith("networks.")]
+    groups = [{"params": list(camera.networks.parameters()), "lr": float(o["lr"])}]
+    if design_params:
+        groups.append({"params": design_params, "lr": float(o["design_lr"])})
+    opt = torch.optim.Adam(groups)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=float(o["lr_min"]))
+    m = cfg["mosaic"]
+    anneal = max(1, round(float(m["anneal_fraction"]) * steps))
+    out_dir = Path(cfg["out"])
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows, t0 = [], time.time()
+    b, size = int(cfg["data"]["batch"]), int(cfg["data"]["size"])
+    for step in range(steps):
+        lux = levels[step % len(levels)]
+        if camera.mosaic.learnable:
+            camera.mosaic.temperature = temperature_schedule(step, anneal, float(m["temperature_start"]),
+                                                             float(m["temperature_end"]))
+            if step >= float(m["straight_through_after"]) * steps:
+                camera.mosaic.relax = "straight_through"
+        maps, refl = source(step, b, size, camera, cfg, seed)
+        scene = camera.scene(maps, refl, lux)
+        g = torch.Generator().manual_seed(seed_for(seed, step, stream=1))
+        pred = camera(scene, lux, generator=g)
+        loss = _loss(pred, targets(maps, refl, camera), int(cfg["loss_crop"]), float(o["srgb_weight"]))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        row = {"step": step + 1, "lux": lux, "loss": float(loss), "temperature": camera.mosaic.temperature,
+               "seconds": round(time.time() - t0, 2)}
+        every = int(cfg["val"]["every"])
+        if (every and (step + 1) % every == 0) or step + 1 == steps:
+            for key, v in validate(camera, cfg, source).items():
+                row[f"val_cpsnr_{key}"] = v
+            if not quiet:
+                print(json.dumps(row), flush=True)
+        rows.append(row)
+    camera.eval()
+    if camera.bank.learnable:
+        camera.bank.freeze()
+    final = {k[len("val_cpsnr_"):]: v for k, v in rows[-1].items() if k.startswith("val_cpsnr_")}
+    camera.config["training"] = {"steps": steps, "batch": b, "size": size, "source": cfg["data"]["source"],
+                                 "seed": seed, "lux": levels, "lr": float(o["lr"]), "design_lr": float(o["design_lr"]),
+                                 "minutes": round((time.time() - t0) / 60, 2)}
+    card = design_card(camera) + "\nHeld-out training-distribution scenes (sRGB CPSNR, dB): " + ", ".join(
+        f"{k} lux {v:.2f}" for k, v in final.items()) + "\n"
+    path = save_design(camera, out_dir / "design.pt", card=card)
+    (out_dir / "card.md").write_text(card)
+    common.write_csv(out_dir / "history.csv", rows)
+    val_keys = [(f"val_cpsnr_{float(v):g}", f"CPSNR {float(v):g} lux (dB)") for v in levels]
+    common.plot_curves(out_dir / "curves.png", rows, [("loss", "loss"), *val_keys], f"codesign {name}")
+    plot_design(out_dir / "filters.png", camera)
+    record = {"design": name, "path": str(path), "val_cpsnr": final, "steps": steps,
+              "seconds": round(time.time() - t0, 1), "mosaic": camera.mosaic.cell,
+              "hardware": common.hardware(), "config": cfg}
+    (out_dir / "record.json").write_text(json.dumps(record, indent=2))
+    return record
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--config", required=True, help="YAML config (configs/train/codesign_*.yaml)")
+    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="overrides, e.g. optim.steps=10")
+    p.add_argument("--quiet", action="store_true")
+    args = p.parse_args(argv)
+    record = train(common.load_config(args.config, args.set), quiet=args.quiet)
+    print(json.dumps({k: record[k] for k in ("design", "path", "val_cpsnr", "steps", "seconds")}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
