@@ -360,12 +360,15 @@ def _illuminants(kind: torch.Tensor, u: torch.Tensor, u_f: torch.Tensor, wl, lo_
 def _smooth_field(nb, h, w, g, device, dtype, max_cycles: float = 1.5) -> torch.Tensor:
     """Sum of three random low-frequency plane waves per item, rescaled to span exactly [0, 1] ``[B, H, W]``
     (:func:`isettorch.data.scenes._smooth_field`)."""
-    fr = _u(g, (nb, 3, 1, 1), 0.3, max_cycles, device=device)
-    a = _u(g, (nb, 3, 1, 1), hi=math.pi, device=device)
-    ph = _u(g, (nb, 3, 1, 1), hi=2 * math.pi, device=device)
-    y = torch.linspace(0.0, 1.0, h, dtype=torch.float64, device=device)[:, None]
-    x = torch.linspace(0.0, 1.0, w, dtype=torch.float64, device=device)[None, :]
-    f = torch.sin(2 * math.pi * fr * (torch.sin(a) * y + torch.cos(a) * x) + ph).sum(1)
+    fr = _u(g, (nb, 3, 1), 0.3, max_cycles, device=device)
+    a = _u(g, (nb, 3, 1), hi=math.pi, device=device)
+    ph = _u(g, (nb, 3, 1), hi=2 * math.pi, device=device)
+    y = torch.linspace(0.0, 1.0, h, dtype=torch.float64, device=device)[None, None, :]
+    x = torch.linspace(0.0, 1.0, w, dtype=torch.float64, device=device)[None, None, :]
+    # each plane wave is separable, sin(A x + B y + p) = sin(A x) cos(B y + p) + cos(A x) sin(B y + p): a rank-6
+    # product [H, 6] @ [6, W] per item instead of three full-image sines
+    ay, ax = 2 * math.pi * fr * torch.sin(a) * y + ph, 2 * math.pi * fr * torch.cos(a) * x  # [B, 3, H], [B, 3, W]
+    f = torch.cat([torch.cos(ay), torch.sin(ay)], 1).transpose(1, 2) @ torch.cat([torch.sin(ax), torch.cos(ax)], 1)
     lo, hi = f.amin(dim=(1, 2), keepdim=True), f.amax(dim=(1, 2), keepdim=True)
     return ((f - lo) / (hi - lo).clamp_min(1e-6)).to(dtype)
 
@@ -378,8 +381,9 @@ def draw_layout_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[in
     ``g`` on ``device``: the factors of ``L(x, l) = k gain(x) R(x, l) (a(x) E1(l) + b(x) E2(l))``
     (:mod:`isettorch.data.scenes`), returned as
 
-    ``maps [B, J, H, W]`` (``dtype``), ``spectra [B, J, L]`` and ``white [B, L]`` (float64, photons/s/sr/m^2/nm,
-    mean luminance set), ``wavelengths_nm [L]`` (float64) and ``meta``: ``[B]`` tensors ``layout`` (code in
+    ``maps [B, J, H, W]`` (``dtype``), ``used [B, J]`` (bool: the map is not 0 everywhere), ``spectra [B, J, L]``
+    and ``white [B, L]`` (float64, photons/s/sr/m^2/nm, mean luminance set), ``wavelengths_nm [L]`` (float64) and
+    ``meta``: ``[B]`` tensors ``layout`` (code in
     :data:`LAYOUT_CODES`), ``illuminant_kind`` (code in :data:`ILLUMINANT_KIND_CODES`), ``illuminant_code``
     (:data:`isettorch.data.camera_pairs.ILLUMINANT_CODES`), ``cct_k``, ``two_lights``, ``shadow``,
     ``hdr_decades``, ``mean_luminance_cd_m2`` and, for dead leaves, ``leaf_radius [B, 800]`` / ``leaf_count``.
@@ -469,5 +473,8 @@ def draw_layout_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[in
     ill_code = torch.where(kind1 == 2, f_code, codes[kind1])
     meta = {"layout": layout, "illuminant_kind": kind1, "illuminant_code": ill_code, "cct_k": cct1,
             "two_lights": two, "shadow": shadow, "hdr_decades": decades, "mean_luminance_cd_m2": target, **extra}
-    return {"maps": maps.reshape(nb, -1, h, w), "spectra": spectra * scale[:, None, None],
+    # terms whose map is 0 everywhere (palette colours a layout does not use, the second light of a one-light item)
+    # add exactly 0 to the radiance: marked, so the renderer can leave them out (fewer FFTs)
+    used = maps.amax(-1) > 0
+    return {"maps": maps.reshape(nb, -1, h, w), "used": used, "spectra": spectra * scale[:, None, None],
             "white": e1 * scale[:, None], "wavelengths_nm": wl, "meta": meta}

@@ -238,7 +238,15 @@ class PairStream:
         from ..scene import Scene
 
         dt = self.dtype
-        return Scene.from_factors(drawn["maps"][idx], drawn["spectra"][idx].to(dt), wl, name=f"stream-{k}",
+        # the group's terms whose map is not 0 everywhere first, J = the most any item uses (one host read): the
+        # others add exactly 0, so the optics transform fewer maps (as the per-item path drops them)
+        idx = torch.arange(drawn["maps"].shape[0], device=self.device) if isinstance(idx, slice) else idx
+        used = drawn["used"][idx]
+        n_terms = max(1, int(used.sum(1).max()))
+        order = torch.argsort((~used).to(torch.uint8), dim=1, stable=True)[:, :n_terms]
+        rows = idx[:, None]
+        return Scene.from_factors(drawn["maps"][rows, order], drawn["spectra"][rows, order].to(dt), wl,
+                                  name=f"stream-{k}",
                                   hfov_deg=hfov.to(dt), distance_m=distance.to(dt),
                                   illuminant_photons=drawn["white"][idx].to(dt), validate=False,
                                   metadata={key: v[idx] for key, v in drawn["meta"].items()})

@@ -202,11 +202,20 @@ class ShiftInvariantLens(nn.Module):
             row = self._otf_rows.get(row_key)
             if row is None:
                 row = self.otf(fy[b:b + 1], fx[b:b + 1], wavelengths_nm, n[b:b + 1]).detach()
+                if not row.is_complex():  # kept interleaved (see _interleaved): the batch is one copy of rows
+                    row = row[..., None].expand(*row.shape, 2).contiguous()
                 self._otf_rows[row_key] = row
                 if len(self._otf_rows) > 8 * _CACHE_SIZE:
                     self._otf_rows.popitem(last=False)
             rows.append(row)
-        return torch.cat(rows)
+        out = torch.cat(rows)
+        if out.is_complex():
+            return out
+        plain = out[..., 0]  # a view: the interleaved batch is registered as its interleaved copy
+        if len(self._interleaved_cache) >= _CACHE_SIZE:
+            self._interleaved_cache.clear()
+        self._interleaved_cache[id(plain)] = (plain, out)
+        return plain
 
     def clear_cache(self) -> None:
         self._otf_cache.clear()
