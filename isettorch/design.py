@@ -58,6 +58,9 @@ SHIPPED_DESIGNS = ("bayer_rgb", "ycmy", "rgbw", "learned")
 
 #: the camera every design shares (``config`` overrides any key); units in the names
 DESIGN_DEFAULTS: dict[str, dict[str, Any]] = {
+    # the library's fixed filters divided by their set's peak (FilterBank fixed_scale), so a fixed filter can
+    # transmit as much as a learned one (ISETCam's r, g, b tables peak at 0.39)
+    "filters": {"fixed_scale": "peak"},
     "optics": {"f_number": 2.0, "focal_length_m": 3.862755099e-3},
     # ISETCam's default pixel (2.8 um, fill 0.75, 1e-4 V/e-, 1 V swing: 10000 e- well) with a modern 2 e- read
     # noise, 10 e-/s dark current and a 10-bit ADC
@@ -263,6 +266,7 @@ def design_card(camera: DesignCamera, results: dict | None = None) -> str:
     lines = [f"# Camera design `{camera.name or 'unnamed'}`", "",
              f"Filters ({bank.num_channels}): "
              + ", ".join(f"{n} ({s})" for n, s in zip(bank.channel_names, bank.spec)),
+             f"Fixed filters: the library's, scaled {cfg['filters']['fixed_scale']!r}.",
              "", f"Mosaic {mosaic.shape[0]}x{mosaic.shape[1]} ({frac}):", "", cell, "",
              f"Optics: diffraction-limited, f/{cfg['optics']['f_number']:g}, focal length "
              f"{cfg['optics']['focal_length_m'] * 1e3:g} mm.",
@@ -356,8 +360,9 @@ def load_design(design, *, device=None) -> DesignCamera:
 def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name: str | None = None) -> DesignCamera:
     """A :class:`DesignCamera` from a design spec: a fixed design's name (``'bayer_rgb'``, ``'ycmy'``, ``'rgbw'``)
     or a mapping ``{"filters": [...], "mosaic_shape": [P, Q], "relax": ...}`` for a learned design."""
+    scale = _merge(DESIGN_DEFAULTS, config)["filters"]["fixed_scale"]
     if isinstance(spec, str):
-        bank, mosaic = fixed_design(spec)
+        bank, mosaic = fixed_design(spec, fixed_scale=scale)
         return DesignCamera(bank, mosaic, config, lux, name=name or spec)
     if not isinstance(spec, dict):
         raise ValueError(f"design: expected a fixed design name or a mapping, got {spec!r}")
@@ -366,6 +371,7 @@ def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name
         raise ValueError(f"design.{unknown[0]}: unknown key; expected filters, mosaic_shape, relax, band_width_nm, "
                          f"max_log_odds")
     bank_kwargs = {k: float(spec[k]) for k in ("band_width_nm", "max_log_odds") if k in spec}
+    bank_kwargs["fixed_scale"] = scale
     bank, mosaic = learned_design(tuple(spec.get("filters", ("learned", "learned", "learned", "W"))),
                                   tuple(spec.get("mosaic_shape", (4, 4))), seed=seed,
                                   relax=spec.get("relax", "softmax"), bank_kwargs=bank_kwargs)

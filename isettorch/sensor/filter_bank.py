@@ -17,7 +17,11 @@ sensitivities (NPL, Nikon 5100 and Sigma SDMerill, normalised to peak 1) reach 0
 default r, g, b filters 0.0099 / nm; absorptive pigment and dye CFA filters have edges tens of nm wide.
 
 Fixed filters are the library's (:func:`isettorch.sensor.filters.filter_set`): R, G, B (``'isetcam_rgb'``),
-C, Y, M (``'isetcam_cmy'``) and W (``'clear'``, 1 at every wavelength).
+C, Y, M (``'isetcam_cmy'``) and W (``'clear'``, 1 at every wavelength). ISETCam's r, g, b tables peak at 0.39,
+0.35 and 0.29; with ``fixed_scale='peak'`` each set is divided by its largest value (its most transmissive channel
+peaks at 1, the channels keep their ratios, as :func:`~isettorch.sensor.filters.filter_set` does for the measured
+camera sets), so fixed and learned filters can transmit as much and a clear pixel collects about 3.8 times the
+D65 photons of a green one (11 times with the raw tables).
 
 References: learned filter responses trained with the reconstruction network, Nie, Gu, Zheng, Lam, Sato & Sato,
 "Deeply learned filter response functions for hyperspectral reconstruction", CVPR 2018; learned colour filter
@@ -98,6 +102,8 @@ class FilterBank(SpectralQE):
         names: channel names (default: the letter of a fixed filter, ``F<i>`` for the i-th learned one).
         seed: the initial learned filters' small perturbation (their bands start as band-pass filters spaced
             evenly over the grid).
+        fixed_scale: ``'table'`` (the library's values) or ``'peak'`` (each set divided by its maximum; module
+            docstring).
 
     Example:
         >>> bank = FilterBank(["learned", "learned", "learned", "W"])
@@ -107,7 +113,7 @@ class FilterBank(SpectralQE):
 
     def __init__(self, filters: Sequence[str], wavelengths_nm=None, *, band_width_nm: float = 50.0,
                  max_log_odds: float = 3.0, learnable: bool = True, ir_filter=None, pixel_qe=None,
-                 names: Sequence[str] | None = None, seed: int = 0) -> None:
+                 names: Sequence[str] | None = None, seed: int = 0, fixed_scale: str = "table") -> None:
         spec = [str(f) for f in filters]
         if not spec:
             raise ValueError("filters: expected at least one filter")
@@ -115,6 +121,8 @@ class FilterBank(SpectralQE):
         if bad:
             raise ValueError(f"filters: unknown filter {bad[0]!r}; expected 'learned' or one of "
                              f"{sorted(FIXED_FILTERS)}")
+        if fixed_scale not in ("table", "peak"):
+            raise ValueError(f"fixed_scale: expected 'table' or 'peak', got {fixed_scale!r}")
         if not (band_width_nm > 0 and math.isfinite(band_width_nm)):
             raise ValueError(f"band_width_nm: expected a positive width, got {band_width_nm!r}")
         if not (max_log_odds > 0 and math.isfinite(max_log_odds)):
@@ -133,9 +141,12 @@ class FilterBank(SpectralQE):
                 rows.append(torch.zeros_like(grid))
             else:
                 _, vals, letters = filter_set(FIXED_FILTERS[f], grid, dtype=torch.float64)
+                if fixed_scale == "peak":
+                    vals = vals / vals.max()
                 rows.append(vals[letters.index(f)])
         super().__init__(torch.stack(rows), grid, names, ir_filter=ir_filter, pixel_qe=pixel_qe, learnable=False)
         self.spec = spec
+        self.fixed_scale = fixed_scale
         self.band_width_nm = float(band_width_nm)
         self.max_log_odds = float(max_log_odds)
         lo, hi = float(grid.min()), float(grid.max())

@@ -182,6 +182,23 @@ def test_clear_pixel_photon_advantage():
     assert np.isfinite(w_rate)
 
 
+def test_peak_scaled_fixed_filters():
+    """fixed_scale='peak': each library set divided by its maximum (ratios kept); a clear pixel then collects
+    sum(E) / sum(E T_G) = 3.8x the D65 photons of a green one (the "about three times" of a real RGBW sensor)."""
+    bank = FilterBank(["R", "G", "B", "C", "Y", "M", "W"], learnable=False, fixed_scale="peak")
+    _, rgb, _ = filter_set("isetcam_rgb", WL, dtype=torch.float64)
+    _, cym, _ = filter_set("isetcam_cmy", WL, dtype=torch.float64)
+    expected = torch.cat([rgb / rgb.max(), cym / cym.max(), torch.ones(1, 31, dtype=torch.float64)])
+    torch.testing.assert_close(bank.filters, expected, rtol=0, atol=1e-15)
+    assert float(bank.filters[:6].amax()) == 1.0 and float(bank.filters[0].max()) == 1.0  # R peaks at 1
+    assert float(bank.filters[1].max()) == pytest.approx(0.347794 / 0.386465)  # G keeps its ratio to R
+    e = spectral.energy_to_photons(spectral.illuminant("D65", WL, dtype=torch.float64), WL, dim=0).numpy()
+    ratio = e.sum() / (e * bank.filters[1].numpy()).sum()
+    assert 3.0 < ratio < 4.5
+    with pytest.raises(ValueError, match="fixed_scale"):
+        FilterBank(["R"], fixed_scale="unit")
+
+
 def test_design_parameters_belong_to_the_sensor():
     bank, mosaic = learned_design(("learned", "learned", "W"), (4, 4))
     s = design_sensor(bank, mosaic, rows=8, cols=8)
