@@ -33,6 +33,8 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                       (["{images}", "--model", "{garbage}"], "--model"),
                       (["{images}", "--method", "no_such_method"], "--method"),
                       (["{images}", "--crop", "-1"], "--crop")],
+    "design-eval": [([MISSING, "{images}"], "DESIGN"), (["learned", "{images}"], "DESIGN: the shipped design"),
+                    (["{garbage}", "{images}"], "DESIGN")],
     "lens-report": [([MISSING, "--json"], "no_such_input"),
                     (["cooke_triplet", "--fields", "a,b", "--json"], "--fields")],
     "parity": [([MISSING + ".npz"], "no_such_input.npz"), (["{tmp}/x.npz", "--repeat", "-1"], "--repeat")],
