@@ -23,7 +23,8 @@ def test_builtin_configs_are_package_data():
     # Every camera config lives inside the package and matches a package-data glob of pyproject.toml, so the
     # wheel carries it (.ci/run checks the installed wheel itself from an empty folder).
     files = sorted(p.relative_to(PACKAGE).as_posix() for p in (PACKAGE / "configs" / "cameras").glob("*.yaml"))
-    assert files == [f"configs/cameras/{n}.yaml" for n in ("cooke_lens", "default", "imx363", "paper2004_cds")]
+    assert files == [f"configs/cameras/{n}.yaml" for n in ("cooke_lens", "default", "imx363", "isetcam_microlens",
+                                                           "paper2004_cds", "phone_microlens")]
     globs = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["isettorch"]
     for f in files:
         assert any(fnmatch(f, g) for g in globs), (f, globs)
@@ -33,7 +34,8 @@ def test_builtin_configs_are_package_data():
 
 def test_from_config_by_name_from_any_directory(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # nothing relative to the checkout
-    assert camera_config_names() == ["cooke_lens", "default", "imx363", "paper2004_cds"]
+    assert camera_config_names() == ["cooke_lens", "default", "imx363", "isetcam_microlens", "paper2004_cds",
+                                     "phone_microlens"]
     cam = Camera.from_config("default")
     assert cam.name == "default" and float(cam.optics.f_number) == 4.0
     assert abs(float(cam.optics.focal_length_m) - 3.862755099e-3) < 1e-15

@@ -3,7 +3,7 @@
 Signal chain (per pixel, ISETCam ``sensorCompute`` / Farrell et al. SPIE 2004 / EMVA 1288):
 
 1. electrons/s = area (or point) sample of ``sum_lambda E(lambda) QE_c(lambda) dlambda`` x pixel area x fill
-   factor (x optional pixel vignetting);
+   factor (x optional pixel vignetting; x the microlens etendue map of ``pixel_optics``, ``microlens.py``);
 2. mean photo-electrons = rate x exposure (x (1 + PRNU) when PRNU is on);
 3. + dark electrons (dark current x exposure), shot noise on the total (Poisson / Gaussian / off);
 4. volts = electrons x conversion gain + read noise + DSNU + column offsets (with CDS the fixed offsets
@@ -32,6 +32,7 @@ from . import noise as _noise
 from .cfa import CFA
 from .exposure import AE_METHODS, auto_exposure
 from .filters import SpectralQE
+from .microlens import PixelOptics
 from .noise_terms import NoiseTerms
 from .presets_emva import EMVA_PRESETS
 from .raw import RawImage
@@ -100,6 +101,10 @@ class Sensor(nn.Module):
             (ISETCam's order: dark, shot with Gaussian-rounded counts above 25 e-, read, then ``v (1 + PRNU) + DSNU``).
         cds: correlated double sampling (fixed offsets cancel, read noise sampled twice).
         vignetting: optional pixel vignetting / etendue map ``[rows, cols]`` (or scalar) multiplying the signal.
+        pixel_optics: microlens / pixel-stack optics (:class:`~isettorch.sensor.microlens.PixelOptics` or a dict of
+            its arguments, e.g. ``{"method": "optimal", "layer_thicknesses_m": [2e-6, 5e-6]}``): the etendue map
+            over the array from each pixel's chief-ray angle (ISETCam ``sensorVignetting``), applied to the signal
+            (per wavelength with ``diffraction``). None (default): no pixel optics.
         sampling: ``'area'`` (integrate over the photodiode, OI samples as cell means; default),
             ``'area_linear'`` (integrate the bilinear reconstruction of the OI) or ``'isetcam'`` (ISETCam's
             Gaussian pre-blur + bilinear point sampling at pixel centres); ``preblur_size`` overrides ISETCam's k.
@@ -126,7 +131,7 @@ class Sensor(nn.Module):
                  shot_noise: str = "poisson", read_noise_v: float = 0.0, dark_current_e_per_s: float = 0.0,
                  dsnu_sigma_v: float = 0.0, prnu_sigma_percent: float = 0.0, column_fpn_sigma_v: float = 0.0,
                  fpn_mode: str = "fixed", noise_model: str = "physical", cds: bool = False, vignetting=None,
-                 sampling: str = "area",
+                 pixel_optics=None, sampling: str = "area",
                  preblur_size: int | None = None, output_units: str | None = None, seed: int = 0,
                  name: str = "",
                  row_noise_v: float = 0.0, column_noise_v: float = 0.0, read_noise_tukey_lambda: float | None = None,
@@ -211,6 +216,11 @@ class Sensor(nn.Module):
             if (vignetting < 0).any() or not torch.isfinite(vignetting).all():
                 raise ValueError("vignetting: expected finite non-negative factors")
         self.register_buffer("vignetting", vignetting)
+        if isinstance(pixel_optics, dict):
+            pixel_optics = PixelOptics(**pixel_optics)
+        if pixel_optics is not None and not isinstance(pixel_optics, PixelOptics):
+            raise TypeError(f"pixel_optics: expected None, a dict or a PixelOptics, got {type(pixel_optics).__name__}")
+        self.pixel_optics = pixel_optics
         # Real-raw noise terms (row/column banding, Tukey read noise, dark shading, defects, full well):
         # isettorch.sensor.noise_terms; all off by default.
         self.noise_terms = NoiseTerms(row_noise_v=row_noise_v, column_noise_v=column_noise_v,
@@ -385,13 +395,20 @@ class Sensor(nn.Module):
         """
         if not isinstance(oi, OpticalImage):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
-        if extra_weights is None:
+        po = self.pixel_optics
+        c = len(self.cfa.channel_names)
+        if po is not None and po.wavelength_dependent:
+            sampled = self._sample_with_spectral_etendue(oi, extra_weights)
+        elif extra_weights is None:
             density = self.electron_rate_density(oi)  # e-/s/m^2 per filter
+            sampled = self.sample(density, oi)
         else:
             density = oi.project(self._joint_weights(oi, extra_weights))
-        sampled = self.sample(density, oi)
-        c = len(self.cfa.channel_names)
-        area = self.fill_factor * self.pixel_area_m2
+            sampled = self.sample(density, oi)
+        # with pixel optics in the physical convention the light of the whole pixel meets the etendue, which
+        # holds the photodiode's width; otherwise the photodiode's area (ISETCam sensorCompute)
+        physical = po is not None and po.convention == "physical"
+        area = self.pixel_area_m2 if physical else self.fill_factor * self.pixel_area_m2
         if qe_scale is None:
             rates = sampled[:, :c] * area
         elif isinstance(qe_scale, (int, float)) and not isinstance(qe_scale, bool):
@@ -404,7 +421,30 @@ class Sensor(nn.Module):
             rates = sampled[:, :c] * (area * k.reshape(-1, 1, 1, 1))
         if self.vignetting is not None:
             rates = rates * self.vignetting.to(rates.dtype).to(rates.device)
+        if po is not None and not po.wavelength_dependent:
+            rates = rates * self.etendue_map(oi)[:, None].to(rates.dtype)
         return rates, (sampled[:, c:] if extra_weights is not None else None)
+
+    def etendue_map(self, oi: OpticalImage) -> torch.Tensor:
+        """The pixel optics' etendue at every pixel for ``oi``'s geometry: ``[B, rows, cols]`` (``[B, L, rows, cols]``
+        with diffraction); ones when the sensor has no ``pixel_optics``."""
+        rows, cols = self.size_for(oi)
+        if self.pixel_optics is None:
+            return torch.ones(oi.batch_size, rows, cols, dtype=torch.float64, device=oi.device)
+        return self.pixel_optics.etendue_map(oi, rows, cols, self.pixel_size_m, self.fill_factor).to(oi.device)
+
+    def _sample_with_spectral_etendue(self, oi: OpticalImage, extra_weights: torch.Tensor | None) -> torch.Tensor:
+        """Pixel values ``[B, C (+ K), rows, cols]`` when the etendue depends on the wavelength: every band is
+        sampled, weighted by its etendue map, then projected on the QE (the extra weightings without the etendue,
+        as in the wavelength-independent path)."""
+        bands = self.sample(oi.photons, oi)  # [B, L, rows, cols] photons/s/m^2/nm at the pixels
+        emap = self.etendue_map(oi).to(bands.dtype)  # [B, L, rows, cols]
+        qe_w = self.spectral_weights(oi)  # [L, C]
+        out = torch.einsum("blrc,lk->bkrc", bands * emap, qe_w)
+        if extra_weights is not None:
+            extra = torch.einsum("blrc,lk->bkrc", bands, extra_weights.to(device=oi.device, dtype=bands.dtype))
+            out = torch.cat([out, extra], 1)
+        return out
 
     def _joint_weights(self, oi: OpticalImage, extra: torch.Tensor) -> torch.Tensor:
         """``[L, C + K]``: the QE weightings then ``extra``'s (memoised per pair of tensors when neither needs a

@@ -125,6 +125,22 @@ class LensOptics(nn.Module):
             self._c[key] = (fr * a.max_field_deg, y, ri)
         return self._c[key]
 
+    def chief_ray_angle_table(self, wavelength_nm: float = REFERENCE_WAVELENGTH_NM) -> dict:
+        """The traced image-space chief-ray angle against image height on the sensor plane, at
+        ``distortion_samples`` fields (cached): ``{'image_height_m': [N], 'cra_deg': [N]}``; the angle is positive
+        when the chief ray travels away from the axis (the sensor's pixel optics read it, ``Sensor(pixel_optics)``)."""
+        key = ("cra", round(wavelength_nm, 6))
+        if key not in self._c:
+            a = self._a
+            _, y_mm, _ = self._radial_tables(wavelength_nm)
+            with torch.no_grad():
+                cra = torch.stack([a.chief_ray_angle_deg(float(f), wavelength_nm)
+                                   for f in torch.linspace(0, 1, self.distortion_samples).tolist()])
+            sign = torch.where(y_mm < 0, -1.0, 1.0).to(cra)
+            self._c[key] = {"image_height_m": (y_mm.abs() * 1e-3).to(torch.float64),
+                            "cra_deg": (cra * sign).to(torch.float64)}
+        return self._c[key]
+
     def _psf_stack(self, wavelengths_nm: tuple[float, ...], dx_mm: float, r_max_mm: float):
         """PSFs ``[L, F, A, s, s]`` on the polar (field height x azimuth) grid, cached."""
         key = ("psfs", wavelengths_nm, round(dx_mm, 12), round(r_max_mm, 9), self.field_samples,
@@ -292,7 +308,8 @@ class LensOptics(nn.Module):
         # image distance as the sensor's FOV sizing reads it: image height per tan(field angle) (EFL at infinity)
         d_img = fl if math.isinf(self.focus_distance_m) else torch.full((b,), efl_mm * 1e-3, dtype=dt, device=dev)
         meta = {"full_shape": (hh, ww), "full_pad": (m, m), "psf_size": 2 * m + 1,
-                "object_distance_m": d_obj, "focus_distance_m": self.focus_distance_m}
+                "object_distance_m": d_obj, "focus_distance_m": self.focus_distance_m,
+                "chief_ray_angle": self.chief_ray_angle_table()}
         res = OpticalImage(out, scene.wavelengths_nm, name=scene.name, metadata=meta,
                            sample_spacing_m=torch.full((b,), dx_mm * 1e-3, dtype=dt, device=dev), focal_length_m=fl,
                            f_number=self.f_number.to(dt).expand(b), image_distance_m=d_img, pad_rows=m, pad_cols=m,

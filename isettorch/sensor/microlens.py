@@ -1,0 +1,642 @@
+"""Microlens and pixel-stack optics: the fraction of a pixel's light that reaches its photodiode (the etendue of
+ISET), per chief-ray angle, with no microlens, a centred microlens or a microlens at the optimal offset.
+
+Model (Catrysse & Wandell, "Optical efficiency of image sensor pixels", JOSA A 19(8), 2002; ISETCam
+``mlRadiance``, ``mlAnalyzeArrayEtendue``, ``mlensCreate``, ``mlensGet('optimal offset')``): 1-D ray phase space
+(position x, direction sine p = n sin(theta), conserved across the flat layers of the stack):
+
+1. source: a box of rays, |x| < D / 2 (the microlens aperture D) and p in sin(CRA) +- NA with
+   NA = sin(atan(1 / (2 N_source))) (a Lambertian exit pupil of f-number N_source seen from the pixel);
+2. microlens (when present): p -> p + sin(atan(x / f_air)), f_air = f_ml / 1.52 (ISETCam's ``rStack``: the
+   microlens focal length is given in the stack; in air-momentum units its power is n / f_ml);
+3. offset: x -> x + o (positive o compensates a positive CRA);
+4. each layer (thickness t_i, index n_i): x -> x - t_i tan(asin(p / n_i));
+5. etendue = (rays inside the photodiode, |x| < d / 2) / (source rays over the pixel aperture, |x| < p_pixel / 2).
+
+The optimal offset is the chief ray's walk through the stack, ``sum_i t_i tan(asin(sin(CRA) / n_i))``
+(``mlensGet(ml, 'optimal offset')``). ISETCam's default pixel (``pixelCreate('default')``) is 2.8 um wide with a
+2.42487 um photodiode (75 % fill) under a 7 um stack of two layers, 2 um at n = 2.0 and 5 um at n = 1.46; its
+default microlens (``mlensCreate``) has f = 7 um (the pixel depth), f/2.5 (D = the pixel width) and refractive index
+1.5 (used only for the array's optimal offsets, ``mlOptimalOffsets``); the source is the default optics, f/4 with
+f = 3.8628 mm; the wavelength 500 nm. These are this module's defaults.
+
+Two ways to count the rays (``sampling``):
+
+* ``'continuous'`` (default): the phase-space areas are integrated exactly along x for a fine grid of directions
+  (the inside-length of each segment between x samples follows the crossing of the photodiode edge, linearly), so
+  the etendue is a smooth function of the stack height, the offset and the microlens focal length (gradients);
+* ``'isetcam'``: ISETCam's own 255 x 255 phase-space grid over x in +-2 D and p in +-0.99, each transform a
+  forward map of the grid points re-binned to the nearest grid cell with the cell's mean (``ffndgrid``). Its
+  numbers are ISETCam's to the last digit of the grid; no gradients.
+
+Both drop rays whose direction sine leaves ISETCam's grid (|p| >= 0.99) at the microlens.
+
+``diffraction=True`` adds what the ray model leaves out: each ray lands as a Gaussian approximation to the
+Fraunhofer pattern of the aperture (microlens width D, or the pixel without a microlens) after the stack,
+sigma = 0.886 lambda_medium z / (2.355 D) with lambda_medium = lambda / n_mean (Goodman, *Introduction to Fourier
+Optics*, 3rd ed., section 4.4: the rectangular aperture's FWHM 0.886 lambda z / D). The etendue then depends on the
+wavelength (red light spreads more than blue), which ISETCam's ray model (its ``'angle'`` coordinates) does not.
+
+How this differs from :func:`isettorch.sensor.pixel_optics.pixel_vignetting` (the geometric model, kept as
+``model='geometric'``): that model is 2-D (a disk of directions over a square pixel), with an *ideal* microlens
+(every direction focuses to one point at the photodiode depth) and no diffraction; this one is ISET's 1-D phase
+space (separable in x and y, as ISETCam's pixel irradiance), with a microlens of finite focal length and aperture
+(its focus may lie above or below the photodiode; a beam of finite NA makes a spot of finite width), ISETCam's
+layered stack, and optional diffraction. The geometric model is the better physics for a 2-D beam at a large CRA
+when the microlens focuses on the photodiode; this one matches ISET and models defocused or small microlenses.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+__all__ = ["ISETCAM_PIXEL", "MICROLENS_METHODS", "PixelOptics", "microlens_radiance", "microlens_etendue",
+           "microlens_optimal_offset_m", "microlens_array_offsets_m"]
+
+MICROLENS_METHODS = ("none", "centred", "optimal")
+_ALIASES = {"centered": "centred", "no microlens": "none", "nomicrolens": "none", "bare": "none",
+            "optimized": "optimal"}
+
+# ISETCam's default pixel and microlens (pixelCreate('default'), mlensCreate, oiCreate optics, mlensCreate's 500 nm)
+ISETCAM_PIXEL: dict = dict(
+    pixel_size_m=2.8e-6, photodiode_size_m=math.sqrt(2.8e-6 ** 2 * 0.75),
+    layer_thicknesses_m=(2e-6, 5e-6), layer_indices=(2.0, 1.46),
+    microlens_focal_length_m=7e-6, microlens_f_number=2.5, microlens_index=1.5,
+    source_f_number=4.0, source_focal_length_m=3.862755099e-3, wavelength_nm=500.0,
+)
+
+_ISETCAM_STACK_INDEX = 1.52  # mlRadiance's rStack: the microlens focal length in air is f_ml / 1.52
+_P_MAX = 0.99  # mlCoordinates: the direction-sine grid ends at +-0.99
+
+
+def _method(method: str) -> str:
+    m = _ALIASES.get(str(method).lower(), str(method).lower())
+    if m not in MICROLENS_METHODS:
+        raise ValueError(f"method: expected one of {MICROLENS_METHODS} (or 'centered'), got {method!r}")
+    return m
+
+
+def _pos(v, name: str) -> None:
+    if isinstance(v, torch.Tensor):
+        if not bool(torch.isfinite(v).all()) or bool((v <= 0).any()):
+            raise ValueError(f"{name}: expected positive finite values, got {v.detach().flatten()[:4].tolist()}")
+        return
+    if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0):
+        raise ValueError(f"{name}: expected a positive number, got {v!r}")
+
+
+def _stack(layer_thicknesses_m, layer_indices, stack_height_m, stack_index, dtype, device):
+    """(thicknesses [K], indices [K]) in metres. ``stack_index`` replaces the layers by one of that index;
+    ``stack_height_m`` scales the layers to that total height (differentiable)."""
+    if stack_index is not None:
+        _pos(stack_index, "stack_index")
+        idx = torch.as_tensor(stack_index, dtype=dtype, device=device).reshape(1)
+        t = torch.as_tensor([float(sum(layer_thicknesses_m))], dtype=dtype, device=device)
+    else:
+        t = torch.as_tensor(layer_thicknesses_m, dtype=dtype, device=device).reshape(-1)
+        idx = torch.as_tensor(layer_indices, dtype=dtype, device=device).reshape(-1)
+        if t.numel() != idx.numel() or t.numel() == 0:
+            raise ValueError(f"layer_thicknesses_m, layer_indices: expected the same number (>= 1) of layers, got "
+                             f"{t.numel()} and {idx.numel()}")
+        if bool((t <= 0).any()):
+            raise ValueError(f"layer_thicknesses_m: expected positive thicknesses, got {t.tolist()}")
+    if bool((idx < 1).any()):
+        raise ValueError(f"layer_indices/stack_index: expected refractive indices >= 1, got {idx.tolist()}")
+    if stack_height_m is not None:
+        _pos(stack_height_m, "stack_height_m")
+        h = torch.as_tensor(stack_height_m, dtype=dtype, device=device)
+        t = t * (h / t.sum())
+    return t, idx
+
+
+def microlens_optimal_offset_m(chief_ray_angle_deg, *, layer_thicknesses_m=ISETCAM_PIXEL["layer_thicknesses_m"],
+                               layer_indices=ISETCAM_PIXEL["layer_indices"], stack_height_m=None,
+                               stack_index=None) -> torch.Tensor:
+    """Microlens offset that centres the chief ray on the photodiode: ``sum_i t_i tan(asin(sin(CRA) / n_i))``
+    (ISETCam ``mlensGet(ml, 'optimal offset')``; positive: towards the optical axis' side the chief ray comes
+    from, the sign :func:`microlens_radiance` uses). Tensor in, tensor out (metres)."""
+    cra = torch.as_tensor(chief_ray_angle_deg, dtype=torch.float64)
+    if not torch.is_floating_point(cra):
+        cra = cra.double()
+    _check_cra(cra)
+    t, n = _stack(layer_thicknesses_m, layer_indices, stack_height_m, stack_index, cra.dtype, cra.device)
+    s = torch.sin(torch.deg2rad(cra))[..., None]
+    return (t * torch.tan(torch.asin(s / n))).sum(-1)
+
+
+def microlens_array_offsets_m(rows: int, cols: int, pixel_size_m: float, *,
+                              source_focal_length_m: float = ISETCAM_PIXEL["source_focal_length_m"],
+                              microlens_focal_length_m: float = ISETCAM_PIXEL["microlens_focal_length_m"],
+                              microlens_index: float = ISETCAM_PIXEL["microlens_index"]) -> torch.Tensor:
+    """Optimal microlens offsets over an array ``[rows, cols]`` (m): ``f_ml tan(asin(sin(CRA) / n_ml))`` with
+    ``CRA = atan(r / f_source)`` at each pixel centre (ISETCam ``mlOptimalOffsets``: the microlens focal length
+    as the stack height and the microlens index as the stack's)."""
+    for v, name in ((pixel_size_m, "pixel_size_m"), (source_focal_length_m, "source_focal_length_m"),
+                    (microlens_focal_length_m, "microlens_focal_length_m"), (microlens_index, "microlens_index")):
+        _pos(v, name)
+    if not (isinstance(rows, int) and isinstance(cols, int) and rows > 0 and cols > 0):
+        raise ValueError(f"rows, cols: expected positive integers, got {rows!r}, {cols!r}")
+    y = (torch.arange(rows, dtype=torch.float64) - (rows - 1) / 2) * pixel_size_m
+    x = (torch.arange(cols, dtype=torch.float64) - (cols - 1) / 2) * pixel_size_m
+    r = torch.hypot(y[:, None], x[None, :])
+    cra = torch.atan(r / source_focal_length_m)
+    return microlens_focal_length_m * torch.tan(torch.asin(torch.sin(cra) / microlens_index))
+
+
+def _check_cra(cra: torch.Tensor) -> None:
+    if not bool(torch.isfinite(cra).all()) or bool((cra.abs() >= 90).any()):
+        raise ValueError(f"chief_ray_angle_deg: expected finite angles with |angle| < 90 deg, got "
+                         f"{cra.detach().flatten()[:6].tolist()}")
+
+
+def _params(chief_ray_angle_deg, method, offset_m, kw):
+    """Shared argument handling: (cra [A], method, thicknesses, indices, offset [A], geometry dict)."""
+    method = _method(method)
+    tensors = [v for v in (chief_ray_angle_deg, offset_m, kw["stack_height_m"], kw["stack_index"],
+                           kw["microlens_focal_length_m"]) if isinstance(v, torch.Tensor)]
+    dtype = torch.float64
+    device = tensors[0].device if tensors else torch.device("cpu")
+    cra = torch.as_tensor(chief_ray_angle_deg, dtype=dtype, device=device)
+    _check_cra(cra)
+    for name in ("pixel_size_m", "photodiode_size_m", "microlens_focal_length_m", "source_f_number",
+                 "wavelength_nm"):
+        _pos(kw[name], name)
+    if kw["source_f_number"] < 0.5 if not isinstance(kw["source_f_number"], torch.Tensor) else False:
+        raise ValueError(f"source_f_number: expected >= 0.5, got {kw['source_f_number']}")
+    if kw["photodiode_size_m"] > kw["pixel_size_m"]:
+        raise ValueError(f"photodiode_size_m: expected at most pixel_size_m={kw['pixel_size_m']}, got "
+                         f"{kw['photodiode_size_m']}")
+    f_ml = torch.as_tensor(kw["microlens_focal_length_m"], dtype=dtype, device=device)
+    if kw["microlens_diameter_m"] is not None:
+        _pos(kw["microlens_diameter_m"], "microlens_diameter_m")
+        diam = float(kw["microlens_diameter_m"])
+    else:
+        _pos(kw["microlens_f_number"], "microlens_f_number")
+        diam = float(kw["microlens_focal_length_m"]) / float(kw["microlens_f_number"])
+    if diam > kw["pixel_size_m"] * (1 + 1e-9):
+        raise ValueError(f"microlens_diameter_m: expected at most the pixel width {kw['pixel_size_m']}, got {diam} "
+                         f"(from the focal length / f-number)")
+    t, n = _stack(kw["layer_thicknesses_m"], kw["layer_indices"], kw["stack_height_m"], kw["stack_index"], dtype,
+                  device)
+    if method == "optimal":
+        s = torch.sin(torch.deg2rad(cra))[..., None]
+        off = (t * torch.tan(torch.asin(s / n))).sum(-1)
+        if offset_m is not None:
+            off = off + torch.as_tensor(offset_m, dtype=dtype, device=device)
+    elif method == "centred":
+        off = torch.zeros_like(cra) if offset_m is None else torch.as_tensor(offset_m, dtype=dtype, device=device)
+    else:
+        if offset_m is not None:
+            raise ValueError("offset_m: method 'none' has no microlens to offset")
+        off = torch.zeros_like(cra)
+    lam = torch.as_tensor(kw["wavelength_nm"], dtype=dtype, device=device) * 1e-9
+    shape_geo = torch.broadcast_shapes(cra.shape, off.shape)  # the rays' geometry; the wavelength only blurs
+    shape = torch.broadcast_shapes(shape_geo, lam.shape)
+    cra, off = (v.expand(shape_geo).reshape(-1) for v in (cra, off))
+    na = math.sin(math.atan(1.0 / (2.0 * float(kw["source_f_number"]))))
+    geo = dict(D=diam, p=float(kw["pixel_size_m"]), d=float(kw["photodiode_size_m"]), na=na, f_air=f_ml /
+               _ISETCAM_STACK_INDEX, lam=lam, shape=shape, shape_geo=shape_geo)
+    return cra, method, t, n, off, geo
+
+
+def _continuous(cra, method, t, n, off, geo, diffraction, samples, profile=True):
+    """Exact x-integration of the phase-space box per direction sample: (etendue [A], x_final [A, U, X],
+    weights [A, U, X])."""
+    nu, nx = samples
+    D, p, d, na = geo["D"], geo["p"], geo["d"], geo["na"]
+    dtype, dev = t.dtype, t.device
+    s = torch.sin(torch.deg2rad(cra))  # [A]
+    lo = (s - na).clamp(min=-_P_MAX)
+    hi = (s + na).clamp(max=_P_MAX)
+    if bool((hi <= lo).any()):
+        raise ValueError("chief_ray_angle_deg/source_f_number: the source's directions lie outside |p| < 0.99")
+    k = (torch.arange(nu, dtype=dtype, device=dev) + 0.5) / nu
+    u = lo[:, None] + (hi - lo)[:, None] * k  # [A, U] direction sines (midpoints)
+    x = torch.linspace(-D / 2, D / 2, nx + 1, dtype=dtype, device=dev)  # segment ends
+    pu = u[:, :, None].expand(-1, -1, nx + 1)
+    if method != "none":
+        pu = pu + torch.sin(torch.atan(x / geo["f_air"]))
+    valid = pu.abs() < _P_MAX
+    pc = pu.clamp(-_P_MAX, _P_MAX)
+    walk = (t * torch.tan(torch.asin(pc[..., None] / n))).sum(-1)  # [A, U, X+1]
+    xf = x + off[:, None, None] - walk
+    shape, shape_geo = geo["shape"], geo["shape_geo"]
+    lead = (1,) * (len(shape) - len(shape_geo))
+    width = (hi - lo) / (2 * na)  # directions kept within the grid
+
+    def full(v):  # [A_geo, ...] -> [A, ...] over the broadcast (geometry x wavelength) shape
+        rest = tuple(v.shape[1:])
+        return v.reshape((*lead, *shape_geo, *rest)).expand((*shape, *rest)).reshape((-1, *rest))
+
+    if diffraction:
+        sigma = _diffraction_sigma_m(t, n, geo, method)[:, None, None]
+        xf, valid, width = full(xf), full(valid), full(width)
+        half = d / 2
+        phi = torch.special.ndtr
+        g = phi((half - xf) / sigma) - phi((-half - xf) / sigma)
+        g = torch.where(valid, g, torch.zeros_like(g))
+        inside = 0.5 * (g[..., 1:] + g[..., :-1])  # trapezoid over each segment
+    else:
+        sfun = d / 2 - xf.abs()  # > 0 inside the photodiode
+        sfun = torch.where(valid, sfun, torch.full_like(sfun, -1.0))
+        a, b = sfun[..., :-1], sfun[..., 1:]
+        both = (a > 0) & (b > 0)
+        cross = (a > 0) != (b > 0)
+        pos = torch.where(a > 0, a, b).clamp(min=0)
+        denom = (a - b).abs()
+        frac_cross = pos / torch.where(cross, denom, torch.ones_like(denom))
+        inside = torch.where(both, torch.ones_like(a), torch.where(cross, frac_cross, torch.zeros_like(a)))
+    # each direction row carries its share of the source's directions (clipped range), rows over the pixel
+    per_row = inside.mean(-1)  # [A, U] fraction of the microlens aperture reaching the photodiode
+    e = per_row.mean(-1) * width * (D / min(D, p))
+    if not diffraction:
+        e, xf, valid, width = full(e), full(xf), full(valid), full(width)
+    if not profile:
+        return e, None, None
+    xm = 0.5 * (xf[..., 1:] + xf[..., :-1])
+    wm = torch.where(valid[..., 1:] & valid[..., :-1], torch.ones_like(xm), torch.zeros_like(xm))
+    return e, xm, wm * (width / (nu * nx))[:, None, None]
+
+
+def _diffraction_sigma_m(t, n, geo, method) -> torch.Tensor:
+    """Gaussian width ``[A]`` of the aperture's Fraunhofer pattern after the stack: FWHM 0.886 lambda_medium z / D
+    (Goodman, Introduction to Fourier Optics, 4.4), sigma = FWHM / 2.3548; lambda_medium = lambda / mean index."""
+    shape = geo["shape"]
+    n_mean = (t * n).sum() / t.sum()
+    aperture = geo["D"] if method != "none" else geo["p"]
+    lam = geo["lam"].reshape((*((1,) * (len(shape) - geo["lam"].dim())), *geo["lam"].shape))
+    return 0.886 * (lam.expand(shape).reshape(-1) / n_mean) * t.sum() / (2.3548 * aperture)
+
+
+def _isetcam_bin(xn, un, w, x0, dx, u0, du, n):
+    """ISETCam ``ffndgrid(z, f, -n, limits, 1)``: nearest cell (MATLAB round), the mean of the values landing in
+    each cell, points beyond the grid dropped. ``[A, P]`` -> ``[A, n, n]`` (rows: p, columns: x)."""
+    a = xn.shape[0]
+
+    def mround(v):
+        return torch.sign(v) * torch.floor(v.abs() + 0.5)
+
+    bx = mround((xn - x0) / dx)
+    bu = mround((un - u0) / du)
+    ok = (bx >= 0) & (bx < n) & (bu >= 0) & (bu < n)
+    idx = (bu.clamp(0, n - 1) * n + bx.clamp(0, n - 1)).long() + (torch.arange(a, device=xn.device) * n * n)[:, None]
+    idx, wv = idx[ok], w[ok]
+    s = torch.zeros(a * n * n, dtype=w.dtype, device=w.device).index_add_(0, idx, wv)
+    c = torch.zeros_like(s).index_add_(0, idx, torch.ones_like(wv))
+    out = torch.where(s != 0, s / c.clamp(min=1), torch.zeros_like(s))
+    return out.reshape(a, n, n)
+
+
+def _isetcam_grid(cra, method, t, n, off, geo, n_grid=255):
+    """ISETCam ``mlRadiance`` on its own grid: (etendue [A], x [N], W_detector [A, N, N])."""
+    D, p, d, na = geo["D"], geo["p"], geo["d"], geo["na"]
+    dtype, dev = t.dtype, t.device
+    t, n, off = t.detach(), n.detach(), off.detach()
+    x = torch.linspace(-2 * D, 2 * D, n_grid, dtype=dtype, device=dev)
+    u = torch.linspace(-_P_MAX, _P_MAX, n_grid, dtype=dtype, device=dev)
+    dx, du = float(x[1] - x[0]), float(u[1] - u[0])
+    X, U = x[None, :].expand(n_grid, -1), u[:, None].expand(-1, n_grid)
+    s = torch.sin(torch.deg2rad(cra.detach()))[:, None, None]
+    src = ((U > s - na) & (U < s + na) & (X > -D / 2) & (X < D / 2)).to(dtype)  # [A, N, N] mlSource
+    a = src.shape[0]
+    flat = src.reshape(a, -1)
+    Xf, Uf = X.reshape(1, -1).expand(a, -1), U.reshape(1, -1).expand(a, -1)
+    x0, u0 = float(x[0]), float(u[0])
+    if method != "none":
+        f_air = float(geo["f_air"])
+        flat = _isetcam_bin(Xf, Uf + torch.sin(torch.atan(Xf / f_air)), flat, x0, dx, u0, du, n_grid).reshape(a, -1)
+        flat = _isetcam_bin(Xf + off[:, None], Uf, flat, x0, dx, u0, du, n_grid).reshape(a, -1)
+    for ti, ni in zip(t.tolist(), n.tolist()):
+        flat = _isetcam_bin(Xf - ti * torch.tan(torch.asin(Uf / ni)), Uf, flat, x0, dx, u0, du, n_grid).reshape(a, -1)
+    det = flat.reshape(a, n_grid, n_grid)
+    e_in = src.sum(1)[:, x.abs() < p / 2].sum(-1)
+    e_out = det.sum(1)[:, x.abs() < d / 2].sum(-1)
+    return e_out / e_in, x, det
+
+
+_DEFAULTS = dict(source_f_number=ISETCAM_PIXEL["source_f_number"],
+                 microlens_focal_length_m=ISETCAM_PIXEL["microlens_focal_length_m"],
+                 microlens_f_number=ISETCAM_PIXEL["microlens_f_number"], microlens_diameter_m=None,
+                 layer_thicknesses_m=ISETCAM_PIXEL["layer_thicknesses_m"],
+                 layer_indices=ISETCAM_PIXEL["layer_indices"], stack_height_m=None, stack_index=None,
+                 pixel_size_m=ISETCAM_PIXEL["pixel_size_m"], photodiode_size_m=ISETCAM_PIXEL["photodiode_size_m"],
+                 wavelength_nm=ISETCAM_PIXEL["wavelength_nm"])
+
+
+def microlens_radiance(chief_ray_angle_deg=0.0, method: str = "centred", *, offset_m=None,
+                       sampling: str = "continuous", diffraction: bool = False, samples: tuple[int, int] = (128, 256),
+                       grid_points: int = 255, **pixel) -> dict:
+    """ISET's microlens analysis for one pixel per chief-ray angle (ISETCam ``mlRadiance``).
+
+    Args:
+        chief_ray_angle_deg: chief-ray angle(s) of the source at the pixel (deg), scalar or tensor ``(*)``.
+        method: ``'none'`` (no microlens: the stack's vignetting), ``'centred'`` (microlens over the pixel centre)
+            or ``'optimal'`` (microlens at :func:`microlens_optimal_offset_m`).
+        offset_m: microlens offset (m, scalar or ``(*)``), added to the method's (0 when centred); a tensor with
+            gradient gives gradients.
+        sampling: ``'continuous'`` (exact integral along x, differentiable) or ``'isetcam'`` (ISETCam's grid).
+        diffraction: spread each ray by the aperture's Fraunhofer width (see the module docstring).
+        samples: (directions, x segments) of the continuous integral.
+        grid_points: ISETCam's phase-space grid size (``mlCoordinates``: 255); 0 skips the irradiance (continuous
+            sampling only).
+        pixel: the pixel and microlens (defaults: :data:`ISETCAM_PIXEL`): ``source_f_number``,
+            ``microlens_focal_length_m``, ``microlens_f_number`` or ``microlens_diameter_m``,
+            ``layer_thicknesses_m`` and ``layer_indices`` (the stack, top to photodiode), or ``stack_height_m``
+            (scales the layers to this height; a tensor gives gradients) and ``stack_index`` (one layer of this
+            index), ``pixel_size_m``, ``photodiode_size_m``, ``wavelength_nm``.
+
+    Returns:
+        dict with ``etendue (*)`` (fraction of the pixel's incident light reaching the photodiode, as ISETCam's
+        ``mlensGet(ml, 'etendue')``), ``offset_m (*)`` (the microlens offset used), ``x_m [N]`` and
+        ``irradiance (*, N, N)``: the relative irradiance at the photodiode plane (ISETCam's separable
+        ``'pixel irradiance'``, the x-profile's outer product, peak 1) over x in +-2 D.
+
+    Example:
+        >>> r = microlens_radiance(torch.tensor([0.0, 20.0]), "optimal")
+        >>> r["etendue"].shape, r["irradiance"].shape
+        (torch.Size([2]), torch.Size([2, 255, 255]))
+
+    Reference: Catrysse & Wandell, JOSA A 19(8), 2002; ISETCam ``mlRadiance``.
+    """
+    unknown = set(pixel) - set(_DEFAULTS)
+    if unknown:
+        raise ValueError(f"{sorted(unknown)[0]}: not a microlens/pixel parameter; expected one of {sorted(_DEFAULTS)}")
+    kw = {**_DEFAULTS, **pixel}
+    if sampling not in ("continuous", "isetcam"):
+        raise ValueError(f"sampling: expected 'continuous' or 'isetcam', got {sampling!r}")
+    cra, method, t, n, off, geo = _params(chief_ray_angle_deg, method, offset_m, kw)
+    D = geo["D"]
+    x = torch.linspace(-2 * D, 2 * D, grid_points, dtype=t.dtype, device=t.device)
+    if sampling == "isetcam":
+        if diffraction:
+            raise ValueError("diffraction: ISETCam's ray grid has none; use sampling='continuous'")
+        e, x, det = _isetcam_grid(cra, method, t, n, off, geo, grid_points)
+        lead = (1,) * (len(geo["shape"]) - len(geo["shape_geo"]))
+        e = e.reshape((*lead, *geo["shape_geo"])).expand(geo["shape"]).reshape(-1)
+        prof = det.sum(1).reshape((*lead, *geo["shape_geo"], -1)).expand((*geo["shape"], -1)).reshape(e.numel(), -1)
+    else:
+        e, xm, wm = _continuous(cra, method, t, n, off, geo, diffraction, samples, profile=grid_points > 0)
+        if xm is None:
+            return {"etendue": e.reshape(geo["shape"])}
+        with torch.no_grad():  # the irradiance profile: a histogram of where the rays land (ISETCam's grid)
+            dx = float(x[1] - x[0])
+            b = torch.round((xm - x[0]) / dx).long()
+            ok = (b >= 0) & (b < grid_points) & (wm > 0)
+            prof = torch.zeros(xm.shape[0], grid_points, dtype=xm.dtype, device=xm.device)
+            prof.scatter_add_(1, b.clamp(0, grid_points - 1).reshape(xm.shape[0], -1),
+                              (wm * ok).reshape(xm.shape[0], -1))
+            if diffraction:  # the landing positions spread by the diffraction pattern
+                sig = _diffraction_sigma_m(t, n, geo, method)[:, None, None]
+                kern = torch.exp(-0.5 * ((x[:, None] - x[None, :]) / sig) ** 2)
+                prof = torch.einsum("aj,aij->ai", prof, kern / kern.sum(1, keepdim=True))
+    prof = prof / prof.amax(-1, keepdim=True).clamp(min=torch.finfo(prof.dtype).tiny)
+    irr = prof[:, :, None] * prof[:, None, :]
+    shape = geo["shape"]
+    off = off.reshape((*((1,) * (len(shape) - len(geo["shape_geo"]))), *geo["shape_geo"])).expand(shape)
+    return {"etendue": e.reshape(shape), "offset_m": off, "x_m": x,
+            "irradiance": irr.reshape(*shape, grid_points, grid_points)}
+
+
+def microlens_etendue(chief_ray_angle_deg, method: str = "centred", *, model: str = "phase_space", offset_m=None,
+                      sampling: str = "continuous", diffraction: bool = False, samples: tuple[int, int] = (128, 256),
+                      **pixel) -> torch.Tensor:
+    """Etendue (fraction of the pixel's incident light reaching the photodiode) per chief-ray angle.
+
+    ``model='phase_space'`` (default): ISET's microlens model, :func:`microlens_radiance` (same arguments).
+    ``model='geometric'``: :func:`isettorch.sensor.pixel_optics.pixel_vignetting` (2-D beam, ideal microlens
+    focusing at the photodiode depth) on the same stack, with its single index the stack's paraxial equivalent
+    ``h / sum(t_i / n_i)``; no gradients.
+
+    Args:
+        chief_ray_angle_deg: tensor ``(*)`` or scalar (deg).
+        method: ``'none'``, ``'centred'`` or ``'optimal'``.
+
+    Returns:
+        ``(*)`` float64 tensor.
+
+    Example:
+        >>> microlens_etendue(torch.tensor([0.0, 10.0, 20.0]), "none")  # ISETCam's default pixel  # doctest: +SKIP
+        tensor([0.8311, 0.6545, 0.3810], dtype=torch.float64)
+    """
+    if model == "phase_space":
+        return microlens_radiance(chief_ray_angle_deg, method, offset_m=offset_m, sampling=sampling,
+                                  diffraction=diffraction, samples=samples,
+                                  grid_points=255 if sampling == "isetcam" else 0, **pixel)["etendue"]
+    if model != "geometric":
+        raise ValueError(f"model: expected 'phase_space' or 'geometric', got {model!r}")
+    from .pixel_optics import microlens_offset_m as geometric_offset
+    from .pixel_optics import pixel_vignetting
+
+    kw = {**_DEFAULTS, **pixel}
+    method = _method(method)
+    t, n = _stack(kw["layer_thicknesses_m"], kw["layer_indices"], kw["stack_height_m"], kw["stack_index"],
+                  torch.float64, torch.device("cpu"))
+    h = float(t.sum())
+    n_eq = h / float((t / n).sum())
+    cra = torch.as_tensor(chief_ray_angle_deg, dtype=torch.float64)
+    _check_cra(cra)
+    out = []
+    for c in cra.reshape(-1).tolist():
+        extra = 0.0 if offset_m is None else float(offset_m)
+        off = (geometric_offset(c, h, n_eq) if method == "optimal" else 0.0) - extra
+        out.append(pixel_vignetting(c, float(kw["source_f_number"]), h, float(kw["pixel_size_m"]),
+                                    float(kw["photodiode_size_m"]), stack_index=n_eq, microlens=method != "none",
+                                    microlens_offset_m=off))
+    return torch.stack(out).reshape(cra.shape) if out else cra.clone()
+
+PIXEL_OPTICS_KEYS = ("method", "model", "convention", "diffraction", "learnable", "offset_per_image_height",
+                     "exit_pupil_distance_m", "angle_samples", "samples")
+
+
+class PixelOptics(nn.Module):
+    """The etendue map of a sensor's pixels from each pixel's chief-ray angle (ISETCam ``sensorVignetting`` /
+    ``mlAnalyzeArrayEtendue``), for ``Sensor(pixel_optics=...)``.
+
+    The chief-ray angle at a pixel a distance r from the optical axis is read from the optical image: a ray-traced
+    lens's table (``oi.metadata['chief_ray_angle']``: image heights (m) and traced angles (deg)), else
+    ``atan(r / d)`` with d the exit-pupil distance (``exit_pupil_distance_m``, default the image distance: the
+    thin lens's pupil is the lens; ISETCam ``sensorGet(sensor, 'cra')``). The etendue is computed at
+    ``angle_samples`` radii from the axis to the farthest pixel and interpolated linearly (ISETCam: 5 angles;
+    33 keep the interpolation within 0.01 of the direct value for ISETCam's pixel over 0-34 deg, 129 within 0.003).
+
+    Args:
+        method: ``'none'``, ``'centred'`` or ``'optimal'`` (:func:`microlens_etendue`).
+        model: ``'phase_space'`` (ISET's microlens model, differentiable) or ``'geometric'``.
+        convention: ``'physical'`` (default): the light over the whole pixel times the etendue of the radial
+            (CRA) and tangential (CRA 0) directions, the 1-D model applied separably as ISETCam's pixel
+            irradiance; the sensor's fill factor then enters only through the photodiode width. ``'isetcam'``:
+            the sensor's fill-factor signal times the radial etendue (``sensorCompute``).
+        diffraction: wavelength-dependent etendue (see :func:`microlens_radiance`), applied per wavelength.
+        stack_height_m: total stack height (scales the layers; default their sum).
+        offset_per_image_height: a further microlens offset of this many metres per metre of image height (the
+            microlens array's pitch shrink), added to the method's.
+        learnable: ``stack_height_m`` and ``offset_per_image_height`` as ``nn.Parameter`` s.
+        exit_pupil_distance_m: overrides the optical image's image distance for the chief-ray angle.
+        angle_samples: radii at which the etendue is computed.
+        samples: the continuous integral's (directions, x segments).
+        pixel: microlens and stack parameters of :func:`microlens_radiance` (``photodiode_size_m`` defaults to
+            the sensor's ``sqrt(fill_factor) x pitch``, ``microlens_diameter_m`` to the pitch, ``source_f_number``
+            to the optical image's f-number).
+    """
+
+    def __init__(self, method: str = "centred", *, model: str = "phase_space", convention: str = "physical",
+                 diffraction: bool = False, stack_height_m: float | None = None, offset_per_image_height: float = 0.0,
+                 learnable: bool = False, exit_pupil_distance_m: float | None = None, angle_samples: int = 33,
+                 samples: tuple[int, int] = (64, 128), **pixel) -> None:
+        super().__init__()
+        self.method = _method(method)
+        if model not in ("phase_space", "geometric"):
+            raise ValueError(f"model: expected 'phase_space' or 'geometric', got {model!r}")
+        if convention not in ("physical", "isetcam"):
+            raise ValueError(f"convention: expected 'physical' or 'isetcam', got {convention!r}")
+        if model == "geometric" and (learnable or diffraction):
+            raise ValueError("model: 'geometric' has no gradients or diffraction; use model='phase_space'")
+        if not (isinstance(angle_samples, int) and angle_samples >= 2):
+            raise ValueError(f"angle_samples: expected an integer >= 2, got {angle_samples!r}")
+        if exit_pupil_distance_m is not None:
+            _pos(exit_pupil_distance_m, "exit_pupil_distance_m")
+        unknown = set(pixel) - set(_DEFAULTS) - {"stack_height_m"}
+        if unknown:
+            raise ValueError(f"pixel_optics: unknown key {sorted(unknown)[0]!r}; expected one of "
+                             f"{sorted(set(_DEFAULTS) | set(PIXEL_OPTICS_KEYS))}")
+        self.model, self.convention, self.diffraction = model, convention, bool(diffraction)
+        self.exit_pupil_distance_m = exit_pupil_distance_m
+        self.angle_samples, self.samples = angle_samples, tuple(samples)
+        self.pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in pixel.items()}  # hashable (cache)
+        layers = self.pixel.get("layer_thicknesses_m", _DEFAULTS["layer_thicknesses_m"])
+        h = float(sum(layers)) if stack_height_m is None else stack_height_m
+        _pos(h, "stack_height_m")
+        if not (isinstance(offset_per_image_height, (int, float)) and math.isfinite(offset_per_image_height)):
+            raise ValueError(f"offset_per_image_height: expected a finite number, got {offset_per_image_height!r}")
+        h_t = torch.tensor(float(h), dtype=torch.float64)
+        o_t = torch.tensor(float(offset_per_image_height), dtype=torch.float64)
+        if learnable:
+            self.stack_height_m = nn.Parameter(h_t)
+            self.offset_per_image_height = nn.Parameter(o_t)
+        else:
+            self.register_buffer("stack_height_m", h_t)
+            self.register_buffer("offset_per_image_height", o_t)
+        self._memo: dict = {}
+
+    @property
+    def wavelength_dependent(self) -> bool:
+        return self.diffraction
+
+    def extra_repr(self) -> str:
+        return (f"method={self.method!r}, model={self.model!r}, convention={self.convention!r}, "
+                f"diffraction={self.diffraction}, stack_height={float(self.stack_height_m) * 1e6:.4g} um")
+
+    def chief_ray_angle_deg(self, oi, rows: int, cols: int, pixel_size_m: float) -> torch.Tensor:
+        """Chief-ray angle (deg) at each pixel centre ``[B, rows, cols]`` (the sensor grid centred on the axis)."""
+        r = self._radii(rows, cols, pixel_size_m, oi)
+        return self._cra_of_radius(oi, r)
+
+    @staticmethod
+    def _radii(rows, cols, pitch, oi):
+        dev = oi.sample_spacing_m.device
+        y = (torch.arange(rows, dtype=torch.float64, device=dev) - (rows - 1) / 2) * pitch
+        x = (torch.arange(cols, dtype=torch.float64, device=dev) - (cols - 1) / 2) * pitch
+        return torch.hypot(y[:, None], x[None, :])
+
+    def _cra_of_radius(self, oi, r: torch.Tensor) -> torch.Tensor:
+        """CRA (deg) ``[B, *r.shape]`` at image heights ``r`` (m)."""
+        b = oi.batch_size
+        table = oi.metadata.get("chief_ray_angle") if isinstance(oi.metadata, dict) else None
+        if table is not None and self.exit_pupil_distance_m is None:
+            hm = torch.as_tensor(table["image_height_m"], dtype=torch.float64, device=r.device)
+            cd = torch.as_tensor(table["cra_deg"], dtype=torch.float64, device=r.device)
+            if bool((r > hm[-1] * (1 + 1e-9)).any()):
+                raise ValueError(f"oi: the sensor reaches {float(r.max()) * 1e3:.4g} mm off axis, beyond the lens's "
+                                 f"traced chief rays ({float(hm[-1]) * 1e3:.4g} mm)")
+            out = _interp1(r.reshape(-1), hm, cd).reshape(r.shape)
+            return out.expand(b, *r.shape)
+        if self.exit_pupil_distance_m is not None:
+            d = torch.full((b,), float(self.exit_pupil_distance_m), dtype=torch.float64, device=r.device)
+        else:
+            d = oi.image_distance_m if oi.image_distance_m is not None else oi.focal_length_m
+            if d is None:
+                raise ValueError("oi: pixel_optics needs the exit-pupil distance: the optical image has no "
+                                 "image_distance_m or focal_length_m (give pixel_optics exit_pupil_distance_m)")
+            d = torch.as_tensor(d, dtype=torch.float64, device=r.device).reshape(-1).expand(b)
+        return torch.rad2deg(torch.atan(r[None] / d.reshape(-1, *([1] * r.dim()))))
+
+    def _etendue(self, cra, offset, wavelength_nm, pixel, method):
+        kw = {**pixel, "wavelength_nm": wavelength_nm}
+        if self.model == "geometric":
+            kw.setdefault("stack_height_m", float(self.stack_height_m))
+            kw["wavelength_nm"] = 500.0  # the geometric model has no wavelength
+            return microlens_etendue(cra.detach().cpu(), method, model="geometric", **kw).to(cra)
+        return microlens_etendue(cra, method, offset_m=offset, diffraction=self.diffraction, samples=self.samples,
+                                 stack_height_m=self.stack_height_m.to(cra.device), **kw)
+
+    def etendue_map(self, oi, rows: int, cols: int, pixel_size_m: float, fill_factor: float = 0.75) -> torch.Tensor:
+        """The etendue at every pixel: ``[B, rows, cols]``, or ``[B, L, rows, cols]`` on the OI's wavelengths when
+        ``diffraction`` (float64; differentiable in ``stack_height_m`` and ``offset_per_image_height``)."""
+        pixel = dict(self.pixel)
+        pixel.setdefault("pixel_size_m", float(pixel_size_m))
+        pixel.setdefault("photodiode_size_m", math.sqrt(fill_factor) * float(pixel_size_m))
+        if "microlens_diameter_m" not in pixel and "microlens_f_number" not in pixel:
+            pixel["microlens_diameter_m"] = float(pixel_size_m)
+        if "source_f_number" not in pixel:
+            if oi.f_number is None:
+                raise ValueError("oi: pixel_optics needs the source f-number: the optical image has none (give "
+                                 "pixel_optics source_f_number)")
+            fn = torch.as_tensor(oi.f_number).reshape(-1)
+            if not bool((fn == fn[0]).all()):
+                raise ValueError(f"oi.f_number: pixel_optics needs one f-number per batch, got {fn.tolist()}")
+            pixel["source_f_number"] = float(fn[0])
+        waves = tuple(float(w) for w in oi.wavelengths_nm.reshape(-1).tolist()) if self.diffraction else (None,)
+        grad = torch.is_grad_enabled() and (self.stack_height_m.requires_grad
+                                            or self.offset_per_image_height.requires_grad)
+        key = None
+        if not grad:
+            geo = oi.image_distance_m if oi.image_distance_m is not None else oi.focal_length_m
+            key = (rows, cols, float(pixel_size_m), fill_factor, waves, tuple(sorted(pixel.items())),
+                   None if geo is None else tuple(torch.as_tensor(geo).reshape(-1).tolist()), oi.batch_size,
+                   id(oi.metadata.get("chief_ray_angle")) if isinstance(oi.metadata, dict) else None,
+                   float(self.stack_height_m), float(self.offset_per_image_height), str(oi.device))
+            hit = self._memo.get(key)
+            if hit is not None:
+                return hit
+        r = self._radii(rows, cols, pixel_size_m, oi)  # [rows, cols]
+        r_max = float(r.max()) if r.numel() > 1 else 0.0
+        k = self.angle_samples
+        rk = torch.linspace(0.0, max(r_max, 1e-12), k, dtype=torch.float64, device=r.device)
+        cra_k = self._cra_of_radius(oi, rk)  # [B, K]
+        b = cra_k.shape[0]
+        offset = self.offset_per_image_height.to(rk.device) * rk  # [K]
+        offset = offset.expand(b, k).reshape(-1)
+        wl = pixel.pop("wavelength_nm", _DEFAULTS["wavelength_nm"])
+        if self.diffraction:  # every (wavelength, radius) pair in one batched call
+            wl = torch.tensor(waves, dtype=torch.float64, device=r.device)[None, :, None].expand(b, -1, k)
+        nw = len(waves)
+        cra_w = cra_k[:, None, :].expand(b, nw, k)
+        off = None if self.method == "none" else offset.reshape(b, 1, k).expand(b, nw, k)
+        e = self._etendue(cra_w, off, wl, pixel, self.method).reshape(b, nw, k)  # [B, W, K]
+        if self.convention == "physical":  # the tangential direction: chief ray at 0 deg, no offset
+            tan_method = "none" if self.method == "none" else "centred"
+            wl_t = wl[0, :, :1] if self.diffraction else wl
+            zero = torch.zeros(nw, 1, dtype=torch.float64, device=r.device)
+            e = e * self._etendue(zero, None, wl_t, pixel, tan_method).reshape(1, nw, 1)
+        # linear interpolation in r (differentiable in the etendue values)
+        pos = (r / rk[-1] * (k - 1)).clamp(0, k - 1) if r_max > 0 else torch.zeros_like(r)
+        i0 = pos.floor().long().clamp(max=k - 2)
+        w = (pos - i0).to(e.dtype)
+        emap = e[..., i0] * (1 - w) + e[..., (i0 + 1).clamp(max=k - 1)] * w  # [B, W, rows, cols]
+        emap = emap if self.diffraction else emap[:, 0]
+        if key is not None:
+            if len(self._memo) > 8:
+                self._memo.clear()
+            self._memo[key] = emap
+        return emap
+
+
+def _interp1(xq: torch.Tensor, xp: torch.Tensor, fp: torch.Tensor) -> torch.Tensor:
+    """Piecewise-linear interpolation of ``fp(xp)`` (increasing ``xp``) at ``xq``."""
+    i = torch.searchsorted(xp, xq).clamp(1, xp.numel() - 1)
+    x0, x1 = xp[i - 1], xp[i]
+    w = ((xq - x0) / (x1 - x0)).clamp(0, 1)
+    return fp[i - 1] * (1 - w) + fp[i] * w

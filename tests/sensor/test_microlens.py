@@ -1,0 +1,327 @@
+"""ISET's microlens / pixel-stack model (isettorch.sensor.microlens) against closed forms, an independent NumPy
+re-implementation of ISETCam's mlRadiance grid, and in the camera (uniform-field fall-off, gradients)."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy import integrate
+
+from isettorch.optics.optical_image import OpticalImage
+from isettorch.sensor import Sensor
+from isettorch.sensor.microlens import (
+    ISETCAM_PIXEL,
+    PixelOptics,
+    microlens_array_offsets_m,
+    microlens_etendue,
+    microlens_optimal_offset_m,
+    microlens_radiance,
+)
+from isettorch.sensor.pixel_optics import pixel_vignetting
+
+P_UM, D_UM = 2.8, math.sqrt(2.8 ** 2 * 0.75)  # ISETCam default pixel and photodiode (pixelCreate)
+LAYERS = ((2.0, 2.0), (5.0, 1.46))  # (thickness um, index): pixelCreate's stack between air and silicon
+NA = math.sin(math.atan(1 / 8))  # f/4 source, mlRadiance's sourceNA
+
+
+def walk_um(p):
+    """Lateral walk of a ray of direction sine p (in air) through ISETCam's default stack (Snell per layer)."""
+    return sum(t * np.tan(np.arcsin(p / n)) for t, n in LAYERS)
+
+
+def bare_pixel_closed_form(cra_deg, p_um=P_UM, d_um=D_UM):
+    """No microlens (1-D phase space): a ray of direction p entering anywhere on the pixel's width lands shifted by
+    walk(p); the photodiode collects overlap([-P/2, P/2] - walk, [-d/2, d/2]) / P; averaged over p uniform in
+    sin(CRA) +- NA (Catrysse & Wandell 2002; ISETCam mlRadiance with mlFlag 0)."""
+    s = math.sin(math.radians(cra_deg))
+
+    def frac(p):
+        w = walk_um(p)
+        return max(0.0, min(p_um / 2 - w, d_um / 2) - max(-p_um / 2 - w, -d_um / 2)) / p_um
+
+    val, _ = integrate.quad(frac, s - NA, s + NA, limit=200, epsabs=1e-12)
+    return val / (2 * NA)
+
+
+# --- an independent NumPy copy of ISETCam's mlRadiance grid (mlCoordinates / mlSource / mlLens / mlDisplacement /
+# mlPropagate, each re-binned with ffndgrid's nearest-cell mean), written for this test from the MATLAB source
+def _ffndgrid_mean(xn, un, w, x, u):
+    n = len(x)
+    mround = lambda v: np.sign(v) * np.floor(np.abs(v) + 0.5)  # noqa: E731 (MATLAB round)
+    bx = mround((xn - x[0]) / (x[1] - x[0]))
+    bu = mround((un - u[0]) / (u[1] - u[0]))
+    ok = (bx >= 0) & (bx < n) & (bu >= 0) & (bu < n)
+    s, c = np.zeros((n, n)), np.zeros((n, n))
+    np.add.at(s, (bu[ok].astype(int), bx[ok].astype(int)), w[ok])
+    np.add.at(c, (bu[ok].astype(int), bx[ok].astype(int)), 1)
+    return np.divide(s, c, out=np.zeros_like(s), where=s != 0)
+
+
+def isetcam_numpy(cra_deg, microlens=True, offset_um=0.0):
+    x = np.linspace(-2 * P_UM, 2 * P_UM, 255)
+    u = np.linspace(-0.99, 0.99, 255)
+    X, U = np.meshgrid(x, u)
+    s = math.sin(math.radians(cra_deg))
+    src = ((U > s - NA) & (U < s + NA) & (np.abs(X) < P_UM / 2)).astype(float)
+    w = src
+    if microlens:
+        w = _ffndgrid_mean(X.ravel(), (U + np.sin(np.arctan(X / (7.0 / 1.52)))).ravel(), w.ravel(), x, u)
+        w = _ffndgrid_mean((X + offset_um).ravel(), U.ravel(), w.ravel(), x, u)
+    for t, n in LAYERS:
+        w = _ffndgrid_mean((X - t * np.tan(np.arcsin(U / n))).ravel(), U.ravel(), w.ravel(), x, u)
+    return w.sum(0)[np.abs(x) < D_UM / 2].sum() / src.sum(0)[np.abs(x) < P_UM / 2].sum()
+
+
+ANGLES = (0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0)
+
+
+def test_defaults_are_isetcams_default_pixel_and_microlens():
+    assert ISETCAM_PIXEL["pixel_size_m"] == 2.8e-6
+    assert ISETCAM_PIXEL["photodiode_size_m"] == pytest.approx(2.42487e-6, abs=1e-11)
+    assert sum(ISETCAM_PIXEL["layer_thicknesses_m"]) == pytest.approx(7e-6)
+    assert ISETCAM_PIXEL["microlens_focal_length_m"] / ISETCAM_PIXEL["microlens_f_number"] == pytest.approx(2.8e-6)
+    assert (ISETCAM_PIXEL["source_f_number"], ISETCAM_PIXEL["wavelength_nm"]) == (4.0, 500.0)
+
+
+def test_no_microlens_matches_the_closed_form():
+    got = microlens_etendue(torch.tensor(ANGLES), "none")
+    want = [bare_pixel_closed_form(a) for a in ANGLES]
+    assert got.tolist() == pytest.approx(want, abs=2e-5)
+    assert float(got[0]) == pytest.approx(0.82341, abs=1e-4)
+
+
+def test_a_vanishing_stack_gives_the_1d_fill_factor():
+    # no height: every ray lands where it entered; the photodiode takes its share of the width, d / P
+    for method in ("none", "centred"):
+        e = microlens_etendue(0.0, method, stack_height_m=1e-12)
+        assert float(e) == pytest.approx(D_UM / P_UM, abs=1e-4)
+
+
+@pytest.mark.parametrize("method", ["none", "centred", "optimal"])
+def test_isetcam_grid_equals_an_independent_numpy_copy(method):
+    got = microlens_etendue(torch.tensor(ANGLES), method, sampling="isetcam")
+    off = [float(walk_um(math.sin(math.radians(a)))) for a in ANGLES]
+    want = [isetcam_numpy(a, method != "none", off[i] if method == "optimal" else 0.0) for i, a in enumerate(ANGLES)]
+    assert got.tolist() == pytest.approx(want, abs=1e-12)
+
+
+def test_isetcam_published_behaviour_of_the_default_pixel():
+    """ISETCam's default pixel (v_microlens / mlAnalyzeArrayEtendue): at 0 deg a centred microlens collects all the
+    light, the bare pixel ~0.83; the bare pixel falls off with CRA, the centred microlens falls to 0 by 25 deg, the
+    optimal offset keeps ~1 to 30 deg. The continuous integral agrees with ISETCam's grid to 0.016 (its grid's bias)."""
+    cra = torch.arange(0.0, 35.01, 1.0)
+    for method in ("none", "centred", "optimal"):
+        grid = microlens_etendue(cra, method, sampling="isetcam")
+        cont = microlens_etendue(cra, method)
+        assert float((grid - cont).abs().max()) < 0.016, method
+    grid = {m: microlens_etendue(torch.tensor(ANGLES), m, sampling="isetcam") for m in ("none", "centred", "optimal")}
+    assert float(grid["none"][0]) == pytest.approx(0.831, abs=1e-3)
+    assert grid["centred"][:2].tolist() == [1.0, 1.0] and grid["centred"][-2:].tolist() == [0.0, 0.0]
+    assert bool((grid["none"].diff() < 0).all()) and bool((grid["centred"].diff() <= 0).all())
+    assert float(grid["optimal"].min()) > 0.995
+    # a centred microlens beats the bare pixel on axis and loses to it at large angles (the 2002 paper's point)
+    assert bool((grid["centred"][:3] > grid["none"][:3]).all()) and bool((grid["centred"][4:] < grid["none"][4:]).all())
+
+
+def test_optimal_offset_is_the_chief_rays_walk():
+    cra = torch.tensor([0.0, 10.0, 20.0, 30.0])
+    got = microlens_optimal_offset_m(cra)
+    want = [walk_um(math.sin(math.radians(a))) * 1e-6 for a in cra.tolist()]
+    assert got.tolist() == pytest.approx(want, rel=1e-12, abs=1e-18)
+    # a single homogeneous layer: h tan(asin(sin(theta) / n))
+    one = microlens_optimal_offset_m(20.0, stack_height_m=7e-6, stack_index=1.5)
+    assert float(one) == pytest.approx(7e-6 * math.tan(math.asin(math.sin(math.radians(20)) / 1.5)), rel=1e-12)
+    # mlOptimalOffsets: f_ml tan(asin(sin(atan(r / f_source)) / 1.5)) at a pixel of a 3 x 5 array
+    arr = microlens_array_offsets_m(3, 5, 1e-3)
+    r = math.hypot(1e-3, 2e-3)
+    assert float(arr[0, 0]) == pytest.approx(7e-6 * math.tan(math.asin(math.sin(math.atan(r / 3.862755099e-3)) / 1.5)))
+    assert float(arr[1, 2]) == 0.0
+
+
+def test_radiance_outputs_and_irradiance_shape():
+    r = microlens_radiance(torch.tensor([0.0, 20.0]), "centred")
+    irr = r["irradiance"]
+    assert irr.shape == (2, 255, 255) and float(irr.amax()) == pytest.approx(1.0)
+    assert torch.allclose(irr, irr.transpose(-1, -2))  # separable x-y outer product
+    x = r["x_m"]
+    # on axis the focused spot sits inside the photodiode; at 20 deg the centred microlens's spot walks off it
+    prof = irr.sum(-2)
+    centroid = (prof * x).sum(-1) / prof.sum(-1)
+    assert abs(float(centroid[0])) < 0.05e-6 and float(centroid[1]) < -D_UM / 2 * 1e-6
+    g = microlens_radiance(torch.tensor([10.0]), "none", sampling="isetcam")
+    assert g["irradiance"].shape == (1, 255, 255)
+
+
+def test_diffraction_depends_on_wavelength():
+    wl = torch.tensor([400.0, 550.0, 700.0])
+    e = microlens_etendue(0.0, "centred", diffraction=True, wavelength_nm=wl)
+    assert bool((e.diff() < 0).all())  # longer wavelengths spread more and lose more
+    # a small pixel loses more to diffraction than a large one with the same stack (1.4 vs 2.8 um)
+    small = microlens_etendue(0.0, "centred", diffraction=True, wavelength_nm=700.0, pixel_size_m=1.4e-6,
+                              photodiode_size_m=1.4e-6 * math.sqrt(0.75), microlens_diameter_m=1.4e-6)
+    assert float(small) < float(e[-1]) - 0.1
+    # a vanishing wavelength is the ray model
+    ray = microlens_etendue(torch.tensor([0.0, 12.0]), "centred")
+    tiny = microlens_etendue(torch.tensor([0.0, 12.0]), "centred", diffraction=True, wavelength_nm=1e-3)
+    assert tiny.tolist() == pytest.approx(ray.tolist(), abs=2e-3)
+
+
+def test_gradients_to_stack_height_and_offset():
+    h = torch.tensor(7.0, dtype=torch.float64, requires_grad=True)  # um
+    o = torch.tensor(0.3, dtype=torch.float64, requires_grad=True)  # um
+
+    def f(h_um, o_um):
+        return microlens_etendue(torch.tensor([8.0, 14.0]), "centred", diffraction=True,
+                                 stack_height_m=h_um * 1e-6, offset_m=o_um * 1e-6, samples=(48, 96))
+
+    assert torch.autograd.gradcheck(f, (h, o), eps=1e-4, atol=1e-4, rtol=1e-3)
+    # the hard-edged ray model is differentiable too: autograd against central differences
+    e = microlens_etendue(15.0, "centred", stack_height_m=h * 1e-6, offset_m=o * 1e-6)
+    gh, go = torch.autograd.grad(e, (h, o))
+    with torch.no_grad():
+        def fd(dh, do):
+            return float(microlens_etendue(15.0, "centred", stack_height_m=(7.0 + dh) * 1e-6,
+                                           offset_m=(0.3 + do) * 1e-6))
+        assert float(gh) == pytest.approx((fd(1e-3, 0) - fd(-1e-3, 0)) / 2e-3, rel=0.02)
+        assert float(go) == pytest.approx((fd(0, 1e-3) - fd(0, -1e-3)) / 2e-3, rel=0.02)
+    assert float(gh) < 0 < float(go)  # a taller stack loses the oblique beam; an offset towards it recovers it
+
+
+def test_geometric_model_option():
+    e = microlens_etendue(torch.tensor([0.0, 15.0]), "none", model="geometric")
+    n_eq = 7.0 / (2.0 / 2.0 + 5.0 / 1.46)
+    want = pixel_vignetting(torch.tensor([0.0, 15.0]), 4.0, 7e-6, 2.8e-6, D_UM * 1e-6, stack_index=n_eq,
+                            microlens=False)
+    assert e.tolist() == pytest.approx(want.tolist(), abs=1e-12)
+    assert float(microlens_etendue(0.0, "centred", model="geometric")) == pytest.approx(1.0)
+
+
+def test_errors_name_the_argument():
+    with pytest.raises(ValueError, match="method"):
+        microlens_etendue(0.0, "sideways")
+    with pytest.raises(ValueError, match="stack_index"):
+        microlens_etendue(0.0, stack_index=0.8)
+    with pytest.raises(ValueError, match="photodiode_size_m"):
+        microlens_etendue(0.0, photodiode_size_m=3e-6)
+    with pytest.raises(ValueError, match="chief_ray_angle_deg"):
+        microlens_etendue(torch.tensor([95.0]))
+    with pytest.raises(ValueError, match="not a microlens"):
+        microlens_etendue(0.0, pixel_width=3e-6)
+    with pytest.raises(ValueError, match="offset_m"):
+        microlens_etendue(0.0, "none", offset_m=1e-7)
+    with pytest.raises(ValueError, match="microlens_diameter_m"):
+        microlens_etendue(0.0, microlens_diameter_m=3e-6)
+    with pytest.raises(ValueError, match="unknown key 'stack'"):
+        Sensor(pixel_optics={"stack": 1})
+    with pytest.raises(TypeError, match="pixel_optics"):
+        Sensor(pixel_optics=3)
+
+
+# --- in the sensor and the camera ------------------------------------------------------------------------------
+
+def _uniform_oi(rows, cols, pitch, d_m, f_number=4.0, waves=None):
+    waves = torch.arange(400.0, 701.0, 50.0) if waves is None else waves
+    return OpticalImage(torch.full((1, len(waves), rows, cols), 1e15, dtype=torch.float64), waves,
+                        sample_spacing_m=torch.tensor([pitch], dtype=torch.float64),
+                        focal_length_m=torch.tensor([d_m]), image_distance_m=torch.tensor([d_m]),
+                        f_number=torch.tensor([f_number]))
+
+
+@pytest.mark.parametrize("method", ["none", "centred", "optimal"])
+def test_sensor_fall_off_on_a_uniform_field(method):
+    rows, cols, pitch = 12, 16, 2.8e-6
+    d = 30e-6  # a short exit-pupil distance so the 16 x 12 pixels span 0 to 34 deg
+    oi = _uniform_oi(rows, cols, pitch, d)
+    kw = dict(rows=rows, cols=cols, read_noise_v=0.0, dark_current_e_per_s=0.0)
+    plain = Sensor.preset("isetcam_default", **kw).electron_rate(oi)
+    iset = Sensor.preset("isetcam_default", pixel_optics={"method": method, "convention": "isetcam",
+                                                          "angle_samples": 129}, **kw).electron_rate(oi)
+    phys = Sensor.preset("isetcam_default", pixel_optics={"method": method, "angle_samples": 129}, **kw)
+    y = (torch.arange(rows, dtype=torch.float64) - (rows - 1) / 2) * pitch
+    x = (torch.arange(cols, dtype=torch.float64) - (cols - 1) / 2) * pitch
+    cra = torch.rad2deg(torch.atan(torch.hypot(y[:, None], x[None, :]) / d))  # ISETCam sensorGet(sensor, 'cra')
+    want = microlens_etendue(cra, method, samples=(64, 128))
+    assert torch.allclose(iset[0, 0] / plain[0, 0], want, atol=3e-3)
+    # physical convention: the whole pixel's light x the radial and tangential etendues (fill factor 0.75 undone)
+    tangential = microlens_etendue(0.0, "none" if method == "none" else "centred", samples=(64, 128))
+    assert torch.allclose(phys.electron_rate(oi)[0, 0] / plain[0, 0] * 0.75, want * tangential, atol=3e-3)
+    assert torch.allclose(phys.pixel_optics.chief_ray_angle_deg(oi, rows, cols, pitch)[0], cra)
+
+
+def test_camera_with_pixel_optics_and_gradients():
+    from isettorch.camera import Camera
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.scene.patterns import uniform
+
+    optics = DiffractionLimitedOptics(f_number=4.0, focal_length_m=40e-6)  # short: CRAs up to ~38 deg
+    kw = dict(rows=16, cols=16, cfa="RGGB", pixel_size_m=2.8e-6, exposure_s=1e-3)
+    sensor = Sensor(pixel_optics={"method": "centred", "learnable": True, "convention": "isetcam"}, **kw)
+    cam, ref = Camera(optics, sensor, noise=False), Camera(optics, Sensor(**kw), noise=False)
+    scene = uniform("D65", size=32, hfov_deg=2 * math.degrees(math.atan(16 * 2.8e-6 / 2 / 40e-6)) * 2,
+                    dtype=torch.float64)
+    out, base = cam(scene, return_intermediates=True), ref(scene, return_intermediates=True)
+    ratio = (out.raw.noise_free / base.raw.noise_free)[0, 0]
+    emap = sensor.etendue_map(out.optical_image)[0]
+    assert torch.allclose(ratio, emap.to(ratio), atol=1e-6)
+    assert float(emap[8, 8]) > 0.99 and float(emap[0, 0]) < 0.9  # centre vs corner fall-off
+    loss = out.raw.noise_free.mean()
+    loss.backward()
+    po = sensor.pixel_optics
+    assert po.stack_height_m.grad is not None and float(po.stack_height_m.grad) < 0
+    assert po.offset_per_image_height.grad is not None and float(po.offset_per_image_height.grad) > 0
+
+
+def test_per_wavelength_etendue_shades_colour():
+    rows = cols = 8
+    oi = _uniform_oi(rows, cols, 1.4e-6, 40e-6, f_number=2.0, waves=torch.tensor([450.0, 550.0, 650.0]))
+    po = {"method": "centred", "diffraction": True, "layer_thicknesses_m": [1e-6, 2e-6],
+          "layer_indices": [1.46, 1.6], "microlens_focal_length_m": 3e-6}
+    s = Sensor(rows=rows, cols=cols, pixel_size_m=1.4e-6, cfa="RGGB", pixel_optics=po)
+    emap = s.etendue_map(oi)
+    assert emap.shape == (1, 3, rows, cols)
+    assert float(emap[0, 0, 3, 3]) > float(emap[0, 2, 3, 3])  # on axis blue keeps more than red
+    # each band's map is the 1-D model at that wavelength (radial x tangential)
+    cra = float(s.pixel_optics.chief_ray_angle_deg(oi, rows, cols, 1.4e-6)[0, 0, 0])
+    kw = dict(diffraction=True, pixel_size_m=1.4e-6, photodiode_size_m=1.4e-6 * math.sqrt(0.75),
+              microlens_diameter_m=1.4e-6, layer_thicknesses_m=(1e-6, 2e-6), layer_indices=(1.46, 1.6),
+              microlens_focal_length_m=3e-6, source_f_number=2.0, samples=(64, 128))
+    for i, wl in enumerate((450.0, 550.0, 650.0)):
+        want = microlens_etendue(cra, "centred", wavelength_nm=wl, **kw) * microlens_etendue(0.0, wavelength_nm=wl,
+                                                                                              **kw)
+        assert float(emap[0, i, 0, 0]) == pytest.approx(float(want), abs=3e-3)
+    rates, _ = s.channel_rates(oi)
+    plain, _ = Sensor(rows=rows, cols=cols, pixel_size_m=1.4e-6, cfa="RGGB").channel_rates(oi)
+    ratio = rates / plain
+    # colour shading: the corner-to-centre fall-off differs between the red and the blue channel
+    assert s.cfa.channel_names[0] == "R" and s.cfa.channel_names[-1] == "B"
+    r_fall, b_fall = float(ratio[0, 0, 0, 0] / ratio[0, 0, 3, 3]), float(ratio[0, -1, 0, 0] / ratio[0, -1, 3, 3])
+    assert abs(r_fall - b_fall) > 0.01
+
+
+def test_lens_chief_ray_table_drives_the_map():
+    pytest.importorskip("isettorch.optics.lens")
+    from isettorch.optics.factory import build_optics
+
+    lens = build_optics({"type": "lens", "lens": "cooke_triplet", "field_samples": 3, "components": 2})
+    table = lens.chief_ray_angle_table()
+    a = lens.analysis
+    assert float(table["cra_deg"][-1]) == pytest.approx(float(a.chief_ray_angle_deg(1.0, 587.6)), abs=1e-9)
+    oi = _uniform_oi(4, 4, 1e-3, float(lens.focal_length_m))
+    oi.metadata["chief_ray_angle"] = table
+    po = PixelOptics("centred")
+    r = float(table["image_height_m"][5])
+    got = po._cra_of_radius(oi, torch.tensor([r], dtype=torch.float64))
+    assert float(got[0, 0]) == pytest.approx(float(table["cra_deg"][5]), abs=1e-9)
+    # a sensor beyond the traced field is refused
+    with pytest.raises(ValueError, match="beyond the lens"):
+        po._cra_of_radius(oi, torch.tensor([1.0], dtype=torch.float64))
+
+
+def test_config_with_microlenses_builds():
+    from isettorch.camera import Camera
+
+    for name in ("isetcam_microlens", "phone_microlens"):
+        cam = Camera.from_config(name)
+        assert isinstance(cam.sensor.pixel_optics, PixelOptics)
+    assert Camera.from_config("default").sensor.pixel_optics is None
