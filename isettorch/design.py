@@ -12,7 +12,9 @@ optics and mosaic, at unit gain. The exposure is ``t = min(t_white, max_exposure
 analog gain ``min(t_white / t, max_analog_gain)`` (ISO raised once the shutter is at its limit, as a camera's
 program mode does): bright scenes are exposed so a white reads ``target`` of full scale in the most sensitive
 filter (a design with clear pixels gets a shorter exposure), dim scenes get ``max_exposure_s``, fewer photons and
-more gain (the read noise is added before the gain, the ADC after it).
+more gain (the read noise is added before the gain, the ADC after it). The rule is a decision taken from the
+current design at every capture, not a path for gradients (the sensor's auto-exposure detaches its statistic):
+gradients reach the filters and mosaic through the photo-electrons, the noise and the ADC at the chosen exposure.
 
 **Network input.** The raw mosaic, black-subtracted, divided by the noise-free capture of that white card
 (pixel by pixel): a perfect white reads 1 in every pixel whatever the filter, exposure or vignetting; the
