@@ -46,6 +46,7 @@ def make_document(doc, session_factory) -> None:
         ColumnDataSource,
         DataTable,
         Div,
+        LinearColorMapper,
         NumberFormatter,
         RadioButtonGroup,
         Range1d,
@@ -120,6 +121,14 @@ def make_document(doc, session_factory) -> None:
         TableColumn(field="channel", title="channel"), TableColumn(field="n", title="pixels"),
         TableColumn(field="mean", title="mean", formatter=fmt), TableColumn(field="std", title="std", formatter=fmt),
         TableColumn(field="snr_db", title="SNR (dB)", formatter=NumberFormatter(format="0.00"))])
+
+    etendue_src = ColumnDataSource(name="etendue_map", data={"image": [], "x": [], "y": [], "dw": [], "dh": []})
+    p_etendue = figure(name="etendue_plot", width=IMAGE_PX, height=200, title="Pixel optics: etendue",
+                       toolbar_location=None, match_aspect=True, x_axis_location=None, y_axis_location=None)
+    p_etendue.image(image="image", x="x", y="y", dw="dw", dh="dh", source=etendue_src,
+                    color_mapper=LinearColorMapper(palette="Viridis256", low=0.0, high=1.0))
+    p_etendue.grid.visible = False
+    etendue_div = Div(name="etendue_text", width=IMAGE_PX)
 
     xy_src = ColumnDataSource(name="roi_xy", data={"x": [], "y": []})
     locus_src = ColumnDataSource(name="locus", data={"x": [], "y": []})
@@ -218,11 +227,27 @@ def make_document(doc, session_factory) -> None:
         p_psf.title.text = f"PSF 550 nm, f/{oc['f_number']:g} (µm)"
         mtf_div.text = f"MTF: dashed line = sensor Nyquist {oc['sensor_nyquist_cpmm']:.0f} cy/mm"
 
+    def show_etendue() -> None:
+        if shown.get("etendue") is s.output.raw:
+            return
+        shown["etendue"] = s.output.raw
+        em = s.etendue_map()
+        p_etendue.visible = em is not None
+        if em is None:
+            etendue_src.data = {"image": [], "x": [], "y": [], "dw": [], "dh": []}
+            etendue_div.text = "Pixel optics: none (the sensor's pixel_optics is not set)"
+            return
+        h, wd = em["map"].shape
+        etendue_src.data = {"image": [np.flipud(em["map"])], "x": [0], "y": [0], "dw": [wd], "dh": [h]}
+        etendue_div.text = (f"Pixel optics ({em['method']}): etendue {em['centre']:.3f} at the centre, "
+                            f"{em['corner']:.3f} at the corner (CRA {em['corner_cra_deg']:.1f} deg)")
+
     def refresh(timings=None) -> None:
         t0 = time.perf_counter()
         for w in show_images():
             show_roi(w)
         show_optics()
+        show_etendue()
         t = timings or s.timings
         upd = time.perf_counter() - t0 + t["camera_s"]
         renders = status.data["renders"][0] + 1
@@ -288,7 +313,7 @@ def make_document(doc, session_factory) -> None:
     cols = [
         column(scene_div, p_scene),
         column(oi_div, p_oi, p_psf, p_mtf, mtf_div),
-        column(sensor_div, p_hist, stats_table),
+        column(sensor_div, p_hist, stats_table, etendue_div, p_etendue),
         column(ip_div, p_xy, p_de),
     ]
     doc.add_root(column(header, controls, status_div, images, row(*cols), _status_holder(status)))

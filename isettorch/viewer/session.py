@@ -317,6 +317,27 @@ class ViewerSession:
             self._images[key] = (sources[window], img.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy())
         return self._images[key][1]
 
+    def etendue_map(self) -> dict | None:
+        """The sensor's pixel-optics etendue over the array for the current optical image
+        (:meth:`Sensor.etendue_map`, ISETCam ``plotSensorEtendue``): ``map [rows, cols]`` (the mean over the
+        wavelengths when it depends on them), its ``method``, ``min``, ``max``, ``centre`` and ``corner`` values, and
+        the chief-ray angle at the corner (``corner_cra_deg``); None when the sensor has no pixel optics."""
+        sensor = self.camera.sensor
+        po = getattr(sensor, "pixel_optics", None)
+        if po is None:
+            return None
+        oi = self.output.optical_image
+        with torch.no_grad():
+            m = sensor.etendue_map(oi)[0]
+            if m.dim() == 3:
+                m = m.mean(0)
+            rows, cols = m.shape
+            cra = po.chief_ray_angle_deg(oi, rows, cols, sensor.pixel_size_m)[0]
+        m = m.double().cpu().numpy()
+        return {"map": m, "method": po.method, "min": float(m.min()), "max": float(m.max()),
+                "centre": float(m[rows // 2, cols // 2]), "corner": float(m[0, 0]),
+                "corner_cra_deg": float(cra[0, 0])}
+
     def spectrum(self, window: str, roi: ROI) -> dict[str, np.ndarray]:
         """Mean spectral radiance (scene, photons/s/sr/m^2/nm) or irradiance (optical image, photons/s/m^2/nm)
         of a region, from :meth:`SpectralImage.mean_spectrum`."""

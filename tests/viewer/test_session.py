@@ -49,3 +49,28 @@ def test_view_command_reports_a_bad_config_without_a_traceback(capsys):
 
     assert main(["view", "--config", "no_such_camera", "--no-browser", "--port", "0"]) == 2
     assert "no_such_camera" in capsys.readouterr().err
+
+
+def test_sensor_window_etendue_map_of_pixel_optics():
+    import math
+
+    import torch
+
+    from isettorch.camera import load_config
+    from isettorch.sensor.microlens import microlens_etendue
+
+    cfg = load_config("isetcam_microlens")
+    cfg["sensor"]["pixel_optics"]["exit_pupil_distance_m"] = 0.15e-3  # a short pupil: CRAs to ~17 deg
+    s = ViewerSession(cfg, scene="uniform_d65", size=32)
+    s.render()
+    em = s.etendue_map()
+    rows, cols = s.output.raw.data.shape[-2:]
+    assert em["map"].shape == (rows, cols) and em["method"] == "centred"
+    r = math.hypot((rows - 1) / 2, (cols - 1) / 2) * 2.8e-6
+    cra = math.degrees(math.atan(r / 0.15e-3))
+    assert em["corner_cra_deg"] == pytest.approx(cra, rel=1e-9)
+    assert em["corner"] == pytest.approx(float(microlens_etendue(torch.tensor(cra), "centred")), abs=0.01)
+    assert em["centre"] == pytest.approx(1.0, abs=1e-6) and em["corner"] < 0.95
+    plain = ViewerSession("default", scene="uniform_d65", size=32)
+    plain.render()
+    assert plain.etendue_map() is None
