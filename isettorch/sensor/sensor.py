@@ -672,7 +672,7 @@ class Sensor(nn.Module):
         if not isinstance(rate, torch.Tensor) or rate.dim() != 4 or rate.shape[1] != 1:
             raise ValueError(f"electron_rate: expected a (B, 1, rows, cols) tensor, got "
                              f"{tuple(rate.shape) if isinstance(rate, torch.Tensor) else type(rate).__name__}")
-        lo, hi = torch.aminmax(rate)  # one pass; NaN propagates to both
+        lo, hi = torch.aminmax(rate.detach())  # one pass; NaN propagates to both (a check: no graph, no warning)
         if not (float(lo) >= 0 and math.isfinite(float(hi))):
             raise ValueError("electron_rate: expected finite, non-negative electrons/s")
         b = rate.shape[0]
