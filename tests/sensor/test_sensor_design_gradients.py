@@ -109,7 +109,7 @@ def test_the_noise_is_common_and_not_zero():
     about its standard deviation (shot noise of a few thousand electrons and 2 mV read noise)."""
     camera = _camera("gaussian")
     scene = _scene()
-    base = dict(camera.named_parameters())
+    base = {n: p.detach() for n, p in camera.named_parameters()}
     t = torch.tensor([0.01], dtype=torch.float64)
     a = _capture(camera, scene, base, t, seed=11)
     b = _capture(camera, scene, base, t, seed=11)
