@@ -468,7 +468,8 @@ class PixelOptics(nn.Module):
         convention: ``'physical'`` (default): the light over the whole pixel times the etendue of the radial
             (CRA) and tangential (CRA 0) directions, the 1-D model applied separably as ISETCam's pixel
             irradiance; the sensor's fill factor then enters only through the photodiode width. ``'isetcam'``:
-            the sensor's fill-factor signal times the radial etendue (``sensorCompute``).
+            the sensor's fill-factor signal times the radial etendue (ISETCam ``sensorComputeImage``: volts x
+            etendue).
         diffraction: wavelength-dependent etendue (see :func:`microlens_radiance`), applied per wavelength.
         stack_height_m: total stack height (scales the layers; default their sum).
         offset_per_image_height: a further microlens offset of this many metres per metre of image height (the
@@ -477,9 +478,9 @@ class PixelOptics(nn.Module):
         exit_pupil_distance_m: overrides the optical image's image distance for the chief-ray angle.
         angle_samples: radii at which the etendue is computed.
         samples: the continuous integral's (directions, x segments).
-        pixel: microlens and stack parameters of :func:`microlens_radiance` (``photodiode_size_m`` defaults to
-            the sensor's ``sqrt(fill_factor) x pitch``, ``microlens_diameter_m`` to the pitch, ``source_f_number``
-            to the optical image's f-number).
+        pixel: microlens and stack parameters of :func:`microlens_radiance` (``pixel_size_m`` defaults to the
+            sensor's pitch, ``photodiode_size_m`` to ``sqrt(fill_factor) x pixel_size_m``, ``microlens_diameter_m``
+            to ``pixel_size_m``, ``source_f_number`` to the optical image's f-number).
     """
 
     def __init__(self, method: str = "centred", *, model: str = "phase_space", convention: str = "physical",
@@ -577,9 +578,9 @@ class PixelOptics(nn.Module):
         ``diffraction`` (float64; differentiable in ``stack_height_m`` and ``offset_per_image_height``)."""
         pixel = dict(self.pixel)
         pixel.setdefault("pixel_size_m", float(pixel_size_m))
-        pixel.setdefault("photodiode_size_m", math.sqrt(fill_factor) * float(pixel_size_m))
+        pixel.setdefault("photodiode_size_m", math.sqrt(fill_factor) * float(pixel["pixel_size_m"]))
         if "microlens_diameter_m" not in pixel and "microlens_f_number" not in pixel:
-            pixel["microlens_diameter_m"] = float(pixel_size_m)
+            pixel["microlens_diameter_m"] = float(pixel["pixel_size_m"])
         if "source_f_number" not in pixel:
             if oi.f_number is None:
                 raise ValueError("oi: pixel_optics needs the source f-number: the optical image has none (give "

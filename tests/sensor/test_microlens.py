@@ -109,19 +109,20 @@ def test_isetcam_grid_equals_an_independent_numpy_copy(method):
 def test_isetcam_published_behaviour_of_the_default_pixel():
     """ISETCam's default pixel (v_microlens / mlAnalyzeArrayEtendue): at 0 deg a centred microlens collects all the
     light, the bare pixel ~0.83; the bare pixel falls off with CRA, the centred microlens falls to 0 by 25 deg, the
-    optimal offset keeps ~1 to 30 deg. The continuous integral agrees with ISETCam's grid to 0.016 (its grid's bias)."""
-    cra = torch.arange(0.0, 35.01, 1.0)
-    for method in ("none", "centred", "optimal"):
-        grid = microlens_etendue(cra, method, sampling="isetcam")
-        cont = microlens_etendue(cra, method)
-        assert float((grid - cont).abs().max()) < 0.016, method
-    grid = {m: microlens_etendue(torch.tensor(ANGLES), m, sampling="isetcam") for m in ("none", "centred", "optimal")}
+    optimal offset keeps ~1 to 30 deg. The continuous integral agrees with ISETCam's grid to 0.016 (its grid's
+    bias)."""
+    cra = torch.arange(0.0, 35.01, 2.5)
+    grid = {m: microlens_etendue(cra, m, sampling="isetcam") for m in ("none", "centred", "optimal")}
+    for method, g in grid.items():
+        assert float((g - microlens_etendue(cra, method)).abs().max()) < 0.016, method
+    at = {a: i for i, a in enumerate(cra.tolist())}
     assert float(grid["none"][0]) == pytest.approx(0.831, abs=1e-3)
-    assert grid["centred"][:2].tolist() == [1.0, 1.0] and grid["centred"][-2:].tolist() == [0.0, 0.0]
+    assert grid["centred"][:3].tolist() == [1.0, 1.0, 1.0] and float(grid["centred"][at[25.0]:].abs().max()) == 0.0
     assert bool((grid["none"].diff() < 0).all()) and bool((grid["centred"].diff() <= 0).all())
-    assert float(grid["optimal"].min()) > 0.995
+    assert float(grid["optimal"][: at[30.0] + 1].min()) > 0.995
     # a centred microlens beats the bare pixel on axis and loses to it at large angles (the 2002 paper's point)
-    assert bool((grid["centred"][:3] > grid["none"][:3]).all()) and bool((grid["centred"][4:] < grid["none"][4:]).all())
+    assert float(grid["centred"][at[10.0]]) > float(grid["none"][at[10.0]])
+    assert bool((grid["centred"][at[20.0]:] < grid["none"][at[20.0]:]).all())
 
 
 def test_optimal_offset_is_the_chief_rays_walk():
@@ -303,7 +304,8 @@ def test_lens_chief_ray_table_drives_the_map():
     pytest.importorskip("isettorch.optics.lens")
     from isettorch.optics.factory import build_optics
 
-    lens = build_optics({"type": "lens", "lens": "cooke_triplet", "field_samples": 3, "components": 2})
+    lens = build_optics({"type": "lens", "lens": "cooke_triplet", "field_samples": 3, "components": 2,
+                         "distortion_samples": 6, "ri_samples": 16})
     table = lens.chief_ray_angle_table()
     a = lens.analysis
     assert float(table["cra_deg"][-1]) == pytest.approx(float(a.chief_ray_angle_deg(1.0, 587.6)), abs=1e-9)
@@ -325,3 +327,35 @@ def test_config_with_microlenses_builds():
         cam = Camera.from_config(name)
         assert isinstance(cam.sensor.pixel_optics, PixelOptics)
     assert Camera.from_config("default").sensor.pixel_optics is None
+
+
+def test_ray_traced_lens_camera_uses_the_traced_chief_rays():
+    pytest.importorskip("opticalglass")
+    from isettorch.camera import Camera, load_config
+    from isettorch.optics.lens.optics import LensOptics
+    from isettorch.scene.scene import Scene
+
+    cfg = load_config("cooke_lens")
+    pitch = 0.4e-3  # coarse "pixels" so a small sensor spans the lens's field (the pixel model is ISETCam's)
+    cfg["sensor"].update(rows=None, cols=None, pixel_size_m=pitch,
+                         pixel_optics={"method": "none", "pixel_size_m": 2.8e-6, "photodiode_size_m": D_UM * 1e-6,
+                                       "angle_samples": 65})
+    cam = Camera.from_config(cfg)
+    cam.optics = LensOptics(cam.optics.analysis, field_samples=3, azimuth_samples=4, components=4,
+                            distortion_samples=6, ri_samples=24)
+    scene = Scene(torch.full((1, 3, 24, 24), 1e16, dtype=torch.float64), torch.tensor([450.0, 550.0, 650.0]),
+                  hfov_deg=20.0)
+    out = cam(scene, return_intermediates=True)
+    oi = out.optical_image
+    table = oi.metadata["chief_ray_angle"]
+    rows, cols = out.raw.data.shape[-2:]
+    cra = cam.sensor.pixel_optics.chief_ray_angle_deg(oi, rows, cols, pitch)[0]
+    r_corner = math.hypot((rows - 1) / 2, (cols - 1) / 2) * pitch
+    want_cra = float(np.interp(r_corner, table["image_height_m"].numpy(), table["cra_deg"].numpy()))
+    assert float(cra[0, 0]) == pytest.approx(want_cra, abs=1e-9)
+    thin = math.degrees(math.atan(r_corner / float(cam.optics.focal_length_m)))
+    assert abs(want_cra - thin) > 0.05  # the traced angle, not the thin lens's
+    emap = cam.sensor.etendue_map(oi)[0]
+    e = microlens_etendue(torch.tensor([want_cra, 0.0]), "none", source_f_number=float(oi.f_number[0]),
+                          samples=(64, 128))
+    assert float(emap[0, 0]) == pytest.approx(float(e[0] * e[1]), abs=2e-3)

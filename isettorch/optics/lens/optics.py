@@ -132,10 +132,10 @@ class LensOptics(nn.Module):
         key = ("cra", round(wavelength_nm, 6))
         if key not in self._c:
             a = self._a
-            _, y_mm, _ = self._radial_tables(wavelength_nm)
+            fr = torch.linspace(0, 1, self.distortion_samples, dtype=torch.float64)
             with torch.no_grad():
-                cra = torch.stack([a.chief_ray_angle_deg(float(f), wavelength_nm)
-                                   for f in torch.linspace(0, 1, self.distortion_samples).tolist()])
+                y_mm = chief_ray_heights_mm(a, fr, wavelength_nm)
+                cra = torch.stack([a.chief_ray_angle_deg(float(f), wavelength_nm) for f in fr.tolist()])
             sign = torch.where(y_mm < 0, -1.0, 1.0).to(cra)
             self._c[key] = {"image_height_m": (y_mm.abs() * 1e-3).to(torch.float64),
                             "cra_deg": (cra * sign).to(torch.float64)}
