@@ -19,17 +19,19 @@ def _prep(optics, wavelengths_nm, dtype=torch.float64):
     return w, n
 
 
-def psf(optics, wavelengths_nm, spacing_m: float, size: int = 64) -> torch.Tensor:
+def psf(optics, wavelengths_nm, spacing_m: float, size: int = 64, **otf_kwargs) -> torch.Tensor:
     """Point-spread function ``[B, L, size, size]`` sampled at ``spacing_m`` on the image plane, sum 1.
 
     The origin is sample ``(size // 2, size // 2)``. Computed as the inverse DFT of the OTF on the matching
     frequency grid, so it is the PSF periodised with period ``size * spacing_m`` (choose it wide enough).
+    ``otf_kwargs``: passed to ``optics.otf`` (e.g. :class:`~isettorch.optics.WavefrontOptics`'
+    ``extra_defocus_diopters``).
     """
     if size < 2:
         raise ValueError(f"size: expected at least 2 samples, got {size}")
     w, n = _prep(optics, wavelengths_nm)
     f = torch.fft.fftfreq(size, d=float(spacing_m), dtype=w.dtype)[None, :].expand(n.numel(), -1)
-    otf = optics.otf(f, f, w, n)
+    otf = optics.otf(f, f, w, n, **otf_kwargs)
     p = torch.fft.ifft2(otf).real
     p = torch.fft.fftshift(p, dim=(-2, -1))
     return p / p.sum(dim=(-2, -1), keepdim=True)

@@ -174,8 +174,8 @@ def convolve_psf(x: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
     extended by reflection (replication when the image is smaller than the PSF radius), in the Fourier domain.
 
     Linear convolution of a sampled image with a sampled PSF (Goodman, Introduction to Fourier Optics, ch. 6); used
-    to defocus scene layers (:mod:`isettorch.data.natural`). A non-negative PSF on non-negative maps gives a
-    non-negative result: the FFT's round-off (~1e-7 of the peak) is clamped at 0.
+    to defocus scene layers (:meth:`isettorch.optics.WavefrontOptics.defocus_maps`). A non-negative PSF on
+    non-negative maps gives a non-negative result: the FFT's round-off (~1e-7 of the peak) is clamped at 0.
 
     Example:
         >>> x = torch.zeros(1, 9, 9); x[0, 4, 4] = 1.0

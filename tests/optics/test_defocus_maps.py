@@ -1,0 +1,71 @@
+"""Depth-aware blur of scene layers by the optics (WavefrontOptics.defocus_maps): a layer off the focus plane is
+blurred by the optics' PSF at that extra defocus (a uniform blur circle of geometric optics when the defocus is
+large), energy is conserved, and the result is that of the same lens built with the defocus."""
+
+import pytest
+import torch
+
+from isettorch.optics import WavefrontOptics
+from isettorch.optics.analysis import psf
+from isettorch.optics.blur import convolve_psf
+
+
+def _point(n: int, dtype=torch.float64) -> torch.Tensor:
+    x = torch.zeros(1, n, n, dtype=dtype)
+    x[0, n // 2, n // 2] = 1.0
+    return x
+
+
+def test_large_defocus_is_the_geometric_blur_circle():
+    """Thin lens, small angles: an object defocus D (diopters) images as a uniform disc of radius f^2 D / (2 N)
+    on the sensor (blur diameter = pupil diameter x f x D, geometric optics; Smith, Modern Optical Engineering,
+    ch. 6), so the encircled energy within r <= R is (r / R)^2."""
+    f, n_f, d = 4e-3, 2.0, 8.0
+    optics = WavefrontOptics(f_number=n_f, focal_length_m=f, pupil_samples=128)
+    n, pitch = 129, 1.0e-6
+    y = optics.defocus_maps(_point(n), pitch, d, psf_size=n)[0]
+    yy, xx = torch.meshgrid(torch.arange(n) - n // 2, torch.arange(n) - n // 2, indexing="ij")
+    r = torch.sqrt((xx**2 + yy**2).double()) * pitch
+    radius = f**2 * d / (2 * n_f)  # 32 um
+    for frac in (0.5, 0.7):
+        assert float(y[r <= frac * radius].sum()) == pytest.approx(frac**2, abs=0.03)  # diffraction edge: ~2 %
+    assert float(y[r <= radius].sum()) > 0.9
+    assert float(y.min()) >= 0.0
+
+
+def test_energy_is_conserved_and_more_defocus_blurs_more():
+    """Sampled finer than the diffraction cutoff (0.5 um < lambda N / 2 = 0.55 um), the PSF is non-negative and
+    sums to 1: the blurred point keeps its energy."""
+    optics = WavefrontOptics(f_number=2.0, focal_length_m=4e-3)
+    x = _point(129, torch.float32)
+    peaks = []
+    for d in (0.5, 1.0, 2.0):
+        y = optics.defocus_maps(x, 0.5e-6, d, psf_size=65)
+        assert y.dtype == torch.float32 and y.shape == x.shape
+        assert float(y.sum()) == pytest.approx(1.0, abs=1e-5)  # the point is far from the edge
+        peaks.append(float(y.max()))
+    assert peaks[0] > peaks[1] > peaks[2]
+
+
+def test_extra_defocus_adds_to_the_lens_own():
+    """A layer ``d`` diopters off the focus of a lens with its own defocus ``d0`` is blurred as by the lens built
+    with defocus ``d0 + d`` (its PSF from the OTF, convolved with reflected borders)."""
+    maps = torch.rand(3, 24, 20, generator=torch.Generator().manual_seed(0))
+    own = WavefrontOptics(torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.02]), f_number=2.8, focal_length_m=5e-3,
+                          defocus_diopters=0.5)
+    built = WavefrontOptics(torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.02]), f_number=2.8, focal_length_m=5e-3,
+                            defocus_diopters=1.5)
+    kernel = psf(built, torch.tensor([550.0], dtype=torch.float64), 2e-6, 33)[0, 0]
+    torch.testing.assert_close(own.defocus_maps(maps, 2e-6, 1.0), convolve_psf(maps, kernel.float()), rtol=0,
+                               atol=1e-6)
+
+
+def test_bad_arguments_are_named():
+    optics = WavefrontOptics(f_number=2.0, focal_length_m=4e-3)
+    x = _point(16, torch.float32)
+    with pytest.raises(ValueError, match="psf_size"):
+        optics.defocus_maps(x, 1e-6, 1.0, psf_size=32)
+    with pytest.raises(ValueError, match="spacing_m"):
+        optics.defocus_maps(x, 0.0, 1.0)
+    with pytest.raises(ValueError, match="defocus_diopters"):
+        optics.defocus_maps(x, 1e-6, float("nan"))
