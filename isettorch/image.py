@@ -8,12 +8,13 @@ photons' dtype and device, so they broadcast over the batch.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any, ClassVar
 
 import torch
 
 from . import spectral
-from ._checks import batch_param, check_nonnegative, check_rank, check_wavelengths
+from ._checks import as_tensor, batch_param, check_nonnegative, check_rank, check_wavelengths
 
 # IEC 61966-2-1:1999 (sRGB), XYZ (D65, Y = 1) -> linear sRGB.
 XYZ_TO_LINEAR_SRGB = (
@@ -55,6 +56,29 @@ def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
     """IEC 61966-2-1 sRGB decoding, encoded -> linear: ``x / 12.92`` up to 0.04045, ``((x + 0.055) / 1.055)^2.4``
     above (differentiable: no pow at 0). No clipping: the inverse of :func:`srgb_encode` on [0, 1] and above."""
     return torch.where(encoded <= 0.04045, encoded / 12.92, ((encoded.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
+
+
+# Bradford cone-response matrix (Lam 1985; CIE 159:2004).
+_BRADFORD = ((0.8951, 0.2664, -0.1614), (-0.7502, 1.7135, 0.0367), (0.0389, -0.0685, 1.0296))
+
+
+def bradford_matrix(source_white: torch.Tensor, target_white: torch.Tensor) -> torch.Tensor:
+    """Chromatic adaptation ``(..., 3, 3)`` from ``source_white`` to ``target_white`` (XYZ ``(..., 3)``, any common
+    scale; the two broadcast): ``M^-1 diag(M w_t / M w_s) M`` with the Bradford matrix M (von Kries in sharpened
+    cone space; Lam 1985, as in CIE 160:2004 and colour-science's ``matrix_chromatic_adaptation_VonKries``)."""
+    m = torch.tensor(_BRADFORD, dtype=torch.float64)
+    ws = as_tensor(source_white, "source_white", dtype=torch.float64)
+    wt = as_tensor(target_white, "target_white", dtype=torch.float64)
+    for name, w in (("source_white", ws), ("target_white", wt)):
+        if w.dim() == 0 or w.shape[-1] != 3:
+            raise ValueError(f"{name}: expected XYZ values of shape (..., 3), got {tuple(w.shape)}")
+    gain = (wt @ m.T) / (ws @ m.T)  # cone-response ratios (..., 3)
+    return _bradford_inverse() @ (gain[..., :, None] * m)
+
+
+@functools.cache
+def _bradford_inverse() -> torch.Tensor:
+    return torch.linalg.inv(torch.tensor(_BRADFORD, dtype=torch.float64))
 
 
 def xyz_to_srgb_preview(xyz_img: torch.Tensor, white_y: torch.Tensor) -> torch.Tensor:

@@ -46,8 +46,7 @@ import torch
 
 from .. import constants, spectral
 from .._checks import dataset_index
-from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
-from ..isp.colour import bradford_matrix
+from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
 from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, randint_scalar, seed_for, tune_allocator
 from .scenes import _uniform, generate_scene
 from .shm_slots import SlotArena, SlotBatchSampler, SlotLoader, SlotRequest
@@ -137,36 +136,88 @@ class _Clock:
             self.last = now
 
 
+def _diffraction_config(f_number: float, focal_length_m: float, margin: int) -> dict:
+    """The ``optics:`` section of a camera config for the pairs' default optics (diffraction-limited, zero padding)."""
+    return {"type": "diffraction_limited", "f_number": f_number, "focal_length_m": focal_length_m, "margin": margin,
+            "pad_mode": "zero"}
+
+
+def _sensor_config(d: dict) -> dict:
+    """The ``sensor:`` section of a camera config for the discrete camera ``d`` (its QE module and per-call levels are
+    set per item: the D5100 curves here only make a valid sensor). Auto-exposure: the 98th percentile of the mosaic
+    at 80 % of the usable swing (after analog gain), times ``2^EV`` per item."""
+    return {"rows": d["h"], "cols": d["w"], "pixel_size_m": d["pitch"], "fill_factor": d["fill"], "cfa": d["pattern"],
+            "filters": "nikon_5100", "conversion_gain_v_per_e": 1.0 / d["full_well"], "voltage_swing_v": 1.0,
+            "adc_bits": d["bits"], "black_level_dn": d["black"], "shot_noise": "poisson", "fpn_mode": "per_frame",
+            "auto_exposure": "percentile", "ae_percentile": 98.0, "ae_target": 0.8}
+
+
+def _config_key(config: dict) -> str:
+    import json
+
+    return json.dumps(config, sort_keys=True, default=str)
+
+
 class _Cache:
-    """Per-process caches of camera modules: ``optics`` one `DiffractionLimitedOptics` per (f-number, focal length,
-    margin), each with its OTF cache; ``sensors`` one `Sensor` per discrete camera (pitch, fill, CFA, ADC) and
-    thread, whose QE module and per-call levels are set per item."""
+    """Per-process caches of camera modules, all built by the camera's own config factory
+    (:meth:`isettorch.Camera.from_config` of an ``optics:`` and a ``sensor:`` section): ``optics`` one module per
+    optics config (shared by every camera that has it, with its OTF cache; a ray-traced lens plans its PSFs once),
+    ``sensors`` one `Sensor` per discrete camera (pitch, fill, CFA, ADC, size) and thread (its QE module and per-call
+    levels are set per item, so threads sharing a dataset must not share it), ``cameras`` one `Camera` per pair."""
 
     def __init__(self):
         self.optics = {}
         self.sensors = {}
         self.cameras = {}
 
-    def get_optics(self, f_number: float, focal_length_m: float, margin: int):
-        from ..optics import DiffractionLimitedOptics
+    @staticmethod
+    def _sensor_key(d: dict) -> tuple:
+        return (d["pitch"], d["fill"], d["pattern"], d["bits"], d["black"], d["h"], d["w"], threading.get_ident())
 
-        key = (f_number, focal_length_m, margin)
-        if key not in self.optics:
-            self.optics[key] = DiffractionLimitedOptics(f_number=f_number, focal_length_m=focal_length_m,
-                                                        margin=margin, pad_mode="zero")
-        return self.optics[key]
+    def config_camera(self, optics_config: dict, d: dict):
+        """The `Camera` of ``optics_config`` and the discrete camera ``d`` (no ISP: the pairs' targets are spectral
+        projections), from ``Camera.from_config``, with the cached optics and sensor when they were built before."""
+        from ..camera import Camera
+
+        okey, skey = _config_key(optics_config), self._sensor_key(d)
+        camera = self.cameras.get((okey, skey))
+        if camera is None:
+            for cache in (self.sensors, self.cameras):
+                if len(cache) > 256:  # bounded
+                    cache.clear()
+            config = {"optics": optics_config, "sensor": _sensor_config(d), "camera": {"noise": True}}
+            camera = Camera.from_config(config)
+            camera.optics = self.optics.setdefault(okey, camera.optics)
+            camera.sensor = self.sensors.setdefault(skey, camera.sensor)
+            camera.isp = _NoISP()
+            self.cameras[(okey, skey)] = camera
+        return camera
+
+    # One module at a time (isettorch.data.stream, benchmarks): the same caches, the same factory.
+    def get_optics(self, f_number: float, focal_length_m: float, margin: int):
+        """The default diffraction-limited optics of (f-number, focal length, margin)."""
+        return self.get_built_optics(_diffraction_config(f_number, focal_length_m, margin))
 
     def get_built_optics(self, config: dict):
-        """The optics of a ``camera.optics`` mapping (:func:`isettorch.optics.factory.build_optics`), built once
-        per process and config (a ray-traced lens plans its PSFs once per field grid and keeps them)."""
-        import json
+        """The optics of a ``camera.optics`` mapping (``Camera.from_config``'s ``optics:`` section), built once per
+        process and config."""
+        from ..camera import Camera
 
-        from ..optics.factory import build_optics
-
-        key = ("built", json.dumps(config, sort_keys=True, default=str))
+        key = _config_key(config)
         if key not in self.optics:
-            self.optics[key] = build_optics(config)
+            self.optics[key] = Camera.from_config({"optics": config, "sensor": {}}).optics
         return self.optics[key]
+
+    def get_sensor(self, d: dict):
+        """The `Sensor` of a discrete camera ``d`` (``Camera.from_config``'s ``sensor:`` section), once per thread."""
+        from ..camera import Camera
+
+        key = self._sensor_key(d)
+        if key not in self.sensors:
+            if len(self.sensors) > 256:  # bounded
+                self.sensors.clear()
+            self.sensors[key] = Camera.from_config({"optics": {}, "sensor": _sensor_config(d)}).sensor
+        return self.sensors[key]
 
     def get_camera(self, optics, sensor):
         """The `Camera` of these modules (no ISP: the pairs' targets are spectral projections)."""
@@ -179,25 +230,6 @@ class _Cache:
                 self.cameras.clear()
             camera = self.cameras[key] = Camera(optics, sensor, isp=_NoISP(), noise=True)
         return camera
-
-    def get_sensor(self, d: dict):
-        """The `Sensor` of a discrete camera (built and validated once per thread: its QE module is set per item,
-        so threads sharing a dataset must not share it). Auto-exposure: the 98th percentile of the mosaic at
-        80 % of the usable swing (after analog gain), times ``2^EV`` per item."""
-        from ..sensor import CFA, Sensor
-
-        key = (d["pitch"], d["fill"], d["pattern"], d["bits"], d["black"], d["h"], d["w"], threading.get_ident())
-        sensor = self.sensors.get(key)
-        if sensor is None:
-            if len(self.sensors) > 256:  # bounded
-                self.sensors.clear()
-            cfa = CFA(d["pattern"])
-            sensor = self.sensors[key] = Sensor(
-                rows=d["h"], cols=d["w"], pixel_size_m=d["pitch"], fill_factor=d["fill"], cfa=cfa,
-                spectral_qe=_unit_qe(d["pattern"], (0.0, 0.0, 0.0)), conversion_gain_v_per_e=1.0 / d["full_well"],
-                voltage_swing_v=1.0, adc_bits=d["bits"], black_level_dn=d["black"], shot_noise="poisson",
-                fpn_mode="per_frame", auto_exposure="percentile", ae_percentile=98.0, ae_target=0.8)
-        return sensor
 
 
 def _draw_camera(index: int, seed: int, scene_cfg: dict, cam: dict) -> dict:
@@ -310,17 +342,15 @@ def camera_for(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtyp
     cache = cache or _Cache()
     d = _draw_camera(index, seed, scene_cfg, camera_cfg)
     optics_cfg = camera_cfg.get("optics") or {}
+    # the camera from its config (Camera.from_config): a configured optics module, or diffraction-limited optics at
+    # the drawn f-number and focal length
+    camera = cache.config_camera(optics_cfg or _diffraction_config(d["f_number"], d["focal"], d["m"]), d)
     if optics_cfg:  # a configured optics module: its own f-number and focal length (the drawn ones are unused)
-        optics = cache.get_built_optics(optics_cfg)
-        d["f_number"], d["focal"] = float(optics.f_number), float(optics.focal_length_m)
+        d["f_number"], d["focal"] = float(camera.optics.f_number), float(camera.optics.focal_length_m)
         # a ray-traced lens images objects at infinity at its focal length (LensOptics: pitch = EFL tan(angle))
         _set_fov(d, d["focal"] if optics_cfg.get("type") == "lens" else None)
-    else:
-        optics = cache.get_optics(d["f_number"], d["focal"], d["m"])
     scene = _scene_for(index, seed, scene_cfg, d, dtype)
-    sensor = cache.get_sensor(d)
-    sensor.spectral_qe = _unit_qe(d["pattern"], tuple(d["shifts"]))  # peak 1; the item's peak is qe_scale
-    camera = cache.get_camera(optics, sensor)
+    camera.sensor.spectral_qe = _unit_qe(d["pattern"], tuple(d["shifts"]))  # peak 1; the item's peak is qe_scale
     cg = 1.0 / d["full_well"]  # volts per electron with a 1 V swing: well capacity = full_well
     kwargs = {"analog_gain": d["gain"], "exposure_ev": d["ev"], "qe_scale": d["peak"], "conversion_gain_v_per_e": cg,
               "read_noise_v": d["read_e"] * cg, "dark_current_e_per_s": d["dark"], "dsnu_sigma_v": d["dsnu_e"] * cg,
@@ -641,18 +671,18 @@ class CameraPairDataset(torch.utils.data.Dataset):
         if self.method == "reference":
             return collate_pairs([self[i] for i in idx])
         if isinstance(indices, SlotRequest) and torch.utils.data.get_worker_info() is not None:
-            return self._slot_batch(idx, indices.slots)
+            return self._slot_batch(idx, indices.slots, indices.epoch)
         return render_pairs(idx, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
                             cache=self._cache, targets=self.targets)
 
-    def _slot_batch(self, idx: list[int], slots: int):
+    def _slot_batch(self, idx: list[int], slots: int, epoch: int = 0):
         """In a worker of :func:`batch_loader`: the batch rendered into one of this worker's shared-memory slots,
         returned as a :class:`~isettorch.data.shm_slots.SlotBatch` handle (or the batch itself, without a free
         slot); the loader copies it out in the main process."""
         arena = self.__dict__.get("_arena")
         if arena is None:
             arena = self._arena = SlotArena(slots)
-        bump = arena.acquire()
+        bump = arena.acquire(epoch)
         try:
             with one_thread():
                 batch = _render_pairs(idx, self.seed, self.scene_config, self.camera_config, dtype=self.dtype,
@@ -675,7 +705,9 @@ def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool =
     Args:
         batch_size: items per batch. shuffle / generator: a ``RandomSampler`` (seeded by ``generator``) instead
             of the sequential order; ``sampler``: any index sampler (e.g. ``DistributedSampler``) instead.
-        drop_last, num_workers, loader_kwargs: passed on (``BatchSampler`` / ``DataLoader``).
+        drop_last, num_workers, loader_kwargs: passed on (``BatchSampler`` / ``DataLoader``). With workers,
+            ``persistent_workers`` defaults to True: the workers, their camera caches (OTFs, sensors) and their
+            shared-memory slots live across epochs instead of being started again for each one.
         shm_slots: with workers, ship batches through per-worker shared-memory slots that are reused, copied out
             in the main process (:mod:`isettorch.data.shm_slots`; the same values, bitwise): measured 300 -> 355
             pairs/s at 128^2, batch 16, 2 workers on 2 cores (``benchmarks/THROUGHPUT.md``). Not used with
@@ -697,6 +729,8 @@ def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool =
     # (isettorch.data.shm_slots: no fresh shared memory per batch); not with a user's collate_fn or pinned memory,
     # which would see the slot handles.
     slots = shm_slots and num_workers > 0 and not loader_kwargs.get("pin_memory") and "collate_fn" not in loader_kwargs
+    if num_workers > 0:  # keep the workers (and their caches and slots) across epochs, unless the user says otherwise
+        loader_kwargs.setdefault("persistent_workers", True)
     if slots:
         batches = SlotBatchSampler(sampler, batch_size, drop_last, int(loader_kwargs.get("prefetch_factor") or 2) + 1)
     else:

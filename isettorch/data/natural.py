@@ -36,8 +36,9 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   blends each material towards another one instead, and every leaf and item takes a random material (fine detail
   that changes colour).
 * ``depth_layers``: a foreground dead-leaves layer over the background, each defocused by the library's optics
-  (:class:`~isettorch.optics.WavefrontOptics` with ``defocus_diopters``; the PSF at 550 nm blurs the layer's maps and
-  its coverage, then the layers are composited front over back).
+  (:meth:`WavefrontOptics.defocus_maps <isettorch.optics.WavefrontOptics.defocus_maps>` at the layer's defocus in
+  diopters: the PSF at 550 nm blurs the layer's maps and its coverage, then the layers are composited front over
+  back).
 * ``fine_detail``: band-limited detail near and above the sensor's Nyquist frequency: gratings at any angle
   (0.15-0.7 cycles/pixel), thin lines (0.3-2 px) and sharp straight edges, rendered ``supersample`` x finer and
   box-averaged (pixel-area integration), so networks see moire and zipper cases.
@@ -82,7 +83,6 @@ Every draw comes from one ``torch.Generator`` seeded by ``seed_for(seed, index)`
 
 from __future__ import annotations
 
-import copy
 import functools
 import math
 
@@ -93,96 +93,11 @@ import torch.nn.functional as F
 from .. import spectral
 from ..scene import textures as _tex
 from . import spectra as _spectra
-from .config import seed_for
+from .config import COMPONENTS, DEFAULT_COMPONENTS, NATURAL_DEFAULTS, natural_config, seed_for
 from .layouts import dead_leaves_radii
 
 __all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "DEFAULT_COMPONENTS", "natural_config", "generate_natural", "to_scene",
            "hard_patch_indices", "NaturalSceneDataset", "DOMAINS", "expose_and_encode"]
-
-NATURAL_DEFAULTS: dict = {
-    "size": 128,
-    "wavelengths_nm": [400.0, 700.0, 10.0],
-    "mean_radiance_scale": 1.0,  # the illuminant is scaled to luminance 1 cd/m^2 from a white; x this
-    "components": {
-        "palette": {"enabled": True, "materials": [2, 8], "measured": 0.35, "recovery": 0.35, "random": 0.3,
-                    "grey_probability": 0.15, "dye": {"probability": 0.0, "concentration": [1.0, 4.0]}},
-        "illuminant": {"enabled": True, "kinds": {"daylight": 0.4, "blackbody": 0.25, "led": 0.2,
-                                                  "fluorescent": 0.15},
-                       "mixed_probability": 0.2},
-        "dead_leaves": {"enabled": True, "leaves": [500, 1200], "exponent": 3.0, "r_min_px": 0.8,
-                        "r_max_fraction": 0.5, "brightness": [0.1, 1.0]},
-        "textured_leaves": {"enabled": True, "probability": 0.5, "noise_exponent": [0.8, 1.6],
-                            "grating_cpp": [0.02, 0.3], "kinds": {"noise": 0.4, "grating": 0.25, "colour_line": 0.35},
-                            "min_size_px": 10},
-        "colour_correlation": {"enabled": True, "exponent": [0.7, 1.2], "contrast": [0.05, 0.35],
-                               "chromatic_radius_px": 8.0, "chromatic_detail_probability": 0.5},
-        "depth_layers": {"enabled": True, "probability": 0.4, "foreground_leaves": [3, 12],
-                         "defocus_diopters": [0.0, 0.5, 1.0, 2.0], "f_number": 2.0, "focal_length_m": 0.004,
-                         "pixel_size_m": 1.4e-6},
-        "fine_detail": {"enabled": True, "probability": 0.4, "items": [1, 4], "grating_cpp": [0.15, 0.7],
-                        "line_width_px": [0.3, 2.0], "supersample": 4},
-        "grain": {"enabled": True, "probability": 0.5, "amplitude": [0.002, 0.015], "exponent": [0.0, 0.6],
-                  "contrast": 0.7, "dye_edges_nm": [490.0, 580.0], "dye_width_nm": 12.0,
-                  "relative": {"probability": 0.0, "contrast": [0.01, 0.08]}},
-        "specular": {"enabled": True, "probability": 0.0, "amplitude": [0.02, 0.3], "glossy_fraction": 0.5,
-                     "exponent": [0.3, 1.2], "contrast": [0.3, 1.0]},
-    },
-}
-COMPONENTS = tuple(NATURAL_DEFAULTS["components"])
-#: the components that draw in the default (version-5) scenes; ``specular`` is drawn only with a probability > 0
-DEFAULT_COMPONENTS = tuple(c for c in COMPONENTS if NATURAL_DEFAULTS["components"][c].get("probability", 1) > 0)
-
-
-def natural_config(config: dict | None = None, **overrides) -> dict:
-    """``NATURAL_DEFAULTS`` updated with ``config`` (nested dicts merged); unknown keys raise naming the key.
-    ``overrides``: ``disable=("fine_detail", ...)`` switches components off."""
-    out = copy.deepcopy(NATURAL_DEFAULTS)
-
-    def merge(dst, src, path):
-        for k, v in src.items():
-            if k not in dst:
-                raise ValueError(f"config: unknown key {path + k!r}; expected one of {sorted(dst)}")
-            if isinstance(dst[k], dict) and k != "kinds":
-                if not isinstance(v, dict):
-                    raise ValueError(f"config: {path + k!r} expected a mapping, got {v!r}")
-                merge(dst[k], v, path + k + ".")
-            else:
-                dst[k] = v
-
-    merge(out, config or {}, "")
-    for name in overrides.pop("disable", ()):
-        if name not in COMPONENTS:
-            raise ValueError(f"disable: expected component names from {COMPONENTS}, got {name!r}")
-        out["components"][name]["enabled"] = False
-    if overrides:
-        raise ValueError(f"natural_config: unknown arguments {sorted(overrides)}")
-    size = out["size"]
-    if isinstance(size, bool) or not isinstance(size, int) or size < 16:
-        raise ValueError(f"config: 'size' expected an integer >= 16 pixels, got {size!r}")
-    _check_optional(out["components"]["palette"]["dye"], "palette.dye", "concentration")
-    _check_optional(out["components"]["grain"]["relative"], "grain.relative", "contrast")
-    _check_optional(out["components"]["specular"], "specular", "amplitude")
-    sp = out["components"]["specular"]
-    if not isinstance(sp["glossy_fraction"], (int, float)) or not 0 < sp["glossy_fraction"] <= 1:
-        raise ValueError(f"config: 'components.specular.glossy_fraction' expected a fraction in (0, 1], "
-                         f"got {sp['glossy_fraction']!r}")
-    for key, lo_ok, hi_ok in (("exponent", 0.0, 4.0), ("contrast", 0.0, 3.0)):
-        r = sp[key]
-        if (not isinstance(r, (list, tuple)) or len(r) != 2 or not all(isinstance(c, (int, float)) for c in r)
-                or not lo_ok <= r[0] <= r[1] <= hi_ok):
-            raise ValueError(f"config: 'components.specular.{key}' expected a range [lo, hi] with "
-                             f"{lo_ok} <= lo <= hi <= {hi_ok}, got {r!r}")
-    return out
-
-
-def _check_optional(block: dict, name: str, key: str) -> None:
-    """An optional draw's settings: ``probability`` in [0, 1] and a range ``key`` = [lo, hi] with 0 < lo <= hi."""
-    prob, rng = block["probability"], block[key]
-    if (not isinstance(prob, (int, float)) or not 0 <= prob <= 1 or not isinstance(rng, (list, tuple))
-            or len(rng) != 2 or not all(isinstance(c, (int, float)) for c in rng) or not 0 < rng[0] <= rng[1]):
-        raise ValueError(f"config: 'components.{name}' expected a probability in [0, 1] and a {key} range [lo, hi] "
-                         f"with 0 < lo <= hi, got {block}")
-
 
 # ------------------------------------------------------------------------------------------------ draws
 
@@ -373,21 +288,13 @@ def _paint_leaves(cfg, g, maps, n_leaves, r_min, r_max, exponent, alpha=None):
 
 
 @functools.lru_cache(maxsize=32)
-def _defocus_psf(diopters: float, f_number: float, focal_length_m: float, pixel_size_m: float) -> torch.Tensor:
-    """The library's defocus PSF (WavefrontOptics, 550 nm) sampled at the pixel pitch: [S, S] float32, sum 1."""
+@functools.lru_cache(maxsize=8)
+def _layer_optics(f_number: float, focal_length_m: float):
+    """The lens that images the depth layers, focused where a layer's defocus is 0 (built once per setting; the
+    optics blur each layer: :meth:`~isettorch.optics.WavefrontOptics.defocus_maps`)."""
     from ..optics import WavefrontOptics
-    from ..optics.analysis import psf
 
-    optics = WavefrontOptics(f_number=f_number, focal_length_m=focal_length_m, defocus_diopters=diopters)
-    p = psf(optics, torch.tensor([550.0], dtype=torch.float64), pixel_size_m, 33)[0, 0]
-    return p.float()
-
-
-def _blur(x: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
-    """A layer's maps [C, H, W] defocused by the library's PSF (:func:`isettorch.optics.blur.convolve_psf`)."""
-    from ..optics.blur import convolve_psf
-
-    return convolve_psf(x, psf)
+    return WavefrontOptics(f_number=f_number, focal_length_m=focal_length_m)
 
 
 def _fine_detail(cfg, g, maps):
@@ -524,11 +431,13 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
         fg = torch.zeros_like(maps)
         alpha = torch.zeros(h, w)
         _paint_leaves(cfg, g, fg, _ri(g, *depth["foreground_leaves"]), 0.08 * h, 0.35 * h, 3.0, alpha=alpha)
-        args = (float(depth["f_number"]), float(depth["focal_length_m"]), float(depth["pixel_size_m"]))
+        # the optics defocus each layer by its distance from the focus plane (550 nm PSF at the pixel pitch)
+        optics, pitch = _layer_optics(float(depth["f_number"]), float(depth["focal_length_m"])), float(
+            depth["pixel_size_m"])
         if d_back > 0:
-            maps = _blur(maps, _defocus_psf(float(d_back), *args))
+            maps = optics.defocus_maps(maps, pitch, float(d_back))
         if d_front > 0:
-            both = _blur(torch.cat([fg, alpha[None]]), _defocus_psf(float(d_front), *args))
+            both = optics.defocus_maps(torch.cat([fg, alpha[None]]), pitch, float(d_front))
             fg, alpha = both[:-1], both[-1]
         maps = maps * (1 - alpha) + fg  # fg is premultiplied by its coverage
         defocus = (float(d_back), float(d_front))

@@ -84,7 +84,7 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
     def _photo(self, path: Path) -> torch.Tensor:
         from PIL import Image
 
-        from ..isp.colour import srgb_decode
+        from ..image import srgb_decode
 
         with Image.open(path) as im:
             if im.mode not in ("RGB", "RGBA", "L"):

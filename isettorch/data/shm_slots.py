@@ -13,7 +13,8 @@ ordinary memory and marks the slot free again (a flag in the slot's header, read
 batch the user holds is never overwritten. A worker with no free slot (the main process is slow to consume, or a
 batch needs more bytes than the slot has) falls back to the stock path for that batch: values are identical either
 way (a byte copy). Batches the DataLoader itself discards (an epoch abandoned midway with ``persistent_workers``)
-keep their slots marked busy: that worker then uses its remaining slots, and the stock path once none is left.
+never reach the main process's copy: their slots are freed by the worker when the next epoch's first batch reaches
+it (each request carries its epoch; the DataLoader drains every batch of an epoch before it sends the next one's).
 
 Used by :func:`isettorch.data.camera_pairs.batch_loader`; the handle never reaches user code.
 """
@@ -38,9 +39,11 @@ def _flag(storage: torch.UntypedStorage) -> torch.Tensor:
 
 
 class SlotRequest(list):
-    """The indices of one batch, marked for shipping through a slot (what :class:`SlotLoader`'s sampler yields)."""
+    """The indices of one batch, marked for shipping through a slot (what :class:`SlotLoader`'s sampler yields),
+    with the number of slots a worker keeps and the epoch (the sampler's iteration) the batch belongs to."""
 
     slots: int = 3
+    epoch: int = 0
 
 
 class _Bump:
@@ -68,14 +71,22 @@ class SlotArena:
         if count < 1:
             raise ValueError(f"count: expected at least one slot, got {count}")
         self.count, self.slots, self.nbytes = count, [], 0
+        self.epoch, self.slot_epochs = 0, {}  # the latest epoch seen; each slot's epoch (by storage pointer)
 
-    def acquire(self) -> _Bump:
+    def acquire(self, epoch: int = 0) -> _Bump:
         """An allocator over a free slot (marked busy); without a slot (every slot still held by the main process,
         the batch size not yet learnt, or no shared memory to be had) one that hands out ordinary tensors.
-        Call :meth:`finish` with the rendered batch."""
+        Call :meth:`finish` with the rendered batch. ``epoch``: the batch's epoch; the first batch of a later epoch
+        frees the slots still busy with batches of earlier ones (discarded by the DataLoader, never copied out)."""
+        if epoch > self.epoch:
+            for storage in self.slots:
+                if self.slot_epochs.get(storage.data_ptr(), epoch) < epoch:
+                    _flag(storage).fill_(0)
+            self.epoch = epoch
         for storage in self.slots:
             if storage.nbytes() >= self.nbytes and int(_flag(storage)) == 0:
                 _flag(storage).fill_(1)
+                self.slot_epochs[storage.data_ptr()] = epoch
                 return _Bump(storage)
         self.slots = [s for s in self.slots if s.nbytes() >= self.nbytes]  # outgrown slots are dropped
         if len(self.slots) >= self.count or self.nbytes == 0:
@@ -86,6 +97,7 @@ class SlotArena:
             return _Bump(None)
         _flag(storage).fill_(1)
         self.slots.append(storage)
+        self.slot_epochs[storage.data_ptr()] = epoch
         return _Bump(storage)
 
     def finish(self, batch: dict, bump: _Bump):
@@ -173,12 +185,14 @@ class SlotBatchSampler(torch.utils.data.BatchSampler):
 
     def __init__(self, sampler, batch_size: int, drop_last: bool, slots: int):
         super().__init__(sampler, batch_size, drop_last)
-        self.slots = slots
+        self.slots, self.epoch = slots, 0
 
     def __iter__(self):
+        self.epoch += 1
+        epoch = self.epoch
         for indices in super().__iter__():
             request = SlotRequest(indices)
-            request.slots = self.slots
+            request.slots, request.epoch = self.slots, epoch
             yield request
 
 

@@ -54,7 +54,7 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
         >>> img = read_image("photo.png")  # doctest: +SKIP
         >>> scene = isettorch.scene.from_rgb(img)  # doctest: +SKIP
     """
-    from ..isp.colour import srgb_decode
+    from ..image import srgb_decode
 
     _check_encoding(encoding)
     p = Path(path)

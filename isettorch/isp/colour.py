@@ -24,7 +24,7 @@ from torch import nn
 
 from .. import spectral
 from .._checks import as_tensor, check_finite, check_rank, check_wavelengths
-from ..image import XYZ_TO_LINEAR_SRGB, srgb_decode, srgb_encode
+from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_decode, srgb_encode  # re-exported here
 
 __all__ = [
     "apply_matrix",
@@ -593,29 +593,6 @@ class XYZToDisplay(nn.Module):
 
     def extra_repr(self) -> str:
         return f"display={self.name!r}, max_luminance_cd_m2={self.max_luminance_cd_m2}"
-
-
-# Bradford cone-response matrix (Lam 1985; CIE 159:2004).
-_BRADFORD = ((0.8951, 0.2664, -0.1614), (-0.7502, 1.7135, 0.0367), (0.0389, -0.0685, 1.0296))
-
-
-def bradford_matrix(source_white: torch.Tensor, target_white: torch.Tensor) -> torch.Tensor:
-    """Chromatic adaptation ``(..., 3, 3)`` from ``source_white`` to ``target_white`` (XYZ ``(..., 3)``, any common
-    scale; the two broadcast): ``M^-1 diag(M w_t / M w_s) M`` with the Bradford matrix M (von Kries in sharpened
-    cone space; Lam 1985, as in CIE 160:2004 and colour-science's ``matrix_chromatic_adaptation_VonKries``)."""
-    m = torch.tensor(_BRADFORD, dtype=torch.float64)
-    ws = as_tensor(source_white, "source_white", dtype=torch.float64)
-    wt = as_tensor(target_white, "target_white", dtype=torch.float64)
-    for name, w in (("source_white", ws), ("target_white", wt)):
-        if w.dim() == 0 or w.shape[-1] != 3:
-            raise ValueError(f"{name}: expected XYZ values of shape (..., 3), got {tuple(w.shape)}")
-    gain = (wt @ m.T) / (ws @ m.T)  # cone-response ratios (..., 3)
-    return _bradford_inverse() @ (gain[..., :, None] * m)
-
-
-@functools.cache
-def _bradford_inverse() -> torch.Tensor:
-    return torch.linalg.inv(torch.tensor(_BRADFORD, dtype=torch.float64))
 
 
 class DisplayEncode(nn.Module):

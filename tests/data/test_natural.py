@@ -196,10 +196,13 @@ def test_fine_detail_puts_energy_near_nyquist():
 
 
 def test_depth_layers_defocus_with_the_library_psf():
-    psf = nat._defocus_psf(2.0, 2.0, 0.004, 1.4e-6)
-    assert float(psf.sum()) == pytest.approx(1.0, abs=1e-5)
-    sharp = nat._defocus_psf(0.0, 2.0, 0.004, 1.4e-6)
-    assert float(psf.max()) < 0.5 * float(sharp.max())  # defocus spreads the PSF
+    optics = nat._layer_optics(2.0, 0.004)  # the layers' lens; the optics blur each layer (defocus_maps)
+    point = torch.zeros(1, 65, 65)
+    point[0, 32, 32] = 1.0
+    blurred = optics.defocus_maps(point, 1.4e-6, 2.0)
+    assert float(blurred.sum()) == pytest.approx(1.0, abs=1e-5)
+    sharp = optics.defocus_maps(point, 1.4e-6, 0.0)
+    assert float(blurred.max()) < 0.5 * float(sharp.max())  # defocus spreads the PSF
     cfg = {"size": 48, "components": {"depth_layers": {"probability": 1.0, "defocus_diopters": [2.0]}}}
     s = nat.generate_natural(0, 0, cfg)
     assert s["meta"]["defocus_diopters"] == (2.0, 2.0)

@@ -128,3 +128,44 @@ def test_pinned_or_custom_collate_loaders_use_the_stock_path():
     assert not isinstance(batch_loader(ds, 2, num_workers=1, shm_slots=False), SlotLoader)
     with pytest.raises(ValueError, match="count"):
         SlotArena(0)
+
+
+def test_batch_loader_keeps_its_workers_across_epochs():
+    """Workers persist by default (num_workers > 0): two epochs give the same batches as the main process, from the
+    same worker processes, the second wholly through the slots the first freed; the user's choice is kept."""
+    ds = CameraPairDataset(12, seed=3, scene=TINY)
+    loader = batch_loader(ds, 2, num_workers=2)
+    assert loader.persistent_workers
+    ref = [ds.get_batch([2 * b, 2 * b + 1]) for b in range(6)]
+    first = list(loader)
+    pids = [w.pid for w in loader._iterator._workers]
+    second = list(loader)
+    assert [w.pid for w in loader._iterator._workers] == pids and all(w.is_alive() for w in loader._iterator._workers)
+    assert loader.shipped == {"slot": 6, "stock": 0}
+    for got in (first, second):
+        for b, r in zip(got, ref, strict=True):
+            assert all(torch.equal(b[k], r[k]) for k in KEYS)
+            assert all(torch.equal(b["meta"][k], v) for k, v in r["meta"].items())
+    assert not batch_loader(ds, 2, num_workers=2, persistent_workers=False).persistent_workers
+    assert not batch_loader(ds, 2).persistent_workers  # no workers to keep
+
+
+def test_an_abandoned_epoch_frees_its_slots_at_the_next_epoch():
+    """Batches the DataLoader discards (an epoch left midway) are never copied out; the worker frees their slots
+    when the next epoch's first request reaches it, so later epochs still ship every batch through a slot."""
+    arena = SlotArena(2)
+    b0 = arena.acquire(1)
+    arena.finish(_batch(b0, 1.0), b0)  # learns the size
+    busy = [arena.acquire(1) for _ in range(2)]
+    for bump in busy:
+        assert isinstance(arena.finish(_batch(bump, 2.0), bump), SlotBatch)  # shipped, never unpacked
+    assert arena.acquire(1).storage is None  # the same epoch: both slots are (rightly) busy
+    fresh = arena.acquire(2)  # the next epoch: the discarded batches' slots are free again
+    assert fresh.storage is not None and fresh.storage.data_ptr() in {b.storage.data_ptr() for b in busy}
+    ds = CameraPairDataset(12, seed=3, scene=TINY)
+    loader = batch_loader(ds, 2, num_workers=2)
+    for _ in range(3):  # three epochs left midway (their prefetched batches discarded by the DataLoader) would
+        for _ in loader:  # keep all three slots of each worker busy: every batch then took the stock path
+            break
+    list(loader)
+    assert loader.shipped == {"slot": 6, "stock": 0}
