@@ -323,7 +323,27 @@ _DEFAULTS = dict(source_f_number=ISETCAM_PIXEL["source_f_number"],
                  layer_thicknesses_m=ISETCAM_PIXEL["layer_thicknesses_m"],
                  layer_indices=ISETCAM_PIXEL["layer_indices"], stack_height_m=None, stack_index=None,
                  pixel_size_m=ISETCAM_PIXEL["pixel_size_m"], photodiode_size_m=ISETCAM_PIXEL["photodiode_size_m"],
-                 wavelength_nm=ISETCAM_PIXEL["wavelength_nm"])
+                 wavelength_nm=ISETCAM_PIXEL["wavelength_nm"],
+                 # accepted for ISETCam's microlens structure; a pixel's etendue does not depend on them (they place
+                 # an angle on the array: microlens_array_offsets_m, PixelOptics)
+                 source_focal_length_m=ISETCAM_PIXEL["source_focal_length_m"],
+                 microlens_index=ISETCAM_PIXEL["microlens_index"])
+# the issue's and ISETCam's other names for the same parameters
+_ALIAS_KEYS = {"pixel_width_m": "pixel_size_m", "photodiode_width_m": "photodiode_size_m"}
+
+
+def _pixel_kwargs(pixel: dict) -> dict:
+    out = {}
+    for k, v in pixel.items():
+        key = _ALIAS_KEYS.get(k, k)
+        if key in out:
+            raise ValueError(f"{k}: given twice (as {key!r} too)")
+        out[key] = v
+    unknown = set(out) - set(_DEFAULTS)
+    if unknown:
+        raise ValueError(f"{sorted(unknown)[0]}: not a microlens/pixel parameter; expected one of "
+                         f"{sorted(set(_DEFAULTS) | set(_ALIAS_KEYS))}")
+    return {**_DEFAULTS, **out}
 
 
 def microlens_radiance(chief_ray_angle_deg=0.0, method: str = "centred", *, offset_m=None,
@@ -346,7 +366,10 @@ def microlens_radiance(chief_ray_angle_deg=0.0, method: str = "centred", *, offs
             ``microlens_focal_length_m``, ``microlens_f_number`` or ``microlens_diameter_m``,
             ``layer_thicknesses_m`` and ``layer_indices`` (the stack, top to photodiode), or ``stack_height_m``
             (scales the layers to this height; a tensor gives gradients) and ``stack_index`` (one layer of this
-            index), ``pixel_size_m``, ``photodiode_size_m``, ``wavelength_nm``.
+            index), ``pixel_size_m`` (or ``pixel_width_m``), ``photodiode_size_m`` (or ``photodiode_width_m``),
+            ``wavelength_nm`` (scalar or a tensor broadcasting with the angles); ``source_focal_length_m`` and
+            ``microlens_index`` are accepted (ISETCam's microlens fields) but do not change a pixel's etendue;
+            ``microlens_offset_m`` is ``offset_m``.
 
     Returns:
         dict with ``etendue (*)`` (fraction of the pixel's incident light reaching the photodiode, as ISETCam's
@@ -361,10 +384,11 @@ def microlens_radiance(chief_ray_angle_deg=0.0, method: str = "centred", *, offs
 
     Reference: Catrysse & Wandell, JOSA A 19(8), 2002; ISETCam ``mlRadiance``.
     """
-    unknown = set(pixel) - set(_DEFAULTS)
-    if unknown:
-        raise ValueError(f"{sorted(unknown)[0]}: not a microlens/pixel parameter; expected one of {sorted(_DEFAULTS)}")
-    kw = {**_DEFAULTS, **pixel}
+    if "microlens_offset_m" in pixel:  # ISETCam's 'ml offset' under its own name
+        if offset_m is not None:
+            raise ValueError("microlens_offset_m: given together with offset_m (the same parameter)")
+        offset_m = pixel.pop("microlens_offset_m")
+    kw = _pixel_kwargs(pixel)
     if sampling not in ("continuous", "isetcam"):
         raise ValueError(f"sampling: expected 'continuous' or 'isetcam', got {sampling!r}")
     cra, method, t, n, off, geo = _params(chief_ray_angle_deg, method, offset_m, kw)
@@ -430,7 +454,7 @@ def microlens_etendue(chief_ray_angle_deg, method: str = "centred", *, model: st
     from .pixel_optics import microlens_offset_m as geometric_offset
     from .pixel_optics import pixel_vignetting
 
-    kw = {**_DEFAULTS, **pixel}
+    kw = _pixel_kwargs(pixel)
     method = _method(method)
     t, n = _stack(kw["layer_thicknesses_m"], kw["layer_indices"], kw["stack_height_m"], kw["stack_index"],
                   torch.float64, torch.device("cpu"))
@@ -499,6 +523,7 @@ class PixelOptics(nn.Module):
             raise ValueError(f"angle_samples: expected an integer >= 2, got {angle_samples!r}")
         if exit_pupil_distance_m is not None:
             _pos(exit_pupil_distance_m, "exit_pupil_distance_m")
+        pixel = {_ALIAS_KEYS.get(k, k): v for k, v in pixel.items()}
         unknown = set(pixel) - set(_DEFAULTS) - {"stack_height_m"}
         if unknown:
             raise ValueError(f"pixel_optics: unknown key {sorted(unknown)[0]!r}; expected one of "

@@ -189,6 +189,15 @@ def test_gradients_to_stack_height_and_offset():
     assert float(gh) < 0 < float(go)  # a taller stack loses the oblique beam; an offset towards it recovers it
 
 
+def test_isetcam_names_are_accepted():
+    base = microlens_etendue(torch.tensor([5.0, 12.0]), "centred", offset_m=0.2e-6)
+    same = microlens_etendue(torch.tensor([5.0, 12.0]), "centred", microlens_offset_m=0.2e-6, pixel_width_m=2.8e-6,
+                             photodiode_width_m=D_UM * 1e-6, source_focal_length_m=5e-3, microlens_index=1.5)
+    assert torch.allclose(base, same, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="given twice"):
+        microlens_etendue(0.0, pixel_width_m=2.8e-6, pixel_size_m=2.8e-6)
+
+
 def test_geometric_model_option():
     e = microlens_etendue(torch.tensor([0.0, 15.0]), "none", model="geometric")
     n_eq = 7.0 / (2.0 / 2.0 + 5.0 / 1.46)
@@ -322,10 +331,17 @@ def test_lens_chief_ray_table_drives_the_map():
 
 def test_config_with_microlenses_builds():
     from isettorch.camera import Camera
+    from isettorch.scene.macbeth import macbeth
 
     for name in ("isetcam_microlens", "phone_microlens"):
         cam = Camera.from_config(name)
         assert isinstance(cam.sensor.pixel_optics, PixelOptics)
+        cam.sensor.rows, cam.sensor.cols = 16, 24
+        out = cam(macbeth(patch_size=4), return_intermediates=True)
+        assert out.image.shape == (1, 3, 16, 24) and torch.isfinite(out.image).all()
+        emap = cam.sensor.etendue_map(out.optical_image)
+        assert bool((emap > 0).all()) and bool((emap <= 1 + 1e-9).all())
+    assert Camera.from_config("phone_microlens").sensor.pixel_optics.wavelength_dependent
     assert Camera.from_config("default").sensor.pixel_optics is None
 
 
