@@ -2,7 +2,7 @@
 ``isettorch <command>: <message naming the argument>``, and exits 2, without a traceback.
 
 The commands are discovered from the parser, so a new command is covered as soon as it exists: it gets the
-generic case (a nonexistent path as its first positional argument) or, if it has no positional argument, fails
+generic case (a nonexistent path for each positional argument) or, if it has no positional argument, fails
 here until it gets a row in ``CASES``.
 """
 
@@ -53,8 +53,8 @@ def _positionals(command: str) -> list:
 def _cases(command: str) -> list[tuple[list[str], str]]:
     if command in CASES:
         return CASES[command]
-    if _positionals(command):  # generic: a nonexistent path where the first positional argument goes
-        return [([MISSING], "no_such_input")]
+    if _positionals(command):  # generic: a nonexistent path for every positional argument (DESIGN DIR: two)
+        return [([MISSING] * len(_positionals(command)), "no_such_input")]
     return []
 
 
