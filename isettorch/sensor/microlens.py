@@ -164,7 +164,7 @@ def _params(chief_ray_angle_deg, method, offset_m, kw):
     for name in ("pixel_size_m", "photodiode_size_m", "microlens_focal_length_m", "source_f_number",
                  "wavelength_nm"):
         _pos(kw[name], name)
-    if kw["source_f_number"] < 0.5 if not isinstance(kw["source_f_number"], torch.Tensor) else False:
+    if float(kw["source_f_number"]) < 0.5:
         raise ValueError(f"source_f_number: expected >= 0.5, got {kw['source_f_number']}")
     if kw["photodiode_size_m"] > kw["pixel_size_m"]:
         raise ValueError(f"photodiode_size_m: expected at most pixel_size_m={kw['pixel_size_m']}, got "
@@ -206,7 +206,7 @@ def _continuous(cra, method, t, n, off, geo, diffraction, samples, profile=True)
     """Exact x-integration of the phase-space box per direction sample: (etendue [A], x_final [A, U, X],
     weights [A, U, X])."""
     nu, nx = samples
-    D, p, d, na = geo["D"], geo["p"], geo["d"], geo["na"]
+    D, d, na = geo["D"], geo["d"], geo["na"]
     dtype, dev = t.dtype, t.device
     s = torch.sin(torch.deg2rad(cra))  # [A]
     lo = (s - na).clamp(min=-_P_MAX)
@@ -225,7 +225,7 @@ def _continuous(cra, method, t, n, off, geo, diffraction, samples, profile=True)
     xf = x + off[:, None, None] - walk
     shape, shape_geo = geo["shape"], geo["shape_geo"]
     lead = (1,) * (len(shape) - len(shape_geo))
-    width = (hi - lo) / (2 * na)  # directions kept within the grid
+    width = (hi - lo) / (2 * na)  # share of the source's directions inside ISETCam's grid (the profile's weight)
 
     def full(v):  # [A_geo, ...] -> [A, ...] over the broadcast (geometry x wavelength) shape
         rest = tuple(v.shape[1:])
@@ -249,9 +249,10 @@ def _continuous(cra, method, t, n, off, geo, diffraction, samples, profile=True)
         denom = (a - b).abs()
         frac_cross = pos / torch.where(cross, denom, torch.ones_like(denom))
         inside = torch.where(both, torch.ones_like(a), torch.where(cross, frac_cross, torch.zeros_like(a)))
-    # each direction row carries its share of the source's directions (clipped range), rows over the pixel
-    per_row = inside.mean(-1)  # [A, U] fraction of the microlens aperture reaching the photodiode
-    e = per_row.mean(-1) * width * (D / min(D, p))
+    # the fraction of the source (the microlens aperture D <= P, directions inside the grid: mlRadiance's
+    # etendueIn) that reaches the photodiode (etendueOut)
+    per_row = inside.mean(-1)  # [A, U]
+    e = per_row.mean(-1)
     if not diffraction:
         e, xf, valid, width = full(e), full(xf), full(valid), full(width)
     if not profile:
