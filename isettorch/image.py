@@ -66,14 +66,14 @@ def bradford_matrix(source_white: torch.Tensor, target_white: torch.Tensor) -> t
     """Chromatic adaptation ``(..., 3, 3)`` from ``source_white`` to ``target_white`` (XYZ ``(..., 3)``, any common
     scale; the two broadcast): ``M^-1 diag(M w_t / M w_s) M`` with the Bradford matrix M (von Kries in sharpened
     cone space; Lam 1985, as in CIE 160:2004 and colour-science's ``matrix_chromatic_adaptation_VonKries``)."""
-    m = torch.tensor(_BRADFORD, dtype=torch.float64)
     ws = as_tensor(source_white, "source_white", dtype=torch.float64)
-    wt = as_tensor(target_white, "target_white", dtype=torch.float64)
+    wt = as_tensor(target_white, "target_white", dtype=torch.float64).to(ws.device)
+    m = torch.tensor(_BRADFORD, dtype=torch.float64, device=ws.device)  # on the whites' device (any device)
     for name, w in (("source_white", ws), ("target_white", wt)):
         if w.dim() == 0 or w.shape[-1] != 3:
             raise ValueError(f"{name}: expected XYZ values of shape (..., 3), got {tuple(w.shape)}")
     gain = (wt @ m.T) / (ws @ m.T)  # cone-response ratios (..., 3)
-    return _bradford_inverse() @ (gain[..., :, None] * m)
+    return _bradford_inverse().to(ws.device) @ (gain[..., :, None] * m)
 
 
 @functools.cache

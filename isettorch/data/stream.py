@@ -21,8 +21,7 @@ from collections import OrderedDict
 
 import torch
 
-from ..image import XYZ_TO_LINEAR_SRGB, srgb_encode
-from ..isp.colour import bradford_matrix
+from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
 from .batched import draw_layout_scenes
 from .camera_pairs import _D65_XYZ, TARGETS, _Cache, _unit_qe, _xyz_weights, check_targets
 from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, seed_for
