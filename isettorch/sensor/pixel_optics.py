@@ -14,6 +14,11 @@ beam, radius sin(alpha) = 1 / (2 N)) centred on the chief ray; each direction re
   etendue (acceptance-angle) argument of the ISET model: the pixel accepts |h tan(theta')| <= d / 2.
 
 Directions are averaged with a uniform grid over the beam's disk (``samples`` per side).
+
+ISET's own microlens model (1-D phase space, a microlens of finite focal length, ISETCam's layered stack, optional
+diffraction; ``mlRadiance``) is :mod:`isettorch.sensor.microlens`, which also puts the etendue into the camera
+(``Sensor(pixel_optics=...)``); its docstring says how the two models differ. This 2-D geometric model is its
+``model='geometric'`` option.
 """
 
 from __future__ import annotations
