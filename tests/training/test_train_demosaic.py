@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from isettorch.isp.learned import demosaic_learned  # noqa: E402
-from training import common, train_demosaic  # noqa: E402
+from training import common, demosaic_data, train_demosaic  # noqa: E402
 
 SMOKE = ROOT / "configs" / "train" / "demosaic_smoke.yaml"
 
@@ -257,7 +257,7 @@ def _bank_cfg(tmp_path, count=3):
 
 def test_scene_bank_holds_the_pools_scenes_and_resumes(tmp_path, monkeypatch):
     """The bank is the pool's scenes 0..N-1 in float16; a deleted chunk is rendered again, the others are read."""
-    monkeypatch.setattr(train_demosaic, "BANK_CHUNK", 2)
+    monkeypatch.setattr(demosaic_data, "BANK_CHUNK", 2)  # SceneBank reads it there
     cfg = _bank_cfg(tmp_path)
     bank = train_demosaic.make_sampler(cfg)
     assert isinstance(bank, train_demosaic.SceneBank) and bank.images.dtype == torch.float16

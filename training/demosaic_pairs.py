@@ -1,0 +1,124 @@
+"""Camera-pair batch sources of the demosaic trainer: ``data.source: camera_pairs``
+(:class:`CameraPairSource`, :class:`isettorch.data.camera_pairs.CameraPairDataset`) and ``data.source: stream``
+(:class:`StreamSource`, :class:`isettorch.data.PairStream` on a device); items cropped to RGGB (:func:`pair_batch`).
+Part of ``training/train_demosaic.py``."""
+
+from __future__ import annotations
+
+import torch
+
+from training.demosaic_noise import noise_features
+
+TEST_SEED_OFFSET = 2_000_006_000  # held-out camera-pair items for evaluation (dataset seed = seed + this)
+
+
+def rggb_offset(index_map: torch.Tensor) -> tuple[int, int]:
+    """(dy, dx) of the R pixel (channel 0) in a 2x2 Bayer cell ``index_map`` (R, G, B = 0, 1, 2)."""
+    im = index_map.tolist()
+    for dy in (0, 1):
+        for dx in (0, 1):
+            if im[dy][dx] == 0 and im[1 - dy][1 - dx] == 2:
+                return dy, dx
+    raise ValueError(f"cfa: expected a 2x2 Bayer cell (R, G, G, B), got {im}")
+
+
+class CameraPairSource:
+    """Training batches from :class:`isettorch.data.camera_pairs.CameraPairDataset` (source ``camera_pairs``).
+
+    ``batch(batch_seed, n)`` renders items ``batch_seed * n + i`` (i < n) of one dataset (seed ``cfg.seed +
+    seed_offset``), so a batch depends only on (seed, step, rank) like the other sources, and crops each to
+    ``patch x patch`` RGGB. Returns (raw [B,1,P,P], camera_rgb [B,3,P,P], noise features [B,2] or None).
+    """
+
+    LENGTH = 2**62
+
+    def __init__(self, cfg: dict, seed_offset: int = 0):
+        from isettorch.data.camera_pairs import CameraPairDataset
+        from isettorch.data.config import CAMERA_DEFAULTS
+        from isettorch.isp.learned import BAYER_PATTERNS
+
+        d = cfg.get("data", {})
+        self.patch = int(d.get("patch", 80))
+        if self.patch < 4 or self.patch % 2:
+            raise ValueError(f"data.patch: expected an even size >= 4, got {self.patch}")
+        self.noisy = bool(cfg.get("noise", {}).get("enabled", False))
+        scene = dict(d.get("scene") or {}, height=self.patch + 2, width=self.patch + 2)
+        camera = dict(d.get("camera") or {})
+        pats = camera.get("cfa_patterns", CAMERA_DEFAULTS["cfa_patterns"])
+        bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
+        if bad:
+            raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
+        # only the targets demosaicking uses: no colour targets, so 3 spectral projections instead of 6
+        self.ds = CameraPairDataset(self.LENGTH, seed=int(cfg.get("seed", 0)) + int(seed_offset), scene=scene,
+                                    camera=camera, targets=("noise_free_raw", "camera_rgb"))
+
+    def indices(self, batch_seed: int, n: int) -> list[int]:
+        return [(int(batch_seed) * n + i) % self.LENGTH for i in range(n)]
+
+    def batch(self, batch_seed: int, n: int):
+        return pair_batch(self.ds.get_batch(self.indices(batch_seed, n)), self.patch, self.noisy)
+
+
+class StreamSource:
+    """Training batches from :class:`isettorch.data.PairStream` (source ``stream``): scenes drawn and rendered by
+    the Camera modules on ``data.device`` (default: the training device), batch ``step * world + rank`` of a stream
+    seeded ``cfg.seed + seed_offset`` (so a batch depends only on (seed, step, rank) and ranks never share one),
+    cropped on the device to ``patch x patch`` RGGB (no per-item host read). Same inputs and targets as
+    :class:`CameraPairSource`: (raw [B,1,P,P], camera_rgb [B,3,P,P], noise features [B,2] or None)."""
+
+    def __init__(self, cfg: dict, seed_offset: int = 0, device=None, batch: int | None = None):
+        from isettorch.data import PairStream
+        from isettorch.data.config import CAMERA_DEFAULTS
+        from isettorch.isp.learned import BAYER_PATTERNS
+
+        d = cfg.get("data", {})
+        self.patch = int(d.get("patch", 80))
+        if self.patch < 4 or self.patch % 2:
+            raise ValueError(f"data.patch: expected an even size >= 4, got {self.patch}")
+        self.noisy = bool(cfg.get("noise", {}).get("enabled", False))
+        camera = dict(d.get("camera") or {})
+        pats = camera.get("cfa_patterns", CAMERA_DEFAULTS["cfa_patterns"])
+        bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
+        if bad:
+            raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
+        dev = torch.device(d.get("device") or device or "cpu")
+        self.batch_size = int(batch or d.get("batch", 16))
+        self.stream = PairStream(self.batch_size, seed=int(cfg.get("seed", 0)) + int(seed_offset),
+                                 scene=dict(d.get("scene") or {}, height=self.patch + 2, width=self.patch + 2),
+                                 camera=camera, targets=("noise_free_raw", "camera_rgb"), device=dev)
+
+    def batch(self, step: int, n: int):
+        if n != self.batch_size:
+            raise ValueError(f"data.batch: the stream draws batches of {self.batch_size}, asked for {n}")
+        b = self.stream.batch(int(step) * self.stream.world_size + self.stream.rank)
+        src = b["raw"] if self.noisy else b["noise_free_raw"]
+        # the offset (dy, dx) of the R pixel in each item's 2x2 cell, read on the device; the four shifted crops
+        # are gathered, so every Bayer order reaches the network as RGGB
+        pos = (b["meta"]["cfa"].reshape(n, 4) == 0).float().argmax(1)  # R is channel 0
+
+        def crop(img):
+            shifts = torch.stack([img[:, :, dy:dy + self.patch, dx:dx + self.patch] for dy in (0, 1) for dx in (0, 1)])
+            return shifts[pos, torch.arange(n, device=img.device)]
+
+        feats = None
+        if self.noisy:
+            feats = noise_features(torch.stack([b["meta"]["noise_gain"], b["meta"]["noise_floor_var"]], 1).float())
+        return crop(src).float(), crop(b["camera_rgb"]).float(), feats
+
+
+def pair_batch(b: dict, patch: int, noisy: bool):
+    """(raw, camera_rgb, noise features or None) cropped to ``patch`` RGGB from a camera-pair batch.
+
+    Noise features: ``noise_features((a, b))`` with ``a = meta['noise_gain']``, ``b = meta['noise_floor_var']``
+    (``var = a x + b`` in normalised units, the dataset's Poisson-Gaussian model)."""
+    src = b["raw"] if noisy else b["noise_free_raw"]
+    raws, rgbs = [], []
+    for i in range(src.shape[0]):
+        dy, dx = rggb_offset(b["meta"]["cfa"][i])
+        raws.append(src[i, :, dy:dy + patch, dx:dx + patch])
+        rgbs.append(b["camera_rgb"][i, :, dy:dy + patch, dx:dx + patch])
+    feats = None
+    if noisy:
+        ab = torch.stack([b["meta"]["noise_gain"], b["meta"]["noise_floor_var"]], 1).float()
+        feats = noise_features(ab)
+    return torch.stack(raws).float(), torch.stack(rgbs).float(), feats
