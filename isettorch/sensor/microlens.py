@@ -499,7 +499,8 @@ class PixelOptics(nn.Module):
         stack_height_m: total stack height (scales the layers; default their sum).
         offset_per_image_height: a further microlens offset of this many metres per metre of image height (the
             microlens array's pitch shrink), added to the method's.
-        learnable: ``stack_height_m`` and ``offset_per_image_height`` as ``nn.Parameter`` s.
+        learnable: the stack height (as ``log_stack_height_m``, so it stays positive) and
+            ``offset_per_image_height`` as ``nn.Parameter`` s.
         exit_pupil_distance_m: overrides the optical image's image distance for the chief-ray angle.
         angle_samples: radii at which the etendue is computed.
         samples: the continuous integral's (directions, x segments).
@@ -538,13 +539,13 @@ class PixelOptics(nn.Module):
         _pos(h, "stack_height_m")
         if not (isinstance(offset_per_image_height, (int, float)) and math.isfinite(offset_per_image_height)):
             raise ValueError(f"offset_per_image_height: expected a finite number, got {offset_per_image_height!r}")
-        h_t = torch.tensor(float(h), dtype=torch.float64)
+        h_t = torch.tensor(math.log(float(h)), dtype=torch.float64)  # log: a positive height by construction
         o_t = torch.tensor(float(offset_per_image_height), dtype=torch.float64)
         if learnable:
-            self.stack_height_m = nn.Parameter(h_t)
+            self.log_stack_height_m = nn.Parameter(h_t)
             self.offset_per_image_height = nn.Parameter(o_t)
         else:
-            self.register_buffer("stack_height_m", h_t)
+            self.register_buffer("log_stack_height_m", h_t)
             self.register_buffer("offset_per_image_height", o_t)
         self._memo: dict = {}
 
@@ -554,7 +555,12 @@ class PixelOptics(nn.Module):
 
     def extra_repr(self) -> str:
         return (f"method={self.method!r}, model={self.model!r}, convention={self.convention!r}, "
-                f"diffraction={self.diffraction}, stack_height={float(self.stack_height_m) * 1e6:.4g} um")
+                f"diffraction={self.diffraction}, stack_height={float(self.stack_height_m.detach()) * 1e6:.4g} um")
+
+    @property
+    def stack_height_m(self) -> torch.Tensor:
+        """Total stack height (m), ``exp(log_stack_height_m)``."""
+        return self.log_stack_height_m.exp()
 
     def chief_ray_angle_deg(self, oi, rows: int, cols: int, pixel_size_m: float) -> torch.Tensor:
         """Chief-ray angle (deg) at each pixel centre ``[B, rows, cols]`` (the sensor grid centred on the axis)."""
@@ -593,7 +599,7 @@ class PixelOptics(nn.Module):
     def _etendue(self, cra, offset, wavelength_nm, pixel, method):
         kw = {**pixel, "wavelength_nm": wavelength_nm}
         if self.model == "geometric":
-            kw.setdefault("stack_height_m", float(self.stack_height_m))
+            kw.setdefault("stack_height_m", float(self.stack_height_m.detach()))
             kw["wavelength_nm"] = 500.0  # the geometric model has no wavelength
             return microlens_etendue(cra.detach().cpu(), method, model="geometric", **kw).to(cra)
         return microlens_etendue(cra, method, offset_m=offset, diffraction=self.diffraction, samples=self.samples,
@@ -601,7 +607,7 @@ class PixelOptics(nn.Module):
 
     def etendue_map(self, oi, rows: int, cols: int, pixel_size_m: float, fill_factor: float = 0.75) -> torch.Tensor:
         """The etendue at every pixel: ``[B, rows, cols]``, or ``[B, L, rows, cols]`` on the OI's wavelengths when
-        ``diffraction`` (float64; differentiable in ``stack_height_m`` and ``offset_per_image_height``)."""
+        ``diffraction`` (float64; differentiable in ``log_stack_height_m`` and ``offset_per_image_height``)."""
         pixel = dict(self.pixel)
         pixel.setdefault("pixel_size_m", float(pixel_size_m))
         pixel.setdefault("photodiode_size_m", math.sqrt(fill_factor) * float(pixel["pixel_size_m"]))
@@ -616,7 +622,7 @@ class PixelOptics(nn.Module):
                 raise ValueError(f"oi.f_number: pixel_optics needs one f-number per batch, got {fn.tolist()}")
             pixel["source_f_number"] = float(fn[0])
         waves = tuple(float(w) for w in oi.wavelengths_nm.reshape(-1).tolist()) if self.diffraction else (None,)
-        grad = torch.is_grad_enabled() and (self.stack_height_m.requires_grad
+        grad = torch.is_grad_enabled() and (self.log_stack_height_m.requires_grad
                                             or self.offset_per_image_height.requires_grad)
         key = None
         if not grad:
@@ -624,7 +630,8 @@ class PixelOptics(nn.Module):
             key = (rows, cols, float(pixel_size_m), fill_factor, waves, tuple(sorted(pixel.items())),
                    None if geo is None else tuple(torch.as_tensor(geo).reshape(-1).tolist()), oi.batch_size,
                    id(oi.metadata.get("chief_ray_angle")) if isinstance(oi.metadata, dict) else None,
-                   float(self.stack_height_m), float(self.offset_per_image_height), str(oi.device))
+                   float(self.log_stack_height_m.detach()), float(self.offset_per_image_height.detach()),
+                   str(oi.device))
             hit = self._memo.get(key)
             if hit is not None:
                 return hit
