@@ -1,11 +1,19 @@
 """The held-out shipping screen of the demosaic experiments: an incumbent network against a candidate on folders of
 held-out synthetic scenes (``training/make_heldout.py``; never Kodak/McMaster), CPSNR with crop 10 on RGGB mosaics.
 
-The rule (fixed in the stop-26/27 notes; each run's ``screen_rule.py`` names its sets before the run): the score is
-the mean of the per-set means; the candidate ships if its score beats the incumbent's, none of its set means is more
-than ``tolerance_db`` below the incumbent's, and no held-out scene is below Malvar-He-Cutler on any set.
+The rule (fixed in the stop-26/27 notes; each run's entry in :data:`RUNS` names its incumbent, candidate and sets
+before the run): the score is the mean of the per-set means; the candidate ships if its score beats the incumbent's,
+none of its set means is more than ``tolerance_db`` below the incumbent's, and no held-out scene is below
+Malvar-He-Cutler on any set.
 
+    python training/heldout_screen.py RUN [--candidate PATH] [--incumbent PATH] [--sets DIR ...] [--check]
     python training/heldout_screen.py --incumbent A.pt --candidate B.pt --sets out/heldout_v5 ... --out res.json
+
+``RUN`` (a key of :data:`RUNS`, e.g. ``specular_2026-11-27``) runs that run's pre-registered screen: missing sets of
+:data:`HELDOUT` are written first, and the result goes to the run's committed record (``result``). Any override
+(``--candidate``, ``--incumbent``, ``--sets``) is a dry run and writes ``out/screen_dryrun/RUN.json`` instead;
+``--check`` also prints how far each row's per-image CPSNR is from the committed record. The runs' records are in
+``docs/training_log.md``.
 """
 
 from __future__ import annotations
@@ -22,6 +30,62 @@ if str(ROOT) not in sys.path:
 import torch  # noqa: E402
 
 from isettorch.isp.evaluation import evaluate_demosaic, load_demosaic_model  # noqa: E402
+
+#: ``training/make_heldout.py`` options of every screen's sets (24 x 256 px, linear sRGB, seeds never drawn in
+#: training) and of each set (the commands in the specular and distill-4 pre-registrations, docs/training_log.md)
+HELDOUT_BASE = ["--n", "24", "--size", "256", "--colour-space", "linear_srgb", "--quiet"]
+_STRESS = ["--channel-gains", "1", "0.15", "0.15", "--grain-std", "0.005"]
+HELDOUT = {
+    "out/heldout_v5": [],
+    "out/heldout_v5_stress": _STRESS,
+    "out/heldout_stress": _STRESS + ["--natural", json.dumps({"components": {
+        "colour_correlation": {"chromatic_radius_px": 16.0, "chromatic_detail_probability": 0.25},
+        "grain": {"enabled": False}}})],
+    "out/heldout_v5_relgrain": ["--natural", json.dumps({"components": {"grain": {"relative": {
+        "probability": 0.5, "contrast": [0.01, 0.08]}}}})],
+    "out/heldout_spec1": ["--natural", json.dumps({"components": {"specular": {"probability": 1.0}}})],
+}
+_SETS = list(HELDOUT)
+
+
+def _best(name: str) -> str:
+    return f"out/train_demosaic_noise_free_{name}/best.pt"
+
+
+def _run(incumbent: str, candidate: str, n_sets: int, registered: str, **extra) -> dict:
+    return {"incumbent": incumbent, "candidate": candidate, "sets": _SETS[:n_sets], "registered": registered, **extra}
+
+
+#: each run's pre-registered screen, fixed before its checkpoints were scored (``registered``: when, and what the
+#: candidate is): the incumbent and candidate checkpoints (paths from the repository root, as the runs wrote them),
+#: the held-out sets, and the committed result (default ``training/runs/RUN/screen_heldout.json``). ``labels``:
+#: the result's row names when they are not ``incumbent`` / ``candidate`` (the first screen's record).
+RUNS = {
+    "dye_2026-11-26": _run(_best("stage3"), _best("dye"), 3, "2026-11-26 15:46 UTC, after the dyed-materials run "
+                           "started, before any of its checkpoints was scored", labels=("stage3", "dye")),
+    "relgrain_2026-11-26": _run(_best("stage3"), _best("relgrain"), 4, "2026-11-26 ~20:10 UTC, before the "
+                                "multiplicative-grain run; the fourth set drawn with the candidate's grain option"),
+    "distill_2026-11-27": _run(_best("stage3"), _best("distill"), 4, "2026-11-26 ~23:13 UTC, before the "
+                               "self-ensemble distillation run"),
+    "distill2_2026-11-27": _run(_best("distill"), _best("distill2"), 4, "2026-11-27 ~01:00 UTC, before the second "
+                                "distillation round"),
+    "distill3_2026-11-27": _run(_best("distill2"), _best("distill3"), 4, "2026-11-27 ~03:25 UTC, before the third "
+                                "distillation round (dihedral teacher)"),
+    "distill4_2026-11-27": _run(_best("distill3"), _best("distill4"), 4, "2026-11-27 ~05:15 UTC, before the fourth "
+                                "distillation round (dihedral teacher, 4800 s, a fresh bank)"),
+    "specular_2026-11-27": _run(_best("distill4"), _best("specular"), 5, "2026-11-27 ~07:23 UTC (0dac932), before "
+                                "the specular run; the fifth set drawn with the candidate's specular option"),
+    "specmix_2026-11-27": _run(_best("distill4"), _best("specmix"), 5, "2026-11-27 ~08:33 UTC (c631ce8), before "
+                               "the specmix run (the specular run continued with the sheen in half the scenes)"),
+    "distill5_2026-11-27": _run("out/wise_specular/best.pt", _best("distill5"), 5, "2026-11-27 ~10:10 UTC, before "
+                                "the fifth distillation round (the shipped interpolation towards its own ensemble)"),
+    # the interpolation screen: W(alpha) = (1 - alpha) incumbent + alpha candidate for alpha = 0.1 ... 0.9, each
+    # against the incumbent by the same rule; the passing alpha with the highest score ships (its network written to
+    # out/wise_specular/best.pt: training.reproduce_demosaic.wise_select, which the reproduction runs too)
+    "wise_specular_2026-11-27": _run(_best("distill4"), _best("specular"), 5, "2026-11-27 ~09:56 UTC, before any "
+                                     "interpolated network was scored", kind="interpolation",
+                                     result="training/runs/wise_specular_2026-11-27/wise_screen.json"),
+}
 
 
 def mhc_scores(sets: list[str]) -> dict:
@@ -86,6 +150,9 @@ def screen(incumbent: str, candidate: str, sets: list[str], tolerance_db: float 
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and not argv[0].startswith("-"):  # RUN [...]: a registered screen
+        return screen_run(argv[0], argv[1:])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--incumbent", required=True)
     ap.add_argument("--candidate", required=True)
@@ -104,10 +171,87 @@ def main(argv=None) -> int:
     return 0
 
 
+def result_path(run: str) -> Path:
+    """The committed result of ``run``'s screen (relative to the repository root)."""
+    return Path(RUNS[run].get("result", f"training/runs/{run}/screen_heldout.json"))
+
+
+def make_sets(sets: list[str]) -> None:
+    """Write the sets of :data:`HELDOUT` that are missing (``training/make_heldout.py``); other folders must exist."""
+    from training import make_heldout
+
+    for s in sets:
+        if Path(s).is_dir():
+            continue
+        if s not in HELDOUT:
+            raise ValueError(f"sets: {s} does not exist and is not one of the registered sets {list(HELDOUT)}")
+        make_heldout.main(["--out", s, *HELDOUT_BASE, *HELDOUT[s]])
+
+
+def compare_to_record(res: dict, record: dict, sets: list[str]) -> dict:
+    """Per row (``incumbent``, ``candidate``), the largest |CPSNR difference| (dB) over the images of ``sets`` that
+    ``res`` and the committed ``record`` (same row names) both score: how exactly a re-run reproduces the record."""
+    out = {}
+    for row in ("incumbent", "candidate"):
+        diffs = [abs(v - record[row][s]["per_image"][k]) for s in sets if s in record.get(row, {})
+                 for k, v in res[row][s]["per_image"].items() if k in record[row][s]["per_image"]]
+        out[row] = max(diffs) if diffs else None
+    return out
+
+
+def screen_run(run: str, argv: list[str] | None = None) -> int:
+    """``python training/heldout_screen.py RUN [...]``: ``run``'s pre-registered screen of :data:`RUNS` (see the
+    module docstring; the registered paths are relative to the repository root, the working directory the runs used);
+    prints both rows and the decision, and with ``--check`` the distance to the record."""
+    if run not in RUNS:
+        raise ValueError(f"run: expected one of {sorted(RUNS)}, got {run!r}")
+    entry = RUNS[run]
+    ap = argparse.ArgumentParser(prog=f"heldout_screen.py {run}", description=f"{run}: {entry['registered']}")
+    ap.add_argument("--candidate", default=None, metavar="PATH", help="score this checkpoint instead (a dry run)")
+    ap.add_argument("--incumbent", default=None, metavar="PATH", help="this incumbent instead (a dry run)")
+    ap.add_argument("--sets", nargs="+", default=None, metavar="DIR", help="these sets instead (a dry run)")
+    ap.add_argument("--check", action="store_true", help="print the per-image distance to the committed record")
+    ap.add_argument("--out", default=None, help="write the result here (default: the record, or the dry-run file)")
+    ap.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
+    args = ap.parse_args(argv)
+    sets = args.sets or list(entry["sets"])
+    dry = args.candidate is not None or args.incumbent is not None or args.sets is not None
+    out = Path(args.out or (f"out/screen_dryrun/{run}.json" if dry else ROOT / result_path(run)))
+    make_sets(sets)
+    torch.set_num_threads(args.threads)
+    if entry.get("kind") == "interpolation":
+        from training.reproduce_demosaic import WISE, wise_select
+
+        _, res = wise_select(sets, args.incumbent or entry["incumbent"], args.candidate or entry["candidate"],
+                             f"out/screen_dryrun/{run}" if dry else WISE["out"])
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(res, indent=1))
+        return 0
+    res = screen(args.incumbent or entry["incumbent"], args.candidate or entry["candidate"], sets)
+    for name in ("incumbent", "candidate"):
+        row = res[name]
+        print(name, " ".join(f"{row[s]['mean']:.3f}({row[s]['below_mhc']})" for s in sets),
+              f"score {row['score']:.3f}", flush=True)
+    print("ship:", res["decision"])
+    if args.check:
+        record = json.loads((ROOT / result_path(run)).read_text())
+        inc, cand = entry.get("labels", ("incumbent", "candidate"))
+        record = {"incumbent": record[inc], "candidate": record[cand]}
+        for name, d in compare_to_record(res, record, sets).items():
+            print(f"{name}: max |CPSNR - record| per image", "n/a" if d is None else f"{d:.2e} dB")
+    labels = entry.get("labels")
+    if labels:  # the record's own row names and decision
+        res = {labels[0]: res["incumbent"], labels[1]: res["candidate"],
+               "decision": labels[1] if res["decision"] == "candidate" else labels[0]}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=1))
+    return 0
+
+
 def run_rule(incumbent: str, candidate: str, sets: list[str], out: str, dry_run_out: str, argv=None) -> int:
-    """A run's pre-registered screen (its ``screen_rule.py`` names the checkpoints, sets and result file): 2 torch
-    threads, then :func:`main`. ``--candidate PATH`` in ``argv`` (default ``sys.argv``) scores that checkpoint
-    instead, a dry run of the rule, and writes ``dry_run_out`` instead of ``out``."""
+    """A pre-registered screen given as arguments (checkpoints, sets, result file; :func:`screen_run` reads them
+    from :data:`RUNS`): 2 torch threads, then :func:`main`. ``--candidate PATH`` in ``argv`` (default ``sys.argv``)
+    scores that checkpoint instead, a dry run of the rule, and writes ``dry_run_out`` instead of ``out``."""
     ap = argparse.ArgumentParser(description="a run's pre-registered held-out screen")
     ap.add_argument("--candidate", default=None, metavar="PATH", help="score this checkpoint instead (a dry run)")
     dry = ap.parse_args(sys.argv[1:] if argv is None else argv).candidate

@@ -9,10 +9,11 @@ Each step is ``training/train_demosaic.py --config configs/train/NAME.yaml`` and
 ``last.pt`` (the time budget counts across resumes), so the command can be re-run after any interruption. On 2 CPU
 cores the noise-free chain takes about 12 hours, the joint one about 2.5.
 
-``noise_free`` ends with the weight-interpolation screen of ``training/runs/wise_specular_2026-11-27/`` (its rule,
-fixed before it was first run): the five held-out synthetic sets are written if missing (``training/make_heldout.py``),
-W(alpha) = (1 - alpha) distill-4 + alpha specular is scored for alpha = 0.1 ... 0.9, and the passing alpha with the
-highest score is exported; if none passes, distill-4 is. ``joint_denoise`` exports its last step's best checkpoint,
+``noise_free`` ends with the weight-interpolation screen ``wise_specular_2026-11-27`` of
+``training/heldout_screen.py`` (its rule, fixed before it was first run; the record in docs/training_log.md): the five
+held-out synthetic sets are written if missing (``training/make_heldout.py``), W(alpha) = (1 - alpha) distill-4 +
+alpha specular is scored for alpha = 0.1 ... 0.9, and the passing alpha with the highest score is exported; if none
+passes, distill-4 is. ``joint_denoise`` exports its last step's best checkpoint,
 with the noisy benchmark scores. The weights are written to ``--assets`` (not over the shipped files unless asked).
 Training steps run on budgets of wall time, so a reproduction on another machine takes other step counts and its
 weights differ from the shipped ones; the procedure, data and selection are the same.
@@ -32,6 +33,8 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from training import heldout_screen  # noqa: E402
+
 CONFIGS = ROOT / "configs" / "train"
 CHAINS = {
     "noise_free": ["demosaic_noise_free", "demosaic_noise_free_finetune", "demosaic_noise_free_stage3",
@@ -39,19 +42,8 @@ CHAINS = {
                    "demosaic_noise_free_distill4", "demosaic_noise_free_specular"],
     "joint_denoise": ["demosaic_noise_free", "demosaic_joint_denoise"],
 }
-_HELDOUT_BASE = ["--n", "24", "--size", "256", "--colour-space", "linear_srgb", "--quiet"]
-_STRESS = ["--channel-gains", "1", "0.15", "0.15", "--grain-std", "0.005"]
-#: the interpolation screen's five held-out sets (training/runs/specular_2026-11-27/screen_rule.py gives the commands)
-HELDOUT = {
-    "out/heldout_v5": [],
-    "out/heldout_v5_stress": _STRESS,
-    "out/heldout_stress": _STRESS + ["--natural", json.dumps({"components": {
-        "colour_correlation": {"chromatic_radius_px": 16.0, "chromatic_detail_probability": 0.25},
-        "grain": {"enabled": False}}})],
-    "out/heldout_v5_relgrain": ["--natural", json.dumps({"components": {"grain": {"relative": {
-        "probability": 0.5, "contrast": [0.01, 0.08]}}}})],
-    "out/heldout_spec1": ["--natural", json.dumps({"components": {"specular": {"probability": 1.0}}})],
-}
+#: the interpolation screen's five held-out sets (training.heldout_screen.HELDOUT: their make_heldout.py options)
+_HELDOUT_BASE, HELDOUT = heldout_screen.HELDOUT_BASE, heldout_screen.HELDOUT
 WISE = {"start": "out/train_demosaic_noise_free_distill4/best.pt",
         "finetuned": "out/train_demosaic_noise_free_specular/best.pt",
         "alphas": [k / 10 for k in range(1, 10)], "out": "out/wise_specular"}
@@ -107,7 +99,8 @@ def wise_select(sets: list[str], start_path: str = WISE["start"], finetuned_path
     import torch
 
     from isettorch.isp.learned import DemosaicNet
-    from training.heldout_screen import interpolate_checkpoints, mhc_scores, passes, score_network
+    interpolate_checkpoints, mhc_scores = heldout_screen.interpolate_checkpoints, heldout_screen.mhc_scores
+    passes, score_network = heldout_screen.passes, heldout_screen.score_network
 
     start, tuned = (torch.load(ROOT / p, map_location="cpu", weights_only=True) for p in (start_path, finetuned_path))
     mhc = mhc_scores(sets)

@@ -57,3 +57,54 @@ def test_passes_rule_boundaries():
     assert heldout_screen.passes(row(40.5, 35.9), inc, sets, tolerance_db=0.1)
     assert not heldout_screen.passes(row(40.0, 36.0), inc, sets)  # a tie does not ship
     assert not heldout_screen.passes(row(40.5, 36.5, below=1), inc, sets)  # a scene below MHC
+
+
+def test_registry_matches_the_committed_records():
+    """Every registered screen has its committed record; the record scored the registered checkpoints on the
+    registered sets, and the rule (:func:`passes`) on the record's own numbers gives the record's decision."""
+    assert set(heldout_screen.RUNS) >= {"distill4_2026-11-27", "specular_2026-11-27", "distill5_2026-11-27"}
+    for run, entry in heldout_screen.RUNS.items():
+        record = json.loads((ROOT / heldout_screen.result_path(run)).read_text())
+        inc, cand = entry.get("labels", ("incumbent", "candidate"))
+        sets = entry["sets"]
+        assert set(sets) <= set(heldout_screen.HELDOUT), run
+        if entry.get("kind") == "interpolation":  # W(alpha) rows, each against the incumbent
+            assert record["incumbent"]["path"] == entry["incumbent"]
+            alphas = [k for k in record if k.startswith("a")]
+            assert len(alphas) == 9 and all(record[a]["passes"] == heldout_screen.passes(record[a],
+                                                                                           record["incumbent"], sets)
+                                            for a in alphas)
+            passing = [a for a in alphas if record[a]["passes"]]
+            assert record["decision"] == max(passing, key=lambda a: record[a]["score"]), run
+            continue
+        for label, path in ((inc, entry["incumbent"]), (cand, entry["candidate"])):
+            assert sorted(k for k in record[label] if k.startswith("out/")) == sorted(sets), run
+            assert record[label].get("path", path) == path, run
+            assert record[label]["score"] == pytest.approx(sum(record[label][s]["mean"] for s in sets) / len(sets))
+        ships = heldout_screen.passes(record[cand], record[inc], sets)
+        assert record["decision"] == (cand if ships else inc), run
+
+
+def test_registered_screen_dry_run(tmp_path, tiny_heldout_sets, damaged_shipped, capsys):
+    """``heldout_screen.py RUN --incumbent --candidate --sets``: a dry run of the run's rule on other checkpoints and
+    sets, written with the record's row names (the first screen named its rows stage3 / dye)."""
+    sets, worse = tiny_heldout_sets, damaged_shipped
+    out = tmp_path / "dry.json"
+    assert heldout_screen.main(["dye_2026-11-26", "--incumbent", str(worse), "--candidate", str(SHIPPED),
+                                "--sets", *sets, "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    direct = heldout_screen.screen(str(worse), str(SHIPPED), sets)
+    assert res["decision"] == "dye" and res["dye"]["score"] == pytest.approx(direct["candidate"]["score"], abs=1e-9)
+    assert res["stage3"]["path"] == str(worse)
+    assert "ship: candidate" in capsys.readouterr().out
+    # the distance to a record: zero against itself, the shift against a shifted copy
+    rows = {"incumbent": res["stage3"], "candidate": res["dye"]}
+    assert heldout_screen.compare_to_record(rows, rows, sets) == {"incumbent": 0.0, "candidate": 0.0}
+    shifted = json.loads(json.dumps(rows))
+    name = next(iter(shifted["candidate"][sets[1]]["per_image"]))
+    shifted["candidate"][sets[1]]["per_image"][name] += 0.25
+    assert heldout_screen.compare_to_record(rows, shifted, sets)["candidate"] == pytest.approx(0.25)
+    with pytest.raises(ValueError, match="run: expected one of"):
+        heldout_screen.main(["no_such_run"])
+    with pytest.raises(ValueError, match="is not one of the registered sets"):
+        heldout_screen.make_sets([str(tmp_path / "missing")])
