@@ -608,6 +608,20 @@ class PixelOptics(nn.Module):
     def etendue_map(self, oi, rows: int, cols: int, pixel_size_m: float, fill_factor: float = 0.75) -> torch.Tensor:
         """The etendue at every pixel: ``[B, rows, cols]``, or ``[B, L, rows, cols]`` on the OI's wavelengths when
         ``diffraction`` (float64; differentiable in ``log_stack_height_m`` and ``offset_per_image_height``)."""
+        e, i0, w = self.radial_etendue(oi, rows, cols, pixel_size_m, fill_factor)
+        emap = self.interpolate(e, i0, w)  # [B, W, rows, cols]
+        return emap if self.diffraction else emap[:, 0]
+
+    @staticmethod
+    def interpolate(e: torch.Tensor, i0: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """Radial samples ``e [..., K]`` -> pixels ``[..., rows, cols]`` (linear in the image height)."""
+        w = w.to(e.dtype)
+        return e[..., i0] * (1 - w) + e[..., (i0 + 1).clamp(max=e.shape[-1] - 1)] * w
+
+    def radial_etendue(self, oi, rows: int, cols: int, pixel_size_m: float, fill_factor: float = 0.75):
+        """The etendue at ``angle_samples`` image heights from the axis to the farthest pixel, ``e [B, W, K]``
+        (W = the OI's wavelengths with ``diffraction``, else 1), and each pixel's interpolation index and weight
+        ``(i0 [rows, cols], w [rows, cols])`` (memoised per geometry when no gradient is needed)."""
         pixel = dict(self.pixel)
         pixel.setdefault("pixel_size_m", float(pixel_size_m))
         pixel.setdefault("photodiode_size_m", math.sqrt(fill_factor) * float(pixel["pixel_size_m"]))
@@ -658,14 +672,12 @@ class PixelOptics(nn.Module):
         # linear interpolation in r (differentiable in the etendue values)
         pos = (r / rk[-1] * (k - 1)).clamp(0, k - 1) if r_max > 0 else torch.zeros_like(r)
         i0 = pos.floor().long().clamp(max=k - 2)
-        w = (pos - i0).to(e.dtype)
-        emap = e[..., i0] * (1 - w) + e[..., (i0 + 1).clamp(max=k - 1)] * w  # [B, W, rows, cols]
-        emap = emap if self.diffraction else emap[:, 0]
+        out = (e, i0, (pos - i0).to(e.dtype))
         if key is not None:
             if len(self._memo) > 8:
                 self._memo.clear()
-            self._memo[key] = emap
-        return emap
+            self._memo[key] = out
+        return out
 
 
 def _interp1(xq: torch.Tensor, xp: torch.Tensor, fp: torch.Tensor) -> torch.Tensor:

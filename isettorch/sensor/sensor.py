@@ -438,9 +438,15 @@ class Sensor(nn.Module):
         sampled, weighted by its etendue map, then projected on the QE (the extra weightings without the etendue,
         as in the wavelength-independent path)."""
         bands = self.sample(oi.photons, oi)  # [B, L, rows, cols] photons/s/m^2/nm at the pixels
-        emap = self.etendue_map(oi).to(bands.dtype)  # [B, L, rows, cols]
+        rows, cols = bands.shape[-2:]
+        e, i0, w = self.pixel_optics.radial_etendue(oi, rows, cols, self.pixel_size_m, self.fill_factor)
+        e, i0, w = e.to(bands.device), i0.to(bands.device), w.to(bands.device)
         qe_w = self.spectral_weights(oi)  # [L, C]
-        out = torch.einsum("blrc,lk->bkrc", bands * emap, qe_w)
+        out = None
+        for band in range(bands.shape[1]):  # one band's etendue map at a time (no [B, L, rows, cols] map)
+            emap = self.pixel_optics.interpolate(e[:, band], i0, w).to(bands.dtype)  # [B, rows, cols]
+            term = (bands[:, band] * emap)[:, None] * qe_w[band].to(bands.dtype)[None, :, None, None]
+            out = term if out is None else out + term
         if extra_weights is not None:
             extra = torch.einsum("blrc,lk->bkrc", bands, extra_weights.to(device=oi.device, dtype=bands.dtype))
             out = torch.cat([out, extra], 1)
