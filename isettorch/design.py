@@ -361,22 +361,25 @@ def load_design(design, *, device=None) -> DesignCamera:
 
 def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name: str | None = None) -> DesignCamera:
     """A :class:`DesignCamera` from a design spec: a fixed design's name (``'bayer_rgb'``, ``'ycmy'``, ``'rgbw'``)
-    or a mapping ``{"filters": [...], "mosaic_shape": [P, Q], "relax": ...}`` for a learned design."""
+    or a mapping ``{"filters": [...], "mosaic_shape": [P, Q], "relax": ..., "mosaic_init_scale": ...}`` for a
+    learned design."""
     scale = _merge(DESIGN_DEFAULTS, config)["filters"]["fixed_scale"]
     if isinstance(spec, str):
         bank, mosaic = fixed_design(spec, fixed_scale=scale)
         return DesignCamera(bank, mosaic, config, lux, name=name or spec)
     if not isinstance(spec, dict):
         raise ValueError(f"design: expected a fixed design name or a mapping, got {spec!r}")
-    unknown = [k for k in spec if k not in ("filters", "mosaic_shape", "relax", "band_width_nm", "max_log_odds")]
+    keys = ("filters", "mosaic_shape", "relax", "band_width_nm", "max_log_odds", "mosaic_init_scale")
+    unknown = [k for k in spec if k not in keys]
     if unknown:
-        raise ValueError(f"design.{unknown[0]}: unknown key; expected filters, mosaic_shape, relax, band_width_nm, "
-                         f"max_log_odds")
+        raise ValueError(f"design.{unknown[0]}: unknown key; expected one of {keys}")
     bank_kwargs = {k: float(spec[k]) for k in ("band_width_nm", "max_log_odds") if k in spec}
     bank_kwargs["fixed_scale"] = scale
+    mosaic_kwargs = {"init_scale": float(spec["mosaic_init_scale"])} if "mosaic_init_scale" in spec else None
     bank, mosaic = learned_design(tuple(spec.get("filters", ("learned", "learned", "learned", "W"))),
                                   tuple(spec.get("mosaic_shape", (4, 4))), seed=seed,
-                                  relax=spec.get("relax", "softmax"), bank_kwargs=bank_kwargs)
+                                  relax=spec.get("relax", "softmax"), bank_kwargs=bank_kwargs,
+                                  mosaic_kwargs=mosaic_kwargs)
     return DesignCamera(bank, mosaic, config, lux, name=name or "learned")
 
 

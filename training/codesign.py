@@ -14,8 +14,9 @@ design's camera (:class:`isettorch.design.DesignCamera`: fixed optics, the desig
 noise, the incident-light exposure rule and the ADC, all differentiable) and reconstructs linear sRGB with that
 level's network. The loss is the L1 distance to the scene's linear sRGB under D65 (white = 1) plus the L1 distance
 in encoded sRGB (the metric's space). The filters and mosaic logits (a learned design) share one optimiser group,
-the networks another; the mosaic's softmax temperature falls geometrically (``mosaic.temperature_*``), then the
-mosaic is read hard with straight-through gradients (``mosaic.straight_through_after``).
+the networks another; the design may wait while the networks learn (``optim.design_warmup``, a fraction of the
+steps); the mosaic's softmax temperature then falls geometrically (``mosaic.temperature_*``), and the mosaic is
+read hard with straight-through gradients (``mosaic.straight_through_after``).
 
 Outputs in ``out``: ``design.pt`` (the design file: filters, hard mosaic, network weights per level, config, card),
 ``card.md``, ``history.csv``, ``curves.png``, ``filters.png`` (filters and mosaic) and ``record.json``.
@@ -56,7 +57,8 @@ DEFAULTS: dict = {
     "camera": {},
     "lux": [1.0, 10.0, 100.0],
     "data": {"source": "layouts", "size": 64, "batch": 8, "scene": {}, "folder": None, "natural": {}},
-    "optim": {"steps": 2000, "lr": 1.0e-3, "design_lr": 2.0e-2, "lr_min": 1.0e-5, "srgb_weight": 1.0},
+    "optim": {"steps": 2000, "lr": 1.0e-3, "design_lr": 2.0e-2, "lr_min": 1.0e-5, "srgb_weight": 1.0,
+              "design_warmup": 0.0},
     "mosaic": {"temperature_start": 1.0, "temperature_end": 0.03, "anneal_fraction": 0.7,
                "straight_through_after": 0.8},
     "val": {"batches": 2, "every": 200, "seed_offset": 1_000_003, "crop": 4},
@@ -261,14 +263,21 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=float(o["lr_min"]))
     m = cfg["mosaic"]
     anneal = max(1, round(float(m["anneal_fraction"]) * steps))
+    # the networks alone first (a fraction of the steps): a design that adapts to an untrained network drifts to
+    # what it can use early, the luminance (pilots at 1 lux: the mosaic collapsed to one broad filter)
+    warmup = round(float(o["design_warmup"]) * steps)
     out_dir = Path(cfg["out"])
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, t0 = [], time.time()
     b, size = int(cfg["data"]["batch"]), int(cfg["data"]["size"])
     for step in range(steps):
         lux = levels[step % len(levels)]
+        if design_params:
+            for p in design_params:
+                p.requires_grad_(step >= warmup)
         if camera.mosaic.learnable:
-            camera.mosaic.temperature = temperature_schedule(step, anneal, float(m["temperature_start"]),
+            camera.mosaic.temperature = temperature_schedule(max(0, step - warmup), anneal,
+                                                             float(m["temperature_start"]),
                                                              float(m["temperature_end"]))
             if step >= float(m["straight_through_after"]) * steps:
                 camera.mosaic.relax = "straight_through"
@@ -281,7 +290,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
         loss.backward()
         opt.step()
         sched.step()
-        row = {"step": step + 1, "lux": lux, "loss": float(loss), "temperature": camera.mosaic.temperature,
+        row = {"step": step + 1, "lux": lux, "loss": float(loss.detach()), "temperature": camera.mosaic.temperature,
                "seconds": round(time.time() - t0, 2)}
         every = int(cfg["val"]["every"])
         if (every and (step + 1) % every == 0) or step + 1 == steps:

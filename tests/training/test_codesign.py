@@ -59,7 +59,7 @@ def test_tiny_run_exports_a_manufacturable_design(tmp_path, photos):
     record = codesign.train({"out": str(out), "threads": 1, "lux": [2, 50],
                              "design": {"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
                              "camera": {"network": {"width": 4, "depth": 1}},
-                             "data": {"size": 16, "batch": 2}, "optim": {"steps": 4},
+                             "data": {"size": 16, "batch": 2}, "optim": {"steps": 4, "design_warmup": 0.5},
                              "val": {"batches": 1, "every": 2}}, quiet=True)
     assert set(record["val_cpsnr"]) == {"2", "50"}
     for name in ("design.pt", "card.md", "history.csv", "curves.png", "filters.png", "record.json"):
@@ -77,3 +77,7 @@ def test_tiny_run_exports_a_manufacturable_design(tmp_path, photos):
     res = evaluate_design(out / "design.pt", photos, crop=2)
     assert set(res["mean_cpsnr"]) == {"2", "50"} and all(np.isfinite(v) for v in res["mean_cpsnr"].values())
     assert "steps 4" in cam.card
+    # the design learned after the warm-up: the filters moved from their initial values
+    from isettorch.sensor.filter_bank import FilterBank
+    start = FilterBank(["learned", "learned", "W"], seed=0, fixed_scale="peak").filters
+    assert float((cam.bank.filters - start).abs().max()) > 1e-3
