@@ -8,7 +8,7 @@ Usage::
 
 ``--channel-gains`` and ``--grain-std`` make a stress set for the failure that a colour-ratio prior has on saturated
 colours: green and blue scaled down (the scene's structure stays in all channels) plus seeded Gaussian grain drawn
-independently per channel, before the 8-bit rounding (training/runs/natural_v4_64x13_2026-11-26/PER_IMAGE_KODAK.md).
+independently per channel, before the 8-bit rounding (docs/training_log.md#natural_v4_64x13_2026-11-26).
     isettorch demosaic-eval out/heldout_natural --method learned --crop 10
 """
 

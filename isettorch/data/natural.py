@@ -52,7 +52,7 @@ script ``benchmarks/generator_ablation.py`` does that one at a time), named afte
   grain's ``amplitude`` relative to an 18 % grey), as a fluctuation of each emulsion layer's dye density scales the
   light that layer passes (Beer-Lambert). Such detail is in proportion to each channel's *own* signal, so a weak
   channel's fine structure is not a scaled copy of the bright one's: version-5 networks copy the weak channels'
-  detail into red scaled ~3x (``training/runs/dye_2026-11-26/README.md``).
+  detail into red scaled ~3x (``docs/training_log.md#dye_2026-11-26``).
 * ``specular``: with ``probability`` (0 in version 5, so its scenes are unchanged) the interface reflection of the
   dichromatic reflection model (Shafer 1985): on glossy materials a fine log-normal sheen texture, in proportion to
   the material's body map, reflects the illuminant's own spectrum (neutral interface reflection, Lee, Breneman &
