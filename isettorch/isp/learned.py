@@ -12,6 +12,14 @@ records the command, config, data, wall time, hardware and benchmark scores). In
 the demosaic method ``"learned"`` with :mod:`isettorch.isp.demosaicing` (``demosaic(raw, "RGGB", method="learned")``,
 ``isettorch demosaic-eval DIR --method learned``, camera configs with ``isp.demosaic: learned``).
 
+A shipped network runs under a guard (:func:`guard_residual`, :data:`PRETRAINED_GUARDS`): its correction of MHC is
+weighted by :func:`structure_gate` (0 where the mosaic has no curvature, relative to its level, that MHC could get
+wrong) and high-passed (each channel's local mean stays MHC's). So a constant colour field comes out exactly as MHC
+gives it, at any level and colour and for every Bayer phase, and the network adds no channel bias of its own
+(issue #35; ``tests/isp/test_learned_guarantees.py``). The network is not scale-equivariant (it was trained at
+white = 1); below about 0.3 of white the gate's absolute threshold takes over, so dark mosaics tend to MHC, which is
+linear.
+
 References:
     H. S. Malvar, L. He, R. Cutler, "High-quality linear interpolation for demosaicing of Bayer-patterned color
     images", ICASSP 2004.
@@ -22,6 +30,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 from pathlib import Path
 
 import torch
@@ -34,6 +43,9 @@ from .demosaicing.linear import demosaic_malvar2004
 __all__ = [
     "BAYER_PATTERNS",
     "DemosaicNet",
+    "PRETRAINED_GUARDS",
+    "guard_residual",
+    "structure_gate",
     "demosaic_learned",
     "load_pretrained",
     "load_checkpoint",
@@ -46,6 +58,13 @@ ASSETS = Path(__file__).resolve().parent.parent / "assets"
 PRETRAINED_PATH = ASSETS / "demosaic_learned.pt"
 #: shipped variants: the noise-free network and the joint denoise+demosaic network (noise inputs (a, b))
 PRETRAINED = {"noise_free": PRETRAINED_PATH, "joint_denoise": ASSETS / "demosaic_learned_denoise.pt"}
+#: the guard each shipped network runs under (:func:`guard_residual`), part of what ``load_pretrained`` returns.
+#: The noise-free model's thresholds were chosen on ``training/stress_set.py`` only (no Kodak/McMaster); the joint
+#: model keeps its correction wherever the mosaic is not exactly constant (its noise is structure to remove).
+PRETRAINED_GUARDS = {
+    "noise_free": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 16.0},
+    "joint_denoise": {"rel": 0.0, "abs": 1e-6, "window": 5, "power": 4, "highpass_sigma_px": 16.0},
+}
 
 def _check_raw(raw: torch.Tensor, name: str = "raw") -> torch.Tensor:
     if not isinstance(raw, torch.Tensor):
@@ -78,6 +97,97 @@ def _to_rggb(raw: torch.Tensor, pattern: str) -> tuple[torch.Tensor, int, int]:
     return raw, dy, dx
 
 
+def _second_differences(planes: torch.Tensor) -> torch.Tensor:
+    """``|d2/dx2| + |d2/dy2|`` of each plane (B, C, h, w) by slicing (exactly 0 on a constant plane, whatever its
+    value, since ``c - 2c + c`` is exact in floating point), each edge row/column repeating its neighbour's."""
+    out = torch.zeros_like(planes)
+    if planes.shape[-1] >= 3:
+        dxx = (planes[..., 2:] - 2 * planes[..., 1:-1] + planes[..., :-2]).abs()
+        out = out + F.pad(dxx, (1, 1, 0, 0), mode="replicate")
+    if planes.shape[-2] >= 3:
+        dyy = (planes[..., 2:, :] - 2 * planes[..., 1:-1, :] + planes[..., :-2, :]).abs()
+        out = out + F.pad(dyy, (0, 0, 1, 1), mode="replicate")
+    return out
+
+
+def _box(x: torch.Tensor, window: int) -> torch.Tensor:
+    p = window // 2
+    return F.avg_pool2d(F.pad(x, (p, p, p, p), mode="replicate"), window, 1)
+
+
+_GUARD_KEYS = ("rel", "abs", "window", "power", "highpass_sigma_px")
+
+
+def _check_guard(rel=0.1, abs=0.03, window=5, power=4.0, highpass_sigma_px=None) -> None:  # noqa: A002
+    if not (float(rel) >= 0 and float(abs) > 0):
+        raise ValueError(f"rel, abs: expected rel >= 0 and abs > 0 (abs keeps the gate defined on black), got "
+                         f"{rel}, {abs}")
+    if int(window) != window or window < 1 or window % 2 == 0:
+        raise ValueError(f"window: expected an odd number of half-resolution pixels >= 1, got {window}")
+    if not float(power) > 0:
+        raise ValueError(f"power: expected > 0, got {power}")
+    if highpass_sigma_px is not None and not float(highpass_sigma_px) > 0:
+        raise ValueError(f"highpass_sigma_px: expected a Gaussian sigma > 0 in pixels or None, got {highpass_sigma_px}")
+
+
+def structure_gate(raw: torch.Tensor, rel: float = 0.1, abs: float = 0.03, window: int = 5,  # noqa: A002
+                   power: float = 4.0) -> torch.Tensor:
+    """Where an RGGB mosaic has structure that Malvar-He-Cutler can get wrong: a weight in [0, 1] per pixel.
+
+    MHC is exact wherever every colour channel is locally affine (its bilinear terms are exact on affine
+    signals and its Laplacian corrections vanish on them; Malvar, He & Cutler 2004), so its error is driven by
+    curvature. The structure ``s`` is the local mean (``window`` x ``window`` half-resolution pixels) over the four
+    Bayer planes of ``|d2/dx2| + |d2/dy2|`` of each plane; the level ``L`` is the largest plane's local mean. The
+    gate is ``s^p / (s^p + (rel L)^p + abs^p)``: 0 exactly on a constant colour field of any value (all second
+    differences are exact zeros), near 0 where the mosaic is smooth relative to its level or very dark, near 1
+    on texture. With ``abs`` small against ``rel L`` the gate is invariant to a brightness scaling of the mosaic.
+
+    Args:
+        raw: (B, 1, H, W) RGGB mosaic, H and W even.
+        rel, abs: the thresholds relative to the level and absolute (values of the mosaic; ``abs`` > 0).
+        window: odd box width in half-resolution pixels.
+        power: sharpness ``p`` of the transition.
+
+    Returns:
+        (B, 1, H, W), each 2 x 2 Bayer cell one value.
+    """
+    _check_guard(rel, abs, window, power)
+    planes = F.pixel_unshuffle(raw, 2)
+    s = _box(_second_differences(planes).mean(1, keepdim=True), window)
+    level = _box(planes, window).amax(1, keepdim=True)
+    sp = s.pow(power)
+    gate = sp / (sp + (rel * level).abs().pow(power) + float(abs) ** power)
+    return F.interpolate(gate, scale_factor=2, mode="nearest")
+
+
+def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.1, abs: float = 0.03,  # noqa: A002
+                   window: int = 5, power: float = 4.0, highpass_sigma_px: float | None = 16.0) -> torch.Tensor:
+    """The guarded correction of a network on top of MHC: ``highpass(structure_gate(raw) * residual)``.
+
+    The gate (:func:`structure_gate`) leaves MHC where the mosaic has no structure that MHC can get wrong, so a
+    constant colour field is reproduced as exactly as MHC reproduces it (to float rounding) at any level and
+    colour; the high-pass (the correction minus its Gaussian blur of ``highpass_sigma_px`` pixels, replicate
+    border; ``None``: none) keeps each channel's local mean MHC's, so the network adds no colour bias of its own
+    (MHC, being linear and exact on constants, has none in expectation).
+
+    Args:
+        raw: (B, 1, H, W) RGGB mosaic.
+        residual: (B, 3, H, W) the network's correction of MHC.
+
+    Returns:
+        (B, 3, H, W) the guarded correction.
+    """
+    _check_guard(rel, abs, window, power, highpass_sigma_px)
+    out = structure_gate(raw, rel, abs, window, power).to(residual.dtype) * residual
+    if highpass_sigma_px is not None:
+        from kornia.filters import gaussian_blur2d
+
+        sigma = float(highpass_sigma_px)
+        k = 2 * math.ceil(3 * sigma) + 1
+        out = out - gaussian_blur2d(out, (k, k), (sigma, sigma), border_type="replicate")
+    return out
+
+
 class DemosaicNet(nn.Module):
     """Residual demosaic (and optionally denoise) CNN on packed Bayer planes; corrects the MHC estimate.
 
@@ -89,6 +199,9 @@ class DemosaicNet(nn.Module):
             the residual blocks of He et al., CVPR 2016, without batch norm as in EDSR, Lim et al. 2017), so a deep
             body trains as fast as a shallow one; ``depth - 1`` must then be even. Default False: a plain stack
             (the earlier checkpoints).
+        guard: ``None`` (training: the raw correction) or the options of :func:`guard_residual` (a dict), which
+            then guards the correction in ``forward``: exact on constant colour fields, no colour bias of its own.
+            :func:`load_pretrained` sets the shipped one (:data:`PRETRAINED_GUARDS`). May be changed on an instance.
 
     Shapes:
         forward(raw (B, 1, H, W) RGGB, noise (B, noise_inputs) optional) -> (B, 3, H, W).
@@ -99,8 +212,17 @@ class DemosaicNet(nn.Module):
         torch.Size([2, 3, 16, 16])
     """
 
-    def __init__(self, channels: int = 48, depth: int = 6, noise_inputs: int = 0, residual: bool = False):
+    def __init__(self, channels: int = 48, depth: int = 6, noise_inputs: int = 0, residual: bool = False,
+                 guard: dict | None = None):
         super().__init__()
+        if guard is not None:
+            if not isinstance(guard, dict):
+                raise TypeError(f"guard: expected None or a dict of guard_residual options, got {type(guard).__name__}")
+            if set(guard) - set(_GUARD_KEYS):
+                raise ValueError(f"guard: unknown options {sorted(set(guard) - set(_GUARD_KEYS))}, expected some of "
+                                 f"{_GUARD_KEYS}")
+            _check_guard(**guard)
+        self.guard = dict(guard) if guard is not None else None
         if int(channels) < 1 or int(depth) < 1 or int(noise_inputs) < 0:
             raise ValueError(f"channels, depth, noise_inputs: expected >=1, >=1, >=0, got {channels}, {depth}, "
                              f"{noise_inputs}")
@@ -132,6 +254,8 @@ class DemosaicNet(nn.Module):
         cfg = {"channels": self.channels, "depth": self.depth, "noise_inputs": self.noise_inputs}
         if self.residual:  # plain networks keep the config (and checkpoints) they always had
             cfg["residual"] = True
+        if self.guard is not None:
+            cfg["guard"] = dict(self.guard)
         return cfg
 
     def forward(self, raw: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
@@ -152,7 +276,11 @@ class DemosaicNet(nn.Module):
         elif noise is not None:
             raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
         x = torch.cat(feats, 1)
-        return base + F.pixel_shuffle(self.head(self.body(x)), 2).to(base.dtype)
+        residual = F.pixel_shuffle(self.head(self.body(x)), 2).to(base.dtype)
+        if self.guard is not None:
+            with torch.autocast(raw.device.type, enabled=False):
+                residual = guard_residual(raw, residual, **self.guard)
+        return base + residual
 
 
 class _ResidualBlock(nn.Module):
@@ -253,8 +381,10 @@ def load_checkpoint(path: str | Path, *, device=None, dtype=None) -> tuple[Demos
 
 
 @functools.lru_cache(maxsize=8)
-def _pretrained(variant: str, device: str, dtype: torch.dtype) -> DemosaicNet:
-    return load_checkpoint(PRETRAINED[variant], device=device, dtype=dtype)[0]
+def _pretrained(variant: str, device: str, dtype: torch.dtype, guard: bool = True) -> DemosaicNet:
+    net = load_checkpoint(PRETRAINED[variant], device=device, dtype=dtype)[0]
+    net.guard = dict(PRETRAINED_GUARDS[variant]) if guard else None
+    return net
 
 
 def _check_variant(variant: str) -> str:
@@ -263,8 +393,11 @@ def _check_variant(variant: str) -> str:
     return variant
 
 
-def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.float32) -> DemosaicNet:
-    """A shipped :class:`DemosaicNet` (``isettorch/assets``), eval mode, frozen.
+def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.float32, guard: bool = True
+                    ) -> DemosaicNet:
+    """A shipped :class:`DemosaicNet` (``isettorch/assets``), eval mode, frozen, with its guard
+    (:data:`PRETRAINED_GUARDS`, :func:`guard_residual`; ``guard=False``: the bare network, for comparisons).
+    The instance is cached and shared: copy it before changing its ``guard``.
 
     ``variant="noise_free"`` (``demosaic_learned.pt``) or ``"joint_denoise"`` (``demosaic_learned_denoise.pt``,
     which takes ``noise = [sqrt(a) * 10, sqrt(b) * 100]`` for a mosaic with variance ``a x + b``; see
@@ -284,7 +417,7 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
         >>> net(torch.rand(1, 1, 32, 32)).shape
         torch.Size([1, 3, 32, 32])
     """
-    return _pretrained(_check_variant(variant), str(torch.device(device or "cpu")), dtype)
+    return _pretrained(_check_variant(variant), str(torch.device(device or "cpu")), dtype, bool(guard))
 
 
 def pretrained_info(variant: str = "noise_free") -> dict:

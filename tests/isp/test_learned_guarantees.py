@@ -1,0 +1,141 @@
+"""The guarantees the shipped learned demosaickers carry (isettorch.isp.learned.guard_residual, issue #35): exact on
+constant colour fields, no colour bias of their own, the documented behaviour under brightness scaling, and never
+more than 0.1 dB below Malvar-He-Cutler (MHC) on the stress set (training/stress_set.py; never Kodak/McMaster)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from isettorch.isp import learned
+from isettorch.isp.demosaicing import demosaic, demosaic_malvar2004, mosaic
+
+ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from training import stress_set as ss  # noqa: E402
+
+pytestmark = pytest.mark.skipif(not all(p.is_file() for p in learned.PRETRAINED.values()),
+                                reason="no shipped checkpoints")
+PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
+# stress images on which the floor is known not to hold (the ambiguity of the Bayer mosaic: a green-magenta
+# pattern has the mosaic of a fine diagonal grey texture, which the network prefers); see the model card
+KNOWN_BELOW_MHC = ("pattern:star/green_magenta", "pattern:zone_plate/green_magenta")
+
+
+def _colours():
+    g = torch.Generator().manual_seed(35)
+    fixed = [(0.5, 0.5, 0.5), (0.02, 0.02, 0.02), (0.9, 0.2, 0.1), (0.1, 0.6, 0.9), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0),
+             (1e-4, 3e-4, 2e-4), (0.99, 0.0, 0.5), (3.0, 2.0, 1.0)]
+    return [torch.tensor(c) for c in fixed] + [torch.rand(3, generator=g) * 10 ** -float(k) for k in range(4)]
+
+
+@pytest.mark.parametrize("variant", sorted(learned.PRETRAINED))
+def test_constant_colour_fields_are_exact(variant):
+    # Any level (1e-4 ... 3, above white too) and colour, every Bayer phase, borders included: the value itself.
+    net = learned.load_pretrained(variant)
+    noise = learned.noise_features(1e-3, 1e-4).float() if net.noise_inputs else None
+    worst = 0.0
+    for colour in _colours():
+        field = colour.float().view(1, 3, 1, 1).expand(1, 3, 32, 40).contiguous()
+        for pattern in PATTERNS:
+            out = learned.demosaic_learned(mosaic(field, pattern), pattern, model=net, noise=noise)
+            worst = max(worst, float((out - field).abs().max() / max(float(colour.max()), 1.0)))
+    assert worst <= 1e-5, worst
+    # and through the registry, the entry point users call
+    field = torch.tensor([0.7, 0.3, 0.05]).view(1, 3, 1, 1).expand(2, 3, 24, 24).contiguous()
+    out = demosaic(mosaic(field, "GBRG"), "GBRG", method="learned")
+    torch.testing.assert_close(out, field, rtol=0, atol=1e-5)
+
+
+def test_unguarded_network_is_not_exact_on_constant_fields():
+    # the guard is what makes the guarantee: the bare shipped network misses a coloured field by > 1e-3
+    field = torch.tensor([0.9, 0.2, 0.1]).view(1, 3, 1, 1).expand(1, 3, 48, 48).contiguous()
+    out = learned.demosaic_learned(mosaic(field, "RGGB"), model=learned.load_pretrained(guard=False))
+    assert float((out - field)[..., 8:-8, 8:-8].abs().max()) > 1e-3
+
+
+def test_structure_gate_zero_on_constants_one_on_texture_and_scale_covariant():
+    g = torch.Generator().manual_seed(0)
+    const = mosaic(torch.tensor([0.3, 0.8, 0.1]).view(1, 3, 1, 1).expand(1, 3, 16, 16).contiguous())
+    assert float(learned.structure_gate(const).abs().max()) == 0.0
+    texture = torch.rand(1, 1, 32, 32, generator=g, dtype=torch.float64)
+    assert float(learned.structure_gate(texture).min()) > 0.99
+    # s and the level scale with the mosaic, so scaling abs with it leaves the gate unchanged
+    ramp = torch.linspace(0, 1, 32, dtype=torch.float64).view(1, 1, 1, 32) ** 2 * (1 + 0.3 * texture)
+    a = learned.structure_gate(ramp, rel=0.1, abs=0.02)
+    b = learned.structure_gate(ramp * 0.01, rel=0.1, abs=0.02 * 0.01)
+    torch.testing.assert_close(a, b, rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match="abs"):
+        learned.structure_gate(texture, abs=0.0)
+    with pytest.raises(ValueError, match="window"):
+        learned.structure_gate(texture, window=4)
+    with pytest.raises(ValueError, match="guard"):
+        learned.DemosaicNet(channels=4, depth=1, guard={"relative": 0.1})
+
+
+def _phase_mean_error(net, img: torch.Tensor, crop: int = 10) -> torch.Tensor:
+    """Per-channel mean error (in 1/255) over the four Bayer phases: each channel is then sampled once at every
+    pixel, so the sampling luck of one phase cancels and what is left is the method's own bias."""
+    errs = []
+    for pattern in PATTERNS:
+        with torch.no_grad():
+            out = learned.demosaic_learned(mosaic(img[None], pattern).float(), pattern, model=net)
+        errs.append((out.double() - img[None])[..., crop:-crop, crop:-crop].mean((0, 2, 3)))
+    return torch.stack(errs).mean(0) * 255
+
+
+def test_no_channel_bias_on_natural_images():
+    # scikit-image's photographs (256 px centre crops) and two generator scenes (not Kodak/McMaster)
+    images = [ss.photo(p, 256) for p in ("astronaut.png", "coffee.png", "chelsea.png", "hubble_deep_field.jpg")]
+    images += [x for _, x in ss.natural_scenes(2, 128)]
+    net = learned.load_pretrained()
+    for img in images:
+        bias = _phase_mean_error(net, img)
+        assert float(bias.abs().max()) <= 0.05, bias.tolist()
+
+
+def test_brightness_scaling():
+    # Documented behaviour: the network is not scale-equivariant (trained at white = 1), the guard is relative to
+    # the local level above ~abs / rel = 0.3 of white and absolute below, so (a) a dark mosaic falls back to MHC,
+    # which is linear: out(k x) / k -> MHC(x) as k -> 0; (b) at every scaling the floor against MHC holds.
+    img = ss.photo("coffee.png", 96)[None]
+    raw = mosaic(img).float()
+    mhc = demosaic_malvar2004(raw, boundary="mirror")
+    k = 1e-3
+    dark = learned.demosaic_learned(raw * k) / k
+    assert float((dark - mhc).abs().max()) <= 1e-4
+    from isettorch.isp.evaluation import cpsnr
+
+    for k in (1.0, 0.3, 0.1, 0.03):
+        truth = img * k
+        ours = cpsnr(learned.demosaic_learned(raw * k).double().clamp(0, 1), truth, 10)
+        base = cpsnr(demosaic_malvar2004(raw * k, boundary="mirror").double().clamp(0, 1), truth, 10)
+        assert float(ours) >= float(base) - 0.1, (k, float(ours), float(base))
+
+
+def _floor_failures(images):
+    res = ss.score(images, {"mhc": lambda raw, p: demosaic(raw, p, method="malvar2004"),
+                            "learned": lambda raw, p: demosaic(raw, p, method="learned")})
+    return {n: round(res["learned"][n] - res["mhc"][n], 2) for n, _ in images
+            if res["learned"][n] < res["mhc"][n] - 0.1}
+
+
+def test_never_below_malvar_on_stress_subset():
+    # a CI-sized subset of the stress set: three photographs in every variant, two whole photographs, two
+    # generator scenes (one with chromatic fine detail) in their variants, and the grey and red-cyan patterns
+    images = ss.stress_set(96, n_natural=2, photos=("retina.jpg", "coffee.png", "ihc.png"),
+                           whole_variants=("plain", "red"), with_patterns=True)
+    images = [(n, x) for n, x in images if n not in KNOWN_BELOW_MHC]
+    assert len(images) >= 40
+    assert _floor_failures(images) == {}
+
+
+@pytest.mark.xfail(strict=True, reason="known: green-magenta fine patterns (Bayer ambiguity; model card)")
+def test_never_below_malvar_on_green_magenta_patterns():
+    images = [(n, x) for n, x in ss.patterns(96) if n in KNOWN_BELOW_MHC]
+    assert _floor_failures(images) == {}
