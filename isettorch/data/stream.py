@@ -2,8 +2,9 @@
 
 :class:`~isettorch.data.camera_pairs.CameraPairDataset` draws each item with its own CPU generator in DataLoader
 workers. A :class:`PairStream` draws a whole batch with one ``torch.Generator`` on the batch's device (scenes by
-:func:`isettorch.data.batched.draw_layout_scenes`, camera settings as ``[B]`` tensors) and renders it through the
-same camera modules (:class:`~isettorch.optics.DiffractionLimitedOptics` or the configured optics, and the
+:func:`isettorch.data.batched.draw_layout_scenes` or, ``scene.generator: natural``,
+:func:`isettorch.data.batched_natural.draw_natural_scenes`, camera settings as ``[B]`` tensors) and renders it
+through the same camera modules (:class:`~isettorch.optics.DiffractionLimitedOptics` or the configured optics, and the
 :class:`~isettorch.sensor.Sensor` with its QE, auto-exposure, noise and ADC, via :class:`isettorch.Camera`), with
 the same targets, units and metadata as a ``CameraPairDataset`` batch. Items are not the dataset's items (other
 random numbers) but are drawn from the same distribution (``tests/data/test_stream.py`` compares summary
@@ -23,11 +24,14 @@ import torch
 
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
 from .batched import draw_layout_scenes
+from .batched_natural import draw_natural_scenes
 from .camera_pairs import _D65_XYZ, TARGETS, _Cache, _unit_qe, _xyz_weights, check_targets
 from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, seed_for
 
 __all__ = ["PairStream", "StreamGroup"]
 
+#: the batched scene draws by ``scene.generator`` (the per-item generators' distributions)
+_SCENE_DRAWS = {"layouts": draw_layout_scenes, "natural": draw_natural_scenes}
 _SPLIT_ITEMS = 12  # items of one camera from which a group is split by term count (measured: batch 64 -> 22 %
 #                    less CPU per pair, batch 16 -> 12 % more when always split)
 
@@ -53,7 +57,8 @@ class PairStream:
     Args:
         batch_size: items per batch.
         seed: stream seed; batch ``k`` depends only on ``(seed, k, config, device type)``.
-        scene: scene config (keys of :data:`~isettorch.data.config.SCENE_DEFAULTS`; generator ``layouts``).
+        scene: scene config (keys of :data:`~isettorch.data.config.SCENE_DEFAULTS`; generator ``layouts`` or
+            ``natural``, with its options in ``natural``).
         camera: a camera config (keys of :data:`~isettorch.data.config.CAMERA_DEFAULTS`: the camera is drawn per
             item as in :class:`~isettorch.data.camera_pairs.CameraPairDataset`), or an :class:`isettorch.Camera`
             module to render every item through as it is (its own optics, sensor, QE, exposure and noise settings;
@@ -86,9 +91,6 @@ class PairStream:
         self.batch_size, self.seed, self.dtype = batch_size, int(seed), dtype
         self.device = torch.device(device)
         self.scene_config = merge_config(scene, SCENE_DEFAULTS, "scene")
-        if self.scene_config["generator"] != "layouts":
-            raise ValueError(f"scene.generator: PairStream draws the 'layouts' generator on the device; got "
-                             f"{self.scene_config['generator']!r} (use CameraPairDataset for it)")
         h, w = self.scene_config["height"], self.scene_config["width"]
         if h % 2 or w % 2:
             raise ValueError(f"scene.height/width: expected even sizes (whole Bayer cells), got {h}x{w}")
@@ -168,7 +170,8 @@ class PairStream:
                 d = self._draw_camera(g, nb)
             else:
                 d = {"distance": _draw_range(self.scene_config["distance_m"], g, nb, dev)}
-            drawn = draw_layout_scenes(nb, g, self.scene_config, size=(h + 2 * m, w + 2 * m), device=dev, dtype=dt)
+            drawn = _SCENE_DRAWS[self.scene_config["generator"]](nb, g, self.scene_config, size=(h + 2 * m, w + 2 * m),
+                                                                 device=dev, dtype=dt)
         wl = drawn["wavelengths_nm"].to(dt)
         groups = []
         if self.camera_module is not None:

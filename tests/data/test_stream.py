@@ -108,7 +108,7 @@ def test_bad_input_names_the_argument():
     with pytest.raises(ValueError, match="batch_size"):
         PairStream(0)
     with pytest.raises(ValueError, match="scene.generator"):
-        PairStream(2, scene={"generator": "natural"})
+        PairStream(2, scene={"generator": "photos"})
     with pytest.raises(ValueError, match="dtype"):
         PairStream(2, dtype=torch.float16)
     with pytest.raises(ValueError, match="rank"):
