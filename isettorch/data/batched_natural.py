@@ -254,8 +254,10 @@ def _paint_leaves(cfg, g, maps, alpha, active, n_leaves, n_mat, r_min, r_max, ex
         if any_tex:  # one slot (j): the textured items' fields on their boxes (natural._leaf_texture)
             tj = textured[:, j]
             ly, lx = iy[0] - y0[:, j, None], ix[0] - x0[:, j, None]
-            n_ = _noise_on_boxes(torch.where(tj, hh[:, j], 2), torch.where(tj, ww[:, j], 2), ly, lx, inside[0],
-                                 torch.where(t_kind[:, j] == 1, 2.0, t_s[:, j]), g)
+            sel = tj.nonzero().reshape(-1)  # the fields of the textured items only
+            n_ = torch.zeros(nb, wy, wx, dtype=torch.float64, device=dev)
+            n_[sel] = _noise_on_boxes(hh[sel, j], ww[sel, j], ly[sel], lx[sel], inside[0][sel],
+                                      torch.where(t_kind[sel, j] == 1, 2.0, t_s[sel, j]), g)
             ang = t_angle[:, j, None, None]
             uu = lx.to(torch.float64)[:, None, :] * torch.cos(ang) + ly.to(torch.float64)[:, :, None] * torch.sin(ang)
             grating = 0.5 + 0.5 * torch.sin(2 * math.pi * t_freq[:, j, None, None]
@@ -337,14 +339,12 @@ def _fine_detail(cfg, g, maps, active, n_mat):
     ss = int(c["supersample"])
     lo, hi = int(c["items"][0]), int(c["items"][1])
     count = torch.where(active, torch.randint(lo, hi + 1, (nb,), generator=g, device=dev), 0)
-    kinds = torch.zeros(nb, hi, dtype=torch.long, device=dev)
     yy = ((torch.arange(h * ss, device=dev, dtype=torch.float32) + 0.5) / ss)[None, :, None]
     xx = ((torch.arange(w * ss, device=dev, dtype=torch.float32) + 0.5) / ss)[None, None, :]
     kidx = torch.arange(kmax, device=dev)
     for i in range(hi):
         on = count > i
         kind = torch.randint(0, 3, (nb,), generator=g, device=dev)  # 0 grating, 1 line, 2 edge
-        kinds[:, i] = torch.where(on, kind + 1, 0)
         ang = _u(g, (nb,), 0.0, math.pi, device=dev)
         other, k = _second_material_draws(cfg, g, (nb,), n_mat, dev)
         cy, cx = _u(g, (nb,), 0.2 * h, 0.8 * h, device=dev), _u(g, (nb,), 0.2 * w, 0.8 * w, device=dev)
@@ -353,28 +353,31 @@ def _fine_detail(cfg, g, maps, active, n_mat):
         half = _u(g, (nb,), 0.15, 0.5, device=dev) * min(h, w)
         width = _u(g, (nb,), *_rng(c["line_width_px"]), device=dev)
         bright = torch.exp(_u(g, (nb,), math.log(0.2), 0.0, device=dev)).float()
-        ca, sa = torch.cos(ang), torch.sin(ang)
-        u0 = cx * ca + cy * sa
-        v0 = -cx * sa + cy * ca
+        sel = on.nonzero().reshape(-1)  # the items with an i-th detail item: rendered on those only
+        if sel.numel() == 0:
+            continue
+        ca, sa = torch.cos(ang[sel]), torch.sin(ang[sel])
+        u0 = cx[sel] * ca + cy[sel] * sa
+        v0 = -cx[sel] * sa + cy[sel] * ca
 
         def per(v):
             return v.to(torch.float32)[:, None, None]
 
         du = xx * per(ca) + yy * per(sa) - per(u0)
         dv = -xx * per(sa) + yy * per(ca) - per(v0)
-        wave = torch.sin(2 * math.pi * per(f) * du)
-        pattern = torch.where(square[:, None, None], (wave > 0).float(), 0.5 + 0.5 * wave)
-        grating = ((du.abs() < per(half)) & (dv.abs() < per(half))).float() * pattern
-        line = (dv.abs() < per(width) / 2).float()
+        wave = torch.sin(2 * math.pi * per(f[sel]) * du)
+        pattern = torch.where(square[sel, None, None], (wave > 0).float(), 0.5 + 0.5 * wave)
+        grating = ((du.abs() < per(half[sel])) & (dv.abs() < per(half[sel]))).float() * pattern
+        line = (dv.abs() < per(width[sel]) / 2).float()
         edge = (dv > 0).float()
-        kk = kind[:, None, None]
+        kk = kind[sel, None, None]
         cov = torch.where(kk == 0, grating, torch.where(kk == 1, line, edge))
-        cov = F.avg_pool2d(cov[:, None], ss)[:, 0] * on[:, None, None]
-        b = bright[:, None, None, None]
-        cov4 = cov[:, None]
-        achrom = maps * (1 - cov4 + cov4 * b)
-        chrom = maps * (1 - cov4) + (kidx[None] == k[:, None]).float()[:, :, None, None] * cov4 * b
-        maps = torch.where(other[:, None, None, None], chrom, achrom)
+        cov4 = F.avg_pool2d(cov[:, None], ss)  # pixel-area integration [b, 1, h, w]
+        b = bright[sel, None, None, None]
+        sub = maps[sel]
+        achrom = sub * (1 - cov4 + cov4 * b)
+        chrom = sub * (1 - cov4) + (kidx[None] == k[sel, None]).float()[:, :, None, None] * cov4 * b
+        maps[sel] = torch.where(other[sel, None, None, None], chrom, achrom)
     return maps, count
 
 
