@@ -253,3 +253,36 @@ def test_component_switch_changes_its_statistic(name):
         k = on["spectra"].shape[1] // (2 if bool(on["meta"]["mixed_light"].any()) else 1) - 1
         torch.testing.assert_close(on["spectra"][:, k], on["white"])
         assert bool(on["used"][:, k].any())
+
+
+def test_relative_grain_and_dye_options():
+    """``grain.relative`` (probability 1): each material's map is split into the three emulsion layers, whose
+    spectra ``r d_k`` sum to the material's ``r`` (the dye bands sum to 1); ``palette.dye`` (probability 1,
+    concentration 3): a non-grey material's reflectance is its undyed one raised to the power 3 at the same peak
+    (Beer-Lambert), so the ratio of its minimum to its peak is cubed."""
+    from isettorch.data.natural import grain_dyes
+
+    rel = {"components": {"grain": {"probability": 1.0, "relative": {"probability": 1.0}}}}
+    (out,) = _batched(8, 6, {"natural": rel}, batch=8)
+    assert bool(out["meta"]["relative_grain"].all())
+    kmax = 8
+    refl = out["spectra"] / out["white"][:, None]
+    layers = refl[:, :3 * kmax].reshape(8, kmax, 3, -1)
+    dyes = grain_dyes(natural.natural_config(), out["wavelengths_nm"])
+    torch.testing.assert_close(layers / layers.sum(2, keepdim=True).clamp_min(1e-300), dyes[None, None].expand_as(
+        layers) * (layers.sum(2, keepdim=True) > 0), rtol=1e-9, atol=1e-12)
+    flat = {"components": {"palette": {"grey_probability": 0.0}}}
+    dyed = {"components": {"palette": {"grey_probability": 0.0, "dye": {"probability": 1.0,
+                                                                       "concentration": [3.0, 3.0]}}}}
+    (a,) = _batched(16, 8, {"natural": flat}, batch=16)
+    (b,) = _batched(16, 8, {"natural": dyed}, batch=16)
+
+    def purity(out):
+        r = out["spectra"] / out["white"][:, None]
+        k = out["meta"]["materials"]
+        ratio = r.amin(-1) / r.amax(-1)
+        return torch.cat([ratio[i, :int(k[i])] for i in range(ratio.shape[0])]).numpy()
+
+    # the same generator state draws the same undyed materials (the dye draws come after them): min / peak is
+    # raised to the concentration, (r_min / r_peak)^3
+    np.testing.assert_allclose(purity(b), purity(a) ** 3, rtol=1e-9, atol=1e-15)
