@@ -59,7 +59,9 @@ def _run(incumbent: str, candidate: str, n_sets: int, registered: str, **extra) 
 #: each run's pre-registered screen, fixed before its checkpoints were scored (``registered``: when, and what the
 #: candidate is): the incumbent and candidate checkpoints (paths from the repository root, as the runs wrote them),
 #: the held-out sets, and the committed result (default ``training/runs/RUN/screen_heldout.json``). ``labels``:
-#: the result's row names when they are not ``incumbent`` / ``candidate`` (the first screen's record).
+#: the result's row names when they are not ``incumbent`` / ``candidate`` (the first screen's record). ``kind``:
+#: ``best_of`` (``candidate`` a dict of named checkpoints, ``incumbent`` one of the names; :func:`best_of`) or
+#: ``interpolation``; absent, the rule of :func:`passes`.
 RUNS = {
     "dye_2026-11-26": _run(_best("stage3"), _best("dye"), 3, "2026-11-26 15:46 UTC, after the dyed-materials run "
                            "started, before any of its checkpoints was scored", labels=("stage3", "dye")),
@@ -82,6 +84,12 @@ RUNS = {
     # the interpolation screen: W(alpha) = (1 - alpha) incumbent + alpha candidate for alpha = 0.1 ... 0.9, each
     # against the incumbent by the same rule; the passing alpha with the highest score ships (its network written to
     # out/wise_specular/best.pt: training.reproduce_demosaic.wise_select, which the reproduction runs too)
+    # the stage-4/5 screen, before the shared rule: the candidate with the highest mean on the first set among those
+    # that beat the incumbent there and have no scene below MHC on any set ships (best_of)
+    "natural_v5_stage5_2026-11-26": _run(
+        "stage3", {"stage3": _best("stage3"), "gpu_64x13": "out/gpu_stage4_64x13/best.pt", "stage4": _best("stage4"),
+                   "stage5": _best("stage5")}, 3, "2026-11-26 13:30 UTC, before any of the candidates was scored on "
+        "anything but its own run's validation set", kind="best_of"),
     "wise_specular_2026-11-27": _run(_best("distill4"), _best("specular"), 5, "2026-11-27 ~09:56 UTC, before any "
                                      "interpolated network was scored", kind="interpolation",
                                      result="training/runs/wise_specular_2026-11-27/wise_screen.json"),
@@ -171,6 +179,30 @@ def main(argv=None) -> int:
     return 0
 
 
+def best_of(incumbent: str, paths: dict, sets: list[str]) -> dict:
+    """The stage-4/5 screen (``natural_v5_stage5_2026-11-26``; the rule before :func:`passes`): every network of
+    ``paths`` (name -> checkpoint, the incumbent's name among them) and Malvar-He-Cutler (``malvar2004``) scored on
+    every set, as ``{set: {name: row}}`` (rows of :func:`score_network`), and ``decision``: :func:`best_of_decision`."""
+    mhc_rows = {s: evaluate_demosaic(s, "malvar2004", "RGGB", 10) for s in sets}
+    mhc = {s: [i["cpsnr"] for i in r["images"]] for s, r in mhc_rows.items()}
+    rows = {name: score_network(path, sets, mhc) for name, path in paths.items()}
+    out = {s: {"malvar2004": {"mean": mhc_rows[s]["mean_cpsnr"], "below_mhc": 0, "worst_vs_mhc": 0.0,
+                              "per_image": {i["name"]: i["cpsnr"] for i in mhc_rows[s]["images"]}},
+               **{name: rows[name][s] for name in paths}} for s in sets}
+    out["decision"] = best_of_decision(out, incumbent, sets)
+    return out
+
+
+def best_of_decision(res: dict, incumbent: str, sets: list[str]) -> str:
+    """The candidate (a name of ``res[sets[0]]`` other than ``incumbent`` and ``malvar2004``) with the highest mean on
+    ``sets[0]`` among those whose mean there beats the incumbent's and with no scene below MHC on any set; else the
+    incumbent."""
+    first = res[sets[0]]
+    ok = {k: first[k]["mean"] for k in first if k not in (incumbent, "malvar2004")
+          and first[k]["mean"] > first[incumbent]["mean"] and all(res[s][k]["below_mhc"] == 0 for s in sets)}
+    return max(ok, key=ok.get) if ok else incumbent
+
+
 def result_path(run: str) -> Path:
     """The committed result of ``run``'s screen (relative to the repository root)."""
     return Path(RUNS[run].get("result", f"training/runs/{run}/screen_heldout.json"))
@@ -219,6 +251,19 @@ def screen_run(run: str, argv: list[str] | None = None) -> int:
     out = Path(args.out or (f"out/screen_dryrun/{run}.json" if dry else ROOT / result_path(run)))
     make_sets(sets)
     torch.set_num_threads(args.threads)
+    if entry.get("kind") == "best_of":  # --incumbent / --candidate replace those checkpoints
+        paths = dict(entry["candidate"])
+        if args.incumbent:
+            paths[entry["incumbent"]] = args.incumbent
+        if args.candidate:
+            paths = {entry["incumbent"]: paths[entry["incumbent"]], "candidate": args.candidate}
+        res = best_of(entry["incumbent"], paths, sets)
+        for name in paths:
+            print(name, " ".join(f"{res[s][name]['mean']:.3f}({res[s][name]['below_mhc']})" for s in sets), flush=True)
+        print("ship:", res["decision"])
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(res, indent=1))
+        return 0
     if entry.get("kind") == "interpolation":
         from training.reproduce_demosaic import WISE, wise_select
 

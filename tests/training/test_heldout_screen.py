@@ -68,6 +68,11 @@ def test_registry_matches_the_committed_records():
         inc, cand = entry.get("labels", ("incumbent", "candidate"))
         sets = entry["sets"]
         assert set(sets) <= set(heldout_screen.HELDOUT), run
+        if entry.get("kind") == "best_of":  # {set: {name: row}}, MHC's row among them
+            assert all(set(record[s]) == {"malvar2004", *entry["candidate"]} for s in sets), run
+            assert record["decision"] == heldout_screen.best_of_decision(record, entry["incumbent"], sets) != \
+                entry["incumbent"]
+            continue
         if entry.get("kind") == "interpolation":  # W(alpha) rows, each against the incumbent
             assert record["incumbent"]["path"] == entry["incumbent"]
             alphas = [k for k in record if k.startswith("a")]
@@ -104,6 +109,12 @@ def test_registered_screen_dry_run(tmp_path, tiny_heldout_sets, damaged_shipped,
     name = next(iter(shifted["candidate"][sets[1]]["per_image"]))
     shifted["candidate"][sets[1]]["per_image"][name] += 0.25
     assert heldout_screen.compare_to_record(rows, shifted, sets)["candidate"] == pytest.approx(0.25)
+    # the stage-4/5 screen's rule (best of several candidates) on the same sets
+    assert heldout_screen.main(["natural_v5_stage5_2026-11-26", "--incumbent", str(worse), "--candidate",
+                                str(SHIPPED), "--sets", *sets, "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["decision"] == "candidate" and set(res[sets[0]]) == {"malvar2004", "stage3", "candidate"}
+    assert res[sets[1]]["candidate"]["mean"] == pytest.approx(direct["candidate"][sets[1]]["mean"], abs=1e-9)
     with pytest.raises(ValueError, match="run: expected one of"):
         heldout_screen.main(["no_such_run"])
     with pytest.raises(ValueError, match="is not one of the registered sets"):
