@@ -409,6 +409,10 @@ def draw_natural_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[i
     """
     from .natural import _layer_optics, _wavelengths, grain_dyes
 
+    if isinstance(nb, bool) or not isinstance(nb, int) or nb < 1:
+        raise ValueError(f"nb: expected a positive number of scenes, got {nb!r}")
+    if len(size) != 2 or min(int(size[0]), int(size[1])) < 1:
+        raise ValueError(f"size: expected (height, width) of at least 1 pixel, got {size!r}")
     h, w = int(size[0]), int(size[1])
     n = max(16, h, w)
     ncfg = natural_config(dict(cfg.get("natural") or {}, size=n, wavelengths_nm=list(cfg["wavelengths_nm"])))

@@ -286,3 +286,14 @@ def test_relative_grain_and_dye_options():
     # the same generator state draws the same undyed materials (the dye draws come after them): min / peak is
     # raised to the concentration, (r_min / r_peak)^3
     np.testing.assert_allclose(purity(b), purity(a) ** 3, rtol=1e-9, atol=1e-15)
+
+
+def test_bad_input_names_the_argument():
+    cfg = merge_config(NAT, SCENE_DEFAULTS, "scene")
+    g = torch.Generator().manual_seed(0)
+    with pytest.raises(ValueError, match="nb"):
+        draw_natural_scenes(0, g, cfg, size=(16, 16), device="cpu")
+    with pytest.raises(ValueError, match="size"):
+        draw_natural_scenes(2, g, cfg, size=(0, 16), device="cpu")
+    with pytest.raises(ValueError, match="scene.natural"):
+        PairStream(2, scene=dict(NAT, natural={"components": {"grain": {"amplitud": 0.01}}}))
