@@ -9,7 +9,7 @@ with ``phi_j`` raised-cosine (Hann) bands of half-width ``w`` centred every ``w`
 of unity), so ``T`` lies in (0, 1) at every wavelength. Between two band centres only two bands overlap and
 ``phi_j' = -phi_{j+1}'``, so ``|s'| <= (pi / 2w) |a_j - a_{j+1}| <= pi A / w`` and, with ``sigmoid' <= 1/4``,
 
-    |dT/dl| <= pi A / (4 w)   per nm                                                    (:func:`max_slope_per_nm`)
+    ``|dT/dl| <= pi A / (4 w)``   per nm                                                    (:func:`max_slope_per_nm`)
 
 The defaults (``A = 3``, ``w = 50 nm``) give 0.047 / nm, under :data:`MAX_SLOPE_PER_NM` = 0.05 / nm: a 10-90 %
 edge no narrower than about 22 nm. Manufactured colour filters are not steeper: colour-science's measured camera

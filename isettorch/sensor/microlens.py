@@ -5,13 +5,14 @@ Model (Catrysse & Wandell, "Optical efficiency of image sensor pixels", JOSA A 1
 ``mlRadiance``, ``mlAnalyzeArrayEtendue``, ``mlensCreate``, ``mlensGet('optimal offset')``): 1-D ray phase space
 (position x, direction sine p = n sin(theta), conserved across the flat layers of the stack):
 
-1. source: a box of rays, |x| < D / 2 (the microlens aperture D) and p in sin(CRA) +- NA with
+1. source: a box of rays, ``|x| < D / 2`` (the microlens aperture D) and p in sin(CRA) +- NA with
    NA = sin(atan(1 / (2 N_source))) (a Lambertian exit pupil of f-number N_source seen from the pixel);
 2. microlens (when present): p -> p + sin(atan(x / f_air)), f_air = f_ml / 1.52 (ISETCam's ``rStack``: the
    microlens focal length is given in the stack; in air-momentum units its power is n / f_ml);
 3. offset: x -> x + o (positive o compensates a positive CRA);
 4. each layer (thickness t_i, index n_i): x -> x - t_i tan(asin(p / n_i));
-5. etendue = (rays inside the photodiode, |x| < d / 2) / (source rays over the pixel aperture, |x| < p_pixel / 2).
+5. etendue = (rays inside the photodiode, ``|x| < d / 2``) / (source rays over the pixel aperture,
+   ``|x| < p_pixel / 2``).
 
 The optimal offset is the chief ray's walk through the stack, ``sum_i t_i tan(asin(sin(CRA) / n_i))``
 (``mlensGet(ml, 'optimal offset')``). ISETCam's default pixel (``pixelCreate('default')``) is 2.8 um wide with a
@@ -29,7 +30,7 @@ Two ways to count the rays (``sampling``):
   forward map of the grid points re-binned to the nearest grid cell with the cell's mean (``ffndgrid``). Its
   numbers are ISETCam's to the last digit of the grid; no gradients.
 
-Both drop rays whose direction sine leaves ISETCam's grid (|p| >= 0.99) at the microlens.
+Both drop rays whose direction sine leaves ISETCam's grid (``|p| >= 0.99``) at the microlens.
 
 ``diffraction=True`` adds what the ray model leaves out: each ray lands as a Gaussian approximation to the
 Fraunhofer pattern of the aperture (microlens width D, or the pixel without a microlens) after the stack,

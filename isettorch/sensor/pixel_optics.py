@@ -11,7 +11,7 @@ beam, radius sin(alpha) = 1 / (2 N)) centred on the chief ray; each direction re
   detector (width d, centred): efficiency = overlap(x) overlap(y) / p^2;
 * ideal microlens (fills the pixel, focuses at the detector depth): a direction focuses to the point
   o + h tan(theta') (o = microlens offset); it is collected when that point lies on the detector. This is the
-  etendue (acceptance-angle) argument of the ISET model: the pixel accepts |h tan(theta')| <= d / 2.
+  etendue (acceptance-angle) argument of the ISET model: the pixel accepts ``|h tan(theta')| <= d / 2``.
 
 Directions are averaged with a uniform grid over the beam's disk (``samples`` per side).
 
