@@ -20,7 +20,7 @@ from isettorch import spectral
 from isettorch.data import PairStream
 from isettorch.data.batched import LAYOUT_CODES, draw_layout_scenes
 from isettorch.data.camera_pairs import META_KEYS, CameraPairDataset
-from isettorch.data.config import SCENE_DEFAULTS, merge_config, seed_for
+from isettorch.data.config import SCENE_DEFAULTS, merge_config
 from isettorch.data.scenes import _luminance_weights, generate_scene
 
 SMALL = {"height": 32, "width": 32}
@@ -60,23 +60,13 @@ def test_batch_shapes_keys_units_and_repeatable():
     assert torch.equal(next(it)["raw"], stream.batch(1)["raw"])
 
 
-def test_stream_equals_camera_on_drawn_scenes():
+def test_stream_equals_camera_on_drawn_scenes(stream_equals_camera):
     """Each group's camera applied to the drawn scene with the same settings gives the stream's batch: the
     noise-free raw to float rounding, and (one group, camera_rgb only: the same projections) the noisy raw exactly
     from the same generator state."""
-    stream = PairStream(6, seed=1, scene=SMALL, camera={"pixel_size_m": [1.4e-6, 2.8e-6]})
-    batch = stream.batch(0)
-    groups = stream.draw(0)
-    for grp in groups:
-        out = grp.camera(grp.scene, return_intermediates=True, **grp.kwargs)
-        raw = out.raw
-        nf = (raw.noise_free - raw.black_level) / (raw.white_level - raw.black_level)
-        torch.testing.assert_close(nf, batch["noise_free_raw"][grp.index], rtol=2e-5, atol=2e-6)
-    one = PairStream(5, seed=4, scene=SMALL, camera={"pixel_size_m": [2.0e-6]}, targets=("camera_rgb",))
-    (grp,) = one.draw(7)
-    g = torch.Generator().manual_seed(seed_for(4, 7, stream=2))
-    raw = grp.camera(grp.scene, return_intermediates=True, generator=g, **grp.kwargs).raw
-    assert torch.equal((raw.data - raw.black_level) / (raw.white_level - raw.black_level), one.batch(7)["raw"])
+    stream_equals_camera(PairStream(6, seed=1, scene=SMALL, camera={"pixel_size_m": [1.4e-6, 2.8e-6]}), 0,
+                         PairStream(5, seed=4, scene=SMALL, camera={"pixel_size_m": [2.0e-6]}, targets=("camera_rgb",)),
+                         7)
 
 
 def test_camera_module_receives_gradients():

@@ -33,3 +33,26 @@ def damaged_shipped(tmp_path) -> Path:
     path = tmp_path / "worse.pt"
     torch.save(state, path)
     return path
+
+
+@pytest.fixture
+def resume_is_exact(tmp_path):
+    """``check(args) -> straight_out``: ``train_demosaic.main(args)`` for 4 steps stopped after 2 and resumed gives
+    the same weights (to 1e-6) as 4 steps in one go; returns the one-go run's folder."""
+
+    def check(args: list[str]) -> Path:
+        from training import train_demosaic
+
+        out, straight = tmp_path / "run", tmp_path / "straight"
+        assert train_demosaic.main(args + ["--out", str(out), "--stop-after", "2"]) == 0
+        assert torch.load(out / "last.pt", map_location="cpu", weights_only=True)["step"] == 2
+        assert train_demosaic.main(args + ["--out", str(out)]) == 0
+        assert train_demosaic.main(args + ["--out", str(straight)]) == 0
+        a = torch.load(out / "last.pt", map_location="cpu", weights_only=True)
+        b = torch.load(straight / "last.pt", map_location="cpu", weights_only=True)
+        assert a["step"] == b["step"] == 4
+        for k, v in b["model"].items():
+            torch.testing.assert_close(a["model"][k], v, rtol=0, atol=1e-6)
+        return straight
+
+    return check
