@@ -64,7 +64,9 @@ class StreamSource:
     the Camera modules on ``data.device`` (default: the training device), batch ``step * world + rank`` of a stream
     seeded ``cfg.seed + seed_offset`` (so a batch depends only on (seed, step, rank) and ranks never share one),
     cropped on the device to ``patch x patch`` RGGB (no per-item host read). Same inputs and targets as
-    :class:`CameraPairSource`: (raw [B,1,P,P], camera_rgb [B,3,P,P], noise features [B,2] or None)."""
+    :class:`CameraPairSource`: (raw [B,1,P,P], camera_rgb [B,3,P,P], noise features [B,2] or None).
+    ``data.camera_config`` (instead of ``data.camera``): one camera for every item (:func:`stream_camera`), e.g. a
+    calibrated sensor (``isettorch calibrate --out``), for a camera-specific joint model."""
 
     def __init__(self, cfg: dict, seed_offset: int = 0, device=None, batch: int | None = None):
         from isettorch.data import PairStream
@@ -77,10 +79,16 @@ class StreamSource:
             raise ValueError(f"data.patch: expected an even size >= 4, got {self.patch}")
         self.noisy = bool(cfg.get("noise", {}).get("enabled", False))
         camera = dict(d.get("camera") or {})
-        pats = camera.get("cfa_patterns", CAMERA_DEFAULTS["cfa_patterns"])
-        bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
-        if bad:
-            raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
+        if d.get("camera_config") is not None:  # one given camera (camera-specific training), not drawn cameras
+            if camera:
+                raise ValueError("data.camera, data.camera_config: give one of them (drawn cameras or one camera "
+                                 "config), got both")
+            camera = stream_camera(d["camera_config"], self.patch + 2)
+        else:
+            pats = camera.get("cfa_patterns", CAMERA_DEFAULTS["cfa_patterns"])
+            bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
+            if bad:
+                raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
         dev = torch.device(d.get("device") or device or "cpu")
         self.batch_size = int(batch or d.get("batch", 16))
         self.stream = PairStream(self.batch_size, seed=int(cfg.get("seed", 0)) + int(seed_offset),
@@ -104,6 +112,28 @@ class StreamSource:
         if self.noisy:
             feats = noise_features(torch.stack([b["meta"]["noise_gain"], b["meta"]["noise_floor_var"]], 1).float())
         return crop(src).float(), crop(b["camera_rgb"]).float(), feats
+
+
+def stream_camera(config, size: int):
+    """The :class:`isettorch.Camera` of ``data.camera_config`` (a camera YAML path, a built-in name or a mapping, as
+    :meth:`isettorch.Camera.from_config` takes; e.g. a ``sensor:`` section written by ``isettorch calibrate``) with a
+    ``size x size`` sensor (the stream's item size), for :class:`StreamSource`: every item is rendered through this
+    camera as configured (its sensor's exposure, auto-exposure, analog gain and noise). Its CFA must be Bayer."""
+    import copy
+
+    from isettorch.camera import Camera, load_config
+    from isettorch.isp.learned import BAYER_PATTERNS
+
+    cfg = copy.deepcopy(config) if isinstance(config, dict) else load_config(config)
+    if not isinstance(cfg.get("sensor"), dict):
+        raise ValueError(f"data.camera_config: expected a camera config with a sensor: section, got {config!r}")
+    cfg["sensor"] = dict(cfg["sensor"], rows=int(size), cols=int(size))
+    camera = Camera.from_config(cfg)
+    pattern = "".join("".join(r) for r in camera.sensor.cfa.cell)
+    if pattern not in BAYER_PATTERNS:
+        raise ValueError(f"data.camera_config: the sensor's CFA must be a Bayer pattern {BAYER_PATTERNS}, got "
+                         f"{pattern!r}")
+    return camera
 
 
 def pair_batch(b: dict, patch: int, noisy: bool):
