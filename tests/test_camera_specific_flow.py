@@ -94,8 +94,15 @@ def test_calibrate_train_process(tmp_path, capsys):
     b_true = (K_DN_PER_E * READ_E / SPAN_DN) ** 2 + 1 / (12 * SPAN_DN**2)
     torch.testing.assert_close(batch["meta"]["noise_gain"].double(), torch.full((3,), a_true, dtype=torch.float64),
                                rtol=0.04, atol=0)
+    # process's noise inputs are the ones the pairs (and so the network) were made with, item by item
+    for i in range(3):
+        a_i, b_i = noise_params(camera.sensor, exposure_s=float(batch["meta"]["exposure_s"][i]))
+        assert a_i == pytest.approx(float(batch["meta"]["noise_gain"][i]), rel=1e-5)
+        assert b_i == pytest.approx(float(batch["meta"]["noise_floor_var"][i]), rel=1e-5)
     a, b = noise_params(camera.sensor)
-    assert a == pytest.approx(a_true, rel=0.04) and b == pytest.approx(b_true, rel=0.1)  # b ~ K^2 read^2: 2 x 4 %+6 %
+    # b is the dark variance in DN over span^2 (K cancels in K x read_e): its standard error over 11 dark levels of
+    # 2 x 16384 pixels is 0.3 %; 10 % leaves room for the fit's extrapolation to zero exposure
+    assert a == pytest.approx(a_true, rel=0.04) and b == pytest.approx(b_true, rel=0.1)
 
     # 3. a tiny joint model trained a few steps on pairs through that camera
     from training import train_demosaic
@@ -164,6 +171,13 @@ def test_calibrate_train_process(tmp_path, capsys):
     print("shipped joint network rmse", errs)
     assert errs["calibrated"] < 0.75 * err_bilinear
     assert errs["calibrated"] < 0.75 * errs["no_noise"]
+
+    # a frame that is not whole Bayer cells: one line naming the frame, exit code 2
+    np.save(tmp_path / "odd.npy", dn[:-1].astype(np.uint16))
+    capsys.readouterr()
+    assert main(["process", str(tmp_path / "odd.npy"), "--camera", str(cam_yaml), "--model", str(ckpt),
+                 "--out", str(tmp_path / "odd"), "--quiet"]) == 2
+    assert capsys.readouterr().err.startswith(f"isettorch process: RAW: {tmp_path / 'odd.npy'}: expected")
 
     # PNG output for viewing (clipped, sRGB-encoded), the same frame
     assert main(["process", str(raw_path), "--camera", str(cam_yaml), "--model", str(ckpt),

@@ -126,7 +126,11 @@ def run(args) -> int:
     written = []
     with progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f in args.raw:
-            rgb = process_frame(read_frame(f), sensor, pattern, net, analog_gain=args.analog_gain,
+            dn = read_frame(f)
+            if dn.shape[0] % 2 or dn.shape[1] % 2 or min(dn.shape) < 4:
+                raise ValueError(f"RAW: {f}: expected a mosaic of whole {pattern} cells (even height and width, at "
+                                 f"least 4), got {dn.shape[0]} x {dn.shape[1]}")
+            rgb = process_frame(dn, sensor, pattern, net, analog_gain=args.analog_gain,
                                 exposure_s=args.exposure_s, self_ensemble=args.self_ensemble)
             path = out_dir / f"{Path(f).stem}.{args.format}"
             if args.format == "npy":
