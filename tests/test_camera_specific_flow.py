@@ -119,6 +119,8 @@ def test_calibrate_train_process(tmp_path, capsys):
     assert train_demosaic.main(["--config", str(cfg_path), "--no-progress", "--device", "cpu"]) == 0
     ckpt = tmp_path / "run" / "best.pt"
     assert ckpt.is_file()
+    card = (tmp_path / "run" / "MODEL_CARD.md").read_text()
+    assert str(cam_yaml) in card and "the camera's own sensor noise" in card
 
     # 4. isettorch process on a NumPy-simulated raw frame of a known scene (same truth: K, read noise, black level)
     h, w = 64, 64

@@ -65,6 +65,8 @@ def describe_data(cfg: dict) -> str:
     elif src == "stream":
         what = (f"isettorch.data.PairStream on {d.get('device') or 'the training device'} (scene -> optics -> "
                 f"isettorch sensor, its noise model)")
+        if d.get("camera_config") is not None:  # camera-specific: every pair through one camera
+            what += f" through the one camera {d['camera_config']!r} (data.camera_config)"
     elif src == "natural":
         off = list(d.get("disable") or [])
         what = (f"isettorch.data.natural scenes ({'all components' if not off else 'without ' + ', '.join(off)}; "
@@ -75,6 +77,8 @@ def describe_data(cfg: dict) -> str:
     dom_txt = f"{dom} domain" + (f" ({d.get('encoded_fraction', 0.8)} encoded)" if dom == "mixed" else "")
     noise = (f"; Poisson-Gaussian noise at gains {n.get('gain_min', 1.0)}-{n.get('gain_max', 32.0)}"
              if n.get("enabled") else "; noise-free")
+    if n.get("enabled") and d.get("camera_config") is not None:
+        noise = "; the camera's own sensor noise"
     return (f"{what}; {d.get('patch', 80)} px patches, batch {d.get('batch', 16)}, {dom_txt}{noise}; selected on "
             f"held-out synthetic scenes; never Kodak/McMaster")
 

@@ -27,7 +27,10 @@ photon-transfer model of EMVA 1288), with ``a = gain / full_well_e`` and ``b = (
 ``bits`` set, the noise is drawn by one :class:`isettorch.sensor.Sensor` with per-image levels (:func:`add_noise`).
 
 ``data.source: stream`` (with ``data.device``, default the training device) draws the same kind of batches from
-:class:`isettorch.data.PairStream`, generated and rendered on that device (:class:`StreamSource`).
+:class:`isettorch.data.PairStream`, generated and rendered on that device (:class:`StreamSource`); with
+``data.camera_config`` (a camera YAML, e.g. with a sensor calibrated by ``isettorch calibrate``) every pair is
+rendered through that one camera instead of drawn cameras: camera-specific denoising
+(``configs/train/demosaic_camera_specific.yaml``, docs/camera_specific_denoising.md).
 
 ``data.source: camera_pairs`` draws batches from :class:`isettorch.data.camera_pairs.CameraPairDataset` instead
 (scene -> diffraction-limited optics -> the isettorch sensor with its own noise model; ``data.scene`` /
