@@ -42,10 +42,12 @@ def register(sub) -> None:
 def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[float, float]:
     """``(a, b)`` of the Poisson-Gaussian model ``var(x) = a x + b`` of a sensor's frames in normalised units
     (``x = (DN - black) / (white - black)``; Foi et al., IEEE TIP 17(10) 2008; EMVA 1288 eq. 6): ``a`` the output
-    per electron over the span (shot noise), ``b = a^2 (read_e^2 + dsnu_e^2 + dark_e_per_s t) + 1 / (12 span^2)``
+    per electron over the span (shot noise), ``b`` from :func:`isettorch.sensor.noise.poisson_gaussian_floor`
     (read noise, DSNU, dark-current shot noise, quantisation): the ``noise_gain`` / ``noise_floor_var`` of
     :class:`isettorch.data.PairStream`'s metadata, which the joint network was trained with. Row/column noise and
     PRNU are not in the model."""
+    from ..sensor.noise import poisson_gaussian_floor
+
     if sensor.adc_bits is None:
         raise ValueError("camera: the sensor has no ADC (adc_bits null); expected a sensor that outputs DN")
     if not exposure_s >= 0:
@@ -56,8 +58,7 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
     a = float(sensor.gain_per_electron(analog_gain)[0]) / span
     cg = float(sensor.conversion_gain_v_per_e)
     read_e, dsnu_e = float(sensor.read_noise_v) / cg, float(sensor.dsnu_sigma_v) / cg
-    b = (read_e**2 + dsnu_e**2 + float(sensor.dark_current_e_per_s) * exposure_s) * a * a + 1.0 / (12.0 * span**2)
-    return a, b
+    return a, float(poisson_gaussian_floor(a, read_e, dsnu_e, float(sensor.dark_current_e_per_s), exposure_s, span))
 
 
 def _load(args):

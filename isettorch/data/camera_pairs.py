@@ -47,6 +47,7 @@ import torch
 from .. import constants, spectral
 from .._checks import dataset_index
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
+from ..sensor.noise import poisson_gaussian_floor
 from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, randint_scalar, seed_for, tune_allocator
 from .scenes import _uniform, generate_scene
 from .shm_slots import SlotArena, SlotBatchSampler, SlotLoader, SlotRequest
@@ -541,7 +542,6 @@ def _meta_values(index, d, meta_s, exposure, to_norm, span, white, cfa, white_ca
     """The metadata of one item (:data:`META_KEYS`) as Python numbers and tensors (see :func:`_meta`)."""
     name = meta_s["illuminant"]
     code = ILLUMINANT_CODES.get(name, 10 + int(name[1:]) if name.startswith("F") else -1)
-    quant_var = 1.0 / 12.0 / span**2
     gain, read_e, dsnu_e, dark = d["gain"], d["read_e"], d["dsnu_e"], d["dark"]
     return {
         "index": int(index),
@@ -552,7 +552,7 @@ def _meta_values(index, d, meta_s, exposure, to_norm, span, white, cfa, white_ca
         # Poisson-Gaussian noise model in normalised units: var(x) = noise_gain * x + noise_floor_var
         # (Foi et al., "Practical Poissonian-Gaussian noise modeling", IEEE TIP 17(10), 2008).
         "noise_gain": to_norm,
-        "noise_floor_var": (read_e**2 + dsnu_e**2 + dark * exposure) * to_norm**2 + quant_var,
+        "noise_floor_var": poisson_gaussian_floor(to_norm, read_e, dsnu_e, dark, exposure, span),
         "cfa": cfa.index_map,
         "cct_k": meta_s["cct_k"], "illuminant_code": int(code),
         "white_camera_rgb": white_cam / white_cam[1],

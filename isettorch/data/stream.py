@@ -23,6 +23,7 @@ from collections import OrderedDict
 import torch
 
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
+from ..sensor.noise import poisson_gaussian_floor
 from .batched import draw_layout_scenes
 from .batched_natural import draw_natural_scenes
 from .camera_pairs import _D65_XYZ, TARGETS, _Cache, _unit_qe, _xyz_weights, check_targets
@@ -359,7 +360,6 @@ class PairStream:
         read_e, dsnu_e = level("read_noise_v", 0.0) / cg, level("dsnu_sigma_v", 0.0) / cg
         dark = level("dark_current_e_per_s", 0.0)
         t = exposure.detach().to(f64)
-        quant_var = 1.0 / 12.0 / span**2
         to_norm = to_norm.detach()
         scene_meta = grp.scene.metadata
         wave = grp.scene.wavelengths_nm.detach()
@@ -377,7 +377,7 @@ class PairStream:
             # Poisson-Gaussian noise model in normalised units: var(x) = noise_gain x + noise_floor_var (Foi et al.,
             # IEEE TIP 17(10), 2008), as CameraPairDataset's metadata
             "noise_gain": to_norm,
-            "noise_floor_var": (read_e**2 + dsnu_e**2 + dark * t) * to_norm**2 + quant_var,
+            "noise_floor_var": poisson_gaussian_floor(to_norm, read_e, dsnu_e, dark, t, span),
             "cfa": sensor.cfa.index_map.to(dev)[None].expand(nb, -1, -1),
             "cct_k": scene_meta["cct_k"], "illuminant_code": scene_meta["illuminant_code"],
             "white_camera_rgb": wc / wc[:, 1:2], "white_xyz": wx / wx[:, 1:2],

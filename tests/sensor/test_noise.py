@@ -64,3 +64,25 @@ def test_round_half_away_and_ste():
     assert y.tolist() == [-3, -2, -1, 1, 2, 3, 2, 1024]
     y.sum().backward()
     assert torch.equal(x.grad, torch.ones_like(x))
+
+
+def test_poisson_gaussian_floor_is_the_dark_variance_of_a_numpy_camera():
+    """The floor b of var(x) = a x + b against the variance of dark frames simulated in NumPy (independent of
+    isettorch): K = 1 DN/e-, read noise 1 e-, DSNU 0.5 e- (fixed per pixel, so across pixels it is variance too),
+    2 dark electrons (Poisson, mean subtracted), rounding to whole DN; b = (1 + 0.25 + 2 + 1/12) / span^2. Over
+    2e6 pixels the variance's standard error is 0.1 %; the quantisation term is 2.5 % of b, so 1 % tells it apart."""
+    import numpy as np
+
+    from isettorch.sensor.noise import poisson_gaussian_floor
+
+    rng = np.random.default_rng(0)
+    n, k, black, span = 2_000_000, 1.0, 64.0, 4031.0
+    e = rng.poisson(2.0, n) + 1.0 * rng.standard_normal(n) + 0.5 * rng.standard_normal(n)
+    x = (np.round(k * e + black) - black - k * 2.0) / span
+    b = poisson_gaussian_floor(k / span, 1.0, 0.5, 2.0, 1.0, span)
+    assert b == pytest.approx(x.var(), rel=0.01)
+    assert b == pytest.approx((1 + 0.25 + 2 + 1 / 12) / span**2, rel=1e-12)
+    without_quantisation = poisson_gaussian_floor(k / span, 1.0, 0.5, 2.0, 1.0, span) - 1 / 12 / span**2
+    assert abs(without_quantisation / x.var() - 1) > 0.015
+    t = poisson_gaussian_floor(torch.tensor([k / span, 2 * k / span]), 1.0, 0.5, 2.0, 1.0, span)  # tensors broadcast
+    assert t.shape == (2,) and float(t[0]) == pytest.approx(b)
