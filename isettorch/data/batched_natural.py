@@ -33,6 +33,7 @@ import math
 import torch
 import torch.nn.functional as F
 
+from ..scene import textures as _tex
 from . import spectra as _spectra
 from .batched import ILLUMINANT_KIND_CODES, _choice, _illuminants, _log_uniform, _reflectances, _white_photons
 from .config import natural_config
@@ -51,57 +52,6 @@ def _u(g, shape, lo=0.0, hi=1.0, *, device):
 
 def _rng(r):
     return float(r[0]), float(r[1])
-
-
-# --- random fields ------------------------------------------------------------------------------------------------
-
-def _noise(nb, n, exponent: torch.Tensor, g, device) -> torch.Tensor:
-    """``[B, n, n]`` float64: :func:`isettorch.scene.textures.power_law_noise` per item (amplitude ``|f|^-s_b``,
-    FFT synthesis, DC removed, unit std), batched."""
-    fy = torch.fft.fftfreq(n, dtype=torch.float64, device=device)[:, None]
-    fx = torch.fft.rfftfreq(n, dtype=torch.float64, device=device)[None, :]
-    f = torch.sqrt(fx * fx + fy * fy)
-    amp = torch.where(f > 0, f.clamp_min(1e-12)[None] ** -exponent[:, None, None], torch.zeros((), dtype=f.dtype,
-                                                                                                device=device))
-    white = torch.randn(nb, n, n, generator=g, device=device, dtype=torch.float64)
-    x = torch.fft.irfft2(torch.fft.rfft2(white) * amp, s=(n, n))
-    return x / x.flatten(1).std(1).clamp_min(1e-12)[:, None, None]
-
-
-def _noise_on_boxes(hh, ww, ly, lx, inside, exponent, g) -> torch.Tensor:
-    """Power-law noise on each item's own ``hh_b x ww_b`` periodic grid (as ``power_law_noise(hh_b, ww_b, s_b)``),
-    evaluated at local coordinates ``ly [B, wy]``, ``lx [B, wx]`` (integers, the box's pixels at 0..hh-1),
-    normalised to unit std over the box pixels (``inside [B, wy, wx]``). Returns ``[B, wy, wx]`` float64.
-
-    Synthesis ``Re sum_k A(k) Z_k exp(2 pi i (ky y / hh + kx x / ww))`` with ``Z_k`` standard complex Gaussians
-    over each item's full DFT grid (``k`` from ``-(n // 2)`` to ``(n - 1) // 2``, the frequencies of
-    ``torch.fft.fftfreq``): covariance ``(1/2) sum_k A^2 cos(2 pi f d)``, proportional to the FFT synthesis'
-    (Field 1987's 1/f^s spectrum on the same grid), so the normalised fields have the same distribution."""
-    dev = ly.device
-    my, mx = int(hh.max()), int(ww.max())
-    jy, jx = torch.arange(my, device=dev), torch.arange(mx, device=dev)
-    ky = (jy[None] - torch.div(hh, 2, rounding_mode="floor")[:, None]).to(torch.float64)
-    kx = (jx[None] - torch.div(ww, 2, rounding_mode="floor")[:, None]).to(torch.float64)
-    fy, fx = ky / hh[:, None], kx / ww[:, None]
-    valid = (jy[None] < hh[:, None])[:, :, None] & (jx[None] < ww[:, None])[:, None, :]
-    f = torch.sqrt(fy[:, :, None] ** 2 + fx[:, None, :] ** 2)
-    amp = torch.where(valid & (f > 0), f.clamp_min(1e-12) ** -exponent[:, None, None],
-                      torch.zeros((), dtype=torch.float64, device=dev))
-    nb = hh.shape[0]
-    z = torch.complex(torch.randn(nb, my, mx, generator=g, device=dev, dtype=torch.float64),
-                      torch.randn(nb, my, mx, generator=g, device=dev, dtype=torch.float64)) * amp
-    ey = torch.exp(2j * math.pi * ly.to(torch.float64)[:, :, None] * fy[:, None, :])  # [B, wy, my]
-    ex = torch.exp(2j * math.pi * lx.to(torch.float64)[:, :, None] * fx[:, None, :])  # [B, wx, mx]
-    x = (ey @ z @ ex.transpose(1, 2)).real
-    cnt = inside.sum((1, 2)).clamp_min(2)
-    mean = (x * inside).sum((1, 2)) / cnt
-    var = (((x - mean[:, None, None]) * inside) ** 2).sum((1, 2)) / (cnt - 1)
-    return x / var.sqrt().clamp_min(1e-12)[:, None, None]
-
-
-def _phi(x):
-    """Standard normal CDF (the colour-line weights of :func:`isettorch.scene.textures.colour_line_weights`)."""
-    return 0.5 * (1 + torch.erf(x / math.sqrt(2)))
 
 
 # --- palette ------------------------------------------------------------------------------------------------------
@@ -256,13 +206,14 @@ def _paint_leaves(cfg, g, maps, alpha, active, n_leaves, n_mat, r_min, r_max, ex
             ly, lx = iy[0] - y0[:, j, None], ix[0] - x0[:, j, None]
             sel = tj.nonzero().reshape(-1)  # the fields of the textured items only
             n_ = torch.zeros(nb, wy, wx, dtype=torch.float64, device=dev)
-            n_[sel] = _noise_on_boxes(hh[sel, j], ww[sel, j], ly[sel], lx[sel], inside[0][sel],
-                                      torch.where(t_kind[sel, j] == 1, 2.0, t_s[sel, j]), g)
+            n_[sel] = _tex.power_law_noise_on_boxes(hh[sel, j], ww[sel, j], ly[sel], lx[sel], inside[0][sel],
+                                                    torch.where(t_kind[sel, j] == 1, 2.0, t_s[sel, j]), g)
             ang = t_angle[:, j, None, None]
             uu = lx.to(torch.float64)[:, None, :] * torch.cos(ang) + ly.to(torch.float64)[:, :, None] * torch.sin(ang)
             grating = 0.5 + 0.5 * torch.sin(2 * math.pi * t_freq[:, j, None, None]
                                             * (uu + n_ * t_warp[:, j, None, None]) + t_phase[:, j, None, None])
-            tt = torch.where((t_kind[:, j] == 1)[:, None, None], grating, _phi(n_ * t_line[:, j, None, None])).float()
+            tt = torch.where((t_kind[:, j] == 1)[:, None, None], grating,
+                             _tex.normal_cdf(n_ * t_line[:, j, None, None])).float()
             shade_noise = torch.exp(n_ * t_contrast[:, j, None, None]).float()
             tex = tj, tt, shade_noise
         for s in range(e - j):
@@ -440,7 +391,10 @@ def draw_natural_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[i
                                  torch.cat([ui[:, 2], ui[:, 5]]), wl, lo_k, hi_k)
     e1, e2 = _white_photons(spd[:nb], wl), _white_photons(spd[nb:], wl)
     cct1 = cct_both[:nb]
-    mix_field = torch.sigmoid(_noise(nb, n, torch.full((nb,), 2.5, dtype=f64, device=dev), g, dev)
+    def field(exponent):  # [B, n, n] power-law fields, one exponent per item (scene.textures.power_law_noise)
+        return _tex.power_law_noise(n, n, exponent, g, dtype=f64, device=dev)
+
+    mix_field = torch.sigmoid(field(torch.full((nb,), 2.5, dtype=f64, device=dev))
                               * _u(g, (nb, 1, 1), 1.0, 4.0, device=dev)).float()
     ratio = torch.exp(_u(g, (nb,), math.log(0.3), math.log(3.0), device=dev))
     # background material, then dead leaves
@@ -496,11 +450,11 @@ def draw_natural_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[i
     cc = comp["colour_correlation"]
     s = _u(g, (nb,), *_rng(cc["exponent"]), device=dev)
     contrast = _u(g, (nb,), *_rng(cc["contrast"]), device=dev)
-    field = _noise(nb, n, s, g, dev)
+    shading = field(s)
     if cc["enabled"]:
-        maps = maps * torch.exp(field * contrast[:, None, None]).float()[:, None]
+        maps = maps * torch.exp(shading * contrast[:, None, None]).float()[:, None]
     else:
-        t = (_phi(field) * (2 * contrast).clamp_max(1.0)[:, None, None]).float()[:, None]
+        t = (_tex.normal_cdf(shading) * (2 * contrast).clamp_max(1.0)[:, None, None]).float()[:, None]
         prev = torch.remainder(kidx[None] - 1, n_mat[:, None])  # natural: maps.roll(1, 0) over the n_mat materials
         rolled = torch.gather(maps, 1, prev[:, :, None, None].expand_as(maps)) * (kidx[None] < n_mat[:, None]).float(
         )[:, :, None, None]
@@ -520,7 +474,7 @@ def draw_natural_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[i
         amp = torch.exp(_u(g, (nb,), math.log(glo), math.log(ghi), device=dev))
         sg = _u(g, (nb,), *_rng(gr["exponent"]), device=dev)
         cg = float(gr["contrast"])
-        noise3 = torch.stack([_noise(nb, n, sg, g, dev) for _ in range(3)], 1)
+        noise3 = torch.stack([field(sg) for _ in range(3)], 1)
         grain = (amp[:, None, None, None] * torch.exp(cg * noise3 - 0.5 * cg**2)).float()
         maps = torch.cat([maps, grain * grain_on[:, None, None, None]], 1)
         spectra_r = torch.cat([spectra_r, dyes[None].expand(nb, -1, -1)], 1)
@@ -531,7 +485,7 @@ def draw_natural_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[i
         # r(l) sum_k d_k(l) m_k(x) per material (Beer-Lambert); items without it keep their map in layer 0
         rc = _u(g, (nb,), *_rng(rel["contrast"]), device=dev)
         s_rel = _u(g, (nb,), *_rng(gr["exponent"]), device=dev)
-        mod = torch.stack([torch.exp(rc[:, None, None] * _noise(nb, n, s_rel, g, dev) - 0.5 * rc[:, None, None] ** 2)
+        mod = torch.stack([torch.exp(rc[:, None, None] * field(s_rel) - 0.5 * rc[:, None, None] ** 2)
                            for _ in range(3)], 1).float()  # [B, 3, n, n]
         keep = torch.tensor([1.0, 0.0, 0.0], device=dev)[None, :, None, None]
         mod = torch.where(rel_on[:, None, None, None], mod, keep)
@@ -550,7 +504,7 @@ def draw_natural_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[i
         ss_ = _u(g, (nb,), *_rng(sp["exponent"]), device=dev)
         sc = _u(g, (nb,), *_rng(sp["contrast"]), device=dev)
         glossy = (_u(g, (nb, kmax), device=dev) < float(sp["glossy_fraction"])).float()
-        tex = torch.exp(sc[:, None, None] * _noise(nb, n, ss_, g, dev) - 0.5 * sc[:, None, None] ** 2)
+        tex = torch.exp(sc[:, None, None] * field(ss_) - 0.5 * sc[:, None, None] ** 2)
         spec = (samp[:, None, None] * tex).float() * (glossy[:, :, None, None] * body).sum(1)
         maps = torch.cat([maps, (spec * spec_on[:, None, None])[:, None]], 1)
         spectra_r = torch.cat([spectra_r, torch.ones(nb, 1, spectra_r.shape[-1], dtype=f64, device=dev)], 1)
