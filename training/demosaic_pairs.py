@@ -22,6 +22,31 @@ def rggb_offset(index_map: torch.Tensor) -> tuple[int, int]:
     raise ValueError(f"cfa: expected a 2x2 Bayer cell (R, G, G, B), got {im}")
 
 
+def _source_config(cfg: dict) -> tuple[int, bool, dict]:
+    """``(patch, noisy, data.camera)`` of a camera-pair source, checked: an even patch >= 4, Bayer CFA patterns."""
+    d = cfg.get("data", {})
+    patch = int(d.get("patch", 80))
+    if patch < 4 or patch % 2:
+        raise ValueError(f"data.patch: expected an even size >= 4, got {patch}")
+    return patch, bool(cfg.get("noise", {}).get("enabled", False)), dict(d.get("camera") or {})
+
+
+def _check_bayer_patterns(camera: dict) -> None:
+    from isettorch.data.config import CAMERA_DEFAULTS
+    from isettorch.isp.learned import BAYER_PATTERNS
+
+    pats = camera.get("cfa_patterns", CAMERA_DEFAULTS["cfa_patterns"])
+    bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
+    if bad:
+        raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
+
+
+def _meta_noise_features(meta: dict) -> torch.Tensor:
+    """``noise_features((a, b))`` with ``a = meta['noise_gain']``, ``b = meta['noise_floor_var']`` (``var = a x +
+    b`` in normalised units, the dataset's Poisson-Gaussian model)."""
+    return noise_features(torch.stack([meta["noise_gain"], meta["noise_floor_var"]], 1).float())
+
+
 class CameraPairSource:
     """Training batches from :class:`isettorch.data.camera_pairs.CameraPairDataset` (source ``camera_pairs``).
 
@@ -34,20 +59,11 @@ class CameraPairSource:
 
     def __init__(self, cfg: dict, seed_offset: int = 0):
         from isettorch.data.camera_pairs import CameraPairDataset
-        from isettorch.data.config import CAMERA_DEFAULTS
-        from isettorch.isp.learned import BAYER_PATTERNS
 
         d = cfg.get("data", {})
-        self.patch = int(d.get("patch", 80))
-        if self.patch < 4 or self.patch % 2:
-            raise ValueError(f"data.patch: expected an even size >= 4, got {self.patch}")
-        self.noisy = bool(cfg.get("noise", {}).get("enabled", False))
+        self.patch, self.noisy, camera = _source_config(cfg)
         scene = dict(d.get("scene") or {}, height=self.patch + 2, width=self.patch + 2)
-        camera = dict(d.get("camera") or {})
-        pats = camera.get("cfa_patterns", CAMERA_DEFAULTS["cfa_patterns"])
-        bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
-        if bad:
-            raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
+        _check_bayer_patterns(camera)
         # only the targets demosaicking uses: no colour targets, so 3 spectral projections instead of 6
         self.ds = CameraPairDataset(self.LENGTH, seed=int(cfg.get("seed", 0)) + int(seed_offset), scene=scene,
                                     camera=camera, targets=("noise_free_raw", "camera_rgb"))
@@ -70,25 +86,16 @@ class StreamSource:
 
     def __init__(self, cfg: dict, seed_offset: int = 0, device=None, batch: int | None = None):
         from isettorch.data import PairStream
-        from isettorch.data.config import CAMERA_DEFAULTS
-        from isettorch.isp.learned import BAYER_PATTERNS
 
         d = cfg.get("data", {})
-        self.patch = int(d.get("patch", 80))
-        if self.patch < 4 or self.patch % 2:
-            raise ValueError(f"data.patch: expected an even size >= 4, got {self.patch}")
-        self.noisy = bool(cfg.get("noise", {}).get("enabled", False))
-        camera = dict(d.get("camera") or {})
+        self.patch, self.noisy, camera = _source_config(cfg)
         if d.get("camera_config") is not None:  # one given camera (camera-specific training), not drawn cameras
             if camera:
                 raise ValueError("data.camera, data.camera_config: give one of them (drawn cameras or one camera "
                                  "config), got both")
             camera = stream_camera(d["camera_config"], self.patch + 2)
         else:
-            pats = camera.get("cfa_patterns", CAMERA_DEFAULTS["cfa_patterns"])
-            bad = [p for p in pats if str(p).upper() not in BAYER_PATTERNS]
-            if bad:
-                raise ValueError(f"data.camera.cfa_patterns: expected Bayer patterns {BAYER_PATTERNS}, got {bad}")
+            _check_bayer_patterns(camera)
         dev = torch.device(d.get("device") or device or "cpu")
         self.batch_size = int(batch or d.get("batch", 16))
         self.stream = PairStream(self.batch_size, seed=int(cfg.get("seed", 0)) + int(seed_offset),
@@ -108,9 +115,7 @@ class StreamSource:
             shifts = torch.stack([img[:, :, dy:dy + self.patch, dx:dx + self.patch] for dy in (0, 1) for dx in (0, 1)])
             return shifts[pos, torch.arange(n, device=img.device)]
 
-        feats = None
-        if self.noisy:
-            feats = noise_features(torch.stack([b["meta"]["noise_gain"], b["meta"]["noise_floor_var"]], 1).float())
+        feats = _meta_noise_features(b["meta"]) if self.noisy else None
         return crop(src).float(), crop(b["camera_rgb"]).float(), feats
 
 
@@ -137,18 +142,13 @@ def stream_camera(config, size: int):
 
 
 def pair_batch(b: dict, patch: int, noisy: bool):
-    """(raw, camera_rgb, noise features or None) cropped to ``patch`` RGGB from a camera-pair batch.
-
-    Noise features: ``noise_features((a, b))`` with ``a = meta['noise_gain']``, ``b = meta['noise_floor_var']``
-    (``var = a x + b`` in normalised units, the dataset's Poisson-Gaussian model)."""
+    """(raw, camera_rgb, noise features or None) cropped to ``patch`` RGGB from a camera-pair batch (noise features
+    from the metadata, :func:`_meta_noise_features`)."""
     src = b["raw"] if noisy else b["noise_free_raw"]
     raws, rgbs = [], []
     for i in range(src.shape[0]):
         dy, dx = rggb_offset(b["meta"]["cfa"][i])
         raws.append(src[i, :, dy:dy + patch, dx:dx + patch])
         rgbs.append(b["camera_rgb"][i, :, dy:dy + patch, dx:dx + patch])
-    feats = None
-    if noisy:
-        ab = torch.stack([b["meta"]["noise_gain"], b["meta"]["noise_floor_var"]], 1).float()
-        feats = noise_features(ab)
+    feats = _meta_noise_features(b["meta"]) if noisy else None
     return torch.stack(raws).float(), torch.stack(rgbs).float(), feats

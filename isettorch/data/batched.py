@@ -19,7 +19,7 @@ import math
 import torch
 
 from . import spectra as _spectra
-from .scenes import _luminance_weights
+from .scenes import _luminance_weights, _white_photons
 
 __all__ = ["draw_layout_scenes", "LAYOUT_CODES", "ILLUMINANT_KIND_CODES", "paint_leaves"]
 
@@ -314,16 +314,6 @@ def _reflectances(nb, k, wl, g, model, pca_fraction, device):
     if model == "sigmoid":
         return sig
     return torch.where(pick < pca_fraction, pca, sig)
-
-
-def _white_photons(spd_energy: torch.Tensor, wl: torch.Tensor) -> torch.Tensor:
-    """``[B, L]`` energy SPDs -> photons, each scaled so a perfect white has a luminance of 1 cd/m^2 (ISETCam's
-    illuminant convention; as :func:`isettorch.data.scenes._white_photons`)."""
-    from .. import constants
-
-    p = spd_energy * (wl * 1e-9) / (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S)
-    v = _luminance_weights(wl.cpu()).to(device=wl.device)
-    return p / (p * v).sum(-1, keepdim=True)
 
 
 def _illuminants(kind: torch.Tensor, u: torch.Tensor, u_f: torch.Tensor, wl, lo_k: dict, hi_k: dict):

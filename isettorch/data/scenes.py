@@ -85,10 +85,11 @@ def _smooth_field(h: int, w: int, g: torch.Generator, device, dtype, max_cycles:
 
 
 def _white_photons(spd_energy: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """Illuminant SPD (energy) -> photons, scaled so a perfect white has a luminance of 1 cd/m^2."""
+    """Illuminant SPDs (energy) ``[..., L]`` -> photons, each scaled so a perfect white has a luminance of 1 cd/m^2
+    (ISETCam's illuminant convention); any device (the batched generator's lights too)."""
     w64 = w.to(torch.float64)
     p = spd_energy.to(torch.float64) * (w64 * 1e-9) / (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S)
-    return p / (_luminance_weights(w64) * p).sum()
+    return p / (_luminance_weights(w64) * p).sum(-1, keepdim=True)
 
 
 def _luminance_weights(w: torch.Tensor) -> torch.Tensor:

@@ -17,14 +17,13 @@ Batch ``k`` is a pure function of ``(seed, k, config, device type)``. Under ``to
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections import OrderedDict
 
 import torch
 
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
 from ..sensor.noise import poisson_gaussian_floor
-from .batched import draw_layout_scenes
+from .batched import _log_uniform, _uniform, draw_layout_scenes
 from .batched_natural import draw_natural_scenes
 from .camera_pairs import _D65_XYZ, TARGETS, _Cache, _unit_qe, _xyz_weights, check_targets
 from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, seed_for
@@ -394,11 +393,8 @@ class PairStream:
 
 def _draw_range(values, g: torch.Generator, nb: int, device, log: bool = False) -> torch.Tensor:
     """``[B]`` float64 draws uniform (or log-uniform) in ``[lo, hi]``; a number is a constant."""
-    lo, hi = (values, values) if isinstance(values, (int, float)) else values
     u = torch.rand(nb, generator=g, device=device, dtype=torch.float64)
-    if log and lo > 0:
-        return torch.exp(math.log(lo) + u * (math.log(hi) - math.log(lo)))
-    return lo + u * (hi - lo)
+    return (_log_uniform if log else _uniform)(values, u)
 
 
 def _hfov_for(pitch: float, image_distance_m, width: int) -> torch.Tensor:
