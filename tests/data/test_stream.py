@@ -249,3 +249,26 @@ def test_cuda_stream_matches_cpu_rendering_of_the_same_scene():
     torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-5, atol=1e-6)
     batch = PairStream(4, seed=0, scene=SMALL, device="cuda").batch(0)
     assert batch["raw"].device.type == "cuda" and batch["meta"]["exposure_s"].device.type == "cuda"
+
+
+def test_batched_painter_equals_the_per_item_painter():
+    """The batched dead-leaves painter (torch, all items at once) and the per-item one (numpy, kept for its speed
+    on one item: about 2x) resolve occlusion identically: bitwise, item by item, in one batched call."""
+    from isettorch.data import layouts
+    from isettorch.data.batched import paint_leaves
+
+    g = torch.Generator().manual_seed(0)
+    h, w = 40, 56
+    items, want = [], []
+    for b in range(3):
+        n = 60 + 20 * b
+        r = layouts.dead_leaves_radii(n, 1.5, 0.6 * w, g)
+        lo = torch.tensor([-0.1 * h, -0.1 * w, 0.0, 0.3], dtype=torch.float64)[:, None]
+        hi = torch.tensor([1.1 * h, 1.1 * w, math.pi, 1.0], dtype=torch.float64)[:, None]
+        cy, cx, theta, aspect = torch.rand(4, n, generator=g, dtype=torch.float64) * (hi - lo) + lo
+        shape = torch.randint(0, 3, (n,), generator=g)
+        items.append((torch.full((n,), b), cy, cx, r, theta, aspect, shape))
+        want.append(layouts._paint_leaves(h, w, cy, cx, r, theta, aspect, shape, "cpu"))
+    cat = [torch.cat(v) for v in zip(*items)]
+    got = paint_leaves(h, w, cat[0], *cat[1:], 3)
+    assert torch.equal(got, torch.stack(want))
