@@ -267,12 +267,14 @@ def merge_config(user: dict | None, defaults: dict = SYNTH_DEFAULTS, path: str =
                   "analog_gain", "peak_qe"):
             _check_range(cam, k, "camera", 0.0)
         _check_range(cam, "exposure_ev", "camera")
-        if cam["optics"]:
-            from ..optics.factory import OPTICS_TYPES
+        if cam["optics"]:  # checked by building it (then dropped): the factory's own checks of type, keys, files
+            from ..optics.factory import build_optics
 
-            kind = cam["optics"].get("type", "diffraction_limited")
-            if kind not in OPTICS_TYPES:
-                raise ValueError(f"camera.optics.type: expected one of {list(OPTICS_TYPES)}, got {kind!r}")
+            try:
+                build_optics(cam["optics"])
+            except (TypeError, ValueError, OSError) as err:
+                kind = cam["optics"].get("type", "diffraction_limited")
+                raise ValueError(f"camera.optics[type={kind!r}]: {err}") from err
     if "dtype" in cfg and cfg["dtype"] not in ("float32", "float64"):
         raise ValueError(f"dtype: expected float32 or float64, got {cfg['dtype']!r}")
     return cfg

@@ -288,13 +288,13 @@ def _paint_leaves(cfg, g, maps, n_leaves, r_min, r_max, exponent, alpha=None):
 
 
 @functools.lru_cache(maxsize=32)
-@functools.lru_cache(maxsize=8)
 def _layer_optics(f_number: float, focal_length_m: float):
-    """The lens that images the depth layers, focused where a layer's defocus is 0 (built once per setting; the
-    optics blur each layer: :meth:`~isettorch.optics.WavefrontOptics.defocus_maps`)."""
-    from ..optics import WavefrontOptics
+    """The lens that images the depth layers, focused where a layer's defocus is 0 (built once per setting by the
+    optics config factory, :func:`isettorch.optics.factory.build_optics`, as a camera's ``optics:`` section of type
+    ``wavefront``; the optics blur each layer: :meth:`~isettorch.optics.WavefrontOptics.defocus_maps`)."""
+    from ..optics.factory import build_optics
 
-    return WavefrontOptics(f_number=f_number, focal_length_m=focal_length_m)
+    return build_optics({"type": "wavefront", "f_number": f_number, "focal_length_m": focal_length_m})
 
 
 def _fine_detail(cfg, g, maps):
