@@ -41,7 +41,6 @@ import math
 import threading
 import time
 
-import numpy as np
 import torch
 
 from .. import constants, spectral
@@ -85,15 +84,6 @@ def check_targets(targets) -> tuple[str, ...]:
     if bad:
         raise ValueError(f"targets: expected names from {TARGETS}, got {bad[0]!r}")
     return tuple(t for t in TARGETS if t in names)
-
-
-@functools.cache
-def _nikon_native() -> tuple[np.ndarray, np.ndarray]:
-    import colour
-
-    m = colour.MSDS_CAMERA_SENSITIVITIES["Nikon 5100 (NPL)"]
-    vals = np.asarray(m.values, float).T  # [3, Ln] R, G, B
-    return np.asarray(m.wavelengths, float), vals / vals.max()
 
 
 def nikon_d5100_qe(wavelengths_nm, peak_qe: float = 0.5, shift_nm=(0.0, 0.0, 0.0)) -> torch.Tensor:
@@ -310,22 +300,20 @@ def _natural_scene(index: int, seed: int, scene_cfg: dict, size: tuple, hfov_deg
     return scene.set_mean_luminance(target)
 
 
-@functools.lru_cache(maxsize=64)
-def _nikon_unit_on(grid: tuple, shifts: tuple) -> torch.Tensor:
-    w_src, vals = _nikon_native()
-    w = torch.tensor(grid, dtype=torch.float64)
-    return torch.stack([spectral.resample(torch.from_numpy(vals[c]), torch.from_numpy(w_src) + float(shifts[c]), w)
-                        for c in range(3)])
+def _d5100_qe(pattern: str, shifts_nm: torch.Tensor):
+    """The D5100 `SpectralQE` with peak QE 1 for a CFA pattern, each channel shifted by ``shifts_nm`` (R, G, B):
+    ``[3]`` (one QE) or ``[B, 3]`` (a per-item QE, :class:`~isettorch.data.stream.PairStream`), built by the
+    sensor's :func:`~isettorch.sensor.filters.shifted_qe`; an item's QE is this times its peak QE."""
+    from ..sensor import CFA, shifted_qe
+
+    cfa = CFA(pattern)
+    return shifted_qe(cfa, "nikon_5100", shifts_nm[..., [CHANNELS.index(c) for c in cfa.channel_names]])
 
 
 @functools.lru_cache(maxsize=64)
 def _unit_qe(pattern: str, shifts: tuple):
-    """The D5100 `SpectralQE` with peak QE 1 for a CFA pattern and channel shifts (cached: it resamples once per
-    grid); an item's QE is this times its peak QE."""
-    from ..sensor import CFA, SpectralQE
-
-    native = _nikon_native()[0]
-    return SpectralQE(_nikon_unit_on(tuple(native.tolist()), shifts), native, CFA(pattern).channel_names)
+    """:func:`_d5100_qe` of one item's shifts (a tuple, R G B), cached: the module resamples once per grid."""
+    return _d5100_qe(pattern, torch.tensor([float(v) for v in shifts], dtype=torch.float64))
 
 
 def camera_for(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype=torch.float32,

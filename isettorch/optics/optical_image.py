@@ -75,7 +75,7 @@ class FourierFactors:
         nf = self.spec.shape[-2] * self.spec.shape[-1]
         n_l = self.spectra.shape[-1]
         if weights is not None and not self.otf.is_complex():
-            k = weights.shape[1]
+            k = weights.shape[-1]
             # fewer operations folding the spectra and weights into the OTF first (J K L vs 2 (J + K + 1) L per
             # frequency); the rule decides the summation order, so it is kept fixed (items bitwise stable)
             if j * k < 2 * (j + k + 1):
@@ -104,9 +104,11 @@ class FourierFactors:
                 cube = (cube.view(b, n_l, nf, 2) * otf).view(b, n_l, 2 * nf)
             else:
                 cube.view(b, n_l, nf, 2).mul_(otf)
-        if weights is not None:
+        if weights is not None and weights.dim() == 3:  # per item [B, L, K]
+            cube = weights.to(cube).transpose(1, 2) @ cube  # [B, K, 2F]
+        elif weights is not None:
             wt = weights.to(cube).T
-            if b == 1 and not grad:  # into a reused buffer, consumed by the inverse FFT below
+            if b == 1 and not (grad or wt.requires_grad):  # into a reused buffer, consumed by the inverse FFT below
                 proj = _scratch((1, wt.shape[0], 2 * nf), cube.dtype, cube.device, "proj")
                 cube = torch.mm(wt, cube[0], out=proj[0])[None]
             else:
@@ -122,9 +124,10 @@ class FourierFactors:
         b, j = self.spec.shape[:2]
         my, mx = self.size
         fy, fx = self.spec.shape[-2:]
-        n_l, k = weights.shape
+        n_l, k = weights.shape[-2:]
         nf = fy * fx
-        coef = (self.spectra[:, :, None, :] * weights.T[None, None]).reshape(b, j * k, n_l)  # [B, J K, L]
+        wk = weights.T[None, None] if weights.dim() == 2 else weights.transpose(1, 2)[:, None]  # [1 or B, 1, K, L]
+        coef = (self.spectra[:, :, None, :] * wk).reshape(b, j * k, n_l)  # [B, J K, L]
         spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
         grad = torch.is_grad_enabled() and (spec.requires_grad or coef.requires_grad or self.otf.requires_grad)
         if self.otf.dim() == 5 and not grad:
@@ -154,7 +157,11 @@ class FourierFactors:
         return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + hh, c0:c0 + ww]
 
     def project(self, weights: torch.Tensor) -> torch.Tensor:
-        """``sum_l E[b, l] weights[l, k]`` ``[B, K, h, w]``: K inverse FFTs."""
+        """``sum_l E[b, l] weights[l, k]`` ``[B, K, h, w]``: K inverse FFTs. ``weights`` ``[L, K]``, or per item
+        ``[B, L, K]`` (``weights[b, l, k]``, e.g. a per-item sensor QE)."""
+        if weights.dim() == 3 and weights.shape[0] != self.spec.shape[0]:
+            raise ValueError(f"weights: expected [L, K] or per-item [{self.spec.shape[0]}, L, K] weightings, got "
+                             f"{tuple(weights.shape)}")
         return self._planes(weights)
 
     def dense(self) -> torch.Tensor:

@@ -5,7 +5,7 @@ from . import metrics
 from .cfa import CFA, CFA_LIBRARY, KNOWN_LETTERS
 from .exposure import AE_METHODS, auto_exposure
 from .filter_bank import FilterBank
-from .filters import SpectralQE, filter_set, filter_set_names, ir_cut_filter, photodiode_qe
+from .filters import SpectralQE, filter_set, filter_set_names, ir_cut_filter, photodiode_qe, shifted_qe
 from .microlens import PixelOptics, microlens_etendue, microlens_radiance
 from .mosaic import LearnedMosaic, temperature_schedule
 from .noise import quantize_ste, round_half_away, shot_noise
@@ -18,5 +18,5 @@ __all__ = [
     "PRESETS", "RawImage", "Sensor", "SpectralQE", "temperature_schedule",
     "auto_exposure", "filter_set", "filter_set_names", "ir_cut_filter", "isetcam_preblur", "isetcam_preblur_kernel",
     "metrics", "microlens_etendue", "microlens_radiance", "photodiode_qe", "PixelOptics",
-    "quantize_ste", "round_half_away", "sample_area", "sample_point", "shot_noise",
+    "quantize_ste", "round_half_away", "sample_area", "sample_point", "shifted_qe", "shot_noise",
 ]

@@ -339,15 +339,33 @@ class Sensor(nn.Module):
                 "column": self.fpn_column.to(dtype=dtype, device=device)}
 
     # --- stages ----------------------------------------------------------------------------
-    def qe(self, oi: OpticalImage) -> torch.Tensor:
-        """Combined spectral QE on the OI's wavelengths ``[C, L]`` (cached per grid)."""
-        return self.spectral_qe(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device)
+    def _qe_module(self, spectral_qe, batch: int):
+        """The QE of a call: the sensor's ``spectral_qe``, or a per-call :class:`SpectralQE` (one for the batch, or
+        per item with ``batch_size`` B) with the CFA's channels."""
+        if spectral_qe is not None:
+            if not isinstance(spectral_qe, SpectralQE):
+                raise TypeError(f"spectral_qe: expected None or a SpectralQE, got {type(spectral_qe).__name__}")
+            if spectral_qe.channel_names != self.cfa.channel_names:
+                raise ValueError(f"spectral_qe: channel names {spectral_qe.channel_names} differ from the CFA's "
+                                 f"{self.cfa.channel_names}")
+        qe_mod = self.spectral_qe if spectral_qe is None else spectral_qe
+        n = getattr(qe_mod, "batch_size", None)
+        if n not in (None, batch):
+            raise ValueError(f"spectral_qe: expected one QE or {batch} per-item QEs (one per batch sample), got {n}")
+        return qe_mod
 
-    def spectral_weights(self, oi: OpticalImage) -> torch.Tensor:
-        """``QE_c(l) dl`` as ``[L, C]``: the projection from irradiance (photons/s/m^2/nm) to electrons/s/m^2
-        (cached per QE module and grid unless the QE is learnable)."""
-        qe_mod = self.spectral_qe
-        cacheable = not getattr(qe_mod, "learnable", True)
+    def qe(self, oi: OpticalImage, spectral_qe: SpectralQE | None = None) -> torch.Tensor:
+        """Combined spectral QE on the OI's wavelengths ``[C, L]`` (cached per grid), or ``[B, C, L]`` for a
+        per-item QE (``spectral_qe``: a per-call :class:`SpectralQE` instead of the sensor's, see :meth:`forward`)."""
+        qe_mod = self._qe_module(spectral_qe, oi.batch_size)
+        return qe_mod(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device)
+
+    def spectral_weights(self, oi: OpticalImage, spectral_qe: SpectralQE | None = None) -> torch.Tensor:
+        """``QE_c(l) dl`` as ``[L, C]`` (``[B, L, C]`` for a per-item QE): the projection from irradiance
+        (photons/s/m^2/nm) to electrons/s/m^2 (cached per QE module and grid unless the QE is learnable or per
+        item). ``spectral_qe``: as in :meth:`qe`."""
+        qe_mod = self._qe_module(spectral_qe, oi.batch_size)
+        cacheable = not getattr(qe_mod, "learnable", True) and getattr(qe_mod, "batch_size", None) is None
         if cacheable:
             key = (id(qe_mod), getattr(getattr(qe_mod, "fixed_filters", None), "_version", None),
                    tuple(oi.wavelengths_nm.tolist()), oi.dtype, str(oi.device))
@@ -356,29 +374,44 @@ class Sensor(nn.Module):
             if hit is not None and hit[0] is qe_mod:
                 return hit[1]
         dl = spectral.wavelength_weights(oi.wavelengths_nm).to(device=oi.device, dtype=oi.dtype)
-        out = (self.qe(oi) * dl).T
+        out = (qe_mod(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device) * dl).transpose(-2, -1)
         if cacheable:
             if len(self._weights_cache) > 16:
                 self._weights_cache.clear()
             self._weights_cache[key] = (qe_mod, out)
         return out
 
-    def electron_rate_density(self, oi: OpticalImage) -> torch.Tensor:
+    def electron_rate_density(self, oi: OpticalImage, spectral_qe: SpectralQE | None = None) -> torch.Tensor:
         """Photo-electrons/s/m^2 per channel at every OI sample ``[B, C, H, W]`` (before pixel sampling).
 
         A factored optical image is projected on the C QE weightings directly (C planes, never the L cube).
+        ``spectral_qe``: as in :meth:`qe`.
         """
         if oi.is_factored and oi.__dict__.get("_photons") is None:
-            return oi.project(self.spectral_weights(oi))
-        return electron_rate_density(oi.photons, self.qe(oi), oi.wavelengths_nm)
+            return self._project(oi, self.spectral_weights(oi, spectral_qe))
+        return electron_rate_density(oi.photons, self.qe(oi, spectral_qe), oi.wavelengths_nm)
 
-    def electron_rate(self, oi: OpticalImage, *, qe_scale=None) -> torch.Tensor:
+    @staticmethod
+    def _project(oi: OpticalImage, weights: torch.Tensor) -> torch.Tensor:
+        """``sum_l E[b, l] weights[l, k]`` ``[B, K, H, W]`` for weights ``[L, K]`` (:meth:`OpticalImage.project`) or
+        per item ``[B, L, K]`` (a factored image's own projection: it never forms the L cube)."""
+        if weights.dim() == 2:
+            return oi.project(weights)
+        weights = weights.to(device=oi.device, dtype=oi.dtype)
+        if oi.is_factored and oi.__dict__.get("_photons") is None:
+            return oi.factors.project(weights)
+        p = oi.photons
+        b, n_l, h, w = p.shape
+        return (weights.transpose(1, 2) @ p.reshape(b, n_l, h * w)).reshape(b, -1, h, w)
+
+    def electron_rate(self, oi: OpticalImage, *, qe_scale=None, spectral_qe: SpectralQE | None = None
+                      ) -> torch.Tensor:
         """Mean photo-electrons per second per pixel ``[B, 1, rows, cols]`` (before PRNU and noise)."""
-        rates, _ = self.channel_rates(oi, qe_scale=qe_scale)
+        rates, _ = self.channel_rates(oi, qe_scale=qe_scale, spectral_qe=spectral_qe)
         return self.cfa.mosaic(rates)
 
-    def channel_rates(self, oi: OpticalImage, extra_weights: torch.Tensor | None = None, *, qe_scale=None
-                      ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def channel_rates(self, oi: OpticalImage, extra_weights: torch.Tensor | None = None, *, qe_scale=None,
+                      spectral_qe: SpectralQE | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Mean photo-electrons/s of **every** channel at every pixel ``[B, C, rows, cols]`` (the CFA's mosaic of
         it is :meth:`electron_rate`), and optionally other spectral projections sampled the same way.
 
@@ -388,6 +421,9 @@ class Sensor(nn.Module):
                 over the image: for a factored image, one set of inverse FFTs) and area-sampled at the pixels.
             qe_scale: optional per-sample factor (scalar or ``[B]``) on the spectral QE (e.g. a peak QE drawn per
                 sample), so one module serves sensors that differ only by it.
+            spectral_qe: optional per-call :class:`SpectralQE` used instead of the sensor's: one for the batch, or
+                per item (filters ``[B, C, Ln]``, e.g. :func:`~isettorch.sensor.filters.shifted_qe`), so one module
+                serves sensors that differ only by their QE curves.
 
         Returns:
             ``(rates [B, C, rows, cols], extra [B, K, rows, cols] or None)``; ``extra`` is the pixel mean of the
@@ -398,12 +434,12 @@ class Sensor(nn.Module):
         po = self.pixel_optics
         c = len(self.cfa.channel_names)
         if po is not None and po.wavelength_dependent:
-            sampled = self._sample_with_spectral_etendue(oi, extra_weights)
+            sampled = self._sample_with_spectral_etendue(oi, extra_weights, spectral_qe)
         elif extra_weights is None:
-            density = self.electron_rate_density(oi)  # e-/s/m^2 per filter
+            density = self.electron_rate_density(oi, spectral_qe)  # e-/s/m^2 per filter
             sampled = self.sample(density, oi)
         else:
-            density = oi.project(self._joint_weights(oi, extra_weights))
+            density = self._project(oi, self._joint_weights(oi, extra_weights, spectral_qe))
             sampled = self.sample(density, oi)
         # with pixel optics in the physical convention the light of the whole pixel meets the etendue, which
         # holds the photodiode's width; otherwise the photodiode's area (ISETCam sensorCompute)
@@ -433,7 +469,8 @@ class Sensor(nn.Module):
             return torch.ones(oi.batch_size, rows, cols, dtype=torch.float64, device=oi.device)
         return self.pixel_optics.etendue_map(oi, rows, cols, self.pixel_size_m, self.fill_factor).to(oi.device)
 
-    def _sample_with_spectral_etendue(self, oi: OpticalImage, extra_weights: torch.Tensor | None) -> torch.Tensor:
+    def _sample_with_spectral_etendue(self, oi: OpticalImage, extra_weights: torch.Tensor | None,
+                                      spectral_qe: SpectralQE | None = None) -> torch.Tensor:
         """Pixel values ``[B, C (+ K), rows, cols]`` when the etendue depends on the wavelength: every band is
         sampled, weighted by its etendue map, then projected on the QE (the extra weightings without the etendue,
         as in the wavelength-independent path)."""
@@ -441,21 +478,26 @@ class Sensor(nn.Module):
         rows, cols = bands.shape[-2:]
         e, i0, w = self.pixel_optics.radial_etendue(oi, rows, cols, self.pixel_size_m, self.fill_factor)
         e, i0, w = e.to(bands.device), i0.to(bands.device), w.to(bands.device)
-        qe_w = self.spectral_weights(oi)  # [L, C]
+        qe_w = self.spectral_weights(oi, spectral_qe)  # [L, C] (or [B, L, C] per item)
+        n_c = qe_w.shape[-1]
         out = None
         for band in range(bands.shape[1]):  # one band's etendue map at a time (no [B, L, rows, cols] map)
             emap = self.pixel_optics.interpolate(e[:, band], i0, w).to(bands.dtype)  # [B, rows, cols]
-            term = (bands[:, band] * emap)[:, None] * qe_w[band].to(bands.dtype)[None, :, None, None]
+            term = (bands[:, band] * emap)[:, None] * qe_w[..., band, :].to(bands.dtype).reshape(-1, n_c, 1, 1)
             out = term if out is None else out + term
         if extra_weights is not None:
             extra = torch.einsum("blrc,lk->bkrc", bands, extra_weights.to(device=oi.device, dtype=bands.dtype))
             out = torch.cat([out, extra], 1)
         return out
 
-    def _joint_weights(self, oi: OpticalImage, extra: torch.Tensor) -> torch.Tensor:
-        """``[L, C + K]``: the QE weightings then ``extra``'s (memoised per pair of tensors when neither needs a
-        gradient; the entry keeps both alive, so their ids are not reused)."""
-        qe_w = self.spectral_weights(oi)
+    def _joint_weights(self, oi: OpticalImage, extra: torch.Tensor, spectral_qe: SpectralQE | None = None
+                       ) -> torch.Tensor:
+        """``[L, C + K]`` (``[B, L, C + K]`` for a per-item QE): the QE weightings then ``extra``'s (memoised per
+        pair of tensors when neither needs a gradient; the entry keeps both alive, so their ids are not reused)."""
+        qe_w = self.spectral_weights(oi, spectral_qe)
+        if qe_w.dim() == 3:
+            extra = extra.to(device=oi.device, dtype=oi.dtype)
+            return torch.cat([qe_w, extra.expand(qe_w.shape[0], *extra.shape)], dim=2)
         if qe_w.requires_grad or extra.requires_grad:
             return torch.cat([qe_w, extra.to(device=oi.device, dtype=oi.dtype)], dim=1)
         key = (id(qe_w), id(extra), extra._version, oi.dtype, str(oi.device))
@@ -632,7 +674,8 @@ class Sensor(nn.Module):
 
     # --- forward -----------------------------------------------------------------------------
     def forward(self, oi: OpticalImage, *, exposure_s=None, analog_gain=None, noise: bool = True,
-                generator: torch.Generator | None = None, exposure_ev=None, qe_scale=None, **levels) -> RawImage:
+                generator: torch.Generator | None = None, exposure_ev=None, qe_scale=None,
+                spectral_qe: SpectralQE | None = None, **levels) -> RawImage:
         """Simulate a capture of ``oi``; returns a :class:`RawImage` ``[B, 1, rows, cols]``.
 
         Args:
@@ -644,21 +687,24 @@ class Sensor(nn.Module):
             exposure_ev: exposure compensation (stops, scalar or ``[B]``) applied to the fixed or auto exposure
                 (not to an explicit ``exposure_s``).
             qe_scale: per-sample factor on the spectral QE (see :meth:`channel_rates`).
+            spectral_qe: a per-call :class:`SpectralQE` (one, or per item ``[B, C, Ln]``) used instead of the
+                sensor's (see :meth:`channel_rates`); the raw carries it.
             levels: per-call values (scalar or ``[B]``) of :data:`PER_CALL_LEVELS` (``read_noise_v``,
                 ``dark_current_e_per_s``, ``dsnu_sigma_v``, ``prnu_sigma_percent``, ``column_fpn_sigma_v``,
                 ``conversion_gain_v_per_e``), e.g. to randomise noise per sample without rebuilding the module.
         """
         if not isinstance(oi, OpticalImage):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
-        rate = self.electron_rate(oi, qe_scale=qe_scale)
+        rate = self.electron_rate(oi, qe_scale=qe_scale, spectral_qe=spectral_qe)
         if exposure_s is None:
             exposure_s = self.exposure_for(oi, rate, analog_gain, exposure_ev=exposure_ev,
                                            conversion_gain_v_per_e=levels.get("conversion_gain_v_per_e"))
         return self.capture(rate, exposure_s=exposure_s, analog_gain=analog_gain, noise=noise, generator=generator,
-                            **levels)
+                            spectral_qe=spectral_qe, **levels)
 
     def capture(self, electron_rate: torch.Tensor, *, exposure_s=None, analog_gain=None, noise: bool = True,
-                generator: torch.Generator | None = None, **levels) -> RawImage:
+                generator: torch.Generator | None = None, spectral_qe: SpectralQE | None = None,
+                **levels) -> RawImage:
         """The capture from a precomputed mean electron rate (what :meth:`forward` does after
         :meth:`electron_rate`): exposure, noise, analog gain, ADC.
 
@@ -668,6 +714,8 @@ class Sensor(nn.Module):
             exposure_s: scalar or ``[B]``; None uses the sensor's fixed ``exposure_s`` (auto-exposure needs
                 :meth:`forward` or :meth:`exposure_for`).
             analog_gain, noise, generator, levels: as in :meth:`forward`.
+            spectral_qe: the per-call QE the rate was computed with (:meth:`forward`), carried by the raw (default:
+                the sensor's).
 
         Example:
             >>> s = Sensor(rows=2, cols=2, cfa="RGGB", adc_bits=10)
@@ -716,7 +764,7 @@ class Sensor(nn.Module):
             fill_factor=self.fill_factor, adc_bits=self.adc_bits, noise=self.noise_parameters(enabled=noise, **lv),
             noise_free=noise_free, electrons=photo_e,
             metadata={"sensor": self.name, "sampling": self.sampling, "gain_convention": self.gain_convention},
-            spectral_qe=self.spectral_qe,
+            spectral_qe=self._qe_module(spectral_qe, b),
         )
 
     def _fixed_or_fresh_patterns(self, like: torch.Tensor, g: torch.Generator | None, lv: dict
