@@ -86,12 +86,10 @@ STAGE_IMPORTS_ALLOWED: dict[str, set[str]] = {
     "isettorch.optics.factory": {"*"},
     # poisson_gaussian_floor (EMVA 1288 eq. 6): the sensor's noise formula, which the pairs' metadata reports
     "isettorch.sensor.noise": {"camera_pairs.py", "stream.py"},
-    # the D5100 QE: nikon_d5100_qe (filter_set) and _unit_qe (CFA and the QE module), the shifted-QE construction
-    # that is moving into the sensor package; remove these two once it is there
+    # the D5100 QE curves, built by the sensor package: nikon_d5100_qe (filter_set) and _d5100_qe (CFA and
+    # shifted_qe, the per-item shifted curves); the physics stays in isettorch.sensor
     "isettorch.sensor.filters": {"camera_pairs.py"},
     "isettorch.sensor": {"camera_pairs.py"},
-    # stream.py's _optics_for builds DiffractionLimitedOptics itself; remove once it goes through build_optics
-    "isettorch.optics": {"stream.py"},
 }
 STAGES = ("isettorch.optics", "isettorch.sensor", "isettorch.isp")
 

@@ -69,6 +69,43 @@ def test_stream_equals_camera_on_drawn_scenes(stream_equals_camera):
                          7)
 
 
+def test_parts_render_on_threads_without_changing_the_batch(stream_equals_camera):
+    """A batch drawn in parts is the same whichever number of threads renders it (bitwise: each part has its own
+    generators), its parts are consecutive items each equal to the Camera on the part's drawn groups (noise-free
+    raw to float rounding; the noisy raw of a one-group part bitwise from the part's own noise generator), and
+    the items of the two parts differ (their generators are independent)."""
+    cams = {"pixel_size_m": [1.4e-6, 2.8e-6]}
+    threaded = PairStream(8, seed=6, scene=SMALL, camera=cams, threads=2)
+    assert threaded.parts == 2 and threaded._thread_count() == 2
+    one = PairStream(8, seed=6, scene=SMALL, camera=cams, threads=1)
+    a, b = threaded.batch(3), one.batch(3)
+    for key in ("raw", "noise_free_raw", "camera_rgb", "xyz", "srgb"):
+        assert torch.equal(a[key], b[key]), key
+    for m in META_KEYS:
+        assert torch.equal(a["meta"][m], b["meta"][m]), m
+    assert a["meta"]["index"].tolist() == list(range(24, 32))
+    groups = threaded.draw(3)
+    assert sorted(torch.cat([g.index for g in groups]).tolist()) == list(range(8))
+    assert {g.part for g in groups} == {0, 1}
+    assert all(set(g.index.tolist()) <= (set(range(4)) if g.part == 0 else set(range(4, 8))) for g in groups)
+    stream_equals_camera(threaded, 3, PairStream(8, seed=2, scene=SMALL, camera={"pixel_size_m": [2.0e-6]},
+                                                 targets=("camera_rgb",), parts=1), 5)
+    # part 1 of a two-part stream: its one group with the part's noise generator gives its raw bitwise
+    two = PairStream(8, seed=2, scene=SMALL, camera={"pixel_size_m": [2.0e-6]}, targets=("camera_rgb",), parts=2)
+    (grp,) = [g for g in two.draw(5) if g.part == 1]
+    raw = grp.camera(grp.scene, return_intermediates=True, generator=two._generator(5, 2, 1), **grp.kwargs).raw
+    got = two.batch(5)["raw"][grp.index]
+    assert torch.equal((raw.data - raw.black_level) / (raw.white_level - raw.black_level), got)
+    # the two parts are independent draws, not copies
+    assert not torch.equal(a["noise_free_raw"][:4], a["noise_free_raw"][4:])
+    # the default: two parts on CPU from 8 items, one below and with a camera module
+    assert PairStream(8, scene=SMALL).parts == 2 and PairStream(7, scene=SMALL).parts == 1
+    with pytest.raises(ValueError, match="parts"):
+        PairStream(4, scene=SMALL, parts=5)
+    with pytest.raises(ValueError, match="threads"):
+        PairStream(4, scene=SMALL, threads=0)
+
+
 def test_camera_module_receives_gradients():
     from isettorch import Camera
     from isettorch.optics import DiffractionLimitedOptics
