@@ -86,9 +86,10 @@ class PairStream:
             the config: batch ``k`` depends on it, not on ``threads``.
         threads: how many parts render concurrently, on Python threads (torch releases the GIL in its kernels),
             each with an equal share of torch's intra-op threads (default: on CPU, ``min(parts,
-            torch.get_num_threads())``; on other devices 1). On 2 CPU cores two parts on a thread each scale by
-            about 1.9x where two intra-op threads on one batch scale by about 1.4x (and spin when other processes
-            share the cores).
+            torch.get_num_threads())``; on other devices 1). Measured on 2 CPU cores, batch 16 at 128^2: as fast
+            as one part on two intra-op threads when the cores are idle (106 against 108 pairs/s), 1.6x faster
+            when another busy process shares them (62 against 38 pairs/s: torch's intra-op workers wait for each
+            other on every small op, the parts do not).
 
     Each batch is a dict with ``raw`` ``[B, 1, H, W]`` and the targets in normalised raw units (0 = black,
     1 = white level), as :func:`~isettorch.data.camera_pairs.render_pairs`, and ``meta`` (``[B, ...]`` tensors of
@@ -318,8 +319,7 @@ class PairStream:
             done = [self._render_part(k, p) for p in range(self.parts)]
         else:
             # parts on concurrent threads (torch releases the GIL in its kernels), each with an equal share of the
-            # intra-op threads: measured on 2 cores, two parts on one thread each ~1.9x one part on one thread, where
-            # two intra-op threads on one batch gave ~1.4x
+            # intra-op threads (measured: see the class docstring, ``threads``)
             intra = torch.get_num_threads()
             torch.set_num_threads(max(1, intra // n_threads))
             try:
