@@ -284,5 +284,12 @@ def make_batch(sampler, cfg: dict, seed: int, batch: int, step: int = 0):
                              add_noise(raw[k_gauss:], ab[k_gauss:], g, n if extra else None)])
         else:
             raw = add_noise(raw, ab, g, n if extra else None)
+        k_clean = round(float(n.get("clean_fraction", 0.0)) * batch)
+        if not 0 <= k_clean + k_gauss <= batch:
+            raise ValueError(f"noise.clean_fraction, noise.gaussian_fraction: expected fractions with a sum in "
+                             f"[0, 1], got {n.get('clean_fraction')}, {n.get('gaussian_fraction')}")
+        if k_clean:  # the last k images: no noise at all (a = b = 0), so the joint model keeps the noise-free one's
+            raw[batch - k_clean:] = mosaic_rggb(rgb[batch - k_clean:])  # accuracy at sigma = 0
+            ab[batch - k_clean:] = 0
         feats = noise_features(ab)
     return raw, rgb, feats

@@ -226,6 +226,24 @@ def test_joint_batches_carry_noise_features():
     assert bool(((a >= 1.0 / 10000 * (1 - 1e-5)) & (a <= 64.0 / 10000 * (1 + 1e-5))).all())
 
 
+def test_clean_fraction_leaves_the_last_images_without_noise():
+    """noise.clean_fraction: the last k images of a batch are the exact noise-free mosaic with zero noise
+    features (the sigma = 0 case for a joint model of every level), the first ones Gaussian, the middle sensor
+    noise; fractions summing above 1 are refused."""
+    cfg = common.load_config(ROOT / "configs" / "train" / "demosaic_joint_all_levels.yaml")
+    smoke = common.load_config(SMOKE)
+    cfg["data"], cfg["val"] = smoke["data"], smoke["val"]
+    cfg["noise"] = dict(cfg["noise"], gaussian_fraction=0.25, clean_fraction=0.25)
+    raw, rgb, feats = train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 3, 8)
+    clean = train_demosaic.mosaic_rggb(rgb)
+    assert torch.equal(raw[6:], clean[6:]) and bool((feats[6:] == 0).all())
+    assert bool(((raw[:6] - clean[:6]).flatten(1).std(1) > 1e-4).all())
+    assert bool((feats[:2, 0] == 0).all()) and bool((feats[2:6, 0] > 0).all())
+    cfg["noise"]["clean_fraction"] = 0.9
+    with pytest.raises(ValueError, match="clean_fraction"):
+        train_demosaic.make_batch(train_demosaic.make_sampler(cfg), cfg, 3, 8)
+
+
 def test_natural_pool_is_the_cameras_noise_free_output():
     """One simulator: the natural pool's image, un-white-balanced (times the item's white, von Kries) and mosaicked
     RGGB, is the noise-free raw of `Camera(scene)` for the item's camera and natural scene (camera_for), and a
