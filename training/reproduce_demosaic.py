@@ -7,7 +7,8 @@ selection and the export.
 Each step is ``training/train_demosaic.py --config configs/train/NAME.yaml`` and starts from the previous step's
 ``best.pt`` (the configs' ``init``); a finished step returns at once and an interrupted one resumes from its
 ``last.pt`` (the time budget counts across resumes), so the command can be re-run after any interruption. On 2 CPU
-cores the noise-free chain takes about 12 hours, the joint one about 2.5.
+cores the noise-free chain takes about 12 hours, the joint one (from the shipped noise-free network) about 50
+minutes.
 
 ``noise_free`` ends with the weight-interpolation screen ``wise_specular_2026-11-27`` of
 ``training/heldout_screen.py`` (its rule, fixed before it was first run; the record in docs/training_log.md): the five
@@ -40,7 +41,9 @@ CHAINS = {
     "noise_free": ["demosaic_noise_free", "demosaic_noise_free_finetune", "demosaic_noise_free_stage3",
                    "demosaic_noise_free_distill", "demosaic_noise_free_distill2", "demosaic_noise_free_distill3",
                    "demosaic_noise_free_distill4", "demosaic_noise_free_specular"],
-    "joint_denoise": ["demosaic_noise_free", "demosaic_joint_denoise"],
+    # starts from the shipped noise-free network (isettorch/assets/demosaic_learned.pt, the config's init), which
+    # ``noise_free`` reproduces
+    "joint_denoise": ["demosaic_joint_all_levels"],
 }
 #: the interpolation screen's five held-out sets (training.heldout_screen.HELDOUT: their make_heldout.py options)
 _HELDOUT_BASE, HELDOUT = heldout_screen.HELDOUT_BASE, heldout_screen.HELDOUT
@@ -56,17 +59,22 @@ def load_config(name: str, configs: Path = CONFIGS) -> dict:
     return yaml.safe_load(path.read_text())
 
 
+#: shipped models a chain may start from (the joint model starts from the noise-free one: ``noise_free`` makes it)
+SHIPPED_INITS = ("isettorch/assets/demosaic_learned.pt",)
+
+
 def check_chain(names: list[str], configs: Path = CONFIGS) -> list[dict]:
     """The chain's configs, after checking that each step starts from an earlier step's ``best.pt`` (its ``init``)
-    and that every distillation teacher is an earlier step's ``best.pt``: a chain that would read a checkpoint no
-    step writes raises, naming the step."""
-    cfgs, made = [], set()
+    or from a shipped model (:data:`SHIPPED_INITS`: a file in the repository, which another chain reproduces) and
+    that every distillation teacher is an earlier step's ``best.pt``: a chain that would read a checkpoint no step
+    writes raises, naming the step."""
+    cfgs, made = [], set(SHIPPED_INITS)
     for name in names:
         cfg = load_config(name, configs)
         for key, path in (("init", cfg.get("init")), ("distill.teacher", (cfg.get("distill") or {}).get("teacher"))):
             if path and path not in made:
                 raise ValueError(f"chain: step {name!r} reads {key} {path!r}, which no earlier step writes "
-                                 f"(earlier steps write {sorted(made) or 'nothing'})")
+                                 f"(earlier steps write {sorted(made - set(SHIPPED_INITS)) or 'nothing'})")
         made.add(f"{cfg['out']}/best.pt")
         cfgs.append(cfg)
     return cfgs
@@ -85,7 +93,7 @@ def plan(model: str, assets: str) -> list[str]:
                     f"{WISE['alphas']} -> {WISE['out']}/best.pt")
         cmds.append(f"python training/export_demosaic.py --run {WISE['out']} --crops 10 --out {assets}")
     else:
-        cmds.append(f"python training/export_demosaic.py --run out/train_demosaic_joint_denoise --crops 10 "
+        cmds.append(f"python training/export_demosaic.py --run out/train_demosaic_joint_all_levels --crops 10 "
                     f"--noise-sigmas 0.01 0.02 0.05 --name demosaic_learned_denoise --out {assets}")
     return cmds
 
@@ -144,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         train_demosaic.main(["--config", str(CONFIGS / f"{name}.yaml"), "--no-progress"])
     command = f"python training/reproduce_demosaic.py {args.model}"
     if args.model == "joint_denoise":
-        return export_demosaic.main(["--run", "out/train_demosaic_joint_denoise", "--crops", "10", "--threads", "2",
+        return export_demosaic.main(["--run", "out/train_demosaic_joint_all_levels", "--crops", "10", "--threads", "2",
                                      "--noise-sigmas", "0.01", "0.02", "0.05", "--name", "demosaic_learned_denoise",
                                      "--out", args.assets, "--command", command])
     for folder, extra in HELDOUT.items():

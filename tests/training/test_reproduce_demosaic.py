@@ -23,7 +23,9 @@ def test_chains_are_consistent_and_end_where_the_selection_starts():
     assert reproduce_demosaic.WISE["start"] in outs and outs[-1] == reproduce_demosaic.WISE["finetuned"]
     assert all(c["init"] == o for c, o in zip(nf[1:], outs[:-1]))  # a straight line of continuations
     joint = reproduce_demosaic.check_chain(reproduce_demosaic.CHAINS["joint_denoise"])
-    assert joint[-1]["noise"]["enabled"] and joint[-1]["init"] == joint[0]["out"] + "/best.pt"
+    # the joint model starts from the shipped noise-free network, the file the noise_free chain's export writes
+    assert joint[-1]["noise"]["enabled"] and joint[0]["init"] == "isettorch/assets/demosaic_learned.pt"
+    assert all(c["init"] == p["out"] + "/best.pt" for p, c in zip(joint[:-1], joint[1:]))
 
 
 def test_broken_chain_is_refused(tmp_path):
