@@ -350,18 +350,21 @@ class SpectralImage:
         return self.replace(photons=self.factors.dense() if cached is None else cached)
 
     def project(self, weights: torch.Tensor) -> torch.Tensor:
-        """``out[b, k] = sum_l photons[b, l] weights[l, k]`` ``[B, K, H, W]`` for ``weights [L, K]``.
+        """``out[b, k] = sum_l photons[b, l] weights[l, k]`` ``[B, K, H, W]`` for ``weights [L, K]``, or per item
+        ``weights [B, L, K]`` (``weights[b, l, k]``, e.g. a per-item sensor QE).
 
         A factored image never forms the ``[B, L, H, W]`` cube (J or K planes instead of L).
         """
-        if not isinstance(weights, torch.Tensor) or weights.dim() != 2 or weights.shape[0] != self.num_wavelengths:
-            raise ValueError(f"weights: expected a [{self.num_wavelengths}, K] tensor (one row per wavelength), "
-                             f"got {tuple(weights.shape) if isinstance(weights, torch.Tensor) else weights!r}")
+        ok = isinstance(weights, torch.Tensor) and weights.dim() in (2, 3) and weights.shape[-2] == self.num_wavelengths
+        if not ok or (weights.dim() == 3 and weights.shape[0] != self.batch_size):
+            raise ValueError(f"weights: expected a [{self.num_wavelengths}, K] tensor (one row per wavelength) or "
+                             f"[{self.batch_size}, {self.num_wavelengths}, K] per item, got "
+                             f"{tuple(weights.shape) if isinstance(weights, torch.Tensor) else weights!r}")
         if self.factors is not None and self.__dict__.get("_photons") is None:
             return self.factors.project(weights.to(device=self.device, dtype=self.dtype))
         p = self.photons
         b, n_l, h, w = p.shape
-        return (weights.to(p).T @ p.reshape(b, n_l, h * w)).reshape(b, -1, h, w)
+        return (weights.to(p).transpose(-2, -1) @ p.reshape(b, n_l, h * w)).reshape(b, -1, h, w)
 
     def _spectral_map(self, fn) -> torch.Tensor:
         """``fn(x, dim)``: a functional linear along ``dim`` (L -> K), applied to the image ``[B, K, H, W]``."""

@@ -31,6 +31,7 @@ __all__ = [
     "default_wavelengths",
     "wavelength_weights",
     "resample",
+    "resample_rows",
     "photons_to_energy",
     "energy_to_photons",
     "cmfs",
@@ -98,12 +99,34 @@ def resample(values: torch.Tensor, src_nm, dst_nm, dim: int = -1) -> torch.Tenso
     if src.numel() == 1:
         hit = (dst == src[0]).to(v.dtype)
         return (v[..., :1] * hit).movedim(-1, dim)
-    idx = (torch.searchsorted(src, dst, right=True) - 1).clamp(0, src.numel() - 2)
-    x0, x1 = src[idx], src[idx + 1]
-    t = ((dst - x0) / (x1 - x0)).to(v.dtype)
-    inside = ((dst >= src[0]) & (dst <= src[-1])).to(v.dtype)
+    idx, t, inside = _linear_weights(src, dst, v.dtype)
     out = (v[..., idx] * (1 - t) + v[..., idx + 1] * t) * inside
     return out.movedim(-1, dim)
+
+
+def _linear_weights(src: torch.Tensor, dst: torch.Tensor, dtype: torch.dtype):
+    """Linear interpolation from ``src [..., Ls]`` (float64, increasing, >= 2 samples) to ``dst [..., Ld]`` (the same
+    leading dims, or 1-D with a 1-D ``src``): the left neighbour's index ``[..., Ld]``, its weight ``t`` and the
+    inside-the-grid mask (0 outside), both in ``dtype``; shared by :func:`resample` and :func:`resample_rows`."""
+    idx = (torch.searchsorted(src, dst, right=True) - 1).clamp(0, src.shape[-1] - 2)
+    x0, x1 = src.gather(-1, idx), src.gather(-1, idx + 1)
+    t = ((dst - x0) / (x1 - x0)).to(dtype)
+    inside = ((dst >= src[..., :1]) & (dst <= src[..., -1:])).to(dtype)
+    return idx, t, inside
+
+
+def resample_rows(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tensor) -> torch.Tensor:
+    """:func:`resample` (linear, 0 outside) with a source grid per row: ``values [..., Ls]`` on ``src_nm [..., Ls]``
+    (increasing along the last dim) to ``dst_nm [Ld]``, ``[..., Ld]``: the same arithmetic, element by element, as
+    ``resample(values[i], src_nm[i], dst_nm)`` for every row ``i``, in one batched search (e.g. a per-item QE whose
+    curves are shifted along the wavelength axis, :func:`isettorch.sensor.filters.shifted_qe`)."""
+    lead = values.shape[:-1]
+    v = values.reshape(-1, values.shape[-1])
+    src = src_nm.to(torch.float64).reshape(-1, src_nm.shape[-1])
+    dst = dst_nm.to(device=src.device, dtype=torch.float64).expand(src.shape[0], -1).contiguous()
+    idx, t, inside = _linear_weights(src, dst, v.dtype)
+    out = (v.gather(-1, idx) * (1 - t) + v.gather(-1, idx + 1) * t) * inside
+    return out.reshape(*lead, -1)
 
 
 def _spectral_shape(wavelengths_nm: torch.Tensor, x: torch.Tensor, dim: int) -> torch.Tensor:

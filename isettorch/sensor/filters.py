@@ -288,22 +288,6 @@ def shifted_qe(cfa: CFA, filters: str = "nikon_5100", shift_nm=0.0) -> SpectralQ
                          f"(its channels: {letters})")
     rows = vals[[letters.index(c) for c in cfa.channel_names]]  # [C, Ln]
     # the curve sampled at (w + shift) resampled onto w, per channel (and item)
-    out = _resample_rows(rows.expand(*s.shape, -1), w + s[..., None], w)
+    out = spectral.resample_rows(rows.expand(*s.shape, -1), w + s[..., None], w)
     return SpectralQE(out, w, cfa.channel_names)
 
-
-def _resample_rows(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tensor) -> torch.Tensor:
-    """:func:`isettorch.spectral.resample` (linear, 0 outside) with a source grid per row: ``values [..., Ls]`` on
-    ``src_nm [..., Ls]`` (increasing along the last dim) to ``dst_nm [Ld]``, ``[..., Ld]``. The same arithmetic,
-    element by element, as ``spectral.resample(values[i], src_nm[i], dst_nm)`` for every row ``i`` (tested bitwise):
-    one batched search instead of a call per row."""
-    lead = values.shape[:-1]
-    v = values.reshape(-1, values.shape[-1])
-    src = src_nm.to(torch.float64).reshape(-1, src_nm.shape[-1])
-    dst = dst_nm.to(device=src.device, dtype=torch.float64).expand(src.shape[0], -1).contiguous()
-    idx = (torch.searchsorted(src, dst, right=True) - 1).clamp(0, src.shape[-1] - 2)
-    x0, x1 = src.gather(-1, idx), src.gather(-1, idx + 1)
-    t = ((dst - x0) / (x1 - x0)).to(v.dtype)
-    inside = ((dst >= src[:, :1]) & (dst <= src[:, -1:])).to(v.dtype)
-    out = (v.gather(-1, idx) * (1 - t) + v.gather(-1, idx + 1) * t) * inside
-    return out.reshape(*lead, -1)

@@ -417,21 +417,8 @@ class Sensor(nn.Module):
         ``spectral_qe``: as in :meth:`qe`.
         """
         if oi.is_factored and oi.__dict__.get("_photons") is None:
-            return self._project(oi, self.spectral_weights(oi, spectral_qe))
+            return oi.project(self.spectral_weights(oi, spectral_qe))
         return electron_rate_density(oi.photons, self.qe(oi, spectral_qe), oi.wavelengths_nm)
-
-    @staticmethod
-    def _project(oi: OpticalImage, weights: torch.Tensor) -> torch.Tensor:
-        """``sum_l E[b, l] weights[l, k]`` ``[B, K, H, W]`` for weights ``[L, K]`` (:meth:`OpticalImage.project`) or
-        per item ``[B, L, K]`` (a factored image's own projection: it never forms the L cube)."""
-        if weights.dim() == 2:
-            return oi.project(weights)
-        weights = weights.to(device=oi.device, dtype=oi.dtype)
-        if oi.is_factored and oi.__dict__.get("_photons") is None:
-            return oi.factors.project(weights)
-        p = oi.photons
-        b, n_l, h, w = p.shape
-        return (weights.transpose(1, 2) @ p.reshape(b, n_l, h * w)).reshape(b, -1, h, w)
 
     def electron_rate(self, oi: OpticalImage, *, qe_scale=None, spectral_qe: SpectralQE | None = None
                       ) -> torch.Tensor:
@@ -468,7 +455,7 @@ class Sensor(nn.Module):
             density = self.electron_rate_density(oi, spectral_qe)  # e-/s/m^2 per filter
             sampled = self.sample(density, oi)
         else:
-            density = self._project(oi, self._joint_weights(oi, extra_weights, spectral_qe))
+            density = oi.project(self._joint_weights(oi, extra_weights, spectral_qe))
             sampled = self.sample(density, oi)
         # with pixel optics in the physical convention the light of the whole pixel meets the etendue, which
         # holds the photodiode's width; otherwise the photodiode's area (ISETCam sensorCompute)

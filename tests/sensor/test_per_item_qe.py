@@ -15,7 +15,6 @@ from isettorch.optics import DiffractionLimitedOptics
 from isettorch.optics.optical_image import OpticalImage
 from isettorch.scene import Scene
 from isettorch.sensor import CFA, Sensor, SpectralQE, filter_set, shifted_qe
-from isettorch.sensor.filters import _resample_rows
 
 WAVE = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
 SHIFTS = torch.tensor([[4.0, -3.5, 0.0], [-10.0, 7.25, 9.5], [0.0, 0.0, 0.0]], dtype=torch.float64)
@@ -28,7 +27,7 @@ def test_resample_rows_equals_spectral_resample_bitwise():
     src[2] = torch.arange(12, dtype=torch.float64) * 10 + 400  # equal to dst: resample's copy shortcut
     vals = torch.rand(5, 12, generator=g, dtype=torch.float64)
     dst = torch.arange(12, dtype=torch.float64) * 10 + 400
-    out = _resample_rows(vals, src, dst)
+    out = spectral.resample_rows(vals, src, dst)
     for i in range(5):
         assert torch.equal(out[i], spectral.resample(vals[i], src[i], dst)), i
 
