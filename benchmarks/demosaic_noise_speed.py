@@ -1,13 +1,16 @@
 """Two demosaic benchmark tables with ``isettorch.isp.evaluation.evaluate_demosaic`` (the ``demosaic-eval`` code):
 
 * ``speed``: CPSNR (crop 10, noise-free) against milliseconds per megapixel (median over images, one call each after
-  a warm-up; float32, CPU threads as given) for every classical and learned method, Kodak and McMaster.
+  a warm-up; float32, CPU threads as given) for every classical and learned method, Kodak and McMaster; with
+  ``--plot PNG`` the Pareto chart of the noise-free rows (the speed-error family ``learned_tiny``,
+  ``learned_small``, ``learned`` beside the classical methods; issue #35 item 3).
 * ``noise``: Kodak CPSNR (crop 10) at noise sigma 0.01 / 0.02 / 0.05 (seed 0) for menon2007 alone, each classical
   demosaic after ``--denoise nlmeans`` (and bm3d when installed), and the shipped joint learned model.
 
 Reporting only: Kodak and McMaster are test sets (nothing here selects or tunes anything).
 
-    OMP_NUM_THREADS=1 python benchmarks/demosaic_noise_speed.py speed --out benchmarks/DEMOSAIC_SPEED.md
+    OMP_NUM_THREADS=2 python benchmarks/demosaic_noise_speed.py speed --threads 2 --out benchmarks/DEMOSAIC_SPEED.md \
+        --plot docs/_static/demosaic_pareto.png
     OMP_NUM_THREADS=1 python benchmarks/demosaic_noise_speed.py noise --out benchmarks/DEMOSAIC_NOISE.md
     python benchmarks/demosaic_noise_speed.py speed --device cuda --out benchmarks/DEMOSAIC_SPEED_CUDA.md
 
@@ -36,7 +39,7 @@ from isettorch.isp.evaluation import evaluate_demosaic  # noqa: E402
 from isettorch.paths import data_root  # noqa: E402
 
 DATA = data_root()  # $ISETTORCH_DATA (isettorch.paths)
-SPEED_METHODS = ("nearest", "bilinear", "malvar2004", "menon2007", "learned")
+SPEED_METHODS = ("nearest", "bilinear", "malvar2004", "menon2007", "learned_tiny", "learned_small", "learned")
 
 
 def _median_ms_per_mp(res: dict, sizes: dict) -> float:
@@ -61,23 +64,62 @@ def speed(args) -> list[str]:
     sizes = {k: _sizes(v) for k, v in sets.items()}
     header = ["| method | Kodak CPSNR | Kodak ms/MP | McMaster CPSNR | McMaster ms/MP |", "|---|---|---|---|---|"]
 
+    points = {}  # noise-free rows: name -> {set: (cpsnr, ms/MP)}
+
     def row(name: str, method: str, **kw) -> str:
-        cells = []
+        cells, point = [], {}
         for k, folder in sets.items():
             res = evaluate_demosaic(folder, method, "RGGB", 10, device=args.device, progress=not args.quiet, **kw)
-            cells += [f"{res['mean_cpsnr']:.2f}", f"{_median_ms_per_mp(res, sizes[k]):.1f}"]
+            point[k] = (res["mean_cpsnr"], _median_ms_per_mp(res, sizes[k]))
+            cells += [f"{point[k][0]:.2f}", f"{point[k][1]:.1f}"]
+        if not kw.get("noise_sigma"):
+            points[name] = point
         line = f"| {name} | " + " | ".join(cells) + " |"
         print(line, flush=True)
         return line
 
     rows = header + [row(m, m) for m in SPEED_METHODS]
     rows.append(row("learned + self-ensemble (2 passes)", "learned", self_ensemble=True))
+    if args.plot:
+        rows += ["", f"Pareto chart: `{args.plot}`"]
+        _plot_pareto(points, args.plot, args.threads, args.device)
     # the noisy case: the sequential baselines against the joint network, at one noise level
     s = args.speed_sigma
     rows += ["", f"With white Gaussian noise, sigma {s:g} (seed 0):", "", *header]
     rows += [row(_label(m, d), m, noise_sigma=s, seed=0, denoise=d)
              for m, d in (("menon2007", None), ("malvar2004", "nlmeans"), ("menon2007", "nlmeans"), ("learned", None))]
     return rows
+
+
+def _plot_pareto(points: dict, path: str, threads: int, device: str) -> None:
+    """CPSNR against ms/MP (log), one panel per test set, the Pareto front (``bench.pareto_front``) dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from bench import pareto_front
+
+    sets = list(next(iter(points.values())))
+    fig, axes = plt.subplots(1, len(sets), figsize=(5.2 * len(sets), 4.2))
+    for ax, k in zip(axes, sets):
+        names = list(points)
+        pts = [(points[n][k][1], -points[n][k][0]) for n in names]  # (time, error) both minimised
+        front = pareto_front(pts)
+        ax.plot([pts[i][0] for i in front], [-pts[i][1] for i in front], "--", color="0.6", lw=1, zorder=1)
+        for n, (t, e) in zip(names, pts):
+            learned = n.startswith("learned")
+            ax.scatter([t], [-e], color="C3" if learned else "C0", marker="o" if learned else "s", zorder=2)
+            ax.annotate(n.replace(" (2 passes)", ""), (t, -e), fontsize=7, xytext=(4, -9), textcoords="offset points")
+        ax.set_xscale("log")
+        ax.set_xlabel(f"ms per megapixel ({device}, {threads} threads)")
+        ax.set_ylabel("CPSNR, crop 10 (dB)")
+        ax.set_title(k)
+        ax.grid(True, which="both", alpha=0.3)
+    fig.suptitle("Demosaic speed against error (dashed: Pareto front)", fontsize=10)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def noise(args) -> list[str]:
@@ -114,6 +156,7 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--device", default="cpu", help="where the demosaic runs (cpu, cuda); denoisers run on the CPU")
     ap.add_argument("--out", default=None, help="write the markdown table here")
+    ap.add_argument("--plot", default=None, metavar="PNG", help="speed: write the Pareto chart here")
     add_quiet_argument(ap)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)

@@ -98,7 +98,7 @@ def write_model_card(path: Path, record: dict, net) -> None:
 def init_state(ck: dict, net: DemosaicNet, name: str = "init") -> dict:
     """The state dict that starts ``net`` from checkpoint ``ck``, computing the same function as ``ck``'s network:
 
-    - equal configs: its weights as they are;
+    - equal configs (the guard aside: it holds no weights): its weights as they are;
     - more ``noise_inputs`` (a noise-free checkpoint starting a joint network of the same width and depth): the extra
       input channels of the first convolution zeroed, so the joint network starts as the noise-free one;
     - a deeper residual network of the same width (``depth`` larger, both ``residual``): the checkpoint's blocks,
@@ -106,7 +106,9 @@ def init_state(ck: dict, net: DemosaicNet, name: str = "init") -> dict:
       Goodfellow & Shlens, ICLR 2016, for residual blocks), while their first convolutions keep ``net``'s He
       initialisation so the new blocks train from the first step.
     """
-    old, new = {"noise_inputs": 0, **ck["net_config"]}, net.config()
+    # the guard holds no weights: a network trained with the guard in the loop may start from one trained without
+    old = {k: v for k, v in {"noise_inputs": 0, **ck["net_config"]}.items() if k != "guard"}
+    new = {k: v for k, v in net.config().items() if k != "guard"}
     state = {k: v.float() for k, v in ck["model"].items()}
     if old == new:
         return state

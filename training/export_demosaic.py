@@ -42,7 +42,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(learned.ASSETS))
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--data", default="", help="text describing the training data for the record")
-    ap.add_argument("--name", default="demosaic_learned", help="file stem in the assets folder")
+    ap.add_argument("--variant", default=None, choices=sorted(learned.PRETRAINED),
+                    help="the shipped variant this checkpoint becomes: its file name and the guard it is scored under "
+                         "(learned.PRETRAINED_GUARDS); default joint_denoise for a network with noise inputs, else "
+                         "noise_free")
+    ap.add_argument("--name", default=None, help="file stem in the assets folder (default: the variant's)")
     ap.add_argument("--half", action="store_true", help="store the weights as float16 (half the size)")
     ap.add_argument("--no-bench", action="store_true", help="skip the Kodak/McMaster scores")
     ap.add_argument("--noise-sigmas", type=float, nargs="*", default=[],
@@ -61,6 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     net = learned.DemosaicNet(**ck["net_config"])
     net.load_state_dict(ck["model"])
     net.eval().requires_grad_(False)
+    variant = args.variant or ("joint_denoise" if ck["net_config"].get("noise_inputs", 0) else "noise_free")
+    args.name = args.name or learned.PRETRAINED[variant].stem
+    net.guard = dict(learned.PRETRAINED_GUARDS[variant])  # scored as it ships (load_pretrained sets this guard)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     pt = out / f"{args.name}.pt"
@@ -121,9 +128,10 @@ def main(argv: list[str] | None = None) -> int:
     if heldout:
         info["heldout_camera_pairs"] = heldout
     (out / f"{args.name}.json").write_text(json.dumps(info, indent=2, default=str))
-    variant = '"joint_denoise"' if ck["net_config"].get("noise_inputs", 0) else ""
-    lines = [f"# Shipped learned demosaic (`isettorch.isp.learned.load_pretrained({variant})`)", "",
-             f"- command: `{info['command']}`"]
+    shown = "" if variant == "noise_free" else f'"{variant}"'
+    lines = [f"# Shipped learned demosaic (`isettorch.isp.learned.load_pretrained({shown})`)", "",
+             f"- command: `{info['command']}`", f"- guard (part of what ships, scored with it): "
+             f"`{json.dumps(learned.PRETRAINED_GUARDS[variant])}`"]
     if cfg.get("init"):
         lines.append(f"- initialised from: `{cfg['init']}` (an earlier run's checkpoint: train that run first)")
     lines += [f"- network: DemosaicNet {ck['net_config']}, "

@@ -61,7 +61,7 @@ def _run(incumbent: str, candidate: str, n_sets: int, registered: str, **extra) 
 #: the held-out sets, and the committed result (default ``training/runs/RUN/screen_heldout.json``). ``labels``:
 #: the result's row names when they are not ``incumbent`` / ``candidate`` (the first screen's record). ``kind``:
 #: ``best_of`` (``candidate`` a dict of named checkpoints, ``incumbent`` one of the names; :func:`best_of`) or
-#: ``interpolation``; absent, the rule of :func:`passes`.
+#: ``interpolation``; absent, the rule of :func:`passes`. ``guard``: score both under that shipped variant's guard.
 RUNS = {
     "dye_2026-11-26": _run(_best("stage3"), _best("dye"), 3, "2026-11-26 15:46 UTC, after the dyed-materials run "
                            "started, before any of its checkpoints was scored", labels=("stage3", "dye")),
@@ -101,16 +101,22 @@ def mhc_scores(sets: list[str]) -> dict:
     return {s: [i["cpsnr"] for i in evaluate_demosaic(s, "malvar2004", "RGGB", 10)["images"]] for s in sets}
 
 
-def score_network(net, sets: list[str], mhc: dict) -> dict:
+def score_network(net, sets: list[str], mhc: dict, guard: str | None = None) -> dict:
     """One network's row: per set its mean, scenes below MHC, worst margin over MHC and per-image CPSNR; and the
     score (the mean of the set means); with a checkpoint path, ``path`` too. ``net``: a module or a checkpoint path
-    (:func:`load_demosaic_model`)."""
+    (:func:`load_demosaic_model`). ``guard``: a shipped variant's name; the network is then scored under that
+    variant's guard (``isettorch.isp.learned.PRETRAINED_GUARDS``), whatever guard its checkpoint records."""
     if not sets:
         raise ValueError("sets: expected at least one held-out folder")
     row = {}
     if not isinstance(net, torch.nn.Module):
         row["path"] = str(net)
         net = load_demosaic_model(net)
+    if guard is not None:
+        from isettorch.isp.learned import PRETRAINED_GUARDS
+
+        net.guard = dict(PRETRAINED_GUARDS[guard])
+        row["guard"] = guard
     for s in sets:
         r = evaluate_demosaic(s, "learned", "RGGB", 10, model=net)
         v = [i["cpsnr"] for i in r["images"]]
@@ -145,13 +151,15 @@ def interpolate_checkpoints(alpha: float, start: dict, finetuned: dict) -> dict:
     return out
 
 
-def screen(incumbent: str, candidate: str, sets: list[str], tolerance_db: float = 0.05) -> dict:
-    """Score both checkpoints on every set; returns per-network rows (:func:`score_network`) and ``decision``:
-    ``"candidate"`` or ``"incumbent"``."""
+def screen(incumbent: str, candidate: str, sets: list[str], tolerance_db: float = 0.05,
+           guard: str | None = None) -> dict:
+    """Score both checkpoints on every set (both under the shipped ``guard`` of that variant when given); returns
+    per-network rows (:func:`score_network`) and ``decision``: ``"candidate"`` or ``"incumbent"``."""
     if not sets:
         raise ValueError("sets: expected at least one held-out folder")
     mhc = mhc_scores(sets)
-    res = {"incumbent": score_network(incumbent, sets, mhc), "candidate": score_network(candidate, sets, mhc)}
+    res = {"incumbent": score_network(incumbent, sets, mhc, guard),
+           "candidate": score_network(candidate, sets, mhc, guard)}
     res["decision"] = ("candidate" if passes(res["candidate"], res["incumbent"], sets, tolerance_db)
                        else "incumbent")
     return res
@@ -272,7 +280,8 @@ def screen_run(run: str, argv: list[str] | None = None) -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(res, indent=1))
         return 0
-    res = screen(args.incumbent or entry["incumbent"], args.candidate or entry["candidate"], sets)
+    res = screen(args.incumbent or entry["incumbent"], args.candidate or entry["candidate"], sets,
+                 guard=entry.get("guard"))
     for name in ("incumbent", "candidate"):
         row = res[name]
         print(name, " ".join(f"{row[s]['mean']:.3f}({row[s]['below_mhc']})" for s in sets),

@@ -12,7 +12,8 @@ import math
 from .._progress import add_quiet_argument
 
 # Static (the parser is built without importing torch); tests check they equal isp.evaluation's lists.
-METHOD_NAMES = ("bilinear", "bilinear_colour", "learned", "malvar2004", "menon2007", "nearest")
+METHOD_NAMES = ("bilinear", "bilinear_colour", "learned", "learned_small", "learned_tiny", "malvar2004", "menon2007",
+                "nearest")
 DENOISER_NAMES = ("nlmeans", "bm3d")
 
 

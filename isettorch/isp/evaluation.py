@@ -266,7 +266,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
             raise ValueError(f"denoise: expected one of {DENOISERS} or None, got {denoise!r}")
         if not noisy:
             raise ValueError(f"denoise: {denoise!r} needs noise (noise_sigma or noise_shot > 0)")
-        if model is not None or method == "learned":
+        if model is not None or method in _LAZY_METHODS:
             raise ValueError(f"denoise: the sequential baseline is for classical methods; the learned method "
                              f"denoises itself (got denoise {denoise!r} with method "
                              f"{'model' if model is not None else method!r})")
@@ -284,7 +284,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
     else:
         raise TypeError(f"method: expected a method name or a callable, got {type(method).__name__}")
     if kwargs.get("self_ensemble"):
-        if model is None and method != "learned":
+        if model is None and method not in _LAZY_METHODS:
             raise ValueError(f"self_ensemble (--self-ensemble): only for the learned method or a DemosaicNet model, "
                              f"got method {method!r}")
         name += " + self-ensemble" if kwargs["self_ensemble"] in (True, "transpose") else " + dihedral self-ensemble"

@@ -43,6 +43,9 @@ def test_export_joint_model_card(tmp_path, monkeypatch):
         torch.testing.assert_close(exported.state_dict()[k], v, rtol=0, atol=0)
     card = json.loads((out / "jt.json").read_text())
     scores = card["benchmarks_cpsnr_db"]["kodak24"]
+    from isettorch.isp.learned import PRETRAINED_GUARDS
+
+    exported.guard = dict(PRETRAINED_GUARDS["joint_denoise"])  # scored as it ships: under its variant's guard
     clean = evaluate_demosaic(data, "learned", "RGGB", 10, model=exported)["mean_cpsnr"]
     noisy = evaluate_demosaic(data, "learned", "RGGB", 10, model=exported, noise_sigma=0.02, seed=0)["mean_cpsnr"]
     assert scores["crop10"] == pytest.approx(clean, abs=1e-3)
@@ -52,6 +55,7 @@ def test_export_joint_model_card(tmp_path, monkeypatch):
     assert "| kodak24 | " in text
     assert 'load_pretrained("joint_denoise")' in text.splitlines()[0]  # the card names the variant it documents
     assert "initialised from: `out/noise_free/best.pt`" in text
+    assert '"highpass_sigma_px": 16.0' in text  # the card states the guard
 
 
 def test_export_records_given_command_and_selection(tmp_path):

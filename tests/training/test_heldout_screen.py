@@ -119,3 +119,14 @@ def test_registered_screen_dry_run(tmp_path, tiny_heldout_sets, damaged_shipped,
         heldout_screen.main(["no_such_run"])
     with pytest.raises(ValueError, match="is not one of the registered sets"):
         heldout_screen.make_sets([str(tmp_path / "missing")])
+
+
+def test_screen_under_the_shipped_guard(tiny_heldout_sets):
+    """``guard``: both networks scored under a shipped variant's guard, whatever their checkpoints record: the shipped
+    checkpoint (no guard in its config) then scores exactly what the registered ``learned`` method scores."""
+    sets = tiny_heldout_sets[:1]
+    res = heldout_screen.screen(str(SHIPPED), str(SHIPPED), sets, guard="noise_free")
+    shipped = evaluate_demosaic(sets[0], "learned", "RGGB", 10)["mean_cpsnr"]
+    bare = evaluate_demosaic(sets[0], "learned", "RGGB", 10, model=load_demosaic_model(SHIPPED))["mean_cpsnr"]
+    assert res["candidate"][sets[0]]["mean"] == pytest.approx(shipped, abs=1e-9)
+    assert res["candidate"]["guard"] == "noise_free" and abs(shipped - bare) > 1e-3

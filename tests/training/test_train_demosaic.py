@@ -338,6 +338,14 @@ def test_joint_network_starts_as_the_noise_free_one():
     torch.testing.assert_close(joint(raw, torch.tensor([[0.3, 2.0], [1.0, 0.1]])), free(raw), rtol=0, atol=0)
     with pytest.raises(ValueError, match="cannot start"):
         train_demosaic.init_state(ck, train_demosaic.DemosaicNet(channels=16, depth=2, noise_inputs=2))
+    # the guard holds no weights: a network with the guard in the loop starts from the checkpoint's weights as they
+    # are, and its output is the guarded output of the checkpoint's network
+    guard = {"rel": 0.1, "abs": 0.03, "highpass_sigma_px": 4.0}
+    guarded = train_demosaic.DemosaicNet(channels=8, depth=2, guard=guard)
+    guarded.load_state_dict(train_demosaic.init_state(ck, guarded))
+    free.guard = guard
+    torch.testing.assert_close(guarded(raw), free(raw), rtol=0, atol=0)
+    free.guard = None
 
 
 def test_deeper_residual_network_starts_as_the_shallower_one_and_its_new_blocks_learn():

@@ -40,7 +40,7 @@ METHODS: dict[str, Callable] = {
 }
 
 # Methods that live in optional modules, imported on first use (the module registers itself).
-_LAZY_METHODS = {"learned": "isettorch.isp.learned"}
+_LAZY_METHODS = {name: "isettorch.isp.learned" for name in ("learned", "learned_small", "learned_tiny")}
 
 # Methods that also work on any CFA given as an index map.
 _GENERIC = {"nearest": demosaic_nearest_cfa, "bilinear": demosaic_generic, "generic": demosaic_generic}
