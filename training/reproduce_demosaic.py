@@ -3,6 +3,7 @@ selection and the export.
 
     python training/reproduce_demosaic.py noise_free [--assets out/reproduced] [--dry-run]
     python training/reproduce_demosaic.py joint_denoise [--assets out/reproduced] [--dry-run]
+    python training/reproduce_demosaic.py tiny|small [--assets out/reproduced] [--dry-run]
 
 Each step is ``training/train_demosaic.py --config configs/train/NAME.yaml`` and starts from the previous step's
 ``best.pt`` (the configs' ``init``); a finished step returns at once and an interrupted one resumes from its
@@ -15,7 +16,8 @@ minutes.
 held-out synthetic sets are written if missing (``training/make_heldout.py``), W(alpha) = (1 - alpha) distill-4 +
 alpha specular is scored for alpha = 0.1 ... 0.9, and the passing alpha with the highest score is exported; if none
 passes, distill-4 is. ``joint_denoise`` exports its last step's best checkpoint,
-with the noisy benchmark scores. The weights are written to ``--assets`` (not over the shipped files unless asked).
+with the noisy benchmark scores; ``tiny`` and ``small`` (the fast members of the speed-error family, 1 hour each)
+export theirs. The weights are written to ``--assets`` (not over the shipped files unless asked).
 Training steps run on budgets of wall time, so a reproduction on another machine takes other step counts and its
 weights differ from the shipped ones; the procedure, data and selection are the same.
 """
@@ -44,7 +46,12 @@ CHAINS = {
     # starts from the shipped noise-free network (isettorch/assets/demosaic_learned.pt, the config's init), which
     # ``noise_free`` reproduces
     "joint_denoise": ["demosaic_joint_all_levels"],
+    # the speed-error family (issue #35): each one run from scratch
+    "tiny": ["demosaic_tiny"],
+    "small": ["demosaic_small"],
 }
+#: what the export of a chain's last best.pt adds (the noise-free chain ends with its interpolation screen instead)
+EXPORT_EXTRA = {"joint_denoise": ["--noise-sigmas", "0.01", "0.02", "0.05"], "tiny": [], "small": []}
 #: the interpolation screen's five held-out sets (training.heldout_screen.HELDOUT: their make_heldout.py options)
 _HELDOUT_BASE, HELDOUT = heldout_screen.HELDOUT_BASE, heldout_screen.HELDOUT
 WISE = {"start": "out/train_demosaic_noise_free_distill4/best.pt",
@@ -93,9 +100,14 @@ def plan(model: str, assets: str) -> list[str]:
                     f"{WISE['alphas']} -> {WISE['out']}/best.pt")
         cmds.append(f"python training/export_demosaic.py --run {WISE['out']} --crops 10 --out {assets}")
     else:
-        cmds.append(f"python training/export_demosaic.py --run out/train_demosaic_joint_all_levels --crops 10 "
-                    f"--noise-sigmas 0.01 0.02 0.05 --name demosaic_learned_denoise --out {assets}")
+        cmds.append(shlex.join(["python", "training/export_demosaic.py", *_export_args(model, assets)]))
     return cmds
+
+
+def _export_args(model: str, assets: str) -> list[str]:
+    """export_demosaic.py's arguments for a chain that exports its last step's best checkpoint as ``model``."""
+    last = load_config(CHAINS[model][-1])
+    return ["--run", str(last["out"]), "--crops", "10", "--variant", model, *EXPORT_EXTRA[model], "--out", assets]
 
 
 def wise_select(sets: list[str], start_path: str = WISE["start"], finetuned_path: str = WISE["finetuned"],
@@ -151,10 +163,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"== {name}", flush=True)
         train_demosaic.main(["--config", str(CONFIGS / f"{name}.yaml"), "--no-progress"])
     command = f"python training/reproduce_demosaic.py {args.model}"
-    if args.model == "joint_denoise":
-        return export_demosaic.main(["--run", "out/train_demosaic_joint_all_levels", "--crops", "10", "--threads", "2",
-                                     "--noise-sigmas", "0.01", "0.02", "0.05", "--name", "demosaic_learned_denoise",
-                                     "--out", args.assets, "--command", command])
+    if args.model != "noise_free":
+        return export_demosaic.main([*_export_args(args.model, args.assets), "--threads", "2", "--command", command])
     for folder, extra in HELDOUT.items():
         if not (ROOT / folder).is_dir():
             make_heldout.main(["--out", str(ROOT / folder), *_HELDOUT_BASE, *extra])
