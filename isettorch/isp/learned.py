@@ -10,7 +10,10 @@ depth-to-space back to full resolution). The last layer is zero-initialised, so 
 records the command, config, data, wall time, hardware and benchmark scores). Inputs are values relative to white
 = 1 (white-balanced, linear or display-encoded: both were in the training data). Importing this module registers
 the demosaic method ``"learned"`` with :mod:`isettorch.isp.demosaicing` (``demosaic(raw, "RGGB", method="learned")``,
-``isettorch demosaic-eval DIR --method learned``, camera configs with ``isp.demosaic: learned``).
+``isettorch demosaic-eval DIR --method learned``, camera configs with ``isp.demosaic: learned``), and the faster
+members of its speed-error family, ``"learned_small"`` and ``"learned_tiny"`` (:data:`LEARNED_METHODS`: small
+networks correcting Menon et al. 2007 instead of MHC; ``benchmarks/DEMOSAIC_SPEED.md`` has their CPSNR against
+milliseconds per megapixel, the Pareto chart in the docs' benchmarks page).
 
 A shipped network runs under a guard (:func:`guard_residual`, :data:`PRETRAINED_GUARDS`): its correction of MHC is
 weighted by :func:`structure_gate` (0 where the mosaic has no curvature, relative to its level, that MHC could get
@@ -244,7 +247,9 @@ class DemosaicNet(nn.Module):
             (the earlier checkpoints).
         base: the classical estimate the network corrects (:data:`BASES`): ``"malvar2004"`` (MHC, linear, the
             default and every network before the speed family) or ``"menon2007"`` (DDFAPD, Menon et al. 2007: about
-            3x MHC's time and 3.5 dB better on Kodak, so a small network on top of it starts higher).
+            3x MHC's time and 3.5 dB better on Kodak, so a small network on top of it starts higher). The guard is
+            always relative to MHC: with another base it guards the network's whole departure from MHC (base plus
+            correction minus MHC), so constants stay exact and the output's local means MHC's.
         guard: ``None`` (training: the raw correction) or the options of :func:`guard_residual` (a dict), which
             then guards the correction in ``forward``: exact on constant colour fields, no colour bias of its own.
             :func:`load_pretrained` sets the shipped one (:data:`PRETRAINED_GUARDS`). May be changed on an instance.
@@ -330,6 +335,12 @@ class DemosaicNet(nn.Module):
         residual = F.pixel_shuffle(self.head(self.body(x)), 2).to(base.dtype)
         if self.guard is not None:
             with torch.autocast(raw.device.type, enabled=False):
+                if self.base != "malvar2004":
+                    # the guard is relative to MHC (linear, exact on constants, unbiased) whatever the base: the
+                    # network's output minus MHC is the correction it guards (Menon's own decisions are not linear:
+                    # -0.32/255 of blue bias on a star field), so the guarantees hold for every base
+                    mhc = BASES["malvar2004"](raw)
+                    residual, base = residual + (base - mhc), mhc
                 residual = guard_residual(raw, residual, **self.guard)
         return base + residual
 
@@ -462,7 +473,10 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
     64 x 13, trained from :mod:`isettorch.data.natural` scenes only in three stages:
     ``demosaic_noise_free.yaml`` (generator version 4), ``demosaic_noise_free_finetune.yaml`` (version 5, with
     chromatic detail and independent three-layer grain), then ``demosaic_noise_free_stage3.yaml`` (version 5, a
-    fresh scene bank, lower learning rate). Each JSON beside a checkpoint records its command, config,
+    fresh scene bank, lower learning rate). ``"tiny"`` and ``"small"`` (methods ``learned_tiny``, ``learned_small``)
+    are a plain 16 x 3 and a residual 24 x 5 network on top of Menon et al. 2007 (``base="menon2007"``), trained
+    from scratch by ``configs/train/demosaic_tiny.yaml`` / ``demosaic_small.yaml``. Each JSON beside a checkpoint
+    records its command, config,
     steps, wall time, hardware and scores; the model cards (``.md``) add held-out synthetic screens.
 
     Example:

@@ -53,3 +53,44 @@ def test_fast_guard_keeps_constants_exact_and_checks_its_options():
             learned.guard_residual(mosaic(field), torch.zeros_like(field), highpass_decimation=bad)
     with pytest.raises(ValueError, match="highpass_decimation"):  # no coarser than the blur it approximates
         learned.guard_residual(mosaic(field), torch.zeros_like(field), highpass_sigma_px=4.0, highpass_decimation=8)
+
+
+@pytest.mark.skipif(not all(learned.PRETRAINED[v].is_file() for v in learned.LEARNED_METHODS.values()),
+                    reason="no shipped checkpoints")
+def test_family_methods_run_their_shipped_networks():
+    # each registered method is its variant's shipped network under its shipped guard, and the family is ordered by
+    # size: tiny < small < the accurate default
+    from isettorch.isp.demosaicing import demosaic
+
+    raw = torch.rand(1, 1, 32, 48, generator=torch.Generator().manual_seed(2))
+    outs = {}
+    for method, variant in learned.LEARNED_METHODS.items():
+        net = learned.load_pretrained(variant)
+        assert net.guard == learned.PRETRAINED_GUARDS[variant]
+        outs[method] = demosaic(raw, "GRBG", method=method)
+        torch.testing.assert_close(outs[method], learned.demosaic_learned(raw, "GRBG", model=net), rtol=0, atol=0)
+    assert float((outs["learned_tiny"] - outs["learned"]).abs().max()) > 1e-3
+    sizes = [sum(p.numel() for p in learned.load_pretrained(v).parameters()) for v in ("tiny", "small", "noise_free")]
+    assert sizes == sorted(sizes) and len(set(sizes)) == 3
+
+
+def test_guard_is_relative_to_malvar_for_a_menon_base():
+    # Menon's decisions are not linear, so Menon has colour bias of its own (a star field: -0.32/255 of blue); under
+    # a guard a Menon-base network's whole departure from MHC is guarded, so its local means are MHC's: on a random
+    # texture the mean of (output - MHC) per channel is a small fraction of the mean |Menon - MHC| (it is a
+    # high-passed signal), while the unguarded network is Menon itself
+    from isettorch.isp.demosaicing import demosaic_malvar2004
+
+    g = torch.Generator().manual_seed(3)
+    img = torch.rand(1, 3, 96, 96, generator=g, dtype=torch.float64) ** 3  # sparse bright texture, mean 0.25
+    raw = mosaic(img, "RGGB")
+    mhc = demosaic_malvar2004(raw, "RGGB", boundary="mirror")
+    net = learned.DemosaicNet(channels=4, depth=1, base="menon2007").double()
+    with torch.no_grad():
+        assert float((net(raw) - demosaic_menon2007(raw, "RGGB")).abs().max()) == 0.0
+    net.guard = {"rel": 0.0, "abs": 1e-6, "highpass_sigma_px": 8.0}
+    with torch.no_grad():
+        dep = (net(raw) - mhc)[..., 24:-24, 24:-24]
+        menon_dep = (demosaic_menon2007(raw, "RGGB") - mhc)[..., 24:-24, 24:-24]
+    assert float(menon_dep.mean((2, 3)).abs().max()) > 3e-3  # Menon's own mean departure from MHC
+    assert float((dep.mean((2, 3)).abs() / menon_dep.abs().mean((2, 3))).max()) < 0.05

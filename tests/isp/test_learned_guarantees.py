@@ -48,10 +48,11 @@ def test_constant_colour_fields_are_exact(variant):
         out = learned.demosaic_learned(mosaic(fields, pattern), pattern, model=net, noise=noise)
         worst = float(((out - fields).abs() / full_scale).max())
         assert worst <= 1e-5, (pattern, worst)
-    # and through the registry, the entry point users call
+    # and through the registry, the entry point users call (every method a shipped noise-free network registers)
     field = torch.tensor([0.7, 0.3, 0.05]).view(1, 3, 1, 1).expand(2, 3, 24, 24).contiguous()
-    out = demosaic(mosaic(field, "GBRG"), "GBRG", method="learned")
-    torch.testing.assert_close(out, field, rtol=0, atol=1e-5)
+    for method in learned.LEARNED_METHODS:
+        out = demosaic(mosaic(field, "GBRG"), "GBRG", method=method)
+        torch.testing.assert_close(out, field, rtol=0, atol=1e-5)
 
 
 def test_unguarded_network_is_not_exact_on_constant_fields():
@@ -92,12 +93,14 @@ def _phase_mean_error(net, img: torch.Tensor, crop: int = 10) -> torch.Tensor:
     return torch.stack(errs).mean(0) * 255
 
 
-def test_no_channel_bias_on_natural_images():
-    # scikit-image's photographs (256 px centre crops) and two generator scenes (not Kodak/McMaster)
+@pytest.mark.parametrize("variant", sorted(set(learned.LEARNED_METHODS.values())))
+def test_no_channel_bias_on_natural_images(variant):
+    # scikit-image's photographs (256 px centre crops) and two generator scenes (not Kodak/McMaster), for every
+    # shipped noise-free network (the speed-error family)
     photos = torch.stack([ss.photo(p, 256) for p in ("astronaut.png", "coffee.png", "chelsea.png",
                                                      "hubble_deep_field.jpg")])
     scenes = torch.stack([x for _, x in ss.natural_scenes(2, 128)])
-    net = learned.load_pretrained()
+    net = learned.load_pretrained(variant)
     for batch in (photos, scenes):
         bias = _phase_mean_error(net, batch)
         assert float(bias.abs().max()) <= 0.05, bias.tolist()
