@@ -51,19 +51,27 @@ def _models(candidate: str | None) -> dict:
     return out
 
 
-def table(sets: dict, candidate: str | None, conditions=CONDITIONS, quiet: bool = True) -> tuple[list[str], dict]:
+def table(sets: dict, candidate: str | None, conditions=CONDITIONS, quiet: bool = True,
+          reuse: dict | None = None) -> tuple[list[str], dict]:
+    """The markdown table and its scores ``{(condition, set, row): dB}``; rows found in ``reuse`` (a previous run's
+    scores, same keys) are taken from it instead of being scored again (the nlmeans rows take most of the time)."""
     models = _models(candidate)
     names = ["nlmeans + menon2007", *models]
+    reuse = reuse or {}
     scores: dict = {}
     for label, sigma, shot in conditions:
         noisy = sigma > 0 or shot > 0
         for set_name, folder in sets.items():
             kw = {"noise_sigma": sigma, "noise_shot": shot, "seed": 0, "progress": not quiet}
-            scores[(label, set_name, names[0])] = evaluate_demosaic(
-                folder, "menon2007", "RGGB", 10, denoise="nlmeans" if noisy else None, **kw)["mean_cpsnr"]
-            for name, net in models.items():
-                scores[(label, set_name, name)] = evaluate_demosaic(folder, "learned", "RGGB", 10, model=net,
-                                                                    **kw)["mean_cpsnr"]
+            for name in names:
+                if (label, set_name, name) in reuse:
+                    scores[(label, set_name, name)] = reuse[(label, set_name, name)]
+                elif name == names[0]:
+                    scores[(label, set_name, name)] = evaluate_demosaic(
+                        folder, "menon2007", "RGGB", 10, denoise="nlmeans" if noisy else None, **kw)["mean_cpsnr"]
+                else:
+                    scores[(label, set_name, name)] = evaluate_demosaic(folder, "learned", "RGGB", 10,
+                                                                        model=models[name], **kw)["mean_cpsnr"]
             print(label, set_name, {n: round(scores[(label, set_name, n)], 2) for n in names}, flush=True)
     lines = []
     for set_name in sets:
@@ -89,10 +97,17 @@ def main(argv=None) -> int:
     p.add_argument("--mcmaster", default=str(data_root() / "mcmaster18"))
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", default=None, help="append the markdown table to this file")
+    p.add_argument("--scores", default=None, help="write the scores as JSON here ([condition, set, row, dB] rows)")
+    p.add_argument("--reuse", default=None, metavar="JSON",
+                   help="take the rows this --scores file holds from it instead of scoring them again (name the "
+                        "run that wrote it in the table's text)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     t0 = time.time()
-    lines, _ = table({"Kodak": Path(args.kodak), "McMaster": Path(args.mcmaster)}, args.candidate)
+    reuse = {tuple(r[:3]): r[3] for r in json.loads(Path(args.reuse).read_text())} if args.reuse else None
+    lines, scores = table({"Kodak": Path(args.kodak), "McMaster": Path(args.mcmaster)}, args.candidate, reuse=reuse)
+    if args.scores:
+        Path(args.scores).write_text(json.dumps([[*k, v] for k, v in scores.items()], indent=0))
     env = {"platform": platform.platform(), "cpu_count": torch.get_num_threads(), "torch": torch.__version__}
     lines.append(f"Seed 0, RGGB, float32; wall {time.time() - t0:.0f} s; {json.dumps(env)}")
     text = "\n".join(lines)

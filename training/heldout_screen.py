@@ -61,7 +61,9 @@ def _run(incumbent: str, candidate: str, n_sets: int, registered: str, **extra) 
 #: the held-out sets, and the committed result (default ``training/runs/RUN/screen_heldout.json``). ``labels``:
 #: the result's row names when they are not ``incumbent`` / ``candidate`` (the first screen's record). ``kind``:
 #: ``best_of`` (``candidate`` a dict of named checkpoints, ``incumbent`` one of the names; :func:`best_of`) or
-#: ``interpolation``; absent, the rule of :func:`passes`. ``guard``: score both under that shipped variant's guard.
+#: ``interpolation`` or ``validation`` (:func:`validation_screen`: the two on the held-out synthetic validation set of
+#: the run's ``config``, a joint model's rule); absent, the rule of :func:`passes`. ``guard``: score both under that
+#: shipped variant's guard.
 RUNS = {
     "dye_2026-11-26": _run(_best("stage3"), _best("dye"), 3, "2026-11-26 15:46 UTC, after the dyed-materials run "
                            "started, before any of its checkpoints was scored", labels=("stage3", "dye")),
@@ -81,6 +83,15 @@ RUNS = {
                                "the specmix run (the specular run continued with the sheen in half the scenes)"),
     "distill5_2026-11-27": _run("out/wise_specular/best.pt", _best("distill5"), 5, "2026-11-27 ~10:10 UTC, before "
                                 "the fifth distillation round (the shipped interpolation towards its own ensemble)"),
+    # the guard in the loop (issue #35): both networks scored under the shipped noise-free guard, as they ship
+    "guarded_2026-11-27": _run("isettorch/assets/demosaic_learned.pt", _best("guarded"), 5, "2026-11-27 ~20:30 UTC, "
+                               "before the guard-in-the-loop fine-tune started", guard="noise_free"),
+    # a joint model's rule (its noise is drawn in training): guarded CPSNR on the run's own held-out validation set
+    "joint_guarded_2026-11-27": {"kind": "validation", "incumbent": "isettorch/assets/demosaic_learned_denoise.pt",
+                                 "candidate": "out/train_demosaic_joint_guarded/best.pt",
+                                 "config": "configs/train/demosaic_joint_guarded.yaml", "guard": "joint_denoise",
+                                 "sets": [], "registered": "2026-11-27 ~20:20 UTC, before the joint guard-in-the-loop "
+                                 "fine-tune started"},
     # the interpolation screen: W(alpha) = (1 - alpha) incumbent + alpha candidate for alpha = 0.1 ... 0.9, each
     # against the incumbent by the same rule; the passing alpha with the highest score ships (its network written to
     # out/wise_specular/best.pt: training.reproduce_demosaic.wise_select, which the reproduction runs too)
@@ -211,6 +222,26 @@ def best_of_decision(res: dict, incumbent: str, sets: list[str]) -> str:
     return max(ok, key=ok.get) if ok else incumbent
 
 
+def validation_screen(config: str, incumbent: str, candidate: str, guard: str | None = None) -> dict:
+    """The two checkpoints on the held-out synthetic validation set of the training ``config``
+    (``train_demosaic.make_validation``: scenes of their own seed, the run's domain and noise, never Kodak/McMaster),
+    both under the shipped ``guard`` of that variant when given; ``decision``: ``"candidate"`` if its CPSNR is higher,
+    else ``"incumbent"`` (a tie does not ship)."""
+    from isettorch.isp.learned import PRETRAINED_GUARDS
+    from training import common, train_demosaic
+
+    val = train_demosaic.make_validation(common.load_config(config))
+    res = {}
+    for name, path in (("incumbent", incumbent), ("candidate", candidate)):
+        net = load_demosaic_model(path)
+        if guard is not None:
+            net.guard = dict(PRETRAINED_GUARDS[guard])
+        res[name] = {"path": str(path), "guard": guard, **train_demosaic.validate(net, val, "cpu")}
+    res["decision"] = ("candidate" if res["candidate"]["val_cpsnr"] > res["incumbent"]["val_cpsnr"]
+                       else "incumbent")
+    return res
+
+
 def result_path(run: str) -> Path:
     """The committed result of ``run``'s screen (relative to the repository root)."""
     return Path(RUNS[run].get("result", f"training/runs/{run}/screen_heldout.json"))
@@ -268,6 +299,15 @@ def screen_run(run: str, argv: list[str] | None = None) -> int:
         res = best_of(entry["incumbent"], paths, sets)
         for name in paths:
             print(name, " ".join(f"{res[s][name]['mean']:.3f}({res[s][name]['below_mhc']})" for s in sets), flush=True)
+        print("ship:", res["decision"])
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(res, indent=1))
+        return 0
+    if entry.get("kind") == "validation":
+        res = validation_screen(entry["config"], args.incumbent or entry["incumbent"],
+                                args.candidate or entry["candidate"], entry.get("guard"))
+        for name in ("incumbent", "candidate"):
+            print(name, f"validation {res[name]['val_cpsnr']:.3f}", flush=True)
         print("ship:", res["decision"])
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(res, indent=1))

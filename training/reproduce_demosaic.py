@@ -8,7 +8,7 @@ selection and the export.
 Each step is ``training/train_demosaic.py --config configs/train/NAME.yaml`` and starts from the previous step's
 ``best.pt`` (the configs' ``init``); a finished step returns at once and an interrupted one resumes from its
 ``last.pt`` (the time budget counts across resumes), so the command can be re-run after any interruption. On 2 CPU
-cores the noise-free chain takes about 12 hours, the joint one (from the shipped noise-free network) about 50
+cores the noise-free chain takes about 12 hours, the joint one (from the shipped noise-free network) about 105
 minutes.
 
 ``noise_free`` ends with the weight-interpolation screen ``wise_specular_2026-11-27`` of
@@ -45,7 +45,7 @@ CHAINS = {
                    "demosaic_noise_free_distill4", "demosaic_noise_free_specular"],
     # starts from the shipped noise-free network (isettorch/assets/demosaic_learned.pt, the config's init), which
     # ``noise_free`` reproduces
-    "joint_denoise": ["demosaic_joint_all_levels"],
+    "joint_denoise": ["demosaic_joint_all_levels", "demosaic_joint_guarded"],
     # the speed-error family (issue #35): each one run from scratch
     "tiny": ["demosaic_tiny"],
     "small": ["demosaic_small"],

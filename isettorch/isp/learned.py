@@ -466,10 +466,11 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
     ``variant="noise_free"`` (``demosaic_learned.pt``) or ``"joint_denoise"`` (``demosaic_learned_denoise.pt``,
     which takes ``noise = [sqrt(a) * 10, sqrt(b) * 100]`` for a mosaic with variance ``a x + b``; see
     ``training/train_demosaic.py``). The joint network is a residual 64 x 13 network trained by
-    ``configs/train/demosaic_joint_denoise.yaml`` on :mod:`isettorch.data.natural` scenes through the Camera
-    (white-balanced linear sRGB targets, 80 % of patches display-encoded; the sensor model's noise: shot, read,
-    dark, DSNU/PRNU, quantisation, with ``a``, ``b`` in the [0, 1] units of the mosaic, and white Gaussian noise,
-    ``a = 0``), starting from a ``demosaic_noise_free.yaml`` run. The noise-free network is the same residual
+    ``configs/train/demosaic_joint_all_levels.yaml`` then ``demosaic_joint_guarded.yaml`` (its guard in the loop) on
+    :mod:`isettorch.data.natural` scenes through the Camera (white-balanced linear sRGB targets, 80 % of patches
+    display-encoded; the sensor model's noise: shot, read, dark, DSNU/PRNU, quantisation, with ``a``, ``b`` in the
+    [0, 1] units of the mosaic, white Gaussian noise, ``a = 0``, and an eighth of each batch noise-free), starting
+    from the shipped noise-free network. The noise-free network is the same residual
     64 x 13, trained from :mod:`isettorch.data.natural` scenes only in three stages:
     ``demosaic_noise_free.yaml`` (generator version 4), ``demosaic_noise_free_finetune.yaml`` (version 5, with
     chromatic detail and independent three-layer grain), then ``demosaic_noise_free_stage3.yaml`` (version 5, a

@@ -73,6 +73,12 @@ def test_registry_matches_the_committed_records():
             assert record["decision"] == heldout_screen.best_of_decision(record, entry["incumbent"], sets) != \
                 entry["incumbent"]
             continue
+        if entry.get("kind") == "validation":  # two rows on the run's validation set, the higher ships
+            assert record["incumbent"]["path"] == entry["incumbent"] and record["candidate"]["path"] == \
+                entry["candidate"]
+            ships = record["candidate"]["val_cpsnr"] > record["incumbent"]["val_cpsnr"]
+            assert record["decision"] == ("candidate" if ships else "incumbent"), run
+            continue
         if entry.get("kind") == "interpolation":  # W(alpha) rows, each against the incumbent
             assert record["incumbent"]["path"] == entry["incumbent"]
             alphas = [k for k in record if k.startswith("a")]
@@ -130,3 +136,26 @@ def test_screen_under_the_shipped_guard(tiny_heldout_sets):
     bare = evaluate_demosaic(sets[0], "learned", "RGGB", 10, model=load_demosaic_model(SHIPPED))["mean_cpsnr"]
     assert res["candidate"][sets[0]]["mean"] == pytest.approx(shipped, abs=1e-9)
     assert res["candidate"]["guard"] == "noise_free" and abs(shipped - bare) > 1e-3
+
+
+def test_validation_screen(tmp_path):
+    """The joint models' rule: both checkpoints on a training config's validation set (here a small noisy one), under a
+    shipped guard; the shipped joint model beats a copy whose head is scaled down, and a tie does not ship."""
+    import torch
+
+    from isettorch.isp.learned import PRETRAINED
+
+    cfg = {"seed": 3, "net": {"channels": 64, "depth": 13, "residual": True, "noise_inputs": 2},
+           "data": {"source": "natural", "scene_size": 32, "patch": 32, "batch": 4, "pool": 4, "refresh": 4},
+           "noise": {"enabled": True}, "val": {"images": 4, "size": 32}}
+    path = tmp_path / "cfg.yaml"
+    path.write_text(json.dumps(cfg))
+    ck = torch.load(PRETRAINED["joint_denoise"], weights_only=True)
+    ck["model"] = {k: v * 0.5 if k.startswith("head") else v for k, v in ck["model"].items()}
+    worse = tmp_path / "worse.pt"
+    torch.save(ck, worse)
+    res = heldout_screen.validation_screen(str(path), str(worse), str(PRETRAINED["joint_denoise"]), "joint_denoise")
+    assert res["decision"] == "candidate" and res["candidate"]["guard"] == "joint_denoise"
+    assert res["candidate"]["val_cpsnr"] > res["incumbent"]["val_cpsnr"]
+    tie = heldout_screen.validation_screen(str(path), str(worse), str(worse), "joint_denoise")
+    assert tie["decision"] == "incumbent"
