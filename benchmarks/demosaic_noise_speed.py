@@ -106,10 +106,12 @@ def _plot_pareto(points: dict, path: str, threads: int, device: str) -> None:
         pts = [(points[n][k][1], -points[n][k][0]) for n in names]  # (time, error) both minimised
         front = pareto_front(pts)
         ax.plot([pts[i][0] for i in front], [-pts[i][1] for i in front], "--", color="0.6", lw=1, zorder=1)
-        for n, (t, e) in zip(names, pts):
+        for i, (n, (t, e)) in enumerate(zip(names, pts)):
             learned = n.startswith("learned")
             ax.scatter([t], [-e], color="C3" if learned else "C0", marker="o" if learned else "s", zorder=2)
-            ax.annotate(n.replace(" (2 passes)", ""), (t, -e), fontsize=7, xytext=(4, -9), textcoords="offset points")
+            # labels alternate below and above their points (neighbours in time often have close scores)
+            ax.annotate(n.replace(" (2 passes)", ""), (t, -e), fontsize=7, xytext=(4, -10 if i % 2 else 5),
+                        textcoords="offset points")
         ax.set_xscale("log")
         ax.set_xlabel(f"ms per megapixel ({device}, {threads} threads)")
         ax.set_ylabel("CPSNR, crop 10 (dB)")

@@ -60,10 +60,10 @@ def _run(incumbent: str, candidate: str, n_sets: int, registered: str, **extra) 
 #: candidate is): the incumbent and candidate checkpoints (paths from the repository root, as the runs wrote them),
 #: the held-out sets, and the committed result (default ``training/runs/RUN/screen_heldout.json``). ``labels``:
 #: the result's row names when they are not ``incumbent`` / ``candidate`` (the first screen's record). ``kind``:
-#: ``best_of`` (``candidate`` a dict of named checkpoints, ``incumbent`` one of the names; :func:`best_of`) or
-#: ``interpolation`` or ``validation`` (:func:`validation_screen`: the two on the held-out synthetic validation set of
-#: the run's ``config``, a joint model's rule); absent, the rule of :func:`passes`. ``guard``: score both under that
-#: shipped variant's guard.
+#: ``best_of`` (``candidate`` a dict of named checkpoints, ``incumbent`` one of the names; :func:`best_of`),
+#: ``interpolation``, ``validation`` (:func:`validation_screen`: the two on the held-out synthetic validation set of
+#: the run's ``config``, a joint model's rule) or ``photos`` (:func:`photos_screen`); absent, the rule of
+#: :func:`passes`. ``guard``: score both under that shipped variant's guard.
 RUNS = {
     "dye_2026-11-26": _run(_best("stage3"), _best("dye"), 3, "2026-11-26 15:46 UTC, after the dyed-materials run "
                            "started, before any of its checkpoints was scored", labels=("stage3", "dye")),
@@ -92,6 +92,11 @@ RUNS = {
                                  "config": "configs/train/demosaic_joint_guarded.yaml", "guard": "joint_denoise",
                                  "sets": [], "registered": "2026-11-27 ~20:20 UTC, before the joint guard-in-the-loop "
                                  "fine-tune started"},
+    # the tiny network's second (distillation) step: the mean over the stress set's photographs decides
+    "tiny_distill_2026-11-27": {"kind": "photos", "incumbent": "out/train_demosaic_tiny/best.pt",
+                                "candidate": "out/train_demosaic_tiny_distill/best.pt", "guard": "tiny", "sets": [],
+                                "result": "training/runs/family_2026-11-27/tiny_distill_screen.json",
+                                "registered": "2026-11-27 ~21:15 UTC, before the distillation step started"},
     # the interpolation screen: W(alpha) = (1 - alpha) incumbent + alpha candidate for alpha = 0.1 ... 0.9, each
     # against the incumbent by the same rule; the passing alpha with the highest score ships (its network written to
     # out/wise_specular/best.pt: training.reproduce_demosaic.wise_select, which the reproduction runs too)
@@ -242,6 +247,33 @@ def validation_screen(config: str, incumbent: str, candidate: str, guard: str | 
     return res
 
 
+def photos_screen(incumbent: str, candidate: str, guard: str | None = None, size: int = 256) -> dict:
+    """The two checkpoints on the stress set's scikit-image photographs (``training/stress_set.py`` PHOTOS, ``size``
+    px centre crops, plain; never Kodak/McMaster), CPSNR crop 10, under the shipped ``guard`` of that variant when
+    given; ``decision``: ``"candidate"`` if its mean is higher, else ``"incumbent"``. Menon's and MHC's rows are
+    reported beside them."""
+    from isettorch.isp.demosaicing import demosaic
+    from isettorch.isp.learned import PRETRAINED_GUARDS, demosaic_learned
+    from training import stress_set
+
+    images = [(p, stress_set.photo(p, size)) for p in stress_set.PHOTOS]
+    def classical(method):
+        return lambda raw, pat: demosaic(raw, pat, method=method)
+
+    methods = {m: classical(m) for m in ("menon2007", "malvar2004")}
+    for name, path in (("incumbent", incumbent), ("candidate", candidate)):
+        net = load_demosaic_model(path)
+        if guard is not None:
+            net.guard = dict(PRETRAINED_GUARDS[guard])
+        methods[name] = (lambda n: lambda raw, pat: demosaic_learned(raw, pat, model=n))(net)
+    scores = stress_set.score(images, methods)
+    res = {name: {"mean": sum(v.values()) / len(v), "per_image": v} for name, v in scores.items()}
+    for name, path in (("incumbent", incumbent), ("candidate", candidate)):
+        res[name].update(path=str(path), guard=guard)
+    res["decision"] = "candidate" if res["candidate"]["mean"] > res["incumbent"]["mean"] else "incumbent"
+    return res
+
+
 def result_path(run: str) -> Path:
     """The committed result of ``run``'s screen (relative to the repository root)."""
     return Path(RUNS[run].get("result", f"training/runs/{run}/screen_heldout.json"))
@@ -299,6 +331,15 @@ def screen_run(run: str, argv: list[str] | None = None) -> int:
         res = best_of(entry["incumbent"], paths, sets)
         for name in paths:
             print(name, " ".join(f"{res[s][name]['mean']:.3f}({res[s][name]['below_mhc']})" for s in sets), flush=True)
+        print("ship:", res["decision"])
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(res, indent=1))
+        return 0
+    if entry.get("kind") == "photos":
+        res = photos_screen(args.incumbent or entry["incumbent"], args.candidate or entry["candidate"],
+                            entry.get("guard"))
+        for name in ("menon2007", "malvar2004", "incumbent", "candidate"):
+            print(name, f"photographs {res[name]['mean']:.3f}", flush=True)
         print("ship:", res["decision"])
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(res, indent=1))

@@ -46,8 +46,9 @@ CHAINS = {
     # starts from the shipped noise-free network (isettorch/assets/demosaic_learned.pt, the config's init), which
     # ``noise_free`` reproduces
     "joint_denoise": ["demosaic_joint_all_levels", "demosaic_joint_guarded"],
-    # the speed-error family (issue #35): each one run from scratch
-    "tiny": ["demosaic_tiny"],
+    # the speed-error family (issue #35): from scratch; the tiny network then distilled from the shipped noise-free
+    # one (which its photographs rule chose over the first step: docs/training_log.md#family_2026-11-27)
+    "tiny": ["demosaic_tiny", "demosaic_tiny_distill"],
     "small": ["demosaic_small"],
 }
 #: what the export of a chain's last best.pt adds (the noise-free chain ends with its interpolation screen instead)

@@ -48,14 +48,14 @@ def test_dry_run_lists_the_steps(capsys):
     assert sum("make_heldout.py" in line for line in lines) == 5 and "export_demosaic.py" in lines[-1]
     with pytest.raises(SystemExit):
         reproduce_demosaic.main(["colour", "--dry-run"])
-    # the family members: one step from scratch (no init), exported as their variant
-    for model in ("tiny", "small"):
+    # the family members: a first step from scratch (no init), the tiny one then distilled, exported as their variant
+    for model, last in (("tiny", "tiny_distill"), ("small", "small")):
         assert reproduce_demosaic.main([model, "--dry-run"]) == 0
         lines = capsys.readouterr().out.splitlines()
         assert lines[0] == (f"python training/train_demosaic.py --config configs/train/demosaic_{model}.yaml "
                             f"--no-progress")
-        assert lines[-1].startswith(f"python training/export_demosaic.py --run out/train_demosaic_{model} ")
-        assert f"--variant {model}" in lines[-1] and len(lines) == 2
+        assert lines[-1].startswith(f"python training/export_demosaic.py --run out/train_demosaic_{last} ")
+        assert f"--variant {model}" in lines[-1] and len(lines) == len(reproduce_demosaic.CHAINS[model]) + 1
         assert "init" not in reproduce_demosaic.check_chain(reproduce_demosaic.CHAINS[model])[0]
 
 
