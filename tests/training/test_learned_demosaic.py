@@ -119,7 +119,8 @@ def test_shipped_checkpoint_loads_safely_and_has_record():
     net = learned.load_pretrained()
     assert not any(p.requires_grad for p in net.parameters())
     shipped = sorted(learned.PRETRAINED_PATH.parent.glob("demosaic_learned*.pt"))
-    assert len(shipped) == 2  # the noise-free and the joint model: each at most 4 MB (issue #15)
+    # the noise-free, joint, small and tiny models, nothing else: each at most 4 MB (issue #15)
+    assert sorted(shipped) == sorted(learned.PRETRAINED.values())
     assert all(f.stat().st_size <= 4_000_000 for f in shipped), [(f.name, f.stat().st_size) for f in shipped]
 
 
