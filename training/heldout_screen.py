@@ -335,20 +335,14 @@ def screen_run(run: str, argv: list[str] | None = None) -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(res, indent=1))
         return 0
-    if entry.get("kind") == "photos":
-        res = photos_screen(args.incumbent or entry["incumbent"], args.candidate or entry["candidate"],
-                            entry.get("guard"))
-        for name in ("menon2007", "malvar2004", "incumbent", "candidate"):
-            print(name, f"photographs {res[name]['mean']:.3f}", flush=True)
-        print("ship:", res["decision"])
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(res, indent=1))
-        return 0
-    if entry.get("kind") == "validation":
-        res = validation_screen(entry["config"], args.incumbent or entry["incumbent"],
-                                args.candidate or entry["candidate"], entry.get("guard"))
-        for name in ("incumbent", "candidate"):
-            print(name, f"validation {res[name]['val_cpsnr']:.3f}", flush=True)
+    if entry.get("kind") in ("photos", "validation"):  # two checkpoints, one score each, the higher ships
+        inc, cand = args.incumbent or entry["incumbent"], args.candidate or entry["candidate"]
+        if entry["kind"] == "photos":
+            res, rows, key = photos_screen(inc, cand, entry.get("guard")), ("menon2007", "malvar2004"), "mean"
+        else:
+            res, rows, key = validation_screen(entry["config"], inc, cand, entry.get("guard")), (), "val_cpsnr"
+        for name in (*rows, "incumbent", "candidate"):
+            print(name, f"{entry['kind']} {res[name][key]:.3f}", flush=True)
         print("ship:", res["decision"])
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(res, indent=1))

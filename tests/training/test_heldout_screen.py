@@ -166,3 +166,24 @@ def test_validation_screen(tmp_path):
     assert res["candidate"]["val_cpsnr"] > res["incumbent"]["val_cpsnr"]
     tie = heldout_screen.validation_screen(str(path), str(worse), str(worse), "joint_denoise")
     assert tie["decision"] == "incumbent"
+
+
+def test_photos_screen_and_its_registered_dry_run(tmp_path, capsys):
+    """The photographs rule (the tiny network's distillation step): every stress photograph scored for both
+    checkpoints under the shipped guard, Menon and MHC beside them; a tie does not ship, and a registered run with
+    another candidate is a dry run that leaves the record alone."""
+    from isettorch.isp.learned import PRETRAINED
+
+    tiny = str(PRETRAINED["tiny"])
+    res = heldout_screen.photos_screen(tiny, tiny, "tiny", size=64)
+    from training import stress_set
+
+    assert set(res["candidate"]["per_image"]) == set(stress_set.PHOTOS)
+    assert res["candidate"]["mean"] == res["incumbent"]["mean"] and res["decision"] == "incumbent"
+    assert {"menon2007", "malvar2004"} <= set(res) and res["candidate"]["guard"] == "tiny"
+    out = tmp_path / "dry.json"
+    record = (ROOT / heldout_screen.result_path("tiny_distill_2026-11-27")).read_text()
+    assert heldout_screen.main(["tiny_distill_2026-11-27", "--incumbent", tiny, "--candidate", tiny,
+                                "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["decision"] == "incumbent" and "ship: incumbent" in capsys.readouterr().out
+    assert (ROOT / heldout_screen.result_path("tiny_distill_2026-11-27")).read_text() == record
