@@ -117,6 +117,18 @@ def mhc_scores(sets: list[str]) -> dict:
     return {s: [i["cpsnr"] for i in evaluate_demosaic(s, "malvar2004", "RGGB", 10)["images"]] for s in sets}
 
 
+def _guarded(net, guard: str | None) -> torch.nn.Module:
+    """``net`` (a module or a checkpoint path, :func:`load_demosaic_model`) under the shipped guard of variant
+    ``guard`` (``isettorch.isp.learned.PRETRAINED_GUARDS``) when given, whatever guard its checkpoint records."""
+    if not isinstance(net, torch.nn.Module):
+        net = load_demosaic_model(net)
+    if guard is not None:
+        from isettorch.isp.learned import PRETRAINED_GUARDS
+
+        net.guard = dict(PRETRAINED_GUARDS[guard])
+    return net
+
+
 def score_network(net, sets: list[str], mhc: dict, guard: str | None = None) -> dict:
     """One network's row: per set its mean, scenes below MHC, worst margin over MHC and per-image CPSNR; and the
     score (the mean of the set means); with a checkpoint path, ``path`` too. ``net``: a module or a checkpoint path
@@ -127,11 +139,8 @@ def score_network(net, sets: list[str], mhc: dict, guard: str | None = None) -> 
     row = {}
     if not isinstance(net, torch.nn.Module):
         row["path"] = str(net)
-        net = load_demosaic_model(net)
+    net = _guarded(net, guard)
     if guard is not None:
-        from isettorch.isp.learned import PRETRAINED_GUARDS
-
-        net.guard = dict(PRETRAINED_GUARDS[guard])
         row["guard"] = guard
     for s in sets:
         r = evaluate_demosaic(s, "learned", "RGGB", 10, model=net)
@@ -232,16 +241,11 @@ def validation_screen(config: str, incumbent: str, candidate: str, guard: str | 
     (``train_demosaic.make_validation``: scenes of their own seed, the run's domain and noise, never Kodak/McMaster),
     both under the shipped ``guard`` of that variant when given; ``decision``: ``"candidate"`` if its CPSNR is higher,
     else ``"incumbent"`` (a tie does not ship)."""
-    from isettorch.isp.learned import PRETRAINED_GUARDS
     from training import common, train_demosaic
 
     val = train_demosaic.make_validation(common.load_config(config))
-    res = {}
-    for name, path in (("incumbent", incumbent), ("candidate", candidate)):
-        net = load_demosaic_model(path)
-        if guard is not None:
-            net.guard = dict(PRETRAINED_GUARDS[guard])
-        res[name] = {"path": str(path), "guard": guard, **train_demosaic.validate(net, val, "cpu")}
+    res = {name: {"path": str(path), "guard": guard, **train_demosaic.validate(_guarded(path, guard), val, "cpu")}
+           for name, path in (("incumbent", incumbent), ("candidate", candidate))}
     res["decision"] = ("candidate" if res["candidate"]["val_cpsnr"] > res["incumbent"]["val_cpsnr"]
                        else "incumbent")
     return res
@@ -253,19 +257,19 @@ def photos_screen(incumbent: str, candidate: str, guard: str | None = None, size
     given; ``decision``: ``"candidate"`` if its mean is higher, else ``"incumbent"``. Menon's and MHC's rows are
     reported beside them."""
     from isettorch.isp.demosaicing import demosaic
-    from isettorch.isp.learned import PRETRAINED_GUARDS, demosaic_learned
+    from isettorch.isp.learned import demosaic_learned
     from training import stress_set
 
-    images = [(p, stress_set.photo(p, size)) for p in stress_set.PHOTOS]
     def classical(method):
         return lambda raw, pat: demosaic(raw, pat, method=method)
 
-    methods = {m: classical(m) for m in ("menon2007", "malvar2004")}
-    for name, path in (("incumbent", incumbent), ("candidate", candidate)):
-        net = load_demosaic_model(path)
-        if guard is not None:
-            net.guard = dict(PRETRAINED_GUARDS[guard])
-        methods[name] = (lambda n: lambda raw, pat: demosaic_learned(raw, pat, model=n))(net)
+    def network(path):
+        net = _guarded(path, guard)
+        return lambda raw, pat: demosaic_learned(raw, pat, model=net)
+
+    images = [(p, stress_set.photo(p, size)) for p in stress_set.PHOTOS]
+    methods = {"menon2007": classical("menon2007"), "malvar2004": classical("malvar2004"),
+               "incumbent": network(incumbent), "candidate": network(candidate)}
     scores = stress_set.score(images, methods)
     res = {name: {"mean": sum(v.values()) / len(v), "per_image": v} for name, v in scores.items()}
     for name, path in (("incumbent", incumbent), ("candidate", candidate)):

@@ -94,3 +94,12 @@ def test_guard_is_relative_to_malvar_for_a_menon_base():
         menon_dep = (demosaic_menon2007(raw, "RGGB") - mhc)[..., 24:-24, 24:-24]
     assert float(menon_dep.mean((2, 3)).abs().max()) > 3e-3  # Menon's own mean departure from MHC
     assert float((dep.mean((2, 3)).abs() / menon_dep.abs().mean((2, 3))).max()) < 0.05
+
+
+def test_every_learned_method_is_a_lazy_name_of_the_registry():
+    # the registry knows the learned methods' names before importing isettorch.isp.learned (its _LAZY_METHODS); the
+    # two lists must name the same methods, or a new variant would be unknown until the module is imported
+    from isettorch.isp.demosaicing import _LAZY_METHODS
+
+    assert set(_LAZY_METHODS) == set(learned.LEARNED_METHODS)
+    assert all(module == learned.__name__ for module in _LAZY_METHODS.values())
