@@ -361,25 +361,42 @@ def load_design(design, *, device=None) -> DesignCamera:
 
 def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name: str | None = None) -> DesignCamera:
     """A :class:`DesignCamera` from a design spec: a fixed design's name (``'bayer_rgb'``, ``'ycmy'``, ``'rgbw'``)
-    or a mapping ``{"filters": [...], "mosaic_shape": [P, Q], "relax": ..., "mosaic_init_scale": ...}`` for a
-    learned design."""
+    or a mapping ``{"filters": [...], "mosaic_shape": [P, Q], "relax": ..., "mosaic_init_scale": ...,
+    "mosaic_init": [[name, ...], ...]}`` for a learned design. ``mosaic_init`` starts the learnable mosaic from a
+    hard pattern of the bank's channel names (``F<i>`` for the i-th learned filter, the letters of fixed ones;
+    logits one-hot with margin 4) instead of random logits, e.g. Kodak's CFA 2.0 layout with learned colours."""
     scale = _merge(DESIGN_DEFAULTS, config)["filters"]["fixed_scale"]
     if isinstance(spec, str):
         bank, mosaic = fixed_design(spec, fixed_scale=scale)
         return DesignCamera(bank, mosaic, config, lux, name=name or spec)
     if not isinstance(spec, dict):
         raise ValueError(f"design: expected a fixed design name or a mapping, got {spec!r}")
-    keys = ("filters", "mosaic_shape", "relax", "band_width_nm", "max_log_odds", "mosaic_init_scale")
+    keys = ("filters", "mosaic_shape", "relax", "band_width_nm", "max_log_odds", "mosaic_init_scale", "mosaic_init")
     unknown = [k for k in spec if k not in keys]
     if unknown:
         raise ValueError(f"design.{unknown[0]}: unknown key; expected one of {keys}")
     bank_kwargs = {k: float(spec[k]) for k in ("band_width_nm", "max_log_odds") if k in spec}
     bank_kwargs["fixed_scale"] = scale
-    mosaic_kwargs = {"init_scale": float(spec["mosaic_init_scale"])} if "mosaic_init_scale" in spec else None
-    bank, mosaic = learned_design(tuple(spec.get("filters", ("learned", "learned", "learned", "W"))),
-                                  tuple(spec.get("mosaic_shape", (4, 4))), seed=seed,
+    mosaic_kwargs = {"init_scale": float(spec["mosaic_init_scale"])} if "mosaic_init_scale" in spec else {}
+    filters = tuple(spec.get("filters", ("learned", "learned", "learned", "W")))
+    shape = tuple(spec.get("mosaic_shape", (4, 4)))
+    if "mosaic_init" in spec:
+        names = FilterBank(filters, learnable=False).channel_names
+        rows = spec["mosaic_init"]
+        if (not isinstance(rows, (list, tuple)) or not rows or any(not isinstance(r, (list, tuple)) for r in rows)
+                or any(len(r) != len(rows[0]) for r in rows)):
+            raise ValueError(f"design.mosaic_init: expected rows of filter names, got {rows!r}")
+        bad = [x for r in rows for x in r if x not in names]
+        if bad:
+            raise ValueError(f"design.mosaic_init: {bad[0]!r} is not a filter of the bank {names}")
+        if "mosaic_shape" in spec and [len(rows), len(rows[0])] != [int(v) for v in shape]:
+            raise ValueError(f"design.mosaic_init: a {len(rows)} x {len(rows[0])} pattern, but mosaic_shape is "
+                             f"{list(shape)}")
+        mosaic_kwargs["pattern"] = torch.tensor([[names.index(x) for x in r] for r in rows], dtype=torch.long)
+        shape = (len(rows), len(rows[0]))
+    bank, mosaic = learned_design(filters, shape, seed=seed,
                                   relax=spec.get("relax", "softmax"), bank_kwargs=bank_kwargs,
-                                  mosaic_kwargs=mosaic_kwargs)
+                                  mosaic_kwargs=mosaic_kwargs or None)
     return DesignCamera(bank, mosaic, config, lux, name=name or "learned")
 
 

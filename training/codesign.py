@@ -16,10 +16,14 @@ level's network. The loss is the L1 distance to the scene's linear sRGB under D6
 in encoded sRGB (the metric's space). The filters and mosaic logits (a learned design) share one optimiser group,
 the networks another; the design may wait while the networks learn (``optim.design_warmup``, a fraction of the
 steps); the mosaic's softmax temperature then falls geometrically (``mosaic.temperature_*``), and the mosaic is
-read hard with straight-through gradients (``mosaic.straight_through_after``).
+read hard with straight-through gradients (``mosaic.straight_through_after``); after ``optim.design_until`` (a
+fraction of the steps) the design is frozen, hard, and the networks alone learn the sensor that would be built.
 
 Outputs in ``out``: ``design.pt`` (the design file: filters, hard mosaic, network weights per level, config, card),
-``card.md``, ``history.csv``, ``curves.png``, ``filters.png`` (filters and mosaic) and ``record.json``.
+``card.md``, ``history.csv``, ``curves.png``, ``filters.png`` (filters and mosaic) and ``record.json``. Every
+``checkpoint_every`` steps the run's state goes to ``out/checkpoint.pt``; running the same command again resumes
+from it (the same steps as an uninterrupted run: each step's scenes and noise depend only on the seed and the step)
+and a finished run removes it.
 """
 
 from __future__ import annotations
@@ -58,11 +62,12 @@ DEFAULTS: dict = {
     "lux": [1.0, 10.0, 100.0],
     "data": {"source": "layouts", "size": 64, "batch": 8, "scene": {}, "folder": None, "natural": {}},
     "optim": {"steps": 2000, "lr": 1.0e-3, "design_lr": 2.0e-2, "lr_min": 1.0e-5, "srgb_weight": 1.0,
-              "design_warmup": 0.0},
+              "design_warmup": 0.0, "design_until": 1.0},
     "mosaic": {"temperature_start": 1.0, "temperature_end": 0.03, "anneal_fraction": 0.7,
                "straight_through_after": 0.8},
     "val": {"batches": 2, "every": 200, "seed_offset": 1_000_003, "crop": 4},
     "loss_crop": 4,
+    "checkpoint_every": 250,
 }
 
 
@@ -266,21 +271,33 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
     # the networks alone first (a fraction of the steps): a design that adapts to an untrained network drifts to
     # what it can use early, the luminance (pilots at 1 lux: the mosaic collapsed to one broad filter)
     warmup = round(float(o["design_warmup"]) * steps)
+    # ... and alone again at the end, on the frozen hard design (the sensor that would be built)
+    until = round(float(o["design_until"]) * steps)
+    if not 0 <= warmup <= until <= steps:
+        raise ValueError(f"optim.design_warmup, optim.design_until: expected 0 <= warmup <= until <= 1, got "
+                         f"{o['design_warmup']!r}, {o['design_until']!r}")
     out_dir = Path(cfg["out"])
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows, t0 = [], time.time()
+    ck_path = out_dir / "checkpoint.pt"
+    rows, start, wall0 = [], 0, 0.0
+    if ck_path.exists():  # resume: every step's data and noise depend only on (seed, step), so the run continues
+        start, rows, wall0 = _resume(ck_path, cfg, camera, opt, sched)
+        if not quiet:
+            print(json.dumps({"resumed_at_step": start}), flush=True)
+    t0 = time.time() - wall0
     b, size = int(cfg["data"]["batch"]), int(cfg["data"]["size"])
-    for step in range(steps):
+    ck_every = int(cfg["checkpoint_every"])
+    for step in range(start, steps):
         lux = levels[step % len(levels)]
         if design_params:
             for p in design_params:
-                p.requires_grad_(step >= warmup)
+                p.requires_grad_(warmup <= step < until)
         if camera.mosaic.learnable:
             camera.mosaic.temperature = temperature_schedule(max(0, step - warmup), anneal,
                                                              float(m["temperature_start"]),
                                                              float(m["temperature_end"]))
-            if step >= float(m["straight_through_after"]) * steps:
-                camera.mosaic.relax = "straight_through"
+            if step >= float(m["straight_through_after"]) * steps or step >= until:
+                camera.mosaic.relax = "straight_through"  # the hard mosaic in the forward pass
         maps, refl = source(step, b, size, camera, cfg, seed)
         scene = camera.scene(maps, refl, lux)
         g = torch.Generator().manual_seed(seed_for(seed, step, stream=1))
@@ -299,12 +316,15 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
             if not quiet:
                 print(json.dumps(row), flush=True)
         rows.append(row)
+        if ck_every and (step + 1) % ck_every == 0 and step + 1 < steps:
+            _save_checkpoint(ck_path, cfg, camera, opt, sched, step + 1, rows, time.time() - t0)
     camera.eval()
     if camera.bank.learnable:
         camera.bank.freeze()
     final = {k[len("val_cpsnr_"):]: v for k, v in rows[-1].items() if k.startswith("val_cpsnr_")}
     camera.config["training"] = {"steps": steps, "batch": b, "size": size, "source": cfg["data"]["source"],
                                  "seed": seed, "lux": levels, "lr": float(o["lr"]), "design_lr": float(o["design_lr"]),
+                                 "design_steps": [warmup, until] if design_params else None,
                                  "minutes": round((time.time() - t0) / 60, 2)}
     card = design_card(camera) + "\nHeld-out training-distribution scenes (sRGB CPSNR, dB): " + ", ".join(
         f"{k} lux {v:.2f}" for k, v in final.items()) + "\n"
@@ -318,7 +338,31 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
               "seconds": round(time.time() - t0, 1), "mosaic": camera.mosaic.cell,
               "hardware": common.hardware(), "config": cfg}
     (out_dir / "record.json").write_text(json.dumps(record, indent=2))
+    if ck_path.exists():
+        ck_path.unlink()  # the design file is the run's result; a finished run starts afresh if run again
     return record
+
+
+def _save_checkpoint(path: Path, cfg: dict, camera: DesignCamera, opt, sched, step: int, rows: list,
+                     wall_s: float) -> None:
+    """The run's state after ``step`` steps (camera with filters, mosaic logits and networks, optimiser, schedule,
+    history), written atomically (a temporary file renamed)."""
+    tmp = path.with_suffix(".tmp")
+    torch.save({"config": json.dumps(cfg, sort_keys=True), "step": step, "camera": camera.state_dict(),
+                "optimizer": opt.state_dict(), "scheduler": sched.state_dict(), "history": json.dumps(rows),
+                "wall_s": wall_s}, tmp)
+    tmp.replace(path)
+
+
+def _resume(path: Path, cfg: dict, camera: DesignCamera, opt, sched) -> tuple[int, list, float]:
+    """Load a checkpoint of the same config into ``camera``, ``opt`` and ``sched``: (next step, history, wall s)."""
+    ck = torch.load(path, weights_only=True)
+    if ck["config"] != json.dumps(cfg, sort_keys=True):
+        raise ValueError(f"out: {path} is a checkpoint of another config; remove it or choose another out folder")
+    camera.load_state_dict(ck["camera"])
+    opt.load_state_dict(ck["optimizer"])
+    sched.load_state_dict(ck["scheduler"])
+    return int(ck["step"]), json.loads(ck["history"]), float(ck["wall_s"])
 
 
 def main(argv: list[str] | None = None) -> int:

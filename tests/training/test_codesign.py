@@ -81,3 +81,72 @@ def test_tiny_run_exports_a_manufacturable_design(tmp_path, photos):
     from isettorch.sensor.filter_bank import FilterBank
     start = FilterBank(["learned", "learned", "W"], seed=0, fixed_scale="peak").filters
     assert float((cam.bank.filters - start).abs().max()) > 1e-3
+
+
+def test_an_interrupted_run_resumes_to_the_same_design(tmp_path, monkeypatch):
+    """A run stopped after its checkpoint and run again ends with the design of an uninterrupted run (weights,
+    filters and mosaic logits equal), and a finished run leaves no checkpoint."""
+    cfg = {"threads": 1, "lux": [2, 50], "design": {"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
+           "camera": {"network": {"width": 4, "depth": 1}}, "data": {"size": 16, "batch": 2},
+           "optim": {"steps": 6, "design_warmup": 0.3}, "val": {"batches": 1, "every": 0}, "checkpoint_every": 3}
+    whole = codesign.train({**cfg, "out": str(tmp_path / "whole")}, quiet=True)
+    assert not (tmp_path / "whole" / "checkpoint.pt").exists()
+
+    real_save = codesign._save_checkpoint
+
+    def save_then_stop(*args):
+        real_save(*args)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(codesign, "_save_checkpoint", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        codesign.train({**cfg, "out": str(tmp_path / "split")}, quiet=True)
+    assert (tmp_path / "split" / "checkpoint.pt").is_file()
+    monkeypatch.setattr(codesign, "_save_checkpoint", real_save)
+    split = codesign.train({**cfg, "out": str(tmp_path / "split")}, quiet=True)
+    a, b = load_design(whole["path"]), load_design(split["path"])
+    for (name, x), (_, y) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
+        torch.testing.assert_close(x, y, rtol=0, atol=0, msg=name)
+    rows = (tmp_path / "split" / "history.csv").read_text().splitlines()
+    assert len(rows) == 1 + 6  # header and every step once
+    with pytest.raises(ValueError, match="another config"):
+        monkeypatch.setattr(codesign, "_save_checkpoint", save_then_stop)
+        with pytest.raises(KeyboardInterrupt):
+            codesign.train({**cfg, "out": str(tmp_path / "other")}, quiet=True)
+        codesign.train({**cfg, "seed": 5, "out": str(tmp_path / "other")}, quiet=True)
+
+
+def test_the_design_learns_only_between_warmup_and_until(tmp_path, monkeypatch):
+    """optim.design_warmup / design_until: the filters and mosaic logits change only in their window of steps
+    (here step 2 of 4); the networks learn throughout. And design.mosaic_init starts the mosaic from a pattern."""
+    spec = {"filters": ["learned", "learned", "W"], "mosaic_init": [["W", "F0"], ["F1", "W"]]}
+    assert make_design(spec).mosaic.cell == [["W", "F0"], ["F1", "W"]]
+    with pytest.raises(ValueError, match="design.mosaic_init: 'R'"):
+        make_design({"filters": ["learned", "W"], "mosaic_init": [["R", "W"]]})
+    with pytest.raises(ValueError, match="design_until"):
+        codesign.train({"optim": {"steps": 4, "design_warmup": 0.75, "design_until": 0.5},
+                        "out": str(tmp_path / "bad")}, quiet=True)
+    states = {}
+    real_save = codesign._save_checkpoint
+
+    def keep(path, cfg, camera, opt, sched, step, rows, wall):
+        states[step] = {k: v.clone() for k, v in camera.state_dict().items()}
+        real_save(path, cfg, camera, opt, sched, step, rows, wall)
+
+    monkeypatch.setattr(codesign, "_save_checkpoint", keep)
+    cfg = {"threads": 1, "lux": [5], "design": spec, "camera": {"network": {"width": 4, "depth": 1}},
+           "data": {"size": 16, "batch": 2}, "optim": {"steps": 4, "design_warmup": 0.25, "design_until": 0.5},
+           "val": {"batches": 1, "every": 0}, "checkpoint_every": 1, "out": str(tmp_path / "run")}
+    record = codesign.train(cfg, quiet=True)
+    design = [k for k in states[1] if not k.startswith("networks.") and states[1][k].is_floating_point()
+              and ("raw_" in k or "logits" in k)]
+    assert design
+    for k in design:
+        assert torch.equal(states[1][k], make_design(spec).state_dict()[k]), k  # step 1: the networks only
+        assert torch.equal(states[2][k], states[3][k]), k  # frozen from step 3 on
+    assert any(not torch.equal(states[1][k], states[2][k]) for k in design)  # step 2 learned the design
+    net = [k for k in states[1] if k.startswith("networks.") and states[1][k].is_floating_point()]
+    assert any(not torch.equal(states[2][k], states[3][k]) for k in net)  # the networks learn after the freeze
+    logits = [k for k in design if k.endswith("logits")]
+    assert len(logits) == 1  # the exported mosaic is the frozen logits' argmax
+    assert torch.equal(load_design(record["path"]).mosaic.index_map, states[2][logits[0]].argmax(0))

@@ -1,0 +1,140 @@
+"""Issue 36 comparison: every camera design scored on the same photographs at each light level.
+
+Usage::
+
+    ISETTORCH_DATA=/path/to/data python benchmarks/design_comparison.py kodak24 \\
+        [--designs bayer_rgb ycmy rgbw learned] [--json OUT.json] [--markdown OUT.md] [--figure OUT.png]
+
+Each design (a shipped name or a design file) goes through :func:`isettorch.design.evaluate_design`, the code
+behind ``isettorch design-eval``: the photographs lifted to spectra under D65, rendered through the design's
+camera at every light level it was trained for with the same noise seed for every design, reconstructed by its
+network and scored against the photograph in sRGB (CPSNR, crop 10) and by the mean CIEDE2000. The table gives
+each design's mean CPSNR and mean dE2000 per light level, and each design's CPSNR difference to Bayer RGB; the
+figure plots both against light level, beside the learned design's filters and mosaic.
+
+Photographs are test data only: nothing here trains, tunes or selects a design.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from isettorch.design import SHIPPED_DESIGNS, evaluate_design, load_design  # noqa: E402
+
+
+def compare(designs: list[str], folder, *, seed: int = 0, crop: int = 10, progress: bool = True) -> dict:
+    """``{"folder", "seed", "crop", "designs": {design name: evaluate_design(...)}}`` for every design."""
+    out = {}
+    for d in designs:
+        res = evaluate_design(d, folder, seed=seed, crop=crop, progress=progress)
+        if res["design"] in out:
+            raise ValueError(f"designs: two designs are named {res['design']!r}")
+        out[res["design"]] = res
+    return {"folder": str(folder), "seed": seed, "crop": crop, "designs": out}
+
+
+def markdown(result: dict, reference: str = "bayer_rgb") -> str:
+    """A table: per design and light level, mean CPSNR (dB), its difference to ``reference`` and mean dE2000."""
+    res = result["designs"]
+    levels = sorted({k for r in res.values() for k in r["mean_cpsnr"]}, key=float)
+    head = "| design | " + " | ".join(f"{k} lux: CPSNR (dB) / vs {reference} / dE2000" for k in levels) + " |"
+    lines = [head, "|---|" + "---|" * len(levels)]
+    ref = res.get(reference)
+    for r in res.values():
+        cells = []
+        for k in levels:
+            if k not in r["mean_cpsnr"]:
+                cells.append("-")
+                continue
+            diff = (f"{r['mean_cpsnr'][k] - ref['mean_cpsnr'][k]:+.2f}" if ref is not None and k in ref["mean_cpsnr"]
+                    else "-")
+            cells.append(f"{r['mean_cpsnr'][k]:.2f} / {diff} / {r['mean_de2000'][k]:.2f}")
+        lines.append(f"| {r['design']} | " + " | ".join(cells) + " |")
+    n = len(next(iter(res.values()))["images"])
+    lines += ["", f"{n} photographs of {result['folder']}, noise seed {result['seed']}, crop {result['crop']}."]
+    return "\n".join(lines) + "\n"
+
+
+def figure(result: dict, path: Path, learned: str | None = None) -> None:
+    """CPSNR and dE2000 against light level for every design, and ``learned``'s filters and mosaic."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.colors import ListedColormap
+
+    res = result["designs"]
+    panels = 3 if learned else 2
+    fig, axes = plt.subplots(1, panels, figsize=(4.2 * panels, 3.6))
+    for r in res.values():
+        lux = sorted(r["mean_cpsnr"], key=float)
+        x = [float(v) for v in lux]
+        axes[0].semilogx(x, [r["mean_cpsnr"][k] for k in lux], "o-", label=r["design"])
+        axes[1].semilogx(x, [r["mean_de2000"][k] for k in lux], "o-", label=r["design"])
+    axes[0].set_ylabel("mean CPSNR (dB, sRGB)")
+    axes[1].set_ylabel("mean CIEDE2000")
+    for a in axes[:2]:
+        a.set_xlabel("scene illuminance (lux)")
+        a.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    if learned:
+        cam = load_design(learned)
+        wl = cam.bank.wavelengths_nm.numpy()
+        f = cam.bank.filters.detach().numpy()
+        ax = axes[2]
+        colours = []
+        for i, nm in enumerate(cam.bank.channel_names):
+            line, = ax.plot(wl, f[i], label=nm)
+            colours.append(line.get_color())
+        ax.set_xlabel("wavelength (nm)")
+        ax.set_ylabel("transmittance")
+        ax.set_ylim(0, 1.02)
+        ax.set_title(f"design {cam.name}: filters and mosaic", fontsize=9)
+        idx = cam.mosaic.index_map.numpy()
+        inset = ax.inset_axes([0.68, 0.55, 0.3, 0.42])
+        inset.imshow(idx, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5)
+        for (r, c), v in np.ndenumerate(idx):
+            inset.text(c, r, cam.bank.channel_names[v], ha="center", va="center", fontsize=6, color="white")
+        inset.set_xticks([])
+        inset.set_yticks([])
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("folder", help="folder of 8-bit RGB photographs (a name under ISETTORCH_DATA, or a path)")
+    p.add_argument("--designs", nargs="+", default=list(SHIPPED_DESIGNS), help="shipped names or design files")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--crop", type=int, default=10)
+    p.add_argument("--json", type=Path, help="write the full result (per image) here")
+    p.add_argument("--markdown", type=Path, help="write the table here")
+    p.add_argument("--figure", type=Path, help="write the figure here")
+    p.add_argument("--learned", default=None, help="the design whose filters and mosaic the figure shows")
+    args = p.parse_args(argv)
+    from isettorch.paths import data_path
+
+    folder = data_path(args.folder)
+    result = compare(args.designs, folder, seed=args.seed, crop=args.crop)
+    table = markdown(result)
+    print(table)
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=1))
+    if args.markdown:
+        args.markdown.write_text(table)
+    if args.figure:
+        figure(result, args.figure, args.learned)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
