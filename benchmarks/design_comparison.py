@@ -72,8 +72,9 @@ def figure(result: dict, path: Path, learned: str | None = None) -> None:
     from matplotlib.colors import ListedColormap
 
     res = result["designs"]
-    panels = 3 if learned else 2
-    fig, axes = plt.subplots(1, panels, figsize=(4.2 * panels, 3.6))
+    panels = 4 if learned else 2
+    fig, axes = plt.subplots(1, panels, figsize=(3.9 * panels, 3.6),
+                             gridspec_kw={"width_ratios": [1.2, 1.2, 1.2, 0.7][:panels]})
     for r in res.values():
         lux = sorted(r["mean_cpsnr"], key=float)
         x = [float(v) for v in lux]
@@ -97,14 +98,16 @@ def figure(result: dict, path: Path, learned: str | None = None) -> None:
         ax.set_xlabel("wavelength (nm)")
         ax.set_ylabel("transmittance")
         ax.set_ylim(0, 1.02)
-        ax.set_title(f"design {cam.name}: filters and mosaic", fontsize=9)
+        ax.legend(fontsize=7)
+        ax.set_title(f"design {cam.name}: filters", fontsize=9)
         idx = cam.mosaic.index_map.numpy()
-        inset = ax.inset_axes([0.68, 0.55, 0.3, 0.42])
-        inset.imshow(idx, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5)
+        mos = axes[3]
+        mos.imshow(idx, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5)
         for (r, c), v in np.ndenumerate(idx):
-            inset.text(c, r, cam.bank.channel_names[v], ha="center", va="center", fontsize=6, color="white")
-        inset.set_xticks([])
-        inset.set_yticks([])
+            mos.text(c, r, cam.bank.channel_names[v], ha="center", va="center", fontsize=8, color="white")
+        mos.set_xticks([])
+        mos.set_yticks([])
+        mos.set_title("mosaic (one cell)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -120,11 +123,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--markdown", type=Path, help="write the table here")
     p.add_argument("--figure", type=Path, help="write the figure here")
     p.add_argument("--learned", default=None, help="the design whose filters and mosaic the figure shows")
+    p.add_argument("--from-json", type=Path, help="redraw the table and figure from a saved --json result")
     args = p.parse_args(argv)
     from isettorch.paths import data_path
 
-    folder = data_path(args.folder)
-    result = compare(args.designs, folder, seed=args.seed, crop=args.crop)
+    if args.from_json:
+        result = json.loads(args.from_json.read_text())
+    else:
+        result = compare(args.designs, data_path(args.folder), seed=args.seed, crop=args.crop)
     table = markdown(result)
     print(table)
     if args.json:

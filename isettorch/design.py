@@ -442,17 +442,18 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     device = torch.device(device)
     camera = camera.to(device).eval()
     items = load_images(images)
+    for name, array in items:  # every input checked before the first render (and the progress bar)
+        if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
+            raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name} is {array.dtype} {array.shape}")
+        if min(array.shape[:2]) <= 2 * crop:
+            raise ValueError(f"crop: {name} is {array.shape[1]} x {array.shape[0]}, too small for a {crop}-pixel "
+                             f"border")
     keys = [f"{v:g}" for v in levels]
     per_image = []
     bar = progress_bar(total=len(items) * len(levels), unit="render", desc=f"design-eval {camera.name}",
                        quiet=not progress)
     with bar, torch.no_grad():
         for i, (name, array) in enumerate(items):
-            if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
-                raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name} is {array.dtype} {array.shape}")
-            if min(array.shape[:2]) <= 2 * crop:
-                raise ValueError(f"crop: {name} is {array.shape[1]} x {array.shape[0]}, too small for a {crop}-pixel "
-                                 f"border")
             lifted = lift_srgb(array, camera.wavelengths_nm)
             truth = torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
             lab_truth = xyz_to_lab(srgb_to_xyz(truth))
