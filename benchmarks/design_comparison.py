@@ -68,9 +68,6 @@ def figure(result: dict, path: Path, learned: str | None = None) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
-    from matplotlib.colors import ListedColormap
-
     res = result["designs"]
     panels = 4 if learned else 2
     fig, axes = plt.subplots(1, panels, figsize=(3.9 * panels, 3.6),
@@ -87,27 +84,10 @@ def figure(result: dict, path: Path, learned: str | None = None) -> None:
         a.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     if learned:
+        from training.codesign import draw_design
+
         cam = load_design(learned)
-        wl = cam.bank.wavelengths_nm.numpy()
-        f = cam.bank.filters.detach().numpy()
-        ax = axes[2]
-        colours = []
-        for i, nm in enumerate(cam.bank.channel_names):
-            line, = ax.plot(wl, f[i], label=nm)
-            colours.append(line.get_color())
-        ax.set_xlabel("wavelength (nm)")
-        ax.set_ylabel("transmittance")
-        ax.set_ylim(0, 1.02)
-        ax.legend(fontsize=7)
-        ax.set_title(f"design {cam.name}: filters", fontsize=9)
-        idx = cam.mosaic.index_map.numpy()
-        mos = axes[3]
-        mos.imshow(idx, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5)
-        for (r, c), v in np.ndenumerate(idx):
-            mos.text(c, r, cam.bank.channel_names[v], ha="center", va="center", fontsize=8, color="white")
-        mos.set_xticks([])
-        mos.set_yticks([])
-        mos.set_title("mosaic (one cell)", fontsize=9)
+        draw_design(axes[2], axes[3], cam, f"design {cam.name}: filters")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

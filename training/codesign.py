@@ -211,35 +211,44 @@ def validate(camera: DesignCamera, cfg: dict, source) -> dict:
     return out
 
 
+def draw_design(filters_ax, mosaic_ax, camera: DesignCamera, title: str | None = None) -> None:
+    """Draw a design's filters (transmittance against wavelength) on ``filters_ax`` and its hard mosaic cell, in the
+    same colours, on ``mosaic_ax`` (matplotlib axes)."""
+    import numpy as np
+    from matplotlib.colors import ListedColormap
+
+    bank = camera.bank
+    wl = bank.wavelengths_nm.numpy()
+    f = bank.filters.detach().numpy()
+    colours = []
+    for i, name in enumerate(bank.channel_names):
+        line, = filters_ax.plot(wl, f[i], label=name)
+        colours.append(line.get_color())
+    filters_ax.set_xlabel("wavelength (nm)")
+    filters_ax.set_ylabel("transmittance")
+    filters_ax.set_ylim(0, 1.02)
+    filters_ax.legend(fontsize=7)
+    filters_ax.grid(alpha=0.3)
+    if title:
+        filters_ax.set_title(title, fontsize=9)
+    idx = camera.mosaic.index_map.numpy()
+    mosaic_ax.imshow(idx, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5)
+    for (r, c), v in np.ndenumerate(idx):
+        mosaic_ax.text(c, r, bank.channel_names[v], ha="center", va="center", fontsize=8, color="white")
+    mosaic_ax.set_xticks([])
+    mosaic_ax.set_yticks([])
+    mosaic_ax.set_title("mosaic (one cell)", fontsize=9)
+
+
 def plot_design(path: Path, camera: DesignCamera) -> None:
-    """The filters (transmittance against wavelength) and the hard mosaic cell."""
+    """The filters and the hard mosaic cell (:func:`draw_design`) as a figure file."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    bank, mosaic = camera.bank, camera.mosaic
-    wl = bank.wavelengths_nm.numpy()
-    f = bank.filters.detach().numpy()
     fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6), gridspec_kw={"width_ratios": [2, 1]})
-    colours = []
-    for i, name in enumerate(bank.channel_names):
-        line, = a.plot(wl, f[i], label=name)
-        colours.append(line.get_color())
-    a.set_xlabel("wavelength (nm)")
-    a.set_ylabel("transmittance")
-    a.set_ylim(0, 1.02)
-    a.legend(fontsize=8)
-    a.grid(alpha=0.3)
-    idx = mosaic.index_map.numpy()
-    from matplotlib.colors import ListedColormap
-
-    b.imshow(idx, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5)
-    for (r, c), v in __import__("numpy").ndenumerate(idx):
-        b.text(c, r, bank.channel_names[v], ha="center", va="center", fontsize=8, color="white")
-    b.set_xticks([])
-    b.set_yticks([])
-    b.set_title("mosaic")
+    draw_design(a, b, camera)
     fig.suptitle(f"design {camera.name}")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
