@@ -362,16 +362,18 @@ def load_design(design, *, device=None) -> DesignCamera:
 def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name: str | None = None) -> DesignCamera:
     """A :class:`DesignCamera` from a design spec: a fixed design's name (``'bayer_rgb'``, ``'ycmy'``, ``'rgbw'``)
     or a mapping ``{"filters": [...], "mosaic_shape": [P, Q], "relax": ..., "mosaic_init_scale": ...,
-    "mosaic_init": [[name, ...], ...]}`` for a learned design. ``mosaic_init`` starts the learnable mosaic from a
-    hard pattern of the bank's channel names (``F<i>`` for the i-th learned filter, the letters of fixed ones;
-    logits one-hot with margin 4) instead of random logits, e.g. Kodak's CFA 2.0 layout with learned colours."""
+    "mosaic_init": [[name, ...], ...], "mosaic_init_margin": m}`` for a learned design. ``mosaic_init`` starts the
+    learnable mosaic from a hard pattern of the bank's channel names (``F<i>`` for the i-th learned filter, the
+    letters of fixed ones; logits one-hot with margin ``mosaic_init_margin``, default 4) instead of random logits,
+    e.g. Kodak's CFA 2.0 layout with learned colours."""
     scale = _merge(DESIGN_DEFAULTS, config)["filters"]["fixed_scale"]
     if isinstance(spec, str):
         bank, mosaic = fixed_design(spec, fixed_scale=scale)
         return DesignCamera(bank, mosaic, config, lux, name=name or spec)
     if not isinstance(spec, dict):
         raise ValueError(f"design: expected a fixed design name or a mapping, got {spec!r}")
-    keys = ("filters", "mosaic_shape", "relax", "band_width_nm", "max_log_odds", "mosaic_init_scale", "mosaic_init")
+    keys = ("filters", "mosaic_shape", "relax", "band_width_nm", "max_log_odds", "mosaic_init_scale", "mosaic_init",
+            "mosaic_init_margin")
     unknown = [k for k in spec if k not in keys]
     if unknown:
         raise ValueError(f"design.{unknown[0]}: unknown key; expected one of {keys}")
@@ -380,6 +382,8 @@ def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name
     mosaic_kwargs = {"init_scale": float(spec["mosaic_init_scale"])} if "mosaic_init_scale" in spec else {}
     filters = tuple(spec.get("filters", ("learned", "learned", "learned", "W")))
     shape = tuple(spec.get("mosaic_shape", (4, 4)))
+    if "mosaic_init_margin" in spec and "mosaic_init" not in spec:
+        raise ValueError("design.mosaic_init_margin: only with design.mosaic_init (the pattern it weighs)")
     if "mosaic_init" in spec:
         names = FilterBank(filters, learnable=False).channel_names
         rows = spec["mosaic_init"]
@@ -393,6 +397,8 @@ def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name
             raise ValueError(f"design.mosaic_init: a {len(rows)} x {len(rows[0])} pattern, but mosaic_shape is "
                              f"{list(shape)}")
         mosaic_kwargs["pattern"] = torch.tensor([[names.index(x) for x in r] for r in rows], dtype=torch.long)
+        if "mosaic_init_margin" in spec:
+            mosaic_kwargs["pattern_margin"] = float(spec["mosaic_init_margin"])
         shape = (len(rows), len(rows[0]))
     bank, mosaic = learned_design(filters, shape, seed=seed,
                                   relax=spec.get("relax", "softmax"), bank_kwargs=bank_kwargs,

@@ -61,6 +61,9 @@ class LearnedMosaic(nn.Module, CFA):
         temperature: the softmax temperature (set it every step, e.g. from :func:`temperature_schedule`).
         relax: ``'softmax'`` or ``'straight_through'`` (module docstring).
         init_scale, seed: random initial logits ``init_scale * N(0, 1)`` (without ``pattern``).
+        pattern_margin: the initial logits of a ``pattern``: ``pattern_margin`` for each pixel's filter, 0 for the
+            others (default 4: softmax weight 0.95 with 4 filters at temperature 1; a smaller margin lets a
+            learnable mosaic leave its start more easily).
 
     Example:
         >>> m = LearnedMosaic(["R", "G", "B", "W"], (4, 4))
@@ -70,7 +73,7 @@ class LearnedMosaic(nn.Module, CFA):
 
     def __init__(self, channel_names: Sequence[str], shape: tuple[int, int] = (2, 2), *, pattern=None,
                  learnable: bool = True, temperature: float = 1.0, relax: str = "softmax", init_scale: float = 0.01,
-                 seed: int = 0) -> None:
+                 seed: int = 0, pattern_margin: float = 4.0) -> None:
         nn.Module.__init__(self)
         names = [str(n) for n in channel_names]
         if not names or len(set(names)) != len(names):
@@ -94,8 +97,10 @@ class LearnedMosaic(nn.Module, CFA):
             raise ValueError(f"relax: expected one of {RELAX_MODES}, got {relax!r}")
         self.channel_names = names
         p, q = int(shape[0]), int(shape[1])
-        if pattern is not None:  # one-hot logits of the pattern (margin 4: softmax weight e^4 / (e^4 + K - 1))
-            logits = 4.0 * nn.functional.one_hot(index, len(names)).permute(2, 0, 1).to(torch.float64)
+        if pattern is not None:  # one-hot logits of the pattern (margin m: softmax weight e^m / (e^m + K - 1))
+            if not (isinstance(pattern_margin, (int, float)) and math.isfinite(pattern_margin) and pattern_margin > 0):
+                raise ValueError(f"pattern_margin: expected a positive number, got {pattern_margin!r}")
+            logits = float(pattern_margin) * nn.functional.one_hot(index, len(names)).permute(2, 0, 1).to(torch.float64)
         else:
             g = torch.Generator().manual_seed(int(seed))
             logits = init_scale * torch.randn(len(names), p, q, generator=g, dtype=torch.float64)

@@ -4,6 +4,7 @@ loads and evaluates."""
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -121,6 +122,15 @@ def test_the_design_learns_only_between_warmup_and_until(tmp_path, monkeypatch):
     (here step 2 of 4); the networks learn throughout. And design.mosaic_init starts the mosaic from a pattern."""
     spec = {"filters": ["learned", "learned", "W"], "mosaic_init": [["W", "F0"], ["F1", "W"]]}
     assert make_design(spec).mosaic.cell == [["W", "F0"], ["F1", "W"]]
+    soft = make_design({**spec, "mosaic_init_margin": 1.5}).mosaic
+    assert soft.cell == [["W", "F0"], ["F1", "W"]]
+    torch.testing.assert_close(soft.logits.max(0).values, torch.full((2, 2), 1.5, dtype=torch.float64))
+    torch.testing.assert_close(torch.softmax(make_design(spec).mosaic.logits, 0).max(0).values,
+                               torch.full((2, 2), math.exp(4) / (math.exp(4) + 2), dtype=torch.float64))
+    with pytest.raises(ValueError, match="mosaic_init_margin: only with"):
+        make_design({"filters": ["learned", "W"], "mosaic_init_margin": 2})
+    with pytest.raises(ValueError, match="pattern_margin"):
+        make_design({**spec, "mosaic_init_margin": -1})
     with pytest.raises(ValueError, match="design.mosaic_init: 'R'"):
         make_design({"filters": ["learned", "W"], "mosaic_init": [["R", "W"]]})
     with pytest.raises(ValueError, match="design_until"):
