@@ -356,11 +356,9 @@ def _save_checkpoint(path: Path, cfg: dict, camera: DesignCamera, opt, sched, st
                      wall_s: float) -> None:
     """The run's state after ``step`` steps (camera with filters, mosaic logits and networks, optimiser, schedule,
     history), written atomically (a temporary file renamed)."""
-    tmp = path.with_suffix(".tmp")
-    torch.save({"config": json.dumps(cfg, sort_keys=True), "step": step, "camera": camera.state_dict(),
-                "optimizer": opt.state_dict(), "scheduler": sched.state_dict(), "history": json.dumps(rows),
-                "wall_s": wall_s}, tmp)
-    tmp.replace(path)
+    common.save_atomic({"config": json.dumps(cfg, sort_keys=True), "step": step, "camera": camera.state_dict(),
+                        "optimizer": opt.state_dict(), "scheduler": sched.state_dict(), "history": json.dumps(rows),
+                        "wall_s": wall_s}, path)
 
 
 def _resume(path: Path, cfg: dict, camera: DesignCamera, opt, sched) -> tuple[int, list, float]:

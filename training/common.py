@@ -1,4 +1,5 @@
-"""Shared helpers for the training scripts: config loading, distributed setup, CPSNR (the library's), CSV, curves."""
+"""Shared helpers for the training scripts: config loading, distributed setup, CPSNR (the library's), CSV, curves,
+atomic saves."""
 
 from __future__ import annotations
 
@@ -64,6 +65,15 @@ def cpsnr(pred: torch.Tensor, target: torch.Tensor, crop: int = 0) -> torch.Tens
     from isettorch.isp.evaluation import cpsnr as _cpsnr
 
     return _cpsnr(pred.clamp(0, 1).double(), target.double(), crop)
+
+
+def save_atomic(obj, path: Path) -> None:
+    """``torch.save(obj)`` to ``path`` through a temporary file renamed over it: an interrupted write never leaves a
+    truncated checkpoint or chunk where a resumed run would read it."""
+    path = Path(path)
+    tmp = path.with_suffix(".tmp")
+    torch.save(obj, tmp)
+    tmp.replace(path)
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:

@@ -11,6 +11,7 @@ import torch
 
 from isettorch.isp import learned
 from isettorch.isp.learned import DemosaicNet
+from training import common
 
 
 def load_teacher(cfg: dict, device) -> tuple[DemosaicNet | None, float, bool | str]:
@@ -49,11 +50,10 @@ def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, his
                     clip=None) -> None:
     """Write the run's state (weights, optimizer, step, configs, best score, history, wall time and ``clip``'s state,
     a :class:`training.train_demosaic.AdaptiveGradClip`) to ``path`` atomically (a temporary file renamed)."""
-    tmp = path.with_suffix(".tmp")
-    torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "step": step, "net_config": net.config(),
-                "train_config": json.dumps(cfg), "best_val_cpsnr": best, "history": json.dumps(history),
-                "wall_s": wall_s, "grad_clip": json.dumps(clip.state() if clip else {})}, tmp)
-    tmp.replace(path)
+    common.save_atomic({"model": net.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                        "net_config": net.config(), "train_config": json.dumps(cfg), "best_val_cpsnr": best,
+                        "history": json.dumps(history), "wall_s": wall_s,
+                        "grad_clip": json.dumps(clip.state() if clip else {})}, path)
 
 
 def describe_data(cfg: dict) -> str:

@@ -14,6 +14,7 @@ from isettorch.data import natural as nat
 from isettorch.data import spectra as data_spectra
 from isettorch.data.config import seed_for
 from isettorch.isp.demosaicing import demosaic_malvar2004, mosaic
+from training import common
 from training.demosaic_noise import add_noise, gaussian_params, noise_features, noise_params
 from training.demosaic_pairs import CameraPairSource, StreamSource
 
@@ -218,10 +219,7 @@ class SceneBank(ScenePool):
         return self.folder / f"scenes_{chunk[0]:07d}_{chunk[1]:07d}.pt"
 
     def _save(self, chunk, imgs: torch.Tensor) -> None:
-        path = self._chunk_path(chunk)
-        tmp = path.with_suffix(".tmp")
-        torch.save(imgs, tmp)
-        tmp.replace(path)
+        common.save_atomic(imgs, self._chunk_path(chunk))
 
     def advance(self, step: int) -> None:  # the bank is fixed
         return None
