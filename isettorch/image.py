@@ -98,9 +98,13 @@ class SpectralFactors:
     optical image, :class:`isettorch.optics.optical_image.FourierFactors`): ``shape`` ``(B, H, W)``, ``dtype``,
     ``device``, ``project(weights [L, K]) -> [B, K, H, W]``, ``dense() -> [B, L, H, W]``, ``select(index)``,
     ``scale(k [B])``, ``to(device, dtype)``, ``detach()``; optional ``crop``, ``spectral_map``.
+
+    ``terms`` (optional, B integers): item ``b``'s maps ``j >= terms[b]`` are exactly 0 (its used terms come first,
+    e.g. a batch of items with different numbers of terms padded to the largest), so a consumer may leave them out
+    (the optics transform only the used maps). A hint the producer guarantees; it does not change the radiance.
     """
 
-    def __init__(self, maps: torch.Tensor, spectra: torch.Tensor, validate: bool = True):
+    def __init__(self, maps: torch.Tensor, spectra: torch.Tensor, validate: bool = True, terms=None):
         if not isinstance(maps, torch.Tensor) or not isinstance(spectra, torch.Tensor):
             raise TypeError(f"maps, spectra: expected torch.Tensors, got {type(maps).__name__}, "
                             f"{type(spectra).__name__}")
@@ -121,6 +125,17 @@ class SpectralFactors:
             check_nonnegative(spectra.detach(), "spectra")
         self.maps = maps
         self.spectra = spectra.expand(maps.shape[0], -1, -1)
+        if terms is not None:
+            terms = tuple(int(t) for t in terms)
+            if len(terms) != maps.shape[0] or any(not 0 <= t <= maps.shape[1] for t in terms):
+                raise ValueError(f"terms: expected {maps.shape[0]} counts in [0, {maps.shape[1]}] (one per item), "
+                                 f"got {terms}")
+            if validate:
+                j = torch.arange(maps.shape[1], device=maps.device)
+                beyond = j[None, :] >= torch.tensor(terms, device=maps.device)[:, None]  # [B, J]
+                if bool((maps.detach().flatten(2).abs().amax(-1) > 0)[beyond].any()):
+                    raise ValueError("terms: a map beyond an item's term count is not 0 everywhere")
+        self.terms = terms
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -160,29 +175,35 @@ class SpectralFactors:
         return self.combine(self.spectra)
 
     def select(self, index) -> SpectralFactors:
-        return SpectralFactors(self.maps[index], self.spectra[index], validate=False)
+        terms = None
+        if self.terms is not None:
+            terms = [self.terms[i] for i in torch.arange(len(self.terms))[index].reshape(-1).tolist()]
+        return SpectralFactors(self.maps[index], self.spectra[index], validate=False, terms=terms)
 
     def scale(self, k: torch.Tensor) -> SpectralFactors:
         """Radiance times ``k [B]`` (the spectra carry it)."""
-        return SpectralFactors(self.maps, self.spectra * k.reshape(-1, 1, 1), validate=False)
+        return SpectralFactors(self.maps, self.spectra * k.reshape(-1, 1, 1), validate=False, terms=self.terms)
 
     def multiply_spectra(self, s: torch.Tensor) -> SpectralFactors:
         """Radiance times a spectral factor ``s`` ``[L]`` or ``[B, L]``."""
-        return SpectralFactors(self.maps, self.spectra * (s if s.dim() == 1 else s[:, None, :]), validate=False)
+        return SpectralFactors(self.maps, self.spectra * (s if s.dim() == 1 else s[:, None, :]), validate=False,
+                               terms=self.terms)
 
     def crop(self, top: int, left: int, height: int, width: int) -> SpectralFactors:
-        return SpectralFactors(self.maps[..., top:top + height, left:left + width], self.spectra, validate=False)
+        return SpectralFactors(self.maps[..., top:top + height, left:left + width], self.spectra, validate=False,
+                               terms=self.terms)
 
     def resample(self, src_nm: torch.Tensor, dst_nm: torch.Tensor) -> SpectralFactors:
         """Linear interpolation onto another grid: it acts on the spectra only (it is linear)."""
-        return SpectralFactors(self.maps, spectral.resample(self.spectra, src_nm, dst_nm, dim=-1), validate=False)
+        return SpectralFactors(self.maps, spectral.resample(self.spectra, src_nm, dst_nm, dim=-1), validate=False,
+                               terms=self.terms)
 
     def to(self, device=None, dtype=None) -> SpectralFactors:
         return SpectralFactors(self.maps.to(device=device, dtype=dtype), self.spectra.to(device=device, dtype=dtype),
-                               validate=False)
+                               validate=False, terms=self.terms)
 
     def detach(self) -> SpectralFactors:
-        return SpectralFactors(self.maps.detach(), self.spectra.detach(), validate=False)
+        return SpectralFactors(self.maps.detach(), self.spectra.detach(), validate=False, terms=self.terms)
 
     @staticmethod
     def cat(parts: list[SpectralFactors]) -> SpectralFactors:
@@ -191,8 +212,11 @@ class SpectralFactors:
 
         def pad(t, n):  # zero terms along dim 1
             return torch.cat([t, t.new_zeros(t.shape[0], n - t.shape[1], *t.shape[2:])], 1) if n > t.shape[1] else t
+        terms = None
+        if all(p.terms is not None for p in parts):
+            terms = [t for p in parts for t in p.terms]
         return SpectralFactors(torch.cat([pad(p.maps, j) for p in parts]),
-                               torch.cat([pad(p.spectra, j) for p in parts]), validate=False)
+                               torch.cat([pad(p.spectra, j) for p in parts]), validate=False, terms=terms)
 
     def __repr__(self) -> str:
         return f"SpectralFactors(maps={tuple(self.maps.shape)}, spectra={tuple(self.spectra.shape)})"
@@ -309,9 +333,11 @@ class SpectralImage:
                                                 positive=True))
 
     @classmethod
-    def from_factors(cls, maps: torch.Tensor, spectra: torch.Tensor, wavelengths_nm, **kwargs) -> SpectralImage:
+    def from_factors(cls, maps: torch.Tensor, spectra: torch.Tensor, wavelengths_nm, *, terms=None,
+                     **kwargs) -> SpectralImage:
         """A factored image ``sum_j maps[:, j] spectra[:, j, l]``: ``maps [B, J, H, W]`` (or ``[J, H, W]``),
-        ``spectra [B, J, L]`` (or ``[J, L]``), both non-negative; other fields as for the dense constructor.
+        ``spectra [B, J, L]`` (or ``[J, L]``), both non-negative; ``terms`` (optional, B counts): item ``b``'s maps
+        from ``terms[b]`` on are 0 (:class:`SpectralFactors`); other fields as for the dense constructor.
 
         Example:
             >>> from isettorch.scene import Scene
@@ -320,7 +346,8 @@ class SpectralImage:
             (True, (1, 31, 4, 4))
         """
         validate = kwargs.get("validate", True)
-        return cls(None, wavelengths_nm, factors=SpectralFactors(maps, spectra, validate=validate), **kwargs)
+        return cls(None, wavelengths_nm, factors=SpectralFactors(maps, spectra, validate=validate, terms=terms),
+                   **kwargs)
 
     # --- shape and device -------------------------------------------------------------
     @property

@@ -371,13 +371,15 @@ def draw_layout_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[in
     ``g`` on ``device``: the factors of ``L(x, l) = k gain(x) R(x, l) (a(x) E1(l) + b(x) E2(l))``
     (:mod:`isettorch.data.scenes`), returned as
 
-    ``maps [B, J, H, W]`` (``dtype``), ``used [B, J]`` (bool: the map is not 0 everywhere), ``spectra [B, J, L]``
-    and ``white [B, L]`` (float64, photons/s/sr/m^2/nm, mean luminance set), ``wavelengths_nm [L]`` (float64) and
+    ``maps [B, J, H, W]`` (``dtype``), ``terms [B]`` (item b's terms are its first ``terms[b]``: the palette
+    colours it uses under each of its lights; its later maps and spectra are 0), ``used [B, J]`` (``j < terms[b]``),
+    ``spectra [B, J, L]`` and ``white [B, L]`` (float64, photons/s/sr/m^2/nm, mean luminance set), ``wavelengths_nm
+    [L]`` (float64) and
     ``meta``: ``[B]`` tensors ``layout`` (code in
     :data:`LAYOUT_CODES`), ``illuminant_kind`` (code in :data:`ILLUMINANT_KIND_CODES`), ``illuminant_code``
     (:data:`isettorch.data.camera_pairs.ILLUMINANT_CODES`), ``cct_k``, ``two_lights``, ``shadow``,
     ``hdr_decades``, ``mean_luminance_cd_m2`` and, for dead leaves, ``leaf_radius [B, 800]`` / ``leaf_count``.
-    J is ``2 K`` (K palette colours under each light) when an item has a second light or a shadow, else K.
+    J is the most terms an item has (at most ``2 K``: K palette colours under each of two lights).
     """
     h, w = size
     k = int(cfg["palette_size"])
@@ -447,14 +449,33 @@ def draw_layout_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[in
     light[:, 0] = torch.where(two_, 1 - m, torch.where(shadow_, 1 - sh, 1.0)) * gain
     if lights == 2:
         light[:, 1] = torch.where(two_, per(ratio) * m, torch.where(shadow_, per(ratio), 0.0)) * gain
-    # maps[l K + k] = light_l [(1 - t) 1(ia = k) + t 1(ib = k)], spectra = P_k E1 | P_k E2 (scenes._factored_radiance)
-    maps = torch.zeros(nb, lights, k, h * w, dtype=dtype, device=device)
-    light = light.reshape(nb, lights, 1, -1)
-    tt = t.reshape(nb, 1, 1, -1)
-    maps.scatter_add_(2, ia.reshape(nb, 1, 1, -1).expand(nb, lights, 1, -1), light * (1 - tt))
-    maps.scatter_add_(2, ib.reshape(nb, 1, 1, -1).expand(nb, lights, 1, -1), light * tt)
-    maps = maps.reshape(nb, lights * k, h * w)
-    spectra = torch.cat([pal * e1[:, None], pal * e2[:, None]], 1) if lights == 2 else pal * e1[:, None]
+    # the terms light_l [(1 - t) 1(ia = c) + t 1(ib = c)] x P_c E_l (scenes._factored_radiance) of the palette
+    # colours c an item uses (as ia or ib) under its lights (two with a second light or a shadow), and only those,
+    # in a compact order: item b's n_b colours (palette order) under light 1, then under light 2. The other terms
+    # would be 0 everywhere; the items' terms beyond their count are 0 (maps and spectra).
+    present = torch.zeros(nb, k, dtype=torch.bool, device=device)
+    present.scatter_(1, ia.reshape(nb, -1), True)
+    present.scatter_(1, ib.reshape(nb, -1), True)
+    n_col = present.sum(1)  # [B] >= 1
+    item_lights = 1 + (two | shadow).long() if lights == 2 else torch.ones_like(n_col)
+    terms = n_col * item_lights
+    n_terms = int(terms.max())  # one host read
+    rank = present.cumsum(1) - 1  # [B, K]: a used colour's place among the item's colours
+    ra, rb = rank.gather(1, ia.reshape(nb, -1)), rank.gather(1, ib.reshape(nb, -1))
+    maps = torch.zeros(nb, n_terms, h * w, dtype=dtype, device=device)
+    tt = t.reshape(nb, -1)
+    for li in range(lights):  # a one-light item's light 2 is 0 everywhere: added (+0) to its light-1 terms
+        off = (li * n_col * (item_lights - 1))[:, None]
+        lt = light[:, li].reshape(nb, -1)
+        maps.scatter_add_(1, (ra + off)[:, None], (lt * (1 - tt))[:, None])
+        maps.scatter_add_(1, (rb + off)[:, None], (lt * tt)[:, None])
+    full = torch.cat([pal * e1[:, None], pal * e2[:, None]], 1) if lights == 2 else pal * e1[:, None]
+    j = torch.arange(n_terms, device=device)[None, :]
+    per_light = n_col[:, None]
+    colour = torch.argsort((~present).to(torch.uint8), dim=1, stable=True).gather(1, j % per_light)
+    src = (j // per_light).clamp_max(lights - 1) * k + colour  # [B, J] -> the term of `full`
+    used = j < terms[:, None]
+    spectra = full.gather(1, src[..., None].expand(-1, -1, full.shape[-1])) * used[..., None]
     lum = spectra @ _luminance_weights(wl.cpu()).to(device)  # [B, J]
     mean_lum = (maps.sum(-1).to(torch.float64) * lum).sum(-1) / (h * w)
     scale = target / mean_lum.clamp_min(torch.finfo(dtype).tiny)
@@ -463,8 +484,5 @@ def draw_layout_scenes(nb: int, g: torch.Generator, cfg: dict, *, size: tuple[in
     ill_code = torch.where(kind1 == 2, f_code, codes[kind1])
     meta = {"layout": layout, "illuminant_kind": kind1, "illuminant_code": ill_code, "cct_k": cct1,
             "two_lights": two, "shadow": shadow, "hdr_decades": decades, "mean_luminance_cd_m2": target, **extra}
-    # terms whose map is 0 everywhere (palette colours a layout does not use, the second light of a one-light item)
-    # add exactly 0 to the radiance: marked, so the renderer can leave them out (fewer FFTs)
-    used = maps.amax(-1) > 0
-    return {"maps": maps.reshape(nb, -1, h, w), "used": used, "spectra": spectra * scale[:, None, None],
+    return {"maps": maps.reshape(nb, -1, h, w), "used": used, "terms": terms, "spectra": spectra * scale[:, None, None],
             "white": e1 * scale[:, None], "wavelengths_nm": wl, "meta": meta}

@@ -43,8 +43,6 @@ __all__ = ["PairStream", "StreamGroup"]
 
 #: the batched scene draws by ``scene.generator`` (the per-item generators' distributions)
 _SCENE_DRAWS = {"layouts": draw_layout_scenes, "natural": draw_natural_scenes}
-_SPLIT_ITEMS = 12  # items of one camera from which a group is split by term count (measured: batch 64 -> 22 %
-#                    less CPU per pair, batch 16 -> 12 % more when always split)
 
 
 @dataclasses.dataclass
@@ -82,6 +80,7 @@ class PairStream:
         rank, world_size: this process's share of the batches (default: ``torch.distributed``'s when it is
             initialised, else 0 of 1).
         parts: a batch is drawn and rendered in this many parts of consecutive items, each with its own generators
+            (within a part, the items are in the order of their drawn cameras: pixel pitch, then CFA)
             (default: 2 on a CPU device for batches of 8 or more, without a camera module; else 1). It is part of
             the config: batch ``k`` depends on it, not on ``threads``.
         threads: how many parts render concurrently, on Python threads (torch releases the GIL in its kernels),
@@ -227,18 +226,17 @@ class PairStream:
         patterns = list(self.camera_config["cfa_patterns"])
         pitches = self.camera_config["pixel_size_m"]
         pitches = pitches if isinstance(pitches, (list, tuple)) else [pitches]
-        # groups: the discrete cameras of this batch (pixel pitch, CFA); one of _SPLIT_ITEMS items or more is split
-        # by how many factored terms its items use (<= 4, <= 8, more), so its optics transform about as many maps
-        # as the items need (smaller groups are kept whole: a group's fixed cost would outweigh the saving)
-        terms = drawn["used"].sum(1)
+        # groups: the discrete cameras of this part (pixel pitch, CFA). The part's drawn cameras are put in camera
+        # order (stable), so each group is a run of consecutive items: its scenes are views of the draw and the
+        # batch is its groups' outputs in order (items are i.i.d.: the order changes no item's distribution)
         camera_key = d["pitch_index"] * len(patterns) + d["pattern_index"]
-        big = torch.bincount(camera_key, minlength=len(pitches) * len(patterns))[camera_key] >= _SPLIT_ITEMS
-        bucket = torch.where(big, (terms > 4).long() + (terms > 8).long(), 0)
-        combo = camera_key * 3 + bucket
-        present = torch.unique(combo).tolist()  # one host read per batch
-        for key in present:
-            idx = (combo == key).nonzero().reshape(-1)
-            c = key // 3
+        order = torch.argsort(camera_key, stable=True)
+        d = {key: v[order] for key, v in d.items()}
+        keys, counts = torch.unique_consecutive(camera_key[order], return_counts=True)
+        first = 0
+        for c, count in zip(keys.tolist(), counts.tolist()):  # one host read per part
+            idx = slice(first, first + count)
+            first += count
             pitch, pattern = float(pitches[c // len(patterns)]), patterns[c % len(patterns)]
             optics_cfg = self.camera_config.get("optics") or {}
             if optics_cfg:
@@ -260,7 +258,7 @@ class PairStream:
             if image_distance is None:
                 hfov = self._hfov(pitch, focal, dist, w + 2 * m)
             else:
-                hfov = _hfov_for(pitch, image_distance, w + 2 * m).expand(idx.numel())
+                hfov = _hfov_for(pitch, image_distance, w + 2 * m).expand(count)
             scene = self._scene(drawn, idx, wl, hfov, dist, k)
             cg = 1.0 / d["full_well"][idx]  # volts per electron with a 1 V swing: well capacity = full well
             kw = {"analog_gain": d["gain"][idx], "exposure_ev": d["ev"][idx], "qe_scale": d["peak"][idx],
@@ -269,7 +267,8 @@ class PairStream:
                   "prnu_sigma_percent": d["prnu"][idx]}
             if "shifts" in d:  # the items' shifted QE curves (per call; the sensor keeps the unshifted QE)
                 kw["spectral_qe"] = _d5100_qe(pattern, d["shifts"][idx])
-            groups.append(StreamGroup(idx + start, camera, scene, kw, k, part))
+            groups.append(StreamGroup(torch.arange(start + idx.start, start + idx.stop, device=dev), camera, scene,
+                                      kw, k, part))
         return groups
 
     def _optics_for(self, pitch: float, f_number: torch.Tensor, focal_length_m: torch.Tensor, margin: int):
@@ -296,14 +295,21 @@ class PairStream:
         from ..scene import Scene
 
         dt = self.dtype
-        # the group's terms whose map is not 0 everywhere first, J = the most any item uses (one host read): the
-        # others add exactly 0, so the optics transform fewer maps (as the per-item path drops them)
-        idx = torch.arange(drawn["maps"].shape[0], device=self.device) if isinstance(idx, slice) else idx
-        used = drawn["used"][idx]
-        n_terms = max(1, int(used.sum(1).max()))
-        order = torch.argsort((~used).to(torch.uint8), dim=1, stable=True)[:, :n_terms]
-        rows = idx[:, None]
-        return Scene.from_factors(drawn["maps"][rows, order], drawn["spectra"][rows, order].to(dt), wl,
+        # each item's terms whose map is not 0 everywhere first, J = the most any item of the group uses (one host
+        # read), and each item's count (``terms``): the others add exactly 0, so the optics transform only the
+        # maps each item uses (as the per-item path drops them). A draw that gives ``terms`` has them first already.
+        if "terms" in drawn:
+            counts = drawn["terms"][idx].tolist()
+            n_terms = max(1, max(counts))
+            maps, spectra = drawn["maps"][idx, :n_terms], drawn["spectra"][idx, :n_terms]
+        else:
+            rows = torch.arange(drawn["maps"].shape[0], device=self.device)[idx][:, None]
+            used = drawn["used"][rows[:, 0]]
+            counts = used.sum(1).tolist()
+            n_terms = max(1, max(counts))
+            order = torch.argsort((~used).to(torch.uint8), dim=1, stable=True)[:, :n_terms]
+            maps, spectra = drawn["maps"][rows, order], drawn["spectra"][rows, order]
+        return Scene.from_factors(maps, spectra.to(dt), wl, terms=counts,
                                   name=f"stream-{k}",
                                   hfov_deg=hfov.to(dt), distance_m=distance.to(dt),
                                   illuminant_photons=drawn["white"][idx].to(dt), validate=False,
@@ -326,20 +332,12 @@ class PairStream:
                 done = list(self._executor(n_threads).map(lambda p: self._render_part(k, p), range(self.parts)))
             finally:
                 torch.set_num_threads(intra)
-        groups = [grp for part in done for grp in part[0]]
         parts = [out for part in done for out in part[1]]
-        nb = self.batch_size
         if len(parts) == 1:
             return parts[0]
-        order = torch.cat([grp.index for grp in groups])
-        inverse = torch.empty_like(order)
-        inverse[order] = torch.arange(nb, device=order.device)
-
-        def merge(values):
-            return torch.cat(values).index_select(0, inverse)
-
-        out = {key: merge([p[key] for p in parts]) for key in parts[0] if key != "meta"}
-        out["meta"] = {key: merge([p["meta"][key] for p in parts]) for key in parts[0]["meta"]}
+        # the groups are consecutive runs of items in batch order (see _draw_part): the batch is their outputs in turn
+        out = {key: torch.cat([p[key] for p in parts]) for key in parts[0] if key != "meta"}
+        out["meta"] = {key: torch.cat([p["meta"][key] for p in parts]) for key in parts[0]["meta"]}
         return out
 
     def _render_part(self, k: int, part: int) -> tuple[list, list]:

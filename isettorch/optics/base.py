@@ -178,8 +178,7 @@ class ShiftInvariantLens(nn.Module):
         def fn(fy, fx):
             if self._requires_grad():
                 return self.otf(fy, fx, wavelengths_nm, f_number)
-            key = (fy.shape[-1], fx.shape[-1], tuple(dx.tolist()), tuple(wavelengths_nm.tolist()),
-                   tuple(f_number.tolist()), self._otf_key(), fy.dtype, str(fy.device))
+            key = self._otf_key_for(fy, fx, wavelengths_nm, f_number, dx)
             hit = self._otf_cache.get(key)
             if hit is None:
                 hit = self._otf_by_item(fy, fx, wavelengths_nm, f_number, dx, key)
@@ -193,11 +192,32 @@ class ShiftInvariantLens(nn.Module):
         """The OTF ``[B, L, My, Mx']`` of a batch whose items have their own f-number and spacing ``[B]``, built
         from per-item rows cached by (f-number, spacing): a training stream draws each batch's f-numbers from a
         few stops, so a new combination of known items costs a copy, not an OTF evaluation."""
+        rows = self._item_otf_rows(fy, fx, wavelengths_nm, f_number, dx, key)
+        if rows is None:
+            return self.otf(fy, fx, wavelengths_nm, f_number).detach()
+        out = torch.cat(rows) if len(rows) > 1 else rows[0]  # never written to: the cached row itself
+        if out.is_complex():
+            return out
+        plain = out[..., 0]  # a view: the interleaved batch is registered as its interleaved copy
+        if len(self._interleaved_cache) >= _CACHE_SIZE:
+            self._interleaved_cache.clear()
+        self._interleaved_cache[id(plain)] = (plain, out)
+        return plain
+
+    def _otf_key_for(self, fy, fx, wavelengths_nm, f_number, dx) -> tuple:
+        return (fy.shape[-1], fx.shape[-1], tuple(dx.tolist()), tuple(wavelengths_nm.tolist()),
+                tuple(f_number.tolist()), self._otf_key(), fy.dtype, str(fy.device))
+
+    def _item_otf_rows(self, fy, fx, wavelengths_nm, f_number, dx, key=None) -> list | None:
+        """The OTF of each item as its cached row ``[1, L, My, Mx'(, 2)]`` (a real OTF kept interleaved: the same
+        value for the real and imaginary parts), evaluated once per (f-number, spacing, grid); None where rows do
+        not apply (an OTF that is not per item, or one that needs a gradient)."""
         n = f_number.reshape(-1)
         # one item goes through the rows too: a stream builds a new optics module per group, sharing the rows, so
         # a one-item group would otherwise evaluate its OTF again (measured 9 of 28 ms per one-item group)
-        if not self.otf_rows_independent or dx.numel() != n.numel():
-            return self.otf(fy, fx, wavelengths_nm, f_number).detach()
+        if not self.otf_rows_independent or dx.numel() != n.numel() or self._requires_grad():
+            return None
+        key = self._otf_key_for(fy, fx, wavelengths_nm, n, dx) if key is None else key
         rows = []
         for b, (n_b, dx_b) in enumerate(zip(key[4], key[2])):
             row_key = (key[0], key[1], dx_b, key[3], n_b, *key[5:])
@@ -210,14 +230,7 @@ class ShiftInvariantLens(nn.Module):
                 if len(self._otf_rows) > 8 * _CACHE_SIZE:
                     self._otf_rows.popitem(last=False)
             rows.append(row)
-        out = torch.cat(rows) if len(rows) > 1 else rows[0]  # never written to: the cached row itself
-        if out.is_complex():
-            return out
-        plain = out[..., 0]  # a view: the interleaved batch is registered as its interleaved copy
-        if len(self._interleaved_cache) >= _CACHE_SIZE:
-            self._interleaved_cache.clear()
-        self._interleaved_cache[id(plain)] = (plain, out)
-        return plain
+        return rows
 
     def clear_cache(self) -> None:
         self._otf_cache.clear()
@@ -370,7 +383,7 @@ class ShiftInvariantLens(nn.Module):
         if negligible:
             # no blur: the irradiance stays maps x spectra (the maps extended like the dense image)
             out, pr, pc = self._extend_unblurred(maps, crop)
-            factors = SpectralFactors(out, spectra, validate=False)
+            factors = SpectralFactors(out, spectra, validate=False, terms=scene.factors.terms)
         else:
             margin = self._margin(derived, (h, w), dx, wave, n)
             buf, (pr, pc), window = fft_buffer(maps, (margin, margin), self.pad_mode, window=crop)
@@ -379,13 +392,26 @@ class ShiftInvariantLens(nn.Module):
             hit = derived.get(otf_key)
             if hit is None:
                 fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
-                otf = self._otf_fn(wave, n, dx)(fy, fx)
-                hit = (otf, self._interleaved(otf))
-                if not hit[0].requires_grad:
+                rows = self._item_otf_rows(fy, fx, wave, n, dx)
+                if rows is not None and len(rows) > 1 and not rows[0].is_complex():
+                    # per-item cached rows, used as they are (no [B, L, My, Mx', 2] batch copy per call)
+                    hit = (None, tuple(rows))
+                else:
+                    otf = self._otf_fn(wave, n, dx)(fy, fx)
+                    hit = (otf, self._interleaved(otf))
+                if hit[0] is None or not hit[0].requires_grad:
                     derived[otf_key] = hit
             otf, inter = hit
-            factors = FourierFactors(torch.fft.rfft2(buf), spectra, inter, (my, mx), window,
-                                     None if otf.is_complex() else otf)
+            terms = scene.factors.terms
+            if terms is None or len(terms) == 1 or torch.is_grad_enabled() and buf.requires_grad:
+                spec, terms = torch.fft.rfft2(buf), None
+            else:  # only the maps each item uses (its later ones are 0: so is their transform)
+                spec = torch.empty(*buf.shape[:-1], mx // 2 + 1, dtype=buf.dtype.to_complex(), device=buf.device)
+                for i, t in enumerate(terms):
+                    torch.fft.rfft2(buf[i, :t], out=spec[i, :t])
+                    spec[i, t:].zero_()
+            factors = FourierFactors(spec, spectra, inter, (my, mx), window,
+                                     None if otf is None or otf.is_complex() else otf, terms=terms)
         return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name, derived)
 
     def _extend_unblurred(self, x: torch.Tensor, crop) -> tuple[torch.Tensor, int, int]:

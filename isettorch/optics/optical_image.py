@@ -41,17 +41,50 @@ class FourierFactors:
     with ``spec [B, J, My, Mx // 2 + 1]`` the rFFT of the J spatial maps (padded buffer, spatial factors such as
     relative illumination applied), ``spectra [B, J, L]`` (with the camera-equation factor and transmittance),
     ``otf [B or 1, L, My, Mx // 2 + 1]`` (real or complex; a real one may come interleaved, ``[..., 2]``, the same
-    value for the real and imaginary parts) and ``window = (r0, c0, h, w)`` in the buffer.
+    value for the real and imaginary parts) and ``window = (r0, c0, h, w)`` in the buffer. ``otf`` may also be a
+    sequence of B per-item rows ``[1, L, My, Mx'(, 2)]`` (an optics' cached rows, never written to): they are
+    applied item by item, and stacked into one tensor only where a path needs it (``.otf``).
     It is what a shift-invariant optics returns for a factored scene: J forward FFTs were done; :meth:`project`
     on K spectral weightings does K inverse FFTs (instead of L), which is how the sensor integrates its QE.
     """
 
-    def __init__(self, spec: torch.Tensor, spectra: torch.Tensor, otf: torch.Tensor, size: tuple[int, int],
-                 window: tuple[int, int, int, int], plain_otf: torch.Tensor | None = None):
-        self.spec, self.spectra, self.otf = spec, spectra, otf
-        self.plain_otf = plain_otf  # the real OTF [.., My, Mx'] when ``otf`` is its interleaved copy
+    def __init__(self, spec: torch.Tensor, spectra: torch.Tensor, otf, size: tuple[int, int],
+                 window: tuple[int, int, int, int], plain_otf: torch.Tensor | None = None, terms=None):
+        self.spec, self.spectra = spec, spectra
+        # item b's terms j >= terms[b] are 0 (spec and spectra): its products skip them (SpectralFactors.terms)
+        self.terms = None if terms is None else tuple(int(t) for t in terms)
+        if isinstance(otf, (list, tuple)):
+            if len(otf) != spec.shape[0]:
+                raise ValueError(f"otf: expected {spec.shape[0]} per-item rows, got {len(otf)}")
+            self.otf_rows, self._otf = tuple(otf), None
+        else:
+            self.otf_rows, self._otf = None, otf
+        self._plain_otf = plain_otf  # the real OTF [.., My, Mx'] when ``otf`` is its interleaved copy
         self.size = (int(size[0]), int(size[1]))
         self.window = tuple(int(v) for v in window)
+
+    @property
+    def otf(self) -> torch.Tensor:
+        """The OTF as one tensor ``[B or 1, L, My, Mx'(, 2)]`` (per-item rows stacked on first use)."""
+        if self._otf is None:
+            self._otf = torch.cat(self.otf_rows)
+        return self._otf
+
+    @property
+    def plain_otf(self) -> torch.Tensor | None:
+        if self._plain_otf is None and self.otf_rows is not None and self.otf_rows[0].dim() == 5:
+            self._plain_otf = self.otf[..., 0]
+        return self._plain_otf
+
+    def _otf_like(self):
+        """What the derived factors carry: the per-item rows when this holds them, else the OTF tensor."""
+        return self.otf_rows if self.otf_rows is not None else self._otf
+
+    def _otf_is_complex(self) -> bool:
+        return (self.otf_rows[0] if self.otf_rows is not None else self._otf).is_complex()
+
+    def _otf_requires_grad(self) -> bool:
+        return False if self.otf_rows is not None else self._otf.requires_grad
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -74,7 +107,7 @@ class FourierFactors:
         my, mx = self.size
         nf = self.spec.shape[-2] * self.spec.shape[-1]
         n_l = self.spectra.shape[-1]
-        if weights is not None and not self.otf.is_complex():
+        if weights is not None and not self._otf_is_complex():
             k = weights.shape[-1]
             # fewer operations folding the spectra and weights into the OTF first (J K L vs 2 (J + K + 1) L per
             # frequency); the rule decides the summation order, so it is kept fixed (items bitwise stable)
@@ -84,22 +117,31 @@ class FourierFactors:
         # the same real matrix products act on the real and imaginary parts (view_as_real).
         spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
         grad = torch.is_grad_enabled() and (spec.requires_grad or self.spectra.requires_grad
-                                            or self.otf.requires_grad)
+                                            or self._otf_requires_grad())
         if grad:
             cube = torch.mm(self.spectra[0].T, spec[0])[None] if b == 1 else self.spectra.transpose(1, 2) @ spec
         elif b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU), into a reused buffer
             cube = _scratch((1, n_l, 2 * nf), spec.dtype, spec.device)
             torch.mm(self.spectra[0].T.to(spec.dtype), spec[0], out=cube[0])
+        elif self.terms is not None:  # each item's own terms (a batch-of-one bmm: its rounding is the batch's)
+            cube = _scratch((b, n_l, 2 * nf), spec.dtype, spec.device)
+            s_t = self.spectra.transpose(1, 2).to(spec.dtype)
+            for i, t in enumerate(self.terms):
+                torch.bmm(s_t[i:i + 1, :, :t], spec[i:i + 1, :t], out=cube[i:i + 1])
         else:
             cube = torch.matmul(self.spectra.transpose(1, 2).to(spec.dtype), spec,
                                 out=_scratch((b, n_l, 2 * nf), spec.dtype, spec.device))  # [B, L, 2F]
-        otf = self.otf
-        if otf.is_complex():
-            otf = otf.reshape(otf.shape[0], n_l, nf)
+        if self.otf_rows is not None and not (grad or self._otf_is_complex()):
+            # per-item real rows (interleaved or plain): each item's slice multiplied by its own cached row, the
+            # products of the stacked OTF without stacking it
+            for i, row in enumerate(self.otf_rows):
+                cube[i].view(n_l, nf, 2).mul_(row.reshape(n_l, nf, -1))
+        elif self._otf_is_complex():
+            otf = self.otf.reshape(self.otf.shape[0], n_l, nf)
             cube = torch.view_as_real(torch.view_as_complex(cube.view(b, n_l, nf, 2)) * otf).view(b, n_l, 2 * nf)
         else:
             # a real OTF, [.., My, Mx'] or interleaved [.., My, Mx', 2] (the optics' cached, contiguous form)
-            otf = otf.reshape(otf.shape[0], n_l, nf, -1)
+            otf = self.otf.reshape(self.otf.shape[0], n_l, nf, -1)
             if cube.requires_grad or otf.requires_grad:
                 cube = (cube.view(b, n_l, nf, 2) * otf).view(b, n_l, 2 * nf)
             else:
@@ -129,7 +171,7 @@ class FourierFactors:
         wk = weights.T[None, None] if weights.dim() == 2 else weights.transpose(1, 2)[:, None]  # [1 or B, 1, K, L]
         coef = (self.spectra[:, :, None, :] * wk).reshape(b, j * k, n_l)  # [B, J K, L]
         spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
-        grad = torch.is_grad_enabled() and (spec.requires_grad or coef.requires_grad or self.otf.requires_grad)
+        grad = torch.is_grad_enabled() and (spec.requires_grad or coef.requires_grad or self._otf_requires_grad())
         if self.otf.dim() == 5 and not grad:
             # the interleaved OTF [.., L, My, Mx', 2] (the same value for the real and imaginary parts): H comes
             # out interleaved, [B, J K, 2F], and each term of the sum over j is a contiguous multiply-add on the
@@ -171,29 +213,42 @@ class FourierFactors:
     def select(self, index) -> FourierFactors:
         def pick(t):
             return t if t is None or t.shape[0] == 1 else t[index]
+        items = torch.arange(self.spec.shape[0])[index].reshape(-1).tolist()
+        terms = None if self.terms is None else [self.terms[i] for i in items]
+        if self.otf_rows is not None:
+            rows = [self.otf_rows[i] for i in items]
+            return FourierFactors(self.spec[index], self.spectra[index], rows if len(rows) > 1 else rows[0],
+                                  self.size, self.window, None, terms)
         return FourierFactors(self.spec[index], self.spectra[index], pick(self.otf), self.size, self.window,
-                              pick(self.plain_otf))
+                              pick(self.plain_otf), terms)
 
     def scale(self, k: torch.Tensor) -> FourierFactors:
-        return FourierFactors(self.spec, self.spectra * k.reshape(-1, 1, 1), self.otf, self.size, self.window,
-                              self.plain_otf)
+        return FourierFactors(self.spec, self.spectra * k.reshape(-1, 1, 1), self._otf_like(), self.size,
+                              self.window, self._plain_otf, self.terms)
 
     def crop(self, top: int, left: int, height: int, width: int) -> FourierFactors:
         r0, c0 = self.window[:2]
-        return FourierFactors(self.spec, self.spectra, self.otf, self.size, (r0 + top, c0 + left, height, width),
-                              self.plain_otf)
+        return FourierFactors(self.spec, self.spectra, self._otf_like(), self.size,
+                              (r0 + top, c0 + left, height, width), self._plain_otf, self.terms)
 
     def to(self, device=None, dtype=None) -> FourierFactors:
         cdt = None if dtype is None else (torch.complex128 if dtype == torch.float64 else torch.complex64)
-        otf_dt = None if dtype is None else (cdt if self.otf.is_complex() else dtype)
+        otf_dt = None if dtype is None else (cdt if self._otf_is_complex() else dtype)
+        spec, spectra = self.spec.to(device=device, dtype=cdt), self.spectra.to(device=device, dtype=dtype)
+        if self.otf_rows is not None:
+            rows = [r.to(device=device, dtype=otf_dt) for r in self.otf_rows]
+            return FourierFactors(spec, spectra, rows, self.size, self.window, None, self.terms)
         plain = None if self.plain_otf is None else self.plain_otf.to(device=device, dtype=dtype)
-        return FourierFactors(self.spec.to(device=device, dtype=cdt), self.spectra.to(device=device, dtype=dtype),
-                              self.otf.to(device=device, dtype=otf_dt), self.size, self.window, plain)
+        return FourierFactors(spec, spectra, self.otf.to(device=device, dtype=otf_dt), self.size, self.window, plain,
+                              self.terms)
 
     def detach(self) -> FourierFactors:
+        if self.otf_rows is not None:
+            return FourierFactors(self.spec.detach(), self.spectra.detach(), self.otf_rows, self.size, self.window,
+                                  None, self.terms)
         plain = None if self.plain_otf is None else self.plain_otf.detach()
         return FourierFactors(self.spec.detach(), self.spectra.detach(), self.otf.detach(), self.size, self.window,
-                              plain)
+                              plain, self.terms)
 
     def __repr__(self) -> str:
         return (f"FourierFactors(J={self.spec.shape[1]}, L={self.spectra.shape[-1]}, buffer={self.size}, "

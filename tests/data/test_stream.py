@@ -309,3 +309,22 @@ def test_batched_painter_equals_the_per_item_painter():
     cat = [torch.cat(v) for v in zip(*items)]
     got = paint_leaves(h, w, cat[0], *cat[1:], 3)
     assert torch.equal(got, torch.stack(want))
+
+
+def test_layout_draw_puts_each_items_terms_first():
+    """``draw_layout_scenes`` returns each item's terms (the palette colours it uses under each of its lights)
+    first: maps and spectra beyond ``terms[b]`` are 0, ``used`` is that prefix, an item has n or 2 n terms (n <= K
+    colours; two with a second light or a shadow), and every map it keeps is non-negative."""
+    cfg = merge_config({"two_light_probability": 0.5, "shadow_probability": 0.5}, SCENE_DEFAULTS, "scene")
+    out = draw_layout_scenes(12, torch.Generator().manual_seed(4), cfg, size=(40, 40), device="cpu")
+    maps, spectra, terms = out["maps"], out["spectra"], out["terms"]
+    k = cfg["palette_size"]
+    assert maps.shape[1] == int(terms.max()) <= 2 * k
+    j = torch.arange(maps.shape[1])
+    assert torch.equal(out["used"], j[None] < terms[:, None])
+    for b in range(12):
+        t = int(terms[b])
+        assert bool((maps[b, t:] == 0).all()) and bool((spectra[b, t:] == 0).all())
+        assert bool((maps[b, :t] >= 0).all()) and bool((maps[b, :t].flatten(1).amax(1) > 0).any())
+        lights = 2 if bool(out["meta"]["two_lights"][b] or out["meta"]["shadow"][b]) else 1
+        assert t % lights == 0 and 1 <= t // lights <= k

@@ -1,6 +1,7 @@
 """Per-item OTF rows (DiffractionLimitedOptics): a batch of items with their own f-numbers and spacings gets the
 same OTF from cached rows as from one batched evaluation, and a new combination of known items evaluates nothing."""
 
+import pytest
 import torch
 
 from isettorch.optics import DiffractionLimitedOptics
@@ -34,3 +35,51 @@ def test_rows_equal_the_batched_otf_and_are_reused():
     ref = DiffractionLimitedOptics(f_number=torch.tensor([2.0, 2.0, 4.0], dtype=torch.float64), focal_length_m=4e-3)
     ref.otf_rows_independent = False
     assert torch.equal(out, ref(swapped).photons)
+
+
+def _termed_scene(terms, hfov=(3.0, 5.0, 4.0), j=5):
+    """Items whose maps from ``terms[b]`` on are 0, with the hint given or not."""
+    g = torch.Generator().manual_seed(1)
+    maps = torch.rand(len(terms), j, 24, 24, generator=g, dtype=torch.float64)
+    for b, t in enumerate(terms):
+        maps[b, t:] = 0
+    spectra = torch.rand(len(terms), j, 31, generator=g, dtype=torch.float64) * 1e15
+    wave = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    kw = dict(hfov_deg=torch.tensor(hfov, dtype=torch.float64), distance_m=1.2)
+    return (Scene.from_factors(maps, spectra, wave, terms=terms, **kw), Scene.from_factors(maps, spectra, wave, **kw),
+            [Scene.from_factors(maps[b:b + 1, :t], spectra[b:b + 1, :t], wave, hfov_deg=hfov[b], distance_m=1.2)
+             for b, t in enumerate(terms)])
+
+
+def test_term_counts_transform_only_the_used_maps():
+    """An optics given each item's term count (its later maps 0) transforms only the used maps: the same optical
+    image, projected and dense, as without the hint (bitwise: the skipped terms add exact zeros) and as each item on
+    its own with only its terms (float rounding)."""
+    hinted, plain, alone = _termed_scene([5, 2, 3])
+    n = torch.tensor([2.0, 4.0, 8.0], dtype=torch.float64)
+    optics = DiffractionLimitedOptics(f_number=n, focal_length_m=4e-3, margin=8)
+    oi_h, oi_p = optics(hinted), optics(plain)
+    assert oi_h.factors.terms == (5, 2, 3) and oi_p.factors.terms is None
+    assert isinstance(oi_h.factors.otf_rows, tuple) and len(oi_h.factors.otf_rows) == 3  # no stacked batch OTF
+    w = torch.rand(31, 4, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    assert torch.equal(oi_h.project(w), oi_p.project(w))
+    assert torch.equal(oi_h.photons, oi_p.photons)
+    for b, scene in enumerate(alone):
+        one = DiffractionLimitedOptics(f_number=float(n[b]), focal_length_m=4e-3, margin=8)(scene)
+        torch.testing.assert_close(oi_h.project(w)[b:b + 1], one.project(w), rtol=1e-12, atol=0)
+    # a selection keeps its items' terms and rows
+    sub = oi_h.factors.select(torch.tensor([2, 0]))
+    assert sub.terms == (3, 5) and len(sub.otf_rows) == 2
+    torch.testing.assert_close(sub.project(w), oi_h.project(w)[[2, 0]], rtol=1e-12, atol=0)
+
+
+def test_term_counts_are_checked():
+    hinted, _, _ = _termed_scene([5, 2, 3])
+    maps, spectra = hinted.factors.maps, hinted.factors.spectra
+    wave = hinted.wavelengths_nm
+    with pytest.raises(ValueError, match="terms: a map beyond"):
+        Scene.from_factors(maps, spectra, wave, terms=[5, 1, 3])  # item 1's second map is not 0
+    with pytest.raises(ValueError, match="terms: expected 3 counts"):
+        Scene.from_factors(maps, spectra, wave, terms=[5, 2])
+    with pytest.raises(ValueError, match="terms: expected 3 counts"):
+        Scene.from_factors(maps, spectra, wave, terms=[5, 2, 6])
