@@ -416,7 +416,8 @@ class PairStream:
             if "linear_srgb" in targets:
                 out["linear_srgb"] = lin
             if "srgb" in targets:
-                out["srgb"] = srgb_encode(lin.clamp(0, 1))
+                # the clamped copy is the encoding's scratch (bitwise the same, fewer passes) unless it needs a gradient
+                out["srgb"] = srgb_encode(lin.clamp(0, 1), inplace=not lin.requires_grad)
         out = {key: out[key] for key in ("raw", *targets)}
         out["meta"] = self._meta(grp, raw, exposure, to_norm, span, white_cam, white_xyz, sensor, oi, peak_t)
         return out
