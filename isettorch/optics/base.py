@@ -408,7 +408,8 @@ class ShiftInvariantLens(nn.Module):
             else:  # only the maps each item uses (its later ones are 0: so is their transform)
                 spec = torch.empty(*buf.shape[:-1], mx // 2 + 1, dtype=buf.dtype.to_complex(), device=buf.device)
                 for i, t in enumerate(terms):
-                    torch.fft.rfft2(buf[i, :t], out=spec[i, :t])
+                    if t:
+                        torch.fft.rfft2(buf[i, :t], out=spec[i, :t])
                     spec[i, t:].zero_()
             factors = FourierFactors(spec, spectra, inter, (my, mx), window,
                                      None if otf is None or otf.is_complex() else otf, terms=terms)

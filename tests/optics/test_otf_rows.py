@@ -56,6 +56,10 @@ def test_term_counts_transform_only_the_used_maps():
     image, projected and dense, as without the hint (bitwise: the skipped terms add exact zeros) and as each item on
     its own with only its terms (float rounding)."""
     hinted, plain, alone = _termed_scene([5, 2, 3])
+    zero, zero_plain, _ = _termed_scene([5, 0, 3])  # an item without terms (a black scene) is no special case
+    optics0 = DiffractionLimitedOptics(f_number=torch.tensor([2.0, 4.0, 8.0], dtype=torch.float64),
+                                       focal_length_m=4e-3, margin=8)
+    assert torch.equal(optics0(zero).photons, optics0(zero_plain).photons)
     n = torch.tensor([2.0, 4.0, 8.0], dtype=torch.float64)
     optics = DiffractionLimitedOptics(f_number=n, focal_length_m=4e-3, margin=8)
     oi_h, oi_p = optics(hinted), optics(plain)
