@@ -392,9 +392,10 @@ class ShiftInvariantLens(nn.Module):
             hit = derived.get(otf_key)
             if hit is None:
                 fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
-                rows = self._item_otf_rows(fy, fx, wave, n, dx)
+                # on CPU, per-item cached rows used as they are (no [B, L, My, Mx', 2] batch copy per call); on an
+                # accelerator one stacked OTF (one batched product beats B small kernel launches)
+                rows = self._item_otf_rows(fy, fx, wave, n, dx) if buf.device.type == "cpu" else None
                 if rows is not None and len(rows) > 1 and not rows[0].is_complex():
-                    # per-item cached rows, used as they are (no [B, L, My, Mx', 2] batch copy per call)
                     hit = (None, tuple(rows))
                 else:
                     otf = self._otf_fn(wave, n, dx)(fy, fx)
@@ -403,9 +404,10 @@ class ShiftInvariantLens(nn.Module):
                     derived[otf_key] = hit
             otf, inter = hit
             terms = scene.factors.terms
-            if terms is None or len(terms) == 1 or torch.is_grad_enabled() and buf.requires_grad:
-                spec, terms = torch.fft.rfft2(buf), None
-            else:  # only the maps each item uses (its later ones are 0: so is their transform)
+            if (terms is None or len(terms) == 1 or buf.device.type != "cpu"
+                    or torch.is_grad_enabled() and buf.requires_grad):
+                spec, terms = torch.fft.rfft2(buf), None  # (on an accelerator the padded batch in one launch)
+            else:  # on CPU only the maps each item uses (its later ones are 0: so is their transform)
                 spec = torch.empty(*buf.shape[:-1], mx // 2 + 1, dtype=buf.dtype.to_complex(), device=buf.device)
                 for i, t in enumerate(terms):
                     if t:
