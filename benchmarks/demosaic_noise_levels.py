@@ -8,7 +8,8 @@ noise), CPSNR (crop 10) on each image set of:
   shot noise), then Menon 2007 (at sigma 0: Menon alone);
 * ``noise-free network``: the shipped noise-free network (``load_pretrained("noise_free")``, under its guard) on the
   noisy mosaic;
-* ``joint (shipped)``: ``isettorch/assets/demosaic_learned_denoise.pt`` given the level;
+* ``joint (shipped)``: ``load_pretrained("joint_denoise")`` given the level (``isettorch/assets/
+  demosaic_learned_denoise.pt`` under its guard and low-noise gate, ``learned.PRETRAINED_GATES``);
 * ``joint (candidate)``: a checkpoint (``--candidate PATH``) given the level, under the shipped joint guard.
 
 Reporting only: Kodak and McMaster are test sets (nothing here selects or tunes anything).
@@ -80,12 +81,14 @@ def table(sets: dict, candidate: str | None, conditions=CONDITIONS, quiet: bool 
                   "|---|" + "---|" * len(conditions)]
         for n in names:
             lines.append(f"| {n} | " + " | ".join(f"{scores[(c[0], set_name, n)]:.2f}" for c in conditions) + " |")
-        if "joint (candidate)" in names:
+        for row in ("joint (shipped)", "joint (candidate)"):
+            if row not in names:
+                continue
             margin = []
             for c in conditions:
                 best = max(scores[(c[0], set_name, names[0])], scores[(c[0], set_name, "noise-free network")])
-                margin.append(f"{scores[(c[0], set_name, 'joint (candidate)')] - best:+.2f}")
-            lines.append("| candidate - best baseline | " + " | ".join(margin) + " |")
+                margin.append(f"{scores[(c[0], set_name, row)] - best:+.2f}")
+            lines.append(f"| {row.split()[1][1:-1]} - best baseline | " + " | ".join(margin) + " |")
         lines.append("")
     return lines, scores
 

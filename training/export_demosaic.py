@@ -132,6 +132,9 @@ def main(argv: list[str] | None = None) -> int:
     lines = [f"# Shipped learned demosaic (`isettorch.isp.learned.load_pretrained({shown})`)", "",
              f"- command: `{info['command']}`", f"- guard (part of what ships, scored with it): "
              f"`{json.dumps(learned.PRETRAINED_GUARDS[variant])}`"]
+    if variant in learned.PRETRAINED_GATES:
+        lines.append(f"- low-noise gate (part of what ships, `learned.PRETRAINED_GATES`): "
+                     f"`{json.dumps(learned.PRETRAINED_GATES[variant])}`")
     if cfg.get("init"):
         lines.append(f"- initialised from: `{cfg['init']}` (an earlier run's checkpoint: train that run first)")
     lines += [f"- network: DemosaicNet {ck['net_config']}, "

@@ -79,6 +79,12 @@ PRETRAINED_GUARDS = {
     "tiny": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
     "small": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
 }
+#: the low-noise gate each shipped joint network runs under, part of what ``load_pretrained`` returns (issue #35 item
+#: 4: the joint network is tuned for mid noise, the noise-free network is better on nearly clean mosaics): the output
+#: is ``w expert + (1 - w) joint`` with ``w = clamp(1 - sqrt(b + a mean(x)) / sigma_max, 0, 1)`` per image, for a
+#: mosaic ``x`` with noise variance ``a x + b`` (the noise level the joint network is given). ``sigma_max`` was chosen
+#: on held-out synthetic scenes only (``docs/training_log.md#joint_gate_2026-11-28``), never Kodak/McMaster.
+PRETRAINED_GATES = {"joint_denoise": {"expert": "noise_free", "sigma_max": 0.0125}}
 
 def _check_raw(raw: torch.Tensor, name: str = "raw") -> torch.Tensor:
     if not isinstance(raw, torch.Tensor):
@@ -371,6 +377,21 @@ def noise_features(shot_gain, read_var) -> torch.Tensor:
     return torch.stack([a.sqrt() * 10.0, b.sqrt() * 100.0], 1)
 
 
+def noise_parameters(features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(a [B], b [B])`` of :func:`noise_features`' ``[B, 2]`` output (its inverse)."""
+    return (features[:, 0] / 10.0) ** 2, (features[:, 1] / 100.0) ** 2
+
+
+def level_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_max: float) -> torch.Tensor:
+    """The low-noise gate's weight ``[B]`` of the expert (:data:`PRETRAINED_GATES`): ``clamp(1 - sigma / sigma_max,
+    0, 1)`` with ``sigma = sqrt(b + a mean(raw))`` the noise of a mosaic ``raw`` ``[B, 1, H, W]`` at its mean level
+    (1 for a noise-free mosaic, 0 from ``sigma_max`` on)."""
+    a, b = noise_parameters(noise.to(torch.float64))
+    level = raw.detach().to(torch.float64).clamp_min(0).mean((1, 2, 3))
+    sigma = (b + a * level).sqrt()
+    return (1 - sigma / sigma_max).clamp(0, 1)
+
+
 SELF_ENSEMBLES = (False, True, "transpose", "dihedral")
 # flipped dims of an even-sized RGGB mosaic -> the Bayer pattern it then has
 _FLIPS = {(): "RGGB", (-1,): "GRBG", (-2,): "GBRG", (-2, -1): "BGGR"}
@@ -416,14 +437,23 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
     x, dy, dx = _to_rggb(raw, pattern)
     if x.shape[-2] % 2 or x.shape[-1] % 2:  # pragma: no cover - pads are symmetric so sizes stay even
         raise ValueError("raw: internal padding produced an odd size")
-    if self_ensemble == "dihedral":
-        out = torch.stack([demosaic_learned(x.flip(dims), flipped, model=model, noise=noise,
-                                            self_ensemble=True).flip(dims)
-                           for dims, flipped in _FLIPS.items()]).mean(0)
-    else:
-        out = model(x, noise)
+    def run(net, nz):
+        if self_ensemble == "dihedral":
+            return torch.stack([demosaic_learned(x.flip(dims), flipped, model=net, noise=nz,
+                                                 self_ensemble=True).flip(dims)
+                                for dims, flipped in _FLIPS.items()]).mean(0)
+        y = net(x, nz)
         if self_ensemble:
-            out = 0.5 * (out + model(x.transpose(-1, -2), noise).transpose(-1, -2))
+            y = 0.5 * (y + net(x.transpose(-1, -2), nz).transpose(-1, -2))
+        return y
+
+    out = run(model, noise)
+    gate = getattr(model, "level_gate", None)
+    if gate is not None and noise is not None and self_ensemble != "dihedral":  # (dihedral: the gate is inside)
+        w = level_gate_weight(raw, noise, gate["sigma_max"]).to(out.dtype)
+        if bool((w > 0).any()):  # the expert runs only where it is weighed in
+            w = w.reshape(-1, 1, 1, 1)
+            out = w * run(gate["expert"], None) + (1 - w) * out
     return out[..., dy:dy + raw.shape[-2], dx:dx + raw.shape[-1]]
 
 
@@ -450,6 +480,10 @@ def load_checkpoint(path: str | Path, *, device=None, dtype=None) -> tuple[Demos
 def _pretrained(variant: str, device: str, dtype: torch.dtype, guard: bool = True) -> DemosaicNet:
     net = load_checkpoint(PRETRAINED[variant], device=device, dtype=dtype)[0]
     net.guard = dict(PRETRAINED_GUARDS[variant]) if guard else None
+    gate = PRETRAINED_GATES.get(variant)
+    # the low-noise gate (demosaic_learned): the shipped expert under its own guard; none for the bare network
+    net.level_gate = None if gate is None or not guard else {
+        "expert": _pretrained(gate["expert"], device, dtype, True), "sigma_max": float(gate["sigma_max"])}
     return net
 
 
@@ -462,7 +496,9 @@ def _check_variant(variant: str) -> str:
 def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.float32, guard: bool = True
                     ) -> DemosaicNet:
     """A shipped :class:`DemosaicNet` (``isettorch/assets``), eval mode, frozen, with its guard
-    (:data:`PRETRAINED_GUARDS`, :func:`guard_residual`; ``guard=False``: the bare network, for comparisons).
+    (:data:`PRETRAINED_GUARDS`, :func:`guard_residual`) and, for the joint network, its low-noise gate
+    (:data:`PRETRAINED_GATES`, applied by :func:`demosaic_learned`); ``guard=False``: the bare network, for
+    comparisons.
     The instance is cached and shared: copy it before changing its ``guard``.
 
     ``variant="noise_free"`` (``demosaic_learned.pt``) or ``"joint_denoise"`` (``demosaic_learned_denoise.pt``,

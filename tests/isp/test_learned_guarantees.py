@@ -146,3 +146,37 @@ def test_never_below_malvar_on_stress_subset():
 def test_never_below_malvar_on_green_magenta_patterns():
     images = [(n, x) for n, x in ss.patterns(96) if n in KNOWN_BELOW_MHC]
     assert _floor_failures(images) == {}
+
+
+def test_joint_low_noise_gate():
+    """The shipped joint network's low-noise gate (learned.PRETRAINED_GATES): at its mean level a mosaic's noise
+    sigma = sqrt(b + a mean(x)) weighs in the noise-free network with w = 1 - sigma / sigma_max (clamped): exactly
+    the noise-free network for a noise-free level, exactly the bare-gated joint network from sigma_max on, the
+    convex blend between; the bare network (guard=False) has no gate."""
+    joint = learned.load_pretrained("joint_denoise")
+    gate = joint.level_gate
+    assert gate is not None and gate["expert"] is learned.load_pretrained("noise_free")
+    assert learned.load_pretrained("joint_denoise", guard=False).level_gate is None
+    s_max = gate["sigma_max"]
+    g = torch.Generator().manual_seed(3)
+    raw = torch.rand(2, 1, 32, 32, generator=g) * 0.6 + 0.2
+    nf = learned.demosaic_learned(raw, model=gate["expert"])
+
+    def joint_alone(noise):  # the guarded joint network without its gate
+        saved, joint.level_gate = joint.level_gate, None
+        try:
+            return learned.demosaic_learned(raw, model=joint, noise=noise)
+        finally:
+            joint.level_gate = saved
+
+    zero = learned.noise_features(0.0, 0.0).float().expand(2, 2)
+    torch.testing.assert_close(learned.demosaic_learned(raw, model=joint, noise=zero), nf, rtol=0, atol=1e-7)
+    high = learned.noise_features(0.0, (1.5 * s_max) ** 2).float().expand(2, 2)
+    assert torch.equal(learned.demosaic_learned(raw, model=joint, noise=high), joint_alone(high))
+    # between: item 0 at half sigma_max (white noise), item 1 with shot noise a at its mean level
+    a1 = (0.5 * s_max) ** 2 / float(raw[1].mean())
+    mid = learned.noise_features(torch.tensor([0.0, a1]), torch.tensor([(0.5 * s_max) ** 2, 0.0])).float()
+    w = learned.level_gate_weight(raw, mid, s_max)
+    torch.testing.assert_close(w, torch.tensor([0.5, 0.5], dtype=torch.float64), rtol=0, atol=1e-6)
+    expected = 0.5 * nf + 0.5 * joint_alone(mid)
+    torch.testing.assert_close(learned.demosaic_learned(raw, model=joint, noise=mid), expected, rtol=0, atol=1e-6)

@@ -187,3 +187,20 @@ def test_photos_screen_and_its_registered_dry_run(tmp_path, capsys):
                                 "--out", str(out)]) == 0
     assert json.loads(out.read_text())["decision"] == "incumbent" and "ship: incumbent" in capsys.readouterr().out
     assert (ROOT / heldout_screen.result_path("tiny_distill_2026-11-27")).read_text() == record
+
+
+def test_joint_gate_rule_picks_the_best_mean_and_respects_the_tolerance():
+    from training.fit_joint_gate import choose
+
+    def level(none, **gates):
+        return {"none": none, **{k.replace("g", "0."): v for k, v in gates.items()}}
+
+    # two sets, two levels; gate 0.01: +0.3 / -0.01 (mean +0.145); gate 0.02: +0.5 / -0.05 (mean +0.225, but one level
+    # drops 0.05 dB: over the 0.02 dB tolerance)
+    by_set = {s: {"sigma 0.005": level(30.0, g01=30.3, g02=30.5), "shot 0.001": level(20.0, g01=19.99, g02=19.95)}
+              for s in ("a", "b")}
+    out = choose(by_set, grid=(0.01, 0.02))
+    assert out["sigma_max"] == 0.02 and not out["ships"]
+    assert abs(out["mean_gain_db"]["0.01"] - 0.145) < 1e-12 and abs(out["mean_gain_db"]["0.02"] - 0.225) < 1e-12
+    out = choose(by_set, grid=(0.01,))
+    assert out["sigma_max"] == 0.01 and out["ships"]
