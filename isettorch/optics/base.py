@@ -41,6 +41,13 @@ __all__ = ["ShiftInvariantLens"]
 _CACHE_SIZE = 8
 
 
+def per_item_products(device: torch.device) -> bool:
+    """Whether the factored optics work item by item on ``device`` (each item's cached OTF row, only its used
+    terms): on a CPU, where B small products cost less than one padded batched product; not on an accelerator,
+    where one batched launch beats B small ones. (A function, so a test can run the batched path on a CPU.)"""
+    return device.type == "cpu"
+
+
 def _check_crop(crop) -> None:
     if crop is None:
         return
@@ -394,7 +401,7 @@ class ShiftInvariantLens(nn.Module):
                 fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
                 # on CPU, per-item cached rows used as they are (no [B, L, My, Mx', 2] batch copy per call); on an
                 # accelerator one stacked OTF (one batched product beats B small kernel launches)
-                rows = self._item_otf_rows(fy, fx, wave, n, dx) if buf.device.type == "cpu" else None
+                rows = self._item_otf_rows(fy, fx, wave, n, dx) if per_item_products(buf.device) else None
                 if rows is not None and len(rows) > 1 and not rows[0].is_complex():
                     hit = (None, tuple(rows))
                 else:
@@ -404,7 +411,7 @@ class ShiftInvariantLens(nn.Module):
                     derived[otf_key] = hit
             otf, inter = hit
             terms = scene.factors.terms
-            if (terms is None or len(terms) == 1 or buf.device.type != "cpu"
+            if (terms is None or len(terms) == 1 or not per_item_products(buf.device)
                     or torch.is_grad_enabled() and buf.requires_grad):
                 spec, terms = torch.fft.rfft2(buf), None  # (on an accelerator the padded batch in one launch)
             else:  # on CPU only the maps each item uses (its later ones are 0: so is their transform)

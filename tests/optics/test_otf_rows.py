@@ -87,3 +87,21 @@ def test_term_counts_are_checked():
         Scene.from_factors(maps, spectra, wave, terms=[5, 2])
     with pytest.raises(ValueError, match="terms: expected 3 counts"):
         Scene.from_factors(maps, spectra, wave, terms=[5, 2, 6])
+
+
+def test_accelerator_path_equals_the_per_item_path(monkeypatch):
+    """The batched path the optics take on an accelerator (one stacked OTF, every item's maps padded to the most
+    terms) gives the per-item CPU path's optical image (float rounding): run here on the CPU by switching
+    ``per_item_products`` off."""
+    from isettorch.optics import base
+
+    hinted, _, _ = _termed_scene([5, 2, 3])
+    n = torch.tensor([2.0, 4.0, 8.0], dtype=torch.float64)
+    w = torch.rand(31, 4, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    per_item = DiffractionLimitedOptics(f_number=n, focal_length_m=4e-3, margin=8)(hinted)
+    assert per_item.factors.otf_rows is not None and per_item.factors.terms == (5, 2, 3)
+    monkeypatch.setattr(base, "per_item_products", lambda device: False)
+    batched = DiffractionLimitedOptics(f_number=n, focal_length_m=4e-3, margin=8)(hinted)
+    assert batched.factors.otf_rows is None and batched.factors.terms is None
+    torch.testing.assert_close(batched.project(w), per_item.project(w), rtol=1e-12, atol=0)
+    torch.testing.assert_close(batched.photons, per_item.photons, rtol=1e-12, atol=0)
