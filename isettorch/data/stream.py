@@ -80,9 +80,9 @@ class PairStream:
         rank, world_size: this process's share of the batches (default: ``torch.distributed``'s when it is
             initialised, else 0 of 1).
         parts: a batch is drawn and rendered in this many parts of consecutive items, each with its own generators
-            (within a part, the items are in the order of their drawn cameras: pixel pitch, then CFA)
             (default: 2 on a CPU device for batches of 8 or more, without a camera module; else 1). It is part of
-            the config: batch ``k`` depends on it, not on ``threads``.
+            the config: batch ``k`` depends on it, not on ``threads``. Within a part, the items are in the order of
+            their drawn cameras (pixel pitch, then CFA).
         threads: how many parts render concurrently, on Python threads (torch releases the GIL in its kernels),
             each with an equal share of torch's intra-op threads (default: on CPU, ``min(parts,
             torch.get_num_threads())``; on other devices 1). Measured on 2 CPU cores, batch 16 at 128^2: as fast
