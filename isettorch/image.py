@@ -90,6 +90,15 @@ def xyz_to_srgb_preview(xyz_img: torch.Tensor, white_y: torch.Tensor) -> torch.T
 
 
 
+def select_items(values, index) -> list | None:
+    """The entries of a per-item sequence (``SpectralFactors.terms``, an optical image's per-item OTF rows) for the
+    items a batch ``index`` (int, slice, list, bool or long tensor) selects, in order; None for None. The one rule
+    of the factored representations' ``select``."""
+    if values is None:
+        return None
+    return [values[i] for i in torch.arange(len(values))[index].reshape(-1).tolist()]
+
+
 class SpectralFactors:
     """A low-rank spectral image ``radiance(b, l, y, x) = sum_j maps[b, j, y, x] * spectra[b, j, l]``.
 
@@ -175,10 +184,8 @@ class SpectralFactors:
         return self.combine(self.spectra)
 
     def select(self, index) -> SpectralFactors:
-        terms = None
-        if self.terms is not None:
-            terms = [self.terms[i] for i in torch.arange(len(self.terms))[index].reshape(-1).tolist()]
-        return SpectralFactors(self.maps[index], self.spectra[index], validate=False, terms=terms)
+        return SpectralFactors(self.maps[index], self.spectra[index], validate=False,
+                               terms=select_items(self.terms, index))
 
     def scale(self, k: torch.Tensor) -> SpectralFactors:
         """Radiance times ``k [B]`` (the spectra carry it)."""

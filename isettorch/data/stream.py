@@ -304,7 +304,7 @@ class PairStream:
             maps, spectra = drawn["maps"][idx, :n_terms], drawn["spectra"][idx, :n_terms]
         else:
             rows = torch.arange(drawn["maps"].shape[0], device=self.device)[idx][:, None]
-            used = drawn["used"][rows[:, 0]]
+            used = drawn["used"][idx]
             counts = used.sum(1).tolist()
             n_terms = max(1, max(counts))
             order = torch.argsort((~used).to(torch.uint8), dim=1, stable=True)[:, :n_terms]

@@ -8,7 +8,7 @@ from typing import ClassVar
 
 import torch
 
-from ..image import SpectralImage, angle_for_extent
+from ..image import SpectralImage, angle_for_extent, select_items
 
 __all__ = ["OpticalImage", "FourierFactors"]
 
@@ -213,10 +213,9 @@ class FourierFactors:
     def select(self, index) -> FourierFactors:
         def pick(t):
             return t if t is None or t.shape[0] == 1 else t[index]
-        items = torch.arange(self.spec.shape[0])[index].reshape(-1).tolist()
-        terms = None if self.terms is None else [self.terms[i] for i in items]
+        terms = select_items(self.terms, index)
         if self.otf_rows is not None:
-            rows = [self.otf_rows[i] for i in items]
+            rows = select_items(self.otf_rows, index)
             return FourierFactors(self.spec[index], self.spectra[index], rows if len(rows) > 1 else rows[0],
                                   self.size, self.window, None, terms)
         return FourierFactors(self.spec[index], self.spectra[index], pick(self.otf), self.size, self.window,
