@@ -1,14 +1,22 @@
-"""Choose the joint demosaic network's low-noise gate (``isettorch.isp.learned.PRETRAINED_GATES``) on held-out
-synthetic scenes (``training/make_heldout.py`` sets; never Kodak/McMaster).
+"""Choose the joint demosaic network's noise gates (``isettorch.isp.learned.PRETRAINED_GATES``) on held-out synthetic
+scenes (``training/make_heldout.py`` sets; never Kodak/McMaster).
 
-For each set and noise level (``var = a x + sigma^2`` on the [0, 1] mosaic, the ``demosaic-eval`` noise, seed 0), the
-guarded noise-free and the guarded joint networks (the joint one without its gate) run once; each candidate
-``sigma_max`` blends them with :func:`isettorch.isp.learned.level_gate_weight` and is scored (CPSNR, crop 10). The
-rule, pre-registered in ``docs/training_log.md#joint_gate_2026-11-28``: the ``sigma_max`` with the highest mean over
-the sets and levels ships if that mean beats the bare joint network's and no level's mean over the sets is more than
-0.02 dB below it.
+For each set and noise level (``var = a x + sigma^2`` on the [0, 1] mosaic, the ``demosaic-eval`` noise, seed 0),
+the parts of the shipped output run once; each candidate gate blends them and is scored (CPSNR, crop 10).
 
-    python training/fit_joint_gate.py --sets out/heldout_v5 out/heldout_stress [--out gate.json]
+* ``--gate low`` (the low-noise gate, ``sigma_max``): the guarded noise-free and the guarded joint networks (the
+  joint one without its gates), blended with :func:`isettorch.isp.learned.level_gate_weight`. Rule pre-registered
+  in ``docs/training_log.md#joint_gate_2026-11-28``.
+* ``--gate classical`` (the high-noise gate, ``sigma_start``, ``sigma_full``, ``weight_max``): the joint network
+  under its guard and its shipped low-noise gate, and the classical expert
+  (:func:`isettorch.isp.learned.classical_expert`: nlmeans on the CFA sub-planes, then Menon 2007), blended with
+  :func:`isettorch.isp.learned.classical_gate_weight`. Rule pre-registered in
+  ``docs/training_log.md#classical_gate_2026-11-28``.
+
+Both rules: the candidate with the highest mean gain over the sets and levels (against "none", the output without
+the gate) ships if that mean is positive and no level's mean over the sets is more than 0.02 dB below "none".
+
+    python training/fit_joint_gate.py --gate low --sets out/heldout_v5 out/heldout_stress [--out gate.json]
 """
 
 from __future__ import annotations
@@ -31,64 +39,126 @@ from isettorch.isp.evaluation import cpsnr, load_images, noisy_mosaic  # noqa: E
 
 LEVELS = (("sigma", 0.0025), ("sigma", 0.005), ("sigma", 0.01), ("sigma", 0.02), ("shot", 0.001), ("shot", 0.01))
 GRID = (0.005, 0.0075, 0.01, 0.0125, 0.015, 0.02)
+CLASSICAL_LEVELS = (("sigma", 0.005), ("sigma", 0.01), ("sigma", 0.02), ("sigma", 0.05), ("shot", 0.001),
+                    ("shot", 0.003), ("shot", 0.01), ("shot", 0.02))
+#: (sigma_start, sigma_full, weight_max) candidates of the high-noise gate
+CLASSICAL_GRID = tuple((s0, s1, w) for s0 in (0.005, 0.01, 0.02, 0.03) for s1 in (0.05, 0.075, 0.1, 0.15)
+                       for w in (0.5, 0.75, 1.0))
 TOLERANCE_DB = 0.02
 
 
-def scores(folder, levels=LEVELS, grid=GRID) -> dict:
-    """``{"<kind> <value>": {"none": dB, "<sigma_max>": dB, ...}}``: mean CPSNR of the bare joint network ("none")
-    and of each gate on the images of ``folder``."""
+def _name(candidate) -> str:
+    return "/".join(f"{v:g}" for v in candidate) if isinstance(candidate, tuple) else str(candidate)
+
+
+def _parts(folder, levels, classical: bool):
+    """Per level ``(key, [(truth, raw, noise, parts)])``: the parts of the output for each image of ``folder``:
+    ``nf`` (the guarded noise-free network), ``joint`` (the guarded joint network without its gates), with
+    ``classical`` also ``shipped_low`` (``joint`` under the shipped low-noise gate) and ``classical``."""
     expert = learned.load_pretrained("noise_free")
     joint = learned.load_pretrained("joint_denoise")
     saved, joint.level_gate = joint.level_gate, None  # the guarded joint network alone; blended below
-    out = {}
+    sigma_max = learned.PRETRAINED_GATES["joint_denoise"]["sigma_max"]
     try:
         items = load_images(folder)
         for kind, v in levels:
             sigma, shot = (v, 0.0) if kind == "sigma" else (0.0, v)
             feats = learned.noise_features(shot, sigma**2).float()
-            per = {"none": []} | {str(m): [] for m in grid}
+            rows = []
             for i, (_, arr) in enumerate(items):
                 truth = torch.from_numpy(arr.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
                 raw = noisy_mosaic(mosaic(truth, "RGGB"), sigma, shot, seed=0, index=i).float()
                 with torch.no_grad():
-                    a = learned.demosaic_learned(raw, "RGGB", model=expert).double()
-                    b = learned.demosaic_learned(raw, "RGGB", model=joint, noise=feats).double()
-                per["none"].append(cpsnr(b.clamp(0, 1), truth, 10)[0].item())
-                for m in grid:
-                    w = learned.level_gate_weight(raw, feats, m).reshape(-1, 1, 1, 1)
-                    per[str(m)].append(cpsnr((w * a + (1 - w) * b).clamp(0, 1), truth, 10)[0].item())
-            out[f"{kind} {v:g}"] = {k: float(np.mean(s)) for k, s in per.items()}
+                    parts = {"nf": learned.demosaic_learned(raw, "RGGB", model=expert).double(),
+                             "joint": learned.demosaic_learned(raw, "RGGB", model=joint, noise=feats).double()}
+                if classical:
+                    w = learned.level_gate_weight(raw, feats, sigma_max).reshape(-1, 1, 1, 1)
+                    parts["shipped_low"] = w * parts["nf"] + (1 - w) * parts["joint"]
+                    parts["classical"] = learned.classical_expert(raw.double(), feats).double()
+                rows.append((truth, raw, feats, parts))
+            yield f"{kind} {v:g}", rows
     finally:
         joint.level_gate = saved
+
+
+def scores(folder, levels=LEVELS, grid=GRID) -> dict:
+    """``{"<kind> <value>": {"none": dB, "<sigma_max>": dB, ...}}``: mean CPSNR of the bare joint network ("none")
+    and of each low-noise gate on the images of ``folder``."""
+    out = {}
+    for key, rows in _parts(folder, levels, classical=False):
+        per = {"none": []} | {_name(m): [] for m in grid}
+        for truth, raw, feats, p in rows:
+            per["none"].append(cpsnr(p["joint"].clamp(0, 1), truth, 10)[0].item())
+            for m in grid:
+                w = learned.level_gate_weight(raw, feats, m).reshape(-1, 1, 1, 1)
+                per[_name(m)].append(cpsnr((w * p["nf"] + (1 - w) * p["joint"]).clamp(0, 1), truth, 10)[0].item())
+        out[key] = {k: float(np.mean(s)) for k, s in per.items()}
     return out
 
 
-def choose(by_set: dict, grid=GRID, tolerance_db: float = TOLERANCE_DB) -> dict:
-    """The pre-registered rule on ``{set: scores(set)}``: per level the mean over the sets of each gate's gain over
-    the bare joint network; the best mean gain's ``sigma_max``, and whether it ships."""
+def scores_classical(folder, levels=CLASSICAL_LEVELS, grid=CLASSICAL_GRID) -> dict:
+    """``{"<kind> <value>": {"none": dB, "<start>/<full>/<weight>": dB, ...}}``: mean CPSNR of the joint network
+    under its shipped low-noise gate ("none") and with each high-noise gate on top, on the images of ``folder``."""
+    out = {}
+    for key, rows in _parts(folder, levels, classical=True):
+        per = {"none": []} | {_name(m): [] for m in grid}
+        for truth, raw, feats, p in rows:
+            per["none"].append(cpsnr(p["shipped_low"].clamp(0, 1), truth, 10)[0].item())
+            for m in grid:
+                w = learned.classical_gate_weight(raw, feats, *m).reshape(-1, 1, 1, 1)
+                y = w * p["classical"] + (1 - w) * p["shipped_low"]
+                per[_name(m)].append(cpsnr(y.clamp(0, 1), truth, 10)[0].item())
+        out[key] = {k: float(np.mean(s)) for k, s in per.items()}
+    return out
+
+
+def _choose(by_set: dict, grid, tolerance_db: float) -> dict:
     sets = list(by_set)
     levels = list(by_set[sets[0]])
-    gain = {str(m): {lv: float(np.mean([by_set[s][lv][str(m)] - by_set[s][lv]["none"] for s in sets]))
-                     for lv in levels} for m in grid}
-    mean = {m: float(np.mean(list(g.values()))) for m, g in gain.items()}
+    names = [_name(m) for m in grid]
+    gain = {n: {lv: float(np.mean([by_set[s][lv][n] - by_set[s][lv]["none"] for s in sets])) for lv in levels}
+            for n in names}
+    mean = {n: float(np.mean(list(g.values()))) for n, g in gain.items()}
     best = max(mean, key=mean.get)
     ships = mean[best] > 0 and min(gain[best].values()) >= -tolerance_db
-    return {"gain_db": gain, "mean_gain_db": mean, "sigma_max": float(best), "ships": bool(ships)}
+    return {"gain_db": gain, "mean_gain_db": mean, "best": best, "ships": bool(ships),
+            "candidate": dict(zip(names, grid))[best]}
+
+
+def choose(by_set: dict, grid=GRID, tolerance_db: float = TOLERANCE_DB) -> dict:
+    """The low-noise gate's rule on ``{set: scores(set)}``: per level the mean over the sets of each gate's gain over
+    the bare joint network; the best mean gain's ``sigma_max``, and whether it ships."""
+    out = _choose(by_set, grid, tolerance_db)
+    return {k: out[k] for k in ("gain_db", "mean_gain_db", "ships")} | {"sigma_max": float(out["candidate"])}
+
+
+def choose_classical(by_set: dict, grid=CLASSICAL_GRID, tolerance_db: float = TOLERANCE_DB) -> dict:
+    """The high-noise gate's rule on ``{set: scores_classical(set)}``: the best mean gain's ``(sigma_start,
+    sigma_full, weight_max)`` and whether it ships."""
+    out = _choose(by_set, grid, tolerance_db)
+    s0, s1, w = out["candidate"]
+    return {k: out[k] for k in ("gain_db", "mean_gain_db", "ships")} | {
+        "sigma_start": s0, "sigma_full": s1, "weight_max": w}
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--gate", choices=("low", "classical"), default="low")
     p.add_argument("--sets", nargs="+", required=True, help="held-out synthetic image folders")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", default=None, help="write the scores and the decision (JSON) here")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
-    by_set = {s: scores(s) for s in args.sets}
-    decision = choose(by_set)
-    for m, g in decision["gain_db"].items():
-        print(f"sigma_max {m}: " + " ".join(f"{lv} {d:+.3f}" for lv, d in g.items())
+    score, rule = (scores, choose) if args.gate == "low" else (scores_classical, choose_classical)
+    by_set = {s: score(s) for s in args.sets}
+    decision = rule(by_set)
+    ranked = sorted(decision["mean_gain_db"], key=decision["mean_gain_db"].get, reverse=True)
+    for m in ranked[:12]:
+        g = decision["gain_db"][m]
+        print(f"{m}: " + " ".join(f"{lv} {d:+.3f}" for lv, d in g.items())
               + f" | mean {decision['mean_gain_db'][m]:+.3f}")
-    print(f"chosen sigma_max {decision['sigma_max']:g}, ships: {decision['ships']}")
+    chosen = {k: v for k, v in decision.items() if k not in ("gain_db", "mean_gain_db", "ships")}
+    print(f"chosen {chosen}, ships: {decision['ships']}")
     if args.out:
         Path(args.out).write_text(json.dumps({"scores": by_set, **decision}, indent=1))
     return 0

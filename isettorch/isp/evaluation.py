@@ -23,13 +23,12 @@ import numpy as np
 import torch
 
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
+from .denoise import DENOISERS, _check_noise, denoise_mosaic
 
 __all__ = ["DENOISERS", "IMAGE_SUFFIXES", "available_methods", "cpsnr", "denoise_mosaic", "evaluate_demosaic",
            "load_demosaic_model", "load_images", "noisy_mosaic"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
-#: classical denoisers for the sequential (denoise, then demosaic) baseline
-DENOISERS = ("nlmeans", "bm3d")
 
 
 def available_methods() -> list[str]:
@@ -96,17 +95,6 @@ def _image_seed(seed: int, index: int) -> int:
     return (z ^ (z >> 31)) & (2**63 - 1)
 
 
-def _check_noise(noise_sigma: float, noise_shot: float) -> tuple[float, float]:
-    s, a = float(noise_sigma), float(noise_shot)
-    if not (math.isfinite(s) and s >= 0):
-        raise ValueError(f"noise_sigma: expected a finite standard deviation >= 0 (of the [0, 1] mosaic), "
-                         f"got {noise_sigma}")
-    if not (math.isfinite(a) and a >= 0):
-        raise ValueError(f"noise_shot: expected a finite shot-noise gain a >= 0 (var = a x + sigma^2), "
-                         f"got {noise_shot}")
-    return s, a
-
-
 def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float = 0.0, *, seed: int = 0,
                  index: int = 0) -> torch.Tensor:
     """The benchmark's noisy mosaic: ``raw`` (B, 1, H, W) in [0, 1] plus noise of variance ``noise_shot * x +
@@ -120,61 +108,6 @@ def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float 
     g = torch.Generator().manual_seed(_image_seed(seed, index))
     x = raw.detach().to("cpu", torch.float64)
     return poisson_gaussian(x, a, s, g).to(device=raw.device, dtype=raw.dtype)
-
-
-def _anscombe(z, a, b):
-    """Generalised Anscombe transform (Makitalo & Foi 2013, eq. 2, mu = 0): unit variance for var = a z + b."""
-    return (2.0 / a) * np.sqrt(np.maximum(a * z + 0.375 * a * a + b, 0.0))
-
-
-def _anscombe_inverse(y, a, b):
-    """Algebraic inverse of :func:`_anscombe` (biased at very low counts; Makitalo & Foi 2013 give the exact
-    unbiased one)."""
-    return 0.25 * a * y * y - 0.375 * a - b / a
-
-
-def _denoise_plane(plane: np.ndarray, sigma: float, method: str) -> np.ndarray:
-    if method == "nlmeans":
-        from skimage.restoration import denoise_nl_means
-
-        # h = 0.6 sigma with sigma given and fast mode: scikit-image's documented setting (gallery "Non-local means
-        # denoising for preserving textures"); patch 5 x 5, search 13 x 13. Fixed, never tuned on a test set.
-        return denoise_nl_means(plane, h=0.6 * sigma, sigma=sigma, patch_size=5, patch_distance=6, fast_mode=True)
-    try:
-        import bm3d
-    except ModuleNotFoundError as err:
-        raise ValueError("denoise: 'bm3d' needs the bm3d package (pip install bm3d; its licence allows "
-                         "non-commercial use only, so isettorch does not depend on it)") from err
-    return np.asarray(bm3d.bm3d(plane, sigma_psd=sigma), dtype=np.float64)
-
-
-def denoise_mosaic(raw: torch.Tensor, method: str, noise_sigma: float = 0.0, noise_shot: float = 0.0
-                   ) -> torch.Tensor:
-    """Denoise a Bayer mosaic (B, 1, H, W) with a classical denoiser on each of its four CFA sub-planes (every
-    sub-plane holds one colour, so a grey-level denoiser applies), for noise ``var = noise_shot x + noise_sigma^2``.
-
-    Signal-dependent noise (``noise_shot > 0``) is stabilised with the generalised Anscombe transform first
-    (Makitalo & Foi 2013) and denoised at unit sigma. Returns the same shape, dtype and device.
-    """
-    if method not in DENOISERS:
-        raise ValueError(f"denoise: expected one of {DENOISERS}, got {method!r}")
-    s, a = _check_noise(noise_sigma, noise_shot)
-    if s == 0 and a == 0:
-        raise ValueError(f"denoise: {method!r} needs a noise level (noise_sigma or noise_shot > 0)")
-    if raw.dim() != 4 or raw.shape[1] != 1 or raw.shape[-2] % 2 or raw.shape[-1] % 2:
-        raise ValueError(f"raw: expected a Bayer mosaic (B, 1, H, W) with even H and W, got {tuple(raw.shape)}")
-    x = raw.detach().to("cpu", torch.float64).numpy().copy()
-    b = s * s
-    for i in range(x.shape[0]):
-        for dy in (0, 1):
-            for dx in (0, 1):
-                plane = x[i, 0, dy::2, dx::2]
-                if a > 0:
-                    y = _denoise_plane(_anscombe(plane, a, b), 1.0, method)
-                    x[i, 0, dy::2, dx::2] = _anscombe_inverse(y, a, b)
-                else:
-                    x[i, 0, dy::2, dx::2] = _denoise_plane(plane, s, method)
-    return torch.from_numpy(x).to(device=raw.device, dtype=raw.dtype)
 
 
 def load_demosaic_model(path: str | Path, class_path: str | None = None, *, kwargs: dict | None = None,

@@ -54,6 +54,10 @@ __all__ = [
     "load_pretrained",
     "load_checkpoint",
     "noise_features",
+    "mosaic_noise_sigma",
+    "level_gate_weight",
+    "classical_gate_weight",
+    "classical_expert",
     "pretrained_info",
     "PRETRAINED_PATH",
 ]
@@ -382,14 +386,44 @@ def noise_parameters(features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor
     return (features[:, 0] / 10.0) ** 2, (features[:, 1] / 100.0) ** 2
 
 
-def level_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_max: float) -> torch.Tensor:
-    """The low-noise gate's weight ``[B]`` of the expert (:data:`PRETRAINED_GATES`): ``clamp(1 - sigma / sigma_max,
-    0, 1)`` with ``sigma = sqrt(b + a mean(raw))`` the noise of a mosaic ``raw`` ``[B, 1, H, W]`` at its mean level
-    (1 for a noise-free mosaic, 0 from ``sigma_max`` on)."""
+def mosaic_noise_sigma(raw: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+    """The noise standard deviation ``[B]`` of a mosaic ``raw`` ``[B, 1, H, W]`` at its mean level:
+    ``sqrt(b + a mean(raw))`` for the noise inputs ``noise`` (:func:`noise_features`, variance ``a x + b``); float64.
+    The level both gates of :data:`PRETRAINED_GATES` are functions of."""
     a, b = noise_parameters(noise.to(torch.float64))
     level = raw.detach().to(torch.float64).clamp_min(0).mean((1, 2, 3))
-    sigma = (b + a * level).sqrt()
-    return (1 - sigma / sigma_max).clamp(0, 1)
+    return (b + a * level).sqrt()
+
+
+def level_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_max: float) -> torch.Tensor:
+    """The low-noise gate's weight ``[B]`` of the expert (:data:`PRETRAINED_GATES`): ``clamp(1 - sigma / sigma_max,
+    0, 1)`` with ``sigma`` = :func:`mosaic_noise_sigma` (1 for a noise-free mosaic, 0 from ``sigma_max`` on)."""
+    return (1 - mosaic_noise_sigma(raw, noise) / sigma_max).clamp(0, 1)
+
+
+def classical_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_start: float, sigma_full: float,
+                          weight_max: float) -> torch.Tensor:
+    """The high-noise gate's weight ``[B]`` of the classical expert (:data:`PRETRAINED_GATES`): 0 up to a noise
+    ``sigma`` (:func:`mosaic_noise_sigma`) of ``sigma_start``, rising linearly to ``weight_max`` at ``sigma_full`` and
+    constant beyond."""
+    if not 0 <= sigma_start < sigma_full or not 0 < weight_max <= 1:
+        raise ValueError(f"sigma_start, sigma_full, weight_max: expected 0 <= sigma_start < sigma_full and "
+                         f"0 < weight_max <= 1, got {sigma_start}, {sigma_full}, {weight_max}")
+    ramp = (mosaic_noise_sigma(raw, noise) - sigma_start) / (sigma_full - sigma_start)
+    return weight_max * ramp.clamp(0, 1)
+
+
+def classical_expert(raw: torch.Tensor, noise: torch.Tensor, denoiser: str = "nlmeans",
+                     method: str = "menon2007", pattern: str = "RGGB") -> torch.Tensor:
+    """The high-noise gate's classical expert: each mosaic of ``raw`` ``[B, 1, H, W]`` denoised for its noise
+    ``noise`` ``[B, 2]`` (:func:`noise_features`) by :func:`isettorch.isp.denoise.denoise_mosaic` (on the CPU,
+    with scikit-image), then demosaicked by ``method``; ``(B, 3, H, W)`` in ``raw``'s dtype and device."""
+    from .demosaicing import demosaic
+    from .denoise import denoise_mosaic
+
+    a, b = noise_parameters(noise.to(torch.float64).expand(raw.shape[0], -1))
+    return torch.cat([demosaic(denoise_mosaic(raw[i:i + 1], denoiser, float(b[i].sqrt()), float(a[i])), pattern,
+                               method) for i in range(raw.shape[0])])
 
 
 SELF_ENSEMBLES = (False, True, "transpose", "dihedral")
@@ -449,11 +483,21 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
 
     out = run(model, noise)
     gate = getattr(model, "level_gate", None)
-    if gate is not None and noise is not None and self_ensemble != "dihedral":  # (dihedral: the gate is inside)
+    if gate is not None and noise is not None and self_ensemble != "dihedral":  # (dihedral: the gates are inside)
         w = level_gate_weight(raw, noise, gate["sigma_max"]).to(out.dtype)
         if bool((w > 0).any()):  # the expert runs only where it is weighed in
             w = w.reshape(-1, 1, 1, 1)
             out = w * run(gate["expert"], None) + (1 - w) * out
+        classical = gate.get("classical")
+        if classical is not None:
+            w = classical_gate_weight(raw, noise, classical["sigma_start"], classical["sigma_full"],
+                                      classical["weight_max"]).to(out.dtype)
+            on = torch.nonzero(w > 0).flatten()
+            if on.numel():  # the classical expert runs only on the images it is weighed in for
+                nz = noise.expand(x.shape[0], -1)[on]
+                expert = classical_expert(x[on], nz, classical["denoiser"], classical["method"]).to(out.dtype)
+                wo = w[on].reshape(-1, 1, 1, 1)
+                out = out.index_copy(0, on, wo * expert + (1 - wo) * out[on])
     return out[..., dy:dy + raw.shape[-2], dx:dx + raw.shape[-1]]
 
 
@@ -483,7 +527,8 @@ def _pretrained(variant: str, device: str, dtype: torch.dtype, guard: bool = Tru
     gate = PRETRAINED_GATES.get(variant)
     # the low-noise gate (demosaic_learned): the shipped expert under its own guard; none for the bare network
     net.level_gate = None if gate is None or not guard else {
-        "expert": _pretrained(gate["expert"], device, dtype, True), "sigma_max": float(gate["sigma_max"])}
+        "expert": _pretrained(gate["expert"], device, dtype, True), "sigma_max": float(gate["sigma_max"]),
+        **({"classical": dict(gate["classical"])} if "classical" in gate else {})}
     return net
 
 
