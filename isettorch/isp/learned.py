@@ -88,7 +88,14 @@ PRETRAINED_GUARDS = {
 #: is ``w expert + (1 - w) joint`` with ``w = clamp(1 - sqrt(b + a mean(x)) / sigma_max, 0, 1)`` per image, for a
 #: mosaic ``x`` with noise variance ``a x + b`` (the noise level the joint network is given). ``sigma_max`` was chosen
 #: on held-out synthetic scenes only (``docs/training_log.md#joint_gate_2026-11-28``), never Kodak/McMaster.
-PRETRAINED_GATES = {"joint_denoise": {"expert": "noise_free", "sigma_max": 0.0125}}
+#: Its high-noise gate (``classical``) then blends in a classical expert (:func:`classical_expert`: nlmeans, then
+#: Menon 2007), which errs differently from the network at strong noise: ``w expert + (1 - w) out`` with
+#: ``w = weight_max clamp((sigma - sigma_start) / (sigma_full - sigma_start), 0, 1)`` (:func:`classical_gate_weight`),
+#: chosen the same way (``docs/training_log.md#classical_gate_2026-11-28``).
+PRETRAINED_GATES = {"joint_denoise": {
+    "expert": "noise_free", "sigma_max": 0.0125,
+    "classical": {"sigma_start": 0.005, "sigma_full": 0.075, "weight_max": 0.5, "denoiser": "nlmeans",
+                  "method": "menon2007"}}}
 
 def _check_raw(raw: torch.Tensor, name: str = "raw") -> torch.Tensor:
     if not isinstance(raw, torch.Tensor):

@@ -152,11 +152,15 @@ def test_joint_low_noise_gate():
     """The shipped joint network's low-noise gate (learned.PRETRAINED_GATES): at its mean level a mosaic's noise
     sigma = sqrt(b + a mean(x)) weighs in the noise-free network with w = 1 - sigma / sigma_max (clamped): exactly
     the noise-free network for a noise-free level, exactly the bare-gated joint network from sigma_max on, the
-    convex blend between; the bare network (guard=False) has no gate."""
-    joint = learned.load_pretrained("joint_denoise")
-    gate = joint.level_gate
-    assert gate is not None and gate["expert"] is learned.load_pretrained("noise_free")
+    convex blend between; the bare network (guard=False) has no gate. (The high-noise gate, tested below, is taken
+    off here.)"""
+    import copy
+
+    shipped = learned.load_pretrained("joint_denoise")
+    assert shipped.level_gate is not None and shipped.level_gate["expert"] is learned.load_pretrained("noise_free")
     assert learned.load_pretrained("joint_denoise", guard=False).level_gate is None
+    joint = copy.copy(shipped)
+    joint.level_gate = gate = {k: v for k, v in shipped.level_gate.items() if k != "classical"}
     s_max = gate["sigma_max"]
     g = torch.Generator().manual_seed(3)
     raw = torch.rand(2, 1, 32, 32, generator=g) * 0.6 + 0.2
@@ -180,3 +184,60 @@ def test_joint_low_noise_gate():
     torch.testing.assert_close(w, torch.tensor([0.5, 0.5], dtype=torch.float64), rtol=0, atol=1e-6)
     expected = 0.5 * nf + 0.5 * joint_alone(mid)
     torch.testing.assert_close(learned.demosaic_learned(raw, model=joint, noise=mid), expected, rtol=0, atol=1e-6)
+
+
+def test_classical_gate_weight_ramp():
+    """The high-noise gate's weight: 0 up to sigma_start, linear to weight_max at sigma_full, constant beyond, with
+    sigma = sqrt(b + a mean(x)) (both kinds of noise at the same level give the same weight)."""
+    raw = torch.full((1, 1, 8, 8), 0.25)
+    for sigma, expected in ((0.0, 0.0), (0.02, 0.0), (0.035, 0.3), (0.05, 0.6), (0.2, 0.6)):
+        white = learned.noise_features(0.0, sigma**2)
+        shot = learned.noise_features(sigma**2 / 0.25, 0.0)
+        for noise in (white, shot):
+            w = learned.classical_gate_weight(raw, noise, 0.02, 0.05, 0.6)
+            assert float(w) == pytest.approx(expected, abs=1e-12)
+    for bad in ((0.05, 0.05, 0.5), (-0.01, 0.05, 0.5), (0.01, 0.05, 0.0), (0.01, 0.05, 1.5)):
+        with pytest.raises(ValueError, match="sigma_start, sigma_full, weight_max"):
+            learned.classical_gate_weight(raw, white, *bad)
+
+
+def test_classical_expert_is_the_benchmark_baseline(tmp_path):
+    """The classical expert is the demosaic benchmark's sequential baseline (nlmeans on the CFA sub-planes, then
+    Menon 2007): on the benchmark's noisy mosaic it scores what evaluate_demosaic reports for that baseline."""
+    import numpy as np
+    from PIL import Image
+
+    from isettorch.isp.evaluation import cpsnr, evaluate_demosaic, noisy_mosaic
+
+    g = np.random.default_rng(4)
+    img = (np.clip(np.cumsum(g.normal(0, 6, (48, 48, 3)), 0) + 90, 0, 255)).astype(np.uint8)
+    Image.fromarray(img).save(tmp_path / "a.png")
+    sigma, shot = 0.01, 0.004
+    reported = evaluate_demosaic(tmp_path, "menon2007", "RGGB", 4, denoise="nlmeans", noise_sigma=sigma,
+                                 noise_shot=shot, dtype=torch.float64)["mean_cpsnr"]
+    truth = torch.from_numpy(img.astype(np.float64) / 255).permute(2, 0, 1)[None]
+    raw = noisy_mosaic(mosaic(truth, "RGGB"), sigma, shot, seed=0, index=0)
+    out = learned.classical_expert(raw, learned.noise_features(shot, sigma**2))
+    assert float(cpsnr(out.clamp(0, 1), truth, 4)[0]) == pytest.approx(reported, abs=1e-6)
+
+
+def test_demosaic_learned_applies_a_classical_gate():
+    """A joint network's high-noise gate: the output is w expert + (1 - w) (the network under its low-noise gate),
+    per image, and the expert runs only on the images it is weighed in for (one image below sigma_start keeps the
+    network's output bitwise)."""
+    import copy
+
+    net = copy.copy(learned.load_pretrained("joint_denoise"))
+    gate = {k: v for k, v in net.level_gate.items() if k != "classical"}
+    net.level_gate = gate
+    g = torch.Generator().manual_seed(5)
+    raw = torch.rand(2, 1, 32, 32, generator=g, dtype=torch.float64).float() * 0.5 + 0.25
+    noise = learned.noise_features(torch.tensor([0.0, 0.0]), torch.tensor([0.02**2, 0.06**2])).float()
+    plain = learned.demosaic_learned(raw, model=net, noise=noise)
+    net.level_gate = gate | {"classical": {"sigma_start": 0.03, "sigma_full": 0.09, "weight_max": 0.8,
+                                           "denoiser": "nlmeans", "method": "menon2007"}}
+    gated = learned.demosaic_learned(raw, model=net, noise=noise)
+    assert torch.equal(gated[0], plain[0])
+    expert = learned.classical_expert(raw[1:], noise[1:])
+    w = 0.8 * (0.06 - 0.03) / (0.09 - 0.03)
+    torch.testing.assert_close(gated[1:], w * expert + (1 - w) * plain[1:], rtol=0, atol=1e-6)
