@@ -133,7 +133,8 @@ def main(argv: list[str] | None = None) -> int:
              f"- command: `{info['command']}`", f"- guard (part of what ships, scored with it): "
              f"`{json.dumps(learned.PRETRAINED_GUARDS[variant])}`"]
     if variant in learned.PRETRAINED_GATES:
-        lines.append(f"- low-noise gate (part of what ships, `learned.PRETRAINED_GATES`): "
+        lines.append(f"- noise gates (part of what ships, `learned.PRETRAINED_GATES`: the low-noise gate to the "
+                     f"noise-free network, and the high-noise gate to the classical expert, `classical`): "
                      f"`{json.dumps(learned.PRETRAINED_GATES[variant])}`")
     if cfg.get("init"):
         lines.append(f"- initialised from: `{cfg['init']}` (an earlier run's checkpoint: train that run first)")
