@@ -16,39 +16,54 @@ TRUTH = dict(gain_dn_per_e=0.4, read_noise_e=3.0, dark_current_e_per_s=60.0, dsn
 BAYER_QE = {"R": 0.35, "G": 0.55, "B": 0.3}
 
 
+def sensor_maps(truth: dict, shape, seed: int = 0):
+    """``(rng, prnu, dsnu)``: the generator of a simulated sensor seeded ``seed`` and its fixed per-pixel patterns
+    (PRNU gain ``1 + prnu% z_p``, DSNU electrons ``dsnu_e z_d``), drawn first from it."""
+    rng = np.random.default_rng(seed)
+    prnu = 1 + truth["prnu_percent"] / 100 * rng.standard_normal(shape)
+    dsnu = truth["dsnu_e"] * rng.standard_normal(shape)
+    return rng, prnu, dsnu
+
+
+def expose(truth: dict, mean_e: np.ndarray, dsnu: np.ndarray, rng) -> np.ndarray:
+    """One frame in DN (uint16) of a sensor with DSNU ``dsnu`` for the mean electrons ``mean_e`` per pixel (PRNU
+    and dark current already in it): Poisson, the well, read and row noise, gain, black level, rounding, clipping."""
+    h, w = mean_e.shape
+    e = np.minimum(rng.poisson(mean_e).astype(np.float64), truth["full_well_e"])
+    row = truth["row_noise_e"] * rng.standard_normal((h, 1))
+    dn = (truth["gain_dn_per_e"] * (e + dsnu + truth["read_noise_e"] * rng.standard_normal((h, w)) + row)
+          + truth["black_level_dn"])
+    return np.clip(np.round(dn), 0, 2 ** truth["bits"] - 1).astype(np.uint16)
+
+
+def qe_map(truth: dict, shape, cfa: str | None = None) -> np.ndarray:
+    """Per-pixel quantum efficiency: ``truth["qe"]["W"]`` everywhere, or a 2 x 2 CFA's channels (e.g. "RGGB")."""
+    out = np.empty(shape)
+    if cfa is None:
+        out[:] = truth["qe"]["W"]
+    else:
+        for dy in range(2):
+            for dx in range(2):
+                out[dy::2, dx::2] = truth["qe"][cfa[2 * dy + dx]]
+    return out
+
+
 def simulate(truth: dict, *, shape=(256, 256), cfa: str | None = None, exposures_ms=None, frames: int = 3,
              saturate_ms: float = 45.0, seed: int = 0):
     """Returns (dark, flat, photons_per_pixel): {ms: (frames, H, W) uint16 DN}, {ms: photons}. The photon flux
     fills the well of the most sensitive channel at ``saturate_ms``."""
-    rng = np.random.default_rng(seed)
-    h, w = shape
+    rng, prnu, dsnu = sensor_maps(truth, shape, seed)
     if exposures_ms is None:
         exposures_ms = np.round(np.linspace(1.0, 120.0, 15), 3)
-    qe_map = np.empty(shape)
-    if cfa is None:
-        qe_map[:] = truth["qe"]["W"]
-    else:
-        for dy in range(2):
-            for dx in range(2):
-                qe_map[dy::2, dx::2] = truth["qe"][cfa[2 * dy + dx]]
+    qe = qe_map(truth, shape, cfa)
     flux = truth["full_well_e"] / (max(truth["qe"].values()) * saturate_ms * 1e-3)  # photons / pixel / s
-    prnu = 1 + truth["prnu_percent"] / 100 * rng.standard_normal(shape)
-    dsnu = truth["dsnu_e"] * rng.standard_normal(shape)
-    top = 2 ** truth["bits"] - 1
-    K = truth["gain_dn_per_e"]
-
-    def frame(mean_e):
-        e = np.minimum(rng.poisson(mean_e).astype(np.float64), truth["full_well_e"])
-        row = truth["row_noise_e"] * rng.standard_normal((h, 1))
-        dn = K * (e + dsnu + truth["read_noise_e"] * rng.standard_normal(shape) + row) + truth["black_level_dn"]
-        return np.clip(np.round(dn), 0, top).astype(np.uint16)
-
     dark, flat, photons = {}, {}, {}
     for ms in exposures_ms:
         t = ms * 1e-3
-        dark[float(ms)] = np.stack([frame(np.full(shape, truth["dark_current_e_per_s"] * t)) for _ in range(frames)])
-        mean = qe_map * flux * t * prnu + truth["dark_current_e_per_s"] * t
-        flat[float(ms)] = np.stack([frame(mean) for _ in range(frames)])
+        dark[float(ms)] = np.stack([expose(truth, np.full(shape, truth["dark_current_e_per_s"] * t), dsnu, rng)
+                                    for _ in range(frames)])
+        mean = qe * flux * t * prnu + truth["dark_current_e_per_s"] * t
+        flat[float(ms)] = np.stack([expose(truth, mean, dsnu, rng) for _ in range(frames)])
         photons[float(ms)] = flux * t
     return dark, flat, photons
 
