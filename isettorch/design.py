@@ -72,6 +72,8 @@ DESIGN_DEFAULTS: dict[str, dict[str, Any]] = {
     "scene": {"illuminant": "D65", "distance_m": 1.2, "wavelengths_nm": [400.0, 700.0, 10.0]},
     "network": {"width": 32, "depth": 4},
 }
+#: keys a section may have beyond :data:`DESIGN_DEFAULTS`' (the network's context path is off unless asked for)
+_OPTIONAL_KEYS = {"network": ("context_scale",)}
 
 
 def _merge(defaults: dict, overrides: dict | None) -> dict:
@@ -80,7 +82,7 @@ def _merge(defaults: dict, overrides: dict | None) -> dict:
         if section in out and isinstance(out[section], dict):
             if not isinstance(values, dict):
                 raise ValueError(f"config.{section}: expected a mapping, got {values!r}")
-            unknown = [k for k in values if k not in out[section]]
+            unknown = [k for k in values if k not in out[section] and k not in _OPTIONAL_KEYS.get(section, ())]
             if unknown and section != "sensor":  # the sensor takes any Sensor argument
                 raise ValueError(f"config.{section}.{unknown[0]}: unknown key; expected one of {sorted(out[section])}")
             out[section].update(values)

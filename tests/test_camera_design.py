@@ -200,3 +200,34 @@ def test_shipped_designs_load_by_name_and_can_be_built():
         w = cam.mosaic.weights(8, 8)
         assert bool(((w == 0) | (w == 1)).all()) and torch.equal(w.sum(0), torch.ones(8, 8))
         assert cam.config["training"]["steps"] == 4500 and cam.config["network"] == {"width": 32, "depth": 4}
+
+
+def test_network_context_path_receptive_field_and_block_means(tmp_path):
+    """The context path widens the receptive field from 2 depth + 1 pixels to about 7 s: a pixel changes outputs
+    10 px or more from it only with it. Its input is each filter's block mean (normalised
+    convolution): a constant mosaic reads the constant for every filter present in a block, 0 for one absent. A
+    design with it saves and loads its networks."""
+    torch.manual_seed(1)
+    w = torch.nn.functional.one_hot(torch.randint(0, 3, (40, 40)), 3).permute(2, 0, 1).float()
+    for scale, changes in ((0, False), (4, True)):
+        net = MosaicReconstructionNet(3, width=8, depth=2, context_scale=scale)
+        x = torch.rand(1, 1, 40, 40)
+        y = x.clone()
+        y[..., 20, 32] += 0.5
+        moved = (net(x, w) - net(y, w))[..., :23].abs().max().item()
+        assert (moved > 1e-6) is changes, (scale, moved)
+    seen = {}
+    net.context.register_forward_hook(lambda m, inp, out: seen.update(means=inp[0]))  # returns None: output kept
+    w2 = torch.zeros(3, 8, 8)
+    w2[0, :4], w2[1, 4:] = 1, 1  # filter 2 nowhere; filter 0 only in the top blocks
+    net(torch.full((1, 1, 8, 8), 0.3), w2)
+    expected = torch.tensor([[[0.3, 0.3], [0.0, 0.0]], [[0.0, 0.0], [0.3, 0.3]], [[0.0, 0.0], [0.0, 0.0]]])
+    torch.testing.assert_close(seen["means"][0], expected, rtol=0, atol=1e-7)
+    cam = D.make_design({"filters": ["R", "G", "B"], "mosaic_shape": [2, 2]},
+                        dict(TINY, network={"width": 4, "depth": 1, "context_scale": 4}), lux=(1,))
+    loaded = D.load_design(D.save_design(cam, tmp_path / "ctx.pt"))
+    x, wm = torch.rand(1, 1, 12, 12), cam.mosaic.weights(12, 12)
+    assert loaded.network(1.0).kwargs["context_scale"] == 4
+    torch.testing.assert_close(loaded.network(1.0)(x, wm), cam.network(1.0)(x, wm), rtol=0, atol=0)
+    with pytest.raises(ValueError, match="context_scale"):
+        MosaicReconstructionNet(3, context_scale=-1)

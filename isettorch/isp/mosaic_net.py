@@ -7,11 +7,18 @@ channel, zero elsewhere) plus the K weight maps, so it knows the pattern (the "p
 input of Chakrabarti, "Learning sensor multiplexing design through back-propagation", NeurIPS 2016, and of Henz,
 Gastal & Oliveira, Eurographics 2018), then plain 3x3 convolutions (VGG-style, Simonyan & Zisserman 2015) with
 ReLUs, and a 1x1 layer to linear sRGB. The architecture depends on K only through the first layer's input count.
+
+Optional context path (``context_scale`` s > 0), for mosaics whose colour samples are sparse or noisy: each
+filter's local mean on s x s blocks (normalised convolution, Knutsson & Westin, CVPR 1993: the block sum of
+``raw x w_k`` over the block sum of ``w_k``), three 3x3 convolutions at that resolution, bilinear upsampling, and one
+3x3 convolution merging it with the local path before the 1x1 layer: a receptive field of about ``7 s`` pixels
+instead of ``2 depth + 1`` (the two-path "interpolation + context" structure of Chakrabarti, NeurIPS 2016, section 3).
 """
 
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 __all__ = ["MosaicReconstructionNet"]
@@ -23,6 +30,7 @@ class MosaicReconstructionNet(nn.Module):
     Args:
         num_filters: K.
         width: feature channels; depth: number of 3x3 convolutions (>= 1).
+        context_scale: block size of the context path (see the module docstring); 0 (default): none.
 
     Example:
         >>> net = MosaicReconstructionNet(4, width=8, depth=2)
@@ -31,24 +39,34 @@ class MosaicReconstructionNet(nn.Module):
         torch.Size([2, 3, 8, 8])
     """
 
-    def __init__(self, num_filters: int, width: int = 32, depth: int = 4) -> None:
+    def __init__(self, num_filters: int, width: int = 32, depth: int = 4, context_scale: int = 0) -> None:
         super().__init__()
-        for label, v, lo in (("num_filters", num_filters, 1), ("width", width, 1), ("depth", depth, 1)):
+        for label, v, lo in (("num_filters", num_filters, 1), ("width", width, 1), ("depth", depth, 1),
+                             ("context_scale", context_scale, 0)):
             if not isinstance(v, int) or isinstance(v, bool) or v < lo:
                 raise ValueError(f"{label}: expected an integer >= {lo}, got {v!r}")
-        self.num_filters, self.width, self.depth = num_filters, width, depth
+        self.num_filters, self.width, self.depth, self.context_scale = num_filters, width, depth, context_scale
+
+        def conv(c_in, c_out):
+            return [nn.Conv2d(c_in, c_out, 3, padding=1, padding_mode="reflect"), nn.ReLU(inplace=True)]
+
         layers: list[nn.Module] = []
         c = 2 * num_filters
         for _ in range(depth):
-            layers += [nn.Conv2d(c, width, 3, padding=1, padding_mode="reflect"), nn.ReLU(inplace=True)]
+            layers += conv(c, width)
             c = width
+        if context_scale:
+            # the local path's features and the context's are merged by one more 3x3 convolution
+            self.context = nn.Sequential(*conv(num_filters, width), *conv(width, width), *conv(width, width))
+            self.merge = nn.Sequential(*conv(2 * width, width))
         layers.append(nn.Conv2d(c, 3, 1))
         self.body = nn.Sequential(*layers)
 
     @property
     def kwargs(self) -> dict:
         """The constructor's arguments (stored in a design file)."""
-        return {"num_filters": self.num_filters, "width": self.width, "depth": self.depth}
+        out = {"num_filters": self.num_filters, "width": self.width, "depth": self.depth}
+        return out | ({"context_scale": self.context_scale} if self.context_scale else {})
 
     def forward(self, raw: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
         if raw.dim() != 4 or raw.shape[1] != 1:
@@ -59,4 +77,14 @@ class MosaicReconstructionNet(nn.Module):
             raise ValueError(f"weights: expected ({self.num_filters}, H, W) or (B, {self.num_filters}, H, W) with "
                              f"H, W = {tuple(raw.shape[-2:])}, got {tuple(weights.shape)}")
         w = weights.to(raw.dtype).expand(raw.shape[0], -1, -1, -1)
-        return self.body(torch.cat([raw * w, w], dim=1))
+        sparse = raw * w
+        if not self.context_scale:
+            return self.body(torch.cat([sparse, w], dim=1))
+        feats = self.body[:-1](torch.cat([sparse, w], dim=1))
+        s = self.context_scale
+        # each filter's block mean (0 where a block has none of its pixels)
+        num = F.avg_pool2d(sparse, s, ceil_mode=True)
+        den = F.avg_pool2d(w, s, ceil_mode=True)
+        means = num / den.clamp_min(1e-6) * (den > 0)
+        ctx = F.interpolate(self.context(means), size=raw.shape[-2:], mode="bilinear", align_corners=False)
+        return self.body[-1](self.merge(torch.cat([feats, ctx], dim=1)))
