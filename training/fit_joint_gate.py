@@ -81,35 +81,34 @@ def _parts(folder, levels, classical: bool):
         joint.level_gate = saved
 
 
+def _scores(folder, levels, grid, *, base: str, expert: str, weight, classical: bool) -> dict:
+    """Per level, the mean CPSNR of the part ``base`` ("none") and of ``w expert + (1 - w) base`` with ``w =
+    weight(raw, noise, candidate)`` for each candidate of ``grid``."""
+    out = {}
+    for key, rows in _parts(folder, levels, classical=classical):
+        per = {"none": []} | {_name(m): [] for m in grid}
+        for truth, raw, feats, p in rows:
+            per["none"].append(cpsnr(p[base].clamp(0, 1), truth, 10)[0].item())
+            for m in grid:
+                w = weight(raw, feats, m).reshape(-1, 1, 1, 1)
+                y = w * p[expert] + (1 - w) * p[base]
+                per[_name(m)].append(cpsnr(y.clamp(0, 1), truth, 10)[0].item())
+        out[key] = {k: float(np.mean(s)) for k, s in per.items()}
+    return out
+
+
 def scores(folder, levels=LEVELS, grid=GRID) -> dict:
     """``{"<kind> <value>": {"none": dB, "<sigma_max>": dB, ...}}``: mean CPSNR of the bare joint network ("none")
     and of each low-noise gate on the images of ``folder``."""
-    out = {}
-    for key, rows in _parts(folder, levels, classical=False):
-        per = {"none": []} | {_name(m): [] for m in grid}
-        for truth, raw, feats, p in rows:
-            per["none"].append(cpsnr(p["joint"].clamp(0, 1), truth, 10)[0].item())
-            for m in grid:
-                w = learned.level_gate_weight(raw, feats, m).reshape(-1, 1, 1, 1)
-                per[_name(m)].append(cpsnr((w * p["nf"] + (1 - w) * p["joint"]).clamp(0, 1), truth, 10)[0].item())
-        out[key] = {k: float(np.mean(s)) for k, s in per.items()}
-    return out
+    return _scores(folder, levels, grid, base="joint", expert="nf", weight=learned.level_gate_weight,
+                   classical=False)
 
 
 def scores_classical(folder, levels=CLASSICAL_LEVELS, grid=CLASSICAL_GRID) -> dict:
     """``{"<kind> <value>": {"none": dB, "<start>/<full>/<weight>": dB, ...}}``: mean CPSNR of the joint network
     under its shipped low-noise gate ("none") and with each high-noise gate on top, on the images of ``folder``."""
-    out = {}
-    for key, rows in _parts(folder, levels, classical=True):
-        per = {"none": []} | {_name(m): [] for m in grid}
-        for truth, raw, feats, p in rows:
-            per["none"].append(cpsnr(p["shipped_low"].clamp(0, 1), truth, 10)[0].item())
-            for m in grid:
-                w = learned.classical_gate_weight(raw, feats, *m).reshape(-1, 1, 1, 1)
-                y = w * p["classical"] + (1 - w) * p["shipped_low"]
-                per[_name(m)].append(cpsnr(y.clamp(0, 1), truth, 10)[0].item())
-        out[key] = {k: float(np.mean(s)) for k, s in per.items()}
-    return out
+    return _scores(folder, levels, grid, base="shipped_low", expert="classical", classical=True,
+                   weight=lambda raw, feats, m: learned.classical_gate_weight(raw, feats, *m))
 
 
 def _choose(by_set: dict, grid, tolerance_db: float) -> dict:
