@@ -6,15 +6,18 @@ black level, 12-bit ADC), a high-ISO phone-like sensor: 4 DN/e-, 1.5 e- read noi
 
     python training/camera_specific_run.py prepare   # capture -> isettorch calibrate -> sensor.yaml, camera.yaml
     python training/camera_specific_run.py train     # train_demosaic.py, the template config, this camera, 1 h
-    python training/camera_specific_run.py score     # isettorch process on simulated raw frames, scored
+    python training/camera_specific_run.py score --photos DIR  # isettorch process on simulated raw frames
 
-``score`` simulates raw frames of the camera (the same sensor: its PRNU and DSNU patterns) from photographs taken as
-its noise-free camera RGB (8-bit / 255, linear: the shared scoring convention), exposed as the camera config's
-auto-exposure does (the mosaic's 98th percentile at 0.5 of the span) and two stops under it, and scores (CPSNR,
-crop 10, after dividing by the exposure scale): the camera-specific network and the shipped joint network, both
-through ``isettorch process``; the shipped joint model as the library applies it (its guard and noise gates); and
-nlmeans + Menon 2007 given the same noise level. Photographs are for reporting only: nothing is selected on them
-(the run's checkpoint is its own ``best.pt``, chosen on its synthetic validation through the camera).
+``score`` simulates raw frames of the camera (the same sensor: its PRNU and DSNU patterns) from photographs: each is
+lifted to spectra with the library's photo lifter (:func:`isettorch.data.photos.lift_srgb`, Mallett & Yuksel's
+basis) under D65 and projected on the camera's spectral QE (the camera config's filters), which gives its noise-free
+camera RGB, a 3 x 3 matrix of its linear sRGB (scaled so that a white reads 1 in its brightest channel); each frame
+is exposed as the camera config's auto-exposure does (the mosaic's 98th percentile at 0.5 of the span) and two stops
+under it. Scores (CPSNR against that camera RGB, crop 10, after dividing by the exposure scale): the camera-specific
+network and the shipped joint network, both through ``isettorch process``; the shipped joint model as the library
+applies it (its guard and noise gates); and nlmeans + Menon 2007 given the same noise level. Photographs are for
+reporting only: nothing is selected on them (the run's checkpoint is its own ``best.pt``, chosen on its synthetic
+validation through the camera).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ for p in (ROOT, ROOT / "tests" / "sensor"):
 
 import numpy as np  # noqa: E402
 import numpy_capture as nc  # noqa: E402
+import torch  # noqa: E402
 import yaml  # noqa: E402
 
 #: the simulated camera (electrons, DN); no row noise (not in the noise model ``process`` gives the network)
@@ -77,9 +81,26 @@ def train(out: Path, seconds: int = TRAIN_SECONDS) -> int:
     return subprocess.call(cmd, cwd=ROOT)
 
 
-def _frames(images, folder: Path, target: float):
-    """Raw frames (.npy, DN) of the simulated camera for each photograph, exposed so that the mosaic's 98th
-    percentile is ``target`` of the span; returns [(name, path, truth [3, H, W], scale)]."""
+def camera_rgb_matrix(sensor) -> np.ndarray:
+    """``[3, 3]``: a lifted photograph's noise-free camera RGB from its linear sRGB, under D65 through the sensor's
+    spectral QE: ``M_kc = sum_l B_c(l) E(l) QE_k(l)`` (``B`` the lifter's basis), scaled so a white (linear sRGB
+    1, 1, 1) reads 1 in its brightest channel."""
+    import torch
+
+    from isettorch.data.photos import lift_srgb
+    from isettorch.design import illuminant_photons
+
+    lifted = lift_srgb(np.full((1, 1, 3), 255, np.uint8))
+    wl = lifted["wavelengths_nm"].to(torch.float64)
+    qe = sensor.spectral_qe(wl, dtype=torch.float64, device="cpu")  # [3, L]
+    m = (qe[:, None, :] * (lifted["reflectance"] * illuminant_photons(wl, 1.0))[None]).sum(-1)
+    return (m / m.sum(1).max()).numpy()
+
+
+def _frames(images, folder: Path, target: float, to_camera: np.ndarray | None = None):
+    """Raw frames (.npy, DN) of the simulated camera for each photograph (its camera RGB: ``to_camera`` times its
+    linear sRGB; ``None``: the 8-bit values / 255 as camera RGB), exposed so that the mosaic's 98th percentile is
+    ``target`` of the span; returns [(name, path, truth [3, H, W], scale)]."""
     rng, prnu, dsnu = nc.sensor_maps(TRUTH, SHAPE, SEED)
     rng = np.random.default_rng([SEED, int(target * 1000)])
     span = 2 ** TRUTH["bits"] - 1 - TRUTH["black_level_dn"]
@@ -87,6 +108,10 @@ def _frames(images, folder: Path, target: float):
     out = []
     for name, arr in images:
         truth = arr.astype(np.float64).transpose(2, 0, 1) / 255.0
+        if to_camera is not None:
+            from isettorch.image import srgb_decode
+
+            truth = np.einsum("kc,chw->khw", to_camera, srgb_decode(torch.from_numpy(truth)).numpy())
         h, w = truth.shape[1:]
         if h > SHAPE[0] or w > SHAPE[1]:
             raise ValueError(f"{name}: {h} x {w} is larger than the simulated sensor {SHAPE}")
@@ -104,8 +129,6 @@ def _frames(images, folder: Path, target: float):
 
 
 def score(out: Path, photos: Path) -> dict:
-    import torch
-
     from isettorch.camera import Camera
     from isettorch.cli import main
     from isettorch.commands.process import noise_params
@@ -121,9 +144,11 @@ def score(out: Path, photos: Path) -> dict:
     models = {"camera-specific network": out / "run" / "best.pt",
               "shipped joint network": learned.PRETRAINED["joint_denoise"]}
     images = load_images(photos)
-    result = {"photos": str(photos), "noise": {"a": a, "b": b}, "levels": {}}
+    to_camera = camera_rgb_matrix(sensor)
+    result = {"photos": str(photos), "noise": {"a": a, "b": b}, "camera_rgb_from_linear_srgb": to_camera.tolist(),
+              "levels": {}}
     for target in AE_TARGETS:
-        frames = _frames(images, out / f"frames_{target:g}", target)
+        frames = _frames(images, out / f"frames_{target:g}", target, to_camera)
         rows = {}
         for label, ckpt in models.items():
             dest = out / f"processed_{target:g}" / label.split()[0]
