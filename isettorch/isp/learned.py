@@ -91,7 +91,10 @@ PRETRAINED_GUARDS = {
 #: Its high-noise gate (``classical``) then blends in a classical expert (:func:`classical_expert`: nlmeans, then
 #: Menon 2007), which errs differently from the network at strong noise: ``w expert + (1 - w) out`` with
 #: ``w = weight_max clamp((sigma - sigma_start) / (sigma_full - sigma_start), 0, 1)`` (:func:`classical_gate_weight`),
-#: chosen the same way (``docs/training_log.md#classical_gate_2026-11-28``).
+#: chosen the same way (``docs/training_log.md#classical_gate_2026-11-28``). Both read the noise in absolute units at
+#: the mosaic's mean level, as fitted on normally exposed scenes: an underexposed frame (little noise in absolute
+#: terms, much against its signal) gets the noise-free network weighed in (measured: -0.24 to -0.40 dB two stops
+#: under, ``docs/camera_specific_denoising.md``); set the network's ``level_gate`` to None for such frames.
 PRETRAINED_GATES = {"joint_denoise": {
     "expert": "noise_free", "sigma_max": 0.0125,
     "classical": {"sigma_start": 0.005, "sigma_full": 0.075, "weight_max": 0.5, "denoiser": "nlmeans",
