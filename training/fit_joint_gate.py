@@ -13,7 +13,11 @@ the parts of the shipped output run once; each candidate gate blends them and is
   :func:`isettorch.isp.learned.classical_gate_weight`. Rule pre-registered in
   ``docs/training_log.md#classical_gate_2026-11-28``.
 
-Both rules: the candidate with the highest mean gain over the sets and levels (against "none", the output without
+* ``--gate relative`` (the low-noise gate read against the signal, ``relative_max``): as ``low``, each set at its own
+  exposure and two stops under, the shipped absolute gate among the candidates. Rule pre-registered in
+  ``docs/training_log.md#relative_gate_2026-11-28``.
+
+All rules: the candidate with the highest mean gain over the sets and levels (against "none", the output without
 the gate) ships if that mean is positive and no level's mean over the sets is more than 0.02 dB below "none".
 
     python training/fit_joint_gate.py --gate low --sets out/heldout_v5 out/heldout_stress [--out gate.json]
@@ -44,17 +48,23 @@ CLASSICAL_LEVELS = (("sigma", 0.005), ("sigma", 0.01), ("sigma", 0.02), ("sigma"
 #: (sigma_start, sigma_full, weight_max) candidates of the high-noise gate
 CLASSICAL_GRID = tuple((s0, s1, w) for s0 in (0.005, 0.01, 0.02, 0.03) for s1 in (0.05, 0.075, 0.1, 0.15)
                        for w in (0.5, 0.75, 1.0))
+#: the shipped absolute low-noise gate and the relative candidates (docs/training_log.md#relative_gate_2026-11-28)
+RELATIVE_GRID = (("abs", 0.0125),) + tuple(("rel", r) for r in (0.0125, 0.025, 0.0375, 0.05, 0.075, 0.1))
+RELATIVE_SCALES = (1.0, 0.25)
 TOLERANCE_DB = 0.02
 
 
 def _name(candidate) -> str:
-    return "/".join(f"{v:g}" for v in candidate) if isinstance(candidate, tuple) else str(candidate)
+    if isinstance(candidate, tuple):
+        return "/".join(v if isinstance(v, str) else f"{v:g}" for v in candidate)
+    return str(candidate)
 
 
-def _parts(folder, levels, classical: bool):
+def _parts(folder, levels, classical: bool, scale: float = 1.0):
     """Per level ``(key, [(truth, raw, noise, parts)])``: the parts of the output for each image of ``folder``:
     ``nf`` (the guarded noise-free network), ``joint`` (the guarded joint network without its gates), with
-    ``classical`` also ``shipped_low`` (``joint`` under the shipped low-noise gate) and ``classical``."""
+    ``classical`` also ``shipped_low`` (``joint`` under the shipped low-noise gate) and ``classical``. ``scale``:
+    the exposure (the image times ``scale`` before the mosaic and the noise; the parts divided by it)."""
     expert = learned.load_pretrained("noise_free")
     joint = learned.load_pretrained("joint_denoise")
     saved, joint.level_gate = joint.level_gate, None  # the guarded joint network alone; blended below
@@ -67,7 +77,7 @@ def _parts(folder, levels, classical: bool):
             rows = []
             for i, (_, arr) in enumerate(items):
                 truth = torch.from_numpy(arr.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
-                raw = noisy_mosaic(mosaic(truth, "RGGB"), sigma, shot, seed=0, index=i).float()
+                raw = noisy_mosaic(mosaic(truth * scale, "RGGB"), sigma, shot, seed=0, index=i).float()
                 with torch.no_grad():
                     parts = {"nf": learned.demosaic_learned(raw, "RGGB", model=expert).double(),
                              "joint": learned.demosaic_learned(raw, "RGGB", model=joint, noise=feats).double()}
@@ -75,17 +85,17 @@ def _parts(folder, levels, classical: bool):
                     w = learned.level_gate_weight(raw, feats, sigma_max).reshape(-1, 1, 1, 1)
                     parts["shipped_low"] = w * parts["nf"] + (1 - w) * parts["joint"]
                     parts["classical"] = learned.classical_expert(raw.double(), feats).double()
-                rows.append((truth, raw, feats, parts))
+                rows.append((truth, raw, feats, {k: v / scale for k, v in parts.items()}))
             yield f"{kind} {v:g}", rows
     finally:
         joint.level_gate = saved
 
 
-def _scores(folder, levels, grid, *, base: str, expert: str, weight, classical: bool) -> dict:
+def _scores(folder, levels, grid, *, base: str, expert: str, weight, classical: bool, scale: float = 1.0) -> dict:
     """Per level, the mean CPSNR of the part ``base`` ("none") and of ``w expert + (1 - w) base`` with ``w =
     weight(raw, noise, candidate)`` for each candidate of ``grid``."""
     out = {}
-    for key, rows in _parts(folder, levels, classical=classical):
+    for key, rows in _parts(folder, levels, classical=classical, scale=scale):
         per = {"none": []} | {_name(m): [] for m in grid}
         for truth, raw, feats, p in rows:
             per["none"].append(cpsnr(p[base].clamp(0, 1), truth, 10)[0].item())
@@ -109,6 +119,16 @@ def scores_classical(folder, levels=CLASSICAL_LEVELS, grid=CLASSICAL_GRID) -> di
     under its shipped low-noise gate ("none") and with each high-noise gate on top, on the images of ``folder``."""
     return _scores(folder, levels, grid, base="shipped_low", expert="classical", classical=True,
                    weight=lambda raw, feats, m: learned.classical_gate_weight(raw, feats, *m))
+
+
+def scores_relative(folder, scale: float, levels=LEVELS, grid=RELATIVE_GRID) -> dict:
+    """``{"<kind> <value>": {"none": dB, "abs/<sigma_max>": dB, "rel/<r_max>": dB, ...}}``: mean CPSNR of the bare
+    joint network ("none") and of each absolute or relative low-noise gate, the images at exposure ``scale``."""
+    def weight(raw, feats, m):
+        return (learned.level_gate_weight(raw, feats, m[1]) if m[0] == "abs"
+                else learned.level_gate_weight(raw, feats, relative_max=m[1]))
+
+    return _scores(folder, levels, grid, base="joint", expert="nf", weight=weight, classical=False, scale=scale)
 
 
 def _choose(by_set: dict, grid, tolerance_db: float) -> dict:
@@ -140,16 +160,29 @@ def choose_classical(by_set: dict, grid=CLASSICAL_GRID, tolerance_db: float = TO
         "sigma_start": s0, "sigma_full": s1, "weight_max": w}
 
 
+def choose_relative(by_set: dict, grid=RELATIVE_GRID, tolerance_db: float = TOLERANCE_DB) -> dict:
+    """The relative gate's rule on ``{set-exposure: scores_relative(...)}``: the best mean gain's candidate (``kind``
+    "abs" or "rel", ``value``), and whether it ships (a relative candidate within the tolerance)."""
+    out = _choose(by_set, grid, tolerance_db)
+    kind, value = out["candidate"]
+    return {k: out[k] for k in ("gain_db", "mean_gain_db")} | {
+        "kind": kind, "value": value, "ships": bool(out["ships"] and kind == "rel")}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--gate", choices=("low", "classical"), default="low")
+    p.add_argument("--gate", choices=("low", "classical", "relative"), default="low")
     p.add_argument("--sets", nargs="+", required=True, help="held-out synthetic image folders")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", default=None, help="write the scores and the decision (JSON) here")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
-    score, rule = (scores, choose) if args.gate == "low" else (scores_classical, choose_classical)
-    by_set = {s: score(s) for s in args.sets}
+    if args.gate == "relative":
+        by_set = {f"{s} x{k:g}": scores_relative(s, k) for s in args.sets for k in RELATIVE_SCALES}
+        rule = choose_relative
+    else:
+        score, rule = (scores, choose) if args.gate == "low" else (scores_classical, choose_classical)
+        by_set = {s: score(s) for s in args.sets}
     decision = rule(by_set)
     ranked = sorted(decision["mean_gain_db"], key=decision["mean_gain_db"].get, reverse=True)
     for m in ranked[:12]:

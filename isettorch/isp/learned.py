@@ -405,10 +405,24 @@ def mosaic_noise_sigma(raw: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
     return (b + a * level).sqrt()
 
 
-def level_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_max: float) -> torch.Tensor:
+def level_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_max: float | None = None, *,
+                      relative_max: float | None = None) -> torch.Tensor:
     """The low-noise gate's weight ``[B]`` of the expert (:data:`PRETRAINED_GATES`): ``clamp(1 - sigma / sigma_max,
-    0, 1)`` with ``sigma`` = :func:`mosaic_noise_sigma` (1 for a noise-free mosaic, 0 from ``sigma_max`` on)."""
-    return (1 - mosaic_noise_sigma(raw, noise) / sigma_max).clamp(0, 1)
+    0, 1)`` with ``sigma`` = :func:`mosaic_noise_sigma` (1 for a noise-free mosaic, 0 from ``sigma_max`` on); or,
+    with ``relative_max`` instead, of the noise against the signal: ``clamp(1 - r / relative_max, 0, 1)`` with
+    ``r = sigma / mean(raw)`` (the same for a frame and the frame scaled, with its noise, by any exposure)."""
+    if (sigma_max is None) == (relative_max is None):
+        raise ValueError(f"sigma_max, relative_max: expected exactly one, got {sigma_max}, {relative_max}")
+    sigma = mosaic_noise_sigma(raw, noise)
+    if sigma_max is not None:
+        return (1 - sigma / sigma_max).clamp(0, 1)
+    level = raw.detach().to(torch.float64).clamp_min(0).mean((1, 2, 3)).clamp_min(1e-6)
+    return (1 - sigma / level / relative_max).clamp(0, 1)
+
+
+def _level_gate(raw: torch.Tensor, noise: torch.Tensor, gate: dict) -> torch.Tensor:
+    """The low-noise gate of a shipped gate dict (its ``sigma_max`` or its ``relative_max``)."""
+    return level_gate_weight(raw, noise, gate.get("sigma_max"), relative_max=gate.get("relative_max"))
 
 
 def classical_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_start: float, sigma_full: float,
@@ -494,7 +508,7 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
     out = run(model, noise)
     gate = getattr(model, "level_gate", None)
     if gate is not None and noise is not None and self_ensemble != "dihedral":  # (dihedral: the gates are inside)
-        w = level_gate_weight(raw, noise, gate["sigma_max"]).to(out.dtype)
+        w = _level_gate(raw, noise, gate).to(out.dtype)
         if bool((w > 0).any()):  # the expert runs only where it is weighed in
             w = w.reshape(-1, 1, 1, 1)
             out = w * run(gate["expert"], None) + (1 - w) * out
@@ -537,8 +551,8 @@ def _pretrained(variant: str, device: str, dtype: torch.dtype, guard: bool = Tru
     gate = PRETRAINED_GATES.get(variant)
     # the low-noise gate (demosaic_learned): the shipped expert under its own guard; none for the bare network
     net.level_gate = None if gate is None or not guard else {
-        "expert": _pretrained(gate["expert"], device, dtype, True), "sigma_max": float(gate["sigma_max"]),
-        **({"classical": dict(gate["classical"])} if "classical" in gate else {})}
+        "expert": _pretrained(gate["expert"], device, dtype, True),
+        **{k: (dict(v) if isinstance(v, dict) else float(v)) for k, v in gate.items() if k != "expert"}}
     return net
 
 

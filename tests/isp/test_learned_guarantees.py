@@ -241,3 +241,25 @@ def test_demosaic_learned_applies_a_classical_gate():
     expert = learned.classical_expert(raw[1:], noise[1:])
     w = 0.8 * (0.06 - 0.03) / (0.09 - 0.03)
     torch.testing.assert_close(gated[1:], w * expert + (1 - w) * plain[1:], rtol=0, atol=1e-6)
+
+
+def test_relative_level_gate_is_exposure_invariant():
+    """The relative low-noise gate reads r = sqrt(b + a m) / m: a frame scaled by k with its noise (a -> k a,
+    b -> k^2 b) gets the same weight, and r = r_max / 2 gives 1/2; the absolute gate gives a dark frame more."""
+    g = torch.Generator().manual_seed(6)
+    raw = torch.rand(1, 1, 16, 16, generator=g, dtype=torch.float64) * 0.5 + 0.25
+    m = float(raw.mean())
+    a, b = 2e-4, 1e-5
+    r = (b + a * m) ** 0.5 / m
+    ws = []
+    for k in (1.0, 0.25, 0.05):
+        noise = learned.noise_features(a * k, b * k * k)
+        ws.append(float(learned.level_gate_weight(raw * k, noise, relative_max=2 * r)))
+    assert ws == pytest.approx([0.5, 0.5, 0.5], abs=1e-9)
+    s_max = 4 * (b + a * m) ** 0.5  # the absolute form: 1 - 1/4 on the frame, 1 - 1/16 two stops under
+    bright = float(learned.level_gate_weight(raw, learned.noise_features(a, b), s_max))
+    dark = float(learned.level_gate_weight(raw * 0.25, learned.noise_features(a / 4, b / 16), s_max))
+    assert bright == pytest.approx(0.75, abs=1e-9) and dark == pytest.approx(1 - 1 / 16, abs=1e-9)
+    for bad in ({}, {"sigma_max": 0.01, "relative_max": 0.01}):
+        with pytest.raises(ValueError, match="sigma_max, relative_max"):
+            learned.level_gate_weight(raw, learned.noise_features(a, b), **bad)
