@@ -15,7 +15,8 @@ the parts of the shipped output run once; each candidate gate blends them and is
 
 * ``--gate relative`` (the low-noise gate read against the signal, ``relative_max``): as ``low``, each set at its own
   exposure and two stops under, the shipped absolute gate among the candidates. Rule pre-registered in
-  ``docs/training_log.md#relative_gate_2026-11-28``.
+  ``docs/training_log.md#relative_gate_2026-11-28``; with ``--within-tolerance``, the second round's rule
+  (``#relative_gate_round2_2026-11-28``: the best mean among the candidates within the tolerance).
 
 All rules: the candidate with the highest mean gain over the sets and levels (against "none", the output without
 the gate) ships if that mean is positive and no level's mean over the sets is more than 0.02 dB below "none".
@@ -26,6 +27,7 @@ the gate) ships if that mean is positive and no level's mean over the sets is mo
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
@@ -68,7 +70,7 @@ def _parts(folder, levels, classical: bool, scale: float = 1.0):
     expert = learned.load_pretrained("noise_free")
     joint = learned.load_pretrained("joint_denoise")
     saved, joint.level_gate = joint.level_gate, None  # the guarded joint network alone; blended below
-    sigma_max = learned.PRETRAINED_GATES["joint_denoise"]["sigma_max"]
+    shipped_gate = learned.PRETRAINED_GATES["joint_denoise"]
     try:
         items = load_images(folder)
         for kind, v in levels:
@@ -82,7 +84,7 @@ def _parts(folder, levels, classical: bool, scale: float = 1.0):
                     parts = {"nf": learned.demosaic_learned(raw, "RGGB", model=expert).double(),
                              "joint": learned.demosaic_learned(raw, "RGGB", model=joint, noise=feats).double()}
                 if classical:
-                    w = learned.level_gate_weight(raw, feats, sigma_max).reshape(-1, 1, 1, 1)
+                    w = learned._level_gate(raw, feats, shipped_gate).reshape(-1, 1, 1, 1)
                     parts["shipped_low"] = w * parts["nf"] + (1 - w) * parts["joint"]
                     parts["classical"] = learned.classical_expert(raw.double(), feats).double()
                 rows.append((truth, raw, feats, {k: v / scale for k, v in parts.items()}))
@@ -160,26 +162,41 @@ def choose_classical(by_set: dict, grid=CLASSICAL_GRID, tolerance_db: float = TO
         "sigma_start": s0, "sigma_full": s1, "weight_max": w}
 
 
-def choose_relative(by_set: dict, grid=RELATIVE_GRID, tolerance_db: float = TOLERANCE_DB) -> dict:
+def choose_relative(by_set: dict, grid=RELATIVE_GRID, tolerance_db: float = TOLERANCE_DB, *,
+                    within_tolerance: bool = False) -> dict:
     """The relative gate's rule on ``{set-exposure: scores_relative(...)}``: the best mean gain's candidate (``kind``
-    "abs" or "rel", ``value``), and whether it ships (a relative candidate within the tolerance)."""
+    "abs" or "rel", ``value``), and whether it ships (a relative candidate within the tolerance). With
+    ``within_tolerance`` (the second round's rule), the best mean among the candidates within the tolerance, which
+    ships if it is relative and its mean is above the shipped absolute gate's."""
+    if not within_tolerance:
+        out = _choose(by_set, grid, tolerance_db)
+        kind, value = out["candidate"]
+        return {k: out[k] for k in ("gain_db", "mean_gain_db")} | {
+            "kind": kind, "value": value, "ships": bool(out["ships"] and kind == "rel")}
     out = _choose(by_set, grid, tolerance_db)
-    kind, value = out["candidate"]
-    return {k: out[k] for k in ("gain_db", "mean_gain_db")} | {
-        "kind": kind, "value": value, "ships": bool(out["ships"] and kind == "rel")}
+    ok = [m for m in grid if min(out["gain_db"][_name(m)].values()) >= -tolerance_db]
+    result = {k: out[k] for k in ("gain_db", "mean_gain_db")}
+    if not ok:
+        return result | {"kind": None, "value": None, "ships": False}
+    kind, value = max(ok, key=lambda m: out["mean_gain_db"][_name(m)])
+    shipped = out["mean_gain_db"][_name(grid[0])]
+    return result | {"kind": kind, "value": value,
+                     "ships": bool(kind == "rel" and out["mean_gain_db"][_name((kind, value))] > shipped)}
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--gate", choices=("low", "classical", "relative"), default="low")
     p.add_argument("--sets", nargs="+", required=True, help="held-out synthetic image folders")
+    p.add_argument("--within-tolerance", action="store_true",
+                   help="relative: the second round's rule (the best mean among the candidates within the tolerance)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", default=None, help="write the scores and the decision (JSON) here")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     if args.gate == "relative":
         by_set = {f"{s} x{k:g}": scores_relative(s, k) for s in args.sets for k in RELATIVE_SCALES}
-        rule = choose_relative
+        rule = functools.partial(choose_relative, within_tolerance=args.within_tolerance)
     else:
         score, rule = (scores, choose) if args.gate == "low" else (scores_classical, choose_classical)
         by_set = {s: score(s) for s in args.sets}

@@ -204,3 +204,26 @@ def test_joint_gate_rule_picks_the_best_mean_and_respects_the_tolerance():
     assert abs(out["mean_gain_db"]["0.01"] - 0.145) < 1e-12 and abs(out["mean_gain_db"]["0.02"] - 0.225) < 1e-12
     out = choose(by_set, grid=(0.01,))
     assert out["sigma_max"] == 0.01 and out["ships"]
+
+
+def test_relative_gate_rules():
+    """The relative gate's two rules (docs/training_log.md#relative_gate_2026-11-28, #relative_gate_round2_...):
+    the first takes the best mean and ships it only if it is relative and within the 0.02 dB tolerance; the second
+    takes the best mean among the candidates within the tolerance and ships it if it is relative and above the
+    shipped absolute gate."""
+    from training.fit_joint_gate import choose_relative
+
+    grid = (("abs", 0.0125), ("rel", 0.025), ("rel", 0.05))
+    # gains over "none" at two levels: abs +0.10 / 0.00; rel 0.025 +0.15 / -0.01; rel 0.05 +0.30 / -0.05
+    by_set = {s: {"sigma 0.005": {"none": 30.0, "abs/0.0125": 30.1, "rel/0.025": 30.15, "rel/0.05": 30.3},
+                  "shot 0.001": {"none": 20.0, "abs/0.0125": 20.0, "rel/0.025": 19.99, "rel/0.05": 19.95}}
+              for s in ("a x1", "a x0.25")}
+    first = choose_relative(by_set, grid)
+    assert (first["kind"], first["value"], first["ships"]) == ("rel", 0.05, False)
+    second = choose_relative(by_set, grid, within_tolerance=True)
+    assert (second["kind"], second["value"], second["ships"]) == ("rel", 0.025, True)
+    # the shipped gate better than every relative candidate within the tolerance: nothing ships
+    for s in by_set:
+        by_set[s]["sigma 0.005"]["abs/0.0125"] = 30.2
+    second = choose_relative(by_set, grid, within_tolerance=True)
+    assert (second["kind"], second["ships"]) == ("abs", False)
