@@ -85,18 +85,19 @@ PRETRAINED_GUARDS = {
 }
 #: the low-noise gate each shipped joint network runs under, part of what ``load_pretrained`` returns (issue #35 item
 #: 4: the joint network is tuned for mid noise, the noise-free network is better on nearly clean mosaics): the output
-#: is ``w expert + (1 - w) joint`` with ``w = clamp(1 - sqrt(b + a mean(x)) / sigma_max, 0, 1)`` per image, for a
-#: mosaic ``x`` with noise variance ``a x + b`` (the noise level the joint network is given). ``sigma_max`` was chosen
-#: on held-out synthetic scenes only (``docs/training_log.md#joint_gate_2026-11-28``), never Kodak/McMaster.
+#: is ``w expert + (1 - w) joint`` with ``w = clamp(1 - r / relative_max, 0, 1)`` per image, ``r = sqrt(b + a m) / m``
+#: the noise of a mosaic ``x`` with noise variance ``a x + b`` (the level the joint network is given) against its mean
+#: level ``m`` (:func:`level_gate_weight`), the same for a frame at any exposure. ``relative_max`` was chosen on
+#: held-out synthetic scenes at two exposures (``docs/training_log.md#relative_gate_round2_2026-11-28``; it replaced
+#: the absolute ``sigma_max = 0.0125`` of ``#joint_gate_2026-11-28``, which weighed the noise-free network into
+#: underexposed frames), never Kodak/McMaster.
 #: Its high-noise gate (``classical``) then blends in a classical expert (:func:`classical_expert`: nlmeans, then
 #: Menon 2007), which errs differently from the network at strong noise: ``w expert + (1 - w) out`` with
-#: ``w = weight_max clamp((sigma - sigma_start) / (sigma_full - sigma_start), 0, 1)`` (:func:`classical_gate_weight`),
-#: chosen the same way (``docs/training_log.md#classical_gate_2026-11-28``). Both read the noise in absolute units at
-#: the mosaic's mean level, as fitted on normally exposed scenes: an underexposed frame (little noise in absolute
-#: terms, much against its signal) gets the noise-free network weighed in (measured: -0.24 to -0.40 dB two stops
-#: under, ``docs/camera_specific_denoising.md``); set the network's ``level_gate`` to None for such frames.
+#: ``w = weight_max clamp((sigma - sigma_start) / (sigma_full - sigma_start), 0, 1)`` (:func:`classical_gate_weight`,
+#: ``sigma = sqrt(b + a m)``), chosen the same way (``docs/training_log.md#classical_gate_2026-11-28``, with the
+#: absolute low-noise gate in place).
 PRETRAINED_GATES = {"joint_denoise": {
-    "expert": "noise_free", "sigma_max": 0.0125,
+    "expert": "noise_free", "relative_max": 0.0375,
     "classical": {"sigma_start": 0.005, "sigma_full": 0.075, "weight_max": 0.5, "denoiser": "nlmeans",
                   "method": "menon2007"}}}
 

@@ -149,11 +149,11 @@ def test_never_below_malvar_on_green_magenta_patterns():
 
 
 def test_joint_low_noise_gate():
-    """The shipped joint network's low-noise gate (learned.PRETRAINED_GATES): at its mean level a mosaic's noise
-    sigma = sqrt(b + a mean(x)) weighs in the noise-free network with w = 1 - sigma / sigma_max (clamped): exactly
-    the noise-free network for a noise-free level, exactly the bare-gated joint network from sigma_max on, the
-    convex blend between; the bare network (guard=False) has no gate. (The high-noise gate, tested below, is taken
-    off here.)"""
+    """The shipped joint network's low-noise gate (learned.PRETRAINED_GATES): a mosaic's noise against its mean
+    level, r = sqrt(b + a m) / m, weighs in the noise-free network with w = 1 - r / relative_max (clamped): exactly
+    the noise-free network for a noise-free level, exactly the bare-gated joint network from relative_max on, the
+    convex blend between, whatever the noise kind; the bare network (guard=False) has no gate. (The high-noise gate,
+    tested below, is taken off here.)"""
     import copy
 
     shipped = learned.load_pretrained("joint_denoise")
@@ -161,9 +161,10 @@ def test_joint_low_noise_gate():
     assert learned.load_pretrained("joint_denoise", guard=False).level_gate is None
     joint = copy.copy(shipped)
     joint.level_gate = gate = {k: v for k, v in shipped.level_gate.items() if k != "classical"}
-    s_max = gate["sigma_max"]
+    r_max = gate["relative_max"]
     g = torch.Generator().manual_seed(3)
     raw = torch.rand(2, 1, 32, 32, generator=g) * 0.6 + 0.2
+    m = raw.double().mean((1, 2, 3))
     nf = learned.demosaic_learned(raw, model=gate["expert"])
 
     def joint_alone(noise):  # the guarded joint network without its gate
@@ -175,12 +176,13 @@ def test_joint_low_noise_gate():
 
     zero = learned.noise_features(0.0, 0.0).float().expand(2, 2)
     torch.testing.assert_close(learned.demosaic_learned(raw, model=joint, noise=zero), nf, rtol=0, atol=1e-7)
-    high = learned.noise_features(0.0, (1.5 * s_max) ** 2).float().expand(2, 2)
+    high = learned.noise_features(0.0, (1.5 * r_max * m) ** 2).float()
     assert torch.equal(learned.demosaic_learned(raw, model=joint, noise=high), joint_alone(high))
-    # between: item 0 at half sigma_max (white noise), item 1 with shot noise a at its mean level
-    a1 = (0.5 * s_max) ** 2 / float(raw[1].mean())
-    mid = learned.noise_features(torch.tensor([0.0, a1]), torch.tensor([(0.5 * s_max) ** 2, 0.0])).float()
-    w = learned.level_gate_weight(raw, mid, s_max)
+    # between: item 0 at half relative_max in white noise, item 1 in shot noise
+    a1 = float((0.5 * r_max * m[1]) ** 2 / m[1])
+    mid = learned.noise_features(torch.tensor([0.0, a1]), torch.stack([(0.5 * r_max * m[0]) ** 2,
+                                                                      torch.tensor(0.0, dtype=torch.float64)])).float()
+    w = learned.level_gate_weight(raw, mid, relative_max=r_max)
     torch.testing.assert_close(w, torch.tensor([0.5, 0.5], dtype=torch.float64), rtol=0, atol=1e-6)
     expected = 0.5 * nf + 0.5 * joint_alone(mid)
     torch.testing.assert_close(learned.demosaic_learned(raw, model=joint, noise=mid), expected, rtol=0, atol=1e-6)
