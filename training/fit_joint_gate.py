@@ -168,14 +168,12 @@ def choose_relative(by_set: dict, grid=RELATIVE_GRID, tolerance_db: float = TOLE
     "abs" or "rel", ``value``), and whether it ships (a relative candidate within the tolerance). With
     ``within_tolerance`` (the second round's rule), the best mean among the candidates within the tolerance, which
     ships if it is relative and its mean is above the shipped absolute gate's."""
-    if not within_tolerance:
-        out = _choose(by_set, grid, tolerance_db)
-        kind, value = out["candidate"]
-        return {k: out[k] for k in ("gain_db", "mean_gain_db")} | {
-            "kind": kind, "value": value, "ships": bool(out["ships"] and kind == "rel")}
     out = _choose(by_set, grid, tolerance_db)
-    ok = [m for m in grid if min(out["gain_db"][_name(m)].values()) >= -tolerance_db]
     result = {k: out[k] for k in ("gain_db", "mean_gain_db")}
+    if not within_tolerance:
+        kind, value = out["candidate"]
+        return result | {"kind": kind, "value": value, "ships": bool(out["ships"] and kind == "rel")}
+    ok = [m for m in grid if min(out["gain_db"][_name(m)].values()) >= -tolerance_db]
     if not ok:
         return result | {"kind": None, "value": None, "ships": False}
     kind, value = max(ok, key=lambda m: out["mean_gain_db"][_name(m)])

@@ -18,6 +18,7 @@ __all__ = ["DENOISERS", "denoise_mosaic"]
 #: classical denoisers of a mosaic (the sequential denoise-then-demosaic baseline)
 DENOISERS = ("nlmeans", "bm3d")
 
+
 def _check_noise(noise_sigma: float, noise_shot: float) -> tuple[float, float]:
     s, a = float(noise_sigma), float(noise_shot)
     if not (math.isfinite(s) and s >= 0):

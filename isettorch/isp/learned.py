@@ -401,9 +401,14 @@ def mosaic_noise_sigma(raw: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
     """The noise standard deviation ``[B]`` of a mosaic ``raw`` ``[B, 1, H, W]`` at its mean level:
     ``sqrt(b + a mean(raw))`` for the noise inputs ``noise`` (:func:`noise_features`, variance ``a x + b``); float64.
     The level both gates of :data:`PRETRAINED_GATES` are functions of."""
+    return _noise_at_mean(raw, noise)[0]
+
+
+def _noise_at_mean(raw: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(sigma, m)`` ``[B]`` float64: the noise at the mosaic's mean level and that level ``m``."""
     a, b = noise_parameters(noise.to(torch.float64))
     level = raw.detach().to(torch.float64).clamp_min(0).mean((1, 2, 3))
-    return (b + a * level).sqrt()
+    return (b + a * level).sqrt(), level
 
 
 def level_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_max: float | None = None, *,
@@ -414,11 +419,10 @@ def level_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_max: float |
     ``r = sigma / mean(raw)`` (the same for a frame and the frame scaled, with its noise, by any exposure)."""
     if (sigma_max is None) == (relative_max is None):
         raise ValueError(f"sigma_max, relative_max: expected exactly one, got {sigma_max}, {relative_max}")
-    sigma = mosaic_noise_sigma(raw, noise)
+    sigma, level = _noise_at_mean(raw, noise)
     if sigma_max is not None:
         return (1 - sigma / sigma_max).clamp(0, 1)
-    level = raw.detach().to(torch.float64).clamp_min(0).mean((1, 2, 3)).clamp_min(1e-6)
-    return (1 - sigma / level / relative_max).clamp(0, 1)
+    return (1 - sigma / level.clamp_min(1e-6) / relative_max).clamp(0, 1)
 
 
 def _level_gate(raw: torch.Tensor, noise: torch.Tensor, gate: dict) -> torch.Tensor:
