@@ -123,6 +123,8 @@ class FourierFactors:
         elif b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU), into a reused buffer
             cube = _scratch((1, n_l, 2 * nf), spec.dtype, spec.device)
             torch.mm(self.spectra[0].T.to(spec.dtype), spec[0], out=cube[0])
+        elif self.terms is not None and self._fused_items(weights):
+            return self._planes_by_item(spec, weights)
         elif self.terms is not None:  # each item's own terms (a batch-of-one bmm: its rounding is the batch's)
             cube = _scratch((b, n_l, 2 * nf), spec.dtype, spec.device)
             s_t = self.spectra.transpose(1, 2).to(spec.dtype)
@@ -156,6 +158,39 @@ class FourierFactors:
             else:
                 cube = torch.mm(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
         planes = torch.view_as_complex(cube.view(b, -1, *self.spec.shape[-2:], 2))
+        r0, c0, h, w = self.window
+        return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
+
+    def _fused_items(self, weights: torch.Tensor | None) -> bool:
+        """Whether :meth:`_planes_by_item` applies: per-item terms and real per-item OTF rows, projected on one
+        ``[L, K]`` weighting, no gradient (checked by the caller)."""
+        return (weights is not None and weights.dim() == 2 and self.otf_rows is not None
+                and not self._otf_is_complex() and not weights.requires_grad)
+
+    def _planes_by_item(self, spec: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+        """:meth:`_planes` one item at a time (no gradient, per-item terms and real OTF rows, ``[L, K]`` weights):
+        the item's ``[L, 2F]`` cube (2.6 MB at 144^2 x 31 in float32) is built, multiplied by its OTF row and
+        projected while it is in cache, in one reused buffer, instead of a ``[B, L, 2F]`` cube that leaves the
+        cache between the three passes. The spectra's product is the batch-of-one ``bmm`` of the batched path; the
+        projection runs as a ``bmm`` over the two halves of the item's frequencies (one GEMM each, as the batched
+        ``bmm`` does one per item): a batch-of-one product would be split across intra-op threads and round
+        differently with their number. So the result is bitwise the batched path's, on any thread count."""
+        b = spec.shape[0]
+        my, mx = self.size
+        nf = self.spec.shape[-2] * self.spec.shape[-1]
+        n_l = self.spectra.shape[-1]
+        s_t = self.spectra.transpose(1, 2).to(spec.dtype)
+        k = weights.shape[-1]
+        wt = weights.to(spec.dtype).T[None].expand(2, k, n_l)  # [2, K, L]
+        cube = _scratch((1, n_l, 2 * nf), spec.dtype, spec.device)
+        proj = _scratch((2, k, nf), spec.dtype, spec.device, "proj")
+        out = torch.empty(b, k, 2, nf, dtype=spec.dtype, device=spec.device)
+        for i, (t, row) in enumerate(zip(self.terms, self.otf_rows)):
+            torch.bmm(s_t[i:i + 1, :, :t], spec[i:i + 1, :t], out=cube)
+            cube[0].view(n_l, nf, 2).mul_(row.reshape(n_l, nf, -1))
+            torch.bmm(wt, cube[0].view(n_l, 2, nf).transpose(0, 1), out=proj)  # [2, K, F]: the two halves
+            out[i].copy_(proj.transpose(0, 1))
+        planes = torch.view_as_complex(out.view(b, -1, *self.spec.shape[-2:], 2))
         r0, c0, h, w = self.window
         return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
 
