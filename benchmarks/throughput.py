@@ -178,7 +178,9 @@ def stream_rate(size: int, count: int, batch: int, device: torch.device, targets
 
 def data_share(device: torch.device, steps: int = 8, repeats: int = 3) -> dict:
     """Seconds per ``train_demosaic`` step (the default DemosaicNet, batch 16, 80 px patches, Adam) fed by the
-    stream against the same step on one fixed in-memory batch, and the share of the step spent in data."""
+    stream against the same step on one fixed in-memory batch, and the share of the step spent in data. On CPU also
+    the same step fed by ``data.source: camera_pairs`` (``CameraPairDataset.get_batch`` in the training process,
+    per-item generators on one thread), the source the stream replaces in ``train_demosaic``."""
     import sys
     from pathlib import Path
 
@@ -215,7 +217,12 @@ def data_share(device: torch.device, steps: int = 8, repeats: int = 3) -> dict:
     step(*fixed)
     t_fixed = timed(lambda i: fixed)
     t_stream = timed(lambda i: src.batch(i, 16)[:2])
-    return {"fixed_s": t_fixed, "stream_s": t_stream, "share": 1 - t_fixed / t_stream, "ratio": t_stream / t_fixed}
+    out = {"fixed_s": t_fixed, "stream_s": t_stream, "share": 1 - t_fixed / t_stream, "ratio": t_stream / t_fixed}
+    if device.type == "cpu":
+        pairs = train_demosaic.make_sampler(dict(cfg, data=dict(cfg["data"], source="camera_pairs")), batch=16)
+        pairs.batch(0, 16)
+        out["camera_pairs_s"] = timed(lambda i: pairs.batch(i, 16)[:2])
+    return out
 
 
 def stream_main(args) -> None:
@@ -244,6 +251,9 @@ def stream_main(args) -> None:
     share_line = (f"train_demosaic step (DemosaicNet default, batch 16, 80 px): {share['stream_s'] * 1e3:.1f} ms fed "
                   f"by the stream, {share['fixed_s'] * 1e3:.1f} ms on a fixed in-memory batch: data "
                   f"{100 * share['share']:.0f} % of the step (ratio {share['ratio']:.2f}x)")
+    if "camera_pairs_s" in share:
+        share_line += (f"; {share['camera_pairs_s'] * 1e3:.1f} ms fed by data.source camera_pairs "
+                       f"(CameraPairDataset.get_batch in the training process)")
     print(share_line, flush=True)
     text = "\n".join([head, "", *lines, "", share_line, "", f"load average at end {load()}"])
     if args.markdown:
