@@ -59,6 +59,11 @@ batch=$([ "$DEVICE" = "cuda" ] && echo 512 || echo 16)  # a GPU needs large batc
 timeout 240 $PY benchmarks/throughput.py --stream --device "$DEVICE" --count "$count" --batch "$batch" --repeats 3 \
     --markdown "$OUT/throughput_cuda.md"
 
+echo "== issue 34: PairStream at 128^2 in larger batches (per-batch launch overhead amortised; no training step)"
+big=$([ "$DEVICE" = "cuda" ] && echo 2048 || echo 32)
+timeout 90 $PY benchmarks/throughput.py --stream --device "$DEVICE" --count $((big * 8)) --batch "$big" --repeats 3 \
+    --stream-sizes 128 --no-share --markdown "$OUT/throughput_cuda.md"
+
 echo "== issue 35: demosaic speed-error family on $DEVICE"
 timeout 240 $PY benchmarks/demosaic_noise_speed.py speed --device "$DEVICE" --threads 8 -q \
     --out "$OUT/demosaic_speed_cuda.md"

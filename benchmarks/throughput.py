@@ -241,21 +241,24 @@ def stream_main(args) -> None:
         lines.append(f"| batch_loader(CameraPairDataset, {b}, num_workers={args.workers}) | 128 | all | {rate:.0f} "
                      f"| | {load()} |")
         print(lines[-1], flush=True)
-    for size in (128, 256):
+    for size in args.stream_sizes:
         for label, targets in (("all", TARGETS), ("raw + camera_rgb", ("camera_rgb",))):
             count = args.count if size == 128 else max(b, args.count // 4)
             rate, peak = stream_rate(size, count, b, device, targets, reps)
             lines.append(f"| PairStream (main process) | {size} | {label} | {rate:.0f} | {peak:.0f} | {load()} |")
             print(lines[-1], flush=True)
-    share = data_share(device, repeats=reps)
-    share_line = (f"train_demosaic step (DemosaicNet default, batch 16, 80 px): {share['stream_s'] * 1e3:.1f} ms fed "
-                  f"by the stream, {share['fixed_s'] * 1e3:.1f} ms on a fixed in-memory batch: data "
-                  f"{100 * share['share']:.0f} % of the step (ratio {share['ratio']:.2f}x)")
-    if "camera_pairs_s" in share:
-        share_line += (f"; {share['camera_pairs_s'] * 1e3:.1f} ms fed by data.source camera_pairs "
-                       f"(CameraPairDataset.get_batch in the training process)")
-    print(share_line, flush=True)
-    text = "\n".join([head, "", *lines, "", share_line, "", f"load average at end {load()}"])
+    share_lines = []
+    if not args.no_share:
+        share = data_share(device, repeats=reps)
+        line = (f"train_demosaic step (DemosaicNet default, batch 16, 80 px): {share['stream_s'] * 1e3:.1f} ms fed "
+                f"by the stream, {share['fixed_s'] * 1e3:.1f} ms on a fixed in-memory batch: data "
+                f"{100 * share['share']:.0f} % of the step (ratio {share['ratio']:.2f}x)")
+        if "camera_pairs_s" in share:
+            line += (f"; {share['camera_pairs_s'] * 1e3:.1f} ms fed by data.source camera_pairs "
+                     f"(CameraPairDataset.get_batch in the training process)")
+        print(line, flush=True)
+        share_lines = [line, ""]
+    text = "\n".join([head, "", *lines, "", *share_lines, f"load average at end {load()}"])
     if args.markdown:
         with open(args.markdown, "a") as f:
             f.write(f"\n### PairStream, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}\n\n" + text + "\n")
@@ -269,6 +272,10 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--stream-sizes", type=int, nargs="+", default=[128, 256],
+                    help="with --stream: the scene sizes of the stream rows")
+    ap.add_argument("--no-share", action="store_true",
+                    help="with --stream: skip the training-step data share (only the pairs/s rows)")
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--loader-batches", type=int, nargs="*", default=[32],
                     help="extra batch sizes for the batched loader with workers")
