@@ -95,7 +95,8 @@ PRETRAINED_GUARDS = {
 #: Menon 2007), which errs differently from the network at strong noise: ``w expert + (1 - w) out`` with
 #: ``w = weight_max clamp((sigma - sigma_start) / (sigma_full - sigma_start), 0, 1)`` (:func:`classical_gate_weight`,
 #: ``sigma = sqrt(b + a m)``), chosen the same way (``docs/training_log.md#classical_gate_2026-11-28``, with the
-#: absolute low-noise gate in place).
+#: absolute low-noise gate in place; refitted with the relative one in place, the same candidate won:
+#: ``#classical_gate_refit_2026-11-28``).
 PRETRAINED_GATES = {"joint_denoise": {
     "expert": "noise_free", "relative_max": 0.0375,
     "classical": {"sigma_start": 0.005, "sigma_full": 0.075, "weight_max": 0.5, "denoiser": "nlmeans",
