@@ -48,6 +48,7 @@ __all__ = [
     "BAYER_PATTERNS",
     "DemosaicNet",
     "PRETRAINED_GUARDS",
+    "PRETRAINED_CORRECTION_SCALES",
     "guard_residual",
     "structure_gate",
     "demosaic_learned",
@@ -83,6 +84,12 @@ PRETRAINED_GUARDS = {
     "tiny": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
     "small": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
 }
+#: the scale of the network's correction in each shipped configuration (``DemosaicNet.correction_scale``; 1 where
+#: absent): the fast networks' corrections learned on synthetic scenes are partly too large for photographs, so the
+#: small network's is shrunk towards its base (chosen on the stress set's photographs in every variant, never
+#: Kodak/McMaster: ``docs/training_log.md#fast_shrink_2026-11-28``; the tiny network's best gain there, 0.04 dB,
+#: was under the registered 0.05 dB).
+PRETRAINED_CORRECTION_SCALES = {"small": 0.75}
 #: the low-noise gate each shipped joint network runs under, part of what ``load_pretrained`` returns (issue #35 item
 #: 4: the joint network is tuned for mid noise, the noise-free network is better on nearly clean mosaics): the output
 #: is ``w expert + (1 - w) joint`` with ``w = clamp(1 - r / relative_max, 0, 1)`` per image, ``r = sqrt(b + a m) / m``
@@ -277,6 +284,10 @@ class DemosaicNet(nn.Module):
         guard: ``None`` (training: the raw correction) or the options of :func:`guard_residual` (a dict), which
             then guards the correction in ``forward``: exact on constant colour fields, no colour bias of its own.
             :func:`load_pretrained` sets the shipped one (:data:`PRETRAINED_GUARDS`). May be changed on an instance.
+        correction_scale: the network's correction is multiplied by this before it is added to the base (and
+            guarded): 1 (training, the default) the network as trained, 0 the base alone (guarded). The output is
+            ``base + guard(base - MHC + s net)`` with another base than MHC. :func:`load_pretrained` sets the
+            shipped value (:data:`PRETRAINED_CORRECTION_SCALES`). May be changed on an instance.
 
     Shapes:
         forward(raw (B, 1, H, W) RGGB, noise (B, noise_inputs) optional) -> (B, 3, H, W).
@@ -288,8 +299,12 @@ class DemosaicNet(nn.Module):
     """
 
     def __init__(self, channels: int = 48, depth: int = 6, noise_inputs: int = 0, residual: bool = False,
-                 guard: dict | None = None, base: str = "malvar2004"):
+                 guard: dict | None = None, base: str = "malvar2004", correction_scale: float = 1.0):
         super().__init__()
+        if not (isinstance(correction_scale, (int, float)) and not isinstance(correction_scale, bool)
+                and math.isfinite(correction_scale) and correction_scale >= 0):
+            raise ValueError(f"correction_scale: expected a finite number >= 0, got {correction_scale!r}")
+        self.correction_scale = float(correction_scale)
         if base not in BASES:
             raise ValueError(f"base: expected one of {sorted(BASES)}, got {base!r}")
         self.base = base
@@ -336,6 +351,8 @@ class DemosaicNet(nn.Module):
             cfg["guard"] = dict(self.guard)
         if self.base != "malvar2004":
             cfg["base"] = self.base
+        if self.correction_scale != 1.0:
+            cfg["correction_scale"] = self.correction_scale
         return cfg
 
     def forward(self, raw: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
@@ -357,6 +374,8 @@ class DemosaicNet(nn.Module):
             raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
         x = torch.cat(feats, 1)
         residual = F.pixel_shuffle(self.head(self.body(x)), 2).to(base.dtype)
+        if self.correction_scale != 1.0:
+            residual = residual * self.correction_scale
         if self.guard is not None:
             with torch.autocast(raw.device.type, enabled=False):
                 if self.base != "malvar2004":
@@ -554,6 +573,7 @@ def load_checkpoint(path: str | Path, *, device=None, dtype=None) -> tuple[Demos
 def _pretrained(variant: str, device: str, dtype: torch.dtype, guard: bool = True) -> DemosaicNet:
     net = load_checkpoint(PRETRAINED[variant], device=device, dtype=dtype)[0]
     net.guard = dict(PRETRAINED_GUARDS[variant]) if guard else None
+    net.correction_scale = float(PRETRAINED_CORRECTION_SCALES.get(variant, 1.0)) if guard else 1.0
     gate = PRETRAINED_GATES.get(variant)
     # the low-noise gate (demosaic_learned): the shipped expert under its own guard; none for the bare network
     net.level_gate = None if gate is None or not guard else {
@@ -572,8 +592,8 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
                     ) -> DemosaicNet:
     """A shipped :class:`DemosaicNet` (``isettorch/assets``), eval mode, frozen, with its guard
     (:data:`PRETRAINED_GUARDS`, :func:`guard_residual`) and, for the joint network, its low-noise gate
-    (:data:`PRETRAINED_GATES`, applied by :func:`demosaic_learned`); ``guard=False``: the bare network, for
-    comparisons.
+    (:data:`PRETRAINED_GATES`, applied by :func:`demosaic_learned`) and correction scale
+    (:data:`PRETRAINED_CORRECTION_SCALES`); ``guard=False``: the bare network (scale 1), for comparisons.
     The instance is cached and shared: copy it before changing its ``guard``.
 
     ``variant="noise_free"`` (``demosaic_learned.pt``) or ``"joint_denoise"`` (``demosaic_learned_denoise.pt``,

@@ -55,6 +55,37 @@ def test_fast_guard_keeps_constants_exact_and_checks_its_options():
         learned.guard_residual(mosaic(field), torch.zeros_like(field), highpass_sigma_px=4.0, highpass_decimation=8)
 
 
+def test_correction_scale_moves_the_output_linearly_from_the_guarded_base():
+    # the guard is linear in the correction it is given (a gate fixed by the mosaic times it, minus its low-pass), so
+    # with a correction scale s the output is affine in s: out(s) = out(0) + s (out(1) - out(0)), out(0) is the guarded
+    # base (Menon's departure from MHC, guarded), and constants stay exact at any s
+    g = torch.Generator().manual_seed(5)
+    raw = torch.rand(1, 1, 40, 48, generator=g, dtype=torch.float64)
+    net = learned.DemosaicNet(channels=4, depth=2, base="menon2007", guard={"highpass_sigma_px": 4.0,
+                                                                        "highpass_decimation": 4}).double()
+    torch.nn.init.normal_(net.head.weight, std=0.1, generator=g)
+    outs = {}
+    with torch.no_grad():
+        for s in (0.0, 0.75, 1.0):
+            net.correction_scale = s
+            outs[s] = net(raw)
+        menon = demosaic_menon2007(raw, "RGGB")
+        mhc = learned.BASES["malvar2004"](raw)
+        base = mhc + learned.guard_residual(raw, menon - mhc, **net.guard)
+    assert float((outs[1.0] - outs[0.0]).abs().max()) > 1e-3
+    torch.testing.assert_close(outs[0.0], base, rtol=0, atol=1e-12)
+    torch.testing.assert_close(outs[0.75], outs[0.0] + 0.75 * (outs[1.0] - outs[0.0]), rtol=0, atol=1e-12)
+    field = torch.tensor([0.9, 0.2, 0.1], dtype=torch.float64).view(1, 3, 1, 1).expand(1, 3, 40, 48)
+    net.correction_scale = 0.75
+    with torch.no_grad():
+        assert float((net(mosaic(field, "RGGB")) - field).abs().max()) <= 1e-12
+    assert learned.DemosaicNet(**net.config()).correction_scale == 0.75  # stored in a checkpoint's config
+    assert "correction_scale" not in learned.DemosaicNet(channels=4, depth=1).config()
+    for bad in (-0.5, float("nan"), True, "1"):
+        with pytest.raises(ValueError, match="correction_scale"):
+            learned.DemosaicNet(channels=4, depth=1, correction_scale=bad)
+
+
 @pytest.mark.skipif(not all(learned.PRETRAINED[v].is_file() for v in learned.LEARNED_METHODS.values()),
                     reason="no shipped checkpoints")
 def test_family_methods_run_their_shipped_networks():
@@ -67,6 +98,8 @@ def test_family_methods_run_their_shipped_networks():
     for method, variant in learned.LEARNED_METHODS.items():
         net = learned.load_pretrained(variant)
         assert net.guard == learned.PRETRAINED_GUARDS[variant]
+        assert net.correction_scale == learned.PRETRAINED_CORRECTION_SCALES.get(variant, 1.0)
+        assert learned.load_pretrained(variant, guard=False).correction_scale == 1.0  # the bare network
         outs[method] = demosaic(raw, "GRBG", method=method)
         torch.testing.assert_close(outs[method], learned.demosaic_learned(raw, "GRBG", model=net), rtol=0, atol=0)
     assert float((outs["learned_tiny"] - outs["learned"]).abs().max()) > 1e-3
