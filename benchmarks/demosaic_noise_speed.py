@@ -106,11 +106,17 @@ def _plot_pareto(points: dict, path: str, threads: int, device: str) -> None:
         pts = [(points[n][k][1], -points[n][k][0]) for n in names]  # (time, error) both minimised
         front = pareto_front(pts)
         ax.plot([pts[i][0] for i in front], [-pts[i][1] for i in front], "--", color="0.6", lw=1, zorder=1)
-        for i, (n, (t, e)) in enumerate(zip(names, pts)):
+        by_time = sorted(range(len(pts)), key=lambda i: pts[i][0])
+        below = False
+        for rank, i in enumerate(by_time):
+            n, (t, e) = names[i], pts[i]
             learned = n.startswith("learned")
             ax.scatter([t], [-e], color="C3" if learned else "C0", marker="o" if learned else "s", zorder=2)
-            # labels alternate below and above their points (neighbours in time often have close scores)
-            ax.annotate(n.replace(" (2 passes)", ""), (t, -e), fontsize=7, xytext=(4, -10 if i % 2 else 5),
+            # a label goes below its point when the next slower method scores higher (the line to it leaves
+            # upwards), unless the previous label went below (two close labels would overlap), else above; the
+            # fastest method's label above (below it would leave the axes)
+            below = (0 < rank < len(by_time) - 1 and -pts[by_time[rank + 1]][1] > -e and not below)
+            ax.annotate(n.replace(" (2 passes)", ""), (t, -e), fontsize=7, xytext=(4, -10 if below else 5),
                         textcoords="offset points")
         ax.set_xscale("log")
         ax.set_xlabel(f"ms per megapixel ({device}, {threads} threads)")
