@@ -1,0 +1,101 @@
+"""How much a colour-filter design can gain from its photons alone: the noise-limited colour estimate of a flat
+patch, per shipped camera design and light level (reporting; issue #36).
+
+For each design (:data:`isettorch.design.SHIPPED_DESIGNS`) its own camera (optics, sensor, exposure rule) captures the
+24 Macbeth patches (ISETCam's reflectances, :func:`isettorch.scene.macbeth.macbeth_reflectances`) under D65 at each
+light level, noise-free; ``rho[r, c]`` is the mean photo-electron count of channel ``c``'s pixels on patch ``r``. A
+window of ``N`` pixels holding a fraction ``f_c`` of channel ``c`` estimates each channel's mean with variance
+``(rho + read^2 + dark + lsb^2 / 12) / (f_c N)`` (Poisson shot noise, the sensor's read noise, dark signal and ADC
+step in electrons at the capture's gain). The best linear estimate of the patch's linear sRGB (white = 1,
+:func:`isettorch.design.linear_srgb_of_reflectance`) from those means is the Wiener (linear MMSE) map over the 24
+patches, ``M = T' P (P' P + R S)^-1`` (Kay, Fundamentals of Statistical Signal Processing I, 1993, 12.6); its mean
+squared error is the colour bias of a linear correction plus the noise it passes, ``trace(M S M') / 3``. The table
+gives each design's error against Bayer's in dB (positive: better) for windows of 4 to 256 pixels.
+
+What it leaves out is the demosaic itself (spatial detail, aliasing, the chroma resolution lost to clear pixels): it
+is the part of a design's advantage that photons and colour can give a reconstruction that averages N pixels.
+
+    python benchmarks/design_noise_bound.py [--lux 1 10 100] [--markdown FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from isettorch.design import SHIPPED_DESIGNS, linear_srgb_of_reflectance, load_design  # noqa: E402
+from isettorch.scene.macbeth import macbeth_reflectances  # noqa: E402
+
+WINDOWS = (4, 16, 64, 256)
+GREY = 21  # Macbeth "neutral 5 (.70 D)", reflectance about 0.19
+
+
+def channel_electrons(camera, lux: float, size: int = 16) -> dict:
+    """Noise-free capture of the 24 patches: per-channel mean electrons ``[24, K']`` of the channels the mosaic
+    uses, their pixel fractions, the capture's exposure and gain, and the per-pixel variance terms."""
+    wl = camera.wavelengths_nm
+    refl = macbeth_reflectances(wl, dtype=torch.float64)
+    n = refl.shape[0]
+    maps = torch.ones(n, 1, size, size, dtype=torch.float64)
+    with torch.no_grad():
+        cap = camera.capture(camera.scene(maps, refl[:, None, :], lux), noise=False)
+    e = cap["raw"].electrons[:, 0]
+    cell = camera.mosaic.index_map
+    tiled = cell.repeat(size // cell.shape[0], size // cell.shape[1])
+    inner = tiled[4:-4, 4:-4]
+    used = [c for c in range(camera.bank.num_channels) if bool((tiled == c).any())]
+    rho = torch.stack([e[:, 4:-4, 4:-4][:, inner == c].mean(1) for c in used], 1)
+    frac = torch.tensor([float((tiled == c).double().mean()) for c in used], dtype=torch.float64)
+    s = camera.sensor
+    gain, t = float(cap["analog_gain"][0]), float(cap["exposure_s"][0])
+    read_e = s.read_noise_v / s.conversion_gain_v_per_e
+    lsb_e = s.voltage_swing_v / 2**s.adc_bits / gain / s.conversion_gain_v_per_e
+    var = rho + read_e**2 + s.dark_current_e_per_s * t + lsb_e**2 / 12
+    return {"rho": rho, "var": var, "frac": frac, "target": linear_srgb_of_reflectance(refl, wl), "gain": gain,
+            "exposure_s": t, "names": [camera.bank.channel_names[c] for c in used]}
+
+
+def wiener_mse(rho: torch.Tensor, var: torch.Tensor, frac: torch.Tensor, target: torch.Tensor, window: int) -> float:
+    """Mean squared error (per sRGB channel, over the patches) of the Wiener map from channel means to ``target``."""
+    n = rho.shape[0]
+    s = (var / (frac * window)).mean(0)
+    m = torch.linalg.solve(rho.T @ rho / n + torch.diag(s), rho.T @ target / n).T  # [3, K]
+    bias = ((rho @ m.T - target) ** 2).mean()
+    return float(bias + (m**2 @ s).mean())
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--lux", type=float, nargs="+", default=[1.0, 10.0, 100.0])
+    ap.add_argument("--markdown", default=None, help="append the table here")
+    args = ap.parse_args(argv)
+    lines = ["| lux | design | channels (electrons on neutral 5) | exposure (s), gain | "
+             + " | ".join(f"N = {w}" for w in WINDOWS) + " |", "|---" * (4 + len(WINDOWS)) + "|"]
+    for lux in args.lux:
+        res = {name: channel_electrons(load_design(name).eval(), lux) for name in SHIPPED_DESIGNS}
+        ref = {w: wiener_mse(**{k: res["bayer_rgb"][k] for k in ("rho", "var", "frac", "target")}, window=w)
+               for w in WINDOWS}
+        for name, r in res.items():
+            db = [10 * math.log10(ref[w] / wiener_mse(r["rho"], r["var"], r["frac"], r["target"], w))
+                  for w in WINDOWS]
+            grey = ", ".join(f"{c} {float(v):.1f}" for c, v in zip(r["names"], r["rho"][GREY]))
+            lines.append(f"| {lux:g} | {name} | {grey} | {r['exposure_s']:.4f}, {r['gain']:.2f} | "
+                         + " | ".join(f"{d:+.2f}" for d in db) + " |")
+    text = "\n".join(lines)
+    print(text)
+    if args.markdown:
+        with open(args.markdown, "a") as f:
+            f.write("\n" + text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
