@@ -28,6 +28,8 @@ _SMALL = 64  # a CPU tensor this small is checked on its Python values (no tenso
 def _small_values(t: torch.Tensor) -> list | None:
     """The values of a small real CPU tensor as a flat Python list, else None."""
     if t.numel() <= _SMALL and t.device.type == "cpu" and not t.is_complex():
+        if t.dim() == 1:  # the common case (a [B] parameter): one call
+            return t.tolist()
         return t.detach().reshape(-1).tolist()
     return None
 

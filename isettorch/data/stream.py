@@ -146,6 +146,7 @@ class PairStream:
         self._part_sizes = sizes
         self._caches = [_Cache() for _ in range(parts)]  # per part: parts may render concurrently
         self._otf_rows: OrderedDict = OrderedDict()  # shared by the groups' optics (DiffractionLimitedOptics)
+        self._negligible_memo: dict = {}  # their blur tests, keyed on plain numbers (blur_negligible), shared too
         self._pool = None
 
     # --- iteration ------------------------------------------------------------------------------------------
@@ -280,6 +281,7 @@ class PairStream:
         # the pairs' optics config (CameraPairDataset's), built by the optics' own factory with [b] tensors
         optics = build_optics(_diffraction_config(f_number, focal_length_m, margin)).to(self.device)
         optics._otf_rows = self._otf_rows
+        optics._negligible_memo = self._negligible_memo
         return optics
 
     @staticmethod

@@ -84,19 +84,25 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         return 2 * lam * f_number / (math.pi**3 * self.psf_tolerance)
 
     def blur_negligible(self, dx, wavelengths_nm, f_number):
-        # max |1 - OTF| on the grid is at the corner frequency sqrt(2) / (2 dx); memoised on the plain numbers
-        # (asked twice per camera call, by plan() and forward(), and repeated by a dataset's few cameras)
-        key = (tuple(dx.detach().reshape(-1).tolist()), float(wavelengths_nm.max()),
-               tuple(f_number.detach().reshape(-1).tolist()), self.blur_skip_tolerance)
+        # max |1 - OTF| on the grid is at the corner frequency sqrt(2) / (2 dx); memoised per item on the plain
+        # numbers (spacing, f-number): asked twice per camera call, by plan() and forward(), and repeated by a
+        # dataset's few cameras (a stream shares one memo between its groups' optics, whose items mix them)
+        dxs, ns = dx.detach().reshape(-1).tolist(), f_number.detach().reshape(-1).tolist()
+        if len(dxs) != len(ns):  # one of them broadcasts
+            dxs, ns = dxs * (len(ns) if len(dxs) == 1 else 1), ns * (len(dxs) if len(ns) == 1 else 1)
+        lam_m = float(wavelengths_nm.max()) * 1e-9
         memo = self.__dict__.setdefault("_negligible_memo", {})
-        hit = memo.get(key)
-        if hit is None:
-            s = (math.sqrt(2) / (2 * dx)) * wavelengths_nm.max() * 1e-9 * f_number
-            dev = 1 - dl_mtf_1d(s.detach())
-            hit = bool((dev <= self.blur_skip_tolerance).all())
-            if len(memo) > 256:
-                memo.clear()
-            memo[key] = hit
+        hit = True
+        for d, n in zip(dxs, ns):
+            key = (d, lam_m, n, self.blur_skip_tolerance)
+            item = memo.get(key)
+            if item is None:
+                s = torch.tensor((math.sqrt(2) / (2 * d)) * lam_m * n, dtype=torch.float64)
+                item = bool(1 - dl_mtf_1d(s) <= self.blur_skip_tolerance)
+                if len(memo) > 256:
+                    memo.clear()
+                memo[key] = item
+            hit = hit and item
         return hit
 
     def plan(self, scene):
