@@ -178,9 +178,10 @@ def stream_rate(size: int, count: int, batch: int, device: torch.device, targets
 
 def data_share(device: torch.device, steps: int = 8, repeats: int = 3) -> dict:
     """Seconds per ``train_demosaic`` step (the default DemosaicNet, batch 16, 80 px patches, Adam) fed by the
-    stream against the same step on one fixed in-memory batch, and the share of the step spent in data. On CPU also
-    the same step fed by ``data.source: camera_pairs`` (``CameraPairDataset.get_batch`` in the training process,
-    per-item generators on one thread), the source the stream replaces in ``train_demosaic``."""
+    stream (its default ``data.stream_chunk`` on the device) against the same step on one fixed in-memory batch, and
+    the share of the step spent in data; also the stream with chunks 1 and 4 (training batches per stream batch), and
+    on CPU the same step fed by ``data.source: camera_pairs`` (``CameraPairDataset.get_batch`` in the training
+    process, per-item generators on one thread), the source the stream replaces in ``train_demosaic``."""
     import sys
     from pathlib import Path
 
@@ -203,25 +204,37 @@ def data_share(device: torch.device, steps: int = 8, repeats: int = 3) -> dict:
         loss.backward()
         opt.step()
 
-    def timed(fetch) -> float:
+    def timed(fetch, chunk: int = 1) -> float:
+        # whole chunks of steps, each run starting on a chunk not rendered yet, so every timed step carries its
+        # share of one chunk's rendering
+        n = -(-steps // chunk) * chunk
         out = []
         for r in range(repeats):
             _sync(device)
             t0 = time.perf_counter()
-            for i in range(steps):
-                step(*fetch(r * steps + i + 1))
+            for i in range(n):
+                step(*fetch((r + 1) * n + i))
             _sync(device)
-            out.append((time.perf_counter() - t0) / steps)
+            out.append((time.perf_counter() - t0) / n)
         return statistics.median(out)
+
+    def from_source(sampler):
+        return lambda i: sampler.batch(i, 16)[:2]
 
     step(*fixed)
     t_fixed = timed(lambda i: fixed)
-    t_stream = timed(lambda i: src.batch(i, 16)[:2])
-    out = {"fixed_s": t_fixed, "stream_s": t_stream, "share": 1 - t_fixed / t_stream, "ratio": t_stream / t_fixed}
+    t_stream = timed(from_source(src), src.chunk)
+    out = {"fixed_s": t_fixed, "stream_s": t_stream, "share": 1 - t_fixed / t_stream, "ratio": t_stream / t_fixed,
+           "chunk": src.chunk}
+    for chunk in (1, 4):  # the stream with other chunks (1: a stream batch per training step)
+        if chunk != src.chunk:
+            other = train_demosaic.make_sampler(dict(cfg, data=dict(cfg["data"], stream_chunk=chunk)), device=device,
+                                                batch=16)
+            out[f"stream_chunk{chunk}_s"] = timed(from_source(other), chunk)
     if device.type == "cpu":
         pairs = train_demosaic.make_sampler(dict(cfg, data=dict(cfg["data"], source="camera_pairs")), batch=16)
         pairs.batch(0, 16)
-        out["camera_pairs_s"] = timed(lambda i: pairs.batch(i, 16)[:2])
+        out["camera_pairs_s"] = timed(from_source(pairs))
     return out
 
 
@@ -253,9 +266,13 @@ def stream_main(args) -> None:
         line = (f"train_demosaic step (DemosaicNet default, batch 16, 80 px): {share['stream_s'] * 1e3:.1f} ms fed "
                 f"by the stream, {share['fixed_s'] * 1e3:.1f} ms on a fixed in-memory batch: data "
                 f"{100 * share['share']:.0f} % of the step (ratio {share['ratio']:.2f}x)")
-        if "camera_pairs_s" in share:
-            line += (f"; {share['camera_pairs_s'] * 1e3:.1f} ms fed by data.source camera_pairs "
-                     f"(CameraPairDataset.get_batch in the training process)")
+        line = line.replace("fed by the stream", f"fed by the stream (data.stream_chunk {share['chunk']})")
+        for key, what in (("stream_chunk1_s", "fed by the stream with data.stream_chunk 1"),
+                          ("stream_chunk4_s", "fed by the stream with data.stream_chunk 4"),
+                          ("camera_pairs_s", "fed by data.source camera_pairs (CameraPairDataset.get_batch in the "
+                                             "training process)")):
+            if key in share:
+                line += f"; {share[key] * 1e3:.1f} ms {what}"
         print(line, flush=True)
         share_lines = [line, ""]
     text = "\n".join([head, "", *lines, "", *share_lines, f"load average at end {load()}"])

@@ -82,7 +82,19 @@ class StreamSource:
     cropped on the device to ``patch x patch`` RGGB (no per-item host read). Same inputs and targets as
     :class:`CameraPairSource`: (raw [B,1,P,P], camera_rgb [B,3,P,P], noise features [B,2] or None).
     ``data.camera_config`` (instead of ``data.camera``): one camera for every item (:func:`stream_camera`), e.g. a
-    calibrated sensor (``isettorch calibrate --out``), for a camera-specific joint model."""
+    calibrated sensor (``isettorch calibrate --out``), for a camera-specific joint model.
+
+    ``data.stream_chunk`` (default 4 on a CPU, 64 on an accelerator): the stream renders ``chunk`` training batches
+    at once, as one stream batch of ``chunk x batch`` items, and step ``s`` takes slice ``s % chunk`` of chunk ``s //
+    chunk`` (stream batch ``(s // chunk) * world + rank``), the chunk kept until its last slice is used. A stream
+    batch costs a few thousand torch calls whatever its size (``docs/training_in_the_loop.md``): on a GPU a training
+    step of 16 items would otherwise wait for the launches of a whole stream batch, and on 2 CPU cores a
+    ``train_demosaic`` step (batch 16, 80 px) took 72 ms with chunk 4 against 90 ms with chunk 1 and 92 ms fed by
+    ``camera_pairs`` (``benchmarks/THROUGHPUT.md``). A step's batch still depends only on (seed, step, rank, chunk),
+    so a resumed run gets the batches it would have had."""
+
+    #: the default ``data.stream_chunk`` by device type
+    CPU_CHUNK, ACCELERATOR_CHUNK = 4, 64
 
     def __init__(self, cfg: dict, seed_offset: int = 0, device=None, batch: int | None = None):
         from isettorch.data import PairStream
@@ -98,14 +110,32 @@ class StreamSource:
             _check_bayer_patterns(camera)
         dev = torch.device(d.get("device") or device or "cpu")
         self.batch_size = int(batch or d.get("batch", 16))
-        self.stream = PairStream(self.batch_size, seed=int(cfg.get("seed", 0)) + int(seed_offset),
+        chunk = d.get("stream_chunk")
+        if chunk is None:
+            chunk = self.CPU_CHUNK if dev.type == "cpu" else self.ACCELERATOR_CHUNK
+        if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+            raise ValueError(f"data.stream_chunk: expected a positive integer (training batches per stream batch), "
+                             f"got {chunk!r}")
+        self.chunk = chunk
+        self.stream = PairStream(self.batch_size * chunk, seed=int(cfg.get("seed", 0)) + int(seed_offset),
                                  scene=dict(d.get("scene") or {}, height=self.patch + 2, width=self.patch + 2),
                                  camera=camera, targets=("noise_free_raw", "camera_rgb"), device=dev)
+        self._chunk_cache: tuple | None = None  # (stream batch index, (raw, camera_rgb, features or None))
 
     def batch(self, step: int, n: int):
         if n != self.batch_size:
             raise ValueError(f"data.batch: the stream draws batches of {self.batch_size}, asked for {n}")
-        b = self.stream.batch(int(step) * self.stream.world_size + self.stream.rank)
+        c, j = divmod(int(step), self.chunk)
+        k = c * self.stream.world_size + self.stream.rank
+        if self._chunk_cache is None or self._chunk_cache[0] != k:
+            self._chunk_cache = (k, self._crops(self.stream.batch(k)))
+        sl = slice(j * n, (j + 1) * n)
+        raw, rgb, feats = self._chunk_cache[1]
+        return raw[sl], rgb[sl], None if feats is None else feats[sl]
+
+    def _crops(self, b: dict):
+        """(raw, camera_rgb, noise features or None) of a stream batch, each item cropped to ``patch`` RGGB."""
+        n = b["raw"].shape[0]
         src = b["raw"] if self.noisy else b["noise_free_raw"]
         # the offset (dy, dx) of the R pixel in each item's 2x2 cell, read on the device; the four shifted crops
         # are gathered, so every Bayer order reaches the network as RGGB

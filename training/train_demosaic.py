@@ -30,7 +30,8 @@ photon-transfer model of EMVA 1288), with ``a = gain / full_well_e`` and ``b = (
 :class:`isettorch.data.PairStream`, generated and rendered on that device (:class:`StreamSource`); with
 ``data.camera_config`` (a camera YAML, e.g. with a sensor calibrated by ``isettorch calibrate``) every pair is
 rendered through that one camera instead of drawn cameras: camera-specific denoising
-(``configs/train/demosaic_camera_specific.yaml``, docs/camera_specific_denoising.md).
+(``configs/train/demosaic_camera_specific.yaml``, docs/camera_specific_denoising.md). ``data.stream_chunk``
+training batches are rendered at once (default 4 on a CPU, 64 on an accelerator; :class:`StreamSource`).
 
 ``data.source: camera_pairs`` draws batches from :class:`isettorch.data.camera_pairs.CameraPairDataset` instead
 (scene -> diffraction-limited optics -> the isettorch sensor with its own noise model; ``data.scene`` /
