@@ -89,6 +89,9 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         # dataset's few cameras (a stream shares one memo between its groups' optics, whose items mix them)
         dxs, ns = dx.detach().reshape(-1).tolist(), f_number.detach().reshape(-1).tolist()
         if len(dxs) != len(ns):  # one of them broadcasts
+            if 1 not in (len(dxs), len(ns)):
+                raise ValueError(f"dx, f_number: expected one value or one per item each, got {len(dxs)} and "
+                                 f"{len(ns)}")
             dxs, ns = dxs * (len(ns) if len(dxs) == 1 else 1), ns * (len(dxs) if len(ns) == 1 else 1)
         lam_m = float(wavelengths_nm.max()) * 1e-9
         memo = self.__dict__.setdefault("_negligible_memo", {})

@@ -230,3 +230,29 @@ def test_plan_float32_and_isetcam_plan():
     p2, o2 = iso.plan(scene), iso(scene)
     assert p2["full_shape"] == tuple(o2.photons.shape[-2:]) and p2["pad"] == (2, 3)
     torch.testing.assert_close(p2["sample_spacing_m"], o2.sample_spacing_m)
+
+
+def test_blur_negligible_per_item_matches_the_corner_frequency_rule():
+    # the blur is negligible when 1 - MTF at the grid's corner frequency sqrt(2) / (2 dx) is within the tolerance for
+    # every item (Goodman 6.31); memoised per (spacing, f-number), shared memos give the same answers, one value
+    # broadcasts, and mismatched per-item lengths raise
+    from isettorch.optics.diffraction import dl_mtf_1d
+
+    wl = torch.linspace(400.0, 700.0, 31, dtype=torch.float64)
+    g = torch.Generator().manual_seed(4)
+    a, b = DiffractionLimitedOptics(f_number=4.0), DiffractionLimitedOptics(f_number=4.0)
+    b._negligible_memo = a.__dict__.setdefault("_negligible_memo", {})
+    seen = set()
+    for i in range(40):
+        k = 1 + i % 3  # items per call
+        dx = 10 ** (-5.5 + 3.0 * torch.rand(k, generator=g, dtype=torch.float64))  # 3 um to 3 mm
+        n = torch.tensor([1.4, 2.0, 8.0], dtype=torch.float64)[torch.randint(0, 3, (k,), generator=g)]
+        s = math.sqrt(2) / (2 * dx) * 700e-9 * n
+        expected = bool((1 - dl_mtf_1d(s) <= a.blur_skip_tolerance).all())
+        assert a.blur_negligible(dx, wl, n) == expected == b.blur_negligible(dx, wl, n)
+        seen.add(expected)
+    assert seen == {True, False}
+    assert a.blur_negligible(torch.tensor([1e-3, 2e-3]), wl, torch.tensor([2.0])) == all(
+        a.blur_negligible(torch.tensor([d]), wl, torch.tensor([2.0])) for d in (1e-3, 2e-3))
+    with pytest.raises(ValueError, match="dx, f_number"):
+        a.blur_negligible(torch.tensor([1e-3, 2e-3]), wl, torch.tensor([2.0, 4.0, 8.0]))
