@@ -104,7 +104,6 @@ class FourierFactors:
 
     def _planes(self, weights: torch.Tensor | None) -> torch.Tensor:
         b, j = self.spec.shape[:2]
-        my, mx = self.size
         nf = self.spec.shape[-2] * self.spec.shape[-1]
         n_l = self.spectra.shape[-1]
         if weights is not None and not self._otf_is_complex():
@@ -157,9 +156,17 @@ class FourierFactors:
                 cube = torch.mm(wt, cube[0], out=proj[0])[None]
             else:
                 cube = torch.mm(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
-        planes = torch.view_as_complex(cube.view(b, -1, *self.spec.shape[-2:], 2))
+        return self._spatial(cube)
+
+    def _spatial(self, interleaved: torch.Tensor) -> torch.Tensor:
+        """The irradiance planes ``[B, K, h, w]`` of projected spectra held as interleaved (real, imaginary) Fourier
+        planes ``[B, K, 2F]`` (or any shape holding them in that order): the inverse rFFT of the buffer, cropped to
+        the window (the last step of every summation order)."""
+        b = self.spec.shape[0]
+        fy, fx = self.spec.shape[-2:]
+        planes = torch.view_as_complex(interleaved.reshape(b, -1, fy, fx, 2).contiguous())
         r0, c0, h, w = self.window
-        return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
+        return torch.fft.irfft2(planes, s=self.size)[..., r0:r0 + h, c0:c0 + w]
 
     def _fused_items(self, weights: torch.Tensor | None) -> bool:
         """Whether :meth:`_planes_by_item` applies: per-item terms and real per-item OTF rows, projected on one
@@ -176,7 +183,6 @@ class FourierFactors:
         ``bmm`` does one per item): a batch-of-one product would be split across intra-op threads and round
         differently with their number. So the result is bitwise the batched path's, on any thread count."""
         b = spec.shape[0]
-        my, mx = self.size
         nf = self.spec.shape[-2] * self.spec.shape[-1]
         n_l = self.spectra.shape[-1]
         s_t = self.spectra.transpose(1, 2).to(spec.dtype)
@@ -190,16 +196,13 @@ class FourierFactors:
             cube[0].view(n_l, nf, 2).mul_(row.reshape(n_l, nf, -1))
             torch.bmm(wt, cube[0].view(n_l, 2, nf).transpose(0, 1), out=proj)  # [2, K, F]: the two halves
             out[i].copy_(proj.transpose(0, 1))
-        planes = torch.view_as_complex(out.view(b, -1, *self.spec.shape[-2:], 2))
-        r0, c0, h, w = self.window
-        return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + h, c0:c0 + w]
+        return self._spatial(out)
 
     def _planes_folded(self, weights: torch.Tensor) -> torch.Tensor:
         """The same projection summed in the other order (real OTF): ``H[j, k] = sum_l spectra[j, l] weights[l, k]
         otf[l]`` (a real [J K, L] x [L, F] product), then ``sum_j H[j, k] spec[j]``: J K L F operations instead of
         (J + K + 1) 2 L F, and no [L, F] intermediate (a rank-1 sweep: 3 L F instead of 10 L F)."""
         b, j = self.spec.shape[:2]
-        my, mx = self.size
         fy, fx = self.spec.shape[-2:]
         n_l, k = weights.shape[-2:]
         nf = fy * fx
@@ -221,7 +224,6 @@ class FourierFactors:
                                                                        "proj"))
             for i in range(1, j):  # in the order of a sum over dim 1
                 planes.add_(h[:, i].mul_(spec[:, i, None]))
-            planes = torch.view_as_complex(planes.view(b, k, fy, fx, 2))
         else:
             otf = self.otf if self.plain_otf is None else self.plain_otf
             if otf.dim() == 5:  # interleaved [.., My, Mx', 2]: the real part
@@ -229,9 +231,7 @@ class FourierFactors:
             otf = otf.reshape(otf.shape[0], n_l, nf)
             h = (coef @ otf).reshape(b, j, k, nf, 1)  # [B, J, K, F]
             planes = (h * spec.view(b, j, 1, nf, 2)).sum(dim=1) if j > 1 else (h[:, 0] * spec.view(b, 1, nf, 2))
-            planes = torch.view_as_complex(planes.reshape(b, k, fy, fx, 2).contiguous())
-        r0, c0, hh, ww = self.window
-        return torch.fft.irfft2(planes, s=(my, mx))[..., r0:r0 + hh, c0:c0 + ww]
+        return self._spatial(planes)
 
     def project(self, weights: torch.Tensor) -> torch.Tensor:
         """``sum_l E[b, l] weights[l, k]`` ``[B, K, h, w]``: K inverse FFTs. ``weights`` ``[L, K]``, or per item
