@@ -264,9 +264,8 @@ def stream_main(args) -> None:
     if not args.no_share:
         share = data_share(device, repeats=reps)
         line = (f"train_demosaic step (DemosaicNet default, batch 16, 80 px): {share['stream_s'] * 1e3:.1f} ms fed "
-                f"by the stream, {share['fixed_s'] * 1e3:.1f} ms on a fixed in-memory batch: data "
-                f"{100 * share['share']:.0f} % of the step (ratio {share['ratio']:.2f}x)")
-        line = line.replace("fed by the stream", f"fed by the stream (data.stream_chunk {share['chunk']})")
+                f"by the stream (data.stream_chunk {share['chunk']}), {share['fixed_s'] * 1e3:.1f} ms on a fixed "
+                f"in-memory batch: data {100 * share['share']:.0f} % of the step (ratio {share['ratio']:.2f}x)")
         for key, what in (("stream_chunk1_s", "fed by the stream with data.stream_chunk 1"),
                           ("stream_chunk4_s", "fed by the stream with data.stream_chunk 4"),
                           ("camera_pairs_s", "fed by data.source camera_pairs (CameraPairDataset.get_batch in the "
