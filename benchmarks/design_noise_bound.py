@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from isettorch.design import SHIPPED_DESIGNS, linear_srgb_of_reflectance, load_design  # noqa: E402
+from isettorch.design import SHIPPED_DESIGNS, colour_estimate_mse, load_design, patch_signals  # noqa: E402
 from isettorch.scene.macbeth import macbeth_reflectances  # noqa: E402
 
 WINDOWS = (4, 16, 64, 256)
@@ -39,37 +39,17 @@ GREY = 21  # Macbeth "neutral 5 (.70 D)", reflectance about 0.19
 
 
 def channel_electrons(camera, lux: float, size: int = 16) -> dict:
-    """Noise-free capture of the 24 patches: per-channel mean electrons ``[24, K']`` of the channels the mosaic
-    uses, their pixel fractions, the capture's exposure and gain, and the per-pixel variance terms."""
-    wl = camera.wavelengths_nm
-    refl = macbeth_reflectances(wl, dtype=torch.float64)
-    n = refl.shape[0]
-    maps = torch.ones(n, 1, size, size, dtype=torch.float64)
+    """Noise-free capture of the 24 patches (:func:`isettorch.design.patch_signals`): per-channel mean electrons
+    ``[24, C]`` of the channels the mosaic uses, their pixel fractions, the per-pixel variance, exposure and gain."""
+    refl = macbeth_reflectances(camera.wavelengths_nm, dtype=torch.float64)
     with torch.no_grad():
-        cap = camera.capture(camera.scene(maps, refl[:, None, :], lux), noise=False)
-    e = cap["raw"].electrons[:, 0]
-    cell = camera.mosaic.index_map
-    tiled = cell.repeat(size // cell.shape[0], size // cell.shape[1])
-    inner = tiled[4:-4, 4:-4]
-    used = [c for c in range(camera.bank.num_channels) if bool((tiled == c).any())]
-    rho = torch.stack([e[:, 4:-4, 4:-4][:, inner == c].mean(1) for c in used], 1)
-    frac = torch.tensor([float((tiled == c).double().mean()) for c in used], dtype=torch.float64)
-    s = camera.sensor
-    gain, t = float(cap["analog_gain"][0]), float(cap["exposure_s"][0])
-    read_e = s.read_noise_v / s.conversion_gain_v_per_e
-    lsb_e = s.voltage_swing_v / 2**s.adc_bits / gain / s.conversion_gain_v_per_e
-    var = rho + read_e**2 + s.dark_current_e_per_s * t + lsb_e**2 / 12
-    return {"rho": rho, "var": var, "frac": frac, "target": linear_srgb_of_reflectance(refl, wl), "gain": gain,
-            "exposure_s": t, "names": [camera.bank.channel_names[c] for c in used]}
+        return patch_signals(camera, refl, lux, size=size)
 
 
 def wiener_mse(rho: torch.Tensor, var: torch.Tensor, frac: torch.Tensor, target: torch.Tensor, window: int) -> float:
-    """Mean squared error (per sRGB channel, over the patches) of the Wiener map from channel means to ``target``."""
-    n = rho.shape[0]
-    s = (var / (frac * window)).mean(0)
-    m = torch.linalg.solve(rho.T @ rho / n + torch.diag(s), rho.T @ target / n).T  # [3, K]
-    bias = ((rho @ m.T - target) ** 2).mean()
-    return float(bias + (m**2 @ s).mean())
+    """Mean squared error (per sRGB channel, over the patches) of the Wiener map from channel means to ``target``
+    (:func:`isettorch.design.colour_estimate_mse`)."""
+    return float(colour_estimate_mse({"rho": rho, "var": var, "frac": frac, "target": target}, window))
 
 
 def main(argv=None) -> int:

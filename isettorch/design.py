@@ -48,8 +48,8 @@ from .sensor.design import design_sensor, fixed_design, learned_design
 from .sensor.filter_bank import FilterBank, check_manufacturable
 from .sensor.mosaic import LearnedMosaic
 
-__all__ = ["DESIGN_DEFAULTS", "DESIGN_FORMAT", "DesignCamera", "SHIPPED_DESIGNS", "design_card", "design_path",
-           "evaluate_design", "make_design",
+__all__ = ["DESIGN_DEFAULTS", "DESIGN_FORMAT", "DesignCamera", "SHIPPED_DESIGNS", "colour_estimate_mse", "design_card",
+           "design_path", "evaluate_design", "make_design", "patch_signals",
            "illuminant_photons", "linear_srgb_of_reflectance", "load_design", "save_design"]
 
 DESIGN_FORMAT = "isettorch-design"
@@ -244,6 +244,68 @@ class DesignCamera(nn.Module):
         net = self.network(lux)
         p = next(net.parameters())
         return net(cap["input"].to(p.dtype), cap["weights"].to(p.dtype))
+
+
+# ------------------------------------------------------------------------------------------------ noise bound
+
+def patch_signals(camera: DesignCamera, reflectance: torch.Tensor, lux: float, *, size: int = 16) -> dict:
+    """What a design's camera records of flat patches: the noise-free capture of each reflectance ``[n, L]`` (on
+    :attr:`DesignCamera.wavelengths_nm`) as a uniform ``size`` x ``size`` scene at ``lux`` under the exposure rule,
+    differentiable in the filters.
+
+    Returns ``{"rho": [n, C]`` mean photo-electrons of each channel the (hard) mosaic uses, over the pixels 4 or
+    more from the border, ``"var": [n, C]`` one pixel's noise variance in electrons (Poisson shot noise ``rho``, the
+    read noise squared, the dark signal and the ADC step squared over 12 at the capture's gain),
+    ``"frac": [C]`` each channel's share of the pixels, ``"target": [n, 3]`` the patches' linear sRGB (white = 1,
+    :func:`linear_srgb_of_reflectance`), ``"names"``, ``"exposure_s"``, ``"gain"`` (floats)}``.
+    """
+    if not (isinstance(size, int) and size >= 12):
+        raise ValueError(f"size: expected an integer of at least 12 pixels, got {size!r}")
+    wl = camera.wavelengths_nm
+    refl = torch.as_tensor(reflectance, dtype=torch.float64)
+    if refl.dim() != 2 or refl.shape[1] != wl.numel():
+        raise ValueError(f"reflectance: expected [n, {wl.numel()}] on the design's grid, got {tuple(refl.shape)}")
+    n = refl.shape[0]
+    maps = torch.ones(n, 1, size, size, dtype=torch.float64)
+    cap = camera.capture(camera.scene(maps, refl[:, None, :], lux), noise=False)
+    e = cap["raw"].electrons[:, 0]
+    cell = camera.mosaic.index_map
+    reps = (-(-size // cell.shape[0]), -(-size // cell.shape[1]))
+    tiled = cell.repeat(*reps)[:size, :size]
+    inner, e_inner = tiled[4:-4, 4:-4], e[:, 4:-4, 4:-4]
+    used = [c for c in range(camera.bank.num_channels) if bool((inner == c).any())]
+    rho = torch.stack([e_inner[:, inner == c].mean(1) for c in used], 1)
+    frac = torch.tensor([float((inner == c).double().mean()) for c in used], dtype=torch.float64)
+    s = camera.sensor
+    gain, t = float(cap["analog_gain"][0]), float(cap["exposure_s"][0])
+    read_e = s.read_noise_v / s.conversion_gain_v_per_e
+    lsb_e = s.voltage_swing_v / 2**s.adc_bits / gain / s.conversion_gain_v_per_e
+    var = rho + read_e**2 + s.dark_current_e_per_s * t + lsb_e**2 / 12
+    return {"rho": rho, "var": var, "frac": frac, "target": linear_srgb_of_reflectance(refl, wl),
+            "names": [camera.bank.channel_names[c] for c in used], "exposure_s": t, "gain": gain}
+
+
+def colour_estimate_mse(fit: dict, window: int, test: dict | None = None) -> torch.Tensor:
+    """Mean squared error (per linear-sRGB channel, over the patches) of the best linear colour estimate of a flat
+    patch from its channels' means over a window of ``window`` pixels.
+
+    ``fit`` and ``test`` are :func:`patch_signals` of the same design. A window holding a share ``f_c`` of channel
+    ``c`` measures its mean with variance ``var / (f_c window)``; the Wiener (linear MMSE) map from those means to
+    linear sRGB over ``fit``'s patches is ``M = T' P (P' P + n S)^-1`` (Kay, Fundamentals of Statistical Signal
+    Processing I, 1993, 12.6), and its error on ``test``'s patches (default: ``fit``'s) is the colour bias of that
+    map plus the noise it passes, ``mean((P M' - T)^2) + trace(M S M') / 3``. With ``test`` another set of spectra
+    it is the error of a colour correction learned on one set of materials and applied to another (a network
+    trained on the generator's reflectances and scored on photographs lifted to spectra). Differentiable.
+    """
+    if not (isinstance(window, int) and window > 0):
+        raise ValueError(f"window: expected a positive number of pixels, got {window!r}")
+    test = fit if test is None else test
+    rho, target = fit["rho"], fit["target"]
+    n = rho.shape[0]
+    s = (fit["var"] / (fit["frac"] * window)).mean(0)
+    m = torch.linalg.solve(rho.T @ rho / n + torch.diag(s), rho.T @ target / n).T  # [3, C]
+    s_test = (test["var"] / (test["frac"] * window)).mean(0)
+    return ((test["rho"] @ m.T - test["target"]) ** 2).mean() + (m**2 @ s_test).mean()
 
 
 # ------------------------------------------------------------------------------------------------ design files

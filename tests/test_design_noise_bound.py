@@ -1,5 +1,6 @@
-"""benchmarks/design_noise_bound.py: the Wiener colour estimate against its closed form, and the shipped designs'
-captures it reads (issue #36, reporting)."""
+"""The noise-limited colour estimate (:func:`isettorch.design.colour_estimate_mse`,
+:func:`~isettorch.design.patch_signals`) against closed forms and finite differences, and the shipped designs'
+captures benchmarks/design_noise_bound.py reads (issue #36)."""
 
 from __future__ import annotations
 
@@ -43,3 +44,57 @@ def test_design_capture_counts_photons_of_the_mosaic_channels():
     assert lo["exposure_s"] == pytest.approx(1 / 30) and hi["exposure_s"] == pytest.approx(1 / 30)
     torch.testing.assert_close(hi["rho"], 10 * lo["rho"], rtol=1e-6, atol=0)
     assert lo["rho"].shape == (24, 3) and bool((lo["rho"] > 0).all())
+
+
+def test_colour_correction_learned_on_one_set_and_applied_to_another_matches_the_closed_form():
+    # noise-free channels that are a linear transform A of the target on the fit set: the Wiener map is A^-1, so a
+    # test set whose channels are T B gives the error mean((T B A^-1 - T)^2) exactly, and B = A gives 0
+    from isettorch.design import colour_estimate_mse
+
+    g = torch.Generator().manual_seed(3)
+    t_fit, t_test = (torch.rand(n, 3, generator=g, dtype=torch.float64) for n in (40, 25))
+    a = torch.rand(3, 3, generator=g, dtype=torch.float64) + 2 * torch.eye(3, dtype=torch.float64)
+    b = a + 0.1 * torch.rand(3, 3, generator=g, dtype=torch.float64)
+    zero = {"frac": torch.full((3,), 1 / 3, dtype=torch.float64)}
+    fit = {"rho": t_fit @ a, "var": torch.zeros(40, 3, dtype=torch.float64), "target": t_fit, **zero}
+    same = {"rho": t_test @ a, "var": torch.zeros(25, 3, dtype=torch.float64), "target": t_test, **zero}
+    other = dict(same, rho=t_test @ b)
+    assert float(colour_estimate_mse(fit, 16, same)) == pytest.approx(0.0, abs=1e-24)
+    want = float(((t_test @ b @ torch.linalg.inv(a) - t_test) ** 2).mean())
+    assert float(colour_estimate_mse(fit, 16, other)) == pytest.approx(want, rel=1e-9)
+    # the noise term is the test set's: trace(M S M') / 3 with S its variance over the window
+    noisy = dict(same, var=torch.full((25, 3), 12.0, dtype=torch.float64))
+    m = torch.linalg.inv(a).T
+    assert float(colour_estimate_mse(fit, 16, noisy)) == pytest.approx(float((m**2).sum()) * 12 / (16 / 3) / 3,
+                                                                       rel=1e-9)
+    with pytest.raises(ValueError, match="window"):
+        colour_estimate_mse(fit, 0)
+
+
+def test_patch_signals_gradient_matches_finite_differences():
+    # d(error)/d(filter parameter) through the capture (exposure rule, hard mosaic), float64, central differences
+    from isettorch.design import colour_estimate_mse, make_design, patch_signals
+    from isettorch.scene.macbeth import macbeth_reflectances
+
+    spec = {"filters": ["learned", "learned", "learned"], "mosaic_init": [["F1", "F0"], ["F2", "F1"]]}
+    cam = make_design(spec).eval()
+    refl = macbeth_reflectances(cam.wavelengths_nm, dtype=torch.float64)
+
+    def err():
+        sig = patch_signals(cam, refl, 1.0, size=12)
+        return colour_estimate_mse(sig, 16)
+
+    p = cam.bank.raw_amplitudes
+    p.grad = None
+    err().backward()
+    grad = p.grad[1, 3].item()
+    h = 1e-5
+    with torch.no_grad():
+        p[1, 3] += h
+        up = float(err())
+        p[1, 3] -= 2 * h
+        down = float(err())
+        p[1, 3] += h
+    assert grad == pytest.approx((up - down) / (2 * h), rel=1e-4)
+    with pytest.raises(ValueError, match="reflectance"):
+        patch_signals(cam, refl[:, :5], 1.0)

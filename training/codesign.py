@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -68,6 +69,9 @@ DEFAULTS: dict = {
     "val": {"batches": 2, "every": 200, "seed_offset": 1_000_003, "crop": 4},
     "loss_crop": 4,
     "checkpoint_every": 250,
+    # the learned filters designed on the noise-limited colour estimate before any network training (predesign)
+    "predesign": {"steps": 0, "lr": 0.05, "window": 16, "lux": None, "fit_patches": 256, "test_colours": 64,
+                  "seed": 5},
 }
 
 
@@ -178,6 +182,78 @@ def targets(maps: torch.Tensor, reflectance: torch.Tensor, camera: DesignCamera)
     return torch.einsum("bjc,bjhw->bchw", rgb.to(maps.dtype), maps)
 
 
+# ------------------------------------------------------------------------------------------------ predesign
+
+def bound_patches(wavelengths_nm: torch.Tensor, fit_patches: int, test_colours: int, seed: int) -> dict:
+    """The materials the filters are designed for (reflectances ``[n, L]``): ``fit``, the layout generator's
+    reflectance model (:func:`isettorch.data.spectra.random_reflectances`, the training scenes' materials), on which
+    the colour correction is learned; and two test sets it is applied to: ``macbeth`` (ISETCam's measured Macbeth
+    reflectances) and ``photo`` (random linear sRGB colours ``u^2.2``, ``u`` uniform, lifted as
+    :func:`isettorch.data.photos.lift_srgb` lifts a photograph: Mallett & Yuksel's basis)."""
+    from isettorch.data.spectra import random_reflectances, srgb_basis_spectra
+    from isettorch.scene.macbeth import macbeth_reflectances
+
+    wl = wavelengths_nm.to(torch.float64)
+    g = torch.Generator().manual_seed(int(seed))
+    fit = random_reflectances(int(fit_patches), wl.float(), g).to(torch.float64)
+    colours = torch.rand(int(test_colours), 3, generator=g, dtype=torch.float64) ** 2.2
+    return {"fit": fit, "macbeth": macbeth_reflectances(wl, dtype=torch.float64),
+            "photo": colours @ srgb_basis_spectra(wl).to(torch.float64)}
+
+
+def bound_loss(camera: DesignCamera, patches: dict, levels: list[float], window: int) -> torch.Tensor:
+    """Mean over the light levels and the two test sets of ``log`` of the colour estimate's error
+    (:func:`isettorch.design.colour_estimate_mse`: a Wiener colour correction fitted on ``patches["fit"]``, applied
+    to each test set, photon, read, dark and ADC noise of the design's own capture at that level)."""
+    from isettorch.design import colour_estimate_mse, patch_signals
+
+    total = 0.0
+    for lux in levels:
+        fit = patch_signals(camera, patches["fit"], lux)
+        for key in ("macbeth", "photo"):
+            total = total + torch.log(colour_estimate_mse(fit, window, patch_signals(camera, patches[key], lux)))
+    return total / (2 * len(levels))
+
+
+def predesign(camera: DesignCamera, cfg: dict, *, quiet: bool = False) -> dict:
+    """Design the learned filters on the noise-limited colour estimate before the networks train: ``steps`` Adam
+    steps on :func:`bound_loss` over the filters' parameters (the mosaic as it starts). A colour-filter design
+    criterion of the kind of Vora & Trussell (JOSA A 14, 1997) and Parmar & Reeves (IEEE ICIP 2006: CFA
+    sensitivities chosen for the noise of a linear reconstruction), here through the library's own capture: the
+    exposure rule, photon and read noise, dark signal and ADC. Returns ``{"loss": [start, end], "gain_db": {lux:
+    dB over bayer_rgb}}`` (the same loss for the fixed Bayer design, in dB)."""
+    p = cfg["predesign"]
+    steps = int(p["steps"])
+    levels = [float(v) for v in (p["lux"] or cfg["lux"])]
+    window = int(p["window"])
+    patches = bound_patches(camera.wavelengths_nm, p["fit_patches"], p["test_colours"], p["seed"])
+    bank = camera.bank
+    params = [bank.raw_amplitudes, bank.raw_offsets]
+    was = camera.training
+    camera.eval()  # the hard mosaic
+    opt = torch.optim.Adam(params, lr=float(p["lr"]))
+    losses = []
+    for step in range(steps):
+        loss = bound_loss(camera, patches, levels, window)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+        if not quiet and (step % 50 == 0 or step + 1 == steps):
+            print(json.dumps({"predesign_step": step, "bound_loss": round(losses[-1], 4)}), flush=True)
+    for q in (*params, *camera.networks.parameters()):
+        q.grad = None
+    camera.train(was)
+    ref = make_design("bayer_rgb", dict(cfg["camera"])).eval()
+    with torch.no_grad():
+        gain = {f"{lux:g}": round(10 / math.log(10) * float(bound_loss(ref, patches, [lux], window)
+                                                              - bound_loss(camera.eval(), patches, [lux], window)), 3)
+                for lux in levels}
+    camera.train(was)
+    return {"steps": steps, "window": window, "lux": levels, "loss": [losses[0], losses[-1]] if losses else [],
+            "gain_db": gain}
+
+
 # ------------------------------------------------------------------------------------------------ training
 
 def _loss(out: torch.Tensor, target: torch.Tensor, crop: int, srgb_weight: float) -> torch.Tensor:
@@ -267,6 +343,14 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
     name = cfg["name"] or (cfg["design"] if isinstance(cfg["design"], str) else "learned")
     levels = [float(v) for v in cfg["lux"]]
     camera = make_design(cfg["design"], dict(cfg["camera"]), levels, seed=seed, name=name).train()
+    out_dir = Path(cfg["out"])
+    ck_path = out_dir / "checkpoint.pt"
+    predesigned = None
+    if int(cfg["predesign"]["steps"]) > 0:
+        if not camera.bank.num_learned:
+            raise ValueError("predesign.steps: only a design with learned filters can be predesigned")
+        if not ck_path.exists():  # a resumed run's filters come from its checkpoint
+            predesigned = predesign(camera, cfg, quiet=quiet)
     o = cfg["optim"]
     steps = int(o["steps"])
     design_params = [p for n, p in camera.named_parameters() if p.requires_grad and not n.startswith("networks.")]
@@ -285,9 +369,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
     if not 0 <= warmup <= until <= steps:
         raise ValueError(f"optim.design_warmup, optim.design_until: expected 0 <= warmup <= until <= 1, got "
                          f"{o['design_warmup']!r}, {o['design_until']!r}")
-    out_dir = Path(cfg["out"])
     out_dir.mkdir(parents=True, exist_ok=True)
-    ck_path = out_dir / "checkpoint.pt"
     rows, start, wall0 = [], 0, 0.0
     if ck_path.exists():  # resume: every step's data and noise depend only on (seed, step), so the run continues
         start, rows, wall0 = _resume(ck_path, cfg, camera, opt, sched)
@@ -334,6 +416,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
     camera.config["training"] = {"steps": steps, "batch": b, "size": size, "source": cfg["data"]["source"],
                                  "seed": seed, "lux": levels, "lr": float(o["lr"]), "design_lr": float(o["design_lr"]),
                                  "design_steps": [warmup, until] if design_params else None,
+                                 "predesign": predesigned,
                                  "minutes": round((time.time() - t0) / 60, 2)}
     card = design_card(camera) + "\nHeld-out training-distribution scenes (sRGB CPSNR, dB): " + ", ".join(
         f"{k} lux {v:.2f}" for k, v in final.items()) + "\n"

@@ -160,3 +160,40 @@ def test_the_design_learns_only_between_warmup_and_until(tmp_path, monkeypatch):
     logits = [k for k in design if k.endswith("logits")]
     assert len(logits) == 1  # the exported mosaic is the frozen logits' argmax
     assert torch.equal(load_design(record["path"]).mosaic.index_map, states[2][logits[0]].argmax(0))
+
+
+def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_path):
+    """predesign: Adam on the noise-limited colour estimate lowers it, the filters stay manufacturable, a design
+    fixed for training (design_until 0) exports exactly the predesigned filters, and a bank without learned filters
+    is refused."""
+    from isettorch.sensor.filter_bank import check_manufacturable
+
+    spec = {"filters": ["learned", "learned", "learned"], "mosaic_init": [["F1", "F0"], ["F2", "F1"]]}
+    cfg = codesign.merged_config({"lux": [1], "predesign": {"steps": 6, "fit_patches": 24, "test_colours": 12}})
+    cam = make_design(spec, None, [1.0])
+    patches = codesign.bound_patches(cam.wavelengths_nm, 24, 12, 5)
+    with torch.no_grad():
+        before = float(codesign.bound_loss(cam.eval(), patches, [1.0], 16))
+    res = codesign.predesign(cam, cfg, quiet=True)
+    with torch.no_grad():
+        after = float(codesign.bound_loss(cam.eval(), patches, [1.0], 16))
+    assert res["loss"][0] == pytest.approx(before, rel=1e-12)
+    assert after < before - 0.05
+    check_manufacturable(cam.bank.filters.detach(), cam.bank.wavelengths_nm)
+    assert set(res["gain_db"]) == {"1"}
+    # the bound's Bayer reference, recomputed here: gain = 10 log10(error_bayer / error_design)
+    with torch.no_grad():
+        bayer = float(codesign.bound_loss(make_design("bayer_rgb").eval(), patches, [1.0], 16))
+    assert res["gain_db"]["1"] == pytest.approx(10 / math.log(10) * (bayer - after), abs=1e-3)
+
+    run = {"threads": 1, "lux": [1], "design": spec, "camera": {"network": {"width": 4, "depth": 1}},
+           "data": {"size": 16, "batch": 2}, "optim": {"steps": 2, "design_warmup": 0.0, "design_until": 0.0},
+           "val": {"batches": 1, "every": 0}, "predesign": {"steps": 6, "fit_patches": 24, "test_colours": 12},
+           "out": str(tmp_path / "run")}
+    record = codesign.train(run, quiet=True)
+    exported = load_design(record["path"])
+    torch.testing.assert_close(exported.bank.filters, cam.bank.filters.detach().to(exported.bank.filters.dtype),
+                               rtol=0, atol=1e-12)
+    assert exported.config["training"]["predesign"]["steps"] == 6
+    with pytest.raises(ValueError, match="predesign.steps"):
+        codesign.train({**run, "design": "bayer_rgb", "out": str(tmp_path / "bayer")}, quiet=True)
