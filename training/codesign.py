@@ -372,7 +372,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, start, wall0 = [], 0, 0.0
     if ck_path.exists():  # resume: every step's data and noise depend only on (seed, step), so the run continues
-        start, rows, wall0 = _resume(ck_path, cfg, camera, opt, sched)
+        start, rows, wall0, predesigned = _resume(ck_path, cfg, camera, opt, sched)
         if not quiet:
             print(json.dumps({"resumed_at_step": start}), flush=True)
     t0 = time.time() - wall0
@@ -408,7 +408,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
                 print(json.dumps(row), flush=True)
         rows.append(row)
         if ck_every and (step + 1) % ck_every == 0 and step + 1 < steps:
-            _save_checkpoint(ck_path, cfg, camera, opt, sched, step + 1, rows, time.time() - t0)
+            _save_checkpoint(ck_path, cfg, camera, opt, sched, step + 1, rows, time.time() - t0, predesigned)
     camera.eval()
     if camera.bank.learnable:
         camera.bank.freeze()
@@ -436,23 +436,24 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
 
 
 def _save_checkpoint(path: Path, cfg: dict, camera: DesignCamera, opt, sched, step: int, rows: list,
-                     wall_s: float) -> None:
+                     wall_s: float, predesigned: dict | None = None) -> None:
     """The run's state after ``step`` steps (camera with filters, mosaic logits and networks, optimiser, schedule,
-    history), written atomically (a temporary file renamed)."""
+    history, the predesign's record), written atomically (a temporary file renamed)."""
     common.save_atomic({"config": json.dumps(cfg, sort_keys=True), "step": step, "camera": camera.state_dict(),
                         "optimizer": opt.state_dict(), "scheduler": sched.state_dict(), "history": json.dumps(rows),
-                        "wall_s": wall_s}, path)
+                        "wall_s": wall_s, "predesign": json.dumps(predesigned)}, path)
 
 
-def _resume(path: Path, cfg: dict, camera: DesignCamera, opt, sched) -> tuple[int, list, float]:
-    """Load a checkpoint of the same config into ``camera``, ``opt`` and ``sched``: (next step, history, wall s)."""
+def _resume(path: Path, cfg: dict, camera: DesignCamera, opt, sched) -> tuple[int, list, float, dict | None]:
+    """Load a checkpoint of the same config into ``camera``, ``opt`` and ``sched``: (next step, history, wall s,
+    the predesign's record)."""
     ck = torch.load(path, weights_only=True)
     if ck["config"] != json.dumps(cfg, sort_keys=True):
         raise ValueError(f"out: {path} is a checkpoint of another config; remove it or choose another out folder")
     camera.load_state_dict(ck["camera"])
     opt.load_state_dict(ck["optimizer"])
     sched.load_state_dict(ck["scheduler"])
-    return int(ck["step"]), json.loads(ck["history"]), float(ck["wall_s"])
+    return int(ck["step"]), json.loads(ck["history"]), float(ck["wall_s"]), json.loads(ck.get("predesign", "null"))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -139,9 +139,9 @@ def test_the_design_learns_only_between_warmup_and_until(tmp_path, monkeypatch):
     states = {}
     real_save = codesign._save_checkpoint
 
-    def keep(path, cfg, camera, opt, sched, step, rows, wall):
+    def keep(path, cfg, camera, opt, sched, step, *rest):
         states[step] = {k: v.clone() for k, v in camera.state_dict().items()}
-        real_save(path, cfg, camera, opt, sched, step, rows, wall)
+        real_save(path, cfg, camera, opt, sched, step, *rest)
 
     monkeypatch.setattr(codesign, "_save_checkpoint", keep)
     cfg = {"threads": 1, "lux": [5], "design": spec, "camera": {"network": {"width": 4, "depth": 1}},
@@ -162,7 +162,7 @@ def test_the_design_learns_only_between_warmup_and_until(tmp_path, monkeypatch):
     assert torch.equal(load_design(record["path"]).mosaic.index_map, states[2][logits[0]].argmax(0))
 
 
-def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_path):
+def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_path, monkeypatch):
     """predesign: Adam on the noise-limited colour estimate lowers it, the filters stay manufacturable, a design
     fixed for training (design_until 0) exports exactly the predesigned filters, and a bank without learned filters
     is refused."""
@@ -195,5 +195,23 @@ def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_pat
     torch.testing.assert_close(exported.bank.filters, cam.bank.filters.detach().to(exported.bank.filters.dtype),
                                rtol=0, atol=1e-12)
     assert exported.config["training"]["predesign"]["steps"] == 6
+    # a run stopped at its checkpoint and resumed skips the predesign and keeps its record
+    real_save = codesign._save_checkpoint
+
+    def save_then_stop(*args):
+        real_save(*args)
+        raise KeyboardInterrupt
+
+    split = {**run, "optim": {**run["optim"], "steps": 4}, "checkpoint_every": 2, "out": str(tmp_path / "split")}
+    monkeypatch.setattr(codesign, "_save_checkpoint", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        codesign.train(split, quiet=True)
+    monkeypatch.setattr(codesign, "_save_checkpoint", real_save)
+    calls = []
+    monkeypatch.setattr(codesign, "predesign", lambda *a, **k: calls.append(1))
+    resumed = load_design(codesign.train(split, quiet=True)["path"])
+    assert not calls
+    assert resumed.config["training"]["predesign"] == exported.config["training"]["predesign"]
+    torch.testing.assert_close(resumed.bank.filters, exported.bank.filters, rtol=0, atol=0)
     with pytest.raises(ValueError, match="predesign.steps"):
         codesign.train({**run, "design": "bayer_rgb", "out": str(tmp_path / "bayer")}, quiet=True)
