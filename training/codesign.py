@@ -218,10 +218,11 @@ def bound_loss(camera: DesignCamera, patches: dict, levels: list[float], window:
 def predesign(camera: DesignCamera, cfg: dict, *, quiet: bool = False) -> dict:
     """Design the learned filters on the noise-limited colour estimate before the networks train: ``steps`` Adam
     steps on :func:`bound_loss` over the filters' parameters (the mosaic as it starts). A colour-filter design
-    criterion of the kind of Vora & Trussell (JOSA A 14, 1997) and Parmar & Reeves (IEEE ICIP 2006: CFA
-    sensitivities chosen for the noise of a linear reconstruction), here through the library's own capture: the
-    exposure rule, photon and read noise, dark signal and ADC. Returns ``{"loss": [start, end], "gain_db": {lux:
-    dB over bayer_rgb}}`` (the same loss for the fixed Bayer design, in dB)."""
+    criterion of the kind of Vora & Trussell ("Mathematical methods for the design of color scanning filters", IEEE
+    Trans. Image Processing 6(2), 1997) and Parmar & Reeves ("Optimization of color filter sensitivity functions for
+    color filter array based image acquisition", IS&T Color Imaging Conf. 14, 2006), here through the library's own
+    capture: the exposure rule, photon and read noise, dark signal and ADC. Returns ``{"loss": [start, end],
+    "gain_db": {lux: dB over bayer_rgb}}`` (the same loss for the fixed Bayer design, in dB)."""
     p = cfg["predesign"]
     steps = int(p["steps"])
     levels = [float(v) for v in (p["lux"] or cfg["lux"])]
