@@ -31,7 +31,13 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from isettorch.design import SHIPPED_DESIGNS, colour_estimate_mse, load_design, patch_signals  # noqa: E402
+from isettorch.design import (  # noqa: E402
+    SHIPPED_DESIGNS,
+    bound_patches,
+    colour_estimate_mse,
+    load_design,
+    patch_signals,
+)
 from isettorch.scene.macbeth import macbeth_reflectances  # noqa: E402
 
 WINDOWS = (4, 16, 64, 256)
@@ -52,15 +58,32 @@ def wiener_mse(rho: torch.Tensor, var: torch.Tensor, frac: torch.Tensor, target:
     return float(colour_estimate_mse({"rho": rho, "var": var, "frac": frac, "target": target}, window))
 
 
+def transfer_db(camera, reference, lux: float, patches: dict) -> dict:
+    """The error of a Wiener colour correction fitted on ``patches["fit"]`` (the generator's materials) and applied
+    to the ``photo`` and ``macbeth`` sets, against ``reference``'s, in dB per window (positive: better)."""
+    out = {}
+    with torch.no_grad():
+        sig = {c: {k: patch_signals(c, patches[k], lux) for k in ("fit", "photo", "macbeth")}
+               for c in (camera, reference)}
+    for key in ("photo", "macbeth"):
+        out[key] = [10 * math.log10(float(colour_estimate_mse(sig[reference]["fit"], w, sig[reference][key])
+                                          / colour_estimate_mse(sig[camera]["fit"], w, sig[camera][key])))
+                    for w in WINDOWS]
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--lux", type=float, nargs="+", default=[1.0, 10.0, 100.0])
-    ap.add_argument("--markdown", default=None, help="append the table here")
+    ap.add_argument("--designs", nargs="+", default=list(SHIPPED_DESIGNS),
+                    help="shipped design names or design files (default: the shipped designs)")
+    ap.add_argument("--markdown", default=None, help="append the tables here")
     args = ap.parse_args(argv)
+    designs = {name: load_design(name).eval() for name in dict.fromkeys(["bayer_rgb", *args.designs])}
     lines = ["| lux | design | channels (electrons on neutral 5) | exposure (s), gain | "
              + " | ".join(f"N = {w}" for w in WINDOWS) + " |", "|---" * (4 + len(WINDOWS)) + "|"]
     for lux in args.lux:
-        res = {name: channel_electrons(load_design(name).eval(), lux) for name in SHIPPED_DESIGNS}
+        res = {name: channel_electrons(cam, lux) for name, cam in designs.items()}
         ref = {w: wiener_mse(**{k: res["bayer_rgb"][k] for k in ("rho", "var", "frac", "target")}, window=w)
                for w in WINDOWS}
         for name, r in res.items():
@@ -69,6 +92,15 @@ def main(argv=None) -> int:
             grey = ", ".join(f"{c} {float(v):.1f}" for c, v in zip(r["names"], r["rho"][GREY]))
             lines.append(f"| {lux:g} | {name} | {grey} | {r['exposure_s']:.4f}, {r['gain']:.2f} | "
                          + " | ".join(f"{d:+.2f}" for d in db) + " |")
+    patches = bound_patches(designs["bayer_rgb"].wavelengths_nm)
+    lines += ["", "Correction fitted on the generator's materials, applied to colours lifted as photographs are "
+              "(photo) and to the Macbeth chart (dB against bayer_rgb):", "",
+              "| lux | design | photo: " + " | ".join(f"N = {w}" for w in WINDOWS) + " | Macbeth: "
+              + " | ".join(f"N = {w}" for w in WINDOWS) + " |", "|---" * (2 + 2 * len(WINDOWS)) + "|"]
+    for lux in args.lux:
+        for name, cam in designs.items():
+            t = transfer_db(cam, designs["bayer_rgb"], lux, patches)
+            lines.append(f"| {lux:g} | {name} | " + " | ".join(f"{d:+.2f}" for d in t["photo"] + t["macbeth"]) + " |")
     text = "\n".join(lines)
     print(text)
     if args.markdown:

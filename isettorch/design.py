@@ -48,9 +48,9 @@ from .sensor.design import design_sensor, fixed_design, learned_design
 from .sensor.filter_bank import FilterBank, check_manufacturable
 from .sensor.mosaic import LearnedMosaic
 
-__all__ = ["DESIGN_DEFAULTS", "DESIGN_FORMAT", "DesignCamera", "SHIPPED_DESIGNS", "colour_estimate_mse", "design_card",
-           "design_path", "evaluate_design", "make_design", "patch_signals",
-           "illuminant_photons", "linear_srgb_of_reflectance", "load_design", "save_design"]
+__all__ = ["DESIGN_DEFAULTS", "DESIGN_FORMAT", "DesignCamera", "SHIPPED_DESIGNS", "bound_patches",
+           "colour_estimate_mse", "design_card", "design_path", "evaluate_design", "illuminant_photons",
+           "linear_srgb_of_reflectance", "load_design", "make_design", "patch_signals", "save_design"]
 
 DESIGN_FORMAT = "isettorch-design"
 DESIGN_VERSION = 1
@@ -283,6 +283,28 @@ def patch_signals(camera: DesignCamera, reflectance: torch.Tensor, lux: float, *
     var = rho + read_e**2 + s.dark_current_e_per_s * t + lsb_e**2 / 12
     return {"rho": rho, "var": var, "frac": frac, "target": linear_srgb_of_reflectance(refl, wl),
             "names": [camera.bank.channel_names[c] for c in used], "exposure_s": t, "gain": gain}
+
+
+def bound_patches(wavelengths_nm: torch.Tensor, fit_patches: int = 256, test_colours: int = 64, seed: int = 5
+                  ) -> dict:
+    """Materials to judge a design's colour by (reflectances ``[n, L]`` on ``wavelengths_nm``): ``fit``, the scene
+    generator's reflectance model (:func:`isettorch.data.spectra.random_reflectances`, the training scenes'
+    materials), on which a colour correction is learned, and two test sets it is applied to: ``macbeth`` (ISETCam's
+    measured Macbeth reflectances, :func:`isettorch.scene.macbeth.macbeth_reflectances`) and ``photo`` (random
+    linear sRGB colours ``u^2.2``, ``u`` uniform, lifted as :func:`isettorch.data.photos.lift_srgb` lifts a
+    photograph: Mallett & Yuksel's basis). A function of its arguments only."""
+    from .data.spectra import random_reflectances, srgb_basis_spectra
+    from .scene.macbeth import macbeth_reflectances
+
+    for name, v in (("fit_patches", fit_patches), ("test_colours", test_colours)):
+        if not (isinstance(v, int) and v > 0):
+            raise ValueError(f"{name}: expected a positive integer, got {v!r}")
+    wl = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
+    g = torch.Generator().manual_seed(int(seed))
+    fit = random_reflectances(fit_patches, wl.float(), g).to(torch.float64)
+    colours = torch.rand(test_colours, 3, generator=g, dtype=torch.float64) ** 2.2
+    return {"fit": fit, "macbeth": macbeth_reflectances(wl, dtype=torch.float64),
+            "photo": colours @ srgb_basis_spectra(wl).to(torch.float64)}
 
 
 def colour_estimate_mse(fit: dict, window: int, test: dict | None = None) -> torch.Tensor:

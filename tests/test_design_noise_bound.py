@@ -98,3 +98,25 @@ def test_patch_signals_gradient_matches_finite_differences():
     assert grad == pytest.approx((up - down) / (2 * h), rel=1e-4)
     with pytest.raises(ValueError, match="reflectance"):
         patch_signals(cam, refl[:, :5], 1.0)
+
+
+def test_bound_patches_lift_colours_as_photographs_are_lifted():
+    # the "photo" set is colours in Mallett & Yuksel's basis: their linear sRGB under D65 gives the colours back
+    # (to the basis' 10-nm accuracy, as the photos source's targets); the sets depend on the seed only
+    from isettorch.data.spectra import srgb_basis_spectra
+    from isettorch.design import bound_patches, linear_srgb_of_reflectance
+
+    wl = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    a, b = bound_patches(wl, 40, 30, seed=2), bound_patches(wl, 40, 30, seed=2)
+    assert {k: tuple(v.shape) for k, v in a.items()} == {"fit": (40, 31), "macbeth": (24, 31), "photo": (30, 31)}
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    assert not torch.equal(bound_patches(wl, 40, 30, seed=3)["fit"], a["fit"])
+    assert bool(((a["fit"] >= 0) & (a["fit"] <= 1)).all())
+    # the colours, recovered from the lifted spectra by least squares on the basis
+    basis = srgb_basis_spectra(wl).to(torch.float64)
+    colours = torch.linalg.lstsq(basis.T, a["photo"].T).solution.T
+    assert bool(((colours > -1e-9) & (colours < 1 + 1e-9)).all())
+    torch.testing.assert_close(linear_srgb_of_reflectance(a["photo"], wl), colours, rtol=0, atol=0.011)
+    with pytest.raises(ValueError, match="test_colours"):
+        bound_patches(wl, 40, 0)

@@ -44,6 +44,7 @@ if str(ROOT) not in sys.path:
 from isettorch.data.config import seed_for  # noqa: E402
 from isettorch.design import (  # noqa: E402
     DesignCamera,
+    bound_patches,
     design_card,
     linear_srgb_of_reflectance,
     make_design,
@@ -184,23 +185,6 @@ def targets(maps: torch.Tensor, reflectance: torch.Tensor, camera: DesignCamera)
 
 # ------------------------------------------------------------------------------------------------ predesign
 
-def bound_patches(wavelengths_nm: torch.Tensor, fit_patches: int, test_colours: int, seed: int) -> dict:
-    """The materials the filters are designed for (reflectances ``[n, L]``): ``fit``, the layout generator's
-    reflectance model (:func:`isettorch.data.spectra.random_reflectances`, the training scenes' materials), on which
-    the colour correction is learned; and two test sets it is applied to: ``macbeth`` (ISETCam's measured Macbeth
-    reflectances) and ``photo`` (random linear sRGB colours ``u^2.2``, ``u`` uniform, lifted as
-    :func:`isettorch.data.photos.lift_srgb` lifts a photograph: Mallett & Yuksel's basis)."""
-    from isettorch.data.spectra import random_reflectances, srgb_basis_spectra
-    from isettorch.scene.macbeth import macbeth_reflectances
-
-    wl = wavelengths_nm.to(torch.float64)
-    g = torch.Generator().manual_seed(int(seed))
-    fit = random_reflectances(int(fit_patches), wl.float(), g).to(torch.float64)
-    colours = torch.rand(int(test_colours), 3, generator=g, dtype=torch.float64) ** 2.2
-    return {"fit": fit, "macbeth": macbeth_reflectances(wl, dtype=torch.float64),
-            "photo": colours @ srgb_basis_spectra(wl).to(torch.float64)}
-
-
 def bound_loss(camera: DesignCamera, patches: dict, levels: list[float], window: int) -> torch.Tensor:
     """Mean over the light levels and the two test sets of ``log`` of the colour estimate's error
     (:func:`isettorch.design.colour_estimate_mse`: a Wiener colour correction fitted on ``patches["fit"]``, applied
@@ -227,7 +211,7 @@ def predesign(camera: DesignCamera, cfg: dict, *, quiet: bool = False) -> dict:
     steps = int(p["steps"])
     levels = [float(v) for v in (p["lux"] or cfg["lux"])]
     window = int(p["window"])
-    patches = bound_patches(camera.wavelengths_nm, p["fit_patches"], p["test_colours"], p["seed"])
+    patches = bound_patches(camera.wavelengths_nm, int(p["fit_patches"]), int(p["test_colours"]), int(p["seed"]))
     bank = camera.bank
     params = [bank.raw_amplitudes, bank.raw_offsets]
     was = camera.training

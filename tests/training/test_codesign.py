@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from isettorch.design import evaluate_design, load_design, make_design  # noqa: E402
+from isettorch.design import bound_patches, evaluate_design, load_design, make_design  # noqa: E402
 from isettorch.sensor.filter_bank import MAX_SLOPE_PER_NM  # noqa: E402
 from training import codesign  # noqa: E402
 
@@ -171,7 +171,7 @@ def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_pat
     spec = {"filters": ["learned", "learned", "learned"], "mosaic_init": [["F1", "F0"], ["F2", "F1"]]}
     cfg = codesign.merged_config({"lux": [1], "predesign": {"steps": 6, "fit_patches": 24, "test_colours": 12}})
     cam = make_design(spec, None, [1.0])
-    patches = codesign.bound_patches(cam.wavelengths_nm, 24, 12, 5)
+    patches = bound_patches(cam.wavelengths_nm, 24, 12, 5)
     with torch.no_grad():
         before = float(codesign.bound_loss(cam.eval(), patches, [1.0], 16))
     res = codesign.predesign(cam, cfg, quiet=True)
