@@ -226,17 +226,16 @@ def predesign(camera: DesignCamera, cfg: dict, *, quiet: bool = False) -> dict:
         losses.append(float(loss.detach()))
         if not quiet and (step % 50 == 0 or step + 1 == steps):
             print(json.dumps({"predesign_step": step, "bound_loss": round(losses[-1], 4)}), flush=True)
-    for q in (*params, *camera.networks.parameters()):
+    for q in params:
         q.grad = None
-    camera.train(was)
     ref = make_design("bayer_rgb", dict(cfg["camera"])).eval()
-    with torch.no_grad():
-        gain = {f"{lux:g}": round(10 / math.log(10) * float(bound_loss(ref, patches, [lux], window)
-                                                              - bound_loss(camera.eval(), patches, [lux], window)), 3)
+    with torch.no_grad():  # after the last step, on the hard mosaic
+        end = {lux: float(bound_loss(camera, patches, [lux], window)) for lux in levels}
+        gain = {f"{lux:g}": round(10 / math.log(10) * (float(bound_loss(ref, patches, [lux], window)) - end[lux]), 3)
                 for lux in levels}
     camera.train(was)
-    return {"steps": steps, "window": window, "lux": levels, "loss": [losses[0], losses[-1]] if losses else [],
-            "gain_db": gain}
+    return {"steps": steps, "window": window, "lux": levels,
+            "loss": [losses[0], sum(end.values()) / len(end)] if losses else [], "gain_db": gain}
 
 
 # ------------------------------------------------------------------------------------------------ training

@@ -184,6 +184,7 @@ def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_pat
     # the bound's Bayer reference, recomputed here: gain = 10 log10(error_bayer / error_design)
     with torch.no_grad():
         bayer = float(codesign.bound_loss(make_design("bayer_rgb").eval(), patches, [1.0], 16))
+    assert res["loss"][1] == pytest.approx(after, rel=1e-12)
     assert res["gain_db"]["1"] == pytest.approx(10 / math.log(10) * (bayer - after), abs=1e-3)
 
     run = {"threads": 1, "lux": [1], "design": spec, "camera": {"network": {"width": 4, "depth": 1}},
