@@ -44,7 +44,7 @@ WINDOWS = (4, 16, 64, 256)
 GREY = 21  # Macbeth "neutral 5 (.70 D)", reflectance about 0.19
 
 
-def channel_electrons(camera, lux: float, size: int = 16) -> dict:
+def channel_electrons(camera, lux: float, size: int | None = None) -> dict:
     """Noise-free capture of the 24 patches (:func:`isettorch.design.patch_signals`): per-channel mean electrons
     ``[24, C]`` of the channels the mosaic uses, their pixel fractions, the per-pixel variance, exposure and gain."""
     refl = macbeth_reflectances(camera.wavelengths_nm, dtype=torch.float64)
@@ -58,18 +58,13 @@ def wiener_mse(rho: torch.Tensor, var: torch.Tensor, frac: torch.Tensor, target:
     return float(colour_estimate_mse({"rho": rho, "var": var, "frac": frac, "target": target}, window))
 
 
-def transfer_db(camera, reference, lux: float, patches: dict) -> dict:
-    """The error of a Wiener colour correction fitted on ``patches["fit"]`` (the generator's materials) and applied
-    to the ``photo`` and ``macbeth`` sets, against ``reference``'s, in dB per window (positive: better)."""
-    out = {}
-    with torch.no_grad():
-        sig = {c: {k: patch_signals(c, patches[k], lux) for k in ("fit", "photo", "macbeth")}
-               for c in (camera, reference)}
-    for key in ("photo", "macbeth"):
-        out[key] = [10 * math.log10(float(colour_estimate_mse(sig[reference]["fit"], w, sig[reference][key])
-                                          / colour_estimate_mse(sig[camera]["fit"], w, sig[camera][key])))
-                    for w in WINDOWS]
-    return out
+def transfer_db(signals: dict, reference: dict) -> dict:
+    """The error of a Wiener colour correction fitted on the generator's materials and applied to the ``photo`` and
+    ``macbeth`` sets (``signals``: :func:`isettorch.design.patch_signals` of each set for one design), against
+    ``reference``'s, in dB per window (positive: better)."""
+    return {key: [10 * math.log10(float(colour_estimate_mse(reference["fit"], w, reference[key])
+                                        / colour_estimate_mse(signals["fit"], w, signals[key]))) for w in WINDOWS]
+            for key in ("photo", "macbeth")}
 
 
 def main(argv=None) -> int:
@@ -98,8 +93,11 @@ def main(argv=None) -> int:
               "| lux | design | photo: " + " | ".join(f"N = {w}" for w in WINDOWS) + " | Macbeth: "
               + " | ".join(f"N = {w}" for w in WINDOWS) + " |", "|---" * (2 + 2 * len(WINDOWS)) + "|"]
     for lux in args.lux:
-        for name, cam in designs.items():
-            t = transfer_db(cam, designs["bayer_rgb"], lux, patches)
+        with torch.no_grad():  # each design's capture of the three sets, once per level
+            sig = {name: {k: patch_signals(cam, patches[k], lux) for k in ("fit", "photo", "macbeth")}
+                   for name, cam in designs.items()}
+        for name in designs:
+            t = transfer_db(sig[name], sig["bayer_rgb"])
             lines.append(f"| {lux:g} | {name} | " + " | ".join(f"{d:+.2f}" for d in t["photo"] + t["macbeth"]) + " |")
     text = "\n".join(lines)
     print(text)

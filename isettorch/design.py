@@ -248,19 +248,26 @@ class DesignCamera(nn.Module):
 
 # ------------------------------------------------------------------------------------------------ noise bound
 
-def patch_signals(camera: DesignCamera, reflectance: torch.Tensor, lux: float, *, size: int = 16) -> dict:
+def patch_signals(camera: DesignCamera, reflectance: torch.Tensor, lux: float, *, size: int | None = None) -> dict:
     """What a design's camera records of flat patches: the noise-free capture of each reflectance ``[n, L]`` (on
     :attr:`DesignCamera.wavelengths_nm`) as a uniform ``size`` x ``size`` scene at ``lux`` under the exposure rule,
-    differentiable in the filters.
+    differentiable in the filters. The pixels 4 or more from the border are read; their window must hold whole
+    mosaic cells (``size - 8`` a multiple of the cell's height and width; default: the smallest such window of at
+    least 8 x 8, 16 pixels for a 2 x 2 or 4 x 4 cell).
 
     Returns ``{"rho": [n, C]`` mean photo-electrons of each channel the (hard) mosaic uses, over the pixels 4 or
     more from the border, ``"var": [n, C]`` one pixel's noise variance in electrons (Poisson shot noise ``rho``, the
     read noise squared, the dark signal and the ADC step squared over 12 at the capture's gain),
-    ``"frac": [C]`` each channel's share of the pixels, ``"target": [n, 3]`` the patches' linear sRGB (white = 1,
+    ``"frac": [C]`` each channel's share of the mosaic cell, ``"target": [n, 3]`` the patches' linear sRGB (white = 1,
     :func:`linear_srgb_of_reflectance`), ``"names"``, ``"exposure_s"``, ``"gain"`` (floats)}``.
     """
-    if not (isinstance(size, int) and size >= 12):
-        raise ValueError(f"size: expected an integer of at least 12 pixels, got {size!r}")
+    cell = camera.mosaic.index_map
+    period = math.lcm(*cell.shape)
+    if size is None:
+        size = 8 + period * -(-8 // period)
+    if not (isinstance(size, int) and size > 8 and (size - 8) % period == 0):
+        raise ValueError(f"size: expected 8 plus a positive multiple of the mosaic cell's {tuple(cell.shape)} "
+                         f"period ({period}), got {size!r}")
     wl = camera.wavelengths_nm
     refl = torch.as_tensor(reflectance, dtype=torch.float64)
     if refl.dim() != 2 or refl.shape[1] != wl.numel():
@@ -269,13 +276,11 @@ def patch_signals(camera: DesignCamera, reflectance: torch.Tensor, lux: float, *
     maps = torch.ones(n, 1, size, size, dtype=torch.float64)
     cap = camera.capture(camera.scene(maps, refl[:, None, :], lux), noise=False)
     e = cap["raw"].electrons[:, 0]
-    cell = camera.mosaic.index_map
-    reps = (-(-size // cell.shape[0]), -(-size // cell.shape[1]))
-    tiled = cell.repeat(*reps)[:size, :size]
+    tiled = cell.repeat(size // cell.shape[0] + 1, size // cell.shape[1] + 1)[:size, :size]
     inner, e_inner = tiled[4:-4, 4:-4], e[:, 4:-4, 4:-4]
-    used = [c for c in range(camera.bank.num_channels) if bool((inner == c).any())]
+    used = [c for c in range(camera.bank.num_channels) if bool((cell == c).any())]
     rho = torch.stack([e_inner[:, inner == c].mean(1) for c in used], 1)
-    frac = torch.tensor([float((inner == c).double().mean()) for c in used], dtype=torch.float64)
+    frac = torch.tensor([float((cell == c).double().mean()) for c in used], dtype=torch.float64)
     s = camera.sensor
     gain, t = float(cap["analog_gain"][0]), float(cap["exposure_s"][0])
     read_e = s.read_noise_v / s.conversion_gain_v_per_e

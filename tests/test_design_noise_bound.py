@@ -120,3 +120,21 @@ def test_bound_patches_lift_colours_as_photographs_are_lifted():
     torch.testing.assert_close(linear_srgb_of_reflectance(a["photo"], wl), colours, rtol=0, atol=0.011)
     with pytest.raises(ValueError, match="test_colours"):
         bound_patches(wl, 40, 0)
+
+
+def test_patch_signals_reads_whole_mosaic_cells():
+    # an 8 x 8 mosaic: the default window holds whole cells, so each channel's share is the cell's and every channel
+    # the cell uses has a mean; a window that would cut cells is refused
+    from isettorch.design import make_design, patch_signals
+    from isettorch.scene.macbeth import macbeth_reflectances
+
+    cam = make_design({"filters": ["learned", "learned", "W"], "mosaic_shape": [8, 8]}).eval()
+    cell = cam.mosaic.index_map
+    refl = macbeth_reflectances(cam.wavelengths_nm, dtype=torch.float64)[:3]
+    with torch.no_grad():
+        sig = patch_signals(cam, refl, 10.0)
+    used = [c for c in range(3) if bool((cell == c).any())]
+    assert sig["frac"].tolist() == [float((cell == c).double().mean()) for c in used]
+    assert sig["rho"].shape == (3, len(used)) and bool(torch.isfinite(sig["rho"]).all())
+    with pytest.raises(ValueError, match="size"):
+        patch_signals(cam, refl, 10.0, size=20)  # a 12-pixel window cuts the 8-pixel cells
