@@ -456,13 +456,24 @@ def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name
     "mosaic_init": [[name, ...], ...], "mosaic_init_margin": m}`` for a learned design. ``mosaic_init`` starts the
     learnable mosaic from a hard pattern of the bank's channel names (``F<i>`` for the i-th learned filter, the
     letters of fixed ones; logits one-hot with margin ``mosaic_init_margin``, default 4) instead of random logits,
-    e.g. Kodak's CFA 2.0 layout with learned colours."""
+    e.g. Kodak's CFA 2.0 layout with learned colours. ``{"from_design": DESIGN}`` takes the filters and hard mosaic
+    of a design file or shipped name as a fixed design (new networks): a designed sensor's networks trained again
+    with a fixed design's budget."""
     scale = _merge(DESIGN_DEFAULTS, config)["filters"]["fixed_scale"]
     if isinstance(spec, str):
         bank, mosaic = fixed_design(spec, fixed_scale=scale)
         return DesignCamera(bank, mosaic, config, lux, name=name or spec)
     if not isinstance(spec, dict):
         raise ValueError(f"design: expected a fixed design name or a mapping, got {spec!r}")
+    if "from_design" in spec:
+        if len(spec) != 1:
+            raise ValueError(f"design.from_design: takes no other keys, got {sorted(spec)}")
+        source = load_design(spec["from_design"])
+        camera = DesignCamera(source.bank, source.mosaic, config, lux, name=name or source.name)
+        # the design's own training record (its predesign and design schedule) stays with the filters
+        camera.config["designed_by"] = {"design": str(spec["from_design"]),
+                                        "training": source.config.get("training")}
+        return camera
     keys = ("filters", "mosaic_shape", "relax", "band_width_nm", "max_log_odds", "mosaic_init_scale", "mosaic_init",
             "mosaic_init_margin")
     unknown = [k for k in spec if k not in keys]

@@ -127,6 +127,25 @@ def test_design_file_rejects_what_cannot_be_built(design_file, tmp_path, monkeyp
         D.load_design("no_such_design")
 
 
+def test_from_design_fixes_a_designs_sensor_with_new_networks(design_file):
+    """``{"from_design": file}``: the file's filters and hard mosaic as a fixed design (nothing learnable outside the
+    networks), so its capture equals the file's bitwise; new networks; the file's training record is kept."""
+    src = D.load_design(design_file)
+    cam = D.make_design({"from_design": str(design_file)}, {"network": {"width": 6, "depth": 2}}, lux=(1,))
+    assert not [n for n, p in cam.named_parameters() if p.requires_grad and not n.startswith("networks.")]
+    assert cam.network(1.0).width == 6 and cam.lux_levels == [1.0]
+    assert cam.config["designed_by"]["design"] == str(design_file)
+    torch.testing.assert_close(cam.bank.filters, src.bank.filters, rtol=0, atol=0)
+    assert torch.equal(cam.mosaic.weights(8, 8), src.mosaic.weights(8, 8))
+    scene = cam.scene(torch.rand(1, 2, 8, 8, generator=torch.Generator().manual_seed(1), dtype=torch.float64),
+                      torch.rand(1, 2, 31, generator=torch.Generator().manual_seed(2), dtype=torch.float64), 10.0)
+    a = cam.capture(scene, generator=torch.Generator().manual_seed(3))
+    b = src.capture(scene, generator=torch.Generator().manual_seed(3))
+    assert torch.equal(a["input"], b["input"])
+    with pytest.raises(ValueError, match="design.from_design: takes no other keys"):
+        D.make_design({"from_design": str(design_file), "filters": ["R"]}, TINY)
+
+
 def test_evaluate_design_scores_agree_with_scikit_image_and_colour(design_file, photos):
     """The per-image CPSNR is scikit-image's PSNR of the cropped sRGB images, the dE2000 colour-science's."""
     import colour
