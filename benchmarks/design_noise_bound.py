@@ -94,7 +94,7 @@ def main(argv=None) -> int:
               + " | ".join(f"N = {w}" for w in WINDOWS) + " |", "|---" * (2 + 2 * len(WINDOWS)) + "|"]
     for lux in args.lux:
         with torch.no_grad():  # each design's capture of the three sets, once per level
-            sig = {name: {k: patch_signals(cam, patches[k], lux) for k in ("fit", "photo", "macbeth")}
+            sig = {name: patch_signals(cam, {k: patches[k] for k in ("fit", "photo", "macbeth")}, lux)
                    for name, cam in designs.items()}
         for name in designs:
             t = transfer_db(sig[name], sig["bayer_rgb"])

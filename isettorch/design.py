@@ -221,12 +221,20 @@ class DesignCamera(nn.Module):
         sensor = self.sensor
         sensor.rows, sensor.cols = h, w
         oi = self.optics(scene)
-        # the white card: a perfect white under the scene's light, through the same optics and mosaic
-        white_scene = Scene.from_factors(torch.ones(b, 1, h, w, dtype=scene.dtype, device=scene.device),
-                                         scene.illuminant_photons[:, None, :].to(scene.dtype), scene.wavelengths_nm,
-                                         hfov_deg=scene.hfov_deg, distance_m=scene.distance_m, validate=False)
+        # the white card: a perfect white under the scene's light, through the same optics and mosaic; once for a
+        # batch whose items share their light and geometry (every batch DesignCamera.scene makes), then the same
+        # reading for each item
+        ill, hfov, dist = scene.illuminant_photons, scene.hfov_deg, scene.distance_m
+        shared = b > 1 and all(bool((v == v[:1]).all()) for v in (ill, torch.as_tensor(hfov).reshape(-1),
+                                                                    torch.as_tensor(dist).reshape(-1)))
+        n = 1 if shared else b
+        white_scene = Scene.from_factors(torch.ones(n, 1, h, w, dtype=scene.dtype, device=scene.device),
+                                         ill[:n, None, :].to(scene.dtype), scene.wavelengths_nm,
+                                         hfov_deg=hfov[:n] if torch.is_tensor(hfov) and hfov.dim() else hfov,
+                                         distance_m=dist[:n] if torch.is_tensor(dist) and dist.dim() else dist,
+                                         validate=False)
         white_rates, _ = sensor.channel_rates(self.optics(white_scene))
-        white_mosaic = sensor.cfa.mosaic(white_rates)
+        white_mosaic = sensor.cfa.mosaic(white_rates).expand(b, -1, -1, -1)
         rule = self.config["exposure"]
         t_white = sensor.exposure_for(None, white_mosaic, 1.0)
         t = t_white.clamp(max=float(rule["max_exposure_s"]))
@@ -248,12 +256,13 @@ class DesignCamera(nn.Module):
 
 # ------------------------------------------------------------------------------------------------ noise bound
 
-def patch_signals(camera: DesignCamera, reflectance: torch.Tensor, lux: float, *, size: int | None = None) -> dict:
+def patch_signals(camera: DesignCamera, reflectance, lux: float, *, size: int | None = None) -> dict:
     """What a design's camera records of flat patches: the noise-free capture of each reflectance ``[n, L]`` (on
     :attr:`DesignCamera.wavelengths_nm`) as a uniform ``size`` x ``size`` scene at ``lux`` under the exposure rule,
-    differentiable in the filters. The pixels 4 or more from the border are read; their window must hold whole
-    mosaic cells (``size - 8`` a multiple of the cell's height and width; default: the smallest such window of at
-    least 8 x 8, 16 pixels for a 2 x 2 or 4 x 4 cell).
+    differentiable in the filters. ``reflectance`` may be a mapping of named sets ``{name: [n_i, L]}``: they are
+    captured together (one exposure, set by the light) and the result is ``{name: signals}``. The pixels 4 or more
+    from the border are read; their window must hold whole mosaic cells (``size - 8`` a multiple of the cell's
+    height and width; default: the smallest such window of at least 8 x 8, 16 pixels for a 2 x 2 or 4 x 4 cell).
 
     Returns ``{"rho": [n, C]`` mean photo-electrons of each channel the (hard) mosaic uses, over the pixels 4 or
     more from the border, ``"var": [n, C]`` one pixel's noise variance in electrons (Poisson shot noise ``rho``, the
@@ -261,6 +270,18 @@ def patch_signals(camera: DesignCamera, reflectance: torch.Tensor, lux: float, *
     ``"frac": [C]`` each channel's share of the mosaic cell, ``"target": [n, 3]`` the patches' linear sRGB (white = 1,
     :func:`linear_srgb_of_reflectance`), ``"names"``, ``"exposure_s"``, ``"gain"`` (floats)}``.
     """
+    if isinstance(reflectance, dict):
+        names = list(reflectance)
+        sets = [torch.as_tensor(reflectance[k], dtype=torch.float64) for k in names]
+        if any(r.dim() != 2 for r in sets):
+            raise ValueError("reflectance: expected each named set as [n, L]")
+        sig = patch_signals(camera, torch.cat(sets), lux, size=size)
+        out, start = {}, 0
+        for name, r in zip(names, sets):
+            rows = slice(start, start + r.shape[0])
+            out[name] = {k: v[rows] if k in ("rho", "var", "target") else v for k, v in sig.items()}
+            start += r.shape[0]
+        return out
     cell = camera.mosaic.index_map
     period = math.lcm(*cell.shape)
     if size is None:

@@ -138,3 +138,21 @@ def test_patch_signals_reads_whole_mosaic_cells():
     assert sig["rho"].shape == (3, len(used)) and bool(torch.isfinite(sig["rho"]).all())
     with pytest.raises(ValueError, match="size"):
         patch_signals(cam, refl, 10.0, size=20)  # a 12-pixel window cuts the 8-pixel cells
+
+
+def test_patch_signals_of_named_sets_equal_separate_captures():
+    # sets captured together read what each set's own capture reads (the exposure is the light's, not the
+    # patches'), to float rounding (one batch against three)
+    from isettorch.design import load_design, patch_signals
+    from isettorch.scene.macbeth import macbeth_reflectances
+
+    cam = load_design("learned")
+    refl = macbeth_reflectances(cam.wavelengths_nm, dtype=torch.float64)
+    sets = {"a": refl[:5], "b": refl[5:6], "c": refl[6:]}
+    with torch.no_grad():
+        together = patch_signals(cam, sets, 1.0)
+        for name, r in sets.items():
+            alone = patch_signals(cam, r, 1.0)
+            assert together[name]["names"] == alone["names"] and together[name]["exposure_s"] == alone["exposure_s"]
+            for key in ("rho", "var", "target", "frac"):
+                torch.testing.assert_close(together[name][key], alone[key], rtol=1e-12, atol=0)

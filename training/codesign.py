@@ -193,9 +193,9 @@ def bound_loss(camera: DesignCamera, patches: dict, levels: list[float], window:
 
     total = 0.0
     for lux in levels:
-        fit = patch_signals(camera, patches["fit"], lux)
+        sig = patch_signals(camera, {k: patches[k] for k in ("fit", "macbeth", "photo")}, lux)
         for key in ("macbeth", "photo"):
-            total = total + torch.log(colour_estimate_mse(fit, window, patch_signals(camera, patches[key], lux)))
+            total = total + torch.log(colour_estimate_mse(sig["fit"], window, sig[key]))
     return total / (2 * len(levels))
 
 

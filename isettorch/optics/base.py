@@ -34,7 +34,7 @@ from ..image import SpectralFactors, angle_for_extent
 from ..scene.scene import Scene
 from . import geometry
 from .blur import PAD_MODES, blur_fft, extend, fft_buffer, fft_frequencies, full_padding
-from .optical_image import FourierFactors, OpticalImage, _scratch
+from .optical_image import FourierFactors, OpticalImage, _scratch, stack_rows
 
 __all__ = ["ShiftInvariantLens"]
 
@@ -202,7 +202,7 @@ class ShiftInvariantLens(nn.Module):
         rows = self._item_otf_rows(fy, fx, wavelengths_nm, f_number, dx, key)
         if rows is None:
             return self.otf(fy, fx, wavelengths_nm, f_number).detach()
-        out = torch.cat(rows) if len(rows) > 1 else rows[0]  # never written to: the cached row itself
+        out = stack_rows(rows)  # never written to: the cached row itself
         if out.is_complex():
             return out
         plain = out[..., 0]  # a view: the interleaved batch is registered as its interleaved copy

@@ -33,6 +33,16 @@ def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device, s
     return buf[:n].view(shape)
 
 
+def stack_rows(rows) -> torch.Tensor:
+    """Per-item OTF rows ``[1, ...]`` as one batch ``[B, ...]`` for reading: the rows concatenated, or, when every
+    item holds the same cached row (a batch of one geometry, e.g. a design's flat patches), that row expanded over
+    the batch without a copy."""
+    first = rows[0]
+    if all(r is first for r in rows):
+        return first.expand(len(rows), *first.shape[1:])
+    return torch.cat(rows)
+
+
 class FourierFactors:
     """A factored optical image kept in the Fourier domain: the irradiance at wavelength ``l`` is
 
@@ -67,7 +77,7 @@ class FourierFactors:
     def otf(self) -> torch.Tensor:
         """The OTF as one tensor ``[B or 1, L, My, Mx'(, 2)]`` (per-item rows stacked on first use)."""
         if self._otf is None:
-            self._otf = torch.cat(self.otf_rows)
+            self._otf = stack_rows(self.otf_rows)
         return self._otf
 
     @property
