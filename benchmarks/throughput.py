@@ -260,6 +260,10 @@ def stream_main(args) -> None:
             rate, peak = stream_rate(size, count, b, device, targets, reps)
             lines.append(f"| PairStream (main process) | {size} | {label} | {rate:.0f} | {peak:.0f} | {load()} |")
             print(lines[-1], flush=True)
+    for sb in args.stream_batches:  # larger stream batches, e.g. what train_demosaic renders per stream batch
+        rate, peak = stream_rate(128, max(args.count, sb), sb, device, TARGETS, reps)
+        lines.append(f"| PairStream (main process), batch {sb} | 128 | all | {rate:.0f} | {peak:.0f} | {load()} |")
+        print(lines[-1], flush=True)
     share_lines = []
     if not args.no_share:
         share = data_share(device, repeats=reps)
@@ -293,6 +297,9 @@ def main() -> None:
     ap.add_argument("--no-share", action="store_true",
                     help="with --stream: skip the training-step data share (only the pairs/s rows)")
     ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--stream-batches", type=int, nargs="*", default=[64],
+                    help="with --stream: also the stream at these batch sizes (128^2, all targets; train_demosaic "
+                         "renders data.stream_chunk x its batch per stream batch: 4 x 16 on a CPU)")
     ap.add_argument("--loader-batches", type=int, nargs="*", default=[32],
                     help="extra batch sizes for the batched loader with workers")
     ap.add_argument("--no-tune", action="store_true",
