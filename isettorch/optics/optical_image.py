@@ -129,6 +129,10 @@ class FourierFactors:
                                             or self._otf_requires_grad())
         if grad:
             cube = torch.mm(self.spectra[0].T, spec[0])[None] if b == 1 else self.spectra.transpose(1, 2) @ spec
+        elif b == 1 and self._item_wise(weights):
+            # one item: the per-item products, whose rounding does not depend on the intra-op thread count (plain
+            # 2-D products below are split across threads and round differently with their number)
+            return self._planes_by_item(spec, weights)
         elif b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU), into a reused buffer
             cube = _scratch((1, n_l, 2 * nf), spec.dtype, spec.device)
             torch.mm(self.spectra[0].T.to(spec.dtype), spec[0], out=cube[0])
@@ -178,11 +182,15 @@ class FourierFactors:
         r0, c0, h, w = self.window
         return torch.fft.irfft2(planes, s=self.size)[..., r0:r0 + h, c0:c0 + w]
 
+    def _item_wise(self, weights: torch.Tensor | None) -> bool:
+        """Whether :meth:`_planes_by_item` can run: a real OTF, projected on one ``[L, K]`` weighting, no gradient
+        (checked by the caller)."""
+        return (weights is not None and weights.dim() == 2 and not self._otf_is_complex()
+                and not weights.requires_grad)
+
     def _fused_items(self, weights: torch.Tensor | None) -> bool:
-        """Whether :meth:`_planes_by_item` applies: per-item terms and real per-item OTF rows, projected on one
-        ``[L, K]`` weighting, no gradient (checked by the caller)."""
-        return (weights is not None and weights.dim() == 2 and self.otf_rows is not None
-                and not self._otf_is_complex() and not weights.requires_grad)
+        """Whether :meth:`_planes_by_item` applies to a batch: per-item terms and real per-item OTF rows."""
+        return self.otf_rows is not None and self._item_wise(weights)
 
     def _planes_by_item(self, spec: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
         """:meth:`_planes` one item at a time (no gradient, per-item terms and real OTF rows, ``[L, K]`` weights):
@@ -201,7 +209,11 @@ class FourierFactors:
         cube = _scratch((1, n_l, 2 * nf), spec.dtype, spec.device)
         proj = _scratch((2, k, nf), spec.dtype, spec.device, "proj")
         out = torch.empty(b, k, 2, nf, dtype=spec.dtype, device=spec.device)
-        for i, (t, row) in enumerate(zip(self.terms, self.otf_rows)):
+        terms = self.terms if self.terms is not None else (spec.shape[1],) * b
+        rows = self.otf_rows
+        if rows is None:  # one OTF for the batch, or one per item
+            rows = [self.otf[min(i, self.otf.shape[0] - 1)][None] for i in range(b)]
+        for i, (t, row) in enumerate(zip(terms, rows)):
             torch.bmm(s_t[i:i + 1, :, :t], spec[i:i + 1, :t], out=cube)
             cube[0].view(n_l, nf, 2).mul_(row.reshape(n_l, nf, -1))
             torch.bmm(wt, cube[0].view(n_l, 2, nf).transpose(0, 1), out=proj)  # [2, K, F]: the two halves

@@ -106,6 +106,26 @@ def test_parts_render_on_threads_without_changing_the_batch(stream_equals_camera
         PairStream(4, scene=SMALL, threads=0)
 
 
+def test_batch_does_not_depend_on_the_intra_op_thread_count():
+    """At 128^2 the Fourier-domain products are large enough for torch to split plain 2-D products across its
+    intra-op threads, which rounds differently with their number; a batch (here one-item groups: a batch of one,
+    and the groups of a batch of 16) is bitwise the same on 1 and 2 threads (a one-item group's XYZ used to differ
+    by an ulp)."""
+    n = torch.get_num_threads()
+    out = {}
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            out[threads] = [PairStream(1, seed=0).batch(2), PairStream(16, seed=0, threads=1).batch(3)]
+    finally:
+        torch.set_num_threads(n)
+    assert any(g.index.numel() == 1 for g in PairStream(16, seed=0).draw(3))
+    for a, b in zip(out[1], out[2]):
+        for key in a:
+            if key != "meta":
+                assert torch.equal(a[key], b[key]), key
+
+
 def test_camera_module_receives_gradients():
     from isettorch import Camera
     from isettorch.optics import DiffractionLimitedOptics
