@@ -33,6 +33,15 @@ def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device, s
     return buf[:n].view(shape)
 
 
+def _mm_by_halves(a: torch.Tensor, b: torch.Tensor, scratch: torch.Tensor) -> torch.Tensor:
+    """``a @ b`` (``[M, K] x [K, N]``, N even) as a two-matrix ``bmm`` over the two halves of ``b``'s columns: torch
+    splits a plain 2-D product across its intra-op threads, which rounds differently with their number, and a
+    batched one by matrix, which does not. ``scratch``: ``[2, M, N / 2]`` for the halves."""
+    m, n = a.shape[0], b.shape[1]
+    torch.bmm(a[None].expand(2, -1, -1), b.view(b.shape[0], 2, n // 2).transpose(0, 1), out=scratch)
+    return scratch.transpose(0, 1).reshape(m, n)
+
+
 def stack_rows(rows) -> torch.Tensor:
     """Per-item OTF rows ``[1, ...]`` as one batch ``[B, ...]`` for reading: the rows concatenated, or, when every
     item holds the same cached row (a batch of one geometry, e.g. a design's flat patches), that row expanded over
@@ -238,7 +247,7 @@ class FourierFactors:
             # [K, 2F] real view (a broadcast [.., F, 1] x [.., F, 2] product is several times slower on CPU)
             otf = self.otf.reshape(self.otf.shape[0], n_l, 2 * nf)
             if b == 1:
-                h = torch.mm(coef[0], otf[0], out=_scratch((j * k, 2 * nf), spec.dtype, spec.device, "cube"))[None]
+                h = _mm_by_halves(coef[0], otf[0], _scratch((2, j * k, nf), spec.dtype, spec.device, "cube"))[None]
             else:
                 h = torch.matmul(coef, otf, out=_scratch((b, j * k, 2 * nf), spec.dtype, spec.device, "cube"))
             h = h.view(b, j, k, 2 * nf)
