@@ -156,6 +156,15 @@ class PairStream:
             yield self.batch(k * self.world_size + self.rank)
             k += 1
 
+    def loader(self, num_workers: int = 2, *, prefetch_factor: int = 2):
+        """This stream's batches rendered by worker processes, bitwise those of ``iter(self)`` in the same order
+        (:func:`~isettorch.data.stream_workers.stream_loader`; a CPU stream without gradients): on a CPU, about as
+        fast as :func:`~isettorch.data.camera_pairs.batch_loader` with as many workers, where the stream in one
+        process is GIL-bound (``benchmarks/THROUGHPUT.md``)."""
+        from .stream_workers import stream_loader
+
+        return stream_loader(self, num_workers, prefetch_factor=prefetch_factor)
+
     def _generator(self, k: int, stream: int, part: int = 0) -> torch.Generator:
         """The generator of random ``stream`` (0 scenes and cameras, 2 noise) of part ``part`` of batch ``k``."""
         return torch.Generator(device=self.device).manual_seed(seed_for(self.seed, int(k), stream=stream + 16 * part))

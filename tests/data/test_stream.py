@@ -126,6 +126,33 @@ def test_batch_does_not_depend_on_the_intra_op_thread_count():
                 assert torch.equal(a[key], b[key]), key
 
 
+def test_worker_loader_yields_the_streams_batches():
+    """``stream.loader(n)``: the batches of ``iter(stream)``, bitwise and in order, rendered by worker processes
+    and (after each worker's first batch, which learns the size) shipped through shared-memory slots; a rank's
+    share as its iterator's; refused for a stream with gradients."""
+    import itertools
+
+    stream = PairStream(4, seed=3, scene=SMALL)
+    loader = stream.loader(2)
+    got = list(itertools.islice(iter(loader), 6))
+    assert loader.shipped["slot"] >= 2
+    for k, batch in enumerate(got):
+        ref = stream.batch(k)
+        for key in ref:
+            if key != "meta":
+                assert torch.equal(batch[key], ref[key]), (k, key)
+        for m in META_KEYS:
+            assert torch.equal(batch["meta"][m], ref["meta"][m]), (k, m)
+    share = PairStream(4, seed=3, scene=SMALL, rank=1, world_size=2, targets=("camera_rgb",))
+    got = list(itertools.islice(iter(share.loader(1)), 2))
+    assert [b["meta"]["index"].tolist() for b in got] == [[4, 5, 6, 7], [12, 13, 14, 15]]
+    assert torch.equal(got[1]["raw"], share.batch(3)["raw"])
+    with pytest.raises(ValueError, match="grad=True"):
+        PairStream(4, scene=SMALL, grad=True).loader(2)
+    with pytest.raises(ValueError, match="num_workers"):
+        stream.loader(0)
+
+
 def test_camera_module_receives_gradients():
     from isettorch import Camera
     from isettorch.optics import DiffractionLimitedOptics
