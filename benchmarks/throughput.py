@@ -87,6 +87,25 @@ def loader_rate(bands: int, size: int, count: int, workers: int, *, method: str 
     return statistics.median(rates), statistics.median(cpus)
 
 
+def stream_loader_rate(size: int, count: int, workers: int, batch: int = 16, repeats: int = 3, seed: int = 0,
+                       targets=TARGETS) -> float:
+    """Median pairs/s of ``PairStream(batch).loader(workers)`` (the stream's batches rendered by worker processes),
+    timed as :func:`loader_rate` times a loader: chunks of ``count`` pairs after a warm-up chunk, the stream's
+    caches warmed in the main process first."""
+    from isettorch.data import PairStream
+
+    stream = PairStream(batch, seed=seed, scene={"height": size, "width": size}, targets=targets)
+    stream.batch(10_000)
+    marks, done = [], 0
+    it = iter(stream.loader(workers))
+    while len(marks) < repeats + 2:
+        done += next(it)["raw"].shape[0]
+        if done % count == 0:
+            marks.append(time.perf_counter())
+    del it
+    return statistics.median(count / (b - a) for a, b in zip(marks[1:], marks[2:]))
+
+
 def per_stage(bands: int, size: int, count: int, method: str, batch: int = 16, seed: int = 0) -> dict:
     """CPU ms per pair by stage, one thread, in-process."""
     ds = CameraPairDataset(1, seed=seed, scene=scene_cfg(bands, size))
@@ -260,6 +279,20 @@ def stream_main(args) -> None:
             rate, peak = stream_rate(size, count, b, device, targets, reps)
             lines.append(f"| PairStream (main process) | {size} | {label} | {rate:.0f} | {peak:.0f} | {load()} |")
             print(lines[-1], flush=True)
+    if device.type == "cpu" and args.workers_ab:
+        # the stream's batches rendered by worker processes (PairStream.loader) against the README loader, in
+        # alternating rounds (each a fresh loader: start-up and warm-up chunk not timed)
+        n = max(b, args.count // b * b)
+        pairs = []
+        for _ in range(args.workers_ab):
+            pairs.append((loader_rate(31, 128, n, args.workers, batched=True, batch=b, repeats=reps)[0],
+                          stream_loader_rate(128, n, args.workers, b, reps)))
+        ratios = [s_ / l_ for l_, s_ in pairs]
+        lines.append(f"| PairStream.loader(num_workers={args.workers}), alternating with the README loader "
+                     f"({', '.join(f'{s_:.0f} vs {l_:.0f}' for l_, s_ in pairs)}; ratio median "
+                     f"{statistics.median(ratios):.2f}) | 128 | all | {statistics.median(p[1] for p in pairs):.0f} "
+                     f"| | {load()} |")
+        print(lines[-1], flush=True)
     for sb in args.stream_batches:  # larger stream batches, e.g. what train_demosaic renders per stream batch
         rate, peak = stream_rate(128, max(args.count, sb), sb, device, TARGETS, reps)
         lines.append(f"| PairStream (main process), batch {sb} | 128 | all | {rate:.0f} | {peak:.0f} | {load()} |")
@@ -297,6 +330,8 @@ def main() -> None:
     ap.add_argument("--no-share", action="store_true",
                     help="with --stream: skip the training-step data share (only the pairs/s rows)")
     ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--workers-ab", type=int, default=3, metavar="ROUNDS",
+                    help="with --stream on CPU: rounds of PairStream.loader(--workers) against the README loader")
     ap.add_argument("--stream-batches", type=int, nargs="*", default=[64],
                     help="with --stream: also the stream at these batch sizes (128^2, all targets; train_demosaic "
                          "renders data.stream_chunk x its batch per stream batch: 4 x 16 on a CPU)")
