@@ -49,8 +49,9 @@ from .sensor.filter_bank import FilterBank, check_manufacturable
 from .sensor.mosaic import LearnedMosaic
 
 __all__ = ["DESIGN_DEFAULTS", "DESIGN_FORMAT", "DesignCamera", "SHIPPED_DESIGNS", "bound_patches",
-           "colour_estimate_mse", "design_card", "design_path", "evaluate_design", "illuminant_photons",
-           "linear_srgb_of_reflectance", "load_design", "make_design", "patch_signals", "save_design"]
+           "colour_bound_loss", "colour_estimate_mse", "design_card", "design_path", "evaluate_design",
+           "illuminant_photons", "linear_srgb_of_reflectance", "load_design", "make_design", "patch_signals",
+           "predesign_filters", "save_design"]
 
 DESIGN_FORMAT = "isettorch-design"
 DESIGN_VERSION = 1
@@ -354,6 +355,71 @@ def colour_estimate_mse(fit: dict, window: int, test: dict | None = None) -> tor
     m = torch.linalg.solve(rho.T @ rho / n + torch.diag(s), rho.T @ target / n).T  # [3, C]
     s_test = (test["var"] / (test["frac"] * window)).mean(0)
     return ((test["rho"] @ m.T - test["target"]) ** 2).mean() + (m**2 @ s_test).mean()
+
+
+def colour_bound_loss(camera: DesignCamera, patches: dict, levels, window: int = 16) -> torch.Tensor:
+    """The design criterion of :func:`predesign_filters`: the mean over the light ``levels`` and the two test sets
+    of ``patches`` (:func:`bound_patches`: ``macbeth`` and ``photo``) of ``log`` of the colour estimate's error
+    (:func:`colour_estimate_mse`: a Wiener colour correction fitted on ``patches["fit"]``, applied to each test set,
+    with the photon, read, dark and ADC noise of the design's own capture at that level, averaged over ``window``
+    pixels). Differentiable in the filters."""
+    levels = [float(v) for v in levels]
+    if not levels:
+        raise ValueError("levels: expected at least one light level")
+    total = 0.0
+    for lux in levels:
+        sig = patch_signals(camera, {k: patches[k] for k in ("fit", "macbeth", "photo")}, lux)
+        for key in ("macbeth", "photo"):
+            total = total + torch.log(colour_estimate_mse(sig["fit"], window, sig[key]))
+    return total / (2 * len(levels))
+
+
+def predesign_filters(camera: DesignCamera, levels, *, steps: int = 200, lr: float = 0.05, window: int = 16,
+                      fit_patches: int = 256, test_colours: int = 64, seed: int = 5,
+                      progress=None) -> dict:
+    """Design a camera's learned filters on the noise-limited colour estimate, before (or instead of) training a
+    reconstruction: ``steps`` Adam steps on :func:`colour_bound_loss` over the filters' parameters, the mosaic as
+    it is (read hard). A colour-filter design criterion of the kind of Vora & Trussell ("Mathematical methods for
+    the design of color scanning filters", IEEE Trans. Image Processing 6(2), 1997) and Parmar & Reeves
+    ("Optimization of color filter sensitivity functions for color filter array based image acquisition", IS&T
+    Color Imaging Conf. 14, 2006), here through the library's own capture: the exposure rule, photon and read noise,
+    dark signal and ADC. ``progress(step, loss)`` is called every step if given.
+
+    Returns ``{"steps", "window", "lux", "loss": [start, end], "gain_db": {lux: dB over bayer_rgb}}``: the
+    criterion before the first and after the last step, and at each level its gain over Bayer's filters in the
+    same camera (``10 log10`` of the ratio of the two errors' geometric means).
+    """
+    bank = camera.bank
+    if not bank.num_learned:
+        raise ValueError("camera: only a design with learned filters can be predesigned")
+    if not (isinstance(steps, int) and steps >= 0):
+        raise ValueError(f"steps: expected a non-negative integer, got {steps!r}")
+    levels = [float(v) for v in levels]
+    patches = bound_patches(camera.wavelengths_nm, fit_patches, test_colours, seed)
+    params = [bank.raw_amplitudes, bank.raw_offsets]
+    was = camera.training
+    camera.eval()  # the hard mosaic
+    opt = torch.optim.Adam(params, lr=float(lr))
+    losses = []
+    for step in range(steps):
+        loss = colour_bound_loss(camera, patches, levels, window)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+        if progress is not None:
+            progress(step, losses[-1])
+    for q in params:
+        q.grad = None
+    config = {k: v for k, v in camera.config.items() if k in DESIGN_DEFAULTS}
+    ref = make_design("bayer_rgb", config).eval()
+    with torch.no_grad():  # after the last step, on the hard mosaic
+        end = {lux: float(colour_bound_loss(camera, patches, [lux], window)) for lux in levels}
+        gain = {f"{lux:g}": round(10 / math.log(10) * (float(colour_bound_loss(ref, patches, [lux], window))
+                                                        - end[lux]), 3) for lux in levels}
+    camera.train(was)
+    return {"steps": steps, "window": window, "lux": levels,
+            "loss": [losses[0], sum(end.values()) / len(end)] if losses else [], "gain_db": gain}
 
 
 # ------------------------------------------------------------------------------------------------ design files

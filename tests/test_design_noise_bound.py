@@ -4,6 +4,7 @@ captures benchmarks/design_noise_bound.py reads (issue #36)."""
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -156,3 +157,21 @@ def test_patch_signals_of_named_sets_equal_separate_captures():
             assert together[name]["names"] == alone["names"] and together[name]["exposure_s"] == alone["exposure_s"]
             for key in ("rho", "var", "target", "frac"):
                 torch.testing.assert_close(together[name][key], alone[key], rtol=1e-12, atol=0)
+
+
+def test_predesign_filters_is_adam_on_the_colour_bound():
+    # the library's filter design: the record's end loss is the criterion after the last step, lower than at the
+    # start; its gain over Bayer is the difference of the two criteria in dB; a fixed design is refused
+    from isettorch.design import bound_patches, colour_bound_loss, make_design, predesign_filters
+
+    cam = make_design({"filters": ["learned"] * 3, "mosaic_shape": [2, 2],
+                       "mosaic_init": [["F1", "F0"], ["F2", "F1"]]})
+    rec = predesign_filters(cam, [1.0], steps=4, fit_patches=24, test_colours=12)
+    patches = bound_patches(cam.wavelengths_nm, 24, 12, 5)
+    with torch.no_grad():
+        end = float(colour_bound_loss(cam.eval(), patches, [1.0]))
+        bayer = float(colour_bound_loss(make_design("bayer_rgb").eval(), patches, [1.0]))
+    assert rec["loss"][1] == pytest.approx(end, rel=1e-12) and end < rec["loss"][0]
+    assert rec["gain_db"]["1"] == pytest.approx(10 / math.log(10) * (bayer - end), abs=1e-3)
+    with pytest.raises(ValueError, match="learned filters"):
+        predesign_filters(make_design("bayer_rgb"), [1.0], steps=1)

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -44,10 +43,11 @@ if str(ROOT) not in sys.path:
 from isettorch.data.config import seed_for  # noqa: E402
 from isettorch.design import (  # noqa: E402
     DesignCamera,
-    bound_patches,
+    colour_bound_loss,
     design_card,
     linear_srgb_of_reflectance,
     make_design,
+    predesign_filters,
     save_design,
 )
 from isettorch.image import srgb_encode  # noqa: E402
@@ -186,56 +186,24 @@ def targets(maps: torch.Tensor, reflectance: torch.Tensor, camera: DesignCamera)
 # ------------------------------------------------------------------------------------------------ predesign
 
 def bound_loss(camera: DesignCamera, patches: dict, levels: list[float], window: int) -> torch.Tensor:
-    """Mean over the light levels and the two test sets of ``log`` of the colour estimate's error
-    (:func:`isettorch.design.colour_estimate_mse`: a Wiener colour correction fitted on ``patches["fit"]``, applied
-    to each test set, photon, read, dark and ADC noise of the design's own capture at that level)."""
-    from isettorch.design import colour_estimate_mse, patch_signals
-
-    total = 0.0
-    for lux in levels:
-        sig = patch_signals(camera, {k: patches[k] for k in ("fit", "macbeth", "photo")}, lux)
-        for key in ("macbeth", "photo"):
-            total = total + torch.log(colour_estimate_mse(sig["fit"], window, sig[key]))
-    return total / (2 * len(levels))
+    """The predesign's criterion, :func:`isettorch.design.colour_bound_loss`."""
+    return colour_bound_loss(camera, patches, levels, window)
 
 
 def predesign(camera: DesignCamera, cfg: dict, *, quiet: bool = False) -> dict:
-    """Design the learned filters on the noise-limited colour estimate before the networks train: ``steps`` Adam
-    steps on :func:`bound_loss` over the filters' parameters (the mosaic as it starts). A colour-filter design
-    criterion of the kind of Vora & Trussell ("Mathematical methods for the design of color scanning filters", IEEE
-    Trans. Image Processing 6(2), 1997) and Parmar & Reeves ("Optimization of color filter sensitivity functions for
-    color filter array based image acquisition", IS&T Color Imaging Conf. 14, 2006), here through the library's own
-    capture: the exposure rule, photon and read noise, dark signal and ADC. Returns ``{"loss": [start, end],
-    "gain_db": {lux: dB over bayer_rgb}}`` (the same loss for the fixed Bayer design, in dB)."""
+    """Design the learned filters on the noise-limited colour estimate before the networks train
+    (:func:`isettorch.design.predesign_filters` with the config's ``predesign`` section; its levels default to the
+    run's). Returns its record."""
     p = cfg["predesign"]
     steps = int(p["steps"])
-    levels = [float(v) for v in (p["lux"] or cfg["lux"])]
-    window = int(p["window"])
-    patches = bound_patches(camera.wavelengths_nm, int(p["fit_patches"]), int(p["test_colours"]), int(p["seed"]))
-    bank = camera.bank
-    params = [bank.raw_amplitudes, bank.raw_offsets]
-    was = camera.training
-    camera.eval()  # the hard mosaic
-    opt = torch.optim.Adam(params, lr=float(p["lr"]))
-    losses = []
-    for step in range(steps):
-        loss = bound_loss(camera, patches, levels, window)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        losses.append(float(loss.detach()))
+
+    def progress(step, loss):
         if not quiet and (step % 50 == 0 or step + 1 == steps):
-            print(json.dumps({"predesign_step": step, "bound_loss": round(losses[-1], 4)}), flush=True)
-    for q in params:
-        q.grad = None
-    ref = make_design("bayer_rgb", dict(cfg["camera"])).eval()
-    with torch.no_grad():  # after the last step, on the hard mosaic
-        end = {lux: float(bound_loss(camera, patches, [lux], window)) for lux in levels}
-        gain = {f"{lux:g}": round(10 / math.log(10) * (float(bound_loss(ref, patches, [lux], window)) - end[lux]), 3)
-                for lux in levels}
-    camera.train(was)
-    return {"steps": steps, "window": window, "lux": levels,
-            "loss": [losses[0], sum(end.values()) / len(end)] if losses else [], "gain_db": gain}
+            print(json.dumps({"predesign_step": step, "bound_loss": round(loss, 4)}), flush=True)
+
+    return predesign_filters(camera, p["lux"] or cfg["lux"], steps=steps, lr=float(p["lr"]), window=int(p["window"]),
+                             fit_patches=int(p["fit_patches"]), test_colours=int(p["test_colours"]),
+                             seed=int(p["seed"]), progress=progress)
 
 
 # ------------------------------------------------------------------------------------------------ training
