@@ -202,7 +202,8 @@ class FourierFactors:
         return self.otf_rows is not None and self._item_wise(weights)
 
     def _planes_by_item(self, spec: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-        """:meth:`_planes` one item at a time (no gradient, per-item terms and real OTF rows, ``[L, K]`` weights):
+        """:meth:`_planes` one item at a time (no gradient, a real OTF, ``[L, K]`` weights; each item's own terms and
+        OTF row where the factors hold them, else all terms and the batch's OTF):
         the item's ``[L, 2F]`` cube (2.6 MB at 144^2 x 31 in float32) is built, multiplied by its OTF row and
         projected while it is in cache, in one reused buffer, instead of a ``[B, L, 2F]`` cube that leaves the
         cache between the three passes. The spectra's product is the batch-of-one ``bmm`` of the batched path; the
