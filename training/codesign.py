@@ -63,7 +63,7 @@ DEFAULTS: dict = {
     "camera": {},
     "lux": [1.0, 10.0, 100.0],
     "data": {"source": "layouts", "size": 64, "batch": 8, "scene": {}, "folder": None, "natural": {}},
-    "optim": {"steps": 2000, "lr": 1.0e-3, "design_lr": 2.0e-2, "lr_min": 1.0e-5, "srgb_weight": 1.0,
+    "optim": {"steps": 2000, "lr": 1.0e-3, "design_lr": 2.0e-2, "lr_min": 1.0e-5, "srgb_weight": 1.0, "loss": "l1",
               "design_warmup": 0.0, "design_until": 1.0},
     "mosaic": {"temperature_start": 1.0, "temperature_end": 0.03, "anneal_fraction": 0.7,
                "straight_through_after": 0.8},
@@ -208,12 +208,18 @@ def predesign(camera: DesignCamera, cfg: dict, *, quiet: bool = False) -> dict:
 
 # ------------------------------------------------------------------------------------------------ training
 
-def _loss(out: torch.Tensor, target: torch.Tensor, crop: int, srgb_weight: float) -> torch.Tensor:
+LOSSES = ("l1", "mse_srgb")
+
+
+def _loss(out: torch.Tensor, target: torch.Tensor, crop: int, srgb_weight: float, kind: str = "l1") -> torch.Tensor:
+    """``l1``: L1 in linear sRGB plus ``srgb_weight`` x L1 in encoded sRGB; ``mse_srgb``: the squared error in
+    encoded sRGB alone (what CPSNR scores, -10 log10 of it)."""
     if crop:
         out, target = out[..., crop:-crop, crop:-crop], target[..., crop:-crop, crop:-crop]
-    lin = (out - target).abs().mean()
-    enc = (srgb_encode(out.clamp(0, 1)) - srgb_encode(target.clamp(0, 1))).abs().mean()
-    return lin + srgb_weight * enc
+    diff = srgb_encode(out.clamp(0, 1)) - srgb_encode(target.clamp(0, 1))
+    if kind == "mse_srgb":
+        return (diff**2).mean()
+    return (out - target).abs().mean() + srgb_weight * diff.abs().mean()
 
 
 def validate(camera: DesignCamera, cfg: dict, source) -> dict:
@@ -289,6 +295,8 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
         torch.set_num_threads(int(cfg["threads"]))
     seed = int(cfg["seed"])
     torch.manual_seed(seed)
+    if cfg["optim"]["loss"] not in LOSSES:
+        raise ValueError(f"optim.loss: expected one of {LOSSES}, got {cfg['optim']['loss']!r}")
     source = SOURCES.get(cfg["data"]["source"])
     if source is None:
         raise ValueError(f"data.source: expected one of {sorted(SOURCES)}, got {cfg['data']['source']!r}")
@@ -345,7 +353,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
         scene = camera.scene(maps, refl, lux)
         g = torch.Generator().manual_seed(seed_for(seed, step, stream=1))
         pred = camera(scene, lux, generator=g)
-        loss = _loss(pred, targets(maps, refl, camera), int(cfg["loss_crop"]), float(o["srgb_weight"]))
+        loss = _loss(pred, targets(maps, refl, camera), int(cfg["loss_crop"]), float(o["srgb_weight"]), o["loss"])
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
