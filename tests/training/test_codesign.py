@@ -216,3 +216,21 @@ def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_pat
     torch.testing.assert_close(resumed.bank.filters, exported.bank.filters, rtol=0, atol=0)
     with pytest.raises(ValueError, match="predesign.steps"):
         codesign.train({**run, "design": "bayer_rgb", "out": str(tmp_path / "bayer")}, quiet=True)
+
+
+def test_losses_against_colour_science():
+    """``l1``: L1 in linear sRGB plus the weighted L1 in encoded sRGB; ``mse_srgb``: the squared error in encoded
+    sRGB (colour-science's IEC 61966-2-1 encoding), the quantity CPSNR scores; an unknown loss is refused."""
+    import colour
+
+    g = torch.Generator().manual_seed(0)
+    out, target = torch.rand(2, 3, 12, 12, generator=g, dtype=torch.float64) * 1.2, torch.rand(
+        2, 3, 12, 12, generator=g, dtype=torch.float64)
+    enc = [torch.from_numpy(colour.cctf_encoding(np.clip(x.numpy(), 0, 1), function="sRGB")) for x in (out, target)]
+    crop = (slice(None), slice(None), slice(2, -2), slice(2, -2))
+    expected_mse = float(((enc[0] - enc[1])[crop] ** 2).mean())
+    assert float(codesign._loss(out, target, 2, 1.0, "mse_srgb")) == pytest.approx(expected_mse, rel=1e-9)
+    expected_l1 = float((out - target)[crop].abs().mean() + 0.5 * (enc[0] - enc[1])[crop].abs().mean())
+    assert float(codesign._loss(out, target, 2, 0.5, "l1")) == pytest.approx(expected_l1, rel=1e-9)
+    with pytest.raises(ValueError, match="optim.loss"):
+        codesign.train({"optim": {"steps": 1, "loss": "l2"}})
