@@ -51,15 +51,18 @@ class _StreamBatches(torch.utils.data.Dataset):
 
 class _BatchIndices(torch.utils.data.Sampler):
     """The batch indices a stream's iterator takes, ``k * world_size + rank`` for k = 0, 1, ..., without end, as
-    :class:`SlotRequest` s (``slots`` per worker; one epoch: the stream never ends)."""
+    :class:`SlotRequest` s (``slots`` per worker). Each new iterator is a new epoch, so slots still holding batches
+    that an abandoned iterator never took are freed (:meth:`SlotArena.acquire`)."""
 
     def __init__(self, rank: int, world_size: int, slots: int):
-        self.rank, self.world_size, self.slots = rank, world_size, slots
+        self.rank, self.world_size, self.slots, self.epoch = rank, world_size, slots, 0
 
     def __iter__(self):
+        self.epoch += 1
+        epoch = self.epoch
         for k in itertools.count():
             request = SlotRequest([k * self.world_size + self.rank])
-            request.slots, request.epoch = self.slots, 1
+            request.slots, request.epoch = self.slots, epoch
             yield request
 
 

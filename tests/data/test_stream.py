@@ -143,6 +143,12 @@ def test_worker_loader_yields_the_streams_batches():
                 assert torch.equal(batch[key], ref[key]), (k, key)
         for m in META_KEYS:
             assert torch.equal(batch["meta"][m], ref["meta"][m]), (k, m)
+    for _ in range(3):  # each new iterator starts again at batch 0 (a new epoch) ...
+        again = list(itertools.islice(iter(loader), 4))
+        assert all(torch.equal(a["raw"], b["raw"]) for a, b in zip(again, got))
+    # ... and frees the slots of batches an abandoned iterator never took (else they stay busy and, after two
+    # abandoned iterators, every batch takes the stock path)
+    assert loader.shipped["slot"] >= 2
     share = PairStream(4, seed=3, scene=SMALL, rank=1, world_size=2, targets=("camera_rgb",))
     got = list(itertools.islice(iter(share.loader(1)), 2))
     assert [b["meta"]["index"].tolist() for b in got] == [[4, 5, 6, 7], [12, 13, 14, 15]]
