@@ -33,13 +33,17 @@ def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device, s
     return buf[:n].view(shape)
 
 
-def _mm_by_halves(a: torch.Tensor, b: torch.Tensor, scratch: torch.Tensor) -> torch.Tensor:
-    """``a @ b`` (``[M, K] x [K, N]``, N even) as a two-matrix ``bmm`` over the two halves of ``b``'s columns: torch
-    splits a plain 2-D product across its intra-op threads, which rounds differently with their number, and a
-    batched one by matrix, which does not. ``scratch``: ``[2, M, N / 2]`` for the halves."""
+def _mm_by_halves(a: torch.Tensor, b: torch.Tensor, scratch: torch.Tensor | None = None) -> torch.Tensor:
+    """``a @ b`` (``[M, K] x [K, N]``) as a two-matrix ``bmm`` over the two halves of ``b``'s columns: torch splits a
+    plain 2-D product (or a batch of one) across its intra-op threads, which rounds differently with their number,
+    and a batched one by matrix, which does not. ``scratch``: ``[2, M, N / 2]`` for the halves (none: out of place,
+    for autograd). An odd N falls back to the plain product."""
     m, n = a.shape[0], b.shape[1]
-    torch.bmm(a[None].expand(2, -1, -1), b.view(b.shape[0], 2, n // 2).transpose(0, 1), out=scratch)
-    return scratch.transpose(0, 1).reshape(m, n)
+    if n % 2:
+        return torch.mm(a, b)
+    halves = b.reshape(b.shape[0], 2, n // 2).transpose(0, 1)
+    out = torch.bmm(a[None].expand(2, -1, -1), halves, out=scratch)
+    return out.transpose(0, 1).reshape(m, n)
 
 
 def stack_rows(rows) -> torch.Tensor:
@@ -137,7 +141,7 @@ class FourierFactors:
         grad = torch.is_grad_enabled() and (spec.requires_grad or self.spectra.requires_grad
                                             or self._otf_requires_grad())
         if grad:
-            cube = torch.mm(self.spectra[0].T, spec[0])[None] if b == 1 else self.spectra.transpose(1, 2) @ spec
+            cube = _mm_by_halves(self.spectra[0].T, spec[0])[None] if b == 1 else self.spectra.transpose(1, 2) @ spec
         elif b == 1 and self._item_wise(weights):
             # one item: the per-item products, whose rounding does not depend on the intra-op thread count (plain
             # 2-D products below are split across threads and round differently with their number)
@@ -171,14 +175,15 @@ class FourierFactors:
             else:
                 cube.view(b, n_l, nf, 2).mul_(otf)
         if weights is not None and weights.dim() == 3:  # per item [B, L, K]
-            cube = weights.to(cube).transpose(1, 2) @ cube  # [B, K, 2F]
+            wt = weights.to(cube).transpose(1, 2)
+            cube = _mm_by_halves(wt[0], cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
         elif weights is not None:
             wt = weights.to(cube).T
             if b == 1 and not (grad or wt.requires_grad):  # into a reused buffer, consumed by the inverse FFT below
-                proj = _scratch((1, wt.shape[0], 2 * nf), cube.dtype, cube.device, "proj")
-                cube = torch.mm(wt, cube[0], out=proj[0])[None]
+                proj = _scratch((2, wt.shape[0], nf), cube.dtype, cube.device, "proj")
+                cube = _mm_by_halves(wt, cube[0], proj)[None]
             else:
-                cube = torch.mm(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
+                cube = _mm_by_halves(wt, cube[0])[None] if b == 1 else wt @ cube  # [B, K, 2F]
         return self._spatial(cube)
 
     def _spatial(self, interleaved: torch.Tensor) -> torch.Tensor:
@@ -261,7 +266,8 @@ class FourierFactors:
             if otf.dim() == 5:  # interleaved [.., My, Mx', 2]: the real part
                 otf = otf[..., 0]
             otf = otf.reshape(otf.shape[0], n_l, nf)
-            h = (coef @ otf).reshape(b, j, k, nf, 1)  # [B, J, K, F]
+            h = (_mm_by_halves(coef[0], otf[0])[None] if b == 1 and otf.shape[0] == 1 else coef @ otf
+                 ).reshape(b, j, k, nf, 1)  # [B, J, K, F]
             planes = (h * spec.view(b, j, 1, nf, 2)).sum(dim=1) if j > 1 else (h[:, 0] * spec.view(b, 1, nf, 2))
         return self._spatial(planes)
 

@@ -109,14 +109,24 @@ def test_parts_render_on_threads_without_changing_the_batch(stream_equals_camera
 def test_batch_does_not_depend_on_the_intra_op_thread_count():
     """At 128^2 the Fourier-domain products are large enough for torch to split plain 2-D products across its
     intra-op threads, which rounds differently with their number; a batch (here one-item groups: a batch of one,
-    and the groups of a batch of 16) is bitwise the same on 1 and 2 threads (a one-item group's XYZ used to differ
-    by an ulp)."""
+    the groups of a batch of 16, and a camera module's batch of one with gradients) is bitwise the same on 1 and 2
+    threads (a one-item group's XYZ used to differ by an ulp). Gradients are not: torch's reductions split by
+    thread."""
+    from isettorch import Camera
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.sensor import Sensor
+
     n = torch.get_num_threads()
     out = {}
     try:
         for threads in (1, 2):
             torch.set_num_threads(threads)
-            out[threads] = [PairStream(1, seed=0).batch(2), PairStream(16, seed=0, threads=1).batch(3)]
+            # and a camera module's one-item batch with its autograd graph (the products that keep a gradient)
+            camera = Camera(DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3, learn_f_number=True),
+                            Sensor(rows=128, cols=128, pixel_size_m=2.0e-6, cfa="RGGB", learnable_filters=True))
+            graph = PairStream(1, seed=0, scene={"height": 128, "width": 128}, camera=camera, grad=True).batch(0)
+            out[threads] = [PairStream(1, seed=0).batch(2), PairStream(16, seed=0, threads=1).batch(3),
+                            {k: v.detach() for k, v in graph.items() if k != "meta"}]
     finally:
         torch.set_num_threads(n)
     assert any(g.index.numel() == 1 for g in PairStream(16, seed=0).draw(3))
