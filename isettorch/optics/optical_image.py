@@ -146,9 +146,9 @@ class FourierFactors:
             # one item: the per-item products, whose rounding does not depend on the intra-op thread count (plain
             # 2-D products below are split across threads and round differently with their number)
             return self._planes_by_item(spec, weights)
-        elif b == 1:  # plain 2-D products (cheaper than a batch-of-one matmul on CPU), into a reused buffer
-            cube = _scratch((1, n_l, 2 * nf), spec.dtype, spec.device)
-            torch.mm(self.spectra[0].T.to(spec.dtype), spec[0], out=cube[0])
+        elif b == 1:  # one item (a complex OTF, or no or per-item weightings): its halves through a reused buffer
+            halves = _scratch((2, n_l, nf), spec.dtype, spec.device)
+            cube = _mm_by_halves(self.spectra[0].T.to(spec.dtype), spec[0], halves)[None]
         elif self.terms is not None and self._fused_items(weights):
             return self._planes_by_item(spec, weights)
         elif self.terms is not None:  # each item's own terms (a batch-of-one bmm: its rounding is the batch's)
