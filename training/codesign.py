@@ -43,7 +43,6 @@ if str(ROOT) not in sys.path:
 from isettorch.data.config import seed_for  # noqa: E402
 from isettorch.design import (  # noqa: E402
     DesignCamera,
-    colour_bound_loss,
     design_card,
     linear_srgb_of_reflectance,
     make_design,
@@ -184,11 +183,6 @@ def targets(maps: torch.Tensor, reflectance: torch.Tensor, camera: DesignCamera)
 
 
 # ------------------------------------------------------------------------------------------------ predesign
-
-def bound_loss(camera: DesignCamera, patches: dict, levels: list[float], window: int) -> torch.Tensor:
-    """The predesign's criterion, :func:`isettorch.design.colour_bound_loss`."""
-    return colour_bound_loss(camera, patches, levels, window)
-
 
 def predesign(camera: DesignCamera, cfg: dict, *, quiet: bool = False) -> dict:
     """Design the learned filters on the noise-limited colour estimate before the networks train

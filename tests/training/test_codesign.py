@@ -17,7 +17,13 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from isettorch.design import bound_patches, evaluate_design, load_design, make_design  # noqa: E402
+from isettorch.design import (  # noqa: E402
+    bound_patches,
+    colour_bound_loss,
+    evaluate_design,
+    load_design,
+    make_design,
+)
 from isettorch.sensor.filter_bank import MAX_SLOPE_PER_NM  # noqa: E402
 from training import codesign  # noqa: E402
 
@@ -173,17 +179,17 @@ def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_pat
     cam = make_design(spec, None, [1.0])
     patches = bound_patches(cam.wavelengths_nm, 24, 12, 5)
     with torch.no_grad():
-        before = float(codesign.bound_loss(cam.eval(), patches, [1.0], 16))
+        before = float(colour_bound_loss(cam.eval(), patches, [1.0], 16))
     res = codesign.predesign(cam, cfg, quiet=True)
     with torch.no_grad():
-        after = float(codesign.bound_loss(cam.eval(), patches, [1.0], 16))
+        after = float(colour_bound_loss(cam.eval(), patches, [1.0], 16))
     assert res["loss"][0] == pytest.approx(before, rel=1e-12)
     assert after < before - 0.05
     check_manufacturable(cam.bank.filters.detach(), cam.bank.wavelengths_nm)
     assert set(res["gain_db"]) == {"1"}
     # the bound's Bayer reference, recomputed here: gain = 10 log10(error_bayer / error_design)
     with torch.no_grad():
-        bayer = float(codesign.bound_loss(make_design("bayer_rgb").eval(), patches, [1.0], 16))
+        bayer = float(colour_bound_loss(make_design("bayer_rgb").eval(), patches, [1.0], 16))
     assert res["loss"][1] == pytest.approx(after, rel=1e-12)
     assert res["gain_db"]["1"] == pytest.approx(10 / math.log(10) * (bayer - after), abs=1e-3)
 
