@@ -247,9 +247,11 @@ class DesignCamera(nn.Module):
         weights = sensor.cfa.weights(h, w, dtype=x.dtype, device=x.device)
         return {"input": x, "weights": weights, "raw": raw, "exposure_s": t, "analog_gain": gain}
 
-    def forward(self, scene: Scene, lux: float, *, generator: torch.Generator | None = None) -> torch.Tensor:
-        """Linear sRGB ``[B, 3, H, W]`` (white = 1) reconstructed by the network of ``lux``."""
-        cap = self.capture(scene, generator=generator)
+    def forward(self, scene: Scene, lux: float, *, generator: torch.Generator | None = None,
+                noise: bool = True) -> torch.Tensor:
+        """Linear sRGB ``[B, 3, H, W]`` (white = 1) reconstructed by the network of ``lux`` (``noise=False``: from
+        the noise-free capture, the part of the error that light and noise do not cause)."""
+        cap = self.capture(scene, generator=generator, noise=noise)
         net = self.network(lux)
         p = next(net.parameters())
         return net(cap["input"].to(p.dtype), cap["weights"].to(p.dtype))
@@ -598,7 +600,7 @@ def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name
 # ------------------------------------------------------------------------------------------------ evaluation
 
 def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, device="cpu",
-                    dtype: torch.dtype = torch.float32, progress: bool = False) -> dict:
+                    dtype: torch.dtype = torch.float32, noise_free: bool = False, progress: bool = False) -> dict:
     """Score a design on 8-bit RGB photographs: each is lifted to spectra (:func:`isettorch.data.photos.lift_srgb`:
     the photograph as reflectance, Mallett & Yuksel's sRGB basis) under ``config.scene.illuminant`` (D65) at each
     light level, rendered through the design's camera with the noise of generator ``seed_for(seed, image index,
@@ -611,10 +613,15 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
         design: a :class:`DesignCamera`, a design file or a shipped name.
         images: a folder of .png/.tif images or an iterable of ``(name, uint8 [H, W, 3])``.
         lux: light levels (default: every level the design holds a network for).
+        noise_free: also score the same network on the sensor's noise-free readout (no photon, read or
+            fixed-pattern noise and no dark signal; the same exposure, gain and ADC): ``cpsnr_noise_free`` per image
+            and ``mean_cpsnr_noise_free``.
+            The difference to ``cpsnr`` is the part of a design's error that its noise causes; the rest (colour,
+            detail, the network's smoothing at that level) is there without noise.
 
     Returns:
         ``{"design", "lux": [...], "seed", "crop", "mean_cpsnr": {"<lux>": dB}, "mean_de2000": {"<lux>": value},
-        "images": [{"name", "cpsnr": {"<lux>": dB}, "de2000": {"<lux>": value}}]}``.
+        "images": [{"name", "cpsnr": {"<lux>": dB}, "de2000": {"<lux>": value}}]}`` (and the noise-free scores).
     """
     import numpy as np
 
@@ -652,7 +659,7 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
             lifted = lift_srgb(array, camera.wavelengths_nm)
             truth = torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
             lab_truth = xyz_to_lab(srgb_to_xyz(truth))
-            row = {"name": name, "cpsnr": {}, "de2000": {}}
+            row = {"name": name, "cpsnr": {}, "de2000": {}} | ({"cpsnr_noise_free": {}} if noise_free else {})
             for key, v in zip(keys, levels):
                 g = torch.Generator(device=device).manual_seed(seed_for(seed, i, stream=round(1000 * v)))
                 scene = camera.scene(lifted["maps"][None].to(device), lifted["reflectance"].to(device), v,
@@ -663,9 +670,14 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
                 de = delta_e_2000(xyz_to_lab(srgb_to_xyz(srgb)), lab_truth)
                 h, w = de.shape[-2:]
                 row["de2000"][key] = float(de[..., crop:h - crop, crop:w - crop].mean())
+                if noise_free:
+                    clean = camera(scene, v, noise=False).to("cpu", torch.float64)
+                    row["cpsnr_noise_free"][key] = float(cpsnr(srgb_encode(clean.clamp(0, 1)), truth, crop)[0])
                 bar.update(1)
             per_image.append(row)
-    return {"design": camera.name, "lux": levels, "seed": int(seed), "crop": crop,
-            "mean_cpsnr": {k: float(np.mean([r["cpsnr"][k] for r in per_image])) for k in keys},
-            "mean_de2000": {k: float(np.mean([r["de2000"][k] for r in per_image])) for k in keys},
-            "images": per_image}
+    out = {"design": camera.name, "lux": levels, "seed": int(seed), "crop": crop,
+           "mean_cpsnr": {k: float(np.mean([r["cpsnr"][k] for r in per_image])) for k in keys},
+           "mean_de2000": {k: float(np.mean([r["de2000"][k] for r in per_image])) for k in keys}}
+    if noise_free:
+        out["mean_cpsnr_noise_free"] = {k: float(np.mean([r["cpsnr_noise_free"][k] for r in per_image])) for k in keys}
+    return out | {"images": per_image}

@@ -179,6 +179,38 @@ def test_evaluate_design_scores_agree_with_scikit_image_and_colour(design_file, 
         D.evaluate_design(design_file, photos, [10])
 
 
+def test_evaluate_design_noise_free_scores(design_file, photos, capsys):
+    """``noise_free=True`` adds the score of the same network on the noise-free capture (scikit-image's PSNR of a
+    capture made here with ``noise=False``), and leaves the noisy scores as they were."""
+    from skimage.metrics import peak_signal_noise_ratio
+
+    from isettorch.data.photos import lift_srgb
+    from isettorch.image import srgb_encode
+
+    plain = D.evaluate_design(design_file, photos, [100], seed=3)
+    res = D.evaluate_design(design_file, photos, [100], seed=3, noise_free=True)
+    assert res["mean_cpsnr"] == plain["mean_cpsnr"] and res["mean_de2000"] == plain["mean_de2000"]
+    assert "cpsnr_noise_free" not in plain["images"][0] and "mean_cpsnr_noise_free" not in plain
+    cam = D.load_design(design_file)
+    for i, name in enumerate(("img0.png", "img1.png")):
+        img = np.asarray(Image.open(photos / name))
+        lifted = lift_srgb(img)
+        scene = cam.scene(lifted["maps"][None], lifted["reflectance"], 100.0, dtype=torch.float32)
+        with torch.no_grad():
+            cap = cam.capture(scene, noise=False)
+            out = cam.network(100.0)(cap["input"], cap["weights"])
+        srgb = srgb_encode(out.double().clamp(0, 1))[0].permute(1, 2, 0).numpy()[10:-10, 10:-10]
+        expected = peak_signal_noise_ratio((img / 255.0)[10:-10, 10:-10], srgb, data_range=1.0)
+        assert res["images"][i]["cpsnr_noise_free"]["100"] == pytest.approx(expected, abs=1e-6)
+        assert res["images"][i]["cpsnr_noise_free"]["100"] != res["images"][i]["cpsnr"]["100"]
+    assert res["mean_cpsnr_noise_free"]["100"] == pytest.approx(
+        np.mean([r["cpsnr_noise_free"]["100"] for r in res["images"]]))
+    assert main(["design-eval", str(design_file), str(photos), "--lux", "100", "--seed", "3", "--noise-free",
+                 "--quiet"]) == 0
+    table = capsys.readouterr().out
+    assert f"{res['mean_cpsnr_noise_free']['100']:.2f}" in table.splitlines()[-1]
+
+
 def test_design_eval_command(design_file, photos, capsys):
     assert design_eval.SHIPPED_NAMES == D.SHIPPED_DESIGNS
     assert main(["design-eval", str(design_file), str(photos), "--lux", "100", "--seed", "3", "--json",

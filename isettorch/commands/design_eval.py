@@ -1,8 +1,9 @@
-"""``isettorch design-eval DESIGN DIR [--lux L ...] [--seed S] [--json]``: score a camera design (filters, mosaic
-and reconstruction network, :mod:`isettorch.design`) on a folder of 8-bit RGB photographs, each lifted to spectra
-(the photograph as a reflectance under D65, Mallett & Yuksel's sRGB basis) and rendered through the design's camera
-at each light level with the same noise seed for every design: per-image and mean CPSNR against the photograph in
-sRGB (crop 10, the demosaic scoring convention) and mean CIEDE2000.
+"""``isettorch design-eval DESIGN DIR [--lux L ...] [--seed S] [--noise-free] [--json]``: score a camera design
+(filters, mosaic and reconstruction network, :mod:`isettorch.design`) on a folder of 8-bit RGB photographs, each
+lifted to spectra (the photograph as a reflectance under D65, Mallett & Yuksel's sRGB basis) and rendered through the
+design's camera at each light level with the same noise seed for every design: per-image and mean CPSNR against the
+photograph in sRGB (crop 10, the demosaic scoring convention) and mean CIEDE2000; ``--noise-free`` also the same
+network's mean CPSNR on the noise-free capture.
 
 DESIGN is a design file or a shipped name (bayer_rgb, ycmy, rgbw, learned)."""
 
@@ -26,6 +27,8 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="noise seed, the same for every design (default 0)")
     p.add_argument("--crop", type=int, default=10, help="border excluded from the scores, pixels (default 10)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    p.add_argument("--noise-free", action="store_true",
+                   help="also score the noise-free capture through the same network (the error noise does not cause)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_quiet_argument(p)
     p.set_defaults(func=run)
@@ -35,7 +38,7 @@ def run(args) -> int:
     from ..design import evaluate_design
 
     res = evaluate_design(args.design, args.folder, args.lux, seed=args.seed, crop=args.crop, device=args.device,
-                          progress=not args.quiet)
+                          noise_free=args.noise_free, progress=not args.quiet)
     if args.json:
         print(json.dumps(res, indent=2))
         return 0
@@ -46,4 +49,7 @@ def run(args) -> int:
         print(f"  {item['name']:<24s}" + "".join(f"{item['cpsnr'][k]:11.2f} / {item['de2000'][k]:6.2f}"
                                                   for k in keys))
     print(f"  {'mean':<24s}" + "".join(f"{res['mean_cpsnr'][k]:11.2f} / {res['mean_de2000'][k]:6.2f}" for k in keys))
+    if args.noise_free:
+        print(f"  {'mean, noise-free capture':<24s}" + "".join(f"{res['mean_cpsnr_noise_free'][k]:11.2f}" + " " * 9
+                                                             for k in keys))
     return 0
