@@ -3,14 +3,17 @@
 Usage::
 
     ISETTORCH_DATA=/path/to/data python benchmarks/design_comparison.py kodak24 \\
-        [--designs bayer_rgb ycmy rgbw learned] [--json OUT.json] [--markdown OUT.md] [--figure OUT.png]
+        [--designs bayer_rgb ycmy rgbw learned] [--lux L ...] [--noise-free] [--json OUT.json] [--markdown OUT.md]
+        [--figure OUT.png]
 
 Each design (a shipped name or a design file) goes through :func:`isettorch.design.evaluate_design`, the code
 behind ``isettorch design-eval``: the photographs lifted to spectra under D65, rendered through the design's
 camera at every light level it was trained for with the same noise seed for every design, reconstructed by its
 network and scored against the photograph in sRGB (CPSNR, crop 10) and by the mean CIEDE2000. The table gives
 each design's mean CPSNR and mean dE2000 per light level, and each design's CPSNR difference to Bayer RGB; the
-figure plots both against light level, beside the learned design's filters and mosaic.
+figure plots both against light level, beside the learned design's filters and mosaic. ``--noise-free`` adds each
+network's mean CPSNR on the noise-free capture and splits each design's mean squared error into that part and the
+part its noise adds.
 
 Photographs are test data only: nothing here trains, tunes or selects a design.
 """
@@ -29,11 +32,12 @@ if str(ROOT) not in sys.path:
 from isettorch.design import SHIPPED_DESIGNS, evaluate_design, load_design  # noqa: E402
 
 
-def compare(designs: list[str], folder, *, seed: int = 0, crop: int = 10, progress: bool = True) -> dict:
+def compare(designs: list[str], folder, *, lux=None, seed: int = 0, crop: int = 10, noise_free: bool = False,
+            progress: bool = True) -> dict:
     """``{"folder", "seed", "crop", "designs": {design name: evaluate_design(...)}}`` for every design."""
     out = {}
     for d in designs:
-        res = evaluate_design(d, folder, seed=seed, crop=crop, progress=progress)
+        res = evaluate_design(d, folder, lux, seed=seed, crop=crop, noise_free=noise_free, progress=progress)
         if res["design"] in out:
             raise ValueError(f"designs: two designs are named {res['design']!r}")
         out[res["design"]] = res
@@ -59,7 +63,27 @@ def markdown(result: dict, reference: str = "bayer_rgb") -> str:
         lines.append(f"| {r['design']} | " + " | ".join(cells) + " |")
     n = len(next(iter(res.values()))["images"])
     lines += ["", f"{n} photographs of {result['folder']}, noise seed {result['seed']}, crop {result['crop']}."]
+    if all("mean_cpsnr_noise_free" in r for r in res.values()):
+        lines += ["", noise_split(result)]
     return "\n".join(lines) + "\n"
+
+
+def noise_split(result: dict) -> str:
+    """Per design and level: the mean CPSNR of the noise-free capture through the same network, and the mean squared
+    error (sRGB, over the images' mean) split into the noise-free capture's and the part the noise adds."""
+    res = result["designs"]
+    levels = sorted({k for r in res.values() for k in r["mean_cpsnr_noise_free"]}, key=float)
+    lines = ["| design | " + " | ".join(f"{k} lux: noise-free CPSNR (dB) / MSE = noise-free + noise (1e-3)"
+                                       for k in levels) + " |", "|---|" + "---|" * len(levels)]
+    for r in res.values():
+        cells = []
+        for k in levels:
+            mse = sum(10 ** (-i["cpsnr"][k] / 10) for i in r["images"]) / len(r["images"])
+            clean = sum(10 ** (-i["cpsnr_noise_free"][k] / 10) for i in r["images"]) / len(r["images"])
+            cells.append(f"{r['mean_cpsnr_noise_free'][k]:.2f} / {1e3 * mse:.3f} = {1e3 * clean:.3f} + "
+                         f"{1e3 * (mse - clean):.3f}")
+        lines.append(f"| {r['design']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def figure(result: dict, path: Path, learned: str | None = None) -> None:
@@ -99,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--designs", nargs="+", default=list(SHIPPED_DESIGNS), help="shipped names or design files")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--crop", type=int, default=10)
+    p.add_argument("--lux", type=float, nargs="+", default=None, help="light levels (default: each design's own)")
+    p.add_argument("--noise-free", action="store_true", help="also score the noise-free capture (the noise split)")
     p.add_argument("--json", type=Path, help="write the full result (per image) here")
     p.add_argument("--markdown", type=Path, help="write the table here")
     p.add_argument("--figure", type=Path, help="write the figure here")
@@ -110,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.from_json:
         result = json.loads(args.from_json.read_text())
     else:
-        result = compare(args.designs, data_path(args.folder), seed=args.seed, crop=args.crop)
+        result = compare(args.designs, data_path(args.folder), lux=args.lux, seed=args.seed, crop=args.crop,
+                         noise_free=args.noise_free)
     table = markdown(result)
     print(table)
     if args.json:

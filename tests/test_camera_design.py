@@ -282,3 +282,25 @@ def test_network_context_path_receptive_field_and_block_means(tmp_path):
     torch.testing.assert_close(loaded.network(1.0)(x, wm), cam.network(1.0)(x, wm), rtol=0, atol=0)
     with pytest.raises(ValueError, match="context_scale"):
         MosaicReconstructionNet(3, context_scale=-1)
+
+
+def test_design_comparison_noise_split_arithmetic():
+    """benchmarks/design_comparison.py's noise split: per-image CPSNR c (peak 1) is an MSE of 10^(-c/10); the table
+    gives the images' mean MSE and its noise-free part (20 and 30 dB: 1e-2 = 1e-3 + 9e-3; 10 and 20 dB: 0.1 and
+    0.01 average to 55e-3)."""
+    import importlib
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    comparison = importlib.import_module("design_comparison")
+    result = {"folder": "f", "seed": 0, "crop": 10, "designs": {
+        "a": {"design": "a", "mean_cpsnr": {"1": 20.0}, "mean_de2000": {"1": 5.0}, "mean_cpsnr_noise_free": {"1": 30.0},
+              "images": [{"cpsnr": {"1": 20.0}, "cpsnr_noise_free": {"1": 30.0}}]},
+        "b": {"design": "b", "mean_cpsnr": {"1": 15.0}, "mean_de2000": {"1": 6.0}, "mean_cpsnr_noise_free": {"1": 15.0},
+              "images": [{"cpsnr": {"1": 10.0}, "cpsnr_noise_free": {"1": 20.0}},
+                         {"cpsnr": {"1": 20.0}, "cpsnr_noise_free": {"1": 20.0}}]}}}
+    rows = comparison.noise_split(result).splitlines()
+    assert rows[2] == "| a | 30.00 / 10.000 = 1.000 + 9.000 |"
+    assert rows[3] == "| b | 15.00 / 55.000 = 10.000 + 45.000 |"
+    assert comparison.noise_split(result) in comparison.markdown(result, reference="a")
