@@ -250,7 +250,7 @@ def test_shipped_designs_load_by_name_and_can_be_built():
         assert float(((f[:, 1:] - f[:, :-1]) / 10).abs().max()) <= MAX_SLOPE_PER_NM
         w = cam.mosaic.weights(8, 8)
         assert bool(((w == 0) | (w == 1)).all()) and torch.equal(w.sum(0), torch.ones(8, 8))
-        assert cam.config["training"]["steps"] == 4500 and cam.config["network"] == {"width": 32, "depth": 4}
+        assert cam.config["training"]["steps"] == 9000 and cam.config["network"] == {"width": 32, "depth": 4}
 
 
 def test_network_context_path_receptive_field_and_block_means(tmp_path):
