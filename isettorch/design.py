@@ -250,7 +250,7 @@ class DesignCamera(nn.Module):
     def forward(self, scene: Scene, lux: float, *, generator: torch.Generator | None = None,
                 noise: bool = True) -> torch.Tensor:
         """Linear sRGB ``[B, 3, H, W]`` (white = 1) reconstructed by the network of ``lux`` (``noise=False``: from
-        the noise-free capture, the part of the error that light and noise do not cause)."""
+        the sensor's noise-free readout, to measure the error that remains without noise)."""
         cap = self.capture(scene, generator=generator, noise=noise)
         net = self.network(lux)
         p = next(net.parameters())
