@@ -212,11 +212,13 @@ class DesignCamera(nn.Module):
                                   validate=False)
 
     # --- capture --------------------------------------------------------------------------------
-    def capture(self, scene: Scene, *, generator: torch.Generator | None = None, noise: bool = True) -> dict:
+    def capture(self, scene: Scene, *, generator: torch.Generator | None = None, noise: bool = True,
+                with_noise_free: bool = False) -> dict:
         """Render ``scene`` through the optics and the design's sensor with the exposure rule.
 
         Returns ``{"input": [B, 1, H, W] white-normalised raw, "weights": [K, H, W] filter weights, "raw":
-        RawImage, "exposure_s": [B], "analog_gain": [B]}``.
+        RawImage, "exposure_s": [B], "analog_gain": [B]}``; ``with_noise_free`` adds ``"input_noise_free"``: the
+        readout ``noise=False`` gives (same exposure, gain and ADC), from the same optical image.
         """
         b, h, w = scene.batch_size, scene.height, scene.width
         sensor = self.sensor
@@ -240,21 +242,32 @@ class DesignCamera(nn.Module):
         t_white = sensor.exposure_for(None, white_mosaic, 1.0)
         t = t_white.clamp(max=float(rule["max_exposure_s"]))
         gain = (t_white / t).clamp(max=float(rule["max_analog_gain"]))
-        raw = sensor(oi, exposure_s=t, analog_gain=gain, generator=generator, noise=noise)
+        # Sensor.forward with the exposure given: its electron rate, then the capture (kept apart so that the
+        # noise-free readout can reuse the rate)
+        rate = sensor.electron_rate(oi)
+        raw = sensor.capture(rate, exposure_s=t, analog_gain=gain, generator=generator, noise=noise)
         white = sensor.capture(white_mosaic, exposure_s=t, analog_gain=gain, noise=False).noise_free
         black = raw.black_level
         x = (raw.data - black) / (white - black)
         weights = sensor.cfa.weights(h, w, dtype=x.dtype, device=x.device)
-        return {"input": x, "weights": weights, "raw": raw, "exposure_s": t, "analog_gain": gain}
+        out = {"input": x, "weights": weights, "raw": raw, "exposure_s": t, "analog_gain": gain}
+        if with_noise_free:
+            clean = raw if not noise else sensor.capture(rate, exposure_s=t, analog_gain=gain, noise=False)
+            out["input_noise_free"] = (clean.data - black) / (white - black)
+        return out
+
+    def reconstruct(self, cap: dict, lux: float, *, key: str = "input") -> torch.Tensor:
+        """Linear sRGB ``[B, 3, H, W]`` (white = 1): the network of ``lux`` applied to ``cap[key]`` of a
+        :meth:`capture` (``"input"``, or ``"input_noise_free"``)."""
+        net = self.network(lux)
+        p = next(net.parameters())
+        return net(cap[key].to(p.dtype), cap["weights"].to(p.dtype))
 
     def forward(self, scene: Scene, lux: float, *, generator: torch.Generator | None = None,
                 noise: bool = True) -> torch.Tensor:
         """Linear sRGB ``[B, 3, H, W]`` (white = 1) reconstructed by the network of ``lux`` (``noise=False``: from
         the sensor's noise-free readout, to measure the error that remains without noise)."""
-        cap = self.capture(scene, generator=generator, noise=noise)
-        net = self.network(lux)
-        p = next(net.parameters())
-        return net(cap["input"].to(p.dtype), cap["weights"].to(p.dtype))
+        return self.reconstruct(self.capture(scene, generator=generator, noise=noise), lux)
 
 
 # ------------------------------------------------------------------------------------------------ noise bound
@@ -664,14 +677,15 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
                 g = torch.Generator(device=device).manual_seed(seed_for(seed, i, stream=round(1000 * v)))
                 scene = camera.scene(lifted["maps"][None].to(device), lifted["reflectance"].to(device), v,
                                      dtype=dtype)
-                out = camera(scene, v, generator=g).to("cpu", torch.float64)
+                cap = camera.capture(scene, generator=g, with_noise_free=noise_free)
+                out = camera.reconstruct(cap, v).to("cpu", torch.float64)
                 srgb = srgb_encode(out.clamp(0, 1))
                 row["cpsnr"][key] = float(cpsnr(srgb, truth, crop)[0])
                 de = delta_e_2000(xyz_to_lab(srgb_to_xyz(srgb)), lab_truth)
                 h, w = de.shape[-2:]
                 row["de2000"][key] = float(de[..., crop:h - crop, crop:w - crop].mean())
                 if noise_free:
-                    clean = camera(scene, v, noise=False).to("cpu", torch.float64)
+                    clean = camera.reconstruct(cap, v, key="input_noise_free").to("cpu", torch.float64)
                     row["cpsnr_noise_free"][key] = float(cpsnr(srgb_encode(clean.clamp(0, 1)), truth, crop)[0])
                 bar.update(1)
             per_image.append(row)

@@ -61,6 +61,22 @@ def test_white_normalised_input_reads_the_reflectance():
             assert tol < 0.05
 
 
+def test_capture_with_noise_free_equals_the_two_captures():
+    """``with_noise_free`` reads the noise-free readout from the same optical image: bitwise what a separate
+    ``noise=False`` capture gives, with the noisy input unchanged (same generator seed)."""
+    cam = D.make_design("rgbw", TINY)
+    g = torch.Generator().manual_seed(5)
+    scene = cam.scene(torch.rand(1, 1, 16, 16, generator=g, dtype=torch.float64) * 0.8 + 0.1,
+                      torch.full((1, 31), 0.6, dtype=torch.float64), 1.0)
+    both = cam.capture(scene, generator=torch.Generator().manual_seed(7), with_noise_free=True)
+    noisy = cam.capture(scene, generator=torch.Generator().manual_seed(7))
+    clean = cam.capture(scene, noise=False)
+    assert torch.equal(both["input"], noisy["input"])
+    assert torch.equal(both["input_noise_free"], clean["input"])
+    assert not torch.equal(both["input"], both["input_noise_free"])
+    assert "input_noise_free" not in noisy
+
+
 def test_exposure_rule_caps_dim_scenes_and_shortens_with_clear_pixels():
     """At 1000 lux the white card sets the exposure (a W pixel's reading limits RGBW: t_bayer / t_rgbw = the ratio
     of the two designs' brightest white readings); at 1 lux both reach the limit and the gain rises by as much as
