@@ -259,6 +259,9 @@ class DesignCamera(nn.Module):
     def reconstruct(self, cap: dict, lux: float, *, key: str = "input") -> torch.Tensor:
         """Linear sRGB ``[B, 3, H, W]`` (white = 1): the network of ``lux`` applied to ``cap[key]`` of a
         :meth:`capture` (``"input"``, or ``"input_noise_free"``)."""
+        if key not in ("input", "input_noise_free") or key not in cap:
+            raise ValueError(f"key: expected 'input' or 'input_noise_free' (a capture made with with_noise_free=True), "
+                             f"got {key!r}; the capture holds {sorted(k for k in cap if k.startswith('input'))}")
         net = self.network(lux)
         p = next(net.parameters())
         return net(cap[key].to(p.dtype), cap["weights"].to(p.dtype))

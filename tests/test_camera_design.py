@@ -75,6 +75,8 @@ def test_capture_with_noise_free_equals_the_two_captures():
     assert torch.equal(both["input_noise_free"], clean["input"])
     assert not torch.equal(both["input"], both["input_noise_free"])
     assert "input_noise_free" not in noisy
+    with pytest.raises(ValueError, match="key: expected 'input' or 'input_noise_free'"):
+        cam.reconstruct(noisy, 1.0, key="input_noise_free")
 
 
 def test_exposure_rule_caps_dim_scenes_and_shortens_with_clear_pixels():
