@@ -169,9 +169,10 @@ def _sync(device: torch.device) -> None:
 
 def stream_rate(size: int, count: int, batch: int, device: torch.device, targets=TARGETS, repeats: int = 3,
                 seed: int = 0) -> tuple[float, float]:
-    """(pairs/s, peak memory MB) of ``PairStream(batch, scene size)`` consumed in this process: the median of
-    ``repeats`` runs of ``count // batch`` batches, after one warm-up batch (peak CUDA memory allocated, or the
-    process's peak resident memory on CPU)."""
+    """(pairs/s, peak memory MB) of ``PairStream(batch, scene size)`` consumed in this process as a training loop
+    consumes it, ``next(iter(stream))`` (on a CPU, whole batches render on threads while the previous one is used;
+    see ``PairStream.__iter__``): the median of ``repeats`` runs of ``count // batch`` batches, after one warm-up
+    batch (peak CUDA memory allocated, or the process's peak resident memory on CPU)."""
     import resource
 
     from isettorch.data import PairStream
@@ -181,18 +182,33 @@ def stream_rate(size: int, count: int, batch: int, device: torch.device, targets
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
     nb = max(1, count // batch)
-    rates, k = [], 0
+    rates, it = [], iter(stream)
+    next(it)  # the pipeline's threads started
     for _ in range(repeats):
         _sync(device)
         t0 = time.perf_counter()
         for _ in range(nb):
-            stream.batch(k)
-            k += 1
+            next(it)
         _sync(device)
         rates.append(nb * batch / (time.perf_counter() - t0))
+    it.close()
     peak = (torch.cuda.max_memory_allocated(device) if device.type == "cuda"
             else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024) / 2**20
     return statistics.median(rates), peak
+
+
+def iter_rate(stream, count: int) -> float:
+    """Pairs/s of a fresh ``iter(stream)`` over ``count`` pairs after its first batch (its threads started)."""
+    it = iter(stream)
+    next(it)
+    nb = max(1, count // stream.batch_size)
+    t0 = time.perf_counter()
+    for _ in range(nb):
+        next(it)
+    rate = nb * stream.batch_size / (time.perf_counter() - t0)
+    it.close()
+    time.sleep(0.5)  # batches still in flight finish before the next measurement
+    return rate
 
 
 def data_share(device: torch.device, steps: int = 8, repeats: int = 3) -> dict:
@@ -293,6 +309,29 @@ def stream_main(args) -> None:
                      f"{statistics.median(ratios):.2f}) | 128 | all | {statistics.median(p[1] for p in pairs):.0f} "
                      f"| | {load()} |")
         print(lines[-1], flush=True)
+    if device.type == "cpu" and args.stream_ab:
+        # the stream consumed in this process against the README loader, alternating in the same run (each round a
+        # fresh loader and fresh streams at each batch size; start-up and warm-up not timed)
+        from isettorch.data import PairStream
+
+        n = max(b, args.count // b * b)
+        sizes = [b, *args.stream_batches]
+        streams = [PairStream(sb, seed=0, scene={"height": 128, "width": 128}) for sb in sizes]
+        for st in streams:  # warm caches (OTF rows of the cameras drawn), as the loader's workers inherit the parent's
+            st.batch(10_000), st.batch(10_001)
+        rounds = []
+        for _ in range(args.stream_ab):
+            loader = loader_rate(31, 128, n, args.workers, batched=True, batch=b, repeats=1)[0]
+            rounds.append((loader, [iter_rate(st, max(n, st.batch_size)) for st in streams]))
+        lines.append(f"| README loader, alternating with the streams below ({', '.join(f'{r[0]:.0f}' for r in rounds)}"
+                     f") | 128 | all | {statistics.median(r[0] for r in rounds):.0f} | | {load()} |")
+        for i, sb in enumerate(sizes):
+            ratios, rates = [r[1][i] / r[0] for r in rounds], [r[1][i] for r in rounds]
+            lines.append(f"| PairStream (main process), batch {sb}, alternating "
+                         f"({', '.join(f'{x:.0f}' for x in rates)}; ratio to the loader median "
+                         f"{statistics.median(ratios):.2f}x) | 128 | all | {statistics.median(rates):.0f} | "
+                         f"| {load()} |")
+        print("\n".join(lines[-len(sizes) - 1:]), flush=True)
     for sb in args.stream_batches:  # larger stream batches, e.g. what train_demosaic renders per stream batch
         rate, peak = stream_rate(128, max(args.count, sb), sb, device, TARGETS, reps)
         lines.append(f"| PairStream (main process), batch {sb} | 128 | all | {rate:.0f} | {peak:.0f} | {load()} |")
@@ -325,13 +364,17 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--stream-sizes", type=int, nargs="+", default=[128, 256],
-                    help="with --stream: the scene sizes of the stream rows")
+    ap.add_argument("--stream-sizes", type=int, nargs="*", default=[128, 256],
+                    help="with --stream: the scene sizes of the stream rows (none: only the --stream-ab and "
+                         "--stream-batches rows)")
     ap.add_argument("--no-share", action="store_true",
                     help="with --stream: skip the training-step data share (only the pairs/s rows)")
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--workers-ab", type=int, default=3, metavar="ROUNDS",
                     help="with --stream on CPU: rounds of PairStream.loader(--workers) against the README loader")
+    ap.add_argument("--stream-ab", type=int, default=0, metavar="ROUNDS",
+                    help="with --stream on CPU: ROUNDS alternating runs of the README loader and the stream consumed "
+                         "in this process at --batch and each --stream-batches size (the issue-34 comparison)")
     ap.add_argument("--stream-batches", type=int, nargs="*", default=[64],
                     help="with --stream: also the stream at these batch sizes (128^2, all targets; train_demosaic "
                          "renders data.stream_chunk x its batch per stream batch: 4 x 16 on a CPU)")

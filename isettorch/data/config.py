@@ -341,7 +341,7 @@ def one_thread():
         torch.set_num_threads(n)
 
 
-_M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3  # glibc <malloc.h> mallopt parameters
+_M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -2, -3, -8  # glibc <malloc.h> mallopt
 
 
 def tune_allocator() -> bool:
@@ -351,10 +351,16 @@ def tune_allocator() -> bool:
     fresh image-sized tensor page-faults on first touch (the kernel zeroes every page), and a freed heap top is
     trimmed. Generating a batch of camera pairs allocates and frees tens of MB of such temporaries. This sets
     ``M_MMAP_THRESHOLD`` to 32 MiB (glibc's maximum), ``M_TRIM_THRESHOLD`` to 1 GiB and ``M_TOP_PAD`` to 256 MiB:
-    measured 7.1 -> 6.2 CPU ms per 128 x 128 pair (``benchmarks/THROUGHPUT.md``). The cost: memory freed inside
-    the process is kept for reuse (its resident size stays near its peak). ``CameraPairDataset`` applies it in
-    DataLoader worker processes (``tune_worker_allocator=True``); call it yourself to get it in a process that
-    generates data in its main thread.
+    measured 7.1 -> 6.2 CPU ms per 128 x 128 pair (``benchmarks/THROUGHPUT.md``). It also sets ``M_ARENA_MAX`` to
+    1, so that threads started afterwards allocate from the same (main) heap: glibc gives each new thread an arena
+    of 64 MiB mmap'd heaps that these thresholds do not keep, so a :class:`~isettorch.data.PairStream` rendering on
+    a worker thread page-faulted about 6x as often as on the main thread and ran 7 % slower (batch 64 at 128^2, one
+    thread: 85,000 against 13,000 minor faults per 256 pairs; with one arena both 7,000-19,000 and the same rate).
+    The cost: memory freed inside the process is kept for reuse (its resident size stays near its peak), and
+    threads share one allocator lock (torch allocates few, large blocks; Python's small objects do not use it).
+    ``CameraPairDataset`` applies it in DataLoader worker processes (``tune_worker_allocator=True``); call it
+    yourself, before starting threads, to get it in a process that generates data itself (a ``PairStream`` on a
+    CPU).
     No-op (returns False) where the C library is not glibc.
     """
     if not sys.platform.startswith("linux"):
@@ -368,4 +374,5 @@ def tune_allocator() -> bool:
     ok = mallopt(_M_MMAP_THRESHOLD, 32 * 2**20)
     ok &= mallopt(_M_TRIM_THRESHOLD, 2**30)
     ok &= mallopt(_M_TOP_PAD, 256 * 2**20)
+    ok &= mallopt(_M_ARENA_MAX, 1)
     return bool(ok)

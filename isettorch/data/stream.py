@@ -80,15 +80,20 @@ class PairStream:
         rank, world_size: this process's share of the batches (default: ``torch.distributed``'s when it is
             initialised, else 0 of 1).
         parts: a batch is drawn and rendered in this many parts of consecutive items, each with its own generators
-            (default: 2 on a CPU device for batches of 8 or more, without a camera module; else 1). It is part of
+            (default: 2 on a CPU device for batches of 32 or more, without a camera module; else 1). It is part of
             the config: batch ``k`` depends on it, not on ``threads``. Within a part, the items are in the order of
-            their drawn cameras (pixel pitch, then CFA).
-        threads: how many parts render concurrently, on Python threads (torch releases the GIL in its kernels),
-            each with an equal share of torch's intra-op threads (default: on CPU, ``min(parts,
-            torch.get_num_threads())``; on other devices 1). Measured on 2 CPU cores, batch 16 at 128^2: as fast
-            as one part on two intra-op threads when the cores are idle (106 against 108 pairs/s), 1.6x faster
-            when another busy process shares them (62 against 38 pairs/s: torch's intra-op workers wait for each
-            other on every small op, the parts do not).
+            their drawn cameras (pixel pitch, then CFA). Parts let ``batch(k)`` use two threads; below 32 items a
+            part's few thousand torch calls cost more than the second thread gains (2 CPU cores, 128^2,
+            ``batch(k)`` in a loop: batch 16 291 pairs/s in one part against 278 in two, batch 32 328 against 359,
+            batch 64 350 against 421).
+        threads: on a CPU, how many Python threads render (torch releases the GIL in its kernels; default torch's
+            intra-op thread count; on other devices 1). ``iter(stream)`` renders this many whole batches at once,
+            each on its own thread with one intra-op thread; ``batch(k)`` renders its parts on up to this many
+            threads, each with an equal share of the intra-op threads. Batches do not depend on it. Measured on 2
+            CPU cores, batch 16 at 128^2: parts on threads are as fast as one part on two intra-op threads when the
+            cores are idle (106 against 108 pairs/s), 1.6x faster when another busy process shares them (62
+            against 38 pairs/s: torch's intra-op workers wait for each other on every small op, the parts do
+            not); whole batches on threads faster again (``benchmarks/THROUGHPUT.md``).
 
     Each batch is a dict with ``raw`` ``[B, 1, H, W]`` and the targets in normalised raw units (0 = black,
     1 = white level), as :func:`~isettorch.data.camera_pairs.render_pairs`, and ``meta`` (``[B, ...]`` tensors of
@@ -134,7 +139,7 @@ class PairStream:
             raise ValueError(f"rank: expected 0 <= rank < world_size = {world_size}, got {rank}")
         self.rank, self.world_size = int(rank), int(world_size)
         if parts is None:  # the default depends on the device type only (batches stay a function of the config)
-            parts = 2 if self.device.type == "cpu" and batch_size >= 8 and self.camera_module is None else 1
+            parts = 2 if self.device.type == "cpu" and batch_size >= 32 and self.camera_module is None else 1
         if not isinstance(parts, int) or isinstance(parts, bool) or not 1 <= parts <= batch_size:
             raise ValueError(f"parts: expected an integer in [1, batch_size = {batch_size}], got {parts!r}")
         if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
@@ -151,10 +156,31 @@ class PairStream:
 
     # --- iteration ------------------------------------------------------------------------------------------
     def __iter__(self):
-        k = 0
-        while True:
-            yield self.batch(k * self.world_size + self.rank)
-            k += 1
+        """Batches ``rank, rank + world_size, ...`` without end, each bitwise ``batch(k)``. On a CPU (no camera
+        module, no gradients) ``threads`` batches render at once, each whole on its own Python thread with one
+        intra-op thread, while the caller uses the previous one: whole batches in flight keep both cores busy
+        without a barrier per batch, where a batch's parts on threads wait for the slower part
+        (``benchmarks/THROUGHPUT.md``). The caller's intra-op thread count is not changed."""
+        k, n = self.rank, self._pipeline_width()
+        if n == 1:
+            while True:
+                yield self.batch(k)
+                k += self.world_size
+        intra = torch.get_num_threads()  # initialises this thread's count before the workers set theirs
+        pool = self._executor(n, pipeline=True)
+        pending = []
+        try:
+            while True:
+                while len(pending) < n:
+                    pending.append(pool.submit(self._whole_batch, k))
+                    k += self.world_size
+                out = pending.pop(0).result()
+                if torch.get_num_threads() != intra:  # pragma: no cover - depends on the OpenMP runtime
+                    torch.set_num_threads(intra)
+                yield out
+        finally:  # the consumer stopped: batches not started are dropped, running ones finish unseen
+            for f in pending:
+                f.cancel()
 
     def loader(self, num_workers: int = 2, *, prefetch_factor: int = 2):
         """This stream's batches rendered by worker processes, bitwise those of ``iter(self)`` in the same order
@@ -343,6 +369,15 @@ class PairStream:
                 done = list(self._executor(n_threads).map(lambda p: self._render_part(k, p), range(self.parts)))
             finally:
                 torch.set_num_threads(intra)
+        return self._assemble(done)
+
+    def _whole_batch(self, k: int) -> dict:
+        """Batch ``k`` rendered on this thread, its parts in turn (the pipelined iterator's workers)."""
+        return self._assemble([self._render_part(k, p) for p in range(self.parts)])
+
+    @staticmethod
+    def _assemble(done: list) -> dict:
+        """A batch from its rendered parts (``_render_part`` results, in part order)."""
         parts = [out for part in done for out in part[1]]
         if len(parts) == 1:
             return parts[0]
@@ -367,11 +402,23 @@ class PairStream:
             return min(self.threads, self.parts)
         return min(self.parts, torch.get_num_threads()) if self.device.type == "cpu" else 1
 
-    def _executor(self, n: int):
-        pid = os.getpid()
-        if self._pool is None or self._pool[0] != pid or self._pool[1] != n:  # a forked copy makes its own
-            self._pool = (pid, n, ThreadPoolExecutor(max_workers=n, thread_name_prefix="PairStream"))
-        return self._pool[2]
+    def _pipeline_width(self) -> int:
+        """Batches the iterator renders at once: ``threads`` (default torch's intra-op thread count) on a CPU
+        without a camera module or gradients; else 1 (in turn, on the caller's thread)."""
+        if self.device.type != "cpu" or self.camera_module is not None or self.grad:
+            return 1
+        return self.threads if self.threads is not None else torch.get_num_threads()
+
+    def _executor(self, n: int, pipeline: bool = False):
+        """The thread pool of ``n`` part threads, or with ``pipeline`` of ``n`` whole-batch threads (each running
+        torch on one intra-op thread)."""
+        pid, key = os.getpid(), ("pipeline" if pipeline else "parts", n)
+        pools = self._pool if self._pool is not None and self._pool[0] == pid else (pid, {})  # a fork makes its own
+        self._pool = pools
+        if key not in pools[1]:
+            init = (lambda: torch.set_num_threads(1)) if pipeline else None
+            pools[1][key] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="PairStream", initializer=init)
+        return pools[1][key]
 
     def __getstate__(self):
         state = dict(self.__dict__)

@@ -75,9 +75,9 @@ def test_parts_render_on_threads_without_changing_the_batch(stream_equals_camera
     raw to float rounding; the noisy raw of a one-group part bitwise from the part's own noise generator), and
     the items of the two parts differ (their generators are independent)."""
     cams = {"pixel_size_m": [1.4e-6, 2.8e-6]}
-    threaded = PairStream(8, seed=6, scene=SMALL, camera=cams, threads=2)
+    threaded = PairStream(8, seed=6, scene=SMALL, camera=cams, parts=2, threads=2)
     assert threaded.parts == 2 and threaded._thread_count() == 2
-    one = PairStream(8, seed=6, scene=SMALL, camera=cams, threads=1)
+    one = PairStream(8, seed=6, scene=SMALL, camera=cams, parts=2, threads=1)
     a, b = threaded.batch(3), one.batch(3)
     for key in ("raw", "noise_free_raw", "camera_rgb", "xyz", "srgb"):
         assert torch.equal(a[key], b[key]), key
@@ -98,8 +98,8 @@ def test_parts_render_on_threads_without_changing_the_batch(stream_equals_camera
     assert torch.equal((raw.data - raw.black_level) / (raw.white_level - raw.black_level), got)
     # the two parts are independent draws, not copies
     assert not torch.equal(a["noise_free_raw"][:4], a["noise_free_raw"][4:])
-    # the default: two parts on CPU from 8 items, one below and with a camera module
-    assert PairStream(8, scene=SMALL).parts == 2 and PairStream(7, scene=SMALL).parts == 1
+    # the default: two parts on CPU from 32 items, one below and with a camera module
+    assert PairStream(32, scene=SMALL).parts == 2 and PairStream(31, scene=SMALL).parts == 1
     with pytest.raises(ValueError, match="parts"):
         PairStream(4, scene=SMALL, parts=5)
     with pytest.raises(ValueError, match="threads"):
@@ -125,15 +125,37 @@ def test_batch_does_not_depend_on_the_intra_op_thread_count():
             camera = Camera(DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3, learn_f_number=True),
                             Sensor(rows=128, cols=128, pixel_size_m=2.0e-6, cfa="RGGB", learnable_filters=True))
             graph = PairStream(1, seed=0, scene={"height": 128, "width": 128}, camera=camera, grad=True).batch(0)
-            out[threads] = [PairStream(1, seed=0).batch(2), PairStream(16, seed=0, threads=1).batch(3),
+            out[threads] = [PairStream(1, seed=0).batch(2), PairStream(16, seed=0, parts=2, threads=1).batch(3),
                             {k: v.detach() for k, v in graph.items() if k != "meta"}]
     finally:
         torch.set_num_threads(n)
-    assert any(g.index.numel() == 1 for g in PairStream(16, seed=0).draw(3))
+    assert any(g.index.numel() == 1 for g in PairStream(16, seed=0, parts=2).draw(3))
     for a, b in zip(out[1], out[2]):
         for key in a:
             if key != "meta":
                 assert torch.equal(a[key], b[key]), key
+
+
+def test_iteration_renders_whole_batches_on_threads_bitwise():
+    """On a CPU ``iter(stream)`` renders ``threads`` whole batches at once on worker threads (one intra-op thread
+    each): the batches are bitwise ``batch(k)`` in order (with ``rank`` / ``world_size`` too, and in two parts),
+    the caller's intra-op thread count is unchanged, and a stream with gradients iterates on the caller's thread."""
+    n = torch.get_num_threads()
+    for kw, ks in (({"threads": 2}, [0, 1, 2, 3]), ({"threads": 3, "parts": 2}, [0, 1, 2]),
+                   ({"threads": 2, "rank": 1, "world_size": 3}, [1, 4, 7])):
+        stream = PairStream(4, seed=5, scene=SMALL, **kw)
+        assert stream._pipeline_width() == kw["threads"]
+        it = iter(stream)
+        got = [next(it) for _ in ks]
+        assert torch.get_num_threads() == n
+        it.close()
+        for b, k in zip(got, ks):
+            ref = stream.batch(k)
+            for key in ("raw", "noise_free_raw", "camera_rgb", "srgb"):
+                assert torch.equal(b[key], ref[key]), (kw, k, key)
+            assert torch.equal(b["meta"]["index"], ref["meta"]["index"])
+    assert PairStream(4, scene=SMALL, grad=True)._pipeline_width() == 1
+    assert PairStream(4, scene=SMALL, threads=1)._pipeline_width() == 1
 
 
 def test_worker_loader_yields_the_streams_batches():
