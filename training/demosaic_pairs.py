@@ -89,9 +89,9 @@ class StreamSource:
     chunk`` (stream batch ``(s // chunk) * world + rank``), the chunk kept until its last slice is used. A stream
     batch costs a few thousand torch calls whatever its size (``docs/training_in_the_loop.md``): on a GPU a training
     step of 16 items would otherwise wait for the launches of a whole stream batch, and on 2 CPU cores a
-    ``train_demosaic`` step (batch 16, 80 px) took 72 ms with chunk 4 against 90 ms with chunk 1 and 92 ms fed by
-    ``camera_pairs`` (``benchmarks/THROUGHPUT.md``). A step's batch still depends only on (seed, step, rank, chunk),
-    so a resumed run gets the batches it would have had."""
+    ``train_demosaic`` step (batch 16, 80 px) took 72 ms with chunk 4 against 78 ms with chunk 1 and 89 ms fed by
+    ``camera_pairs`` (``benchmarks/THROUGHPUT.md``, 2026-11-29). A step's batch still depends only on (seed, step,
+    rank, chunk), so a resumed run gets the batches it would have had."""
 
     #: the default ``data.stream_chunk`` by device type
     CPU_CHUNK, ACCELERATOR_CHUNK = 4, 64
