@@ -109,6 +109,10 @@ class StreamSource:
         else:
             _check_bayer_patterns(camera)
         dev = torch.device(d.get("device") or device or "cpu")
+        if dev.type == "cpu":  # large temporaries and the stream's threads stay in this process's main heap
+            from isettorch.data.config import tune_allocator
+
+            tune_allocator()
         self.batch_size = int(batch or d.get("batch", 16))
         chunk = d.get("stream_chunk")
         if chunk is None:
