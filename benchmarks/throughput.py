@@ -183,7 +183,9 @@ def stream_rate(size: int, count: int, batch: int, device: torch.device, targets
         torch.cuda.reset_peak_memory_stats(device)
     nb = max(1, count // batch)
     rates, it = [], iter(stream)
-    next(it)  # the pipeline's threads started
+    for _ in range(stream._pipeline_width() + 1):  # steady state (see iter_rate)
+        next(it)
+    nb = max(nb, 8)
     for _ in range(repeats):
         _sync(device)
         t0 = time.perf_counter()
@@ -197,11 +199,14 @@ def stream_rate(size: int, count: int, batch: int, device: torch.device, targets
     return statistics.median(rates), peak
 
 
-def iter_rate(stream, count: int) -> float:
-    """Pairs/s of a fresh ``iter(stream)`` over ``count`` pairs after its first batch (its threads started)."""
+def iter_rate(stream, count: int, min_batches: int = 8) -> float:
+    """Pairs/s of a fresh ``iter(stream)`` over ``count`` pairs (at least ``min_batches`` batches) in steady state:
+    the clock starts after as many batches as the iterator renders at once, plus one (the first batches all start
+    together, so the ones right after the first would come early and inflate a short run)."""
     it = iter(stream)
-    next(it)
-    nb = max(1, count // stream.batch_size)
+    for _ in range(stream._pipeline_width() + 1):
+        next(it)
+    nb = max(min_batches, count // stream.batch_size)
     t0 = time.perf_counter()
     for _ in range(nb):
         next(it)

@@ -80,20 +80,22 @@ class PairStream:
         rank, world_size: this process's share of the batches (default: ``torch.distributed``'s when it is
             initialised, else 0 of 1).
         parts: a batch is drawn and rendered in this many parts of consecutive items, each with its own generators
-            (default: 2 on a CPU device for batches of 32 or more, without a camera module; else 1). It is part of
-            the config: batch ``k`` depends on it, not on ``threads``. Within a part, the items are in the order of
-            their drawn cameras (pixel pitch, then CFA). Parts let ``batch(k)`` use two threads; below 32 items a
-            part's few thousand torch calls cost more than the second thread gains (2 CPU cores, 128^2,
-            ``batch(k)`` in a loop: batch 16 291 pairs/s in one part against 278 in two, batch 32 328 against 359,
-            batch 64 350 against 421).
-        threads: on a CPU, how many Python threads render (torch releases the GIL in its kernels; default torch's
-            intra-op thread count; on other devices 1). ``iter(stream)`` renders this many whole batches at once,
-            each on its own thread with one intra-op thread; ``batch(k)`` renders its parts on up to this many
-            threads, each with an equal share of the intra-op threads. Batches do not depend on it. Measured on 2
-            CPU cores, batch 16 at 128^2: parts on threads are as fast as one part on two intra-op threads when the
-            cores are idle (106 against 108 pairs/s), 1.6x faster when another busy process shares them (62
-            against 38 pairs/s: torch's intra-op workers wait for each other on every small op, the parts do
-            not); whole batches on threads faster again (``benchmarks/THROUGHPUT.md``).
+            (default 1). It is part of the config: batch ``k`` depends on it, not on ``threads``. Within a part, the
+            items are in the order of their drawn cameras (pixel pitch, then CFA). Parts let ``batch(k)`` called
+            directly use two threads from 32 items on (2 CPU cores, 128^2, ``batch(k)`` in a loop: batch 16 291
+            pairs/s in one part against 278 in two, batch 32 328 against 359, batch 64 350 against 421); the
+            iterator, which renders whole batches on threads, is faster with one (batch 64: 518 against 431
+            pairs/s on three threads).
+        threads: on a CPU, how many Python threads render (torch releases the GIL in its kernels; on other
+            devices 1). ``iter(stream)`` renders this many whole batches at once, each on its own thread with one
+            intra-op thread (default: torch's intra-op thread count, plus one from 64 items); ``batch(k)`` renders
+            its parts on up to this many threads (default: as many as parts, up to the intra-op thread count), each
+            with an equal share of the intra-op threads. Batches do not depend on it. Measured on 2 CPU cores at
+            128^2 against the README loader in alternating rounds (``benchmarks/THROUGHPUT.md``): three iterator
+            threads against two, batch 64 1.25x against 1.04x, batch 128 1.23x against 1.09x, but batch 16 0.76x
+            against 0.84x (more torch calls per pair: a third thread adds GIL contention); parts on threads are as
+            fast as one part on two intra-op threads when the cores are idle, 1.6x faster when another busy process
+            shares them (torch's intra-op workers wait for each other on every small op, the parts do not).
 
     Each batch is a dict with ``raw`` ``[B, 1, H, W]`` and the targets in normalised raw units (0 = black,
     1 = white level), as :func:`~isettorch.data.camera_pairs.render_pairs`, and ``meta`` (``[B, ...]`` tensors of
@@ -138,8 +140,8 @@ class PairStream:
         if not 0 <= int(rank) < int(world_size):
             raise ValueError(f"rank: expected 0 <= rank < world_size = {world_size}, got {rank}")
         self.rank, self.world_size = int(rank), int(world_size)
-        if parts is None:  # the default depends on the device type only (batches stay a function of the config)
-            parts = 2 if self.device.type == "cpu" and batch_size >= 32 and self.camera_module is None else 1
+        if parts is None:
+            parts = 1
         if not isinstance(parts, int) or isinstance(parts, bool) or not 1 <= parts <= batch_size:
             raise ValueError(f"parts: expected an integer in [1, batch_size = {batch_size}], got {parts!r}")
         if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
@@ -156,12 +158,22 @@ class PairStream:
 
     # --- iteration ------------------------------------------------------------------------------------------
     def __iter__(self):
-        """Batches ``rank, rank + world_size, ...`` without end, each bitwise ``batch(k)``. On a CPU (no camera
-        module, no gradients) ``threads`` batches render at once, each whole on its own Python thread with one
-        intra-op thread, while the caller uses the previous one: whole batches in flight keep both cores busy
-        without a barrier per batch, where a batch's parts on threads wait for the slower part
+        return self.batches()
+
+    def batches(self, start: int = 0):
+        """Batches ``(start + i) * world_size + rank`` for ``i = 0, 1, ...`` without end, each bitwise
+        ``batch(k)`` (``iter(stream)`` is ``batches(0)``; a resumed training run starts where it stopped)."""
+        if not isinstance(start, int) or isinstance(start, bool) or start < 0:
+            raise ValueError(f"start: expected a non-negative index into this rank's batches, got {start!r}")
+        return self._iterate(start * self.world_size + self.rank)
+
+    def _iterate(self, k: int):
+        """Batches ``k, k + world_size, ...``, each bitwise ``batch(k)``. On a CPU (no camera
+        module, no gradients) ``threads`` batches (see ``threads``) render at once, each whole on its
+        own Python thread with one intra-op thread, while the caller uses the previous one: whole batches in flight
+        keep the cores busy without a barrier per batch, where a batch's parts on threads wait for the slower part
         (``benchmarks/THROUGHPUT.md``). The caller's intra-op thread count is not changed."""
-        k, n = self.rank, self._pipeline_width()
+        n = self._pipeline_width()
         if n == 1:
             while True:
                 yield self.batch(k)
@@ -184,9 +196,10 @@ class PairStream:
 
     def loader(self, num_workers: int = 2, *, prefetch_factor: int = 2):
         """This stream's batches rendered by worker processes, bitwise those of ``iter(self)`` in the same order
-        (:func:`~isettorch.data.stream_workers.stream_loader`; a CPU stream without gradients): on a CPU, about as
-        fast as :func:`~isettorch.data.camera_pairs.batch_loader` with as many workers, where the stream in one
-        process is GIL-bound (``benchmarks/THROUGHPUT.md``)."""
+        (:func:`~isettorch.data.stream_workers.stream_loader`; a CPU stream without gradients): on 2 CPU cores
+        0.86-0.98x :func:`~isettorch.data.camera_pairs.batch_loader` with as many workers; the stream's own
+        iterator, GIL-bound at small batches, is 0.85x it at batch 16 and 1.1x from batch 64
+        (``benchmarks/THROUGHPUT.md``)."""
         from .stream_workers import stream_loader
 
         return stream_loader(self, num_workers, prefetch_factor=prefetch_factor)
@@ -403,11 +416,14 @@ class PairStream:
         return min(self.parts, torch.get_num_threads()) if self.device.type == "cpu" else 1
 
     def _pipeline_width(self) -> int:
-        """Batches the iterator renders at once: ``threads`` (default torch's intra-op thread count) on a CPU
-        without a camera module or gradients; else 1 (in turn, on the caller's thread)."""
+        """Batches the iterator renders at once: ``threads`` (default torch's intra-op thread count, plus one from
+        64 items, where a thread waiting for the GIL leaves its core to the extra one) on a CPU without a camera
+        module or gradients; else 1 (in turn, on the caller's thread)."""
         if self.device.type != "cpu" or self.camera_module is not None or self.grad:
             return 1
-        return self.threads if self.threads is not None else torch.get_num_threads()
+        if self.threads is not None:
+            return self.threads
+        return torch.get_num_threads() + (self.batch_size >= 64)
 
     def _executor(self, n: int, pipeline: bool = False):
         """The thread pool of ``n`` part threads, or with ``pipeline`` of ``n`` whole-batch threads (each running

@@ -98,8 +98,8 @@ def test_parts_render_on_threads_without_changing_the_batch(stream_equals_camera
     assert torch.equal((raw.data - raw.black_level) / (raw.white_level - raw.black_level), got)
     # the two parts are independent draws, not copies
     assert not torch.equal(a["noise_free_raw"][:4], a["noise_free_raw"][4:])
-    # the default: two parts on CPU from 32 items, one below and with a camera module
-    assert PairStream(32, scene=SMALL).parts == 2 and PairStream(31, scene=SMALL).parts == 1
+    # the default: one part (the iterator renders whole batches on threads)
+    assert PairStream(32, scene=SMALL).parts == 1
     with pytest.raises(ValueError, match="parts"):
         PairStream(4, scene=SMALL, parts=5)
     with pytest.raises(ValueError, match="threads"):
