@@ -156,6 +156,18 @@ def test_iteration_renders_whole_batches_on_threads_bitwise():
             assert torch.equal(b["meta"]["index"], ref["meta"]["index"])
     assert PairStream(4, scene=SMALL, grad=True)._pipeline_width() == 1
     assert PairStream(4, scene=SMALL, threads=1)._pipeline_width() == 1
+    # defaults: the intra-op thread count, one more from 64 items
+    assert PairStream(63, scene=SMALL)._pipeline_width() == n
+    assert PairStream(64, scene=SMALL)._pipeline_width() == n + 1
+    # batches(start): a rank's batches from its start-th on (a resumed run)
+    stream = PairStream(4, seed=5, scene=SMALL, threads=2, rank=1, world_size=3)
+    it = stream.batches(2)
+    for k in (7, 10):
+        assert torch.equal(next(it)["raw"], stream.batch(k)["raw"])
+    it.close()
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="start"):
+            stream.batches(bad)
 
 
 def test_worker_loader_yields_the_streams_batches():
