@@ -170,11 +170,11 @@ class PairStream:
         return self._iterate(start * self.world_size + self.rank)
 
     def _iterate(self, k: int):
-        """Batches ``k, k + world_size, ...``, each bitwise ``batch(k)``. On a CPU (no camera
-        module, no gradients) ``threads`` batches (see ``threads``) render at once, each whole on its
-        own Python thread with one intra-op thread, while the caller uses the previous one: whole batches in flight
-        keep the cores busy without a barrier per batch, where a batch's parts on threads wait for the slower part
-        (``benchmarks/THROUGHPUT.md``). The caller's intra-op thread count is not changed."""
+        """Batches ``k, k + world_size, ...``, each bitwise ``batch(k)``. On a CPU (no camera module, no gradients)
+        ``threads`` batches render at once, each whole on its own Python thread with one intra-op thread, while the
+        caller uses the previous one: whole batches in flight keep the cores busy without a barrier per batch,
+        where a batch's parts on threads wait for the slower part (``benchmarks/THROUGHPUT.md``). The caller's
+        intra-op thread count is not changed."""
         n = self._pipeline_width()
         if n == 1:
             while True:
