@@ -89,24 +89,26 @@ class Camera(nn.Module):
         ``sensor_kwargs``: per-call sensor settings (``analog_gain``, ``exposure_ev``, noise levels as scalars or
         ``[B]`` tensors: :data:`isettorch.sensor.sensor.PER_CALL_LEVELS`).
         """
-        oi = self.optical_image(scene)
+        oi = self.optical_image(scene, pixel_size_m=sensor_kwargs.get("pixel_size_m"))
         out = self.from_optical_image(oi, True, exposure_s=exposure_s, generator=generator, **sensor_kwargs)
         out.scene = scene
         return out if return_intermediates else out.image
 
-    def optical_image(self, scene):
+    def optical_image(self, scene, pixel_size_m=None):
         """The optics' output for ``scene``: only the sensor's window when ``crop_to_sensor`` (see
-        :meth:`sensor_window`)."""
-        window = self.sensor_window(scene) if self.crop_to_sensor else None
+        :meth:`sensor_window`; ``pixel_size_m``: the sensor's per-call pixel pitch, scalar or ``[B]``)."""
+        window = self.sensor_window(scene, pixel_size_m) if self.crop_to_sensor else None
         return self.optics(scene) if window is None else self.optics(scene, crop=window)
 
-    def sensor_window(self, scene) -> tuple[int, int, int, int] | None:
+    def sensor_window(self, scene, pixel_size_m=None) -> tuple[int, int, int, int] | None:
         """The window ``(top, left, height, width)`` of the full optical image that the sensor samples, or None.
 
         The window is centred on the optical axis (so the cropped image stays centred and the sensor samples the
         same positions) and covers the sensor footprint plus ``sensor_window_margin`` OI samples on each side
         for the sampling kernels (ISETCam's pre-blur reaches ``ceil(pitch / dx)`` samples). None when the sensor
         sizes itself to the optical image, when the optics cannot plan a window, or when it would not be smaller.
+        ``pixel_size_m``: a per-call pixel pitch (scalar or ``[B]``, see :meth:`isettorch.sensor.Sensor.channel_rates`)
+        instead of the sensor's.
         """
         rows, cols = getattr(self.sensor, "rows", None), getattr(self.sensor, "cols", None)
         plan = getattr(self.optics, "plan", None)
@@ -116,29 +118,35 @@ class Camera(nn.Module):
         full_h, full_w = info["full_shape"]
         # memoised per spacing tensor (an optics' cached geometry returns the same one for a repeated geometry; the
         # entry keeps it alive, so its id is not reused) and sensor geometry
-        key = (id(info["sample_spacing_m"]), full_h, full_w, rows, cols, float(self.sensor.pixel_size_m),
+        if pixel_size_m is None:
+            pitch = float(self.sensor.pixel_size_m)
+        else:  # per item: a tuple of plain numbers in the key
+            pitch = tuple(torch.as_tensor(pixel_size_m, dtype=torch.float64).reshape(-1).tolist())
+        key = (id(info["sample_spacing_m"]), full_h, full_w, rows, cols, pitch,
                getattr(self.sensor, "sampling", None), self.sensor_window_margin)
         memo = self.__dict__.setdefault("_window_memo", {})
         hit = memo.get(key)
         if hit is not None and hit[0] is info["sample_spacing_m"]:
             return hit[1]
-        window = self._sensor_window(info, rows, cols)
+        window = self._sensor_window(info, rows, cols, pitch)
         if not info["sample_spacing_m"].requires_grad:
             if len(memo) > 64:
                 memo.clear()
             memo[key] = (info["sample_spacing_m"], window)
         return window
 
-    def _sensor_window(self, info: dict, rows: int, cols: int) -> tuple[int, int, int, int] | None:
+    def _sensor_window(self, info: dict, rows: int, cols: int, pitches: float | tuple
+                       ) -> tuple[int, int, int, int] | None:
         full_h, full_w = info["full_shape"]
         spacing = info["sample_spacing_m"].detach()
         dx = float(spacing.min())
-        pitch = float(self.sensor.pixel_size_m)
+        per_item = torch.as_tensor(pitches, dtype=spacing.dtype, device=spacing.device)
+        pitch = float(per_item.max())
         margin = self.sensor_window_margin + math.ceil(pitch / dx)
         # One OI sample per pixel (the grids coincide to the geometry's float rounding) and area sampling: each
         # pixel reads only its own sample, so the window is the sensor's footprint (no sampling margin)
         same_grid = (getattr(self.sensor, "sampling", None) == "area"
-                     and bool(((spacing / pitch - 1).abs() <= 4 * torch.finfo(spacing.dtype).eps).all()))
+                     and bool(((spacing / per_item - 1).abs() <= 4 * torch.finfo(spacing.dtype).eps).all()))
 
         def extent(n_pixels: int, full: int) -> tuple[int, int]:
             if same_grid and (full - n_pixels) % 2 == 0:
@@ -163,7 +171,7 @@ class Camera(nn.Module):
             kwargs["exposure_s"] = exposure_s
         if generator is not None:
             kwargs["generator"] = generator
-        warn_if_coarser_than_pixels(oi, self.sensor)
+        warn_if_coarser_than_pixels(oi, self.sensor, sensor_kwargs.get("pixel_size_m"))
         raw = self.sensor(oi, **kwargs)
         out = self.from_raw(raw, True)
         out.optical_image = oi
@@ -207,19 +215,24 @@ class Camera(nn.Module):
         return build_camera(load_config(config) if not isinstance(config, dict) else config)
 
 
-def warn_if_coarser_than_pixels(oi, sensor) -> None:
+def warn_if_coarser_than_pixels(oi, sensor, pixel_size_m=None) -> None:
     """Warn when the optical image is sampled more coarsely than the sensor's pixel grid.
 
     The sensor then interpolates between samples that are farther apart than a pixel, which blurs the image
     beyond what the optics do (issue 18: MTF50 0.33 cy/px with a 1024^2 scene against 0.21 with 256^2 on the
-    same sensor).
+    same sensor). ``pixel_size_m``: a per-call pixel pitch (scalar or ``[B]``) instead of the sensor's.
     """
-    pitch = getattr(sensor, "pixel_size_m", None)
+    pitch = getattr(sensor, "pixel_size_m", None) if pixel_size_m is None else pixel_size_m
     dx = getattr(oi, "sample_spacing_m", None)
     if pitch is None or dx is None:
         return
-    dx = float(torch.as_tensor(dx).max())
-    pitch = float(pitch)
+    if pixel_size_m is None:
+        dx, pitch = float(torch.as_tensor(dx).max()), float(pitch)
+    else:  # per item: the item whose samples are coarsest against its own pitch
+        pairs = torch.broadcast_tensors(torch.as_tensor(dx, dtype=torch.float64).detach().cpu().reshape(-1),
+                                        torch.as_tensor(pitch, dtype=torch.float64).detach().cpu().reshape(-1))
+        k = int((pairs[0] / pairs[1]).argmax())
+        dx, pitch = float(pairs[0][k]), float(pairs[1][k])
     if dx > pitch * (1 + 1e-6):
         import warnings
 

@@ -121,11 +121,10 @@ class StreamSource:
             raise ValueError(f"data.stream_chunk: expected a positive integer (training batches per stream batch), "
                              f"got {chunk!r}")
         self.chunk = chunk
-        # a step takes one stream batch with batch(k): on a CPU in two parts on two threads (72 ms a step against
-        # 89 ms fed by the stream's iterator, whose rendering threads then compete with the step's), from 8 items as
-        # the stream's default was until 2026-11-29, so a run's batches stay what they were
+        # a step takes one stream batch with batch(k): on a CPU in at least two parts, on two threads (72 ms a step
+        # against 89 ms fed by the stream's iterator, whose rendering threads then compete with the step's)
         n = self.batch_size * chunk
-        parts = 2 if dev.type == "cpu" and n >= 8 and not isinstance(camera, torch.nn.Module) else 1
+        parts = None if dev.type != "cpu" or n < 8 or isinstance(camera, torch.nn.Module) else max(2, n // 32)
         self.stream = PairStream(n, seed=int(cfg.get("seed", 0)) + int(seed_offset),
                                  scene=dict(d.get("scene") or {}, height=self.patch + 2, width=self.patch + 2),
                                  camera=camera, targets=("noise_free_raw", "camera_rgb"), device=dev, parts=parts)

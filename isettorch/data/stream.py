@@ -16,6 +16,7 @@ Batch ``k`` is a pure function of ``(seed, k, config, device type)``. Under ``to
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 from collections import OrderedDict
@@ -37,7 +38,7 @@ from .camera_pairs import (
     _xyz_weights,
     check_targets,
 )
-from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, seed_for
+from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for
 
 __all__ = ["PairStream", "StreamGroup"]
 
@@ -47,9 +48,9 @@ _SCENE_DRAWS = {"layouts": draw_layout_scenes, "natural": draw_natural_scenes}
 
 @dataclasses.dataclass
 class StreamGroup:
-    """The items of a batch that share one discrete camera (pixel pitch, CFA): ``index`` ``[b]`` (positions in the
-    batch), the ``camera`` (:class:`isettorch.Camera` whose optics hold the items' ``[b]`` f-numbers), the factored
-    ``scene`` ``[b]`` and the per-call sensor settings ``kwargs`` (``[b]`` tensors). ``camera(scene,
+    """The items of a batch that share one CFA: ``index`` ``[b]`` (positions in the batch), the ``camera``
+    (:class:`isettorch.Camera` whose optics hold the items' ``[b]`` f-numbers), the factored ``scene`` ``[b]`` and
+    the per-call sensor settings ``kwargs`` (``[b]`` tensors, the pixel pitch among them). ``camera(scene,
     return_intermediates=True, generator=g, **kwargs)`` renders exactly what the stream renders (with the noise of
     ``g``)."""
 
@@ -80,24 +81,24 @@ class PairStream:
         rank, world_size: this process's share of the batches (default: ``torch.distributed``'s when it is
             initialised, else 0 of 1).
         parts: a batch is drawn and rendered in this many parts of consecutive items, each with its own generators
-            (default 1). It is part of the config: batch ``k`` depends on it, not on ``threads``. Within a part, the
-            items are in the order of their drawn cameras (pixel pitch, then CFA). Parts let ``batch(k)`` called
-            directly use two threads from 32 items on (2 CPU cores, 128^2, ``batch(k)`` in a loop: batch 16 291
-            pairs/s in one part against 278 in two, batch 32 328 against 359, batch 64 350 against 421); the
-            iterator, which renders whole batches on threads, is faster with one (batch 64: 518 against 431
-            pairs/s on three threads).
+            (default: on a CPU without a camera module one per 32 items, at least one; else 1). It is part of the
+            config: batch ``k`` depends on it, not on ``threads``. Within a part, the items are in the order of their
+            drawn CFAs, and a part renders as one group per CFA: its tensors pad every item to the group's most
+            scene terms, so groups of about 32 items render fastest on a CPU (2 cores, 128^2, the iterator on
+            three threads against the README loader: batch 64 in two parts 1.23-1.30x, in one 1.10x, in four
+            1.09x; batch 128 in two or four parts 1.10-1.12x, in one 1.01x). Parts also let ``batch(k)``, called
+            directly, render on threads.
         threads: on a CPU, how many Python threads render (torch releases the GIL in its kernels; on other
-            devices 1). ``iter(stream)`` renders this many whole batches at once, each on its own thread with one
-            intra-op thread (default: torch's intra-op thread count, plus one from 64 items); ``batch(k)`` renders
-            its parts on up to this many threads (default: as many as parts, up to the intra-op thread count), each
-            with an equal share of the intra-op threads. Batches do not depend on it. Measured on 2 CPU cores at
-            128^2 against the README loader in alternating rounds (``benchmarks/THROUGHPUT.md``): three iterator
-            threads against two, batch 64 1.25x against 1.04x, batch 128 1.23x against 1.09x, but batch 16 0.76x
-            against 0.84x (more torch calls per pair: a third thread adds GIL contention). Each batch in flight
-            holds its temporaries: batch 64 at 256^2 peaked at 3.6 GB resident on three threads against 2.0 GB on
-            one (``threads=1``: in turn, on the caller's thread), for 138 against 95 pairs/s. Parts on threads are as
-            fast as one part on two intra-op threads when the cores are idle, 1.6x faster when another busy process
-            shares them (torch's intra-op workers wait for each other on every small op, the parts do not).
+            devices 1). ``iter(stream)`` renders this many whole batches at once, each on its own thread (default:
+            torch's intra-op thread count, plus one from 64 items); ``batch(k)`` renders its parts on up to this
+            many threads (default: as many as parts, up to the intra-op thread count). Without gradients or a
+            camera module a part renders on one intra-op thread either way. Batches do not depend on it.
+            Measured on 2 CPU cores at 128^2 against the README loader in alternating rounds
+            (``benchmarks/THROUGHPUT.md``): three iterator threads against two, batch 64 1.25x against 1.04x,
+            batch 128 1.23x against 1.09x, but batch 16 0.99x against 1.01x and batch 32 0.90x against 0.99x
+            (more torch calls per pair: a third thread adds GIL contention). Each batch in flight holds its
+            temporaries: batch 64 at 256^2 peaked at 3.6 GB resident on three threads against 2.0 GB on one
+            (``threads=1``: in turn, on the caller's thread), for 138 against 95 pairs/s.
 
     Each batch is a dict with ``raw`` ``[B, 1, H, W]`` and the targets in normalised raw units (0 = black,
     1 = white level), as :func:`~isettorch.data.camera_pairs.render_pairs`, and ``meta`` (``[B, ...]`` tensors of
@@ -142,8 +143,9 @@ class PairStream:
         if not 0 <= int(rank) < int(world_size):
             raise ValueError(f"rank: expected 0 <= rank < world_size = {world_size}, got {rank}")
         self.rank, self.world_size = int(rank), int(world_size)
-        if parts is None:
-            parts = 1
+        if parts is None:  # on a CPU one part per 32 items (see the docstring); on an accelerator one launch set
+            cpu = self.device.type == "cpu" and self.camera_module is None
+            parts = max(1, batch_size // 32) if cpu else 1
         if not isinstance(parts, int) or isinstance(parts, bool) or not 1 <= parts <= batch_size:
             raise ValueError(f"parts: expected an integer in [1, batch_size = {batch_size}], got {parts!r}")
         if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
@@ -199,9 +201,8 @@ class PairStream:
     def loader(self, num_workers: int = 2, *, prefetch_factor: int = 2):
         """This stream's batches rendered by worker processes, bitwise those of ``iter(self)`` in the same order
         (:func:`~isettorch.data.stream_workers.stream_loader`; a CPU stream without gradients): on 2 CPU cores
-        0.86-0.98x :func:`~isettorch.data.camera_pairs.batch_loader` with as many workers; the stream's own
-        iterator, GIL-bound at small batches, is 0.85x it at batch 16 and 1.1x from batch 64
-        (``benchmarks/THROUGHPUT.md``)."""
+        0.9x :func:`~isettorch.data.camera_pairs.batch_loader` with as many workers at batch 16, where the stream's
+        own iterator runs at 0.95-1.05x it (1.2x from batch 64; ``benchmarks/THROUGHPUT.md``)."""
         from .stream_workers import stream_loader
 
         return stream_loader(self, num_workers, prefetch_factor=prefetch_factor)
@@ -277,18 +278,20 @@ class PairStream:
         patterns = list(self.camera_config["cfa_patterns"])
         pitches = self.camera_config["pixel_size_m"]
         pitches = pitches if isinstance(pitches, (list, tuple)) else [pitches]
-        # groups: the discrete cameras of this part (pixel pitch, CFA). The part's drawn cameras are put in camera
-        # order (stable), so each group is a run of consecutive items: its scenes are views of the draw and the
-        # batch is its groups' outputs in order (items are i.i.d.: the order changes no item's distribution)
-        camera_key = d["pitch_index"] * len(patterns) + d["pattern_index"]
+        # groups: the CFAs of this part (the pixel pitch is a per-item sensor setting: one sample per pixel, the
+        # sensor's per-call pixel_size_m). The part's items are put in CFA order (stable), so each group is a run
+        # of consecutive items: its scenes are views of the draw and the batch is its groups' outputs in order
+        # (items are i.i.d.: the order changes no item's distribution)
+        camera_key = d["pattern_index"]
         order = torch.argsort(camera_key, stable=True)
         d = {key: v[order] for key, v in d.items()}
         keys, counts = torch.unique_consecutive(camera_key[order], return_counts=True)
+        nominal = min(float(p_) for p_ in pitches)  # the sensors' own pitch; each item renders at its own
         first = 0
         for c, count in zip(keys.tolist(), counts.tolist()):  # one host read per part
             idx = slice(first, first + count)
             first += count
-            pitch, pattern = float(pitches[c // len(patterns)]), patterns[c % len(patterns)]
+            pitch, pattern = d["pitch"][idx], patterns[c]
             optics_cfg = self.camera_config.get("optics") or {}
             if optics_cfg:
                 optics = cache.get_built_optics(optics_cfg)
@@ -299,7 +302,7 @@ class PairStream:
                 focal = d["focal"][idx]
                 optics = self._optics_for(pitch, d["f_number"][idx], focal, m)
                 image_distance = None
-            sensor = cache.get_sensor({"pitch": pitch, "fill": float(self.camera_config["fill_factor"]),
+            sensor = cache.get_sensor({"pitch": nominal, "fill": float(self.camera_config["fill_factor"]),
                                              "pattern": pattern, "bits": int(self.camera_config["bits"]),
                                              "black": float(self.camera_config["black_level_dn"]), "h": h, "w": w,
                                              "full_well": 1.0}).to(dev)
@@ -312,7 +315,8 @@ class PairStream:
                 hfov = _hfov_for(pitch, image_distance, w + 2 * m).expand(count)
             scene = self._scene(drawn, idx, wl, hfov, dist, k)
             cg = 1.0 / d["full_well"][idx]  # volts per electron with a 1 V swing: well capacity = full well
-            kw = {"analog_gain": d["gain"][idx], "exposure_ev": d["ev"][idx], "qe_scale": d["peak"][idx],
+            kw = {"pixel_size_m": pitch, "analog_gain": d["gain"][idx], "exposure_ev": d["ev"][idx],
+                  "qe_scale": d["peak"][idx],
                   "conversion_gain_v_per_e": cg, "read_noise_v": d["read_e"][idx] * cg,
                   "dark_current_e_per_s": d["dark"][idx], "dsnu_sigma_v": d["dsnu_e"][idx] * cg,
                   "prnu_sigma_percent": d["prnu"][idx]}
@@ -402,11 +406,16 @@ class PairStream:
         return out
 
     def _render_part(self, k: int, part: int) -> tuple[list, list]:
-        """Part ``part`` of batch ``k``: its groups and their outputs (the part's noise generator, in group order)."""
-        groups = self._draw_part(k, part)
-        noise = self._generator(k, 2, part)
-        with torch.set_grad_enabled(self.grad):  # grad mode is per thread
-            return groups, [self._render(grp, noise) for grp in groups]
+        """Part ``part`` of batch ``k``: its groups and their outputs (the part's noise generator, in group order).
+        On a CPU without gradients or a camera module the part renders on one intra-op thread, as
+        ``CameraPairDataset`` renders its items: some kernels (``irfft2`` at some sizes) round differently with more
+        threads, and a batch must not depend on the machine (the iterator renders batches on threads instead)."""
+        fixed = self.device.type == "cpu" and self.camera_module is None and not self.grad
+        with one_thread() if fixed else contextlib.nullcontext():
+            groups = self._draw_part(k, part)
+            noise = self._generator(k, 2, part)
+            with torch.set_grad_enabled(self.grad):  # grad mode is per thread
+                return groups, [self._render(grp, noise) for grp in groups]
 
     def _thread_count(self) -> int:
         """Threads rendering the parts: ``threads``, or on CPU as many as parts up to torch's intra-op threads (a
@@ -454,10 +463,12 @@ class PairStream:
         peak, qe = kw.pop("qe_scale", None), kw.pop("spectral_qe", None)
         gain, ev = kw.pop("analog_gain", None), kw.pop("exposure_ev", None)
         cg = kw.get("conversion_gain_v_per_e")
-        oi = camera.optical_image(scene)
+        pitch = kw.get("pixel_size_m")
+        oi = camera.optical_image(scene, pixel_size_m=pitch)
         grid = tuple(scene.wavelengths_nm.tolist())
         xyz_w, _, xyz_wt = _xyz_weights(grid)
-        rates, xyz_d = sensor.channel_rates(oi, xyz_wt if colour else None, qe_scale=peak, spectral_qe=qe)
+        rates, xyz_d = sensor.channel_rates(oi, xyz_wt if colour else None, qe_scale=peak, spectral_qe=qe,
+                                            pixel_size_m=pitch)
         mosaic = sensor.cfa.mosaic(rates)
         exposure = sensor.exposure_for(None, mosaic, gain, exposure_ev=ev, conversion_gain_v_per_e=cg)
         raw = sensor.capture(mosaic, exposure_s=exposure, analog_gain=gain, noise=camera.noise, generator=noise,
@@ -482,7 +493,8 @@ class PairStream:
         if colour:
             # XYZ scaled so a perfect white under light 1 has Y equal to its normalised green camera value
             k_white = white_cam[:, 1] / white_xyz[:, 1]
-            scale = k_white * sensor.fill_factor * sensor.pixel_area_m2 * exposure.to(f64) * to_norm
+            area = sensor.pixel_area_m2 if pitch is None else pitch.to(f64) ** 2  # [b] with per-item pitches
+            scale = k_white * sensor.fill_factor * area * exposure.to(f64) * to_norm
             xyz = xyz_d * scale.to(dt).reshape(-1, 1, 1, 1)
             if "xyz" in targets:
                 out["xyz"] = xyz
@@ -528,7 +540,7 @@ class PairStream:
             "exposure_s": t, "analog_gain": gain, "iso": 100.0 * gain,
             "f_number": optics.f_number.detach().to(f64).reshape(-1).expand(nb),
             "focal_length_m": optics.focal_length_m.detach().to(f64).reshape(-1).expand(nb),
-            "pixel_size_m": full * float(sensor.pixel_size_m), "full_well_e": 1.0 / cg,
+            "pixel_size_m": level("pixel_size_m", sensor.pixel_size_m), "full_well_e": 1.0 / cg,
             "read_noise_e": read_e, "dark_current_e_per_s": dark, "dsnu_sigma_e": dsnu_e,
             "prnu_sigma_percent": level("prnu_sigma_percent", 0.0),
             "black_level_dn": full * float(raw.black_level), "white_level_dn": full * float(raw.white_level),

@@ -49,7 +49,7 @@ class RawImage:
     analog_offset_v: float = 0.0
     conversion_gain_v_per_e: float | None = None
     voltage_swing_v: float | None = None
-    pixel_size_m: float | None = None
+    pixel_size_m: float | torch.Tensor | None = None  # [B] for a per-call pitch (Sensor.forward)
     fill_factor: float | None = None
     adc_bits: int | None = None
     noise: dict[str, Any] = dataclasses.field(default_factory=dict)

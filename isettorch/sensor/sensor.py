@@ -420,14 +420,15 @@ class Sensor(nn.Module):
             return oi.project(self.spectral_weights(oi, spectral_qe))
         return electron_rate_density(oi.photons, self.qe(oi, spectral_qe), oi.wavelengths_nm)
 
-    def electron_rate(self, oi: OpticalImage, *, qe_scale=None, spectral_qe: SpectralQE | None = None
-                      ) -> torch.Tensor:
+    def electron_rate(self, oi: OpticalImage, *, qe_scale=None, spectral_qe: SpectralQE | None = None,
+                      pixel_size_m=None) -> torch.Tensor:
         """Mean photo-electrons per second per pixel ``[B, 1, rows, cols]`` (before PRNU and noise)."""
-        rates, _ = self.channel_rates(oi, qe_scale=qe_scale, spectral_qe=spectral_qe)
+        rates, _ = self.channel_rates(oi, qe_scale=qe_scale, spectral_qe=spectral_qe, pixel_size_m=pixel_size_m)
         return self.cfa.mosaic(rates)
 
     def channel_rates(self, oi: OpticalImage, extra_weights: torch.Tensor | None = None, *, qe_scale=None,
-                      spectral_qe: SpectralQE | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+                      spectral_qe: SpectralQE | None = None, pixel_size_m=None
+                      ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Mean photo-electrons/s of **every** channel at every pixel ``[B, C, rows, cols]`` (the CFA's mosaic of
         it is :meth:`electron_rate`), and optionally other spectral projections sampled the same way.
 
@@ -440,6 +441,11 @@ class Sensor(nn.Module):
             spectral_qe: optional per-call :class:`SpectralQE` used instead of the sensor's: one for the batch, or
                 per item (filters ``[B, C, Ln]``, e.g. :func:`~isettorch.sensor.filters.shifted_qe`), so one module
                 serves sensors that differ only by their QE curves.
+            pixel_size_m: optional per-call pixel pitch (scalar or ``[B]``, metres) used instead of the sensor's,
+                so one module serves sensors that differ only by their pitch (a batch of cameras with drawn pixel
+                sizes). Each item must have one optical-image sample per pixel (its OI spacing equal to its pitch,
+                the sensor's rows and cols set, area sampling, no pixel optics): the pixel then reads its own
+                sample, and its photodiode area ``fill_factor x pitch^2`` scales the rate.
 
         Returns:
             ``(rates [B, C, rows, cols], extra [B, K, rows, cols] or None)``; ``extra`` is the pixel mean of the
@@ -449,18 +455,22 @@ class Sensor(nn.Module):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
         po = self.pixel_optics
         c = len(self.cfa.channel_names)
+        pitch = None if pixel_size_m is None else self._call_pitch(pixel_size_m, oi)
+        sample = self.sample if pitch is None else self._sample_own
         if po is not None and po.wavelength_dependent:
             sampled = self._sample_with_spectral_etendue(oi, extra_weights, spectral_qe)
         elif extra_weights is None:
             density = self.electron_rate_density(oi, spectral_qe)  # e-/s/m^2 per filter
-            sampled = self.sample(density, oi)
+            sampled = sample(density, oi)
         else:
             density = oi.project(self._joint_weights(oi, extra_weights, spectral_qe))
-            sampled = self.sample(density, oi)
+            sampled = sample(density, oi)
         # with pixel optics in the physical convention the light of the whole pixel meets the etendue, which
         # holds the photodiode's width; otherwise the photodiode's area (ISETCam sensorCompute)
         physical = po is not None and po.convention == "physical"
         area = self.pixel_area_m2 if physical else self.fill_factor * self.pixel_area_m2
+        if pitch is not None:  # per item: [B, 1, 1, 1]
+            area = (self.fill_factor * pitch * pitch).to(sampled.dtype).reshape(-1, 1, 1, 1)
         if qe_scale is None:
             rates = sampled[:, :c] * area
         elif isinstance(qe_scale, (int, float)) and not isinstance(qe_scale, bool):
@@ -548,6 +558,31 @@ class Sensor(nn.Module):
                 return density[..., dr // 2:dr // 2 + rows, dc // 2:dc // 2 + cols]
         recon = "linear" if self.sampling == "area_linear" else "constant"
         return sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor, recon)
+
+    def _call_pitch(self, pixel_size_m, oi: OpticalImage) -> torch.Tensor:
+        """A per-call pixel pitch as ``[B]`` float64 on the OI's device, checked: every item has one OI sample
+        per pixel (see :meth:`channel_rates`)."""
+        dx = oi.sample_spacing_m.detach()
+        p = batch_param(pixel_size_m, "pixel_size_m", oi.batch_size, dtype=torch.float64, device=dx.device,
+                        positive=True)
+        if self.sampling != "area" or self.pixel_optics is not None or self.rows is None or self.cols is None:
+            raise ValueError(f"pixel_size_m: a per-call pixel size needs one optical-image sample per pixel (area "
+                             f"sampling, rows and cols set, no pixel optics); this sensor has sampling="
+                             f"{self.sampling!r}, rows={self.rows}, cols={self.cols}, pixel_optics="
+                             f"{type(self.pixel_optics).__name__ if self.pixel_optics is not None else None}")
+        dr, dc = oi.height - self.rows, oi.width - self.cols
+        eps = torch.finfo(dx.dtype).eps
+        if dr < 0 or dc < 0 or dr % 2 or dc % 2 or not bool(((dx.to(p.dtype) / p - 1).abs() <= 4 * eps).all()):
+            raise ValueError(f"pixel_size_m: expected each item's optical-image spacing to equal its pixel size "
+                             f"(one sample per pixel) on an image at least the sensor's size, with an even margin; "
+                             f"got spacings {dx.tolist()} m, pixel sizes {p.tolist()} m, image {oi.height}x"
+                             f"{oi.width} for a {self.rows}x{self.cols} sensor")
+        return p
+
+    def _sample_own(self, density: torch.Tensor, oi: OpticalImage) -> torch.Tensor:
+        """Each pixel's own sample (one OI sample per pixel, centred; :meth:`_call_pitch` checked it)."""
+        dr, dc = (oi.height - self.rows) // 2, (oi.width - self.cols) // 2
+        return density[..., dr:dr + self.rows, dc:dc + self.cols]
 
     def _same_grid(self, dx: torch.Tensor) -> bool:
         """Whether the OI spacings ``dx [B]`` equal the pixel pitch to a few eps of their dtype (memoised per
@@ -691,7 +726,7 @@ class Sensor(nn.Module):
     # --- forward -----------------------------------------------------------------------------
     def forward(self, oi: OpticalImage, *, exposure_s=None, analog_gain=None, noise: bool = True,
                 generator: torch.Generator | None = None, exposure_ev=None, qe_scale=None,
-                spectral_qe: SpectralQE | None = None, **levels) -> RawImage:
+                spectral_qe: SpectralQE | None = None, pixel_size_m=None, **levels) -> RawImage:
         """Simulate a capture of ``oi``; returns a :class:`RawImage` ``[B, 1, rows, cols]``.
 
         Args:
@@ -705,22 +740,23 @@ class Sensor(nn.Module):
             qe_scale: per-sample factor on the spectral QE (see :meth:`channel_rates`).
             spectral_qe: a per-call :class:`SpectralQE` (one, or per item ``[B, C, Ln]``) used instead of the
                 sensor's (see :meth:`channel_rates`); the raw carries it.
+            pixel_size_m: a per-call pixel pitch, scalar or ``[B]`` (see :meth:`channel_rates`); the raw carries it.
             levels: per-call values (scalar or ``[B]``) of :data:`PER_CALL_LEVELS` (``read_noise_v``,
                 ``dark_current_e_per_s``, ``dsnu_sigma_v``, ``prnu_sigma_percent``, ``column_fpn_sigma_v``,
                 ``conversion_gain_v_per_e``), e.g. to randomise noise per sample without rebuilding the module.
         """
         if not isinstance(oi, OpticalImage):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
-        rate = self.electron_rate(oi, qe_scale=qe_scale, spectral_qe=spectral_qe)
+        rate = self.electron_rate(oi, qe_scale=qe_scale, spectral_qe=spectral_qe, pixel_size_m=pixel_size_m)
         if exposure_s is None:
             exposure_s = self.exposure_for(oi, rate, analog_gain, exposure_ev=exposure_ev,
                                            conversion_gain_v_per_e=levels.get("conversion_gain_v_per_e"))
         return self.capture(rate, exposure_s=exposure_s, analog_gain=analog_gain, noise=noise, generator=generator,
-                            spectral_qe=spectral_qe, **levels)
+                            spectral_qe=spectral_qe, pixel_size_m=pixel_size_m, **levels)
 
     def capture(self, electron_rate: torch.Tensor, *, exposure_s=None, analog_gain=None, noise: bool = True,
                 generator: torch.Generator | None = None, spectral_qe: SpectralQE | None = None,
-                **levels) -> RawImage:
+                pixel_size_m=None, **levels) -> RawImage:
         """The capture from a precomputed mean electron rate (what :meth:`forward` does after
         :meth:`electron_rate`): exposure, noise, analog gain, ADC.
 
@@ -732,6 +768,8 @@ class Sensor(nn.Module):
             analog_gain, noise, generator, levels: as in :meth:`forward`.
             spectral_qe: the per-call QE the rate was computed with (:meth:`forward`), carried by the raw (default:
                 the sensor's).
+            pixel_size_m: the per-call pixel pitch the rate was computed with, scalar or ``[B]``, carried by the
+                raw (default: the sensor's).
 
         Example:
             >>> s = Sensor(rows=2, cols=2, cfa="RGGB", adc_bits=10)
@@ -771,12 +809,14 @@ class Sensor(nn.Module):
             data = self._to_units(clean_v, quantize=True, cg=cg)
 
         cg_out = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
+        pitch = self.pixel_size_m if pixel_size_m is None else batch_param(
+            pixel_size_m, "pixel_size_m", b, dtype=torch.float64, device=device, positive=True)
         white = {"volts": swing, "electrons": swing / cg_out, "dn": self.white_level_dn}[self.output_units]
         black = self.black_level_dn if self.output_units == "dn" else 0.0
         return RawImage(
             data=data, units=self.output_units, cfa=self.cfa, black_level=black, white_level=white,
             exposure_s=t, analog_gain=gain, analog_offset_v=self.analog_offset_v,
-            conversion_gain_v_per_e=cg_out, voltage_swing_v=swing, pixel_size_m=self.pixel_size_m,
+            conversion_gain_v_per_e=cg_out, voltage_swing_v=swing, pixel_size_m=pitch,
             fill_factor=self.fill_factor, adc_bits=self.adc_bits, noise=self.noise_parameters(enabled=noise, **lv),
             noise_free=noise_free, electrons=photo_e,
             metadata={"sensor": self.name, "sampling": self.sampling, "gain_convention": self.gain_convention},

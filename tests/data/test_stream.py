@@ -98,12 +98,15 @@ def test_parts_render_on_threads_without_changing_the_batch(stream_equals_camera
     assert torch.equal((raw.data - raw.black_level) / (raw.white_level - raw.black_level), got)
     # the two parts are independent draws, not copies
     assert not torch.equal(a["noise_free_raw"][:4], a["noise_free_raw"][4:])
-    # the default: one part (the iterator renders whole batches on threads)
-    assert PairStream(32, scene=SMALL).parts == 1
+    # the default on a CPU: one part per 32 items (at least one); one with a camera module
+    assert [PairStream(n, scene=SMALL).parts for n in (4, 32, 63, 64, 128)] == [1, 1, 1, 2, 4]
     with pytest.raises(ValueError, match="parts"):
         PairStream(4, scene=SMALL, parts=5)
     with pytest.raises(ValueError, match="threads"):
         PairStream(4, scene=SMALL, threads=0)
+
+
+FOUR_CFAS = {"cfa_patterns": ["RGGB", "GRBG", "GBRG", "BGGR"]}  # one render group per CFA: small groups
 
 
 def test_batch_does_not_depend_on_the_intra_op_thread_count():
@@ -125,11 +128,12 @@ def test_batch_does_not_depend_on_the_intra_op_thread_count():
             camera = Camera(DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3, learn_f_number=True),
                             Sensor(rows=128, cols=128, pixel_size_m=2.0e-6, cfa="RGGB", learnable_filters=True))
             graph = PairStream(1, seed=0, scene={"height": 128, "width": 128}, camera=camera, grad=True).batch(0)
-            out[threads] = [PairStream(1, seed=0).batch(2), PairStream(16, seed=0, parts=2, threads=1).batch(3),
+            out[threads] = [PairStream(1, seed=0).batch(2), PairStream(16, seed=0, camera=FOUR_CFAS, parts=2,
+                                                                      threads=1).batch(3),
                             {k: v.detach() for k, v in graph.items() if k != "meta"}]
     finally:
         torch.set_num_threads(n)
-    assert any(g.index.numel() == 1 for g in PairStream(16, seed=0, parts=2).draw(3))
+    assert any(g.index.numel() == 1 for g in PairStream(16, seed=0, camera=FOUR_CFAS, parts=2).draw(3))
     for a, b in zip(out[1], out[2]):
         for key in a:
             if key != "meta":

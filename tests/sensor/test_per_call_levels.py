@@ -81,3 +81,41 @@ def test_percentile_matches_numpy(n):
     for p in (0.0, 12.5, 50.0, 98.0, 100.0):
         np.testing.assert_allclose(percentile_linear(x, p).numpy(), np.percentile(x.numpy(), p, axis=1),
                                    rtol=1e-14, atol=0)
+
+
+def test_per_call_pixel_size_equals_a_sensor_of_that_pitch_per_item():
+    """A per-call pixel pitch ``[B]`` (one OI sample per pixel, each item at its own spacing): each item's channel
+    rates and capture equal those of a sensor built with that item's pitch (the photodiode area fill x pitch^2 is
+    the only difference: ISETCam sensorCompute), the raw carries the pitches, and the sensor's own pitch is not
+    used. Bad input names ``pixel_size_m``."""
+    g = torch.Generator().manual_seed(4)
+    pitches = torch.tensor([1.4e-6, 2.8e-6, 2.0e-6], dtype=torch.float64)
+    photons = torch.rand(3, 31, 20, 20, generator=g, dtype=torch.float64) * 1e17
+    waves = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    oi = OpticalImage(photons, waves, sample_spacing_m=pitches)
+    kw = dict(rows=16, cols=16, cfa="RGGB", adc_bits=12, fill_factor=0.6)
+    merged = Sensor(pixel_size_m=1.4e-6, **kw)
+    rates, _ = merged.channel_rates(oi, qe_scale=torch.tensor([0.5, 0.7, 0.9], dtype=torch.float64),
+                                     pixel_size_m=pitches)
+    raw = merged(oi, exposure_s=0.004, noise=False, pixel_size_m=pitches)
+    assert torch.equal(raw.pixel_size_m, pitches)
+    for i, p in enumerate(pitches.tolist()):
+        own = Sensor(pixel_size_m=p, **kw)
+        one = OpticalImage(photons[i:i + 1], waves, sample_spacing_m=p)
+        ref, _ = own.channel_rates(one, qe_scale=[0.5, 0.7, 0.9][i])
+        torch.testing.assert_close(rates[i:i + 1], ref, rtol=1e-14, atol=0)
+        clean = own(one, exposure_s=0.004, noise=False).noise_free
+        torch.testing.assert_close(raw.noise_free[i:i + 1], clean, rtol=1e-12, atol=0)
+    # area: the rates scale with the pitch squared for the same irradiance
+    same = OpticalImage(photons[:1].expand(3, -1, -1, -1), waves, sample_spacing_m=pitches)
+    r3, _ = merged.channel_rates(same, pixel_size_m=pitches)
+    torch.testing.assert_close(r3 / r3[:1], (pitches / pitches[0]).pow(2).reshape(3, 1, 1, 1).expand_as(r3),
+                               rtol=1e-12, atol=0)
+    with pytest.raises(ValueError, match="pixel_size_m"):  # a spacing that is not the pitch
+        merged.channel_rates(oi, pixel_size_m=2.0e-6)
+    with pytest.raises(ValueError, match="pixel_size_m"):
+        merged.channel_rates(oi, pixel_size_m=-pitches)
+    with pytest.raises(ValueError, match="pixel_size_m"):  # needs one sample per pixel with area sampling
+        Sensor(pixel_size_m=1.4e-6, sampling="isetcam", **kw).channel_rates(oi, pixel_size_m=pitches)
+    with pytest.raises(ValueError, match="pixel_size_m"):  # and a fixed size
+        Sensor(pixel_size_m=1.4e-6, cfa="RGGB").channel_rates(oi, pixel_size_m=pitches)
