@@ -10,6 +10,7 @@ Keys are checked against each constructor's arguments; a mistyped key names the 
 from __future__ import annotations
 
 import difflib
+import functools
 import inspect
 from pathlib import Path
 
@@ -20,7 +21,10 @@ __all__ = ["build_optics", "OPTICS_TYPES"]
 OPTICS_TYPES = ("diffraction_limited", "wavefront", "zernike", "psf_file", "lens")
 
 
-def _keys(cls) -> set[str]:
+@functools.cache
+def _keys(cls) -> frozenset[str]:
+    """The constructor keywords of an optics class and its bases (memoised: a camera-pair stream builds an optics
+    module per group and batch)."""
     keys = set()
     for c in cls.__mro__:
         if c is nn.Module or c is object:
@@ -29,7 +33,7 @@ def _keys(cls) -> set[str]:
             keys |= {n for n, p in inspect.signature(c.__init__).parameters.items()
                      if n != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
     keys.discard("dtype")
-    return keys
+    return frozenset(keys)
 
 
 def _check(cfg: dict, valid: set[str], kind: str) -> None:
