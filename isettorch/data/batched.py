@@ -14,6 +14,7 @@ the maximum with inactive entries, so every item of a batch has the same tensor 
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -52,10 +53,16 @@ def _uniform(rng, u: torch.Tensor) -> torch.Tensor:
 def _choice(weights: dict, u: torch.Tensor, names: tuple) -> torch.Tensor:
     """Codes (indices into ``names``, which are sorted) drawn with probability proportional to ``weights`` by the
     inverse CDF of ``u`` [B] (as :func:`isettorch.data.scenes._choice`); zero weights are never drawn."""
-    w = torch.tensor([float(weights.get(n, 0.0)) for n in names], dtype=torch.float64, device=u.device)
-    cum = torch.cumsum(w, 0)
-    idx = torch.searchsorted(cum, (u * cum[-1]).contiguous(), right=True)
+    cum, total = _cumulative(tuple(float(weights.get(n, 0.0)) for n in names), str(u.device))
+    idx = torch.searchsorted(cum, (u * total).contiguous(), right=True)
     return idx.clamp_max(len(names) - 1)
+
+
+@functools.lru_cache(maxsize=64)
+def _cumulative(weights: tuple, device: str) -> tuple[torch.Tensor, float]:
+    """The cumulative weights on ``device`` and their total (memoised: drawn a few times per batch)."""
+    cum = torch.cumsum(torch.tensor(weights, dtype=torch.float64), 0)
+    return cum.to(device), float(cum[-1])
 
 
 def _grid(h, w, device, dtype):

@@ -387,27 +387,41 @@ class Sensor(nn.Module):
         """Combined spectral QE on the OI's wavelengths ``[C, L]`` (cached per grid), or ``[B, C, L]`` for a
         per-item QE (``spectral_qe``: a per-call :class:`SpectralQE` instead of the sensor's, see :meth:`forward`)."""
         qe_mod = self._qe_module(spectral_qe, oi.batch_size)
-        return qe_mod(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device)
+        key = self._qe_cache_key(qe_mod, oi, "qe")
+        hit = None if key is None else self._weights_cache.get(key)
+        if hit is not None and hit[0] is qe_mod:
+            return hit[1]
+        out = qe_mod(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device)
+        self._qe_cache_put(key, qe_mod, out)
+        return out
+
+    def _qe_cache_key(self, qe_mod, oi: OpticalImage, kind: str) -> tuple | None:
+        """The cache key of a QE term of ``oi``'s grid, or None where it must be evaluated (a learnable QE, or one
+        per item)."""
+        if getattr(qe_mod, "learnable", True) or getattr(qe_mod, "batch_size", None) is not None:
+            return None
+        return (kind, id(qe_mod), getattr(getattr(qe_mod, "fixed_filters", None), "_version", None),
+                tuple(oi.wavelengths_nm.tolist()), oi.dtype, str(oi.device))
+
+    def _qe_cache_put(self, key: tuple | None, qe_mod, out: torch.Tensor) -> None:
+        if key is None:
+            return
+        if len(self._weights_cache) > 32:
+            self._weights_cache.clear()
+        self._weights_cache[key] = (qe_mod, out)  # the module is kept: its id cannot be reused while cached
 
     def spectral_weights(self, oi: OpticalImage, spectral_qe: SpectralQE | None = None) -> torch.Tensor:
         """``QE_c(l) dl`` as ``[L, C]`` (``[B, L, C]`` for a per-item QE): the projection from irradiance
         (photons/s/m^2/nm) to electrons/s/m^2 (cached per QE module and grid unless the QE is learnable or per
         item). ``spectral_qe``: as in :meth:`qe`."""
         qe_mod = self._qe_module(spectral_qe, oi.batch_size)
-        cacheable = not getattr(qe_mod, "learnable", True) and getattr(qe_mod, "batch_size", None) is None
-        if cacheable:
-            key = (id(qe_mod), getattr(getattr(qe_mod, "fixed_filters", None), "_version", None),
-                   tuple(oi.wavelengths_nm.tolist()), oi.dtype, str(oi.device))
-            hit = self._weights_cache.get(key)
-            # the module is kept in the entry: its id cannot be reused while it is cached
-            if hit is not None and hit[0] is qe_mod:
-                return hit[1]
+        key = self._qe_cache_key(qe_mod, oi, "weights")
+        hit = None if key is None else self._weights_cache.get(key)
+        if hit is not None and hit[0] is qe_mod:
+            return hit[1]
         dl = spectral.wavelength_weights(oi.wavelengths_nm).to(device=oi.device, dtype=oi.dtype)
         out = (qe_mod(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device) * dl).transpose(-2, -1)
-        if cacheable:
-            if len(self._weights_cache) > 16:
-                self._weights_cache.clear()
-            self._weights_cache[key] = (qe_mod, out)
+        self._qe_cache_put(key, qe_mod, out)
         return out
 
     def electron_rate_density(self, oi: OpticalImage, spectral_qe: SpectralQE | None = None) -> torch.Tensor:
