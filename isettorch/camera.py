@@ -141,7 +141,7 @@ class Camera(nn.Module):
         spacing = info["sample_spacing_m"].detach()
         dx = float(spacing.min())
         per_item = torch.as_tensor(pitches, dtype=spacing.dtype, device=spacing.device)
-        pitch = float(per_item.max())
+        pitch = max(pitches) if isinstance(pitches, tuple) else float(pitches)  # in float64, as the sensor's
         margin = self.sensor_window_margin + math.ceil(pitch / dx)
         # One OI sample per pixel (the grids coincide to the geometry's float rounding) and area sampling: each
         # pixel reads only its own sample, so the window is the sensor's footprint (no sampling margin)
