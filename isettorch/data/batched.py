@@ -30,7 +30,10 @@ _DEFAULT_CCT = {"daylight": (4000.0, 25000.0), "blackbody": (2000.0, 10000.0), "
 
 
 def _u(g, shape, lo=0.0, hi=1.0, *, device, dtype=torch.float64):
-    return torch.rand(shape, generator=g, device=device, dtype=dtype) * (hi - lo) + lo
+    r = torch.rand(shape, generator=g, device=device, dtype=dtype)
+    if lo == 0.0 and hi > 0.0:  # the same values without the no-op multiply by 1 and add of 0
+        return r if hi == 1.0 else r * hi
+    return r * (hi - lo) + lo
 
 
 def _ri(g, lo: int, hi: int, shape, *, device):
@@ -66,6 +69,12 @@ def _cumulative(weights: tuple, device: str) -> tuple[torch.Tensor, float]:
 
 
 def _grid(h, w, device, dtype):
+    """Row and column coordinates ``[H, W]`` (read-only views, memoised per size, device and dtype)."""
+    return _grid_cached(int(h), int(w), str(torch.device(device)), dtype)
+
+
+@functools.lru_cache(maxsize=32)
+def _grid_cached(h, w, device, dtype):
     y = torch.arange(h, device=device, dtype=dtype)[:, None].expand(h, w)
     x = torch.arange(w, device=device, dtype=dtype)[None, :].expand(h, w)
     return y, x
