@@ -68,13 +68,9 @@ def _cumulative(weights: tuple, device: str) -> tuple[torch.Tensor, float]:
     return cum.to(device), float(cum[-1])
 
 
+@functools.lru_cache(maxsize=32)
 def _grid(h, w, device, dtype):
     """Row and column coordinates ``[H, W]`` (read-only views, memoised per size, device and dtype)."""
-    return _grid_cached(int(h), int(w), str(torch.device(device)), dtype)
-
-
-@functools.lru_cache(maxsize=32)
-def _grid_cached(h, w, device, dtype):
     y = torch.arange(h, device=device, dtype=dtype)[:, None].expand(h, w)
     x = torch.arange(w, device=device, dtype=dtype)[None, :].expand(h, w)
     return y, x

@@ -401,7 +401,17 @@ class Sensor(nn.Module):
         if getattr(qe_mod, "learnable", True) or getattr(qe_mod, "batch_size", None) is not None:
             return None
         return (kind, id(qe_mod), getattr(getattr(qe_mod, "fixed_filters", None), "_version", None),
-                tuple(oi.wavelengths_nm.tolist()), oi.dtype, str(oi.device))
+                self._grid_key(oi.wavelengths_nm), oi.dtype, str(oi.device))
+
+    def _grid_key(self, wavelengths_nm: torch.Tensor) -> tuple:
+        """A wavelength grid's values as a tuple, memoised for the last grid tensor seen (a batch's calls share
+        one; the entry keeps it alive, so its id is not reused)."""
+        memo = self.__dict__.get("_grid_key_memo")
+        if memo is not None and memo[0] is wavelengths_nm and memo[1] == wavelengths_nm._version:
+            return memo[2]
+        key = tuple(wavelengths_nm.tolist())
+        self.__dict__["_grid_key_memo"] = (wavelengths_nm, wavelengths_nm._version, key)
+        return key
 
     def _qe_cache_put(self, key: tuple | None, qe_mod, out: torch.Tensor) -> None:
         if key is None:
