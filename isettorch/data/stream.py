@@ -201,8 +201,8 @@ class PairStream:
     def loader(self, num_workers: int = 2, *, prefetch_factor: int = 2):
         """This stream's batches rendered by worker processes, bitwise those of ``iter(self)`` in the same order
         (:func:`~isettorch.data.stream_workers.stream_loader`; a CPU stream without gradients): on 2 CPU cores
-        0.9x :func:`~isettorch.data.camera_pairs.batch_loader` with as many workers at batch 16, where the stream's
-        own iterator runs at 0.95-1.05x it (1.2x from batch 64; ``benchmarks/THROUGHPUT.md``)."""
+        0.9-1.0x :func:`~isettorch.data.camera_pairs.batch_loader` with as many workers at batch 16, where the
+        stream's own iterator runs at 1.00-1.03x it (1.1-1.3x from batch 64; ``benchmarks/THROUGHPUT.md``)."""
         from .stream_workers import stream_loader
 
         return stream_loader(self, num_workers, prefetch_factor=prefetch_factor)
