@@ -151,6 +151,9 @@ class PairStream:
         if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
             raise ValueError(f"threads: expected a positive integer or None, got {threads!r}")
         self.parts, self.threads = parts, threads
+        # drawn cameras on a CPU without gradients: each part renders on one intra-op thread (_render_part), and the
+        # iterator renders whole batches on threads (_pipeline_width)
+        self._cpu_batches = self.device.type == "cpu" and self.camera_module is None and not self.grad
         # part p holds items [start_p, start_p + size_p): sizes differ by at most one
         sizes = [batch_size // parts + (p < batch_size % parts) for p in range(parts)]
         self._part_starts = [sum(sizes[:p]) for p in range(parts)]
@@ -410,8 +413,7 @@ class PairStream:
         On a CPU without gradients or a camera module the part renders on one intra-op thread, as
         ``CameraPairDataset`` renders its items: some kernels (``irfft2`` at some sizes) round differently with more
         threads, and a batch must not depend on the machine (the iterator renders batches on threads instead)."""
-        fixed = self.device.type == "cpu" and self.camera_module is None and not self.grad
-        with one_thread() if fixed else contextlib.nullcontext():
+        with one_thread() if self._cpu_batches else contextlib.nullcontext():
             groups = self._draw_part(k, part)
             noise = self._generator(k, 2, part)
             with torch.set_grad_enabled(self.grad):  # grad mode is per thread
@@ -430,7 +432,7 @@ class PairStream:
         """Batches the iterator renders at once: ``threads`` (default torch's intra-op thread count, plus one from
         64 items, where a thread waiting for the GIL leaves its core to the extra one) on a CPU without a camera
         module or gradients; else 1 (in turn, on the caller's thread)."""
-        if self.device.type != "cpu" or self.camera_module is not None or self.grad:
+        if not self._cpu_batches:
             return 1
         if self.threads is not None:
             return self.threads
