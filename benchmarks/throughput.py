@@ -171,7 +171,7 @@ def stream_rate(size: int, count: int, batch: int, device: torch.device, targets
                 seed: int = 0) -> tuple[float, float]:
     """(pairs/s, peak memory MB) of ``PairStream(batch, scene size)`` consumed in this process as a training loop
     consumes it, ``next(iter(stream))`` (on a CPU, whole batches render on threads while the previous one is used;
-    see ``PairStream.__iter__``): the median of ``repeats`` runs of ``count // batch`` batches, after one warm-up
+    see ``PairStream.__iter__``): the median of ``repeats`` timed runs of :func:`iter_rates`, after one warm-up
     batch (peak CUDA memory allocated, or the process's peak resident memory on CPU)."""
     import resource
 
@@ -181,39 +181,33 @@ def stream_rate(size: int, count: int, batch: int, device: torch.device, targets
     stream.batch(10_000)  # warm-up: caches, imports, OTF rows of the first cameras
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
-    nb = max(1, count // batch)
-    rates, it = [], iter(stream)
-    for _ in range(stream._pipeline_width() + 1):  # steady state (see iter_rate)
-        next(it)
-    nb = max(nb, 8)
-    for _ in range(repeats):
-        _sync(device)
-        t0 = time.perf_counter()
-        for _ in range(nb):
-            next(it)
-        _sync(device)
-        rates.append(nb * batch / (time.perf_counter() - t0))
-    it.close()
+    rates = iter_rates(stream, count, repeats)
     peak = (torch.cuda.max_memory_allocated(device) if device.type == "cuda"
             else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024) / 2**20
     return statistics.median(rates), peak
 
 
-def iter_rate(stream, count: int, min_batches: int = 8) -> float:
-    """Pairs/s of a fresh ``iter(stream)`` over ``count`` pairs (at least ``min_batches`` batches) in steady state:
-    the clock starts after as many batches as the iterator renders at once, plus one (the first batches all start
-    together, so the ones right after the first would come early and inflate a short run)."""
+def iter_rates(stream, count: int, repeats: int = 1, min_batches: int = 8) -> list[float]:
+    """Pairs/s of ``repeats`` consecutive runs of ``count`` pairs (at least ``min_batches`` batches) of a fresh
+    ``iter(stream)`` in steady state: the clock starts after as many batches as the iterator renders at once, plus
+    one (the first batches all start together, so the ones right after the first would come early and inflate a
+    short run)."""
     it = iter(stream)
     for _ in range(stream._pipeline_width() + 1):
         next(it)
     nb = max(min_batches, count // stream.batch_size)
-    t0 = time.perf_counter()
-    for _ in range(nb):
-        next(it)
-    rate = nb * stream.batch_size / (time.perf_counter() - t0)
+    rates = []
+    for _ in range(repeats):
+        _sync(stream.device)
+        t0 = time.perf_counter()
+        for _ in range(nb):
+            next(it)
+        _sync(stream.device)
+        rates.append(nb * stream.batch_size / (time.perf_counter() - t0))
     it.close()
-    time.sleep(0.5)  # batches still in flight finish before the next measurement
-    return rate
+    if stream._pipeline_width() > 1:
+        time.sleep(0.5)  # batches still in flight finish before the next measurement
+    return rates
 
 
 def data_share(device: torch.device, steps: int = 8, repeats: int = 3) -> dict:
@@ -327,7 +321,7 @@ def stream_main(args) -> None:
         rounds = []
         for _ in range(args.stream_ab):
             loader = loader_rate(31, 128, n, args.workers, batched=True, batch=b, repeats=1)[0]
-            rounds.append((loader, [iter_rate(st, max(n, st.batch_size)) for st in streams]))
+            rounds.append((loader, [iter_rates(st, max(n, st.batch_size))[0] for st in streams]))
         lines.append(f"| README loader, alternating with the streams below ({', '.join(f'{r[0]:.0f}' for r in rounds)}"
                      f") | 128 | all | {statistics.median(r[0] for r in rounds):.0f} | | {load()} |")
         for i, sb in enumerate(sizes):
