@@ -39,3 +39,17 @@ def test_bilinear_matches_colour_demosaicing():
 def test_bad_models_argument_names_itself():
     with pytest.raises(ValueError, match="--models"):
         dpp.main(["--models", "no_path_given", "--threads", "1"])
+
+
+def test_folder_photos_are_read_sorted_and_cut_to_whole_cells(tmp_path):
+    from PIL import Image
+
+    rng = np.random.default_rng(0)
+    odd = rng.integers(0, 256, (7, 9, 3), dtype=np.uint8)
+    even = rng.integers(0, 256, (6, 8, 3), dtype=np.uint8)
+    Image.fromarray(odd).save(tmp_path / "b.png")
+    Image.fromarray(even).save(tmp_path / "a.png")
+    photos = dpp.folder_photos(tmp_path)
+    assert [n for n, _ in photos] == ["a.png", "b.png"]
+    np.testing.assert_array_equal(photos[0][1], even)
+    np.testing.assert_array_equal(photos[1][1], odd[:6, :8])  # the last odd row and column dropped
