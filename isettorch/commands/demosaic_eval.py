@@ -114,9 +114,14 @@ def run(args) -> int:
     elif args.model_class is not None or args.model_kwargs is not None:
         raise ValueError("--model-class/--model-kwargs: only with --model FILE")
     extra = {"self_ensemble": args.self_ensemble} if args.self_ensemble else {}  # evaluate_demosaic checks the method
-    res = evaluate_demosaic(images, args.method, args.pattern.upper(), args.crop, dtype=dtype,
-                            device=device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
-                            seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet, **extra)
+    try:
+        res = evaluate_demosaic(images, args.method, args.pattern.upper(), args.crop, dtype=dtype,
+                                device=device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
+                                seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet, **extra)
+    except ValueError as err:  # an image the method cannot take (e.g. odd-sized for a network): named with DIR
+        if not str(err).startswith("images: "):
+            raise
+        raise ValueError(f"DIR: {str(err).removeprefix('images: ')}") from err
     if args.json:
         res["mean_cpsnr"] = _finite_or_none(res["mean_cpsnr"])
         for item in res["images"]:

@@ -245,11 +245,14 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
             truth = torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
             raw = noisy_mosaic(mosaic(truth, pattern), noise_sigma, noise_shot, seed=seed, index=i)
             raw = raw.to(device=device, dtype=dtype)
-            if i == 0:
-                run(raw)  # warm-up: first-call allocations and kernel selection are not the method's cost
-            t0 = time.perf_counter()
-            out = run(raw)
-            ms = 1e3 * (time.perf_counter() - t0)
+            try:
+                if i == 0:
+                    run(raw)  # warm-up: first-call allocations and kernel selection are not the method's cost
+                t0 = time.perf_counter()
+                out = run(raw)
+                ms = 1e3 * (time.perf_counter() - t0)
+            except ValueError as err:  # e.g. a learned method on an odd-sized image: say which image
+                raise ValueError(f"images: {name_i} ({array.shape[0]} x {array.shape[1]} px): {err}") from err
             if out.shape != (1, 3) + tuple(truth.shape[-2:]):
                 raise ValueError(f"method: {name} returned shape {tuple(out.shape)} for a mosaic of "
                                  f"{tuple(raw.shape)}; expected (1, 3, H, W)")

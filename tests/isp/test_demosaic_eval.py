@@ -95,6 +95,14 @@ def test_cli_errors(tmp_path, capsys):
     Image.fromarray(np.zeros((8, 8), np.uint8)).save(tmp_path / "grey.png")
     assert main(["demosaic-eval", str(tmp_path)]) == 2
     assert re.search(r"DIR: .*grey\.png.*mode 'L'", capsys.readouterr().err)
+    (tmp_path / "grey.png").unlink()
+    Image.fromarray(np.full((8, 9, 3), 128, np.uint8)).save(tmp_path / "odd.png")
+    # classical methods take odd sizes; a learned one needs whole Bayer cells and the error names the image
+    assert main(["demosaic-eval", str(tmp_path), "--method", "malvar2004", "--json"]) == 0
+    capsys.readouterr()
+    assert main(["demosaic-eval", str(tmp_path), "--method", "learned_tiny", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and re.search(r"DIR: odd\.png \(8 x 9 px\): raw: expected even height and width", err)
 
 
 def _benchmark_crops():
