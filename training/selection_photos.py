@@ -13,8 +13,9 @@ files are (natural photographs, no renders or illustrations), never by a score:
   ``plasma-workspace-wallpapers`` 4:5.27.5-2 (its ten photographs; the other wallpapers are renders), the ``.deb``
   files passed in (``apt-get download mate-backgrounds plasma-workspace-wallpapers``).
 
-Each photograph is reduced with Pillow's box filter (area averaging of the 8-bit sRGB values) so that its long side
-is 768 pixels (Kodak's size) unless it is already smaller, and written as 8-bit PNG. ``--check`` compares the written
+Each photograph is reduced with Pillow's box filter (area averaging of the 8-bit sRGB values, in Pillow's fixed
+point: within one level of the exact mean, half a level high on average) so that its long side is 768 pixels (Kodak's
+size) unless it is already smaller, and written as 8-bit PNG. ``--check`` compares the written
 files with the SHA-256 manifest ``selection_photos.json`` beside this script.
 
     apt-get download mate-backgrounds plasma-workspace-wallpapers
