@@ -35,7 +35,6 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
 MANIFEST = Path(__file__).with_suffix(".json")
 LONG_SIDE_PX = 768
 
@@ -47,11 +46,9 @@ MATE = tuple(f"usr/share/backgrounds/mate/nature/{n}.jpg" for n in (
     "Aqua", "Blinds", "Dune", "FreshFlower", "Garden", "GreenMeadow", "LadyBird", "RainDrops", "Storm", "TwoWings",
     "Wood", "YellowFlower"))
 PLASMA_DEB = "plasma-workspace-wallpapers_4%3a5.27.5-2_all.deb"
-PLASMA = tuple(f"usr/share/wallpapers/{n}/contents/images/{f}" for n, f in (
-    ("BytheWater", "2560x1600.jpg"), ("ColdRipple", "2560x1600.jpg"), ("ColorfulCups", "2560x1600.jpg"),
-    ("DarkestHour", "2560x1600.jpg"), ("EveningGlow", "2560x1600.jpg"), ("FallenLeaf", "2560x1600.jpg"),
-    ("Grey", "2560x1600.jpg"), ("OneStandsOut", "2560x1600.jpg"), ("Path", "2560x1600.jpg"),
-    ("summer_1am", "2560x1600.jpg")))
+PLASMA = tuple(f"usr/share/wallpapers/{n}/contents/images/2560x1600.jpg" for n in (
+    "BytheWater", "ColdRipple", "ColorfulCups", "DarkestHour", "EveningGlow", "FallenLeaf", "Grey", "OneStandsOut",
+    "Path", "summer_1am"))
 
 
 def _reduced_png(data: bytes) -> bytes:

@@ -86,6 +86,11 @@ def _check_device(name: str):
     return device
 
 
+def _as_dir_error(err: ValueError) -> ValueError:
+    """The library's error about ``images`` as the command's argument ``DIR``."""
+    return ValueError(f"DIR: {str(err).removeprefix('images: ')}")
+
+
 def run(args) -> int:
     import torch
 
@@ -99,7 +104,7 @@ def run(args) -> int:
     try:  # read the images first: a bad one is named with DIR (the library's message names "images")
         images = load_images(args.folder)
     except ValueError as err:
-        raise ValueError(f"DIR: {str(err).removeprefix('images: ')}") from err
+        raise _as_dir_error(err) from err
     model = None
     if args.model is not None:
         kwargs = None
@@ -121,7 +126,7 @@ def run(args) -> int:
     except ValueError as err:  # an image the method cannot take (e.g. odd-sized for a network): named with DIR
         if not str(err).startswith("images: "):
             raise
-        raise ValueError(f"DIR: {str(err).removeprefix('images: ')}") from err
+        raise _as_dir_error(err) from err
     if args.json:
         res["mean_cpsnr"] = _finite_or_none(res["mean_cpsnr"])
         for item in res["images"]:
