@@ -85,11 +85,13 @@ PRETRAINED_GUARDS = {
     "small": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
 }
 #: the scale of the network's correction in each shipped configuration (``DemosaicNet.correction_scale``; 1 where
-#: absent): the fast networks' corrections learned on synthetic scenes are partly too large for photographs, so each is
+#: absent): the networks' corrections learned on synthetic scenes are partly too large for photographs, so each is
 #: shrunk towards its base. Chosen on the 30 selection photographs (``training/selection_photos.py``), never
 #: Kodak/McMaster: ``docs/training_log.md#fast_shrink_photos_2026-11-29`` (it replaced the earlier choice on the stress
-#: set's photographs, ``#fast_shrink_2026-11-28``: small 0.75, tiny 1).
-PRETRAINED_CORRECTION_SCALES = {"small": 0.5, "tiny": 0.5}
+#: set's photographs, ``#fast_shrink_2026-11-28``: small 0.75, tiny 1) and ``#learned_scale_photos_2026-11-29`` (the
+#: noise-free network, also the joint network's low-noise expert). The joint network keeps 1: its correction is a
+#: denoiser's too.
+PRETRAINED_CORRECTION_SCALES = {"small": 0.5, "tiny": 0.5, "noise_free": 0.875}
 #: the low-noise gate each shipped joint network runs under, part of what ``load_pretrained`` returns (issue #35 item
 #: 4: the joint network is tuned for mid noise, the noise-free network is better on nearly clean mosaics): the output
 #: is ``w expert + (1 - w) joint`` with ``w = clamp(1 - r / relative_max, 0, 1)`` per image, ``r = sqrt(b + a m) / m``
