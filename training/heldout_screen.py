@@ -119,16 +119,17 @@ def mhc_scores(sets: list[str]) -> dict:
 
 def _guarded(net, guard: str | None) -> torch.nn.Module:
     """``net`` (a module or a checkpoint path, :func:`load_demosaic_model`) as variant ``guard`` ships when given: its
-    guard (``isettorch.isp.learned.PRETRAINED_GUARDS``) and correction scale (``PRETRAINED_CORRECTION_SCALES``),
-    whatever its checkpoint records. (Screens before 2026-11-29 ran with scale 1, the only scale then shipped for the
-    variants they name.)"""
+    guard (``isettorch.isp.learned.PRETRAINED_GUARDS``), correction scale (``PRETRAINED_CORRECTION_SCALES``) and
+    classical blend (``PRETRAINED_BLENDS``), whatever its checkpoint records. (Screens before 2026-11-29 ran with scale
+    1 and no blend, all that was then shipped for the variants they name.)"""
     if not isinstance(net, torch.nn.Module):
         net = load_demosaic_model(net)
     if guard is not None:
-        from isettorch.isp.learned import PRETRAINED_CORRECTION_SCALES, PRETRAINED_GUARDS
+        from isettorch.isp.learned import PRETRAINED_BLENDS, PRETRAINED_CORRECTION_SCALES, PRETRAINED_GUARDS
 
         net.guard = dict(PRETRAINED_GUARDS[guard])
         net.correction_scale = float(PRETRAINED_CORRECTION_SCALES.get(guard, 1.0))
+        net.blend = dict(PRETRAINED_BLENDS[guard]) if guard in PRETRAINED_BLENDS else None
     return net
 
 

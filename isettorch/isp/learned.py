@@ -23,6 +23,11 @@ gives it, at any level and colour and for every Bayer phase, and the network add
 white = 1); below about 0.3 of white the gate's absolute threshold takes over, so dark mosaics tend to MHC, which is
 linear.
 
+Before the guard, each shipped configuration may scale the network's correction (:data:`PRETRAINED_CORRECTION_SCALES`)
+and blend in a classical estimate (:data:`PRETRAINED_BLENDS`: ``learned`` is 0.7 times its network's output plus 0.3
+times Menon et al. 2007's), both chosen on photographs outside the test sets; the guard is linear in what it is given,
+so both keep its guarantees.
+
 References:
     H. S. Malvar, L. He, R. Cutler, "High-quality linear interpolation for demosaicing of Bayer-patterned color
     images", ICASSP 2004.
@@ -49,6 +54,7 @@ __all__ = [
     "DemosaicNet",
     "PRETRAINED_GUARDS",
     "PRETRAINED_CORRECTION_SCALES",
+    "PRETRAINED_BLENDS",
     "guard_residual",
     "structure_gate",
     "demosaic_learned",
@@ -92,6 +98,13 @@ PRETRAINED_GUARDS = {
 #: noise-free network, also the joint network's low-noise expert). The joint network keeps 1: its correction is a
 #: denoiser's too.
 PRETRAINED_CORRECTION_SCALES = {"small": 0.5, "tiny": 0.5, "noise_free": 0.875}
+#: the classical estimate each shipped configuration blends in (``DemosaicNet.blend``; none where absent): the output
+#: is ``(1 - weight) net_output + weight classical_output``, the classical method's departure from the network's base
+#: guarded like the network's correction (so the guarantees hold). Two estimators that err differently: the
+#: noise-free network is below Menon 2007 on a few photographs and Menon within 0.5 dB of it on Kodak. Chosen on the 30
+#: selection photographs (``training/selection_photos.py``), never Kodak/McMaster:
+#: ``docs/training_log.md#menon_blend_photos_2026-11-29``.
+PRETRAINED_BLENDS = {"noise_free": {"method": "menon2007", "weight": 0.3}}
 #: the low-noise gate each shipped joint network runs under, part of what ``load_pretrained`` returns (issue #35 item
 #: 4: the joint network is tuned for mid noise, the noise-free network is better on nearly clean mosaics): the output
 #: is ``w expert + (1 - w) joint`` with ``w = clamp(1 - r / relative_max, 0, 1)`` per image, ``r = sqrt(b + a m) / m``
@@ -267,6 +280,18 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
     return out
 
 
+def _check_blend(blend: dict | None) -> dict | None:
+    if blend is None:
+        return None
+    if not isinstance(blend, dict) or set(blend) != {"method", "weight"}:
+        raise ValueError(f"blend: expected None or {{'method': one of {sorted(BASES)}, 'weight': b in [0, 1]}}, got "
+                         f"{blend!r}")
+    w = blend["weight"]
+    if blend["method"] not in BASES or isinstance(w, bool) or not isinstance(w, (int, float)) or not 0 <= w <= 1:
+        raise ValueError(f"blend: expected method one of {sorted(BASES)} and a weight in [0, 1], got {blend!r}")
+    return {"method": blend["method"], "weight": float(w)}
+
+
 class DemosaicNet(nn.Module):
     """Residual demosaic (and optionally denoise) CNN on packed Bayer planes; corrects the MHC estimate.
 
@@ -290,6 +315,11 @@ class DemosaicNet(nn.Module):
             guarded): 1 (training, the default) the network as trained, 0 the base alone (guarded). The output is
             ``base + guard(base - MHC + s net)`` with another base than MHC. :func:`load_pretrained` sets the
             shipped value (:data:`PRETRAINED_CORRECTION_SCALES`). May be changed on an instance.
+        blend: ``None`` (the default) or ``{"method": name, "weight": b}`` with ``name`` one of :data:`BASES` and
+            ``0 <= b <= 1``: the output becomes ``(1 - b)`` times the network's output plus ``b`` times that classical
+            method's, before the guard (which is linear, so the blend of two guarded estimates): the correction
+            given to the guard is ``(1 - b) s net + b (classical - base)``. :func:`load_pretrained` sets the shipped
+            one (:data:`PRETRAINED_BLENDS`). May be changed on an instance.
 
     Shapes:
         forward(raw (B, 1, H, W) RGGB, noise (B, noise_inputs) optional) -> (B, 3, H, W).
@@ -301,8 +331,10 @@ class DemosaicNet(nn.Module):
     """
 
     def __init__(self, channels: int = 48, depth: int = 6, noise_inputs: int = 0, residual: bool = False,
-                 guard: dict | None = None, base: str = "malvar2004", correction_scale: float = 1.0):
+                 guard: dict | None = None, base: str = "malvar2004", correction_scale: float = 1.0,
+                 blend: dict | None = None):
         super().__init__()
+        self.blend = _check_blend(blend)
         if not (isinstance(correction_scale, (int, float)) and not isinstance(correction_scale, bool)
                 and math.isfinite(correction_scale) and correction_scale >= 0):
             raise ValueError(f"correction_scale: expected a finite number >= 0, got {correction_scale!r}")
@@ -355,6 +387,8 @@ class DemosaicNet(nn.Module):
             cfg["base"] = self.base
         if self.correction_scale != 1.0:
             cfg["correction_scale"] = self.correction_scale
+        if self.blend is not None:
+            cfg["blend"] = dict(self.blend)
         return cfg
 
     def forward(self, raw: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
@@ -378,6 +412,10 @@ class DemosaicNet(nn.Module):
         residual = F.pixel_shuffle(self.head(self.body(x)), 2).to(base.dtype)
         if self.correction_scale != 1.0:
             residual = residual * self.correction_scale
+        if self.blend is not None:
+            b = _check_blend(self.blend)  # an instance's blend may have been changed
+            with torch.autocast(raw.device.type, enabled=False):  # the classical estimate at the input's precision
+                residual = (1 - b["weight"]) * residual + b["weight"] * (BASES[b["method"]](raw) - base)
         if self.guard is not None:
             with torch.autocast(raw.device.type, enabled=False):
                 if self.base != "malvar2004":
@@ -576,6 +614,7 @@ def _pretrained(variant: str, device: str, dtype: torch.dtype, guard: bool = Tru
     net = load_checkpoint(PRETRAINED[variant], device=device, dtype=dtype)[0]
     net.guard = dict(PRETRAINED_GUARDS[variant]) if guard else None
     net.correction_scale = float(PRETRAINED_CORRECTION_SCALES.get(variant, 1.0)) if guard else 1.0
+    net.blend = dict(PRETRAINED_BLENDS[variant]) if guard and variant in PRETRAINED_BLENDS else None
     gate = PRETRAINED_GATES.get(variant)
     # the low-noise gate (demosaic_learned): the shipped expert under its own guard; none for the bare network
     net.level_gate = None if gate is None or not guard else {
@@ -594,8 +633,9 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
                     ) -> DemosaicNet:
     """A shipped :class:`DemosaicNet` (``isettorch/assets``), eval mode, frozen, with its guard
     (:data:`PRETRAINED_GUARDS`, :func:`guard_residual`) and, for the joint network, its low-noise gate
-    (:data:`PRETRAINED_GATES`, applied by :func:`demosaic_learned`) and correction scale
-    (:data:`PRETRAINED_CORRECTION_SCALES`); ``guard=False``: the bare network (scale 1), for comparisons.
+    (:data:`PRETRAINED_GATES`, applied by :func:`demosaic_learned`), correction scale
+    (:data:`PRETRAINED_CORRECTION_SCALES`) and classical blend (:data:`PRETRAINED_BLENDS`); ``guard=False``: the bare
+    network (scale 1, no blend), for comparisons.
     The instance is cached and shared: copy it before changing its ``guard``.
 
     ``variant="noise_free"`` (``demosaic_learned.pt``) or ``"joint_denoise"`` (``demosaic_learned_denoise.pt``,

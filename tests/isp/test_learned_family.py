@@ -86,6 +86,32 @@ def test_correction_scale_moves_the_output_linearly_from_the_guarded_base():
             learned.DemosaicNet(channels=4, depth=1, correction_scale=bad)
 
 
+def test_blend_is_the_convex_combination_of_the_guarded_estimates():
+    # blend {"method": m, "weight": b}: the output is (1 - b) net + b (MHC + guard(m - MHC)), the guard being linear;
+    # constants stay exact, the blend is stored in the config, and bad blends are refused naming the argument
+    g = torch.Generator().manual_seed(7)
+    raw = torch.rand(1, 1, 40, 48, generator=g, dtype=torch.float64)
+    net = learned.DemosaicNet(channels=4, depth=2, guard={"highpass_sigma_px": 4.0}).double()
+    torch.nn.init.normal_(net.head.weight, std=0.1, generator=g)
+    with torch.no_grad():
+        plain = net(raw)
+        mhc = learned.BASES["malvar2004"](raw)
+        menon = mhc + learned.guard_residual(raw, demosaic_menon2007(raw, "RGGB") - mhc, **net.guard)
+        net.blend = {"method": "menon2007", "weight": 0.3}
+        blended = net(raw)
+        field = torch.tensor([0.2, 0.7, 0.4], dtype=torch.float64).view(1, 3, 1, 1).expand(1, 3, 40, 48)
+        const = net(mosaic(field, "RGGB"))
+    assert float((plain - menon).abs().max()) > 1e-3
+    torch.testing.assert_close(blended, 0.7 * plain + 0.3 * menon, rtol=0, atol=1e-12)
+    assert float((const - field).abs().max()) <= 1e-12
+    assert learned.DemosaicNet(**net.config()).blend == {"method": "menon2007", "weight": 0.3}
+    assert "blend" not in learned.DemosaicNet(channels=4, depth=1).config()
+    for bad in ({"method": "menon2007", "weight": 1.5}, {"method": "ahd", "weight": 0.1}, {"weight": 0.1},
+                {"method": "menon2007", "weight": True}, "menon2007"):
+        with pytest.raises(ValueError, match="blend"):
+            learned.DemosaicNet(channels=4, depth=1, blend=bad)
+
+
 @pytest.mark.skipif(not all(learned.PRETRAINED[v].is_file() for v in learned.LEARNED_METHODS.values()),
                     reason="no shipped checkpoints")
 def test_family_methods_run_their_shipped_networks():
@@ -100,6 +126,8 @@ def test_family_methods_run_their_shipped_networks():
         assert net.guard == learned.PRETRAINED_GUARDS[variant]
         assert net.correction_scale == learned.PRETRAINED_CORRECTION_SCALES.get(variant, 1.0)
         assert learned.load_pretrained(variant, guard=False).correction_scale == 1.0  # the bare network
+        assert net.blend == learned.PRETRAINED_BLENDS.get(variant)
+        assert learned.load_pretrained(variant, guard=False).blend is None
         outs[method] = demosaic(raw, "GRBG", method=method)
         torch.testing.assert_close(outs[method], learned.demosaic_learned(raw, "GRBG", model=net), rtol=0, atol=0)
     assert float((outs["learned_tiny"] - outs["learned"]).abs().max()) > 1e-3
