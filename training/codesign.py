@@ -63,7 +63,7 @@ DEFAULTS: dict = {
     "lux": [1.0, 10.0, 100.0],
     "data": {"source": "layouts", "size": 64, "batch": 8, "scene": {}, "folder": None, "natural": {}},
     "optim": {"steps": 2000, "lr": 1.0e-3, "design_lr": 2.0e-2, "lr_min": 1.0e-5, "srgb_weight": 1.0, "loss": "l1",
-              "design_warmup": 0.0, "design_until": 1.0},
+              "design_warmup": 0.0, "design_until": 1.0, "design_lux": None},
     "mosaic": {"temperature_start": 1.0, "temperature_end": 0.03, "anneal_fraction": 0.7,
                "straight_through_after": 0.8},
     "val": {"batches": 2, "every": 200, "seed_offset": 1_000_003, "crop": 4},
@@ -323,6 +323,10 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
     if not 0 <= warmup <= until <= steps:
         raise ValueError(f"optim.design_warmup, optim.design_until: expected 0 <= warmup <= until <= 1, got "
                          f"{o['design_warmup']!r}, {o['design_until']!r}")
+    # the levels whose steps move the design (None: every level); the networks learn at every level regardless
+    design_lux = levels if o["design_lux"] is None else [float(v) for v in o["design_lux"]]
+    if not design_lux or any(v not in levels for v in design_lux):
+        raise ValueError(f"optim.design_lux: expected None or some of the levels {levels}, got {o['design_lux']!r}")
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, start, wall0 = [], 0, 0.0
     if ck_path.exists():  # resume: every step's data and noise depend only on (seed, step), so the run continues
@@ -336,7 +340,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
         lux = levels[step % len(levels)]
         if design_params:
             for p in design_params:
-                p.requires_grad_(warmup <= step < until)
+                p.requires_grad_(warmup <= step < until and lux in design_lux)
         if camera.mosaic.learnable:
             camera.mosaic.temperature = temperature_schedule(max(0, step - warmup), anneal,
                                                              float(m["temperature_start"]),

@@ -168,6 +168,32 @@ def test_the_design_learns_only_between_warmup_and_until(tmp_path, monkeypatch):
     assert torch.equal(load_design(record["path"]).mosaic.index_map, states[2][logits[0]].argmax(0))
 
 
+def test_the_design_learns_only_at_its_design_levels(tmp_path, monkeypatch):
+    """optim.design_lux: the filters move only on the steps at those levels (the levels are taken in turn: step 1 at
+    10 lux, step 2 at 1 lux); a level outside the run's is refused."""
+    with pytest.raises(ValueError, match="optim.design_lux"):
+        codesign.train({"lux": [1, 10], "optim": {"steps": 2, "design_lux": [100]}, "out": str(tmp_path / "bad")},
+                       quiet=True)
+    states = {}
+    real_save = codesign._save_checkpoint
+
+    def keep(path, cfg, camera, opt, sched, step, *rest):
+        states[step] = {k: v.clone() for k, v in camera.state_dict().items()}
+        real_save(path, cfg, camera, opt, sched, step, *rest)
+
+    monkeypatch.setattr(codesign, "_save_checkpoint", keep)
+    spec = {"filters": ["learned", "learned", "W"], "mosaic_init": [["W", "F0"], ["F1", "W"]]}
+    cfg = {"threads": 1, "lux": [10, 1], "design": spec, "camera": {"network": {"width": 4, "depth": 1}},
+           "data": {"size": 16, "batch": 2}, "optim": {"steps": 3, "design_lux": [1]},
+           "val": {"batches": 1, "every": 0}, "checkpoint_every": 1, "out": str(tmp_path / "run")}
+    codesign.train(cfg, quiet=True)
+    filters = [k for k in states[1] if "raw_" in k]
+    assert filters
+    for k in filters:
+        assert torch.equal(states[1][k], make_design(spec).state_dict()[k]), k  # step 1, 10 lux: unchanged
+    assert any(not torch.equal(states[1][k], states[2][k]) for k in filters)  # step 2, 1 lux: learned
+
+
 def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_path, monkeypatch):
     """predesign: Adam on the noise-limited colour estimate lowers it, the filters stay manufacturable, a design
     fixed for training (design_until 0) exports exactly the predesigned filters, and a bank without learned filters
