@@ -287,7 +287,8 @@ def _check_blend(blend: dict | None) -> dict | None:
         raise ValueError(f"blend: expected None or {{'method': one of {sorted(BASES)}, 'weight': b in [0, 1]}}, got "
                          f"{blend!r}")
     w = blend["weight"]
-    if blend["method"] not in BASES or isinstance(w, bool) or not isinstance(w, (int, float)) or not 0 <= w <= 1:
+    if (not isinstance(blend["method"], str) or blend["method"] not in BASES or isinstance(w, bool)
+            or not isinstance(w, (int, float)) or not 0 <= w <= 1):
         raise ValueError(f"blend: expected method one of {sorted(BASES)} and a weight in [0, 1], got {blend!r}")
     return {"method": blend["method"], "weight": float(w)}
 

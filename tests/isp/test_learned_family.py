@@ -107,7 +107,7 @@ def test_blend_is_the_convex_combination_of_the_guarded_estimates():
     assert learned.DemosaicNet(**net.config()).blend == {"method": "menon2007", "weight": 0.3}
     assert "blend" not in learned.DemosaicNet(channels=4, depth=1).config()
     for bad in ({"method": "menon2007", "weight": 1.5}, {"method": "ahd", "weight": 0.1}, {"weight": 0.1},
-                {"method": "menon2007", "weight": True}, "menon2007"):
+                {"method": "menon2007", "weight": True}, {"method": ["menon2007"], "weight": 0.1}, "menon2007"):
         with pytest.raises(ValueError, match="blend"):
             learned.DemosaicNet(channels=4, depth=1, blend=bad)
 
