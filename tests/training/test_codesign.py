@@ -123,6 +123,19 @@ def test_an_interrupted_run_resumes_to_the_same_design(tmp_path, monkeypatch):
         codesign.train({**cfg, "seed": 5, "out": str(tmp_path / "other")}, quiet=True)
 
 
+def _record_states(monkeypatch) -> dict:
+    """The camera's state at every checkpoint of a run (``{step: state_dict}``), the checkpoints still written."""
+    states = {}
+    real_save = codesign._save_checkpoint
+
+    def keep(path, cfg, camera, opt, sched, step, *rest):
+        states[step] = {k: v.clone() for k, v in camera.state_dict().items()}
+        real_save(path, cfg, camera, opt, sched, step, *rest)
+
+    monkeypatch.setattr(codesign, "_save_checkpoint", keep)
+    return states
+
+
 def test_the_design_learns_only_between_warmup_and_until(tmp_path, monkeypatch):
     """optim.design_warmup / design_until: the filters and mosaic logits change only in their window of steps
     (here step 2 of 4); the networks learn throughout. And design.mosaic_init starts the mosaic from a pattern."""
@@ -142,14 +155,7 @@ def test_the_design_learns_only_between_warmup_and_until(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="design_until"):
         codesign.train({"optim": {"steps": 4, "design_warmup": 0.75, "design_until": 0.5},
                         "out": str(tmp_path / "bad")}, quiet=True)
-    states = {}
-    real_save = codesign._save_checkpoint
-
-    def keep(path, cfg, camera, opt, sched, step, *rest):
-        states[step] = {k: v.clone() for k, v in camera.state_dict().items()}
-        real_save(path, cfg, camera, opt, sched, step, *rest)
-
-    monkeypatch.setattr(codesign, "_save_checkpoint", keep)
+    states = _record_states(monkeypatch)
     cfg = {"threads": 1, "lux": [5], "design": spec, "camera": {"network": {"width": 4, "depth": 1}},
            "data": {"size": 16, "batch": 2}, "optim": {"steps": 4, "design_warmup": 0.25, "design_until": 0.5},
            "val": {"batches": 1, "every": 0}, "checkpoint_every": 1, "out": str(tmp_path / "run")}
@@ -174,14 +180,7 @@ def test_the_design_learns_only_at_its_design_levels(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="optim.design_lux"):
         codesign.train({"lux": [1, 10], "optim": {"steps": 2, "design_lux": [100]}, "out": str(tmp_path / "bad")},
                        quiet=True)
-    states = {}
-    real_save = codesign._save_checkpoint
-
-    def keep(path, cfg, camera, opt, sched, step, *rest):
-        states[step] = {k: v.clone() for k, v in camera.state_dict().items()}
-        real_save(path, cfg, camera, opt, sched, step, *rest)
-
-    monkeypatch.setattr(codesign, "_save_checkpoint", keep)
+    states = _record_states(monkeypatch)
     spec = {"filters": ["learned", "learned", "W"], "mosaic_init": [["W", "F0"], ["F1", "W"]]}
     cfg = {"threads": 1, "lux": [10, 1], "design": spec, "camera": {"network": {"width": 4, "depth": 1}},
            "data": {"size": 16, "batch": 2}, "optim": {"steps": 3, "design_lux": [1]},
