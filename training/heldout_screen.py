@@ -125,11 +125,9 @@ def _guarded(net, guard: str | None) -> torch.nn.Module:
     if not isinstance(net, torch.nn.Module):
         net = load_demosaic_model(net)
     if guard is not None:
-        from isettorch.isp.learned import PRETRAINED_BLENDS, PRETRAINED_CORRECTION_SCALES, PRETRAINED_GUARDS
+        from isettorch.isp.learned import apply_shipped_settings
 
-        net.guard = dict(PRETRAINED_GUARDS[guard])
-        net.correction_scale = float(PRETRAINED_CORRECTION_SCALES.get(guard, 1.0))
-        net.blend = dict(PRETRAINED_BLENDS[guard]) if guard in PRETRAINED_BLENDS else None
+        apply_shipped_settings(net, guard)
     return net
 
 

@@ -66,6 +66,7 @@ __all__ = [
     "classical_gate_weight",
     "classical_expert",
     "pretrained_info",
+    "apply_shipped_settings",
     "PRETRAINED_PATH",
 ]
 
@@ -610,12 +611,25 @@ def load_checkpoint(path: str | Path, *, device=None, dtype=None) -> tuple[Demos
     return net, {k: v for k, v in ckpt.items() if k not in ("model", "optimizer")}
 
 
+def apply_shipped_settings(net: DemosaicNet, variant: str) -> DemosaicNet:
+    """Set on ``net`` (in place; returned) what shipped ``variant`` runs with around its weights: its guard
+    (:data:`PRETRAINED_GUARDS`), correction scale (:data:`PRETRAINED_CORRECTION_SCALES`) and classical blend
+    (:data:`PRETRAINED_BLENDS`), whatever ``net``'s checkpoint recorded. The joint network's gates are not set here
+    (:func:`load_pretrained`)."""
+    variant = _check_variant(variant)
+    net.guard = dict(PRETRAINED_GUARDS[variant])
+    net.correction_scale = float(PRETRAINED_CORRECTION_SCALES.get(variant, 1.0))
+    net.blend = dict(PRETRAINED_BLENDS[variant]) if variant in PRETRAINED_BLENDS else None
+    return net
+
+
 @functools.lru_cache(maxsize=8)
 def _pretrained(variant: str, device: str, dtype: torch.dtype, guard: bool = True) -> DemosaicNet:
     net = load_checkpoint(PRETRAINED[variant], device=device, dtype=dtype)[0]
-    net.guard = dict(PRETRAINED_GUARDS[variant]) if guard else None
-    net.correction_scale = float(PRETRAINED_CORRECTION_SCALES.get(variant, 1.0)) if guard else 1.0
-    net.blend = dict(PRETRAINED_BLENDS[variant]) if guard and variant in PRETRAINED_BLENDS else None
+    if guard:
+        apply_shipped_settings(net, variant)
+    else:
+        net.guard, net.correction_scale, net.blend = None, 1.0, None
     gate = PRETRAINED_GATES.get(variant)
     # the low-noise gate (demosaic_learned): the shipped expert under its own guard; none for the bare network
     net.level_gate = None if gate is None or not guard else {
