@@ -156,22 +156,33 @@ def _to_rggb(raw: torch.Tensor, pattern: str) -> tuple[torch.Tensor, int, int]:
     return raw, dy, dx
 
 
-def _second_differences(planes: torch.Tensor) -> torch.Tensor:
-    """``|d2/dx2| + |d2/dy2|`` of each plane (B, C, h, w) by slicing (exactly 0 on a constant plane, whatever its
-    value, since ``c - 2c + c`` is exact in floating point), each edge row/column repeating its neighbour's."""
-    out = torch.zeros_like(planes)
+def _curvature(planes: torch.Tensor) -> torch.Tensor:
+    """The mean over the planes (B, C, h, w) of ``|d2/dx2| + |d2/dy2|`` by slicing (exactly 0 on a constant plane,
+    whatever its value, since ``c - 2c + c`` is exact in floating point), each edge row/column repeating its
+    neighbour's; (B, 1, h, w)."""
+    out = planes.new_zeros(planes.shape[0], 1, *planes.shape[-2:])
     if planes.shape[-1] >= 3:
-        dxx = (planes[..., 2:] - 2 * planes[..., 1:-1] + planes[..., :-2]).abs()
+        dxx = (planes[..., 2:] - 2 * planes[..., 1:-1] + planes[..., :-2]).abs().mean(1, keepdim=True)
         out = out + F.pad(dxx, (1, 1, 0, 0), mode="replicate")
     if planes.shape[-2] >= 3:
-        dyy = (planes[..., 2:, :] - 2 * planes[..., 1:-1, :] + planes[..., :-2, :]).abs()
+        dyy = (planes[..., 2:, :] - 2 * planes[..., 1:-1, :] + planes[..., :-2, :]).abs().mean(1, keepdim=True)
         out = out + F.pad(dyy, (0, 0, 1, 1), mode="replicate")
     return out
 
 
 def _box(x: torch.Tensor, window: int) -> torch.Tensor:
+    """``window`` x ``window`` local mean, replicate border: the same as ``avg_pool2d`` of the padded input, summed
+    as shifted slices, rows then columns (several times faster than ``avg_pool2d``'s stride-1 window on CPU)."""
     p = window // 2
-    return F.avg_pool2d(F.pad(x, (p, p, p, p), mode="replicate"), window, 1)
+    x = F.pad(x, (p, p, p, p), mode="replicate")
+    h, w = x.shape[-2] - 2 * p, x.shape[-1] - 2 * p
+    rows = x[..., :h, :]
+    for k in range(1, window):
+        rows = rows + x[..., k:k + h, :]
+    out = rows[..., :w]
+    for k in range(1, window):
+        out = out + rows[..., k:k + w]
+    return out / (window * window)
 
 
 #: the classical demosaic a :class:`DemosaicNet` corrects (``base=``), each on an RGGB mosaic with mirrored borders
@@ -246,12 +257,16 @@ def structure_gate(raw: torch.Tensor, rel: float = 0.1, abs: float = 0.03, windo
         (B, 1, H, W), each 2 x 2 Bayer cell one value.
     """
     _check_guard(rel, abs, window, power)
+    return F.interpolate(_cell_gate(raw, rel, abs, window, power), scale_factor=2, mode="nearest")
+
+
+def _cell_gate(raw: torch.Tensor, rel: float, abs: float, window: int, power: float) -> torch.Tensor:  # noqa: A002
+    """:func:`structure_gate` at half resolution, one value per 2 x 2 Bayer cell: (B, 1, H/2, W/2)."""
     planes = F.pixel_unshuffle(raw, 2)
-    s = _box(_second_differences(planes).mean(1, keepdim=True), window)
+    s = _box(_curvature(planes), window)
     level = _box(planes, window).amax(1, keepdim=True)
-    sp = s.pow(power)
-    gate = sp / (sp + (rel * level).abs().pow(power) + float(abs) ** power)
-    return F.interpolate(gate, scale_factor=2, mode="nearest")
+    sp, tp = s.pow(power), (rel * level).abs().pow(power)
+    return sp / (sp + tp + float(abs) ** power)
 
 
 def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.1, abs: float = 0.03,  # noqa: A002
@@ -275,7 +290,10 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
         (B, 3, H, W) the guarded correction.
     """
     _check_guard(rel, abs, window, power, highpass_sigma_px, highpass_decimation)
-    out = structure_gate(raw, rel, abs, window, power).to(residual.dtype) * residual
+    b, c, h, w = residual.shape
+    gate = _cell_gate(raw, rel, abs, window, power).to(residual.dtype)
+    # each 2 x 2 cell's weight broadcast over its four pixels (a view: no full-resolution copy of the gate)
+    out = (residual.reshape(b, c, h // 2, 2, w // 2, 2) * gate.reshape(b, 1, h // 2, 1, w // 2, 1)).reshape(b, c, h, w)
     if highpass_sigma_px is not None:
         out = out - _lowpass(out, float(highpass_sigma_px), highpass_decimation)
     return out
@@ -399,19 +417,18 @@ class DemosaicNet(nn.Module):
         # accuracy at ~2^-9 of the signal); only the residual body runs at the autocast precision
         with torch.autocast(raw.device.type, enabled=False):
             base = BASES[self.base](raw)
-        feats = [F.pixel_unshuffle(raw, 2), F.pixel_unshuffle(base, 2)]
         if self.noise_inputs:
             if noise is None:
                 noise = torch.zeros(raw.shape[0], self.noise_inputs, dtype=raw.dtype, device=raw.device)
             noise = torch.as_tensor(noise, dtype=raw.dtype, device=raw.device).reshape(raw.shape[0], -1)
             if noise.shape[1] != self.noise_inputs:
                 raise ValueError(f"noise: expected shape [B, {self.noise_inputs}], got {tuple(noise.shape)}")
-            h, w = raw.shape[-2] // 2, raw.shape[-1] // 2
-            feats.append(noise[:, :, None, None].expand(-1, -1, h, w))
         elif noise is not None:
             raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
-        x = torch.cat(feats, 1)
-        residual = F.pixel_shuffle(self.head(self.body(x)), 2).to(base.dtype)
+        # oneDNN's CPU convolutions run about 1.4x faster on channels-last (NHWC) activations (tiny network, 1 MP,
+        # 2 threads: 34 -> 21 ms for packing, body, head and unpacking); the values are the same
+        x = _pack(raw, base, noise, channels_last=raw.device.type == "cpu")
+        residual = _unpack(self.head(self.body(x))).to(base.dtype)
         if self.correction_scale != 1.0:
             residual = residual * self.correction_scale
         if self.blend is not None:
@@ -428,6 +445,29 @@ class DemosaicNet(nn.Module):
                     residual, base = residual + (base - mhc), mhc
                 residual = guard_residual(raw, residual, **self.guard)
         return base + residual
+
+
+def _pack(raw: torch.Tensor, base: torch.Tensor, noise: torch.Tensor | None, channels_last: bool) -> torch.Tensor:
+    """The network's input, (B, 4 + 12 + N, H/2, W/2): the mosaic's and the base's 2 x 2 cells as channels (the
+    order of ``pixel_unshuffle``), then the N noise inputs as constant planes; written in one copy per input, in the
+    channels-last layout if asked."""
+    b, _, hh, ww = raw.shape
+    h, w = hh // 2, ww // 2
+    n = 0 if noise is None else noise.shape[1]
+    x = torch.empty(b, 16 + n, h, w, dtype=raw.dtype, device=raw.device,
+                    memory_format=torch.channels_last if channels_last else torch.contiguous_format)
+    for lo, src in ((0, raw), (4, base)):
+        c = src.shape[1]
+        x[:, lo:lo + 4 * c].view(b, c, 2, 2, h, w).copy_(src.view(b, c, h, 2, w, 2).permute(0, 1, 3, 5, 2, 4))
+    if n:
+        x[:, 16:].copy_(noise[:, :, None, None].expand(-1, -1, h, w))
+    return x
+
+
+def _unpack(y: torch.Tensor) -> torch.Tensor:
+    """``pixel_shuffle(y, 2)`` in one copy whatever ``y``'s memory layout: (B, 4C, h, w) -> (B, C, 2h, 2w)."""
+    b, c4, h, w = y.shape
+    return y.view(b, c4 // 4, 2, 2, h, w).permute(0, 1, 4, 2, 5, 3).reshape(b, c4 // 4, 2 * h, 2 * w)
 
 
 class _ResidualBlock(nn.Module):

@@ -164,3 +164,39 @@ def test_every_learned_method_is_a_lazy_name_of_the_registry():
 
     assert set(_LAZY_METHODS) == set(learned.LEARNED_METHODS)
     assert all(module == learned.__name__ for module in _LAZY_METHODS.values())
+
+
+def test_packing_layouts_match_pixel_unshuffle_and_give_the_same_gradients():
+    # The network's input is the mosaic's and the base's 2 x 2 cells as channels, pixel_unshuffle's order (torch's
+    # own op is the reference), in either memory layout; its output goes back by pixel_shuffle. The channels-last
+    # layout (CPU) changes neither the values nor the gradients.
+    g = torch.Generator().manual_seed(3)
+    raw, base, noise = torch.rand(2, 1, 10, 14, generator=g), torch.rand(2, 3, 10, 14, generator=g), torch.rand(2, 2)
+    ref = torch.cat([torch.nn.functional.pixel_unshuffle(raw, 2), torch.nn.functional.pixel_unshuffle(base, 2),
+                     noise[:, :, None, None].expand(-1, -1, 5, 7)], 1)
+    for cl in (False, True):
+        x = learned._pack(raw, base, noise, channels_last=cl)
+        assert x.is_contiguous(memory_format=torch.channels_last if cl else torch.contiguous_format)
+        torch.testing.assert_close(x, ref, rtol=0, atol=0)
+    y = torch.rand(2, 12, 5, 7, generator=g)
+    for y_in in (y, y.contiguous(memory_format=torch.channels_last)):
+        torch.testing.assert_close(learned._unpack(y_in), torch.nn.functional.pixel_shuffle(y, 2), rtol=0, atol=0)
+    net = learned.DemosaicNet(channels=8, depth=3, noise_inputs=2).double()
+    torch.nn.init.normal_(net.head.weight, std=0.1)  # a network that corrects its base (the head starts at zero)
+    grads = []
+    for cl in (False, True):
+        r = raw.double().requires_grad_(True)
+        x = learned._pack(r, learned.BASES["malvar2004"](r), noise.double(), channels_last=cl)
+        net.zero_grad()
+        learned._unpack(net.head(net.body(x))).square().sum().backward()
+        grads.append((r.grad, net.head.weight.grad.clone(), net.body[0].weight.grad.clone()))
+    for a, b in zip(*grads):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+
+
+def test_box_mean_matches_avg_pool_with_replicate_border():
+    x = torch.rand(2, 4, 9, 13, generator=torch.Generator().manual_seed(5), dtype=torch.float64)
+    for window in (1, 3, 5, 7):
+        p = window // 2
+        ref = torch.nn.functional.avg_pool2d(torch.nn.functional.pad(x, (p, p, p, p), mode="replicate"), window, 1)
+        torch.testing.assert_close(learned._box(x, window), ref, rtol=1e-12, atol=1e-14)
