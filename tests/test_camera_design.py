@@ -322,3 +322,20 @@ def test_design_comparison_noise_split_arithmetic():
     assert rows[2] == "| a | 30.00 / 10.000 = 1.000 + 9.000 |"
     assert rows[3] == "| b | 15.00 / 55.000 = 10.000 + 45.000 |"
     assert comparison.noise_split(result) in comparison.markdown(result, reference="a")
+
+
+def test_network_channels_last_cpu_path_gives_the_contiguous_layouts_values_and_gradients():
+    # On the CPU the network runs its convolutions on channels-last activations (faster with oneDNN); the output,
+    # contiguous, and the gradients are those of the same layers applied to the plain (NCHW) input
+    torch.manual_seed(2)
+    net = MosaicReconstructionNet(3, width=8, depth=2).double()
+    raw = torch.rand(2, 1, 12, 10, dtype=torch.float64, requires_grad=True)
+    w = torch.softmax(torch.randn(3, 12, 10, dtype=torch.float64), 0)
+    out = net(raw, w)
+    assert out.is_contiguous()
+    (g_raw,) = torch.autograd.grad(out.square().sum(), raw)
+    r2 = raw.detach().clone().requires_grad_(True)
+    ref = net.body(torch.cat([r2 * w, w.expand(2, -1, -1, -1)], 1))  # NCHW, as before the channels-last path
+    (g_ref,) = torch.autograd.grad(ref.square().sum(), r2)
+    torch.testing.assert_close(out, ref, rtol=1e-12, atol=1e-14)
+    torch.testing.assert_close(g_raw, g_ref, rtol=1e-10, atol=1e-13)

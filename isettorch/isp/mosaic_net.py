@@ -78,13 +78,18 @@ class MosaicReconstructionNet(nn.Module):
                              f"H, W = {tuple(raw.shape[-2:])}, got {tuple(weights.shape)}")
         w = weights.to(raw.dtype).expand(raw.shape[0], -1, -1, -1)
         sparse = raw * w
+        x = torch.cat([sparse, w], dim=1)
+        if x.device.type == "cpu":
+            # oneDNN's CPU convolutions run faster on channels-last (NHWC) activations: a training step (forward and
+            # backward, batch 16 of 64 x 64, width 32, depth 4, one thread) 137 -> 100 ms; the values are the same
+            x = x.contiguous(memory_format=torch.channels_last)
         if not self.context_scale:
-            return self.body(torch.cat([sparse, w], dim=1))
-        feats = self.body[:-1](torch.cat([sparse, w], dim=1))
+            return self.body(x).contiguous()
+        feats = self.body[:-1](x)
         s = self.context_scale
         # each filter's block mean (0 where a block has none of its pixels)
         num = F.avg_pool2d(sparse, s, ceil_mode=True)
         den = F.avg_pool2d(w, s, ceil_mode=True)
         means = num / den.clamp_min(1e-6) * (den > 0)
         ctx = F.interpolate(self.context(means), size=raw.shape[-2:], mode="bilinear", align_corners=False)
-        return self.body[-1](self.merge(torch.cat([feats, ctx], dim=1)))
+        return self.body[-1](self.merge(torch.cat([feats, ctx], dim=1))).contiguous()
