@@ -627,7 +627,8 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
 
     Args:
         design: a :class:`DesignCamera`, a design file or a shipped name.
-        images: a folder of .png/.tif images or an iterable of ``(name, uint8 [H, W, 3])``.
+        images: a folder of .png/.tif/.jpg images (:func:`isettorch.io.images.read_rgb8`) or an iterable of
+            ``(name, uint8 [H, W, 3])``.
         lux: light levels (default: every level the design holds a network for).
         noise_free: also score the same network on the sensor's noise-free readout (no photon, read or
             fixed-pattern noise and no dark signal; the same exposure, gain and ADC): ``cpsnr_noise_free`` per image

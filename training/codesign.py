@@ -143,7 +143,7 @@ def source_photos(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, se
 
     folder = cfg["data"]["folder"]
     if not folder:
-        raise ValueError("data.folder: the photos source needs a folder of 8-bit RGB .png/.tif photographs")
+        raise ValueError("data.folder: the photos source needs a folder of 8-bit RGB .png/.tif/.jpg photographs")
     cache = source_photos.__dict__.setdefault("cache", {})
     if folder not in cache:
         cache[folder] = load_images(common_path(folder))

@@ -19,7 +19,7 @@ DENOISER_NAMES = ("nlmeans", "bm3d")
 
 def register(sub) -> None:
     p = sub.add_parser("demosaic-eval", help="score a demosaic method (CPSNR, ms/image) on a folder of 8-bit images")
-    p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif images")
+    p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif/.jpg images")
     p.add_argument("--method", default="bilinear",
                    help=f"one of {', '.join(METHOD_NAMES)} (bilinear_colour: colour-demosaicing's border; "
                         f"learned: the shipped network, its joint denoise variant when noise is asked for)")

@@ -21,7 +21,7 @@ def register(sub) -> None:
     p = sub.add_parser("design-eval", help="score a camera design (filters, mosaic, network) on a folder of photos")
     p.add_argument("design", metavar="DESIGN",
                    help=f"a design file (.pt) or a shipped design: {', '.join(SHIPPED_NAMES)}")
-    p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif photographs")
+    p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif/.jpg photographs")
     p.add_argument("--lux", type=float, nargs="+", default=None, metavar="L",
                    help="scene illuminance(s) in lux (default: every level the design was trained for)")
     p.add_argument("--seed", type=int, default=0, help="noise seed, the same for every design (default 0)")

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..io.images import PHOTO_SUFFIXES, read_rgb8
 from . import spectra as _spectra
 from .config import seed_for
 from .natural import _choice, _wavelengths, _white_photons, natural_config
@@ -61,7 +62,7 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
         illuminants: kind weights for :func:`.spectra.random_illuminant`.
     """
 
-    SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+    SUFFIXES = PHOTO_SUFFIXES
 
     def __init__(self, folder, size: int = 128, *, length: int | None = None, seed: int = 0,
                  wavelengths_nm=(400.0, 700.0, 10.0), illuminants: dict | None = None):
@@ -82,14 +83,12 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
         return self.length
 
     def _photo(self, path: Path) -> torch.Tensor:
-        from PIL import Image
-
         from ..image import srgb_decode
 
-        with Image.open(path) as im:
-            if im.mode not in ("RGB", "RGBA", "L"):
-                raise ValueError(f"folder: {path.name} has mode {im.mode!r}; expected 8-bit RGB")
-            a = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
+        try:
+            a = read_rgb8(path).astype(np.float64) / 255.0
+        except ValueError as err:
+            raise ValueError(f"folder: {err}") from err
         if min(a.shape[:2]) < self.size:
             raise ValueError(f"size: {path.name} is {a.shape[1]} x {a.shape[0]}, smaller than the crop {self.size}")
         return srgb_decode(torch.from_numpy(a).permute(2, 0, 1))

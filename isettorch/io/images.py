@@ -22,11 +22,49 @@ from pathlib import Path
 import numpy as np
 import torch
 
-__all__ = ["read_image", "write_image", "IMAGE_SUFFIXES"]
+__all__ = ["read_image", "write_image", "read_rgb8", "IMAGE_SUFFIXES", "PHOTO_SUFFIXES"]
 
 IMAGE_SUFFIXES = {".png": "png", ".tif": "tiff", ".tiff": "tiff", ".exr": "exr"}
 _ENCODINGS = ("srgb", "linear")
 _EXR_CHANNELS = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+
+
+#: the 8-bit photographs :func:`read_rgb8` reads (the benchmark and photo-lifting folders)
+PHOTO_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+
+
+def read_rgb8(path) -> np.ndarray:
+    """An 8-bit photograph as a uint8 array ``[H, W, 3]`` of its sRGB code values, unchanged (Pillow decodes it).
+
+    The scoring convention of ``shared/data`` (8-bit code values / 255) needs 8-bit samples, so only lossless
+    conversions to RGB are made: gray (``L``, ``1``) repeated in the three channels, a palette without transparency
+    expanded, an alpha channel dropped when every pixel is opaque. Anything else raises a ``ValueError`` naming the
+    file: transparent pixels (compositing would be a choice), 16- or 32-bit samples (Pillow would silently keep only
+    8 of the bits), CMYK or other colour spaces, a file that is not an image.
+    """
+    from PIL import Image
+
+    p = Path(path)
+    try:
+        with Image.open(p) as im:
+            rawmode = im.tile[0][3] if im.tile else ""
+            rawmode = rawmode[0] if isinstance(rawmode, tuple) else rawmode
+            if im.mode in ("I", "I;16", "I;16B", "I;16L", "F") or ";16" in str(rawmode) or ";32" in str(rawmode):
+                raise ValueError(f"{p.name}: expected 8-bit samples, got a {im.mode}/{rawmode} image (16 or 32 bits); "
+                                 f"convert it to 8-bit first")
+            if im.mode == "P" and "transparency" in im.info:
+                raise ValueError(f"{p.name}: expected an opaque image, got a palette with transparency")
+            if im.mode in ("RGBA", "LA", "PA"):
+                alpha = np.asarray(im.getchannel("A"))
+                if alpha.size and int(alpha.min()) < 255:
+                    raise ValueError(f"{p.name}: expected an opaque image, {int((alpha < 255).sum())} pixels are "
+                                     f"transparent")
+            if im.mode not in ("RGB", "RGBA", "L", "LA", "1", "P", "PA"):
+                raise ValueError(f"{p.name}: expected an 8-bit RGB, gray or palette image, got mode {im.mode!r}")
+            a = np.asarray(im.convert("RGB"), dtype=np.uint8)
+    except OSError as err:  # not an image, truncated, unreadable
+        raise ValueError(f"cannot read {p.name} as an image ({err})") from err
+    return a
 
 
 def _kind(path: Path) -> str:

@@ -22,13 +22,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..io.images import PHOTO_SUFFIXES, read_rgb8
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 from .denoise import DENOISERS, _check_noise, denoise_mosaic
 
 __all__ = ["DENOISERS", "IMAGE_SUFFIXES", "available_methods", "cpsnr", "denoise_mosaic", "evaluate_demosaic",
            "load_demosaic_model", "load_images", "noisy_mosaic"]
 
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+#: the photographs a folder of images is read from (``isettorch.io.images.PHOTO_SUFFIXES``)
+IMAGE_SUFFIXES = PHOTO_SUFFIXES
 
 
 def available_methods() -> list[str]:
@@ -62,27 +64,24 @@ def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: 
 
 
 def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
-    """8-bit RGB images as (name, uint8 array [H, W, 3]) from a folder (png/tif, sorted by name) or an iterable
-    of (name, array) pairs."""
+    """8-bit RGB images as (name, uint8 array [H, W, 3]) from a folder (png/tif/jpg, sorted by name; read by
+    :func:`isettorch.io.images.read_rgb8`: gray, palette and opaque-alpha images converted losslessly, anything
+    else refused naming the file) or an iterable of (name, array) pairs."""
     if not isinstance(source, (str, Path)):
         return [(str(n), np.asarray(a)) for n, a in source]
-    from PIL import Image
-
     folder = Path(source)
     if not folder.is_dir():
-        raise ValueError(f"images: expected a folder of .png/.tif images, {str(folder)!r} is not a directory")
+        raise ValueError(f"images: expected a folder of {'/'.join(IMAGE_SUFFIXES)} images, {str(folder)!r} is not "
+                         "a directory")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise ValueError(f"images: no {'/'.join(IMAGE_SUFFIXES)} files in {str(folder)!r}")
     out = []
     for f in files:
         try:
-            with Image.open(f) as im:
-                if im.mode != "RGB":
-                    raise ValueError(f"images: expected 8-bit RGB images, {f.name} has mode {im.mode!r}")
-                out.append((f.name, np.asarray(im)))
-        except OSError as err:  # not an image, truncated, unreadable: name the file
-            raise ValueError(f"images: cannot read {f.name} in {str(folder)!r} as an image ({err})") from err
+            out.append((f.name, read_rgb8(f)))
+        except ValueError as err:
+            raise ValueError(f"images: {err} (in {str(folder)!r})") from err
     return out
 
 
@@ -172,7 +171,8 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
     """Score a demosaic method on 8-bit images with the benchmark convention (module docstring).
 
     Args:
-        images: a folder of .png/.tif 8-bit RGB images, or an iterable of (name, uint8 [H, W, 3]) pairs.
+        images: a folder of .png/.tif/.jpg 8-bit RGB images (:func:`isettorch.io.images.read_rgb8`), or an
+            iterable of (name, uint8 [H, W, 3]) pairs.
         method: a name in :func:`available_methods` or a callable (raw, pattern) -> RGB.
         pattern: Bayer pattern of the simulated mosaic.
         crop: border width excluded from the score (pixels).

@@ -102,3 +102,55 @@ def test_batches_and_errors(tmp_path):
     (tmp_path / "bad.png").write_bytes(b"not a png")
     with pytest.raises(ValueError, match="not a readable PNG"):
         read_image(tmp_path / "bad.png")
+
+
+def test_read_rgb8_keeps_code_values_and_converts_only_losslessly(tmp_path):
+    # read_rgb8 (the benchmark and photo-lifting folders): an 8-bit RGB file's code values unchanged, gray and palette
+    # images expanded exactly (Pillow's own conversion is the reference), an opaque alpha dropped; a JPEG is what
+    # Pillow decodes (lossy in the file, not in the reading)
+    from isettorch.io.images import read_rgb8
+
+    rng = np.random.default_rng(4)
+    rgb = rng.integers(0, 256, (9, 7, 3), dtype=np.uint8)
+    Image.fromarray(rgb).save(tmp_path / "rgb.png")
+    np.testing.assert_array_equal(read_rgb8(tmp_path / "rgb.png"), rgb)
+    tifffile.imwrite(tmp_path / "rgb.tif", rgb)
+    np.testing.assert_array_equal(read_rgb8(tmp_path / "rgb.tif"), rgb)
+    gray = rgb[..., 1]
+    Image.fromarray(gray).save(tmp_path / "gray.png")
+    np.testing.assert_array_equal(read_rgb8(tmp_path / "gray.png"), np.repeat(gray[..., None], 3, axis=-1))
+    pal = Image.fromarray(rgb).quantize(16)
+    pal.save(tmp_path / "pal.png")
+    np.testing.assert_array_equal(read_rgb8(tmp_path / "pal.png"), np.asarray(pal.convert("RGB")))
+    Image.fromarray(np.dstack([rgb, np.full(rgb.shape[:2], 255, np.uint8)])).save(tmp_path / "opaque.png")
+    np.testing.assert_array_equal(read_rgb8(tmp_path / "opaque.png"), rgb)
+    Image.fromarray(rgb).save(tmp_path / "photo.jpg", quality=90)
+    with Image.open(tmp_path / "photo.jpg") as im:
+        np.testing.assert_array_equal(read_rgb8(tmp_path / "photo.jpg"), np.asarray(im))
+
+
+def test_read_rgb8_refuses_what_it_cannot_read_exactly(tmp_path):
+    import png
+
+    from isettorch.io.images import read_rgb8
+
+    rng = np.random.default_rng(5)
+    rgb = rng.integers(0, 256, (6, 5, 3), dtype=np.uint8)
+    alpha = np.full(rgb.shape[:2], 255, np.uint8)
+    alpha[2, 3] = 0
+    Image.fromarray(np.dstack([rgb, alpha])).save(tmp_path / "transparent.png")
+    with pytest.raises(ValueError, match=r"transparent\.png: expected an opaque image, 1 pixels are transparent"):
+        read_rgb8(tmp_path / "transparent.png")
+    deep = rng.integers(0, 65536, (6, 5 * 3), dtype=np.uint16)  # Pillow reads this as 8-bit RGB, dropping bits
+    png.from_array(deep, "RGB;16").save(tmp_path / "deep.png")
+    with pytest.raises(ValueError, match=r"deep\.png: expected 8-bit samples"):
+        read_rgb8(tmp_path / "deep.png")
+    Image.fromarray(deep[:, :5]).save(tmp_path / "gray16.png")
+    with pytest.raises(ValueError, match=r"gray16\.png: expected 8-bit samples"):
+        read_rgb8(tmp_path / "gray16.png")
+    Image.fromarray(rgb).convert("CMYK").save(tmp_path / "cmyk.jpg")
+    with pytest.raises(ValueError, match=r"cmyk\.jpg: .*mode 'CMYK'"):
+        read_rgb8(tmp_path / "cmyk.jpg")
+    (tmp_path / "not.png").write_bytes(b"not an image")
+    with pytest.raises(ValueError, match=r"cannot read not\.png as an image"):
+        read_rgb8(tmp_path / "not.png")

@@ -92,10 +92,10 @@ def test_cli_json(tmp_path, capsys):
 def test_cli_errors(tmp_path, capsys):
     assert main(["demosaic-eval", str(tmp_path), "--json"]) == 2
     assert re.fullmatch(r"isettorch demosaic-eval: DIR: no \.png.* files in .*\n", capsys.readouterr().err)
-    Image.fromarray(np.zeros((8, 8), np.uint8)).save(tmp_path / "grey.png")
+    Image.fromarray(np.zeros((8, 8, 4), np.uint8)).save(tmp_path / "clear.png")  # transparent: not a photograph
     assert main(["demosaic-eval", str(tmp_path)]) == 2
-    assert re.search(r"DIR: .*grey\.png.*mode 'L'", capsys.readouterr().err)
-    (tmp_path / "grey.png").unlink()
+    assert re.search(r"DIR: .*clear\.png: expected an opaque image", capsys.readouterr().err)
+    (tmp_path / "clear.png").unlink()
     Image.fromarray(np.full((8, 9, 3), 128, np.uint8)).save(tmp_path / "odd.png")
     # classical methods take odd sizes; a learned one needs whole Bayer cells and the error names the image
     assert main(["demosaic-eval", str(tmp_path), "--method", "malvar2004", "--json"]) == 0
