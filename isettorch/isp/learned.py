@@ -125,7 +125,7 @@ PRETRAINED_GATES = {"joint_denoise": {
     "classical": {"sigma_start": 0.005, "sigma_full": 0.075, "weight_max": 0.5, "denoiser": "nlmeans",
                   "method": "menon2007"}}}
 
-def _check_raw(raw: torch.Tensor, name: str = "raw") -> torch.Tensor:
+def _check_raw(raw: torch.Tensor, name: str = "raw", even: bool = True) -> torch.Tensor:
     if not isinstance(raw, torch.Tensor):
         raise TypeError(f"{name}: expected a torch.Tensor [B, 1, H, W], got {type(raw).__name__}")
     if raw.dim() == 2:
@@ -136,8 +136,11 @@ def _check_raw(raw: torch.Tensor, name: str = "raw") -> torch.Tensor:
         raise ValueError(f"{name}: expected shape [B, 1, H, W], got {tuple(raw.shape)}")
     if not raw.is_floating_point():
         raise TypeError(f"{name}: expected a floating-point tensor, got {raw.dtype}")
-    if raw.shape[-2] % 2 or raw.shape[-1] % 2 or raw.shape[-2] < 4 or raw.shape[-1] < 4:
-        raise ValueError(f"{name}: expected even height and width of at least 4, got {tuple(raw.shape[-2:])}")
+    if raw.shape[-2] < 4 or raw.shape[-1] < 4:
+        raise ValueError(f"{name}: expected a height and width of at least 4, got {tuple(raw.shape[-2:])}")
+    if even and (raw.shape[-2] % 2 or raw.shape[-1] % 2):
+        raise ValueError(f"{name}: expected an even height and width (whole 2 x 2 Bayer cells; demosaic_learned "
+                         f"takes any size), got {tuple(raw.shape[-2:])}")
     return raw
 
 
@@ -576,7 +579,8 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
     """Demosaic a Bayer mosaic with a :class:`DemosaicNet` (default: the shipped checkpoint).
 
     Args:
-        raw: ``(B, 1, H, W)`` mosaic, values relative to white = 1 (as the network was trained).
+        raw: ``(B, 1, H, W)`` mosaic, values relative to white = 1 (as the network was trained); any height and
+            width of at least 4 (an odd one is completed to whole Bayer cells by reflection, then cropped back).
         pattern: Bayer pattern, one of ``RGGB``, ``BGGR``, ``GRBG``, ``GBRG``.
         model: a network; ``None`` loads :func:`load_pretrained` ``(variant)`` (cached).
         noise: ``(B, noise_inputs)`` noise parameters for a joint denoise+demosaic network.
@@ -594,14 +598,16 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
     Returns:
         ``(B, 3, H, W)`` RGB (not clipped).
     """
-    raw = _check_raw(raw)
+    raw = _check_raw(raw, even=False)
     pattern = _check_pattern(pattern)
     check_self_ensemble(self_ensemble)
     if model is None:
         model = load_pretrained(variant, device=raw.device, dtype=raw.dtype)
     x, dy, dx = _to_rggb(raw, pattern)
-    if x.shape[-2] % 2 or x.shape[-1] % 2:  # pragma: no cover - pads are symmetric so sizes stay even
-        raise ValueError("raw: internal padding produced an odd size")
+    if x.shape[-2] % 2 or x.shape[-1] % 2:
+        # an odd height or width: one more row / column, the reflection of the one before the last (the same
+        # colours: the Bayer pattern has period 2), so the network sees whole cells; cropped off below
+        x = F.pad(x, (0, x.shape[-1] % 2, 0, x.shape[-2] % 2), mode="reflect")
     def run(net, nz):
         if self_ensemble == "dihedral":
             return torch.stack([demosaic_learned(x.flip(dims), flipped, model=net, noise=nz,

@@ -97,12 +97,18 @@ def test_cli_errors(tmp_path, capsys):
     assert re.search(r"DIR: .*clear\.png: expected an opaque image", capsys.readouterr().err)
     (tmp_path / "clear.png").unlink()
     Image.fromarray(np.full((8, 9, 3), 128, np.uint8)).save(tmp_path / "odd.png")
-    # classical methods take odd sizes; a learned one needs whole Bayer cells and the error names the image
-    assert main(["demosaic-eval", str(tmp_path), "--method", "malvar2004", "--json"]) == 0
+    # every method takes odd sizes (a learned one completes the Bayer cells by reflection); a method's own refusal
+    # names the image
+    assert main(["demosaic-eval", str(tmp_path), "--method", "malvar2004", "--json", "--crop", "0"]) == 0
     capsys.readouterr()
-    assert main(["demosaic-eval", str(tmp_path), "--method", "learned_tiny", "--quiet"]) == 2
+    assert main(["demosaic-eval", str(tmp_path), "--method", "learned_tiny", "--quiet", "--crop", "0"]) == 0
+    assert "odd.png" in capsys.readouterr().out
+    (tmp_path / "odd.png").unlink()
+    Image.fromarray(np.full((3, 9, 3), 128, np.uint8)).save(tmp_path / "thin.png")
+    assert main(["demosaic-eval", str(tmp_path), "--method", "learned_tiny", "--quiet", "--crop", "0"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and re.search(r"DIR: odd\.png \(8 x 9 px\): raw: expected even height and width", err)
+    assert err.count("\n") == 1 and re.search(r"DIR: thin\.png \(3 x 9 px\): raw: expected a height and width of at "
+                                             r"least 4", err)
 
 
 def _benchmark_crops():

@@ -53,6 +53,22 @@ def test_constant_colour_fields_are_exact(variant):
     for method in learned.LEARNED_METHODS:
         out = demosaic(mosaic(field, "GBRG"), "GBRG", method=method)
         torch.testing.assert_close(out, field, rtol=0, atol=1e-5)
+    # odd heights and widths too (the cells completed by reflection), every phase
+    odd = torch.tensor([0.9, 0.2, 0.1]).view(1, 3, 1, 1).expand(1, 3, 21, 19).contiguous()
+    for method in learned.LEARNED_METHODS:
+        for pattern in PATTERNS:
+            torch.testing.assert_close(demosaic(mosaic(odd, pattern), pattern, method=method), odd, rtol=0, atol=1e-5)
+
+
+def test_odd_sizes_change_only_the_pixels_near_the_added_row_and_column():
+    # An odd-sized mosaic is the even one cut by a row and a column; away from the cut (beyond the network's
+    # receptive field and the guard's high-pass, about 100 px) the output is the even image's, to float rounding
+    g = torch.Generator().manual_seed(7)
+    img = torch.nn.functional.avg_pool2d(torch.rand(1, 3, 200, 200, generator=g), 3, 1, 1)
+    whole = learned.demosaic_learned(mosaic(img, "GRBG"), "GRBG")
+    cut = learned.demosaic_learned(mosaic(img[..., :199, :197], "GRBG"), "GRBG")
+    assert cut.shape[-2:] == (199, 197)
+    torch.testing.assert_close(cut[..., :90, :90], whole[..., :90, :90], rtol=0, atol=1e-6)
 
 
 def test_unguarded_network_is_not_exact_on_constant_fields():
