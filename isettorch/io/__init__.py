@@ -3,9 +3,9 @@ files, CAVE / KAIST / ICVL / ARAD."""
 
 from .exr import read_scene_exr, read_spectral_exr, write_scene_exr, write_spectral_exr
 from .hyperspectral import load_arad, load_cave, load_icvl, load_kaist
-from .images import read_image, write_image
+from .images import read_image, read_rgb8, write_image
 from .isetcam import read_isetcam_scene
 
-__all__ = ["read_image", "write_image",
+__all__ = ["read_image", "read_rgb8", "write_image",
            "read_scene_exr", "read_spectral_exr", "write_scene_exr", "write_spectral_exr", "read_isetcam_scene",
            "load_cave", "load_kaist", "load_icvl", "load_arad"]

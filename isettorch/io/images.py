@@ -1,4 +1,6 @@
-"""Reading and writing users' RGB images: PNG (8/16-bit), TIFF (8/16-bit, float32) and OpenEXR (float).
+"""Reading and writing users' RGB images: PNG (8/16-bit), TIFF (8/16-bit, float32) and OpenEXR (float); and
+:func:`read_rgb8`, the 8-bit code values of a photograph (PNG, TIFF or JPEG) as the benchmarks and the photo lifter
+read them.
 
 Value conventions (what a tensor holds, what a file holds):
 
