@@ -3,7 +3,8 @@
 * ``speed``: CPSNR (crop 10, noise-free) against milliseconds per megapixel (median over images, one call each after
   a warm-up; float32, CPU threads as given) for every classical and learned method, Kodak and McMaster; with
   ``--plot PNG`` the Pareto chart of the noise-free rows (the speed-error family ``learned_tiny``,
-  ``learned_small``, ``learned`` beside the classical methods; issue #35 item 3).
+  ``learned_small``, ``learned`` beside the classical methods; issue #35 item 3); with ``--bf16`` the learned
+  members again with their convolutions in bfloat16 (``torch.autocast``: the base, blend and guard stay float32).
 * ``noise``: Kodak CPSNR (crop 10) at noise sigma 0.01 / 0.02 / 0.05 (seed 0) for menon2007 alone, each classical
   demosaic after ``--denoise nlmeans`` (and bm3d when installed), and the shipped joint learned model.
 
@@ -40,6 +41,7 @@ from isettorch.paths import data_root  # noqa: E402
 
 DATA = data_root()  # $ISETTORCH_DATA (isettorch.paths)
 SPEED_METHODS = ("nearest", "bilinear", "malvar2004", "menon2007", "learned_tiny", "learned_small", "learned")
+LEARNED_ROWS = ("learned_tiny", "learned_small", "learned")
 
 
 def _median_ms_per_mp(res: dict, sizes: dict) -> float:
@@ -66,13 +68,15 @@ def speed(args) -> list[str]:
 
     points = {}  # noise-free rows: name -> {set: (cpsnr, ms/MP)}
 
-    def row(name: str, method: str, **kw) -> str:
+    def row(name: str, method: str, bf16: bool = False, plot: bool = True, **kw) -> str:
         cells, point = [], {}
         for k, folder in sets.items():
-            res = evaluate_demosaic(folder, method, "RGGB", 10, device=args.device, progress=not args.quiet, **kw)
+            # bf16: the networks' convolutions under autocast (DemosaicNet keeps its base, blend and guard in float32)
+            with torch.autocast(torch.device(args.device).type, dtype=torch.bfloat16, enabled=bf16):
+                res = evaluate_demosaic(folder, method, "RGGB", 10, device=args.device, progress=not args.quiet, **kw)
             point[k] = (res["mean_cpsnr"], _median_ms_per_mp(res, sizes[k]))
             cells += [f"{point[k][0]:.2f}", f"{point[k][1]:.1f}"]
-        if not kw.get("noise_sigma"):
+        if not kw.get("noise_sigma") and plot:
             points[name] = point
         line = f"| {name} | " + " | ".join(cells) + " |"
         print(line, flush=True)
@@ -80,6 +84,8 @@ def speed(args) -> list[str]:
 
     rows = header + [row(m, m) for m in SPEED_METHODS]
     rows.append(row("learned + self-ensemble (2 passes)", "learned", self_ensemble=True))
+    if args.bf16:  # the chart gets the accurate member's point only (the fast ones' fall on their float32 points)
+        rows += [row(f"{m} (bf16 autocast)", m, bf16=True, plot=m == "learned") for m in LEARNED_ROWS]
     if args.plot:
         rows += ["", f"Pareto chart: `{args.plot}`"]
         _plot_pareto(points, args.plot, args.threads, args.device)
@@ -165,6 +171,9 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", help="where the demosaic runs (cpu, cuda); denoisers run on the CPU")
     ap.add_argument("--out", default=None, help="write the markdown table here")
     ap.add_argument("--plot", default=None, metavar="PNG", help="speed: write the Pareto chart here")
+    ap.add_argument("--bf16", action="store_true",
+                    help="speed: also the learned members with their convolutions in bfloat16 (torch.autocast; fast on "
+                         "CPUs with AVX512-BF16 or AMX, and on GPUs)")
     add_quiet_argument(ap)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)

@@ -60,6 +60,17 @@ def test_constant_colour_fields_are_exact(variant):
             torch.testing.assert_close(demosaic(mosaic(odd, pattern), pattern, method=method), odd, rtol=0, atol=1e-5)
 
 
+def test_constant_fields_stay_exact_with_bfloat16_convolutions():
+    # under autocast only the networks' convolutions run in bfloat16 (DemosaicNet keeps its base, blend and guard in
+    # the input's precision), so the gate still zeroes the correction on a constant field: exact, not 2^-9
+    field = torch.tensor([0.8, 0.35, 0.05]).view(1, 3, 1, 1).expand(1, 3, 20, 18).contiguous()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        for method in learned.LEARNED_METHODS:
+            out = demosaic(mosaic(field, "BGGR"), "BGGR", method=method)
+            assert out.dtype == torch.float32
+            torch.testing.assert_close(out, field, rtol=0, atol=1e-5)
+
+
 def test_odd_sizes_change_only_the_pixels_near_the_added_row_and_column():
     # An odd-sized mosaic is the even one cut by a row and a column; away from the cut (beyond the network's
     # receptive field and the guard's high-pass, about 100 px) the output is the even image's, to float rounding
