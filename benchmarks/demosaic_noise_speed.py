@@ -122,8 +122,8 @@ def _plot_pareto(points: dict, path: str, threads: int, device: str) -> None:
             # upwards), unless the previous label went below (two close labels would overlap), else above; the
             # fastest method's label above (below it would leave the axes)
             below = (0 < rank < len(by_time) - 1 and -pts[by_time[rank + 1]][1] > -e and not below)
-            ax.annotate(n.replace(" (2 passes)", ""), (t, -e), fontsize=7, xytext=(4, -10 if below else 5),
-                        textcoords="offset points")
+            label = n.replace(" + self-ensemble (2 passes)", " x2").replace(" (bf16 autocast)", " bf16")
+            ax.annotate(label, (t, -e), fontsize=7, xytext=(4, -10 if below else 5), textcoords="offset points")
         ax.set_xscale("log")
         ax.set_xlabel(f"ms per megapixel ({device}, {threads} threads)")
         ax.set_ylabel("CPSNR, crop 10 (dB)")
