@@ -3,7 +3,7 @@ shared/data/README.md) of the classical and learned demosaickers on the colour p
 wheel (no download): astronaut (NASA), chelsea, coffee and motorcycle_left (Middlebury 2014 stereo). PNGs only:
 rocket, retina and hubble are JPEGs, whose 4:2:0 chroma subsampling smooths colour and so favours a colour-ratio
 prior. These are neither a training nor a selection set; they answer "do the gains hold on other photographs?".
-``--folder DIR`` scores the 8-bit RGB .png/.tif photographs of a folder instead (each cut to even height and width
+``--folder DIR`` scores the 8-bit RGB .png/.tif/.jpg photographs of a folder instead (each cut to even height and width
 the same way), e.g. the 30 selection photographs of ``training/selection_photos.py``, never used to train or select
 a demosaicker.
 
@@ -27,7 +27,8 @@ CLASSICAL = ("bilinear", "malvar2004", "menon2007")
 
 
 def _even(a: np.ndarray) -> np.ndarray:
-    """A last odd row or column dropped: the learned demosaicker needs whole 2x2 Bayer cells."""
+    """A last odd row or column dropped, as in every score recorded from this script (the learned demosaickers needed
+    whole 2x2 Bayer cells until 2026-11-29; they now take any size, and the cut keeps the records comparable)."""
     return a[: a.shape[0] // 2 * 2, : a.shape[1] // 2 * 2]
 
 

@@ -123,7 +123,7 @@ def run(args) -> int:
         res = evaluate_demosaic(images, args.method, args.pattern.upper(), args.crop, dtype=dtype,
                                 device=device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
                                 seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet, **extra)
-    except ValueError as err:  # an image the method cannot take (e.g. odd-sized for a network): named with DIR
+    except ValueError as err:  # an image the method cannot take (e.g. under 4 pixels for a network): named with DIR
         if not str(err).startswith("images: "):
             raise
         raise _as_dir_error(err) from err

@@ -251,7 +251,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
                 t0 = time.perf_counter()
                 out = run(raw)
                 ms = 1e3 * (time.perf_counter() - t0)
-            except ValueError as err:  # e.g. a learned method on an odd-sized image: say which image
+            except ValueError as err:  # e.g. a learned method on an image under 4 pixels: say which image
                 raise ValueError(f"images: {name_i} ({array.shape[0]} x {array.shape[1]} px): {err}") from err
             if out.shape != (1, 3) + tuple(truth.shape[-2:]):
                 raise ValueError(f"method: {name} returned shape {tuple(out.shape)} for a mosaic of "
