@@ -274,7 +274,7 @@ def _cell_gate(raw: torch.Tensor, rel: float, abs: float, window: int, power: fl
 
 def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.1, abs: float = 0.03,  # noqa: A002
                    window: int = 5, power: float = 4.0, highpass_sigma_px: float | None = 16.0,
-                   highpass_decimation: int | None = None) -> torch.Tensor:
+                   highpass_decimation: int | None = None, in_place: bool = False) -> torch.Tensor:
     """The guarded correction of a network on top of MHC: ``highpass(structure_gate(raw) * residual)``.
 
     The gate (:func:`structure_gate`) leaves MHC where the mosaic has no structure that MHC can get wrong, so a
@@ -288,6 +288,8 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
     Args:
         raw: (B, 1, H, W) RGGB mosaic.
         residual: (B, 3, H, W) the network's correction of MHC.
+        in_place: write the result over ``residual`` (which no autograd graph may record), with no full-resolution
+            temporary but the low-pass (:class:`DemosaicNet` does so in inference).
 
     Returns:
         (B, 3, H, W) the guarded correction.
@@ -296,9 +298,14 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
     b, c, h, w = residual.shape
     gate = _cell_gate(raw, rel, abs, window, power).to(residual.dtype)
     # each 2 x 2 cell's weight broadcast over its four pixels (a view: no full-resolution copy of the gate)
-    out = (residual.reshape(b, c, h // 2, 2, w // 2, 2) * gate.reshape(b, 1, h // 2, 1, w // 2, 1)).reshape(b, c, h, w)
+    gate = gate.view(b, 1, h // 2, 1, w // 2, 1)
+    if in_place:  # a view (an error, not a silent copy, if residual cannot be written over as cells)
+        out = residual.view(b, c, h // 2, 2, w // 2, 2).mul_(gate).view(b, c, h, w)
+    else:
+        out = (residual.reshape(b, c, h // 2, 2, w // 2, 2) * gate).reshape(b, c, h, w)
     if highpass_sigma_px is not None:
-        out = out - _lowpass(out, float(highpass_sigma_px), highpass_decimation)
+        low = _lowpass(out, float(highpass_sigma_px), highpass_decimation)
+        out = out.sub_(low) if in_place else out - low
     return out
 
 
@@ -428,16 +435,20 @@ class DemosaicNet(nn.Module):
                 raise ValueError(f"noise: expected shape [B, {self.noise_inputs}], got {tuple(noise.shape)}")
         elif noise is not None:
             raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
-        # oneDNN's CPU convolutions run about 1.4x faster on channels-last (NHWC) activations (tiny network, 1 MP,
-        # 2 threads: 34 -> 21 ms for packing, body, head and unpacking); the values are the same
-        x = _pack(raw, base, noise, channels_last=raw.device.type == "cpu")
-        residual = _unpack(self.head(self.body(x))).to(base.dtype)
+        # oneDNN's CPU convolutions run about 1.4x faster on channels-last (NHWC) activations; the values are the same
+        x = self.body[1:](_first_conv(self.body[0], raw, base, noise, channels_last=raw.device.type == "cpu"))
+        residual = _unpack(self.head(x)).to(base.dtype)
+        # after the network the output is built over its correction (a fresh tensor) unless autograd records the
+        # pass: no full-resolution temporaries, whose fresh pages cost as much as the arithmetic on CPU
+        in_place = not (residual.requires_grad or raw.requires_grad)
         if self.correction_scale != 1.0:
-            residual = residual * self.correction_scale
+            residual = residual.mul_(self.correction_scale) if in_place else residual * self.correction_scale
         if self.blend is not None:
             b = _check_blend(self.blend)  # an instance's blend may have been changed
             with torch.autocast(raw.device.type, enabled=False):  # the classical estimate at the input's precision
-                residual = (1 - b["weight"]) * residual + b["weight"] * (BASES[b["method"]](raw) - base)
+                departure = BASES[b["method"]](raw).sub_(base) if in_place else BASES[b["method"]](raw) - base
+                residual = (residual.mul_(1 - b["weight"]).add_(departure, alpha=b["weight"]) if in_place
+                            else (1 - b["weight"]) * residual + b["weight"] * departure)
         if self.guard is not None:
             with torch.autocast(raw.device.type, enabled=False):
                 if self.base != "malvar2004":
@@ -445,32 +456,43 @@ class DemosaicNet(nn.Module):
                     # network's output minus MHC is the correction it guards (Menon's own decisions are not linear:
                     # -0.32/255 of blue bias on a star field), so the guarantees hold for every base
                     mhc = BASES["malvar2004"](raw)
-                    residual, base = residual + (base - mhc), mhc
-                residual = guard_residual(raw, residual, **self.guard)
-        return base + residual
+                    residual = residual.add_(base).sub_(mhc) if in_place else residual + (base - mhc)
+                    base = mhc
+                residual = guard_residual(raw, residual, **self.guard, in_place=in_place)
+        return residual.add_(base) if in_place else base + residual
 
 
-def _pack(raw: torch.Tensor, base: torch.Tensor, noise: torch.Tensor | None, channels_last: bool) -> torch.Tensor:
-    """The network's input, (B, 4 + 12 + N, H/2, W/2): the mosaic's and the base's 2 x 2 cells as channels (the
-    order of ``pixel_unshuffle``), then the N noise inputs as constant planes; written in one copy per input, in the
-    channels-last layout if asked."""
+def _first_conv(conv: nn.Conv2d, raw: torch.Tensor, base: torch.Tensor, noise: torch.Tensor | None,
+                channels_last: bool) -> torch.Tensor:
+    """The network's first layer, ``conv`` (3 x 3, padding 1) on its packed input (the mosaic's and the base's
+    2 x 2 cells as channels in ``pixel_unshuffle``'s order, then the N noise inputs as constant planes), computed
+    without packing: a 3 x 3 kernel over 2 x 2 cells is a 6 x 6 kernel of stride 2 over the full-resolution planes
+    (padding 2 for the cells' padding 1), so the mosaic and the base are read as one 4-channel image (in the
+    channels-last layout if asked) and the noise planes, constant, by their own half-resolution product (the
+    convolution is linear in its input channels). The same sums in another order (1e-7 relative) at a third of the
+    packed path's CPU time; (B, C, H/2, W/2)."""
     b, _, hh, ww = raw.shape
-    h, w = hh // 2, ww // 2
-    n = 0 if noise is None else noise.shape[1]
-    x = torch.empty(b, 16 + n, h, w, dtype=raw.dtype, device=raw.device,
+    c_out = conv.weight.shape[0]
+    # weight[:, 4 i + 2 dy + dx, ky, kx] -> full-resolution tap (2 ky + dy, 2 kx + dx) of input plane i
+    w = conv.weight[:, :16].reshape(c_out, 4, 2, 2, 3, 3).permute(0, 1, 4, 2, 5, 3).reshape(c_out, 4, 6, 6)
+    x = torch.empty(b, 4, hh, ww, dtype=raw.dtype, device=raw.device,
                     memory_format=torch.channels_last if channels_last else torch.contiguous_format)
-    for lo, src in ((0, raw), (4, base)):
-        c = src.shape[1]
-        x[:, lo:lo + 4 * c].view(b, c, 2, 2, h, w).copy_(src.view(b, c, h, 2, w, 2).permute(0, 1, 3, 5, 2, 4))
-    if n:
-        x[:, 16:].copy_(noise[:, :, None, None].expand(-1, -1, h, w))
-    return x
+    x[:, :1] = raw
+    x[:, 1:] = base
+    y = F.conv2d(x, w, conv.bias, stride=2, padding=2)
+    if noise is not None and noise.shape[1]:
+        planes = noise[:, :, None, None].expand(-1, -1, hh // 2, ww // 2).to(y.dtype)
+        y = y.add_(F.conv2d(planes, conv.weight[:, 16:].to(y.dtype), None, padding=1))  # (keeps y's layout)
+    return y
 
 
 def _unpack(y: torch.Tensor) -> torch.Tensor:
-    """``pixel_shuffle(y, 2)`` in one copy whatever ``y``'s memory layout: (B, 4C, h, w) -> (B, C, 2h, 2w)."""
+    """``pixel_shuffle(y, 2)`` in one copy whatever ``y``'s memory layout, into a fresh tensor (which callers may
+    write over): (B, 4C, h, w) -> (B, C, 2h, 2w)."""
     b, c4, h, w = y.shape
-    return y.view(b, c4 // 4, 2, 2, h, w).permute(0, 1, 4, 2, 5, 3).reshape(b, c4 // 4, 2 * h, 2 * w)
+    out = torch.empty(b, c4 // 4, 2 * h, 2 * w, dtype=y.dtype, device=y.device)
+    out.view(b, c4 // 4, h, 2, w, 2).copy_(y.view(b, c4 // 4, 2, 2, h, w).permute(0, 1, 4, 2, 5, 3))
+    return out
 
 
 class _ResidualBlock(nn.Module):

@@ -166,32 +166,59 @@ def test_every_learned_method_is_a_lazy_name_of_the_registry():
     assert all(module == learned.__name__ for module in _LAZY_METHODS.values())
 
 
-def test_packing_layouts_match_pixel_unshuffle_and_give_the_same_gradients():
-    # The network's input is the mosaic's and the base's 2 x 2 cells as channels, pixel_unshuffle's order (torch's
-    # own op is the reference), in either memory layout; its output goes back by pixel_shuffle. The channels-last
-    # layout (CPU) changes neither the values nor the gradients.
+def test_first_layer_unpacked_matches_the_packed_convolution_and_its_gradients():
+    # The network's first layer sees the mosaic's and the base's 2 x 2 cells as channels, pixel_unshuffle's order
+    # (torch's own op is the reference), then the noise inputs as constant planes. It is computed as a stride-2
+    # 6 x 6 convolution of the full-resolution planes (+ the noise planes' own product): the packed convolution's
+    # values and gradients in either memory layout. The output goes back by pixel_shuffle.
+    F = torch.nn.functional
     g = torch.Generator().manual_seed(3)
-    raw, base, noise = torch.rand(2, 1, 10, 14, generator=g), torch.rand(2, 3, 10, 14, generator=g), torch.rand(2, 2)
-    ref = torch.cat([torch.nn.functional.pixel_unshuffle(raw, 2), torch.nn.functional.pixel_unshuffle(base, 2),
-                     noise[:, :, None, None].expand(-1, -1, 5, 7)], 1)
-    for cl in (False, True):
-        x = learned._pack(raw, base, noise, channels_last=cl)
-        assert x.is_contiguous(memory_format=torch.channels_last if cl else torch.contiguous_format)
-        torch.testing.assert_close(x, ref, rtol=0, atol=0)
-    y = torch.rand(2, 12, 5, 7, generator=g)
-    for y_in in (y, y.contiguous(memory_format=torch.channels_last)):
-        torch.testing.assert_close(learned._unpack(y_in), torch.nn.functional.pixel_shuffle(y, 2), rtol=0, atol=0)
+    raw, base = torch.rand(2, 1, 10, 14, generator=g, dtype=torch.float64), torch.rand(2, 3, 10, 14, generator=g,
+                                                                                        dtype=torch.float64)
+    noise = torch.rand(2, 2, generator=g, dtype=torch.float64)
     net = learned.DemosaicNet(channels=8, depth=3, noise_inputs=2).double()
     torch.nn.init.normal_(net.head.weight, std=0.1)  # a network that corrects its base (the head starts at zero)
-    grads = []
-    for cl in (False, True):
-        r = raw.double().requires_grad_(True)
-        x = learned._pack(r, learned.BASES["malvar2004"](r), noise.double(), channels_last=cl)
+    torch.nn.init.normal_(net.body[0].bias, std=0.1)
+
+    def packed(r, b, nz):
+        return torch.cat([F.pixel_unshuffle(r, 2), F.pixel_unshuffle(b, 2), nz[:, :, None, None].expand(-1, -1, 5, 7)],
+                         1)
+
+    grads, first = [], []
+    for path in ("packed", False, True):
+        r, nz = raw.clone().requires_grad_(True), noise.clone().requires_grad_(True)
+        b = learned.BASES["malvar2004"](r) + base
         net.zero_grad()
-        learned._unpack(net.head(net.body(x))).square().sum().backward()
-        grads.append((r.grad, net.head.weight.grad.clone(), net.body[0].weight.grad.clone()))
-    for a, b in zip(*grads):
-        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+        if path == "packed":
+            y = net.body[0](packed(r, b, nz))
+        else:
+            y = learned._first_conv(net.body[0], r, b, nz, channels_last=path)
+            assert y.is_contiguous(memory_format=torch.channels_last if path else torch.contiguous_format)
+        first.append(y.detach().clone())  # (the body's first ReLU is in place)
+        learned._unpack(net.head(net.body[1:](y))).square().sum().backward()
+        grads.append((r.grad, nz.grad, net.head.weight.grad.clone(), net.body[0].weight.grad.clone()))
+    for y in first[1:]:
+        torch.testing.assert_close(y, first[0], rtol=1e-12, atol=1e-12)
+    for other in grads[1:]:
+        for a, b in zip(grads[0], other):
+            torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+    y = torch.rand(2, 12, 5, 7, generator=g)
+    for y_in in (y, y.contiguous(memory_format=torch.channels_last)):
+        torch.testing.assert_close(learned._unpack(y_in), F.pixel_shuffle(y, 2), rtol=0, atol=0)
+
+
+def test_guard_in_place_is_the_guard():
+    # DemosaicNet writes its guarded correction over the network's output in inference (no autograd graph): the
+    # same values as the out-of-place guard, which training uses, and the out-of-place one leaves its input alone.
+    g = torch.Generator().manual_seed(4)
+    raw, residual = torch.rand(1, 1, 16, 20, generator=g), torch.randn(1, 3, 16, 20, generator=g)
+    opts = {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4}
+    kept = residual.clone()
+    ref = learned.guard_residual(raw, residual, **opts)
+    torch.testing.assert_close(residual, kept, rtol=0, atol=0)
+    out = learned.guard_residual(raw, residual, **opts, in_place=True)
+    assert out.data_ptr() == residual.data_ptr()
+    torch.testing.assert_close(out, ref, rtol=0, atol=0)
 
 
 def test_box_mean_matches_avg_pool_with_replicate_border():
