@@ -42,7 +42,7 @@ from torch import nn
 from . import spectral
 from .isp.mosaic_net import MosaicReconstructionNet
 from .optics import DiffractionLimitedOptics
-from .optics.geometry import image_distance
+from .optics.geometry import image_distance, relative_illumination
 from .scene import Scene
 from .sensor.design import design_sensor, fixed_design, learned_design
 from .sensor.filter_bank import FilterBank, check_manufacturable
@@ -188,6 +188,24 @@ class DesignCamera(nn.Module):
         lo, hi, step = (float(v) for v in self.config["scene"]["wavelengths_nm"])
         return spectral.default_wavelengths(lo, hi, step).to(torch.float64)
 
+    @property
+    def image_distance_m(self) -> float:
+        """The thin-lens image distance of ``config.scene.distance_m`` (the sensor's distance behind the lens)."""
+        return float(image_distance(torch.tensor(float(self.config["optics"]["focal_length_m"]), dtype=torch.float64),
+                                    torch.tensor(float(self.config["scene"]["distance_m"]), dtype=torch.float64)))
+
+    def corner_light(self, height: int, width: int) -> float:
+        """The irradiance at the corner pixel of a ``height`` x ``width`` capture relative to its centre's, by the
+        optics' relative illumination (cos^4 by default: the field of view grows with the pixel count, one scene
+        sample per pixel, so a large photograph is a wide-angle capture: about 0.81 at 768 x 512, 0.06 at
+        4000 x 3000 for the shipped designs' 2.8 um pixels and 3.9 mm lens). 1 with no relative illumination."""
+        pitch = self.sensor.pixel_size_m
+        ys = torch.tensor([[0.0, (height - 1) / 2 * pitch]], dtype=torch.float64)
+        xs = torch.tensor([[0.0, (width - 1) / 2 * pitch]], dtype=torch.float64)
+        ri = relative_illumination(self.optics.relative_illumination, ys, xs, self.image_distance_m,
+                                   float(self.optics.f_number))
+        return 1.0 if ri is None else float(ri[0, 0, 1, 1] / ri[0, 0, 0, 0])
+
     def scene(self, maps: torch.Tensor, reflectance: torch.Tensor, lux: float, *, dtype=None) -> Scene:
         """The factored scene ``sum_j maps_j(x) R_j(l) E(l)``: ``maps [B, J, H, W]``, ``reflectance [B, J, L]`` or
         ``[J, L]`` on :attr:`wavelengths_nm`, lit by ``lux`` of ``config.scene.illuminant``, one scene sample per
@@ -202,8 +220,7 @@ class DesignCamera(nn.Module):
                              f"{tuple(refl.shape)}")
         e = illuminant_photons(wl, lux, self.config["scene"]["illuminant"])
         d = self.config["scene"]["distance_m"]
-        d_i = float(image_distance(torch.tensor(float(self.config["optics"]["focal_length_m"]), dtype=torch.float64),
-                                   torch.tensor(float(d), dtype=torch.float64)))
+        d_i = self.image_distance_m
         hfov = math.degrees(2 * math.atan(self.sensor.pixel_size_m * maps.shape[-1] / (2 * d_i)))
         dev = maps.device
         return Scene.from_factors(maps.to(dtype), (refl.to(dev, torch.float64) * e.to(dev)).to(dtype),
@@ -638,7 +655,10 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
 
     Returns:
         ``{"design", "lux": [...], "seed", "crop", "mean_cpsnr": {"<lux>": dB}, "mean_de2000": {"<lux>": value},
-        "images": [{"name", "cpsnr": {"<lux>": dB}, "de2000": {"<lux>": value}}]}`` (and the noise-free scores).
+        "images": [{"name", "corner_light", "cpsnr": {"<lux>": dB}, "de2000": {"<lux>": value}}]}`` (and the
+        noise-free scores); ``corner_light``: the irradiance at the photograph's corner relative to its centre
+        (:meth:`DesignCamera.corner_light`: a photograph sets the sensor's size, so a large one is a wide-angle
+        capture with dark, noisy corners).
     """
     import numpy as np
 
@@ -676,7 +696,8 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
             lifted = lift_srgb(array, camera.wavelengths_nm)
             truth = torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
             lab_truth = xyz_to_lab(srgb_to_xyz(truth))
-            row = {"name": name, "cpsnr": {}, "de2000": {}} | ({"cpsnr_noise_free": {}} if noise_free else {})
+            row = ({"name": name, "corner_light": camera.corner_light(*array.shape[:2]), "cpsnr": {}, "de2000": {}}
+                   | ({"cpsnr_noise_free": {}} if noise_free else {}))
             for key, v in zip(keys, levels):
                 g = torch.Generator(device=device).manual_seed(seed_for(seed, i, stream=round(1000 * v)))
                 scene = camera.scene(lifted["maps"][None].to(device), lifted["reflectance"].to(device), v,

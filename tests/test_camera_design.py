@@ -243,6 +243,39 @@ def test_design_eval_command(design_file, photos, capsys):
     assert "1 lux" in table and "100 lux" in table and "mean" in table
 
 
+def test_corner_light_is_the_optics_falloff(design_file, photos, capsys, monkeypatch):
+    """A photograph sets the sensor's size (one scene sample per pixel), so its corners are off axis by
+    atan(r / d_i): ``corner_light`` is cos^4 of that angle (the optics' default law), the irradiance the optics
+    renders there on a uniform scene (a short lens, so the falloff is strong on a small frame; a few pixels inside
+    the scene's edge, where the blur sees no border), reported per image by evaluate_design and noted by the CLI."""
+    cam = D.make_design({"filters": ["R", "G", "B"], "mosaic_shape": [2, 2]},
+                        {**TINY, "optics": {"focal_length_m": 1e-4}}, lux=(10,))
+    h, w = 41, 61
+    r_m = cam.sensor.pixel_size_m * math.hypot((h - 1) / 2, (w - 1) / 2)
+    assert cam.corner_light(h, w) == pytest.approx(math.cos(math.atan(r_m / cam.image_distance_m)) ** 4, rel=1e-12)
+    scene = cam.scene(torch.ones(1, 1, h, w, dtype=torch.float64), torch.full((1, 31), 0.5, dtype=torch.float64),
+                      10.0)
+    ill = cam.optics(scene).illuminance()[0, 0]
+    top, left = (ill.shape[0] - h) // 2, (ill.shape[1] - w) // 2
+    centre = ill[top + h // 2, left + w // 2]
+    for k in (5, 8):  # the corner of the frame k pixels inside the scene's
+        assert float(ill[top + k, left + k] / centre) == pytest.approx(cam.corner_light(h - 2 * k, w - 2 * k),
+                                                                      rel=2e-3)
+    assert 0.2 < cam.corner_light(h, w) < 0.3
+    # the shipped designs' camera: 0.81 at Kodak's 768 x 512, 0.06 at 4000 x 3000 (the numbers the CLI cites)
+    shipped = D.load_design(design_file)
+    assert shipped.corner_light(512, 768) == pytest.approx(0.81, abs=0.005)
+    assert shipped.corner_light(3000, 4000) == pytest.approx(0.055, abs=0.005)
+    res = D.evaluate_design(design_file, photos, [100], seed=3)
+    assert [r["corner_light"] for r in res["images"]] == [shipped.corner_light(36, 40)] * 2
+    assert main(["design-eval", str(design_file), str(photos), "--lux", "100", "--quiet"]) == 0
+    assert "wide-angle" not in capsys.readouterr().err  # 36 x 40 photographs: no note
+    monkeypatch.setattr(design_eval, "DARK_CORNER", 1.0)
+    assert main(["design-eval", str(design_file), str(photos), "--lux", "100", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "2 photograph(s) make a wide-angle capture" in err and "img0.png" in err
+
+
 def test_network_checks_its_inputs():
     net = MosaicReconstructionNet(3, width=4, depth=1)
     with pytest.raises(ValueError, match="weights"):
