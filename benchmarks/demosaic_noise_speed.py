@@ -1,7 +1,8 @@
 """Two demosaic benchmark tables with ``isettorch.isp.evaluation.evaluate_demosaic`` (the ``demosaic-eval`` code):
 
 * ``speed``: CPSNR (crop 10, noise-free) against milliseconds per megapixel (median over images, one call each after
-  a warm-up; float32, CPU threads as given) for every classical and learned method, Kodak and McMaster; with
+  a warm-up, in ``--rounds`` interleaved passes over the methods, each image's median over them; float32, CPU threads
+  as given) for every classical and learned method, Kodak and McMaster; with
   ``--plot PNG`` the Pareto chart of the noise-free rows (the speed-error family ``learned_tiny``,
   ``learned_small``, ``learned`` beside the classical methods; issue #35 item 3); with ``--bf16`` the learned
   members again with their convolutions in bfloat16 (``torch.autocast``: the base, blend and guard stay float32).
@@ -68,24 +69,47 @@ def speed(args) -> list[str]:
 
     points = {}  # noise-free rows: name -> {set: (cpsnr, ms/MP)}
 
-    def row(name: str, method: str, bf16: bool = False, plot: bool = True, **kw) -> str:
-        cells, point = [], {}
+    def measure(method: str, bf16: bool = False, **kw) -> dict:
+        """{set: evaluate_demosaic's result} for one pass over both sets."""
+        out = {}
         for k, folder in sets.items():
             # bf16: the networks' convolutions under autocast (DemosaicNet keeps its base, blend and guard in float32)
             with torch.autocast(torch.device(args.device).type, dtype=torch.bfloat16, enabled=bf16):
-                res = evaluate_demosaic(folder, method, "RGGB", 10, device=args.device, progress=not args.quiet, **kw)
-            point[k] = (res["mean_cpsnr"], _median_ms_per_mp(res, sizes[k]))
-            cells += [f"{point[k][0]:.2f}", f"{point[k][1]:.1f}"]
-        if not kw.get("noise_sigma") and plot:
-            points[name] = point
-        line = f"| {name} | " + " | ".join(cells) + " |"
-        print(line, flush=True)
-        return line
+                out[k] = evaluate_demosaic(folder, method, "RGGB", 10, device=args.device, progress=not args.quiet,
+                                           **kw)
+        return out
 
-    rows = header + [row(m, m) for m in SPEED_METHODS]
-    rows.append(row("learned + self-ensemble (2 passes)", "learned", self_ensemble=True))
+    def line(name: str, passes: list[dict], plot: bool) -> str:
+        """A row from one or more passes of the same method: the CPSNR (the same in every pass: the methods are
+        deterministic) and the median over images of each image's median time over the passes."""
+        cells, point = [], {}
+        for k in sets:
+            res = passes[0][k]
+            ms = {r["name"]: statistics.median(p[k]["images"][i]["ms"] for p in passes)
+                  for i, r in enumerate(res["images"])}
+            point[k] = (res["mean_cpsnr"], _median_ms_per_mp({"images": [{"name": n, "ms": v} for n, v in ms.items()]},
+                                                             sizes[k]))
+            cells += [f"{point[k][0]:.2f}", f"{point[k][1]:.1f}"]
+        if plot:
+            points[name] = point
+        text = f"| {name} | " + " | ".join(cells) + " |"
+        print(text, flush=True)
+        return text
+
+    def row(name: str, method: str, **kw) -> str:
+        return line(name, [measure(method, **kw)], plot=not kw.get("noise_sigma"))
+
+    # the noise-free rows in --rounds interleaved passes (every method once, then again), so that the machine's drift
+    # between minutes falls on every method alike; each image's time is its median over the passes
+    specs = [(m, m, {}, True) for m in SPEED_METHODS]
+    specs.append(("learned + self-ensemble (2 passes)", "learned", {"self_ensemble": True}, True))
     if args.bf16:  # the chart gets the accurate member's point only (the fast ones' fall on their float32 points)
-        rows += [row(f"{m} (bf16 autocast)", m, bf16=True, plot=m == "learned") for m in LEARNED_ROWS]
+        specs += [(f"{m} (bf16 autocast)", m, {"bf16": True}, m == "learned") for m in LEARNED_ROWS]
+    passes = {name: [] for name, *_ in specs}
+    for _ in range(args.rounds):
+        for name, method, kw, _plot in specs:
+            passes[name].append(measure(method, **kw))
+    rows = header + [line(name, passes[name], plot) for name, _m, _kw, plot in specs]
     if args.plot:
         rows += ["", f"Pareto chart: `{args.plot}`"]
         _plot_pareto(points, args.plot, args.threads, args.device)
@@ -171,11 +195,16 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", help="where the demosaic runs (cpu, cuda); denoisers run on the CPU")
     ap.add_argument("--out", default=None, help="write the markdown table here")
     ap.add_argument("--plot", default=None, metavar="PNG", help="speed: write the Pareto chart here")
+    ap.add_argument("--rounds", type=int, default=3,
+                    help="speed: interleaved passes over every noise-free method (each image's time is its median "
+                         "over them; default 3)")
     ap.add_argument("--bf16", action="store_true",
                     help="speed: also the learned members with their convolutions in bfloat16 (torch.autocast; fast on "
                          "CPUs with AVX512-BF16 or AMX, and on GPUs)")
     add_quiet_argument(ap)
     args = ap.parse_args(argv)
+    if args.rounds < 1:
+        ap.error(f"--rounds: expected a positive number of passes, got {args.rounds}")
     torch.set_num_threads(args.threads)
     t0 = time.time()
     rows = (speed if args.table == "speed" else noise)(args)
@@ -183,7 +212,9 @@ def main(argv=None) -> int:
           "torch": torch.__version__, "device": args.device}
     if torch.device(args.device).type == "cuda":
         hw["gpu"] = torch.cuda.get_device_name(torch.device(args.device))
-    text = "\n".join(rows) + f"\n\nCrop 10, RGGB, float32, seed 0; wall {time.time() - t0:.0f} s; {json.dumps(hw)}\n"
+    rounds = f"{args.rounds} interleaved passes (noise-free rows), " if args.table == "speed" else ""
+    text = "\n".join(rows) + (f"\n\nCrop 10, RGGB, float32, seed 0; {rounds}wall {time.time() - t0:.0f} s; "
+                              f"{json.dumps(hw)}\n")
     if args.out:
         Path(args.out).write_text(text)
     print(text)
