@@ -45,6 +45,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .._checks import check_finite
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
 from .demosaicing.linear import demosaic_malvar2004
 from .demosaicing.menon2007 import demosaic_menon2007
@@ -621,6 +622,7 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
         ``(B, 3, H, W)`` RGB (not clipped).
     """
     raw = _check_raw(raw, even=False)
+    check_finite(raw, "raw")  # (a NaN sample would spread over the whole image through the guard's local means)
     pattern = _check_pattern(pattern)
     check_self_ensemble(self_ensemble)
     if model is None:

@@ -212,6 +212,24 @@ def test_bad_input_errors():
         demosaic(raw, torch.tensor([[0, 1], [1, 2]]), "menon2007")
 
 
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_non_finite_samples_are_refused_by_every_method(bad):
+    # a NaN or Inf sample is a clear error, not spread over the output (MHC over 5 x 5 pixels, a learned method over
+    # the whole image through its guard's local means); the Bayer methods, learned ones included, and index maps
+    from isettorch.isp.evaluation import available_methods
+    from isettorch.isp.learned import demosaic_learned
+
+    raw = _raw((1, 1, 8, 8)).float()
+    raw[0, 0, 3, 4] = bad
+    for method in available_methods():
+        with pytest.raises(ValueError, match="raw: expected finite values, found 1 NaN/Inf"):
+            demosaic(raw, "RGGB", method)
+    with pytest.raises(ValueError, match="raw: expected finite values"):
+        demosaic(raw, torch.tensor([[0, 1], [1, 2]]), "bilinear")
+    with pytest.raises(ValueError, match="raw: expected finite values"):
+        demosaic_learned(raw)
+
+
 def test_register_method_and_module_plugin():
     class Scaled(nn.Module):  # a stand-in for a learned demosaic: forward(raw, pattern)
         def __init__(self):

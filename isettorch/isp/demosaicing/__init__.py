@@ -16,6 +16,7 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
+from ..._checks import check_finite
 from ._cfa import BAYER_PATTERNS, bayer_index_map, mosaic
 from .linear import demosaic_bilinear, demosaic_generic, demosaic_malvar2004, demosaic_nearest, demosaic_nearest_cfa
 from .menon2007 import demosaic_menon2007
@@ -78,7 +79,7 @@ def demosaic(raw: torch.Tensor, pattern="RGGB", method: str | Callable = "biline
     """Demosaic a raw mosaic.
 
     Args:
-        raw: mosaic (B, 1, H, W), float32 or float64, any device.
+        raw: mosaic (B, 1, H, W), float32 or float64, any device, finite (a NaN or Inf sample is a ValueError).
         pattern: a Bayer pattern 'RGGB', 'BGGR', 'GRBG', 'GBRG' (row-major, top-left first), or a long index map
             [ph, pw] of channel indices for any other CFA (methods 'nearest', 'bilinear' / 'generic' only).
         method: a name in ``METHODS`` ('nearest', 'bilinear', 'malvar2004', 'menon2007', or a registered one such
@@ -93,6 +94,10 @@ def demosaic(raw: torch.Tensor, pattern="RGGB", method: str | Callable = "biline
         >>> demosaic(raw, "RGGB", method="menon2007").shape
         torch.Size([2, 3, 32, 32])
     """
+    if isinstance(raw, torch.Tensor) and raw.is_floating_point():
+        # a NaN or Inf sample is refused, not spread: MHC carries it over 5 x 5 pixels, a learned method over the
+        # whole image (its guard's local means)
+        check_finite(raw, "raw")
     if isinstance(pattern, torch.Tensor):
         if callable(method) or method not in _GENERIC:
             raise ValueError(f"method: an index-map CFA supports {sorted(_GENERIC)}, got {method!r}")
