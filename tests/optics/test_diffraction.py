@@ -73,6 +73,31 @@ def test_applied_mtf_is_analytic():
         assert np.abs(mtf[k] - ref).max() < 1e-3
 
 
+def test_otf_of_a_large_grid_by_wavelength_chunks_is_the_same(monkeypatch):
+    # Without a gradient a large grid's OTF is evaluated a few wavelengths at a time (bounded temporaries): the same
+    # values bitwise as all at once (the MTF is element-wise), Goodman's formula at every wavelength; with a
+    # gradient (a learnable f-number) all at once, the gradient unchanged.
+    from isettorch.optics import diffraction, dl_otf
+
+    g = torch.Generator().manual_seed(0)
+    fy, fx = torch.randn(2, 40, generator=g) * 2e5, torch.randn(2, 33, generator=g) * 2e5
+    wave, n = torch.linspace(400.0, 700.0, 31), torch.tensor([2.0, 5.6])
+    whole = dl_otf(fy, fx, wave, n)
+    monkeypatch.setattr(diffraction, "_OTF_CHUNK_ELEMENTS", 3 * 2 * 40 * 33)  # three wavelengths at a time
+    chunked = dl_otf(fy, fx, wave, n)
+    assert torch.equal(chunked, whole)
+    rho = torch.sqrt(fy[:, :, None] ** 2 + fx[:, None, :] ** 2)
+    s = (rho[:, None] * wave[None, :, None, None] * 1e-9 * n[:, None, None, None]).clamp(max=1.0).double()
+    ref = 2 / math.pi * (torch.acos(s) - s * torch.sqrt(1 - s * s))
+    torch.testing.assert_close(chunked.double(), ref, rtol=0, atol=1e-6)
+    n_learn = n.clone().requires_grad_(True)
+    dl_otf(fy, fx, wave, n_learn).sum().backward()
+    n_ref = n.clone().requires_grad_(True)
+    monkeypatch.setattr(diffraction, "_OTF_CHUNK_ELEMENTS", 1 << 30)
+    dl_otf(fy, fx, wave, n_ref).sum().backward()
+    assert torch.equal(n_learn.grad, n_ref.grad)
+
+
 def test_power_conserved_and_camera_equation():
     g = torch.Generator().manual_seed(0)
     x = torch.rand(2, 3, 20, 24, generator=g, dtype=torch.float64) * 1e15
