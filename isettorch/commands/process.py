@@ -128,9 +128,9 @@ def run(args) -> int:
     with progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f in args.raw:
             dn = read_frame(f)
-            if dn.shape[0] % 2 or dn.shape[1] % 2 or min(dn.shape) < 4:
-                raise ValueError(f"RAW: {f}: expected a mosaic of whole {pattern} cells (even height and width, at "
-                                 f"least 4), got {dn.shape[0]} x {dn.shape[1]}")
+            if min(dn.shape) < 4:  # (an odd height or width is completed to whole cells by demosaic_learned)
+                raise ValueError(f"RAW: {f}: expected a {pattern} mosaic of at least 4 x 4 pixels, got "
+                                 f"{dn.shape[0]} x {dn.shape[1]}")
             rgb = process_frame(dn, sensor, pattern, net, analog_gain=args.analog_gain,
                                 exposure_s=args.exposure_s, self_ensemble=args.self_ensemble)
             path = out_dir / f"{Path(f).stem}.{args.format}"
