@@ -276,6 +276,33 @@ def test_corner_light_is_the_optics_falloff(design_file, photos, capsys, monkeyp
     assert "2 photograph(s) make a wide-angle capture" in err and "img0.png" in err
 
 
+def test_network_in_strips_is_the_network(monkeypatch):
+    """A large image in inference runs in strips of rows, each with ``depth`` rows of halo (the 3x3 convolutions'
+    receptive field, reflect padding at the cuts reaching no further): the whole image's output; with a gradient,
+    or a context path (block means of the whole image), the network runs whole."""
+    from isettorch.isp import mosaic_net
+
+    torch.manual_seed(0)
+    net = MosaicReconstructionNet(3, width=6, depth=3)
+    for m in net.modules():
+        if isinstance(m, torch.nn.Conv2d):
+            torch.nn.init.normal_(m.weight, std=0.3)
+    raw = torch.rand(2, 1, 70, 24)
+    w = torch.nn.functional.one_hot(torch.randint(0, 3, (70, 24)), 3).permute(2, 0, 1).float()
+    with torch.no_grad():
+        whole = net(raw, w)
+        monkeypatch.setattr(mosaic_net, "STRIP_PIXELS", 100)
+        monkeypatch.setattr(mosaic_net, "STRIP_ROWS", 16)  # five strips, the last 6 rows
+        calls = []
+        monkeypatch.setattr(net, "_whole", lambda r, ww, f=net._whole: calls.append(r.shape[-2]) or f(r, ww))
+        strips = net(raw, w)
+    assert calls == [19, 22, 22, 22, 9]  # each strip with its halo, cut at the image's borders
+    torch.testing.assert_close(strips, whole, rtol=0, atol=1e-6)
+    calls.clear()
+    net(raw, w)  # gradient mode with trainable weights: whole
+    assert calls == [70]
+
+
 def test_network_checks_its_inputs():
     net = MosaicReconstructionNet(3, width=4, depth=1)
     with pytest.raises(ValueError, match="weights"):

@@ -23,6 +23,11 @@ from torch import nn
 
 __all__ = ["MosaicReconstructionNet"]
 
+#: in inference, images of more pixels than this run in strips of STRIP_ROWS rows (bounded activation memory: a
+#: 32-channel activation of a 12 MP photograph is 1.5 GB)
+STRIP_PIXELS = 1 << 21
+STRIP_ROWS = 256
+
 
 class MosaicReconstructionNet(nn.Module):
     """Mosaic of K filters -> linear sRGB ``[B, 3, H, W]``.
@@ -77,6 +82,22 @@ class MosaicReconstructionNet(nn.Module):
             raise ValueError(f"weights: expected ({self.num_filters}, H, W) or (B, {self.num_filters}, H, W) with "
                              f"H, W = {tuple(raw.shape[-2:])}, got {tuple(weights.shape)}")
         w = weights.to(raw.dtype).expand(raw.shape[0], -1, -1, -1)
+        h = raw.shape[-2]
+        if (not self.context_scale and raw[0, 0].numel() > STRIP_PIXELS and h > 2 * STRIP_ROWS
+                and not (torch.is_grad_enabled() and (raw.requires_grad or w.requires_grad
+                                                      or any(p.requires_grad for p in self.parameters())))):
+            # a large image in inference: strips of STRIP_ROWS rows, each with `depth` more on both sides (the
+            # receptive field of the 3x3 convolutions; their reflect padding at a strip's cut reaches no further), so
+            # the activations exist for one strip at a time; the image's own borders are the strips' borders
+            halo, out = self.depth, []
+            for r0 in range(0, h, STRIP_ROWS):
+                r1 = min(h, r0 + STRIP_ROWS)
+                a0, a1 = max(0, r0 - halo), min(h, r1 + halo)
+                out.append(self._whole(raw[..., a0:a1, :], w[..., a0:a1, :])[..., r0 - a0:r1 - a0, :])
+            return torch.cat(out, dim=-2)
+        return self._whole(raw, w)
+
+    def _whole(self, raw: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
         sparse = raw * w
         x = torch.cat([sparse, w], dim=1)
         if x.device.type == "cpu":
