@@ -621,8 +621,16 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
     Returns:
         ``(B, 3, H, W)`` RGB (not clipped).
     """
+    check_finite(_check_raw(raw, even=False), "raw")  # (a NaN sample would spread over the whole image through the
+    # guard's local means)
+    return _demosaic_learned(raw, pattern, model=model, noise=noise, self_ensemble=self_ensemble, variant=variant)
+
+
+def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> torch.Tensor:
+    """:func:`demosaic_learned` on a mosaic whose values were checked finite by the caller (its public entry, or
+    :func:`isettorch.isp.demosaicing.demosaic` for the registered methods): one pass over the input, not one per
+    entry and per flip of the dihedral ensemble."""
     raw = _check_raw(raw, even=False)
-    check_finite(raw, "raw")  # (a NaN sample would spread over the whole image through the guard's local means)
     pattern = _check_pattern(pattern)
     check_self_ensemble(self_ensemble)
     if model is None:
@@ -634,8 +642,8 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
         x = F.pad(x, (0, x.shape[-1] % 2, 0, x.shape[-2] % 2), mode="reflect")
     def run(net, nz):
         if self_ensemble == "dihedral":
-            return torch.stack([demosaic_learned(x.flip(dims), flipped, model=net, noise=nz,
-                                                 self_ensemble=True).flip(dims)
+            return torch.stack([_demosaic_learned(x.flip(dims), flipped, model=net, noise=nz,
+                                                  self_ensemble=True, variant=variant).flip(dims)
                                 for dims, flipped in _FLIPS.items()]).mean(0)
         y = net(x, nz)
         if self_ensemble:
@@ -766,8 +774,10 @@ def _register() -> None:
         return
 
     for name, variant in LEARNED_METHODS.items():
-        def _learned(raw, pattern="RGGB", *, _variant=variant, **kwargs):
-            return demosaic_learned(raw, pattern, variant=_variant, **kwargs)
+        def _learned(raw, pattern="RGGB", *, _variant=variant, model=None, noise=None, self_ensemble=False):
+            # reached through demosaic(), which has checked the values finite
+            return _demosaic_learned(raw, pattern, model=model, noise=noise, self_ensemble=self_ensemble,
+                                     variant=_variant)
 
         try:
             reg(name, _learned)
