@@ -45,8 +45,11 @@ SPEED_METHODS = ("nearest", "bilinear", "malvar2004", "menon2007", "learned_tiny
 LEARNED_ROWS = ("learned_tiny", "learned_small", "learned")
 
 
-def _median_ms_per_mp(res: dict, sizes: dict) -> float:
-    return statistics.median(r["ms"] / (sizes[r["name"]] / 1e6) for r in res["images"])
+def _median_ms_per_mp(passes: list[dict], sizes: dict) -> float:
+    """The median over images of each image's median time over ``passes`` (evaluate_demosaic's results for one set,
+    the images in the same order), in ms per megapixel."""
+    return statistics.median(statistics.median(im["ms"] for im in ims) / (sizes[ims[0]["name"]] / 1e6)
+                             for ims in zip(*(res["images"] for res in passes)))
 
 
 def _sizes(folder: Path) -> dict:
@@ -84,11 +87,7 @@ def speed(args) -> list[str]:
         deterministic) and the median over images of each image's median time over the passes."""
         cells, point = [], {}
         for k in sets:
-            res = passes[0][k]
-            ms = {r["name"]: statistics.median(p[k]["images"][i]["ms"] for p in passes)
-                  for i, r in enumerate(res["images"])}
-            point[k] = (res["mean_cpsnr"], _median_ms_per_mp({"images": [{"name": n, "ms": v} for n, v in ms.items()]},
-                                                             sizes[k]))
+            point[k] = (passes[0][k]["mean_cpsnr"], _median_ms_per_mp([p[k] for p in passes], sizes[k]))
             cells += [f"{point[k][0]:.2f}", f"{point[k][1]:.1f}"]
         if plot:
             points[name] = point
