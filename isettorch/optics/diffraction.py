@@ -38,8 +38,10 @@ def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_n
     step = max(1, _OTF_CHUNK_ELEMENTS // rho.numel())
     if step >= lam_n.shape[1] or torch.is_grad_enabled() and (rho.requires_grad or lam_n.requires_grad):
         return dl_mtf_1d(rho[:, None] * lam_n[:, :, None, None])
-    # a large grid without a gradient: a few wavelengths at a time into the result (the same values: the MTF is
-    # element-wise), so dl_mtf_1d's temporaries, about eight of the result's size, exist for those wavelengths only
+    # a large grid without a gradient: a few wavelengths at a time into the result (the same formula element by
+    # element; the vectorised acos / sqrt may round a few elements in the last bit differently where a chunk's
+    # boundary moves them between its SIMD and remainder loops), so dl_mtf_1d's temporaries, about eight of the
+    # result's size, exist for those wavelengths only
     # (a 6 MP photograph's padded grid at 31 wavelengths: 0.4 GB of OTF, a 3 GB peak when evaluated at once)
     out = rho.new_empty(rho.shape[0], lam_n.shape[1], *rho.shape[1:])
     for lo in range(0, lam_n.shape[1], step):

@@ -75,8 +75,9 @@ def test_applied_mtf_is_analytic():
 
 def test_otf_of_a_large_grid_by_wavelength_chunks_is_the_same(monkeypatch):
     # Without a gradient a large grid's OTF is evaluated a few wavelengths at a time (bounded temporaries): the same
-    # values bitwise as all at once (the MTF is element-wise), Goodman's formula at every wavelength; with a
-    # gradient (a learnable f-number) all at once, the gradient unchanged.
+    # values as all at once (the MTF is element-wise; bitwise here, where each chunk of 7,920 values is whole SIMD
+    # vectors), Goodman's formula at every wavelength; with a gradient (a learnable f-number) all at once, the
+    # gradient unchanged.
     from isettorch.optics import diffraction, dl_otf
 
     g = torch.Generator().manual_seed(0)
