@@ -193,6 +193,9 @@ def _box(x: torch.Tensor, window: int) -> torch.Tensor:
 BASES = {
     "malvar2004": lambda raw: demosaic_malvar2004(raw, "RGGB", boundary="mirror"),
     "menon2007": lambda raw: demosaic_menon2007(raw, "RGGB"),
+    # Menon et al. (2007) without its refining step (Section III-C of the paper; colour-demosaicing's
+    # ``refining_step=False``): about a third of Menon's CPU time is that step, which a network on top can learn
+    "menon2007_norefine": lambda raw: demosaic_menon2007(raw, "RGGB", refine=False),
 }
 
 _GUARD_KEYS = ("rel", "abs", "window", "power", "highpass_sigma_px", "highpass_decimation")
@@ -218,23 +221,31 @@ def _check_guard(rel=0.1, abs=0.03, window=5, power=4.0, highpass_sigma_px=None,
                          f"{highpass_decimation}")
 
 
+def _gaussian_blur(x: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """kornia's ``gaussian_blur2d`` of ``sigma_px`` (kernel ``2 ceil(3 sigma) + 1`` taps, replicate border) as two
+    depthwise convolutions with kornia's kernel (``get_gaussian_kernel1d``): the same sums, without kornia's
+    per-call checks, which cost more than the blur itself on the guard's 4x-decimated image (about 1 ms/MP)."""
+    from kornia.filters import get_gaussian_kernel1d
+
+    k = 2 * math.ceil(3 * sigma_px) + 1
+    taps = get_gaussian_kernel1d(k, sigma_px, device=x.device, dtype=x.dtype)
+    c, p = x.shape[1], k // 2
+    x = F.conv2d(F.pad(x, (p, p, 0, 0), mode="replicate"), taps.view(1, 1, 1, k).expand(c, 1, 1, k), groups=c)
+    return F.conv2d(F.pad(x, (0, 0, p, p), mode="replicate"), taps.view(1, 1, k, 1).expand(c, 1, k, 1), groups=c)
+
+
 def _lowpass(x: torch.Tensor, sigma_px: float, decimation: int | None) -> torch.Tensor:
     """Gaussian blur of ``sigma_px`` (replicate border); with ``decimation`` d, the blur is computed on the
     d x d box means (``sigma_px / d`` there) and brought back by bilinear interpolation: the pyramid shortcut of
     Burt & Adelson (IEEE Trans. Commun. 1983), about 10x cheaper at sigma 16, d 8, and the same scale of local mean
     (the box and the interpolation add about d / sqrt(6) px in quadrature to sigma)."""
-    from kornia.filters import gaussian_blur2d
-
     if decimation is None:
-        k = 2 * math.ceil(3 * sigma_px) + 1
-        return gaussian_blur2d(x, (k, k), (sigma_px, sigma_px), border_type="replicate")
+        return _gaussian_blur(x, sigma_px)
     d = int(decimation)
     h, w = x.shape[-2:]
     ph, pw = -h % d, -w % d
     small = F.avg_pool2d(F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x, d)
-    s = sigma_px / d
-    k = 2 * math.ceil(3 * s) + 1
-    small = gaussian_blur2d(small, (k, k), (s, s), border_type="replicate")
+    small = _gaussian_blur(small, sigma_px / d)
     big = F.interpolate(small, scale_factor=d, mode="bilinear", align_corners=False)
     return big[..., :h, :w]
 
@@ -438,29 +449,55 @@ class DemosaicNet(nn.Module):
             raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
         # oneDNN's CPU convolutions run about 1.4x faster on channels-last (NHWC) activations; the values are the same
         x = self.body[1:](_first_conv(self.body[0], raw, base, noise, channels_last=raw.device.type == "cpu"))
-        residual = _unpack(self.head(x)).to(base.dtype)
-        # after the network the output is built over its correction (a fresh tensor) unless autograd records the
-        # pass: no full-resolution temporaries, whose fresh pages cost as much as the arithmetic on CPU
-        in_place = not (residual.requires_grad or raw.requires_grad)
+        blend = _check_blend(self.blend) if self.blend is not None else None  # an instance's blend may have changed
+        if torch.is_grad_enabled() and (x.requires_grad or raw.requires_grad
+                                        or any(p.requires_grad for p in self.head.parameters())):
+            return self._output(raw, base, self.head(x), blend)
+        return self._output_in_place(raw, base, x, blend)
+
+    def _output(self, raw: torch.Tensor, base: torch.Tensor, y: torch.Tensor, blend: dict | None) -> torch.Tensor:
+        """The output from the head's packed correction ``y`` when autograd records the pass (training): each step
+        into a fresh tensor."""
+        residual = _unpack(y).to(base.dtype)
         if self.correction_scale != 1.0:
-            residual = residual.mul_(self.correction_scale) if in_place else residual * self.correction_scale
-        if self.blend is not None:
-            b = _check_blend(self.blend)  # an instance's blend may have been changed
-            with torch.autocast(raw.device.type, enabled=False):  # the classical estimate at the input's precision
-                departure = BASES[b["method"]](raw).sub_(base) if in_place else BASES[b["method"]](raw) - base
-                residual = (residual.mul_(1 - b["weight"]).add_(departure, alpha=b["weight"]) if in_place
-                            else (1 - b["weight"]) * residual + b["weight"] * departure)
-        if self.guard is not None:
-            with torch.autocast(raw.device.type, enabled=False):
+            residual = residual * self.correction_scale
+        with torch.autocast(raw.device.type, enabled=False):  # the classical estimates at the input's precision
+            if blend is not None:
+                departure = BASES[blend["method"]](raw) - base
+                residual = (1 - blend["weight"]) * residual + blend["weight"] * departure
+            if self.guard is not None:
                 if self.base != "malvar2004":
                     # the guard is relative to MHC (linear, exact on constants, unbiased) whatever the base: the
                     # network's output minus MHC is the correction it guards (Menon's own decisions are not linear:
                     # -0.32/255 of blue bias on a star field), so the guarantees hold for every base
                     mhc = BASES["malvar2004"](raw)
-                    residual = residual.add_(base).sub_(mhc) if in_place else residual + (base - mhc)
+                    residual = residual + (base - mhc)
                     base = mhc
-                residual = guard_residual(raw, residual, **self.guard, in_place=in_place)
-        return residual.add_(base) if in_place else base + residual
+                residual = guard_residual(raw, residual, **self.guard)
+        return base + residual
+
+    def _output_in_place(self, raw: torch.Tensor, base: torch.Tensor, x: torch.Tensor, blend: dict | None
+                         ) -> torch.Tensor:
+        """:meth:`_output` when autograd records nothing (inference), the same sums in another order (float
+        rounding, ~1e-7): the correction scale and the blend's network weight are folded into the head's weights,
+        the classical departures are summed into one of the fresh classical estimates, the head's correction is
+        added to it as it is unpacked, and the guard writes over it. Each full-resolution pass written into a fresh
+        tensor costs about as much on CPU as the arithmetic (its pages are new), so this saves three of them."""
+        k = self.correction_scale * (1 - blend["weight"] if blend is not None else 1.0)
+        y = self.head(x) if k == 1.0 else self.head._conv_forward(x, self.head.weight * k, self.head.bias * k)
+        y = y.to(base.dtype)
+        with torch.autocast(raw.device.type, enabled=False):
+            add = None  # the classical part of the correction (a fresh tensor), or None
+            if blend is not None:
+                add = BASES[blend["method"]](raw).sub_(base).mul_(blend["weight"])
+            if self.guard is not None and self.base != "malvar2004":  # relative to MHC whatever the base (_output)
+                mhc = BASES["malvar2004"](raw)
+                add = base.sub_(mhc) if add is None else add.add_(base).sub_(mhc)  # (base: a fresh estimate)
+                base = mhc
+            residual = _unpack(y, add_to=add)
+            if self.guard is not None:
+                residual = guard_residual(raw, residual, **self.guard, in_place=True)
+        return residual.add_(base)
 
 
 def _first_conv(conv: nn.Conv2d, raw: torch.Tensor, base: torch.Tensor, noise: torch.Tensor | None,
@@ -487,12 +524,17 @@ def _first_conv(conv: nn.Conv2d, raw: torch.Tensor, base: torch.Tensor, noise: t
     return y
 
 
-def _unpack(y: torch.Tensor) -> torch.Tensor:
+def _unpack(y: torch.Tensor, add_to: torch.Tensor | None = None) -> torch.Tensor:
     """``pixel_shuffle(y, 2)`` in one copy whatever ``y``'s memory layout, into a fresh tensor (which callers may
-    write over): (B, 4C, h, w) -> (B, C, 2h, 2w)."""
+    write over): (B, 4C, h, w) -> (B, C, 2h, 2w). With ``add_to`` (B, C, 2h, 2w), contiguous: added to it in place
+    instead (``add_to += pixel_shuffle(y, 2)`` in one pass), which is returned."""
     b, c4, h, w = y.shape
+    cells = y.view(b, c4 // 4, 2, 2, h, w).permute(0, 1, 4, 2, 5, 3)
+    if add_to is not None:
+        add_to.view(b, c4 // 4, h, 2, w, 2).add_(cells)
+        return add_to
     out = torch.empty(b, c4 // 4, 2 * h, 2 * w, dtype=y.dtype, device=y.device)
-    out.view(b, c4 // 4, h, 2, w, 2).copy_(y.view(b, c4 // 4, 2, 2, h, w).permute(0, 1, 4, 2, 5, 3))
+    out.view(b, c4 // 4, h, 2, w, 2).copy_(cells)
     return out
 
 

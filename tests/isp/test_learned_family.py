@@ -3,6 +3,8 @@ DemosaicNet on top of Menon et al. (2007), and the guard's decimated high-pass."
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from kornia.filters import gaussian_blur2d
@@ -22,6 +24,16 @@ def test_untrained_menon_network_is_menon():
     assert learned.DemosaicNet(**net.config()).base == "menon2007"
     with pytest.raises(ValueError, match="base"):
         learned.DemosaicNet(channels=4, depth=1, base="ahd")
+
+
+@pytest.mark.parametrize("shape, sigma", [((1, 3, 40, 52), 1.0), ((2, 3, 9, 7), 4.0), ((1, 3, 120, 90), 16.0)])
+def test_guard_blur_is_kornias_gaussian_blur(shape, sigma):
+    # the guard's Gaussian is two depthwise convolutions with kornia's kernel: kornia's gaussian_blur2d values
+    # (replicate border, 2 ceil(3 sigma) + 1 taps), also where the kernel is wider than the image
+    x = torch.rand(shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    k = 2 * math.ceil(3 * sigma) + 1
+    ref = gaussian_blur2d(x, (k, k), (sigma, sigma), border_type="replicate")
+    torch.testing.assert_close(learned._gaussian_blur(x, sigma), ref, rtol=1e-13, atol=1e-15)
 
 
 def test_decimated_lowpass_approximates_the_gaussian():
@@ -219,6 +231,29 @@ def test_guard_in_place_is_the_guard():
     out = learned.guard_residual(raw, residual, **opts, in_place=True)
     assert out.data_ptr() == residual.data_ptr()
     torch.testing.assert_close(out, ref, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("base", ["malvar2004", "menon2007", "menon2007_norefine"])
+@pytest.mark.parametrize("scale, blend", [(1.0, None), (0.5, None), (0.875, {"method": "menon2007", "weight": 0.3})])
+def test_inference_output_is_the_training_output(base, scale, blend):
+    # In inference (no autograd graph) DemosaicNet folds the correction scale and the blend's network weight into
+    # the head, sums the classical departures into a fresh estimate and unpacks the correction into it; in training
+    # each step is its own tensor. The same function: float64 to 1e-12, and the input is left as it was.
+    g = torch.Generator().manual_seed(6)
+    raw = torch.rand(2, 1, 18, 22, generator=g, dtype=torch.float64)
+    net = learned.DemosaicNet(channels=6, depth=2, base=base, correction_scale=scale, blend=blend,
+                              guard=learned.PRETRAINED_GUARDS["tiny"]).double()
+    torch.nn.init.normal_(net.head.weight, std=0.1, generator=g)
+    torch.nn.init.normal_(net.head.bias, std=0.01, generator=g)
+    for guard in (net.guard, None):
+        net.guard = guard
+        recorded = net(raw.clone().requires_grad_(True))
+        assert recorded.requires_grad
+        kept = raw.clone()
+        with torch.no_grad():
+            out = net(raw)
+        torch.testing.assert_close(raw, kept, rtol=0, atol=0)
+        torch.testing.assert_close(out, recorded.detach(), rtol=1e-12, atol=1e-12)
 
 
 def test_box_mean_matches_avg_pool_with_replicate_border():
