@@ -104,13 +104,17 @@ def init_state(ck: dict, net: DemosaicNet, name: str = "init") -> dict:
     - a deeper residual network of the same width (``depth`` larger, both ``residual``): the checkpoint's blocks,
       then new blocks whose second convolution is zero, each an exact identity at the start (Net2DeeperNet, Chen,
       Goodfellow & Shlens, ICLR 2016, for residual blocks), while their first convolutions keep ``net``'s He
-      initialisation so the new blocks train from the first step.
+      initialisation so the new blocks train from the first step;
+    - another ``base`` (the same width and depth): its weights as they are, now correcting the other classical
+      estimate (not the same function: a start close to it where the two bases agree, to be trained on).
     """
     # the guard holds no weights: a network trained with the guard in the loop may start from one trained without
     old = {k: v for k, v in {"noise_inputs": 0, **ck["net_config"]}.items() if k != "guard"}
     new = {k: v for k, v in net.config().items() if k != "guard"}
     state = {k: v.float() for k, v in ck["model"].items()}
     if old == new:
+        return state
+    if {**old, "base": None} == {**new, "base": None}:
         return state
 
     def but(cfg: dict, key: str) -> dict:
