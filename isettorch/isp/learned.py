@@ -162,15 +162,17 @@ def _to_rggb(raw: torch.Tensor, pattern: str) -> tuple[torch.Tensor, int, int]:
 
 def _curvature(planes: torch.Tensor) -> torch.Tensor:
     """The mean over the planes (B, C, h, w) of ``|d2/dx2| + |d2/dy2|`` by slicing (exactly 0 on a constant plane,
-    whatever its value, since ``c - 2c + c`` is exact in floating point), each edge row/column repeating its
+    whatever its value, since ``(c + c) - 2c`` is exact in floating point), each edge row/column repeating its
     neighbour's; (B, 1, h, w)."""
-    out = planes.new_zeros(planes.shape[0], 1, *planes.shape[-2:])
-    if planes.shape[-1] >= 3:
-        dxx = (planes[..., 2:] - 2 * planes[..., 1:-1] + planes[..., :-2]).abs().mean(1, keepdim=True)
-        out = out + F.pad(dxx, (1, 1, 0, 0), mode="replicate")
-    if planes.shape[-2] >= 3:
-        dyy = (planes[..., 2:, :] - 2 * planes[..., 1:-1, :] + planes[..., :-2, :]).abs().mean(1, keepdim=True)
-        out = out + F.pad(dyy, (0, 0, 1, 1), mode="replicate")
+    b, _, h, w = planes.shape
+    out = planes.new_zeros(b, 1, h, w) if w < 3 else F.pad(
+        (planes[..., 2:] + planes[..., :-2]).sub_(planes[..., 1:-1], alpha=2).abs().mean(1, keepdim=True),
+        (1, 1, 0, 0), mode="replicate")
+    if h >= 3:
+        dyy = (planes[..., 2:, :] + planes[..., :-2, :]).sub_(planes[..., 1:-1, :], alpha=2).abs().mean(1, keepdim=True)
+        out[..., 1:-1, :] += dyy  # dyy padded by repeating its first and last rows, added in place
+        out[..., :1, :] += dyy[..., :1, :]
+        out[..., -1:, :] += dyy[..., -1:, :]
     return out
 
 

@@ -256,6 +256,26 @@ def test_inference_output_is_the_training_output(base, scale, blend):
         torch.testing.assert_close(out, recorded.detach(), rtol=1e-12, atol=1e-12)
 
 
+def test_gate_curvature_is_the_mean_absolute_second_difference():
+    # |d2/dx2| + |d2/dy2| averaged over the planes, each edge row / column repeating its neighbour's (replicate),
+    # against the second differences written out as a convolution; zero on constant planes at any value; differentiable
+    F = torch.nn.functional
+    g = torch.Generator().manual_seed(7)
+    for shape in ((2, 4, 6, 9), (1, 4, 2, 6), (1, 4, 6, 2), (1, 4, 2, 2)):
+        x = torch.rand(shape, generator=g, dtype=torch.float64)
+        ref = torch.zeros(shape[0], 1, *shape[-2:], dtype=torch.float64)
+        c = shape[1]
+        for kernel, pad in (([[1.0, -2.0, 1.0]], (1, 1, 0, 0)), ([[1.0], [-2.0], [1.0]], (0, 0, 1, 1))):
+            k = torch.tensor(kernel, dtype=torch.float64)
+            if x.shape[-1] >= k.shape[1] and x.shape[-2] >= k.shape[0]:
+                d = F.conv2d(x, k.expand(c, 1, *k.shape), groups=c).abs().mean(1, keepdim=True)
+                ref = ref + F.pad(d, pad, mode="replicate")
+        torch.testing.assert_close(learned._curvature(x), ref, rtol=1e-12, atol=1e-15)
+    assert learned._curvature(torch.full((1, 4, 7, 9), 0.3711)).abs().max() == 0
+    x = torch.rand(1, 4, 6, 7, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: learned._curvature(t + 0.5 * t.roll(1, -1) ** 2), (x,))
+
+
 def test_box_mean_matches_avg_pool_with_replicate_border():
     x = torch.rand(2, 4, 9, 13, generator=torch.Generator().manual_seed(5), dtype=torch.float64)
     for window in (1, 3, 5, 7):
