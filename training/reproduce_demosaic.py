@@ -47,8 +47,9 @@ CHAINS = {
     # ``noise_free`` reproduces
     "joint_denoise": ["demosaic_joint_all_levels", "demosaic_joint_guarded"],
     # the speed-error family (issue #35): from scratch; the tiny network then distilled from the shipped noise-free
-    # one (which its photographs rule chose over the first step: docs/training_log.md#family_2026-11-27)
-    "tiny": ["demosaic_tiny", "demosaic_tiny_distill"],
+    # one (which its photographs rule chose over the first step: docs/training_log.md#family_2026-11-27), then
+    # moved to Menon without its refining step and distilled again (#tiny_norefine_2026-11-29)
+    "tiny": ["demosaic_tiny", "demosaic_tiny_distill", "demosaic_tiny_norefine"],
     "small": ["demosaic_small"],
 }
 #: what the export of a chain's last best.pt adds (the noise-free chain ends with its interpolation screen instead)

@@ -87,7 +87,8 @@ PRETRAINED_GUARDS = {
     "joint_denoise": {"rel": 0.0, "abs": 1e-6, "window": 5, "power": 4, "highpass_sigma_px": 16.0},
     # the fast networks keep the noise-free gate; their high-pass is narrower (sigma 4 px: at 16 px the tiny network
     # kept 0.17/255 of red bias on a generator scene of the bias test) and computed on 4 x 4 means (the
-    # full-resolution sigma-16 blur alone would cost ~75 ms/MP on 2 cores, more than the tiny network); chosen on
+    # full-resolution sigma-16 blur alone cost ~75 ms/MP on 2 cores with kornia's convolutions, more than the tiny
+    # network, and ~30 as the shifted sums of _separable); chosen on
     # the bias test's images and the stress set's photographs, never Kodak/McMaster
     "tiny": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
     "small": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
@@ -96,7 +97,8 @@ PRETRAINED_GUARDS = {
 #: absent): the networks' corrections learned on synthetic scenes are partly too large for photographs, so each is
 #: shrunk towards its base. Chosen on the 30 selection photographs (``training/selection_photos.py``), never
 #: Kodak/McMaster: ``docs/training_log.md#fast_shrink_photos_2026-11-29`` (it replaced the earlier choice on the stress
-#: set's photographs, ``#fast_shrink_2026-11-28``: small 0.75, tiny 1) and ``#learned_scale_photos_2026-11-29`` (the
+#: set's photographs, ``#fast_shrink_2026-11-28``: small 0.75, tiny 1; the tiny network's chosen again on its
+#: unrefined base, ``#tiny_norefine_2026-11-29``) and ``#learned_scale_photos_2026-11-29`` (the
 #: noise-free network, also the joint network's low-noise expert). The joint network keeps 1: its correction is a
 #: denoiser's too.
 PRETRAINED_CORRECTION_SCALES = {"small": 0.5, "tiny": 0.5, "noise_free": 0.875}
@@ -352,8 +354,10 @@ class DemosaicNet(nn.Module):
             body trains as fast as a shallow one; ``depth - 1`` must then be even. Default False: a plain stack
             (the earlier checkpoints).
         base: the classical estimate the network corrects (:data:`BASES`): ``"malvar2004"`` (MHC, linear, the
-            default and every network before the speed family) or ``"menon2007"`` (DDFAPD, Menon et al. 2007: about
-            3x MHC's time and 3.5 dB better on Kodak, so a small network on top of it starts higher). The guard is
+            default and every network before the speed family), ``"menon2007"`` (DDFAPD, Menon et al. 2007: about
+            4x MHC's time and 3.5 dB better on Kodak, so a small network on top of it starts higher) or
+            ``"menon2007_norefine"`` (the same without its refining step: two thirds of its time, for the tiny
+            network, which learned what the step does). The guard is
             always relative to MHC: with another base it guards the network's whole departure from MHC (base plus
             correction minus MHC), so constants stay exact and the output's local means MHC's.
         guard: ``None`` (training: the raw correction) or the options of :func:`guard_residual` (a dict), which
@@ -791,8 +795,11 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
     ``demosaic_noise_free.yaml`` (generator version 4), ``demosaic_noise_free_finetune.yaml`` (version 5, with
     chromatic detail and independent three-layer grain), then ``demosaic_noise_free_stage3.yaml`` (version 5, a
     fresh scene bank, lower learning rate). ``"tiny"`` and ``"small"`` (methods ``learned_tiny``, ``learned_small``)
-    are a plain 16 x 3 and a residual 24 x 5 network on top of Menon et al. 2007 (``base="menon2007"``), trained
-    from scratch by ``configs/train/demosaic_tiny.yaml`` / ``demosaic_small.yaml``. Each JSON beside a checkpoint
+    are a plain 16 x 3 network on Menon et al. 2007 without its refining step (``base="menon2007_norefine"``) and a
+    residual 24 x 5 network on Menon et al. 2007 (``base="menon2007"``), trained from scratch by
+    ``configs/train/demosaic_tiny.yaml`` / ``demosaic_small.yaml``; the tiny one then distilled from the noise-free
+    network on the full Menon base (``demosaic_tiny_distill.yaml``) and again on the unrefined one
+    (``demosaic_tiny_norefine.yaml``). Each JSON beside a checkpoint
     records its command, config,
     steps, wall time, hardware and scores; the model cards (``.md``) add held-out synthetic screens.
 
