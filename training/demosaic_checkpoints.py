@@ -15,13 +15,15 @@ from training import common
 
 
 def load_teacher(cfg: dict, device) -> tuple[DemosaicNet | None, float, bool | str]:
-    """(teacher network in eval mode or None, weight, self_ensemble) from the config's ``distill`` block."""
+    """(teacher network in eval mode or None, weight, self_ensemble) from the config's ``distill`` block; with
+    ``shipped: VARIANT`` the teacher runs as that shipped variant does (:func:`isettorch.isp.learned.
+    apply_shipped_settings`: its guard, correction scale and classical blend), else bare."""
     d = cfg.get("distill") or {}
     if not d:
         return None, 0.0, False
-    unknown = set(d) - {"teacher", "weight", "self_ensemble"}
+    unknown = set(d) - {"teacher", "weight", "self_ensemble", "shipped"}
     if unknown:
-        raise ValueError(f"distill: unknown keys {sorted(unknown)}; expected teacher, weight, self_ensemble")
+        raise ValueError(f"distill: unknown keys {sorted(unknown)}; expected teacher, weight, self_ensemble, shipped")
     weight = float(d.get("weight", 1.0))
     if not 0.0 < weight <= 1.0:
         raise ValueError(f"distill.weight: expected a value in (0, 1], got {weight}")
@@ -29,6 +31,11 @@ def load_teacher(cfg: dict, device) -> tuple[DemosaicNet | None, float, bool | s
     if "teacher" not in d:
         raise ValueError("distill.teacher: expected the path of a DemosaicNet checkpoint")
     teacher, _ = learned.load_checkpoint(d["teacher"], device=device)
+    if d.get("shipped") is not None:  # the teacher as a shipped variant runs: its guard, correction scale and blend
+        if d["shipped"] not in learned.PRETRAINED:
+            raise ValueError(f"distill.shipped: expected one of {sorted(learned.PRETRAINED)} or null, got "
+                             f"{d['shipped']!r}")
+        learned.apply_shipped_settings(teacher, d["shipped"])
     want = 2 if cfg.get("noise", {}).get("enabled", False) else 0
     if teacher.noise_inputs != want:
         raise ValueError(f"distill.teacher: {d['teacher']} takes {teacher.noise_inputs} noise inputs, this run's "

@@ -15,6 +15,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from isettorch.isp import learned  # noqa: E402
 from isettorch.isp.learned import demosaic_learned  # noqa: E402
 from training import common, demosaic_data, train_demosaic  # noqa: E402
 
@@ -460,6 +461,24 @@ def test_distill_target_is_the_teachers_self_ensemble_and_transpose_equivariant(
     torch.testing.assert_close(train_demosaic.distill_target(t_raw, rgb.transpose(-1, -2), None, teacher, 1.0, True),
                                train_demosaic.distill_target(raw, rgb, None, teacher, 1.0, True).transpose(-1, -2),
                                rtol=0, atol=1e-6)
+
+
+def test_distill_teacher_as_shipped(tmp_path):
+    # distill.shipped: the teacher runs with a shipped variant's guard, scale and blend, so the target is that
+    # configuration's output (the library's forward of the same network with those settings), not the bare network's
+    net, path = _teacher(tmp_path)
+    teacher, _, _ = train_demosaic.load_teacher({"distill": {"teacher": str(path), "self_ensemble": False,
+                                                             "shipped": "noise_free"}}, "cpu")
+    ref = learned.apply_shipped_settings(net, "noise_free")
+    assert teacher.guard == learned.PRETRAINED_GUARDS["noise_free"] and teacher.blend == ref.blend is not None
+    raw = train_demosaic.mosaic_rggb(torch.rand(1, 3, 24, 32, generator=torch.Generator().manual_seed(1)))
+    target = train_demosaic.distill_target(raw, torch.zeros(1, 3, 24, 32), None, teacher, 1.0, False)
+    with torch.no_grad():
+        torch.testing.assert_close(target, ref(raw), rtol=0, atol=1e-6)
+        bare = learned.load_checkpoint(path)[0]
+        assert (target - bare(raw)).abs().max() > 1e-3
+    with pytest.raises(ValueError, match="distill.shipped"):
+        train_demosaic.load_teacher({"distill": {"teacher": str(path), "shipped": "huge"}}, "cpu")
 
 
 def test_distill_config_errors_name_the_key(tmp_path):
