@@ -204,8 +204,8 @@ def _box(x: torch.Tensor, window: int) -> torch.Tensor:
 BASES = {
     "malvar2004": lambda raw: demosaic_malvar2004(raw, "RGGB", boundary="mirror"),
     "menon2007": lambda raw: demosaic_menon2007(raw, "RGGB"),
-    # Menon et al. (2007) without its refining step (Section III-C of the paper; colour-demosaicing's
-    # ``refining_step=False``): about a third of Menon's CPU time is that step, which a network on top can learn
+    # Menon et al. (2007) without the paper's refining step (colour-demosaicing's ``refining_step=False``): that
+    # step is about a third of Menon's CPU time here, and a network on top can learn what it does
     "menon2007_norefine": lambda raw: demosaic_menon2007(raw, "RGGB", refine=False),
 }
 

@@ -276,6 +276,16 @@ def test_gate_curvature_is_the_mean_absolute_second_difference():
     assert torch.autograd.gradcheck(lambda t: learned._curvature(t + 0.5 * t.roll(1, -1) ** 2), (x,))
 
 
+@pytest.mark.parametrize("opts", [{"highpass_sigma_px": 4.0, "highpass_decimation": 4}, {"highpass_sigma_px": 2.0}])
+def test_guard_gradients_match_finite_differences(opts):
+    # training through the guard (a camera in the loop, the guard in the loss) needs its gradients with respect to
+    # the mosaic (through the gate) and to the correction (through the gate's product and the high-pass)
+    g = torch.Generator().manual_seed(8)
+    raw = torch.rand(1, 1, 12, 16, generator=g, dtype=torch.float64, requires_grad=True)
+    residual = torch.randn(1, 3, 12, 16, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda r, c: learned.guard_residual(r, c, **opts), (raw, residual))
+
+
 def test_box_mean_matches_avg_pool_with_replicate_border():
     x = torch.rand(2, 4, 9, 13, generator=torch.Generator().manual_seed(5), dtype=torch.float64)
     for window in (1, 3, 5, 7):
