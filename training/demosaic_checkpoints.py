@@ -119,9 +119,7 @@ def init_state(ck: dict, net: DemosaicNet, name: str = "init") -> dict:
     old = {k: v for k, v in {"noise_inputs": 0, **ck["net_config"]}.items() if k != "guard"}
     new = {k: v for k, v in net.config().items() if k != "guard"}
     state = {k: v.float() for k, v in ck["model"].items()}
-    if old == new:
-        return state
-    if {**old, "base": None} == {**new, "base": None}:
+    if {**old, "base": None} == {**new, "base": None}:  # the same network, on the same base or another
         return state
 
     def but(cfg: dict, key: str) -> dict:

@@ -347,6 +347,13 @@ def test_joint_network_starts_as_the_noise_free_one():
     free.guard = guard
     torch.testing.assert_close(guarded(raw), free(raw), rtol=0, atol=0)
     free.guard = None
+    # another base: the same weights, now correcting that base (the tiny network moved to the unrefined Menon);
+    # with another base and another width it cannot start
+    on_menon = train_demosaic.DemosaicNet(channels=8, depth=2, base="menon2007_norefine")
+    state = train_demosaic.init_state(ck, on_menon)
+    assert all(torch.equal(state[k], v) for k, v in free.state_dict().items())
+    with pytest.raises(ValueError, match="cannot start"):
+        train_demosaic.init_state(ck, train_demosaic.DemosaicNet(channels=16, depth=2, base="menon2007_norefine"))
 
 
 def test_deeper_residual_network_starts_as_the_shallower_one_and_its_new_blocks_learn():
