@@ -85,12 +85,13 @@ LEARNED_METHODS = {"learned": "noise_free", "learned_tiny": "tiny", "learned_sma
 PRETRAINED_GUARDS = {
     "noise_free": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 16.0},
     "joint_denoise": {"rel": 0.0, "abs": 1e-6, "window": 5, "power": 4, "highpass_sigma_px": 16.0},
-    # the fast networks keep the noise-free gate; their high-pass is narrower (sigma 4 px: at 16 px the tiny network
-    # kept 0.17/255 of red bias on a generator scene of the bias test) and computed on 4 x 4 means (the
-    # full-resolution sigma-16 blur alone cost ~75 ms/MP on 2 cores with kornia's convolutions, more than the tiny
-    # network, and ~30 as the shifted sums of _separable); chosen on
-    # the bias test's images and the stress set's photographs, never Kodak/McMaster
-    "tiny": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
+    # the fast networks keep the noise-free gate; their high-pass is narrower (at 16 px the tiny network kept
+    # 0.17/255 of red bias on a generator scene of the bias test) and computed on 4 x 4 means (the full-resolution
+    # sigma-16 blur alone cost ~75 ms/MP on 2 cores with kornia's convolutions, more than the tiny network, and ~30
+    # as the shifted sums of _separable); the small network's 4 px chosen on the bias test's images and the stress
+    # set's photographs, the tiny network's 8 px (with its gate threshold and correction scale) on the 30 selection
+    # photographs (docs/training_log.md#tiny_guard_photos_2026-11-29); never Kodak/McMaster
+    "tiny": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 8.0, "highpass_decimation": 4},
     "small": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
 }
 #: the scale of the network's correction in each shipped configuration (``DemosaicNet.correction_scale``; 1 where
@@ -98,9 +99,9 @@ PRETRAINED_GUARDS = {
 #: shrunk towards its base. Chosen on the 30 selection photographs (``training/selection_photos.py``), never
 #: Kodak/McMaster: ``docs/training_log.md#fast_shrink_photos_2026-11-29`` (it replaced the earlier choice on the stress
 #: set's photographs, ``#fast_shrink_2026-11-28``: small 0.75, tiny 1; the tiny network's chosen again on its
-#: unrefined base, ``#tiny_norefine_2026-11-29``) and ``#learned_scale_photos_2026-11-29`` (the
-#: noise-free network, also the joint network's low-noise expert). The joint network keeps 1: its correction is a
-#: denoiser's too.
+#: unrefined base, ``#tiny_norefine_2026-11-29``, and with its guard, ``#tiny_guard_photos_2026-11-29``) and
+#: ``#learned_scale_photos_2026-11-29`` (the noise-free network, also the joint network's low-noise expert). The joint
+#: network keeps 1: its correction is a denoiser's too.
 PRETRAINED_CORRECTION_SCALES = {"small": 0.5, "tiny": 0.5, "noise_free": 0.875}
 #: the classical estimate each shipped configuration blends in (``DemosaicNet.blend``; none where absent): the output
 #: is ``(1 - weight) net_output + weight classical_output``, the classical method's departure from the network's base
