@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from .. import spectral
+from .._autograd import records_grad
 from .._checks import check_wavelengths
 from .config import randint_scalar, uniform01
 
@@ -91,10 +92,6 @@ def _out_dtype(w: torch.Tensor) -> torch.dtype:
 def _to_torch(a: np.ndarray, dtype: torch.dtype, device) -> torch.Tensor:
     """The one numpy -> torch conversion at the end of each call (``a`` is a fresh array, never a cached one)."""
     return torch.from_numpy(a).to(dtype=dtype, device=device)
-
-
-def _needs_grad(*values) -> bool:
-    return torch.is_grad_enabled() and any(isinstance(v, torch.Tensor) and v.requires_grad for v in values)
 
 
 def _f64(value, xp) -> np.ndarray | torch.Tensor:
@@ -323,7 +320,7 @@ def daylight_spd(cct_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     the same convention as ``colour.temperature.CCT_to_xy_CIE_D`` (6504 K gives D65).
     """
     w, key = _grid(wavelengths_nm)
-    xp = torch if _needs_grad(cct_k) else np
+    xp = torch if records_grad(cct_k) else np
     t = _f64(cct_k, xp)
     spd = _daylight(t, key, xp)
     return (_to_torch(spd, _out_dtype(w), w.device) if xp is np
@@ -354,7 +351,7 @@ def _blackbody(t, grid: tuple, xp):
 def blackbody_spd(temperature_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     """Planck spectra ``[N, L]`` (energy, 100 at 560 nm). Source: Planck's law (CODATA h, c, k)."""
     w, key = _grid(wavelengths_nm)
-    xp = torch if _needs_grad(temperature_k) else np
+    xp = torch if records_grad(temperature_k) else np
     t = _f64(temperature_k, xp).reshape(-1, 1)
     if (t <= 0).any() or not xp.isfinite(t).all():
         raise ValueError(f"temperature_k: expected positive temperatures, got {t.flatten().tolist()}")
@@ -558,7 +555,7 @@ def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=No
     ``|d log r| <= 1.3e-7``).
     """
     w, key = _grid(wavelengths_nm)
-    xp = torch if _needs_grad(cct_k, pump_nm, phosphor_nm, phosphor_fwhm_nm) else np
+    xp = torch if records_grad(cct_k, pump_nm, phosphor_nm, phosphor_fwhm_nm) else np
     t = _f64(cct_k, xp)
     params = _led_params(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, xp)
     if xp is torch:

@@ -45,6 +45,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .._autograd import records_grad
 from .._checks import check_finite
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
 from .demosaicing.linear import demosaic_malvar2004
@@ -461,8 +462,7 @@ class DemosaicNet(nn.Module):
         # oneDNN's CPU convolutions run about 1.4x faster on channels-last (NHWC) activations; the values are the same
         x = self.body[1:](_first_conv(self.body[0], raw, base, noise, channels_last=raw.device.type == "cpu"))
         blend = _check_blend(self.blend) if self.blend is not None else None  # an instance's blend may have changed
-        if torch.is_grad_enabled() and (x.requires_grad or raw.requires_grad
-                                        or any(p.requires_grad for p in self.head.parameters())):
+        if records_grad(x, raw, self.head):
             return self._output(raw, base, self.head(x), blend)
         return self._output_in_place(raw, base, x, blend)
 

@@ -21,6 +21,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .._autograd import records_grad
+
 __all__ = ["MosaicReconstructionNet"]
 
 #: in inference, images of more pixels than this run in strips of STRIP_ROWS rows (bounded activation memory: a
@@ -84,8 +86,7 @@ class MosaicReconstructionNet(nn.Module):
         w = weights.to(raw.dtype).expand(raw.shape[0], -1, -1, -1)
         h = raw.shape[-2]
         if (not self.context_scale and raw[0, 0].numel() > STRIP_PIXELS and h > 2 * STRIP_ROWS
-                and not (torch.is_grad_enabled() and (raw.requires_grad or w.requires_grad
-                                                      or any(p.requires_grad for p in self.parameters())))):
+                and not records_grad(raw, w, self)):
             # a large image in inference: strips of STRIP_ROWS rows, each with `depth` more on both sides (the
             # receptive field of the 3x3 convolutions; their reflect padding at a strip's cut reaches no further), so
             # the activations exist for one strip at a time; the image's own borders are the strips' borders

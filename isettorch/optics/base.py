@@ -29,6 +29,7 @@ import torch
 from torch import nn
 
 from .. import spectral
+from .._autograd import records_grad
 from .._checks import as_tensor, batch_param, check_nonnegative, check_wavelengths
 from ..image import SpectralFactors, angle_for_extent
 from ..scene.scene import Scene
@@ -178,8 +179,7 @@ class ShiftInvariantLens(nn.Module):
         return spectral.resample(t, self.transmittance_wavelengths_nm, wavelengths_nm)
 
     def _requires_grad(self) -> bool:
-        return torch.is_grad_enabled() and (self.f_number.requires_grad
-                                            or any(p.requires_grad for p in self.parameters()))
+        return records_grad(self.f_number, self)
 
     def _otf_fn(self, wavelengths_nm, f_number, dx):
         def fn(fy, fx):
@@ -382,7 +382,7 @@ class ShiftInvariantLens(nn.Module):
             spectra = spectra * t.to(device=spectra.device).reshape(1, 1, -1)
         negligible = self._negligible(derived, dx, wave, n)
         if ri is not None:
-            if (negligible or torch.is_grad_enabled() and (maps.requires_grad or ri.requires_grad)
+            if (negligible or records_grad(maps, ri)
                     or ri.dtype != maps.dtype or ri.shape[0] not in (1, maps.shape[0])):
                 maps = maps * ri
             else:  # consumed by the rFFT below: a reused buffer (no fresh multi-MB allocation per call)
@@ -412,7 +412,7 @@ class ShiftInvariantLens(nn.Module):
             otf, inter = hit
             terms = scene.factors.terms
             if (terms is None or len(terms) == 1 or not per_item_products(buf.device)
-                    or torch.is_grad_enabled() and buf.requires_grad):
+                    or records_grad(buf)):
                 spec, terms = torch.fft.rfft2(buf), None  # (on an accelerator the padded batch in one launch)
             else:  # on CPU only the maps each item uses (its later ones are 0: so is their transform)
                 spec = torch.empty(*buf.shape[:-1], mx // 2 + 1, dtype=buf.dtype.to_complex(), device=buf.device)

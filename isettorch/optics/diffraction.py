@@ -6,6 +6,7 @@ import math
 
 import torch
 
+from .._autograd import records_grad
 from .base import ShiftInvariantLens, _check_crop
 from .isetcam import compute_oi_scene
 
@@ -36,7 +37,7 @@ def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_n
     rho = torch.sqrt(fy[:, :, None] ** 2 + fx[:, None, :] ** 2)  # [B, My, Mx]
     lam_n = wavelengths_nm.to(rho.dtype)[None, :] * 1e-9 * f_number.to(rho.dtype).reshape(-1, 1)  # [B, L]
     step = max(1, _OTF_CHUNK_ELEMENTS // rho.numel())
-    if step >= lam_n.shape[1] or torch.is_grad_enabled() and (rho.requires_grad or lam_n.requires_grad):
+    if step >= lam_n.shape[1] or records_grad(rho, lam_n):
         return dl_mtf_1d(rho[:, None] * lam_n[:, :, None, None])
     # a large grid without a gradient: a few wavelengths at a time into the result (the same formula element by
     # element; the vectorised acos / sqrt may round a few elements in the last bit differently where a chunk's

@@ -28,6 +28,7 @@ from collections import OrderedDict
 import torch
 
 from .. import constants
+from .._autograd import records_grad
 from .._checks import (
     as_tensor,
     batch_param,
@@ -165,7 +166,7 @@ def _pad_spectrum(h: int, w: int, pr: int, pc: int, dtype, device) -> torch.Tens
 def _use_scipy(x: torch.Tensor) -> bool:
     """SciPy's pocketfft for CPU tensors that need no gradient: 2-4x faster than torch's CPU ``irfft2`` on
     640^2 x 31 (``benchmarks/RESULTS.md``); the same transform to float rounding. Gradients take torch's."""
-    return x.device.type == "cpu" and not (torch.is_grad_enabled() and x.requires_grad)
+    return x.device.type == "cpu" and not records_grad(x)
 
 
 def _rfft2(x: torch.Tensor) -> torch.Tensor:
@@ -321,7 +322,7 @@ def compute_oi(scene_photons, wavelengths_nm, hfov_deg, distance_m, f_number, fo
     scale = (g["k"][:, None] * g["t"][None, :]).to(work)  # [B, L]
     pr, pc, h2, w2 = g["pr"], g["pc"], g["h2"], g["w2"]
     cos4 = None if g["cos4"] is None else g["cos4"].to(work)
-    if torch.is_grad_enabled() and p.requires_grad:  # differentiable: no in-place writes
+    if records_grad(p):  # differentiable: no in-place writes
         irr = p.to(work) * scale[:, :, None, None]
         irr = irr if cos4 is None else irr * cos4
         pad_val = irr.amax(dim=(1, 2, 3)) * 1e-9

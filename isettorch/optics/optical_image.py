@@ -8,6 +8,7 @@ from typing import ClassVar
 
 import torch
 
+from .._autograd import records_grad
 from ..image import SpectralImage, angle_for_extent, select_items
 
 __all__ = ["OpticalImage", "FourierFactors"]
@@ -138,8 +139,7 @@ class FourierFactors:
         # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
         # the same real matrix products act on the real and imaginary parts (view_as_real).
         spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
-        grad = torch.is_grad_enabled() and (spec.requires_grad or self.spectra.requires_grad
-                                            or self._otf_requires_grad())
+        grad = records_grad(spec, self.spectra) or self._otf_requires_grad()
         if grad:
             cube = _mm_by_halves(self.spectra[0].T, spec[0])[None] if b == 1 else self.spectra.transpose(1, 2) @ spec
         elif b == 1 and self._item_wise(weights):
@@ -246,7 +246,7 @@ class FourierFactors:
         wk = weights.T[None, None] if weights.dim() == 2 else weights.transpose(1, 2)[:, None]  # [1 or B, 1, K, L]
         coef = (self.spectra[:, :, None, :] * wk).reshape(b, j * k, n_l)  # [B, J K, L]
         spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
-        grad = torch.is_grad_enabled() and (spec.requires_grad or coef.requires_grad or self._otf_requires_grad())
+        grad = records_grad(spec, coef) or self._otf_requires_grad()
         if self.otf.dim() == 5 and not grad:
             # the interleaved OTF [.., L, My, Mx', 2] (the same value for the real and imaginary parts): H comes
             # out interleaved, [B, J K, 2F], and each term of the sum over j is a contiguous multiply-add on the

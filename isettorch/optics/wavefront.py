@@ -8,6 +8,7 @@ import warnings
 import torch
 from torch import nn
 
+from .._autograd import records_grad
 from .._checks import as_tensor
 from .base import ShiftInvariantLens
 from .diffraction import dl_otf
@@ -155,7 +156,7 @@ class WavefrontOptics(ShiftInvariantLens):
                 self.pupil_samples)
 
     def _requires_grad(self) -> bool:
-        return super()._requires_grad() or (torch.is_grad_enabled() and self.zernike_um.requires_grad)
+        return super()._requires_grad() or records_grad(self.zernike_um)
 
     def coefficients(self, batch: int, f_number: torch.Tensor, extra_defocus_diopters=None) -> torch.Tensor:
         """Zernike coefficients ``[B, J]`` (um) including ``defocus_diopters`` (plus ``extra_defocus_diopters``: an

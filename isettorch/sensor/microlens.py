@@ -54,6 +54,8 @@ import math
 import torch
 from torch import nn
 
+from .._autograd import records_grad
+
 __all__ = ["ISETCAM_PIXEL", "MICROLENS_METHODS", "PixelOptics", "microlens_radiance", "microlens_etendue",
            "microlens_optimal_offset_m", "microlens_array_offsets_m"]
 
@@ -637,8 +639,7 @@ class PixelOptics(nn.Module):
                 raise ValueError(f"oi.f_number: pixel_optics needs one f-number per batch, got {fn.tolist()}")
             pixel["source_f_number"] = float(fn[0])
         waves = tuple(float(w) for w in oi.wavelengths_nm.reshape(-1).tolist()) if self.diffraction else (None,)
-        grad = torch.is_grad_enabled() and (self.log_stack_height_m.requires_grad
-                                            or self.offset_per_image_height.requires_grad)
+        grad = records_grad(self.log_stack_height_m, self.offset_per_image_height)
         key = None
         if not grad:
             geo = oi.image_distance_m if oi.image_distance_m is not None else oi.focal_length_m

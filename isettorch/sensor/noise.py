@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import torch
 
+from .._autograd import records_grad
+
 __all__ = ["SHOT_NOISE_MODES", "safe_sqrt", "shot_noise", "isetcam_shot_noise", "normal", "round_half_away",
            "quantize_ste", "fixed_pattern_draws", "poisson_gaussian", "poisson_gaussian_floor"]
 
@@ -42,7 +44,7 @@ def shot_noise(mean_e: torch.Tensor, mode: str = "poisson", generator: torch.Gen
         return mean_e
     if mode == "poisson":
         draw = torch.poisson(mean_e.detach().clamp_min(0), generator=generator)
-        return mean_e + (draw - mean_e).detach() if _needs_grad(mean_e) else draw
+        return mean_e + (draw - mean_e).detach() if records_grad(mean_e) else draw
     if mode == "gaussian":
         return mean_e + safe_sqrt(mean_e) * normal(mean_e, generator)
     raise ValueError(f"shot_noise: expected mode in {SHOT_NOISE_MODES}, got {mode!r}")
@@ -63,7 +65,7 @@ def isetcam_shot_noise(mean_e: torch.Tensor, generator: torch.Generator | None =
 
 def round_half_away(x: torch.Tensor) -> torch.Tensor:
     """MATLAB ``round``: halves away from zero (``torch.round`` rounds halves to even)."""
-    if _needs_grad(x):
+    if records_grad(x):
         return torch.sign(x) * torch.floor(x.abs() + 0.5)
     # the same values (up to the sign of a zero) in one fresh tensor, in place: floor(|x| + 1/2) with x's sign
     return x.abs().add_(0.5).floor_().copysign_(x)
@@ -71,13 +73,7 @@ def round_half_away(x: torch.Tensor) -> torch.Tensor:
 
 def quantize_ste(x: torch.Tensor) -> torch.Tensor:
     """Round half away from zero in the forward pass, identity gradient (straight-through estimator)."""
-    return x + (round_half_away(x) - x).detach() if _needs_grad(x) else round_half_away(x)
-
-
-def _needs_grad(x: torch.Tensor) -> bool:
-    """Whether a straight-through estimator must be built for ``x``; without one the exact rounded / drawn value
-    is returned (``x + (y - x)`` can differ from ``y`` by a rounding step)."""
-    return x.requires_grad and torch.is_grad_enabled()
+    return x + (round_half_away(x) - x).detach() if records_grad(x) else round_half_away(x)
 
 
 def fixed_pattern_draws(rows: int, cols: int, seed: int, *, dtype=torch.float64, device=None
