@@ -107,8 +107,9 @@ class FourierFactors:
     def _otf_is_complex(self) -> bool:
         return (self.otf_rows[0] if self.otf_rows is not None else self._otf).is_complex()
 
-    def _otf_requires_grad(self) -> bool:
-        return False if self.otf_rows is not None else self._otf.requires_grad
+    def _grad_otf(self) -> torch.Tensor | None:
+        """The stacked OTF that a gradient may flow through (none when the cached per-item rows are used)."""
+        return None if self.otf_rows is not None else self._otf
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -139,7 +140,7 @@ class FourierFactors:
         # Sum over the J terms first (J x L x F), then the per-wavelength OTF, then the K weightings (K x L x F):
         # the same real matrix products act on the real and imaginary parts (view_as_real).
         spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
-        grad = records_grad(spec, self.spectra) or self._otf_requires_grad()
+        grad = records_grad(spec, self.spectra, self._grad_otf())
         if grad:
             cube = _mm_by_halves(self.spectra[0].T, spec[0])[None] if b == 1 else self.spectra.transpose(1, 2) @ spec
         elif b == 1 and self._item_wise(weights):
@@ -246,7 +247,7 @@ class FourierFactors:
         wk = weights.T[None, None] if weights.dim() == 2 else weights.transpose(1, 2)[:, None]  # [1 or B, 1, K, L]
         coef = (self.spectra[:, :, None, :] * wk).reshape(b, j * k, n_l)  # [B, J K, L]
         spec = torch.view_as_real(self.spec).reshape(b, j, 2 * nf)
-        grad = records_grad(spec, coef) or self._otf_requires_grad()
+        grad = records_grad(spec, coef, self._grad_otf())
         if self.otf.dim() == 5 and not grad:
             # the interleaved OTF [.., L, My, Mx', 2] (the same value for the real and imaginary parts): H comes
             # out interleaved, [B, J K, 2F], and each term of the sum over j is a contiguous multiply-add on the
