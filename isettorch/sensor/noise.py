@@ -44,6 +44,8 @@ def shot_noise(mean_e: torch.Tensor, mode: str = "poisson", generator: torch.Gen
         return mean_e
     if mode == "poisson":
         draw = torch.poisson(mean_e.detach().clamp_min(0), generator=generator)
+        # a straight-through estimator only when autograd records (here and in quantize_ste): x + (y - x) can differ
+        # from y by a rounding step, so without a gradient the exact draw is returned
         return mean_e + (draw - mean_e).detach() if records_grad(mean_e) else draw
     if mode == "gaussian":
         return mean_e + safe_sqrt(mean_e) * normal(mean_e, generator)
