@@ -8,12 +8,18 @@
   members again with their convolutions in bfloat16 (``torch.autocast``: the base, blend and guard stay float32).
 * ``noise``: Kodak CPSNR (crop 10) at noise sigma 0.01 / 0.02 / 0.05 (seed 0) for menon2007 alone, each classical
   demosaic after ``--denoise nlmeans`` (and bm3d when installed), and the shipped joint learned model.
+* ``tight``: the time of one method against another (``--pair``, default ``learned_tiny,menon2007``) in a tight
+  loop on each image: the two called alternately ``--repeats`` times (warm caches, the same sizes allocated again
+  at once), each image's ratio of the fastest calls and of the median calls, the median over images. The ``speed``
+  table's protocol (each method once per image and pass, the other methods' passes in between) is closer to
+  demosaicing a photograph once; the two can differ by 10-15 % for methods with many full-resolution temporaries.
 
 Reporting only: Kodak and McMaster are test sets (nothing here selects or tunes anything).
 
     OMP_NUM_THREADS=2 python benchmarks/demosaic_noise_speed.py speed --threads 2 --out benchmarks/DEMOSAIC_SPEED.md \
         --plot docs/_static/demosaic_pareto.png
     OMP_NUM_THREADS=1 python benchmarks/demosaic_noise_speed.py noise --out benchmarks/DEMOSAIC_NOISE.md
+    OMP_NUM_THREADS=2 python benchmarks/demosaic_noise_speed.py tight --threads 2
     python benchmarks/demosaic_noise_speed.py speed --device cuda --out benchmarks/DEMOSAIC_SPEED_CUDA.md
 
 On CUDA the timings include ``torch.cuda.synchronize`` (``evaluate_demosaic``); the denoisers (scikit-image) run on
@@ -183,9 +189,54 @@ def noise(args) -> list[str]:
     return rows
 
 
+def tight(args) -> list[str]:
+    """Per set: the two methods' fastest-call ms/MP (median over images) and their ratio, per image then the median."""
+    from isettorch.isp.demosaicing import demosaic, mosaic
+    from isettorch.isp.evaluation import load_images
+
+    pair = [m.strip() for m in args.pair.split(",")]
+    if len(pair) != 2:
+        raise ValueError(f"--pair: expected two methods 'A,B', got {args.pair!r}")
+    a, b = pair
+    rows = [f"| set | {a} ms/MP | {b} ms/MP | {a} / {b}, fastest calls | {a} / {b}, median calls |",
+            "|---|---|---|---|---|"]
+    for set_name, folder in (("Kodak", Path(args.kodak)), ("McMaster", Path(args.mcmaster))):
+        ms = {a: [], b: []}
+        r_fast, r_med = [], []
+        for _name, array in load_images(folder):
+            truth = torch.from_numpy(array).permute(2, 0, 1)[None].double() / 255
+            raw = mosaic(truth, "RGGB").to(device=args.device, dtype=torch.float32)
+            mp = raw.numel() / 1e6
+            times = {a: [], b: []}
+            with torch.no_grad():
+                for _ in range(3):  # warm-up (at a process's start this VM runs the first calls slowly for seconds)
+                    for m in (a, b):
+                        demosaic(raw, "RGGB", m)
+                for _ in range(args.repeats):
+                    for m in (a, b):
+                        t0 = time.perf_counter()
+                        demosaic(raw, "RGGB", m)
+                        if raw.device.type == "cuda":
+                            torch.cuda.synchronize(raw.device)
+                        times[m].append(1e3 * (time.perf_counter() - t0) / mp)
+            for m in (a, b):
+                ms[m].append(min(times[m]))
+            r_fast.append(min(times[a]) / min(times[b]))
+            r_med.append(statistics.median(times[a]) / statistics.median(times[b]))
+        text = (f"| {set_name} | {statistics.median(ms[a]):.1f} | {statistics.median(ms[b]):.1f} | "
+                f"{statistics.median(r_fast):.2f} ({min(r_fast):.2f}-{max(r_fast):.2f}) | "
+                f"{statistics.median(r_med):.2f} ({min(r_med):.2f}-{max(r_med):.2f}) |")
+        print(text, flush=True)
+        rows.append(text)
+    rows += ["", f"Each image: the two methods alternated {args.repeats} times after a warm-up (float32, RGGB); "
+             "ms/MP the median over images of each image's fastest call; ratios the median over images (their "
+             "range in brackets)."]
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("table", choices=("speed", "noise"))
+    ap.add_argument("table", choices=("speed", "noise", "tight"))
     ap.add_argument("--kodak", default=str(DATA / "kodak24"))
     ap.add_argument("--mcmaster", default=str(DATA / "mcmaster18"))
     ap.add_argument("--sigmas", default="0.01,0.02,0.05")
@@ -200,13 +251,19 @@ def main(argv=None) -> int:
     ap.add_argument("--bf16", action="store_true",
                     help="speed: also the learned members with their convolutions in bfloat16 (torch.autocast; fast on "
                          "CPUs with AVX512-BF16 or AMX, and on GPUs)")
+    ap.add_argument("--pair", default="learned_tiny,menon2007", help="tight: the two methods 'A,B' (A's time over B's)")
+    ap.add_argument("--repeats", type=int, default=15, help="tight: alternated calls per image (default 15)")
     add_quiet_argument(ap)
     args = ap.parse_args(argv)
     if args.rounds < 1:
         ap.error(f"--rounds: expected a positive number of passes, got {args.rounds}")
+    if args.repeats < 1:
+        ap.error(f"--repeats: expected a positive number of calls, got {args.repeats}")
+    if args.table == "tight" and len(args.pair.split(",")) != 2:
+        ap.error(f"--pair: expected two methods 'A,B', got {args.pair!r}")
     torch.set_num_threads(args.threads)
     t0 = time.time()
-    rows = (speed if args.table == "speed" else noise)(args)
+    rows = {"speed": speed, "noise": noise, "tight": tight}[args.table](args)
     hw = {"platform": platform.platform(), "cpu_count": __import__("os").cpu_count(), "threads": args.threads,
           "torch": torch.__version__, "device": args.device}
     if torch.device(args.device).type == "cuda":
