@@ -204,7 +204,7 @@ def tight(args) -> list[str]:
         ms = {a: [], b: []}
         r_fast, r_med = [], []
         for _name, array in load_images(folder):
-            truth = torch.from_numpy(array).permute(2, 0, 1)[None].double() / 255
+            truth = torch.from_numpy(array.astype("float64") / 255.0).permute(2, 0, 1)[None]  # (as evaluate_demosaic)
             raw = mosaic(truth, "RGGB").to(device=args.device, dtype=torch.float32)
             mp = raw.numel() / 1e6
             times = {a: [], b: []}
