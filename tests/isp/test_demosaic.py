@@ -326,3 +326,23 @@ def test_unknown_method_error_names_every_method_including_learned():
 
     with pytest.raises(ValueError, match="learned"):
         get_method("no_such_method")
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "GBRG"])
+def test_malvar_green_is_the_mean_of_menons_directional_greens(pattern):
+    # An identity between two independently written filters: at an R or B site, Malvar-He-Cutler's green kernel
+    # (Fig. 2: 4 x centre + 2 x the four greens - the four same-colour samples two away, / 8) is the mean of Menon et
+    # al.'s horizontal and vertical estimates h0 + h1 (bilinear green plus a quarter of the second difference of the
+    # site's colour). Interior pixels (the two methods extend the border differently).
+    from isettorch.isp.demosaicing._cfa import bayer_masks, correlate_hv
+    from isettorch.isp.demosaicing.menon2007 import _H0, _H1
+
+    raw = torch.rand(2, 1, 20, 24, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
+    g_mhc = demosaic(raw, pattern, method="malvar2004")[:, 1:2]
+    (h0_h, h0_v), (h1_h, h1_v) = correlate_hv(raw, _H0, "mirror"), correlate_hv(raw, _H1, "mirror")
+    mean_hv = ((h0_h + h1_h) + (h0_v + h1_v)) / 2
+    m = bayer_masks(pattern, 20, 24, raw.device)
+    at_rb = (m["R"] | m["B"]).expand_as(raw)[..., 2:-2, 2:-2]
+    diff = (g_mhc - mean_hv)[..., 2:-2, 2:-2][at_rb]
+    assert at_rb.sum() == 2 * 16 * 20 // 2
+    assert float(diff.abs().max()) <= 1e-15
