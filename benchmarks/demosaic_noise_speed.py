@@ -191,6 +191,7 @@ def noise(args) -> list[str]:
 
 def tight(args) -> list[str]:
     """Per set: the two methods' fastest-call ms/MP (median over images) and their ratio, per image then the median."""
+    from isettorch.io.images import rgb8_to_tensor
     from isettorch.isp.demosaicing import demosaic, mosaic
     from isettorch.isp.evaluation import load_images
 
@@ -204,7 +205,7 @@ def tight(args) -> list[str]:
         ms = {a: [], b: []}
         r_fast, r_med = [], []
         for _name, array in load_images(folder):
-            truth = torch.from_numpy(array.astype("float64") / 255.0).permute(2, 0, 1)[None]  # (as evaluate_demosaic)
+            truth = rgb8_to_tensor(array)  # (as evaluate_demosaic)
             raw = mosaic(truth, "RGGB").to(device=args.device, dtype=torch.float32)
             mp = raw.numel() / 1e6
             times = {a: [], b: []}

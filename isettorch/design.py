@@ -666,6 +666,7 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     from .data.config import seed_for
     from .data.photos import lift_srgb
     from .image import srgb_encode
+    from .io.images import rgb8_to_tensor
     from .isp.evaluation import cpsnr, load_images
     from .metrics.color import srgb_to_xyz, xyz_to_lab
     from .metrics.difference import delta_e_2000
@@ -694,7 +695,7 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     with bar, torch.no_grad():
         for i, (name, array) in enumerate(items):
             lifted = lift_srgb(array, camera.wavelengths_nm)
-            truth = torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
+            truth = rgb8_to_tensor(array)
             hh, ww = truth.shape[-2:]
             lab_truth = xyz_to_lab(srgb_to_xyz(truth[..., crop:hh - crop, crop:ww - crop]))  # (the scored pixels)
             row = ({"name": name, "corner_light": camera.corner_light(*array.shape[:2]), "cpsnr": {}, "de2000": {}}

@@ -39,6 +39,7 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from isettorch.io.images import rgb8_to_tensor  # noqa: E402
 from isettorch.isp import learned  # noqa: E402
 from isettorch.isp.demosaicing import mosaic  # noqa: E402
 from isettorch.isp.evaluation import cpsnr, load_images, noisy_mosaic  # noqa: E402
@@ -78,7 +79,7 @@ def _parts(folder, levels, classical: bool, scale: float = 1.0):
             feats = learned.noise_features(shot, sigma**2).float()
             rows = []
             for i, (_, arr) in enumerate(items):
-                truth = torch.from_numpy(arr.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
+                truth = rgb8_to_tensor(arr)
                 raw = noisy_mosaic(mosaic(truth * scale, "RGGB"), sigma, shot, seed=0, index=i).float()
                 with torch.no_grad():
                     parts = {"nf": learned.demosaic_learned(raw, "RGGB", model=expert).double(),

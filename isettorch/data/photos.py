@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..io.images import PHOTO_SUFFIXES, read_rgb8
+from ..io.images import PHOTO_SUFFIXES, read_rgb8, rgb8_to_tensor
 from . import spectra as _spectra
 from .config import seed_for
 from .natural import _choice, _wavelengths, _white_photons, natural_config
@@ -37,7 +37,7 @@ def lift_srgb(image, wavelengths_nm=(400.0, 700.0, 10.0)) -> dict:
     if isinstance(image, np.ndarray):
         if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
             raise ValueError(f"image: expected a uint8 [H, W, 3] array, got {image.dtype} {image.shape}")
-        enc = torch.from_numpy(image.astype(np.float64) / 255.0).permute(2, 0, 1)
+        enc = rgb8_to_tensor(image)[0]
     else:
         enc = torch.as_tensor(image, dtype=torch.float64)
         if enc.dim() != 3 or enc.shape[0] != 3:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-__all__ = ["read_image", "write_image", "read_rgb8", "IMAGE_SUFFIXES", "PHOTO_SUFFIXES"]
+__all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "IMAGE_SUFFIXES", "PHOTO_SUFFIXES"]
 
 IMAGE_SUFFIXES = {".png": "png", ".tif": "tiff", ".tiff": "tiff", ".exr": "exr"}
 _ENCODINGS = ("srgb", "linear")
@@ -67,6 +67,17 @@ def read_rgb8(path) -> np.ndarray:
     except OSError as err:  # not an image, truncated, unreadable
         raise ValueError(f"cannot read {p.name} as an image ({err})") from err
     return a
+
+
+def rgb8_to_tensor(array: np.ndarray) -> torch.Tensor:
+    """8-bit sRGB code values ``[H, W, 3]`` (as :func:`read_rgb8` returns them) as float64 ``[1, 3, H, W]`` code
+    values / 255: the scoring convention of ``shared/data``.
+
+    Example:
+        >>> rgb8_to_tensor(np.full((2, 2, 3), 255, dtype=np.uint8)).shape
+        torch.Size([1, 3, 2, 2])
+    """
+    return torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
 
 
 def _kind(path: Path) -> str:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..io.images import PHOTO_SUFFIXES, read_rgb8
+from ..io.images import PHOTO_SUFFIXES, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 from .denoise import DENOISERS, _check_noise, denoise_mosaic
 
@@ -242,7 +242,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
         for i, (name_i, array) in enumerate(items):
             if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
                 raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name_i} is {array.dtype} {array.shape}")
-            truth = torch.from_numpy(array.astype(np.float64) / 255.0).permute(2, 0, 1)[None]
+            truth = rgb8_to_tensor(array)
             raw = noisy_mosaic(mosaic(truth, pattern), noise_sigma, noise_shot, seed=seed, index=i)
             raw = raw.to(device=device, dtype=dtype)
             try:
