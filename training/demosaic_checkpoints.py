@@ -57,7 +57,12 @@ def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, his
                     clip=None) -> None:
     """Write the run's state (weights, optimizer, step, configs, best score, history, wall time and ``clip``'s state,
     a :class:`training.train_demosaic.AdaptiveGradClip`) to ``path`` atomically (a temporary file renamed)."""
-    common.save_atomic({"model": net.state_dict(), "optimizer": opt.state_dict(), "step": step,
+    from training.expand import collapsed_state, is_expanded
+
+    expanded = is_expanded(net)
+    extra = {"model_expanded": net.state_dict()} if expanded else {}  # the factors, for --resume
+    common.save_atomic({"model": collapsed_state(net) if expanded else net.state_dict(), **extra,
+                        "optimizer": opt.state_dict(), "step": step,
                         "net_config": net.config(), "train_config": json.dumps(cfg), "best_val_cpsnr": best,
                         "history": json.dumps(history), "wall_s": wall_s,
                         "grad_clip": json.dumps(clip.state() if clip else {})}, path)

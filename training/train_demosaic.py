@@ -102,6 +102,7 @@ from training.demosaic_data import (  # noqa: E402, F401
 )
 from training.demosaic_noise import add_noise, gaussian_params, noise_features, noise_params  # noqa: E402, F401
 from training.demosaic_pairs import TEST_SEED_OFFSET, CameraPairSource, StreamSource, pair_batch, rggb_offset  # noqa: E402, F401
+from training.expand import expand_convolutions  # noqa: E402
 
 VAL_SEED_OFFSET = 1_000_003_000  # validation scenes use seeds far from any training (seed, step, rank)
 LOG_EVERY = 10  # steps between reads of the loss for the progress bar (a host read synchronises the device)
@@ -251,7 +252,6 @@ def main(argv: list[str] | None = None) -> int:
             # bfloat16 against 0.55 s in float32 (no native bfloat16 arithmetic: oneDNN emulates it)
             print(f"warning: optim.precision bf16 on a CPU without AVX-512 ({torch.backends.cpu.get_cpu_capability()})"
                   f" runs about 14x slower than fp32 here; set optim.precision: fp32", file=sys.stderr, flush=True)
-    opt = torch.optim.Adam(net.parameters(), lr=float(cfg["optim"]["lr"]))
     step, best, history, wall0 = 0, -math.inf, [], 0.0
     clip_state = None
     resume = Path(args.resume) if args.resume else out / "last.pt"
@@ -261,9 +261,15 @@ def main(argv: list[str] | None = None) -> int:
         net.load_state_dict(init_state(ck, net, str(init)))
         if rank == 0:
             print(f"initialised from {init}", flush=True)
+    if cfg.get("expand"):  # train the convolutions as collapsible pairs (training/expand.py), from the weights above
+        expand_convolutions(net, cfg["expand"])
+    opt = torch.optim.Adam(net.parameters(), lr=float(cfg["optim"]["lr"]))
     if resume.is_file():
         ck = torch.load(resume, map_location="cpu", weights_only=True)
-        net.load_state_dict(ck["model"])
+        if cfg.get("expand") and "model_expanded" not in ck:
+            raise ValueError(f"--resume: {resume} holds no expanded weights (model_expanded) for this run's "
+                             f"expand: {cfg['expand']}")
+        net.load_state_dict(ck["model_expanded"] if cfg.get("expand") else ck["model"])
         opt.load_state_dict(ck["optimizer"])
         step, best = int(ck["step"]), float(ck["best_val_cpsnr"])
         history, wall0 = json.loads(ck["history"]), float(ck.get("wall_s", 0.0))
