@@ -38,7 +38,6 @@ from __future__ import annotations
 import importlib.util
 import math
 import os
-import platform
 import statistics
 import sys
 import time
@@ -47,6 +46,8 @@ from pathlib import Path
 from typing import Any
 
 import torch
+
+from isettorch._machine import machine_info  # the one record of the machine (re-exported)
 
 __all__ = ["Seconds", "run_benchmarks", "format_table", "format_report", "plot_pareto", "time_call", "machine_info",
            "ROW_KEYS"]
@@ -106,25 +107,6 @@ def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1, device="
         times.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
     return Seconds(statistics.median(times), min(times), statistics.median(cpu)), out, times
-
-
-def machine_info(device="cpu") -> dict:
-    """Where the numbers were measured: CPU, core count, torch threads, load average, versions."""
-    info = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(), "torch": torch.__version__,
-            "python": sys.version.split()[0], "device": str(device)}
-    try:
-        with open("/proc/cpuinfo") as fh:
-            names = [ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")]
-        if names:
-            info["processor"] = names[0]
-    except OSError:
-        pass
-    if hasattr(os, "getloadavg"):
-        info["load_average_start"] = [round(x, 2) for x in os.getloadavg()]
-    if torch.device(device).type == "cuda":
-        info["gpu"] = torch.cuda.get_device_name(device)
-    return info
 
 
 # --------------------------------------------------------------------------------------------------------------

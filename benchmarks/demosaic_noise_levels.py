@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
 from pathlib import Path
@@ -33,6 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch._machine import machine_info  # noqa: E402
 from isettorch.isp import learned  # noqa: E402
 from isettorch.isp.evaluation import evaluate_demosaic  # noqa: E402
 from isettorch.paths import data_root  # noqa: E402
@@ -111,7 +111,7 @@ def main(argv=None) -> int:
     lines, scores = table({"Kodak": Path(args.kodak), "McMaster": Path(args.mcmaster)}, args.candidate, reuse=reuse)
     if args.scores:
         Path(args.scores).write_text(json.dumps([[*k, v] for k, v in scores.items()], indent=0))
-    env = {"platform": platform.platform(), "cpu_count": torch.get_num_threads(), "torch": torch.__version__}
+    env = machine_info()
     lines.append(f"Seed 0, RGGB, float32; wall {time.time() - t0:.0f} s; {json.dumps(env)}")
     text = "\n".join(lines)
     print(text)

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import statistics
 import sys
 import time
@@ -42,6 +41,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch._machine import machine_info  # noqa: E402
 from isettorch._progress import add_quiet_argument  # noqa: E402
 from isettorch.isp.evaluation import evaluate_demosaic  # noqa: E402
 from isettorch.paths import data_root  # noqa: E402
@@ -265,10 +265,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     t0 = time.time()
     rows = {"speed": speed, "noise": noise, "tight": tight}[args.table](args)
-    hw = {"platform": platform.platform(), "cpu_count": __import__("os").cpu_count(), "threads": args.threads,
-          "torch": torch.__version__, "device": args.device}
-    if torch.device(args.device).type == "cuda":
-        hw["gpu"] = torch.cuda.get_device_name(torch.device(args.device))
+    hw = machine_info(args.device)
     rounds = f"{args.rounds} interleaved passes (noise-free rows), " if args.table == "speed" else ""
     text = "\n".join(rows) + (f"\n\nCrop 10, RGGB, float32, seed 0; {rounds}wall {time.time() - t0:.0f} s; "
                               f"{json.dumps(hw)}\n")

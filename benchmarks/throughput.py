@@ -35,12 +35,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
 import time
 
 import torch
 
+from isettorch._machine import machine_info  # noqa: E402
 from isettorch.data.camera_pairs import (
     TARGETS,
     CameraPairDataset,
@@ -275,8 +275,8 @@ def data_share(device: torch.device, steps: int = 8, repeats: int = 3) -> dict:
 def stream_main(args) -> None:
     device = torch.device(args.device)
     b, reps = args.batch, args.repeats
-    name = torch.cuda.get_device_name(device) if device.type == "cuda" else (platform.processor()
-                                                                               or platform.machine())
+    m = machine_info(device)
+    name = m["gpu"] if device.type == "cuda" else f"{m['processor']}, {m['cpu_capability']}"
     head = (f"PairStream on {device} ({name}), {os.cpu_count()} logical CPUs, torch {torch.__version__}, "
             f"{args.threads} intra-op threads, batch {b}, {args.count} pairs x {reps} runs (median), 31 bands, "
             f"load average at start {load()}")
@@ -401,7 +401,8 @@ def main() -> None:
         return
     w, b, reps = args.workers, args.batch, args.repeats
     n = max(b, args.count // b * b)  # whole batches per timed chunk
-    head = (f"host: {platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, torch "
+    m = machine_info()
+    head = (f"host: {m['processor']} ({m['cpu_capability']}), {os.cpu_count()} logical CPUs, torch "
             f"{torch.__version__}, {args.threads} intra-op threads, {args.size}x{args.size}, batch {b}, "
             f"{n} pairs x {reps} runs (median), allocator tuned in the main process: {tuned} (always in "
             f"DataLoader workers), load average at start {load()}")

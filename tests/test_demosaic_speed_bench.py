@@ -3,6 +3,7 @@ argument errors. Timings are never asserted."""
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -28,12 +29,15 @@ def test_tight_table(tmp_path, capsys):
         Image.fromarray(rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)).save(tmp_path / name)
     out = tmp_path / "tight.md"
     assert dns.main(["tight", "--kodak", str(tmp_path), "--mcmaster", str(tmp_path), "--pair", "bilinear,malvar2004",
-                     "--repeats", "2", "--out", str(out)]) == 0
+                     "--repeats", "2", "--threads", "1", "--out", str(out)]) == 0
     rows = [r for r in out.read_text().splitlines() if r.startswith("| Kodak") or r.startswith("| McMaster")]
     assert len(rows) == 2
     for r in rows:
         cells = [c.strip() for c in r.strip("|").split("|")]
         assert float(cells[1]) > 0 and float(cells[2]) > 0 and float(cells[3].split()[0]) > 0
+    # the footer names the machine, with the vector instructions the CPU kernels used (timings differ ~2x by them)
+    footer = json.loads(out.read_text().rstrip().rsplit("; ", 1)[1])
+    assert footer["cpu_capability"] == torch.backends.cpu.get_cpu_capability() and footer["torch_threads"] == 1
     for bad in (["--pair", "bilinear"], ["--repeats", "0"]):
         with pytest.raises(SystemExit) as err:
             dns.main(["tight", "--kodak", str(tmp_path), "--mcmaster", str(tmp_path), *bad])

@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import math
 import os
-import platform
 from pathlib import Path
 
 import numpy as np
@@ -113,6 +112,7 @@ def plot_curves(path: Path, rows: list[dict], keys: list[tuple[str, str]], title
 
 
 def hardware() -> dict:
-    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_count": os.cpu_count(), "torch": torch.__version__, "threads": torch.get_num_threads(),
-            "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+    """The machine a run trained on (:func:`isettorch._machine.machine_info`; with CUDA, the first GPU)."""
+    from isettorch._machine import machine_info
+
+    return machine_info("cuda" if torch.cuda.is_available() else "cpu")
