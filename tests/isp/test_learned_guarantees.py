@@ -7,6 +7,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -87,6 +88,30 @@ def test_unguarded_network_is_not_exact_on_constant_fields():
     field = torch.tensor([0.9, 0.2, 0.1]).view(1, 3, 1, 1).expand(1, 3, 48, 48).contiguous()
     out = learned.demosaic_learned(mosaic(field, "RGGB"), model=learned.load_pretrained(guard=False))
     assert float((out - field)[..., 8:-8, 8:-8].abs().max()) > 1e-3
+
+
+def test_structure_gate_is_its_documented_formula_by_scipy():
+    """The gate recomputed in NumPy with SciPy's box filter (``uniform_filter``, ``nearest`` border = replicate) from
+    its docstring: the four Bayer planes' mean of |d2/dx2| + |d2/dy2| (edge rows/columns repeating their
+    neighbour's) boxed over the window, against the largest plane's boxed level, ``s^p / (s^p + (rel L)^p + abs^p)``
+    per 2 x 2 cell."""
+    from scipy.ndimage import uniform_filter
+
+    rng = np.random.default_rng(4)
+    raw = rng.random((40, 52)) ** 3 * np.linspace(0.2, 1.0, 52)  # texture, a ramp and dark corners
+    planes = [raw[dy::2, dx::2] for dy in (0, 1) for dx in (0, 1)]
+
+    def d2(p, axis):
+        d = np.abs(np.diff(p, 2, axis=axis))
+        return np.pad(d, [(1, 1) if a == axis else (0, 0) for a in range(2)], mode="edge")
+
+    for rel, ab, window, power in ((0.1, 0.03, 5, 4), (0.2, 0.01, 3, 2.5)):
+        curv = np.mean([d2(p, 1) + d2(p, 0) for p in planes], 0)
+        s = uniform_filter(curv, window, mode="nearest")
+        level = np.max([uniform_filter(p, window, mode="nearest") for p in planes], 0)
+        want = s**power / (s**power + (rel * level) ** power + ab**power)
+        got = learned.structure_gate(torch.from_numpy(raw)[None, None], rel=rel, abs=ab, window=window, power=power)
+        np.testing.assert_allclose(got[0, 0].numpy(), np.kron(want, np.ones((2, 2))), rtol=1e-9, atol=1e-12)
 
 
 def test_structure_gate_zero_on_constants_one_on_texture_and_scale_covariant():
@@ -233,7 +258,6 @@ def test_classical_gate_weight_ramp():
 def test_classical_expert_is_the_benchmark_baseline(tmp_path):
     """The classical expert is the demosaic benchmark's sequential baseline (nlmeans on the CFA sub-planes, then
     Menon 2007): on the benchmark's noisy mosaic it scores what evaluate_demosaic reports for that baseline."""
-    import numpy as np
     from PIL import Image
 
     from isettorch.isp.evaluation import cpsnr, evaluate_demosaic, noisy_mosaic
