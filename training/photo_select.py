@@ -8,7 +8,7 @@ and blend (``isettorch.isp.learned.apply_shipped_settings``) at each correction 
 network of that variant, and writes the rows to ``--out``. It prints no Kodak or McMaster score.
 
     python training/photo_select.py CKPT --variant tiny --photos out/selection_photos --scales 0.375 0.5 0.625 \
-        [--out result.json] [--threads 2]
+        [--guard KEY=VALUE ...] [--out result.json] [--threads 2]
 """
 
 from __future__ import annotations
@@ -24,12 +24,13 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import torch  # noqa: E402
+import yaml  # noqa: E402
 
 #: how far below MHC an image may be before it counts against a candidate (dB)
 FLOOR_DB = 0.1
 
 
-def _candidates(ckpt: str, variant: str, scales: list[float]) -> dict:
+def _candidates(ckpt: str, variant: str, scales: list[float], guard: dict | None = None) -> dict:
     from isettorch.isp.evaluation import load_demosaic_model
     from isettorch.isp.learned import apply_shipped_settings, load_pretrained
 
@@ -37,6 +38,8 @@ def _candidates(ckpt: str, variant: str, scales: list[float]) -> dict:
     for s in scales:
         net = apply_shipped_settings(load_demosaic_model(ckpt), variant)
         net.correction_scale = float(s)
+        if guard:  # the shipped guard with these options changed
+            net.guard = {**net.guard, **guard}
         nets[f"scale {s:g}"] = net
     return nets
 
@@ -73,19 +76,29 @@ def main(argv=None) -> int:
                                                      "noise_free)")
     ap.add_argument("--photos", required=True, help="the selection photographs' folder (training/selection_photos.py)")
     ap.add_argument("--scales", type=float, nargs="+", required=True)
+    ap.add_argument("--guard", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="change the shipped guard's options for the candidates (values read as YAML), e.g. "
+                         "reference=base rel=0.2")
     ap.add_argument("--no-stress", action="store_true", help="skip the stress set")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
-    rows = score(_candidates(args.checkpoint, args.variant, args.scales), args.photos, not args.no_stress)
+    guard = {}
+    for item in args.guard:
+        if "=" not in item:
+            ap.error(f"--guard: expected KEY=VALUE, got {item!r}")
+        key, value = item.split("=", 1)
+        guard[key] = yaml.safe_load(value)
+    rows = score(_candidates(args.checkpoint, args.variant, args.scales, guard), args.photos, not args.no_stress)
     for name, row in rows.items():
         extra = "" if "photos_below_mhc" not in row else (
             f"  photos below MHC {row['photos_below_mhc']}"
             + (f"  stress below MHC {row['stress_below_mhc']}" if "stress_below_mhc" in row else ""))
         print(f"{name:12s} {row['photos_mean']:.3f}{extra}")
     if args.out:
-        Path(args.out).write_text(json.dumps({"checkpoint": args.checkpoint, "variant": args.variant, "rows": rows},
+        Path(args.out).write_text(json.dumps({"checkpoint": args.checkpoint, "variant": args.variant, "guard": guard,
+                                              "rows": rows},
                                              indent=1))
     return 0
 

@@ -211,7 +211,20 @@ BASES = {
     "menon2007_norefine": lambda raw: demosaic_menon2007(raw, "RGGB", refine=False),
 }
 
-_GUARD_KEYS = ("rel", "abs", "window", "power", "highpass_sigma_px", "highpass_decimation")
+_GUARD_KEYS = ("rel", "abs", "window", "power", "highpass_sigma_px", "highpass_decimation", "reference")
+#: what a :class:`DemosaicNet`'s guard keeps where it gates the correction off (its ``guard["reference"]``): MHC
+#: (the default: linear, exact on constants, unbiased) or the network's own ``base`` (exact on constants too for
+#: every base in :data:`BASES`, and not computed twice)
+GUARD_REFERENCES = ("malvar2004", "base")
+
+
+def _split_guard(guard: dict) -> tuple[dict, str]:
+    """A network's guard options as :func:`guard_residual` takes them, and its reference (:data:`GUARD_REFERENCES`)."""
+    opts = dict(guard)
+    reference = opts.pop("reference", "malvar2004")
+    if reference not in GUARD_REFERENCES:
+        raise ValueError(f"guard: expected reference one of {GUARD_REFERENCES}, got {reference!r}")
+    return opts, reference
 
 
 def _check_guard(rel=0.1, abs=0.03, window=5, power=4.0, highpass_sigma_px=None,  # noqa: A002
@@ -410,7 +423,7 @@ class DemosaicNet(nn.Module):
             if set(guard) - set(_GUARD_KEYS):
                 raise ValueError(f"guard: unknown options {sorted(set(guard) - set(_GUARD_KEYS))}, expected some of "
                                  f"{_GUARD_KEYS}")
-            _check_guard(**guard)
+            _check_guard(**_split_guard(guard)[0])
         self.guard = dict(guard) if guard is not None else None
         if int(channels) < 1 or int(depth) < 1 or int(noise_inputs) < 0:
             raise ValueError(f"channels, depth, noise_inputs: expected >=1, >=1, >=0, got {channels}, {depth}, "
@@ -485,14 +498,15 @@ class DemosaicNet(nn.Module):
                 departure = BASES[blend["method"]](raw) - base
                 residual = (1 - blend["weight"]) * residual + blend["weight"] * departure
             if self.guard is not None:
-                if self.base != "malvar2004":
+                opts, reference = _split_guard(self.guard)
+                if self.base != "malvar2004" and reference == "malvar2004":
                     # the guard is relative to MHC (linear, exact on constants, unbiased) whatever the base: the
                     # network's output minus MHC is the correction it guards (Menon's own decisions are not linear:
                     # -0.32/255 of blue bias on a star field), so the guarantees hold for every base
                     mhc = BASES["malvar2004"](raw)
                     residual = residual + (base - mhc)
                     base = mhc
-                residual = guard_residual(raw, residual, **self.guard)
+                residual = guard_residual(raw, residual, **opts)
         return base + residual
 
     def _output_in_place(self, raw: torch.Tensor, base: torch.Tensor, x: torch.Tensor, blend: dict | None
@@ -509,13 +523,14 @@ class DemosaicNet(nn.Module):
             add = None  # the classical part of the correction (a fresh tensor), or None
             if blend is not None:
                 add = BASES[blend["method"]](raw).sub_(base).mul_(blend["weight"])
-            if self.guard is not None and self.base != "malvar2004":  # relative to MHC whatever the base (_output)
+            opts, reference = _split_guard(self.guard) if self.guard is not None else ({}, "base")
+            if self.guard is not None and self.base != "malvar2004" and reference == "malvar2004":  # (_output)
                 mhc = BASES["malvar2004"](raw)
                 add = base.sub_(mhc) if add is None else add.add_(base).sub_(mhc)  # (base: a fresh estimate)
                 base = mhc
             residual = _unpack(y, add_to=add)
             if self.guard is not None:
-                residual = guard_residual(raw, residual, **self.guard, in_place=True)
+                residual = guard_residual(raw, residual, **opts, in_place=True)
         return residual.add_(base)
 
 

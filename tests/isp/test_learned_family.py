@@ -292,3 +292,34 @@ def test_box_mean_matches_avg_pool_with_replicate_border():
         p = window // 2
         ref = torch.nn.functional.avg_pool2d(torch.nn.functional.pad(x, (p, p, p, p), mode="replicate"), window, 1)
         torch.testing.assert_close(learned._box(x, window), ref, rtol=1e-12, atol=1e-14)
+
+
+def test_guard_relative_to_the_base_keeps_the_base_where_it_gates_off():
+    # guard["reference"] = "base": out = base + highpass(gate * s * net), the base (here Menon without refining)
+    # where the gate is 0; MHC is not computed. Checked against that formula written out, in training (autograd)
+    # and in inference (the in-place path), and on a constant colour field (exact: Menon is exact on constants).
+    g = torch.Generator().manual_seed(7)
+    raw = torch.rand(1, 1, 40, 48, generator=g, dtype=torch.float64)
+    guard = {"highpass_sigma_px": 8.0, "highpass_decimation": 4, "reference": "base"}
+    net = learned.DemosaicNet(channels=4, depth=2, base="menon2007_norefine", guard=guard,
+                              correction_scale=0.5).double()
+    torch.nn.init.normal_(net.head.weight, std=0.1, generator=g)
+    bare = learned.DemosaicNet(**{**net.config(), "guard": None, "correction_scale": 1.0}).double()
+    bare.load_state_dict(net.state_dict())
+    with torch.no_grad():
+        want = (demosaic_menon2007(raw, "RGGB", refine=False) + learned.guard_residual(
+            raw, 0.5 * (bare(raw) - demosaic_menon2007(raw, "RGGB", refine=False)),
+            **{k: v for k, v in guard.items() if k != "reference"}))
+        fast = net(raw)
+    trained = net(raw)  # autograd records this pass: the out-of-place path
+    assert trained.requires_grad
+    torch.testing.assert_close(fast, want, rtol=0, atol=1e-12)
+    torch.testing.assert_close(trained.detach(), want, rtol=0, atol=1e-12)
+    mhc_ref = learned.DemosaicNet(**{**net.config(), "guard": {**guard, "reference": "malvar2004"}}).double()
+    mhc_ref.load_state_dict(net.state_dict())
+    with torch.no_grad():
+        assert float((mhc_ref(raw) - fast).abs().max()) > 1e-4  # another function
+        field = torch.tensor([0.9, 0.2, 0.1], dtype=torch.float64).view(1, 3, 1, 1).expand(1, 3, 40, 48)
+        assert float((net(mosaic(field.contiguous(), "RGGB")) - field).abs().max()) <= 1e-12
+    with pytest.raises(ValueError, match="reference"):
+        learned.DemosaicNet(channels=4, depth=1, guard={"reference": "menon2007"})

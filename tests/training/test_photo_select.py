@@ -45,3 +45,11 @@ def test_rows_are_the_shipped_method_scored_independently(tmp_path):
     # the shipped scale is 0.5: that candidate is the shipped network; scale 1 is another function
     assert rows["scale 0.5"]["per_photo"] == rows["shipped"]["per_photo"]
     assert abs(rows["scale 1"]["photos_mean"] - rows["shipped"]["photos_mean"]) > 1e-3
+
+
+def test_guard_options_change_the_candidates_only(tmp_path):
+    _photos(tmp_path, n=1)
+    nets = photo_select._candidates(str(PRETRAINED["tiny"]), "tiny", [0.5], {"reference": "base"})
+    assert nets["scale 0.5"].guard["reference"] == "base" and "reference" not in nets["shipped"].guard
+    rows = photo_select.score(nets, str(tmp_path), stress=False)
+    assert rows["scale 0.5"]["photos_mean"] != rows["shipped"]["photos_mean"]
