@@ -56,7 +56,9 @@ def distill_target(raw: torch.Tensor, rgb: torch.Tensor, feats: torch.Tensor | N
 def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, history: list, wall_s: float,
                     clip=None) -> None:
     """Write the run's state (weights, optimizer, step, configs, best score, history, wall time and ``clip``'s state,
-    a :class:`training.train_demosaic.AdaptiveGradClip`) to ``path`` atomically (a temporary file renamed)."""
+    a :class:`training.train_demosaic.AdaptiveGradClip`) to ``path`` atomically (a temporary file renamed). A network
+    trained expanded (:mod:`training.expand`) is written collapsed under ``model`` (the plain network, as the library
+    loads it) and as its factors under ``model_expanded``."""
     from training.expand import collapsed_state, is_expanded
 
     expanded = is_expanded(net)

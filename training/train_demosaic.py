@@ -51,6 +51,10 @@ self-ensemble (:func:`isettorch.isp.learned.demosaic_learned`, the mean over the
 one-pass student is taught the two-pass network's exactly transpose-equivariant output; ``self_ensemble: dihedral``
 teaches the eight-pass ensemble over flips and transposes.
 
+``expand: M`` trains every convolution as a collapsible pair (a convolution into ``M`` channels and a 1 x 1 back,
+:mod:`training.expand`): the same network at inference and in the checkpoint's ``model`` (the collapsed weights),
+another optimisation; the factors are kept in the checkpoint's ``model_expanded`` for ``--resume``.
+
 The trainer's parts: :mod:`training.demosaic_data` (scene pool and bank, batches), :mod:`training.demosaic_pairs`
 (camera-pair and stream sources), :mod:`training.demosaic_noise` (sensor noise) and
 :mod:`training.demosaic_checkpoints` (checkpoints, distillation teacher, model card); their names are importable

@@ -55,6 +55,7 @@ __all__ = [
     "BAYER_PATTERNS",
     "DemosaicNet",
     "PRETRAINED_GUARDS",
+    "GUARD_REFERENCES",
     "PRETRAINED_CORRECTION_SCALES",
     "PRETRAINED_BLENDS",
     "guard_residual",
@@ -386,6 +387,10 @@ class DemosaicNet(nn.Module):
         guard: ``None`` (training: the raw correction) or the options of :func:`guard_residual` (a dict), which
             then guards the correction in ``forward``: exact on constant colour fields, no colour bias of its own.
             :func:`load_pretrained` sets the shipped one (:data:`PRETRAINED_GUARDS`). May be changed on an instance.
+            Its option ``reference`` (:data:`GUARD_REFERENCES`) is what the guard keeps where it gates the correction
+            off: ``"malvar2004"`` (the default, every shipped network) or ``"base"`` (the network's base, no MHC
+            pass; with Menon as the base it falls below MHC on smooth, dark and single-hue images:
+            ``docs/training_log.md#tiny_guard_reference_2026-11-29``).
         correction_scale: the network's correction is multiplied by this before it is added to the base (and
             guarded): 1 (training, the default) the network as trained, 0 the base alone (guarded). The output is
             ``base + guard(base - MHC + s net)`` with another base than MHC. :func:`load_pretrained` sets the
