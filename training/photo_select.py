@@ -8,7 +8,7 @@ and blend (``isettorch.isp.learned.apply_shipped_settings``) at each correction 
 network of that variant, and writes the rows to ``--out``. It prints no Kodak or McMaster score.
 
     python training/photo_select.py CKPT --variant tiny --photos out/selection_photos --scales 0.375 0.5 0.625 \
-        [--guard KEY=VALUE ...] [--out result.json] [--threads 2]
+        [--guard KEY=VALUE ...] [--start CKPT0 --alphas A ...] [--out result.json] [--threads 2]
 """
 
 from __future__ import annotations
@@ -30,17 +30,34 @@ import yaml  # noqa: E402
 FLOOR_DB = 0.1
 
 
-def _candidates(ckpt: str, variant: str, scales: list[float], guard: dict | None = None) -> dict:
+def _candidates(ckpt: str, variant: str, scales: list[float], guard: dict | None = None, start: str | None = None,
+                alphas: list[float] | None = None) -> dict:
+    """The shipped network of ``variant`` and the candidates: ``ckpt`` at each correction scale (with ``start`` and
+    ``alphas``: each weight interpolation ``(1 - alpha) start + alpha ckpt`` at each scale), under the variant's
+    shipped guard and blend, the guard's options changed by ``guard``."""
     from isettorch.isp.evaluation import load_demosaic_model
-    from isettorch.isp.learned import apply_shipped_settings, load_pretrained
+    from isettorch.isp.learned import DemosaicNet, apply_shipped_settings, load_pretrained
+    from training.heldout_screen import interpolate_checkpoints
 
+    def load(alpha):
+        if alpha is None:
+            return load_demosaic_model(ckpt)
+        ck = interpolate_checkpoints(alpha, *(torch.load(p, map_location="cpu", weights_only=True)
+                                              for p in (start, ckpt)))
+        net = DemosaicNet(**ck["net_config"])
+        net.load_state_dict(ck["model"])
+        return net.eval().requires_grad_(False)
+
+    if (start is None) != (alphas is None):
+        raise ValueError("start, alphas: expected both (weight interpolation) or neither")
     nets = {"shipped": copy.deepcopy(load_pretrained(variant))}  # (a cached, shared object: copied)
-    for s in scales:
-        net = apply_shipped_settings(load_demosaic_model(ckpt), variant)
-        net.correction_scale = float(s)
-        if guard:  # the shipped guard with these options changed
-            net.guard = {**net.guard, **guard}
-        nets[f"scale {s:g}"] = net
+    for a in alphas or [None]:
+        for s in scales:
+            net = apply_shipped_settings(load(a), variant)
+            net.correction_scale = float(s)
+            if guard:  # the shipped guard with these options changed
+                net.guard = {**net.guard, **guard}
+            nets[f"scale {s:g}" if a is None else f"alpha {a:g} scale {s:g}"] = net
     return nets
 
 
@@ -79,6 +96,8 @@ def main(argv=None) -> int:
     ap.add_argument("--guard", nargs="*", default=[], metavar="KEY=VALUE",
                     help="change the shipped guard's options for the candidates (values read as YAML), e.g. "
                          "reference=base rel=0.2")
+    ap.add_argument("--start", default=None, help="with --alphas: interpolate from this checkpoint to CHECKPOINT")
+    ap.add_argument("--alphas", type=float, nargs="+", default=None, help="weights of CHECKPOINT in the interpolation")
     ap.add_argument("--no-stress", action="store_true", help="skip the stress set")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default=None)
@@ -90,12 +109,15 @@ def main(argv=None) -> int:
             ap.error(f"--guard: expected KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
         guard[key] = yaml.safe_load(value)
-    rows = score(_candidates(args.checkpoint, args.variant, args.scales, guard), args.photos, not args.no_stress)
+    if (args.start is None) != (args.alphas is None):
+        ap.error("--start, --alphas: expected both (weight interpolation) or neither")
+    rows = score(_candidates(args.checkpoint, args.variant, args.scales, guard, args.start, args.alphas), args.photos,
+                 not args.no_stress)
     for name, row in rows.items():
         extra = "" if "photos_below_mhc" not in row else (
             f"  photos below MHC {row['photos_below_mhc']}"
             + (f"  stress below MHC {row['stress_below_mhc']}" if "stress_below_mhc" in row else ""))
-        print(f"{name:12s} {row['photos_mean']:.3f}{extra}")
+        print(f"{name:22s} {row['photos_mean']:.3f}{extra}")
     if args.out:
         Path(args.out).write_text(json.dumps({"checkpoint": args.checkpoint, "variant": args.variant, "guard": guard,
                                               "rows": rows},

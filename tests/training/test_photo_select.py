@@ -53,3 +53,14 @@ def test_guard_options_change_the_candidates_only(tmp_path):
     assert nets["scale 0.5"].guard["reference"] == "base" and "reference" not in nets["shipped"].guard
     rows = photo_select.score(nets, str(tmp_path), stress=False)
     assert rows["scale 0.5"]["photos_mean"] != rows["shipped"]["photos_mean"]
+
+
+def test_weight_interpolation_candidates(tmp_path):
+    # alpha 0 is the start's weights, alpha 1 the checkpoint's; both ends are the shipped tiny network here
+    nets = photo_select._candidates(str(PRETRAINED["tiny"]), "tiny", [0.5], start=str(PRETRAINED["tiny"]),
+                                    alphas=[0.0, 1.0])
+    raw = torch.rand(1, 1, 32, 32, generator=torch.Generator().manual_seed(2))
+    with torch.no_grad():
+        ref = nets["shipped"](raw)
+        for name in ("alpha 0 scale 0.5", "alpha 1 scale 0.5"):
+            torch.testing.assert_close(nets[name](raw), ref, rtol=0, atol=1e-6)
