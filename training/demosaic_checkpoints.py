@@ -12,6 +12,7 @@ import torch
 from isettorch.isp import learned
 from isettorch.isp.learned import DemosaicNet
 from training import common
+from training.expand import collapsed_state, is_expanded
 
 
 def load_teacher(cfg: dict, device) -> tuple[DemosaicNet | None, float, bool | str]:
@@ -59,8 +60,6 @@ def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, his
     a :class:`training.train_demosaic.AdaptiveGradClip`) to ``path`` atomically (a temporary file renamed). A network
     trained expanded (:mod:`training.expand`) is written collapsed under ``model`` (the plain network, as the library
     loads it) and as its factors under ``model_expanded``."""
-    from training.expand import collapsed_state, is_expanded
-
     expanded = is_expanded(net)
     extra = {"model_expanded": net.state_dict()} if expanded else {}  # the factors, for --resume
     common.save_atomic({"model": collapsed_state(net) if expanded else net.state_dict(), **extra,

@@ -39,21 +39,22 @@ def _candidates(ckpt: str, variant: str, scales: list[float], guard: dict | None
     from isettorch.isp.learned import DemosaicNet, apply_shipped_settings, load_pretrained
     from training.heldout_screen import interpolate_checkpoints
 
-    def load(alpha):
-        if alpha is None:
-            return load_demosaic_model(ckpt)
-        ck = interpolate_checkpoints(alpha, *(torch.load(p, map_location="cpu", weights_only=True)
-                                              for p in (start, ckpt)))
-        net = DemosaicNet(**ck["net_config"])
-        net.load_state_dict(ck["model"])
-        return net.eval().requires_grad_(False)
-
     if (start is None) != (alphas is None):
         raise ValueError("start, alphas: expected both (weight interpolation) or neither")
+    if alphas is None:
+        networks = {None: load_demosaic_model(ckpt)}
+    else:  # each checkpoint read once, one network per alpha
+        ends = [torch.load(p, map_location="cpu", weights_only=True) for p in (start, ckpt)]
+        networks = {}
+        for a in alphas:
+            ck = interpolate_checkpoints(a, *ends)
+            networks[a] = DemosaicNet(**ck["net_config"])
+            networks[a].load_state_dict(ck["model"])
+            networks[a].eval().requires_grad_(False)
     nets = {"shipped": copy.deepcopy(load_pretrained(variant))}  # (a cached, shared object: copied)
-    for a in alphas or [None]:
+    for a, network in networks.items():
         for s in scales:
-            net = apply_shipped_settings(load(a), variant)
+            net = apply_shipped_settings(copy.deepcopy(network), variant)
             net.correction_scale = float(s)
             if guard:  # the shipped guard with these options changed
                 net.guard = {**net.guard, **guard}

@@ -504,7 +504,7 @@ class DemosaicNet(nn.Module):
                 residual = (1 - blend["weight"]) * residual + blend["weight"] * departure
             if self.guard is not None:
                 opts, reference = _split_guard(self.guard)
-                if self.base != "malvar2004" and reference == "malvar2004":
+                if reference == "malvar2004" and self.base != "malvar2004":
                     # the guard is relative to MHC (linear, exact on constants, unbiased) whatever the base: the
                     # network's output minus MHC is the correction it guards (Menon's own decisions are not linear:
                     # -0.32/255 of blue bias on a star field), so the guarantees hold for every base
@@ -528,13 +528,13 @@ class DemosaicNet(nn.Module):
             add = None  # the classical part of the correction (a fresh tensor), or None
             if blend is not None:
                 add = BASES[blend["method"]](raw).sub_(base).mul_(blend["weight"])
-            opts, reference = _split_guard(self.guard) if self.guard is not None else ({}, "base")
-            if self.guard is not None and self.base != "malvar2004" and reference == "malvar2004":  # (_output)
+            opts, reference = _split_guard(self.guard) if self.guard is not None else (None, None)
+            if reference == "malvar2004" and self.base != "malvar2004":  # relative to MHC (_output)
                 mhc = BASES["malvar2004"](raw)
                 add = base.sub_(mhc) if add is None else add.add_(base).sub_(mhc)  # (base: a fresh estimate)
                 base = mhc
             residual = _unpack(y, add_to=add)
-            if self.guard is not None:
+            if opts is not None:
                 residual = guard_residual(raw, residual, **opts, in_place=True)
         return residual.add_(base)
 
