@@ -265,13 +265,46 @@ def _lowpass(x: torch.Tensor, sigma_px: float, decimation: int | None) -> torch.
     (the box and the interpolation add about d / sqrt(6) px in quadrature to sigma)."""
     if decimation is None:
         return _gaussian_blur(x, sigma_px)
-    d = int(decimation)
+    h, w = x.shape[-2:]
+    big = F.interpolate(_decimated_blur(x, sigma_px, int(decimation)), scale_factor=int(decimation),
+                        mode="bilinear", align_corners=False)
+    return big[..., :h, :w]
+
+
+def _decimated_blur(x: torch.Tensor, sigma_px: float, d: int) -> torch.Tensor:
+    """:func:`_lowpass`'s blur of the d x d box means (the input extended to a multiple of d by replicating its last
+    row and column): (B, C, ceil(H / d), ceil(W / d))."""
     h, w = x.shape[-2:]
     ph, pw = -h % d, -w % d
     small = F.avg_pool2d(F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x, d)
-    small = _gaussian_blur(small, sigma_px / d)
-    big = F.interpolate(small, scale_factor=d, mode="bilinear", align_corners=False)
-    return big[..., :h, :w]
+    return _gaussian_blur(small, sigma_px / d)
+
+
+def _highpass_(x: torch.Tensor, sigma_px: float, decimation: int | None) -> torch.Tensor:
+    """``x -= _lowpass(x, sigma_px, decimation)`` in place (no autograd), returned. With ``decimation`` d the bilinear
+    interpolation of the blurred d x d means is subtracted as it is computed, one output row phase (and, on the small
+    image, one column phase) at a time, as two scaled subtractions of contiguous rows: no full-resolution temporary,
+    and 2.9x faster than ``F.interpolate`` then ``sub_`` (1.7 against 5.0 ms/MP, 3 channels, d 4, 2 threads, AVX2).
+    The weights are ``F.interpolate``'s (``align_corners=False``: output i reads source (i + 1/2) / d - 1/2, clamped
+    to the image, which the replicated border gives); the same values to float rounding
+    (``tests/isp/test_learned_family.py``)."""
+    if decimation is None:
+        return x.sub_(_gaussian_blur(x, sigma_px))
+    d = int(decimation)
+    h, w = x.shape[-2:]
+    small = F.pad(_decimated_blur(x, sigma_px, d), (1, 1, 1, 1), mode="replicate")
+    phases = [((p + 0.5) / d - 0.5) for p in range(d)]  # each phase's offset from its source sample, in (-1/2, 1/2)
+    # along the width, on the small image's rows (and its padding rows): (B, C, ceil(H / d) + 2, W)
+    wide = small.new_empty(*small.shape[:-1], w)
+    for p, f in enumerate(phases):
+        n = len(range(p, w, d))
+        k0 = 0 if f < 0 else 1  # between padded columns k0 + k and k0 + k + 1, at 1 + f or f
+        torch.lerp(small[..., k0:k0 + n], small[..., k0 + 1:k0 + 1 + n], 1 + f if f < 0 else f, out=wide[..., p::d])
+    for p, f in enumerate(phases):  # along the height, subtracted from x's rows of this phase
+        n = len(range(p, h, d))
+        k0, t = (0, 1 + f) if f < 0 else (1, f)
+        x[..., p::d, :].sub_(wide[..., k0:k0 + n, :], alpha=1 - t).sub_(wide[..., k0 + 1:k0 + 1 + n, :], alpha=t)
+    return x
 
 
 def structure_gate(raw: torch.Tensor, rel: float = 0.1, abs: float = 0.03, window: int = 5,  # noqa: A002
@@ -333,23 +366,22 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
         raw: (B, 1, H, W) RGGB mosaic.
         residual: (B, 3, H, W) the network's correction of MHC.
         in_place: write the result over ``residual`` (which no autograd graph may record), with no full-resolution
-            temporary but the low-pass (:class:`DemosaicNet` does so in inference).
+            temporary but the gate's one plane (:class:`DemosaicNet` does so in inference; with ``highpass_decimation``
+            the low-pass is subtracted as it is interpolated, :func:`_highpass_`).
 
     Returns:
         (B, 3, H, W) the guarded correction.
     """
     _check_guard(rel, abs, window, power, highpass_sigma_px, highpass_decimation)
-    b, c, h, w = residual.shape
-    gate = _cell_gate(raw, rel, abs, window, power).to(residual.dtype)
-    # each 2 x 2 cell's weight broadcast over its four pixels (a view: no full-resolution copy of the gate)
-    gate = gate.view(b, 1, h // 2, 1, w // 2, 1)
-    if in_place:  # a view (an error, not a silent copy, if residual cannot be written over as cells)
-        out = residual.view(b, c, h // 2, 2, w // 2, 2).mul_(gate).view(b, c, h, w)
-    else:
-        out = (residual.reshape(b, c, h // 2, 2, w // 2, 2) * gate).reshape(b, c, h, w)
+    # each 2 x 2 cell's weight copied to its four pixels, one plane (multiplying through a broadcast view of the
+    # cells instead, inner dimension 2, takes 4.1 against 1.0 ms/MP on 3 channels, 2 threads, AVX2)
+    gate = structure_gate(raw, rel, abs, window, power).to(residual.dtype)
+    if in_place:
+        out = residual.mul_(gate)
+        return out if highpass_sigma_px is None else _highpass_(out, float(highpass_sigma_px), highpass_decimation)
+    out = residual * gate
     if highpass_sigma_px is not None:
-        low = _lowpass(out, float(highpass_sigma_px), highpass_decimation)
-        out = out.sub_(low) if in_place else out - low
+        out = out - _lowpass(out, float(highpass_sigma_px), highpass_decimation)
     return out
 
 
@@ -486,9 +518,11 @@ class DemosaicNet(nn.Module):
         elif noise is not None:
             raise ValueError("noise: this network was built with noise_inputs=0; pass noise=None")
         # oneDNN's CPU convolutions run about 1.4x faster on channels-last (NHWC) activations; the values are the same
-        x = self.body[1:](_first_conv(self.body[0], raw, base, noise, channels_last=raw.device.type == "cpu"))
+        grad = records_grad(raw, noise, self)
+        x = self.body[1:](_first_conv(self.body[0], raw, base, noise, channels_last=raw.device.type == "cpu",
+                                      fold_raw=not grad))
         blend = _check_blend(self.blend) if self.blend is not None else None  # an instance's blend may have changed
-        if records_grad(x, raw, self.head):
+        if grad:
             return self._output(raw, base, self.head(x), blend)
         return self._output_in_place(raw, base, x, blend)
 
@@ -522,7 +556,7 @@ class DemosaicNet(nn.Module):
         added to it as it is unpacked, and the guard writes over it. Each full-resolution pass written into a fresh
         tensor costs about as much on CPU as the arithmetic (its pages are new), so this saves three of them."""
         k = self.correction_scale * (1 - blend["weight"] if blend is not None else 1.0)
-        y = self.head(x) if k == 1.0 else self.head._conv_forward(x, self.head.weight * k, self.head.bias * k)
+        y, channels = _head_forward(self.head, x, k)
         y = y.to(base.dtype)
         with torch.autocast(raw.device.type, enabled=False):
             add = None  # the classical part of the correction (a fresh tensor), or None
@@ -533,40 +567,85 @@ class DemosaicNet(nn.Module):
                 mhc = BASES["malvar2004"](raw)
                 add = base.sub_(mhc) if add is None else add.add_(base).sub_(mhc)  # (base: a fresh estimate)
                 base = mhc
-            residual = _unpack(y, add_to=add)
+            residual = _unpack(y, add_to=add, channels=channels)
             if opts is not None:
                 residual = guard_residual(raw, residual, **opts, in_place=True)
         return residual.add_(base)
 
 
 def _first_conv(conv: nn.Conv2d, raw: torch.Tensor, base: torch.Tensor, noise: torch.Tensor | None,
-                channels_last: bool) -> torch.Tensor:
+                channels_last: bool, fold_raw: bool = False) -> torch.Tensor:
     """The network's first layer, ``conv`` (3 x 3, padding 1) on its packed input (the mosaic's and the base's
     2 x 2 cells as channels in ``pixel_unshuffle``'s order, then the N noise inputs as constant planes), computed
     without packing: a 3 x 3 kernel over 2 x 2 cells is a 6 x 6 kernel of stride 2 over the full-resolution planes
     (padding 2 for the cells' padding 1), so the mosaic and the base are read as one 4-channel image (in the
     channels-last layout if asked) and the noise planes, constant, by their own half-resolution product (the
     convolution is linear in its input channels). The same sums in another order (1e-7 relative) at a third of the
-    packed path's CPU time; (B, C, H/2, W/2)."""
+    packed path's CPU time; (B, C, H/2, W/2).
+
+    With ``fold_raw`` (inference, where nothing differentiates the weights), the mosaic's taps are added to the
+    base's taps of the colour each samples, and only the base is read (a quarter fewer multiply-adds): the same sums
+    wherever the base keeps every mosaic sample exactly, as each of :data:`BASES` does on an RGGB mosaic
+    (``tests/isp/test_learned_family.py``)."""
     b, _, hh, ww = raw.shape
     c_out = conv.weight.shape[0]
     # weight[:, 4 i + 2 dy + dx, ky, kx] -> full-resolution tap (2 ky + dy, 2 kx + dx) of input plane i
     w = conv.weight[:, :16].reshape(c_out, 4, 2, 2, 3, 3).permute(0, 1, 4, 2, 5, 3).reshape(c_out, 4, 6, 6)
-    x = torch.empty(b, 4, hh, ww, dtype=raw.dtype, device=raw.device,
-                    memory_format=torch.channels_last if channels_last else torch.contiguous_format)
-    x[:, :1] = raw
-    x[:, 1:] = base
-    y = F.conv2d(x, w, conv.bias, stride=2, padding=2)
+    layout = torch.channels_last if channels_last else torch.contiguous_format
+    if fold_raw:
+        # tap (a, b) reads a pixel of row parity a % 2 and column parity b % 2 (the padding, 2, is even): on RGGB
+        # that is R, G, G, B for parities (0, 0), (0, 1), (1, 0), (1, 1); plane 1 + c of the input is colour c
+        w = w[:, 1:].clone()
+        for dy, dx, c in ((0, 0, 0), (0, 1, 1), (1, 0, 1), (1, 1, 2)):
+            w[:, c, dy::2, dx::2] += conv.weight[:, 4 * 0 + 2 * dy + dx].reshape(c_out, 3, 3)
+        y = F.conv2d(base.contiguous(memory_format=layout), w, conv.bias, stride=2, padding=2)
+    else:
+        x = torch.empty(b, 4, hh, ww, dtype=raw.dtype, device=raw.device, memory_format=layout)
+        x[:, :1] = raw
+        x[:, 1:] = base
+        y = F.conv2d(x, w, conv.bias, stride=2, padding=2)
     if noise is not None and noise.shape[1]:
         planes = noise[:, :, None, None].expand(-1, -1, hh // 2, ww // 2).to(y.dtype)
         y = y.add_(F.conv2d(planes, conv.weight[:, 16:].to(y.dtype), None, padding=1))  # (keeps y's layout)
     return y
 
 
-def _unpack(y: torch.Tensor, add_to: torch.Tensor | None = None) -> torch.Tensor:
+def _head_forward(head: nn.Conv2d, x: torch.Tensor, scale: float = 1.0) -> tuple[torch.Tensor, list[int] | None]:
+    """``scale * head(x)`` (the scale folded into the weights) for inference, and which of the head's output
+    channels the result holds: only those with a nonzero weight or bias are computed (None: all). A noise-free
+    network's head has exact zeros for the four corrections at the mosaic's own samples (each 2 x 2 cell's R, two
+    G and B, which the noise-free networks never change), so it computes 8 of 12. On CPU the count is rounded up to
+    a multiple of 8 with zero weights (the extra channels dropped, a view): oneDNN runs such counts faster (16 -> 12
+    channels, 3 x 3, 2 threads, AVX2: 10.5 ms/MP; as 16: 7.8; 8: 5.2). The same values as ``head(x)``, the
+    channels not computed being exact zeros there."""
+    weight, bias = (head.weight * scale, head.bias * scale) if scale != 1.0 else (head.weight, head.bias)
+    used = (weight.flatten(1).ne(0).any(1) | bias.ne(0)).nonzero().flatten().tolist()
+    keep = None if len(used) == weight.shape[0] else used
+    if keep == []:  # a zero correction (an untrained head, or scale 0)
+        return x.new_zeros(x.shape[0], 0, *x.shape[2:]), keep
+    if keep is not None:
+        weight, bias = weight[keep], bias[keep]
+    pad = -weight.shape[0] % 8 if x.device.type == "cpu" else 0
+    if pad:
+        weight = torch.cat([weight, weight.new_zeros(pad, *weight.shape[1:])])
+        bias = torch.cat([bias, bias.new_zeros(pad)])
+    y = head._conv_forward(x, weight, bias)
+    return (y[:, :y.shape[1] - pad] if pad else y), keep
+
+
+def _unpack(y: torch.Tensor, add_to: torch.Tensor | None = None, channels: list[int] | None = None) -> torch.Tensor:
     """``pixel_shuffle(y, 2)`` in one copy whatever ``y``'s memory layout, into a fresh tensor (which callers may
     write over): (B, 4C, h, w) -> (B, C, 2h, 2w). With ``add_to`` (B, C, 2h, 2w), contiguous: added to it in place
-    instead (``add_to += pixel_shuffle(y, 2)`` in one pass), which is returned."""
+    instead (``add_to += pixel_shuffle(y, 2)`` in one pass), which is returned. With ``channels`` (from
+    :func:`_head_forward`): ``y``'s channels are those of the full 4C, the others zero."""
+    if channels is not None:
+        b, _, h, w = y.shape
+        c = 3 if add_to is None else add_to.shape[1]
+        out = y.new_zeros(b, c, 2 * h, 2 * w) if add_to is None else add_to
+        cells = out.view(b, c, h, 2, w, 2)
+        for k, ch in enumerate(channels):  # channel 4 c + 2 dy + dx: colour c at (dy, dx) of each cell
+            cells[:, ch // 4, :, ch % 4 // 2, :, ch % 2].add_(y[:, k])
+        return out
     b, c4, h, w = y.shape
     cells = y.view(b, c4 // 4, 2, 2, h, w).permute(0, 1, 4, 2, 5, 3)
     if add_to is not None:

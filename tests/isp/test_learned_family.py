@@ -219,18 +219,24 @@ def test_first_layer_unpacked_matches_the_packed_convolution_and_its_gradients()
         torch.testing.assert_close(learned._unpack(y_in), F.pixel_shuffle(y, 2), rtol=0, atol=0)
 
 
-def test_guard_in_place_is_the_guard():
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-13), (torch.float32, 1e-6)])
+@pytest.mark.parametrize("size, decimation", [((16, 20), 4), ((18, 26), 4), ((22, 14), 3), ((16, 20), None)])
+def test_guard_in_place_is_the_guard(dtype, tol, size, decimation):
     # DemosaicNet writes its guarded correction over the network's output in inference (no autograd graph): the
-    # same values as the out-of-place guard, which training uses, and the out-of-place one leaves its input alone.
+    # same values as the out-of-place guard, which training uses (to float rounding: the in-place high-pass
+    # subtracts F.interpolate's bilinear weights as it computes them), at sizes that are and are not multiples of
+    # the decimation; and the out-of-place one leaves its input alone.
     g = torch.Generator().manual_seed(4)
-    raw, residual = torch.rand(1, 1, 16, 20, generator=g), torch.randn(1, 3, 16, 20, generator=g)
-    opts = {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4}
+    raw = torch.rand(1, 1, *size, generator=g, dtype=dtype)
+    residual = torch.randn(1, 3, *size, generator=g, dtype=dtype)
+    opts = {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0,
+            "highpass_decimation": decimation}
     kept = residual.clone()
     ref = learned.guard_residual(raw, residual, **opts)
     torch.testing.assert_close(residual, kept, rtol=0, atol=0)
     out = learned.guard_residual(raw, residual, **opts, in_place=True)
     assert out.data_ptr() == residual.data_ptr()
-    torch.testing.assert_close(out, ref, rtol=0, atol=0)
+    torch.testing.assert_close(out, ref, rtol=0, atol=tol)
 
 
 @pytest.mark.parametrize("base", ["malvar2004", "menon2007", "menon2007_norefine"])
@@ -323,3 +329,47 @@ def test_guard_relative_to_the_base_keeps_the_base_where_it_gates_off():
         assert float((net(mosaic(field.contiguous(), "RGGB")) - field).abs().max()) <= 1e-12
     with pytest.raises(ValueError, match="reference"):
         learned.DemosaicNet(channels=4, depth=1, guard={"reference": "menon2007"})
+
+
+@pytest.mark.parametrize("base", sorted(learned.BASES))
+def test_first_layer_folds_the_mosaic_into_the_base_exactly_where_the_base_keeps_the_samples(base):
+    # In inference the first layer reads only the base, the mosaic's taps added to those of the colour each samples:
+    # every base keeps each RGGB sample exactly (so the fold is the same sum), and the two first layers agree.
+    g = torch.Generator().manual_seed(11)
+    raw = torch.rand(2, 1, 14, 18, generator=g, dtype=torch.float64)
+    b = learned.BASES[base](raw)
+    for c, (dy, dx) in ((0, (0, 0)), (1, (0, 1)), (1, (1, 0)), (2, (1, 1))):
+        torch.testing.assert_close(b[:, c, dy::2, dx::2], raw[:, 0, dy::2, dx::2], rtol=0, atol=0)
+    net = learned.DemosaicNet(channels=8, depth=2, noise_inputs=1).double()
+    torch.nn.init.normal_(net.body[0].bias, std=0.1, generator=g)
+    noise = torch.rand(2, 1, generator=g, dtype=torch.float64)
+    for channels_last in (False, True):
+        plain = learned._first_conv(net.body[0], raw, b, noise, channels_last=channels_last)
+        folded = learned._first_conv(net.body[0], raw, b, noise, channels_last=channels_last, fold_raw=True)
+        torch.testing.assert_close(folded, plain, rtol=0, atol=1e-13)
+
+
+def test_head_computes_only_its_nonzero_channels_with_the_same_values():
+    # A noise-free network's head has exact zeros for the corrections at the mosaic's own samples; inference computes
+    # only the other channels (padded to a multiple of 8 on CPU) and unpacks them where they belong: the same
+    # output as the full head, including a head with no nonzero channel at all.
+    F = torch.nn.functional
+    g = torch.Generator().manual_seed(12)
+    x = torch.rand(2, 8, 5, 7, generator=g, dtype=torch.float64)
+    head = torch.nn.Conv2d(8, 12, 3, padding=1).double()
+    with torch.no_grad():
+        head.weight[[0, 5, 6, 11]] = 0
+        head.bias[[0, 5, 6, 11]] = 0
+        head.bias[3] = 0  # a used channel with a zero bias stays used
+        full = F.pixel_shuffle(head(x), 2) * 0.5
+        add = torch.rand(2, 3, 10, 14, generator=g, dtype=torch.float64)
+        y, channels = learned._head_forward(head, x, 0.5)
+        assert channels == [1, 2, 3, 4, 7, 8, 9, 10] and y.shape[1] == 8
+        torch.testing.assert_close(learned._unpack(y, channels=channels), full, rtol=0, atol=1e-15)
+        torch.testing.assert_close(learned._unpack(y, add_to=add.clone(), channels=channels), add + full, rtol=0,
+                                   atol=1e-15)
+        y, channels = learned._head_forward(head, x, 0.0)
+        assert channels == [] and float(learned._unpack(y, channels=channels).abs().max()) == 0.0
+        head.bias[[0, 5, 6, 11]] = 1.0  # every channel used: all computed, None
+        y, channels = learned._head_forward(head, x)
+        assert channels is None and y.shape[1] == 12

@@ -500,14 +500,15 @@ def test_distill_config_errors_name_the_key(tmp_path):
 
 
 def test_distillation_run_trains_towards_the_teacher(tmp_path):
-    """A student started from its teacher (one pass, weight 1) has a zero loss and no gradient: the targets are the
-    teacher's outputs on the same mosaics, not the scenes."""
+    """A student started from its teacher (one pass, weight 1) has a zero loss at its first step, to float rounding
+    (the teacher runs the inference path, the same sums in another order): the targets are the teacher's outputs on
+    the same mosaics, not the scenes. (One step: Adam scales even a rounding-sized gradient to a full step.)"""
     _, path = _teacher(tmp_path)
-    args = ["--config", str(SMOKE), "--out", str(tmp_path / "run"), "--quiet", "--threads", "1", "--steps", "2",
-            "--set", f"init={path}", f"distill={{teacher: {path}, weight: 1.0, self_ensemble: false}}"]
+    args = ["--config", str(SMOKE), "--out", str(tmp_path / "run"), "--quiet", "--threads", "1", "--steps", "1",
+            "--set", "val.every=1", f"init={path}", f"distill={{teacher: {path}, weight: 1.0, self_ensemble: false}}"]
     assert train_demosaic.main(args) == 0
     rows = list(csv.DictReader(open(tmp_path / "run" / "history.csv")))
-    assert [float(r["train_loss"]) for r in rows] == [0.0]
+    assert len(rows) == 1 and 0 <= float(rows[0]["train_loss"]) < 1e-12
     rec = json.loads((tmp_path / "run" / "record.json").read_text())
     assert rec["config"]["distill"]["teacher"] == str(path)
     # the same run towards the scenes has a loss

@@ -147,14 +147,22 @@ def _shift_add(xp: torch.Tensor, kernel, h: int, w: int, oy: int = 0, ox: int = 
     """Correlate a padded plane with a small constant kernel (nested sequences of floats) by summing shifted
     slices ``xp[..., oy + dy : oy + dy + h, ox + dx : ox + dx + w]``, one multiply per distinct weight: cheaper
     than conv2d for the sparse 3x3/5x5 kernels here, in any dtype."""
+    acc = weighted_sum(kernel, lambda dy, dx: xp[..., oy + dy:oy + dy + h, ox + dx:ox + dx + w])
+    return xp.new_zeros(xp.shape[:-2] + (h, w)) if acc is None else acc
+
+
+def weighted_sum(kernel, tap):
+    """``sum over (dy, dx) of kernel[dy][dx] * tap(dy, dx)`` for a small constant kernel (nested sequences of floats)
+    and ``tap`` returning same-shaped tensors (shifted slices), one multiply per distinct weight, into a fresh
+    tensor; None when every weight is zero."""
     by_weight: dict[float, list[tuple[int, int]]] = {}
     for dy, row in enumerate(kernel):
         for dx, wt in enumerate(row):
             if wt != 0:
-                by_weight.setdefault(float(wt), []).append((oy + dy, ox + dx))
+                by_weight.setdefault(float(wt), []).append((dy, dx))
     acc = None
     for wt, offsets in by_weight.items():
-        slices = [xp[..., y:y + h, x:x + w] for y, x in offsets]
+        slices = [tap(y, x) for y, x in offsets]
         if len(slices) == 1:
             if acc is None:
                 acc = slices[0] * wt
@@ -168,8 +176,6 @@ def _shift_add(xp: torch.Tensor, kernel, h: int, w: int, oy: int = 0, ox: int = 
             acc = part.mul_(wt) if wt != 1.0 else part
         else:
             acc.add_(part, alpha=wt)
-    if acc is None:
-        return xp.new_zeros(xp.shape[:-2] + (h, w))
     return acc
 
 

@@ -6,11 +6,10 @@ from __future__ import annotations
 import functools
 
 import torch
+import torch.nn.functional as F
 
 from ._cfa import (
-    _shift_add,
     bayer_index_map,
-    bayer_masks,
     channel_masks,
     check_bayer_pattern,
     check_index_map,
@@ -18,6 +17,7 @@ from ._cfa import (
     correlate,
     idx_key,
     pad,
+    weighted_sum,
 )
 
 __all__ = ["demosaic_nearest", "demosaic_bilinear", "demosaic_generic", "demosaic_malvar2004",
@@ -214,13 +214,30 @@ def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str 
     raw = check_raw(raw)
     if boundary not in ("symmetric", "mirror"):
         raise ValueError(f"boundary: expected 'symmetric' or 'mirror', got {boundary!r}")
-    h, w = raw.shape[-2:]
-    m = bayer_masks(check_bayer_pattern(pattern), h, w, raw.device)
+    idx = bayer_index_map(check_bayer_pattern(pattern)).tolist()
+    b, _, h, w = raw.shape
+    # Each 2 x 2 cell position (py, px) holds one colour and needs the other two, each one of the four kernels at
+    # that position only: computed on the mosaic's four polyphase planes (every tap a contiguous slice of one plane)
+    # and written into their positions, a quarter of the full-resolution kernel passes and no selection.
+    hc, wc = (h + 1) // 2, (w + 1) // 2
     xp = pad(raw, 2, 2, boundary)
-    g_at_rb, rb_row, rb_col, rb_diag = (_shift_add(xp, k, h, w) for k in _MALVAR)
-    # rb_row: R (B) at a green site in a row of R (B); rb_col: ... in a column of it; rb_diag: R at B, B at R.
-    g_in_r_row, g_in_b_row = m["G_in_R_row"], m["G_in_B_row"]
-    r = torch.where(m["R"], raw, torch.where(g_in_r_row, rb_row, torch.where(g_in_b_row, rb_col, rb_diag)))
-    g = torch.where(m["G"], raw, g_at_rb)
-    b = torch.where(m["B"], raw, torch.where(g_in_b_row, rb_row, torch.where(g_in_r_row, rb_col, rb_diag)))
-    return torch.cat([r, g, b], dim=1)
+    if h % 2 or w % 2:  # an even padded size; the extra row/column is read only by outputs cropped away
+        xp = F.pad(xp, (0, w % 2, 0, h % 2), mode="replicate")
+    planes = F.pixel_unshuffle(xp, 2)  # plane 2 qy + qx holds xp[qy::2, qx::2]
+    out = raw.new_empty(b, 3, 2 * hc, 2 * wc)
+    cells = out.view(b, 3, hc, 2, wc, 2)
+    for py in (0, 1):
+        for px in (0, 1):
+            def tap(ky, kx, py=py, px=px):  # kernel tap (ky, kx) of 0..4 at position (py, px): xp[py + ky, px + kx]
+                y, x = py + ky, px + kx
+                return planes[:, 2 * (y % 2) + x % 2, y // 2:y // 2 + hc, x // 2:x // 2 + wc]
+
+            site = idx[py][px]
+            cells[:, site, :, py, :, px] = tap(2, 2)
+            if site == 1:  # green: the colour of its row by the row kernel, of its column by the column kernel
+                estimates = {idx[py][1 - px]: _MALVAR[1], idx[1 - py][px]: _MALVAR[2]}
+            else:  # red or blue: green, and the other of the two by the diagonal kernel
+                estimates = {1: _MALVAR[0], 2 - site: _MALVAR[3]}
+            for c, kernel in estimates.items():
+                cells[:, c, :, py, :, px] = weighted_sum(kernel, tap)
+    return out if (h, w) == out.shape[-2:] else out[..., :h, :w].contiguous()
