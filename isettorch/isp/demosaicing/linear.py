@@ -226,11 +226,15 @@ def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str 
     planes = F.pixel_unshuffle(xp, 2)  # plane 2 qy + qx holds xp[qy::2, qx::2]
     out = raw.new_empty(b, 3, 2 * hc, 2 * wc)
     cells = out.view(b, 3, hc, 2, wc, 2)
+    shifted = {}  # planes' slices by their offset in xp (py + ky, px + kx), each made once
+
     for py in (0, 1):
         for px in (0, 1):
             def tap(ky, kx, py=py, px=px):  # kernel tap (ky, kx) of 0..4 at position (py, px): xp[py + ky, px + kx]
                 y, x = py + ky, px + kx
-                return planes[:, 2 * (y % 2) + x % 2, y // 2:y // 2 + hc, x // 2:x // 2 + wc]
+                if (y, x) not in shifted:
+                    shifted[y, x] = planes[:, 2 * (y % 2) + x % 2, y // 2:y // 2 + hc, x // 2:x // 2 + wc]
+                return shifted[y, x]
 
             site = idx[py][px]
             cells[:, site, :, py, :, px] = tap(2, 2)
