@@ -151,17 +151,24 @@ def _shift_add(xp: torch.Tensor, kernel, h: int, w: int, oy: int = 0, ox: int = 
     return xp.new_zeros(xp.shape[:-2] + (h, w)) if acc is None else acc
 
 
-def weighted_sum(kernel, tap):
-    """``sum over (dy, dx) of kernel[dy][dx] * tap(dy, dx)`` for a small constant kernel (nested sequences of floats)
-    and ``tap`` returning same-shaped tensors (shifted slices), one multiply per distinct weight, into a fresh
-    tensor; None when every weight is zero."""
+@functools.lru_cache(maxsize=256)
+def _weight_groups(kernel: tuple) -> tuple:
+    """A constant kernel's taps grouped by weight, ``((weight, ((dy, dx), ...)), ...)`` in first-seen order
+    (cached: the grouping is Python work that every call of a demosaic repeated, ~40 us per kernel)."""
     by_weight: dict[float, list[tuple[int, int]]] = {}
     for dy, row in enumerate(kernel):
         for dx, wt in enumerate(row):
             if wt != 0:
                 by_weight.setdefault(float(wt), []).append((dy, dx))
+    return tuple((wt, tuple(offsets)) for wt, offsets in by_weight.items())
+
+
+def weighted_sum(kernel, tap):
+    """``sum over (dy, dx) of kernel[dy][dx] * tap(dy, dx)`` for a small constant kernel (nested sequences of floats)
+    and ``tap`` returning same-shaped tensors (shifted slices), one multiply per distinct weight, into a fresh
+    tensor; None when every weight is zero."""
     acc = None
-    for wt, offsets in by_weight.items():
+    for wt, offsets in _weight_groups(tuple(map(tuple, kernel))):
         slices = [tap(y, x) for y, x in offsets]
         if len(slices) == 1:
             if acc is None:
