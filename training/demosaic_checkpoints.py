@@ -111,7 +111,7 @@ def write_model_card(path: Path, record: dict, net) -> None:
 def init_state(ck: dict, net: DemosaicNet, name: str = "init") -> dict:
     """The state dict that starts ``net`` from checkpoint ``ck``, computing the same function as ``ck``'s network:
 
-    - equal configs (the guard aside: it holds no weights): its weights as they are;
+    - equal configs (the guard, correction scale and blend aside: they hold no weights): its weights as they are;
     - more ``noise_inputs`` (a noise-free checkpoint starting a joint network of the same width and depth): the extra
       input channels of the first convolution zeroed, so the joint network starts as the noise-free one;
     - a deeper residual network of the same width (``depth`` larger, both ``residual``): the checkpoint's blocks,
@@ -121,9 +121,11 @@ def init_state(ck: dict, net: DemosaicNet, name: str = "init") -> dict:
     - another ``base`` (the same width and depth): its weights as they are, now correcting the other classical
       estimate (not the same function: a start close to it where the two bases agree, to be trained on).
     """
-    # the guard holds no weights: a network trained with the guard in the loop may start from one trained without
-    old = {k: v for k, v in {"noise_inputs": 0, **ck["net_config"]}.items() if k != "guard"}
-    new = {k: v for k, v in net.config().items() if k != "guard"}
+    # the guard, correction scale and blend hold no weights: a network trained with them in the loop may start from
+    # one trained without (with the shipped ones, from the function it ships as)
+    free = ("guard", "correction_scale", "blend")
+    old = {k: v for k, v in {"noise_inputs": 0, **ck["net_config"]}.items() if k not in free}
+    new = {k: v for k, v in net.config().items() if k not in free}
     state = {k: v.float() for k, v in ck["model"].items()}
     if {**old, "base": None} == {**new, "base": None}:  # the same network, on the same base or another
         return state

@@ -346,7 +346,14 @@ def test_joint_network_starts_as_the_noise_free_one():
     guarded.load_state_dict(train_demosaic.init_state(ck, guarded))
     free.guard = guard
     torch.testing.assert_close(guarded(raw), free(raw), rtol=0, atol=0)
-    free.guard = None
+    # so do a correction scale and a blend: a network trained as a variant ships starts at that shipped function
+    shipped = train_demosaic.DemosaicNet(channels=8, depth=2, guard=guard, correction_scale=0.5,
+                                         blend={"method": "menon2007", "weight": 0.3})
+    shipped.load_state_dict(train_demosaic.init_state(ck, shipped))
+    free.correction_scale, free.blend = 0.5, {"method": "menon2007", "weight": 0.3}
+    torch.testing.assert_close(shipped(raw), free(raw), rtol=0, atol=0)
+    assert (shipped(raw) - guarded(raw)).abs().max() > 1e-3
+    free.guard, free.correction_scale, free.blend = None, 1.0, None
     # another base: the same weights, now correcting that base (the tiny network moved to the unrefined Menon);
     # with another base and another width it cannot start
     on_menon = train_demosaic.DemosaicNet(channels=8, depth=2, base="menon2007_norefine")
