@@ -346,3 +346,15 @@ def test_malvar_green_is_the_mean_of_menons_directional_greens(pattern):
     diff = (g_mhc - mean_hv)[..., 2:-2, 2:-2][at_rb]
     assert at_rb.sum() == 2 * 16 * 20 // 2
     assert float(diff.abs().max()) <= 1e-15
+
+
+def test_malvar_keeps_the_mosaics_precision_under_autocast():
+    # MHC is one convolution over the mosaic's polyphase planes; under bfloat16 autocast it still runs at the mosaic's
+    # precision (as the elementwise methods do), and equals colour-demosaicing's kernels applied by hand in float64.
+    raw = _raw((1, 1, 12, 14), seed=21, dtype=torch.float32)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        under = demosaic_malvar2004(raw, "GRBG")
+    assert under.dtype == torch.float32
+    torch.testing.assert_close(under, demosaic_malvar2004(raw, "GRBG"), rtol=0, atol=0)
+    expected = cd.demosaicing_CFA_Bayer_Malvar2004(raw[0, 0].double().numpy(), "GRBG")
+    np.testing.assert_allclose(_to_np(under), expected, rtol=0, atol=2e-6)

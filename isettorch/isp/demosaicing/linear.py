@@ -3,6 +3,7 @@ Malvar-He-Cutler (2004)."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
 
 import torch
@@ -17,7 +18,6 @@ from ._cfa import (
     correlate,
     idx_key,
     pad,
-    weighted_sum,
 )
 
 __all__ = ["demosaic_nearest", "demosaic_bilinear", "demosaic_generic", "demosaic_malvar2004",
@@ -188,6 +188,30 @@ _MALVAR = [_scaled(_G_AT_RB, 1 / 8), _scaled(_RB_AT_G_ROW, 1 / 8), _scaled(list(
            _scaled(_RB_AT_BR, 1 / 8)]
 
 
+@functools.lru_cache(maxsize=16)
+def _malvar_polyphase(pattern: str, dtype, device) -> tuple[torch.Tensor, tuple]:
+    """:func:`demosaic_malvar2004`'s kernels on the polyphase planes of the mosaic padded by 2: a (8, 4, 3, 3) weight
+    (each cell position's two estimates) and, for each output channel, the colour and cell position it fills. Tap
+    (ky, kx) of 0..4 at position (py, px) reads padded pixel (py + ky, px + kx): plane 2 (y % 2) + x % 2 at cell
+    offset (y // 2, x // 2). (Cached; built outside inference mode so autograd may use it.)"""
+    idx = bayer_index_map(pattern).tolist()
+    weight, writes = torch.zeros(8, 4, 3, 3, dtype=torch.float64), []
+    for py, px in ((0, 0), (0, 1), (1, 0), (1, 1)):
+        site = idx[py][px]
+        if site == 1:  # green: the colour of its row by the row kernel, of its column by the column kernel
+            kernels = ((idx[py][1 - px], _MALVAR[1]), (idx[1 - py][px], _MALVAR[2]))
+        else:  # red or blue: green, and the other of the two by the diagonal kernel
+            kernels = ((1, _MALVAR[0]), (2 - site, _MALVAR[3]))
+        for c, kernel in kernels:
+            for ky, row in enumerate(kernel):
+                for kx, wt in enumerate(row):
+                    y, x = py + ky, px + kx
+                    weight[len(writes), 2 * (y % 2) + x % 2, y // 2, x // 2] = wt
+            writes.append((c, py, px))
+    with torch.inference_mode(False):
+        return weight.to(dtype=dtype, device=device), tuple(writes)
+
+
 def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str = "symmetric") -> torch.Tensor:
     """Malvar-He-Cutler high-quality linear demosaic of a Bayer mosaic: bilinear interpolation corrected by the
     Laplacian of the channel sampled at the site, as four fixed 5x5 kernels (Malvar et al. 2004, Fig. 2). The
@@ -214,34 +238,28 @@ def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str 
     raw = check_raw(raw)
     if boundary not in ("symmetric", "mirror"):
         raise ValueError(f"boundary: expected 'symmetric' or 'mirror', got {boundary!r}")
-    idx = bayer_index_map(check_bayer_pattern(pattern)).tolist()
+    pattern = check_bayer_pattern(pattern)
     b, _, h, w = raw.shape
-    # Each 2 x 2 cell position (py, px) holds one colour and needs the other two, each one of the four kernels at
-    # that position only: computed on the mosaic's four polyphase planes (every tap a contiguous slice of one plane)
-    # and written into their positions, a quarter of the full-resolution kernel passes and no selection.
+    # Each 2 x 2 cell position holds one colour and needs the other two, each one of the four kernels at that
+    # position only. On the mosaic's four polyphase planes a 5 x 5 kernel at one position is a 3 x 3 kernel over the
+    # planes, so the eight estimates are one convolution (4 planes in, 8 out) at a quarter of the pixels, written
+    # with the samples into their positions: no full-resolution kernel pass and no selection, and ~10 operations a
+    # call instead of ~60 (8.2-8.8 against 10.4-13.4 ms/MP on Kodak and McMaster sizes, 2 threads, AVX2).
     hc, wc = (h + 1) // 2, (w + 1) // 2
     xp = pad(raw, 2, 2, boundary)
     if h % 2 or w % 2:  # an even padded size; the extra row/column is read only by outputs cropped away
         xp = F.pad(xp, (0, w % 2, 0, h % 2), mode="replicate")
     planes = F.pixel_unshuffle(xp, 2)  # plane 2 qy + qx holds xp[qy::2, qx::2]
+    weight, writes = _malvar_polyphase(pattern, raw.dtype, raw.device)
+    device_type = raw.device.type
+    with (torch.autocast(device_type, enabled=False) if torch.amp.is_autocast_available(device_type)
+          else contextlib.nullcontext()):  # at the mosaic's precision under autocast too, as the other methods are
+        estimates = F.conv2d(planes, weight)
     out = raw.new_empty(b, 3, 2 * hc, 2 * wc)
     cells = out.view(b, 3, hc, 2, wc, 2)
-    shifted = {}  # planes' slices by their offset in xp (py + ky, px + kx), each made once
-
-    for py in (0, 1):
-        for px in (0, 1):
-            def tap(ky, kx, py=py, px=px):  # kernel tap (ky, kx) of 0..4 at position (py, px): xp[py + ky, px + kx]
-                y, x = py + ky, px + kx
-                if (y, x) not in shifted:
-                    shifted[y, x] = planes[:, 2 * (y % 2) + x % 2, y // 2:y // 2 + hc, x // 2:x // 2 + wc]
-                return shifted[y, x]
-
-            site = idx[py][px]
-            cells[:, site, :, py, :, px] = tap(2, 2)
-            if site == 1:  # green: the colour of its row by the row kernel, of its column by the column kernel
-                estimates = {idx[py][1 - px]: _MALVAR[1], idx[1 - py][px]: _MALVAR[2]}
-            else:  # red or blue: green, and the other of the two by the diagonal kernel
-                estimates = {1: _MALVAR[0], 2 - site: _MALVAR[3]}
-            for c, kernel in estimates.items():
-                cells[:, c, :, py, :, px] = weighted_sum(kernel, tap)
+    for k, (c, py, px) in enumerate(writes):
+        cells[:, c, :, py, :, px] = estimates[:, k]
+    idx = bayer_index_map(pattern).tolist()
+    for py, px in ((0, 0), (0, 1), (1, 0), (1, 1)):  # the samples (the planes' interior: xp is padded by one cell)
+        cells[:, idx[py][px], :, py, :, px] = planes[:, 2 * py + px, 1:1 + hc, 1:1 + wc]
     return out if (h, w) == out.shape[-2:] else out[..., :h, :w].contiguous()
