@@ -143,14 +143,6 @@ def pad(x: torch.Tensor, py: int, px: int, mode: str) -> torch.Tensor:
     return x
 
 
-def _shift_add(xp: torch.Tensor, kernel, h: int, w: int, oy: int = 0, ox: int = 0) -> torch.Tensor:
-    """Correlate a padded plane with a small constant kernel (nested sequences of floats) by summing shifted
-    slices ``xp[..., oy + dy : oy + dy + h, ox + dx : ox + dx + w]``, one multiply per distinct weight: cheaper
-    than conv2d for the sparse 3x3/5x5 kernels here, in any dtype."""
-    acc = weighted_sum(kernel, lambda dy, dx: xp[..., oy + dy:oy + dy + h, ox + dx:ox + dx + w])
-    return xp.new_zeros(xp.shape[:-2] + (h, w)) if acc is None else acc
-
-
 @functools.lru_cache(maxsize=256)
 def _weight_groups(kernel: tuple) -> tuple:
     """A constant kernel's taps grouped by weight, ``((weight, ((dy, dx), ...)), ...)`` in first-seen order
@@ -163,13 +155,13 @@ def _weight_groups(kernel: tuple) -> tuple:
     return tuple((wt, tuple(offsets)) for wt, offsets in by_weight.items())
 
 
-def weighted_sum(kernel, tap):
-    """``sum over (dy, dx) of kernel[dy][dx] * tap(dy, dx)`` for a small constant kernel (nested sequences of floats)
-    and ``tap`` returning same-shaped tensors (shifted slices), one multiply per distinct weight, into a fresh
-    tensor; None when every weight is zero."""
+def _shift_add(xp: torch.Tensor, kernel, h: int, w: int, oy: int = 0, ox: int = 0) -> torch.Tensor:
+    """Correlate a padded plane with a small constant kernel (nested sequences of floats) by summing shifted
+    slices ``xp[..., oy + dy : oy + dy + h, ox + dx : ox + dx + w]``, one multiply per distinct weight: cheaper
+    than conv2d for the sparse 3x3/5x5 kernels here, in any dtype."""
     acc = None
     for wt, offsets in _weight_groups(tuple(map(tuple, kernel))):
-        slices = [tap(y, x) for y, x in offsets]
+        slices = [xp[..., oy + y:oy + y + h, ox + x:ox + x + w] for y, x in offsets]
         if len(slices) == 1:
             if acc is None:
                 acc = slices[0] * wt
@@ -183,7 +175,7 @@ def weighted_sum(kernel, tap):
             acc = part.mul_(wt) if wt != 1.0 else part
         else:
             acc.add_(part, alpha=wt)
-    return acc
+    return xp.new_zeros(xp.shape[:-2] + (h, w)) if acc is None else acc
 
 
 def correlate_hv(x: torch.Tensor, taps, mode: str) -> tuple[torch.Tensor, torch.Tensor]:
