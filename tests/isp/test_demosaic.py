@@ -358,3 +358,16 @@ def test_malvar_keeps_the_mosaics_precision_under_autocast():
     torch.testing.assert_close(under, demosaic_malvar2004(raw, "GRBG"), rtol=0, atol=0)
     expected = cd.demosaicing_CFA_Bayer_Malvar2004(raw[0, 0].double().numpy(), "GRBG")
     np.testing.assert_allclose(_to_np(under), expected, rtol=0, atol=2e-6)
+
+
+def test_malvar_differentiates_after_a_first_call_in_inference_mode():
+    # MHC's convolution weights are cached on first use; a first call in inference mode must not cache an inference
+    # tensor, which autograd could not save in a later differentiated call (gradients checked by finite differences).
+    import importlib
+
+    importlib.import_module("isettorch.isp.demosaicing.linear")._malvar_polyphase.cache_clear()
+    raw = _raw((1, 1, 8, 10), seed=22)
+    with torch.inference_mode():
+        demosaic_malvar2004(raw, "BGGR")
+    assert torch.autograd.gradcheck(lambda r: demosaic_malvar2004(r, "BGGR"), (raw.clone().requires_grad_(True),),
+                                    fast_mode=True)

@@ -195,7 +195,7 @@ def _malvar_polyphase(pattern: str, dtype, device) -> tuple[torch.Tensor, tuple]
     (ky, kx) of 0..4 at position (py, px) reads padded pixel (py + ky, px + kx): plane 2 (y % 2) + x % 2 at cell
     offset (y // 2, x // 2). (Cached; built outside inference mode so autograd may use it.)"""
     idx = bayer_index_map(pattern).tolist()
-    weight, writes = torch.zeros(8, 4, 3, 3, dtype=torch.float64), []
+    weight, writes = [[[[0.0] * 3 for _ in range(3)] for _ in range(4)] for _ in range(8)], []
     for py, px in ((0, 0), (0, 1), (1, 0), (1, 1)):
         site = idx[py][px]
         if site == 1:  # green: the colour of its row by the row kernel, of its column by the column kernel
@@ -206,10 +206,10 @@ def _malvar_polyphase(pattern: str, dtype, device) -> tuple[torch.Tensor, tuple]
             for ky, row in enumerate(kernel):
                 for kx, wt in enumerate(row):
                     y, x = py + ky, px + kx
-                    weight[len(writes), 2 * (y % 2) + x % 2, y // 2, x // 2] = wt
+                    weight[len(writes)][2 * (y % 2) + x % 2][y // 2][x // 2] = float(wt)
             writes.append((c, py, px))
-    with torch.inference_mode(False):
-        return weight.to(dtype=dtype, device=device), tuple(writes)
+    with torch.inference_mode(False):  # (a tensor made in inference mode could not be saved for backward later)
+        return torch.tensor(weight, dtype=dtype, device=device), tuple(writes)
 
 
 def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str = "symmetric") -> torch.Tensor:
