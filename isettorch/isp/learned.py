@@ -335,6 +335,11 @@ def structure_gate(raw: torch.Tensor, rel: float = 0.1, abs: float = 0.03, windo
         (B, 1, H, W), each 2 x 2 Bayer cell one value.
     """
     _check_guard(rel, abs, window, power)
+    return _pixel_gate(raw, rel, abs, window, power)
+
+
+def _pixel_gate(raw: torch.Tensor, rel: float, abs: float, window: int, power: float) -> torch.Tensor:  # noqa: A002
+    """:func:`structure_gate` on options already checked: each cell's value copied to its four pixels."""
     return F.interpolate(_cell_gate(raw, rel, abs, window, power), scale_factor=2, mode="nearest")
 
 
@@ -381,7 +386,7 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
     _check_guard(rel, abs, window, power, highpass_sigma_px, highpass_decimation)
     # each 2 x 2 cell's weight copied to its four pixels, one plane (multiplying through a broadcast view of the
     # cells instead, inner dimension 2, takes 4.1 against 1.0 ms/MP on 3 channels, 2 threads, AVX2)
-    gate = structure_gate(raw, rel, abs, window, power).to(residual.dtype)
+    gate = _pixel_gate(raw, rel, abs, window, power).to(residual.dtype)
     if in_place:
         out = residual.mul_(gate)
         return out if highpass_sigma_px is None else _highpass_(out, float(highpass_sigma_px), highpass_decimation)
@@ -603,7 +608,7 @@ def _first_conv(conv: nn.Conv2d, raw: torch.Tensor, base: torch.Tensor, noise: t
         # that is R, G, G, B for parities (0, 0), (0, 1), (1, 0), (1, 1); plane 1 + c of the input is colour c
         w = w[:, 1:].clone()
         for dy, dx, c in ((0, 0, 0), (0, 1, 1), (1, 0, 1), (1, 1, 2)):
-            w[:, c, dy::2, dx::2] += conv.weight[:, 4 * 0 + 2 * dy + dx].reshape(c_out, 3, 3)
+            w[:, c, dy::2, dx::2] += conv.weight[:, 2 * dy + dx].reshape(c_out, 3, 3)  # (input plane 0: the mosaic)
         y = F.conv2d(base.contiguous(memory_format=layout), w, conv.bias, stride=2, padding=2)
     else:
         x = torch.empty(b, 4, hh, ww, dtype=raw.dtype, device=raw.device, memory_format=layout)

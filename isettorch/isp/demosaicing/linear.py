@@ -189,9 +189,10 @@ _MALVAR = [_scaled(_G_AT_RB, 1 / 8), _scaled(_RB_AT_G_ROW, 1 / 8), _scaled(list(
 
 
 @functools.lru_cache(maxsize=16)
-def _malvar_polyphase(pattern: str, dtype, device) -> tuple[torch.Tensor, tuple]:
+def _malvar_polyphase(pattern: str, dtype, device) -> tuple[torch.Tensor, tuple, tuple]:
     """:func:`demosaic_malvar2004`'s kernels on the polyphase planes of the mosaic padded by 2: a (8, 4, 3, 3) weight
-    (each cell position's two estimates) and, for each output channel, the colour and cell position it fills. Tap
+    (each cell position's two estimates), for each output channel the colour and cell position it fills, and each
+    cell position's sampled colour ``((colour, py, px), ...)``. Tap
     (ky, kx) of 0..4 at position (py, px) reads padded pixel (py + ky, px + kx): plane 2 (y % 2) + x % 2 at cell
     offset (y // 2, x // 2). (Cached; built outside inference mode so autograd may use it.)"""
     idx = bayer_index_map(pattern).tolist()
@@ -208,8 +209,9 @@ def _malvar_polyphase(pattern: str, dtype, device) -> tuple[torch.Tensor, tuple]
                     y, x = py + ky, px + kx
                     weight[len(writes)][2 * (y % 2) + x % 2][y // 2][x // 2] = float(wt)
             writes.append((c, py, px))
+    samples = tuple((idx[py][px], py, px) for py, px in ((0, 0), (0, 1), (1, 0), (1, 1)))
     with torch.inference_mode(False):  # (a tensor made in inference mode could not be saved for backward later)
-        return torch.tensor(weight, dtype=dtype, device=device), tuple(writes)
+        return torch.tensor(weight, dtype=dtype, device=device), tuple(writes), samples
 
 
 def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str = "symmetric") -> torch.Tensor:
@@ -250,7 +252,7 @@ def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str 
     if h % 2 or w % 2:  # an even padded size; the extra row/column is read only by outputs cropped away
         xp = F.pad(xp, (0, w % 2, 0, h % 2), mode="replicate")
     planes = F.pixel_unshuffle(xp, 2)  # plane 2 qy + qx holds xp[qy::2, qx::2]
-    weight, writes = _malvar_polyphase(pattern, raw.dtype, raw.device)
+    weight, writes, samples = _malvar_polyphase(pattern, raw.dtype, raw.device)
     device_type = raw.device.type
     with (torch.autocast(device_type, enabled=False) if torch.amp.is_autocast_available(device_type)
           else contextlib.nullcontext()):  # at the mosaic's precision under autocast too, as the other methods are
@@ -259,7 +261,6 @@ def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str 
     cells = out.view(b, 3, hc, 2, wc, 2)
     for k, (c, py, px) in enumerate(writes):
         cells[:, c, :, py, :, px] = estimates[:, k]
-    idx = bayer_index_map(pattern).tolist()
-    for py, px in ((0, 0), (0, 1), (1, 0), (1, 1)):  # the samples (the planes' interior: xp is padded by one cell)
-        cells[:, idx[py][px], :, py, :, px] = planes[:, 2 * py + px, 1:1 + hc, 1:1 + wc]
+    for c, py, px in samples:  # the samples (the planes' interior: xp is padded by one cell)
+        cells[:, c, :, py, :, px] = planes[:, 2 * py + px, 1:1 + hc, 1:1 + wc]
     return out if (h, w) == out.shape[-2:] else out[..., :h, :w].contiguous()
