@@ -6,7 +6,8 @@ Errors: bad input to a subcommand is one line on stderr, ``isettorch <command>: 
 (argparse's own errors also exit 2). A command signals bad input by raising ``ValueError`` or ``OSError``
 (``FileNotFoundError``, ``PermissionError``, ...) with a message that names the argument; a message that starts
 with the name of one of the command's parameters (``noise_sigma: ...``, as the library's functions name theirs)
-is shown with the command line's spelling (``--noise-sigma: ...``). Any other exception is a bug and keeps its
+is shown with the command line's spelling (``--noise-sigma: ...``). A broken pipe on stdout (``| head``) is not an
+input error: the command stops quietly with exit code 141 (128 + SIGPIPE). Any other exception is a bug and keeps its
 traceback; ``isettorch --traceback COMMAND ...`` or ``ISETTORCH_DEBUG=1`` re-raises input errors too."""
 
 from __future__ import annotations
@@ -60,6 +61,16 @@ def _spelled(message: str, parser: argparse.ArgumentParser | None) -> str:
     return message
 
 
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so Python's flush at exit does not fail again on the closed pipe (the idiom of the
+    Python documentation, signal module, "Note on SIGPIPE")."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (AttributeError, OSError, ValueError):  # stdout without a file descriptor (e.g. captured in tests)
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -67,7 +78,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return code
+    except BrokenPipeError:  # stdout closed by the reader (`| head`): not an input error; stop quietly
+        _silence_stdout()
+        return 141  # 128 + SIGPIPE, what a shell reports for a command killed by a broken pipe
     except INPUT_ERRORS as err:
         if args.traceback or os.environ.get("ISETTORCH_DEBUG", "") not in ("", "0"):
             raise

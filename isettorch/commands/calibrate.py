@@ -5,10 +5,15 @@ Example::
     isettorch calibrate captures/cam1 --json --out cam1_sensor.yaml --report cam1_report/
 
 ``DIR`` holds ``capture.yaml`` (bit_depth, pixel_size_m, optional black_level_dn, cfa, photons_per_pixel) and
-``dark_<ms>ms/`` / ``flat_<ms>ms/`` folders of >= 2 frames each (16-bit PNG/TIFF, .npy or camera raws), in DN.
+``dark_<ms>ms/`` / ``flat_<ms>ms/`` folders of >= 2 frames each (8/16-bit greyscale PNG/TIFF, .npy or camera raws), in
+DN; the folder's CFA is capture.yaml's (else the raws' metadata) and its black level is measured from the darks.
+Given one raw frame instead, it gives a Poisson-Gaussian estimate (Foi et al. 2008); ``--cfa`` and ``--black-level``
+are for that mode only, ``--out`` and ``--report`` for the folder mode only.
 """
 
 from __future__ import annotations
+
+import math
 
 from .._progress import add_quiet_argument
 
@@ -18,12 +23,14 @@ def register(sub) -> None:
     p.add_argument("directory", metavar="DIR", help="capture folder (capture.yaml, dark_<ms>ms/, flat_<ms>ms/), or one "
                    "raw frame (PNG/TIFF/npy/DNG/camera raw) for a quick Poisson-Gaussian estimate (Foi et al. 2008)")
     p.add_argument("--black-level", type=float, default=None,
-                   help="single raw: black level in DN (default: the raw file's, else 0)")
-    p.add_argument("--cfa", default=None, help="single raw: CFA pattern (default: the raw file's, else mono)")
+                   help="single raw only: black level in DN (default: the raw file's, else 0)")
+    p.add_argument("--cfa", default=None, help="single raw only: CFA pattern (default: the raw file's, else mono)")
     p.add_argument("--json", action="store_true", help="print the full result as JSON on stdout")
     p.add_argument("--out", default=None, metavar="SENSOR.yaml",
-                   help="write a sensor config (Sensor.from_config / the sensor: section of a camera YAML)")
-    p.add_argument("--report", default=None, metavar="FOLDER", help="write the EMVA 1288 figures as PNG")
+                   help="capture folder only: write a sensor config (Sensor.from_config / the sensor: section of a "
+                   "camera YAML)")
+    p.add_argument("--report", default=None, metavar="FOLDER",
+                   help="capture folder only: write the EMVA 1288 figures as PNG")
     add_quiet_argument(p)
     p.set_defaults(func=run)
 
@@ -46,11 +53,20 @@ def _summary(result: dict) -> str:
 
 def _single(args) -> int:
     import json
+    import sys
+
+    import numpy as np
 
     from ..io.frames import RAW_SUFFIXES, read_frame
     from ..sensor.noise_estimation import estimate_poisson_gaussian
 
-    black, white, cfa = args.black_level, None, args.cfa  # errors: ValueError, one line (isettorch.cli)
+    # errors: ValueError, one line (isettorch.cli); a leading "<dest>:" is shown as the option's spelling
+    for dest, what in (("out", "a sensor config"), ("report", "an EMVA 1288 report")):
+        if getattr(args, dest) is not None:
+            raise ValueError(f"{dest}: {what} needs a capture folder (DIR with capture.yaml, dark_<ms>ms/, "
+                             f"flat_<ms>ms/); one raw frame gives only the Poisson-Gaussian noise estimate")
+    black, white, cfa = args.black_level, None, args.cfa
+    warnings = []
     if args.directory.lower().endswith(RAW_SUFFIXES):
         from ..io.raw import read_raw
 
@@ -60,13 +76,29 @@ def _single(args) -> int:
         white, cfa = raw.white_level_dn, cfa or raw.cfa
     else:
         data = read_frame(args.directory)
-    res = estimate_poisson_gaussian(data, cfa=cfa, black_level_dn=black or 0.0, white_level_dn=white)
-    res.update({"file": args.directory, "cfa": cfa, "black_level_dn": black or 0.0})
+    top = float(data.max())
+    if args.black_level is not None and not (math.isfinite(black) and 0 <= black < top):
+        raise ValueError(f"black_level: expected a finite level in [0, {top:g}) DN (below the frame's maximum), got "
+                         f"{args.black_level!r}")
+    if black is None:
+        black = 0.0
+        darkest = float(np.quantile(data, 0.001))
+        if darkest > 0:
+            warnings.append(f"black level 0 assumed; the frame's darkest values are {darkest:g} DN (0.1 % quantile): "
+                            f"pass --black-level")
+    res = estimate_poisson_gaussian(data, cfa=cfa, black_level_dn=black, white_level_dn=white)
+    res["warnings"] = warnings + res.get("warnings", [])
+    res.update({"file": args.directory, "cfa": cfa, "black_level_dn": black})
     if args.json:
         print(json.dumps(res, indent=2))
+        for w in res["warnings"]:
+            print(f"isettorch calibrate: warning: {w}", file=sys.stderr)
     else:
+        read_e = "n/a" if res["read_noise_e"] is None else f"{res['read_noise_e']:.3g}"
         print(f"{args.directory}: sigma^2 = a y + b with a = {res['a']:.4g} DN/e- (conversion gain), "
-              f"b = {res['b']:.4g} DN^2 (read noise {res['read_noise_dn']:.3g} DN = {res['read_noise_e']:.3g} e-)")
+              f"b = {res['b']:.4g} DN^2 (read noise {res['read_noise_dn']:.3g} DN = {read_e} e-)")
+        for w in res["warnings"]:
+            print(f"warning: {w}")
     return 0
 
 
@@ -83,14 +115,26 @@ def run(args) -> int:
     if Path(args.directory).is_file():
         return _single(args)
     # bad input raises ValueError, which the CLI shows as one line (isettorch.cli)
+    if args.cfa is not None:
+        raise ValueError("cfa: applies to a single raw frame only; a capture folder's CFA comes from its capture.yaml "
+                         "(cfa:), else from its camera raws' metadata")
+    if args.black_level is not None:
+        raise ValueError("black_level: applies to a single raw frame only; a capture folder's black level is measured "
+                         "from its dark frames (capture.yaml's black_level_dn is reported as the nominal value)")
     capture = read_capture(args.directory, progress=not args.quiet)
     result = calibrate_capture(capture, progress=not args.quiet)
     if args.out:
-        write_sensor_config(result, args.out)
+        try:
+            write_sensor_config(result, args.out)
+        except OSError as err:
+            raise OSError(f"out: cannot write {args.out} ({err.strerror or err})") from err
     if args.report:
         from ..metrics.emva import calibration_figures
 
-        result["report_figures"] = calibration_figures(result, capture, args.report)
+        try:
+            result["report_figures"] = calibration_figures(result, capture, args.report)
+        except OSError as err:
+            raise OSError(f"report: cannot write the figures into {args.report} ({err.strerror or err})") from err
     if args.json:
         print(json.dumps(result, indent=2))
     else:

@@ -3,11 +3,15 @@
 Layout (``isettorch calibrate DIR``)::
 
     DIR/capture.yaml        bit_depth, pixel_size_m, [black_level_dn], [cfa], [photons_per_pixel: {ms: photons}]
-    DIR/dark_<ms>ms/*.png   >= 2 frames per exposure (16-bit PNG, 16-bit TIFF, .npy, or camera raws via rawpy),
-    DIR/flat_<ms>ms/*.tif   values in DN, from dark to saturation
+    DIR/dark_<ms>ms/*.png   >= 2 frames per exposure (8/16-bit greyscale PNG or TIFF, .npy, or camera raws via
+    DIR/flat_<ms>ms/*.tif   rawpy), values in DN, from dark to saturation
 
-Every problem (missing keys, a folder with one frame, an unreadable file, a shape that differs) raises a
-``ValueError`` naming the file or folder; nothing is skipped.
+Every problem with what looks like part of the capture (missing keys, a folder with one frame, identical frames, an
+unreadable file, a shape that differs, a file with a frame suffix outside the exposure folders, a folder named
+``dark...``/``flat...`` that does not parse) raises a ``ValueError`` naming the file or folder. Anything else (a
+``--report`` folder, ``notes.txt``, ``Thumbs.db``) is skipped and listed in :attr:`Capture.warnings`; hidden files
+are skipped silently. Without ``cfa`` in capture.yaml, the CFA of camera raws (their metadata) is used, with a
+warning.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ FRAME_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
 RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".rw2", ".orf", ".pef", ".srw")
 CAPTURE_KEYS = {"bit_depth", "pixel_size_m", "black_level_dn", "cfa", "photons_per_pixel"}
 _FOLDER = re.compile(r"^(dark|flat)_([0-9]+(?:\.[0-9]+)?)ms$")
+_GREY_MODES = ("L", "I;16", "I;16B", "I;16L", "I", "F")  # PIL greyscale modes: 8-bit, 16-bit, 32-bit int / float
 
 
 @dataclasses.dataclass
@@ -40,31 +45,53 @@ class Capture:
     dark: dict[float, np.ndarray]
     flat: dict[float, np.ndarray]
     folders: dict[tuple[str, float], str]  # (kind, ms) -> folder path, for error messages
+    warnings: list[str] = dataclasses.field(default_factory=list)  # what was skipped or inferred while reading
 
 
 def read_frame(path: str | Path) -> np.ndarray:
-    """One raw frame in DN as a 2-D float64 array: 16-bit PNG/TIFF (PIL/tifffile), ``.npy`` (no pickle) or a
-    camera raw (DNG, CR2, NEF, ... via rawpy: the unprocessed mosaic ``raw_image_visible``)."""
-    path = Path(path)
+    """One raw frame in DN as a 2-D float64 array: 8- or 16-bit greyscale PNG/TIFF (tifffile, or Pillow for TIFF
+    compressions tifffile cannot decode without imagecodecs, e.g. LZW), ``.npy`` (no pickle) or a camera raw (DNG,
+    CR2, NEF, ... via rawpy: the unprocessed mosaic ``raw_image_visible``)."""
+    return _read_frame(Path(path))[0]
+
+
+def _pil_grey(path: Path, what: str) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        if im.mode not in _GREY_MODES:
+            raise ValueError(f"expected an 8- or 16-bit greyscale {what}, got PIL mode {im.mode!r}")
+        return np.asarray(im)
+
+
+def _read_tiff(path: Path) -> np.ndarray:
+    import tifffile
+
+    try:
+        return tifffile.imread(path)
+    except Exception as err:  # e.g. LZW / deflate without imagecodecs: Pillow decodes the common codecs itself
+        try:
+            return _pil_grey(path, "TIFF")
+        except Exception as pil_err:
+            raise ValueError(f"tifffile: {err}; Pillow: {pil_err}") from err
+
+
+def _read_frame(path: Path) -> tuple[np.ndarray, str | None]:
+    """(frame, CFA from the file's metadata: camera raws only, else None)."""
     suffix = path.suffix.lower()
+    cfa = None
     try:
         if suffix == ".npy":
             arr = np.load(path, allow_pickle=False)
         elif suffix in (".tif", ".tiff"):
-            import tifffile
-
-            arr = tifffile.imread(path)
+            arr = _read_tiff(path)
         elif suffix == ".png":
-            from PIL import Image
-
-            with Image.open(path) as im:
-                if im.mode not in ("I;16", "I;16B", "I;16L", "I"):
-                    raise ValueError(f"expected a 16-bit greyscale PNG, got PIL mode {im.mode!r}")
-                arr = np.asarray(im)
+            arr = _pil_grey(path, "PNG")
         elif suffix in RAW_SUFFIXES:
             from .raw import read_raw
 
-            arr = read_raw(path).data
+            raw = read_raw(path)
+            arr, cfa = raw.data, raw.cfa
         else:
             raise ValueError(f"unknown frame type {suffix!r}; expected one of {FRAME_SUFFIXES + RAW_SUFFIXES}")
     except ImportError:
@@ -73,10 +100,12 @@ def read_frame(path: str | Path) -> np.ndarray:
         raise ValueError(f"{path}: cannot read the frame ({err})") from err
     if arr.ndim != 2 or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise ValueError(f"{path}: expected a 2-D numeric frame (H, W) in DN, got shape {arr.shape} dtype {arr.dtype}")
+    if arr.size == 0:
+        raise ValueError(f"{path}: expected a frame with pixels, got shape {arr.shape}")
     arr = arr.astype(np.float64)
     if not np.isfinite(arr).all() or arr.min() < 0:
         raise ValueError(f"{path}: expected finite non-negative DN values")
-    return arr
+    return arr, cfa
 
 
 def write_frame(path: str | Path, frame) -> None:
@@ -115,8 +144,9 @@ def _read_yaml(path: Path) -> dict:
     if not isinstance(cfg, dict):
         raise ValueError(f"{path}: expected a mapping of keys, got {type(cfg).__name__}")
     unknown = set(cfg) - CAPTURE_KEYS
-    if unknown:
-        raise ValueError(f"{path}: unknown key(s) {sorted(unknown)}; expected {sorted(CAPTURE_KEYS)}")
+    if unknown:  # kept strict: it catches typos (black_level instead of black_level_dn)
+        raise ValueError(f"{path}: unknown key(s) {sorted(unknown)}; the accepted keys are bit_depth, pixel_size_m "
+                         f"(required), black_level_dn, cfa, photons_per_pixel (optional)")
     for key in ("bit_depth", "pixel_size_m"):
         if key not in cfg:
             raise ValueError(f"{path}: missing key {key!r} (required: bit_depth, pixel_size_m)")
@@ -150,17 +180,46 @@ def _read_yaml(path: Path) -> dict:
     return {"bit_depth": bd, "pixel_size_m": float(px), "black_level_dn": bl, "cfa": cfa, "photons_per_pixel": ppp}
 
 
-def _frame_files(folder: Path) -> list[Path]:
+def _frame_files(folder: Path, skipped: list[Path]) -> list[Path]:
+    """The frames of an exposure folder; anything without a frame suffix (notes.txt, Thumbs.db, a sub-folder) is
+    appended to ``skipped``, hidden files are left out silently."""
     files = []
     for p in sorted(folder.iterdir()):
         if p.name.startswith("."):
             continue  # hidden files (.DS_Store, ...) are not frames
-        if p.is_dir() or p.suffix.lower() not in FRAME_SUFFIXES + RAW_SUFFIXES:
-            raise ValueError(f"{p}: not a frame; expected only {FRAME_SUFFIXES + RAW_SUFFIXES} files in {folder}")
-        files.append(p)
+        if p.suffix.lower() in FRAME_SUFFIXES + RAW_SUFFIXES:
+            if p.is_dir():
+                raise ValueError(f"{p}: a folder with a frame's name; expected only frame files in {folder}")
+            files.append(p)
+        else:
+            skipped.append(p)
     if len(files) < 2:
         raise ValueError(f"{folder}: expected at least 2 frames (temporal noise needs a stack), found {len(files)}")
     return files
+
+
+def _check_copies(files: list[Path], frames: list[np.ndarray], folder: Path) -> None:
+    """Two bit-identical frames in a stack are copies of one frame (a copy error): temporal noise makes independent
+    frames differ. Frames with under 1 % of their pixels strictly between their minimum and maximum (a saturated or
+    uniformly clipped flat) are identical legitimately and are not compared."""
+    import hashlib
+
+    seen: dict[bytes, Path] = {}
+    for f, arr in zip(files, frames):
+        inside = np.count_nonzero((arr > arr.min()) & (arr < arr.max()))
+        if inside < 0.01 * arr.size:
+            continue
+        h = hashlib.blake2b(arr.tobytes(), digest_size=16).digest()
+        if h in seen:
+            raise ValueError(f"{folder}: frames are identical: copies of one frame? ({seen[h].name} and {f.name}; the "
+                             f"temporal noise needs independent frames)")
+        seen[h] = f
+
+
+def _skipped_warning(root: Path, skipped: list[Path]) -> str:
+    names = [str(p.relative_to(root)) + ("/" if p.is_dir() else "") for p in skipped]
+    shown = names[:20] + ([f"... {len(names) - 20} more"] if len(names) > 20 else [])
+    return f"skipped (not frames, exposure folders or capture.yaml): {shown}"
 
 
 def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
@@ -170,32 +229,44 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
         raise ValueError(f"{root}: not a directory")
     cfg = _read_yaml(root / "capture.yaml")
     folders: dict[tuple[str, float], Path] = {}
+    skipped: list[Path] = []
     for p in sorted(root.iterdir()):
-        if not p.is_dir() or p.name.startswith("."):
+        if p.name.startswith("."):
             continue
-        m = _FOLDER.match(p.name)
-        if not m:
-            raise ValueError(f"{p}: unexpected folder; expected dark_<exposure_ms>ms or flat_<exposure_ms>ms")
-        key = (m.group(1), float(m.group(2)))
-        if key in folders:
-            raise ValueError(f"{p}: the same exposure as {folders[key]}")
-        folders[key] = p
+        if p.is_dir():
+            m = _FOLDER.match(p.name)
+            if m:
+                key = (m.group(1), float(m.group(2)))
+                if key in folders:
+                    raise ValueError(f"{p}: the same exposure as {folders[key]}")
+                folders[key] = p
+            elif p.name.lower().startswith(("dark", "flat")):  # meant as an exposure folder: a naming error
+                raise ValueError(f"{p}: unexpected folder name; expected dark_<exposure_ms>ms or flat_<exposure_ms>ms")
+            else:  # e.g. the --report folder of an earlier run
+                skipped.append(p)
+        elif p.suffix.lower() in FRAME_SUFFIXES + RAW_SUFFIXES:
+            raise ValueError(f"{p}: a frame outside the dark_<exposure_ms>ms / flat_<exposure_ms>ms folders")
+        elif p.name != "capture.yaml":
+            skipped.append(p)
     for kind in ("dark", "flat"):
         if not any(k == kind for k, _ in folders):
             raise ValueError(f"{root}: no {kind}_<exposure_ms>ms folders; a calibration needs dark and flat stacks")
     limit = 2 ** cfg["bit_depth"] - 1
-    jobs = [(k, folders[k], _frame_files(folders[k])) for k in sorted(folders)]
+    jobs = [(k, folders[k], _frame_files(folders[k], skipped)) for k in sorted(folders)]
     total = sum(len(f) for _, _, f in jobs)
     from .._progress import progress as progress_bar
 
     stacks: dict[str, dict[float, np.ndarray]] = {"dark": {}, "flat": {}}
     shape = None
     first = None
+    frame_cfa: dict[str | None, Path] = {}  # CFA of the files' metadata (camera raws) -> first file with it
     with progress_bar(total=total, desc="reading frames", unit="frame", quiet=not progress) as bar:
-        for (kind, ms), _folder, files in jobs:
+        for (kind, ms), folder, files in jobs:
             frames = []
             for f in files:
-                arr = read_frame(f)
+                arr, cfa = _read_frame(f)
+                if f.suffix.lower() in RAW_SUFFIXES:
+                    frame_cfa.setdefault(cfa, f)
                 if shape is None:
                     shape, first = arr.shape, f
                 elif arr.shape != shape:
@@ -205,6 +276,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
                                      f"(bit_depth {cfg['bit_depth']} in capture.yaml; are the values shifted left?)")
                 frames.append(arr)
                 bar.update(1)
+            _check_copies(files, frames, folder)
             stacks[kind][ms] = np.stack(frames)
     ppp = cfg["photons_per_pixel"]
     if ppp is not None:
@@ -212,6 +284,24 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
         if missing:
             raise ValueError(f"{root / 'capture.yaml'}: photons_per_pixel has no value for flat exposure(s) "
                              f"{missing} ms")
-    return Capture(bit_depth=cfg["bit_depth"], pixel_size_m=cfg["pixel_size_m"], cfa=cfg["cfa"],
+    warnings = [_skipped_warning(root, skipped)] if skipped else []
+    cfa = cfg["cfa"]
+    if len(frame_cfa) > 1:
+        (c1, f1), (c2, f2) = list(frame_cfa.items())[:2]
+        if cfa is None:
+            raise ValueError(f"{f2}: its CFA {c2 or 'none (mono)'} (raw metadata) differs from {c1 or 'none (mono)'} "
+                             f"of {f1}; set cfa in capture.yaml if the frames are of one sensor")
+        warnings.append(f"the frames' raw metadata disagree on the CFA ({c1} in {f1}, {c2} in {f2}); using "
+                        f"capture.yaml's cfa {cfa}")
+    elif frame_cfa:
+        (c1, f1), = frame_cfa.items()
+        if cfa is None and c1 is not None:
+            cfa = c1
+            warnings.append(f"capture.yaml has no cfa: using {c1}, the CFA in the frames' raw metadata (e.g. {f1}); "
+                            f"set cfa in capture.yaml to override")
+        elif cfa is not None and c1 is not None and str(c1).upper() != str(cfa).upper():
+            warnings.append(f"capture.yaml's cfa {cfa} differs from {c1} in the frames' raw metadata (e.g. {f1}); "
+                            f"using capture.yaml's")
+    return Capture(bit_depth=cfg["bit_depth"], pixel_size_m=cfg["pixel_size_m"], cfa=cfa,
                    black_level_dn=cfg["black_level_dn"], photons_per_pixel=ppp, dark=stacks["dark"],
-                   flat=stacks["flat"], folders={k: str(v) for k, v in folders.items()})
+                   flat=stacks["flat"], folders={k: str(v) for k, v in folders.items()}, warnings=warnings)

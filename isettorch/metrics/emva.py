@@ -417,7 +417,7 @@ def calibration_figures(result: dict, capture, out_dir) -> list[str]:
     fig, ax = plt.subplots(figsize=(6, 4.5))
     for n, p in ptcs.items():
         x, v = np.array(p["signal_dn"]), np.array(p["variance_dn2"])
-        ok = x > 0
+        ok = (x > 0) & (v > 0)  # saturated levels have no temporal variance (no SNR to plot)
         e = x[ok] / gain[n]
         ax.loglog(e, x[ok] / np.sqrt(v[ok]), "o", ms=4, label=f"{n} measured")
         grid = np.logspace(np.log10(max(e.min(), 1.0)), np.log10(e.max()), 100)

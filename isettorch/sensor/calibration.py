@@ -7,9 +7,11 @@ Per CFA channel (the sub-images of one colour; a monochrome sensor is one channe
 * black level (DN): intercept of the mean dark signal against t; dark current (e-/s): its slope over K;
 * conversion gain K (DN/e-): slope through the origin of the pixel-wise temporal variance (row and column noise
   removed) minus the dark's at the same t, against the dark-subtracted mean (EMVA 1288 eq. 9), over the linear range:
-  levels below 70 % of the saturation signal and before the variance peak;
+  levels below 70 % of the saturation signal and before the variance peak; levels whose variance/signal ratio departs
+  from the median ratio by more than 5 % (or 4 standard errors) are left out, and fewer than 3 left is an error;
 * read noise (e-): pixel-wise temporal dark variance extrapolated to t = 0 (intercept of a line in t), minus the
-  quantisation variance 1/12 DN^2 (EMVA eq. 5), square root, over K; row noise and quantisation are not in it;
+  quantisation variance q^2/12 DN^2 (EMVA eq. 5; q = 1 DN, or the common step 2^s of left-aligned data), square root,
+  over K; row noise and quantisation are not in it;
 * row noise (e-): std of the per-frame row offsets from the temporal variance of the row means (ELD, Wei et al.
   2020), averaged over the dark levels; column noise likewise;
 * DSNU (e-): spatial std of the frame-averaged dark at the shortest exposure minus the temporal residue
@@ -17,7 +19,12 @@ Per CFA channel (the sub-images of one colour; a monochrome sensor is one channe
 * PRNU (%): spatial std of the frame-averaged flat minus the dark average (pixel by pixel) at the level nearest half
   saturation, temporal residues removed, over its mean;
 * full well (e-): mean of the fully saturated flats above the black level, over K (the simulator's clip level);
-* quantum efficiency: slope through the origin of the mean electrons against photons per pixel (linear range).
+* quantum efficiency: slope through the origin of the mean electrons against photons per pixel (linear range);
+* hot pixels: pixels whose dark-signal slope exceeds the median slope by more than 6 robust standard deviations
+  (1.4826 MAD; the median-absolute-deviation outlier rule of Leys et al., J. Exp. Soc. Psychol. 49(4), 2013, at a
+  conservative 6 instead of their 2.5-3), counted and warned about; the EMVA fields above are means over all pixels
+  as EMVA defines them, the written sensor config takes dark current and dark shading from the other pixels and the
+  hot ones as ``hot_pixel_fraction`` / ``hot_pixel_dark_current_e_per_s``.
 """
 
 from __future__ import annotations
@@ -38,6 +45,8 @@ CALIBRATION_FIELDS = ("conversion_gain_dn_per_e", "read_noise_e", "row_noise_e",
                       "dark_current_e_per_s", "dsnu_e", "dark_shading_e_per_s", "prnu_percent", "full_well_e",
                       "black_level_dn", "quantum_efficiency")
 _LINEAR_FRACTION = 0.7  # EMVA 1288 4.0 section 6.3 / reference implementation: fits up to 70 % of saturation
+_HOT_MADS = 6.0  # hot pixel: dark-signal slope above median + 6 x 1.4826 MAD (Leys et al. 2013 rule, conservative)
+_MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): MAD -> sigma for a Gaussian
 
 
 def _planes(stack: np.ndarray, cfa: str | None) -> dict[str, list[np.ndarray]]:
@@ -62,7 +71,20 @@ def _stats(planes: list[np.ndarray]) -> dict[str, Any]:
            for k in ("mean", "var", "var_pixel", "var_row", "var_col")}
     out["averages"] = [c["average"] for c in comps]
     out["frames"] = comps[0]["frames"]
+    out["pixels"] = sum(p[0].size for p in planes)
     return out
+
+
+def _inverse_sd(sd) -> np.ndarray | None:
+    """Weights 1 / sd for np.polyfit, safe against a zero (or non-finite) standard error, which would give infinite
+    weights (LAPACK then fails and prints to stdout): such an sd is raised to 1e-6 of the largest finite one; None
+    (unweighted) when none is positive."""
+    sd = np.asarray(sd, dtype=np.float64)
+    ok = np.isfinite(sd) & (sd > 0)
+    if not ok.any():
+        return None
+    floor = 1e-6 * sd[ok].max()
+    return 1 / np.where(ok, np.maximum(sd, floor), floor)
 
 
 def _line(x: np.ndarray, y: np.ndarray, sd: np.ndarray | None = None) -> tuple[float, float]:
@@ -70,7 +92,7 @@ def _line(x: np.ndarray, y: np.ndarray, sd: np.ndarray | None = None) -> tuple[f
     point gives slope 0."""
     if len(x) < 2 or np.ptp(x) == 0:
         return 0.0, float(np.mean(y))
-    slope, icpt = np.polyfit(x, y, 1, w=None if sd is None else 1 / sd)
+    slope, icpt = np.polyfit(x, y, 1, w=None if sd is None else _inverse_sd(sd))
     return float(slope), float(icpt)
 
 
@@ -87,26 +109,31 @@ def _spatial_sd(fixed_var: float, stats: dict, averages, other: dict | None = No
     return math.sqrt(2 * v_pix ** 2 / pixels + 2 * v_row ** 2 / rows + 2 * v_col ** 2 / cols)
 
 
-def _dsnu_fit(dark: dict[float, dict]) -> tuple[float, float]:
+def _dsnu_fit(dark: dict[float, dict], s2_override: dict[float, float] | None = None) -> tuple[float, float]:
     """(DSNU variance at the shortest exposure, its growth b in DN^2/s^2): the spatial variances of the frame-averaged
     darks (temporal residue removed, EMVA 8.2) fitted as a + b t^2 (a fixed offset pattern plus a dark-current
     non-uniformity / dark shading growing with t; PMN, Feng et al. 2022), weighted by their standard errors, so
-    every dark level contributes to the estimate at the shortest exposure."""
+    every dark level contributes to the estimate at the shortest exposure. ``s2_override``: spatial variances to fit
+    instead (e.g. of the pixels that are not hot), with the same standard errors."""
     ms = sorted(dark)
     t = np.array(ms) * 1e-3
     s2, sd = [], []
     for k in ms:
         d = dark[k]
-        v = [float(spatial_variance(a, d["var"], d["frames"])) for a in d["averages"]]
-        s2.append(float(np.mean(v)))
+        if s2_override is not None:
+            s2.append(s2_override[k])
+        else:
+            s2.append(float(np.mean([float(spatial_variance(a, d["var"], d["frames"])) for a in d["averages"]])))
         sd.append(_spatial_sd(abs(s2[-1]), d, d["averages"]))
     s2, sd = np.array(s2), np.array(sd)
+    w = _inverse_sd(sd)
+    if w is None:  # no spatial or temporal variance at all (a noiseless, uniform dark)
+        return float(np.mean(s2)), 0.0
     if len(ms) >= 3 and np.ptp(t) > 0:
-        (b, a), cov = np.polyfit(t ** 2, s2, 1, w=1 / sd, cov="unscaled")
+        (b, a), cov = np.polyfit(t ** 2, s2, 1, w=w, cov="unscaled")
         if b > 3 * math.sqrt(cov[0, 0]):  # keep the growth only where it is significant (3 standard errors)
             return float(a + b * t[0] ** 2), float(b)
-    w = 1 / sd ** 2
-    return float((w * s2).sum() / w.sum()), 0.0
+    return float((w ** 2 * s2).sum() / (w ** 2).sum()), 0.0
 
 
 def _origin(x: np.ndarray, y: np.ndarray) -> float:
@@ -115,7 +142,7 @@ def _origin(x: np.ndarray, y: np.ndarray) -> float:
 
 
 def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photons: dict[float, float] | None,
-             folders: dict, warnings: list[str]) -> dict[str, Any]:
+             folders: dict, warnings: list[str], quantisation_dn2: float = S2_QUANTIZATION_DN2) -> dict[str, Any]:
     t_d = np.array(sorted(dark)) * 1e-3
     mu_d = np.array([dark[k]["mean"] for k in sorted(dark)])
     vp_d = np.array([dark[k]["var_pixel"] for k in sorted(dark)])
@@ -154,23 +181,39 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
         raise ValueError(f"channel {name}: only {int(linear.sum())} flat exposure(s) in the linear range (signal above"
                          f" the dark and below 70 % of saturation: {[folder(m) for m in ms_f[linear]]}); the gain "
                          f"needs at least 3")
-    K = _origin(signal[linear], dvar[linear])
-    # robustness: drop levels whose variance/signal ratio departs from the fit by more than 5 % (non-linearity
-    # near saturation, a bad stack), refit
-    keep = linear & (np.abs(dvar / np.where(signal > 0, signal, 1) / K - 1) < 0.05)
-    if keep.sum() >= 3 and keep.sum() < linear.sum():
-        K = _origin(signal[keep], dvar[keep])
-        dropped = [folder(m) for m in ms_f[linear & ~keep]]
-        warnings.append(f"channel {name}: photon-transfer outliers left out of the gain fit: {dropped}")
+    # robust start: the median of the per-level ratios variance / signal (EMVA eq. 9: var = K signal), over the levels
+    # with a temporal variance above the dark's (a level with none, e.g. copied frames, cannot be on the line); then
+    # levels departing from it by more than 5 % (or 4 standard errors of their ratio: the variance of a sample variance
+    # is 2 sigma^4 / dof) are left out (non-linearity near saturation, a bad stack) and K is fitted through the rest
+    ratio = dvar / np.where(signal > 0, signal, 1)
+    positive = linear & (dvar > 0)
+    if not positive.any():
+        raise ValueError(f"channel {name}: the photon-transfer slope is not positive (no flat level in the linear "
+                         f"range has more temporal variance than the dark); are dark and flat folders swapped?")
+    K0 = float(np.median(ratio[positive]))
+    dof = lambda st: st["pixels"] * (st["frames"] - 1)  # noqa: E731
+    dof_f = np.array([dof(flat[m]) for m in ms_f], dtype=np.float64)
+    dof_d = np.array([dof(dark[m] if m in dark else dark[min(dark, key=lambda k: abs(k - m))]) for m in ms_f],
+                     dtype=np.float64)
+    se = np.sqrt(2 * vp_f ** 2 / dof_f + 2 * (vp_f - dvar) ** 2 / dof_d) / np.maximum(np.abs(dvar), 1e-300)
+    keep = positive & (np.abs(ratio / K0 - 1) < np.maximum(0.05, 4 * se))
+    if keep.sum() < 3:
+        off = {folder(m): f"{r / K0 - 1:+.1%}" for m, r in zip(ms_f[linear & ~keep], ratio[linear & ~keep])}
+        raise ValueError(f"channel {name}: only {int(keep.sum())} of {int(linear.sum())} flat levels in the linear "
+                         f"range agree on the gain (variance / signal within 5 % or 4 standard errors of the median "
+                         f"{K0:.4g} DN/e-), the gain needs at least 3; the others depart by {off} (copied frames, "
+                         f"flicker, a changed setting?)")
+    K = _origin(signal[keep], dvar[keep])
+    if keep.sum() < linear.sum():
+        dropped = {folder(m): f"{r / K - 1:+.1%}" for m, r in zip(ms_f[linear & ~keep], ratio[linear & ~keep])}
+        warnings.append(f"channel {name}: photon-transfer outliers left out of the gain fit (variance / signal off "
+                        f"the fit by): {dropped}")
         linear = keep
-    if not K > 0:
-        raise ValueError(f"channel {name}: the photon-transfer slope is not positive (K = {K:.4g} DN/e-); are dark and "
-                         f"flat folders swapped?")
 
-    read_var = vicpt - S2_QUANTIZATION_DN2
+    read_var = vicpt - quantisation_dn2
     if read_var < 0:
         warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below the "
-                        f"quantisation variance 1/12 DN^2; read noise reported as 0")
+                        f"quantisation variance {quantisation_dn2:.4g} DN^2; read noise reported as 0")
     row_var = float(np.mean([d["var_row"] for d in dark.values()]))
     col_var = float(np.mean([d["var_col"] for d in dark.values()]))
 
@@ -224,6 +267,75 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     }
 
 
+def quantisation_step(stacks, min_distinct: int = 32) -> int:
+    """The common power-of-two step q = 2^s (s >= 1) of every value of every frame (left-aligned data: 12-bit values
+    in 16-bit words are multiples of 16), else 1. Needs integer values and at least ``min_distinct`` distinct ones (a
+    chance common factor 2 of n distinct noisy values has probability 2^-n)."""
+    acc = 0
+    for st in stacks:
+        if not np.array_equal(st, np.round(st)):
+            return 1
+        acc |= int(np.bitwise_or.reduce(st.astype(np.int64), axis=None))
+    if acc == 0:
+        return 1
+    s = (acc & -acc).bit_length() - 1  # trailing zero bits of the OR: the largest 2^s dividing every value
+    if s == 0:
+        return 1
+    distinct: set = set()
+    for st in stacks:
+        distinct.update(np.unique(st).tolist())
+        if len(distinct) >= min_distinct:
+            return 2 ** s
+    return 1
+
+
+def _hot_pixels(capture) -> dict[str, Any] | None:
+    """Hot pixels: per-pixel slope of the frame-averaged dark against exposure (DN/s), above the median slope by more
+    than ``_HOT_MADS`` robust standard deviations (1.4826 MAD, Leys et al. 2013), the robust spread floored at the
+    slope's own temporal standard error. None with fewer than 2 dark exposures. Returns the mask and slopes."""
+    ms = sorted(capture.dark)
+    if len(ms) < 2:
+        return None
+    t = np.array(ms) * 1e-3
+    tc = t - t.mean()
+    stt = float((tc ** 2).sum())
+    if stt == 0:
+        return None
+    slope = np.zeros(next(iter(capture.dark.values())).shape[-2:])
+    var_slope = 0.0
+    for k, w in zip(ms, tc):
+        st = capture.dark[k]
+        slope += w * st.mean(axis=0)
+        var_slope += w ** 2 * float(st.var(axis=0, ddof=1).mean()) / st.shape[0]  # temporal residue of the average
+    slope /= stt
+    med = float(np.median(slope))
+    spread = max(_MAD_TO_SIGMA * float(np.median(np.abs(slope - med))), math.sqrt(var_slope) / stt)
+    threshold = med + _HOT_MADS * spread
+    return {"mask": slope > threshold, "slope_dn_per_s": slope, "threshold_dn_per_s": threshold}
+
+
+def _dark_without(capture, hot: np.ndarray, dark_stats: dict[float, dict]) -> tuple[float, float, float]:
+    """(dark current DN/s, DSNU variance DN^2 at the shortest exposure, dark shading growth DN^2/s^2) of the pixels
+    not in ``hot``: the same estimators as for all pixels (mean dark against t; EMVA 8.2 spatial variances of the
+    frame averages minus the temporal residue, per CFA sub-image, fitted as a + b t^2 by :func:`_dsnu_fit`)."""
+    ms = sorted(capture.dark)
+    t = np.array(ms) * 1e-3
+    keep_planes = [p[0] for ps in _planes(~hot[None], capture.cfa).values() for p in ps]
+    means, s2 = [], {}
+    for k in ms:
+        st = capture.dark[k]
+        means.append(float(st.mean(axis=0)[~hot].mean()))
+        v = []
+        for pl, keep in zip((p for ps in _planes(st, capture.cfa).values() for p in ps), keep_planes):
+            centred = pl - pl.mean(axis=(1, 2), keepdims=True)
+            temporal = float(centred.var(axis=0, ddof=1)[keep].mean())
+            v.append(float(spatial_variance(torch.from_numpy(pl.mean(axis=0)[keep]), temporal, st.shape[0])))
+        s2[k] = float(np.mean(v))
+    dc_dn, _ = _line(t, np.array(means))
+    dsnu2, shading_b = _dsnu_fit(dark_stats, s2)
+    return dc_dn, dsnu2, shading_b
+
+
 def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     """Calibrate a :class:`~isettorch.io.frames.Capture`; returns the JSON-ready result.
 
@@ -231,10 +343,22 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     cannot be measured, with the reason in ``warnings``). Colour (``cfa`` set): every field is ``{channel: value}``
     (the sub-images of one letter pooled), and ``sensor`` holds one value per field for the whole sensor (gain,
     read/row/column noise, PRNU: means over channels; dark current, DSNU, black level: from all pixels).
+
+    Also: ``quantisation_step_dn`` (1, or 2^s for left-aligned data; the read noise then removes step^2 / 12) and
+    ``effective_bits`` (bit_depth - s); ``hot_pixels`` (count, fraction, threshold and mean dark current of the hot
+    pixels; null with one dark exposure) and, when there are any, ``sensor_config_dark`` (dark current, DSNU, dark
+    shading of the other pixels, which the written sensor config uses).
     """
     from .._progress import progress as progress_bar
 
-    warnings: list[str] = []
+    warnings: list[str] = list(getattr(capture, "warnings", []))
+    step = quantisation_step(list(capture.dark.values()) + list(capture.flat.values()))
+    bits_eff = int(capture.bit_depth) - int(math.log2(step))
+    if step > 1:
+        warnings.append(f"every value of every frame is a multiple of {step} DN (left-aligned {bits_eff}-bit data in "
+                        f"{capture.bit_depth}-bit words?): the quantisation variance is {step}^2/12 DN^2 (EMVA 1288 "
+                        f"eq. 5 for a step of {step} DN); results are in the files' DN, the sensor config is written "
+                        f"for {bits_eff} bits (DN / {step})")
     dark_p = {ms: _planes(s, capture.cfa) for ms, s in capture.dark.items()}
     flat_p = {ms: _planes(s, capture.cfa) for ms, s in capture.flat.items()}
     names = list(next(iter(dark_p.values())))
@@ -255,10 +379,12 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
         if frac > 1e-3:
             warnings.append(f"{capture.folders.get(('dark', ms), f'dark_{ms:g}ms')}: {100 * frac:.2g} % of the pixels "
                             f"are at 0 DN (clipped below the black level); dark statistics are biased")
-    per = {n: _channel(n, d, f, capture.photons_per_pixel, capture.folders, warnings) for n, (d, f) in stats.items()}
+    per = {n: _channel(n, d, f, capture.photons_per_pixel, capture.folders, warnings, step ** 2 / 12)
+           for n, (d, f) in stats.items()}
     out: dict[str, Any] = {"cfa": capture.cfa, "bit_depth": capture.bit_depth, "pixel_size_m": capture.pixel_size_m,
                            "frame_shape": list(next(iter(capture.dark.values())).shape[-2:]),
-                           "black_level_dn_nominal": capture.black_level_dn}
+                           "black_level_dn_nominal": capture.black_level_dn, "quantisation_step_dn": step,
+                           "effective_bits": bits_eff}
     if capture.cfa is None:
         res = per["W"]
         out.update({k: res[k] for k in CALIBRATION_FIELDS})
@@ -284,8 +410,44 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
                   "black_level_dn": black, "quantum_efficiency": None}
         out["sensor"] = sensor
         out["photon_transfer"] = {n: per[n]["photon_transfer"] for n in names}
+    _hot_pixel_result(capture, out, stats if capture.cfa is None else {"all": (allp, None)}, warnings)
     out["warnings"] = warnings
     return out
+
+
+def _hot_pixel_result(capture, out: dict, stats: dict, warnings: list[str]) -> None:
+    """Count the hot pixels into ``out`` (``hot_pixels``) and, if any, the dark terms of the other pixels
+    (``sensor_config_dark``), with a warning."""
+    hot = _hot_pixels(capture)
+    out["hot_pixels"] = None
+    if hot is None:
+        return
+    mask = hot["mask"]
+    n = int(mask.sum())
+    K = _scalars(out)["conversion_gain_dn_per_e"]
+    out["hot_pixels"] = {"count": n, "fraction": n / mask.size, "threshold_e_per_s": hot["threshold_dn_per_s"] / K,
+                         "mean_dark_current_e_per_s": float(hot["slope_dn_per_s"][mask].mean()) / K if n else None,
+                         "rule": f"dark-signal slope > median + {_HOT_MADS:g} x 1.4826 MAD (Leys et al. 2013)"}
+    if n == 0:
+        return
+    dark_stats = next(iter(stats.values()))[0]
+    dc_dn, dsnu2, shading_b = _dark_without(capture, mask, dark_stats)
+    clean = {"dark_current_e_per_s": dc_dn / K, "dsnu_e": math.sqrt(max(dsnu2, 0.0)) / K,
+             "dark_shading_e_per_s": math.sqrt(shading_b) / K,
+             "hot_pixel_fraction": n / mask.size,
+             "hot_pixel_dark_current_e_per_s": max(0.0, float(hot["slope_dn_per_s"][mask].mean()) / K - dc_dn / K)}
+    out["sensor_config_dark"] = clean
+    rows, cols = np.nonzero(mask)
+    first = [(int(r), int(c)) for r, c in zip(rows[:5], cols[:5])]
+    s = _scalars(out)
+    warnings.append(f"{n} hot pixel(s) ({100 * n / mask.size:.2g} % of the pixels, e.g. (row, col) {first}): dark "
+                    f"current above {hot['threshold_dn_per_s'] / K:.4g} e-/s (median + {_HOT_MADS:g} robust sigmas), "
+                    f"{out['hot_pixels']['mean_dark_current_e_per_s']:.4g} e-/s on average; dark_current_e_per_s, "
+                    f"dsnu_e and dark_shading_e_per_s include them (EMVA 1288 means over all pixels: "
+                    f"{s['dark_current_e_per_s']:.4g} e-/s, {s['dsnu_e']:.4g} e-, {s['dark_shading_e_per_s']:.4g} "
+                    f"e-/s); the sensor config uses the other pixels' ({clean['dark_current_e_per_s']:.4g} e-/s, "
+                    f"{clean['dsnu_e']:.4g} e-, {clean['dark_shading_e_per_s']:.4g} e-/s) and models the hot ones as "
+                    f"hot_pixel_fraction / hot_pixel_dark_current_e_per_s")
 
 
 def calibrate_directory(directory, *, progress: bool = False) -> dict[str, Any]:
@@ -301,24 +463,37 @@ def _scalars(result: dict) -> dict:
 
 def sensor_config(result: dict) -> dict[str, Any]:
     """Sensor constructor arguments reproducing a calibration: a 1 V swing, so the ADC step is 2^-bits V and the
-    conversion gain K x step V/e-; noise terms in volts at the pixel; the photodiode clips at the full well."""
+    conversion gain K x step V/e-; noise terms in volts at the pixel; the photodiode clips at the full well.
+
+    Left-aligned data (``quantisation_step_dn`` q = 2^s > 1) are written for their ``effective_bits`` = bits - s, in
+    DN / q (right-aligned): the step is then 2^-(bits - s) V and K / q DN/e-, so the V/e- gain and the electron
+    quantities are the same. With hot pixels (``sensor_config_dark``), dark current and dark shading are the other
+    pixels' and the hot ones are ``hot_pixel_fraction`` with ``hot_pixel_dark_current_e_per_s`` on top."""
     s = _scalars(result)
-    bits = int(result["bit_depth"])
+    step = int(result.get("quantisation_step_dn") or 1)
+    bits = int(result.get("effective_bits") or result["bit_depth"])
     lsb_v = 1.0 / 2 ** bits
-    cg = s["conversion_gain_dn_per_e"] * lsb_v
+    cg = s["conversion_gain_dn_per_e"] / step * lsb_v
     rows, cols = (int(v) for v in result["frame_shape"])
     dsnu_t_s = min(result["photon_transfer"][n]["dark_exposure_ms"][0] for n in result["photon_transfer"]) * 1e-3 \
         if result.get("cfa") else result["photon_transfer"]["dark_exposure_ms"][0] * 1e-3
+    dark = dict(s)
+    hot = {}
+    if result.get("sensor_config_dark"):
+        dark.update({k: result["sensor_config_dark"][k] for k in ("dark_current_e_per_s", "dsnu_e",
+                                                                  "dark_shading_e_per_s")})
+        hot = {k: result["sensor_config_dark"][k] for k in ("hot_pixel_fraction", "hot_pixel_dark_current_e_per_s")}
     cfg = {"rows": rows, "cols": cols, "pixel_size_m": float(result["pixel_size_m"]), "fill_factor": 1.0,
            "cfa": result["cfa"] or "mono", "adc_bits": bits, "voltage_swing_v": 1.0, "conversion_gain_v_per_e": cg,
-           "black_level_dn": max(0.0, round(float(s["black_level_dn"]), 4)),
+           "black_level_dn": max(0.0, round(float(s["black_level_dn"]) / step, 4)),
            "read_noise_v": s["read_noise_e"] * cg, "row_noise_v": s["row_noise_e"] * cg,
            "column_noise_v": s["column_noise_e"] * cg,
-           "dark_current_e_per_s": max(0.0, s["dark_current_e_per_s"] or 0.0),
+           "dark_current_e_per_s": max(0.0, dark["dark_current_e_per_s"] or 0.0),
            # the DSNU at t = 0: the shortest exposure's minus the dark shading grown by then
-           "dsnu_sigma_v": math.sqrt(max(s["dsnu_e"] ** 2 - (s["dark_shading_e_per_s"] * dsnu_t_s) ** 2, 0.0)) * cg,
-           "dark_shading_e_per_s": s["dark_shading_e_per_s"], "prnu_sigma_percent": s["prnu_percent"],
-           "full_well_e": s["full_well_e"], "shot_noise": "poisson"}
+           "dsnu_sigma_v": math.sqrt(max(dark["dsnu_e"] ** 2 - (dark["dark_shading_e_per_s"] * dsnu_t_s) ** 2, 0.0))
+           * cg,
+           "dark_shading_e_per_s": dark["dark_shading_e_per_s"], "prnu_sigma_percent": s["prnu_percent"],
+           "full_well_e": s["full_well_e"], "shot_noise": "poisson", **hot}
     return {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in cfg.items()}
 
 
@@ -332,6 +507,16 @@ def write_sensor_config(result: dict, path) -> dict[str, Any]:
     qe = result.get("quantum_efficiency")
     if qe is not None:
         header += f"# measured quantum efficiency: {qe}\n"
+    step = int(result.get("quantisation_step_dn") or 1)
+    if step > 1:
+        header += (f"# the frames' values were multiples of {step} DN (left-aligned): written for adc_bits "
+                   f"{cfg['adc_bits']}, in DN / {step} (black_level_dn too); multiply the simulated DN by {step} to "
+                   f"compare with the frames\n")
+    if result.get("sensor_config_dark"):
+        n = result["hot_pixels"]["count"]
+        header += (f"# {n} hot pixel(s) measured: dark_current_e_per_s, dark_shading_e_per_s and dsnu_sigma_v are "
+                   f"from the other pixels, the hot ones are hot_pixel_fraction / hot_pixel_dark_current_e_per_s (at "
+                   f"random positions); the calibration result's EMVA fields include them\n")
     Path(path).write_text(header + yaml.safe_dump({"sensor": cfg}, sort_keys=False))
     return cfg
 

@@ -78,7 +78,8 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
 
     Returns:
         ``{'a': K in DN/e-, 'b': DN^2, 'conversion_gain_dn_per_e': a, 'read_noise_dn': sqrt(b),
-        'read_noise_e': sqrt(b) / a, 'levels': [(mean DN, variance DN^2, blocks)]}``.
+        'read_noise_e': sqrt(b) / a, 'levels': [(mean DN, variance DN^2, blocks)], 'warnings': [...]}`` (a negative
+        b gives read noise 0, with a warning).
     """
     z = np.asarray(raw.detach().cpu() if hasattr(raw, "detach") else raw, dtype=np.float64)
     if z.ndim != 2:
@@ -124,6 +125,14 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         noise_var = np.maximum(a * m + b, 1e-12)
         smooth = np.abs(lap) < 3 * np.sqrt(noise_var * 5 / 16)
         pts, (a, b) = fit(smooth)
+    warnings = []
+    if b < 0:  # a black level below the frame's by d DN moves the intercept to b - a d (Foi et al. eq. 3 at y + d)
+        warnings.append(f"the fitted signal-independent variance b = {b:.4g} DN^2 is negative, so read_noise_dn and "
+                        f"read_noise_e are reported as 0; is the black level ({black_level_dn:g} DN) below the "
+                        f"frame's? (d DN too low moves b by -a d)")
+    if not a > 0:
+        warnings.append(f"the fitted slope a = {a:.4g} DN/e- is not positive: no conversion gain; read_noise_e is "
+                        f"null")
     return {"a": a, "b": b, "conversion_gain_dn_per_e": a, "read_noise_dn": math.sqrt(max(b, 0.0)),
             "read_noise_e": math.sqrt(max(b, 0.0)) / a if a > 0 else None,
-            "levels": [list(p) for p in pts], "method": "Foi et al. 2008 Poisson-Gaussian fit"}
+            "levels": [list(p) for p in pts], "method": "Foi et al. 2008 Poisson-Gaussian fit", "warnings": warnings}

@@ -48,21 +48,30 @@ def qe_map(truth: dict, shape, cfa: str | None = None) -> np.ndarray:
     return out
 
 
+def hot_pixel_mask(shape, count: int, seed: int = 0) -> np.ndarray:
+    """``count`` hot pixel positions (a boolean map), drawn from their own generator (the frames' draws unchanged)."""
+    mask = np.zeros(shape, dtype=bool)
+    mask.flat[np.random.default_rng(seed + 7919).choice(mask.size, count, replace=False)] = True
+    return mask
+
+
 def simulate(truth: dict, *, shape=(256, 256), cfa: str | None = None, exposures_ms=None, frames: int = 3,
-             saturate_ms: float = 45.0, seed: int = 0):
+             saturate_ms: float = 45.0, seed: int = 0, hot_pixels: int = 0, hot_factor: float = 500.0):
     """Returns (dark, flat, photons_per_pixel): {ms: (frames, H, W) uint16 DN}, {ms: photons}. The photon flux
-    fills the well of the most sensitive channel at ``saturate_ms``."""
+    fills the well of the most sensitive channel at ``saturate_ms``. ``hot_pixels`` pixels (:func:`hot_pixel_mask`)
+    have ``hot_factor`` x the dark current."""
     rng, prnu, dsnu = sensor_maps(truth, shape, seed)
     if exposures_ms is None:
         exposures_ms = np.round(np.linspace(1.0, 120.0, 15), 3)
     qe = qe_map(truth, shape, cfa)
     flux = truth["full_well_e"] / (max(truth["qe"].values()) * saturate_ms * 1e-3)  # photons / pixel / s
+    dc = np.full(shape, float(truth["dark_current_e_per_s"]))
+    dc[hot_pixel_mask(shape, hot_pixels, seed)] *= hot_factor
     dark, flat, photons = {}, {}, {}
     for ms in exposures_ms:
         t = ms * 1e-3
-        dark[float(ms)] = np.stack([expose(truth, np.full(shape, truth["dark_current_e_per_s"] * t), dsnu, rng)
-                                    for _ in range(frames)])
-        mean = qe * flux * t * prnu + truth["dark_current_e_per_s"] * t
+        dark[float(ms)] = np.stack([expose(truth, dc * t, dsnu, rng) for _ in range(frames)])
+        mean = qe * flux * t * prnu + dc * t
         flat[float(ms)] = np.stack([expose(truth, mean, dsnu, rng) for _ in range(frames)])
         photons[float(ms)] = flux * t
     return dark, flat, photons

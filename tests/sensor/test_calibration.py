@@ -194,25 +194,41 @@ def test_unreadable_file_names_file(capsys, good_capture):
     assert "flat_30ms/frame_000.npy: cannot read the frame" in err
 
 
-def test_eight_bit_png_rejected(capsys, good_capture):
+def test_colour_png_rejected(capsys, good_capture):
     from PIL import Image
 
-    Image.fromarray(np.zeros((32, 32), np.uint8)).save(good_capture / "flat_30ms" / "frame_009.png")
-    assert "frame_009.png: cannot read the frame (expected a 16-bit greyscale PNG" in _error(capsys, good_capture)
+    Image.fromarray(np.zeros((32, 32, 3), np.uint8)).save(good_capture / "flat_30ms" / "frame_009.png")
+    assert "frame_009.png: cannot read the frame (expected an 8- or 16-bit greyscale PNG" in _error(capsys,
+                                                                                                   good_capture)
 
 
-def test_unknown_file_and_folder(capsys, good_capture):
+def test_other_files_and_folders_are_skipped_with_a_warning(capsys, good_capture):
+    """A report folder of an earlier run, notes and OS files are skipped and listed; what looks like a frame or an
+    exposure folder stays an error."""
     (good_capture / "flat_30ms" / "notes.txt").write_text("x")
-    assert "notes.txt: not a frame" in _error(capsys, good_capture)
-    (good_capture / "flat_30ms" / "notes.txt").unlink()
-    (good_capture / "bright_5ms").mkdir()
-    assert "bright_5ms: unexpected folder" in _error(capsys, good_capture)
+    (good_capture / "flat_30ms" / "Thumbs.db").write_text("x")
+    (good_capture / "desktop.ini").write_text("x")
+    (good_capture / "report").mkdir()
+    Image = pytest.importorskip("PIL.Image")
+    Image.fromarray(np.zeros((32, 32), np.uint8)).save(good_capture / "report" / "snr.png")
+    res = _cli_json(capsys, good_capture)
+    skipped = [w for w in res["warnings"] if w.startswith("skipped")]
+    assert len(skipped) == 1
+    for name in ("flat_30ms/notes.txt", "flat_30ms/Thumbs.db", "desktop.ini", "report/"):
+        assert name in skipped[0]
+    np.save(good_capture / "stray.npy", np.zeros((32, 32)))
+    assert "stray.npy: a frame outside the dark_<exposure_ms>ms" in _error(capsys, good_capture)
+    (good_capture / "stray.npy").unlink()
+    (good_capture / "dark_5").mkdir()
+    assert "dark_5: unexpected folder name" in _error(capsys, good_capture)
 
 
 @pytest.mark.parametrize("text, message", [
     ("pixel_size_m: 3.45e-6\n", "missing key 'bit_depth'"),
     ("bit_depth: 12\n", "missing key 'pixel_size_m'"),
-    ("bit_depth: 12\npixel_size_m: 3.45e-6\ngain: 2\n", "unknown key(s) ['gain']"),
+    ("bit_depth: 12\npixel_size_m: 3.45e-6\ngain: 2\n",
+     "unknown key(s) ['gain']; the accepted keys are bit_depth, pixel_size_m (required), black_level_dn, cfa, "
+     "photons_per_pixel"),
     ("bit_depth: 12\npixel_size_m: 3.45e-6\ncfa: RGXB\n", "cfa:"),
     ("bit_depth: 8\npixel_size_m: 3.45e-6\n", "exceed 2^bit_depth - 1 = 255"),
 ])
@@ -282,3 +298,196 @@ def test_sensor_yaml_is_a_camera_sensor_section(tmp_path, capsys, good_capture):
     assert cam.sensor.read_noise_v / cam.sensor.conversion_gain_v_per_e == pytest.approx(res["read_noise_e"])
     assert cam.sensor.noise_terms.row_noise_v / cam.sensor.conversion_gain_v_per_e == pytest.approx(
         res["row_noise_e"])
+
+
+# --- audit of `isettorch calibrate`: copied frames, robust gain, formats, left-aligned data, hot pixels -------------
+
+_E_MS = [1.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 60.0, 90.0]  # TRUTH saturates at 45 ms: 7 levels below 70 %
+
+
+def _memory_capture(truth=nc.TRUTH, exposures_ms=_E_MS, shape=(64, 96), frames=2, seed=21, **kw):
+    from isettorch.io.frames import Capture
+
+    dark, flat, photons = nc.simulate(truth, shape=shape, frames=frames, exposures_ms=exposures_ms, seed=seed, **kw)
+    return Capture(bit_depth=truth["bits"], pixel_size_m=3.45e-6, cfa=None, black_level_dn=None,
+                   photons_per_pixel=photons, dark={k: v.astype(float) for k, v in dark.items()},
+                   flat={k: v.astype(float) for k, v in flat.items()}, folders={})
+
+
+def _copy_first_frame(stack: np.ndarray) -> None:
+    """Frame 1 := frame 0 with one pixel changed (not bit-identical: passes the read-time check, no temporal noise)."""
+    stack[1] = stack[0]
+    stack[1, 0, 0] += 1
+
+
+def test_gain_fit_leaves_out_a_level_without_temporal_noise():
+    """A flat level whose frames are (almost) copies has ~0 temporal variance: the gain starts from the median
+    variance/signal ratio, leaves that level out with a warning naming it, and matches the truth (it was 16 % low)."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = _memory_capture()
+    _copy_first_frame(cap.flat[20.0])
+    res = calibrate_capture(cap)
+    assert res["conversion_gain_dn_per_e"] == pytest.approx(nc.TRUTH["gain_dn_per_e"], rel=0.02)
+    assert any("outliers left out" in w and "flat_20ms" in w for w in res["warnings"])
+
+
+def test_too_few_consistent_levels_is_an_error():
+    """With 4 levels in the linear range and 2 of them without temporal noise, no gain can be trusted: an error
+    naming the departing levels, not a silently kept bad fit."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = _memory_capture(exposures_ms=[1.0, 10.0, 20.0, 30.0, 60.0, 90.0])
+    for ms in (10.0, 20.0):
+        _copy_first_frame(cap.flat[ms])
+    with pytest.raises(ValueError, match=r"only 2 of 4 flat levels .* agree on the gain.*flat_10ms.*flat_20ms"):
+        calibrate_capture(cap)
+
+
+def test_identical_dark_stacks_do_not_break_the_weighted_fits(capfd):
+    """Darks without temporal noise (zero standard errors) gave polyfit infinite weights: LAPACK printed DLASCL lines
+    on stdout and raised. Now the fits run, stdout stays clean, and the gain (from the flats) matches the truth."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = _memory_capture()
+    for ms in cap.dark:
+        cap.dark[ms][1] = cap.dark[ms][0]
+    res = calibrate_capture(cap)
+    out, _ = capfd.readouterr()
+    assert "DLASCL" not in out and out == ""
+    assert res["conversion_gain_dn_per_e"] == pytest.approx(nc.TRUTH["gain_dn_per_e"], rel=0.03)
+
+
+@pytest.mark.parametrize("folder", ["flat_30ms", "dark_1ms"])
+def test_copied_frame_is_an_error_naming_the_folder(capsys, good_capture, folder):
+    import shutil
+
+    shutil.copy(good_capture / folder / "frame_000.npy", good_capture / folder / "frame_001.npy")
+    err = _error(capsys, good_capture)
+    assert f"{folder}: frames are identical: copies of one frame?" in err
+    assert len(err.splitlines()) == 1 and "DLASCL" not in err
+
+
+def test_saturated_identical_flats_are_not_copies(capsys, tmp_path):
+    """Flats clipped at the ADC's top code are identical legitimately (every pixel 4095): not reported as copies."""
+    truth = dict(nc.TRUTH, full_well_e=20000.0)  # the ADC clips at (4095 - 100) / 0.4 = 9988 e- first
+    dark, flat, _ = nc.simulate(truth, shape=(32, 48), frames=2, seed=2, exposures_ms=[1.0, 5.0, 10.0, 15.0, 40.0])
+    assert (flat[40.0] == 4095).all()
+    root = nc.write_capture(tmp_path / "cap", dark, flat, bits=12, suffix=".npy")
+    res = _cli_json(capsys, root)
+    assert res["full_well_e"] == pytest.approx((4095 - truth["black_level_dn"]) / truth["gain_dn_per_e"], rel=0.02)
+
+
+def test_eight_bit_png_frames_are_accepted(capsys, tmp_path):
+    """8-bit greyscale PNG (PIL mode 'L') is read like 8-bit TIFF."""
+    from PIL import Image
+
+    truth = dict(nc.TRUTH, gain_dn_per_e=0.1, black_level_dn=16.0, bits=8, full_well_e=2000.0, read_noise_e=6.0)
+    dark, flat, _ = nc.simulate(truth, shape=(64, 96), frames=2, seed=4, exposures_ms=_E_MS)
+    root = nc.write_capture(tmp_path / "cap", {}, {}, bits=8)
+    for kind, stacks in (("dark", dark), ("flat", flat)):
+        for ms, stack in stacks.items():
+            (root / f"{kind}_{ms:g}ms").mkdir()
+            for i, f in enumerate(stack):
+                Image.fromarray(f.astype(np.uint8)).save(root / f"{kind}_{ms:g}ms" / f"frame_{i}.png")
+    with Image.open(root / "dark_1ms" / "frame_0.png") as im:
+        assert im.mode == "L"
+    res = _cli_json(capsys, root)
+    assert res["conversion_gain_dn_per_e"] == pytest.approx(0.1, rel=0.02)
+    assert res["black_level_dn"] == pytest.approx(16.0, abs=0.5)
+
+
+def test_lzw_tiff_is_read_through_pillow(tmp_path):
+    """tifffile needs imagecodecs for LZW; Pillow decodes it: the frame read equals the frame written."""
+    from PIL import Image
+
+    from isettorch.io.frames import read_frame
+
+    a = np.random.default_rng(0).integers(0, 4096, (24, 40)).astype(np.uint16)
+    Image.fromarray(a).save(tmp_path / "f.tif", compression="tiff_lzw")
+    np.testing.assert_array_equal(read_frame(tmp_path / "f.tif"), a)
+
+
+def test_left_aligned_data_quantisation_step_and_sensor_config(tmp_path, capsys):
+    """8-bit data stored left-aligned in 16-bit PNG (x 256, bit_depth 16): the quantisation variance is 256^2/12
+    DN^2, not 1/12 (the read noise was 12 % high); the sensor config is written for 8 bits in DN / 256 and, loaded
+    with Sensor.from_config, has the truth's gain, read noise, black level and saturation."""
+    truth = dict(nc.TRUTH, gain_dn_per_e=0.1, read_noise_e=6.0, black_level_dn=16.0, bits=8, full_well_e=2000.0,
+                 row_noise_e=0.0)
+    dark, flat, _ = nc.simulate(truth, shape=(64, 96), frames=3, seed=6, exposures_ms=_E_MS)
+    left = {k: v.astype(np.int64) * 256 for k, v in dark.items()}, {k: v.astype(np.int64) * 256 for k, v in
+                                                                     flat.items()}
+    root = nc.write_capture(tmp_path / "cap", *left, bits=16)
+    out = tmp_path / "sensor.yaml"
+    res = _cli_json(capsys, root, "--out", out)
+    assert res["quantisation_step_dn"] == 256 and res["effective_bits"] == 8
+    assert any("multiple of 256 DN" in w for w in res["warnings"])
+    assert res["conversion_gain_dn_per_e"] == pytest.approx(0.1 * 256, rel=0.02)  # in the files' DN
+    assert res["read_noise_e"] == pytest.approx(6.0, rel=0.03)
+    sensor = Sensor.from_config(out)
+    assert sensor.adc_bits == 8
+    assert sensor.conversion_gain_v_per_e / sensor.lsb_v == pytest.approx(0.1, rel=0.02)  # DN/e- of 8-bit DN
+    assert sensor.read_noise_v / sensor.conversion_gain_v_per_e == pytest.approx(6.0, rel=0.03)
+    assert sensor.black_level_dn == pytest.approx(16.0, abs=0.5)
+    assert sensor.noise_terms.full_well_e == pytest.approx(2000.0, rel=0.05)
+    assert sensor.usable_swing_v / sensor.conversion_gain_v_per_e == pytest.approx((255 - 16) / 0.1, rel=0.02)
+
+
+def test_hot_pixels_counted_and_left_out_of_the_sensor_config(tmp_path, capsys):
+    """12 hot pixels at 500 x the dark current: counted, warned about; the EMVA dark current stays the mean over all
+    pixels (60 (1 + 499 x 12 / 6144) e-/s); the sensor config has the other pixels' dark current, DSNU and no dark
+    shading, and the hot ones as hot_pixel_fraction / hot_pixel_dark_current_e_per_s."""
+    n_hot, shape = 12, (64, 96)
+    dark, flat, _ = nc.simulate(nc.TRUTH, shape=shape, frames=3, seed=9, exposures_ms=_E_MS, hot_pixels=n_hot)
+    root = nc.write_capture(tmp_path / "cap", dark, flat, bits=12, suffix=".npy")
+    out = tmp_path / "sensor.yaml"
+    res = _cli_json(capsys, root, "--out", out)
+    dc, frac = nc.TRUTH["dark_current_e_per_s"], n_hot / (shape[0] * shape[1])
+    assert res["hot_pixels"]["count"] == n_hot
+    assert any(f"{n_hot} hot pixel(s)" in w for w in res["warnings"])
+    assert res["dark_current_e_per_s"] == pytest.approx(dc * (1 + 499 * frac), rel=0.05)
+    sensor = Sensor.from_config(out)
+    assert sensor.dark_current_e_per_s == pytest.approx(dc, rel=0.05)
+    assert sensor.noise_terms.dark_shading_e_per_s < 0.05 * dc  # truth 0 (all pixels: ~ 1000 e-/s)
+    assert sensor.dsnu_sigma_v / sensor.conversion_gain_v_per_e == pytest.approx(nc.TRUTH["dsnu_e"], rel=0.10)
+    assert sensor.noise_terms.hot_pixel_fraction == pytest.approx(frac, rel=1e-9)
+    assert sensor.noise_terms.hot_pixel_dark_current_e_per_s == pytest.approx(499 * dc, rel=0.05)
+    assert "hot pixel(s) measured" in out.read_text()
+
+
+def test_no_hot_pixels_in_a_clean_capture(capsys, good_capture):
+    assert _cli_json(capsys, good_capture)["hot_pixels"]["count"] == 0
+
+
+def test_report_twice_in_the_capture_folder_without_numpy_warnings(tmp_path, capsys):
+    """--report into DIR/report, then calibrate DIR again: the report folder is skipped with a warning; saturated
+    levels (variance 0) give no divide-by-zero RuntimeWarning in the SNR figure."""
+    import warnings
+
+    truth = dict(nc.TRUTH, full_well_e=20000.0)  # ADC clipping: fully saturated flats have zero temporal variance
+    dark, flat, _ = nc.simulate(truth, shape=(32, 48), frames=2, seed=2, exposures_ms=[1.0, 5.0, 10.0, 15.0, 40.0])
+    root = nc.write_capture(tmp_path / "cap", dark, flat, bits=12, suffix=".npy")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        _cli_json(capsys, root, "--report", root / "report")
+    res = _cli_json(capsys, root)
+    assert any(w.startswith("skipped") and "report/" in w for w in res["warnings"])
+    assert res["conversion_gain_dn_per_e"] == pytest.approx(truth["gain_dn_per_e"], rel=0.03)
+
+
+@pytest.mark.parametrize("flag, value", [("--cfa", "RGGB"), ("--black-level", "64")])
+def test_single_frame_options_rejected_for_a_folder(capsys, good_capture, flag, value):
+    rc = main(["calibrate", str(good_capture), flag, value, "--quiet"])
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 2 and len(err) == 1
+    assert err[0].startswith(f"isettorch calibrate: {flag}: applies to a single raw frame only") and \
+        "capture.yaml" in err[0]
+
+
+@pytest.mark.parametrize("shape", [(0, 0), (0, 5), (3, 0)])
+def test_empty_frame_is_an_error_naming_the_file(tmp_path, shape):
+    from isettorch.io.frames import read_frame
+
+    np.save(tmp_path / "z.npy", np.zeros(shape, np.uint16))
+    with pytest.raises(ValueError, match=r"z\.npy: expected a frame with pixels, got shape \(" + str(shape[0])):
+        read_frame(tmp_path / "z.npy")

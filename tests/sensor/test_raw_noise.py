@@ -106,3 +106,76 @@ def test_unreadable_raw_names_file(tmp_path):
     (tmp_path / "bad.dng").write_bytes(b"II*\x00garbage")
     with pytest.raises(ValueError, match="bad.dng: cannot read the raw file"):
         read_raw(tmp_path / "bad.dng")
+
+
+def test_folder_of_dngs_without_cfa_in_capture_yaml_uses_their_cfa(tmp_path, capsys):
+    """capture.yaml without cfa, DNG frames with RGGB in their metadata: calibrated as RGGB (with a warning), so the
+    PRNU is the truth's 1 % (as mono, the channels' QE differences read as ~20 % PRNU); frames that disagree on the
+    CFA are an error naming a file."""
+    pytest.importorskip("rawpy")
+    from isettorch.cli import main
+    from isettorch.io.raw import write_dng
+
+    truth = dict(nc.TRUTH, qe=nc.BAYER_QE)
+    dark, flat, _ = nc.simulate(truth, cfa="RGGB", shape=(128, 128), frames=2, seed=8,
+                                exposures_ms=[1.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 60.0])
+    root = nc.write_capture(tmp_path / "cap", {}, {}, bits=12)  # no cfa key
+    for kind, stacks in (("dark", dark), ("flat", flat)):
+        for ms, stack in stacks.items():
+            d = root / f"{kind}_{ms:g}ms"
+            d.mkdir()
+            for i, f in enumerate(stack):
+                write_dng(d / f"f{i}.dng", f, cfa="RGGB", black_level_dn=100, white_level_dn=4095)
+    assert main(["calibrate", str(root), "--json", "--quiet"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["cfa"] == "RGGB"
+    assert any("capture.yaml has no cfa: using RGGB" in w for w in res["warnings"])
+    assert res["sensor"]["prnu_percent"] == pytest.approx(truth["prnu_percent"], rel=0.15)
+    assert res["sensor"]["conversion_gain_dn_per_e"] == pytest.approx(truth["gain_dn_per_e"], rel=0.02)
+    write_dng(root / "flat_10ms" / "f1.dng", flat[10.0][1], cfa="GRBG", black_level_dn=100, white_level_dn=4095)
+    assert main(["calibrate", str(root), "--json", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "flat_10ms/f1.dng: its CFA GRBG (raw metadata) differs from RGGB" in err
+
+
+@pytest.fixture
+def one_frame(tmp_path):
+    """One raw PNG of a gradient scene: a = 0.5 DN/e-, b = 4 DN^2, black level 100 DN."""
+    from isettorch.io.frames import write_frame
+
+    rng = np.random.default_rng(4)
+    z = np.round(0.5 * rng.poisson(_scene(256, 256, seed=5) / 0.5) + 2 * rng.standard_normal((256, 256)) + 100)
+    write_frame(tmp_path / "one.png", z)
+    return tmp_path / "one.png", z
+
+
+@pytest.mark.parametrize("value", ["-5", "nan", "inf", "1e9", "max"])
+def test_single_raw_black_level_is_validated(one_frame, capsys, value):
+    from isettorch.cli import main
+
+    path, z = one_frame
+    value = f"{z.max():g}" if value == "max" else value
+    assert main(["calibrate", str(path), "--black-level", value, "--quiet"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("isettorch calibrate: --black-level: expected a finite level in [0, ")
+
+
+def test_single_raw_without_black_level_warns(one_frame, capsys):
+    """No --black-level and none in a PNG: 0 is assumed, with a warning naming the darkest values (~ the truth's
+    black level of 100 DN, whose 0.1 % quantile is at least 100 - 4 sigma); the fit's b is then negative
+    (b - a x 100 = 4 - 50 DN^2), which is reported instead of silently floored."""
+    from isettorch.cli import main
+
+    path, _ = one_frame
+    assert main(["calibrate", str(path), "--json", "--quiet"]) == 0
+    shown = capsys.readouterr()
+    res = json.loads(shown.out)
+    assert res["black_level_dn"] == 0
+    zero = [w for w in res["warnings"] if w.startswith("black level 0 assumed")]
+    assert zero and "pass --black-level" in zero[0]
+    assert float(zero[0].split("darkest values are ")[1].split(" DN")[0]) >= 100 - 4 * 2.5
+    assert res["b"] == pytest.approx(4 - 0.5 * 100, rel=0.15)
+    assert any("is negative" in w for w in res["warnings"])
+    assert "isettorch calibrate: warning: black level 0 assumed" in shown.err
+    assert main(["calibrate", str(path), "--json", "--quiet", "--black-level", "100"]) == 0
+    assert json.loads(capsys.readouterr().out)["warnings"] == []
