@@ -4,6 +4,8 @@ conventions (see ``isettorch.optics.lens.analysis``).
 
 ``--json`` prints exactly one JSON object ``{effective_focal_length_mm, f_number, max_field_deg, rows: [...]}``;
 otherwise a table, and plots (PSF grid, MTF against field, distortion, relative illumination) in ``--out``.
+Without ``--wavelengths-nm`` the rows are at the prescription's own wavelengths. Out-of-range arguments are checked
+by ``lens_report`` and named with their option (``isettorch.cli``).
 """
 
 from __future__ import annotations
@@ -25,10 +27,14 @@ def _floats(s: str, what: str) -> list[float]:
 def register(sub) -> None:
     p = sub.add_parser("lens-report", help="ray-trace a lens prescription: EFL, distortion, RI, CRA, MTF")
     p.add_argument("lens", help="a .zmx or .yaml lens file, or a bundled lens name")
-    p.add_argument("--fields", default="0,0.7,1", help="fractions of the largest field angle (default 0,0.7,1)")
-    p.add_argument("--wavelengths-nm", default="486.1,587.6,656.3", help="wavelengths (nm)")
-    p.add_argument("--frequencies-cy-mm", default="20,40,80", help="MTF frequencies (cycles/mm)")
-    p.add_argument("--pupil-samples", type=int, default=128, help="pupil grid for the FFT MTF (default 128)")
+    p.add_argument("--fields", default="0,0.7,1",
+                   help="fractions in [0, 1] of the largest field angle (default 0,0.7,1)")
+    p.add_argument("--wavelengths-nm", default=None,
+                   help="wavelengths (nm, > 0; default: the prescription's wavelengths)")
+    p.add_argument("--frequencies-cy-mm", default="20,40,80", help="MTF frequencies (cycles/mm, >= 0)")
+    p.add_argument("--pupil-samples", type=int, default=128,
+                   help="pupil grid for the FFT MTF, 16 to 1024 (fewer samples across the pupil do not give a "
+                        "meaningful MTF; default 128, refined automatically for steep wavefronts)")
     p.add_argument("--json", action="store_true", help="print the JSON object only")
     p.add_argument("--out", default="lens_report", help="folder for the plots (without --json)")
     p.set_defaults(func=run)
@@ -38,11 +44,13 @@ def run(args) -> int:
     from ..optics.lens import LensAnalysis, lens_report
 
     fields = _floats(args.fields, "--fields")
-    waves = _floats(args.wavelengths_nm, "--wavelengths-nm")
+    waves = None if args.wavelengths_nm is None else _floats(args.wavelengths_nm, "--wavelengths-nm")
     freqs = _floats(args.frequencies_cy_mm, "--frequencies-cy-mm")
-    # PrescriptionError, GlassError and TraceError are ValueErrors: one line and exit code 2 (isettorch.cli)
+    # PrescriptionError, GlassError and TraceError are ValueErrors: one line and exit code 2 (isettorch.cli); the
+    # range checks are lens_report's, whose messages start with the parameter name (shown as the option)
     analysis = LensAnalysis(args.lens)
     report = lens_report(analysis, fields, waves, freqs, pupil_samples=args.pupil_samples)
+    waves = list(dict.fromkeys(r["wavelength_nm"] for r in report["rows"]))  # the wavelengths reported
     if args.json:
         print(json.dumps(report))
         return 0
@@ -89,7 +97,8 @@ def _plots(analysis, report, fields, waves, freqs, out: Path) -> None:
     plt.close(fig)
     from ..optics.lens.psf import otf_sampler, psf_on_grid
 
-    pitch_mm = 0.5e-3 * analysis.f_number.item() * 0.5876  # lambda N / 2 at 587.6 nm: Nyquist for the PSF
+    # lambda N / 2 at the primary wavelength: Nyquist for the PSF
+    pitch_mm = 0.5e-6 * analysis.f_number.abs().item() * analysis.reference_wavelength_nm
     size = 97
     half_um = size // 2 * pitch_mm * 1e3
     fig, axes = plt.subplots(len(waves), len(fields), figsize=(3 * len(fields), 3 * len(waves)), squeeze=False)

@@ -1,17 +1,22 @@
 """Lens analysis from real rays with OpticStudio's default conventions (object at infinity, no ray aiming).
 
-* Rays fill the paraxial entrance pupil (diameter and position from the paraxial trace at 587.6 nm) for every
-  field and wavelength; the chief ray passes through its centre; clear apertures clip, the stop does not.
+* Paraxial data (EFL, F-number, back focal length, pupils, the focus) at the lens's primary wavelength, as
+  OpticStudio reports them (the file's ``PWAV``; :data:`REFERENCE_WAVELENGTH_NM` = 587.6 nm for a lens that states
+  none, e.g. a YAML lens without ``primary_wavelength_nm``). Below, "primary" means that wavelength.
+* Rays fill the paraxial entrance pupil (diameter and position from the paraxial trace at the primary wavelength)
+  for every field and wavelength; the chief ray passes through its centre; clear apertures clip, the stop does not.
+  With an ``FNUM`` aperture the EPD is EFL / F# at the primary wavelength (OpticStudio's image-space F/#).
 * Image height: chief ray on the paraxial image plane of its own wavelength; distortion
-  100 (y - F tan(theta)) / (F tan(theta)) with F the EFL at 587.6 nm (OpticStudio "F-Tan(Theta)" distortion).
+  100 (y - F tan(theta)) / (F tan(theta)) with F the EFL at the primary wavelength (OpticStudio "F-Tan(Theta)"
+  distortion).
 * Relative illumination: projected solid angle (area in direction-cosine space) of the vignetted image-space beam,
   relative to the on-axis beam at the same wavelength (OpticStudio's "Relative Illumination", after
   M. Rimmer, "Relative illumination calculations", Proc. SPIE 655, 1986): integral of |d(L,M)/d(px,py)| over
   the unvignetted pupil.
 * Diffraction PSF/MTF: FFT of the pupil function A exp(2 pi i W / lambda), W = OPD to the reference sphere
   centred on the chief ray's image point through the paraxial exit pupil (Goodman, *Introduction to Fourier
-  Optics*, 3rd ed., ch. 6), image plane at the 587.6 nm paraxial focus; frequency scale from the real marginal
-  rays' direction cosines: cutoff = n' |M(0, +1) - M(0, -1)| / lambda (tangential), the same with L (sagittal).
+  Optics*, 3rd ed., ch. 6), image plane at the primary wavelength's paraxial focus; frequency scale from the real
+  marginal rays' direction cosines: cutoff = n' |M(0, +1) - M(0, -1)| / lambda (tangential), the same with L (sagittal).
 
 Finite conjugates (``object_distance_mm``, ``focus_distance_mm``; both default to infinity, which is exactly the
 lens-report convention above). Distances are measured from the object (or focus) plane to the first lens vertex
@@ -21,9 +26,10 @@ rays leave the object point aimed at the paraxial entrance pupil, starting (opti
 wavefront about it through the entrance-pupil centre. Paraxial image of an object at D: y-nu trace (Smith, *Modern
 Optical Engineering*, 4th ed., ch. 3) of the axial ray y_1 = 1, u_0 = 1 / D; image distance from the last vertex l'
 = -y_k / u'_k; magnification m = n u_0 / (n' u'_k) (Lagrange invariant). Focus: the image plane ("sensor") is the
-paraxial image of an object at ``focus_distance_mm`` at 587.6 nm (a back-focus shift); an object at another
-distance, or another wavelength (longitudinal colour, through the glasses' dispersion), is then out of focus there,
-which the pupil function carries as OPD to the reference sphere centred on the chief ray's point on that plane.
+paraxial image of an object at ``focus_distance_mm`` at the primary wavelength (a back-focus shift); an object at
+another distance, or another wavelength (longitudinal colour, through the glasses' dispersion), is then out of focus
+there, which the pupil function carries as OPD to the reference sphere centred on the chief ray's point on that
+plane.
 """
 
 from __future__ import annotations
@@ -32,12 +38,13 @@ import math
 
 import torch
 
-from .prescription import Prescription, load_lens
+from .prescription import DEFAULT_PRIMARY_NM, Prescription, load_lens
 from .trace import LensGeometry, RayBundle, TraceError
 
 __all__ = ["LensAnalysis", "lens_report", "REFERENCE_WAVELENGTH_NM"]
 
-REFERENCE_WAVELENGTH_NM = 587.6
+#: Primary wavelength (nm) of a lens that states none (``Prescription.primary_wavelength_nm``'s default).
+REFERENCE_WAVELENGTH_NM = DEFAULT_PRIMARY_NM
 
 
 class LensAnalysis:
@@ -46,6 +53,8 @@ class LensAnalysis:
     Args:
         lens: a :class:`Prescription`, a path or a bundled lens name.
         curvature_per_mm: optional ``[S]`` tensor of the lens surfaces' curvatures (for gradients).
+
+    Paraxial quantities are computed at :attr:`reference_wavelength_nm`, the prescription's primary wavelength.
     """
 
     def __init__(self, lens, curvature_per_mm: torch.Tensor | None = None, dtype=torch.float64, *,
@@ -76,8 +85,14 @@ class LensAnalysis:
         return self._par[key]
 
     @property
+    def reference_wavelength_nm(self) -> float:
+        """The wavelength of the paraxial data: the prescription's primary wavelength (nm)."""
+        return float(self.prescription.primary_wavelength_nm)
+
+    @property
     def ref(self) -> dict:
-        return self.paraxial(REFERENCE_WAVELENGTH_NM)
+        """Paraxial data at the primary wavelength."""
+        return self.paraxial(self.reference_wavelength_nm)
 
     @property
     def effective_focal_length_mm(self) -> torch.Tensor:
@@ -85,7 +100,7 @@ class LensAnalysis:
 
     @property
     def f_number(self) -> torch.Tensor:
-        """Paraxial image-space f-number EFL / EPD at 587.6 nm (object at infinity)."""
+        """Paraxial image-space f-number EFL / EPD at the primary wavelength (object at infinity)."""
         return self.ref["efl"] / self.ref["epd"]
 
     @property
@@ -112,8 +127,10 @@ class LensAnalysis:
                              f"{self.prescription.name} (it lies in the front focal plane)")
         return -ys[-1] / u, u0, u
 
-    def magnification(self, wavelength_nm: float = REFERENCE_WAVELENGTH_NM) -> torch.Tensor:
-        """Paraxial transverse magnification m = n u_0 / (n' u'_k) of the object plane (0 at infinity)."""
+    def magnification(self, wavelength_nm: float | None = None) -> torch.Tensor:
+        """Paraxial transverse magnification m = n u_0 / (n' u'_k) of the object plane (0 at infinity), at
+        ``wavelength_nm`` (default: the primary wavelength)."""
+        wavelength_nm = self.reference_wavelength_nm if wavelength_nm is None else wavelength_nm
         if math.isinf(self.object_distance_mm):
             return torch.zeros((), dtype=self.dtype)
         _, u0, u = self._finite_axial(wavelength_nm, self.object_distance_mm)
@@ -128,9 +145,9 @@ class LensAnalysis:
 
     @property
     def sensor_z(self) -> torch.Tensor:
-        """The image plane the lens is focused on: the paraxial image of ``focus_distance_mm`` at 587.6 nm
-        (mm from the surface-1 vertex)."""
-        return self.geometry.vertex_z[-1] + self.paraxial_image_distance_mm(REFERENCE_WAVELENGTH_NM,
+        """The image plane the lens is focused on: the paraxial image of ``focus_distance_mm`` at the primary
+        wavelength (mm from the surface-1 vertex)."""
+        return self.geometry.vertex_z[-1] + self.paraxial_image_distance_mm(self.reference_wavelength_nm,
                                                                             self.focus_distance_mm)
 
     def image_height_per_tan_mm(self) -> torch.Tensor:
@@ -139,7 +156,7 @@ class LensAnalysis:
         if math.isinf(self.focus_distance_mm):
             return self.effective_focal_length_mm
         g = self.geometry
-        n = g.indices(REFERENCE_WAVELENGTH_NM)
+        n = g.indices(self.reference_wavelength_nm)
         one = torch.ones((), dtype=self.dtype)
         yc, uc = g._paraxial_trace(-self.ref["ep_z"], one, n)
         return yc[-1] + (self.sensor_z - g.vertex_z[-1]) * uc
@@ -151,7 +168,7 @@ class LensAnalysis:
             return self.f_number
         d = self.object_distance_mm
         g = self.geometry
-        n = g.indices(REFERENCE_WAVELENGTH_NM)
+        n = g.indices(self.reference_wavelength_nm)
         r = self.ref["epd"] / 2
         u0 = r / (d + self.ref["ep_z"])  # marginal ray: axial object point to the entrance-pupil rim
         _, u = g._paraxial_trace(u0 * d, u0, n)
@@ -168,9 +185,9 @@ class LensAnalysis:
     def rays(self, theta_deg: float, px: torch.Tensor, py: torch.Tensor, wavelength_nm: float,
              clip: bool = True, record: bool = False) -> RayBundle:
         """Trace rays of field angle ``theta_deg`` (in the y-z plane) through normalised entrance-pupil points
-        ``(px, py)`` (unit circle = paraxial EP at 587.6 nm). Object at infinity: start points lie on the plane
-        through the EP centre normal to the rays (a plane wavefront: optical path 0 there). Finite object: rays
-        leave the object point ``(0, -(D + z_EP) tan(theta), -D)`` and start (optical path 0) on the sphere
+        ``(px, py)`` (unit circle = paraxial EP at the primary wavelength). Object at infinity: start points lie on
+        the plane through the EP centre normal to the rays (a plane wavefront: optical path 0 there). Finite object:
+        rays leave the object point ``(0, -(D + z_EP) tan(theta), -D)`` and start (optical path 0) on the sphere
         about it through the EP centre."""
         ref = self.ref
         r = ref["epd"] / 2
@@ -265,7 +282,7 @@ class LensAnalysis:
 
         Returns a dict: ``pupil`` (complex ``[N, N]``), ``opd_waves`` (0 outside the beam), ``valid``,
         ``cutoff_cy_mm`` (tangential, sagittal) and ``image_point`` (chief ray at ``image_z``, default the
-        sensor plane :attr:`sensor_z`: the 587.6 nm paraxial focus of ``focus_distance_mm``).
+        sensor plane :attr:`sensor_z`: the primary wavelength's paraxial focus of ``focus_distance_mm``).
         """
         theta = self.field_angle_deg(field)
         zi = self.sensor_z if image_z is None else image_z
@@ -380,12 +397,50 @@ class LensAnalysis:
         return out[0], out[1]
 
 
-def lens_report(lens, fields=(0.0, 0.7, 1.0), wavelengths_nm=(486.1, 587.6, 656.3),
-                frequencies_cy_mm=(20.0, 40.0, 80.0), pupil_samples: int = 128, ri_samples: int = 256) -> dict:
-    """The ``lens-report`` JSON object (see the module docstring for the conventions)."""
+#: Pupil grid (samples per side) accepted by :func:`lens_report`: at least 16 (a coarser grid has too few samples
+#: across the pupil for its autocorrelation to be an MTF), at most 1024 (the FFT grid is 2N x 2N complex).
+PUPIL_SAMPLES_RANGE = (16, 1024)
+
+
+def _values(v, name: str, ok, expected: str, error=ValueError) -> list[float]:
+    try:
+        vals = [float(x) for x in v]
+    except (TypeError, ValueError):
+        raise error(f"{name}: expected a list of numbers, got {v!r}") from None
+    bad = [x for x in vals if not ok(x)]
+    if not vals or bad:
+        raise error(f"{name}: expected {expected}, got {bad or vals}")
+    return vals
+
+
+def lens_report(lens, fields=(0.0, 0.7, 1.0), wavelengths_nm=None, frequencies_cy_mm=(20.0, 40.0, 80.0),
+                pupil_samples: int = 128, ri_samples: int = 256) -> dict:
+    """The ``lens-report`` JSON object (see the module docstring for the conventions).
+
+    Args:
+        fields: fractions in [0, 1] of the lens's largest field angle.
+        wavelengths_nm: default: the prescription's wavelengths.
+        frequencies_cy_mm: MTF frequencies (finite, >= 0).
+        pupil_samples: pupil grid of the FFT MTF (:data:`PUPIL_SAMPLES_RANGE`; adapted upwards to the wavefront).
+        ri_samples: pupil grid of the relative-illumination integral (>= 16).
+
+    Raises:
+        ValueError: an argument out of range (the message starts with its name).
+    """
     a = lens if isinstance(lens, LensAnalysis) else LensAnalysis(lens)
-    for f in fields:
-        a.field_angle_deg(f)
+    fields = _values(fields, "fields", lambda f: 0.0 <= f <= 1.0,
+                     f"fractions in [0, 1] of the largest field angle ({a.max_field_deg} deg; more is beyond the "
+                     f"lens)", TraceError)
+    if wavelengths_nm is None:
+        wavelengths_nm = a.prescription.wavelengths_nm
+    wavelengths_nm = _values(wavelengths_nm, "wavelengths_nm", lambda w: math.isfinite(w) and w > 0,
+                             "finite wavelengths > 0 nm")
+    frequencies_cy_mm = _values(frequencies_cy_mm, "frequencies_cy_mm", lambda v: math.isfinite(v) and v >= 0,
+                                "finite frequencies >= 0 cycles/mm")
+    lo, hi = PUPIL_SAMPLES_RANGE
+    for name, n, top in (("pupil_samples", pupil_samples, hi), ("ri_samples", ri_samples, math.inf)):
+        if isinstance(n, bool) or not isinstance(n, int) or not lo <= n <= top:
+            raise ValueError(f"{name}: expected an integer in [{lo}, {top}], got {n!r}")
     rows = []
     with torch.no_grad():
         for f in fields:

@@ -9,13 +9,29 @@ looked up, only when the file declares such a catalogue and only after its maker
 refractiveindex.info material database (optional extra ``lens-reference``; an error names the glass otherwise).
 Those data are not OpticStudio's MISC values (PMMA n_d 1.4906 vs 1.4918), so plastic lenses agree to ~1e-3 in
 index only.
+
+Valid wavelength range (:func:`valid_range_nm`): a maker's dispersion formula is fitted to the refractive indices
+its catalogue tabulates and holds between the shortest and the longest of them ("for some glass types, not all
+refractive indices in the standard spectral range are listed on the data sheet. In such cases, the applicable
+scope of this dispersion formula is limited to the given refractive indices": Ohara glass catalogue, technical
+information 2.3 "Dispersion Formula"). The catalogues hold no other range, so the range of a catalogue glass is
+the span of the wavelengths at which its catalogue row (opticalglass's copy of the maker's sheet) lists an index,
+widened by 10 % at each end (:data:`EXTRAPOLATION_FRACTION`) and rounded outwards to 0.1 nm. The widening is what
+the makers' own formula ranges allow beyond their tabulated lines: a dense flint such as N-SF11 lists no i-line
+index, so its tabulated span is 404.6-2325.4 nm, while SCHOTT's Zemax catalogue (which opticalglass does not carry)
+states 370-2500 nm for its formula, 8.6 % and 7.5 % beyond; without it a camera's 400 nm band would be refused
+through such a glass. So N-BK7 is valid over 281.3-2558.0 nm and N-SF11 over 364.1-2558.0 nm. For the optiland
+fallback it is the material file's own range (its tabulated data or its formula's stated range), widened the same
+way (optiland's PMMA, measured over 436.8-1052 nm: 393.1-1157.2 nm). A wavelength
+outside raises :class:`GlassError`.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 
-__all__ = ["GlassError", "CATALOGS", "refractive_index", "resolve_glass"]
+__all__ = ["GlassError", "CATALOGS", "refractive_index", "resolve_glass", "valid_range_nm"]
 
 # Zemax GCAT name -> opticalglass catalogue name
 CATALOGS = {"SCHOTT": "Schott", "OHARA": "Ohara", "HOYA": "Hoya", "CDGM": "CDGM", "HIKARI": "Hikari",
@@ -90,16 +106,74 @@ def _optiland_material(name: str):
         return None
 
 
+#: how far beyond its tabulated lines a catalogue glass's formula is used, as a fraction of the end wavelength (module
+#: docstring)
+EXTRAPOLATION_FRACTION = 0.10
+
+
+def _catalogue_range_nm(glass) -> tuple[float, float] | None:
+    """Span of the wavelengths (nm) at which an opticalglass catalogue row tabulates a refractive index."""
+    from opticalglass.spectral_lines import get_wavelength
+
+    waves = []
+    for label, n in glass.glass_data()["refractive indices"].items():
+        try:
+            if not math.isfinite(float(n)):
+                continue
+            waves.append(float(get_wavelength(label)) if isinstance(label, str) else float(label))
+        except (TypeError, ValueError, KeyError):  # blank cell, or a label that is not a wavelength
+            continue
+    waves = [w for w in waves if math.isfinite(w)]
+    if not waves:
+        return None
+    return _widened(min(waves), max(waves))
+
+
+def _widened(lo_nm: float, hi_nm: float) -> tuple[float, float]:
+    """A data range widened by :data:`EXTRAPOLATION_FRACTION` at each end, rounded outwards to 0.1 nm."""
+    lo, hi = lo_nm * (1 - EXTRAPOLATION_FRACTION), hi_nm * (1 + EXTRAPOLATION_FRACTION)
+    return math.floor(lo * 10) / 10, math.ceil(hi * 10) / 10
+
+
+@functools.lru_cache(maxsize=256)
+def valid_range_nm(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS) -> tuple[float, float] | None:
+    """The wavelength range (nm) over which the catalogue data of glass ``name`` are valid (module docstring), or
+    None when the data state none (then no range is checked)."""
+    g = resolve_glass(name, tuple(c.upper() for c in catalogs))
+    if isinstance(g, _OptilandGlass):
+        rng = getattr(g.material, "spectral_range", lambda _: None)("n")
+        return None if rng is None else _widened(float(rng[0]) * 1000.0, float(rng[1]) * 1000.0)
+    return _catalogue_range_nm(g)
+
+
+def _source(g) -> str:
+    if isinstance(g, _OptilandGlass):
+        return "optiland material database"
+    try:
+        return f"{g.catalog_name()} catalogue"
+    except Exception:  # pragma: no cover - every opticalglass glass has one
+        return "catalogue"
+
+
 @functools.lru_cache(maxsize=4096)
 def refractive_index(name: str | None, wavelength_nm: float, catalogs: tuple[str, ...] = DEFAULT_CATALOGS) -> float:
     """Index of refraction (relative to air, as the catalogues give it) of ``name`` at ``wavelength_nm``.
 
     ``None``/``'AIR'`` is 1 (OpticStudio's convention: indices relative to air at the system temperature).
+
+    Raises:
+        GlassError: the glass is not in the catalogues, or ``wavelength_nm`` is outside its :func:`valid_range_nm`.
     """
     if name is None or name.upper() == "AIR":
         return 1.0
-    g = resolve_glass(name, tuple(c.upper() for c in catalogs))
-    n = float(g.rindex(float(wavelength_nm)))
+    cats = tuple(c.upper() for c in catalogs)
+    g = resolve_glass(name, cats)
+    rng = valid_range_nm(name, cats)
+    wl = float(wavelength_nm)
+    if rng is not None and not rng[0] <= wl <= rng[1]:
+        raise GlassError(f"glass {name!r} ({_source(g)}): {wl:g} nm is outside its valid range {rng[0]:g}-{rng[1]:g} "
+                         f"nm (the wavelengths its catalogue data cover); expected a wavelength in that range")
+    n = float(g.rindex(wl))
     if not (n == n) or n < 1.0:
         raise GlassError(f"glass {name!r}: index {n} at {wavelength_nm} nm is outside the catalogue's "
                          f"valid range")

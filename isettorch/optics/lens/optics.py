@@ -1,14 +1,15 @@
 """`LensOptics`: scene radiance -> sensor irradiance through a ray-traced lens, shift-variantly.
 
 Per scene wavelength: (1) distortion and lateral colour: the irradiance at image radius r comes from the scene at
-the field angle theta with y_lambda(theta) = r (chief ray on the 587.6 nm paraxial image plane); (2) the camera
-equation on axis (ISETCam oiCalculateIrradiance: pi / (1 + 4 N^2), object at infinity) times the ray-traced
-relative illumination RI_lambda(theta); (3) a shift-variant PSF: the PSFs on a polar grid of field heights x
-azimuths (exact rotations), decomposed into K eigen-PSFs with bilinearly interpolated weights
-(``psf.py``). Longitudinal colour is included (every wavelength is imaged on the 587.6 nm paraxial focus).
+the field angle theta with y_lambda(theta) = r (chief ray on the paraxial image plane of the lens's primary
+wavelength, ``LensAnalysis.reference_wavelength_nm``); (2) the camera equation on axis (ISETCam
+oiCalculateIrradiance: pi / (1 + 4 N^2), object at infinity) times the ray-traced relative illumination
+RI_lambda(theta); (3) a shift-variant PSF: the PSFs on a polar grid of field heights x azimuths (exact rotations),
+decomposed into K eigen-PSFs with bilinearly interpolated weights (``psf.py``). Longitudinal colour is included
+(every wavelength is imaged on the primary wavelength's paraxial focus).
 
-Object distance and focus: ``focus_distance_m`` (default infinity) puts the image plane at the 587.6 nm paraxial
-image of an object at that distance (a back-focus shift; distances from the object plane to the first lens
+Object distance and focus: ``focus_distance_m`` (default infinity) puts the image plane at the primary wavelength's
+paraxial image of an object at that distance (a back-focus shift; distances from the object plane to the first lens
 vertex). ``object_distance="scene"`` takes each scene's ``distance_m`` as the object distance (one per batch), so a
 scene off the focus distance is defocused, by a wavelength-dependent amount (longitudinal colour); the default
 ``"infinity"`` images every scene as if at infinity (ISETCam's default scene distance, 1.2 m, is only ~24 focal
@@ -32,7 +33,7 @@ from torch import nn
 from ...scene.scene import Scene
 from .. import geometry
 from ..optical_image import OpticalImage
-from .analysis import REFERENCE_WAVELENGTH_NM, LensAnalysis
+from .analysis import LensAnalysis
 from .psf import chief_ray_heights_mm, otf_sampler, psf_on_grid, spot_radius_mm
 from .trace import TraceError
 
@@ -125,10 +126,13 @@ class LensOptics(nn.Module):
             self._c[key] = (fr * a.max_field_deg, y, ri)
         return self._c[key]
 
-    def chief_ray_angle_table(self, wavelength_nm: float = REFERENCE_WAVELENGTH_NM) -> dict:
-        """The traced image-space chief-ray angle against image height on the sensor plane, at
-        ``distortion_samples`` fields (cached): ``{'image_height_m': [N], 'cra_deg': [N]}``; the angle is positive
-        when the chief ray travels away from the axis (the sensor's pixel optics read it, ``Sensor(pixel_optics)``)."""
+    def chief_ray_angle_table(self, wavelength_nm: float | None = None) -> dict:
+        """The traced image-space chief-ray angle against image height on the sensor plane, at ``wavelength_nm``
+        (default: the lens's primary wavelength) and ``distortion_samples`` fields (cached):
+        ``{'image_height_m': [N], 'cra_deg': [N]}``; the angle is positive when the chief ray travels away from the
+        axis (the sensor's pixel optics read it, ``Sensor(pixel_optics)``)."""
+        if wavelength_nm is None:
+            wavelength_nm = self._a.reference_wavelength_nm
         key = ("cra", round(wavelength_nm, 6))
         if key not in self._c:
             a = self._a
@@ -148,7 +152,7 @@ class LensOptics(nn.Module):
         if key in self._c:
             return self._c[key]
         a = self._a
-        theta_ref, y_ref, _ = self._radial_tables(REFERENCE_WAVELENGTH_NM)
+        theta_ref, y_ref, _ = self._radial_tables(a.reference_wavelength_nm)
         radii = torch.linspace(0, r_max_mm, self.field_samples, dtype=torch.float64)
         fields = (_interp(radii, y_ref, theta_ref) / a.max_field_deg).clamp(0, 1)
         reach = 0.0
@@ -204,7 +208,7 @@ class LensOptics(nn.Module):
         dx_mm = efl_mm * t_pitch
         # image radius reached by the corners, any wavelength
         r_max = max(float(_interp(torch.tensor([corner_deg], dtype=torch.float64), *self._radial_tables(wl)[:2])[0])
-                    for wl in (waves[0], waves[-1], REFERENCE_WAVELENGTH_NM))
+                    for wl in (waves[0], waves[-1], a.reference_wavelength_nm))
         bank = self._psf_bank(waves, dx_mm, r_max * 1.0001)
         m = bank["size"] // 2
         hh, ww = h + 2 * m, w + 2 * m

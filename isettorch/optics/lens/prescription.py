@@ -1,12 +1,36 @@
 """Lens prescriptions: Zemax OpticStudio sequential ``.zmx`` files and a plain YAML form.
 
-Units are millimetres (``UNIT MM``; other units are rejected). Surface 0 is the object (at infinity), the last
-surface the image. Supported surface types: ``STANDARD`` (sphere/conic) and ``EVENASPH``
-(sag z = c r^2 / (1 + sqrt(1 - (1+k) c^2 r^2)) + sum_i a_i r^(2i), Zemax ``PARM 1..8`` = a_1..a_8).
-Apertures: ``CLAP rmin rmax`` (circular) and ``FLAP 0 semi`` (floating: the semi-diameter) clip rays;
-``DIAM`` alone does not (OpticStudio's semi-diameters only draw, they do not vignette).
-System aperture: ``ENPD`` (entrance-pupil diameter) or ``FLOA`` (float by stop size: the pupil whose image is
-the stop's semi-diameter ``DIAM``, a **semi**-diameter in the file — optiland 0.6.3 reads it as a diameter).
+Lengths are millimetres. A ``.zmx`` file in other lens units (``UNIT CM``, ``UNIT IN``, ``UNIT M``/``METER``) is
+converted on reading: radii (``CURV`` is 1/length), thicknesses, semi-diameters, clear apertures and ``ENPD`` by
+the unit L (10, 25.4 or 1000 mm), and the even-asphere coefficient a_k of r^(2k) (units length^(1-2k), so that
+the sag is a length) by L^(1-2k).
+
+Surface 0 is the object, at infinity: ``DISZ INFINITY``, or a finite ``|DISZ| >=`` :data:`INFINITE_OBJECT_MM`
+(1e9 mm; files write 1.0E+10 for infinity). Reading such a distance as infinity changes the paraxial quantities
+by about f/DISZ relative (< 1e-7 for f < 100 mm). Nearer objects are refused. The last surface is the image and
+must be flat (the analysis works on paraxial image planes). The stop is a surface strictly between them.
+
+Surface types: ``STANDARD`` (sphere/conic) and ``EVENASPH`` (sag z = c r^2 / (1 + sqrt(1 - (1+k) c^2 r^2)) +
+sum_i a_i r^(2i), Zemax ``PARM 1..8`` = a_1..a_8). Apertures: ``CLAP rmin rmax`` (circular) and ``FLAP 0 semi``
+(floating: the semi-diameter) clip rays; ``DIAM`` alone does not (OpticStudio's semi-diameters only draw, they do
+not vignette). System aperture: ``ENPD`` (entrance-pupil diameter), ``FLOA`` (float by stop size: the pupil whose
+image is the stop's semi-diameter ``DIAM``, a **semi**-diameter in the file; optiland 0.6.3 reads it as a
+diameter) or ``FNUM N 0`` (image-space F/#, OpticStudio's definition: paraxial EFL / paraxial EPD at the primary
+wavelength, object at infinity, so EPD = EFL / N; resolved by ``LensAnalysis``).
+
+Fields (angles only, ``FTYP 0``): ``XFLN``/``YFLN`` (current dialect; the number of fields is FTYP's third value)
+or ``XFLD``/``YFLD`` (older dialect, e.g. ``FTYP 0 0`` / ``XFLD 0 0 0`` / ``YFLD 0 5 10``: one value per field).
+Wavelengths (um in the file): ``WAVM n value weight`` (current; the number in use is FTYP's fourth value: files
+carry 24 ``WAVM`` slots) or ``WAVL v1 v2 ...`` (older). ``PWAV n`` is the primary wavelength (default 1); the
+analysis reports paraxial data there, as OpticStudio does.
+
+Refused with a :class:`PrescriptionError` naming the keyword: a truncated or non-numeric operand (``line 12:
+CURV: expected a value``), non-sequential mode, surface types other than STANDARD and EVENASPH, mirrors, model
+glasses, decentred or non-circular apertures, field types other than angles, object-space telecentricity and
+afocal image space (``FTYP`` flags), nonzero vignetting factors (``VDXN VDYN VCXN VCYN VANN``: OpticStudio would
+trace a vignetted pupil; zeros, as files usually write, are accepted), ``OBNA``, a curved image surface, a
+negative thickness inside glass (a negative air gap is legitimate), and both dialects of the field or
+wavelength lines in one file. Purely cosmetic or unrecognised operands are ignored.
 """
 
 from __future__ import annotations
@@ -18,9 +42,18 @@ from pathlib import Path
 import yaml
 
 __all__ = ["Surface", "Prescription", "PrescriptionError", "read_zmx", "read_lens_yaml", "load_lens",
-           "bundled_lenses"]
+           "bundled_lenses", "INFINITE_OBJECT_MM", "LENS_UNITS_MM"]
 
 DATA_DIR = Path(__file__).parent / "data"
+
+#: An object surface thickness at least this large (mm) is read as an object at infinity.
+INFINITE_OBJECT_MM = 1e9
+
+#: Zemax ``UNIT`` lens units -> millimetres per unit.
+LENS_UNITS_MM = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "INCH": 25.4, "M": 1000.0, "METER": 1000.0}
+
+#: Default primary wavelength (nm) for a lens that states none (the d line as 587.6 nm).
+DEFAULT_PRIMARY_NM = 587.6
 
 
 class PrescriptionError(ValueError):
@@ -46,11 +79,14 @@ class Prescription:
     """A rotationally symmetric sequential lens, object at infinity.
 
     Args:
-        surfaces: object, the lens surfaces, image (the image surface's position is not used by the
-            analysis, which works on paraxial image planes).
-        entrance_pupil_diameter_mm: EPD, or None when ``float_by_stop`` (then derived from the stop).
+        surfaces: object, the lens surfaces, image (flat; its position is not used by the analysis, which works
+            on paraxial image planes).
+        entrance_pupil_diameter_mm: EPD, or None when ``float_by_stop`` or ``image_f_number`` gives the pupil.
+        float_by_stop: the EPD is the stop's semi-diameter imaged into object space.
+        image_f_number: image-space F/# (EPD = EFL / F/# at the primary wavelength).
         field_angles_deg: the file's field angles (radial, deg).
-        wavelengths_nm, primary_wavelength_nm: the file's wavelengths.
+        wavelengths_nm, primary_wavelength_nm: the file's wavelengths; the paraxial data (EFL, F/#, pupils, the
+            focus) are computed at the primary one.
         catalogs: GCAT catalogue names, in the file's order.
     """
 
@@ -58,34 +94,62 @@ class Prescription:
     entrance_pupil_diameter_mm: float | None = None
     float_by_stop: bool = False
     field_angles_deg: tuple[float, ...] = (0.0,)
-    wavelengths_nm: tuple[float, ...] = (587.6,)
-    primary_wavelength_nm: float = 587.6
+    wavelengths_nm: tuple[float, ...] = (DEFAULT_PRIMARY_NM,)
+    primary_wavelength_nm: float = DEFAULT_PRIMARY_NM
     catalogs: tuple[str, ...] = ("SCHOTT", "OHARA", "HOYA", "CDGM", "HIKARI", "SUMITA")
     name: str = ""
     source: str = ""
+    image_f_number: float | None = None
 
     def __post_init__(self):
+        lens = self.name or "lens"
         if len(self.surfaces) < 3:
-            raise PrescriptionError(f"surfaces: expected object, at least one lens surface and image, got "
+            raise PrescriptionError(f"{lens}: surfaces: expected object, at least one lens surface and image, got "
                                     f"{len(self.surfaces)}")
+        last = len(self.surfaces) - 1
         stops = [i for i, s in enumerate(self.surfaces) if s.is_stop]
         if len(stops) != 1:
-            raise PrescriptionError(f"{self.name or 'lens'}: expected exactly one stop surface, got {stops}")
+            raise PrescriptionError(f"{lens}: expected exactly one stop surface, got {stops}")
+        if not 0 < stops[0] < last:
+            where = "object" if stops[0] == 0 else "image"
+            raise PrescriptionError(f"{lens}: STOP on the {where} surface ({stops[0]}); the stop must be a lens "
+                                    f"surface strictly between the object (0) and the image ({last})")
         if not math.isinf(self.surfaces[0].thickness_mm):
-            raise PrescriptionError(f"{self.name or 'lens'}: only objects at infinity are supported (object "
-                                    f"thickness {self.surfaces[0].thickness_mm})")
-        if self.entrance_pupil_diameter_mm is None and not self.float_by_stop:
-            raise PrescriptionError(f"{self.name or 'lens'}: no system aperture (ENPD or FLOA)")
+            raise PrescriptionError(f"{lens}: only objects at infinity are supported (object thickness "
+                                    f"{self.surfaces[0].thickness_mm} mm; |thickness| >= {INFINITE_OBJECT_MM:g} mm "
+                                    f"is read as infinity)")
+        if self.surfaces[last].curvature_per_mm != 0:
+            raise PrescriptionError(f"{lens}: image surface {last}: curvature {self.surfaces[last].curvature_per_mm} "
+                                    f"per mm (CURV); only a flat image surface is supported")
+        apertures = [k for k, on in (("entrance_pupil_diameter_mm", self.entrance_pupil_diameter_mm is not None),
+                                     ("float_by_stop", bool(self.float_by_stop)),
+                                     ("image_f_number", self.image_f_number is not None)) if on]
+        if not apertures:
+            raise PrescriptionError(f"{lens}: no system aperture (ENPD, FLOA or FNUM; in YAML aperture: "
+                                    f"entrance_pupil_diameter_mm, float_by_stop or image_f_number)")
+        if len(apertures) > 1:
+            raise PrescriptionError(f"{lens}: more than one system aperture {apertures}; expected one")
+        for k in ("entrance_pupil_diameter_mm", "image_f_number"):
+            v = getattr(self, k)
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise PrescriptionError(f"{lens}: {k}: expected a finite value > 0, got {v}")
         if self.float_by_stop and not self.surfaces[stops[0]].semi_diameter_mm:
-            raise PrescriptionError(f"{self.name or 'lens'}: float-by-stop aperture but the stop surface "
-                                    f"{stops[0]} has no semi-diameter")
-        if self.entrance_pupil_diameter_mm is not None and not self.entrance_pupil_diameter_mm > 0:
-            raise PrescriptionError(f"entrance_pupil_diameter_mm: expected > 0, got "
-                                    f"{self.entrance_pupil_diameter_mm}")
+            raise PrescriptionError(f"{lens}: float-by-stop aperture but the stop surface {stops[0]} has no "
+                                    f"semi-diameter")
         for i, s in enumerate(self.surfaces):
             if s.kind not in ("STANDARD", "EVENASPH"):
-                raise PrescriptionError(f"surface {i}: unsupported surface type {s.kind!r}; expected "
+                raise PrescriptionError(f"{lens}: surface {i}: unsupported surface type {s.kind!r}; expected "
                                         f"STANDARD or EVENASPH")
+            if 0 < i < last and s.thickness_mm < 0 and s.material is not None:
+                raise PrescriptionError(f"{lens}: surface {i}: negative thickness {s.thickness_mm} mm inside glass "
+                                        f"{s.material!r}; only air gaps may be negative")
+        for name, vals in (("wavelengths_nm", self.wavelengths_nm), ("primary_wavelength_nm",
+                                                                     (self.primary_wavelength_nm,))):
+            if not vals or not all(math.isfinite(w) and w > 0 for w in vals):
+                raise PrescriptionError(f"{lens}: {name}: expected finite wavelengths > 0 nm, got {vals}")
+        if not all(math.isfinite(f) and abs(f) < 90 for f in self.field_angles_deg):
+            raise PrescriptionError(f"{lens}: field_angles_deg: expected angles within (-90, 90) deg, got "
+                                    f"{self.field_angles_deg}")
 
     @property
     def stop_index(self) -> int:
@@ -98,11 +162,21 @@ class Prescription:
 
 def _num(tok: str, what: str) -> float:
     try:
-        return float(tok.replace(",", "."))
+        v = float(tok.replace(",", "."))
     except ValueError:
         if tok.upper() == "INFINITY":
             return math.inf
         raise PrescriptionError(f"{what}: expected a number, got {tok!r}") from None
+    if math.isnan(v):
+        raise PrescriptionError(f"{what}: expected a number, got {tok!r}")
+    return v
+
+
+def _int(tok: str, what: str) -> int:
+    try:
+        return int(tok)
+    except ValueError:
+        raise PrescriptionError(f"{what}: expected an integer, got {tok!r}") from None
 
 
 def _decode(raw: bytes) -> str:
@@ -119,31 +193,32 @@ def _decode(raw: bytes) -> str:
         return raw.decode("latin-1")
 
 
-_IGNORED = {"VERS", "MODE", "NOTE", "PFIL", "LANG", "UNIT", "ENVD", "GFAC", "RAIM", "PUSH", "SDMA", "FTYP",
-            "ROPD", "PICB", "XFLN", "YFLN", "FWGN", "VDXN", "VDYN", "VCXN", "VCYN", "VANN", "WWGT", "COMM", "CURV",
-            "DISZ", "GLAS", "DIAM", "CONI", "PARM", "STOP", "SURF", "TYPE", "ENPD", "FLOA", "GCAT", "CLAP", "FLAP",
-            "WAVM", "PWAV", "NAME"}
+_VIGNETTING = ("VDXN", "VDYN", "VCXN", "VCYN", "VANN")
+_FIELD_LINES = {"XFLN": ("new", "x"), "YFLN": ("new", "y"), "XFLD": ("old", "x"), "YFLD": ("old", "y")}
 
 
 def read_zmx(path: str | Path) -> Prescription:
     """Read a sequential Zemax ``.zmx`` file (any of its encodings) into a :class:`Prescription`.
 
-    Unsupported content that changes the optics (non-sequential mode, surface types other than STANDARD and
-    EVENASPH, mirrors, field types other than angles, finite objects, non-mm units, model glasses) raises
-    :class:`PrescriptionError` naming it; purely cosmetic operands are ignored.
+    What is read, converted and refused is listed in the module docstring; every refusal is a
+    :class:`PrescriptionError` naming the file line and keyword.
     """
     path = Path(path)
     text = _decode(path.read_bytes())
     where = str(path)
     surfaces: list[Surface] = []
     cur: Surface | None = None
-    epd = None
-    floa = False
-    xf: list[float] = []
-    yf: list[float] = []
-    waves: dict[int, float] = {}
-    pwav = 1
-    nfields = None
+    parms: dict[int, dict[int, tuple[float, str]]] = {}  # surface -> PARM k -> (value, where)
+    floating: dict[int, str] = {}  # surfaces with FLAP and no explicit semi-aperture
+    apertures: dict[str, float | None] = {}
+    fields: dict[tuple[str, str], list[float]] = {}
+    vignetting: dict[str, tuple[list[float], str]] = {}
+    wavm: dict[int, float] = {}
+    wavl: list[float] | None = None
+    line_at: dict[str, str] = {}
+    pwav, pwav_at = 1, None
+    nfields = nwaves = None
+    unit = 1.0
     catalogs: tuple[str, ...] = ()
     name = path.stem
     for lineno, line in enumerate(text.splitlines(), 1):
@@ -151,58 +226,100 @@ def read_zmx(path: str | Path) -> Prescription:
         if not tok:
             continue
         op = tok[0].upper()
-        at = f"{where}:{lineno} ({op})"
-        if op == "MODE" and len(tok) > 1 and tok[1].upper() != "SEQ":
-            raise PrescriptionError(f"{at}: only sequential (MODE SEQ) files are supported, got {tok[1]!r}")
-        elif op == "UNIT" and len(tok) > 1 and tok[1].upper() != "MM":
-            raise PrescriptionError(f"{at}: lens units {tok[1]!r}; expected MM")
+        at = f"{where}: line {lineno}: {op}"
+
+        def arg(i=1, what="a value", tok=tok, at=at):
+            if len(tok) <= i:
+                raise PrescriptionError(f"{at}: expected {what}")
+            return tok[i]
+
+        def val(i=1, what="a value", infinite_ok=False, tok=tok, at=at):
+            v = _num(arg(i, what), at)
+            if math.isinf(v) and not infinite_ok:
+                raise PrescriptionError(f"{at}: expected a finite number, got {tok[i]!r}")
+            return v
+
+        def vals(what="one or more values", tok=tok, at=at):
+            if len(tok) < 2:
+                raise PrescriptionError(f"{at}: expected {what}")
+            return [val(i) for i in range(1, len(tok))]
+
+        if op == "MODE":
+            if arg(1, "a mode (SEQ)").upper() != "SEQ":
+                raise PrescriptionError(f"{at}: only sequential (MODE SEQ) files are supported, got {tok[1]!r}")
+        elif op == "UNIT":
+            u = arg(1, "the lens unit (MM, CM, IN or M)").upper()
+            if u not in LENS_UNITS_MM:
+                raise PrescriptionError(f"{at}: lens units {tok[1]!r}; expected one of {sorted(LENS_UNITS_MM)}")
+            unit = LENS_UNITS_MM[u]
         elif op == "NAME" and len(tok) > 1:
-            name = " ".join(tok[1:])
+            name = " ".join(line.split(None, 1)[1:]).strip()
         elif op == "ENPD":
-            epd = _num(tok[1], at)
+            apertures[op] = val(1, "the entrance-pupil diameter")
         elif op == "FLOA":
-            floa = True
-        elif op in ("FNUM", "OBNA", "OBSC"):
-            raise PrescriptionError(f"{at}: system aperture type {op} is not supported; expected ENPD or FLOA")
+            apertures[op] = None
+        elif op == "FNUM":
+            apertures[op] = val(1, "the F-number")
+            if len(tok) > 2 and _int(tok[2], at) != 0:
+                raise PrescriptionError(f"{at}: F-number type {tok[2]} is not supported; expected 0 (image-space "
+                                        f"F/#)")
+        elif op == "OBNA":
+            raise PrescriptionError(f"{at}: system aperture type {op} (object-space NA) is not supported for an "
+                                    f"object at infinity; expected ENPD, FLOA or FNUM")
         elif op == "GCAT":
+            arg(1, "one or more glass catalogue names")
             catalogs = tuple(t.upper() for t in tok[1:])
         elif op == "FTYP":
-            if len(tok) > 1 and int(tok[1]) != 0:
-                raise PrescriptionError(f"{at}: field type {tok[1]}; only angles (FTYP 0) are supported")
-            if len(tok) > 3:
-                nfields = int(tok[3])
-        elif op == "XFLN":
-            xf = [_num(t, at) for t in tok[1:]]
-        elif op == "YFLN":
-            yf = [_num(t, at) for t in tok[1:]]
-        elif op == "WAVM" and len(tok) >= 3:
-            waves[int(tok[1])] = _num(tok[2], at) * 1000.0
+            ftype = _int(arg(1, "the field type"), at)
+            if ftype != 0:
+                raise PrescriptionError(f"{at}: field type {ftype}; only angles (FTYP 0) are supported")
+            # FTYP type telecentric nfields nwaves normalisation ? afocal (older files: FTYP type telecentric)
+            flag = {i: _int(tok[i], at) for i in (2, 3, 4, 7) if i < len(tok)}
+            if flag.get(2, 0) != 0:
+                raise PrescriptionError(f"{at}: telecentric object space (second value {tok[2]}) is not "
+                                        f"supported; expected 0")
+            if flag.get(7, 0) != 0:
+                raise PrescriptionError(f"{at}: afocal image space (eighth value {tok[7]}) is not supported; "
+                                        f"expected 0")
+            nfields, nwaves = flag.get(3), flag.get(4)
+            for k, n in (("number of fields", nfields), ("number of wavelengths", nwaves)):
+                if n is not None and n < 1:
+                    raise PrescriptionError(f"{at}: {k} {n}; expected >= 1")
+        elif op in _FIELD_LINES:
+            fields[_FIELD_LINES[op]] = vals("one field angle per field")
+            line_at[op] = at
+        elif op in _VIGNETTING:
+            vignetting[op] = (vals("one value per field"), at)
+        elif op == "WAVM":
+            slot = _int(arg(1, "the wavelength number and value (um)"), at)
+            wavm[slot] = val(2, "the wavelength (um) after its number") * 1000.0
+            line_at["WAVM"] = at
+        elif op == "WAVL":
+            wavl = [w * 1000.0 for w in vals("one wavelength (um) per wavelength")]
+            line_at["WAVL"] = at
         elif op == "PWAV":
-            pwav = int(tok[1])
+            pwav, pwav_at = _int(arg(1, "the primary wavelength's number"), at), at
         elif op == "SURF":
             cur = Surface()
             surfaces.append(cur)
         elif cur is not None:
+            si = len(surfaces) - 1
             if op == "TYPE":
-                cur.kind = tok[1].upper()
+                cur.kind = arg(1, "a surface type").upper()
                 if cur.kind not in ("STANDARD", "EVENASPH"):
-                    raise PrescriptionError(f"{at}: surface {len(surfaces) - 1} has unsupported type {tok[1]!r}; "
-                                            f"expected STANDARD or EVENASPH")
+                    raise PrescriptionError(f"{at}: surface {si} has unsupported type {tok[1]!r}; expected "
+                                            f"STANDARD or EVENASPH")
             elif op == "CURV":
-                cur.curvature_per_mm = _num(tok[1], at)
+                cur.curvature_per_mm = val()
             elif op == "DISZ":
-                cur.thickness_mm = _num(tok[1], at)
+                cur.thickness_mm = val(infinite_ok=True)
             elif op == "CONI":
-                cur.conic = _num(tok[1], at)
+                cur.conic = val()
             elif op == "PARM":
-                k = int(tok[1])
-                v = _num(tok[2], at)
-                if cur.kind == "EVENASPH" and 1 <= k <= 8:
-                    a = list(cur.aspheric) + [0.0] * max(0, k - len(cur.aspheric))
-                    a[k - 1] = v
-                    cur.aspheric = tuple(a)
+                k = _int(arg(1, "the parameter number and value"), at)
+                parms.setdefault(si, {})[k] = (val(2, "the parameter value after its number"), at)
             elif op == "GLAS":
-                g = tok[1]
+                g = arg(1, "a glass name")
                 if g.upper() == "MIRROR":
                     raise PrescriptionError(f"{at}: mirrors are not supported (refractive lenses only)")
                 if g.startswith("___BLANK"):
@@ -210,92 +327,248 @@ def read_zmx(path: str | Path) -> Prescription:
                                             f"expected a catalogue glass name")
                 cur.material = None if g.upper() == "AIR" else g
             elif op == "DIAM":
-                cur.semi_diameter_mm = _num(tok[1], at)
+                cur.semi_diameter_mm = val(1, "the semi-diameter")
             elif op == "STOP":
                 cur.is_stop = True
             elif op == "CLAP":
-                cur.aperture_min_mm, cur.aperture_mm = _num(tok[1], at), _num(tok[2], at)
+                cur.aperture_min_mm = val(1, "the minimum and maximum radii")
+                cur.aperture_mm = val(2, "the maximum radius after the minimum")
+                floating.pop(si, None)
             elif op == "FLAP":
-                cur.aperture_mm = _num(tok[2], at) if len(tok) > 2 else cur.semi_diameter_mm
+                semi = val(2, "the semi-aperture (FLAP 0 semi)") if len(tok) > 2 else 0.0
+                cur.aperture_mm = semi
+                if semi <= 0:
+                    floating[si] = at
+                else:
+                    floating.pop(si, None)
             elif op in ("SQAP", "ELAP", "OBSC", "OBDC", "UDAP", "DECX", "DECY", "TILT"):
-                raise PrescriptionError(f"{at}: surface {len(surfaces) - 1}: operand {op} (non-circular or "
-                                        f"decentred apertures/surfaces) is not supported")
+                raise PrescriptionError(f"{at}: surface {si}: operand {op} (non-circular or decentred "
+                                        f"apertures/surfaces) is not supported")
     if not surfaces:
         raise PrescriptionError(f"{where}: no SURF blocks; expected a sequential Zemax lens file")
-    for s in surfaces:
-        if s.aperture_mm is not None and s.aperture_mm <= 0 and s.semi_diameter_mm:
-            s.aperture_mm = s.semi_diameter_mm  # FLAP with an automatic semi-diameter
-    fields = []
+    # FLAP with an automatic semi-aperture: OpticStudio's floating aperture is the surface's semi-diameter
+    for si, at in floating.items():
+        s = surfaces[si]
+        if not s.semi_diameter_mm or s.semi_diameter_mm <= 0:
+            raise PrescriptionError(f"{at}: surface {si}: floating aperture without a semi-aperture and no "
+                                    f"semi-diameter (DIAM) to take it from; expected FLAP 0 semi or a DIAM line")
+        s.aperture_mm = s.semi_diameter_mm
+    for si, ps in parms.items():  # PARM lines may come before or after TYPE: resolved here
+        if surfaces[si].kind == "EVENASPH":
+            for k, (v, at) in ps.items():
+                if not 1 <= k <= 8:
+                    if v != 0:
+                        raise PrescriptionError(f"{at}: surface {si}: even-asphere parameter {k}; expected 1..8")
+                    continue
+                a = list(surfaces[si].aspheric) + [0.0] * max(0, k - len(surfaces[si].aspheric))
+                a[k - 1] = v
+                surfaces[si].aspheric = tuple(a)
+    if len(apertures) > 1:
+        raise PrescriptionError(f"{where}: more than one system aperture {sorted(apertures)}; expected one of "
+                                f"ENPD, FLOA or FNUM")
+    epd = apertures.get("ENPD")
+    # --- lens units -> mm (lengths by L; curvature 1/L; even-asphere a_k of r^(2k) by L^(1 - 2k)) -------------
+    if unit != 1.0:
+        for s in surfaces:
+            s.curvature_per_mm /= unit
+            s.thickness_mm *= unit
+            s.semi_diameter_mm = None if s.semi_diameter_mm is None else s.semi_diameter_mm * unit
+            s.aperture_mm = None if s.aperture_mm is None else s.aperture_mm * unit
+            s.aperture_min_mm *= unit
+            s.aspheric = tuple(a * unit ** (1 - 2 * k) for k, a in enumerate(s.aspheric, 1))
+        epd = None if epd is None else epd * unit
+    if math.isfinite(surfaces[0].thickness_mm) and abs(surfaces[0].thickness_mm) >= INFINITE_OBJECT_MM:
+        surfaces[0].thickness_mm = math.inf  # changes paraxial data by ~ f / DISZ relative (module docstring)
+    # --- fields -------------------------------------------------------------------------------------------------
+    dialects = {d for d, _ in fields}
+    if len(dialects) > 1:
+        raise PrescriptionError(f"{where}: both the XFLN/YFLN and the older XFLD/YFLD field lines are present "
+                                f"({', '.join(sorted(line_at[k] for k in _FIELD_LINES if k in line_at))}); "
+                                f"expected one dialect")
+    xf = next((v for (d, ax), v in fields.items() if ax == "x"), [])
+    yf = next((v for (d, ax), v in fields.items() if ax == "y"), [])
+    if "old" in dialects and xf and yf and len(xf) != len(yf):
+        raise PrescriptionError(f"{line_at.get('YFLD')}: {len(yf)} field values but XFLD has {len(xf)}; the "
+                                f"number of fields is ambiguous")
     n = max(len(xf), len(yf))
     if nfields is not None and n:
-        n = min(n, nfields)
-    for i in range(n):
-        x = xf[i] if i < len(xf) else 0.0
-        y = yf[i] if i < len(yf) else 0.0
-        fields.append(math.hypot(x, y))
-    wl = tuple(waves[k] for k in sorted(waves)) or (587.6,)
-    primary = waves.get(pwav, wl[0])
+        if n < nfields:
+            raise PrescriptionError(f"{where}: FTYP declares {nfields} fields but the field lines hold {n}")
+        n = nfields
+    field_angles = tuple(math.hypot(xf[i] if i < len(xf) else 0.0, yf[i] if i < len(yf) else 0.0)
+                         for i in range(n))
+    for v, at in vignetting.values():
+        bad = [x for x in v[: n or None] if x != 0]
+        if bad:
+            raise PrescriptionError(f"{at}: nonzero vignetting factors {v[: n or None]} are not supported (rays "
+                                    f"fill the unvignetted entrance pupil; vignetting comes from the clear "
+                                    f"apertures); expected zeros")
+    # --- wavelengths --------------------------------------------------------------------------------------------
+    if wavm and wavl is not None:
+        raise PrescriptionError(f"{where}: both WAVM ({line_at['WAVM']}) and the older WAVL ({line_at['WAVL']}) "
+                                f"wavelength lines are present; expected one dialect")
+    if wavl is not None:
+        wl = wavl
+        if nwaves is not None:
+            if len(wl) < nwaves:
+                raise PrescriptionError(f"{line_at['WAVL']}: {len(wl)} wavelengths but FTYP declares {nwaves}")
+            wl = wl[:nwaves]
+    elif wavm:
+        slots = range(1, (nwaves if nwaves is not None else max(wavm)) + 1)
+        missing = [k for k in slots if k not in wavm]
+        if missing:
+            raise PrescriptionError(f"{line_at['WAVM']}: wavelength number(s) {missing} of {len(slots)} missing; "
+                                    f"expected WAVM 1..{len(slots)}")
+        wl = [wavm[k] for k in slots]
+    else:
+        wl = []
+    if wl:
+        if not 1 <= pwav <= len(wl):
+            raise PrescriptionError(f"{pwav_at or where}: primary wavelength number {pwav} is not one of the "
+                                    f"file's {len(wl)} wavelengths")
+        primary = wl[pwav - 1]
+    else:
+        if pwav != 1:
+            raise PrescriptionError(f"{pwav_at}: primary wavelength number {pwav} but the file has no "
+                                    f"wavelengths (WAVM or WAVL)")
+        wl, primary = [DEFAULT_PRIMARY_NM], DEFAULT_PRIMARY_NM
+    bad = [w for w in wl if not (math.isfinite(w) and w > 0)]
+    if bad:
+        raise PrescriptionError(f"{where}: wavelengths {bad} nm; expected finite values > 0 (um in the file)")
     kw = {"catalogs": catalogs} if catalogs else {}
-    return Prescription(surfaces=surfaces, entrance_pupil_diameter_mm=None if floa else epd, float_by_stop=floa,
-                        field_angles_deg=tuple(fields) or (0.0,), wavelengths_nm=wl, primary_wavelength_nm=primary,
-                        name=name, source=str(path), **kw)
+    try:
+        return Prescription(surfaces=surfaces, entrance_pupil_diameter_mm=epd, float_by_stop="FLOA" in apertures,
+                            image_f_number=apertures.get("FNUM"), field_angles_deg=field_angles or (0.0,),
+                            wavelengths_nm=tuple(wl), primary_wavelength_nm=primary, name=name, source=str(path),
+                            **kw)
+    except PrescriptionError as e:
+        raise PrescriptionError(f"{where}: {e}") from None
+
+
+_YAML_KEYS = ("name", "source", "aperture", "field_angles_deg", "wavelengths_nm", "primary_wavelength_nm", "catalogs",
+              "surfaces")
+_YAML_SURFACE_KEYS = ("radius_mm", "curvature_per_mm", "thickness_mm", "material", "conic", "aspheric",
+                      "semi_diameter_mm", "aperture_mm", "stop", "type")
+_YAML_APERTURE_KEYS = ("entrance_pupil_diameter_mm", "float_by_stop", "image_f_number")
+
+
+def _ynum(v, what: str) -> float:
+    """A YAML number (PyYAML reads ``1e-5`` without a dot as a string: numeric strings are accepted)."""
+    if not isinstance(v, bool) and isinstance(v, (int, float, str)):
+        try:
+            x = float(v)
+        except ValueError:
+            x = math.nan
+        if not math.isnan(x):
+            return x
+    raise PrescriptionError(f"{what}: expected a number, got {v!r}")
+
+
+def _ylist(v, what: str, item: str) -> list:
+    if not isinstance(v, (list, tuple)):
+        raise PrescriptionError(f"{what}: expected a list of {item}, got {v!r}")
+    return list(v)
+
+
+def _ymap(v, what: str, keys) -> dict:
+    if not isinstance(v, dict):
+        raise PrescriptionError(f"{what}: expected a mapping with keys from {list(keys)}, got {v!r}")
+    bad = [k for k in v if k not in keys]
+    if bad:
+        raise PrescriptionError(f"{what}: unknown keys {bad}; expected keys from {list(keys)}")
+    return v
+
+
+def _ybool(v, what: str) -> bool:
+    if not isinstance(v, bool):
+        raise PrescriptionError(f"{what}: expected true or false, got {v!r}")
+    return v
 
 
 def read_lens_yaml(path_or_dict) -> Prescription:
     """Read a lens prescription in the plain YAML form (a file path or an already-parsed dict).
 
-    The form::
+    The form (lengths in mm; the primary wavelength defaults to 587.6 nm)::
 
         name: Cooke triplet
         source: ...
-        aperture: {entrance_pupil_diameter_mm: 10}      # or {float_by_stop: true}
+        aperture: {entrance_pupil_diameter_mm: 10}      # or {float_by_stop: true} or {image_f_number: 5}
         field_angles_deg: [0, 14, 20]
         wavelengths_nm: [486.1, 587.6, 656.3]
+        primary_wavelength_nm: 587.6
         catalogs: [SCHOTT]
-        surfaces:            # lens surfaces in order (object at infinity and the image are implied)
+        surfaces:            # lens surfaces in order (object at infinity and the flat image are implied)
           - {radius_mm: 22.01359, thickness_mm: 3.25896, material: N-SK16, semi_diameter_mm: 5}
-          - {radius_mm: inf, thickness_mm: 5, stop: true, semi_diameter_mm: 4}
+          - {radius_mm: .inf, thickness_mm: 5, stop: true, semi_diameter_mm: 4}
           - {radius_mm: 20, conic: -1, aspheric: [0, 1e-5], thickness_mm: 40, aperture_mm: 6}
+
+    Raises:
+        PrescriptionError: invalid YAML, or an entry of the wrong kind (the message names the file and entry).
     """
     if isinstance(path_or_dict, dict):
         d, where = path_or_dict, "lens config"
     else:
         where = str(path_or_dict)
         with open(path_or_dict, encoding="utf-8") as fh:
-            d = yaml.safe_load(fh)
-    if not isinstance(d, dict) or not isinstance(d.get("surfaces"), list):
-        raise PrescriptionError(f"{where}: expected a mapping with a 'surfaces' list")
-    allowed = {"radius_mm", "curvature_per_mm", "thickness_mm", "material", "conic", "aspheric",
-               "semi_diameter_mm", "aperture_mm", "stop", "type"}
+            try:
+                d = yaml.safe_load(fh)
+            except yaml.YAMLError as e:
+                raise PrescriptionError(f"{where}: not valid YAML: {' '.join(str(e).split())}") from None
+    if not isinstance(d, dict) or "surfaces" not in d:
+        got = "a mapping without 'surfaces'" if isinstance(d, dict) else type(d).__name__
+        raise PrescriptionError(f"{where}: expected a mapping with a 'surfaces' list, got {got}")
+    _ymap(d, where, _YAML_KEYS)
+    rows = _ylist(d["surfaces"], f"{where}: surfaces", "surface mappings")
     surfaces = [Surface(thickness_mm=math.inf)]
-    for i, s in enumerate(d["surfaces"], 1):
-        bad = set(s) - allowed
-        if bad:
-            raise PrescriptionError(f"{where}: surface {i}: unknown keys {sorted(bad)}; expected {sorted(allowed)}")
+    for i, s in enumerate(rows, 1):
+        at = f"{where}: surface {i}"
+        _ymap(s, at, _YAML_SURFACE_KEYS)
+        if "radius_mm" in s and "curvature_per_mm" in s:
+            raise PrescriptionError(f"{at}: both radius_mm and curvature_per_mm; expected one")
         if "radius_mm" in s:
-            r = float(s["radius_mm"])
+            r = _ynum(s["radius_mm"], f"{at}: radius_mm")
             c = 0.0 if math.isinf(r) or r == 0 else 1.0 / r
         else:
-            c = float(s.get("curvature_per_mm", 0.0))
-        asph = tuple(float(a) for a in s.get("aspheric", ()))
+            c = _ynum(s.get("curvature_per_mm", 0.0), f"{at}: curvature_per_mm")
+        asph = tuple(_ynum(a, f"{at}: aspheric[{k}]")
+                     for k, a in enumerate(_ylist(s.get("aspheric", ()), f"{at}: aspheric", "coefficients")))
         mat = s.get("material")
-        surfaces.append(Surface(curvature_per_mm=c, thickness_mm=float(s.get("thickness_mm", 0.0)),
-                                material=None if mat in (None, "AIR", "air") else str(mat),
-                                conic=float(s.get("conic", 0.0)), aspheric=asph,
-                                semi_diameter_mm=s.get("semi_diameter_mm"), aperture_mm=s.get("aperture_mm"),
-                                is_stop=bool(s.get("stop", False)),
-                                kind=str(s.get("type", "EVENASPH" if asph else "STANDARD")).upper()))
+        if mat is not None and not isinstance(mat, str):
+            raise PrescriptionError(f"{at}: material: expected a glass name, got {mat!r}")
+        kind = s.get("type", "EVENASPH" if asph else "STANDARD")
+        if not isinstance(kind, str):
+            raise PrescriptionError(f"{at}: type: expected STANDARD or EVENASPH, got {kind!r}")
+        opt = {k: None if s.get(k) is None else _ynum(s[k], f"{at}: {k}")
+               for k in ("semi_diameter_mm", "aperture_mm")}
+        t = _ynum(s.get("thickness_mm", 0.0), f"{at}: thickness_mm")
+        surfaces.append(Surface(curvature_per_mm=c, thickness_mm=t,
+                                material=None if mat in (None, "AIR", "air") else mat,
+                                conic=_ynum(s.get("conic", 0.0), f"{at}: conic"), aspheric=asph,
+                                is_stop=_ybool(s.get("stop", False), f"{at}: stop"), kind=kind.upper(), **opt))
     surfaces.append(Surface())
-    ap = d.get("aperture", {})
+    ap = _ymap(d.get("aperture", {}), f"{where}: aperture", _YAML_APERTURE_KEYS)
     kw = {}
     if "catalogs" in d:
-        kw["catalogs"] = tuple(str(c).upper() for c in d["catalogs"])
-    wl = tuple(float(w) for w in d.get("wavelengths_nm", (486.1, 587.6, 656.3)))
-    return Prescription(surfaces=surfaces, entrance_pupil_diameter_mm=ap.get("entrance_pupil_diameter_mm"),
-                        float_by_stop=bool(ap.get("float_by_stop", False)),
-                        field_angles_deg=tuple(float(f) for f in d.get("field_angles_deg", (0.0,))),
-                        wavelengths_nm=wl, primary_wavelength_nm=float(d.get("primary_wavelength_nm", 587.6)),
-                        name=str(d.get("name", where)), source=str(d.get("source", "")), **kw)
+        cats = _ylist(d["catalogs"], f"{where}: catalogs", "catalogue names")
+        if not all(isinstance(c, str) for c in cats):
+            raise PrescriptionError(f"{where}: catalogs: expected catalogue names, got {cats!r}")
+        kw["catalogs"] = tuple(c.upper() for c in cats)
+    wl = tuple(_ynum(w, f"{where}: wavelengths_nm[{k}]") for k, w in enumerate(
+        _ylist(d.get("wavelengths_nm", (486.1, 587.6, 656.3)), f"{where}: wavelengths_nm", "wavelengths (nm)")))
+    fields = tuple(_ynum(f, f"{where}: field_angles_deg[{k}]") for k, f in enumerate(
+        _ylist(d.get("field_angles_deg", (0.0,)), f"{where}: field_angles_deg", "angles (deg)")))
+    epd, fno = (None if ap.get(k) is None else _ynum(ap[k], f"{where}: aperture: {k}")
+                for k in ("entrance_pupil_diameter_mm", "image_f_number"))
+    name = str(d.get("name", where))
+    try:
+        return Prescription(surfaces=surfaces, entrance_pupil_diameter_mm=epd, image_f_number=fno,
+                            float_by_stop=_ybool(ap.get("float_by_stop", False), f"{where}: aperture: float_by_stop"),
+                            field_angles_deg=fields, wavelengths_nm=wl,
+                            primary_wavelength_nm=_ynum(d.get("primary_wavelength_nm", DEFAULT_PRIMARY_NM),
+                                                        f"{where}: primary_wavelength_nm"),
+                            name=name, source=str(d.get("source", "")), **kw)
+    except PrescriptionError as e:
+        raise PrescriptionError(str(e) if name == where else f"{where}: {e}") from None
 
 
 def bundled_lenses() -> list[str]:

@@ -106,6 +106,12 @@ class LensGeometry:
         if self.prescription.float_by_stop:
             # float by stop size: DIAM of the stop is a semi-diameter (Zemax); EPD = 2 semi / (stop/EP height)
             epd = 2 * self.prescription.surfaces[self.stop + 1].semi_diameter_mm / a.abs()
+        elif self.prescription.image_f_number is not None:
+            # image-space F/# (OpticStudio's FNUM aperture): EPD = EFL / F# with the EFL at the primary wavelength,
+            # the same pupil for every wavelength
+            primary = self.prescription.primary_wavelength_nm
+            efl_p = efl if float(wavelength_nm) == float(primary) else self.paraxial(primary)["efl"]
+            epd = efl_p.abs() / self.prescription.image_f_number
         else:
             epd = self.prescription.entrance_pupil_diameter_mm * one
         yc, uc = self._paraxial_trace(-ep_z, one, n)

@@ -306,3 +306,135 @@ def test_wide_angle_100_deg_against_optiland_without_ray_aiming():
     assert float(a.distortion_percent(1.0, 587.6)) < -50
     assert float(a.relative_illumination(0.5, 587.6, 128)) == pytest.approx(_optiland_ri(o, 0.5, 587.6), abs=0.01)
     np.testing.assert_array_less(0, float(a.relative_illumination(1.0, 587.6, 64)))
+
+
+# --- primary wavelength, units, FNUM, far object, negative air gap, glass ranges (the audit of the reader) --------
+
+# Schott N-BK7 data sheet: Sellmeier coefficients (C in um^2)
+_NBK7_B = (1.03961212, 0.231792344, 1.01046945)
+_NBK7_C = (0.00600069867, 0.0200179144, 103.560653)
+
+
+def _n_bk7(wavelength_nm):
+    l2 = (wavelength_nm / 1000.0) ** 2
+    return math.sqrt(1 + sum(b * l2 / (l2 - c) for b, c in zip(_NBK7_B, _NBK7_C)))
+
+
+def _thick_lens(n, r1, r2, t):
+    """EFL and back focal distance of a thick lens in air (Hecht, Optics, 5th ed., eq. 6.2):
+    1/f = (n-1) (1/R1 - 1/R2 + (n-1) t / (n R1 R2)); BFD = f (1 - (n-1) t / (n R1))."""
+    f = 1.0 / ((n - 1) * (1 / r1 - 1 / r2 + (n - 1) * t / (n * r1 * r2)))
+    return f, f * (1 - (n - 1) * t / (n * r1))
+
+
+def _zmx_singlet(tmp_path, header, r1=50.0, r2=-80.0, t=6.0, obj="INFINITY", name="s.zmx", back="DISZ 60"):
+    lines = ["MODE SEQ", "UNIT MM", "GCAT SCHOTT", *header, "SURF 0", f"  DISZ {obj}", "SURF 1", "  STOP",
+             f"  CURV {1 / r1!r}", f"  DISZ {t!r}", "  GLAS N-BK7", "SURF 2", f"  CURV {1 / r2!r}", f"  {back}",
+             "SURF 3"]
+    f = tmp_path / name
+    f.write_text("\n".join(lines))
+    return f
+
+
+def test_paraxial_data_at_the_files_primary_wavelength(tmp_path):
+    f = _zmx_singlet(tmp_path, ["ENPD 8", "FTYP 0 0 2 3 0 0 0", "XFLN 0 0", "YFLN 0 5", "WAVM 1 0.4861327 1",
+                                "WAVM 2 0.55 1", "WAVM 3 0.6562725 1", "PWAV 2"])
+    a = LensAnalysis(f)
+    assert a.reference_wavelength_nm == pytest.approx(550.0, rel=1e-12)
+    n = _n_bk7(550.0)
+    assert refractive_index("N-BK7", 550.0, ("SCHOTT",)) == pytest.approx(n, rel=1e-12)
+    efl, bfd = _thick_lens(n, 50.0, -80.0, 6.0)
+    assert float(a.effective_focal_length_mm) == pytest.approx(efl, rel=1e-10)
+    assert float(a.f_number) == pytest.approx(efl / 8.0, rel=1e-10)
+    assert float(a.ref["bfl"]) == pytest.approx(bfd, rel=1e-10)
+    # the same lens at the d line is ~0.2 mm longer: the test tells the two apart
+    assert abs(_thick_lens(_n_bk7(587.6), 50.0, -80.0, 6.0)[0] - efl) > 1e3 * 1e-10 * efl
+    # the image plane of distortion and MTF is the primary wavelength's focus
+    assert float(a.sensor_z) == pytest.approx(6.0 + bfd, rel=1e-10)
+
+
+def test_bundled_zemax_lenses_report_at_their_primary_wavelength():
+    a = LensAnalysis("cooke_triplet")
+    assert a.reference_wavelength_nm == pytest.approx(587.5618, rel=1e-12)  # WAVM 2 0.5875618, PWAV 2
+    assert LensAnalysis("aspheric_singlet").reference_wavelength_nm == 587.6  # YAML without a primary: 587.6
+
+
+def _units_lines(mm_per_unit, unit):
+    L = mm_per_unit
+    a = (1e-4, -2e-6, 3e-9)  # even-asphere a_k of r^(2k), mm^(1-2k)
+    return [f"UNIT {unit}", f"ENPD {10 / L!r}", "YFLN 0 5 8", "WAVM 1 0.5875618 1", "GCAT SCHOTT",
+            "SURF 0", "  DISZ INFINITY", "SURF 1", "  STOP", "  TYPE EVENASPH", f"  CURV {0.02 * L!r}",
+            "  CONI -0.5", *[f"  PARM {k} {ak * L ** (2 * k - 1)!r}" for k, ak in enumerate(a, 1)],
+            f"  DISZ {6 / L!r}", "  GLAS N-BK7", "SURF 2", f"  CURV {-1 / 80 * L!r}", f"  DISZ {60 / L!r}", "SURF 3"]
+
+
+@pytest.mark.parametrize("unit,mm", [("IN", 25.4), ("CM", 10.0)])
+def test_same_lens_in_inches_or_cm_gives_the_same_efl_and_rays(tmp_path, unit, mm):
+    ref, other = tmp_path / "mm.zmx", tmp_path / "u.zmx"
+    ref.write_text("\n".join(_units_lines(1.0, "MM")))
+    other.write_text("\n".join(_units_lines(mm, unit)))
+    a, b = LensAnalysis(ref), LensAnalysis(other)
+    assert float(b.effective_focal_length_mm) == pytest.approx(float(a.effective_focal_length_mm), rel=1e-12)
+    assert float(b.ref["epd"]) == pytest.approx(10.0, rel=1e-12)
+    # real rays through the r^4, r^6 terms: the chief ray's image height at the edge of the field, mm in both
+    assert float(b.image_height_mm(1.0, 587.5618)) == pytest.approx(float(a.image_height_mm(1.0, 587.5618)),
+                                                                    rel=1e-10)
+
+
+def test_fnum_aperture_gives_epd_efl_over_fnum(tmp_path):
+    a = LensAnalysis(_zmx_singlet(tmp_path, ["FNUM 5 0", "YFLN 0 5", "WAVM 1 0.5875618 1"]))
+    efl, _ = _thick_lens(_n_bk7(587.5618), 50.0, -80.0, 6.0)
+    assert float(a.f_number) == pytest.approx(5.0, rel=1e-12)
+    assert float(a.ref["epd"]) == pytest.approx(efl / 5.0, rel=1e-10)
+    assert float(a.paraxial(486.1327)["epd"]) == pytest.approx(efl / 5.0, rel=1e-10)  # one pupil, all wavelengths
+
+
+def test_far_object_distance_is_infinity(tmp_path):
+    a = LensAnalysis(_zmx_singlet(tmp_path, ["ENPD 8", "WAVM 1 0.5875618 1"], obj="1.0E+10"))
+    efl, _ = _thick_lens(_n_bk7(587.5618), 50.0, -80.0, 6.0)
+    assert float(a.effective_focal_length_mm) == pytest.approx(efl, rel=1e-10)
+
+
+def test_negative_air_gap_keeps_the_efl(tmp_path):
+    # a virtual stop 3 mm in front of the rear vertex (negative air gap after the lens): the EFL is the lens's,
+    # the back focal length is measured from the stop plane (3 mm nearer the lens than the rear vertex)
+    f = _zmx_singlet(tmp_path, ["ENPD 8", "WAVM 1 0.5875618 1"], back="DISZ -3")
+    text = f.read_text().replace("SURF 1\n  STOP", "SURF 1").replace("SURF 3", "SURF 3\n  STOP\n  DISZ 63\nSURF 4")
+    f.write_text(text)
+    a = LensAnalysis(f)
+    assert a.prescription.surfaces[2].thickness_mm == -3.0 and a.prescription.stop_index == 3
+    efl, bfd = _thick_lens(_n_bk7(587.5618), 50.0, -80.0, 6.0)
+    assert float(a.effective_focal_length_mm) == pytest.approx(efl, rel=1e-10)
+    assert float(a.ref["bfl"]) == pytest.approx(bfd + 3.0, rel=1e-10)
+
+
+def test_glass_wavelength_range_from_the_catalogue():
+    from isettorch.optics.lens.glass import valid_range_nm
+
+    # Schott data sheets tabulate N-BK7's index from 312.5668 nm to 2325.42 nm; N-SF11's from the h line (404.6561
+    # nm, no i-line index); CDGM's sheet from the i line (365.0146 nm) to the t line (1013.98 nm). The valid range is
+    # that span widened by 10 % at each end (what SCHOTT's stated formula range for N-SF11, 370-2500 nm, exceeds the
+    # tabulated lines by), rounded outwards to 0.1 nm
+    def widened(lo, hi):
+        return math.floor(lo * 0.9 * 10) / 10, math.ceil(hi * 1.1 * 10) / 10
+
+    assert valid_range_nm("N-BK7", ("SCHOTT",)) == widened(312.5668, 2325.42) == (281.3, 2558.0)
+    assert valid_range_nm("N-SF11", ("SCHOTT",)) == widened(404.6561, 2325.42) == (364.1, 2558.0)
+    assert valid_range_nm("H-K9L", ("CDGM",)) == widened(365.0146, 1013.98) == (328.5, 1115.4)
+    with pytest.raises(GlassError, match=r"'N-BK7' \(Schott catalogue\): 5000 nm is outside its valid range "
+                                         r"281.3-2558 nm"):
+        refractive_index("N-BK7", 5000.0, ("SCHOTT",))
+    with pytest.raises(GlassError, match="N-SF11.*350 nm is outside"):
+        LensAnalysis("aspheric_singlet").paraxial(350.0)
+    # a camera's visible bands through the dense flint stay valid (SCHOTT's formula range reaches 370 nm)
+    assert float(LensAnalysis("aspheric_singlet").paraxial(380.0)["efl"]) > 0
+    assert refractive_index("N-BK7", 2325.4, ("SCHOTT",)) == pytest.approx(1.48921, abs=2e-5)  # data sheet n
+
+
+def test_fallback_material_range_is_its_datas():
+    pytest.importorskip("optiland")
+    # optiland's PMMA (refractiveindex.info, Sultanova et al.) is measured from 436.8 nm to 1052 nm: valid over that
+    # span widened by 10 % (393.1-1157.2 nm), so a camera's 400 nm band passes and 380 nm does not
+    assert refractive_index("PMMA", 400.0, ("SCHOTT", "MISC")) == pytest.approx(1.50, abs=0.02)
+    with pytest.raises(GlassError, match=r"'PMMA' \(optiland material database\): 380 nm .*393.1-1157.2 nm"):
+        refractive_index("PMMA", 380.0, ("SCHOTT", "MISC"))

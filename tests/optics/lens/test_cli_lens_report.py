@@ -33,3 +33,36 @@ def test_lens_report_bad_input(capsys, tmp_path):
     assert "NOPE-42" in capsys.readouterr().err
     assert main(["lens-report", "cooke_triplet", "--fields", "0,1.2", "--json"]) == 2
     assert "beyond the lens" in capsys.readouterr().err
+    truncated = tmp_path / "truncated.zmx"
+    truncated.write_text("ENPD 10\nSURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\n  CURV\nSURF 2\n")
+    fast = ["--fields", "0", "--wavelengths-nm", "587.6", "--frequencies-cy-mm", "20"]
+    # each: one line on stderr naming the argument (as isettorch.cli shows it), exit code 2, no traceback
+    cases = [(["--pupil-samples", "0"], "--pupil-samples"), (["--pupil-samples", "-4"], "--pupil-samples"),
+             (["--pupil-samples", "1"], "--pupil-samples"), (["--pupil-samples", "15"], "--pupil-samples"),
+             (["--pupil-samples", "100000"], "--pupil-samples"),
+             (["--wavelengths-nm", "0"], "--wavelengths-nm"), (["--wavelengths-nm", "-550"], "--wavelengths-nm"),
+             (["--wavelengths-nm", "nan"], "--wavelengths-nm"), (["--wavelengths-nm", "inf"], "--wavelengths-nm"),
+             (["--wavelengths-nm", "5000"], "outside its valid range"),
+             (["--frequencies-cy-mm", "-1"], "--frequencies-cy-mm"),
+             (["--frequencies-cy-mm", "nan"], "--frequencies-cy-mm"),
+             (["--frequencies-cy-mm", "inf"], "--frequencies-cy-mm"),
+             (["--fields", "-0.1"], "--fields"), (["--fields", "nan"], "--fields")]
+    for args, named in cases:
+        opts = dict(zip(fast[::2], fast[1::2]))
+        opts.update(dict(zip(args[::2], args[1::2])))
+        argv = ["lens-report", "cooke_triplet", *[x for kv in opts.items() for x in kv], "--json"]
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and len(err.splitlines()) == 1, (argv, err)
+        assert err.startswith("isettorch lens-report: ") and named in err, (argv, err)
+    assert main(["lens-report", str(truncated), "--json"]) == 2
+    assert "truncated.zmx: line 6: CURV: expected a value" in capsys.readouterr().err
+
+
+def test_lens_report_defaults_to_the_files_wavelengths(capsys, tmp_path):
+    f = tmp_path / "two.yaml"
+    f.write_text("aperture: {entrance_pupil_diameter_mm: 4}\ncatalogs: [SCHOTT]\nwavelengths_nm: [500, 600]\n"
+                 "surfaces:\n  - {radius_mm: 20, thickness_mm: 3, material: N-BK7, stop: true}\n"
+                 "  - {radius_mm: -20, thickness_mm: 20}\n")
+    assert main(["lens-report", str(f), "--fields", "0", "--pupil-samples", "16", "--json"]) == 0
+    assert [r["wavelength_nm"] for r in json.loads(capsys.readouterr().out)["rows"]] == [500.0, 600.0]

@@ -70,8 +70,14 @@ def test_unsupported_surface_content_named(tmp_path, line, match):
         read_zmx(_zmx(tmp_path, [line]))
 
 
-@pytest.mark.parametrize("line,match", [("MODE NSC", "sequential"), ("UNIT IN", "IN"), ("FTYP 1 0 2", "field type"),
-                                        ("FNUM 4 0", "FNUM")])
+@pytest.mark.parametrize("line,match", [("MODE NSC", "sequential"), ("UNIT FT", "lens units 'FT'"),
+                                        ("FTYP 1 0 2", "field type"), ("FNUM 4 1", "FNUM: F-number type 1"),
+                                        ("OBNA 0.1 0", "OBNA"), ("FNUM 4 0", "more than one system aperture"),
+                                        ("FTYP 0 1 2 1 0 0 0", "FTYP: telecentric object space"),
+                                        ("FTYP 0 0 2 1 0 0 1", "FTYP: afocal image space"),
+                                        ("VDYN 0 0.1", "VDYN: nonzero vignetting"),
+                                        ("VCXN 0.2 0", "VCXN: nonzero vignetting"),
+                                        ("VANN 0 5", "VANN: nonzero vignetting")])
 def test_unsupported_system_settings_named(tmp_path, line, match):
     with pytest.raises(PrescriptionError, match=match):
         read_zmx(_zmx(tmp_path, header=[line]))
@@ -86,3 +92,212 @@ def test_yaml_errors_named():
         read_lens_yaml({"surfaces": [{"radius_mm": 3, "stop": True}]})
     with pytest.raises(FileNotFoundError, match="no_such_lens"):
         load_lens("no_such_lens")
+
+
+# --- dialects, truncated operands, geometry checks, units (the audit of the lens reader) ------------------------
+
+_SINGLET_SURFACES = ["SURF 0", "  DISZ INFINITY", "SURF 1", "  STOP", "  CURV 0.02", "  DISZ 5", "  GLAS N-BK7",
+                     "  DIAM 8", "SURF 2", "  CURV -0.02", "  DISZ 47", "SURF 3"]
+
+
+def _file(tmp_path, lines, name="t.zmx"):
+    f = tmp_path / name
+    f.write_text("\n".join(lines))
+    return f
+
+
+def test_old_dialect_fields_and_wavelengths_read_like_the_new(tmp_path):
+    old = read_zmx(_file(tmp_path, ["MODE SEQ", "UNIT MM NW NWC", "ENPD 10", "FTYP 0 0", "XFLD 0 0 0",
+                                    "YFLD 0 5 10", "WAVL 4.861327E-001 5.875618E-001 6.562725E-001", "WWGT 1 1 1",
+                                    "PWAV 2", *_SINGLET_SURFACES], "old.zmx"))
+    new = read_zmx(_file(tmp_path, ["MODE SEQ", "UNIT MM", "ENPD 10", "FTYP 0 0 3 3 0 0 0", "XFLN 0 0 0",
+                                    "YFLN 0 5 10", "WAVM 1 0.4861327 1", "WAVM 2 0.5875618 1",
+                                    "WAVM 3 0.6562725 1", "PWAV 2", *_SINGLET_SURFACES], "new.zmx"))
+    for p in (old, new):
+        assert p.field_angles_deg == (0.0, 5.0, 10.0) and p.max_field_deg == 10.0
+        assert p.wavelengths_nm == pytest.approx((486.1327, 587.5618, 656.2725), rel=1e-12)
+        assert p.primary_wavelength_nm == pytest.approx(587.5618, rel=1e-12)
+    # old dialect, x and y: radial angles hypot(x, y)
+    p = read_zmx(_file(tmp_path, ["ENPD 10", "XFLD 0 3", "YFLD 0 4", *_SINGLET_SURFACES]))
+    assert p.field_angles_deg == (0.0, 5.0)
+
+
+def test_wavm_slots_beyond_ftyp_count_are_inactive(tmp_path):
+    # OpticStudio writes 24 WAVM slots (0.55 um in the unused ones); FTYP's fourth value says how many are in use
+    slots = ["WAVM 1 0.4861327 1", "WAVM 2 0.5875618 1"] + [f"WAVM {k} 0.55 1" for k in range(3, 25)]
+    p = read_zmx(_file(tmp_path, ["ENPD 10", "FTYP 0 0 2 2 0 0 0", "YFLN 0 5 0 0 0 0 0 0 0 0 0 0", *slots,
+                                  "PWAV 1", *_SINGLET_SURFACES]))
+    assert p.wavelengths_nm == pytest.approx((486.1327, 587.5618), rel=1e-12)
+    assert p.primary_wavelength_nm == pytest.approx(486.1327, rel=1e-12) and p.field_angles_deg == (0.0, 5.0)
+    with pytest.raises(PrescriptionError, match=r"line 27: PWAV: primary wavelength number 3 is not one of .* 2"):
+        read_zmx(_file(tmp_path, ["ENPD 10", "FTYP 0 0 2 2 0 0 0", *slots, "PWAV 3", *_SINGLET_SURFACES]))
+
+
+@pytest.mark.parametrize("lines,match", [
+    (["XFLD 0 0 0", "YFLD 0 5"], "YFLD: 2 field values but XFLD has 3"),
+    (["XFLN 0 0", "YFLD 0 5"], "both the XFLN/YFLN and the older XFLD/YFLD"),
+    (["WAVL 0.5 0.6", "WAVM 1 0.5 1"], "both WAVM .* and the older WAVL"),
+    (["FTYP 0 0 3 1", "YFLN 0 5"], "FTYP declares 3 fields but the field lines hold 2"),
+])
+def test_ambiguous_field_and_wavelength_lines_refused(tmp_path, lines, match):
+    with pytest.raises(PrescriptionError, match=match):
+        read_zmx(_file(tmp_path, ["ENPD 10", *lines, *_SINGLET_SURFACES]))
+
+
+@pytest.mark.parametrize("header,surface_line,op,what", [
+    ("ENPD", None, "ENPD", "expected the entrance-pupil diameter"), ("FNUM", None, "FNUM", "expected the F-number"),
+    ("UNIT", None, "UNIT", "expected the lens unit"), ("MODE", None, "MODE", "expected a mode"),
+    ("GCAT", None, "GCAT", "expected one or more glass catalogue names"),
+    ("FTYP", None, "FTYP", "expected the field type"), ("FTYP 0 x", None, "FTYP", "expected an integer, got 'x'"),
+    ("YFLN", None, "YFLN", "expected one field angle per field"), ("WAVM 1", None, "WAVM", "expected the wavelength"),
+    ("WAVL", None, "WAVL", "expected one wavelength"), ("PWAV", None, "PWAV", "expected the primary"),
+    ("VDYN", None, "VDYN", "expected one value per field"),
+    (None, "CURV", "CURV", "expected a value"), (None, "CURV abc", "CURV", "expected a number, got 'abc'"),
+    (None, "CURV nan", "CURV", "expected a number, got 'nan'"), (None, "DISZ", "DISZ", "expected a value"),
+    (None, "CONI", "CONI", "expected a value"), (None, "GLAS", "GLAS", "expected a glass name"),
+    (None, "PARM", "PARM", "expected the parameter number"), (None, "PARM 2", "PARM", "expected the parameter value"),
+    (None, "DIAM", "DIAM", "expected the semi-diameter"), (None, "CLAP 0", "CLAP", "expected the maximum radius"),
+    (None, "FLAP 0", "FLAP", "surface 2: floating aperture without a semi-aperture"),
+    (None, "TYPE", "TYPE", "expected a surface type"),
+])
+def test_truncated_operand_names_line_and_keyword(tmp_path, header, surface_line, op, what):
+    lines = ["MODE SEQ", "ENPD 10" if header not in ("ENPD", "FNUM") else header, "YFLN 0 5",
+             *([header] if header not in (None, "ENPD", "FNUM") else []), *_SINGLET_SURFACES]
+    if surface_line is not None:
+        lines.insert(lines.index("SURF 2") + 1, "  " + surface_line)
+    lineno = next(i for i, t in enumerate(lines, 1) if t.split() and t.split()[0] == op and
+                  (t.strip() == (header or surface_line) or t.strip() == surface_line))
+    with pytest.raises(PrescriptionError, match=rf"t\.zmx: line {lineno}: {op}: {what}"):
+        read_zmx(_file(tmp_path, lines))
+
+
+@pytest.mark.parametrize("stop_surface,where", [(0, "object"), (3, "image")])
+def test_stop_on_object_or_image_refused(tmp_path, stop_surface, where):
+    lines = [t for t in _SINGLET_SURFACES if t.strip() != "STOP"]
+    lines.insert(lines.index(f"SURF {stop_surface}") + 1, "  STOP")
+    with pytest.raises(PrescriptionError, match=f"STOP on the {where} surface .*strictly between"):
+        read_zmx(_file(tmp_path, ["ENPD 10", *lines]))
+
+
+def test_negative_thickness_only_in_air(tmp_path):
+    glass = [t.replace("DISZ 5", "DISZ -5") for t in _SINGLET_SURFACES]
+    with pytest.raises(PrescriptionError, match="surface 1: negative thickness -5.0 mm inside glass 'N-BK7'"):
+        read_zmx(_file(tmp_path, ["ENPD 10", *glass]))
+    with pytest.raises(PrescriptionError, match="surface 1: negative thickness .* inside glass"):
+        read_lens_yaml({"aperture": {"entrance_pupil_diameter_mm": 4},
+                        "surfaces": [{"radius_mm": 50, "thickness_mm": -5, "material": "N-BK7", "stop": True},
+                                     {"radius_mm": -50, "thickness_mm": 47}]})
+    air = [t.replace("DISZ 47", "DISZ -2") for t in _SINGLET_SURFACES] + ["  DISZ 0"]
+    assert read_zmx(_file(tmp_path, ["ENPD 10", *air])).surfaces[2].thickness_mm == -2.0  # negative air gap: allowed
+
+
+def test_curved_image_refused_flat_accepted(tmp_path):
+    curved = _SINGLET_SURFACES + ["  CURV -0.02"]
+    with pytest.raises(PrescriptionError, match="image surface 3: curvature -0.02 .*CURV.*flat"):
+        read_zmx(_file(tmp_path, ["ENPD 10", *curved]))
+    assert read_zmx(_file(tmp_path, ["ENPD 10", *_SINGLET_SURFACES, "  CURV 0.0"])).surfaces[3].curvature_per_mm == 0
+
+
+def test_zero_vignetting_factors_and_ftyp_flags_accepted(tmp_path):
+    p = read_zmx(_file(tmp_path, ["ENPD 10", "FTYP 0 0 2 1 0 0 0", "XFLN 0 0 0 0", "YFLN 0 5 0 0",
+                                  "VDXN 0 0 0 0", "VDYN 0 0 0 0", "VCXN 0 0 0 0", "VCYN 0 0 0 0", "VANN 0 0 0 0",
+                                  *_SINGLET_SURFACES]))
+    assert p.field_angles_deg == (0.0, 5.0)
+    # nonzero values in the inactive slots beyond FTYP's field count are not the lens's
+    p = read_zmx(_file(tmp_path, ["ENPD 10", "FTYP 0 0 2 1", "YFLN 0 5 7", "VDYN 0 0 0.3", *_SINGLET_SURFACES]))
+    assert p.field_angles_deg == (0.0, 5.0)
+
+
+def test_far_object_is_infinity_nearer_is_refused(tmp_path):
+    far = [t.replace("DISZ INFINITY", "DISZ 1.0E+10") for t in _SINGLET_SURFACES]
+    assert math.isinf(read_zmx(_file(tmp_path, ["ENPD 10", *far])).surfaces[0].thickness_mm)
+    near = [t.replace("DISZ INFINITY", "DISZ 1.0E+8") for t in _SINGLET_SURFACES]
+    with pytest.raises(PrescriptionError, match="only objects at infinity"):
+        read_zmx(_file(tmp_path, ["ENPD 10", *near]))
+
+
+def _asphere_lines(mm_per_unit, unit):
+    """A conic + even-asphere singlet with clear apertures, written in ``unit`` (``mm_per_unit`` mm each): lengths
+    divided by it, CURV multiplied, the r^(2k) coefficient a_k (length^(1-2k)) multiplied by L^(2k-1)."""
+    L = mm_per_unit
+    a = (1e-4, -2e-6, 3e-9)
+    return [f"UNIT {unit} X W X CM MR CPMM", f"ENPD {10 / L!r}", "YFLN 0 5 8", "WAVM 1 0.5875618 1",
+            "SURF 0", "  DISZ INFINITY", "SURF 1", "  STOP", "  TYPE EVENASPH", f"  CURV {0.02 * L!r}",
+            "  CONI -0.5", *[f"  PARM {k} {ak * L ** (2 * k - 1)!r}" for k, ak in enumerate(a, 1)],
+            f"  DISZ {6 / L!r}", "  GLAS N-BK7", f"  DIAM {9 / L!r}", f"  CLAP 0 {8.5 / L!r} 0",
+            "SURF 2", f"  CURV {-1 / 80 * L!r}", f"  DISZ {60 / L!r}", f"  FLAP 0 {9 / L!r} 0", "SURF 3"]
+
+
+@pytest.mark.parametrize("unit,mm", [("CM", 10.0), ("IN", 25.4), ("M", 1000.0)])
+def test_lens_units_converted_to_mm(tmp_path, unit, mm):
+    ref = read_zmx(_file(tmp_path, _asphere_lines(1.0, "MM"), "mm.zmx"))
+    p = read_zmx(_file(tmp_path, _asphere_lines(mm, unit), f"{unit}.zmx"))
+    assert p.entrance_pupil_diameter_mm == pytest.approx(10.0, rel=1e-12)
+    for s, r in zip(p.surfaces, ref.surfaces, strict=True):
+        assert s.curvature_per_mm == pytest.approx(r.curvature_per_mm, rel=1e-12)
+        assert s.thickness_mm == pytest.approx(r.thickness_mm, rel=1e-12)
+        assert s.aspheric == pytest.approx(r.aspheric, rel=1e-12)
+        for k in ("semi_diameter_mm", "aperture_mm", "aperture_min_mm"):
+            if getattr(r, k) is None:
+                assert getattr(s, k) is None
+            else:
+                assert getattr(s, k) == pytest.approx(getattr(r, k), rel=1e-12)
+    assert ref.surfaces[1].aspheric == (1e-4, -2e-6, 3e-9) and ref.surfaces[1].aperture_mm == 8.5
+
+
+def test_flap_takes_the_semi_diameter_in_any_order(tmp_path):
+    lines = _SINGLET_SURFACES[:-1] + ["  FLAP 0 0 0", "  DIAM 7.5", "SURF 3"]
+    assert read_zmx(_file(tmp_path, ["ENPD 10", *lines])).surfaces[2].aperture_mm == 7.5
+    with pytest.raises(PrescriptionError, match="FLAP: surface 2: floating aperture .* no semi-diameter"):
+        read_zmx(_file(tmp_path, ["ENPD 10", *_SINGLET_SURFACES[:-1], "  FLAP 0 0 0", "SURF 3"]))
+
+
+def test_fnum_aperture_read(tmp_path):
+    p = read_zmx(_file(tmp_path, ["FNUM 5 0", *_SINGLET_SURFACES]))
+    assert p.image_f_number == 5.0 and p.entrance_pupil_diameter_mm is None and not p.float_by_stop
+
+
+_YAML_SINGLET = ("aperture: {entrance_pupil_diameter_mm: 10}\nfield_angles_deg: [0, 5]\ncatalogs: [SCHOTT]\n"
+                 "surfaces:\n  - {radius_mm: 50, thickness_mm: 5, material: N-BK7, stop: true}\n"
+                 "  - {radius_mm: -50, thickness_mm: 47}\n")
+
+
+@pytest.mark.parametrize("text,match", [
+    ("name: bad\nsurfaces: [\n  - {radius_mm: 50\n", "bad.yaml: not valid YAML"),
+    ("- just\n- a list\n", "bad.yaml: expected a mapping with a 'surfaces' list, got list"),
+    ("name: no surfaces\n", "bad.yaml: expected a mapping with a 'surfaces' list"),
+    (_YAML_SINGLET.replace("{entrance_pupil_diameter_mm: 10}", "10"), r"bad.yaml: aperture: expected a mapping"),
+    (_YAML_SINGLET.replace("{entrance_pupil_diameter_mm: 10}", "{epd: 10}"), r"aperture: unknown keys \['epd'\]"),
+    (_YAML_SINGLET.replace("[0, 5]", "10"), "bad.yaml: field_angles_deg: expected a list of angles"),
+    (_YAML_SINGLET.replace("[0, 5]", "[0, five]"), r"bad.yaml: field_angles_deg\[1\]: expected a number"),
+    (_YAML_SINGLET.replace("catalogs: [SCHOTT]", "catalogs: SCHOTT"), "bad.yaml: catalogs: expected a list"),
+    (_YAML_SINGLET + "wavelengths_nm: 550\n", "bad.yaml: wavelengths_nm: expected a list"),
+    (_YAML_SINGLET + "primary_wavelength_nm: green\n", "bad.yaml: primary_wavelength_nm: expected a number"),
+    (_YAML_SINGLET + "focal_length_mm: 50\n", r"bad.yaml: unknown keys \['focal_length_mm'\]"),
+    ("aperture: {entrance_pupil_diameter_mm: 10}\nsurfaces:\n  - 5\n  - 6\n",
+     "bad.yaml: surface 1: expected a mapping"),
+    ("aperture: {entrance_pupil_diameter_mm: 10}\nsurfaces: {radius_mm: 5}\n", "bad.yaml: surfaces: expected a list"),
+    (_YAML_SINGLET.replace("radius_mm: 50", "radius_mm: abc"), "bad.yaml: surface 1: radius_mm: expected a number, "
+                                                                 "got 'abc'"),
+    (_YAML_SINGLET.replace("radius_mm: -50", "radius_mm: [1]"), "bad.yaml: surface 2: radius_mm: expected a number"),
+    (_YAML_SINGLET.replace("stop: true", "stop: 'yes'"), "bad.yaml: surface 1: stop: expected true or false"),
+    (_YAML_SINGLET.replace("thickness_mm: 47", "thickness_mm: 47, semi_diameter_mm: big"),
+     "bad.yaml: surface 2: semi_diameter_mm: expected a number"),
+    (_YAML_SINGLET.replace("material: N-BK7", "material: 7"), "bad.yaml: surface 1: material: expected a glass name"),
+    (_YAML_SINGLET.replace("thickness_mm: 47", "thickness_mm: 47, aspheric: 1e-5"),
+     "bad.yaml: surface 2: aspheric: expected a list"),
+])
+def test_bad_yaml_lens_named(tmp_path, text, match):
+    f = tmp_path / "bad.yaml"
+    f.write_text(text)
+    with pytest.raises(PrescriptionError, match=match):
+        read_lens_yaml(f)
+
+
+def test_yaml_numbers_and_fnum(tmp_path):
+    # PyYAML reads 1e-5 (no dot) as a string: still a number here
+    f = tmp_path / "ok.yaml"
+    f.write_text(_YAML_SINGLET.replace("{entrance_pupil_diameter_mm: 10}", "{image_f_number: 4}")
+                 .replace("thickness_mm: 47", "thickness_mm: 47, aspheric: [0, 1e-5]"))
+    p = read_lens_yaml(f)
+    assert p.image_f_number == 4.0 and p.surfaces[2].aspheric == (0.0, 1e-5) and p.surfaces[2].kind == "EVENASPH"
