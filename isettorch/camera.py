@@ -319,7 +319,13 @@ def load_config(path) -> dict:
             raise FileNotFoundError(f"path: camera config {str(path)!r} does not exist "
                                     f"(built-in configs, by name: {camera_config_names()})")
         text = p.read_text()
-    cfg = yaml.safe_load(text)
+    try:
+        cfg = yaml.safe_load(text)
+    except yaml.YAMLError as err:  # a malformed file is bad input: say where, in one line
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ValueError(f"path: {str(path)!r} is not valid YAML{where} ({problem})") from err
     if not isinstance(cfg, dict):
         raise ValueError(f"path: {str(path)!r} must hold a YAML mapping with sections {list(CONFIG_SECTIONS)}")
     return cfg

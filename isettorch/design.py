@@ -667,7 +667,7 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     from .data.photos import lift_srgb
     from .image import srgb_encode
     from .io.images import rgb8_to_tensor
-    from .isp.evaluation import cpsnr, load_images
+    from .isp.evaluation import check_device, check_photos, cpsnr, load_images
     from .metrics.color import srgb_to_xyz, xyz_to_lab
     from .metrics.difference import delta_e_2000
 
@@ -675,20 +675,21 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     levels = camera.lux_levels if lux is None else [float(v) for v in lux]
     if not levels:
         raise ValueError(f"lux: the design {camera.name!r} holds no network; give a design trained for a light level")
+    # a level is its network's and its report's key (6 significant digits, lux_key): two levels given with one key
+    # would be rendered twice and reported once, so they are refused (the keys stay as they were)
+    keys = [f"{v:g}" for v in levels]
+    for j, (key, v) in enumerate(zip(keys, levels)):
+        if key in keys[:j]:
+            other = levels[keys.index(key)]
+            raise ValueError(f"lux: {v:g} is given twice; expected distinct light levels" if other == v else
+                             f"lux: {other!r} and {v!r} are the same level to 6 significant digits ({key} lux: one "
+                             f"network and one report key); expected distinct light levels")
     for v in levels:
         camera.network(v)  # ValueError naming the levels it has
-    if not isinstance(crop, int) or crop < 0:
-        raise ValueError(f"crop: expected a non-negative integer, got {crop!r}")
-    device = torch.device(device)
+    device = check_device(device)
     camera = camera.to(device).eval()
     items = load_images(images)
-    for name, array in items:  # every input checked before the first render (and the progress bar)
-        if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
-            raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name} is {array.dtype} {array.shape}")
-        if min(array.shape[:2]) <= 2 * crop:
-            raise ValueError(f"crop: {name} is {array.shape[1]} x {array.shape[0]}, too small for a {crop}-pixel "
-                             f"border")
-    keys = [f"{v:g}" for v in levels]
+    check_photos(items, crop)  # every input checked before the first render (and the progress bar)
     per_image = []
     bar = progress_bar(total=len(items) * len(levels), unit="render", desc=f"design-eval {camera.name}",
                        quiet=not progress)

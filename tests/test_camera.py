@@ -105,6 +105,9 @@ def test_config_errors_name_the_key(tmp_path):
     path.write_text(yaml.safe_dump(dict(cfg, optics=dict(cfg["optics"], fnumber=2.0))))
     with pytest.raises(ValueError, match=r"'fnumber'.*'f_number'"):
         Camera.from_config(path)
+    path.write_text("name: x\nsensor: [\n")  # a flow sequence never closed: malformed YAML at the end, line 3
+    with pytest.raises(ValueError, match=r"bad\.yaml' is not valid YAML at line 3, column 1 \(expected the node"):
+        Camera.from_config(path)
 
 
 def test_warns_when_the_scene_is_coarser_than_the_pixels():

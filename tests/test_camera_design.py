@@ -243,6 +243,23 @@ def test_design_eval_command(design_file, photos, capsys):
     assert "1 lux" in table and "100 lux" in table and "mean" in table
 
 
+def test_evaluate_design_checks_levels_device_and_photos_first(design_file, tmp_path):
+    """One report key per light level (the design's levels are 1 and 100 lux); a usable device; photographs of at
+    least one 2 x 2 cell: refused, naming the argument, before anything is rendered."""
+    one = tmp_path / "one"
+    one.mkdir()
+    Image.fromarray(np.full((12, 12, 3), 128, np.uint8)).save(one / "a.png")
+    with pytest.raises(ValueError, match=r"^lux: 100 is given twice"):
+        D.evaluate_design(design_file, one, [100, 100], crop=0)
+    with pytest.raises(ValueError, match=r"^lux: 100\.0 and 100\.0000001 are the same level to 6 significant"):
+        D.evaluate_design(design_file, one, [100, 100.0000001], crop=0)
+    with pytest.raises(ValueError, match=r"^device: cannot compute on 'fpga'"):
+        D.evaluate_design(design_file, one, [100], crop=0, device="fpga")
+    Image.fromarray(np.full((1, 40, 3), 128, np.uint8)).save(one / "b.png")  # one pixel high
+    with pytest.raises(ValueError, match=r"^images: b\.png is 40 x 1 px; expected at least 2 px each way"):
+        D.evaluate_design(design_file, one, [100], crop=0)
+
+
 def test_corner_light_is_the_optics_falloff(design_file, photos, capsys, monkeypatch):
     """A photograph sets the sensor's size (one scene sample per pixel), so its corners are off axis by
     atan(r / d_i): ``corner_light`` is cos^4 of that angle (the optics' default law), the irradiance the optics

@@ -8,6 +8,8 @@ here until it gets a row in ``CASES``.
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -19,11 +21,21 @@ COMMANDS = sorted(subcommands(build_parser()))
 MISSING = "{tmp}/no_such_input"
 
 # command -> [(arguments after the command, text the error line must contain: the argument's name)]. Placeholders:
-# {tmp} a fresh folder, {images} a folder with one 8-bit RGB PNG, {broken} a folder with a .png that is not an
-# image, {garbage} a file that is neither TorchScript nor weights.
+# {tmp} a fresh folder, {images} a folder with one 8-bit RGB PNG (16 x 16), {broken} a folder with a .png that is not
+# an image, {garbage} a file that is neither TorchScript nor weights, {strip} a folder with a 96 x 1 photograph,
+# {mixed} a folder with a 16 x 16 and an 8 x 8 photograph, {keyed} an RGB PNG with a transparent colour key (tRNS),
+# {pages} a two-page TIFF, {cam} a 12-bit RGGB camera config (white level 4095 DN), {darkcam} the same with a dark
+# current, {badyaml} a camera config that is not YAML, {raw} a folder of 8 x 8 raw frames (frame.npy, frame.tif:
+# one stem; shifted.npy: 12-bit data shifted left by 4 bits), {joint} the shipped joint denoise+demosaic network.
+# A device no torch build computes on: "fpga" (a device type torch parses but never implements).
+PROC = ["--camera", "{cam}", "--model", "{joint}", "--out", "{tmp}/out", "--quiet"]  # (a frame's error ends its bar)
 CASES: dict[str, list[tuple[list[str], str]]] = {
     "bench": [(["--threads", "0"], "--threads")],  # validated by benchmarks/bench.py in a child process
-    "calibrate": [([MISSING], "DIR"), (["{images}/a.png"], "a.png: cannot read the frame")],
+    "calibrate": [([MISSING], "DIR"), (["{images}/a.png"], "a.png: cannot read the frame"),
+                  (["{tmp}", "--cfa", "RGGB"], "--cfa: applies to a single raw frame"),
+                  (["{tmp}", "--black-level", "64"], "--black-level: applies to a single raw frame"),
+                  (["{images}/a.png", "--out", "{tmp}/s.yaml"], "--out: a sensor config needs a capture folder"),
+                  (["{images}/a.png", "--report", "{tmp}/r"], "--report: an EMVA 1288 report needs a capture folder")],
     "demo": [(["--size", "8", "--out", "{tmp}/out"], "--size"),
              (["--config", "{tmp}/no_such.yaml", "--out", "{tmp}/out"], "--config")],
     "demosaic-eval": [([MISSING], "DIR"), (["{broken}"], "DIR: cannot read b.png"),
@@ -32,10 +44,30 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                       (["{images}", "--model", "{tmp}/missing.pt"], "--model"),
                       (["{images}", "--model", "{garbage}"], "--model"),
                       (["{images}", "--method", "no_such_method"], "--method"),
-                      (["{images}", "--crop", "-1"], "--crop")],
+                      (["{images}", "--crop", "-1"], "--crop"),
+                      (["{images}", "--noise-sigma", "1e300"], "--noise-sigma: expected a standard deviation whose "
+                                                               "square"),
+                      (["{images}", "--noise-shot", "1e200"], "--noise-shot: expected a shot-noise gain whose square"),
+                      (["{images}", "--device", "fpga"], "--device: cannot compute on 'fpga'"),
+                      (["{images}", "--device", "foo"], "--device: 'foo' is not a torch device"),
+                      (["{strip}"], "DIR: strip.png is 96 x 1 px"),
+                      (["{mixed}", "--crop", "5"], "--crop: b.png is 8 x 8 px, too small for a 5-pixel border"),
+                      (["{keyed}"], "DIR: keyed.png: expected an opaque image, 2 pixels are transparent"),
+                      (["{pages}"], "DIR: pages.tif: expected a single image, got 2 pages")]
+                     + ([] if importlib.util.find_spec("bm3d") else  # the user's package, when it is not installed
+                        [(["{images}", "--noise-sigma", "0.1", "--denoise", "bm3d"], "--denoise: 'bm3d' needs")]),
     "design-eval": [([MISSING, "{images}"], "DESIGN"), (["learned", "{images}"], "--crop"),
                     (["learned", "{images}", "--crop", "2", "--lux", "3"], "--lux"),
-                    (["{garbage}", "{images}"], "DESIGN")],
+                    (["{garbage}", "{images}"], "DESIGN"),
+                    (["learned", MISSING], "DIR: expected a folder"), (["learned", "{images}/a.png"], "DIR: expected"),
+                    (["learned", "{tmp}"], "DIR: no .png"), (["learned", "{broken}"], "DIR: cannot read b.png"),
+                    (["learned", "{images}", "--crop", "2", "--device", "foo"], "--device: 'foo' is not a torch"),
+                    (["learned", "{images}", "--crop", "2", "--device", "fpga"], "--device: cannot compute on"),
+                    (["learned", "{strip}", "--crop", "0"], "DIR: strip.png is 96 x 1 px"),
+                    (["learned", "{mixed}", "--crop", "5"], "--crop: b.png is 8 x 8 px"),
+                    (["learned", "{images}", "--crop", "2", "--lux", "100", "100"], "--lux: 100 is given twice"),
+                    (["learned", "{images}", "--crop", "2", "--lux", "10", "10.0000001"],
+                     "--lux: 10.0 and 10.0000001 are the same level to 6 significant digits")],
     "lens-report": [([MISSING, "--json"], "no_such_input"),
                     (["cooke_triplet", "--fields", "a,b", "--json"], "--fields")],
     "parity": [([MISSING + ".npz"], "no_such_input.npz"), (["{tmp}/x.npz", "--repeat", "-1"], "--repeat")],
@@ -46,7 +78,18 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                 (["{images}/a.png", "--camera", "default", "--model", "{garbage}", "--analog-gain", "0"],
                  "--analog-gain"),
                 (["{images}/a.png", "--camera", "default", "--model", "{garbage}", "--exposure-s", "-1"],
-                 "--exposure-s")],
+                 "--exposure-s"),
+                (["{images}/a.png", "--camera", "default", "--model", "{garbage}", "--exposure-s", "inf"],
+                 "--exposure-s: expected a finite exposure"),
+                (["{raw}/frame.npy", *PROC, "--analog-gain", "1e308"], "--analog-gain: the gain 1e+308 makes"),
+                (["{raw}/frame.npy", *PROC[2:], "--camera", "{darkcam}", "--exposure-s", "1e300"],
+                 "--exposure-s: 1e+300 s of the sensor's dark current"),
+                (["{raw}/frame.npy", "{raw}/frame.tif", *PROC], "RAW: {raw}/frame.npy and {raw}/frame.tif would both"),
+                (["{raw}/shifted.npy", *PROC], "RAW: {raw}/shifted.npy: values up to 65520 DN exceed the camera's "
+                                               "white level 4095 DN"),
+                (["{raw}/frame.npy", *PROC[2:], "--camera", "{badyaml}"], "--camera: '{badyaml}' is not valid YAML"),
+                (["{raw}/frame.npy", *PROC[:4], "--out", "{garbage}"],
+                 "--out: expected a folder, {garbage} is a file")],
     "synth": [(["--config", "{tmp}/no_such.yaml", "--out", "{tmp}/out", "--count", "2"], "--config"),
               (["--out", "{tmp}/out", "--count", "0"], "--count"),
               (["--out", MISSING, "--count", "1", "--verify"], "--out")],
@@ -79,7 +122,33 @@ def places(tmp_path) -> dict:
     Image.fromarray(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)).save(images / "a.png")
     (broken / "b.png").write_bytes(b"not a png")
     (tmp_path / "garbage.pt").write_bytes(b"neither TorchScript nor weights")
-    return {"tmp": str(tmp_path), "images": str(images), "broken": str(broken), "garbage": str(tmp_path / "garbage.pt")}
+    folders = {name: tmp_path / name for name in ("strip", "mixed", "keyed", "pages", "raw")}
+    for folder in folders.values():
+        folder.mkdir()
+    Image.fromarray(rng.integers(0, 256, (1, 96, 3), dtype=np.uint8)).save(folders["strip"] / "strip.png")
+    Image.fromarray(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)).save(folders["mixed"] / "a.png")
+    Image.fromarray(rng.integers(0, 256, (8, 8, 3), dtype=np.uint8)).save(folders["mixed"] / "b.png")
+    keyed = np.full((8, 8, 3), 100, np.uint8)
+    keyed[0, :2] = (1, 2, 3)  # the two pixels of the transparent colour
+    Image.fromarray(keyed).save(folders["keyed"] / "keyed.png", transparency=(1, 2, 3))
+    page = Image.fromarray(rng.integers(0, 256, (8, 8, 3), dtype=np.uint8))
+    page.save(folders["pages"] / "pages.tif", save_all=True, append_images=[page])
+    frame = rng.integers(64, 4096, (8, 8)).astype(np.uint16)
+    np.save(folders["raw"] / "frame.npy", frame)
+    Image.fromarray(frame).save(folders["raw"] / "frame.tif")
+    np.save(folders["raw"] / "shifted.npy", np.full((8, 8), 4095 << 4, np.uint16))
+    sensor = ("sensor: {rows: 8, cols: 8, pixel_size_m: 3.45e-6, cfa: RGGB, adc_bits: 12, voltage_swing_v: 1.0, "
+              "conversion_gain_v_per_e: 0.00048828125, black_level_dn: 64, read_noise_v: 0.00146484375")
+    optics = "optics: {type: diffraction_limited, f_number: 2.8, focal_length_m: 0.004}\n"
+    (tmp_path / "cam.yaml").write_text(optics + sensor + "}\n")
+    (tmp_path / "darkcam.yaml").write_text(optics + sensor + ", dark_current_e_per_s: 50.0}\n")
+    (tmp_path / "bad.yaml").write_text("sensor: [\n")
+    from isettorch.isp.learned import PRETRAINED
+
+    return {"tmp": str(tmp_path), "images": str(images), "broken": str(broken), "garbage": str(tmp_path / "garbage.pt"),
+            **{name: str(folder) for name, folder in folders.items()}, "keyed": str(folders["keyed"]),
+            "cam": str(tmp_path / "cam.yaml"), "darkcam": str(tmp_path / "darkcam.yaml"),
+            "badyaml": str(tmp_path / "bad.yaml"), "joint": str(PRETRAINED["joint_denoise"])}
 
 
 @pytest.mark.parametrize(("command", "case"), PARAMS)
@@ -135,3 +204,16 @@ def test_a_bug_keeps_its_traceback(monkeypatch):
     monkeypatch.setattr(demosaic_eval, "run", broken)
     with pytest.raises(KeyError, match="a bug"):
         main(["demosaic-eval", "anything"])
+
+
+def test_broken_pipe_is_not_an_input_error(monkeypatch, capsys):
+    """A reader that closes stdout (`isettorch ... | head`) is not bad input: no message, exit 128 + SIGPIPE."""
+    from isettorch.commands import calibrate
+
+    def closed_pipe(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.delenv("ISETTORCH_DEBUG", raising=False)
+    monkeypatch.setattr(calibrate, "run", closed_pipe)
+    assert main(["calibrate", "anything"]) == 141
+    assert capsys.readouterr().err == ""

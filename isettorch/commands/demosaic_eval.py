@@ -60,11 +60,13 @@ def _check_args(args) -> None:
     """Bad input named by its argument (``DIR``, ``--noise-sigma``, ...) before any work; ValueError otherwise."""
     from pathlib import Path
 
+    from ..isp.denoise import _check_noise, check_denoiser
+
     if not Path(args.folder).is_dir():
         raise FileNotFoundError(f"DIR: no such folder {args.folder!r}")
-    for flag, value in (("--noise-sigma", args.noise_sigma), ("--noise-shot", args.noise_shot)):
-        if not (math.isfinite(value) and value >= 0):
-            raise ValueError(f"{flag}: expected a finite value >= 0, got {value}")
+    _check_noise(args.noise_sigma, args.noise_shot)  # its messages name noise_sigma / noise_shot: --noise-sigma, ...
+    if args.denoise is not None:
+        check_denoiser(args.denoise)  # (bm3d is the user's package)
     if args.crop < 0:
         raise ValueError(f"--crop: expected a border of >= 0 pixels, got {args.crop}")
     if args.threads is not None and args.threads < 1:
@@ -74,37 +76,26 @@ def _check_args(args) -> None:
                                 f"weights file)")
 
 
-def _check_device(name: str):
-    import torch
-
-    try:
-        device = torch.device(name)
-    except RuntimeError as err:
-        raise ValueError(f"--device: {err}") from err
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"--device: {name!r}, but CUDA is not available on this machine")
-    return device
-
-
-def _as_dir_error(err: ValueError) -> ValueError:
-    """The library's error about ``images`` as the command's argument ``DIR``."""
+def as_dir_error(err: ValueError) -> ValueError:
+    """The library's error about ``images`` (:func:`isettorch.isp.evaluation.load_images` and ``check_photos``) as
+    the command's argument ``DIR`` (demosaic-eval and design-eval)."""
     return ValueError(f"DIR: {str(err).removeprefix('images: ')}")
 
 
 def run(args) -> int:
     import torch
 
-    from ..isp.evaluation import evaluate_demosaic, load_demosaic_model, load_images
+    from ..isp.evaluation import check_device, evaluate_demosaic, load_demosaic_model, load_images
 
     _check_args(args)
-    device = _check_device(args.device)
+    device = check_device(args.device)
     if args.threads is not None:
         torch.set_num_threads(args.threads)
     dtype = getattr(torch, args.dtype)
     try:  # read the images first: a bad one is named with DIR (the library's message names "images")
         images = load_images(args.folder)
     except ValueError as err:
-        raise _as_dir_error(err) from err
+        raise as_dir_error(err) from err
     model = None
     if args.model is not None:
         kwargs = None
@@ -126,12 +117,12 @@ def run(args) -> int:
     except ValueError as err:  # an image the method cannot take (e.g. under 4 pixels for a network): named with DIR
         if not str(err).startswith("images: "):
             raise
-        raise _as_dir_error(err) from err
-    if args.json:
+        raise as_dir_error(err) from err
+    if args.json:  # JSON has no inf: an exact image's cpsnr is null beside "exact": true
         res["mean_cpsnr"] = _finite_or_none(res["mean_cpsnr"])
         for item in res["images"]:
             item["cpsnr"] = _finite_or_none(item["cpsnr"])
-        print(json.dumps(res, indent=2))
+        print(json.dumps(res, indent=2, allow_nan=False))
         return 0
     noise = (f"  noise sigma {res['noise_sigma']:g} shot {res['noise_shot']:g} seed {res['seed']}"
              if res["noise_sigma"] or res["noise_shot"] else "")
@@ -139,7 +130,15 @@ def run(args) -> int:
     print(f"method {res['method']}  pattern {res['pattern']}  crop {res['crop']}  ({args.dtype}, {args.device})"
           f"{noise}{den}")
     for item in res["images"]:
-        print(f"  {item['name']:<24s} {item['cpsnr']:8.3f} dB  {item['ms']:8.1f} ms")
-    print(f"mean CPSNR {res['mean_cpsnr']:.3f} dB over {len(res['images'])} images, {res['ms_per_image']:.1f} "
-          f"ms/image, {res['ms_per_megapixel']:.1f} ms/MP")
+        print(f"  {item['name']:<24s} {item['cpsnr']:8.3f} dB  {item['ms']:8.1f} ms"
+              + ("  (reproduced exactly)" if item["exact"] else ""))
+    n, exact = len(res["images"]), res["exact_images"]
+    if exact == n:
+        over = f"(all {n} images reproduced exactly)"
+    elif exact:
+        over = f"over {n - exact} of {n} images ({exact} reproduced exactly, CPSNR inf, not averaged)"
+    else:
+        over = f"over {n} images"
+    print(f"mean CPSNR {res['mean_cpsnr']:.3f} dB {over}, {res['ms_per_image']:.1f} ms/image, "
+          f"{res['ms_per_megapixel']:.1f} ms/MP")
     return 0

@@ -44,9 +44,15 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..design import evaluate_design
+    from .demosaic_eval import as_dir_error
 
-    res = evaluate_design(args.design, args.folder, args.lux, seed=args.seed, crop=args.crop, device=args.device,
-                          noise_free=args.noise_free, progress=not args.quiet)
+    try:
+        res = evaluate_design(args.design, args.folder, args.lux, seed=args.seed, crop=args.crop, device=args.device,
+                              noise_free=args.noise_free, progress=not args.quiet)
+    except ValueError as err:  # the library's "images" (the folder, an unreadable or too small photo) is DIR here
+        if not str(err).startswith("images: "):
+            raise
+        raise as_dir_error(err) from err
     dark = [item for item in res["images"] if item["corner_light"] < DARK_CORNER]
     if dark:
         worst = min(dark, key=lambda item: item["corner_light"])

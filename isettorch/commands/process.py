@@ -15,6 +15,8 @@ camera RGB relative to the white level (not white-balanced), ``<stem>.npy`` (flo
 
 from __future__ import annotations
 
+import math
+
 from .._progress import add_quiet_argument
 
 FORMATS = ("npy", "exr", "png")
@@ -45,20 +47,51 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
     per electron over the span (shot noise), ``b`` from :func:`isettorch.sensor.noise.poisson_gaussian_floor`
     (read noise, DSNU, dark-current shot noise, quantisation): the ``noise_gain`` / ``noise_floor_var`` of
     :class:`isettorch.data.PairStream`'s metadata, which the joint network was trained with. Row/column noise and
-    PRNU are not in the model."""
+    PRNU are not in the model. Both are finite and within the network's float32 noise inputs
+    (:func:`isettorch.isp.learned.noise_features`: ``sqrt(a) * 10``, ``sqrt(b) * 100``), else a ValueError names
+    the setting that takes them out (``analog_gain``, ``exposure_s``, or ``camera`` for the config's gain)."""
+    import torch
+
     from ..sensor.noise import poisson_gaussian_floor
 
     if sensor.adc_bits is None:
         raise ValueError("camera: the sensor has no ADC (adc_bits null); expected a sensor that outputs DN")
-    if not exposure_s >= 0:
-        raise ValueError(f"exposure_s: expected a non-negative exposure in seconds, got {exposure_s}")
-    if analog_gain is not None and not analog_gain > 0:
-        raise ValueError(f"analog_gain: expected a positive gain, got {analog_gain}")
+    _check_settings(analog_gain, exposure_s)
+    gain = "camera: the config's analog gain" if analog_gain is None else f"analog_gain: the gain {analog_gain:g}"
+    big = float(torch.finfo(torch.float32).max)
+    a_max, b_max = (big / 10.0) ** 2, (big / 100.0) ** 2  # noise_features' scales
     span = float(sensor.white_level_dn) - float(sensor.black_level_dn)
     a = float(sensor.gain_per_electron(analog_gain)[0]) / span
+    if not a <= a_max:
+        raise ValueError(f"{gain} makes the noise model's shot gain a {a:.3g} (normalised units per electron), beyond "
+                         f"the network's float32 noise input (a <= {a_max:.3g}); expected the frames' real gain")
     cg = float(sensor.conversion_gain_v_per_e)
     read_e, dsnu_e = float(sensor.read_noise_v) / cg, float(sensor.dsnu_sigma_v) / cg
-    return a, float(poisson_gaussian_floor(a, read_e, dsnu_e, float(sensor.dark_current_e_per_s), exposure_s, span))
+    dark = float(sensor.dark_current_e_per_s)
+
+    def floor(t):
+        try:
+            return float(poisson_gaussian_floor(a, read_e, dsnu_e, dark, t, span))
+        except OverflowError:  # a ** 2 of a huge gain: Python floats raise instead of giving inf
+            return math.inf
+
+    b = floor(exposure_s)
+    if not b <= b_max:
+        if not floor(0.0) <= b_max:  # the read noise alone: the gain
+            raise ValueError(f"{gain} makes the noise model's read variance b {b:.3g}, beyond the network's float32 "
+                             f"noise input (b <= {b_max:.3g}); expected the frames' real gain")
+        raise ValueError(f"exposure_s: {exposure_s:g} s of the sensor's dark current ({dark:g} e/s) makes the noise "
+                         f"model's variance b {b:.3g}, beyond the network's float32 noise input (b <= {b_max:.3g}); "
+                         f"expected the frames' exposure in seconds")
+    return a, b
+
+
+def _check_settings(analog_gain, exposure_s) -> None:
+    """The frames' analog gain (None: the camera config's) and exposure: finite, the gain > 0, the exposure >= 0."""
+    if analog_gain is not None and not (math.isfinite(analog_gain) and analog_gain > 0):
+        raise ValueError(f"analog_gain: expected a finite positive gain, got {analog_gain}")
+    if not (math.isfinite(exposure_s) and exposure_s >= 0):
+        raise ValueError(f"exposure_s: expected a finite exposure >= 0 in seconds, got {exposure_s}")
 
 
 def _load(args):
@@ -70,7 +103,11 @@ def _load(args):
     try:
         camera = Camera.from_config(args.camera)
     except (OSError, ValueError, TypeError) as err:
-        raise ValueError(f"camera: {args.camera}: {err}") from err
+        message = str(err)
+        for head in ("path: ", "config: "):  # load_config's own messages name the file already
+            if message.startswith(head):
+                raise ValueError(f"camera: {message.removeprefix(head)}") from err
+        raise ValueError(f"camera: {args.camera}: {message}") from err
     sensor = camera.sensor
     pattern = "".join("".join(r) for r in sensor.cfa.cell)
     if pattern not in BAYER_PATTERNS:
@@ -102,7 +139,28 @@ def process_frame(dn, sensor, pattern: str, net, *, analog_gain=None, exposure_s
     with torch.no_grad():
         out = demosaic_learned(x[None, None].float(), pattern, model=net, noise=noise_features(a, b).float(),
                                self_ensemble=self_ensemble)
+    if not bool(torch.isfinite(out).all()):  # never written as a NaN image
+        raise ValueError(f"raw: the network returned {int((~torch.isfinite(out)).sum())} NaN/inf values (noise model "
+                         f"a = {a:.3g}, b = {b:.3g}); expected the frames' real analog gain and exposure")
     return out[0]
+
+
+def _output_paths(raws, out_dir, fmt: str) -> list:
+    """``out_dir / <stem>.<fmt>`` of every frame; ValueError naming RAW when two frames would write one file (the
+    same stem: frame.npy and sub/frame.npy, frame.npy and frame.tif; or a frame given twice)."""
+    from pathlib import Path
+
+    seen: dict = {}
+    for f in raws:
+        path = out_dir / f"{Path(f).stem}.{fmt}"
+        if path in seen:
+            first = seen[path]
+            if Path(first).resolve() == Path(f).resolve():
+                raise ValueError(f"RAW: {f} is given twice; expected each frame once")
+            raise ValueError(f"RAW: {first} and {f} would both be written to {path}; expected frames with distinct "
+                             f"names (stems)")
+        seen[path] = f
+    return list(seen)
 
 
 def run(args) -> int:
@@ -117,23 +175,37 @@ def run(args) -> int:
     for f in args.raw:
         if not Path(f).is_file():
             raise FileNotFoundError(f"RAW: no such raw frame {f!r}")
-    if args.analog_gain is not None and not args.analog_gain > 0:
-        raise ValueError(f"analog_gain: expected a positive gain, got {args.analog_gain}")
-    if not args.exposure_s >= 0:
-        raise ValueError(f"exposure_s: expected a non-negative exposure in seconds, got {args.exposure_s}")
-    sensor, pattern, net = _load(args)
+    _check_settings(args.analog_gain, args.exposure_s)
     out_dir = Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"out: expected a folder, {args.out} is a file")
+    outputs = _output_paths(args.raw, out_dir, args.format)
+    sensor, pattern, net = _load(args)
+    noise_params(sensor, args.analog_gain, args.exposure_s)  # a setting the noise model cannot take: before any output
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:  # e.g. a file where a parent folder should be
+        raise ValueError(f"out: cannot create the folder {args.out} ({err.strerror or err})") from err
     written = []
     with progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
-        for f in args.raw:
+        for f, path in zip(args.raw, outputs):
             dn = read_frame(f)
             if min(dn.shape) < 4:  # (an odd height or width is completed to whole cells by demosaic_learned)
                 raise ValueError(f"RAW: {f}: expected a {pattern} mosaic of at least 4 x 4 pixels, got "
                                  f"{dn.shape[0]} x {dn.shape[1]}")
-            rgb = process_frame(dn, sensor, pattern, net, analog_gain=args.analog_gain,
-                                exposure_s=args.exposure_s, self_ensemble=args.self_ensemble)
-            path = out_dir / f"{Path(f).stem}.{args.format}"
+            # the ADC's largest code is the white level (e.g. 12-bit data left-shifted into 16 bits exceeds it); a
+            # sensor without an ADC has none (white_level_dn None) and no check here, but noise_params refused it
+            top = float(dn.max())
+            if sensor.white_level_dn is not None and top > sensor.white_level_dn:
+                raise ValueError(f"RAW: {f}: values up to {top:g} DN exceed the camera's white level "
+                                 f"{sensor.white_level_dn:g} DN (data shifted left?)")
+            try:
+                rgb = process_frame(dn, sensor, pattern, net, analog_gain=args.analog_gain,
+                                    exposure_s=args.exposure_s, self_ensemble=args.self_ensemble)
+            except ValueError as err:  # the library's "raw" is this frame
+                if not str(err).startswith("raw: "):
+                    raise
+                raise ValueError(f"RAW: {f}: {str(err).removeprefix('raw: ')}") from err
             if args.format == "npy":
                 np.save(path, rgb.numpy().astype(np.float32), allow_pickle=False)
             elif args.format == "exr":

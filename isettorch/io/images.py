@@ -40,11 +40,14 @@ def read_rgb8(path) -> np.ndarray:
 
     The scoring convention of ``shared/data`` (8-bit code values / 255) needs 8-bit samples, so only lossless
     conversions to RGB are made: gray (``L``, ``1``) repeated in the three channels, a palette without transparency
-    expanded, an alpha channel dropped when every pixel is opaque. Anything else raises a ``ValueError`` naming the
-    file: transparent pixels (compositing would be a choice), 16- or 32-bit samples (Pillow would silently keep only
-    8 of the bits), CMYK or other colour spaces, a file that is not an image.
+    expanded, an alpha channel dropped when every pixel is opaque. The photograph is returned as displayed: an EXIF
+    orientation (a camera's rotated JPEG) is applied (Pillow's ``ImageOps.exif_transpose``). Anything else raises a
+    ``ValueError`` naming the file: transparent pixels (an alpha channel, or a gray or RGB colour key, PNG's tRNS:
+    compositing would be a choice), 16- or 32-bit samples (Pillow would silently keep only 8 of the bits), CMYK or
+    other colour spaces, several pages or frames (a multi-page TIFF, an animation: which one is the photograph?), a
+    file that is not an image.
     """
-    from PIL import Image
+    from PIL import Image, ImageOps
 
     p = Path(path)
     try:
@@ -54,6 +57,12 @@ def read_rgb8(path) -> np.ndarray:
             if im.mode in ("I", "I;16", "I;16B", "I;16L", "F") or ";16" in str(rawmode) or ";32" in str(rawmode):
                 raise ValueError(f"{p.name}: expected 8-bit samples, got a {im.mode}/{rawmode} image (16 or 32 bits); "
                                  f"convert it to 8-bit first")
+            frames = getattr(im, "n_frames", 1)
+            # an MPO (a phone's JPEG with a depth map or preview appended) is the photograph in its first frame, by
+            # the CIPA DC-007 format; other several-frame files do not say which frame is the photograph
+            if frames > 1 and im.format != "MPO":
+                raise ValueError(f"{p.name}: expected a single image, got {frames} pages or frames (a multi-page "
+                                 f"{im.format} or an animation); save the photograph on its own")
             if im.mode == "P" and "transparency" in im.info:
                 raise ValueError(f"{p.name}: expected an opaque image, got a palette with transparency")
             if im.mode in ("RGBA", "LA", "PA"):
@@ -61,9 +70,15 @@ def read_rgb8(path) -> np.ndarray:
                 if alpha.size and int(alpha.min()) < 255:
                     raise ValueError(f"{p.name}: expected an opaque image, {int((alpha < 255).sum())} pixels are "
                                      f"transparent")
+            if im.mode in ("L", "RGB", "1") and "transparency" in im.info:  # a colour key: its pixels are clear
+                alpha = np.asarray(im.convert("RGBA").getchannel("A"))
+                if int(alpha.min()) < 255:
+                    raise ValueError(f"{p.name}: expected an opaque image, {int((alpha < 255).sum())} pixels are "
+                                     f"transparent (the colour key {im.info['transparency']!r}, PNG tRNS)")
             if im.mode not in ("RGB", "RGBA", "L", "LA", "1", "P", "PA"):
                 raise ValueError(f"{p.name}: expected an 8-bit RGB, gray or palette image, got mode {im.mode!r}")
-            a = np.asarray(im.convert("RGB"), dtype=np.uint8)
+            shown = ImageOps.exif_transpose(im)  # a photograph means what it shows: its EXIF orientation applied
+            a = np.asarray(shown.convert("RGB"), dtype=np.uint8)
     except OSError as err:  # not an image, truncated, unreadable
         raise ValueError(f"cannot read {p.name} as an image ({err})") from err
     return a

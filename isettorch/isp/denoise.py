@@ -13,7 +13,7 @@ import math
 import numpy as np
 import torch
 
-__all__ = ["DENOISERS", "denoise_mosaic"]
+__all__ = ["DENOISERS", "check_denoiser", "denoise_mosaic"]
 
 #: classical denoisers of a mosaic (the sequential denoise-then-demosaic baseline)
 DENOISERS = ("nlmeans", "bm3d")
@@ -27,7 +27,27 @@ def _check_noise(noise_sigma: float, noise_shot: float) -> tuple[float, float]:
     if not (math.isfinite(a) and a >= 0):
         raise ValueError(f"noise_shot: expected a finite shot-noise gain a >= 0 (var = a x + sigma^2), "
                          f"got {noise_shot}")
+    # the model squares both (the variance sigma^2; a^2 in the Anscombe transform): each square must be a float
+    if not math.isfinite(s * s):
+        raise ValueError(f"noise_sigma: expected a standard deviation whose square (the noise variance) is finite, "
+                         f"got {noise_sigma} (at most about 1e154)")
+    if not math.isfinite(a * a):
+        raise ValueError(f"noise_shot: expected a shot-noise gain whose square (in the variance-stabilising transform) "
+                         f"is finite, got {noise_shot} (at most about 1e154)")
     return s, a
+
+
+def check_denoiser(method: str) -> None:
+    """ValueError unless ``method`` is one of :data:`DENOISERS` and can run here (``bm3d`` needs the user's
+    ``bm3d`` package): checked before any work."""
+    if method not in DENOISERS:
+        raise ValueError(f"denoise: expected one of {DENOISERS}, got {method!r}")
+    if method == "bm3d":
+        try:
+            import bm3d  # noqa: F401
+        except ModuleNotFoundError as err:
+            raise ValueError("denoise: 'bm3d' needs the bm3d package (pip install bm3d; its licence allows "
+                             "non-commercial use only, so isettorch does not depend on it)") from err
 
 
 def _anscombe(z, a, b):
@@ -48,11 +68,8 @@ def _denoise_plane(plane: np.ndarray, sigma: float, method: str) -> np.ndarray:
         # h = 0.6 sigma with sigma given and fast mode: scikit-image's documented setting (gallery "Non-local means
         # denoising for preserving textures"); patch 5 x 5, search 13 x 13. Fixed, never tuned on a test set.
         return denoise_nl_means(plane, h=0.6 * sigma, sigma=sigma, patch_size=5, patch_distance=6, fast_mode=True)
-    try:
-        import bm3d
-    except ModuleNotFoundError as err:
-        raise ValueError("denoise: 'bm3d' needs the bm3d package (pip install bm3d; its licence allows "
-                         "non-commercial use only, so isettorch does not depend on it)") from err
+    import bm3d  # (check_denoiser said it is installed)
+
     return np.asarray(bm3d.bm3d(plane, sigma_psd=sigma), dtype=np.float64)
 
 
@@ -64,8 +81,7 @@ def denoise_mosaic(raw: torch.Tensor, method: str, noise_sigma: float = 0.0, noi
     Signal-dependent noise (``noise_shot > 0``) is stabilised with the generalised Anscombe transform first
     (Makitalo & Foi 2013) and denoised at unit sigma. Returns the same shape, dtype and device.
     """
-    if method not in DENOISERS:
-        raise ValueError(f"denoise: expected one of {DENOISERS}, got {method!r}")
+    check_denoiser(method)
     s, a = _check_noise(noise_sigma, noise_shot)
     if s == 0 and a == 0:
         raise ValueError(f"denoise: {method!r} needs a noise level (noise_sigma or noise_shot > 0)")

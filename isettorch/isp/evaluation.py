@@ -1,6 +1,8 @@
 """Demosaic benchmark scoring (the convention of shared/data/README.md): ground truth = 8-bit image / 255 taken as
 linear values; Bayer mosaic (noise-free unless asked); output clipped to [0, 1]; CPSNR = 10 log10(1 / MSE) with the
-MSE over the three channels of the (optionally cropped) image; the mean CPSNR over images is reported.
+MSE over the three channels of the (optionally cropped) image; the mean CPSNR over images is reported. An image
+reproduced exactly (MSE 0: a flat black or white image) scores inf; the mean is taken over the others and the exactly
+reproduced images are counted beside it (``exact_images``), so that one flat image does not hide every score.
 
 Noisy benchmarks (``noise_sigma``, ``noise_shot``): Poisson-Gaussian noise ``var = a x + sigma^2`` on the [0, 1]
 mosaic, drawn by :func:`isettorch.sensor.noise.poisson_gaussian` from a generator seeded by (seed, image index), in
@@ -24,10 +26,10 @@ import torch
 
 from ..io.images import PHOTO_SUFFIXES, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
-from .denoise import DENOISERS, _check_noise, denoise_mosaic
+from .denoise import DENOISERS, _check_noise, check_denoiser, denoise_mosaic
 
-__all__ = ["DENOISERS", "IMAGE_SUFFIXES", "available_methods", "cpsnr", "denoise_mosaic", "evaluate_demosaic",
-           "load_demosaic_model", "load_images", "noisy_mosaic"]
+__all__ = ["DENOISERS", "IMAGE_SUFFIXES", "available_methods", "check_device", "check_photos", "cpsnr",
+           "denoise_mosaic", "evaluate_demosaic", "load_demosaic_model", "load_images", "noisy_mosaic"]
 
 #: the photographs a folder of images is read from (``isettorch.io.images.PHOTO_SUFFIXES``)
 IMAGE_SUFFIXES = PHOTO_SUFFIXES
@@ -83,6 +85,47 @@ def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
         except ValueError as err:
             raise ValueError(f"images: {err} (in {str(folder)!r})") from err
     return out
+
+
+def check_photos(items, crop: int, *, min_side: int = 2) -> None:
+    """Check every ``(name, array)`` of :func:`load_images` before the first is scored: a uint8 ``[H, W, 3]``
+    array, at least ``min_side`` pixels high and wide (one 2 x 2 colour-filter cell: a mosaic and its padding need
+    it), and higher and wider than two ``crop``-pixel borders. ValueError naming the image (``images: NAME is W x H
+    px ...``, ``crop: NAME is ...``); ``crop`` a non-negative integer."""
+    if isinstance(crop, bool) or not isinstance(crop, (int, np.integer)) or crop < 0:
+        raise ValueError(f"crop: expected a non-negative integer, got {crop!r}")
+    for name, array in items:
+        if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
+            raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name} is {array.dtype} {array.shape}")
+        h, w = array.shape[:2]
+        if min(h, w) < min_side:
+            raise ValueError(f"images: {name} is {w} x {h} px; expected at least {min_side} px each way (a mosaic "
+                             f"needs whole 2 x 2 colour-filter cells)")
+        if min(h, w) <= 2 * crop:
+            raise ValueError(f"crop: {name} is {w} x {h} px, too small for a {crop}-pixel border (at most "
+                             f"{(min(h, w) - 1) // 2} for this image)")
+
+
+def check_device(device) -> torch.device:
+    """``device`` (a name or a :class:`torch.device`) as a device this torch can compute on here: ValueError naming
+    ``device`` for a malformed name, a device type this build of torch lacks (``mps`` on Linux, ``cuda`` without
+    CUDA), an absent device (``cuda:3`` on a one-GPU machine; a tiny allocation is the test) or ``meta`` (shapes
+    only, no values to score)."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as err:
+        raise ValueError(f"device: {device!r} is not a torch device ({err})") from err
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device: {str(device)!r}, but CUDA is not available on this machine")
+    if dev.type == "meta":
+        raise ValueError("device: 'meta' holds no values (shapes only); expected a device that computes, e.g. cpu")
+    try:
+        torch.zeros(1, device=dev)
+    except Exception as err:  # noqa: BLE001 - torch raises RuntimeError, AssertionError, NotImplementedError, ...
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0].split(". ")[0]
+        raise ValueError(f"device: cannot compute on {str(device)!r} with this torch build on this machine "
+                         f"({first})") from err
+    return dev
 
 
 def _image_seed(seed: int, index: int) -> int:
@@ -186,10 +229,12 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
 
     Returns:
         {"method", "pattern", "crop", "noise_sigma", "noise_shot", "seed", "denoise", "dtype", "mean_cpsnr",
-        "ms_per_image", "ms_per_megapixel", "images": [{"name", "cpsnr", "ms"}, ...]}; ms is the wall time of
-        the demosaic (and denoise) call alone, after one warm-up call.
+        "exact_images", "ms_per_image", "ms_per_megapixel", "images": [{"name", "cpsnr", "exact", "ms"}, ...]};
+        ms is the wall time of the demosaic (and denoise) call alone, after one warm-up call. An image reproduced
+        exactly (``exact``: MSE 0, e.g. a flat black or white image) has ``cpsnr`` inf; ``mean_cpsnr`` is the mean
+        over the other images (inf when every image is exact) and ``exact_images`` counts the exact ones.
     """
-    device = torch.device(device)
+    device = check_device(device)
     noise_sigma, noise_shot = _check_noise(noise_sigma, noise_shot)
     noisy = noise_sigma > 0 or noise_shot > 0
     if dtype not in (torch.float32, torch.float64):
@@ -197,6 +242,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
     if denoise is not None:
         if denoise not in DENOISERS:
             raise ValueError(f"denoise: expected one of {DENOISERS} or None, got {denoise!r}")
+        check_denoiser(denoise)
         if not noisy:
             raise ValueError(f"denoise: {denoise!r} needs noise (noise_sigma or noise_shot > 0)")
         if model is not None or method in _LAZY_METHODS:
@@ -222,6 +268,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
                              f"got method {method!r}")
         name += " + self-ensemble" if kwargs["self_ensemble"] in (True, "transpose") else " + dihedral self-ensemble"
     items = load_images(images)
+    check_photos(items, crop)  # every image before the first is scored (a bad one late in a folder fails early)
 
     call = _demosaic_call(method, model, pattern, noise_sigma, noise_shot, device, dtype, kwargs)
 
@@ -240,12 +287,10 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
     results, pixels = [], []
     with bar:
         for i, (name_i, array) in enumerate(items):
-            if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
-                raise ValueError(f"images: expected uint8 arrays [H, W, 3], {name_i} is {array.dtype} {array.shape}")
             truth = rgb8_to_tensor(array)
-            raw = noisy_mosaic(mosaic(truth, pattern), noise_sigma, noise_shot, seed=seed, index=i)
-            raw = raw.to(device=device, dtype=dtype)
-            try:
+            try:  # the mosaic and the method: an error says which image
+                raw = noisy_mosaic(mosaic(truth, pattern), noise_sigma, noise_shot, seed=seed, index=i)
+                raw = raw.to(device=device, dtype=dtype)
                 if i == 0:
                     run(raw)  # warm-up: first-call allocations and kernel selection are not the method's cost
                 t0 = time.perf_counter()
@@ -256,11 +301,15 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
             if out.shape != (1, 3) + tuple(truth.shape[-2:]):
                 raise ValueError(f"method: {name} returned shape {tuple(out.shape)} for a mosaic of "
                                  f"{tuple(raw.shape)}; expected (1, 3, H, W)")
-            score = cpsnr(out.to("cpu", torch.float64).clamp(0, 1), truth, crop)[0].item()
-            results.append({"name": name_i, "cpsnr": score, "ms": ms})
+            out = out.to("cpu", torch.float64)
+            if not torch.isfinite(out).all():  # clipping would keep a NaN and the score would be NaN: say so
+                raise ValueError(f"method: {name} returned {int((~torch.isfinite(out)).sum())} NaN/inf values for "
+                                 f"{name_i}; expected a finite image")
+            score = cpsnr(out.clamp(0, 1), truth, crop)[0].item()
+            results.append({"name": name_i, "cpsnr": score, "exact": score == math.inf, "ms": ms})
             pixels.append(truth.shape[-2] * truth.shape[-1])
             bar.update(1)
-    scores = [r["cpsnr"] for r in results]
+    scored = [r["cpsnr"] for r in results if not r["exact"]]  # (finite: the output is finite and clipped)
     ms_all = [r["ms"] for r in results]
     return {
         "method": name,
@@ -271,7 +320,8 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
         "seed": int(seed),
         "denoise": denoise,
         "dtype": str(dtype).replace("torch.", ""),
-        "mean_cpsnr": float(np.mean(scores)) if all(map(math.isfinite, scores)) else math.inf,
+        "mean_cpsnr": float(np.mean(scored)) if scored else math.inf,
+        "exact_images": len(results) - len(scored),
         "ms_per_image": float(np.mean(ms_all)),
         "ms_per_megapixel": float(np.sum(ms_all) / (np.sum(pixels) / 1e6)),
         "images": results,

@@ -682,9 +682,13 @@ class _ResidualBlock(nn.Module):
 def noise_features(shot_gain, read_var) -> torch.Tensor:
     """The joint network's noise inputs ``[sqrt(a) * 10, sqrt(b) * 100]`` for a mosaic with variance ``a x + b``
     (Poisson-Gaussian, Foi et al. IEEE TIP 2008; the scales bring typical values to ~1). ``shot_gain`` and
-    ``read_var``: scalars or ``[B]`` tensors (>= 0); returns ``[B, 2]`` (``[1, 2]`` for scalars)."""
+    ``read_var``: scalars or ``[B]`` tensors (finite, >= 0); returns ``[B, 2]`` (``[1, 2]`` for scalars)."""
     a = torch.as_tensor(shot_gain, dtype=torch.float64).reshape(-1)
     b = torch.as_tensor(read_var, dtype=torch.float64).reshape(-1)
+    for name, t in (("shot_gain", a), ("read_var", b)):  # an inf or NaN level would make every output NaN
+        if not bool(torch.isfinite(t).all()):
+            raise ValueError(f"{name}: expected finite noise parameters, found {int((~torch.isfinite(t)).sum())} "
+                             f"NaN/inf of {t.numel()}")
     if not (bool((a >= 0).all()) and bool((b >= 0).all())):
         raise ValueError(f"shot_gain, read_var: expected values >= 0, got {a.tolist()}, {b.tolist()}")
     a, b = torch.broadcast_tensors(a, b)

@@ -154,3 +154,47 @@ def test_read_rgb8_refuses_what_it_cannot_read_exactly(tmp_path):
     (tmp_path / "not.png").write_bytes(b"not an image")
     with pytest.raises(ValueError, match=r"cannot read not\.png as an image"):
         read_rgb8(tmp_path / "not.png")
+
+
+def test_read_rgb8_shows_a_photograph_in_its_exif_orientation(tmp_path):
+    # EXIF orientation 6 (TIFF/EXIF 2.3 tag 0x0112): the stored rows are the displayed image turned 90 degrees
+    # counter-clockwise, so it is displayed turned 90 degrees clockwise. Stored: red left half, blue right half
+    # (flat halves: JPEG keeps them within a few code values), 16 high and 24 wide; displayed: 24 high and 16 wide
+    # with the red half on top.
+    from isettorch.io.images import read_rgb8
+
+    stored = np.zeros((16, 24, 3), np.uint8)
+    stored[:, :12] = (200, 0, 0)
+    stored[:, 12:] = (0, 0, 200)
+    im = Image.fromarray(stored)
+    exif = im.getexif()
+    exif[0x0112] = 6
+    im.save(tmp_path / "turned.jpg", exif=exif, quality=95)
+    shown = read_rgb8(tmp_path / "turned.jpg")
+    assert shown.shape == (24, 16, 3)
+    red, blue = np.array([200, 0, 0]), np.array([0, 0, 200])
+    assert np.abs(shown[2:10].astype(int) - red).max() <= 8  # rows away from the JPEG ringing at the edge
+    assert np.abs(shown[14:22].astype(int) - blue).max() <= 8
+    with Image.open(tmp_path / "turned.jpg") as raw:  # the decoded rows as stored, turned clockwise
+        np.testing.assert_array_equal(shown, np.rot90(np.asarray(raw), k=-1))
+
+
+def test_read_rgb8_refuses_a_colour_key_and_several_pages(tmp_path):
+    from isettorch.io.images import read_rgb8
+
+    rgb = np.full((6, 5, 3), 100, np.uint8)
+    rgb[1, 1] = rgb[4, 2] = (7, 8, 9)
+    Image.fromarray(rgb).save(tmp_path / "keyed.png", transparency=(7, 8, 9))  # PNG tRNS: those 2 pixels are clear
+    with pytest.raises(ValueError, match=r"keyed\.png: expected an opaque image, 2 pixels are transparent"):
+        read_rgb8(tmp_path / "keyed.png")
+    gray = np.full((6, 5), 50, np.uint8)
+    gray[0, :3] = 0
+    Image.fromarray(gray).save(tmp_path / "gray_keyed.png", transparency=0)
+    with pytest.raises(ValueError, match=r"gray_keyed\.png: expected an opaque image, 3 pixels are transparent"):
+        read_rgb8(tmp_path / "gray_keyed.png")
+    Image.fromarray(rgb).save(tmp_path / "unused_key.png", transparency=(1, 2, 3))  # no pixel has the key: opaque
+    np.testing.assert_array_equal(read_rgb8(tmp_path / "unused_key.png"), rgb)
+    page = Image.fromarray(rgb)
+    page.save(tmp_path / "pages.tif", save_all=True, append_images=[Image.fromarray(255 - rgb)])
+    with pytest.raises(ValueError, match=r"pages\.tif: expected a single image, got 2 pages or frames"):
+        read_rgb8(tmp_path / "pages.tif")

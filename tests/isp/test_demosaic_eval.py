@@ -75,8 +75,8 @@ def test_cli_json(tmp_path, capsys):
     assert main(["demosaic-eval", str(tmp_path), "--method", "malvar2004", "--pattern", "GRBG", "--crop", "2",
                  "--dtype", "float64", "--json", "--quiet"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert set(res) == {"method", "pattern", "crop", "mean_cpsnr", "ms_per_image", "images", "noise_sigma",
-                        "noise_shot", "seed", "denoise", "dtype", "ms_per_megapixel"}
+    assert set(res) == {"method", "pattern", "crop", "mean_cpsnr", "exact_images", "ms_per_image", "images",
+                        "noise_sigma", "noise_shot", "seed", "denoise", "dtype", "ms_per_megapixel"}
     assert (res["method"], res["pattern"], res["crop"]) == ("malvar2004", "GRBG", 2)
     assert [r["name"] for r in res["images"]] == names
     expected = [_numpy_cpsnr(a, "malvar2004", "GRBG", crop=2)[0] for a in ims]
@@ -109,6 +109,67 @@ def test_cli_errors(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and re.search(r"DIR: thin\.png \(3 x 9 px\): raw: expected a height and width of at "
                                              r"least 4", err)
+
+
+def test_an_exactly_reproduced_image_is_counted_not_averaged(tmp_path, capsys):
+    """A flat image is demosaiced exactly (MSE 0, CPSNR inf): the mean is over the other images, the exact ones are
+    counted beside it, in the table and in valid JSON (cpsnr null, "exact": true)."""
+    smooth = _smooth_images(1, 24, 20, seed=3)[0]
+    white = np.full((16, 16, 3), 255, np.uint8)
+    expected = _numpy_cpsnr(smooth, "malvar2004", crop=2)[0]  # the only finite score
+    truth = white.astype(np.float64) / 255  # colour-demosaicing reproduces the flat image exactly: MSE 0
+    assert np.array_equal(np.clip(cd.demosaicing_CFA_Bayer_Malvar2004(cd.mosaicing_CFA_Bayer(truth)), 0, 1), truth)
+    res = evaluate_demosaic([("b_smooth", smooth), ("w_white", white)], "malvar2004", crop=2, dtype=torch.float64)
+    assert res["mean_cpsnr"] == pytest.approx(expected, abs=1e-9)
+    assert res["exact_images"] == 1
+    assert [(r["name"], r["exact"]) for r in res["images"]] == [("b_smooth", False), ("w_white", True)]
+    assert res["images"][1]["cpsnr"] == np.inf
+    Image.fromarray(smooth).save(tmp_path / "b_smooth.png")
+    Image.fromarray(white).save(tmp_path / "w_white.png")
+    args = ["demosaic-eval", str(tmp_path), "--method", "malvar2004", "--crop", "2", "--dtype", "float64", "--quiet"]
+    assert main([*args, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)  # strict JSON: no Infinity or NaN
+    assert out["mean_cpsnr"] == pytest.approx(expected, abs=1e-9) and out["exact_images"] == 1
+    assert [(r["cpsnr"], r["exact"]) for r in out["images"]][1] == (None, True)
+    assert main(args) == 0
+    table = capsys.readouterr().out
+    assert f"mean CPSNR {expected:.3f} dB over 1 of 2 images (1 reproduced exactly" in table
+    (tmp_path / "b_smooth.png").unlink()  # every image exact: no finite score to average
+    assert main([*args, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["mean_cpsnr"] is None and out["exact_images"] == 1 and out["images"][0]["exact"] is True
+
+
+def test_every_image_is_checked_before_the_first_is_scored():
+    calls = []
+
+    def method(raw, pattern):
+        calls.append(raw.shape)
+        return demosaic(raw, pattern, "bilinear")
+
+    big, small = _smooth_images(1, 16, 16)[0], _smooth_images(1, 8, 8)[0]
+    with pytest.raises(ValueError, match=r"crop: small is 8 x 8 px, too small for a 5-pixel border \(at most 3"):
+        evaluate_demosaic([("big", big), ("small", small)], method, crop=5)
+    with pytest.raises(ValueError, match=r"images: strip is 96 x 1 px; expected at least 2 px each way"):
+        evaluate_demosaic([("big", big), ("strip", np.zeros((1, 96, 3), np.uint8))], method)
+    assert calls == []  # nothing scored before the bad image was found
+
+    def broken(raw, pattern):
+        return torch.full((1, 3, *raw.shape[-2:]), float("nan"))
+
+    # (a callable is named by its type) 3 x 16 x 16 NaN
+    with pytest.raises(ValueError, match=r"method: function returned 768 NaN/inf values for big"):
+        evaluate_demosaic([("big", big)], broken)
+
+
+def test_check_device():
+    from isettorch.isp.evaluation import check_device
+
+    assert check_device("cpu") == torch.device("cpu")
+    for name, message in (("fpga", "cannot compute on 'fpga'"), ("foo", "'foo' is not a torch device"),
+                          ("meta", "'meta' holds no values")):
+        with pytest.raises(ValueError, match=f"device: {message}"):
+            check_device(name)
 
 
 def _benchmark_crops():

@@ -132,6 +132,33 @@ def test_denoise_errors():
         ev.evaluate_demosaic(ims, "learned", denoise="nlmeans", noise_sigma=0.01)
 
 
+def test_noise_levels_whose_variance_overflows_are_refused():
+    ims = [("a", _image(16, 16))]
+    # sigma^2 of 1e300 overflows a float (max ~1.8e308), as does the a^2 of the Anscombe transform for a = 1e200
+    with pytest.raises(ValueError, match=r"noise_sigma: expected a standard deviation whose square"):
+        ev.evaluate_demosaic(ims, "bilinear", noise_sigma=1e300)
+    with pytest.raises(ValueError, match=r"noise_shot: expected a shot-noise gain whose square"):
+        ev.evaluate_demosaic(ims, "bilinear", noise_shot=1e200)
+    raw = torch.full((1, 1, 4, 4), 0.5, dtype=torch.float64)
+    with pytest.raises(ValueError, match="noise_sigma"):
+        ev.noisy_mosaic(raw, 1e300)
+    # the joint network's noise inputs: sqrt(a) * 10 and sqrt(b) * 100 (a = 0.04, b = 1e-4: 2 and 1)
+    torch.testing.assert_close(learned.noise_features(0.04, 1e-4), torch.tensor([[2.0, 1.0]], dtype=torch.float64))
+    for a, b, name in ((float("inf"), 0.0, "shot_gain"), (0.0, float("inf"), "read_var"),
+                       (torch.tensor([0.1, float("nan")]), 0.0, "shot_gain")):
+        with pytest.raises(ValueError, match=f"{name}: expected finite noise parameters, found 1 NaN/inf"):
+            learned.noise_features(a, b)
+
+
+def test_bm3d_missing_is_named_before_any_work(monkeypatch):
+    monkeypatch.setitem(sys.modules, "bm3d", None)  # `import bm3d` now fails as when the package is absent
+    calls = []
+    with pytest.raises(ValueError, match=r"^denoise: 'bm3d' needs the bm3d package"):
+        ev.evaluate_demosaic([("a", _image(16, 16))], lambda raw, p: calls.append(1), denoise="bm3d",
+                             noise_sigma=0.05)
+    assert calls == []
+
+
 def test_bm3d_optional():
     bm3d = pytest.importorskip("bm3d")
     raw = ev.noisy_mosaic(mosaic(_truth(_image(32, 32)), "RGGB"), 0.05)

@@ -1,0 +1,77 @@
+"""``isettorch process``'s input checks on a tiny 12-bit RGGB camera (written here, so its noise model is known):
+the noise model's values and their range, the white level, and output names that would clash."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from isettorch.camera import Camera
+from isettorch.cli import main
+from isettorch.commands import process
+from isettorch.isp.learned import PRETRAINED
+
+# 12-bit ADC over a 1 V swing: 1 DN = 1/4096 V; conversion gain 2^-11 V/e: 2 DN per electron; read noise 3 e
+SENSOR = ("sensor: {rows: 8, cols: 8, pixel_size_m: 3.45e-6, cfa: RGGB, adc_bits: 12, voltage_swing_v: 1.0, "
+          "conversion_gain_v_per_e: 0.00048828125, black_level_dn: 64, read_noise_v: 0.00146484375, "
+          "dark_current_e_per_s: 50.0}")
+OPTICS = "optics: {type: diffraction_limited, f_number: 2.8, focal_length_m: 0.004}"
+SPAN_DN, DN_PER_E, READ_E, DARK_E_PER_S = 4095 - 64, 2.0, 3.0, 50.0
+
+
+@pytest.fixture
+def camera(tmp_path) -> Path:
+    path = tmp_path / "cam.yaml"
+    path.write_text(f"{OPTICS}\n{SENSOR}\n")
+    return path
+
+
+def test_noise_params_are_the_cameras_and_stay_in_range(camera):
+    sensor = Camera.from_config(camera).sensor
+    a = DN_PER_E / SPAN_DN  # normalised units per electron
+    quantisation = 1 / 12 / SPAN_DN**2
+    assert process.noise_params(sensor) == pytest.approx((a, READ_E**2 * a**2 + quantisation), rel=1e-12)
+    assert process.noise_params(sensor, 4.0, 2.0) == pytest.approx(
+        (4 * a, (READ_E**2 + DARK_E_PER_S * 2.0) * (4 * a) ** 2 + quantisation), rel=1e-12)
+    # settings that take a or b out of the float range (1e308: a = inf; 1e200: a^2 overflows) are named
+    for gain in (1e308, 1e200):
+        with pytest.raises(ValueError, match=r"^analog_gain: the gain .* makes the noise model's shot gain a"):
+            process.noise_params(sensor, gain)
+    with pytest.raises(ValueError, match=r"^exposure_s: 1e\+300 s of the sensor's dark current \(50 e/s\)"):
+        process.noise_params(sensor, None, 1e300)
+    for gain, exposure, name in ((float("inf"), 0.0, "analog_gain"), (None, float("inf"), "exposure_s"),
+                                 (None, float("nan"), "exposure_s"), (-1.0, 0.0, "analog_gain")):
+        with pytest.raises(ValueError, match=f"^{name}: expected a finite"):
+            process.noise_params(sensor, gain, exposure)
+
+
+def test_output_paths_never_clash(tmp_path):
+    out = tmp_path / "out"
+    assert process._output_paths(["a/x.npy", "b/y.tif"], out, "png") == [out / "x.png", out / "y.png"]
+    with pytest.raises(ValueError, match=r"^RAW: a/frame\.npy and b/frame\.npy would both be written to .*frame\.npy"):
+        process._output_paths(["a/frame.npy", "b/frame.npy"], out, "npy")
+    with pytest.raises(ValueError, match=r"^RAW: frame\.npy and frame\.tif would both be written"):
+        process._output_paths(["frame.npy", "frame.tif"], out, "npy")
+    with pytest.raises(ValueError, match=r"^RAW: \./frame\.npy is given twice"):
+        process._output_paths(["frame.npy", "./frame.npy"], out, "npy")
+
+
+def test_values_above_the_white_level_are_refused(camera, tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    frame = rng.integers(64, 4096, (8, 8)).astype(np.uint16)
+    frame[0, 0] = 4095  # the white level itself is a value the ADC gives
+    np.save(tmp_path / "white.npy", frame)
+    args = ["--camera", str(camera), "--model", str(PRETRAINED["joint_denoise"]), "--out", str(tmp_path / "out"),
+            "--quiet"]
+    assert main(["process", str(tmp_path / "white.npy"), *args]) == 0
+    rgb = np.load(tmp_path / "out" / "white.npy")
+    assert rgb.shape == (3, 8, 8) and np.isfinite(rgb).all()
+    frame[3, 5] = 4096
+    np.save(tmp_path / "over.npy", frame)
+    capsys.readouterr()
+    assert main(["process", str(tmp_path / "over.npy"), *args]) == 2
+    assert capsys.readouterr().err == (f"isettorch process: RAW: {tmp_path / 'over.npy'}: values up to 4096 DN exceed "
+                                       f"the camera's white level 4095 DN (data shifted left?)\n")
+    assert not (tmp_path / "out" / "over.npy").exists()
