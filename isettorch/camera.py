@@ -10,15 +10,18 @@ import dataclasses
 import difflib
 import inspect
 import math
+import numbers
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import nn
 
+from ._yaml import load_yaml
 from .isp.pipeline import DemosaicStage, ImageProcessor, ISPResult
 
-__all__ = ["Camera", "CameraOutput", "load_config", "camera_config_names", "CONFIG_SECTIONS"]
+__all__ = ["Camera", "CameraOutput", "load_config", "load_yaml", "check_config_values", "check_sensor_values",
+           "camera_config_names", "CONFIG_SECTIONS"]
 
 
 @dataclasses.dataclass
@@ -202,15 +205,19 @@ class Camera(nn.Module):
     # --- configuration -------------------------------------------------------------------------
     @classmethod
     def from_config(cls, config) -> Camera:
-        """Build a camera from a built-in config name, a YAML file (``yaml.safe_load``) or a dict.
+        """Build a camera from a built-in config name, a YAML file (:func:`load_yaml`: ``yaml.SafeLoader`` with
+        YAML 1.2 floats, so ``1e-2`` is a number) or a dict.
 
         ``config``: a name from :func:`camera_config_names` (``"default"``, ``"imx363"``, ``"paper2004_cds"``:
         the files in ``isettorch/configs/cameras/``, shipped with the package), a path to a YAML file, or a dict
-        with the same sections and keys as the YAML (``Camera.from_config(yaml.safe_load(f))`` equals
+        with the same sections and keys as the YAML (``Camera.from_config(load_yaml(text))`` equals
         ``Camera.from_config(path)``). Keys are the constructor arguments of the stage they configure, with units
         in their names (``focal_length_m``, ``exposure_s``, ``pixel_size_m``).
 
-        Unknown or mistyped keys raise a ``ValueError`` naming the key, its section and the closest valid key.
+        Unknown or mistyped keys raise a ``ValueError`` naming the key, its section and the closest valid key; a
+        value of the wrong kind (``cds: 'no'``, ``fill_factor: '0.9'``, ``adc_bits: true``, a NaN) an error naming
+        the key (:func:`check_config_values`), and so does a key that nothing would use (``ae_target`` without
+        ``auto_exposure``, ``isp.gains`` without ``illuminant_correction: manual``, ...).
         """
         return build_camera(load_config(config) if not isinstance(config, dict) else config)
 
@@ -274,9 +281,67 @@ def _check_keys(section: dict, schema: dict, where: str) -> None:
         if key not in schema:
             raise _unknown(key, schema, where)
         expected = schema[key]
-        if value is not None and expected is not None and not isinstance(value, expected):
-            names = expected.__name__ if isinstance(expected, type) else "/".join(t.__name__ for t in expected)
+        if value is None or expected is None:
+            continue
+        types = expected if isinstance(expected, tuple) else (expected,)
+        numeric = any(t in (int, float) for t in types)
+        # bool is an int to Python: a number key takes no true/false, a bool key nothing else
+        if isinstance(value, bool) and bool not in types or not isinstance(value, types):
+            names = "/".join(t.__name__ for t in types)
             raise TypeError(f"config: {where}.{key} must be {names}, got {type(value).__name__} ({value!r})")
+        if numeric and isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"config: {where}.{key} must be a finite number, got {value!r}")
+
+
+def _annotation_kind(annotation) -> tuple[str | None, bool]:
+    """(``'bool'``, ``'int'``, ``'number'`` or None, None allowed) of a constructor argument's annotation, read from
+    its text (the modules use ``from __future__ import annotations``): ``bool``, ``int``, ``int | None``, ``float``,
+    ``float | None``; anything else (tensors, strings, unions of other types) is left to the constructor."""
+    text = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", str(annotation))
+    parts = {p.strip() for p in text.split("|")}
+    optional = "None" in parts
+    parts.discard("None")
+    kind = {frozenset({"bool"}): "bool", frozenset({"int"}): "int", frozenset({"float"}): "number"}.get(
+        frozenset(parts))
+    return kind, optional
+
+
+def check_config_values(section: dict, functions, where: str) -> None:
+    """Check the values of a config section against the annotations of the constructor(s) they go to, so a config
+    key is what its argument says (DESIGN.md, principle 5), the same check for every section:
+
+    * ``bool``: a YAML boolean (``true`` / ``false``); ``'no'``, ``'false'``, 0 or 1 are errors, not truthy values;
+    * ``int`` (``seed``, ``adc_bits``, ``rows``): an integer, not a bool (``true`` is no bit depth), float or string;
+    * ``float`` (every ``..._m``, ``..._v``, ``..._s`` scalar): a real number (int or float, not a bool or a string:
+      ``'0.1'`` is no number), finite (infinite only where the argument's default is, e.g. ``focus_distance_m``).
+
+    ``None`` passes where the annotation allows it. TypeError (ValueError for NaN / Inf) naming ``where.key``.
+    ``functions``: a callable or several (a class and its bases); the first that has a key annotates it.
+    """
+    if not isinstance(section, dict):
+        raise TypeError(f"config: {where} must be a mapping, got {type(section).__name__}")
+    params: dict = {}
+    for fn in (functions if isinstance(functions, (list, tuple)) else (functions,)):
+        for name, p in inspect.signature(fn).parameters.items():
+            params.setdefault(name, p)
+    for key, value in section.items():
+        p = params.get(key)
+        if p is None or p.annotation is inspect.Parameter.empty:
+            continue
+        kind, optional = _annotation_kind(p.annotation)
+        if kind is None or value is None and optional:
+            continue
+        got = f"got {type(value).__name__} ({value!r})"
+        if kind == "bool":
+            if not isinstance(value, bool):
+                raise TypeError(f"config: {where}.{key} must be true or false (a YAML boolean), {got}")
+        elif isinstance(value, bool) or not isinstance(value, numbers.Integral if kind == "int" else numbers.Real):
+            what = "an integer" if kind == "int" else "a number (int or float; a quoted '1.5' is a string)"
+            raise TypeError(f"config: {where}.{key} must be {what}{' or null' if optional else ''}, {got}")
+        elif not math.isfinite(value):
+            # infinity only where the argument's own default is infinite (e.g. focus_distance_m: .inf, at infinity)
+            if math.isnan(value) or not (isinstance(p.default, float) and math.isinf(p.default)):
+                raise ValueError(f"config: {where}.{key} must be a finite number, got {value!r}")
 
 
 def _signature_keys(fn) -> dict:
@@ -302,7 +367,8 @@ def _is_name(config) -> bool:
 
 
 def load_config(path) -> dict:
-    """Read a camera config safely (``yaml.safe_load``): a built-in name (:func:`camera_config_names`) or a path."""
+    """Read a camera config safely (:func:`load_yaml`: ``yaml.SafeLoader`` with YAML 1.2 floats): a built-in name
+    (:func:`camera_config_names`) or a path."""
     import yaml
 
     if _is_name(path):
@@ -320,7 +386,7 @@ def load_config(path) -> dict:
                                     f"(built-in configs, by name: {camera_config_names()})")
         text = p.read_text()
     try:
-        cfg = yaml.safe_load(text)
+        cfg = load_yaml(text)
     except yaml.YAMLError as err:  # a malformed file is bad input: say where, in one line
         mark = getattr(err, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
@@ -331,6 +397,30 @@ def load_config(path) -> dict:
     return cfg
 
 
+def check_sensor_values(cfg: dict, where: str = "sensor") -> None:
+    """:func:`check_config_values` of a ``sensor:`` section: the :class:`~isettorch.sensor.Sensor` arguments and
+    those of its ``pixel_optics`` mapping (:class:`~isettorch.sensor.microlens.PixelOptics`)."""
+    from .sensor import Sensor
+    from .sensor.microlens import PixelOptics
+
+    check_config_values(cfg, Sensor.__init__, where)
+    if isinstance(cfg.get("pixel_optics"), dict):
+        check_config_values(cfg["pixel_optics"], PixelOptics.__init__, f"{where}.pixel_optics")
+
+
+def _config_tensor(value, where: str, dtype) -> torch.Tensor:
+    """A config's nested list of numbers as a tensor; TypeError naming ``where`` for anything else."""
+    ok = isinstance(value, list) and all(
+        isinstance(row, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+        for row in value)
+    if not ok:
+        raise TypeError(f"config: {where} must be a matrix (a list of rows of numbers), got {value!r}")
+    try:
+        return torch.tensor(value, dtype=dtype)
+    except (TypeError, ValueError) as err:  # ragged rows
+        raise ValueError(f"config: {where} must be a matrix with rows of equal length, got {value!r}") from err
+
+
 def _build_sensor(cfg: dict) -> nn.Module:
     from .sensor import PRESETS, Sensor
 
@@ -339,6 +429,7 @@ def _build_sensor(cfg: dict) -> nn.Module:
     keys = _signature_keys(Sensor.__init__)
     keys.pop("spectral_qe", None)
     _check_keys(cfg, keys, "sensor")
+    check_sensor_values(cfg)
     if isinstance(cfg.get("exposure_s"), list):
         cfg["exposure_s"] = torch.tensor(cfg["exposure_s"])
     if preset is None:
@@ -346,6 +437,10 @@ def _build_sensor(cfg: dict) -> nn.Module:
     if preset not in PRESETS:
         raise _unknown(preset, PRESETS, "sensor.preset")
     return Sensor.preset(preset, **cfg)
+
+
+#: the keys of ``isp.sensor_conversion`` that only fitting a matrix uses (``method`` mcc_optimized / multisurface)
+_FIT_KEYS = ("illuminant", "surfaces", "observer", "normalize")
 
 
 def _build_isp(cfg: dict) -> ImageProcessor:
@@ -362,15 +457,26 @@ def _build_isp(cfg: dict) -> ImageProcessor:
     method = conv.pop("method", "mcc_optimized")
     if method not in ("mcc_optimized", "multisurface", "matrix"):
         raise _unknown(method, ("mcc_optimized", "multisurface", "matrix"), "isp.sensor_conversion.method")
+    if method == "matrix":
+        if "matrix" not in conv:
+            raise ValueError("config: isp.sensor_conversion.method 'matrix' needs isp.sensor_conversion.matrix "
+                             "(3 x C)")
+        unused = [k for k in _FIT_KEYS if k in conv]
+        if unused:
+            raise ValueError(f"config: isp.sensor_conversion.{unused[0]} is not used with method 'matrix' (it sets "
+                             f"how a matrix is fitted; the given matrix is used as it is): drop it, or fit with "
+                             f"method mcc_optimized / multisurface")
+    elif "matrix" in conv:
+        raise ValueError(f"config: isp.sensor_conversion.matrix is not used with method {method!r} (which fits the "
+                         f"matrix to the sensor): set method: matrix to use it, or drop it")
     if method == "multisurface":
         conv.setdefault("surfaces", "macbeth+rawtoaces190")
-    if method == "matrix" and "matrix" not in conv:
-        raise ValueError("config: isp.sensor_conversion.method 'matrix' needs isp.sensor_conversion.matrix (3 x C)")
     matrix = conv.pop("matrix", None)
-    s2x = SensorToXYZ(matrix=torch.tensor(matrix, dtype=torch.get_default_dtype()) if matrix is not None else None,
-                      **conv)
+    if matrix is not None:
+        matrix = _config_tensor(matrix, "isp.sensor_conversion.matrix", torch.get_default_dtype())
+    s2x = SensorToXYZ(matrix=matrix, **conv)
     if isinstance(cfg.get("display"), list):  # a display given by its RGB -> XYZ matrix (columns: primaries)
-        cfg["display"] = torch.tensor(cfg["display"], dtype=torch.float64)
+        cfg["display"] = _config_tensor(cfg["display"], "isp.display", torch.float64)
         if cfg["display"].shape != (3, 3):
             raise ValueError(f"config: isp.display as a matrix must be 3 x 3, got {list(cfg['display'].shape)}")
     return ImageProcessor(demosaic=demosaic, sensor_to_xyz=s2x, **cfg)

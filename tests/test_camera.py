@@ -108,6 +108,17 @@ def test_config_errors_name_the_key(tmp_path):
     path.write_text("name: x\nsensor: [\n")  # a flow sequence never closed: malformed YAML at the end, line 3
     with pytest.raises(ValueError, match=r"bad\.yaml' is not valid YAML at line 3, column 1 \(expected the node"):
         Camera.from_config(path)
+    # values: a boolean key takes a YAML boolean ('no' is a string, not False), a number key a finite number
+    bad = dict(cfg, sensor=dict(cfg["sensor"], cds="no"))
+    with pytest.raises(TypeError, match=r"config: sensor\.cds must be true or false \(a YAML boolean\), got str"):
+        Camera.from_config(bad)
+    bad = dict(cfg, sensor=dict(cfg["sensor"], fill_factor="0.9"))
+    with pytest.raises(TypeError, match=r"config: sensor\.fill_factor must be a number"):
+        Camera.from_config(bad)
+    # YAML 1.2 floats: 1e-2 is a number (PyYAML's YAML 1.1 resolver alone reads it as the string '1e-2')
+    text = (CONFIGS / "default.yaml").read_text()
+    path.write_text(text.replace("auto_exposure: luminance", "auto_exposure: null\n  exposure_s: 1e-2"))
+    assert Camera.from_config(path).sensor.exposure_s == 0.01
 
 
 def test_warns_when_the_scene_is_coarser_than_the_pixels():

@@ -46,3 +46,39 @@ def test_demo_runs_from_any_directory_with_the_builtin_config(tmp_path, monkeypa
     monkeypatch.chdir(tmp_path)
     assert main(["demo", "--out", "o", "--size", "32", "--quiet"]) == 0
     assert (tmp_path / "o" / "macbeth.png").exists()
+
+
+def test_demo_monochrome_camera_skips_the_colour_error(tmp_path):
+    # a monochrome camera has no XYZ: the report says the colour error was not measured and keeps the rest
+    cfg = tmp_path / "mono.yaml"
+    cfg.write_text("optics: {f_number: 4.0, focal_length_m: 0.004}\nsensor: {cfa: MONO, auto_exposure: luminance}\n")
+    out = tmp_path / "out"
+    assert main(["demo", "--out", str(out), "--size", "32", "--config", str(cfg), "--quiet"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    m = report["scenes"]["macbeth"]
+    assert m["colour_error"] == "not measured: a monochrome sensor has no colour"
+    assert "delta_e2000_mean" not in m
+    assert m["gray_patch_snr_channel"] == "W" and len(m["gray_patch_snr_db"]) == 6
+    snr = m["gray_patch_snr_db"]
+    assert all(np.isfinite(v) for v in snr) and snr[0] > snr[-1]
+    assert set(report["scenes"]) == {"macbeth", "slanted_edge", "frequency_sweep", "dead_leaves"}
+    md = (out / "report.md").read_text()
+    assert "colour error: not measured" in md and "W pixels" in md
+
+
+def test_demo_snr_names_its_channel_and_never_reports_inf(tmp_path):
+    # RGBW on a tiny sensor: the G pixels are measured (the label says which), and a patch with fewer than 2 of them
+    # has no SNR (null and a reason), not inf
+    cfg = tmp_path / "rgbw.yaml"
+    cfg.write_text("optics: {f_number: 4.0, focal_length_m: 0.004}\nsensor: {cfa: RGBW, auto_exposure: luminance}\n")
+    out = tmp_path / "out"
+    assert main(["demo", "--out", str(out), "--size", "16", "--config", str(cfg), "--quiet"]) == 0
+    text = (out / "report.json").read_text()
+    assert "Infinity" not in text and "NaN" not in text
+    m = json.loads(text)["scenes"]["macbeth"]
+    assert m["gray_patch_snr_channel"] == "G"
+    for v, n, note in zip(m["gray_patch_snr_db"], m["gray_patch_pixels"], m["gray_patch_snr_notes"]):
+        assert (v is None) == (n < 2) and (note is None) == (v is not None)
+    assert None in m["gray_patch_snr_db"]
+    md = (out / "report.md").read_text()
+    assert "G pixels" in md and "green pixels" not in md and "n/a" in md

@@ -161,8 +161,12 @@ def test_calibrate_train_process(tmp_path, capsys):
     # the camera's
     from isettorch.isp.learned import PRETRAINED
 
+    # (the full well x 1000 too: the same saturation in volts, so the same white level; the sensor's white level
+    # is where its full well saturates, full_well_e x conversion gain, when that comes before the ADC's top code)
+    fw = cam_cfg["sensor"].get("full_well_e")
     quiet = dict(cam_cfg, sensor=dict(cam_cfg["sensor"], read_noise_v=0.0,
-                                      conversion_gain_v_per_e=cam_cfg["sensor"]["conversion_gain_v_per_e"] * 1e-3))
+                                      conversion_gain_v_per_e=cam_cfg["sensor"]["conversion_gain_v_per_e"] * 1e-3,
+                                      full_well_e=None if fw is None else fw * 1e3))
     quiet_yaml = tmp_path / "quiet_camera.yaml"
     quiet_yaml.write_text(yaml.safe_dump(quiet, sort_keys=False))
     errs = {}

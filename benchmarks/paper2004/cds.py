@@ -69,7 +69,8 @@ def run(out: Path, cols: int = 800, seed: int = 0) -> dict:
                      "noise_std_mv": round(noise_v * 1e3, 4),
                      "noise_std_electrons": round(noise_v / raw.conversion_gain_v_per_e, 1),
                      "expected_noise_std_mv_without_clipping": round(math.sqrt(var) * 1e3, 4),
-                     "gray_patch_snr_db": [round(v, 2) for v in gray_patch_snr_db(raw, 1)]}
+                     "gray_patch_snr_db": [None if v is None else round(v, 2)  # None: undefined (too few pixels)
+                                           for v in gray_patch_snr_db(raw, 1)]}
             results.append(entry)
             images[(lux, cds)] = res.image[0]
             print(f"{lux:6.2f} lux  CDS {'on ' if cds else 'off'}  signal {entry['mean_signal_mv']:8.3f} mV  "
@@ -89,7 +90,7 @@ def run(out: Path, cols: int = 800, seed: int = 0) -> dict:
     lines += [f"| {r['mean_sensor_illuminance_lux']} | {'on' if r['cds'] else 'off'} | {r['mean_signal_mv']:.2f} | "
               f"{r['noise_std_mv']:.3f} | {r['expected_noise_std_mv_without_clipping']:.3f} | "
               f"{r['noise_std_electrons']:.0f} | "
-              f"{', '.join(f'{v:.1f}' for v in r['gray_patch_snr_db'])} |" for r in results]
+              f"{', '.join('n/a' if v is None else f'{v:.1f}' for v in r['gray_patch_snr_db'])} |" for r in results]
     (out / "cds.md").write_text("\n".join(lines) + "\n")
     return {"results": results}
 

@@ -3,7 +3,8 @@
 Scenes: Macbeth ColorChecker (D65), slanted edge, frequency sweep and dead leaves, each with a field of view
 chosen so the sensor is about ``--size`` pixels wide. Outputs in ``--out``: ``<scene>.png`` (the camera's
 sRGB image), ``<scene>_scene.png`` (the scene's ideal sRGB preview), ``report.json`` and ``report.md``
-(Macbeth mean/max dE2000, exposure, per-scene sensor illuminance, and the SNR of the gray patches).
+(Macbeth mean/max dE2000, exposure, per-scene sensor illuminance, and the SNR of the gray patches). A monochrome
+camera has no colour: its report has no colour error (``colour_error`` says so) and the rest as for colour.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def run(args) -> int:
     import yaml
 
     from ..camera import Camera
-    from ..isp.chart import gray_patch_snr_db, macbeth_delta_e, patch_means
+    from ..isp.chart import gray_patch_snr, macbeth_delta_e, patch_means
     from ..scene import frequency_sweep, macbeth, slanted_edge
     from ..scene.dead_leaves import dead_leaves
 
@@ -91,14 +92,28 @@ def run(args) -> int:
             "render_seconds": round(elapsed, 3),
         }
         if name == "macbeth":
-            acc = macbeth_delta_e(patch_means(res.isp.xyz), "D65")
-            snr = gray_patch_snr_db(res.raw)
-            entry.update({"delta_e2000_mean": float(acc.mean[0]), "delta_e2000_max": float(acc.max[0]),
-                          "delta_e2000_per_patch": [round(float(v), 3) for v in acc.delta_e[0]],
-                          "gray_patch_snr_db": [round(v, 2) for v in snr]})
+            if res.raw.cfa.is_monochrome or res.isp is None or res.isp.xyz is None:
+                # a monochrome sensor: the ISP renders gray (no XYZ), so there is no colour to compare
+                entry["colour_error"] = "not measured: a monochrome sensor has no colour"
+            else:
+                acc = macbeth_delta_e(patch_means(res.isp.xyz), "D65")
+                entry.update({"delta_e2000_mean": float(acc.mean[0]), "delta_e2000_max": float(acc.max[0]),
+                              "delta_e2000_per_patch": [round(float(v), 3) for v in acc.delta_e[0]]})
+            snr = gray_patch_snr(res.raw)
+            entry.update({"gray_patch_snr_db": [None if v is None else round(v, 2) for v in snr["snr_db"]],
+                          "gray_patch_snr_channel": snr["channel"], "gray_patch_pixels": snr["pixels"]})
+            if any(snr["notes"]):
+                entry["gray_patch_snr_notes"] = snr["notes"]
         report["scenes"][name] = entry
     (out / "report.json").write_text(json.dumps(report, indent=2))
     m = report["scenes"]["macbeth"]
+    if "delta_e2000_mean" in m:
+        colour = ("- colour error (CIEDE2000, white-patch scaled, vs the true XYZ): "
+                  f"mean **{m['delta_e2000_mean']:.2f}**, max **{m['delta_e2000_max']:.2f}**")
+    else:
+        colour = f"- colour error: {m['colour_error']}"
+    snr_text = ", ".join("n/a" if v is None else f"{v:.1f}" for v in m["gray_patch_snr_db"])
+    notes = sorted({v for v in m.get("gray_patch_snr_notes", []) if v})
     lines = [
         f"# isettorch demo: camera `{report['camera']}`",
         "",
@@ -106,12 +121,11 @@ def run(args) -> int:
         "",
         "## Macbeth ColorChecker under D65",
         "",
-        f"- colour error (CIEDE2000, white-patch scaled, vs the true XYZ): mean **{m['delta_e2000_mean']:.2f}**,"
-        f" max **{m['delta_e2000_max']:.2f}**",
+        colour,
         f"- exposure {m['exposure_s'] * 1e3:.2f} ms at {m['sensor_mean_illuminance_lux']:.2f} lux mean sensor "
         "illuminance",
-        "- SNR of the gray patches (white -> black, green pixels, noise-free mean / noise std, dB): "
-        + ", ".join(f"{v:.1f}" for v in m["gray_patch_snr_db"]),
+        f"- SNR of the gray patches (white -> black, {m['gray_patch_snr_channel']} pixels, noise-free mean / noise "
+        f"std, dB): {snr_text}" + (f" (n/a: {'; '.join(notes)})" if notes else ""),
         "",
         "## Scenes",
         "",

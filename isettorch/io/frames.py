@@ -132,13 +132,13 @@ def write_frame(path: str | Path, frame) -> None:
 
 
 def _read_yaml(path: Path) -> dict:
-    import yaml
+    from .._yaml import load_yaml
 
     if not path.is_file():
         raise ValueError(f"{path}: missing capture.yaml (bit_depth, pixel_size_m, optional black_level_dn, cfa, "
                          f"photons_per_pixel)")
     try:
-        cfg = yaml.safe_load(path.read_text())
+        cfg = load_yaml(path.read_text())  # safe, YAML 1.2 floats (1e-3 is a number)
     except Exception as err:
         raise ValueError(f"{path}: cannot parse YAML ({err})") from err
     if not isinstance(cfg, dict):

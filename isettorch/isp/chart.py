@@ -8,13 +8,15 @@ Reference: ISETCam ``macbethColorError`` / ``macbethCompareIdeal`` (white-patch 
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import torch
 
 from .colour import reflectance_set, white_xyz, xyz_responses
 
-__all__ = ["patch_means", "macbeth_true_xyz", "macbeth_delta_e", "gray_patch_snr_db", "WHITE_PATCH"]
+__all__ = ["patch_means", "macbeth_true_xyz", "macbeth_delta_e", "gray_patch_snr", "gray_patch_snr_db",
+           "snr_channel", "WHITE_PATCH"]
 
 #: Index of the white patch (row 4, column 1) in reading order.
 WHITE_PATCH = 18
@@ -69,24 +71,81 @@ def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = 
         return color_accuracy(x, ref, white=white, method=method)
 
 
-def gray_patch_snr_db(raw, channel: int | None = None, fraction: float = 0.5) -> list[float]:
-    """SNR (dB) of the six gray patches (white -> black) of a Macbeth raw that fills the sensor:
-    ``20 log10(mean noise-free signal / std(noisy - noise-free))`` over one CFA channel's pixels (default the
-    channel with most pixels, G of a Bayer) in each patch's central ``fraction``; using the noise-free
-    signal keeps lens shading and blur out of the noise. Needs ``raw.noise_free``."""
+def snr_channel(cfa) -> int:
+    """The CFA channel the gray-patch SNR measures by default: ``'G'`` where the mosaic has one (the luminance-like
+    channel of RGB mosaics, RGBW included), else the channel with the most pixels per cell (the first of a tie in
+    ``channel_names``): W of RCCB / RCCC / a monochrome sensor, Y of YCMY."""
+    names = list(cfa.channel_names)
+    if "G" in names:
+        return names.index("G")
+    counts = [sum(row.count(n) for row in cfa.cell) for n in names]
+    return counts.index(max(counts))
+
+
+def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5) -> dict:
+    """SNR (dB) of the six gray patches (white -> black) of a Macbeth raw that fills the sensor, with what it measured.
+
+    ``20 log10(mean noise-free signal / std(noisy - noise-free))`` over one CFA channel's pixels in each patch's
+    central ``fraction``; using the noise-free signal keeps lens shading and blur out of the noise. Needs
+    ``raw.noise_free``.
+
+    Args:
+        raw: a :class:`~isettorch.sensor.raw.RawImage` (item 0 is measured).
+        channel: a channel index or CFA letter (``'G'``); None: :func:`snr_channel` (G, else the most frequent).
+        fraction: the central part of each patch measured.
+
+    Returns:
+        ``{"channel": letter, "snr_db": [6 x float or None], "pixels": [6 x int], "notes": [6 x str or None]}``.
+        A patch's SNR is None, with a note saying why, where it is undefined: fewer than 2 pixels of the channel
+        (no standard deviation: a small sensor), no noise (std 0: the noise-free capture), or no signal (mean <= 0);
+        never inf or NaN.
+    """
     if raw.noise_free is None:
-        raise ValueError("raw: gray_patch_snr_db needs raw.noise_free (the sensor's noise-free capture)")
+        raise ValueError("raw: gray_patch_snr needs raw.noise_free (the sensor's noise-free capture)")
+    if not 0 < fraction <= 1:
+        raise ValueError(f"fraction: expected a value in (0, 1], got {fraction}")
+    names = list(raw.cfa.channel_names)
+    if channel is None:
+        c = snr_channel(raw.cfa)
+    elif isinstance(channel, str):
+        if channel not in names:
+            raise ValueError(f"channel: the CFA has no channel {channel!r}; expected one of {names}")
+        c = names.index(channel)
+    elif isinstance(channel, int) and not isinstance(channel, bool) and 0 <= channel < len(names):
+        c = channel
+    else:
+        raise ValueError(f"channel: expected None, a CFA letter of {names} or an index in 0..{len(names) - 1}, "
+                         f"got {channel!r}")
     masks = raw.channel_masks()
-    c = int(masks.flatten(1).sum(1).argmax()) if channel is None else channel
     sig = raw.noise_free[0, 0].double() - raw.black_level
     res = raw.data[0, 0].double() - raw.noise_free[0, 0].double()
     mask = masks[c].bool()
     h, w = sig.shape
-    out = []
+    snr, pixels, notes = [], [], []
     for k in range(6):
         r = slice(int((3.5 - fraction / 2) * h / 4), int((3.5 + fraction / 2) * h / 4))
         col = slice(int((k + 0.5 - fraction / 2) * w / 6), int((k + 0.5 + fraction / 2) * w / 6))
         m = mask[r, col]
-        s, n = sig[r, col][m].mean(), res[r, col][m].std()
-        out.append(float(20 * torch.log10(s / n)) if n > 0 else float("inf"))
-    return out
+        n_px = int(m.sum())
+        pixels.append(n_px)
+        if n_px < 2:
+            snr.append(None)
+            notes.append(f"{n_px} {names[c]} pixel(s) in the patch: a standard deviation needs at least 2 (a larger "
+                         "sensor or fraction)")
+            continue
+        s_mean, n_std = float(sig[r, col][m].mean()), float(res[r, col][m].std())
+        if not n_std > 0:
+            snr.append(None)
+            notes.append("no noise in the patch (std 0, e.g. a noise-free capture): the SNR is unbounded")
+        elif not s_mean > 0:
+            snr.append(None)
+            notes.append(f"no signal in the patch (mean {s_mean:.3g} above black): the SNR is undefined")
+        else:
+            snr.append(20 * math.log10(s_mean / n_std))
+            notes.append(None)
+    return {"channel": names[c], "snr_db": snr, "pixels": pixels, "notes": notes}
+
+
+def gray_patch_snr_db(raw, channel: int | str | None = None, fraction: float = 0.5) -> list[float | None]:
+    """The SNRs (dB) of :func:`gray_patch_snr` (white -> black; None where a patch's SNR is undefined)."""
+    return gray_patch_snr(raw, channel, fraction)["snr_db"]

@@ -35,6 +35,7 @@ __all__ = [
     "xyz_responses",
     "sensor_to_xyz_matrix",
     "white_xyz",
+    "check_illuminant_name",
     "gray_world_gains",
     "white_world_gains",
     "illuminant_gains",
@@ -254,6 +255,20 @@ def white_xyz(illuminant="D65", wavelengths_nm=None, observer: str = "1931") -> 
     return xyz / xyz[1]
 
 
+def check_illuminant_name(name, key: str = "illuminant") -> None:
+    """A named illuminant (:func:`isettorch.spectral.illuminant`) is one the library has, checked when a stage is
+    built: ValueError naming ``key``, the name and the accepted forms (``'D66'`` reads as daylight at 66 K, which
+    is no daylight). Non-strings (an SPD) are left to the stage."""
+    if not isinstance(name, str):
+        return
+    try:
+        spectral.illuminant(name, torch.tensor([550.0], dtype=torch.float64))
+    except ValueError as err:
+        raise ValueError(f"{key}: {name!r} is not a valid illuminant name; expected one of "
+                         f"{spectral.illuminant_names()}, 'D<cct>' (CIE daylight at a CCT of 4000-25000 K, e.g. "
+                         f"'D5000') or 'blackbody<T>' / 'BB<T>' (T in kelvin, e.g. 'blackbody3000') ({err})") from err
+
+
 # ---------------------------------------------------------------------------------------------
 # Illuminant correction (white balance)
 
@@ -411,11 +426,19 @@ class IlluminantCorrection(nn.Module):
             raise ValueError(f"space: expected 'xyz' or 'sensor', got {space!r}")
         if key == "manual" and gains is None:
             raise ValueError("gains: method 'manual' needs gains (C,), got None")
+        if key != "manual" and gains is not None:
+            raise ValueError(f"gains: only illuminant correction 'manual' uses gains; method {method!r} computes its "
+                             f"own (drop gains, or use method 'manual')")
+        if gains is not None:
+            gains = as_tensor(gains, "gains").reshape(-1)
+            check_finite(gains, "gains")
+            if bool((gains <= 0).any()):
+                raise ValueError(f"gains: expected positive per-channel gains, got {gains.tolist()}")
         self.method = key
         self.space = space
         self.reference_channel = int(reference_channel)
         self.criterion = float(criterion)
-        self.register_buffer("gains", None if gains is None else as_tensor(gains, "gains").reshape(-1))
+        self.register_buffer("gains", gains)
         self.register_buffer("last_gains", None, persistent=False)
 
     def forward(self, img: torch.Tensor, white=None) -> torch.Tensor:
@@ -450,6 +473,7 @@ class SensorToXYZ(nn.Module):
     def __init__(self, matrix=None, illuminant="D65", surfaces="macbeth", observer: str = "1931",
                  learnable: bool = False, normalize: bool = True) -> None:
         super().__init__()
+        check_illuminant_name(illuminant)
         self.illuminant = illuminant
         self.surfaces = surfaces
         self.observer = observer
@@ -466,6 +490,7 @@ class SensorToXYZ(nn.Module):
         check_rank(matrix, 2, "matrix", "(3, C)")
         if matrix.shape[0] != 3:
             raise ValueError(f"matrix: expected shape (3, C), got {tuple(matrix.shape)}")
+        check_finite(matrix.detach(), "matrix")
         self._buffers.pop("matrix", None)
         self._parameters.pop("matrix", None)
         if self.learnable:
@@ -567,6 +592,7 @@ class XYZToDisplay(nn.Module):
         else:
             if isinstance(display, torch.Tensor) and display.shape == (3, 3):
                 rgb_to_xyz = display.to(torch.float64)
+                _check_display_matrix(rgb_to_xyz)
             else:
                 spd, w = _display_primaries(display)
                 rgb_to_xyz = display_rgb_to_xyz_matrix(spd, w, observer)
@@ -593,6 +619,21 @@ class XYZToDisplay(nn.Module):
 
     def extra_repr(self) -> str:
         return f"display={self.name!r}, max_luminance_cd_m2={self.max_luminance_cd_m2}"
+
+
+def _check_display_matrix(rgb_to_xyz: torch.Tensor) -> None:
+    """A display's RGB -> XYZ matrix (columns: the primaries' XYZ) is finite, invertible (|det| above 1e-12 of the
+    cube of its Frobenius norm, the determinant's scale: three independent primaries) and its white (R = G = B = 1)
+    has a positive luminance Y, so XYZ -> RGB exists and the white can be set to Y = 1."""
+    check_finite(rgb_to_xyz, "display")
+    det = float(torch.linalg.det(rgb_to_xyz))
+    norm = float(torch.linalg.matrix_norm(rgb_to_xyz))
+    if not abs(det) > 1e-12 * norm ** 3:
+        raise ValueError(f"display: the RGB -> XYZ matrix is singular (det {det:.3g}, norm {norm:.3g}): its primaries "
+                         f"must be three independent colours, got {rgb_to_xyz.tolist()}")
+    if not float(rgb_to_xyz[1].sum()) > 0:
+        raise ValueError(f"display: the white (sum of the primaries' Y, row 2) must be positive, got "
+                         f"{rgb_to_xyz[1].tolist()}")
 
 
 class DisplayEncode(nn.Module):

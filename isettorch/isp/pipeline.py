@@ -24,6 +24,7 @@ from .colour import (
     IlluminantCorrection,
     SensorToXYZ,
     XYZToDisplay,
+    check_illuminant_name,
     white_xyz,
 )
 
@@ -177,7 +178,8 @@ class ImageProcessor(nn.Module):
         scaling: one of ``SCALINGS``.
         clip_negative_xyz: clip XYZ at 0 after the matrix (ISETCam ``imageSensorCorrection``).
         fit_wavelengths_nm: grid on which the colour matrix is fitted from the sensor's QE (400:10:700).
-        scaling_percentile: the percentile used by ``scaling="percentile"``.
+        scaling_percentile: the percentile used by ``scaling="percentile"`` (default 99; an error with another
+            scaling, which would ignore it).
         adapt_to_display_white: adapt XYZ from ``correction_white`` to the display's white (Bradford), so a
             display whose white is not D65 still renders white as RGB (1, 1, 1) (ISETCam does not).
         monochrome_divisor: ``"white_level"`` or ``"voltage_swing"`` (ISETCam: input / voltage swing).
@@ -195,9 +197,10 @@ class ImageProcessor(nn.Module):
     def __init__(self, demosaic="bilinear", illuminant_correction="none", correction_space: str = "xyz",
                  correction_white="D65", gains=None, sensor_to_xyz=None, display="srgb", encoding="srgb",
                  scaling: str = "adaptive", clip_negative_xyz: bool = True, fit_wavelengths_nm=None,
-                 monochrome_divisor: str = "white_level", scaling_percentile: float = 99.0,
+                 monochrome_divisor: str = "white_level", scaling_percentile: float | None = None,
                  adapt_to_display_white: bool = False) -> None:
         super().__init__()
+        check_illuminant_name(correction_white, "correction_white")
         self.demosaic = demosaic if isinstance(demosaic, nn.Module) else DemosaicStage(demosaic)
         if isinstance(illuminant_correction, nn.Module):
             self.illuminant_correction = illuminant_correction
@@ -218,10 +221,15 @@ class ImageProcessor(nn.Module):
         if monochrome_divisor not in ("white_level", "voltage_swing"):
             raise ValueError(f"monochrome_divisor: expected 'white_level' or 'voltage_swing', got "
                              f"{monochrome_divisor!r}")
-        if not 0 < scaling_percentile <= 100:
-            raise ValueError(f"scaling_percentile: expected a value in (0, 100], got {scaling_percentile}")
+        if scaling_percentile is not None:
+            if not (isinstance(scaling_percentile, (int, float)) and not isinstance(scaling_percentile, bool)
+                    and 0 < scaling_percentile <= 100):
+                raise ValueError(f"scaling_percentile: expected a value in (0, 100], got {scaling_percentile!r}")
+            if scaling != "percentile":
+                raise ValueError(f"scaling_percentile: only scaling 'percentile' uses it, got scaling {scaling!r} "
+                                 f"(set scaling: percentile, or drop scaling_percentile)")
         self.scaling = scaling
-        self.scaling_percentile = float(scaling_percentile)
+        self.scaling_percentile = 99.0 if scaling_percentile is None else float(scaling_percentile)
         self.clip_negative_xyz = bool(clip_negative_xyz)
         self.monochrome_divisor = monochrome_divisor
         self.correction_white = correction_white

@@ -41,6 +41,11 @@ __all__ = ["ShiftInvariantLens"]
 
 _CACHE_SIZE = 8
 
+#: The smallest f-number of a lens in air: N = 1 / (2 NA) for an aplanatic lens (Abbe sine condition), with the
+#: numerical aperture NA = n sin(theta) <= 1 in air (n = 1), so N >= 0.5 (E. Hecht, Optics, 5th ed., Pearson 2017,
+#: ch. 5: stops, the f-number and the numerical aperture).
+MIN_F_NUMBER = 0.5
+
 
 def per_item_products(device: torch.device) -> bool:
     """Whether the factored optics work item by item on ``device`` (each item's cached OTF row, only its used
@@ -86,9 +91,14 @@ class ShiftInvariantLens(nn.Module):
                  blur_skip_tolerance: float = 1e-3, margin: int | None = None, max_margin_factor: float = 2.0,
                  learn_f_number: bool = False, dtype=torch.float64) -> None:
         super().__init__()
+        if not isinstance(learn_f_number, bool):
+            raise TypeError(f"learn_f_number: expected True or False, got {learn_f_number!r}")
+        if isinstance(f_number, bool):
+            raise TypeError(f"f_number: expected a number or [B] tensor, got {f_number!r}")
         n = as_tensor(f_number, "f_number", dtype=dtype).detach().clone()
-        if n.dim() > 1 or not torch.isfinite(n).all() or (n <= 0).any():
-            raise ValueError(f"f_number: expected a positive scalar or [B] tensor, got {n.tolist()}")
+        if n.dim() > 1 or not torch.isfinite(n).all() or (n < MIN_F_NUMBER).any():
+            raise ValueError(f"f_number: expected a finite scalar or [B] tensor >= {MIN_F_NUMBER} (the fastest lens in "
+                             f"air, N = 1 / (2 NA) with NA <= 1), got {n.tolist()}")
         self.f_number = nn.Parameter(n, requires_grad=learn_f_number)
         fl = as_tensor(focal_length_m, "focal_length_m", dtype=dtype).detach().clone()
         if fl.dim() > 1 or not torch.isfinite(fl).all() or (fl <= 0).any():
@@ -97,8 +107,13 @@ class ShiftInvariantLens(nn.Module):
         if transmittance is None:
             self.transmittance = None
         else:
+            if isinstance(transmittance, bool):
+                raise TypeError(f"transmittance: expected a number or values in [0, 1], got {transmittance!r}")
             t = as_tensor(transmittance, "transmittance", dtype=dtype).detach().clone().reshape(-1)
             check_nonnegative(t, "transmittance")
+            if bool((t > 1).any()):  # a passive lens transmits at most the light it receives
+                raise ValueError(f"transmittance: expected values in [0, 1] (the fraction of the light the lens "
+                                 f"passes), got a maximum of {t.max().item():.6g}")
             self.register_buffer("transmittance", t)
         if transmittance_wavelengths_nm is None:
             self.transmittance_wavelengths_nm = None
@@ -117,12 +132,20 @@ class ShiftInvariantLens(nn.Module):
             raise ValueError(f"camera_equation: expected 'isetcam' or 'paraxial', got {camera_equation!r}")
         if not (pad_mode in PAD_MODES or (isinstance(pad_mode, (int, float)) and not isinstance(pad_mode, bool))):
             raise ValueError(f"pad_mode: expected one of {PAD_MODES} or a number, got {pad_mode!r}")
+        if not isinstance(pad_mode, str) and not (math.isfinite(pad_mode) and pad_mode >= 0):
+            # a number is the value (in the image's units) beyond the scene's edges: a radiance, finite and >= 0
+            raise ValueError(f"pad_mode: expected one of {PAD_MODES} or a finite non-negative number (the radiance "
+                             f"beyond the scene's edges), got {pad_mode!r}")
         if not (0 < psf_tolerance < 1):
             raise ValueError(f"psf_tolerance: expected a value in (0, 1), got {psf_tolerance}")
         if not (0 <= blur_skip_tolerance < 1):
             raise ValueError(f"blur_skip_tolerance: expected a value in [0, 1), got {blur_skip_tolerance}")
-        if margin is not None and (not isinstance(margin, int) or margin < 0):
+        if margin is not None and (not isinstance(margin, int) or isinstance(margin, bool) or margin < 0):
             raise ValueError(f"margin: expected None or a non-negative int, got {margin!r}")
+        if not (isinstance(max_margin_factor, (int, float)) and not isinstance(max_margin_factor, bool)
+                and math.isfinite(max_margin_factor) and max_margin_factor > 0):
+            raise ValueError(f"max_margin_factor: expected a positive finite number (the margin's cap in units of the "
+                             f"scene's larger side), got {max_margin_factor!r}")
         self.relative_illumination = relative_illumination
         self.camera_equation = camera_equation
         self.pad_mode = pad_mode

@@ -21,19 +21,35 @@ __all__ = ["build_optics", "OPTICS_TYPES"]
 OPTICS_TYPES = ("diffraction_limited", "wavefront", "zernike", "psf_file", "lens")
 
 
+def _inits(cls) -> list:
+    """The ``__init__`` of an optics class and of its bases up to ``nn.Module`` (the class's own first)."""
+    out = []
+    for c in cls.__mro__:
+        if c is nn.Module or c is object:
+            break
+        if "__init__" in c.__dict__:
+            out.append(c.__init__)
+    return out
+
+
 @functools.cache
 def _keys(cls) -> frozenset[str]:
     """The constructor keywords of an optics class and its bases (memoised: a camera-pair stream builds an optics
     module per group and batch)."""
     keys = set()
-    for c in cls.__mro__:
-        if c is nn.Module or c is object:
-            break
-        if "__init__" in c.__dict__:
-            keys |= {n for n, p in inspect.signature(c.__init__).parameters.items()
-                     if n != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    for init in _inits(cls):
+        keys |= {n for n, p in inspect.signature(init).parameters.items()
+                 if n != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
     keys.discard("dtype")
     return frozenset(keys)
+
+
+def _check_values(cfg: dict, cls) -> None:
+    """The values' types against the constructors' annotations (booleans are YAML booleans, numbers real and finite;
+    :func:`isettorch.camera.check_config_values`, the one check of every config section)."""
+    from ..camera import check_config_values
+
+    check_config_values(cfg, _inits(cls), "optics")
 
 
 def _check(cfg: dict, valid: set[str], kind: str) -> None:
@@ -69,6 +85,7 @@ def build_optics(config: dict) -> nn.Module:
     else:
         return _psf_file(cfg)
     _check(cfg, _keys(cls), kind)
+    _check_values(cfg, cls)
     return cls(**cfg)
 
 
@@ -82,6 +99,7 @@ def _psf_file(cfg: dict) -> nn.Module:
         raise ValueError("config: optics type psf_file needs 'path' (an .npz with psf, psf_spacing_m and optionally "
                          "psf_wavelengths_nm)")
     _check(cfg, _keys(ShiftInvariantOptics) - {"psf", "psf_spacing_m", "psf_wavelengths_nm"}, "psf_file")
+    _check_values(cfg, ShiftInvariantOptics)
     p = Path(path)
     if p.suffix != ".npz" or not p.is_file():
         raise FileNotFoundError(f"config: optics.path {str(path)!r}: expected an existing .npz file")

@@ -522,20 +522,24 @@ def write_sensor_config(result: dict, path) -> dict[str, Any]:
 
 
 def load_sensor_config(config, **overrides):
-    """A :class:`Sensor` from a YAML path or mapping of constructor arguments (``sensor:`` section accepted)."""
-    import yaml
+    """A :class:`Sensor` from a YAML path or mapping of constructor arguments (``sensor:`` section accepted).
 
+    The file is read as a camera config is (:func:`isettorch.camera.load_yaml`: safe, YAML 1.2 floats such as
+    ``1e-2``), and its values are checked as a camera config's ``sensor:`` section
+    (:func:`isettorch.camera.check_sensor_values`: booleans are booleans, numbers are finite numbers)."""
+    from ..camera import check_sensor_values, load_yaml
     from .sensor import Sensor
 
     if isinstance(config, (str, Path)):
         try:
-            config = yaml.safe_load(Path(config).read_text())
+            config = load_yaml(Path(config).read_text())
         except OSError as err:
             raise ValueError(f"config: cannot read {config} ({err})") from err
     if not isinstance(config, dict):
         raise ValueError(f"config: expected a mapping of Sensor arguments, got {type(config).__name__}")
     cfg = dict(config.get("sensor", config))
     cfg.update(overrides)
+    check_sensor_values({k: v for k, v in cfg.items() if k != "preset"})
     preset = cfg.pop("preset", None)
     try:
         return Sensor.preset(preset, **cfg) if preset else Sensor(**cfg)

@@ -52,6 +52,10 @@ _ISETCAM_RGB = np.array([
 
 _COLOUR_CAMERAS = {"nikon_5100": "Nikon 5100 (NPL)", "sigma_sdmerill": "Sigma SDMerill (NPL)"}
 
+# The set each CFA letter comes from when no set is named (SpectralQE.from_cfa / Sensor with filters=None).
+_DEFAULT_SETS = {"R": "isetcam_rgb", "G": "isetcam_rgb", "B": "isetcam_rgb", "C": "isetcam_cmy", "Y": "isetcam_cmy",
+                 "M": "isetcam_cmy", "W": "clear"}
+
 
 def filter_set_names() -> list[str]:
     return ["isetcam_rgb", "isetcam_cmy", *_COLOUR_CAMERAS, "clear"]
@@ -169,12 +173,14 @@ class SpectralQE(nn.Module):
         self._cache: dict = {}
 
     @classmethod
-    def from_cfa(cls, cfa: CFA, filters: str | dict = "isetcam_rgb", *, ir_filter=None, pixel_qe=None,
+    def from_cfa(cls, cfa: CFA, filters: str | dict | None = None, *, ir_filter=None, pixel_qe=None,
                  learnable: bool = False, wavelengths_nm=None) -> SpectralQE:
         """Filters for each CFA channel, looked up by letter in a named set.
 
-        ``filters`` is a set name (letters R, G, B from an RGB set; C, Y, M from ``'isetcam_cmy'``; W is
-        clear) or a dict ``{channel_name: (wavelengths [Ln], spectrum [Ln])}`` for user spectra.
+        ``filters``: None (default) takes each letter from the library's sets, R, G, B from ``'isetcam_rgb'``,
+        C, Y, M from ``'isetcam_cmy'`` and W from ``'clear'``; a set name (:func:`filter_set_names`) takes every
+        letter from that set, and a letter the set lacks is an error (``'nikon_5100'`` has no C: no other set's
+        curve is put in its place); a dict ``{channel_name: (wavelengths [Ln], spectrum [Ln])}`` gives user spectra.
         ``ir_filter``/``pixel_qe`` are given on ``wavelengths_nm`` (default 400:10:700).
         """
         grid = torch.tensor(_W_ISETCAM) if wavelengths_nm is None else torch.as_tensor(wavelengths_nm,
@@ -188,15 +194,17 @@ class SpectralQE(nn.Module):
                 rows.append(spectral.resample(torch.as_tensor(s_src, dtype=torch.float64),
                                               torch.as_tensor(w_src, dtype=torch.float64), grid))
                 continue
-            sets = [filters, "isetcam_cmy", "clear"] if name in "CYMW" else [filters]
-            for s in sets:
-                _, vals, letters = filter_set(s, grid, dtype=torch.float64)
-                if name in letters:
-                    rows.append(vals[letters.index(name)])
-                    break
-            else:
-                raise ValueError(f"filters: the set {filters!r} has no filter for CFA channel {name!r}; "
-                                 f"pass a dict of user spectra")
+            set_name = filters if filters is not None else _DEFAULT_SETS.get(name)
+            defaults = "R, G, B from 'isetcam_rgb'; C, Y, M from 'isetcam_cmy'; W from 'clear'"
+            if set_name is None:
+                raise ValueError(f"filters: the library's default sets have no filter for CFA channel {name!r} "
+                                 f"({defaults}); pass a dict of user spectra")
+            _, vals, letters = filter_set(set_name, grid, dtype=torch.float64)
+            if name not in letters:
+                raise ValueError(f"filters: the set {filters!r} has no filter for CFA channel {name!r} (its filters: "
+                                 f"{list(letters)}); leave filters out for the library's default per letter "
+                                 f"({defaults}), or pass a dict of user spectra")
+            rows.append(vals[letters.index(name)])
         return cls(torch.stack(rows), grid, cfa.channel_names, ir_filter=ir_filter, pixel_qe=pixel_qe,
                    learnable=learnable)
 

@@ -347,7 +347,26 @@ def _pixel_kwargs(pixel: dict) -> dict:
     if unknown:
         raise ValueError(f"{sorted(unknown)[0]}: not a microlens/pixel parameter; expected one of "
                          f"{sorted(set(_DEFAULTS) | set(_ALIAS_KEYS))}")
+    _check_one_aperture(out)
     return {**_DEFAULTS, **out}
+
+
+def _check_one_aperture(pixel: dict) -> None:
+    """The microlens aperture is given once: ``microlens_diameter_m`` or ``microlens_f_number`` (the diameter is the
+    focal length / f-number), not both (one would be ignored)."""
+    if pixel.get("microlens_diameter_m") is not None and pixel.get("microlens_f_number") is not None:
+        raise ValueError(f"microlens_f_number, microlens_diameter_m: give one of them (the diameter is "
+                         f"microlens_focal_length_m / microlens_f_number), got both "
+                         f"({pixel['microlens_f_number']!r} and {pixel['microlens_diameter_m']!r})")
+
+
+def _check_samples(samples, name: str = "samples") -> tuple[int, int]:
+    """(directions, x segments) of the continuous integral: two positive integers."""
+    ok = isinstance(samples, (tuple, list)) and len(samples) == 2 and all(
+        isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in samples)
+    if not ok:
+        raise ValueError(f"{name}: expected two positive integers (directions, x segments), got {samples!r}")
+    return tuple(samples)
 
 
 def microlens_radiance(chief_ray_angle_deg=0.0, method: str = "centred", *, offset_m=None,
@@ -395,6 +414,7 @@ def microlens_radiance(chief_ray_angle_deg=0.0, method: str = "centred", *, offs
     kw = _pixel_kwargs(pixel)
     if sampling not in ("continuous", "isetcam"):
         raise ValueError(f"sampling: expected 'continuous' or 'isetcam', got {sampling!r}")
+    samples = _check_samples(samples)
     cra, method, t, n, off, geo = _params(chief_ray_angle_deg, method, offset_m, kw)
     D = geo["D"]
     x = torch.linspace(-2 * D, 2 * D, grid_points, dtype=t.dtype, device=t.device)
@@ -477,6 +497,10 @@ def microlens_etendue(chief_ray_angle_deg, method: str = "centred", *, model: st
 
 PIXEL_OPTICS_KEYS = ("method", "model", "convention", "diffraction", "learnable", "offset_per_image_height",
                      "exit_pupil_distance_m", "angle_samples", "samples")
+# the pixel parameters that are one positive number (the layers are lists, checked with the stack)
+_SCALAR_PIXEL_KEYS = ("pixel_size_m", "photodiode_size_m", "microlens_focal_length_m", "microlens_f_number",
+                      "microlens_diameter_m", "source_f_number", "stack_index", "wavelength_nm",
+                      "source_focal_length_m", "microlens_index")
 
 
 class PixelOptics(nn.Module):
@@ -524,8 +548,12 @@ class PixelOptics(nn.Module):
             raise ValueError(f"convention: expected 'physical' or 'isetcam', got {convention!r}")
         if model == "geometric" and (learnable or diffraction):
             raise ValueError("model: 'geometric' has no gradients or diffraction; use model='phase_space'")
-        if not (isinstance(angle_samples, int) and angle_samples >= 2):
+        if not (isinstance(angle_samples, int) and not isinstance(angle_samples, bool) and angle_samples >= 2):
             raise ValueError(f"angle_samples: expected an integer >= 2, got {angle_samples!r}")
+        for label, flag in (("diffraction", diffraction), ("learnable", learnable)):
+            if not isinstance(flag, bool):
+                raise TypeError(f"{label}: expected True or False, got {flag!r}")
+        samples = _check_samples(samples)
         if exit_pupil_distance_m is not None:
             _pos(exit_pupil_distance_m, "exit_pupil_distance_m")
         pixel = {_ALIAS_KEYS.get(k, k): v for k, v in pixel.items()}
@@ -533,9 +561,13 @@ class PixelOptics(nn.Module):
         if unknown:
             raise ValueError(f"pixel_optics: unknown key {sorted(unknown)[0]!r}; expected one of "
                              f"{sorted(set(_DEFAULTS) | set(PIXEL_OPTICS_KEYS))}")
-        self.model, self.convention, self.diffraction = model, convention, bool(diffraction)
+        _check_one_aperture(pixel)
+        for key in _SCALAR_PIXEL_KEYS:  # checked when built, not at the first render
+            if pixel.get(key) is not None:
+                _pos(pixel[key], key)
+        self.model, self.convention, self.diffraction = model, convention, diffraction
         self.exit_pupil_distance_m = exit_pupil_distance_m
-        self.angle_samples, self.samples = angle_samples, tuple(samples)
+        self.angle_samples, self.samples = angle_samples, samples
         self.pixel = {k: tuple(v) if isinstance(v, list) else v for k, v in pixel.items()}  # hashable (cache)
         layers = self.pixel.get("layer_thicknesses_m", _DEFAULTS["layer_thicknesses_m"])
         h = float(sum(layers)) if stack_height_m is None else stack_height_m

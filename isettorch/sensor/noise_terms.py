@@ -119,16 +119,20 @@ class NoiseTerms:
     def __post_init__(self) -> None:
         for name in ("row_noise_v", "column_noise_v", "dark_shading_e_per_s", "hot_pixel_dark_current_e_per_s"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name}: expected a non-negative number, got {v!r}")
         for name in ("hot_pixel_fraction", "dead_pixel_fraction"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and 0 <= v <= 1):
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 1):
                 raise ValueError(f"{name}: expected a fraction in [0, 1], got {v!r}")
-        if self.read_noise_tukey_lambda is not None:
-            tukey_lambda_variance(self.read_noise_tukey_lambda)  # raises for shapes without a finite variance
-        if self.full_well_e is not None and not (isinstance(self.full_well_e, (int, float))
-                                                 and math.isfinite(self.full_well_e) and self.full_well_e > 0):
+        lam = self.read_noise_tukey_lambda
+        if lam is not None:
+            if not (isinstance(lam, (int, float)) and not isinstance(lam, bool) and math.isfinite(lam)):
+                raise ValueError(f"read_noise_tukey_lambda: expected None or a finite number, got {lam!r}")
+            tukey_lambda_variance(lam)  # raises for shapes without a finite variance
+        fw = self.full_well_e
+        if fw is not None and not (isinstance(fw, (int, float)) and not isinstance(fw, bool) and math.isfinite(fw)
+                                   and fw > 0):
             raise ValueError(f"full_well_e: expected None or a positive electron count, got {self.full_well_e!r}")
         self._patterns: dict[tuple[int, int], dict[str, torch.Tensor]] = {}
 

@@ -23,7 +23,7 @@ class RawImage:
         units: what ``data`` holds.
         cfa: the colour filter array (its unit cell tiles from pixel [0, 0]).
         black_level, white_level: in ``units`` (DN for quantised raws), the value of no light and of
-            saturation.
+            saturation (a float, or ``[B]`` per item).
         exposure_s, analog_gain: per-sample ``[B]``.
         conversion_gain_v_per_e, voltage_swing_v, pixel_size_m, fill_factor: the pixel.
         adc_bits: ADC bit depth (None for an analog readout).
@@ -43,7 +43,7 @@ class RawImage:
     units: str
     cfa: CFA
     black_level: float = 0.0
-    white_level: float | None = None
+    white_level: float | torch.Tensor | None = None
     exposure_s: torch.Tensor | None = None
     analog_gain: torch.Tensor | None = None
     analog_offset_v: float = 0.0
@@ -110,7 +110,10 @@ class RawImage:
         """``(data - black) / (white - black)``: 0 at black, 1 at saturation ``[B, 1, H, W]``."""
         if self.white_level is None:
             raise ValueError("normalized: this raw has no white_level")
-        return (self.data - self.black_level) / (self.white_level - self.black_level)
+        # per-item levels ([B], e.g. a per-call gain with a full well) broadcast over each item's mosaic
+        black, white = (v.reshape(-1, 1, 1, 1) if isinstance(v, torch.Tensor) and v.dim() > 0 else v
+                        for v in (self.black_level, self.white_level))
+        return (self.data - black) / (white - black)
 
     def __repr__(self) -> str:
         return (f"RawImage(data={tuple(self.data.shape)} {self.data.dtype} on {self.data.device}, "

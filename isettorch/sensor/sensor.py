@@ -20,13 +20,14 @@ rounding (a training target).
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any
 
 import torch
 from torch import nn
 
 from .. import spectral
-from .._checks import batch_param
+from .._checks import batch_param, round_half_away
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
 from .cfa import CFA
@@ -113,15 +114,20 @@ class Sensor(nn.Module):
         pixel_size_m: pixel pitch (square pixels, no gaps); fill_factor: photodiode area / pixel area.
         cfa: a :class:`CFA` or pattern string.
         spectral_qe: a :class:`SpectralQE` (default: ``filters`` for the CFA's letters x ``ir_filter`` x
-            ``pixel_qe``); ``learnable_filters`` makes the filters ``nn.Parameter`` s.
+            ``pixel_qe``); ``learnable_filters`` makes the filters ``nn.Parameter`` s. ``filters``: a set name
+            (:func:`~isettorch.sensor.filters.filter_set_names`), which must have every CFA letter, or a dict of user
+            spectra; None (default): R, G, B from ``'isetcam_rgb'``, C, Y, M from ``'isetcam_cmy'``, W ``'clear'``.
         conversion_gain_v_per_e, voltage_swing_v: the pixel's output; well capacity = swing / gain.
         exposure_s: exposure (s), scalar or ``[B]``; ``auto_exposure`` (``'luminance'``, ``'mean'``,
-            ``'percentile'``) overrides it; ``ae_target`` / ``ae_percentile`` tune it.
+            ``'percentile'``) overrides it; ``ae_target`` (a fraction of :meth:`saturation_v`, in (0, 1]) tunes it,
+            ``ae_percentile`` (default 99) the ``'percentile'`` method; either without a method that uses it is an
+            error.
         analog_gain, analog_offset_v: ``gain_convention='multiply'`` (default) gives ``(v + offset) * gain``,
             ``'isetcam'`` gives ISETCam's ``(v + offset) / gain``.
         adc_bits: None for an analog (volts) readout, else N; steps of ``swing / 2^N``; ``adc_mode='clamp'``
             clamps to ``2^N - 1``, ``'isetcam'`` does not (so the swing maps to ``2^N``). ``black_level_dn`` is
-            added to DN (auto-exposure then aims below the top code, see ``usable_swing_v``).
+            added to DN (auto-exposure then aims below the top code, see ``usable_swing_v``); an analog readout
+            takes none.
         shot_noise: ``'poisson'`` (straight-through gradient), ``'gaussian'`` or ``'off'``.
         read_noise_v, dark_current_e_per_s, dsnu_sigma_v, prnu_sigma_percent, column_fpn_sigma_v: noise.
         fpn_mode: ``'fixed'`` (drawn once from ``seed``, stored as buffers) or ``'per_frame'`` (ISETCam redraws
@@ -152,9 +158,9 @@ class Sensor(nn.Module):
 
     def __init__(self, *, rows: int | None = None, cols: int | None = None, pixel_size_m: float = 2.8e-6,
                  fill_factor: float = 0.75, cfa: CFA | str = "GRBG", spectral_qe: SpectralQE | None = None,
-                 filters: str | dict = "isetcam_rgb", ir_filter=None, pixel_qe=None, learnable_filters: bool = False,
+                 filters: str | dict | None = None, ir_filter=None, pixel_qe=None, learnable_filters: bool = False,
                  conversion_gain_v_per_e: float = 1e-4, voltage_swing_v: float = 1.0, exposure_s=0.01,
-                 auto_exposure: str | None = None, ae_target: float | None = None, ae_percentile: float = 99.0,
+                 auto_exposure: str | None = None, ae_target: float | None = None, ae_percentile: float | None = None,
                  analog_gain=1.0, analog_offset_v: float = 0.0, gain_convention: str = "multiply",
                  adc_bits: int | None = None, adc_mode: str = "clamp", black_level_dn: float = 0.0,
                  shot_noise: str = "poisson", read_noise_v: float = 0.0, dark_current_e_per_s: float = 0.0,
@@ -169,19 +175,23 @@ class Sensor(nn.Module):
                  full_well_e: float | None = None) -> None:
         super().__init__()
         for label, v in (("rows", rows), ("cols", cols)):
-            if v is not None and (not isinstance(v, int) or v < 1):
+            if v is not None and (not _is_int(v) or v < 1):
                 raise ValueError(f"{label}: expected a positive integer pixel count or None, got {v!r}")
         for label, v in (("pixel_size_m", pixel_size_m), ("conversion_gain_v_per_e", conversion_gain_v_per_e),
                          ("voltage_swing_v", voltage_swing_v)):
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if not (_is_real(v) and v > 0):
                 raise ValueError(f"{label}: expected a positive number, got {v!r}")
-        if not 0 < fill_factor <= 1:
-            raise ValueError(f"fill_factor: expected a value in (0, 1], got {fill_factor!r}")
+        if not (_is_real(fill_factor) and 0 < fill_factor <= 1):
+            raise ValueError(f"fill_factor: expected a number in (0, 1], got {fill_factor!r}")
         for label, v in (("read_noise_v", read_noise_v), ("dark_current_e_per_s", dark_current_e_per_s),
                          ("dsnu_sigma_v", dsnu_sigma_v), ("prnu_sigma_percent", prnu_sigma_percent),
                          ("column_fpn_sigma_v", column_fpn_sigma_v), ("black_level_dn", black_level_dn)):
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            if not (_is_real(v) and v >= 0):
                 raise ValueError(f"{label}: expected a non-negative number, got {v!r}")
+        if not _is_real(analog_offset_v):
+            raise ValueError(f"analog_offset_v: expected a finite number (volts), got {analog_offset_v!r}")
+        if not _is_int(seed):
+            raise ValueError(f"seed: expected an integer, got {seed!r}")
         choices = {"gain_convention": (gain_convention, ("multiply", "isetcam")),
                    "adc_mode": (adc_mode, ("clamp", "isetcam")),
                    "shot_noise": (shot_noise, _noise.SHOT_NOISE_MODES),
@@ -192,15 +202,32 @@ class Sensor(nn.Module):
                 raise ValueError(f"{label}: expected one of {allowed}, got {v!r}")
         if auto_exposure is not None and auto_exposure not in AE_METHODS:
             raise ValueError(f"auto_exposure: expected None or one of {sorted(AE_METHODS)}, got {auto_exposure!r}")
-        if adc_bits is not None and (not isinstance(adc_bits, int) or not 1 <= adc_bits <= 32):
+        if ae_target is not None:
+            if not (_is_real(ae_target) and 0 < ae_target <= 1):
+                raise ValueError(f"ae_target: expected a fraction of the usable saturation in (0, 1], got "
+                                 f"{ae_target!r}")
+            if auto_exposure is None:
+                raise ValueError(f"ae_target: {ae_target!r} tunes auto-exposure, but auto_exposure is None (a fixed "
+                                 f"exposure_s); set auto_exposure ({sorted(AE_METHODS)}) or drop ae_target")
+        if ae_percentile is not None:
+            if not (_is_real(ae_percentile) and 0 < ae_percentile <= 100):
+                raise ValueError(f"ae_percentile: expected a percentile in (0, 100], got {ae_percentile!r}")
+            if auto_exposure != "percentile":
+                raise ValueError(f"ae_percentile: only auto_exposure='percentile' uses it, got auto_exposure="
+                                 f"{auto_exposure!r}; set auto_exposure: percentile or drop ae_percentile")
+        if adc_bits is not None and (not _is_int(adc_bits) or not 1 <= adc_bits <= 32):
             raise ValueError(f"adc_bits: expected None (analog) or an integer in 1..32, got {adc_bits!r}")
         if adc_bits is not None and black_level_dn >= 2 ** adc_bits - 1:
             raise ValueError(f"black_level_dn: expected a level below 2^{adc_bits} - 1, got {black_level_dn}")
+        if adc_bits is None and black_level_dn != 0:
+            raise ValueError(f"black_level_dn: {black_level_dn!r} DN needs an ADC, but adc_bits is None (an analog "
+                             f"readout in volts has no DN); set adc_bits, or black_level_dn to 0 (analog_offset_v is "
+                             f"the analog pedestal)")
         if output_units not in (None, "dn", "volts", "electrons"):
             raise ValueError(f"output_units: expected None, 'dn', 'volts' or 'electrons', got {output_units!r}")
         if output_units == "dn" and adc_bits is None:
             raise ValueError("output_units: 'dn' needs adc_bits (the sensor has an analog readout)")
-        if preblur_size is not None and (not isinstance(preblur_size, int) or preblur_size < 1):
+        if preblur_size is not None and (not _is_int(preblur_size) or preblur_size < 1):
             raise ValueError(f"preblur_size: expected None or a positive integer, got {preblur_size!r}")
 
         self.cfa = cfa if isinstance(cfa, CFA) else CFA(cfa)
@@ -219,7 +246,7 @@ class Sensor(nn.Module):
         self.exposure_s = exposure_s
         self.auto_exposure = auto_exposure
         self.ae_target = ae_target
-        self.ae_percentile = ae_percentile
+        self.ae_percentile = 99.0 if ae_percentile is None else float(ae_percentile)
         self.analog_gain = analog_gain
         self.analog_offset_v = float(analog_offset_v)
         self.gain_convention = gain_convention
@@ -249,6 +276,11 @@ class Sensor(nn.Module):
             pixel_optics = PixelOptics(**pixel_optics)
         if pixel_optics is not None and not isinstance(pixel_optics, PixelOptics):
             raise TypeError(f"pixel_optics: expected None, a dict or a PixelOptics, got {type(pixel_optics).__name__}")
+        po_pitch = None if pixel_optics is None else pixel_optics.pixel.get("pixel_size_m")
+        if po_pitch is not None and not math.isclose(float(po_pitch), self.pixel_size_m, rel_tol=1e-9):
+            raise ValueError(f"pixel_optics.pixel_size_m: {po_pitch!r} m differs from the sensor's pixel_size_m "
+                             f"{self.pixel_size_m!r} m (one pixel, one pitch); leave it out (it defaults to the "
+                             f"sensor's) or make them equal")
         self.pixel_optics = pixel_optics
         # Real-raw noise terms (row/column banding, Tukey read noise, dark shading, defects, full well):
         # isettorch.sensor.noise_terms; all off by default.
@@ -281,9 +313,10 @@ class Sensor(nn.Module):
 
     @classmethod
     def from_config(cls, config, **overrides) -> Sensor:
-        """A sensor from a YAML file (``yaml.safe_load``) or a mapping of constructor arguments, e.g. the output of
-        ``isettorch calibrate DIR --out SENSOR.yaml``; a top-level ``sensor:`` section (camera YAML) and a
-        ``preset:`` key are accepted."""
+        """A sensor from a YAML file (read as a camera config, :func:`isettorch.camera.load_yaml`) or a mapping of
+        constructor arguments, e.g. the output of ``isettorch calibrate DIR --out SENSOR.yaml``; a top-level
+        ``sensor:`` section (camera YAML) and a ``preset:`` key are accepted; values are checked as a camera
+        config's (:func:`isettorch.camera.check_sensor_values`)."""
         from .calibration import load_sensor_config
 
         return load_sensor_config(config, **overrides)
@@ -309,11 +342,71 @@ class Sensor(nn.Module):
             return self.voltage_swing_v
         return min(self.voltage_swing_v, (2 ** self.adc_bits - 1 - self.black_level_dn) * self.lsb_v)
 
+    def saturation_v(self, analog_gain=None, conversion_gain_v_per_e=None) -> float | torch.Tensor:
+        """The usable saturation: volts at the ADC input (after analog gain and offset) of the brightest signal the
+        raw records, the one quantity auto-exposure aims below and the raw's white level reports
+        (:attr:`white_level_dn`, :meth:`white_level`).
+
+        ``min(usable_swing_v, (full_well_e x conversion gain + offset) x analog gain)``: the voltage swing (ISETCam
+        ``sensorGet(sensor, 'max output')``, whose well capacity is swing / conversion gain, ``pixelGet(pixel, 'well
+        capacity')``), less when a black level puts the ADC's top code below it (:attr:`usable_swing_v`) or when the
+        photodiode's full well ``full_well_e`` saturates first (EMVA 1288 release 4.0, section 4.1: the saturation
+        capacity; the noisy chain clips there, :meth:`NoiseTerms.after_shot`). ISETCam's gain convention divides.
+
+        Args:
+            analog_gain: None (the sensor's), a number or ``[B]``.
+            conversion_gain_v_per_e: None (the sensor's), a number or a per-call ``[B]`` / ``[B, 1, 1, 1]`` tensor.
+
+        Returns a float, or ``[B]`` when a per-call gain is a tensor and ``full_well_e`` is set.
+        """
+        top = self.usable_swing_v
+        fw = self.noise_terms.full_well_e
+        if fw is None:
+            return top
+        cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
+        gain = self.analog_gain if analog_gain is None else analog_gain
+        # per-call tensors keep their dtype and device (no float64 on devices without it); lists become tensors
+        cg, gain = (x if _is_real(x) else x.reshape(-1) if isinstance(x, torch.Tensor)
+                    else torch.as_tensor(x, dtype=torch.float64).reshape(-1) for x in (cg, gain))
+        v = fw * cg + self.analog_offset_v
+        v = v / gain if self.gain_convention == "isetcam" else v * gain
+        if isinstance(v, torch.Tensor):
+            return v.clamp(max=top)
+        return min(top, float(v))
+
+    def white_level(self, analog_gain=None, conversion_gain_v_per_e=None) -> float | torch.Tensor:
+        """The raw's saturation value in :attr:`output_units` (its ``white_level``): :meth:`saturation_v` in DN (the
+        ADC's code for it, ``round(v / lsb) + black``, at most the top code) or volts; for electrons, the swing /
+        conversion gain or the full well, whichever is lower. A float, or ``[B]`` for per-call tensors (see
+        :meth:`saturation_v`). Without ``full_well_e``: the top code, the swing, swing / conversion gain."""
+        cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
+        cg = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
+        fw = self.noise_terms.full_well_e
+        if self.output_units == "electrons":  # the electrons chain clips the pixel volts (no analog gain)
+            well = self.voltage_swing_v / cg
+            if fw is None:
+                return well
+            return well.clamp(max=fw) if isinstance(well, torch.Tensor) else min(well, fw)
+        if self.output_units == "volts":
+            return self.voltage_swing_v if fw is None else self.saturation_v(analog_gain, cg)
+        return self._white_dn(analog_gain, cg)
+
     @property
     def white_level_dn(self) -> float | None:
-        if self.adc_bits is None:
-            return None
-        return float(2 ** self.adc_bits) if self.adc_mode == "isetcam" else float(2 ** self.adc_bits - 1)
+        """The DN of :meth:`saturation_v` at the sensor's own gains: the ADC's top code (``2^N - 1``; ``2^N`` with
+        ``adc_mode='isetcam'``), or less when ``full_well_e`` saturates first. None for an analog readout."""
+        return None if self.adc_bits is None else self._white_dn(None, None)
+
+    def _white_dn(self, analog_gain, conversion_gain_v_per_e) -> float | torch.Tensor:
+        """The code the ADC gives :meth:`saturation_v`: ``round(v / lsb) + black`` (MATLAB round, as
+        :meth:`volts_to_dn`), at most the top code."""
+        top = float(2 ** self.adc_bits) if self.adc_mode == "isetcam" else float(2 ** self.adc_bits - 1)
+        if self.noise_terms.full_well_e is None:
+            return top
+        x = self.saturation_v(analog_gain, conversion_gain_v_per_e) / self.lsb_v
+        if isinstance(x, torch.Tensor):
+            return (torch.sign(x) * torch.floor(x.abs() + 0.5) + self.black_level_dn).clamp(max=top)
+        return min(top, float(round_half_away(x)) + self.black_level_dn)
 
     def set_size_to_fov(self, hfov_deg: float, image_distance_m) -> Sensor:
         """Set cols so the sensor spans ``hfov_deg`` at ``image_distance_m`` (rows keep the aspect ratio),
@@ -684,7 +777,7 @@ class Sensor(nn.Module):
             v1 = self._analog(rate * cg, gain)
             if self.analog_offset_v != 0:  # the response to light only
                 v1 = v1 - self._analog(torch.zeros_like(rate), gain)
-            t = auto_exposure(v1, self.usable_swing_v, self.auto_exposure, target=self.ae_target,
+            t = auto_exposure(v1, self.saturation_v(gain, cg), self.auto_exposure, target=self.ae_target,
                               percentile=self.ae_percentile).to(dt)
         if exposure_ev is not None:
             ev = batch_param(exposure_ev, "exposure_ev", b, dtype=torch.float64, device=dev)
@@ -835,7 +928,8 @@ class Sensor(nn.Module):
         cg_out = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
         pitch = self.pixel_size_m if pixel_size_m is None else batch_param(
             pixel_size_m, "pixel_size_m", b, dtype=torch.float64, device=device, positive=True)
-        white = {"volts": swing, "electrons": swing / cg_out, "dn": self.white_level_dn}[self.output_units]
+        # the call's own gains: a per-call tensor gives [B] levels only when the full well sets the saturation
+        white = self.white_level(self.analog_gain if analog_gain is None else analog_gain, cg_out)
         black = self.black_level_dn if self.output_units == "dn" else 0.0
         return RawImage(
             data=data, units=self.output_units, cfa=self.cfa, black_level=black, white_level=white,
@@ -925,6 +1019,16 @@ class Sensor(nn.Module):
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, size={self.rows}x{self.cols}, pixel={self.pixel_size_m * 1e6:g} um, "
                 f"fill={self.fill_factor}, cfa={self.cfa!r}, bits={self.adc_bits}, sampling={self.sampling!r}")
+
+
+def _is_real(v) -> bool:
+    """A finite real number: int or float (or a NumPy scalar), not a bool (``True`` is no pixel size) or a string."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _is_int(v) -> bool:
+    """An integer (Python or NumPy), not a bool and not a float (``1.5`` is no seed or bit depth)."""
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
 
 
 def _on(level) -> bool:

@@ -223,6 +223,8 @@ class ViewerSession:
             sensor["cfa"] = s.cfa
         if s.exposure_ms is not None:
             sensor["auto_exposure"] = None
+            for key in ("ae_target", "ae_percentile"):  # auto-exposure's options: an error without it
+                sensor.pop(key, None)
             sensor["exposure_s"] = float(s.exposure_ms) * 1e-3
         if s.noise is not None:
             camera["noise"] = bool(s.noise)

@@ -354,10 +354,13 @@ def test_ray_traced_lens_camera_uses_the_traced_chief_rays():
     from isettorch.scene.scene import Scene
 
     cfg = load_config("cooke_lens")
-    pitch = 0.4e-3  # coarse "pixels" so a small sensor spans the lens's field (the pixel model is ISETCam's)
+    pitch = 0.4e-3  # coarse "pixels" so a small sensor spans the lens's field
+    # the pixel model is ISETCam's scaled to that pitch (the ray model has no length scale: the same etendue); the
+    # pixel optics' pixel is the sensor's (a different pixel_size_m there is an error), photodiode sqrt(0.75) x pitch
+    k = pitch / (P_UM * 1e-6)
+    stack = [t * 1e-6 * k for t, _ in LAYERS]
     cfg["sensor"].update(rows=None, cols=None, pixel_size_m=pitch,
-                         pixel_optics={"method": "none", "pixel_size_m": 2.8e-6, "photodiode_size_m": D_UM * 1e-6,
-                                       "angle_samples": 65})
+                         pixel_optics={"method": "none", "layer_thicknesses_m": stack, "angle_samples": 65})
     cam = Camera.from_config(cfg)
     cam.optics = LensOptics(cam.optics.analysis, field_samples=3, azimuth_samples=4, components=4,
                             distortion_samples=6, ri_samples=24)
@@ -375,5 +378,11 @@ def test_ray_traced_lens_camera_uses_the_traced_chief_rays():
     assert abs(want_cra - thin) > 0.05  # the traced angle, not the thin lens's
     emap = cam.sensor.etendue_map(oi)[0]
     e = microlens_etendue(torch.tensor([want_cra, 0.0]), "none", source_f_number=float(oi.f_number[0]),
-                          samples=(64, 128))
+                          samples=(64, 128), pixel_size_m=pitch, photodiode_size_m=D_UM * 1e-6 * k,
+                          layer_thicknesses_m=stack, microlens_diameter_m=pitch)
     assert float(emap[0, 0]) == pytest.approx(float(e[0] * e[1]), abs=2e-3)
+    # the same etendue as ISETCam's own 2.8 um pixel at these angles (scale-free rays)
+    e_isetcam = microlens_etendue(torch.tensor([want_cra, 0.0]), "none", source_f_number=float(oi.f_number[0]),
+                                  samples=(64, 128))
+    assert float(e[0] * e[1]) == pytest.approx(float(e_isetcam[0] * e_isetcam[1]), abs=1e-9)
+    assert float(e[0]) < 0.99  # the traced angle vignettes: the check is not trivial

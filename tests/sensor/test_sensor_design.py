@@ -155,7 +155,7 @@ def test_fixed_design_sensor_equals_the_plain_sensor(name, cell):
               dsnu_sigma_v=1e-3, auto_exposure="luminance")
     bank, mosaic = fixed_design(name)
     designed = design_sensor(bank, mosaic, **kw)
-    plain = Sensor(cfa=cell, filters="isetcam_rgb", **kw)
+    plain = Sensor(cfa=cell, **kw)  # the library's default filter per letter (R, G, B; C, Y, M; W)
     assert plain.cfa.channel_names == designed.cfa.channel_names
     a = designed(oi, generator=torch.Generator().manual_seed(3))
     b = plain(oi, generator=torch.Generator().manual_seed(3))

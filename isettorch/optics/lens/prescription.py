@@ -41,6 +41,8 @@ from pathlib import Path
 
 import yaml
 
+from ..._yaml import load_yaml
+
 __all__ = ["Surface", "Prescription", "PrescriptionError", "read_zmx", "read_lens_yaml", "load_lens",
            "bundled_lenses", "INFINITE_OBJECT_MM", "LENS_UNITS_MM"]
 
@@ -511,7 +513,7 @@ def read_lens_yaml(path_or_dict) -> Prescription:
         where = str(path_or_dict)
         with open(path_or_dict, encoding="utf-8") as fh:
             try:
-                d = yaml.safe_load(fh)
+                d = load_yaml(fh.read())  # safe, YAML 1.2 floats (1e-3 is a number)
             except yaml.YAMLError as e:
                 raise PrescriptionError(f"{where}: not valid YAML: {' '.join(str(e).split())}") from None
     if not isinstance(d, dict) or "surfaces" not in d:
