@@ -32,6 +32,16 @@ Outputs (a dict of tensors; images in **normalised raw units**: 0 = black level,
 * ``linear_srgb`` ``[3, H, W]``: ``xyz`` adapted from the main light's white to D65 (Bradford CAT) and
   converted with the IEC 61966-2-1 matrix (not clipped); ``srgb``: clipped to [0, 1] and encoded.
 * ``meta``: a dict of tensors (see :data:`META_KEYS`), batched by :func:`collate_pairs`.
+
+Noise metadata: ``noise_gain`` ``a`` (normalised units per electron) and ``noise_floor_var`` ``b``
+(:func:`isettorch.sensor.noise.poisson_gaussian_floor`) give the Poisson-Gaussian model ``var(x) = a x + b`` of
+``raw`` about ``noise_free_raw`` = x (Foi et al., IEEE TIP 17(10), 2008): ``a x`` photon shot noise, ``b`` read
+noise, DSNU, dark-current shot noise and the quantisation of one DN step. It leaves out PRNU: a fixed pattern (a
+per-pixel gain ``1 + prnu_sigma_percent / 100 * n``, n ~ N(0, 1), drawn per item), which adds
+``(prnu_sigma_percent / 100 * x)^2`` to the variance across the pixels of one signal level, so the full
+per-pixel variance is ``a x + b + (prnu_sigma_percent x / 100)^2`` (about, for x below white: clipping at the white
+level is not modelled either). ``a`` and ``b`` are what networks with noise inputs are fed; PRNU is in
+``prnu_sigma_percent``.
 """
 
 from __future__ import annotations
@@ -47,7 +57,16 @@ from .. import constants, spectral
 from .._checks import dataset_index
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
 from ..sensor.noise import poisson_gaussian_floor
-from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, randint_scalar, seed_for, tune_allocator
+from .config import (
+    TARGETS,
+    check_integer,
+    check_targets,
+    one_thread,
+    pair_config,
+    randint_scalar,
+    seed_for,
+    tune_allocator,
+)
 from .scenes import _uniform, generate_scene
 from .shm_slots import SlotArena, SlotBatchSampler, SlotLoader, SlotRequest
 
@@ -62,7 +81,6 @@ META_KEYS = ("index", "exposure_s", "analog_gain", "iso", "f_number", "focal_len
              "white_camera_rgb", "white_xyz", "qe", "wavelengths_nm", "hdr_decades", "mean_luminance_cd_m2")
 
 _D65_XYZ = (0.95047, 1.0, 1.08883)  # IEC 61966-2-1 white, Y = 1
-TARGETS = ("noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb")  # besides "raw" and "meta"
 # Bumped whenever the item of a given (seed, index, config) changes (draw order, layouts, spectra, physics), so
 # that `isettorch synth` never resumes a dataset with shards of another version (it enters the config hash).
 # 2: 2026-11-22 third speed round (inverse-CDF choices, one-draw leaf parameters, on-locus LEDs, camera distance).
@@ -73,17 +91,6 @@ TARGETS = ("noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb")  # besi
 #    textures change material with probability 0.5) and independent three-layer grain (component "grain").
 GENERATOR_VERSION = 5
 _TARGET_CHANNELS = {"noise_free_raw": 1, "camera_rgb": 3, "xyz": 3, "linear_srgb": 3, "srgb": 3}
-
-
-def check_targets(targets) -> tuple[str, ...]:
-    """``targets`` (names from :data:`TARGETS`, any order) in canonical order; ValueError naming a bad one."""
-    if isinstance(targets, str):
-        targets = (targets,)
-    names = tuple(targets)
-    bad = [t for t in names if t not in TARGETS]
-    if bad:
-        raise ValueError(f"targets: expected names from {TARGETS}, got {bad[0]!r}")
-    return tuple(t for t in TARGETS if t in names)
 
 
 def nikon_d5100_qe(wavelengths_nm, peak_qe: float = 0.5, shift_nm=(0.0, 0.0, 0.0)) -> torch.Tensor:
@@ -380,9 +387,8 @@ def render_pairs(indices, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype
     it is in, the number of threads or workers (bitwise, tested).
 
     Example:
-        >>> from isettorch.data.config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config
-        >>> scene = merge_config({"height": 16, "width": 16}, SCENE_DEFAULTS, "scene")
-        >>> camera = merge_config({}, CAMERA_DEFAULTS, "camera")
+        >>> from isettorch.data.config import pair_config
+        >>> scene, camera = pair_config({"height": 16, "width": 16}, {})
         >>> render_pairs([3, 1], 0, scene, camera)["camera_rgb"].shape
         torch.Size([2, 3, 16, 16])
     """
@@ -538,7 +544,8 @@ def _meta_values(index, d, meta_s, exposure, to_norm, span, white, cfa, white_ca
         "read_noise_e": read_e, "dark_current_e_per_s": dark, "dsnu_sigma_e": dsnu_e,
         "prnu_sigma_percent": d["prnu"], "black_level_dn": d["black"], "white_level_dn": white,
         # Poisson-Gaussian noise model in normalised units: var(x) = noise_gain * x + noise_floor_var
-        # (Foi et al., "Practical Poissonian-Gaussian noise modeling", IEEE TIP 17(10), 2008).
+        # (Foi et al., "Practical Poissonian-Gaussian noise modeling", IEEE TIP 17(10), 2008); without PRNU, which
+        # adds (prnu_sigma_percent / 100 * x)^2 across pixels (module notes)
         "noise_gain": to_norm,
         "noise_floor_var": poisson_gaussian_floor(to_norm, read_e, dsnu_e, dark, exposure, span),
         "cfa": cfa.index_map,
@@ -581,7 +588,9 @@ class CameraPairDataset(torch.utils.data.Dataset):
     Args:
         length: number of items.
         seed: dataset seed.
-        scene: scene config (keys of ``SCENE_DEFAULTS``), camera: camera config (keys of ``CAMERA_DEFAULTS``).
+        scene: scene config (keys of ``SCENE_DEFAULTS``; not ``hfov_deg``: the sensor sets the field of view),
+            camera: camera config (keys of ``CAMERA_DEFAULTS``); both validated by
+            :func:`~isettorch.data.config.pair_config`, as ``isettorch synth`` and ``PairStream`` validate them.
         dtype: float32 (default) or float64.
         method: ``'factored'`` (default: the factored scene through the camera) or ``'reference'`` (the same scene
             as a dense ``[L, H, W]`` cube through the same camera). They agree to float rounding.
@@ -613,16 +622,11 @@ class CameraPairDataset(torch.utils.data.Dataset):
 
     def __init__(self, length: int, seed: int = 0, scene: dict | None = None, camera: dict | None = None, *,
                  dtype=torch.float32, method: str = "factored", targets=TARGETS, tune_worker_allocator: bool = True):
-        if int(length) < 0:
-            raise ValueError(f"length: expected a non-negative number of items, got {length}")
         if method not in self.METHODS:
             raise ValueError(f"method: expected one of {self.METHODS}, got {method!r}")
-        self.length, self.seed, self.dtype, self.method = int(length), int(seed), dtype, method
-        self.scene_config = merge_config(scene, SCENE_DEFAULTS, "scene")
-        self.camera_config = merge_config(camera, CAMERA_DEFAULTS, "camera")
-        if self.scene_config["height"] % 2 or self.scene_config["width"] % 2:
-            raise ValueError(f"scene.height/width: expected even sizes (whole Bayer cells), got "
-                             f"{self.scene_config['height']}x{self.scene_config['width']}")
+        self.length, self.seed = check_integer(length, "length", 0), check_integer(seed, "seed")
+        self.dtype, self.method = dtype, method
+        self.scene_config, self.camera_config = pair_config(scene, camera)
         self._cache = _Cache()
         self.targets = check_targets(targets)
         self.tune_worker_allocator = bool(tune_worker_allocator)

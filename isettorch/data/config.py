@@ -8,6 +8,8 @@ from __future__ import annotations
 import contextlib
 import copy
 import ctypes
+import math
+import numbers
 import sys
 import threading
 from pathlib import Path
@@ -17,8 +19,8 @@ import torch
 import yaml
 
 __all__ = ["SCENE_DEFAULTS", "CAMERA_DEFAULTS", "SYNTH_DEFAULTS", "NATURAL_DEFAULTS", "COMPONENTS",
-           "DEFAULT_COMPONENTS", "merge_config", "natural_config", "load_config", "seed_for", "one_thread",
-           "tune_allocator"]
+           "DEFAULT_COMPONENTS", "WAVELENGTH_RANGE_NM", "TARGETS", "check_targets", "merge_config", "pair_config",
+           "check_integer", "natural_config", "load_config", "seed_for", "one_thread", "tune_allocator"]
 
 SCENE_DEFAULTS: dict[str, Any] = {
     # which scene generator: "layouts" (isettorch.data.scenes.generate_scene, the keys below) or "natural"
@@ -40,6 +42,8 @@ SCENE_DEFAULTS: dict[str, Any] = {
     "second_light_ratio": [0.3, 3.0],  # luminance of light 2 / light 1
     "hdr_decades": [0.0, 3.0],  # illumination range across the image, log10(max / min)
     "mean_luminance_cd_m2": [1.0, 5000.0],  # log-uniform
+    # drawn by generate_scene / SyntheticSceneDataset; camera pairs take the FOV from the sensor (one scene sample
+    # per pixel), so for them another value is an error (pair_config)
     "hfov_deg": [4.0, 20.0],
     "distance_m": 1.2,
 }
@@ -129,6 +133,8 @@ def natural_config(config: dict | None = None, **overrides) -> dict:
         out["components"][name]["enabled"] = False
     if overrides:
         raise ValueError(f"natural_config: unknown arguments {sorted(overrides)}")
+    _check_natural_values(out, NATURAL_DEFAULTS, "")
+    _check_wavelengths(out["wavelengths_nm"], "config: 'wavelengths_nm'")
     size = out["size"]
     if isinstance(size, bool) or not isinstance(size, int) or size < 16:
         raise ValueError(f"config: 'size' expected an integer >= 16 pixels, got {size!r}")
@@ -148,6 +154,45 @@ def natural_config(config: dict | None = None, **overrides) -> dict:
     return out
 
 
+def _check_natural_values(cfg: dict, defaults: dict, path: str) -> None:
+    """Each value of a merged natural config of the kind of its default: a bool, a finite number (an integer where the
+    default is one), a range ``[lo, hi]`` (two such numbers, lo <= hi) where the default is one, a non-empty list of
+    finite numbers where the default lists choices, weights for ``kinds``; ``*probability`` keys in [0, 1], the
+    fractions in (0, 1], ``materials`` at least 1."""
+    for key, ref in defaults.items():
+        v = cfg[key]
+        if v == ref:  # the default (valid): most of a config, skipped at once (NaN never equals itself)
+            continue
+        where = f"config: {path + key!r}"
+        if key == "kinds":
+            _check_weights(v, where)
+        elif isinstance(ref, dict):
+            _check_natural_values(v, ref, path + key + ".")
+        elif isinstance(ref, bool):
+            if not isinstance(v, bool):
+                raise ValueError(f"{where}: expected true or false, got {v!r}")
+        elif _is_number(ref):
+            integer = isinstance(ref, int)
+            if key.endswith("probability"):
+                _check_number(v, where, 0.0, 1.0, what="a probability")
+            elif key.endswith("fraction"):
+                _check_number(v, where, 0.0, 1.0, lo_open=True, what="a fraction")
+            else:
+                _check_number(v, where, integer=integer, what="an integer" if integer else "a number")
+        elif isinstance(ref, list) and len(ref) == 2:
+            integer = all(isinstance(x, int) for x in ref)
+            kind = _is_integer if integer else _is_number
+            lo = 1 if key == "materials" else -math.inf
+            if (not isinstance(v, (list, tuple)) or len(v) != 2 or not all(kind(x) and math.isfinite(x) for x in v)
+                    or not lo <= v[0] <= v[1]):
+                what = "integers" if integer else "finite numbers"
+                raise ValueError(f"{where}: expected a range [lo, hi] of two {what} with "
+                                 f"{'' if lo == -math.inf else f'{lo} <= '}lo <= hi, got {v!r}")
+        elif isinstance(ref, list):
+            if not isinstance(v, (list, tuple)) or not v or not all(_is_number(x) and math.isfinite(x) for x in v):
+                raise ValueError(f"{where}: expected a non-empty list of finite numbers, got {v!r}")
+
+
 def _check_optional(block: dict, name: str, key: str) -> None:
     """An optional draw's settings: ``probability`` in [0, 1] and a range ``key`` = [lo, hi] with 0 < lo <= hi."""
     prob, rng = block["probability"], block[key]
@@ -155,6 +200,21 @@ def _check_optional(block: dict, name: str, key: str) -> None:
             or len(rng) != 2 or not all(isinstance(c, (int, float)) for c in rng) or not 0 < rng[0] <= rng[1]):
         raise ValueError(f"config: 'components.{name}' expected a probability in [0, 1] and a {key} range [lo, hi] "
                          f"with 0 < lo <= hi, got {block}")
+
+
+#: the targets a camera pair can hold besides ``raw`` and ``meta`` (:mod:`isettorch.data.camera_pairs`)
+TARGETS = ("noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb")
+
+
+def check_targets(targets) -> tuple[str, ...]:
+    """``targets`` (names from :data:`TARGETS`, any order) in canonical order; ValueError naming a bad one."""
+    if isinstance(targets, str):
+        targets = (targets,)
+    names = tuple(targets)
+    bad = [t for t in names if t not in TARGETS]
+    if bad:
+        raise ValueError(f"targets: expected names from {TARGETS}, got {bad[0]!r}")
+    return tuple(t for t in TARGETS if t in names)
 
 
 SYNTH_DEFAULTS: dict[str, Any] = {
@@ -196,14 +256,16 @@ def _merge(defaults: dict, user: dict, path: str) -> dict:
                 raise ValueError(f"{where}: expected {type(ref).__name__}, got {value!r}")
             out[key] = value
         elif isinstance(ref, (int, float)):
-            if isinstance(value, (list, tuple)) and key not in ("focal_length_m", "fill_factor", "bits",
-                                                                "black_level_dn", "seed", "shard_size",
-                                                                "height", "width", "palette_size", "margin_px"):
+            if isinstance(value, (list, tuple)) and key in _NUMBER_OR_RANGE:
                 out[key] = list(value)
             elif not isinstance(value, (int, float)):
                 raise ValueError(f"{where}: expected a number, got {value!r}")
+            elif isinstance(ref, int):  # an integer key: an integral float (YAML 12.0) is that integer, 12.5 is not
+                if not (isinstance(value, int) or (math.isfinite(value) and float(value).is_integer())):
+                    raise ValueError(f"{where}: expected an integer, got {value!r}")
+                out[key] = int(value)
             else:
-                out[key] = type(ref)(value) if isinstance(ref, int) and float(value).is_integer() else value
+                out[key] = value
         elif isinstance(ref, list):
             if isinstance(value, (int, float)) and len(ref) == 2:
                 out[key] = [value, value]
@@ -220,71 +282,239 @@ def _merge(defaults: dict, user: dict, path: str) -> dict:
     return out
 
 
-def _check_range(cfg: dict, key: str, path: str, lo_bound: float = -float("inf")) -> None:
-    v = cfg[key]
-    if isinstance(v, (int, float)):
+#: number keys that also take a range ``[lo, hi]`` (drawn per item); other number keys take one number
+_NUMBER_OR_RANGE = ("distance_m",)
+#: the wavelengths the scene generators' spectral data cover: their reflectance models are fitted on measured
+#: reflectances sampled 400:5:700 nm (:func:`isettorch.data.spectra._measured_reflectances`); outside, the PCA
+#: model's basis is 0 and its draws are NaN
+WAVELENGTH_RANGE_NM = (400.0, 700.0)
+#: the CCTs each illuminant kind can draw (K): CIE daylight's polynomials hold on 4000-25000 K (CIE 015:2018);
+#: the on-locus LED phosphor table spans 40-1000 mired; a blackbody any positive temperature
+_CCT_BOUNDS_K = {"daylight": (4000.0, 25000.0), "blackbody": (0.0, math.inf), "led": (1000.0, 25000.0)}
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _is_integer(v) -> bool:
+    """An integer (bools are not)."""
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+def _bounds_text(lo: float, hi: float, lo_open: bool, hi_open: bool) -> str:
+    """`` in [lo, hi]``, `` > lo``... (empty for no bounds)."""
+    if lo == -math.inf and hi == math.inf:
+        return ""
+    if hi == math.inf:
+        return f" {'>' if lo_open else '>='} {lo:g}"
+    if lo == -math.inf:
+        return f" {'<' if hi_open else '<='} {hi:g}"
+    return f" in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+
+
+def _in(x: float, lo: float, hi: float, lo_open: bool, hi_open: bool) -> bool:
+    return (lo < x if lo_open else lo <= x) and (x < hi if hi_open else x <= hi)
+
+
+def _check_number(value, where: str, lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False,
+                  hi_open: bool = False, integer: bool = False, what: str = "a number") -> None:
+    """A finite number (an integer with ``integer``) in the interval ``lo .. hi``; else ValueError naming ``where``."""
+    ok = (_is_integer(value) if integer else _is_number(value)) and math.isfinite(value) and \
+        _in(value, lo, hi, lo_open, hi_open)
+    if not ok:
+        raise ValueError(f"{where}: expected {what}{_bounds_text(lo, hi, lo_open, hi_open)}, got {value!r}")
+
+
+def _check_range(cfg: dict, key: str, path: str, lo: float = -math.inf, hi: float = math.inf, *,
+                 lo_open: bool = False, hi_open: bool = False, log: bool = False, scalar: bool = True) -> None:
+    """``cfg[key]``: a range ``[lo, hi]`` drawn per item (two finite numbers, lo <= hi, both in the interval
+    ``lo .. hi`` of the key) or, with ``scalar``, one such number (a constant). ``log``: drawn log-uniformly, so a
+    range needs lo > 0 (a constant may be 0 where the key allows it): the draws would otherwise fall back to
+    uniform ones."""
+    v, where = cfg[key], f"{path}.{key}"
+    bounds = _bounds_text(lo, hi, lo_open, hi_open)
+    bounds = f", both{bounds}" if bounds else ""
+    if scalar and _is_number(v):
+        _check_number(v, where, lo, hi, lo_open=lo_open, hi_open=hi_open)
         return
-    if len(v) != 2 or not all(isinstance(x, (int, float)) for x in v) or not lo_bound <= v[0] <= v[1]:
-        raise ValueError(f"{path}.{key}: expected [lo, hi] with {lo_bound} <= lo <= hi, got {v!r}")
+    if (not isinstance(v, (list, tuple)) or len(v) != 2 or not all(_is_number(x) and math.isfinite(x) for x in v)
+            or not v[0] <= v[1] or not all(_in(x, lo, hi, lo_open, hi_open) for x in v)):
+        raise ValueError(f"{where}: expected a range [lo, hi] of two finite numbers with lo <= hi{bounds}, got {v!r}")
+    if log and not v[0] > 0 and v[0] != v[1]:
+        raise ValueError(f"{where}: drawn log-uniformly, so a range [lo, hi] needs lo > 0 (or lo == hi, a "
+                         f"constant), got {v!r}")
+
+
+def _check_choices(cfg: dict, key: str, path: str, lo: float = 0.0) -> None:
+    """``cfg[key]``: a non-empty list of finite numbers > ``lo``, one drawn per item."""
+    v = cfg[key]
+    if (not isinstance(v, (list, tuple)) or not v
+            or not all(_is_number(x) and math.isfinite(x) and x > lo for x in v)):
+        raise ValueError(f"{path}.{key}: expected a non-empty list of finite numbers > {lo:g} (one drawn per item), "
+                         f"got {v!r}")
+
+
+def _check_weights(ws, where: str) -> None:
+    if (not isinstance(ws, dict) or not ws
+            or any(not _is_number(x) or not math.isfinite(x) or x < 0 for x in ws.values()) or sum(ws.values()) <= 0):
+        raise ValueError(f"{where}: expected non-negative weights with a positive sum, got {ws!r}")
+
+
+def _check_wavelengths(wl, where: str) -> None:
+    """A scene grid ``[start, stop, step]`` (inclusive) inside :data:`WAVELENGTH_RANGE_NM`, whole steps."""
+    lo_nm, hi_nm = WAVELENGTH_RANGE_NM
+    if (not isinstance(wl, (list, tuple)) or len(wl) != 3 or not all(_is_number(x) and math.isfinite(x) for x in wl)
+            or not wl[2] > 0 or not lo_nm <= wl[0] <= wl[1] <= hi_nm):
+        raise ValueError(f"{where}: expected [start, stop, step] with {lo_nm:g} <= start <= stop <= {hi_nm:g} nm "
+                         f"(the measured reflectances the scene spectra are modelled on cover {lo_nm:g}-{hi_nm:g} nm) "
+                         f"and step > 0, got {wl!r}")
+    steps = (wl[1] - wl[0]) / wl[2]
+    if abs(steps - round(steps)) > 1e-6:  # the grid would stop short of `stop`
+        raise ValueError(f"{where}: expected stop - start to be a whole number of steps (the grid start:step:stop "
+                         f"includes stop), got {wl!r}")
+
+
+def _check_scene(scene: dict, sp: str, camera: dict | None = None) -> None:
+    """Validate a merged scene config; ``camera`` (a merged camera config): for camera pairs, whose scene field of
+    view follows the sensor and whose sizes are whole Bayer cells."""
+    if scene["generator"] not in ("layouts", "natural"):
+        raise ValueError(f"{sp}.generator: expected 'layouts' or 'natural', got {scene['generator']!r}")
+    for key in ("height", "width"):
+        _check_number(scene[key], f"{sp}.{key}", 2, integer=True, what="an integer number of pixels")
+    h, w = scene["height"], scene["width"]
+    if camera is not None and (h % 2 or w % 2):
+        raise ValueError(f"{sp}.height/width: expected even sizes (whole Bayer cells), got {h}x{w}")
+    margin = camera["margin_px"] if camera is not None else 0
+    if scene["generator"] == "layouts" and max(h, w) + 2 * margin < 5:  # dead leaves: radii 2.5 px to 0.6 x size
+        raise ValueError(f"{sp}.height/width: the layouts generator needs a scene of at least 5 pixels on its longer "
+                         f"side (sensor + 2 x margin), got {h + 2 * margin}x{w + 2 * margin}")
+    _check_wavelengths(scene["wavelengths_nm"], f"{sp}.wavelengths_nm")
+    _check_number(scene["palette_size"], f"{sp}.palette_size", 1, integer=True, what="an integer number of colours")
+    for key in ("layouts", "illuminants"):
+        _check_weights(scene[key], f"{sp}.{key}")
+    if scene["reflectance_model"] not in ("pca", "sigmoid", "mixed"):
+        raise ValueError(f"{sp}.reflectance_model: expected pca, sigmoid or mixed, got "
+                         f"{scene['reflectance_model']!r}")
+    for key in ("pca_fraction", "two_light_probability", "shadow_probability"):
+        _check_number(scene[key], f"{sp}.{key}", 0.0, 1.0, what="a probability")
+    for kind in scene["cct_range_k"]:
+        lo, hi = _CCT_BOUNDS_K[kind]
+        _check_range(scene["cct_range_k"], kind, f"{sp}.cct_range_k", lo, hi, lo_open=lo == 0, scalar=False)
+    _check_range(scene, "shadow_ambient", sp, 0.0, log=True, scalar=False)
+    _check_range(scene, "second_light_ratio", sp, 0.0, log=True, scalar=False)
+    _check_range(scene, "hdr_decades", sp, 0.0, scalar=False)
+    _check_range(scene, "mean_luminance_cd_m2", sp, 0.0, lo_open=True, log=True, scalar=False)
+    if camera is None:
+        _check_range(scene, "hfov_deg", sp, 0.0, 180.0, lo_open=True, hi_open=True, scalar=False)
+    elif scene["hfov_deg"] != SCENE_DEFAULTS["hfov_deg"]:
+        # the camera pairs put one scene sample on one pixel: hfov = 2 atan(pitch x width / (2 x image distance))
+        raise ValueError(f"{sp}.hfov_deg: camera pairs take the scene's field of view from the sensor (pixel pitch x "
+                         f"width at the image distance), so this key has no effect on them; remove it (got "
+                         f"{scene['hfov_deg']!r})")
+    _check_range(scene, "distance_m", sp, 0.0, lo_open=True)
+    for key in ("size", "wavelengths_nm", "mean_radiance_scale"):
+        if key in scene["natural"]:  # set by the scene: the generator's own value would be ignored
+            follows = {"size": f"{sp}.height/width and the camera margin", "wavelengths_nm": f"{sp}.wavelengths_nm",
+                       "mean_radiance_scale": f"{sp}.mean_luminance_cd_m2"}[key]
+            raise ValueError(f"{sp}.natural.{key}: the natural scene's {key} follows {follows}; remove it "
+                             f"(got {scene['natural'][key]!r})")
+    if scene["natural"]:
+        try:
+            natural_config(scene["natural"])
+        except ValueError as err:
+            raise ValueError(f"{sp}.natural: {err}") from err
+
+
+def _check_camera(cam: dict, cp: str) -> None:
+    """Validate a merged camera config (the camera pairs' drawn cameras)."""
+    bad = [p for p in cam["cfa_patterns"] if p not in ("RGGB", "GRBG", "GBRG", "BGGR")]
+    if bad or not cam["cfa_patterns"]:
+        raise ValueError(f"{cp}.cfa_patterns: expected Bayer patterns from RGGB, GRBG, GBRG, BGGR, got "
+                         f"{cam['cfa_patterns']!r}")
+    _check_choices(cam, "f_number", cp)
+    _check_choices(cam, "pixel_size_m", cp)
+    _check_number(cam["focal_length_m"], f"{cp}.focal_length_m", 0.0, lo_open=True)
+    _check_number(cam["fill_factor"], f"{cp}.fill_factor", 0.0, 1.0, lo_open=True, what="a fraction")
+    _check_range(cam, "full_well_e", cp, 0.0, lo_open=True, log=True)
+    _check_range(cam, "read_noise_e", cp, 0.0)
+    _check_range(cam, "dark_current_e_per_s", cp, 0.0, log=True)
+    _check_range(cam, "dsnu_sigma_e", cp, 0.0)
+    _check_range(cam, "prnu_sigma_percent", cp, 0.0)
+    _check_range(cam, "analog_gain", cp, 0.0, lo_open=True, log=True)
+    _check_range(cam, "exposure_ev", cp)
+    _check_range(cam, "peak_qe", cp, 0.0, 1.0, lo_open=True)
+    _check_number(cam["bits"], f"{cp}.bits", 1, 32, integer=True, what="an integer number of ADC bits")
+    _check_number(cam["black_level_dn"], f"{cp}.black_level_dn", 0.0, 2 ** cam["bits"] - 1, hi_open=True,
+                  what=f"a black level in DN ({cp}.bits = {cam['bits']}: below 2^{cam['bits']} - 1)")
+    _check_number(cam["qe_variation"], f"{cp}.qe_variation", 0.0)
+    _check_number(cam["margin_px"], f"{cp}.margin_px", 0, integer=True, what="an integer number of pixels")
+    if cam["optics"]:  # checked by building it (then dropped): the factory's own checks of type, keys, files
+        from ..optics.factory import build_optics
+
+        try:
+            build_optics(cam["optics"])
+        except (TypeError, ValueError, OSError) as err:
+            kind = cam["optics"].get("type", "diffraction_limited")
+            raise ValueError(f"{cp}.optics[type={kind!r}]: {err}") from err
 
 
 def merge_config(user: dict | None, defaults: dict = SYNTH_DEFAULTS, path: str = "") -> dict:
-    """Defaults overridden by ``user``; validates keys, types and ranges."""
+    """Defaults overridden by ``user``; validates keys, types and ranges (a bad value raises ``ValueError`` naming
+    its dotted key). ``defaults``: :data:`SYNTH_DEFAULTS` (a whole ``isettorch synth`` config: camera pairs),
+    :data:`SCENE_DEFAULTS` or :data:`CAMERA_DEFAULTS` (one section; ``path`` its name). Camera pairs
+    (:class:`~isettorch.data.camera_pairs.CameraPairDataset`, :class:`~isettorch.data.PairStream`) validate their
+    two sections together with :func:`pair_config`."""
     cfg = _merge(defaults, user or {}, path)
-    scene = cfg.get("scene", cfg if "layouts" in cfg else None)
-    if scene is not None:
-        sp = f"{path}.scene" if "scene" in cfg else path or "scene"
-        for k in ("hdr_decades", "mean_luminance_cd_m2", "hfov_deg", "shadow_ambient", "second_light_ratio"):
-            _check_range(scene, k, sp, 0.0)
-        for k in ("layouts", "illuminants"):
-            ws = scene[k]
-            if not ws or any((not isinstance(x, (int, float))) or x < 0 for x in ws.values()) or \
-                    sum(ws.values()) <= 0:
-                raise ValueError(f"{sp}.{k}: expected non-negative weights with a positive sum, got {ws!r}")
-        if scene["reflectance_model"] not in ("pca", "sigmoid", "mixed"):
-            raise ValueError(f"{sp}.reflectance_model: expected pca, sigmoid or mixed, got "
-                             f"{scene['reflectance_model']!r}")
-        if scene["generator"] not in ("layouts", "natural"):
-            raise ValueError(f"{sp}.generator: expected 'layouts' or 'natural', got {scene['generator']!r}")
-        if "size" in scene["natural"]:
-            raise ValueError(f"{sp}.natural.size: the natural scene's size follows {sp}.height/width and the "
-                             f"camera margin; remove it (got {scene['natural']['size']!r})")
-        if scene["natural"]:
-            try:
-                natural_config(scene["natural"])
-            except ValueError as err:
-                raise ValueError(f"{sp}.natural: {err}") from err
-        wl = scene["wavelengths_nm"]
-        if len(wl) != 3 or wl[2] <= 0 or wl[1] < wl[0]:
-            raise ValueError(f"{sp}.wavelengths_nm: expected [start, stop, step] with step > 0, got {wl!r}")
-    cam = cfg.get("camera", cfg if "cfa_patterns" in cfg else None)
-    if cam is not None:
-        bad = [p for p in cam["cfa_patterns"] if p not in ("RGGB", "GRBG", "GBRG", "BGGR")]
-        if bad or not cam["cfa_patterns"]:
-            raise ValueError(f"camera.cfa_patterns: expected Bayer patterns from RGGB, GRBG, GBRG, BGGR, got "
-                             f"{cam['cfa_patterns']!r}")
-        for k in ("full_well_e", "read_noise_e", "dark_current_e_per_s", "dsnu_sigma_e", "prnu_sigma_percent",
-                  "analog_gain", "peak_qe"):
-            _check_range(cam, k, "camera", 0.0)
-        _check_range(cam, "exposure_ev", "camera")
-        if cam["optics"]:  # checked by building it (then dropped): the factory's own checks of type, keys, files
-            from ..optics.factory import build_optics
-
-            try:
-                build_optics(cam["optics"])
-            except (TypeError, ValueError, OSError) as err:
-                kind = cam["optics"].get("type", "diffraction_limited")
-                raise ValueError(f"camera.optics[type={kind!r}]: {err}") from err
+    if "scene" in cfg and "camera" in cfg:  # a whole synth config: camera pairs
+        cp = f"{path}.camera" if path else "camera"
+        _check_camera(cfg["camera"], cp)
+        _check_scene(cfg["scene"], f"{path}.scene" if path else "scene", camera=cfg["camera"])
+    elif "layouts" in cfg:
+        _check_scene(cfg, path or "scene")
+    elif "cfa_patterns" in cfg:
+        _check_camera(cfg, path or "camera")
+    if "seed" in cfg:
+        _check_number(cfg["seed"], "seed", integer=True, what="an integer")
+    if "shard_size" in cfg:
+        _check_number(cfg["shard_size"], "shard_size", 1, integer=True, what="an integer number of items")
     if "dtype" in cfg and cfg["dtype"] not in ("float32", "float64"):
         raise ValueError(f"dtype: expected float32 or float64, got {cfg['dtype']!r}")
+    if "targets" in cfg:
+        check_targets(cfg["targets"])
     return cfg
 
 
+def check_integer(value, name: str, minimum: int | None = None) -> int:
+    """``value`` if it is an integer (>= ``minimum``); a float such as 1.7 is not truncated, a bool is not an
+    integer: ValueError naming ``name``."""
+    if not _is_integer(value) or (minimum is not None and value < minimum):
+        what = {None: "an integer", 0: "a non-negative integer", 1: "a positive integer"}.get(
+            minimum, f"an integer >= {minimum}")
+        raise ValueError(f"{name}: expected {what}, got {value!r}")
+    return int(value)
+
+
+def pair_config(scene: dict | None, camera: dict | None) -> tuple[dict, dict]:
+    """The merged, validated ``(scene, camera)`` configs of camera pairs (keys of :data:`SCENE_DEFAULTS` and
+    :data:`CAMERA_DEFAULTS`): :func:`merge_config`'s checks of each section, and of the two together as ``isettorch
+    synth`` checks them (even sizes, the layouts' minimum scene size with the margin, no ``scene.hfov_deg``: the
+    sensor sets the field of view). ``CameraPairDataset``, ``PairStream`` and ``isettorch synth`` share it."""
+    scene_cfg = _merge(SCENE_DEFAULTS, scene or {}, "scene")
+    camera_cfg = _merge(CAMERA_DEFAULTS, camera or {}, "camera")
+    _check_camera(camera_cfg, "camera")
+    _check_scene(scene_cfg, "scene", camera=camera_cfg)
+    return scene_cfg, camera_cfg
+
+
 def load_config(path: str | Path) -> dict:
-    """Read a YAML config (``yaml.safe_load``) and validate it against :data:`SYNTH_DEFAULTS`."""
+    """Read a YAML config (:func:`isettorch._yaml.load_yaml`: safe, YAML 1.2 floats such as ``1e-3``) and validate
+    it against :data:`SYNTH_DEFAULTS`."""
+    from .._yaml import load_yaml
+
     p = Path(path)
     try:
-        data = yaml.safe_load(p.read_text())
+        data = load_yaml(p.read_text())
     except (OSError, yaml.YAMLError) as err:
         raise ValueError(f"config: could not read YAML from {str(p)!r}: {err}") from err
     return merge_config(data or {})

@@ -30,7 +30,7 @@ from .. import constants, spectral
 from ..scene import Scene
 from . import layouts as _layouts
 from . import spectra as _spectra
-from .config import SCENE_DEFAULTS, merge_config, one_thread, seed_for, uniform01
+from .config import SCENE_DEFAULTS, check_integer, merge_config, one_thread, seed_for, uniform01
 
 __all__ = ["generate_scene", "SyntheticSceneDataset", "collate_scenes", "scene_wavelengths"]
 
@@ -139,6 +139,7 @@ def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size, distance_
     """
     full = config is not None and set(config) == set(SCENE_DEFAULTS)
     cfg = config if full else merge_config(config, SCENE_DEFAULTS, "scene")
+    _check_layouts_generator(cfg)
     g = torch.Generator().manual_seed(seed_for(seed, index))
     h, wd = size if size is not None else (cfg["height"], cfg["width"])
     wl = scene_wavelengths(cfg, dtype=torch.float64)
@@ -233,6 +234,14 @@ def _factored_radiance(f: dict, dtype) -> tuple[torch.Tensor, torch.Tensor, torc
     return maps.reshape(-1, h, w), spectra * scale, f["e1"] * scale
 
 
+def _check_layouts_generator(cfg: dict) -> None:
+    """These scenes are the layouts generator's: ``scene.generator: natural`` would be ignored."""
+    if cfg["generator"] != "layouts":
+        raise ValueError(f"scene.generator: generate_scene and SyntheticSceneDataset draw the 'layouts' generator, got "
+                         f"{cfg['generator']!r} (natural scenes: isettorch.data.natural.generate_natural, "
+                         f"NaturalSceneDataset)")
+
+
 def _generate_scene(index, seed, config, *, device, dtype, hfov_deg, size, distance_m=None) -> Scene:
     f = _draw_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size,
                     distance_m=distance_m)
@@ -264,11 +273,9 @@ class SyntheticSceneDataset(torch.utils.data.Dataset):
 
     def __init__(self, length: int, seed: int = 0, config: dict | None = None, *, dtype=torch.float32,
                  device=None):
-        if int(length) < 0:
-            raise ValueError(f"length: expected a non-negative number of items, got {length}")
-        self.length = int(length)
-        self.seed = int(seed)
+        self.length, self.seed = check_integer(length, "length", 0), check_integer(seed, "seed")
         self.config = merge_config(config, SCENE_DEFAULTS, "scene")
+        _check_layouts_generator(self.config)
         self.dtype = dtype
         self.device = device
 

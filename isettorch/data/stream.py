@@ -38,7 +38,7 @@ from .camera_pairs import (
     _xyz_weights,
     check_targets,
 )
-from .config import CAMERA_DEFAULTS, SCENE_DEFAULTS, merge_config, one_thread, seed_for
+from .config import check_integer, one_thread, pair_config, seed_for
 
 __all__ = ["PairStream", "StreamGroup"]
 
@@ -69,7 +69,8 @@ class PairStream:
         batch_size: items per batch.
         seed: stream seed; batch ``k`` depends only on ``(seed, k, config, device type)``.
         scene: scene config (keys of :data:`~isettorch.data.config.SCENE_DEFAULTS`; generator ``layouts`` or
-            ``natural``, with its options in ``natural``).
+            ``natural``, with its options in ``natural``; not ``hfov_deg``: the sensor sets the field of view),
+            validated with ``camera`` by :func:`~isettorch.data.config.pair_config`.
         camera: a camera config (keys of :data:`~isettorch.data.config.CAMERA_DEFAULTS`: the camera is drawn per
             item as in :class:`~isettorch.data.camera_pairs.CameraPairDataset`), or an :class:`isettorch.Camera`
             module to render every item through as it is (its own optics, sensor, QE, exposure and noise settings;
@@ -118,21 +119,11 @@ class PairStream:
             raise ValueError(f"batch_size: expected a positive integer, got {batch_size!r}")
         if dtype not in (torch.float32, torch.float64):
             raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype}")
-        self.batch_size, self.seed, self.dtype = batch_size, int(seed), dtype
+        self.batch_size, self.seed, self.dtype = batch_size, check_integer(seed, "seed"), dtype
         self.device = torch.device(device)
-        self.scene_config = merge_config(scene, SCENE_DEFAULTS, "scene")
-        h, w = self.scene_config["height"], self.scene_config["width"]
-        if h % 2 or w % 2:
-            raise ValueError(f"scene.height/width: expected even sizes (whole Bayer cells), got {h}x{w}")
-        self.camera_module = None
-        if isinstance(camera, torch.nn.Module):
-            self.camera_module = camera
-            self.camera_config = merge_config({}, CAMERA_DEFAULTS, "camera")
-        else:
-            self.camera_config = merge_config(camera, CAMERA_DEFAULTS, "camera")
-            if not float(self.camera_config["qe_variation"]) >= 0:
-                raise ValueError(f"camera.qe_variation: expected a non-negative number, got "
-                                 f"{self.camera_config['qe_variation']!r}")
+        # a camera module renders as it is: the scene config is checked with the default camera's (its margin)
+        self.camera_module = camera if isinstance(camera, torch.nn.Module) else None
+        self.scene_config, self.camera_config = pair_config(scene, None if self.camera_module is not None else camera)
         self.targets = check_targets(targets)
         self.grad = bool(grad)
         if rank is None or world_size is None:
@@ -547,7 +538,8 @@ class PairStream:
             "prnu_sigma_percent": level("prnu_sigma_percent", 0.0),
             "black_level_dn": full * float(raw.black_level), "white_level_dn": full * float(raw.white_level),
             # Poisson-Gaussian noise model in normalised units: var(x) = noise_gain x + noise_floor_var (Foi et al.,
-            # IEEE TIP 17(10), 2008), as CameraPairDataset's metadata
+            # IEEE TIP 17(10), 2008), as CameraPairDataset's metadata: without PRNU, which adds
+            # (prnu_sigma_percent / 100 * x)^2 across pixels (isettorch.data.camera_pairs, "Noise metadata")
             "noise_gain": to_norm,
             "noise_floor_var": poisson_gaussian_floor(to_norm, read_e, dsnu_e, dark, t, span),
             "cfa": sensor.cfa.index_map.to(dev)[None].expand(nb, -1, -1),

@@ -36,7 +36,7 @@ import torch
 
 from .._checks import dataset_index
 from .camera_pairs import GENERATOR_VERSION, CameraPairDataset, collate_pairs
-from .config import merge_config
+from .config import check_integer, merge_config
 
 __all__ = ["write_dataset", "config_hash", "sha256_file", "verify_dataset", "ShardDataset", "FORMAT_VERSION"]
 
@@ -118,9 +118,7 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
         the manifest dict (also written to ``out/manifest.json``).
     """
     cfg = merge_config(config)
-    count = int(count)
-    if count < 1:
-        raise ValueError(f"count: expected a positive number of items, got {count}")
+    count = check_integer(count, "count", 1)
     rank = _env_int("RANK", 0) if rank is None else int(rank)
     world_size = _env_int("WORLD_SIZE", 1) if world_size is None else int(world_size)
     if not (num_shards >= 1 and 0 <= shard < num_shards):

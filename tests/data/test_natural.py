@@ -378,8 +378,11 @@ def test_grain_dyes_partition_the_spectrum():
     assert dyes.shape == (3, WL.numel()) and (dyes >= 0).all()
     assert torch.allclose(dyes.sum(0), torch.ones_like(WL), atol=1e-12)
     assert [float(WL[int(d.argmax())]) for d in dyes] == [400.0, pytest.approx(540.0, abs=20), 700.0]
-    bad = nat.natural_config({"components": {"grain": {"dye_edges_nm": [600.0, 500.0]}}})
-    with pytest.raises(ValueError, match="dye_edges_nm"):
+    with pytest.raises(ValueError, match="dye_edges_nm"):  # the config names it ...
+        nat.natural_config({"components": {"grain": {"dye_edges_nm": [600.0, 500.0]}}})
+    bad = nat.natural_config()
+    bad["components"]["grain"]["dye_edges_nm"] = [600.0, 500.0]
+    with pytest.raises(ValueError, match="dye_edges_nm"):  # ... and so does the function, given it unchecked
         nat.grain_dyes(bad, WL)
     with pytest.raises(ValueError, match="amplitude"):
         nat.generate_natural(0, 0, {"size": 32, "components": {"grain": {"probability": 1.0, "amplitude": [0, 0.01]}}})
