@@ -9,6 +9,8 @@ Conventions
   on a non-uniform grid a sample's weight is half the distance between its neighbours (the
   end samples take the full width to their single neighbour, which equals the uniform rule).
   A single-wavelength grid has a weight of 1 nm (ISETCam's ``sceneGet(scene, 'binwidth')``).
+  ``wavelength_weights(w, rule='isetcam')`` gives ISETCam's rule instead: ``w[1] - w[0]`` for every sample,
+  also on a non-uniform grid (for ISETCam parity only).
 * :func:`resample` interpolates linearly and returns **0 outside the data's range**
   (as ISETCam's ``interp1(..., 'linear', 0)``), so a filter never invents response where it
   was not measured.
@@ -64,11 +66,26 @@ def default_wavelengths(start_nm: float = 400.0, stop_nm: float = 700.0, step_nm
     return start_nm + step_nm * torch.arange(n, dtype=dtype or torch.get_default_dtype(), device=device)
 
 
-def wavelength_weights(wavelengths_nm: torch.Tensor) -> torch.Tensor:
-    """Integration weight (nm) of each sample of a wavelength grid; see the module notes."""
+WEIGHT_RULES = ("midpoint", "isetcam")
+
+
+def wavelength_weights(wavelengths_nm: torch.Tensor, rule: str = "midpoint") -> torch.Tensor:
+    """Integration weight (nm) of each sample of a wavelength grid.
+
+    ``rule='midpoint'`` (default): each sample's own width, half the distance between its neighbours (the end
+    samples take the full width to their single neighbour); see the module notes. ``rule='isetcam'``: ISETCam's
+    plain rectangle rule, the bin width ``w[1] - w[0]`` for every sample, ends included (``sceneGet(scene,
+    'binwidth')``; isetcam-parity/FORMAT.md 4.1). The two agree on a uniform grid; on a non-uniform one only the
+    midpoint rule is a quadrature of the spectrum, so use ``'isetcam'`` only to reproduce ISETCam. A single
+    wavelength has a weight of 1 nm under both.
+    """
+    if rule not in WEIGHT_RULES:
+        raise ValueError(f"rule: expected one of {WEIGHT_RULES}, got {rule!r}")
     w = check_wavelengths(wavelengths_nm)
     if w.numel() == 1:
         return torch.ones_like(w)
+    if rule == "isetcam":
+        return (w[1] - w[0]).expand_as(w).clone()
     d = w[1:] - w[:-1]
     out = torch.empty_like(w)
     out[0] = d[0]

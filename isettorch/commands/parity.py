@@ -19,8 +19,14 @@ stage                      compared quantity                                    
 
 ``mean_rel_err`` is the mean of ``|ours - ref| / |ref|`` over reference values above 1 % of the max;
 ``max_err`` is the stage's tolerance quantity (max relative error for OI/current/illuminance, max
-absolute volts, max absolute DN). Stages without data in a case are reported as skipped.
-Exit code 0 when every checked stage is within tolerance, 1 otherwise, 2 when a case cannot be read.
+absolute volts, max absolute DN). Stages without data in a case are reported as skipped: ``sensor_current``
+without the optional ``sensor_signal_current_a``, ``sensor_dv`` for an analog sensor.
+
+A case is read and checked first (:func:`isettorch.io.isetcam.check_parity_case`): every key FORMAT.md section 3
+requires must be there (``sensor_dv`` too when the sensor is quantized), scalars and strings are also read as a
+MATLAB export writes them (1x1 arrays, char arrays, bytes), and every array must have the case's shapes.
+Exit code 0 when every checked stage is within tolerance, 1 otherwise, 2 when a case cannot be read or does not
+follow FORMAT.md (one line on stderr naming the key).
 """
 
 from __future__ import annotations
@@ -113,61 +119,67 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
     import torch
 
     from .. import constants, spectral
-    from ..io.isetcam import SCENE_KEYS, case_optical_image, case_scene_oi, case_sensor, read_parity_case
+    from ..io.isetcam import (
+        _integer,
+        _scalar,
+        _string,
+        _vector,
+        _wavelengths,
+        case_optical_image,
+        case_regrid_kernel,
+        case_scene_oi,
+        case_sensor,
+        read_parity_case,
+    )
     from ..optics.isetcam import mean_illuminance
 
-    case = read_parity_case(path)
-    name = str(case.get("case_name", Path(path).stem))
+    case = read_parity_case(path)  # checked against FORMAT.md sections 2-3: every required key is there
+    name = _string(case["case_name"], "case_name") if "case_name" in case else Path(path).stem
     stages: dict[str, dict] = {}
     notes: list[str] = []
-    w = torch.as_tensor(case["wavelengths_nm"], dtype=torch.float64).reshape(-1)
-    vl = torch.as_tensor(case["vlambda"], dtype=torch.float64).reshape(-1) if "vlambda" in case else \
+    w = torch.as_tensor(_wavelengths(case))
+    vl = torch.as_tensor(_vector(case, "vlambda", w.numel())) if "vlambda" in case else \
         spectral.luminosity(w, dtype=torch.float64)
 
     # Optics stage
-    our_oi = None
-    missing = [key for key in SCENE_KEYS if key not in case]
-    if missing:
-        stages["oi_photons"] = {"skipped": f"case lacks {', '.join(missing)}", "ok": None}
-    else:
-        our_oi = case_scene_oi(case)
-        stages["oi_photons"] = _rel_stats(our_oi.photons[0].numpy(), case["oi_photons"], TOL["oi_photons"])
-        if repeat > 0:
-            stages["oi_photons"]["seconds"] = _median_seconds(lambda: case_scene_oi(case), repeat)
-        dx = float(our_oi.sample_spacing_m[0])
-        ref_dx = float(case["oi_sample_spacing_m"])
-        if abs(dx - ref_dx) > 1e-9 * ref_dx:
-            notes.append(f"our OI sample spacing {dx:.10g} m differs from the case's {ref_dx:.10g} m")
-    if "oi_mean_illuminance_lux" in case:
-        src = our_oi.photons[0] if our_oi is not None else torch.as_tensor(case["oi_photons"], dtype=torch.float64)
-        lux = float(mean_illuminance(src[None], w, vl)[0])
-        ref = float(case["oi_mean_illuminance_lux"])
-        rel = abs(lux - ref) / abs(ref) if ref else abs(lux)
-        stages["mean_illuminance"] = {"mean_rel_err": rel, "max_err": rel, "tolerance": TOL["mean_illuminance"],
-                                      "ok": bool(rel <= TOL["mean_illuminance"]), "value_lux": lux, "ref_lux": ref,
-                                      "source": "our OI" if our_oi is not None else "case OI"}
-    else:
-        stages["mean_illuminance"] = {"skipped": "no oi_mean_illuminance_lux", "ok": None}
+    our_oi = case_scene_oi(case)
+    stages["oi_photons"] = _rel_stats(our_oi.photons[0].numpy(), case["oi_photons"], TOL["oi_photons"])
+    if repeat > 0:
+        stages["oi_photons"]["seconds"] = _median_seconds(lambda: case_scene_oi(case), repeat)
+    dx = float(our_oi.sample_spacing_m[0])
+    ref_dx = _scalar(case, "oi_sample_spacing_m")
+    if abs(dx - ref_dx) > 1e-9 * ref_dx:
+        notes.append(f"our OI sample spacing {dx:.10g} m differs from the case's {ref_dx:.10g} m")
+    lux = float(mean_illuminance(our_oi.photons[0][None], w, vl)[0])
+    ref = _scalar(case, "oi_mean_illuminance_lux")
+    rel = abs(lux - ref) / abs(ref) if ref else abs(lux)
+    stages["mean_illuminance"] = {"mean_rel_err": rel, "max_err": rel, "tolerance": TOL["mean_illuminance"],
+                                  "ok": bool(rel <= TOL["mean_illuminance"]), "value_lux": lux, "ref_lux": ref,
+                                  "source": "our OI"}
 
     # Sensor stage: ISETCam's pre-blur size from the case kernel when stored (FORMAT 4.6 step 2).
     from ..sensor.sampling import isetcam_preblur_kernel, isetcam_preblur_size
 
-    k_ours = isetcam_preblur_size(float(case["sensor_pixel_size_m"]), float(case["oi_sample_spacing_m"]))
+    k_ours = isetcam_preblur_size(_scalar(case, "sensor_pixel_size_m"), ref_dx)
     k = k_ours
-    if "sensor_regrid_kernel" in case:
-        k = int(np.atleast_2d(case["sensor_regrid_kernel"]).shape[0])
+    kern = case_regrid_kernel(case)
+    if kern is not None:
+        k = kern.shape[0]
         if k != k_ours:
             notes.append(f"pre-blur kernel: case has k={k}, ceil(pitch/dx) gives {k_ours}; using the case's")
-        kern = np.atleast_2d(np.asarray(case["sensor_regrid_kernel"], np.float64))
-        if kern.shape == (k, k) and np.abs(kern - isetcam_preblur_kernel(k).numpy()).max() > 1e-9:
+        if np.abs(kern - isetcam_preblur_kernel(k).numpy()).max() > 1e-9:
             notes.append(f"pre-blur kernel values differ from fspecial('gaussian', {k}, {k}/4) by "
                          f"{np.abs(kern - isetcam_preblur_kernel(k).numpy()).max():.3g}")
     sensor = case_sensor(case, preblur_size=k)
+    if "sensor_quantization_bits" in case and _integer(case, "sensor_quantization_bits") != (sensor.adc_bits or 0):
+        notes.append(f"sensor_quantization_bits ({_integer(case, 'sensor_quantization_bits')}, 0 = analog) disagrees "
+                     f"with sensor_quantization ({_string(case['sensor_quantization'], 'sensor_quantization')!r}); "
+                     f"using sensor_quantization (FORMAT.md section 3)")
+    wave = w.numpy()
+    if wave.size > 2 and not np.allclose(np.diff(wave), wave[1] - wave[0], rtol=1e-9, atol=0):
+        notes.append(f"non-uniform wavelengths: every band weighted by the bin width wave[1] - wave[0] = "
+                     f"{wave[1] - wave[0]:.6g} nm, as ISETCam does (FORMAT.md 4.1)")
     for label, oi in (("", case_optical_image(case)), ("_from_our_oi", our_oi)):
-        if oi is None:
-            for st in ("sensor_current", "sensor_volts", "sensor_dv"):
-                stages[st + label] = {"skipped": "no OI of our own (optics unavailable)", "ok": None}
-            continue
         with torch.no_grad():
             raw = sensor(oi, noise=False)
         volts = raw.data[0, 0]
@@ -184,14 +196,10 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
                 with torch.no_grad():
                     sensor(oi, noise=False)
             res["sensor_volts"]["seconds"] = _median_seconds(_sensor_once, repeat)
-        if "sensor_dv" in case:
-            if sensor.adc_bits is None:
-                res["sensor_dv"] = {"ok": False, "error": "case has sensor_dv but quantization is analog",
-                                    "mean_rel_err": None, "max_err": None}
-            else:
-                # ISETCam quantizes its single-precision volts (FORMAT 4.7)
-                dn = sensor.volts_to_dn(volts.to(torch.float32).to(torch.float64))
-                res["sensor_dv"] = _dv_stats(dn.numpy(), case["sensor_dv"])
+        if sensor.adc_bits is not None:  # then the case holds sensor_dv (read_parity_case checks it)
+            # ISETCam quantizes its single-precision volts (FORMAT 4.7)
+            dn = sensor.volts_to_dn(volts.to(torch.float32).to(torch.float64))
+            res["sensor_dv"] = _dv_stats(dn.numpy(), case["sensor_dv"])
         else:
             res["sensor_dv"] = {"skipped": "analog sensor (no sensor_dv)", "ok": None}
         for st, v in res.items():
@@ -213,13 +221,16 @@ def noise_stats(case: dict, sensor, oi) -> dict:
     import numpy as np
     import torch
 
+    from ..io.isetcam import _integer, _scalar, _vector
+
     cg = sensor.conversion_gain_v_per_e
-    sensor.read_noise_v = float(case.get("sensor_read_noise_v", 0.0))
-    sensor.dark_current_e_per_s = float(case.get("sensor_dark_voltage_v_per_s", 0.0)) / cg
-    sensor.dsnu_sigma_v = float(case.get("sensor_dsnu_sigma_v", 0.0))
-    sensor.prnu_sigma_percent = float(case.get("sensor_prnu_sigma_percent", 0.0))
+    # FORMAT.md 3: every case holds the four noise parameters (check_parity_case requires them with noise_resid_*)
+    sensor.read_noise_v = _scalar(case, "sensor_read_noise_v")
+    sensor.dark_current_e_per_s = _scalar(case, "sensor_dark_voltage_v_per_s") / cg
+    sensor.dsnu_sigma_v = _scalar(case, "sensor_dsnu_sigma_v")
+    sensor.prnu_sigma_percent = _scalar(case, "sensor_prnu_sigma_percent")
     sensor.shot_noise = "poisson"  # noise model and per-frame DSNU/PRNU: ISETCAM_CONVENTIONS
-    runs = int(case.get("noise_nruns", 20))
+    runs = _integer(case, "noise_nruns") if "noise_nruns" in case else 20  # FORMAT.md 3: 20
     g = torch.Generator().manual_seed(0)
     idx = sensor.cfa.channel_index(sensor.rows, sensor.cols).numpy()
     resid = []
@@ -228,8 +239,10 @@ def noise_stats(case: dict, sensor, oi) -> dict:
             raw = sensor(oi, generator=g)
             resid.append((raw.data - raw.noise_free)[0, 0].numpy())
     resid = np.stack(resid)
-    ref_std = np.atleast_1d(np.asarray(case["noise_resid_std_v"], np.float64))
-    ref_mean = np.atleast_1d(np.asarray(case.get("noise_resid_mean_v", np.full_like(ref_std, np.nan)), np.float64))
+    n_c = sensor.cfa.num_channels
+    ref_std = _vector(case, "noise_resid_std_v", n_c, "one per filter")
+    ref_mean = _vector(case, "noise_resid_mean_v", n_c, "one per filter") if "noise_resid_mean_v" in case else \
+        np.full(n_c, np.nan)
     std = np.array([resid[:, idx == c].std(ddof=1) for c in range(sensor.cfa.num_channels)])
     mean = np.array([resid[:, idx == c].mean() for c in range(sensor.cfa.num_channels)])
     rel = np.abs(std - ref_std) / ref_std
@@ -279,11 +292,14 @@ def run(args) -> int:
         try:
             results.append(run_case(path, repeat=args.repeat))
         except (OSError, KeyError, ValueError, TypeError) as err:  # unreadable or malformed case: exit 2
-            results.append({"name": Path(path).stem, "path": str(path), "error": f"{type(err).__name__}: {err}",
-                            "stages": {}, "ok": False})
+            # ValueError: what read_parity_case / check_parity_case and the stages' own checks say about the case
+            # (its message names the key); other types come from elsewhere and keep their name
+            message = " ".join(str(err).split())
+            if not isinstance(err, ValueError):
+                message = f"{type(err).__name__}: {message}"
+            results.append({"name": Path(path).stem, "path": str(path), "error": message, "stages": {}, "ok": False})
             # the CLI's convention, one line per bad case on stderr (the report on stdout keeps the others)
-            print(f"isettorch parity: CASE {path}: {type(err).__name__}: " + " ".join(str(err).split()),
-                  file=sys.stderr)
+            print(f"isettorch parity: CASE {path}: {message}", file=sys.stderr)
             code = 2
     ok = all(r["ok"] for r in results)
     if args.json:

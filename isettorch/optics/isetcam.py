@@ -110,6 +110,9 @@ def mean_illuminance(photons: torch.Tensor, wavelengths_nm: torch.Tensor, vlambd
     running sum over the column-major flattened image, as Octave's ``mean`` of single data (error up to 1e-3).
     """
     w = wavelengths_nm.to(torch.float64)
+    if vlambda.numel() != w.numel() or photons.dim() != 4 or photons.shape[1] != w.numel():
+        raise ValueError(f"vlambda, photons: expected {w.numel()} values and [B, {w.numel()}, H, W] (one per "
+                         f"wavelength), got {tuple(vlambda.shape)} and {tuple(photons.shape)}")
     bw = float(w[1] - w[0]) if w.numel() > 1 else 1.0
     h, c = constants.ISETCAM["h"], constants.ISETCAM["c"]
     e = photons.to(torch.float64) * (h * c) / (w[None, :, None, None] * 1e-9)

@@ -12,6 +12,7 @@ import pytest
 
 from isettorch.cli import main
 from isettorch.commands import parity
+from isettorch.io.isetcam import NOISE_KEYS
 
 SHARED = sorted(Path("/work/shared/isetcam-parity").glob("*.npz"))
 Q = 1.602177e-19  # ISETCam vcConstants
@@ -68,14 +69,45 @@ def fspecial_gaussian(k):
     return g / g.sum()
 
 
-def make_case(path, *, cfa, pattern, names, letters, bits, gain, offset, pitch, dx, rows, cols, oi_size, wave,
+F_NUMBER, FOCAL_M, DISTANCE_M = 4.0, 3.862755099e-3, 1.2  # FORMAT.md 3: oiCreate('diffraction limited'), 1.2 m
+
+
+def scene_and_oi(rng, wave, scene_size, dx):
+    """A complete case's scene and optics keys (FORMAT.md 3): a random scene whose FOV gives the OI sample spacing
+    ``dx``, and its OI from our ISETCam-compatible optics (the optics stage is then self-consistent; the sensor stage
+    is what these cases check, against :func:`reference_sensor`)."""
+    import torch
+
+    from isettorch import spectral
+    from isettorch.optics import isetcam
+
+    n_l = len(wave)
+    h, w = scene_size
+    yy, xx = np.mgrid[0:h, 0:w]
+    smooth = 1 + 0.5 * np.sin(xx / 3.0)[None] * np.cos(yy / 4.0)[None]
+    scene = (3e17 * smooth * rng.uniform(0.2, 1.0, (n_l, h, w))).astype(np.float32)
+    d_img = 1 / (1 / FOCAL_M - 1 / DISTANCE_M)  # the returned OI's spacing uses the image distance (FORMAT.md 4.4)
+    hfov = 2 * math.degrees(math.atan(dx * w / (2 * d_img)))
+    wave_t = torch.as_tensor(np.asarray(wave, np.float64))
+    oi = isetcam.compute_oi(torch.from_numpy(scene).double(), wave_t, hfov, DISTANCE_M, F_NUMBER, FOCAL_M)
+    vl = spectral.luminosity(wave_t, dtype=torch.float64)
+    lux = float(isetcam.mean_illuminance(oi.photons.double(), wave_t, vl)[0])
+    nits = float(isetcam.mean_illuminance(torch.from_numpy(scene)[None].double(), wave_t, vl)[0])  # same formula
+    return dict(scene_photons=scene, scene_hfov_deg=np.float64(hfov), scene_distance_m=np.float64(DISTANCE_M),
+                scene_mean_luminance_cdm2=np.float64(nits), optics_f_number=np.float64(F_NUMBER),
+                optics_focal_length_m=np.float64(FOCAL_M), optics_offaxis=np.str_("cos4th"),
+                optics_transmittance=np.ones(n_l), oi_photons=oi.photons[0].float().numpy(),
+                oi_hfov_deg=np.float64(oi.hfov_deg[0]), oi_sample_spacing_m=np.float64(oi.sample_spacing_m[0]),
+                oi_pad_rows=np.int64(oi.pad_rows), oi_pad_cols=np.int64(oi.pad_cols),
+                oi_mean_illuminance_lux=np.float64(lux), vlambda=vl.numpy())
+
+
+def make_case(path, *, cfa, pattern, names, letters, bits, gain, offset, pitch, dx, rows, cols, scene_size, wave,
               peak_volts, seed):
     rng = np.random.default_rng(seed)
     n_l = len(wave)
-    h2, w2 = oi_size
-    yy, xx = np.mgrid[0:h2, 0:w2]
-    smooth = 1 + 0.5 * np.sin(xx / 3.0)[None] * np.cos(yy / 4.0)[None]
-    oi = (1e16 * smooth * rng.uniform(0.2, 1.0, (n_l, h2, w2))).astype(np.float32)
+    data = scene_and_oi(rng, wave, scene_size, dx)
+    oi, dx = data["oi_photons"], float(data["oi_sample_spacing_m"])
     qe = rng.uniform(0.0, 0.4, (len(names), n_l))
     ff, cg, swing = 0.75, 1e-4, 1.0
     # exposure chosen so the brightest pre-gain volts are about peak_volts (clipping after the gain)
@@ -85,9 +117,8 @@ def make_case(path, *, cfa, pattern, names, letters, bits, gain, offset, pitch, 
     current, volts, dv = reference_sensor(oi, wave, qe, pattern, dx, pitch, ff, rows, cols, t, cg, swing, gain,
                                           offset, bits)
     k = math.ceil(pitch / dx)
-    data = dict(
-        oi_photons=oi, wavelengths_nm=np.asarray(wave, np.float64), oi_sample_spacing_m=np.float64(dx),
-        oi_pad_rows=np.int64(0), oi_pad_cols=np.int64(0), sensor_rows=np.int64(rows), sensor_cols=np.int64(cols),
+    data.update(
+        wavelengths_nm=np.asarray(wave, np.float64), sensor_rows=np.int64(rows), sensor_cols=np.int64(cols),
         sensor_pixel_size_m=np.float64(pitch), sensor_fill_factor=np.float64(ff),
         sensor_conversion_gain_v_per_e=np.float64(cg), sensor_voltage_swing_v=np.float64(swing),
         sensor_exposure_s=np.float64(t), sensor_cfa=np.str_(cfa), sensor_filter_names=np.array(names),
@@ -96,6 +127,7 @@ def make_case(path, *, cfa, pattern, names, letters, bits, gain, offset, pitch, 
         sensor_quantization=np.str_(str(bits) if bits else "analog"), sensor_volts=volts,
         sensor_signal_current_a=current, sensor_regrid_kernel=fspecial_gaussian(k),
         case_name=np.str_(Path(path).stem), meta=np.str_("synthetic: numpy implementation of FORMAT.md 4.6"),
+        **{key: np.float64(0.0) for key in NOISE_KEYS},
     )
     if dv is not None:
         data["sensor_dv"] = dv
@@ -107,15 +139,16 @@ SYNTHETIC = {
     # YCMY, 10-bit, analog gain 2 (divides), even-k pre-blur (k = 4), odd sizes, 45 nm bins
     "ycmy_10bit_gain2_k4": dict(cfa="YCMY", pattern=[[2, 1], [3, 2]], names=["cDefault", "yDefault", "mDefault"],
                                 letters="cym", bits=10, gain=2.0, offset=0.0, pitch=3.5e-6, dx=1e-6, rows=9,
-                                cols=11, oi_size=(37, 45), wave=np.arange(400.0, 700.0, 45.0), peak_volts=3.5),
+                                cols=11, scene_size=(30, 36), wave=np.arange(400.0, 700.0, 45.0), peak_volts=3.5),
     # monochrome, 8-bit, gain 1.5 and offset, k = 2 (the half-sample shift), sensor larger than the OI
     "mono_8bit_k2": dict(cfa="W", pattern=[[1]], names=["w"], letters="w", bits=8, gain=1.5, offset=0.01,
-                         pitch=1.5e-6, dx=1e-6, rows=15, cols=21, oi_size=(21, 29), wave=np.arange(400.0, 701.0, 50.0),
+                         pitch=1.5e-6, dx=1e-6, rows=15, cols=21, scene_size=(17, 23),
+                         wave=np.arange(400.0, 701.0, 50.0),
                          peak_volts=3.0),
     # GRBG analog, pixels much smaller than the OI samples (no pre-blur)
     "grbg_analog_small_pixels": dict(cfa="GRBG", pattern=[[2, 1], [3, 2]], names=["rDefault", "gDefault", "bDefault"],
                                      letters="rgb", bits=0, gain=1.0, offset=0.0, pitch=1.1e-6, dx=4.3e-6, rows=31,
-                                     cols=41, oi_size=(13, 15), wave=np.arange(400.0, 701.0, 10.0), peak_volts=0.9),
+                                     cols=41, scene_size=(11, 13), wave=np.arange(400.0, 701.0, 10.0), peak_volts=0.9),
 }
 
 
@@ -125,7 +158,7 @@ def test_synthetic_cases_sensor_stage(tmp_path, name):
     data = make_case(path, seed=len(name), **SYNTHETIC[name])
     res = parity.run_case(path)
     st = res["stages"]
-    assert st["oi_photons"]["ok"] is None  # no scene in these cases: skipped, reported as such
+    assert st["oi_photons"]["ok"] and st["mean_illuminance"]["ok"]  # our own OI of the scene: self-consistent
     assert st["sensor_volts"]["ok"], st["sensor_volts"]
     assert st["sensor_volts"]["max_err"] < 1e-6
     assert st["sensor_current"]["ok"] and st["sensor_current"]["max_err"] < 1e-5
@@ -188,8 +221,8 @@ def test_noise_statistics_stage_against_format_formula(tmp_path):
     oi = np.full_like(data["oi_photons"], data["oi_photons"].mean())
     data["oi_photons"] = oi
     current, volts, _ = reference_sensor(oi, spec["wave"], data["sensor_spectral_qe"], data["sensor_cfa_pattern"],
-                                         spec["dx"], spec["pitch"], 0.75, 40, 50, float(data["sensor_exposure_s"]),
-                                         1e-4, 1.0, 1.0, 0.0, 0)
+                                         float(data["oi_sample_spacing_m"]), spec["pitch"], 0.75, 40, 50,
+                                         float(data["sensor_exposure_s"]), 1e-4, 1.0, 1.0, 0.0, 0)
     data.update(sensor_volts=volts, sensor_signal_current_a=current, sensor_read_noise_v=np.float64(1e-3),
                 sensor_dark_voltage_v_per_s=np.float64(1e-3), sensor_dsnu_sigma_v=np.float64(2e-3),
                 sensor_prnu_sigma_percent=np.float64(1.0), noise_nruns=np.int64(20))
@@ -203,3 +236,162 @@ def test_noise_statistics_stage_against_format_formula(tmp_path):
     assert st["informational"] and st["ok"], st
     assert st["max_err"] < 0.02
     np.testing.assert_allclose(st["resid_mean_v"], 1e-3 * t, atol=6e-5)
+
+
+# --- the command on variants of the shipped case (the audit's defects 1-9) -----------------------------------------
+
+CASE = Path("/work/shared/isetcam-parity/macbeth_d65_default.npz")
+needs_case = pytest.mark.skipif(not CASE.exists(), reason="shared ISETCam parity case not present")
+MAIN_STAGES = ("oi_photons", "mean_illuminance", "sensor_current", "sensor_volts", "sensor_dv")
+
+
+@pytest.fixture(scope="module")
+def base():
+    return dict(np.load(CASE, allow_pickle=False))
+
+
+def verdicts(res):
+    """Each main stage's verdict: True / False, or None when skipped."""
+    return {st: res["stages"][st]["ok"] for st in MAIN_STAGES}
+
+
+def exits_2(tmp_path, capsys, case, message):
+    """`isettorch parity` on ``case`` exits 2 with exactly one stderr line ending in ``message``."""
+    path = tmp_path / "variant.npz"
+    np.savez(path, **case)
+    assert main(["parity", str(path)]) == 2
+    assert capsys.readouterr().err == f"isettorch parity: CASE {path}: {message}\n"
+
+
+def matlab_char(s):
+    return np.array(list(str(s)))  # a MATLAB char array: one element per character
+
+
+@needs_case
+def test_matlab_exported_case_passes(tmp_path, base):
+    """Defects 1-3: the shipped case as a MATLAB export writes it (scalars and counts 1x1, strings as char arrays,
+    names as a [1, C] cell, vectors as [1, L] rows) passes every stage as the shipped case does."""
+    case = {}
+    for k, v in base.items():
+        if v.ndim == 0 and v.dtype.kind in "fi":
+            v = v.reshape(1, 1)
+        elif v.ndim == 0 and v.dtype.kind == "U":
+            v = matlab_char(v)
+        elif v.ndim == 1 and v.dtype.kind == "f":
+            v = v.reshape(1, -1)
+        case[k] = v
+    case["sensor_filter_names"] = base["sensor_filter_names"].reshape(1, -1)
+    path = tmp_path / "matlab.npz"
+    np.savez(path, **case)
+    res = parity.run_case(path)
+    assert verdicts(res) == {"oi_photons": True, "mean_illuminance": True, "sensor_current": True,
+                             "sensor_volts": True, "sensor_dv": None}
+    assert res["ok"] and res["name"] == str(base["case_name"])
+    assert res["stages"]["sensor_volts"]["max_err"] == parity.run_case(CASE)["stages"]["sensor_volts"]["max_err"]
+
+
+@needs_case
+@pytest.mark.parametrize("quantization", [np.str_("10"), matlab_char("10"), np.array([b"1", b"0"]),
+                                          np.array([["10"]])], ids=["str", "chars", "bytes", "cell"])
+def test_quantized_variant_reads_ten_bits(tmp_path, base, quantization):
+    """Defect 2: the char array ['1', '0'] was read as 1 bit (sensor_dv failed by 1023 DN); every spelling is 10."""
+    dv = np.floor(base["sensor_volts"].astype(np.float64) * 1024 + 0.5).astype(np.float32)  # FORMAT 4.6 step 9
+    case = dict(base, sensor_quantization=quantization, sensor_dv=dv)
+    del case["sensor_quantization_bits"]
+    path = tmp_path / "q10.npz"
+    np.savez(path, **case)
+    res = parity.run_case(path)
+    assert verdicts(res) == dict.fromkeys(MAIN_STAGES, True)
+    assert res["stages"]["sensor_dv"]["exact_fraction"] == 1.0 and res["notes"] == []
+    # the optional sensor_quantization_bits disagreeing (0 = analog) is a note; sensor_quantization decides
+    np.savez(path, **dict(case, sensor_quantization_bits=np.int64(0)))
+    res = parity.run_case(path)
+    assert verdicts(res) == dict.fromkeys(MAIN_STAGES, True)
+    assert res["notes"] == ["sensor_quantization_bits (0, 0 = analog) disagrees with sensor_quantization ('10'); "
+                            "using sensor_quantization (FORMAT.md section 3)"]
+
+
+@needs_case
+@pytest.mark.parametrize("key", ["scene_photons", "optics_focal_length_m", "oi_mean_illuminance_lux",
+                                 "sensor_analog_gain", "sensor_analog_offset", "sensor_quantization", "oi_pad_rows",
+                                 "optics_offaxis", "optics_transmittance", "meta"])
+def test_missing_required_key_exits_2(tmp_path, capsys, base, key):
+    """Defect 6: these were skipped or defaulted with exit 0."""
+    exits_2(tmp_path, capsys, {k: v for k, v in base.items() if k != key},
+            f"missing required key {key!r} (FORMAT.md section 3)")
+
+
+@needs_case
+def test_quantized_case_without_dv_exits_2(tmp_path, capsys, base):
+    case = dict(base, sensor_quantization=np.str_("10"), sensor_quantization_bits=np.int64(10))
+    exits_2(tmp_path, capsys, case, "missing required key 'sensor_dv' (FORMAT.md section 3: every quantized case "
+                                    "holds it; sensor_quantization is '10')")
+
+
+@needs_case
+def test_malformed_values_exit_2(tmp_path, capsys, base):
+    """Defects 1, 4, 5, 9: one line naming the key, no traceback and no silent misreading."""
+    exits_2(tmp_path, capsys, dict(base, sensor_rows=np.float64(198.5)), "sensor_rows: expected an integer, got 198.5")
+    exits_2(tmp_path, capsys, dict(base, sensor_exposure_s=np.array([0.05, 0.06])),
+            "sensor_exposure_s: expected a scalar (an array of size 1), got shape (2,)")
+    exits_2(tmp_path, capsys, dict(base, sensor_spectral_qe=base["sensor_spectral_qe"].T.copy()),
+            "sensor_spectral_qe: expected shape (C, L) = (3, 31) (3 filters in sensor_filter_names, 31 wavelengths in "
+            "wavelengths_nm), got (31, 3) (an [L, C] array, transposed: FORMAT.md sections 2-3 store row k = filter k)")
+    exits_2(tmp_path, capsys, dict(base, vlambda=base["vlambda"][:30]),
+            "vlambda: expected 31 values (one per wavelength in wavelengths_nm), got shape (30,)")
+    exits_2(tmp_path, capsys, dict(base, optics_offaxis=np.str_("bogus")),
+            "optics_offaxis: expected one of 'cos4th', 'skip', 'none' (FORMAT.md section 3: 'cos4th' in every case), "
+            "got 'bogus'")
+
+
+def test_not_an_npz_exits_2(tmp_path, capsys):
+    """Defect 8: was "contains pickled (object) data" for text and a TypeError for a renamed .npy."""
+    (tmp_path / "text.npz").write_text("hello")
+    np.save(tmp_path / "array.npy", np.arange(3))
+    (tmp_path / "array.npy").rename(tmp_path / "array.npz")
+    for name in ("text.npz", "array.npz"):
+        path = tmp_path / name
+        assert main(["parity", str(path)]) == 2
+        assert capsys.readouterr().err == f"isettorch parity: CASE {path}: path: {str(path)!r} is not an .npz (zip) " \
+                                          f"archive\n"
+
+
+@needs_case
+def test_offaxis_skip_is_honoured(tmp_path, base):
+    """Defect 9's other half: 'skip' written as a 1-element array was read as cos4th (and the case passed)."""
+    path = tmp_path / "skip.npz"
+    np.savez(path, **dict(base, optics_offaxis=np.array(["skip"])))
+    res = parity.run_case(path)
+    assert res["stages"]["oi_photons"]["ok"] is False  # the reference OI has the cos4th fall-off; ours now has none
+    assert res["stages"]["sensor_volts"]["ok"] is True  # the sensor stage runs on the case's OI
+
+
+@needs_case
+def test_nonuniform_wavelengths_use_isetcams_bin_width(tmp_path, base):
+    """Defect 7: FORMAT.md 4.1, every band weighted by wave[1] - wave[0] (here 20 nm), also on a non-uniform grid; the
+    library's midpoint weights (20, 25, 40, 50, ...) failed the sensor stage by up to 0.6 V."""
+    idx = [0, 2, 5, 10, 15, 20, 25, 30]  # 400, 420, 450, 500, ..., 700 nm
+    wave = base["wavelengths_nm"][idx]
+    case = dict(base, wavelengths_nm=wave, sensor_spectral_qe=base["sensor_spectral_qe"][:, idx],
+                scene_photons=np.ascontiguousarray(base["scene_photons"][idx]),
+                oi_photons=np.ascontiguousarray(base["oi_photons"][idx]),
+                optics_transmittance=base["optics_transmittance"][idx], vlambda=base["vlambda"][idx])
+    args = (case["oi_photons"], wave, case["sensor_spectral_qe"], base["sensor_cfa_pattern"],
+            float(base["oi_sample_spacing_m"]), float(base["sensor_pixel_size_m"]), float(base["sensor_fill_factor"]),
+            int(base["sensor_rows"]), int(base["sensor_cols"]), float(base["sensor_exposure_s"]),
+            float(base["sensor_conversion_gain_v_per_e"]), float(base["sensor_voltage_swing_v"]), 1.0, 0.0, 0)
+    current, volts, _ = reference_sensor(*args)
+    energy = case["oi_photons"].astype(np.float64) * 6.626176e-34 * 2.99792458e8 / (wave[:, None, None] * 1e-9)
+    lux = 683 * (wave[1] - wave[0]) * np.einsum("lhw,l->hw", energy, case["vlambda"]).mean()  # FORMAT.md 4.1
+    case.update(sensor_signal_current_a=current, sensor_volts=volts, oi_mean_illuminance_lux=np.float64(lux))
+    path = tmp_path / "nonuniform.npz"
+    np.savez(path, **case)
+    res = parity.run_case(path)
+    assert verdicts(res) == {"oi_photons": True, "mean_illuminance": True, "sensor_current": True,
+                             "sensor_volts": True, "sensor_dv": None}
+    assert res["stages"]["sensor_volts"]["max_err"] < 1e-6
+    assert any("non-uniform wavelengths" in n for n in res["notes"])
+    # the check discriminates: the midpoint rule's volts are far from these
+    mid = np.array([20.0, 25.0, 40.0, 50.0, 50.0, 50.0, 50.0, 50.0]) / 20.0
+    _, volts_mid, _ = reference_sensor(*args[:2], args[2] * mid, *args[3:])
+    assert np.abs(volts_mid.astype(np.float64) - volts).max() > 0.1
