@@ -86,7 +86,7 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                  "--exposure-s: 1e+300 s of the sensor's dark current"),
                 (["{raw}/frame.npy", "{raw}/frame.tif", *PROC], "RAW: {raw}/frame.npy and {raw}/frame.tif would both"),
                 (["{raw}/shifted.npy", *PROC], "RAW: {raw}/shifted.npy: values up to 65520 DN exceed the camera's "
-                                               "white level 4095 DN"),
+                                               "largest ADC code 4095 DN"),
                 (["{raw}/frame.npy", *PROC[2:], "--camera", "{badyaml}"], "--camera: '{badyaml}' is not valid YAML"),
                 (["{raw}/frame.npy", *PROC[:4], "--out", "{garbage}"],
                  "--out: expected a folder, {garbage} is a file")],

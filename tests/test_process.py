@@ -58,10 +58,10 @@ def test_output_paths_never_clash(tmp_path):
         process._output_paths(["frame.npy", "./frame.npy"], out, "npy")
 
 
-def test_values_above_the_white_level_are_refused(camera, tmp_path, capsys):
+def test_values_above_the_largest_adc_code_are_refused(camera, tmp_path, capsys):
     rng = np.random.default_rng(0)
     frame = rng.integers(64, 4096, (8, 8)).astype(np.uint16)
-    frame[0, 0] = 4095  # the white level itself is a value the ADC gives
+    frame[0, 0] = 4095  # the 12-bit ADC's largest code is a value it gives
     np.save(tmp_path / "white.npy", frame)
     args = ["--camera", str(camera), "--model", str(PRETRAINED["joint_denoise"]), "--out", str(tmp_path / "out"),
             "--quiet"]
@@ -73,5 +73,5 @@ def test_values_above_the_white_level_are_refused(camera, tmp_path, capsys):
     capsys.readouterr()
     assert main(["process", str(tmp_path / "over.npy"), *args]) == 2
     assert capsys.readouterr().err == (f"isettorch process: RAW: {tmp_path / 'over.npy'}: values up to 4096 DN exceed "
-                                       f"the camera's white level 4095 DN (data shifted left?)\n")
+                                       f"the camera's largest ADC code 4095 DN (12 bits; data shifted left?)\n")
     assert not (tmp_path / "out" / "over.npy").exists()

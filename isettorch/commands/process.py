@@ -193,12 +193,13 @@ def run(args) -> int:
             if min(dn.shape) < 4:  # (an odd height or width is completed to whole cells by demosaic_learned)
                 raise ValueError(f"RAW: {f}: expected a {pattern} mosaic of at least 4 x 4 pixels, got "
                                  f"{dn.shape[0]} x {dn.shape[1]}")
-            # the ADC's largest code is the white level (e.g. 12-bit data left-shifted into 16 bits exceeds it); a
-            # sensor without an ADC has none (white_level_dn None) and no check here, but noise_params refused it
-            top = float(dn.max())
-            if sensor.white_level_dn is not None and top > sensor.white_level_dn:
-                raise ValueError(f"RAW: {f}: values up to {top:g} DN exceed the camera's white level "
-                                 f"{sensor.white_level_dn:g} DN (data shifted left?)")
+            # no value above the ADC's largest code (e.g. 12-bit data left-shifted into 16 bits exceeds it). Not the
+            # white level: where the full well saturates below the ADC range, a real frame's saturated pixels scatter
+            # around it (their gains differ). noise_params refused a sensor without an ADC
+            top, code_max = float(dn.max()), float(2 ** int(sensor.adc_bits) - 1)
+            if top > code_max:
+                raise ValueError(f"RAW: {f}: values up to {top:g} DN exceed the camera's largest ADC code "
+                                 f"{code_max:g} DN ({int(sensor.adc_bits)} bits; data shifted left?)")
             try:
                 rgb = process_frame(dn, sensor, pattern, net, analog_gain=args.analog_gain,
                                     exposure_s=args.exposure_s, self_ensemble=args.self_ensemble)
