@@ -78,21 +78,27 @@ def test_dng_round_trip_through_rawpy(tmp_path):
     assert r.black_level_dn == [64.0] * 4 and r.white_level_dn == 4095
 
 
-def test_calibration_from_dng_folders(tmp_path, capsys):
-    """DNG frames (written with write_dng, read by LibRaw) feed the same calibration as PNGs."""
-    pytest.importorskip("rawpy")
-    from isettorch.cli import main
+def _write_dng_stacks(root, dark, flat):
+    """Each exposure's frames as RGGB DNGs (black 100, white 4095 DN) in dark_<ms>ms / flat_<ms>ms folders."""
     from isettorch.io.raw import write_dng
 
-    truth = dict(nc.TRUTH, qe=nc.BAYER_QE)
-    dark, flat, _ = nc.simulate(truth, cfa="RGGB", shape=(128, 128), frames=2, seed=8)
-    root = nc.write_capture(tmp_path / "cap", {}, {}, bits=12, cfa="RGGB")
     for kind, stacks in (("dark", dark), ("flat", flat)):
         for ms, stack in stacks.items():
             d = root / f"{kind}_{ms:g}ms"
             d.mkdir()
             for i, f in enumerate(stack):
                 write_dng(d / f"f{i}.dng", f, cfa="RGGB", black_level_dn=100, white_level_dn=4095)
+
+
+def test_calibration_from_dng_folders(tmp_path, capsys):
+    """DNG frames (written with write_dng, read by LibRaw) feed the same calibration as PNGs."""
+    pytest.importorskip("rawpy")
+    from isettorch.cli import main
+
+    truth = dict(nc.TRUTH, qe=nc.BAYER_QE)
+    dark, flat, _ = nc.simulate(truth, cfa="RGGB", shape=(128, 128), frames=2, seed=8)
+    root = nc.write_capture(tmp_path / "cap", {}, {}, bits=12, cfa="RGGB")
+    _write_dng_stacks(root, dark, flat)
     assert main(["calibrate", str(root), "--json", "--quiet"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["sensor"]["conversion_gain_dn_per_e"] == pytest.approx(truth["gain_dn_per_e"], rel=0.02)
@@ -120,12 +126,7 @@ def test_folder_of_dngs_without_cfa_in_capture_yaml_uses_their_cfa(tmp_path, cap
     dark, flat, _ = nc.simulate(truth, cfa="RGGB", shape=(128, 128), frames=2, seed=8,
                                 exposures_ms=[1.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 60.0])
     root = nc.write_capture(tmp_path / "cap", {}, {}, bits=12)  # no cfa key
-    for kind, stacks in (("dark", dark), ("flat", flat)):
-        for ms, stack in stacks.items():
-            d = root / f"{kind}_{ms:g}ms"
-            d.mkdir()
-            for i, f in enumerate(stack):
-                write_dng(d / f"f{i}.dng", f, cfa="RGGB", black_level_dn=100, white_level_dn=4095)
+    _write_dng_stacks(root, dark, flat)
     assert main(["calibrate", str(root), "--json", "--quiet"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["cfa"] == "RGGB"
