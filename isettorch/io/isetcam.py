@@ -500,13 +500,9 @@ def case_sensor(case: dict, preblur_size: int | None = None):
     (``ISETCAM_CONVENTIONS``: pre-blur + point sampling, gain divides, ADC without clamp), noise off, volts out.
 
     ISETCam integrates over wavelength with a plain rectangle rule, the bin width ``wave[1] - wave[0]`` for every
-    band (FORMAT.md 4.1), while the Sensor weights each band by :func:`~isettorch.spectral.wavelength_weights`
-    (its own width on a non-uniform grid). The QE handed to the Sensor is therefore scaled per band by
-    ``wavelength_weights(w, rule='isetcam') / wavelength_weights(w)``, so that the Sensor's sum is ISETCam's: the
-    factor is exactly 1 on a uniform grid (every shipped case), and the Sensor's ``spectral_qe`` holds the scaled
-    curves on a non-uniform one. The case's OI has the case's wavelengths, so the QE is not resampled.
+    band (FORMAT.md 4.1): ``ISETCAM_CONVENTIONS``' ``spectral_rule='isetcam'``. The case's OI has the case's
+    wavelengths, so the QE is not resampled.
     """
-    from .. import spectral
     from ..sensor import ISETCAM_CONVENTIONS, Sensor, SpectralQE
 
     cfa = case_cfa(case)
@@ -514,7 +510,6 @@ def case_sensor(case: dict, preblur_size: int | None = None):
     qe = torch.as_tensor(case_spectral_qe(case), dtype=torch.float64)
     if qe.shape[0] != cfa.num_channels:
         raise ValueError(f"sensor_spectral_qe: expected {cfa.num_channels} rows (the CFA's filters), got {qe.shape[0]}")
-    qe = qe * (spectral.wavelength_weights(wave, rule="isetcam") / spectral.wavelength_weights(wave))
     name = _case_string(case, "case_name") if "case_name" in case else ""
     return Sensor(
         rows=_integer(case, "sensor_rows"), cols=_integer(case, "sensor_cols"),

@@ -26,17 +26,19 @@ __all__ = [
 ]
 
 
-def electron_rate_density(photons: torch.Tensor, qe: torch.Tensor, wavelengths_nm: torch.Tensor) -> torch.Tensor:
+def electron_rate_density(photons: torch.Tensor, qe: torch.Tensor, wavelengths_nm: torch.Tensor,
+                          rule: str = "midpoint") -> torch.Tensor:
     """Photo-electrons/s/m^2 per filter: ``sum_lambda photons(lambda) QE_c(lambda) dlambda``.
 
     ``photons [B, L, H, W]`` (photons/s/m^2/nm), ``qe [C, L]`` (or per item ``[B, C, L]``) -> ``[B, C, H, W]``.
-    Multiplied by q this is ISETCam's ``SignalCurrentDensity`` (A/m^2), rectangle rule with the grid's bin width.
+    ``dlambda`` by :func:`isettorch.spectral.wavelength_weights` with ``rule``; multiplied by q this is ISETCam's
+    ``SignalCurrentDensity`` (A/m^2) with ``rule='isetcam'`` (or on any uniform grid, where the rules agree).
     """
     b, n_l = photons.shape[:2]
     if qe.dim() not in (2, 3) or qe.shape[-1] != n_l or (qe.dim() == 3 and qe.shape[0] != b):
         raise ValueError(f"qe: expected shape [C, {n_l}] (or [{b}, C, {n_l}] per item) matching photons' batch and "
                          f"wavelengths, got {tuple(qe.shape)}")
-    dl = spectral.wavelength_weights(torch.as_tensor(wavelengths_nm)).to(photons.device, photons.dtype)
+    dl = spectral.wavelength_weights(torch.as_tensor(wavelengths_nm), rule).to(photons.device, photons.dtype)
     m = qe.to(photons.dtype) * dl  # [C, L] or [B, C, L]
     h, w = photons.shape[2:]
     return (m @ photons.reshape(b, n_l, h * w)).reshape(b, -1, h, w)  # a contiguous GEMM over the cube

@@ -48,9 +48,10 @@ PER_CALL_LEVELS = ("conversion_gain_v_per_e", "read_noise_v", "dark_current_e_pe
 
 # Every ISETCam behaviour that differs from the documented default, for ``Sensor(..., **ISETCAM_CONVENTIONS)``:
 # Gaussian pre-blur + point sampling, analog gain divides, ADC without clamp, ISETCam noise order with
-# DSNU/PRNU redrawn on every call (FORMAT.md 4.6, 4.8).
+# DSNU/PRNU redrawn on every call (FORMAT.md 4.6, 4.8), the rectangle rule over wavelength with the first bin's
+# width for every band (FORMAT.md 4.1; the same as the default on a uniform grid).
 ISETCAM_CONVENTIONS: dict[str, str] = {"sampling": "isetcam", "gain_convention": "isetcam", "adc_mode": "isetcam",
-                                       "noise_model": "isetcam", "fpn_mode": "per_frame"}
+                                       "noise_model": "isetcam", "fpn_mode": "per_frame", "spectral_rule": "isetcam"}
 
 SAMPLING_MODES = ("area", "area_linear", "isetcam")
 
@@ -143,6 +144,9 @@ class Sensor(nn.Module):
         sampling: ``'area'`` (integrate over the photodiode, OI samples as cell means; default),
             ``'area_linear'`` (integrate the bilinear reconstruction of the OI) or ``'isetcam'`` (ISETCam's
             Gaussian pre-blur + bilinear point sampling at pixel centres); ``preblur_size`` overrides ISETCam's k.
+        spectral_rule: the quadrature over wavelength, :func:`isettorch.spectral.wavelength_weights`'s ``rule``:
+            ``'midpoint'`` (each band its own width; default) or ``'isetcam'`` (the first bin's width for every band,
+            ISETCam's rectangle rule). The two agree on a uniform grid.
         output_units: ``'dn'`` (default when ``adc_bits``), ``'volts'`` (default otherwise) or ``'electrons'``.
         seed: seed of the fixed patterns and of the default temporal-noise generator.
 
@@ -166,7 +170,7 @@ class Sensor(nn.Module):
                  shot_noise: str = "poisson", read_noise_v: float = 0.0, dark_current_e_per_s: float = 0.0,
                  dsnu_sigma_v: float = 0.0, prnu_sigma_percent: float = 0.0, column_fpn_sigma_v: float = 0.0,
                  fpn_mode: str = "fixed", noise_model: str = "physical", cds: bool = False, vignetting=None,
-                 pixel_optics=None, sampling: str = "area",
+                 pixel_optics=None, sampling: str = "area", spectral_rule: str = "midpoint",
                  preblur_size: int | None = None, output_units: str | None = None, seed: int = 0,
                  name: str = "",
                  row_noise_v: float = 0.0, column_noise_v: float = 0.0, read_noise_tukey_lambda: float | None = None,
@@ -196,6 +200,7 @@ class Sensor(nn.Module):
                    "adc_mode": (adc_mode, ("clamp", "isetcam")),
                    "shot_noise": (shot_noise, _noise.SHOT_NOISE_MODES),
                    "fpn_mode": (fpn_mode, ("fixed", "per_frame")), "sampling": (sampling, SAMPLING_MODES),
+                   "spectral_rule": (spectral_rule, spectral.WEIGHT_RULES),
                    "noise_model": (noise_model, ("physical", "isetcam"))}
         for label, (v, allowed) in choices.items():
             if v not in allowed:
@@ -263,6 +268,7 @@ class Sensor(nn.Module):
         self.noise_model = noise_model
         self.cds = bool(cds)
         self.sampling = sampling
+        self.spectral_rule = spectral_rule
         self.preblur_size = preblur_size
         self.output_units = output_units or ("dn" if adc_bits is not None else "volts")
         self.seed = int(seed)
@@ -522,7 +528,7 @@ class Sensor(nn.Module):
         hit = None if key is None else self._weights_cache.get(key)
         if hit is not None and hit[0] is qe_mod:
             return hit[1]
-        dl = spectral.wavelength_weights(oi.wavelengths_nm).to(device=oi.device, dtype=oi.dtype)
+        dl = spectral.wavelength_weights(oi.wavelengths_nm, self.spectral_rule).to(device=oi.device, dtype=oi.dtype)
         out = (qe_mod(oi.wavelengths_nm, dtype=oi.dtype, device=oi.device) * dl).transpose(-2, -1)
         self._qe_cache_put(key, qe_mod, out)
         return out
@@ -535,7 +541,7 @@ class Sensor(nn.Module):
         """
         if oi.is_factored and oi.__dict__.get("_photons") is None:
             return oi.project(self.spectral_weights(oi, spectral_qe))
-        return electron_rate_density(oi.photons, self.qe(oi, spectral_qe), oi.wavelengths_nm)
+        return electron_rate_density(oi.photons, self.qe(oi, spectral_qe), oi.wavelengths_nm, self.spectral_rule)
 
     def electron_rate(self, oi: OpticalImage, *, qe_scale=None, spectral_qe: SpectralQE | None = None,
                       pixel_size_m=None) -> torch.Tensor:

@@ -283,3 +283,13 @@ def test_offaxis_unknown_is_an_error(base):
     raises(variant(base, optics_offaxis=np.str_("cos3th")),
            "optics_offaxis: expected one of 'cos4th', 'skip', 'none' (FORMAT.md section 3: 'cos4th' in every case), "
            "got 'cos3th'")
+
+
+def test_sensor_spectral_rule_is_checked_and_in_isetcams_conventions():
+    """The quadrature is a Sensor option (``spectral_rule``) that ISETCAM_CONVENTIONS sets to ISETCam's rule."""
+    from isettorch.sensor import ISETCAM_CONVENTIONS, Sensor
+
+    assert ISETCAM_CONVENTIONS["spectral_rule"] == "isetcam"
+    assert Sensor(rows=2, cols=2).spectral_rule == "midpoint"
+    with pytest.raises(ValueError, match=r"spectral_rule: expected one of \('midpoint', 'isetcam'\), got 'trapezoid'"):
+        Sensor(rows=2, cols=2, spectral_rule="trapezoid")
