@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 
 import numpy as np
@@ -20,6 +21,11 @@ def as_tensor(value, name: str, *, dtype=None, device=None) -> torch.Tensor:
         return torch.as_tensor(value, dtype=dtype or torch.get_default_dtype(), device=device)
     except (TypeError, ValueError, RuntimeError) as err:
         raise TypeError(f"{name}: expected a number or tensor, got {type(value).__name__} ({value!r})") from err
+
+
+def is_integer(v) -> bool:
+    """An integer (Python or NumPy), not a bool and not a float (``1.5`` is no seed or bit depth, ``True`` none)."""
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
 
 
 _SMALL = 64  # a CPU tensor this small is checked on its Python values (no tensor ops: ~10x less per-call work)

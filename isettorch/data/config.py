@@ -9,7 +9,6 @@ import contextlib
 import copy
 import ctypes
 import math
-import numbers
 import sys
 import threading
 from pathlib import Path
@@ -17,6 +16,8 @@ from typing import Any
 
 import torch
 import yaml
+
+from .._checks import is_integer
 
 __all__ = ["SCENE_DEFAULTS", "CAMERA_DEFAULTS", "SYNTH_DEFAULTS", "NATURAL_DEFAULTS", "COMPONENTS",
            "DEFAULT_COMPONENTS", "WAVELENGTH_RANGE_NM", "TARGETS", "check_targets", "merge_config", "pair_config",
@@ -181,7 +182,7 @@ def _check_natural_values(cfg: dict, defaults: dict, path: str) -> None:
                 _check_number(v, where, integer=integer, what="an integer" if integer else "a number")
         elif isinstance(ref, list) and len(ref) == 2:
             integer = all(isinstance(x, int) for x in ref)
-            kind = _is_integer if integer else _is_number
+            kind = is_integer if integer else _is_number
             lo = 1 if key == "materials" else -math.inf
             if (not isinstance(v, (list, tuple)) or len(v) != 2 or not all(kind(x) and math.isfinite(x) for x in v)
                     or not lo <= v[0] <= v[1]):
@@ -297,11 +298,6 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _is_integer(v) -> bool:
-    """An integer (bools are not)."""
-    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
-
-
 def _bounds_text(lo: float, hi: float, lo_open: bool, hi_open: bool) -> str:
     """`` in [lo, hi]``, `` > lo``... (empty for no bounds)."""
     if lo == -math.inf and hi == math.inf:
@@ -320,7 +316,7 @@ def _in(x: float, lo: float, hi: float, lo_open: bool, hi_open: bool) -> bool:
 def _check_number(value, where: str, lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False,
                   hi_open: bool = False, integer: bool = False, what: str = "a number") -> None:
     """A finite number (an integer with ``integer``) in the interval ``lo .. hi``; else ValueError naming ``where``."""
-    ok = (_is_integer(value) if integer else _is_number(value)) and math.isfinite(value) and \
+    ok = (is_integer(value) if integer else _is_number(value)) and math.isfinite(value) and \
         _in(value, lo, hi, lo_open, hi_open)
     if not ok:
         raise ValueError(f"{where}: expected {what}{_bounds_text(lo, hi, lo_open, hi_open)}, got {value!r}")
@@ -488,7 +484,7 @@ def merge_config(user: dict | None, defaults: dict = SYNTH_DEFAULTS, path: str =
 def check_integer(value, name: str, minimum: int | None = None) -> int:
     """``value`` if it is an integer (>= ``minimum``); a float such as 1.7 is not truncated, a bool is not an
     integer: ValueError naming ``name``."""
-    if not _is_integer(value) or (minimum is not None and value < minimum):
+    if not is_integer(value) or (minimum is not None and value < minimum):
         what = {None: "an integer", 0: "a non-negative integer", 1: "a positive integer"}.get(
             minimum, f"an integer >= {minimum}")
         raise ValueError(f"{name}: expected {what}, got {value!r}")

@@ -27,7 +27,7 @@ import torch
 from torch import nn
 
 from .. import spectral
-from .._checks import batch_param, round_half_away
+from .._checks import batch_param, is_integer, round_half_away
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
 from .cfa import CFA
@@ -179,7 +179,7 @@ class Sensor(nn.Module):
                  full_well_e: float | None = None) -> None:
         super().__init__()
         for label, v in (("rows", rows), ("cols", cols)):
-            if v is not None and (not _is_int(v) or v < 1):
+            if v is not None and (not is_integer(v) or v < 1):
                 raise ValueError(f"{label}: expected a positive integer pixel count or None, got {v!r}")
         for label, v in (("pixel_size_m", pixel_size_m), ("conversion_gain_v_per_e", conversion_gain_v_per_e),
                          ("voltage_swing_v", voltage_swing_v)):
@@ -194,7 +194,7 @@ class Sensor(nn.Module):
                 raise ValueError(f"{label}: expected a non-negative number, got {v!r}")
         if not _is_real(analog_offset_v):
             raise ValueError(f"analog_offset_v: expected a finite number (volts), got {analog_offset_v!r}")
-        if not _is_int(seed):
+        if not is_integer(seed):
             raise ValueError(f"seed: expected an integer, got {seed!r}")
         choices = {"gain_convention": (gain_convention, ("multiply", "isetcam")),
                    "adc_mode": (adc_mode, ("clamp", "isetcam")),
@@ -220,7 +220,7 @@ class Sensor(nn.Module):
             if auto_exposure != "percentile":
                 raise ValueError(f"ae_percentile: only auto_exposure='percentile' uses it, got auto_exposure="
                                  f"{auto_exposure!r}; set auto_exposure: percentile or drop ae_percentile")
-        if adc_bits is not None and (not _is_int(adc_bits) or not 1 <= adc_bits <= 32):
+        if adc_bits is not None and (not is_integer(adc_bits) or not 1 <= adc_bits <= 32):
             raise ValueError(f"adc_bits: expected None (analog) or an integer in 1..32, got {adc_bits!r}")
         if adc_bits is not None and black_level_dn >= 2 ** adc_bits - 1:
             raise ValueError(f"black_level_dn: expected a level below 2^{adc_bits} - 1, got {black_level_dn}")
@@ -232,7 +232,7 @@ class Sensor(nn.Module):
             raise ValueError(f"output_units: expected None, 'dn', 'volts' or 'electrons', got {output_units!r}")
         if output_units == "dn" and adc_bits is None:
             raise ValueError("output_units: 'dn' needs adc_bits (the sensor has an analog readout)")
-        if preblur_size is not None and (not _is_int(preblur_size) or preblur_size < 1):
+        if preblur_size is not None and (not is_integer(preblur_size) or preblur_size < 1):
             raise ValueError(f"preblur_size: expected None or a positive integer, got {preblur_size!r}")
 
         self.cfa = cfa if isinstance(cfa, CFA) else CFA(cfa)
@@ -1030,11 +1030,6 @@ class Sensor(nn.Module):
 def _is_real(v) -> bool:
     """A finite real number: int or float (or a NumPy scalar), not a bool (``True`` is no pixel size) or a string."""
     return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _is_int(v) -> bool:
-    """An integer (Python or NumPy), not a bool and not a float (``1.5`` is no seed or bit depth)."""
-    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
 
 
 def _on(level) -> bool:
