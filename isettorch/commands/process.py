@@ -47,24 +47,27 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
     per electron over the span (shot noise), ``b`` from :func:`isettorch.sensor.noise.poisson_gaussian_floor`
     (read noise, DSNU, dark-current shot noise, quantisation): the ``noise_gain`` / ``noise_floor_var`` of
     :class:`isettorch.data.PairStream`'s metadata, which the joint network was trained with. Row/column noise and
-    PRNU are not in the model. Both are finite and within the network's float32 noise inputs
-    (:func:`isettorch.isp.learned.noise_features`: ``sqrt(a) * 10``, ``sqrt(b) * 100``), else a ValueError names
-    the setting that takes them out (``analog_gain``, ``exposure_s``, or ``camera`` for the config's gain)."""
-    import torch
-
+    PRNU are not in the model. Both are finite and give finite float32 noise inputs
+    (:func:`isettorch.isp.learned.noise_features`), else a ValueError names the setting that takes them out
+    (``analog_gain``, ``exposure_s``, or ``camera`` for the config's gain)."""
+    from ..isp.learned import noise_features
     from ..sensor.noise import poisson_gaussian_floor
 
     if sensor.adc_bits is None:
         raise ValueError("camera: the sensor has no ADC (adc_bits null); expected a sensor that outputs DN")
     _check_settings(analog_gain, exposure_s)
     gain = "camera: the config's analog gain" if analog_gain is None else f"analog_gain: the gain {analog_gain:g}"
-    big = float(torch.finfo(torch.float32).max)
-    a_max, b_max = (big / 10.0) ** 2, (big / 100.0) ** 2  # noise_features' scales
+
+    def fits(a_, b_) -> tuple[bool, bool]:  # each parameter finite and its float32 noise input too
+        ok = [math.isfinite(a_), math.isfinite(b_)]
+        f = noise_features(a_ if ok[0] else 0.0, b_ if ok[1] else 0.0).float().isfinite()[0]
+        return ok[0] and bool(f[0]), ok[1] and bool(f[1])
+
     span = float(sensor.white_level_dn) - float(sensor.black_level_dn)
     a = float(sensor.gain_per_electron(analog_gain)[0]) / span
-    if not a <= a_max:
+    if not fits(a, 0.0)[0]:
         raise ValueError(f"{gain} makes the noise model's shot gain a {a:.3g} (normalised units per electron), beyond "
-                         f"the network's float32 noise input (a <= {a_max:.3g}); expected the frames' real gain")
+                         f"the network's float32 noise input; expected the frames' real gain")
     cg = float(sensor.conversion_gain_v_per_e)
     read_e, dsnu_e = float(sensor.read_noise_v) / cg, float(sensor.dsnu_sigma_v) / cg
     dark = float(sensor.dark_current_e_per_s)
@@ -76,13 +79,14 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
             return math.inf
 
     b = floor(exposure_s)
-    if not b <= b_max:
-        if not floor(0.0) <= b_max:  # the read noise alone: the gain
+    if not fits(a, b)[1]:
+        b0 = floor(0.0)
+        if not fits(a, b0)[1]:  # the read noise alone: the gain
             raise ValueError(f"{gain} makes the noise model's read variance b {b:.3g}, beyond the network's float32 "
-                             f"noise input (b <= {b_max:.3g}); expected the frames' real gain")
+                             f"noise input; expected the frames' real gain")
         raise ValueError(f"exposure_s: {exposure_s:g} s of the sensor's dark current ({dark:g} e/s) makes the noise "
-                         f"model's variance b {b:.3g}, beyond the network's float32 noise input (b <= {b_max:.3g}); "
-                         f"expected the frames' exposure in seconds")
+                         f"model's variance b {b:.3g}, beyond the network's float32 noise input; expected the "
+                         f"frames' exposure in seconds")
     return a, b
 
 
