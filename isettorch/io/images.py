@@ -65,16 +65,13 @@ def read_rgb8(path) -> np.ndarray:
                                  f"{im.format} or an animation); save the photograph on its own")
             if im.mode == "P" and "transparency" in im.info:
                 raise ValueError(f"{p.name}: expected an opaque image, got a palette with transparency")
-            if im.mode in ("RGBA", "LA", "PA"):
-                alpha = np.asarray(im.getchannel("A"))
+            keyed = im.mode in ("L", "RGB", "1") and "transparency" in im.info  # a colour key: its pixels are clear
+            if im.mode in ("RGBA", "LA", "PA") or keyed:
+                alpha = np.asarray((im.convert("RGBA") if keyed else im).getchannel("A"))
                 if alpha.size and int(alpha.min()) < 255:
+                    key = f" (the colour key {im.info['transparency']!r}, PNG tRNS)" if keyed else ""
                     raise ValueError(f"{p.name}: expected an opaque image, {int((alpha < 255).sum())} pixels are "
-                                     f"transparent")
-            if im.mode in ("L", "RGB", "1") and "transparency" in im.info:  # a colour key: its pixels are clear
-                alpha = np.asarray(im.convert("RGBA").getchannel("A"))
-                if int(alpha.min()) < 255:
-                    raise ValueError(f"{p.name}: expected an opaque image, {int((alpha < 255).sum())} pixels are "
-                                     f"transparent (the colour key {im.info['transparency']!r}, PNG tRNS)")
+                                     f"transparent{key}")
             if im.mode not in ("RGB", "RGBA", "L", "LA", "1", "P", "PA"):
                 raise ValueError(f"{p.name}: expected an 8-bit RGB, gray or palette image, got mode {im.mode!r}")
             shown = ImageOps.exif_transpose(im)  # a photograph means what it shows: its EXIF orientation applied
