@@ -240,9 +240,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
     if dtype not in (torch.float32, torch.float64):
         raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype}")
     if denoise is not None:
-        if denoise not in DENOISERS:
-            raise ValueError(f"denoise: expected one of {DENOISERS} or None, got {denoise!r}")
-        check_denoiser(denoise)
+        check_denoiser(denoise)  # one of DENOISERS, and runnable here
         if not noisy:
             raise ValueError(f"denoise: {denoise!r} needs noise (noise_sigma or noise_shot > 0)")
         if model is not None or method in _LAZY_METHODS:
