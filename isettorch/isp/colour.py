@@ -512,12 +512,20 @@ class SensorToXYZ(nn.Module):
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def fit(self, qe: torch.Tensor, wavelengths_nm) -> SensorToXYZ:
-        """Fit the matrix to a sensor's QE (C, L) on ``wavelengths_nm`` (cached per QE and grid)."""
+        """Fit the matrix to a sensor's QE (C, L) on ``wavelengths_nm`` (cached per QE and grid).
+
+        A QE that requires grad (learnable filters) while grad is enabled is fitted inside the graph, every call
+        (no cache): the matrix and ``sensor_white`` are then functions of the filters (the least-squares fit is
+        differentiable, :func:`fit_colour_matrix`), so a loss on the processed image has the filters' total
+        derivative, the colour matrix's change included. A ``learnable`` matrix is a parameter of its own and is
+        fitted from the detached QE."""
         w = check_wavelengths(torch.as_tensor(wavelengths_nm))
-        key = (tuple(qe.shape), float(qe.detach().double().sum()), tuple(w.detach().double().cpu().tolist()))
-        if self._fit_key == "fixed" or self._fit_key == key:
+        graph = qe.requires_grad and torch.is_grad_enabled() and not self.learnable
+        key = None if graph else (tuple(qe.shape), float(qe.detach().double().sum()),
+                                  tuple(w.detach().double().cpu().tolist()))
+        if self._fit_key == "fixed" or key is not None and self._fit_key == key:
             return self
-        q = qe.detach().to(torch.float64)
+        q = qe.to(torch.float64) if graph else qe.detach().to(torch.float64)
         m = sensor_to_xyz_matrix(q, w, self.illuminant, self.surfaces, self.observer)
         white = sensor_responses(q, w, self.illuminant, torch.ones(1, w.numel(), dtype=torch.float64))[0]
         white = white / white.amax()
@@ -525,7 +533,13 @@ class SensorToXYZ(nn.Module):
             # The white under the fit's illuminant, at the white level in its brightest channel, -> Y = 1.
             m = m / (m[1] @ white)
         dtype = qe.dtype if qe.is_floating_point() else torch.get_default_dtype()
-        self.set_matrix(m.to(device=qe.device, dtype=dtype))
+        m = m.to(device=qe.device, dtype=dtype)
+        if graph:  # the fitted matrix keeps its graph to the QE (set_matrix would detach it)
+            check_finite(m.detach(), "matrix")
+            self._parameters.pop("matrix", None)
+            self._buffers["matrix"] = m
+        else:
+            self.set_matrix(m)
         self.sensor_white = white.to(device=qe.device, dtype=dtype)
         self._fit_key = key
         return self

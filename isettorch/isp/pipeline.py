@@ -246,8 +246,9 @@ class ImageProcessor(nn.Module):
             return self
         qe = sensor if isinstance(sensor, torch.Tensor) else _sensor_qe(sensor, self.fit_wavelengths_nm)
         dev = self.white_xyz.device
-        # Fitted in float64 on the processor's device; apply_matrix casts to the image's dtype.
-        fit(qe.detach().to(device=dev, dtype=torch.float64), self.fit_wavelengths_nm.to(dev))
+        # Fitted in float64 on the processor's device; apply_matrix casts to the image's dtype. A QE that requires
+        # grad keeps its graph: SensorToXYZ.fit then fits inside it (the filters' total derivative).
+        fit(qe.to(device=dev, dtype=torch.float64), self.fit_wavelengths_nm.to(dev))
         return self
 
     # --- stages ------------------------------------------------------------------------------

@@ -45,6 +45,12 @@ def auto_exposure(volts_per_s: torch.Tensor, voltage_swing_v: float, method: str
     ``t = target * swing / stat(volts at 1 s)`` (the response is linear in t, FORMAT 4.5); a black image
     gets ``max_exposure_s``.
 
+    Differentiable: ``t`` is a function of the volts, so a camera parameter upstream (f-number, filters, QE)
+    gets its total derivative, the exposure's compensation included (a slower lens gets a longer exposure, as in
+    the camera and in a finite difference that re-runs auto-exposure). The statistic passes its gradient to the
+    pixel(s) that set it (the maximum, the mean, or the two order statistics of the percentile); a capped
+    exposure (``max_exposure_s``) has none.
+
     Example:
         >>> auto_exposure(torch.full((1, 1, 2, 2), 2.0), 1.0)
         tensor([0.4750])
@@ -56,7 +62,7 @@ def auto_exposure(volts_per_s: torch.Tensor, voltage_swing_v: float, method: str
     target = AE_METHODS[method] if target is None else float(target)
     if not 0 < target <= 1:
         raise ValueError(f"target: expected a fraction of the voltage swing in (0, 1], got {target}")
-    flat = volts_per_s.detach().flatten(1)
+    flat = volts_per_s.flatten(1)
     if method == "luminance":
         stat = flat.amax(dim=1)
     elif method == "mean":

@@ -152,6 +152,36 @@ def test_gradients_flow_to_raw_and_matrix():
     assert ip.sensor_to_xyz.matrix.grad.abs().sum() > 0
 
 
+def test_learnable_filters_get_the_total_derivative_through_the_fitted_matrix():
+    # The colour matrix is fitted from the filters: a loss on the processed image depends on the filters through
+    # the raw AND through the fit. Autograd must equal central finite differences (each refits the matrix).
+    cfa = CFA("GBRG")
+    qe_module = SpectralQE.from_cfa(cfa, learnable=True).double()
+    raw, _ = _uniform_raw("GBRG", "D65", size=4)
+    g = torch.Generator().manual_seed(5)
+    data = raw.data * (0.8 + 0.4 * torch.rand(raw.data.shape, generator=g, dtype=torch.float64))
+
+    def loss():
+        ip = ImageProcessor(scaling="exposure", encoding="linear", fit_wavelengths_nm=W).double()
+        ip.fit(qe_module(W, dtype=torch.float64))
+        return ip(raw.replace(data=data)).image.mean()
+
+    param = next(p for p in qe_module.parameters() if p.requires_grad)
+    loss().backward()
+    auto = param.grad.clone()
+    assert auto.abs().sum() > 0
+    idx = (1, 15)  # a green filter sample at 550 nm
+    h = 1e-6
+    with torch.no_grad():
+        param[idx] += h
+        up = loss()
+        param[idx] -= 2 * h
+        down = loss()
+        param[idx] += h
+    fd = (up - down) / (2 * h)
+    torch.testing.assert_close(auto[idx], fd, rtol=1e-5, atol=1e-12)
+
+
 def test_state_dict_round_trip_restores_fitted_matrix():
     _, qe = _uniform_raw("GBRG", "D65")
     ip = ImageProcessor().fit(qe)

@@ -215,6 +215,30 @@ def test_auto_exposure_methods():
     assert_close(t2, 2 * t1)
 
 
+@pytest.mark.parametrize("method", ["luminance", "mean", "percentile"])
+def test_auto_exposure_is_in_the_graph(method):
+    # Auto-exposure holds its statistic at the target, so a brightness scale k of the optical image leaves the
+    # noise-free signal's statistic unchanged: its total derivative with respect to k is 0 (a detached exposure
+    # would give stat / k instead), and the exposure's own derivative is -t / k.
+    torch.manual_seed(3)
+    base = torch.rand(2, 3, 16, 16, dtype=torch.float64) * 1e15 + 1e14
+    k = torch.tensor(1.7, dtype=torch.float64, requires_grad=True)
+    s = simple_sensor(auto_exposure=method)
+    raw = s(OpticalImage(base * k, W3, sample_spacing_m=2e-6), noise=False)
+    v = raw.noise_free.flatten(1)
+    stat = {"luminance": v.amax(1), "mean": v.mean(1), "percentile": torch.quantile(v, 0.99, dim=1)}[method]
+    (g_stat,) = torch.autograd.grad(stat.sum(), k, retain_graph=True)
+    assert abs(float(g_stat)) < 1e-9 * float(stat.detach().sum())
+    (g_t,) = torch.autograd.grad(raw.exposure_s.sum(), k)
+    assert_close(g_t, -raw.exposure_s.sum().detach() / k.detach(), rtol=1e-9, atol=0)
+    # a black image gets the capped exposure, with a finite (zero) gradient
+    k0 = torch.tensor(1.0, dtype=torch.float64, requires_grad=True)
+    black = s(OpticalImage(torch.zeros(1, 3, 16, 16, dtype=torch.float64) * k0, W3, sample_spacing_m=2e-6),
+              noise=False)
+    (g0,) = torch.autograd.grad(black.exposure_s.sum(), k0)
+    assert float(black.exposure_s) == 10.0 and float(g0) == 0.0
+
+
 def test_presets_and_metrics():
     d = Sensor.preset("isetcam_default")
     assert d.pixel_size_m == 2.8e-6 and d.fill_factor == 0.75 and d.cfa.pattern == "GRBG"
