@@ -91,6 +91,16 @@ def check_wavelengths(w: torch.Tensor, name: str = "wavelengths_nm") -> torch.Te
     return w
 
 
+def check_in_dtype_range(value: float, name: str, dtype) -> None:
+    """ValueError unless a nonzero Python number keeps its value in ``dtype`` (the data's): no overflow to inf, no
+    underflow of a positive level to 0 (an analog gain of 1e-50 in float32 is 0, and a division by it NaN)."""
+    if value != 0 and dtype.is_floating_point:
+        fi = torch.finfo(dtype)
+        if not fi.tiny <= abs(value) <= fi.max:
+            raise ValueError(f"{name}: {value:.6g} is outside the range of {dtype} (the data's dtype: magnitudes "
+                             f"{fi.tiny:.3g} to {fi.max:.3g}); use float64 data or a value in range")
+
+
 def batch_param(value, name: str, batch: int, *, dtype, device, positive: bool = False) -> torch.Tensor:
     """A per-sample scalar as a tensor of shape [B] (a scalar broadcasts)."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):  # fast path: checked as a Python number
@@ -98,7 +108,9 @@ def batch_param(value, name: str, batch: int, *, dtype, device, positive: bool =
             raise ValueError(f"{name}: expected finite values, found 1 NaN/Inf entries")
         if positive and value <= 0:
             raise ValueError(f"{name}: expected positive values, got {value:.6g}")
-        return torch.full((batch,), value, dtype=dtype or torch.get_default_dtype(), device=device)
+        dtype = dtype or torch.get_default_dtype()
+        check_in_dtype_range(value, name, dtype)
+        return torch.full((batch,), value, dtype=dtype, device=device)
     t = as_tensor(value, name, dtype=dtype, device=device)
     if t.dim() > 1:
         raise ValueError(f"{name}: expected a scalar or a [B] tensor, got shape {tuple(t.shape)}")

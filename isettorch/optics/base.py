@@ -273,7 +273,21 @@ class ShiftInvariantLens(nn.Module):
             return self.margin
         m = self.psf_margin_m(wavelengths_nm, f_number).detach()
         samples = int(math.ceil(float((m / dx.detach()).max())))
-        return min(samples, int(math.ceil(self.max_margin_factor * max(scene_shape))))
+        cap = int(math.ceil(self.max_margin_factor * max(scene_shape)))
+        if samples > 10 * cap:
+            # The PSF reaches far beyond the capped padding: the FFT's circular convolution folds the light beyond
+            # the margin back onto the image (for diffraction, whose line-spread tail falls as 1 / distance, about
+            # psf_tolerance x samples / cap of it: over 10x the tolerance here). Say so rather than render it.
+            import warnings
+
+            warnings.warn(
+                f"optics: the PSF reaches {samples} samples beyond the scene at psf_tolerance {self.psf_tolerance:g} "
+                f"(sample spacing {float(dx.detach().min()) * 1e6:.4g} um), but the padding is capped at {cap} "
+                f"(max_margin_factor {self.max_margin_factor:g} x the scene's {max(scene_shape)} samples): light "
+                "beyond the margin wraps around onto the image. The blur is larger than the scene: sample the scene "
+                "more coarsely (a wider field of view), or raise max_margin_factor / give margin.",
+                UserWarning, stacklevel=3)
+        return min(samples, cap)
 
     def _geometry(self, scene: Scene):
         b, w = scene.batch_size, scene.width

@@ -27,7 +27,7 @@ import torch
 from torch import nn
 
 from .. import spectral
-from .._checks import batch_param, is_integer, round_half_away
+from .._checks import batch_param, check_in_dtype_range, is_integer, round_half_away
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
 from .cfa import CFA
@@ -799,6 +799,7 @@ class Sensor(nn.Module):
             if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
                 raise ValueError(f"{name}: expected a {'positive' if positive else 'non-negative'} finite value, "
                                  f"got {value!r}")
+            check_in_dtype_range(value, name, dtype)
             return float(value)
         t = batch_param(value, name, b, dtype=dtype, device=device, positive=positive)
         if not positive and bool((t < 0).any()):
@@ -1033,5 +1034,8 @@ def _is_real(v) -> bool:
 
 
 def _on(level) -> bool:
-    """A noise stage runs when its level (float or per-sample tensor) is positive for some sample."""
-    return bool((level > 0).any()) if isinstance(level, torch.Tensor) else level > 0
+    """A noise stage runs when its level (float or per-sample tensor) is positive for some sample, or when the
+    level requires grad (a learnable level at 0 keeps its place in the graph: its gradient, not None)."""
+    if isinstance(level, torch.Tensor):
+        return level.requires_grad or bool((level > 0).any())
+    return level > 0

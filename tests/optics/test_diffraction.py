@@ -282,3 +282,18 @@ def test_blur_negligible_per_item_matches_the_corner_frequency_rule():
         a.blur_negligible(torch.tensor([d]), wl, torch.tensor([2.0])) for d in (1e-3, 2e-3))
     with pytest.raises(ValueError, match="dx, f_number"):
         a.blur_negligible(torch.tensor([1e-3, 2e-3]), wl, torch.tensor([2.0, 4.0, 8.0]))
+
+
+def test_a_psf_far_beyond_the_capped_margin_warns_of_wrap_around():
+    # f/64 at 700 nm: an Airy core radius of 1.22 lambda N = 55 um over a scene 1.35 um wide (32 samples of 42 nm).
+    # The margin is capped at 2 x 32 samples, so the FFT folds the blur back onto the image: a warning, not silence.
+    import warnings
+
+    p = torch.zeros(1, 1, 32, 32, dtype=torch.float64)
+    p[..., :8] = 1.0
+    optics = DiffractionLimitedOptics(f_number=64, relative_illumination=None)
+    with pytest.warns(UserWarning, match="wraps around"):
+        optics(Scene(p, torch.tensor([700.0]), hfov_deg=0.02))
+    with warnings.catch_warnings():  # an ordinary field: no warning
+        warnings.simplefilter("error")
+        DiffractionLimitedOptics(f_number=4, relative_illumination=None)(Scene(p, torch.tensor([700.0]), hfov_deg=2.0))

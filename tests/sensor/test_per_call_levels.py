@@ -43,12 +43,46 @@ def test_per_call_levels_equal_the_module_levels():
     assert float((a.data != b.data).double().mean()) < 1e-3  # same draws (rounding may move a rare ADC step)
 
 
+@pytest.mark.parametrize("name", ["read_noise_v", "dark_current_e_per_s", "dsnu_sigma_v"])
+def test_a_learnable_level_at_zero_keeps_its_gradient(name):
+    """A per-call level that requires grad stays in the graph at 0 (the stage runs with a zero level): its
+    gradient equals a one-sided finite difference with the same generator (common random numbers), not None."""
+    s = Sensor(rows=16, cols=16, pixel_size_m=2e-6, cfa="RGGB", shot_noise="gaussian", output_units="volts")
+    s.analog_offset_v = 0.05  # keep negative noise away from the clip at 0
+    oi = _oi()
+    h = {"read_noise_v": 1e-6, "dark_current_e_per_s": 1e-3, "dsnu_sigma_v": 1e-6}[name]
+
+    def loss(value):
+        raw = s(oi, exposure_s=0.002, generator=torch.Generator().manual_seed(4), **{name: value})
+        return (raw.data ** 2).mean()
+
+    level = torch.zeros(1, dtype=torch.float64, requires_grad=True)
+    (grad,) = torch.autograd.grad(loss(level), level)
+    with torch.no_grad():
+        fd = (loss(torch.full((1,), h, dtype=torch.float64)) - loss(level)) / h
+    assert float(grad.abs()) > 0
+    torch.testing.assert_close(grad, fd.reshape(1), rtol=1e-3, atol=0)
+
+
 def test_bad_per_call_level_is_named():
     s = Sensor(rows=4, cols=4)
     with pytest.raises(ValueError, match="read_noise_e"):
         s(_oi(), exposure_s=0.01, read_noise_e=1.0)
     with pytest.raises(ValueError, match="read_noise_v"):
         s(_oi(), exposure_s=0.01, read_noise_v=-1.0)
+
+
+@pytest.mark.parametrize("kw", [dict(analog_gain=1e-50), dict(analog_gain=1e39), dict(exposure_s=1e-50),
+                                dict(conversion_gain_v_per_e=1e-50)])
+def test_a_per_call_value_the_data_dtype_cannot_hold_is_named(kw):
+    """float32 data: 1e-50 would become 0 (a division by it NaN; an exposure of 0 an all-black raw) and 1e39 inf.
+    The value is refused, naming the argument, instead."""
+    s = Sensor(rows=4, cols=4, gain_convention="isetcam", output_units="electrons")
+    oi = _oi(torch.float32)
+    with pytest.raises(ValueError, match=f"{next(iter(kw))}: .* outside the range of torch.float32"):
+        s(oi, **kw)
+    raw = s(_oi(torch.float64), noise=False, **kw)  # float64 holds it
+    assert torch.isfinite(raw.data).all()
 
 
 def test_exposure_compensation_and_all_channel_readout():
