@@ -116,7 +116,8 @@ def batch_param(value, name: str, batch: int, *, dtype, device, positive: bool =
         raise ValueError(f"{name}: expected a scalar or a [B] tensor, got shape {tuple(t.shape)}")
     t = t.reshape(-1)
     if t.numel() not in (1, batch):
-        raise ValueError(f"{name}: expected 1 or {batch} values (one per batch sample), got {t.numel()}")
+        want = "1 value (the batch has one sample)" if batch == 1 else f"1 or {batch} values (one per batch sample)"
+        raise ValueError(f"{name}: expected {want}, got {t.numel()}")
     vals = _small_values(t)
     if vals is None:
         check_finite(t, name)

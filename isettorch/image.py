@@ -284,6 +284,8 @@ class SpectralImage:
         check_rank(p, 4, "photons", "[B, L, H, W] (or [L, H, W])")
         if not p.is_floating_point():
             p = p.to(torch.get_default_dtype())
+        if 0 in p.shape:
+            raise ValueError(f"photons: expected a non-empty [B, L, H, W] image, got shape {tuple(p.shape)}")
         w = self.wavelengths_nm
         if not isinstance(w, torch.Tensor):
             w = torch.as_tensor(w, dtype=p.dtype)

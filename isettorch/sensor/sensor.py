@@ -277,6 +277,10 @@ class Sensor(nn.Module):
             vignetting = torch.as_tensor(vignetting, dtype=torch.float64)
             if (vignetting < 0).any() or not torch.isfinite(vignetting).all():
                 raise ValueError("vignetting: expected finite non-negative factors")
+            if vignetting.dim() > 2 or rows is not None and cols is not None and vignetting.dim() == 2 \
+                    and tuple(vignetting.shape) != (rows, cols):
+                raise ValueError(f"vignetting: expected a scalar or a [rows, cols] = [{rows}, {cols}] map, got "
+                                 f"shape {tuple(vignetting.shape)}")
         self.register_buffer("vignetting", vignetting)
         if isinstance(pixel_optics, dict):
             pixel_optics = PixelOptics(**pixel_optics)
@@ -605,7 +609,11 @@ class Sensor(nn.Module):
                             positive=True)
             rates = sampled[:, :c] * (area * k.reshape(-1, 1, 1, 1))
         if self.vignetting is not None:
-            rates = rates * self.vignetting.to(rates.dtype).to(rates.device)
+            v = self.vignetting
+            if v.dim() == 2 and tuple(v.shape) != tuple(rates.shape[-2:]):
+                raise ValueError(f"vignetting: the map is {tuple(v.shape)} but the sensor has "
+                                 f"{tuple(rates.shape[-2:])} pixels here (rows, cols)")
+            rates = rates * v.to(rates.dtype).to(rates.device)
         if po is not None and not po.wavelength_dependent:
             rates = rates * self.etendue_map(oi)[:, None].to(rates.dtype)
         return _without_ringing(rates), (sampled[:, c:] if extra_weights is not None else None)
@@ -788,6 +796,13 @@ class Sensor(nn.Module):
         if exposure_ev is not None:
             ev = batch_param(exposure_ev, "exposure_ev", b, dtype=torch.float64, device=dev)
             t = t * torch.exp2(ev).to(dt)
+            small = ev.tolist() if ev.device.type == "cpu" and ev.numel() <= 64 else None
+            # within +-60 stops every exposure from 1e-20 s to 10 s stays a positive float32: no check (no sync)
+            bad = None if small is not None and max(map(abs, small)) < 60 else ~torch.isfinite(t.detach()) | (
+                t.detach() <= 0)
+            if bad is not None and bool(bad.any()):
+                raise ValueError(f"exposure_ev: {ev[bad].tolist()} stops make the exposure "
+                                 f"{t.detach()[bad].tolist()} s, which {dt} cannot hold as a positive finite time")
         return t
 
     def _level(self, name: str, value, b: int, dtype, device):

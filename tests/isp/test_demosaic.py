@@ -371,3 +371,10 @@ def test_malvar_differentiates_after_a_first_call_in_inference_mode():
         demosaic_malvar2004(raw, "BGGR")
     assert torch.autograd.gradcheck(lambda r: demosaic_malvar2004(r, "BGGR"), (raw.clone().requires_grad_(True),),
                                     fast_mode=True)
+
+
+@pytest.mark.parametrize("method", ["bilinear", "malvar2004", "menon2007"])
+def test_a_mosaic_without_a_whole_cell_is_refused(method):
+    # a 1 x 8 Bayer strip has no B (or no R) sample: every method refuses it alike
+    with pytest.raises(ValueError, match="at least 2x2 pixels"):
+        demosaic(torch.rand(1, 1, 1, 8), "RGGB", method=method)

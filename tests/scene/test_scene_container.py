@@ -109,3 +109,9 @@ def test_replace_validates_like_a_new_scene():
     assert torch.equal(ok.photons, 2 * s.photons) and torch.equal(ok.hfov_deg, s.hfov_deg)
     # trusted internal changes keep working without the check
     assert s.replace(photons=bad, validate=False).photons.isnan().any()
+
+
+def test_an_empty_image_is_refused_by_name():
+    w = torch.arange(400.0, 701.0, 10.0)
+    with pytest.raises(ValueError, match="photons: expected a non-empty"):
+        Scene(torch.ones(1, 31, 0, 8), w)

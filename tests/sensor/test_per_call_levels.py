@@ -153,3 +153,17 @@ def test_per_call_pixel_size_equals_a_sensor_of_that_pitch_per_item():
         Sensor(pixel_size_m=1.4e-6, sampling="isetcam", **kw).channel_rates(oi, pixel_size_m=pitches)
     with pytest.raises(ValueError, match="pixel_size_m"):  # and a fixed size
         Sensor(pixel_size_m=1.4e-6, cfa="RGGB").channel_rates(oi, pixel_size_m=pitches)
+
+
+def test_exposure_compensation_out_of_the_dtype_range_and_vignetting_shape_are_named():
+    s = Sensor(rows=16, cols=16, pixel_size_m=2e-6, cfa="RGGB")
+    for ev in (200.0, -200.0):
+        with pytest.raises(ValueError, match="exposure_ev"):
+            s(_oi(torch.float32), exposure_ev=ev)
+    with pytest.raises(ValueError, match=r"vignetting: expected a scalar or a \[rows, cols\]"):
+        Sensor(rows=4, cols=4, vignetting=torch.ones(3, 3))
+    sized_later = Sensor(pixel_size_m=2e-6, cfa="RGGB", vignetting=torch.ones(3, 3))
+    with pytest.raises(ValueError, match="vignetting: the map is"):
+        sized_later(_oi())
+    with pytest.raises(ValueError, match=r"expected 1 value \(the batch has one sample\), got 2"):
+        s(_oi(), exposure_s=[0.01, 0.02])

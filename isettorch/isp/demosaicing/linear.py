@@ -242,6 +242,8 @@ def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str 
         raise ValueError(f"boundary: expected 'symmetric' or 'mirror', got {boundary!r}")
     pattern = check_bayer_pattern(pattern)
     b, _, h, w = raw.shape
+    if h < 2 or w < 2:  # as the other methods: a mosaic without a whole 2 x 2 cell lacks a colour
+        raise ValueError(f"raw: expected at least 2x2 pixels for a Bayer mosaic, got {h}x{w}")
     # Each 2 x 2 cell position holds one colour and needs the other two, each one of the four kernels at that
     # position only. On the mosaic's four polyphase planes a 5 x 5 kernel at one position is a 3 x 3 kernel over the
     # planes, so the eight estimates are one convolution (4 planes in, 8 out) at a quarter of the pixels, written
