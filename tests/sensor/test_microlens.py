@@ -85,16 +85,19 @@ def test_defaults_are_isetcams_default_pixel_and_microlens():
 
 
 def test_no_microlens_matches_the_closed_form():
-    got = microlens_etendue(torch.tensor(ANGLES), "none")
+    # the continuous sampling is the exact integral of the model (ISETCam's grid gives 0.83103 on axis)
+    got = microlens_etendue(torch.tensor(ANGLES), "none", sampling="continuous")
     want = [bare_pixel_closed_form(a) for a in ANGLES]
     assert got.tolist() == pytest.approx(want, abs=2e-5)
     assert float(got[0]) == pytest.approx(0.82341, abs=1e-4)
 
 
 def test_a_vanishing_stack_gives_the_1d_fill_factor():
-    # no height: every ray lands where it entered; the photodiode takes its share of the width, d / P
+    # no height: every ray lands where it entered; the photodiode takes its share of the width, d / P (the 7 um
+    # microlens given: by default its focal length would follow the vanishing stack)
     for method in ("none", "centred"):
-        e = microlens_etendue(0.0, method, stack_height_m=1e-12)
+        e = microlens_etendue(0.0, method, stack_height_m=1e-12, microlens_focal_length_m=7e-6,
+                              sampling="continuous")
         assert float(e) == pytest.approx(D_UM / P_UM, abs=1e-4)
 
 
@@ -106,15 +109,84 @@ def test_isetcam_grid_equals_an_independent_numpy_copy(method):
     assert got.tolist() == pytest.approx(want, abs=1e-12)
 
 
+# ISETCam's numbers: mlRadiance / mlAnalyzeArrayEtendue (with mlCoordinates, mlSource, mlLens, mlDisplacement,
+# mlPropagate, ffndgrid, mlensGet('optimal offset'), mlensCreate(sensor) / mlImportParams) at ISET/isetcam commit
+# 3aaefc8, computed by an independent NumPy port of that MATLAB source (/tmp/audit_microlens/iset_port.py of the
+# microlens audit; not part of this repository), rounded to 6 decimals. Chief-ray angles 0, 5, ..., 30 deg.
+ISETCAM_PORT_CRA_DEG = (0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0)
+ISETCAM_PORT = {
+    # ISETCam's default pixel (2.8 um, 7 um stack, microlens f = 7 um at f/2.5), source f/4 and f/8
+    "default, f/4": ({"source_f_number": 4.0}, {
+        "none": [0.831029, 0.775298, 0.654762, 0.512897, 0.380952, 0.230159, 0.110119],
+        "centred": [1.0, 1.0, 0.858631, 0.514881, 0.202381, 0.0, 0.0],
+        "optimal": [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.998512]}),
+    "default, f/8": ({"source_f_number": 8.0}, {
+        "none": [0.865546, 0.793651, 0.654762, 0.513889, 0.383929, 0.232143, 0.090278],
+        "centred": [1.0, 1.0, 1.0, 0.529762, 0.0, 0.0, 0.0],
+        "optimal": [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]}),
+    # a 1.4 um pixel under the default stack, microlens and photodiode following the pixel (mlensCreate(sensor):
+    # f = 7 um, D = 1.4 um; photodiode sqrt(0.75) x 1.4 um), source f/4
+    "1.4 um pixel": ({"pixel_size_m": 1.4e-6}, {
+        "none": [0.738863, 0.628472, 0.373016, 0.15377, 0.037202, 0.0, 0.0],
+        "centred": [1.0, 0.68502, 0.34127, 0.003472, 0.0, 0.0, 0.0],
+        "optimal": [1.0, 1.0, 1.0, 0.99256, 0.980655, 0.947421, 0.784226]}),
+    # the default layers scaled to a 12 um stack (12 * 2/7 um at n = 2.0, 12 * 5/7 um at n = 1.46), microlens
+    # f = 12 um (the pixel depth), D = 2.8 um; source f/4
+    "12 um stack": ({"stack_height_m": 12e-6}, {
+        "none": [0.766513, 0.672123, 0.453373, 0.22619, 0.083829, 0.006944, 0.0],
+        "centred": [1.0, 0.774306, 0.430556, 0.086806, 0.0, 0.0, 0.0],
+        "optimal": [1.0, 1.0, 1.0, 1.0, 0.998512, 0.984623, 0.960317]}),
+}
+# where ISETCam's +-2 D phase-space window clips the beam (the 1.4 um pixel's optimal offset, 2.3 um at 30 deg, pushes
+# the source past x = 2.8 um): ISETCam drops those rays, the continuous integral keeps them (0.921 vs 0.784)
+WINDOW_CLIPPED = {("1.4 um pixel", "optimal", 30.0)}
+
+
+@pytest.mark.parametrize("case", sorted(ISETCAM_PORT))
+@pytest.mark.parametrize("method", ["none", "centred", "optimal"])
+def test_etendue_equals_isetcams_numbers(case, method):
+    pixel, table = ISETCAM_PORT[case]
+    cra = torch.tensor(ISETCAM_PORT_CRA_DEG, dtype=torch.float64)
+    want = table[method]
+    # the default sampling is ISETCam's grid: its numbers (to the table's rounding)
+    assert microlens_etendue(cra, method, **pixel).tolist() == pytest.approx(want, abs=1e-5)
+    assert microlens_etendue(cra, method, sampling="isetcam", **pixel).tolist() == pytest.approx(want, abs=1e-5)
+    # the continuous integral of the same model: within 0.02 (measured <= 0.0164 on these cases; 0.030 at worst on
+    # the default pixel, f/8, 13.5 deg), except where ISETCam's window clips the beam
+    cont = microlens_etendue(cra, method, sampling="continuous", **pixel).tolist()
+    for a, got, ref in zip(ISETCAM_PORT_CRA_DEG, cont, want):
+        if (case, method, a) in WINDOW_CLIPPED:
+            assert got > ref + 0.1
+        else:
+            assert got == pytest.approx(ref, abs=0.02), a
+
+
+def test_defaults_follow_the_pixel():
+    """mlensCreate(sensor) / mlImportParams: microlens focal length = pixel depth, diameter = pixel width; the
+    photodiode is pixelCreate's 75 % fill. The explicit values give the same numbers; the default pixel is
+    ISETCAM_PIXEL."""
+    cra = torch.tensor([0.0, 10.0, 20.0], dtype=torch.float64)
+    for method in ("none", "centred", "optimal"):
+        implicit = microlens_etendue(cra, method, pixel_size_m=1.4e-6, stack_height_m=5e-6)
+        explicit = microlens_etendue(cra, method, pixel_size_m=1.4e-6, stack_height_m=5e-6,
+                                     microlens_focal_length_m=5e-6, microlens_diameter_m=1.4e-6,
+                                     photodiode_size_m=math.sqrt(0.75) * 1.4e-6)
+        assert torch.equal(implicit, explicit)
+        isetcam_pixel = {k: ISETCAM_PIXEL[k] for k in ("pixel_size_m", "photodiode_size_m", "microlens_focal_length_m",
+                                                       "microlens_f_number", "source_f_number")}
+        assert torch.equal(microlens_etendue(cra, method), microlens_etendue(cra, method, **isetcam_pixel))
+
+
 def test_isetcam_published_behaviour_of_the_default_pixel():
     """ISETCam's default pixel (v_microlens / mlAnalyzeArrayEtendue): at 0 deg a centred microlens collects all the
     light, the bare pixel ~0.83; the bare pixel falls off with CRA, the centred microlens falls to 0 by 25 deg, the
-    optimal offset keeps ~1 to 30 deg. The continuous integral agrees with ISETCam's grid to 0.016 (its grid's
-    bias)."""
+    optimal offset keeps ~1 to 30 deg. The continuous integral agrees with ISETCam's grid (the default sampling) to
+    0.016 here (its grid's bias)."""
     cra = torch.arange(0.0, 35.01, 2.5)
-    grid = {m: microlens_etendue(cra, m, sampling="isetcam") for m in ("none", "centred", "optimal")}
+    grid = {m: microlens_etendue(cra, m) for m in ("none", "centred", "optimal")}
     for method, g in grid.items():
-        assert float((g - microlens_etendue(cra, method)).abs().max()) < 0.016, method
+        assert torch.equal(g, microlens_etendue(cra, method, sampling="isetcam"))
+        assert float((g - microlens_etendue(cra, method, sampling="continuous")).abs().max()) < 0.016, method
     at = {a: i for i, a in enumerate(cra.tolist())}
     assert float(grid["none"][0]) == pytest.approx(0.831, abs=1e-3)
     assert grid["centred"][:3].tolist() == [1.0, 1.0, 1.0] and float(grid["centred"][at[25.0]:].abs().max()) == 0.0
@@ -140,8 +212,9 @@ def test_optimal_offset_is_the_chief_rays_walk():
     assert float(arr[1, 2]) == 0.0
 
 
-def test_radiance_outputs_and_irradiance_shape():
-    r = microlens_radiance(torch.tensor([0.0, 20.0]), "centred")
+@pytest.mark.parametrize("sampling", ["isetcam", "continuous"])
+def test_radiance_outputs_and_irradiance_shape(sampling):
+    r = microlens_radiance(torch.tensor([0.0, 20.0]), "centred", sampling=sampling)
     irr = r["irradiance"]
     assert irr.shape == (2, 255, 255) and float(irr.amax()) == pytest.approx(1.0)
     assert torch.allclose(irr, irr.transpose(-1, -2))  # separable x-y outer product
@@ -156,16 +229,19 @@ def test_radiance_outputs_and_irradiance_shape():
 
 def test_diffraction_depends_on_wavelength():
     wl = torch.tensor([400.0, 550.0, 700.0])
-    e = microlens_etendue(0.0, "centred", diffraction=True, wavelength_nm=wl)
+    e = microlens_etendue(0.0, "centred", sampling="continuous", diffraction=True, wavelength_nm=wl)
     assert bool((e.diff() < 0).all())  # longer wavelengths spread more and lose more
     # a small pixel loses more to diffraction than a large one with the same stack (1.4 vs 2.8 um)
-    small = microlens_etendue(0.0, "centred", diffraction=True, wavelength_nm=700.0, pixel_size_m=1.4e-6,
-                              photodiode_size_m=1.4e-6 * math.sqrt(0.75), microlens_diameter_m=1.4e-6)
+    small = microlens_etendue(0.0, "centred", sampling="continuous", diffraction=True, wavelength_nm=700.0,
+                              pixel_size_m=1.4e-6)
     assert float(small) < float(e[-1]) - 0.1
     # a vanishing wavelength is the ray model
-    ray = microlens_etendue(torch.tensor([0.0, 12.0]), "centred")
-    tiny = microlens_etendue(torch.tensor([0.0, 12.0]), "centred", diffraction=True, wavelength_nm=1e-3)
+    ray = microlens_etendue(torch.tensor([0.0, 12.0]), "centred", sampling="continuous")
+    tiny = microlens_etendue(torch.tensor([0.0, 12.0]), "centred", sampling="continuous", diffraction=True,
+                             wavelength_nm=1e-3)
     assert tiny.tolist() == pytest.approx(ray.tolist(), abs=2e-3)
+    with pytest.raises(ValueError, match="sampling='continuous'"):  # ISETCam's grid has no diffraction
+        microlens_etendue(0.0, "centred", diffraction=True)
 
 
 def test_gradients_to_stack_height_and_offset():
@@ -173,20 +249,24 @@ def test_gradients_to_stack_height_and_offset():
     o = torch.tensor(0.3, dtype=torch.float64, requires_grad=True)  # um
 
     def f(h_um, o_um):
-        return microlens_etendue(torch.tensor([8.0, 14.0]), "centred", diffraction=True,
+        return microlens_etendue(torch.tensor([8.0, 14.0]), "centred", sampling="continuous", diffraction=True,
                                  stack_height_m=h_um * 1e-6, offset_m=o_um * 1e-6, samples=(48, 96))
 
     assert torch.autograd.gradcheck(f, (h, o), eps=1e-4, atol=1e-4, rtol=1e-3)
-    # the hard-edged ray model is differentiable too: autograd against central differences
-    e = microlens_etendue(15.0, "centred", stack_height_m=h * 1e-6, offset_m=o * 1e-6)
+    # the hard-edged ray model is differentiable too: autograd against central differences (the microlens focal
+    # length follows the stack height by default, as ISETCam's mlensCreate(sensor) builds it)
+    e = microlens_etendue(15.0, "centred", sampling="continuous", stack_height_m=h * 1e-6, offset_m=o * 1e-6)
     gh, go = torch.autograd.grad(e, (h, o))
     with torch.no_grad():
         def fd(dh, do):
-            return float(microlens_etendue(15.0, "centred", stack_height_m=(7.0 + dh) * 1e-6,
-                                           offset_m=(0.3 + do) * 1e-6))
+            return float(microlens_etendue(15.0, "centred", sampling="continuous",
+                                           stack_height_m=(7.0 + dh) * 1e-6, offset_m=(0.3 + do) * 1e-6))
         assert float(gh) == pytest.approx((fd(1e-3, 0) - fd(-1e-3, 0)) / 2e-3, rel=0.02)
         assert float(go) == pytest.approx((fd(0, 1e-3) - fd(0, -1e-3)) / 2e-3, rel=0.02)
     assert float(gh) < 0 < float(go)  # a taller stack loses the oblique beam; an offset towards it recovers it
+    # ISETCam's grid has no gradients: refused, not silently detached
+    with pytest.raises(ValueError, match="sampling='continuous'"):
+        microlens_etendue(15.0, "centred", stack_height_m=h * 1e-6)
 
 
 def test_isetcam_names_are_accepted():
@@ -222,6 +302,17 @@ def test_errors_name_the_argument():
         microlens_etendue(0.0, "none", offset_m=1e-7)
     with pytest.raises(ValueError, match="microlens_diameter_m"):
         microlens_etendue(0.0, microlens_diameter_m=3e-6)
+    # explicit values win over the defaults that follow the pixel, and one wider than the pixel is refused
+    with pytest.raises(ValueError, match=r"microlens_f_number: .* wider than the pixel .* microlens_f_number >= 5"):
+        microlens_etendue(0.0, pixel_size_m=1.4e-6, microlens_f_number=2.5)
+    with pytest.raises(ValueError, match=r"photodiode_size_m: .* wider than the pixel .* omit it"):
+        microlens_etendue(0.0, pixel_size_m=1.4e-6, photodiode_size_m=2.42e-6)
+    with pytest.raises(ValueError, match="grid_points"):
+        microlens_radiance(0.0, grid_points=0)
+    with pytest.raises(ValueError, match="convention: 'isetcam'.*learnable"):
+        PixelOptics("centred", convention="isetcam", learnable=True)
+    with pytest.raises(ValueError, match="convention: 'isetcam'.*diffraction"):
+        PixelOptics("centred", convention="isetcam", diffraction=True)
     with pytest.raises(ValueError, match="unknown key 'stack'"):
         Sensor(pixel_optics={"stack": 1})
     with pytest.raises(TypeError, match="pixel_optics"):
@@ -238,25 +329,67 @@ def _uniform_oi(rows, cols, pitch, d_m, f_number=4.0, waves=None):
                         f_number=torch.tensor([f_number]))
 
 
+# ISETCam mlAnalyzeArrayEtendue (sensorVignetting) on ISETCam's default pixel, 12 x 16 pixels of 2.8 um, source f/4
+# with focal length 30 um: the etendue at cra = (0:5) / 5 * max(sensorCRA(:)); from the port of mlRadiance named
+# above ISETCAM_PORT
+FALL_OFF_12X16_F30UM = {
+    "cra_deg": [0.0, 8.191924, 16.383848, 24.575772, 32.767696, 40.95962],
+    "none": [0.831029, 0.703869, 0.474206, 0.244544, 0.065972, 0.000496],
+    "centred": [1.0, 0.980655, 0.421131, 0.0, 0.0, 0.0],
+    "optimal": [1.0, 1.0, 1.0, 1.0, 0.993552, 0.956845],
+}
+
+
 @pytest.mark.parametrize("method", ["none", "centred", "optimal"])
 def test_sensor_fall_off_on_a_uniform_field(method):
     rows, cols, pitch = 12, 16, 2.8e-6
-    d = 30e-6  # a short exit-pupil distance so the 16 x 12 pixels span 0 to 34 deg
+    d = 30e-6  # a short focal length so the 16 x 12 pixels span 0 to 41 deg
     oi = _uniform_oi(rows, cols, pitch, d)
     kw = dict(rows=rows, cols=cols, read_noise_v=0.0, dark_current_e_per_s=0.0)
     plain = Sensor.preset("isetcam_default", **kw).electron_rate(oi)
-    iset = Sensor.preset("isetcam_default", pixel_optics={"method": method, "convention": "isetcam",
-                                                          "angle_samples": 129}, **kw).electron_rate(oi)
+    iset = Sensor.preset("isetcam_default", pixel_optics={"method": method, "convention": "isetcam"},
+                         **kw).electron_rate(oi)
     phys = Sensor.preset("isetcam_default", pixel_optics={"method": method, "angle_samples": 129}, **kw)
     y = (torch.arange(rows, dtype=torch.float64) - (rows - 1) / 2) * pitch
     x = (torch.arange(cols, dtype=torch.float64) - (cols - 1) / 2) * pitch
     cra = torch.rad2deg(torch.atan(torch.hypot(y[:, None], x[None, :]) / d))  # ISETCam sensorGet(sensor, 'cra')
-    want = microlens_etendue(cra, method, samples=(64, 128))
-    assert torch.allclose(iset[0, 0] / plain[0, 0], want, atol=3e-3)
-    # physical convention: the whole pixel's light x the radial and tangential etendues (fill factor 0.75 undone)
-    tangential = microlens_etendue(0.0, "none" if method == "none" else "centred", samples=(64, 128))
+    # ISETCam: volts x interp1(cra samples, etendue, sensorCRA), the fill-factor signal kept
+    ref = FALL_OFF_12X16_F30UM
+    assert float(cra.max()) == pytest.approx(ref["cra_deg"][-1], abs=1e-5)
+    want_iset = np.interp(cra.numpy(), ref["cra_deg"], ref[method])
+    assert np.abs((iset[0, 0] / plain[0, 0]).numpy() - want_iset).max() < 1e-5
+    # physical convention: the whole pixel's light x the radial and tangential etendues of the continuous integral
+    # (fill factor 0.75 undone)
+    want = microlens_etendue(cra, method, samples=(64, 128), sampling="continuous")
+    tangential = microlens_etendue(0.0, "none" if method == "none" else "centred", samples=(64, 128),
+                                   sampling="continuous")
     assert torch.allclose(phys.electron_rate(oi)[0, 0] / plain[0, 0] * 0.75, want * tangential, atol=3e-3)
     assert torch.allclose(phys.pixel_optics.chief_ray_angle_deg(oi, rows, cols, pitch)[0], cra)
+
+
+# ISETCam mlAnalyzeArrayEtendue on 4 x 6 pixels of ISETCam's default pixel (2.8 um), optics focal length 14 um (CRA
+# to 30.25 deg), f/4: the map's lower-right quarter (rows 2-3, columns 3-5; the map is point-symmetric), from the
+# port of mlRadiance named above ISETCAM_PORT
+ISETCAM_MAP_4X6_F14UM = {
+    "none": [[0.706264, 0.445459, 0.18929], [0.445459, 0.292285, 0.110119]],
+    "centred": [[0.911924, 0.348084, 0.0], [0.348084, 0.061005, 0.0]],
+    "optimal": [[1.0, 1.0, 0.999306], [1.0, 1.0, 0.998512]],
+}
+
+
+@pytest.mark.parametrize("method", ["none", "centred", "optimal"])
+def test_isetcam_convention_map_is_isetcams(method):
+    # the image distance differs from the focal length: ISETCam's sensorGet(sensor, 'cra') uses the focal length
+    oi = OpticalImage(torch.ones(1, 1, 4, 6, dtype=torch.float64), torch.tensor([550.0]),
+                      sample_spacing_m=torch.tensor([2.8e-6], dtype=torch.float64),
+                      focal_length_m=torch.tensor([14e-6], dtype=torch.float64), image_distance_m=torch.tensor([20e-6]),
+                      f_number=torch.tensor([4.0]))
+    po = PixelOptics(method, convention="isetcam")
+    emap = po.etendue_map(oi, 4, 6, 2.8e-6, 0.75)[0]
+    assert torch.equal(emap, emap.flip(0, 1))
+    assert np.abs(emap[2:, 3:].numpy() - np.array(ISETCAM_MAP_4X6_F14UM[method])).max() < 1e-5
+    corner_cra = math.degrees(math.atan(math.hypot(1.5, 2.5) * 2.8 / 14))
+    assert float(po.chief_ray_angle_deg(oi, 4, 6, 2.8e-6)[0, 0, 0]) == pytest.approx(corner_cra, rel=1e-12)
 
 
 def test_camera_with_pixel_optics_and_gradients():
@@ -266,14 +399,15 @@ def test_camera_with_pixel_optics_and_gradients():
 
     optics = DiffractionLimitedOptics(f_number=4.0, focal_length_m=40e-6)  # short: CRAs up to ~38 deg
     kw = dict(rows=16, cols=16, cfa="RGGB", pixel_size_m=2.8e-6, exposure_s=1e-3)
-    sensor = Sensor(pixel_optics={"method": "centred", "learnable": True, "convention": "isetcam"}, **kw)
+    sensor = Sensor(pixel_optics={"method": "centred", "learnable": True}, **kw)  # physical: differentiable
     cam, ref = Camera(optics, sensor, noise=False), Camera(optics, Sensor(**kw), noise=False)
     scene = uniform("D65", size=32, hfov_deg=2 * math.degrees(math.atan(16 * 2.8e-6 / 2 / 40e-6)) * 2,
                     dtype=torch.float64)
     out, base = cam(scene, return_intermediates=True), ref(scene, return_intermediates=True)
     ratio = (out.raw.noise_free / base.raw.noise_free)[0, 0]
     emap = sensor.etendue_map(out.optical_image)[0].detach()
-    assert torch.allclose(ratio.detach(), emap.to(ratio), atol=1e-6)
+    # the physical convention takes the whole pixel's light (the plain sensor its fill factor, 0.75)
+    assert torch.allclose(ratio.detach() * sensor.fill_factor, emap.to(ratio), atol=1e-6)
     assert float(emap[8, 8]) > 0.99 and float(emap[0, 0]) < 0.9  # centre vs corner fall-off
     loss = out.raw.noise_free.mean()
     loss.backward()
@@ -296,7 +430,7 @@ def test_per_wavelength_etendue_shades_colour():
     cra = float(s.pixel_optics.chief_ray_angle_deg(oi, rows, cols, 1.4e-6)[0, 0, 0])
     kw = dict(diffraction=True, pixel_size_m=1.4e-6, photodiode_size_m=1.4e-6 * math.sqrt(0.75),
               microlens_diameter_m=1.4e-6, layer_thicknesses_m=(1e-6, 2e-6), layer_indices=(1.46, 1.6),
-              microlens_focal_length_m=3e-6, source_f_number=2.0, samples=(64, 128))
+              microlens_focal_length_m=3e-6, source_f_number=2.0, samples=(64, 128), sampling="continuous")
     for i, wl in enumerate((450.0, 550.0, 650.0)):
         want = microlens_etendue(cra, "centred", wavelength_nm=wl, **kw) * microlens_etendue(0.0, wavelength_nm=wl,
                                                                                               **kw)
@@ -379,10 +513,10 @@ def test_ray_traced_lens_camera_uses_the_traced_chief_rays():
     emap = cam.sensor.etendue_map(oi)[0]
     e = microlens_etendue(torch.tensor([want_cra, 0.0]), "none", source_f_number=float(oi.f_number[0]),
                           samples=(64, 128), pixel_size_m=pitch, photodiode_size_m=D_UM * 1e-6 * k,
-                          layer_thicknesses_m=stack, microlens_diameter_m=pitch)
+                          layer_thicknesses_m=stack, microlens_diameter_m=pitch, sampling="continuous")
     assert float(emap[0, 0]) == pytest.approx(float(e[0] * e[1]), abs=2e-3)
     # the same etendue as ISETCam's own 2.8 um pixel at these angles (scale-free rays)
     e_isetcam = microlens_etendue(torch.tensor([want_cra, 0.0]), "none", source_f_number=float(oi.f_number[0]),
-                                  samples=(64, 128))
+                                  samples=(64, 128), sampling="continuous")
     assert float(e[0] * e[1]) == pytest.approx(float(e_isetcam[0] * e_isetcam[1]), abs=1e-9)
     assert float(e[0]) < 0.99  # the traced angle vignettes: the check is not trivial
