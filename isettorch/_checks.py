@@ -151,3 +151,26 @@ def dataset_index(index, length: int) -> int:
     if not -length <= index < length:
         raise IndexError(f"index: expected 0 <= index < {length}, got {index}")
     return index % length
+
+
+def check_device(device) -> torch.device:
+    """``device`` (a name or a :class:`torch.device`) as a device this torch can compute on here: ValueError naming
+    ``device`` for a malformed name, a device type this build of torch lacks (``mps`` on Linux, ``cuda`` without
+    CUDA), an absent device (``cuda:3`` on a one-GPU machine; a tiny allocation is the test) or ``meta`` (shapes
+    only, no values to compute or score). Shared by the demosaic benchmark
+    (:mod:`isettorch.isp.evaluation`) and :class:`isettorch.data.PairStream`."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as err:
+        raise ValueError(f"device: {device!r} is not a torch device ({err})") from err
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device: {str(device)!r}, but CUDA is not available on this machine")
+    if dev.type == "meta":
+        raise ValueError("device: 'meta' holds no values (shapes only); expected a device that computes, e.g. cpu")
+    try:
+        torch.zeros(1, device=dev)
+    except Exception as err:  # noqa: BLE001 - torch raises RuntimeError, AssertionError, NotImplementedError, ...
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0].split(". ")[0]
+        raise ValueError(f"device: cannot compute on {str(device)!r} with this torch build on this machine "
+                         f"({first})") from err
+    return dev

@@ -13,8 +13,9 @@ analog gain ``min(t_white / t, max_analog_gain)`` (ISO raised once the shutter i
 program mode does): bright scenes are exposed so a white reads ``target`` of full scale in the most sensitive
 filter (a design with clear pixels gets a shorter exposure), dim scenes get ``max_exposure_s``, fewer photons and
 more gain (the read noise is added before the gain, the ADC after it). The rule is a decision taken from the
-current design at every capture, not a path for gradients (the sensor's auto-exposure detaches its statistic):
-gradients reach the filters and mosaic through the photo-electrons, the noise and the ADC at the chosen exposure.
+current design at every capture, not a path for gradients (the white card's exposure is detached here, although the
+sensor's auto-exposure is differentiable): gradients reach the filters and mosaic through the photo-electrons, the
+noise and the ADC at the chosen exposure.
 
 **Network input.** The raw mosaic, black-subtracted, divided by the noise-free capture of that white card
 (pixel by pixel): a perfect white reads 1 in every pixel whatever the filter, exposure or vignetting; the
@@ -256,7 +257,9 @@ class DesignCamera(nn.Module):
         white_rates, _ = sensor.channel_rates(self.optics(white_scene))
         white_mosaic = sensor.cfa.mosaic(white_rates).expand(b, -1, -1, -1)
         rule = self.config["exposure"]
-        t_white = sensor.exposure_for(None, white_mosaic, 1.0)
+        # detached: the rule is a decision taken from the current design, not a path for gradients (module
+        # docstring; the shipped designs were trained so); the sensor's auto-exposure itself is differentiable
+        t_white = sensor.exposure_for(None, white_mosaic, 1.0).detach()
         t = t_white.clamp(max=float(rule["max_exposure_s"]))
         gain = (t_white / t).clamp(max=float(rule["max_analog_gain"]))
         # Sensor.forward with the exposure given: its electron rate, then the capture (kept apart so that the

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._checks import check_device
 from ..io.images import PHOTO_SUFFIXES, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 from .denoise import DENOISERS, _check_noise, check_denoiser, denoise_mosaic
@@ -104,28 +105,6 @@ def check_photos(items, crop: int, *, min_side: int = 2) -> None:
         if min(h, w) <= 2 * crop:
             raise ValueError(f"crop: {name} is {w} x {h} px, too small for a {crop}-pixel border (at most "
                              f"{(min(h, w) - 1) // 2} for this image)")
-
-
-def check_device(device) -> torch.device:
-    """``device`` (a name or a :class:`torch.device`) as a device this torch can compute on here: ValueError naming
-    ``device`` for a malformed name, a device type this build of torch lacks (``mps`` on Linux, ``cuda`` without
-    CUDA), an absent device (``cuda:3`` on a one-GPU machine; a tiny allocation is the test) or ``meta`` (shapes
-    only, no values to score)."""
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError) as err:
-        raise ValueError(f"device: {device!r} is not a torch device ({err})") from err
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device: {str(device)!r}, but CUDA is not available on this machine")
-    if dev.type == "meta":
-        raise ValueError("device: 'meta' holds no values (shapes only); expected a device that computes, e.g. cpu")
-    try:
-        torch.zeros(1, device=dev)
-    except Exception as err:  # noqa: BLE001 - torch raises RuntimeError, AssertionError, NotImplementedError, ...
-        first = (str(err).strip().splitlines() or [type(err).__name__])[0].split(". ")[0]
-        raise ValueError(f"device: cannot compute on {str(device)!r} with this torch build on this machine "
-                         f"({first})") from err
-    return dev
 
 
 def _image_seed(seed: int, index: int) -> int:
