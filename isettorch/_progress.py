@@ -61,6 +61,12 @@ class _NoBar:
     def set_postfix(self, *args, **kwargs) -> None:
         pass
 
+    def set_postfix_str(self, *args, **kwargs) -> None:
+        pass
+
+    def refresh(self, *args, **kwargs) -> None:
+        pass
+
     def set_description(self, *args, **kwargs) -> None:
         pass
 

@@ -13,6 +13,9 @@ def test_quiet_returns_the_iterable_and_a_silent_manual_bar(capsys):
     bar = progress(total=5, quiet=True)
     bar.update(2)
     bar.set_postfix(loss=1.0)
+    bar.set_postfix_str("stage")  # every manual-bar method the library calls (bench --quiet called this one)
+    bar.set_description("x")
+    bar.refresh()
     bar.close()
     assert bar.n == 2
     assert capsys.readouterr() == ("", "")

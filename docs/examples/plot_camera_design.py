@@ -94,7 +94,7 @@ for step in range(30):
     opt.zero_grad()
     loss.backward()
     opt.step()
-    losses.append(float(loss))
+    losses.append(loss.item())
 fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.2))
 a.plot(losses)
 a.set_xlabel("step")

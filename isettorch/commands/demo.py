@@ -1,7 +1,8 @@
 """``isettorch demo``: render the built-in scenes through a camera and write images and a short report.
 
 Scenes: Macbeth ColorChecker (D65), slanted edge, frequency sweep and dead leaves, each with a field of view
-chosen so the sensor is about ``--size`` pixels wide. Outputs in ``--out``: ``<scene>.png`` (the camera's
+chosen so the sensor is about ``--size`` pixels wide (a config that fixes the sensor's rows and cols is resized to
+``--size`` columns, its aspect kept, so that the scenes fill it). Outputs in ``--out``: ``<scene>.png`` (the camera's
 sRGB image), ``<scene>_scene.png`` (the scene's ideal sRGB preview), ``report.json`` and ``report.md``
 (Macbeth mean/max dE2000, exposure, per-scene sensor illuminance, and the SNR of the gray patches). A monochrome
 camera has no colour: its report has no colour error (``colour_error`` says so) and the rest as for colour.
@@ -23,8 +24,11 @@ def register(sub) -> None:
     p = sub.add_parser("demo", help="render built-in scenes through a camera; write images and a report to --out")
     p.add_argument("--out", default="out", help="output folder (default: out)")
     p.add_argument("--size", type=int, default=256, help="sensor width in pixels (about; default 256)")
+    from ..camera import camera_config_names
+
     p.add_argument("--config", default=DEFAULT_CONFIG,
-                   help="camera: a built-in name (default, imx363, paper2004_cds) or a YAML path (default: default)")
+                   help=f"camera: a built-in name ({', '.join(camera_config_names())}) or a YAML path "
+                        "(default: default)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
     add_quiet_argument(p)
     p.set_defaults(func=run)
@@ -62,6 +66,9 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     n = args.size
+    rows, cols = getattr(cam.sensor, "rows", None), getattr(cam.sensor, "cols", None)
+    if rows and cols:  # a fixed sensor: resized to about n columns (aspect kept), so the scenes below fill it
+        cam.sensor.rows, cam.sensor.cols = max(2, 2 * round(n * rows / cols / 2)), n
     # Field of view for a sensor about n pixels wide: 2 atan(n p / 2 f).
     f = float(cam.optics.focal_length_m.reshape(-1)[0])
     hfov = math.degrees(2 * math.atan(n * cam.sensor.pixel_size_m / (2 * f)))
