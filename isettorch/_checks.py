@@ -162,7 +162,8 @@ def check_device(device) -> torch.device:
     try:
         dev = torch.device(device)
     except (RuntimeError, TypeError) as err:
-        raise ValueError(f"device: {device!r} is not a torch device ({err})") from err
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0]  # torch lists its signatures below
+        raise ValueError(f"device: {device!r} is not a torch device ({first})") from err
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"device: {str(device)!r}, but CUDA is not available on this machine")
     if dev.type == "meta":

@@ -40,7 +40,8 @@ joint variant) or ``noise_free_raw`` (noise-free variant); target: ``camera_rgb`
 (0 = black, 1 = white level; camera RGB, not white-balanced). Noise inputs from each item's metadata: the dataset's
 Poisson-Gaussian model ``var = a x + b`` in normalised units (Foi et al., IEEE TIP 2008) has
 ``a = meta['noise_gain']`` (normalised units per electron, so shot noise gives ``a x``) and
-``b = meta['noise_floor_var']`` (read noise, DSNU, dark current and quantisation); PRNU (multiplicative,
+``b = meta['noise_floor_var']`` (the capturing sensor's ``Sensor.poisson_gaussian``: read noise, DSNU, dark
+current, row/column noise and, for a DN readout, quantisation); PRNU (multiplicative,
 < 1.5 %) is left out of the model. Items are rendered ``patch + 2`` pixels wide and cropped at the offset that
 puts an R pixel top-left, so every Bayer order the dataset draws reaches the network as RGGB.
 

@@ -44,14 +44,14 @@ def register(sub) -> None:
 def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[float, float]:
     """``(a, b)`` of the Poisson-Gaussian model ``var(x) = a x + b`` of a sensor's frames in normalised units
     (``x = (DN - black) / (white - black)``; Foi et al., IEEE TIP 17(10) 2008; EMVA 1288 eq. 6): ``a`` the output
-    per electron over the span (shot noise), ``b`` from :func:`isettorch.sensor.noise.poisson_gaussian_floor`
-    (read noise, DSNU, dark-current shot noise, quantisation): the ``noise_gain`` / ``noise_floor_var`` of
-    :class:`isettorch.data.PairStream`'s metadata, which the joint network was trained with. Row/column noise and
-    PRNU are not in the model. Both are finite and give finite float32 noise inputs
+    per electron over the span (shot noise), ``b`` the sensor's own floor over the span squared
+    (:meth:`isettorch.sensor.Sensor.poisson_gaussian`: read noise, twice with CDS, DSNU unless CDS, dark-current shot
+    noise, row/column noise, quantisation): the ``noise_gain`` / ``noise_floor_var`` of
+    :class:`isettorch.data.PairStream`'s metadata, which the joint network was trained with. PRNU is not in the
+    model. Both are finite and give finite float32 noise inputs
     (:func:`isettorch.isp.learned.noise_features`), else a ValueError names the setting that takes them out
     (``analog_gain``, ``exposure_s``, or ``camera`` for the config's gain)."""
     from ..isp.learned import noise_features
-    from ..sensor.noise import poisson_gaussian_floor
 
     if sensor.adc_bits is None:
         raise ValueError("camera: the sensor has no ADC (adc_bits null); expected a sensor that outputs DN")
@@ -68,15 +68,10 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
     if not fits(a, 0.0)[0]:
         raise ValueError(f"{gain} makes the noise model's shot gain a {a:.3g} (normalised units per electron), beyond "
                          f"the network's float32 noise input; expected the frames' real gain")
-    cg = float(sensor.conversion_gain_v_per_e)
-    read_e, dsnu_e = float(sensor.read_noise_v) / cg, float(sensor.dsnu_sigma_v) / cg
     dark = float(sensor.dark_current_e_per_s)
 
-    def floor(t):
-        try:
-            return float(poisson_gaussian_floor(a, read_e, dsnu_e, dark, t, span))
-        except OverflowError:  # a ** 2 of a huge gain: Python floats raise instead of giving inf
-            return math.inf
+    def floor(t):  # float64 tensors: a huge gain gives inf, not an OverflowError
+        return float(sensor.poisson_gaussian(exposure_s=t, analog_gain=analog_gain)[1][0]) / span ** 2
 
     b = floor(exposure_s)
     if not fits(a, b)[1]:

@@ -33,10 +33,11 @@ Outputs (a dict of tensors; images in **normalised raw units**: 0 = black level,
   converted with the IEC 61966-2-1 matrix (not clipped); ``srgb``: clipped to [0, 1] and encoded.
 * ``meta``: a dict of tensors (see :data:`META_KEYS`), batched by :func:`collate_pairs`.
 
-Noise metadata: ``noise_gain`` ``a`` (normalised units per electron) and ``noise_floor_var`` ``b``
-(:func:`isettorch.sensor.noise.poisson_gaussian_floor`) give the Poisson-Gaussian model ``var(x) = a x + b`` of
-``raw`` about ``noise_free_raw`` = x (Foi et al., IEEE TIP 17(10), 2008): ``a x`` photon shot noise, ``b`` read
-noise, DSNU, dark-current shot noise and the quantisation of one DN step. It leaves out PRNU: a fixed pattern (a
+Noise metadata: ``noise_gain`` ``a`` (normalised units per electron) and ``noise_floor_var`` ``b`` give the
+Poisson-Gaussian model ``var(x) = a x + b`` of ``raw`` about ``noise_free_raw`` = x (Foi et al., IEEE TIP 17(10),
+2008), the capture's own sensor's (:meth:`isettorch.sensor.Sensor.poisson_gaussian` of its raw, divided by the span
+and its square): ``a x`` photon shot noise, ``b`` read noise (twice with CDS), DSNU (none with CDS), dark-current
+shot noise and, for a DN readout, the quantisation of one DN step. It leaves out PRNU: a fixed pattern (a
 per-pixel gain ``1 + prnu_sigma_percent / 100 * n``, n ~ N(0, 1), drawn per item), which adds
 ``(prnu_sigma_percent / 100 * x)^2`` to the variance across the pixels of one signal level, so the full
 per-pixel variance is ``a x + b + (prnu_sigma_percent x / 100)^2`` (about, for x below white: clipping at the white
@@ -56,10 +57,10 @@ import torch
 from .. import constants, spectral
 from .._checks import dataset_index
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
-from ..sensor.noise import poisson_gaussian_floor
 from .config import (
     TARGETS,
     check_integer,
+    check_seed,
     check_targets,
     one_thread,
     pair_config,
@@ -450,7 +451,9 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             raws.append(raw.data)
             noise_free.append(raw.noise_free)
             black, span = raw.black_level, raw.white_level - raw.black_level
-            it.update(gain=gain, exposure=exposure, black=black, span=span, white_level=raw.white_level)
+            a, b = sensor.poisson_gaussian(raw)  # the capture's noise model, in DN
+            it.update(gain=gain, exposure=exposure, black=black, span=span, white_level=raw.white_level,
+                      noise_gain=float(a[0]) / span, noise_floor=float(b[0]) / span ** 2)
         # normalised raw units, (DN - black) / (white - black), over the whole batch at once when the items share
         # the levels (the same elementwise operations as item by item)
         _normalise(img["raw"], raws, items)
@@ -475,11 +478,11 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             scale = k_white * sensor.fill_factor * sensor.pixel_area_m2 * exposure[0].item() * to_norm
             d = {"gain": gain, "read_e": kw["read_noise_v"] / cg, "dsnu_e": kw["dsnu_sigma_v"] / cg,
                  "dark": kw["dark_current_e_per_s"], "f_number": float(camera.optics.f_number),
-                 "focal": float(camera.optics.focal_length_m), "pitch": sensor.pixel_size_m, "full_well": 1.0 / cg,
-                 "prnu": kw["prnu_sigma_percent"], "black": black}
-            metas.append(_meta_values(it["index"], d, scene.metadata, float(exposure[0]), to_norm, span,
-                                      it["white_level"], sensor.cfa, white_cam, white_xyz, it["qe_meta"],
-                                      scene.wavelengths_nm))
+                 "focal": float(camera.optics.focal_length_m), "pitch": sensor.pixel_size_m,
+                 "full_well": _full_well_e(sensor, cg), "prnu": kw["prnu_sigma_percent"], "black": black}
+            metas.append(_meta_values(it["index"], d, scene.metadata, float(exposure[0]), it["noise_gain"],
+                                      it["noise_floor"], it["white_level"], sensor.cfa, white_cam, white_xyz,
+                                      it["qe_meta"], scene.wavelengths_nm))
             white_xyz_all.append(white_xyz)
             scales.append(scale)
         if cams:
@@ -507,6 +510,18 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     return out
 
 
+def _full_well_e(sensor, conversion_gain_v_per_e):
+    """The full well the pairs' metadata report (electrons; a float, or ``[B]`` for per-call conversion gains): where
+    the sensor saturates at unit analog gain, its well capacity ``voltage_swing_v / conversion gain`` (ISETCam
+    ``pixelGet('well capacity')``, :attr:`~isettorch.sensor.Sensor.well_capacity_e`), or the photodiode's own clip
+    ``full_well_e`` (``Sensor(full_well_e=...)``, EMVA 1288 release 4.0 section 4.1) where that is lower."""
+    well = sensor.voltage_swing_v / conversion_gain_v_per_e
+    fw = sensor.noise_terms.full_well_e
+    if fw is None:
+        return well
+    return well.clamp(max=fw) if isinstance(well, torch.Tensor) else min(well, fw)
+
+
 def _normalise(dst: torch.Tensor, values: list, items: list) -> None:
     """``dst[b] = (values[b] - black_b) / span_b``: one subtraction and division for the batch when every item has
     the same black level and span (the same operations, so the same values, as item by item)."""
@@ -532,8 +547,10 @@ def _views(shapes: dict, dtype, alloc=None) -> dict:
     return out
 
 
-def _meta_values(index, d, meta_s, exposure, to_norm, span, white, cfa, white_cam, white_xyz, qe, wave) -> dict:
-    """The metadata of one item (:data:`META_KEYS`) as Python numbers and tensors (see :func:`_meta`)."""
+def _meta_values(index, d, meta_s, exposure, noise_gain, noise_floor, white, cfa, white_cam, white_xyz, qe,
+                 wave) -> dict:
+    """The metadata of one item (:data:`META_KEYS`) as Python numbers and tensors; ``noise_gain``,
+    ``noise_floor``: the item's Poisson-Gaussian ``a`` and ``b`` in normalised units (module notes)."""
     name = meta_s["illuminant"]
     code = ILLUMINANT_CODES.get(name, 10 + int(name[1:]) if name.startswith("F") else -1)
     gain, read_e, dsnu_e, dark = d["gain"], d["read_e"], d["dsnu_e"], d["dark"]
@@ -544,10 +561,10 @@ def _meta_values(index, d, meta_s, exposure, to_norm, span, white, cfa, white_ca
         "read_noise_e": read_e, "dark_current_e_per_s": dark, "dsnu_sigma_e": dsnu_e,
         "prnu_sigma_percent": d["prnu"], "black_level_dn": d["black"], "white_level_dn": white,
         # Poisson-Gaussian noise model in normalised units: var(x) = noise_gain * x + noise_floor_var
-        # (Foi et al., "Practical Poissonian-Gaussian noise modeling", IEEE TIP 17(10), 2008); without PRNU, which
-        # adds (prnu_sigma_percent / 100 * x)^2 across pixels (module notes)
-        "noise_gain": to_norm,
-        "noise_floor_var": poisson_gaussian_floor(to_norm, read_e, dsnu_e, dark, exposure, span),
+        # (Foi et al., "Practical Poissonian-Gaussian noise modeling", IEEE TIP 17(10), 2008; the sensor's
+        # Sensor.poisson_gaussian); without PRNU, which adds (prnu_sigma_percent / 100 * x)^2 across pixels
+        "noise_gain": noise_gain,
+        "noise_floor_var": noise_floor,
         "cfa": cfa.index_map,
         "cct_k": meta_s["cct_k"], "illuminant_code": int(code),
         "white_camera_rgb": white_cam / white_cam[1],
@@ -624,7 +641,7 @@ class CameraPairDataset(torch.utils.data.Dataset):
                  dtype=torch.float32, method: str = "factored", targets=TARGETS, tune_worker_allocator: bool = True):
         if method not in self.METHODS:
             raise ValueError(f"method: expected one of {self.METHODS}, got {method!r}")
-        self.length, self.seed = check_integer(length, "length", 0), check_integer(seed, "seed")
+        self.length, self.seed = check_integer(length, "length", 0), check_seed(seed)
         self.dtype, self.method = dtype, method
         self.scene_config, self.camera_config = pair_config(scene, camera)
         self._cache = _Cache()

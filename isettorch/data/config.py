@@ -21,7 +21,7 @@ from .._checks import is_integer
 
 __all__ = ["SCENE_DEFAULTS", "CAMERA_DEFAULTS", "SYNTH_DEFAULTS", "NATURAL_DEFAULTS", "COMPONENTS",
            "DEFAULT_COMPONENTS", "WAVELENGTH_RANGE_NM", "TARGETS", "check_targets", "merge_config", "pair_config",
-           "check_integer", "natural_config", "load_config", "seed_for", "one_thread", "tune_allocator"]
+           "check_integer", "check_seed", "natural_config", "load_config", "seed_for", "one_thread", "tune_allocator"]
 
 SCENE_DEFAULTS: dict[str, Any] = {
     # which scene generator: "layouts" (isettorch.data.scenes.generate_scene, the keys below) or "natural"
@@ -211,7 +211,11 @@ def check_targets(targets) -> tuple[str, ...]:
     """``targets`` (names from :data:`TARGETS`, any order) in canonical order; ValueError naming a bad one."""
     if isinstance(targets, str):
         targets = (targets,)
-    names = tuple(targets)
+    try:
+        names = tuple(targets)
+    except TypeError:
+        raise ValueError(f"targets: expected a target name or a sequence of names from {TARGETS}, got "
+                         f"{targets!r}") from None
     bad = [t for t in names if t not in TARGETS]
     if bad:
         raise ValueError(f"targets: expected names from {TARGETS}, got {bad[0]!r}")
@@ -471,7 +475,7 @@ def merge_config(user: dict | None, defaults: dict = SYNTH_DEFAULTS, path: str =
     elif "cfa_patterns" in cfg:
         _check_camera(cfg, path or "camera")
     if "seed" in cfg:
-        _check_number(cfg["seed"], "seed", integer=True, what="an integer")
+        check_seed(cfg["seed"])
     if "shard_size" in cfg:
         _check_number(cfg["shard_size"], "shard_size", 1, integer=True, what="an integer number of items")
     if "dtype" in cfg and cfg["dtype"] not in ("float32", "float64"):
@@ -489,6 +493,21 @@ def check_integer(value, name: str, minimum: int | None = None) -> int:
             minimum, f"an integer >= {minimum}")
         raise ValueError(f"{name}: expected {what}, got {value!r}")
     return int(value)
+
+
+#: seeds are reduced modulo 2^64 by :func:`seed_for` (SplitMix64 state): seeds outside ``[0, 2^64)`` would alias
+SEED_LIMIT = 2 ** 64
+
+
+def check_seed(seed) -> int:
+    """A data seed (``CameraPairDataset``, ``PairStream``, the scene datasets, ``isettorch synth``): an integer in
+    ``[0, 2^64)``, the 64-bit word :func:`seed_for` mixes it as (outside it, seeds alias: ``2^64`` draws what ``0``
+    draws, ``-1`` what ``2^64 - 1`` draws); ValueError naming ``seed`` otherwise."""
+    seed = check_integer(seed, "seed")
+    if not 0 <= seed < SEED_LIMIT:
+        raise ValueError(f"seed: expected an integer in [0, 2**64) (seeds are mixed as 64-bit words: {seed} would "
+                         f"repeat the items of seed {seed % SEED_LIMIT}), got {seed!r}")
+    return seed
 
 
 def pair_config(scene: dict | None, camera: dict | None) -> tuple[dict, dict]:

@@ -93,7 +93,15 @@ import torch.nn.functional as F
 from .. import spectral
 from ..scene import textures as _tex
 from . import spectra as _spectra
-from .config import COMPONENTS, DEFAULT_COMPONENTS, NATURAL_DEFAULTS, check_integer, natural_config, seed_for
+from .config import (
+    COMPONENTS,
+    DEFAULT_COMPONENTS,
+    NATURAL_DEFAULTS,
+    check_integer,
+    check_seed,
+    natural_config,
+    seed_for,
+)
 from .layouts import dead_leaves_radii
 
 __all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "DEFAULT_COMPONENTS", "natural_config", "generate_natural", "to_scene",
@@ -561,7 +569,7 @@ class NaturalSceneDataset(torch.utils.data.Dataset):
     """``length`` factored natural scenes; item ``i`` is :func:`generate_natural` ``(i, seed, config)``."""
 
     def __init__(self, length: int, seed: int = 0, config: dict | None = None):
-        self.length, self.seed = check_integer(length, "length", 0), check_integer(seed, "seed")
+        self.length, self.seed = check_integer(length, "length", 0), check_seed(seed)
         self.config = dict(natural_config(config), _checked=True)
 
     def __len__(self) -> int:

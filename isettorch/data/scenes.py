@@ -30,7 +30,7 @@ from .. import constants, spectral
 from ..scene import Scene
 from . import layouts as _layouts
 from . import spectra as _spectra
-from .config import SCENE_DEFAULTS, check_integer, merge_config, one_thread, seed_for, uniform01
+from .config import SCENE_DEFAULTS, check_integer, check_seed, merge_config, one_thread, seed_for, uniform01
 
 __all__ = ["generate_scene", "SyntheticSceneDataset", "collate_scenes", "scene_wavelengths"]
 
@@ -273,7 +273,7 @@ class SyntheticSceneDataset(torch.utils.data.Dataset):
 
     def __init__(self, length: int, seed: int = 0, config: dict | None = None, *, dtype=torch.float32,
                  device=None):
-        self.length, self.seed = check_integer(length, "length", 0), check_integer(seed, "seed")
+        self.length, self.seed = check_integer(length, "length", 0), check_seed(seed)
         self.config = merge_config(config, SCENE_DEFAULTS, "scene")
         _check_layouts_generator(self.config)
         self.dtype = dtype

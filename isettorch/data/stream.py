@@ -10,8 +10,9 @@ the same targets, units and metadata as a ``CameraPairDataset`` batch. Items are
 random numbers) but are drawn from the same distribution (``tests/data/test_stream.py`` compares summary
 statistics).
 
-Batch ``k`` is a pure function of ``(seed, k, config, device type)``. Under ``torch.distributed``, rank ``r`` of
-``W`` iterates over batches ``r, W + r, 2 W + r, ...``, so ranks never draw the same batch.
+Batch ``k`` is a pure function of ``(seed, k, config, device type)``, bitwise for a fixed device type and intra-op
+thread count (see :class:`PairStream`, "Repeatability"). Under ``torch.distributed``, rank ``r`` of ``W`` iterates
+over batches ``r, W + r, 2 W + r, ...``, so ranks never draw the same batch.
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import torch
 
+from .._checks import check_device, is_integer
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
-from ..sensor.noise import poisson_gaussian_floor
 from .batched import _log_uniform, _uniform, draw_layout_scenes
 from .batched_natural import draw_natural_scenes
 from .camera_pairs import (
@@ -34,11 +35,12 @@ from .camera_pairs import (
     _Cache,
     _d5100_qe,
     _diffraction_config,
+    _full_well_e,
     _unit_qe,
     _xyz_weights,
     check_targets,
 )
-from .config import check_integer, one_thread, pair_config, seed_for
+from .config import check_integer, check_seed, one_thread, pair_config, seed_for
 
 __all__ = ["PairStream", "StreamGroup"]
 
@@ -67,7 +69,9 @@ class PairStream:
 
     Args:
         batch_size: items per batch.
-        seed: stream seed; batch ``k`` depends only on ``(seed, k, config, device type)``.
+        seed: stream seed, an integer in ``[0, 2^64)`` (mixed as a 64-bit word: others would repeat a seed in it,
+            :func:`~isettorch.data.config.check_seed`); batch ``k`` depends only on ``(seed, k, config, device
+            type)``.
         scene: scene config (keys of :data:`~isettorch.data.config.SCENE_DEFAULTS`; generator ``layouts`` or
             ``natural``, with its options in ``natural``; not ``hfov_deg``: the sensor sets the field of view),
             validated with ``camera`` by :func:`~isettorch.data.config.pair_config`.
@@ -75,9 +79,15 @@ class PairStream:
             item as in :class:`~isettorch.data.camera_pairs.CameraPairDataset`), or an :class:`isettorch.Camera`
             module to render every item through as it is (its own optics, sensor, QE, exposure and noise settings;
             its learnable parameters receive gradients with ``grad=True``). The scene's field of view puts one scene
-            sample on one pixel of that camera.
+            sample on one pixel of that camera (at the thin-lens image distance of the scene distance; a ray-traced
+            lens, ``LensOptics``, at its focal length, as the drawn ``optics: {type: lens}``). A module's sensor must
+            have ``rows, cols`` = ``scene.height, scene.width`` (a batch is the scene's size, as a
+            ``CameraPairDataset`` batch; the shipped camera YAMLs leave them None: set them) and colour channels
+            (not monochrome: the white balance and colour targets are relative to its second channel); checked at
+            construction, naming ``camera``.
         targets: targets besides ``raw`` and ``meta`` (:data:`~isettorch.data.camera_pairs.TARGETS`).
-        device, dtype: where and in what precision batches are generated.
+        device, dtype: where and in what precision batches are generated; ``device`` is checked at construction
+            (:func:`isettorch._checks.check_device`: a device this machine computes on).
         grad: build the autograd graph (default False: batches are generated under ``torch.no_grad``).
         rank, world_size: this process's share of the batches (default: ``torch.distributed``'s when it is
             initialised, else 0 of 1).
@@ -103,7 +113,18 @@ class PairStream:
 
     Each batch is a dict with ``raw`` ``[B, 1, H, W]`` and the targets in normalised raw units (0 = black,
     1 = white level), as :func:`~isettorch.data.camera_pairs.render_pairs`, and ``meta`` (``[B, ...]`` tensors of
-    :data:`~isettorch.data.camera_pairs.META_KEYS`), all on ``device``.
+    :data:`~isettorch.data.camera_pairs.META_KEYS`), all on ``device``. The noise metadata is the capturing sensor's
+    own model (:meth:`isettorch.sensor.Sensor.poisson_gaussian`: CDS, an analog or DN readout, its noise terms) and
+    ``full_well_e`` where it saturates (the well capacity, or its photodiode clip ``full_well_e`` when lower).
+
+    Repeatability: ``batch(k)`` is bitwise the same for a fixed device type and intra-op thread count. Drawn
+    cameras without gradients render each part on one intra-op thread, so their batches do not depend on the thread
+    count at all. A camera module, or ``grad=True``, renders on the caller's intra-op threads, where some torch
+    kernels may round differently with their number: measured bitwise equal on 1 and 2 CPU threads for the five
+    shipped camera configs at 64^2 (sensor rows/cols set to the scene) and a learnable camera at 128^2
+    (``tests/data/test_stream.py``), while an audit found a 1-ulp difference (2026-11) for a module whose sensor
+    resampled the whole optical image (rows None then; now sized to the scene); compare runs at one thread count.
+    Gradients are summed by thread and do depend on it.
 
     Example:
         >>> stream = PairStream(4, seed=0, scene={"height": 32, "width": 32}, targets=("camera_rgb",))
@@ -115,17 +136,27 @@ class PairStream:
     def __init__(self, batch_size: int, seed: int = 0, scene: dict | None = None, camera=None, targets=TARGETS,
                  device="cpu", dtype=torch.float32, *, grad: bool = False, rank: int | None = None,
                  world_size: int | None = None, parts: int | None = None, threads: int | None = None):
-        if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
-            raise ValueError(f"batch_size: expected a positive integer, got {batch_size!r}")
+        batch_size = check_integer(batch_size, "batch_size", 1)
         if dtype not in (torch.float32, torch.float64):
             raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype}")
-        self.batch_size, self.seed, self.dtype = batch_size, check_integer(seed, "seed"), dtype
-        self.device = torch.device(device)
+        self.batch_size, self.seed, self.dtype = batch_size, check_seed(seed), dtype
+        self.device = check_device(device)  # at construction: batch(k) then never meets a device it cannot use
         # a camera module renders as it is: the scene config is checked with the default camera's (its margin)
         self.camera_module = camera if isinstance(camera, torch.nn.Module) else None
         self.scene_config, self.camera_config = pair_config(scene, None if self.camera_module is not None else camera)
         self.targets = check_targets(targets)
-        self.grad = bool(grad)
+        # a camera module's ray-traced lens images the scene at its focal length, as a drawn camera's (_draw_part)
+        self._module_lens = False
+        if self.camera_module is not None:
+            self.camera_module, self._module_lens = _check_camera_module(self.camera_module, self.scene_config)
+        if not isinstance(grad, bool):
+            raise ValueError(f"grad: expected True or False, got {grad!r}")
+        self.grad = grad
+        for name, v in (("rank", rank), ("world_size", world_size)):
+            if v is not None and not is_integer(v):
+                raise ValueError(f"{name}: expected an integer or None, got {v!r}")
+        if world_size is not None and world_size < 1:
+            raise ValueError(f"world_size: expected a positive number of processes, got {world_size!r}")
         if rank is None or world_size is None:
             dist = torch.distributed
             on = dist.is_available() and dist.is_initialized()
@@ -137,11 +168,13 @@ class PairStream:
         if parts is None:  # on a CPU one part per 32 items (see the docstring); on an accelerator one launch set
             cpu = self.device.type == "cpu" and self.camera_module is None
             parts = max(1, batch_size // 32) if cpu else 1
-        if not isinstance(parts, int) or isinstance(parts, bool) or not 1 <= parts <= batch_size:
+        if not is_integer(parts) or not 1 <= parts <= batch_size:
             raise ValueError(f"parts: expected an integer in [1, batch_size = {batch_size}], got {parts!r}")
-        if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
+        if threads is not None and (not is_integer(threads) or threads < 1):
             raise ValueError(f"threads: expected a positive integer or None, got {threads!r}")
-        self.parts, self.threads = parts, threads
+        self.parts, self.threads = int(parts), None if threads is None else int(threads)
+        # batch k holds items k * batch_size ... (k + 1) * batch_size - 1, reported in meta["index"] (int64)
+        self.max_batch_index = (2 ** 63 - self.batch_size) // self.batch_size
         # drawn cameras on a CPU without gradients: each part renders on one intra-op thread (_render_part), and the
         # iterator renders whole batches on threads (_pipeline_width)
         self._cpu_batches = self.device.type == "cpu" and self.camera_module is None and not self.grad
@@ -161,9 +194,13 @@ class PairStream:
     def batches(self, start: int = 0):
         """Batches ``(start + i) * world_size + rank`` for ``i = 0, 1, ...`` without end, each bitwise
         ``batch(k)`` (``iter(stream)`` is ``batches(0)``; a resumed training run starts where it stopped)."""
-        if not isinstance(start, int) or isinstance(start, bool) or start < 0:
+        if not is_integer(start) or start < 0:
             raise ValueError(f"start: expected a non-negative index into this rank's batches, got {start!r}")
-        return self._iterate(start * self.world_size + self.rank)
+        k = int(start) * self.world_size + self.rank
+        if k > self.max_batch_index:
+            raise ValueError(f"start: batch {k} of this rank's share is beyond the last batch index "
+                             f"{self.max_batch_index} (meta['index'] holds item numbers as int64), got {start!r}")
+        return self._iterate(k)
 
     def _iterate(self, k: int):
         """Batches ``k, k + world_size, ...``, each bitwise ``batch(k)``. On a CPU (no camera module, no gradients)
@@ -243,6 +280,7 @@ class PairStream:
     def draw(self, k: int) -> list[StreamGroup]:
         """The scenes and cameras of batch ``k``, grouped by part and discrete camera (see :class:`StreamGroup`),
         before rendering."""
+        k = self._check_k(k)
         return [grp for p in range(self.parts) for grp in self._draw_part(k, p)]
 
     def _draw_part(self, k: int, part: int) -> list[StreamGroup]:
@@ -265,8 +303,11 @@ class PairStream:
         if self.camera_module is not None:
             camera = self.camera_module
             pitch = float(camera.sensor.pixel_size_m)
-            hfov = self._hfov(pitch, camera.optics.focal_length_m.detach().reshape(-1)[0].to(torch.float64),
-                              d["distance"], w + 2 * m)
+            focal = camera.optics.focal_length_m.detach().reshape(-1)[0].to(torch.float64)
+            if self._module_lens:  # the drawn path's geometry for a ray-traced lens (below)
+                hfov = _hfov_for(pitch, focal, w + 2 * m).expand(nb)
+            else:
+                hfov = self._hfov(pitch, focal, d["distance"], w + 2 * m, dt)
             scene = self._scene(drawn, slice(None), wl, hfov, d["distance"], k)
             return [StreamGroup(torch.arange(start, start + nb, device=dev), camera, scene, {}, k, part)]
         patterns = list(self.camera_config["cfa_patterns"])
@@ -304,7 +345,7 @@ class PairStream:
             camera = cache.get_camera(optics, sensor)
             dist = d["distance"][idx]
             if image_distance is None:
-                hfov = self._hfov(pitch, focal, dist, w + 2 * m)
+                hfov = self._hfov(pitch, focal, dist, w + 2 * m, dt)
             else:
                 hfov = _hfov_for(pitch, image_distance, w + 2 * m).expand(count)
             scene = self._scene(drawn, idx, wl, hfov, dist, k)
@@ -333,13 +374,18 @@ class PairStream:
         return optics
 
     @staticmethod
-    def _hfov(pitch, focal, distance, width):
+    def _hfov(pitch, focal, distance, width, dtype):
         """Scene FOV that puts one scene sample on one pixel, ``pitch = 2 d_i tan(hfov / 2) / W_s``, with ``d_i``
-        the thin-lens image distance of the object distance (Hecht 5.17)."""
-        if bool((distance <= focal).any()):
-            raise ValueError(f"scene.distance_m: expected object distances beyond the focal length, got "
-                             f"{distance.min().item()} m")
-        return _hfov_for(pitch, 1.0 / (1.0 / focal - 1.0 / distance), width)
+        the thin-lens image distance of the object distance (Hecht 5.17) computed as the optics compute it
+        (``optics.geometry.image_distance`` on the scene's ``dtype`` values), so that the optical image's spacing
+        is the pitch to that dtype's rounding also where ``1/f - 1/d`` cancels (objects near the focal length:
+        at 4.1 mm from a 4 mm lens a float64 ``d_i`` is 20 float32 steps from the optics')."""
+        f, s = focal.to(dtype), distance.to(dtype)
+        d_i = 1.0 / (1.0 / f - 1.0 / s)
+        if bool((~(s > f) | ~torch.isfinite(d_i)).any()):
+            raise ValueError(f"scene.distance_m: expected object distances beyond the focal length "
+                             f"{focal.reshape(-1).tolist()} m (a real image; in {dtype}), got {distance.tolist()} m")
+        return _hfov_for(pitch, d_i.to(torch.float64), width)
 
     def _scene(self, drawn, idx, wl, hfov, distance, k):
         from ..scene import Scene
@@ -366,10 +412,18 @@ class PairStream:
                                   metadata={key: v[idx] for key, v in drawn["meta"].items()})
 
     # --- rendering ------------------------------------------------------------------------------------------
+    def _check_k(self, k) -> int:
+        """``k`` as a batch index: an integer in ``[0, max_batch_index]`` (its items' numbers ``k * batch_size + i``
+        are ``meta["index"]``, int64)."""
+        if not is_integer(k) or not 0 <= k <= self.max_batch_index:
+            raise ValueError(f"k: expected a batch index in [0, {self.max_batch_index}] (its items are numbered "
+                             f"k x batch_size + i in meta['index'], an int64), got {k!r}")
+        return int(k)
+
     def batch(self, k: int) -> dict:
-        """Batch ``k`` (a pure function of ``(seed, k, config, device type)``), rendered on the stream's device."""
-        if not isinstance(k, int) or isinstance(k, bool) or k < 0:
-            raise ValueError(f"k: expected a non-negative batch index, got {k!r}")
+        """Batch ``k`` (a pure function of ``(seed, k, config, device type)``), rendered on the stream's device;
+        ``k`` an integer in ``[0, max_batch_index]``."""
+        k = self._check_k(k)
         n_threads = self._thread_count()
         if n_threads == 1:
             done = [self._render_part(k, p) for p in range(self.parts)]
@@ -386,6 +440,7 @@ class PairStream:
 
     def _whole_batch(self, k: int) -> dict:
         """Batch ``k`` rendered on this thread, its parts in turn (the pipelined iterator's workers)."""
+        k = self._check_k(k)
         return self._assemble([self._render_part(k, p) for p in range(self.parts)])
 
     @staticmethod
@@ -500,10 +555,10 @@ class PairStream:
                 # the clamped copy is the encoding's scratch (bitwise the same, fewer passes) unless it needs a gradient
                 out["srgb"] = srgb_encode(lin.clamp(0, 1), inplace=not lin.requires_grad)
         out = {key: out[key] for key in ("raw", *targets)}
-        out["meta"] = self._meta(grp, raw, exposure, to_norm, span, white_cam, white_xyz, sensor, oi, peak_t)
+        out["meta"] = self._meta(grp, raw, exposure, span, white_cam, white_xyz, sensor, oi, peak_t)
         return out
 
-    def _meta(self, grp, raw, exposure, to_norm, span, white_cam, white_xyz, sensor, oi, peak) -> dict:
+    def _meta(self, grp, raw, exposure, span, white_cam, white_xyz, sensor, oi, peak) -> dict:
         """:data:`~isettorch.data.camera_pairs.META_KEYS` as ``[b, ...]`` tensors (the dataset's units)."""
         nb = exposure.shape[0]
         dev, dt, f64 = exposure.device, self.dtype, torch.float64
@@ -522,7 +577,9 @@ class PairStream:
         read_e, dsnu_e = level("read_noise_v", 0.0) / cg, level("dsnu_sigma_v", 0.0) / cg
         dark = level("dark_current_e_per_s", 0.0)
         t = exposure.detach().to(f64)
-        to_norm = to_norm.detach()
+        # the capture's Poisson-Gaussian model (its sensor's: CDS, analog or DN readout, the levels it used)
+        a, b = sensor.poisson_gaussian(raw)
+        span = span.detach().to(f64) if isinstance(span, torch.Tensor) else span
         scene_meta = grp.scene.metadata
         wave = grp.scene.wavelengths_nm.detach()
         qe = sensor.qe(oi, kw.get("spectral_qe")).detach().to(f64)  # [C, L], or [b, C, L] per item
@@ -533,15 +590,15 @@ class PairStream:
             "exposure_s": t, "analog_gain": gain, "iso": 100.0 * gain,
             "f_number": optics.f_number.detach().to(f64).reshape(-1).expand(nb),
             "focal_length_m": optics.focal_length_m.detach().to(f64).reshape(-1).expand(nb),
-            "pixel_size_m": level("pixel_size_m", sensor.pixel_size_m), "full_well_e": 1.0 / cg,
+            "pixel_size_m": level("pixel_size_m", sensor.pixel_size_m), "full_well_e": _full_well_e(sensor, cg),
             "read_noise_e": read_e, "dark_current_e_per_s": dark, "dsnu_sigma_e": dsnu_e,
             "prnu_sigma_percent": level("prnu_sigma_percent", 0.0),
             "black_level_dn": full * float(raw.black_level), "white_level_dn": full * float(raw.white_level),
             # Poisson-Gaussian noise model in normalised units: var(x) = noise_gain x + noise_floor_var (Foi et al.,
             # IEEE TIP 17(10), 2008), as CameraPairDataset's metadata: without PRNU, which adds
             # (prnu_sigma_percent / 100 * x)^2 across pixels (isettorch.data.camera_pairs, "Noise metadata")
-            "noise_gain": to_norm,
-            "noise_floor_var": poisson_gaussian_floor(to_norm, read_e, dsnu_e, dark, t, span),
+            "noise_gain": a / span,
+            "noise_floor_var": b / span ** 2,
             "cfa": sensor.cfa.index_map.to(dev)[None].expand(nb, -1, -1),
             "cct_k": scene_meta["cct_k"], "illuminant_code": scene_meta["illuminant_code"],
             "white_camera_rgb": wc / wc[:, 1:2], "white_xyz": wx / wx[:, 1:2],
@@ -554,6 +611,56 @@ class PairStream:
     def __repr__(self) -> str:
         return (f"PairStream(batch_size={self.batch_size}, seed={self.seed}, device={str(self.device)!r}, "
                 f"targets={self.targets}, rank={self.rank}/{self.world_size})")
+
+
+def _sized_view(camera, rows: int, cols: int):
+    """``camera`` with a sensor of ``rows x cols`` pixels that shares every parameter, buffer value and submodule
+    with the given one (gradients reach the user's parameters), without resizing the user's own sensor: a shallow
+    copy of the camera and of its sensor with their own module / buffer dictionaries and no size-keyed memos."""
+    import copy
+
+    sensor = copy.copy(camera.sensor)
+    sensor._buffers = dict(camera.sensor._buffers)  # fixed patterns are redrawn at the new size, in the copy only
+    for key in [k for k in sensor.__dict__ if k.endswith("_memo")]:
+        del sensor.__dict__[key]
+    sensor.rows, sensor.cols = int(rows), int(cols)
+    view = copy.copy(camera)
+    view._modules = dict(camera._modules)
+    view._modules["sensor"] = sensor
+    return view
+
+
+def _check_camera_module(camera, scene_cfg: dict):
+    """A camera module the stream can render pairs through (ValueError naming ``camera`` otherwise): an
+    :class:`isettorch.Camera` whose :class:`~isettorch.sensor.Sensor` has colour channels (the metadata's
+    ``white_camera_rgb`` and the colour targets are relative to its second channel) and the scene's size (a batch
+    is ``scene.height x scene.width``, as ``CameraPairDataset``'s). A sensor sized to each optical image (``rows``
+    and ``cols`` None, as in every shipped camera config) renders at the scene's size through :func:`_sized_view`.
+    Returns the camera to render with and whether its optics are a ray-traced lens
+    (:class:`~isettorch.optics.lens.optics.LensOptics`, imaging at its focal length)."""
+    from ..camera import Camera
+    from ..optics.lens.optics import LensOptics
+
+    if not isinstance(camera, Camera):
+        raise ValueError(f"camera: expected None, a camera config mapping (keys of CAMERA_DEFAULTS) or an "
+                         f"isettorch.Camera module, got a {type(camera).__name__}")
+    sensor = camera.sensor
+    if not all(hasattr(sensor, name) for name in ("channel_rates", "capture", "readout", "cfa")):
+        raise ValueError(f"camera: expected a Camera with an isettorch.sensor.Sensor (its channel rates, capture and "
+                         f"readout render the pairs), its sensor is a {type(sensor).__name__}")
+    if sensor.cfa.num_channels < 2:
+        raise ValueError(f"camera: its sensor is monochrome (one channel, {sensor.cfa.channel_names}), but camera "
+                         f"pairs are colour: meta['white_camera_rgb'] and the targets camera_rgb, xyz, linear_srgb "
+                         f"and srgb are relative to the camera's second (green) channel, and CameraPairDataset "
+                         f"draws Bayer sensors only (camera.cfa_patterns); expected a sensor with colour channels")
+    h, w = scene_cfg["height"], scene_cfg["width"]
+    if sensor.rows is None and sensor.cols is None:
+        camera = _sized_view(camera, h, w)
+    elif (sensor.rows, sensor.cols) != (h, w):
+        raise ValueError(f"camera: its sensor is {sensor.rows}x{sensor.cols} pixels, but scene.height x scene.width "
+                         f"is {h}x{w}: a batch is the scene's size, as CameraPairDataset's; build the sensor with "
+                         f"rows={h}, cols={w} (or both None: sized to the scene)")
+    return camera, isinstance(camera.optics, LensOptics)
 
 
 def _draw_range(values, g: torch.Generator, nb: int, device, log: bool = False) -> torch.Tensor:

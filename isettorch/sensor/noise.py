@@ -15,7 +15,7 @@ import torch
 from .._autograd import records_grad
 
 __all__ = ["SHOT_NOISE_MODES", "safe_sqrt", "shot_noise", "isetcam_shot_noise", "normal", "round_half_away",
-           "quantize_ste", "fixed_pattern_draws", "poisson_gaussian", "poisson_gaussian_floor"]
+           "quantize_ste", "fixed_pattern_draws", "poisson_gaussian"]
 
 SHOT_NOISE_MODES = ("poisson", "gaussian", "off")
 
@@ -113,12 +113,3 @@ def poisson_gaussian(signal: torch.Tensor, shot_gain: float = 0.0, read_sigma: f
     if s > 0:
         out = out + s * normal(signal, generator)
     return out
-
-
-def poisson_gaussian_floor(shot_gain, read_noise_e, dsnu_e, dark_current_e_per_s, exposure_s, span_dn):
-    """The floor ``b`` of ``var(x) = a x + b`` for a raw frame normalised as ``x = (DN - black) / span_dn``, given
-    ``a = shot_gain`` (normalised units per electron): ``b = (read_e^2 + dsnu_e^2 + dark_e_per_s t) a^2 +
-    1 / 12 / span^2`` (read noise, DSNU, dark-current shot noise and quantisation of a 1 DN step; the
-    photon-transfer model of EMVA 1288 release 4.0 eq. 6; Foi et al., IEEE TIP 17(10), 2008). Numbers or tensors
-    (broadcast). The ``noise_floor_var`` of the camera pairs' metadata and the joint network's second noise input."""
-    return (read_noise_e**2 + dsnu_e**2 + dark_current_e_per_s * exposure_s) * shot_gain**2 + 1.0 / 12.0 / span_dn**2

@@ -1038,6 +1038,78 @@ class Sensor(nn.Module):
                 "fpn_mode": self.fpn_mode, "noise_model": self.noise_model, "cds": self.cds, "seed": self.seed,
                 **self.noise_terms.as_dict()}
 
+    def poisson_gaussian(self, raw: RawImage | None = None, *, exposure_s=None, analog_gain=None
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(a, b)`` ``[B]`` (float64, detached) of the Poisson-Gaussian model ``var(data - noise_free) = a x + b``
+        of this sensor's captures, ``x`` the noise-free signal above black, in the output units (Foi et al.,
+        "Practical Poissonian-Gaussian noise modeling", IEEE TIP 17(10), 2008; EMVA 1288 release 4.0 eq. 6): the
+        terms of :meth:`_noisy_pixel_volts`. Of a capture ``raw`` (:meth:`capture`: the levels it used, ``raw.noise``,
+        ``raw.exposure_s``, ``raw.analog_gain``), or, without one, of a capture with the sensor's own levels at
+        ``exposure_s`` (seconds, >= 0; the dark current's share) and ``analog_gain`` (default the sensor's).
+
+        ``a``: output units per electron (shot noise; 0 with ``shot_noise='off'`` or a capture without noise).
+        ``b``: read noise (twice its variance with CDS: the reset sample has its own), dark-current shot noise,
+        DSNU and column offsets (cancelled by CDS), temporal row/column noise and dark shading
+        (:mod:`~isettorch.sensor.noise_terms`), each times the output units per pixel volt squared, plus the ADC's
+        rounding to whole codes, 1/12 DN^2 (EMVA 1288 eq. 5; none for a volts or electrons readout). Left out:
+        PRNU, which adds ``(prnu_sigma_percent / 100 x)^2`` across pixels, hot and dead pixels (defects), and
+        clipping at black and white.
+
+        Example:
+            >>> s = Sensor(adc_bits=10, conversion_gain_v_per_e=1e-4, read_noise_v=1e-3, cds=True)
+            >>> a, b = s.poisson_gaussian(exposure_s=0.01)  # DN: 1 V / 1024 codes, read noise 10 e- sampled twice
+            >>> round(float(a[0]), 4), round(float(b[0]), 3)
+            (0.1024, 2.18)
+        """
+        f64 = torch.float64
+        if raw is not None:
+            if not isinstance(raw, RawImage):
+                raise TypeError(f"raw: expected a RawImage (a capture of this sensor), got {type(raw).__name__}")
+            if exposure_s is not None or analog_gain is not None:
+                raise ValueError("exposure_s, analog_gain: a raw carries the ones it was captured with; give a raw "
+                                 "or these, not both")
+            nz, units, dev = raw.noise, raw.units, raw.data.device
+            t, gain, cg = raw.exposure_s, raw.analog_gain, raw.conversion_gain_v_per_e
+        else:
+            if not (_is_real(exposure_s) and exposure_s >= 0):
+                raise ValueError(f"exposure_s: expected a finite exposure >= 0 in seconds, got {exposure_s!r}")
+            gain = self.analog_gain if analog_gain is None else analog_gain
+            if not isinstance(gain, torch.Tensor) and not (_is_real(gain) and gain > 0):
+                raise ValueError(f"analog_gain: expected a finite positive gain, got {gain!r}")
+            nz, units, dev = self.noise_parameters(enabled=True), self.output_units, None
+            t, cg = float(exposure_s), self.conversion_gain_v_per_e
+            if isinstance(gain, torch.Tensor):
+                dev = gain.device
+
+        def level(v):  # a float, or a [B] per-call level
+            return v.detach().to(f64).reshape(-1) if isinstance(v, torch.Tensor) else float(v)
+
+        t, gain = (torch.as_tensor(v.detach() if isinstance(v, torch.Tensor) else v, dtype=f64, device=dev)
+                   .reshape(-1) for v in (t, gain))
+        t, gain = torch.broadcast_tensors(t, gain)
+        cg = level(cg)
+        gain = 1.0 / gain if self.gain_convention == "isetcam" else gain  # volts at the ADC per pixel volt
+        # output units per pixel volt (_readout, _to_units): the electrons readout takes no analog gain
+        if units == "electrons":
+            per_v = torch.ones_like(gain) / cg
+        else:
+            per_v = gain / self.lsb_v if units == "dn" else gain
+        quant = 1.0 / 12.0 if units == "dn" else 0.0  # rounding to whole DN
+        if not nz.get("enabled", True):  # the noise-free chain, rounded
+            return torch.zeros_like(per_v), torch.full_like(per_v, quant)
+        # CDS in the physical chain only (ISETCam's order samples the read noise once and adds DSNU)
+        cds = bool(nz.get("cds", self.cds)) and nz.get("noise_model", self.noise_model) == "physical"
+        shot = nz.get("shot_noise", self.shot_noise) != "off"
+        read_v, dark = level(nz.get("read_noise_v", 0.0)), level(nz.get("dark_current_e_per_s", 0.0))
+        dsnu_v, column_v = level(nz.get("dsnu_sigma_v", 0.0)), level(nz.get("column_fpn_sigma_v", 0.0))
+        row_v, col_v = float(nz.get("row_noise_v", 0.0)), float(nz.get("column_noise_v", 0.0))
+        shading = float(nz.get("dark_shading_e_per_s", 0.0))
+        var_e = (dark * t if shot else 0.0 * t) + (shading * t) ** 2  # electrons^2 at the pixel
+        var_v = (read_v ** 2 * (2.0 if cds else 1.0) + (0.0 if cds else dsnu_v ** 2 + column_v ** 2)
+                 + row_v ** 2 + col_v ** 2 + var_e * cg ** 2)  # pixel volts^2
+        a = per_v * cg if shot else torch.zeros_like(per_v)
+        return a, var_v * per_v ** 2 + quant
+
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, size={self.rows}x{self.cols}, pixel={self.pixel_size_m * 1e6:g} um, "
                 f"fill={self.fill_factor}, cfa={self.cfa!r}, bits={self.adc_bits}, sampling={self.sampling!r}")

@@ -197,7 +197,10 @@ def test_valid_edge_values_are_accepted():
                             "cct_range_k": {"led": [1000.0, 25000.0]}},
                   "camera": {"peak_qe": [1.0, 1.0], "fill_factor": 1.0, "qe_variation": 0, "bits": 1,
                              "black_level_dn": 0.0, "margin_px": 0, "dark_current_e_per_s": 0.0,
-                             "dsnu_sigma_e": [0.0, 0.0], "full_well_e": 5000}, "seed": -3})
+                             "dsnu_sigma_e": [0.0, 0.0], "full_well_e": 5000}, "seed": 2**64 - 1})
+    # seeds are 64-bit words (config.seed_for): -3 would repeat seed 2^64 - 3's items, as the datasets refuse it
+    with pytest.raises(ValueError, match=r"^seed: expected an integer in \[0, 2\*\*64\)"):
+        merge_config({"seed": -3})
 
 
 def test_synth_cli_prints_one_line_naming_the_key(tmp_path, capsys):

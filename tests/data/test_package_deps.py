@@ -84,8 +84,9 @@ STAGE_IMPORTS_ALLOWED: dict[str, set[str]] = {
     # Camera.from_config does, without a sensor and ISP (config.py checks camera.optics by building it; natural.py
     # builds the depth layers' wavefront lens)
     "isettorch.optics.factory": {"*"},
-    # poisson_gaussian_floor (EMVA 1288 eq. 6): the sensor's noise formula, which the pairs' metadata reports
-    "isettorch.sensor.noise": {"camera_pairs.py", "stream.py"},
+    # LensOptics: a PairStream's camera module with a ray-traced lens images at its focal length, as the drawn
+    # cameras with optics: {type: lens} (the scene field of view of one sample per pixel); a type test, no building
+    "isettorch.optics.lens.optics": {"stream.py"},
     # the D5100 QE curves, built by the sensor package: nikon_d5100_qe (filter_set) and _d5100_qe (CFA and
     # shifted_qe, the per-item shifted curves); the physics stays in isettorch.sensor
     "isettorch.sensor.filters": {"camera_pairs.py"},

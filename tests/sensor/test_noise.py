@@ -67,22 +67,25 @@ def test_round_half_away_and_ste():
 
 
 def test_poisson_gaussian_floor_is_the_dark_variance_of_a_numpy_camera():
-    """The floor b of var(x) = a x + b against the variance of dark frames simulated in NumPy (independent of
-    isettorch): K = 1 DN/e-, read noise 1 e-, DSNU 0.5 e- (fixed per pixel, so across pixels it is variance too),
-    2 dark electrons (Poisson, mean subtracted), rounding to whole DN; b = (1 + 0.25 + 2 + 1/12) / span^2. Over
-    2e6 pixels the variance's standard error is 0.1 %; the quantisation term is 2.5 % of b, so 1 % tells it apart."""
+    """The floor b of var(x) = a x + b (Sensor.poisson_gaussian) against the variance of dark frames simulated in
+    NumPy (independent of isettorch): K = 1 DN/e- (1 mV/e- into 1 mV codes), read noise 1 e-, DSNU 0.5 e- (fixed per
+    pixel, so across pixels it is variance too), 2 dark electrons (Poisson, mean subtracted), rounding to whole DN;
+    b = 1 + 0.25 + 2 + 1/12 DN^2. Over 2e6 pixels the variance's standard error is 0.1 %; the quantisation term is
+    2.5 % of b, so 1 % tells it apart. CDS samples the read noise twice and cancels the DSNU."""
     import numpy as np
 
-    from isettorch.sensor.noise import poisson_gaussian_floor
+    from isettorch.sensor import Sensor
 
     rng = np.random.default_rng(0)
-    n, k, black, span = 2_000_000, 1.0, 64.0, 4031.0
+    n, k, black = 2_000_000, 1.0, 64.0
     e = rng.poisson(2.0, n) + 1.0 * rng.standard_normal(n) + 0.5 * rng.standard_normal(n)
-    x = (np.round(k * e + black) - black - k * 2.0) / span
-    b = poisson_gaussian_floor(k / span, 1.0, 0.5, 2.0, 1.0, span)
-    assert b == pytest.approx(x.var(), rel=0.01)
-    assert b == pytest.approx((1 + 0.25 + 2 + 1 / 12) / span**2, rel=1e-12)
-    without_quantisation = poisson_gaussian_floor(k / span, 1.0, 0.5, 2.0, 1.0, span) - 1 / 12 / span**2
-    assert abs(without_quantisation / x.var() - 1) > 0.015
-    t = poisson_gaussian_floor(torch.tensor([k / span, 2 * k / span]), 1.0, 0.5, 2.0, 1.0, span)  # tensors broadcast
-    assert t.shape == (2,) and float(t[0]) == pytest.approx(b)
+    x = np.round(k * e + black) - black - k * 2.0
+    kw = dict(adc_bits=12, voltage_swing_v=4.096, conversion_gain_v_per_e=1e-3, read_noise_v=1e-3,
+              dsnu_sigma_v=0.5e-3, dark_current_e_per_s=2.0)
+    a, b = Sensor(**kw).poisson_gaussian(exposure_s=1.0)
+    assert float(a) == pytest.approx(k, rel=1e-12)
+    assert float(b) == pytest.approx(x.var(), rel=0.01)
+    assert float(b) == pytest.approx(1 + 0.25 + 2 + 1 / 12, rel=1e-12)
+    assert abs((float(b) - 1 / 12) / x.var() - 1) > 0.015
+    _, b_cds = Sensor(**kw, cds=True).poisson_gaussian(exposure_s=1.0)
+    assert float(b_cds) == pytest.approx(2 * 1 + 2 + 1 / 12, rel=1e-12)
