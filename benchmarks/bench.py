@@ -941,9 +941,14 @@ def _sizes(text: str) -> list[int]:
         out = [int(s) for s in text.split(",") if s.strip()]
     except ValueError:
         raise ValueError(f"--sizes: expected comma-separated integers such as 128,512, got {text!r}") from None
-    if not out or any(n < 16 for n in out):
-        raise ValueError(f"--sizes: expected sizes >= 16, got {text!r}")
+    if not out or any(not MIN_SIZE <= n <= MAX_SIZE for n in out):
+        raise ValueError(f"--sizes: expected sizes from {MIN_SIZE} to {MAX_SIZE}, got {text!r}")
     return out
+
+
+#: --sizes bounds: below 16 px there is no image to time; above 4096 px the 31-band pipeline's cubes (31 x 4096^2
+#: float32 = 2 GB each, several alive at once) exhaust a workstation's memory
+MIN_SIZE, MAX_SIZE = 16, 4096
 
 
 def add_arguments(p) -> None:
@@ -975,22 +980,39 @@ def check_arguments(args) -> str | None:
         return str(exc)
     if args.only and not set(args.only.split(",")) <= set(SECTION_NAMES):
         return f"--only: expected sections from {','.join(SECTION_NAMES)}, got {args.only!r}"
-    if args.threads is not None and args.threads < 1:
-        return f"--threads: expected a positive integer, got {args.threads}"
+    from isettorch._checks import check_device
+    from isettorch.cli import max_threads
+
+    if args.threads is not None and not 1 <= args.threads <= max_threads():
+        return f"--threads: expected a positive integer up to {max_threads()} (4 per core, at least 64), got " \
+               f"{args.threads}"
+    if args.repeats is not None and args.repeats < 1:
+        return f"--repeats: expected a positive number of timed repeats, got {args.repeats}"
+    for name, value in (("--stable-size", args.stable_size), ("--knob-patch", args.knob_patch)):
+        if value is not None and value < 1:
+            return f"{name}: expected a positive integer, got {value}"
     try:
-        device = torch.device(args.device)
-    except RuntimeError as exc:
-        return f"--device: {exc}"
-    if device.type == "cuda" and not torch.cuda.is_available():
-        return f"--device {args.device}: CUDA is not available on this machine"
+        check_device(args.device)
+    except ValueError as exc:
+        return f"--{exc}"  # "device: ..." -> "--device: ..."
+    if args.plot:  # before the (long) run: a folder that exists and is writable, a .png name that is not a folder
+        plot = Path(args.plot)
+        if plot.is_dir():
+            return f"--plot: expected a PNG file name, {args.plot} is a folder"
+        parent = plot.parent
+        if not parent.is_dir():
+            return f"--plot: cannot write {args.plot}: no such folder {str(parent)!r}"
+        if not os.access(parent, os.W_OK | os.X_OK) or (plot.exists() and not os.access(plot, os.W_OK)):
+            return f"--plot: cannot write {args.plot}: no permission"
     return None
 
 
 def main(argv=None) -> int:
-    import argparse
     import json
 
-    ap = argparse.ArgumentParser(prog="isettorch bench", description=__doc__.splitlines()[0])
+    from isettorch.cli import OneLineParser  # argparse's errors as one line, as every isettorch command's
+
+    ap = OneLineParser(prog="isettorch bench", description=__doc__.splitlines()[0])
     add_arguments(ap)
     args = ap.parse_args(argv)
     problem = check_arguments(args)

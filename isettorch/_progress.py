@@ -15,7 +15,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Iterable
 
-__all__ = ["progress", "add_quiet_argument"]
+__all__ = ["progress", "add_quiet_argument", "abandon_bars"]
 
 
 def progress(iterable: Iterable | None = None, total: int | None = None, desc: str | None = None,
@@ -34,13 +34,62 @@ def progress(iterable: Iterable | None = None, total: int | None = None, desc: s
         raise ValueError(f"total: expected a non-negative int or None, got {total!r}")
     if quiet:
         return iterable if iterable is not None else _NoBar()
-    from tqdm.auto import tqdm
-
     kwargs.setdefault("file", sys.stderr)
     kwargs.setdefault("dynamic_ncols", True)
-    # Not a terminal (CI logs, pipes): tqdm's default would still redraw; print only the final state.
-    kwargs.setdefault("mininterval", 0.5 if _isatty(kwargs["file"]) else 30.0)
-    return tqdm(iterable, total=total, desc=desc, **kwargs)
+    tty = _isatty(kwargs["file"])
+    kwargs.setdefault("mininterval", 0.5 if tty else 30.0)
+    # Not a terminal (CI logs, pipes): no redraws, only the final state when the job ends well (so an error
+    # message stays the only line of a failed command's stderr)
+    return _bar_class(held=not tty)(iterable, total=total, desc=desc, **kwargs)
+
+
+_BAR = _HELD_BAR = None
+
+
+def _bar_class(held: bool = False):
+    """tqdm (``tqdm.auto``'s) with ``_hold`` (draw nothing until a successful close) and ``_failed`` (an exception
+    left its ``with`` block, or :func:`abandon_bars`: close without leaving the bar on screen)."""
+    global _BAR, _HELD_BAR
+    if _BAR is None:
+        from tqdm.auto import tqdm
+
+        class _Bar(tqdm):
+            _hold = False
+            _failed = False
+            _final = False
+
+            def display(self, *args, **kwargs):
+                if self._hold and not self._final:
+                    return None
+                return super().display(*args, **kwargs)
+
+            def close(self):
+                if self._failed:
+                    self.leave = False
+                elif self._hold and not getattr(self, "disable", True):
+                    self._final = True
+                super().close()
+
+            def __exit__(self, exc_type, exc_value, tb):
+                if exc_type is not None:
+                    self._failed = True
+                return super().__exit__(exc_type, exc_value, tb)
+
+        class _HeldBar(_Bar):
+            _hold = True
+
+        _BAR, _HELD_BAR = _Bar, _HeldBar
+    return _HELD_BAR if held else _BAR
+
+
+def abandon_bars() -> None:
+    """Close every open bar without leaving it on screen (a terminal's bar line is cleared; elsewhere nothing was
+    drawn): called before an error message, so the message is the only line on stderr."""
+    if _BAR is None:
+        return
+    for bar in list(_BAR._instances):
+        bar._failed, bar.leave = True, False
+        bar.close()
 
 
 def _isatty(stream) -> bool:

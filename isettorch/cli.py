@@ -3,7 +3,9 @@
 args and returning an exit code). Modules are discovered automatically.
 
 Errors: bad input to a subcommand is one line on stderr, ``isettorch <command>: <message>``, and exit code 2
-(argparse's own errors also exit 2). A command signals bad input by raising ``ValueError`` or ``OSError``
+(argparse's own errors too: one line, :class:`OneLineParser`; a progress bar left open by the error is cleared
+first, :func:`isettorch._progress.abandon_bars`; ``--seed`` and ``--threads`` are checked by one rule for every
+command, :func:`check_common`). A command signals bad input by raising ``ValueError`` or ``OSError``
 (``FileNotFoundError``, ``PermissionError``, ...) with a message that names the argument; a message that starts
 with the name of one of the command's parameters (``noise_sigma: ...``, as the library's functions name theirs)
 is shown with the command line's spelling (``--noise-sigma: ...``). A broken pipe on stdout (``| head``) is not an
@@ -19,10 +21,21 @@ import pkgutil
 import sys
 
 from . import __version__, commands
+from ._progress import abandon_bars
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's own errors (a bad number, a missing option, an unknown command) as one line,
+    ``isettorch SUB: error: <message> (see isettorch SUB --help)``, exit code 2; ``--help`` is unchanged. Subparsers
+    are made with the parser's class, so every subcommand's parser is one too."""
+
+    def error(self, message: str):
+        message = " ".join(line.strip() for line in message.splitlines() if line.strip())
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="isettorch", description="Physically based camera simulation in PyTorch.")
+    parser = OneLineParser(prog="isettorch", description="Physically based camera simulation in PyTorch.")
     parser.add_argument("--version", action="version", version=f"isettorch {__version__}")
     parser.add_argument("--traceback", action="store_true",
                         help="show the Python traceback of an input error (as ISETTORCH_DEBUG=1 does)")
@@ -71,6 +84,26 @@ def _silence_stdout() -> None:
         pass
 
 
+def max_threads() -> int:
+    """The most CPU threads a command accepts: 4 per core, at least 64. More only adds contention (each thread also
+    costs a stack and an OpenMP team slot), and a typo such as ``--threads 100000`` would exhaust the machine."""
+    return max(64, 4 * (os.cpu_count() or 1))
+
+
+def check_common(args) -> None:
+    """The options several subcommands share, by one rule, before a command runs (so before it makes any folder):
+    ``--seed`` an integer in ``[0, 2**64)`` (:func:`isettorch.data.config.check_seed`), ``--threads`` in
+    ``[1, max_threads()]``."""
+    if getattr(args, "seed", None) is not None:
+        from .data.config import check_seed
+
+        check_seed(args.seed)
+    threads = getattr(args, "threads", None)
+    if threads is not None and not 1 <= threads <= max_threads():
+        raise ValueError(f"threads: expected a number of CPU threads in [1, {max_threads()}] (4 per core, at least "
+                         f"64), got {threads}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -78,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        check_common(args)
         code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
         return code
@@ -87,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     except INPUT_ERRORS as err:
         if args.traceback or os.environ.get("ISETTORCH_DEBUG", "") not in ("", "0"):
             raise
+        abandon_bars()  # a bar left open by the error: cleared (or never drawn), so the message is the one line
         message = _spelled(str(err) or type(err).__name__, subcommands(parser).get(args.command))
         print(f"isettorch {args.command}: {message}", file=sys.stderr)
         return 2

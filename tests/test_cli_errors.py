@@ -9,6 +9,7 @@ here until it gets a row in ``CASES``.
 from __future__ import annotations
 
 import importlib.util
+import os
 
 import numpy as np
 import pytest
@@ -26,18 +27,34 @@ MISSING = "{tmp}/no_such_input"
 # {mixed} a folder with a 16 x 16 and an 8 x 8 photograph, {keyed} an RGB PNG with a transparent colour key (tRNS),
 # {pages} a two-page TIFF, {cam} a 12-bit RGGB camera config (white level 4095 DN), {darkcam} the same with a dark
 # current, {badyaml} a camera config that is not YAML, {raw} a folder of 8 x 8 raw frames (frame.npy, frame.tif:
-# one stem; shifted.npy: 12-bit data shifted left by 4 bits), {joint} the shipped joint denoise+demosaic network.
+# one stem; shifted.npy: 12-bit data shifted left by 4 bits), {joint} the shipped joint denoise+demosaic network,
+# {cap} a capture folder (capture.yaml, flat_1ms/ and dark_1ms/, whose frame_000.npy is truncated), {binyaml} a YAML
+# file that is not UTF-8, {emptylist} a YAML file holding [] and {listyaml} one holding [1, 2].
 # A device no torch build computes on: "fpga" (a device type torch parses but never implements).
 PROC = ["--camera", "{cam}", "--model", "{joint}", "--out", "{tmp}/out", "--quiet"]  # (a frame's error ends its bar)
 CASES: dict[str, list[tuple[list[str], str]]] = {
-    "bench": [(["--threads", "0"], "--threads")],  # validated by benchmarks/bench.py in a child process
+    "bench": [(["--threads", "0"], "--threads"),  # validated by benchmarks/bench.py in a child process
+              (["--threads", "100000"], "--threads"), (["--repeats", "0"], "--repeats"),
+              (["--repeats", "-1"], "--repeats"), (["--device", "fpga"], "--device: cannot compute on"),
+              (["--sizes", "1000000"], "--sizes"), (["--plot", "{tmp}/no/dir/p.png"], "--plot"),
+              (["--plot", "{garbage}/p.png"], "--plot"), (["--repeats", "abc"], "--repeats"),
+              (["--bogus"], "--bogus")],
     "calibrate": [([MISSING], "DIR"), (["{images}/a.png"], "a.png: cannot read the frame"),
                   (["{tmp}", "--cfa", "RGGB"], "--cfa: applies to a single raw frame"),
                   (["{tmp}", "--black-level", "64"], "--black-level: applies to a single raw frame"),
                   (["{images}/a.png", "--out", "{tmp}/s.yaml"], "--out: a sensor config needs a capture folder"),
-                  (["{images}/a.png", "--report", "{tmp}/r"], "--report: an EMVA 1288 report needs a capture folder")],
+                  (["{images}/a.png", "--report", "{tmp}/r"], "--report: an EMVA 1288 report needs a capture folder"),
+                  (["{cap}"], "frame_000.npy: cannot read the frame"),  # (no --quiet: the bar is not left behind)
+                  (["{cap}", "-q", "--out", "{tmp}/s.yaml", "--report", "{garbage}/r"], "--report"),
+                  (["{cap}", "-q", "--out", "{cap}/capture.yaml"], "--out"),
+                  (["{cap}", "-q", "--out", "{cap}/dark_1ms/frame_001.npy"], "--out"),
+                  (["{raw}/frame.npy", "--cfa", "nope"], "--cfa"),
+                  (["{raw}/frame.npy", "--black-level", "abc"], "--black-level")],
     "demo": [(["--size", "8", "--out", "{tmp}/out"], "--size"),
-             (["--config", "{tmp}/no_such.yaml", "--out", "{tmp}/out"], "--config")],
+             (["--config", "{tmp}/no_such.yaml", "--out", "{tmp}/out"], "--config"),
+             (["--out", "{garbage}"], "--out"), (["--out", "{garbage}/sub"], "--out"),
+             (["--seed", "-1", "--out", "{tmp}/out"], "--seed"), (["--seed", "18446744073709551616"], "--seed"),
+             (["--seed", "1.5"], "--seed"), (["--size", "1000000000", "--out", "{tmp}/out"], "--size")],
     "demosaic-eval": [([MISSING], "DIR"), (["{broken}"], "DIR: cannot read b.png"),
                       (["{images}", "--noise-sigma", "-0.1"], "--noise-sigma"),
                       (["{images}", "--noise-shot", "nan"], "--noise-shot"),
@@ -53,7 +70,14 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                       (["{strip}"], "DIR: strip.png is 96 x 1 px"),
                       (["{mixed}", "--crop", "5"], "--crop: b.png is 8 x 8 px, too small for a 5-pixel border"),
                       (["{keyed}"], "DIR: keyed.png: expected an opaque image, 2 pixels are transparent"),
-                      (["{pages}"], "DIR: pages.tif: expected a single image, got 2 pages")]
+                      (["{pages}"], "DIR: pages.tif: expected a single image, got 2 pages"),
+                      (["{images}", "--pattern", "XYZW"], "--pattern"),  # (no --quiet: checked before the bar)
+                      (["{images}", "--threads", "100000"], "--threads"),
+                      (["{images}", "--model", "{joint}", "--method", "menon2007"], "--method/--model"),
+                      (["{images}", "--method", ""], "--method: expected one of"),
+                      (["{images}", "--seed", "-1"], "--seed"), (["{images}", "--seed", "18446744073709551616"],
+                                                                 "--seed"),
+                      (["{images}", "--crop", "abc"], "--crop")]
                      + ([] if importlib.util.find_spec("bm3d") else  # the user's package, when it is not installed
                         [(["{images}", "--noise-sigma", "0.1", "--denoise", "bm3d"], "--denoise: 'bm3d' needs")]),
     "design-eval": [([MISSING, "{images}"], "DESIGN"), (["learned", "{images}"], "--crop"),
@@ -67,9 +91,11 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                     (["learned", "{mixed}", "--crop", "5"], "--crop: b.png is 8 x 8 px"),
                     (["learned", "{images}", "--crop", "2", "--lux", "100", "100"], "--lux: 100 is given twice"),
                     (["learned", "{images}", "--crop", "2", "--lux", "10", "10.0000001"],
-                     "--lux: 10.0 and 10.0000001 are the same level to 6 significant digits")],
+                     "--lux: 10.0 and 10.0000001 are the same level to 6 significant digits"),
+                    (["learned", "{images}", "--crop", "2", "--seed", "-1"], "--seed")],
     "lens-report": [([MISSING, "--json"], "no_such_input"),
-                    (["cooke_triplet", "--fields", "a,b", "--json"], "--fields")],
+                    (["cooke_triplet", "--fields", "a,b", "--json"], "--fields"),
+                    (["cooke_triplet", "--out", "{garbage}"], "--out"), (["{binyaml}", "--json"], "lens")],
     "parity": [([MISSING + ".npz"], "no_such_input.npz"), (["{tmp}/x.npz", "--repeat", "-1"], "--repeat")],
     "process": [([MISSING, "--camera", "default", "--model", "{garbage}"], "RAW"),
                 (["{images}/a.png", "--camera", "{tmp}/no_such.yaml", "--model", "{garbage}"], "--camera"),
@@ -89,11 +115,25 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                                                "largest ADC code 4095 DN"),
                 (["{raw}/frame.npy", *PROC[2:], "--camera", "{badyaml}"], "--camera: '{badyaml}' is not valid YAML"),
                 (["{raw}/frame.npy", *PROC[:4], "--out", "{garbage}"],
-                 "--out: expected a folder, {garbage} is a file")],
+                 "--out: expected a folder, {garbage} is a file"),
+                (["{raw}/frame.npy", *PROC[:4], "--out", "{raw}", "-q"], "--out"),  # would overwrite the frame
+                (["{raw}/frame.npy", "{broken}/b.png", *PROC[:4], "--out", "{tmp}/p"], "b.png"),  # no -q: one line
+                (["{raw}/frame.npy", "--model", "{joint}"], "--camera")],  # argparse: one line
     "synth": [(["--config", "{tmp}/no_such.yaml", "--out", "{tmp}/out", "--count", "2"], "--config"),
               (["--out", "{tmp}/out", "--count", "0"], "--count"),
-              (["--out", MISSING, "--count", "1", "--verify"], "--out")],
-    "view": [(["--port", "70000", "--no-browser"], "--port"), (["--size", "4", "--no-browser"], "--size")],
+              (["--out", MISSING, "--count", "1", "--verify"], "--out"),
+              (["--out", "{images}", "--count", "1", "--verify"], "--out"),
+              (["--config", "{emptylist}", "--out", "{tmp}/out", "--count", "1"], "--config"),
+              (["--config", "{binyaml}", "--out", "{tmp}/out", "--count", "1"], "--config"),
+              (["--out", "{garbage}", "--count", "1"], "--out"),
+              (["--out", "{tmp}/out", "--count", "1", "--num-shards", "0"], "--num-shards"),
+              (["--out", "{tmp}/out", "--count", "abc"], "--count")],
+    "view": [(["--port", "70000", "--no-browser"], "--port"), (["--size", "4", "--no-browser"], "--size"),
+             (["--size", "1000000", "--no-browser"], "--size"), (["--seed", "-1", "--no-browser"], "--seed"),
+             (["--config", "{binyaml}", "--no-browser"], "--config"),
+             (["--config", "{listyaml}", "--no-browser"], "--config"),
+             (["--scene", "{tmp}/no_such.png", "--no-browser"], "--scene"),
+             (["--address", "not a host", "--no-browser"], "--address")],
 }
 
 
@@ -143,12 +183,74 @@ def places(tmp_path) -> dict:
     (tmp_path / "cam.yaml").write_text(optics + sensor + "}\n")
     (tmp_path / "darkcam.yaml").write_text(optics + sensor + ", dark_current_e_per_s: 50.0}\n")
     (tmp_path / "bad.yaml").write_text("sensor: [\n")
+    (tmp_path / "bin.yaml").write_bytes(b"name: \x80\xff\n")
+    (tmp_path / "emptylist.yaml").write_text("[]\n")
+    (tmp_path / "list.yaml").write_text("[1, 2]\n")
+    cap = tmp_path / "cap"
+    (cap / "dark_1ms").mkdir(parents=True)
+    (cap / "flat_1ms").mkdir()
+    (cap / "capture.yaml").write_text("bit_depth: 12\npixel_size_m: 3.45e-6\n")
+    for name in ("dark_1ms/frame_001.npy", "flat_1ms/frame_000.npy", "flat_1ms/frame_001.npy"):
+        np.save(cap / name, frame)
+    (cap / "dark_1ms" / "frame_000.npy").write_bytes((cap / "dark_1ms" / "frame_001.npy").read_bytes()[:40])
     from isettorch.isp.learned import PRETRAINED
 
     return {"tmp": str(tmp_path), "images": str(images), "broken": str(broken), "garbage": str(tmp_path / "garbage.pt"),
             **{name: str(folder) for name, folder in folders.items()}, "keyed": str(folders["keyed"]),
             "cam": str(tmp_path / "cam.yaml"), "darkcam": str(tmp_path / "darkcam.yaml"),
-            "badyaml": str(tmp_path / "bad.yaml"), "joint": str(PRETRAINED["joint_denoise"])}
+            "badyaml": str(tmp_path / "bad.yaml"), "joint": str(PRETRAINED["joint_denoise"]), "cap": str(cap),
+            "binyaml": str(tmp_path / "bin.yaml"), "emptylist": str(tmp_path / "emptylist.yaml"),
+            "listyaml": str(tmp_path / "list.yaml")}
+
+
+def _main(argv: list[str]) -> int:
+    """``main``'s exit code, argparse's own errors (SystemExit) included."""
+    try:
+        return main(argv)
+    except SystemExit as stop:
+        return stop.code
+
+
+# Bad input leaves nothing behind: (arguments, paths that must not exist afterwards, files that must be unchanged).
+LEFTOVERS = [
+    (["process", "{raw}/frame.npy", "{broken}/b.png", *PROC[:4], "--out", "{tmp}/p"], ["{tmp}/p"], []),
+    (["process", "{raw}/frame.npy", "{broken}/b.png", *PROC], ["{tmp}/out"], []),
+    (["process", "{raw}/frame.npy", *PROC[:4], "--out", "{raw}", "-q"], [], ["{raw}/frame.npy"]),
+    (["calibrate", "{cap}", "-q", "--out", "{tmp}/s.yaml", "--report", "{garbage}/r"], ["{tmp}/s.yaml"], []),
+    (["calibrate", "{cap}", "-q", "--out", "{cap}/capture.yaml"], [], ["{cap}/capture.yaml"]),
+    (["demo", "--seed", "-1", "--out", "{tmp}/o"], ["{tmp}/o"], []),
+    (["demo", "--seed", "18446744073709551616", "--out", "{tmp}/o"], ["{tmp}/o"], []),
+    (["demo", "--size", "1000000000", "--out", "{tmp}/o"], ["{tmp}/o"], []),
+    (["demo", "--config", "{binyaml}", "--out", "{tmp}/o"], ["{tmp}/o"], []),
+    (["lens-report", "cooke_triplet", "--out", "{garbage}"], [], ["{garbage}"]),
+    (["synth", "--config", "{emptylist}", "--out", "{tmp}/s", "--count", "1"], ["{tmp}/s"], []),
+]
+
+
+@pytest.mark.parametrize("case", range(len(LEFTOVERS)))
+def test_bad_input_leaves_no_output_and_keeps_the_inputs(case, places, capfd, monkeypatch):
+    monkeypatch.delenv("ISETTORCH_DEBUG", raising=False)
+    args, absent, kept = LEFTOVERS[case]
+    args = [a.format(**places) for a in args]
+    before = {k: open(k.format(**places), "rb").read() for k in kept}
+    assert _main(args) == 2
+    out, err = capfd.readouterr()
+    assert len(err.splitlines()) == 1, err
+    assert out == "", out  # (lens-report: no table before its error)
+    for path in absent:
+        assert not os.path.exists(path.format(**places)), f"{args}: left {path.format(**places)}"
+    for k, data in before.items():
+        assert open(k.format(**places), "rb").read() == data, f"{args}: overwrote the input {k}"
+
+
+def test_argparse_errors_are_one_line_and_help_is_unchanged(capsys):
+    for argv, head in ((["nope"], "isettorch: error: "), (["demo", "--size", "abc"], "isettorch demo: error: "),
+                       (["synth", "--out", "x"], "isettorch synth: error: ")):
+        assert _main(argv) == 2
+        err = capsys.readouterr().err
+        assert len(err.splitlines()) == 1 and err.startswith(head) and "--help)" in err, err
+    assert _main(["demo", "--help"]) == 0
+    assert capsys.readouterr().out.startswith("usage: isettorch demo")
 
 
 @pytest.mark.parametrize(("command", "case"), PARAMS)
@@ -160,7 +262,7 @@ def test_bad_input_is_one_line_and_exit_code_2(command, case, places, capfd, mon
                     f"bad input to CASES in {__file__}")
     args, named = cases[case]
     args = [a.format(**places) for a in args]
-    code = main([command, *args])
+    code = _main([command, *args])
     out, err = capfd.readouterr()  # capfd: bench's child process writes to file descriptor 2
     lines = err.splitlines()
     assert code == 2, (command, args, out, err)
@@ -217,3 +319,28 @@ def test_broken_pipe_is_not_an_input_error(monkeypatch, capsys):
     monkeypatch.setattr(calibrate, "run", closed_pipe)
     assert main(["calibrate", "anything"]) == 141
     assert capsys.readouterr().err == ""
+
+
+def test_an_error_leaves_no_progress_bar_behind():
+    """A bar open when an error reaches the CLI: on a terminal its line is cleared before the message; elsewhere
+    (logs, pipes) nothing was drawn; a bar that ends well shows its final state once."""
+    import io
+
+    from isettorch._progress import abandon_bars, progress
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty, log = Terminal(), io.StringIO()
+    bars = [progress(total=3, desc="render", file=f) for f in (tty, log)]
+    for bar in bars:
+        bar.update(1)
+    abandon_bars()
+    assert "render" in tty.getvalue() and tty.getvalue().split("\r")[-2].strip() == ""  # drawn, then blanked
+    assert log.getvalue() == ""
+    with pytest.raises(ValueError), progress(total=2, desc="render", file=log) as bar:
+        raise ValueError("a bad frame")
+    assert log.getvalue() == ""
+    assert list(progress(range(2), desc="render", file=log)) == [0, 1]
+    assert log.getvalue().count("2/2") == 1 and log.getvalue().endswith("\n")

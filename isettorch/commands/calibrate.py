@@ -86,7 +86,13 @@ def _single(args) -> int:
         if darkest > 0:
             warnings.append(f"black level 0 assumed; the frame's darkest values are {darkest:g} DN (0.1 % quantile): "
                             f"pass --black-level")
-    res = estimate_poisson_gaussian(data, cfa=cfa, black_level_dn=black, white_level_dn=white)
+    try:
+        res = estimate_poisson_gaussian(data, cfa=cfa, black_level_dn=black, white_level_dn=white)
+    except ValueError as err:  # the library names the CFA's cell ("cell: unknown CFA letter"): here it is --cfa
+        head, sep, rest = str(err).partition(":")
+        if args.cfa is None or not sep or head not in ("cell", "cfa", "pattern"):
+            raise
+        raise ValueError(f"cfa: {args.cfa!r}:{rest}") from err
     res["warnings"] = warnings + res.get("warnings", [])
     res.update({"file": args.directory, "cfa": cfa, "black_level_dn": black})
     if args.json:
@@ -109,6 +115,7 @@ def run(args) -> int:
 
     from ..io.frames import read_capture
     from ..sensor.calibration import calibrate_capture, write_sensor_config
+    from ._outputs import check_dir, check_file
 
     if not Path(args.directory).exists():
         raise FileNotFoundError(f"DIR: no such capture folder or raw frame {args.directory!r}")
@@ -121,13 +128,14 @@ def run(args) -> int:
     if args.black_level is not None:
         raise ValueError("black_level: applies to a single raw frame only; a capture folder's black level is measured "
                          "from its dark frames (capture.yaml's black_level_dn is reported as the nominal value)")
+    # both outputs' places checked before the (long) calibration and before either is written; never an input
+    inputs = [f for f in Path(args.directory).rglob("*") if f.is_file()]
+    if args.out:
+        check_file(args.out, "out", inputs=inputs)
+    if args.report:
+        check_dir(args.report, "report")
     capture = read_capture(args.directory, progress=not args.quiet)
     result = calibrate_capture(capture, progress=not args.quiet)
-    if args.out:
-        try:
-            write_sensor_config(result, args.out)
-        except OSError as err:
-            raise OSError(f"out: cannot write {args.out} ({err.strerror or err})") from err
     if args.report:
         from ..metrics.emva import calibration_figures
 
@@ -135,6 +143,11 @@ def run(args) -> int:
             result["report_figures"] = calibration_figures(result, capture, args.report)
         except OSError as err:
             raise OSError(f"report: cannot write the figures into {args.report} ({err.strerror or err})") from err
+    if args.out:
+        try:
+            write_sensor_config(result, args.out)
+        except OSError as err:
+            raise OSError(f"out: cannot write {args.out} ({err.strerror or err})") from err
     if args.json:
         print(json.dumps(result, indent=2))
     else:

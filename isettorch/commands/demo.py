@@ -17,13 +17,17 @@ from pathlib import Path
 
 from .._progress import add_quiet_argument, progress
 
+#: --size bounds: below 16 px the charts have no patches; above 2048 px the 31-band scenes (2 samples per pixel,
+#: float32: 31 x 4096^2 x 4 B = 2 GB each, four of them) no longer fit a workstation's memory
+MIN_SIZE, MAX_SIZE = 16, 2048
 DEFAULT_CONFIG = "default"  # the built-in camera config (isettorch/configs/cameras/default.yaml)
 
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="render built-in scenes through a camera; write images and a report to --out")
     p.add_argument("--out", default="out", help="output folder (default: out)")
-    p.add_argument("--size", type=int, default=256, help="sensor width in pixels (about; default 256)")
+    p.add_argument("--size", type=int, default=256,
+                   help=f"sensor width in pixels (about; {MIN_SIZE} to {MAX_SIZE}; default 256)")
     from ..camera import camera_config_names
 
     p.add_argument("--config", default=DEFAULT_CONFIG,
@@ -48,23 +52,30 @@ def _inner(oi):
 
 
 def run(args) -> int:
-    import torch
     import yaml
 
     from ..camera import Camera
-    from ..isp.chart import gray_patch_snr, macbeth_delta_e, patch_means
-    from ..scene import frequency_sweep, macbeth, slanted_edge
-    from ..scene.dead_leaves import dead_leaves
+    from ._outputs import Outputs, check_dir
 
-    if args.size < 16:
-        raise ValueError(f"--size: expected at least 16 pixels, got {args.size}")
+    if not MIN_SIZE <= args.size <= MAX_SIZE:
+        raise ValueError(f"--size: expected {MIN_SIZE} to {MAX_SIZE} pixels, got {args.size}")
+    out = check_dir(args.out, "out")
     config = args.config
     try:  # a user's config error is one line and exit code 2 (isettorch.cli), not a traceback
         cam = Camera.from_config(config)
     except (ValueError, TypeError, OSError, yaml.YAMLError) as err:
         raise ValueError(f"--config {config}: {err}") from err
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    with Outputs(out) as staged:  # on an error: no files, and no folder made for them
+        return _render(args, cam, config, out, staged)
+
+
+def _render(args, cam, config, out, staged) -> int:
+    import torch
+
+    from ..isp.chart import gray_patch_snr, macbeth_delta_e, patch_means
+    from ..scene import frequency_sweep, macbeth, slanted_edge
+    from ..scene.dead_leaves import dead_leaves
+
     n = args.size
     rows, cols = getattr(cam.sensor, "rows", None), getattr(cam.sensor, "cols", None)
     if rows and cols:  # a fixed sensor: resized to about n columns (aspect kept), so the scenes below fill it
@@ -88,8 +99,8 @@ def run(args) -> int:
         t0 = time.perf_counter()
         res = cam(scene, return_intermediates=True, generator=gen)
         elapsed = time.perf_counter() - t0
-        _save_png(res.image[0], out / f"{name}.png")
-        _save_png(scene.srgb()[0], out / f"{name}_scene.png")
+        _save_png(res.image[0], staged.temporary(out / f"{name}.png"))
+        _save_png(scene.srgb()[0], staged.temporary(out / f"{name}_scene.png"))
         entry = {
             "image": f"{name}.png",
             "sensor_pixels": list(res.raw.data.shape[-2:]),
@@ -112,7 +123,7 @@ def run(args) -> int:
             if any(snr["notes"]):
                 entry["gray_patch_snr_notes"] = snr["notes"]
         report["scenes"][name] = entry
-    (out / "report.json").write_text(json.dumps(report, indent=2))
+    staged.temporary(out / "report.json").write_text(json.dumps(report, indent=2))
     m = report["scenes"]["macbeth"]
     if "delta_e2000_mean" in m:
         colour = ("- colour error (CIEDE2000, white-patch scaled, vs the true XYZ): "
@@ -142,6 +153,6 @@ def run(args) -> int:
     for name, e in report["scenes"].items():
         lines.append(f"| {name} | {e['image']} | {e['sensor_pixels'][0]}x{e['sensor_pixels'][1]} | "
                      f"{e['exposure_s'] * 1e3:.2f} | {e['sensor_mean_illuminance_lux']:.2f} | {e['render_seconds']} |")
-    (out / "report.md").write_text("\n".join(lines) + "\n")
+    staged.temporary(out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0

@@ -20,9 +20,9 @@ DENOISER_NAMES = ("nlmeans", "bm3d")
 def register(sub) -> None:
     p = sub.add_parser("demosaic-eval", help="score a demosaic method (CPSNR, ms/image) on a folder of 8-bit images")
     p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif/.jpg images")
-    p.add_argument("--method", default="bilinear",
-                   help=f"one of {', '.join(METHOD_NAMES)} (bilinear_colour: colour-demosaicing's border; "
-                        f"learned: the shipped network, its joint denoise variant when noise is asked for)")
+    p.add_argument("--method", default=None,
+                   help=f"one of {', '.join(METHOD_NAMES)} (default bilinear; bilinear_colour: colour-demosaicing's "
+                        f"border; learned: the shipped network, its joint denoise variant when noise is asked for)")
     p.add_argument("--model", default=None, metavar="FILE",
                    help="score your own network instead of --method: a TorchScript archive, a DemosaicNet "
                         "checkpoint, or a state dict with --model-class (read with torch.load(weights_only=True))")
@@ -71,6 +71,14 @@ def _check_args(args) -> None:
         raise ValueError(f"--crop: expected a border of >= 0 pixels, got {args.crop}")
     if args.threads is not None and args.threads < 1:
         raise ValueError(f"--threads: expected a positive number of threads, got {args.threads}")
+    from ..isp.learned import BAYER_PATTERNS
+
+    if args.pattern.upper() not in BAYER_PATTERNS:  # before the images are read (not blamed on DIR)
+        raise ValueError(f"--pattern: expected a Bayer pattern, one of {', '.join(BAYER_PATTERNS)}, got "
+                         f"{args.pattern!r}")
+    if args.model is not None and args.method is not None:
+        raise ValueError(f"--method/--model: --model scores your own network instead of a method; got both "
+                         f"--method {args.method} and --model {args.model}")
     if args.model is not None and not Path(args.model).is_file():
         raise FileNotFoundError(f"--model: no such file {args.model!r} (expected a TorchScript archive or a "
                                 f"weights file)")
@@ -111,7 +119,8 @@ def run(args) -> int:
         raise ValueError("--model-class/--model-kwargs: only with --model FILE")
     extra = {"self_ensemble": args.self_ensemble} if args.self_ensemble else {}  # evaluate_demosaic checks the method
     try:
-        res = evaluate_demosaic(images, args.method, args.pattern.upper(), args.crop, dtype=dtype,
+        method = "bilinear" if args.method is None else args.method  # ("" is refused by evaluate_demosaic)
+        res = evaluate_demosaic(images, method, args.pattern.upper(), args.crop, dtype=dtype,
                                 device=device, noise_sigma=args.noise_sigma, noise_shot=args.noise_shot,
                                 seed=args.seed, denoise=args.denoise, model=model, progress=not args.quiet, **extra)
     except ValueError as err:  # an image the method cannot take (e.g. under 4 pixels for a network): named with DIR

@@ -48,7 +48,14 @@ def run(args) -> int:
     freqs = _floats(args.frequencies_cy_mm, "--frequencies-cy-mm")
     # PrescriptionError, GlassError and TraceError are ValueErrors: one line and exit code 2 (isettorch.cli); the
     # range checks are lens_report's, whose messages start with the parameter name (shown as the option)
-    analysis = LensAnalysis(args.lens)
+    if not args.json:  # the plots' folder, before the table is printed
+        from ._outputs import check_dir
+
+        check_dir(args.out, "out")
+    try:
+        analysis = LensAnalysis(args.lens)
+    except UnicodeDecodeError as err:  # a binary or non-UTF-8 file: name it, not the codec
+        raise ValueError(f"lens: {args.lens}: not UTF-8 text ({err.reason} at byte {err.start})") from err
     report = lens_report(analysis, fields, waves, freqs, pupil_samples=args.pupil_samples)
     waves = list(dict.fromkeys(r["wavelength_nm"] for r in report["rows"]))  # the wavelengths reported
     if args.json:

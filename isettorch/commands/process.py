@@ -170,6 +170,7 @@ def run(args) -> int:
     from .._progress import progress
     from ..io.frames import read_frame
     from ..io.images import write_image
+    from ._outputs import Outputs, check_dir, check_not_input
 
     for f in args.raw:
         if not Path(f).is_file():
@@ -179,14 +180,16 @@ def run(args) -> int:
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"out: expected a folder, {args.out} is a file")
     outputs = _output_paths(args.raw, out_dir, args.format)
+    for path in outputs:  # never overwrite a frame (--out the frames' own folder, same format)
+        check_not_input(path, args.raw, "out")
+    check_dir(out_dir, "out")
     sensor, pattern, net = _load(args)
     noise_params(sensor, args.analog_gain, args.exposure_s)  # a setting the noise model cannot take: before any output
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:  # e.g. a file where a parent folder should be
-        raise ValueError(f"out: cannot create the folder {args.out} ({err.strerror or err})") from err
     written = []
-    with progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
+    # every frame's file is written under a temporary name and moved into place once all frames succeeded: a bad
+    # frame (unreadable, wrong shape, NaN) leaves neither files nor a new folder
+    with Outputs(out_dir) as staged, \
+            progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
             dn = read_frame(f)
             if min(dn.shape) < 4:  # (an odd height or width is completed to whole cells by demosaic_learned)
@@ -206,12 +209,13 @@ def run(args) -> int:
                 if not str(err).startswith("raw: "):
                     raise
                 raise ValueError(f"RAW: {f}: {str(err).removeprefix('raw: ')}") from err
+            tmp = staged.temporary(path)
             if args.format == "npy":
-                np.save(path, rgb.numpy().astype(np.float32), allow_pickle=False)
+                np.save(tmp, rgb.numpy().astype(np.float32), allow_pickle=False)
             elif args.format == "exr":
-                write_image(path, rgb, bits=32)
+                write_image(tmp, rgb, bits=32)
             else:
-                write_image(path, rgb, encoding="srgb", clip=True)
+                write_image(tmp, rgb, encoding="srgb", clip=True)
             written.append(path)
             bar.update(1)
     for p in written:

@@ -31,19 +31,51 @@ def run(args) -> int:
 
     from ..data.config import load_config
     from ..data.writer import verify_dataset, write_dataset
+    from ._outputs import check_dir
 
     if args.verify:
         if not Path(args.out).is_dir():
             raise FileNotFoundError(f"--out: no such dataset folder {args.out!r} to --verify")
+        if not (Path(args.out) / "manifest.json").is_file():
+            raise ValueError(f"out: {args.out} is not a dataset written by isettorch synth (no manifest.json)")
         problems = verify_dataset(args.out)
+        if problems and problems[0].startswith("manifest.json: unreadable"):
+            raise ValueError(f"out: {args.out}/{problems[0]}")
         for line in problems:
             print(line, file=sys.stderr)
         print("ok" if not problems else f"{len(problems)} problem(s)")
         return 0 if not problems else 1
     # bad input raises ValueError naming the option ("count: ..." is shown as "--count: ...", isettorch.cli)
+    if args.num_shards < 1:
+        raise ValueError(f"num_shards: expected a number of parts >= 1, got {args.num_shards}")
+    if args.config:
+        _check_config_file(args.config)
     cfg = load_config(args.config) if args.config else None
+    check_dir(args.out, "out")  # a file, or a place without write permission: named before any work
     manifest = write_dataset(cfg, args.out, args.count, shard=args.shard, num_shards=args.num_shards,
                              workers=args.workers, progress=not args.quiet)
     done = len(manifest["shards"])
     print(f"{done}/{manifest['num_files']} shards in {args.out}" + (" (complete)" if manifest["complete"] else ""))
     return 0
+
+
+def _check_config_file(path) -> None:
+    """--config is UTF-8 YAML whose top level is a mapping (or empty: the defaults); ValueError naming ``config``
+    otherwise (load_config reports a missing file and YAML syntax errors)."""
+    from pathlib import Path
+
+    from .._yaml import load_yaml
+
+    try:
+        text = Path(path).read_bytes().decode("utf-8")
+    except OSError:
+        return  # load_config's message names the file
+    except UnicodeDecodeError as err:
+        raise ValueError(f"config: {path}: not UTF-8 text ({err.reason} at byte {err.start})") from err
+    try:
+        data = load_yaml(text)
+    except Exception:  # noqa: BLE001 - a YAML syntax error: load_config reports it
+        return
+    if data is not None and not isinstance(data, dict):
+        raise ValueError(f"config: {path}: expected a mapping of settings (keys of "
+                         f"isettorch.data.config.SYNTH_DEFAULTS), got a {type(data).__name__}")

@@ -1,0 +1,131 @@
+"""Output paths of the subcommands, checked before any work and written so that a failed command leaves nothing:
+``check_dir`` / ``check_file`` (the place exists or can be made, is writable, is not an input), and
+``Outputs``, which writes each file under a temporary name beside it and moves them all into place only when
+the command succeeds (a folder it had to make is removed on failure)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def _writable_ancestor(path: Path, name: str, what: str) -> None:
+    """The nearest existing folder above ``path`` (to be made) is a folder we may write in."""
+    parent = path.parent
+    while not parent.exists():
+        if parent == parent.parent:
+            break
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"{name}: cannot create {what} {path}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise PermissionError(f"{name}: cannot create {what} {path}: no permission to write in {parent}")
+
+
+def check_dir(path, name: str = "out") -> Path:
+    """``path`` is a writable folder or can be made: ValueError / PermissionError naming ``name`` otherwise."""
+    p = Path(path)
+    if p.exists():
+        if not p.is_dir():
+            raise ValueError(f"{name}: expected a folder, {path} is a file")
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise PermissionError(f"{name}: no permission to write in the folder {path}")
+        return p
+    _writable_ancestor(p, name, "the folder")
+    made = []  # and try: permissions alone do not tell (root on a read-only mount, /sys)
+    q = p
+    while not q.exists():
+        made.append(q)
+        q = q.parent
+    try:
+        p.mkdir(parents=True)
+    except OSError as err:
+        raise OSError(f"{name}: cannot create the folder {path} ({err.strerror or err})") from err
+    finally:
+        for folder in made:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+    return p
+
+
+def check_file(path, name: str = "out", *, inputs=(), make_parents: bool = False) -> Path:
+    """``path`` can be written as a file (not a folder, its folder writable or, with ``make_parents``, makeable)
+    and is none of ``inputs`` (never overwrite an input): ValueError / PermissionError naming ``name``."""
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{name}: expected a file name, {path} is a folder")
+    check_not_input(p, inputs, name)
+    if p.exists():
+        if not os.access(p, os.W_OK) or not os.access(p.parent, os.W_OK | os.X_OK):
+            raise PermissionError(f"{name}: no permission to write {path}")
+        return p
+    if p.parent.exists() or make_parents:
+        _writable_ancestor(p, name, "the file")
+    else:
+        raise FileNotFoundError(f"{name}: cannot write {path}: no such folder {str(p.parent)!r}")
+    return p
+
+
+def check_not_input(path, inputs, name: str = "out") -> None:
+    """``path`` is none of the files ``inputs`` (resolved: links and ``..`` followed)."""
+    target = Path(path).resolve()
+    for f in inputs:
+        if Path(f).resolve() == target:
+            raise ValueError(f"{name}: {path} is the input {f}; expected an output that does not overwrite an input")
+
+
+class Outputs:
+    """Files of one command, written under temporary names and moved into place by :meth:`commit`; on an error
+    (``with`` block left by an exception) the temporary files and the folder made for them are removed.
+
+    Example::
+
+        with Outputs(out_dir) as outputs:
+            np.save(outputs.temporary(out_dir / "a.npy"), a)
+        # a.npy is in place only if the block succeeded
+    """
+
+    def __init__(self, folder=None):
+        self.folder = None if folder is None else Path(folder)
+        self.made: list[Path] = []
+        self.pending: list[tuple[Path, Path]] = []
+
+    def __enter__(self):
+        if self.folder is not None and not self.folder.is_dir():
+            missing = []
+            p = self.folder
+            while not p.exists():
+                missing.append(p)
+                p = p.parent
+            self.folder.mkdir(parents=True, exist_ok=True)
+            self.made = missing  # deepest first
+        return self
+
+    def temporary(self, path) -> Path:
+        """A temporary name beside ``path`` (same suffix, so writers that go by the suffix still work)."""
+        path = Path(path)
+        tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+        self.pending.append((tmp, path))
+        return tmp
+
+    def commit(self) -> None:
+        for tmp, path in self.pending:
+            os.replace(tmp, path)
+        self.pending = []
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.commit()
+            return
+        for tmp, _ in self.pending:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+        for folder in self.made:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
