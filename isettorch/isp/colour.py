@@ -544,6 +544,14 @@ class SensorToXYZ(nn.Module):
         self._fit_key = key
         return self
 
+    def release_graph(self) -> None:
+        """Keep the detached values of a matrix fitted inside the graph (:meth:`fit` of a QE that requires grad):
+        what was computed with it keeps its graph; the module holds plain tensors again (deepcopy, saving)."""
+        for name in ("matrix", "sensor_white"):
+            t = self._buffers.get(name)
+            if t is not None and t.grad_fn is not None:
+                self._buffers[name] = t.detach()
+
     def forward(self, img: torch.Tensor) -> torch.Tensor:
         if self.matrix is None:
             raise RuntimeError("SensorToXYZ: no matrix yet; pass one or call fit(qe, wavelengths_nm)")

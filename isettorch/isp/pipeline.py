@@ -278,8 +278,18 @@ class ImageProcessor(nn.Module):
 
     def forward(self, raw) -> ISPResult:
         """Process a :class:`~isettorch.sensor.raw.RawImage`; returns an :class:`ISPResult`. The colour matrix is
-        fitted from the raw's ``spectral_qe`` when it carries one (:meth:`fit_raw`)."""
+        fitted from the raw's ``spectral_qe`` when it carries one (:meth:`fit_raw`); a matrix fitted inside the
+        graph (learnable filters) is kept in the result's graph only, the module keeps its detached value (so it can
+        be copied and saved like any module)."""
         self.fit_raw(raw)
+        try:
+            return self._process(raw)
+        finally:
+            release = getattr(self.sensor_to_xyz, "release_graph", None)
+            if release is not None:
+                release()
+
+    def _process(self, raw) -> ISPResult:
         x = self._normalized_input(raw)
         if raw.cfa.is_monochrome:
             # ISETCam ipCompute: a monochrome sensor skips the colour pipeline (FORMAT.md 4.10).

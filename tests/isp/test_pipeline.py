@@ -180,6 +180,14 @@ def test_learnable_filters_get_the_total_derivative_through_the_fitted_matrix():
         param[idx] += h
     fd = (up - down) / (2 * h)
     torch.testing.assert_close(auto[idx], fd, rtol=1e-5, atol=1e-12)
+    # the module keeps plain tensors after a forward (the graph lives in the result): it copies like any module
+    import copy
+
+    ip = ImageProcessor(scaling="exposure", encoding="linear", fit_wavelengths_nm=W).double()
+    ip.fit(qe_module(W, dtype=torch.float64))
+    ip(raw.replace(data=data)).image.mean().backward()
+    assert ip.sensor_to_xyz.matrix.grad_fn is None
+    copy.deepcopy(ip)
 
 
 def test_state_dict_round_trip_restores_fitted_matrix():
