@@ -30,12 +30,12 @@ Two ways to count the rays (``sampling``):
 
 * ``'isetcam'`` (default): ISETCam's own 255 x 255 phase-space grid over x in +-2 D and p in +-0.99
   (``mlCoordinates``), each transform a forward map of the grid points re-binned to the nearest cell with the
-  cell's mean (``ffndgrid``), so the rays that leave that window (|x| > 2 D or |p| > 0.99) at any step are dropped.
+  cell's mean (``ffndgrid``), so the rays that leave that window (``|x| > 2 D`` or ``|p| > 0.99``) at any step are dropped.
   Its numbers are ISETCam's (an independent NumPy port of ``mlRadiance`` agrees to 0 on 750 pixel / stack /
   f-number / angle cases); no gradients (a tensor that requires grad is refused).
 * ``'continuous'``: the same ray model integrated exactly along x for a fine grid of directions (the inside-length
   of each segment between x samples follows the crossing of the photodiode edge, linearly): no grid averaging and
-  no finite x window (only the |p| < 0.99 cut at the microlens), so the etendue is a smooth function of the stack
+  no finite x window (only the ``|p| < 0.99`` cut at the microlens), so the etendue is a smooth function of the stack
   height, the offset and the microlens focal length (gradients, for design). It is the integral that ISETCam's grid
   approximates, not ISETCam's number. Measured against ISETCam's grid: on ISETCam's default pixel (CRA 0-35 deg,
   source f/2-f/8) up to 0.030 (centred microlens, f/8, CRA 13.5 deg: the grid's averaging blurs the hard edge of the
