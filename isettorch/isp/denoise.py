@@ -85,8 +85,9 @@ def denoise_mosaic(raw: torch.Tensor, method: str, noise_sigma: float = 0.0, noi
     s, a = _check_noise(noise_sigma, noise_shot)
     if s == 0 and a == 0:
         raise ValueError(f"denoise: {method!r} needs a noise level (noise_sigma or noise_shot > 0)")
-    if raw.dim() != 4 or raw.shape[1] != 1 or raw.shape[-2] % 2 or raw.shape[-1] % 2:
-        raise ValueError(f"raw: expected a Bayer mosaic (B, 1, H, W) with even H and W, got {tuple(raw.shape)}")
+    if raw.dim() != 4 or raw.shape[1] != 1 or raw.shape[-2] < 2 or raw.shape[-1] < 2:
+        # (an odd H or W is fine: each sub-plane still holds one colour, the last row / column's planes are shorter)
+        raise ValueError(f"raw: expected a Bayer mosaic (B, 1, H, W) with H, W >= 2, got {tuple(raw.shape)}")
     x = raw.detach().to("cpu", torch.float64).numpy().copy()
     b = s * s
     for i in range(x.shape[0]):
