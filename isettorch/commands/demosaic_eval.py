@@ -69,8 +69,6 @@ def _check_args(args) -> None:
         check_denoiser(args.denoise)  # (bm3d is the user's package)
     if args.crop < 0:
         raise ValueError(f"--crop: expected a border of >= 0 pixels, got {args.crop}")
-    if args.threads is not None and args.threads < 1:
-        raise ValueError(f"--threads: expected a positive number of threads, got {args.threads}")
     from ..isp.learned import BAYER_PATTERNS
 
     if args.pattern.upper() not in BAYER_PATTERNS:  # before the images are read (not blamed on DIR)
