@@ -51,6 +51,11 @@ CLASSICAL_LEVELS = (("sigma", 0.005), ("sigma", 0.01), ("sigma", 0.02), ("sigma"
 #: (sigma_start, sigma_full, weight_max) candidates of the high-noise gate
 CLASSICAL_GRID = tuple((s0, s1, w) for s0 in (0.005, 0.01, 0.02, 0.03) for s1 in (0.05, 0.075, 0.1, 0.15)
                        for w in (0.5, 0.75, 1.0))
+#: the detail-weighted high-noise gate's candidates (docs/training_log.md#classical_detail_gate_2026-11-30):
+#: (sigma_start, sigma_full, weight_max, weight_detail, detail_r); the shipped uniform gate is scored beside them
+DETAIL_GRID = tuple((s0, s1, wm, wd, rr) for s0 in (0.0, 0.0025, 0.005) for s1 in (0.01, 0.02, 0.04, 0.075)
+                    for wm in (0.75, 0.9, 1.0) for wd in (0.0, 0.2, 0.4)
+                    for rr in ((0.25, 1.0), (0.5, 1.5), (0.5, 2.5)))
 #: the shipped absolute low-noise gate and the relative candidates (docs/training_log.md#relative_gate_2026-11-28)
 RELATIVE_GRID = (("abs", 0.0125),) + tuple(("rel", r) for r in (0.0125, 0.025, 0.0375, 0.05, 0.075, 0.1))
 RELATIVE_SCALES = (1.0, 0.25)
@@ -134,6 +139,59 @@ def scores_relative(folder, scale: float, levels=LEVELS, grid=RELATIVE_GRID) -> 
     return _scores(folder, levels, grid, base="joint", expert="nf", weight=weight, classical=False, scale=scale)
 
 
+def scores_detail(folder, levels=CLASSICAL_LEVELS, grid=DETAIL_GRID) -> dict:
+    """``{"<kind> <value>": {"none": dB, "shipped": dB, "<s0>/<s1>/<wm>/<wd>/<r0>,<r1>": dB, ...}}``: mean CPSNR of
+    the joint network under its shipped low-noise gate ("none"), with the shipped uniform high-noise gate
+    ("shipped") and with each detail-weighted gate (:func:`isettorch.isp.learned.classical_detail_weight`, on the
+    mean of the two estimates, as :func:`isettorch.isp.learned.demosaic_learned` computes it)."""
+    shipped = learned.PRETRAINED_GATES["joint_denoise"]["classical"]
+    factors = sorted({m[2:] for m in grid})
+    out = {}
+    for key, rows in _parts(folder, levels, classical=True):
+        per = {"none": [], "shipped": []} | {_detail_name(m): [] for m in grid}
+        for truth, raw, feats, p in rows:
+            base, expert = p["shipped_low"], p["classical"]
+
+            def score(w, expert=expert, base=base, truth=truth):
+                return cpsnr((w * expert + (1 - w) * base).clamp(0, 1), truth, 10)[0].item()
+
+            per["none"].append(cpsnr(base.clamp(0, 1), truth, 10)[0].item())
+            per["shipped"].append(score(learned.classical_gate_weight(
+                raw, feats, shipped["sigma_start"], shipped["sigma_full"], shipped["weight_max"]).item()))
+            maps = {f: learned.classical_detail_weight(0.5 * (expert + base), feats, *f).double() for f in factors}
+            for m in grid:
+                ramp = learned.classical_gate_weight(raw, feats, m[0], m[1], 1.0).item()
+                per[_detail_name(m)].append(score(ramp * maps[m[2:]]) if ramp > 0 else per["none"][-1])
+        out[key] = {k: float(np.mean(s)) for k, s in per.items()}
+    return out
+
+
+def _detail_name(m) -> str:
+    return "/".join(f"{v:g}" for v in m[:4]) + "/" + ",".join(f"{v:g}" for v in m[4])
+
+
+def choose_detail(photos: dict, synthetic: dict, grid=DETAIL_GRID, tolerance_db: float = TOLERANCE_DB,
+                  synthetic_tolerance_db: float = 0.1, margin_db: float = 0.05) -> dict:
+    """The detail gate's rule (``docs/training_log.md#classical_detail_gate_2026-11-30``) on ``photos``
+    (``scores_detail`` of the selection photographs) and ``synthetic`` (``{set: scores_detail(set)}``): a candidate
+    is eligible if no level's mean on the photographs is more than ``tolerance_db`` below the shipped gate's and its
+    mean over the synthetic sets and levels is at most ``synthetic_tolerance_db`` below the shipped gate's; the
+    eligible candidate with the highest mean on the photographs ships if that mean is at least ``margin_db`` above
+    the shipped gate's."""
+    names = [_detail_name(m) for m in grid]
+    levels = list(photos)
+    gain = {n: {lv: photos[lv][n] - photos[lv]["none"] for lv in levels} for n in names + ["shipped"]}
+    mean = {n: float(np.mean(list(g.values()))) for n, g in gain.items()}
+    syn = {n: float(np.mean([s[lv][n] - s[lv]["shipped"] for s in synthetic.values() for lv in s]))
+           for n in names}
+    eligible = [n for n in names if syn[n] >= -synthetic_tolerance_db
+                and all(gain[n][lv] >= gain["shipped"][lv] - tolerance_db for lv in levels)]
+    best = max(eligible, key=mean.get) if eligible else None
+    ships = best is not None and mean[best] >= mean["shipped"] + margin_db
+    return {"gain_db": gain, "mean_gain_db": mean, "synthetic_vs_shipped_db": syn, "eligible": eligible,
+            "best": best, "ships": bool(ships), "candidate": dict(zip(names, grid)).get(best)}
+
+
 def _choose(by_set: dict, grid, tolerance_db: float) -> dict:
     sets = list(by_set)
     levels = list(by_set[sets[0]])
@@ -185,7 +243,8 @@ def choose_relative(by_set: dict, grid=RELATIVE_GRID, tolerance_db: float = TOLE
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--gate", choices=("low", "classical", "relative"), default="low")
+    p.add_argument("--gate", choices=("low", "classical", "relative", "classical_detail"), default="low")
+    p.add_argument("--photos", default=None, help="classical_detail: the selection photographs' folder")
     p.add_argument("--sets", nargs="+", required=True, help="held-out synthetic image folders")
     p.add_argument("--within-tolerance", action="store_true",
                    help="relative: the second round's rule (the best mean among the candidates within the tolerance)")
@@ -193,6 +252,24 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None, help="write the scores and the decision (JSON) here")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
+    if args.gate == "classical_detail":
+        if not args.photos:
+            p.error("--photos: required with --gate classical_detail")
+        photos = scores_detail(args.photos)
+        synthetic = {s: scores_detail(s) for s in args.sets}
+        decision = choose_detail(photos, synthetic)
+        ranked = sorted(decision["eligible"], key=decision["mean_gain_db"].get, reverse=True)
+        for m in ["shipped"] + ranked[:12]:
+            g = decision["gain_db"][m]
+            syn = decision["synthetic_vs_shipped_db"].get(m)
+            print(f"{m}: " + " ".join(f"{lv} {d:+.3f}" for lv, d in g.items())
+                  + f" | mean {decision['mean_gain_db'][m]:+.3f}"
+                  + (f" | synthetic vs shipped {syn:+.3f}" if syn is not None else ""))
+        print(f"eligible {len(decision['eligible'])} of {len(DETAIL_GRID)}; best {decision['best']}, "
+              f"ships: {decision['ships']}")
+        if args.out:
+            Path(args.out).write_text(json.dumps({"photos": photos, "synthetic": synthetic, **decision}, indent=1))
+        return 0
     if args.gate == "relative":
         by_set = {f"{s} x{k:g}": scores_relative(s, k) for s in args.sets for k in RELATIVE_SCALES}
         rule = functools.partial(choose_relative, within_tolerance=args.within_tolerance)

@@ -66,6 +66,7 @@ __all__ = [
     "noise_features",
     "mosaic_noise_sigma",
     "level_gate_weight",
+    "classical_detail_weight",
     "classical_gate_weight",
     "classical_expert",
     "pretrained_info",
@@ -745,6 +746,32 @@ def classical_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_start: f
     return weight_max * ramp.clamp(0, 1)
 
 
+def classical_detail_weight(image: torch.Tensor, noise: torch.Tensor, weight_max: float, weight_detail: float,
+                            detail_r: tuple[float, float], window: int = 5) -> torch.Tensor:
+    """The high-noise gate's weight factor per pixel ``[B, 1, H, W]`` (:data:`PRETRAINED_GATES`, ``detail_r``):
+    ``weight_max`` where an estimate ``image`` ``[B, 3, H, W]`` is flat within its noise, ``weight_detail`` where it
+    has detail, linear in between. The detail is the local contrast against the local noise,
+    ``r = std(L) / sqrt(b + a mean(L))`` over ``window`` x ``window`` pixels of the luminance ``L`` (the mean of the
+    channels) for the noise inputs ``noise`` ``[B, 2]`` (:func:`noise_features`, variance ``a x + b``); the factor is
+    ``weight_detail + (weight_max - weight_detail) clamp((r1 - r) / (r1 - r0), 0, 1)`` for ``detail_r = (r0, r1)``.
+    Why (``docs/training_log.md#classical_detail_gate_2026-11-30``): on photographs a 13 x 13 non-local search (the
+    classical expert) denoises flat regions better than the joint network, and the network keeps texture better.
+    The map is a function of ``image`` and the noise inputs only (no gradient through it: a gate, not a loss)."""
+    r0, r1 = (float(v) for v in detail_r)
+    if not 0 <= r0 < r1 or not 0 <= weight_detail <= 1 or not 0 < weight_max <= 1:
+        raise ValueError(f"detail_r, weight_detail, weight_max: expected 0 <= r0 < r1, 0 <= weight_detail <= 1 and "
+                         f"0 < weight_max <= 1, got {tuple(detail_r)}, {weight_detail}, {weight_max}")
+    lum = image.detach().to(torch.float64).mean(1, keepdim=True)
+    mean = _box(lum, window)
+    std = (_box(lum * lum, window) - mean * mean).clamp_min(0).sqrt()
+    a, b = noise_parameters(noise.to(torch.float64).expand(image.shape[0], -1))
+    sigma = (b.reshape(-1, 1, 1, 1) + a.reshape(-1, 1, 1, 1) * mean.clamp_min(0)).sqrt()
+    # a noise-free mosaic (sigma 0) has no flat-within-noise region: r is infinite there, the factor weight_detail
+    r = torch.where(sigma > 0, std / sigma.clamp_min(torch.finfo(torch.float64).tiny), torch.inf)
+    flat = ((r1 - r) / (r1 - r0)).clamp(0, 1)
+    return (weight_detail + (weight_max - weight_detail) * flat).to(image.dtype)
+
+
 def classical_expert(raw: torch.Tensor, noise: torch.Tensor, denoiser: str = "nlmeans",
                      method: str = "menon2007", pattern: str = "RGGB") -> torch.Tensor:
     """The high-noise gate's classical expert: each mosaic of ``raw`` ``[B, 1, H, W]`` denoised for its noise
@@ -841,6 +868,10 @@ def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> 
                 nz = noise.expand(x.shape[0], -1)[on]
                 expert = classical_expert(x[on], nz, classical["denoiser"], classical["method"]).to(out.dtype)
                 wo = w[on].reshape(-1, 1, 1, 1)
+                if classical.get("detail_r") is not None:  # per pixel: weight_max where flat, less on detail
+                    wo = wo / classical["weight_max"] * classical_detail_weight(
+                        0.5 * (expert + out[on]), nz, classical["weight_max"], classical["weight_detail"],
+                        classical["detail_r"])
                 out = out.index_copy(0, on, wo * expert + (1 - wo) * out[on])
     return out[..., dy:dy + raw.shape[-2], dx:dx + raw.shape[-1]]
 
