@@ -122,15 +122,20 @@ PRETRAINED_BLENDS = {"noise_free": {"method": "menon2007", "weight": 0.3}}
 #: the absolute ``sigma_max = 0.0125`` of ``#joint_gate_2026-11-28``, which weighed the noise-free network into
 #: underexposed frames), never Kodak/McMaster.
 #: Its high-noise gate (``classical``) then blends in a classical expert (:func:`classical_expert`: nlmeans, then
-#: Menon 2007), which errs differently from the network at strong noise: ``w expert + (1 - w) out`` with
-#: ``w = weight_max clamp((sigma - sigma_start) / (sigma_full - sigma_start), 0, 1)`` (:func:`classical_gate_weight`,
-#: ``sigma = sqrt(b + a m)``), chosen the same way (``docs/training_log.md#classical_gate_2026-11-28``, with the
-#: absolute low-noise gate in place; refitted with the relative one in place, the same candidate won:
-#: ``#classical_gate_refit_2026-11-28``).
+#: Menon 2007), which errs differently from the network: ``w expert + (1 - w) out`` per pixel, with
+#: ``w = ramp (weight_detail + (weight_max - weight_detail) flat)``: ``ramp = clamp((sigma - sigma_start) /
+#: (sigma_full - sigma_start), 0, 1)`` of the mosaic's noise at its mean level (:func:`classical_gate_weight`,
+#: ``sigma = sqrt(b + a m)``; 0 on a noise-free mosaic) and ``flat`` 1 where the mean of the two estimates is flat
+#: within its local noise, 0 on detail (:func:`classical_detail_weight`, ``detail_r``): on photographs the non-local
+#: search denoises flat regions far better than the network and the network keeps detail better. Chosen on the 30
+#: selection photographs with the held-out synthetic sets as a check, never Kodak/McMaster
+#: (``docs/training_log.md#classical_detail_gate_2026-11-30``; it replaced one weight per image, ``sigma_start``
+#: 0.005, ``sigma_full`` 0.075, ``weight_max`` 0.5, chosen on synthetic scenes: ``#classical_gate_2026-11-28``,
+#: ``#classical_gate_refit_2026-11-28``). The expert runs on every noisy mosaic (nlmeans on the CPU).
 PRETRAINED_GATES = {"joint_denoise": {
     "expert": "noise_free", "relative_max": 0.0375,
-    "classical": {"sigma_start": 0.005, "sigma_full": 0.075, "weight_max": 0.5, "denoiser": "nlmeans",
-                  "method": "menon2007"}}}
+    "classical": {"sigma_start": 0.0, "sigma_full": 0.01, "weight_max": 1.0, "weight_detail": 0.2,
+                  "detail_r": (0.25, 1.0), "denoiser": "nlmeans", "method": "menon2007"}}}
 
 def _check_raw(raw: torch.Tensor, name: str = "raw", even: bool = True) -> torch.Tensor:
     if not isinstance(raw, torch.Tensor):

@@ -30,7 +30,8 @@ Two ways to count the rays (``sampling``):
 
 * ``'isetcam'`` (default): ISETCam's own 255 x 255 phase-space grid over x in +-2 D and p in +-0.99
   (``mlCoordinates``), each transform a forward map of the grid points re-binned to the nearest cell with the
-  cell's mean (``ffndgrid``), so the rays that leave that window (``|x| > 2 D`` or ``|p| > 0.99``) at any step are dropped.
+  cell's mean (``ffndgrid``), so the rays that leave that window (``|x| > 2 D`` or ``|p| > 0.99``) at any step are
+  dropped.
   Its numbers are ISETCam's (an independent NumPy port of ``mlRadiance`` agrees to 0 on 750 pixel / stack /
   f-number / angle cases); no gradients (a tensor that requires grad is refused).
 * ``'continuous'``: the same ray model integrated exactly along x for a fine grid of directions (the inside-length

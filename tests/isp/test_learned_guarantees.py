@@ -296,6 +296,62 @@ def test_demosaic_learned_applies_a_classical_gate():
     torch.testing.assert_close(gated[1:], w * expert + (1 - w) * plain[1:], rtol=0, atol=1e-6)
 
 
+def test_classical_detail_weight_against_scipy():
+    """The detail-weighted gate's factor, against an independent computation with scipy's uniform filter (its
+    'nearest' border is the replicate border): r = std / sqrt(b + a mean) over 5 x 5 pixels of the luminance, the
+    factor weight_detail + (weight_max - weight_detail) clamp((r1 - r) / (r1 - r0), 0, 1); weight_max on a constant
+    field, weight_detail everywhere on a noise-free mosaic's estimate."""
+    from scipy.ndimage import uniform_filter
+
+    g = np.random.default_rng(11)
+    img = np.clip(0.4 + np.cumsum(g.normal(0, 0.01, (2, 3, 24, 20)), -1), 0, 1)
+    img[:, :, :, :6] = 0.3  # a flat region
+    a, b = np.array([0.01, 0.0]), np.array([1e-6, 0.02**2])
+    noise = learned.noise_features(torch.from_numpy(a), torch.from_numpy(b))
+    w_max, w_detail, (r0, r1) = 0.9, 0.2, (0.5, 1.5)
+    got = learned.classical_detail_weight(torch.from_numpy(img), noise, w_max, w_detail, (r0, r1)).numpy()
+    for i in range(2):
+        lum = img[i].mean(0)
+        mean = uniform_filter(lum, 5, mode="nearest")
+        std = np.sqrt(np.maximum(uniform_filter(lum**2, 5, mode="nearest") - mean**2, 0))
+        r = std / np.sqrt(b[i] + a[i] * mean)
+        expected = w_detail + (w_max - w_detail) * np.clip((r1 - r) / (r1 - r0), 0, 1)
+        np.testing.assert_allclose(got[i, 0], expected, rtol=0, atol=1e-9)
+    assert got[:, 0, :, :3].min() == pytest.approx(w_max)  # the flat columns, away from the ramp's window
+    assert got[0].min() < w_max - 0.1  # the ramp has detail here
+    clean = learned.noise_features(0.0, 0.0).expand(2, -1)
+    assert np.all(learned.classical_detail_weight(torch.from_numpy(img), clean, w_max, w_detail, (r0, r1)).numpy()
+                  == w_detail)
+    for bad in (((1.0, 0.5), 0.2, 0.9), ((0.5, 1.5), -0.1, 0.9), ((0.5, 1.5), 0.2, 0.0)):
+        with pytest.raises(ValueError, match="detail_r, weight_detail, weight_max"):
+            learned.classical_detail_weight(torch.from_numpy(img), noise, bad[2], bad[1], bad[0])
+
+
+def test_demosaic_learned_applies_a_detail_weighted_classical_gate():
+    """With ``detail_r`` the high-noise gate weighs the expert per pixel: ramp(sigma) times the detail factor of the
+    mean of the two estimates; the images below sigma_start keep the network's output bitwise."""
+    import copy
+
+    net = copy.copy(learned.load_pretrained("joint_denoise"))
+    gate = {k: v for k, v in net.level_gate.items() if k != "classical"}
+    net.level_gate = gate
+    g = torch.Generator().manual_seed(6)
+    raw = torch.rand(2, 1, 32, 32, generator=g, dtype=torch.float64).float() * 0.5 + 0.25
+    raw[..., :, :12] = 0.4  # a flat region, where the factor is weight_max
+    noise = learned.noise_features(torch.tensor([0.0, 0.0]), torch.tensor([0.02**2, 0.06**2])).float()
+    plain = learned.demosaic_learned(raw, model=net, noise=noise)
+    classical = {"sigma_start": 0.03, "sigma_full": 0.09, "weight_max": 0.8, "weight_detail": 0.1,
+                 "detail_r": (0.5, 1.5), "denoiser": "nlmeans", "method": "menon2007"}
+    net.level_gate = gate | {"classical": classical}
+    gated = learned.demosaic_learned(raw, model=net, noise=noise)
+    assert torch.equal(gated[0], plain[0])
+    expert = learned.classical_expert(raw[1:], noise[1:])
+    factor = learned.classical_detail_weight(0.5 * (expert + plain[1:]), noise[1:], 0.8, 0.1, (0.5, 1.5))
+    assert factor.min() < 0.5 and factor.max() == pytest.approx(0.8)  # both kinds of region are in the test
+    w = (0.06 - 0.03) / (0.09 - 0.03) * factor
+    torch.testing.assert_close(gated[1:], w * expert + (1 - w) * plain[1:], rtol=0, atol=1e-6)
+
+
 def test_relative_level_gate_is_exposure_invariant():
     """The relative low-noise gate reads r = sqrt(b + a m) / m: a frame scaled by k with its noise (a -> k a,
     b -> k^2 b) gets the same weight, and r = r_max / 2 gives 1/2; the absolute gate gives a dark frame more."""
