@@ -52,7 +52,9 @@ CLASSICAL_LEVELS = (("sigma", 0.005), ("sigma", 0.01), ("sigma", 0.02), ("sigma"
 CLASSICAL_GRID = tuple((s0, s1, w) for s0 in (0.005, 0.01, 0.02, 0.03) for s1 in (0.05, 0.075, 0.1, 0.15)
                        for w in (0.5, 0.75, 1.0))
 #: the detail-weighted high-noise gate's candidates (docs/training_log.md#classical_detail_gate_2026-11-30):
-#: (sigma_start, sigma_full, weight_max, weight_detail, detail_r); the shipped uniform gate is scored beside them
+#: (sigma_start, sigma_full, weight_max, weight_detail, detail_r); the uniform gate shipped before that round
+#: (UNIFORM_GATE: sigma_start, sigma_full, weight_max; #classical_gate_2026-11-28) is scored beside them as "shipped"
+UNIFORM_GATE = (0.005, 0.075, 0.5)
 DETAIL_GRID = tuple((s0, s1, wm, wd, rr) for s0 in (0.0, 0.0025, 0.005) for s1 in (0.01, 0.02, 0.04, 0.075)
                     for wm in (0.75, 0.9, 1.0) for wd in (0.0, 0.2, 0.4)
                     for rr in ((0.25, 1.0), (0.5, 1.5), (0.5, 2.5)))
@@ -141,10 +143,10 @@ def scores_relative(folder, scale: float, levels=LEVELS, grid=RELATIVE_GRID) -> 
 
 def scores_detail(folder, levels=CLASSICAL_LEVELS, grid=DETAIL_GRID) -> dict:
     """``{"<kind> <value>": {"none": dB, "shipped": dB, "<s0>/<s1>/<wm>/<wd>/<r0>,<r1>": dB, ...}}``: mean CPSNR of
-    the joint network under its shipped low-noise gate ("none"), with the shipped uniform high-noise gate
-    ("shipped") and with each detail-weighted gate (:func:`isettorch.isp.learned.classical_detail_weight`, on the
-    mean of the two estimates, as :func:`isettorch.isp.learned.demosaic_learned` computes it)."""
-    shipped = learned.PRETRAINED_GATES["joint_denoise"]["classical"]
+    the joint network under its shipped low-noise gate ("none"), with the uniform high-noise gate the round compared
+    against (``UNIFORM_GATE``, "shipped") and with each detail-weighted gate
+    (:func:`isettorch.isp.learned.classical_detail_weight`, on the mean of the two estimates, as
+    :func:`isettorch.isp.learned.demosaic_learned` computes it)."""
     factors = sorted({m[2:] for m in grid})
     out = {}
     for key, rows in _parts(folder, levels, classical=True):
@@ -156,8 +158,7 @@ def scores_detail(folder, levels=CLASSICAL_LEVELS, grid=DETAIL_GRID) -> dict:
                 return cpsnr((w * expert + (1 - w) * base).clamp(0, 1), truth, 10)[0].item()
 
             per["none"].append(cpsnr(base.clamp(0, 1), truth, 10)[0].item())
-            per["shipped"].append(score(learned.classical_gate_weight(
-                raw, feats, shipped["sigma_start"], shipped["sigma_full"], shipped["weight_max"]).item()))
+            per["shipped"].append(score(learned.classical_gate_weight(raw, feats, *UNIFORM_GATE).item()))
             maps = {f: learned.classical_detail_weight(0.5 * (expert + base), feats, *f).double() for f in factors}
             for m in grid:
                 ramp = learned.classical_gate_weight(raw, feats, m[0], m[1], 1.0).item()

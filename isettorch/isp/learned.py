@@ -66,6 +66,7 @@ __all__ = [
     "noise_features",
     "mosaic_noise_sigma",
     "level_gate_weight",
+    "check_classical_gate",
     "classical_detail_weight",
     "classical_gate_weight",
     "classical_expert",
@@ -739,14 +740,60 @@ def _level_gate(raw: torch.Tensor, noise: torch.Tensor, gate: dict) -> torch.Ten
     return level_gate_weight(raw, noise, gate.get("sigma_max"), relative_max=gate.get("relative_max"))
 
 
+def _check_ramp(sigma_start, sigma_full, weight_max) -> None:
+    if not (all(isinstance(v, (int, float)) and math.isfinite(v) for v in (sigma_start, sigma_full, weight_max))
+            and 0 <= sigma_start < sigma_full and 0 < weight_max <= 1):
+        raise ValueError(f"sigma_start, sigma_full, weight_max: expected finite numbers with 0 <= sigma_start < "
+                         f"sigma_full and 0 < weight_max <= 1, got {sigma_start!r}, {sigma_full!r}, {weight_max!r}")
+
+
+def _check_detail(weight_max, weight_detail, detail_r, window) -> tuple[float, float]:
+    try:
+        r0, r1 = (float(v) for v in detail_r)
+    except (TypeError, ValueError):
+        raise ValueError(f"detail_r: expected two numbers (r0, r1), got {detail_r!r}") from None
+    if not (math.isfinite(r0) and math.isfinite(r1) and 0 <= r0 < r1 and isinstance(weight_detail, (int, float))
+            and 0 <= weight_detail <= 1 and isinstance(weight_max, (int, float)) and 0 < weight_max <= 1):
+        raise ValueError(f"detail_r, weight_detail, weight_max: expected finite 0 <= r0 < r1, 0 <= weight_detail <= 1 "
+                         f"and 0 < weight_max <= 1, got {detail_r!r}, {weight_detail!r}, {weight_max!r}")
+    if isinstance(window, bool) or not isinstance(window, int) or window < 1 or window % 2 == 0:
+        raise ValueError(f"window: expected an odd number of pixels >= 1 (a centred box), got {window!r}")
+    return r0, r1
+
+
+_CLASSICAL_KEYS = ("sigma_start", "sigma_full", "weight_max", "denoiser", "method")
+_CLASSICAL_DETAIL_KEYS = ("weight_detail", "detail_r")
+
+
+def check_classical_gate(classical: dict, name: str = "classical") -> dict:
+    """``classical`` (a joint network's high-noise gate, :data:`PRETRAINED_GATES`) if it holds ``sigma_start``,
+    ``sigma_full``, ``weight_max``, ``denoiser`` and ``method`` with valid values, and either both or neither of
+    ``weight_detail`` and ``detail_r`` (the per-pixel weighting); else a ValueError naming ``name`` and the key.
+    Checked on every call, whether or not the gate is on for the images given."""
+    if not isinstance(classical, dict):
+        raise TypeError(f"{name}: expected a dict, got {type(classical).__name__}")
+    keys = set(classical)
+    missing = [k for k in _CLASSICAL_KEYS if k not in keys]
+    unknown = sorted(keys - set(_CLASSICAL_KEYS) - set(_CLASSICAL_DETAIL_KEYS))
+    if missing or unknown:
+        raise ValueError(f"{name}: expected the keys {list(_CLASSICAL_KEYS)} (and optionally both of "
+                         f"{list(_CLASSICAL_DETAIL_KEYS)}); missing {missing}, unknown {unknown}")
+    if ("weight_detail" in keys) != ("detail_r" in keys):
+        raise ValueError(f"{name}: 'weight_detail' and 'detail_r' go together (the per-pixel weighting); got only "
+                         f"{'weight_detail' if 'weight_detail' in keys else 'detail_r'!r}")
+    _check_ramp(classical["sigma_start"], classical["sigma_full"], classical["weight_max"])
+    if "detail_r" in keys:
+        _check_detail(classical["weight_max"], classical["weight_detail"], classical["detail_r"], 5)
+    return classical
+
+
 def classical_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_start: float, sigma_full: float,
                           weight_max: float) -> torch.Tensor:
-    """The high-noise gate's weight ``[B]`` of the classical expert (:data:`PRETRAINED_GATES`): 0 up to a noise
+    """``weight_max`` times the high-noise gate's level ramp ``[B]`` (:data:`PRETRAINED_GATES`): 0 up to a noise
     ``sigma`` (:func:`mosaic_noise_sigma`) of ``sigma_start``, rising linearly to ``weight_max`` at ``sigma_full`` and
-    constant beyond."""
-    if not 0 <= sigma_start < sigma_full or not 0 < weight_max <= 1:
-        raise ValueError(f"sigma_start, sigma_full, weight_max: expected 0 <= sigma_start < sigma_full and "
-                         f"0 < weight_max <= 1, got {sigma_start}, {sigma_full}, {weight_max}")
+    constant beyond. Without ``detail_r`` it is the classical expert's weight for the whole image; with it, the
+    per-pixel weight is the ramp times :func:`classical_detail_weight`."""
+    _check_ramp(sigma_start, sigma_full, weight_max)
     ramp = (mosaic_noise_sigma(raw, noise) - sigma_start) / (sigma_full - sigma_start)
     return weight_max * ramp.clamp(0, 1)
 
@@ -755,23 +802,22 @@ def classical_detail_weight(image: torch.Tensor, noise: torch.Tensor, weight_max
                             detail_r: tuple[float, float], window: int = 5) -> torch.Tensor:
     """The high-noise gate's weight factor per pixel ``[B, 1, H, W]`` (:data:`PRETRAINED_GATES`, ``detail_r``):
     ``weight_max`` where an estimate ``image`` ``[B, 3, H, W]`` is flat within its noise, ``weight_detail`` where it
-    has detail, linear in between. The detail is the local contrast against the local noise,
-    ``r = std(L) / sqrt(b + a mean(L))`` over ``window`` x ``window`` pixels of the luminance ``L`` (the mean of the
-    channels) for the noise inputs ``noise`` ``[B, 2]`` (:func:`noise_features`, variance ``a x + b``); the factor is
-    ``weight_detail + (weight_max - weight_detail) clamp((r1 - r) / (r1 - r0), 0, 1)`` for ``detail_r = (r0, r1)``.
+    has detail, linear in between (either may be the larger). The detail is the local contrast against the local
+    noise, ``r = std(L) / sqrt(b + a max(mean(L), 0))`` over ``window`` x ``window`` pixels (odd; replicate border) of
+    the luminance ``L`` (the mean of the channels) for the noise inputs ``noise`` ``[B, 2]`` or ``[1, 2]``
+    (:func:`noise_features`, variance ``a x + b``); where that noise is 0 (no noise, or shot noise alone on a black
+    region) ``r`` is infinite, so the factor is ``weight_detail``. The factor is ``weight_detail + (weight_max -
+    weight_detail) clamp((r1 - r) / (r1 - r0), 0, 1)`` for ``detail_r = (r0, r1)``.
     Why (``docs/training_log.md#classical_detail_gate_2026-11-30``): on photographs a 13 x 13 non-local search (the
     classical expert) denoises flat regions better than the joint network, and the network keeps texture better.
-    The map is a function of ``image`` and the noise inputs only (no gradient through it: a gate, not a loss)."""
-    r0, r1 = (float(v) for v in detail_r)
-    if not 0 <= r0 < r1 or not 0 <= weight_detail <= 1 or not 0 < weight_max <= 1:
-        raise ValueError(f"detail_r, weight_detail, weight_max: expected 0 <= r0 < r1, 0 <= weight_detail <= 1 and "
-                         f"0 < weight_max <= 1, got {tuple(detail_r)}, {weight_detail}, {weight_max}")
+    The map is a function of ``image`` and the noise inputs only (no gradient through it: a gate, not a loss); in
+    ``image``'s dtype."""
+    r0, r1 = _check_detail(weight_max, weight_detail, detail_r, window)
     lum = image.detach().to(torch.float64).mean(1, keepdim=True)
     mean = _box(lum, window)
     std = (_box(lum * lum, window) - mean * mean).clamp_min(0).sqrt()
     a, b = noise_parameters(noise.to(torch.float64).expand(image.shape[0], -1))
     sigma = (b.reshape(-1, 1, 1, 1) + a.reshape(-1, 1, 1, 1) * mean.clamp_min(0)).sqrt()
-    # a noise-free mosaic (sigma 0) has no flat-within-noise region: r is infinite there, the factor weight_detail
     r = torch.where(sigma > 0, std / sigma.clamp_min(torch.finfo(torch.float64).tiny), torch.inf)
     flat = ((r1 - r) / (r1 - r0)).clamp(0, 1)
     return (weight_detail + (weight_max - weight_detail) * flat).to(image.dtype)
@@ -866,6 +912,7 @@ def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> 
             out = w * run(gate["expert"], None) + (1 - w) * out
         classical = gate.get("classical")
         if classical is not None:
+            check_classical_gate(classical, "model.level_gate['classical']")
             w = classical_gate_weight(raw, noise, classical["sigma_start"], classical["sigma_full"],
                                       classical["weight_max"]).to(out.dtype)
             on = torch.nonzero(w > 0).flatten()

@@ -4,6 +4,7 @@ more than 0.1 dB below Malvar-He-Cutler (MHC) on the stress set (training/stress
 
 from __future__ import annotations
 
+import copy
 import sys
 from pathlib import Path
 
@@ -306,6 +307,7 @@ def test_classical_detail_weight_against_scipy():
     g = np.random.default_rng(11)
     img = np.clip(0.4 + np.cumsum(g.normal(0, 0.01, (2, 3, 24, 20)), -1), 0, 1)
     img[:, :, :, :6] = 0.3  # a flat region
+    img[:, :, -5:, 8:] = g.normal(-0.05, 0.01, (2, 3, 5, 12))  # a noisy black region: local means below 0
     a, b = np.array([0.01, 0.0]), np.array([1e-6, 0.02**2])
     noise = learned.noise_features(torch.from_numpy(a), torch.from_numpy(b))
     w_max, w_detail, (r0, r1) = 0.9, 0.2, (0.5, 1.5)
@@ -314,7 +316,7 @@ def test_classical_detail_weight_against_scipy():
         lum = img[i].mean(0)
         mean = uniform_filter(lum, 5, mode="nearest")
         std = np.sqrt(np.maximum(uniform_filter(lum**2, 5, mode="nearest") - mean**2, 0))
-        r = std / np.sqrt(b[i] + a[i] * mean)
+        r = std / np.sqrt(b[i] + a[i] * np.maximum(mean, 0))
         expected = w_detail + (w_max - w_detail) * np.clip((r1 - r) / (r1 - r0), 0, 1)
         np.testing.assert_allclose(got[i, 0], expected, rtol=0, atol=1e-9)
     assert got[:, 0, :, :3].min() == pytest.approx(w_max)  # the flat columns, away from the ramp's window
@@ -322,9 +324,14 @@ def test_classical_detail_weight_against_scipy():
     clean = learned.noise_features(0.0, 0.0).expand(2, -1)
     assert np.all(learned.classical_detail_weight(torch.from_numpy(img), clean, w_max, w_detail, (r0, r1)).numpy()
                   == w_detail)
-    for bad in (((1.0, 0.5), 0.2, 0.9), ((0.5, 1.5), -0.1, 0.9), ((0.5, 1.5), 0.2, 0.0)):
+    assert np.isfinite(got).all()
+    for bad in (((1.0, 0.5), 0.2, 0.9), ((0.5, 1.5), -0.1, 0.9), ((0.5, 1.5), 0.2, 0.0), ((0.25, np.inf), 0.2, 0.9)):
         with pytest.raises(ValueError, match="detail_r, weight_detail, weight_max"):
             learned.classical_detail_weight(torch.from_numpy(img), noise, bad[2], bad[1], bad[0])
+    with pytest.raises(ValueError, match="detail_r: expected two numbers"):
+        learned.classical_detail_weight(torch.from_numpy(img), noise, 0.9, 0.2, (0.25,))
+    with pytest.raises(ValueError, match="window: expected an odd"):
+        learned.classical_detail_weight(torch.from_numpy(img), noise, 0.9, 0.2, (0.5, 1.5), window=4)
 
 
 def test_demosaic_learned_applies_a_detail_weighted_classical_gate():
@@ -350,6 +357,62 @@ def test_demosaic_learned_applies_a_detail_weighted_classical_gate():
     assert factor.min() < 0.5 and factor.max() == pytest.approx(0.8)  # both kinds of region are in the test
     w = (0.06 - 0.03) / (0.09 - 0.03) * factor
     torch.testing.assert_close(gated[1:], w * expert + (1 - w) * plain[1:], rtol=0, atol=1e-6)
+    # an odd-sized GBRG mosaic: the gate is computed on the padded RGGB view and cropped back, as the expert is
+    net.level_gate = gate
+    odd = raw[1:, :, 1:, :-1]  # 31 x 31, GBRG from the RGGB mosaic
+    plain = learned.demosaic_learned(odd, "GBRG", model=net, noise=noise[1:])
+    net.level_gate = gate | {"classical": classical}
+    gated = learned.demosaic_learned(odd, "GBRG", model=net, noise=noise[1:])
+    pad = torch.nn.functional.pad
+    x = pad(pad(odd, (0, 0, 1, 1), mode="reflect"), (0, 1, 0, 1), mode="reflect")  # RGGB from row 1, whole cells
+    expert = learned.classical_expert(x, noise[1:])[..., 1:32, :31]
+    factor = learned.classical_detail_weight(0.5 * (expert + plain), noise[1:], 0.8, 0.1, (0.5, 1.5))
+    w = 0.5 * factor
+    inner = (Ellipsis, slice(3, -3), slice(3, -3))  # (at the edges the box also saw the padding's pixels)
+    torch.testing.assert_close(gated[inner], (w * expert + (1 - w) * plain)[inner], rtol=0, atol=1e-6)
+
+
+def test_shipped_classical_gate_takes_the_expert_on_flat_regions():
+    """The shipped joint model's high-noise gate is per pixel: on a mosaic with a flat half and a textured half at
+    sigma 0.02 (past the level ramp), the output is the classical expert deep inside the flat half and mostly the
+    network on the texture."""
+    joint = learned.load_pretrained("joint_denoise")
+    g = torch.Generator().manual_seed(9)
+    clean = torch.full((1, 1, 48, 48), 0.45)
+    clean[..., 24:] = 0.2 + 0.6 * torch.rand(1, 1, 48, 24, generator=g)  # texture far above the noise
+    noise = learned.noise_features(0.0, 0.02**2).float()
+    raw = clean + 0.02 * torch.randn(clean.shape, generator=g)
+    out = learned.demosaic_learned(raw, model=joint, noise=noise)
+    expert = learned.classical_expert(raw, noise)
+    bare = copy.copy(joint)
+    bare.level_gate = {k: v for k, v in joint.level_gate.items() if k != "classical"}
+    net = learned.demosaic_learned(raw, model=bare, noise=noise)
+    def share(region):  # the expert's weight, in the mean over the region
+        return ((out[region] - net[region]).abs().mean() / (expert[region] - net[region]).abs().mean()).item()
+
+    flat = (slice(None), slice(None), slice(8, 40), slice(4, 16))
+    tex = (slice(None), slice(None), slice(8, 40), slice(30, 44))
+    assert share(flat) > 0.99 and share(tex) < 0.5, (share(flat), share(tex))  # weight_max 1, weight_detail 0.2
+
+
+def test_classical_gate_dict_is_checked():
+    """A malformed high-noise gate is refused naming the key, on every call, also when the gate is off for the
+    images given (a noise-free batch)."""
+    base = {"sigma_start": 0.0, "sigma_full": 0.01, "weight_max": 1.0, "denoiser": "nlmeans", "method": "menon2007"}
+    assert learned.check_classical_gate(base) is base
+    for bad, match in (({"weight_detail": 0.2}, "go together"), ({"detail_r": (0.25, 1.0)}, "go together"),
+                       ({"detail_R": (0.25, 1.0)}, "unknown \\['detail_R'\\]"),
+                       ({"weight_detail": 0.2, "detail_r": (0.25, float("inf"))}, "detail_r, weight_detail"),
+                       ({"weight_detail": 0.2, "detail_r": (1.0,)}, "detail_r: expected two numbers"),
+                       ({"sigma_full": float("nan")}, "sigma_start, sigma_full, weight_max")):
+        with pytest.raises(ValueError, match=match):
+            learned.check_classical_gate(base | bad)
+    with pytest.raises(ValueError, match="missing \\['method'\\]"):
+        learned.check_classical_gate({k: v for k, v in base.items() if k != "method"})
+    net = copy.copy(learned.load_pretrained("joint_denoise"))
+    net.level_gate = dict(net.level_gate) | {"classical": base | {"detail_r": (0.25, 1.0)}}
+    with pytest.raises(ValueError, match="model.level_gate\\['classical'\\]: 'weight_detail' and 'detail_r'"):
+        learned.demosaic_learned(torch.full((1, 1, 8, 8), 0.5), model=net, noise=learned.noise_features(0.0, 0.0))
 
 
 def test_relative_level_gate_is_exposure_invariant():

@@ -227,3 +227,29 @@ def test_relative_gate_rules():
         by_set[s]["sigma 0.005"]["abs/0.0125"] = 30.2
     second = choose_relative(by_set, grid, within_tolerance=True)
     assert (second["kind"], second["ships"]) == ("abs", False)
+
+
+def test_detail_gate_rule():
+    """The detail-weighted gate's rule (docs/training_log.md#classical_detail_gate_2026-11-30): eligible if no level
+    on the photographs falls more than 0.02 dB below the uniform gate's gain and the synthetic sets' mean is at most
+    0.1 dB below it; the eligible candidate with the best mean on the photographs ships if it is 0.05 dB above the
+    uniform gate."""
+    from training.fit_joint_gate import choose_detail
+
+    grid = ((0.0, 0.01, 1.0, 0.2, (0.25, 1.0)), (0.0, 0.02, 1.0, 0.2, (0.25, 1.0)), (0.005, 0.01, 0.9, 0.0, (0.5, 1.5)))
+    a, b, c = "0/0.01/1/0.2/0.25,1", "0/0.02/1/0.2/0.25,1", "0.005/0.01/0.9/0/0.5,1.5"
+    # photographs, gains over "none": shipped +0.2 / +0.5; a +0.6 / +1.0 (best); b +0.3 / +0.6; c +0.19 / +1.6
+    photos = {"sigma 0.01": {"none": 30.0, "shipped": 30.2, a: 30.6, b: 30.3, c: 30.19},
+              "shot 0.01": {"none": 25.0, "shipped": 25.5, a: 26.0, b: 25.6, c: 26.6}}
+    # synthetic: a 0.2 dB below the shipped gate on average (not eligible), b and c level with it
+    synthetic = {"v5": {"sigma 0.01": {"none": 31.0, "shipped": 31.2, a: 31.0, b: 31.2, c: 31.2},
+                        "shot 0.01": {"none": 27.0, "shipped": 27.2, a: 27.0, b: 27.2, c: 27.2}}}
+    out = choose_detail(photos, synthetic, grid)
+    # c has the best photographs' mean (+0.895) and passes the 0.02 dB tolerance (0.01 below at sigma 0.01)
+    assert out["eligible"] == [b, c] and out["best"] == c and out["ships"]
+    photos["sigma 0.01"][c] = 30.17  # now 0.03 dB below the shipped gain at that level: not eligible
+    out = choose_detail(photos, synthetic, grid)
+    assert out["eligible"] == [b] and out["best"] == b and out["ships"]  # b: mean +0.45 vs shipped +0.35
+    photos["shot 0.01"][b] = 25.46  # b's mean +0.38, under the shipped +0.35 plus the 0.05 margin: nothing ships
+    out = choose_detail(photos, synthetic, grid)
+    assert out["best"] == b and not out["ships"]
