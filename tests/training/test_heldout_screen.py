@@ -250,6 +250,7 @@ def test_detail_gate_rule():
     photos["sigma 0.01"][c] = 30.17  # now 0.03 dB below the shipped gain at that level: not eligible
     out = choose_detail(photos, synthetic, grid)
     assert out["eligible"] == [b] and out["best"] == b and out["ships"]  # b: mean +0.45 vs shipped +0.35
-    photos["sigma 0.01"][b] = 30.25  # b's mean +0.375, under the shipped +0.35 plus the 0.05 margin: nothing ships
+    photos["sigma 0.01"][b], photos["shot 0.01"][b] = 30.25, 25.5  # b's mean +0.375, under the shipped +0.35 plus
+    # the 0.05 margin (and within the level tolerance): nothing ships
     out = choose_detail(photos, synthetic, grid)
     assert out["best"] == b and not out["ships"]
