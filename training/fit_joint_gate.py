@@ -242,6 +242,16 @@ def choose_relative(by_set: dict, grid=RELATIVE_GRID, tolerance_db: float = TOLE
                      "ships": bool(kind == "rel" and out["mean_gain_db"][_name((kind, value))] > shipped)}
 
 
+def _print_ranked(decision: dict, names, first=(), extra=None) -> None:
+    """One line per candidate: its gain at each level and its mean gain; ``first`` then the best 12 of ``names`` by
+    mean gain; ``extra``: ``(label, {name: dB})``, a last column where a candidate has it."""
+    mean = decision["mean_gain_db"]
+    for m in [*first, *sorted(names, key=mean.get, reverse=True)[:12]]:
+        column = "" if extra is None or m not in extra[1] else f" | {extra[0]} {extra[1][m]:+.3f}"
+        print(f"{m}: " + " ".join(f"{lv} {d:+.3f}" for lv, d in decision["gain_db"][m].items())
+              + f" | mean {mean[m]:+.3f}" + column)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--gate", choices=("low", "classical", "relative", "classical_detail"), default="low")
@@ -259,13 +269,8 @@ def main(argv=None) -> int:
         photos = scores_detail(args.photos)
         synthetic = {s: scores_detail(s) for s in args.sets}
         decision = choose_detail(photos, synthetic)
-        ranked = sorted(decision["eligible"], key=decision["mean_gain_db"].get, reverse=True)
-        for m in ["shipped"] + ranked[:12]:
-            g = decision["gain_db"][m]
-            syn = decision["synthetic_vs_shipped_db"].get(m)
-            print(f"{m}: " + " ".join(f"{lv} {d:+.3f}" for lv, d in g.items())
-                  + f" | mean {decision['mean_gain_db'][m]:+.3f}"
-                  + (f" | synthetic vs shipped {syn:+.3f}" if syn is not None else ""))
+        _print_ranked(decision, decision["eligible"], first=["shipped"],
+                      extra=("synthetic vs shipped", decision["synthetic_vs_shipped_db"]))
         print(f"eligible {len(decision['eligible'])} of {len(DETAIL_GRID)}; best {decision['best']}, "
               f"ships: {decision['ships']}")
         if args.out:
@@ -278,11 +283,7 @@ def main(argv=None) -> int:
         score, rule = (scores, choose) if args.gate == "low" else (scores_classical, choose_classical)
         by_set = {s: score(s) for s in args.sets}
     decision = rule(by_set)
-    ranked = sorted(decision["mean_gain_db"], key=decision["mean_gain_db"].get, reverse=True)
-    for m in ranked[:12]:
-        g = decision["gain_db"][m]
-        print(f"{m}: " + " ".join(f"{lv} {d:+.3f}" for lv, d in g.items())
-              + f" | mean {decision['mean_gain_db'][m]:+.3f}")
+    _print_ranked(decision, decision["mean_gain_db"])
     chosen = {k: v for k, v in decision.items() if k not in ("gain_db", "mean_gain_db", "ships")}
     print(f"chosen {chosen}, ships: {decision['ships']}")
     if args.out:

@@ -913,17 +913,16 @@ def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> 
         classical = gate.get("classical")
         if classical is not None:
             check_classical_gate(classical, "model.level_gate['classical']")
-            w = classical_gate_weight(raw, noise, classical["sigma_start"], classical["sigma_full"],
-                                      classical["weight_max"]).to(out.dtype)
-            on = torch.nonzero(w > 0).flatten()
+            ramp = classical_gate_weight(raw, noise, classical["sigma_start"], classical["sigma_full"],
+                                         1.0).to(out.dtype)
+            on = torch.nonzero(ramp > 0).flatten()
             if on.numel():  # the classical expert runs only on the images it is weighed in for
                 nz = noise.expand(x.shape[0], -1)[on]
                 expert = classical_expert(x[on], nz, classical["denoiser"], classical["method"]).to(out.dtype)
-                wo = w[on].reshape(-1, 1, 1, 1)
-                if classical.get("detail_r") is not None:  # per pixel: weight_max where flat, less on detail
-                    wo = wo / classical["weight_max"] * classical_detail_weight(
-                        0.5 * (expert + out[on]), nz, classical["weight_max"], classical["weight_detail"],
-                        classical["detail_r"])
+                wo = ramp[on].reshape(-1, 1, 1, 1) * (  # per pixel (weight_max where flat), or weight_max
+                    classical_detail_weight(0.5 * (expert + out[on]), nz, classical["weight_max"],
+                                            classical["weight_detail"], classical["detail_r"])
+                    if "detail_r" in classical else classical["weight_max"])
                 out = out.index_copy(0, on, wo * expert + (1 - wo) * out[on])
     return out[..., dy:dy + raw.shape[-2], dx:dx + raw.shape[-1]]
 
