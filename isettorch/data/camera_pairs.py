@@ -479,7 +479,7 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             d = {"gain": gain, "read_e": kw["read_noise_v"] / cg, "dsnu_e": kw["dsnu_sigma_v"] / cg,
                  "dark": kw["dark_current_e_per_s"], "f_number": float(camera.optics.f_number),
                  "focal": float(camera.optics.focal_length_m), "pitch": sensor.pixel_size_m,
-                 "full_well": _full_well_e(sensor, cg), "prnu": kw["prnu_sigma_percent"], "black": black}
+                 "full_well": sensor.saturation_e(cg), "prnu": kw["prnu_sigma_percent"], "black": black}
             metas.append(_meta_values(it["index"], d, scene.metadata, float(exposure[0]), it["noise_gain"],
                                       it["noise_floor"], it["white_level"], sensor.cfa, white_cam, white_xyz,
                                       it["qe_meta"], scene.wavelengths_nm))
@@ -508,18 +508,6 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     out["meta"] = _batch_meta(metas, dtype, alloc)
     clock("targets")
     return out
-
-
-def _full_well_e(sensor, conversion_gain_v_per_e):
-    """The full well the pairs' metadata report (electrons; a float, or ``[B]`` for per-call conversion gains): where
-    the sensor saturates at unit analog gain, its well capacity ``voltage_swing_v / conversion gain`` (ISETCam
-    ``pixelGet('well capacity')``, :attr:`~isettorch.sensor.Sensor.well_capacity_e`), or the photodiode's own clip
-    ``full_well_e`` (``Sensor(full_well_e=...)``, EMVA 1288 release 4.0 section 4.1) where that is lower."""
-    well = sensor.voltage_swing_v / conversion_gain_v_per_e
-    fw = sensor.noise_terms.full_well_e
-    if fw is None:
-        return well
-    return well.clamp(max=fw) if isinstance(well, torch.Tensor) else min(well, fw)
 
 
 def _normalise(dst: torch.Tensor, values: list, items: list) -> None:

@@ -384,19 +384,29 @@ class Sensor(nn.Module):
             return v.clamp(max=top)
         return min(top, float(v))
 
+    def saturation_e(self, conversion_gain_v_per_e=None) -> float | torch.Tensor:
+        """Electrons at which a pixel saturates: its well capacity, swing / conversion gain (ISETCam
+        ``pixelGet('well capacity')``, :attr:`well_capacity_e`), or the photodiode's own full well ``full_well_e``
+        (EMVA 1288 release 4.0, section 4.1) where that is lower. ``conversion_gain_v_per_e``: None (the sensor's),
+        a number or a per-call tensor (then ``[B]``)."""
+        cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
+        cg = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
+        well = self.voltage_swing_v / cg
+        fw = self.noise_terms.full_well_e
+        if fw is None:
+            return well
+        return well.clamp(max=fw) if isinstance(well, torch.Tensor) else min(well, fw)
+
     def white_level(self, analog_gain=None, conversion_gain_v_per_e=None) -> float | torch.Tensor:
         """The raw's saturation value in :attr:`output_units` (its ``white_level``): :meth:`saturation_v` in DN (the
         ADC's code for it, ``round(v / lsb) + black``, at most the top code) or volts; for electrons, the swing /
         conversion gain or the full well, whichever is lower. A float, or ``[B]`` for per-call tensors (see
         :meth:`saturation_v`). Without ``full_well_e``: the top code, the swing, swing / conversion gain."""
+        if self.output_units == "electrons":  # the electrons chain clips the pixel volts (no analog gain)
+            return self.saturation_e(conversion_gain_v_per_e)
         cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
         cg = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
         fw = self.noise_terms.full_well_e
-        if self.output_units == "electrons":  # the electrons chain clips the pixel volts (no analog gain)
-            well = self.voltage_swing_v / cg
-            if fw is None:
-                return well
-            return well.clamp(max=fw) if isinstance(well, torch.Tensor) else min(well, fw)
         if self.output_units == "volts":
             return self.voltage_swing_v if fw is None else self.saturation_v(analog_gain, cg)
         return self._white_dn(analog_gain, cg)
