@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["load_yaml"]
+__all__ = ["load_yaml", "check_yaml_mapping"]
 
 # YAML 1.2 floats (core schema): PyYAML's resolver is YAML 1.1's, which needs a dot and a signed exponent, so
 # ``1e-2`` and ``1.0e4`` would be strings. This one also reads 1e-2, 1.0e4, -1E+3 and .5e3 as floats (the YAML 1.2
@@ -59,3 +59,25 @@ def load_yaml(text: str):
     import yaml
 
     return yaml.load(text, Loader=_config_loader())  # noqa: S506 - a SafeLoader subclass
+
+
+def check_yaml_mapping(path, name: str, expected: str, *, empty_ok: bool = False) -> None:
+    """The YAML file ``path`` given as ``name`` is UTF-8 text whose top level is a mapping (or, with ``empty_ok``,
+    empty), else a ValueError naming ``name``, the file and ``expected`` (what the mapping holds). A missing or
+    unreadable file and a YAML syntax error pass: the loader's own message names the file."""
+    from pathlib import Path
+
+    try:
+        text = Path(path).read_bytes().decode("utf-8")
+    except OSError:
+        return
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{name}: {path}: not UTF-8 text ({err.reason} at byte {err.start})") from err
+    try:
+        data = load_yaml(text)
+    except Exception:  # noqa: BLE001 - a YAML syntax error: the loader reports it
+        return
+    if data is None and empty_ok:
+        return
+    if not isinstance(data, dict):
+        raise ValueError(f"{name}: {path}: expected {expected}, got a {type(data).__name__}")

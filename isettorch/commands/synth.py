@@ -29,6 +29,7 @@ def run(args) -> int:
     import sys
     from pathlib import Path
 
+    from .._yaml import check_yaml_mapping
     from ..data.config import load_config
     from ..data.writer import verify_dataset, write_dataset
     from ._outputs import check_dir
@@ -48,8 +49,9 @@ def run(args) -> int:
     # bad input raises ValueError naming the option ("count: ..." is shown as "--count: ...", isettorch.cli)
     if args.num_shards < 1:
         raise ValueError(f"num_shards: expected a number of parts >= 1, got {args.num_shards}")
-    if args.config:
-        _check_config_file(args.config)
+    if args.config:  # UTF-8 YAML holding a mapping, or empty (the defaults); load_config reports a missing file
+        check_yaml_mapping(args.config, "config", "a mapping of settings (keys of "
+                           "isettorch.data.config.SYNTH_DEFAULTS)", empty_ok=True)
     cfg = load_config(args.config) if args.config else None
     check_dir(args.out, "out")  # a file, or a place without write permission: named before any work
     manifest = write_dataset(cfg, args.out, args.count, shard=args.shard, num_shards=args.num_shards,
@@ -57,25 +59,3 @@ def run(args) -> int:
     done = len(manifest["shards"])
     print(f"{done}/{manifest['num_files']} shards in {args.out}" + (" (complete)" if manifest["complete"] else ""))
     return 0
-
-
-def _check_config_file(path) -> None:
-    """--config is UTF-8 YAML whose top level is a mapping (or empty: the defaults); ValueError naming ``config``
-    otherwise (load_config reports a missing file and YAML syntax errors)."""
-    from pathlib import Path
-
-    from .._yaml import load_yaml
-
-    try:
-        text = Path(path).read_bytes().decode("utf-8")
-    except OSError:
-        return  # load_config's message names the file
-    except UnicodeDecodeError as err:
-        raise ValueError(f"config: {path}: not UTF-8 text ({err.reason} at byte {err.start})") from err
-    try:
-        data = load_yaml(text)
-    except Exception:  # noqa: BLE001 - a YAML syntax error: load_config reports it
-        return
-    if data is not None and not isinstance(data, dict):
-        raise ValueError(f"config: {path}: expected a mapping of settings (keys of "
-                         f"isettorch.data.config.SYNTH_DEFAULTS), got a {type(data).__name__}")

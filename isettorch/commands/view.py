@@ -56,24 +56,13 @@ def _check_listen(address: str, port: int) -> None:
 
 def _check_config(config: str) -> None:
     """A --config file is UTF-8 YAML holding a mapping (the library's message would name neither --config nor the
-    file)."""
+    file); a preset name, or a missing file, is left to the library (its message names config)."""
     from pathlib import Path
 
-    from .._yaml import load_yaml
+    from .._yaml import check_yaml_mapping
 
-    if not Path(config).is_file():
-        return  # a preset name, or missing: the library's message names config
-    try:
-        text = Path(config).read_bytes().decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise ValueError(f"config: {config}: not UTF-8 text ({err.reason} at byte {err.start})") from err
-    try:
-        data = load_yaml(text)
-    except Exception:  # noqa: BLE001 - a YAML syntax error: the library reports it
-        return
-    if not isinstance(data, dict):
-        raise ValueError(f"config: {config}: expected a YAML mapping with sections (optics, sensor, isp, ...), got "
-                         f"{type(data).__name__}")
+    if Path(config).is_file():
+        check_yaml_mapping(config, "config", "a YAML mapping with sections (optics, sensor, isp, ...)")
 
 
 def run(args) -> int:
