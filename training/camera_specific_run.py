@@ -38,6 +38,8 @@ import numpy_capture as nc  # noqa: E402
 import torch  # noqa: E402
 import yaml  # noqa: E402
 
+from isettorch._yaml import load_yaml  # noqa: E402
+
 #: the simulated camera (electrons, DN); no row noise (not in the noise model ``process`` gives the network)
 TRUTH = dict(gain_dn_per_e=4.0, read_noise_e=1.5, dark_current_e_per_s=20.0, dsnu_e=1.0, prnu_percent=0.8,
              row_noise_e=0.0, full_well_e=1000.0, black_level_dn=64.0, bits=12, qe={"R": 0.45, "G": 0.6, "B": 0.4})
@@ -57,7 +59,7 @@ def prepare(out: Path) -> dict:
     sensor_yaml = out / "sensor.yaml"
     if main(["calibrate", str(cap), "--out", str(sensor_yaml), "--quiet"]) != 0:
         raise SystemExit("calibrate failed")
-    s = yaml.safe_load(sensor_yaml.read_text())["sensor"]
+    s = load_yaml(sensor_yaml.read_text())["sensor"]
     cg, lsb = s["conversion_gain_v_per_e"], 1.0 / 2 ** s["adc_bits"]
     measured = {"gain_dn_per_e": cg / lsb, "read_noise_e": s["read_noise_v"] / cg,
                 "dsnu_e": s.get("dsnu_sigma_v", 0.0) / cg, "prnu_percent": s.get("prnu_sigma_percent", 0.0),

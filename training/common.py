@@ -10,15 +10,18 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import yaml
+
+from isettorch._yaml import load_yaml
 
 
 def load_config(path: str | Path, overrides: list[str] | None = None) -> dict:
-    """Read a YAML config (``yaml.safe_load``) and apply ``key.sub=value`` overrides (values parsed as YAML)."""
+    """Read a YAML config and apply ``key.sub=value`` overrides (values parsed as YAML), both with the library's
+    reader (:func:`isettorch._yaml.load_yaml`: YAML 1.2 floats, so ``optim.lr=1e-3`` is a number, not the string
+    ``'1e-3'`` of ``yaml.safe_load``)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"config: no file at {path}")
-    cfg = yaml.safe_load(path.read_text())
+    cfg = load_yaml(path.read_text())
     if not isinstance(cfg, dict):
         raise ValueError(f"config: expected a YAML mapping in {path}, got {type(cfg).__name__}")
     for item in overrides or []:
@@ -31,7 +34,7 @@ def load_config(path: str | Path, overrides: list[str] | None = None) -> dict:
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
                 raise ValueError(f"override: {key!r} goes through a non-mapping value")
-        node[parts[-1]] = yaml.safe_load(value)
+        node[parts[-1]] = load_yaml(value)
     return cfg
 
 

@@ -24,7 +24,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import torch  # noqa: E402
-import yaml  # noqa: E402
+
+from isettorch._yaml import load_yaml  # noqa: E402
 
 #: how far below MHC an image may be before it counts against a candidate (dB)
 FLOOR_DB = 0.1
@@ -109,7 +110,7 @@ def main(argv=None) -> int:
         if "=" not in item:
             ap.error(f"--guard: expected KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
-        guard[key] = yaml.safe_load(value)
+        guard[key] = load_yaml(value)
     if (args.start is None) != (args.alphas is None):
         ap.error("--start, --alphas: expected both (weight interpolation) or neither")
     rows = score(_candidates(args.checkpoint, args.variant, args.scales, guard, args.start, args.alphas), args.photos,

@@ -30,12 +30,11 @@ import shlex
 import sys
 from pathlib import Path
 
-import yaml
-
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch._yaml import load_yaml  # noqa: E402
 from training import heldout_screen  # noqa: E402
 
 CONFIGS = ROOT / "configs" / "train"
@@ -65,7 +64,7 @@ def load_config(name: str, configs: Path = CONFIGS) -> dict:
     path = Path(configs) / f"{name}.yaml"
     if not path.is_file():
         raise ValueError(f"chain: expected a config {path}, it does not exist")
-    return yaml.safe_load(path.read_text())
+    return load_yaml(path.read_text())
 
 
 #: shipped models a chain may start from (the joint model starts from the noise-free one: ``noise_free`` makes it)

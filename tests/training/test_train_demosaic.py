@@ -48,6 +48,17 @@ def test_synth_source_is_retired():
         train_demosaic.make_sampler(cfg)
 
 
+def test_config_and_overrides_read_exponent_floats_as_numbers(tmp_path):
+    """``lr: 1e-3`` in a training config and ``--set optim.lr=1e-3`` are the number 0.001 (YAML 1.2 floats, the
+    library's reader; PyYAML's safe_load gives the string '1e-3', which the optimiser would reject)."""
+    path = tmp_path / "c.yaml"
+    path.write_text("optim: {lr: 1e-3, lr_min: 2.5E-5}\nname: '1e-3'\n")
+    cfg = common.load_config(path, ["optim.warmup=2e2", "data.batch=8", "out=1e-3x"])
+    assert cfg["optim"] == {"lr": 0.001, "lr_min": 2.5e-5, "warmup": 200.0}
+    assert cfg["name"] == "1e-3" and cfg["data"] == {"batch": 8} and cfg["out"] == "1e-3x"
+    assert isinstance(cfg["data"]["batch"], int)
+
+
 def test_training_domain_is_explicit():
     """linear: values are the exposed linear image (<= 1, no encoding); encoded: a power 1/gamma of it."""
     cfg = common.load_config(SMOKE)
