@@ -46,7 +46,7 @@ def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, cro
         crop: border pixels excluded on every side.
 
     Returns:
-        :math:`(B)` in dB (``inf`` for identical images).
+        :math:`(B)` in dB (``inf`` for identical images, where the gradient is zero, not NaN).
 
     Example:
         >>> psnr(torch.ones(1, 1, 4, 4), torch.full((1, 1, 4, 4), 0.9))  # doctest: +SKIP
@@ -55,7 +55,12 @@ def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, cro
     Reference: e.g. Wang et al., IEEE TIP 13(4), 2004, eq. 1 context; scikit-image ``peak_signal_noise_ratio``.
     """
     r = float(check_positive(data_range, "data_range"))
-    return 10.0 * torch.log10(r**2 / mse(image, target, crop))
+    err = mse(image, target, crop)
+    # identical images: +inf, the maximum, with a zero gradient (10 log10(r^2 / mse) differentiated at mse = 0 is
+    # -inf times a zero difference, NaN, which would poison a training step whose batch holds one exact image)
+    exact = err == 0
+    value = 10.0 * torch.log10(r**2 / torch.where(exact, torch.ones_like(err), err))
+    return torch.where(exact, torch.full_like(value, torch.inf), value)
 
 
 def cpsnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, crop: int = 0) -> torch.Tensor:

@@ -105,6 +105,21 @@ def test_psnr_ssim_against_skimage():
         cpsnr(ta[:, :2], tb[:, :2])
 
 
+def test_psnr_of_an_exact_image_is_inf_with_a_zero_gradient():
+    """A batch holding one exact image: that image's PSNR is +inf with a zero gradient (not NaN), the other's value
+    and gradient are the analytic ones: d/dx 10 log10(1 / mse) = -(10 / ln 10) (2 (x - t) / N) / mse."""
+    x = torch.rand(2, 3, 6, 5, dtype=torch.float64, requires_grad=True)
+    t = x.detach().clone()
+    t[1] += 0.1
+    p = psnr(x, t)
+    p.sum().backward()
+    assert torch.isinf(p[0]) and p[0] > 0 and float(p[1]) == pytest.approx(20.0, abs=1e-9)
+    assert torch.equal(x.grad[0], torch.zeros_like(x.grad[0]))
+    n, err = x[1].numel(), 0.01
+    expected = -(10 / np.log(10)) * (2 * -0.1 / n) / err
+    assert torch.allclose(x.grad[1], torch.full_like(x.grad[1], expected), rtol=1e-9)
+
+
 def test_snr_helpers():
     g = torch.Generator().manual_seed(3)
     patch = 50 + 2.5 * torch.randn(4, 64, 64, generator=g, dtype=torch.float64)
