@@ -763,6 +763,9 @@ def _check_detail(weight_max, weight_detail, detail_r, window) -> tuple[float, f
 
 _CLASSICAL_KEYS = ("sigma_start", "sigma_full", "weight_max", "denoiser", "method")
 _CLASSICAL_DETAIL_KEYS = ("weight_detail", "detail_r")
+#: the box (pixels, odd) over which :func:`classical_detail_weight` measures local contrast; the shipped gate's
+#: ``detail_r`` was chosen with it (``docs/training_log.md#classical_detail_gate_2026-11-30``)
+DETAIL_WINDOW = 5
 
 
 def check_classical_gate(classical: dict, name: str = "classical") -> dict:
@@ -783,7 +786,7 @@ def check_classical_gate(classical: dict, name: str = "classical") -> dict:
                          f"{'weight_detail' if 'weight_detail' in keys else 'detail_r'!r}")
     _check_ramp(classical["sigma_start"], classical["sigma_full"], classical["weight_max"])
     if "detail_r" in keys:
-        _check_detail(classical["weight_max"], classical["weight_detail"], classical["detail_r"], 5)
+        _check_detail(classical["weight_max"], classical["weight_detail"], classical["detail_r"], DETAIL_WINDOW)
     return classical
 
 
@@ -799,7 +802,7 @@ def classical_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_start: f
 
 
 def classical_detail_weight(image: torch.Tensor, noise: torch.Tensor, weight_max: float, weight_detail: float,
-                            detail_r: tuple[float, float], window: int = 5) -> torch.Tensor:
+                            detail_r: tuple[float, float], window: int = DETAIL_WINDOW) -> torch.Tensor:
     """The high-noise gate's weight factor per pixel ``[B, 1, H, W]`` (:data:`PRETRAINED_GATES`, ``detail_r``):
     ``weight_max`` where an estimate ``image`` ``[B, 3, H, W]`` is flat within its noise, ``weight_detail`` where it
     has detail, linear in between (either may be the larger). The detail is the local contrast against the local
