@@ -14,6 +14,7 @@ Sources (linear RGB in [0, 1], scored as the benchmark scores 8-bit images: valu
   reflectance) in grey and between two colours: fine and high-frequency colour texture.
 
     python training/stress_set.py [--size 128] [--natural 12] [--out res.json]   # scores MHC, learned, Menon
+    python training/stress_set.py --folder DIR --size 256   # other photographs in every variant (out of sample)
 """
 
 from __future__ import annotations
@@ -159,6 +160,26 @@ def stress_set(size: int = 128, n_natural: int = 12, photos: tuple[str, ...] = P
     return out
 
 
+def folder_set(folder: str | Path, size: int, variants: tuple[str, ...] = tuple(VARIANTS),
+               bits: int | None = 8) -> list[tuple[str, torch.Tensor]]:
+    """The photographs in ``folder`` (8-bit RGB files, :func:`isettorch.isp.evaluation.load_images`), each as its
+    centre ``size`` x ``size`` crop (the whole photograph where it is smaller, cut to even sides) in ``variants``
+    (:data:`VARIANTS`), quantised as :func:`stress_set` does: the stress set's variants on photographs it never held,
+    an out-of-sample check of the floor against MHC."""
+    from isettorch.isp.evaluation import load_images
+
+    out = []
+    for name, a in load_images(folder):
+        h, w = (min(n, size) // 2 * 2 for n in a.shape[:2])
+        top, left = (a.shape[0] - h) // 2, (a.shape[1] - w) // 2
+        base = torch.from_numpy(a[top:top + h, left:left + w].astype("float64") / 255).permute(2, 0, 1)
+        out += [(f"{Path(name).stem}/{v}", apply_variant(base, v)) for v in variants]
+    if bits is not None:
+        q = 2.0**bits - 1
+        out = [(n, torch.round(x * q) / q) for n, x in out]
+    return out
+
+
 def score(images: list[tuple[str, torch.Tensor]], methods: dict, crop: int = 10, pattern: str = "RGGB") -> dict:
     """CPSNR (benchmark convention: output clipped to [0, 1], crop ``crop``) of each method on each image:
     ``{method: {name: dB}}``; ``methods``: name -> callable (raw (1, 1, H, W) float32, pattern) -> RGB."""
@@ -182,22 +203,29 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--natural", type=int, default=12)
+    ap.add_argument("--folder", default=None, help="score this folder's photographs in every variant instead")
+    ap.add_argument("--methods", nargs="+", default=["learned"], help="learned methods scored against MHC")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
-    images = stress_set(args.size, args.natural)
-    from isettorch.isp.learned import demosaic_learned, load_pretrained
+    from isettorch.isp.learned import LEARNED_METHODS, demosaic_learned, load_pretrained
 
-    bare = load_pretrained(guard=False)
-    methods = {m: (lambda raw, p, m=m: demosaic(raw, p, method=m)) for m in ("malvar2004", "menon2007", "learned")}
-    methods["learned_unguarded"] = lambda raw, p: demosaic_learned(raw, p, model=bare)
+    learned = list(dict.fromkeys(args.methods))
+    if set(learned) - set(LEARNED_METHODS):
+        ap.error(f"--methods: expected some of {sorted(LEARNED_METHODS)}, got {args.methods}")
+    images = stress_set(args.size, args.natural) if args.folder is None else folder_set(args.folder, args.size)
+    methods = {m: (lambda raw, p, m=m: demosaic(raw, p, method=m)) for m in ["malvar2004", "menon2007", *learned]}
+    if args.folder is None:
+        bare = load_pretrained(guard=False)
+        methods["learned_unguarded"] = lambda raw, p: demosaic_learned(raw, p, model=bare)
+        learned.append("learned_unguarded")
     res = score(images, methods)
-    print(f"{'image':40s} " + " ".join(f"{m[:9]:>9s}" for m in methods) + "  learned - MHC")
+    print(f"{'image':40s} " + " ".join(f"{m[:9]:>9s}" for m in methods) + f"  {learned[0]} - MHC")
     for n, _ in images:
         print(f"{n:40s} " + " ".join(f"{res[m][n]:9.2f}" for m in methods)
-              + f"  {res['learned'][n] - res['malvar2004'][n]:+.2f}")
-    for m in ("learned", "learned_unguarded"):
+              + f"  {res[learned[0]][n] - res['malvar2004'][n]:+.2f}")
+    for m in learned:
         d = sorted((res[m][n] - res["malvar2004"][n], n) for n, _ in images)
         print(f"{m}: {sum(x < -0.1 for x, _ in d)} of {len(images)} images more than 0.1 dB below MHC; worst "
               + ", ".join(f"{n} {x:+.2f}" for x, n in d[:4]))
