@@ -99,3 +99,43 @@ def test_plot(frames):
     bright, dark, mu_p, _, _ = frames
     fig = emva1288(bright[:, :2], dark[:, :2], photons_per_pixel=mu_p).plot()
     assert len(fig.axes) == 3
+
+
+def _well_limited_frames(seed, k_dn_per_e=4.0, full_well_e=800.0, read_e=1.5, levels=30):
+    """A well that saturates below the ADC's full scale: past it the pixels keep their read and quantisation noise
+    (a flat, noisy variance plateau), the case where the EMVA reference implementation's downward scan stops on a
+    bump of the plateau. Truth: the first level at the well, K, QE 0.6, PRNU 1 %."""
+    g = torch.Generator().manual_seed(seed)
+    prnu_map = 0.01 * torch.randn(H, W, generator=g, dtype=torch.float64)
+    mu_p = torch.linspace(0.0, 1.3 * full_well_e / QE, levels, dtype=torch.float64)
+    e = torch.poisson((QE * mu_p.view(-1, 1, 1, 1) * (1 + prnu_map)).expand(levels, 4, H, W).contiguous(),
+                      generator=g).clamp(max=full_well_e)
+    bright = torch.round(OFFSET_DN + k_dn_per_e * (e + read_e * torch.randn(e.shape, generator=g, dtype=torch.float64)))
+    dark = torch.round(OFFSET_DN + k_dn_per_e * read_e * torch.randn(4, H, W, generator=g, dtype=torch.float64))
+    return bright, dark, mu_p
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_saturation_is_the_variance_maximum_when_the_well_clips_below_the_adc(seed):
+    bright, dark, mu_p = _well_limited_frames(seed)
+    res = emva1288(bright, dark, photons_per_pixel=mu_p)
+    var = res.var_dn2
+    assert res.saturation_index == int(var.argmax())
+    # the variance peaks where the mean well reaches about 90 % of the 800 e- well (the brightest pixels clip first;
+    # the levels are 26 e- apart in the mean)
+    assert 0.8 * 800 < float(res.saturation_capacity_e) < 800
+    assert float(res.system_gain_dn_per_e) == pytest.approx(4.0, rel=0.03)
+    assert float(res.prnu1288_percent) == pytest.approx(1.0, abs=0.15)
+
+
+def test_level_order_and_saturated_stacks_are_errors():
+    bright, dark, mu_p = _well_limited_frames(0, levels=12)
+    with pytest.raises(ValueError, match="photons_per_pixel: expected the levels in increasing exposure"):
+        emva1288(bright.flip(0), dark, photons_per_pixel=mu_p.flip(0))
+    with pytest.raises(ValueError, match="bright: expected the exposure levels in increasing order"):
+        emva1288(bright.flip(0), dark)
+    # every lit level saturated (the ADC clips): one clear error, not a reduction over an empty tensor
+    d = torch.round(100 + 1.5 * torch.randn(2, 16, 16, generator=torch.Generator().manual_seed(0)))
+    saturated = torch.stack([d + 1] + [torch.full((2, 16, 16), 4095.0)] * 4)
+    with pytest.raises(ValueError, match="fewer than 2 levels below 70 % of saturation"):
+        emva1288(saturated, d)

@@ -139,3 +139,19 @@ def test_snr_helpers():
     dr = dynamic_range_from_curve(sig, pixel_snr(sig, read_noise_e=3.0))
     s_min = 0.5 + math.sqrt(0.25 + 9.0)  # SNR = 1: S^2 = S + 9
     assert float(dr) == pytest.approx(20 * math.log10(1e4 / s_min), abs=0.01)
+
+
+@pytest.mark.parametrize("data_range", [1e-4, 1e-3, 1.0, 255.0])
+def test_ssim_is_scale_free(data_range):
+    """SSIM of images scaled with their data range does not change (its constants scale with data_range^2): equal to
+    scikit-image's at every range, 1 for identical images (kornia's default eps broke this below ~1e-2)."""
+    g = np.random.default_rng(2)
+    a = g.uniform(0, 1, (3, 32, 30))
+    b = np.clip(a + g.normal(0, 0.05, a.shape), 0, 1)
+    ta, tb = torch.tensor(a * data_range), torch.tensor(b * data_range)
+    ref = structural_similarity(a, b, data_range=1.0, channel_axis=0, gaussian_weights=True, sigma=1.5,
+                                use_sample_covariance=False)
+    assert float(ssim(ta, tb, data_range=data_range)) == pytest.approx(ref, abs=1e-7)
+    assert float(ssim(ta, ta, data_range=data_range)) == pytest.approx(1.0, abs=1e-12)
+    with pytest.raises(ValueError, match="window_size: expected an odd"):
+        ssim(ta, tb, data_range=data_range, window_size=10)
