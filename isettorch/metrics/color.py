@@ -22,6 +22,30 @@ _KAPPA_LIN = 1.0 / (3.0 * _DELTA**2)  # 841 / 108
 _WHITE_XY = {"D65": (0.3127, 0.3290), "D50": (0.3457, 0.3585), "A": (0.44758, 0.40745), "E": (1 / 3, 1 / 3)}
 WHITE_POINTS = {k: (x / y, 1.0, (1.0 - x - y) / y) for k, (x, y) in _WHITE_XY.items()}
 
+#: IEC 61966-2-1 sRGB: the primaries' and the D65 white's CIE 1931 chromaticities
+SRGB_PRIMARIES_XY = ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06))
+D65_XY = _WHITE_XY["D65"]
+
+
+def rgb_to_xyz_matrix(primaries_xy, white_xy) -> torch.Tensor:
+    """Linear RGB -> XYZ ``(3, 3)`` float64 (columns: the primaries' XYZ; RGB (1, 1, 1) is the white with Y = 1) from
+    the primaries' and the white's chromaticities (SMPTE RP 177-1993, section 3.3)."""
+    p = torch.tensor([[x / y, 1.0, (1 - x - y) / y] for x, y in primaries_xy], dtype=torch.float64).T
+    xw, yw = white_xy
+    white = torch.tensor([xw / yw, 1.0, (1 - xw - yw) / yw], dtype=torch.float64)
+    return p * torch.linalg.solve(p, white)[None, :]
+
+
+_SRGB_MATRICES: dict = {}
+
+
+def _srgb_matrix(inverse: bool, like: torch.Tensor) -> torch.Tensor:
+    """The sRGB -> XYZ matrix (or its inverse) in ``like``'s dtype and device (computed once in float64)."""
+    if not _SRGB_MATRICES:
+        m = rgb_to_xyz_matrix(SRGB_PRIMARIES_XY, D65_XY)
+        _SRGB_MATRICES.update({False: m, True: torch.linalg.inv(m)})
+    return _SRGB_MATRICES[inverse].to(dtype=like.dtype, device=like.device)
+
 
 def _channel_last(x: torch.Tensor, dim: int, name: str) -> tuple[torch.Tensor, int]:
     if not isinstance(x, torch.Tensor):
@@ -84,7 +108,7 @@ def xyz_to_lab(xyz: torch.Tensor, white="D65", dim: int = -3) -> torch.Tensor:
         L*, a*, b* along ``dim``, same shape as ``xyz``.
 
     Example:
-        >>> xyz_to_lab(torch.tensor([[0.95047, 1.0, 1.08883]]), "D65", dim=-1)  # doctest: +SKIP
+        >>> xyz_to_lab(torch.tensor([WHITE_POINTS["D65"]]), "D65", dim=-1)  # doctest: +SKIP
         tensor([[100., 0., 0.]])
     """
     x, d = _channel_last(xyz, dim, "xyz")
@@ -147,29 +171,23 @@ def xy_to_xyz(xy: torch.Tensor, Y=1.0, dim: int = -3) -> torch.Tensor:
 
 
 def srgb_to_xyz(srgb: torch.Tensor, dim: int = -3) -> torch.Tensor:
-    """Encoded sRGB (IEC 61966-2-1) to XYZ (D65, Y_white = 1).
-
-    Uses kornia: ``kornia.color.rgb_to_linear_rgb`` then ``kornia.color.rgb_to_xyz`` (its matrix has 6 decimals,
-    so results differ from colour-science's sRGB by about 1e-5).
+    """Encoded sRGB (IEC 61966-2-1) to XYZ (D65, Y_white = 1): :func:`isettorch.image.srgb_decode`, then the matrix
+    of the sRGB primaries and D65 (:func:`rgb_to_xyz_matrix`; colour-science's ``normalised_primary_matrix``), so
+    that sRGB white is the D65 of :data:`WHITE_POINTS` exactly (CIELAB (100, 0, 0)). IEC 61966-2-1's rounded
+    4-decimal matrix (colour-science's ``sRGB_to_XYZ``) differs from it by up to 4e-5; kornia's 6-decimal one,
+    used here before 2026-11-30, by up to 3e-4 (white at b* = 0.019).
     """
-    from kornia.color import rgb_to_linear_rgb, rgb_to_xyz
+    from ..image import srgb_decode
 
     x, d = _channel_last(srgb, dim, "srgb")
-    img = x.movedim(-1, 0).reshape(1, 3, -1, 1)
-    out = rgb_to_xyz(rgb_to_linear_rgb(img))
-    return out.reshape(3, *x.shape[:-1]).movedim(0, -1).movedim(-1, d)
+    return (srgb_decode(x) @ _srgb_matrix(False, x).T).movedim(-1, d)
 
 
 def xyz_to_srgb(xyz: torch.Tensor, dim: int = -3, clip: bool = True) -> torch.Tensor:
-    """XYZ (D65, Y_white = 1) to encoded sRGB (IEC 61966-2-1), via kornia's ``xyz_to_rgb`` and
-    ``linear_rgb_to_rgb``. ``clip`` clips linear RGB to [0, 1] first (out-of-gamut colours are otherwise
-    encoded with kornia's behaviour on negatives)."""
-    from kornia.color import linear_rgb_to_rgb, xyz_to_rgb
+    """XYZ (D65, Y_white = 1) to encoded sRGB (IEC 61966-2-1): the inverse of :func:`srgb_to_xyz`'s matrix, then
+    :func:`isettorch.image.srgb_encode`. ``clip``: linear values above 1 become 1 (else they follow the power law);
+    negative linear values (out of gamut) always encode to 0, the library's one sRGB clipping rule."""
+    from ..image import srgb_encode
 
     x, d = _channel_last(xyz, dim, "xyz")
-    img = x.movedim(-1, 0).reshape(1, 3, -1, 1)
-    lin = xyz_to_rgb(img)
-    if clip:
-        lin = lin.clamp(0.0, 1.0)
-    out = linear_rgb_to_rgb(lin)
-    return out.reshape(3, *x.shape[:-1]).movedim(0, -1).movedim(-1, d)
+    return srgb_encode(x @ _srgb_matrix(True, x).T, clip=clip).movedim(-1, d)

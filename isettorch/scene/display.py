@@ -17,13 +17,10 @@ from torch import nn
 from .. import constants, spectral
 from .._checks import as_tensor, check_finite, check_rank, check_wavelengths
 from ..image import srgb_decode, srgb_encode
+from ..metrics.color import D65_XY, SRGB_PRIMARIES_XY, rgb_to_xyz_matrix  # IEC 61966-2-1 (CIE 1931 xy)
 from ._common import check_float
 
 __all__ = ["Display", "display_names", "SRGB_PRIMARIES_XY", "D65_XY"]
-
-# IEC 61966-2-1:1999 primaries and white (CIE 1931 xy).
-SRGB_PRIMARIES_XY = ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06))
-D65_XY = (0.3127, 0.3290)
 
 _METERS_PER_INCH = 0.0254
 
@@ -64,20 +61,12 @@ def _srgb_lcd_primaries() -> tuple[np.ndarray, np.ndarray]:
     bands = torch.stack([torch.exp(-0.5 * ((w - c) / s) ** 2) for c, s in ((460, 12), (530, 15), (620, 10))])
     cmf = spectral.cmfs(w, dtype=torch.float64)
     band_xyz = (bands @ cmf.T).T  # [XYZ, band] (1 nm grid, so the bin width is 1)
-    target = torch.tensor(_rgb_to_xyz_from_xy(SRGB_PRIMARIES_XY, D65_XY), dtype=torch.float64)  # [XYZ, RGB]
+    target = rgb_to_xyz_matrix(SRGB_PRIMARIES_XY, D65_XY)  # [XYZ, RGB]
     mix = torch.linalg.solve(band_xyz, target)  # [band, RGB]
     if (mix < 0).any():  # pragma: no cover - guarded by the choice of bands
         raise RuntimeError("sRGB LCD primaries: negative band weights")
     spd = (bands.T @ mix).T  # [RGB, L]
     return w.numpy(), spd.numpy()
-
-
-def _rgb_to_xyz_from_xy(primaries_xy, white_xy) -> np.ndarray:
-    """Linear RGB -> XYZ (white Y = 1) from primary and white chromaticities (SMPTE RP 177-1993)."""
-    p = np.array([[x / y, 1.0, (1 - x - y) / y] for x, y in primaries_xy]).T  # columns: XYZ of primaries, Y = 1
-    xw, yw = white_xy
-    white = np.array([xw / yw, 1.0, (1 - xw - yw) / yw])
-    return p * np.linalg.solve(p, white)[None, :]
 
 
 class Display(nn.Module):

@@ -16,6 +16,7 @@ from isettorch.metrics import (
     xyz_to_uv,
     xyz_to_xy,
 )
+from isettorch.metrics.color import D65_XY, SRGB_PRIMARIES_XY, rgb_to_xyz_matrix
 
 # Sharma, Wu and Dalal, "The CIEDE2000 color-difference formula: implementation notes, supplementary test data,
 # and mathematical observations", Color Res. Appl. 30(1), 2005, table 1 (all 34 pairs; the same values as
@@ -136,11 +137,25 @@ def test_chromaticity_against_colour():
     np.testing.assert_allclose(uv.numpy(), ref, atol=1e-9)
 
 
-def test_srgb_kornia_against_colour():
-    rgb = np.random.default_rng(5).uniform(0, 1, (100, 3))
+def test_srgb_against_colour():
+    """sRGB -> XYZ is colour-science's EOTF and normalised primary matrix (from the IEC 61966-2-1 primaries and
+    D65), including values outside [0, 1]; sRGB white is D65 (CIELAB (100, 0, 0)); the inverse round-trips."""
+    rgb = np.random.default_rng(5).uniform(-0.1, 1.1, (300, 3))
+    npm = colour.normalised_primary_matrix(np.array(SRGB_PRIMARIES_XY), np.array(D65_XY))
+    np.testing.assert_allclose(rgb_to_xyz_matrix(SRGB_PRIMARIES_XY, D65_XY).numpy(), npm, rtol=0, atol=1e-15)
     xyz = srgb_to_xyz(torch.tensor(rgb), dim=-1)
-    np.testing.assert_allclose(xyz.numpy(), colour.sRGB_to_XYZ(rgb), atol=5e-4)  # kornia: 6-decimal matrix
-    np.testing.assert_allclose(xyz_to_srgb(xyz, dim=-1).numpy(), rgb, atol=1e-6)
+    ref = colour.algebra.vecmul(npm, colour.models.eotf_sRGB(rgb))
+    np.testing.assert_allclose(xyz.numpy(), ref, rtol=0, atol=1e-12)
+    # IEC's rounded 4-decimal matrix (colour's sRGB_to_XYZ) is within 4e-5 of it on [0, 1]
+    np.testing.assert_allclose(srgb_to_xyz(torch.tensor(rgb.clip(0, 1)), dim=-1).numpy(),
+                               colour.sRGB_to_XYZ(rgb.clip(0, 1)), rtol=0, atol=1e-4)
+    white = xyz_to_lab(srgb_to_xyz(torch.ones(1, 3, dtype=torch.float64), dim=-1), "D65", dim=-1)
+    np.testing.assert_allclose(white.numpy(), [[100.0, 0.0, 0.0]], rtol=0, atol=1e-12)
+    inside = rgb.clip(0, 1)
+    back = xyz_to_srgb(srgb_to_xyz(torch.tensor(inside), dim=-1), dim=-1)
+    np.testing.assert_allclose(back.numpy(), inside, rtol=0, atol=1e-12)
+    # float32 images keep their dtype
+    assert srgb_to_xyz(torch.rand(2, 3, 4, 4)).dtype == torch.float32
 
 
 def test_gradients_finite_and_gradcheck():
