@@ -530,12 +530,14 @@ def save_design(camera: DesignCamera, path, *, card: str | None = None) -> Path:
 
 
 def design_path(design) -> Path:
-    """A design file's path: an existing path as given, or a shipped name (:data:`SHIPPED_DESIGNS`) in the
-    package's assets. FileNotFoundError when a shipped design is not in this installation yet."""
-    p = Path(design)
-    if p.is_file():
-        return p
+    """A design file's path: a shipped name (:data:`SHIPPED_DESIGNS`) in the package's assets, else an existing
+    path as given (a file named like a shipped design is given as a path, ``./ycmy``: the shipped names come first,
+    so a stray file in the working folder cannot shadow them). FileNotFoundError when a shipped design is not in
+    this installation yet."""
     name = str(design)
+    p = Path(design)
+    if name not in SHIPPED_DESIGNS and p.is_file():
+        return p
     if name in SHIPPED_DESIGNS:
         asset = Path(__file__).parent / "assets" / f"design_{name}.pt"
         if asset.is_file():

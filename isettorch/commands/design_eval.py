@@ -10,7 +10,14 @@ corners get little light through the design's lens (cos^4: 0.81 of the centre's 
 the command notes photographs whose corners get less than half, whose low-light scores then measure that falloff
 as much as the sensor.
 
-DESIGN is a design file or a shipped name (bayer_rgb, ycmy, rgbw, learned)."""
+DESIGN is a shipped name (bayer_rgb, ycmy, rgbw, learned) or a design file's path (``./name`` for a file named like
+a shipped design).
+
+``--json`` prints ``{"design", "lux": [levels], "seed", "crop", "mean_cpsnr": {"<lux>": dB}, "mean_de2000":
+{"<lux>": value}, "images": [{"name", "corner_light", "cpsnr": {...}, "de2000": {...}}, ...]}`` (with
+``--noise-free`` also ``"mean_cpsnr_noise_free"``). Image ``i`` of the folder (sorted by name) draws its noise from
+``(seed, i, lux)``: the same draw for every design, so adding a photograph that sorts before it changes its
+noise realisation."""
 
 from __future__ import annotations
 
@@ -37,7 +44,8 @@ def register(sub) -> None:
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--noise-free", action="store_true",
                    help="also score the noise-free capture through the same network (the error noise does not cause)")
-    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table (keys: design, "
+                   "lux, seed, crop, mean_cpsnr, mean_de2000, images)")
     add_quiet_argument(p)
     p.set_defaults(func=run)
 

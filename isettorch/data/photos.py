@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..io.images import PHOTO_SUFFIXES, read_rgb8, rgb8_to_tensor
+from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from . import spectra as _spectra
 from .config import seed_for
 from .natural import _choice, _wavelengths, _white_photons, natural_config
@@ -69,7 +69,7 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
         folder = Path(folder)
         if not folder.is_dir():
             raise ValueError(f"folder: expected a directory of RGB photos, got {str(folder)!r}")
-        self.files = sorted(p for p in folder.iterdir() if p.suffix.lower() in self.SUFFIXES)
+        self.files = photo_files(folder)
         if not self.files:
             raise ValueError(f"folder: no {'/'.join(self.SUFFIXES)} files in {str(folder)!r}")
         self.size, self.seed = int(size), int(seed)

@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-__all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "IMAGE_SUFFIXES", "PHOTO_SUFFIXES"]
+__all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "photo_files", "IMAGE_SUFFIXES",
+           "PHOTO_SUFFIXES"]
 
 IMAGE_SUFFIXES = {".png": "png", ".tif": "tiff", ".tiff": "tiff", ".exr": "exr"}
 _ENCODINGS = ("srgb", "linear")
@@ -33,6 +34,14 @@ _EXR_CHANNELS = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
 
 #: the 8-bit photographs :func:`read_rgb8` reads (the benchmark and photo-lifting folders)
 PHOTO_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+
+
+def photo_files(folder) -> list[Path]:
+    """The photographs of a folder, sorted by name: the files with a :data:`PHOTO_SUFFIXES` suffix (any case),
+    hidden ones left out (names beginning with ``.``, such as the ``._name.png`` AppleDouble files macOS leaves on
+    copied folders: metadata, not images)."""
+    return sorted(p for p in Path(folder).iterdir() if p.suffix.lower() in PHOTO_SUFFIXES
+                  and not p.name.startswith("."))
 
 
 def read_rgb8(path) -> np.ndarray:
@@ -78,6 +87,8 @@ def read_rgb8(path) -> np.ndarray:
             a = np.asarray(shown.convert("RGB"), dtype=np.uint8)
     except OSError as err:  # not an image, truncated, unreadable
         raise ValueError(f"cannot read {p.name} as an image ({err})") from err
+    except Image.DecompressionBombError as err:  # over twice Pillow's pixel limit (not an OSError)
+        raise ValueError(f"cannot read {p.name}: {err}; reduce the photograph first") from err
     return a
 
 

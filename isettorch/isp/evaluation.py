@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from .._checks import check_device
-from ..io.images import PHOTO_SUFFIXES, read_rgb8, rgb8_to_tensor
+from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 from .denoise import DENOISERS, _check_noise, check_denoiser, denoise_mosaic
 
@@ -67,7 +67,8 @@ def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: 
 
 
 def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
-    """8-bit RGB images as (name, uint8 array [H, W, 3]) from a folder (png/tif/jpg, sorted by name; read by
+    """8-bit RGB images as (name, uint8 array [H, W, 3]) from a folder (png/tif/jpg, sorted by name, hidden files
+    left out: :func:`isettorch.io.images.photo_files`; read by
     :func:`isettorch.io.images.read_rgb8`: gray, palette and opaque-alpha images converted losslessly, anything
     else refused naming the file) or an iterable of (name, array) pairs."""
     if not isinstance(source, (str, Path)):
@@ -76,7 +77,7 @@ def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
     if not folder.is_dir():
         raise ValueError(f"images: expected a folder of {'/'.join(IMAGE_SUFFIXES)} images, {str(folder)!r} is not "
                          "a directory")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    files = photo_files(folder)
     if not files:
         raise ValueError(f"images: no {'/'.join(IMAGE_SUFFIXES)} files in {str(folder)!r}")
     out = []

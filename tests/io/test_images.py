@@ -198,3 +198,25 @@ def test_read_rgb8_refuses_a_colour_key_and_several_pages(tmp_path):
     page.save(tmp_path / "pages.tif", save_all=True, append_images=[Image.fromarray(255 - rgb)])
     with pytest.raises(ValueError, match=r"pages\.tif: expected a single image, got 2 pages or frames"):
         read_rgb8(tmp_path / "pages.tif")
+
+
+def test_photo_folders_leave_out_hidden_files_and_refuse_decompression_bombs(tmp_path, monkeypatch):
+    """A copied folder's ``._name.png`` (macOS AppleDouble metadata) is not a photograph: left out by the folder
+    readers (evaluate_demosaic, the photo lifter); a photograph over Pillow's decompression-bomb limit is one clear
+    ValueError naming the file (Pillow raises an error that is not an OSError)."""
+    from PIL import Image as PILImage
+
+    from isettorch.io.images import photo_files, read_rgb8
+    from isettorch.isp.evaluation import load_images
+
+    a = np.arange(4 * 6 * 3, dtype=np.uint8).reshape(4, 6, 3)
+    Image.fromarray(a).save(tmp_path / "b.PNG")
+    Image.fromarray(a).save(tmp_path / "a.jpg", quality=95)
+    (tmp_path / "._b.PNG").write_bytes(b"\x00\x05\x16\x07 AppleDouble metadata")
+    (tmp_path / "notes.txt").write_text("x")
+    assert [p.name for p in photo_files(tmp_path)] == ["a.jpg", "b.PNG"]
+    names = [n for n, _ in load_images(tmp_path)]
+    assert names == ["a.jpg", "b.PNG"]
+    monkeypatch.setattr(PILImage, "MAX_IMAGE_PIXELS", 5)  # 4 x 6 = 24 px is over twice the limit
+    with pytest.raises(ValueError, match=r"cannot read b\.PNG: .*reduce the photograph first"):
+        read_rgb8(tmp_path / "b.PNG")
