@@ -159,6 +159,8 @@ def xy_to_xyz(xy: torch.Tensor, Y=1.0, dim: int = -3) -> torch.Tensor:
     """Chromaticity (x, y) plus luminance Y to XYZ (CIE 15:2004 eq. 7.3 inverted)."""
     if not isinstance(xy, torch.Tensor):
         raise TypeError(f"xy: expected a torch.Tensor, got {type(xy).__name__}")
+    if xy.dim() == 0 or not -xy.dim() <= dim < xy.dim():
+        raise ValueError(f"dim: expected a dimension of xy's {xy.dim()}, got {dim}")
     d = dim % xy.dim()
     if xy.shape[d] != 2:
         raise ValueError(f"xy: expected 2 components along dim={dim}, got shape {tuple(xy.shape)}")
@@ -180,6 +182,7 @@ def srgb_to_xyz(srgb: torch.Tensor, dim: int = -3) -> torch.Tensor:
     from ..image import srgb_decode
 
     x, d = _channel_last(srgb, dim, "srgb")
+    check_finite(x.detach(), "srgb")
     return (srgb_decode(x) @ _srgb_matrix(False, x).T).movedim(-1, d)
 
 
@@ -190,4 +193,5 @@ def xyz_to_srgb(xyz: torch.Tensor, dim: int = -3, clip: bool = True) -> torch.Te
     from ..image import srgb_encode
 
     x, d = _channel_last(xyz, dim, "xyz")
+    check_finite(x.detach(), "xyz")
     return srgb_encode(x @ _srgb_matrix(True, x).T, clip=clip).movedim(-1, d)

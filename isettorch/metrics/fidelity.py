@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from .._checks import check_positive
+from .._checks import check_finite, check_positive
 
 
 def _pair(image: torch.Tensor, target: torch.Tensor, crop: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -20,6 +20,8 @@ def _pair(image: torch.Tensor, target: torch.Tensor, crop: int) -> tuple[torch.T
         raise ValueError(f"target: expected the shape of image {tuple(image.shape)}, got {tuple(target.shape)}")
     if image.dim() not in (3, 4):
         raise ValueError(f"image: expected (B, C, H, W) or (C, H, W), got shape {tuple(image.shape)}")
+    check_finite(image.detach(), "image")  # a NaN pixel would make the score NaN without saying where it came from
+    check_finite(target.detach(), "target")
     crop = int(crop)
     if crop < 0 or 2 * crop >= min(image.shape[-2:]):
         raise ValueError(f"crop: expected 0 <= crop < {min(image.shape[-2:]) // 2}, got {crop}")

@@ -155,3 +155,22 @@ def test_ssim_is_scale_free(data_range):
     assert float(ssim(ta, ta, data_range=data_range)) == pytest.approx(1.0, abs=1e-12)
     with pytest.raises(ValueError, match="window_size: expected an odd"):
         ssim(ta, tb, data_range=data_range, window_size=10)
+
+
+def test_fidelity_and_srgb_refuse_non_finite_input():
+    """A NaN pixel is an error naming the argument, not a NaN score; an out-of-range dim is an error, not a wrap."""
+    from isettorch.metrics import srgb_to_xyz, xy_to_xyz, xyz_to_srgb
+
+    a = torch.rand(1, 3, 16, 16)
+    b = a.clone()
+    b[0, 1, 3, 4] = float("nan")
+    with pytest.raises(ValueError, match="target: expected finite values, found 1"):
+        psnr(a, b)
+    with pytest.raises(ValueError, match="image: expected finite values"):
+        ssim(b, a)
+    with pytest.raises(ValueError, match="srgb: expected finite values"):
+        srgb_to_xyz(b)
+    with pytest.raises(ValueError, match="xyz: expected finite values"):
+        xyz_to_srgb(b)
+    with pytest.raises(ValueError, match="dim: expected a dimension"):
+        xy_to_xyz(torch.tensor([[0.3, 0.3]]), dim=5)
