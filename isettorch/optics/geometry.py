@@ -64,10 +64,16 @@ def image_sample_spacing(hfov_deg, n_cols: int, image_distance_m) -> torch.Tenso
 def camera_equation_factor(f_number, magnification_=0.0, *, paraxial: bool = False) -> torch.Tensor:
     """Irradiance per unit radiance ``E / L`` (sr) on the axis of a lens of f-number ``N``.
 
-    * ``paraxial=False`` (ISETCam ``oiCalculateIrradiance``): ``pi / (1 + 4 N^2 (1 + |m|)^2)``, exact for an
-      aplanatic lens whose marginal ray has ``sin(theta) = 1 / (2 N_w)``, ``N_w = N (1 + |m|)``.
-    * ``paraxial=True``: ``pi / (4 N^2 (1 + |m|)^2)`` (Smith, Modern Optical Engineering, ch. 9), the
-      small-aperture limit. The two differ by ``1 / (4 N_w^2)`` relative: 1.6 % at f/2, 0.4 % at f/4.
+    Both are ``E / L = pi sin^2(theta)`` for the cone of half-angle ``theta`` the pupil subtends at the image
+    (Smith, Modern Optical Engineering, ch. 9; Hecht, Optics, 5th ed., section 5.3), with the working f-number
+    ``N_w = N (1 + |m|)``; they differ in how ``theta`` follows from ``N_w``:
+
+    * ``paraxial=False`` (ISETCam ``oiCalculateIrradiance``, the default): ``pi / (1 + 4 N_w^2)``, ``tan(theta) =
+      1 / (2 N_w)``: the pupil's diameter seen from the image distance (a thin lens);
+    * ``paraxial=True``: ``pi / (4 N_w^2)``, ``sin(theta) = 1 / (2 N_w)``: an aplanatic lens (Abbe sine condition,
+      the relation behind ``MIN_F_NUMBER``), also the small-aperture limit of both.
+
+    The paraxial value is larger by ``1 / (4 N_w^2)`` relative: 6.25 % at f/2, 3.2 % at f/2.8, 1.56 % at f/4.
 
     Multiply by the lens transmittance ``T(lambda)`` for the full camera equation.
     """

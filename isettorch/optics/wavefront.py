@@ -193,9 +193,12 @@ class WavefrontOptics(ShiftInvariantLens):
         discs, analytic, :func:`dl_otf`) times the mean phase factor over that overlap (Goodman 7.4). The mean is
         the ratio of two discrete autocorrelations (aberrated pupil / bare aperture) on the sampled pupil,
         interpolated bilinearly to the requested frequencies: the pixelated pupil edge cancels in the ratio, so
-        zero aberrations give the analytic OTF exactly, and the smooth phase average converges quickly with
-        ``pupil_samples``. (Fourier-transforming the sampled PSF instead errs by ~1/pupil_samples: the
-        diffraction tail wraps around the PSF window.)
+        zero aberrations give the analytic OTF exactly, and the phase average converges with ``pupil_samples`` as
+        the phase step between samples shrinks: against a 1,200-sample pupil autocorrelation (f/2, 4.5 waves of
+        defocus; an audit of 2026-11-30) the OTF is off by up to 0.014 (absolute) at a step of 1.8 rad (64
+        samples, which warns above pi/2), 0.007 at 0.9 rad (128) and 0.0014 at 0.45 rad (256): raise
+        ``pupil_samples`` for strong aberrations. (Fourier-transforming the sampled PSF instead errs by
+        ~1/pupil_samples: the diffraction tail wraps around the PSF window.)
         """
         b = f_number.shape[0]
         z = self.coefficients(b, f_number, extra_defocus_diopters)

@@ -205,6 +205,11 @@ class Sensor(nn.Module):
         for label, (v, allowed) in choices.items():
             if v not in allowed:
                 raise ValueError(f"{label}: expected one of {allowed}, got {v!r}")
+        for label, v in (("exposure_s", exposure_s), ("analog_gain", analog_gain)):
+            if v is not None:  # checked here as in forward (a config typo fails at construction, naming the key)
+                n = v.numel() if isinstance(v, torch.Tensor) else 1
+                batch_param(v.detach() if isinstance(v, torch.Tensor) else v, label, n, dtype=None, device=None,
+                            positive=True)
         if auto_exposure is not None and auto_exposure not in AE_METHODS:
             raise ValueError(f"auto_exposure: expected None or one of {sorted(AE_METHODS)}, got {auto_exposure!r}")
         if ae_target is not None:
@@ -401,7 +406,10 @@ class Sensor(nn.Module):
         """The raw's saturation value in :attr:`output_units` (its ``white_level``): :meth:`saturation_v` in DN (the
         ADC's code for it, ``round(v / lsb) + black``, at most the top code) or volts; for electrons, the swing /
         conversion gain or the full well, whichever is lower. A float, or ``[B]`` for per-call tensors (see
-        :meth:`saturation_v`). Without ``full_well_e``: the top code, the swing, swing / conversion gain."""
+        :meth:`saturation_v`). Without ``full_well_e``: the top code, the swing, swing / conversion gain. With
+        ``full_well_e`` below the swing, the read noise is added after the photodiode clips, so saturated pixels
+        scatter around this level (about half above it): normalise by it and clip, or take a high percentile of a
+        flat, saturated frame."""
         if self.output_units == "electrons":  # the electrons chain clips the pixel volts (no analog gain)
             return self.saturation_e(conversion_gain_v_per_e)
         cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e

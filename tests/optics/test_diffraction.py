@@ -297,3 +297,16 @@ def test_a_psf_far_beyond_the_capped_margin_warns_of_wrap_around():
     with warnings.catch_warnings():  # an ordinary field: no warning
         warnings.simplefilter("error")
         DiffractionLimitedOptics(f_number=4, relative_illumination=None)(Scene(p, torch.tensor([700.0]), hfov_deg=2.0))
+
+
+@pytest.mark.parametrize("n", [0.5, 2.0, 2.8, 4.0, 11.0])
+def test_camera_equation_forms_are_pi_sin2_theta(n):
+    """E / L = pi sin^2(theta): ISETCam's form with tan(theta) = 1 / (2 N_w), the paraxial one with sin(theta) =
+    1 / (2 N_w) (Smith, ch. 9); the paraxial one is larger by 1 / (4 N_w^2) relative (6.25 % at f/2), here at
+    magnification 0.5 (N_w = 1.5 N)."""
+    nw = 1.5 * n
+    iset = float(geometry.camera_equation_factor(n, -0.5))
+    par = float(geometry.camera_equation_factor(n, -0.5, paraxial=True))
+    assert iset == pytest.approx(math.pi * math.sin(math.atan(1 / (2 * nw))) ** 2, rel=1e-12)
+    assert par == pytest.approx(math.pi * (1 / (2 * nw)) ** 2, rel=1e-12)
+    assert par / iset - 1 == pytest.approx(1 / (4 * nw**2), rel=1e-9)

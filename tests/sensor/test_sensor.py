@@ -290,6 +290,17 @@ def test_raw_image_to_and_checks():
         RawImage(torch.zeros(1, 3, 2, 2), "volts", CFA("mono"))
 
 
+@pytest.mark.parametrize("key,value", [("exposure_s", -1.0), ("exposure_s", 0.0), ("exposure_s", float("nan")),
+                                       ("analog_gain", -1.0), ("analog_gain", float("inf")),
+                                       ("exposure_s", torch.tensor([0.01, -0.02]))])
+def test_exposure_and_gain_are_checked_at_construction(key, value):
+    """As every other level: a bad exposure or gain fails when the sensor is built (a config typo names its key), not
+    at the first capture; a [B] tensor of good values is accepted."""
+    with pytest.raises(ValueError, match=f"{key}: expected"):
+        Sensor(rows=4, cols=4, **{key: value})
+    Sensor(rows=4, cols=4, exposure_s=torch.tensor([0.01, 0.02]), analog_gain=2.0)
+
+
 def test_input_errors():
     with pytest.raises(ValueError, match="fill_factor"):
         simple_sensor(fill_factor=1.5)
