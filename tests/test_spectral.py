@@ -90,8 +90,9 @@ def test_illuminants():
     assert np.allclose(d65, colour.SDS_ILLUMINANTS["D65"][w.numpy()], rtol=1e-9)
     # D6504 on the modern scale is D65 (CIE 015:2018 note); the tabulated D65 is rounded, so ~1e-3.
     assert np.allclose(spectral.illuminant("D6504", w).numpy(), d65, rtol=5e-3)
-    f2 = spectral.illuminant("F2", w).numpy()
-    assert np.allclose(f2, colour.SDS_ILLUMINANTS["FL2"][w.numpy()], rtol=1e-9)
+    w5 = spectral.default_wavelengths(380, 780, 5, dtype=torch.float64)  # the CIE table's own grid: its values
+    f2 = spectral.illuminant("F2", w5).numpy()
+    assert np.allclose(f2, colour.SDS_ILLUMINANTS["FL2"][w5.numpy()], rtol=1e-12)
     # Planck: the peak of a 5000 K blackbody is at 2.897771955e-3 / 5000 m = 579.55 nm (Wien).
     fine = spectral.default_wavelengths(400, 700, 0.5, dtype=torch.float64)
     bb = spectral.illuminant("blackbody5000", fine)
@@ -108,6 +109,24 @@ def test_daylight_cct_chromaticity():
         xy = colour.XYZ_to_xy(colour.sd_to_XYZ(sd))
         got = colour.temperature.xy_to_CCT(xy, method="CIE Illuminant D Series")
         assert abs(got - cct) / cct < 0.01
+
+
+@pytest.mark.parametrize("name", ["F2", "F7", "F11"])
+@pytest.mark.parametrize("step", [10.0, 20.0])
+def test_fluorescent_lines_keep_their_power_on_coarse_grids(name, step):
+    """A line spectrum on a grid coarser than its 5 nm table: each sample is its band's mean power (the table's
+    bands), so the power is kept and the white's chromaticity stays near CIE 015's (colour-science's
+    CCS_ILLUMINANTS); point samples at 10 nm missed the 435 and 545 nm mercury lines (F2 0.018 off, F11 0.024)."""
+    fine = spectral.default_wavelengths(380, 775, 5, dtype=torch.float64)  # bands tiling 377.5-777.5 nm
+    coarse = spectral.default_wavelengths(377.5 + step / 2, 777.5 - step / 2, step, dtype=torch.float64)
+    e5, ec = spectral.illuminant(name, fine), spectral.illuminant(name, coarse)
+    assert float(ec.sum() * step) == pytest.approx(float(e5.sum() * 5), rel=1e-12)  # the same bands, the same power
+    w = spectral.default_wavelengths(400, 700, 10, dtype=torch.float64)
+    cmf = spectral.cmfs(w, dtype=torch.float64)
+    xyz = (cmf * spectral.illuminant(name, w)).sum(-1)
+    xy = (xyz[:2] / xyz.sum()).numpy()
+    ref = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"][f"FL{name[1:]}"]
+    assert np.hypot(*(xy - ref)) < 1.5e-3  # D65 on this 400-700 nm grid: 3e-4
 
 
 @pytest.mark.parametrize("bad,match", [

@@ -42,10 +42,16 @@ def patch_means(img: torch.Tensor, grid: tuple[int, int] = (4, 6), fraction: flo
     return torch.stack(out, dim=1)
 
 
+def _chart_grid(wavelengths_nm) -> torch.Tensor:
+    """The grid the chart is integrated on: 400-700 nm in 10 nm steps (its reflectances' range) unless given."""
+    if wavelengths_nm is None:
+        return torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    return torch.as_tensor(wavelengths_nm, dtype=torch.float64)
+
+
 def macbeth_true_xyz(illuminant="D65", wavelengths_nm=None, observer: str = "1931") -> torch.Tensor:
     """True XYZ (24, 3) of the chart's patches under ``illuminant``, scaled so a perfect white has Y = 1."""
-    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64) if wavelengths_nm is None \
-        else torch.as_tensor(wavelengths_nm, dtype=torch.float64)
+    w = _chart_grid(wavelengths_nm)
     xyz = xyz_responses(w, illuminant, reflectance_set("macbeth", w), observer)
     white = xyz_responses(w, illuminant, torch.ones(1, w.numel(), dtype=torch.float64), observer)[0]
     return xyz / white[1]
@@ -56,7 +62,8 @@ def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = 
     """dE of rendered patch XYZ (B, 24, 3) (or (24, 3)) against the true chart under ``illuminant``.
 
     With ``scale_to_white`` the rendered values are scaled so the white patch's Y equals its true Y (the
-    camera's exposure is arbitrary). CIELAB white: the illuminant's perfect white (Y = 1).
+    camera's exposure is arbitrary). CIELAB white: the illuminant's perfect white (Y = 1) on the chart's grid, so a
+    perfect reflector is (100, 0, 0).
     Returns :class:`isettorch.metrics.difference.ColorAccuracy` (per-patch ``delta_e``, ``mean``, ``max``).
     """
     from ..metrics import color_accuracy
@@ -65,7 +72,7 @@ def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = 
     ref = macbeth_true_xyz(illuminant, wavelengths_nm).to(x.device)
     if scale_to_white:
         x = x * (ref[WHITE_PATCH, 1] / x[..., WHITE_PATCH:WHITE_PATCH + 1, 1:2])
-    white = white_xyz(illuminant).to(x.device)
+    white = white_xyz(illuminant, _chart_grid(wavelengths_nm)).to(x.device)  # the chart's own grid: its white is L* 100
     with warnings.catch_warnings():  # the reference is under the render's illuminant by construction
         warnings.filterwarnings("ignore", message="rendered: the white patch", category=UserWarning)
         return color_accuracy(x, ref, white=white, method=method)

@@ -216,3 +216,13 @@ def test_bradford_adaptation_matches_colour_science_and_whitens_display():
     np.testing.assert_allclose(adapted(d65).flatten().numpy(), [1, 1, 1], atol=1e-6)
     plain = XYZToDisplay("apple").double()  # the Apple display's white is not D65: D65 renders tinted
     assert (plain(d65).flatten() - 1).abs().max() > 0.05
+
+
+@pytest.mark.parametrize("illuminant", ["D65", "A", "F2", "F11"])
+def test_macbeth_delta_e_of_the_true_chart_is_zero(illuminant):
+    """The true chart scored against itself is dE 0 under any illuminant: its CIELAB white is integrated on the
+    chart's own grid (a white on another grid put F2's white patch 0.028 off white, which raised)."""
+    from isettorch.isp.chart import macbeth_delta_e, macbeth_true_xyz
+
+    acc = macbeth_delta_e(macbeth_true_xyz(illuminant), illuminant)
+    assert float(acc.max) < 1e-9
