@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import torch
 
 from . import spectral
-from ._checks import as_tensor, batch_param, check_nonnegative, check_rank, check_wavelengths
+from ._checks import as_tensor, batch_param, check_finite, check_nonnegative, check_rank, check_wavelengths
 
 # IEC 61966-2-1:1999 (sRGB), XYZ (D65, Y = 1) -> linear sRGB.
 XYZ_TO_LINEAR_SRGB = (
@@ -72,6 +72,9 @@ def bradford_matrix(source_white: torch.Tensor, target_white: torch.Tensor) -> t
     for name, w in (("source_white", ws), ("target_white", wt)):
         if w.dim() == 0 or w.shape[-1] != 3:
             raise ValueError(f"{name}: expected XYZ values of shape (..., 3), got {tuple(w.shape)}")
+        check_finite(w.detach(), name)
+        if bool((w.detach()[..., 1] <= 0).any()):
+            raise ValueError(f"{name}: expected a white with positive luminance Y, got {w.detach().tolist()}")
     gain = (wt @ m.T) / (ws @ m.T)  # cone-response ratios (..., 3)
     return _bradford_inverse().to(ws.device) @ (gain[..., :, None] * m)
 

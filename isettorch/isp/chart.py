@@ -29,8 +29,14 @@ def patch_means(img: torch.Tensor, grid: tuple[int, int] = (4, 6), fraction: flo
         raise ValueError(f"img: expected (B, C, H, W), got shape {tuple(img.shape)}")
     if not 0 < fraction <= 1:
         raise ValueError(f"fraction: expected a value in (0, 1], got {fraction}")
-    rows, cols = grid
+    try:
+        rows, cols = (int(v) for v in grid)
+    except (TypeError, ValueError):
+        raise ValueError(f"grid: expected (rows, cols), got {grid!r}") from None
     h, w = img.shape[-2:]
+    if not (1 <= rows <= h and 1 <= cols <= w):
+        raise ValueError(f"grid: expected 1 <= rows <= {h} and 1 <= cols <= {w} (a cell per patch, at least a pixel "
+                         f"each), got {grid!r}")
     out = []
     for r in range(rows):
         for c in range(cols):

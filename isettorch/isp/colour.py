@@ -18,6 +18,7 @@ References: ISETCam ``imageSensorTransform``, ``ieColorTransform``, ``imageIllum
 from __future__ import annotations
 
 import functools
+import math
 
 import torch
 from torch import nn
@@ -131,6 +132,11 @@ def fit_colour_matrix(source: torch.Tensor, target: torch.Tensor) -> torch.Tenso
     b = target.to(device=a.device, dtype=torch.float64)
     # Scale columns so the fit is well conditioned whatever the units (photons vs cd/m^2).
     col = a.abs().amax(dim=0).clamp_min(torch.finfo(torch.float64).tiny)
+    rank = int(torch.linalg.matrix_rank(a / col))
+    if rank < a.shape[1]:  # lstsq would silently return the minimum-norm one of infinitely many matrices
+        raise ValueError(f"source: its {a.shape[1]} channels are linearly dependent over the samples (rank {rank}): "
+                         "the colour matrix is not determined (two identical channels, a dark channel, or too few "
+                         "distinct colours)")
     sol = torch.linalg.lstsq(a / col, b, driver="gelsd" if a.device.type == "cpu" else None).solution
     return (sol / col[:, None]).T.to(dtype)
 
@@ -252,6 +258,9 @@ def white_xyz(illuminant="D65", wavelengths_nm=None, observer: str = "1931") -> 
     w = spectral.default_wavelengths(380.0, 780.0, 5.0, dtype=torch.float64) if wavelengths_nm is None \
         else check_wavelengths(torch.as_tensor(wavelengths_nm)).to(torch.float64)
     xyz = xyz_responses(w, illuminant, torch.ones(1, w.numel(), dtype=torch.float64), observer)[0]
+    if not float(xyz[1]) > 0:
+        raise ValueError(f"illuminant: expected a spectrum with luminance on {float(w[0]):g}-{float(w[-1]):g} nm, got "
+                         f"Y = {float(xyz[1]):.6g} (a zero or negative spectrum has no white)")
     return xyz / xyz[1]
 
 
@@ -283,10 +292,27 @@ def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channe
         wt = wt.unsqueeze(0)
     if wt.shape[-1] != means.shape[-1]:
         raise ValueError(f"white: expected {means.shape[-1]} channel values, got shape {tuple(white.shape)}")
-    if (wt.detach() <= 0).any():
-        raise ValueError(f"white: expected positive channel values of the target white, got {wt.tolist()}")
-    r = reference_channel
+    if not bool(torch.isfinite(wt.detach()).all()) or (wt.detach() <= 0).any():
+        raise ValueError(f"white: expected positive, finite channel values of the target white, got {wt.tolist()}")
+    r = _check_reference_channel(reference_channel, means.shape[-1])
     return (wt / wt[:, r:r + 1]) * (means[:, r:r + 1] / means)
+
+
+def _check_reference_channel(reference_channel, channels: int) -> int:
+    """``reference_channel`` as a channel index of ``channels``, else a ValueError naming it."""
+    if isinstance(reference_channel, bool) or not isinstance(reference_channel, int) \
+            or not 0 <= reference_channel < channels:
+        raise ValueError(f"reference_channel: expected a channel index in 0..{channels - 1}, got {reference_channel!r}")
+    return reference_channel
+
+
+def _check_gains(gains, *, like: torch.Tensor | None = None) -> torch.Tensor:
+    """Manual white-balance ``gains`` (C,) or (B, C): finite and positive, else a ValueError naming them."""
+    g = as_tensor(gains, "gains") if like is None else as_tensor(gains, "gains", dtype=like.dtype, device=like.device)
+    check_finite(g.detach(), "gains")
+    if bool((g <= 0).any()):
+        raise ValueError(f"gains: expected positive per-channel gains, got {g.tolist()}")
+    return g
 
 
 def _default_white(img: torch.Tensor, white) -> torch.Tensor:
@@ -304,6 +330,9 @@ def gray_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0) 
             ISETCam's assumption in sensor space; in XYZ use :func:`white_xyz`).
         reference_channel: the channel whose gain is 1 (ISETCam keeps the first).
 
+    Every pixel counts, saturated ones too (as in ISETCam): clip or mask a raw's saturated pixels first if they
+    should not pull the means.
+
     Reference: Buchsbaum, J. Franklin Inst. 310 (1980); ISETCam ``imageIlluminantCorrection`` (grayWorld).
     """
     _check_image(img)
@@ -314,6 +343,10 @@ def white_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0,
                       criterion: float = 0.7) -> torch.Tensor:
     """White-world gains (B, C): the mean of the bright pixels (those where the channel with the
     highest maximum is >= ``criterion`` x its maximum) is mapped to ``white``.
+
+    Saturated pixels are among the bright ones and count with their values (as in ISETCam): clip them to the white
+    level first, or a clipped highlight's channels pull the gains (one pixel at (1.6, 0.9, 0.8) moves them from
+    (1, 1.11, 1.25) to (1, 1.78, 2)).
 
     Reference: ISETCam ``imageIlluminantCorrection`` (whiteWorld, criterion 0.7).
     """
@@ -346,7 +379,7 @@ def illuminant_gains(img: torch.Tensor, method: str = "gray_world", white=None, 
     if key == "manual":
         if gains is None:
             raise ValueError("gains: method 'manual' needs gains (C,) or (B, C), got None")
-        g = as_tensor(gains, "gains", dtype=img.dtype, device=img.device)
+        g = _check_gains(gains, like=img)
         g = g.unsqueeze(0) if g.dim() == 1 else g
         if g.dim() != 2 or g.shape[-1] != img.shape[1]:
             raise ValueError(f"gains: expected ({img.shape[1]},) or (B, {img.shape[1]}), got {tuple(g.shape)}")
@@ -430,13 +463,12 @@ class IlluminantCorrection(nn.Module):
             raise ValueError(f"gains: only illuminant correction 'manual' uses gains; method {method!r} computes its "
                              f"own (drop gains, or use method 'manual')")
         if gains is not None:
-            gains = as_tensor(gains, "gains").reshape(-1)
-            check_finite(gains, "gains")
-            if bool((gains <= 0).any()):
-                raise ValueError(f"gains: expected positive per-channel gains, got {gains.tolist()}")
+            gains = _check_gains(gains).reshape(-1)
         self.method = key
         self.space = space
-        self.reference_channel = int(reference_channel)
+        if isinstance(reference_channel, bool) or not isinstance(reference_channel, int) or reference_channel < 0:
+            raise ValueError(f"reference_channel: expected a channel index >= 0, got {reference_channel!r}")
+        self.reference_channel = reference_channel  # checked against the channel count when the gains are computed
         self.criterion = float(criterion)
         self.register_buffer("gains", gains)
         self.register_buffer("last_gains", None, persistent=False)
@@ -627,8 +659,14 @@ class XYZToDisplay(nn.Module):
         white = rgb_to_xyz.sum(1) / rgb_to_xyz[1].sum()
         cat = torch.eye(3, dtype=torch.float64)
         if adapt_from is not None:
-            src = white_xyz(adapt_from) if isinstance(adapt_from, str) else \
-                as_tensor(adapt_from, "adapt_from", dtype=torch.float64).reshape(3)
+            if isinstance(adapt_from, str):
+                src = white_xyz(adapt_from)
+            else:
+                src = as_tensor(adapt_from, "adapt_from", dtype=torch.float64)
+                if src.numel() != 3:
+                    raise ValueError(f"adapt_from: expected an illuminant name or a white's XYZ (3 values), got "
+                                     f"shape {tuple(src.shape)}")
+                src = src.reshape(3)
             cat = bradford_matrix(src, white)
             inv = inv @ cat
         self.register_buffer("adaptation", cat.to(dtype))
@@ -667,7 +705,10 @@ class DisplayEncode(nn.Module):
         if hasattr(encoding, "inverse_eotf"):  # a display: encode with its own transfer function
             object.__setattr__(self, "display", encoding)
             encoding = "display"
-        elif not (encoding in ("srgb", "linear") or (isinstance(encoding, (int, float)) and encoding > 0)):
+        elif isinstance(encoding, str) and encoding.lower() in ("srgb", "linear"):
+            encoding = encoding.lower()  # as display names are, case-insensitive
+        elif isinstance(encoding, bool) or not (
+                isinstance(encoding, (int, float)) and math.isfinite(encoding) and encoding > 0):
             raise ValueError(f"encoding: expected 'srgb', 'linear', a positive gamma or a display, got {encoding!r}")
         self.encoding = encoding
         self.clip = bool(clip)

@@ -18,7 +18,7 @@ import dataclasses
 import torch
 from torch import nn
 
-from .._checks import check_wavelengths
+from .._checks import check_finite, check_wavelengths
 from .colour import (
     DisplayEncode,
     IlluminantCorrection,
@@ -316,6 +316,8 @@ class ImageProcessor(nn.Module):
         the ``"adaptive"`` scaling (default: the image maximum)."""
         if sensor.dim() != 4:
             raise ValueError(f"sensor: expected a demosaiced image (B, C, H, W), got shape {tuple(sensor.shape)}")
+        if _input is None:  # the raw path checked its input; a user's image is checked here (a NaN would spread)
+            check_finite(sensor.detach(), "sensor")
         m = self.sensor_to_xyz.matrix if hasattr(self.sensor_to_xyz, "matrix") else None
         if m is None:
             raise RuntimeError("ImageProcessor: the sensor -> XYZ matrix is not set; call ip.fit(sensor) (Camera "

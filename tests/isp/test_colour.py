@@ -226,3 +226,51 @@ def test_macbeth_delta_e_of_the_true_chart_is_zero(illuminant):
 
     acc = macbeth_delta_e(macbeth_true_xyz(illuminant), illuminant)
     assert float(acc.max) < 1e-9
+
+
+def test_colour_stages_refuse_bad_input_naming_it():
+    """NaN, zero, singular or out-of-range inputs to the colour stages are a ValueError naming the argument (an ISP
+    audit found them returning NaN, a minimum-norm matrix or a RuntimeError)."""
+    from isettorch.image import bradford_matrix
+    from isettorch.isp import ImageProcessor
+    from isettorch.isp.chart import patch_means
+    from isettorch.isp.colour import (
+        DisplayEncode,
+        XYZToDisplay,
+        fit_colour_matrix,
+        gray_world_gains,
+        illuminant_gains,
+        white_xyz,
+    )
+
+    img = torch.rand(2, 3, 8, 8, dtype=torch.float64) + 0.1
+    with pytest.raises(ValueError, match="white: expected positive, finite"):
+        gray_world_gains(img, white=[1.0, float("nan"), 1.0])
+    with pytest.raises(ValueError, match="reference_channel: expected a channel index in 0..2"):
+        gray_world_gains(img, reference_channel=5)
+    with pytest.raises(ValueError, match="gains: expected finite"):
+        illuminant_gains(img, "manual", gains=[1.0, float("nan"), 1.0])
+    with pytest.raises(ValueError, match="gains: expected positive"):
+        illuminant_gains(img, "manual", gains=[1.0, -1.0, 1.0])
+    with pytest.raises(ValueError, match="source_white: expected a white with positive luminance"):
+        bradford_matrix(torch.zeros(3), torch.tensor([0.95, 1.0, 1.09]))
+    with pytest.raises(ValueError, match="adapt_from: expected an illuminant name or a white's XYZ"):
+        XYZToDisplay(adapt_from=torch.tensor([1.0, 1.0]))
+    with pytest.raises(ValueError, match="illuminant: expected a spectrum with luminance"):
+        white_xyz(torch.zeros(81))
+    src = torch.rand(24, 2, dtype=torch.float64)
+    with pytest.raises(ValueError, match=r"source: its 3 channels are linearly dependent .*rank 2"):
+        fit_colour_matrix(torch.cat([src, src[:, :1]], dim=1), torch.rand(24, 3, dtype=torch.float64))
+    for bad in (True, float("inf"), -2.0):
+        with pytest.raises(ValueError, match="encoding: expected"):
+            DisplayEncode(bad)
+    assert DisplayEncode("sRGB").encoding == "srgb"
+    with pytest.raises(ValueError, match="grid: expected 1 <= rows"):
+        patch_means(img, grid=(0, 6))
+    with pytest.raises(ValueError, match="grid: expected 1 <= rows <= 8"):
+        patch_means(img, grid=(4, 60))
+    ip = ImageProcessor(sensor_to_xyz=torch.eye(3))
+    bad = img.clone()
+    bad[1, 2, 3, 4] = float("nan")
+    with pytest.raises(ValueError, match="sensor: expected finite values, found 1"):
+        ip.from_demosaiced(bad)
