@@ -263,7 +263,7 @@ ISP_KEYS = {
     "scaling_percentile": (float, int), "adapt_to_display_white": bool,
 }
 SENSOR_CONVERSION_KEYS = {"method": str, "illuminant": str, "surfaces": str, "observer": str, "matrix": list,
-                          "normalize": bool, "learnable": bool}
+                          "normalize": bool, "learnable": bool, "white_preserving": bool}
 CAMERA_KEYS = {"noise": bool}
 DEMOSAIC_ALIASES = {"adaptive": "menon2007"}
 
@@ -440,7 +440,7 @@ def _build_sensor(cfg: dict) -> nn.Module:
 
 
 #: the keys of ``isp.sensor_conversion`` that only fitting a matrix uses (``method`` mcc_optimized / multisurface)
-_FIT_KEYS = ("illuminant", "surfaces", "observer", "normalize")
+_FIT_KEYS = ("illuminant", "surfaces", "observer", "normalize", "white_preserving")
 
 
 def _build_isp(cfg: dict) -> ImageProcessor:

@@ -101,12 +101,16 @@ def apply_gains(img: torch.Tensor, gains: torch.Tensor) -> torch.Tensor:
     return img * g[:, :, None, None]
 
 
-def fit_colour_matrix(source: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def fit_colour_matrix(source: torch.Tensor, target: torch.Tensor, white=None) -> torch.Tensor:
     """Least-squares colour matrix ``M`` (K, C) minimising ``||source @ M.T - target||_F``.
 
     Args:
         source: (N, C) responses of N samples (e.g. sensor RGB of the Macbeth patches).
         target: (N, K) the desired values (e.g. their XYZ).
+        white: None, or ``(source_white (C,), target_white (K,))``: the least-squares matrix under the constraint
+            ``M source_white = target_white`` exactly (white-point preserving regression, Finlayson & Drew, J.
+            Electronic Imaging 6(4), 1997: for each output, ``x = x_ls + G^-1 w_s (t - w_s . x_ls) / (w_s^T G^-1
+            w_s)`` with ``G = source^T source``), so a neutral renders neutral.
 
     Returns:
         (K, C), solved in float64 (``torch.linalg.lstsq``), returned in ``source``'s dtype.
@@ -138,6 +142,23 @@ def fit_colour_matrix(source: torch.Tensor, target: torch.Tensor) -> torch.Tenso
                          "the colour matrix is not determined (two identical channels, a dark channel, or too few "
                          "distinct colours)")
     sol = torch.linalg.lstsq(a / col, b, driver="gelsd" if a.device.type == "cpu" else None).solution
+    if white is not None:
+        try:
+            ws, wt = white
+        except (TypeError, ValueError):
+            raise ValueError(f"white: expected (source_white (C,), target_white (K,)), got {white!r}") from None
+        ws = as_tensor(ws, "white", dtype=torch.float64).to(a.device).reshape(-1)
+        wt = as_tensor(wt, "white", dtype=torch.float64).to(a.device).reshape(-1)
+        if ws.numel() != a.shape[1] or wt.numel() != b.shape[1]:
+            raise ValueError(f"white: expected a source white of {a.shape[1]} and a target white of {b.shape[1]} "
+                             f"values, got {ws.numel()} and {wt.numel()}")
+        ws = ws / col  # in the scaled columns
+        check_finite(ws.detach(), "white")
+        check_finite(wt.detach(), "white")
+        if not bool((ws != 0).any()):
+            raise ValueError("white: the source white is zero; there is no white to preserve")
+        gw = torch.linalg.solve((a / col).T @ (a / col), ws)  # G^-1 w_s (G full rank: checked above)
+        sol = sol + gw[:, None] * ((wt - ws @ sol) / (ws @ gw))[None, :]
     return (sol / col[:, None]).T.to(dtype)
 
 
@@ -230,7 +251,7 @@ def xyz_responses(wavelengths_nm, illuminant="D65", reflectances=None, observer:
 
 
 def sensor_to_xyz_matrix(qe: torch.Tensor, wavelengths_nm, illuminant="D65", surfaces="macbeth",
-                         observer: str = "1931") -> torch.Tensor:
+                         observer: str = "1931", white_preserving: bool = False) -> torch.Tensor:
     """Sensor -> XYZ matrix (3, C) fitted by least squares on surfaces under an illuminant.
 
     With ``surfaces="macbeth"`` and ``illuminant="D65"`` this is ISETCam's ``'MCC optimized'``
@@ -241,6 +262,9 @@ def sensor_to_xyz_matrix(qe: torch.Tensor, wavelengths_nm, illuminant="D65", sur
         qe: (C, L) spectral quantum efficiency on ``wavelengths_nm``.
         illuminant: a name for :func:`isettorch.spectral.illuminant` or an energy SPD (L,).
         surfaces: a :func:`reflectance_set` name or reflectances (N, L).
+        white_preserving: fit under the constraint that a perfect white under ``illuminant`` maps to its XYZ
+            exactly (:func:`fit_colour_matrix` with ``white``; not ISETCam's fit, which leaves the white's colour
+            free: with the ``isetcam_default`` sensor a D65 white renders at a* = -3.5).
 
     Example:
         >>> w = torch.arange(400., 701., 10.)
@@ -250,7 +274,12 @@ def sensor_to_xyz_matrix(qe: torch.Tensor, wavelengths_nm, illuminant="D65", sur
     """
     src = sensor_responses(qe, wavelengths_nm, illuminant, surfaces)
     tgt = xyz_responses(wavelengths_nm, illuminant, surfaces, observer).to(src.device)
-    return fit_colour_matrix(src, tgt).to(qe.dtype if qe.is_floating_point() else torch.get_default_dtype())
+    white = None
+    if white_preserving:
+        ones = torch.ones(1, torch.as_tensor(wavelengths_nm).numel(), dtype=torch.float64)
+        white = (sensor_responses(qe, wavelengths_nm, illuminant, ones)[0],
+                 xyz_responses(wavelengths_nm, illuminant, ones, observer)[0].to(src.device))
+    return fit_colour_matrix(src, tgt, white).to(qe.dtype if qe.is_floating_point() else torch.get_default_dtype())
 
 
 def white_xyz(illuminant="D65", wavelengths_nm=None, observer: str = "1931") -> torch.Tensor:
@@ -492,6 +521,8 @@ class SensorToXYZ(nn.Module):
         learnable: make the matrix an ``nn.Parameter``.
         normalize: scale the fitted matrix so that a perfect white under ``illuminant`` whose brightest
             channel is at the white level (sensor value 1) maps to Y = 1 (exposure-referred XYZ).
+        white_preserving: fit under the constraint that that white maps to the illuminant's white chromaticity
+            exactly (:func:`sensor_to_xyz_matrix`); default False, ISETCam's unconstrained fit.
 
     Buffers: ``matrix`` (3, C) and ``sensor_white`` (C,), the sensor's response to that white (max 1).
 
@@ -503,9 +534,10 @@ class SensorToXYZ(nn.Module):
     """
 
     def __init__(self, matrix=None, illuminant="D65", surfaces="macbeth", observer: str = "1931",
-                 learnable: bool = False, normalize: bool = True) -> None:
+                 learnable: bool = False, normalize: bool = True, white_preserving: bool = False) -> None:
         super().__init__()
         check_illuminant_name(illuminant)
+        self.white_preserving = bool(white_preserving)
         self.illuminant = illuminant
         self.surfaces = surfaces
         self.observer = observer
@@ -558,7 +590,7 @@ class SensorToXYZ(nn.Module):
         if self._fit_key == "fixed" or key is not None and self._fit_key == key:
             return self
         q = qe.to(torch.float64) if graph else qe.detach().to(torch.float64)
-        m = sensor_to_xyz_matrix(q, w, self.illuminant, self.surfaces, self.observer)
+        m = sensor_to_xyz_matrix(q, w, self.illuminant, self.surfaces, self.observer, self.white_preserving)
         white = sensor_responses(q, w, self.illuminant, torch.ones(1, w.numel(), dtype=torch.float64))[0]
         white = white / white.amax()
         if self.normalize:
