@@ -180,8 +180,14 @@ class ShiftInvariantLens(nn.Module):
 
     # --- shared ---------------------------------------------------------------------------------------
     def batch_f_number(self, batch: int, dtype, device) -> torch.Tensor:
-        return batch_param(self.f_number.to(dtype=dtype, device=device), "f_number", batch, dtype=dtype,
-                           device=device, positive=True)
+        n = batch_param(self.f_number.to(dtype=dtype, device=device), "f_number", batch, dtype=dtype, device=device,
+                        positive=True)
+        if bool((n.detach() < MIN_F_NUMBER).any()):
+            # a learned f-number an optimiser step took below the physical limit the constructor enforces: an error,
+            # not a lens faster than any lens in air (keep it in range, e.g. clamp it after each step)
+            raise ValueError(f"f_number: expected >= {MIN_F_NUMBER} (the fastest lens in air), got "
+                             f"{n.detach().tolist()} (a learned f-number left the physical range)")
+        return n
 
     def batch_focal_length(self, batch: int, dtype, device) -> torch.Tensor:
         return batch_param(self.focal_length_m, "focal_length_m", batch, dtype=dtype, device=device, positive=True)

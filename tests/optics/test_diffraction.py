@@ -310,3 +310,16 @@ def test_camera_equation_forms_are_pi_sin2_theta(n):
     assert iset == pytest.approx(math.pi * math.sin(math.atan(1 / (2 * nw))) ** 2, rel=1e-12)
     assert par == pytest.approx(math.pi * (1 / (2 * nw)) ** 2, rel=1e-12)
     assert par / iset - 1 == pytest.approx(1 / (4 * nw**2), rel=1e-9)
+
+
+def test_a_learned_f_number_below_the_physical_limit_is_an_error():
+    """An optimiser step that takes a learnable f-number below 0.5 (faster than any lens in air, the constructor's
+    bound) is a clear error at the next forward, not a silently unphysical lens."""
+    x = torch.rand(1, 2, 6, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(4)) * 1e3
+    scene = Scene(x, torch.tensor([500.0, 600.0], dtype=torch.float64), hfov_deg=0.1, distance_m=1.2)
+    optics = DiffractionLimitedOptics(0.6, F, margin=3, learn_f_number=True)
+    optics(scene)
+    with torch.no_grad():
+        optics.f_number.fill_(0.3)
+    with pytest.raises(ValueError, match=r"f_number: expected >= 0\.5 .*left the physical range"):
+        optics(scene)
