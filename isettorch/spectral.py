@@ -201,6 +201,8 @@ def _native_vlambda() -> tuple[np.ndarray, np.ndarray]:
 
 
 _FLUORESCENT = {f"F{i}": f"FL{i}" for i in range(1, 13)}
+#: the CIE D illuminants' correlated colour temperatures on the modern c2 scale (CIE 015:2018 note: D65 is 6504 K)
+_D_SERIES_CCT = {"D50": 5003.0, "D55": 5503.0, "D65": 6504.0, "D75": 7504.0}
 
 
 def illuminant_names() -> list[str]:
@@ -214,6 +216,17 @@ def _native_illuminant(name: str) -> tuple[np.ndarray, np.ndarray]:
 
     if name in ("D65", "D50", "D55", "D75", "A"):
         sd = colour.SDS_ILLUMINANTS[name]
+        w, v = np.asarray(sd.wavelengths, float), np.asarray(sd.values, float)
+        if w[-1] < 830.0:  # colour-science's tables end at 780 nm; CIE 015:2018 defines these to 830 nm
+            ext = np.arange(w[-1] + 5.0, 830.0 + 1e-9, 5.0)
+            if name == "A":  # Planck at 2856 K (CIE 015:2018 eq. 2.1), the definition the table rounds
+                more = colour.sd_CIE_standard_illuminant_A(colour.SpectralShape(ext[0], ext[-1], 5.0)).values
+            else:  # the CIE daylight model at the name's CCT (modern c2 scale), joined at the table's last value
+                cct = _D_SERIES_CCT[name]
+                model = daylight(cct, torch.tensor([w[-1], *ext], dtype=torch.float64)).numpy()
+                more = model[1:] * (v[-1] / model[0])
+            w, v = np.concatenate([w, ext]), np.concatenate([v, np.asarray(more, float)])
+        return w, v
     elif name in _FLUORESCENT:
         sd = colour.SDS_ILLUMINANTS[_FLUORESCENT[name]]
     else:  # pragma: no cover - guarded by illuminant()

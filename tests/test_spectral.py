@@ -111,6 +111,22 @@ def test_daylight_cct_chromaticity():
         assert abs(got - cct) / cct < 0.01
 
 
+def test_cie_illuminants_reach_830_nm():
+    """CIE 015:2018 defines D65, D50, D55, D75 and A to 830 nm; colour-science's tables end at 780, where they fell
+    to 0. Past 780 nm: A is its defining Planck formula (colour-science's sd_CIE_standard_illuminant_A), the D
+    illuminants the daylight model at their CCT, within 0.1 % of the named CCT's model ('D6504') everywhere."""
+    w = spectral.default_wavelengths(380, 830, 10, dtype=torch.float64)
+    d65, d6504 = spectral.illuminant("D65", w), spectral.illuminant("D6504", w)
+    assert bool((d65 > 0).all())
+    torch.testing.assert_close(d65, d6504, rtol=1e-3, atol=0)
+    a = spectral.illuminant("A", w).numpy()
+    ref = colour.sd_CIE_standard_illuminant_A(colour.SpectralShape(380, 830, 10)).values
+    np.testing.assert_allclose(a, ref, rtol=1e-4)  # the table (to 780) rounds the formula to 3 decimals
+    inside = spectral.default_wavelengths(400, 780, 10, dtype=torch.float64)  # the tables themselves, unchanged
+    np.testing.assert_allclose(spectral.illuminant("D50", inside).numpy(),
+                               colour.SDS_ILLUMINANTS["D50"][inside.numpy()], rtol=1e-12)
+
+
 @pytest.mark.parametrize("name", ["F2", "F7", "F11"])
 @pytest.mark.parametrize("step", [10.0, 20.0])
 def test_fluorescent_lines_keep_their_power_on_coarse_grids(name, step):

@@ -184,12 +184,21 @@ def read_scene_exr(path, *, hfov_deg: float | None = None, distance_m: float | N
     dist = distance_m if distance_m is not None else header.get("isettorch.distance_m")
     if dist is None:
         dist, defaulted = 1.2, defaulted + ["distance_m"]
+    if not bool(torch.isfinite(data).all()) or bool((data < 0).any()):
+        raise ValueError(f"path: {str(path)!r} holds negative or non-finite radiance in its S0 channels (minimum "
+                         f"{float(data.min()):.6g} W/sr/m^2/nm); a scene's radiance is >= 0")
     photons = spectral.energy_to_photons(data.to(torch.float64), w, dim=0)
     ill = header.get("isettorch.illuminant")
     ill_p = None
     if ill is not None:
-        ill_p = spectral.energy_to_photons(torch.as_tensor(np.asarray(ill), dtype=torch.float64), w, dim=0)
-        ill_p = ill_p.to(dtype)
+        ill = np.asarray(ill, dtype=float).reshape(-1)
+        if ill.size != w.numel():
+            raise ValueError(f"path: {str(path)!r} has an isettorch.illuminant attribute of {ill.size} values for "
+                             f"{w.numel()} wavelengths")
+        ill_p = spectral.energy_to_photons(torch.as_tensor(ill, dtype=torch.float64), w, dim=0).to(dtype)
     meta = {"source": str(path), "defaulted": defaulted, "emissiveUnits": header.get("emissiveUnits")}
-    return Scene(photons.to(dtype)[None], w.to(dtype), name=str(header.get("isettorch.name", Path(path).stem)),
-                 metadata=meta, hfov_deg=float(hfov), distance_m=float(dist), illuminant_photons=ill_p)
+    try:
+        return Scene(photons.to(dtype)[None], w.to(dtype), name=str(header.get("isettorch.name", Path(path).stem)),
+                     metadata=meta, hfov_deg=float(hfov), distance_m=float(dist), illuminant_photons=ill_p)
+    except ValueError as err:  # a header value the scene refuses (its field named in err): say which file
+        raise ValueError(f"path: {str(path)!r}: {err}") from err

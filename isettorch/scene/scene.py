@@ -38,6 +38,10 @@ class Scene(SpectralImage):
     _units: ClassVar[str] = "photons/s/sr/m^2/nm"
 
     def __post_init__(self, validate: bool = True) -> None:
+        for name in ("hfov_deg", "distance_m"):  # the geometry needs both (a None would fail later, unnamed)
+            if getattr(self, name) is None:
+                raise ValueError(f"{name}: expected a positive number or [B] tensor (a scene's geometry needs it), "
+                                 "got None")
         super().__post_init__(validate)
         if (self.hfov_deg >= 180).any():
             raise ValueError(f"hfov_deg: expected a field of view below 180 deg, got {self.hfov_deg.tolist()}")
@@ -103,6 +107,9 @@ class Scene(SpectralImage):
     def set_mean_luminance(self, cd_m2) -> Scene:
         """Scale radiance (and illuminant) so the mean luminance is ``cd_m2`` (scalar or [B])."""
         target = as_tensor(cd_m2, "cd_m2", dtype=self.dtype, device=self.device).reshape(-1)
+        if target.numel() not in (1, self.batch_size):
+            raise ValueError(f"cd_m2: expected a scalar or one luminance per scene ({self.batch_size}), got "
+                             f"{target.numel()} values")
         if (target < 0).any() or not torch.isfinite(target).all():
             raise ValueError(f"cd_m2: expected a non-negative finite luminance, got {target.tolist()}")
         current = self.mean_luminance()
@@ -145,6 +152,9 @@ class Scene(SpectralImage):
                 raise ValueError(f"scenes[{i}]: expected shape {shape(first)} and the same "
                                  f"wavelengths, got {shape(s)}")
         has_ill = [s.illuminant_photons is not None for s in scenes]
+        if any(has_ill) and not all(has_ill):  # the result would silently lose every scene's illuminant
+            raise ValueError(f"scenes[{has_ill.index(not has_ill[0])}]: expected every scene with an illuminant or "
+                             "none (reflectance() needs one for the whole batch); set or drop illuminant_photons")
         ill = torch.cat([s.illuminant_photons for s in scenes]) if all(has_ill) else None
         from ..image import SpectralFactors
 

@@ -89,3 +89,16 @@ def test_scene_batch_writes_every_sample_or_refuses(tmp_path):
         assert float(back.hfov_deg[0]) == pytest.approx(10.0 + i)
     with pytest.raises(ValueError, match="index"):
         write_scene_exr(tmp_path / "x.exr", scene, index=3)
+
+
+def test_scene_exr_with_bad_contents_names_the_file(tmp_path):
+    """Negative radiance and an illuminant attribute of the wrong length are errors naming the file (they named
+    internal arguments, 'photons' with a converted value and 'energy')."""
+    from isettorch.scene import uniform
+
+    scene = uniform(size=4, dtype=torch.float64)
+    p = write_scene_exr(tmp_path / "s.exr", scene)
+    data, w, _ = read_spectral_exr(p)
+    bad = write_spectral_exr(tmp_path / "neg.exr", -data.numpy().astype(np.float32), w.numpy(), component="S0")
+    with pytest.raises(ValueError, match=r"path: .*neg\.exr.* negative or non-finite radiance"):
+        read_scene_exr(bad)

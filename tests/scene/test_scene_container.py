@@ -115,3 +115,25 @@ def test_an_empty_image_is_refused_by_name():
     w = torch.arange(400.0, 701.0, 10.0)
     with pytest.raises(ValueError, match="photons: expected a non-empty"):
         Scene(torch.ones(1, 31, 0, 8), w)
+
+
+def test_batch_luminances_geometry_and_illuminants_are_checked():
+    """A [n] luminance for a batch of B != n, a missing hfov or distance, and a batch mixing scenes with and without
+    an illuminant are errors naming the argument (a scene audit found a batch of 1 silently grown to 2, TypeErrors
+    later, and the illuminants silently dropped)."""
+    from isettorch.scene import uniform
+
+    with pytest.raises(ValueError, match=r"cd_m2: expected a scalar or one luminance per scene \(1\), got 2"):
+        _scene(b=1).set_mean_luminance(torch.tensor([50.0, 100.0]))
+    with pytest.raises(ValueError, match=r"cd_m2: expected a scalar or one luminance per scene \(3\)"):
+        _scene(b=3).set_mean_luminance(torch.tensor([50.0, 100.0]))
+    two = _scene(b=2).set_mean_luminance(torch.tensor([50.0, 100.0]))
+    torch.testing.assert_close(two.mean_luminance(), torch.tensor([50.0, 100.0], dtype=torch.float64))
+    for key in ("hfov_deg", "distance_m"):
+        with pytest.raises(ValueError, match=f"{key}: expected a positive number"):
+            _scene(**{key: None})
+    a = uniform(size=4)
+    b = Scene(a.photons.clone(), a.wavelengths_nm)
+    with pytest.raises(ValueError, match=r"scenes\[1\]: expected every scene with an illuminant or none"):
+        Scene.cat([a, b])
+    assert Scene.cat([b, b]).illuminant_photons is None
