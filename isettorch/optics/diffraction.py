@@ -32,8 +32,10 @@ def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_n
            ) -> torch.Tensor:
     """Diffraction-limited OTF ``[B, L, My, Mx]`` at frequencies ``fy [B, My]``, ``fx [B, Mx]`` (cycles/m).
 
-    Cutoff ``1 / (lambda N)`` (Goodman 6.31). ``f_number`` is ``[B]``, ``wavelengths_nm`` ``[L]``.
+    Cutoff ``1 / (lambda N)`` (Goodman 6.31). ``f_number`` is ``[B]`` (> 0), ``wavelengths_nm`` ``[L]``.
     """
+    if not bool((f_number.detach() > 0).all()):  # N <= 0 has no OTF (it gave values above 1, or 1 everywhere)
+        raise ValueError(f"f_number: expected positive values, got {f_number.detach().reshape(-1).tolist()}")
     rho = torch.sqrt(fy[:, :, None] ** 2 + fx[:, None, :] ** 2)  # [B, My, Mx]
     lam_n = wavelengths_nm.to(rho.dtype)[None, :] * 1e-9 * f_number.to(rho.dtype).reshape(-1, 1)  # [B, L]
     step = max(1, _OTF_CHUNK_ELEMENTS // rho.numel())

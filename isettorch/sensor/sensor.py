@@ -107,6 +107,11 @@ def _without_ringing(rates: torch.Tensor) -> torch.Tensor:
     return rates.clamp_min(0)
 
 
+#: the largest PRNU the Gaussian gain model ``1 + sigma z`` takes: at 20 % a pixel's gain is negative (and clipped to
+#: 0) only for z < -5, about 3 pixels in 10^7
+MAX_PRNU_SIGMA_PERCENT = 20.0
+
+
 class Sensor(nn.Module):
     """An image sensor: pixel geometry, CFA and spectral QE, exposure, noise, analog gain and ADC.
 
@@ -192,6 +197,10 @@ class Sensor(nn.Module):
                          ("column_fpn_sigma_v", column_fpn_sigma_v), ("black_level_dn", black_level_dn)):
             if not (_is_real(v) and v >= 0):
                 raise ValueError(f"{label}: expected a non-negative number, got {v!r}")
+        if prnu_sigma_percent > MAX_PRNU_SIGMA_PERCENT:  # the gain 1 + sigma z would go negative (clipped to 0)
+            raise ValueError(f"prnu_sigma_percent: expected at most {MAX_PRNU_SIGMA_PERCENT} % (the Gaussian gain "
+                             f"1 + sigma z is negative for z < -100 / sigma; sensors have 0.5-2 %), got "
+                             f"{prnu_sigma_percent!r}")
         if not _is_real(analog_offset_v):
             raise ValueError(f"analog_offset_v: expected a finite number (volts), got {analog_offset_v!r}")
         if not is_integer(seed):

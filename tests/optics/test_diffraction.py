@@ -323,3 +323,13 @@ def test_a_learned_f_number_below_the_physical_limit_is_an_error():
         optics.f_number.fill_(0.3)
     with pytest.raises(ValueError, match=r"f_number: expected >= 0\.5 .*left the physical range"):
         optics(scene)
+
+
+def test_dl_otf_refuses_a_non_positive_f_number():
+    """The functional OTF, called directly, refuses N <= 0 (it returned values above 1, or 1 everywhere)."""
+    from isettorch.optics.diffraction import dl_otf
+
+    f = torch.zeros(1, 2, dtype=torch.float64)
+    for n in (-2.0, 0.0):
+        with pytest.raises(ValueError, match="f_number: expected positive values"):
+            dl_otf(f, f, torch.tensor([500.0], dtype=torch.float64), torch.tensor([n], dtype=torch.float64))

@@ -370,3 +370,13 @@ def test_sensor_snr_is_the_metrics_noise_model():
     quiet = simple_sensor()
     assert metrics.pixel_snr(quiet, sig).tolist() == [0.0, math.inf, math.inf, math.inf]
     assert metrics.dynamic_range_db(quiet) == math.inf
+
+
+def test_prnu_beyond_the_gaussian_gain_models_range_is_an_error():
+    """PRNU is a gain 1 + sigma z per pixel: above 20 % enough pixels would get a negative gain, clipped to 0
+    silently (150 % zeroed a quarter of them); 20 % is accepted."""
+    from isettorch.sensor.sensor import MAX_PRNU_SIGMA_PERCENT
+
+    with pytest.raises(ValueError, match=r"prnu_sigma_percent: expected at most 20\.0 %"):
+        Sensor(rows=4, cols=4, prnu_sigma_percent=150.0)
+    Sensor(rows=4, cols=4, prnu_sigma_percent=MAX_PRNU_SIGMA_PERCENT)
