@@ -47,7 +47,10 @@ def zernike_basis(num: int, rho: torch.Tensor, theta: torch.Tensor) -> torch.Ten
 
 def defocus_diopters_to_zernike_um(diopters, pupil_diameter_m):
     """Defocus (diopters) -> OSA Zernike ``c_2^0`` (um): ``c = D r^2 / (4 sqrt 3)`` with r the pupil radius in mm
-    (Thibos et al. 2004, "Power vectors"; ISETCam ``wvfDefocusDioptersToMicrons``)."""
+    (the magnitude of Thibos et al. 2004, "Power vectors"; the sign of ISETCam ``wvfDefocusDioptersToMicrons``:
+    positive diopters give a positive ``c_2^0``, where Thibos' spherical equivalent is ``M = -4 sqrt(3) c / r^2``).
+    Pure defocus blurs alike for either sign; the sign matters once it combines with other terms (spherical
+    aberration, ``c_4^0``)."""
     d = pupil_diameter_m if isinstance(pupil_diameter_m, torch.Tensor) else torch.tensor(pupil_diameter_m,
                                                                                           dtype=torch.float64)
     r_mm = d * 1e3 / 2
