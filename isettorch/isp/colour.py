@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 
 import torch
 from torch import nn
@@ -329,10 +330,10 @@ def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channe
 
 def _check_reference_channel(reference_channel, channels: int) -> int:
     """``reference_channel`` as a channel index of ``channels``, else a ValueError naming it."""
-    if isinstance(reference_channel, bool) or not isinstance(reference_channel, int) \
+    if isinstance(reference_channel, bool) or not isinstance(reference_channel, numbers.Integral) \
             or not 0 <= reference_channel < channels:
         raise ValueError(f"reference_channel: expected a channel index in 0..{channels - 1}, got {reference_channel!r}")
-    return reference_channel
+    return int(reference_channel)
 
 
 def _check_gains(gains, *, like: torch.Tensor | None = None) -> torch.Tensor:
@@ -495,9 +496,10 @@ class IlluminantCorrection(nn.Module):
             gains = _check_gains(gains).reshape(-1)
         self.method = key
         self.space = space
-        if isinstance(reference_channel, bool) or not isinstance(reference_channel, int) or reference_channel < 0:
+        if isinstance(reference_channel, bool) or not isinstance(reference_channel, numbers.Integral) \
+                or reference_channel < 0:
             raise ValueError(f"reference_channel: expected a channel index >= 0, got {reference_channel!r}")
-        self.reference_channel = reference_channel  # checked against the channel count when the gains are computed
+        self.reference_channel = int(reference_channel)  # checked against the channel count with the gains
         self.criterion = float(criterion)
         self.register_buffer("gains", gains)
         self.register_buffer("last_gains", None, persistent=False)
