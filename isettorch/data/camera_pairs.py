@@ -42,7 +42,10 @@ per-pixel gain ``1 + prnu_sigma_percent / 100 * n``, n ~ N(0, 1), drawn per item
 ``(prnu_sigma_percent / 100 * x)^2`` to the variance across the pixels of one signal level, so the full
 per-pixel variance is ``a x + b + (prnu_sigma_percent x / 100)^2`` (about, for x below white: clipping at the white
 level is not modelled either). ``a`` and ``b`` are what networks with noise inputs are fed; PRNU is in
-``prnu_sigma_percent``.
+``prnu_sigma_percent``. The mean of ``raw`` is not ``noise_free_raw``: it carries the dark signal,
+``dark_current_e_per_s * exposure_s * noise_gain`` above it (up to about 4e-3 of the span with the default ranges'
+longest exposures; ``noise_free_raw`` and the targets have no dark signal), which a network mapping ``raw`` to a
+target learns to subtract (its inputs are in the metadata).
 """
 
 from __future__ import annotations

@@ -440,7 +440,7 @@ def _check_camera(cam: dict, cp: str) -> None:
     _check_range(cam, "read_noise_e", cp, 0.0)
     _check_range(cam, "dark_current_e_per_s", cp, 0.0, log=True)
     _check_range(cam, "dsnu_sigma_e", cp, 0.0)
-    _check_range(cam, "prnu_sigma_percent", cp, 0.0)
+    _check_range(cam, "prnu_sigma_percent", cp, 0.0, 20.0)  # the sensor's MAX_PRNU_SIGMA_PERCENT
     _check_range(cam, "analog_gain", cp, 0.0, lo_open=True, log=True)
     _check_range(cam, "exposure_ev", cp)
     _check_range(cam, "peak_qe", cp, 0.0, 1.0, lo_open=True)

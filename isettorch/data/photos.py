@@ -29,8 +29,11 @@ def lift_srgb(image, wavelengths_nm=(400.0, 700.0, 10.0)) -> dict:
     ``image``: 8-bit ``uint8 [H, W, 3]`` (as read from a file) or encoded sRGB in [0, 1] ``[3, H, W]``. It is
     decoded (IEC 61966-2-1) to linear sRGB ``c(x)`` and lifted with Mallett & Yuksel's basis (EGSR 2019,
     :func:`.spectra.srgb_basis_spectra`): ``R(x, l) = sum_c c_c(x) B_c(l)``, in [0, 1], whose sRGB under D65 is
-    ``c``. Returns ``{"maps": [3, H, W] float64 linear sRGB, "reflectance": [3, L] float64 basis,
-    "wavelengths_nm": [L]}``; multiply the reflectance by an illuminant's photons for a scene's spectra.
+    ``c`` on the basis' own 380-780 nm grid (mean dE2000 0.001); on the 400-700 nm, 10 nm grid of the configs the
+    round trip is within dE2000 0.69 (mean 0.19; the largest 8-bit errors in near-zero channels of saturated colours,
+    where the sRGB curve is steep). Colours outside sRGB cannot be represented. Returns ``{"maps": [3, H, W] float64
+    linear sRGB, "reflectance": [3, L] float64 basis, "wavelengths_nm": [L]}``; multiply the reflectance by an
+    illuminant's photons for a scene's spectra.
     """
     from ..image import srgb_decode
 

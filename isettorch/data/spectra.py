@@ -27,7 +27,7 @@ import torch
 from .. import spectral
 from .._autograd import records_grad
 from .._checks import check_wavelengths
-from .config import randint_scalar, uniform01
+from .config import WAVELENGTH_RANGE_NM, randint_scalar, uniform01
 
 __all__ = [
     "measured_reflectances",
@@ -233,6 +233,16 @@ def random_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *, m
     w, key = _grid(wavelengths_nm)
     if model not in ("pca", "sigmoid", "mixed"):
         raise ValueError(f"model: expected 'pca', 'sigmoid' or 'mixed', got {model!r}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise ValueError(f"n: expected a number of spectra >= 0, got {n!r}")
+    if not (isinstance(pca_fraction, (int, float)) and 0 <= pca_fraction <= 1):
+        raise ValueError(f"pca_fraction: expected a probability in [0, 1], got {pca_fraction!r}")
+    lo_nm, hi_nm = WAVELENGTH_RANGE_NM
+    if model != "sigmoid" and (float(w.min()) < lo_nm or float(w.max()) > hi_nm):
+        # the PCA basis (measured reflectances) exists on 400-700 nm only: outside, its draws were NaN and +-inf
+        raise ValueError(f"wavelengths_nm: model {model!r} draws from a basis of measured reflectances on "
+                         f"{lo_nm:g}-{hi_nm:g} nm, got {float(w.min()):g}-{float(w.max()):g} nm; use model='sigmoid' "
+                         "or a grid inside that range")
     dtype = _out_dtype(w)
     calc = dtype if dtype in _NP_DTYPES else torch.float64  # numpy has no bfloat16: other dtypes work in float64
     mean, basis, std, room_up, room_down, u = _reflectance_model(key, calc)
@@ -300,7 +310,7 @@ def _daylight_basis(grid: tuple) -> np.ndarray:
 
 def _daylight(t, grid: tuple, xp):
     """CIE daylight [N, L] for CCTs ``t`` [N] (float64, numpy or torch ``xp``)."""
-    if ((t < 4000) | (t > 25000)).any():
+    if not ((t >= 4000) & (t <= 25000)).all():  # NaN fails this too
         raise ValueError(f"cct_k: expected daylight CCTs in [4000, 25000] K, got {t.tolist()}")
     xd = xp.where(t <= 7000,
                   -4.6070e9 / t**3 + 2.9678e6 / t**2 + 0.09911e3 / t + 0.244063,
@@ -371,8 +381,9 @@ def _fluorescent_table(grid: tuple) -> np.ndarray:
 def fluorescent_spd(numbers: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     """CIE fluorescent illuminants F<n> (n in 1..12) ``[N, L]`` (colour-science tables)."""
     w, key = _grid(wavelengths_nm)
-    nums = [int(x) for x in torch.as_tensor(numbers).reshape(-1).tolist()]
-    bad = [x for x in nums if not 1 <= x <= 12]
+    raw = torch.as_tensor(numbers).reshape(-1).tolist()
+    nums = [int(x) for x in raw if float(x) == int(x)] if all(math.isfinite(float(x)) for x in raw) else []
+    bad = [x for x in raw if not (math.isfinite(float(x)) and float(x) == int(x) and 1 <= int(x) <= 12)]
     if bad:
         raise ValueError(f"numbers: expected CIE fluorescent numbers 1..12, got {bad}")
     return _to_torch(_fluorescent_table(key)[np.asarray(nums, dtype=np.intp) - 1], _out_dtype(w), w.device)
@@ -557,6 +568,10 @@ def led_spd(cct_k: torch.Tensor, wavelengths_nm, *, pump_nm=None, phosphor_nm=No
     w, key = _grid(wavelengths_nm)
     xp = torch if records_grad(cct_k, pump_nm, phosphor_nm, phosphor_fwhm_nm) else np
     t = _f64(cct_k, xp)
+    if not bool(((t >= 1000) & (t <= 25000)).all()):  # the on-locus table spans 1000-25000 K (NaN fails too)
+        raise ValueError(f"cct_k: expected LED CCTs in [1000, 25000] K, got {t.tolist()}")
+    if phosphor_fwhm_nm is not None and not bool((_f64(phosphor_fwhm_nm, xp) > 0).all()):
+        raise ValueError(f"phosphor_fwhm_nm: expected a positive width (nm), got {phosphor_fwhm_nm!r}")
     params = _led_params(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, xp)
     if xp is torch:
         return _led(t, *params, key, iterations, xp).to(dtype=_out_dtype(w), device=w.device)

@@ -141,11 +141,15 @@ def test_bad_arguments():
 
 def test_led_closed_form_matches_converged_bisection():
     """The closed-form pump : phosphor ratio is the root the bisection converges to (60 steps: |d log r| ~ 1e-17),
-    including CCTs outside the reachable range, where both return an end of the log-ratio interval."""
-    t = torch.tensor([1000.0, 2700.0, 4100.0, 6500.0, 12000.0, 1e6], dtype=torch.float64)
+    including CCTs a custom phosphor cannot reach, where both return an end of the log-ratio interval (CCTs outside
+    1000-25000 K are refused)."""
+    t = torch.tensor([1000.0, 2700.0, 4100.0, 6500.0, 12000.0, 25000.0], dtype=torch.float64)
     closed = spectra.led_spd(t, W10)
     bisect = spectra.led_spd(t, W10, iterations=60)
     np.testing.assert_allclose(closed.numpy(), bisect.numpy(), rtol=1e-11, atol=1e-12)
+    kw = {"phosphor_nm": torch.tensor([480.0], dtype=torch.float64)}  # too blue for 2700 K
+    np.testing.assert_allclose(spectra.led_spd(t[1:2], W10, **kw).numpy(),
+                               spectra.led_spd(t[1:2], W10, iterations=60, **kw).numpy(), rtol=1e-11, atol=1e-12)
 
 
 def test_wavelength_checks_are_remembered_only_for_valid_grids():

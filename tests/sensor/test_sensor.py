@@ -379,4 +379,8 @@ def test_prnu_beyond_the_gaussian_gain_models_range_is_an_error():
 
     with pytest.raises(ValueError, match=r"prnu_sigma_percent: expected at most 20\.0 %"):
         Sensor(rows=4, cols=4, prnu_sigma_percent=150.0)
-    Sensor(rows=4, cols=4, prnu_sigma_percent=MAX_PRNU_SIGMA_PERCENT)
+    s = Sensor(rows=4, cols=4, prnu_sigma_percent=MAX_PRNU_SIGMA_PERCENT)
+    rate = torch.full((2, 1, 4, 4), 1e5)
+    for per_call in (150.0, torch.tensor([1.0, 150.0])):  # per-call levels (the data pairs' path) are checked too
+        with pytest.raises(ValueError, match=r"prnu_sigma_percent: expected at most 20\.0 %"):
+            s.capture(rate, exposure_s=1e-3, prnu_sigma_percent=per_call, generator=torch.Generator().manual_seed(0))
