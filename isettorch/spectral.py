@@ -34,6 +34,7 @@ __all__ = [
     "wavelength_weights",
     "resample",
     "resample_rows",
+    "band_average",
     "photons_to_energy",
     "energy_to_photons",
     "cmfs",
@@ -248,36 +249,40 @@ def _cached_on_grid(kind: str, arg, grid: tuple, dtype: torch.dtype, device: str
     elif kind == "illuminant":
         src, vals = _native_illuminant(arg)
         if arg in _FLUORESCENT:  # line spectra: the power in each sample's band, not the value at its centre
-            return torch.from_numpy(_band_average(vals, src, dst.numpy())).to(dtype=dtype, device=device)
+            # (CIE 015 tabulates F1-F12 at 5 nm; point samples at 10 nm miss the 435 and 545 nm mercury lines:
+            # F2's white 0.018 off its CIE chromaticity, F11's 0.024; an audit of 2026-11-30)
+            if dst.numel() == src.size and np.allclose(dst.numpy(), src, rtol=0, atol=1e-9):
+                return torch.from_numpy(vals).to(dtype=dtype, device=device)  # the table's own grid: the table
+            out = band_average(torch.from_numpy(vals)[None], torch.from_numpy(src), dst)[0]
+            return out.to(dtype=dtype, device=device)
     else:  # pragma: no cover
         raise KeyError(kind)
     out = resample(torch.from_numpy(vals), torch.from_numpy(src), dst, dim=-1)
     return out.to(dtype=dtype, device=device)
 
 
-def _band_average(vals: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """A tabulated line spectrum on the grid ``dst``: each sample the mean power over its band (edges halfway to its
-    neighbours; the end bands as wide as their neighbours' halves), the table read as the power in its own bands
-    (CIE 015:2018 tabulates the F-series lamps at 5 nm with each mercury line inside one band), so a line keeps its
-    energy on a coarser grid; linear interpolation where a band is narrower than the table's spacing. Point samples
-    at 10 nm miss the 435 and 545 nm lines: F2's white would be 0.018 off its CIE chromaticity (an audit of
-    2026-11-30), F11's 0.024. Zero outside the table."""
-    d = np.asarray(dst, dtype=float)
-    step = float(np.min(np.diff(src)))
-    lin = np.interp(d, src, vals, left=0.0, right=0.0)
-    if d.size < 2:
-        return lin
-    mid = (d[1:] + d[:-1]) / 2
-    lo = np.concatenate([[d[0] - (mid[0] - d[0])], mid])
-    hi = np.concatenate([mid, [d[-1] + (d[-1] - mid[-1])]])
-    edges = np.concatenate([src - step / 2, [src[-1] + step / 2]])  # the table's bands, one value each
-    cum = np.concatenate([[0.0], np.cumsum(vals * np.diff(edges))])  # the power below each band edge
+def band_average(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tensor) -> torch.Tensor:
+    """Spectra ``values [K, N]`` on knots ``src_nm`` (piecewise linear, 0 outside) on the grid ``dst_nm [L]``, each
+    sample the mean over its band (its integration weight, :func:`wavelength_weights`: edges halfway to its
+    neighbours), so the power in every band is kept: narrow emission lines (fluorescent lamps' mercury lines, CRT
+    phosphors) survive a coarse grid, where point samples (:func:`resample`) miss them. On a finer grid it is
+    linear interpolation smoothed over the band."""
+    src = src_nm.to(values.dtype)
+    dst = dst_nm.to(values.dtype)
+    half = 0.5 * wavelength_weights(dst).to(values.dtype)
+    lo, hi = dst - half, dst + half
+    seg = src[1:] - src[:-1]
+    slope = (values[:, 1:] - values[:, :-1]) / seg
+    cum = torch.cat([torch.zeros_like(values[:, :1]),
+                     torch.cumsum(0.5 * (values[:, 1:] + values[:, :-1]) * seg, dim=1)], dim=1)  # exact: linear
 
-    def power_below(x):
-        return np.interp(x, edges, cum, left=0.0, right=cum[-1])  # exact for a piecewise-constant spectrum
+    def primitive(x):  # integral from src[0] to x, clamped to the data's range (0 outside)
+        x = x.clamp(src[0], src[-1])
+        k = (torch.searchsorted(src, x, right=True) - 1).clamp(0, src.numel() - 2)
+        dx = x - src[k]
+        return cum[:, k] + values[:, k] * dx + 0.5 * slope[:, k] * dx**2
 
-    band = (power_below(hi) - power_below(lo)) / (hi - lo)
-    return np.where(hi - lo > step, band, lin)
+    return (primitive(hi) - primitive(lo)) / (hi - lo)
 
 
 def _grid_args(wavelengths_nm, dtype, device):

@@ -177,8 +177,7 @@ class Display(nn.Module):
                 if sampling == "point":
                     spd = spectral.resample(spd, src, w)
                 elif sampling == "average":
-                    half = 0.5 * spectral.wavelength_weights(w)
-                    spd = _band_average(spd, src, w - half, w + half)
+                    spd = spectral.band_average(spd, src, w)
                 else:
                     raise ValueError(f"sampling: expected 'average' or 'point', got {sampling!r}")
         return spd.to(dtype=dtype or spd.dtype, device=device or spd.device)
@@ -261,22 +260,6 @@ class Display(nn.Module):
         eotf = self.eotf_kind if self.gamma is None else f"gamma {self.gamma:g}"
         return (f"name={self.name!r}, eotf={eotf}, dpi={self.dpi:g}, viewing_distance_m={self.viewing_distance_m:g}, "
                 f"max_luminance_cd_m2={self.max_luminance_cd_m2:.4g}")
-
-
-def _band_average(values: torch.Tensor, src: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
-    """Mean of piecewise-linear spectra ``values`` [K, N] (knots ``src``, 0 outside) over bands [lo, hi] [L]."""
-    seg = src[1:] - src[:-1]
-    slope = (values[:, 1:] - values[:, :-1]) / seg
-    cum = torch.cat([torch.zeros_like(values[:, :1]),
-                     torch.cumsum(0.5 * (values[:, 1:] + values[:, :-1]) * seg, dim=1)], dim=1)  # exact: linear
-
-    def primitive(x):  # integral from src[0] to x, clamped to the data's range (0 outside)
-        x = x.clamp(src[0], src[-1])
-        k = (torch.searchsorted(src, x, right=True) - 1).clamp(0, src.numel() - 2)
-        dx = x - src[k]
-        return cum[:, k] + values[:, k] * dx + 0.5 * slope[:, k] * dx**2
-
-    return (primitive(hi) - primitive(lo)) / (hi - lo)
 
 
 def _check_rgb(rgb, name: str, encoded: bool = False) -> None:

@@ -86,7 +86,9 @@ def from_rgb(rgb: torch.Tensor, display="lcd", wavelengths=None, *, dpi: float |
         display: ``"lcd"`` (sRGB chromaticities and EOTF), ``"crt"``, ``"apple"`` (see :meth:`Display.create`)
             or a :class:`Display`.
         wavelengths: scene grid [L] (nm), default 400:10:700; the primaries are band-averaged onto it
-            (:meth:`Display.primaries_on`), so the white's luminance moves by < 0.1 % on 400:10:700.
+            (:meth:`Display.primaries_on`), so the white's luminance moves by < 0.1 % on 400:10:700 and the
+            primaries' chromaticities by up to 0.0013 in u'v' (the LCD-like primaries are narrow bands sampled
+            every 10 nm; exact on the display's 1 nm grid).
         dpi, viewing_distance_m: override the display's.
         mean_luminance_cd_m2: None (default) keeps the display's absolute radiance (ISETCam's behaviour when no
             mean luminance is given); a value rescales the scene.
