@@ -382,11 +382,10 @@ def fluorescent_spd(numbers: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     """CIE fluorescent illuminants F<n> (n in 1..12) ``[N, L]`` (colour-science tables)."""
     w, key = _grid(wavelengths_nm)
     raw = torch.as_tensor(numbers).reshape(-1).tolist()
-    nums = [int(x) for x in raw if float(x) == int(x)] if all(math.isfinite(float(x)) for x in raw) else []
     bad = [x for x in raw if not (math.isfinite(float(x)) and float(x) == int(x) and 1 <= int(x) <= 12)]
     if bad:
         raise ValueError(f"numbers: expected CIE fluorescent numbers 1..12, got {bad}")
-    return _to_torch(_fluorescent_table(key)[np.asarray(nums, dtype=np.intp) - 1], _out_dtype(w), w.device)
+    return _to_torch(_fluorescent_table(key)[np.asarray(raw, dtype=np.intp) - 1], _out_dtype(w), w.device)
 
 
 _FINE = torch.arange(380.0, 781.0, 5.0, dtype=torch.float64)

@@ -8,6 +8,8 @@ infinite slopes).
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from .._checks import as_tensor, check_finite
@@ -36,15 +38,16 @@ def rgb_to_xyz_matrix(primaries_xy, white_xy) -> torch.Tensor:
     return p * torch.linalg.solve(p, white)[None, :]
 
 
-_SRGB_MATRICES: dict = {}
+@functools.cache
+def _srgb_matrices() -> tuple[torch.Tensor, torch.Tensor]:
+    """The sRGB -> XYZ matrix and its inverse, float64 (computed once)."""
+    m = rgb_to_xyz_matrix(SRGB_PRIMARIES_XY, D65_XY)
+    return m, torch.linalg.inv(m)
 
 
 def _srgb_matrix(inverse: bool, like: torch.Tensor) -> torch.Tensor:
-    """The sRGB -> XYZ matrix (or its inverse) in ``like``'s dtype and device (computed once in float64)."""
-    if not _SRGB_MATRICES:
-        m = rgb_to_xyz_matrix(SRGB_PRIMARIES_XY, D65_XY)
-        _SRGB_MATRICES.update({False: m, True: torch.linalg.inv(m)})
-    return _SRGB_MATRICES[inverse].to(dtype=like.dtype, device=like.device)
+    """The sRGB -> XYZ matrix (or its inverse) in ``like``'s dtype and device."""
+    return _srgb_matrices()[int(inverse)].to(dtype=like.dtype, device=like.device)
 
 
 def _channel_last(x: torch.Tensor, dim: int, name: str) -> tuple[torch.Tensor, int]:

@@ -112,9 +112,9 @@ def _without_ringing(rates: torch.Tensor) -> torch.Tensor:
 MAX_PRNU_SIGMA_PERCENT = 20.0
 
 
-def _check_prnu(name: str, value: float) -> None:
+def _check_prnu(value: float) -> None:
     """The PRNU level (constructor or per call) within the Gaussian gain model's range."""
-    if name == "prnu_sigma_percent" and value > MAX_PRNU_SIGMA_PERCENT:  # the gain 1 + sigma z would go negative
+    if value > MAX_PRNU_SIGMA_PERCENT:  # the gain 1 + sigma z would go negative
         raise ValueError(f"prnu_sigma_percent: expected at most {MAX_PRNU_SIGMA_PERCENT} % (the Gaussian gain "
                          f"1 + sigma z is negative, and clipped to 0, for z < -100 / sigma; sensors have 0.5-2 %), "
                          f"got {value!r}")
@@ -205,7 +205,7 @@ class Sensor(nn.Module):
                          ("column_fpn_sigma_v", column_fpn_sigma_v), ("black_level_dn", black_level_dn)):
             if not (_is_real(v) and v >= 0):
                 raise ValueError(f"{label}: expected a non-negative number, got {v!r}")
-        _check_prnu("prnu_sigma_percent", prnu_sigma_percent)
+        _check_prnu(prnu_sigma_percent)
         if not _is_real(analog_offset_v):
             raise ValueError(f"analog_offset_v: expected a finite number (volts), got {analog_offset_v!r}")
         if not is_integer(seed):
@@ -847,13 +847,14 @@ class Sensor(nn.Module):
                 raise ValueError(f"{name}: expected a {'positive' if positive else 'non-negative'} finite value, "
                                  f"got {value!r}")
             check_in_dtype_range(value, name, dtype)
-            _check_prnu(name, value)
+            if name == "prnu_sigma_percent":
+                _check_prnu(value)
             return float(value)
         t = batch_param(value, name, b, dtype=dtype, device=device, positive=positive)
         if not positive and bool((t < 0).any()):
             raise ValueError(f"{name}: expected non-negative values, got {t.min().item():.6g}")
         if name == "prnu_sigma_percent":
-            _check_prnu(name, float(t.detach().max()))
+            _check_prnu(float(t.detach().max()))
         return t.reshape(-1, 1, 1, 1)
 
     def levels(self, b: int, dtype, device, **overrides) -> dict[str, Any]:
