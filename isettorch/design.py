@@ -41,6 +41,7 @@ import torch
 from torch import nn
 
 from . import spectral
+from .image import XYZ_TO_LINEAR_SRGB
 from .isp.mosaic_net import MosaicReconstructionNet
 from .optics import DiffractionLimitedOptics
 from .optics.geometry import image_distance, relative_illumination
@@ -111,17 +112,15 @@ def illuminant_photons(wavelengths_nm: torch.Tensor, lux: float, illuminant: str
 
 def linear_srgb_of_reflectance(reflectance: torch.Tensor, wavelengths_nm, illuminant: str = "D65") -> torch.Tensor:
     """Linear sRGB ``[..., 3]`` of reflectances ``[..., L]`` under ``illuminant``, relative to a perfect white
-    (Y_white = 1): CIE 1931 XYZ (:func:`isettorch.spectral.xyz`) through kornia's XYZ -> linear sRGB matrix (D65).
-    The target of a reconstruction network (for the lift of a photograph under D65: the photograph's values)."""
-    from kornia.color import xyz_to_rgb
-
+    (Y_white = 1): CIE 1931 XYZ (:func:`isettorch.spectral.xyz`) through the library's XYZ -> linear sRGB matrix
+    (:data:`isettorch.image.XYZ_TO_LINEAR_SRGB`, IEC 61966-2-1). The target of a reconstruction network (for the lift
+    of a photograph under D65: the photograph's values)."""
     wl = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
     e = illuminant_photons(wl, 1.0, illuminant)
     r = torch.as_tensor(reflectance, dtype=torch.float64)
     xyz = spectral.xyz((r * e)[..., None, None], wl, dim=-3)[..., 0, 0]
     white = spectral.xyz(e[:, None, None], wl, dim=-3)[1, 0, 0]
-    lin = xyz_to_rgb((xyz / white).reshape(-1, 3).T.reshape(1, 3, -1, 1))
-    return lin.reshape(3, -1).T.reshape(*r.shape[:-1], 3)
+    return (xyz / white) @ torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64).T
 
 
 class DesignCamera(nn.Module):

@@ -16,12 +16,29 @@ import torch
 from . import spectral
 from ._checks import as_tensor, batch_param, check_finite, check_nonnegative, check_rank, check_wavelengths
 
-# IEC 61966-2-1:1999 (sRGB), XYZ (D65, Y = 1) -> linear sRGB.
-XYZ_TO_LINEAR_SRGB = (
-    (3.2404542, -1.5371385, -0.4985314),
-    (-0.9692660, 1.8760108, 0.0415560),
-    (0.0556434, -0.2040259, 1.0572252),
-)
+#: IEC 61966-2-1:1999 sRGB: the primaries' and the D65 white's CIE 1931 chromaticities
+SRGB_PRIMARIES_XY = ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06))
+D65_XY = (0.3127, 0.3290)
+
+
+def rgb_to_xyz_matrix(primaries_xy, white_xy) -> torch.Tensor:
+    """Linear RGB -> XYZ ``(3, 3)`` float64 (columns: the primaries' XYZ; RGB (1, 1, 1) is the white with Y = 1) from
+    the primaries' and the white's chromaticities (SMPTE RP 177-1993, section 3.3)."""
+    p = torch.tensor([[x / y, 1.0, (1 - x - y) / y] for x, y in primaries_xy], dtype=torch.float64).T
+    xw, yw = white_xy
+    white = torch.tensor([xw / yw, 1.0, (1 - xw - yw) / yw], dtype=torch.float64)
+    return p * torch.linalg.solve(p, white)[None, :]
+
+
+def _srgb_constants() -> tuple[tuple, tuple]:
+    m = rgb_to_xyz_matrix(SRGB_PRIMARIES_XY, D65_XY)
+    return tuple(map(tuple, torch.linalg.inv(m).tolist())), tuple(m.sum(1).tolist())
+
+
+# The one sRGB matrix of the library (IEC 61966-2-1:1999), XYZ (D65, Y = 1) -> linear sRGB: the inverse of the
+# primaries' matrix (colour-science's ``normalised_primary_matrix`` to 1e-16), and the white it maps to (1, 1, 1),
+# D65 at the standard's chromaticity (0.3127, 0.3290): XYZ (0.950456, 1, 1.089058).
+XYZ_TO_LINEAR_SRGB, SRGB_WHITE_XYZ = _srgb_constants()
 
 
 def srgb_encode(linear: torch.Tensor, *, clip: bool = True, inplace: bool = False,

@@ -39,23 +39,19 @@ if str(ROOT) not in sys.path:
 
 from isettorch import spectral  # noqa: E402
 from isettorch._progress import add_quiet_argument, progress  # noqa: E402
+from isettorch.image import SRGB_WHITE_XYZ, bradford_matrix  # noqa: E402
 from training import common  # noqa: E402
 
 WAVELENGTHS = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
-# Bradford cone-response matrix (Lam 1985; CIE 160:2004), XYZ -> sharpened RGB.
-BRADFORD = torch.tensor([[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]],
-                        dtype=torch.float64)
-# IEC 61966-2-1 D65 white, Y = 1.
-D65_XYZ = torch.tensor([0.95047, 1.0, 1.08883], dtype=torch.float64)
+# The D65 white of the library's sRGB (IEC 61966-2-1, Y = 1).
+D65_XYZ = torch.tensor(SRGB_WHITE_XYZ, dtype=torch.float64)
 VAL_SEED_OFFSET = 2_000_017_000
 
 
 def bradford_to_d65(xyz: torch.Tensor, white_xyz: torch.Tensor) -> torch.Tensor:
-    """Adapt ``xyz [B, N, 3]`` seen under ``white_xyz [B, 3]`` to D65 (von Kries in Bradford space)."""
-    m = BRADFORD.to(xyz)
-    rho_w = white_xyz.to(xyz) @ m.T
-    rho_d = D65_XYZ.to(xyz) @ m.T
-    cat = torch.linalg.inv(m) @ torch.diag_embed(rho_d / rho_w) @ m  # [B, 3, 3]
+    """Adapt ``xyz [B, N, 3]`` seen under ``white_xyz [B, 3]`` to D65 (von Kries in Bradford space,
+    :func:`isettorch.image.bradford_matrix`)."""
+    cat = bradford_matrix(white_xyz, D65_XYZ).to(xyz)  # [B, 3, 3]
     return xyz @ cat.transpose(-1, -2)
 
 

@@ -59,7 +59,7 @@ import torch
 
 from .. import constants, spectral
 from .._checks import dataset_index
-from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
+from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
 from .config import (
     TARGETS,
     check_integer,
@@ -84,7 +84,6 @@ META_KEYS = ("index", "exposure_s", "analog_gain", "iso", "f_number", "focal_len
              "black_level_dn", "white_level_dn", "noise_gain", "noise_floor_var", "cfa", "cct_k", "illuminant_code",
              "white_camera_rgb", "white_xyz", "qe", "wavelengths_nm", "hdr_decades", "mean_luminance_cd_m2")
 
-_D65_XYZ = (0.95047, 1.0, 1.08883)  # IEC 61966-2-1 white, Y = 1
 # Bumped whenever the item of a given (seed, index, config) changes (draw order, layouts, spectra, physics), so
 # that `isettorch synth` never resumes a dataset with shards of another version (it enters the config hash).
 # 2: 2026-11-22 third speed round (inverse-CDF choices, one-draw leaf parameters, on-locus LEDs, camera distance).
@@ -93,7 +92,9 @@ _D65_XYZ = (0.95047, 1.0, 1.08883)  # IEC 61966-2-1 white, Y = 1
 #    items and leaf textures change material with probability 0.25), 2-8 materials, leaf brightness 0.1-1.
 # 5: 2026-11-26 natural scenes: colour changes at finer scales (chromatic radius 8 px, detail items and leaf
 #    textures change material with probability 0.5) and independent three-layer grain (component "grain").
-GENERATOR_VERSION = 5
+# 6: 2026-11-30 the colour targets (linear sRGB, sRGB) through the library's one sRGB matrix and its D65 white
+#    (IEC 61966-2-1 primaries and white chromaticity; before, a 7-decimal matrix and the tabulated D65 white: 3e-4).
+GENERATOR_VERSION = 6
 _TARGET_CHANNELS = {"noise_free_raw": 1, "camera_rgb": 3, "xyz": 3, "linear_srgb": 3, "srgb": 3}
 
 
@@ -497,7 +498,7 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
     if colour:
         xyz = img.get("xyz", img.get("_xyz"))
         white_xyz = torch.stack(white_xyz_all)
-        cat = bradford_matrix(white_xyz / white_xyz[:, 1:2], torch.tensor(_D65_XYZ, dtype=torch.float64))
+        cat = bradford_matrix(white_xyz / white_xyz[:, 1:2], torch.tensor(SRGB_WHITE_XYZ, dtype=torch.float64))
         m_srgb = (torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64) @ cat).to(dtype)[..., None]  # [B, 3, 3, 1]
         x3 = xyz.reshape(nb, 3, -1)
         lin = img["linear_srgb"].view(nb, 3, -1) if "linear_srgb" in img else torch.empty_like(x3)

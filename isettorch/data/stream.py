@@ -26,11 +26,10 @@ from concurrent.futures import ThreadPoolExecutor
 import torch
 
 from .._checks import check_device, is_integer
-from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
+from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
 from .batched import _log_uniform, _uniform, draw_layout_scenes
 from .batched_natural import draw_natural_scenes
 from .camera_pairs import (
-    _D65_XYZ,
     TARGETS,
     _Cache,
     _d5100_qe,
@@ -545,7 +544,7 @@ class PairStream:
             xyz = xyz_d * scale.to(dt).reshape(-1, 1, 1, 1)
             if "xyz" in targets:
                 out["xyz"] = xyz
-            cat = bradford_matrix(white_xyz / white_xyz[:, 1:2], torch.tensor(_D65_XYZ, dtype=f64, device=dev))
+            cat = bradford_matrix(white_xyz / white_xyz[:, 1:2], torch.tensor(SRGB_WHITE_XYZ, dtype=f64, device=dev))
             m_srgb = (torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=f64, device=dev) @ cat).to(dt)  # [b, 3, 3]
             lin = torch.einsum("bij,bjhw->bihw", m_srgb, xyz)
             if "linear_srgb" in targets:

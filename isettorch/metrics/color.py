@@ -13,6 +13,7 @@ import functools
 import torch
 
 from .._checks import as_tensor, check_finite
+from ..image import D65_XY, SRGB_PRIMARIES_XY, rgb_to_xyz_matrix  # the one sRGB definition (re-exported here)
 
 # CIE 15:2004 eq. 8.3: the CIELAB function f(t) is t^(1/3) above (6/29)^3 and linear below.
 _DELTA = 6.0 / 29.0
@@ -21,21 +22,8 @@ _KAPPA_LIN = 1.0 / (3.0 * _DELTA**2)  # 841 / 108
 
 # White points from their CIE 1931 xy (CIE 15:2004 table T.3, 2-degree observer; the values of colour-science's
 # CCS_ILLUMINANTS), as XYZ with Y = 1.
-_WHITE_XY = {"D65": (0.3127, 0.3290), "D50": (0.3457, 0.3585), "A": (0.44758, 0.40745), "E": (1 / 3, 1 / 3)}
+_WHITE_XY = {"D65": D65_XY, "D50": (0.3457, 0.3585), "A": (0.44758, 0.40745), "E": (1 / 3, 1 / 3)}
 WHITE_POINTS = {k: (x / y, 1.0, (1.0 - x - y) / y) for k, (x, y) in _WHITE_XY.items()}
-
-#: IEC 61966-2-1 sRGB: the primaries' and the D65 white's CIE 1931 chromaticities
-SRGB_PRIMARIES_XY = ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06))
-D65_XY = _WHITE_XY["D65"]
-
-
-def rgb_to_xyz_matrix(primaries_xy, white_xy) -> torch.Tensor:
-    """Linear RGB -> XYZ ``(3, 3)`` float64 (columns: the primaries' XYZ; RGB (1, 1, 1) is the white with Y = 1) from
-    the primaries' and the white's chromaticities (SMPTE RP 177-1993, section 3.3)."""
-    p = torch.tensor([[x / y, 1.0, (1 - x - y) / y] for x, y in primaries_xy], dtype=torch.float64).T
-    xw, yw = white_xy
-    white = torch.tensor([xw / yw, 1.0, (1 - xw - yw) / yw], dtype=torch.float64)
-    return p * torch.linalg.solve(p, white)[None, :]
 
 
 @functools.cache

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from isettorch.image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB
 from isettorch.metrics import (
     color_accuracy,
     delta_e,
@@ -156,6 +157,28 @@ def test_srgb_against_colour():
     np.testing.assert_allclose(back.numpy(), inside, rtol=0, atol=1e-12)
     # float32 images keep their dtype
     assert srgb_to_xyz(torch.rand(2, 3, 4, 4)).dtype == torch.float32
+    # the library's one XYZ -> linear sRGB matrix (the data pairs', the stream's, the designs' targets) and its white
+    np.testing.assert_allclose(np.array(XYZ_TO_LINEAR_SRGB), np.linalg.inv(npm), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(SRGB_WHITE_XYZ, colour.xy_to_XYZ(np.array(D65_XY)), rtol=0, atol=1e-15)
+
+
+def test_design_target_is_colour_sciences_srgb_of_the_reflectance():
+    """`design.linear_srgb_of_reflectance` (the co-design networks' target): CIE 1931 XYZ of the reflectance under
+    D65 relative to the perfect white, through the inverse of the sRGB primaries' matrix, as colour-science's
+    sd_to_XYZ (integration on the same 10 nm grid) and XYZ_to_RGB with the sRGB colourspace give."""
+    from isettorch.design import linear_srgb_of_reflectance
+
+    wl = np.arange(400, 701, 10)
+    refl = np.random.default_rng(7).uniform(0.05, 0.95, (4, wl.size))
+    ours = linear_srgb_of_reflectance(torch.tensor(refl), torch.tensor(wl, dtype=torch.float64)).numpy()
+    shape = colour.SpectralShape(400, 700, 10)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    npm = colour.normalised_primary_matrix(np.array(SRGB_PRIMARIES_XY), np.array(D65_XY))
+    for r, got in zip(refl, ours):
+        sd = colour.SpectralDistribution(dict(zip(wl, r)))
+        xyz = colour.sd_to_XYZ(sd, cmfs, d65, method="Integration") / 100
+        np.testing.assert_allclose(got, np.linalg.inv(npm) @ xyz, rtol=0, atol=1e-12)
 
 
 def test_gradients_finite_and_gradcheck():
