@@ -8,12 +8,8 @@ import pytest
 
 import isettorch
 
-# Modules whose examples need objects they do not build (``raw``): to be fixed by their owners, then removed
-# from this list.
-KNOWN_BROKEN = {"isettorch.isp.demosaicing"}
-
 MODULES = sorted(m.name for m in pkgutil.walk_packages(isettorch.__path__, "isettorch.")
-                 if m.name not in KNOWN_BROKEN and not m.name.startswith("isettorch.commands."))
+                 if not m.name.startswith("isettorch.commands."))
 
 
 @pytest.mark.parametrize("name", MODULES)

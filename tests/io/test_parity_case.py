@@ -1,15 +1,15 @@
 """Reading and writing ISETCam parity cases (isetcam-parity/FORMAT.md) and the objects a case describes."""
 
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from shared_paths import PARITY_CASE
 
 from isettorch.io import isetcam as io
 
-CASE = Path("/work/shared/isetcam-parity/macbeth_d65_default.npz")
+CASE = PARITY_CASE
 
 
 def test_write_read_round_trip_without_pickle(tmp_path):

@@ -4,7 +4,6 @@ colour-demosaicing, on generated images and on crops of the shared benchmark set
 from __future__ import annotations
 
 import json
-import os
 import re
 from pathlib import Path
 
@@ -13,12 +12,12 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from shared_paths import DATA
 
 from isettorch.cli import main
 from isettorch.isp import cpsnr, demosaic, evaluate_demosaic
 
 REPO = Path(__file__).resolve().parents[2]
-DATA = Path(os.environ.get("ISETTORCH_DATA", REPO / ".." / "shared" / "data"))
 REFERENCE = {"bilinear_colour": cd.demosaicing_CFA_Bayer_bilinear, "malvar2004": cd.demosaicing_CFA_Bayer_Malvar2004,
              "menon2007": cd.demosaicing_CFA_Bayer_Menon2007}
 

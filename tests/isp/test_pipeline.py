@@ -1,10 +1,10 @@
 """ImageProcessor: stage order, replaceable stages, batching, monochrome, ISETCam parity of the machinery."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from shared_paths import PARITY_CASE
 
 from isettorch.isp.colour import SensorToXYZ, sensor_responses
 from isettorch.isp.pipeline import DemosaicStage, ImageProcessor
@@ -13,7 +13,7 @@ from isettorch.sensor.filters import SpectralQE
 from isettorch.sensor.raw import RawImage
 
 W = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
-PARITY = Path("/work/shared/isetcam-parity/macbeth_d65_default.npz")
+PARITY = PARITY_CASE
 
 
 def _uniform_raw(pattern: str, illuminant: str, reflectance: float = 0.5, size: int = 8, level: float = 0.6):

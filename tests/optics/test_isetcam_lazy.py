@@ -3,11 +3,11 @@ weightings (K inverse FFTs) instead of reading the L-plane cube. Everything is c
 ``compute_oi`` path (itself checked against an independent NumPy oiCompute and ISETCam's own case in
 ``test_isetcam_parity.py``), in float64, to float rounding."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from shared_paths import PARITY_CASE
 
 from isettorch.io.isetcam import case_sensor, read_parity_case
 from isettorch.optics import DiffractionLimitedOptics, isetcam
@@ -15,7 +15,7 @@ from isettorch.optics.optical_image import FourierFactors
 from isettorch.scene import Scene
 from isettorch.sensor import ISETCAM_CONVENTIONS, Sensor
 
-CASE = Path("/work/shared/isetcam-parity/macbeth_d65_default.npz")
+CASE = PARITY_CASE
 WAVE = torch.tensor([420.0, 480.0, 540.0, 600.0, 660.0], dtype=torch.float64)
 
 

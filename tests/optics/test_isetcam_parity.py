@@ -1,16 +1,16 @@
 """ISETCam parity of the diffraction-limited optical image (FORMAT.md 4.1-4.4, 4.7)."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from shared_paths import PARITY_CASE
 
 from isettorch import Scene
 from isettorch.optics import DiffractionLimitedOptics, isetcam
 
-CASE = Path("/work/shared/isetcam-parity/macbeth_d65_default.npz")
+CASE = PARITY_CASE
 needs_case = pytest.mark.skipif(not CASE.exists(), reason="ISETCam parity case not available")
 
 

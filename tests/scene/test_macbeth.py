@@ -1,16 +1,16 @@
 """Macbeth ColorChecker scene: colorimetry against colour-science, layout, ISETCam parity."""
 
-from pathlib import Path
 
 import colour
 import numpy as np
 import pytest
 import torch
+from shared_paths import PARITY_CASE
 
 from isettorch import spectral
 from isettorch.scene import macbeth, macbeth_patch_names, macbeth_patch_slices, macbeth_reflectances
 
-PARITY = Path("/work/shared/isetcam-parity/macbeth_d65_default.npz")
+PARITY = PARITY_CASE
 SOURCE = colour.characterisation.SDS_COLOURCHECKERS["BabelColor Average"]
 CMFS = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
 

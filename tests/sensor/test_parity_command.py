@@ -9,12 +9,13 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from shared_paths import PARITY_CASE, PARITY_DIR
 
 from isettorch.cli import main
 from isettorch.commands import parity
 from isettorch.io.isetcam import NOISE_KEYS
 
-SHARED = sorted(Path("/work/shared/isetcam-parity").glob("*.npz"))
+SHARED = sorted(PARITY_DIR.glob("*.npz"))
 Q = 1.602177e-19  # ISETCam vcConstants
 
 
@@ -240,7 +241,7 @@ def test_noise_statistics_stage_against_format_formula(tmp_path):
 
 # --- the command on variants of the shipped case (the audit's defects 1-9) -----------------------------------------
 
-CASE = Path("/work/shared/isetcam-parity/macbeth_d65_default.npz")
+CASE = PARITY_CASE
 needs_case = pytest.mark.skipif(not CASE.exists(), reason="shared ISETCam parity case not present")
 MAIN_STAGES = ("oi_photons", "mean_illuminance", "sensor_current", "sensor_volts", "sensor_dv")
 

@@ -6,14 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from shared_paths import DATA
 
 from isettorch.isp import learned
 from isettorch.isp.demosaicing import demosaic_malvar2004
 from isettorch.isp.learned import DemosaicNet, demosaic_learned
 
 cd = pytest.importorskip("colour_demosaicing")
-KODAK = Path("/work/shared/data/kodak24")
-MCM = Path("/work/shared/data/mcmaster18")
+KODAK = DATA / "kodak24"
+MCM = DATA / "mcmaster18"
 
 
 @pytest.mark.parametrize("pattern", ["RGGB", "BGGR", "GRBG", "GBRG"])

@@ -2,10 +2,20 @@
 plug-in point for learned methods. The entry point is the function :func:`demosaic` and its module
 :class:`Demosaic` (exported by :mod:`isettorch.isp`: ``from isettorch.isp import demosaic, Demosaic``).
 
-    >>> rgb = demosaic(raw, "RGGB", method="malvar2004")        # (B, 1, H, W) -> (B, 3, H, W)
-    >>> Demosaic("menon2007")(raw, "RGGB")
-    >>> register_method("learned", MyNet())                       # any callable / nn.Module (raw, pattern) -> RGB
-    >>> demosaic(raw, torch.tensor([[0, 1], [3, 2]]), method="bilinear")   # any CFA as an index map -> (B, C, H, W)
+    >>> raw = mosaic(torch.full((1, 3, 8, 8), 0.25), "RGGB")   # a Bayer mosaic (B, 1, H, W)
+    >>> demosaic(raw, "RGGB", method="malvar2004").shape          # -> (B, 3, H, W)
+    torch.Size([1, 3, 8, 8])
+    >>> Demosaic("menon2007")(raw, "RGGB").unique()               # a constant colour field stays constant
+    tensor([0.2500])
+    >>> class Grey(nn.Module):                                    # any callable / nn.Module (raw, pattern) -> RGB
+    ...     def forward(self, raw, pattern):
+    ...         return raw.expand(-1, 3, -1, -1)
+    >>> register_method("grey_example", Grey())
+    >>> demosaic(raw, "RGGB", method="grey_example").shape
+    torch.Size([1, 3, 8, 8])
+    >>> del METHODS["grey_example"]
+    >>> demosaic(raw, torch.tensor([[0, 1], [1, 2]]), method="bilinear").shape  # any CFA as an index map
+    torch.Size([1, 3, 8, 8])
 """
 
 from __future__ import annotations
