@@ -25,7 +25,7 @@ def test_camera_pairs_identical_across_0_1_2_workers():
     ref = runs[0]
     assert torch.cat([b["meta"]["index"] for b in ref]).tolist() == list(range(6))
     for other in runs[1:]:
-        for a, b in zip(ref, other):
+        for a, b in zip(ref, other, strict=True):
             for k in ("raw", "noise_free_raw", "camera_rgb", "xyz", "linear_srgb", "srgb"):
                 assert torch.equal(a[k], b[k]), k
             for k in a["meta"]:
@@ -36,7 +36,7 @@ def test_scenes_identical_across_workers():
     ds = SyntheticSceneDataset(4, seed=3, config=TINY)
     a = [s.photons for s in DataLoader(ds, batch_size=2, collate_fn=collate_scenes, num_workers=0)]
     b = [s.photons for s in DataLoader(ds, batch_size=2, collate_fn=collate_scenes, num_workers=2)]
-    assert all(torch.equal(x, y) for x, y in zip(a, b))
+    assert len(a) == 2 and all(torch.equal(x, y) for x, y in zip(a, b, strict=True))
 
 
 def test_distributed_sampler_covers_every_item_once():

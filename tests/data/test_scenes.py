@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -30,9 +31,17 @@ def test_mean_luminance_in_configured_range():
         assert lum == pytest.approx(s.metadata["mean_luminance_cd_m2"], rel=1e-4)
         assert 20.0 * (1 - 1e-4) <= lum <= 400.0 * (1 + 1e-4)
         values.append(lum)
-    # log-uniform draws: roughly half fall below the geometric midpoint (sqrt(20 * 400) ~ 89)
-    below = sum(v < math.sqrt(20 * 400) for v in values)
-    assert 2 <= below <= 13
+    # the draws are log-uniform on [20, 400] (module notes): Kolmogorov-Smirnov on 400 of them (a linear-uniform draw,
+    # or a range's end missed, gives p < 1e-10)
+    from scipy.stats import kstest
+
+    from isettorch.data.scenes import _draw_scene
+
+    full = merge_config(cfg, SCENE_DEFAULTS, "scene")
+    targets = np.array([_draw_scene(i, 1, full, device="cpu", dtype=torch.float32, hfov_deg=None,
+                                    size=(8, 8))["target"] for i in range(400)])
+    assert kstest(np.log(targets / 20.0) / math.log(20.0), "uniform").pvalue > 1e-3
+    assert kstest(targets, "uniform", args=(20.0, 380.0)).pvalue < 1e-6  # the test tells the two laws apart
 
 
 @pytest.mark.parametrize("decades", [1.0, 3.0])

@@ -118,7 +118,7 @@ def test_persistent_workers_reuse_their_slots_across_epochs():
     first, second = list(loader), list(loader)
     assert loader.shipped == {"slot": 6, "stock": 0}  # the slots freed in epoch 1 serve all of epoch 2
     for got in (first, second):
-        assert all(torch.equal(b["raw"], r) for b, r in zip(got, ref))
+        assert all(torch.equal(b["raw"], r) for b, r in zip(got, ref, strict=True))
 
 
 def test_pinned_or_custom_collate_loaders_use_the_stock_path():

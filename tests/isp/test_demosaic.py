@@ -9,6 +9,7 @@ import colour_demosaicing as cd
 import numpy as np
 import pytest
 import torch
+from scipy import ndimage
 from torch import nn
 
 from isettorch.isp import (
@@ -62,6 +63,17 @@ def test_bilinear_default_differs_from_colour_demosaicing_only_on_the_border(pat
     ours = _to_np(demosaic_bilinear(raw, pattern))
     ref = cd.demosaicing_CFA_Bayer_bilinear(raw[0, 0].numpy(), pattern)
     np.testing.assert_array_equal(ours[1:-1, 1:-1], ref[1:-1, 1:-1])
+    # everywhere, border included, ours is the normalised convolution (Knutsson & Westin 1993) of each channel's
+    # samples with the tent (R, B) or the cross (G), zero outside the image: scipy
+    masks = np.zeros((3, 12, 14))
+    for k, (dy, dx) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
+        masks["RGB".index(pattern[k]), dy::2, dx::2] = 1
+    tent = np.array([[0.25, 0.5, 0.25], [0.5, 1.0, 0.5], [0.25, 0.5, 0.25]])
+    cross = np.array([[0.0, 0.25, 0.0], [0.25, 1.0, 0.25], [0.0, 0.25, 0.0]])
+    x = raw[0, 0].numpy()
+    normalised = np.stack([ndimage.convolve(x * m, k, mode="constant") / ndimage.convolve(m, k, mode="constant")
+                           for m, k in zip(masks, (tent, cross, tent), strict=True)], -1)
+    np.testing.assert_allclose(ours, normalised, rtol=0, atol=1e-12)
     # colour-demosaicing's reflected border holds too few or too many samples of a channel under its fixed kernel
     # weights (too dark or too bright); ours divides by the weight that fell on samples.
     assert np.abs(ref - ours).max() > 1e-2
