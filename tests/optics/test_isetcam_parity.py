@@ -1,10 +1,10 @@
 """ISETCam parity of the diffraction-limited optical image (FORMAT.md 4.1-4.4, 4.7)."""
 
-import math
 
 import numpy as np
 import pytest
 import torch
+from isetcam_numpy import numpy_oi
 from shared_paths import PARITY_CASE
 
 from isettorch import Scene
@@ -80,57 +80,6 @@ def test_module_isetcam_mode_and_default_difference(case):
     assert np.median(rel) < 2e-3 and rel.max() < 2e-2  # measured: median 8.2e-4, max 1.13e-2
 
 
-# --- an independent NumPy implementation of FORMAT.md 4.2-4.4, for cases not in the files ---------------------
-
-def _ufl(n):
-    k = np.arange(1, n + 1, dtype=float)
-    mid = n / 2 + 1 if n % 2 == 0 else (n + 1) / 2
-    return (k - mid) / np.max(np.abs(k - mid))
-
-
-def _numpy_oi(radiance, wave, hfov, dist, fnum, f, trans):
-    nl, h, w = radiance.shape
-    dimg = 1 / (1 / f - 1 / dist)
-    m = dimg / dist
-    irr = math.pi / (1 + 4 * fnum**2 * (1 + m) ** 2) * radiance * trans[:, None, None]
-    dx = 2 * f * math.tan(math.radians(hfov / 2)) / w
-    ys = np.linspace(-h * dx / 2 + dx / 2, h * dx / 2 - dx / 2, h)
-    xs = np.linspace(-w * dx / 2 + dx / 2, w * dx / 2 - dx / 2, w)
-    x, y = np.meshgrid(xs, ys)
-    s = np.sqrt(f**2 + x**2 + y**2)
-    if f > 10 * math.hypot(h * dx, w * dx):
-        fall = (f / s) ** 4
-    else:
-        cphi = f / s
-        sphi = np.sqrt(1 - cphi**2)
-        tphi = sphi / cphi
-        st = 1 / (1 + 4 * (fnum * (1 - 0)) ** 2)
-        ct = math.sqrt(1 - st**2)
-        tt = st / ct
-        fall = (math.pi / 2) * (1 - (1 - tt**2 + tphi**2) / np.sqrt(tphi**4 + 2 * tphi**2 * (1 - tt**2) + 1 / ct**4))
-        fall = fall / (math.pi * st**2)
-    irr = irr * fall
-    pr, pc = int(math.floor(h / 8 + 0.5)), int(math.floor(w / 8 + 0.5))
-    h2, w2 = h + 2 * pr, w + 2 * pc
-    pad = np.full((nl, h2, w2), irr.max() * 1e-9)
-    pad[:, pr:pr + h, pc:pc + w] = irr
-    hfov2 = 2 * math.degrees(math.atan(w2 / w * math.tan(math.radians(hfov / 2))))
-    vfov2 = 2 * math.degrees(math.atan(0.5 * h2 * dx / f))
-    fx = _ufl(w2) * (w2 / 2) / hfov2
-    fy = _ufl(h2) * (h2 / 2) / vfov2
-    width = 2 * f * math.tan(math.radians(hfov2 / 2))
-    out = np.empty_like(pad)
-    for i, lam in enumerate(wave):
-        fc = (1 / fnum) / (lam * 1e-9) * width / hfov2
-        rho = np.sqrt(fx[None, :] ** 2 + fy[:, None] ** 2) / fc
-        r = np.minimum(rho, 1)
-        otf = np.where(rho < 1, 2 / np.pi * (np.arccos(r) - r * np.sqrt(1 - r**2)), 0.0)
-        otf = np.fft.ifftshift(otf)
-        out[i] = np.abs(np.fft.ifft2(otf * np.fft.fft2(pad[i])))
-    spacing = 2 * dimg * math.tan(math.radians(hfov2 / 2)) / w2
-    return out, (pr, pc), spacing, hfov2
-
-
 def test_unit_frequency_list_and_pads():
     np.testing.assert_allclose(isetcam.unit_frequency_list(5).numpy(), [-1, -0.5, 0, 0.5, 1])
     np.testing.assert_allclose(isetcam.unit_frequency_list(4).numpy(), [-1, -0.5, 0, 0.5])
@@ -149,7 +98,7 @@ def test_synthetic_cases_match_numpy(shape, wave, fnum, hfov):
     radiance = (rng.random((wave.size, h, w)) * 1e16).astype(np.float32)
     trans = np.linspace(0.8, 1.0, wave.size)
     f, dist = 5e-3, 2.0
-    ref, pads, spacing, hfov2 = _numpy_oi(radiance.astype(np.float64), wave, hfov, dist, fnum, f, trans)
+    ref, pads, spacing, hfov2 = numpy_oi(radiance.astype(np.float64), wave, hfov, dist, fnum, f, trans)
     oi = isetcam.compute_oi(torch.from_numpy(radiance).double(), wave, hfov, dist, fnum, f, trans)
     assert (oi.pad_rows, oi.pad_cols) == pads
     assert oi.sample_spacing_m.item() == pytest.approx(spacing, rel=1e-12)
@@ -198,7 +147,7 @@ def test_factored_radiance_matches_dense_numpy(offaxis):
     den = isetcam.compute_oi(dense, *args, offaxis=offaxis)
     torch.testing.assert_close(fac.photons, den.photons, rtol=1e-10, atol=1e-10 * float(den.photons.max()))
     if offaxis == "cos4th":
-        ref = _numpy_oi(dense[0].numpy(), wave.numpy(), 12.0, 1.5, 2.8, 4e-3, trans)[0]
+        ref = numpy_oi(dense[0].numpy(), wave.numpy(), 12.0, 1.5, 2.8, 4e-3, trans)[0]
         np.testing.assert_allclose(fac.photons[0].numpy(), ref, rtol=1e-9, atol=1e-12 * ref.max())
     assert (fac.pad_rows, fac.pad_cols) == (den.pad_rows, den.pad_cols)
     assert fac.sample_spacing_m.item() == den.sample_spacing_m.item()

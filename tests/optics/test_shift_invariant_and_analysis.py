@@ -75,10 +75,19 @@ def test_analysis_against_analytic_diffraction():
     ref_ee = 1 - special.j0(x) ** 2 - special.j1(x) ** 2
     np.testing.assert_allclose(ee.numpy(), ref_ee, atol=1e-2)
     assert ee[2].item() == pytest.approx(0.8378, rel=5e-3)
-    # LSF: unit sum, symmetric, FWHM between the Airy FWHM and its 1D projection bounds
-    line = analysis.lsf(dl, [550.0], lam_n / 8, 512)[0, 0]
+    # LSF: unit sum, symmetric, and the Airy pattern integrated along y in closed form, L(x) ~ H1(2v) / v^2 with
+    # v = pi x / (lambda N) (Struve H1; limit 8 / (3 pi) at 0), to 5e-3 of its peak out to 5 lambda N; FWHM 1.0017
+    # lambda N (the closed form's half-maximum)
+    line = analysis.lsf(dl, [550.0], dx, 512)[0, 0]
     assert line.sum().item() == pytest.approx(1.0, rel=1e-12)
     torch.testing.assert_close(line[1:], line[1:].flip(0))
+    v = np.pi * np.arange(1, 41) / 8
+    ref_lsf = np.concatenate([[8 / (3 * np.pi)], special.struve(1, 2 * v) / v**2]) / (8 / (3 * np.pi))
+    got_lsf = line.numpy()[256:297] / line[256].item()
+    np.testing.assert_allclose(got_lsf, ref_lsf, rtol=0, atol=5e-3)
+    j = int(np.argmax(got_lsf < 0.5))
+    half = j - 1 + (got_lsf[j - 1] - 0.5) / (got_lsf[j - 1] - got_lsf[j])
+    assert 2 * half / 8 == pytest.approx(1.0017, rel=5e-3)
 
 
 def test_plots_save_png(tmp_path):

@@ -7,8 +7,10 @@ import math
 from pathlib import Path
 from types import SimpleNamespace
 
+import colour
 import numpy as np
 import pytest
+from isetcam_numpy import mean_illuminance, numpy_oi
 from shared_paths import PARITY_CASE, PARITY_DIR
 
 from isettorch.cli import main
@@ -75,13 +77,8 @@ F_NUMBER, FOCAL_M, DISTANCE_M = 4.0, 3.862755099e-3, 1.2  # FORMAT.md 3: oiCreat
 
 def scene_and_oi(rng, wave, scene_size, dx):
     """A complete case's scene and optics keys (FORMAT.md 3): a random scene whose FOV gives the OI sample spacing
-    ``dx``, and its OI from our ISETCam-compatible optics (the optics stage is then self-consistent; the sensor stage
-    is what these cases check, against :func:`reference_sensor`)."""
-    import torch
-
-    from isettorch import spectral
-    from isettorch.optics import isetcam
-
+    ``dx``, and its OI from the NumPy oiCompute (tests/isetcam_numpy.py), so the optics and illuminance stages are
+    checked against an implementation independent of isettorch; the sensor stage against :func:`reference_sensor`."""
     n_l = len(wave)
     h, w = scene_size
     yy, xx = np.mgrid[0:h, 0:w]
@@ -89,18 +86,18 @@ def scene_and_oi(rng, wave, scene_size, dx):
     scene = (3e17 * smooth * rng.uniform(0.2, 1.0, (n_l, h, w))).astype(np.float32)
     d_img = 1 / (1 / FOCAL_M - 1 / DISTANCE_M)  # the returned OI's spacing uses the image distance (FORMAT.md 4.4)
     hfov = 2 * math.degrees(math.atan(dx * w / (2 * d_img)))
-    wave_t = torch.as_tensor(np.asarray(wave, np.float64))
-    oi = isetcam.compute_oi(torch.from_numpy(scene).double(), wave_t, hfov, DISTANCE_M, F_NUMBER, FOCAL_M)
-    vl = spectral.luminosity(wave_t, dtype=torch.float64)
-    lux = float(isetcam.mean_illuminance(oi.photons.double(), wave_t, vl)[0])
-    nits = float(isetcam.mean_illuminance(torch.from_numpy(scene)[None].double(), wave_t, vl)[0])  # same formula
+    wave = np.asarray(wave, np.float64)
+    # the references independent of isettorch: the NumPy oiCompute and colour-science's CIE 1924 V(lambda)
+    oi, (pad_rows, pad_cols), spacing, hfov2 = numpy_oi(scene.astype(np.float64), wave, hfov, DISTANCE_M, F_NUMBER,
+                                                        FOCAL_M, np.ones(n_l))
+    vl = colour.colorimetry.SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"][wave]
     return dict(scene_photons=scene, scene_hfov_deg=np.float64(hfov), scene_distance_m=np.float64(DISTANCE_M),
-                scene_mean_luminance_cdm2=np.float64(nits), optics_f_number=np.float64(F_NUMBER),
-                optics_focal_length_m=np.float64(FOCAL_M), optics_offaxis=np.str_("cos4th"),
-                optics_transmittance=np.ones(n_l), oi_photons=oi.photons[0].float().numpy(),
-                oi_hfov_deg=np.float64(oi.hfov_deg[0]), oi_sample_spacing_m=np.float64(oi.sample_spacing_m[0]),
-                oi_pad_rows=np.int64(oi.pad_rows), oi_pad_cols=np.int64(oi.pad_cols),
-                oi_mean_illuminance_lux=np.float64(lux), vlambda=vl.numpy())
+                scene_mean_luminance_cdm2=np.float64(mean_illuminance(scene, wave, vl)),
+                optics_f_number=np.float64(F_NUMBER), optics_focal_length_m=np.float64(FOCAL_M),
+                optics_offaxis=np.str_("cos4th"), optics_transmittance=np.ones(n_l), oi_photons=oi.astype(np.float32),
+                oi_hfov_deg=np.float64(hfov2), oi_sample_spacing_m=np.float64(spacing), oi_pad_rows=np.int64(pad_rows),
+                oi_pad_cols=np.int64(pad_cols), oi_mean_illuminance_lux=np.float64(mean_illuminance(oi, wave, vl)),
+                vlambda=vl)
 
 
 def make_case(path, *, cfa, pattern, names, letters, bits, gain, offset, pitch, dx, rows, cols, scene_size, wave,
@@ -159,7 +156,8 @@ def test_synthetic_cases_sensor_stage(tmp_path, name):
     data = make_case(path, seed=len(name), **SYNTHETIC[name])
     res = parity.run_case(path)
     st = res["stages"]
-    assert st["oi_photons"]["ok"] and st["mean_illuminance"]["ok"]  # our own OI of the scene: self-consistent
+    # the OI and its illuminance against the NumPy oiCompute and colour-science's V(lambda) (FORMAT.md 4.1-4.4)
+    assert st["oi_photons"]["ok"] and st["mean_illuminance"]["ok"], (st["oi_photons"], st["mean_illuminance"])
     assert st["sensor_volts"]["ok"], st["sensor_volts"]
     assert st["sensor_volts"]["max_err"] < 1e-6
     assert st["sensor_current"]["ok"] and st["sensor_current"]["max_err"] < 1e-5

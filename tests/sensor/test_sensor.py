@@ -117,8 +117,12 @@ def test_fixed_pattern_noise_fixed_across_frames_and_seeded():
 
 def test_zero_noise_stages_are_skipped():
     s = simple_sensor(shot_noise="off")
-    raw = s(uniform_oi())
+    g = torch.Generator().manual_seed(0)
+    state = g.get_state().clone()
+    raw = s(uniform_oi(), generator=g)
     assert torch.equal(raw.data, raw.noise_free)
+    # skipped, not run at sigma 0 (which gives the same data): no random number was drawn
+    assert torch.equal(g.get_state(), state)
 
 
 def test_gradcheck_noise_free_chain():
@@ -196,7 +200,14 @@ def test_gradients_finite_at_zero_light():
         out = s(OpticalImage(p, W3, sample_spacing_m=2e-6, validate=False), exposure_s=t).data
         gp, gt = torch.autograd.grad(out.sum(), (p, t))
         assert torch.isfinite(gp).all() and torch.isfinite(gt).all()
-        assert gp.abs().sum() > 0  # the response to the first photons is not lost
+        # the response to the first photons is not lost: the shot noise passes the expected response's gradient
+        # (d DN / d photon rate = QE dl pixel_area fill_factor t cg / LSB = 0.5 * 100 nm * (2 um)^2 * 0.5 * 0.01 s
+        # * 1e-4 V/e / (1 V / 1024) = 1.024e-13) at every sample under a pixel of the 6 x 8 sensor (rows 5-10,
+        # columns 4-11 of the 16 x 16 image), none elsewhere; 550 nm, the grid's interior sample
+        expected = 0.5 * 100 * (2e-6) ** 2 * 0.5 * 0.01 * 1e-4 * 1024
+        under = gp[0, 1, 5:11, 4:12]
+        torch.testing.assert_close(under, torch.full_like(under, expected), rtol=1e-9, atol=0)
+        assert float(gp[0, 1].abs().sum()) == pytest.approx(48 * expected, rel=1e-9)
 
 
 def test_auto_exposure_methods():
