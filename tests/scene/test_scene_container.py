@@ -9,7 +9,8 @@ from isettorch import Scene, spectral
 
 
 def _scene(b=2, l=31, h=6, w=8, **kw):
-    return Scene(torch.rand(b, l, h, w, dtype=torch.float64) * 1e16, spectral.default_wavelengths(
+    g = torch.Generator().manual_seed(b * 1000 + l)
+    return Scene(torch.rand(b, l, h, w, dtype=torch.float64, generator=g) * 1e16, spectral.default_wavelengths(
         dtype=torch.float64)[:l], **kw)
 
 
