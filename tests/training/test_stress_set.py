@@ -51,6 +51,13 @@ def test_folder_mode_scores_against_mhc(tmp_path, capsys):
     res = json.loads(out.read_text())
     assert set(res) == {"malvar2004", "menon2007", "learned_tiny"}
     assert len(res["learned_tiny"]) == 2 * len(ss.VARIANTS)
+    # a score, written independently: colour-demosaicing's Malvar-He-Cutler on the centre 32 x 32 crop of "b" (RGGB),
+    # CPSNR over the pixels 10 from the border (the benchmark convention)
+    cd = pytest.importorskip("colour_demosaicing")
+    a = np.asarray(Image.open(tmp_path / "in" / "b.png"), np.float64)[2:34, 9:41] / 255
+    rgb = np.clip(cd.demosaicing_CFA_Bayer_Malvar2004(cd.mosaicing_CFA_Bayer(a, "RGGB"), "RGGB"), 0, 1)
+    mse = ((rgb - a)[10:-10, 10:-10] ** 2).mean()
+    assert res["malvar2004"]["b/plain"] == pytest.approx(10 * np.log10(1 / mse), abs=1e-4)
     assert "learned_tiny: " in capsys.readouterr().out
     with pytest.raises(SystemExit) as e:
         ss.main(["--folder", str(tmp_path / "in"), "--methods", "menon2007"])
