@@ -76,6 +76,16 @@ def test_noise_metadata_is_the_measured_noise_of_the_sensor(kind):
     if kind == "cds":  # the volts readout of a 1 V swing at unit gain: b = 2 x read_v^2 = 2 (50 x 15 uV)^2 V^2
         want = torch.full((8,), 2 * (50 * 15e-6) ** 2, dtype=torch.float64)
         torch.testing.assert_close(meta["noise_floor_var"].double(), want, rtol=1e-6, atol=0)
+    # the coefficients from the sensor's parameters (Foi et al. 2008 in normalised units, unit gain): volts, a 1 V
+    # swing: a = cg, b = read^2 + DSNU^2; DN, K = cg / (swing / 2^10) DN per electron over span = 1023 - 64 DN:
+    # a = K / span, b = (K^2 (6^2 + 2^2) e^2 + 1/12 DN^2) / span^2
+    k_dn = 8e-5 / (0.48 / 1024)
+    want_ab = {"volts": (1e-4, 3e-3**2 + 2e-3**2), "dn": (k_dn / 959, (k_dn**2 * 40 + 1 / 12) / 959**2)}.get(kind)
+    if want_ab is not None:
+        torch.testing.assert_close(meta["analog_gain"].double(), torch.ones(8, dtype=torch.float64))
+        for key, want in zip(("noise_gain", "noise_floor_var"), want_ab, strict=True):
+            torch.testing.assert_close(meta[key].double(), torch.full((8,), want, dtype=torch.float64), rtol=1e-6,
+                                       atol=0)
 
 
 def test_full_well_is_where_the_sensor_saturates():
