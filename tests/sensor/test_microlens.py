@@ -111,8 +111,8 @@ def test_isetcam_grid_equals_an_independent_numpy_copy(method):
 
 # ISETCam's numbers: mlRadiance / mlAnalyzeArrayEtendue (with mlCoordinates, mlSource, mlLens, mlDisplacement,
 # mlPropagate, ffndgrid, mlensGet('optimal offset'), mlensCreate(sensor) / mlImportParams) at ISET/isetcam commit
-# 3aaefc8, computed by an independent NumPy port of that MATLAB source (/tmp/audit_microlens/iset_port.py of the
-# microlens audit; not part of this repository), rounded to 6 decimals. Chief-ray angles 0, 5, ..., 30 deg.
+# 3aaefc8, computed by an independent NumPy port of that MATLAB source (tests/isetcam_mlradiance.py, which
+# test_isetcam_tables_are_the_ports_numbers re-runs), rounded to 6 decimals. Chief-ray angles 0, 5, ..., 30 deg.
 ISETCAM_PORT_CRA_DEG = (0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0)
 ISETCAM_PORT = {
     # ISETCam's default pixel (2.8 um, 7 um stack, microlens f = 7 um at f/2.5), source f/4 and f/8
@@ -140,6 +140,29 @@ ISETCAM_PORT = {
 # where ISETCam's +-2 D phase-space window clips the beam (the 1.4 um pixel's optimal offset, 2.3 um at 30 deg, pushes
 # the source past x = 2.8 um): ISETCam drops those rays, the continuous integral keeps them (0.921 vs 0.784)
 WINDOW_CLIPPED = {("1.4 um pixel", "optimal", 30.0)}
+
+
+def test_isetcam_tables_are_the_ports_numbers():
+    """The ISETCam tables of this file (ISETCAM_PORT, FALL_OFF_12X16_F30UM, ISETCAM_MAP_4X6_F14UM) are what the
+    NumPy port of mlRadiance / mlAnalyzeArrayEtendue gives, to their 6-decimal rounding: re-derivable here."""
+    from isetcam_mlradiance import analyze_array_etendue, ml_etendue
+
+    port_method = {"none": "none", "centred": "centered", "optimal": "optimal"}
+    port_kw = {"default, f/4": {"source_fnumber": 4.0}, "default, f/8": {"source_fnumber": 8.0},
+               "1.4 um pixel": {"pixel_um": 1.4, "pd_um": math.sqrt(0.75) * 1.4, "ml_focal_um": 7.0,
+                                "ml_fnumber": 5.0},
+               "12 um stack": {"d_stack": (12 * 2 / 7, 12 * 5 / 7), "ml_focal_um": 12.0, "ml_fnumber": 12 / 2.8}}
+    assert set(port_kw) == set(ISETCAM_PORT)
+    for case, (_, table) in ISETCAM_PORT.items():
+        for method, want in table.items():
+            got = [ml_etendue(a, port_method[method], **port_kw[case]) for a in ISETCAM_PORT_CRA_DEG]
+            np.testing.assert_allclose(got, want, rtol=0, atol=5e-7, err_msg=f"{case}, {method}")
+    for method in ("none", "centred", "optimal"):
+        _, cra, etendue, _ = analyze_array_etendue(12, 16, 2.8, 30.0, port_method[method])
+        np.testing.assert_allclose(cra, FALL_OFF_12X16_F30UM["cra_deg"], rtol=0, atol=5e-7)
+        np.testing.assert_allclose(etendue, FALL_OFF_12X16_F30UM[method], rtol=0, atol=5e-7)
+        emap = analyze_array_etendue(4, 6, 2.8, 14.0, port_method[method])[0]
+        np.testing.assert_allclose(emap[2:, 3:], ISETCAM_MAP_4X6_F14UM[method], rtol=0, atol=5e-7)
 
 
 @pytest.mark.parametrize("case", sorted(ISETCAM_PORT))
@@ -330,8 +353,8 @@ def _uniform_oi(rows, cols, pitch, d_m, f_number=4.0, waves=None):
 
 
 # ISETCam mlAnalyzeArrayEtendue (sensorVignetting) on ISETCam's default pixel, 12 x 16 pixels of 2.8 um, source f/4
-# with focal length 30 um: the etendue at cra = (0:5) / 5 * max(sensorCRA(:)); from the port of mlRadiance named
-# above ISETCAM_PORT
+# with focal length 30 um: the etendue at cra = (0:5) / 5 * max(sensorCRA(:)); from the port of mlRadiance
+# (tests/isetcam_mlradiance.py)
 FALL_OFF_12X16_F30UM = {
     "cra_deg": [0.0, 8.191924, 16.383848, 24.575772, 32.767696, 40.95962],
     "none": [0.831029, 0.703869, 0.474206, 0.244544, 0.065972, 0.000496],
@@ -369,7 +392,7 @@ def test_sensor_fall_off_on_a_uniform_field(method):
 
 # ISETCam mlAnalyzeArrayEtendue on 4 x 6 pixels of ISETCam's default pixel (2.8 um), optics focal length 14 um (CRA
 # to 30.25 deg), f/4: the map's lower-right quarter (rows 2-3, columns 3-5; the map is point-symmetric), from the
-# port of mlRadiance named above ISETCAM_PORT
+# port of mlRadiance (tests/isetcam_mlradiance.py)
 ISETCAM_MAP_4X6_F14UM = {
     "none": [[0.706264, 0.445459, 0.18929], [0.445459, 0.292285, 0.110119]],
     "centred": [[0.911924, 0.348084, 0.0], [0.348084, 0.061005, 0.0]],
