@@ -167,6 +167,18 @@ def test_bad_values_are_named_alike_by_synth_dataset_and_stream(section, key, va
         assert msg.startswith(message), msg
 
 
+def test_the_pair_configs_prnu_bound_is_the_sensors():
+    """The pair configs bound PRNU by the literal 20 (the data package does not import the sensor module); it is the
+    sensor's MAX_PRNU_SIGMA_PERCENT, so the two cannot drift apart."""
+    from isettorch.sensor.sensor import MAX_PRNU_SIGMA_PERCENT
+
+    at_bound = {**CAM, "prnu_sigma_percent": [0.0, MAX_PRNU_SIGMA_PERCENT]}
+    merge_config({"scene": dict(SMALL), "camera": at_bound})  # accepted
+    PairStream(2, 0, dict(SMALL), at_bound)
+    for msg in _pair_errors(dict(SMALL), {**CAM, "prnu_sigma_percent": [0.0, MAX_PRNU_SIGMA_PERCENT + 0.5]}):
+        assert msg.startswith("camera.prnu_sigma_percent: expected a range"), msg
+
+
 def test_the_sections_alone_are_checked_too():
     with pytest.raises(ValueError, match=r"^camera\.full_well_e: expected a range"):
         merge_config({"full_well_e": [0.0, 0.0]}, SYNTH_DEFAULTS["camera"], "camera")
