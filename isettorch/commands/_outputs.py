@@ -9,13 +9,19 @@ import os
 from pathlib import Path
 
 
+def _missing(path: Path) -> list[Path]:
+    """``path`` and those of its ancestors that do not exist, deepest first (what ``mkdir(parents=True)`` makes)."""
+    out = []
+    while not path.exists() and path != path.parent:
+        out.append(path)
+        path = path.parent
+    return out
+
+
 def _writable_ancestor(path: Path, name: str, what: str) -> None:
     """The nearest existing folder above ``path`` (to be made) is a folder we may write in."""
-    parent = path.parent
-    while not parent.exists():
-        if parent == parent.parent:
-            break
-        parent = parent.parent
+    missing = _missing(path.parent)
+    parent = missing[-1].parent if missing else path.parent
     if not parent.is_dir():
         raise ValueError(f"{name}: cannot create {what} {path}: {parent} is a file, not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
@@ -32,11 +38,7 @@ def check_dir(path, name: str = "out") -> Path:
             raise PermissionError(f"{name}: no permission to write in the folder {path}")
         return p
     _writable_ancestor(p, name, "the folder")
-    made = []  # and try: permissions alone do not tell (root on a read-only mount, /sys)
-    q = p
-    while not q.exists():
-        made.append(q)
-        q = q.parent
+    made = _missing(p)  # and try: permissions alone do not tell (root on a read-only mount, /sys)
     try:
         p.mkdir(parents=True)
     except OSError as err:
@@ -94,11 +96,7 @@ class Outputs:
 
     def __enter__(self):
         if self.folder is not None and not self.folder.is_dir():
-            missing = []
-            p = self.folder
-            while not p.exists():
-                missing.append(p)
-                p = p.parent
+            missing = _missing(self.folder)
             self.folder.mkdir(parents=True, exist_ok=True)
             self.made = missing  # deepest first
         return self
