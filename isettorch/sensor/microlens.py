@@ -234,7 +234,9 @@ def _params(chief_ray_angle_deg, method, offset_m, kw):
     shape_geo = torch.broadcast_shapes(cra.shape, off.shape)  # the rays' geometry; the wavelength only blurs
     shape = torch.broadcast_shapes(shape_geo, lam.shape)
     cra, off = (v.expand(shape_geo).reshape(-1) for v in (cra, off))
-    na = math.sin(math.atan(1.0 / (2.0 * float(kw["source_f_number"]))))
+    fnum = kw["source_f_number"]  # a tensor (a learnable f-number) keeps its gradient: the source's NA
+    na = (torch.sin(torch.atan(1.0 / (2.0 * torch.as_tensor(fnum, dtype=dtype, device=device))))
+          if isinstance(fnum, torch.Tensor) else math.sin(math.atan(1.0 / (2.0 * float(fnum)))))
     geo = dict(D=diam, p=pixel, d=float(photodiode), na=na, f_air=f_ml / _ISETCAM_STACK_INDEX, lam=lam, shape=shape,
                shape_geo=shape_geo)
     return cra, method, t, n, off, geo
@@ -788,9 +790,11 @@ class PixelOptics(nn.Module):
             fn = torch.as_tensor(oi.f_number).reshape(-1)
             if not bool((fn == fn[0]).all()):
                 raise ValueError(f"oi.f_number: pixel_optics needs one f-number per batch, got {fn.tolist()}")
-            pixel["source_f_number"] = float(fn[0])
+            # a learnable f-number stays a tensor where the etendue is differentiable (the continuous integral)
+            differentiable = self.convention == "physical" and self.model == "phase_space"
+            pixel["source_f_number"] = fn[0] if differentiable and records_grad(fn) else float(fn[0])
         waves = tuple(float(w) for w in oi.wavelengths_nm.reshape(-1).tolist()) if self.diffraction else (None,)
-        grad = records_grad(self.log_stack_height_m, self.offset_per_image_height)
+        grad = records_grad(self.log_stack_height_m, self.offset_per_image_height, pixel["source_f_number"])
         key = None
         if not grad:
             geo = tuple(None if g is None else tuple(torch.as_tensor(g).reshape(-1).tolist())

@@ -27,6 +27,7 @@ import torch
 from torch import nn
 
 from .. import spectral
+from .._autograd import records_grad
 from .._checks import batch_param, check_in_dtype_range, is_integer, round_half_away
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
@@ -766,8 +767,8 @@ class Sensor(nn.Module):
     def _analog(self, volts: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
         g = gain.reshape(-1, 1, 1, 1)
         if self.gain_convention == "isetcam":
-            if self.analog_offset_v == 0 and bool((gain == 1).all()):
-                return volts
+            if self.analog_offset_v == 0 and not records_grad(gain) and bool((gain == 1).all()):
+                return volts  # (a learnable gain of 1 keeps its gradient: the division below)
             return (volts + self.analog_offset_v) / g  # ISETCam sensorComputeImage divides by the gain
         return (volts + self.analog_offset_v) * g if self.analog_offset_v != 0 else volts * g
 

@@ -440,6 +440,34 @@ def test_camera_with_pixel_optics_and_gradients():
     assert po.offset_per_image_height.grad is not None and float(po.offset_per_image_height.grad) > 0
 
 
+def test_a_learnable_f_number_gets_the_pixel_optics_share_of_its_gradient():
+    """The source f-number sets the cone the microlens takes in, so through pixel optics the raw's gradient in a
+    learnable f-number includes the etendue's change: autograd equals a central difference (the f-number was cast to a
+    float there, which gave 2.3x the true gradient, the camera equation's share alone)."""
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.scene.patterns import uniform
+
+    optics = DiffractionLimitedOptics(f_number=2.0, focal_length_m=40e-6, learn_f_number=True)
+    sensor = Sensor(rows=12, cols=12, cfa="RGGB", pixel_size_m=2.8e-6, exposure_s=1e-3,
+                    pixel_optics={"method": "optimal", "samples": [32, 64]})
+    scene = uniform("D65", size=24, hfov_deg=2 * math.degrees(math.atan(12 * 2.8e-6 / 2 / 40e-6)) * 2,
+                    dtype=torch.float64)
+    weights = torch.rand(1, 1, 12, 12, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+
+    def loss():
+        return (sensor(optics(scene), noise=False).noise_free * weights).sum()
+
+    (grad,) = torch.autograd.grad(loss(), optics.f_number)
+    h = 2e-4
+    with torch.no_grad():
+        optics.f_number.add_(h)
+        up = loss()
+        optics.f_number.sub_(2 * h)
+        down = loss()
+        optics.f_number.add_(h)
+    assert float(grad) == pytest.approx(float((up - down) / (2 * h)), rel=1e-5)
+
+
 def test_per_wavelength_etendue_shades_colour():
     rows = cols = 8
     oi = _uniform_oi(rows, cols, 1.4e-6, 40e-6, f_number=2.0, waves=torch.tensor([450.0, 550.0, 650.0]))

@@ -43,6 +43,22 @@ def test_per_call_levels_equal_the_module_levels():
     assert float((a.data != b.data).double().mean()) < 1e-3  # same draws (rounding may move a rare ADC step)
 
 
+def test_a_learnable_isetcam_gain_of_one_keeps_its_gradient():
+    """ISETCam's convention divides the volts by the analog gain; a learnable gain of exactly 1 stays in the graph
+    (the shortcut for a fixed gain of 1 dropped it: no gradient), its gradient the central difference's."""
+    s = Sensor(rows=16, cols=16, pixel_size_m=2e-6, cfa="RGGB", gain_convention="isetcam", output_units="volts")
+    oi = _oi()
+
+    def loss(gain):
+        return (s(oi, exposure_s=1e-4, analog_gain=gain, noise=False).data ** 2).mean()
+
+    gain = torch.ones(1, dtype=torch.float64, requires_grad=True)
+    (grad,) = torch.autograd.grad(loss(gain), gain)
+    h = 1e-6
+    fd = (loss(torch.tensor([1 + h], dtype=torch.float64)) - loss(torch.tensor([1 - h], dtype=torch.float64))) / (2 * h)
+    assert float(fd) < 0 and float(grad) == pytest.approx(float(fd), rel=1e-6)
+
+
 @pytest.mark.parametrize("name", ["read_noise_v", "dark_current_e_per_s", "dsnu_sigma_v"])
 def test_a_learnable_level_at_zero_keeps_its_gradient(name):
     """A per-call level that requires grad stays in the graph at 0 (the stage runs with a zero level): its
