@@ -520,7 +520,10 @@ class SensorToXYZ(nn.Module):
         matrix: a fixed (3, C) matrix; if None it is fitted by :meth:`fit` from the sensor's QE.
         illuminant, surfaces, observer: the fit's settings (:func:`sensor_to_xyz_matrix`); the default is
             ISETCam's ``'MCC optimized'`` (Macbeth chart under D65).
-        learnable: make the matrix an ``nn.Parameter``.
+        learnable: make the matrix an ``nn.Parameter``: the given matrix, or the first fit (the first
+            :meth:`fit`, or the first camera forward, which fits it; build the optimiser after it). Later fits
+            leave a learnable matrix alone (they update ``sensor_white`` only), so the optimiser keeps training the
+            parameter the module uses, even when the filters learn too.
         normalize: scale the fitted matrix so that a perfect white under ``illuminant`` whose brightest
             channel is at the white level (sensor value 1) maps to Y = 1 (exposure-referred XYZ).
         white_preserving: fit under the constraint that that white maps to the illuminant's white chromaticity
@@ -592,9 +595,13 @@ class SensorToXYZ(nn.Module):
         if self._fit_key == "fixed" or key is not None and self._fit_key == key:
             return self
         q = qe.to(torch.float64) if graph else qe.detach().to(torch.float64)
-        m = sensor_to_xyz_matrix(q, w, self.illuminant, self.surfaces, self.observer, self.white_preserving)
         white = sensor_responses(q, w, self.illuminant, torch.ones(1, w.numel(), dtype=torch.float64))[0]
         white = white / white.amax()
+        if self.learnable and isinstance(self.matrix, nn.Parameter):  # the parameter being learned stays
+            self.sensor_white = white.to(device=self.matrix.device, dtype=self.matrix.dtype)
+            self._fit_key = key
+            return self
+        m = sensor_to_xyz_matrix(q, w, self.illuminant, self.surfaces, self.observer, self.white_preserving)
         if self.normalize:
             # The white under the fit's illuminant, at the white level in its brightest channel, -> Y = 1.
             m = m / (m[1] @ white)

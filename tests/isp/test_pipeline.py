@@ -247,3 +247,41 @@ def test_ip_result_from_case_public_and_monochrome_quirk():
                 sensor_dv=dv, sensor_cfa_pattern=np.array([[1]]), sensor_filter_letters=np.array("w"))  # FORMAT 2
     ours, _ = ip_result_from_case(case)
     np.testing.assert_array_equal(ours, np.repeat(dv[..., None], 3, axis=2).astype(np.float64))
+
+
+def test_a_learnable_fitted_colour_matrix_is_the_parameter_trained_with_learnable_filters():
+    """SensorToXYZ(learnable=True) with no matrix given: the first forward fits it and makes it a parameter; with the
+    filters learning too, later forwards keep that parameter (they refitted it from the new filters, a new
+    nn.Parameter each step, so the optimiser trained one the module no longer used), and the optimiser's steps reach
+    the image."""
+    from isettorch import Camera
+    from isettorch.isp.colour import SensorToXYZ
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.scene import Scene
+    from isettorch.sensor import Sensor
+
+    g = torch.Generator().manual_seed(0)
+    wl = torch.arange(400.0, 701.0, 30.0, dtype=torch.float64)
+    scene = Scene((0.2 + torch.rand(1, wl.numel(), 16, 16, generator=g, dtype=torch.float64)) * 1e16, wl,
+                  hfov_deg=2.0)
+    s2x = SensorToXYZ(learnable=True)
+    cam = Camera(DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3),
+                 Sensor(rows=12, cols=12, pixel_size_m=2e-6, cfa="RGGB", exposure_s=1e-3, learnable_filters=True),
+                 ImageProcessor(sensor_to_xyz=s2x, scaling="exposure", encoding="linear"), noise=False)
+    cam(scene)
+    first = s2x.matrix
+    assert isinstance(first, torch.nn.Parameter)
+    opt = torch.optim.SGD(cam.parameters(), lr=1e-3)
+    assert any(p is first for group in opt.param_groups for p in group["params"])
+    white = s2x.sensor_white.clone()
+    for _ in range(2):
+        opt.zero_grad()
+        before = first.detach().clone()
+        (-cam(scene).sum()).backward()
+        assert first.grad is not None and float(first.grad.abs().sum()) > 0
+        opt.step()
+        assert s2x.matrix is first and not torch.equal(first.detach(), before)
+    cam(scene)
+    assert s2x.matrix is first
+    assert not torch.equal(s2x.sensor_white, white)  # the white follows the learned filters
+
