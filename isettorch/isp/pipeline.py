@@ -19,6 +19,7 @@ import torch
 from torch import nn
 
 from .._checks import check_finite, check_wavelengths
+from ..sensor.exposure import percentile_linear
 from .colour import (
     DisplayEncode,
     IlluminantCorrection,
@@ -348,7 +349,9 @@ class ImageProcessor(nn.Module):
         if self.scaling == "exposure":
             return ones
         if self.scaling == "percentile":
-            peak = torch.quantile(rgb.detach().flatten(1), self.scaling_percentile / 100.0, dim=1)
+            # differentiable (the scale divides the signal level out: exposure, gain and f-number leave the image
+            # alone, and their gradients say so)
+            peak = percentile_linear(rgb.flatten(1), self.scaling_percentile)
         else:
             peak = rgb.flatten(1).amax(1)
         # A black render (peak <= 0: no light, or everything outside the display gamut) stays black: scale 0.

@@ -285,3 +285,33 @@ def test_a_learnable_fitted_colour_matrix_is_the_parameter_trained_with_learnabl
     assert s2x.matrix is first
     assert not torch.equal(s2x.sensor_white, white)  # the white follows the learned filters
 
+
+def test_percentile_scaling_is_exposure_invariant_and_its_gradient_says_so():
+    """Percentile scaling divides the signal level out (noise off, no clipping before the ISP): the image does not
+    change with the exposure, so its gradient in the exposure is 0 (the scale was detached: a gradient 1e5 times the
+    image's sensitivity to a real change, where the true derivative is 0), and its values are torch.quantile's."""
+    from isettorch import Camera
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.scene import Scene
+    from isettorch.sensor import Sensor
+
+    g = torch.Generator().manual_seed(0)
+    wl = torch.arange(400.0, 701.0, 30.0, dtype=torch.float64)
+    scene = Scene((0.2 + torch.rand(1, wl.numel(), 16, 16, generator=g, dtype=torch.float64)) * 1e16, wl,
+                  hfov_deg=2.0)
+    ip = ImageProcessor(scaling="percentile", encoding="linear")
+    cam = Camera(DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3),
+                 Sensor(rows=12, cols=12, pixel_size_m=2e-6, cfa="RGGB", exposure_s=1e-3), ip, noise=False)
+    weights = torch.rand(1, 3, 12, 12, generator=g, dtype=torch.float64)
+    t = torch.tensor(1e-3, dtype=torch.float64, requires_grad=True)
+    out = cam(scene, exposure_s=t, return_intermediates=True)
+    (grad,) = torch.autograd.grad((out.image * weights).sum(), t)
+    sensitivity = float((out.image * weights).sum()) / 1e-3  # d/dt of an image proportional to t
+    assert abs(float(grad)) < 1e-9 * sensitivity
+    with torch.no_grad():
+        doubled = cam(scene, exposure_s=2e-3)
+    torch.testing.assert_close(doubled, out.image.detach(), rtol=1e-9, atol=1e-12)
+    rgb = out.isp.display_linear.detach() / out.isp.scale.detach()[:, None, None, None]
+    peak = torch.quantile(rgb.flatten(1), ip.scaling_percentile / 100.0, dim=1)
+    torch.testing.assert_close(out.isp.scale.detach(), 1 / peak, rtol=1e-12, atol=0)
+
