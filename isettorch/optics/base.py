@@ -95,6 +95,13 @@ class ShiftInvariantLens(nn.Module):
             raise TypeError(f"learn_f_number: expected True or False, got {learn_f_number!r}")
         if isinstance(f_number, bool):
             raise TypeError(f"f_number: expected a number or [B] tensor, got {f_number!r}")
+        # values are copied (detached): a tensor that requires grad would silently lose its gradient
+        for name, value, how in (("f_number", f_number, "pass learn_f_number=True (the module's own parameter)"),
+                                 ("focal_length_m", focal_length_m, "the focal length is a fixed property here"),
+                                 ("transmittance", transmittance, "the transmittance is a fixed property here")):
+            if isinstance(value, torch.Tensor) and value.requires_grad and not (name == "f_number" and learn_f_number):
+                raise ValueError(f"{name}: got a tensor that requires grad, but the optics copy it as a constant (no "
+                                 f"gradient would reach it); {how}")
         n = as_tensor(f_number, "f_number", dtype=dtype).detach().clone()
         if n.dim() > 1 or not torch.isfinite(n).all() or (n < MIN_F_NUMBER).any():
             raise ValueError(f"f_number: expected a finite scalar or [B] tensor >= {MIN_F_NUMBER} (the fastest lens in "

@@ -238,6 +238,16 @@ def test_bad_arguments():
         DiffractionLimitedOptics(4.0, relative_illumination="cos3")
     with pytest.raises(TypeError, match="scene"):
         DiffractionLimitedOptics(4.0)(torch.ones(1, 1, 4, 4))
+    # a tensor that requires grad would be copied as a constant: said, not silently detached (gradient audit)
+    wants_grad = torch.tensor(4.0, requires_grad=True)
+    with pytest.raises(ValueError, match="f_number: got a tensor that requires grad.*learn_f_number=True"):
+        DiffractionLimitedOptics(wants_grad)
+    assert DiffractionLimitedOptics(wants_grad, learn_f_number=True).f_number.requires_grad
+    with pytest.raises(ValueError, match="focal_length_m: got a tensor that requires grad"):
+        DiffractionLimitedOptics(4.0, torch.tensor(4e-3, requires_grad=True))
+    with pytest.raises(ValueError, match="transmittance: got a tensor that requires grad"):
+        DiffractionLimitedOptics(4.0, transmittance=torch.tensor([0.9, 0.9], requires_grad=True),
+                                 transmittance_wavelengths_nm=[400.0, 700.0])
 
 
 def test_plan_float32_and_isetcam_plan():

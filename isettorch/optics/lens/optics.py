@@ -20,6 +20,12 @@ the paraxial magnification of the object plane (ISETCam oiCalculateIrradiance: `
 
 Accuracy knob: ``field_samples`` (radial PSF samples), ``azimuth_samples`` and ``components`` (K); the speed and
 error of each setting are in ``benchmarks/LENS.md``.
+
+Gradients: the image is differentiable in the scene, not in the prescription. The PSF bank, the relative
+illumination and the distortion tables are traced without gradients and cached, and the module has no parameters.
+To design a lens through its gradients, use :class:`~isettorch.optics.lens.analysis.LensAnalysis`, whose ray trace
+is differentiable in the surfaces (the derivatives of the focal length, distortion and image height in a curvature
+agree with central differences: tests/optics/lens).
 """
 
 from __future__ import annotations
