@@ -44,7 +44,10 @@ DV_EXACT_FRACTION = 0.999
 
 def register(sub) -> None:
     p = sub.add_parser("parity", help="check optics and sensor stages against ISETCam parity cases (.npz)")
-    p.add_argument("cases", nargs="+", help="parity case files (isetcam-parity/FORMAT.md)")
+    p.add_argument("cases", nargs="+",
+                   help="parity case files (.npz in the format of the ISETCam reference cases: FORMAT.md of the "
+                        "project's shared isetcam-parity folder, not shipped; the keys are read by "
+                        "isettorch.io.isetcam)")
     p.add_argument("--json", action="store_true", help="print a JSON report instead of a table")
     p.add_argument("--repeat", type=int, default=0, metavar="N",
                    help="time each stage N times after a warm-up and report the median seconds")
