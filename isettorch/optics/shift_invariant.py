@@ -26,7 +26,9 @@ class ShiftInvariantOptics(ShiftInvariantLens):
         psf_spacing_m: sample pitch of the PSF on the image plane (m), scalar or ``(Lp,)``.
         psf_wavelengths_nm: ``(Lp,)`` wavelengths of the PSFs (needed when Lp > 1).
         f_number, focal_length_m: for the camera equation and the geometry.
-        learn_psf: make the PSF a trainable ``nn.Parameter``.
+        learn_psf: make the PSF a trainable ``nn.Parameter``. Its OTF is cached per PSF version: optimiser steps,
+            in-place edits under ``torch.no_grad()``, ``copy_`` and ``load_state_dict`` are seen; an edit through
+            ``psf.data[...]`` is not (``.data`` bypasses the version counter): edit ``psf`` itself.
         Other arguments: see :class:`~isettorch.optics.base.ShiftInvariantLens`. The padding margin is half the
         PSF's extent, so the convolution is exactly linear.
 
