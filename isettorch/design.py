@@ -107,6 +107,10 @@ def illuminant_photons(wavelengths_nm: torch.Tensor, lux: float, illuminant: str
     wl = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
     ph = spectral.energy_to_photons(spectral.illuminant(illuminant, wl, dtype=torch.float64), wl, dim=0)
     lum = spectral.luminance(ph[:, None, None], wl).reshape(())
+    if not float(lum) > 0:
+        raise ValueError(f"wavelengths_nm: {wl.min().item():g}-{wl.max().item():g} nm holds no luminance of "
+                         f"{illuminant!r} (V(lambda) is 0 there), so a light level in lux cannot be set; expected a "
+                         f"grid within the visible range")
     return ph * (lux / math.pi / lum)
 
 
@@ -154,7 +158,7 @@ class DesignCamera(nn.Module):
                                     ae_target=float(cfg["exposure"]["target"]), **cfg["sensor"])
         self.networks = nn.ModuleDict()
         for level in lux:
-            self.add_level(float(level))
+            self.add_level(level if isinstance(level, bool) else float(level))
 
     @property
     def bank(self) -> FilterBank:
@@ -170,6 +174,8 @@ class DesignCamera(nn.Module):
 
     def add_level(self, lux: float, network: nn.Module | None = None) -> nn.Module:
         """Add (or replace) the network of light level ``lux``; a new one has ``config.network``'s size."""
+        if isinstance(lux, bool) or not (isinstance(lux, (int, float)) and math.isfinite(lux) and lux > 0):
+            raise ValueError(f"lux: expected a positive finite illuminance, got {lux!r}")
         if network is None:
             network = MosaicReconstructionNet(self.bank.num_channels, **self.config["network"])
         self.networks[lux_key(lux)] = network
@@ -238,6 +244,9 @@ class DesignCamera(nn.Module):
         readout ``noise=False`` gives (same exposure, gain and ADC), from the same optical image.
         """
         b, h, w = scene.batch_size, scene.height, scene.width
+        if h < 2 or w < 2:
+            raise ValueError(f"scene: expected at least 2 x 2 samples (one pixel per sample, a whole mosaic cell's "
+                             f"neighbourhood for the network), got {h} x {w}")
         sensor = self.sensor
         sensor.rows, sensor.cols = h, w
         oi = self.optics(scene)
@@ -267,7 +276,16 @@ class DesignCamera(nn.Module):
         raw = sensor.capture(rate, exposure_s=t, analog_gain=gain, generator=generator, noise=noise)
         white = sensor.capture(white_mosaic, exposure_s=t, analog_gain=gain, noise=False).noise_free
         black = raw.black_level
+        span = (white - black).detach()
+        if not bool(torch.isfinite(span).all()) or bool((span <= 0).any()):
+            dark = [k for k in range(white_rates.shape[1]) if not bool((white_rates[:, k] > 0).any())]
+            raise ValueError(f"design: the white card reads no signal at {int((span <= 0).sum())} pixels (filters "
+                             f"{dark} of the bank pass no light of config.scene.illuminant, or the light is below "
+                             f"the sensor's range); every filter must transmit some light")
         x = (raw.data - black) / (white - black)
+        if not bool(torch.isfinite(x).all()):
+            raise ValueError("lux: the white card's signal is too small to normalise the capture by (non-finite "
+                             "input at this light level); expected a brighter scene")
         weights = sensor.cfa.weights(h, w, dtype=x.dtype, device=x.device)
         out = {"input": x, "weights": weights, "raw": raw, "exposure_s": t, "analog_gain": gain}
         if with_noise_free:
@@ -562,16 +580,23 @@ def load_design(design, *, device=None) -> DesignCamera:
     if d.get("version") != DESIGN_VERSION:
         raise ValueError(f"design: {str(path)!r} has format version {d.get('version')!r}; this isettorch reads "
                          f"version {DESIGN_VERSION}")
-    names = list(d["filter_names"])
-    bank = FilterBank.from_table(d["filters"], d["wavelengths_nm"], names, pixel_qe=d["pixel_qe"])
-    bank.spec = list(d.get("filter_spec", bank.spec))
-    index = torch.as_tensor(d["mosaic"], dtype=torch.long)
-    mosaic = LearnedMosaic(names, pattern=index, learnable=False)
-    camera = DesignCamera(bank, mosaic, d["config"], name=str(d.get("name", path.stem)))
-    for level in d["levels"]:
-        net = MosaicReconstructionNet(**level["network"]["kwargs"])
-        net.load_state_dict(level["network"]["state_dict"])
-        camera.add_level(float(level["lux"]), net)
+    missing = [k for k in ("filter_names", "filters", "wavelengths_nm", "pixel_qe", "mosaic", "config", "levels")
+               if k not in d]
+    if missing:
+        raise ValueError(f"design: {str(path)!r} lacks {missing}; not a complete design file")
+    try:
+        names = list(d["filter_names"])
+        bank = FilterBank.from_table(d["filters"], d["wavelengths_nm"], names, pixel_qe=d["pixel_qe"])
+        bank.spec = list(d.get("filter_spec", bank.spec))
+        index = torch.as_tensor(d["mosaic"], dtype=torch.long)
+        mosaic = LearnedMosaic(names, pattern=index, learnable=False)
+        camera = DesignCamera(bank, mosaic, d["config"], name=str(d.get("name", path.stem)))
+        for level in d["levels"]:
+            net = MosaicReconstructionNet(**level["network"]["kwargs"])
+            net.load_state_dict(level["network"]["state_dict"])
+            camera.add_level(float(level["lux"]), net)
+    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+        raise ValueError(f"design: {str(path)!r} is not a valid design file ({type(err).__name__}: {err})") from err
     camera.card = str(d.get("card", ""))
     return camera.to(device=device).eval() if device is not None else camera.eval()
 
@@ -675,6 +700,8 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     from .metrics.color import srgb_to_xyz, xyz_to_lab
     from .metrics.difference import delta_e_2000
 
+    if dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype!r}")
     camera = design if isinstance(design, DesignCamera) else load_design(design)
     levels = camera.lux_levels if lux is None else [float(v) for v in lux]
     if not levels:
@@ -693,6 +720,8 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     device = check_device(device)
     camera = camera.to(device).eval()
     items = load_images(images)
+    if not items:
+        raise ValueError("images: expected at least one photograph, got none")
     check_photos(items, crop)  # every input checked before the first render (and the progress bar)
     per_image = []
     bar = progress_bar(total=len(items) * len(levels), unit="render", desc=f"design-eval {camera.name}",

@@ -265,6 +265,52 @@ def test_evaluate_design_checks_levels_device_and_photos_first(design_file, tmp_
         D.evaluate_design(design_file, one, [100], crop=0)
 
 
+def test_degenerate_designs_inputs_and_files_are_refused_naming_them(design_file, tmp_path, capsys):
+    """What gave NaN, a silent truncation or a bare error deep in torch (hard-case audit) is a ValueError naming the
+    argument: a filter that passes no light (the white card's 0 / 0), a grid without luminance, light levels that
+    are not positive, a 1 x N scene, an empty photograph list, an integer dtype, an incomplete design file (and
+    design-eval on it: one line, exit 2)."""
+    from isettorch.sensor.filter_bank import FilterBank
+    from isettorch.sensor.mosaic import LearnedMosaic
+
+    wl = torch.arange(400.0, 701.0, 10.0)
+    bank = FilterBank.from_table(torch.stack([torch.zeros(31), torch.full((31,), 0.5), torch.ones(31)]), wl,
+                                 ["a", "b", "c"])
+    cam = D.DesignCamera(bank, LearnedMosaic(["a", "b", "c"], pattern=torch.tensor([[0, 1], [1, 2]]),
+                                             learnable=False), lux=[10.0])
+    scene = cam.scene(torch.ones(1, 1, 8, 8), torch.full((1, 31), 0.5), 10.0)
+    with pytest.raises(ValueError, match=r"^design: the white card reads no signal .*filters \[0\]"):
+        cam.capture(scene)
+    with pytest.raises(ValueError, match=r"^wavelengths_nm: 900-1000 nm holds no luminance"):
+        D.illuminant_photons(torch.tensor([900.0, 950.0, 1000.0]), 1.0)
+    for bad in (math.nan, 0.0, -1.0, True):
+        with pytest.raises(ValueError, match=r"^lux: expected a positive finite illuminance"):
+            cam.add_level(bad)
+    good = D.load_design(design_file)
+    with pytest.raises(ValueError, match=r"^scene: expected at least 2 x 2 samples.*got 1 x 7"):
+        good.capture(good.scene(torch.ones(1, 1, 1, 7), torch.full((1, 31), 0.5), 100.0))
+    with pytest.raises(ValueError, match=r"^images: expected at least one photograph"):
+        D.evaluate_design(good, [], [100])
+    with pytest.raises(ValueError, match=r"^dtype: expected torch.float32 or torch.float64"):
+        D.evaluate_design(good, [("a", np.full((8, 8, 3), 128, np.uint8))], [100], dtype=torch.int64)
+    d = torch.load(design_file, weights_only=True)
+    del d["filter_names"]
+    bad = tmp_path / "incomplete.pt"
+    torch.save(d, bad)
+    with pytest.raises(ValueError, match=r"lacks \['filter_names'\]"):
+        D.load_design(bad)
+    d = torch.load(design_file, weights_only=True)
+    d["levels"][0]["network"]["state_dict"] = {}
+    torch.save(d, bad)
+    with pytest.raises(ValueError, match=r"is not a valid design file \(RuntimeError"):
+        D.load_design(bad)
+    photos = tmp_path / "p"
+    photos.mkdir()
+    Image.fromarray(np.full((12, 12, 3), 128, np.uint8)).save(photos / "a.png")
+    assert main(["design-eval", str(bad), str(photos)]) == 2
+    assert "is not a valid design file" in capsys.readouterr().err
+
+
 def test_corner_light_is_the_optics_falloff(design_file, photos, capsys, monkeypatch):
     """A photograph sets the sensor's size (one scene sample per pixel), so its corners are off axis by
     atan(r / d_i): ``corner_light`` is cos^4 of that angle (the optics' default law), the irradiance the optics

@@ -69,6 +69,8 @@ def smooth_band_transmittance(amplitudes: torch.Tensor, offsets: torch.Tensor, b
 
 def max_slope_per_nm(max_log_odds: float, band_width_nm: float) -> float:
     """The bound ``pi A / (4 w)`` on ``|dT/dl|`` of a learned filter (module docstring)."""
+    if not (math.isfinite(band_width_nm) and band_width_nm > 0):
+        raise ValueError(f"band_width_nm: expected a positive band width (nm), got {band_width_nm!r}")
     return math.pi * max_log_odds / (4 * band_width_nm)
 
 
@@ -76,7 +78,12 @@ def check_manufacturable(filters: torch.Tensor, wavelengths_nm: torch.Tensor, na
     """ValueError naming ``name`` unless the transmittances ``[K, L]`` are finite, in [0, 1], and no steeper than
     :data:`MAX_SLOPE_PER_NM` between neighbouring samples of ``wavelengths_nm``."""
     f = torch.as_tensor(filters, dtype=torch.float64)
-    w = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
+    w = torch.as_tensor(wavelengths_nm, dtype=torch.float64).reshape(-1)
+    if f.dim() != 2 or f.shape[0] == 0 or f.shape[1] != w.numel():
+        raise ValueError(f"{name}: expected transmittances [K >= 1, L = {w.numel()}] (one row per filter on "
+                         f"wavelengths_nm), got shape {tuple(f.shape)}")
+    if w.numel() > 1 and not bool((w[1:] > w[:-1]).all()):
+        raise ValueError(f"{name}: expected strictly increasing wavelengths_nm, got {w.tolist()}")
     if not bool(torch.isfinite(f).all()):
         raise ValueError(f"{name}: expected finite transmittances")
     if float(f.min()) < 0 or float(f.max()) > 1:
@@ -129,6 +136,10 @@ class FilterBank(SpectralQE):
             raise ValueError(f"max_log_odds: expected a positive value, got {max_log_odds!r}")
         grid = torch.tensor(_W_ISETCAM) if wavelengths_nm is None else torch.as_tensor(wavelengths_nm,
                                                                                         dtype=torch.float64)
+        if grid.numel() > 1 and band_width_nm < float((grid[1:] - grid[:-1]).min()):
+            raise ValueError(f"band_width_nm: expected at least the wavelength grid's step "
+                             f"({float((grid[1:] - grid[:-1]).min()):g} nm; a narrower band falls between samples), "
+                             f"got {band_width_nm!r}")
         learned_idx = [i for i, f in enumerate(spec) if f == "learned"]
         if names is None:
             names = [f if f != "learned" else f"F{learned_idx.index(i)}" for i, f in enumerate(spec)]

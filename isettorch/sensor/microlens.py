@@ -117,9 +117,9 @@ def _stack(layer_thicknesses_m, layer_indices, stack_height_m, stack_index, dtyp
         if t.numel() != idx.numel() or t.numel() == 0:
             raise ValueError(f"layer_thicknesses_m, layer_indices: expected the same number (>= 1) of layers, got "
                              f"{t.numel()} and {idx.numel()}")
-        if bool((t <= 0).any()):
-            raise ValueError(f"layer_thicknesses_m: expected positive thicknesses, got {t.tolist()}")
-    if bool((idx < 1).any()):
+        if not bool(torch.isfinite(t).all()) or bool((t <= 0).any()):
+            raise ValueError(f"layer_thicknesses_m: expected positive finite thicknesses, got {t.tolist()}")
+    if not bool(torch.isfinite(idx).all()) or bool((idx < 1).any()):
         raise ValueError(f"layer_indices/stack_index: expected refractive indices >= 1, got {idx.tolist()}")
     if stack_height_m is not None:
         _pos(stack_height_m, "stack_height_m")
@@ -153,6 +153,8 @@ def microlens_array_offsets_m(rows: int, cols: int, pixel_size_m: float, *,
     for v, name in ((pixel_size_m, "pixel_size_m"), (source_focal_length_m, "source_focal_length_m"),
                     (microlens_focal_length_m, "microlens_focal_length_m"), (microlens_index, "microlens_index")):
         _pos(v, name)
+    if float(microlens_index) < 1:
+        raise ValueError(f"microlens_index: expected a refractive index >= 1, got {microlens_index!r}")
     if not (isinstance(rows, int) and isinstance(cols, int) and rows > 0 and cols > 0):
         raise ValueError(f"rows, cols: expected positive integers, got {rows!r}, {cols!r}")
     y = (torch.arange(rows, dtype=torch.float64) - (rows - 1) / 2) * pixel_size_m
@@ -230,6 +232,8 @@ def _params(chief_ray_angle_deg, method, offset_m, kw):
         if offset_m is not None:
             raise ValueError("offset_m: method 'none' has no microlens to offset")
         off = torch.zeros_like(cra)
+    if not bool(torch.isfinite(off.detach()).all()):
+        raise ValueError(f"offset_m: expected finite offsets (m), got {off.detach().flatten()[:6].tolist()}")
     lam = torch.as_tensor(kw["wavelength_nm"], dtype=dtype, device=device) * 1e-9
     shape_geo = torch.broadcast_shapes(cra.shape, off.shape)  # the rays' geometry; the wavelength only blurs
     shape = torch.broadcast_shapes(shape_geo, lam.shape)
@@ -369,6 +373,11 @@ def _isetcam_grid(cra, method, t, n, off, geo, n_grid=255, chunk=32):
             w = _isetcam_rebin(w, *cells, n_grid)
         prof = w.reshape(-1, n_grid, n_grid).sum(1)  # sum(W_detector, 1)
         e_in = src.sum(1)[:, x.abs() < p / 2].sum(-1)
+        if bool((e_in == 0).any()):
+            raise ValueError(f"source_f_number: the source's cone (NA {float(na):.3g} about sin(CRA)) falls between "
+                             f"the rows of ISETCam's {n_grid}-point direction grid (step {du:.3g}), so the grid holds "
+                             f"none of its light; use sampling='continuous' for so slow a source (or more "
+                             f"grid_points)")
         e_all.append(prof[:, x.abs() < d / 2].sum(-1) / e_in)
         prof_all.append(prof)
     return torch.cat(e_all)[inverse], x, torch.cat(prof_all)[inverse]

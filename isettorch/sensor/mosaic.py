@@ -25,6 +25,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from .._checks import is_integer
 from .cfa import CFA, tile
 
 __all__ = ["RELAX_MODES", "LearnedMosaic", "temperature_schedule"]
@@ -43,8 +44,10 @@ def temperature_schedule(step: int, total_steps: int, start: float = 1.0, end: f
     """
     if not (start > 0 and end > 0 and math.isfinite(start) and math.isfinite(end)):
         raise ValueError(f"start, end: expected positive temperatures, got {start!r}, {end!r}")
-    if total_steps < 1:
+    if not (isinstance(total_steps, int) and total_steps >= 1):
         raise ValueError(f"total_steps: expected a positive integer, got {total_steps!r}")
+    if not (isinstance(step, (int, float)) and math.isfinite(step)):
+        raise ValueError(f"step: expected a finite step number, got {step!r}")
     frac = min(max(step / total_steps, 0.0), 1.0)
     return float(start * (end / start) ** frac)
 
@@ -91,8 +94,8 @@ class LearnedMosaic(nn.Module, CFA):
                 raise ValueError(f"pattern: expected a [P, Q] map of filter indices in 0..{len(names) - 1}, got "
                                  f"{index.tolist()}")
             shape = tuple(index.shape)
-        if len(shape) != 2 or any(int(s) < 1 for s in shape):
-            raise ValueError(f"shape: expected (P, Q) positive sizes, got {shape!r}")
+        if len(shape) != 2 or not all(is_integer(s) and s >= 1 for s in shape):
+            raise ValueError(f"shape: expected (P, Q) positive integer sizes, got {shape!r}")
         if relax not in RELAX_MODES:
             raise ValueError(f"relax: expected one of {RELAX_MODES}, got {relax!r}")
         self.channel_names = names
@@ -102,6 +105,8 @@ class LearnedMosaic(nn.Module, CFA):
                 raise ValueError(f"pattern_margin: expected a positive number, got {pattern_margin!r}")
             logits = float(pattern_margin) * nn.functional.one_hot(index, len(names)).permute(2, 0, 1).to(torch.float64)
         else:
+            if not (isinstance(init_scale, (int, float)) and math.isfinite(init_scale) and init_scale >= 0):
+                raise ValueError(f"init_scale: expected a finite number >= 0, got {init_scale!r}")
             g = torch.Generator().manual_seed(int(seed))
             logits = init_scale * torch.randn(len(names), p, q, generator=g, dtype=torch.float64)
         self.logits = nn.Parameter(logits, requires_grad=learnable)
@@ -116,8 +121,9 @@ class LearnedMosaic(nn.Module, CFA):
 
     @temperature.setter
     def temperature(self, value: float) -> None:
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-            raise ValueError(f"temperature: expected a positive number, got {value!r}")
+        # at least 1e-6: the relaxed weights are softmax(logits / T), which overflows for a subnormal T
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 1e-6):
+            raise ValueError(f"temperature: expected a number >= 1e-6, got {value!r}")
         self._temperature = float(value)
 
     @property
@@ -163,6 +169,8 @@ class LearnedMosaic(nn.Module, CFA):
 
     def weights(self, height: int, width: int, *, dtype=None, device=None) -> torch.Tensor:
         """Per-pixel filter weights ``[K, H, W]`` (the cell tiled from pixel [0, 0])."""
+        if height < 1 or width < 1:
+            raise ValueError(f"height, width: expected positive sizes, got {height}x{width}")
         w = self.cell_weights()
         ph, pw = w.shape[-2:]
         reps = (1, -(-height // ph), -(-width // pw))

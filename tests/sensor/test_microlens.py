@@ -338,6 +338,20 @@ def test_errors_name_the_argument():
         PixelOptics("centred", convention="isetcam", diffraction=True)
     with pytest.raises(ValueError, match="unknown key 'stack'"):
         Sensor(pixel_optics={"stack": 1})
+    # what gave NaN or a silent 0 (hard-case audit): a source cone between ISETCam's grid rows (f/200: etendue 0 / 0),
+    # non-finite layers and offsets, a microlens index below 1
+    with pytest.raises(ValueError, match=r"source_f_number: .*ISETCam's 255-point direction grid.*continuous"):
+        microlens_etendue(torch.arange(0.0, 31.0, 0.5), "centred", source_f_number=200.0, sampling="isetcam")
+    cont = microlens_etendue(torch.arange(0.0, 31.0, 0.5), "centred", source_f_number=200.0, sampling="continuous")
+    assert bool(torch.isfinite(cont).all()) and float(cont.min()) >= 0 and float(cont.max()) <= 1
+    with pytest.raises(ValueError, match="layer_thicknesses_m: expected positive finite"):
+        microlens_etendue(0.0, layer_thicknesses_m=(math.nan, 5e-6))
+    with pytest.raises(ValueError, match="layer_indices/stack_index: expected refractive indices >= 1"):
+        microlens_etendue(0.0, layer_indices=(math.nan, 1.46))
+    with pytest.raises(ValueError, match="offset_m: expected finite offsets"):
+        microlens_etendue(0.0, "centred", offset_m=math.inf)
+    with pytest.raises(ValueError, match="microlens_index: expected a refractive index >= 1"):
+        microlens_array_offsets_m(4, 4, 2.8e-6, microlens_index=0.5)
     with pytest.raises(TypeError, match="pixel_optics"):
         Sensor(pixel_optics=3)
 

@@ -226,3 +226,27 @@ def test_bad_input_raises():
         design_sensor(bank, mosaic, cfa="RGGB")
     with pytest.raises(ValueError, match="name: unknown fixed design"):
         fixed_design("xtrans")
+    # shapes, NaNs and degenerate numbers that reached a bare error deep in torch, an overflow or NaN (hard-case
+    # audit)
+    from isettorch.sensor.filter_bank import check_manufacturable
+
+    wl = torch.arange(400.0, 701.0, 10.0)
+    for bad in (torch.full((31,), 0.5), torch.zeros(0, 31), torch.full((1, 3), 0.5)):
+        with pytest.raises(ValueError, match=r"filters: expected transmittances \[K >= 1, L = 31\]"):
+            check_manufacturable(bad, wl)
+    with pytest.raises(ValueError, match="filters: expected strictly increasing wavelengths_nm"):
+        check_manufacturable(torch.full((1, 3), 0.5), torch.tensor([400.0, 400.0, 410.0]))
+    with pytest.raises(ValueError, match="band_width_nm: expected a positive band width"):
+        max_slope_per_nm(3.0, 0.0)
+    with pytest.raises(ValueError, match="band_width_nm: expected at least the wavelength grid's step"):
+        FilterBank(["learned"], band_width_nm=1e-6)
+    with pytest.raises(ValueError, match="init_scale: expected a finite number >= 0"):
+        LearnedMosaic(["A", "B"], init_scale=math.nan)
+    with pytest.raises(ValueError, match=r"temperature: expected a number >= 1e-6"):
+        LearnedMosaic(["A", "B"]).temperature = 5e-324
+    with pytest.raises(ValueError, match="shape: expected \\(P, Q\\) positive integer sizes"):
+        LearnedMosaic(["A", "B"], (2.5, 2))
+    with pytest.raises(ValueError, match="height, width: expected positive sizes"):
+        LearnedMosaic(["A", "B"]).weights(-1, 4)
+    with pytest.raises(ValueError, match="step: expected a finite step number"):
+        temperature_schedule(math.nan, 10)
