@@ -149,8 +149,15 @@ class DesignCamera(nn.Module):
             raise ValueError(f"config.exposure.rule: expected 'incident', got {cfg['exposure']['rule']!r}")
         for key in ("target", "max_exposure_s", "max_analog_gain"):
             v = cfg["exposure"][key]
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"config.exposure.{key}: expected a positive number, got {v!r}")
+        if cfg["exposure"]["max_analog_gain"] < 1:
+            raise ValueError(f"config.exposure.max_analog_gain: expected >= 1 (the rule raises the gain once the "
+                             f"exposure is at its limit; below 1 it would attenuate), got "
+                             f"{cfg['exposure']['max_analog_gain']!r}")
+        if cfg["filters"]["fixed_scale"] not in ("table", "peak"):
+            raise ValueError(f"config.filters.fixed_scale: expected 'table' or 'peak', got "
+                             f"{cfg['filters']['fixed_scale']!r}")
         self.optics = DiffractionLimitedOptics(f_number=float(cfg["optics"]["f_number"]),
                                                focal_length_m=float(cfg["optics"]["focal_length_m"]),
                                                learn_f_number=learn_f_number)
@@ -216,9 +223,17 @@ class DesignCamera(nn.Module):
         """The factored scene ``sum_j maps_j(x) R_j(l) E(l)``: ``maps [B, J, H, W]``, ``reflectance [B, J, L]`` or
         ``[J, L]`` on :attr:`wavelengths_nm`, lit by ``lux`` of ``config.scene.illuminant``, one scene sample per
         pixel (the FOV ``2 atan(pitch W / 2 d_i)``, ``d_i`` the thin-lens image distance)."""
-        if maps.dim() != 4:
-            raise ValueError(f"maps: expected (B, J, H, W), got {tuple(maps.shape)}")
+        for name, value in (("maps", maps), ("reflectance", reflectance)):
+            if not isinstance(value, torch.Tensor) or not value.is_floating_point():
+                raise TypeError(f"{name}: expected a floating-point torch.Tensor, got {type(value).__name__}"
+                                + (f" of {value.dtype}" if isinstance(value, torch.Tensor) else ""))
+        if maps.dim() != 4 or 0 in maps.shape:
+            raise ValueError(f"maps: expected a non-empty (B, J, H, W) tensor, got {tuple(maps.shape)}")
+        if reflectance.dim() not in (2, 3):
+            raise ValueError(f"reflectance: expected (B, J, L) or (J, L), got {tuple(reflectance.shape)}")
         dtype = dtype or maps.dtype
+        if dtype not in (torch.float32, torch.float64):
+            raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype!r}")
         wl = self.wavelengths_nm
         refl = reflectance if reflectance.dim() == 3 else reflectance[None].expand(maps.shape[0], -1, -1)
         if refl.shape[:2] != maps.shape[:2] or refl.shape[-1] != wl.numel():
@@ -702,6 +717,8 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
 
     if dtype not in (torch.float32, torch.float64):
         raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype!r}")
+    if not isinstance(noise_free, bool):
+        raise TypeError(f"noise_free: expected True or False, got {noise_free!r}")
     camera = design if isinstance(design, DesignCamera) else load_design(design)
     levels = camera.lux_levels if lux is None else [float(v) for v in lux]
     if not levels:

@@ -293,6 +293,16 @@ def test_degenerate_designs_inputs_and_files_are_refused_naming_them(design_file
         D.evaluate_design(good, [], [100])
     with pytest.raises(ValueError, match=r"^dtype: expected torch.float32 or torch.float64"):
         D.evaluate_design(good, [("a", np.full((8, 8, 3), 128, np.uint8))], [100], dtype=torch.int64)
+    with pytest.raises(TypeError, match=r"^noise_free: expected True or False"):
+        D.evaluate_design(good, [("a", np.full((8, 8, 3), 128, np.uint8))], [100], noise_free="yes")
+    with pytest.raises(TypeError, match=r"^maps: expected a floating-point torch.Tensor, got ndarray"):
+        good.scene(np.ones((1, 1, 8, 8)), torch.full((1, 31), 0.5), 100.0)
+    with pytest.raises(ValueError, match=r"^maps: expected a non-empty \(B, J, H, W\) tensor"):
+        good.scene(torch.ones(0, 1, 8, 8), torch.full((1, 31), 0.5), 100.0)
+    with pytest.raises(ValueError, match=r"^config.exposure.max_analog_gain: expected >= 1"):
+        D.make_design("bayer_rgb", {"exposure": {"max_analog_gain": 0.5}})
+    with pytest.raises(ValueError, match=r"^config.exposure.target: expected a positive number, got True"):
+        D.make_design("bayer_rgb", {"exposure": {"target": True}})
     d = torch.load(design_file, weights_only=True)
     del d["filter_names"]
     bad = tmp_path / "incomplete.pt"

@@ -128,6 +128,8 @@ class FilterBank(SpectralQE):
         if bad:
             raise ValueError(f"filters: unknown filter {bad[0]!r}; expected 'learned' or one of "
                              f"{sorted(FIXED_FILTERS)}")
+        if not isinstance(learnable, bool):
+            raise TypeError(f"learnable: expected True or False, got {learnable!r}")
         if fixed_scale not in ("table", "peak"):
             raise ValueError(f"fixed_scale: expected 'table' or 'peak', got {fixed_scale!r}")
         if not (band_width_nm > 0 and math.isfinite(band_width_nm)):

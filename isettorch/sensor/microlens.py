@@ -89,7 +89,9 @@ _P_MAX = 0.99  # mlCoordinates: the direction-sine grid ends at +-0.99
 
 
 def _method(method: str) -> str:
-    m = _ALIASES.get(str(method).lower(), str(method).lower())
+    if not isinstance(method, str):
+        raise ValueError(f"method: expected one of {MICROLENS_METHODS} (or 'centered'), got {method!r}")
+    m = _ALIASES.get(method.lower(), method.lower())
     if m not in MICROLENS_METHODS:
         raise ValueError(f"method: expected one of {MICROLENS_METHODS} (or 'centered'), got {method!r}")
     return m

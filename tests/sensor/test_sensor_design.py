@@ -250,3 +250,5 @@ def test_bad_input_raises():
         LearnedMosaic(["A", "B"]).weights(-1, 4)
     with pytest.raises(ValueError, match="step: expected a finite step number"):
         temperature_schedule(math.nan, 10)
+    with pytest.raises(TypeError, match="learnable: expected True or False"):
+        FilterBank(["learned"], learnable="no")  # (a truthy string made it learnable)
