@@ -416,13 +416,30 @@ def colour_estimate_mse(fit: dict, window: int, test: dict | None = None) -> tor
     it is the error of a colour correction learned on one set of materials and applied to another (a network
     trained on the generator's reflectances and scored on photographs lifted to spectra). Differentiable.
     """
-    if not (isinstance(window, int) and window > 0):
+    if isinstance(window, bool) or not (isinstance(window, int) and window > 0):
         raise ValueError(f"window: expected a positive number of pixels, got {window!r}")
     test = fit if test is None else test
+    for name, sig in (("fit", fit), ("test", test)):
+        missing = [k for k in ("rho", "var", "frac", "target") if not isinstance(sig, dict) or k not in sig]
+        if missing:
+            raise ValueError(f"{name}: expected patch_signals' mapping with 'rho', 'var', 'frac' and 'target', "
+                             f"missing {missing}")
+        if sig["rho"].dim() != 2 or sig["rho"].shape[0] == 0 or sig["rho"].shape[1] != fit["rho"].shape[1]:
+            raise ValueError(f"{name}: expected rho [n >= 1, {fit['rho'].shape[1]}] (the design's channels), got "
+                             f"{tuple(sig['rho'].shape)}")
+        if not all(bool(torch.isfinite(sig[k].detach()).all()) for k in ("rho", "var", "frac", "target")):
+            raise ValueError(f"{name}: expected finite signals, variances, fractions and targets")
+        if bool((sig["frac"] <= 0).any()):
+            raise ValueError(f"{name}: expected every channel in the mosaic cell (frac > 0), got "
+                             f"{sig['frac'].detach().tolist()}")
     rho, target = fit["rho"], fit["target"]
     n = rho.shape[0]
     s = (fit["var"] / (fit["frac"] * window)).mean(0)
-    m = torch.linalg.solve(rho.T @ rho / n + torch.diag(s), rho.T @ target / n).T  # [3, C]
+    try:
+        m = torch.linalg.solve(rho.T @ rho / n + torch.diag(s), rho.T @ target / n).T  # [3, C]
+    except torch.linalg.LinAlgError as err:
+        raise ValueError("fit: the Wiener system is singular (channels with neither an independent signal over the "
+                         "patches nor noise)") from err
     s_test = (test["var"] / (test["frac"] * window)).mean(0)
     return ((test["rho"] @ m.T - test["target"]) ** 2).mean() + (m**2 @ s_test).mean()
 

@@ -68,6 +68,15 @@ def test_colour_correction_learned_on_one_set_and_applied_to_another_matches_the
     m = torch.linalg.inv(a).T
     assert float(colour_estimate_mse(fit, 16, noisy)) == pytest.approx(float((m**2).sum()) * 12 / (16 / 3) / 3,
                                                                        rel=1e-9)
+    # bad signals are named (they gave NaN, a KeyError or a bare matmul / solver error)
+    with pytest.raises(ValueError, match=r"^fit: expected every channel in the mosaic cell \(frac > 0\)"):
+        colour_estimate_mse(dict(fit, frac=torch.tensor([0.5, 0.5, 0.0], dtype=torch.float64)), 16)
+    with pytest.raises(ValueError, match=r"^test: expected rho \[n >= 1, 3\]"):
+        colour_estimate_mse(fit, 16, dict(same, rho=same["rho"][:, :2]))
+    with pytest.raises(ValueError, match=r"^fit: expected patch_signals' mapping .* missing \['var'\]"):
+        colour_estimate_mse({k: v for k, v in fit.items() if k != "var"}, 16)
+    with pytest.raises(ValueError, match=r"^fit: the Wiener system is singular"):
+        colour_estimate_mse(dict(fit, rho=torch.zeros(40, 3, dtype=torch.float64)), 16)
     with pytest.raises(ValueError, match="window"):
         colour_estimate_mse(fit, 0)
 
