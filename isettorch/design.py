@@ -124,7 +124,7 @@ def linear_srgb_of_reflectance(reflectance: torch.Tensor, wavelengths_nm, illumi
     r = torch.as_tensor(reflectance, dtype=torch.float64)
     xyz = spectral.xyz((r * e)[..., None, None], wl, dim=-3)[..., 0, 0]
     white = spectral.xyz(e[:, None, None], wl, dim=-3)[1, 0, 0]
-    return (xyz / white) @ torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64).T
+    return (xyz / white) @ torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64, device=xyz.device).T
 
 
 class DesignCamera(nn.Module):
@@ -643,6 +643,8 @@ def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name
     of a design file or shipped name as a fixed design (new networks): a designed sensor's networks trained again
     with a fixed design's budget."""
     scale = _merge(DESIGN_DEFAULTS, config)["filters"]["fixed_scale"]
+    if scale not in ("table", "peak"):
+        raise ValueError(f"config.filters.fixed_scale: expected 'table' or 'peak', got {scale!r}")
     if isinstance(spec, str):
         bank, mosaic = fixed_design(spec, fixed_scale=scale)
         return DesignCamera(bank, mosaic, config, lux, name=name or spec)

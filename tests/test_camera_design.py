@@ -303,6 +303,11 @@ def test_degenerate_designs_inputs_and_files_are_refused_naming_them(design_file
         D.make_design("bayer_rgb", {"exposure": {"max_analog_gain": 0.5}})
     with pytest.raises(ValueError, match=r"^config.exposure.target: expected a positive number, got True"):
         D.make_design("bayer_rgb", {"exposure": {"target": True}})
+    with pytest.raises(ValueError, match=r"^config.filters.fixed_scale: expected 'table' or 'peak'"):
+        D.make_design("bayer_rgb", {"filters": {"fixed_scale": "foo"}})
+    # a light so low that the white card's float32 signal underflows: the normalised input is not finite
+    with pytest.raises(ValueError, match=r"^lux: the white card's signal is too small"):
+        good.capture(good.scene(torch.ones(1, 1, 8, 8), torch.full((1, 31), 0.5), 1e-40))
     d = torch.load(design_file, weights_only=True)
     del d["filter_names"]
     bad = tmp_path / "incomplete.pt"

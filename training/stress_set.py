@@ -6,7 +6,8 @@ Sources (linear RGB in [0, 1], scored as the benchmark scores 8-bit images: valu
 - ``photo``: centre crops of the colour photographs scikit-image ships in its wheel (:data:`PHOTOS`; nothing is
   downloaded), each also in the variants of :data:`VARIANTS`: defocused (Gaussian blur), dark (scaled down), and
   saturated single-hue (channel gains), alone and combined;
-- ``natural``: scenes of :mod:`isettorch.data.natural` (generator version 5, the defaults) rendered through the
+- ``natural``: scenes of :mod:`isettorch.data.natural` (the defaults of generator version 5; version 6 moved their
+  sRGB colour by about 3e-4, the library's one sRGB matrix) rendered through the
   library's ``Camera`` by ``training/train_demosaic.py``'s ``ScenePool`` (seeds never drawn in training), exposed
   and display-encoded as the training images are (:func:`isettorch.data.natural.expose_and_encode`), with chromatic
   fine detail (``colour_correlation`` off) for half of them, and the same variants;

@@ -586,8 +586,9 @@ class SensorToXYZ(nn.Module):
         A QE that requires grad (learnable filters) while grad is enabled is fitted inside the graph, every call
         (no cache): the matrix and ``sensor_white`` are then functions of the filters (the least-squares fit is
         differentiable, :func:`fit_colour_matrix`), so a loss on the processed image has the filters' total
-        derivative, the colour matrix's change included. A ``learnable`` matrix is a parameter of its own and is
-        fitted from the detached QE."""
+        derivative, the colour matrix's change included. A ``learnable`` matrix is a parameter of its own: the first
+        fit (from the detached QE) makes it, later fits update ``sensor_white`` only (the optimiser trains the
+        matrix), and a QE with another number of channels is an error."""
         w = check_wavelengths(torch.as_tensor(wavelengths_nm))
         graph = qe.requires_grad and torch.is_grad_enabled() and not self.learnable
         key = None if graph else (tuple(qe.shape), float(qe.detach().double().sum()),
@@ -598,6 +599,9 @@ class SensorToXYZ(nn.Module):
         white = sensor_responses(q, w, self.illuminant, torch.ones(1, w.numel(), dtype=torch.float64))[0]
         white = white / white.amax()
         if self.learnable and isinstance(self.matrix, nn.Parameter):  # the parameter being learned stays
+            if self.matrix.shape[1] != q.shape[0]:
+                raise ValueError(f"qe: {q.shape[0]} channels, but the learnable matrix being trained is for "
+                                 f"{self.matrix.shape[1]}; use a new SensorToXYZ for another sensor")
             self.sensor_white = white.to(device=self.matrix.device, dtype=self.matrix.dtype)
             self._fit_key = key
             return self

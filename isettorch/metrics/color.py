@@ -13,7 +13,7 @@ import functools
 import torch
 
 from .._checks import as_tensor, check_finite
-from ..image import D65_XY, SRGB_PRIMARIES_XY, rgb_to_xyz_matrix  # the one sRGB definition (re-exported here)
+from ..image import D65_XY, SRGB_PRIMARIES_XY, XYZ_TO_LINEAR_SRGB, rgb_to_xyz_matrix  # noqa: F401 (re-exported)
 
 # CIE 15:2004 eq. 8.3: the CIELAB function f(t) is t^(1/3) above (6/29)^3 and linear below.
 _DELTA = 6.0 / 29.0
@@ -28,9 +28,9 @@ WHITE_POINTS = {k: (x / y, 1.0, (1.0 - x - y) / y) for k, (x, y) in _WHITE_XY.it
 
 @functools.cache
 def _srgb_matrices() -> tuple[torch.Tensor, torch.Tensor]:
-    """The sRGB -> XYZ matrix and its inverse, float64 (computed once)."""
-    m = rgb_to_xyz_matrix(SRGB_PRIMARIES_XY, D65_XY)
-    return m, torch.linalg.inv(m)
+    """The sRGB -> XYZ matrix and its inverse, float64: the library's one definition (isettorch.image)."""
+    inv = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64)
+    return torch.linalg.inv(inv), inv
 
 
 def _srgb_matrix(inverse: bool, like: torch.Tensor) -> torch.Tensor:

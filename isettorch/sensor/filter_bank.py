@@ -138,7 +138,7 @@ class FilterBank(SpectralQE):
             raise ValueError(f"max_log_odds: expected a positive value, got {max_log_odds!r}")
         grid = torch.tensor(_W_ISETCAM) if wavelengths_nm is None else torch.as_tensor(wavelengths_nm,
                                                                                         dtype=torch.float64)
-        if grid.numel() > 1 and band_width_nm < float((grid[1:] - grid[:-1]).min()):
+        if "learned" in spec and grid.numel() > 1 and band_width_nm < float((grid[1:] - grid[:-1]).min()):
             raise ValueError(f"band_width_nm: expected at least the wavelength grid's step "
                              f"({float((grid[1:] - grid[:-1]).min()):g} nm; a narrower band falls between samples), "
                              f"got {band_width_nm!r}")
@@ -164,6 +164,9 @@ class FilterBank(SpectralQE):
         self.max_log_odds = float(max_log_odds)
         lo, hi = float(grid.min()), float(grid.max())
         n_bands = max(2, math.ceil((hi - lo) / band_width_nm) + 1)
+        if n_bands > 10_000:  # (a band per 0.03 nm over 300 nm: far finer than any grid; 1e-6 nm asked for 74 GB)
+            raise ValueError(f"band_width_nm: {band_width_nm!r} gives {n_bands} bands over {lo:g}-{hi:g} nm; "
+                             f"expected at most 10000")
         centres = lo + band_width_nm * torch.arange(n_bands, dtype=torch.float64)
         self.register_buffer("band_centres_nm", centres)
         self.register_buffer("learned_index", torch.tensor(learned_idx, dtype=torch.long))

@@ -376,6 +376,11 @@ def _isetcam_grid(cra, method, t, n, off, geo, n_grid=255, chunk=32):
         prof = w.reshape(-1, n_grid, n_grid).sum(1)  # sum(W_detector, 1)
         e_in = src.sum(1)[:, x.abs() < p / 2].sum(-1)
         if bool((e_in == 0).any()):
+            s_bad = s.reshape(-1)[e_in == 0]
+            if bool(((s_bad - na >= _P_MAX) | (s_bad + na <= -_P_MAX)).any()):
+                raise ValueError(f"chief_ray_angle_deg: the source's cone (NA {float(na):.3g} about sin(CRA)) lies "
+                                 f"beyond ISETCam's direction grid (|sin| < {_P_MAX}); use sampling='continuous' or a "
+                                 f"smaller angle")
             raise ValueError(f"source_f_number: the source's cone (NA {float(na):.3g} about sin(CRA)) falls between "
                              f"the rows of ISETCam's {n_grid}-point direction grid (step {du:.3g}), so the grid holds "
                              f"none of its light; use sampling='continuous' for so slow a source (or more "

@@ -284,6 +284,12 @@ def test_a_learnable_fitted_colour_matrix_is_the_parameter_trained_with_learnabl
     cam(scene)
     assert s2x.matrix is first
     assert not torch.equal(s2x.sensor_white, white)  # the white follows the learned filters
+    # another sensor (another number of channels) is an error, not a 3 x 3 matrix beside a 4-channel white
+    from isettorch import spectral
+
+    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    with pytest.raises(ValueError, match="qe: 4 channels, but the learnable matrix being trained is for 3"):
+        s2x.fit(torch.cat([spectral.cmfs(w, dtype=torch.float64)] * 2)[:4], w)
 
 
 def test_percentile_scaling_is_exposure_invariant_and_its_gradient_says_so():

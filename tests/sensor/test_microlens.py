@@ -342,6 +342,8 @@ def test_errors_name_the_argument():
     # non-finite layers and offsets, a microlens index below 1
     with pytest.raises(ValueError, match=r"source_f_number: .*ISETCam's 255-point direction grid.*continuous"):
         microlens_etendue(torch.arange(0.0, 31.0, 0.5), "centred", source_f_number=200.0, sampling="isetcam")
+    with pytest.raises(ValueError, match=r"chief_ray_angle_deg: the source's cone .* lies beyond ISETCam's direction"):
+        microlens_etendue(torch.tensor([88.0]), "centred", source_f_number=100.0, sampling="isetcam")
     cont = microlens_etendue(torch.arange(0.0, 31.0, 0.5), "centred", source_f_number=200.0, sampling="continuous")
     assert bool(torch.isfinite(cont).all()) and float(cont.min()) >= 0 and float(cont.max()) <= 1
     with pytest.raises(ValueError, match="layer_thicknesses_m: expected positive finite"):

@@ -240,6 +240,10 @@ def test_bad_input_raises():
         max_slope_per_nm(3.0, 0.0)
     with pytest.raises(ValueError, match="band_width_nm: expected at least the wavelength grid's step"):
         FilterBank(["learned"], band_width_nm=1e-6)
+    with pytest.raises(ValueError, match="band_width_nm: 1e-06 gives 300000001 bands"):
+        FilterBank(["R"], band_width_nm=1e-6)
+    # fixed filters on a grid coarser than the band width are fine (the band width is the learned filters')
+    assert FilterBank(["R", "G", "B"], torch.tensor([450.0, 550.0, 650.0]), learnable=False).filters.shape == (3, 3)
     with pytest.raises(ValueError, match="init_scale: expected a finite number >= 0"):
         LearnedMosaic(["A", "B"], init_scale=math.nan)
     with pytest.raises(ValueError, match=r"temperature: expected a number >= 1e-6"):
