@@ -201,6 +201,10 @@ def _params(chief_ray_angle_deg, method, offset_m, kw):
     for name in ("photodiode_size_m", "microlens_focal_length_m"):
         if kw[name] is not None:
             _pos(kw[name], name)
+    for name in ("pixel_size_m", "source_f_number"):
+        if isinstance(kw[name], torch.Tensor) and kw[name].numel() != 1:
+            raise ValueError(f"{name}: expected one value (a scalar or one-element tensor), got shape "
+                             f"{tuple(kw[name].shape)}")
     if float(kw["source_f_number"]) < 0.5:
         raise ValueError(f"source_f_number: expected >= 0.5, got {kw['source_f_number']}")
     pixel = float(kw["pixel_size_m"])

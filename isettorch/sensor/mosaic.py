@@ -89,7 +89,10 @@ class LearnedMosaic(nn.Module, CFA):
                     raise ValueError(f"pattern: filters {sorted(set(missing))} are not in channel_names {names}")
                 index = torch.tensor([[lookup[x] for x in r] for r in pattern.cell], dtype=torch.long)
             else:
-                index = torch.as_tensor(pattern, dtype=torch.long)
+                raw = torch.as_tensor(pattern)
+                if raw.is_floating_point() and not bool((raw == raw.round()).all()):
+                    raise ValueError(f"pattern: expected integer filter indices, got {raw.tolist()}")
+                index = raw.to(torch.long)
             if index.dim() != 2 or bool((index < 0).any()) or bool((index >= len(names)).any()):
                 raise ValueError(f"pattern: expected a [P, Q] map of filter indices in 0..{len(names) - 1}, got "
                                  f"{index.tolist()}")

@@ -354,6 +354,8 @@ def test_errors_name_the_argument():
         microlens_etendue(0.0, "centred", offset_m=math.inf)
     with pytest.raises(ValueError, match="method: expected one of"):
         microlens_etendue(0.0, None)  # (was read as 'none')
+    with pytest.raises(ValueError, match=r"source_f_number: expected one value .* got shape \(2,\)"):
+        microlens_etendue(0.0, source_f_number=torch.tensor([2.0, 4.0]))
     with pytest.raises(ValueError, match="microlens_index: expected a refractive index >= 1"):
         microlens_array_offsets_m(4, 4, 2.8e-6, microlens_index=0.5)
     with pytest.raises(TypeError, match="pixel_optics"):

@@ -252,6 +252,8 @@ def test_bad_input_raises():
         LearnedMosaic(["A", "B"], (2.5, 2))
     with pytest.raises(ValueError, match="height, width: expected positive sizes"):
         LearnedMosaic(["A", "B"]).weights(-1, 4)
+    with pytest.raises(ValueError, match="pattern: expected integer filter indices"):
+        LearnedMosaic(["A", "B"], pattern=[[0.5, 1.0], [1.0, 0.0]])  # (was truncated to 0)
     with pytest.raises(ValueError, match="step: expected a finite step number"):
         temperature_schedule(math.nan, 10)
     with pytest.raises(TypeError, match="learnable: expected True or False"):
