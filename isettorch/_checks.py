@@ -60,6 +60,14 @@ def check_nonnegative(t: torch.Tensor, name: str) -> None:
         raise ValueError(f"{name}: expected non-negative values, minimum is {t.min().item():.6g}")
 
 
+def check_float_dtype(dtype, name: str = "dtype") -> torch.dtype:
+    """``dtype`` if it is torch.float32 or torch.float64 (the precisions the library computes in), else a
+    ValueError naming ``name``."""
+    if dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"{name}: expected torch.float32 or torch.float64, got {dtype}")
+    return dtype
+
+
 def check_positive(value, name: str) -> torch.Tensor:
     t = as_tensor(value, name)
     check_finite(t, name)

@@ -41,6 +41,7 @@ import torch
 from torch import nn
 
 from . import spectral
+from ._checks import check_float_dtype
 from .image import XYZ_TO_LINEAR_SRGB
 from .isp.mosaic_net import MosaicReconstructionNet
 from .optics import DiffractionLimitedOptics
@@ -94,16 +95,42 @@ def _merge(defaults: dict, overrides: dict | None) -> dict:
     return out
 
 
+def _design_config(config: dict | None) -> dict:
+    """``config`` merged over :data:`DESIGN_DEFAULTS` and checked (the exposure rule and the fixed filters' scale):
+    what :class:`DesignCamera` and :func:`make_design` build from."""
+    cfg = _merge(DESIGN_DEFAULTS, config)
+    if cfg["exposure"]["rule"] != "incident":
+        raise ValueError(f"config.exposure.rule: expected 'incident', got {cfg['exposure']['rule']!r}")
+    for key in ("target", "max_exposure_s", "max_analog_gain"):
+        v = cfg["exposure"][key]
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ValueError(f"config.exposure.{key}: expected a positive number, got {v!r}")
+    if cfg["exposure"]["max_analog_gain"] < 1:
+        raise ValueError(f"config.exposure.max_analog_gain: expected >= 1 (the rule raises the gain once the "
+                         f"exposure is at its limit; below 1 it would attenuate), got "
+                         f"{cfg['exposure']['max_analog_gain']!r}")
+    if cfg["filters"]["fixed_scale"] not in ("table", "peak"):
+        raise ValueError(f"config.filters.fixed_scale: expected 'table' or 'peak', got "
+                         f"{cfg['filters']['fixed_scale']!r}")
+    return cfg
+
+
 def lux_key(lux: float) -> str:
     """A light level as a module name (``10`` -> ``'10'``, ``0.5`` -> ``'0p5'``)."""
     return f"{float(lux):g}".replace(".", "p").replace("-", "m")
 
 
+def _check_lux(lux) -> float:
+    """A light level: a positive finite number (not a bool), else a ValueError naming ``lux``."""
+    if isinstance(lux, bool) or not (isinstance(lux, (int, float)) and math.isfinite(lux) and lux > 0):
+        raise ValueError(f"lux: expected a positive finite illuminance, got {lux!r}")
+    return float(lux)
+
+
 def illuminant_photons(wavelengths_nm: torch.Tensor, lux: float, illuminant: str = "D65") -> torch.Tensor:
     """Radiance of a perfect white Lambertian surface ``[L]`` (photons/s/sr/m^2/nm) under ``lux`` of the named
     illuminant: luminance ``lux / pi`` cd/m^2 (module docstring)."""
-    if not (isinstance(lux, (int, float)) and math.isfinite(lux) and lux > 0):
-        raise ValueError(f"lux: expected a positive illuminance, got {lux!r}")
+    _check_lux(lux)
     wl = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
     ph = spectral.energy_to_photons(spectral.illuminant(illuminant, wl, dtype=torch.float64), wl, dim=0)
     lum = spectral.luminance(ph[:, None, None], wl).reshape(())
@@ -142,22 +169,9 @@ class DesignCamera(nn.Module):
     def __init__(self, bank: FilterBank, mosaic: LearnedMosaic, config: dict | None = None, lux=(), *,
                  name: str = "", learn_f_number: bool = False) -> None:
         super().__init__()
-        self.config = _merge(DESIGN_DEFAULTS, config)
+        self.config = _design_config(config)
         self.name = name
         cfg = self.config
-        if cfg["exposure"]["rule"] != "incident":
-            raise ValueError(f"config.exposure.rule: expected 'incident', got {cfg['exposure']['rule']!r}")
-        for key in ("target", "max_exposure_s", "max_analog_gain"):
-            v = cfg["exposure"][key]
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"config.exposure.{key}: expected a positive number, got {v!r}")
-        if cfg["exposure"]["max_analog_gain"] < 1:
-            raise ValueError(f"config.exposure.max_analog_gain: expected >= 1 (the rule raises the gain once the "
-                             f"exposure is at its limit; below 1 it would attenuate), got "
-                             f"{cfg['exposure']['max_analog_gain']!r}")
-        if cfg["filters"]["fixed_scale"] not in ("table", "peak"):
-            raise ValueError(f"config.filters.fixed_scale: expected 'table' or 'peak', got "
-                             f"{cfg['filters']['fixed_scale']!r}")
         self.optics = DiffractionLimitedOptics(f_number=float(cfg["optics"]["f_number"]),
                                                focal_length_m=float(cfg["optics"]["focal_length_m"]),
                                                learn_f_number=learn_f_number)
@@ -181,8 +195,7 @@ class DesignCamera(nn.Module):
 
     def add_level(self, lux: float, network: nn.Module | None = None) -> nn.Module:
         """Add (or replace) the network of light level ``lux``; a new one has ``config.network``'s size."""
-        if isinstance(lux, bool) or not (isinstance(lux, (int, float)) and math.isfinite(lux) and lux > 0):
-            raise ValueError(f"lux: expected a positive finite illuminance, got {lux!r}")
+        _check_lux(lux)
         if network is None:
             network = MosaicReconstructionNet(self.bank.num_channels, **self.config["network"])
         self.networks[lux_key(lux)] = network
@@ -232,8 +245,7 @@ class DesignCamera(nn.Module):
         if reflectance.dim() not in (2, 3):
             raise ValueError(f"reflectance: expected (B, J, L) or (J, L), got {tuple(reflectance.shape)}")
         dtype = dtype or maps.dtype
-        if dtype not in (torch.float32, torch.float64):
-            raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype!r}")
+        check_float_dtype(dtype)
         wl = self.wavelengths_nm
         refl = reflectance if reflectance.dim() == 3 else reflectance[None].expand(maps.shape[0], -1, -1)
         if refl.shape[:2] != maps.shape[:2] or refl.shape[-1] != wl.numel():
@@ -642,9 +654,7 @@ def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name
     e.g. Kodak's CFA 2.0 layout with learned colours. ``{"from_design": DESIGN}`` takes the filters and hard mosaic
     of a design file or shipped name as a fixed design (new networks): a designed sensor's networks trained again
     with a fixed design's budget."""
-    scale = _merge(DESIGN_DEFAULTS, config)["filters"]["fixed_scale"]
-    if scale not in ("table", "peak"):
-        raise ValueError(f"config.filters.fixed_scale: expected 'table' or 'peak', got {scale!r}")
+    scale = _design_config(config)["filters"]["fixed_scale"]
     if isinstance(spec, str):
         bank, mosaic = fixed_design(spec, fixed_scale=scale)
         return DesignCamera(bank, mosaic, config, lux, name=name or spec)
@@ -734,8 +744,7 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     from .metrics.color import srgb_to_xyz, xyz_to_lab
     from .metrics.difference import delta_e_2000
 
-    if dtype not in (torch.float32, torch.float64):
-        raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype!r}")
+    check_float_dtype(dtype)
     if not isinstance(noise_free, bool):
         raise TypeError(f"noise_free: expected True or False, got {noise_free!r}")
     camera = design if isinstance(design, DesignCamera) else load_design(design)

@@ -25,7 +25,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import torch
 
-from .._checks import check_device, is_integer
+from .._checks import check_device, check_float_dtype, is_integer
 from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
 from .batched import _log_uniform, _uniform, draw_layout_scenes
 from .batched_natural import draw_natural_scenes
@@ -135,8 +135,7 @@ class PairStream:
                  device="cpu", dtype=torch.float32, *, grad: bool = False, rank: int | None = None,
                  world_size: int | None = None, parts: int | None = None, threads: int | None = None):
         batch_size = check_integer(batch_size, "batch_size", 1)
-        if dtype not in (torch.float32, torch.float64):
-            raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype}")
+        check_float_dtype(dtype)
         self.batch_size, self.seed, self.dtype = batch_size, check_seed(seed), dtype
         self.device = check_device(device)  # at construction: batch(k) then never meets a device it cannot use
         # a camera module renders as it is: the scene config is checked with the default camera's (its margin)

@@ -328,11 +328,12 @@ def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channe
     return (wt / wt[:, r:r + 1]) * (means[:, r:r + 1] / means)
 
 
-def _check_reference_channel(reference_channel, channels: int) -> int:
-    """``reference_channel`` as a channel index of ``channels``, else a ValueError naming it."""
+def _check_reference_channel(reference_channel, channels: int | None = None) -> int:
+    """``reference_channel`` as a channel index (of ``channels`` when known), else a ValueError naming it."""
     if isinstance(reference_channel, bool) or not isinstance(reference_channel, numbers.Integral) \
-            or not 0 <= reference_channel < channels:
-        raise ValueError(f"reference_channel: expected a channel index in 0..{channels - 1}, got {reference_channel!r}")
+            or not 0 <= reference_channel < (channels if channels is not None else math.inf):
+        expected = "a channel index >= 0" if channels is None else f"a channel index in 0..{channels - 1}"
+        raise ValueError(f"reference_channel: expected {expected}, got {reference_channel!r}")
     return int(reference_channel)
 
 
@@ -496,10 +497,8 @@ class IlluminantCorrection(nn.Module):
             gains = _check_gains(gains).reshape(-1)
         self.method = key
         self.space = space
-        if isinstance(reference_channel, bool) or not isinstance(reference_channel, numbers.Integral) \
-                or reference_channel < 0:
-            raise ValueError(f"reference_channel: expected a channel index >= 0, got {reference_channel!r}")
-        self.reference_channel = int(reference_channel)  # checked against the channel count with the gains
+        # checked against the channel count with the gains
+        self.reference_channel = _check_reference_channel(reference_channel)
         self.criterion = float(criterion)
         self.register_buffer("gains", gains)
         self.register_buffer("last_gains", None, persistent=False)

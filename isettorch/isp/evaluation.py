@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._checks import check_device
+from .._checks import check_device, check_float_dtype
 from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 from .denoise import DENOISERS, _check_noise, check_denoiser, denoise_mosaic
@@ -217,8 +217,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
     device = check_device(device)
     noise_sigma, noise_shot = _check_noise(noise_sigma, noise_shot)
     noisy = noise_sigma > 0 or noise_shot > 0
-    if dtype not in (torch.float32, torch.float64):
-        raise ValueError(f"dtype: expected torch.float32 or torch.float64, got {dtype}")
+    check_float_dtype(dtype)
     if denoise is not None:
         check_denoiser(denoise)  # one of DENOISERS, and runnable here
         if not noisy:

@@ -33,6 +33,7 @@ from .._checks import (
     as_tensor,
     batch_param,
     check_finite,
+    check_float_dtype,
     check_nonnegative,
     check_rank,
     check_wavelengths,
@@ -192,9 +193,7 @@ def _irfft2(x: torch.Tensor, s) -> torch.Tensor:
 def _work_dtype(compute_dtype, like: torch.Tensor) -> torch.dtype:
     if compute_dtype is None:
         return like.dtype if like.dtype in (torch.float32, torch.float64) else torch.float64
-    if compute_dtype not in (torch.float32, torch.float64):
-        raise ValueError(f"compute_dtype: expected torch.float32 or torch.float64, got {compute_dtype}")
-    return compute_dtype
+    return check_float_dtype(compute_dtype, "compute_dtype")
 
 
 def _setup(b, nl, h, w, wavelengths_nm, hfov_deg, distance_m, f_number, focal_length_m, transmittance, offaxis,

@@ -138,10 +138,10 @@ class FilterBank(SpectralQE):
             raise ValueError(f"max_log_odds: expected a positive value, got {max_log_odds!r}")
         grid = torch.tensor(_W_ISETCAM) if wavelengths_nm is None else torch.as_tensor(wavelengths_nm,
                                                                                         dtype=torch.float64)
-        if "learned" in spec and grid.numel() > 1 and band_width_nm < float((grid[1:] - grid[:-1]).min()):
-            raise ValueError(f"band_width_nm: expected at least the wavelength grid's step "
-                             f"({float((grid[1:] - grid[:-1]).min()):g} nm; a narrower band falls between samples), "
-                             f"got {band_width_nm!r}")
+        step = float((grid[1:] - grid[:-1]).min()) if grid.numel() > 1 else 0.0
+        if "learned" in spec and band_width_nm < step:
+            raise ValueError(f"band_width_nm: expected at least the wavelength grid's step ({step:g} nm; a narrower "
+                             f"band falls between samples), got {band_width_nm!r}")
         learned_idx = [i for i, f in enumerate(spec) if f == "learned"]
         if names is None:
             names = [f if f != "learned" else f"F{learned_idx.index(i)}" for i, f in enumerate(spec)]
