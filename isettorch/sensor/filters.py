@@ -133,7 +133,10 @@ class SpectralQE(nn.Module):
         wavelengths_nm: native grid ``[Ln]`` (nm).
         channel_names: C names (CFA letters such as 'R', 'G', 'B').
         ir_filter, pixel_qe: optional ``[Ln]`` spectra on the same grid (default 1).
-        learnable: make the filters ``nn.Parameter`` s, kept non-negative by a softplus.
+        learnable: make the filters ``nn.Parameter`` s, kept non-negative by a softplus. Values below 1e-8 start
+            at 1e-8, where the softplus's slope (the parameter's gradient factor) is also about 1e-8: an entry that
+            starts at 0 barely moves under plain SGD (Adam rescales its step). Start learnable filters from positive
+            values, or use :class:`~isettorch.sensor.FilterBank` (smooth bands through a sigmoid).
 
     Example:
         >>> qe = SpectralQE.from_cfa(CFA('GBRG'))
