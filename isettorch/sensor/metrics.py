@@ -1,7 +1,8 @@
 """Sensor figures of merit: well capacity, pixel SNR vs signal, dynamic range, ISO saturation speed.
 
-Noise model: :func:`isettorch.metrics.snr.noise_variance_e` (EMVA 1288 release 4.0, eq. 2-6, in electrons),
-with the sensor's parameters.
+Noise model: :func:`isettorch.metrics.snr.noise_variance_e` (EMVA 1288 release 4.0, eq. 2-6, in electrons): the
+signal's shot noise and PRNU, on the dark floor of the sensor's own capture (:meth:`Sensor.poisson_gaussian`'s terms:
+CDS, the noise model, temporal row/column noise, dark shading and a sensor without shot noise included).
 """
 
 from __future__ import annotations
@@ -26,20 +27,25 @@ def well_capacity_e(sensor: Sensor) -> float:
 
 
 def _noise_parameters_e(sensor: Sensor, exposure_s: float | None) -> dict:
-    """The sensor's noise parameters in electrons (volts at the pixel over the conversion gain, analog gain 1),
-    as :func:`isettorch.metrics.snr.noise_variance_e` takes them."""
+    """The sensor's noise in electrons at analog gain 1, as :func:`isettorch.metrics.snr.noise_variance_e` takes it:
+    the whole dark floor of a capture (the sensor's :meth:`~Sensor.poisson_gaussian` terms in pixel volts over the
+    conversion gain: read noise, twice with CDS in the physical chain, dark-current shot noise, DSNU and column offsets
+    where CDS does not cancel them, temporal row/column noise, dark shading) as ``read_noise_e``, the ADC step (a DN
+    readout), PRNU, and whether the signal has shot noise."""
     t = float(sensor.exposure_s if exposure_s is None else exposure_s)
+    if not (math.isfinite(t) and t >= 0):
+        raise ValueError(f"exposure_s: expected a finite exposure >= 0 in seconds, got {exposure_s!r}")
     cg = sensor.conversion_gain_v_per_e
-    return dict(read_noise_e=sensor.read_noise_v / cg * (math.sqrt(2) if sensor.cds else 1.0),
-                dsnu_e=0.0 if sensor.cds else sensor.dsnu_sigma_v / cg, prnu=sensor.prnu_sigma_percent / 100,
-                dark_current_e=sensor.dark_current_e_per_s * t,
-                column_fpn_e=0.0 if sensor.cds else sensor.column_fpn_sigma_v / cg,
-                lsb_e=None if sensor.lsb_v is None else sensor.lsb_v / cg, shot=sensor.shot_noise != "off")
+    shot, var_v = sensor._dark_variance_v2(sensor.noise_parameters(enabled=True), t, cg)
+    return dict(read_noise_e=math.sqrt(var_v) / cg, prnu=sensor.prnu_sigma_percent / 100,
+                lsb_e=sensor.lsb_v / cg if sensor.output_units == "dn" else None, shot=shot)
 
 
 def noise_e(sensor: Sensor, signal_e, exposure_s: float | None = None) -> torch.Tensor:
     """Total noise (electrons rms) at a mean photo-signal ``signal_e``: :func:`isettorch.metrics.snr.noise_variance_e`
-    with the sensor's parameters (CDS doubles the read-noise variance and removes DSNU and column FPN)."""
+    with the sensor's shot noise, PRNU and dark floor (the variance of a dark pixel in its captures:
+    :meth:`Sensor.poisson_gaussian`'s terms, so CDS, the noise model, row/column noise and dark shading count as in
+    the capture)."""
     return torch.sqrt(noise_variance_e(signal_e, **_noise_parameters_e(sensor, exposure_s)))
 
 

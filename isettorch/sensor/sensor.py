@@ -1134,6 +1134,17 @@ class Sensor(nn.Module):
         quant = 1.0 / 12.0 if units == "dn" else 0.0  # rounding to whole DN
         if not nz.get("enabled", True):  # the noise-free chain, rounded
             return torch.zeros_like(per_v), torch.full_like(per_v, quant)
+        shot, var_v = self._dark_variance_v2(nz, t, cg, level)
+        a = per_v * cg if shot else torch.zeros_like(per_v)
+        return a, var_v * per_v ** 2 + quant
+
+    def _dark_variance_v2(self, nz: dict, t, cg, level=float):
+        """``(shot, var_v)``: whether the capture has shot noise, and the variance of a dark pixel at the pixel in
+        volts^2 over exposure ``t`` (s) with conversion gain ``cg`` (V/e-), of the noise levels ``nz``
+        (:meth:`noise_parameters`): read noise (twice its variance with CDS), dark-current shot noise, DSNU and column
+        offsets (cancelled by CDS), temporal row/column noise and dark shading. The terms of
+        :meth:`_noisy_pixel_volts`, shared by :meth:`poisson_gaussian` and the figures of merit
+        (:mod:`isettorch.sensor.metrics`)."""
         # CDS in the physical chain only (ISETCam's order samples the read noise once and adds DSNU)
         cds = bool(nz.get("cds", self.cds)) and nz.get("noise_model", self.noise_model) == "physical"
         shot = nz.get("shot_noise", self.shot_noise) != "off"
@@ -1144,8 +1155,7 @@ class Sensor(nn.Module):
         var_e = (dark * t if shot else 0.0 * t) + (shading * t) ** 2  # electrons^2 at the pixel
         var_v = (read_v ** 2 * (2.0 if cds else 1.0) + (0.0 if cds else dsnu_v ** 2 + column_v ** 2)
                  + row_v ** 2 + col_v ** 2 + var_e * cg ** 2)  # pixel volts^2
-        a = per_v * cg if shot else torch.zeros_like(per_v)
-        return a, var_v * per_v ** 2 + quant
+        return shot, var_v
 
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, size={self.rows}x{self.cols}, pixel={self.pixel_size_m * 1e6:g} um, "
