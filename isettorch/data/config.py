@@ -155,16 +155,31 @@ def natural_config(config: dict | None = None, **overrides) -> dict:
     return out
 
 
+# The natural config's numbers are sizes, rates, amplitudes and exponents: none is negative. These must also be
+# above 0 (a zero divided: r_min_px and brightness gave ZeroDivisionError at batch time, supersample 0 a stride
+# error) or at least a minimum; (bound, open).
+_NATURAL_LOWER = {"mean_radiance_scale": (0.0, True), "components.palette.materials": (1, False),
+                  "components.dead_leaves.r_min_px": (0.0, True), "components.dead_leaves.brightness": (0.0, True),
+                  "components.textured_leaves.grating_cpp": (0.0, True),
+                  "components.depth_layers.f_number": (0.5, False),
+                  "components.depth_layers.focal_length_m": (0.0, True),
+                  "components.depth_layers.pixel_size_m": (0.0, True),
+                  "components.fine_detail.grating_cpp": (0.0, True), "components.fine_detail.line_width_px": (0.0, True),
+                  "components.fine_detail.supersample": (1, False), "components.grain.dye_width_nm": (0.0, True)}
+
+
 def _check_natural_values(cfg: dict, defaults: dict, path: str) -> None:
     """Each value of a merged natural config of the kind of its default: a bool, a finite number (an integer where the
     default is one), a range ``[lo, hi]`` (two such numbers, lo <= hi) where the default is one, a non-empty list of
     finite numbers where the default lists choices, weights for ``kinds``; ``*probability`` keys in [0, 1], the
-    fractions in (0, 1], ``materials`` at least 1."""
+    fractions in (0, 1]; every number >= 0, or above the bound of :data:`_NATURAL_LOWER`; the dead leaves' size
+    exponent not 1 (their radii's inverse CDF divides by 1 - exponent)."""
     for key, ref in defaults.items():
         v = cfg[key]
         if v == ref:  # the default (valid): most of a config, skipped at once (NaN never equals itself)
             continue
         where = f"config: {path + key!r}"
+        lo, lo_open = _NATURAL_LOWER.get(path + key, (0.0, False))
         if key == "kinds":
             _check_weights(v, where)
         elif isinstance(ref, dict):
@@ -179,19 +194,24 @@ def _check_natural_values(cfg: dict, defaults: dict, path: str) -> None:
             elif key.endswith("fraction"):
                 _check_number(v, where, 0.0, 1.0, lo_open=True, what="a fraction")
             else:
-                _check_number(v, where, integer=integer, what="an integer" if integer else "a number")
+                _check_number(v, where, lo, lo_open=lo_open, integer=integer,
+                              what="an integer" if integer else "a number")
+                if path + key == "components.dead_leaves.exponent" and v == 1:
+                    raise ValueError(f"{where}: expected an exponent other than 1 (the leaf radii's inverse CDF "
+                                     f"divides by 1 - exponent), got {v!r}")
         elif isinstance(ref, list) and len(ref) == 2:
             integer = all(isinstance(x, int) for x in ref)
             kind = is_integer if integer else _is_number
-            lo = 1 if key == "materials" else -math.inf
             if (not isinstance(v, (list, tuple)) or len(v) != 2 or not all(kind(x) and math.isfinite(x) for x in v)
-                    or not lo <= v[0] <= v[1]):
+                    or not v[0] <= v[1] or not _in(v[0], lo, math.inf, lo_open, False)):
                 what = "integers" if integer else "finite numbers"
                 raise ValueError(f"{where}: expected a range [lo, hi] of two {what} with "
-                                 f"{'' if lo == -math.inf else f'{lo} <= '}lo <= hi, got {v!r}")
+                                 f"{lo:g} {'<' if lo_open else '<='} lo <= hi, got {v!r}")
         elif isinstance(ref, list):
-            if not isinstance(v, (list, tuple)) or not v or not all(_is_number(x) and math.isfinite(x) for x in v):
-                raise ValueError(f"{where}: expected a non-empty list of finite numbers, got {v!r}")
+            if (not isinstance(v, (list, tuple)) or not v
+                    or not all(_is_number(x) and math.isfinite(x) and _in(x, lo, math.inf, lo_open, False) for x in v)):
+                raise ValueError(f"{where}: expected a non-empty list of finite numbers "
+                                 f"{'>' if lo_open else '>='} {lo:g}, got {v!r}")
 
 
 def _check_optional(block: dict, name: str, key: str) -> None:
@@ -295,7 +315,8 @@ _NUMBER_OR_RANGE = ("distance_m",)
 WAVELENGTH_RANGE_NM = (400.0, 700.0)
 #: the CCTs each illuminant kind can draw (K): CIE daylight's polynomials hold on 4000-25000 K (CIE 015:2018);
 #: the on-locus LED phosphor table spans 40-1000 mired; a blackbody any positive temperature
-_CCT_BOUNDS_K = {"daylight": (4000.0, 25000.0), "blackbody": (0.0, math.inf), "led": (1000.0, 25000.0)}
+# a blackbody colder than 100 K has no visible spectrum left to normalise (1 K: 0 / 0 in the light's luminance)
+_CCT_BOUNDS_K = {"daylight": (4000.0, 25000.0), "blackbody": (100.0, math.inf), "led": (1000.0, 25000.0)}
 
 
 def _is_number(v) -> bool:
@@ -324,6 +345,14 @@ def _check_number(value, where: str, lo: float = -math.inf, hi: float = math.inf
         _in(value, lo, hi, lo_open, hi_open)
     if not ok:
         raise ValueError(f"{where}: expected {what}{_bounds_text(lo, hi, lo_open, hi_open)}, got {value!r}")
+
+
+# What a scene may ask for: from far below starlight (1e-4 cd/m2) to far above the sun's disk (1.6e9 cd/m2), and
+# up to 12 decades of illumination across an image (sunlit snow to a moonless night's shadow is about 10). Within
+# these the float32 radiance, irradiance and electron rates stay finite (float32 overflowed from 1e22 cd/m2 with an
+# error naming the sensor's electron rate, not this key).
+MEAN_LUMINANCE_BOUNDS_CD_M2 = (1e-20, 1e12)
+MAX_HDR_DECADES = 12.0
 
 
 def _check_range(cfg: dict, key: str, path: str, lo: float = -math.inf, hi: float = math.inf, *,
@@ -403,8 +432,8 @@ def _check_scene(scene: dict, sp: str, camera: dict | None = None) -> None:
         _check_range(scene["cct_range_k"], kind, f"{sp}.cct_range_k", lo, hi, lo_open=lo == 0, scalar=False)
     _check_range(scene, "shadow_ambient", sp, 0.0, log=True, scalar=False)
     _check_range(scene, "second_light_ratio", sp, 0.0, log=True, scalar=False)
-    _check_range(scene, "hdr_decades", sp, 0.0, scalar=False)
-    _check_range(scene, "mean_luminance_cd_m2", sp, 0.0, lo_open=True, log=True, scalar=False)
+    _check_range(scene, "hdr_decades", sp, 0.0, MAX_HDR_DECADES, scalar=False)
+    _check_range(scene, "mean_luminance_cd_m2", sp, *MEAN_LUMINANCE_BOUNDS_CD_M2, log=True, scalar=False)
     if camera is None:
         _check_range(scene, "hfov_deg", sp, 0.0, 180.0, lo_open=True, hi_open=True, scalar=False)
     elif scene["hfov_deg"] != SCENE_DEFAULTS["hfov_deg"]:

@@ -135,6 +135,13 @@ BAD = [  # (section, key, value, start of the message)
     ("scene", "distance_m", [0.0, 2.0], "scene.distance_m: expected a range [lo, hi] of two finite numbers with "
                                         "lo <= hi, both > 0"),
     ("scene", "mean_luminance_cd_m2", [0.0, 100.0], "scene.mean_luminance_cd_m2: expected a range [lo, hi]"),
+    # float32 overflowed from 1e22 cd/m2 with an error naming the sensor's electron_rate; a 1 K blackbody gave 0 / 0
+    ("scene", "mean_luminance_cd_m2", [1e22, 1e22], "scene.mean_luminance_cd_m2: expected a range [lo, hi] of two "
+                                                    "finite numbers with lo <= hi, both in [1e-20, 1e+12]"),
+    ("scene", "hdr_decades", [0.0, 40.0], "scene.hdr_decades: expected a range [lo, hi] of two finite numbers with "
+                                          "lo <= hi, both in [0, 12]"),
+    ("scene", "cct_range_k", {"blackbody": [1.0, 1.0]}, "scene.cct_range_k.blackbody: expected a range [lo, hi] "
+                                                        "of two finite numbers with lo <= hi, both >= 100"),
     ("scene", "shadow_ambient", [0.0, 0.3], "scene.shadow_ambient: drawn log-uniformly"),
     ("scene", "hdr_decades", [-1.0, 1.0], "scene.hdr_decades: expected a range [lo, hi]"),
     ("scene", "wavelengths_nm", [100.0, 2000.0, 10.0], "scene.wavelengths_nm: expected [start, stop, step] with "
@@ -151,6 +158,19 @@ BAD = [  # (section, key, value, start of the message)
      "scene.natural: config: 'components.fine_detail.probability': expected a probability in [0, 1], got 1.5"),
     ("scene", "natural", {"components": {"dead_leaves": {"leaves": [1200, 500]}}},
      "scene.natural: config: 'components.dead_leaves.leaves': expected a range [lo, hi] of two integers"),
+    # zeros that divided at batch time (ZeroDivisionError, a zero stride), negative sizes and the exponent 1 of the
+    # leaf radii's inverse CDF
+    ("scene", "natural", {"components": {"dead_leaves": {"r_min_px": 0.0}}},
+     "scene.natural: config: 'components.dead_leaves.r_min_px': expected a number > 0, got 0.0"),
+    ("scene", "natural", {"components": {"dead_leaves": {"brightness": [0.0, 0.0]}}},
+     "scene.natural: config: 'components.dead_leaves.brightness': expected a range [lo, hi] of two finite numbers "
+     "with 0 < lo <= hi"),
+    ("scene", "natural", {"components": {"fine_detail": {"supersample": 0}}},
+     "scene.natural: config: 'components.fine_detail.supersample': expected an integer >= 1, got 0"),
+    ("scene", "natural", {"components": {"dead_leaves": {"exponent": 1.0}}},
+     "scene.natural: config: 'components.dead_leaves.exponent': expected an exponent other than 1"),
+    ("scene", "natural", {"components": {"textured_leaves": {"min_size_px": -3}}},
+     "scene.natural: config: 'components.textured_leaves.min_size_px': expected an integer >= 0, got -3"),
     ("scene", "natural", {"wavelengths_nm": [400.0, 700.0, 5.0]},
      "scene.natural.wavelengths_nm: the natural scene's wavelengths_nm follows scene.wavelengths_nm; remove it"),
     ("scene", "natural", {"mean_radiance_scale": 2.0},
