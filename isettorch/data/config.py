@@ -164,7 +164,8 @@ _NATURAL_LOWER = {"mean_radiance_scale": (0.0, True), "components.palette.materi
                   "components.depth_layers.f_number": (0.5, False),
                   "components.depth_layers.focal_length_m": (0.0, True),
                   "components.depth_layers.pixel_size_m": (0.0, True),
-                  "components.fine_detail.grating_cpp": (0.0, True), "components.fine_detail.line_width_px": (0.0, True),
+                  "components.fine_detail.grating_cpp": (0.0, True),
+                  "components.fine_detail.line_width_px": (0.0, True),
                   "components.fine_detail.supersample": (1, False), "components.grain.dye_width_nm": (0.0, True)}
 
 
