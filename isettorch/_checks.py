@@ -109,6 +109,22 @@ def check_in_dtype_range(value: float, name: str, dtype) -> None:
                              f"{fi.tiny:.3g} to {fi.max:.3g}); use float64 data or a value in range")
 
 
+def narrow_float(a: np.ndarray, dtype, name: str, *, underflow: bool = False) -> np.ndarray:
+    """``a`` cast to the float ``dtype`` of a file (float32, float16), checked after the cast: ValueError naming
+    ``name`` if a value overflows to inf (1e40 in float32, 1e5 in half) or, with ``underflow``, a nonzero value
+    becomes 0 (the file would hold values that differ from the data's without a word)."""
+    with np.errstate(over="ignore", under="ignore"):
+        out = a.astype(dtype, copy=False)
+    if not np.isfinite(out).all():
+        raise ValueError(f"{name}: values up to {float(np.abs(a).max()):.4g} overflow {np.dtype(dtype).name} (largest "
+                         f"{float(np.finfo(dtype).max):.4g}); scale the data or write a wider float")
+    if underflow and bool(((a != 0) & (out == 0)).any()):
+        small = float(np.abs(a[(a != 0) & (out == 0)]).max())
+        raise ValueError(f"{name}: nonzero values as small as {small:.4g} underflow to 0 in {np.dtype(dtype).name} "
+                         f"(smallest {float(np.finfo(dtype).smallest_subnormal):.4g}); scale the data")
+    return out
+
+
 def batch_param(value, name: str, batch: int, *, dtype, device, positive: bool = False) -> torch.Tensor:
     """A per-sample scalar as a tensor of shape [B] (a scalar broadcasts)."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):  # fast path: checked as a Python number

@@ -545,8 +545,8 @@ def pair_config(scene: dict | None, camera: dict | None) -> tuple[dict, dict]:
     :data:`CAMERA_DEFAULTS`): :func:`merge_config`'s checks of each section, and of the two together as ``isettorch
     synth`` checks them (even sizes, the layouts' minimum scene size with the margin, no ``scene.hfov_deg``: the
     sensor sets the field of view). ``CameraPairDataset``, ``PairStream`` and ``isettorch synth`` share it."""
-    scene_cfg = _merge(SCENE_DEFAULTS, scene or {}, "scene")
-    camera_cfg = _merge(CAMERA_DEFAULTS, camera or {}, "camera")
+    scene_cfg = _merge(SCENE_DEFAULTS, {} if scene is None else scene, "scene")
+    camera_cfg = _merge(CAMERA_DEFAULTS, {} if camera is None else camera, "camera")
     _check_camera(camera_cfg, "camera")
     _check_scene(scene_cfg, "scene", camera=camera_cfg)
     return scene_cfg, camera_cfg

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from .. import constants, spectral
+from .._checks import narrow_float
 
 __all__ = ["write_spectral_exr", "read_spectral_exr", "write_scene_exr", "read_scene_exr", "channel_name",
            "parse_channel_name"]
@@ -61,7 +62,7 @@ def _as_numpy_f32(data, name: str) -> np.ndarray:
         raise ValueError(f"{name}: expected a cube [L, H, W], got shape {a.shape}")
     if not np.isfinite(a).all():
         raise ValueError(f"{name}: expected finite values")
-    return np.ascontiguousarray(a.astype(np.float32, copy=False))
+    return np.ascontiguousarray(narrow_float(a, np.float32, name, underflow=True))
 
 
 def write_spectral_exr(path, data, wavelengths_nm, *, component: str = "S0", attributes: dict | None = None,

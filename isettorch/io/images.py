@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._checks import narrow_float
+
 __all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "photo_files", "IMAGE_SUFFIXES",
            "PHOTO_SUFFIXES"]
 
@@ -261,11 +263,11 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
         elif kind == "tiff":
             import tifffile
 
-            dt = {8: np.uint8, 16: np.uint16, 32: np.float32}[bits]
-            tifffile.imwrite(str(p), a.astype(dt)[..., 0] if a.shape[-1] == 1 else a.astype(dt),
+            a = a.astype({8: np.uint8, 16: np.uint16}[bits]) if integer else narrow_float(a, np.float32, "image")
+            tifffile.imwrite(str(p), a[..., 0] if a.shape[-1] == 1 else a,
                              photometric="minisblack" if a.shape[-1] == 1 else "rgb")
         else:
-            _write_exr(p, a.astype(np.float16 if bits == 16 else np.float32))
+            _write_exr(p, narrow_float(a, np.float16 if bits == 16 else np.float32, "image"))
         written.append(p)
     return written
 

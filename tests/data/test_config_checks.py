@@ -210,6 +210,18 @@ def test_the_sections_alone_are_checked_too():
         merge_config({"targets": ["camera_rgbx"]})
     with pytest.raises(ValueError, match=r"^count: expected a positive integer, got 2.5"):
         write_dataset({}, "unused", 2.5)
+    # not truncated: shard=0.5 matched no file and wrote nothing, num_shards=1.5 wrote half of the shards
+    for key, value, what in (("shard", 0.5, "a non-negative integer"), ("num_shards", 1.5, "a positive integer"),
+                             ("rank", 0.5, "a non-negative integer"), ("world_size", 2.0, "a positive integer"),
+                             ("workers", 0.5, "a non-negative integer"), ("rank", "0", "a non-negative integer")):
+        with pytest.raises(ValueError, match=rf"^{key}: expected {what}, got {value!r}"):
+            write_dataset({}, "unused", 2, **{key: value, **({"world_size": 1} if key == "rank" else {})})
+    # a section that is not a mapping is an error, also when it is empty or falsy (it was read as the defaults)
+    for bad in ([], 0, False, ""):
+        with pytest.raises(ValueError, match=r"^camera: expected a mapping"):
+            PairStream(1, camera=bad)
+        with pytest.raises(ValueError, match=r"^scene: expected a mapping"):
+            PairStream(1, scene=bad)
     with pytest.raises(ValueError, match=r"^config: 'wavelengths_nm': expected \[start, stop, step\]"):
         natural_config({"wavelengths_nm": [380.0, 780.0, 10.0]})
 

@@ -102,3 +102,15 @@ def test_scene_exr_with_bad_contents_names_the_file(tmp_path):
     bad = write_spectral_exr(tmp_path / "neg.exr", -data.numpy().astype(np.float32), w.numpy(), component="S0")
     with pytest.raises(ValueError, match=r"path: .*neg\.exr.* negative or non-finite radiance"):
         read_scene_exr(bad)
+
+
+def test_values_a_float32_file_cannot_hold_are_refused_not_written(tmp_path):
+    """The writer checked finiteness before the float32 cast: 1e40 was written as inf (a file its reader refuses)
+    and 1e-50 as 0, silently; both are errors naming the data, and nothing is written."""
+    for value, what in ((1e40, "overflow float32"), (1e-50, "underflow to 0 in float32")):
+        with pytest.raises(ValueError, match=f"data: .*{what}"):
+            write_spectral_exr(tmp_path / "x.exr", np.full((2, 2, 2), value), [500.0, 600.0])
+        assert not (tmp_path / "x.exr").exists()
+    tiny = np.full((2, 2, 2), 1e-44)  # a float32 subnormal: kept (nonzero)
+    back, _, _ = read_spectral_exr(write_spectral_exr(tmp_path / "s.exr", tiny, [500.0, 600.0]))
+    assert (back > 0).all()

@@ -220,3 +220,15 @@ def test_photo_folders_leave_out_hidden_files_and_refuse_decompression_bombs(tmp
     monkeypatch.setattr(PILImage, "MAX_IMAGE_PIXELS", 5)  # 4 x 6 = 24 px is over twice the limit
     with pytest.raises(ValueError, match=r"cannot read b\.PNG: .*reduce the photograph first"):
         read_rgb8(tmp_path / "b.PNG")
+
+
+@pytest.mark.parametrize("name, bits, value, dtype", [("h.exr", 16, 1e5, "float16"), ("f.exr", 32, 1e39, "float32"),
+                                                      ("f.tif", 32, 1e39, "float32")])
+def test_float_files_refuse_values_their_type_cannot_hold(tmp_path, name, bits, value, dtype):
+    """Finiteness was checked before the narrowing cast, so 1e5 in a half EXR was written as inf and the reader then
+    refused the file; now the writer refuses, naming the image. Half's largest value, 65504, is kept exactly."""
+    with pytest.raises(ValueError, match=f"image: values up to .* overflow {dtype}"):
+        write_image(tmp_path / name, torch.full((3, 2, 2), value, dtype=torch.float64), bits=bits)
+    assert not (tmp_path / name).exists()
+    (p,) = write_image(tmp_path / "max.exr", torch.full((3, 2, 2), 65504.0), bits=16)
+    assert read_image(p).unique().tolist() == [65504.0]
