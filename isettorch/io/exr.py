@@ -9,8 +9,9 @@ Layout (as in the paper and its reference implementation, and colour-science's `
 * a header attribute ``spectralLayoutVersion`` = ``"1.0"``, and ``emissiveUnits`` (``"W.m^-2.sr^-1"``:
   spectral radiance per nm) for emissive images;
 * isettorch adds the scene geometry as header attributes ``isettorch.hfov_deg``, ``isettorch.distance_m``
-  (floats), ``isettorch.radianceUnits`` (string) and, when the scene has one, ``isettorch.illuminant``
-  (float vector, same units as the channels).
+  (floats: the OpenEXR package stores a Python float as a 32-bit attribute, so they come back to about 6e-8
+  relative, 1.2 m as 1.2000000477 m), ``isettorch.radianceUnits`` (string) and, when the scene has one,
+  ``isettorch.illuminant`` (float vector, same units as the channels).
 
 Values are stored as float32, so a float32 array written and read back is bitwise identical.
 """

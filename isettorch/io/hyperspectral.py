@@ -143,14 +143,18 @@ def _load_h5_cube(path, keys: tuple[str, ...]):
     # MATLAB (rows, cols, bands) is stored by HDF5 as (bands, cols, rows)
     cube = np.transpose(cube, (0, 2, 1))
     if bands is None:
-        bands = 400.0 + 10.0 * np.arange(cube.shape[0])
+        if cube.shape[0] != 31:  # 519 bands were read as 400-5580 nm
+            raise ValueError(f"bands: {str(p)!r} has no 'bands' dataset, and {key} has {cube.shape[0]} bands, not the "
+                             f"31 of ICVL's and ARAD's 400:10:700 nm that it would be read as")
+        bands = 400.0 + 10.0 * np.arange(cube.shape[0])  # ICVL / ARAD's grid (Arad & Ben-Shahar 2016; NTIRE 2020)
     if bands.size != cube.shape[0]:
         raise ValueError(f"bands: expected {cube.shape[0]} wavelengths to match {key}, got {bands.size}")
     return p, cube, bands
 
 
 def load_icvl(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
-    """Read an ICVL (``rad`` + ``bands``) or ARAD (``cube`` + ``bands``) MATLAB v7.3 file as a `Scene`."""
+    """Read an ICVL (``rad`` + ``bands``) or ARAD (``cube`` + ``bands``) MATLAB v7.3 file as a `Scene`. A file without
+    ``bands`` is read on their 400:10:700 nm grid if it has 31 bands (else an error naming ``bands``)."""
     p, cube, bands = _load_h5_cube(path, ("rad", "cube"))
     return _radiance_scene(cube, bands, p.stem, str(p), hfov_deg, mean_luminance_cd_m2, dtype)
 

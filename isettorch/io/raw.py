@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._checks import is_integer
+
 __all__ = ["RawFrame", "read_raw", "write_dng"]
 
 
@@ -51,20 +53,32 @@ def read_raw(path: str | Path) -> RawFrame:
 
 
 _DNG_CFA_CODES = {"R": 0, "G": 1, "B": 2}
+DNG_MIN_SIDE_PX = 22  # LibRaw 0.22 (rawpy 0.28) reads no DNG narrower or shorter than this (21 px: unsupported format)
 
 
 def write_dng(path: str | Path, mosaic, *, cfa: str = "RGGB", black_level_dn: int = 0, white_level_dn: int = 65535
               ) -> None:
     """Write a Bayer mosaic ``(H, W)`` of integer DN as an uncompressed DNG 1.4 (CFA photometric interpretation,
     CFARepeatPatternDim / CFAPattern, BlackLevel, WhiteLevel, an identity ColorMatrix1; Adobe DNG Specification
-    1.4.0.0, 2012, chapters 4-6), readable by LibRaw/rawpy."""
+    1.4.0.0, 2012, chapters 4-6), readable by LibRaw/rawpy: at least :data:`DNG_MIN_SIDE_PX` pixels a side (LibRaw
+    0.22 reads no smaller raw), integer levels ``0 <= black_level_dn < white_level_dn <= 65535``, and a pattern with
+    R, G and B (one with a colour missing reads back as a monochrome raw)."""
     import tifffile
 
     arr = np.asarray(mosaic)
-    if arr.ndim != 2 or arr.min() < 0 or arr.max() > 65535 or not np.array_equal(arr, np.round(arr)):
-        raise ValueError(f"mosaic: expected a 2-D array of integers in 0..65535, got shape {arr.shape}")
-    if len(cfa) != 4 or any(c not in _DNG_CFA_CODES for c in cfa.upper()):
-        raise ValueError(f"cfa: expected a 2 x 2 Bayer pattern of R, G, B such as 'RGGB', got {cfa!r}")
+    if arr.ndim != 2 or arr.size == 0 or not np.issubdtype(arr.dtype, np.number) or arr.min() < 0 \
+            or arr.max() > 65535 or not np.array_equal(arr, np.round(arr)):
+        raise ValueError(f"mosaic: expected a non-empty 2-D array of integers in 0..65535, got shape {arr.shape}")
+    if min(arr.shape) < DNG_MIN_SIDE_PX:
+        raise ValueError(f"mosaic: LibRaw reads no raw smaller than {DNG_MIN_SIDE_PX} pixels a side, got shape "
+                         f"{arr.shape}")
+    if not (isinstance(cfa, str) and len(cfa) == 4 and all(c in _DNG_CFA_CODES for c in cfa.upper())
+            and set(cfa.upper()) == set(_DNG_CFA_CODES)):
+        raise ValueError(f"cfa: expected a 2 x 2 Bayer pattern with R, G and B such as 'RGGB', got {cfa!r}")
+    if not (is_integer(black_level_dn) and is_integer(white_level_dn)
+            and 0 <= black_level_dn < white_level_dn <= 65535):
+        raise ValueError(f"black_level_dn, white_level_dn: expected integers with 0 <= black < white <= 65535, got "
+                         f"{black_level_dn!r} and {white_level_dn!r}")
     identity = (1, 1, 0, 1, 0, 1, 0, 1, 1, 1, 0, 1, 0, 1, 0, 1, 1, 1)  # 3 x 3 SRATIONAL
     tags = [
         (50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion

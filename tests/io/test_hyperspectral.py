@@ -96,3 +96,10 @@ def test_icvl_errors(tmp_path):
         f.create_dataset("foo", data=np.ones((3, 4, 5)))
     with pytest.raises(ValueError, match="rad"):
         load_icvl(tmp_path / "other.mat")
+    # without 'bands': 31 bands are ICVL's 400:10:700 nm; any other count is an error (519 became 400-5580 nm)
+    for n in (31, 519):
+        with h5py.File(tmp_path / f"nobands{n}.mat", "w") as f:
+            f.create_dataset("rad", data=np.ones((n, 4, 6)))
+    assert load_icvl(tmp_path / "nobands31.mat").wavelengths_nm.tolist() == list(np.arange(400.0, 701.0, 10.0))
+    with pytest.raises(ValueError, match="bands: .* has 519 bands, not the 31"):
+        load_icvl(tmp_path / "nobands519.mat")

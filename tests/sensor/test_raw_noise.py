@@ -76,6 +76,21 @@ def test_dng_round_trip_through_rawpy(tmp_path):
     r = read_raw(tmp_path / "x.dng")
     assert np.array_equal(r.data, m) and r.cfa == "GRBG"
     assert r.black_level_dn == [64.0] * 4 and r.white_level_dn == 4095
+    # what LibRaw could not read back, or the tags would not hold, is refused before a file is written
+    small = np.full((21, 64), 100, dtype=np.uint16)
+    for kwargs, message in (({"mosaic": small}, "LibRaw reads no raw smaller than 22 pixels a side"),
+                            ({"black_level_dn": 63.7}, "black_level_dn, white_level_dn: expected integers"),
+                            ({"black_level_dn": 4095}, "black_level_dn, white_level_dn: expected integers"),
+                            ({"white_level_dn": 70000}, "black_level_dn, white_level_dn: expected integers"),
+                            ({"cfa": "RRGG"}, "cfa: expected a 2 x 2 Bayer pattern with R, G and B"),
+                            ({"cfa": ["R", "G", "G", "B"]}, "cfa: expected"),
+                            ({"mosaic": np.zeros((0, 0))}, "mosaic: expected a non-empty 2-D array")):
+        args = {"mosaic": m, "cfa": "GRBG", "black_level_dn": 64, "white_level_dn": 4095, **kwargs}
+        with pytest.raises(ValueError, match=message):
+            write_dng(tmp_path / "bad.dng", args.pop("mosaic"), **args)
+        assert not (tmp_path / "bad.dng").exists()
+    write_dng(tmp_path / "small.dng", np.full((22, 22), 100, dtype=np.uint16))
+    assert read_raw(tmp_path / "small.dng").data.shape == (22, 22)
 
 
 def _write_dng_stacks(root, dark, flat):
