@@ -376,13 +376,13 @@ def _check_range(cfg: dict, key: str, path: str, lo: float = -math.inf, hi: floa
                          f"constant), got {v!r}")
 
 
-def _check_choices(cfg: dict, key: str, path: str, lo: float = 0.0) -> None:
-    """``cfg[key]``: a non-empty list of finite numbers > ``lo``, one drawn per item."""
+def _check_choices(cfg: dict, key: str, path: str, lo: float = 0.0, lo_open: bool = True, why: str = "") -> None:
+    """``cfg[key]``: a non-empty list of finite numbers > ``lo`` (>= with ``lo_open=False``), one drawn per item."""
     v = cfg[key]
     if (not isinstance(v, (list, tuple)) or not v
-            or not all(_is_number(x) and math.isfinite(x) and x > lo for x in v)):
-        raise ValueError(f"{path}.{key}: expected a non-empty list of finite numbers > {lo:g} (one drawn per item), "
-                         f"got {v!r}")
+            or not all(_is_number(x) and math.isfinite(x) and _in(x, lo, math.inf, lo_open, False) for x in v)):
+        raise ValueError(f"{path}.{key}: expected a non-empty list of finite numbers {'>' if lo_open else '>='} "
+                         f"{lo:g}{why} (one drawn per item), got {v!r}")
 
 
 def _check_weights(ws, where: str) -> None:
@@ -462,7 +462,7 @@ def _check_camera(cam: dict, cp: str) -> None:
     if bad or not cam["cfa_patterns"]:
         raise ValueError(f"{cp}.cfa_patterns: expected Bayer patterns from RGGB, GRBG, GBRG, BGGR, got "
                          f"{cam['cfa_patterns']!r}")
-    _check_choices(cam, "f_number", cp)
+    _check_choices(cam, "f_number", cp, 0.5, lo_open=False, why=" (the fastest lens in air: N = 1 / (2 NA), NA <= 1)")
     _check_choices(cam, "pixel_size_m", cp)
     _check_number(cam["focal_length_m"], f"{cp}.focal_length_m", 0.0, lo_open=True)
     _check_number(cam["fill_factor"], f"{cp}.fill_factor", 0.0, 1.0, lo_open=True, what="a fraction")
