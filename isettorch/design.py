@@ -348,8 +348,9 @@ def patch_signals(camera: DesignCamera, reflectance, lux: float, *, size: int | 
     height and width; default: the smallest such window of at least 8 x 8, 16 pixels for a 2 x 2 or 4 x 4 cell).
 
     Returns ``{"rho": [n, C]`` mean photo-electrons of each channel the (hard) mosaic uses, over the pixels 4 or
-    more from the border, ``"var": [n, C]`` one pixel's noise variance in electrons (Poisson shot noise ``rho``, the
-    read noise squared, the dark signal and the ADC step squared over 12 at the capture's gain),
+    more from the border, ``"var": [n, C]`` one pixel's noise variance in electrons (Poisson shot noise ``rho`` and
+    the capture's dark floor, :meth:`~isettorch.sensor.Sensor.poisson_gaussian`: the read noise squared, the dark
+    signal, the other terms the sensor has, and the ADC step squared over 12 at the capture's gain),
     ``"frac": [C]`` each channel's share of the mosaic cell, ``"target": [n, 3]`` the patches' linear sRGB (white = 1,
     :func:`linear_srgb_of_reflectance`), ``"names"``, ``"exposure_s"``, ``"gain"`` (floats)}``.
     """
@@ -385,11 +386,14 @@ def patch_signals(camera: DesignCamera, reflectance, lux: float, *, size: int | 
     used = [c for c in range(camera.bank.num_channels) if bool((cell == c).any())]
     rho = torch.stack([e_inner[:, inner == c].mean(1) for c in used], 1)
     frac = torch.tensor([float((cell == c).double().mean()) for c in used], dtype=torch.float64)
-    s = camera.sensor
     gain, t = float(cap["analog_gain"][0]), float(cap["exposure_s"][0])
-    read_e = s.read_noise_v / s.conversion_gain_v_per_e
-    lsb_e = s.voltage_swing_v / 2**s.adc_bits / gain / s.conversion_gain_v_per_e
-    var = rho + read_e**2 + s.dark_current_e_per_s * t + lsb_e**2 / 12
+    # the capture's own noise model (Sensor.poisson_gaussian, in DN: a DN per electron, b the dark floor): in
+    # electrons the signal's shot noise plus b / a^2 (read noise, dark signal, CDS, DSNU and the others as the
+    # sensor has them, and the ADC step squared over 12 at this gain)
+    a, b = (float(v[0]) for v in camera.sensor.poisson_gaussian(exposure_s=t, analog_gain=gain))
+    if a <= 0:
+        raise ValueError("camera: the noise bound needs a sensor with shot noise (its sensor has shot_noise='off')")
+    var = rho + b / a**2
     return {"rho": rho, "var": var, "frac": frac, "target": linear_srgb_of_reflectance(refl, wl),
             "names": [camera.bank.channel_names[c] for c in used], "exposure_s": t, "gain": gain}
 

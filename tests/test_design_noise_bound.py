@@ -184,3 +184,28 @@ def test_predesign_filters_is_adam_on_the_colour_bound():
     assert rec["gain_db"]["1"] == pytest.approx(10 / math.log(10) * (bayer - end), abs=1e-3)
     with pytest.raises(ValueError, match="learned filters"):
         predesign_filters(make_design("bayer_rgb"), [1.0], steps=1)
+
+
+@pytest.mark.parametrize("sensor", [{}, {"cds": True}, {"dsnu_sigma_v": 5e-4}])
+def test_patch_signals_variance_is_the_captures(sensor):
+    """The bound's per-pixel variance is the capture's (Sensor.poisson_gaussian's dark floor): a white patch at
+    1 lux through Bayer, the spread over pixels of 16 noisy frames (64 x 64 read pixels each; standard errors
+    0.8-1.1 %). A formula of its own (read noise, dark signal, ADC step) gave 52.2 / 31.7 / 27.2 e^2 whatever
+    the sensor: 8-15 % low with CDS (its read noise is sampled twice) and 30-48 % low with DSNU."""
+    from isettorch.design import make_design, patch_signals
+    from isettorch.scene.macbeth import macbeth_reflectances
+
+    cam = make_design("bayer_rgb", {"sensor": sensor} if sensor else None)
+    white = macbeth_reflectances(cam.wavelengths_nm, dtype=torch.float64)[18:19]
+    sig = patch_signals(cam, white, 1.0, size=72)
+    n = 16
+    cap = cam.capture(cam.scene(torch.ones(n, 1, 72, 72, dtype=torch.float64), white.expand(n, -1)[:, None], 1.0),
+                      generator=torch.Generator().manual_seed(0))
+    dn = cap["raw"].data[:, 0, 4:-4, 4:-4]
+    a, _ = cam.sensor.poisson_gaussian(exposure_s=sig["exposure_s"], analog_gain=sig["gain"])
+    cell = cam.mosaic.index_map
+    read = cell.repeat(36, 36)[4:-4, 4:-4]
+    for k, name in enumerate(sig["names"]):
+        v = dn[:, read == cam.bank.channel_names.index(name)]
+        measured = float(((v - v.mean(1, keepdim=True)) ** 2).sum() / (v.numel() - n)) / float(a[0]) ** 2
+        assert float(sig["var"][0, k]) == pytest.approx(measured, rel=0.04), name
