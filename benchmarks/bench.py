@@ -171,9 +171,17 @@ def make_isp(sensor, device="cpu"):
 
 
 def fixed_exposure(sensor, oi, fraction: float = 0.8) -> float:
-    """Exposure (s) that puts the brightest noise-free pixel at ``fraction`` of the swing."""
-    rate = sensor.electron_rate(oi).double()
-    return float(fraction * sensor.voltage_swing_v / (sensor.conversion_gain_v_per_e * rate.max()))
+    """Exposure (s) that puts the brightest noise-free pixel at ``fraction`` of saturation: the sensor's own
+    luminance auto-exposure (``Sensor.exposure_for``: black level, full well, analog gain and offset included),
+    computed once so that the timed runs use one fixed exposure."""
+    import copy
+
+    ae = copy.deepcopy(sensor)
+    ae.auto_exposure, ae.ae_target = "luminance", fraction
+    t = ae.exposure_for(oi).double()
+    if t.numel() != 1:
+        raise ValueError(f"oi: expected one optical image for one exposure, got a batch of {t.numel()}")
+    return float(t)
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -164,3 +164,19 @@ def test_report_lists_every_row(result):
     assert "### Knobs" in text and "Training pairs/s" in text
     for r in result["rows"]:
         assert f"| {r['name']}" in text
+
+
+@pytest.mark.parametrize("levels", [{}, {"black_level_dn": 64, "adc_bits": 10}, {"full_well_e": 5000}])
+def test_the_benchmarks_exposure_is_the_sensors_auto_exposure(levels):
+    """The benchmark's fixed exposure puts the brightest noise-free pixel at 80 % of saturation by the sensor's own
+    rule: a formula of its own (80 % of the swing over the electron rate) overexposed a 5000 e- well 2x and a
+    64 DN black level by 7 %."""
+    sensor = bench.make_sensor(32, 32, **levels)
+    oi = bench.make_optics()(bench.sweep_scene(32, None, torch.float64, "cpu"))
+    t = bench.fixed_exposure(sensor, oi)
+    raw = sensor(oi, exposure_s=t, noise=False)
+    top = 0.8 * sensor.saturation_v(1.0)  # volts above black at 80 % of the well or the ADC's range
+    if sensor.adc_bits is None:
+        assert float(raw.data.max()) == pytest.approx(top, rel=1e-9)
+    else:  # DN: the ADC rounds
+        assert float(raw.data.max()) - sensor.black_level_dn == pytest.approx(top / sensor.lsb_v, abs=0.5)
