@@ -427,6 +427,12 @@ def xyz(photons: torch.Tensor, wavelengths_nm, dim: int = -3, *, observer: str =
     ``X = 683 sum E(l) xbar(l) dl`` etc. (CIE 015:2018). The spectral axis becomes 3 channels.
     """
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
-    e = photons_to_energy(photons, w, dim)
-    return constants.KM_LM_PER_W * spectral_integral(e, cmfs(w, observer, dtype=photons.dtype,
-                                                             device=photons.device), w, dim)
+    return xyz_of_energy(photons_to_energy(photons, w, dim), w, dim, observer=observer)
+
+
+def xyz_of_energy(energy: torch.Tensor, wavelengths_nm, dim: int = -3, *, observer: str = "1931") -> torch.Tensor:
+    """CIE XYZ of a spectral power (W/...: a radiance in W/sr/m^2/nm gives Y in cd/m^2): ``X = 683 sum E(l)
+    xbar(l) dl`` etc. (CIE 015:2018; :data:`constants.KM_LM_PER_W`). The spectral axis becomes 3 channels."""
+    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    return constants.KM_LM_PER_W * spectral_integral(energy, cmfs(w, observer, dtype=energy.dtype,
+                                                                  device=energy.device), w, dim)

@@ -57,7 +57,7 @@ import time
 
 import torch
 
-from .. import constants, spectral
+from .. import spectral
 from .._checks import dataset_index
 from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
 from .config import (
@@ -113,8 +113,7 @@ def _xyz_weights(grid: tuple) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]
     (``W.T``: the same tensor object on every call, so the sensor's memo of its joint weightings hits)."""
     w = torch.tensor(grid, dtype=torch.float64)
     dl = spectral.wavelength_weights(w)
-    to_watts = (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S) / (w * 1e-9)
-    xyz = constants.KM_LM_PER_W * spectral.cmfs(w, dtype=torch.float64) * to_watts * dl
+    xyz = spectral.xyz(torch.eye(w.numel(), dtype=torch.float64), w, dim=-1).T.contiguous()  # XYZ of each sample
     return xyz, dl, xyz.T
 
 

@@ -90,7 +90,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .. import spectral
 from ..scene import textures as _tex
 from . import spectra as _spectra
 from .config import (
@@ -103,6 +102,7 @@ from .config import (
     seed_for,
 )
 from .layouts import dead_leaves_radii
+from .scenes import _white_photons
 
 __all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "DEFAULT_COMPONENTS", "natural_config", "generate_natural", "to_scene",
            "hard_patch_indices", "NaturalSceneDataset", "DOMAINS", "expose_and_encode"]
@@ -162,13 +162,6 @@ def _palette(cfg, wl, g) -> tuple[torch.Tensor, list[str], list[float]]:
         out.append(r)
         kinds.append(kind)
     return torch.stack(out), kinds, conc
-
-
-def _white_photons(spd_energy, wl):
-    """An illuminant in photons scaled so a perfect white has luminance 1 cd/m^2 (ISETCam's convention)."""
-    ph = spectral.energy_to_photons(spd_energy.to(torch.float64), wl, dim=0)
-    lum = spectral.luminance(ph[:, None, None], wl)
-    return ph / lum.reshape(())
 
 
 def _illuminants(cfg, wl, g, h, w):

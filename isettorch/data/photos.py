@@ -18,7 +18,8 @@ import torch
 from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from . import spectra as _spectra
 from .config import seed_for
-from .natural import _choice, _wavelengths, _white_photons, natural_config
+from .natural import _choice, _wavelengths, natural_config
+from .scenes import _white_photons
 
 __all__ = ["PhotoSceneDataset", "lift_srgb"]
 

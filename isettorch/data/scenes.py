@@ -26,7 +26,7 @@ import math
 import numpy as np
 import torch
 
-from .. import constants, spectral
+from .. import spectral
 from ..scene import Scene
 from . import layouts as _layouts
 from . import spectra as _spectra
@@ -88,7 +88,7 @@ def _white_photons(spd_energy: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """Illuminant SPDs (energy) ``[..., L]`` -> photons, each scaled so a perfect white has a luminance of 1 cd/m^2
     (ISETCam's illuminant convention); any device (the batched generator's lights too)."""
     w64 = w.to(torch.float64)
-    p = spd_energy.to(torch.float64) * (w64 * 1e-9) / (constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S)
+    p = spectral.energy_to_photons(spd_energy.to(torch.float64), w64.to(spd_energy.device), dim=-1)
     return p / (_luminance_weights(w64) * p).sum(-1, keepdim=True)
 
 

@@ -246,9 +246,7 @@ def xyz_responses(wavelengths_nm, illuminant="D65", reflectances=None, observer:
     refl = reflectance_set(reflectances or "macbeth", w) if reflectances is None or isinstance(reflectances, str) \
         else as_tensor(reflectances, "reflectances")
     e = _illuminant_energy(illuminant, w)
-    cmf = spectral.cmfs(w, observer, dtype=torch.float64)
-    dl = spectral.wavelength_weights(w)
-    return 683.0 * (refl.to(torch.float64).cpu() * (e.cpu() * dl)) @ cmf.T
+    return spectral.xyz_of_energy(refl.to(torch.float64).cpu() * e.cpu(), w, dim=-1, observer=observer)
 
 
 def sensor_to_xyz_matrix(qe: torch.Tensor, wavelengths_nm, illuminant="D65", surfaces="macbeth",
@@ -438,9 +436,7 @@ def display_rgb_to_xyz_matrix(primaries_energy: torch.Tensor, wavelengths_nm, ob
     if spd.shape != (3, w.numel()):
         raise ValueError(f"primaries_energy: expected shape (3, {w.numel()}), got {tuple(spd.shape)}")
     check_finite(spd, "primaries_energy")
-    cmf = spectral.cmfs(w, observer, dtype=torch.float64, device=spd.device)
-    dl = spectral.wavelength_weights(w).to(spd.device, torch.float64)
-    return 683.0 * (cmf * dl) @ spd.to(torch.float64).T
+    return spectral.xyz_of_energy(spd.to(torch.float64), w, dim=-1, observer=observer).T
 
 
 def xyz_to_display_matrix(rgb_to_xyz: torch.Tensor, relative: bool = True) -> torch.Tensor:

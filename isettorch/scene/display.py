@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .. import constants, spectral
+from .. import spectral
 from .._checks import as_tensor, check_finite, check_rank, check_wavelengths
 from ..image import srgb_decode, srgb_encode
 from ..metrics.color import D65_XY, SRGB_PRIMARIES_XY, rgb_to_xyz_matrix  # IEC 61966-2-1 (CIE 1931 xy)
@@ -186,9 +186,7 @@ class Display(nn.Module):
         """Linear RGB -> absolute XYZ (cd/m^2) [3, 3]: column k is the XYZ of primary k at full drive
         (``683 sum spd cmf dl``, CIE 015:2018), integrated on the display's grid or ``wavelengths_nm``."""
         w = self.wavelengths_nm if wavelengths_nm is None else as_tensor(wavelengths_nm, "wavelengths_nm")
-        spd = self.primaries_on(wavelengths_nm)
-        cmf = spectral.cmfs(w, observer, dtype=spd.dtype, device=spd.device)
-        return constants.KM_LM_PER_W * spectral.spectral_integral(spd, cmf, w, dim=-1).T
+        return spectral.xyz_of_energy(self.primaries_on(wavelengths_nm), w, dim=-1, observer=observer).T
 
     @property
     def white_xyz(self) -> torch.Tensor:
