@@ -196,7 +196,10 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and not argv[0].startswith("-"):  # RUN [...]: a registered screen
         return screen_run(argv[0], argv[1:])
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        epilog=f"or: heldout_screen.py RUN [--candidate PATH] [--incumbent PATH] [--sets DIR ...] [--check], a "
+               f"pre-registered run's screen, RUN one of {', '.join(RUNS)}")
     ap.add_argument("--incumbent", required=True)
     ap.add_argument("--candidate", required=True)
     ap.add_argument("--sets", nargs="+", required=True)

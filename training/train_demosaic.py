@@ -262,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     resume = Path(args.resume) if args.resume else out / "last.pt"
     init = cfg.get("init")
     if init and not resume.is_file():  # start from another checkpoint's weights (fresh optimizer and schedule)
+        if not Path(init).is_file():
+            raise SystemExit(f"init: no such checkpoint {str(init)!r} (from {Path.cwd()}; the paths in "
+                             f"configs/train are relative to the repository root: run from there)")
         ck = torch.load(init, map_location="cpu", weights_only=True)
         net.load_state_dict(init_state(ck, net, str(init)))
         if rank == 0:

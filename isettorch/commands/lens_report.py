@@ -26,7 +26,9 @@ def _floats(s: str, what: str) -> list[float]:
 
 def register(sub) -> None:
     p = sub.add_parser("lens-report", help="ray-trace a lens prescription: EFL, distortion, RI, CRA, MTF")
-    p.add_argument("lens", help="a .zmx or .yaml lens file, or a bundled lens name")
+    from ..optics.lens import bundled_lenses
+
+    p.add_argument("lens", help=f"a .zmx or .yaml lens file, or a bundled lens name ({', '.join(bundled_lenses())})")
     p.add_argument("--fields", default="0,0.7,1",
                    help="fractions in [0, 1] of the largest field angle (default 0,0.7,1)")
     p.add_argument("--wavelengths-nm", default=None,
