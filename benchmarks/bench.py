@@ -113,13 +113,14 @@ def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1, device="
 # the standard camera
 
 
-def _image_distance() -> float:
-    return 1.0 / (1.0 / FOCAL_M - 1.0 / DISTANCE_M)  # thin lens
-
-
 def hfov_for(n_cols: int, pitch_m: float = PITCH_M) -> float:
-    """Horizontal FOV (deg) at which one scene sample lands on one pixel: 2 atan(pitch W / (2 d_i))."""
-    return math.degrees(2 * math.atan(pitch_m * n_cols / (2 * _image_distance())))
+    """Horizontal FOV (deg) at which one scene sample lands on one pixel: 2 atan(pitch W / (2 d_i)), ``d_i`` the
+    thin-lens image distance (the library's ``optics.geometry.image_distance`` and ``image.angle_for_extent``)."""
+    from isettorch.image import angle_for_extent
+    from isettorch.optics.geometry import image_distance
+
+    d_i = image_distance(FOCAL_M, DISTANCE_M)
+    return float(angle_for_extent(torch.tensor(pitch_m * n_cols, dtype=torch.float64), d_i))
 
 
 def wavelengths(step_nm: float, dtype=torch.float64) -> torch.Tensor:

@@ -59,7 +59,8 @@ import torch
 
 from .. import spectral
 from .._checks import dataset_index
-from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
+from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, angle_for_extent, bradford_matrix, srgb_encode
+from ..optics.geometry import image_distance
 from .config import (
     TARGETS,
     check_integer,
@@ -277,8 +278,9 @@ def _set_fov(d: dict, image_distance_m: float | None = None) -> None:
         if not distance > focal:
             raise ValueError(f"scene.distance_m: expected object distances beyond the focal length {focal} m, "
                              f"got {distance}")
-        image_distance_m = 1.0 / (1.0 / focal - 1.0 / distance)
-    d["hfov"] = math.degrees(2 * math.atan(d["pitch"] * d["ws"] / (2 * image_distance_m)))
+        image_distance_m = float(image_distance(focal, distance))
+    d["hfov"] = float(angle_for_extent(torch.tensor(d["pitch"] * d["ws"], dtype=torch.float64),
+                                       torch.tensor(image_distance_m, dtype=torch.float64)))
 
 
 def _scene_for(index: int, seed: int, scene_cfg: dict, d: dict, dtype):

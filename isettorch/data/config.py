@@ -495,7 +495,7 @@ def merge_config(user: dict | None, defaults: dict = SYNTH_DEFAULTS, path: str =
     :data:`SCENE_DEFAULTS` or :data:`CAMERA_DEFAULTS` (one section; ``path`` its name). Camera pairs
     (:class:`~isettorch.data.camera_pairs.CameraPairDataset`, :class:`~isettorch.data.PairStream`) validate their
     two sections together with :func:`pair_config`."""
-    cfg = _merge(defaults, user or {}, path)
+    cfg = _merge(defaults, {} if user is None else user, path)
     if "scene" in cfg and "camera" in cfg:  # a whole synth config: camera pairs
         cp = f"{path}.camera" if path else "camera"
         _check_camera(cfg["camera"], cp)

@@ -26,7 +26,8 @@ from concurrent.futures import ThreadPoolExecutor
 import torch
 
 from .._checks import check_device, check_float_dtype, is_integer
-from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_encode
+from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, angle_for_extent, bradford_matrix, srgb_encode
+from ..optics.geometry import image_distance
 from .batched import _log_uniform, _uniform, draw_layout_scenes
 from .batched_natural import draw_natural_scenes
 from .camera_pairs import (
@@ -378,8 +379,8 @@ class PairStream:
         is the pitch to that dtype's rounding also where ``1/f - 1/d`` cancels (objects near the focal length:
         at 4.1 mm from a 4 mm lens a float64 ``d_i`` is 20 float32 steps from the optics')."""
         f, s = focal.to(dtype), distance.to(dtype)
-        d_i = 1.0 / (1.0 / f - 1.0 / s)
-        if bool((~(s > f) | ~torch.isfinite(d_i)).any()):
+        d_i = image_distance(f, s) if bool((s > f).all()) else None
+        if d_i is None or not bool(torch.isfinite(d_i).all()):
             raise ValueError(f"scene.distance_m: expected object distances beyond the focal length "
                              f"{focal.reshape(-1).tolist()} m (a real image; in {dtype}), got {distance.tolist()} m")
         return _hfov_for(pitch, d_i.to(torch.float64), width)
@@ -667,6 +668,7 @@ def _draw_range(values, g: torch.Generator, nb: int, device, log: bool = False) 
 
 
 def _hfov_for(pitch: float, image_distance_m, width: int) -> torch.Tensor:
+    """The full angle (deg) of ``width`` pixels of ``pitch`` at ``image_distance_m``: one scene sample a pixel."""
     d_i = torch.as_tensor(image_distance_m, dtype=torch.float64)
-    return torch.rad2deg(2 * torch.atan(pitch * width / (2 * d_i))).reshape(-1)
+    return angle_for_extent(pitch * width, d_i).reshape(-1)
 

@@ -87,6 +87,9 @@ STAGE_IMPORTS_ALLOWED: dict[str, set[str]] = {
     # LensOptics: a PairStream's camera module with a ray-traced lens images at its focal length, as the drawn
     # cameras with optics: {type: lens} (the scene field of view of one sample per pixel); a type test, no building
     "isettorch.optics.lens.optics": {"stream.py"},
+    # the thin-lens image distance (image_distance, Hecht 5.17): the scene's field of view of one sample per pixel
+    # is taken at the distance the optics image at, by the optics' own formula (it was written out again)
+    "isettorch.optics.geometry": {"camera_pairs.py", "stream.py"},
     # the D5100 QE curves, built by the sensor package: nikon_d5100_qe (filter_set) and _d5100_qe (CFA and
     # shifted_qe, the per-item shifted curves); the physics stays in isettorch.sensor
     "isettorch.sensor.filters": {"camera_pairs.py"},
