@@ -36,6 +36,7 @@ __all__ = [
     "resample_rows",
     "band_average",
     "photons_to_energy",
+    "planck_radiance",
     "energy_to_photons",
     "cmfs",
     "luminosity",
@@ -310,22 +311,24 @@ def luminosity(wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
     return _cached_on_grid("vlambda", None, _key(w), dtype, str(device)).clone()
 
 
-def blackbody(temperature_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
-    """Planck spectral radiance (energy units), normalised to 100 at 560 nm [L].
+def planck_radiance(wavelength_m, temperature_k):
+    """Planck's law, the spectral radiance of a black body (W/sr/m^2 per m of wavelength):
+    ``B = 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)`` (CODATA h, c, k; :mod:`isettorch.constants`), for
+    NumPy arrays or tensors that broadcast (a tensor temperature keeps its gradient). The one Planck formula of the
+    library: :func:`blackbody` and the scene generator's lights (``isettorch.data.spectra``) call it."""
+    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
+    expm1 = torch.expm1 if isinstance(wavelength_m, torch.Tensor) or isinstance(temperature_k, torch.Tensor) \
+        else np.expm1
+    return 2 * h * c**2 / wavelength_m**5 / expm1(h * c / (wavelength_m * k * temperature_k))
 
-    Source: Planck's law, ``B = 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)``.
-    """
+
+def blackbody(temperature_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
+    """Planck spectral radiance (energy units), normalised to 100 at 560 nm [L] (:func:`planck_radiance`)."""
     if not (temperature_k > 0 and math.isfinite(temperature_k)):
         raise ValueError(f"temperature_k: expected a positive temperature in kelvin, got {temperature_k}")
     w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
-    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
-
-    def planck(lam_nm):
-        lam = lam_nm * 1e-9
-        return 2 * h * c**2 / lam**5 / torch.expm1(h * c / (lam * k * temperature_k))
-
-    ww = w.to(torch.float64)
-    spd = planck(ww) / planck(torch.tensor(560.0, dtype=torch.float64)) * 100.0
+    spd = (planck_radiance(w.to(torch.float64) * 1e-9, temperature_k)
+           / planck_radiance(torch.tensor(560e-9, dtype=torch.float64), temperature_k) * 100.0)
     return spd.to(dtype=dtype, device=device)
 
 

@@ -338,24 +338,16 @@ def daylight_spd(cct_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
 
 
 @functools.lru_cache(maxsize=64)
-def _planck_grid(grid: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """Per-grid factors of Planck's law, float64 [L]: ``2 h c^2 / lambda^5`` and ``lambda k`` (SI units)."""
-    from .. import constants
-
-    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
-    lam = np.asarray(grid, dtype=np.float64) * 1e-9
-    return 2 * h * c**2 / lam**5, lam * k
+def _planck_grid(grid: tuple) -> np.ndarray:
+    """A grid's wavelengths in metres, float64 [L]."""
+    return np.asarray(grid, dtype=np.float64) * 1e-9
 
 
 def _blackbody(t, grid: tuple, xp):
-    """Planck spectra [N, L] for temperatures ``t`` [N, 1], 100 at 560 nm (float64, numpy or torch ``xp``)."""
-    from .. import constants
-
-    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
-    a, lam_k = (_const(x, xp, t) for x in _planck_grid(grid))
-    planck = a / xp.expm1(h * c / (lam_k * t))  # Planck's law: 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)
-    ref = 2 * h * c**2 / 560e-9**5 / xp.expm1(h * c / (560e-9 * k * t))
-    return 100.0 * planck / ref
+    """Planck spectra [N, L] for temperatures ``t`` [N, 1], 100 at 560 nm (float64, numpy or torch ``xp``;
+    :func:`isettorch.spectral.planck_radiance`)."""
+    lam, ref = _const(_planck_grid(grid), xp, t), _const(np.array(560e-9), xp, t)
+    return 100.0 * spectral.planck_radiance(lam, t) / spectral.planck_radiance(ref, t)
 
 
 def blackbody_spd(temperature_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
