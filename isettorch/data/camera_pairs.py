@@ -28,7 +28,9 @@ Outputs (a dict of tensors; images in **normalised raw units**: 0 = black level,
   (clipped at white like the raw): what a demosaic network should recover. Mosaicking it gives
   ``noise_free_raw``.
 * ``xyz`` ``[3, H, W]``: CIE 1931 XYZ of the optical image at sensor resolution, scaled by the exposure so that
-  a perfect white under the main light has ``Y`` equal to its ``camera_rgb`` green value (not clipped).
+  a perfect white under the main light has ``Y`` equal to its ``camera_rgb`` green value (not clipped) before the
+  pixels' off-axis losses: a camera with pixel optics (etendue) or sensor vignetting records less than ``Y`` there,
+  and a network mapping ``raw`` to this target corrects that shading too.
 * ``linear_srgb`` ``[3, H, W]``: ``xyz`` adapted from the main light's white to D65 (Bradford CAT) and
   converted with the IEC 61966-2-1 matrix (not clipped); ``srgb``: clipped to [0, 1] and encoded.
 * ``meta``: a dict of tensors (see :data:`META_KEYS`), batched by :func:`collate_pairs`.
@@ -480,7 +482,7 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             # XYZ scaled so a perfect white under light 1 has Y = its normalised green camera value: the camera's
             # electrons/m^2 per unit Y of that white x pixel area x fill x exposure x normalised units per electron
             k_white = white_cam[1].item() / white_xyz[1].item()  # float64: the same division as in torch
-            scale = k_white * sensor.fill_factor * sensor.pixel_area_m2 * exposure[0].item() * to_norm
+            scale = k_white * sensor.photodiode_area_m2() * exposure[0].item() * to_norm
             d = {"gain": gain, "read_e": kw["read_noise_v"] / cg, "dsnu_e": kw["dsnu_sigma_v"] / cg,
                  "dark": kw["dark_current_e_per_s"], "f_number": float(camera.optics.f_number),
                  "focal": float(camera.optics.focal_length_m), "pitch": sensor.pixel_size_m,

@@ -236,3 +236,34 @@ def test_batch_index_and_seed_are_bounded():
             CameraPairDataset(2, seed=seed, scene=SMALL)
     assert PairStream(2, seed=2 ** 64 - 1, scene=SMALL).seed == 2 ** 64 - 1
     assert CameraPairDataset(2, seed=2 ** 64 - 1, scene=SMALL).seed == 2 ** 64 - 1
+
+
+def test_colour_targets_follow_the_cameras_response_before_its_pixel_optics(monkeypatch):
+    """A grey scene (every surface 0.4) under one daylight through a camera whose microlenses follow the physical
+    convention (the whole pixel's light meets the etendue) with a half-size photodiode: at every pixel the XYZ
+    target's Y is the normalised green camera value divided by that pixel's etendue, so the targets' white follows
+    the camera's response before its off-axis losses. The targets scaled XYZ by the photodiode's area while the
+    camera used the pixel's (Sensor.photodiode_area_m2 is now the one rule): Y was half of that."""
+    from pathlib import Path
+
+    import isettorch
+    import isettorch.data.batched as batched
+    from isettorch.camera import load_yaml
+
+    cfg = load_yaml((Path(isettorch.__file__).parent / "configs/cameras/phone_microlens.yaml").read_text())
+    cfg["sensor"]["pixel_optics"]["diffraction"] = False  # one etendue per pixel (not per wavelength)
+    cfg["sensor"]["fill_factor"] = 0.5
+    cam = Camera.from_config(cfg)
+    assert cam.sensor.pixel_optics.convention == "physical"
+    monkeypatch.setattr(batched, "_reflectances", lambda nb, k, wl, g, *a, **kw: torch.full(
+        (nb, k, len(wl)), 0.4, dtype=torch.float64, device=wl.device))
+    stream = PairStream(1, scene={"height": 32, "width": 32, "illuminants": {"daylight": 1.0},
+                                  "two_light_probability": 0.0, "shadow_probability": 0.0, "hdr_decades": [0.0, 0.0]},
+                        camera=cam, dtype=torch.float64, targets=("camera_rgb", "xyz"))
+    batch = stream.batch(0)
+    group = stream.draw(0)[0]
+    etendue = group.camera.sensor.etendue_map(group.camera.optical_image(group.scene))[0]
+    assert float(etendue.min()) < 0.95  # the microlenses lose light off axis
+    green, y = batch["camera_rgb"][0, 1], batch["xyz"][0, 1]
+    assert float(green.max()) < 0.99  # unclipped
+    torch.testing.assert_close(y * etendue / green, torch.ones_like(y), rtol=0, atol=1e-3)
