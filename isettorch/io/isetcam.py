@@ -122,26 +122,45 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
         dmin, dmax, bits = (_field(data, k) for k in ("dmin", "dmax", "bitDepth"))
         if dmin is None or dmax is None:
             raise ValueError("scene.data: integer (compressed) photons need dmin and dmax (ISETCam ieCompressData)")
-        bits = 16 if bits is None else int(_mat_scalar(bits))
-        dmin, dmax = _mat_scalar(dmin), _mat_scalar(dmax)
+        # without bitDepth, the integers' own width (uint16 was ieCompressData's; a uint8 read as 16-bit was 257x dim)
+        bits = 8 * photons.dtype.itemsize if bits is None else int(_named_scalar(bits, "scene.data.bitDepth", p))
+        dmin, dmax = _named_scalar(dmin, "scene.data.dmin", p), _named_scalar(dmax, "scene.data.dmax", p)
+        if not dmax >= dmin:
+            raise ValueError(f"scene.data.dmin, dmax: expected dmin <= dmax in {str(p)!r}, got {dmin} and {dmax}")
         photons = dmin + photons.astype(np.float64) * (dmax - dmin) / (2**bits - 1)
     hfov = _field(scene, "wAngular")
     dist = _field(scene, "distance")
     ill = _field(_field(_field(scene, "illuminant"), "data"), "photons")
     ill_t = None
     if ill is not None:
-        ill = np.asarray(ill, dtype=float)
+        try:
+            ill = np.asarray(ill, dtype=float)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"scene.illuminant.data.photons: expected numbers in {str(p)!r} ({err})") from err
         if ill.size == wave.size:
             ill_t = torch.as_tensor(ill.reshape(-1), dtype=dtype)
-        # spatially varying illuminants (rows, cols, wave) are kept in metadata only
+        elif ill.shape != photons.shape:  # spatially varying illuminants (rows, cols, wave): metadata only
+            raise ValueError(f"scene.illuminant.data.photons: expected {wave.size} values (one per wavelength) or "
+                             f"the photons' shape {photons.shape} in {str(p)!r}, got shape {ill.shape}")
     name = _field(scene, "name")
     cube = torch.as_tensor(np.ascontiguousarray(np.transpose(photons, (2, 0, 1))), dtype=dtype)[None]
     meta = {"source": str(p), "format": "isetcam"}
     if ill is not None and ill_t is None:
         meta["illuminant_photons_map"] = torch.as_tensor(np.transpose(ill, (2, 0, 1)).copy(), dtype=dtype)
     return Scene(cube, torch.as_tensor(wave, dtype=dtype), name=str(name) if name is not None else p.stem,
-                 metadata=meta, hfov_deg=10.0 if hfov is None else _mat_scalar(hfov),
-                 distance_m=1.2 if dist is None else _mat_scalar(dist), illuminant_photons=ill_t)
+                 metadata=meta, hfov_deg=10.0 if hfov is None else _named_scalar(hfov, "scene.wAngular", p),
+                 distance_m=1.2 if dist is None else _named_scalar(dist, "scene.distance", p), illuminant_photons=ill_t)
+
+
+def _named_scalar(x, name: str, path: Path) -> float:
+    """A MATLAB scalar field as a float, or a ValueError naming the field and the file (an empty array, a string)."""
+    try:
+        a = np.asarray(_unwrap(x), dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        a = np.empty(0)
+    if a.size != 1:
+        raise ValueError(f"{name}: expected a number in {str(path)!r}, got {_unwrap(x)!r}")
+    return float(a[0])
 
 
 # --- parity cases (isetcam-parity/FORMAT.md) ------------------------------------------------------------------

@@ -74,3 +74,27 @@ def test_bad_files(tmp_path):
     scipy.io.savemat(tmp_path / "neg.mat", {"scene": _scene_struct(-np.ones((2, 2, 4)), wave)})
     with pytest.raises(ValueError, match="photons"):
         read_isetcam_scene(tmp_path / "neg.mat")
+
+
+def test_malformed_fields_are_named(tmp_path):
+    """Malformed optional fields name the field and the file (they gave numpy's 'axes don't match', an IndexError
+    or 'could not convert string'); compressed uint8 photons without bitDepth are decoded with 8 bits (they were
+    read as 16-bit: 257x too dim); dmax below dmin is refused."""
+    wave = np.arange(400.0, 701.0, 100.0)
+    for name, extra, message in (("ill", {"illuminant": {"data": {"photons": np.ones(7)}}},
+                                  r"scene\.illuminant\.data\.photons: expected 4 values"),
+                                 ("empty", {"wAngular": np.zeros((0, 0))}, r"scene\.wAngular: expected a number"),
+                                 ("text", {"distance": "abc"}, r"scene\.distance: expected a number")):
+        scipy.io.savemat(tmp_path / f"{name}.mat", {"scene": _scene_struct(np.ones((2, 2, 4)), wave, **extra)})
+        with pytest.raises(ValueError, match=message) as err:
+            read_isetcam_scene(tmp_path / f"{name}.mat")
+        assert f"{name}.mat" in str(err.value)
+    codes = np.array([[[0, 255, 51, 102]]], dtype=np.uint8)
+    scipy.io.savemat(tmp_path / "u8.mat", {"scene": _scene_struct(codes, wave)
+                                           | {"data": {"photons": codes, "dmin": 0.0, "dmax": 255e12}}})
+    s = read_isetcam_scene(tmp_path / "u8.mat", dtype=torch.float64)
+    np.testing.assert_allclose(s.photons[0, :, 0, 0].numpy(), codes[0, 0] * 1e12, rtol=1e-12)
+    scipy.io.savemat(tmp_path / "dmax.mat", {"scene": _scene_struct(codes, wave)
+                                             | {"data": {"photons": codes, "dmin": 1.0, "dmax": 0.5}}})
+    with pytest.raises(ValueError, match="scene.data.dmin, dmax: expected dmin <= dmax"):
+        read_isetcam_scene(tmp_path / "dmax.mat")
