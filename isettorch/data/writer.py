@@ -253,12 +253,19 @@ class ShardDataset(torch.utils.data.Dataset):
             problems = verify_dataset(self.root)
             if problems:
                 raise ValueError(f"root: {str(self.root)!r} failed verification: {'; '.join(problems[:5])}")
-        if int(cache_shards) < 1:
-            raise ValueError(f"cache_shards: expected at least 1 shard, got {cache_shards}")
+        cache_shards = check_integer(cache_shards, "cache_shards", 1)
         self.manifest = manifest
-        self.count, self.shard_size = int(manifest["count"]), int(manifest["shard_size"])
-        self.files = {int(rec["first_index"]) // self.shard_size: rec["file"] for rec in manifest["shards"]}
-        self.cache_shards = int(cache_shards)
+        try:
+            self.count, self.shard_size = int(manifest["count"]), int(manifest["shard_size"])
+            self.files = {int(rec["first_index"]) // self.shard_size: rec["file"] for rec in manifest["shards"]}
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f"root: {str(self.root)!r} has a malformed manifest.json ({type(err).__name__}: "
+                             f"{err})") from err
+        missing = sorted(set(range(-(-self.count // self.shard_size))) - set(self.files))
+        if missing:
+            raise ValueError(f"root: {str(self.root)!r}'s manifest.json is complete but lists no shard for files "
+                             f"{missing[:8]}; run isettorch synth --verify, or the same synth command again")
+        self.cache_shards = cache_shards
         self._cache: dict[int, dict] = {}
 
     def __len__(self) -> int:

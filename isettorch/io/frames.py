@@ -111,8 +111,13 @@ def _read_frame(path: Path) -> tuple[np.ndarray, str | None]:
 def write_frame(path: str | Path, frame) -> None:
     """Write a 2-D DN frame as 16-bit PNG/TIFF or ``.npy`` (by suffix); PNG/TIFF need integers in 0..65535."""
     path = Path(path)
-    arr = np.asarray(frame)
+    arr = np.asarray(frame.detach().cpu() if hasattr(frame, "detach") else frame)
     suffix = path.suffix.lower()
+    if suffix not in (".npy", ".png", ".tif", ".tiff"):
+        raise ValueError(f"path: expected a .png, .tif, .tiff or .npy name, got {path.name!r}")
+    if arr.ndim != 2 or arr.size == 0 or not (np.issubdtype(arr.dtype, np.number) and not np.iscomplexobj(arr)):
+        raise ValueError(f"frame: expected a non-empty 2-D array of real numbers (one frame in DN), got "
+                         f"{arr.dtype} of shape {arr.shape}")
     if suffix == ".npy":
         np.save(path, arr, allow_pickle=False)
         return
@@ -123,12 +128,10 @@ def write_frame(path: str | Path, frame) -> None:
         from PIL import Image
 
         Image.fromarray(arr16).save(path)
-    elif suffix in (".tif", ".tiff"):
+    else:
         import tifffile
 
         tifffile.imwrite(path, arr16)
-    else:
-        raise ValueError(f"path: expected a .png, .tif, .tiff or .npy name, got {path.name!r}")
 
 
 def _read_yaml(path: Path) -> dict:

@@ -195,6 +195,14 @@ def test_shard_dataset_reads_back_the_items(reference, tmp_path):
         ShardDataset(broken, verify=True)
     with pytest.raises(ValueError, match="shard-00001.pt"):
         ShardDataset(broken)[2]
+    # a complete manifest missing a shard's record (a KeyError at the item), a cache size that is not an integer
+    manifest = json.loads((broken / "manifest.json").read_text())
+    manifest["shards"] = manifest["shards"][:1]
+    (broken / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match=r"lists no shard for files \[1"):
+        ShardDataset(broken)
+    with pytest.raises(ValueError, match="cache_shards: expected a positive integer, got 'x'"):
+        ShardDataset(out, cache_shards="x")
 
 
 def test_synth_quiet_flag(tmp_path, capsys):

@@ -491,3 +491,17 @@ def test_empty_frame_is_an_error_naming_the_file(tmp_path, shape):
     np.save(tmp_path / "z.npy", np.zeros(shape, np.uint16))
     with pytest.raises(ValueError, match=r"z\.npy: expected a frame with pixels, got shape \(" + str(shape[0])):
         read_frame(tmp_path / "z.npy")
+
+
+@pytest.mark.parametrize("frame", [np.zeros((0, 0)), np.zeros((2, 3, 4)), "abc", np.array([[1 + 2j]])])
+def test_write_frame_refuses_what_is_not_a_frame(tmp_path, frame):
+    """An empty, 3-D, string or complex frame was handed to numpy or PIL (their errors, or a .npy the reader then
+    refuses); it is a ValueError naming the frame, and nothing is written."""
+    from isettorch.io.frames import write_frame
+
+    for name in ("f.png", "f.npy"):
+        with pytest.raises(ValueError, match="frame: expected a non-empty 2-D array of real numbers"):
+            write_frame(tmp_path / name, frame)
+        assert not (tmp_path / name).exists()
+    with pytest.raises(ValueError, match="path: expected a .png, .tif, .tiff or .npy name"):
+        write_frame(tmp_path / "f.jpg", np.zeros((2, 2)))
