@@ -95,12 +95,12 @@ def _read_scene_file(path: Path, hfov_deg: float):
 
         scene = read_scene_exr(path, hfov_deg=hfov_deg)
     elif suffix in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"):
-        from PIL import Image
-
+        from ..io.images import read_rgb8, rgb8_to_tensor
         from ..scene import from_rgb
 
-        rgb = np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
-        scene = from_rgb(torch.from_numpy(rgb).permute(2, 0, 1).unsqueeze(0))
+        # the library's photograph reader: EXIF orientation applied, 16-bit or transparent images refused by name
+        # (Pillow's convert('RGB') kept 8 of 16 bits and dropped transparency silently)
+        scene = from_rgb(rgb8_to_tensor(read_rgb8(path)).float())
     else:
         raise ValueError(f"scene: {str(path)!r} is not a built-in scene {list(SCENES)} nor a readable file "
                          "(.mat, .exr, .png, .jpg, .tif)")

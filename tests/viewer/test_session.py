@@ -74,3 +74,28 @@ def test_sensor_window_etendue_map_of_pixel_optics():
     plain = ViewerSession("default", scene="uniform_d65", size=32)
     plain.render()
     assert plain.etendue_map() is None
+
+
+def test_a_photograph_scene_is_read_as_the_library_reads_photographs(tmp_path):
+    """A photograph opens through io.images.read_rgb8 (as design-eval and demosaic-eval open them): the scene is
+    scene.from_rgb of its code values / 255, shown in its EXIF orientation, and a 16-bit PNG is refused by name
+    (Pillow's convert('RGB') kept 8 of its 16 bits)."""
+    import numpy as np
+    import torch
+    from PIL import Image
+
+    from isettorch.scene import from_rgb
+    from isettorch.viewer.session import _read_scene_file
+
+    codes = np.random.default_rng(0).integers(0, 256, (6, 8, 3), dtype=np.uint8)
+    img = Image.fromarray(codes)
+    exif = img.getexif()
+    exif[0x0112] = 6  # orientation: rotate 90 degrees clockwise to display
+    img.save(tmp_path / "p.jpg", exif=exif, quality=100)
+    shown = np.asarray(Image.open(tmp_path / "p.jpg").transpose(Image.Transpose.ROTATE_270))
+    scene = _read_scene_file(tmp_path / "p.jpg", 10.0)
+    expected = from_rgb(torch.from_numpy(shown.astype(np.float64) / 255).permute(2, 0, 1)[None].float())
+    torch.testing.assert_close(scene.to_dense().photons, expected.to_dense().photons)
+    Image.fromarray(np.full((4, 4), 60000, dtype=np.uint16)).save(tmp_path / "deep.png")
+    with pytest.raises(ValueError, match="expected 8-bit samples"):
+        _read_scene_file(tmp_path / "deep.png", 10.0)
