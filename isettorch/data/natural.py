@@ -543,7 +543,12 @@ def expose_and_encode(rgb: torch.Tensor, generator: torch.Generator, domain: str
     """Training images in ``domain`` from linear white-balanced images ``[B, C, H, W]``: a random exposure puts the
     98th percentile at ``exposure`` (uniform), values are clipped to [0, 1] (saturation), and ``encoded`` images are
     raised to ``1 / gamma`` (gamma uniform in ``gamma``; sRGB's is ~2.2). Benchmarks such as Kodak are 8-bit encoded
-    images scored as if linear, so the domain is an explicit choice; ``mixed`` encodes ``encoded_fraction``."""
+    images scored as if linear, so the domain is an explicit choice; ``mixed`` encodes ``encoded_fraction``.
+
+    An image-domain augmentation for demosaic training on the camera's noise-free rendering (its ``camera_rgb``,
+    exposed by the sensor's own auto-exposure), not a second sensor model: it rescales and clips an image as a
+    photograph's tone range and display encoding vary; the noisy captures of the joint models go through the
+    :class:`~isettorch.sensor.Sensor` (``training/demosaic_noise.py``, :class:`~isettorch.data.PairStream`)."""
     if domain not in DOMAINS:
         raise ValueError(f"domain: expected one of {DOMAINS}, got {domain!r}")
     if rgb.dim() != 4:
