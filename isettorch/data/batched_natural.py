@@ -76,12 +76,10 @@ def _recovered(nb, k, wl, g, device):
     """``[B, K, L]`` :func:`isettorch.data.spectra.recovery_reflectances` (default Beta(1.2, 4) saturation, albedo
     log-uniform 0.03-0.9, HSV -> linear sRGB -> Mallett & Yuksel 2019 basis), batched."""
     hue = _u(g, (nb, k), device=device)
-    sat = _beta_ppf(_u(g, (nb, k), device=device), 1.2, 4.0)
-    val = torch.exp(math.log(0.03) + (math.log(0.9) - math.log(0.03)) * _u(g, (nb, k), device=device))
-    h6 = hue * 6.0
-    kk = torch.stack([(5.0 + h6) % 6, (3.0 + h6) % 6, (1.0 + h6) % 6], -1)
-    rgb = val[..., None] * (1 - sat[..., None] * torch.clamp(torch.minimum(kk, 4 - kk), 0, 1))
-    return (rgb @ _spectra.srgb_basis_spectra(wl.cpu()).to(device)).clamp(0.0, 1.0)
+    sat = _beta_ppf(_u(g, (nb, k), device=device), *_spectra.RECOVERY_CHROMA_BETA)
+    lo, hi = (math.log(v) for v in _spectra.RECOVERY_ALBEDO_RANGE)
+    val = torch.exp(lo + (hi - lo) * _u(g, (nb, k), device=device))
+    return _spectra.hsv_reflectances(hue, sat, val, wl)
 
 
 def _palette(nb, cfg, wl, g, device):

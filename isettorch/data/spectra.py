@@ -641,8 +641,23 @@ def srgb_basis_spectra(wavelengths_nm) -> torch.Tensor:
     return _srgb_basis(key)
 
 
-def recovery_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *, chroma_beta=(1.2, 4.0),
-                          albedo_range=(0.03, 0.9)) -> torch.Tensor:
+#: the default saturation Beta(a, b) and albedo range of :func:`recovery_reflectances` (and its batched draw)
+RECOVERY_CHROMA_BETA, RECOVERY_ALBEDO_RANGE = (1.2, 4.0), (0.03, 0.9)
+
+
+def hsv_reflectances(hue: torch.Tensor, sat: torch.Tensor, val: torch.Tensor, wavelengths_nm) -> torch.Tensor:
+    """Reflectances ``[..., L]`` of linear-sRGB colours given in HSV (hue, saturation, value ``[...]`` in [0, 1]; the
+    HSV -> RGB of Smith 1978) lifted by Mallett & Yuksel's basis (:func:`srgb_basis_spectra`), clipped to [0, 1],
+    float64 on the colours' device."""
+    h6 = hue * 6.0
+    k = torch.stack([(5.0 + h6) % 6, (3.0 + h6) % 6, (1.0 + h6) % 6], -1)
+    rgb = val[..., None] * (1 - sat[..., None] * torch.clamp(torch.minimum(k, 4 - k), 0, 1))
+    w, _ = _grid(wavelengths_nm)
+    return (rgb @ srgb_basis_spectra(w.cpu()).to(rgb.device)).clamp(0.0, 1.0)
+
+
+def recovery_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *,
+                          chroma_beta=RECOVERY_CHROMA_BETA, albedo_range=RECOVERY_ALBEDO_RANGE) -> torch.Tensor:
     """``n`` reflectances ``[n, L]`` of natural chromaticities upsampled with ``colour.recovery`` (the linear
     Mallett & Yuksel 2019 sRGB basis, :func:`srgb_basis_spectra`).
 
@@ -659,12 +674,8 @@ def recovery_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *,
     sat = torch.from_numpy(_beta.ppf(u, float(chroma_beta[0]), float(chroma_beta[1])))
     lo, hi = (math.log(v) for v in albedo_range)
     val = torch.exp(lo + (hi - lo) * torch.rand(n, generator=generator, dtype=torch.float64))
-    # HSV -> RGB (Smith 1978)
-    h6 = hue * 6.0
-    k = torch.stack([(5.0 + h6) % 6, (3.0 + h6) % 6, (1.0 + h6) % 6], 1)
-    rgb = val[:, None] * (1 - sat[:, None] * torch.clamp(torch.minimum(k, 4 - k), 0, 1))
     w, _ = _grid(wavelengths_nm)
-    return (rgb @ srgb_basis_spectra(w)).clamp(0.0, 1.0).to(_out_dtype(w))
+    return hsv_reflectances(hue, sat, val, w).to(_out_dtype(w))
 
 
 #: measured camera sensitivities shipped by colour-science (NPL measurements) usable by name
