@@ -348,9 +348,10 @@ def patch_signals(camera: DesignCamera, reflectance, lux: float, *, size: int | 
     height and width; default: the smallest such window of at least 8 x 8, 16 pixels for a 2 x 2 or 4 x 4 cell).
 
     Returns ``{"rho": [n, C]`` mean photo-electrons of each channel the (hard) mosaic uses, over the pixels 4 or
-    more from the border, ``"var": [n, C]`` one pixel's noise variance in electrons (Poisson shot noise ``rho`` and
-    the capture's dark floor, :meth:`~isettorch.sensor.Sensor.poisson_gaussian`: the read noise squared, the dark
-    signal, the other terms the sensor has, and the ADC step squared over 12 at the capture's gain),
+    more from the border, ``"var": [n, C]`` one pixel's noise variance in electrons (Poisson shot noise ``rho``, if
+    the sensor has shot noise, and the capture's dark floor, :meth:`~isettorch.sensor.Sensor.poisson_gaussian`: the
+    read noise squared, the dark signal, the other terms the sensor has, and the ADC step squared over 12 at the
+    capture's gain),
     ``"frac": [C]`` each channel's share of the mosaic cell, ``"target": [n, 3]`` the patches' linear sRGB (white = 1,
     :func:`linear_srgb_of_reflectance`), ``"names"``, ``"exposure_s"``, ``"gain"`` (floats)}``.
     """
@@ -387,13 +388,13 @@ def patch_signals(camera: DesignCamera, reflectance, lux: float, *, size: int | 
     rho = torch.stack([e_inner[:, inner == c].mean(1) for c in used], 1)
     frac = torch.tensor([float((cell == c).double().mean()) for c in used], dtype=torch.float64)
     gain, t = float(cap["analog_gain"][0]), float(cap["exposure_s"][0])
-    # the capture's own noise model (Sensor.poisson_gaussian, in DN: a DN per electron, b the dark floor): in
-    # electrons the signal's shot noise plus b / a^2 (read noise, dark signal, CDS, DSNU and the others as the
-    # sensor has them, and the ADC step squared over 12 at this gain)
-    a, b = (float(v[0]) for v in camera.sensor.poisson_gaussian(exposure_s=t, analog_gain=gain))
-    if a <= 0:
-        raise ValueError("camera: the noise bound needs a sensor with shot noise (its sensor has shot_noise='off')")
-    var = rho + b / a**2
+    # the capture's own noise model (Sensor.poisson_gaussian, in DN: a the shot noise's DN per electron, 0 without
+    # shot noise; b the dark floor): in electrons the signal's shot noise plus b / k^2, k the DN per electron (read
+    # noise, dark signal, CDS, DSNU and the others as the sensor has them, and the ADC step squared over 12)
+    s = camera.sensor
+    a, b = (float(v[0]) for v in s.poisson_gaussian(exposure_s=t, analog_gain=gain))
+    k = float(s.gain_per_electron(gain)[0])
+    var = (rho if a > 0 else torch.zeros_like(rho)) + b / k**2
     return {"rho": rho, "var": var, "frac": frac, "target": linear_srgb_of_reflectance(refl, wl),
             "names": [camera.bank.channel_names[c] for c in used], "exposure_s": t, "gain": gain}
 

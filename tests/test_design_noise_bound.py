@@ -209,3 +209,22 @@ def test_patch_signals_variance_is_the_captures(sensor):
         v = dn[:, read == cam.bank.channel_names.index(name)]
         measured = float(((v - v.mean(1, keepdim=True)) ** 2).sum() / (v.numel() - n)) / float(a[0]) ** 2
         assert float(sig["var"][0, k]) == pytest.approx(measured, rel=0.04), name
+
+
+def test_patch_signals_variance_without_shot_noise_is_the_dark_floor():
+    """A sensor with shot noise off: the per-pixel variance is the capture's dark floor alone (its spread over 16
+    frames of a white patch: 100 e^2 of read noise), not the signal's 48 e- plus it (it raised an error)."""
+    from isettorch.design import make_design, patch_signals
+    from isettorch.scene.macbeth import macbeth_reflectances
+
+    cam = make_design("bayer_rgb", {"sensor": {"shot_noise": "off", "read_noise_v": 1e-3}})
+    white = macbeth_reflectances(cam.wavelengths_nm, dtype=torch.float64)[18:19]
+    sig = patch_signals(cam, white, 1.0, size=72)
+    n = 16
+    cap = cam.capture(cam.scene(torch.ones(n, 1, 72, 72, dtype=torch.float64), white.expand(n, -1)[:, None], 1.0),
+                      generator=torch.Generator().manual_seed(1))
+    dn = cap["raw"].data[:, 0, 4:-4, 4:-4]
+    k = float(cam.sensor.gain_per_electron(sig["gain"])[0])
+    v = dn[:, cam.mosaic.index_map.repeat(36, 36)[4:-4, 4:-4] == 0]
+    measured = float(((v - v.mean(1, keepdim=True)) ** 2).sum() / (v.numel() - n)) / k**2
+    assert float(sig["var"][0, 0]) == pytest.approx(measured, rel=0.04)  # (with rho's 48 e^2 added: 148)

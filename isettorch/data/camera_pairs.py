@@ -29,8 +29,9 @@ Outputs (a dict of tensors; images in **normalised raw units**: 0 = black level,
   ``noise_free_raw``.
 * ``xyz`` ``[3, H, W]``: CIE 1931 XYZ of the optical image at sensor resolution, scaled by the exposure so that
   a perfect white under the main light has ``Y`` equal to its ``camera_rgb`` green value (not clipped) before the
-  pixels' off-axis losses: a camera with pixel optics (etendue) or sensor vignetting records less than ``Y`` there,
-  and a network mapping ``raw`` to this target corrects that shading too.
+  pixel optics' etendue and the sensor's vignetting (``Sensor.collecting_area_m2``): a camera with either records
+  less than ``Y`` (with microlenses in the physical convention, on axis too: the etendue holds the photodiode's
+  share of the pixel), and a network mapping ``raw`` to this target corrects that shading too.
 * ``linear_srgb`` ``[3, H, W]``: ``xyz`` adapted from the main light's white to D65 (Bradford CAT) and
   converted with the IEC 61966-2-1 matrix (not clipped); ``srgb``: clipped to [0, 1] and encoded.
 * ``meta``: a dict of tensors (see :data:`META_KEYS`), batched by :func:`collate_pairs`.
@@ -97,7 +98,10 @@ META_KEYS = ("index", "exposure_s", "analog_gain", "iso", "f_number", "focal_len
 #    textures change material with probability 0.5) and independent three-layer grain (component "grain").
 # 6: 2026-11-30 the colour targets (linear sRGB, sRGB) through the library's one sRGB matrix and its D65 white
 #    (IEC 61966-2-1 primaries and white chromaticity; before, a 7-decimal matrix and the tabulated D65 white: 3e-4).
-GENERATOR_VERSION = 6
+# 7: 2026-11-30 the camera pairs' one-sample-per-pixel field of view through optics.geometry.image_distance and
+#    image.angle_for_extent (1 ulp in about 0.1 % of draws); the XYZ weights, Planck spectra and light
+#    normalisation through the spectral module (equal to 4e-16; these draws bitwise unchanged).
+GENERATOR_VERSION = 7
 _TARGET_CHANNELS = {"noise_free_raw": 1, "camera_rgb": 3, "xyz": 3, "linear_srgb": 3, "srgb": 3}
 
 
@@ -482,7 +486,7 @@ def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings
             # XYZ scaled so a perfect white under light 1 has Y = its normalised green camera value: the camera's
             # electrons/m^2 per unit Y of that white x pixel area x fill x exposure x normalised units per electron
             k_white = white_cam[1].item() / white_xyz[1].item()  # float64: the same division as in torch
-            scale = k_white * sensor.photodiode_area_m2() * exposure[0].item() * to_norm
+            scale = k_white * sensor.collecting_area_m2() * exposure[0].item() * to_norm
             d = {"gain": gain, "read_e": kw["read_noise_v"] / cg, "dsnu_e": kw["dsnu_sigma_v"] / cg,
                  "dark": kw["dark_current_e_per_s"], "f_number": float(camera.optics.f_number),
                  "focal": float(camera.optics.focal_length_m), "pitch": sensor.pixel_size_m,

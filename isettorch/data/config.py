@@ -315,8 +315,8 @@ _NUMBER_OR_RANGE = ("distance_m",)
 #: model's basis is 0 and its draws are NaN
 WAVELENGTH_RANGE_NM = (400.0, 700.0)
 #: the CCTs each illuminant kind can draw (K): CIE daylight's polynomials hold on 4000-25000 K (CIE 015:2018);
-#: the on-locus LED phosphor table spans 40-1000 mired; a blackbody any positive temperature
-# a blackbody colder than 100 K has no visible spectrum left to normalise (1 K: 0 / 0 in the light's luminance)
+#: the on-locus LED phosphor table spans 40-1000 mired; a blackbody from 100 K (colder, it has no visible spectrum
+#: left to normalise: at 1 K the light's luminance was 0 / 0)
 _CCT_BOUNDS_K = {"daylight": (4000.0, 25000.0), "blackbody": (100.0, math.inf), "led": (1000.0, 25000.0)}
 
 
@@ -382,7 +382,7 @@ def _check_choices(cfg: dict, key: str, path: str, lo: float = 0.0, lo_open: boo
     if (not isinstance(v, (list, tuple)) or not v
             or not all(_is_number(x) and math.isfinite(x) and _in(x, lo, math.inf, lo_open, False) for x in v)):
         raise ValueError(f"{path}.{key}: expected a non-empty list of finite numbers {'>' if lo_open else '>='} "
-                         f"{lo:g}{why} (one drawn per item), got {v!r}")
+                         f"{lo:g} (one drawn per item{why}), got {v!r}")
 
 
 def _check_weights(ws, where: str) -> None:
@@ -462,7 +462,7 @@ def _check_camera(cam: dict, cp: str) -> None:
     if bad or not cam["cfa_patterns"]:
         raise ValueError(f"{cp}.cfa_patterns: expected Bayer patterns from RGGB, GRBG, GBRG, BGGR, got "
                          f"{cam['cfa_patterns']!r}")
-    _check_choices(cam, "f_number", cp, 0.5, lo_open=False, why=" (the fastest lens in air: N = 1 / (2 NA), NA <= 1)")
+    _check_choices(cam, "f_number", cp, 0.5, lo_open=False, why="; 0.5: the fastest lens in air, N = 1 / (2 NA)")
     _check_choices(cam, "pixel_size_m", cp)
     _check_number(cam["focal_length_m"], f"{cp}.focal_length_m", 0.0, lo_open=True)
     _check_number(cam["fill_factor"], f"{cp}.fill_factor", 0.0, 1.0, lo_open=True, what="a fraction")

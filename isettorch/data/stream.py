@@ -539,7 +539,7 @@ class PairStream:
         if colour:
             # XYZ scaled so a perfect white under light 1 has Y equal to its normalised green camera value
             k_white = white_cam[:, 1] / white_xyz[:, 1]
-            area = sensor.photodiode_area_m2(None if pitch is None else pitch.to(f64))  # [b] per-item pitches
+            area = sensor.collecting_area_m2(None if pitch is None else pitch.to(f64))  # [b] per-item pitches
             scale = k_white * area * exposure.to(f64) * to_norm
             xyz = xyz_d * scale.to(dt).reshape(-1, 1, 1, 1)
             if "xyz" in targets:

@@ -128,8 +128,6 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
         raise ValueError(f"shard: expected 0 <= shard < num_shards ({num_shards}), got {shard}")
     if not (world_size >= 1 and 0 <= rank < world_size):
         raise ValueError(f"rank: expected 0 <= rank < world_size ({world_size}), got {rank}")
-    if workers < 0:
-        raise ValueError(f"workers: expected a non-negative number of worker processes, got {workers}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     chash = config_hash(cfg, count)
@@ -246,6 +244,9 @@ class ShardDataset(torch.utils.data.Dataset):
             manifest = json.loads((self.root / "manifest.json").read_text())
         except (OSError, ValueError) as err:
             raise ValueError(f"root: {str(self.root)!r} has no readable manifest.json ({err})") from err
+        if not isinstance(manifest, dict):
+            raise ValueError(f"root: {str(self.root)!r} has a malformed manifest.json (a JSON "
+                             f"{type(manifest).__name__}, expected an object)")
         if not manifest.get("complete"):
             raise ValueError(f"root: {str(self.root)!r} holds an incomplete dataset ({len(manifest.get('shards', []))}"
                              f" of {manifest.get('num_files')} shards); run the same synth command again to finish it")
@@ -257,6 +258,8 @@ class ShardDataset(torch.utils.data.Dataset):
         self.manifest = manifest
         try:
             self.count, self.shard_size = int(manifest["count"]), int(manifest["shard_size"])
+            if self.count < 0 or self.shard_size < 1:
+                raise ValueError(f"count {self.count}, shard_size {self.shard_size}: expected >= 0 and >= 1")
             self.files = {int(rec["first_index"]) // self.shard_size: rec["file"] for rec in manifest["shards"]}
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"root: {str(self.root)!r} has a malformed manifest.json ({type(err).__name__}: "

@@ -254,20 +254,24 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
         if encoding == "srgb":
             x = srgb_encode(x)
         x = (x * (2**bits - 1)).round().to(torch.int64)
+    # the whole batch in the file's sample type before any file is written; a float file is checked for overflow
+    # only: values below half's 6e-8 (of white = 1) rounding to 0 is its precision, not lost data
+    file_type = ({8: np.uint8, 16: np.uint16}[bits] if integer
+                 else np.float16 if bits == 16 else np.float32)
+    samples = x.permute(0, 2, 3, 1).numpy()
+    samples = samples.astype(file_type) if integer else narrow_float(samples, file_type, "image")
     written = []
-    for i in range(x.shape[0]):
+    for i, a in enumerate(samples):
         p = Path(template.format(i=i)) if "{i" in template else Path(template)
-        a = x[i].permute(1, 2, 0).numpy()
         if kind == "png":
-            _write_png(p, a.astype(np.uint16 if bits == 16 else np.uint8), bits)
+            _write_png(p, a, bits)
         elif kind == "tiff":
             import tifffile
 
-            a = a.astype({8: np.uint8, 16: np.uint16}[bits]) if integer else narrow_float(a, np.float32, "image")
             tifffile.imwrite(str(p), a[..., 0] if a.shape[-1] == 1 else a,
                              photometric="minisblack" if a.shape[-1] == 1 else "rgb")
         else:
-            _write_exr(p, narrow_float(a, np.float16 if bits == 16 else np.float32, "image"))
+            _write_exr(p, a)
         written.append(p)
     return written
 

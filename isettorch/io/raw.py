@@ -66,7 +66,8 @@ def write_dng(path: str | Path, mosaic, *, cfa: str = "RGGB", black_level_dn: in
     import tifffile
 
     arr = np.asarray(mosaic)
-    if arr.ndim != 2 or arr.size == 0 or not np.issubdtype(arr.dtype, np.number) or arr.min() < 0 \
+    if arr.ndim != 2 or arr.size == 0 or not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr) \
+            or arr.min() < 0 \
             or arr.max() > 65535 or not np.array_equal(arr, np.round(arr)):
         raise ValueError(f"mosaic: expected a non-empty 2-D array of integers in 0..65535, got shape {arr.shape}")
     if min(arr.shape) < DNG_MIN_SIDE_PX:

@@ -72,7 +72,9 @@ def dynamic_range_db(sensor: Sensor, exposure_s: float | None = None) -> float:
 def electrons_per_lux_second(sensor: Sensor, illuminant: str = "D65", wavelengths_nm=None) -> torch.Tensor:
     """Photo-electrons per pixel per lux-second of focal-plane exposure, per CFA channel ``[C]``.
 
-    The irradiance has the illuminant's spectrum, scaled to 1 lux (683 sum E V dlambda).
+    The irradiance has the illuminant's spectrum, scaled to 1 lux (683 sum E V dlambda), on the photodiode's area
+    ``fill_factor x pitch^2`` (ISETCam's pixel): without the sensor's pixel optics, whose etendue depends on the
+    lens's f-number and chief-ray angles (``Sensor.channel_rates`` of an optical image includes them).
     """
     w = spectral.default_wavelengths(dtype=torch.float64) if wavelengths_nm is None else \
         torch.as_tensor(wavelengths_nm, dtype=torch.float64)

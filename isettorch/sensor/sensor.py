@@ -360,12 +360,14 @@ class Sensor(nn.Module):
     def pixel_area_m2(self) -> float:
         return self.pixel_size_m ** 2
 
-    def photodiode_area_m2(self, pixel_size_m=None):
-        """The area (m^2) that scales a pixel's irradiance to its electron rate in :meth:`channel_rates`: the
-        photodiode's, ``fill_factor x pitch^2`` (ISETCam sensorCompute), or, with pixel optics in the physical
-        convention, the whole pixel's (the etendue holds the photodiode's width). A float, or ``[B]`` for a per-call
-        pitch ``pixel_size_m`` (``[B]`` tensor; no pixel optics then). The colour targets of the pair generators
-        scale XYZ by it, so that their white follows the camera's response before its off-axis losses."""
+    def collecting_area_m2(self, pixel_size_m=None):
+        """The area (m^2) that scales a pixel's irradiance to its electron rate in :meth:`channel_rates`, before the
+        pixel optics' etendue and the vignetting: the photodiode's, ``fill_factor x pitch^2`` (ISETCam
+        sensorCompute), or, with pixel optics in the physical convention, the whole pixel's (the etendue then holds
+        the photodiode's share: about 0.76 on axis and off at fill 0.5 with the phone camera's microlenses). A
+        float, or ``[B]`` for a per-call pitch ``pixel_size_m`` (``[B]`` tensor; no pixel optics then). The colour
+        targets of the pair generators scale XYZ by it: their white is the camera's response before the etendue
+        and vignetting."""
         if pixel_size_m is not None:
             return self.fill_factor * pixel_size_m * pixel_size_m
         po = self.pixel_optics
@@ -639,9 +641,9 @@ class Sensor(nn.Module):
             sampled = sample(density, oi)
         # with pixel optics in the physical convention the light of the whole pixel meets the etendue, which
         # holds the photodiode's width; otherwise the photodiode's area (ISETCam sensorCompute)
-        area = self.photodiode_area_m2()
+        area = self.collecting_area_m2()
         if pitch is not None:  # per item: [B, 1, 1, 1]
-            area = self.photodiode_area_m2(pitch).to(sampled.dtype).reshape(-1, 1, 1, 1)
+            area = self.collecting_area_m2(pitch).to(sampled.dtype).reshape(-1, 1, 1, 1)
         if qe_scale is None:
             rates = sampled[:, :c] * area
         elif isinstance(qe_scale, (int, float)) and not isinstance(qe_scale, bool):

@@ -108,8 +108,8 @@ BAD = [  # (section, key, value, start of the message)
     ("camera", "fill_factor", 1.5, "camera.fill_factor: expected a fraction in (0, 1], got 1.5"),
     ("camera", "focal_length_m", -4e-3, "camera.focal_length_m: expected a number > 0"),
     ("camera", "pixel_size_m", [-1e-6], "camera.pixel_size_m: expected a non-empty list of finite numbers > 0"),
-    ("camera", "f_number", [], "camera.f_number: expected a non-empty list of finite numbers >= 0.5 (the fastest "
-                               "lens in air: N = 1 / (2 NA), NA <= 1) (one drawn per item), got []"),
+    ("camera", "f_number", [], "camera.f_number: expected a non-empty list of finite numbers >= 0.5 (one drawn per "
+                               "item; 0.5: the fastest lens in air, N = 1 / (2 NA)), got []"),
     ("camera", "f_number", [0.0, 2.8], "camera.f_number: expected a non-empty list of finite numbers >= 0.5"),
     # the optics' own bound, named with its config key (the message named a bare 'f_number' at the first batch)
     ("camera", "f_number", [0.1], "camera.f_number: expected a non-empty list of finite numbers >= 0.5"),

@@ -203,6 +203,10 @@ def test_shard_dataset_reads_back_the_items(reference, tmp_path):
         ShardDataset(broken)
     with pytest.raises(ValueError, match="cache_shards: expected a positive integer, got 'x'"):
         ShardDataset(out, cache_shards="x")
+    for bad in ({**manifest, "shard_size": 0}, {**manifest, "shard_size": -2}, [manifest]):
+        (broken / "manifest.json").write_text(json.dumps(bad))
+        with pytest.raises(ValueError, match="has a malformed manifest.json"):
+            ShardDataset(broken)
 
 
 def test_synth_quiet_flag(tmp_path, capsys):
