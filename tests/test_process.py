@@ -75,3 +75,31 @@ def test_values_above_the_largest_adc_code_are_refused(camera, tmp_path, capsys)
     assert capsys.readouterr().err == (f"isettorch process: RAW: {tmp_path / 'over.npy'}: values up to 4096 DN exceed "
                                        f"the camera's largest ADC code 4095 DN (12 bits; data shifted left?)\n")
     assert not (tmp_path / "out" / "over.npy").exists()
+
+
+def test_a_camera_raws_own_cfa_and_black_level_must_be_the_configs(camera, tmp_path, capsys):
+    """A DNG carries its CFA and black level: a GRBG file through the RGGB camera config came out with its colours
+    mixed (exit 0), and a black level of 200 was normalised with the config's 64. Both are refused, naming the file;
+    a DNG that agrees with the config is processed as its .npy twin is."""
+    pytest.importorskip("rawpy")
+    from isettorch.io.raw import write_dng
+
+    rng = np.random.default_rng(1)
+    mosaic = rng.integers(300, 2000, (24, 24)).astype(np.uint16)
+    args = ["--camera", str(camera), "--model", str(PRETRAINED["joint_denoise"]), "--quiet"]
+    write_dng(tmp_path / "ok.dng", mosaic, cfa="RGGB", black_level_dn=64, white_level_dn=4095)
+    np.save(tmp_path / "ok.npy", mosaic)
+    assert main(["process", str(tmp_path / "ok.dng"), *args, "--out", str(tmp_path / "a")]) == 0
+    assert main(["process", str(tmp_path / "ok.npy"), *args, "--out", str(tmp_path / "b")]) == 0
+    assert np.array_equal(np.load(tmp_path / "a" / "ok.npy"), np.load(tmp_path / "b" / "ok.npy"))
+    for name, kw, message in (("grbg.dng", {"cfa": "GRBG", "black_level_dn": 64}, "the file's CFA GRBG differs from "
+                                                                                  "the camera config's RGGB"),
+                              ("black.dng", {"cfa": "RGGB", "black_level_dn": 200},
+                               "the file's black levels [200.0, 200.0, 200.0, 200.0] DN differ from the camera "
+                               "config's 64 DN")):
+        write_dng(tmp_path / name, mosaic, white_level_dn=4095, **kw)
+        capsys.readouterr()
+        assert main(["process", str(tmp_path / name), *args, "--out", str(tmp_path / "c")]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"isettorch process: RAW: {tmp_path / name}: {message}"), err
+    assert not (tmp_path / "c").exists()

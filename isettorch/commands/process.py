@@ -7,7 +7,8 @@ Example::
 ``--camera`` is the camera config the model was trained for (``data.camera_config`` of
 ``training/train_demosaic.py``; its ``sensor:`` section written by ``isettorch calibrate --out``). Each frame (DN:
 16-bit PNG/TIFF, ``.npy`` or a camera raw, read by :func:`isettorch.io.frames.read_frame`) is normalised with the
-sensor's black and white levels, ``x = (DN - black) / (white - black)``, and given to the network with the noise
+sensor's black and white levels, ``x = (DN - black) / (white - black)`` (a camera raw's own CFA and black levels
+must be the config's: a file that disagrees is refused), and given to the network with the noise
 inputs of the sensor's Poisson-Gaussian model ``var(x) = a x + b`` (:func:`noise_params`), as in training. Output:
 camera RGB relative to the white level (not white-balanced), ``<stem>.npy`` (float32 ``[3, H, W]``), ``.exr``
 (linear) or ``.png`` (clipped to [0, 1] and sRGB-encoded, for viewing).
@@ -168,7 +169,7 @@ def run(args) -> int:
     import numpy as np
 
     from .._progress import progress
-    from ..io.frames import read_frame
+    from ..io.frames import _read_frame
     from ..io.images import write_image
     from ._outputs import Outputs, check_dir, check_not_input
 
@@ -191,7 +192,16 @@ def run(args) -> int:
     with Outputs(out_dir) as staged, \
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
-            dn = read_frame(f)
+            dn, file_cfa, file_blacks = _read_frame(Path(f))
+            # a camera raw's own metadata must be the camera config's: the network, the CFA phase and the black
+            # level it is given are the config's (a GRBG DNG through an RGGB config came out grey, exit 0)
+            if file_cfa is not None and file_cfa != pattern:
+                raise ValueError(f"RAW: {f}: the file's CFA {file_cfa} differs from the camera config's {pattern} "
+                                 f"(--camera); process it with its own camera's config")
+            black = float(sensor.black_level_dn)
+            if file_blacks and max(abs(b - black) for b in file_blacks) > 0.5:
+                raise ValueError(f"RAW: {f}: the file's black levels {[round(b, 3) for b in file_blacks]} DN differ "
+                                 f"from the camera config's {black:g} DN (--camera: sensor.black_level_dn)")
             if min(dn.shape) < 4:  # (an odd height or width is completed to whole cells by demosaic_learned)
                 raise ValueError(f"RAW: {f}: expected a {pattern} mosaic of at least 4 x 4 pixels, got "
                                  f"{dn.shape[0]} x {dn.shape[1]}")

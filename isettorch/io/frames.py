@@ -76,10 +76,10 @@ def _read_tiff(path: Path) -> np.ndarray:
             raise ValueError(f"tifffile: {err}; Pillow: {pil_err}") from err
 
 
-def _read_frame(path: Path) -> tuple[np.ndarray, str | None]:
-    """(frame, CFA from the file's metadata: camera raws only, else None)."""
+def _read_frame(path: Path) -> tuple[np.ndarray, str | None, list[float] | None]:
+    """(frame, CFA and per-channel black levels (DN) from the file's metadata: camera raws only, else None)."""
     suffix = path.suffix.lower()
-    cfa = None
+    cfa, blacks = None, None
     try:
         if suffix == ".npy":
             arr = np.load(path, allow_pickle=False)
@@ -91,7 +91,7 @@ def _read_frame(path: Path) -> tuple[np.ndarray, str | None]:
             from .raw import read_raw
 
             raw = read_raw(path)
-            arr, cfa = raw.data, raw.cfa
+            arr, cfa, blacks = raw.data, raw.cfa, raw.black_level_dn
         else:
             raise ValueError(f"unknown frame type {suffix!r}; expected one of {FRAME_SUFFIXES + RAW_SUFFIXES}")
     except ImportError:
@@ -105,7 +105,7 @@ def _read_frame(path: Path) -> tuple[np.ndarray, str | None]:
     arr = arr.astype(np.float64)
     if not np.isfinite(arr).all() or arr.min() < 0:
         raise ValueError(f"{path}: expected finite non-negative DN values")
-    return arr, cfa
+    return arr, cfa, blacks
 
 
 def write_frame(path: str | Path, frame) -> None:
@@ -267,7 +267,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
         for (kind, ms), folder, files in jobs:
             frames = []
             for f in files:
-                arr, cfa = _read_frame(f)
+                arr, cfa, _ = _read_frame(f)
                 if f.suffix.lower() in RAW_SUFFIXES:
                     frame_cfa.setdefault(cfa, f)
                 if shape is None:
