@@ -134,7 +134,8 @@ def run(args) -> int:
     noise = (f"  noise sigma {res['noise_sigma']:g} shot {res['noise_shot']:g} seed {res['seed']}"
              if res["noise_sigma"] or res["noise_shot"] else "")
     den = f"  denoise {res['denoise']}" if res["denoise"] else ""
-    print(f"method {res['method']}  pattern {res['pattern']}  crop {res['crop']}  ({args.dtype}, {args.device})"
+    network = f" ({res['network']} network)" if res.get("network") else ""
+    print(f"method {res['method']}{network}  pattern {res['pattern']}  crop {res['crop']}  ({args.dtype}, {args.device})"
           f"{noise}{den}")
     for item in res["images"]:
         print(f"  {item['name']:<24s} {item['cpsnr']:8.3f} dB  {item['ms']:8.1f} ms"

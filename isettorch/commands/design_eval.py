@@ -38,7 +38,8 @@ def register(sub) -> None:
                    help=f"a design file (.pt) or a shipped design: {', '.join(SHIPPED_NAMES)}")
     p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif/.jpg photographs")
     p.add_argument("--lux", type=float, nargs="+", default=None, metavar="L",
-                   help="scene illuminance(s) in lux (default: every level the design was trained for)")
+                   help="scene illuminance(s) in lux, among the levels the design was trained for (it has a network "
+                        "for each; the shipped designs: 1, 10, 100); default: all of them")
     p.add_argument("--seed", type=int, default=0, help="noise seed, the same for every design (default 0)")
     p.add_argument("--crop", type=int, default=10, help="border excluded from the scores, pixels (default 10)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")

@@ -16,7 +16,9 @@ def register(sub) -> None:
     p.add_argument("--config", default=None, help="YAML config (keys of isettorch.data.config.SYNTH_DEFAULTS); "
                                                   "default: the built-in defaults")
     p.add_argument("--out", required=True, help="output folder (shards, sidecars, manifest.json)")
-    p.add_argument("--count", type=int, required=True, help="number of items in the whole dataset")
+    p.add_argument("--count", type=int, default=None,
+                   help="number of items in the whole dataset (required; with --verify optional, checked against "
+                        "the manifest)")
     p.add_argument("--shard", type=int, default=0, help="this invocation's part (0-based), with --num-shards")
     p.add_argument("--num-shards", type=int, default=1, help="number of parts the files are dealt into")
     p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
@@ -42,11 +44,19 @@ def run(args) -> int:
         problems = verify_dataset(args.out)
         if problems and problems[0].startswith("manifest.json: unreadable"):
             raise ValueError(f"out: {args.out}/{problems[0]}")
+        if args.count is not None:  # checked against the manifest (it was required and then ignored)
+            import json
+
+            count = json.loads((Path(args.out) / "manifest.json").read_text()).get("count")
+            if count != args.count:
+                problems.append(f"count: the dataset holds {count} items, --count {args.count}")
         for line in problems:
             print(line, file=sys.stderr)
         print("ok" if not problems else f"{len(problems)} problem(s)")
         return 0 if not problems else 1
     # bad input raises ValueError naming the option ("count: ..." is shown as "--count: ...", isettorch.cli)
+    if args.count is None:
+        raise ValueError("count: expected the number of items in the whole dataset (--count N)")
     if args.num_shards < 1:
         raise ValueError(f"num_shards: expected a number of parts >= 1, got {args.num_shards}")
     if args.config:  # UTF-8 YAML holding a mapping, or empty (the defaults); load_config reports a missing file

@@ -138,9 +138,12 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
         except ValueError:
             prev = {}
         if prev.get("config_sha256") not in (None, chash):
+            differs = [f"{key} {prev.get(key, default)!r} there, {mine!r} here" for key, default, mine in
+                       (("count", None, count), ("generator_version", 1, GENERATOR_VERSION), ("config", None, cfg))
+                       if prev.get(key, default) != mine]
+            what = "; ".join(d if not d.startswith("config ") else "the config" for d in differs) or "its hash"
             raise ValueError(f"out: {str(out)!r} holds a dataset made with another config, count or generator "
-                             f"version (config_sha256 {prev.get('config_sha256')}, generator version "
-                             f"{prev.get('generator_version', 1)}, this one {GENERATOR_VERSION}); use a new folder")
+                             f"version ({what}); use a new folder")
     size = int(cfg["shard_size"])
     if size < 1:
         raise ValueError(f"shard_size: expected a positive number of items per shard, got {size}")

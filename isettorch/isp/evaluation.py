@@ -212,11 +212,13 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
         kwargs: passed to the method.
 
     Returns:
-        {"method", "pattern", "crop", "noise_sigma", "noise_shot", "seed", "denoise", "dtype", "mean_cpsnr",
-        "exact_images", "ms_per_image", "ms_per_megapixel", "images": [{"name", "cpsnr", "exact", "ms"}, ...]};
-        ms is the wall time of the demosaic (and denoise) call alone, after one warm-up call. An image reproduced
-        exactly (``exact``: MSE 0, e.g. a flat black or white image) has ``cpsnr`` inf; ``mean_cpsnr`` is the mean
-        over the other images (inf when every image is exact) and ``exact_images`` counts the exact ones.
+        {"method", "network", "pattern", "crop", "noise_sigma", "noise_shot", "seed", "denoise", "dtype",
+        "mean_cpsnr", "exact_images", "ms_per_image", "ms_per_megapixel", "images": [{"name", "cpsnr", "exact", "ms"},
+        ...]}; ``network``: the shipped network the ``learned`` method ran (``"noise_free"``, or ``"joint_denoise"``
+        with noise), else None. ms is the wall time of the demosaic (and denoise) call alone, after one warm-up call.
+        An image reproduced exactly (``exact``: within :data:`EXACT_ULPS` ulps of its truth, e.g. a flat image) has
+        ``cpsnr`` inf; ``mean_cpsnr`` is the mean over the other images (inf when every image is exact) and
+        ``exact_images`` counts the exact ones.
     """
     device = check_device(device)
     noise_sigma, noise_shot = _check_noise(noise_sigma, noise_shot)
@@ -299,8 +301,11 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
             bar.update(1)
     scored = [r["cpsnr"] for r in results if not r["exact"]]  # (finite: the output is finite and clipped)
     ms_all = [r["ms"] for r in results]
+    learned_default = method == "learned" and model is None and "model" not in kwargs
     return {
         "method": name,
+        # the shipped network the learned method ran: its joint denoise variant when noise is asked for
+        "network": ("joint_denoise" if noisy else "noise_free") if learned_default else None,
         "pattern": pattern,
         "crop": crop,
         "noise_sigma": noise_sigma,

@@ -115,8 +115,10 @@ def test_config_errors(tmp_path):
     with pytest.raises(ValueError, match="scene.colour"):
         write_dataset({"scene": {"colour": 1}}, tmp_path, 2, progress=False)
     write_dataset(CFG, tmp_path / "a", 2, progress=False)
-    with pytest.raises(ValueError, match="another config"):
+    with pytest.raises(ValueError, match=r"another config, count or generator version \(the config\)"):
         write_dataset({**CFG, "seed": 6}, tmp_path / "a", 2, progress=False)
+    with pytest.raises(ValueError, match=r"\(count 2 there, 3 here\); use a new folder"):  # (it named only a hash)
+        write_dataset(CFG, tmp_path / "a", 3, progress=False)
 
 
 def test_cli_in_process_and_subprocess(reference, tmp_path, capsys):
@@ -127,6 +129,10 @@ def test_cli_in_process_and_subprocess(reference, tmp_path, capsys):
                  "--no-progress"]) == 0
     assert _checksums(tmp_path / "a") == _checksums(ref_out)
     assert main(["synth", "--out", str(tmp_path / "a"), "--count", str(COUNT), "--verify"]) == 0
+    assert main(["synth", "--out", str(tmp_path / "a"), "--verify"]) == 0  # --count optional with --verify
+    capsys.readouterr()
+    assert main(["synth", "--out", str(tmp_path / "a"), "--count", "999", "--verify"]) == 1  # (it printed "ok")
+    assert f"count: the dataset holds {COUNT} items, --count 999" in capsys.readouterr().err
     bad = tmp_path / "bad.yaml"
     bad.write_text("scene:\n  heigth: 16\n")
     assert main(["synth", "--config", str(bad), "--out", str(tmp_path / "b"), "--count", "2"]) == 2

@@ -74,9 +74,9 @@ def test_cli_json(tmp_path, capsys):
     assert main(["demosaic-eval", str(tmp_path), "--method", "malvar2004", "--pattern", "GRBG", "--crop", "2",
                  "--dtype", "float64", "--json", "--quiet"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert set(res) == {"method", "pattern", "crop", "mean_cpsnr", "exact_images", "ms_per_image", "images",
-                        "noise_sigma", "noise_shot", "seed", "denoise", "dtype", "ms_per_megapixel"}
-    assert (res["method"], res["pattern"], res["crop"]) == ("malvar2004", "GRBG", 2)
+    assert set(res) == {"method", "network", "pattern", "crop", "mean_cpsnr", "exact_images", "ms_per_image",
+                        "images", "noise_sigma", "noise_shot", "seed", "denoise", "dtype", "ms_per_megapixel"}
+    assert (res["method"], res["network"], res["pattern"], res["crop"]) == ("malvar2004", None, "GRBG", 2)
     assert [r["name"] for r in res["images"]] == names
     expected = [_numpy_cpsnr(a, "malvar2004", "GRBG", crop=2)[0] for a in ims]
     np.testing.assert_allclose([r["cpsnr"] for r in res["images"]], expected, rtol=0, atol=1e-9)
@@ -211,3 +211,15 @@ def test_a_flat_mid_grey_is_exact_at_float32(method):
     res64 = evaluate_demosaic([("grey", grey), ("smooth", smooth)], method, crop=2, dtype=torch.float64)
     assert [r["exact"] for r in res32["images"]] == [True, False] and res32["exact_images"] == 1
     assert res32["mean_cpsnr"] == pytest.approx(res64["mean_cpsnr"], abs=1e-4)
+
+
+def test_the_learned_method_names_the_network_it_ran(tmp_path, capsys):
+    """With noise the learned method runs the joint denoise network, without it the noise-free one: the JSON and the
+    table say which (both said only "learned")."""
+    Image.fromarray(_smooth_images(1, 16, 16, seed=2)[0]).save(tmp_path / "a.png")
+    for extra, network in (([], "noise_free"), (["--noise-sigma", "0.02"], "joint_denoise")):
+        args = ["demosaic-eval", str(tmp_path), "--method", "learned", "--quiet", *extra]
+        assert main([*args, "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["network"] == network
+        assert main(args) == 0
+        assert f"method learned ({network} network)" in capsys.readouterr().out
