@@ -135,8 +135,8 @@ def run(args) -> int:
              if res["noise_sigma"] or res["noise_shot"] else "")
     den = f"  denoise {res['denoise']}" if res["denoise"] else ""
     network = f" ({res['network']} network)" if res.get("network") else ""
-    print(f"method {res['method']}{network}  pattern {res['pattern']}  crop {res['crop']}  ({args.dtype}, {args.device})"
-          f"{noise}{den}")
+    print(f"method {res['method']}{network}  pattern {res['pattern']}  crop {res['crop']}  "
+          f"({args.dtype}, {args.device}){noise}{den}")
     for item in res["images"]:
         print(f"  {item['name']:<24s} {item['cpsnr']:8.3f} dB  {item['ms']:8.1f} ms"
               + ("  (reproduced exactly)" if item["exact"] else ""))
