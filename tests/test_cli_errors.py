@@ -121,6 +121,7 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                 (["{raw}/frame.npy", "--model", "{joint}"], "--camera")],  # argparse: one line
     "synth": [(["--config", "{tmp}/no_such.yaml", "--out", "{tmp}/out", "--count", "2"], "--config"),
               (["--out", "{tmp}/out", "--count", "0"], "--count"),
+              (["--out", "{tmp}/out"], "--count"),  # required unless --verify
               (["--out", MISSING, "--count", "1", "--verify"], "--out"),
               (["--out", "{images}", "--count", "1", "--verify"], "--out"),
               (["--config", "{emptylist}", "--out", "{tmp}/out", "--count", "1"], "--config"),
@@ -245,7 +246,7 @@ def test_bad_input_leaves_no_output_and_keeps_the_inputs(case, places, capfd, mo
 
 def test_argparse_errors_are_one_line_and_help_is_unchanged(capsys):
     for argv, head in ((["nope"], "isettorch: error: "), (["demo", "--size", "abc"], "isettorch demo: error: "),
-                       (["synth", "--out", "x"], "isettorch synth: error: ")):
+                       (["synth", "--count", "2"], "isettorch synth: error: ")):
         assert _main(argv) == 2
         err = capsys.readouterr().err
         assert len(err.splitlines()) == 1 and err.startswith(head) and "--help)" in err, err
