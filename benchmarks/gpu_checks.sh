@@ -51,6 +51,7 @@ echo "== CUDA tests (they skip without CUDA): stream = CPU rendering, shipped ne
 timeout 180 $PY -m pytest -q -p no:cacheprovider -x \
     tests/data/test_stream.py::test_cuda_stream_matches_cpu_rendering_of_the_same_scene \
     tests/training/test_learned_demosaic.py tests/isp/test_demosaic.py tests/test_bench.py \
+    "tests/sensor/test_noise.py::test_poisson_shot_noise_beyond_integer_counts" \
     2>&1 | tail -n 30 | tee "$OUT/cuda_tests.txt"
 
 echo "== issue 34: PairStream throughput on $DEVICE"
