@@ -126,8 +126,13 @@ def narrow_float(a: np.ndarray, dtype, name: str, *, underflow: bool = False) ->
 
 
 def batch_param(value, name: str, batch: int, *, dtype, device, positive: bool = False) -> torch.Tensor:
-    """A per-sample scalar as a tensor of shape [B] (a scalar broadcasts)."""
-    if isinstance(value, (int, float)) and not isinstance(value, bool):  # fast path: checked as a Python number
+    """A per-sample scalar as a tensor of shape [B] (a scalar broadcasts). A bool (``exposure_s=True`` was 1 s) is
+    a TypeError naming ``name``, and so is a non-float ``dtype`` (an integer one truncated 0.0123 s to 0)."""
+    if isinstance(value, bool) or isinstance(value, torch.Tensor) and value.dtype == torch.bool:
+        raise TypeError(f"{name}: expected a number or a [B] tensor of numbers, got {value!r}")
+    if dtype is not None and not dtype.is_floating_point:
+        raise TypeError(f"{name}: the data's dtype {dtype} is not a float dtype; give float32 or float64 data")
+    if isinstance(value, (int, float)):  # fast path: checked as a Python number
         if not math.isfinite(value):
             raise ValueError(f"{name}: expected finite values, found 1 NaN/Inf entries")
         if positive and value <= 0:

@@ -11,6 +11,8 @@ as ISETCam measures them):
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 __all__ = ["AE_METHODS", "auto_exposure", "percentile_linear"]
@@ -43,7 +45,7 @@ def auto_exposure(volts_per_s: torch.Tensor, voltage_swing_v: float, method: str
     """Exposure times ``[B]`` (s) from the noise-free volts of a 1 s exposure ``[B, 1, H, W]``.
 
     ``t = target * swing / stat(volts at 1 s)`` (the response is linear in t, FORMAT 4.5); a black image
-    gets ``max_exposure_s``.
+    gets ``max_exposure_s``, an image whose statistic is NaN or negative a NaN exposure.
 
     Differentiable: ``t`` is a function of the volts, so a camera parameter upstream (f-number, filters, QE)
     gets its total derivative, the exposure's compensation included (a slower lens gets a longer exposure, as in
@@ -57,6 +59,11 @@ def auto_exposure(volts_per_s: torch.Tensor, voltage_swing_v: float, method: str
     """
     if method not in AE_METHODS:
         raise ValueError(f"method: expected one of {sorted(AE_METHODS)}, got {method!r}")
+    for label, v in (("voltage_swing_v", voltage_swing_v), ("max_exposure_s", max_exposure_s)):
+        # (a [B] tensor swing, the sensor's saturation at per-call gains, is the sensor's own: checked there)
+        if not isinstance(v, torch.Tensor) and (isinstance(v, bool) or not isinstance(v, (int, float))
+                                                or not (math.isfinite(v) and v > 0)):
+            raise ValueError(f"{label}: expected a finite number > 0, got {v!r}")
     if not 0 < percentile <= 100:
         raise ValueError(f"percentile: expected a value in (0, 100], got {percentile}")
     target = AE_METHODS[method] if target is None else float(target)
@@ -70,4 +77,7 @@ def auto_exposure(volts_per_s: torch.Tensor, voltage_swing_v: float, method: str
     else:
         stat = percentile_linear(flat, percentile)
     t = target * voltage_swing_v / stat.clamp_min(torch.finfo(stat.dtype).tiny)
-    return torch.where(stat > 0, t.clamp(max=max_exposure_s), torch.full_like(t, max_exposure_s))
+    # a black image (statistic 0) gets the longest exposure; a NaN or negative statistic gives NaN (it was the
+    # longest exposure too, hiding the bad input: a capture then refuses the NaN exposure, naming it), no host sync
+    t = torch.where(stat > 0, t.clamp(max=max_exposure_s), torch.full_like(t, max_exposure_s))
+    return torch.where(stat >= 0, t, torch.full_like(t, math.nan))

@@ -28,7 +28,7 @@ from torch import nn
 
 from .. import spectral
 from .._autograd import records_grad
-from .._checks import batch_param, check_in_dtype_range, is_integer, round_half_away
+from .._checks import batch_param, check_float_dtype, check_in_dtype_range, is_integer, round_half_away
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
 from .cfa import CFA
@@ -120,6 +120,21 @@ def _check_prnu(value: float) -> None:
                          f"1 + sigma z is negative, and clipped to 0, for z < -100 / sigma; sensors have 0.5-2 %), "
                          f"got {value!r}")
 
+
+
+def _check_rate(rate, mosaic: bool) -> torch.Tensor:
+    """A capture's electron rate: a float32/float64 ``(B, 1, rows, cols)`` mosaic (``mosaic``) or ``(B, C, rows,
+    cols)`` tensor of finite, non-negative electrons/s (an integer rate truncated the exposure to 0 s and read
+    black), with at least one item; else a ValueError naming ``electron_rate``."""
+    shape = "(B, 1, rows, cols)" if mosaic else "(B, C, rows, cols)"
+    if not isinstance(rate, torch.Tensor) or rate.dim() != 4 or (mosaic and rate.shape[1] != 1) or rate.numel() == 0:
+        raise ValueError(f"electron_rate: expected a non-empty {shape} tensor, got "
+                         f"{tuple(rate.shape) if isinstance(rate, torch.Tensor) else type(rate).__name__}")
+    check_float_dtype(rate.dtype, "electron_rate")
+    lo, hi = torch.aminmax(rate.detach())  # one pass; NaN propagates to both (a check: no graph, no warning)
+    if not (float(lo) >= 0 and math.isfinite(float(hi))):
+        raise ValueError("electron_rate: expected finite, non-negative electrons/s")
+    return rate
 
 class Sensor(nn.Module):
     """An image sensor: pixel geometry, CFA and spectral QE, exposure, noise, analog gain and ADC.
@@ -897,6 +912,7 @@ class Sensor(nn.Module):
         """The noise-free chain (exposure, conversion gain, analog gain, clipping, ADC scale without rounding) for
         any number of channels ``[B, C, rows, cols]`` -> output units: the ``noise_free`` of a capture, per channel
         (e.g. of :meth:`channel_rates`: a camera-RGB target with no CFA)."""
+        electron_rate = _check_rate(electron_rate, mosaic=False)  # (a negative rate was clipped to 0, NaN passed)
         b = electron_rate.shape[0]
         dtype, device = electron_rate.dtype, electron_rate.device
         t = batch_param(exposure_s, "exposure_s", b, dtype=dtype, device=device, positive=True)
@@ -965,13 +981,7 @@ class Sensor(nn.Module):
             >>> s.capture(torch.full((1, 1, 2, 2), 1e4), exposure_s=0.01, noise=False).data.shape
             torch.Size([1, 1, 2, 2])
         """
-        rate = electron_rate
-        if not isinstance(rate, torch.Tensor) or rate.dim() != 4 or rate.shape[1] != 1:
-            raise ValueError(f"electron_rate: expected a (B, 1, rows, cols) tensor, got "
-                             f"{tuple(rate.shape) if isinstance(rate, torch.Tensor) else type(rate).__name__}")
-        lo, hi = torch.aminmax(rate.detach())  # one pass; NaN propagates to both (a check: no graph, no warning)
-        if not (float(lo) >= 0 and math.isfinite(float(hi))):
-            raise ValueError("electron_rate: expected finite, non-negative electrons/s")
+        rate = _check_rate(electron_rate, mosaic=True)
         b = rate.shape[0]
         dtype, device = rate.dtype, rate.device
         if exposure_s is None:

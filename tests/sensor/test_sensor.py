@@ -417,3 +417,33 @@ def test_prnu_beyond_the_gaussian_gain_models_range_is_an_error():
     for per_call in (150.0, torch.tensor([1.0, 150.0])):  # per-call levels (the data pairs' path) are checked too
         with pytest.raises(ValueError, match=r"prnu_sigma_percent: expected at most 20\.0 %"):
             s.capture(rate, exposure_s=1e-3, prnu_sigma_percent=per_call, generator=torch.Generator().manual_seed(0))
+
+
+def test_capture_inputs_that_gave_silent_wrong_numbers_are_refused():
+    """Bad input audit: an integer electron rate truncated the exposure 0.0123 s to 0 and read black; a bool level
+    (exposure_s=True) was 1 s; readout clipped a negative rate to 0 and passed NaN; auto-exposure gave a NaN or
+    negative image the longest exposure (10 s), hiding it, and took a zero or negative swing or maximum exposure."""
+    import math
+
+    from isettorch.sensor.exposure import auto_exposure
+
+    s = Sensor(rows=8, cols=8, adc_bits=10)
+    with pytest.raises(ValueError, match="electron_rate: expected torch.float32 or torch.float64, got torch.int64"):
+        s.capture(torch.full((1, 1, 8, 8), 10**4), exposure_s=0.0123, noise=False)
+    for name, value in (("exposure_s", True), ("analog_gain", torch.tensor([True]))):
+        with pytest.raises(TypeError, match=f"{name}: expected a number"):
+            s.capture(torch.full((1, 1, 8, 8), 1e4), **{"exposure_s": 0.01, name: value}, noise=False)
+    for bad in (-torch.ones(1, 3, 8, 8), torch.full((1, 3, 8, 8), math.nan)):
+        with pytest.raises(ValueError, match="electron_rate: expected finite, non-negative"):
+            s.readout(bad, 0.01)
+    v = torch.full((2, 1, 8, 8), 10.0, dtype=torch.float64)
+    v[1, 0, 0, 0] = math.nan
+    t = auto_exposure(v, 1.0)
+    assert t[0].item() == pytest.approx(0.95 / 10.0) and math.isnan(t[1].item())  # (item 0 unaffected)
+    assert math.isnan(auto_exposure(-torch.ones(1, 1, 4, 4), 1.0).item())
+    assert auto_exposure(torch.zeros(1, 1, 4, 4), 1.0).item() == 10.0  # black: the longest exposure, as documented
+    with pytest.raises(ValueError, match="exposure_s: expected finite values"):  # a capture refuses the NaN exposure
+        s.capture(torch.full((2, 1, 8, 8), 1e4), exposure_s=t, noise=False)
+    for kw, name in (({"voltage_swing_v": 0.0}, "voltage_swing_v"), ({"max_exposure_s": -1.0}, "max_exposure_s")):
+        with pytest.raises(ValueError, match=f"{name}: expected a finite number > 0"):
+            auto_exposure(v, **{"voltage_swing_v": 1.0, **kw})
