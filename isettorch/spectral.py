@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from . import constants
-from ._checks import check_rank, check_wavelengths
+from ._checks import check_float_dtype, check_rank, check_wavelengths
 
 __all__ = [
     "default_wavelengths",
@@ -37,6 +37,7 @@ __all__ = [
     "band_average",
     "photons_to_energy",
     "planck_radiance",
+    "planck_relative",
     "energy_to_photons",
     "cmfs",
     "luminosity",
@@ -315,20 +316,36 @@ def planck_radiance(wavelength_m, temperature_k):
     """Planck's law, the spectral radiance of a black body (W/sr/m^2 per m of wavelength):
     ``B = 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)`` (CODATA h, c, k; :mod:`isettorch.constants`), for
     NumPy arrays or tensors that broadcast (a tensor temperature keeps its gradient). The one Planck formula of the
-    library: :func:`blackbody` and the scene generator's lights (``isettorch.data.spectra``) call it."""
+    library: :func:`planck_relative` (which :func:`blackbody` and the scene generator's lights use) is its ratio."""
     h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
     expm1 = torch.expm1 if isinstance(wavelength_m, torch.Tensor) or isinstance(temperature_k, torch.Tensor) \
         else np.expm1
     return 2 * h * c**2 / wavelength_m**5 / expm1(h * c / (wavelength_m * k * temperature_k))
 
 
+def planck_relative(wavelength_m, temperature_k, reference_m):
+    """``B(lambda, T) / B(reference, T)`` of :func:`planck_radiance`, computed in log space so that a cold body's
+    ratio stays finite where both radiances underflow (below about 36 K, 560 nm: 0 / 0 gave NaN):
+    ``(ref / lambda)^5 exp(L(c2 / (ref T)) - L(c2 / (lambda T)))``, ``L(x) = log(exp(x) - 1)``, ``c2 = h c / k``.
+    NumPy arrays or tensors that broadcast (a tensor temperature keeps its gradient)."""
+    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
+    xp = torch if any(isinstance(v, torch.Tensor) for v in (wavelength_m, temperature_k, reference_m)) else np
+
+    def log_expm1(x):  # both branches finite for x > 0 (no NaN in the discarded one's gradient)
+        return xp.where(x < 1, xp.log(xp.expm1(xp.minimum(x, xp.ones_like(x)))),
+                        x + xp.log1p(-xp.exp(-xp.maximum(x, xp.ones_like(x)))))
+
+    a = h * c / (k * temperature_k * reference_m) + 0 * wavelength_m
+    b = h * c / (k * temperature_k * wavelength_m)
+    return xp.exp(5 * xp.log(reference_m / wavelength_m) + log_expm1(a) - log_expm1(b))
+
+
 def blackbody(temperature_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
-    """Planck spectral radiance (energy units), normalised to 100 at 560 nm [L] (:func:`planck_radiance`)."""
-    if not (temperature_k > 0 and math.isfinite(temperature_k)):
+    """Planck spectral radiance (energy units), normalised to 100 at 560 nm [L] (:func:`planck_relative`)."""
+    if isinstance(temperature_k, bool) or not (temperature_k > 0 and math.isfinite(temperature_k)):
         raise ValueError(f"temperature_k: expected a positive temperature in kelvin, got {temperature_k}")
     w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
-    spd = (planck_radiance(w.to(torch.float64) * 1e-9, temperature_k)
-           / planck_radiance(torch.tensor(560e-9, dtype=torch.float64), temperature_k) * 100.0)
+    spd = 100.0 * planck_relative(w.to(torch.float64) * 1e-9, float(temperature_k), 560e-9)
     return spd.to(dtype=dtype, device=device)
 
 
@@ -400,6 +417,7 @@ def spectral_integral(x: torch.Tensor, weights: torch.Tensor, wavelengths_nm, di
     ``weights`` is [K, L] (or [L], giving K = 1).
     """
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    check_float_dtype(x.dtype, "x")  # (integer data rounded the weights to 0; half underflowed)
     dim = dim % x.dim()
     if x.shape[dim] != w.numel():
         raise ValueError(f"x: expected {w.numel()} wavelengths along dim {dim}, got {x.shape[dim]}")
@@ -419,6 +437,7 @@ def luminance(photons: torch.Tensor, wavelengths_nm, dim: int = -3, *, h: float 
     illuminance in lux. The spectral axis ``dim`` becomes size 1. Source: CIE 015:2018, Km = 683 lm/W.
     """
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    check_float_dtype(photons.dtype, "photons")  # (integer photons gave 0: V(lambda) cast to int64)
     e = photons_to_energy(photons, w, dim, h=h, c=c)
     v = luminosity(w, dtype=photons.dtype, device=photons.device)
     return constants.KM_LM_PER_W * spectral_integral(e, v, w, dim)
@@ -430,6 +449,7 @@ def xyz(photons: torch.Tensor, wavelengths_nm, dim: int = -3, *, observer: str =
     ``X = 683 sum E(l) xbar(l) dl`` etc. (CIE 015:2018). The spectral axis becomes 3 channels.
     """
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    check_float_dtype(photons.dtype, "photons")
     return xyz_of_energy(photons_to_energy(photons, w, dim), w, dim, observer=observer)
 
 
@@ -437,5 +457,6 @@ def xyz_of_energy(energy: torch.Tensor, wavelengths_nm, dim: int = -3, *, observ
     """CIE XYZ of a spectral power (W/...: a radiance in W/sr/m^2/nm gives Y in cd/m^2): ``X = 683 sum E(l)
     xbar(l) dl`` etc. (CIE 015:2018; :data:`constants.KM_LM_PER_W`). The spectral axis becomes 3 channels."""
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    check_float_dtype(energy.dtype, "energy")
     return constants.KM_LM_PER_W * spectral_integral(energy, cmfs(w, observer, dtype=energy.dtype,
                                                                   device=energy.device), w, dim)

@@ -172,3 +172,34 @@ def test_resample_is_differentiable():
     vals = torch.rand(3, dtype=torch.float64, requires_grad=True)
     dst = torch.tensor([420.0, 590.0], dtype=torch.float64)
     assert torch.autograd.gradcheck(lambda v: spectral.resample(v, src, dst), (vals,))
+
+
+def test_a_cold_blackbody_is_finite_and_wiens_law():
+    """Below about 36 K both Planck radiances underflow at 560 nm and the normalised spectrum was 0 / 0 = NaN. At
+    10 K, where c2 / (lambda T) is above 2000, Planck is Wien's law B ~ lambda^-5 exp(-c2 / (lambda T)) to
+    exp(-2000): the ratio to 560 nm in closed form (it underflows to 0 at the short wavelengths, as it should)."""
+    import math
+
+    from isettorch import constants
+
+    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    got = spectral.blackbody(10.0, w, dtype=torch.float64)
+    c2 = constants.PLANCK_J_S * constants.SPEED_OF_LIGHT_M_PER_S / constants.BOLTZMANN_J_PER_K
+    log_wien = [math.log(100.0) + 5 * math.log(560.0 / lam) + c2 / 10.0 * (1 / 560e-9 - 1 / (lam * 1e-9))
+                for lam in w.tolist()]
+    assert torch.isfinite(got).all()
+    for g, lw in zip(got.tolist(), log_wien):
+        assert g == (pytest.approx(math.exp(lw), rel=1e-11) if lw > -700 else 0.0)
+    with pytest.raises(ValueError, match="temperature_k"):
+        spectral.blackbody(True, w)
+
+
+@pytest.mark.parametrize("dtype", [torch.int64, torch.float16])
+def test_photometry_of_integer_or_half_photons_is_refused(dtype):
+    """Integer photons gave a luminance of 0 (V(lambda) cast to int64) and half ones an XYZ of 0 (the energy, 1e-19,
+    underflows float16): a ValueError naming the photons."""
+    w = torch.arange(400.0, 701.0, 10.0)
+    photons = (torch.full((31, 1, 1), 1e3)).to(dtype)
+    for f in (spectral.luminance, spectral.xyz):
+        with pytest.raises(ValueError, match=f"photons: expected torch.float32 or torch.float64, got {dtype}"):
+            f(photons, w, dim=0)

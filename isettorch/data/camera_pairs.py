@@ -99,8 +99,8 @@ META_KEYS = ("index", "exposure_s", "analog_gain", "iso", "f_number", "focal_len
 # 6: 2026-11-30 the colour targets (linear sRGB, sRGB) through the library's one sRGB matrix and its D65 white
 #    (IEC 61966-2-1 primaries and white chromaticity; before, a 7-decimal matrix and the tabulated D65 white: 3e-4).
 # 7: 2026-11-30 the camera pairs' one-sample-per-pixel field of view through optics.geometry.image_distance and
-#    image.angle_for_extent (1 ulp in about 0.1 % of draws); the XYZ weights, Planck spectra and light
-#    normalisation through the spectral module (equal to 4e-16; these draws bitwise unchanged).
+#    image.angle_for_extent (1 ulp in about 0.1 % of draws); the XYZ weights, Planck spectra (in log space) and
+#    light normalisation through the spectral module (equal to 1e-14).
 GENERATOR_VERSION = 7
 _TARGET_CHANNELS = {"noise_free_raw": 1, "camera_rgb": 3, "xyz": 3, "linear_srgb": 3, "srgb": 3}
 

@@ -345,9 +345,8 @@ def _planck_grid(grid: tuple) -> np.ndarray:
 
 def _blackbody(t, grid: tuple, xp):
     """Planck spectra [N, L] for temperatures ``t`` [N, 1], 100 at 560 nm (float64, numpy or torch ``xp``;
-    :func:`isettorch.spectral.planck_radiance`)."""
-    lam, ref = _const(_planck_grid(grid), xp, t), _const(np.array(560e-9), xp, t)
-    return 100.0 * spectral.planck_radiance(lam, t) / spectral.planck_radiance(ref, t)
+    :func:`isettorch.spectral.planck_relative`)."""
+    return 100.0 * spectral.planck_relative(_const(_planck_grid(grid), xp, t), t, 560e-9)
 
 
 def blackbody_spd(temperature_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
