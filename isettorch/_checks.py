@@ -68,6 +68,14 @@ def check_float_dtype(dtype, name: str = "dtype") -> torch.dtype:
     return dtype
 
 
+def check_bool(value, name: str) -> bool:
+    """``value`` if it is True or False (a string such as 'no', a number or None is not read as a flag): else a
+    TypeError naming ``name``."""
+    if not isinstance(value, bool):
+        raise TypeError(f"{name}: expected True or False, got {value!r}")
+    return value
+
+
 def check_positive(value, name: str) -> torch.Tensor:
     t = as_tensor(value, name)
     check_finite(t, name)

@@ -17,6 +17,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from ._checks import check_bool, is_integer
 from ._yaml import load_yaml
 from .isp.pipeline import DemosaicStage, ImageProcessor, ISPResult
 
@@ -72,12 +73,20 @@ class Camera(nn.Module):
     def __init__(self, optics: nn.Module, sensor: nn.Module, isp: nn.Module | None = None, noise: bool = True,
                  name: str = "", crop_to_sensor: bool = True, sensor_window_margin: int = 2) -> None:
         super().__init__()
-        self.crop_to_sensor = bool(crop_to_sensor)
+        # flags are True or False ('no' was True) and the margin a whole number of samples (2.7 was 2)
+        self.crop_to_sensor = check_bool(crop_to_sensor, "crop_to_sensor")
+        if not (is_integer(sensor_window_margin) and sensor_window_margin >= 0):
+            raise ValueError(f"sensor_window_margin: expected an integer number of samples >= 0, got "
+                             f"{sensor_window_margin!r}")
         self.sensor_window_margin = int(sensor_window_margin)
+        for label, module in (("optics", optics), ("sensor", sensor)):
+            if not isinstance(module, nn.Module):
+                raise TypeError(f"{label}: expected an nn.Module (an optics or sensor stage), got "
+                                f"{type(module).__name__}")
         self.optics = optics
         self.sensor = sensor
         self.isp = isp if isp is not None else ImageProcessor()
-        self.noise = bool(noise)
+        self.noise = check_bool(noise, "noise")
         self.name = name
 
     # --- pipeline ------------------------------------------------------------------------------

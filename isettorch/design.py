@@ -41,7 +41,7 @@ import torch
 from torch import nn
 
 from . import spectral
-from ._checks import check_float_dtype
+from ._checks import check_bool, check_float_dtype
 from .image import XYZ_TO_LINEAR_SRGB
 from .isp.mosaic_net import MosaicReconstructionNet
 from .optics import DiffractionLimitedOptics
@@ -750,8 +750,7 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     from .metrics.difference import delta_e_2000
 
     check_float_dtype(dtype)
-    if not isinstance(noise_free, bool):
-        raise TypeError(f"noise_free: expected True or False, got {noise_free!r}")
+    check_bool(noise_free, "noise_free")
     camera = design if isinstance(design, DesignCamera) else load_design(design)
     levels = camera.lux_levels if lux is None else [float(v) for v in lux]
     if not levels:

@@ -136,3 +136,26 @@ def test_warns_when_the_scene_is_coarser_than_the_pixels():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         cam(slanted_edge(256, hfov_deg=hfov))  # 2 samples per pixel: no warning
+
+
+def test_flags_and_the_window_margin_are_checked_not_coerced():
+    """Bad-input audit: Camera(noise='no') and crop_to_sensor='no' were True, sensor_window_margin=2.7 was 2 (and
+    -5 failed later with a crop error), Camera(None, 'sensor') failed at the first render; Sensor(cds='no') had CDS,
+    learnable_filters='no' made the filters trainable, capture(noise='yes') was read as a flag. One check_bool."""
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.sensor import Sensor
+
+    optics, sensor = DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3), Sensor(rows=8, cols=8)
+    for kw, error, message in (({"noise": "no"}, TypeError, "noise: expected True or False, got 'no'"),
+                               ({"crop_to_sensor": "no"}, TypeError, "crop_to_sensor: expected True or False"),
+                               ({"sensor_window_margin": 2.7}, ValueError, "sensor_window_margin: expected an integer"),
+                               ({"sensor_window_margin": -5}, ValueError, "sensor_window_margin: expected an integer")):
+        with pytest.raises(error, match=message):
+            Camera(optics, sensor, **kw)
+    with pytest.raises(TypeError, match="optics: expected an nn.Module"):
+        Camera(None, sensor)
+    for kw in ({"cds": "no"}, {"learnable_filters": "no"}):
+        with pytest.raises(TypeError, match=f"{next(iter(kw))}: expected True or False"):
+            Sensor(**kw)
+    with pytest.raises(TypeError, match="noise: expected True or False, got 'yes'"):
+        sensor.capture(torch.ones(1, 1, 8, 8), exposure_s=0.01, noise="yes")

@@ -30,7 +30,7 @@ from torch import nn
 
 from .. import spectral
 from .._autograd import records_grad
-from .._checks import as_tensor, batch_param, check_nonnegative, check_wavelengths
+from .._checks import as_tensor, batch_param, check_bool, check_nonnegative, check_wavelengths
 from ..image import SpectralFactors, angle_for_extent
 from ..scene.scene import Scene
 from . import geometry
@@ -91,8 +91,7 @@ class ShiftInvariantLens(nn.Module):
                  blur_skip_tolerance: float = 1e-3, margin: int | None = None, max_margin_factor: float = 2.0,
                  learn_f_number: bool = False, dtype=torch.float64) -> None:
         super().__init__()
-        if not isinstance(learn_f_number, bool):
-            raise TypeError(f"learn_f_number: expected True or False, got {learn_f_number!r}")
+        check_bool(learn_f_number, "learn_f_number")
         if isinstance(f_number, bool):
             raise TypeError(f"f_number: expected a number or [B] tensor, got {f_number!r}")
         # values are copied (detached): a tensor that requires grad would silently lose its gradient

@@ -37,6 +37,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from .._checks import check_bool
 from .filters import _W_ISETCAM, SpectralQE, filter_set
 
 __all__ = ["FIXED_FILTERS", "MAX_SLOPE_PER_NM", "FilterBank", "check_manufacturable", "max_slope_per_nm",
@@ -128,8 +129,7 @@ class FilterBank(SpectralQE):
         if bad:
             raise ValueError(f"filters: unknown filter {bad[0]!r}; expected 'learned' or one of "
                              f"{sorted(FIXED_FILTERS)}")
-        if not isinstance(learnable, bool):
-            raise TypeError(f"learnable: expected True or False, got {learnable!r}")
+        check_bool(learnable, "learnable")
         if fixed_scale not in ("table", "peak"):
             raise ValueError(f"fixed_scale: expected 'table' or 'peak', got {fixed_scale!r}")
         if not (band_width_nm > 0 and math.isfinite(band_width_nm)):

@@ -68,6 +68,7 @@ import torch
 from torch import nn
 
 from .._autograd import records_grad
+from .._checks import check_bool
 
 __all__ = ["ISETCAM_PIXEL", "MICROLENS_METHODS", "PixelOptics", "microlens_radiance", "microlens_etendue",
            "microlens_optimal_offset_m", "microlens_array_offsets_m"]
@@ -659,8 +660,7 @@ class PixelOptics(nn.Module):
         if convention not in ("physical", "isetcam"):
             raise ValueError(f"convention: expected 'physical' or 'isetcam', got {convention!r}")
         for label, flag in (("diffraction", diffraction), ("learnable", learnable)):
-            if not isinstance(flag, bool):
-                raise TypeError(f"{label}: expected True or False, got {flag!r}")
+            check_bool(flag, label)
         if model == "geometric" and (learnable or diffraction):
             raise ValueError("model: 'geometric' has no gradients or diffraction; use model='phase_space'")
         if convention == "isetcam" and (learnable or diffraction):

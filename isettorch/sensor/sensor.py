@@ -28,7 +28,7 @@ from torch import nn
 
 from .. import spectral
 from .._autograd import records_grad
-from .._checks import batch_param, check_float_dtype, check_in_dtype_range, is_integer, round_half_away
+from .._checks import batch_param, check_bool, check_float_dtype, check_in_dtype_range, is_integer, round_half_away
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
 from .cfa import CFA
@@ -271,6 +271,7 @@ class Sensor(nn.Module):
             raise ValueError(f"preblur_size: expected None or a positive integer, got {preblur_size!r}")
 
         self.cfa = cfa if isinstance(cfa, CFA) else CFA(cfa)
+        check_bool(learnable_filters, "learnable_filters")  # ('no' made the filters trainable)
         if spectral_qe is None:
             spectral_qe = SpectralQE.from_cfa(self.cfa, filters, ir_filter=ir_filter, pixel_qe=pixel_qe,
                                               learnable=learnable_filters)
@@ -301,7 +302,7 @@ class Sensor(nn.Module):
         self.column_fpn_sigma_v = float(column_fpn_sigma_v)
         self.fpn_mode = fpn_mode
         self.noise_model = noise_model
-        self.cds = bool(cds)
+        self.cds = check_bool(cds, "cds")
         self.sampling = sampling
         self.spectral_rule = spectral_rule
         self.preblur_size = preblur_size
@@ -982,6 +983,7 @@ class Sensor(nn.Module):
             torch.Size([1, 1, 2, 2])
         """
         rate = _check_rate(electron_rate, mosaic=True)
+        check_bool(noise, "noise")  # ('yes', None or 0 were read as flags)
         b = rate.shape[0]
         dtype, device = rate.dtype, rate.device
         if exposure_s is None:
