@@ -62,6 +62,14 @@ def _check_crop(crop) -> None:
                          f"got {crop!r}")
 
 
+
+def check_not_detached(value, name: str, how: str) -> None:
+    """ValueError naming ``name`` when ``value`` is a tensor that requires grad but an optics module copies it as a
+    constant (no gradient would reach it); ``how`` says what to do instead (e.g. the module's learn_* option)."""
+    if isinstance(value, torch.Tensor) and value.requires_grad:
+        raise ValueError(f"{name}: got a tensor that requires grad, but the optics copy it as a constant (no "
+                         f"gradient would reach it); {how}")
+
 class ShiftInvariantLens(nn.Module):
     """Base class of the shift-invariant optics (thin lens, camera equation, relative illumination, OTF blur).
 
@@ -98,9 +106,8 @@ class ShiftInvariantLens(nn.Module):
         for name, value, how in (("f_number", f_number, "pass learn_f_number=True (the module's own parameter)"),
                                  ("focal_length_m", focal_length_m, "the focal length is a fixed property here"),
                                  ("transmittance", transmittance, "the transmittance is a fixed property here")):
-            if isinstance(value, torch.Tensor) and value.requires_grad and not (name == "f_number" and learn_f_number):
-                raise ValueError(f"{name}: got a tensor that requires grad, but the optics copy it as a constant (no "
-                                 f"gradient would reach it); {how}")
+            if not (name == "f_number" and learn_f_number):
+                check_not_detached(value, name, how)
         n = as_tensor(f_number, "f_number", dtype=dtype).detach().clone()
         if n.dim() > 1 or not torch.isfinite(n).all() or (n < MIN_F_NUMBER).any():
             raise ValueError(f"f_number: expected a finite scalar or [B] tensor >= {MIN_F_NUMBER} (the fastest lens in "

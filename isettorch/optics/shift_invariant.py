@@ -6,7 +6,7 @@ import torch
 from torch import nn
 
 from .._checks import as_tensor, check_nonnegative, check_wavelengths
-from .base import ShiftInvariantLens
+from .base import ShiftInvariantLens, check_not_detached
 from .psf_otf import otf_from_psf
 
 __all__ = ["ShiftInvariantOptics"]
@@ -40,6 +40,9 @@ class ShiftInvariantOptics(ShiftInvariantLens):
     def __init__(self, psf, psf_spacing_m, psf_wavelengths_nm=None, f_number=4.0, focal_length_m=3.862755099e-3,
                  *, learn_psf: bool = False, dtype=torch.float64, **kwargs) -> None:
         super().__init__(f_number, focal_length_m, dtype=dtype, **kwargs)
+        if not learn_psf:
+            check_not_detached(psf, "psf", "pass learn_psf=True (the module's own parameter)")
+        check_not_detached(psf_spacing_m, "psf_spacing_m", "the PSF's sample spacing is a fixed property here")
         p = as_tensor(psf, "psf", dtype=dtype).detach().clone()
         if p.dim() == 2:
             p = p.unsqueeze(0)

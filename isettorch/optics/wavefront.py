@@ -10,7 +10,7 @@ from torch import nn
 
 from .._autograd import records_grad
 from .._checks import as_tensor
-from .base import ShiftInvariantLens
+from .base import ShiftInvariantLens, check_not_detached
 from .diffraction import dl_otf
 
 __all__ = ["zernike_nm", "zernike_basis", "defocus_diopters_to_zernike_um", "WavefrontOptics"]
@@ -127,6 +127,8 @@ class WavefrontOptics(ShiftInvariantLens):
             f_number = as_tensor(focal_length_m, "focal_length_m", dtype=dtype) / d
         super().__init__(f_number, focal_length_m, transmittance, transmittance_wavelengths_nm,
                          learn_f_number=learn_f_number, dtype=dtype, **kwargs)
+        if not learn_zernike:
+            check_not_detached(zernike_um, "zernike_um", "pass learn_zernike=True (the module's own parameter)")
         z = torch.zeros(1, dtype=dtype) if zernike_um is None else as_tensor(zernike_um, "zernike_um", dtype=dtype)
         z = z.detach().clone()
         if z.dim() not in (1, 2) or not torch.isfinite(z).all():

@@ -248,6 +248,18 @@ def test_bad_arguments():
     with pytest.raises(ValueError, match="transmittance: got a tensor that requires grad"):
         DiffractionLimitedOptics(4.0, transmittance=torch.tensor([0.9, 0.9], requires_grad=True),
                                  transmittance_wavelengths_nm=[400.0, 700.0])
+    # the same for the wavefront's Zernike terms and a measured PSF (they were detached silently)
+    from isettorch.optics import ShiftInvariantOptics, WavefrontOptics
+
+    z = torch.zeros(6, dtype=torch.float64, requires_grad=True)
+    with pytest.raises(ValueError, match="zernike_um: got a tensor that requires grad.*learn_zernike=True"):
+        WavefrontOptics(z, f_number=4.0)
+    assert WavefrontOptics(z, f_number=4.0, learn_zernike=True).zernike_um.requires_grad
+    psf = torch.ones(5, 5, dtype=torch.float64, requires_grad=True)
+    with pytest.raises(ValueError, match="psf: got a tensor that requires grad.*learn_psf=True"):
+        ShiftInvariantOptics(psf, 1e-6)
+    with pytest.raises(ValueError, match="psf_spacing_m: got a tensor that requires grad"):
+        ShiftInvariantOptics(psf.detach(), torch.tensor(1e-6, requires_grad=True))
 
 
 def test_plan_float32_and_isetcam_plan():
