@@ -20,12 +20,14 @@ _OTF_CHUNK_ELEMENTS = 1 << 22
 def dl_mtf_1d(s: torch.Tensor) -> torch.Tensor:
     """Diffraction-limited MTF of a circular pupil at normalised frequency ``s = f / f_c`` (``f_c = 1 / (lambda N)``):
     ``(2/pi)(acos s - s sqrt(1 - s^2))`` for ``s < 1``, else 0 (Goodman, Introduction to Fourier Optics, 6.31;
-    ISETCam ``dlCore``). Gradients are finite everywhere (the branch for ``s >= 1`` is never differentiated).
+    ISETCam ``dlCore``), even in ``s`` (a negative frequency is its mirror; it gave values above 1) and NaN where ``s``
+    is NaN (it gave 0). Gradients are finite everywhere (the branch for ``|s| >= 1`` is never differentiated).
     """
-    inside = s < 1
-    ss = torch.where(inside, s, torch.zeros_like(s))
+    a = s.abs()
+    inside = a < 1
+    ss = torch.where(inside, a, torch.zeros_like(a))
     val = (2 / math.pi) * (torch.acos(ss) - ss * torch.sqrt(1 - ss * ss))
-    return torch.where(inside, val, torch.zeros_like(val))
+    return torch.where(inside, val, torch.where(a >= 1, torch.zeros_like(val), a))  # (a: NaN where s is)
 
 
 def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor,
@@ -36,6 +38,9 @@ def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_n
     """
     if not bool((f_number.detach() > 0).all()):  # N <= 0 has no OTF (it gave values above 1, or 1 everywhere)
         raise ValueError(f"f_number: expected positive values, got {f_number.detach().reshape(-1).tolist()}")
+    w = torch.as_tensor(wavelengths_nm).detach()
+    if not bool(((w > 0) & torch.isfinite(w)).all()):  # (a NaN wavelength gave an OTF of 0, a negative one above 1)
+        raise ValueError(f"wavelengths_nm: expected finite positive wavelengths, got {w.reshape(-1).tolist()}")
     rho = torch.sqrt(fy[:, :, None] ** 2 + fx[:, None, :] ** 2)  # [B, My, Mx]
     lam_n = wavelengths_nm.to(rho.dtype)[None, :] * 1e-9 * f_number.to(rho.dtype).reshape(-1, 1)  # [B, L]
     step = max(1, _OTF_CHUNK_ELEMENTS // rho.numel())

@@ -9,6 +9,7 @@ from scipy import special
 
 from isettorch import Scene
 from isettorch.optics import DiffractionLimitedOptics, geometry
+from isettorch.optics.diffraction import dl_mtf_1d, dl_otf
 
 F = 4e-3
 FAR = 1e4  # scene distance: image distance = f to 1.6e-7
@@ -355,3 +356,14 @@ def test_dl_otf_refuses_a_non_positive_f_number():
     for n in (-2.0, 0.0):
         with pytest.raises(ValueError, match="f_number: expected positive values"):
             dl_otf(f, f, torch.tensor([500.0], dtype=torch.float64), torch.tensor([n], dtype=torch.float64))
+
+
+def test_the_mtf_is_even_and_a_nan_frequency_or_bad_wavelength_is_not_hidden():
+    """dl_mtf_1d of a negative normalised frequency is its mirror (it gave 1.36 > 1: acos past pi/2); a NaN
+    frequency gives NaN (it gave 0, a perfect blur); dl_otf refuses NaN or non-positive wavelengths by name."""
+    s = torch.tensor([0.25, 0.5, 0.9], dtype=torch.float64)
+    torch.testing.assert_close(dl_mtf_1d(-s), dl_mtf_1d(s), rtol=0, atol=0)
+    assert math.isnan(dl_mtf_1d(torch.tensor([math.nan], dtype=torch.float64)).item())
+    for w in (math.nan, -550.0, 0.0):
+        with pytest.raises(ValueError, match="wavelengths_nm: expected finite positive wavelengths"):
+            dl_otf(torch.zeros(1, 2), torch.zeros(1, 2), torch.tensor([w]), torch.tensor([4.0]))
