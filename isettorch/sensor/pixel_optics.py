@@ -27,6 +27,8 @@ import math
 
 import torch
 
+from .._checks import check_bool, is_integer
+
 __all__ = ["pixel_vignetting", "microlens_offset_m"]
 
 
@@ -38,6 +40,11 @@ def _check_pos(v, name):
 def microlens_offset_m(chief_ray_angle_deg: float, stack_height_m: float, stack_index: float = 1.5) -> float:
     """Microlens shift (m, towards the optical axis is negative) that centres the chief ray's focus on the
     detector: -h tan(asin(sin(theta_c) / n))."""
+    _check_pos(stack_height_m, "stack_height_m")
+    _check_pos(stack_index, "stack_index")
+    if isinstance(chief_ray_angle_deg, bool) or not isinstance(chief_ray_angle_deg, (int, float)) \
+            or not abs(chief_ray_angle_deg) < 90:  # (NaN fails too: it gave a NaN offset)
+        raise ValueError(f"chief_ray_angle_deg: expected a number with |angle| < 90, got {chief_ray_angle_deg!r}")
     t = math.asin(math.sin(math.radians(chief_ray_angle_deg)) / stack_index)
     return -stack_height_m * math.tan(t)
 
@@ -64,8 +71,14 @@ def pixel_vignetting(chief_ray_angle_deg, f_number: float, stack_height_m: float
         raise ValueError(f"f_number: expected >= 0.5 (beam half-angle below 90 deg), got {f_number}")
     if detector_size_m > pixel_size_m:
         raise ValueError(f"detector_size_m: expected at most pixel_size_m={pixel_size_m}, got {detector_size_m}")
+    check_bool(microlens, "microlens")  # ('no' took the microlens branch)
+    if isinstance(microlens_offset_m, bool) or not isinstance(microlens_offset_m, (int, float)) \
+            or not math.isfinite(microlens_offset_m):
+        raise ValueError(f"microlens_offset_m: expected a finite number, got {microlens_offset_m!r}")
+    if not (is_integer(samples) and samples >= 16):  # (1, 2 or 2.5 samples gave 1.0 against the true 0.678)
+        raise ValueError(f"samples: expected an integer >= 16 (pupil samples a side), got {samples!r}")
     cra = torch.as_tensor(chief_ray_angle_deg, dtype=torch.float64)
-    if (cra.abs() >= 90).any():
+    if not bool((cra.abs() < 90).all()):  # (NaN fails too: it gave 0)
         raise ValueError(f"chief_ray_angle_deg: expected |angle| < 90, got {cra.tolist()}")
     rad = 1.0 / (2.0 * f_number)
     u = (torch.arange(samples, dtype=torch.float64) - (samples - 1) / 2) * (2.0 / samples)

@@ -87,6 +87,19 @@ def test_pixel_vignetting_errors():
         pixel_vignetting(0.0, 2.0, 3e-6, 1e-6, 2e-6)
     with pytest.raises(ValueError, match="f_number"):
         pixel_vignetting(0.0, -2.0, 3e-6, 2e-6, 1e-6)
+    # a NaN angle or offset gave 0, samples of 1-2.5 gave 1.0 (true 0.678), 'no' took the microlens branch
+    for kw, error, message in (({"chief_ray_angle_deg": math.nan}, ValueError, "chief_ray_angle_deg"),
+                               ({"microlens_offset_m": math.nan}, ValueError, "microlens_offset_m"),
+                               ({"samples": 2.5}, ValueError, "samples: expected an integer >= 16"),
+                               ({"samples": 2}, ValueError, "samples: expected an integer >= 16"),
+                               ({"microlens": "no"}, TypeError, "microlens: expected True or False")):
+        args = {"chief_ray_angle_deg": 10.0, **kw}
+        with pytest.raises(error, match=message):
+            pixel_vignetting(args.pop("chief_ray_angle_deg"), 2.0, 3e-6, 2e-6, 1e-6, **args)
+    for args, message in (((math.nan, 3e-6), "chief_ray_angle_deg"), ((10.0, -3e-6), "stack_height_m"),
+                          ((90.0, 3e-6), "chief_ray_angle_deg")):
+        with pytest.raises(ValueError, match=message):
+            microlens_offset_m(*args)
 
 
 def test_lens_camera_config_renders():
