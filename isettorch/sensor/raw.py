@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import torch
 
+from .._checks import is_integer
 from .cfa import CFA
 
 __all__ = ["RawImage", "RAW_UNITS"]
@@ -67,6 +69,20 @@ class RawImage:
             raise ValueError(f"units: expected one of {RAW_UNITS}, got {self.units!r}")
         if not isinstance(self.cfa, CFA):
             self.cfa = CFA(self.cfa)
+        # the levels normalized() divides by (white == black gave inf, NaN levels NaN); [B] tensors, which a
+        # sensor's capture makes, are its own (checked there, and not read back to the host here)
+        for name in ("black_level", "white_level"):
+            v = getattr(self, name)
+            if v is None and name == "white_level" or isinstance(v, torch.Tensor) and not isinstance(v, bool):
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"{name}: expected a finite number (or a [B] tensor) in {self.units}, got {v!r}")
+        if isinstance(self.white_level, (int, float)) and isinstance(self.black_level, (int, float)) \
+                and not self.white_level > self.black_level:
+            raise ValueError(f"white_level: expected a level above black_level {self.black_level!r}, got "
+                             f"{self.white_level!r}")
+        if self.adc_bits is not None and not (is_integer(self.adc_bits) and self.adc_bits >= 1):
+            raise ValueError(f"adc_bits: expected None or an integer >= 1, got {self.adc_bits!r}")
         for name in ("noise_free", "electrons"):
             v = getattr(self, name)
             if v is not None and v.shape != self.data.shape:

@@ -447,3 +447,21 @@ def test_capture_inputs_that_gave_silent_wrong_numbers_are_refused():
     for kw, name in (({"voltage_swing_v": 0.0}, "voltage_swing_v"), ({"max_exposure_s": -1.0}, "max_exposure_s")):
         with pytest.raises(ValueError, match=f"{name}: expected a finite number > 0"):
             auto_exposure(v, **{"voltage_swing_v": 1.0, **kw})
+
+
+def test_a_raw_images_levels_are_checked():
+    """RawImage took a white level equal to the black level (normalized() gave inf), NaN levels (NaN) and a
+    fractional ADC bit depth; each is a ValueError naming the level. [B] tensor levels are the capture's own."""
+    import math
+
+    from isettorch.sensor import CFA, RawImage
+
+    d = torch.zeros(1, 1, 4, 4)
+    for kw, name in (({"white_level": 64.0, "black_level": 64.0}, "white_level"),
+                     ({"white_level": 0.0}, "white_level"), ({"white_level": math.nan}, "white_level"),
+                     ({"black_level": math.nan, "white_level": 1.0}, "black_level"),
+                     ({"white_level": 1.0, "adc_bits": 2.5}, "adc_bits")):
+        with pytest.raises(ValueError, match=f"^{name}: expected"):
+            RawImage(d, "dn", CFA("RGGB"), **kw)
+    ok = RawImage(d + 32.0, "dn", CFA("RGGB"), black_level=0.0, white_level=torch.tensor([64.0]))
+    assert float(ok.normalized().mean()) == 0.5
