@@ -102,7 +102,9 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         return dl_otf(fy, fx, wavelengths_nm, f_number)
 
     def psf_margin_m(self, wavelengths_nm, f_number):
-        # line-spread tail beyond a: 2 lambda N / (pi^3 a)  (asymptotic, from the MTF slope -4/pi at 0)
+        # line-spread tail beyond a: 2 lambda N / (pi^3 a)  (asymptotic: the circular pupil's line-spread function
+        # is H1(2v) / v^2, Struve's H1 -> 2 / pi far out (Marchand, JOSA 54(7), 915, 1964), the 1 / x^2 tail that the
+        # MTF's slope -4/pi at 0 implies (Bracewell, The Fourier Transform and Its Applications, on asymptotic forms)
         lam = wavelengths_nm.max() * 1e-9
         return 2 * lam * f_number / (math.pi**3 * self.psf_tolerance)
 

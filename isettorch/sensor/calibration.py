@@ -98,7 +98,10 @@ def _line(x: np.ndarray, y: np.ndarray, sd: np.ndarray | None = None) -> tuple[f
 
 def _spatial_sd(fixed_var: float, stats: dict, averages, other: dict | None = None) -> float:
     """Standard error of a spatial-variance estimate of frame averages: the pixel-wise part is sampled by every pixel,
-    the temporal row (column) residue only by the rows (columns), sd^2 = 2 v_pix^2 / pixels + 2 v_row^2 / rows + ..."""
+    the temporal row (column) residue only by the rows (columns), sd^2 = 2 v_pix^2 / pixels + 2 v_row^2 / rows + ...
+    (each term the sampling variance of a Gaussian sample variance, 2 sigma^4 / n for n samples: (n - 1) s^2 /
+    sigma^2 is chi-square with n - 1 degrees of freedom; Papoulis & Pillai, Probability, Random Variables and
+    Stochastic Processes, 4th ed., section 8-2)."""
     pixels = sum(a.numel() for a in averages)
     rows, cols = averages[0].shape
     v_pix, v_row, v_col = fixed_var, 0.0, 0.0
@@ -195,6 +198,8 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     dof_f = np.array([dof(flat[m]) for m in ms_f], dtype=np.float64)
     dof_d = np.array([dof(dark[m] if m in dark else dark[min(dark, key=lambda k: abs(k - m))]) for m in ms_f],
                      dtype=np.float64)
+    # the ratio's relative standard error from the two variances' (a Gaussian sample variance's is 2 sigma^4 / dof,
+    # the chi-square law of (dof) s^2 / sigma^2, as in _spatial_sd)
     se = np.sqrt(2 * vp_f ** 2 / dof_f + 2 * (vp_f - dvar) ** 2 / dof_d) / np.maximum(np.abs(dvar), 1e-300)
     keep = positive & (np.abs(ratio / K0 - 1) < np.maximum(0.05, 4 * se))
     if keep.sum() < 3:
