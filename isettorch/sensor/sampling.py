@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 
 from .. import spectral
+from .._checks import is_integer
 
 __all__ = [
     "electron_rate_density",
@@ -124,12 +125,31 @@ def _interp_last(x: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
     return (x0 * (1 - t) + x1 * t) * valid.reshape(view)
 
 
+def _check_sampling(x, oi_sample_spacing_m, pixel_size_m, rows, cols) -> None:
+    """The public samplers' arguments (their batch shapes, sizes and pitch), checked without a host read of the data:
+    a batch-mismatched spacing gave a wrongly shaped result, rows=2.7 three rows, a negative pitch zeros or a mirror,
+    an integer image zeros."""
+    if not isinstance(x, torch.Tensor) or x.dim() != 4 or not x.is_floating_point():
+        raise ValueError(f"x: expected a float tensor [B, C, H, W], got "
+                         f"{(x.dtype, tuple(x.shape)) if isinstance(x, torch.Tensor) else type(x).__name__}")
+    if not isinstance(oi_sample_spacing_m, torch.Tensor) or oi_sample_spacing_m.numel() not in (1, x.shape[0]):
+        raise ValueError(f"oi_sample_spacing_m: expected a tensor of 1 or {x.shape[0]} (the batch) spacings, got "
+                         f"{oi_sample_spacing_m!r}")
+    for name, n in (("rows", rows), ("cols", cols)):
+        if not (is_integer(n) and n >= 1):
+            raise ValueError(f"{name}: expected an integer number of pixels >= 1, got {n!r}")
+    if isinstance(pixel_size_m, bool) or not isinstance(pixel_size_m, (int, float)) \
+            or not (math.isfinite(pixel_size_m) and pixel_size_m > 0):
+        raise ValueError(f"pixel_size_m: expected a finite pitch > 0 in metres, got {pixel_size_m!r}")
+
+
 def sample_point(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_m: float, rows: int, cols: int,
                  ) -> torch.Tensor:
     """Bilinear samples at pixel centres (ISETCam ``interp2(..., 'linear')``; outside the OI -> 0).
 
     ``x [B, C, H2, W2]`` on the OI grid -> ``[B, C, rows, cols]``.
     """
+    _check_sampling(x, oi_sample_spacing_m, pixel_size_m, rows, cols)
     # positions in float64: a float32 index of a wide OI would lose ~1e-4 of a sample
     px = pixel_centre_index(x.shape[-1], cols, pixel_size_m, oi_sample_spacing_m.to(torch.float64))
     py = pixel_centre_index(x.shape[-2], rows, pixel_size_m, oi_sample_spacing_m.to(torch.float64))
@@ -212,7 +232,8 @@ def sample_area(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_m
     exact integrals of their model, for pixels larger or smaller than the samples.
     ``x [B, C, H2, W2]`` -> ``[B, C, rows, cols]``.
     """
-    if not 0 < fill_factor <= 1:
+    _check_sampling(x, oi_sample_spacing_m, pixel_size_m, rows, cols)
+    if isinstance(fill_factor, bool) or not 0 < fill_factor <= 1:
         raise ValueError(f"fill_factor: expected a value in (0, 1], got {fill_factor}")
     if reconstruction not in RECONSTRUCTIONS:
         raise ValueError(f"reconstruction: expected one of {sorted(RECONSTRUCTIONS)}, got {reconstruction!r}")

@@ -213,3 +213,20 @@ def test_preblur_gradient_and_float32(k):
     out = isetcam_preblur(a.detach().float(), k)
     assert out.dtype == torch.float32
     torch.testing.assert_close(out.double(), ref, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("sampler", ["sample_area", "sample_point"])
+def test_the_public_samplers_check_their_arguments(sampler):
+    """A spacing tensor of another batch gave a (2, 3, 12, 12) result for 8 x 8 pixels, rows=2.7 gave 3 rows, a
+    negative pitch zeros (area) or a mirrored image (point), an integer image zeros: each a ValueError naming it."""
+    import isettorch.sensor as sensor_pkg
+
+    f = getattr(sensor_pkg, sampler)
+    x = torch.rand(1, 3, 12, 12, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    dx = torch.tensor([1e-6])
+    assert f(x, dx, 2e-6, 4, 4).shape == (1, 3, 4, 4)
+    for args, name in (((x.expand(2, -1, -1, -1), torch.tensor([1e-6] * 3), 2e-6, 4, 4), "oi_sample_spacing_m"),
+                       ((x, dx, 2e-6, 2.7, 4), "rows"), ((x, dx, 2e-6, 4, True), "cols"),
+                       ((x, dx, -2e-6, 4, 4), "pixel_size_m"), (((x * 10).long(), dx, 2e-6, 4, 4), "x")):
+        with pytest.raises(ValueError, match=f"^{name}: expected"):
+            f(*args)
