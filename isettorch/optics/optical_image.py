@@ -9,6 +9,7 @@ from typing import ClassVar
 import torch
 
 from .._autograd import records_grad
+from .._checks import is_integer
 from ..image import SpectralImage, angle_for_extent, select_items
 
 __all__ = ["OpticalImage", "FourierFactors"]
@@ -359,6 +360,12 @@ class OpticalImage(SpectralImage):
 
     def __post_init__(self, validate: bool = True) -> None:
         super().__post_init__(validate)
+        # the padding the optics added: whole samples, at most half the image on each side (2.7, -1 or more than
+        # the image were taken and cropped wrongly by crop_padding)
+        for name, n, size in (("pad_rows", self.pad_rows, self.height), ("pad_cols", self.pad_cols, self.width)):
+            if not (is_integer(n) and 0 <= n and 2 * n < size):
+                raise ValueError(f"{name}: expected an integer number of samples from 0 to less than half the "
+                                 f"image's {size}, got {n!r}")
         if self.hfov_deg is None:
             d = self.image_distance_m if self.image_distance_m is not None else self.focal_length_m
             if d is not None:

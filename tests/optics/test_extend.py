@@ -28,3 +28,16 @@ def test_extend_matches_numpy_pad(mode, window):
     out = extend(torch.from_numpy(x), (r0, r1), (c0, c1), mode).numpy()
     assert out.shape == ref.shape
     np.testing.assert_allclose(out, ref, rtol=1e-15, atol=0)  # means differ from numpy in the last bit
+
+
+def test_an_optical_images_padding_is_whole_samples_inside_the_image():
+    """OpticalImage took pad_rows of 2.7, -1, True or half the image or more (the scene's extent, height - 2 pad,
+    is what a sensor without a set size fits: Sensor.size_for). A ValueError names it; 3 of 8 is fine."""
+    from isettorch.optics import OpticalImage
+
+    w = torch.arange(400.0, 701.0, 10.0)
+    for kw in ({"pad_rows": 2.7}, {"pad_rows": -1}, {"pad_rows": 4}, {"pad_cols": True}):
+        with pytest.raises(ValueError, match=f"^{next(iter(kw))}: expected an integer number of samples"):
+            OpticalImage(torch.ones(1, 31, 8, 8), w, sample_spacing_m=1e-6, **kw)
+    oi = OpticalImage(torch.ones(1, 31, 8, 8), w, sample_spacing_m=1e-6, pad_rows=3)
+    assert oi.crop(oi.pad_rows, oi.pad_cols, oi.height - 2 * oi.pad_rows, oi.width).photons.shape[-2:] == (2, 8)
