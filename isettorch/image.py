@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import torch
 
 from . import spectral
-from ._checks import as_tensor, batch_param, check_finite, check_nonnegative, check_rank, check_wavelengths
+from ._checks import as_tensor, batch_param, check_finite, check_nonnegative, check_rank, check_wavelengths, is_integer
 
 #: IEC 61966-2-1:1999 sRGB: the primaries' and the D65 white's CIE 1931 chromaticities
 SRGB_PRIMARIES_XY = ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06))
@@ -119,6 +119,15 @@ def select_items(values, index) -> list | None:
     return [values[i] for i in torch.arange(len(values))[index].reshape(-1).tolist()]
 
 
+
+def _check_window(top, left, height, width, image_height: int, image_width: int) -> None:
+    """A crop window of whole samples inside an image of ``image_height x image_width`` (slicing would silently
+    shorten one that reaches past the edge, or take 2.7 as a float index error)."""
+    if not (all(is_integer(v) for v in (top, left, height, width)) and 0 <= top and 0 <= left and height >= 1
+            and width >= 1 and top + height <= image_height and left + width <= image_width):
+        raise ValueError(f"crop: window top={top}, left={left}, height={height}, width={width} does not fit in an "
+                         f"image of {image_height}x{image_width}")
+
 class SpectralFactors:
     """A low-rank spectral image ``radiance(b, l, y, x) = sum_j maps[b, j, y, x] * spectra[b, j, l]``.
 
@@ -217,6 +226,7 @@ class SpectralFactors:
                                terms=self.terms)
 
     def crop(self, top: int, left: int, height: int, width: int) -> SpectralFactors:
+        _check_window(top, left, height, width, *self.maps.shape[-2:])  # (a window past the edge was shortened)
         return SpectralFactors(self.maps[..., top:top + height, left:left + width], self.spectra, validate=False,
                                terms=self.terms)
 
@@ -570,12 +580,7 @@ class SpectralImage:
         return self.photons[:, :, r, c].mean(dim=(-2, -1))
 
     def _check_window(self, top: int, left: int, height: int, width: int) -> None:
-        if not (0 <= top and 0 <= left and height >= 1 and width >= 1
-                and top + height <= self.height and left + width <= self.width):
-            raise ValueError(
-                f"crop: window top={top}, left={left}, height={height}, width={width} does not fit in an "
-                f"image of {self.height}x{self.width}"
-            )
+        _check_window(top, left, height, width, self.height, self.width)
 
     def _crop_photons(self, top: int, left: int, height: int, width: int) -> torch.Tensor:
         self._check_window(top, left, height, width)

@@ -41,3 +41,15 @@ def test_an_optical_images_padding_is_whole_samples_inside_the_image():
             OpticalImage(torch.ones(1, 31, 8, 8), w, sample_spacing_m=1e-6, **kw)
     oi = OpticalImage(torch.ones(1, 31, 8, 8), w, sample_spacing_m=1e-6, pad_rows=3)
     assert oi.crop(oi.pad_rows, oi.pad_cols, oi.height - 2 * oi.pad_rows, oi.width).photons.shape[-2:] == (2, 8)
+
+
+def test_a_factored_crop_outside_the_image_is_refused():
+    """SpectralFactors.crop shortened a window past the edge without a word (crop(0, 0, 100, 100) of a 4 x 4 image
+    gave 4 x 4); it now checks the window as the image's crop does, naming it."""
+    from isettorch.image import SpectralFactors
+
+    f = SpectralFactors(torch.ones(1, 2, 4, 4), torch.ones(1, 2, 3))
+    assert f.crop(1, 1, 2, 3).maps.shape[-2:] == (2, 3)
+    for window in ((0, 0, 100, 100), (-1, 0, 2, 2), (0, 0, 2.5, 2)):
+        with pytest.raises(ValueError, match="crop: window .* does not fit in an image of 4x4"):
+            f.crop(*window)
