@@ -9,6 +9,8 @@ import math
 
 import torch
 
+from .._checks import is_integer
+
 __all__ = [
     "image_distance",
     "magnification",
@@ -40,7 +42,10 @@ def image_distance(focal_length_m, object_distance_m) -> torch.Tensor:
     """
     f = _t(focal_length_m, object_distance_m if isinstance(object_distance_m, torch.Tensor) else None)
     s = _t(object_distance_m, f)
-    if bool((s <= f).any()):
+    ok_f = (f > 0) & torch.isfinite(f)  # (NaN gave NaN, f <= 0 a negative distance)
+    if not bool((ok_f & (s > f)).all()):  # one host read; NaN fails too
+        if not bool(ok_f.all()):
+            raise ValueError(f"focal_length_m: expected finite positive focal lengths, got {f.tolist()} m")
         raise ValueError(f"object_distance_m: expected a distance beyond the focal length {f.tolist()} m, "
                          f"got {s.tolist()} m (no real image)")
     return 1.0 / (1.0 / f - 1.0 / s)
@@ -57,6 +62,8 @@ def image_sample_spacing(hfov_deg, n_cols: int, image_distance_m) -> torch.Tenso
 
     Equal to the scene-plane pitch times ``|m|`` (the scene at ``d_o`` maps to ``d_i``); ISETCam ``oiGet 'width'``.
     """
+    if not (is_integer(n_cols) and n_cols >= 1):  # (0 gave inf, 2.7 and negative counts were taken)
+        raise ValueError(f"n_cols: expected an integer number of samples >= 1, got {n_cols!r}")
     d = _t(image_distance_m, hfov_deg if isinstance(hfov_deg, torch.Tensor) else None)
     return 2 * d * torch.tan(torch.deg2rad(_t(hfov_deg, d)) / 2) / n_cols
 

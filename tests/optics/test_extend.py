@@ -53,3 +53,21 @@ def test_a_factored_crop_outside_the_image_is_refused():
     for window in ((0, 0, 100, 100), (-1, 0, 2, 2), (0, 0, 2.5, 2)):
         with pytest.raises(ValueError, match="crop: window .* does not fit in an image of 4x4"):
             f.crop(*window)
+
+
+def test_thin_lens_helpers_refuse_what_has_no_image():
+    """image_distance of a NaN or non-positive focal length gave NaN or a negative distance; image_sample_spacing
+    of 0 columns inf, of 2.7 a spacing for a fraction of a sample."""
+    import math
+
+    from isettorch.optics import geometry
+
+    assert float(geometry.image_distance(0.05, 1.0)) == pytest.approx(1 / (1 / 0.05 - 1))  # Hecht 5.17
+    for f in (math.nan, 0.0, -0.05):
+        with pytest.raises(ValueError, match="focal_length_m: expected finite positive"):
+            geometry.image_distance(f, 1.0)
+    with pytest.raises(ValueError, match="object_distance_m: expected a distance beyond"):
+        geometry.image_distance(0.05, math.nan)
+    for n in (0, 2.7, -3, True):
+        with pytest.raises(ValueError, match="n_cols: expected an integer"):
+            geometry.image_sample_spacing(10.0, n, 0.05)
