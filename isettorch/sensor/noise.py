@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 
 from .._autograd import records_grad
+from .._checks import is_integer
 
 __all__ = ["SHOT_NOISE_MODES", "safe_sqrt", "shot_noise", "isetcam_shot_noise", "normal", "round_half_away",
            "quantize_ste", "fixed_pattern_draws", "poisson_gaussian"]
@@ -96,6 +97,11 @@ def fixed_pattern_draws(rows: int, cols: int, seed: int, *, dtype=torch.float64,
     Returns ``{'dsnu': [rows, cols], 'prnu': [rows, cols], 'column': [cols]}``; drawn on the CPU in
     float64 so the pattern is the same on every device and dtype.
     """
+    if not (is_integer(seed) and seed >= 0):  # (1.5 was drawn as seed 1, True as 1)
+        raise ValueError(f"seed: expected an integer >= 0, got {seed!r}")
+    for name, n in (("rows", rows), ("cols", cols)):
+        if not (is_integer(n) and n >= 1):
+            raise ValueError(f"{name}: expected an integer number of pixels >= 1, got {n!r}")
     g = torch.Generator().manual_seed(int(seed))
     dsnu = torch.randn(rows, cols, generator=g, dtype=torch.float64)
     prnu = torch.randn(rows, cols, generator=g, dtype=torch.float64)

@@ -27,6 +27,8 @@ import math
 
 import torch
 
+from .._checks import is_integer
+
 __all__ = ["NoiseTerms", "tukey_lambda_quantile", "tukey_lambda_variance", "tukey_lambda_noise", "row_noise",
            "column_noise"]
 
@@ -117,6 +119,8 @@ class NoiseTerms:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if not (is_integer(self.seed) and self.seed >= 0):  # (1.5 was taken, as int(1.5) = 1)
+            raise ValueError(f"seed: expected an integer >= 0, got {self.seed!r}")
         for name in ("row_noise_v", "column_noise_v", "dark_shading_e_per_s", "hot_pixel_dark_current_e_per_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0):

@@ -108,3 +108,18 @@ def test_poisson_gaussian_floor_is_the_dark_variance_of_a_numpy_camera():
     assert abs((float(b) - 1 / 12) / x.var() - 1) > 0.015
     _, b_cds = Sensor(**kw, cds=True).poisson_gaussian(exposure_s=1.0)
     assert float(b_cds) == pytest.approx(2 * 1 + 2 + 1 / 12, rel=1e-12)
+
+
+def test_fixed_pattern_seeds_are_integers():
+    """fixed_pattern_draws(seed=1.5) drew seed 1's pattern and seed=True too; NoiseTerms(seed=1.5) was taken."""
+    from isettorch.sensor.noise import fixed_pattern_draws
+    from isettorch.sensor.noise_terms import NoiseTerms
+
+    assert torch.equal(fixed_pattern_draws(4, 4, 1)["dsnu"], fixed_pattern_draws(4, 4, 1)["dsnu"])
+    for seed in (1.5, True, -1):
+        with pytest.raises(ValueError, match="seed: expected an integer >= 0"):
+            fixed_pattern_draws(4, 4, seed)
+        with pytest.raises(ValueError, match="seed: expected an integer >= 0"):
+            NoiseTerms(seed=seed)
+    with pytest.raises(ValueError, match="rows: expected an integer number of pixels"):
+        fixed_pattern_draws(2.5, 4, 1)
