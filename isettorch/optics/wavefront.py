@@ -137,8 +137,8 @@ class WavefrontOptics(ShiftInvariantLens):
             z = torch.cat([z, torch.zeros(*z.shape[:-1], 5 - z.shape[-1], dtype=dtype)], dim=-1)
         self.zernike_um = nn.Parameter(z, requires_grad=learn_zernike)
         dd = as_tensor(defocus_diopters, "defocus_diopters", dtype=dtype)
-        if not torch.isfinite(dd).all():
-            raise ValueError(f"defocus_diopters: expected finite values, got {dd.tolist()}")
+        if dd.dim() > 1 or not torch.isfinite(dd).all():
+            raise ValueError(f"defocus_diopters: expected a finite scalar or [B] values, got {dd.tolist()}")
         self.register_buffer("defocus_diopters", dd.detach().clone())
         if not isinstance(pupil_samples, int) or pupil_samples < 8 or pupil_samples % 2:
             raise ValueError(f"pupil_samples: expected an even int >= 8, got {pupil_samples!r}")
@@ -176,6 +176,9 @@ class WavefrontOptics(ShiftInvariantLens):
             if not torch.isfinite(extra).all():
                 raise ValueError(f"defocus_diopters: expected finite values, got {extra.tolist()}")
             dd = dd + extra
+        if dd.numel() not in (1, batch):  # (a [2] defocus on a batch of 1 gave a reshape error of the pupil)
+            raise ValueError(f"defocus_diopters: expected 1 or {batch} values (one per batch sample), got "
+                             f"{dd.numel()}")
         if bool((dd != 0).any()):
             diam = self.batch_focal_length(batch, f_number.dtype, f_number.device) / f_number
             c4 = defocus_diopters_to_zernike_um(dd, diam)

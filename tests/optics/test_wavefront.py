@@ -128,3 +128,15 @@ def test_bad_arguments():
         WavefrontOptics(torch.full((3,), float("nan")))
     with pytest.raises(ValueError, match="j"):
         zernike_nm(-1)
+
+
+def test_a_defocus_of_another_batch_is_named():
+    """A [2] defocus on a batch of 1 (or a 2-D one) failed deep in the pupil with "shape '[10, 60, 31, 2]' is
+    invalid"; the error names defocus_diopters and the batch."""
+    from isettorch import scene as scenes
+
+    s = scenes.macbeth(patch_size=4)
+    with pytest.raises(ValueError, match=r"defocus_diopters: expected 1 or 1 values \(one per batch sample\), got 2"):
+        WavefrontOptics(f_number=4.0, defocus_diopters=torch.tensor([1.0, 2.0]))(s)
+    with pytest.raises(ValueError, match="defocus_diopters: expected a finite scalar or"):
+        WavefrontOptics(f_number=4.0, defocus_diopters=torch.tensor([[1.0]]))
