@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 
 import numpy as np
 import torch
@@ -58,14 +59,25 @@ OBSERVERS = {
 }
 
 
+#: the most samples a wavelength grid of :func:`default_wavelengths` may have (1 pm steps over 400-700 nm: 300,001)
+MAX_WAVELENGTHS = 1_000_000
+
+
 def default_wavelengths(start_nm: float = 400.0, stop_nm: float = 700.0, step_nm: float = 10.0,
                         *, dtype=None, device=None) -> torch.Tensor:
-    """The grid ``start:step:stop`` in nm (inclusive), ISETCam's default is 400:10:700."""
+    """The grid ``start:step:stop`` in nm (inclusive), ISETCam's default is 400:10:700 (at most
+    :data:`MAX_WAVELENGTHS` samples)."""
+    for name, v in (("start_nm", start_nm), ("stop_nm", stop_nm), ("step_nm", step_nm)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):  # (NaN: int() error)
+            raise ValueError(f"{name}: expected a finite number of nm, got {v!r}")
     if step_nm <= 0:
         raise ValueError(f"step_nm: expected a positive step, got {step_nm}")
     if stop_nm < start_nm:
         raise ValueError(f"stop_nm: expected stop_nm >= start_nm ({start_nm}), got {stop_nm}")
     n = int(math.floor((stop_nm - start_nm) / step_nm + 1e-9)) + 1
+    if n > MAX_WAVELENGTHS:  # (a step of 1e-12 nm asked for 1.2 PB)
+        raise ValueError(f"step_nm: {step_nm} nm gives {n} samples from {start_nm} to {stop_nm} nm; expected at most "
+                         f"{MAX_WAVELENGTHS}")
     return start_nm + step_nm * torch.arange(n, dtype=dtype or torch.get_default_dtype(), device=device)
 
 

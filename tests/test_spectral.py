@@ -203,3 +203,14 @@ def test_photometry_of_integer_or_half_photons_is_refused(dtype):
     for f in (spectral.luminance, spectral.xyz):
         with pytest.raises(ValueError, match=f"photons: expected torch.float32 or torch.float64, got {dtype}"):
             f(photons, w, dim=0)
+
+
+def test_default_wavelengths_refuses_what_is_no_grid():
+    """NaN bounds gave int()'s 'cannot convert float NaN', a bool step a 1 nm grid, 1e-12 nm a 1.2 PB allocation."""
+    import math
+
+    for kw, name in (({"step_nm": math.nan}, "step_nm"), ({"stop_nm": math.inf}, "stop_nm"),
+                     ({"step_nm": True}, "step_nm"), ({"step_nm": 1e-12}, "step_nm")):
+        with pytest.raises(ValueError, match=f"^{name}: "):
+            spectral.default_wavelengths(**kw)
+    assert spectral.default_wavelengths().tolist() == [400.0 + 10.0 * i for i in range(31)]
