@@ -270,11 +270,19 @@ class Sensor(nn.Module):
         if preblur_size is not None and (not is_integer(preblur_size) or preblur_size < 1):
             raise ValueError(f"preblur_size: expected None or a positive integer, got {preblur_size!r}")
 
-        self.cfa = cfa if isinstance(cfa, CFA) else CFA(cfa)
+        try:  # the CFA's and the filter set's own checks, named with the Sensor's arguments ('cell', 'name')
+            self.cfa = cfa if isinstance(cfa, CFA) else CFA(cfa)
+        except (TypeError, ValueError) as err:
+            raise type(err)(f"cfa: {err}") from err
         check_bool(learnable_filters, "learnable_filters")  # ('no' made the filters trainable)
         if spectral_qe is None:
-            spectral_qe = SpectralQE.from_cfa(self.cfa, filters, ir_filter=ir_filter, pixel_qe=pixel_qe,
-                                              learnable=learnable_filters)
+            try:
+                spectral_qe = SpectralQE.from_cfa(self.cfa, filters, ir_filter=ir_filter, pixel_qe=pixel_qe,
+                                                  learnable=learnable_filters)
+            except ValueError as err:
+                if not str(err).startswith("name: "):
+                    raise
+                raise ValueError(f"filters: {str(err).removeprefix('name: ')}") from err
         if spectral_qe.channel_names != self.cfa.channel_names:
             raise ValueError(f"spectral_qe: channel names {spectral_qe.channel_names} differ from the CFA's "
                              f"{self.cfa.channel_names}")

@@ -465,3 +465,12 @@ def test_a_raw_images_levels_are_checked():
             RawImage(d, "dn", CFA("RGGB"), **kw)
     ok = RawImage(d + 32.0, "dn", CFA("RGGB"), black_level=0.0, white_level=torch.tensor([64.0]))
     assert float(ok.normalized().mean()) == 0.5
+
+
+def test_sensor_cfa_and_filter_errors_name_the_sensors_arguments():
+    """Sensor(cfa=5) and Sensor(filters='x') raised errors naming the CFA's 'cell' and the filter set's 'name',
+    arguments a Sensor user never wrote."""
+    with pytest.raises(TypeError, match="^cfa: cell: expected a pattern string"):
+        Sensor(cfa=5)
+    with pytest.raises(ValueError, match="^filters: unknown filter set 'x'"):
+        Sensor(filters="x")
