@@ -142,6 +142,22 @@ class Prescription:
             if s.kind not in ("STANDARD", "EVENASPH"):
                 raise PrescriptionError(f"{lens}: surface {i}: unsupported surface type {s.kind!r}; expected "
                                         f"STANDARD or EVENASPH")
+            # the numbers of a lens surface (NaN gave a NaN focal length; a negative semi-diameter was taken)
+            values = {"curvature_per_mm": s.curvature_per_mm, "conic": s.conic, "aperture_min_mm": s.aperture_min_mm,
+                      **{f"aspheric[{k}]": a for k, a in enumerate(s.aspheric)}}
+            if i > 0:
+                values["thickness_mm"] = s.thickness_mm
+            for key, v in values.items():
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise PrescriptionError(f"{lens}: surface {i}: {key}: expected a finite number, got {v!r}")
+            for key in ("semi_diameter_mm", "aperture_mm"):
+                v = getattr(s, key)
+                if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                                      or not (math.isfinite(v) and v >= 0)):
+                    raise PrescriptionError(f"{lens}: surface {i}: {key}: expected None or a finite number >= 0, "
+                                            f"got {v!r}")
+            if not isinstance(s.is_stop, bool):
+                raise PrescriptionError(f"{lens}: surface {i}: is_stop: expected true or false, got {s.is_stop!r}")
             if 0 < i < last and s.thickness_mm < 0 and s.material is not None:
                 raise PrescriptionError(f"{lens}: surface {i}: negative thickness {s.thickness_mm} mm inside glass "
                                         f"{s.material!r}; only air gaps may be negative")

@@ -51,6 +51,9 @@ class LensGeometry:
             curvature_per_mm = torch.tensor([s.curvature_per_mm for s in lens], **kw)
         if curvature_per_mm.shape != (len(lens),):
             raise ValueError(f"curvature_per_mm: expected shape ({len(lens)},), got {tuple(curvature_per_mm.shape)}")
+        if not bool(torch.isfinite(curvature_per_mm.detach()).all()):  # (NaN gave a NaN focal length)
+            raise ValueError(f"curvature_per_mm: expected finite curvatures, got "
+                             f"{curvature_per_mm.detach().tolist()}")
         self.curvature = curvature_per_mm
         self.thickness = torch.tensor([s.thickness_mm for s in lens], **kw)
         if not torch.isfinite(self.thickness[:-1]).all():

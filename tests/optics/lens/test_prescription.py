@@ -301,3 +301,28 @@ def test_yaml_numbers_and_fnum(tmp_path):
                  .replace("thickness_mm: 47", "thickness_mm: 47, aspheric: [0, 1e-5]"))
     p = read_lens_yaml(f)
     assert p.image_f_number == 4.0 and p.surfaces[2].aspheric == (0.0, 1e-5) and p.surfaces[2].kind == "EVENASPH"
+
+
+def test_a_prescription_with_nan_or_negative_numbers_is_refused():
+    """A NaN curvature or thickness gave a NaN focal length, a negative semi-diameter and a string is_stop were
+    taken; the differentiable trace's curvatures too. Each is named with its surface."""
+    import dataclasses
+
+    import torch
+
+    from isettorch.optics.lens import LensAnalysis, Prescription
+
+    lens = load_lens("cooke_triplet")
+    assert math.isfinite(LensAnalysis(lens).effective_focal_length_mm)
+    for i, change, key in ((1, {"curvature_per_mm": math.nan}, "curvature_per_mm"),
+                           (2, {"thickness_mm": math.nan}, "thickness_mm"),
+                           (1, {"semi_diameter_mm": -1.0}, "semi_diameter_mm"),
+                           (2, {"conic": math.inf}, "conic")):
+        surfaces = list(lens.surfaces)
+        surfaces[i] = dataclasses.replace(surfaces[i], **change)
+        with pytest.raises(PrescriptionError, match=f"surface {i}: {key}: expected"):
+            Prescription(**{**dataclasses.asdict(lens), "surfaces": surfaces})
+    c = torch.tensor([s.curvature_per_mm for s in lens.surfaces[1:-1]], dtype=torch.float64)  # lens surfaces
+    c[1] = math.nan
+    with pytest.raises(ValueError, match="curvature_per_mm: expected finite curvatures"):
+        LensAnalysis(lens, curvature_per_mm=c)
