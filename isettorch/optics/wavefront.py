@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from .._autograd import records_grad
-from .._checks import as_tensor
+from .._checks import as_tensor, is_integer
 from .base import ShiftInvariantLens, check_not_detached
 from .diffraction import dl_otf
 
@@ -18,8 +18,8 @@ __all__ = ["zernike_nm", "zernike_basis", "defocus_diopters_to_zernike_um", "Wav
 
 def zernike_nm(j: int) -> tuple[int, int]:
     """OSA/ANSI single index ``j`` (0-based) -> radial order ``n`` and azimuthal frequency ``m`` (ANSI Z80.28)."""
-    if j < 0:
-        raise ValueError(f"j: expected a non-negative OSA/ANSI index, got {j}")
+    if not (is_integer(j) and j >= 0):  # (2.5 and True were taken)
+        raise ValueError(f"j: expected a non-negative integer OSA/ANSI index, got {j!r}")
     n = int(math.ceil((-3 + math.sqrt(9 + 8 * j)) / 2))
     return n, 2 * j - n * (n + 2)
 
@@ -30,6 +30,8 @@ def zernike_basis(num: int, rho: torch.Tensor, theta: torch.Tensor) -> torch.Ten
     ``Z = sqrt((2 - delta_m0)(n + 1)) R_n^|m|(rho) {cos(m theta) if m >= 0, sin(|m| theta) if m < 0}``
     (Thibos et al., J. Refract. Surg. 18, 2002). Returns ``[num, *rho.shape]``.
     """
+    if not (is_integer(num) and num >= 1):  # (0: torch.stack's empty-list error)
+        raise ValueError(f"num: expected a number of terms >= 1, got {num!r}")
     out = []
     for j in range(num):
         n, m = zernike_nm(j)

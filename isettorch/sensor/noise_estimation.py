@@ -14,8 +14,11 @@ is fitted by weighted least squares (weights = the inverse variance of each leve
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
+
+from .._checks import is_integer
 
 __all__ = ["estimate_poisson_gaussian"]
 
@@ -86,6 +89,13 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         raise ValueError(f"raw: expected one 2-D mosaic (H, W), got shape {z.shape}")
     if not np.isfinite(z).all():
         raise ValueError("raw: expected finite DN values")
+    # (a NaN white level silently turned off the exclusion of clipped blocks; NaN black gave a misleading error)
+    for name, v in (("black_level_dn", black_level_dn), ("white_level_dn", white_level_dn)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v)):
+            raise ValueError(f"{name}: expected a finite number of DN, got {v!r}")
+    for name, v, lo in (("levels", levels, 2), ("min_blocks", min_blocks, 1)):
+        if not (is_integer(v) and v >= lo):
+            raise ValueError(f"{name}: expected an integer >= {lo}, got {v!r}")
     if cfa is None:
         planes = [z]
     else:

@@ -47,6 +47,9 @@ def electron_rate_density(photons: torch.Tensor, qe: torch.Tensor, wavelengths_n
 
 def isetcam_preblur_size(pixel_size_m: float, oi_sample_spacing_m: float) -> int:
     """ISETCam ``regridOI2ISA`` pre-blur size ``k = ceil(pixel pitch / OI sample spacing)``."""
+    for name, v in (("pixel_size_m", pixel_size_m), ("oi_sample_spacing_m", oi_sample_spacing_m)):
+        if not (math.isfinite(float(v)) and float(v) > 0):  # (0 spacing: ZeroDivisionError; negative: 1)
+            raise ValueError(f"{name}: expected a finite length > 0 in metres, got {v!r}")
     return max(1, math.ceil(float(pixel_size_m) / float(oi_sample_spacing_m)))
 
 

@@ -140,3 +140,15 @@ def test_a_defocus_of_another_batch_is_named():
         WavefrontOptics(f_number=4.0, defocus_diopters=torch.tensor([1.0, 2.0]))(s)
     with pytest.raises(ValueError, match="defocus_diopters: expected a finite scalar or"):
         WavefrontOptics(f_number=4.0, defocus_diopters=torch.tensor([[1.0]]))
+
+
+def test_zernike_indices_are_whole_numbers():
+    """zernike_nm(2.5) and (True) were taken; zernike_basis(0) failed in torch.stack with an empty list."""
+    from isettorch.optics.wavefront import zernike_basis, zernike_nm
+
+    assert zernike_nm(4) == (2, 0)  # defocus (OSA/ANSI)
+    for j in (2.5, True, -1):
+        with pytest.raises(ValueError, match="j: expected a non-negative integer"):
+            zernike_nm(j)
+    with pytest.raises(ValueError, match="num: expected a number of terms >= 1"):
+        zernike_basis(0, torch.zeros(2), torch.zeros(2))

@@ -230,3 +230,12 @@ def test_the_public_samplers_check_their_arguments(sampler):
                        ((x, dx, -2e-6, 4, 4), "pixel_size_m"), (((x * 10).long(), dx, 2e-6, 4, 4), "x")):
         with pytest.raises(ValueError, match=f"^{name}: expected"):
             f(*args)
+
+
+def test_the_preblur_size_refuses_a_zero_or_negative_length():
+    """isetcam_preblur_size with a zero spacing raised ZeroDivisionError, with a negative pitch it gave 1."""
+    assert isetcam_preblur_size(2.8e-6, 1e-6) == 3  # ceil(2.8)
+    for args, name in (((2e-6, 0.0), "oi_sample_spacing_m"), ((-2e-6, 1e-6), "pixel_size_m"),
+                       ((2e-6, float("nan")), "oi_sample_spacing_m")):
+        with pytest.raises(ValueError, match=f"^{name}: expected a finite length > 0"):
+            isetcam_preblur_size(*args)

@@ -195,3 +195,16 @@ def test_single_raw_without_black_level_warns(one_frame, capsys):
     assert "isettorch calibrate: warning: black level 0 assumed" in shown.err
     assert main(["calibrate", str(path), "--json", "--quiet", "--black-level", "100"]) == 0
     assert json.loads(capsys.readouterr().out)["warnings"] == []
+
+
+def test_poisson_gaussian_estimate_checks_its_levels():
+    """A NaN white level silently turned off the exclusion of clipped blocks, a NaN black level gave 'fewer than 2
+    signal levels', min_blocks 0 or 2.5 were taken."""
+    from isettorch.sensor.noise_estimation import estimate_poisson_gaussian
+
+    z = np.random.default_rng(0).normal(100.0, 2.0, (64, 64))
+    for kw, name in (({"white_level_dn": float("nan")}, "white_level_dn"),
+                     ({"black_level_dn": float("nan")}, "black_level_dn"),
+                     ({"min_blocks": 0}, "min_blocks"), ({"min_blocks": 2.5}, "min_blocks"), ({"levels": 1}, "levels")):
+        with pytest.raises(ValueError, match=f"^{name}: expected"):
+            estimate_poisson_gaussian(z, **kw)
