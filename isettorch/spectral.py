@@ -152,6 +152,11 @@ def resample_rows(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tens
     (increasing along the last dim) to ``dst_nm [Ld]``, ``[..., Ld]``: the same arithmetic, element by element, as
     ``resample(values[i], src_nm[i], dst_nm)`` for every row ``i``, in one batched search (e.g. a per-item QE whose
     curves are shifted along the wavelength axis, :func:`isettorch.sensor.filters.shifted_qe`)."""
+    if src_nm.shape[-1] != values.shape[-1]:  # (3 values on 2 knots gave 0.5)
+        raise ValueError(f"src_nm: expected {values.shape[-1]} knots per row like values, got {src_nm.shape[-1]}")
+    knots = src_nm.detach()
+    if not bool(torch.isfinite(knots).all() & (knots[..., 1:] > knots[..., :-1]).all()):  # (decreasing: 0)
+        raise ValueError("src_nm: expected finite, strictly increasing knots in every row")
     lead = values.shape[:-1]
     v = values.reshape(-1, values.shape[-1])
     src = src_nm.to(torch.float64).reshape(-1, src_nm.shape[-1])
@@ -176,8 +181,7 @@ def photons_to_energy(photons: torch.Tensor, wavelengths_nm, dim: int = -3, *, h
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
     if photons.shape[dim] != w.numel():
         raise ValueError(f"photons: expected {w.numel()} wavelengths along dim {dim}, got {photons.shape[dim]}")
-    h = constants.PLANCK_J_S if h is None else h
-    c = constants.SPEED_OF_LIGHT_M_PER_S if c is None else c
+    h, c = _planck_constants(h, c)
     return photons * (h * c) / (_spectral_shape(w, photons, dim) * 1e-9)
 
 
@@ -187,9 +191,19 @@ def energy_to_photons(energy: torch.Tensor, wavelengths_nm, dim: int = -3, *, h:
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
     if energy.shape[dim] != w.numel():
         raise ValueError(f"energy: expected {w.numel()} wavelengths along dim {dim}, got {energy.shape[dim]}")
+    h, c = _planck_constants(h, c)
+    return energy * (_spectral_shape(w, energy, dim) * 1e-9) / (h * c)
+
+
+def _planck_constants(h, c) -> tuple[float, float]:
+    """``(h, c)``: CODATA 2018's unless given (ISETCam passes its own), each a finite number > 0 (h = 0 gave zero
+    energy or infinite photons)."""
     h = constants.PLANCK_J_S if h is None else h
     c = constants.SPEED_OF_LIGHT_M_PER_S if c is None else c
-    return energy * (_spectral_shape(w, energy, dim) * 1e-9) / (h * c)
+    for name, v in (("h", h), ("c", c)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not (math.isfinite(v) and v > 0):
+            raise ValueError(f"{name}: expected a finite constant > 0, got {v!r}")
+    return h, c
 
 
 # ---------------------------------------------------------------------------------------------
@@ -281,8 +295,10 @@ def band_average(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tenso
     neighbours), so the power in every band is kept: narrow emission lines (fluorescent lamps' mercury lines, CRT
     phosphors) survive a coarse grid, where point samples (:func:`resample`) miss them. On a finer grid it is
     linear interpolation smoothed over the band."""
-    src = src_nm.to(values.dtype)
-    dst = dst_nm.to(values.dtype)
+    src = check_wavelengths(torch.as_tensor(src_nm), "src_nm").to(values.dtype)  # (a decreasing grid gave zeros)
+    dst = check_wavelengths(torch.as_tensor(dst_nm), "dst_nm").to(values.dtype)
+    if values.dim() != 2 or values.shape[-1] != src.numel():
+        raise ValueError(f"values: expected [K, {src.numel()}] on src_nm, got {tuple(values.shape)}")
     half = 0.5 * wavelength_weights(dst).to(values.dtype)
     lo, hi = dst - half, dst + half
     seg = src[1:] - src[:-1]

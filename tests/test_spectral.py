@@ -1,5 +1,7 @@
 """Spectral core against analytic values and colour-science."""
 
+import math
+
 import colour
 import numpy as np
 import pytest
@@ -214,3 +216,19 @@ def test_default_wavelengths_refuses_what_is_no_grid():
         with pytest.raises(ValueError, match=f"^{name}: "):
             spectral.default_wavelengths(**kw)
     assert spectral.default_wavelengths().tolist() == [400.0 + 10.0 * i for i in range(31)]
+
+
+def test_resampling_helpers_refuse_grids_they_cannot_use():
+    """resample_rows took values and knots of different lengths (3 on 2 gave 0.5) and decreasing knots (0);
+    band_average a decreasing grid (all zeros); photons_to_energy h = 0 (zero energy)."""
+    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    v = torch.ones(2, 3, dtype=torch.float64)
+    with pytest.raises(ValueError, match="src_nm: expected 3 knots per row"):
+        spectral.resample_rows(v, torch.tensor([[500.0, 600.0]] * 2, dtype=torch.float64), w)
+    with pytest.raises(ValueError, match="src_nm: expected finite, strictly increasing knots"):
+        spectral.resample_rows(v, torch.tensor([[600.0, 550.0, 500.0]] * 2, dtype=torch.float64), w)
+    with pytest.raises(ValueError, match="src_nm: expected a strictly increasing wavelength grid"):
+        spectral.band_average(v, torch.tensor([600.0, 550.0, 500.0], dtype=torch.float64), w)
+    for h in (0.0, -1.0, math.nan):
+        with pytest.raises(ValueError, match="h: expected a finite constant > 0"):
+            spectral.photons_to_energy(torch.ones(31, 1, 1), w, dim=0, h=h)
