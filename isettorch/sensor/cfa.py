@@ -16,6 +16,8 @@ from collections.abc import Sequence
 
 import torch
 
+from .._checks import is_integer
+
 __all__ = ["BAYER_PATTERNS", "CFA", "CFA_LIBRARY", "KNOWN_LETTERS", "cfa", "tile"]
 
 # Letter -> meaning. 'C' is cyan here; a clear (unfiltered) pixel is 'W' (RCCB/RCCC map C to clear).
@@ -47,6 +49,8 @@ BAYER_PATTERNS: tuple[str, ...] = ("RGGB", "BGGR", "GRBG", "GBRG")
 def tile(index_map: torch.Tensor, height: int, width: int) -> torch.Tensor:
     """Repeat a ``[ph, pw]`` map over an ``[H, W]`` grid, top-left aligned (the one CFA tiling: the sensor, the
     demosaic methods and the SFR metrics all call it)."""
+    if not (is_integer(height) and is_integer(width) and height >= 1 and width >= 1):  # (2.5: repeat()'s TypeError)
+        raise ValueError(f"height, width: expected whole numbers of pixels >= 1, got {height!r} and {width!r}")
     ph, pw = index_map.shape
     reps = (-(-height // ph), -(-width // pw))
     return index_map.repeat(*reps)[:height, :width]

@@ -239,3 +239,14 @@ def test_the_preblur_size_refuses_a_zero_or_negative_length():
                        ((2e-6, float("nan")), "oi_sample_spacing_m")):
         with pytest.raises(ValueError, match=f"^{name}: expected a finite length > 0"):
             isetcam_preblur_size(*args)
+
+
+def test_the_cfa_tiling_takes_whole_sizes():
+    """cfa.tile(map, 2.5, 4) failed in torch's repeat() with a TypeError; 0 and True were taken."""
+    from isettorch.sensor.cfa import tile
+
+    m = torch.tensor([[0, 1], [1, 2]])
+    assert tile(m, 3, 5).tolist() == [[0, 1, 0, 1, 0], [1, 2, 1, 2, 1], [0, 1, 0, 1, 0]]
+    for size in ((2.5, 4), (0, 4), (True, 4)):
+        with pytest.raises(ValueError, match="height, width: expected whole numbers of pixels"):
+            tile(m, *size)
