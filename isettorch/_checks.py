@@ -23,6 +23,11 @@ def as_tensor(value, name: str, *, dtype=None, device=None) -> torch.Tensor:
         raise TypeError(f"{name}: expected a number or tensor, got {type(value).__name__} ({value!r})") from err
 
 
+def is_real(v) -> bool:
+    """A finite real number: int or float (or a NumPy scalar), not a bool (``True`` is no pixel size) or a string."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def is_integer(v) -> bool:
     """An integer (Python or NumPy), not a bool and not a float (``1.5`` is no seed or bit depth, ``True`` none)."""
     return isinstance(v, numbers.Integral) and not isinstance(v, bool)

@@ -119,7 +119,6 @@ def select_items(values, index) -> list | None:
     return [values[i] for i in torch.arange(len(values))[index].reshape(-1).tolist()]
 
 
-
 def _check_window(top, left, height, width, image_height: int, image_width: int) -> None:
     """A crop window of whole samples inside an image of ``image_height x image_width`` (slicing would silently
     shorten one that reaches past the edge, or take 2.7 as a float index error)."""
@@ -127,6 +126,7 @@ def _check_window(top, left, height, width, image_height: int, image_width: int)
             and width >= 1 and top + height <= image_height and left + width <= image_width):
         raise ValueError(f"crop: window top={top}, left={left}, height={height}, width={width} does not fit in an "
                          f"image of {image_height}x{image_width}")
+
 
 class SpectralFactors:
     """A low-rank spectral image ``radiance(b, l, y, x) = sum_j maps[b, j, y, x] * spectra[b, j, l]``.

@@ -22,13 +22,12 @@ from __future__ import annotations
 
 import functools
 import math
-import numbers
 
 import numpy as np
 import torch
 
 from . import constants
-from ._checks import check_float_dtype, check_rank, check_wavelengths
+from ._checks import check_float_dtype, check_rank, check_wavelengths, is_real
 
 __all__ = [
     "default_wavelengths",
@@ -37,7 +36,6 @@ __all__ = [
     "resample_rows",
     "band_average",
     "photons_to_energy",
-    "planck_radiance",
     "planck_relative",
     "energy_to_photons",
     "cmfs",
@@ -68,7 +66,7 @@ def default_wavelengths(start_nm: float = 400.0, stop_nm: float = 700.0, step_nm
     """The grid ``start:step:stop`` in nm (inclusive), ISETCam's default is 400:10:700 (at most
     :data:`MAX_WAVELENGTHS` samples)."""
     for name, v in (("start_nm", start_nm), ("stop_nm", stop_nm), ("step_nm", step_nm)):
-        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):  # (NaN: int() error)
+        if not is_real(v):  # (NaN: int() error)
             raise ValueError(f"{name}: expected a finite number of nm, got {v!r}")
     if step_nm <= 0:
         raise ValueError(f"step_nm: expected a positive step, got {step_nm}")
@@ -201,7 +199,7 @@ def _planck_constants(h, c) -> tuple[float, float]:
     h = constants.PLANCK_J_S if h is None else h
     c = constants.SPEED_OF_LIGHT_M_PER_S if c is None else c
     for name, v in (("h", h), ("c", c)):
-        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not (math.isfinite(v) and v > 0):
+        if not (is_real(v) and v > 0):
             raise ValueError(f"{name}: expected a finite constant > 0, got {v!r}")
     return h, c
 
@@ -340,22 +338,13 @@ def luminosity(wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
     return _cached_on_grid("vlambda", None, _key(w), dtype, str(device)).clone()
 
 
-def planck_radiance(wavelength_m, temperature_k):
-    """Planck's law, the spectral radiance of a black body (W/sr/m^2 per m of wavelength):
-    ``B = 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)`` (CODATA h, c, k; :mod:`isettorch.constants`), for
-    NumPy arrays or tensors that broadcast (a tensor temperature keeps its gradient). The one Planck formula of the
-    library: :func:`planck_relative` (which :func:`blackbody` and the scene generator's lights use) is its ratio."""
-    h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
-    expm1 = torch.expm1 if isinstance(wavelength_m, torch.Tensor) or isinstance(temperature_k, torch.Tensor) \
-        else np.expm1
-    return 2 * h * c**2 / wavelength_m**5 / expm1(h * c / (wavelength_m * k * temperature_k))
-
-
 def planck_relative(wavelength_m, temperature_k, reference_m):
-    """``B(lambda, T) / B(reference, T)`` of :func:`planck_radiance`, computed in log space so that a cold body's
-    ratio stays finite where both radiances underflow (below about 36 K, 560 nm: 0 / 0 gave NaN):
-    ``(ref / lambda)^5 exp(L(c2 / (ref T)) - L(c2 / (lambda T)))``, ``L(x) = log(exp(x) - 1)``, ``c2 = h c / k``.
-    NumPy arrays or tensors that broadcast (a tensor temperature keeps its gradient)."""
+    """``B(lambda, T) / B(reference, T)`` of Planck's law ``B = 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)``
+    (CODATA h, c, k; :mod:`isettorch.constants`), computed in log space so that a cold body's ratio stays finite where
+    both radiances underflow (below about 36 K, 560 nm: 0 / 0 gave NaN): ``(ref / lambda)^5 exp(L(c2 / (ref T)) -
+    L(c2 / (lambda T)))``, ``L(x) = log(exp(x) - 1)``, ``c2 = h c / k``. The library's one Planck formula
+    (:func:`blackbody`, the scene generator's lights). NumPy arrays or tensors that broadcast (a tensor temperature
+    keeps its gradient)."""
     h, c, k = constants.PLANCK_J_S, constants.SPEED_OF_LIGHT_M_PER_S, constants.BOLTZMANN_J_PER_K
     xp = torch if any(isinstance(v, torch.Tensor) for v in (wavelength_m, temperature_k, reference_m)) else np
 

@@ -281,10 +281,11 @@ def _set_fov(d: dict, image_distance_m: float | None = None) -> None:
     focal length: ``image_distance_m``)."""
     focal, distance = d["focal"], d["distance"]
     if image_distance_m is None:
-        if not distance > focal:
+        try:
+            image_distance_m = float(image_distance(focal, distance))
+        except ValueError as err:  # named with the config key
             raise ValueError(f"scene.distance_m: expected object distances beyond the focal length {focal} m, "
-                             f"got {distance}")
-        image_distance_m = float(image_distance(focal, distance))
+                             f"got {distance}") from err
     d["hfov"] = float(angle_for_extent(torch.tensor(d["pitch"] * d["ws"], dtype=torch.float64),
                                        torch.tensor(image_distance_m, dtype=torch.float64)))
 

@@ -379,8 +379,12 @@ class PairStream:
         is the pitch to that dtype's rounding also where ``1/f - 1/d`` cancels (objects near the focal length:
         at 4.1 mm from a 4 mm lens a float64 ``d_i`` is 20 float32 steps from the optics')."""
         f, s = focal.to(dtype), distance.to(dtype)
-        d_i = image_distance(f, s) if bool((s > f).all()) else None
-        if d_i is None or not bool(torch.isfinite(d_i).all()):
+        try:  # (image_distance refuses an object at or inside the focal length; in this dtype 1/f - 1/d may be 0)
+            d_i = image_distance(f, s)
+            real = bool(torch.isfinite(d_i).all())
+        except ValueError:
+            real = False
+        if not real:
             raise ValueError(f"scene.distance_m: expected object distances beyond the focal length "
                              f"{focal.reshape(-1).tolist()} m (a real image; in {dtype}), got {distance.tolist()} m")
         return _hfov_for(pitch, d_i.to(torch.float64), width)

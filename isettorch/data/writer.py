@@ -124,7 +124,7 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
     workers = check_integer(workers, "workers", 0)
     rank = _env_int("RANK", 0) if rank is None else check_integer(rank, "rank", 0)
     world_size = _env_int("WORLD_SIZE", 1) if world_size is None else check_integer(world_size, "world_size", 1)
-    if not (num_shards >= 1 and 0 <= shard < num_shards):
+    if not shard < num_shards:
         raise ValueError(f"shard: expected 0 <= shard < num_shards ({num_shards}), got {shard}")
     if not (world_size >= 1 and 0 <= rank < world_size):
         raise ValueError(f"rank: expected 0 <= rank < world_size ({world_size}), got {rank}")

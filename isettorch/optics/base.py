@@ -62,13 +62,13 @@ def _check_crop(crop) -> None:
                          f"got {crop!r}")
 
 
-
 def check_not_detached(value, name: str, how: str) -> None:
     """ValueError naming ``name`` when ``value`` is a tensor that requires grad but an optics module copies it as a
     constant (no gradient would reach it); ``how`` says what to do instead (e.g. the module's learn_* option)."""
     if isinstance(value, torch.Tensor) and value.requires_grad:
         raise ValueError(f"{name}: got a tensor that requires grad, but the optics copy it as a constant (no "
                          f"gradient would reach it); {how}")
+
 
 class ShiftInvariantLens(nn.Module):
     """Base class of the shift-invariant optics (thin lens, camera equation, relative illumination, OTF blur).

@@ -24,10 +24,10 @@ def dl_mtf_1d(s: torch.Tensor) -> torch.Tensor:
     is NaN (it gave 0). Gradients are finite everywhere (the branch for ``|s| >= 1`` is never differentiated).
     """
     a = s.abs()
-    inside = a < 1
-    ss = torch.where(inside, a, torch.zeros_like(a))
+    outside = a >= 1  # (False for NaN, which then passes through acos: NaN out)
+    ss = torch.where(outside, torch.zeros_like(a), a)
     val = (2 / math.pi) * (torch.acos(ss) - ss * torch.sqrt(1 - ss * ss))
-    return torch.where(inside, val, torch.where(a >= 1, torch.zeros_like(val), a))  # (a: NaN where s is)
+    return torch.where(outside, torch.zeros_like(val), val)
 
 
 def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor,
@@ -36,10 +36,14 @@ def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_n
 
     Cutoff ``1 / (lambda N)`` (Goodman 6.31). ``f_number`` is ``[B]`` (> 0), ``wavelengths_nm`` ``[L]``.
     """
-    if not bool((f_number.detach() > 0).all()):  # N <= 0 has no OTF (it gave values above 1, or 1 everywhere)
-        raise ValueError(f"f_number: expected positive values, got {f_number.detach().reshape(-1).tolist()}")
+    # N <= 0 has no OTF (it gave values above 1, or 1 everywhere); a NaN wavelength gave an OTF of 0, a negative one
+    # above 1: one host read for both
+    n_ok = (f_number.detach() > 0).all()
     w = torch.as_tensor(wavelengths_nm).detach()
-    if not bool(((w > 0) & torch.isfinite(w)).all()):  # (a NaN wavelength gave an OTF of 0, a negative one above 1)
+    w_ok = ((w > 0) & torch.isfinite(w)).all()
+    if not bool(n_ok.to(w_ok.device) & w_ok):
+        if not bool(n_ok):
+            raise ValueError(f"f_number: expected positive values, got {f_number.detach().reshape(-1).tolist()}")
         raise ValueError(f"wavelengths_nm: expected finite positive wavelengths, got {w.reshape(-1).tolist()}")
     rho = torch.sqrt(fy[:, :, None] ** 2 + fx[:, None, :] ** 2)  # [B, My, Mx]
     lam_n = wavelengths_nm.to(rho.dtype)[None, :] * 1e-9 * f_number.to(rho.dtype).reshape(-1, 1)  # [B, L]

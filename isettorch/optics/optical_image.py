@@ -360,8 +360,8 @@ class OpticalImage(SpectralImage):
 
     def __post_init__(self, validate: bool = True) -> None:
         super().__post_init__(validate)
-        # the padding the optics added: whole samples, at most half the image on each side (2.7, -1 or more than
-        # the image were taken and cropped wrongly by crop_padding)
+        # the padding the optics added: whole samples, under half the image on each side (2.7, -1 or more than the
+        # image were taken, and a sensor without a set size fits the unpadded extent: Sensor.size_for)
         for name, n, size in (("pad_rows", self.pad_rows, self.height), ("pad_cols", self.pad_cols, self.width)):
             if not (is_integer(n) and 0 <= n and 2 * n < size):
                 raise ValueError(f"{name}: expected an integer number of samples from 0 to less than half the "

@@ -14,11 +14,10 @@ is fitted by weighted least squares (weights = the inverse variance of each leve
 from __future__ import annotations
 
 import math
-import numbers
 
 import numpy as np
 
-from .._checks import is_integer
+from .._checks import is_integer, is_real
 
 __all__ = ["estimate_poisson_gaussian"]
 
@@ -91,7 +90,7 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         raise ValueError("raw: expected finite DN values")
     # (a NaN white level silently turned off the exclusion of clipped blocks; NaN black gave a misleading error)
     for name, v in (("black_level_dn", black_level_dn), ("white_level_dn", white_level_dn)):
-        if v is not None and (isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v)):
+        if v is not None and not is_real(v):
             raise ValueError(f"{name}: expected a finite number of DN, got {v!r}")
     for name, v, lo in (("levels", levels, 2), ("min_blocks", min_blocks, 1)):
         if not (is_integer(v) and v >= lo):

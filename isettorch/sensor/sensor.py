@@ -20,7 +20,6 @@ rounding (a training target).
 from __future__ import annotations
 
 import math
-import numbers
 from typing import Any
 
 import torch
@@ -28,7 +27,15 @@ from torch import nn
 
 from .. import spectral
 from .._autograd import records_grad
-from .._checks import batch_param, check_bool, check_float_dtype, check_in_dtype_range, is_integer, round_half_away
+from .._checks import (
+    batch_param,
+    check_bool,
+    check_float_dtype,
+    check_in_dtype_range,
+    is_integer,
+    is_real,
+    round_half_away,
+)
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
 from .cfa import CFA
@@ -121,7 +128,6 @@ def _check_prnu(value: float) -> None:
                          f"got {value!r}")
 
 
-
 def _check_rate(rate, mosaic: bool) -> torch.Tensor:
     """A capture's electron rate: a float32/float64 ``(B, 1, rows, cols)`` mosaic (``mosaic``) or ``(B, C, rows,
     cols)`` tensor of finite, non-negative electrons/s (an integer rate truncated the exposure to 0 s and read
@@ -135,6 +141,7 @@ def _check_rate(rate, mosaic: bool) -> torch.Tensor:
     if not (float(lo) >= 0 and math.isfinite(float(hi))):
         raise ValueError("electron_rate: expected finite, non-negative electrons/s")
     return rate
+
 
 class Sensor(nn.Module):
     """An image sensor: pixel geometry, CFA and spectral QE, exposure, noise, analog gain and ADC.
@@ -212,17 +219,17 @@ class Sensor(nn.Module):
                 raise ValueError(f"{label}: expected a positive integer pixel count or None, got {v!r}")
         for label, v in (("pixel_size_m", pixel_size_m), ("conversion_gain_v_per_e", conversion_gain_v_per_e),
                          ("voltage_swing_v", voltage_swing_v)):
-            if not (_is_real(v) and v > 0):
+            if not (is_real(v) and v > 0):
                 raise ValueError(f"{label}: expected a positive number, got {v!r}")
-        if not (_is_real(fill_factor) and 0 < fill_factor <= 1):
+        if not (is_real(fill_factor) and 0 < fill_factor <= 1):
             raise ValueError(f"fill_factor: expected a number in (0, 1], got {fill_factor!r}")
         for label, v in (("read_noise_v", read_noise_v), ("dark_current_e_per_s", dark_current_e_per_s),
                          ("dsnu_sigma_v", dsnu_sigma_v), ("prnu_sigma_percent", prnu_sigma_percent),
                          ("column_fpn_sigma_v", column_fpn_sigma_v), ("black_level_dn", black_level_dn)):
-            if not (_is_real(v) and v >= 0):
+            if not (is_real(v) and v >= 0):
                 raise ValueError(f"{label}: expected a non-negative number, got {v!r}")
         _check_prnu(prnu_sigma_percent)
-        if not _is_real(analog_offset_v):
+        if not is_real(analog_offset_v):
             raise ValueError(f"analog_offset_v: expected a finite number (volts), got {analog_offset_v!r}")
         if not is_integer(seed):
             raise ValueError(f"seed: expected an integer, got {seed!r}")
@@ -243,14 +250,14 @@ class Sensor(nn.Module):
         if auto_exposure is not None and auto_exposure not in AE_METHODS:
             raise ValueError(f"auto_exposure: expected None or one of {sorted(AE_METHODS)}, got {auto_exposure!r}")
         if ae_target is not None:
-            if not (_is_real(ae_target) and 0 < ae_target <= 1):
+            if not (is_real(ae_target) and 0 < ae_target <= 1):
                 raise ValueError(f"ae_target: expected a fraction of the usable saturation in (0, 1], got "
                                  f"{ae_target!r}")
             if auto_exposure is None:
                 raise ValueError(f"ae_target: {ae_target!r} tunes auto-exposure, but auto_exposure is None (a fixed "
                                  f"exposure_s); set auto_exposure ({sorted(AE_METHODS)}) or drop ae_target")
         if ae_percentile is not None:
-            if not (_is_real(ae_percentile) and 0 < ae_percentile <= 100):
+            if not (is_real(ae_percentile) and 0 < ae_percentile <= 100):
                 raise ValueError(f"ae_percentile: expected a percentile in (0, 100], got {ae_percentile!r}")
             if auto_exposure != "percentile":
                 raise ValueError(f"ae_percentile: only auto_exposure='percentile' uses it, got auto_exposure="
@@ -434,7 +441,7 @@ class Sensor(nn.Module):
         cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
         gain = self.analog_gain if analog_gain is None else analog_gain
         # per-call tensors keep their dtype and device (no float64 on devices without it); lists become tensors
-        cg, gain = (x if _is_real(x) else x.reshape(-1) if isinstance(x, torch.Tensor)
+        cg, gain = (x if is_real(x) else x.reshape(-1) if isinstance(x, torch.Tensor)
                     else torch.as_tensor(x, dtype=torch.float64).reshape(-1) for x in (cg, gain))
         v = fw * cg + self.analog_offset_v
         v = v / gain if self.gain_convention == "isetcam" else v * gain
@@ -1141,10 +1148,10 @@ class Sensor(nn.Module):
             nz, units, dev = raw.noise, raw.units, raw.data.device
             t, gain, cg = raw.exposure_s, raw.analog_gain, raw.conversion_gain_v_per_e
         else:
-            if not (_is_real(exposure_s) and exposure_s >= 0):
+            if not (is_real(exposure_s) and exposure_s >= 0):
                 raise ValueError(f"exposure_s: expected a finite exposure >= 0 in seconds, got {exposure_s!r}")
             gain = self.analog_gain if analog_gain is None else analog_gain
-            if not isinstance(gain, torch.Tensor) and not (_is_real(gain) and gain > 0):
+            if not isinstance(gain, torch.Tensor) and not (is_real(gain) and gain > 0):
                 raise ValueError(f"analog_gain: expected a finite positive gain, got {gain!r}")
             nz, units, dev = self.noise_parameters(enabled=True), self.output_units, None
             t, cg = float(exposure_s), self.conversion_gain_v_per_e
@@ -1193,11 +1200,6 @@ class Sensor(nn.Module):
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, size={self.rows}x{self.cols}, pixel={self.pixel_size_m * 1e6:g} um, "
                 f"fill={self.fill_factor}, cfa={self.cfa!r}, bits={self.adc_bits}, sampling={self.sampling!r}")
-
-
-def _is_real(v) -> bool:
-    """A finite real number: int or float (or a NumPy scalar), not a bool (``True`` is no pixel size) or a string."""
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _on(level) -> bool:
