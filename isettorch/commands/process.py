@@ -169,7 +169,7 @@ def run(args) -> int:
     import numpy as np
 
     from .._progress import progress
-    from ..io.frames import _read_frame
+    from ..io.frames import read_frame_data
     from ..io.images import write_image
     from ._outputs import Outputs, check_dir, check_not_input
 
@@ -192,7 +192,7 @@ def run(args) -> int:
     with Outputs(out_dir) as staged, \
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
-            dn, file_cfa, file_blacks = _read_frame(Path(f))
+            dn, file_cfa, file_blacks = read_frame_data(f)
             # a camera raw's own metadata must be the camera config's: the network, the CFA phase and the black
             # level it is given are the config's (a GRBG DNG through an RGGB config came out grey, exit 0)
             if file_cfa is not None and file_cfa != pattern:

@@ -20,10 +20,12 @@ import dataclasses
 import math
 import re
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Capture", "read_capture", "read_frame", "write_frame", "FRAME_SUFFIXES", "RAW_SUFFIXES"]
+__all__ = ["Capture", "FrameData", "read_capture", "read_frame", "read_frame_data", "write_frame", "FRAME_SUFFIXES",
+           "RAW_SUFFIXES"]
 
 FRAME_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
 # Camera raws read through rawpy (optional extra ``raw``): DNG and the common vendor formats.
@@ -48,11 +50,19 @@ class Capture:
     warnings: list[str] = dataclasses.field(default_factory=list)  # what was skipped or inferred while reading
 
 
+class FrameData(NamedTuple):
+    """A raw frame and what its file says about it (camera raws only; ``None`` for PNG, TIFF and ``.npy``)."""
+
+    dn: np.ndarray  # (H, W) float64 DN
+    cfa: str | None  # the mosaic's 2x2 pattern, e.g. "RGGB"
+    black_level_dn: list[float] | None  # per-channel black levels (DN)
+
+
 def read_frame(path: str | Path) -> np.ndarray:
     """One raw frame in DN as a 2-D float64 array: 8- or 16-bit greyscale PNG/TIFF (tifffile, or Pillow for TIFF
     compressions tifffile cannot decode without imagecodecs, e.g. LZW), ``.npy`` (no pickle) or a camera raw (DNG,
     CR2, NEF, ... via rawpy: the unprocessed mosaic ``raw_image_visible``)."""
-    return _read_frame(Path(path))[0]
+    return read_frame_data(path).dn
 
 
 def _pil_grey(path: Path, what: str) -> np.ndarray:
@@ -76,8 +86,9 @@ def _read_tiff(path: Path) -> np.ndarray:
             raise ValueError(f"tifffile: {err}; Pillow: {pil_err}") from err
 
 
-def _read_frame(path: Path) -> tuple[np.ndarray, str | None, list[float] | None]:
-    """(frame, CFA and per-channel black levels (DN) from the file's metadata: camera raws only, else None)."""
+def read_frame_data(path: str | Path) -> FrameData:
+    """:func:`read_frame`'s frame with the CFA and per-channel black levels (DN) of a camera raw's metadata."""
+    path = Path(path)
     suffix = path.suffix.lower()
     cfa, blacks = None, None
     try:
@@ -105,7 +116,7 @@ def _read_frame(path: Path) -> tuple[np.ndarray, str | None, list[float] | None]
     arr = arr.astype(np.float64)
     if not np.isfinite(arr).all() or arr.min() < 0:
         raise ValueError(f"{path}: expected finite non-negative DN values")
-    return arr, cfa, blacks
+    return FrameData(arr, cfa, blacks)
 
 
 def write_frame(path: str | Path, frame) -> None:
@@ -267,7 +278,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
         for (kind, ms), folder, files in jobs:
             frames = []
             for f in files:
-                arr, cfa, _ = _read_frame(f)
+                arr, cfa, _ = read_frame_data(f)
                 if f.suffix.lower() in RAW_SUFFIXES:
                     frame_cfa.setdefault(cfa, f)
                 if shape is None:

@@ -76,6 +76,13 @@ def test_dng_round_trip_through_rawpy(tmp_path):
     r = read_raw(tmp_path / "x.dng")
     assert np.array_equal(r.data, m) and r.cfa == "GRBG"
     assert r.black_level_dn == [64.0] * 4 and r.white_level_dn == 4095
+    # the public frame reader keeps the raw's CFA and black levels; a .npy frame has none
+    from isettorch.io.frames import read_frame_data
+    f = read_frame_data(tmp_path / "x.dng")
+    assert np.array_equal(f.dn, m) and f.cfa == "GRBG" and f.black_level_dn == [64.0] * 4
+    np.save(tmp_path / "x.npy", m)
+    f = read_frame_data(tmp_path / "x.npy")
+    assert np.array_equal(f.dn, m) and f.cfa is None and f.black_level_dn is None
     # what LibRaw could not read back, or the tags would not hold, is refused before a file is written
     small = np.full((21, 64), 100, dtype=np.uint16)
     for kwargs, message in (({"mosaic": small}, "LibRaw reads no raw smaller than 22 pixels a side"),
