@@ -91,6 +91,12 @@ def test_calibrate_train_process(tmp_path, capsys):
     batch = PairStream(3, seed=0, scene={"height": 18, "width": 18}, camera=camera,
                        targets=("camera_rgb",)).batch(0)
     assert batch["raw"].shape == (3, 1, 18, 18) and batch["camera_rgb"].shape == (3, 3, 18, 18)
+    # the measured black level is fractional; the simulated raw is still whole ADC codes, as the frames were
+    assert sensor_cfg["black_level_dn"] != round(sensor_cfg["black_level_dn"])
+    from isettorch.scene.patterns import uniform
+    out = camera(uniform(size=24, mean_luminance_cd_m2=20.0), return_intermediates=True)
+    raw_dn = out.raw.data
+    assert raw_dn.std() > 0 and torch.equal(raw_dn, raw_dn.round())
     # normalised shot-noise gain a = K / (white - black) and floor b = (K read_e)^2 / span^2 + 1 / (12 span^2)
     a_true = K_DN_PER_E / SPAN_DN
     b_true = (K_DN_PER_E * READ_E / SPAN_DN) ** 2 + 1 / (12 * SPAN_DN**2)

@@ -163,8 +163,9 @@ class Sensor(nn.Module):
             ``'isetcam'`` gives ISETCam's ``(v + offset) / gain``.
         adc_bits: None for an analog (volts) readout, else N; steps of ``swing / 2^N``; ``adc_mode='clamp'``
             clamps to ``2^N - 1``, ``'isetcam'`` does not (so the swing maps to ``2^N``). ``black_level_dn`` is
-            added to DN (auto-exposure then aims below the top code, see ``usable_swing_v``); an analog readout
-            takes none.
+            added to DN (auto-exposure then aims below the top code, see ``usable_swing_v``); its fraction, if
+            any (a calibrated pedestal), is added before the rounding, so the DN stay whole codes; an analog
+            readout takes none.
         shot_noise: ``'poisson'`` (straight-through gradient), ``'gaussian'`` or ``'off'``.
         read_noise_v, dark_current_e_per_s, dsnu_sigma_v, prnu_sigma_percent, column_fpn_sigma_v: noise.
         fpn_mode: ``'fixed'`` (drawn once from ``seed``, stored as buffers) or ``'per_frame'`` (ISETCam redraws
@@ -492,9 +493,18 @@ class Sensor(nn.Module):
         if self.noise_terms.full_well_e is None:
             return top
         x = self.saturation_v(analog_gain, conversion_gain_v_per_e) / self.lsb_v
+        whole, part = self._black_parts()
         if isinstance(x, torch.Tensor):
-            return (torch.sign(x) * torch.floor(x.abs() + 0.5) + self.black_level_dn).clamp(max=top)
-        return min(top, float(round_half_away(x)) + self.black_level_dn)
+            x = x + part
+            return (torch.sign(x) * torch.floor(x.abs() + 0.5) + whole).clamp(max=top)
+        return min(top, float(round_half_away(x + part)) + whole)
+
+    def _black_parts(self) -> tuple[float, float]:
+        """The black level's whole codes and its fraction. The fraction is an offset before the ADC's rounding (a
+        pedestal of 64.25 DN gives whole codes whose mean over noise is 64.25, as a real ADC's analog offset does);
+        a whole black level is added after it, ``round(v / lsb) + black`` as ISETCam adds none."""
+        whole = math.floor(self.black_level_dn)
+        return float(whole), self.black_level_dn - whole
 
     def set_size_to_fov(self, hfov_deg: float, image_distance_m) -> Sensor:
         """Set cols so the sensor spans ``hfov_deg`` at ``image_distance_m`` (rows keep the aspect ratio),
@@ -835,13 +845,15 @@ class Sensor(nn.Module):
 
     def volts_to_dn(self, volts: torch.Tensor, *, quantize: bool = True) -> torch.Tensor:
         """ADC: clipped volts -> DN, ``round(v / lsb_v) + black`` (clamped to ``2^N - 1`` unless
-        ``adc_mode='isetcam'``; ISETCam ``analog2digital`` 'linear')."""
+        ``adc_mode='isetcam'``; ISETCam ``analog2digital`` 'linear'). A fractional black level's fraction is added
+        before the rounding, so the DN are whole codes whose mean is the black level plus the signal."""
         if self.adc_bits is None:
             raise ValueError("volts_to_dn: the sensor has an analog readout (adc_bits is None)")
-        x = volts / self.lsb_v
+        whole, part = self._black_parts()
+        x = volts / self.lsb_v + part if part else volts / self.lsb_v
         if quantize:
             x = _noise.quantize_ste(x)  # MATLAB round: halves away from zero
-        x = x + self.black_level_dn
+        x = x + whole
         if self.adc_mode == "clamp":
             x = x.clamp(max=2 ** self.adc_bits - 1)
         return x

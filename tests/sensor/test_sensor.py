@@ -63,6 +63,15 @@ def test_gain_conventions_clipping_and_adc():
     assert s.lsb_v == lsb
     v = torch.tensor([0.5, 1.5, 2.5, 3.49]) * lsb
     assert s.volts_to_dn(v).tolist() == [17, 18, 19, 19]  # round half away from zero, plus black level
+    # a fractional black level: whole codes (a real ADC's output), the fraction an offset before the rounding, so
+    # over read noise the mean code is the black level plus the signal
+    f = simple_sensor(adc_bits=8, black_level_dn=16.25)
+    assert f.volts_to_dn(v).tolist() == [17, 18, 19, 20]  # round(x + 0.25) + 16
+    assert f.volts_to_dn(torch.tensor([-16.25]) * lsb).tolist() == [0]  # the lowest clipped volts read code 0
+    g = torch.Generator().manual_seed(0)
+    codes = f.volts_to_dn((3 + torch.randn(200_000, generator=g, dtype=torch.float64)) * lsb)
+    assert torch.equal(codes, codes.round()) and codes.mean().item() == pytest.approx(19.25, abs=0.01)
+    assert f.white_level_dn == 255
     raw = s(uniform_oi(), noise=False)
     assert raw.units == "dn" and raw.black_level == 16 and raw.white_level == 255
     assert raw.data[0, 0, 0, 0].item() == math.floor(e / lsb + 0.5) + 16
