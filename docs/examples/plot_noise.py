@@ -38,7 +38,7 @@ for t in exposures:
         signal.append(s_e)
         measured.append(float(snr_uniform(green)))
 signal = np.array(signal)
-model = pixel_snr(torch.tensor(signal), read_noise_e=read_noise_e, prnu=prnu_percent / 100).numpy()
+model = pixel_snr(torch.tensor(signal), read_noise_e=read_noise_e, prnu_percent=prnu_percent).numpy()
 
 fig, ax = plt.subplots(figsize=(6, 4))
 ax.loglog(signal, measured, "o", label="simulated (snr_uniform)")

@@ -72,21 +72,22 @@ def snr_curve(frames: torch.Tensor, dark: torch.Tensor | None = None) -> dict[st
                 snr_total=signal / noise_total)
 
 
-def noise_variance_e(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu=0.0, dark_current_e=0.0, *,
+def noise_variance_e(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu_percent=0.0, dark_current_e=0.0, *,
                      column_fpn_e=0.0, lsb_e=None, shot: bool = True) -> torch.Tensor:
     """Pixel noise variance (electrons^2) at mean photo-signals ``signal_e``, the one noise model of the SNR
     figures: ``S + D + read^2 + DSNU^2 + column^2 + (PRNU S)^2 + LSB^2 / 12`` (shot noise of signal S and dark
-    electrons D, read noise, DSNU, column FPN, PRNU as a fraction, quantisation step ``lsb_e``; EMVA 1288
-    release 4.0 eq. 2-6; ISETCam pixelSNR / sensorSNR; Farrell et al. 2004). ``shot=False`` drops the signal's
-    shot noise (a sensor with shot noise off)."""
+    electrons D, read noise, DSNU, column FPN, PRNU in percent of the signal as the sensor's
+    ``prnu_sigma_percent`` and the calibration's ``prnu_percent``, quantisation step ``lsb_e``; EMVA 1288 release
+    4.0 eq. 2-6; ISETCam pixelSNR / sensorSNR; Farrell et al. 2004). ``shot=False`` drops the signal's shot noise
+    (a sensor with shot noise off)."""
     s = as_tensor(signal_e, "signal_e", dtype=torch.float64)
     check_nonnegative(s, "signal_e")
     var = (float(dark_current_e) + float(read_noise_e) ** 2 + float(dsnu_e) ** 2 + float(column_fpn_e) ** 2
-           + (float(prnu) * s) ** 2 + (0.0 if lsb_e is None else float(lsb_e) ** 2 / 12))
+           + (float(prnu_percent) / 100 * s) ** 2 + (0.0 if lsb_e is None else float(lsb_e) ** 2 / 12))
     return var + s if shot else var + torch.zeros_like(s)
 
 
-def pixel_snr(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu=0.0, dark_current_e=0.0, db: bool = False, *,
+def pixel_snr(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu_percent=0.0, dark_current_e=0.0, db: bool = False, *,
               column_fpn_e=0.0, lsb_e=None, shot: bool = True):
     """Model pixel SNR ``S / sqrt(variance)`` with the variance of :func:`noise_variance_e` (all in electrons).
     A noise-free pixel has SNR ``inf`` (0 at zero signal).
@@ -96,8 +97,8 @@ def pixel_snr(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu=0.0, dark_current_e=0
         20.0
     """
     s = as_tensor(signal_e, "signal_e", dtype=torch.float64)
-    var = noise_variance_e(s, read_noise_e, dsnu_e, prnu, dark_current_e, column_fpn_e=column_fpn_e, lsb_e=lsb_e,
-                           shot=shot)
+    var = noise_variance_e(s, read_noise_e, dsnu_e, prnu_percent, dark_current_e, column_fpn_e=column_fpn_e,
+                           lsb_e=lsb_e, shot=shot)
     snr = torch.where(var > 0, s / torch.sqrt(var.clamp_min(torch.finfo(s.dtype).tiny)),
                       torch.where(s > 0, math.inf, 0.0))
     return 20.0 * torch.log10(snr) if db else snr

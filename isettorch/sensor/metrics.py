@@ -37,7 +37,7 @@ def _noise_parameters_e(sensor: Sensor, exposure_s: float | None) -> dict:
         raise ValueError(f"exposure_s: expected a finite exposure >= 0 in seconds, got {exposure_s!r}")
     cg = sensor.conversion_gain_v_per_e
     shot, var_v = sensor._dark_variance_v2(sensor.noise_parameters(enabled=True), t, cg)
-    return dict(read_noise_e=math.sqrt(var_v) / cg, prnu=sensor.prnu_sigma_percent / 100,
+    return dict(read_noise_e=math.sqrt(var_v) / cg, prnu_percent=sensor.prnu_sigma_percent,
                 lsb_e=sensor.lsb_v / cg if sensor.output_units == "dn" else None, shot=shot)
 
 

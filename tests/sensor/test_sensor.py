@@ -384,8 +384,8 @@ def test_sensor_snr_is_the_metrics_noise_model():
     torch.testing.assert_close(metrics.noise_e(s, sig), var.sqrt(), rtol=1e-12, atol=0)
     expect = sig / var.sqrt()
     torch.testing.assert_close(metrics.pixel_snr(s, sig), expect, rtol=1e-12, atol=0)
-    torch.testing.assert_close(snr.pixel_snr(sig, 2.0, 3.0, 0.01, 1.0, column_fpn_e=1.0, lsb_e=lsb_e), expect,
-                               rtol=1e-12, atol=0)
+    torch.testing.assert_close(snr.pixel_snr(sig, 2.0, 3.0, prnu_percent=1.0, dark_current_e=1.0, column_fpn_e=1.0,
+                                             lsb_e=lsb_e), expect, rtol=1e-12, atol=0)
     assert metrics.dynamic_range_db(s) == pytest.approx(float(snr.dynamic_range_db(1e4, var[0].sqrt())))
     # a noise-free pixel: SNR inf above zero signal, 0 at zero; dynamic range inf
     quiet = simple_sensor()
