@@ -57,6 +57,8 @@ def srgb_encode(linear: torch.Tensor, *, clip: bool = True, inplace: bool = Fals
         >>> srgb_encode(torch.tensor([-0.5, 0.0, 0.5, 1.0, 2.0]))
         tensor([0.0000, 0.0000, 0.7354, 1.0000, 1.0000])
     """
+    if not linear.is_floating_point():  # (8-bit codes taken as linear values: 128 and 255 encoded to 1)
+        raise TypeError(f"linear: expected a floating-point tensor of linear values, got {linear.dtype}")
     hi = 1.0 if clip else None
     low = linear <= 0.0031308
     if out is not None:
@@ -71,7 +73,10 @@ def srgb_encode(linear: torch.Tensor, *, clip: bool = True, inplace: bool = Fals
 
 def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
     """IEC 61966-2-1 sRGB decoding, encoded -> linear: ``x / 12.92`` up to 0.04045, ``((x + 0.055) / 1.055)^2.4``
-    above (differentiable: no pow at 0). No clipping: the inverse of :func:`srgb_encode` on [0, 1] and above."""
+    above (differentiable: no pow at 0). No clipping: the inverse of :func:`srgb_encode` on [0, 1] and above.
+    ``encoded`` is floating point in [0, 1] units (8-bit codes: divide by 255 first)."""
+    if not encoded.is_floating_point():  # (uint8 255 decoded to 524,947)
+        raise TypeError(f"encoded: expected a floating-point tensor in [0, 1] units, got {encoded.dtype}")
     return torch.where(encoded <= 0.04045, encoded / 12.92, ((encoded.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
 
 

@@ -52,7 +52,7 @@ def _candidates(ckpt: str, variant: str, scales: list[float], guard: dict | None
             networks[a] = DemosaicNet(**ck["net_config"])
             networks[a].load_state_dict(ck["model"])
             networks[a].eval().requires_grad_(False)
-    nets = {"shipped": copy.deepcopy(load_pretrained(variant))}  # (a cached, shared object: copied)
+    nets = {"shipped": load_pretrained(variant)}  # (each call its own copy)
     for a, network in networks.items():
         for s in scales:
             net = apply_shipped_settings(copy.deepcopy(network), variant)

@@ -62,6 +62,8 @@ def _check_image(img: torch.Tensor, name: str = "img") -> None:
     if not isinstance(img, torch.Tensor):
         raise TypeError(f"{name}: expected a torch.Tensor (B, C, H, W), got {type(img).__name__}")
     check_rank(img, 4, name, "(B, C, H, W)")
+    if not img.is_floating_point():  # (an integer image cast a 0.5 gain or matrix entry to 0)
+        raise TypeError(f"{name}: expected a floating-point image (linear values), got {img.dtype}")
 
 
 def apply_matrix(img: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
@@ -79,7 +81,14 @@ def apply_matrix(img: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
         torch.Size([1, 3, 2, 2])
     """
     _check_image(img)
-    m = matrix.to(device=img.device, dtype=img.dtype)  # the image's device: a processor left on the CPU still runs
+    check_finite(as_tensor(matrix, "matrix").detach(), "matrix")
+    return _apply_matrix(img, as_tensor(matrix, "matrix"))
+
+
+def _apply_matrix(img: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
+    """:func:`apply_matrix` for the pipeline's stages, whose matrices were checked when set (no host read)."""
+    # the image's device: a processor left on the CPU still runs
+    m = matrix.to(device=img.device, dtype=img.dtype)
     if m.dim() not in (2, 3) or m.shape[-1] != img.shape[1]:
         raise ValueError(f"matrix: expected shape (K, {img.shape[1]}) or (B, K, {img.shape[1]}) for an image with "
                          f"{img.shape[1]} channels, got {tuple(m.shape)}")
@@ -93,6 +102,11 @@ def apply_matrix(img: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
 def apply_gains(img: torch.Tensor, gains: torch.Tensor) -> torch.Tensor:
     """Per-channel gains (a diagonal matrix): (B, C, H, W) * gains (C,) or (B, C)."""
     _check_image(img)
+    return _apply_gains(img, _check_gains(gains, like=img))
+
+
+def _apply_gains(img: torch.Tensor, gains: torch.Tensor) -> torch.Tensor:
+    """:func:`apply_gains` for the white-balance stage, whose gains are checked where they are made."""
     g = gains.to(device=img.device, dtype=img.dtype)
     if g.dim() == 1:
         g = g.unsqueeze(0)
@@ -312,8 +326,9 @@ def check_illuminant_name(name, key: str = "illuminant") -> None:
 
 def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channel: int, name: str) -> torch.Tensor:
     # ISETCam grayWorld/whiteWorld: D_c = (white_c / white_ref) * (avg_ref / avg_c).
-    if (means.detach() <= 0).any():
-        raise ValueError(f"{name}: every channel needs a positive mean to be balanced, got channel means "
+    m = means.detach()
+    if not bool(((m > 0) & torch.isfinite(m)).all()):  # (a NaN or Inf pixel gave NaN gains)
+        raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced, got channel means "
                          f"{means.detach().tolist()}")
     wt = white.to(device=means.device, dtype=means.dtype)
     if wt.dim() == 1:
@@ -502,7 +517,7 @@ class IlluminantCorrection(nn.Module):
     def forward(self, img: torch.Tensor, white=None) -> torch.Tensor:
         g = illuminant_gains(img, self.method, white, self.gains, self.reference_channel, self.criterion)
         self.last_gains = g.detach()
-        return img if self.method == "none" else apply_gains(img, g)
+        return img if self.method == "none" else _apply_gains(img, g)
 
     def extra_repr(self) -> str:
         return f"method={self.method!r}, space={self.space!r}"
@@ -627,7 +642,7 @@ class SensorToXYZ(nn.Module):
     def forward(self, img: torch.Tensor) -> torch.Tensor:
         if self.matrix is None:
             raise RuntimeError("SensorToXYZ: no matrix yet; pass one or call fit(qe, wavelengths_nm)")
-        return apply_matrix(img, self.matrix)
+        return _apply_matrix(img, self.matrix)
 
     def extra_repr(self) -> str:
         return f"illuminant={self.illuminant!r}, surfaces={self.surfaces!r}, fitted={self.matrix is not None}"
@@ -715,7 +730,7 @@ class XYZToDisplay(nn.Module):
         self.register_buffer("white_point_xyz", white.to(dtype))
 
     def forward(self, xyz: torch.Tensor) -> torch.Tensor:
-        return apply_matrix(xyz, self.matrix)
+        return _apply_matrix(xyz, self.matrix)
 
     def extra_repr(self) -> str:
         return f"display={self.name!r}, max_luminance_cd_m2={self.max_luminance_cd_m2}"

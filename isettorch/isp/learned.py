@@ -36,6 +36,7 @@ References:
 
 from __future__ import annotations
 
+import copy
 import functools
 import json
 import math
@@ -46,7 +47,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .._autograd import records_grad
-from .._checks import check_finite
+from .._checks import check_bool, check_finite
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
 from .demosaicing.linear import demosaic_malvar2004
 from .demosaicing.menon2007 import demosaic_menon2007
@@ -147,8 +148,9 @@ def _check_raw(raw: torch.Tensor, name: str = "raw", even: bool = True) -> torch
         raw = raw[:, None]
     if raw.dim() != 4 or raw.shape[1] != 1:
         raise ValueError(f"{name}: expected shape [B, 1, H, W], got {tuple(raw.shape)}")
-    if not raw.is_floating_point():
-        raise TypeError(f"{name}: expected a floating-point tensor, got {raw.dtype}")
+    if raw.dtype not in (torch.float32, torch.float64):  # (float16 / bfloat16 lose the colour differences the
+        # networks correct: learned_tiny was off by 0.7 on a float16 mosaic; under autocast the input stays float32)
+        raise TypeError(f"{name}: expected a float32 or float64 tensor, got {raw.dtype}")
     if raw.shape[-2] < 4 or raw.shape[-1] < 4:
         raise ValueError(f"{name}: expected a height and width of at least 4, got {tuple(raw.shape[-2:])}")
     if even and (raw.shape[-2] % 2 or raw.shape[-1] % 2):
@@ -355,8 +357,12 @@ def _cell_gate(raw: torch.Tensor, rel: float, abs: float, window: int, power: fl
     planes = F.pixel_unshuffle(raw, 2)
     s = _box(_curvature(planes), window)
     level = _box(planes, window).amax(1, keepdim=True)
-    sp, tp = _pow(s, power), _pow((rel * level).abs(), power)
-    return sp / (sp + tp + float(abs) ** power)
+    # s^p / (s^p + t^p + a^p) with the three divided by the largest of them first (a > 0): the powers of large
+    # values overflowed to inf / inf = NaN (a float16 mosaic from 32, float32 from ~1e9); 0 exactly where s = 0
+    t = (rel * level).abs()
+    m = torch.maximum(torch.maximum(s, t), torch.full_like(s, float(abs)))
+    sp, tp, ap = _pow(s / m, power), _pow(t / m, power), _pow(float(abs) / m, power)
+    return sp / (sp + tp + ap)
 
 
 def _pow(x: torch.Tensor, power: float) -> torch.Tensor:
@@ -889,8 +895,17 @@ def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> 
     raw = _check_raw(raw, even=False)
     pattern = _check_pattern(pattern)
     check_self_ensemble(self_ensemble)
-    if model is None:
-        model = load_pretrained(variant, device=raw.device, dtype=raw.dtype)
+    if noise is not None:
+        if not isinstance(noise, torch.Tensor) or not noise.is_floating_point():
+            raise TypeError(f"noise: expected a floating-point tensor (B, noise_inputs), got "
+                            f"{noise.dtype if isinstance(noise, torch.Tensor) else type(noise).__name__}")
+        check_finite(noise, "noise")
+        if bool((noise < 0).any()):
+            raise ValueError("noise: expected non-negative noise parameters [sqrt(a) * 10, sqrt(b) * 100]")
+    if model is None:  # the shared cached instance (load_pretrained gives callers their own copy)
+        model = _pretrained(_check_variant(variant), str(raw.device), raw.dtype, True)
+    if raw.shape[0] == 0:  # an empty batch: no network pass
+        return raw.new_zeros((0, 3, *raw.shape[-2:]))
     x, dy, dx = _to_rggb(raw, pattern)
     if x.shape[-2] % 2 or x.shape[-1] % 2:
         # an odd height or width: one more row / column, the reflection of the one before the last (the same
@@ -989,7 +1004,8 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
     (:data:`PRETRAINED_GATES`, applied by :func:`demosaic_learned`), correction scale
     (:data:`PRETRAINED_CORRECTION_SCALES`) and classical blend (:data:`PRETRAINED_BLENDS`); ``guard=False``: the bare
     network (scale 1, no blend), for comparisons.
-    The instance is cached and shared: copy it before changing its ``guard``.
+    Each call returns its own copy of a cached network (a few ms), so changing its guard, scale, weights, dtype or
+    ``requires_grad`` changes neither later calls nor the registered ``learned*`` methods.
 
     ``variant="noise_free"`` (``demosaic_learned.pt``) or ``"joint_denoise"`` (``demosaic_learned_denoise.pt``,
     which takes ``noise = [sqrt(a) * 10, sqrt(b) * 100]`` for a mosaic with variance ``a x + b``; see
@@ -1016,7 +1032,8 @@ def load_pretrained(variant: str = "noise_free", *, device=None, dtype=torch.flo
         >>> net(torch.rand(1, 1, 32, 32)).shape
         torch.Size([1, 3, 32, 32])
     """
-    return _pretrained(_check_variant(variant), str(torch.device(device or "cpu")), dtype, bool(guard))
+    return copy.deepcopy(_pretrained(_check_variant(variant), str(torch.device(device or "cpu")), dtype,
+                                     check_bool(guard, "guard")))
 
 
 def pretrained_info(variant: str = "noise_free") -> dict:

@@ -77,8 +77,11 @@ class DemosaicStage(nn.Module):
     :func:`isettorch.isp.demosaic`; other CFAs (RGBW, X-Trans, ...) use the generic method on the
     CFA's index map (``fallback``, bilinear by default).
 
-    ``border="reflect"`` mirrors the mosaic by one pixel first (which keeps a 2x2 CFA's phase) and crops the
-    result, as ISETCam ``ieBilinear`` does; ``border="method"`` leaves the borders to the method.
+    ``border="reflect"`` mirrors the mosaic first (whole-sample, by two pixels, which keeps a 2x2 CFA's phase and
+    covers 5 x 5 kernels; by one on a mosaic 2 pixels high or wide) and crops the result, as ISETCam
+    ``ieBilinear`` does with one; ``border="method"`` leaves the borders to the method. Malvar-He-Cutler gets its
+    phase-keeping ``boundary="mirror"`` here unless ``boundary`` is given: the function's default (colour-demosaicing's
+    half-sample border) turned a constant (0.1, 0.5, 0.9) into (0.10, 0.20, 0.35) at a corner.
 
     ``forward(mosaic (B, 1, H, W), cfa) -> (B, C, H, W)`` in the CFA's channel order.
     """
@@ -90,6 +93,8 @@ class DemosaicStage(nn.Module):
         if border not in ("method", "reflect"):
             raise ValueError(f"border: expected 'method' or 'reflect', got {border!r}")
         self.method = method if isinstance(method, str) else type(method).__name__
+        if method == "malvar2004":
+            kwargs.setdefault("boundary", "mirror")
         self.bayer = Demosaic(method, **kwargs)
         self.fallback = fallback
         self.border = border
@@ -101,14 +106,14 @@ class DemosaicStage(nn.Module):
         pad = 0
         if self.border == "reflect" and min(mosaic.shape[-2:]) > 1:
             ph, pw = cfa.shape
-            pad = 1
-            mosaic = nn.functional.pad(mosaic, (1, 1, 1, 1), mode="reflect")
-            # Mirroring by one pixel keeps the CFA only for cells of period <= 2; the padded image starts at
-            # cell position (-1, -1), i.e. (ph - 1, pw - 1).
+            # Whole-sample mirroring keeps the CFA only for cells of period <= 2
             if ph > 2 or pw > 2:
                 raise ValueError(f"border: 'reflect' needs a CFA cell of at most 2x2, got {cfa.shape}")
-            cell = [[cfa.cell[(i - 1) % ph][(j - 1) % pw] for j in range(pw)] for i in range(ph)]
-            cfa = CFA(cell, cfa.channel_names)
+            pad = 2 if min(mosaic.shape[-2:]) > 2 else 1
+            mosaic = nn.functional.pad(mosaic, (pad, pad, pad, pad), mode="reflect")
+            if pad == 1:  # the padded image starts at cell position (-1, -1), i.e. (ph - 1, pw - 1)
+                cell = [[cfa.cell[(i - 1) % ph][(j - 1) % pw] for j in range(pw)] for i in range(ph)]
+                cfa = CFA(cell, cfa.channel_names)
         pseudo = _pseudo_bayer(cfa)
         if cfa.is_bayer and cfa.channel_names == ["R", "G", "B"]:
             out = self.bayer(mosaic, cfa.bayer_pattern)

@@ -348,3 +348,27 @@ def test_camera_white_preserving_conversion_renders_the_white_neutral():
     torch.testing.assert_close(out[True][0], grid_white, rtol=0, atol=1e-9)
     assert float((out[False][0] - grid_white).abs().max()) > 0.015  # X 0.931 against 0.949
     assert float(out[True][1][18:].mean()) < 1.0 < float(out[False][1][18:].mean())
+
+
+def test_colour_helpers_refuse_integer_images_and_bad_matrices_gains_and_means():
+    """Each was a silent wrong number: an int image cast a 0.5 matrix to 0 (all zeros); a NaN matrix or gain, a
+    negative gain passed; a NaN or Inf pixel gave NaN gray/white-world gains; 8-bit codes were encoded as linear
+    values (128 -> 1.0) or decoded to 524,947."""
+    from isettorch.image import srgb_decode, srgb_encode
+    from isettorch.isp.colour import apply_gains, apply_matrix, gray_world_gains, white_world_gains
+
+    img = torch.rand(1, 3, 4, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    torch.testing.assert_close(apply_matrix(img, [[0.5, 0, 0], [0, 1, 0], [0, 0, 2]]),
+                               img * torch.tensor([0.5, 1, 2], dtype=torch.float64).view(1, 3, 1, 1))
+    cases = ((lambda: apply_matrix((img * 255).long(), torch.eye(3) * 0.5), TypeError, "img: expected a floating"),
+             (lambda: apply_matrix(img, torch.full((3, 3), float("nan"))), ValueError, "matrix: expected finite"),
+             (lambda: apply_gains(img, [-1.0, 1.0, 1.0]), ValueError, "gains: expected positive"),
+             (lambda: apply_gains(img, [float("nan"), 1.0, 1.0]), ValueError, "gains: expected finite"),
+             (lambda: gray_world_gains(img * float("nan")), ValueError, "finite, positive mean"),
+             (lambda: white_world_gains(img.index_fill(2, torch.tensor([0]), float("inf"))), ValueError,
+              "finite, positive mean"),
+             (lambda: srgb_encode(torch.tensor([0, 128, 255], dtype=torch.uint8)), TypeError, "linear: expected"),
+             (lambda: srgb_decode(torch.tensor([0, 128, 255], dtype=torch.uint8)), TypeError, "encoded: expected"))
+    for call, error, message in cases:
+        with pytest.raises(error, match=message):
+            call()

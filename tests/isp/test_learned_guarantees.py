@@ -134,6 +134,48 @@ def test_structure_gate_zero_on_constants_one_on_texture_and_scale_covariant():
         learned.DemosaicNet(channels=4, depth=1, guard={"relative": 0.1})
 
 
+def test_structure_gate_is_finite_far_above_white():
+    """The gate's powers are taken of ratios to the largest term: s^4 and (rel L)^4 overflowed to inf / inf = NaN
+    from ~1e9 x white in float32, and the whole image came out NaN. A bright mosaic is textured for the gate (1)."""
+    g = torch.Generator().manual_seed(1)
+    texture = torch.rand(1, 1, 32, 32, generator=g)
+    for scale in (1e10, 1e30):
+        gate = learned.structure_gate(texture * scale)
+        assert bool(torch.isfinite(gate).all()) and float(gate.min()) > 0.99
+        out = demosaic(texture * scale, "RGGB", "learned_tiny")
+        assert bool(torch.isfinite(out).all())
+    assert float(learned.structure_gate(torch.zeros(1, 1, 8, 8)).abs().max()) == 0.0  # 0 / 0 never taken
+
+
+def test_pretrained_copies_and_inputs_the_networks_refuse():
+    """load_pretrained gives each caller its own network: changing its scale, weights or dtype changes neither a
+    later load nor the registered methods. Half-precision mosaics, NaN or negative noise features and unknown
+    options are refused by name; an empty batch gives an empty image."""
+    raw = torch.rand(1, 1, 16, 16, generator=torch.Generator().manual_seed(2))
+    before = demosaic(raw, "RGGB", "learned")
+    net = learned.load_pretrained()
+    scale = net.correction_scale
+    net.correction_scale, net.guard = 0.0, None
+    with torch.no_grad():
+        net.head.weight.mul_(3)
+    net.double()
+    assert learned.load_pretrained() is not net and learned.load_pretrained().correction_scale == scale
+    torch.testing.assert_close(demosaic(raw, "RGGB", "learned"), before, rtol=0, atol=0)
+    for dtype in (torch.float16, torch.bfloat16):
+        for method in ("learned", "learned_tiny", "menon2007", "malvar2004"):
+            with pytest.raises(TypeError, match="raw: expected .*float32 or float64"):
+                demosaic(raw.to(dtype), "RGGB", method)
+    with pytest.raises(TypeError, match=r"method 'learned': unknown option\(s\) \['variant'\]"):
+        demosaic(raw, "RGGB", "learned", variant="tiny")
+    with pytest.raises(TypeError, match="refine: expected True or False"):
+        demosaic(raw, "RGGB", "menon2007", refine="no")
+    for noise, message in ((torch.tensor([[float("nan"), 0.0]]), "noise: expected finite"),
+                           (torch.tensor([[-1.0, -1.0]]), "noise: expected non-negative")):
+        with pytest.raises(ValueError, match=message):
+            learned.demosaic_learned(raw, "RGGB", variant="joint_denoise", noise=noise)
+    assert demosaic(torch.zeros(0, 1, 8, 8), "RGGB", "learned").shape == (0, 3, 8, 8)
+
+
 def _phase_mean_error(net, img: torch.Tensor, crop: int = 10) -> torch.Tensor:
     """Per-image, per-channel mean error (B, 3) in 1/255 over the four Bayer phases: each channel is then sampled
     once at every pixel, so the sampling luck of one phase cancels and what is left is the method's own bias.
@@ -210,7 +252,9 @@ def test_joint_low_noise_gate():
     import copy
 
     shipped = learned.load_pretrained("joint_denoise")
-    assert shipped.level_gate is not None and shipped.level_gate["expert"] is learned.load_pretrained("noise_free")
+    expert, noise_free = shipped.level_gate["expert"], learned.load_pretrained("noise_free")
+    assert expert.guard == noise_free.guard and expert.correction_scale == noise_free.correction_scale
+    assert all(torch.equal(a, b) for a, b in zip(expert.state_dict().values(), noise_free.state_dict().values()))
     assert learned.load_pretrained("joint_denoise", guard=False).level_gate is None
     joint = copy.copy(shipped)
     joint.level_gate = gate = {k: v for k, v in shipped.level_gate.items() if k != "classical"}
@@ -279,9 +323,8 @@ def test_demosaic_learned_applies_a_classical_gate():
     """A joint network's high-noise gate: the output is w expert + (1 - w) (the network under its low-noise gate),
     per image, and the expert runs only on the images it is weighed in for (one image below sigma_start keeps the
     network's output bitwise)."""
-    import copy
 
-    net = copy.copy(learned.load_pretrained("joint_denoise"))
+    net = learned.load_pretrained("joint_denoise")
     gate = {k: v for k, v in net.level_gate.items() if k != "classical"}
     net.level_gate = gate
     g = torch.Generator().manual_seed(5)
@@ -337,9 +380,8 @@ def test_classical_detail_weight_against_scipy():
 def test_demosaic_learned_applies_a_detail_weighted_classical_gate():
     """With ``detail_r`` the high-noise gate weighs the expert per pixel: ramp(sigma) times the detail factor of the
     mean of the two estimates; the images below sigma_start keep the network's output bitwise."""
-    import copy
 
-    net = copy.copy(learned.load_pretrained("joint_denoise"))
+    net = learned.load_pretrained("joint_denoise")
     gate = {k: v for k, v in net.level_gate.items() if k != "classical"}
     net.level_gate = gate
     g = torch.Generator().manual_seed(6)
@@ -409,7 +451,7 @@ def test_classical_gate_dict_is_checked():
             learned.check_classical_gate(base | bad)
     with pytest.raises(ValueError, match="missing \\['method'\\]"):
         learned.check_classical_gate({k: v for k, v in base.items() if k != "method"})
-    net = copy.copy(learned.load_pretrained("joint_denoise"))
+    net = learned.load_pretrained("joint_denoise")
     net.level_gate = dict(net.level_gate) | {"classical": base | {"detail_r": (0.25, 1.0)}}
     with pytest.raises(ValueError, match="model.level_gate\\['classical'\\]: 'weight_detail' and 'detail_r'"):
         learned.demosaic_learned(torch.full((1, 1, 8, 8), 0.5), model=net, noise=learned.noise_features(0.0, 0.0))

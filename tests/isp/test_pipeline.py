@@ -321,3 +321,24 @@ def test_percentile_scaling_is_exposure_invariant_and_its_gradient_says_so():
     peak = torch.quantile(rgb.flatten(1), ip.scaling_percentile / 100.0, dim=1)
     torch.testing.assert_close(out.isp.scale.detach(), 1 / peak, rtol=1e-12, atol=0)
 
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "GBRG", "YCMY"])
+@pytest.mark.parametrize("border", ["method", "reflect"])
+@pytest.mark.parametrize("size", [(8, 8), (9, 7)])
+def test_pipeline_demosaic_keeps_a_constant_colour_at_the_border(pattern, border, size):
+    """A flat field stays flat up to the frame's edge through the pipeline's demosaic. Malvar-He-Cutler with its
+    function default (colour-demosaicing's half-sample border) gave (0.10, 0.20, 0.35) at a corner for (0.1, 0.5,
+    0.9), and the one-pixel reflect left 0.15 (its 5 x 5 kernels); both methods' pipeline borders are now exact."""
+    cfa = CFA(pattern)
+    colour = torch.tensor([0.1, 0.5, 0.9], dtype=torch.float64).view(1, 3, 1, 1)
+    planes = colour.expand(1, 3, *size).contiguous()
+    for method in ("bilinear", "malvar2004", "menon2007"):
+        out = DemosaicStage(method, border=border)(cfa.mosaic(planes), cfa)
+        torch.testing.assert_close(out, planes, rtol=0, atol=1e-12, msg=f"{method} {border}")
+    # the function itself keeps colour-demosaicing's border (its reference), as before
+    from isettorch.isp import demosaic
+
+    if pattern == "RGGB" and size == (8, 8):
+        corner = demosaic(cfa.mosaic(planes), pattern, "malvar2004")[0, :, 0, 0]
+        assert abs(float(corner[2]) - 0.9) > 0.5

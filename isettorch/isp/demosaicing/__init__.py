@@ -21,6 +21,7 @@ plug-in point for learned methods. The entry point is the function :func:`demosa
 from __future__ import annotations
 
 import importlib
+import inspect
 from collections.abc import Callable
 
 import torch
@@ -113,7 +114,25 @@ def demosaic(raw: torch.Tensor, pattern="RGGB", method: str | Callable = "biline
             raise ValueError(f"method: an index-map CFA supports {sorted(_GENERIC)}, got {method!r}")
         return _GENERIC[method](raw, pattern, **kwargs)
     fn = method if callable(method) else get_method(method)
+    if kwargs and not callable(method):
+        _check_options(method, fn, kwargs)
     return fn(raw, pattern, **kwargs)
+
+
+def _check_options(name: str, fn: Callable, kwargs: dict) -> None:
+    """A method's keyword options: an unknown one is a TypeError naming the method and what it takes (Python's own
+    named an internal function, e.g. ``_register.<locals>._learned()``)."""
+    try:
+        params = inspect.signature(fn).parameters.values()
+    except (TypeError, ValueError):  # a callable without a signature: it checks its own options
+        return
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return
+    named = [p for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    takes = [p.name for p in named[2:] if not p.name.startswith("_")]  # after (raw, pattern)
+    unknown = sorted(set(kwargs) - set(takes))
+    if unknown:
+        raise TypeError(f"method {name!r}: unknown option(s) {unknown}; it takes {takes or 'none'}")
 
 
 class Demosaic(nn.Module):
