@@ -14,9 +14,10 @@ from .color import _channel_last, xyz_to_lab
 
 
 def _safe_sqrt(x: torch.Tensor) -> torch.Tensor:
-    """sqrt with gradient 0 (not inf/NaN) at x <= 0; negative round-off is treated as 0."""
+    """sqrt with gradient 0 (not inf/NaN) at x <= 0; negative round-off is treated as 0; NaN stays NaN (a NaN
+    colour scored dE 0, a perfect match)."""
     pos = x > 0
-    return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.zeros_like(x))
+    return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.where(x.isnan(), x, 0.0))
 
 
 def _safe_atan2_deg(y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -164,7 +165,7 @@ class ColorAccuracy:
         de = self.delta_e.detach().reshape(-1, self.delta_e.shape[-1]).cpu()
         lines = [f"colour accuracy (dE{self.method}), {de.shape[-1]} patches"]
         for i, row in enumerate(de):
-            lines.append(f"  sample {i}: mean {row.mean():.3f}  median {row.median():.3f}  max {row.max():.3f} "
+            lines.append(f"  sample {i}: mean {row.mean():.3f}  median {row.quantile(0.5):.3f}  max {row.max():.3f} "
                          f"(patch {int(row.argmax()) + 1})")
         return "\n".join(lines)
 
@@ -235,7 +236,7 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
     if space == "xyz":
         _check_chart_whites(rendered, reference, white)
     lab_ref = lab_ref.expand_as(lab_r) if lab_ref.dim() < lab_r.dim() else lab_ref
-    return ColorAccuracy(delta_e=de, mean=de.mean(-1), max=de.amax(-1), median=de.median(-1).values,
+    return ColorAccuracy(delta_e=de, mean=de.mean(-1), max=de.amax(-1), median=de.quantile(0.5, dim=-1),
                          lab_rendered=lab_r, lab_reference=lab_ref, method=str(method), patch_names=patch_names)
 
 

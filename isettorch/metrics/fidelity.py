@@ -3,13 +3,15 @@
 PSNR is computed here, per image, because ``kornia.metrics.psnr`` pools one MSE over the whole batch; SSIM is
 ``kornia.metrics.ssim`` (Gaussian window 11, sigma 1.5, K1 = 0.01, K2 = 0.03) averaged over its valid region,
 which is scikit-image's ``structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False)``.
+``data_range`` None (the default) is scikit-image's: 1 for floating-point images, the dtype's largest value for
+integer ones (255 for uint8); an integer image against a floating-point one is refused (which range?).
 """
 
 from __future__ import annotations
 
 import torch
 
-from .._checks import check_finite, check_positive
+from .._checks import check_finite, check_positive, is_integer
 
 
 def _pair(image: torch.Tensor, target: torch.Tensor, crop: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -20,16 +22,27 @@ def _pair(image: torch.Tensor, target: torch.Tensor, crop: int) -> tuple[torch.T
         raise ValueError(f"target: expected the shape of image {tuple(image.shape)}, got {tuple(target.shape)}")
     if image.dim() not in (3, 4):
         raise ValueError(f"image: expected (B, C, H, W) or (C, H, W), got shape {tuple(image.shape)}")
+    if image.is_floating_point() != target.is_floating_point():  # (uint8 against [0, 1] floats scored -42 dB)
+        raise TypeError(f"target: expected the kind of image's dtype {image.dtype} (both integer codes or both "
+                        f"floating point), got {target.dtype}")
     check_finite(image.detach(), "image")  # a NaN pixel would make the score NaN without saying where it came from
     check_finite(target.detach(), "target")
+    if not is_integer(crop) or crop < 0 or 2 * crop >= min(image.shape[-2:]):
+        raise ValueError(f"crop: expected a whole number of pixels, 0 <= crop < {(min(image.shape[-2:]) + 1) // 2} "
+                         f"for an image of {tuple(image.shape[-2:])}, got {crop!r}")
     crop = int(crop)
-    if crop < 0 or 2 * crop >= min(image.shape[-2:]):
-        raise ValueError(f"crop: expected 0 <= crop < {min(image.shape[-2:]) // 2}, got {crop}")
     if crop:
         image, target = image[..., crop:-crop, crop:-crop], target[..., crop:-crop, crop:-crop]
     if not image.is_floating_point():
         image = image.to(torch.get_default_dtype())
     return image, target.to(image.dtype)
+
+
+def _data_range(data_range, image: torch.Tensor) -> float:
+    """``data_range``, or for None scikit-image's default: 1 for floating point, the integer dtype's largest value."""
+    if data_range is None:
+        return 1.0 if image.is_floating_point() else float(torch.iinfo(image.dtype).max)
+    return float(check_positive(data_range, "data_range"))
 
 
 def mse(image: torch.Tensor, target: torch.Tensor, crop: int = 0) -> torch.Tensor:
@@ -38,13 +51,13 @@ def mse(image: torch.Tensor, target: torch.Tensor, crop: int = 0) -> torch.Tenso
     return ((a - b) ** 2).mean(dim=(-3, -2, -1))
 
 
-def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, crop: int = 0) -> torch.Tensor:
+def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float | None = None, crop: int = 0) -> torch.Tensor:
     """Peak signal-to-noise ratio per image, 10 log10(data_range^2 / MSE), the MSE over (C, H, W).
 
     Args:
         image: :math:`(B, C, H, W)` or :math:`(C, H, W)`.
         target: same shape.
-        data_range: the peak value (1 for [0, 1] images, 255 for 8-bit).
+        data_range: the peak value; None: 1 for floating-point images, 255 for uint8 (the dtype's largest value).
         crop: border pixels excluded on every side.
 
     Returns:
@@ -56,8 +69,8 @@ def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, cro
 
     Reference: e.g. Wang et al., IEEE TIP 13(4), 2004, eq. 1 context; scikit-image ``peak_signal_noise_ratio``.
     """
-    r = float(check_positive(data_range, "data_range"))
     err = mse(image, target, crop)
+    r = _data_range(data_range, image)
     # identical images: +inf, the maximum, with a zero gradient (10 log10(r^2 / mse) differentiated at mse = 0 is
     # -inf times a zero difference, NaN, which would poison a training step whose batch holds one exact image)
     exact = err == 0
@@ -65,7 +78,8 @@ def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, cro
     return torch.where(exact, torch.full_like(value, torch.inf), value)
 
 
-def cpsnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, crop: int = 0) -> torch.Tensor:
+def cpsnr(image: torch.Tensor, target: torch.Tensor, data_range: float | None = None, crop: int = 0
+          ) -> torch.Tensor:
     """Colour PSNR of demosaicing benchmarks: one MSE over the three channels of each image (same as :func:`psnr`
     on (B, 3, H, W), with a check for 3 channels). ``crop`` excludes a border (the benchmarks report 0 and 10)."""
     if image.dim() < 3 or image.shape[-3] != 3:
@@ -73,7 +87,7 @@ def cpsnr(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, cr
     return psnr(image, target, data_range, crop)
 
 
-def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, window_size: int = 11,
+def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float | None = None, window_size: int = 11,
          crop: int = 0, return_map: bool = False) -> torch.Tensor:
     """Structural similarity (Wang et al. 2004) per image, via ``kornia.metrics.ssim`` with a Gaussian window
     (sigma 1.5), averaged over channels and the valid (unpadded) region.
@@ -97,7 +111,7 @@ def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, win
                          f"{tuple(a.shape[-2:])}")
     # eps 0: kornia's default 1e-12 is added to a denominator of order data_range^4 (C1 C2), which it dominates
     # for data_range below ~1e-2 (identical images scored 0.075 at data_range 1e-3); C1, C2 > 0 keep it positive
-    m = kornia_ssim(a, b, window_size, max_val=float(check_positive(data_range, "data_range")), eps=0.0,
+    m = kornia_ssim(a, b, window_size, max_val=_data_range(data_range, image), eps=0.0,
                     padding="valid")
     if return_map:
         return m[0] if squeeze else m
@@ -108,7 +122,7 @@ def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, win
 class PSNR(torch.nn.Module):
     """Module form of :func:`psnr`."""
 
-    def __init__(self, data_range: float = 1.0, crop: int = 0) -> None:
+    def __init__(self, data_range: float | None = None, crop: int = 0) -> None:
         super().__init__()
         self.data_range, self.crop = data_range, crop
 
@@ -119,7 +133,7 @@ class PSNR(torch.nn.Module):
 class SSIM(torch.nn.Module):
     """Module form of :func:`ssim`."""
 
-    def __init__(self, data_range: float = 1.0, window_size: int = 11) -> None:
+    def __init__(self, data_range: float | None = None, window_size: int = 11) -> None:
         super().__init__()
         self.data_range, self.window_size = data_range, window_size
 

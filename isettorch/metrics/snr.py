@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 
 import torch
 
@@ -82,9 +83,24 @@ def noise_variance_e(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu_percent=0.0, d
     (a sensor with shot noise off)."""
     s = as_tensor(signal_e, "signal_e", dtype=torch.float64)
     check_nonnegative(s, "signal_e")
-    var = (float(dark_current_e) + float(read_noise_e) ** 2 + float(dsnu_e) ** 2 + float(column_fpn_e) ** 2
-           + (float(prnu_percent) / 100 * s) ** 2 + (0.0 if lsb_e is None else float(lsb_e) ** 2 / 12))
+    read, dsnu, prnu, dark, column = (_noise_level(v, n) for v, n in (
+        (read_noise_e, "read_noise_e"), (dsnu_e, "dsnu_e"), (prnu_percent, "prnu_percent"),
+        (dark_current_e, "dark_current_e"), (column_fpn_e, "column_fpn_e")))
+    lsb = 0.0 if lsb_e is None else _noise_level(lsb_e, "lsb_e")
+    var = dark + read ** 2 + dsnu ** 2 + column ** 2 + (prnu / 100 * s) ** 2 + lsb ** 2 / 12
     return var + s if shot else var + torch.zeros_like(s)
+
+
+def _noise_level(value, name: str) -> float:
+    """One noise term of :func:`noise_variance_e`: a finite number >= 0 (a NaN read noise gave SNR inf, a negative
+    dark current a lower noise), else an error naming it."""
+    if isinstance(value, bool) or not (isinstance(value, numbers.Real) or (
+            isinstance(value, torch.Tensor) and value.numel() == 1)):
+        raise TypeError(f"{name}: expected one number (electrons), got {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) and v >= 0):
+        raise ValueError(f"{name}: expected a finite value >= 0 (electrons), got {value!r}")
+    return v
 
 
 def pixel_snr(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu_percent=0.0, dark_current_e=0.0, db: bool = False, *,

@@ -104,8 +104,11 @@ def scielab(xyz1: torch.Tensor, xyz2: torch.Tensor, white, samples_per_degree: f
         samples_per_degree: image samples per degree of visual angle (see :func:`samples_per_degree`, e.g.
             ``samples_per_degree(0.5, 100)`` for 100 dpi viewed from 0.5 m).
         method: dE formula applied to the filtered CIELAB images ("76" as in S-CIELAB, "94", "2000").
-        convention: "isetcam" (the S-CIELAB/ISETCam code: spreads are Gaussian half-widths) or "paper"
-            (Zhang and Wandell 1997 eq. 4: exp(-r^2 / spread^2)).
+        convention: "isetcam" (the default: the S-CIELAB/ISETCam code ``gauss.m``, whose numbers the
+            literature reports: a spread is a Gaussian's half-width, FWHM + 1 samples, so a spread under one sample
+            is no blur) or "paper" (Zhang and Wandell 1997 eq. 4: exp(-r^2 / spread^2)). They differ much: on a
+            40 x 57 test pair the mean dE is 8.8 ("isetcam") against 2.0 ("paper") at 23 samples per degree and
+            3.5 against 1.3 at 40; compare only numbers of one convention.
         support_deg: filter support in degrees (ISETCam: 1).
 
     Returns:

@@ -22,8 +22,10 @@ __all__ = ["well_capacity_e", "noise_e", "pixel_snr", "pixel_snr_db", "dynamic_r
 
 
 def well_capacity_e(sensor: Sensor) -> float:
-    """Electrons at saturation: voltage swing / conversion gain (ISETCam ``pixelGet('well capacity')``)."""
-    return sensor.well_capacity_e
+    """Electrons at saturation (:meth:`Sensor.saturation_e`): voltage swing / conversion gain (ISETCam
+    ``pixelGet('well capacity')``, the sensor's :attr:`~Sensor.well_capacity_e`), or the photodiode's full well
+    ``full_well_e`` where that is lower (EMVA 1288 release 4.0, section 4.1)."""
+    return float(sensor.saturation_e())
 
 
 def _noise_parameters_e(sensor: Sensor, exposure_s: float | None) -> dict:
@@ -61,12 +63,14 @@ def pixel_snr_db(sensor: Sensor, signal_e, exposure_s: float | None = None) -> t
 
 
 def dynamic_range_db(sensor: Sensor, exposure_s: float | None = None) -> float:
-    """20 log10(well capacity / noise floor in the dark) (EMVA 1288 DR = mu_sat / sigma_dark;
-    :func:`isettorch.metrics.snr.dynamic_range_db`); ``inf`` for a noise-free sensor."""
+    """20 log10(electrons at saturation / noise floor in the dark), ISETCam's ``pixelDR``
+    (:func:`isettorch.metrics.snr.dynamic_range_db`; saturation: :func:`well_capacity_e`, which the full well caps);
+    ``inf`` for a noise-free sensor. EMVA 1288's DR divides by ``mu_e.min = sigma_dark + 1/2`` instead
+    (:func:`isettorch.metrics.emva1288`): 1.9 dB less at a 2 e- floor."""
     floor = float(noise_e(sensor, 0.0, exposure_s))
     if floor <= 0:
         return math.inf
-    return float(_dynamic_range_db(sensor.well_capacity_e, floor))
+    return float(_dynamic_range_db(well_capacity_e(sensor), floor))
 
 
 def electrons_per_lux_second(sensor: Sensor, illuminant: str = "D65", wavelengths_nm=None) -> torch.Tensor:
@@ -90,10 +94,11 @@ def electrons_per_lux_second(sensor: Sensor, illuminant: str = "D65", wavelength
 def iso_saturation(sensor: Sensor, illuminant: str = "D65", wavelengths_nm=None) -> float:
     """ISO 12232:2019 saturation-based speed ``S_sat = 78 / H_sat`` (H_sat in lux s).
 
-    H_sat is the focal-plane exposure that fills the well of the most sensitive channel (analog gain 1).
+    H_sat is the focal-plane exposure that saturates (:func:`well_capacity_e`) the most sensitive channel (analog
+    gain 1).
     """
     k = electrons_per_lux_second(sensor, illuminant, wavelengths_nm).max().item()
     if k <= 0:
         raise ValueError("iso_saturation: the sensor has no response to the illuminant")
-    h_sat = sensor.well_capacity_e / k
+    h_sat = well_capacity_e(sensor) / k
     return 78.0 / h_sat

@@ -216,3 +216,35 @@ def test_fidelity_and_srgb_refuse_non_finite_input():
         xyz_to_srgb(b)
     with pytest.raises(ValueError, match="dim: expected a dimension"):
         xy_to_xyz(torch.tensor([[0.3, 0.3]]), dim=5)
+
+
+def test_snr_noise_terms_are_checked():
+    """A NaN read noise gave SNR inf (the noise-free branch), a negative dark current a lower noise; each noise term
+    is one finite number >= 0, named when it is not. numpy scalars are numbers."""
+    import numpy as np
+
+    assert float(pixel_snr(100.0, read_noise_e=np.float32(2.0))) == pytest.approx(100 / np.sqrt(104), rel=1e-6)
+    for kwargs, error, message in ((dict(read_noise_e=float("nan")), ValueError, "read_noise_e: expected a finite"),
+                                   (dict(dark_current_e=-50.0), ValueError, "dark_current_e: expected a finite"),
+                                   (dict(prnu_percent=float("inf")), ValueError, "prnu_percent: expected a finite"),
+                                   (dict(dsnu_e=torch.tensor([1.0, 2.0])), TypeError, "dsnu_e: expected one number"),
+                                   (dict(lsb_e=True), TypeError, "lsb_e: expected one number")):
+        with pytest.raises(error, match=message):
+            pixel_snr(100.0, **kwargs)
+
+
+def test_psnr_and_ssim_take_the_range_of_integer_images_as_scikit_image_does():
+    """8-bit images scored against a range of 1 gave -40 dB (skimage: 8.13 dB from the dtype's 255); an integer
+    image against a float one, and a fractional crop, are refused."""
+    g = torch.Generator().manual_seed(0)
+    x = (torch.rand(1, 3, 32, 32, generator=g) * 255).to(torch.uint8)
+    y = (torch.rand(1, 3, 32, 32, generator=g) * 255).to(torch.uint8)
+    assert float(psnr(x, y)) == pytest.approx(peak_signal_noise_ratio(x.numpy(), y.numpy()), rel=1e-6)
+    want = structural_similarity(x[0].numpy(), y[0].numpy(), channel_axis=0, gaussian_weights=True, sigma=1.5,
+                                 use_sample_covariance=False)
+    assert float(ssim(x, y)) == pytest.approx(want, rel=1e-5)  # (float32 against skimage's float64)
+    assert float(psnr(x, y)) == pytest.approx(float(psnr(x.double() / 255, y.double() / 255)), rel=1e-6)
+    with pytest.raises(TypeError, match="target: expected the kind of image's dtype"):
+        psnr(x.double() / 255, y)
+    with pytest.raises(ValueError, match="crop: expected a whole number"):
+        psnr(x, y, crop=1.7)

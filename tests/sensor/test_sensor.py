@@ -297,6 +297,12 @@ def test_iso_saturation_against_colour_science():
     per_lux_s = (qe * photons).sum(1) * 10 * (2.8e-6) ** 2 * 0.75
     np.testing.assert_allclose(metrics.electrons_per_lux_second(s).numpy(), per_lux_s, rtol=1e-6)
     assert metrics.iso_saturation(s) == pytest.approx(78 / (1e4 / per_lux_s.max()), rel=1e-6)
+    # a photodiode full well below the swing's 1e4 e- saturates first: half the well, twice the speed, 6.02 dB
+    # less dynamic range (the metrics used the swing's well capacity whatever the full well)
+    half = Sensor.preset("isetcam_default", full_well_e=5000.0)
+    assert metrics.well_capacity_e(half) == 5000.0 and half.well_capacity_e == pytest.approx(1e4)
+    assert metrics.iso_saturation(half) == pytest.approx(2 * metrics.iso_saturation(s), rel=1e-12)
+    assert metrics.dynamic_range_db(s) - metrics.dynamic_range_db(half) == pytest.approx(20 * math.log10(2))
 
 
 def test_raw_image_to_and_checks():
