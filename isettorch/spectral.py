@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from . import constants
-from ._checks import check_float_dtype, check_rank, check_wavelengths, is_real
+from ._checks import as_tensor, check_float_dtype, check_rank, check_wavelengths, is_real
 
 __all__ = [
     "default_wavelengths",
@@ -314,7 +314,7 @@ def band_average(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tenso
 
 
 def _grid_args(wavelengths_nm, dtype, device):
-    w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    w = check_wavelengths(as_tensor(wavelengths_nm, "wavelengths_nm"))
     dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
     device = device or w.device
     return w, dtype, device

@@ -206,7 +206,7 @@ def _params(chief_ray_angle_deg, method, offset_m, kw):
         if isinstance(kw[name], torch.Tensor) and kw[name].numel() != 1:
             raise ValueError(f"{name}: expected one value (a scalar or one-element tensor), got shape "
                              f"{tuple(kw[name].shape)}")
-    if float(kw["source_f_number"]) < 0.5:
+    if float(torch.as_tensor(kw["source_f_number"]).detach()) < 0.5:  # (no warning on a tensor that requires grad)
         raise ValueError(f"source_f_number: expected >= 0.5, got {kw['source_f_number']}")
     pixel = float(kw["pixel_size_m"])
     photodiode = _photodiode_m(kw)
@@ -348,14 +348,24 @@ def _isetcam_rebin(w, cell, ok, n):
     return torch.where(total != 0, total / count.clamp(min=1), torch.zeros_like(total))
 
 
+def _matlab_grid(half: float, n: int, dtype, device) -> torch.Tensor:
+    """``linspace(-half, half, n)`` as MATLAB and NumPy build it (``-half + k (2 half) / (n - 1)``, the far end
+    exact): antisymmetric, with an exact 0 in the middle for odd n. torch.linspace fills from both ends, so 141 of
+    255 values differed in the last bit (the middle was 2.7e-17), and where a source cone's edge fell on a grid row
+    (CRA 45 degrees at f/0.5) ISETCam's strict comparison counted it: a 25 % larger etendue."""
+    k = torch.arange(n, dtype=torch.float64)
+    g = -half + k * (2 * half / (n - 1))
+    g[-1] = half
+    return g.to(dtype=dtype, device=device)
+
+
 def _isetcam_grid(cra, method, t, n, off, geo, n_grid=255, chunk=32):
     """ISETCam ``mlRadiance`` on its own grid (``mlCoordinates``, ``mlSource``, ``mlLens``, ``mlDisplacement``,
     ``mlPropagate``, each re-binned by ``ffndgrid``): (etendue [A], x [N], x-profile at the photodiode [A, N])."""
     D, p, d, na = geo["D"], geo["p"], geo["d"], geo["na"]
     dtype, dev = t.dtype, t.device
     t, n, off, cra = t.detach(), n.detach(), off.detach(), cra.detach()
-    x = torch.linspace(-2 * D, 2 * D, n_grid, dtype=dtype, device=dev)
-    u = torch.linspace(-_P_MAX, _P_MAX, n_grid, dtype=dtype, device=dev)
+    x, u = _matlab_grid(2 * D, n_grid, dtype, dev), _matlab_grid(_P_MAX, n_grid, dtype, dev)
     dx, du = float(x[1] - x[0]), float(u[1] - u[0])
     X, U = x[None, :].expand(n_grid, -1), u[:, None].expand(-1, n_grid)
     Xf, Uf = X.reshape(-1), U.reshape(-1)
@@ -503,7 +513,7 @@ def microlens_radiance(chief_ray_angle_deg=0.0, method: str = "centred", *, offs
                              "diffraction=True")
         if records_grad(chief_ray_angle_deg, offset_m, *(kw[k] for k in ("stack_height_m", "stack_index",
                                                                           "microlens_focal_length_m",
-                                                                          "wavelength_nm"))):
+                                                                          "wavelength_nm", "source_f_number"))):
             raise ValueError("sampling: 'isetcam' (the default, ISETCam's grid) has no gradients; pass "
                              "sampling='continuous' to differentiate the etendue")
     cra, method, t, n, off, geo = _params(chief_ray_angle_deg, method, offset_m, kw)
@@ -574,6 +584,9 @@ def microlens_etendue(chief_ray_angle_deg, method: str = "centred", *, model: st
 
     kw = _pixel_kwargs(pixel)
     method = _method(method)
+    if records_grad(chief_ray_angle_deg, offset_m, kw["source_f_number"], kw["stack_height_m"]):
+        raise ValueError("model: 'geometric' (Catrysse & Wandell's closed form, in Python floats) has no gradients; "
+                         "pass model='phase_space' with sampling='continuous' to differentiate the etendue")
     t, n = _stack(kw["layer_thicknesses_m"], kw["layer_indices"], kw["stack_height_m"], kw["stack_index"],
                   torch.float64, torch.device("cpu"))
     h = float(t.sum())
@@ -810,9 +823,14 @@ class PixelOptics(nn.Module):
             fn = torch.as_tensor(oi.f_number).reshape(-1)
             if not bool((fn == fn[0]).all()):
                 raise ValueError(f"oi.f_number: pixel_optics needs one f-number per batch, got {fn.tolist()}")
-            # a learnable f-number stays a tensor where the etendue is differentiable (the continuous integral)
+            # a learnable f-number stays a tensor where the etendue is differentiable (the continuous integral);
+            # elsewhere its share of the gradient would be dropped without a word
             differentiable = self.convention == "physical" and self.model == "phase_space"
-            pixel["source_f_number"] = fn[0] if differentiable and records_grad(fn) else float(fn[0])
+            if records_grad(fn) and not differentiable:
+                raise ValueError(f"pixel_optics: the optics' f-number requires grad, but the {self.convention!r} "
+                                 f"convention's {self.model!r} etendue has no gradient (its share of d/dN would be "
+                                 f"dropped); use convention='physical', model='phase_space'")
+            pixel["source_f_number"] = fn[0] if records_grad(fn) else float(fn[0])
         waves = tuple(float(w) for w in oi.wavelengths_nm.reshape(-1).tolist()) if self.diffraction else (None,)
         grad = records_grad(self.log_stack_height_m, self.offset_per_image_height, pixel["source_f_number"])
         key = None

@@ -488,6 +488,41 @@ def test_a_learnable_f_number_gets_the_pixel_optics_share_of_its_gradient():
     assert float(grad) == pytest.approx(float((up - down) / (2 * h)), rel=1e-5)
 
 
+def test_a_learnable_f_number_is_refused_where_the_etendue_has_no_gradient():
+    """The geometric model and ISETCam's grid have no gradient in the f-number: the etendue's share of d/dN was
+    dropped without a word (0.64 % of it through the geometric model). Each is refused; the physical phase-space
+    integral (above) differentiates it."""
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.scene.patterns import uniform
+
+    n = torch.tensor(2.0, dtype=torch.float64, requires_grad=True)
+    with pytest.raises(ValueError, match="model: 'geometric'.* has no gradients"):
+        microlens_etendue(torch.tensor([30.0]), "none", model="geometric", source_f_number=n, pixel_size_m=20e-6)
+    with pytest.raises(ValueError, match="sampling: 'isetcam'.* has no gradients"):
+        microlens_etendue(torch.tensor([30.0]), "none", source_f_number=n, pixel_size_m=20e-6)
+    optics = DiffractionLimitedOptics(f_number=2.0, focal_length_m=40e-6, learn_f_number=True)
+    scene = uniform("D65", size=24, hfov_deg=2 * math.degrees(math.atan(12 * 2.8e-6 / 2 / 40e-6)) * 2,
+                    dtype=torch.float64)
+    for settings in ({"model": "geometric"}, {"convention": "isetcam"}):
+        sensor = Sensor(rows=12, cols=12, cfa="RGGB", pixel_size_m=2.8e-6, exposure_s=1e-3,
+                        pixel_optics={"method": "none", **settings})
+        with pytest.raises(ValueError, match="pixel_optics: the optics' f-number requires grad"):
+            sensor(optics(scene), noise=False)
+
+
+def test_isetcam_grid_at_a_tie_is_isetcams():
+    """Where a source cone's edge falls exactly on a row of ISETCam's direction grid (CRA 45 degrees at f/0.5:
+    sin 45 = the cone's edge), the strict comparison of mlSource decides; torch.linspace's grid put that row 1 ulp
+    off MATLAB's (and NumPy's) and counted it: 0.0382 against ISETCam's 0.0306."""
+    from isetcam_mlradiance import ml_etendue
+
+    for method, port in (("none", "none"), ("centred", "centered")):
+        got = microlens_etendue(torch.tensor([45.0]), method, photodiode_size_m=0.28e-6, source_f_number=0.5,
+                                microlens_focal_length_m=7e-6, microlens_f_number=2.5)
+        want = ml_etendue(45.0, port, source_fnumber=0.5, pd_um=0.28, ml_focal_um=7.0, ml_fnumber=2.5)
+        assert float(got) == pytest.approx(want, abs=1e-12)
+
+
 def test_per_wavelength_etendue_shades_colour():
     rows = cols = 8
     oi = _uniform_oi(rows, cols, 1.4e-6, 40e-6, f_number=2.0, waves=torch.tensor([450.0, 550.0, 650.0]))
