@@ -103,3 +103,22 @@ def test_a_camera_raws_own_cfa_and_black_level_must_be_the_configs(camera, tmp_p
         err = capsys.readouterr().err
         assert err.startswith(f"isettorch process: RAW: {tmp_path / name}: {message}"), err
     assert not (tmp_path / "c").exists()
+
+
+def test_the_shipped_joint_checkpoint_runs_as_it_ships(camera, tmp_path):
+    """Given the shipped joint checkpoint, process runs it with its guard and gates, as
+    demosaic_learned(variant='joint_denoise') does (its bare checkpoint differed by up to 0.08)."""
+    import argparse
+
+    import torch
+
+    from isettorch.isp.learned import demosaic_learned, noise_features
+
+    args = argparse.Namespace(camera=str(camera), model=str(PRETRAINED["joint_denoise"]))
+    sensor, pattern, net = process._load(args)
+    dn = np.random.default_rng(0).integers(64, 4095, size=(8, 8)).astype(np.float64)
+    got = process.process_frame(dn, sensor, pattern, net)
+    a, b = process.noise_params(sensor)
+    x = torch.as_tensor((dn - 64) / SPAN_DN, dtype=torch.float32)[None, None]
+    want = demosaic_learned(x, "RGGB", variant="joint_denoise", noise=noise_features(a, b).float())[0]
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-6)

@@ -29,7 +29,8 @@ def register(sub) -> None:
     p.add_argument("--camera", required=True, metavar="CAMERA.yaml",
                    help="the camera config the model was trained for (sensor: black level, ADC, gain, noise)")
     p.add_argument("--model", required=True, metavar="CKPT",
-                   help="a joint denoise+demosaic DemosaicNet checkpoint (training/train_demosaic.py, noise on)")
+                   help="a joint denoise+demosaic DemosaicNet checkpoint (training/train_demosaic.py, noise on); "
+                        "the shipped isettorch/assets/demosaic_learned_denoise.pt runs with its shipped gates")
     p.add_argument("--out", default="processed", metavar="DIR", help="output folder (default: processed)")
     p.add_argument("--format", default="npy", choices=FORMATS,
                    help="npy (float32 [3, H, W], linear), exr (linear) or png (clipped, sRGB-encoded); default npy")
@@ -98,7 +99,7 @@ def _load(args):
     from pathlib import Path
 
     from ..camera import Camera
-    from ..isp.learned import BAYER_PATTERNS, load_checkpoint
+    from ..isp.learned import BAYER_PATTERNS, PRETRAINED, load_checkpoint, load_pretrained
 
     try:
         camera = Camera.from_config(args.camera)
@@ -115,7 +116,12 @@ def _load(args):
     if not Path(args.model).is_file():
         raise FileNotFoundError(f"model: no such checkpoint {args.model!r}")
     try:
-        net, _ = load_checkpoint(args.model)
+        if Path(args.model).resolve() == PRETRAINED["joint_denoise"].resolve():
+            # the shipped joint network as it ships: with its guard and its low- and high-noise gates (its bare
+            # checkpoint differed from demosaic_learned(variant='joint_denoise') by up to 0.08)
+            net = load_pretrained("joint_denoise")
+        else:
+            net, _ = load_checkpoint(args.model)
     except Exception as err:  # torch.load's unpickling errors too: the file is not a checkpoint (input, not a bug)
         first = (str(err).strip().splitlines() or [type(err).__name__])[0]
         raise ValueError(f"model: {args.model}: not a DemosaicNet checkpoint ({first})") from err

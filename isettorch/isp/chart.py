@@ -74,10 +74,18 @@ def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = 
     """
     from ..metrics import color_accuracy
 
+    if not isinstance(rendered_xyz, torch.Tensor) or rendered_xyz.dim() not in (2, 3) \
+            or tuple(rendered_xyz.shape[-2:]) != (24, 3):
+        raise ValueError(f"rendered_xyz: expected the 24 patches' XYZ, (B, 24, 3) or (24, 3), got "
+                         f"{tuple(rendered_xyz.shape) if isinstance(rendered_xyz, torch.Tensor) else rendered_xyz!r}")
     x = rendered_xyz.to(torch.float64)
     ref = macbeth_true_xyz(illuminant, wavelengths_nm).to(x.device)
     if scale_to_white:
-        x = x * (ref[WHITE_PATCH, 1] / x[..., WHITE_PATCH:WHITE_PATCH + 1, 1:2])
+        y_white = x[..., WHITE_PATCH:WHITE_PATCH + 1, 1:2]
+        if not bool((y_white.detach() > 0).all()):  # (a 0 / 0 was reported as NaN XYZ)
+            raise ValueError(f"rendered_xyz: scale_to_white needs a white patch (patch {WHITE_PATCH + 1}) with Y > "
+                             f"0, got Y = {y_white.detach().reshape(-1).tolist()}")
+        x = x * (ref[WHITE_PATCH, 1] / y_white)
     white = white_xyz(illuminant, _chart_grid(wavelengths_nm)).to(x.device)  # the chart's own grid: its white is L* 100
     with warnings.catch_warnings():  # the reference is under the render's illuminant by construction
         warnings.filterwarnings("ignore", message="rendered: the white patch", category=UserWarning)

@@ -9,9 +9,12 @@ network's high-noise gate (:data:`isettorch.isp.learned.PRETRAINED_GATES`)."""
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
 import torch
+
+from .._checks import check_finite
 
 __all__ = ["DENOISERS", "check_denoiser", "denoise_mosaic"]
 
@@ -20,6 +23,9 @@ DENOISERS = ("nlmeans", "bm3d")
 
 
 def _check_noise(noise_sigma: float, noise_shot: float) -> tuple[float, float]:
+    for name, v in (("noise_sigma", noise_sigma), ("noise_shot", noise_shot)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):  # (True was 1.0, "0.1" was read)
+            raise TypeError(f"{name}: expected a number, got {v!r}")
     s, a = float(noise_sigma), float(noise_shot)
     if not (math.isfinite(s) and s >= 0):
         raise ValueError(f"noise_sigma: expected a finite standard deviation >= 0 (of the [0, 1] mosaic), "
@@ -88,6 +94,9 @@ def denoise_mosaic(raw: torch.Tensor, method: str, noise_sigma: float = 0.0, noi
     if raw.dim() != 4 or raw.shape[1] != 1 or raw.shape[-2] < 2 or raw.shape[-1] < 2:
         # (an odd H or W is fine: each sub-plane still holds one colour, the last row / column's planes are shorter)
         raise ValueError(f"raw: expected a Bayer mosaic (B, 1, H, W) with H, W >= 2, got {tuple(raw.shape)}")
+    if not raw.is_floating_point():  # (a uint8 mosaic was denoised on a 0-255 scale and truncated back)
+        raise TypeError(f"raw: expected a floating-point mosaic on the [0, 1] scale, got {raw.dtype}")
+    check_finite(raw.detach(), "raw")  # (a NaN sample spread over its non-local search window)
     x = raw.detach().to("cpu", torch.float64).numpy().copy()
     b = s * s
     for i in range(x.shape[0]):

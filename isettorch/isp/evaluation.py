@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._checks import check_device, check_float_dtype
+from .._checks import check_device, check_finite, check_float_dtype, is_integer
 from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 from .denoise import DENOISERS, _check_noise, check_denoiser, denoise_mosaic
@@ -129,6 +129,13 @@ def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float 
     from ..sensor.noise import poisson_gaussian
 
     s, a = _check_noise(noise_sigma, noise_shot)
+    for name, v in (("seed", seed), ("index", index)):
+        if not is_integer(v):  # (1.5 was 1)
+            raise TypeError(f"{name}: expected an integer, got {v!r}")
+    if not isinstance(raw, torch.Tensor) or not raw.is_floating_point():
+        raise TypeError(f"raw: expected a floating-point mosaic tensor (B, 1, H, W) in [0, 1], got "
+                        f"{raw.dtype if isinstance(raw, torch.Tensor) else type(raw).__name__}")
+    check_finite(raw.detach(), "raw")  # (torch's 'invalid Poisson rate' named nothing)
     if s == 0 and a == 0:
         return raw
     g = torch.Generator().manual_seed(_image_seed(seed, index))

@@ -60,3 +60,16 @@ def test_channel_argument_is_checked():
         gray_patch_snr(raw, "W")
     with pytest.raises(ValueError, match=r"channel: expected None, a CFA letter .* got 3"):
         gray_patch_snr(raw, 3)
+
+
+def test_macbeth_delta_e_names_its_argument_and_a_black_white_patch():
+    """A (23, 3) input was blamed on an internal 'reference'; a rendered white patch of Y = 0 gave 'xyz: expected
+    finite values' (a 0 / 0 in the scaling to white)."""
+    from isettorch.isp.chart import WHITE_PATCH, macbeth_delta_e
+
+    with pytest.raises(ValueError, match=r"rendered_xyz: expected the 24 patches' XYZ"):
+        macbeth_delta_e(torch.rand(23, 3, dtype=torch.float64))
+    dark = torch.rand(24, 3, dtype=torch.float64)
+    dark[WHITE_PATCH] = 0.0
+    with pytest.raises(ValueError, match="rendered_xyz: scale_to_white needs a white patch"):
+        macbeth_delta_e(dark)

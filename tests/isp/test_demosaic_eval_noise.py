@@ -322,3 +322,25 @@ def test_cli_noise_flags(folder, capsys):
     assert noisy["denoise"] is None and noisy["mean_cpsnr"] != pytest.approx(res["mean_cpsnr"], abs=1e-3)
     assert main(["demosaic-eval", str(d), "--model-class", "a:B"]) == 2
     assert "--model-class/--model-kwargs: only with --model" in capsys.readouterr().err
+
+
+def test_denoise_and_noisy_mosaic_refuse_what_they_took_silently():
+    """denoise_mosaic took a uint8 mosaic (denoised on 0-255 and truncated), a NaN sample (spread over its search
+    window), noise_sigma=True (1.0) and "0.1"; noisy_mosaic a fractional seed (1.5 was 1) and a NaN raw (torch's
+    'invalid Poisson rate', naming nothing)."""
+    from isettorch.isp.denoise import denoise_mosaic
+    from isettorch.isp.evaluation import noisy_mosaic
+
+    raw = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    bad = raw.clone()
+    bad[0, 0, 3, 3] = float("nan")
+    cases = ((lambda: denoise_mosaic((raw * 255).to(torch.uint8), "nlmeans", 2.0), TypeError, "raw: expected a floa"),
+             (lambda: denoise_mosaic(bad, "nlmeans", 0.01), ValueError, "raw: expected finite"),
+             (lambda: denoise_mosaic(raw, "nlmeans", True), TypeError, "noise_sigma: expected a number"),
+             (lambda: denoise_mosaic(raw, "nlmeans", "0.1"), TypeError, "noise_sigma: expected a number"),
+             (lambda: noisy_mosaic(raw, 0.01, seed=1.5), TypeError, "seed: expected an integer"),
+             (lambda: noisy_mosaic(bad, 0.01, 0.01), ValueError, "raw: expected finite"))
+    for call, error, message in cases:
+        with pytest.raises(error, match=message):
+            call()
+    assert torch.equal(noisy_mosaic(raw, 0.01, seed=3), noisy_mosaic(raw, 0.01, seed=3))
