@@ -7,6 +7,8 @@ colours and neutral colours (a = b = 0) give finite (zero) gradients instead of 
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 
 import torch
 
@@ -66,7 +68,14 @@ def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: flo
                  k_H: float = 1.0) -> torch.Tensor:
     """CIEDE2000 colour difference (CIE 142-2001), implemented as in Sharma, Wu and Dalal, "The CIEDE2000
     color-difference formula: implementation notes, supplementary test data, and mathematical observations",
-    Color Res. Appl. 30(1), 2005, eqs. 1-22 (hue rules for C' = 0 and abs(dh') > 180 included)."""
+    Color Res. Appl. 30(1), 2005, eqs. 1-22 (hue rules for C' = 0 and abs(dh') > 180 included). The parametric
+    factors ``k_L``, ``k_C``, ``k_H`` are positive numbers (1 for the reference conditions).
+
+    At an exactly neutral colour (a = b = 0) the chroma has a kink and its gradient in a, b is taken as 0 (finite,
+    but a neutral output gets no chroma gradient from dE2000 or dE94; dE76's is the direction to the target)."""
+    for name, k in (("k_L", k_L), ("k_C", k_C), ("k_H", k_H)):
+        if isinstance(k, bool) or not isinstance(k, numbers.Real) or not (math.isfinite(k) and k > 0):
+            raise ValueError(f"{name}: expected a positive parametric factor, got {k!r}")
     (L1, a1, b1), (L2, a2, b2), _ = _split(lab1, lab2, dim)
     p7 = 25.0**7
     C1 = _safe_sqrt(a1**2 + b1**2)

@@ -279,3 +279,17 @@ def test_public_colour_accuracy_path_compares_like_with_like():
     with pytest.warns(UserWarning, match="rendered under another illuminant"):
         mismatched = color_accuracy(x, d50, white="D50")
     assert float(mismatched.mean) > 6.0  # the mismatch the warning is about
+
+
+def test_ciede2000_parametric_factors_are_checked():
+    """k_L = 0 gave inf, a negative factor was taken."""
+    a = torch.tensor([[50.0, 1.0, 2.0]], dtype=torch.float64)
+    b = torch.tensor([[51.0, 2.0, 2.0]], dtype=torch.float64)
+    want = colour.difference.delta_E_CIE2000(a.numpy(), b.numpy(), textiles=True)  # k_L = 2
+    from isettorch.metrics.difference import delta_e_2000
+
+    assert float(delta_e_2000(a, b, dim=-1, k_L=2.0)) == pytest.approx(float(want[0]), abs=1e-12)
+    for name in ("k_L", "k_C", "k_H"):
+        for bad in (0.0, -1.0, float("nan")):
+            with pytest.raises(ValueError, match=f"{name}: expected a positive parametric factor"):
+                delta_e_2000(a, b, dim=-1, **{name: bad})
