@@ -12,10 +12,13 @@ optics and mosaic, at unit gain. The exposure is ``t = min(t_white, max_exposure
 analog gain ``min(t_white / t, max_analog_gain)`` (ISO raised once the shutter is at its limit, as a camera's
 program mode does): bright scenes are exposed so a white reads ``target`` of full scale in the most sensitive
 filter (a design with clear pixels gets a shorter exposure), dim scenes get ``max_exposure_s``, fewer photons and
-more gain (the read noise is added before the gain, the ADC after it). The rule is a decision taken from the
-current design at every capture, not a path for gradients (the white card's exposure is detached here, although the
-sensor's auto-exposure is differentiable): gradients reach the filters and mosaic through the photo-electrons, the
-noise and the ADC at the chosen exposure.
+more gain (the read noise is added before the gain, the ADC after it). By default the rule is a decision taken from
+the current design at every capture, not a path for gradients (the white card's exposure is detached; the shipped
+designs were trained so): gradients reach the filters, mosaic and f-number through the photo-electrons, the noise and
+the ADC at the chosen exposure, which is the whole derivative wherever the exposure and gain are at their limits (1
+and 10 lux here, and 100 lux for designs without clear pixels). ``config.exposure.differentiable: true`` keeps the
+rule in the graph (the sensor's auto-exposure is differentiable), so the gradient also holds "a brighter filter or a
+faster lens shortens the exposure" and equals a finite difference that re-runs the rule at every level.
 
 **Network input.** The raw mosaic, black-subtracted, divided by the noise-free capture of that white card
 (pixel by pixel): a perfect white reads 1 in every pixel whatever the filter, exposure or vignetting; the
@@ -77,7 +80,7 @@ DESIGN_DEFAULTS: dict[str, dict[str, Any]] = {
     "network": {"width": 32, "depth": 4},
 }
 #: keys a section may have beyond :data:`DESIGN_DEFAULTS`' (the network's context path is off unless asked for)
-_OPTIONAL_KEYS = {"network": ("context_scale",)}
+_OPTIONAL_KEYS = {"network": ("context_scale",), "exposure": ("differentiable",)}
 
 
 def _merge(defaults: dict, overrides: dict | None) -> dict:
@@ -105,6 +108,9 @@ def _design_config(config: dict | None) -> dict:
         v = cfg["exposure"][key]
         if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise ValueError(f"config.exposure.{key}: expected a positive number, got {v!r}")
+    if not isinstance(cfg["exposure"].get("differentiable", False), bool):
+        raise ValueError(f"config.exposure.differentiable: expected true or false, got "
+                         f"{cfg['exposure']['differentiable']!r}")
     if cfg["exposure"]["max_analog_gain"] < 1:
         raise ValueError(f"config.exposure.max_analog_gain: expected >= 1 (the rule raises the gain once the "
                          f"exposure is at its limit; below 1 it would attenuate), got "
@@ -202,7 +208,7 @@ class DesignCamera(nn.Module):
         return network
 
     def network(self, lux: float) -> nn.Module:
-        key = lux_key(lux)
+        key = lux_key(_check_lux(lux))
         if key not in self.networks:
             raise ValueError(f"lux: the design {self.name!r} has no network for {lux:g} lux; it has "
                              f"{self.lux_levels}")
@@ -292,9 +298,12 @@ class DesignCamera(nn.Module):
         white_rates, _ = sensor.channel_rates(self.optics(white_scene))
         white_mosaic = sensor.cfa.mosaic(white_rates).expand(b, -1, -1, -1)
         rule = self.config["exposure"]
-        # detached: the rule is a decision taken from the current design, not a path for gradients (module
-        # docstring; the shipped designs were trained so); the sensor's auto-exposure itself is differentiable
-        t_white = sensor.exposure_for(None, white_mosaic, 1.0).detach()
+        # by default detached: the rule is a decision taken from the current design, not a path for gradients
+        # (module docstring; the shipped designs were trained so); the sensor's auto-exposure itself is
+        # differentiable, which config.exposure.differentiable keeps
+        t_white = sensor.exposure_for(None, white_mosaic, 1.0)
+        if not rule.get("differentiable", False):
+            t_white = t_white.detach()
         t = t_white.clamp(max=float(rule["max_exposure_s"]))
         gain = (t_white / t).clamp(max=float(rule["max_analog_gain"]))
         # Sensor.forward with the exposure given: its electron rate, then the capture (kept apart so that the
@@ -623,7 +632,10 @@ def load_design(design, *, device=None) -> DesignCamera:
     try:
         d = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # noqa: BLE001 - any unreadable file is the same error for the user
-        raise ValueError(f"design: {str(path)!r} is not a readable design file ({err})") from err
+        # (torch's message goes on to suggest weights_only=False, an unsafe load of an untrusted file: its first
+        # line only)
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        raise ValueError(f"design: {str(path)!r} is not a readable design file ({first})") from err
     if not isinstance(d, dict) or d.get("format") != DESIGN_FORMAT:
         raise ValueError(f"design: {str(path)!r} is not an {DESIGN_FORMAT} file")
     if d.get("version") != DESIGN_VERSION:
@@ -738,16 +750,7 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
         (:meth:`DesignCamera.corner_light`: a photograph sets the sensor's size, so a large one is a wide-angle
         capture with dark, noisy corners).
     """
-    import numpy as np
-
-    from ._progress import progress as progress_bar
-    from .data.config import seed_for
-    from .data.photos import lift_srgb
-    from .image import srgb_encode
-    from .io.images import rgb8_to_tensor
-    from .isp.evaluation import check_device, check_photos, cpsnr, load_images
-    from .metrics.color import srgb_to_xyz, xyz_to_lab
-    from .metrics.difference import delta_e_2000
+    from .isp.evaluation import check_device
 
     check_float_dtype(dtype)
     check_bool(noise_free, "noise_free")
@@ -767,7 +770,27 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     for v in levels:
         camera.network(v)  # ValueError naming the levels it has
     device = check_device(device)
+    was_training = camera.training  # a caller's camera is left in the mode it came in (eval: the hard mosaic)
     camera = camera.to(device).eval()
+    try:
+        return _evaluate(camera, images, levels, keys, seed, crop, dtype, device, noise_free, progress)
+    finally:
+        camera.train(was_training)
+
+
+def _evaluate(camera, images, levels, keys, seed, crop, dtype, device, noise_free, progress) -> dict:
+    """:func:`evaluate_design`'s renders and scores, its arguments checked."""
+    import numpy as np
+
+    from ._progress import progress as progress_bar
+    from .data.config import seed_for
+    from .data.photos import lift_srgb
+    from .image import srgb_encode
+    from .io.images import rgb8_to_tensor
+    from .isp.evaluation import check_photos, cpsnr, load_images
+    from .metrics.color import srgb_to_xyz, xyz_to_lab
+    from .metrics.difference import delta_e_2000
+
     items = load_images(images)
     if not items:
         raise ValueError("images: expected at least one photograph, got none")

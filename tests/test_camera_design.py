@@ -494,3 +494,52 @@ def test_network_channels_last_cpu_path_gives_the_contiguous_layouts_values_and_
     (g_ref,) = torch.autograd.grad(ref.square().sum(), r2)
     torch.testing.assert_close(out, ref, rtol=1e-12, atol=1e-14)
     torch.testing.assert_close(g_raw, g_ref, rtol=1e-10, atol=1e-13)
+
+
+def test_differentiable_exposure_rule_matches_a_finite_difference_that_reruns_it():
+    """At 1000 lux the white card sets the exposure (uncapped). By default the rule is detached: the gradient in
+    the f-number is the photo-electrons' at the chosen exposure, and a central difference that re-runs the rule
+    disagrees (a slower lens also gets a longer exposure). With config.exposure.differentiable the rule stays in the
+    graph and the two agree; where the exposure and gain are at their limits (1 lux) both settings agree."""
+    flat = (torch.ones(1, 1, 8, 8, dtype=torch.float64),
+            torch.linspace(0.2, 0.8, 31, dtype=torch.float64)[None])
+    weights = torch.rand(1, 1, 8, 8, dtype=torch.float64, generator=torch.Generator().manual_seed(3))
+
+    def check(differentiable: bool, lux: float) -> tuple[float, float]:
+        config = {**TINY, "exposure": {"differentiable": differentiable}}
+        bank, mosaic = D.fixed_design("rgbw", fixed_scale="peak")
+        cam = D.DesignCamera(bank, mosaic, config, learn_f_number=True).double()
+
+        def f():  # the capture before the ADC's rounding (a step of 1e-5 moves no code)
+            return (cam.capture(cam.scene(*flat, lux), noise=False)["raw"].noise_free * weights).sum()
+
+        (grad,) = torch.autograd.grad(f(), cam.optics.f_number)
+        h = 1e-5
+        with torch.no_grad():
+            cam.optics.f_number.add_(h)
+            up = f()
+            cam.optics.f_number.sub_(2 * h)
+            down = f()
+            cam.optics.f_number.add_(h)
+        return float(grad), float(up - down) / (2 * h)
+
+    auto, fd = check(True, 1000.0)
+    assert auto == pytest.approx(fd, rel=1e-4)
+    auto, fd = check(False, 1000.0)
+    assert abs(auto - fd) > 0.5 * abs(fd)  # the detached rule: not the derivative of the rule-following capture
+    for differentiable in (True, False):
+        auto, fd = check(differentiable, 1.0)
+        assert auto == pytest.approx(fd, rel=1e-4)
+    with pytest.raises(ValueError, match=r"^config.exposure.differentiable: expected true or false"):
+        D.make_design("bayer_rgb", {"exposure": {"differentiable": "yes"}})
+
+
+def test_evaluate_design_leaves_a_callers_camera_in_its_mode_and_names_a_bad_level(design_file):
+    """evaluate_design switched a training camera to eval mode (its hard mosaic) for good; a level of -1 lux was
+    reported as 'no network for -1 lux' rather than as a bad illuminance."""
+    cam = D.load_design(design_file).train()
+    D.evaluate_design(cam, [("a", np.full((12, 12, 3), 128, np.uint8))], cam.lux_levels[:1], crop=0)
+    assert cam.training
+    for bad in (-1.0, 0.0, math.nan):
+        with pytest.raises(ValueError, match=r"^lux: expected a positive finite illuminance"):
+            cam.network(bad)

@@ -20,8 +20,8 @@ Fixed filters are the library's (:func:`isettorch.sensor.filters.filter_set`): R
 C, Y, M (``'isetcam_cmy'``) and W (``'clear'``, 1 at every wavelength). ISETCam's r, g, b tables peak at 0.39,
 0.35 and 0.29; with ``fixed_scale='peak'`` each set is divided by its largest value (its most transmissive channel
 peaks at 1, the channels keep their ratios, as :func:`~isettorch.sensor.filters.filter_set` does for the measured
-camera sets), so fixed and learned filters can transmit as much and a clear pixel collects about 3.8 times the
-D65 photons of a green one (11 times with the raw tables).
+camera sets), so fixed and learned filters can transmit as much and a clear pixel collects about 4.2 times the
+D65 photons of a green one in the design camera (11 times with the raw tables).
 
 References: learned filter responses trained with the reconstruction network, Nie, Gu, Zheng, Lam, Sato & Sato,
 "Deeply learned filter response functions for hyperspectral reconstruction", CVPR 2018; learned colour filter
@@ -142,6 +142,12 @@ class FilterBank(SpectralQE):
         if "learned" in spec and band_width_nm < step:
             raise ValueError(f"band_width_nm: expected at least the wavelength grid's step ({step:g} nm; a narrower "
                              f"band falls between samples), got {band_width_nm!r}")
+        if "learned" in spec and max_slope_per_nm(max_log_odds, band_width_nm) > MAX_SLOPE_PER_NM:
+            # manufacturable by construction at every step (a steeper bound was found only when the design was saved)
+            raise ValueError(f"band_width_nm, max_log_odds: the learned filters' slope bound pi A / (4 w) = "
+                             f"{max_slope_per_nm(max_log_odds, band_width_nm):.4g} per nm (A = {max_log_odds:g}, "
+                             f"w = {band_width_nm:g} nm) exceeds the manufacturable {MAX_SLOPE_PER_NM} per nm; "
+                             f"widen the bands or lower max_log_odds")
         learned_idx = [i for i, f in enumerate(spec) if f == "learned"]
         if names is None:
             names = [f if f != "learned" else f"F{learned_idx.index(i)}" for i, f in enumerate(spec)]

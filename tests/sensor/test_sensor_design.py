@@ -63,9 +63,13 @@ def test_slope_bound_holds_and_is_attained():
     # the library's own filters on their native grid: also within the bound (ISETCam rgb: 0.0099 / nm)
     _, rgb, _ = filter_set("isetcam_rgb", WL, dtype=torch.float64)
     assert float(((rgb[:, 1:] - rgb[:, :-1]) / 10).abs().max()) < MAX_SLOPE_PER_NM
-    # narrower bands would break the bound: the test can fail
-    steep = _extreme_bank(band_width_nm=25.0).learned_transmittance(FINE)
-    assert float((steep[:, 1:] - steep[:, :-1]).abs().max() / 0.25) > MAX_SLOPE_PER_NM
+    # narrower bands or larger log-odds would break the bound: refused when the bank is built (a spec with
+    # band_width_nm 10 trained to the end and failed only at save_design)
+    for kwargs in ({"band_width_nm": 25.0}, {"band_width_nm": 10.0}, {"max_log_odds": 8.0}):
+        with pytest.raises(ValueError, match=r"band_width_nm, max_log_odds: the learned filters' slope bound"):
+            _extreme_bank(**kwargs)
+    assert max_slope_per_nm(3.0, 25.0) > MAX_SLOPE_PER_NM
+    assert FilterBank(["R", "W"], band_width_nm=10.0).filters.shape[0] == 2  # fixed filters only: no bound to keep
 
 
 def test_every_design_is_manufacturable():
