@@ -1,4 +1,10 @@
-"""Lens analysis from real rays with OpticStudio's default conventions (object at infinity, no ray aiming).
+"""Lens analysis from real rays with OpticStudio's default conventions (object at infinity, no ray aiming), except
+for the image plane: here the primary wavelength's paraxial focus, where OpticStudio takes the file's image surface
+(the last thickness, which a designer sets to the best focus). The two differ for the bundled Cooke triplet by
+0.229 mm (its file focuses inside the paraxial focus: on-axis MTF at 20 / 40 cycles/mm 0.51 / 0.20 here against
+0.84 / 0.56 on the file's plane; RMS spot 14.3 against 4.8 um) and for the aspheric singlet by 0.234 mm (its
+optiland file leaves the r^2 asphere term out of the paraxial focus); the double Gauss's file plane is its paraxial
+focus. ``LensOptics`` renders on this plane too.
 
 * Paraxial data (EFL, F-number, back focal length, pupils, the focus) at the lens's primary wavelength, as
   OpticStudio reports them (the file's ``PWAV``; :data:`REFERENCE_WAVELENGTH_NM` = 587.6 nm for a lens that states
@@ -6,7 +12,9 @@
 * Rays fill the paraxial entrance pupil (diameter and position from the paraxial trace at the primary wavelength)
   for every field and wavelength; the chief ray passes through its centre; clear apertures clip, the stop does not.
   With an ``FNUM`` aperture the EPD is EFL / F# at the primary wavelength (OpticStudio's image-space F/#).
-* Image height: chief ray on the paraxial image plane of its own wavelength; distortion
+* Image height: chief ray on the paraxial image plane of its own wavelength (not the sensor plane of the MTF and
+  of ``LensOptics``: across wavelengths this shows the longitudinal colour as lateral, 29.5 um for the Cooke
+  triplet's 486 / 656 nm at full field against 0.6 um on the sensor plane); distortion
   100 (y - F tan(theta)) / (F tan(theta)) with F the EFL at the primary wavelength (OpticStudio "F-Tan(Theta)"
   distortion).
 * Relative illumination: projected solid angle (area in direction-cosine space) of the vignetted image-space beam,
@@ -251,7 +259,16 @@ class LensAnalysis:
         return torch.rad2deg(torch.atan2(d[1], d[2]))
 
     def relative_illumination(self, field: float, wavelength_nm: float, samples: int = 256) -> torch.Tensor:
-        """Projected solid angle of the vignetted image-space beam over the on-axis one (same wavelength)."""
+        """Projected solid angle of the vignetted image-space beam over the on-axis one (same wavelength), on a
+        ``samples`` x ``samples`` pupil grid (an integer >= 16).
+
+        Rimmer's projected solid angle equals the image irradiance when the beam comes to a near-point image (the
+        sine condition); for a strongly aberrated beam it does not. The bundled aspheric singlet (f/1.29, 47 waves
+        RMS at 10 deg) reads 1.027 at 10 deg, where an exact Monte-Carlo irradiance gives 0.971 and the flux through
+        the real chief-ray mapping 0.947; on the corrected Cooke triplet and double Gauss the three agree to about
+        1 %. Rays that miss a surface or are totally reflected inside the pupil count as vignetted here (the
+        marginal-ray check of :func:`lens_report` refuses such a lens)."""
+        _check_pupil_samples(samples, "samples")
         axis = self._beam_solid_angle(0.0, wavelength_nm, samples)
         if float(axis) <= 0:
             raise TraceError(f"relative illumination at {wavelength_nm} nm: no on-axis ray passes the clear "
@@ -413,6 +430,15 @@ def _values(v, name: str, ok, expected: str, error=ValueError) -> list[float]:
     return vals
 
 
+def _check_pupil_samples(n, name: str, top: float = math.inf) -> int:
+    """A pupil grid's samples per side: an integer in [16, top] (1 or 2 gave a relative illumination of 0.943 and
+    0.939 for the true 0.939 by luck; 2.7 was truncated), else a ValueError naming ``name``."""
+    lo = PUPIL_SAMPLES_RANGE[0]
+    if isinstance(n, bool) or not isinstance(n, int) or not lo <= n <= top:
+        raise ValueError(f"{name}: expected an integer in [{lo}, {top}], got {n!r}")
+    return n
+
+
 def lens_report(lens, fields=(0.0, 0.7, 1.0), wavelengths_nm=None, frequencies_cy_mm=(20.0, 40.0, 80.0),
                 pupil_samples: int = 128, ri_samples: int = 256) -> dict:
     """The ``lens-report`` JSON object (see the module docstring for the conventions).
@@ -437,10 +463,8 @@ def lens_report(lens, fields=(0.0, 0.7, 1.0), wavelengths_nm=None, frequencies_c
                              "finite wavelengths > 0 nm")
     frequencies_cy_mm = _values(frequencies_cy_mm, "frequencies_cy_mm", lambda v: math.isfinite(v) and v >= 0,
                                 "finite frequencies >= 0 cycles/mm")
-    lo, hi = PUPIL_SAMPLES_RANGE
-    for name, n, top in (("pupil_samples", pupil_samples, hi), ("ri_samples", ri_samples, math.inf)):
-        if isinstance(n, bool) or not isinstance(n, int) or not lo <= n <= top:
-            raise ValueError(f"{name}: expected an integer in [{lo}, {top}], got {n!r}")
+    _check_pupil_samples(pupil_samples, "pupil_samples", PUPIL_SAMPLES_RANGE[1])
+    _check_pupil_samples(ri_samples, "ri_samples")
     rows = []
     with torch.no_grad():
         for f in fields:

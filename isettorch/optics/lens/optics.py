@@ -39,7 +39,7 @@ from torch import nn
 from ...scene.scene import Scene
 from .. import geometry
 from ..optical_image import OpticalImage
-from .analysis import LensAnalysis
+from .analysis import LensAnalysis, _check_pupil_samples
 from .psf import chief_ray_heights_mm, otf_sampler, psf_on_grid, spot_radius_mm
 from .trace import TraceError
 
@@ -98,7 +98,7 @@ class LensOptics(nn.Module):
         self.max_pupil_samples = int(max_pupil_samples)
         self.pupil_samples, self.max_kernel, self.distortion_samples = pupil_samples, max_kernel, distortion_samples
         self.transmittance = float(transmittance)
-        self.ri_samples = int(ri_samples)
+        self.ri_samples = _check_pupil_samples(ri_samples, "ri_samples")
         self.cache_elements = int(cache_elements)
         a = self.analysis
         self.register_buffer("focal_length_m", (a.effective_focal_length_mm.detach() * 1e-3).to(dtype))

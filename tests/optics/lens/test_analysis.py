@@ -438,3 +438,16 @@ def test_fallback_material_range_is_its_datas():
     assert refractive_index("PMMA", 400.0, ("SCHOTT", "MISC")) == pytest.approx(1.50, abs=0.02)
     with pytest.raises(GlassError, match=r"'PMMA' \(optiland material database\): 380 nm .*393.1-1157.2 nm"):
         refractive_index("PMMA", 380.0, ("SCHOTT", "MISC"))
+
+
+def test_relative_illumination_checks_its_pupil_grid():
+    """samples=1 or 2 returned a number (0.943, 0.939) and 2.7 was truncated by LensOptics; the grid is an integer
+    >= 16 per side, named when it is not."""
+    a = LensAnalysis("cooke_triplet")
+    for bad in (0, 2, 2.7, True):
+        with pytest.raises(ValueError, match=r"samples: expected an integer in \[16"):
+            a.relative_illumination(0.5, 587.56, bad)
+    from isettorch.optics.lens.optics import LensOptics
+
+    with pytest.raises(ValueError, match=r"ri_samples: expected an integer in \[16"):
+        LensOptics("cooke_triplet", ri_samples=2.7)
