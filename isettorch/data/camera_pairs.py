@@ -101,7 +101,9 @@ META_KEYS = ("index", "exposure_s", "analog_gain", "iso", "f_number", "focal_len
 # 7: 2026-11-30 the camera pairs' one-sample-per-pixel field of view through optics.geometry.image_distance and
 #    image.angle_for_extent (1 ulp in about 0.1 % of draws); the XYZ weights, Planck spectra (in log space) and
 #    light normalisation through the spectral module (equal to 1e-14).
-GENERATOR_VERSION = 7
+# 8: 2026-11-30 the optics' FFT buffer twice the scene's margin, the scene's edge continued (the diffraction tail
+#    wrapped onto the opposite border: up to 183 % of an item's darkest border pixel; _diffraction_config).
+GENERATOR_VERSION = 8
 _TARGET_CHANNELS = {"noise_free_raw": 1, "camera_rgb": 3, "xyz": 3, "linear_srgb": 3, "srgb": 3}
 
 
@@ -146,9 +148,17 @@ class _Clock:
 
 
 def _diffraction_config(f_number: float, focal_length_m: float, margin: int) -> dict:
-    """The ``optics:`` section of a camera config for the pairs' default optics (diffraction-limited, zero padding)."""
-    return {"type": "diffraction_limited", "f_number": f_number, "focal_length_m": focal_length_m, "margin": margin,
-            "pad_mode": "zero"}
+    """The ``optics:`` section of a camera config for the pairs' default optics (diffraction-limited). The scene
+    reaches ``margin`` samples beyond the sensor; the optics' FFT buffer reaches twice as far, the scene's edge
+    continued (``pad_mode='edge'``). With the buffer the scene alone (before version 8), the FFT took the scene as
+    periodic: the diffraction tail beyond ``margin`` wrapped onto the opposite border. Against the same scenes drawn
+    64 samples wider (64-px scenes, 32 items): the largest error of an item (of Y per unit exposure) had median
+    6.7 % and reached 183 % (a bright border lit the dark opposite one), the median pixel 0.51 %; with the buffer
+    twice the margin, edge-continued: 2.9 %, 81 % and 0.33 % (what is left is the scene's own light from beyond its
+    margin, which it does not have). It costs 18 % more time per PairStream batch (16 items of 128 px, one thread,
+    medians of interleaved batches, 2026-11-30)."""
+    return {"type": "diffraction_limited", "f_number": f_number, "focal_length_m": focal_length_m,
+            "margin": 2 * margin, "pad_mode": "edge"}
 
 
 def _sensor_config(d: dict) -> dict:

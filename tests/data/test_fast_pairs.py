@@ -230,8 +230,10 @@ def test_a_pair_is_the_camera_applied_to_its_scene(dtype):
             span = raw.white_level - raw.black_level
             nf = (raw.noise_free - raw.black_level) / span
             assert _rel_max(nf, batch["noise_free_raw"][i:i + 1]) < tol
-            noisy = (raw.data - raw.black_level) / span
-            assert float((noisy != batch["raw"][i:i + 1]).double().mean()) < 2e-3
+            if s is scene:  # (the dense cube's auto-exposure may differ by an ulp, and a Poisson draw of another
+                # mean consumes the generator differently from there on: its noise is another realisation)
+                noisy = (raw.data - raw.black_level) / span
+                assert float((noisy != batch["raw"][i:i + 1]).double().mean()) < 2e-3
             assert float(raw.exposure_s[0]) == pytest.approx(float(batch["meta"]["exposure_s"][i]), rel=tol)
 
 
