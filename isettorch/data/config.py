@@ -38,7 +38,7 @@ SCENE_DEFAULTS: dict[str, Any] = {
     "illuminants": {"daylight": 0.4, "blackbody": 0.2, "fluorescent": 0.2, "led": 0.2},
     "cct_range_k": {"daylight": [4000.0, 25000.0], "blackbody": [2000.0, 10000.0], "led": [2700.0, 6500.0]},
     "two_light_probability": 0.25,  # a second light across the image (smooth transition)
-    "shadow_probability": 0.25,  # a cast shadow lit only by skylight
+    "shadow_probability": 0.25,  # a cast shadow lit only by skylight, in a scene with one light (0.19 of all)
     "shadow_ambient": [0.02, 0.3],  # skylight luminance relative to the direct light
     "second_light_ratio": [0.3, 3.0],  # luminance of light 2 / light 1
     "hdr_decades": [0.0, 3.0],  # illumination range across the image, log10(max / min)
@@ -184,6 +184,9 @@ def _check_natural_values(cfg: dict, defaults: dict, path: str) -> None:
         lo, lo_open = _NATURAL_LOWER.get(path + key, (0.0, False))
         if key == "kinds":
             _check_weights(v, where)
+            unknown = sorted(set(v) - set(ref))  # (PairStream drew the last kind for 'candle', dropped 'blackbdy')
+            if unknown:
+                raise ValueError(f"{where}: {unknown[0]!r}: unknown kind; expected some of {sorted(ref)}")
         elif isinstance(ref, dict):
             _check_natural_values(v, ref, path + key + ".")
         elif isinstance(ref, bool):
@@ -478,7 +481,9 @@ def _check_camera(cam: dict, cp: str) -> None:
     _check_number(cam["bits"], f"{cp}.bits", 1, 32, integer=True, what="an integer number of ADC bits")
     _check_number(cam["black_level_dn"], f"{cp}.black_level_dn", 0.0, 2 ** cam["bits"] - 1, hi_open=True,
                   what=f"a black level in DN ({cp}.bits = {cam['bits']}: below 2^{cam['bits']} - 1)")
-    _check_number(cam["qe_variation"], f"{cp}.qe_variation", 0.0)
+    # at most +-100 nm: at 100 (+-1000 nm) a channel left the grid, its QE was 0 and the white metadata NaN
+    _check_number(cam["qe_variation"], f"{cp}.qe_variation", 0.0, 10.0,
+                  what="a shift scale (x 10 nm per channel)")
     _check_number(cam["margin_px"], f"{cp}.margin_px", 0, integer=True, what="an integer number of pixels")
     if cam["optics"]:  # checked by building it (then dropped): the factory's own checks of type, keys, files
         from ..optics.factory import build_optics

@@ -96,9 +96,11 @@ BAD = [  # (section, key, value, start of the message)
     ("camera", "peak_qe", [0.5, 2.0], "camera.peak_qe: expected a range [lo, hi] of two finite numbers with lo <= hi, "
                                       "both in (0, 1]"),
     ("camera", "peak_qe", [0.0, 0.5], "camera.peak_qe: expected a range"),
-    ("camera", "qe_variation", -1.0, "camera.qe_variation: expected a number >= 0, got -1.0"),
-    ("camera", "qe_variation", math.nan, "camera.qe_variation: expected a number >= 0, got nan"),
+    ("camera", "qe_variation", -1.0, "camera.qe_variation: expected a shift scale (x 10 nm per channel) in [0, 10], "
+                                     "got -1.0"),
+    ("camera", "qe_variation", math.nan, "camera.qe_variation: expected a shift scale"),
     ("camera", "qe_variation", [0.0, 1.0], "camera.qe_variation: expected a number"),
+    ("camera", "qe_variation", 100.0, "camera.qe_variation: expected a shift scale"),  # (a channel's QE was 0)
     ("camera", "bits", 0, "camera.bits: expected an integer number of ADC bits in [1, 32], got 0"),
     ("camera", "bits", 40, "camera.bits: expected an integer number of ADC bits in [1, 32], got 40"),
     ("camera", "black_level_dn", 5000.0, "camera.black_level_dn: expected a black level in DN (camera.bits = 12: "
@@ -171,6 +173,10 @@ BAD = [  # (section, key, value, start of the message)
      "scene.natural: config: 'components.fine_detail.supersample': expected an integer >= 1, got 0"),
     ("scene", "natural", {"components": {"dead_leaves": {"exponent": 1.0}}},
      "scene.natural: config: 'components.dead_leaves.exponent': expected an exponent other than 1"),
+    ("scene", "natural", {"components": {"illuminant": {"kinds": {"daylight": 1.0, "blackbdy": 3.0}}}},
+     "scene.natural: config: 'components.illuminant.kinds': 'blackbdy': unknown kind; expected some of"),
+    ("scene", "natural", {"components": {"illuminant": {"kinds": {"candle": 1.0}}}},
+     "scene.natural: config: 'components.illuminant.kinds': 'candle': unknown kind"),
     ("scene", "natural", {"components": {"textured_leaves": {"min_size_px": -3}}},
      "scene.natural: config: 'components.textured_leaves.min_size_px': expected an integer >= 0, got -3"),
     ("scene", "natural", {"wavelengths_nm": [400.0, 700.0, 5.0]},
