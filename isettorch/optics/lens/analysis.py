@@ -66,12 +66,19 @@ class LensAnalysis:
     """
 
     def __init__(self, lens, curvature_per_mm: torch.Tensor | None = None, dtype=torch.float64, *,
-                 object_distance_mm: float = math.inf, focus_distance_mm: float = math.inf):
+                 object_distance_mm: float = math.inf, focus_distance_mm: float = math.inf,
+                 image_plane: str = "paraxial"):
         if isinstance(lens, LensAnalysis):
             self.prescription, self.geometry = lens.prescription, lens.geometry
         else:
             self.prescription: Prescription = load_lens(lens)
             self.geometry = LensGeometry(self.prescription, curvature_per_mm, dtype=dtype)
+        if image_plane not in IMAGE_PLANES:
+            raise ValueError(f"image_plane: expected one of {IMAGE_PLANES}, got {image_plane!r}")
+        if image_plane == "prescription" and self.prescription_image_distance_mm is None:
+            raise ValueError(f"image_plane: 'prescription' needs the file's image distance (the last surface's "
+                             f"thickness > 0); {self.prescription.name!r} has none")
+        self.image_plane = image_plane
         for name, v in (("object_distance_mm", object_distance_mm), ("focus_distance_mm", focus_distance_mm)):
             if not (isinstance(v, (int, float)) and float(v) > 0):
                 raise ValueError(f"{name}: expected a positive distance (mm, object plane to the first lens vertex; "
@@ -82,9 +89,17 @@ class LensAnalysis:
         self._par: dict = {}
 
     def at(self, object_distance_mm: float = math.inf, focus_distance_mm: float = math.inf) -> LensAnalysis:
-        """The same lens (shared geometry) at another object distance and focus."""
+        """The same lens (shared geometry and image-plane convention) at another object distance and focus."""
         return LensAnalysis(self, dtype=self.dtype, object_distance_mm=object_distance_mm,
-                            focus_distance_mm=focus_distance_mm)
+                            focus_distance_mm=focus_distance_mm, image_plane=self.image_plane)
+
+    @property
+    def prescription_image_distance_mm(self) -> float | None:
+        """The file's image distance: the last lens surface's thickness to the image surface (mm; None when the file
+        gives none, 0 or less)."""
+        surfaces = self.prescription.surfaces
+        t = surfaces[-2].thickness_mm if len(surfaces) >= 3 else 0.0
+        return float(t) if math.isfinite(t) and t > 0 else None
 
     def paraxial(self, wavelength_nm: float) -> dict:
         key = round(float(wavelength_nm), 6)
@@ -153,10 +168,16 @@ class LensAnalysis:
 
     @property
     def sensor_z(self) -> torch.Tensor:
-        """The image plane the lens is focused on: the paraxial image of ``focus_distance_mm`` at the primary
-        wavelength (mm from the surface-1 vertex)."""
-        return self.geometry.vertex_z[-1] + self.paraxial_image_distance_mm(self.reference_wavelength_nm,
-                                                                            self.focus_distance_mm)
+        """The image plane the lens is focused on (mm from the surface-1 vertex): the paraxial image of
+        ``focus_distance_mm`` at the primary wavelength; with ``image_plane='prescription'`` the file's image surface
+        (where its designer put the best focus, as OpticStudio evaluates it), moved by the same back-focus shift
+        for a finite ``focus_distance_mm``."""
+        z = self.geometry.vertex_z[-1] + self.paraxial_image_distance_mm(self.reference_wavelength_nm,
+                                                                         self.focus_distance_mm)
+        if self.image_plane == "prescription":
+            z = z + (self.prescription_image_distance_mm
+                     - self.paraxial_image_distance_mm(self.reference_wavelength_nm, math.inf))
+        return z
 
     def image_height_per_tan_mm(self) -> torch.Tensor:
         """Paraxial chief-ray height on the sensor plane per unit tan(field angle) (mm); the EFL when focused at
@@ -428,6 +449,11 @@ def _values(v, name: str, ok, expected: str, error=ValueError) -> list[float]:
     if not vals or bad:
         raise error(f"{name}: expected {expected}, got {bad or vals}")
     return vals
+
+
+#: image planes of a lens (:class:`LensAnalysis` ``image_plane``): the primary wavelength's paraxial focus, or the
+#: prescription's own image surface
+IMAGE_PLANES = ("paraxial", "prescription")
 
 
 def _check_pupil_samples(n, name: str, top: float = math.inf) -> int:

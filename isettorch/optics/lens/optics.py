@@ -63,6 +63,9 @@ class LensOptics(nn.Module):
             spectra) are cached when they hold at most this many values (else recomputed every call).
         transmittance: scalar lens transmittance (absorption and Fresnel losses are not ray traced).
         focus_distance_m: object distance the lens is focused at (m, to the first lens vertex; ``math.inf``).
+        image_plane: ``'paraxial'`` (the default: the primary wavelength's paraxial focus) or ``'prescription'``
+            (the file's image surface, where its designer focused it; :class:`LensAnalysis`); None keeps a given
+            analysis's.
         object_distance: ``"infinity"`` (default: every scene imaged as if at infinity), ``"scene"`` (each
             scene's ``distance_m``) or a distance in m.
     """
@@ -71,7 +74,8 @@ class LensOptics(nn.Module):
                  pupil_samples: int = 64, max_pupil_samples: int = 256, max_kernel: int = 129,
                  distortion_samples: int = 16, ri_samples: int = 64, cache_elements: int = 64 * 2**20,
                  transmittance: float = 1.0, focus_distance_m: float = math.inf,
-                 object_distance: str | float = "infinity", dtype=torch.float64):
+                 object_distance: str | float = "infinity", image_plane: str | None = None,
+                 dtype=torch.float64):
         super().__init__()
         if not (isinstance(focus_distance_m, (int, float)) and float(focus_distance_m) > 0):
             raise ValueError(f"focus_distance_m: expected a positive distance in m (math.inf for infinity), got "
@@ -82,7 +86,10 @@ class LensOptics(nn.Module):
                              f"{object_distance!r}")
         self.focus_distance_m = float(focus_distance_m)
         self.object_distance = object_distance
-        a = lens if isinstance(lens, LensAnalysis) else LensAnalysis(lens)
+        a = lens if isinstance(lens, LensAnalysis) else LensAnalysis(lens, image_plane=image_plane or "paraxial")
+        if image_plane is not None and a.image_plane != image_plane:
+            a = LensAnalysis(a, dtype=a.dtype, object_distance_mm=a.object_distance_mm,
+                             focus_distance_mm=a.focus_distance_mm, image_plane=image_plane)
         if a.focus_distance_mm != self.focus_distance_m * 1e3 or not math.isinf(a.object_distance_mm):
             a = a.at(math.inf, self.focus_distance_m * 1e3)
         self.analysis = a  # object at infinity, this focus

@@ -451,3 +451,32 @@ def test_relative_illumination_checks_its_pupil_grid():
 
     with pytest.raises(ValueError, match=r"ri_samples: expected an integer in \[16"):
         LensOptics("cooke_triplet", ri_samples=2.7)
+
+
+def test_the_prescriptions_image_plane(tmp_path):
+    """image_plane='prescription' puts the sensor on the file's image surface (the last thickness), as OpticStudio
+    evaluates a lens: the thick-lens singlet's file says 60 mm after its last vertex, its paraxial focus is the
+    closed-form back focal distance; a finite focus moves both by the same back-focus shift. The Cooke triplet's
+    file focuses 0.229 mm inside its paraxial focus, where its on-axis MTF is the design's (0.84 / 0.56 at 20 / 40
+    cycles/mm, as rayoptics' independent trace puts it; 0.51 / 0.20 at the paraxial focus)."""
+    from isettorch.optics.factory import build_optics
+
+    f = _zmx_singlet(tmp_path, ["ENPD 8", "FTYP 0 0 2 1 0 0 0", "XFLN 0 0", "YFLN 0 5", "WAVM 1 0.55 1", "PWAV 1"])
+    par, file = LensAnalysis(f), LensAnalysis(f, image_plane="prescription")
+    _, bfd = _thick_lens(_n_bk7(550.0), 50.0, -80.0, 6.0)
+    assert float(par.sensor_z) == pytest.approx(6.0 + bfd, rel=1e-10)
+    assert float(file.sensor_z) == pytest.approx(6.0 + 60.0, rel=1e-12)
+    near_par, near_file = par.at(math.inf, 2000.0), file.at(math.inf, 2000.0)
+    assert near_file.image_plane == "prescription"
+    assert float(near_file.sensor_z - near_par.sensor_z) == pytest.approx(60.0 - bfd, rel=1e-9)
+    cooke = LensAnalysis("cooke_triplet", image_plane="prescription")
+    assert float(LensAnalysis("cooke_triplet").sensor_z - cooke.sensor_z) == pytest.approx(0.22866, abs=1e-5)
+    mtf_t, _ = cooke.mtf(0.0, 587.5618, [20.0, 40.0])
+    assert mtf_t.tolist() == pytest.approx([0.841, 0.563], abs=2e-3)
+    optics = build_optics({"type": "lens", "lens": "cooke_triplet", "image_plane": "prescription"})
+    assert float(optics.analysis.sensor_z) == pytest.approx(float(cooke.sensor_z), rel=1e-12)
+    with pytest.raises(ValueError, match="image_plane: expected one of"):
+        LensAnalysis(f, image_plane="best")
+    g = _zmx_singlet(tmp_path, ["ENPD 8", "WAVM 1 0.55 1", "PWAV 1"], name="g.zmx", back="DISZ 0")
+    with pytest.raises(ValueError, match="image_plane: 'prescription' needs the file's image distance"):
+        LensAnalysis(g, image_plane="prescription")
