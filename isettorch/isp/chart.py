@@ -65,7 +65,7 @@ def macbeth_true_xyz(illuminant="D65", wavelengths_nm=None, observer: str = "193
 
 def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = "2000", wavelengths_nm=None,
                     scale_to_white: bool = True):
-    """dE of rendered patch XYZ (B, 24, 3) (or (24, 3)) against the true chart under ``illuminant``.
+    """dE of rendered patch XYZ (..., 24, 3) (e.g. (B, 24, 3) or (24, 3)) against the true chart under ``illuminant``.
 
     With ``scale_to_white`` the rendered values are scaled so the white patch's Y equals its true Y (the
     camera's exposure is arbitrary). CIELAB white: the illuminant's perfect white (Y = 1) on the chart's grid, so a
@@ -74,9 +74,9 @@ def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = 
     """
     from ..metrics import color_accuracy
 
-    if not isinstance(rendered_xyz, torch.Tensor) or rendered_xyz.dim() not in (2, 3) \
+    if not isinstance(rendered_xyz, torch.Tensor) or rendered_xyz.dim() < 2 \
             or tuple(rendered_xyz.shape[-2:]) != (24, 3):
-        raise ValueError(f"rendered_xyz: expected the 24 patches' XYZ, (B, 24, 3) or (24, 3), got "
+        raise ValueError(f"rendered_xyz: expected the 24 patches' XYZ, (..., 24, 3), got "
                          f"{tuple(rendered_xyz.shape) if isinstance(rendered_xyz, torch.Tensor) else rendered_xyz!r}")
     x = rendered_xyz.to(torch.float64)
     ref = macbeth_true_xyz(illuminant, wavelengths_nm).to(x.device)

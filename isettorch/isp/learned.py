@@ -885,7 +885,21 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
     """
     check_finite(_check_raw(raw, even=False), "raw")  # (a NaN sample would spread over the whole image through the
     # guard's local means)
+    _check_noise_features(noise)
     return _demosaic_learned(raw, pattern, model=model, noise=noise, self_ensemble=self_ensemble, variant=variant)
+
+
+def _check_noise_features(noise) -> None:
+    """A joint network's noise features, once per call at the entry points (not per flip of the dihedral ensemble:
+    two host reads): None or a floating-point tensor of finite values >= 0 (NaN gave an all-NaN image)."""
+    if noise is None:
+        return
+    if not isinstance(noise, torch.Tensor) or not noise.is_floating_point():
+        raise TypeError(f"noise: expected a floating-point tensor (B, noise_inputs), got "
+                        f"{noise.dtype if isinstance(noise, torch.Tensor) else type(noise).__name__}")
+    check_finite(noise, "noise")
+    if bool((noise < 0).any()):
+        raise ValueError("noise: expected non-negative noise parameters [sqrt(a) * 10, sqrt(b) * 100]")
 
 
 def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> torch.Tensor:
@@ -895,13 +909,6 @@ def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> 
     raw = _check_raw(raw, even=False)
     pattern = _check_pattern(pattern)
     check_self_ensemble(self_ensemble)
-    if noise is not None:
-        if not isinstance(noise, torch.Tensor) or not noise.is_floating_point():
-            raise TypeError(f"noise: expected a floating-point tensor (B, noise_inputs), got "
-                            f"{noise.dtype if isinstance(noise, torch.Tensor) else type(noise).__name__}")
-        check_finite(noise, "noise")
-        if bool((noise < 0).any()):
-            raise ValueError("noise: expected non-negative noise parameters [sqrt(a) * 10, sqrt(b) * 100]")
     if model is None:  # the shared cached instance (load_pretrained gives callers their own copy)
         model = _pretrained(_check_variant(variant), str(raw.device), raw.dtype, True)
     if raw.shape[0] == 0:  # an empty batch: no network pass
@@ -1056,6 +1063,7 @@ def _register() -> None:
     for name, variant in LEARNED_METHODS.items():
         def _learned(raw, pattern="RGGB", *, _variant=variant, model=None, noise=None, self_ensemble=False):
             # reached through demosaic(), which has checked the values finite
+            _check_noise_features(noise)
             return _demosaic_learned(raw, pattern, model=model, noise=noise, self_ensemble=self_ensemble,
                                      variant=_variant)
 

@@ -14,7 +14,7 @@ import torch
 from .._checks import check_finite, check_positive, is_integer
 
 
-def _pair(image: torch.Tensor, target: torch.Tensor, crop: int) -> tuple[torch.Tensor, torch.Tensor]:
+def _pair(image: torch.Tensor, target: torch.Tensor, crop: int, data_range=None) -> tuple[torch.Tensor, torch.Tensor]:
     for name, t in (("image", image), ("target", target)):
         if not isinstance(t, torch.Tensor):
             raise TypeError(f"{name}: expected a torch.Tensor, got {type(t).__name__}")
@@ -22,11 +22,17 @@ def _pair(image: torch.Tensor, target: torch.Tensor, crop: int) -> tuple[torch.T
         raise ValueError(f"target: expected the shape of image {tuple(image.shape)}, got {tuple(target.shape)}")
     if image.dim() not in (3, 4):
         raise ValueError(f"image: expected (B, C, H, W) or (C, H, W), got shape {tuple(image.shape)}")
-    if image.is_floating_point() != target.is_floating_point():  # (uint8 against [0, 1] floats scored -42 dB)
+    for name, t in (("image", image), ("target", target)):
+        if t.dtype == torch.bool or t.is_complex():
+            raise TypeError(f"{name}: expected real pixel values, got {t.dtype}")
+    if data_range is None and image.is_floating_point() != target.is_floating_point():
+        # (uint8 against [0, 1] floats scored -42 dB: which range?)
         raise TypeError(f"target: expected the kind of image's dtype {image.dtype} (both integer codes or both "
-                        f"floating point), got {target.dtype}")
+                        f"floating point) or a data_range, got {target.dtype}")
     check_finite(image.detach(), "image")  # a NaN pixel would make the score NaN without saying where it came from
     check_finite(target.detach(), "target")
+    if isinstance(crop, float) and crop.is_integer():
+        crop = int(crop)
     if not is_integer(crop) or crop < 0 or 2 * crop >= min(image.shape[-2:]):
         raise ValueError(f"crop: expected a whole number of pixels, 0 <= crop < {(min(image.shape[-2:]) + 1) // 2} "
                          f"for an image of {tuple(image.shape[-2:])}, got {crop!r}")
@@ -45,9 +51,10 @@ def _data_range(data_range, image: torch.Tensor) -> float:
     return float(check_positive(data_range, "data_range"))
 
 
-def mse(image: torch.Tensor, target: torch.Tensor, crop: int = 0) -> torch.Tensor:
-    """Mean squared error per image over (C, H, W): :math:`(B)` (or a scalar for (C, H, W))."""
-    a, b = _pair(image, target, crop)
+def mse(image: torch.Tensor, target: torch.Tensor, crop: int = 0, *, data_range=None) -> torch.Tensor:
+    """Mean squared error per image over (C, H, W): :math:`(B)` (or a scalar for (C, H, W)). ``data_range``: only
+    to accept an integer image against a floating-point one (their common scale)."""
+    a, b = _pair(image, target, crop, data_range)
     return ((a - b) ** 2).mean(dim=(-3, -2, -1))
 
 
@@ -69,7 +76,7 @@ def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
 
     Reference: e.g. Wang et al., IEEE TIP 13(4), 2004, eq. 1 context; scikit-image ``peak_signal_noise_ratio``.
     """
-    err = mse(image, target, crop)
+    err = mse(image, target, crop, data_range=data_range)
     r = _data_range(data_range, image)
     # identical images: +inf, the maximum, with a zero gradient (10 log10(r^2 / mse) differentiated at mse = 0 is
     # -inf times a zero difference, NaN, which would poison a training step whose batch holds one exact image)
@@ -102,7 +109,7 @@ def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
 
     if isinstance(window_size, bool) or not isinstance(window_size, int) or window_size < 1 or window_size % 2 == 0:
         raise ValueError(f"window_size: expected an odd number of pixels >= 1, got {window_size!r}")
-    a, b = _pair(image, target, crop)
+    a, b = _pair(image, target, crop, data_range)
     squeeze = a.dim() == 3
     if squeeze:
         a, b = a.unsqueeze(0), b.unsqueeze(0)

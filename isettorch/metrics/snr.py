@@ -73,14 +73,15 @@ def snr_curve(frames: torch.Tensor, dark: torch.Tensor | None = None) -> dict[st
                 snr_total=signal / noise_total)
 
 
-def noise_variance_e(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu_percent=0.0, dark_current_e=0.0, *,
+def noise_variance_e(signal_e, read_noise_e=0.0, dsnu_e=0.0, *, prnu_percent=0.0, dark_current_e=0.0,
                      column_fpn_e=0.0, lsb_e=None, shot: bool = True) -> torch.Tensor:
     """Pixel noise variance (electrons^2) at mean photo-signals ``signal_e``, the one noise model of the SNR
     figures: ``S + D + read^2 + DSNU^2 + column^2 + (PRNU S)^2 + LSB^2 / 12`` (shot noise of signal S and dark
     electrons D, read noise, DSNU, column FPN, PRNU in percent of the signal as the sensor's
     ``prnu_sigma_percent`` and the calibration's ``prnu_percent``, quantisation step ``lsb_e``; EMVA 1288 release
     4.0 eq. 2-6; ISETCam pixelSNR / sensorSNR; Farrell et al. 2004). ``shot=False`` drops the signal's shot noise
-    (a sensor with shot noise off)."""
+    (a sensor with shot noise off). ``prnu_percent`` and the terms after it are keyword-only (a positional PRNU
+    was a fraction before 2026-11-30)."""
     s = as_tensor(signal_e, "signal_e", dtype=torch.float64)
     check_nonnegative(s, "signal_e")
     read, dsnu, prnu, dark, column = (_noise_level(v, n) for v, n in (
@@ -103,7 +104,7 @@ def _noise_level(value, name: str) -> float:
     return v
 
 
-def pixel_snr(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu_percent=0.0, dark_current_e=0.0, db: bool = False, *,
+def pixel_snr(signal_e, read_noise_e=0.0, dsnu_e=0.0, *, prnu_percent=0.0, dark_current_e=0.0, db: bool = False,
               column_fpn_e=0.0, lsb_e=None, shot: bool = True):
     """Model pixel SNR ``S / sqrt(variance)`` with the variance of :func:`noise_variance_e` (all in electrons).
     A noise-free pixel has SNR ``inf`` (0 at zero signal).
@@ -113,8 +114,8 @@ def pixel_snr(signal_e, read_noise_e=0.0, dsnu_e=0.0, prnu_percent=0.0, dark_cur
         20.0
     """
     s = as_tensor(signal_e, "signal_e", dtype=torch.float64)
-    var = noise_variance_e(s, read_noise_e, dsnu_e, prnu_percent, dark_current_e, column_fpn_e=column_fpn_e,
-                           lsb_e=lsb_e, shot=shot)
+    var = noise_variance_e(s, read_noise_e, dsnu_e, prnu_percent=prnu_percent, dark_current_e=dark_current_e,
+                           column_fpn_e=column_fpn_e, lsb_e=lsb_e, shot=shot)
     snr = torch.where(var > 0, s / torch.sqrt(var.clamp_min(torch.finfo(s.dtype).tiny)),
                       torch.where(s > 0, math.inf, 0.0))
     return 20.0 * torch.log10(snr) if db else snr

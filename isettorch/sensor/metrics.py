@@ -17,13 +17,18 @@ from ..metrics.snr import noise_variance_e
 from ..metrics.snr import pixel_snr as _pixel_snr
 from .sensor import Sensor
 
-__all__ = ["well_capacity_e", "noise_e", "pixel_snr", "pixel_snr_db", "dynamic_range_db", "iso_saturation",
-           "electrons_per_lux_second"]
+__all__ = ["well_capacity_e", "saturation_e", "noise_e", "pixel_snr", "pixel_snr_db", "dynamic_range_db",
+           "iso_saturation", "electrons_per_lux_second"]
 
 
 def well_capacity_e(sensor: Sensor) -> float:
-    """Electrons at saturation (:meth:`Sensor.saturation_e`): voltage swing / conversion gain (ISETCam
-    ``pixelGet('well capacity')``, the sensor's :attr:`~Sensor.well_capacity_e`), or the photodiode's full well
+    """Electrons at the voltage swing: swing / conversion gain (ISETCam ``pixelGet('well capacity')``, the sensor's
+    :attr:`~Sensor.well_capacity_e`); a lower photodiode full well saturates first (:func:`saturation_e`)."""
+    return sensor.well_capacity_e
+
+
+def saturation_e(sensor: Sensor) -> float:
+    """Electrons at saturation (:meth:`Sensor.saturation_e`): :func:`well_capacity_e`, or the photodiode's full well
     ``full_well_e`` where that is lower (EMVA 1288 release 4.0, section 4.1)."""
     return float(sensor.saturation_e())
 
@@ -64,13 +69,13 @@ def pixel_snr_db(sensor: Sensor, signal_e, exposure_s: float | None = None) -> t
 
 def dynamic_range_db(sensor: Sensor, exposure_s: float | None = None) -> float:
     """20 log10(electrons at saturation / noise floor in the dark), ISETCam's ``pixelDR``
-    (:func:`isettorch.metrics.snr.dynamic_range_db`; saturation: :func:`well_capacity_e`, which the full well caps);
+    (:func:`isettorch.metrics.snr.dynamic_range_db`; saturation: :func:`saturation_e`, which the full well caps);
     ``inf`` for a noise-free sensor. EMVA 1288's DR divides by ``mu_e.min = sigma_dark + 1/2`` instead
     (:func:`isettorch.metrics.emva1288`): 1.9 dB less at a 2 e- floor."""
     floor = float(noise_e(sensor, 0.0, exposure_s))
     if floor <= 0:
         return math.inf
-    return float(_dynamic_range_db(well_capacity_e(sensor), floor))
+    return float(_dynamic_range_db(saturation_e(sensor), floor))
 
 
 def electrons_per_lux_second(sensor: Sensor, illuminant: str = "D65", wavelengths_nm=None) -> torch.Tensor:
@@ -94,11 +99,11 @@ def electrons_per_lux_second(sensor: Sensor, illuminant: str = "D65", wavelength
 def iso_saturation(sensor: Sensor, illuminant: str = "D65", wavelengths_nm=None) -> float:
     """ISO 12232:2019 saturation-based speed ``S_sat = 78 / H_sat`` (H_sat in lux s).
 
-    H_sat is the focal-plane exposure that saturates (:func:`well_capacity_e`) the most sensitive channel (analog
+    H_sat is the focal-plane exposure that saturates (:func:`saturation_e`) the most sensitive channel (analog
     gain 1).
     """
     k = electrons_per_lux_second(sensor, illuminant, wavelengths_nm).max().item()
     if k <= 0:
         raise ValueError("iso_saturation: the sensor has no response to the illuminant")
-    h_sat = well_capacity_e(sensor) / k
+    h_sat = saturation_e(sensor) / k
     return 78.0 / h_sat

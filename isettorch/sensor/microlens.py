@@ -349,10 +349,11 @@ def _isetcam_rebin(w, cell, ok, n):
 
 
 def _matlab_grid(half: float, n: int, dtype, device) -> torch.Tensor:
-    """``linspace(-half, half, n)`` as MATLAB and NumPy build it (``-half + k (2 half) / (n - 1)``, the far end
-    exact): antisymmetric, with an exact 0 in the middle for odd n. torch.linspace fills from both ends, so 141 of
-    255 values differed in the last bit (the middle was 2.7e-17), and where a source cone's edge fell on a grid row
-    (CRA 45 degrees at f/0.5) ISETCam's strict comparison counted it: a 25 % larger etendue."""
+    """``linspace(-half, half, n)`` as NumPy builds it, ``-half + k (2 half) / (n - 1)`` with the far end exact (the
+    grid of the NumPy port of mlRadiance in the tests; MATLAB's linspace rounds a little differently, and gives the
+    same etendue at the tie below). torch.linspace fills from both ends: 141 of 255 values differed in the last bit
+    (the middle 2.7e-17, here 0 for the default grid), and where a source cone's edge fell on a grid row (CRA 45
+    degrees at f/0.5) ISETCam's strict comparison counted it: a 25 % larger etendue."""
     k = torch.arange(n, dtype=torch.float64)
     g = -half + k * (2 * half / (n - 1))
     g[-1] = half

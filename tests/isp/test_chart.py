@@ -69,6 +69,7 @@ def test_macbeth_delta_e_names_its_argument_and_a_black_white_patch():
 
     with pytest.raises(ValueError, match=r"rendered_xyz: expected the 24 patches' XYZ"):
         macbeth_delta_e(torch.rand(23, 3, dtype=torch.float64))
+    assert macbeth_delta_e(torch.rand(2, 3, 24, 3, dtype=torch.float64) + 0.1).delta_e.shape == (2, 3, 24)
     dark = torch.rand(24, 3, dtype=torch.float64)
     dark[WHITE_PATCH] = 0.0
     with pytest.raises(ValueError, match="rendered_xyz: scale_to_white needs a white patch"):

@@ -246,5 +246,10 @@ def test_psnr_and_ssim_take_the_range_of_integer_images_as_scikit_image_does():
     assert float(psnr(x, y)) == pytest.approx(float(psnr(x.double() / 255, y.double() / 255)), rel=1e-6)
     with pytest.raises(TypeError, match="target: expected the kind of image's dtype"):
         psnr(x.double() / 255, y)
+    # with a data_range the two kinds share it (as before); a whole float crop is a crop
+    assert float(psnr(x.double(), y, data_range=255.0)) == pytest.approx(float(psnr(x, y)), rel=1e-6)
+    assert float(psnr(x, y, crop=2.0)) == float(psnr(x, y, crop=2))
+    with pytest.raises(TypeError, match="image: expected real pixel values"):
+        psnr(x > 100, y > 100)
     with pytest.raises(ValueError, match="crop: expected a whole number"):
         psnr(x, y, crop=1.7)

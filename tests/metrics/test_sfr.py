@@ -230,3 +230,13 @@ def test_a_roi_with_two_edges_is_refused():
     with pytest.raises(ValueError, match="more than one edge"):
         esfr(up - down + 0.1, auto_roi=False)
     assert math.isfinite(float(esfr(up, auto_roi=False).mtf50))  # either edge alone is measured
+    # one edge with what real ROIs carry is still one edge: a sharpened edge's halos (an unsharp mask of 15 px,
+    # amount 3: 56 % overshoot each side) and a 70 % vignetting fall-off across the ROI
+    e = slanted_edge(4)
+    blur = torch.nn.functional.avg_pool2d(torch.nn.functional.pad(e[None, None], (7, 7, 7, 7), mode="replicate"),
+                                          15, 1)[0, 0]
+    sharpened = e + 3.0 * (e - blur)
+    assert float((sharpened.mean(0).max() - 0.9) / 0.8) > 0.5
+    vignetted = e * (1 - 0.7 * torch.linspace(0, 1, e.shape[1], dtype=e.dtype))[None]
+    for img in (sharpened, vignetted):
+        assert math.isfinite(float(esfr(img, auto_roi=False).mtf50))

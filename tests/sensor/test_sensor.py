@@ -300,7 +300,7 @@ def test_iso_saturation_against_colour_science():
     # a photodiode full well below the swing's 1e4 e- saturates first: half the well, twice the speed, 6.02 dB
     # less dynamic range (the metrics used the swing's well capacity whatever the full well)
     half = Sensor.preset("isetcam_default", full_well_e=5000.0)
-    assert metrics.well_capacity_e(half) == 5000.0 and half.well_capacity_e == pytest.approx(1e4)
+    assert metrics.saturation_e(half) == 5000.0 and metrics.well_capacity_e(half) == pytest.approx(1e4)
     assert metrics.iso_saturation(half) == pytest.approx(2 * metrics.iso_saturation(s), rel=1e-12)
     assert metrics.dynamic_range_db(s) - metrics.dynamic_range_db(half) == pytest.approx(20 * math.log10(2))
 

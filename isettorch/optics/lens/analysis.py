@@ -61,6 +61,10 @@ class LensAnalysis:
     Args:
         lens: a :class:`Prescription`, a path or a bundled lens name.
         curvature_per_mm: optional ``[S]`` tensor of the lens surfaces' curvatures (for gradients).
+        object_distance_mm, focus_distance_mm: the object and the distance focused at (mm to the first vertex;
+            ``math.inf`` for infinity; module docstring).
+        image_plane: the sensor plane (:attr:`sensor_z`): ``'paraxial'`` (the primary wavelength's paraxial focus)
+            or ``'prescription'`` (the file's image surface, :attr:`prescription_image_distance_mm`).
 
     Paraxial quantities are computed at :attr:`reference_wavelength_nm`, the prescription's primary wavelength.
     """
