@@ -2,7 +2,8 @@
 diffraction MTF of a lens prescription (``.zmx``, ``.yaml`` or a bundled lens name), with OpticStudio's default
 conventions (see ``isettorch.optics.lens.analysis``).
 
-``--json`` prints exactly one JSON object ``{effective_focal_length_mm, f_number, max_field_deg, rows: [...]}``;
+``--json`` prints exactly one JSON object ``{effective_focal_length_mm, f_number, max_field_deg, image_plane (of the
+MTF), rows: [...]}``;
 otherwise a table, and plots (PSF grid, MTF against field, distortion, relative illumination) in ``--out``.
 Without ``--wavelengths-nm`` the rows are at the prescription's own wavelengths. Out-of-range arguments are checked
 by ``lens_report`` and named with their option (``isettorch.cli``).

@@ -81,8 +81,9 @@ def apply_matrix(img: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
         torch.Size([1, 3, 2, 2])
     """
     _check_image(img)
-    check_finite(as_tensor(matrix, "matrix").detach(), "matrix")
-    return _apply_matrix(img, as_tensor(matrix, "matrix"))
+    m = as_tensor(matrix, "matrix")
+    check_finite(m.detach(), "matrix")
+    return _apply_matrix(img, m)
 
 
 def _apply_matrix(img: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:

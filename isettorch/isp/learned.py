@@ -899,7 +899,8 @@ def _check_noise_features(noise) -> None:
                         f"{noise.dtype if isinstance(noise, torch.Tensor) else type(noise).__name__}")
     check_finite(noise, "noise")
     if bool((noise < 0).any()):
-        raise ValueError("noise: expected non-negative noise parameters [sqrt(a) * 10, sqrt(b) * 100]")
+        raise ValueError(f"noise: expected non-negative noise parameters [sqrt(a) * 10, sqrt(b) * 100], got "
+                         f"{noise.detach().reshape(-1)[:6].tolist()}")
 
 
 def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> torch.Tensor:

@@ -75,7 +75,7 @@ def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: flo
     but a neutral output gets no chroma gradient from dE2000 or dE94; dE76's is the direction to the target)."""
     for name, k in (("k_L", k_L), ("k_C", k_C), ("k_H", k_H)):
         if isinstance(k, bool) or not isinstance(k, numbers.Real) or not (math.isfinite(k) and k > 0):
-            raise ValueError(f"{name}: expected a positive parametric factor, got {k!r}")
+            raise ValueError(f"{name}: expected a positive parametric factor (a number), got {k!r}")
     (L1, a1, b1), (L2, a2, b2), _ = _split(lab1, lab2, dim)
     p7 = 25.0**7
     C1 = _safe_sqrt(a1**2 + b1**2)

@@ -20,6 +20,7 @@ plug-in point for learned methods. The entry point is the function :func:`demosa
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 from collections.abc import Callable
@@ -119,17 +120,26 @@ def demosaic(raw: torch.Tensor, pattern="RGGB", method: str | Callable = "biline
     return fn(raw, pattern, **kwargs)
 
 
+@functools.lru_cache(maxsize=64)
+def _option_names(fn: Callable) -> tuple[str, ...] | None:
+    """The keyword options a method takes after ``(raw, pattern)`` (None: it takes any, or has no signature and
+    checks its own); once per method (a pipeline stage passes Malvar's boundary on every call)."""
+    try:
+        params = inspect.signature(fn).parameters.values()
+    except (TypeError, ValueError):
+        return None
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return None
+    named = [p for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    return tuple(p.name for p in named[2:] if not p.name.startswith("_"))
+
+
 def _check_options(name: str, fn: Callable, kwargs: dict) -> None:
     """A method's keyword options: an unknown one is a TypeError naming the method and what it takes (Python's own
     named an internal function, e.g. ``_register.<locals>._learned()``)."""
-    try:
-        params = inspect.signature(fn).parameters.values()
-    except (TypeError, ValueError):  # a callable without a signature: it checks its own options
+    takes = _option_names(fn)
+    if takes is None:
         return
-    if any(p.kind is p.VAR_KEYWORD for p in params):
-        return
-    named = [p for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
-    takes = [p.name for p in named[2:] if not p.name.startswith("_")]  # after (raw, pattern)
     unknown = sorted(set(kwargs) - set(takes))
     if unknown:
         raise TypeError(f"method {name!r}: unknown option(s) {unknown}; it takes {takes or 'none'}")

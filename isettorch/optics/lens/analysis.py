@@ -46,6 +46,7 @@ import math
 
 import torch
 
+from ..._checks import is_integer
 from .prescription import DEFAULT_PRIMARY_NM, Prescription, load_lens
 from .trace import LensGeometry, RayBundle, TraceError
 
@@ -467,9 +468,9 @@ def _check_pupil_samples(n, name: str, top: float = math.inf) -> int:
     """A pupil grid's samples per side: an integer in [16, top] (1 or 2 gave a relative illumination of 0.943 and
     0.939 for the true 0.939 by luck; 2.7 was truncated), else a ValueError naming ``name``."""
     lo = PUPIL_SAMPLES_RANGE[0]
-    if isinstance(n, bool) or not isinstance(n, int) or not lo <= n <= top:
+    if not is_integer(n) or not lo <= n <= top:
         raise ValueError(f"{name}: expected an integer in [{lo}, {top}], got {n!r}")
-    return n
+    return int(n)
 
 
 def lens_report(lens, fields=(0.0, 0.7, 1.0), wavelengths_nm=None, frequencies_cy_mm=(20.0, 40.0, 80.0),
@@ -518,4 +519,4 @@ def lens_report(lens, fields=(0.0, 0.7, 1.0), wavelengths_nm=None, frequencies_c
             if any(not math.isfinite(x) for x in vals):
                 raise TraceError(f"lens-report: non-finite {k} at field {r['field']}, {r['wavelength_nm']} nm")
     return {"effective_focal_length_mm": float(a.effective_focal_length_mm), "f_number": float(a.f_number),
-            "max_field_deg": float(a.max_field_deg), "rows": rows}
+            "max_field_deg": float(a.max_field_deg), "image_plane": a.image_plane, "rows": rows}

@@ -14,7 +14,8 @@ def test_lens_report_json_shape(capsys):
                "--frequencies-cy-mm", "20,40", "--pupil-samples", "32", "--json"])
     assert rc == 0
     rep = json.loads(capsys.readouterr().out)
-    assert set(rep) == {"effective_focal_length_mm", "f_number", "max_field_deg", "rows"}
+    assert set(rep) == {"effective_focal_length_mm", "f_number", "max_field_deg", "image_plane", "rows"}
+    assert rep["image_plane"] == "paraxial"
     assert rep["max_field_deg"] == 20.0 and rep["f_number"] == pytest.approx(rep["effective_focal_length_mm"] / 10)
     assert len(rep["rows"]) == 4
     keys = {"field", "wavelength_nm", "image_height_mm", "distortion_percent", "relative_illumination",
