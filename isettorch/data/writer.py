@@ -26,6 +26,7 @@ Work split: files are dealt round-robin to ``num_shards x world_size`` processes
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import math
 import os
@@ -78,6 +79,19 @@ def _atomic_save(obj, path: Path) -> None:
 
 def _shard_names(f: int) -> tuple[str, str]:
     return f"shard-{f:05d}.pt", f"shard-{f:05d}.json"
+
+
+def _sidecars(out: Path) -> list[dict]:
+    """The readable shard sidecar records in ``out`` (``shard-*.json``)."""
+    recs = []
+    for js in sorted(out.glob("shard-*.json")):
+        try:
+            rec = json.loads(js.read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(rec, dict):
+            recs.append(rec)
+    return recs
 
 
 def _shard_complete(out: Path, f: int, chash: str) -> dict | None:
@@ -137,6 +151,8 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
             prev = json.loads(old.read_text())
         except ValueError:
             prev = {}
+        if not isinstance(prev, dict):
+            prev = {}
         if prev.get("config_sha256") not in (None, chash):
             differs = [f"{key} {prev.get(key, default)!r} there, {mine!r} here" for key, default, mine in
                        (("count", None, count), ("generator_version", 1, GENERATOR_VERSION), ("config", None, cfg))
@@ -144,6 +160,12 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
             what = "; ".join(d if not d.startswith("config ") else "the config" for d in differs) or "its hash"
             raise ValueError(f"out: {str(out)!r} holds a dataset made with another config, count or generator "
                              f"version ({what}); use a new folder")
+    # shards of another config (their sidecars' hashes): refused when the manifest cannot tell (an aborted run writes
+    # none, and an unreadable one was taken as empty: another config's shards were rewritten without a word)
+    foreign = sorted({rec.get("config_sha256") for rec in _sidecars(out)} - {chash, None})
+    if foreign:
+        raise ValueError(f"out: {str(out)!r} holds shards made with another config, count or generator version "
+                         f"(their sidecars' config_sha256 {foreign[0][:12]}...); use a new folder")
     size = int(cfg["shard_size"])
     if size < 1:
         raise ValueError(f"shard_size: expected a positive number of items per shard, got {size}")
@@ -264,6 +286,8 @@ class ShardDataset(torch.utils.data.Dataset):
             if self.count < 0 or self.shard_size < 1:
                 raise ValueError(f"count {self.count}, shard_size {self.shard_size}: expected >= 0 and >= 1")
             self.files = {int(rec["first_index"]) // self.shard_size: rec["file"] for rec in manifest["shards"]}
+            self.sha256 = {int(rec["first_index"]) // self.shard_size: rec.get("sha256")
+                           for rec in manifest["shards"]}
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"root: {str(self.root)!r} has a malformed manifest.json ({type(err).__name__}: "
                              f"{err})") from err
@@ -282,7 +306,16 @@ class ShardDataset(torch.utils.data.Dataset):
         if shard is None:
             path = self.root / self.files[f]
             try:
-                shard = torch.load(path, weights_only=True)
+                data = path.read_bytes()
+            except OSError as err:
+                raise ValueError(f"{path}: not a readable shard ({type(err).__name__}: {err})") from err
+            # the manifest's checksum, once per shard read (torch.load reads every byte anyway): an edited or swapped
+            # shard was served as training data without a word
+            if self.sha256.get(f) is not None and hashlib.sha256(data).hexdigest() != self.sha256[f]:
+                raise ValueError(f"{path}: the shard's sha256 differs from manifest.json's; the file was changed "
+                                 f"after it was written (isettorch synth --verify lists every such shard)")
+            try:
+                shard = torch.load(io.BytesIO(data), weights_only=True)
             except Exception as err:  # torch raises several types for truncated / foreign files
                 raise ValueError(f"{path}: not a readable shard ({type(err).__name__}: {err})") from err
             while len(self._cache) >= self.cache_shards:

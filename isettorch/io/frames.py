@@ -130,7 +130,8 @@ def write_frame(path: str | Path, frame) -> None:
         raise ValueError(f"frame: expected a non-empty 2-D array of real numbers (one frame in DN), got "
                          f"{arr.dtype} of shape {arr.shape}")
     if suffix == ".npy":
-        np.save(path, arr, allow_pickle=False)
+        with open(path, "wb") as f:  # (np.save adds '.npy' to a name that does not end in it: 'UP.NPY.npy')
+            np.save(f, arr, allow_pickle=False)
         return
     if arr.min() < 0 or arr.max() > 65535 or not np.array_equal(arr, np.round(arr)):
         raise ValueError(f"frame: a 16-bit {suffix} needs integers in 0..65535, got {arr.min()}..{arr.max()}")

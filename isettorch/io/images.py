@@ -170,8 +170,8 @@ def _read_png(p: Path) -> np.ndarray:
         w, h, rows, info = png.Reader(filename=str(p)).asDirect()  # palette and low bit depths expanded
         planes = info["planes"]
         a = np.vstack([np.asarray(r, dtype=np.uint16 if info["bitdepth"] > 8 else np.uint8) for r in rows])
-    except png.Error as err:
-        raise ValueError(str(err)) from err
+    except (png.Error, EOFError) as err:  # (an empty file: EOFError, which named no path)
+        raise ValueError(str(err) or type(err).__name__) from err
     a = a.reshape(h, w, planes)
     if info["bitdepth"] not in (8, 16):  # 1, 2, 4 bit gray: rescale to 8 bits
         a = (a.astype(np.uint16) * 255 // (2 ** info["bitdepth"] - 1)).astype(np.uint8)
@@ -181,7 +181,16 @@ def _read_png(p: Path) -> np.ndarray:
 def _read_tiff(p: Path) -> np.ndarray:
     import tifffile
 
-    a = tifffile.imread(str(p))
+    with tifffile.TiffFile(str(p)) as tif:
+        series = tif.series[0]
+        axes, a = series.axes, series.asarray()
+    # one image, samples last: a planar ('SYX') file came back channels first and two grey pages as one RGB image
+    # when they were 4 pixels wide or less
+    if any(ax not in "YXS" for ax in axes):
+        raise ValueError(f"expected one image (axes Y, X and samples S), got a TIFF series with axes {axes!r} "
+                         f"(pages, planes or depth); save each image as its own file")
+    if "S" in axes:
+        a = np.moveaxis(a, axes.index("S"), -1)
     if a.dtype == np.float16 or a.dtype == np.float64:
         a = a.astype(np.float32)
     if a.dtype not in (np.uint8, np.uint16, np.float32):

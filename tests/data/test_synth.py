@@ -226,3 +226,39 @@ def test_synth_quiet_flag(tmp_path, capsys):
         assert main(["synth", "--config", str(cfg), "--out", str(out), "--count", "2", flag]) == 0
         captured = capsys.readouterr()
         assert "1/1 shards" in captured.out and "shard/s" not in captured.err and "it/s" not in captured.err
+
+
+def test_an_edited_shard_is_refused_and_another_configs_shards_are_never_rewritten(reference, tmp_path):
+    """A shard edited after it was written (one byte, same size) or another shard copied over it was served as
+    training data: ShardDataset checks each shard's sha256 against the manifest when it reads it. A folder whose
+    manifest is unreadable (or missing, after an aborted run) but whose shards were made with another config had
+    every shard rewritten: the sidecars' config hashes refuse it."""
+    import shutil
+
+    from isettorch.data.writer import ShardDataset
+
+    out, _ = reference
+    edited = tmp_path / "edited"
+    shutil.copytree(out, edited)
+    data = bytearray((edited / "shard-00001.pt").read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (edited / "shard-00001.pt").write_bytes(bytes(data))
+    ds = ShardDataset(edited)
+    assert torch.equal(ds[0]["raw"], ShardDataset(out)[0]["raw"])  # the other shards still read
+    with pytest.raises(ValueError, match=r"shard-00001.pt: the shard's sha256 differs from manifest.json's"):
+        ds[2]
+    swapped = tmp_path / "swapped"
+    shutil.copytree(out, swapped)
+    shutil.copy(swapped / "shard-00000.pt", swapped / "shard-00001.pt")
+    with pytest.raises(ValueError, match="sha256 differs"):
+        ShardDataset(swapped)[2]
+    other = tmp_path / "other"
+    shutil.copytree(out, other)
+    (other / "manifest.json").write_text("{garbage")
+    before = _checksums(other)
+    with pytest.raises(ValueError, match="holds shards made with another config"):
+        write_dataset({**CFG, "seed": 6}, other, COUNT, progress=False)
+    (other / "manifest.json").unlink()
+    with pytest.raises(ValueError, match="holds shards made with another config"):
+        write_dataset({**CFG, "seed": 6}, other, COUNT, progress=False)
+    assert _checksums(other) == before

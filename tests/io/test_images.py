@@ -242,3 +242,22 @@ def test_a_batch_with_one_unwritable_sample_writes_no_file(tmp_path):
     with pytest.raises(ValueError, match="image: values up to .* overflow float16"):
         write_image(tmp_path / "im_{i}.exr", x, bits=16)
     assert not list(tmp_path.iterdir())
+
+
+def test_read_image_puts_a_planar_tiffs_samples_last_and_refuses_pages(tmp_path):
+    """A planar RGB TIFF came back channels first and two grey pages as one RGB image (when 4 pixels wide or
+    less, silently); an empty PNG raised a bare EOFError."""
+    import tifffile
+
+    rgb = (np.random.default_rng(0).random((5, 4, 3)) * 65535).astype(np.uint16)
+    tifffile.imwrite(tmp_path / "planar.tif", np.moveaxis(rgb, -1, 0), planarconfig="separate", photometric="rgb")
+    got = read_image(tmp_path / "planar.tif", encoding="linear")
+    assert got.shape == (1, 3, 5, 4)
+    want = (torch.from_numpy(rgb.astype(np.float64)) / 65535).to(got.dtype)
+    torch.testing.assert_close(got[0].permute(1, 2, 0), want, rtol=0, atol=0)
+    tifffile.imwrite(tmp_path / "pages.tif", np.zeros((2, 5, 3), np.uint8), photometric="minisblack")
+    with pytest.raises(ValueError, match="expected one image .* axes 'QYX'"):
+        read_image(tmp_path / "pages.tif")
+    (tmp_path / "empty.png").write_bytes(b"")
+    with pytest.raises(ValueError, match="empty.png' is not a readable PNG image"):
+        read_image(tmp_path / "empty.png")

@@ -83,6 +83,10 @@ def test_dng_round_trip_through_rawpy(tmp_path):
     np.save(tmp_path / "x.npy", m)
     f = read_frame_data(tmp_path / "x.npy")
     assert np.array_equal(f.dn, m) and f.cfa is None and f.black_level_dn is None
+    # the name asked for, whatever its suffix's case (np.save wrote UP.NPY.npy)
+    from isettorch.io.frames import write_frame
+    write_frame(tmp_path / "UP.NPY", m)
+    assert not (tmp_path / "UP.NPY.npy").exists() and np.array_equal(read_frame_data(tmp_path / "UP.NPY").dn, m)
     # what LibRaw could not read back, or the tags would not hold, is refused before a file is written
     small = np.full((21, 64), 100, dtype=np.uint16)
     for kwargs, message in (({"mosaic": small}, "LibRaw reads no raw smaller than 22 pixels a side"),
