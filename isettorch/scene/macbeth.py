@@ -92,7 +92,10 @@ def macbeth(illuminant="D65", patch_size: int = 16, wavelengths=None, *,
 
     Radiance = reflectance x illuminant (photons), scaled to ``mean_luminance_cd_m2``; the scene carries
     ``illuminant_photons`` so ``scene.reflectance()`` returns the patch reflectances.
-    ISETCam: ``sceneCreate('macbeth d65', patchSize)`` (64 x 96 at the default 16 px patches).
+    ISETCam: ``sceneCreate('macbeth d65', patchSize)`` (64 x 96 at the default 16 px patches): the same layout,
+    patch order and geometry, but not the same reflectances (BabelColor's average, not ISETCam's macbethChart data:
+    patch luminances differ by -26 % to +18 % and chromaticities by up to 0.036; ISETCam parity uses the parity
+    case's own scene).
 
     Args:
         illuminant: a name accepted by :func:`isettorch.spectral.illuminant` or an energy SPD tensor [L].

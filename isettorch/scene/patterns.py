@@ -14,6 +14,7 @@ import math
 import torch
 
 from .. import spectral
+from .._checks import check_bool
 from ._common import (
     DEFAULT_DISTANCE_M,
     DEFAULT_HFOV_DEG,
@@ -182,6 +183,7 @@ def frequency_sweep(size=128, max_frequency_cpi: float | None = None, *, contras
     f_max = cols / 4 if max_frequency_cpi is None else check_float(
         max_frequency_cpi, "max_frequency_cpi", low=0.0, high=cols / 2, low_open=True)
     c = check_float(contrast, "contrast", low=0.0, high=1.0)
+    check_bool(contrast_ramp, "contrast_ramp")  # ('no' was True)
     w, dt, dev = _grid_and_dtype(wavelengths, dtype, device)
     u = torch.arange(cols, dtype=torch.float64) / cols
     carrier = torch.cos(math.pi * f_max * u**2)
@@ -244,9 +246,15 @@ def slanted_edge(size=64, angle_deg: float = 5.0, *, dark_level: float = 0.25, i
 # Periodic patterns
 
 
+def _first_position(spacing: int) -> int:
+    """ISETCam scenePointArray / sceneGridLines: the first point or line at MATLAB's round(spacing / 2), 1-based
+    (halves away from zero): 0-based (spacing + 1) // 2 - 1 (7 for spacing 16; it was spacing // 2, one pixel off
+    for even spacings)."""
+    return (spacing + 1) // 2 - 1
+
+
 def _periodic_positions(n: int, spacing: int) -> torch.Tensor:
-    # ISETCam scenePointArray / sceneGridLines: first line at round(spacing / 2) (1-based) -> spacing // 2.
-    return torch.arange(spacing // 2, n, spacing)
+    return torch.arange(_first_position(spacing), n, spacing)
 
 
 def point_array(size=128, spacing: int = 16, *, point_size: int = 1, illuminant="D65", wavelengths=None,
@@ -254,8 +262,10 @@ def point_array(size=128, spacing: int = 16, *, point_size: int = 1, illuminant=
                 device=None) -> Scene:
     """Bright square points of ``point_size`` pixels on a black background, every ``spacing`` pixels.
 
-    The first point's top-left pixel is at (spacing // 2, spacing // 2). ISETCam: ``sceneCreate('point array',
-    size, spacing)``.
+    The first point is at ((spacing + 1) // 2 - 1, (spacing + 1) // 2 - 1) (0-based), a point of ``point_size``
+    pixels spans ``point_size // 2`` pixels before it (centred for odd sizes), as ISETCam's ``sceneCreate('point
+    array', size, spacing)`` places them (``round(spacing / 2)``, 1-based, widened by ``conv2(.., ones(k),
+    'same')``).
 
     Example:
         >>> int((point_array(32, 8).reflectance()[0, 0] > 0.5).sum())
@@ -266,13 +276,15 @@ def point_array(size=128, spacing: int = 16, *, point_size: int = 1, illuminant=
     point_size = check_int(point_size, "point_size")
     if point_size > spacing:
         raise ValueError(f"point_size: expected at most spacing ({spacing}) pixels, got {point_size}")
-    if spacing // 2 >= min(rows, cols):
-        raise ValueError(f"spacing: expected spacing // 2 < the image size {min(rows, cols)}, got {spacing}")
+    if _first_position(spacing) >= min(rows, cols):
+        raise ValueError(f"spacing: expected (spacing + 1) // 2 - 1 < the image size {min(rows, cols)}, got "
+                         f"{spacing}")
     w, dt, dev = _grid_and_dtype(wavelengths, dtype, device)
     pattern = torch.zeros(rows, cols, dtype=dt, device=dev)
     for r in _periodic_positions(rows, spacing).tolist():
         for c in _periodic_positions(cols, spacing).tolist():
-            pattern[r:r + point_size, c:c + point_size] = 1
+            r0, c0 = r - point_size // 2, c - point_size // 2
+            pattern[max(r0, 0):r0 + point_size, max(c0, 0):c0 + point_size] = 1
     return pattern_scene(pattern, illuminant, w, name="point array",
                          metadata={"spacing": spacing, "point_size": point_size},
                          **_common_kwargs(hfov_deg, distance_m, mean_luminance_cd_m2))
@@ -283,10 +295,11 @@ def grid_lines(size=128, spacing: int = 16, line_width: int = 1, *, illuminant="
                device=None) -> Scene:
     """Bright horizontal and vertical lines ``line_width`` wide every ``spacing`` pixels on black.
 
-    Lines start at row/col ``spacing // 2``. ISETCam: ``sceneCreate('grid lines', size, spacing)``.
+    Lines start at row/col ``(spacing + 1) // 2 - 1`` (0-based) and grow ``line_width`` pixels down / right, as
+    ISETCam's ``sceneCreate('grid lines', size, spacing)`` places them (``round(spacing / 2)``, 1-based).
 
     Example:
-        >>> grid_lines(16, 8).reflectance()[0, 0, 4].tolist() == [1.0] * 16
+        >>> grid_lines(16, 8).reflectance()[0, 0, 3].tolist() == [1.0] * 16
         True
     """
     rows, cols = check_size(size)
@@ -295,7 +308,7 @@ def grid_lines(size=128, spacing: int = 16, line_width: int = 1, *, illuminant="
     if line_width >= spacing:
         raise ValueError(f"line_width: expected fewer than spacing ({spacing}) pixels, got {line_width}")
     w, dt, dev = _grid_and_dtype(wavelengths, dtype, device)
-    off = spacing // 2
+    off = _first_position(spacing)
     on_r = ((torch.arange(rows) - off) % spacing < line_width) & (torch.arange(rows) >= off)
     on_c = ((torch.arange(cols) - off) % spacing < line_width) & (torch.arange(cols) >= off)
     if not (on_r.any() or on_c.any()):
@@ -415,6 +428,9 @@ def hdr_chart(decades: int = 6, steps_per_decade: int = 2, patch_size: int = 16,
     steps = check_int(steps_per_decade, "steps_per_decade")
     p = check_int(patch_size, "patch_size")
     w, dt, dev = _grid_and_dtype(wavelengths, dtype, device)
+    if 10.0 ** -d < torch.finfo(dt).tiny * 1e6:  # (46 decades in float32 made the darkest patches exactly 0)
+        raise ValueError(f"decades: {d} decades reach below {dt}'s smallest normal number (with the radiance's "
+                         f"scale); expected at most {int(-math.log10(torch.finfo(dt).tiny * 1e6))} in {dt}")
     levels = 10.0 ** (-torch.arange(d * steps + 1, dtype=torch.float64) / steps)
     pattern = levels.repeat_interleave(p)[None, :].expand(p, -1)
     return pattern_scene(pattern.to(dt).to(dev).clone(), illuminant, w, name="hdr chart",

@@ -199,7 +199,9 @@ def test_point_array_spacing():
     r = _refl(sg.point_array((40, 50), 8, point_size=2, dtype=F64))
     rows, cols = torch.nonzero(r > 0.5, as_tuple=True)
     ur, uc = torch.unique(rows), torch.unique(cols)
-    assert ur.tolist() == [4, 5, 12, 13, 20, 21, 28, 29, 36, 37]
+    # ISETCam: points at round(8 / 2) = 4, 12, ... (1-based) = 3, 11, ... (0-based), widened to 2 pixels by
+    # conv2(d, ones(2), 'same'): rows 2-3, 10-11, ... (before 2026-11-30: 4-5, 12-13, ..., one pixel off)
+    assert ur.tolist() == [2, 3, 10, 11, 18, 19, 26, 27, 34, 35]
     assert torch.equal(uc[::2].diff(), torch.full((5,), 8))
     assert int((r > 0.5).sum()) == 5 * 6 * 4
     assert r[r < 0.5].abs().max() == 0  # black background
@@ -209,9 +211,10 @@ def test_grid_lines_period():
     r = _refl(sg.grid_lines(48, 12, line_width=2, dtype=F64))
     full_rows = torch.nonzero((r > 0.5).all(dim=1)).flatten()
     full_cols = torch.nonzero((r > 0.5).all(dim=0)).flatten()
-    assert full_rows.tolist() == [6, 7, 18, 19, 30, 31, 42, 43]
+    # ISETCam: d((round(12 / 2):12:48) + ii, :) = 1, ii = 0, 1 (1-based rows 6-7, 18-19, ...) = 0-based 5-6, 17-18
+    assert full_rows.tolist() == [5, 6, 17, 18, 29, 30, 41, 42]
     assert torch.equal(full_rows, full_cols)
-    assert torch.equal(r[6:36], r[18:48])  # periodic with the spacing
+    assert torch.equal(r[5:35], r[17:47])  # periodic with the spacing
     assert int((r > 0.5).sum()) == 48 * 48 - (48 - 8) ** 2
 
 
@@ -314,6 +317,11 @@ def test_bad_input_value_error(call):
 def test_error_messages_name_the_argument():
     with pytest.raises(ValueError, match=r"size: expected an integer >= 1, got -4"):
         sg.checkerboard(-4)
+    # 46 decades made float32's darkest patches exactly 0 (the ratio 10^46 infinite); 'no' was a True ramp
+    with pytest.raises(ValueError, match=r"decades: 46 decades reach below torch.float32's smallest"):
+        sg.hdr_chart(46, 1, 1, dtype=torch.float32)
+    with pytest.raises(TypeError, match="contrast_ramp: expected True or False"):
+        sg.frequency_sweep(16, contrast_ramp="no")
     with pytest.raises(ValueError, match=r"angle_deg: expected a value < 90.0, got 90.0"):
         sg.slanted_edge(16, 90)
     with pytest.raises(ValueError, match=r"spectrum: .*unknown illuminant 'D6x5'"):
