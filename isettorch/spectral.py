@@ -359,8 +359,8 @@ def planck_relative(wavelength_m, temperature_k, reference_m):
 
 def blackbody(temperature_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
     """Planck spectral radiance (energy units), normalised to 100 at 560 nm [L] (:func:`planck_relative`)."""
-    if isinstance(temperature_k, bool) or not (temperature_k > 0 and math.isfinite(temperature_k)):
-        raise ValueError(f"temperature_k: expected a positive temperature in kelvin, got {temperature_k}")
+    if not is_real(temperature_k) or not temperature_k > 0:  # ('6500' raised a bare comparison TypeError)
+        raise ValueError(f"temperature_k: expected a positive temperature in kelvin, got {temperature_k!r}")
     w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
     spd = 100.0 * planck_relative(w.to(torch.float64) * 1e-9, float(temperature_k), 560e-9)
     return spd.to(dtype=dtype, device=device)
@@ -372,8 +372,8 @@ def daylight(cct_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.
     Source: CIE 015:2018 daylight model (``colour.sd_CIE_illuminant_D_series``). The CCT is on the
     current (ITS-90) scale, so 6504 K gives D65's chromaticity.
     """
-    if not (4000 <= cct_k <= 25000):
-        raise ValueError(f"cct_k: expected a daylight CCT in [4000, 25000] K, got {cct_k}")
+    if not is_real(cct_k) or not (4000 <= cct_k <= 25000):
+        raise ValueError(f"cct_k: expected a daylight CCT in [4000, 25000] K, got {cct_k!r}")
     w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
     return _daylight_cached(float(cct_k), _key(w), dtype, str(device)).clone()
 

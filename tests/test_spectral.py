@@ -232,3 +232,16 @@ def test_resampling_helpers_refuse_grids_they_cannot_use():
     for h in (0.0, -1.0, math.nan):
         with pytest.raises(ValueError, match="h: expected a finite constant > 0"):
             spectral.photons_to_energy(torch.ones(31, 1, 1), w, dim=0, h=h)
+
+
+def test_light_temperatures_are_numbers():
+    """A temperature given as text ('6500') raised a bare comparison TypeError naming nothing."""
+    w = torch.arange(400.0, 701.0, 10.0)
+    with pytest.raises(ValueError, match=r"cct_k: expected a daylight CCT in \[4000, 25000\] K, got '6500'"):
+        spectral.daylight("6500", w)
+    with pytest.raises(ValueError, match=r"temperature_k: expected a positive temperature in kelvin, got '6500'"):
+        spectral.blackbody("6500", w)
+    from isettorch.scene.dead_leaves import dead_leaves
+
+    with pytest.raises(ValueError, match=r"reflectance_range: expected \(low, high\), got \[0.5\]"):
+        dead_leaves(16, reflectance_range=[0.5])

@@ -131,6 +131,8 @@ def dead_leaves(size=128, *, alpha: float = 3.0, rmin_px: float = 1.0, rmax_px: 
     if generator.device.type != "cpu":
         raise ValueError(f"generator: expected a CPU torch.Generator (sampling runs on CPU), got {generator.device}")
     w = resolve_grid(wavelengths, dtype, device)
+    if not isinstance(reflectance_range, (tuple, list)) or len(reflectance_range) != 2:
+        raise ValueError(f"reflectance_range: expected (low, high), got {reflectance_range!r}")
     lo, hi = (check_float(v, f"reflectance_range[{i}]", low=0.0, high=1.0) for i, v in enumerate(reflectance_range))
     if hi < lo:
         raise ValueError(f"reflectance_range: expected (low, high) with low <= high, got {reflectance_range}")
