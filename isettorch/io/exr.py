@@ -179,6 +179,10 @@ def read_scene_exr(path, *, hfov_deg: float | None = None, distance_m: float | N
     data, w, header = read_spectral_exr(path)
     if header["component"] != "S0":
         raise ValueError(f"path: {str(path)!r} holds reflective (T) channels, not emissive radiance (S0)")
+    units = header.get("emissiveUnits")
+    if units is not None and units != EMISSIVE_UNITS:  # (a file in mW was read as W: 1000x too bright)
+        raise ValueError(f"path: {str(path)!r} gives its radiance in {units!r}; expected {EMISSIVE_UNITS!r} (or no "
+                         f"emissiveUnits attribute)")
     defaulted = []
     hfov = hfov_deg if hfov_deg is not None else header.get("isettorch.hfov_deg")
     if hfov is None:

@@ -58,19 +58,23 @@ def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float = 10.0, mean_l
     if not files:
         raise ValueError(f"folder: {str(root)!r} holds no CAVE band images (<name>_ms_NN.png)")
     numbers = [n for n, _ in files]
-    if numbers != list(range(1, len(files) + 1)):
-        raise ValueError(f"folder: expected consecutive CAVE bands 01..{len(files):02d}, got {numbers}")
+    if numbers != list(range(1, 32)):  # CAVE's 31 bands, 400-700 nm (3 bands loaded as a 400-420 nm scene)
+        raise ValueError(f"folder: expected consecutive CAVE bands 01..31 (400-700 nm in 10 nm steps), got "
+                         f"{numbers}")
     bands = []
     for _, f in files:
         try:
             with Image.open(f) as im:
                 im.load()
+                mode = im.mode
                 a = np.asarray(im)
         except Exception as err:
             raise ValueError(f"{str(f)!r}: not a readable PNG ({type(err).__name__}: {err})") from err
         if a.ndim == 3:  # a few CAVE bands are stored as RGB(A); the channels are equal
             a = a[..., 0]
-        scale = 65535.0 if a.dtype == np.uint16 or a.max() > 255 else 255.0
+        # the file's bit depth (its PIL mode: 16-bit grey is I;16, or I in older Pillow), not the data's maximum (a
+        # dark 16-bit band read as 8-bit was 257x too bright)
+        scale = 65535.0 if mode.startswith("I") else 255.0
         bands.append(a.astype(np.float64) / scale)
     shapes = {b.shape for b in bands}
     if len(shapes) != 1:
@@ -85,7 +89,7 @@ def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float = 10.0, mean_l
     return _radiance_scene(energy, wave, name, str(root), hfov_deg, mean_luminance_cd_m2, dtype, ill_p)
 
 
-_NUMBER = re.compile(r"(\d+(?:[.,]\d+)?)")
+_KAIST_NAME = re.compile(r"^w?(\d+(?:[.,]\d+)?)(?:nm)?$", re.IGNORECASE)
 
 
 def load_kaist(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
@@ -107,7 +111,7 @@ def load_kaist(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 10
         if fichet is not None:
             bands.append((fichet[1], a))
             continue
-        m = _NUMBER.search(name)
+        m = _KAIST_NAME.match(name)  # '420', '420nm', 'w420nm' ('frame_0512' was a 512 nm band)
         if m is not None and 300.0 <= float(m.group(1).replace(",", ".")) <= 1100.0:
             bands.append((float(m.group(1).replace(",", ".")), a))
     if not bands:

@@ -80,6 +80,9 @@ def write_dng(path: str | Path, mosaic, *, cfa: str = "RGGB", black_level_dn: in
             and 0 <= black_level_dn < white_level_dn <= 65535):
         raise ValueError(f"black_level_dn, white_level_dn: expected integers with 0 <= black < white <= 65535, got "
                          f"{black_level_dn!r} and {white_level_dn!r}")
+    if arr.max() > white_level_dn:  # (a raw above its white level was written and read back as such)
+        raise ValueError(f"mosaic: values up to {arr.max():g} DN exceed white_level_dn {white_level_dn}; a raw's "
+                         f"codes are at most its white level")
     identity = (1, 1, 0, 1, 0, 1, 0, 1, 1, 1, 0, 1, 0, 1, 0, 1, 1, 1)  # 3 x 3 SRATIONAL
     tags = [
         (50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion

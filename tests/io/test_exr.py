@@ -114,3 +114,14 @@ def test_values_a_float32_file_cannot_hold_are_refused_not_written(tmp_path):
     tiny = np.full((2, 2, 2), 1e-44)  # a float32 subnormal: kept (nonzero)
     back, _, _ = read_spectral_exr(write_spectral_exr(tmp_path / "s.exr", tiny, [500.0, 600.0]))
     assert (back > 0).all()
+
+
+def test_a_scene_in_other_radiance_units_is_refused(tmp_path):
+    """read_scene_exr recorded emissiveUnits but read a file in mW.m^-2.sr^-1 as W (1000x too bright)."""
+    w = torch.tensor([500.0, 600.0])
+    data = torch.full((2, 3, 4), 0.01)
+    ok = write_spectral_exr(tmp_path / "w.exr", data, w)
+    assert read_scene_exr(ok).photons.shape == (1, 2, 3, 4)
+    mw = write_spectral_exr(tmp_path / "mw.exr", data, w, attributes={"emissiveUnits": "mW.m^-2.sr^-1"})
+    with pytest.raises(ValueError, match=r"gives its radiance in 'mW.m\^-2.sr\^-1'; expected 'W.m\^-2.sr\^-1'"):
+        read_scene_exr(mw)

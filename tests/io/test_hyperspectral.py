@@ -103,3 +103,21 @@ def test_icvl_errors(tmp_path):
     assert load_icvl(tmp_path / "nobands31.mat").wavelengths_nm.tolist() == list(np.arange(400.0, 701.0, 10.0))
     with pytest.raises(ValueError, match="bands: .* has 519 bands, not the 31"):
         load_icvl(tmp_path / "nobands519.mat")
+
+
+def test_cave_needs_its_31_bands_and_reads_16_bits_as_16_bits(tmp_path):
+    """A partial copy (3 bands) loaded as a 400-420 nm scene; a dark 16-bit band (max <= 255) would have been
+    divided by 255 where Pillow reads 16-bit PNGs as mode I (the bit depth is the file's, not the data's)."""
+    dark = np.full((31, 4, 4), 200, dtype=np.uint16)
+    s = load_cave(_write_cave(tmp_path / "dark", dark), dtype=torch.float64)
+    np.testing.assert_allclose(s.reflectance()[0].numpy(), 200 / 65535.0, rtol=1e-10)
+    with pytest.raises(ValueError, match=r"expected consecutive CAVE bands 01..31"):
+        load_cave(_write_cave(tmp_path / "part", dark[:3]))
+
+
+def test_kaist_takes_only_wavelength_names(tmp_path):
+    """Any channel with a number in 300-1100 was a band: 'frame_0512' became 512 nm."""
+    chans = {"frame_0512": np.ones((2, 2), np.float32), "w420nm": np.ones((2, 2), np.float32),
+             "430": np.ones((2, 2), np.float32)}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, chans).write(str(tmp_path / "k.exr"))
+    assert load_kaist(tmp_path / "k.exr").wavelengths_nm.tolist() == [420.0, 430.0]

@@ -100,6 +100,8 @@ def test_dng_round_trip_through_rawpy(tmp_path):
         with pytest.raises(ValueError, match=message):
             write_dng(tmp_path / "bad.dng", args.pop("mosaic"), **args)
         assert not (tmp_path / "bad.dng").exists()
+    with pytest.raises(ValueError, match="mosaic: values up to 5000 DN exceed white_level_dn 4095"):
+        write_dng(tmp_path / "bright.dng", np.full((22, 22), 5000, dtype=np.uint16), white_level_dn=4095)
     write_dng(tmp_path / "small.dng", np.full((22, 22), 100, dtype=np.uint16))
     assert read_raw(tmp_path / "small.dng").data.shape == (22, 22)
 
