@@ -357,9 +357,20 @@ def planck_relative(wavelength_m, temperature_k, reference_m):
     return xp.exp(5 * xp.log(reference_m / wavelength_m) + log_expm1(a) - log_expm1(b))
 
 
+def _is_number(v) -> bool:
+    """A finite real number: a Python, NumPy or Decimal number, or a one-value (0-d) array or tensor; not a bool or
+    text."""
+    if isinstance(v, (bool, str, bytes)) or (hasattr(v, "dtype") and getattr(v, "ndim", 0) != 0):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except (TypeError, ValueError):
+        return False
+
+
 def blackbody(temperature_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
     """Planck spectral radiance (energy units), normalised to 100 at 560 nm [L] (:func:`planck_relative`)."""
-    if not is_real(temperature_k) or not temperature_k > 0:  # ('6500' raised a bare comparison TypeError)
+    if not _is_number(temperature_k) or not float(temperature_k) > 0:  # ('6500' raised a bare TypeError)
         raise ValueError(f"temperature_k: expected a positive temperature in kelvin, got {temperature_k!r}")
     w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
     spd = 100.0 * planck_relative(w.to(torch.float64) * 1e-9, float(temperature_k), 560e-9)
@@ -372,7 +383,7 @@ def daylight(cct_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.
     Source: CIE 015:2018 daylight model (``colour.sd_CIE_illuminant_D_series``). The CCT is on the
     current (ITS-90) scale, so 6504 K gives D65's chromaticity.
     """
-    if not is_real(cct_k) or not (4000 <= cct_k <= 25000):
+    if not _is_number(cct_k) or not (4000 <= float(cct_k) <= 25000):
         raise ValueError(f"cct_k: expected a daylight CCT in [4000, 25000] K, got {cct_k!r}")
     w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
     return _daylight_cached(float(cct_k), _key(w), dtype, str(device)).clone()

@@ -241,6 +241,10 @@ def test_light_temperatures_are_numbers():
         spectral.daylight("6500", w)
     with pytest.raises(ValueError, match=r"temperature_k: expected a positive temperature in kelvin, got '6500'"):
         spectral.blackbody("6500", w)
+    # one-value numbers of any kind are temperatures (a 0-d tensor or array, a NumPy scalar)
+    for t in (torch.tensor(6500.0), np.array(6500.0), np.float32(6500.0)):
+        torch.testing.assert_close(spectral.blackbody(t, w), spectral.blackbody(6500.0, w))
+        torch.testing.assert_close(spectral.daylight(t, w), spectral.daylight(6500.0, w))
     from isettorch.scene.dead_leaves import dead_leaves
 
     with pytest.raises(ValueError, match=r"reflectance_range: expected \(low, high\), got \[0.5\]"):

@@ -26,7 +26,6 @@ Work split: files are dealt round-robin to ``num_shards x world_size`` processes
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import math
 import os
@@ -162,7 +161,7 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
                              f"version ({what}); use a new folder")
     # shards of another config (their sidecars' hashes): refused when the manifest cannot tell (an aborted run writes
     # none, and an unreadable one was taken as empty: another config's shards were rewritten without a word)
-    foreign = sorted({rec.get("config_sha256") for rec in _sidecars(out)} - {chash, None})
+    foreign = sorted({str(rec.get("config_sha256")) for rec in _sidecars(out)} - {chash, "None"})
     if foreign:
         raise ValueError(f"out: {str(out)!r} holds shards made with another config, count or generator version "
                          f"(their sidecars' config_sha256 {foreign[0][:12]}...); use a new folder")
@@ -241,7 +240,8 @@ class ShardDataset(torch.utils.data.Dataset):
 
     Args:
         root: the dataset folder (with ``manifest.json``).
-        verify: check every shard's sha256 against the manifest first (reads everything once).
+        verify: check every shard's sha256 against the manifest first (reads everything once); without it each
+            shard's is checked the first time this process reads the shard (a changed shard is a ValueError).
         cache_shards: shards kept in memory per process (DataLoader workers each have their own).
 
     Raises ValueError when the manifest is missing or unreadable, the dataset is incomplete (resume the ``synth``
@@ -297,6 +297,7 @@ class ShardDataset(torch.utils.data.Dataset):
                              f"{missing[:8]}; run isettorch synth --verify, or the same synth command again")
         self.cache_shards = cache_shards
         self._cache: dict[int, dict] = {}
+        self._checked: set[int] = set(self.files) if verify else set()  # shards whose sha256 was checked
 
     def __len__(self) -> int:
         return self.count
@@ -305,17 +306,19 @@ class ShardDataset(torch.utils.data.Dataset):
         shard = self._cache.pop(f, None)
         if shard is None:
             path = self.root / self.files[f]
+            # the manifest's checksum, the first time a process reads a shard (an edited or swapped shard was served
+            # as training data without a word); once per shard and process, not per reload from the cache
+            if f not in self._checked and self.sha256.get(f) is not None:
+                try:
+                    digest = sha256_file(path)
+                except OSError as err:
+                    raise ValueError(f"{path}: not a readable shard ({type(err).__name__}: {err})") from err
+                if digest != self.sha256[f]:
+                    raise ValueError(f"{path}: the shard's sha256 differs from manifest.json's; the file was changed "
+                                     f"after it was written (isettorch synth --verify lists every such shard)")
+                self._checked.add(f)
             try:
-                data = path.read_bytes()
-            except OSError as err:
-                raise ValueError(f"{path}: not a readable shard ({type(err).__name__}: {err})") from err
-            # the manifest's checksum, once per shard read (torch.load reads every byte anyway): an edited or swapped
-            # shard was served as training data without a word
-            if self.sha256.get(f) is not None and hashlib.sha256(data).hexdigest() != self.sha256[f]:
-                raise ValueError(f"{path}: the shard's sha256 differs from manifest.json's; the file was changed "
-                                 f"after it was written (isettorch synth --verify lists every such shard)")
-            try:
-                shard = torch.load(io.BytesIO(data), weights_only=True)
+                shard = torch.load(path, weights_only=True)
             except Exception as err:  # torch raises several types for truncated / foreign files
                 raise ValueError(f"{path}: not a readable shard ({type(err).__name__}: {err})") from err
             while len(self._cache) >= self.cache_shards:

@@ -180,9 +180,11 @@ def read_scene_exr(path, *, hfov_deg: float | None = None, distance_m: float | N
     if header["component"] != "S0":
         raise ValueError(f"path: {str(path)!r} holds reflective (T) channels, not emissive radiance (S0)")
     units = header.get("emissiveUnits")
-    if units is not None and units != EMISSIVE_UNITS:  # (a file in mW was read as W: 1000x too bright)
-        raise ValueError(f"path: {str(path)!r} gives its radiance in {units!r}; expected {EMISSIVE_UNITS!r} (or no "
-                         f"emissiveUnits attribute)")
+    # per nm either way (the layout's channels are per wavelength; tinyexr writes the '.nm^-1'): a file in mW was
+    # read as W, 1000x too bright
+    if units is not None and "".join(str(units).split()) not in (EMISSIVE_UNITS, EMISSIVE_UNITS + ".nm^-1"):
+        raise ValueError(f"path: {str(path)!r} gives its radiance in {units!r}; expected {EMISSIVE_UNITS!r} (per "
+                         f"nm, or {EMISSIVE_UNITS + '.nm^-1'!r}, or no emissiveUnits attribute)")
     defaulted = []
     hfov = hfov_deg if hfov_deg is not None else header.get("isettorch.hfov_deg")
     if hfov is None:

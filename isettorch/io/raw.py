@@ -61,7 +61,8 @@ def write_dng(path: str | Path, mosaic, *, cfa: str = "RGGB", black_level_dn: in
     """Write a Bayer mosaic ``(H, W)`` of integer DN as an uncompressed DNG 1.4 (CFA photometric interpretation,
     CFARepeatPatternDim / CFAPattern, BlackLevel, WhiteLevel, an identity ColorMatrix1; Adobe DNG Specification
     1.4.0.0, 2012, chapters 4-6), readable by LibRaw/rawpy: at least :data:`DNG_MIN_SIDE_PX` pixels a side (LibRaw
-    0.22 reads no smaller raw), integer levels ``0 <= black_level_dn < white_level_dn <= 65535``, and a pattern with
+    0.22 reads no smaller raw), integer levels ``0 <= black_level_dn < white_level_dn <= 65535`` with no code above
+    the white level (stricter than the DNG specification, which allows them), and a pattern with
     R, G and B (one with a colour missing reads back as a monochrome raw)."""
     import tifffile
 

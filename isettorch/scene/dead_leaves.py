@@ -131,7 +131,11 @@ def dead_leaves(size=128, *, alpha: float = 3.0, rmin_px: float = 1.0, rmax_px: 
     if generator.device.type != "cpu":
         raise ValueError(f"generator: expected a CPU torch.Generator (sampling runs on CPU), got {generator.device}")
     w = resolve_grid(wavelengths, dtype, device)
-    if not isinstance(reflectance_range, (tuple, list)) or len(reflectance_range) != 2:
+    try:
+        pair = isinstance(reflectance_range, (str, bytes)) is False and len(reflectance_range) == 2
+    except TypeError:  # (no length: a number)
+        pair = False
+    if not pair:  # (a one-value list failed in tuple unpacking, naming nothing)
         raise ValueError(f"reflectance_range: expected (low, high), got {reflectance_range!r}")
     lo, hi = (check_float(v, f"reflectance_range[{i}]", low=0.0, high=1.0) for i, v in enumerate(reflectance_range))
     if hi < lo:

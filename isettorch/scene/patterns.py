@@ -428,9 +428,9 @@ def hdr_chart(decades: int = 6, steps_per_decade: int = 2, patch_size: int = 16,
     steps = check_int(steps_per_decade, "steps_per_decade")
     p = check_int(patch_size, "patch_size")
     w, dt, dev = _grid_and_dtype(wavelengths, dtype, device)
-    if 10.0 ** -d < torch.finfo(dt).tiny * 1e6:  # (46 decades in float32 made the darkest patches exactly 0)
-        raise ValueError(f"decades: {d} decades reach below {dt}'s smallest normal number (with the radiance's "
-                         f"scale); expected at most {int(-math.log10(torch.finfo(dt).tiny * 1e6))} in {dt}")
+    if 10.0 ** -d < torch.finfo(dt).tiny:  # (46 decades in float32 made the darkest patches exactly 0)
+        raise ValueError(f"decades: {d} decades reach below {dt}'s smallest normal number; expected at most "
+                         f"{math.floor(-math.log10(torch.finfo(dt).tiny))} in {dt}")
     levels = 10.0 ** (-torch.arange(d * steps + 1, dtype=torch.float64) / steps)
     pattern = levels.repeat_interleave(p)[None, :].expand(p, -1)
     return pattern_scene(pattern.to(dt).to(dev).clone(), illuminant, w, name="hdr chart",

@@ -122,6 +122,8 @@ def test_a_scene_in_other_radiance_units_is_refused(tmp_path):
     data = torch.full((2, 3, 4), 0.01)
     ok = write_spectral_exr(tmp_path / "w.exr", data, w)
     assert read_scene_exr(ok).photons.shape == (1, 2, 3, 4)
+    per_nm = write_spectral_exr(tmp_path / "nm.exr", data, w, attributes={"emissiveUnits": "W.m^-2.sr^-1.nm^-1 "})
+    assert torch.equal(read_scene_exr(per_nm).photons, read_scene_exr(ok).photons)  # tinyexr's spelling
     mw = write_spectral_exr(tmp_path / "mw.exr", data, w, attributes={"emissiveUnits": "mW.m^-2.sr^-1"})
     with pytest.raises(ValueError, match=r"gives its radiance in 'mW.m\^-2.sr\^-1'; expected 'W.m\^-2.sr\^-1'"):
         read_scene_exr(mw)
