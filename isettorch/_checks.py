@@ -65,10 +65,19 @@ def check_nonnegative(t: torch.Tensor, name: str) -> None:
         raise ValueError(f"{name}: expected non-negative values, minimum is {t.min().item():.6g}")
 
 
+#: the precisions the library computes in
+FLOAT_DTYPES = (torch.float32, torch.float64)
+
+
+def first_line(err: BaseException) -> str:
+    """An exception's message, first line only (torch lists signatures or advice below it), or its type's name."""
+    return (str(err).strip().splitlines() or [type(err).__name__])[0]
+
+
 def check_float_dtype(dtype, name: str = "dtype") -> torch.dtype:
     """``dtype`` if it is torch.float32 or torch.float64 (the precisions the library computes in), else a
     ValueError naming ``name``."""
-    if dtype not in (torch.float32, torch.float64):
+    if dtype not in FLOAT_DTYPES:
         raise ValueError(f"{name}: expected torch.float32 or torch.float64, got {dtype}")
     return dtype
 
@@ -204,8 +213,7 @@ def check_device(device) -> torch.device:
     try:
         dev = torch.device(device)
     except (RuntimeError, TypeError) as err:
-        first = (str(err).strip().splitlines() or [type(err).__name__])[0]  # torch lists its signatures below
-        raise ValueError(f"device: {device!r} is not a torch device ({first})") from err
+        raise ValueError(f"device: {device!r} is not a torch device ({first_line(err)})") from err
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"device: {str(device)!r}, but CUDA is not available on this machine")
     if dev.type == "meta":
@@ -213,7 +221,6 @@ def check_device(device) -> torch.device:
     try:
         torch.zeros(1, device=dev)
     except Exception as err:  # noqa: BLE001 - torch raises RuntimeError, AssertionError, NotImplementedError, ...
-        first = (str(err).strip().splitlines() or [type(err).__name__])[0].split(". ")[0]
         raise ValueError(f"device: cannot compute on {str(device)!r} with this torch build on this machine "
-                         f"({first})") from err
+                         f"({first_line(err).split('. ')[0]})") from err
     return dev

@@ -44,7 +44,7 @@ import torch
 from torch import nn
 
 from . import spectral
-from ._checks import check_bool, check_float_dtype
+from ._checks import check_bool, check_float_dtype, first_line
 from .image import XYZ_TO_LINEAR_SRGB
 from .isp.mosaic_net import MosaicReconstructionNet
 from .optics import DiffractionLimitedOptics
@@ -634,8 +634,7 @@ def load_design(design, *, device=None) -> DesignCamera:
     except Exception as err:  # noqa: BLE001 - any unreadable file is the same error for the user
         # (torch's message goes on to suggest weights_only=False, an unsafe load of an untrusted file: its first
         # line only)
-        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
-        raise ValueError(f"design: {str(path)!r} is not a readable design file ({first})") from err
+        raise ValueError(f"design: {str(path)!r} is not a readable design file ({first_line(err)})") from err
     if not isinstance(d, dict) or d.get("format") != DESIGN_FORMAT:
         raise ValueError(f"design: {str(path)!r} is not an {DESIGN_FORMAT} file")
     if d.get("version") != DESIGN_VERSION:

@@ -99,6 +99,7 @@ def _load(args):
     import filecmp
     from pathlib import Path
 
+    from .._checks import first_line
     from ..camera import Camera
     from ..isp.learned import BAYER_PATTERNS, PRETRAINED, load_checkpoint, load_pretrained
 
@@ -125,8 +126,7 @@ def _load(args):
         else:
             net, _ = load_checkpoint(args.model)
     except Exception as err:  # torch.load's unpickling errors too: the file is not a checkpoint (input, not a bug)
-        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
-        raise ValueError(f"model: {args.model}: not a DemosaicNet checkpoint ({first})") from err
+        raise ValueError(f"model: {args.model}: not a DemosaicNet checkpoint ({first_line(err)})") from err
     if net.noise_inputs != 2:
         raise ValueError(f"model: {args.model} takes {net.noise_inputs} noise inputs; expected a joint denoise+demosaic"
                          f" network (2: sqrt(a), sqrt(b); trained with noise.enabled: true)")

@@ -47,7 +47,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .._autograd import records_grad
-from .._checks import check_bool, check_finite
+from .._checks import FLOAT_DTYPES, check_bool, check_finite
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
 from .demosaicing.linear import demosaic_malvar2004
 from .demosaicing.menon2007 import demosaic_menon2007
@@ -148,7 +148,7 @@ def _check_raw(raw: torch.Tensor, name: str = "raw", even: bool = True) -> torch
         raw = raw[:, None]
     if raw.dim() != 4 or raw.shape[1] != 1:
         raise ValueError(f"{name}: expected shape [B, 1, H, W], got {tuple(raw.shape)}")
-    if raw.dtype not in (torch.float32, torch.float64):  # (float16 / bfloat16 lose the colour differences the
+    if raw.dtype not in FLOAT_DTYPES:  # (float16 / bfloat16 lose the colour differences the
         # networks correct: learned_tiny was off by 0.7 on a float16 mosaic; under autocast the input stays float32)
         raise TypeError(f"{name}: expected a float32 or float64 tensor, got {raw.dtype}")
     if raw.shape[-2] < 4 or raw.shape[-1] < 4:

@@ -7,11 +7,10 @@ colours and neutral colours (a = b = 0) give finite (zero) gradients instead of 
 from __future__ import annotations
 
 import dataclasses
-import math
-import numbers
 
 import torch
 
+from .._checks import is_real
 from .color import _channel_last, xyz_to_lab
 
 
@@ -74,7 +73,7 @@ def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: flo
     At an exactly neutral colour (a = b = 0) the chroma has a kink and its gradient in a, b is taken as 0 (finite,
     but a neutral output gets no chroma gradient from dE2000 or dE94; dE76's is the direction to the target)."""
     for name, k in (("k_L", k_L), ("k_C", k_C), ("k_H", k_H)):
-        if isinstance(k, bool) or not isinstance(k, numbers.Real) or not (math.isfinite(k) and k > 0):
+        if not is_real(k) or not k > 0:
             raise ValueError(f"{name}: expected a positive parametric factor (a number), got {k!r}")
     (L1, a1, b1), (L2, a2, b2), _ = _split(lab1, lab2, dim)
     p7 = 25.0**7

@@ -132,7 +132,7 @@ def dead_leaves(size=128, *, alpha: float = 3.0, rmin_px: float = 1.0, rmax_px: 
         raise ValueError(f"generator: expected a CPU torch.Generator (sampling runs on CPU), got {generator.device}")
     w = resolve_grid(wavelengths, dtype, device)
     try:
-        pair = isinstance(reflectance_range, (str, bytes)) is False and len(reflectance_range) == 2
+        pair = not isinstance(reflectance_range, (str, bytes)) and len(reflectance_range) == 2
     except TypeError:  # (no length: a number)
         pair = False
     if not pair:  # (a one-value list failed in tuple unpacking, naming nothing)

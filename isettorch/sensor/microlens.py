@@ -348,7 +348,7 @@ def _isetcam_rebin(w, cell, ok, n):
     return torch.where(total != 0, total / count.clamp(min=1), torch.zeros_like(total))
 
 
-def _matlab_grid(half: float, n: int, dtype, device) -> torch.Tensor:
+def _numpy_linspace(half: float, n: int, dtype, device) -> torch.Tensor:
     """``linspace(-half, half, n)`` as NumPy builds it, ``-half + k (2 half) / (n - 1)`` with the far end exact (the
     grid of the NumPy port of mlRadiance in the tests; MATLAB's linspace rounds a little differently, and gives the
     same etendue at the tie below). torch.linspace fills from both ends: 141 of 255 values differed in the last bit
@@ -366,7 +366,7 @@ def _isetcam_grid(cra, method, t, n, off, geo, n_grid=255, chunk=32):
     D, p, d, na = geo["D"], geo["p"], geo["d"], geo["na"]
     dtype, dev = t.dtype, t.device
     t, n, off, cra = t.detach(), n.detach(), off.detach(), cra.detach()
-    x, u = _matlab_grid(2 * D, n_grid, dtype, dev), _matlab_grid(_P_MAX, n_grid, dtype, dev)
+    x, u = _numpy_linspace(2 * D, n_grid, dtype, dev), _numpy_linspace(_P_MAX, n_grid, dtype, dev)
     dx, du = float(x[1] - x[0]), float(u[1] - u[0])
     X, U = x[None, :].expand(n_grid, -1), u[:, None].expand(-1, n_grid)
     Xf, Uf = X.reshape(-1), U.reshape(-1)

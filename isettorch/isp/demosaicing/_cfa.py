@@ -8,6 +8,7 @@ import functools
 import torch
 import torch.nn.functional as F
 
+from ..._checks import FLOAT_DTYPES
 from ...sensor.cfa import BAYER_PATTERNS, CFA, tile  # the one CFA-pattern table and its tiling
 
 
@@ -17,7 +18,7 @@ def check_raw(raw, name: str = "raw") -> torch.Tensor:
         raise TypeError(f"{name}: expected a torch.Tensor of shape (B, 1, H, W), got {type(raw).__name__}")
     if raw.dim() != 4 or raw.shape[1] != 1:
         raise ValueError(f"{name}: expected a tensor of shape (B, 1, H, W), got shape {tuple(raw.shape)}")
-    if raw.dtype not in (torch.float32, torch.float64):  # (float16 / bfloat16: Menon's decisions flipped, 0.27 off)
+    if raw.dtype not in FLOAT_DTYPES:  # (float16 / bfloat16: Menon's decisions flipped, 0.27 off)
         raise TypeError(f"{name}: expected a floating-point tensor (float32 or float64), got dtype {raw.dtype}")
     return raw
 
