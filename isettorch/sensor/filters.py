@@ -241,7 +241,7 @@ class SpectralQE(nn.Module):
         dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
         device = device or w.device
         if self.learnable:
-            w = check_wavelengths(w)
+            w = self._check_overlap(check_wavelengths(w))
             return spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device)).to(
                 dtype=dtype, device=device)
         # a grid found in the cache was validated when its entry was made: checked on a miss only
@@ -249,7 +249,7 @@ class SpectralQE(nn.Module):
                self.fixed_filters._version)
         out = self._cache.get(key) if key[0] is not None else None
         if out is None:
-            w = check_wavelengths(w)
+            w = self._check_overlap(check_wavelengths(w))
             if len(self._cache) > 16:
                 self._cache.clear()
             out = spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device,
@@ -258,6 +258,16 @@ class SpectralQE(nn.Module):
             if key[0] is not None:
                 self._cache[key] = out
         return out
+
+    def _check_overlap(self, w: torch.Tensor) -> torch.Tensor:
+        """``w``, or a ValueError when it misses the filters' wavelengths entirely: QE is 0 outside them (ISETCam's
+        interpolation with 0 extrapolation), so such an image would read black without a word."""
+        lo, hi = float(self.wavelengths_nm[0]), float(self.wavelengths_nm[-1])
+        if float(w.max()) < lo or float(w.min()) > hi:
+            raise ValueError(f"wavelengths_nm: the image's {float(w.min()):g}-{float(w.max()):g} nm miss the sensor's "
+                             f"spectral QE ({lo:g}-{hi:g} nm) entirely: every pixel would read black; render the "
+                             f"scene on a grid that the filters cover or give the sensor filters for these bands")
+        return w
 
     def _apply(self, fn, *args, **kwargs):
         self._cache = {}

@@ -156,7 +156,8 @@ class Sensor(nn.Module):
             spectra; None (default): R, G, B from ``'isetcam_rgb'``, C, Y, M from ``'isetcam_cmy'``, W ``'clear'``.
         conversion_gain_v_per_e, voltage_swing_v: the pixel's output; well capacity = swing / gain.
         exposure_s: exposure (s), scalar or ``[B]``; ``auto_exposure`` (``'luminance'``, ``'mean'``,
-            ``'percentile'``) overrides it; ``ae_target`` (a fraction of :meth:`saturation_v`, in (0, 1]) tunes it,
+            ``'percentile'``) overrides it, aiming the light's volts at ``ae_target`` (a fraction in (0, 1]) of the
+            room above the analog offset, :meth:`saturation_v` less the offset after gain; ``ae_target`` tunes it,
             ``ae_percentile`` (default 99) the ``'percentile'`` method; either without a method that uses it is an
             error.
         analog_gain, analog_offset_v: ``gain_convention='multiply'`` (default) gives ``(v + offset) * gain``,
@@ -878,9 +879,16 @@ class Sensor(nn.Module):
                                dtype=dt, device=dev, positive=True)
             cg = self._level("conversion_gain_v_per_e", conversion_gain_v_per_e, b, dt, dev)
             v1 = self._analog(rate * cg, gain)
-            if self.analog_offset_v != 0:  # the response to light only
-                v1 = v1 - self._analog(torch.zeros_like(rate), gain)
-            t = auto_exposure(v1, self.saturation_v(gain, cg), self.auto_exposure, target=self.ae_target,
+            room = self.saturation_v(gain, cg)
+            if self.analog_offset_v != 0:  # the response to light, aimed below the saturation less the offset
+                off = self._analog(torch.zeros_like(rate[:, :, :1, :1]), gain)  # the offset after gain, [B,1,1,1]
+                v1 = v1 - off
+                room = room - off.reshape(-1)  # (the offset was counted as light's room: a 0.3 V offset clipped
+                if bool((room <= 0).any()):    # the brightest pixel at 0.7 V of light for 0.95)
+                    raise ValueError(f"analog_offset_v: an offset of {self.analog_offset_v} V (after the analog "
+                                     f"gain) leaves no room for light below the saturation "
+                                     f"({self.saturation_v(gain, cg)} V)")
+            t = auto_exposure(v1, room, self.auto_exposure, target=self.ae_target,
                               percentile=self.ae_percentile).to(dt)
         if exposure_ev is not None:
             ev = batch_param(exposure_ev, "exposure_ev", b, dtype=torch.float64, device=dev)
@@ -1011,6 +1019,10 @@ class Sensor(nn.Module):
         """
         rate = _check_rate(electron_rate, mosaic=True)
         check_bool(noise, "noise")  # ('yes', None or 0 were read as flags)
+        if self.rows is not None and self.cols is not None and tuple(rate.shape[-2:]) != (self.rows, self.cols):
+            # (a 5x7 rate on a 4x4 sensor was read as a 5x7 raw, and redrew the sensor's fixed patterns at 5x7)
+            raise ValueError(f"electron_rate: expected the sensor's {self.rows}x{self.cols} pixels, got "
+                             f"{rate.shape[-2]}x{rate.shape[-1]}")
         b = rate.shape[0]
         dtype, device = rate.dtype, rate.device
         if exposure_s is None:

@@ -236,6 +236,30 @@ def test_auto_exposure_methods():
     assert_close(t2, 2 * t1)
 
 
+@pytest.mark.parametrize("convention", ["multiply", "isetcam"])
+def test_auto_exposure_leaves_room_for_the_analog_offset(convention):
+    # the light's volts reach 0.95 of the room above the offset: (1 - offset x gain) for a 1 V swing; the offset
+    # was counted as room, so a 0.3 V offset put the brightest pixel at the swing (clipped, 0.70 V of light)
+    torch.manual_seed(3)
+    oi = OpticalImage(torch.rand(1, 3, 16, 16, dtype=torch.float64) * 1e15, W3, sample_spacing_m=2e-6)
+    gain = 0.5 if convention == "multiply" else 2.0  # the offset after gain is 0.15 V either way
+    s = simple_sensor(auto_exposure="luminance", analog_offset_v=0.3, analog_gain=gain, gain_convention=convention)
+    raw = s(oi, noise=False)
+    assert float(raw.noise_free.max()) == pytest.approx(0.15 + 0.95 * (1.0 - 0.15), rel=1e-9)
+    with pytest.raises(ValueError, match="analog_offset_v"):
+        simple_sensor(auto_exposure="luminance", analog_offset_v=1.2)(oi, noise=False)
+
+
+def test_capture_and_qe_refuse_what_the_sensor_cannot_read():
+    s = simple_sensor(rows=4, cols=4, dsnu_sigma_v=1e-3)
+    with pytest.raises(ValueError, match="electron_rate.*4x4"):  # (read as a 5x7 raw)
+        s.capture(torch.full((1, 1, 5, 7), 1e4, dtype=torch.float64), exposure_s=0.01)
+    w = torch.arange(750.0, 1001.0, 10.0, dtype=torch.float64)  # the filters span 400-700 nm: a black raw
+    far = OpticalImage(torch.full((1, w.numel(), 8, 8), 1e15, dtype=torch.float64), w, sample_spacing_m=2e-6)
+    with pytest.raises(ValueError, match="wavelengths_nm.*miss"):
+        Sensor(rows=4, cols=4, cfa="RGGB")(far, exposure_s=0.01, noise=False)
+
+
 @pytest.mark.parametrize("method", ["luminance", "mean", "percentile"])
 def test_auto_exposure_is_in_the_graph(method):
     # Auto-exposure holds its statistic at the target, so a brightness scale k of the optical image leaves the
