@@ -69,7 +69,9 @@ class ShiftInvariantOptics(ShiftInvariantLens):
             self.register_buffer("psf_wavelengths_nm", w)
 
     def _otf_key(self) -> tuple:
-        return (id(self.psf), self.psf._version)
+        # the spacing and wavelengths too: changing psf_spacing_m kept the first OTF (a 2x wider PSF blurred as before)
+        return (id(self.psf), self.psf._version, tuple(self.psf_spacing_m.tolist()),
+                None if self.psf_wavelengths_nm is None else tuple(self.psf_wavelengths_nm.tolist()))
 
     def _weights(self, wavelengths_nm: torch.Tensor) -> torch.Tensor:
         """Linear interpolation weights ``[L, Lp]`` from the PSF wavelengths to ``wavelengths_nm``."""

@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from .._autograd import records_grad
-from .._checks import as_tensor, is_integer
+from .._checks import as_tensor, is_integer, is_real
 from .base import ShiftInvariantLens, check_not_detached
 from .diffraction import dl_otf
 
@@ -90,20 +90,46 @@ def _interp_centered(table: torch.Tensor, jy: torch.Tensor, jx: torch.Tensor) ->
     return torch.complex(out[:, :, 0], out[:, :, 1])
 
 
+def _pupil_grid(p: int, num: int, dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    """A ``p``-sample pupil grid: each sample's area inside the unit disc ``[p, p]`` (8 x 8 supersampling) and the
+    Zernike basis ``[num, p, p]`` at the sample centres ``(i + 1/2) 2 / p - 1`` (0 outside the disc)."""
+    u = (torch.arange(p, dtype=dtype) + 0.5) * (2 / p) - 1
+    yy, xx = torch.meshgrid(u, u, indexing="ij")
+    rho = torch.sqrt(xx**2 + yy**2)
+    theta = torch.atan2(yy, xx)
+    sub = 8
+    us = ((torch.arange(p * sub, dtype=dtype) + 0.5) * (2 / (p * sub)) - 1)
+    ys, xs = torch.meshgrid(us, us, indexing="ij")
+    cover = ((xs**2 + ys**2) <= 1).to(dtype).reshape(p, sub, p, sub).mean(dim=(1, 3))
+    return cover, zernike_basis(num, rho.clamp(max=1.5), theta) * (cover > 0)
+
+
 class WavefrontOptics(ShiftInvariantLens):
     """Optics described by its wavefront aberration: Zernike coefficients (OSA/ANSI, um) over the pupil.
 
-    The pupil function ``A(rho) exp(2 pi i W(rho, theta) / lambda)`` is sampled with ``pupil_samples`` across
-    the diameter (edge samples weighted by their area inside the disc), the PSF is ``|FFT|^2`` at spacing
-    ``lambda N / 2``, and its OTF is evaluated exactly at the optical image's FFT frequencies
-    (:func:`otf_from_psf`). Differentiable with respect to ``zernike_um`` and ``f_number``.
+    The pupil function ``A(rho) exp(2 pi i W(rho, theta) / lambda)`` is sampled across the diameter (edge samples
+    weighted by their area inside the disc); the OTF at the optical image's FFT frequencies is the analytic
+    diffraction-limited OTF times the aberrations' phase average, interpolated from the sampled pupil's
+    autocorrelation (:meth:`otf`), and :meth:`psf_native` is ``|FFT|^2`` at spacing ``lambda N / 2``.
+    Differentiable with respect to ``zernike_um`` and ``f_number``.
+
+    The interpolation replicates the PSF at a period of ``P lambda N`` (P samples across the pupil), a ghost whose
+    weight grows with the wavefront's change between pupil samples: the grid is refined (``pupil_samples``
+    doubled, up to ``max_pupil_samples``) until neighbouring samples differ by at most ``max_step_waves``. At f/2
+    and 550 nm with 0.5 um of defocus (``c_2^0``), against a 512-sample pupil FFT, the line spread's L1 error is
+    0.050 at 64 samples (0.20 waves per sample; 3.7 % of the light beyond 25 um, 0.7 % in truth), 0.008 at 128
+    (0.10 waves, the default criterion) and 0.002 at 256 (an audit of 2026-11-30). The cost grows as the square
+    of the samples: a 31-band 128 x 128 scene took 0.6 s at 64 samples, 1.3 s at 256.
 
     Args:
         zernike_um: coefficients ``[J]`` or ``[B, J]`` (um); ``j = 4`` is defocus, ``j = 12`` primary spherical.
         f_number: f-number (``N = focal length / pupil diameter``). Or give ``pupil_diameter_m`` instead.
         focal_length_m: focal length (m).
         defocus_diopters: extra defocus added to ``c_4`` (converted with the current pupil diameter).
-        pupil_samples: samples across the pupil (even); the PSF window is ``pupil_samples * lambda N`` wide.
+        pupil_samples: samples across the pupil (even), the start of the refinement; the PSF window is
+            ``pupil_samples * lambda N`` wide.
+        max_pupil_samples, max_step_waves: the refinement's limit (a warning names a wavefront still coarser than
+            0.25 waves per sample there) and criterion (waves between samples at the shortest wavelength).
         learn_zernike, learn_f_number: make them trainable (``nn.Parameter``).
         Other arguments: see :class:`~isettorch.optics.base.ShiftInvariantLens`.
 
@@ -114,8 +140,9 @@ class WavefrontOptics(ShiftInvariantLens):
     """
 
     def __init__(self, zernike_um=None, f_number=None, focal_length_m=3.862755099e-3, *, pupil_diameter_m=None,
-                 defocus_diopters=0.0, pupil_samples: int = 64, learn_zernike: bool = False,
-                 learn_f_number: bool = False, transmittance=None, transmittance_wavelengths_nm=None,
+                 defocus_diopters=0.0, pupil_samples: int = 64, max_pupil_samples: int = 256,
+                 max_step_waves: float = 0.1, learn_zernike: bool = False, learn_f_number: bool = False,
+                 transmittance=None, transmittance_wavelengths_nm=None,
                  dtype=torch.float64, **kwargs) -> None:
         if (f_number is None) == (pupil_diameter_m is None):
             if f_number is None:
@@ -144,23 +171,23 @@ class WavefrontOptics(ShiftInvariantLens):
         self.register_buffer("defocus_diopters", dd.detach().clone())
         if not isinstance(pupil_samples, int) or pupil_samples < 8 or pupil_samples % 2:
             raise ValueError(f"pupil_samples: expected an even int >= 8, got {pupil_samples!r}")
-        self.pupil_samples = pupil_samples
-        # pupil grid: sample centres at (i + 1/2) delta - 1, delta = 2 / P; soft edge = area inside the disc
-        p = pupil_samples
-        u = (torch.arange(p, dtype=dtype) + 0.5) * (2 / p) - 1
-        yy, xx = torch.meshgrid(u, u, indexing="ij")
-        rho = torch.sqrt(xx**2 + yy**2)
-        theta = torch.atan2(yy, xx)
-        sub = 8  # aperture coverage by 8x8 supersampling of each pupil sample
-        us = ((torch.arange(p * sub, dtype=dtype) + 0.5) * (2 / (p * sub)) - 1)
-        ys, xs = torch.meshgrid(us, us, indexing="ij")
-        cover = ((xs**2 + ys**2) <= 1).to(dtype).reshape(p, sub, p, sub).mean(dim=(1, 3))
+        if not isinstance(max_pupil_samples, int) or max_pupil_samples < pupil_samples:
+            raise ValueError(f"max_pupil_samples: expected an int >= pupil_samples ({pupil_samples}), got "
+                             f"{max_pupil_samples!r}")
+        if not (is_real(max_step_waves) and 0 < max_step_waves <= 0.25):
+            raise ValueError(f"max_step_waves: expected a number in (0, 0.25] (waves between pupil samples), got "
+                             f"{max_step_waves!r}")
+        self.pupil_samples, self.max_pupil_samples = pupil_samples, max_pupil_samples
+        self.max_step_waves = float(max_step_waves)
+        cover, basis = _pupil_grid(pupil_samples, z.shape[-1], dtype)
         self.register_buffer("aperture", cover)
-        self.register_buffer("basis", zernike_basis(z.shape[-1], rho.clamp(max=1.5), theta) * (cover > 0))
+        self.register_buffer("basis", basis)
+        self._grids: dict = {}
 
     def _otf_key(self) -> tuple:
         return (tuple(self.zernike_um.detach().reshape(-1).tolist()), tuple(self.defocus_diopters.reshape(-1).tolist()),
-                self.pupil_samples)
+                self.pupil_samples, self.max_pupil_samples, self.max_step_waves,
+                tuple(self.focal_length_m.reshape(-1).tolist()))  # (it converts defocus_diopters to um)
 
     def _requires_grad(self) -> bool:
         return super()._requires_grad() or records_grad(self.zernike_um)
@@ -191,8 +218,9 @@ class WavefrontOptics(ShiftInvariantLens):
         """The PSF on its own grid: ``(psf [B, L, K, K], spacing [B, L])`` with spacing ``lambda N / 2``."""
         b = f_number.shape[0]
         z = self.coefficients(b, f_number)
-        psf = torch.fft.fftshift(_pupil_psf(self._field(z, wavelengths_nm.to(z.dtype))), dim=(-2, -1))
-        spacing = wavelengths_nm.to(z.dtype)[None, :] * 1e-9 * f_number.reshape(-1, 1) / 2
+        w = wavelengths_nm.to(z.dtype)  # (one grid for the batch: its finest item's)
+        psf = torch.fft.fftshift(_pupil_psf(self._field(z, w, max(self._samples_for(z, w)))), dim=(-2, -1))
+        spacing = w[None, :] * 1e-9 * f_number.reshape(-1, 1) / 2
         return psf, spacing
 
     def otf(self, fy, fx, wavelengths_nm, f_number, *, extra_defocus_diopters=None):
@@ -206,16 +234,31 @@ class WavefrontOptics(ShiftInvariantLens):
         zero aberrations give the analytic OTF exactly, and the phase average converges with ``pupil_samples`` as
         the phase step between samples shrinks: against a 1,200-sample pupil autocorrelation (f/2, 4.5 waves of
         defocus; an audit of 2026-11-30) the OTF is off by up to 0.014 (absolute) at a step of 1.8 rad (64
-        samples, which warns above pi/2), 0.007 at 0.9 rad (128) and 0.0014 at 0.45 rad (256): raise
-        ``pupil_samples`` for strong aberrations. (Fourier-transforming the sampled PSF instead errs by
-        ~1/pupil_samples: the diffraction tail wraps around the PSF window.)
+        samples), 0.007 at 0.9 rad (128) and 0.0014 at 0.45 rad (256); each item's grid is refined to
+        ``max_step_waves`` (see the class). (Fourier-transforming the sampled PSF instead errs by ~1/pupil_samples:
+        the diffraction tail wraps around the PSF window.)
         """
         b = f_number.shape[0]
         z = self.coefficients(b, f_number, extra_defocus_diopters)
         w = wavelengths_nm.to(z.dtype)
+        ps = self._samples_for(z, w)
+        if len(set(ps)) == 1:
+            return self._otf_on_grid(fy, fx, w, f_number, z, ps[0])
+        # items whose wavefronts need different grids: each group on its own (an item's OTF is its own grid's,
+        # alone or in any batch)
+        out = None
+        for p in sorted(set(ps)):
+            idx = torch.tensor([i for i in range(b) if ps[i] == p], device=f_number.device)
+            h = self._otf_on_grid(fy[idx], fx[idx], w, f_number[idx], z[idx], p)
+            out = h.new_zeros((b, *h.shape[1:])) if out is None else out
+            out = out.index_copy(0, idx, h)
+        return out
+
+    def _otf_on_grid(self, fy, fx, w, f_number, z, p: int) -> torch.Tensor:
+        """:meth:`otf` of items ``z [B, J]`` on a ``p``-sample pupil grid."""
         dl = dl_otf(fy, fx, w, f_number)
-        num = _autocorrelation(self._field(z, w))  # [B, L, K, K]
-        den = _autocorrelation(self.aperture.to(z.dtype)).real
+        num = _autocorrelation(self._field(z, w, p))  # [B, L, K, K]
+        den = _autocorrelation(self._grid(p, z.dtype)[0]).real
         ok = den > 1e-9 * den[0, 0]
         ratio = torch.where(ok, num / torch.where(ok, den, torch.ones_like(den)), torch.zeros_like(num))
         ratio = torch.fft.fftshift(ratio, dim=(-2, -1))
@@ -259,17 +302,50 @@ class WavefrontOptics(ShiftInvariantLens):
                      extra_defocus_diopters=defocus_diopters)[0, 0]
         return convolve_psf(maps, kernel.to(maps.dtype))
 
-    def _field(self, z: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-        w_um = torch.einsum("bj,jpq->bpq", z, self.basis.to(z.dtype))
+    def _grid(self, p: int, dtype) -> tuple[torch.Tensor, torch.Tensor]:
+        """The pupil's area weights ``[p, p]`` and Zernike basis ``[J, p, p]`` on a ``p``-sample grid."""
+        if p == self.pupil_samples:
+            return self.aperture.to(dtype), self.basis.to(dtype)
+        key = (p, self.basis.shape[0], dtype, str(self.basis.device))
+        if key not in self._grids:
+            if len(self._grids) > 4:
+                self._grids.clear()
+            self._grids[key] = tuple(t.to(self.basis.device) for t in _pupil_grid(p, self.basis.shape[0], dtype))
+        return self._grids[key]
+
+    def _step_waves(self, z: torch.Tensor, w: torch.Tensor, p: int) -> list[float]:
+        """Each item's largest change of the wavefront between neighbouring samples inside the pupil (waves, at
+        the shortest wavelength) on a ``p``-sample grid."""
+        cover, basis = self._grid(p, z.dtype)
+        w_um = torch.einsum("bj,jpq->bpq", z.detach(), basis)
+        inside = cover > 0
+        dy = (w_um[:, 1:, :] - w_um[:, :-1, :]).abs().masked_fill(~(inside[1:, :] & inside[:-1, :]), 0)
+        dx = (w_um[:, :, 1:] - w_um[:, :, :-1]).abs().masked_fill(~(inside[:, 1:] & inside[:, :-1]), 0)
+        step = torch.maximum(dy.flatten(1).amax(1), dx.flatten(1).amax(1)) / (w.min().detach() * 1e-3)
+        return step.tolist()
+
+    def _samples_for(self, z: torch.Tensor, w: torch.Tensor) -> list[int]:
+        """Each item's samples across the pupil: ``pupil_samples`` doubled until the wavefront changes by at most
+        ``max_step_waves`` between samples (the change scales as 1 / samples), at most ``max_pupil_samples``."""
+        out = []
+        for i, step in enumerate(self._step_waves(z, w, self.pupil_samples)):
+            p = self.pupil_samples
+            if step > self.max_step_waves:
+                p = min(p * 2 ** math.ceil(math.log2(step / self.max_step_waves)), self.max_pupil_samples)
+                p += p % 2
+                step = self._step_waves(z[i:i + 1], w, p)[0]
+            if step > 0.25:
+                warnings.warn(f"WavefrontOptics: the wavefront changes by {step:.2f} waves between pupil samples at "
+                              f"max_pupil_samples ({p}); raise max_pupil_samples (the OTF's phase average is coarse "
+                              f"and the PSF has ghost copies {p} lambda N apart)", stacklevel=4)
+            out.append(p)
+        return out
+
+    def _field(self, z: torch.Tensor, w: torch.Tensor, p: int) -> torch.Tensor:
+        cover, basis = self._grid(p, z.dtype)
+        w_um = torch.einsum("bj,jpq->bpq", z, basis)
         phase = 2 * math.pi * w_um[:, None] / (w[None, :, None, None] * 1e-3)
-        inside = self.aperture > 0
-        step = torch.maximum((phase[..., 1:, :] - phase[..., :-1, :]).detach().abs().masked_fill(
-            ~(inside[1:, :] & inside[:-1, :]), 0).amax(), (phase[..., :, 1:] - phase[..., :, :-1]).detach().abs(
-            ).masked_fill(~(inside[:, 1:] & inside[:, :-1]), 0).amax())
-        if step > math.pi / 2:
-            warnings.warn(f"WavefrontOptics: the pupil phase changes by {step.item():.2f} rad between pupil samples "
-                          f"(> pi/2); increase pupil_samples ({self.pupil_samples})", stacklevel=3)
-        return torch.polar(self.aperture.to(z.dtype).expand_as(phase), phase)
+        return torch.polar(cover.expand_as(phase), phase)
 
     def psf_margin_m(self, wavelengths_nm, f_number):
         """Diffraction tail (as :class:`DiffractionLimitedOptics`) plus the geometric blur radius

@@ -41,6 +41,20 @@ def test_gaussian_psf_is_resampled_exactly():
     assert pc >= 12  # the margin covers the PSF's half width (12 um = 12 samples)
 
 
+def test_otf_cache_follows_the_psf_spacing():
+    # a new psf_spacing_m is a new PSF size: the cache (keyed on the PSF tensor alone) blurred as before
+    x = torch.zeros(1, 1, 24, 24, dtype=torch.float64)
+    x[..., 12, 12] = 1.0
+    scene = _scene_with_spacing(x, [550.0], 1e-6)
+    optics = ShiftInvariantOptics(_gauss(1e-6, 0.25e-6), psf_spacing_m=0.25e-6, f_number=4.0, focal_length_m=F,
+                                  margin=20)
+    optics(scene)
+    optics.psf_spacing_m = torch.tensor([0.5e-6], dtype=torch.float64)
+    fresh = ShiftInvariantOptics(_gauss(1e-6, 0.25e-6), psf_spacing_m=0.5e-6, f_number=4.0, focal_length_m=F,
+                                 margin=20)
+    torch.testing.assert_close(optics(scene).photons, fresh(scene).photons, rtol=1e-12, atol=0)
+
+
 def test_psf_wavelength_interpolation_and_range():
     psfs = torch.stack([_gauss(1e-6, 0.5e-6), _gauss(3e-6, 0.5e-6)])
     optics = ShiftInvariantOptics(psfs, 0.5e-6, psf_wavelengths_nm=[450.0, 650.0], f_number=4.0, focal_length_m=F)
