@@ -218,6 +218,10 @@ def make_document(doc, session_factory) -> None:
             return
         shown["optics"] = key
         oc = s.optics_curves()
+        p_psf.visible = p_mtf.visible = oc is not None
+        if oc is None:  # a ray-traced lens: its PSF varies over the field
+            mtf_div.text = "PSF / MTF: a ray-traced lens varies over the field; see isettorch lens-report"
+            return
         mtf_src.data = {"frequency_cpmm": list(oc["frequency_cpmm"]),
                         **{f"mtf_{int(k)}": list(v) for k, v in oc["mtf"].items()}}
         nyquist.location = oc["sensor_nyquist_cpmm"]
@@ -273,7 +277,8 @@ def make_document(doc, session_factory) -> None:
     scene_names = list(SCENES) if s.settings.scene in SCENES else [s.settings.scene, *SCENES]
     w_scene = Select(name="scene_select", title="Scene", value=s.settings.scene, options=scene_names, width=150)
     w_f = Select(name="f_number_select", title="f-number", value=f"{d['f_number']:g}", width=90,
-                 options=sorted({f"{v:g}" for v in (*F_NUMBERS, d["f_number"])}, key=float))
+                 options=sorted({f"{v:g}" for v in (*F_NUMBERS, d["f_number"])}, key=float),
+                 disabled=not s.f_number_settable)
     w_exp = Select(name="exposure_select", title="Exposure (ms)", value="config", width=110,
                    options=["config"] + [f"{v:g}" for v in EXPOSURES_MS if v is not None])
     w_px = Select(name="pixel_size_select", title="Pixel size (µm)", value=f"{d['pixel_size_um']:g}", width=110,
@@ -288,21 +293,30 @@ def make_document(doc, session_factory) -> None:
         methods.insert(0, d["demosaic"])
     w_dm = RadioButtonGroup(name="demosaic_buttons", labels=methods, active=methods.index(d["demosaic"]))
 
-    def rerender(**changes) -> None:
+    reverting = []
+
+    def rerender(widget, attr, old, **changes) -> None:
+        if reverting:  # the widget being put back after a rejected change: the session never left ``old``
+            return
         try:
             timings = s.update(**changes)
         except (ValueError, TypeError, RuntimeError) as err:  # show the library's message, keep the last render
             status_div.text = f"<span style='color:#b00'>error: {err}</span>"
+            reverting.append(True)  # the widget shows the settings the images were made with
+            try:
+                setattr(widget, attr, old)
+            finally:
+                reverting.clear()
             return
         refresh(timings)
 
-    w_scene.on_change("value", lambda a, o, v: rerender(scene=v))
-    w_f.on_change("value", lambda a, o, v: rerender(f_number=float(v)))
-    w_exp.on_change("value", lambda a, o, v: rerender(exposure_ms=None if v == "config" else float(v)))
-    w_px.on_change("value", lambda a, o, v: rerender(pixel_size_um=float(v)))
-    w_cfa.on_change("active", lambda a, o, v: rerender(cfa=cfas[v]))
-    w_noise.on_change("active", lambda a, o, v: rerender(noise=bool(v)))
-    w_dm.on_change("active", lambda a, o, v: rerender(demosaic=methods[v]))
+    w_scene.on_change("value", lambda a, o, v: rerender(w_scene, a, o, scene=v))
+    w_f.on_change("value", lambda a, o, v: rerender(w_f, a, o, f_number=float(v)))
+    w_exp.on_change("value", lambda a, o, v: rerender(w_exp, a, o, exposure_ms=None if v == "config" else float(v)))
+    w_px.on_change("value", lambda a, o, v: rerender(w_px, a, o, pixel_size_um=float(v)))
+    w_cfa.on_change("active", lambda a, o, v: rerender(w_cfa, a, o, cfa=cfas[v]))
+    w_noise.on_change("active", lambda a, o, v: rerender(w_noise, a, o, noise=bool(v)))
+    w_dm.on_change("active", lambda a, o, v: rerender(w_dm, a, o, demosaic=methods[v]))
 
     refresh()
     header = Div(text="<b>isettorch view</b>: drag a box on any image to choose its region of interest")

@@ -204,6 +204,11 @@ class ViewerSession:
         self.render()
 
     # --- building ----------------------------------------------------------------------
+    @property
+    def f_number_settable(self) -> bool:
+        """False for a lens config: its aperture is the prescription's stop (its optics take no f_number key)."""
+        return (self.base_config.get("optics") or {}).get("type") != "lens"
+
     def _config_key(self, s: Settings) -> tuple:
         return (s.f_number, s.exposure_ms, s.pixel_size_um, s.cfa, s.noise, s.demosaic)
 
@@ -216,6 +221,10 @@ class ViewerSession:
         isp, camera = cfg.setdefault("isp", {}) or {}, cfg.setdefault("camera", {}) or {}
         cfg["isp"], cfg["camera"] = isp, camera
         if s.f_number is not None:
+            if not self.f_number_settable:
+                raise ValueError(f"f_number: the camera's optics are a lens prescription ({optics.get('lens')!r}), "
+                                 f"whose stop sets the f-number; choose a config with diffraction-limited or "
+                                 f"wavefront optics to vary it")
             optics["f_number"] = float(s.f_number)
         if s.pixel_size_um is not None:
             sensor["pixel_size_m"] = float(s.pixel_size_um) * 1e-6
@@ -255,8 +264,13 @@ class ViewerSession:
             if not hasattr(self.settings, key):
                 names = [f.name for f in dataclasses.fields(Settings)]
                 raise ValueError(f"{key}: not a viewer setting (settings: {names})")
+        before, camera = self.settings, self.camera
         self.settings = dataclasses.replace(self.settings, **changes)
-        return self.render()
+        try:
+            return self.render()
+        except Exception:  # a rejected change leaves the session as it was (it stayed, and failed every later one)
+            self.settings, self.camera = before, camera
+            raise
 
     def render(self) -> dict[str, float]:
         """Render the scene through the camera, keeping every intermediate.
@@ -275,15 +289,17 @@ class ViewerSession:
         oi_key = (s.scene, s.f_number, window)
         raw_key = (oi_key, s.pixel_size_um, s.cfa, s.exposure_ms, s.noise)
         with torch.no_grad():
-            if raw_key in self._raws:
-                out = cam.from_raw(self._raws[raw_key], True)
-                out.optical_image = self._ois[oi_key]
+            if raw_key in self._raws:  # (kept with its optical image: the two caches are trimmed apart)
+                oi, raw = self._raws[raw_key]
+                out = cam.from_raw(raw, True)
+                out.optical_image = oi
             elif oi_key in self._ois:
                 out = cam.from_optical_image(self._ois[oi_key], True, generator=gen)
             else:
                 out = cam(scene, return_intermediates=True, generator=gen)
         out.scene = scene
-        for cache, key, value in ((self._ois, oi_key, out.optical_image), (self._raws, raw_key, out.raw)):
+        for cache, key, value in ((self._ois, oi_key, out.optical_image),
+                                  (self._raws, raw_key, (out.optical_image, out.raw))):
             cache[key] = value
             while len(cache) > self.cache_size:
                 cache.pop(next(iter(cache)))
@@ -354,10 +370,13 @@ class ViewerSession:
                       psf_size: int = 64) -> dict:
         """PSF at ``psf_wavelength_nm`` and MTF along x at ``wavelengths_nm``, from
         :mod:`isettorch.optics.analysis` (the OTF the optics applies). Frequencies in cycles/mm up to the
-        diffraction cutoff of the shortest wavelength; PSF spacing λN/4."""
+        diffraction cutoff of the shortest wavelength; PSF spacing λN/4. None for a ray-traced lens, whose PSF
+        varies over the field (``isettorch lens-report`` gives its MTF per field)."""
         from ..optics import analysis
 
         optics = self.camera.optics
+        if not hasattr(optics, "otf"):  # shift-variant (LensOptics): no one OTF
+            return None
         n = float(optics.f_number.reshape(-1)[0])
         f_max_cpm = 1.0 / (min(wavelengths_nm) * 1e-9 * n)
         freqs = np.linspace(0.0, f_max_cpm, 101)

@@ -99,3 +99,36 @@ def test_a_photograph_scene_is_read_as_the_library_reads_photographs(tmp_path):
     Image.fromarray(np.full((4, 4), 60000, dtype=np.uint16)).save(tmp_path / "deep.png")
     with pytest.raises(ValueError, match="expected 8-bit samples"):
         _read_scene_file(tmp_path / "deep.png", 10.0)
+
+
+def test_a_rejected_change_leaves_the_session_and_its_caches_consistent():
+    s = ViewerSession("default", "macbeth", size=32)  # (cache_size 4: the sequence below evicts an OI, not its raw)
+    before = s.settings
+    with pytest.raises(ValueError, match="exposure_s"):
+        s.update(exposure_ms=-1.0)
+    assert s.settings == before  # (it stayed, and every later change failed with the exposure's message)
+    # one raw outliving its optical image in the caches (trimmed apart) was a KeyError on its reuse
+    for f in (2.0, 2.8, 5.6):
+        s.update(f_number=f)
+    s.update(cfa="RGGB")
+    for f in (2.0, 8.0, 11.0, 2.0):
+        s.update(f_number=f)
+        assert float(s.output.optical_image.f_number.reshape(-1)[0]) == f
+    s.update(cfa=None)
+    fresh = ViewerSession("default", "macbeth", size=32)
+    fresh.update(f_number=2.0)
+    assert s.output.raw.data.equal(fresh.output.raw.data)
+
+
+def test_a_lens_config_has_no_f_number_setting_and_no_single_otf():
+    s = ViewerSession.__new__(ViewerSession)  # only the config logic, no render
+    s.base_config = {"optics": {"type": "lens", "lens": "cooke_triplet"}, "sensor": {}, "isp": {}}
+    assert not s.f_number_settable
+    with pytest.raises(ValueError, match="f_number: the camera's optics are a lens prescription"):
+        s.camera_config(Settings(f_number=8.0))
+
+    class _Lens:  # a shift-variant optics (LensOptics): no otf
+        pass
+
+    s.camera = type("Cam", (), {"optics": _Lens()})()
+    assert s.optics_curves() is None
