@@ -4,6 +4,7 @@ factored scene (rank 1); ``dense`` is the same scene as a [31, H, W] cube throug
 
 Usage: ``PYTHONPATH=. python benchmarks/default_path_vs_numpy.py`` (from a source checkout).
 """
+import argparse
 import importlib.util
 import math
 import statistics
@@ -17,6 +18,7 @@ from isettorch.sensor import Sensor
 
 # the configuration of `isettorch bench`'s isettorch_optics_sensor_512x512x31 row (ISETCam's default lens and sensor)
 PITCH_M, FOCAL_M, DISTANCE_M = 2.8e-6, 3.862755099e-3, 1.2
+argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()  # (--help ran the whole benchmark)
 torch.set_num_threads(2)
 spec = importlib.util.spec_from_file_location("nref", "benchmarks/numpy_reference.py")
 ref = importlib.util.module_from_spec(spec)
