@@ -8,9 +8,18 @@ from __future__ import annotations
 
 import torch
 
-from .._checks import as_tensor, check_wavelengths
+from .._checks import as_tensor, check_wavelengths, is_integer, is_real
 
 __all__ = ["psf", "lsf", "mtf", "encircled_energy", "plot_psf", "plot_lsf", "plot_mtf", "plot_encircled_energy"]
+
+
+def _check_grid(spacing_m, size: int) -> None:
+    """A sampling grid: a positive finite spacing (0 or NaN gave NaN, a negative one a mirrored curve) and a whole
+    number of samples >= 2."""
+    if not (is_real(spacing_m) and spacing_m > 0):
+        raise ValueError(f"spacing_m: expected a finite spacing > 0 (m), got {spacing_m!r}")
+    if not (is_integer(size) and size >= 2):
+        raise ValueError(f"size: expected a whole number of samples >= 2, got {size!r}")
 
 
 def _prep(optics, wavelengths_nm, dtype=torch.float64):
@@ -27,8 +36,7 @@ def psf(optics, wavelengths_nm, spacing_m: float, size: int = 64, **otf_kwargs) 
     ``otf_kwargs``: passed to ``optics.otf`` (e.g. :class:`~isettorch.optics.WavefrontOptics`'
     ``extra_defocus_diopters``).
     """
-    if size < 2:
-        raise ValueError(f"size: expected at least 2 samples, got {size}")
+    _check_grid(spacing_m, size)
     w, n = _prep(optics, wavelengths_nm)
     f = torch.fft.fftfreq(size, d=float(spacing_m), dtype=w.dtype)[None, :].expand(n.numel(), -1)
     otf = optics.otf(f, f, w, n, **otf_kwargs)
@@ -51,6 +59,7 @@ def mtf(optics, wavelengths_nm, frequencies_cpm, axis: str = "x") -> torch.Tenso
 
 def lsf(optics, wavelengths_nm, spacing_m: float, size: int = 256, axis: str = "x") -> torch.Tensor:
     """Line-spread function ``[B, L, size]`` (sum 1) across a line along the other axis, origin at ``size // 2``."""
+    _check_grid(spacing_m, size)
     w, n = _prep(optics, wavelengths_nm)
     f = torch.fft.fftfreq(size, d=float(spacing_m), dtype=w.dtype)[None, :].expand(n.numel(), -1)
     zero = torch.zeros(n.numel(), 1, dtype=w.dtype)
@@ -69,11 +78,15 @@ def encircled_energy(psf_img: torch.Tensor, spacing_m: float, radii_m) -> torch.
 
     Counts whole samples whose centre lies within the radius.
     """
+    if not (is_real(spacing_m) and spacing_m > 0):  # (0 gave 1 at every radius)
+        raise ValueError(f"spacing_m: expected a finite spacing > 0 (m), got {spacing_m!r}")
     h, w = psf_img.shape[-2:]
     yy = (torch.arange(h, dtype=psf_img.dtype) - h // 2)[:, None] * spacing_m
     xx = (torch.arange(w, dtype=psf_img.dtype) - w // 2)[None, :] * spacing_m
     r = torch.sqrt(yy**2 + xx**2)
     radii = as_tensor(radii_m, "radii_m", dtype=psf_img.dtype).reshape(-1)
+    if not bool((radii >= 0).all()):  # (a negative radius gave 0; NaN fails too)
+        raise ValueError(f"radii_m: expected radii >= 0 (m), got {radii.tolist()}")
     inside = (r[None] <= radii[:, None, None]).to(psf_img.dtype)  # [R, H, W]
     tot = psf_img.sum(dim=(-2, -1))
     return torch.einsum("...hw,rhw->...r", psf_img, inside) / tot[..., None]

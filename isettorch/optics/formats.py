@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .._checks import is_real
+
 __all__ = ["OpticalFormat", "FORMATS", "optical_format", "field_of_view_deg", "focal_length_for_fov_mm",
            "crop_factor"]
 
@@ -57,8 +59,8 @@ def _fmt(fmt) -> OpticalFormat:
 
 def field_of_view_deg(fmt, focal_length_mm: float, along: str = "diagonal") -> float:
     """Full field of view (deg) of a rectilinear lens of ``focal_length_mm`` on ``fmt`` (object at infinity)."""
-    if focal_length_mm <= 0:
-        raise ValueError(f"focal_length_mm: expected > 0, got {focal_length_mm}")
+    if not (is_real(focal_length_mm) and focal_length_mm > 0):  # (NaN gave a NaN field of view)
+        raise ValueError(f"focal_length_mm: expected a finite number > 0, got {focal_length_mm!r}")
     f = _fmt(fmt)
     d = {"diagonal": f.diagonal_mm, "horizontal": f.width_mm, "vertical": f.height_mm}.get(along)
     if d is None:
@@ -68,10 +70,12 @@ def field_of_view_deg(fmt, focal_length_mm: float, along: str = "diagonal") -> f
 
 def focal_length_for_fov_mm(fmt, fov_deg: float, along: str = "diagonal") -> float:
     """The focal length (mm) giving a full field of view ``fov_deg`` on ``fmt``."""
-    if not 0 < fov_deg < 180:
-        raise ValueError(f"fov_deg: expected a value in (0, 180), got {fov_deg}")
+    if not (is_real(fov_deg) and 0 < fov_deg < 180):
+        raise ValueError(f"fov_deg: expected a value in (0, 180), got {fov_deg!r}")
     f = _fmt(fmt)
-    d = {"diagonal": f.diagonal_mm, "horizontal": f.width_mm, "vertical": f.height_mm}[along]
+    d = {"diagonal": f.diagonal_mm, "horizontal": f.width_mm, "vertical": f.height_mm}.get(along)
+    if d is None:  # (a bare KeyError)
+        raise ValueError(f"along: expected 'diagonal', 'horizontal' or 'vertical', got {along!r}")
     return d / (2 * math.tan(math.radians(fov_deg) / 2))
 
 

@@ -57,6 +57,10 @@ def defocus_diopters_to_zernike_um(diopters, pupil_diameter_m):
                                                                                           dtype=torch.float64)
     r_mm = d * 1e3 / 2
     dd = diopters if isinstance(diopters, torch.Tensor) else torch.tensor(diopters, dtype=r_mm.dtype)
+    if not bool(((d > 0) & torch.isfinite(d)).all()):  # (a -3 mm pupil gave the 3 mm pupil's 0.325 um)
+        raise ValueError(f"pupil_diameter_m: expected finite diameters > 0, got {d.tolist()}")
+    if not bool(torch.isfinite(dd).all()):
+        raise ValueError(f"diopters: expected finite values, got {dd.tolist()}")
     return dd * r_mm**2 / (4 * math.sqrt(3))
 
 

@@ -40,7 +40,11 @@ def shot_noise(mean_e: torch.Tensor, mode: str = "poisson", generator: torch.Gen
 
     ``'poisson'``: exact Poisson draws (Gaussian ``N(mean, mean)`` above :data:`POISSON_GAUSSIAN_ABOVE_E`, 2^31
     electrons, where the two differ by a skewness under 2e-5 and torch's integer counts would overflow: at 2^32 on
-    CUDA, 2^63 on the CPU); the gradient passes straight through (d out / d mean = 1).
+    CUDA, 2^63 on the CPU); the gradient passes straight through (d out / d mean = 1). That is exact for a loss
+    linear in the output, but biased for one that depends on the noise's size: d E[e^2] / d mean is 2 mean + 1 while
+    the straight-through estimate averages 2 mean, a relative error -1 / (2 mean + 1) (-20 % at 2 e-, -4.8 % at 10,
+    -0.5 % at 100; measured in an audit of 2026-11-30). ``'gaussian'`` differentiates the noise's scale too and is
+    unbiased there.
     ``'gaussian'``: ``mean + sqrt(mean) z`` (reparameterised, same first two moments), a good model from about 10
     electrons up; below, the readout's clip at 0 V shifts both moments (at 0.5 e-: mean +20 %, variance -36 %).
     ``'off'``: the mean. Source: photon transfer / EMVA 1288 (variance = mean in electrons).

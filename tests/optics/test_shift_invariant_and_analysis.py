@@ -152,3 +152,30 @@ def test_margin_rule_bounds_the_line_spread_tail(tol):
     x = (torch.arange(size, dtype=torch.float64) - size // 2) * dx
     tail = line[x > margin].sum().item()
     assert tol / 2 < tail <= tol * 1.02
+
+
+def test_analysis_helpers_refuse_bad_grids():
+    from isettorch.optics import defocus_diopters_to_zernike_um
+    from isettorch.optics.formats import field_of_view_deg, focal_length_for_fov_mm
+
+    optics = DiffractionLimitedOptics(f_number=4.0, focal_length_m=F)
+    w = [550.0]
+    for bad in (0.0, -1e-6, float("nan")):  # (NaN, NaN and a mirrored curve)
+        with pytest.raises(ValueError, match="spacing_m"):
+            analysis.psf(optics, w, bad)
+        with pytest.raises(ValueError, match="spacing_m"):
+            analysis.lsf(optics, w, bad)
+    for bad in (2.5, 0, 1):  # (torch's fftfreq TypeError, a ZeroDivisionError)
+        with pytest.raises(ValueError, match="size"):
+            analysis.lsf(optics, w, 1e-6, size=bad)
+    img = torch.ones(1, 5, 5, dtype=torch.float64)
+    with pytest.raises(ValueError, match="spacing_m"):  # (1 at every radius)
+        analysis.encircled_energy(img, 0.0, [1e-6])
+    with pytest.raises(ValueError, match="radii_m"):  # (0)
+        analysis.encircled_energy(img, 1e-6, [-1e-6])
+    with pytest.raises(ValueError, match="pupil_diameter_m"):  # (-3 mm gave the 3 mm pupil's value)
+        defocus_diopters_to_zernike_um(1.0, -3e-3)
+    with pytest.raises(ValueError, match="along"):  # (a bare KeyError)
+        focal_length_for_fov_mm("APS-C", 60.0, along="diag")
+    with pytest.raises(ValueError, match="focal_length_mm"):  # (NaN)
+        field_of_view_deg("APS-C", float("nan"))

@@ -123,3 +123,12 @@ def test_fixed_pattern_seeds_are_integers():
             NoiseTerms(seed=seed)
     with pytest.raises(ValueError, match="rows: expected an integer number of pixels"):
         fixed_pattern_draws(2.5, 4, 1)
+
+
+def test_shot_noise_gradient_of_a_noise_dependent_loss():
+    # d E[e^2] / d mean = 2 mean + 1 (Poisson: E[e^2] = mean + mean^2). The straight-through Poisson draw averages
+    # 2 mean (the documented bias, -1 / (2 mean + 1)); the reparameterised Gaussian is unbiased.
+    for mode, expected in (("poisson", 4.0), ("gaussian", 5.0)):
+        m = torch.full((400_000,), 2.0, dtype=torch.float64, requires_grad=True)
+        (shot_noise(m, mode, torch.Generator().manual_seed(1)) ** 2).sum().backward()
+        assert float(m.grad.mean()) == pytest.approx(expected, abs=0.03)
