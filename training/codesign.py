@@ -146,7 +146,9 @@ def source_photos(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, se
         raise ValueError("data.folder: the photos source needs a folder of 8-bit RGB .png/.tif/.jpg photographs")
     cache = source_photos.__dict__.setdefault("cache", {})
     if folder not in cache:
-        cache[folder] = load_images(common_path(folder))
+        photos = load_images(common_path(folder))
+        common.refuse_test_images(photos, "data.folder")  # trained and validated on: never a test set
+        cache[folder] = photos
     photos = cache[folder]
     g = torch.Generator().manual_seed(seed_for(seed, k, stream=0))
     maps, refl = [], None

@@ -119,3 +119,44 @@ def hardware() -> dict:
     from isettorch._machine import machine_info
 
     return machine_info("cuda" if torch.cuda.is_available() else "cpu")
+
+
+# The test sets' pixels (Kodak 24, McMaster 18: sha256 of each decoded 8-bit image with its shape), written by
+# ``python -c "from training.common import write_test_set_fingerprints as w; w(['../shared/data/kodak24',
+# '../shared/data/mcmaster18'])"``: never train, tune or select on them; the scripts that take photographs for those
+# purposes refuse any image among them (in any file format, under any name).
+TEST_SET_FINGERPRINTS = Path(__file__).with_name("test_set_fingerprints.json")
+
+
+def pixel_fingerprint(image: np.ndarray) -> str:
+    """sha256 of an 8-bit image's shape and pixels (the same for a PNG and a TIFF of it)."""
+    import hashlib
+
+    a = np.ascontiguousarray(np.asarray(image, dtype=np.uint8))
+    return hashlib.sha256(repr(a.shape).encode() + a.tobytes()).hexdigest()
+
+
+def write_test_set_fingerprints(folders: list[str | Path]) -> Path:
+    """Record the fingerprints of every image of ``folders`` (the test sets) in :data:`TEST_SET_FINGERPRINTS`."""
+    import json
+
+    from isettorch.isp.evaluation import load_images
+
+    prints = {Path(f).name: sorted(pixel_fingerprint(a) for _, a in load_images(f)) for f in folders}
+    TEST_SET_FINGERPRINTS.write_text(json.dumps(prints, indent=1) + "\n")
+    return TEST_SET_FINGERPRINTS
+
+
+def refuse_test_images(source, what: str) -> None:
+    """A ValueError naming ``what`` when ``source`` (a folder, or ``(name, uint8 array)`` pairs as
+    :func:`isettorch.isp.evaluation.load_images` gives) holds an image of the test sets."""
+    import json
+
+    from isettorch.isp.evaluation import load_images
+
+    known = {p: name for name, prints in json.loads(TEST_SET_FINGERPRINTS.read_text()).items() for p in prints}
+    for name, image in load_images(source):
+        hit = known.get(pixel_fingerprint(image))
+        if hit is not None:
+            raise ValueError(f"{what}: {name} is an image of the test set {hit} (never train, tune or select on it: "
+                             f"../shared/data/README.md)")

@@ -61,17 +61,28 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     run = Path(args.run)
-    ck = torch.load(run / f"{args.which}.pt", map_location="cpu", weights_only=True)
-    net = learned.DemosaicNet(**ck["net_config"])
-    net.load_state_dict(ck["model"])
+    if not (run / f"{args.which}.pt").is_file():  # (a traceback)
+        ap.error(f"--run: no {args.which}.pt in {str(run)!r} (a train_demosaic.py output folder)")
+    try:
+        ck = torch.load(run / f"{args.which}.pt", map_location="cpu", weights_only=True)
+        net = learned.DemosaicNet(**ck["net_config"])
+    except Exception as err:  # noqa: BLE001 - any unreadable or foreign file is the same user error
+        ap.error(f"--run: {run / f'{args.which}.pt'} is not a train_demosaic.py checkpoint "
+                 f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")
+    store = torch.float16 if args.half else torch.float32
+    # scored as stored: with --half the card's scores were the float32 network's
+    net.load_state_dict({k: v.to(store).to(v.dtype) for k, v in ck["model"].items()})
     net.eval().requires_grad_(False)
-    variant = args.variant or ("joint_denoise" if ck["net_config"].get("noise_inputs", 0) else "noise_free")
+    noisy = bool(ck["net_config"].get("noise_inputs", 0))
+    variant = args.variant or ("joint_denoise" if noisy else "noise_free")
+    if noisy != (variant == "joint_denoise"):  # (a noise-free network exported as the joint model broke it)
+        ap.error(f"--variant: {variant} needs a network {'with' if variant == 'joint_denoise' else 'without'} "
+                 f"noise inputs; this one has noise_inputs={ck['net_config'].get('noise_inputs', 0)}")
     args.name = args.name or learned.PRETRAINED[variant].stem
     net.guard = dict(learned.PRETRAINED_GUARDS[variant])  # scored as it ships (load_pretrained sets this guard)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     pt = out / f"{args.name}.pt"
-    store = torch.float16 if args.half else torch.float32
     torch.save({"model": {k: v.to(store).contiguous() for k, v in net.state_dict().items()},
                 "net_config": ck["net_config"], "step": int(ck["step"]),
                 "best_val_cpsnr": float(ck["best_val_cpsnr"])}, pt)

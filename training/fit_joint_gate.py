@@ -262,6 +262,13 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", default=None, help="write the scores and the decision (JSON) here")
     args = p.parse_args(argv)
+    from training import common
+
+    for flag, folder in [("--sets", s) for s in args.sets] + ([("--photos", args.photos)] if args.photos else []):
+        try:  # a gate is fitted on these: never on a test set
+            common.refuse_test_images(folder, flag)
+        except ValueError as err:
+            p.error(str(err))
     torch.set_num_threads(args.threads)
     if args.gate == "classical_detail":
         if not args.photos:

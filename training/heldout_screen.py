@@ -192,6 +192,17 @@ def screen(incumbent: str, candidate: str, sets: list[str], tolerance_db: float 
     return res
 
 
+def _refuse_test_sets(sets) -> None:
+    """A screen decides what ships: none of its sets may hold a test-set image (SystemExit naming ``--sets``)."""
+    from training import common
+
+    for s in sets:
+        try:
+            common.refuse_test_images(s, "--sets")
+        except ValueError as err:
+            raise SystemExit(str(err)) from err
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and not argv[0].startswith("-"):  # RUN [...]: a registered screen
@@ -206,6 +217,7 @@ def main(argv=None) -> int:
     ap.add_argument("--tolerance-db", type=float, default=0.05)
     ap.add_argument("--out", default=None, help="write the JSON result here")
     args = ap.parse_args(argv)
+    _refuse_test_sets(args.sets)
     res = screen(args.incumbent, args.candidate, args.sets, args.tolerance_db)
     for name in ("incumbent", "candidate"):
         row = res[name]
@@ -330,6 +342,7 @@ def screen_run(run: str, argv: list[str] | None = None) -> int:
     dry = args.candidate is not None or args.incumbent is not None or args.sets is not None
     out = Path(args.out or (f"out/screen_dryrun/{run}.json" if dry else ROOT / result_path(run)))
     make_sets(sets)
+    _refuse_test_sets(sets)
     torch.set_num_threads(args.threads)
     if entry.get("kind") == "best_of":  # --incumbent / --candidate replace those checkpoints
         paths = dict(entry["candidate"])

@@ -171,6 +171,27 @@ def progress(step: int, wall_s: float, cfg: dict) -> float:
     return max(t, wall_s / budget) if budget > 0 else t
 
 
+# what a resumed run may change: how long it runs, where and how it reports, its threads (the rest is the run)
+RESUMABLE_KEYS = ("out", "threads", "checkpoint_every", "eval", "optim.steps", "optim.time_budget_s")
+
+
+def resume_changes(old: dict, new: dict) -> list[str]:
+    """The dotted keys of the config that differ between a checkpoint's run (``old``) and this one, except
+    :data:`RESUMABLE_KEYS`."""
+    def flat(d, prefix=""):
+        out = {}
+        for k, v in (d or {}).items():
+            key = f"{prefix}{k}"
+            if isinstance(v, dict) and key not in RESUMABLE_KEYS:
+                out.update(flat(v, key + "."))
+            else:
+                out[key] = v
+        return out
+
+    a, b = flat(old), flat(json.loads(json.dumps(new)))  # (as the checkpoint stores it: tuples are lists)
+    return sorted(k for k in a.keys() | b.keys() if k not in RESUMABLE_KEYS and a.get(k) != b.get(k))
+
+
 def lr_at(step: int, frac: float, cfg: dict) -> float:
     o = cfg["optim"]
     warm = int(o.get("warmup", 50))
@@ -199,6 +220,9 @@ class AdaptiveGradClip:
         """Clip the gradients of ``params`` in place; returns the norm before clipping."""
         params = [p for p in params if p.grad is not None]
         norm = float(torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(p.grad) for p in params])))
+        if not math.isfinite(norm):  # (a NaN made the EMA NaN, clipping off for good, and Adam's weights NaN)
+            raise FloatingPointError(f"the gradient's norm is {norm}: the step would corrupt the weights (the last "
+                                     f"checkpoint holds the run before it)")
         if not self.factor:
             return norm
         limit = math.inf if self.ema is None else self.factor * self.ema
@@ -282,11 +306,10 @@ def main(argv: list[str] | None = None) -> int:
         step, best = int(ck["step"]), float(ck["best_val_cpsnr"])
         history, wall0 = json.loads(ck["history"]), float(ck.get("wall_s", 0.0))
         clip_state = json.loads(ck.get("grad_clip", "{}"))
-        old = json.loads(ck["train_config"])
-        if (old.get("data"), old.get("val"), old.get("noise")) != (cfg.get("data"), cfg.get("val"), cfg.get("noise")):
-            best = -math.inf  # the validation set changed: earlier best scores are not comparable
-            if rank == 0:
-                print("data/val config changed since the checkpoint: best-model selection restarts", flush=True)
+        changed = resume_changes(json.loads(ck["train_config"]), cfg)
+        if changed:  # (a new seed, lr, loss or data ran on, the two runs' histories and best scores mixed)
+            raise SystemExit(f"--resume: {resume} is a checkpoint of another config ({', '.join(changed)} changed); "
+                             f"start a new out folder, or begin from its weights with init: {resume}")
         if rank == 0:
             print(f"resumed from {resume} at step {step}", flush=True)
     clip = AdaptiveGradClip(float(cfg["optim"].get("clip_grad_factor", 0.0) or 0.0), clip_state)
@@ -297,6 +320,10 @@ def main(argv: list[str] | None = None) -> int:
 
     # each rank renders its own scenes; data.scene_seed (default: the run's seed) lets runs share scenes (a bank)
     scene_seed = int(cfg.get("data", {}).get("scene_seed", seed))
+    # make_validation's scene pool (its seed plus the sampler's offset) must not be a rank's training pool
+    if 0 <= int(cfg.get("seed", 0)) + 2 * VAL_SEED_OFFSET - scene_seed * 1_000_003 < world:
+        raise SystemExit(f"data.scene_seed: {scene_seed} draws the validation scenes of seed {cfg.get('seed', 0)} "
+                         f"for training; choose another")
     sampler = make_sampler(cfg, seed=scene_seed * 1_000_003 + rank, progress=rank == 0 and not args.quiet,
                            device=device, batch=int(cfg["data"].get("batch", 16)) // world)
     val = make_validation(cfg) if rank == 0 else None

@@ -78,3 +78,18 @@ def test_export_records_given_command_and_selection(tmp_path):
     assert card["command"] == "python w.py" and card["checkpoint"]["selected_by"] == "a held-out screen"
     text = (out / "demosaic_learned.md").read_text()
     assert "- command: `python w.py`" in text and "best by a held-out screen" in text
+
+
+def test_export_refuses_a_variant_the_network_does_not_fit_and_a_missing_run(tmp_path, capsys):
+    net = DemosaicNet(channels=8, depth=2)  # noise-free
+    run = tmp_path / "run"
+    run.mkdir()
+    opt = torch.optim.Adam(net.parameters())
+    train_demosaic.save_checkpoint(run / "best.pt", net, opt, 3, {"data": {}}, 30.0, [], 1.0)
+    out = tmp_path / "assets"
+    for argv, flag in ((["--run", str(run), "--variant", "joint_denoise"], "--variant"),  # (wrote a broken joint)
+                       (["--run", str(tmp_path / "none")], "--run")):  # (a traceback)
+        with pytest.raises(SystemExit) as exc:
+            export_demosaic.main([*argv, "--out", str(out), "--no-bench"])
+        assert exc.value.code == 2 and flag in capsys.readouterr().err
+    assert not out.exists()

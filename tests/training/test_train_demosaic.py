@@ -128,6 +128,11 @@ def test_smoke_training_resume(tmp_path, capsys):
     assert train_demosaic.main(args + ["--steps", "4"]) == 0
     resumed = torch.load(out / "last.pt", map_location="cpu", weights_only=True)
     assert resumed["step"] == 4
+    # another run's config is refused (a new seed and lr ran on, mixing the two runs' histories); a longer one is not
+    with pytest.raises(SystemExit, match=r"another config \(optim.lr, seed changed\)"):
+        train_demosaic.main(args + ["--steps", "6", "--set", "seed=7", "optim.lr=0.05"])
+    assert train_demosaic.resume_changes(json.loads(resumed["train_config"]),
+                                         {**json.loads(resumed["train_config"]), "threads": 2}) == []
     straight = tmp_path / "straight"
     capsys.readouterr()
     assert train_demosaic.main(["--config", str(SMOKE), "--out", str(straight), "--quiet", "--threads", "1",
@@ -447,6 +452,20 @@ def test_adaptive_grad_clip_caps_outliers_at_a_multiple_of_the_running_norm():
     assert float(p.grad.norm()) == pytest.approx(100.0)
     with pytest.raises(ValueError, match="clip_grad_factor"):
         train_demosaic.AdaptiveGradClip(-1.0)
+    # a non-finite gradient stops the run (it made the EMA NaN, clipping off for good, and the weights NaN)
+    for c in (clip, off):
+        with pytest.raises(FloatingPointError, match="gradient's norm is nan"):
+            step(c, float("nan"))
+    assert clip.state() == resumed.state()
+
+
+def test_a_scene_seed_that_draws_the_validation_scenes_is_refused(tmp_path):
+    seed = 0  # (2 x VAL_SEED_OFFSET is 2000 x 1_000_003: scene_seed 2000 at rank 0; the audit's was seed 1, rank 1)
+    colliding = (seed + 2 * train_demosaic.VAL_SEED_OFFSET) // 1_000_003  # its training pool is the validation's
+    assert colliding * 1_000_003 == seed + 2 * train_demosaic.VAL_SEED_OFFSET
+    with pytest.raises(SystemExit, match="data.scene_seed"):
+        train_demosaic.main(["--config", str(SMOKE), "--out", str(tmp_path / "run"), "--no-progress", "--threads",
+                             "1", "--set", f"seed={seed}", f"data.scene_seed={colliding}"])
 
 
 def _teacher(tmp_path, noise_inputs=0):
