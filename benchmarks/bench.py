@@ -977,7 +977,8 @@ def add_arguments(p) -> None:
     p.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (default: torch's choice)")
     p.add_argument("--sizes", default=None, help="pipeline sizes, e.g. 128,512,1024 (default per --quick)")
     p.add_argument("--stable-size", type=int, default=None, help="size of the optics_/sensor_ rows (default 512)")
-    p.add_argument("--knob-patch", type=int, default=None, help="Macbeth patch size of the knob scene (16/32)")
+    p.add_argument("--knob-patch", type=int, default=None,
+                   help="Macbeth patch size of the knob scene, in pixels (default 16, 8 with --quick)")
     p.add_argument("--repeats", type=int, default=None, help="timed repeats per measurement (default 5, quick 2)")
     p.add_argument("--no-peers", action="store_true", help="skip the NumPy, colour-demosaicing and kornia peers")
     p.add_argument("--no-pairs", action="store_true", help="skip the CameraPairDataset throughput")

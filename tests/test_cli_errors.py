@@ -77,7 +77,16 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                       (["{images}", "--method", ""], "--method: expected one of"),
                       (["{images}", "--seed", "-1"], "--seed"), (["{images}", "--seed", "18446744073709551616"],
                                                                  "--seed"),
-                      (["{images}", "--crop", "abc"], "--crop")]
+                      (["{images}", "--crop", "abc"], "--crop"),
+                      # a custom model's errors (tracebacks before): not a class, kwargs the class refuses, weights
+                      # that do not fit it
+                      (["{images}", "--model", "{joint}", "--model-class", "os:path"],
+                       "--model-class: 'os:path' is a module, not a class"),
+                      (["{images}", "--model", "{joint}", "--model-class", "isettorch.isp.learned:DemosaicNet",
+                        "--model-kwargs", '{{"bogus": 1}}'], "--model-kwargs: isettorch.isp.learned:DemosaicNet"),
+                      (["{images}", "--model", "{joint}", "--model-class", "isettorch.isp.learned:DemosaicNet"],
+                       "does not fit isettorch.isp.learned:DemosaicNet"),
+                      (["{images}", "--method", "nearest", "--dihedral-ensemble"], "(--dihedral-ensemble)")]
                      + ([] if importlib.util.find_spec("bm3d") else  # the user's package, when it is not installed
                         [(["{images}", "--noise-sigma", "0.1", "--denoise", "bm3d"], "--denoise: 'bm3d' needs")]),
     "design-eval": [([MISSING, "{images}"], "DESIGN"), (["learned", "{images}"], "--crop"),
@@ -95,8 +104,11 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                     (["learned", "{images}", "--crop", "2", "--seed", "-1"], "--seed")],
     "lens-report": [([MISSING, "--json"], "no_such_input"),
                     (["cooke_triplet", "--fields", "a,b", "--json"], "--fields"),
-                    (["cooke_triplet", "--out", "{garbage}"], "--out"), (["{binyaml}", "--json"], "lens")],
-    "parity": [([MISSING + ".npz"], "no_such_input.npz"), (["{tmp}/x.npz", "--repeat", "-1"], "--repeat")],
+                    (["cooke_triplet", "--out", "{garbage}"], "--out"), (["{binyaml}", "--json"], "lens"),
+                    (["cooke_triplet", "--fields", "0,,1", "--json"], "--fields"),  # (the empty item was dropped)
+                    (["cooke_triplet", "--wavelengths-nm", "5", "--json"], "--wavelengths-nm: glass")],
+    "parity": [([MISSING + ".npz"], "no_such_input.npz"), (["{tmp}/x.npz", "--repeat", "-1"], "--repeat"),
+               (["{tmp}/x.npz", "--repeat", "1000000000"], "--repeat")],
     "process": [([MISSING, "--camera", "default", "--model", "{garbage}"], "RAW"),
                 (["{images}/a.png", "--camera", "{tmp}/no_such.yaml", "--model", "{garbage}"], "--camera"),
                 (["{images}/a.png", "--camera", "default", "--model", "{tmp}/missing.pt"], "--model"),
@@ -118,7 +130,8 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                  "--out: expected a folder, {garbage} is a file"),
                 (["{raw}/frame.npy", *PROC[:4], "--out", "{raw}", "-q"], "--out"),  # would overwrite the frame
                 (["{raw}/frame.npy", "{broken}/b.png", *PROC[:4], "--out", "{tmp}/p"], "b.png"),  # no -q: one line
-                (["{raw}/frame.npy", "--model", "{joint}"], "--camera")],  # argparse: one line
+                (["{raw}/frame.npy", "--model", "{joint}"], "--camera"),  # argparse: one line
+                (["{grey8}/g.png", *PROC], "RAW: {grey8}/g.png: 8-bit samples cannot hold the camera's 12-bit DN")],
     "synth": [(["--config", "{tmp}/no_such.yaml", "--out", "{tmp}/out", "--count", "2"], "--config"),
               (["--out", "{tmp}/out", "--count", "0"], "--count"),
               (["--out", "{tmp}/out"], "--count"),  # required unless --verify
@@ -128,7 +141,8 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
               (["--config", "{binyaml}", "--out", "{tmp}/out", "--count", "1"], "--config"),
               (["--out", "{garbage}", "--count", "1"], "--out"),
               (["--out", "{tmp}/out", "--count", "1", "--num-shards", "0"], "--num-shards"),
-              (["--out", "{tmp}/out", "--count", "abc"], "--count")],
+              (["--out", "{tmp}/out", "--count", "abc"], "--count"),
+              (["--out", "{tmp}/out", "--count", "1000000000000000"], "--count")],  # (a silent hang)
     "view": [(["--port", "70000", "--no-browser"], "--port"), (["--size", "4", "--no-browser"], "--size"),
              (["--size", "1000000", "--no-browser"], "--size"), (["--seed", "-1", "--no-browser"], "--seed"),
              (["--config", "{binyaml}", "--no-browser"], "--config"),
@@ -163,7 +177,7 @@ def places(tmp_path) -> dict:
     Image.fromarray(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)).save(images / "a.png")
     (broken / "b.png").write_bytes(b"not a png")
     (tmp_path / "garbage.pt").write_bytes(b"neither TorchScript nor weights")
-    folders = {name: tmp_path / name for name in ("strip", "mixed", "keyed", "pages", "raw")}
+    folders = {name: tmp_path / name for name in ("strip", "mixed", "keyed", "pages", "raw", "grey8")}
     for folder in folders.values():
         folder.mkdir()
     Image.fromarray(rng.integers(0, 256, (1, 96, 3), dtype=np.uint8)).save(folders["strip"] / "strip.png")
@@ -178,6 +192,7 @@ def places(tmp_path) -> dict:
     np.save(folders["raw"] / "frame.npy", frame)
     Image.fromarray(frame).save(folders["raw"] / "frame.tif")
     np.save(folders["raw"] / "shifted.npy", np.full((8, 8), 4095 << 4, np.uint16))
+    Image.fromarray(np.full((8, 8), 200, np.uint8)).save(folders["grey8"] / "g.png")  # a display image
     sensor = ("sensor: {rows: 8, cols: 8, pixel_size_m: 3.45e-6, cfa: RGGB, adc_bits: 12, voltage_swing_v: 1.0, "
               "conversion_gain_v_per_e: 0.00048828125, black_level_dn: 64, read_noise_v: 0.00146484375")
     optics = "optics: {type: diffraction_limited, f_number: 2.8, focal_length_m: 0.004}\n"

@@ -127,3 +127,21 @@ class Outputs:
                 folder.rmdir()
             except OSError:
                 break
+
+
+def strict_json(obj, **kwargs) -> str:
+    """``json.dumps`` of ``obj`` with every non-finite float as null (JSON has no NaN or Infinity: a bare ``NaN``
+    breaks strict parsers such as jq and JavaScript)."""
+    import json
+    import math
+
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+
+    return json.dumps(clean(obj), allow_nan=False, **kwargs)

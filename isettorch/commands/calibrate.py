@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 from .._progress import add_quiet_argument
+from ._outputs import strict_json
 
 
 def register(sub) -> None:
@@ -52,7 +53,6 @@ def _summary(result: dict) -> str:
 
 
 def _single(args) -> int:
-    import json
     import sys
 
     import numpy as np
@@ -96,7 +96,7 @@ def _single(args) -> int:
     res["warnings"] = warnings + res.get("warnings", [])
     res.update({"file": args.directory, "cfa": cfa, "black_level_dn": black})
     if args.json:
-        print(json.dumps(res, indent=2))
+        print(strict_json(res, indent=2))
         for w in res["warnings"]:
             print(f"isettorch calibrate: warning: {w}", file=sys.stderr)
     else:
@@ -109,7 +109,6 @@ def _single(args) -> int:
 
 
 def run(args) -> int:
-    import json
     import sys
     from pathlib import Path
 
@@ -149,7 +148,7 @@ def run(args) -> int:
         except OSError as err:
             raise OSError(f"out: cannot write {args.out} ({err.strerror or err})") from err
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(strict_json(result, indent=2))
     else:
         print(_summary(result))
     for w in result["warnings"]:

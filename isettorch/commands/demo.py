@@ -10,12 +10,12 @@ camera has no colour: its report has no colour error (``colour_error`` says so) 
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
 
 from .._progress import add_quiet_argument, progress
+from ._outputs import strict_json
 
 #: --size bounds: below 16 px the charts have no patches; above 2048 px the 31-band scenes (2 samples per pixel,
 #: float32: 31 x 4096^2 x 4 B = 2 GB each, four of them) no longer fit a workstation's memory
@@ -123,7 +123,7 @@ def _render(args, cam, config, out, staged) -> int:
             if any(snr["notes"]):
                 entry["gray_patch_snr_notes"] = snr["notes"]
         report["scenes"][name] = entry
-    staged.temporary(out / "report.json").write_text(json.dumps(report, indent=2))
+    staged.temporary(out / "report.json").write_text(strict_json(report, indent=2))
     m = report["scenes"]["macbeth"]
     if "delta_e2000_mean" in m:
         colour = ("- colour error (CIEDE2000, white-patch scaled, vs the true XYZ): "

@@ -7,9 +7,9 @@ classical demosaic, ``--model`` scores a user's own network (see :mod:`isettorch
 from __future__ import annotations
 
 import json
-import math
 
 from .._progress import add_quiet_argument
+from ._outputs import strict_json
 
 # Static (the parser is built without importing torch); tests check they equal isp.evaluation's lists.
 METHOD_NAMES = ("bilinear", "bilinear_colour", "learned", "learned_small", "learned_tiny", "malvar2004", "menon2007",
@@ -50,10 +50,6 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_quiet_argument(p)
     p.set_defaults(func=run)
-
-
-def _finite_or_none(x: float):
-    return x if math.isfinite(x) else None
 
 
 def _check_args(args) -> None:
@@ -126,10 +122,7 @@ def run(args) -> int:
             raise
         raise as_dir_error(err) from err
     if args.json:  # JSON has no inf: an exact image's cpsnr is null beside "exact": true
-        res["mean_cpsnr"] = _finite_or_none(res["mean_cpsnr"])
-        for item in res["images"]:
-            item["cpsnr"] = _finite_or_none(item["cpsnr"])
-        print(json.dumps(res, indent=2, allow_nan=False))
+        print(strict_json(res, indent=2))
         return 0
     noise = (f"  noise sigma {res['noise_sigma']:g} shot {res['noise_shot']:g} seed {res['seed']}"
              if res["noise_sigma"] or res["noise_shot"] else "")

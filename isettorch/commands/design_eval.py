@@ -21,10 +21,10 @@ photograph that sorts before it changes its noise realisation."""
 
 from __future__ import annotations
 
-import json
 import sys
 
 from .._progress import add_quiet_argument
+from ._outputs import strict_json
 
 # Static (the parser is built without importing torch); a test checks it equals isettorch.design's list.
 SHIPPED_NAMES = ("bayer_rgb", "ycmy", "rgbw", "learned")
@@ -70,7 +70,7 @@ def run(args) -> int:
               f"{worst['name']}: {worst['corner_light']:.2f}); their low-light scores measure that falloff as much as "
               f"the sensor: downscale them to compare sensors", file=sys.stderr)
     if args.json:
-        print(json.dumps(res, indent=2))
+        print(strict_json(res, indent=2))
         return 0
     keys = list(res["mean_cpsnr"])
     print(f"design {res['design']}  seed {res['seed']}  crop {res['crop']}  (CPSNR dB / mean dE2000)")

@@ -11,13 +11,14 @@ by ``lens_report`` and named with their option (``isettorch.cli``).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+
+from ._outputs import strict_json
 
 
 def _floats(s: str, what: str) -> list[float]:
-    try:
-        vals = [float(v) for v in s.split(",") if v.strip()]
+    try:  # an empty item is a lost value ('0,,1' dropped it), not nothing
+        vals = [float(v) for v in s.split(",")] if s.strip() else []
     except ValueError:
         raise ValueError(f"{what}: expected comma-separated numbers, got {s!r}") from None
     if not vals:
@@ -34,7 +35,8 @@ def register(sub) -> None:
                    help="fractions in [0, 1] of the largest field angle (default 0,0.7,1)")
     p.add_argument("--wavelengths-nm", default=None,
                    help="wavelengths (nm, > 0; default: the prescription's wavelengths)")
-    p.add_argument("--frequencies-cy-mm", default="20,40,80", help="MTF frequencies (cycles/mm, >= 0)")
+    p.add_argument("--frequencies-cy-mm", default="20,40,80",
+                   help="MTF frequencies (cycles/mm, >= 0; default 20,40,80)")
     p.add_argument("--pupil-samples", type=int, default=128,
                    help="pupil grid for the FFT MTF, 16 to 1024 (fewer samples across the pupil do not give a "
                         "meaningful MTF; default 128, refined automatically for steep wavefronts)")
@@ -42,7 +44,7 @@ def register(sub) -> None:
                    help="the sensor plane of the MTF: the primary wavelength's paraxial focus (default) or the "
                         "file's image surface (where its designer focused it, as OpticStudio evaluates it)")
     p.add_argument("--json", action="store_true", help="print the JSON object only")
-    p.add_argument("--out", default="lens_report", help="folder for the plots (without --json)")
+    p.add_argument("--out", default="lens_report", help="folder for the plots (without --json; default lens_report)")
     p.set_defaults(func=run)
 
 
@@ -62,10 +64,17 @@ def run(args) -> int:
         analysis = LensAnalysis(args.lens, image_plane=args.image_plane)
     except UnicodeDecodeError as err:  # a binary or non-UTF-8 file: name it, not the codec
         raise ValueError(f"lens: {args.lens}: not UTF-8 text ({err.reason} at byte {err.start})") from err
-    report = lens_report(analysis, fields, waves, freqs, pupil_samples=args.pupil_samples)
+    from ..optics.lens.glass import GlassError
+
+    try:
+        report = lens_report(analysis, fields, waves, freqs, pupil_samples=args.pupil_samples)
+    except GlassError as err:  # outside a glass's range: the wavelengths asked for (the file's own are checked)
+        if waves is None:
+            raise
+        raise ValueError(f"--wavelengths-nm: {err}") from err
     waves = list(dict.fromkeys(r["wavelength_nm"] for r in report["rows"]))  # the wavelengths reported
     if args.json:
-        print(json.dumps(report))
+        print(strict_json(report))
         return 0
     print(f"{analysis.prescription.name}: EFL {report['effective_focal_length_mm']:.4f} mm, "
           f"f/{report['f_number']:.4f}, max field {report['max_field_deg']:.3f} deg")

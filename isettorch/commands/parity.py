@@ -31,15 +31,17 @@ follow FORMAT.md (one line on stderr naming the key).
 
 from __future__ import annotations
 
-import json
 import statistics
 import sys
 import time
 from pathlib import Path
 
+from ._outputs import strict_json
+
 TOL = {"oi_photons": 1e-4, "mean_illuminance": 2e-3, "sensor_current": 1e-4, "sensor_volts": 1e-5,
        "sensor_dv": 1.0}
 DV_EXACT_FRACTION = 0.999
+MAX_REPEAT = 1000  # a median of more timings moves by less than the machine's noise
 
 
 def register(sub) -> None:
@@ -287,8 +289,8 @@ def _table(results: list[dict], out) -> None:
 
 
 def run(args) -> int:
-    if args.repeat < 0:
-        raise ValueError(f"--repeat: expected a non-negative count, got {args.repeat}")
+    if not 0 <= args.repeat <= MAX_REPEAT:  # (10^9 timed each stage without end)
+        raise ValueError(f"--repeat: expected a count of timings in [0, {MAX_REPEAT}], got {args.repeat}")
     results = []
     code = 0
     for path in args.cases:
@@ -306,7 +308,7 @@ def run(args) -> int:
             code = 2
     ok = all(r["ok"] for r in results)
     if args.json:
-        print(json.dumps({"cases": results, "ok": ok}, indent=2))
+        print(strict_json({"cases": results, "ok": ok}, indent=2))  # (a NaN error printed a bare NaN)
     else:
         _table(results, sys.stdout)
     if code:

@@ -200,7 +200,10 @@ def run(args) -> int:
     with Outputs(out_dir) as staged, \
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
-            dn, file_cfa, file_blacks = read_frame_data(f)
+            dn, file_cfa, file_blacks, stored_bits = read_frame_data(f)
+            if stored_bits is not None and stored_bits < int(sensor.adc_bits):  # (an 8-bit PNG read as 12-bit DN)
+                raise ValueError(f"RAW: {f}: {stored_bits}-bit samples cannot hold the camera's {int(sensor.adc_bits)}"
+                                 f"-bit DN (a display image, not a raw frame?); give the 16-bit PNG/TIFF or .npy frame")
             # a camera raw's own metadata must be the camera config's: the network, the CFA phase and the black
             # level it is given are the config's (a GRBG DNG through an RGGB config came out grey, exit 0)
             if file_cfa is not None and file_cfa != pattern:

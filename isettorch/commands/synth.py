@@ -21,7 +21,7 @@ def register(sub) -> None:
                         "the manifest)")
     p.add_argument("--shard", type=int, default=0, help="this invocation's part (0-based), with --num-shards")
     p.add_argument("--num-shards", type=int, default=1, help="number of parts the files are dealt into")
-    p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
+    p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes (default 0: the main process)")
     add_quiet_argument(p, "--no-progress")
     p.add_argument("--verify", action="store_true", help="only check the checksums of an existing output")
     p.set_defaults(func=run)

@@ -29,6 +29,7 @@ import hashlib
 import json
 import math
 import os
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -37,6 +38,8 @@ import torch
 from .._checks import dataset_index
 from .camera_pairs import GENERATOR_VERSION, CameraPairDataset, collate_pairs
 from .config import check_integer, merge_config
+
+MAX_SHARD_FILES = 10_000_000  # shard files of one dataset (a typo's count is refused before any work)
 
 __all__ = ["write_dataset", "config_hash", "sha256_file", "verify_dataset", "ShardDataset", "FORMAT_VERSION"]
 
@@ -141,6 +144,14 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
         raise ValueError(f"shard: expected 0 <= shard < num_shards ({num_shards}), got {shard}")
     if not (world_size >= 1 and 0 <= rank < world_size):
         raise ValueError(f"rank: expected 0 <= rank < world_size ({world_size}), got {rank}")
+    size = int(cfg["shard_size"])
+    if size < 1:
+        raise ValueError(f"shard_size: expected a positive number of items per shard, got {size}")
+    n_files = math.ceil(count / size)
+    procs, me = num_shards * world_size, shard * world_size + rank
+    if n_files > MAX_SHARD_FILES:  # (count 1e15 listed every shard in memory before any output: a silent hang)
+        raise ValueError(f"count: {count} items are {n_files} shard files of {size}; at most {MAX_SHARD_FILES} "
+                         f"(raise shard_size, or split the dataset)")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     chash = config_hash(cfg, count)
@@ -165,12 +176,7 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
     if foreign:
         raise ValueError(f"out: {str(out)!r} holds shards made with another config, count or generator version "
                          f"(their sidecars' config_sha256 {foreign[0][:12]}...); use a new folder")
-    size = int(cfg["shard_size"])
-    if size < 1:
-        raise ValueError(f"shard_size: expected a positive number of items per shard, got {size}")
-    n_files = math.ceil(count / size)
-    procs, me = num_shards * world_size, shard * world_size + rank
-    mine = [f for f in range(n_files) if f % procs == me]
+    mine = range(me, n_files, procs)
     todo = [f for f in mine if _shard_complete(out, f, chash) is None]
 
     dtype = torch.float64 if cfg["dtype"] == "float64" else torch.float32
@@ -183,7 +189,7 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
         from .._progress import progress as progress_bar
 
         with progress_bar(total=len(todo), unit="shard", desc=f"synth rank {me}/{procs}", quiet=not progress) as bar:
-            for f, batch in zip(todo, loader):
+            for i, (f, batch) in enumerate(zip(todo, loader)):
                 pt, js = _shard_names(f)
                 _atomic_save(batch, out / pt)
                 rec = {"file": pt, "sha256": sha256_file(out / pt), "first_index": f * size,
@@ -192,6 +198,12 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
                 bar.update(1)
                 if on_shard_written is not None:
                     on_shard_written(f)
+                left = len(todo) - i - 1
+                need, free = left * (out / pt).stat().st_size, shutil.disk_usage(out).free
+                if need > free:  # stop at once, not when the disk is full mid-shard
+                    raise OSError(f"out: the {left} shards left need about {need / 1e9:.3g} GB, {str(out)!r} has "
+                                  f"{free / 1e9:.3g} GB free (the shards written so far are kept; free space or "
+                                  f"lower count)")
     return _write_manifest(out, cfg, chash, count, size, n_files)
 
 

@@ -56,6 +56,7 @@ class FrameData(NamedTuple):
     dn: np.ndarray  # (H, W) float64 DN
     cfa: str | None  # the mosaic's 2x2 pattern, e.g. "RGGB"
     black_level_dn: list[float] | None  # per-channel black levels (DN)
+    stored_bits: int | None = None  # the file's integer sample size (8 for an 8-bit PNG); None for floats and raws
 
 
 def read_frame(path: str | Path) -> np.ndarray:
@@ -113,10 +114,11 @@ def read_frame_data(path: str | Path) -> FrameData:
         raise ValueError(f"{path}: expected a 2-D numeric frame (H, W) in DN, got shape {arr.shape} dtype {arr.dtype}")
     if arr.size == 0:
         raise ValueError(f"{path}: expected a frame with pixels, got shape {arr.shape}")
+    bits = 8 * arr.dtype.itemsize if np.issubdtype(arr.dtype, np.integer) and cfa is None else None
     arr = arr.astype(np.float64)
     if not np.isfinite(arr).all() or arr.min() < 0:
         raise ValueError(f"{path}: expected finite non-negative DN values")
-    return FrameData(arr, cfa, blacks)
+    return FrameData(arr, cfa, blacks, bits)
 
 
 def write_frame(path: str | Path, frame) -> None:
@@ -279,7 +281,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
         for (kind, ms), folder, files in jobs:
             frames = []
             for f in files:
-                arr, cfa, _ = read_frame_data(f)
+                arr, cfa, _, _ = read_frame_data(f)
                 if f.suffix.lower() in RAW_SUFFIXES:
                     frame_cfa.setdefault(cfa, f)
                 if shape is None:

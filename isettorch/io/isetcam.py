@@ -392,8 +392,13 @@ def check_parity_case(case) -> None:
     bits = case_adc_bits(case)
     size = (counts["sensor_rows"], counts["sensor_cols"])
     for key in ("sensor_volts", "sensor_dv", "sensor_signal_current_a"):
-        if key in case and _image(case, key, "[rows, cols]", 2).shape != size:
+        if key not in case:
+            continue
+        a = _image(case, key, "[rows, cols]", 2)
+        if a.shape != size:
             raise ValueError(f"{key}: expected shape {size} (sensor_rows, sensor_cols), got {np.shape(case[key])}")
+        if a.dtype.kind == "f" and not np.isfinite(a).all():  # (a NaN reference scored as a FAIL, exit 1)
+            raise ValueError(f"{key}: expected finite values, got {int((~np.isfinite(a)).sum())} NaN/Inf")
     if bits is not None and "sensor_dv" not in case:
         raise ValueError(f"missing required key 'sensor_dv' (FORMAT.md section 3: every quantized case holds it; "
                          f"sensor_quantization is {_case_string(case, 'sensor_quantization')!r})")

@@ -189,12 +189,22 @@ def load_demosaic_model(path: str | Path, class_path: str | None = None, *, kwar
         cls = getattr(importlib.import_module(mod_name), cls_name)
     except (ImportError, AttributeError) as err:
         raise ValueError(f"model_class: cannot import {class_path!r} ({err})") from err
-    net = cls(**(kwargs or {}))
+    if not isinstance(cls, type):  # ('os:path' is a module: "'module' object is not callable")
+        raise ValueError(f"model_class: {class_path!r} is a {type(cls).__name__}, not a class")
+    try:
+        net = cls(**(kwargs or {}))
+    except Exception as err:  # noqa: BLE001 - the constructor refused the kwargs: a user error, named
+        raise ValueError(f"model_kwargs: {class_path}({kwargs or {}}) failed ({type(err).__name__}: "
+                         f"{str(err).splitlines()[0] if str(err) else ''})") from err
     if not isinstance(net, torch.nn.Module):
         raise ValueError(f"model_class: {class_path!r} does not build a torch.nn.Module")
     if isinstance(state, dict) and "model" in state and isinstance(state["model"], dict):
         state = state["model"]
-    net.load_state_dict(state)
+    try:
+        net.load_state_dict(state)
+    except (RuntimeError, TypeError, AttributeError) as err:  # missing / unexpected keys, shapes, not a dict
+        raise ValueError(f"model: {path.name} does not fit {class_path}({kwargs or {}}): "
+                         f"{' '.join(str(err).split())[:300]}") from err
     return net.to(device=device, dtype=dtype).eval()
 
 
@@ -254,7 +264,8 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
         raise TypeError(f"method: expected a method name or a callable, got {type(method).__name__}")
     if kwargs.get("self_ensemble"):
         if model is None and method not in _LAZY_METHODS:
-            raise ValueError(f"self_ensemble (--self-ensemble): only for the learned method or a DemosaicNet model, "
+            flag = "--dihedral-ensemble" if kwargs["self_ensemble"] == "dihedral" else "--self-ensemble"
+            raise ValueError(f"self_ensemble ({flag}): only for the learned method or a DemosaicNet model, "
                              f"got method {method!r}")
         name += " + self-ensemble" if kwargs["self_ensemble"] in (True, "transpose") else " + dihedral self-ensemble"
     items = load_images(images)
@@ -288,12 +299,19 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
                 ms = 1e3 * (time.perf_counter() - t0)
             except ValueError as err:  # e.g. a learned method on an image under 4 pixels: say which image
                 raise ValueError(f"images: {name_i} ({array.shape[0]} x {array.shape[1]} px): {err}") from err
+            except RuntimeError as err:
+                if model is None:  # the library's own methods: a bug, not the user's input
+                    raise
+                # the user's network failed (a TorchScript error, a shape it cannot take): named, not a traceback
+                raise ValueError(f"model: {name} failed on {name_i} ({array.shape[0]} x {array.shape[1]} px): "
+                                 f"{' '.join(str(err).split())[:300]}") from err
+            label = "model" if model is not None else "method"
             if out.shape != (1, 3) + tuple(truth.shape[-2:]):
-                raise ValueError(f"method: {name} returned shape {tuple(out.shape)} for a mosaic of "
+                raise ValueError(f"{label}: {name} returned shape {tuple(out.shape)} for a mosaic of "
                                  f"{tuple(raw.shape)}; expected (1, 3, H, W)")
             out = out.to("cpu", torch.float64)
             if not torch.isfinite(out).all():  # clipping would keep a NaN and the score would be NaN: say so
-                raise ValueError(f"method: {name} returned {int((~torch.isfinite(out)).sum())} NaN/inf values for "
+                raise ValueError(f"{label}: {name} returned {int((~torch.isfinite(out)).sum())} NaN/inf values for "
                                  f"{name_i}; expected a finite image")
             # exact: every scored pixel within the compute dtype's rounding (EXACT_ULPS ulps of 1) of the truth as the
             # method received it (code / 255 in dtype); a float32 method reproducing a flat mid-grey scored 140-150 dB

@@ -111,6 +111,17 @@ def test_ranks_and_shards_split_the_files(reference, tmp_path, monkeypatch):
     assert json.loads((tmp_path / "manifest.json").read_text())["complete"]
 
 
+def test_a_dataset_the_disk_cannot_hold_stops_after_its_first_shard(tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**6, 10**6 - 100, 100))  # 100 bytes free
+    with pytest.raises(OSError, match=r"out: the 3 shards left need about"):
+        write_dataset(CFG, tmp_path, COUNT, progress=False)
+    assert sorted(p.name for p in tmp_path.glob("*.pt")) == ["shard-00000.pt"]  # the first one is kept
+
+
 def test_config_errors(tmp_path):
     with pytest.raises(ValueError, match="scene.colour"):
         write_dataset({"scene": {"colour": 1}}, tmp_path, 2, progress=False)

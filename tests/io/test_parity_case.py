@@ -120,6 +120,24 @@ def test_optional_keys_stay_optional(base):
 
 
 @needs_case
+def test_reference_images_must_be_finite(base):
+    # a NaN reference scored as a stage FAIL (exit 1) and printed a bare NaN in --json
+    volts = base["sensor_volts"].astype(np.float64).copy()
+    volts[0, 0] = np.nan
+    raises(variant(base, sensor_volts=volts), "sensor_volts: expected finite values, got 1 NaN/Inf")
+
+
+def test_cli_json_has_no_bare_nan():
+    import json
+
+    from isettorch.commands._outputs import strict_json
+
+    text = strict_json({"err": float("nan"), "rows": [1.0, float("inf"), {"x": -float("inf")}]})
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(f"bare {c}")) == {"err": None,
+                                                                                  "rows": [1.0, None, {"x": None}]}
+
+
+@needs_case
 def test_sensor_dv_required_exactly_when_quantized(base):
     dv = np.floor(base["sensor_volts"].astype(np.float64) * 1024 + 0.5).astype(np.float32)
     q10 = dict(sensor_quantization=np.str_("10"), sensor_quantization_bits=np.int64(10))
