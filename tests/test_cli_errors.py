@@ -49,12 +49,14 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                   (["{cap}", "-q", "--out", "{cap}/capture.yaml"], "--out"),
                   (["{cap}", "-q", "--out", "{cap}/dark_1ms/frame_001.npy"], "--out"),
                   (["{raw}/frame.npy", "--cfa", "nope"], "--cfa"),
-                  (["{raw}/frame.npy", "--black-level", "abc"], "--black-level")],
+                  (["{raw}/frame.npy", "--black-level", "abc"], "--black-level"),
+                  (["{raw}/frame.npy"], "DIR: {raw}/frame.npy: only")],  # (named 'raw', the library's argument)
     "demo": [(["--size", "8", "--out", "{tmp}/out"], "--size"),
              (["--config", "{tmp}/no_such.yaml", "--out", "{tmp}/out"], "--config"),
              (["--out", "{garbage}"], "--out"), (["--out", "{garbage}/sub"], "--out"),
              (["--seed", "-1", "--out", "{tmp}/out"], "--seed"), (["--seed", "18446744073709551616"], "--seed"),
-             (["--seed", "1.5"], "--seed"), (["--size", "1000000000", "--out", "{tmp}/out"], "--size")],
+             (["--seed", "1.5"], "--seed"), (["--size", "1000000000", "--out", "{tmp}/out"], "--size"),
+             (["--config", "{tmp}", "--out", "{tmp}/out"], "--config {tmp}: camera config")],  # (a stray 'path:')
     "demosaic-eval": [([MISSING], "DIR"), (["{broken}"], "DIR: cannot read b.png"),
                       (["{images}", "--noise-sigma", "-0.1"], "--noise-sigma"),
                       (["{images}", "--noise-shot", "nan"], "--noise-shot"),
@@ -142,7 +144,9 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
               (["--out", "{garbage}", "--count", "1"], "--out"),
               (["--out", "{tmp}/out", "--count", "1", "--num-shards", "0"], "--num-shards"),
               (["--out", "{tmp}/out", "--count", "abc"], "--count"),
-              (["--out", "{tmp}/out", "--count", "1000000000000000"], "--count")],  # (a silent hang)
+              (["--out", "{tmp}/out", "--count", "1000000000000000"], "--count"),  # (a silent hang)
+              (["--config", "{unknownyaml}", "--out", "{tmp}/out", "--count", "1"],
+               "--config: {unknownyaml}: foo: unknown config key")],
     "view": [(["--port", "70000", "--no-browser"], "--port"), (["--size", "4", "--no-browser"], "--size"),
              (["--size", "1000000", "--no-browser"], "--size"), (["--seed", "-1", "--no-browser"], "--seed"),
              (["--config", "{binyaml}", "--no-browser"], "--config"),
@@ -202,6 +206,7 @@ def places(tmp_path) -> dict:
     (tmp_path / "bin.yaml").write_bytes(b"name: \x80\xff\n")
     (tmp_path / "emptylist.yaml").write_text("[]\n")
     (tmp_path / "list.yaml").write_text("[1, 2]\n")
+    (tmp_path / "unknown.yaml").write_text("foo: 1\n")
     cap = tmp_path / "cap"
     (cap / "dark_1ms").mkdir(parents=True)
     (cap / "flat_1ms").mkdir()
@@ -216,7 +221,7 @@ def places(tmp_path) -> dict:
             "cam": str(tmp_path / "cam.yaml"), "darkcam": str(tmp_path / "darkcam.yaml"),
             "badyaml": str(tmp_path / "bad.yaml"), "joint": str(PRETRAINED["joint_denoise"]), "cap": str(cap),
             "binyaml": str(tmp_path / "bin.yaml"), "emptylist": str(tmp_path / "emptylist.yaml"),
-            "listyaml": str(tmp_path / "list.yaml")}
+            "listyaml": str(tmp_path / "list.yaml"), "unknownyaml": str(tmp_path / "unknown.yaml")}
 
 
 def _main(argv: list[str]) -> int:

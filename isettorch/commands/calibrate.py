@@ -90,6 +90,8 @@ def _single(args) -> int:
         res = estimate_poisson_gaussian(data, cfa=cfa, black_level_dn=black, white_level_dn=white)
     except ValueError as err:  # the library names the CFA's cell ("cell: unknown CFA letter"): here it is --cfa
         head, sep, rest = str(err).partition(":")
+        if head == "raw":  # the frame itself (too small, too flat): the file given as DIR
+            raise ValueError(f"DIR: {args.directory}:{rest}") from err
         if args.cfa is None or not sep or head not in ("cell", "cfa", "pattern"):
             raise
         raise ValueError(f"cfa: {args.cfa!r}:{rest}") from err

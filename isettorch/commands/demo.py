@@ -64,7 +64,7 @@ def run(args) -> int:
     try:  # a user's config error is one line and exit code 2 (isettorch.cli), not a traceback
         cam = Camera.from_config(config)
     except (ValueError, TypeError, OSError, yaml.YAMLError) as err:
-        raise ValueError(f"--config {config}: {err}") from err
+        raise ValueError(f"--config {config}: {str(err).removeprefix('path: ')}") from err  # (the path is named)
     with Outputs(out) as staged:  # on an error: no files, and no folder made for them
         return _render(args, cam, config, out, staged)
 

@@ -62,7 +62,15 @@ def run(args) -> int:
     if args.config:  # UTF-8 YAML holding a mapping, or empty (the defaults); load_config reports a missing file
         check_yaml_mapping(args.config, "config", "a mapping of settings (keys of "
                            "isettorch.data.config.SYNTH_DEFAULTS)", empty_ok=True)
-    cfg = load_config(args.config) if args.config else None
+    cfg = None
+    if args.config:  # its keys and values, named with the file ('foo: unknown config key' did not say which)
+        from ..data.config import merge_config
+
+        try:
+            cfg = load_config(args.config)
+            merge_config(cfg)
+        except ValueError as err:
+            raise ValueError(f"config: {args.config}: {err}") from err
     check_dir(args.out, "out")  # a file, or a place without write permission: named before any work
     manifest = write_dataset(cfg, args.out, args.count, shard=args.shard, num_shards=args.num_shards,
                              workers=args.workers, progress=not args.quiet)
