@@ -49,6 +49,13 @@ __all__ = ["LensOptics", "render_brute_force"]
 class LensOptics(nn.Module):
     """Shift-variant, wavelength-dependent optics from a lens prescription.
 
+    Known limits of the PSF kernels (measured 2026-11-30, benchmarks/LENS.md): they are sampled from a bilinear
+    interpolation of the pupil-autocorrelation OTF table, which adds ghost light (kernel L1 error 2-4 % at 64 pupil
+    samples, about 1 % at 128), their window is periodic (1-2 % of the light wraps to the opposite edge), a kernel
+    rotated to another azimuth differs from the exact one by up to a few % (a uniform scene reads +2 % at the axis
+    pixel of an odd-sized image), and PSFs are interpolated linearly between field heights (coarsest at the field's
+    edge). Raise ``pupil_samples`` and ``field_samples`` for PSF-critical work.
+
     Args:
         lens: a :class:`Prescription`, ``.zmx``/``.yaml`` path or bundled lens name.
         field_samples: radial field heights at which PSFs are computed (accuracy knob).
