@@ -33,7 +33,25 @@ def _config_loader():
         tag = "tag:yaml.org,2002:float"
 
         class ConfigLoader(yaml.SafeLoader):
-            """SafeLoader (no object construction) reading YAML 1.2 floats such as ``1e-2`` as floats."""
+            """SafeLoader (no object construction) reading YAML 1.2 floats such as ``1e-2`` as floats, and refusing
+            a key given twice in one mapping (PyYAML keeps the last: a second ``sensor:`` section replaced the first
+            without a word)."""
+
+            def construct_mapping(self, node, deep=False):
+                seen = set()
+                for key_node, _ in node.value:
+                    if key_node.tag == "tag:yaml.org,2002:merge":  # '<<': merged keys may repeat (YAML merge)
+                        continue
+                    key = self.construct_object(key_node, deep=True)
+                    try:
+                        duplicate = key in seen
+                        seen.add(key)
+                    except TypeError:  # an unhashable key: PyYAML's own error follows
+                        continue
+                    if duplicate:
+                        raise yaml.constructor.ConstructorError("while constructing a mapping", node.start_mark,
+                                                                f"found the key {key!r} twice", key_node.start_mark)
+                return super().construct_mapping(node, deep)
 
         # a copy of SafeLoader's resolvers with the float one replaced in place (same order of precedence)
         ConfigLoader.yaml_implicit_resolvers = {

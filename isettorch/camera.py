@@ -59,7 +59,9 @@ class Camera(nn.Module):
         crop_to_sensor: compute only the part of the optical image the sensor sees (default True). The result
             agrees with the full computation within the optics' ``psf_tolerance`` (PSF energy beyond the margin;
             measured 6e-4 of the maximum at the default 1e-3, and exactly for ISETCam padding), see
-            :meth:`sensor_window`.
+            :meth:`sensor_window`. That is the noise-free signal: with Poisson shot noise the same seed gives
+            another noise draw (``torch.poisson`` advances the generator by an amount that depends on the signal, so
+            the cropped and full runs draw differently), a draw of the same distribution.
         sensor_window_margin: OI samples kept beyond the sensor footprint (plus the pre-blur reach).
 
     Example:
@@ -501,6 +503,10 @@ def build_camera(cfg: dict) -> Camera:
     for section in ("optics", "sensor"):
         if section not in cfg:
             raise ValueError(f"config: missing section {section!r} (sections: {list(CONFIG_SECTIONS)})")
+    for section in ("optics", "sensor", "isp", "camera"):  # (a list, 'sensor: []', built the defaults silently)
+        if cfg.get(section) is not None and not isinstance(cfg[section], dict):
+            raise ValueError(f"{section}: expected a mapping of settings (or nothing, for the defaults), got "
+                             f"{type(cfg[section]).__name__} {cfg[section]!r}")
     cam_cfg = cfg.get("camera") or {}
     _check_keys(cam_cfg, CAMERA_KEYS, "camera")
     from .optics.factory import build_optics  # every optics type (isettorch.optics.factory)

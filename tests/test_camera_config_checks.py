@@ -282,3 +282,16 @@ def test_yaml_scientific_notation_is_a_number(tmp_path):
     path.write_text("sensor: {rows: 16, cols: 16, cds: 'no'}\n")
     with pytest.raises(TypeError, match=r"sensor\.cds must be true or false"):
         Sensor.from_config(path)
+
+
+def test_a_section_given_twice_or_as_a_list_is_refused(tmp_path):
+    from isettorch.camera import Camera
+
+    dup = tmp_path / "dup.yaml"  # (PyYAML kept the second sensor: imx363, without a word)
+    dup.write_text("optics: {type: diffraction_limited}\nsensor: {preset: isetcam_default}\nsensor: {preset: imx363}\n")
+    with pytest.raises(Exception, match="found the key 'sensor' twice"):
+        Camera.from_config(str(dup))
+    with pytest.raises(ValueError, match="sensor: expected a mapping"):  # (a bare Sensor(), silently)
+        Camera.from_config({"optics": {"type": "diffraction_limited"}, "sensor": []})
+    with pytest.raises(ValueError, match="isp: expected a mapping"):
+        Camera.from_config({"optics": {"type": "diffraction_limited"}, "sensor": {}, "isp": "malvar"})
