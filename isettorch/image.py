@@ -347,7 +347,8 @@ class SpectralImage:
         f = self.factors
         w = self.wavelengths_nm
         if not validate and isinstance(w, torch.Tensor) and w.dtype == f.dtype and w.device == f.device \
-                and w.dim() == 1:
+                and w.dim() == 1 and w.numel() == getattr(f, "num_wavelengths", w.numel()):
+            # (the length is checked even here: replace(wavelengths_nm=16 bands) on 31-band factors was kept)
             # trusted internal construction (replace, optics output): the grid was checked when first built
             for name in self._batch_fields:
                 v = getattr(self, name)
@@ -577,8 +578,12 @@ class SpectralImage:
 
     def mean_spectrum(self, rows: slice | None = None, cols: slice | None = None) -> torch.Tensor:
         """Mean photons of a region [B, L] (rows/cols are slices; default the whole image)."""
-        r = rows or slice(None)
-        c = cols or slice(None)
+        for name, s in (("rows", rows), ("cols", cols)):  # (row 0 was the whole image; an int dropped a dimension)
+            if s is not None and not isinstance(s, slice):
+                raise TypeError(f"{name}: expected a slice (e.g. slice(3, 4) for one row) or None, got "
+                                f"{type(s).__name__} {s!r}")
+        r = slice(None) if rows is None else rows
+        c = slice(None) if cols is None else cols
         f = self.factors
         if isinstance(f, SpectralFactors) and self.__dict__.get("_photons") is None:
             return (f.maps[:, :, r, c].mean(dim=(-2, -1))[:, :, None] * f.spectra).sum(dim=1)

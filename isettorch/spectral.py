@@ -276,7 +276,7 @@ def _cached_on_grid(kind: str, arg, grid: tuple, dtype: torch.dtype, device: str
         src, vals = _native_illuminant(arg)
         if arg in _FLUORESCENT:  # line spectra: the power in each sample's band, not the value at its centre
             # (CIE 015 tabulates F1-F12 at 5 nm; point samples at 10 nm miss the 435 and 545 nm mercury lines:
-            # F2's white 0.018 off its CIE chromaticity, F11's 0.024; an audit of 2026-11-30)
+            # F2's white 0.024 from its CIE chromaticity in xy, F11's 0.029; an audit of 2026-11-30)
             if dst.numel() == src.size and np.allclose(dst.numpy(), src, rtol=0, atol=1e-9):
                 return torch.from_numpy(vals).to(dtype=dtype, device=device)  # the table's own grid: the table
             out = band_average(torch.from_numpy(vals)[None], torch.from_numpy(src), dst)[0]
@@ -297,8 +297,15 @@ def band_average(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tenso
     dst = check_wavelengths(torch.as_tensor(dst_nm), "dst_nm").to(values.dtype)
     if values.dim() != 2 or values.shape[-1] != src.numel():
         raise ValueError(f"values: expected [K, {src.numel()}] on src_nm, got {tuple(values.shape)}")
-    half = 0.5 * wavelength_weights(dst).to(values.dtype)
-    lo, hi = dst - half, dst + half
+    # the bands tile the grid: edges at the midpoints between samples, the end samples' half a step beyond them (each
+    # band as wide as its wavelength_weights). A band of that width centred on its sample overlapped its neighbour on
+    # one side and left a gap on the other on a non-uniform grid: a line in the gap was lost (F11 -2.1 % of its power)
+    if dst.numel() == 1:
+        lo, hi = dst - 0.5, dst + 0.5
+    else:
+        mid = 0.5 * (dst[1:] + dst[:-1])
+        lo = torch.cat([dst[:1] - 0.5 * (dst[1] - dst[0]), mid])
+        hi = torch.cat([mid, dst[-1:] + 0.5 * (dst[-1] - dst[-2])])
     seg = src[1:] - src[:-1]
     slope = (values[:, 1:] - values[:, :-1]) / seg
     cum = torch.cat([torch.zeros_like(values[:, :1]),

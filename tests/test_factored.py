@@ -185,3 +185,15 @@ def test_a_factored_scene_read_densely_still_moves_and_detaches():
     assert moved.is_factored and moved.photons.dtype == torch.float32
     torch.testing.assert_close(moved.photons.double(), dense, rtol=1e-6, atol=0)
     assert sc.detach().is_factored and torch.equal(sc.detach().photons, dense)
+
+
+def test_a_factored_scene_keeps_its_grid_length_and_regions_are_slices():
+    w31 = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    maps = torch.rand(1, 1, 4, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    s = Scene.from_factors(maps[0], torch.ones(1, 31, dtype=torch.float64), w31, hfov_deg=10.0)
+    with pytest.raises(ValueError, match="expected 31 wavelengths"):  # (16 bands on 31-band spectra were kept)
+        s.replace(wavelengths_nm=torch.arange(400.0, 701.0, 20.0, dtype=torch.float64))
+    # a region is slices: row 0 is not the whole image (an int 0 was read as 'all rows', 3 dropped a dimension)
+    torch.testing.assert_close(s.mean_spectrum(slice(0, 1)), maps[0, :, 0].mean().expand(1, 31))
+    with pytest.raises(TypeError, match="rows: expected a slice"):
+        s.mean_spectrum(0)
