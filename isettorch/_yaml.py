@@ -37,21 +37,27 @@ def _config_loader():
             a key given twice in one mapping (PyYAML keeps the last: a second ``sensor:`` section replaced the first
             without a word)."""
 
-            def construct_mapping(self, node, deep=False):
-                seen = set()
-                for key_node, _ in node.value:
-                    if key_node.tag == "tag:yaml.org,2002:merge":  # '<<': merged keys may repeat (YAML merge)
-                        continue
-                    key = self.construct_object(key_node, deep=True)
-                    try:
-                        duplicate = key in seen
-                        seen.add(key)
-                    except TypeError:  # an unhashable key: PyYAML's own error follows
-                        continue
-                    if duplicate:
-                        raise yaml.constructor.ConstructorError("while constructing a mapping", node.start_mark,
-                                                                f"found the key {key!r} twice", key_node.start_mark)
-                return super().construct_mapping(node, deep)
+            def flatten_mapping(self, node):
+                # each mapping's own keys, once and before YAML merge keys ('<<') are folded in: a merged node is
+                # rewritten in place, its merged and own keys side by side (valid YAML, the own ones win)
+                checked = self.__dict__.setdefault("_checked_nodes", set())
+                if id(node) not in checked:
+                    checked.add(id(node))
+                    seen = set()
+                    for key_node, _ in node.value:
+                        if key_node.tag in ("tag:yaml.org,2002:merge", "tag:yaml.org,2002:value"):
+                            continue
+                        key = self.construct_object(key_node, deep=True)
+                        try:
+                            duplicate = key in seen
+                            seen.add(key)
+                        except TypeError:  # an unhashable key: PyYAML's own error follows
+                            continue
+                        if duplicate:
+                            raise yaml.constructor.ConstructorError(
+                                "while constructing a mapping", node.start_mark, f"found the key {key!r} twice",
+                                key_node.start_mark)
+                super().flatten_mapping(node)
 
         # a copy of SafeLoader's resolvers with the float one replaced in place (same order of precedence)
         ConfigLoader.yaml_implicit_resolvers = {

@@ -291,6 +291,9 @@ def test_a_section_given_twice_or_as_a_list_is_refused(tmp_path):
     dup.write_text("optics: {type: diffraction_limited}\nsensor: {preset: isetcam_default}\nsensor: {preset: imx363}\n")
     with pytest.raises(Exception, match="found the key 'sensor' twice"):
         Camera.from_config(str(dup))
+    # YAML merge keys are not duplicates: an anchored mapping overriding a key it merged, merged again
+    merged = "defaults: &d {gain: 1}\npresets:\n  p1: &p1\n    <<: *d\n    gain: 2\np2:\n  <<: *p1\n"
+    assert load_yaml(merged) == {"defaults": {"gain": 1}, "presets": {"p1": {"gain": 2}}, "p2": {"gain": 2}}
     with pytest.raises(ValueError, match="sensor: expected a mapping"):  # (a bare Sensor(), silently)
         Camera.from_config({"optics": {"type": "diffraction_limited"}, "sensor": []})
     with pytest.raises(ValueError, match="isp: expected a mapping"):

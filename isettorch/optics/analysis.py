@@ -13,11 +13,19 @@ from .._checks import as_tensor, check_wavelengths, is_integer, is_real
 __all__ = ["psf", "lsf", "mtf", "encircled_energy", "plot_psf", "plot_lsf", "plot_mtf", "plot_encircled_energy"]
 
 
-def _check_grid(spacing_m, size: int) -> None:
-    """A sampling grid: a positive finite spacing (0 or NaN gave NaN, a negative one a mirrored curve) and a whole
-    number of samples >= 2."""
+def _spacing(spacing_m) -> float:
+    """A sample spacing (m): a positive finite number or one-value tensor (0 or NaN gave NaN, a negative one a
+    mirrored curve), as a float."""
+    if isinstance(spacing_m, torch.Tensor) and spacing_m.numel() == 1:  # e.g. an optical image's sample_spacing_m
+        spacing_m = float(spacing_m)
     if not (is_real(spacing_m) and spacing_m > 0):
         raise ValueError(f"spacing_m: expected a finite spacing > 0 (m), got {spacing_m!r}")
+    return float(spacing_m)
+
+
+def _check_grid(spacing_m, size: int) -> None:
+    """A sampling grid: a positive finite spacing (:func:`_spacing`) and a whole number of samples >= 2."""
+    _spacing(spacing_m)
     if not (is_integer(size) and size >= 2):
         raise ValueError(f"size: expected a whole number of samples >= 2, got {size!r}")
 
@@ -78,8 +86,7 @@ def encircled_energy(psf_img: torch.Tensor, spacing_m: float, radii_m) -> torch.
 
     Counts whole samples whose centre lies within the radius.
     """
-    if not (is_real(spacing_m) and spacing_m > 0):  # (0 gave 1 at every radius)
-        raise ValueError(f"spacing_m: expected a finite spacing > 0 (m), got {spacing_m!r}")
+    spacing_m = _spacing(spacing_m)  # (0 gave 1 at every radius)
     h, w = psf_img.shape[-2:]
     yy = (torch.arange(h, dtype=psf_img.dtype) - h // 2)[:, None] * spacing_m
     xx = (torch.arange(w, dtype=psf_img.dtype) - w // 2)[None, :] * spacing_m

@@ -122,8 +122,11 @@ class WavefrontOptics(ShiftInvariantLens):
     doubled, up to ``max_pupil_samples``) until neighbouring samples differ by at most ``max_step_waves``. At f/2
     and 550 nm with 0.5 um of defocus (``c_2^0``), against a 512-sample pupil FFT, the line spread's L1 error is
     0.050 at 64 samples (0.20 waves per sample; 3.7 % of the light beyond 25 um, 0.7 % in truth), 0.008 at 128
-    (0.10 waves, the default criterion) and 0.002 at 256 (an audit of 2026-11-30). The cost grows as the square
-    of the samples: a 31-band 128 x 128 scene took 0.6 s at 64 samples, 1.3 s at 256.
+    (0.10 waves, the default criterion) and 0.002 at 256 (an audit of 2026-11-30). The cost grows about as the square
+    of the samples: a 31-band 128 x 128 scene took 0.14-0.22 s at 64 samples and 1.9-2.0 s at 256 on one CPU thread
+    (0.53 and 2.55 s on two). A fixed optics' OTF is cached; with ``learn_zernike`` it is recomputed every forward,
+    and a grid that doubles as the coefficients grow changes the OTF by a step (L1 about 0.04): for training, fix
+    the grid (``max_pupil_samples = pupil_samples``, at the size the expected aberrations need).
 
     Args:
         zernike_um: coefficients ``[J]`` or ``[B, J]`` (um); ``j = 4`` is defocus, ``j = 12`` primary spherical.
@@ -175,8 +178,8 @@ class WavefrontOptics(ShiftInvariantLens):
         self.register_buffer("defocus_diopters", dd.detach().clone())
         if not isinstance(pupil_samples, int) or pupil_samples < 8 or pupil_samples % 2:
             raise ValueError(f"pupil_samples: expected an even int >= 8, got {pupil_samples!r}")
-        if not isinstance(max_pupil_samples, int) or max_pupil_samples < pupil_samples:
-            raise ValueError(f"max_pupil_samples: expected an int >= pupil_samples ({pupil_samples}), got "
+        if not isinstance(max_pupil_samples, int) or max_pupil_samples < pupil_samples or max_pupil_samples % 2:
+            raise ValueError(f"max_pupil_samples: expected an even int >= pupil_samples ({pupil_samples}), got "
                              f"{max_pupil_samples!r}")
         if not (is_real(max_step_waves) and 0 < max_step_waves <= 0.25):
             raise ValueError(f"max_step_waves: expected a number in (0, 0.25] (waves between pupil samples), got "
@@ -336,7 +339,6 @@ class WavefrontOptics(ShiftInvariantLens):
             p = self.pupil_samples
             if step > self.max_step_waves:
                 p = min(p * 2 ** math.ceil(math.log2(step / self.max_step_waves)), self.max_pupil_samples)
-                p += p % 2
                 step = self._step_waves(z[i:i + 1], w, p)[0]
             if step > 0.25:
                 warnings.warn(f"WavefrontOptics: the wavefront changes by {step:.2f} waves between pupil samples at "

@@ -173,6 +173,8 @@ def test_analysis_helpers_refuse_bad_grids():
         analysis.encircled_energy(img, 0.0, [1e-6])
     with pytest.raises(ValueError, match="radii_m"):  # (0)
         analysis.encircled_energy(img, 1e-6, [-1e-6])
+    # a one-value tensor spacing (an optical image's sample_spacing_m) is a spacing
+    assert analysis.lsf(optics, w, torch.tensor([1e-6]), size=8).shape == (1, 1, 8)
     with pytest.raises(ValueError, match="pupil_diameter_m"):  # (-3 mm gave the 3 mm pupil's value)
         defocus_diopters_to_zernike_um(1.0, -3e-3)
     with pytest.raises(ValueError, match="along"):  # (a bare KeyError)

@@ -202,8 +202,9 @@ def test_refined_grid_per_item_and_bad_refinement_arguments():
     for i in range(2):
         one = WavefrontOptics(z[i], f_number=2.0, focal_length_m=F)(scene)
         torch.testing.assert_close(both.photons[i:i + 1], one.photons, rtol=1e-10, atol=1e-14)
-    with pytest.raises(ValueError, match="max_pupil_samples"):
-        WavefrontOptics(None, pupil_samples=64, max_pupil_samples=32)
+    for bad in (32, 101):  # below pupil_samples; odd (101 gave a 102-sample grid)
+        with pytest.raises(ValueError, match="max_pupil_samples"):
+            WavefrontOptics(None, pupil_samples=64, max_pupil_samples=bad)
     with pytest.raises(ValueError, match="max_step_waves"):
         WavefrontOptics(None, max_step_waves=0.5)
     with pytest.warns(UserWarning, match="max_pupil_samples"):
