@@ -442,9 +442,14 @@ def _build_sensor(cfg: dict) -> nn.Module:
     _check_keys(cfg, keys, "sensor")
     check_sensor_values(cfg)
     if isinstance(cfg.get("exposure_s"), list):
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in cfg["exposure_s"]):
+            raise ValueError(f"sensor.exposure_s: expected a number or a list of numbers (s), got "
+                             f"{cfg['exposure_s']!r}")  # (torch's "new(): invalid data type 'str'")
         cfg["exposure_s"] = torch.tensor(cfg["exposure_s"])
     if preset is None:
         return Sensor(**cfg)
+    if not isinstance(preset, str):  # (5 was reported as an unknown key)
+        raise ValueError(f"sensor.preset: expected a preset name (one of {sorted(PRESETS)}), got {preset!r}")
     if preset not in PRESETS:
         raise _unknown(preset, PRESETS, "sensor.preset")
     return Sensor.preset(preset, **cfg)

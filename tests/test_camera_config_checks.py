@@ -298,3 +298,11 @@ def test_a_section_given_twice_or_as_a_list_is_refused(tmp_path):
         Camera.from_config({"optics": {"type": "diffraction_limited"}, "sensor": []})
     with pytest.raises(ValueError, match="isp: expected a mapping"):
         Camera.from_config({"optics": {"type": "diffraction_limited"}, "sensor": {}, "isp": "malvar"})
+
+
+def test_sensor_values_of_the_wrong_type_are_named():
+    base = {"optics": {"type": "diffraction_limited"}}
+    with pytest.raises(ValueError, match="sensor.exposure_s: expected a number or a list of numbers"):
+        Camera.from_config({**base, "sensor": {"exposure_s": [0.01, "a"]}})
+    with pytest.raises(ValueError, match="sensor.preset: expected a preset name"):
+        Camera.from_config({**base, "sensor": {"preset": 5}})
