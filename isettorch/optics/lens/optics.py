@@ -49,12 +49,13 @@ __all__ = ["LensOptics", "render_brute_force"]
 class LensOptics(nn.Module):
     """Shift-variant, wavelength-dependent optics from a lens prescription.
 
-    Known limits of the PSF kernels (measured 2026-11-30, benchmarks/LENS.md): they are sampled from a bilinear
-    interpolation of the pupil-autocorrelation OTF table, which adds ghost light (kernel L1 error 2-4 % at 64 pupil
-    samples, about 1 % at 128), their window is periodic (1-2 % of the light wraps to the opposite edge), a kernel
-    rotated to another azimuth differs from the exact one by up to a few % (a uniform scene reads +2 % at the axis
-    pixel of an odd-sized image), and PSFs are interpolated linearly between field heights (coarsest at the field's
-    edge). Raise ``pupil_samples`` and ``field_samples`` for PSF-critical work.
+    The PSF kernels (:func:`~isettorch.optics.lens.psf.psf_on_grid`) are the Fourier transform of the pupil's
+    one-period PSF, rotated exactly to each azimuth and cut to the kernel's window (spot radius + 3 lambda N; the
+    1-2 % of the light beyond it is left out and the kernel renormalised). Against a direct transform of a 256-sample
+    pupil (Cooke triplet, 1 um pitch, 2026-11-30): kernel L1 error 1.8-2.2 % at 64 pupil samples, 0.7-0.8 % at 128
+    (4.5-5.1 % and 3.3-3.9 % when the OTF table was interpolated bilinearly, which replicated the PSF). PSFs are
+    interpolated linearly between field heights, coarsest at the field's edge (benchmarks/LENS.md): raise
+    ``pupil_samples`` and ``field_samples`` for PSF-critical work.
 
     Args:
         lens: a :class:`Prescription`, ``.zmx``/``.yaml`` path or bundled lens name.

@@ -14,50 +14,87 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 
 from .analysis import LensAnalysis
 
-__all__ = ["otf_sampler", "psf_on_grid", "chief_ray_heights_mm", "spot_radius_mm"]
+__all__ = ["TableOTF", "otf_sampler", "psf_on_grid", "chief_ray_heights_mm", "spot_radius_mm"]
 
 
-def otf_sampler(analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int = 64,
-                max_samples: int = 256):
-    """A function ``(nu_t, nu_s) -> complex OTF`` (cycles/mm along the field direction and across it), standard
-    convention OTF(nu) = integral psf(x) exp(-2 pi i nu x) dx, zero beyond the pupil's autocorrelation support."""
-    with torch.no_grad():
-        otf, pf = analysis.otf_grid(field, wavelength_nm, samples, max_samples=max_samples)
+class TableOTF:
+    """The OTF of one (field, wavelength) of a lens: ``(nu_t, nu_s) -> complex OTF`` (cycles/mm along the field
+    direction and across it), standard convention OTF(nu) = integral psf(x) exp(-2 pi i nu x) dx, zero beyond the
+    pupil's autocorrelation support.
+
+    :meth:`LensAnalysis.otf_grid` gives the OTF at integer pupil shifts (the autocorrelation of the sampled pupil,
+    ``[2N, 2N]``); between them it is the trigonometric interpolant, i.e. the Fourier transform of the one period of
+    PSF that table is the DFT of (``N`` pupil samples: a window of ``N lambda N_f``). Bilinear interpolation of the
+    table (before 2026-11-30) was the transform of that PSF repeated every ``N lambda N_f`` (the pupil's samples act
+    as a grating): ghost light, a kernel L1 error of 2-4 % at 64 samples on the Cooke triplet.
+    """
+
+    def __init__(self, analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int = 64,
+                 max_samples: int = 256):
+        with torch.no_grad():
+            otf, pf = analysis.otf_grid(field, wavelength_nm, samples, max_samples=max_samples)
         n = pf["samples"]
         cut_t, cut_s = (float(c) for c in pf["cutoff_cy_mm"])
         # orientation: pupil +y maps to image-space direction cosine M with the sign of dM/dpy
         sign_t, sign_s = pf["orientation"]
-    grid = torch.fft.fftshift(otf)  # DC at [n, n] of a [2n, 2n] grid
-    img = torch.stack([grid.real, grid.imag])[None].to(torch.float64)  # [1, 2, 2n, 2n]
+        self.n, self.cut_t, self.cut_s, self.sign_t, self.sign_s = n, cut_t, cut_s, sign_t, sign_s
+        # otf[k] = sum_m q[m] exp(+2 pi i k m / 2N) (otf_grid's table is an inverse DFT): q, at signed m
+        q = torch.fft.fft2(otf.to(torch.complex128)) / (2 * n) ** 2
+        m = torch.fft.fftfreq(2 * n, d=1.0 / (2 * n), dtype=torch.float64)  # 0, 1, ..., N-1, -N, ..., -1
+        mt, ms = torch.meshgrid(m, m, indexing="ij")  # rows: tangential shift, columns: sagittal
+        # k_t = sign_t nu_t N / cut_t, so k_t m_t / 2N = nu_t T with T = sign_t m_t / (2 cut_t) (mm); S likewise
+        self.q = q.reshape(-1)
+        self.t_mm = (sign_t * mt / (2 * cut_t)).reshape(-1)
+        self.s_mm = (sign_s * ms / (2 * cut_s)).reshape(-1)
 
-    def sample(nu_t: torch.Tensor, nu_s: torch.Tensor) -> torch.Tensor:
-        kt = sign_t * nu_t / cut_t * n
-        ks = sign_s * nu_s / cut_s * n
-        inside = (kt.abs() < n) & (ks.abs() < n)
-        gy = (kt + n) / (2 * n - 1) * 2 - 1
-        gx = (ks + n) / (2 * n - 1) * 2 - 1
-        g = torch.stack([gx, gy], -1).reshape(1, 1, -1, 2).to(torch.float64)
-        v = F.grid_sample(img, g, mode="bilinear", padding_mode="zeros", align_corners=True)[0, :, 0]
-        out = torch.complex(v[0], v[1]).reshape(nu_t.shape)
-        return torch.where(inside, out, torch.zeros_like(out))
+    def inside(self, nu_t: torch.Tensor, nu_s: torch.Tensor) -> torch.Tensor:
+        """The table's frequency range (|k| < N): the OTF is 0 beyond (past the diffraction cutoff)."""
+        return ((nu_t / self.cut_t * self.n).abs() < self.n) & ((nu_s / self.cut_s * self.n).abs() < self.n)
 
-    return sample
+    def __call__(self, nu_t: torch.Tensor, nu_s: torch.Tensor) -> torch.Tensor:
+        e = torch.exp(2j * math.pi * (nu_t.reshape(-1, 1).to(torch.float64) * self.t_mm
+                                      + nu_s.reshape(-1, 1).to(torch.float64) * self.s_mm))
+        out = (e @ self.q).reshape(nu_t.shape)
+        return torch.where(self.inside(nu_t, nu_s), out, torch.zeros_like(out))
+
+
+def otf_sampler(analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int = 64,
+                max_samples: int = 256) -> TableOTF:
+    """The OTF of one (field, wavelength) as a function ``(nu_t, nu_s) -> complex OTF`` (:class:`TableOTF`)."""
+    return TableOTF(analysis, field, wavelength_nm, samples, max_samples)
 
 
 def psf_on_grid(sampler, azimuths_rad: torch.Tensor, dx_mm: float, size: int) -> torch.Tensor:
     """PSFs ``[A, size, size]`` (sum 1, centre at ``size // 2``) rotated to each azimuth (angle of the field
-    direction from +y towards +x), sampled with pitch ``dx_mm``; rows are y, columns x."""
+    direction from +y towards +x), sampled with pitch ``dx_mm``; rows are y, columns x.
+
+    The OTF on the kernel's frequency grid, rotated: ``nu_t = fx ux + fy uy``, ``nu_s = fx vx + fy vy``. For a
+    :class:`TableOTF` it is the transform of its one-period PSF limited to the kernel's window (light beyond it is
+    left out, not wrapped to the opposite edge), in separable form: ``sum_m q_m exp(2 pi i (fx X_m + fy Y_m))``
+    with each PSF sample's rotated image position ``(X_m, Y_m)``: exact at any azimuth.
+    """
     f = torch.fft.fftfreq(size, d=dx_mm, dtype=torch.float64)
     fy, fx = torch.meshgrid(f, f, indexing="ij")
+    half = (size // 2 + 0.5) * dx_mm  # the kernel's window, in its own frame
     out = []
     for phi in azimuths_rad.tolist():
         ux, uy = math.sin(phi), math.cos(phi)  # radial (tangential) direction
         vx, vy = math.cos(phi), -math.sin(phi)  # perpendicular (sagittal) direction
-        otf = sampler(fx * ux + fy * uy, fx * vx + fy * vy)
+        nu_t, nu_s = fx * ux + fy * uy, fx * vx + fy * vy
+        if isinstance(sampler, TableOTF):
+            x_m = ux * sampler.t_mm + vx * sampler.s_mm
+            y_m = uy * sampler.t_mm + vy * sampler.s_mm
+            keep = (x_m.abs() <= half) & (y_m.abs() <= half)
+            q, x_m, y_m = sampler.q[keep], x_m[keep], y_m[keep]
+            ex = torch.exp(2j * math.pi * f[:, None] * x_m)  # [size, M]
+            ey = torch.exp(2j * math.pi * f[:, None] * y_m)
+            otf = (ey * q) @ ex.T  # [fy, fx]
+            otf = torch.where(sampler.inside(nu_t, nu_s), otf, torch.zeros_like(otf))
+        else:
+            otf = sampler(nu_t, nu_s)
         psf = torch.fft.fftshift(torch.fft.ifft2(otf).real)
         psf = psf.clamp_min(0)
         out.append(psf / psf.sum())
