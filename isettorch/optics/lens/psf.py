@@ -67,6 +67,9 @@ def otf_sampler(analysis: LensAnalysis, field: float, wavelength_nm: float, samp
     return TableOTF(analysis, field, wavelength_nm, samples, max_samples)
 
 
+_CHUNK_ELEMENTS = 2**21  # complex values per phase-matrix chunk in psf_on_grid (32 MB)
+
+
 def psf_on_grid(sampler, azimuths_rad: torch.Tensor, dx_mm: float, size: int) -> torch.Tensor:
     """PSFs ``[A, size, size]`` (sum 1, centre at ``size // 2``) rotated to each azimuth (angle of the field
     direction from +y towards +x), sampled with pitch ``dx_mm``; rows are y, columns x.
@@ -89,9 +92,12 @@ def psf_on_grid(sampler, azimuths_rad: torch.Tensor, dx_mm: float, size: int) ->
             y_m = uy * sampler.t_mm + vy * sampler.s_mm
             keep = (x_m.abs() <= half) & (y_m.abs() <= half)
             q, x_m, y_m = sampler.q[keep], x_m[keep], y_m[keep]
-            ex = torch.exp(2j * math.pi * f[:, None] * x_m)  # [size, M]
-            ey = torch.exp(2j * math.pi * f[:, None] * y_m)
-            otf = (ey * q) @ ex.T  # [fy, fx]
+            otf = torch.zeros(size, size, dtype=torch.complex128)
+            step = max(1, _CHUNK_ELEMENTS // size)  # [size, M] phase matrices in chunks of M (M <= (2N)^2)
+            for j in range(0, q.numel(), step):
+                ex = torch.exp(2j * math.pi * f[:, None] * x_m[j:j + step])  # [size, chunk]
+                ey = torch.exp(2j * math.pi * f[:, None] * y_m[j:j + step])
+                otf += (ey * q[j:j + step]) @ ex.T  # [fy, fx]
             otf = torch.where(sampler.inside(nu_t, nu_s), otf, torch.zeros_like(otf))
         else:
             otf = sampler(nu_t, nu_s)
