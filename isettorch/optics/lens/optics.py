@@ -50,10 +50,11 @@ class LensOptics(nn.Module):
     """Shift-variant, wavelength-dependent optics from a lens prescription.
 
     The PSF kernels (:func:`~isettorch.optics.lens.psf.psf_on_grid`) are the Fourier transform of the pupil's
-    one-period PSF, rotated exactly to each azimuth and cut to the kernel's window (spot radius + 3 lambda N; the
-    1-2 % of the light beyond it is left out and the kernel renormalised). Against a direct transform of a 256-sample
-    pupil (Cooke triplet, 1 um pitch, 2026-11-30): kernel L1 error 1.8-2.2 % at 64 pupil samples, 0.7-0.8 % at 128
-    (4.5-5.1 % and 3.3-3.9 % when the OTF table was interpolated bilinearly, which replicated the PSF). PSFs are
+    one-period PSF cut to the disc of the kernel's window (spot radius + 3 lambda N; the 1-2 % of the light beyond it
+    is left out and the kernel renormalised), rotated to each azimuth in the frequency domain
+    (:class:`~isettorch.optics.lens.psf.TableOTF`). Against a direct transform of a 256-sample pupil (Cooke triplet,
+    1 um pitch, 2026-11-30): kernel L1 error 1.6-2.2 % at 64 pupil samples, 0.6-0.8 % at 128 (4.5-5.1 % and
+    3.3-3.9 % when the OTF table was interpolated bilinearly, which replicated the PSF). PSFs are
     interpolated linearly between field heights, coarsest at the field's edge (benchmarks/LENS.md): raise
     ``pupil_samples`` and ``field_samples`` for PSF-critical work.
 

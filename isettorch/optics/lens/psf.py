@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 
 import torch
+import torch.nn.functional as F
 
 from .analysis import LensAnalysis
 
@@ -26,10 +27,15 @@ class TableOTF:
     pupil's autocorrelation support.
 
     :meth:`LensAnalysis.otf_grid` gives the OTF at integer pupil shifts (the autocorrelation of the sampled pupil,
-    ``[2N, 2N]``); between them it is the trigonometric interpolant, i.e. the Fourier transform of the one period of
-    PSF that table is the DFT of (``N`` pupil samples: a window of ``N lambda N_f``). Bilinear interpolation of the
-    table (before 2026-11-30) was the transform of that PSF repeated every ``N lambda N_f`` (the pupil's samples act
-    as a grating): ghost light, a kernel L1 error of 2-4 % at 64 samples on the Cooke triplet.
+    ``[2N, 2N]``); between them the OTF is the trigonometric interpolant: the Fourier transform of the one period of
+    PSF ``q`` that table is the DFT of (``N`` pupil samples: a window of ``N lambda N_f``). Bilinear interpolation of
+    the table itself (before 2026-11-30) was the transform of that PSF repeated every ``N lambda N_f`` (the pupil's
+    samples act as a grating): ghost light, a kernel L1 error of 3-5 % at 64 samples on the Cooke triplet.
+
+    Evaluated as a non-uniform FFT: ``q`` (cut to a disc, :meth:`table`) is divided by the bilinear kernel's
+    transform (``sinc^2`` per axis), zero-padded to ``Z = 4`` times the disc's diameter or the table's period (up to
+    1024 points), transformed, and that dense table interpolated bilinearly: the division undoes the interpolation's
+    envelope on the PSF, and its repeats move that far away, with weight of order ``(PSF width / padded size)^2``.
     """
 
     def __init__(self, analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int = 64,
@@ -41,23 +47,52 @@ class TableOTF:
         # orientation: pupil +y maps to image-space direction cosine M with the sign of dM/dpy
         sign_t, sign_s = pf["orientation"]
         self.n, self.cut_t, self.cut_s, self.sign_t, self.sign_s = n, cut_t, cut_s, sign_t, sign_s
+        self.zoom = 4
         # otf[k] = sum_m q[m] exp(+2 pi i k m / 2N) (otf_grid's table is an inverse DFT): q, at signed m
-        q = torch.fft.fft2(otf.to(torch.complex128)) / (2 * n) ** 2
+        self.q = torch.fft.fft2(otf.to(torch.complex128)) / (2 * n) ** 2
         m = torch.fft.fftfreq(2 * n, d=1.0 / (2 * n), dtype=torch.float64)  # 0, 1, ..., N-1, -N, ..., -1
-        mt, ms = torch.meshgrid(m, m, indexing="ij")  # rows: tangential shift, columns: sagittal
+        self.mt, self.ms = torch.meshgrid(m, m, indexing="ij")  # rows: tangential shift, columns: sagittal
         # k_t = sign_t nu_t N / cut_t, so k_t m_t / 2N = nu_t T with T = sign_t m_t / (2 cut_t) (mm); S likewise
-        self.q = q.reshape(-1)
-        self.t_mm = (sign_t * mt / (2 * cut_t)).reshape(-1)
-        self.s_mm = (sign_s * ms / (2 * cut_s)).reshape(-1)
+        self.t_mm, self.s_mm = sign_t * self.mt / (2 * cut_t), sign_s * self.ms / (2 * cut_s)
+        self._tables: dict = {}
+
+    def table(self, radius_mm: float = math.inf) -> tuple[torch.Tensor, int]:
+        """The OTF of the PSF cut to the disc of ``radius_mm`` (light beyond it left out, not wrapped into a
+        kernel's window) on a dense shift grid: ``([1, 2, L, L]`` real and imaginary parts, DC at ``L / 2``,
+        ``L``), ``L / 2N`` grid steps per table shift; cached. ``L`` is ``Z`` times the disc's diameter in PSF
+        samples (at most the table's period): a small kernel window costs a small transform."""
+        key = round(radius_mm, 9) if math.isfinite(radius_mm) else math.inf
+        if key not in self._tables:
+            n = self.n
+            reach = n if not math.isfinite(radius_mm) else min(
+                n, int(math.ceil(radius_mm * 2 * max(self.cut_t, self.cut_s))) + 1)  # in PSF samples
+            # at least the period's, up to 1024 points: the repeats' weight falls as (PSF width / size)^2
+            size = max(2 * reach * self.zoom, min(2 * n * self.zoom, 1024))
+            q = torch.where(self.t_mm**2 + self.s_mm**2 <= radius_mm**2, self.q, torch.zeros_like(self.q))
+            q = q / (torch.sinc(self.mt / size) * torch.sinc(self.ms / size)) ** 2  # the bilinear envelope, undone
+            inside = (self.mt.abs() <= reach) & (self.ms.abs() <= reach)
+            grid = torch.zeros(size, size, dtype=torch.complex128)
+            grid[self.mt[inside].long() % size, self.ms[inside].long() % size] = q[inside]
+            dense = torch.fft.fftshift(torch.fft.ifft2(grid) * size**2)  # sum_m q_m exp(+2 pi i k' m / size)
+            if len(self._tables) > 4:
+                self._tables.clear()
+            self._tables[key] = (torch.stack([dense.real, dense.imag])[None], size)
+        return self._tables[key]
 
     def inside(self, nu_t: torch.Tensor, nu_s: torch.Tensor) -> torch.Tensor:
         """The table's frequency range (|k| < N): the OTF is 0 beyond (past the diffraction cutoff)."""
         return ((nu_t / self.cut_t * self.n).abs() < self.n) & ((nu_s / self.cut_s * self.n).abs() < self.n)
 
-    def __call__(self, nu_t: torch.Tensor, nu_s: torch.Tensor) -> torch.Tensor:
-        e = torch.exp(2j * math.pi * (nu_t.reshape(-1, 1).to(torch.float64) * self.t_mm
-                                      + nu_s.reshape(-1, 1).to(torch.float64) * self.s_mm))
-        out = (e @ self.q).reshape(nu_t.shape)
+    def __call__(self, nu_t: torch.Tensor, nu_s: torch.Tensor, radius_mm: float = math.inf) -> torch.Tensor:
+        img, size = self.table(radius_mm)
+        half = size / 2  # the dense table's DC index; size / 2N dense steps per table shift k = nu / cut x N
+        kt = self.sign_t * nu_t / self.cut_t * half
+        ks = self.sign_s * nu_s / self.cut_s * half
+        gy = (kt + half) / (2 * half - 1) * 2 - 1
+        gx = (ks + half) / (2 * half - 1) * 2 - 1
+        g = torch.stack([gx, gy], -1).reshape(1, 1, -1, 2).to(torch.float64)
+        v = F.grid_sample(img, g, mode="bilinear", padding_mode="zeros", align_corners=True)[0, :, 0]
+        out = torch.complex(v[0], v[1]).reshape(nu_t.shape)
         return torch.where(self.inside(nu_t, nu_s), out, torch.zeros_like(out))
 
 
@@ -67,40 +102,23 @@ def otf_sampler(analysis: LensAnalysis, field: float, wavelength_nm: float, samp
     return TableOTF(analysis, field, wavelength_nm, samples, max_samples)
 
 
-_CHUNK_ELEMENTS = 2**21  # complex values per phase-matrix chunk in psf_on_grid (32 MB)
-
-
 def psf_on_grid(sampler, azimuths_rad: torch.Tensor, dx_mm: float, size: int) -> torch.Tensor:
     """PSFs ``[A, size, size]`` (sum 1, centre at ``size // 2``) rotated to each azimuth (angle of the field
     direction from +y towards +x), sampled with pitch ``dx_mm``; rows are y, columns x.
 
-    The OTF on the kernel's frequency grid, rotated: ``nu_t = fx ux + fy uy``, ``nu_s = fx vx + fy vy``. For a
-    :class:`TableOTF` it is the transform of its one-period PSF limited to the kernel's window (light beyond it is
-    left out, not wrapped to the opposite edge), in separable form: ``sum_m q_m exp(2 pi i (fx X_m + fy Y_m))``
-    with each PSF sample's rotated image position ``(X_m, Y_m)``: exact at any azimuth.
+    The OTF is rotated in the frequency domain (``nu_t = fx ux + fy uy``, ``nu_s = fx vx + fy vy``): exact for a
+    :class:`TableOTF`, whose PSF is cut to the disc the kernel's window holds (its light beyond is left out rather
+    than wrapped to the window's opposite edge; the same disc at every azimuth).
     """
     f = torch.fft.fftfreq(size, d=dx_mm, dtype=torch.float64)
     fy, fx = torch.meshgrid(f, f, indexing="ij")
-    half = (size // 2 + 0.5) * dx_mm  # the kernel's window, in its own frame
+    radius = (size // 2 + 0.5) * dx_mm
     out = []
     for phi in azimuths_rad.tolist():
         ux, uy = math.sin(phi), math.cos(phi)  # radial (tangential) direction
         vx, vy = math.cos(phi), -math.sin(phi)  # perpendicular (sagittal) direction
         nu_t, nu_s = fx * ux + fy * uy, fx * vx + fy * vy
-        if isinstance(sampler, TableOTF):
-            x_m = ux * sampler.t_mm + vx * sampler.s_mm
-            y_m = uy * sampler.t_mm + vy * sampler.s_mm
-            keep = (x_m.abs() <= half) & (y_m.abs() <= half)
-            q, x_m, y_m = sampler.q[keep], x_m[keep], y_m[keep]
-            otf = torch.zeros(size, size, dtype=torch.complex128)
-            step = max(1, _CHUNK_ELEMENTS // size)  # [size, M] phase matrices in chunks of M (M <= (2N)^2)
-            for j in range(0, q.numel(), step):
-                ex = torch.exp(2j * math.pi * f[:, None] * x_m[j:j + step])  # [size, chunk]
-                ey = torch.exp(2j * math.pi * f[:, None] * y_m[j:j + step])
-                otf += (ey * q[j:j + step]) @ ex.T  # [fy, fx]
-            otf = torch.where(sampler.inside(nu_t, nu_s), otf, torch.zeros_like(otf))
-        else:
-            otf = sampler(nu_t, nu_s)
+        otf = sampler(nu_t, nu_s, radius) if isinstance(sampler, TableOTF) else sampler(nu_t, nu_s)
         psf = torch.fft.fftshift(torch.fft.ifft2(otf).real)
         psf = psf.clamp_min(0)
         out.append(psf / psf.sum())
