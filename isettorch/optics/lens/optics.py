@@ -54,7 +54,8 @@ class LensOptics(nn.Module):
     is left out and the kernel renormalised), rotated to each azimuth in the frequency domain
     (:class:`~isettorch.optics.lens.psf.TableOTF`). Against a direct transform of a 256-sample pupil (Cooke triplet,
     1 um pitch, 2026-11-30): kernel L1 error 1.6-2.2 % at 64 pupil samples, 0.6-0.8 % at 128 (4.5-5.1 % and
-    3.3-3.9 % when the OTF table was interpolated bilinearly, which replicated the PSF). PSFs are
+    3.3-3.9 % when the OTF table was interpolated bilinearly, which replicated the PSF); strongly defocused (an object
+    at 0.5 m: the PSF fills the table's period) 1-3.5 % (benchmarks/LENS.md). PSFs are
     interpolated linearly between field heights, coarsest at the field's edge (benchmarks/LENS.md): raise
     ``pupil_samples`` and ``field_samples`` for PSF-critical work.
 
