@@ -17,7 +17,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from ._checks import check_bool, is_integer
+from ._checks import check_bool, is_integer, is_real
 from ._yaml import load_yaml
 from .isp.pipeline import DemosaicStage, ImageProcessor, ISPResult
 
@@ -442,7 +442,7 @@ def _build_sensor(cfg: dict) -> nn.Module:
     _check_keys(cfg, keys, "sensor")
     check_sensor_values(cfg)
     if isinstance(cfg.get("exposure_s"), list):
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in cfg["exposure_s"]):
+        if not all(is_real(v) for v in cfg["exposure_s"]):
             raise ValueError(f"sensor.exposure_s: expected a number or a list of numbers (s), got "
                              f"{cfg['exposure_s']!r}")  # (torch's "new(): invalid data type 'str'")
         cfg["exposure_s"] = torch.tensor(cfg["exposure_s"])

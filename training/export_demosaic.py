@@ -23,6 +23,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from isettorch._checks import first_line  # noqa: E402
 from isettorch.isp import learned  # noqa: E402
 from isettorch.paths import data_path  # noqa: E402
 
@@ -68,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         net = learned.DemosaicNet(**ck["net_config"])
     except Exception as err:  # noqa: BLE001 - any unreadable or foreign file is the same user error
         ap.error(f"--run: {run / f'{args.which}.pt'} is not a train_demosaic.py checkpoint "
-                 f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")
+                 f"({type(err).__name__}: {first_line(err)})")
     store = torch.float16 if args.half else torch.float32
     # scored as stored: with --half the card's scores were the float32 network's
     net.load_state_dict({k: v.to(store).to(v.dtype) for k, v in ck["model"].items()})

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._checks import check_device, check_finite, check_float_dtype, is_integer
+from .._checks import check_device, check_finite, check_float_dtype, first_line, is_integer
 from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 from .denoise import DENOISERS, _check_noise, check_denoiser, denoise_mosaic
@@ -174,7 +174,7 @@ def load_demosaic_model(path: str | Path, class_path: str | None = None, *, kwar
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # noqa: BLE001 - the file is not a weights-only checkpoint: say what was expected
         raise ValueError(f"model: {str(path)!r} is neither a TorchScript archive nor a weights-only state dict "
-                         f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from err
+                         f"({type(err).__name__}: {first_line(err)})") from err
     if isinstance(state, dict) and "model" in state and "net_config" in state and class_path is None:
         from .learned import load_checkpoint
 
@@ -195,7 +195,7 @@ def load_demosaic_model(path: str | Path, class_path: str | None = None, *, kwar
         net = cls(**(kwargs or {}))
     except Exception as err:  # noqa: BLE001 - the constructor refused the kwargs: a user error, named
         raise ValueError(f"model_kwargs: {class_path}({kwargs or {}}) failed ({type(err).__name__}: "
-                         f"{str(err).splitlines()[0] if str(err) else ''})") from err
+                         f"{first_line(err)})") from err
     if not isinstance(net, torch.nn.Module):
         raise ValueError(f"model_class: {class_path!r} does not build a torch.nn.Module")
     if isinstance(state, dict) and "model" in state and isinstance(state["model"], dict):

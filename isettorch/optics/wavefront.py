@@ -320,16 +320,19 @@ class WavefrontOptics(ShiftInvariantLens):
             self._grids[key] = tuple(t.to(self.basis.device) for t in _pupil_grid(p, self.basis.shape[0], dtype))
         return self._grids[key]
 
-    def _step_waves(self, z: torch.Tensor, w: torch.Tensor, p: int) -> list[float]:
-        """Each item's largest change of the wavefront between neighbouring samples inside the pupil (waves, at
-        the shortest wavelength) on a ``p``-sample grid."""
+    def _max_step_um(self, z: torch.Tensor, p: int) -> torch.Tensor:
+        """Each item's largest change of the wavefront (um) between neighbouring samples inside the pupil on a
+        ``p``-sample grid ``[B]`` (no gradient)."""
         cover, basis = self._grid(p, z.dtype)
         w_um = torch.einsum("bj,jpq->bpq", z.detach(), basis)
         inside = cover > 0
         dy = (w_um[:, 1:, :] - w_um[:, :-1, :]).abs().masked_fill(~(inside[1:, :] & inside[:-1, :]), 0)
         dx = (w_um[:, :, 1:] - w_um[:, :, :-1]).abs().masked_fill(~(inside[:, 1:] & inside[:, :-1]), 0)
-        step = torch.maximum(dy.flatten(1).amax(1), dx.flatten(1).amax(1)) / (w.min().detach() * 1e-3)
-        return step.tolist()
+        return torch.maximum(dy.flatten(1).amax(1), dx.flatten(1).amax(1))
+
+    def _step_waves(self, z: torch.Tensor, w: torch.Tensor, p: int) -> list[float]:
+        """Each item's :meth:`_max_step_um` in waves at the shortest wavelength."""
+        return (self._max_step_um(z, p) / (w.min().detach() * 1e-3)).tolist()
 
     def _samples_for(self, z: torch.Tensor, w: torch.Tensor) -> list[int]:
         """Each item's samples across the pupil: ``pupil_samples`` doubled until the wavefront changes by at most
@@ -359,9 +362,5 @@ class WavefrontOptics(ShiftInvariantLens):
         lam_n = wavelengths_nm.max() * 1e-9 * f_number
         b = f_number.shape[0]
         z = self.coefficients(b, f_number).detach()
-        w_um = torch.einsum("bj,jpq->bpq", z, self.basis.to(z.dtype))
-        inside = self.aperture > 0
-        dy = (w_um[:, 1:, :] - w_um[:, :-1, :]).abs().masked_fill(~(inside[1:, :] & inside[:-1, :]), 0)
-        dx = (w_um[:, :, 1:] - w_um[:, :, :-1]).abs().masked_fill(~(inside[:, 1:] & inside[:, :-1]), 0)
-        grad_rho_m = torch.maximum(dy.flatten(1).amax(1), dx.flatten(1).amax(1)) * 1e-6 * self.pupil_samples / 2
+        grad_rho_m = self._max_step_um(z, self.pupil_samples) * 1e-6 * self.pupil_samples / 2
         return 2 * lam_n / (math.pi**3 * self.psf_tolerance) + 2 * f_number.detach() * grad_rho_m
