@@ -93,3 +93,39 @@ def test_export_refuses_a_variant_the_network_does_not_fit_and_a_missing_run(tmp
             export_demosaic.main([*argv, "--out", str(out), "--no-bench"])
         assert exc.value.code == 2 and flag in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_shipped_checkpoints_record_the_step_and_validation_their_cards_give():
+    """A shipped .pt carries the step and validation score of the weights it holds, as its .json card does: the
+    accurate network is a weight interpolation of two runs, so it has no single step (it once carried one run's)."""
+    import json
+
+    from isettorch.isp.learned import PRETRAINED
+
+    for variant, path in PRETRAINED.items():
+        card = json.loads(Path(path).with_suffix(".json").read_text())
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+        if card["checkpoint"]["which"] == "interpolation":
+            assert ck["step"] is None and ck["best_val_cpsnr"] is None, variant
+            steps = {k: v for k, v in card["checkpoint"].items() if k.endswith("_step")}
+            assert len(steps) == 2 and all(ck["checkpoint"][k] == v for k, v in steps.items()), variant
+        else:
+            assert ck["step"] == card["checkpoint"]["step"], variant
+            assert ck["best_val_cpsnr"] == card["validation_synthetic"]["val_cpsnr"], variant
+
+
+def test_shipped_cards_name_the_start_the_reproduction_chain_uses():
+    """A card whose run started from a then-shipped asset names the chain step that makes those weights, the start
+    `training/reproduce_demosaic.py` uses (the asset itself is overwritten by the run it starts)."""
+    from training import reproduce_demosaic
+
+    variants = {"tiny": "demosaic_learned_tiny", "joint_denoise": "demosaic_learned_denoise",
+                "small": "demosaic_learned_small"}
+    for model, name in variants.items():
+        card = json.loads((ROOT / "isettorch" / "assets" / f"{name}.json").read_text())
+        last = reproduce_demosaic.load_config(reproduce_demosaic.CHAINS[model][-1])
+        init = card["config"].get("init")
+        if init and init.startswith("isettorch/assets/"):
+            assert card["config"]["init_in_chain"].split(" ")[0] == last["init"], model
+        else:
+            assert init == last.get("init"), model
