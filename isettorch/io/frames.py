@@ -211,7 +211,11 @@ def _frame_files(folder: Path, skipped: list[Path]) -> list[Path]:
         else:
             skipped.append(p)
     if len(files) < 2:
-        raise ValueError(f"{folder}: expected at least 2 frames (temporal noise needs a stack), found {len(files)}")
+        others = [p.name for p in skipped if p.parent == folder and p.is_file()]
+        hint = (f" ({len(others)} other file(s) skipped, e.g. {others[:3]}: frames are "
+                f"{', '.join(FRAME_SUFFIXES + RAW_SUFFIXES)})") if others else ""
+        raise ValueError(f"{folder}: expected at least 2 frames (temporal noise needs a stack), found "
+                         f"{len(files)}{hint}")
     return files
 
 

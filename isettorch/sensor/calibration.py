@@ -11,7 +11,10 @@ Per CFA channel (the sub-images of one colour; a monochrome sensor is one channe
   from the median ratio by more than 5 % (or 4 standard errors) are left out, and fewer than 3 left is an error;
 * read noise (e-): pixel-wise temporal dark variance extrapolated to t = 0 (intercept of a line in t), minus the
   quantisation variance q^2/12 DN^2 (EMVA eq. 5; q = 1 DN, or the common step 2^s of left-aligned data), square root,
-  over K; row noise and quantisation are not in it;
+  over K; row noise and quantisation are not in it. A dark variance under 0.24 q^2 DN^2 is quantisation-limited
+  (EMVA 1288 4.0 section 6.4): the read noise is then the upper limit sqrt(0.24 - 1/12) q / K, with a warning;
+* darks with more than 0.1 % of their pixels at the ADC's top code are left out of the dark fits (warned; an error
+  when every dark is);
 * row noise (e-): std of the per-frame row offsets from the temporal variance of the row means (ELD, Wei et al.
   2020), averaged over the dark levels; column noise likewise;
 * DSNU (e-): spatial std of the frame-averaged dark at the shortest exposure minus the temporal residue
@@ -36,7 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..metrics.emva import S2_QUANTIZATION_DN2, spatial_variance, temporal_noise_components
+from ..metrics.emva import S2_DARK_FLOOR_DN2, S2_QUANTIZATION_DN2, spatial_variance, temporal_noise_components
 
 __all__ = ["calibrate_capture", "calibrate_directory", "sensor_config", "write_sensor_config", "load_sensor_config",
            "simulate_capture", "photon_transfer_curve", "CALIBRATION_FIELDS"]
@@ -215,10 +218,17 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
                         f"the fit by): {dropped}")
         linear = keep
 
+    # EMVA 1288 4.0 section 6.4: a dark variance below 0.24 DN^2 (per quantisation step^2) is quantisation-limited,
+    # the q^2/12 of eq. 5 no longer holds (a sub-DN noise not dithered by the offsets rounds to fewer codes), and the
+    # standard reports the floor, an upper limit of the read noise
+    floor = S2_DARK_FLOOR_DN2 / S2_QUANTIZATION_DN2 * quantisation_dn2
     read_var = vicpt - quantisation_dn2
-    if read_var < 0:
-        warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below the "
-                        f"quantisation variance {quantisation_dn2:.4g} DN^2; read noise reported as 0")
+    if vicpt < floor:
+        read_var = floor - quantisation_dn2
+        warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
+                        f"{floor:.4g} DN^2, where quantisation dominates it (EMVA 1288 4.0 section 6.4): read noise "
+                        f"reported as the upper limit {math.sqrt(read_var):.3g} DN (the floor less q^2/12); the dark "
+                        f"current and DSNU of a dark signal this far under one DN are biased low")
     row_var = float(np.mean([d["var_row"] for d in dark.values()]))
     col_var = float(np.mean([d["var_col"] for d in dark.values()]))
 
@@ -347,7 +357,9 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     Monochrome: every field of ``CALIBRATION_FIELDS`` is a number (electrons unless named otherwise; null where it
     cannot be measured, with the reason in ``warnings``). Colour (``cfa`` set): every field is ``{channel: value}``
     (the sub-images of one letter pooled), and ``sensor`` holds one value per field for the whole sensor (gain,
-    read/row/column noise, PRNU: means over channels; dark current, DSNU, black level: from all pixels).
+    read/row/column noise, PRNU: means over channels; dark current, DSNU, black level: from all pixels); channels
+    whose gains differ by more than 5 % or black levels by more than 0.5 DN are warned about (the sensor config has
+    one of each).
 
     Also: ``quantisation_step_dn`` (1, or 2^s for left-aligned data; the read noise then removes step^2 / 12) and
     ``effective_bits`` (bit_depth - s); ``hot_pixels`` (count, fraction, threshold and mean dark current of the hot
@@ -364,6 +376,8 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
                         f"{capture.bit_depth}-bit words?): the quantisation variance is {step}^2/12 DN^2 (EMVA 1288 "
                         f"eq. 5 for a step of {step} DN); results are in the files' DN, the sensor config is written "
                         f"for {bits_eff} bits (DN / {step})")
+    capture = _without_clipped_darks(capture, step, warnings)
+    _check_plane_shape(capture)
     dark_p = {ms: _planes(s, capture.cfa) for ms, s in capture.dark.items()}
     flat_p = {ms: _planes(s, capture.cfa) for ms, s in capture.flat.items()}
     names = list(next(iter(dark_p.values())))
@@ -415,9 +429,75 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
                   "black_level_dn": black, "quantum_efficiency": None}
         out["sensor"] = sensor
         out["photon_transfer"] = {n: per[n]["photon_transfer"] for n in names}
+        _warn_channels_differ(per, names, warnings)
     _hot_pixel_result(capture, out, stats if capture.cfa is None else {"all": (allp, None)}, warnings)
+    nominal, measured = capture.black_level_dn, _scalars(out)["black_level_dn"]
+    if nominal is not None and abs(measured - float(nominal)) > step:
+        warnings.append(f"the measured black level {measured:.2f} DN differs from the nominal black_level_dn "
+                        f"{float(nominal):g} of capture.yaml by more than {step} DN; the measured one is used")
     out["warnings"] = warnings
     return out
+
+
+#: channels whose gains differ by more than this (relative) or whose black levels differ by more than this (DN) are
+#: warned about: the sensor config has one of each (issue 17's bounds are 2 % and 0.5 DN per channel)
+_CHANNEL_GAIN_SPREAD, _CHANNEL_BLACK_SPREAD_DN = 0.05, 0.5
+
+
+def _warn_channels_differ(per: dict, names: list[str], warnings: list[str]) -> None:
+    """Warn when the CFA channels disagree on the conversion gain or the black level beyond the calibration's own
+    accuracy: the written sensor config has one gain (their mean) and one black level (all pixels'), so such a raw
+    (per-channel digital gains, e.g. a white balance applied before the file was written; per-channel black levels)
+    is not reproduced channel by channel."""
+    gains = {n: per[n]["conversion_gain_dn_per_e"] for n in names}
+    if max(gains.values()) > (1 + _CHANNEL_GAIN_SPREAD) * min(gains.values()):
+        warnings.append(f"the channels' conversion gains differ by more than {100 * _CHANNEL_GAIN_SPREAD:g} % "
+                        f"({', '.join(f'{n} {k:.4g}' for n, k in gains.items())} DN/e-; per-channel digital gains in "
+                        f"the raw?): the sensor values and the sensor config use their mean, "
+                        f"{float(np.mean(list(gains.values()))):.4g} DN/e-, for every channel")
+    blacks = {n: per[n]["black_level_dn"] for n in names}
+    if max(blacks.values()) - min(blacks.values()) > _CHANNEL_BLACK_SPREAD_DN:
+        warnings.append(f"the channels' black levels differ by more than {_CHANNEL_BLACK_SPREAD_DN:g} DN "
+                        f"({', '.join(f'{n} {b:.2f}' for n, b in blacks.items())} DN): the sensor values and the "
+                        f"sensor config have one black level for every channel")
+
+
+def _without_clipped_darks(capture, step: int, warnings: list[str]):
+    """The capture without its dark exposures that have more than 0.1 % of their pixels at the ADC's top code
+    (``2^bit_depth - step``: a long dark of a high dark current, or a hot region, clipped): their mean, variance and
+    spatial spread are biased low, and the fits in t would carry that into the black level, read noise and dark
+    current. A warning names them; an error when no dark is left."""
+    import dataclasses
+
+    top = 2 ** int(capture.bit_depth) - step
+    clipped = {ms: float((st >= top).mean()) for ms, st in capture.dark.items()}
+    bad = sorted(ms for ms, f in clipped.items() if f > 1e-3)
+    if not bad:
+        return capture
+    names = [capture.folders.get(("dark", ms), f"dark_{ms:g}ms") for ms in bad]
+    detail = ", ".join(f"{n} {100 * clipped[ms]:.2g} %" for n, ms in zip(names, bad))
+    if len(bad) == len(capture.dark):
+        raise ValueError(f"every dark exposure has pixels clipped at the ADC's top code {top} DN ({detail}); the "
+                         f"dark statistics need darks below saturation: add shorter dark exposures")
+    warnings.append(f"dark exposures with pixels clipped at the ADC's top code {top} DN left out of the dark fits "
+                    f"(black level, read noise, dark current, DSNU): {detail}")
+    return dataclasses.replace(capture, dark={ms: v for ms, v in capture.dark.items() if ms not in bad})
+
+
+def _check_plane_shape(capture) -> None:
+    """Every channel's sub-image needs 2 rows and 2 columns: the pixel-wise temporal variance is separated from the
+    row and column noise (:func:`~isettorch.metrics.emva.temporal_noise_components`), which one row or column
+    cannot do (a line-scan sensor is not supported)."""
+    h, w = next(iter(capture.dark.values())).shape[-2:]
+    ph, pw = (1, 1)
+    if capture.cfa is not None:
+        from .cfa import CFA
+
+        ph, pw = CFA(str(capture.cfa)).shape
+    if h // ph < 2 or w // pw < 2:
+        raise ValueError(f"frames: {h} x {w} pixels give {capture.cfa or 'the monochrome'} channel sub-images of "
+                         f"{h // ph} x {w // pw}; calibration needs at least 2 x 2 (row and column noise are "
+                         f"separated from the pixel noise; line-scan sensors are not supported)")
 
 
 def _hot_pixel_result(capture, out: dict, stats: dict, warnings: list[str]) -> None:

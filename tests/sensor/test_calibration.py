@@ -7,6 +7,7 @@ black level 0.5 DN, QE 3 %). benchmarks/calibration_bench.py checks many more tr
 """
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -505,3 +506,136 @@ def test_write_frame_refuses_what_is_not_a_frame(tmp_path, frame):
         assert not (tmp_path / name).exists()
     with pytest.raises(ValueError, match="path: expected a .png, .tif, .tiff or .npy name"):
         write_frame(tmp_path / "f.jpg", np.zeros((2, 2)))
+
+
+# --- audit with independently simulated captures (2026-11-30): quantisation-limited darks, clipped darks, channels
+# that disagree, thin frames, messages ----------------------------------------------------------------------------
+
+def _capture_from(dark, flat, *, bits=12, cfa=None, black_level_dn=None, photons=None):
+    from isettorch.io.frames import Capture
+
+    return Capture(bit_depth=bits, pixel_size_m=3.45e-6, cfa=cfa, black_level_dn=black_level_dn,
+                   photons_per_pixel=photons, dark={k: v.astype(float) for k, v in dark.items()},
+                   flat={k: v.astype(float) for k, v in flat.items()}, folders={})
+
+
+def test_quantisation_limited_read_noise_is_the_emva_upper_limit():
+    """A read noise of 0.3 DN without DSNU to dither the quantiser rounds to fewer codes than q^2/12 assumes: the dark
+    variance falls below EMVA 1288 4.0's 0.24 DN^2 floor, and the standard reports sqrt(0.24 - 1/12) DN as an upper
+    limit (the estimate was 0.11 e-, 63 % under the truth 0.30, without a warning)."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    truth = dict(nc.TRUTH, gain_dn_per_e=1.0, read_noise_e=0.3, dsnu_e=0.0, row_noise_e=0.0,
+                 dark_current_e_per_s=5.0, full_well_e=3000.0)
+    dark, flat, photons = nc.simulate(truth, shape=(64, 96), frames=2, seed=5, exposures_ms=_E_MS)
+    res = calibrate_capture(_capture_from(dark, flat, photons=photons))
+    upper = math.sqrt(0.24 - 1 / 12) / truth["gain_dn_per_e"]
+    assert res["read_noise_e"] == pytest.approx(upper, rel=0.01)  # (K within 2 %)
+    assert res["read_noise_e"] >= truth["read_noise_e"]
+    assert any("EMVA 1288 4.0 section 6.4" in w and "upper limit" in w for w in res["warnings"])
+    # a read noise well above the floor is unaffected and not warned about
+    res = calibrate_capture(_memory_capture())
+    assert res["read_noise_e"] == pytest.approx(nc.TRUTH["read_noise_e"], rel=0.03)
+    assert not any("section 6.4" in w for w in res["warnings"])
+
+
+def _high_dark_current_capture(dark_ms, seed=4):
+    """K 2 DN/e-, 12 bits, black 64: the ADC clips at (4095 - 64) / 2 = 2015.5 e-; dark current 15,000 e-/s with a
+    10 % log-normal spread (dark shading 1,500 e-/s), flats of 250 e-/ms; no well clip (the ADC clips first)."""
+    truth = dict(nc.TRUTH, gain_dn_per_e=2.0, black_level_dn=64.0, row_noise_e=0.0, full_well_e=1e9,
+                 dark_current_e_per_s=15000.0)
+    shape = (60, 80)
+    rng, prnu, dsnu = nc.sensor_maps(truth, shape, seed)
+    dc = 15000.0 * np.exp(0.1 * rng.standard_normal(shape) - 0.005)
+    dark = {float(ms): np.stack([nc.expose(truth, dc * ms * 1e-3, dsnu, rng) for _ in range(4)]) for ms in dark_ms}
+    flat = {float(ms): np.stack([nc.expose(truth, 250.0 * ms * prnu + dc * ms * 1e-3, dsnu, rng) for _ in range(4)])
+            for ms in (1, 2, 3, 4, 6, 8, 10, 12, 16, 20, 30, 48)}
+    return truth, _capture_from(dark, flat), float(dc.std())
+
+
+def test_darks_clipped_at_the_adc_top_are_left_out_of_the_dark_fits():
+    """The 130 ms dark (1,950 e- of dark signal against the ADC's 2,015 e-) is partly clipped at 4095 DN: it is left
+    out with a warning naming it (kept, it moved the black level by +13.8 DN and the read noise by +19 %); darks
+    that all clip are an error saying so."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    truth, cap, shading = _high_dark_current_capture((1, 10, 50, 100, 130))
+    assert 0.001 < float((cap.dark[130.0] >= 4095).mean()) < 0.5
+    res = calibrate_capture(cap)
+    assert any("top code 4095 DN left out" in w and "dark_130ms" in w for w in res["warnings"])
+    assert res["black_level_dn"] == pytest.approx(64.0, abs=0.5)
+    # the read noise is extrapolated to t = 0 under a dark shot noise of up to 1,500 e-^2: 2.92 / 3.06 / 2.94 e- for
+    # seeds 4 / 5 / 6 of this capture without its 130 ms dark
+    assert res["read_noise_e"] == pytest.approx(truth["read_noise_e"], rel=0.06)
+    assert res["dark_current_e_per_s"] == pytest.approx(15000.0, rel=0.05)
+    assert res["dark_shading_e_per_s"] == pytest.approx(shading, rel=0.1)
+    _, cap, _ = _high_dark_current_capture((150, 200))
+    with pytest.raises(ValueError, match=r"every dark exposure has pixels clipped at the ADC's top code 4095 DN"):
+        calibrate_capture(cap)
+
+
+def _rggb_capture(gains=None, blacks=None, seed=6):
+    """An RGGB capture of nc.TRUTH whose channels' DN are scaled by ``gains`` about the black level (a digital gain
+    applied in the raw) or offset to the black levels ``blacks``, then rounded and clipped again."""
+    truth = dict(nc.TRUTH, qe=nc.BAYER_QE)
+    dark, flat, photons = nc.simulate(truth, cfa="RGGB", shape=(64, 96), frames=2, seed=seed, exposures_ms=_E_MS)
+    b0 = truth["black_level_dn"]
+    for stacks in (dark, flat):
+        for ms, st in stacks.items():
+            v = st.astype(float)
+            for dy in range(2):
+                for dx in range(2):
+                    c = "RGGB"[2 * dy + dx]
+                    sub = v[:, dy::2, dx::2]
+                    if gains:
+                        sub[:] = (sub - b0) * gains[c] + b0
+                    if blacks:
+                        sub[:] = sub + blacks[c] - b0
+            stacks[ms] = np.clip(np.round(v), 0, 4095).astype(np.uint16)
+    return _capture_from(dark, flat, cfa="RGGB", photons=photons)
+
+
+def test_channels_that_disagree_on_gain_or_black_level_are_warned_about():
+    """The sensor config has one conversion gain (the channels' mean) and one black level: channels with digital gains
+    x1.8 / x1 / x1.5 (the mean, 0.57 DN/e-, renders G at +43 %) or black levels 98 / 100 / 103 DN were written as
+    one value without a word; the per-channel values are right, and a plain capture is not warned about."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    res = calibrate_capture(_rggb_capture(gains={"R": 1.8, "G": 1.0, "B": 1.5}))
+    k = res["conversion_gain_dn_per_e"]
+    assert k["R"] == pytest.approx(1.8 * 0.4, rel=0.02) and k["G"] == pytest.approx(0.4, rel=0.02)
+    assert any("conversion gains differ" in w for w in res["warnings"])
+    res = calibrate_capture(_rggb_capture(blacks={"R": 98.0, "G": 100.0, "B": 103.0}))
+    assert res["black_level_dn"]["B"] == pytest.approx(103.0, abs=0.5)
+    assert any("black levels differ" in w for w in res["warnings"])
+    res = calibrate_capture(_rggb_capture())
+    assert not any("differ" in w for w in res["warnings"])
+
+
+@pytest.mark.parametrize("shape, cfa", [((32, 1), "RGGB"), ((1, 64), None), ((3, 64), "RGGB")])
+def test_frames_too_thin_for_the_noise_split_are_an_error(shape, cfa):
+    """A 1-column Bayer frame raised ZeroDivisionError; a 1-row line-scan frame 'only 0 flat exposures in the linear
+    range' (the row/column split is singular): both now say what the frames need."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    rng = np.random.default_rng(0)
+    stacks = {ms: rng.integers(100, 200, size=(2, *shape)).astype(np.uint16) for ms in (1.0, 2.0, 3.0)}
+    with pytest.raises(ValueError, match=r"frames: .* sub-images of .*; calibration needs at least 2 x 2"):
+        calibrate_capture(_capture_from(stacks, stacks, cfa=cfa))
+
+
+def test_nominal_black_level_far_from_the_measured_one_is_warned_about():
+    from isettorch.sensor.calibration import calibrate_capture
+
+    dark, flat, photons = nc.simulate(nc.TRUTH, shape=(64, 96), frames=2, seed=21, exposures_ms=_E_MS)
+    res = calibrate_capture(_capture_from(dark, flat, photons=photons, black_level_dn=512.0))
+    assert any("nominal black_level_dn 512" in w for w in res["warnings"])
+    res = calibrate_capture(_capture_from(dark, flat, photons=photons, black_level_dn=100.0))
+    assert not any("nominal" in w for w in res["warnings"])
+
+
+def test_a_folder_of_unsupported_frame_files_says_they_were_skipped(capsys, good_capture):
+    for f in (good_capture / "dark_1ms").iterdir():
+        f.rename(f.with_suffix(".bmp"))
+    err = _error(capsys, good_capture)
+    assert "found 0 (2 other file(s) skipped, e.g. ['frame_000.bmp', 'frame_001.bmp']" in err
