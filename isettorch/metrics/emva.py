@@ -449,11 +449,12 @@ def calibration_figures(result: dict, capture, out_dir) -> list[str]:
         a.legend(fontsize=8)
     save(fig, "linearity.png")
 
-    d0 = torch.from_numpy(capture.dark[min(capture.dark)]).mean(dim=0)
+    d0 = torch.from_numpy(capture.dark[min(capture.dark)]).double().mean(dim=0)
     ms = result["photon_transfer"][next(iter(ptcs))]["prnu_exposure_ms"] if colour else \
         result["photon_transfer"]["prnu_exposure_ms"]
     dms = ms if ms in capture.dark else min(capture.dark, key=lambda k: abs(k - ms))
-    flat = torch.from_numpy(capture.flat[ms]).mean(dim=0) - torch.from_numpy(capture.dark[dms]).mean(dim=0)
+    flat = (torch.from_numpy(capture.flat[ms]).double().mean(dim=0)
+            - torch.from_numpy(capture.dark[dms]).double().mean(dim=0))
     for name, img, unit in (("dsnu", d0, "DN"), ("prnu", flat, "DN")):
         fig, ax = plt.subplots(figsize=(6, 4.5))
         for axis in ("horizontal", "vertical"):

@@ -69,7 +69,7 @@ def _planes(stack: np.ndarray, cfa: str | None) -> dict[str, list[np.ndarray]]:
 
 def _stats(planes: list[np.ndarray]) -> dict[str, Any]:
     """Temporal components averaged over the sub-images of one channel (keeps the averages for spatial stats)."""
-    comps = [temporal_noise_components(torch.from_numpy(np.ascontiguousarray(p))) for p in planes]
+    comps = [temporal_noise_components(torch.from_numpy(np.ascontiguousarray(p, dtype=np.float64))) for p in planes]
     out = {k: float(sum(float(c[k]) for c in comps) / len(comps))
            for k in ("mean", "var", "var_pixel", "var_row", "var_col")}
     out["averages"] = [c["average"] for c in comps]
@@ -320,8 +320,9 @@ def _hot_pixels(capture) -> dict[str, Any] | None:
     var_slope = 0.0
     for k, w in zip(ms, tc):
         st = capture.dark[k]
-        slope += w * st.mean(axis=0)
-        var_slope += w ** 2 * float(st.var(axis=0, ddof=1).mean()) / st.shape[0]  # temporal residue of the average
+        slope += w * st.mean(axis=0, dtype=np.float64)
+        # temporal residue of the average
+        var_slope += w ** 2 * float(st.var(axis=0, ddof=1, dtype=np.float64).mean()) / st.shape[0]
     slope /= stt
     med = float(np.median(slope))
     spread = max(_MAD_TO_SIGMA * float(np.median(np.abs(slope - med))), math.sqrt(var_slope) / stt)
@@ -339,9 +340,10 @@ def _dark_without(capture, hot: np.ndarray, dark_stats: dict[float, dict]) -> tu
     means, s2 = [], {}
     for k in ms:
         st = capture.dark[k]
-        means.append(float(st.mean(axis=0)[~hot].mean()))
+        means.append(float(st.mean(axis=0, dtype=np.float64)[~hot].mean()))
         v = []
         for pl, keep in zip((p for ps in _planes(st, capture.cfa).values() for p in ps), keep_planes):
+            pl = pl.astype(np.float64)
             centred = pl - pl.mean(axis=(1, 2), keepdims=True)
             temporal = float(centred.var(axis=0, ddof=1)[keep].mean())
             v.append(float(spatial_variance(torch.from_numpy(pl.mean(axis=0)[keep]), temporal, st.shape[0])))

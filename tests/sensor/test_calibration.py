@@ -639,3 +639,29 @@ def test_a_folder_of_unsupported_frame_files_says_they_were_skipped(capsys, good
         f.rename(f.with_suffix(".bmp"))
     err = _error(capsys, good_capture)
     assert "found 0 (2 other file(s) skipped, e.g. ['frame_000.bmp', 'frame_001.bmp']" in err
+
+
+def test_frames_are_stored_in_float32_and_the_statistics_unchanged(capsys, good_capture):
+    """read_capture stores the stacks as float32 (half the memory: every integer DN is exact), and calibrating them
+    gives exactly what float64 stacks of the same values give (statistics in float64)."""
+    import dataclasses
+
+    from isettorch.io.frames import read_capture
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = read_capture(good_capture)
+    assert all(st.dtype == np.float32 for st in (*cap.dark.values(), *cap.flat.values()))
+    wide = dataclasses.replace(cap, dark={k: v.astype(np.float64) for k, v in cap.dark.items()},
+                               flat={k: v.astype(np.float64) for k, v in cap.flat.items()})
+    a, b = calibrate_capture(cap), calibrate_capture(wide)
+    for k in ("conversion_gain_dn_per_e", "read_noise_e", "dark_current_e_per_s", "dsnu_e", "prnu_percent",
+              "black_level_dn", "full_well_e"):
+        assert a[k] == b[k], k
+    hot = dataclasses.replace(cap, dark={k: v.copy() for k, v in cap.dark.items()})
+    for k, v in hot.dark.items():
+        v[:, 3, 4] += 2.0 * k  # a hot pixel: the hot-pixel and other-pixel statistics too
+    wide_hot = dataclasses.replace(hot, dark={k: v.astype(np.float64) for k, v in hot.dark.items()},
+                                   flat=wide.flat)
+    a, b = calibrate_capture(hot), calibrate_capture(wide_hot)
+    assert a["hot_pixels"]["count"] == b["hot_pixels"]["count"] >= 1
+    assert a["sensor_config_dark"] == b["sensor_config_dark"]
