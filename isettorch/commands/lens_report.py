@@ -81,12 +81,14 @@ def run(args) -> int:
     shift = float(analysis.sensor_z - analysis.image_plane_z(analysis.reference_wavelength_nm))
     print(f"MTF on the {analysis.image_plane} image plane ({shift:+.4f} mm from the primary wavelength's paraxial "
           f"focus); image heights and distortion on each wavelength's paraxial focus")
-    print(f"{'field':>6} {'wl nm':>7} {'y mm':>9} {'dist %':>8} {'RI':>6} {'CRA':>7}  MTF T / S at {freqs} cy/mm")
+    print(f"{'field':>6} {'wl nm':>7} {'y mm':>9} {'dist %':>8} {'RI':>6} {'RIflux':>6} {'CRA':>7}  MTF T / S at "
+          f"{freqs} cy/mm")
     for r in report["rows"]:
         mt = " ".join(f"{v:.3f}" for v in r["mtf_tangential"])
         ms = " ".join(f"{v:.3f}" for v in r["mtf_sagittal"])
         print(f"{r['field']:6.3f} {r['wavelength_nm']:7.1f} {r['image_height_mm']:9.4f} "
-              f"{r['distortion_percent']:8.4f} {r['relative_illumination']:6.3f} {r['chief_ray_angle_deg']:7.3f}  "
+              f"{r['distortion_percent']:8.4f} {r['relative_illumination']:6.3f} "
+              f"{r['relative_illumination_flux']:6.3f} {r['chief_ray_angle_deg']:7.3f}  "
               f"{mt} / {ms}")
     _plots(analysis, report, fields, waves, freqs, Path(args.out))
     print(f"plots written to {args.out}/")
@@ -108,11 +110,13 @@ def _plots(analysis, report, fields, waves, freqs, out: Path) -> None:
         rs = [r for r in rows if r["wavelength_nm"] == wl]
         f = [r["field"] for r in rs]
         axes[0].plot(f, [r["distortion_percent"] for r in rs], "o-", label=f"{wl:g} nm")
-        axes[1].plot(f, [r["relative_illumination"] for r in rs], "o-", label=f"{wl:g} nm")
+        line, = axes[1].plot(f, [r["relative_illumination_flux"] for r in rs], "o-", label=f"{wl:g} nm")
+        axes[1].plot(f, [r["relative_illumination"] for r in rs], "x:", color=line.get_color())
         for k, nu in enumerate(freqs):
             axes[2].plot(f, [r["mtf_tangential"][k] for r in rs], "-", label=f"T {nu:g} cy/mm, {wl:g} nm")
             axes[2].plot(f, [r["mtf_sagittal"][k] for r in rs], "--")
-    for ax, t in zip(axes, ("distortion (%)", "relative illumination", "MTF (T solid, S dashed)")):
+    for ax, t in zip(axes, ("distortion (%)", "relative illumination (flux o, Rimmer x)",
+                            "MTF (T solid, S dashed)")):
         ax.set_xlabel("field (fraction)")
         ax.set_title(t)
     axes[0].legend()

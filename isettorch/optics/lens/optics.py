@@ -4,9 +4,12 @@ Per scene wavelength: (1) distortion and lateral colour: the irradiance at image
 the field angle theta with y_lambda(theta) = r (chief ray on the paraxial image plane of the lens's primary
 wavelength, ``LensAnalysis.reference_wavelength_nm``); (2) the camera equation on axis (ISETCam
 oiCalculateIrradiance: pi / (1 + 4 N^2), object at infinity) times the ray-traced relative illumination
-RI_lambda(theta); (3) a shift-variant PSF: the PSFs on a polar grid of field heights x azimuths (exact rotations),
-decomposed into K eigen-PSFs with bilinearly interpolated weights (``psf.py``). Longitudinal colour is included
-(every wavelength is imaged on the primary wavelength's paraxial focus).
+RI_lambda(theta), the scene's flux through the unvignetted pupil over the image area the chief rays map it to
+(``LensAnalysis.relative_illumination(method="flux")``; until 2026-11-30 Rimmer's projected solid angle, which made
+a field-curved singlet's corners brighter than its centre); (3) a shift-variant PSF: the PSFs on a polar grid of
+field heights x azimuths (exact rotations), decomposed into K eigen-PSFs with bilinearly interpolated weights
+(``psf.py``). Longitudinal colour is included (every wavelength is imaged on the primary wavelength's paraxial
+focus).
 
 Object distance and focus: ``focus_distance_m`` (default infinity) puts the image plane at the primary wavelength's
 paraxial image of an object at that distance (a back-focus shift; distances from the object plane to the first lens
@@ -141,9 +144,8 @@ class LensOptics(nn.Module):
             fr = torch.linspace(0, 1, self.distortion_samples, dtype=torch.float64)
             with torch.no_grad():
                 y = chief_ray_heights_mm(a, fr, wavelength_nm)
-                axis = a._beam_solid_angle(0.0, wavelength_nm, self.ri_samples)
-                ri = torch.stack([a._beam_solid_angle(float(f), wavelength_nm, self.ri_samples)
-                                  for f in fr.tolist()]) / axis
+                ri = torch.stack([a.relative_illumination(float(f), wavelength_nm, self.ri_samples, method="flux")
+                                  for f in fr.tolist()])
             if not bool((y[1:] > y[:-1]).all()):
                 raise TraceError(f"{a.prescription.name}: chief-ray height is not increasing with field at "
                                  f"{wavelength_nm} nm; the distortion cannot be inverted")

@@ -19,6 +19,7 @@ def test_lens_report_json_shape(capsys):
     assert rep["max_field_deg"] == 20.0 and rep["f_number"] == pytest.approx(rep["effective_focal_length_mm"] / 10)
     assert len(rep["rows"]) == 4
     keys = {"field", "wavelength_nm", "image_height_mm", "distortion_percent", "relative_illumination",
+            "relative_illumination_flux",
             "chief_ray_angle_deg", "mtf_tangential", "mtf_sagittal"}
     for r in rep["rows"]:
         assert set(r) == keys and len(r["mtf_tangential"]) == len(r["mtf_sagittal"]) == 2
