@@ -176,3 +176,80 @@ def test_field_heights_dense_at_the_edge_where_the_psf_changes_fastest():
     f = float((_interp(torch.tensor([rq], dtype=torch.float64), y_ref, theta_ref) / a.max_field_deg)[0])
     direct = psf_on_grid(otf_sampler(a, f, 550.0), torch.zeros(1, dtype=torch.float64), 4e-3, size)[0]
     assert float((interp - direct).abs().sum()) < 0.2  # a uniform grid of 13: 0.46 here
+
+
+def _singlet_optics(**kw):
+    from isettorch.optics.lens import read_lens_yaml
+
+    lens = read_lens_yaml({"aperture": {"entrance_pupil_diameter_mm": 10.0}, "field_angles_deg": [0, 30],
+                           "catalogs": ["SCHOTT"],
+                           "surfaces": [{"radius_mm": 25.8, "thickness_mm": 5.3, "material": "N-BK7", "stop": True},
+                                        {"radius_mm": math.inf, "thickness_mm": 46.6}]})
+    return LensOptics(lens, max_kernel=257, **kw)
+
+
+def test_uniform_scene_through_a_field_curved_singlet_at_a_coarse_pitch():
+    """A plano-convex singlet (f 50 mm, F/5, stop at the lens), a uniform 128 x 128 scene over its field (0.31 mm
+    samples): a Monte-Carlo irradiance of the scene (rays through the pupil binned where they land; the test of
+    test_analysis.py) gives 1.01 k0 at the centre and 0.81 k0 at 2/3 of the field. The render read 1.08 at the centre
+    (the band-limited samples of kernels narrower than a sample ring, and their clamped lobes added light) and its
+    corners were brighter than its centre under Rimmer's relative illumination."""
+    opt = _singlet_optics(field_samples=9, azimuth_samples=16, components=None)
+    n = 128
+    t = math.tan(math.radians(opt.analysis.max_field_deg)) * 0.99
+    s = Scene(torch.ones(1, 1, n, n, dtype=torch.float64), torch.tensor([587.5618], dtype=torch.float64),
+              hfov_deg=2 * math.degrees(math.atan(t / math.sqrt(2))))
+    oi = opt(s)
+    k0 = math.pi / (1 + 4 * float(opt.f_number) ** 2)
+    img = oi.photons[0, 0] / k0
+    hh = img.shape[0]
+    c = (hh - 1) / 2
+    dx = float(oi.sample_spacing_m[0]) * 1e3
+    yy, xx = torch.meshgrid(torch.arange(hh) - c, torch.arange(hh) - c, indexing="ij")
+    r = torch.sqrt(yy ** 2 + xx ** 2) * dx
+    assert float(img[r < 1.5 * dx].mean()) == pytest.approx(1.01, abs=0.015)
+    a = opt.analysis
+    y = float(a.chief_ray(2 / 3, 587.5618, image_z=a.sensor_z)[0][1])
+    diagonal = ((r - y).abs() < 1.5 * dx) & ((yy.abs() - xx.abs()).abs() < 2)
+    assert float(img[diagonal].mean()) == pytest.approx(0.81, abs=0.03)
+
+
+def test_kernels_of_a_wavefront_too_steep_for_the_pupil_grid_are_the_geometric_spot():
+    """At the singlet's field edge the wavefront changes by 4 waves between samples of the largest pupil grid (256):
+    the FFT PSF wraps into its 0.37 mm period (a kernel variance of 1.8 samples^2 where the rays' spot has 28). The
+    kernel is then the geometric spot: its variance along the field direction is the ray intercepts' (computed here
+    from the rays, about the chief ray)."""
+    from isettorch.optics.lens.optics import field_radii_mm
+    from isettorch.optics.lens.psf import ALIASED_STEP_WAVES, otf_sampler
+
+    opt = _singlet_optics(field_samples=5, azimuth_samples=1, components=None)
+    a = opt.analysis
+    wl = 587.5618
+    assert otf_sampler(a, 1.0, wl, 64, 256).max_step_waves > ALIASED_STEP_WAVES
+    _, y_ref, _ = opt._radial_tables(a.reference_wavelength_nm)
+    r_max = float(y_ref[-1]) * 0.999
+    dx = 0.3
+    psfs, radii, size = opt._psf_stack((wl,), dx, r_max)
+    assert torch.allclose(radii, field_radii_mm(r_max, 5))
+    assert any(f > 0.99 for f, _ in opt.geometric_psfs)
+    k = psfs[0, -1, 0]
+    m = size // 2
+    rows = (torch.arange(size, dtype=torch.float64) - m) * dx
+    mean = float((k.sum(1) * rows).sum())
+    var = float((k.sum(1) * rows ** 2).sum()) - mean ** 2
+    # the rays of that field (the last field height's chief ray at r_max)
+    from isettorch.optics.lens.optics import _interp
+
+    theta_ref, _, _ = opt._radial_tables(a.reference_wavelength_nm)
+    f = float((_interp(torch.tensor([r_max], dtype=torch.float64), y_ref, theta_ref) / a.max_field_deg)[0])
+    u = (torch.arange(200, dtype=torch.float64) - 99.5) / 100
+    py, px = torch.meshgrid(u, u, indexing="ij")
+    inside = px ** 2 + py ** 2 <= 1
+    with torch.no_grad():
+        b = a.rays(a.field_angle_deg(f), px[inside], py[inside], wl)
+        p, _ = a.to_plane(b, a.sensor_z)
+        ch, _ = a.chief_ray(f, wl, image_z=a.sensor_z)
+    dy = p[b.valid, 1] - ch[1]
+    dy = dy[dy.abs() <= (m + 0.5) * dx]
+    assert mean == pytest.approx(float(dy.mean()), abs=0.1 * dx)
+    assert var == pytest.approx(float(dy.var()), rel=0.1)
