@@ -77,8 +77,17 @@ def resolve_glass(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS):
         if g is not None:
             return g
         tried.append("optiland database (for " + "/".join(others) + ")")
+    hint = ""
+    if any(c.upper() == "SCHOTT" for c in catalogs) and not name.upper().startswith("N-"):
+        try:
+            gf.create_glass(f"N-{name}", "Schott")
+            hint = (f"; the catalogue data are Schott's current ones, where {name} (an obsolete glass, still in "
+                    f"OpticStudio's SCHOTT.AGF) has the successor N-{name}, whose indices differ slightly: rename "
+                    f"the glass to N-{name} to use it")
+        except Exception:
+            pass
     raise GlassError(f"glass {name!r}: not found in the prescription's glass catalogues {tried}; expected a "
-                     f"glass of one of them (add its catalogue to GCAT, or use a known glass name)")
+                     f"glass of one of them (add its catalogue to GCAT, or use a known glass name){hint}")
 
 
 class _OptilandGlass:

@@ -323,6 +323,10 @@ class LensOptics(nn.Module):
         t_pitch = 2 * half_t / w  # tan(angle) per scene sample
         corner_t = t_pitch * math.hypot(w / 2, h / 2)
         corner_deg = math.degrees(math.atan(corner_t))
+        if corner_deg > a.max_field_deg * (1 + 1e-9) and a.max_field_deg == 0:
+            raise TraceError(f"{a.prescription.name}: the prescription has no off-axis field (its largest field "
+                             f"angle is 0 deg) and LensOptics traces the field up to it; add field angles (YFLN or "
+                             f"field_angles_deg) reaching the scene's corners, {corner_deg:.3f} deg")
         if corner_deg > a.max_field_deg * (1 + 1e-9):
             max_hfov = 2 * math.degrees(math.atan(math.tan(math.radians(a.max_field_deg)) * w / math.hypot(w, h)))
             raise TraceError(f"scene.hfov_deg: the scene's corners are {corner_deg:.3f} deg off axis, beyond the "

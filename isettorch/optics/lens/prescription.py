@@ -215,6 +215,14 @@ _VIGNETTING = ("VDXN", "VDYN", "VCXN", "VCYN", "VANN")
 _FIELD_LINES = {"XFLN": ("new", "x"), "YFLN": ("new", "y"), "XFLD": ("old", "x"), "YFLD": ("old", "y")}
 
 
+def _all_zero(values) -> bool:
+    """Whether every operand is a number equal to 0 (and there is at least one)."""
+    try:
+        return bool(values) and all(float(v) == 0.0 for v in values)
+    except ValueError:
+        return False
+
+
 def read_zmx(path: str | Path) -> Prescription:
     """Read a sequential Zemax ``.zmx`` file (any of its encodings) into a :class:`Prescription`.
 
@@ -359,6 +367,8 @@ def read_zmx(path: str | Path) -> Prescription:
                     floating[si] = at
                 else:
                     floating.pop(si, None)
+            elif op in ("OBDC", "DECX", "DECY", "TILT") and _all_zero(tok[1:]):
+                continue  # a zero decentre or tilt (files write OBDC 0 0 by default): nothing to model
             elif op in ("SQAP", "ELAP", "OBSC", "OBDC", "UDAP", "DECX", "DECY", "TILT"):
                 raise PrescriptionError(f"{at}: surface {si}: operand {op} (non-circular or decentred "
                                         f"apertures/surfaces) is not supported")

@@ -14,7 +14,7 @@ import math
 
 import torch
 
-from .glass import refractive_index
+from .glass import GlassError, refractive_index
 from .prescription import Prescription
 
 __all__ = ["LensGeometry", "RayBundle", "TraceError"]
@@ -77,7 +77,13 @@ class LensGeometry:
     def indices(self, wavelength_nm: float) -> list[float]:
         """Refractive indices of the media: object space, then after each lens surface (``S + 1`` values)."""
         cats = self.prescription.catalogs
-        return [refractive_index(m, float(wavelength_nm), cats) for m in self.materials]
+        out = []
+        for i, m in enumerate(self.materials):
+            try:
+                out.append(refractive_index(m, float(wavelength_nm), cats))
+            except GlassError as e:
+                raise GlassError(f"{self.prescription.name}, the medium after surface {i}: {e}") from None
+        return out
 
     # --- paraxial -----------------------------------------------------------------------------------
     def _paraxial_trace(self, y0, u0, n, upto=None):

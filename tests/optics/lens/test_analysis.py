@@ -539,3 +539,39 @@ def test_flux_relative_illumination_matches_a_monte_carlo_irradiance_of_a_field_
         mc = float(irr[k - 1:k + 2].mean()) / e0
         assert float(a.relative_illumination(f, wl, 128, method="flux")) == pytest.approx(mc, abs=tol), f
     assert float(a.relative_illumination(1.0, wl, 128)) > 1.2
+
+
+def test_an_obsolete_schott_name_is_refused_naming_the_surface_and_its_successor():
+    """OpticStudio's SCHOTT.AGF still lists obsolete glasses (SK16 of Zemax's Cooke sample); the catalogue data here
+    are Schott's current ones: the error names the surface and the lead-free successor N-SK16 (not substituted)."""
+    p = read_lens_yaml({"aperture": {"entrance_pupil_diameter_mm": 4}, "catalogs": ["SCHOTT"],
+                        "surfaces": [{"radius_mm": 20, "thickness_mm": 3, "material": "SK16", "stop": True},
+                                     {"radius_mm": -20, "thickness_mm": 20}]})
+    with pytest.raises(GlassError, match=r"the medium after surface 1: glass 'SK16'.*successor N-SK16"):
+        _ = LensAnalysis(p).effective_focal_length_mm
+
+
+def test_zero_decentre_operands_are_accepted_others_refused(tmp_path):
+    from isettorch.optics.lens import PrescriptionError, read_zmx
+
+    body = ("UNIT MM\nENPD 10\nGCAT SCHOTT\nFTYP 0 0 1 1 0 0 0\nYFLN 0\nWAVM 1 0.5876 1\n"
+            "SURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\n  CURV 0.02\n  DISZ 4\n  GLAS N-BK7\n  {op}\n"
+            "SURF 2\n  CURV -0.02\n  DISZ 48\nSURF 3\n")
+    f = tmp_path / "l.zmx"
+    f.write_text(body.format(op="OBDC 0 0"))
+    assert len(read_zmx(f).surfaces) == 4
+    f.write_text(body.format(op="OBDC 0.5 0"))
+    with pytest.raises(PrescriptionError, match="OBDC"):
+        read_zmx(f)
+
+
+def test_on_axis_only_prescription_names_the_missing_field_angles():
+    from isettorch.optics.lens.optics import LensOptics
+    from isettorch.scene.scene import Scene
+
+    p = read_lens_yaml({"aperture": {"entrance_pupil_diameter_mm": 4}, "catalogs": ["SCHOTT"], "field_angles_deg": [0],
+                        "surfaces": [{"radius_mm": 20, "thickness_mm": 3, "material": "N-BK7", "stop": True},
+                                     {"radius_mm": -20, "thickness_mm": 20}]})
+    s = Scene(torch.ones(1, 1, 8, 8, dtype=torch.float64), torch.tensor([550.0], dtype=torch.float64), hfov_deg=5.0)
+    with pytest.raises(TraceError, match="no off-axis field .* add field angles"):
+        LensOptics(p)(s)
