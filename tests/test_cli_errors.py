@@ -108,7 +108,8 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                     (["cooke_triplet", "--fields", "a,b", "--json"], "--fields"),
                     (["cooke_triplet", "--out", "{garbage}"], "--out"), (["{binyaml}", "--json"], "lens"),
                     (["cooke_triplet", "--fields", "0,,1", "--json"], "--fields"),  # (the empty item was dropped)
-                    (["cooke_triplet", "--wavelengths-nm", "5", "--json"], "--wavelengths-nm: glass")],
+                    (["cooke_triplet", "--wavelengths-nm", "5", "--json"],
+                     "--wavelengths-nm: Cooke triplet f/5 40 deg, the medium after surface 1: glass")],
     "parity": [([MISSING + ".npz"], "no_such_input.npz"), (["{tmp}/x.npz", "--repeat", "-1"], "--repeat"),
                (["{tmp}/x.npz", "--repeat", "1000000000"], "--repeat")],
     "process": [([MISSING, "--camera", "default", "--model", "{garbage}"], "RAW"),

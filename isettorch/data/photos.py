@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._checks import is_integer
 from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from . import spectra as _spectra
 from .config import seed_for
@@ -73,6 +74,12 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
         folder = Path(folder)
         if not folder.is_dir():
             raise ValueError(f"folder: expected a directory of RGB photos, got {str(folder)!r}")
+        if not (is_integer(size) and size >= 2):  # (0 gave empty scenes, 2.7 was cut to 2)
+            raise ValueError(f"size: expected an integer crop size >= 2 pixels, got {size!r}")
+        if length is not None and not (is_integer(length) and length >= 1):  # (-3 failed later, inside len())
+            raise ValueError(f"length: expected None or an integer >= 1, got {length!r}")
+        if not is_integer(seed):
+            raise ValueError(f"seed: expected an integer, got {seed!r}")
         self.files = photo_files(folder)
         if not self.files:
             raise ValueError(f"folder: no {'/'.join(self.SUFFIXES)} files in {str(folder)!r}")

@@ -1,6 +1,6 @@
 """Reading and writing users' RGB images: PNG (8/16-bit), TIFF (8/16-bit, float32) and OpenEXR (float); and
-:func:`read_rgb8`, the 8-bit code values of a photograph (PNG, TIFF or JPEG) as the benchmarks and the photo lifter
-read them.
+:func:`read_rgb8`, the 8-bit code values of a photograph (PNG, TIFF, JPEG, BMP, WebP or GIF) as the benchmarks and
+the photo lifter read them.
 
 Value conventions (what a tensor holds, what a file holds):
 
@@ -27,23 +27,36 @@ import torch
 from .._checks import narrow_float
 
 __all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "photo_files", "IMAGE_SUFFIXES",
-           "PHOTO_SUFFIXES"]
+           "PHOTO_SUFFIXES", "UNREAD_IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = {".png": "png", ".tif": "tiff", ".tiff": "tiff", ".exr": "exr"}
 _ENCODINGS = ("srgb", "linear")
 _EXR_CHANNELS = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
 
 
-#: the 8-bit photographs :func:`read_rgb8` reads (the benchmark and photo-lifting folders)
-PHOTO_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+#: the 8-bit photographs :func:`read_rgb8` reads (the benchmark and photo-lifting folders; Pillow decodes them)
+PHOTO_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".webp", ".gif")
+
+#: image files a photo folder may hold that :func:`read_rgb8` does not read (HDR, camera raw, other codecs):
+#: :func:`photo_files` refuses a folder holding one rather than leaving it out of a mean unsaid
+UNREAD_IMAGE_SUFFIXES = (".heic", ".heif", ".avif", ".jxl", ".jp2", ".j2k", ".exr", ".hdr", ".dng", ".cr2", ".cr3",
+                         ".nef", ".arw", ".orf", ".rw2", ".raf", ".psd", ".tga", ".ppm", ".pgm", ".pnm", ".pbm",
+                         ".ico", ".svg")
 
 
 def photo_files(folder) -> list[Path]:
     """The photographs of a folder, sorted by name: the files with a :data:`PHOTO_SUFFIXES` suffix (any case),
     hidden ones left out (names beginning with ``.``, such as the ``._name.png`` AppleDouble files macOS leaves on
-    copied folders: metadata, not images)."""
-    return sorted(p for p in Path(folder).iterdir() if p.suffix.lower() in PHOTO_SUFFIXES
-                  and not p.name.startswith("."))
+    copied folders: metadata, not images), other files (notes, READMEs) too. A folder holding an image in a format
+    not read here (:data:`UNREAD_IMAGE_SUFFIXES`: HEIC, AVIF, camera raw, ...) raises a ``ValueError`` naming it:
+    leaving it out would score the folder on fewer photographs than it holds, unsaid."""
+    files = [p for p in Path(folder).iterdir() if not p.name.startswith(".")]
+    unread = sorted(p.name for p in files if p.suffix.lower() in UNREAD_IMAGE_SUFFIXES)
+    if unread:
+        raise ValueError(f"folder: {str(folder)!r} holds image(s) in a format not read here: {unread[:5]}"
+                         f"{' ...' if len(unread) > 5 else ''}; expected {'/'.join(PHOTO_SUFFIXES)} photographs "
+                         f"(convert them, e.g. to PNG, or move them out)")
+    return sorted(p for p in files if p.suffix.lower() in PHOTO_SUFFIXES)
 
 
 def read_rgb8(path) -> np.ndarray:
@@ -58,11 +71,18 @@ def read_rgb8(path) -> np.ndarray:
     other colour spaces, several pages or frames (a multi-page TIFF, an animation: which one is the photograph?), a
     file that is not an image.
     """
+    import warnings
+
     from PIL import Image, ImageOps
 
     p = Path(path)
     try:
-        with Image.open(p) as im:
+        with warnings.catch_warnings(), Image.open(p) as im:
+            # Pillow's warnings name no file and change nothing: a DecompressionBombWarning above 89 MP (twice that
+            # raises, below), "Corrupt EXIF data" (the orientation is then not applied); they printed file:line
+            # lines amid the command's output
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            warnings.filterwarnings("ignore", message="Corrupt EXIF data")
             rawmode = im.tile[0][3] if im.tile else ""
             rawmode = rawmode[0] if isinstance(rawmode, tuple) else rawmode
             if im.mode in ("I", "I;16", "I;16B", "I;16L", "F") or ";16" in str(rawmode) or ";32" in str(rawmode):

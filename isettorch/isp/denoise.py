@@ -73,10 +73,11 @@ def _denoise_plane(plane: np.ndarray, sigma: float, method: str) -> np.ndarray:
 
         # h = 0.6 sigma with sigma given and fast mode: scikit-image's documented setting (gallery "Non-local means
         # denoising for preserving textures"); patch 5 x 5, search 13 x 13. Fixed, never tuned on a test set.
-        return denoise_nl_means(plane, h=0.6 * sigma, sigma=sigma, patch_size=5, patch_distance=6, fast_mode=True)
+        out = denoise_nl_means(plane, h=0.6 * sigma, sigma=sigma, patch_size=5, patch_distance=6, fast_mode=True)
+        return np.asarray(out).reshape(plane.shape)  # (a one-column plane came back 1-D)
     import bm3d  # (check_denoiser said it is installed)
 
-    return np.asarray(bm3d.bm3d(plane, sigma_psd=sigma), dtype=np.float64)
+    return np.asarray(bm3d.bm3d(plane, sigma_psd=sigma), dtype=np.float64).reshape(plane.shape)
 
 
 def denoise_mosaic(raw: torch.Tensor, method: str, noise_sigma: float = 0.0, noise_shot: float = 0.0

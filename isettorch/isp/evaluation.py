@@ -71,19 +71,22 @@ def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: 
 
 
 def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
-    """8-bit RGB images as (name, uint8 array [H, W, 3]) from a folder (png/tif/jpg, sorted by name, hidden files
-    left out: :func:`isettorch.io.images.photo_files`; read by
+    """8-bit RGB images as (name, uint8 array [H, W, 3]) from a folder (png/tif/jpg/bmp/webp/gif, sorted by name,
+    hidden files left out, an image in another format refused: :func:`isettorch.io.images.photo_files`; read by
     :func:`isettorch.io.images.read_rgb8`: gray, palette and opaque-alpha images converted losslessly, anything
     else refused naming the file) or an iterable of (name, array) pairs."""
     if not isinstance(source, (str, Path)):
         return [(str(n), np.asarray(a)) for n, a in source]
     folder = Path(source)
     if not folder.is_dir():
-        raise ValueError(f"images: expected a folder of {'/'.join(IMAGE_SUFFIXES)} images, {str(folder)!r} is not "
+        raise ValueError(f"images: expected a folder of {'/'.join(PHOTO_SUFFIXES)} images, {str(folder)!r} is not "
                          "a directory")
-    files = photo_files(folder)
+    try:
+        files = photo_files(folder)
+    except ValueError as err:
+        raise ValueError(f"images: {str(err).removeprefix('folder: ')}") from err
     if not files:
-        raise ValueError(f"images: no {'/'.join(IMAGE_SUFFIXES)} files in {str(folder)!r}")
+        raise ValueError(f"images: no {'/'.join(PHOTO_SUFFIXES)} files in {str(folder)!r}")
     out = []
     for f in files:
         try:

@@ -261,3 +261,41 @@ def test_read_image_puts_a_planar_tiffs_samples_last_and_refuses_pages(tmp_path)
     (tmp_path / "empty.png").write_bytes(b"")
     with pytest.raises(ValueError, match="empty.png' is not a readable PNG image"):
         read_image(tmp_path / "empty.png")
+
+
+def test_photo_folders_read_bmp_webp_gif_and_refuse_formats_they_cannot_read(tmp_path):
+    """A folder of photographs in Pillow's 8-bit formats is read whole (a BMP beside a PNG was left out of the mean
+    unsaid); a HEIC, AVIF, raw or EXR file in it is refused by name rather than skipped."""
+    from PIL import Image
+
+    from isettorch.io.images import photo_files, read_rgb8
+
+    rng = np.random.default_rng(0)
+    arrays = {}
+    for name in ("a.bmp", "b.png", "c.webp", "d.GIF"):
+        a = rng.integers(0, 255, (12, 16, 3), dtype=np.uint8)
+        if name.endswith("GIF"):
+            a[:] = a[0, 0]  # one colour: a palette holds it exactly
+        kw = {"lossless": True} if name.endswith("webp") else {}
+        Image.fromarray(a).save(tmp_path / name, **kw)
+        arrays[name] = a
+    (tmp_path / "notes.txt").write_text("not a photograph")
+    files = photo_files(tmp_path)
+    assert [f.name for f in files] == ["a.bmp", "b.png", "c.webp", "d.GIF"]
+    for f in files:
+        np.testing.assert_array_equal(read_rgb8(f), arrays[f.name])
+    (tmp_path / "e.HEIC").write_bytes(b"\0")
+    with pytest.raises(ValueError, match=r"folder: .* holds image\(s\) in a format not read here: \['e.HEIC'\]"):
+        photo_files(tmp_path)
+
+
+def test_photo_scene_dataset_checks_size_and_length(tmp_path):
+    from PIL import Image
+
+    from isettorch.data.photos import PhotoSceneDataset
+
+    Image.fromarray(np.zeros((40, 40, 3), np.uint8)).save(tmp_path / "a.png")
+    for kw, name in (({"size": 0}, "size"), ({"size": 2.7}, "size"), ({"length": -3}, "length"),
+                     ({"seed": 1.5}, "seed")):
+        with pytest.raises(ValueError, match=rf"^{name}: expected"):
+            PhotoSceneDataset(tmp_path, **kw)
