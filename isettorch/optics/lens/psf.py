@@ -171,19 +171,8 @@ def geometric_psf(analysis: LensAnalysis, field: float, wavelength_nm: float, az
     The PSF of geometrical optics, which the diffraction PSF approaches where the wavefront's aberration spans many
     waves (stationary phase; Born & Wolf, *Principles of Optics*, 7th ed., section 8.1 / 9.1), and the one a pupil
     FFT cannot give when the wavefront is too steep for its grid (:data:`ALIASED_STEP_WAVES`)."""
-    theta = analysis.field_angle_deg(field)
-    u = (torch.arange(samples, dtype=torch.float64) - (samples - 1) / 2) * (2.0 / samples)
-    py, px = torch.meshgrid(u, u, indexing="ij")
-    inside = px * px + py * py <= 1
-    z = analysis.sensor_z
-    with torch.no_grad():
-        b = analysis.rays(theta, px[inside], py[inside], wavelength_nm)
-        pts, _ = analysis.to_plane(b, z)
-        c, _ = analysis.chief_ray(field, wavelength_nm, image_z=z)
-    ok = b.valid
-    t = (pts[ok, 1] - c[1]).to(torch.float64)  # the field is along +y (LensAnalysis.rays)
-    s = (pts[ok, 0] - c[0]).to(torch.float64)
-    if not bool(ok.any()):
+    t, s = _ray_offsets_mm(analysis, field, wavelength_nm, samples)
+    if not t.numel():
         raise ValueError(f"field {field} at {wavelength_nm} nm: every ray of the pupil is vignetted")
     w = torch.ones_like(t)
     return _splat(t, s, w, azimuths_rad, dx_mm, size, band_limited=not _narrow(t, s, w, dx_mm))
@@ -270,8 +259,11 @@ def chief_ray_heights_mm(analysis: LensAnalysis, fields: torch.Tensor, wavelengt
     return torch.stack(out)
 
 
-def spot_radius_mm(analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int = 24) -> float:
-    """Largest distance of a traced (unvignetted) ray from the chief ray on the sensor plane (mm)."""
+def _ray_offsets_mm(analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Where the unvignetted rays of a ``samples`` x ``samples`` grid over the entrance pupil land on the sensor
+    plane, from the chief ray (mm): ``(t, s)`` along the field direction (+y: :meth:`LensAnalysis.rays`) and
+    across it."""
     theta = analysis.field_angle_deg(field)
     u = (torch.arange(samples, dtype=torch.float64) - (samples - 1) / 2) * (2.0 / samples)
     py, px = torch.meshgrid(u, u, indexing="ij")
@@ -281,5 +273,11 @@ def spot_radius_mm(analysis: LensAnalysis, field: float, wavelength_nm: float, s
         b = analysis.rays(theta, px[m], py[m], wavelength_nm)
         pts, _ = analysis.to_plane(b, z)
         c, _ = analysis.chief_ray(field, wavelength_nm, image_z=z)
-    d = torch.linalg.vector_norm(pts[..., :2] - c[:2], dim=-1)[b.valid]
-    return float(d.max()) if d.numel() else 0.0
+    ok = b.valid
+    return (pts[ok, 1] - c[1]).to(torch.float64), (pts[ok, 0] - c[0]).to(torch.float64)
+
+
+def spot_radius_mm(analysis: LensAnalysis, field: float, wavelength_nm: float, samples: int = 24) -> float:
+    """Largest distance of a traced (unvignetted) ray from the chief ray on the sensor plane (mm)."""
+    t, s = _ray_offsets_mm(analysis, field, wavelength_nm, samples)
+    return float(torch.sqrt(t * t + s * s).max()) if t.numel() else 0.0
