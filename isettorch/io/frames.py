@@ -38,8 +38,9 @@ _GREY_MODES = ("L", "I;16", "I;16B", "I;16L", "I", "F")  # PIL greyscale modes: 
 @dataclasses.dataclass
 class Capture:
     """A calibration capture in memory. ``dark`` / ``flat`` map exposure (ms) -> ``(N, H, W)`` DN stacks, float32 as
-    :func:`read_capture` stores them (every integer DN up to 2^24 exactly, half of float64's memory: 24-megapixel
-    frames, 2 per level, 20 levels of each kind take 7.7 GB); the statistics are computed in float64."""
+    :func:`read_capture` stores them up to 24 bits (every integer DN exactly, half of float64's memory: 24-megapixel
+    frames, 2 per level, 20 levels of each kind take 7.7 GB), float64 above; the statistics are computed in
+    float64."""
 
     bit_depth: int
     pixel_size_m: float
@@ -246,8 +247,8 @@ def _skipped_warning(root: Path, skipped: list[Path]) -> str:
 
 
 def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
-    """Read a calibration capture folder (see the module docstring); frames become float32 DN stacks
-    (:class:`Capture`)."""
+    """Read a calibration capture folder (see the module docstring); frames become float32 DN stacks (float64 above
+    24 bits: :class:`Capture`)."""
     root = Path(directory)
     if not root.is_dir():
         raise ValueError(f"{root}: not a directory")
@@ -276,6 +277,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
         if not any(k == kind for k, _ in folders):
             raise ValueError(f"{root}: no {kind}_<exposure_ms>ms folders; a calibration needs dark and flat stacks")
     limit = 2 ** cfg["bit_depth"] - 1
+    dtype = np.float32 if cfg["bit_depth"] <= 24 else np.float64  # float32 holds every integer up to 2^24 exactly
     jobs = [(k, folders[k], _frame_files(folders[k], skipped)) for k in sorted(folders)]
     total = sum(len(f) for _, _, f in jobs)
     from .._progress import progress as progress_bar
@@ -298,7 +300,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
                 if arr.max() > limit:
                     raise ValueError(f"{f}: values up to {arr.max():g} DN exceed 2^bit_depth - 1 = {limit} "
                                      f"(bit_depth {cfg['bit_depth']} in capture.yaml; are the values shifted left?)")
-                frames.append(arr.astype(np.float32))
+                frames.append(arr.astype(dtype))
                 bar.update(1)
             _check_copies(files, frames, folder)
             stacks[kind][ms] = np.stack(frames)

@@ -1,6 +1,6 @@
 """Reading and writing users' RGB images: PNG (8/16-bit), TIFF (8/16-bit, float32) and OpenEXR (float); and
-:func:`read_rgb8`, the 8-bit code values of a photograph (PNG, TIFF, JPEG, BMP, WebP or GIF) as the benchmarks and
-the photo lifter read them.
+:func:`read_rgb8`, the 8-bit code values of a photograph (PNG, TIFF, JPEG, BMP, WebP, GIF, PPM/PGM or TGA) as the
+benchmarks and the photo lifter read them.
 
 Value conventions (what a tensor holds, what a file holds):
 
@@ -35,13 +35,12 @@ _EXR_CHANNELS = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
 
 
 #: the 8-bit photographs :func:`read_rgb8` reads (the benchmark and photo-lifting folders; Pillow decodes them)
-PHOTO_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".webp", ".gif")
+PHOTO_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".webp", ".gif", ".ppm", ".pgm", ".pnm", ".tga")
 
 #: image files a photo folder may hold that :func:`read_rgb8` does not read (HDR, camera raw, other codecs):
 #: :func:`photo_files` refuses a folder holding one rather than leaving it out of a mean unsaid
 UNREAD_IMAGE_SUFFIXES = (".heic", ".heif", ".avif", ".jxl", ".jp2", ".j2k", ".exr", ".hdr", ".dng", ".cr2", ".cr3",
-                         ".nef", ".arw", ".orf", ".rw2", ".raf", ".psd", ".tga", ".ppm", ".pgm", ".pnm", ".pbm",
-                         ".ico", ".svg")
+                         ".nef", ".arw", ".orf", ".rw2", ".raf", ".psd")
 
 
 def photo_files(folder) -> list[Path]:

@@ -71,10 +71,10 @@ def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: 
 
 
 def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
-    """8-bit RGB images as (name, uint8 array [H, W, 3]) from a folder (png/tif/jpg/bmp/webp/gif, sorted by name,
-    hidden files left out, an image in another format refused: :func:`isettorch.io.images.photo_files`; read by
-    :func:`isettorch.io.images.read_rgb8`: gray, palette and opaque-alpha images converted losslessly, anything
-    else refused naming the file) or an iterable of (name, array) pairs."""
+    """8-bit RGB images as (name, uint8 array [H, W, 3]) from a folder (:data:`~isettorch.io.images.PHOTO_SUFFIXES`,
+    sorted by name, hidden files left out, an image in another format refused: :func:`isettorch.io.images.photo_files`;
+    read by :func:`isettorch.io.images.read_rgb8`: gray, palette and opaque-alpha images converted losslessly,
+    anything else refused naming the file) or an iterable of (name, array) pairs."""
     if not isinstance(source, (str, Path)):
         return [(str(n), np.asarray(a)) for n, a in source]
     folder = Path(source)

@@ -12,7 +12,8 @@ Per CFA channel (the sub-images of one colour; a monochrome sensor is one channe
 * read noise (e-): pixel-wise temporal dark variance extrapolated to t = 0 (intercept of a line in t), minus the
   quantisation variance q^2/12 DN^2 (EMVA eq. 5; q = 1 DN, or the common step 2^s of left-aligned data), square root,
   over K; row noise and quantisation are not in it. A dark variance under 0.24 q^2 DN^2 is quantisation-limited
-  (EMVA 1288 4.0 section 6.4): the read noise is then the upper limit sqrt(0.24 - 1/12) q / K, with a warning;
+  (EMVA 1288 4.0 section 6.4): unless the pixels' offsets (DSNU >= q / 2) dither the quantiser, the read noise is then
+  the upper limit sqrt(0.24 - 1/12) q / K, with a warning;
 * darks with more than 0.1 % of their pixels at the ADC's top code are left out of the dark fits (warned; an error
   when every dark is);
 * row noise (e-): std of the per-frame row offsets from the temporal variance of the row means (ELD, Wei et al.
@@ -218,21 +219,34 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
                         f"the fit by): {dropped}")
         linear = keep
 
-    # EMVA 1288 4.0 section 6.4: a dark variance below 0.24 DN^2 (per quantisation step^2) is quantisation-limited,
-    # the q^2/12 of eq. 5 no longer holds (a sub-DN noise not dithered by the offsets rounds to fewer codes), and the
-    # standard reports the floor, an upper limit of the read noise
-    floor = S2_DARK_FLOOR_DN2 / S2_QUANTIZATION_DN2 * quantisation_dn2
-    read_var = vicpt - quantisation_dn2
-    if vicpt < floor:
-        read_var = floor - quantisation_dn2
-        warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
-                        f"{floor:.4g} DN^2, where quantisation dominates it (EMVA 1288 4.0 section 6.4): read noise "
-                        f"reported as the upper limit {math.sqrt(read_var):.3g} DN (the floor less q^2/12); the dark "
-                        f"current and DSNU of a dark signal this far under one DN are biased low")
     row_var = float(np.mean([d["var_row"] for d in dark.values()]))
     col_var = float(np.mean([d["var_col"] for d in dark.values()]))
 
     dsnu2, shading_b = _dsnu_fit(dark)
+
+    # EMVA 1288 4.0 section 6.4: a dark variance below 0.24 DN^2 (per quantisation step^2) is quantisation-limited:
+    # the q^2/12 of eq. 5 holds only for a noise dithered over the codes, and the standard then reports the floor,
+    # an upper limit of the read noise. The pixels' fixed offsets (DSNU) dither the quantiser across the pixels
+    # when they spread over half a step or more: the mean of the pixel-wise variances is then sigma^2 + q^2/12 again
+    # (a 0.30 DN read noise under 0.5 DN of DSNU was measured at 0.30; without, 0.11), and the measurement is kept.
+    floor = S2_DARK_FLOOR_DN2 / S2_QUANTIZATION_DN2 * quantisation_dn2
+    step = math.sqrt(quantisation_dn2 / S2_QUANTIZATION_DN2)
+    read_var = vicpt - quantisation_dn2
+    if vicpt < floor:
+        if math.sqrt(max(dsnu2, 0.0)) < 0.5 * step:
+            read_var = floor - quantisation_dn2
+            warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
+                            f"{floor:.4g} DN^2, where quantisation dominates it, and the pixels' offsets (DSNU "
+                            f"{math.sqrt(max(dsnu2, 0.0)):.3g} DN) are too uniform to dither it (EMVA 1288 4.0 "
+                            f"section 6.4): read noise reported as the upper limit {math.sqrt(read_var):.3g} DN (the "
+                            f"floor less q^2/12); the dark current and DSNU of a dark signal this far under one DN are "
+                            f"biased low")
+        else:
+            warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
+                            f"{floor:.4g} DN^2 (EMVA 1288 4.0 section 6.4 would report the upper limit "
+                            f"{math.sqrt(floor - quantisation_dn2):.3g} DN); the pixels' offsets (DSNU "
+                            f"{math.sqrt(max(dsnu2, 0.0)):.3g} DN) dither the quantiser, so the measured "
+                            f"{math.sqrt(max(read_var, 0.0)):.3g} DN is kept")
 
     # PRNU: (s^2 / signal^2) of the dark-subtracted flat averages (EMVA 8.2, the dark of the same or nearest exposure
     # subtracted pixel by pixel), combined over the linear levels and the one nearest half saturation, each weighted

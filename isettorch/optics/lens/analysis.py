@@ -310,7 +310,10 @@ class LensAnalysis:
         to and from the neighbouring points, which the PSF (not this ratio) carries, so this is the gain
         :class:`LensOptics` applies before its PSFs: the singlet above 0.787 / 0.575 at 20 / 30 deg against a Monte-
         Carlo irradiance's 0.796 / 0.550 (at the field's edge the blur, 3.5 mm across, and its centroid's offset
-        from the chief ray matter), the F/193 lens cos^4 to 1e-3.
+        from the chief ray matter), the F/193 lens cos^4 to 1e-3, the bundled aspheric singlet 0.947 at 10 deg
+        (Monte-Carlo 0.971: its coma moves the light's centroid off the chief ray). NaN where the chief ray's height
+        stops growing with field (the image folds back, as at the edge of a strongly barrel-distorted wide angle:
+        the 100 deg retrofocus of the tests beyond 0.9 of its field), where no such ratio exists.
 
         Rays that miss a surface or are totally reflected inside the pupil count as vignetted here (the
         marginal-ray check of :func:`lens_report` refuses such a lens): a block that totally reflects 29 % of its
@@ -340,15 +343,20 @@ class LensAnalysis:
 
     def _flux_jacobian(self, field, wavelength_nm) -> torch.Tensor:
         """``cos(theta) sin(theta) y'(0)^2 / (y y')`` of the chief ray's height y(theta) on the sensor plane (1 on
-        axis); y' by central differences of 1e-4 of the field (one-sided, second order, at the field's edge)."""
+        axis); y' by central differences of 1e-4 of the field (y is odd in theta, so a step below 0 is read through
+        the axis; one-sided, second order, at the field's edge). NaN where y' <= 0 (the image folds back: a chief
+        ray's height no longer grows with field, as at the edge of a strongly barrel-distorted wide angle), where
+        no flux ratio exists."""
         f = float(field)
-        if f == 0.0:
+        rad = math.radians(self.max_field_deg)
+        if f == 0.0 or rad == 0.0:
             return torch.ones((), dtype=self.dtype)
         z = self.sensor_z
         d = 1e-4
-        rad = math.radians(self.max_field_deg)
 
         def y(fr: float) -> float:
+            if fr < 0:
+                return -y(-fr)
             with torch.no_grad():
                 return float(self.chief_ray(fr, wavelength_nm, image_z=z)[0][1])
 
@@ -358,7 +366,10 @@ class LensAnalysis:
         else:
             dy = (3 * y(f) - 4 * y(f - d) + y(f - 2 * d)) / (2 * d * rad)
         th = f * rad
-        return torch.tensor(math.cos(th) * math.sin(th) * y0 * y0 / (y(f) * dy), dtype=self.dtype)
+        yf = y(f)
+        if not (dy > 0 and yf > 0):
+            return torch.tensor(math.nan, dtype=self.dtype)
+        return torch.tensor(math.cos(th) * math.sin(th) * y0 * y0 / (yf * dy), dtype=self.dtype)
 
     def _beam_solid_angle(self, field, wavelength_nm, samples):
         theta = self.field_angle_deg(field)

@@ -68,7 +68,7 @@ class LensOptics(nn.Module):
     and their clamped lobes added up to 8 % of light to a uniform scene's centre at a coarse pitch); and where the
     wavefront changes by more than half a wave between the largest pupil grid's samples (the FFT PSF would wrap
     into its period: a singlet's field edge, a strong defocus), the kernel is the geometric spot of the traced rays
-    (``geometric_psfs`` lists those (field, wavelength) of the last bank).
+    (``geometric_psfs`` lists those (field, wavelength) of the last render's bank).
 
     Args:
         lens: a :class:`Prescription`, ``.zmx``/``.yaml`` path or bundled lens name.
@@ -132,6 +132,9 @@ class LensOptics(nn.Module):
         self.register_buffer("focal_length_m", (a.effective_focal_length_mm.detach() * 1e-3).to(dtype))
         self.register_buffer("f_number", a.f_number.detach().to(dtype))
         self._cache: dict = {}
+        #: the (field, wavelength) whose kernels are the geometric spot of the rays (psf.geometric_psf), in the
+        #: PSF bank of the last render
+        self.geometric_psfs: list = []
         self._states = {_conjugate_key(math.inf, self.focus_distance_m): (a, self._cache)}
         self._a, self._c = a, self._cache
 
@@ -210,8 +213,7 @@ class LensOptics(nn.Module):
                         geometric.append((round(f, 4), wl))
                     else:
                         psfs[i, k] = psf_on_grid(otf, az, dx_mm, size)
-        self.geometric_psfs = geometric  # (field, wavelength) whose kernels are geometric spots (the last bank)
-        self._c[key] = (psfs, radii, size)
+        self._c[key] = (psfs, radii, size, tuple(geometric))
         return self._c[key]
 
     def _psf_bank(self, wavelengths_nm: tuple[float, ...], dx_mm: float, r_max_mm: float):
@@ -219,7 +221,7 @@ class LensOptics(nn.Module):
                self.azimuth_samples, self.pupil_samples, self.components)
         if key in self._c:
             return self._c[key]
-        psfs, radii, size = self._psf_stack(wavelengths_nm, dx_mm, r_max_mm)
+        psfs, radii, size, geometric = self._psf_stack(wavelengths_nm, dx_mm, r_max_mm)
         flat = psfs.reshape(-1, size * size)
         if self.components is None or self.components >= min(flat.shape):
             basis, coeff = None, psfs
@@ -228,7 +230,7 @@ class LensOptics(nn.Module):
             _, _, vh = torch.linalg.svd(flat, full_matrices=False)
             basis = vh[: self.components]  # [K, size^2]
             coeff = (flat @ basis.T).reshape(*psfs.shape[:3], -1)  # [L, F, A, K]
-        bank = {"psfs": psfs, "basis": basis, "coeff": coeff, "radii": radii, "size": size}
+        bank = {"psfs": psfs, "basis": basis, "coeff": coeff, "radii": radii, "size": size, "geometric": geometric}
         self._c[key] = bank
         return bank
 
@@ -336,6 +338,7 @@ class LensOptics(nn.Module):
         dx_mm = efl_mm * t_pitch  # ideal (distortion-free) image pitch
         waves = tuple(float(v) for v in scene.wavelengths_nm.tolist())
         plan = self._plan(waves, h, w, t_pitch, corner_deg, dt, dev)
+        self.geometric_psfs = list(plan["bank"]["geometric"])
         m, hh, ww, fft_shape = plan["m"], plan["hh"], plan["ww"], plan["fft_shape"]
         out = torch.zeros(b, nl, hh, ww, dtype=dt, device=dev)
         for li in range(nl):

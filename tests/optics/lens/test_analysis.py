@@ -575,3 +575,26 @@ def test_on_axis_only_prescription_names_the_missing_field_angles():
     s = Scene(torch.ones(1, 1, 8, 8, dtype=torch.float64), torch.tensor([550.0], dtype=torch.float64), hfov_deg=5.0)
     with pytest.raises(TraceError, match="no off-axis field .* add field angles"):
         LensOptics(p)(s)
+    # its report: every field fraction is the axis (the flux ratio divided by a zero field angle)
+    rep = lens_report(p, fields=(0.0, 1.0), frequencies_cy_mm=(10.0,), pupil_samples=32, ri_samples=32)
+    assert {r["relative_illumination_flux"] for r in rep["rows"]} == {1.0}
+
+
+def test_flux_relative_illumination_near_the_axis_and_where_the_image_folds():
+    """A field under the derivative's step (1e-4) is read through the axis (y is odd in the field angle): it was
+    an error ('beyond the lens'); where the chief ray's height decreases with field no flux ratio exists: NaN
+    (it read -0.049 at the edge of the tests' 100 deg retrofocus, whose height peaks before its edge)."""
+    a = LensAnalysis(_plano_convex(epd_mm=0.5, radius_mm=500.0, thickness_mm=1.0, back_mm=967.0, field_deg=20.0))
+    for f in (5e-5, 1e-3):
+        cos4 = math.cos(math.radians(20.0 * f)) ** 4
+        assert float(a.relative_illumination(f, 587.6, 32, method="flux")) == pytest.approx(cos4, abs=1e-4)
+    # an image height that peaks inside the field (the chief ray's heights replaced by 10 sin(2 theta) mm, the peak
+    # at 45 deg of a 60 deg field)
+    class Folded(LensAnalysis):
+        def chief_ray(self, field, wavelength_nm, image_z=None):
+            y = 10 * math.sin(2 * math.radians(self.field_angle_deg(field)))
+            return torch.tensor([0.0, y, 0.0], dtype=torch.float64), torch.tensor([0.0, 0.0, 1.0])
+
+    b = Folded(_plano_convex(field_deg=60.0))
+    assert math.isnan(float(b._flux_jacobian(1.0, 587.6)))
+    assert float(b._flux_jacobian(0.5, 587.6)) > 0
