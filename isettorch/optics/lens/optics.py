@@ -156,6 +156,10 @@ class LensOptics(nn.Module):
                 y = chief_ray_heights_mm(a, fr, wavelength_nm)
                 ri = torch.stack([a.relative_illumination(float(f), wavelength_nm, self.ri_samples, method="flux")
                                   for f in fr.tolist()])
+            if not bool(torch.isfinite(ri).all()):
+                raise TraceError(f"{a.prescription.name}: the chief ray's height stops growing with field at "
+                                 f"{wavelength_nm} nm (fields {fr[~torch.isfinite(ri)].tolist()}); the image folds "
+                                 f"back there and has no relative illumination")
             if not bool((y[1:] > y[:-1]).all()):
                 raise TraceError(f"{a.prescription.name}: chief-ray height is not increasing with field at "
                                  f"{wavelength_nm} nm; the distortion cannot be inverted")
