@@ -323,36 +323,54 @@ class LensAnalysis:
         _check_pupil_samples(samples, "samples")
         if method not in ("rimmer", "flux"):
             raise ValueError(f"method: expected 'rimmer' or 'flux', got {method!r}")
-        area = self._beam_solid_angle if method == "rimmer" else self._pupil_area
+        if method == "flux":
+            return self._flux_illumination([field], wavelength_nm, samples)[0]
+        return self._area_ratios(self._beam_solid_angle, [field], wavelength_nm, samples)[0]
+
+    def _area_ratios(self, area, fields, wavelength_nm, samples) -> list[torch.Tensor]:
+        """``area(field) / area(0)`` for each of ``fields`` (the on-axis one computed once)."""
         axis = area(0.0, wavelength_nm, samples)
         if float(axis) <= 0:
             raise TraceError(f"relative illumination at {wavelength_nm} nm: no on-axis ray passes the clear "
                              f"apertures")
-        ratio = area(field, wavelength_nm, samples) / axis
-        return ratio if method == "rimmer" else ratio * self._flux_jacobian(field, wavelength_nm)
+        return [area(f, wavelength_nm, samples) / axis for f in fields]
+
+    def _flux_illumination(self, fields, wavelength_nm, samples) -> torch.Tensor:
+        """The ``method="flux"`` relative illumination at each of ``fields`` ``[F]``: the on-axis pupil area and
+        chief-ray slope are computed once (LensOptics asks for a table of fields per wavelength)."""
+        slope0 = self._axis_slope_mm(wavelength_nm)
+        ratios = self._area_ratios(self._pupil_area, fields, wavelength_nm, samples)
+        return torch.stack([r * self._flux_jacobian(f, wavelength_nm, slope0) for r, f in zip(ratios, fields)])
+
+    def _axis_slope_mm(self, wavelength_nm) -> float | None:
+        """y'(0), mm per radian of field angle, of the chief ray's height on the sensor plane (None without an
+        off-axis field): y is odd in theta, so y(d) / d errs by O(d^2)."""
+        rad = math.radians(self.max_field_deg)
+        if rad == 0.0:
+            return None
+        with torch.no_grad():
+            return float(self.chief_ray(_FLUX_STEP, wavelength_nm, image_z=self.sensor_z)[0][1]) / (_FLUX_STEP * rad)
 
     def _pupil_area(self, field, wavelength_nm, samples):
         """The unvignetted part of the entrance pupil's grid (normalised units) for ``field``."""
         theta = self.field_angle_deg(field)
-        u = (torch.arange(samples, dtype=self.dtype) - (samples - 1) / 2) * (2.0 / samples)
-        py, px = torch.meshgrid(u, u, indexing="ij")
-        inside = px * px + py * py <= 1.0
+        px, py, inside = pupil_grid(samples, self.dtype)
         with torch.no_grad():
             b = self.rays(theta, px[inside], py[inside], wavelength_nm, clip=True)
         return b.valid.sum().to(self.dtype) * (2.0 / samples) ** 2
 
-    def _flux_jacobian(self, field, wavelength_nm) -> torch.Tensor:
+    def _flux_jacobian(self, field, wavelength_nm, slope0: float | None = None) -> torch.Tensor:
         """``cos(theta) sin(theta) y'(0)^2 / (y y')`` of the chief ray's height y(theta) on the sensor plane (1 on
         axis); y' by central differences of 1e-4 of the field (y is odd in theta, so a step below 0 is read through
         the axis; one-sided, second order, at the field's edge). NaN where y' <= 0 (the image folds back: a chief
         ray's height no longer grows with field, as at the edge of a strongly barrel-distorted wide angle), where
-        no flux ratio exists."""
+        no flux ratio exists. ``slope0``: y'(0) (:meth:`_axis_slope_mm`), computed here when not given."""
         f = float(field)
         rad = math.radians(self.max_field_deg)
         if f == 0.0 or rad == 0.0:
             return torch.ones((), dtype=self.dtype)
         z = self.sensor_z
-        d = 1e-4
+        d = _FLUX_STEP
 
         def y(fr: float) -> float:
             if fr < 0:
@@ -360,7 +378,7 @@ class LensAnalysis:
             with torch.no_grad():
                 return float(self.chief_ray(fr, wavelength_nm, image_z=z)[0][1])
 
-        y0 = y(d) / (d * rad)  # y'(0): y is odd in theta, so y(d) / d errs by O(d^2)
+        y0 = self._axis_slope_mm(wavelength_nm) if slope0 is None else slope0
         if f + d <= 1.0:
             dy = (y(f + d) - y(f - d)) / (2 * d * rad)
         else:
@@ -373,9 +391,7 @@ class LensAnalysis:
 
     def _beam_solid_angle(self, field, wavelength_nm, samples):
         theta = self.field_angle_deg(field)
-        u = (torch.arange(samples, dtype=self.dtype) - (samples - 1) / 2) * (2.0 / samples)
-        py, px = torch.meshgrid(u, u, indexing="ij")
-        inside = px * px + py * py <= 1.0
+        px, py, inside = pupil_grid(samples, self.dtype)
         px, py = px[inside], py[inside]
         h = 1e-5
         b = self.rays(theta, px, py, wavelength_nm, clip=True)
@@ -411,9 +427,7 @@ class LensAnalysis:
             radius = torch.linalg.vector_norm(e[0] - ipt)
         else:
             radius = None
-        u = (torch.arange(samples, dtype=self.dtype) - (samples - 1) / 2) * (2.0 / samples)
-        py, px = torch.meshgrid(u, u, indexing="ij")
-        inside = px * px + py * py <= 1.0
+        px, py, inside = pupil_grid(samples, self.dtype)
         b = self.rays(theta, px, py, wavelength_nm, clip=True)
         valid = b.valid & inside
         n_img = par["n_image"]
@@ -508,6 +522,18 @@ class LensAnalysis:
                 vals.append((1 - w) * m[k0] + w * m[k0 + 1])
             out.append(torch.stack(vals))
         return out[0], out[1]
+
+
+#: the field step (fraction of the largest field) of the flux relative illumination's derivatives
+_FLUX_STEP = 1e-4
+
+
+def pupil_grid(samples: int, dtype=torch.float64) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The ``samples`` x ``samples`` grid over the normalised entrance pupil (cell centres, rows = y): ``(px, py,
+    inside)``, ``inside`` the unit disc."""
+    u = (torch.arange(samples, dtype=dtype) - (samples - 1) / 2) * (2.0 / samples)
+    py, px = torch.meshgrid(u, u, indexing="ij")
+    return px, py, px * px + py * py <= 1.0
 
 
 #: Pupil grid (samples per side) accepted by :func:`lens_report`: at least 16 (a coarser grid has too few samples

@@ -154,8 +154,7 @@ class LensOptics(nn.Module):
             fr = torch.linspace(0, 1, self.distortion_samples, dtype=torch.float64)
             with torch.no_grad():
                 y = chief_ray_heights_mm(a, fr, wavelength_nm)
-                ri = torch.stack([a.relative_illumination(float(f), wavelength_nm, self.ri_samples, method="flux")
-                                  for f in fr.tolist()])
+                ri = a._flux_illumination(fr.tolist(), wavelength_nm, self.ri_samples)
             if not bool(torch.isfinite(ri).all()):
                 raise TraceError(f"{a.prescription.name}: the chief ray's height stops growing with field at "
                                  f"{wavelength_nm} nm (fields {fr[~torch.isfinite(ri)].tolist()}); the image folds "

@@ -16,7 +16,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-from .analysis import LensAnalysis
+from .analysis import LensAnalysis, pupil_grid
 
 __all__ = ["TableOTF", "otf_sampler", "psf_on_grid", "geometric_psf", "chief_ray_heights_mm", "spot_radius_mm",
            "ALIASED_STEP_WAVES", "NARROW_PSF_SAMPLES"]
@@ -265,9 +265,7 @@ def _ray_offsets_mm(analysis: LensAnalysis, field: float, wavelength_nm: float, 
     plane, from the chief ray (mm): ``(t, s)`` along the field direction (+y: :meth:`LensAnalysis.rays`) and
     across it."""
     theta = analysis.field_angle_deg(field)
-    u = (torch.arange(samples, dtype=torch.float64) - (samples - 1) / 2) * (2.0 / samples)
-    py, px = torch.meshgrid(u, u, indexing="ij")
-    m = px * px + py * py <= 1
+    px, py, m = pupil_grid(samples)
     z = analysis.sensor_z
     with torch.no_grad():
         b = analysis.rays(theta, px[m], py[m], wavelength_nm)
