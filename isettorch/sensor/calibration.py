@@ -232,12 +232,13 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     floor = S2_DARK_FLOOR_DN2 / S2_QUANTIZATION_DN2 * quantisation_dn2
     step = math.sqrt(quantisation_dn2 / S2_QUANTIZATION_DN2)
     read_var = vicpt - quantisation_dn2
+    dsnu_dn = math.sqrt(max(dsnu2, 0.0))
     if vicpt < floor:
-        if math.sqrt(max(dsnu2, 0.0)) < 0.5 * step:
+        if dsnu_dn < 0.5 * step:
             read_var = floor - quantisation_dn2
             warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
                             f"{floor:.4g} DN^2, where quantisation dominates it, and the pixels' offsets (DSNU "
-                            f"{math.sqrt(max(dsnu2, 0.0)):.3g} DN) are too uniform to dither it (EMVA 1288 4.0 "
+                            f"{dsnu_dn:.3g} DN) are too uniform to dither it (EMVA 1288 4.0 "
                             f"section 6.4): read noise reported as the upper limit {math.sqrt(read_var):.3g} DN (the "
                             f"floor less q^2/12); the dark current and DSNU of a dark signal this far under one DN are "
                             f"biased low")
@@ -245,7 +246,7 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
             warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
                             f"{floor:.4g} DN^2 (EMVA 1288 4.0 section 6.4 would report the upper limit "
                             f"{math.sqrt(floor - quantisation_dn2):.3g} DN); the pixels' offsets (DSNU "
-                            f"{math.sqrt(max(dsnu2, 0.0)):.3g} DN) dither the quantiser, so the measured "
+                            f"{dsnu_dn:.3g} DN) dither the quantiser, so the measured "
                             f"{math.sqrt(max(read_var, 0.0)):.3g} DN is kept")
 
     # PRNU: (s^2 / signal^2) of the dark-subtracted flat averages (EMVA 8.2, the dark of the same or nearest exposure
