@@ -437,7 +437,10 @@ def _led_params(t, pump_nm, phosphor_nm, phosphor_fwhm_nm, xp):
             if xp is np:
                 return np.full(n, default)
             return torch.full((n,), default, dtype=torch.float64, device=t.device)
-        v = _f64(v, xp)
+        if xp is np or not isinstance(v, torch.Tensor):
+            v = _f64(v, xp)
+        # on the torch path on the CCTs' device (the batched generator draws on the training device)
+        v = v if xp is np else v.to(device=t.device, dtype=torch.float64).reshape(-1)
         if v.shape[0] not in (1, n):
             raise ValueError(f"{name}: expected 1 or {n} values (one per CCT), got {v.shape[0]}")
         return xp.broadcast_to(v, (n,))

@@ -239,3 +239,16 @@ def test_dye_concentration_bad_arguments():
         spectra.dye_concentration(torch.tensor([0.5, 0.2]), 0.0)
     with pytest.raises(ValueError, match="reflectance"):
         spectra.dye_concentration(torch.tensor([1.5, 0.2]), 2.0)
+
+
+def test_led_parameters_stay_on_the_cct_device():
+    """The batched scene generator draws LED lights on the training device: their pump, phosphor peak and width
+    follow the CCTs' device (here 'meta', which holds no values: a copy to the CPU on the way raises; on an H200 the
+    default on-locus phosphor went to the CPU and PairStream failed on CUDA, 2026-11-30)."""
+    from isettorch.data import spectra
+
+    t = torch.full((3,), 5000.0, dtype=torch.float64, device="meta")
+    for pump in (None, torch.tensor([450.0])):
+        params = spectra._led_params(t, pump, None, None, torch)
+        assert [p.device.type for p in params] == ["meta"] * 3
+        assert all(p.shape == (3,) and p.dtype == torch.float64 for p in params)
