@@ -152,9 +152,9 @@ def linear_srgb_of_reflectance(reflectance: torch.Tensor, wavelengths_nm, illumi
     (Y_white = 1): CIE 1931 XYZ (:func:`isettorch.spectral.xyz`) through the library's XYZ -> linear sRGB matrix
     (:data:`isettorch.image.XYZ_TO_LINEAR_SRGB`, IEC 61966-2-1). The target of a reconstruction network (for the lift
     of a photograph under D65: the photograph's values)."""
-    wl = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
-    e = illuminant_photons(wl, 1.0, illuminant)
     r = torch.as_tensor(reflectance, dtype=torch.float64)
+    wl = torch.as_tensor(wavelengths_nm, dtype=torch.float64, device=r.device)
+    e = illuminant_photons(wl, 1.0, illuminant)
     xyz = spectral.xyz((r * e)[..., None, None], wl, dim=-3)[..., 0, 0]
     white = spectral.xyz(e[:, None, None], wl, dim=-3)[1, 0, 0]
     return (xyz / white) @ torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64, device=xyz.device).T

@@ -24,6 +24,11 @@ Outputs in ``out``: ``design.pt`` (the design file: filters, hard mosaic, networ
 ``checkpoint_every`` steps the run's state goes to ``out/checkpoint.pt``; running the same command again resumes
 from it (the same steps as an uninterrupted run: each step's scenes and noise depend only on the seed and the step)
 and a finished run removes it.
+
+``device`` (``cpu``, ``cuda``, ``cuda:N``) is where the camera renders and the networks train. The scenes are drawn
+on the CPU (each batch a function of the seed and the step on any device), the predesign runs on the CPU, and the
+noise comes from a generator on the device: a run on CUDA draws other noise than the same run on the CPU. A run
+resumes on any device.
 """
 
 from __future__ import annotations
@@ -56,6 +61,7 @@ from training import common  # noqa: E402
 DEFAULTS: dict = {
     "seed": 0,
     "threads": None,
+    "device": "cpu",
     "out": "out/codesign",
     "name": None,
     "design": "bayer_rgb",
@@ -223,15 +229,17 @@ def validate(camera: DesignCamera, cfg: dict, source) -> dict:
     was = camera.training
     camera.eval()
     v = cfg["val"]
+    device = next(camera.parameters()).device
     out = {}
     with torch.no_grad():
         for lux in cfg["lux"]:
             scores = []
             for b in range(int(v["batches"])):
                 seed = int(cfg["seed"]) + int(v["seed_offset"])
-                maps, refl = source(b, int(cfg["data"]["batch"]), int(cfg["data"]["size"]), camera, cfg, seed)
+                maps, refl = (t.to(device) for t in source(b, int(cfg["data"]["batch"]), int(cfg["data"]["size"]),
+                                                          camera, cfg, seed))
                 scene = camera.scene(maps, refl, float(lux))
-                g = torch.Generator().manual_seed(seed_for(seed, b, stream=round(1000 * float(lux))))
+                g = torch.Generator(device=device).manual_seed(seed_for(seed, b, stream=round(1000 * float(lux))))
                 pred = camera(scene, float(lux), generator=g)
                 target = targets(maps, refl, camera)
                 scores.append(common.cpsnr(srgb_encode(pred.clamp(0, 1)), srgb_encode(target.clamp(0, 1)),
@@ -298,6 +306,9 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
         raise ValueError(f"data.source: expected one of {sorted(SOURCES)}, got {cfg['data']['source']!r}")
     name = cfg["name"] or (cfg["design"] if isinstance(cfg["design"], str) else "learned")
     levels = [float(v) for v in cfg["lux"]]
+    from isettorch.isp.evaluation import check_device
+
+    device = check_device(cfg["device"])
     camera = make_design(cfg["design"], dict(cfg["camera"]), levels, seed=seed, name=name).train()
     out_dir = Path(cfg["out"])
     ck_path = out_dir / "checkpoint.pt"
@@ -307,6 +318,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
             raise ValueError("predesign.steps: only a design with learned filters can be predesigned")
         if not ck_path.exists():  # a resumed run's filters come from its checkpoint
             predesigned = predesign(camera, cfg, quiet=quiet)
+    camera.to(device)
     o = cfg["optim"]
     steps = int(o["steps"])
     design_params = [p for n, p in camera.named_parameters() if p.requires_grad and not n.startswith("networks.")]
@@ -332,7 +344,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, start, wall0 = [], 0, 0.0
     if ck_path.exists():  # resume: every step's data and noise depend only on (seed, step), so the run continues
-        start, rows, wall0, predesigned = _resume(ck_path, cfg, camera, opt, sched)
+        start, rows, wall0, predesigned = _resume(ck_path, cfg, camera, opt, sched, device)
         if not quiet:
             print(json.dumps({"resumed_at_step": start}), flush=True)
     t0 = time.time() - wall0
@@ -349,9 +361,9 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
                                                              float(m["temperature_end"]))
             if step >= float(m["straight_through_after"]) * steps or step >= until:
                 camera.mosaic.relax = "straight_through"  # the hard mosaic in the forward pass
-        maps, refl = source(step, b, size, camera, cfg, seed)
+        maps, refl = (t.to(device) for t in source(step, b, size, camera, cfg, seed))
         scene = camera.scene(maps, refl, lux)
-        g = torch.Generator().manual_seed(seed_for(seed, step, stream=1))
+        g = torch.Generator(device=device).manual_seed(seed_for(seed, step, stream=1))
         pred = camera(scene, lux, generator=g)
         loss = _loss(pred, targets(maps, refl, camera), int(cfg["loss_crop"]), float(o["srgb_weight"]), o["loss"])
         opt.zero_grad(set_to_none=True)
@@ -369,7 +381,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
         rows.append(row)
         if ck_every and (step + 1) % ck_every == 0 and step + 1 < steps:
             _save_checkpoint(ck_path, cfg, camera, opt, sched, step + 1, rows, time.time() - t0, predesigned)
-    camera.eval()
+    camera.cpu().eval()  # the design file and figures are written from the CPU
     if camera.bank.learnable:
         camera.bank.freeze()
     final = {k[len("val_cpsnr_"):]: v for k, v in rows[-1].items() if k.startswith("val_cpsnr_")}
@@ -404,11 +416,11 @@ def _save_checkpoint(path: Path, cfg: dict, camera: DesignCamera, opt, sched, st
                         "wall_s": wall_s, "predesign": json.dumps(predesigned)}, path)
 
 
-def _resume(path: Path, cfg: dict, camera: DesignCamera, opt, sched) -> tuple[int, list, float, dict | None]:
-    """Load a checkpoint of the same config into ``camera``, ``opt`` and ``sched``: (next step, history, wall s,
-    the predesign's record)."""
-    ck = torch.load(path, weights_only=True)
-    if ck["config"] != json.dumps(cfg, sort_keys=True):
+def _resume(path: Path, cfg: dict, camera: DesignCamera, opt, sched, device) -> tuple[int, list, float, dict | None]:
+    """Load a checkpoint of the same config (on any device) into ``camera``, ``opt`` and ``sched`` on ``device``:
+    (next step, history, wall s, the predesign's record)."""
+    ck = torch.load(path, weights_only=True, map_location=device)
+    if json.loads(ck["config"]) | {"device": cfg["device"]} != cfg:
         raise ValueError(f"out: {path} is a checkpoint of another config; remove it or choose another out folder")
     camera.load_state_dict(ck["camera"])
     opt.load_state_dict(ck["optimizer"])

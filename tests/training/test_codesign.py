@@ -123,6 +123,50 @@ def test_an_interrupted_run_resumes_to_the_same_design(tmp_path, monkeypatch):
         codesign.train({**cfg, "seed": 5, "out": str(tmp_path / "other")}, quiet=True)
 
 
+def test_config_device_is_checked():
+    with pytest.raises(ValueError, match="device: 'tpu'"):
+        codesign.train({"device": "tpu", "optim": {"steps": 1}})
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_a_run_on_cuda_renders_as_the_cpu_does_and_resumes_on_the_cpu(tmp_path, monkeypatch):
+    """On CUDA the design camera's noise-free capture and reconstruction equal the CPU's (TF32 off); a run trains
+    there, stops after its checkpoint, resumes on the CPU and exports a design that loads and evaluates on the CPU."""
+    torch.backends.cuda.matmul.allow_tf32 = False
+    torch.backends.cudnn.allow_tf32 = False
+    cam = make_design({"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
+                      {"network": {"width": 4, "depth": 1}}, [5.0], seed=3).eval()
+    maps, refl = codesign.source_layouts(0, 2, 16, cam, codesign.merged_config({}), 0)
+    with torch.no_grad():
+        cpu = cam(cam.scene(maps, refl, 5.0), 5.0, noise=False)
+        gpu = cam.to("cuda")(cam.scene(maps.cuda(), refl.cuda(), 5.0), 5.0, noise=False)
+    assert gpu.device.type == "cuda"
+    torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-5)
+
+    cfg = {"threads": 1, "lux": [2, 50], "design": {"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
+           "camera": {"network": {"width": 4, "depth": 1}}, "data": {"size": 16, "batch": 2},
+           "optim": {"steps": 6, "design_warmup": 0.3}, "val": {"batches": 1, "every": 3}, "checkpoint_every": 3,
+           "out": str(tmp_path / "run")}
+    real_save = codesign._save_checkpoint
+
+    def save_then_stop(*args):
+        real_save(*args)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(codesign, "_save_checkpoint", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        codesign.train({**cfg, "device": "cuda"}, quiet=True)
+    monkeypatch.setattr(codesign, "_save_checkpoint", real_save)
+    record = codesign.train({**cfg, "device": "cpu"}, quiet=True)
+    rows = (tmp_path / "run" / "history.csv").read_text().splitlines()
+    assert len(rows) == 1 + 6
+    assert all(math.isfinite(v) for v in record["val_cpsnr"].values())
+    design = load_design(record["path"])
+    assert next(design.parameters()).device.type == "cpu"
+    f = design.bank.filters
+    assert bool(((f >= 0) & (f <= 1)).all())
+
+
 def _record_states(monkeypatch) -> dict:
     """The camera's state at every checkpoint of a run (``{step: state_dict}``), the checkpoints still written."""
     states = {}
