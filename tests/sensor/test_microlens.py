@@ -485,7 +485,9 @@ def test_a_learnable_f_number_gets_the_pixel_optics_share_of_its_gradient():
         optics.f_number.sub_(2 * h)
         down = loss()
         optics.f_number.add_(h)
-    assert float(grad) == pytest.approx(float((up - down) / (2 * h)), rel=1e-5)
+    # autograd is the etendue integral's derivative (Leibniz's rule in the span of directions), the difference
+    # that of the 32-direction sum: they agree to 0.04 % (the missing share was a factor 2.3)
+    assert float(grad) == pytest.approx(float((up - down) / (2 * h)), rel=2e-3)
 
 
 def test_a_learnable_f_number_is_refused_where_the_etendue_has_no_gradient():
@@ -626,3 +628,65 @@ def test_ray_traced_lens_camera_uses_the_traced_chief_rays():
                                   samples=(64, 128), sampling="continuous")
     assert float(e[0] * e[1]) == pytest.approx(float(e_isetcam[0] * e_isetcam[1]), abs=1e-9)
     assert float(e[0]) < 0.99  # the traced angle vignettes: the check is not trivial
+
+
+def test_f_number_and_angle_gradients_follow_the_integral():
+    """d(etendue)/d(f-number) and d/d(CRA) of the continuous integral are those of the integral: against central
+    differences of a 4096-direction evaluation (the midpoint sum's own gradient, which the focused beam's near-step
+    makes noisy, read 0.247 for 0.154 at 64 directions and 0.196 at 512)."""
+    cra = torch.tensor([3.0, 12.0, 22.0], dtype=torch.float64)
+
+    def e(n_f, c, samples):
+        return microlens_etendue(c, "centred", sampling="continuous", samples=samples, source_f_number=n_f).sum()
+
+    n = torch.tensor(2.0, dtype=torch.float64, requires_grad=True)
+    c = cra.clone().requires_grad_(True)
+    g_n, g_c = torch.autograd.grad(e(n, c, (64, 128)), (n, c))
+    with torch.no_grad():
+        fine = (4096, 128)
+        fd_n = (e(2.05, cra, fine) - e(1.95, cra, fine)) / 0.1
+        fd_c = [(e(2.0, cra + 0.2 * d, fine) - e(2.0, cra - 0.2 * d, fine)) / 0.4 for d in torch.eye(3)]
+    assert float(g_n) == pytest.approx(float(fd_n), abs=0.006)
+    assert float(fd_n) == pytest.approx(0.154, abs=0.003)  # the audit's independent 3000 x 3000 integral
+    for k in range(3):
+        assert float(g_c[k]) == pytest.approx(float(fd_c[k]), abs=0.006)
+
+
+def test_physical_convention_refuses_a_microlens_narrower_than_the_pixel():
+    """'physical' applies the share of the light on the microlens to the whole pixel: a microlens of 0.7-2.8 um on
+    a 2.8 um pixel read 1.333x a bare pixel at the centre whatever its width (the audit's estimate for 0.7 um: about
+    1.0); refused, naming the argument. ISETCam's convention (the light on the microlens) keeps it."""
+    oi = _uniform_oi(9, 9, 2.8e-6, 40e-6)
+    for kw in ({"microlens_diameter_m": 1.4e-6}, {"microlens_f_number": 5.0}):
+        sensor = Sensor(rows=9, cols=9, pixel_size_m=2.8e-6, pixel_optics={"method": "centred", **kw})
+        with pytest.raises(ValueError, match=f"{next(iter(kw))}: a microlens .* narrower than the pixel"):
+            sensor.electron_rate(oi)
+    iset = Sensor(rows=9, cols=9, pixel_size_m=2.8e-6,
+                  pixel_optics={"method": "centred", "convention": "isetcam", "microlens_diameter_m": 1.4e-6})
+    assert bool(torch.isfinite(iset.electron_rate(oi)).all())
+    full = Sensor(rows=9, cols=9, pixel_size_m=2.8e-6, pixel_optics={"method": "centred",
+                                                                     "microlens_diameter_m": 2.8e-6})
+    assert bool(torch.isfinite(full.electron_rate(oi)).all())
+
+
+def test_a_telecentric_lens_has_no_fall_off():
+    """exit_pupil_distance_m=inf: every chief ray parallel to the axis, so every pixel has the on-axis etendue."""
+    oi = _uniform_oi(8, 10, 2.8e-6, 20e-6)
+    for convention in ("physical", "isetcam"):
+        po = PixelOptics("none", convention=convention, exit_pupil_distance_m=math.inf)
+        assert float(po.chief_ray_angle_deg(oi, 8, 10, 2.8e-6).abs().max()) == 0.0
+        m = po.etendue_map(oi, 8, 10, 2.8e-6)
+        torch.testing.assert_close(m, torch.full_like(m, float(m.reshape(-1)[0])), rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="exit_pupil_distance_m"):
+        PixelOptics("none", exit_pupil_distance_m=-math.inf)
+
+
+def test_bad_pixel_values_are_refused_when_built():
+    with pytest.raises(ValueError, match="chief_ray_angle_deg: expected angles in degrees, got a boolean"):
+        microlens_etendue(True)
+    with pytest.raises(ValueError, match="layer_thicknesses_m"):
+        PixelOptics("centred", layer_thicknesses_m=(-1e-6, 2e-6))
+    with pytest.raises(ValueError, match="layer_indices"):
+        PixelOptics("centred", layer_indices=(0.5, 1.4))
+    with pytest.raises(ValueError, match="photodiode_size_m"):
+        PixelOptics("centred", pixel_size_m=2e-6, photodiode_size_m=3e-6)
