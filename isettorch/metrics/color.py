@@ -134,6 +134,7 @@ def xyz_to_xy(xyz: torch.Tensor, dim: int = -3) -> torch.Tensor:
     illuminant's chromaticity there; here no value is invented and the gradient stays finite).
     """
     x, d = _channel_last(xyz, dim, "xyz")
+    check_finite(x.detach(), "xyz")
     s = _safe_denominator(x.sum(-1, keepdim=True))
     return (x[..., :2] / s).movedim(-1, d)
 
@@ -141,6 +142,7 @@ def xyz_to_xy(xyz: torch.Tensor, dim: int = -3) -> torch.Tensor:
 def xyz_to_uv(xyz: torch.Tensor, dim: int = -3) -> torch.Tensor:
     """CIE 1976 UCS chromaticity u' = 4X / (X + 15Y + 3Z), v' = 9Y / (X + 15Y + 3Z) (CIE 15:2004 eq. 8.1)."""
     x, d = _channel_last(xyz, dim, "xyz")
+    check_finite(x.detach(), "xyz")
     X, Y, Z = x.unbind(-1)
     s = _safe_denominator(X + 15.0 * Y + 3.0 * Z)
     return torch.stack((4.0 * X / s, 9.0 * Y / s), dim=-1).movedim(-1, d)

@@ -10,7 +10,7 @@ import dataclasses
 
 import torch
 
-from .._checks import is_real
+from .._checks import check_finite, is_real
 from .color import _channel_last, xyz_to_lab
 
 
@@ -32,6 +32,8 @@ def _safe_atan2_deg(y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 def _split(lab1: torch.Tensor, lab2: torch.Tensor, dim: int):
     a, d1 = _channel_last(lab1, dim, "lab1")
     b, _ = _channel_last(lab2, dim, "lab2")
+    check_finite(a.detach(), "lab1")  # a NaN or Inf colour gave a NaN difference without a word
+    check_finite(b.detach(), "lab2")
     try:
         a, b = torch.broadcast_tensors(a, b)
     except RuntimeError as err:
@@ -234,6 +236,8 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
                              f"{tuple(t.shape) if isinstance(t, torch.Tensor) else type(t).__name__}")
     if rendered.shape[-2] != reference.shape[-2]:
         raise ValueError(f"reference: expected {rendered.shape[-2]} patches like rendered, got {reference.shape[-2]}")
+    check_finite(rendered.detach(), "rendered")  # (named here: xyz_to_lab's error would name 'xyz')
+    check_finite(reference.detach(), "reference")
     reference = reference.to(rendered.dtype)
     if space == "xyz":
         lab_r = xyz_to_lab(rendered, white, dim=-1)

@@ -3,8 +3,11 @@
 PSNR is computed here, per image, because ``kornia.metrics.psnr`` pools one MSE over the whole batch; SSIM is
 ``kornia.metrics.ssim`` (Gaussian window 11, sigma 1.5, K1 = 0.01, K2 = 0.03) averaged over its valid region,
 which is scikit-image's ``structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False)``.
-``data_range`` None (the default) is scikit-image's: 1 for floating-point images, the dtype's largest value for
-integer ones (255 for uint8); an integer image against a floating-point one is refused (which range?).
+``data_range`` None (the default): 1 for floating-point images whose target lies in [0, 1] (scikit-image's default
+there), the dtype's largest value for integer ones (255 for uint8; for a signed dtype scikit-image uses max - min,
+65535 for int16, where this takes 32767: pass ``data_range``). A floating-point target outside [0, 1] with no
+``data_range`` is refused (raw values 0-1023 scored -33.9 dB instead of 26.3; scikit-image refuses values outside
+[-1, 1]), as is an integer image against a floating-point one (which range?).
 """
 
 from __future__ import annotations
@@ -44,10 +47,18 @@ def _pair(image: torch.Tensor, target: torch.Tensor, crop: int, data_range=None)
     return image, target.to(image.dtype)
 
 
-def _data_range(data_range, image: torch.Tensor) -> float:
-    """``data_range``, or for None scikit-image's default: 1 for floating point, the integer dtype's largest value."""
+def _data_range(data_range, image: torch.Tensor, target: torch.Tensor) -> float:
+    """``data_range``, or for None: 1 for floating point (refused for a target outside [0, 1]), the integer dtype's
+    largest value (module docstring)."""
     if data_range is None:
-        return 1.0 if image.is_floating_point() else float(torch.iinfo(image.dtype).max)
+        if not image.is_floating_point():
+            return float(torch.iinfo(image.dtype).max)
+        lo, hi = float(target.detach().min()), float(target.detach().max())
+        if lo < 0 or hi > 1:
+            raise ValueError(f"data_range: None takes a peak of 1 for floating-point images, but target spans "
+                             f"[{lo:.6g}, {hi:.6g}], outside [0, 1]; pass data_range (the signal's full scale, e.g. "
+                             f"1023 for 10-bit codes)")
+        return 1.0
     return float(check_positive(data_range, "data_range"))
 
 
@@ -64,7 +75,8 @@ def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
     Args:
         image: :math:`(B, C, H, W)` or :math:`(C, H, W)`.
         target: same shape.
-        data_range: the peak value; None: 1 for floating-point images, 255 for uint8 (the dtype's largest value).
+        data_range: the peak value; None: 1 for floating-point images (a target outside [0, 1] is refused), 255
+            for uint8 (the dtype's largest value).
         crop: border pixels excluded on every side.
 
     Returns:
@@ -77,7 +89,7 @@ def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
     Reference: e.g. Wang et al., IEEE TIP 13(4), 2004, eq. 1 context; scikit-image ``peak_signal_noise_ratio``.
     """
     err = mse(image, target, crop, data_range=data_range)
-    r = _data_range(data_range, image)
+    r = _data_range(data_range, image, target)
     # identical images: +inf, the maximum, with a zero gradient (10 log10(r^2 / mse) differentiated at mse = 0 is
     # -inf times a zero difference, NaN, which would poison a training step whose batch holds one exact image)
     exact = err == 0
@@ -118,7 +130,7 @@ def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
                          f"{tuple(a.shape[-2:])}")
     # eps 0: kornia's default 1e-12 is added to a denominator of order data_range^4 (C1 C2), which it dominates
     # for data_range below ~1e-2 (identical images scored 0.075 at data_range 1e-3); C1, C2 > 0 keep it positive
-    m = kornia_ssim(a, b, window_size, max_val=_data_range(data_range, image), eps=0.0,
+    m = kornia_ssim(a, b, window_size, max_val=_data_range(data_range, image, target), eps=0.0,
                     padding="valid")
     if return_map:
         return m[0] if squeeze else m

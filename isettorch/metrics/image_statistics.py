@@ -21,6 +21,8 @@ import math
 import numpy as np
 import torch
 
+from .._checks import check_finite
+
 __all__ = ["power_spectrum_slope", "gradient_kurtosis", "cross_channel_gradient_correlation",
            "detail_ratio_exponent", "power_law_exponent_mle", "radial_power_spectrum"]
 
@@ -29,6 +31,7 @@ def _check_image(img: torch.Tensor, name: str = "image") -> torch.Tensor:
     if not isinstance(img, torch.Tensor) or img.dim() != 2 or min(img.shape) < 8:
         raise ValueError(f"{name}: expected a 2-D tensor [H, W] of at least 8 x 8, got "
                          f"{tuple(img.shape) if isinstance(img, torch.Tensor) else type(img).__name__}")
+    check_finite(img.detach(), name)
     return img.to(torch.float64)
 
 
@@ -80,8 +83,11 @@ def gradient_kurtosis(img: torch.Tensor) -> float:
 def cross_channel_gradient_correlation(rgb: torch.Tensor, a: int = 0, b: int = 1) -> float:
     """Pearson correlation of the first differences (horizontal and vertical) of channels ``a`` and ``b`` of
     ``rgb`` [C, H, W]."""
+    if not isinstance(rgb, torch.Tensor):
+        raise TypeError(f"rgb: expected a torch.Tensor [C, H, W], got {type(rgb).__name__}")
     if rgb.dim() != 3 or rgb.shape[0] <= max(a, b):
         raise ValueError(f"rgb: expected [C, H, W] with channels {a} and {b}, got {tuple(rgb.shape)}")
+    check_finite(rgb.detach(), "rgb")
 
     def grads(c):
         x = rgb[c].to(torch.float64)
@@ -152,8 +158,9 @@ def power_law_exponent_mle(samples, lo: float, hi: float) -> float:
     """Maximum-likelihood exponent ``alpha`` of ``p(r) ~ r^-alpha`` on ``[lo, hi]`` (truncated power law; the
     score equation of Clauset, Shalizi & Newman, SIAM Rev. 2009, with the truncation term), by bisection."""
     r = np.asarray(samples, dtype=np.float64)
-    if r.size < 2 or not (0 < lo < hi) or r.min() < lo * (1 - 1e-9) or r.max() > hi * (1 + 1e-9):
-        raise ValueError(f"samples: expected >= 2 values in [lo, hi] = [{lo}, {hi}]")
+    if (r.size < 2 or not (0 < lo < hi) or not np.isfinite(r).all() or r.min() < lo * (1 - 1e-9)
+            or r.max() > hi * (1 + 1e-9)):
+        raise ValueError(f"samples: expected >= 2 finite values in [lo, hi] = [{lo}, {hi}]")
     mean_log = float(np.mean(np.log(r / lo)))
     ln = math.log(hi / lo)
 
@@ -164,6 +171,9 @@ def power_law_exponent_mle(samples, lo: float, hi: float) -> float:
         return 1 / (alpha - 1) - mean_log - ln * e / (1 - e)
 
     lo_a, hi_a = 1.0001, 10.0
+    if not score(lo_a) > 0 > score(hi_a):  # the score falls with alpha: its root is outside the bracket
+        raise ValueError(f"samples: the maximum-likelihood exponent lies outside ({lo_a}, {hi_a}] (the sample is "
+                         f"{'flatter than r^-1' if score(lo_a) <= 0 else 'steeper than r^-10'} on [{lo}, {hi}])")
     for _ in range(200):
         mid = 0.5 * (lo_a + hi_a)
         if score(mid) > 0:

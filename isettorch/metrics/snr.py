@@ -34,6 +34,7 @@ def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = Non
     x = image.flatten(-2)
     if not x.is_floating_point():
         x = x.to(torch.get_default_dtype())
+    check_finite(x.detach(), "image")
     snr = x.mean(-1) / x.std(-1)
     return 20.0 * torch.log10(snr) if db else snr
 
@@ -57,7 +58,10 @@ def snr_curve(frames: torch.Tensor, dark: torch.Tensor | None = None) -> dict[st
     check_finite(f.detach(), "frames")
     mean = f.mean(dim=(1, 2, 3))
     if dark is not None:
+        if not isinstance(dark, torch.Tensor):
+            raise TypeError(f"dark: expected a tensor (N, H, W) or (M, N, H, W), got {type(dark).__name__}")
         d = dark.to(f.dtype)
+        check_finite(d.detach(), "dark")
         if d.dim() == 3:
             mean_dark = d.mean()
         elif d.dim() == 4 and d.shape[0] == f.shape[0]:
@@ -126,6 +130,8 @@ def dynamic_range_db(max_signal, noise_floor) -> torch.Tensor:
     (ISETCam pixelDR; EMVA 1288 uses mu_sat / mu_min, see :func:`~isettorch.metrics.emva1288`)."""
     m = as_tensor(max_signal, "max_signal", dtype=torch.float64)
     n = as_tensor(noise_floor, "noise_floor", dtype=torch.float64)
+    check_finite(m, "max_signal")
+    check_finite(n, "noise_floor")
     if (m <= 0).any() or (n <= 0).any():
         raise ValueError(f"max_signal, noise_floor: expected positive values, got {m.tolist()} and {n.tolist()}")
     return 20.0 * torch.log10(m / n)
@@ -134,6 +140,13 @@ def dynamic_range_db(max_signal, noise_floor) -> torch.Tensor:
 def dynamic_range_from_curve(signal: torch.Tensor, snr: torch.Tensor, max_signal=None) -> torch.Tensor:
     """Dynamic range (dB) from a measured SNR curve: max signal over the signal at which SNR = 1 (linearly
     interpolated in log-log). ``max_signal`` defaults to the largest signal of the curve."""
+    for name, v in (("signal", signal), ("snr", snr)):
+        if not isinstance(v, torch.Tensor) or v.dim() != 1:
+            raise ValueError(f"{name}: expected a 1-D tensor, got "
+                             f"{tuple(v.shape) if isinstance(v, torch.Tensor) else type(v).__name__}")
+        check_finite(v.detach(), name)
+    if snr.shape != signal.shape:
+        raise ValueError(f"snr: expected one value per signal, {tuple(signal.shape)}, got {tuple(snr.shape)}")
     s, r = signal.detach().to(torch.float64), snr.detach().to(torch.float64)
     order = torch.argsort(s)
     s, r = s[order], r[order]

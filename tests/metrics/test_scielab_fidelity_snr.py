@@ -150,9 +150,9 @@ def test_psnr_ssim_against_skimage():
 def test_psnr_of_an_exact_image_is_inf_with_a_zero_gradient():
     """A batch holding one exact image: that image's PSNR is +inf with a zero gradient (not NaN), the other's value
     and gradient are the analytic ones: d/dx 10 log10(1 / mse) = -(10 / ln 10) (2 (x - t) / N) / mse."""
-    x = torch.rand(2, 3, 6, 5, dtype=torch.float64, requires_grad=True)
+    x = (0.9 * torch.rand(2, 3, 6, 5, dtype=torch.float64)).requires_grad_(True)
     t = x.detach().clone()
-    t[1] += 0.1
+    t[1] += 0.1  # within [0, 1], the default data_range's
     p = psnr(x, t)
     p.sum().backward()
     assert torch.isinf(p[0]) and p[0] > 0 and float(p[1]) == pytest.approx(20.0, abs=1e-9)
@@ -160,6 +160,25 @@ def test_psnr_of_an_exact_image_is_inf_with_a_zero_gradient():
     n, err = x[1].numel(), 0.01
     expected = -(10 / np.log(10)) * (2 * -0.1 / n) / err
     assert torch.allclose(x.grad[1], torch.full_like(x.grad[1], expected), rtol=1e-9)
+
+
+def test_default_data_range_refuses_float_targets_outside_0_1():
+    """Float raw codes 0-1023 with no data_range scored -33.9 dB silently (peak 1); scikit-image refuses such data.
+    Refused, naming data_range; with it given, PSNR and SSIM are scikit-image's."""
+    g = np.random.default_rng(0)
+    a = g.random((3, 48, 64))
+    b = np.clip(a + g.normal(0, 0.05, a.shape), 0, 1)
+    big_a, big_b = torch.tensor(a * 1023), torch.tensor(b * 1023)
+    for fn in (psnr, ssim):
+        with pytest.raises(ValueError, match="data_range: None takes a peak of 1"):
+            fn(big_a, big_b)
+    assert float(psnr(big_a, big_b, data_range=1023)) == pytest.approx(
+        peak_signal_noise_ratio(b * 1023, a * 1023, data_range=1023), abs=1e-9)
+    assert float(ssim(big_a, big_b, data_range=1023)) == pytest.approx(structural_similarity(
+        a * 1023, b * 1023, data_range=1023, channel_axis=0, gaussian_weights=True, sigma=1.5,
+        use_sample_covariance=False), abs=1e-6)
+    with pytest.raises(ValueError, match="data_range"):
+        psnr(torch.tensor(a - 0.5), torch.tensor(b - 0.5))  # negatives: skimage would take a range of 2
 
 
 def test_snr_helpers():
@@ -253,3 +272,73 @@ def test_psnr_and_ssim_take_the_range_of_integer_images_as_scikit_image_does():
         psnr(x > 100, y > 100)
     with pytest.raises(ValueError, match="crop: expected a whole number"):
         psnr(x, y, crop=1.7)
+
+
+def test_snr_functions_refuse_non_finite_and_malformed_input():
+    """A NaN pixel gave snr_uniform NaN, a NaN dark frame a NaN signal, dynamic_range_db(nan) NaN; a NaN point of
+    a curve was dropped without a word; a list or a shorter snr raised AttributeError / IndexError."""
+    img = torch.rand(1, 8, 8, dtype=torch.float64) + 1
+    img[0, 3, 3] = math.nan
+    with pytest.raises(ValueError, match="image: expected finite"):
+        snr_uniform(img)
+    frames = torch.rand(2, 3, 4, 4, dtype=torch.float64)
+    with pytest.raises(ValueError, match="dark: expected finite"):
+        snr_curve(frames, dark=torch.full((3, 4, 4), math.nan, dtype=torch.float64))
+    with pytest.raises(TypeError, match="dark"):
+        snr_curve(frames, dark=[0.0])
+    for args in ((math.nan, 3.0), (math.inf, 3.0), (100.0, math.nan)):
+        with pytest.raises(ValueError, match="max_signal|noise_floor"):
+            dynamic_range_db(*args)
+    sig = torch.logspace(-1, 4, 50, dtype=torch.float64)
+    snr = pixel_snr(sig, read_noise_e=3.0)
+    bad = snr.clone()
+    bad[10] = math.nan
+    with pytest.raises(ValueError, match="snr: expected finite"):
+        dynamic_range_from_curve(sig, bad)
+    with pytest.raises(ValueError, match="snr: expected one value per signal"):
+        dynamic_range_from_curve(sig, snr[:40])
+    with pytest.raises(ValueError, match="signal: expected a 1-D tensor"):
+        dynamic_range_from_curve(sig.tolist(), snr)
+
+
+def test_image_statistics_refuse_non_finite_input_and_an_exponent_outside_the_bracket():
+    from isettorch.metrics import image_statistics as st
+
+    x = torch.rand(16, 16, dtype=torch.float64)
+    x[2, 2] = math.nan
+    for fn in (st.gradient_kurtosis, st.power_spectrum_slope):
+        with pytest.raises(ValueError, match="image: expected finite"):
+            fn(x)
+    with pytest.raises(ValueError, match="rgb: expected finite"):
+        st.cross_channel_gradient_correlation(x.expand(3, -1, -1))
+    with pytest.raises(TypeError, match="rgb"):
+        st.cross_channel_gradient_correlation(np.zeros((3, 16, 16)))
+    uniform = np.random.default_rng(0).uniform(1, 100, 1000)  # p(r) flat: alpha 0, below the bracket (1, 10]
+    with pytest.raises(ValueError, match="flatter than r\\^-1"):
+        st.power_law_exponent_mle(uniform, 1, 100)
+    with pytest.raises(ValueError, match="samples: expected >= 2 finite"):
+        st.power_law_exponent_mle(np.r_[uniform[:100], np.nan], 1, 100)
+
+
+def test_colour_differences_and_chromaticities_refuse_non_finite_colours():
+    """delta_e and xyz_to_xy / xyz_to_uv returned NaN for a NaN or Inf colour (colour-science's answer; before that
+    a NaN scored dE 0, a match), while xyz_to_lab raised: one behaviour, an error naming the argument;
+    color_accuracy names 'rendered', not 'xyz'."""
+    from isettorch.metrics import color_accuracy, delta_e, xyz_to_uv, xyz_to_xy
+
+    good = torch.tensor([[50.0, 0.0, 0.0]])
+    for bad in (math.nan, math.inf):
+        lab = torch.tensor([[bad, 0.0, 0.0]])
+        for method in ("76", "94", "2000"):
+            with pytest.raises(ValueError, match="lab1: expected finite"):
+                delta_e(lab, good, method, dim=-1)
+            with pytest.raises(ValueError, match="lab2: expected finite"):
+                delta_e(good, lab, method, dim=-1)
+        for fn in (xyz_to_xy, xyz_to_uv):
+            with pytest.raises(ValueError, match="xyz: expected finite"):
+                fn(lab, dim=-1)
+    chart = torch.rand(24, 3, dtype=torch.float64)
+    broken = chart.clone()
+    broken[3, 1] = math.nan
+    with pytest.raises(ValueError, match="rendered: expected finite"):
+        color_accuracy(broken, chart, space="lab")
