@@ -8,7 +8,7 @@
 #   run(command="bash benchmarks/gpu_checks.sh", carry=[".whl", ".gpu_data"], timeout_s=540)
 # (2026-11-30 on an H200: about 300 s of run and 90 s of machine start; results in THROUGHPUT.md,
 # DEMOSAIC_SPEED_CUDA.md and docs/camera_design.md.)
-# What it writes to $OUT comes back: gpu.txt, cuda_tests.txt, throughput_cuda.md (issue 34: pairs/s at 128^2 and
+# What it writes to $OUT comes back: gpu.txt, cuda_tests.txt, cuda_smoke.txt, throughput_cuda.md (issue 34: pairs/s at 128^2 and
 # 256^2, peak device memory, the data share of a training step), demosaic_speed_cuda.md (issue 35: ms/MP of the
 # speed-error family), codesign_cuda.txt (issue 36: the design trainer's steps/s on the device), log.txt. Without a GPU
 # (DEVICE=cpu, for a dry run here) the same steps run on the CPU. Every step has its own time limit and the whole run
@@ -64,6 +64,10 @@ timeout "$(limit 150)" $PY -m pytest -q -p no:cacheprovider -n 8 \
     tests/training/test_learned_demosaic.py tests/isp/test_demosaic.py tests/test_bench.py \
     "tests/sensor/test_noise.py::test_poisson_shot_noise_beyond_integer_counts" \
     2>&1 | tail -n 30 | tee "$OUT/cuda_tests.txt"
+
+echo "== CUDA smoke of the device paths the suite's CUDA cases do not reach (PASS / FAIL per check)"
+timeout "$(limit 170)" $PY benchmarks/cuda_smoke.py --device "$DEVICE" --out "$OUT/cuda_smoke.txt" 2>&1 \
+    | grep -E "^(PASS|FAIL)"
 
 echo "== issue 34: PairStream throughput on $DEVICE"
 # a GPU needs large batches (~4,000 kernel launches per batch), but a 128^2 pair with all targets holds ~92 MB of
