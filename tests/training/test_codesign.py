@@ -90,15 +90,14 @@ def test_tiny_run_exports_a_manufacturable_design(tmp_path, photos):
     assert float((cam.bank.filters.detach() - start).abs().max()) > 1e-3
 
 
-def test_an_interrupted_run_resumes_to_the_same_design(tmp_path, monkeypatch):
-    """A run stopped after its checkpoint and run again ends with the design of an uninterrupted run (weights,
-    filters and mosaic logits equal), and a finished run leaves no checkpoint."""
-    cfg = {"threads": 1, "lux": [2, 50], "design": {"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
-           "camera": {"network": {"width": 4, "depth": 1}}, "data": {"size": 16, "batch": 2},
-           "optim": {"steps": 6, "design_warmup": 0.3}, "val": {"batches": 1, "every": 0}, "checkpoint_every": 3}
-    whole = codesign.train({**cfg, "out": str(tmp_path / "whole")}, quiet=True)
-    assert not (tmp_path / "whole" / "checkpoint.pt").exists()
+# a tiny learned design's run, checkpointed every 3 of its 6 steps
+TINY_RUN = {"threads": 1, "lux": [2, 50], "design": {"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
+            "camera": {"network": {"width": 4, "depth": 1}}, "data": {"size": 16, "batch": 2},
+            "optim": {"steps": 6, "design_warmup": 0.3}, "val": {"batches": 1, "every": 0}, "checkpoint_every": 3}
 
+
+def _stop_at_the_first_checkpoint(monkeypatch, cfg: dict) -> None:
+    """Run ``cfg`` until its first checkpoint is written, then stop it as an interrupted run stops."""
     real_save = codesign._save_checkpoint
 
     def save_then_stop(*args):
@@ -107,19 +106,26 @@ def test_an_interrupted_run_resumes_to_the_same_design(tmp_path, monkeypatch):
 
     monkeypatch.setattr(codesign, "_save_checkpoint", save_then_stop)
     with pytest.raises(KeyboardInterrupt):
-        codesign.train({**cfg, "out": str(tmp_path / "split")}, quiet=True)
-    assert (tmp_path / "split" / "checkpoint.pt").is_file()
+        codesign.train(cfg, quiet=True)
     monkeypatch.setattr(codesign, "_save_checkpoint", real_save)
+
+
+def test_an_interrupted_run_resumes_to_the_same_design(tmp_path, monkeypatch):
+    """A run stopped after its checkpoint and run again ends with the design of an uninterrupted run (weights,
+    filters and mosaic logits equal), and a finished run leaves no checkpoint."""
+    cfg = TINY_RUN
+    whole = codesign.train({**cfg, "out": str(tmp_path / "whole")}, quiet=True)
+    assert not (tmp_path / "whole" / "checkpoint.pt").exists()
+    _stop_at_the_first_checkpoint(monkeypatch, {**cfg, "out": str(tmp_path / "split")})
+    assert (tmp_path / "split" / "checkpoint.pt").is_file()
     split = codesign.train({**cfg, "out": str(tmp_path / "split")}, quiet=True)
     a, b = load_design(whole["path"]), load_design(split["path"])
     for (name, x), (_, y) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
         torch.testing.assert_close(x, y, rtol=0, atol=0, msg=name)
     rows = (tmp_path / "split" / "history.csv").read_text().splitlines()
     assert len(rows) == 1 + 6  # header and every step once
+    _stop_at_the_first_checkpoint(monkeypatch, {**cfg, "out": str(tmp_path / "other")})
     with pytest.raises(ValueError, match="another config"):
-        monkeypatch.setattr(codesign, "_save_checkpoint", save_then_stop)
-        with pytest.raises(KeyboardInterrupt):
-            codesign.train({**cfg, "out": str(tmp_path / "other")}, quiet=True)
         codesign.train({**cfg, "seed": 5, "out": str(tmp_path / "other")}, quiet=True)
 
 
@@ -143,20 +149,8 @@ def test_a_run_on_cuda_renders_as_the_cpu_does_and_resumes_on_the_cpu(tmp_path, 
     assert gpu.device.type == "cuda"
     torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-5)
 
-    cfg = {"threads": 1, "lux": [2, 50], "design": {"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
-           "camera": {"network": {"width": 4, "depth": 1}}, "data": {"size": 16, "batch": 2},
-           "optim": {"steps": 6, "design_warmup": 0.3}, "val": {"batches": 1, "every": 3}, "checkpoint_every": 3,
-           "out": str(tmp_path / "run")}
-    real_save = codesign._save_checkpoint
-
-    def save_then_stop(*args):
-        real_save(*args)
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(codesign, "_save_checkpoint", save_then_stop)
-    with pytest.raises(KeyboardInterrupt):
-        codesign.train({**cfg, "device": "cuda"}, quiet=True)
-    monkeypatch.setattr(codesign, "_save_checkpoint", real_save)
+    cfg = {**TINY_RUN, "val": {"batches": 1, "every": 3}, "out": str(tmp_path / "run")}
+    _stop_at_the_first_checkpoint(monkeypatch, {**cfg, "device": "cuda"})
     record = codesign.train({**cfg, "device": "cpu"}, quiet=True)
     rows = (tmp_path / "run" / "history.csv").read_text().splitlines()
     assert len(rows) == 1 + 6
@@ -272,17 +266,8 @@ def test_predesign_lowers_the_colour_bound_and_the_run_keeps_its_filters(tmp_pat
                                rtol=0, atol=1e-12)
     assert exported.config["training"]["predesign"]["steps"] == 6
     # a run stopped at its checkpoint and resumed skips the predesign and keeps its record
-    real_save = codesign._save_checkpoint
-
-    def save_then_stop(*args):
-        real_save(*args)
-        raise KeyboardInterrupt
-
     split = {**run, "optim": {**run["optim"], "steps": 4}, "checkpoint_every": 2, "out": str(tmp_path / "split")}
-    monkeypatch.setattr(codesign, "_save_checkpoint", save_then_stop)
-    with pytest.raises(KeyboardInterrupt):
-        codesign.train(split, quiet=True)
-    monkeypatch.setattr(codesign, "_save_checkpoint", real_save)
+    _stop_at_the_first_checkpoint(monkeypatch, split)
     calls = []
     monkeypatch.setattr(codesign, "predesign", lambda *a, **k: calls.append(1))
     resumed = load_design(codesign.train(split, quiet=True)["path"])
