@@ -90,8 +90,9 @@ def test_tiny_run_exports_a_manufacturable_design(tmp_path, photos):
     assert float((cam.bank.filters.detach() - start).abs().max()) > 1e-3
 
 
-# a tiny learned design's run, checkpointed every 3 of its 6 steps
-TINY_RUN = {"threads": 1, "lux": [2, 50], "design": {"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
+# a tiny learned design's run, checkpointed every 3 of its 6 steps (its levels a tuple: a Python config resumes as
+# its YAML form does)
+TINY_RUN = {"threads": 1, "lux": (2, 50), "design": {"filters": ["learned", "learned", "W"], "mosaic_shape": [2, 2]},
             "camera": {"network": {"width": 4, "depth": 1}}, "data": {"size": 16, "batch": 2},
             "optim": {"steps": 6, "design_warmup": 0.3}, "val": {"batches": 1, "every": 0}, "checkpoint_every": 3}
 
