@@ -118,10 +118,69 @@ def test_the_shipped_joint_checkpoint_runs_as_it_ships(camera, tmp_path):
     copy = tmp_path / "joint.pt"  # a copy elsewhere is the shipped network too
     shutil.copy(PRETRAINED["joint_denoise"], copy)
     args = argparse.Namespace(camera=str(camera), model=str(copy))
-    sensor, pattern, net = process._load(args)
+    sensor, pattern, net, _ = process._load(args)
     dn = np.random.default_rng(0).integers(64, 4095, size=(8, 8)).astype(np.float64)
     got = process.process_frame(dn, sensor, pattern, net)
     a, b = process.noise_params(sensor)
     x = torch.as_tensor((dn - 64) / SPAN_DN, dtype=torch.float32)[None, None]
     want = demosaic_learned(x, "RGGB", variant="joint_denoise", noise=noise_features(a, b).float())[0]
     torch.testing.assert_close(got, want, rtol=0, atol=1e-6)
+
+
+def test_left_aligned_frames_are_right_aligned(camera, tmp_path, capsys):
+    """12-bit values in 16-bit words are multiples of 16: calibrate writes the config for the right-aligned DN, and
+    a dim left-aligned frame (all values under the 12-bit largest code) came out 11x too bright, exit 0. Such a
+    frame is divided by 16, said on stderr, and processed as its right-aligned twin is."""
+    rng = np.random.default_rng(3)
+    right = rng.integers(64, 250, (16, 16)).astype(np.uint16)  # dim: x16 stays under 4095
+    np.save(tmp_path / "right.npy", right)
+    np.save(tmp_path / "left.npy", (right * 16).astype(np.uint16))
+    args = ["--camera", str(camera), "--model", str(PRETRAINED["joint_denoise"]), "--quiet"]
+    assert main(["process", str(tmp_path / "right.npy"), *args, "--out", str(tmp_path / "a")]) == 0
+    capsys.readouterr()
+    assert main(["process", str(tmp_path / "left.npy"), *args, "--out", str(tmp_path / "b")]) == 0
+    assert "every value is a multiple of 16 DN: 12-bit data left-aligned in 16-bit words" in capsys.readouterr().err
+    assert np.array_equal(np.load(tmp_path / "a" / "right.npy"), np.load(tmp_path / "b" / "left.npy"))
+
+
+def test_settings_beyond_any_camera_and_folders_are_refused(camera, tmp_path, capsys):
+    """A gain making one electron the whole span, or an exposure whose dark noise exceeds it, wrote a constant image
+    (gain 1e30: -6e13) with exit 0; a folder was 'no such raw frame'; a reader error did not name RAW."""
+    sensor = Camera.from_config(camera).sensor
+    with pytest.raises(ValueError, match=r"^analog_gain: the gain 3000 makes one electron 1\.49 of the signal's span"):
+        process.noise_params(sensor, 3000.0)
+    with pytest.raises(ValueError, match=r"^exposure_s: 1e\+09 s of the sensor's dark current \(50 e/s\) makes the "
+                                         r"noise floor's standard deviation"):
+        process.noise_params(sensor, None, 1e9)
+    np.save(tmp_path / "f.npy", np.random.default_rng(0).integers(64, 4095, (8, 8)).astype(np.uint16))
+    np.save(tmp_path / "rgb.npy", np.zeros((8, 8, 3), np.uint16))
+    (tmp_path / "dir").mkdir()
+    base = ["--camera", str(camera), "--model", str(PRETRAINED["joint_denoise"]), "--out", str(tmp_path / "o")]
+    for argv, message in (([str(tmp_path / "dir"), *base], f"RAW: {tmp_path / 'dir'} is a folder"),
+                          ([str(tmp_path / "f.npy"), "--camera", str(camera), "--model", str(tmp_path / "dir")],
+                           f"--model: {tmp_path / 'dir'} is a folder"),
+                          ([str(tmp_path / "rgb.npy"), *base], f"RAW: {tmp_path / 'rgb.npy'}: expected a 2-D")):
+        capsys.readouterr()
+        assert main(["process", *argv, "--quiet"]) == 2
+        assert capsys.readouterr().err.startswith(f"isettorch process: {message}")
+
+
+def test_a_camera_specific_network_at_another_gain_is_warned_about(camera, tmp_path, capsys):
+    """A camera-specific network learned the config's gain alone: another --analog-gain is warned about (at gain 64
+    for a gain-1 camera one came out with an RMS error of 0.14, exit 0); the shipped joint network, trained over
+    noise levels, is not."""
+    import torch
+
+    from isettorch.isp.learned import DemosaicNet
+
+    ckpt = tmp_path / "own.pt"
+    net = DemosaicNet(channels=4, depth=1, noise_inputs=2)
+    torch.save({"model": net.state_dict(), "net_config": {"channels": 4, "depth": 1, "noise_inputs": 2}}, ckpt)
+    np.save(tmp_path / "f.npy", np.random.default_rng(0).integers(64, 4095, (8, 8)).astype(np.uint16))
+    for model, warned in ((ckpt, True), (PRETRAINED["joint_denoise"], False)):
+        capsys.readouterr()
+        code = main(["process", str(tmp_path / "f.npy"), "--camera", str(camera), "--model", str(model),
+                     "--analog-gain", "4", "--out", str(tmp_path / f"o{warned}"), "--quiet"])
+        err = capsys.readouterr().err
+        assert code == 0, err
+        assert ("warning: analog_gain 4 differs from the camera config's 1" in err) == warned, err

@@ -17,6 +17,7 @@ camera RGB relative to the white level (not white-balanced), ``<stem>.npy`` (flo
 from __future__ import annotations
 
 import math
+import sys
 
 from .._progress import add_quiet_argument
 
@@ -75,7 +76,14 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
     def floor(t):  # float64 tensors: a huge gain gives inf, not an OverflowError
         return float(sensor.poisson_gaussian(exposure_s=t, analog_gain=analog_gain)[1][0]) / span ** 2
 
+    if a >= 1:  # one electron spans the whole signal range: no camera's real setting (gain 1e30 wrote a constant)
+        raise ValueError(f"{gain} makes one electron {a:.3g} of the signal's span (the noise model's shot gain a >= 1);"
+                         f" expected the frames' real gain")
     b = floor(exposure_s)
+    if math.isfinite(b) and b >= 1:  # a noise floor wider than the span (exposure 1e30 s wrote a constant)
+        what = gain if floor(0.0) >= 1 else f"exposure_s: {exposure_s:g} s of the sensor's dark current ({dark:g} e/s)"
+        raise ValueError(f"{what} makes the noise floor's standard deviation {math.sqrt(b):.3g} of the signal's span "
+                         f"(b >= 1); expected the frames' real settings")
     if not fits(a, b)[1]:
         b0 = floor(0.0)
         if not fits(a, b0)[1]:  # the read noise alone: the gain
@@ -115,10 +123,13 @@ def _load(args):
     pattern = "".join("".join(r) for r in sensor.cfa.cell)
     if pattern not in BAYER_PATTERNS:
         raise ValueError(f"camera: the sensor's CFA must be a Bayer pattern {BAYER_PATTERNS}, got {pattern!r}")
+    if Path(args.model).is_dir():
+        raise ValueError(f"model: {args.model} is a folder; expected a checkpoint file (.pt)")
     if not Path(args.model).is_file():
         raise FileNotFoundError(f"model: no such checkpoint {args.model!r}")
     try:
-        if filecmp.cmp(args.model, PRETRAINED["joint_denoise"], shallow=False):
+        shipped = filecmp.cmp(args.model, PRETRAINED["joint_denoise"], shallow=False)
+        if shipped:
             # the shipped joint network (the file, or a copy of it) as it ships: with its guard and its low- and
             # high-noise gates (its bare checkpoint differed from demosaic_learned(variant='joint_denoise') by 0.12 on
             # a noisy frame)
@@ -130,7 +141,7 @@ def _load(args):
     if net.noise_inputs != 2:
         raise ValueError(f"model: {args.model} takes {net.noise_inputs} noise inputs; expected a joint denoise+demosaic"
                          f" network (2: sqrt(a), sqrt(b); trained with noise.enabled: true)")
-    return sensor, pattern, net
+    return sensor, pattern, net, shipped
 
 
 def process_frame(dn, sensor, pattern: str, net, *, analog_gain=None, exposure_s: float = 0.0,
@@ -179,9 +190,12 @@ def run(args) -> int:
     from .._progress import progress
     from ..io.frames import read_frame_data
     from ..io.images import write_image
+    from ..sensor.calibration import quantisation_step
     from ._outputs import Outputs, check_dir, check_not_input
 
     for f in args.raw:
+        if Path(f).is_dir():
+            raise ValueError(f"RAW: {f} is a folder; expected raw frame files (e.g. {f}/*.npy)")
         if not Path(f).is_file():
             raise FileNotFoundError(f"RAW: no such raw frame {f!r}")
     _check_settings(args.analog_gain, args.exposure_s)
@@ -192,16 +206,36 @@ def run(args) -> int:
     for path in outputs:  # never overwrite a frame (--out the frames' own folder, same format)
         check_not_input(path, args.raw, "out")
     check_dir(out_dir, "out")
-    sensor, pattern, net = _load(args)
+    sensor, pattern, net, shipped = _load(args)
     noise_params(sensor, args.analog_gain, args.exposure_s)  # a setting the noise model cannot take: before any output
+    config_gain = float(sensor.analog_gain)
+    if not shipped and args.analog_gain is not None and abs(math.log(args.analog_gain / config_gain)) > 0.01:
+        # a camera-specific network learned the noise of the config's gain alone (docs: one model per ISO); at gain
+        # 64 for a gain-1 camera one came out with an RMS error of 0.14, at 1000 in -4..6.8, exit 0
+        print(f"isettorch process: warning: analog_gain {args.analog_gain:g} differs from the camera config's "
+              f"{config_gain:g}, the gain a camera-specific network is trained at: its noise inputs are outside its "
+              f"training (train or fine-tune one model per gain)", file=sys.stderr)
     written = []
     # every frame's file is written under a temporary name and moved into place once all frames succeeded: a bad
     # frame (unreadable, wrong shape, NaN) leaves neither files nor a new folder
     with Outputs(out_dir) as staged, \
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
-            dn, file_cfa, file_blacks, stored_bits = read_frame_data(f)
-            if stored_bits is not None and stored_bits < int(sensor.adc_bits):  # (an 8-bit PNG read as 12-bit DN)
+            try:
+                dn, file_cfa, file_blacks, stored_bits = read_frame_data(f)
+            except ValueError as err:  # the reader names the file; the argument is RAW
+                raise ValueError(f"RAW: {err}") from err
+            adc_bits = int(sensor.adc_bits)
+            if stored_bits is not None and stored_bits > adc_bits:
+                # left-aligned data (14-bit values in 16-bit words are multiples of 4), as calibrate detects them and
+                # writes the config for (right-aligned DN): right-align the frame too (a dim left-aligned frame, under
+                # the largest code, came out 11x too bright, exit 0)
+                shift = 2 ** (stored_bits - adc_bits)
+                if quantisation_step([dn]) >= shift:
+                    dn = dn / shift
+                    print(f"isettorch process: RAW: {f}: every value is a multiple of {shift} DN: {adc_bits}-bit data "
+                          f"left-aligned in {stored_bits}-bit words, divided by {shift}", file=sys.stderr)
+            if stored_bits is not None and stored_bits < adc_bits:  # (an 8-bit PNG read as 12-bit DN)
                 raise ValueError(f"RAW: {f}: {stored_bits}-bit samples cannot hold the camera's {int(sensor.adc_bits)}"
                                  f"-bit DN (a display image, not a raw frame?); give the 16-bit PNG/TIFF or .npy frame")
             # a camera raw's own metadata must be the camera config's: the network, the CFA phase and the black
