@@ -634,7 +634,11 @@ def load_design(design, *, device=None) -> DesignCamera:
     except Exception as err:  # noqa: BLE001 - any unreadable file is the same error for the user
         # (torch's message goes on to suggest weights_only=False, an unsafe load of an untrusted file: its first
         # line only)
-        raise ValueError(f"design: {str(path)!r} is not a readable design file ({first_line(err)})") from err
+        detail = first_line(err)
+        detail = ("not a torch file of tensors" if "weights_only" in detail or len(detail) < 8
+                  else detail)  # (a bare '101' for a text file)
+        raise ValueError(f"design: {str(path)!r} is not a readable design file ({type(err).__name__}: {detail})"
+                         ) from err
     if not isinstance(d, dict) or d.get("format") != DESIGN_FORMAT:
         raise ValueError(f"design: {str(path)!r} is not an {DESIGN_FORMAT} file")
     if d.get("version") != DESIGN_VERSION:
@@ -644,6 +648,9 @@ def load_design(design, *, device=None) -> DesignCamera:
                if k not in d]
     if missing:
         raise ValueError(f"design: {str(path)!r} lacks {missing}; not a complete design file")
+    if not isinstance(d["config"], dict):
+        raise ValueError(f"design: {str(path)!r} holds a config of type {type(d['config']).__name__}; expected a "
+                         f"mapping (not a valid design file)")
     try:
         names = list(d["filter_names"])
         bank = FilterBank.from_table(d["filters"], d["wavelengths_nm"], names, pixel_qe=d["pixel_qe"])
@@ -655,7 +662,12 @@ def load_design(design, *, device=None) -> DesignCamera:
             net = MosaicReconstructionNet(**level["network"]["kwargs"])
             net.load_state_dict(level["network"]["state_dict"])
             camera.add_level(float(level["lux"]), net)
-    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+        # the scene section, checked here rather than at the first render (where its errors named no design)
+        illuminant_photons(camera.wavelengths_nm, 1.0, camera.config["scene"]["illuminant"])
+        distance = float(camera.config["scene"]["distance_m"])
+        if not (math.isfinite(distance) and distance > 0):
+            raise ValueError(f"config.scene.distance_m: expected a positive distance (m), got {distance!r}")
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
         raise ValueError(f"design: {str(path)!r} is not a valid design file ({type(err).__name__}: {err})") from err
     camera.card = str(d.get("card", ""))
     return camera.to(device=device).eval() if device is not None else camera.eval()

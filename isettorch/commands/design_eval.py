@@ -16,8 +16,9 @@ a shipped design).
 ``--json`` prints ``{"design", "lux": [levels], "seed", "crop", "mean_cpsnr": {"<lux>": dB}, "mean_de2000":
 {"<lux>": value}, "images": [{"name", "corner_light", "cpsnr": {...}, "de2000": {...}}, ...]}`` (with
 ``--noise-free`` also ``"mean_cpsnr_noise_free"`` and each image's ``"cpsnr_noise_free"``). Image ``i`` of the
-folder (sorted by name) draws its noise from ``(seed, i, lux)``: the same draw for every design, so adding a
-photograph that sorts before it changes its noise realisation."""
+folder (sorted by name) draws its noise from a generator seeded with ``(seed, i, lux)``, the same seed for every
+design (the same design gives the same draw; two designs' shot noise takes a number of draws that depends on their
+signals, so their later draws differ), so adding a photograph that sorts before it changes its noise realisation."""
 
 from __future__ import annotations
 

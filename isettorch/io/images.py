@@ -44,12 +44,13 @@ UNREAD_IMAGE_SUFFIXES = (".heic", ".heif", ".avif", ".jxl", ".jp2", ".j2k", ".ex
 
 
 def photo_files(folder) -> list[Path]:
-    """The photographs of a folder, sorted by name: the files with a :data:`PHOTO_SUFFIXES` suffix (any case),
-    hidden ones left out (names beginning with ``.``, such as the ``._name.png`` AppleDouble files macOS leaves on
-    copied folders: metadata, not images), other files (notes, READMEs) too. A folder holding an image in a format
-    not read here (:data:`UNREAD_IMAGE_SUFFIXES`: HEIC, AVIF, camera raw, ...) raises a ``ValueError`` naming it:
-    leaving it out would score the folder on fewer photographs than it holds, unsaid."""
-    files = [p for p in Path(folder).iterdir() if not p.name.startswith(".")]
+    """The photographs of a folder, sorted by name: the files with a :data:`PHOTO_SUFFIXES` suffix (any case; the
+    folder's own files, not its subfolders'), hidden ones left out (names beginning with ``.``, such as the
+    ``._name.png`` AppleDouble files macOS leaves on copied folders: metadata, not images), other files (notes,
+    READMEs) too. A folder holding an image in a format not read here (:data:`UNREAD_IMAGE_SUFFIXES`: HEIC, AVIF,
+    camera raw, ...) raises a ``ValueError`` naming it: leaving it out would score the folder on fewer photographs
+    than it holds, unsaid."""
+    files = [p for p in Path(folder).iterdir() if not p.name.startswith(".") and not p.is_dir()]
     unread = sorted(p.name for p in files if p.suffix.lower() in UNREAD_IMAGE_SUFFIXES)
     if unread:
         raise ValueError(f"folder: {str(folder)!r} holds image(s) in a format not read here: {unread[:5]}"

@@ -214,6 +214,8 @@ def test_photo_folders_leave_out_hidden_files_and_refuse_decompression_bombs(tmp
     Image.fromarray(a).save(tmp_path / "a.jpg", quality=95)
     (tmp_path / "._b.PNG").write_bytes(b"\x00\x05\x16\x07 AppleDouble metadata")
     (tmp_path / "notes.txt").write_text("x")
+    (tmp_path / "sub.png").mkdir()  # a folder named like an image is not one (it aborted design-eval)
+    Image.fromarray(a).save(tmp_path / "sub.png" / "c.png")  # subfolders are not searched
     assert [p.name for p in photo_files(tmp_path)] == ["a.jpg", "b.PNG"]
     names = [n for n, _ in load_images(tmp_path)]
     assert names == ["a.jpg", "b.PNG"]
