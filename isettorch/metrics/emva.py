@@ -202,7 +202,10 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
     * responsivity R = K eta (DN/photon): slope through the origin of mu_y - mu_y.dark against mu_p, same
       range; quantum efficiency eta = R / K.
     * dark noise: sigma_y.dark = sqrt(sigma^2_y.dark) of the first level, floored at sqrt(0.24) DN;
-      sigma_d = sqrt(sigma^2_y.dark - 1/12) / K electrons (1/12 DN^2 = quantisation noise).
+      sigma_d = sqrt(sigma^2_y.dark - 1/12) / K electrons (1/12 DN^2 = quantisation noise). Both assume one DN
+      per ADC step: right-align left-aligned data first (12-bit values in 16-bit words divided by 16;
+      ``isettorch calibrate`` does, with its ``quantisation_step_dn``), else sigma_d reads high (+3.2 % for
+      12-bit data x 16 with 6 e- of read noise).
     * saturation capacity mu_e.sat = eta mu_p.sat (with photons) or (mu_y.sat - mu_y.dark) / K (without).
     * sensitivity threshold mu_e.min = sigma_y.dark / K + 1/2; dynamic range DR = mu_e.sat / mu_e.min,
       DR_dB = 20 log10 DR; SNR_max = sqrt(mu_e.sat).

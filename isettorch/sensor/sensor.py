@@ -1154,7 +1154,10 @@ class Sensor(nn.Module):
         (:mod:`~isettorch.sensor.noise_terms`), each times the output units per pixel volt squared, plus the ADC's
         rounding to whole codes, 1/12 DN^2 (EMVA 1288 eq. 5; none for a volts or electrons readout). Left out:
         PRNU, which adds ``(prnu_sigma_percent / 100 x)^2`` across pixels, hot and dead pixels (defects), and
-        clipping at black and white.
+        clipping at black and white. An analog offset (``analog_offset_v``) is not signal: ``x`` is the signal
+        above black level plus the offset; ``noise_free - black_level`` (what PairStream and CameraPairDataset
+        normalise their raw and noise metadata by) counts the offset as signal and overstates the variance by ``a``
+        times it (gain 2, 0.02 V: 537 against 403 DN^2; no built-in preset has an offset).
 
         Example:
             >>> s = Sensor(adc_bits=10, conversion_gain_v_per_e=1e-4, read_noise_v=1e-3, cds=True)
