@@ -14,7 +14,7 @@ camera modules' (:class:`isettorch.Camera`: :class:`~isettorch.optics.Diffractio
    sensor on each side, with its FOV chosen so that one scene sample maps to one pixel; the optics compute only
    the sensor's window (:meth:`Camera.sensor_window`), transforming the J maps once (OTFs cached per f-number,
    pitch and grid), and the sensor projects them on its QE channels (and CIE XYZ for colour targets).
-3. the sensor: auto-exposure (98th percentile of the mosaic at 80 % of the swing, x 2^EV; at most 10 s), Poisson
+3. the sensor: auto-exposure (98th percentile of the mosaic at 80 % of the swing, at most 10 s, x 2^EV), Poisson
    shot noise, dark current, read noise, DSNU/PRNU drawn per item, 12-bit ADC.
 
 :func:`render_pair` renders the **dense** scene through the same modules (the reference the factored default is

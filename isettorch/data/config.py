@@ -62,7 +62,7 @@ CAMERA_DEFAULTS: dict[str, Any] = {
     "analog_gain": [1.0, 16.0],  # log-uniform; ISO = 100 x gain
     "bits": 12,
     "black_level_dn": 64.0,
-    "exposure_ev": [-2.0, 1.0],  # relative to auto exposure (98th percentile at 80 % of the white level; at most 10 s)
+    "exposure_ev": [-2.0, 1.0],  # x 2^EV on auto exposure (98th percentile at 80 % of white, at most 10 s): <= 20 s
     "peak_qe": [0.35, 0.6],
     "cfa_patterns": ["RGGB"],  # any of RGGB, GRBG, GBRG, BGGR; one drawn per sample
     "qe_variation": 0.0,  # 0 = the nominal curves; > 0 shifts each channel by up to this many x 10 nm
