@@ -22,7 +22,8 @@ fraction of the steps) the design is frozen, hard, and the networks alone learn 
 Outputs in ``out``: ``design.pt`` (the design file: filters, hard mosaic, network weights per level, config, card),
 ``card.md``, ``history.csv``, ``curves.png``, ``filters.png`` (filters and mosaic) and ``record.json``. Every
 ``checkpoint_every`` steps the run's state goes to ``out/checkpoint.pt``; running the same command again resumes
-from it (the same steps as an uninterrupted run: each step's scenes and noise depend only on the seed and the step)
+from it (on the same device, the same steps as an uninterrupted run: each step's scenes and noise depend only on
+the seed and the step)
 and a finished run removes it.
 
 ``device`` (``cpu``, ``cuda``, ``cuda:N``) is where the camera renders and the networks train. The scenes are drawn
@@ -309,6 +310,7 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
     from isettorch.isp.evaluation import check_device
 
     device = check_device(cfg["device"])
+    cfg["device"] = str(device)  # a torch.device given from Python: the config is written as JSON
     camera = make_design(cfg["design"], dict(cfg["camera"]), levels, seed=seed, name=name).train()
     out_dir = Path(cfg["out"])
     ck_path = out_dir / "checkpoint.pt"

@@ -164,6 +164,37 @@ def process_frame(dn, sensor, pattern: str, net, *, analog_gain=None, exposure_s
     return out[0]
 
 
+def _read(f):
+    """:func:`isettorch.io.frames.read_frame_data` of a RAW argument, its errors naming RAW."""
+    from ..io.frames import read_frame_data
+
+    try:
+        return read_frame_data(f)
+    except ValueError as err:  # the reader names the file; the argument is RAW
+        raise ValueError(f"RAW: {err}") from err
+
+
+def _left_alignment(raws, adc_bits: int) -> int:
+    """The run's left-alignment step: ``2^(container bits - adc_bits)`` when every value of every frame (all in
+    integer words of one width above the ADC's bits) is a multiple of it, over at least 32 distinct values
+    (:func:`isettorch.sensor.calibration.quantisation_step`, calibrate's rule: it writes the config for the
+    right-aligned DN), else 1. A dim left-aligned frame, under the largest code, came out 11x too bright, exit 0;
+    decided over the whole run, as calibrate decides over its folder (a dark or small frame alone has too few
+    distinct values)."""
+    from ..sensor.calibration import quantisation_step
+
+    widths = {_read(f).stored_bits for f in raws}
+    if len(widths) != 1 or None in widths or next(iter(widths)) <= adc_bits:
+        return 1
+    width = next(iter(widths))
+    step = 2 ** (width - adc_bits)
+    if quantisation_step(_read(f).dn for f in raws) < step:
+        return 1
+    print(f"isettorch process: RAW: every value of the {len(raws)} frame(s) is a multiple of {step} DN: {adc_bits}-bit "
+          f"data left-aligned in {width}-bit words, divided by {step}", file=sys.stderr)
+    return step
+
+
 def _output_paths(raws, out_dir, fmt: str) -> list:
     """``out_dir / <stem>.<fmt>`` of every frame; ValueError naming RAW when two frames would write one file (the
     same stem: frame.npy and sub/frame.npy, frame.npy and frame.tif; or a frame given twice)."""
@@ -188,9 +219,7 @@ def run(args) -> int:
     import numpy as np
 
     from .._progress import progress
-    from ..io.frames import read_frame_data
     from ..io.images import write_image
-    from ..sensor.calibration import quantisation_step
     from ._outputs import Outputs, check_dir, check_not_input
 
     for f in args.raw:
@@ -207,6 +236,7 @@ def run(args) -> int:
         check_not_input(path, args.raw, "out")
     check_dir(out_dir, "out")
     sensor, pattern, net, shipped = _load(args)
+    shift = _left_alignment(args.raw, int(sensor.adc_bits))
     noise_params(sensor, args.analog_gain, args.exposure_s)  # a setting the noise model cannot take: before any output
     config_gain = float(sensor.analog_gain)
     if not shipped and args.analog_gain is not None and abs(math.log(args.analog_gain / config_gain)) > 0.01:
@@ -221,20 +251,10 @@ def run(args) -> int:
     with Outputs(out_dir) as staged, \
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
-            try:
-                dn, file_cfa, file_blacks, stored_bits = read_frame_data(f)
-            except ValueError as err:  # the reader names the file; the argument is RAW
-                raise ValueError(f"RAW: {err}") from err
+            dn, file_cfa, file_blacks, stored_bits = _read(f)
             adc_bits = int(sensor.adc_bits)
-            if stored_bits is not None and stored_bits > adc_bits:
-                # left-aligned data (14-bit values in 16-bit words are multiples of 4), as calibrate detects them and
-                # writes the config for (right-aligned DN): right-align the frame too (a dim left-aligned frame, under
-                # the largest code, came out 11x too bright, exit 0)
-                shift = 2 ** (stored_bits - adc_bits)
-                if quantisation_step([dn]) >= shift:
-                    dn = dn / shift
-                    print(f"isettorch process: RAW: {f}: every value is a multiple of {shift} DN: {adc_bits}-bit data "
-                          f"left-aligned in {stored_bits}-bit words, divided by {shift}", file=sys.stderr)
+            if shift > 1:
+                dn = dn / shift
             if stored_bits is not None and stored_bits < adc_bits:  # (an 8-bit PNG read as 12-bit DN)
                 raise ValueError(f"RAW: {f}: {stored_bits}-bit samples cannot hold the camera's {int(sensor.adc_bits)}"
                                  f"-bit DN (a display image, not a raw frame?); give the 16-bit PNG/TIFF or .npy frame")

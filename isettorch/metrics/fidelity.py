@@ -54,7 +54,7 @@ def _data_range(data_range, image: torch.Tensor, target: torch.Tensor) -> float:
         if not image.is_floating_point():
             return float(torch.iinfo(image.dtype).max)
         lo, hi = float(target.detach().min()), float(target.detach().max())
-        if lo < 0 or hi > 1:
+        if lo < -1e-6 or hi > 1 + 1e-6:  # (rounding's -1e-9 is not a signal outside [0, 1])
             raise ValueError(f"data_range: None takes a peak of 1 for floating-point images, but target spans "
                              f"[{lo:.6g}, {hi:.6g}], outside [0, 1]; pass data_range (the signal's full scale, e.g. "
                              f"1023 for 10-bit codes)")
@@ -89,7 +89,8 @@ def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
     Reference: e.g. Wang et al., IEEE TIP 13(4), 2004, eq. 1 context; scikit-image ``peak_signal_noise_ratio``.
     """
     err = mse(image, target, crop, data_range=data_range)
-    r = _data_range(data_range, image, target)
+    scored = target[..., int(crop):-int(crop), int(crop):-int(crop)] if crop else target  # (crop checked by mse)
+    r = _data_range(data_range, image, scored)
     # identical images: +inf, the maximum, with a zero gradient (10 log10(r^2 / mse) differentiated at mse = 0 is
     # -inf times a zero difference, NaN, which would poison a training step whose batch holds one exact image)
     exact = err == 0
@@ -130,7 +131,7 @@ def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
                          f"{tuple(a.shape[-2:])}")
     # eps 0: kornia's default 1e-12 is added to a denominator of order data_range^4 (C1 C2), which it dominates
     # for data_range below ~1e-2 (identical images scored 0.075 at data_range 1e-3); C1, C2 > 0 keep it positive
-    m = kornia_ssim(a, b, window_size, max_val=_data_range(data_range, image, target), eps=0.0,
+    m = kornia_ssim(a, b, window_size, max_val=_data_range(data_range, image, b), eps=0.0,
                     padding="valid")
     if return_map:
         return m[0] if squeeze else m

@@ -144,7 +144,10 @@ def dynamic_range_from_curve(signal: torch.Tensor, snr: torch.Tensor, max_signal
         if not isinstance(v, torch.Tensor) or v.dim() != 1:
             raise ValueError(f"{name}: expected a 1-D tensor, got "
                              f"{tuple(v.shape) if isinstance(v, torch.Tensor) else type(v).__name__}")
-        check_finite(v.detach(), name)
+    check_finite(signal.detach(), "signal")
+    if bool(torch.isnan(snr).any()) or bool((snr == -math.inf).any()):  # +inf: a saturated level (snr_curve's)
+        raise ValueError("snr: expected values that are not NaN or -inf (+inf, a noise-free saturated level, is "
+                         "kept)")
     if snr.shape != signal.shape:
         raise ValueError(f"snr: expected one value per signal, {tuple(signal.shape)}, got {tuple(snr.shape)}")
     s, r = signal.detach().to(torch.float64), snr.detach().to(torch.float64)

@@ -301,22 +301,17 @@ def quantisation_step(stacks, min_distinct: int = 32) -> int:
     """The common power-of-two step q = 2^s (s >= 1) of every value of every frame (left-aligned data: 12-bit values
     in 16-bit words are multiples of 16), else 1. Needs integer values and at least ``min_distinct`` distinct ones (a
     chance common factor 2 of n distinct noisy values has probability 2^-n)."""
-    acc = 0
-    for st in stacks:
+    acc, distinct = 0, set()
+    for st in stacks:  # one pass (``stacks`` may be a generator reading frames one at a time)
         if not np.array_equal(st, np.round(st)):
             return 1
         acc |= int(np.bitwise_or.reduce(st.astype(np.int64), axis=None))
-    if acc == 0:
+        if len(distinct) < min_distinct:
+            distinct.update(np.unique(st).tolist())
+    if acc == 0 or len(distinct) < min_distinct:
         return 1
     s = (acc & -acc).bit_length() - 1  # trailing zero bits of the OR: the largest 2^s dividing every value
-    if s == 0:
-        return 1
-    distinct: set = set()
-    for st in stacks:
-        distinct.update(np.unique(st).tolist())
-        if len(distinct) >= min_distinct:
-            return 2 ** s
-    return 1
+    return 2 ** s if s else 1
 
 
 def _hot_pixels(capture) -> dict[str, Any] | None:

@@ -38,20 +38,21 @@ Two ways to count the rays (``sampling``):
   each segment between x samples follows the crossing of the photodiode edge, linearly): no grid averaging and no
   finite x window (only the ``|p| < 0.99`` cut at the microlens: a segment with an end beyond it counts as outside, so
   the etendue reads up to 7.6e-3 low at ``samples=(64, 128)`` and 2.3e-3 at (128, 256) against a 3000 x 3000 midpoint
-  integral, over pixels of 1-6 um, f/1.4-f/16, stacks of 3-12 um and CRA 0-45 deg). Its gradient in the chief-ray
-  angle and the source's f-number is Leibniz's rule for the span of directions (exact for the sampled integrand; 0.154
-  against 0.154 for d/dN at f/2, any sample count). In the stack height, the offset and the microlens focal length it
-  is the gradient of the direction samples' sum: without ``diffraction`` a focused beam (centred or optimal microlens)
-  makes each direction's share a near-step that moves with them, and the gradient errs by about 10 % (ISETCam's pixel,
-  d/dh at f/2, CRA 3-22 deg: -0.194 per um at the default 64 directions, -0.211 at 512, against -0.218 by finite
-  differences); with ``diffraction=True`` (each ray a Gaussian) the integrand is smooth and the gradient agrees to
-  1e-4 at 64 directions. It is the integral that ISETCam's grid approximates, not ISETCam's number. Measured against
-  ISETCam's grid: on ISETCam's default pixel (CRA 0-35 deg, source f/2-f/8) up to 0.030 (centred microlens, f/8, CRA
-  13.5 deg: the grid's averaging blurs the hard edge of the focused beam; 0.015 at f/4); over 4148 (pixel 1.4-5.6 um,
-  stack 3-12 um, f/2-f/8, CRA 0-30 deg) cases whose beam stays inside ISETCam's window up to 0.052, 99 % within 0.018;
-  and up to 1 where ISETCam's +-2 D window clips the beam (a large optimal offset or a long stack at a large CRA, e.g.
-  the 1.4 um pixel's optimal microlens at 30 deg: 0.92 vs ISETCam's 0.78; ISETCam drops those rays, down to 0, the
-  integral keeps them).
+  integral, over pixels of 1-6 um, f/1.4-f/16, stacks of 3-12 um and CRA 0-45 deg). Its gradient in the source's
+  f-number, and in the chief-ray angle for ``'none'`` and ``'centred'``, is Leibniz's rule for the span of directions
+  (0.154 against 0.154 for d/dN at f/2, any sample count). In the CRA of ``'optimal'`` (whose offset follows the CRA),
+  the stack height, the offset and the microlens focal length it is the gradient of the direction samples' sum:
+  without ``diffraction`` a focused beam makes each direction's share a near-step that moves with them, and the
+  gradient errs by about 10 % (ISETCam's pixel, d/dh at f/2, CRA 3-22 deg: -0.194 per um at the default 64 directions,
+  -0.211 at 512, against -0.218 by finite differences; 'optimal' d/dCRA at 22 deg, f/2.8, 1.4 um pixel: -0.0080
+  against -0.0056, a small slope); with ``diffraction=True`` (each ray a Gaussian) the integrand is smooth and the
+  gradient agrees to 1e-4 at 64 directions. It is the integral that ISETCam's grid approximates, not ISETCam's number.
+  Measured against ISETCam's grid: on ISETCam's default pixel (CRA 0-35 deg, source f/2-f/8) up to 0.030 (centred
+  microlens, f/8, CRA 13.5 deg: the grid's averaging blurs the hard edge of the focused beam; 0.015 at f/4); over 4148
+  (pixel 1.4-5.6 um, stack 3-12 um, f/2-f/8, CRA 0-30 deg) cases whose beam stays inside ISETCam's window up to 0.052,
+  99 % within 0.018; and up to 1 where ISETCam's +-2 D window clips the beam (a large optimal offset or a long stack
+  at a large CRA, e.g. the 1.4 um pixel's optimal microlens at 30 deg: 0.92 vs ISETCam's 0.78; ISETCam drops those
+  rays, down to 0, the integral keeps them).
 
 ``diffraction=True`` adds what the ray model leaves out: each ray lands as a Gaussian approximation to the
 Fraunhofer pattern of the aperture (microlens width D, or the pixel without a microlens) after the stack,
@@ -280,10 +281,17 @@ def _continuous(cra, method, t, n, off, geo, diffraction, samples, profile=True)
     if bool((hi <= lo).any()):
         raise ValueError("chief_ray_angle_deg/source_f_number: the source's directions lie outside |p| < 0.99")
     k = (torch.arange(nu, dtype=dtype, device=dev) + 0.5) / nu
-    # the direction sines: U midpoints of the source's span [lo, hi], then its two ends (for the gradient below);
-    # detached from lo and hi, which enter the etendue through Leibniz's rule alone
-    lo_d, hi_d = lo.detach(), hi.detach()
-    u = torch.cat([lo_d[:, None] + (hi_d - lo_d)[:, None] * k, lo_d[:, None], hi_d[:, None]], 1)  # [A, U + 2]
+    # the direction sines: U midpoints of the source's span [lo, hi], then its two ends (for the gradient below).
+    # The span's width (the f-number) enters through Leibniz's rule alone; its centre (the CRA) too, unless the
+    # offset follows the CRA ('optimal'), where the samples move with the CRA as the beam and the offset move
+    # together (Leibniz's rule there gave -0.061 for -0.0056: the offset's share went through the near-step)
+    na_d = na.detach() if isinstance(na, torch.Tensor) else na
+    s_u = s if method == "optimal" else s.detach()
+    lo_u, hi_u = (s_u - na_d).clamp(min=-_P_MAX), (s_u + na_d).clamp(max=_P_MAX)
+    s_l = s.detach() if method == "optimal" else s
+    lo_l, hi_l = (s_l - na).clamp(min=-_P_MAX), (s_l + na).clamp(max=_P_MAX)  # the ends Leibniz's rule moves
+    u = torch.cat([lo_u[:, None] + (hi_u - lo_u)[:, None] * k, lo_u.detach()[:, None], hi_u.detach()[:, None]],
+                  1)  # [A, U + 2]
     x = torch.linspace(-D / 2, D / 2, nx + 1, dtype=dtype, device=dev)  # segment ends
     pu = u[:, :, None].expand(-1, -1, nx + 1)
     if method != "none":
@@ -320,13 +328,13 @@ def _continuous(cra, method, t, n, off, geo, diffraction, samples, profile=True)
         inside = torch.where(both, torch.ones_like(a), torch.where(cross, frac_cross, torch.zeros_like(a)))
     # the fraction of the source (the microlens aperture D <= P, directions inside the grid: mlRadiance's
     # etendueIn) that reaches the photodiode (etendueOut): the mean over the directions of each direction's share,
-    # e = 1 / (hi - lo) * integral_lo^hi f(u) du. Its gradient in the span's ends (the chief-ray angle and the
-    # source's f-number) is Leibniz's, de/dhi = (f(hi) - e) / (hi - lo) and de/dlo = (e - f(lo)) / (hi - lo),
-    # not the midpoint sum's: a focused beam makes f(u) a near-step, whose midpoint samples moved with the ends
-    # gave gradients off by tens of percent at any sample count (0.196 against 0.155 at 512 directions)
+    # e = 1 / (hi - lo) * integral_lo^hi f(u) du. Its gradient in the span's ends (the source's f-number, and the
+    # chief-ray angle but for 'optimal') is Leibniz's, de/dhi = (f(hi) - e) / (hi - lo) and de/dlo = (e - f(lo)) /
+    # (hi - lo), not the midpoint sum's: a focused beam makes f(u) a near-step, whose midpoint samples moved with
+    # the ends gave gradients off by tens of percent at any sample count (0.196 against 0.155 at 512 directions)
     rows = inside.mean(-1)  # [A, U + 2]
     m, f_lo, f_hi = rows[:, :nu].mean(-1), rows[:, nu].detach(), rows[:, nu + 1].detach()
-    lo_a, hi_a = (full(lo), full(hi)) if diffraction else (lo, hi)
+    lo_a, hi_a = (full(lo_l), full(hi_l)) if diffraction else (lo_l, hi_l)
     span = (hi_a - lo_a).detach()
     md = m.detach()
     e = m + ((f_hi - md) * (hi_a - hi_a.detach()) - (f_lo - md) * (lo_a - lo_a.detach())) / span

@@ -293,7 +293,7 @@ def test_snr_functions_refuse_non_finite_and_malformed_input():
     snr = pixel_snr(sig, read_noise_e=3.0)
     bad = snr.clone()
     bad[10] = math.nan
-    with pytest.raises(ValueError, match="snr: expected finite"):
+    with pytest.raises(ValueError, match="snr: expected values that are not NaN"):
         dynamic_range_from_curve(sig, bad)
     with pytest.raises(ValueError, match="snr: expected one value per signal"):
         dynamic_range_from_curve(sig, snr[:40])
@@ -342,3 +342,24 @@ def test_colour_differences_and_chromaticities_refuse_non_finite_colours():
     broken[3, 1] = math.nan
     with pytest.raises(ValueError, match="rendered: expected finite"):
         color_accuracy(broken, chart, space="lab")
+
+
+def test_default_data_range_reads_the_scored_pixels_and_saturated_snr_is_kept():
+    """The [0, 1] check reads the pixels scored (a border cropped away may hold anything) and forgives rounding's
+    -1e-9; dynamic_range_from_curve keeps a saturated level's SNR = inf (snr_curve gives it; refused at first)."""
+    g = torch.Generator().manual_seed(0)
+    t = torch.rand(1, 3, 16, 16, dtype=torch.float64, generator=g)
+    x = (t + 0.01).clamp(0, 1)
+    t_border = t.clone()
+    t_border[..., 0, :] = 7.0
+    assert float(psnr(x, t_border, crop=2)) == pytest.approx(float(psnr(x, t, crop=2)), abs=1e-12)
+    assert float(ssim(x, t_border, crop=2)) == pytest.approx(float(ssim(x, t, crop=2)), abs=1e-12)
+    t_round = t.clone()
+    t_round[0, 0, 5, 5] = -1e-9
+    assert math.isfinite(float(psnr(x, t_round)))
+    sig = torch.logspace(-1, 4, 50, dtype=torch.float64)
+    snr = pixel_snr(sig, read_noise_e=3.0)
+    saturated = torch.cat([snr, torch.tensor([math.inf], dtype=torch.float64)])
+    top = torch.cat([sig, torch.tensor([2e4], dtype=torch.float64)])
+    assert float(dynamic_range_from_curve(top, saturated)) == pytest.approx(
+        float(dynamic_range_from_curve(sig, snr)) + 20 * math.log10(2), abs=1e-9)

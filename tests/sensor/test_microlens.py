@@ -650,6 +650,20 @@ def test_f_number_and_angle_gradients_follow_the_integral():
     assert float(fd_n) == pytest.approx(0.154, abs=0.003)  # the audit's independent 3000 x 3000 integral
     for k in range(3):
         assert float(g_c[k]) == pytest.approx(float(fd_c[k]), abs=0.006)
+    # 'optimal': the offset follows the CRA, so the CRA's share moves the samples (Leibniz's rule alone gave -0.061
+    # for -0.0056 at 22 deg, f/2.8, a 1.4 um pixel); the f-number's is Leibniz's rule
+    for diffraction, tol in ((False, 0.004), (True, 2e-4)):
+        kw = dict(sampling="continuous", pixel_size_m=1.4e-6, diffraction=diffraction)
+        n = torch.tensor(2.8, dtype=torch.float64, requires_grad=True)
+        c = torch.tensor([22.0], dtype=torch.float64, requires_grad=True)
+        g_n, g_c = torch.autograd.grad(microlens_etendue(c, "optimal", source_f_number=n, samples=(64, 128),
+                                                         **kw).sum(), (n, c))
+        with torch.no_grad():
+            def fine(nf, cd, kw=kw):
+                return float(microlens_etendue(torch.tensor([cd], dtype=torch.float64), "optimal",
+                                               source_f_number=nf, samples=(4096, 256), **kw).sum())
+            assert float(g_c[0]) == pytest.approx((fine(2.8, 22.25) - fine(2.8, 21.75)) / 0.5, abs=tol)
+            assert float(g_n) == pytest.approx((fine(2.85, 22.0) - fine(2.75, 22.0)) / 0.1, abs=max(tol, 1e-3))
 
 
 def test_physical_convention_refuses_a_microlens_narrower_than_the_pixel():

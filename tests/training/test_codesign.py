@@ -130,9 +130,13 @@ def test_an_interrupted_run_resumes_to_the_same_design(tmp_path, monkeypatch):
         codesign.train({**cfg, "seed": 5, "out": str(tmp_path / "other")}, quiet=True)
 
 
-def test_config_device_is_checked():
+def test_config_device_is_checked(tmp_path):
     with pytest.raises(ValueError, match="device: 'tpu'"):
         codesign.train({"device": "tpu", "optim": {"steps": 1}})
+    # a torch.device from Python is written as its name (it failed to serialise at the first checkpoint)
+    record = codesign.train({**TINY_RUN, "optim": {"steps": 2}, "checkpoint_every": 1, "device": torch.device("cpu"),
+                             "out": str(tmp_path / "run")}, quiet=True)
+    assert record["config"]["device"] == "cpu"
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
