@@ -319,6 +319,7 @@ def test_degenerate_designs_inputs_and_files_are_refused_naming_them(design_file
     torch.save(d, bad)
     with pytest.raises(ValueError, match=r"is not a valid design file \(RuntimeError"):
         D.load_design(bad)
+    other = tmp_path / "other.pt"
     # a config that is not a mapping raised AttributeError (a traceback, exit 1); a bad scene section was found
     # only at the first render, in an error naming no design
     for config, message in (("x", "holds a config of type str; expected a mapping"),
@@ -328,15 +329,12 @@ def test_degenerate_designs_inputs_and_files_are_refused_naming_them(design_file
         d = torch.load(design_file, weights_only=True)
         d["config"] = config if isinstance(config, str) else {**d["config"],
                                                               "scene": {**d["config"]["scene"], **config["scene"]}}
-        torch.save(d, bad)
+        torch.save(d, other)
         with pytest.raises(ValueError, match=f"^design: .*{message}"):
-            D.load_design(bad)
-    bad.write_text("hello")
+            D.load_design(other)
+    other.write_text("hello")
     with pytest.raises(ValueError, match=r"not a readable design file \(\w+: not a torch file of tensors\)"):
-        D.load_design(bad)
-    d = torch.load(design_file, weights_only=True)
-    d["levels"][0]["network"]["state_dict"] = {}
-    torch.save(d, bad)
+        D.load_design(other)
     photos = tmp_path / "p"
     photos.mkdir()
     Image.fromarray(np.full((12, 12, 3), 128, np.uint8)).save(photos / "a.png")

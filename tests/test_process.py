@@ -139,7 +139,7 @@ def test_left_aligned_frames_are_right_aligned(camera, tmp_path, capsys):
     assert main(["process", str(tmp_path / "right.npy"), *args, "--out", str(tmp_path / "a")]) == 0
     capsys.readouterr()
     assert main(["process", str(tmp_path / "left.npy"), *args, "--out", str(tmp_path / "b")]) == 0
-    assert "is a multiple of 16 DN: 12-bit data left-aligned in 16-bit words" in capsys.readouterr().err
+    assert "in 16-bit words is a multiple of 16 DN: 12-bit data left-aligned, divided by 16" in capsys.readouterr().err
     assert np.array_equal(np.load(tmp_path / "a" / "right.npy"), np.load(tmp_path / "b" / "left.npy"))
     # decided over the run, as calibrate decides over its folder: a dark frame alone has too few distinct values
     # (it passed as right-aligned, 0.24 for 0.00), beside the dim one it is right-aligned too
@@ -150,6 +150,15 @@ def test_left_aligned_frames_are_right_aligned(camera, tmp_path, capsys):
     assert main(["process", str(tmp_path / "left.npy"), str(tmp_path / "dark.npy"), *args, "--out",
                  str(tmp_path / "d")]) == 0
     assert np.array_equal(np.load(tmp_path / "c" / "dark_right.npy"), np.load(tmp_path / "d" / "dark.npy"))
+    # a float frame beside them does not change the integer frames' decision (it stopped it: 0.62 for 0.02)
+    np.save(tmp_path / "float.npy", right.astype(np.float64))
+    assert main(["process", str(tmp_path / "left.npy"), str(tmp_path / "dark.npy"), str(tmp_path / "float.npy"),
+                 *args, "--out", str(tmp_path / "e")]) == 0
+    assert np.array_equal(np.load(tmp_path / "b" / "left.npy"), np.load(tmp_path / "e" / "left.npy"))
+    # the dark frame alone cannot be told: processed as right-aligned, with a warning
+    capsys.readouterr()
+    assert main(["process", str(tmp_path / "dark.npy"), *args, "--out", str(tmp_path / "f")]) == 0
+    assert "too few distinct values to tell left-aligned 12-bit data" in capsys.readouterr().err
 
 
 def test_settings_beyond_any_camera_and_folders_are_refused(camera, tmp_path, capsys):

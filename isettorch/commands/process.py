@@ -174,25 +174,30 @@ def _read(f):
         raise ValueError(f"RAW: {err}") from err
 
 
-def _left_alignment(raws, adc_bits: int) -> int:
-    """The run's left-alignment step: ``2^(container bits - adc_bits)`` when every value of every frame (all in
-    integer words of one width above the ADC's bits) is a multiple of it, over at least 32 distinct values
-    (:func:`isettorch.sensor.calibration.quantisation_step`, calibrate's rule: it writes the config for the
-    right-aligned DN), else 1. A dim left-aligned frame, under the largest code, came out 11x too bright, exit 0;
-    decided over the whole run, as calibrate decides over its folder (a dark or small frame alone has too few
-    distinct values)."""
+def _left_alignment(raws, adc_bits: int) -> dict:
+    """``{frame: step}``: for the frames stored in integer words of one width above the ADC's bits, the step
+    ``2^(width - adc_bits)`` when every value of every such frame is a multiple of it, over at least 32 distinct
+    values (:func:`isettorch.sensor.calibration.quantisation_step`, calibrate's rule: it writes the config for the
+    right-aligned DN), decided over those frames of the run together (a dark or small frame alone has too few
+    distinct values), else 1. A dim left-aligned frame, under the largest code, came out 11x too bright, exit 0.
+    Where every value is a multiple of the step but the values are too few to tell, a warning says so."""
     from ..sensor.calibration import quantisation_step
 
-    widths = {_read(f).stored_bits for f in raws}
-    if len(widths) != 1 or None in widths or next(iter(widths)) <= adc_bits:
-        return 1
-    width = next(iter(widths))
-    step = 2 ** (width - adc_bits)
-    if quantisation_step(_read(f).dn for f in raws) < step:
-        return 1
-    print(f"isettorch process: RAW: every value of the {len(raws)} frame(s) is a multiple of {step} DN: {adc_bits}-bit "
-          f"data left-aligned in {width}-bit words, divided by {step}", file=sys.stderr)
-    return step
+    widths = {f: _read(f).stored_bits for f in raws}
+    steps = dict.fromkeys(raws, 1)
+    for width in sorted({w for w in widths.values() if w is not None and w > adc_bits}):
+        group = [f for f in raws if widths[f] == width]
+        step = 2 ** (width - adc_bits)
+        if quantisation_step(_read(f).dn for f in group) >= step:
+            steps.update(dict.fromkeys(group, step))
+            print(f"isettorch process: RAW: every value of {len(group)} frame(s) in {width}-bit words is a multiple of "
+                  f"{step} DN: {adc_bits}-bit data left-aligned, divided by {step}", file=sys.stderr)
+        elif quantisation_step((_read(f).dn for f in group), min_distinct=1) >= step:
+            print(f"isettorch process: warning: RAW: every value of {len(group)} frame(s) in {width}-bit words is a "
+                  f"multiple of {step} DN, but they hold too few distinct values to tell left-aligned {adc_bits}-bit "
+                  f"data; taken as right-aligned (divide them by {step} yourself if they are left-aligned)",
+                  file=sys.stderr)
+    return steps
 
 
 def _output_paths(raws, out_dir, fmt: str) -> list:
@@ -236,7 +241,7 @@ def run(args) -> int:
         check_not_input(path, args.raw, "out")
     check_dir(out_dir, "out")
     sensor, pattern, net, shipped = _load(args)
-    shift = _left_alignment(args.raw, int(sensor.adc_bits))
+    shifts = _left_alignment(args.raw, int(sensor.adc_bits))
     noise_params(sensor, args.analog_gain, args.exposure_s)  # a setting the noise model cannot take: before any output
     config_gain = float(sensor.analog_gain)
     if not shipped and args.analog_gain is not None and abs(math.log(args.analog_gain / config_gain)) > 0.01:
@@ -253,8 +258,8 @@ def run(args) -> int:
         for f, path in zip(args.raw, outputs):
             dn, file_cfa, file_blacks, stored_bits = _read(f)
             adc_bits = int(sensor.adc_bits)
-            if shift > 1:
-                dn = dn / shift
+            if shifts[f] > 1:
+                dn = dn / shifts[f]
             if stored_bits is not None and stored_bits < adc_bits:  # (an 8-bit PNG read as 12-bit DN)
                 raise ValueError(f"RAW: {f}: {stored_bits}-bit samples cannot hold the camera's {int(sensor.adc_bits)}"
                                  f"-bit DN (a display image, not a raw frame?); give the 16-bit PNG/TIFF or .npy frame")

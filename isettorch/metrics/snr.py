@@ -145,11 +145,14 @@ def dynamic_range_from_curve(signal: torch.Tensor, snr: torch.Tensor, max_signal
             raise ValueError(f"{name}: expected a 1-D tensor, got "
                              f"{tuple(v.shape) if isinstance(v, torch.Tensor) else type(v).__name__}")
     check_finite(signal.detach(), "signal")
-    if bool(torch.isnan(snr).any()) or bool((snr == -math.inf).any()):  # +inf: a saturated level (snr_curve's)
-        raise ValueError("snr: expected values that are not NaN or -inf (+inf, a noise-free saturated level, is "
-                         "kept)")
     if snr.shape != signal.shape:
         raise ValueError(f"snr: expected one value per signal, {tuple(signal.shape)}, got {tuple(snr.shape)}")
+    # +inf is a noise-free saturated level, NaN at a signal <= 0 a noise-free dark one (snr_curve's 0 / 0): left out
+    # with the other points at signal <= 0; a NaN or -inf above is an error
+    bad = (torch.isnan(snr) | (snr == -math.inf)) & (signal > 0)
+    if bool(bad.any()):
+        raise ValueError(f"snr: expected values that are not NaN or -inf where the signal is positive, got "
+                         f"{snr[bad][:4].tolist()} at signals {signal[bad][:4].tolist()}")
     s, r = signal.detach().to(torch.float64), snr.detach().to(torch.float64)
     order = torch.argsort(s)
     s, r = s[order], r[order]

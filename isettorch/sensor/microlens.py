@@ -41,18 +41,19 @@ Two ways to count the rays (``sampling``):
   integral, over pixels of 1-6 um, f/1.4-f/16, stacks of 3-12 um and CRA 0-45 deg). Its gradient in the source's
   f-number, and in the chief-ray angle for ``'none'`` and ``'centred'``, is Leibniz's rule for the span of directions
   (0.154 against 0.154 for d/dN at f/2, any sample count). In the CRA of ``'optimal'`` (whose offset follows the CRA),
-  the stack height, the offset and the microlens focal length it is the gradient of the direction samples' sum:
-  without ``diffraction`` a focused beam makes each direction's share a near-step that moves with them, and the
-  gradient errs by about 10 % (ISETCam's pixel, d/dh at f/2, CRA 3-22 deg: -0.194 per um at the default 64 directions,
-  -0.211 at 512, against -0.218 by finite differences; 'optimal' d/dCRA at 22 deg, f/2.8, 1.4 um pixel: -0.0080
-  against -0.0056, a small slope); with ``diffraction=True`` (each ray a Gaussian) the integrand is smooth and the
-  gradient agrees to 1e-4 at 64 directions. It is the integral that ISETCam's grid approximates, not ISETCam's number.
-  Measured against ISETCam's grid: on ISETCam's default pixel (CRA 0-35 deg, source f/2-f/8) up to 0.030 (centred
-  microlens, f/8, CRA 13.5 deg: the grid's averaging blurs the hard edge of the focused beam; 0.015 at f/4); over 4148
-  (pixel 1.4-5.6 um, stack 3-12 um, f/2-f/8, CRA 0-30 deg) cases whose beam stays inside ISETCam's window up to 0.052,
-  99 % within 0.018; and up to 1 where ISETCam's +-2 D window clips the beam (a large optimal offset or a long stack
-  at a large CRA, e.g. the 1.4 um pixel's optimal microlens at 30 deg: 0.92 vs ISETCam's 0.78; ISETCam drops those
-  rays, down to 0, the integral keeps them).
+  the stack height, the offset and the microlens focal length it is the gradient of the direction samples' sum, as
+  before 2026-11-30: without ``diffraction`` a focused beam makes each direction's share a near-step that moves with
+  them, and the gradient errs by 10-40 % (ISETCam's pixel, d/dh at f/2, CRA 3-22 deg: -0.194 per um at the default 64
+  directions against -0.218 by finite differences; d/d(offset) at f/1.4, 2.8 um, 22 deg: 0.222 against 0.313), and is
+  noise where the true slope is near zero; with ``diffraction=True`` (each ray a Gaussian) the integrand is smooth and
+  these gradients agree to 1e-4 at 64 directions, except the CRA's of ``'optimal'`` where the beam reaches the cut at
+  0.99 (whose share the moving samples miss: 0 against -0.0126 at f/2.8, a 6 um pixel, 35 deg). It is the
+  integral that ISETCam's grid approximates, not ISETCam's number. Measured against ISETCam's grid: on ISETCam's
+  default pixel (CRA 0-35 deg, source f/2-f/8) up to 0.030 (centred microlens, f/8, CRA 13.5 deg: the grid's averaging
+  blurs the hard edge of the focused beam; 0.015 at f/4); over 4148 (pixel 1.4-5.6 um, stack 3-12 um, f/2-f/8, CRA
+  0-30 deg) cases whose beam stays inside ISETCam's window up to 0.052, 99 % within 0.018; and up to 1 where ISETCam's
+  +-2 D window clips the beam (a large optimal offset or a long stack at a large CRA, e.g. the 1.4 um pixel's optimal
+  microlens at 30 deg: 0.92 vs ISETCam's 0.78; ISETCam drops those rays, down to 0, the integral keeps them).
 
 ``diffraction=True`` adds what the ray model leaves out: each ray lands as a Gaussian approximation to the
 Fraunhofer pattern of the aperture (microlens width D, or the pixel without a microlens) after the stack,

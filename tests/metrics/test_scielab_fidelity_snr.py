@@ -363,3 +363,8 @@ def test_default_data_range_reads_the_scored_pixels_and_saturated_snr_is_kept():
     top = torch.cat([sig, torch.tensor([2e4], dtype=torch.float64)])
     assert float(dynamic_range_from_curve(top, saturated)) == pytest.approx(
         float(dynamic_range_from_curve(sig, snr)) + 20 * math.log10(2), abs=1e-9)
+    # a noise-free dark level (snr_curve's 0 / 0 = NaN at signal 0) is left out as before, not refused
+    dark = torch.cat([torch.zeros(1, dtype=torch.float64), sig]), torch.cat([torch.full((1,), math.nan,
+                                                                                        dtype=torch.float64), snr])
+    assert float(dynamic_range_from_curve(*dark)) == pytest.approx(float(dynamic_range_from_curve(sig, snr)),
+                                                                    abs=1e-12)
