@@ -192,7 +192,8 @@ def _left_alignment(raws, adc_bits: int) -> dict:
             steps.update(dict.fromkeys(group, step))
             print(f"isettorch process: RAW: every value of {len(group)} frame(s) in {width}-bit words is a multiple of "
                   f"{step} DN: {adc_bits}-bit data left-aligned, divided by {step}", file=sys.stderr)
-        elif quantisation_step((_read(f).dn for f in group), min_distinct=1) >= step:
+        elif (quantisation_step((_read(f).dn for f in group), min_distinct=1) >= step
+              and all(float(_read(f).dn.max()) < 2 ** adc_bits for f in group)):  # (above: refused, said there)
             print(f"isettorch process: warning: RAW: every value of {len(group)} frame(s) in {width}-bit words is a "
                   f"multiple of {step} DN, but they hold too few distinct values to tell left-aligned {adc_bits}-bit "
                   f"data; taken as right-aligned (divide them by {step} yourself if they are left-aligned)",
