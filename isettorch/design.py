@@ -118,6 +118,18 @@ def _design_config(config: dict | None) -> dict:
     if cfg["filters"]["fixed_scale"] not in ("table", "peak"):
         raise ValueError(f"config.filters.fixed_scale: expected 'table' or 'peak', got "
                          f"{cfg['filters']['fixed_scale']!r}")
+    # the scene section (a design file's too), checked here rather than at the first render, whose errors named
+    # neither the key nor the design
+    scene = cfg["scene"]
+    try:
+        lo, hi, step = (float(v) for v in scene["wavelengths_nm"])
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"config.scene.wavelengths_nm: expected [first, last, step] (nm), got "
+                         f"{scene['wavelengths_nm']!r}") from err
+    illuminant_photons(spectral.default_wavelengths(lo, hi, step).to(torch.float64), 1.0, scene["illuminant"])
+    d = scene["distance_m"]
+    if isinstance(d, bool) or not (isinstance(d, (int, float)) and math.isfinite(d) and d > 0):
+        raise ValueError(f"config.scene.distance_m: expected a positive distance (m), got {d!r}")
     return cfg
 
 
@@ -662,11 +674,6 @@ def load_design(design, *, device=None) -> DesignCamera:
             net = MosaicReconstructionNet(**level["network"]["kwargs"])
             net.load_state_dict(level["network"]["state_dict"])
             camera.add_level(float(level["lux"]), net)
-        # the scene section, checked here rather than at the first render (where its errors named no design)
-        illuminant_photons(camera.wavelengths_nm, 1.0, camera.config["scene"]["illuminant"])
-        distance = float(camera.config["scene"]["distance_m"])
-        if not (math.isfinite(distance) and distance > 0):
-            raise ValueError(f"config.scene.distance_m: expected a positive distance (m), got {distance!r}")
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
         raise ValueError(f"design: {str(path)!r} is not a valid design file ({type(err).__name__}: {err})") from err
     camera.card = str(d.get("card", ""))

@@ -305,6 +305,10 @@ def test_degenerate_designs_inputs_and_files_are_refused_naming_them(design_file
         D.make_design("bayer_rgb", {"exposure": {"target": True}})
     with pytest.raises(ValueError, match=r"^config.filters.fixed_scale: expected 'table' or 'peak'"):
         D.make_design("bayer_rgb", {"filters": {"fixed_scale": "foo"}})
+    with pytest.raises(ValueError, match=r"^config.scene.distance_m: expected a positive distance \(m\), got 'far'"):
+        D.make_design("bayer_rgb", {"scene": {"distance_m": "far"}})
+    with pytest.raises(ValueError, match=r"^config.scene.wavelengths_nm: expected \[first, last, step\]"):
+        D.make_design("bayer_rgb", {"scene": {"wavelengths_nm": [400, 700]}})
     # a light so low that the white card's float32 signal underflows: the normalised input is not finite
     with pytest.raises(ValueError, match=r"^lux: the white card's signal is too small"):
         good.capture(good.scene(torch.ones(1, 1, 8, 8), torch.full((1, 31), 0.5), 1e-40))
