@@ -202,3 +202,15 @@ def test_a_camera_specific_network_at_another_gain_is_warned_about(camera, tmp_p
         err = capsys.readouterr().err
         assert code == 0, err
         assert ("warning: analog_gain 4 differs from the camera config's 1" in err) == warned, err
+
+
+def test_a_camera_without_an_adc_is_one_line(tmp_path, capsys):
+    """A camera config with an analog readout (adc_bits null): the noise model's refusal, one line, exit 2 (the
+    left-alignment step read int(adc_bits) before it, a TypeError traceback)."""
+    sensor = SENSOR.replace("adc_bits: 12", "adc_bits: null").replace("black_level_dn: 64", "black_level_dn: 0")
+    (tmp_path / "analog.yaml").write_text(f"{OPTICS}\n{sensor}\n")
+    np.save(tmp_path / "f.npy", np.random.default_rng(0).integers(64, 4095, (8, 8)).astype(np.uint16))
+    assert main(["process", str(tmp_path / "f.npy"), "--camera", str(tmp_path / "analog.yaml"), "--model",
+                 str(PRETRAINED["joint_denoise"]), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert capsys.readouterr().err == ("isettorch process: --camera: the sensor has no ADC (adc_bits null); expected a "
+                                       "sensor that outputs DN\n")

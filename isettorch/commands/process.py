@@ -242,8 +242,9 @@ def run(args) -> int:
         check_not_input(path, args.raw, "out")
     check_dir(out_dir, "out")
     sensor, pattern, net, shipped = _load(args)
-    shifts = _left_alignment(args.raw, int(sensor.adc_bits))
     noise_params(sensor, args.analog_gain, args.exposure_s)  # a setting the noise model cannot take: before any output
+    adc_bits = int(sensor.adc_bits)  # (noise_params refused a sensor without an ADC)
+    shifts = _left_alignment(args.raw, adc_bits)
     config_gain = float(sensor.analog_gain)
     if not shipped and args.analog_gain is not None and abs(math.log(args.analog_gain / config_gain)) > 0.01:
         # a camera-specific network learned the noise of the config's gain alone (docs: one model per ISO); at gain
@@ -258,11 +259,10 @@ def run(args) -> int:
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
             dn, file_cfa, file_blacks, stored_bits = _read(f)
-            adc_bits = int(sensor.adc_bits)
             if shifts[f] > 1:
                 dn = dn / shifts[f]
             if stored_bits is not None and stored_bits < adc_bits:  # (an 8-bit PNG read as 12-bit DN)
-                raise ValueError(f"RAW: {f}: {stored_bits}-bit samples cannot hold the camera's {int(sensor.adc_bits)}"
+                raise ValueError(f"RAW: {f}: {stored_bits}-bit samples cannot hold the camera's {adc_bits}"
                                  f"-bit DN (a display image, not a raw frame?); give the 16-bit PNG/TIFF or .npy frame")
             # a camera raw's own metadata must be the camera config's: the network, the CFA phase and the black
             # level it is given are the config's (a GRBG DNG through an RGGB config came out grey, exit 0)
@@ -279,10 +279,10 @@ def run(args) -> int:
             # no value above the ADC's largest code (e.g. 12-bit data left-shifted into 16 bits exceeds it). Not the
             # white level: where the full well saturates below the ADC range, a real frame's saturated pixels scatter
             # around it (their gains differ). noise_params refused a sensor without an ADC
-            top, code_max = float(dn.max()), float(2 ** int(sensor.adc_bits) - 1)
+            top, code_max = float(dn.max()), float(2 ** adc_bits - 1)
             if top > code_max:
                 raise ValueError(f"RAW: {f}: values up to {top:g} DN exceed the camera's largest ADC code "
-                                 f"{code_max:g} DN ({int(sensor.adc_bits)} bits; data shifted left?)")
+                                 f"{code_max:g} DN ({adc_bits} bits; data shifted left?)")
             try:
                 rgb = process_frame(dn, sensor, pattern, net, analog_gain=args.analog_gain,
                                     exposure_s=args.exposure_s, self_ensemble=args.self_ensemble)
