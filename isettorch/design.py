@@ -323,7 +323,7 @@ class DesignCamera(nn.Module):
         rate = sensor.electron_rate(oi)
         raw = sensor.capture(rate, exposure_s=t, analog_gain=gain, generator=generator, noise=noise)
         white = sensor.capture(white_mosaic, exposure_s=t, analog_gain=gain, noise=False).noise_free
-        black = raw.black_level
+        black, _ = raw.levels()  # the zero level: [B, 1, 1, 1] per item with an analog offset and per-item gains
         span = (white - black).detach()
         if not bool(torch.isfinite(span).all()) or bool((span <= 0).any()):
             dark = [k for k in range(white_rates.shape[1]) if not bool((white_rates[:, k] > 0).any())]

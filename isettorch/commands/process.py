@@ -7,8 +7,9 @@ Example::
 ``--camera`` is the camera config the model was trained for (``data.camera_config`` of
 ``training/train_demosaic.py``; its ``sensor:`` section written by ``isettorch calibrate --out``). Each frame (DN:
 16-bit PNG/TIFF, ``.npy`` or a camera raw, read by :func:`isettorch.io.frames.read_frame`) is normalised with the
-sensor's black and white levels, ``x = (DN - black) / (white - black)`` (a camera raw's own CFA and black levels
-must be the config's: a file that disagrees is refused), and given to the network with the noise
+sensor's black and white levels at the frames' gain, ``x = (DN - black) / (white - black)``, black being the
+sensor's zero level (its black level plus any analog offset, as the training pairs normalise; a camera raw's own CFA
+and black levels must be the config's: a file that disagrees is refused), and given to the network with the noise
 inputs of the sensor's Poisson-Gaussian model ``var(x) = a x + b`` (:func:`noise_params`), as in training. Output:
 camera RGB relative to the white level (not white-balanced), ``<stem>.npy`` (float32 ``[3, H, W]``), ``.exr``
 (linear) or ``.png`` (clipped to [0, 1] and sRGB-encoded, for viewing).
@@ -58,6 +59,9 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
 
     if sensor.adc_bits is None:
         raise ValueError("camera: the sensor has no ADC (adc_bits null); expected a sensor that outputs DN")
+    if sensor.output_units != "dn":  # (its noise model and levels would be in those units, the frames in DN)
+        raise ValueError(f"camera: the sensor outputs {sensor.output_units} (sensor.output_units); expected a sensor "
+                         f"that outputs DN")
     _check_settings(analog_gain, exposure_s)
     gain = "camera: the config's analog gain" if analog_gain is None else f"analog_gain: the gain {analog_gain:g}"
 
@@ -66,7 +70,7 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
         f = noise_features(a_ if ok[0] else 0.0, b_ if ok[1] else 0.0).float().isfinite()[0]
         return ok[0] and bool(f[0]), ok[1] and bool(f[1])
 
-    span = float(sensor.white_level_dn) - float(sensor.black_level_dn)
+    span = levels(sensor, analog_gain)[1]
     a = float(sensor.gain_per_electron(analog_gain)[0]) / span
     if not fits(a, 0.0)[0]:
         raise ValueError(f"{gain} makes the noise model's shot gain a {a:.3g} (normalised units per electron), beyond "
@@ -93,6 +97,15 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
                          f"model's variance b {b:.3g}, beyond the network's float32 noise input; expected the "
                          f"frames' exposure in seconds")
     return a, b
+
+
+def levels(sensor, analog_gain=None) -> tuple[float, float]:
+    """``(black, span)`` in DN of a sensor's frames at ``analog_gain`` (None: the config's), as the training pairs
+    normalise a capture (``RawImage.levels``): black its zero level, the black level plus any analog offset after the
+    gain (:meth:`isettorch.sensor.Sensor.zero_level`; the offset is not signal), span the white level at that gain
+    less it."""
+    black = float(sensor.zero_level(analog_gain))
+    return black, float(sensor.white_level(analog_gain)) - black
 
 
 def _check_settings(analog_gain, exposure_s) -> None:
@@ -153,8 +166,8 @@ def process_frame(dn, sensor, pattern: str, net, *, analog_gain=None, exposure_s
     from ..isp.learned import demosaic_learned, noise_features
 
     a, b = noise_params(sensor, analog_gain, exposure_s)
-    span = float(sensor.white_level_dn) - float(sensor.black_level_dn)
-    x = (torch.as_tensor(dn, dtype=torch.float64) - float(sensor.black_level_dn)) / span
+    black, span = levels(sensor, analog_gain)
+    x = (torch.as_tensor(dn, dtype=torch.float64) - black) / span
     with torch.no_grad():
         out = demosaic_learned(x[None, None].float(), pattern, model=net, noise=noise_features(a, b).float(),
                                self_ensemble=self_ensemble)
@@ -269,10 +282,13 @@ def run(args) -> int:
             if file_cfa is not None and file_cfa != pattern:
                 raise ValueError(f"RAW: {f}: the file's CFA {file_cfa} differs from the camera config's {pattern} "
                                  f"(--camera); process it with its own camera's config")
-            black = float(sensor.black_level_dn)
+            black = levels(sensor, args.analog_gain)[0]  # with an analog offset, the dark reading it makes
             if file_blacks and max(abs(b - black) for b in file_blacks) > 0.5:
+                what = ("sensor.black_level_dn" if sensor.analog_offset_v == 0 else
+                        f"sensor.black_level_dn {sensor.black_level_dn:g} plus analog_offset_v "
+                        f"{sensor.analog_offset_v:g} V after the gain")
                 raise ValueError(f"RAW: {f}: the file's black levels {[round(b, 3) for b in file_blacks]} DN differ "
-                                 f"from the camera config's {black:g} DN (--camera: sensor.black_level_dn)")
+                                 f"from the camera config's {black:g} DN (--camera: {what})")
             if min(dn.shape) < 4:  # (an odd height or width is completed to whole cells by demosaic_learned)
                 raise ValueError(f"RAW: {f}: expected a {pattern} mosaic of at least 4 x 4 pixels, got "
                                  f"{dn.shape[0]} x {dn.shape[1]}")

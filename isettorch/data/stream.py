@@ -524,13 +524,16 @@ class PairStream:
         raw = sensor.capture(mosaic, exposure_s=exposure, analog_gain=gain, noise=camera.noise, generator=noise,
                              spectral_qe=qe, **kw)
         nb = rates.shape[0]
-        black = raw.black_level
+        # normalised by the capture's zero level (black level and any analog offset) and white level, per item when
+        # the levels are; the offset is not signal (Sensor.zero_level), so the noise metadata below describe it
         span = raw.white_level - raw.black_level
-        out = {"raw": (raw.data - black) / span}
+        black, white = raw.levels()
+        span_map = white - black
+        out = {"raw": (raw.data - black) / span_map}
         if "noise_free_raw" in targets:
-            out["noise_free_raw"] = (raw.noise_free - black) / span
+            out["noise_free_raw"] = (raw.noise_free - black) / span_map
         if "camera_rgb" in targets:
-            out["camera_rgb"] = (sensor.readout(rates, exposure, gain, conversion_gain_v_per_e=cg) - black) / span
+            out["camera_rgb"] = (sensor.readout(rates, exposure, gain, conversion_gain_v_per_e=cg) - black) / span_map
         dev, dt = rates.device, rates.dtype
         f64 = torch.float64
         white_p = scene.illuminant_photons.to(f64)
@@ -574,6 +577,9 @@ class PairStream:
                 v = getattr(sensor, name, default)
             return torch.as_tensor(v, dtype=f64, device=dev).detach().reshape(-1).expand(nb)
 
+        def per_item(v):  # a raw's level: a float, or [b] per item
+            return v.detach().to(f64).reshape(-1) * full if isinstance(v, torch.Tensor) else full * float(v)
+
         cg = level("conversion_gain_v_per_e", 1.0)
         gain = level("analog_gain", 1.0)
         read_e, dsnu_e = level("read_noise_v", 0.0) / cg, level("dsnu_sigma_v", 0.0) / cg
@@ -595,7 +601,7 @@ class PairStream:
             "pixel_size_m": level("pixel_size_m", sensor.pixel_size_m), "full_well_e": sensor.saturation_e(cg),
             "read_noise_e": read_e, "dark_current_e_per_s": dark, "dsnu_sigma_e": dsnu_e,
             "prnu_sigma_percent": level("prnu_sigma_percent", 0.0),
-            "black_level_dn": full * float(raw.black_level), "white_level_dn": full * float(raw.white_level),
+            "black_level_dn": per_item(raw.black_level), "white_level_dn": per_item(raw.white_level),
             # Poisson-Gaussian noise model in normalised units: var(x) = noise_gain x + noise_floor_var (Foi et al.,
             # IEEE TIP 17(10), 2008), as CameraPairDataset's metadata: without PRNU, which adds
             # (prnu_sigma_percent / 100 * x)^2 across pixels (isettorch.data.camera_pairs, "Noise metadata")

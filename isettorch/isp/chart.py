@@ -138,7 +138,7 @@ def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5)
         raise ValueError(f"channel: expected None, a CFA letter of {names} or an index in 0..{len(names) - 1}, "
                          f"got {channel!r}")
     masks = raw.channel_masks()
-    sig = raw.noise_free[0, 0].double() - raw.black_level
+    sig = (raw.noise_free.double() - raw.levels()[0])[0, 0]
     res = raw.data[0, 0].double() - raw.noise_free[0, 0].double()
     mask = masks[c].bool()
     h, w = sig.shape

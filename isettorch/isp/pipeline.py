@@ -302,7 +302,7 @@ class ImageProcessor(nn.Module):
             if self.monochrome_divisor == "voltage_swing":
                 if raw.voltage_swing_v is None:
                     raise ValueError("raw: monochrome_divisor='voltage_swing' needs raw.voltage_swing_v")
-                mono = (raw.data - raw.black_level) / raw.voltage_swing_v
+                mono = (raw.data - raw.levels()[0]) / raw.voltage_swing_v
             else:
                 mono = x
             return ISPResult(image=mono.expand(-1, 3, -1, -1), input=x, display_linear=mono.expand(-1, 3, -1, -1))

@@ -25,7 +25,8 @@ class RawImage:
         units: what ``data`` holds.
         cfa: the colour filter array (its unit cell tiles from pixel [0, 0]).
         black_level, white_level: in ``units`` (DN for quantised raws), the value of no light and of
-            saturation (a float, or ``[B]`` per item).
+            saturation (a float, or ``[B]`` per item). A sensor's capture puts its zero level here, the black level
+            plus any analog offset (``Sensor.zero_level``).
         exposure_s, analog_gain: per-sample ``[B]``.
         conversion_gain_v_per_e, voltage_swing_v, pixel_size_m, fill_factor: the pixel.
         adc_bits: ADC bit depth (None for an analog readout).
@@ -122,13 +123,17 @@ class RawImage:
         """One-hot CFA masks ``[C, H, W]`` in the data's dtype/device."""
         return self.cfa.masks(self.height, self.width, dtype=self.data.dtype, device=self.data.device)
 
+    def levels(self) -> tuple:
+        """``(black, white)`` ready to broadcast against ``data``: floats, or ``[B, 1, 1, 1]`` for per-item levels
+        (``[B]``, e.g. a per-call gain with a full well, or with an analog offset). ``white`` None without one."""
+        return tuple(v.reshape(-1, 1, 1, 1) if isinstance(v, torch.Tensor) and v.dim() > 0 else v
+                     for v in (self.black_level, self.white_level))
+
     def normalized(self) -> torch.Tensor:
         """``(data - black) / (white - black)``: 0 at black, 1 at saturation ``[B, 1, H, W]``."""
         if self.white_level is None:
             raise ValueError("normalized: this raw has no white_level")
-        # per-item levels ([B], e.g. a per-call gain with a full well) broadcast over each item's mosaic
-        black, white = (v.reshape(-1, 1, 1, 1) if isinstance(v, torch.Tensor) and v.dim() > 0 else v
-                        for v in (self.black_level, self.white_level))
+        black, white = self.levels()
         return (self.data - black) / (white - black)
 
     def __repr__(self) -> str:

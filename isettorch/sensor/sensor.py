@@ -487,6 +487,35 @@ class Sensor(nn.Module):
         ``adc_mode='isetcam'``), or less when ``full_well_e`` saturates first. None for an analog readout."""
         return None if self.adc_bits is None else self._white_dn(None, None)
 
+    def zero_level(self, analog_gain=None) -> float | torch.Tensor:
+        """The raw's value of no light in :attr:`output_units`, a capture's ``black_level``: the black level plus the
+        analog offset after the analog gain, ``black_level_dn + offset x gain / lsb`` in DN (``offset / gain`` with
+        ISETCam's gain convention), ``offset x gain`` in volts, 0 in electrons (that chain takes no gain or offset).
+        ISETCam's ``sensorGet(sensor, 'zero level')``, the response to a black image, which ``ipCompute`` subtracts
+        before demosaicking; here not rounded to whole codes, as a fractional black level is not (it is the mean of
+        a dark pixel over noise). The offset is a pedestal, not signal: the Poisson-Gaussian model
+        (:meth:`poisson_gaussian`) and every normalisation (``RawImage.normalized``, the training pairs, ``isettorch
+        process``) measure the signal from here. On the clipped part of the response (a negative offset below the
+        ADC's floor) dark pixels read above it.
+
+        Args:
+            analog_gain: None (the sensor's), a number or ``[B]``.
+
+        Returns a float, or ``[B]`` for a tensor or list gain when the sensor has an offset.
+        """
+        if self.output_units == "electrons":
+            return 0.0
+        black = self.black_level_dn if self.output_units == "dn" else 0.0
+        if self.analog_offset_v == 0:
+            return black
+        gain = self.analog_gain if analog_gain is None else analog_gain
+        if not is_real(gain):
+            gain = (gain if isinstance(gain, torch.Tensor) else torch.as_tensor(gain, dtype=torch.float64)).reshape(-1)
+        off = self.analog_offset_v / gain if self.gain_convention == "isetcam" else self.analog_offset_v * gain
+        if self.output_units == "dn":
+            off = off / self.lsb_v
+        return black + (off if isinstance(off, torch.Tensor) else float(off))
+
     def _white_dn(self, analog_gain, conversion_gain_v_per_e) -> float | torch.Tensor:
         """The code the ADC gives :meth:`saturation_v`: ``round(v / lsb) + black`` (MATLAB round, as
         :meth:`volts_to_dn`), at most the top code."""
@@ -1053,7 +1082,10 @@ class Sensor(nn.Module):
             pixel_size_m, "pixel_size_m", b, dtype=torch.float64, device=device, positive=True)
         # the call's own gains: a per-call tensor gives [B] levels only when the full well sets the saturation
         white = self.white_level(self.analog_gain if analog_gain is None else analog_gain, cg_out)
-        black = self.black_level_dn if self.output_units == "dn" else 0.0
+        black = self.zero_level(analog_gain)  # the black level and the analog offset: no light
+        if self.analog_offset_v != 0 and not bool(torch.as_tensor(black < white).all()):
+            raise ValueError(f"analog_offset_v: an offset of {self.analog_offset_v} V (after the analog gain) reaches "
+                             f"the raw's white level, leaving no room for light; expected a smaller offset or gain")
         return RawImage(
             data=data, units=self.output_units, cfa=self.cfa, black_level=black, white_level=white,
             exposure_s=t, analog_gain=gain, analog_offset_v=self.analog_offset_v,
@@ -1154,10 +1186,10 @@ class Sensor(nn.Module):
         (:mod:`~isettorch.sensor.noise_terms`), each times the output units per pixel volt squared, plus the ADC's
         rounding to whole codes, 1/12 DN^2 (EMVA 1288 eq. 5; none for a volts or electrons readout). Left out:
         PRNU, which adds ``(prnu_sigma_percent / 100 x)^2`` across pixels, hot and dead pixels (defects), and
-        clipping at black and white. An analog offset (``analog_offset_v``) is not signal: ``x`` is the signal
-        above black level plus the offset; ``noise_free - black_level`` (what PairStream and CameraPairDataset
-        normalise their raw and noise metadata by) counts the offset as signal and overstates the variance by ``a``
-        times it (gain 2, 0.02 V: 537 against 403 DN^2; no built-in preset has an offset).
+        clipping at black and white. An analog offset (``analog_offset_v``) is not signal: ``x`` is
+        ``noise_free - raw.black_level``, the capture's black level being its zero level (:meth:`zero_level`: the
+        black level plus the offset after gain; measured from ``black_level_dn`` alone, the offset counted as signal
+        and overstated the variance by ``a`` times it: gain 2, 0.02 V, 537 against 403 DN^2).
 
         Example:
             >>> s = Sensor(adc_bits=10, conversion_gain_v_per_e=1e-4, read_noise_v=1e-3, cds=True)
