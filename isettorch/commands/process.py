@@ -70,8 +70,9 @@ def noise_params(sensor, analog_gain=None, exposure_s: float = 0.0) -> tuple[flo
         f = noise_features(a_ if ok[0] else 0.0, b_ if ok[1] else 0.0).float().isfinite()[0]
         return ok[0] and bool(f[0]), ok[1] and bool(f[1])
 
+    per_e = float(sensor.gain_per_electron(analog_gain)[0])  # (checks the gain: one positive value)
     span = levels(sensor, analog_gain)[1]
-    a = float(sensor.gain_per_electron(analog_gain)[0]) / span
+    a = per_e / span
     if not fits(a, 0.0)[0]:
         raise ValueError(f"{gain} makes the noise model's shot gain a {a:.3g} (normalised units per electron), beyond "
                          f"the network's float32 noise input; expected the frames' real gain")
@@ -103,9 +104,15 @@ def levels(sensor, analog_gain=None) -> tuple[float, float]:
     """``(black, span)`` in DN of a sensor's frames at ``analog_gain`` (None: the config's), as the training pairs
     normalise a capture (``RawImage.levels``): black its zero level, the black level plus any analog offset after the
     gain (:meth:`isettorch.sensor.Sensor.zero_level`; the offset is not signal), span the white level at that gain
-    less it."""
-    black = float(sensor.zero_level(analog_gain))
-    return black, float(sensor.white_level(analog_gain)) - black
+    less it. ValueError naming the gain when the white level is not above the zero level (an offset filling the
+    range, or a gain that leaves the full well under black)."""
+    black, white = float(sensor.zero_level(analog_gain)), float(sensor.white_level(analog_gain))
+    if not white > black:
+        gain = "camera: the config's analog gain" if analog_gain is None else f"analog_gain: the gain {analog_gain:g}"
+        offset = f" (its analog offset {sensor.analog_offset_v:g} V included)" if sensor.analog_offset_v else ""
+        raise ValueError(f"{gain} puts the sensor's white level ({white:g} DN) at or below its zero level ({black:g} "
+                         f"DN{offset}); expected the frames' real gain")
+    return black, white - black
 
 
 def _check_settings(analog_gain, exposure_s) -> None:
@@ -287,8 +294,9 @@ def run(args) -> int:
                 what = ("sensor.black_level_dn" if sensor.analog_offset_v == 0 else
                         f"sensor.black_level_dn {sensor.black_level_dn:g} plus analog_offset_v "
                         f"{sensor.analog_offset_v:g} V after the gain")
+                at = "" if args.analog_gain is None else f" at --analog-gain {args.analog_gain:g}"
                 raise ValueError(f"RAW: {f}: the file's black levels {[round(b, 3) for b in file_blacks]} DN differ "
-                                 f"from the camera config's {black:g} DN (--camera: {what})")
+                                 f"from the camera config's {black:g} DN{at} (--camera: {what})")
             if min(dn.shape) < 4:  # (an odd height or width is completed to whole cells by demosaic_learned)
                 raise ValueError(f"RAW: {f}: expected a {pattern} mosaic of at least 4 x 4 pixels, got "
                                  f"{dn.shape[0]} x {dn.shape[1]}")

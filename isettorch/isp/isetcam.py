@@ -38,6 +38,7 @@ def ip_result_from_case(case, use_case_matrices: bool = True, dtype=torch.float6
     """
     import numpy as np
 
+    from .._checks import round_half_away
     from ..io.isetcam import case_adc_bits, case_cfa
     from ..sensor.raw import RawImage
 
@@ -51,7 +52,14 @@ def ip_result_from_case(case, use_case_matrices: bool = True, dtype=torch.float6
     else:
         data, units, white = np.asarray(get("sensor_volts"), float), "volts", swing
     cfa = case_cfa(case)
-    raw = RawImage(torch.as_tensor(data, dtype=dtype)[None, None], units, cfa, white_level=white,
+    # ISETCam's ipCompute subtracts a colour sensor's zero level (sensorGet 'zero level': a noise-free black capture,
+    # the analog offset after gain, clipped and quantised) before demosaicking; a monochrome one keeps it
+    zero = 0.0
+    offset = float(np.asarray(get("sensor_analog_offset", 0.0)).reshape(-1)[0])
+    if offset != 0 and not cfa.is_monochrome:
+        volts = min(max(offset / float(np.asarray(get("sensor_analog_gain", 1.0)).reshape(-1)[0]), 0.0), swing)
+        zero = float(round_half_away(volts / (swing / 2 ** bits))) if units == "dn" else volts
+    raw = RawImage(torch.as_tensor(data, dtype=dtype)[None, None], units, cfa, black_level=zero, white_level=white,
                    voltage_swing_v=swing)
     t_display = get("ip_T_display")
     display = "srgb" if t_display is None else torch.linalg.inv(torch.as_tensor(t_display, dtype=torch.float64).T)

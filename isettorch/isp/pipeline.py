@@ -188,7 +188,8 @@ class ImageProcessor(nn.Module):
             scaling, which would ignore it).
         adapt_to_display_white: adapt XYZ from ``correction_white`` to the display's white (Bradford), so a
             display whose white is not D65 still renders white as RGB (1, 1, 1) (ISETCam does not).
-        monochrome_divisor: ``"white_level"`` or ``"voltage_swing"`` (ISETCam: input / voltage swing).
+        monochrome_divisor: ``"white_level"`` or ``"voltage_swing"`` (ISETCam: input / voltage swing; ISETCam's
+            ``ipCompute`` subtracts no zero level for a monochrome sensor, so an analog offset stays in the image).
 
     Example:
         >>> ip = ImageProcessor(illuminant_correction="gray_world")
@@ -302,7 +303,9 @@ class ImageProcessor(nn.Module):
             if self.monochrome_divisor == "voltage_swing":
                 if raw.voltage_swing_v is None:
                     raise ValueError("raw: monochrome_divisor='voltage_swing' needs raw.voltage_swing_v")
-                mono = (raw.data - raw.levels()[0]) / raw.voltage_swing_v
+                black = raw.black_level - raw.offset_level  # the black level without the offset (ipComputeSingle)
+                black = black.reshape(-1, 1, 1, 1).to(raw.data.dtype) if isinstance(black, torch.Tensor) else black
+                mono = (raw.data - black) / raw.voltage_swing_v
             else:
                 mono = x
             return ISPResult(image=mono.expand(-1, 3, -1, -1), input=x, display_linear=mono.expand(-1, 3, -1, -1))

@@ -27,6 +27,8 @@ class RawImage:
         black_level, white_level: in ``units`` (DN for quantised raws), the value of no light and of
             saturation (a float, or ``[B]`` per item). A sensor's capture puts its zero level here, the black level
             plus any analog offset (``Sensor.zero_level``).
+        offset_level: the analog offset's part of ``black_level`` (0 without one), for ISETCam's monochrome
+            processing, which subtracts no zero level.
         exposure_s, analog_gain: per-sample ``[B]``.
         conversion_gain_v_per_e, voltage_swing_v, pixel_size_m, fill_factor: the pixel.
         adc_bits: ADC bit depth (None for an analog readout).
@@ -60,6 +62,7 @@ class RawImage:
     electrons: torch.Tensor | None = None
     metadata: dict[str, Any] = dataclasses.field(default_factory=dict)
     spectral_qe: Any = None
+    offset_level: float | torch.Tensor = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.data, torch.Tensor):
@@ -124,9 +127,11 @@ class RawImage:
         return self.cfa.masks(self.height, self.width, dtype=self.data.dtype, device=self.data.device)
 
     def levels(self) -> tuple:
-        """``(black, white)`` ready to broadcast against ``data``: floats, or ``[B, 1, 1, 1]`` for per-item levels
-        (``[B]``, e.g. a per-call gain with a full well, or with an analog offset). ``white`` None without one."""
-        return tuple(v.reshape(-1, 1, 1, 1) if isinstance(v, torch.Tensor) and v.dim() > 0 else v
+        """``(black, white)`` ready to broadcast against ``data``: floats, or ``[B, 1, 1, 1]`` tensors in the data's
+        dtype for per-item levels (``[B]``: a per-call gain with a full well, or with an analog offset). ``white``
+        None without one."""
+        dt = self.data.dtype if self.data.is_floating_point() else None
+        return tuple(v.reshape(-1, 1, 1, 1).to(dt) if isinstance(v, torch.Tensor) and v.dim() > 0 else v
                      for v in (self.black_level, self.white_level))
 
     def normalized(self) -> torch.Tensor:

@@ -492,29 +492,33 @@ class Sensor(nn.Module):
         analog offset after the analog gain, ``black_level_dn + offset x gain / lsb`` in DN (``offset / gain`` with
         ISETCam's gain convention), ``offset x gain`` in volts, 0 in electrons (that chain takes no gain or offset).
         ISETCam's ``sensorGet(sensor, 'zero level')``, the response to a black image, which ``ipCompute`` subtracts
-        before demosaicking; here not rounded to whole codes, as a fractional black level is not (it is the mean of
-        a dark pixel over noise). The offset is a pedestal, not signal: the Poisson-Gaussian model
-        (:meth:`poisson_gaussian`) and every normalisation (``RawImage.normalized``, the training pairs, ``isettorch
-        process``) measure the signal from here. On the clipped part of the response (a negative offset below the
-        ADC's floor) dark pixels read above it.
+        before demosaicking for a colour sensor; here not rounded to whole codes, as a fractional black level is not
+        (it is the mean of a dark pixel over noise; a noise-free capture's whole codes differ from it by up to half a
+        code, where ISETCam's zero level, a noise-free black capture, is rounded). The offset is a pedestal, not
+        signal: the Poisson-Gaussian model (:meth:`poisson_gaussian`) and every normalisation
+        (``RawImage.normalized``, the training pairs, ``isettorch process``) measure the signal from here. On the
+        clipped part of the response (a negative offset below the ADC's floor) dark pixels read above it.
 
         Args:
             analog_gain: None (the sensor's), a number or ``[B]``.
 
         Returns a float, or ``[B]`` for a tensor or list gain when the sensor has an offset.
         """
-        if self.output_units == "electrons":
-            return 0.0
         black = self.black_level_dn if self.output_units == "dn" else 0.0
-        if self.analog_offset_v == 0:
-            return black
+        off = self._offset_level(analog_gain)
+        return black if off is None else black + off
+
+    def _offset_level(self, analog_gain=None) -> float | torch.Tensor | None:
+        """The analog offset after the analog gain in :attr:`output_units` (:meth:`zero_level`), None without one."""
+        if self.output_units == "electrons" or self.analog_offset_v == 0:
+            return None
         gain = self.analog_gain if analog_gain is None else analog_gain
         if not is_real(gain):
             gain = (gain if isinstance(gain, torch.Tensor) else torch.as_tensor(gain, dtype=torch.float64)).reshape(-1)
         off = self.analog_offset_v / gain if self.gain_convention == "isetcam" else self.analog_offset_v * gain
         if self.output_units == "dn":
             off = off / self.lsb_v
-        return black + (off if isinstance(off, torch.Tensor) else float(off))
+        return off if isinstance(off, torch.Tensor) else float(off)
 
     def _white_dn(self, analog_gain, conversion_gain_v_per_e) -> float | torch.Tensor:
         """The code the ADC gives :meth:`saturation_v`: ``round(v / lsb) + black`` (MATLAB round, as
@@ -1083,6 +1087,7 @@ class Sensor(nn.Module):
         # the call's own gains: a per-call tensor gives [B] levels only when the full well sets the saturation
         white = self.white_level(self.analog_gain if analog_gain is None else analog_gain, cg_out)
         black = self.zero_level(analog_gain)  # the black level and the analog offset: no light
+        offset = self._offset_level(analog_gain)
         if self.analog_offset_v != 0 and not bool(torch.as_tensor(black < white).all()):
             raise ValueError(f"analog_offset_v: an offset of {self.analog_offset_v} V (after the analog gain) reaches "
                              f"the raw's white level, leaving no room for light; expected a smaller offset or gain")
@@ -1093,7 +1098,7 @@ class Sensor(nn.Module):
             fill_factor=self.fill_factor, adc_bits=self.adc_bits, noise=self.noise_parameters(enabled=noise, **lv),
             noise_free=noise_free, electrons=photo_e,
             metadata={"sensor": self.name, "sampling": self.sampling, "gain_convention": self.gain_convention},
-            spectral_qe=self._qe_module(spectral_qe, b),
+            spectral_qe=self._qe_module(spectral_qe, b), offset_level=0.0 if offset is None else offset,
         )
 
     def _fixed_or_fresh_patterns(self, like: torch.Tensor, g: torch.Generator | None, lv: dict

@@ -55,7 +55,7 @@ def test_dark_capture_reads_its_black_level(convention):
 @pytest.mark.parametrize("convention", ["multiply", "isetcam"])
 def test_variance_follows_signal_above_the_zero_level(convention):
     """var(data - noise_free) = a x + b with x = noise_free - raw.black_level (Foi et al. 2008), at two flat levels;
-    with the offset counted as signal, a x overstated it by a x offset (gain 2, 0.02 V: 819 DN of offset)."""
+    with the offset counted as signal, a x overstated it by a x offset (gain 2, 0.02 V: 163.84 DN of offset)."""
     s = _sensor(convention)
     for rate in (2e4, 2e5):  # electrons/s: 200 and 2000 electrons at 10 ms
         raw = s.capture(torch.full((8, 1, 64, 64), rate, dtype=torch.float64),
@@ -109,9 +109,9 @@ def test_pair_stream_normalises_by_the_zero_level():
     var_model = meta["noise_gain"].double().reshape(-1, 1, 1, 1) * x + \
         meta["noise_floor_var"].double().reshape(-1, 1, 1, 1)
     # summed over 8 x 34 x 34 pixels: the measured and modelled variance agree to the sample's few percent (the
-    # offset counted as signal added a x 819 DN / span^2 to every pixel: 2.3x the model at this exposure)
+    # offset counted as signal added a x 163.84 DN / span to every pixel's variance)
     assert float((res**2).sum()) == pytest.approx(float(var_model.sum()), rel=0.05)
-    # the noise-free raw is the signal alone: its darkest pixels reach 0, not the offset's 0.2 of the span
+    # the noise-free raw is the signal alone: its darkest pixels reach 0, not the offset's 0.04 of the span
     assert float(x.min()) < 0.01
 
 
@@ -125,3 +125,62 @@ def test_process_levels_use_the_zero_level():
     assert a == pytest.approx(float(s.gain_per_electron()[0]) / span, rel=1e-12)
     # at another gain: the zero level of that gain
     assert levels(s, 1.0)[0] == pytest.approx(BLACK + OFFSET * 2**BITS, rel=1e-12)
+
+
+def test_process_refuses_a_gain_without_room_above_the_zero_level():
+    """A white level at or below the zero level gave span 0 (ZeroDivisionError, a traceback) or a negative shot gain
+    (a message naming internal parameters): refused naming the gain."""
+    from isettorch.commands.process import levels, noise_params
+
+    with pytest.raises(ValueError, match=r"analog_gain: the gain 60 .*analog offset 0.02 V"):
+        levels(_sensor(), 60.0)  # 0.02 V x 60 = 1.2 V above the 1 V swing
+    full_well = _sensor(analog_offset_v=0.0, full_well_e=3000)
+    with pytest.raises(ValueError, match="analog_gain: the gain 1e-06"):
+        noise_params(full_well, 1e-6)  # the full well's 0.15 V x 1e-6 is under one code
+    # a list gain in the config is named as before (one value expected), offset or not
+    with pytest.raises(ValueError, match="analog_gain: expected 1 value"):
+        noise_params(_sensor(gain=[1.0, 2.0]))
+
+
+def test_levels_keep_the_data_dtype():
+    """Per-item levels from a float64 gain do not promote float32 data (a list gain made the ISP's input float64)."""
+    s = _sensor()
+    raw = s.capture(torch.zeros(2, 1, 64, 64), analog_gain=torch.tensor([1.0, 2.0], dtype=torch.float64))
+    assert raw.normalized().dtype == torch.float32
+
+
+def test_isetcam_monochrome_processing_keeps_the_offset():
+    """ISETCam's ipCompute subtracts the zero level for colour sensors only: a monochrome image is the input over
+    the voltage swing (ipComputeSingle), the offset included; the library's own processing subtracts it."""
+    from isettorch.isp import ImageProcessor
+
+    s = _sensor(adc_bits=None, black_level_dn=0.0, output_units="volts")
+    raw = s.capture(torch.full((1, 1, 64, 64), 1e5, dtype=torch.float64), noise=False)
+    iset = ImageProcessor(monochrome_divisor="voltage_swing")(raw).image
+    torch.testing.assert_close(iset, (raw.data / 1.0).expand(-1, 3, -1, -1))
+    assert float(raw.data.mean()) == pytest.approx(1e5 * 0.01 * CG * 2 + OFFSET * 2, rel=1e-12)
+    own = ImageProcessor()(raw).input  # white-level scaling: from the zero level
+    torch.testing.assert_close(own, (raw.data - OFFSET * 2) / (1.0 - OFFSET * 2))
+
+
+def test_isetcam_colour_parity_subtracts_the_zero_level():
+    """ip_result_from_case on a colour case with an analog offset: ISETCam subtracts the zero level (offset / gain,
+    clipped; quantised for DN) and scales by the range above it, so the case with the offset equals the case without
+    it whose volts are stretched by swing / (swing - zero)."""
+    import numpy as np
+    from shared_paths import PARITY_CASE
+
+    from isettorch.isp.isetcam import ip_result_from_case
+
+    if not PARITY_CASE.exists():
+        pytest.skip("ISETCam parity case not available")
+    d = np.load(PARITY_CASE, allow_pickle=False)
+    case = {k: d[k] for k in d.files}
+    swing, gain = float(case["sensor_voltage_swing_v"]), float(case["sensor_analog_gain"])
+    volts = case["sensor_volts"].astype(np.float64)
+    zero = 0.05 * swing
+    with_offset = dict(case, sensor_analog_offset=np.float64(zero * gain), sensor_volts=volts + zero)
+    stretched = dict(case, sensor_analog_offset=np.float64(0.0), sensor_volts=volts * swing / (swing - zero))
+    ours, _ = ip_result_from_case(with_offset)
+    ref, _ = ip_result_from_case(stretched)
+    np.testing.assert_allclose(ours, ref, rtol=1e-9, atol=1e-12)
