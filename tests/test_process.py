@@ -161,6 +161,24 @@ def test_left_aligned_frames_are_right_aligned(camera, tmp_path, capsys):
     assert "too few distinct values to tell left-aligned 12-bit data" in capsys.readouterr().err
 
 
+def test_each_frame_is_read_twice_at_most(camera, tmp_path, monkeypatch):
+    """The left-alignment check reads each frame once, the processing once more (a left-aligned run read every frame
+    up to five times: its word width, its step, the step again over fewer values, its maximum, then the frame)."""
+    from isettorch.commands import process
+
+    rng = np.random.default_rng(4)
+    names = []
+    for k in range(3):
+        np.save(tmp_path / f"f{k}.npy", (rng.integers(64, 250, (16, 16)) * 16).astype(np.uint16))
+        names.append(str(tmp_path / f"f{k}.npy"))
+    reads = []
+    real = process._read
+    monkeypatch.setattr(process, "_read", lambda f: reads.append(f) or real(f))
+    args = ["--camera", str(camera), "--model", str(PRETRAINED["joint_denoise"]), "--quiet"]
+    assert main(["process", *names, *args, "--out", str(tmp_path / "out")]) == 0
+    assert sorted(reads) == sorted(names * 2)
+
+
 def test_settings_beyond_any_camera_and_folders_are_refused(camera, tmp_path, capsys):
     """A gain making one electron the whole span, or an exposure whose dark noise exceeds it, wrote a constant image
     (gain 1e30: -6e13) with exit 0; a folder was 'no such raw frame'; a reader error did not name RAW."""

@@ -200,20 +200,29 @@ def _left_alignment(raws, adc_bits: int) -> dict:
     values (:func:`isettorch.sensor.calibration.quantisation_step`, calibrate's rule: it writes the config for the
     right-aligned DN), decided over those frames of the run together (a dark or small frame alone has too few
     distinct values), else 1. A dim left-aligned frame, under the largest code, came out 11x too bright, exit 0.
-    Where every value is a multiple of the step but the values are too few to tell, a warning says so."""
-    from ..sensor.calibration import quantisation_step
+    Where every value is a multiple of the step but the values are too few to tell, a warning says so. Each frame is
+    read once here (it was read up to four times)."""
+    from ..sensor.calibration import QuantisationStep
 
-    widths = {f: _read(f).stored_bits for f in raws}
+    groups: dict = {}  # word width -> (frames, their values' step accumulator, their largest value)
+    for f in raws:
+        frame = _read(f)
+        width = frame.stored_bits
+        if width is None or width <= adc_bits:
+            continue
+        frames, acc, top = groups.setdefault(width, ([], QuantisationStep(), [0.0]))
+        frames.append(f)
+        acc.add(frame.dn)
+        top[0] = max(top[0], float(frame.dn.max()))
     steps = dict.fromkeys(raws, 1)
-    for width in sorted({w for w in widths.values() if w is not None and w > adc_bits}):
-        group = [f for f in raws if widths[f] == width]
+    for width in sorted(groups):
+        group, acc, top = groups[width]
         step = 2 ** (width - adc_bits)
-        if quantisation_step(_read(f).dn for f in group) >= step:
+        if acc.step() >= step:
             steps.update(dict.fromkeys(group, step))
             print(f"isettorch process: RAW: every value of {len(group)} frame(s) in {width}-bit words is a multiple of "
                   f"{step} DN: {adc_bits}-bit data left-aligned, divided by {step}", file=sys.stderr)
-        elif (quantisation_step((_read(f).dn for f in group), min_distinct=1) >= step
-              and all(float(_read(f).dn.max()) < 2 ** adc_bits for f in group)):  # (above: refused, said there)
+        elif acc.step(min_distinct=1) >= step and top[0] < 2 ** adc_bits:  # (above the top code: refused, said there)
             print(f"isettorch process: warning: RAW: every value of {len(group)} frame(s) in {width}-bit words is a "
                   f"multiple of {step} DN, but they hold too few distinct values to tell left-aligned {adc_bits}-bit "
                   f"data; taken as right-aligned (divide them by {step} yourself if they are left-aligned)",

@@ -297,21 +297,45 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     }
 
 
+class QuantisationStep:
+    """:func:`quantisation_step` over frames added one at a time (``add``), so frames read once answer it at any
+    ``min_distinct`` up to ``distinct_needed`` (``step``)."""
+
+    def __init__(self, distinct_needed: int = 32):
+        self.acc, self.distinct, self.whole = 0, set(), True
+        self._needed = distinct_needed
+
+    def add(self, st) -> None:
+        if not self.whole:
+            return
+        if not np.array_equal(st, np.round(st)):
+            self.whole = False
+            return
+        self.acc |= int(np.bitwise_or.reduce(st.astype(np.int64), axis=None))
+        if len(self.distinct) < self._needed:
+            self.distinct.update(np.unique(st).tolist())
+
+    def step(self, min_distinct: int = 32) -> int:
+        if min_distinct > self._needed:
+            raise ValueError(f"min_distinct: this accumulator keeps {self._needed} distinct values, asked "
+                             f"{min_distinct}")
+        if not self.whole or self.acc == 0 or len(self.distinct) < min_distinct:
+            return 1
+        s = (self.acc & -self.acc).bit_length() - 1  # trailing zero bits of the OR: the largest 2^s dividing all
+        return 2 ** s if s else 1
+
+
 def quantisation_step(stacks, min_distinct: int = 32) -> int:
     """The common power-of-two step q = 2^s (s >= 1) of every value of every frame (left-aligned data: 12-bit values
     in 16-bit words are multiples of 16), else 1. Needs integer values and at least ``min_distinct`` distinct ones (a
-    chance common factor 2 of n distinct noisy values has probability 2^-n)."""
-    acc, distinct = 0, set()
-    for st in stacks:  # one pass (``stacks`` may be a generator reading frames one at a time)
-        if not np.array_equal(st, np.round(st)):
+    chance common factor 2 of n distinct noisy values has probability 2^-n). One pass: ``stacks`` may be a generator
+    reading frames one at a time."""
+    acc = QuantisationStep(min_distinct)
+    for st in stacks:
+        acc.add(st)
+        if not acc.whole:
             return 1
-        acc |= int(np.bitwise_or.reduce(st.astype(np.int64), axis=None))
-        if len(distinct) < min_distinct:
-            distinct.update(np.unique(st).tolist())
-    if acc == 0 or len(distinct) < min_distinct:
-        return 1
-    s = (acc & -acc).bit_length() - 1  # trailing zero bits of the OR: the largest 2^s dividing every value
-    return 2 ** s if s else 1
+    return acc.step(min_distinct)
 
 
 def _hot_pixels(capture) -> dict[str, Any] | None:
