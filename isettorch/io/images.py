@@ -63,11 +63,11 @@ def read_rgb8(path) -> np.ndarray:
     """An 8-bit photograph as a uint8 array ``[H, W, 3]`` of its sRGB code values, unchanged (Pillow decodes it).
 
     The scoring convention of ``shared/data`` (8-bit code values / 255) needs 8-bit samples, so only lossless
-    conversions to RGB are made: gray (``L``, ``1``) repeated in the three channels, a palette without transparency
-    expanded, an alpha channel dropped when every pixel is opaque. The photograph is returned as displayed: an EXIF
+    conversions to RGB are made: gray (``L``, ``1``) repeated in the three channels, a palette expanded, an alpha
+    channel or colour key dropped when every pixel is opaque. The photograph is returned as displayed: an EXIF
     orientation (a camera's rotated JPEG) is applied (Pillow's ``ImageOps.exif_transpose``). Anything else raises a
-    ``ValueError`` naming the file: transparent pixels (an alpha channel, or a gray or RGB colour key, PNG's tRNS:
-    compositing would be a choice), 16- or 32-bit samples (Pillow would silently keep only 8 of the bits), CMYK or
+    ``ValueError`` naming the file: transparent pixels (an alpha channel, or a gray, RGB or palette colour key, PNG's
+    tRNS: compositing would be a choice), 16- or 32-bit samples (Pillow would silently keep only 8 of the bits), CMYK or
     other colour spaces, several pages or frames (a multi-page TIFF, an animation: which one is the photograph?), a
     file that is not an image.
     """
@@ -94,13 +94,14 @@ def read_rgb8(path) -> np.ndarray:
             if frames > 1 and im.format != "MPO":
                 raise ValueError(f"{p.name}: expected a single image, got {frames} pages or frames (a multi-page "
                                  f"{im.format} or an animation); save the photograph on its own")
-            if im.mode == "P" and "transparency" in im.info:
-                raise ValueError(f"{p.name}: expected an opaque image, got a palette with transparency")
-            keyed = im.mode in ("L", "RGB", "1") and "transparency" in im.info  # a colour key: its pixels are clear
+            # a colour key (PNG tRNS: a gray or RGB value, or a palette's entries with alpha): its pixels are clear;
+            # a key no pixel uses leaves the image opaque (a palette with an unused transparent entry was refused)
+            keyed = im.mode in ("L", "RGB", "1", "P") and "transparency" in im.info
             if im.mode in ("RGBA", "LA", "PA") or keyed:
                 alpha = np.asarray((im.convert("RGBA") if keyed else im).getchannel("A"))
                 if alpha.size and int(alpha.min()) < 255:
-                    key = f" (the colour key {im.info['transparency']!r}, PNG tRNS)" if keyed else ""
+                    key = (" (the palette's transparent entries, PNG tRNS)" if im.mode == "P" else
+                           f" (the colour key {im.info['transparency']!r}, PNG tRNS)") if keyed else ""
                     raise ValueError(f"{p.name}: expected an opaque image, {int((alpha < 255).sum())} pixels are "
                                      f"transparent{key}")
             if im.mode not in ("RGB", "RGBA", "L", "LA", "1", "P", "PA"):

@@ -194,6 +194,17 @@ def test_read_rgb8_refuses_a_colour_key_and_several_pages(tmp_path):
         read_rgb8(tmp_path / "gray_keyed.png")
     Image.fromarray(rgb).save(tmp_path / "unused_key.png", transparency=(1, 2, 3))  # no pixel has the key: opaque
     np.testing.assert_array_equal(read_rgb8(tmp_path / "unused_key.png"), rgb)
+    # a palette whose transparent entry no pixel uses is opaque (it was refused); one whose pixels use it is not
+    pal = Image.fromarray(rgb).quantize(colors=16)
+    used = set(np.unique(np.asarray(pal)).tolist())
+    unused = next(i for i in range(256) if i not in used)
+    pal.save(tmp_path / "pal_unused.png", transparency=unused)
+    np.testing.assert_array_equal(read_rgb8(tmp_path / "pal_unused.png"), np.asarray(pal.convert("RGB")))
+    pal.save(tmp_path / "pal_used.png", transparency=int(np.asarray(pal)[0, 0]))
+    n_clear = int((np.asarray(pal) == np.asarray(pal)[0, 0]).sum())
+    with pytest.raises(ValueError, match=rf"pal_used\.png: expected an opaque image, {n_clear} pixels are transparent "
+                                         r"\(the palette's transparent entries"):
+        read_rgb8(tmp_path / "pal_used.png")
     page = Image.fromarray(rgb)
     page.save(tmp_path / "pages.tif", save_all=True, append_images=[Image.fromarray(255 - rgb)])
     with pytest.raises(ValueError, match=r"pages\.tif: expected a single image, got 2 pages or frames"):
