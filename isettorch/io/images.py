@@ -109,10 +109,25 @@ def read_rgb8(path) -> np.ndarray:
             shown = ImageOps.exif_transpose(im)  # a photograph means what it shows: its EXIF orientation applied
             a = np.asarray(shown.convert("RGB"), dtype=np.uint8)
     except OSError as err:  # not an image, truncated, unreadable
+        dtype = _tiff_sample_type(p)  # a TIFF Pillow cannot open (float or 32-bit samples): say what it holds
+        if dtype is not None and dtype != np.uint8:
+            raise ValueError(f"{p.name}: expected 8-bit samples, got a {dtype} TIFF; convert it to 8-bit "
+                             f"first") from err
         raise ValueError(f"cannot read {p.name} as an image ({err})") from err
     except Image.DecompressionBombError as err:  # over twice Pillow's pixel limit (not an OSError)
         raise ValueError(f"cannot read {p.name}: {err}; reduce the photograph first") from err
     return a
+
+
+def _tiff_sample_type(p: Path):
+    """The sample dtype of a TIFF's first image (tifffile reads what Pillow cannot), None for another file."""
+    try:
+        import tifffile
+
+        with tifffile.TiffFile(str(p)) as tif:
+            return np.dtype(tif.series[0].dtype)
+    except Exception:  # not a TIFF, or unreadable: the caller's message stands
+        return None
 
 
 def rgb8_to_tensor(array: np.ndarray) -> torch.Tensor:

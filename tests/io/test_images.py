@@ -192,6 +192,11 @@ def test_read_rgb8_refuses_a_colour_key_and_several_pages(tmp_path):
     Image.fromarray(gray).save(tmp_path / "gray_keyed.png", transparency=0)
     with pytest.raises(ValueError, match=r"gray_keyed\.png: expected an opaque image, 3 pixels are transparent"):
         read_rgb8(tmp_path / "gray_keyed.png")
+    import tifffile
+
+    tifffile.imwrite(tmp_path / "float.tif", rgb.astype(np.float32) / 255)  # Pillow: 'cannot identify image file'
+    with pytest.raises(ValueError, match=r"float\.tif: expected 8-bit samples, got a float32 TIFF"):
+        read_rgb8(tmp_path / "float.tif")
     Image.fromarray(rgb).save(tmp_path / "unused_key.png", transparency=(1, 2, 3))  # no pixel has the key: opaque
     np.testing.assert_array_equal(read_rgb8(tmp_path / "unused_key.png"), rgb)
     # a palette whose transparent entry no pixel uses is opaque (it was refused); one whose pixels use it is not
