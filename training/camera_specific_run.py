@@ -133,14 +133,14 @@ def _frames(images, folder: Path, target: float, to_camera: np.ndarray | None = 
 def score(out: Path, photos: Path) -> dict:
     from isettorch.camera import Camera
     from isettorch.cli import main
-    from isettorch.commands.process import noise_params
+    from isettorch.commands.process import levels, noise_params
     from isettorch.isp import learned
     from isettorch.isp.evaluation import cpsnr, load_images
 
     torch.set_num_threads(2)
     cam_yaml = out / "camera.yaml"
     sensor = Camera.from_config(str(cam_yaml)).sensor
-    span = float(sensor.white_level_dn) - float(sensor.black_level_dn)
+    black, span = levels(sensor)  # as process normalises (the zero level, the white level at the config's gain)
     a, b = noise_params(sensor, exposure_s=EXPOSURE_S)
     feats = learned.noise_features(a, b).float()
     models = {"camera-specific network": out / "run" / "best.pt",
@@ -161,7 +161,7 @@ def score(out: Path, photos: Path) -> dict:
         gated, classical = [], []
         joint = learned.load_pretrained("joint_denoise")
         for _, path, _, _ in frames:
-            x = ((torch.from_numpy(np.load(path).astype(np.float64)) - float(sensor.black_level_dn)) / span)[None, None]
+            x = ((torch.from_numpy(np.load(path).astype(np.float64)) - black) / span)[None, None]
             with torch.no_grad():
                 gated.append(learned.demosaic_learned(x.float(), "RGGB", model=joint, noise=feats)[0].numpy())
             classical.append(learned.classical_expert(x, feats)[0].numpy())

@@ -109,9 +109,9 @@ def levels(sensor, analog_gain=None) -> tuple[float, float]:
     black, white = float(sensor.zero_level(analog_gain)), float(sensor.white_level(analog_gain))
     if not white > black:
         gain = "camera: the config's analog gain" if analog_gain is None else f"analog_gain: the gain {analog_gain:g}"
-        offset = f" (its analog offset {sensor.analog_offset_v:g} V included)" if sensor.analog_offset_v else ""
-        raise ValueError(f"{gain} puts the sensor's white level ({white:g} DN) at or below its zero level ({black:g} "
-                         f"DN{offset}); expected the frames' real gain")
+        offset = f", its analog offset of {sensor.analog_offset_v:g} V included" if sensor.analog_offset_v else ""
+        raise ValueError(f"{gain} puts the sensor's white level, {white:g} DN, at or below its zero level, {black:g} "
+                         f"DN{offset}; expected the frames' real gain")
     return black, white - black
 
 

@@ -100,7 +100,7 @@ def read_rgb8(path) -> np.ndarray:
             if im.mode in ("RGBA", "LA", "PA") or keyed:
                 alpha = np.asarray((im.convert("RGBA") if keyed else im).getchannel("A"))
                 if alpha.size and int(alpha.min()) < 255:
-                    key = (" (the palette's transparent entries, PNG tRNS)" if im.mode == "P" else
+                    key = (" (the palette's transparent entries)" if im.mode == "P" else
                            f" (the colour key {im.info['transparency']!r}, PNG tRNS)") if keyed else ""
                     raise ValueError(f"{p.name}: expected an opaque image, {int((alpha < 255).sum())} pixels are "
                                      f"transparent{key}")
@@ -111,8 +111,8 @@ def read_rgb8(path) -> np.ndarray:
     except OSError as err:  # not an image, truncated, unreadable
         dtype = _tiff_sample_type(p)  # a TIFF Pillow cannot open (float or 32-bit samples): say what it holds
         if dtype is not None and dtype != np.uint8:
-            raise ValueError(f"{p.name}: expected 8-bit samples, got a {dtype} TIFF; convert it to 8-bit "
-                             f"first") from err
+            raise ValueError(f"{p.name}: expected unsigned 8-bit samples, got {dtype} samples (TIFF); convert it to "
+                             f"8-bit first") from err
         raise ValueError(f"cannot read {p.name} as an image ({err})") from err
     except Image.DecompressionBombError as err:  # over twice Pillow's pixel limit (not an OSError)
         raise ValueError(f"cannot read {p.name}: {err}; reduce the photograph first") from err

@@ -314,8 +314,9 @@ class ImageProcessor(nn.Module):
             # ISETCam displayRender, quantized sensor ('linear'): the image maximum becomes 1.
             peak = torch.ones(x.shape[0], dtype=x.dtype, device=x.device)
         else:
-            # ISETCam displayRender, analog sensor: the image maximum becomes max volts / voltage swing.
-            peak = x.flatten(1).amax(1)
+            # ISETCam displayRender, analog sensor: the image maximum becomes max volts / voltage swing
+            # ('volts 2 max ratio': of the raw volts, an analog offset included, not of the input above the zero level)
+            peak = (raw.data / raw.levels()[1]).flatten(1).amax(1)
         return self.from_demosaiced(sensor, input_max=peak, _input=x)
 
     def from_demosaiced(self, sensor: torch.Tensor, input_max: torch.Tensor | None = None,

@@ -1086,11 +1086,14 @@ class Sensor(nn.Module):
             pixel_size_m, "pixel_size_m", b, dtype=torch.float64, device=device, positive=True)
         # the call's own gains: a per-call tensor gives [B] levels only when the full well sets the saturation
         white = self.white_level(self.analog_gain if analog_gain is None else analog_gain, cg_out)
-        black = self.zero_level(analog_gain)  # the black level and the analog offset: no light
-        offset = self._offset_level(analog_gain)
-        if self.analog_offset_v != 0 and not bool(torch.as_tensor(black < white).all()):
-            raise ValueError(f"analog_offset_v: an offset of {self.analog_offset_v} V (after the analog gain) reaches "
-                             f"the raw's white level, leaving no room for light; expected a smaller offset or gain")
+        # the black level and the analog offset: no light (per item from the call's [B] gain, on its device)
+        per_call = analog_gain if analog_gain is None or is_real(analog_gain) else gain.reshape(-1)
+        black, offset = self.zero_level(per_call), self._offset_level(per_call)
+        if offset is not None and (not isinstance(black, torch.Tensor) or black.device.type == "cpu") and \
+                not bool(torch.as_tensor(black < white).all()):  # (no host read of device levels)
+            raise ValueError(f"analog_offset_v: the offset of {self.analog_offset_v} V at the analog gain "
+                             f"{self.analog_gain if analog_gain is None else analog_gain} reaches the raw's white "
+                             f"level, leaving no room for light; expected a smaller offset or gain")
         return RawImage(
             data=data, units=self.output_units, cfa=self.cfa, black_level=black, white_level=white,
             exposure_s=t, analog_gain=gain, analog_offset_v=self.analog_offset_v,

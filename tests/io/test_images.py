@@ -195,7 +195,7 @@ def test_read_rgb8_refuses_a_colour_key_and_several_pages(tmp_path):
     import tifffile
 
     tifffile.imwrite(tmp_path / "float.tif", rgb.astype(np.float32) / 255)  # Pillow: 'cannot identify image file'
-    with pytest.raises(ValueError, match=r"float\.tif: expected 8-bit samples, got a float32 TIFF"):
+    with pytest.raises(ValueError, match=r"float\.tif: expected unsigned 8-bit samples, got float32 samples"):
         read_rgb8(tmp_path / "float.tif")
     Image.fromarray(rgb).save(tmp_path / "unused_key.png", transparency=(1, 2, 3))  # no pixel has the key: opaque
     np.testing.assert_array_equal(read_rgb8(tmp_path / "unused_key.png"), rgb)

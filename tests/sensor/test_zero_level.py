@@ -132,7 +132,7 @@ def test_process_refuses_a_gain_without_room_above_the_zero_level():
     (a message naming internal parameters): refused naming the gain."""
     from isettorch.commands.process import levels, noise_params
 
-    with pytest.raises(ValueError, match=r"analog_gain: the gain 60 .*analog offset 0.02 V"):
+    with pytest.raises(ValueError, match=r"analog_gain: the gain 60 .*analog offset of 0.02 V"):
         levels(_sensor(), 60.0)  # 0.02 V x 60 = 1.2 V above the 1 V swing
     full_well = _sensor(analog_offset_v=0.0, full_well_e=3000)
     with pytest.raises(ValueError, match="analog_gain: the gain 1e-06"):
@@ -147,6 +147,11 @@ def test_levels_keep_the_data_dtype():
     s = _sensor()
     raw = s.capture(torch.zeros(2, 1, 64, 64), analog_gain=torch.tensor([1.0, 2.0], dtype=torch.float64))
     assert raw.normalized().dtype == torch.float32
+    # a list gain's zero levels are the call's [B] gain's, on the data's device and dtype (they were a CPU float64
+    # tensor: on a GPU, a device mismatch at the first normalisation)
+    raw = s.capture(torch.zeros(2, 1, 64, 64), analog_gain=[1.0, 2.0])
+    assert raw.black_level.dtype == torch.float32 and raw.black_level.device == raw.data.device
+    torch.testing.assert_close(raw.black_level, torch.tensor([BLACK + OFFSET * 4096, BLACK + 2 * OFFSET * 4096]))
 
 
 def test_isetcam_monochrome_processing_keeps_the_offset():
@@ -164,9 +169,11 @@ def test_isetcam_monochrome_processing_keeps_the_offset():
 
 
 def test_isetcam_colour_parity_subtracts_the_zero_level():
-    """ip_result_from_case on a colour case with an analog offset: ISETCam subtracts the zero level (offset / gain,
-    clipped; quantised for DN) and scales by the range above it, so the case with the offset equals the case without
-    it whose volts are stretched by swing / (swing - zero)."""
+    """ip_result_from_case on a colour case with an analog offset, against ISETCam's own rules: ipCompute subtracts
+    the zero level (the offset / gain) before demosaicking, and displayRender scales the image maximum to max volts /
+    voltage swing of the raw volts, the offset included. Everything between is linear, so the offset case is the case
+    without it (our output there is ISETCam's to 2e-6, tests/isp/test_pipeline.py) times (max v + z) / max v. The
+    volts are halved so that max v + z is not the swing (where any scaling of the offset case looked alike)."""
     import numpy as np
     from shared_paths import PARITY_CASE
 
@@ -177,10 +184,20 @@ def test_isetcam_colour_parity_subtracts_the_zero_level():
     d = np.load(PARITY_CASE, allow_pickle=False)
     case = {k: d[k] for k in d.files}
     swing, gain = float(case["sensor_voltage_swing_v"]), float(case["sensor_analog_gain"])
-    volts = case["sensor_volts"].astype(np.float64)
+    volts = case["sensor_volts"].astype(np.float64) / 2
     zero = 0.05 * swing
-    with_offset = dict(case, sensor_analog_offset=np.float64(zero * gain), sensor_volts=volts + zero)
-    stretched = dict(case, sensor_analog_offset=np.float64(0.0), sensor_volts=volts * swing / (swing - zero))
-    ours, _ = ip_result_from_case(with_offset)
-    ref, _ = ip_result_from_case(stretched)
-    np.testing.assert_allclose(ours, ref, rtol=1e-9, atol=1e-12)
+    plain, _ = ip_result_from_case(dict(case, sensor_analog_offset=np.float64(0.0), sensor_volts=volts))
+    ours, _ = ip_result_from_case(dict(case, sensor_analog_offset=np.float64(zero * gain), sensor_volts=volts + zero))
+    vmax = float(volts.max())
+    np.testing.assert_allclose(ours, plain * (vmax + zero) / vmax, rtol=1e-9, atol=1e-12)
+
+
+def test_process_normalises_at_the_frames_gain():
+    """With a full well under the ADC's range the white level moves with the gain: frames at --analog-gain 0.5 are
+    scaled by the white level at 0.5, as the training pairs normalise each capture at its own gain (the config's gain
+    gave a span of 1229 DN for 307 at 0.5: those frames came out at a quarter of their level)."""
+    from isettorch.commands.process import levels
+
+    s = _sensor(analog_offset_v=0.0, full_well_e=3000)  # 3000 e- x 5e-5 V/e- = 0.15 V at the pixel
+    assert levels(s) == (BLACK, 1229.0)  # x 2: 0.3 V = 1228.8 codes, rounded
+    assert levels(s, 0.5) == (BLACK, 307.0)  # x 0.5: 0.075 V = 307.2 codes
