@@ -440,6 +440,15 @@ class ShiftInvariantLens(nn.Module):
         if t is not None:
             spectra = spectra * t.to(device=spectra.device).reshape(1, 1, -1)
         negligible = self._negligible(derived, dx, wave, n)
+        terms = scene.factors.terms
+        if not negligible and self._by_used_terms(maps, ri, terms):
+            # on CPU each item's used maps only, weighted, padded and transformed (the rest of its spectra are 0)
+            margin = self._margin(derived, (h, w), dx, wave, n)
+            spec, (my, mx), (pr, pc), window = self._used_term_spectra(maps, ri, terms, margin, crop)
+            otf, inter = self._factored_otf(derived, my, mx, maps.dtype, maps.device, wave, n, dx)
+            factors = FourierFactors(spec, spectra, inter, (my, mx), window,
+                                     None if otf is None or otf.is_complex() else otf, terms=terms)
+            return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name, derived)
         if ri is not None:
             if (negligible or records_grad(maps, ri)
                     or ri.dtype != maps.dtype or ri.shape[0] not in (1, maps.shape[0])):
@@ -454,22 +463,7 @@ class ShiftInvariantLens(nn.Module):
             margin = self._margin(derived, (h, w), dx, wave, n)
             buf, (pr, pc), window = fft_buffer(maps, (margin, margin), self.pad_mode, window=crop)
             my, mx = buf.shape[-2:]
-            otf_key = ("otf", my, mx, buf.dtype, str(buf.device))
-            hit = derived.get(otf_key)
-            if hit is None:
-                fy, fx = fft_frequencies(my, mx, dx, dtype=buf.dtype, device=buf.device)
-                # on CPU, per-item cached rows used as they are (no [B, L, My, Mx', 2] batch copy per call); on an
-                # accelerator one stacked OTF (one batched product beats B small kernel launches)
-                rows = self._item_otf_rows(fy, fx, wave, n, dx) if per_item_products(buf.device) else None
-                if rows is not None and len(rows) > 1 and not rows[0].is_complex():
-                    hit = (None, tuple(rows))
-                else:
-                    otf = self._otf_fn(wave, n, dx)(fy, fx)
-                    hit = (otf, self._interleaved(otf))
-                if hit[0] is None or not hit[0].requires_grad:
-                    derived[otf_key] = hit
-            otf, inter = hit
-            terms = scene.factors.terms
+            otf, inter = self._factored_otf(derived, my, mx, buf.dtype, buf.device, wave, n, dx)
             if (terms is None or len(terms) == 1 or not per_item_products(buf.device)
                     or records_grad(buf)):
                 spec, terms = torch.fft.rfft2(buf), None  # (on an accelerator the padded batch in one launch)
@@ -482,6 +476,54 @@ class ShiftInvariantLens(nn.Module):
             factors = FourierFactors(spec, spectra, inter, (my, mx), window,
                                      None if otf is None or otf.is_complex() else otf, terms=terms)
         return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name, derived)
+
+    def _factored_otf(self, derived: dict, my: int, mx: int, dtype, device, wave, n, dx) -> tuple:
+        """``(otf or None, OTF for the Fourier-domain product)`` of an ``my x mx`` buffer, memoised in ``derived``."""
+        otf_key = ("otf", my, mx, dtype, str(device))
+        hit = derived.get(otf_key)
+        if hit is None:
+            fy, fx = fft_frequencies(my, mx, dx, dtype=dtype, device=device)
+            # on CPU, per-item cached rows used as they are (no [B, L, My, Mx', 2] batch copy per call); on an
+            # accelerator one stacked OTF (one batched product beats B small kernel launches)
+            rows = self._item_otf_rows(fy, fx, wave, n, dx) if per_item_products(device) else None
+            if rows is not None and len(rows) > 1 and not rows[0].is_complex():
+                hit = (None, tuple(rows))
+            else:
+                otf = self._otf_fn(wave, n, dx)(fy, fx)
+                hit = (otf, self._interleaved(otf))
+            if hit[0] is None or not hit[0].requires_grad:
+                derived[otf_key] = hit
+        return hit
+
+    def _by_used_terms(self, maps: torch.Tensor, ri: torch.Tensor | None, terms) -> bool:
+        """Whether the blurred factored path weights, pads and transforms each item's used maps only: per-item terms
+        on a CPU (:func:`per_item_products`), no gradient, a pad mode that copies samples (``'zero'``, ``'edge'``:
+        the same values as the whole batch's buffer; ``'mean'`` reduces) and ``ri`` multiplying in place."""
+        return (terms is not None and len(terms) > 1 and any(terms) and per_item_products(maps.device)
+                and self.pad_mode in ("zero", "edge") and not records_grad(maps, ri)
+                and (ri is None or (ri.dtype == maps.dtype and ri.shape[0] in (1, maps.shape[0]))))
+
+    def _used_term_spectra(self, maps: torch.Tensor, ri: torch.Tensor | None, terms, margin: int, crop):
+        """``(spec [B, J, My, Mx // 2 + 1], (My, Mx), (pad_rows, pad_cols), window)``: the rFFT of the FFT buffer
+        (:func:`fft_buffer`) of ``maps x ri``, item ``i``'s terms ``j < terms[i]`` only (the others 0, as their maps).
+        Bitwise the whole batch's: the product is elementwise, the pad a copy, each item's rFFT the same batch."""
+        b, j, h, w = maps.shape
+        spec = None
+        for i, t in enumerate(terms):
+            if t:
+                x = maps[i, :t]
+                if ri is not None:
+                    x = torch.mul(x, ri[i if ri.shape[0] > 1 else 0],
+                                  out=_scratch((t, h, w), maps.dtype, maps.device, "maps"))
+                buf, pads, window = fft_buffer(x, (margin, margin), self.pad_mode, window=crop)
+                if spec is None:
+                    my, mx = buf.shape[-2:]
+                    spec = torch.empty(b, j, my, mx // 2 + 1, dtype=buf.dtype.to_complex(), device=buf.device)
+                    spec[:i].zero_()
+                torch.fft.rfft2(buf, out=spec[i, :t])
+            if spec is not None:
+                spec[i, t:].zero_()
+        return spec, (my, mx), pads, window
 
     def _extend_unblurred(self, x: torch.Tensor, crop) -> tuple[torch.Tensor, int, int]:
         """``x`` (irradiance or maps) extended by the optics' margin like a blurred image would be, or the ``crop``
