@@ -127,11 +127,12 @@ class RawImage:
         return self.cfa.masks(self.height, self.width, dtype=self.data.dtype, device=self.data.device)
 
     def levels(self) -> tuple:
-        """``(black, white)`` ready to broadcast against ``data``: floats, or ``[B, 1, 1, 1]`` tensors in the data's
-        dtype for per-item levels (``[B]``: a per-call gain with a full well, or with an analog offset). ``white``
-        None without one."""
+        """``(black, white)`` ready to broadcast against ``data``: floats, or ``[B, 1, 1, 1]`` tensors on the data's
+        device and in its dtype for per-item levels (``[B]``: a per-call gain with a full well, or with an analog
+        offset; a list gain's levels are made on the CPU). ``white`` None without one."""
         dt = self.data.dtype if self.data.is_floating_point() else None
-        return tuple(v.reshape(-1, 1, 1, 1).to(dt) if isinstance(v, torch.Tensor) and v.dim() > 0 else v
+        return tuple(v.reshape(-1, 1, 1, 1).to(device=self.data.device, dtype=dt)
+                     if isinstance(v, torch.Tensor) and v.dim() > 0 else v
                      for v in (self.black_level, self.white_level))
 
     def normalized(self) -> torch.Tensor:

@@ -201,3 +201,15 @@ def test_process_normalises_at_the_frames_gain():
     s = _sensor(analog_offset_v=0.0, full_well_e=3000)  # 3000 e- x 5e-5 V/e- = 0.15 V at the pixel
     assert levels(s) == (BLACK, 1229.0)  # x 2: 0.3 V = 1228.8 codes, rounded
     assert levels(s, 0.5) == (BLACK, 307.0)  # x 0.5: 0.075 V = 307.2 codes
+
+
+def test_levels_follow_the_data_device():
+    """Per-item levels made on the CPU (a list gain's white level with a full well) are moved to the data's device
+    (checked with the 'meta' device: on a GPU they mixed devices at the first normalisation)."""
+    from isettorch.sensor.raw import RawImage
+
+    raw = RawImage(torch.zeros(2, 1, 4, 4, device="meta"), "dn", "RGGB", black_level=torch.tensor([64.0, 65.0]),
+                   white_level=torch.tensor([1000.0, 2000.0], dtype=torch.float64))
+    black, white = raw.levels()
+    assert black.device.type == white.device.type == "meta" and white.dtype == torch.float32
+    assert raw.normalized().shape == (2, 1, 4, 4)
