@@ -228,6 +228,13 @@ class SpectralQE(nn.Module):
         f = self.raw_filters if self.learnable else self.fixed_filters
         return f.shape[0] if f.dim() == 3 else None
 
+    @property
+    def cacheable(self) -> bool:
+        """Whether a resampled QE may be reused across calls: fixed filters that carry no graph (a tensor that
+        requires grad, given with ``learnable=False``, must be evaluated per call: a cached result kept the first
+        call's graph, so a second backward failed)."""
+        return not (self.learnable or self.fixed_filters.requires_grad or self.extra.requires_grad)
+
     def native(self) -> torch.Tensor:
         """Combined QE on the native grid ``[C, Ln]`` (``[B, C, Ln]`` per item)."""
         return self.filters * self.extra
@@ -244,19 +251,22 @@ class SpectralQE(nn.Module):
             w = self._check_overlap(check_wavelengths(w))
             return spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device)).to(
                 dtype=dtype, device=device)
-        # a grid found in the cache was validated when its entry was made: checked on a miss only
-        key = (tuple(w.tolist()) if w.dim() == 1 else None, dtype, str(device),
-               self.fixed_filters._version)
-        out = self._cache.get(key) if key[0] is not None else None
-        if out is None:
-            w = self._check_overlap(check_wavelengths(w))
-            if len(self._cache) > 16:
-                self._cache.clear()
-            out = spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device,
-                                                                              torch.float64))
-            out = out.to(dtype=dtype, device=device)
-            if key[0] is not None:
-                self._cache[key] = out
+        # a grid found in the cache was validated when its entry was made: checked on a miss only. The key holds the
+        # filters' identity and version (a new tensor assigned to fixed_filters, or an in-place edit, is a miss; the
+        # entry keeps the tensor, so its id is not reused while cached)
+        ff = self.fixed_filters
+        key = (tuple(w.tolist()) if w.dim() == 1 and self.cacheable else None, dtype, str(device), id(ff),
+               ff._version)
+        hit = self._cache.get(key) if key[0] is not None else None
+        if hit is not None and hit[0] is ff:
+            return hit[1]
+        w = self._check_overlap(check_wavelengths(w))
+        if len(self._cache) > 16:
+            self._cache.clear()
+        out = spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device, torch.float64))
+        out = out.to(dtype=dtype, device=device)
+        if key[0] is not None:
+            self._cache[key] = (ff, out)
         return out
 
     def _check_overlap(self, w: torch.Tensor) -> torch.Tensor:

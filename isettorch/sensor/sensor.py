@@ -621,12 +621,13 @@ class Sensor(nn.Module):
         return out
 
     def _qe_cache_key(self, qe_mod, oi: OpticalImage, kind: str) -> tuple | None:
-        """The cache key of a QE term of ``oi``'s grid, or None where it must be evaluated (a learnable QE, or one
-        per item)."""
-        if getattr(qe_mod, "learnable", True) or getattr(qe_mod, "batch_size", None) is not None:
+        """The cache key of a QE term of ``oi``'s grid, or None where it must be evaluated (a learnable QE, fixed
+        filters that require grad, or one per item). It holds the filters' identity and version
+        (:meth:`_qe_cache_put` keeps the tensor, so its id is not reused while cached)."""
+        if not getattr(qe_mod, "cacheable", False) or getattr(qe_mod, "batch_size", None) is not None:
             return None
-        return (kind, id(qe_mod), getattr(getattr(qe_mod, "fixed_filters", None), "_version", None),
-                self._grid_key(oi.wavelengths_nm), oi.dtype, str(oi.device))
+        ff = qe_mod.fixed_filters
+        return (kind, id(qe_mod), id(ff), ff._version, self._grid_key(oi.wavelengths_nm), oi.dtype, str(oi.device))
 
     def _grid_key(self, wavelengths_nm: torch.Tensor) -> tuple:
         """A wavelength grid's values as a tuple, memoised for the last grid tensor seen (a batch's calls share
@@ -643,7 +644,8 @@ class Sensor(nn.Module):
             return
         if len(self._weights_cache) > 32:
             self._weights_cache.clear()
-        self._weights_cache[key] = (qe_mod, out)  # the module is kept: its id cannot be reused while cached
+        # the module and its filters are kept: their ids cannot be reused while cached
+        self._weights_cache[key] = (qe_mod, out, qe_mod.fixed_filters)
 
     def spectral_weights(self, oi: OpticalImage, spectral_qe: SpectralQE | None = None) -> torch.Tensor:
         """``QE_c(l) dl`` as ``[L, C]`` (``[B, L, C]`` for a per-item QE): the projection from irradiance

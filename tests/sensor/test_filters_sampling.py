@@ -250,3 +250,37 @@ def test_the_cfa_tiling_takes_whole_sizes():
     for size in ((2.5, 4), (0, 4), (True, 4)):
         with pytest.raises(ValueError, match="height, width: expected whole numbers of pixels"):
             tile(m, *size)
+
+
+def test_fixed_filters_that_require_grad_are_not_cached():
+    """A SpectralQE made from a tensor that requires grad (learnable=False) is evaluated per call: its cached result
+    kept the first call's graph, so a second backward raised. A new tensor assigned to fixed_filters is seen (the
+    cache keyed on the version alone returned the old filters: ratio 1.0 for 0.5)."""
+    import torch
+
+    from isettorch.optics import OpticalImage
+    from isettorch.sensor import Sensor
+    from isettorch.sensor.filters import SpectralQE
+
+    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    f = torch.full((3, w.numel()), 0.5, dtype=torch.float64, requires_grad=True)
+    qe = SpectralQE(f, w, ["R", "G", "B"])
+    grid = torch.arange(405.0, 696.0, 10.0, dtype=torch.float64)  # midpoints: each value the mean of two samples
+    for _ in range(2):
+        qe(grid).sum().backward()
+    # each midpoint's linear interpolation weights 1/2 + 1/2 on its neighbours: the inner samples are used twice
+    expected = torch.ones(3, w.numel(), dtype=torch.float64)
+    expected[:, [0, -1]] = 0.5
+    torch.testing.assert_close(f.grad, 2 * expected)
+    # through a sensor's cached QE as well (two optimisation steps' backward passes)
+    sensor = Sensor(rows=4, cols=4, spectral_qe=qe)
+    oi = OpticalImage(torch.ones(1, w.numel(), 4, 4, dtype=torch.float64), w, sample_spacing_m=sensor.pixel_size_m)
+    f.grad = None
+    for _ in range(2):
+        sensor.qe(oi).sum().backward()
+    torch.testing.assert_close(f.grad, torch.full_like(f, 2.0))
+    # a fixed QE whose filters are replaced reads the new ones
+    fixed = SpectralQE(torch.full((3, w.numel()), 0.5, dtype=torch.float64), w, ["R", "G", "B"])
+    before = fixed(grid).clone()
+    fixed.fixed_filters = fixed.fixed_filters * 0.5
+    torch.testing.assert_close(fixed(grid), before * 0.5)
