@@ -602,7 +602,8 @@ class SensorToXYZ(nn.Module):
         matrix), and a QE with another number of channels is an error."""
         w = check_wavelengths(torch.as_tensor(wavelengths_nm))
         graph = qe.requires_grad and torch.is_grad_enabled() and not self.learnable
-        key = None if graph else (tuple(qe.shape), float(qe.detach().double().sum()),
+        # the QE's values themselves (its sum alone took a QE with two channels swapped for the same sensor)
+        key = None if graph else (tuple(qe.shape), qe.detach().double().cpu().numpy().tobytes(),
                                   tuple(w.detach().double().cpu().tolist()))
         if self._fit_key == "fixed" or key is not None and self._fit_key == key:
             return self

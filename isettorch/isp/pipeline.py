@@ -273,14 +273,22 @@ class ImageProcessor(nn.Module):
     def fit_raw(self, raw) -> ImageProcessor:
         """Fit the colour matrix to the sensor that made ``raw`` (its ``spectral_qe``), once per QE module: what
         :meth:`forward` does, so a processor needs no separate ``fit(sensor)``. No-op for a raw without QE or a
-        fixed matrix."""
+        fixed matrix. A raw with one QE per item (a per-call ``spectral_qe`` of batch size B) cannot be fitted one
+        matrix: ValueError, unless the matrix is fixed."""
         qe = getattr(raw, "spectral_qe", None)
-        if qe is None:
+        s2x = self.sensor_to_xyz
+        if qe is None or getattr(s2x, "fit", None) is None or getattr(s2x, "_fit_key", None) == "fixed":
             return self
-        key = (id(qe), getattr(getattr(qe, "fixed_filters", None), "_version", None))
-        if getattr(qe, "learnable", False) or self.__dict__.get("_raw_fit") != (key, qe):
+        if getattr(qe, "batch_size", None) is not None:
+            raise ValueError(f"raw: its spectral_qe holds one QE per item ({qe.batch_size}), and the image processor "
+                             f"fits one colour matrix; process the items one at a time, or give the processor a fixed "
+                             f"sensor_to_xyz matrix")
+        ff = getattr(qe, "fixed_filters", None)  # its identity and version: a new or edited tensor is refitted
+        key = (id(qe), id(ff), getattr(ff, "_version", None))
+        last = self.__dict__.get("_raw_fit")
+        if not getattr(qe, "cacheable", False) or last is None or last[0] != key or last[1] is not qe:
             self.fit(qe)
-            self.__dict__["_raw_fit"] = (key, qe)
+            self.__dict__["_raw_fit"] = (key, qe, ff)  # (the module and tensor kept: their ids are not reused)
         return self
 
     def forward(self, raw) -> ISPResult:

@@ -243,7 +243,10 @@ class WavefrontOptics(ShiftInvariantLens):
         defocus; an audit of 2026-11-30) the OTF is off by up to 0.014 (absolute) at a step of 1.8 rad (64
         samples), 0.007 at 0.9 rad (128) and 0.0014 at 0.45 rad (256); each item's grid is refined to
         ``max_step_waves`` (see the class). (Fourier-transforming the sampled PSF instead errs by ~1/pupil_samples:
-        the diffraction tail wraps around the PSF window.)
+        the diffraction tail wraps around the PSF window.) The bilinear interpolation makes the OTF piecewise linear
+        in the frequency's position on the table, which the f-number scales: where a requested frequency falls on a
+        table node its f-number derivative is one side's slope (a gradient audit, f/2.8 on a 16 x 16 image: the OTF's
+        derivative 25 % off a central difference, a loss on the optical image 1.9e-5; at other f-numbers 2e-10).
         """
         b = f_number.shape[0]
         z = self.coefficients(b, f_number, extra_defocus_diopters)

@@ -342,3 +342,33 @@ def test_pipeline_demosaic_keeps_a_constant_colour_at_the_border(pattern, border
     if pattern == "RGGB" and size == (8, 8):
         corner = demosaic(cfa.mosaic(planes), pattern, "malvar2004")[0, :, 0, 0]
         assert abs(float(corner[2]) - 0.9) > 0.5
+
+
+def test_one_colour_matrix_is_not_fitted_to_per_item_qes_and_fits_follow_new_filters():
+    """A raw made with one QE per item (a per-call spectral_qe of batch size B): the processor, which fits one matrix,
+    says so (it raised "qe: expected a tensor of shape (C, L)"); with a fixed matrix it runs. A new filter tensor
+    assigned to the QE is refitted (the processor's fit was keyed on the filters' version, the matrix's on the QE's
+    sum: R and B swapped kept the old matrix)."""
+    from isettorch.isp.colour import SensorToXYZ
+    from isettorch.optics import OpticalImage
+    from isettorch.sensor import Sensor
+
+    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    s = Sensor(rows=8, cols=8)
+    oi = OpticalImage(torch.full((2, w.numel(), 8, 8), 1e18, dtype=torch.float64), w, sample_spacing_m=s.pixel_size_m)
+    base = s.spectral_qe
+    per_item = SpectralQE(base.filters.detach()[None].expand(2, -1, -1).clone(), base.wavelengths_nm,
+                          base.channel_names)
+    raw = s(oi, spectral_qe=per_item, exposure_s=0.01, noise=False)
+    with pytest.raises(ValueError, match=r"raw: its spectral_qe holds one QE per item \(2\).*fixed sensor_to_xyz"):
+        ImageProcessor()(raw)
+    m = torch.tensor([[0.4, 0.3, 0.2], [0.2, 0.7, 0.1], [0.0, 0.1, 0.9]], dtype=torch.float64)
+    assert ImageProcessor(sensor_to_xyz=SensorToXYZ(m))(raw).image.shape == (2, 3, 8, 8)
+    # refitted to a new filter tensor (swap R and B): the matrix's columns follow
+    qe = SpectralQE(base.filters.detach().clone(), base.wavelengths_nm, base.channel_names)
+    ip = ImageProcessor()
+    ip.fit_raw(RawImage(torch.zeros(1, 1, 8, 8), "volts", CFA("RGGB"), white_level=1.0, spectral_qe=qe))
+    before = ip.sensor_to_xyz.matrix.detach().clone()
+    qe.fixed_filters = qe.fixed_filters[[2, 1, 0]].clone()
+    ip.fit_raw(RawImage(torch.zeros(1, 1, 8, 8), "volts", CFA("RGGB"), white_level=1.0, spectral_qe=qe))
+    torch.testing.assert_close(ip.sensor_to_xyz.matrix.detach(), before[:, [2, 1, 0]])

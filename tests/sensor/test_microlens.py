@@ -693,6 +693,9 @@ def test_a_telecentric_lens_has_no_fall_off():
         torch.testing.assert_close(m, torch.full_like(m, float(m.reshape(-1)[0])), rtol=0, atol=1e-12)
     with pytest.raises(ValueError, match="exit_pupil_distance_m"):
         PixelOptics("none", exit_pupil_distance_m=-math.inf)
+    # read as a number per call: a tensor that requires grad got no gradient, silently
+    with pytest.raises(ValueError, match="exit_pupil_distance_m: a fixed number of metres, not a tensor that requires"):
+        PixelOptics("none", exit_pupil_distance_m=torch.tensor(2e-3, requires_grad=True))
 
 
 def test_bad_pixel_values_are_refused_when_built():
