@@ -281,14 +281,17 @@ class ImageProcessor(nn.Module):
             return self
         if getattr(qe, "batch_size", None) is not None:
             raise ValueError(f"raw: its spectral_qe holds one QE per item ({qe.batch_size}), and the image processor "
-                             f"fits one colour matrix; process the items one at a time, or give the processor a fixed "
-                             f"sensor_to_xyz matrix")
-        ff = getattr(qe, "fixed_filters", None)  # its identity and version: a new or edited tensor is refitted
-        key = (id(qe), id(ff), getattr(ff, "_version", None))
+                             f"fits one colour matrix; render the items with one shared QE, or give the processor a "
+                             f"fixed sensor_to_xyz matrix")
+        # the QE's tensors' identity and version (a new or edited tensor is refitted), and the matrix's own fit key
+        # (a fit of another sensor in between replaced the matrix)
+        token, tensors = qe.cache_state() if hasattr(qe, "cache_state") else (None, ())
         last = self.__dict__.get("_raw_fit")
-        if not getattr(qe, "cacheable", False) or last is None or last[0] != key or last[1] is not qe:
+        if (not getattr(qe, "cacheable", False) or last is None or last[0] != (id(qe), token) or last[1] is not qe
+                or last[3] != getattr(s2x, "_fit_key", None)):
             self.fit(qe)
-            self.__dict__["_raw_fit"] = (key, qe, ff)  # (the module and tensor kept: their ids are not reused)
+            # (the module and tensors kept: their ids are not reused)
+            self.__dict__["_raw_fit"] = ((id(qe), token), qe, tensors, getattr(s2x, "_fit_key", None))
         return self
 
     def forward(self, raw) -> ISPResult:

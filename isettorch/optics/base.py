@@ -498,7 +498,8 @@ class ShiftInvariantLens(nn.Module):
     def _by_used_terms(self, maps: torch.Tensor, ri: torch.Tensor | None, terms) -> bool:
         """Whether the blurred factored path weights, pads and transforms each item's used maps only: per-item terms
         on a CPU (:func:`per_item_products`), no gradient, a pad mode that copies samples (``'zero'``, ``'edge'``:
-        the same values as the whole batch's buffer; ``'mean'`` reduces) and ``ri`` multiplying in place."""
+        the same values as the whole batch's buffer; ``'mean'`` reduces) and an ``ri`` of the maps' dtype and of
+        batch 1 or B (multiplied into a reused buffer)."""
         return (terms is not None and len(terms) > 1 and any(terms) and per_item_products(maps.device)
                 and self.pad_mode in ("zero", "edge") and not records_grad(maps, ri)
                 and (ri is None or (ri.dtype == maps.dtype and ri.shape[0] in (1, maps.shape[0]))))

@@ -260,6 +260,13 @@ class FilterBank(SpectralQE):
                 self._written_key = (amp, off, amp._version, off._version)
         return super().forward(wavelengths_nm, dtype=dtype, device=device)
 
+    def cache_state(self) -> tuple[tuple, tuple]:
+        """:meth:`SpectralQE.cache_state` with the learned rows' parameters (a frozen bank writes them into the fixed
+        filters when its forward runs: a cache read before it saw the old rows after a change of the parameters)."""
+        token, tensors = super().cache_state()
+        extra = (self.raw_amplitudes, self.raw_offsets)
+        return token + tuple((id(t), t._version) for t in extra), tensors + extra
+
     def freeze(self) -> FilterBank:
         """Stop learning: the filters become fixed at their current values (returns self)."""
         self.raw_amplitudes.requires_grad_(False)

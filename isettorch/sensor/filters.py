@@ -235,6 +235,13 @@ class SpectralQE(nn.Module):
         call's graph, so a second backward failed)."""
         return not (self.learnable or self.fixed_filters.requires_grad or self.extra.requires_grad)
 
+    def cache_state(self) -> tuple[tuple, tuple]:
+        """``(token, tensors)``: the identity and version of every tensor the QE is made of (filters, the IR filter
+        and pixel QE, the native grid) and those tensors. A cache keyed on the token and holding the tensors (so
+        their ids are not reused) sees a new tensor assigned to any of them and any in-place edit."""
+        tensors = (self.fixed_filters, self.extra, self.wavelengths_nm)
+        return tuple((id(t), t._version) for t in tensors), tensors
+
     def native(self) -> torch.Tensor:
         """Combined QE on the native grid ``[C, Ln]`` (``[B, C, Ln]`` per item)."""
         return self.filters * self.extra
@@ -252,13 +259,11 @@ class SpectralQE(nn.Module):
             return spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device)).to(
                 dtype=dtype, device=device)
         # a grid found in the cache was validated when its entry was made: checked on a miss only. The key holds the
-        # filters' identity and version (a new tensor assigned to fixed_filters, or an in-place edit, is a miss; the
-        # entry keeps the tensor, so its id is not reused while cached)
-        ff = self.fixed_filters
-        key = (tuple(w.tolist()) if w.dim() == 1 and self.cacheable else None, dtype, str(device), id(ff),
-               ff._version)
+        # QE's tensors' identity and version (cache_state: a new tensor or an in-place edit is a miss)
+        token, tensors = self.cache_state()
+        key = (tuple(w.tolist()) if w.dim() == 1 and self.cacheable else None, dtype, str(device), token)
         hit = self._cache.get(key) if key[0] is not None else None
-        if hit is not None and hit[0] is ff:
+        if hit is not None and all(a is b for a, b in zip(hit[0], tensors)):
             return hit[1]
         w = self._check_overlap(check_wavelengths(w))
         if len(self._cache) > 16:
@@ -266,7 +271,7 @@ class SpectralQE(nn.Module):
         out = spectral.resample(self.native(), self.wavelengths_nm, w.to(self.wavelengths_nm.device, torch.float64))
         out = out.to(dtype=dtype, device=device)
         if key[0] is not None:
-            self._cache[key] = (ff, out)
+            self._cache[key] = (tensors, out)
         return out
 
     def _check_overlap(self, w: torch.Tensor) -> torch.Tensor:

@@ -129,7 +129,7 @@ class RawImage:
     def levels(self) -> tuple:
         """``(black, white)`` ready to broadcast against ``data``: floats, or ``[B, 1, 1, 1]`` tensors on the data's
         device and in its dtype for per-item levels (``[B]``: a per-call gain with a full well, or with an analog
-        offset; a list gain's levels are made on the CPU). ``white`` None without one."""
+        offset; a level made on the CPU, e.g. by a user). ``white`` None without one."""
         dt = self.data.dtype if self.data.is_floating_point() else None
         return tuple(v.reshape(-1, 1, 1, 1).to(device=self.data.device, dtype=dt)
                      if isinstance(v, torch.Tensor) and v.dim() > 0 else v

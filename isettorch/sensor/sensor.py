@@ -622,12 +622,12 @@ class Sensor(nn.Module):
 
     def _qe_cache_key(self, qe_mod, oi: OpticalImage, kind: str) -> tuple | None:
         """The cache key of a QE term of ``oi``'s grid, or None where it must be evaluated (a learnable QE, fixed
-        filters that require grad, or one per item). It holds the filters' identity and version
-        (:meth:`_qe_cache_put` keeps the tensor, so its id is not reused while cached)."""
+        filters that require grad, or one per item). It holds the QE's tensors' identity and version
+        (``SpectralQE.cache_state``; :meth:`_qe_cache_put` keeps the tensors, so their ids are not reused)."""
         if not getattr(qe_mod, "cacheable", False) or getattr(qe_mod, "batch_size", None) is not None:
             return None
-        ff = qe_mod.fixed_filters
-        return (kind, id(qe_mod), id(ff), ff._version, self._grid_key(oi.wavelengths_nm), oi.dtype, str(oi.device))
+        return (kind, id(qe_mod), qe_mod.cache_state()[0], self._grid_key(oi.wavelengths_nm), oi.dtype,
+                str(oi.device))
 
     def _grid_key(self, wavelengths_nm: torch.Tensor) -> tuple:
         """A wavelength grid's values as a tuple, memoised for the last grid tensor seen (a batch's calls share
@@ -644,8 +644,8 @@ class Sensor(nn.Module):
             return
         if len(self._weights_cache) > 32:
             self._weights_cache.clear()
-        # the module and its filters are kept: their ids cannot be reused while cached
-        self._weights_cache[key] = (qe_mod, out, qe_mod.fixed_filters)
+        # the module and its tensors are kept: their ids cannot be reused while cached
+        self._weights_cache[key] = (qe_mod, out, qe_mod.cache_state()[1])
 
     def spectral_weights(self, oi: OpticalImage, spectral_qe: SpectralQE | None = None) -> torch.Tensor:
         """``QE_c(l) dl`` as ``[L, C]`` (``[B, L, C]`` for a per-item QE): the projection from irradiance
@@ -1086,8 +1086,11 @@ class Sensor(nn.Module):
         cg_out = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
         pitch = self.pixel_size_m if pixel_size_m is None else batch_param(
             pixel_size_m, "pixel_size_m", b, dtype=torch.float64, device=device, positive=True)
-        # the call's own gains: a per-call tensor gives [B] levels only when the full well sets the saturation
-        white = self.white_level(self.analog_gain if analog_gain is None else analog_gain, cg_out)
+        # the call's own gains: a per-call tensor gives [B] levels only when the full well sets the saturation (a list
+        # or array as the call's [B] gain tensor, on the data's device)
+        sequence = analog_gain is not None and not is_real(analog_gain) and not isinstance(analog_gain, torch.Tensor)
+        white = self.white_level(self.analog_gain if analog_gain is None else gain.reshape(-1) if sequence
+                                 else analog_gain, cg_out)
         # the black level and the analog offset: no light (per item from the call's [B] gain, on its device)
         per_call = analog_gain if analog_gain is None or is_real(analog_gain) else gain.reshape(-1)
         black, offset = self.zero_level(per_call), self._offset_level(per_call)

@@ -372,3 +372,8 @@ def test_one_colour_matrix_is_not_fitted_to_per_item_qes_and_fits_follow_new_fil
     qe.fixed_filters = qe.fixed_filters[[2, 1, 0]].clone()
     ip.fit_raw(RawImage(torch.zeros(1, 1, 8, 8), "volts", CFA("RGGB"), white_level=1.0, spectral_qe=qe))
     torch.testing.assert_close(ip.sensor_to_xyz.matrix.detach(), before[:, [2, 1, 0]])
+    # a fit to another sensor in between: the raw's own QE is fitted again (its memo said it was fitted)
+    swapped = ip.sensor_to_xyz.matrix.detach().clone()
+    ip.fit(base.filters.detach().to(torch.float64))
+    ip.fit_raw(RawImage(torch.zeros(1, 1, 8, 8), "volts", CFA("RGGB"), white_level=1.0, spectral_qe=qe))
+    torch.testing.assert_close(ip.sensor_to_xyz.matrix.detach(), swapped)

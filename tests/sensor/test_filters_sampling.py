@@ -284,3 +284,32 @@ def test_fixed_filters_that_require_grad_are_not_cached():
     before = fixed(grid).clone()
     fixed.fixed_filters = fixed.fixed_filters * 0.5
     torch.testing.assert_close(fixed(grid), before * 0.5)
+    # and an IR filter edited in place (the key held the filters alone), through the sensor's cache too
+    sensor = Sensor(rows=4, cols=4, spectral_qe=fixed)
+    first = sensor.qe(oi).clone()
+    with torch.no_grad():
+        fixed.extra.mul_(0.5)
+    torch.testing.assert_close(fixed(grid), before * 0.25)
+    torch.testing.assert_close(sensor.qe(oi), first * 0.5)
+
+
+def test_a_frozen_banks_new_rows_reach_the_sensor():
+    """A frozen FilterBank writes its learned rows into its fixed filters when it runs; the sensor's QE cache, keyed
+    before that, kept the old rows after the parameters changed (three calls, then an edit: stale)."""
+    import torch
+
+    from isettorch.optics import OpticalImage
+    from isettorch.sensor import Sensor
+    from isettorch.sensor.filter_bank import FilterBank
+
+    bank = FilterBank(["learned", "learned", "learned"], names=["R", "G", "B"]).freeze()
+    sensor = Sensor(rows=4, cols=4, spectral_qe=bank)
+    w = bank.wavelengths_nm
+    oi = OpticalImage(torch.ones(1, w.numel(), 4, 4, dtype=torch.float64), w, sample_spacing_m=sensor.pixel_size_m)
+    for _ in range(3):
+        sensor.qe(oi)
+    with torch.no_grad():
+        bank.raw_amplitudes.mul_(0.5)
+    torch.testing.assert_close(sensor.qe(oi), bank(w).to(torch.float64))
+    fresh = FilterBank(["learned"] * 3, names=["R", "G", "B"])
+    assert not torch.equal(sensor.qe(oi), Sensor(rows=4, cols=4, spectral_qe=fresh).qe(oi))
