@@ -285,7 +285,7 @@ class ImageProcessor(nn.Module):
                              f"fixed sensor_to_xyz matrix")
         # the QE's tensors' identity and version (a new or edited tensor is refitted), and the matrix's own fit key
         # (a fit of another sensor in between replaced the matrix)
-        token, tensors = qe.cache_state() if hasattr(qe, "cache_state") else (None, ())
+        token, tensors = qe.cache_state() if getattr(qe, "cacheable", False) else (None, ())
         last = self.__dict__.get("_raw_fit")
         if (not getattr(qe, "cacheable", False) or last is None or last[0] != (id(qe), token) or last[1] is not qe
                 or last[3] != getattr(s2x, "_fit_key", None)):

@@ -239,7 +239,8 @@ class SpectralQE(nn.Module):
         """``(token, tensors)``: the identity and version of every tensor the QE is made of (filters, the IR filter
         and pixel QE, the native grid) and those tensors. A cache keyed on the token and holding the tensors (so
         their ids are not reused) sees a new tensor assigned to any of them and any in-place edit."""
-        tensors = (self.fixed_filters, self.extra, self.wavelengths_nm)
+        f = self._buffers["fixed_filters"] if "fixed_filters" in self._buffers else self.raw_filters
+        tensors = (f, self.extra, self.wavelengths_nm)
         return tuple((id(t), t._version) for t in tensors), tensors
 
     def native(self) -> torch.Tensor:
