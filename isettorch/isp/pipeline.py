@@ -285,9 +285,10 @@ class ImageProcessor(nn.Module):
                              f"fixed sensor_to_xyz matrix")
         # the QE's tensors' identity and version (a new or edited tensor is refitted), and the matrix's own fit key
         # (a fit of another sensor in between replaced the matrix)
-        token, tensors = qe.cache_state() if getattr(qe, "cacheable", False) else (None, ())
+        cacheable = getattr(qe, "cacheable", False)
+        token, tensors = qe.cache_state() if cacheable else (None, ())
         last = self.__dict__.get("_raw_fit")
-        if (not getattr(qe, "cacheable", False) or last is None or last[0] != (id(qe), token) or last[1] is not qe
+        if (not cacheable or last is None or last[0] != (id(qe), token) or last[1] is not qe
                 or last[3] != getattr(s2x, "_fit_key", None)):
             self.fit(qe)
             # (the module and tensors kept: their ids are not reused)
@@ -314,9 +315,8 @@ class ImageProcessor(nn.Module):
             if self.monochrome_divisor == "voltage_swing":
                 if raw.voltage_swing_v is None:
                     raise ValueError("raw: monochrome_divisor='voltage_swing' needs raw.voltage_swing_v")
-                black = raw.black_level - raw.offset_level  # the black level without the offset (ipComputeSingle)
-                black = black.reshape(-1, 1, 1, 1).to(raw.data.dtype) if isinstance(black, torch.Tensor) else black
-                mono = (raw.data - black) / raw.voltage_swing_v
+                # the black level without the offset (ipComputeSingle)
+                mono = (raw.data - raw.broadcast(raw.black_level - raw.offset_level)) / raw.voltage_swing_v
             else:
                 mono = x
             return ISPResult(image=mono.expand(-1, 3, -1, -1), input=x, display_linear=mono.expand(-1, 3, -1, -1))

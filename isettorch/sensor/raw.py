@@ -130,10 +130,15 @@ class RawImage:
         """``(black, white)`` ready to broadcast against ``data``: floats, or ``[B, 1, 1, 1]`` tensors on the data's
         device and in its dtype for per-item levels (``[B]``: a per-call gain with a full well, or with an analog
         offset; a level made on the CPU, e.g. by a user). ``white`` None without one."""
-        dt = self.data.dtype if self.data.is_floating_point() else None
-        return tuple(v.reshape(-1, 1, 1, 1).to(device=self.data.device, dtype=dt)
-                     if isinstance(v, torch.Tensor) and v.dim() > 0 else v
-                     for v in (self.black_level, self.white_level))
+        return self.broadcast(self.black_level), self.broadcast(self.white_level)
+
+    def broadcast(self, level):
+        """A level (a float, or ``[B]`` per item) ready to broadcast against ``data``: a float as it is, a ``[B]``
+        tensor as ``[B, 1, 1, 1]`` on the data's device and, for floating data, in its dtype."""
+        if not (isinstance(level, torch.Tensor) and level.dim() > 0):
+            return level
+        return level.reshape(-1, 1, 1, 1).to(device=self.data.device,
+                                              dtype=self.data.dtype if self.data.is_floating_point() else None)
 
     def normalized(self) -> torch.Tensor:
         """``(data - black) / (white - black)``: 0 at black, 1 at saturation ``[B, 1, H, W]``."""

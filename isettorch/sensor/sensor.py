@@ -504,21 +504,22 @@ class Sensor(nn.Module):
 
         Returns a float, or ``[B]`` for a tensor or list gain when the sensor has an offset.
         """
-        black = self.black_level_dn if self.output_units == "dn" else 0.0
-        off = self._offset_level(analog_gain)
-        return black if off is None else black + off
+        return self._zero_and_offset(analog_gain)[0]
 
-    def _offset_level(self, analog_gain=None) -> float | torch.Tensor | None:
-        """The analog offset after the analog gain in :attr:`output_units` (:meth:`zero_level`), None without one."""
+    def _zero_and_offset(self, analog_gain=None) -> tuple[float | torch.Tensor, float | torch.Tensor | None]:
+        """``(zero level, the analog offset after the analog gain)`` in :attr:`output_units` (:meth:`zero_level`);
+        the offset None without one."""
+        black = self.black_level_dn if self.output_units == "dn" else 0.0
         if self.output_units == "electrons" or self.analog_offset_v == 0:
-            return None
+            return black, None
         gain = self.analog_gain if analog_gain is None else analog_gain
         if not is_real(gain):
             gain = (gain if isinstance(gain, torch.Tensor) else torch.as_tensor(gain, dtype=torch.float64)).reshape(-1)
         off = self.analog_offset_v / gain if self.gain_convention == "isetcam" else self.analog_offset_v * gain
         if self.output_units == "dn":
             off = off / self.lsb_v
-        return off if isinstance(off, torch.Tensor) else float(off)
+        off = off if isinstance(off, torch.Tensor) else float(off)
+        return black + off, off
 
     def _white_dn(self, analog_gain, conversion_gain_v_per_e) -> float | torch.Tensor:
         """The code the ADC gives :meth:`saturation_v`: ``round(v / lsb) + black`` (MATLAB round, as
@@ -1093,7 +1094,7 @@ class Sensor(nn.Module):
                                  else analog_gain, cg_out)
         # the black level and the analog offset: no light (per item from the call's [B] gain, on its device)
         per_call = analog_gain if analog_gain is None or is_real(analog_gain) else gain.reshape(-1)
-        black, offset = self.zero_level(per_call), self._offset_level(per_call)
+        black, offset = self._zero_and_offset(per_call)
         if offset is not None and (not isinstance(black, torch.Tensor) or black.device.type == "cpu") and \
                 not bool(torch.as_tensor(black < white).all()):  # (no host read of device levels)
             raise ValueError(f"analog_offset_v: the offset of {self.analog_offset_v} V at the analog gain "
