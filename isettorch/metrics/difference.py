@@ -16,21 +16,27 @@ from .color import _channel_last, xyz_to_lab
 
 def _safe_sqrt(x: torch.Tensor) -> torch.Tensor:
     """sqrt with gradient 0 (not inf/NaN) at x <= 0; negative round-off is treated as 0; NaN stays NaN (a NaN
-    colour scored dE 0, a perfect match)."""
-    pos = x > 0
+    colour scored dE 0, a perfect match). Values below the dtype's smallest normal number count as 0 too: a chroma
+    of 1e-21 in float32 squares into the subnormals, where the chain of gradients turned into NaN and -inf."""
+    pos = x > torch.finfo(x.dtype).tiny
     return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.where(x.isnan(), x, 0.0))
 
 
 def _safe_atan2_deg(y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    """Hue angle in degrees in [0, 360); 0 where x = y = 0 (Sharma et al. 2005, eq. 4), with finite gradients."""
-    zero = (x == 0) & (y == 0)
+    """Hue angle in degrees in [0, 360); 0 where x = y = 0 (Sharma et al. 2005, eq. 4), with finite gradients. As
+    in :func:`_safe_sqrt`, a chroma whose square is below the dtype's smallest normal number counts as 0 (atan2's
+    gradient divides by x^2 + y^2, which underflowed to 0: NaN)."""
+    zero = (x * x + y * y) <= torch.finfo(x.dtype).tiny
     h = torch.rad2deg(torch.atan2(torch.where(zero, torch.zeros_like(y), y), torch.where(zero, torch.ones_like(x), x)))
     h = torch.where(h < 0, h + 360.0, h)
     return torch.where(zero, torch.zeros_like(h), h)
 
 
 def _split(lab1: torch.Tensor, lab2: torch.Tensor, dim: int):
-    a, d1 = _channel_last(lab1, dim, "lab1")
+    """The L, a, b components of both colours (broadcast), and the dtype to return. Half-precision input (float16,
+    bfloat16) is computed in float32 and returned in its own dtype: dE2000's 25^7 and 7th powers of chroma overflow
+    float16 (max 65504: every difference NaN), and dE94's hue term subtracts nearly equal squares."""
+    a, _ = _channel_last(lab1, dim, "lab1")
     b, _ = _channel_last(lab2, dim, "lab2")
     check_finite(a.detach(), "lab1")  # a NaN or Inf colour gave a NaN difference without a word
     check_finite(b.detach(), "lab2")
@@ -38,13 +44,20 @@ def _split(lab1: torch.Tensor, lab2: torch.Tensor, dim: int):
         a, b = torch.broadcast_tensors(a, b)
     except RuntimeError as err:
         raise ValueError(f"lab2: shape {tuple(lab2.shape)} does not broadcast with lab1 {tuple(lab1.shape)}") from err
-    return a.unbind(-1), b.unbind(-1), d1
+    out = torch.promote_types(a.dtype, b.dtype) if a.is_floating_point() or b.is_floating_point() else None
+    if out in (torch.float16, torch.bfloat16):
+        a, b = a.float(), b.float()
+    return a.unbind(-1), b.unbind(-1), out
+
+
+def _as(de: torch.Tensor, dtype) -> torch.Tensor:
+    return de if dtype is None or de.dtype == dtype else de.to(dtype)
 
 
 def delta_e_76(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3) -> torch.Tensor:
     """CIE 1976 colour difference: Euclidean distance in CIELAB (CIE 15:2004 eq. 8.8)."""
-    (L1, a1, b1), (L2, a2, b2), _ = _split(lab1, lab2, dim)
-    return _safe_sqrt((L1 - L2) ** 2 + (a1 - a2) ** 2 + (b1 - b2) ** 2)
+    (L1, a1, b1), (L2, a2, b2), out = _split(lab1, lab2, dim)
+    return _as(_safe_sqrt((L1 - L2) ** 2 + (a1 - a2) ** 2 + (b1 - b2) ** 2), out)
 
 
 def delta_e_94(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, textiles: bool = False) -> torch.Tensor:
@@ -53,7 +66,7 @@ def delta_e_94(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, textiles: 
     Graphic-arts weights (k_L = 1, K1 = 0.045, K2 = 0.015) by default, textiles (2, 0.048, 0.014) on request,
     as in colour-science's ``delta_E_CIE1994``.
     """
-    (L1, a1, b1), (L2, a2, b2), _ = _split(lab1, lab2, dim)
+    (L1, a1, b1), (L2, a2, b2), out = _split(lab1, lab2, dim)
     k_L, K1, K2 = (2.0, 0.048, 0.014) if textiles else (1.0, 0.045, 0.015)
     C1 = _safe_sqrt(a1**2 + b1**2)
     C2 = _safe_sqrt(a2**2 + b2**2)
@@ -62,7 +75,7 @@ def delta_e_94(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, textiles: 
     dH2 = ((a1 - a2) ** 2 + (b1 - b2) ** 2 - dC**2).clamp_min(0.0)
     s_C = 1.0 + K1 * C1
     s_H = 1.0 + K2 * C1
-    return _safe_sqrt((dL / k_L) ** 2 + (dC / s_C) ** 2 + dH2 / s_H**2)
+    return _as(_safe_sqrt((dL / k_L) ** 2 + (dC / s_C) ** 2 + dH2 / s_H**2), out)
 
 
 def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: float = 1.0, k_C: float = 1.0,
@@ -73,11 +86,12 @@ def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: flo
     factors ``k_L``, ``k_C``, ``k_H`` are positive numbers (1 for the reference conditions).
 
     At an exactly neutral colour (a = b = 0) the chroma has a kink and its gradient in a, b is taken as 0 (finite,
-    but a neutral output gets no chroma gradient from dE2000 or dE94; dE76's is the direction to the target)."""
+    but a neutral output gets no chroma gradient from dE2000 or dE94; dE76's is the direction to the target).
+    Half-precision input is computed in float32 and returned in its dtype (the 7th powers overflow float16)."""
     for name, k in (("k_L", k_L), ("k_C", k_C), ("k_H", k_H)):
         if not is_real(k) or not k > 0:
             raise ValueError(f"{name}: expected a positive parametric factor (a number), got {k!r}")
-    (L1, a1, b1), (L2, a2, b2), _ = _split(lab1, lab2, dim)
+    (L1, a1, b1), (L2, a2, b2), out = _split(lab1, lab2, dim)
     p7 = 25.0**7
     C1 = _safe_sqrt(a1**2 + b1**2)
     C2 = _safe_sqrt(a2**2 + b2**2)
@@ -113,7 +127,7 @@ def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: flo
     S_H = 1.0 + 0.015 * Cbp * T
     R_T = -torch.sin(rad(2.0 * dtheta)) * R_C
     tL, tC, tH = dLp / (k_L * S_L), dCp / (k_C * S_C), dHp / (k_H * S_H)
-    return _safe_sqrt(tL**2 + tC**2 + tH**2 + R_T * tC * tH)
+    return _as(_safe_sqrt(tL**2 + tC**2 + tH**2 + R_T * tC * tH), out)
 
 
 METHODS = {"76": delta_e_76, "94": delta_e_94, "2000": delta_e_2000}

@@ -119,6 +119,43 @@ def test_delta_e_against_colour(method, ref_fn):
     np.testing.assert_allclose(de.numpy(), ref_fn(lab1, lab2), atol=1e-6, rtol=0)
 
 
+def test_delta_e_in_float16_and_bfloat16_against_colour():
+    """Half-precision Lab gives colour-science's differences to the precision of the format: dE2000's 25^7 and the
+    mean chroma's 7th power overflow float16 (max 65504), which made every dE2000 NaN."""
+    g = np.random.default_rng(4)
+    lab1 = np.c_[g.uniform(5, 95, 300), g.uniform(-80, 80, (300, 2))]
+    lab2 = lab1 + g.normal(0, 6, (300, 3))
+    refs = {"76": colour.difference.delta_E_CIE1976, "94": colour.difference.delta_E_CIE1994,
+            "2000": colour.difference.delta_E_CIE2000}
+    for dtype, rel in ((torch.float16, 2e-2), (torch.bfloat16, 6e-2)):
+        a, b = torch.tensor(lab1).to(dtype), torch.tensor(lab2).to(dtype)
+        for method, ref_fn in refs.items():
+            de = delta_e(a, b, method, dim=-1)
+            assert de.dtype == dtype, (method, dtype)
+            # against colour-science on the colours as rounded to the format, so only the arithmetic is compared
+            ref = ref_fn(a.double().numpy(), b.double().numpy())
+            np.testing.assert_allclose(de.double().numpy(), ref, rtol=rel, atol=rel, err_msg=f"{method} {dtype}")
+
+
+def test_delta_e_gradients_finite_at_subnormal_chroma_in_float32():
+    """A chroma whose square falls in float32's subnormals (about 1e-19 and below) gave NaN and -inf gradients
+    through the square root and atan2 of dE2000; it counts as neutral now (finite gradients, dE 0 between two such
+    colours). Normal chroma keeps float64's gradient."""
+    for v, expect_zero in ((1e-25, True), (1e-21, True), (1e-3, False)):
+        x = torch.tensor([[50.0, v, 0.0]], requires_grad=True)
+        for m in ("94", "2000"):
+            d = delta_e(x, torch.tensor([[50.0, 0.0, v]]), m, dim=-1)
+            (gx,) = torch.autograd.grad(d.sum(), (x,))
+            assert torch.isfinite(gx).all(), (v, m, gx)
+            x64 = x.detach().double().requires_grad_()
+            (g64,) = torch.autograd.grad(delta_e(x64, torch.tensor([[50.0, 0.0, v]], dtype=torch.float64), m,
+                                                 dim=-1).sum(), (x64,))
+            if expect_zero:
+                assert float(d) == 0.0 and float(gx.abs().max()) == 0.0, (v, m)
+            else:
+                np.testing.assert_allclose(gx.double().numpy(), g64.numpy(), rtol=1e-4, atol=1e-6)
+
+
 def test_delta_e_94_textiles_against_colour():
     from isettorch.metrics import delta_e_94
 

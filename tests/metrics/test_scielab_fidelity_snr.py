@@ -71,11 +71,16 @@ def test_scielab_blurs_chroma_more_than_luminance():
     assert torch.allclose(f.mean(dim=(-2, -1)), rg.mean(dim=(-2, -1)), atol=1e-3)
 
 
-# Zhang and Wandell (1997), table 1 (as the S-CIELAB code's separable filters): per opponent channel, (weight,
-# spread in degrees); and the XYZ -> opponent transform (S-CIELAB's cmatrix('xyz2opp'), Poirson and Wandell 1993)
-PUBLISHED_FILTERS = (((1.00327, 0.05), (0.114416, 0.225), (-0.117686, 7.0)),
-                     ((0.616725, 0.0685), (0.383275, 0.826)),
-                     ((0.567885, 0.0920), (0.432115, 0.6451)))
+# Per opponent channel, (weight, spread in degrees): the S-CIELAB distribution's separable filters (ISETCam
+# scGaussianParameters 'distribution', reprinted by Johnson and Fairchild: spreads read as half-widths), and Zhang and
+# Wandell (1997), table 1 (ISETCam's 'original' / 'published1996': the spreads s of w exp(-(x^2 + y^2) / s^2), weights
+# not summing to 1); and the XYZ -> opponent transform (S-CIELAB's cmatrix('xyz2opp'), Poirson and Wandell 1993)
+PUBLISHED_FILTERS = {"isetcam": (((1.00327, 0.05), (0.114416, 0.225), (-0.117686, 7.0)),
+                                 ((0.616725, 0.0685), (0.383275, 0.826)),
+                                 ((0.567885, 0.0920), (0.432115, 0.6451))),
+                     "paper": (((0.921, 0.0283), (0.105, 0.133), (-0.108, 4.336)),
+                               ((0.531, 0.0392), (0.330, 0.494)),
+                               ((0.488, 0.0536), (0.371, 0.386)))}
 PUBLISHED_XYZ2OPP = ((278.7336, 721.8031, -106.5520), (-448.7736, 289.8056, 77.1569), (85.9513, -589.9859, 501.1089))
 
 
@@ -84,7 +89,8 @@ def test_scielab_filters_transfer_function_is_the_published_sum_of_gaussians(con
     """A sine grating of f cycles/degree in one opponent channel comes out of the S-CIELAB filter scaled by the
     Fourier transform of its sum of Gaussians: sum_i w_i exp(-(pi s_i f)^2) for the paper's kernels exp(-x^2/s^2),
     and with the spread s spd - 1 samples taken as a FWHM (isetcam: exp(-(2 sqrt(ln 2) x / (s spd - 1))^2)). The
-    weights and spreads are the published ones, written here, not read from the module; the other channels stay
+    weights and spreads are the published ones, written here, not read from the module (the paper's weights
+    normalised to sum 1 per channel, so that a uniform field is unchanged); the other channels stay
     flat (the opponent transform and its inverse are the published matrix). Kernels span 1.5 degrees here, which
     truncates the broad terms: their transfer at 4 cycles/degree and above is below 1e-3 either way."""
     from isettorch.metrics.spatial_cielab import XYZ_TO_OPPONENT, scielab_filter
@@ -95,7 +101,7 @@ def test_scielab_filters_transfer_function_is_the_published_sum_of_gaussians(con
     x = torch.arange(n, dtype=torch.float64)
     grating = torch.sin(2 * math.pi * f_cpd * x / spd)
     mid = slice(48, 112)
-    for c, terms in enumerate(PUBLISHED_FILTERS):
+    for c, terms in enumerate(PUBLISHED_FILTERS[convention]):
         opp = torch.zeros(3, n, n, dtype=torch.float64)
         opp[0] += 0.5
         opp[c] += 0.1 * grating
@@ -104,7 +110,7 @@ def test_scielab_filters_transfer_function_is_the_published_sum_of_gaussians(con
         row = torch.einsum("ij,bjhw->bihw", m, out)[0, :, n // 2, mid]
         gain = float(((row[c] - row[c].mean()) * grating[mid]).sum() / (grating[mid] ** 2).sum()) / 0.1
         if convention == "paper":
-            want = sum(w * math.exp(-(math.pi * sd * f_cpd) ** 2) for w, sd in terms)
+            want = sum(w * math.exp(-(math.pi * sd * f_cpd) ** 2) for w, sd in terms) / sum(w for w, _ in terms)
         else:
             want = sum(w * math.exp(-(math.pi * (f_cpd / spd) * (sd * spd - 1) / (2 * math.sqrt(math.log(2)))) ** 2)
                        for w, sd in terms)
