@@ -13,7 +13,7 @@ import math
 
 import torch
 
-from .._checks import as_tensor, check_finite
+from .._checks import as_tensor, check_finite, is_integer
 from .snr import pixel_snr
 
 S2_QUANTIZATION_DN2 = 1.0 / 12.0  # EMVA 1288 4.0 eq. 5: uniform quantisation noise variance, DN^2
@@ -196,7 +196,9 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
     * temporal statistics over the N frames: mu_y = mean DN; sigma^2_y = per-pixel variance over frames
       (ddof = 1) after removing each frame's spatial mean (EMVA eq. 29 generalised to N frames), averaged over
       pixels; the same for the dark stack (mu_y.dark, sigma^2_y.dark).
-    * saturation: the level of maximum sigma^2_y over the whole curve (or ``saturation_index``).
+    * saturation: the level of maximum sigma^2_y over the whole curve (or ``saturation_index``); a series whose
+      variance is largest at its brightest level is refused (it may stop below saturation, which would then be
+      reported as the saturation capacity) unless ``saturation_index`` says that level saturates.
     * system gain K (DN/e-): slope through the origin of sigma^2_y - sigma^2_y.dark against mu_y - mu_y.dark
       (photon transfer, EMVA eq. 9) over levels with mu_y - mu_y.dark <= 70 % of its value at saturation.
     * responsivity R = K eta (DN/photon): slope through the origin of mu_y - mu_y.dark against mu_p, same
@@ -270,9 +272,16 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
                              f"{mu_p.tolist()}")
     mu_y, var_y, mu_d, var_d = (t.cpu() for t in (mu_y, var_y, mu_d, var_d))
 
+    for name, idx in (("saturation_index", saturation_index), ("spatial_index", spatial_index)):
+        if idx is not None and not (is_integer(idx) and 0 <= idx < M):  # (2.5 was truncated to 2)
+            raise ValueError(f"{name}: expected None or an integer level 0..{M - 1}, got {idx!r}")
     sat = _saturation_index(var_y) if saturation_index is None else int(saturation_index)
-    if not 0 <= sat < M:
-        raise ValueError(f"saturation_index: expected 0..{M - 1}, got {saturation_index}")
+    if saturation_index is None and sat == M - 1 and M > 1:
+        # the variance still rising at the brightest level: the series stops below saturation, and the brightest
+        # level would be reported as the saturation capacity (an audit: 1,793 e- for a 7,990 e- sensor, DR -12 dB)
+        raise ValueError(f"bright: the temporal variance is largest at the brightest level ({M - 1}), so the series "
+                         f"may not reach saturation; EMVA 1288 asks for levels up to and past it: add brighter levels, "
+                         f"or give saturation_index={M - 1} if that level saturates")
     signal = mu_y - mu_d
     if signal[sat] <= 0:
         raise ValueError("bright: the signal at saturation is not above the dark level; are bright and dark swapped?")
@@ -306,8 +315,6 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
     if spatial_index is None:
         spatial_index = int((signal[: sat + 1] - 0.5 * signal[sat]).abs().argmin())
     si = int(spatial_index)
-    if not 0 <= si < M:
-        raise ValueError(f"spatial_index: expected 0..{M - 1}, got {spatial_index}")
     s2_y, mean_b = _spatial_var(b[si].to(torch.float64))
     s2_yd, mean_d = _spatial_var(d[si if d.shape[0] == M else 0].to(torch.float64))
     s2_y, s2_yd, mean_b, mean_d = (t.cpu() for t in (s2_y, s2_yd, mean_b, mean_d))

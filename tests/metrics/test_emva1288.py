@@ -57,7 +57,9 @@ def test_recovers_known_parameters(frames):
     # saturation just below the clipping point, (4095 - 100) / K = 9987.5 e-
     full_scale_e = (MAX_DN - OFFSET_DN) / K_DN_PER_E
     assert 0.85 * full_scale_e < float(res.saturation_capacity_e) <= full_scale_e
-    # dynamic range per EMVA 4.0: mu_e.sat / (sigma_y.dark / K + 1/2), with the true sigma_y.dark and K
+    # dynamic range: mu_e.sat / (sigma_y.dark / K + 1/2), with the true sigma_y.dark and K (the sensitivity threshold
+    # of EMVA 1288 release 3.1, which the EMVA's reference implementation for release 4.0, emva1288 1.x, keeps:
+    # Results1288.u_p_min; the exact SNR = 1 solution differs by about 0.5 % here)
     mu_e_min = math.sqrt(K_DN_PER_E**2 * READ_NOISE_E**2 + 1 / 12) / K_DN_PER_E + 0.5
     expect_dr_db = 20 * math.log10(float(res.saturation_capacity_e) / mu_e_min)
     assert float(res.dynamic_range_db) == pytest.approx(expect_dr_db, abs=0.2)
@@ -139,3 +141,21 @@ def test_level_order_and_saturated_stacks_are_errors():
     saturated = torch.stack([d + 1] + [torch.full((2, 16, 16), 4095.0)] * 4)
     with pytest.raises(ValueError, match="fewer than 2 levels below 70 % of saturation"):
         emva1288(saturated, d)
+
+
+def test_a_series_that_stops_below_saturation_is_refused(frames):
+    """Levels that end below saturation leave the variance largest at the brightest level, which was reported as
+    the saturation capacity (here 12 of 20 levels: about 63 % of the 9,988 e- full scale, a dynamic range about 4 dB
+    low) without a word. Refused unless saturation_index says the last level saturates; indices must be whole."""
+    bright, dark, mu_p, _, _ = frames
+    with pytest.raises(ValueError, match="bright: the temporal variance is largest at the brightest level"):
+        emva1288(bright[:12], dark[:12], photons_per_pixel=mu_p[:12])
+    forced = emva1288(bright[:12], dark[:12], photons_per_pixel=mu_p[:12], saturation_index=11)
+    full_scale_e = (MAX_DN - OFFSET_DN) / K_DN_PER_E
+    assert float(forced.saturation_capacity_e) == pytest.approx(QE * float(mu_p[11]), rel=0.03)
+    assert float(forced.saturation_capacity_e) < 0.7 * full_scale_e
+    for name in ("saturation_index", "spatial_index"):
+        with pytest.raises(ValueError, match=f"{name}: expected None or an integer level"):
+            emva1288(bright, dark, **{name: 2.5})
+        with pytest.raises(ValueError, match=f"{name}: expected None or an integer level"):
+            emva1288(bright, dark, **{name: 20})
