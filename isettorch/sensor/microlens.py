@@ -80,7 +80,7 @@ import torch
 from torch import nn
 
 from .._autograd import records_grad
-from .._checks import check_bool
+from .._checks import check_bool, is_real
 
 __all__ = ["ISETCAM_PIXEL", "MICROLENS_METHODS", "PixelOptics", "microlens_radiance", "microlens_etendue",
            "microlens_optimal_offset_m", "microlens_array_offsets_m"]
@@ -234,6 +234,11 @@ def _params(chief_ray_angle_deg, method, offset_m, kw):
                              f"{tuple(kw[name].shape)}")
     if float(torch.as_tensor(kw["source_f_number"]).detach()) < 0.5:  # (no warning on a tensor that requires grad)
         raise ValueError(f"source_f_number: expected >= 0.5, got {kw['source_f_number']}")
+    for name in ("pixel_size_m", "photodiode_size_m", "microlens_diameter_m", "microlens_f_number"):
+        if records_grad(kw.get(name)):  # read as numbers below: the gradient was dropped without a word
+            raise ValueError(f"{name}: the etendue reads it as a number (no gradient); pass a number or a detached "
+                             f"tensor (the differentiable geometry: stack_height_m, layer_thicknesses_m, "
+                             f"layer_indices, stack_index, microlens_focal_length_m, offset_m)")
     pixel = float(kw["pixel_size_m"])
     photodiode = _photodiode_m(kw)
     t, n = _stack(kw["layer_thicknesses_m"], kw["layer_indices"], kw["stack_height_m"], kw["stack_index"], dtype,
@@ -550,9 +555,10 @@ def microlens_radiance(chief_ray_angle_deg=0.0, method: str = "centred", *, offs
         if diffraction:
             raise ValueError("diffraction: ISETCam's ray grid has none; pass sampling='continuous' with "
                              "diffraction=True")
-        if records_grad(chief_ray_angle_deg, offset_m, *(kw[k] for k in ("stack_height_m", "stack_index",
-                                                                          "microlens_focal_length_m",
-                                                                          "wavelength_nm", "source_f_number"))):
+        layers = [v for k in ("layer_thicknesses_m", "layer_indices") if kw.get(k) is not None
+                  for v in (kw[k] if isinstance(kw[k], (list, tuple)) else [kw[k]])]
+        if records_grad(chief_ray_angle_deg, offset_m, *layers, *(kw[k] for k in (
+                "stack_height_m", "stack_index", "microlens_focal_length_m", "wavelength_nm", "source_f_number"))):
             raise ValueError("sampling: 'isetcam' (the default, ISETCam's grid) has no gradients; pass "
                              "sampling='continuous' to differentiate the etendue")
     cra, method, t, n, off, geo = _params(chief_ray_angle_deg, method, offset_m, kw)
@@ -634,10 +640,21 @@ def microlens_etendue(chief_ray_angle_deg, method: str = "centred", *, model: st
     _check_cra(cra)
     _pos(kw["pixel_size_m"], "pixel_size_m")
     photodiode = _photodiode_m(kw)
+    extra = torch.zeros(()) if offset_m is None else torch.as_tensor(offset_m, dtype=torch.float64).cpu()
+    if offset_m is not None:
+        if method == "none":
+            raise ValueError("offset_m: method 'none' has no microlens to offset")
+        if isinstance(offset_m, bool) or not bool(torch.isfinite(extra).all()):
+            raise ValueError(f"offset_m: expected finite offsets (m), got {offset_m!r}")
+        try:  # one offset per angle (a pixel-optics map's offsets grow with the image height), or one for all
+            extra = torch.broadcast_to(extra, cra.shape)
+        except RuntimeError as err:
+            raise ValueError(f"offset_m: shape {tuple(extra.shape)} does not broadcast with the chief-ray angles' "
+                             f"{tuple(cra.shape)}") from err
+    extra = extra.expand(cra.shape).reshape(-1).tolist()
     out = []
-    for c in cra.reshape(-1).tolist():
-        extra = 0.0 if offset_m is None else float(offset_m)
-        off = (geometric_offset(c, h, n_eq) if method == "optimal" else 0.0) - extra
+    for c, ex in zip(cra.reshape(-1).tolist(), extra):
+        off = (geometric_offset(c, h, n_eq) if method == "optimal" else 0.0) - ex
         out.append(pixel_vignetting(c, float(kw["source_f_number"]), h, float(kw["pixel_size_m"]),
                                     photodiode, stack_index=n_eq, microlens=method != "none",
                                     microlens_offset_m=off))
@@ -661,12 +678,18 @@ class PixelOptics(nn.Module):
       optical image: a ray-traced lens's table (``oi.metadata['chief_ray_angle']``: image heights (m) and traced
       angles (deg)), else ``atan(r / d)`` with d the exit-pupil distance (``exit_pupil_distance_m``, default the image
       distance: the thin lens's pupil is the lens). The etendue is the continuous (differentiable) integral
-      (:func:`microlens_etendue` with ``sampling='continuous'``) of the radial (CRA) and tangential (CRA 0)
-      directions, the 1-D model applied separably as ISETCam's pixel irradiance, multiplying the light over the whole
-      pixel (the fill factor enters only through the photodiode width), so the microlens must be as wide as the pixel
-      (a narrower one is refused: the light between microlenses is not modelled); it is computed at ``angle_samples``
-      radii (default 33) from the axis to the farthest pixel and interpolated linearly in the radius (33 keep the
-      interpolation within 0.01 of the direct value for ISETCam's pixel over 0-34 deg, 129 within 0.003).
+      (:func:`microlens_etendue` with ``sampling='continuous'``), the 1-D model applied separably along the pixel's
+      columns and rows as ISETCam's pixel irradiance is (``mlRadiance``: the x-profile's outer product): the pixel
+      at (x, y) gets ``T(|x|) T(|y|)``, ``T(u)`` the 1-D etendue at the chief ray and microlens offset of the image
+      point at height u on an axis (for a thin lens, the chief ray's angle projected on the pixel's axes). A pixel
+      on a diagonal thus keeps more light than one on an axis at the same chief-ray angle, as a square photodiode
+      does (centred microlens, 20 deg, ISETCam's pixel at f/4: a 2-D trace gives 0.355 and 0.123, this model 0.316
+      and 0.188; the radially symmetric ``E(CRA) E(0)`` used before 2026-11-30 gave 0.188 for both). The map
+      multiplies the light over the whole pixel (the fill factor enters only through the photodiode width), so the
+      microlens must be as wide as the pixel (a narrower one is refused: the light between microlenses is not
+      modelled); ``T`` is computed at ``angle_samples`` heights (default 33) from 0 to the farthest pixel centre's
+      column or row coordinate and interpolated linearly (33 keep the interpolation within 0.01 of the direct value
+      for ISETCam's pixel over 0-34 deg, 129 within 0.003).
     * ``'isetcam'``: ISETCam's ``sensorVignetting`` / ``mlAnalyzeArrayEtendue`` exactly: the CRA of each pixel is
       ``atan(r / f)`` with f the optics focal length (``sensorGet(sensor, 'cra degrees')`` with no argument uses
       ``opticsGet(optics, 'focal length')``; a traced lens's table is not used; ``exit_pupil_distance_m``
@@ -694,8 +717,8 @@ class PixelOptics(nn.Module):
         exit_pupil_distance_m: overrides the distance of the chief rays' origin (the optical image's image
             distance under ``'physical'``, its focal length under ``'isetcam'``); ``math.inf`` for an image-space
             telecentric lens (every chief ray parallel to the axis, CRA 0).
-        angle_samples: radii (``'physical'``, default 33) or chief-ray angles (``'isetcam'``, default 6) at which
-            the etendue is computed.
+        angle_samples: image heights on an axis (``'physical'``, default 33) or chief-ray angles (``'isetcam'``,
+            default 6) at which the etendue is computed.
         samples: the continuous integral's (directions, x segments).
         pixel: microlens and stack parameters of :func:`microlens_radiance` (``pixel_size_m`` defaults to the
             sensor's pitch, ``photodiode_size_m`` to ``sqrt(fill_factor) x pixel_size_m``, ``microlens_diameter_m``
@@ -753,8 +776,15 @@ class PixelOptics(nn.Module):
         layers = self.pixel.get("layer_thicknesses_m", _DEFAULTS["layer_thicknesses_m"])
         h = float(sum(layers)) if stack_height_m is None else stack_height_m
         _pos(h, "stack_height_m")
-        if not (isinstance(offset_per_image_height, (int, float)) and math.isfinite(offset_per_image_height)):
+        if not is_real(offset_per_image_height):  # (True was read as 1 m per m)
             raise ValueError(f"offset_per_image_height: expected a finite number, got {offset_per_image_height!r}")
+        if self.method == "none" and (offset_per_image_height != 0 or learnable):
+            raise ValueError("offset_per_image_height: method 'none' has no microlens to offset (it was ignored); "
+                             "use method 'centred' or 'optimal'")
+        if convention == "isetcam" and exit_pupil_distance_m == math.inf and offset_per_image_height != 0:
+            raise ValueError("offset_per_image_height: convention 'isetcam' reads the etendue by chief-ray angle, "
+                             "which a telecentric lens (exit_pupil_distance_m inf) makes 0 at every pixel, so an "
+                             "offset growing with the image height cannot be placed; use convention='physical'")
         self._microlens_focal_length_m = float(h)  # mlensCreate(sensor): the pixel depth when built
         h_t = torch.tensor(math.log(float(h)), dtype=torch.float64)  # log: a positive height by construction
         o_t = torch.tensor(float(offset_per_image_height), dtype=torch.float64)
@@ -828,7 +858,8 @@ class PixelOptics(nn.Module):
         if self.model == "geometric":
             kw.setdefault("stack_height_m", float(self.stack_height_m.detach()))
             kw["wavelength_nm"] = 500.0  # the geometric model has no wavelength
-            return microlens_etendue(cra.detach().cpu(), method, model="geometric", **kw).to(cra)
+            off = None if offset is None else offset.detach().cpu()  # (the per-sample offsets were dropped)
+            return microlens_etendue(cra.detach().cpu(), method, model="geometric", offset_m=off, **kw).to(cra)
         sampling = "isetcam" if self.convention == "isetcam" else "continuous"
         return microlens_etendue(cra, method, offset_m=offset, diffraction=self.diffraction, samples=self.samples,
                                  sampling=sampling, stack_height_m=self.stack_height_m.to(cra.device), **kw)
@@ -840,15 +871,15 @@ class PixelOptics(nn.Module):
         emap = self.interpolate(e, i0, w)  # [B, W, rows, cols]
         return emap if self.diffraction else emap[:, 0]
 
-    @staticmethod
-    def interpolate(e: torch.Tensor, i0: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    def interpolate(self, e: torch.Tensor, i0: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
         """Samples ``e [B, ..., K]`` -> pixels ``[B, ..., rows, cols]``, linear between samples ``i0`` and ``i0 + 1``
-        with weight ``w``: ``[rows, cols]`` for every batch item (the radius, ``'physical'``) or
-        ``[B, rows, cols]`` per item (the CRA, ``'isetcam'``)."""
+        with weight ``w``: ``[2, rows, cols]`` for every batch item (``'physical'``: the pixel's column and row
+        coordinates, whose two values multiply) or ``[B, rows, cols]`` per item (the CRA, ``'isetcam'``)."""
         w = w.to(e.dtype)
         k = e.shape[-1]
-        if i0.dim() == 2:
-            return e[..., i0] * (1 - w) + e[..., (i0 + 1).clamp(max=k - 1)] * w
+        if self.convention == "physical":
+            ex, ey = (e[..., i0[a]] * (1 - w[a]) + e[..., (i0[a] + 1).clamp(max=k - 1)] * w[a] for a in (0, 1))
+            return ex * ey
         b, mid = e.shape[0], e.shape[1:-1]
         idx = i0.reshape(b, *([1] * len(mid)), -1).expand(b, *mid, -1)
         ww = w.reshape(b, *([1] * len(mid)), -1)
@@ -856,11 +887,12 @@ class PixelOptics(nn.Module):
         return out.reshape(*e.shape[:-1], *i0.shape[1:])
 
     def radial_etendue(self, oi, rows: int, cols: int, pixel_size_m: float, fill_factor: float = 0.75):
-        """The etendue at ``angle_samples`` image heights from the axis to the farthest pixel (``'physical'``) or
-        chief-ray angles from 0 to the largest (``'isetcam'``), ``e [B, W, K]`` (W = the OI's wavelengths with
-        ``diffraction``, else 1), and each pixel's interpolation index and weight ``(i0, w)``, ``[rows, cols]``
-        (``'physical'``) or ``[B, rows, cols]`` (``'isetcam'``) (memoised per geometry when no gradient is
-        needed)."""
+        """The etendue at ``angle_samples`` image heights on an axis, from 0 to the farthest pixel centre's column
+        or row coordinate (``'physical'``), or at chief-ray angles from 0 to the largest (``'isetcam'``),
+        ``e [B, W, K]`` (W = the OI's wavelengths with ``diffraction``, else 1), and each pixel's interpolation
+        indices and weights ``(i0, w)``, ``[2, rows, cols]`` (``'physical'``: at its column and at its row
+        coordinate) or ``[B, rows, cols]`` (``'isetcam'``) (memoised per geometry when no gradient is needed);
+        :meth:`interpolate` makes the map."""
         pixel = dict(self.pixel)
         pixel.setdefault("pixel_size_m", float(pixel_size_m))
         pixel.setdefault("photodiode_size_m", math.sqrt(fill_factor) * float(pixel["pixel_size_m"]))
@@ -899,7 +931,9 @@ class PixelOptics(nn.Module):
         if not grad:
             geo = tuple(None if g is None else tuple(torch.as_tensor(g).reshape(-1).tolist())
                         for g in (oi.image_distance_m, oi.focal_length_m))
-            key = (rows, cols, float(pixel_size_m), fill_factor, waves, tuple(sorted(pixel.items())), geo,
+            key = (self.method, self.model, self.convention, self.samples, self.angle_samples,
+                   self.exit_pupil_distance_m, rows, cols, float(pixel_size_m), fill_factor, waves,
+                   tuple(sorted(pixel.items())), geo,
                    oi.batch_size,
                    id(oi.metadata.get("chief_ray_angle")) if isinstance(oi.metadata, dict) else None,
                    float(self.log_stack_height_m.detach()), float(self.offset_per_image_height.detach()),
@@ -915,9 +949,13 @@ class PixelOptics(nn.Module):
                     self._memo.clear()
                 self._memo[key] = out
             return out
-        r_max = float(r.max()) if r.numel() > 1 else 0.0
+        # separable along the pixel's rows and columns (ISETCam's pixel irradiance, mlRadiance: the x-profile's
+        # outer product): the pixel at (x, y) gets T(|x|) T(|y|), T(u) the 1-D etendue at image height u on an axis
+        ax = [(torch.arange(n, dtype=torch.float64, device=r.device) - (n - 1) / 2).abs() * pixel_size_m
+              for n in (cols, rows)]
+        u_max = max(float(ax[0].max()), float(ax[1].max()))
         k = self.angle_samples
-        rk = torch.linspace(0.0, max(r_max, 1e-12), k, dtype=torch.float64, device=r.device)
+        rk = torch.linspace(0.0, max(u_max, 1e-12), k, dtype=torch.float64, device=r.device)
         cra_k = self._cra_of_radius(oi, rk)  # [B, K]
         b = cra_k.shape[0]
         offset = self.offset_per_image_height.to(rk.device) * rk  # [K]
@@ -929,13 +967,9 @@ class PixelOptics(nn.Module):
         cra_w = cra_k[:, None, :].expand(b, nw, k)
         off = None if self.method == "none" else offset.reshape(b, 1, k).expand(b, nw, k)
         e = self._etendue(cra_w, off, wl, pixel, self.method).reshape(b, nw, k)  # [B, W, K]
-        if self.convention == "physical":  # the tangential direction: chief ray at 0 deg, no offset
-            tan_method = "none" if self.method == "none" else "centred"
-            wl_t = wl[0, :, :1] if self.diffraction else wl
-            zero = torch.zeros(nw, 1, dtype=torch.float64, device=r.device)
-            e = e * self._etendue(zero, None, wl_t, pixel, tan_method).reshape(1, nw, 1)
-        # linear interpolation in r (differentiable in the etendue values)
-        pos = (r / rk[-1] * (k - 1)).clamp(0, k - 1) if r_max > 0 else torch.zeros_like(r)
+        # linear interpolation in each coordinate (differentiable in the etendue values)
+        pos = torch.stack([ax[0][None, :].expand(rows, cols), ax[1][:, None].expand(rows, cols)])  # [2, rows, cols]
+        pos = (pos / rk[-1] * (k - 1)).clamp(0, k - 1) if u_max > 0 else torch.zeros_like(pos)
         i0 = pos.floor().long().clamp(max=k - 2)
         out = (e, i0, (pos - i0).to(e.dtype))
         if key is not None:
@@ -957,8 +991,10 @@ class PixelOptics(nn.Module):
         if self.method != "none":  # the array's further offset at each sample's image height (0 by default)
             d = r.new_tensor(float(self.exit_pupil_distance_m)).expand(b) if self.exit_pupil_distance_m is not None \
                 else torch.as_tensor(oi.focal_length_m, dtype=torch.float64, device=r.device).reshape(-1).expand(b)
-            offset = (self.offset_per_image_height.to(r.device) * d[:, None] * torch.tan(torch.deg2rad(cra_k)))
-            offset = offset[:, None, :]
+            height = d[:, None] * torch.tan(torch.deg2rad(cra_k))  # each sample's image height
+            # a telecentric lens (d inf) has CRA 0 everywhere: inf x 0 made NaN offsets (refused, naming offset_m)
+            height = torch.where(cra_k == 0, torch.zeros_like(height), height)
+            offset = (self.offset_per_image_height.to(r.device) * height)[:, None, :]
         wl = pixel.pop("wavelength_nm", _DEFAULTS["wavelength_nm"])
         e = self._etendue(cra_k[:, None, :], offset, wl, pixel, self.method).reshape(b, 1, k)
         scale = torch.where(cra_max > 0, (k - 1) / cra_max.clamp(min=1e-300), torch.zeros_like(cra_max))

@@ -401,12 +401,14 @@ def test_sensor_fall_off_on_a_uniform_field(method):
     assert float(cra.max()) == pytest.approx(ref["cra_deg"][-1], abs=1e-5)
     want_iset = np.interp(cra.numpy(), ref["cra_deg"], ref[method])
     assert np.abs((iset[0, 0] / plain[0, 0]).numpy() - want_iset).max() < 1e-5
-    # physical convention: the whole pixel's light x the radial and tangential etendues of the continuous integral
-    # (fill factor 0.75 undone)
-    want = microlens_etendue(cra, method, samples=(64, 128), sampling="continuous")
-    tangential = microlens_etendue(0.0, "none" if method == "none" else "centred", samples=(64, 128),
-                                   sampling="continuous")
-    assert torch.allclose(phys.electron_rate(oi)[0, 0] / plain[0, 0] * 0.75, want * tangential, atol=3e-3)
+    # physical convention: the whole pixel's light x the continuous integral's etendue along the pixel's columns and
+    # rows, at the chief-ray angles of the image points (x, 0) and (0, y) (fill factor 0.75 undone)
+    def along(c):
+        return microlens_etendue(torch.rad2deg(torch.atan(c.abs() / d)), method, samples=(64, 128),
+                                 sampling="continuous")
+
+    want = along(y)[:, None] * along(x)[None, :]
+    assert torch.allclose(phys.electron_rate(oi)[0, 0] / plain[0, 0] * 0.75, want, atol=3e-3)
     assert torch.allclose(phys.pixel_optics.chief_ray_angle_deg(oi, rows, cols, pitch)[0], cra)
 
 
@@ -486,8 +488,10 @@ def test_a_learnable_f_number_gets_the_pixel_optics_share_of_its_gradient():
         down = loss()
         optics.f_number.add_(h)
     # autograd is the etendue integral's derivative (Leibniz's rule in the span of directions), the difference
-    # that of the 32-direction sum: they agree to 0.04 % (the missing share was a factor 2.3)
-    assert float(grad) == pytest.approx(float((up - down) / (2 * h)), rel=2e-3)
+    # that of the 32-direction sum, whose terms step as directions cross the span: it moves by up to 0.9 % with the
+    # step (2e-4 to 5e-2) while autograd converges (-0.74309 / -0.74296 / -0.74293 at 32 / 64 / 128 directions);
+    # they agree to 0.4 % here (the missing share was a factor 2.3)
+    assert float(grad) == pytest.approx(float((up - down) / (2 * h)), rel=1e-2)
 
 
 def test_a_learnable_f_number_is_refused_where_the_etendue_has_no_gradient():
@@ -534,14 +538,14 @@ def test_per_wavelength_etendue_shades_colour():
     emap = s.etendue_map(oi)
     assert emap.shape == (1, 3, rows, cols)
     assert float(emap[0, 0, 3, 3]) > float(emap[0, 2, 3, 3])  # on axis blue keeps more than red
-    # each band's map is the 1-D model at that wavelength (radial x tangential)
-    cra = float(s.pixel_optics.chief_ray_angle_deg(oi, rows, cols, 1.4e-6)[0, 0, 0])
+    # each band's map is the 1-D model at that wavelength along the pixel's columns and rows: the corner pixel's
+    # coordinates are both 3.5 pitches, the chief ray of the image point (3.5 pitches, 0) at atan(3.5 x 1.4 / 40)
+    cra = math.degrees(math.atan(3.5 * 1.4e-6 / 40e-6))
     kw = dict(diffraction=True, pixel_size_m=1.4e-6, photodiode_size_m=1.4e-6 * math.sqrt(0.75),
               microlens_diameter_m=1.4e-6, layer_thicknesses_m=(1e-6, 2e-6), layer_indices=(1.46, 1.6),
               microlens_focal_length_m=3e-6, source_f_number=2.0, samples=(64, 128), sampling="continuous")
     for i, wl in enumerate((450.0, 550.0, 650.0)):
-        want = microlens_etendue(cra, "centred", wavelength_nm=wl, **kw) * microlens_etendue(0.0, wavelength_nm=wl,
-                                                                                              **kw)
+        want = microlens_etendue(cra, "centred", wavelength_nm=wl, **kw) ** 2
         assert float(emap[0, i, 0, 0]) == pytest.approx(float(want), abs=3e-3)
     rates, _ = s.channel_rates(oi)
     plain, _ = Sensor(rows=rows, cols=cols, pixel_size_m=1.4e-6, cfa="RGGB").channel_rates(oi)
@@ -619,12 +623,16 @@ def test_ray_traced_lens_camera_uses_the_traced_chief_rays():
     thin = math.degrees(math.atan(r_corner / float(cam.optics.focal_length_m)))
     assert abs(want_cra - thin) > 0.05  # the traced angle, not the thin lens's
     emap = cam.sensor.etendue_map(oi)[0]
-    e = microlens_etendue(torch.tensor([want_cra, 0.0]), "none", source_f_number=float(oi.f_number[0]),
+    # the map is separable along the pixel's columns and rows: the corner pixel's etendue is the 1-D one at the
+    # traced chief rays of the image points (x, 0) and (0, y)
+    cra_xy = np.interp([(cols - 1) / 2 * pitch, (rows - 1) / 2 * pitch], table["image_height_m"].numpy(),
+                       table["cra_deg"].numpy())
+    e = microlens_etendue(torch.tensor(cra_xy), "none", source_f_number=float(oi.f_number[0]),
                           samples=(64, 128), pixel_size_m=pitch, photodiode_size_m=D_UM * 1e-6 * k,
                           layer_thicknesses_m=stack, microlens_diameter_m=pitch, sampling="continuous")
     assert float(emap[0, 0]) == pytest.approx(float(e[0] * e[1]), abs=2e-3)
     # the same etendue as ISETCam's own 2.8 um pixel at these angles (scale-free rays)
-    e_isetcam = microlens_etendue(torch.tensor([want_cra, 0.0]), "none", source_f_number=float(oi.f_number[0]),
+    e_isetcam = microlens_etendue(torch.tensor(cra_xy), "none", source_f_number=float(oi.f_number[0]),
                                   samples=(64, 128), sampling="continuous")
     assert float(e[0] * e[1]) == pytest.approx(float(e_isetcam[0] * e_isetcam[1]), abs=1e-9)
     assert float(e[0]) < 0.99  # the traced angle vignettes: the check is not trivial
@@ -687,10 +695,21 @@ def test_a_telecentric_lens_has_no_fall_off():
     """exit_pupil_distance_m=inf: every chief ray parallel to the axis, so every pixel has the on-axis etendue."""
     oi = _uniform_oi(8, 10, 2.8e-6, 20e-6)
     for convention in ("physical", "isetcam"):
-        po = PixelOptics("none", convention=convention, exit_pupil_distance_m=math.inf)
-        assert float(po.chief_ray_angle_deg(oi, 8, 10, 2.8e-6).abs().max()) == 0.0
-        m = po.etendue_map(oi, 8, 10, 2.8e-6)
-        torch.testing.assert_close(m, torch.full_like(m, float(m.reshape(-1)[0])), rtol=0, atol=1e-12)
+        for method in ("none", "centred", "optimal"):  # (ISETCam's grid with a microlens: inf x 0 = NaN offsets)
+            po = PixelOptics(method, convention=convention, exit_pupil_distance_m=math.inf)
+            assert float(po.chief_ray_angle_deg(oi, 8, 10, 2.8e-6).abs().max()) == 0.0
+            m = po.etendue_map(oi, 8, 10, 2.8e-6)
+            on_axis = float(m.reshape(-1)[0])
+            torch.testing.assert_close(m, torch.full_like(m, on_axis), rtol=0, atol=1e-12)
+            if method != "none" and convention == "isetcam":
+                assert on_axis == pytest.approx(1.0, abs=1e-12)  # ISETCam's pixel with its microlens, on axis
+    # ISETCam's grid reads the etendue by CRA, 0 everywhere here: an offset growing with the image height is refused
+    with pytest.raises(ValueError, match="offset_per_image_height: convention 'isetcam' reads"):
+        PixelOptics("centred", convention="isetcam", exit_pupil_distance_m=math.inf, offset_per_image_height=0.1)
+    # the physical convention places it: the microlens moves off the telecentric rays away from the axis
+    po = PixelOptics("centred", exit_pupil_distance_m=math.inf, offset_per_image_height=0.1)
+    m = po.etendue_map(oi, 8, 10, 2.8e-6)[0]
+    assert float(m[3, 4]) > float(m[0, 0]) + 0.01
     with pytest.raises(ValueError, match="exit_pupil_distance_m"):
         PixelOptics("none", exit_pupil_distance_m=-math.inf)
     # read as a number per call: a tensor that requires grad got no gradient, silently
@@ -707,3 +726,82 @@ def test_bad_pixel_values_are_refused_when_built():
         PixelOptics("centred", layer_indices=(0.5, 1.4))
     with pytest.raises(ValueError, match="photodiode_size_m"):
         PixelOptics("centred", pixel_size_m=2e-6, photodiode_size_m=3e-6)
+
+
+def _trace_2d(cra_deg, azimuth_deg, method, n_rays=400_000, pixel_um=2.8, f_number=4.0, seed=0):
+    """An independent 2-D trace of ISETCam's default pixel (NumPy): source directions uniform in the disk of
+    direction sines of radius sin(atan(1 / 2N)) about the chief ray's (azimuth measured from the pixel's columns),
+    entry points uniform over the pixel, ISETCam's microlens deflection sin(atan(x / f')) along each axis (mlLens,
+    f' = 7 um / 1.52), then the 2 um (n 2.0) and 5 um (n 1.46) layers walked with the direction sines' components
+    conserved (planar interfaces, Snell's law in 3-D); the share landing on the sqrt(0.75)-wide photodiode."""
+    g = np.random.default_rng(seed)
+    na = math.sin(math.atan(1 / (2 * f_number)))
+    s = math.sin(math.radians(cra_deg))
+    r = na * np.sqrt(g.random(n_rays))
+    a = 2 * np.pi * g.random(n_rays)
+    lx = s * math.cos(math.radians(azimuth_deg)) + r * np.cos(a)
+    ly = s * math.sin(math.radians(azimuth_deg)) + r * np.sin(a)
+    x, y = (g.random(n_rays) - 0.5) * pixel_um, (g.random(n_rays) - 0.5) * pixel_um
+    if method != "none":
+        f_air = 7.0 / 1.52
+        lx, ly = lx + np.sin(np.arctan(x / f_air)), ly + np.sin(np.arctan(y / f_air))
+    ok = lx ** 2 + ly ** 2 < 0.99 ** 2
+    for t_um, n in ((2.0, 2.0), (5.0, 1.46)):
+        cz = np.sqrt(np.maximum(n * n - lx ** 2 - ly ** 2, 1e-12))
+        x, y = x - t_um * lx / cz, y - t_um * ly / cz
+    half = math.sqrt(0.75) * pixel_um / 2
+    return float((ok & (np.abs(x) < half) & (np.abs(y) < half)).mean())
+
+
+@pytest.mark.parametrize(("method", "cra_deg"), [("centred", 10.0), ("centred", 20.0), ("none", 20.0)])
+def test_physical_map_is_separable_along_the_pixel_axes(method, cra_deg):
+    """A square pixel's etendue is separable along its columns and rows (ISETCam's pixel irradiance, mlRadiance, is
+    the outer product of its x-profile): a pixel on a diagonal, whose chief ray's angle splits between the two
+    axes, keeps more light than one on an axis at the same chief-ray angle (with a centred microlens at 20 deg,
+    0.355 of a 2-D trace against 0.123). The map is T(|x|) T(|y|), T the 1-D etendue at the chief ray of the image
+    point on an axis; it was radially symmetric, E(CRA) E(0), which read 0.188 for both pixels. On the diagonal it
+    is near the 2-D trace; on an axis the 1-D model is what it was."""
+    n = 9  # pixel (0, 0) is 4 pitches from the axis in x and y: on the diagonal at cra_deg
+    pitch = 2.8e-6
+    d = 4 * math.sqrt(2) * pitch / math.tan(math.radians(cra_deg))
+    oi = _uniform_oi(n, n, pitch, d)
+    m = PixelOptics(method, samples=(128, 256), angle_samples=65).etendue_map(oi, n, n, pitch)[0]
+    kw = dict(samples=(128, 256), sampling="continuous")
+    along = microlens_etendue(math.degrees(math.atan(4 * pitch / d)), method, **kw)
+    assert float(m[0, 0]) == pytest.approx(float(along) ** 2, abs=3e-3)  # T(|x|) T(|y|)
+    radial = float(microlens_etendue(cra_deg, method, **kw) * microlens_etendue(0.0, method, **kw))
+    trace = _trace_2d(cra_deg, 45.0, method)
+    assert abs(float(m[0, 0]) - trace) < 0.045, (float(m[0, 0]), trace)
+    if method == "centred":  # where the radially symmetric map was far off
+        assert abs(radial - trace) > 0.12, (radial, trace)
+
+
+def test_pixel_optics_offsets_and_refusals():
+    """The geometric model places the array's offset per pixel (it was dropped), method 'none' refuses an offset
+    (ignored before), a boolean is no offset, and geometry read as numbers refuses a tensor that requires grad
+    (its gradient was dropped)."""
+    rows, cols, pitch, d = 4, 6, 2.8e-6, 20e-6
+    oi = _uniform_oi(rows, cols, pitch, d)
+    o = 0.05
+    m = PixelOptics("centred", model="geometric", offset_per_image_height=o).etendue_map(oi, rows, cols, pitch)[0]
+    plain = PixelOptics("centred", model="geometric").etendue_map(oi, rows, cols, pitch)[0]
+    x, y = 2.5 * pitch, 1.5 * pitch  # pixel (0, 0)
+
+    def geo(u):
+        return float(microlens_etendue(math.degrees(math.atan(u / d)), "centred", model="geometric",
+                                       offset_m=o * u))
+
+    assert float(m[0, 0]) == pytest.approx(geo(x) * geo(y), abs=3e-3)
+    assert abs(float(m[0, 0]) - float(plain[0, 0])) > 0.01
+    with pytest.raises(ValueError, match="offset_per_image_height: method 'none' has no microlens"):
+        PixelOptics("none", offset_per_image_height=0.1)
+    with pytest.raises(ValueError, match="offset_per_image_height: expected a finite number"):
+        PixelOptics("centred", offset_per_image_height=True)
+    with pytest.raises(ValueError, match="offset_m: method 'none' has no microlens"):
+        microlens_etendue(10.0, "none", model="geometric", offset_m=1e-7)
+    pd = torch.tensor(2.4e-6, dtype=torch.float64, requires_grad=True)
+    with pytest.raises(ValueError, match="photodiode_size_m: the etendue reads it as a number"):
+        microlens_etendue(15.0, "centred", sampling="continuous", photodiode_size_m=pd)
+    t = torch.tensor([2e-6, 5e-6], dtype=torch.float64, requires_grad=True)
+    with pytest.raises(ValueError, match="sampling: 'isetcam'"):
+        microlens_etendue(15.0, "centred", layer_thicknesses_m=t)
