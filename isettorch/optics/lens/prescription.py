@@ -158,6 +158,14 @@ class Prescription:
                                             f"got {v!r}")
             if not isinstance(s.is_stop, bool):
                 raise PrescriptionError(f"{lens}: surface {i}: is_stop: expected true or false, got {s.is_stop!r}")
+            # a clear aperture's inner radius (CLAP rmin): negative made a central obstruction of |rmin| (the
+            # tracer keeps rho^2 >= rmin^2), above the outer radius it blocked every ray without naming CLAP
+            if s.aperture_min_mm < 0 or (s.aperture_mm is not None and s.aperture_min_mm > s.aperture_mm):
+                raise PrescriptionError(f"{lens}: surface {i}: aperture_min_mm (CLAP's minimum radius): expected 0 <= "
+                                        f"minimum <= maximum radius {s.aperture_mm!r}, got {s.aperture_min_mm!r}")
+            if s.kind == "STANDARD" and any(a != 0 for a in s.aspheric):  # traced anyway, unlike the .zmx reader
+                raise PrescriptionError(f"{lens}: surface {i}: aspheric: coefficients on a STANDARD surface; they "
+                                        f"belong to an EVENASPH surface (set type EVENASPH, or drop them)")
             if 0 < i < last and s.thickness_mm < 0 and s.material is not None:
                 raise PrescriptionError(f"{lens}: surface {i}: negative thickness {s.thickness_mm} mm inside glass "
                                         f"{s.material!r}; only air gaps may be negative")
@@ -362,6 +370,8 @@ def read_zmx(path: str | Path) -> Prescription:
                 floating.pop(si, None)
             elif op == "FLAP":
                 semi = val(2, "the semi-aperture (FLAP 0 semi)") if len(tok) > 2 else 0.0
+                if semi < 0:  # (was taken as a floating aperture: the DIAM value, without a word)
+                    raise PrescriptionError(f"{at}: FLAP: expected a semi-aperture >= 0 (0: floating), got {semi}")
                 cur.aperture_mm = semi
                 if semi <= 0:
                     floating[si] = at
@@ -530,6 +540,10 @@ def read_lens_yaml(path_or_dict) -> Prescription:
           - {radius_mm: .inf, thickness_mm: 5, stop: true, semi_diameter_mm: 4}
           - {radius_mm: 20, conic: -1, aspheric: [0, 1e-5], thickness_mm: 40, aperture_mm: 6}
 
+    A radius of 0 or ``.inf`` is a flat surface (OpticStudio's convention); a surface without ``radius_mm`` or
+    ``curvature_per_mm`` is flat. ``thickness_mm`` (to the next surface) defaults to 0 after air and is required
+    before glass. ``aspheric`` coefficients make the surface EVENASPH (an explicit STANDARD type refuses them).
+
     Raises:
         PrescriptionError: invalid YAML, or an entry of the wrong kind (the message names the file and entry).
     """
@@ -568,6 +582,9 @@ def read_lens_yaml(path_or_dict) -> Prescription:
             raise PrescriptionError(f"{at}: type: expected STANDARD or EVENASPH, got {kind!r}")
         opt = {k: None if s.get(k) is None else _ynum(s[k], f"{at}: {k}")
                for k in ("semi_diameter_mm", "aperture_mm")}
+        if mat not in (None, "AIR", "air") and "thickness_mm" not in s:  # (a glass of thickness 0, unsaid)
+            raise PrescriptionError(f"{at}: thickness_mm: a surface followed by glass ({mat}) needs its thickness "
+                                    f"(mm to the next surface)")
         t = _ynum(s.get("thickness_mm", 0.0), f"{at}: thickness_mm")
         surfaces.append(Surface(curvature_per_mm=c, thickness_mm=t,
                                 material=None if mat in (None, "AIR", "air") else mat,

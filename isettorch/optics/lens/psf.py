@@ -251,7 +251,8 @@ def _splat(t: torch.Tensor, s: torch.Tensor, w: torch.Tensor, azimuths_rad: torc
 
 
 def chief_ray_heights_mm(analysis: LensAnalysis, fields: torch.Tensor, wavelength_nm: float) -> torch.Tensor:
-    """Chief-ray image heights (mm) on the sensor plane (587.6 nm paraxial focus) for field fractions ``fields``."""
+    """Chief-ray image heights (mm) on the sensor plane (:attr:`LensAnalysis.sensor_z`: the primary wavelength's
+    paraxial focus, or the prescription's own image plane) for field fractions ``fields``."""
     z = analysis.sensor_z
     out = []
     for f in fields.tolist():

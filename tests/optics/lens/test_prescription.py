@@ -326,3 +326,37 @@ def test_a_prescription_with_nan_or_negative_numbers_is_refused():
     c[1] = math.nan
     with pytest.raises(ValueError, match="curvature_per_mm: expected finite curvatures"):
         LensAnalysis(lens, curvature_per_mm=c)
+
+
+@pytest.mark.parametrize(("line", "match"), [
+    ("CLAP -3 6 0", "aperture_min_mm .CLAP's minimum radius.: expected 0 <= minimum <= maximum radius 6.0, got -3.0"),
+    ("CLAP 8 6 0", "aperture_min_mm .CLAP's minimum radius.: expected 0 <= minimum <= maximum radius 6.0, got 8.0"),
+    ("FLAP 0 -6", "FLAP: expected a semi-aperture >= 0 .0: floating., got -6.0"),
+])
+def test_clear_aperture_radii_are_checked(tmp_path, line, match):
+    """A negative CLAP minimum was a central obstruction of its size (the tracer keeps rho^2 >= rmin^2: 38 % of the
+    axial rays blocked at -3 mm), one above the maximum blocked every ray with no word of CLAP, a negative FLAP
+    semi-aperture became a floating aperture (the DIAM value)."""
+    lines = ["ENPD 10", *_SINGLET_SURFACES]
+    lines.insert(lines.index("SURF 2") + 1, "  " + line)
+    with pytest.raises(PrescriptionError, match=match):
+        read_zmx(_file(tmp_path, lines))
+    lines[lines.index("  " + line)] = "  CLAP 0 6 0"  # the valid form reads
+    assert read_zmx(_file(tmp_path, lines)).surfaces[2].aperture_mm == 6.0
+
+
+def test_yaml_standard_surface_refuses_aspheric_terms_and_glass_needs_a_thickness():
+    """An explicit STANDARD type with aspheric coefficients traced an asphere (the .zmx reader ignores PARM on a
+    STANDARD surface: the same lens read two ways); a glass surface without thickness_mm was a lens 0 mm thick."""
+    base = {"aperture": {"entrance_pupil_diameter_mm": 8.0}, "catalogs": ["SCHOTT"]}
+    with pytest.raises(PrescriptionError, match="surface 1: aspheric: coefficients on a STANDARD surface"):
+        read_lens_yaml({**base, "surfaces": [
+            {"radius_mm": 50, "thickness_mm": 3, "material": "N-BK7", "stop": True, "type": "STANDARD",
+             "aspheric": [1e-3]}, {"radius_mm": -50, "thickness_mm": 90}]})
+    asph = read_lens_yaml({**base, "surfaces": [
+        {"radius_mm": 50, "thickness_mm": 3, "material": "N-BK7", "stop": True, "aspheric": [1e-3]},
+        {"radius_mm": -50, "thickness_mm": 90}]})
+    assert asph.surfaces[1].kind == "EVENASPH" and asph.surfaces[1].aspheric == (1e-3,)
+    with pytest.raises(PrescriptionError, match="surface 1: thickness_mm: a surface followed by glass .N-BK7."):
+        read_lens_yaml({**base, "surfaces": [{"radius_mm": 50, "material": "N-BK7", "stop": True},
+                                             {"radius_mm": -50}]})
