@@ -893,6 +893,8 @@ class PixelOptics(nn.Module):
         indices and weights ``(i0, w)``, ``[2, rows, cols]`` (``'physical'``: at its column and at its row
         coordinate) or ``[B, rows, cols]`` (``'isetcam'``) (memoised per geometry when no gradient is needed);
         :meth:`interpolate` makes the map."""
+        if not (is_real(fill_factor) and 0 < fill_factor <= 1):  # (a bad one was reported as photodiode_size_m)
+            raise ValueError(f"fill_factor: expected a number in (0, 1], got {fill_factor!r}")
         pixel = dict(self.pixel)
         pixel.setdefault("pixel_size_m", float(pixel_size_m))
         pixel.setdefault("photodiode_size_m", math.sqrt(fill_factor) * float(pixel["pixel_size_m"]))

@@ -802,6 +802,9 @@ def test_pixel_optics_offsets_and_refusals():
     pd = torch.tensor(2.4e-6, dtype=torch.float64, requires_grad=True)
     with pytest.raises(ValueError, match="photodiode_size_m: the etendue reads it as a number"):
         microlens_etendue(15.0, "centred", sampling="continuous", photodiode_size_m=pd)
+    for ff in (1.5, float("nan"), 0.0):  # (reported as photodiode_size_m)
+        with pytest.raises(ValueError, match="fill_factor: expected a number in"):
+            PixelOptics("centred").etendue_map(oi, rows, cols, pitch, fill_factor=ff)
     t = torch.tensor([2e-6, 5e-6], dtype=torch.float64, requires_grad=True)
     with pytest.raises(ValueError, match="sampling: 'isetcam'"):
         microlens_etendue(15.0, "centred", layer_thicknesses_m=t)
