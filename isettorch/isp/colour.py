@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from .. import spectral
-from .._checks import as_tensor, check_finite, check_rank, check_wavelengths
+from .._checks import as_tensor, check_finite, check_rank, check_wavelengths, is_real
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_decode, srgb_encode  # re-exported here
 
 __all__ = [
@@ -247,19 +247,31 @@ def sensor_responses(qe: torch.Tensor, wavelengths_nm, illuminant="D65", reflect
     check_rank(qe, 2, "qe", "(C, L)")
     if qe.shape[-1] != w.numel():
         raise ValueError(f"qe: expected {w.numel()} wavelengths (last dim), got shape {tuple(qe.shape)}")
-    refl = reflectance_set(reflectances or "macbeth", w) if reflectances is None or isinstance(reflectances, str) \
-        else as_tensor(reflectances, "reflectances")
+    refl = _reflectances(reflectances, w)
     e = _illuminant_energy(illuminant, w.to(qe.device))
     p = spectral.energy_to_photons(e, w.to(qe.device), dim=0)
     dl = spectral.wavelength_weights(w).to(qe.device)
     return (refl.to(qe.device, torch.float64) * (p * dl)) @ qe.to(torch.float64).T
 
 
+def _reflectances(reflectances, w: torch.Tensor) -> torch.Tensor:
+    """Surfaces ``(N, L)`` on the wavelengths ``w``: a named set (default the Macbeth chart) or a tensor, whose
+    wavelength count and values are checked (a wrong length raised a bare broadcasting error, NaN gave a NaN
+    matrix reported later as ``source``)."""
+    if reflectances is None or isinstance(reflectances, str):
+        return reflectance_set(reflectances or "macbeth", w)
+    refl = as_tensor(reflectances, "reflectances")
+    if refl.dim() != 2 or refl.shape[-1] != w.numel():
+        raise ValueError(f"reflectances: expected (N, {w.numel()}) surfaces on the {w.numel()} wavelengths, got shape "
+                         f"{tuple(refl.shape)}")
+    check_finite(refl.detach(), "reflectances")
+    return refl
+
+
 def xyz_responses(wavelengths_nm, illuminant="D65", reflectances=None, observer: str = "1931") -> torch.Tensor:
     """CIE XYZ (N, 3) of surfaces under an illuminant, ``683 sum R E cmf dl`` (CIE 015:2018)."""
     w = check_wavelengths(torch.as_tensor(wavelengths_nm)).to(torch.float64)
-    refl = reflectance_set(reflectances or "macbeth", w) if reflectances is None or isinstance(reflectances, str) \
-        else as_tensor(reflectances, "reflectances")
+    refl = _reflectances(reflectances, w)
     e = _illuminant_energy(illuminant, w)
     return spectral.xyz_of_energy(refl.to(torch.float64).cpu() * e.cpu(), w, dim=-1, observer=observer)
 
@@ -426,8 +438,9 @@ def illuminant_gains(img: torch.Tensor, method: str = "gray_world", white=None, 
             raise ValueError("gains: method 'manual' needs gains (C,) or (B, C), got None")
         g = _check_gains(gains, like=img)
         g = g.unsqueeze(0) if g.dim() == 1 else g
-        if g.dim() != 2 or g.shape[-1] != img.shape[1]:
-            raise ValueError(f"gains: expected ({img.shape[1]},) or (B, {img.shape[1]}), got {tuple(g.shape)}")
+        if g.dim() != 2 or g.shape[-1] != img.shape[1] or g.shape[0] not in (1, img.shape[0]):
+            raise ValueError(f"gains: expected ({img.shape[1]},) or ({img.shape[0]}, {img.shape[1]}) for the image's "
+                             f"{img.shape[0]} items, got {tuple(g.shape)}")
         return g.expand(img.shape[0], -1)
     raise ValueError(f"method: unknown illuminant correction {method!r}; expected one of "
                      f"{list(ILLUMINANT_CORRECTION_METHODS)}")
@@ -506,11 +519,15 @@ class IlluminantCorrection(nn.Module):
             raise ValueError(f"gains: only illuminant correction 'manual' uses gains; method {method!r} computes its "
                              f"own (drop gains, or use method 'manual')")
         if gains is not None:
-            gains = _check_gains(gains).reshape(-1)
+            gains = _check_gains(gains)  # (C,) or (B, C) per item (a (B, C) was flattened to (B C,))
+            if gains.dim() > 2:
+                raise ValueError(f"gains: expected (C,) or (B, C), got shape {tuple(gains.shape)}")
         self.method = key
         self.space = space
         # checked against the channel count with the gains
         self.reference_channel = _check_reference_channel(reference_channel)
+        if not (is_real(criterion) and 0 < criterion <= 1):  # (checked only at the first forward)
+            raise ValueError(f"criterion: expected a fraction in (0, 1], got {criterion!r}")
         self.criterion = float(criterion)
         self.register_buffer("gains", gains)
         self.register_buffer("last_gains", None, persistent=False)
@@ -717,12 +734,13 @@ class XYZToDisplay(nn.Module):
         cat = torch.eye(3, dtype=torch.float64)
         if adapt_from is not None:
             if isinstance(adapt_from, str):
+                check_illuminant_name(adapt_from, "adapt_from")  # (the error named cct_k)
                 src = white_xyz(adapt_from)
             else:
                 src = as_tensor(adapt_from, "adapt_from", dtype=torch.float64)
-                if src.numel() != 3:
-                    raise ValueError(f"adapt_from: expected an illuminant name or a white's XYZ (3 values), got "
-                                     f"shape {tuple(src.shape)}")
+                if src.numel() != 3 or not bool((src > 0).all()) or not bool(torch.isfinite(src).all()):
+                    raise ValueError(f"adapt_from: expected an illuminant name or a white's XYZ (3 positive, finite "
+                                     f"values), got {src.reshape(-1).tolist()}")
                 src = src.reshape(3)
             cat = bradford_matrix(src, white)
             inv = inv @ cat

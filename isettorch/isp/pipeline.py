@@ -266,9 +266,24 @@ class ImageProcessor(nn.Module):
         return raw.normalized()
 
     def _sensor_white_target(self, matrix: torch.Tensor) -> torch.Tensor:
-        # The sensor value that the colour matrix renders as the correction white (least squares for C > 3).
-        target = self.white_xyz.to(device=matrix.device, dtype=matrix.dtype)
-        return torch.linalg.lstsq(matrix.double(), target.double()[:, None]).solution[:, 0].to(matrix.dtype)
+        """The sensor value that the colour matrix renders as the correction white. Unique for C = 3 channels;
+        with more (RGBW, 4 channels) the sensor's own white under the fit's illuminant (``sensor_white``) moved the
+        least to map to it, ``s + pinv(M) (k w - M s)``: the minimum-norm solution alone had negative channels
+        (no sensor responds so; the correction refused it)."""
+        m = matrix.double()
+        target = self.white_xyz.to(device=matrix.device, dtype=torch.float64)
+        if m.shape[1] <= 3:
+            return torch.linalg.lstsq(m, target[:, None]).solution[:, 0].to(matrix.dtype)
+        s = getattr(self.sensor_to_xyz, "sensor_white", None)
+        if s is None:
+            raise ValueError(f"correction_space: 'sensor' with a colour matrix of {m.shape[1]} channels needs the "
+                             f"sensor's own white to choose among the sensor values rendered as the correction white "
+                             f"(a matrix fitted to the sensor records it); fit the matrix, or use correction_space="
+                             f"'xyz'")
+        s = s.to(m)
+        y = m @ s
+        t = s + torch.linalg.pinv(m) @ (y[1] / target[1] * target - y)  # M t = (Y of M s) x the white, exactly
+        return t.to(matrix.dtype)
 
     def fit_raw(self, raw) -> ImageProcessor:
         """Fit the colour matrix to the sensor that made ``raw`` (its ``spectral_qe``), once per QE module: what

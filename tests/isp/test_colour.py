@@ -372,3 +372,39 @@ def test_colour_helpers_refuse_integer_images_and_bad_matrices_gains_and_means()
     for call, error, message in cases:
         with pytest.raises(error, match=message):
             call()
+
+
+def test_colour_stage_arguments_are_checked_where_given():
+    """Bad input named where it is given (an audit of the ISP): reflectances of the wrong length (a bare broadcasting
+    error) or NaN (a NaN matrix reported later as 'source'); a manual (B, C) gains flattened to (B C,) at
+    construction, and a batch that does not match the image (a bare expand error); a white-world criterion
+    outside (0, 1] accepted until the first forward; adapt_from with a misspelled illuminant or a negative XYZ (the
+    error named cct_k or source_white)."""
+    from isettorch.isp.colour import (
+        IlluminantCorrection,
+        XYZToDisplay,
+        illuminant_gains,
+        sensor_responses,
+        xyz_responses,
+    )
+
+    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    qe = torch.rand(3, 31, dtype=torch.float64)
+    for bad, match in ((torch.rand(5, 30), r"reflectances: expected \(N, 31\)"),
+                       (torch.full((2, 31), float("nan")), "reflectances")):
+        with pytest.raises(ValueError, match=match):
+            sensor_responses(qe, w, "D65", bad)
+        with pytest.raises(ValueError, match=match):
+            xyz_responses(w, "D65", bad)
+    ic = IlluminantCorrection("manual", gains=torch.tensor([[1.0, 2.0, 3.0], [1.0, 1.0, 1.0]]))
+    img = torch.ones(2, 3, 4, 4)
+    out = ic(img)
+    assert torch.equal(out[0, :, 0, 0], torch.tensor([1.0, 2.0, 3.0])) and torch.equal(out[1], img[1])
+    with pytest.raises(ValueError, match=r"gains: expected \(3,\) or \(3, 3\) for the image's 3 items"):
+        illuminant_gains(torch.ones(3, 3, 4, 4), "manual", gains=torch.ones(2, 3))
+    with pytest.raises(ValueError, match="criterion: expected a fraction in"):
+        IlluminantCorrection("white_world", criterion=5)
+    with pytest.raises(ValueError, match="adapt_from"):
+        XYZToDisplay("srgb", adapt_from="D66")
+    with pytest.raises(ValueError, match="adapt_from: expected an illuminant name or a white's XYZ"):
+        XYZToDisplay("srgb", adapt_from=[1.0, -1.0, 1.0])
