@@ -117,6 +117,7 @@ def resample(values: torch.Tensor, src_nm, dst_nm, dim: int = -1) -> torch.Tenso
         >>> resample(torch.tensor([0., 1.]), torch.tensor([400., 500.]), torch.tensor([450., 600.]))
         tensor([0.5000, 0.0000])
     """
+    _check_float_values(values)
     src = check_wavelengths(torch.as_tensor(src_nm), "src_nm").to(values.device, torch.float64)
     dst = check_wavelengths(torch.as_tensor(dst_nm), "dst_nm").to(values.device, torch.float64)
     if values.shape[dim] != src.numel():
@@ -132,6 +133,14 @@ def resample(values: torch.Tensor, src_nm, dst_nm, dim: int = -1) -> torch.Tenso
     idx, t, inside = _linear_weights(src, dst, v.dtype)
     out = (v[..., idx] * (1 - t) + v[..., idx + 1] * t) * inside
     return out.movedim(-1, dim)
+
+
+def _check_float_values(values: torch.Tensor) -> None:
+    """Spectra to interpolate are floating point: the interpolation weights are cast to their dtype, which rounded
+    an integer spectrum's to 0 (every sample between two knots took the left one's value)."""
+    if not values.is_floating_point():
+        raise ValueError(f"values: expected floating-point spectra, got {values.dtype} (convert them, e.g. "
+                         f".double(): integer values would round the interpolation weights to 0)")
 
 
 def _linear_weights(src: torch.Tensor, dst: torch.Tensor, dtype: torch.dtype):
@@ -150,6 +159,7 @@ def resample_rows(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tens
     (increasing along the last dim) to ``dst_nm [Ld]``, ``[..., Ld]``: the same arithmetic, element by element, as
     ``resample(values[i], src_nm[i], dst_nm)`` for every row ``i``, in one batched search (e.g. a per-item QE whose
     curves are shifted along the wavelength axis, :func:`isettorch.sensor.filters.shifted_qe`)."""
+    _check_float_values(values)
     if src_nm.shape[-1] != values.shape[-1]:  # (3 values on 2 knots gave 0.5)
         raise ValueError(f"src_nm: expected {values.shape[-1]} knots per row like values, got {src_nm.shape[-1]}")
     knots = src_nm.detach()
@@ -347,8 +357,9 @@ def luminosity(wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
 
 def planck_relative(wavelength_m, temperature_k, reference_m):
     """``B(lambda, T) / B(reference, T)`` of Planck's law ``B = 2 h c^2 / lambda^5 / (exp(h c / (lambda k T)) - 1)``
-    (CODATA h, c, k; :mod:`isettorch.constants`), computed in log space so that a cold body's ratio stays finite where
-    both radiances underflow (below about 36 K, 560 nm: 0 / 0 gave NaN): ``(ref / lambda)^5 exp(L(c2 / (ref T)) -
+    (CODATA h, c, k; :mod:`isettorch.constants`), computed in log space so that a cold body's ratio is not 0 / 0 where
+    both radiances underflow (below about 36 K, 560 nm: NaN), though the ratio itself can exceed the float range (in
+    float64 below about 7 K at 700 nm: inf; :func:`blackbody` refuses that): ``(ref / lambda)^5 exp(L(c2 / (ref T)) -
     L(c2 / (lambda T)))``, ``L(x) = log(exp(x) - 1)``, ``c2 = h c / k``. The library's one Planck formula
     (:func:`blackbody`, the scene generator's lights). NumPy arrays or tensors that broadcast (a tensor temperature
     keeps its gradient)."""
@@ -380,8 +391,12 @@ def blackbody(temperature_k: float, wavelengths_nm, *, dtype=None, device=None) 
     if not _is_number(temperature_k) or not float(temperature_k) > 0:  # ('6500' raised a bare TypeError)
         raise ValueError(f"temperature_k: expected a positive temperature in kelvin, got {temperature_k!r}")
     w, dtype, device = _grid_args(wavelengths_nm, dtype, device)
-    spd = 100.0 * planck_relative(w.to(torch.float64) * 1e-9, float(temperature_k), 560e-9)
-    return spd.to(dtype=dtype, device=device)
+    spd = (100.0 * planck_relative(w.to(torch.float64) * 1e-9, float(temperature_k), 560e-9)).to(dtype)
+    if not bool(torch.isfinite(spd).all()):  # (inf at the long wavelengths, named later as 'illuminant')
+        raise ValueError(f"temperature_k: at {float(temperature_k):g} K the spectrum relative to 560 nm overflows "
+                         f"{dtype} at {float(w[~torch.isfinite(spd)].min()):g} nm (Planck's ratio exceeds the "
+                         f"format's range); use a higher temperature, a shorter grid, or float64")
+    return spd.to(device=device)
 
 
 def daylight(cct_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
@@ -458,6 +473,9 @@ def spectral_integral(x: torch.Tensor, weights: torch.Tensor, wavelengths_nm, di
         raise ValueError(f"x: expected {w.numel()} wavelengths along dim {dim}, got {x.shape[dim]}")
     wts = weights if weights.dim() == 2 else weights.reshape(1, -1)
     check_rank(wts, 2, "weights", "[K, L]")
+    if wts.shape[-1] != w.numel():  # (a bare broadcasting error)
+        raise ValueError(f"weights: expected [K, {w.numel()}] on the {w.numel()} wavelengths, got shape "
+                         f"{tuple(weights.shape)}")
     dl = wavelength_weights(w).to(x.device, x.dtype)
     m = wts.to(x.device, x.dtype) * dl
     out = torch.tensordot(x.movedim(dim, -1), m, dims=([-1], [1]))

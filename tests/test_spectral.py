@@ -272,3 +272,24 @@ def test_light_temperatures_are_numbers():
 
     with pytest.raises(ValueError, match=r"reflectance_range: expected \(low, high\), got \[0.5\]"):
         dead_leaves(16, reflectance_range=[0.5])
+
+
+def test_spectral_inputs_that_gave_wrong_numbers_are_refused():
+    """An integer spectrum was resampled with its interpolation weights rounded to 0 (450 nm between 0 and 10 read
+    0, np.interp says 5); a blackbody whose ratio to 560 nm overflows the dtype was inf (5 K in float64, 60 K in
+    float32, at 700 nm: e^1027 and e^88 exceed the formats); spectral_integral's weights on another grid raised a
+    bare broadcasting error."""
+    src, dst = torch.tensor([400.0, 500.0, 600.0]), torch.tensor([450.0, 550.0])
+    np.testing.assert_allclose(spectral.resample(torch.tensor([[0.0, 10.0, 20.0]]), src, dst).numpy(),
+                               [np.interp([450, 550], [400, 500, 600], [0, 10, 20])])
+    for fn, args in ((spectral.resample, (src, dst)), (spectral.resample_rows, (src[None], dst))):
+        with pytest.raises(ValueError, match="values: expected floating-point spectra, got torch.int64"):
+            fn(torch.tensor([[0, 10, 20]]), *args)
+    w = torch.tensor([400.0, 560.0, 700.0])
+    for t, dtype in ((5.0, torch.float64), (60.0, torch.float32)):
+        with pytest.raises(ValueError, match=f"temperature_k: at {t:g} K the spectrum relative to 560 nm overflows"):
+            spectral.blackbody(t, w, dtype=dtype)
+    assert torch.isfinite(spectral.blackbody(10.0, w, dtype=torch.float64)).all()  # the cold case that is finite
+    assert torch.isfinite(spectral.blackbody(80.0, w, dtype=torch.float32)).all()
+    with pytest.raises(ValueError, match=r"weights: expected \[K, 3\] on the 3 wavelengths"):
+        spectral.spectral_integral(torch.ones(3, 1, 1), torch.ones(2, 4), torch.tensor([500.0, 550.0, 600.0]))

@@ -54,3 +54,20 @@ def test_every_caller_is_the_one_function():
     assert torch.equal(DisplayEncode("srgb", clip=False)(x), srgb_encode(x, clip=False))
     assert torch.equal(srgb_inverse_eotf(x), srgb_encode(x, clip=False))
     assert torch.equal(srgb_eotf(x), srgb_decode(x))
+
+
+@pytest.mark.parametrize("fn", [srgb_encode, srgb_decode])
+def test_srgb_gradients_are_finite_at_black_the_knee_and_outside(fn):
+    """The piecewise sRGB curves' derivatives (IEC 61966-2-1): encode 12.92 on the linear segment (at 0 too) and 0
+    below 0 (clipped), decode 1 / 12.92 on its (unclipped) linear segment; the power segment's 1.055 / 2.4 at 1. A
+    naive power law has NaN gradients at 0 and below (no other test looked at the gradient)."""
+    x = torch.tensor([-0.1, 0.0, 0.0031308, 0.04045, 1.0, 1.5], dtype=torch.float64, requires_grad=True)
+    (g,) = torch.autograd.grad(fn(x).sum(), x)
+    assert torch.isfinite(g).all(), g
+    if fn is srgb_encode:
+        assert float(g[0]) == 0.0 and float(g[1]) == pytest.approx(12.92)
+        assert float(g[4]) == pytest.approx(1.055 / 2.4, rel=1e-12)
+    else:  # decode has no clipping: its linear segment continues below 0
+        assert float(g[0]) == pytest.approx(1 / 12.92) and float(g[1]) == pytest.approx(1 / 12.92)
+    inner = torch.tensor([0.002, 0.2, 0.7], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(fn, (inner,))

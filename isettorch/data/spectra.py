@@ -668,6 +668,9 @@ def recovery_reflectances(n: int, wavelengths_nm, generator: torch.Generator, *,
     """
     if not 0 < albedo_range[0] < albedo_range[1] <= 1:
         raise ValueError(f"albedo_range: expected 0 < lo < hi <= 1, got {albedo_range}")
+    if len(chroma_beta) != 2 or not all(math.isfinite(float(v)) and float(v) > 0 for v in chroma_beta):
+        raise ValueError(f"chroma_beta: expected two positive Beta parameters (a, b), got {chroma_beta!r} (the "
+                         f"inverse CDF is NaN otherwise)")
     hue = torch.rand(n, generator=generator, dtype=torch.float64)
     from scipy.stats import beta as _beta
 

@@ -219,6 +219,8 @@ class Display(nn.Module):
             return srgb_eotf(encoded)
         if self.eotf_kind == "linear":
             return encoded
+        if self.gamma < 1:  # d/dx x^g is infinite at 0 for g < 1 (inf gradients at black), as inverse_eotf's
+            return encoded.clamp_min(torch.finfo(encoded.dtype).tiny) ** self.gamma
         return encoded.clamp_min(0) ** self.gamma
 
     def inverse_eotf(self, linear: torch.Tensor) -> torch.Tensor:

@@ -252,3 +252,12 @@ def test_led_parameters_stay_on_the_cct_device():
         params = spectra._led_params(t, pump, None, None, torch)
         assert [p.device.type for p in params] == ["meta"] * 3
         assert all(p.shape == (3,) and p.dtype == torch.float64 for p in params)
+
+
+def test_recovery_reflectances_refuse_invalid_beta_parameters():
+    """scipy's Beta inverse CDF is NaN for a <= 0 or b <= 0: the reflectances were NaN without a word."""
+    w = torch.arange(400.0, 701.0, 10.0)
+    for beta in ((-1, 2), (0, 0), (1.0, float("nan"))):
+        with pytest.raises(ValueError, match="chroma_beta: expected two positive Beta parameters"):
+            spectra.recovery_reflectances(2, w, torch.Generator().manual_seed(0), chroma_beta=beta)
+    assert torch.isfinite(spectra.recovery_reflectances(2, w, torch.Generator().manual_seed(0))).all()

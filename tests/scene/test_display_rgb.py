@@ -186,3 +186,15 @@ def test_reflectance_scene_gradient_and_grid():
 def test_errors(call, exc, match):
     with pytest.raises(exc, match=match):
         call()
+
+
+def test_a_gamma_below_one_has_finite_gradients_at_black():
+    """d/dx x^g is infinite at 0 for g < 1: a display with such a gamma gave inf gradients at black (its inverse
+    clamps the same way). Values are unchanged to 1e-19."""
+    d = Display.create("crt", eotf=0.5)
+    x = torch.tensor([0.0, 0.25, 1.0], dtype=torch.float64, requires_grad=True)
+    y = d.eotf(x)
+    (g,) = torch.autograd.grad(y.sum(), x)
+    assert torch.isfinite(g).all(), g
+    torch.testing.assert_close(y.detach(), torch.tensor([0.0, 0.5, 1.0], dtype=torch.float64), rtol=0, atol=1e-18)
+    assert float(g[1]) == pytest.approx(0.5 * 0.25 ** -0.5)
