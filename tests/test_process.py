@@ -159,6 +159,17 @@ def test_left_aligned_frames_are_right_aligned(camera, tmp_path, capsys):
     capsys.readouterr()
     assert main(["process", str(tmp_path / "dark.npy"), *args, "--out", str(tmp_path / "f")]) == 0
     assert "too few distinct values to tell left-aligned 12-bit data" in capsys.readouterr().err
+    # a left-aligned and a right-aligned frame in one run: refused (the right one took the division from the left
+    # one, whose output came out 16x too bright, exit 0)
+    right16 = (right | 1).astype(np.uint16)  # odd values: right-aligned in the 16-bit words
+    np.save(tmp_path / "right16.npy", right16)
+    capsys.readouterr()
+    assert main(["process", str(tmp_path / "left.npy"), str(tmp_path / "right16.npy"), *args, "--out",
+                 str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"isettorch process: RAW: {tmp_path / 'left.npy'} holds 12-bit data left-aligned in 16-bit "
+                          f"words"), err
+    assert not (tmp_path / "g").exists()
 
 
 def test_each_frame_is_read_twice_at_most(camera, tmp_path, monkeypatch):

@@ -196,33 +196,46 @@ def _read(f):
 
 def _left_alignment(raws, adc_bits: int) -> dict:
     """``{frame: step}``: for the frames stored in integer words of one width above the ADC's bits, the step
-    ``2^(width - adc_bits)`` when every value of every such frame is a multiple of it, over at least 32 distinct
-    values (:func:`isettorch.sensor.calibration.quantisation_step`, calibrate's rule: it writes the config for the
-    right-aligned DN), decided over those frames of the run together (a dark or small frame alone has too few
-    distinct values), else 1. A dim left-aligned frame, under the largest code, came out 11x too bright, exit 0.
-    Where every value is a multiple of the step but the values are too few to tell, a warning says so. Each frame is
-    read once here (it was read up to four times)."""
+    ``2^(width - adc_bits)`` for left-aligned data, else 1. A frame with at least 32 distinct values decides for
+    itself (every value a multiple of the step: left-aligned, :func:`isettorch.sensor.calibration.quantisation_step`,
+    calibrate's rule; a value off the step: right-aligned); a run holding both kinds is refused (ValueError naming
+    RAW: one right-aligned frame took the division from every left-aligned one, 24x too bright, exit 0). Frames
+    with too few values to tell (a dark or small frame) follow the decided ones, or with none are decided together.
+    A dim left-aligned frame, under the largest code, came out 11x too bright, exit 0. Where every value is a
+    multiple of the step but the values are too few to tell, a warning says so. Each frame is read once here (it
+    was read up to four times)."""
     from ..sensor.calibration import QuantisationStep
 
-    groups: dict = {}  # word width -> (frames, their values' step accumulator, their largest value)
+    groups: dict = {}  # word width -> (frames, their values' step accumulator, their largest value, per frame)
     for f in raws:
         frame = _read(f)
         width = frame.stored_bits
         if width is None or width <= adc_bits:
             continue
-        frames, acc, top = groups.setdefault(width, ([], QuantisationStep(), [0.0]))
+        frames, acc, top, own = groups.setdefault(width, ([], QuantisationStep(), [0.0], {}))
         frames.append(f)
         acc.add(frame.dn)
+        own[f] = QuantisationStep()
+        own[f].add(frame.dn)
         top[0] = max(top[0], float(frame.dn.max()))
     steps = dict.fromkeys(raws, 1)
     for width in sorted(groups):
-        group, acc, top = groups[width]
+        group, acc, top, own = groups[width]
         step = 2 ** (width - adc_bits)
-        if acc.step() >= step:
-            steps.update(dict.fromkeys(group, step))
-            print(f"isettorch process: RAW: every value of {len(group)} frame(s) in {width}-bit words is a multiple of "
-                  f"{step} DN: {adc_bits}-bit data left-aligned, divided by {step}", file=sys.stderr)
-        elif acc.step(min_distinct=1) >= step and top[0] < 2 ** adc_bits:  # (above the top code: refused, said there)
+        # a frame with enough values decides for itself; frames of both kinds in one run are refused (one
+        # right-aligned frame took the division from every left-aligned one: 24x too bright, exit 0)
+        left = [f for f in group if own[f].step() >= step]
+        right = [f for f in group if own[f].step(min_distinct=1) < step]  # a value off the step: right-aligned
+        if left and right:
+            raise ValueError(f"RAW: {left[0]} holds {adc_bits}-bit data left-aligned in {width}-bit words (every "
+                             f"value a multiple of {step} DN) and {right[0]} does not; process them in separate runs")
+        if left or (not right and acc.step() >= step):  # the undecided frames follow the decided ones, or the pool
+            divided = [f for f in group if f not in right]
+            steps.update(dict.fromkeys(divided, step))
+            print(f"isettorch process: RAW: every value of {len(divided)} frame(s) in {width}-bit words is a multiple "
+                  f"of {step} DN: {adc_bits}-bit data left-aligned, divided by {step}", file=sys.stderr)
+        elif not right and acc.step(min_distinct=1) >= step and top[0] < 2 ** adc_bits:  # (above the top code:
+            # refused, said there)
             print(f"isettorch process: warning: RAW: every value of {len(group)} frame(s) in {width}-bit words is a "
                   f"multiple of {step} DN, but they hold too few distinct values to tell left-aligned {adc_bits}-bit "
                   f"data; taken as right-aligned (divide them by {step} yourself if they are left-aligned)",

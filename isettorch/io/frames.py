@@ -171,13 +171,13 @@ def _read_yaml(path: Path) -> dict:
         if key not in cfg:
             raise ValueError(f"{path}: missing key {key!r} (required: bit_depth, pixel_size_m)")
     bd = cfg["bit_depth"]
-    if not isinstance(bd, int) or not 1 <= bd <= 32:
+    if isinstance(bd, bool) or not isinstance(bd, int) or not 1 <= bd <= 32:  # (YAML true read as 1 bit)
         raise ValueError(f"{path}: bit_depth: expected an integer in 1..32, got {bd!r}")
     px = cfg["pixel_size_m"]
-    if not isinstance(px, (int, float)) or not (math.isfinite(px) and 0 < px < 1e-3):
+    if isinstance(px, bool) or not isinstance(px, (int, float)) or not (math.isfinite(px) and 0 < px < 1e-3):
         raise ValueError(f"{path}: pixel_size_m: expected a pitch in metres (e.g. 3.45e-6), got {px!r}")
     bl = cfg.get("black_level_dn")
-    if bl is not None and (not isinstance(bl, (int, float)) or not 0 <= bl < 2 ** bd):
+    if bl is not None and (isinstance(bl, bool) or not isinstance(bl, (int, float)) or not 0 <= bl < 2 ** bd):
         raise ValueError(f"{path}: black_level_dn: expected a number in [0, 2^{bd}), got {bl!r}")
     cfa = cfg.get("cfa")
     if cfa is not None:
@@ -290,7 +290,11 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
         for (kind, ms), folder, files in jobs:
             frames = []
             for f in files:
-                arr, cfa, _, _ = read_frame_data(f)
+                arr, cfa, _, stored_bits = read_frame_data(f)
+                if stored_bits is not None and stored_bits < cfg["bit_depth"]:  # (as isettorch process refuses it)
+                    raise ValueError(f"{f}: {stored_bits}-bit samples cannot hold the capture's {cfg['bit_depth']}-bit "
+                                     f"DN (bit_depth in capture.yaml; a display export of the frame?); give the 16-bit "
+                                     f"PNG/TIFF or .npy frame")
                 if f.suffix.lower() in RAW_SUFFIXES:
                     frame_cfa.setdefault(cfa, f)
                 if shape is None:

@@ -13,7 +13,8 @@ Per CFA channel (the sub-images of one colour; a monochrome sensor is one channe
   quantisation variance q^2/12 DN^2 (EMVA eq. 5; q = 1 DN, or the common step 2^s of left-aligned data), square root,
   over K; row noise and quantisation are not in it. A dark variance under 0.24 q^2 DN^2 is quantisation-limited
   (EMVA 1288 4.0 section 6.4): unless the pixels' offsets (DSNU >= q / 2) dither the quantiser, the read noise is then
-  the upper limit sqrt(0.24 - 1/12) q / K, with a warning;
+  the upper limit sqrt(0.24 - 1/12) q / K, with a warning; when they do, it is the noise whose dithered-quantiser
+  variance (:func:`dithered_quantiser_variance`) is the measured one. Frames of non-integer values remove no q^2/12;
 * darks with more than 0.1 % of their pixels at the ADC's top code are left out of the dark fits (warned; an error
   when every dark is);
 * row noise (e-): std of the per-frame row offsets from the temporal variance of the row means (ELD, Wei et al.
@@ -157,6 +158,19 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     # the pixel-wise dark variance grows with the dark shot noise; weights 1 / var^2 (the standard error of a
     # variance estimate is proportional to it), so the extrapolation to zero exposure rests on the short exposures
     vslope, vicpt = _line(t_d, vp_d, vp_d)
+    if len(t_d) >= 2:
+        # the dark signal cannot fall with exposure: a fall beyond 5 standard errors of the difference of the dark
+        # means (temporal noise over pixels x frames; the same pixels' fixed pattern cancels) is drift between the
+        # folders or a changed black level (written as 0 e-/s without a word)
+        sem = [math.sqrt(max(dark[k]["var_pixel"], 0.0) / (dark[k]["pixels"] * dark[k]["frames"]))
+               for k in sorted(dark)]
+        fall = -dc_dn * (t_d[-1] - t_d[0])
+        if fall > 5 * math.hypot(sem[0], sem[-1]):
+            darks = [folders.get(("dark", k), f"dark_{k:g}ms") for k in sorted(dark)]
+            warnings.append(f"channel {name}: the dark signal falls with exposure ({fall:.3g} DN from "
+                            f"{darks[0]} to {darks[-1]}, {dc_dn:.4g} DN/s): a negative dark current is not "
+                            f"physical (drift or a changed black level between the dark folders?); the sensor "
+                            f"config writes 0 e-/s")
     if len(t_d) < 2:
         warnings.append(f"channel {name}: one dark exposure only: the dark current and the extrapolation to zero "
                         f"exposure need at least 2; dark_current_e_per_s is null, black level and read noise are "
@@ -227,12 +241,17 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     # EMVA 1288 4.0 section 6.4: a dark variance below 0.24 DN^2 (per quantisation step^2) is quantisation-limited:
     # the q^2/12 of eq. 5 holds only for a noise dithered over the codes, and the standard then reports the floor,
     # an upper limit of the read noise. The pixels' fixed offsets (DSNU) dither the quantiser across the pixels
-    # when they spread over half a step or more: the mean of the pixel-wise variances is then sigma^2 + q^2/12 again
-    # (a 0.30 DN read noise under 0.5 DN of DSNU was measured at 0.30; without, 0.11), and the measurement is kept.
+    # when they spread over half a step or more: the mean of the pixel-wise variances is then that of a dithered
+    # quantiser, sigma^2 + q^2/12 from sigma ~ 0.3 q (a 0.30 DN read noise under 0.5 DN of DSNU was measured at 0.30;
+    # without, 0.11) and less below (inverted below), and the measurement is kept.
     floor = S2_DARK_FLOOR_DN2 / S2_QUANTIZATION_DN2 * quantisation_dn2
     step = math.sqrt(quantisation_dn2 / S2_QUANTIZATION_DN2)
     read_var = vicpt - quantisation_dn2
     dsnu_dn = math.sqrt(max(dsnu2, 0.0))
+    if vicpt < floor and dsnu_dn >= 0.5 * step:
+        # the dithered quantiser's variance is sigma^2 + q^2/12 only from sigma ~ 0.3 q; below, it is less (0.056 q^2
+        # at sigma 0.1 q, where sigma^2 + q^2/12 is 0.093): invert it (a 0.1 q read noise read 0, 0.2 q read 14 % low)
+        read_var = (dithered_quantiser_sigma(vicpt / step ** 2) * step) ** 2
     if vicpt < floor:
         if dsnu_dn < 0.5 * step:
             read_var = floor - quantisation_dn2
@@ -246,8 +265,9 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
             warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
                             f"{floor:.4g} DN^2 (EMVA 1288 4.0 section 6.4 would report the upper limit "
                             f"{math.sqrt(floor - quantisation_dn2):.3g} DN); the pixels' offsets (DSNU "
-                            f"{dsnu_dn:.3g} DN) dither the quantiser, so the measured "
-                            f"{math.sqrt(max(read_var, 0.0)):.3g} DN is kept")
+                            f"{dsnu_dn:.3g} DN) dither the quantiser, so the measurement is kept: "
+                            f"{math.sqrt(max(read_var, 0.0)):.3g} DN, the noise whose quantised variance averaged "
+                            f"over the offsets is the measured one")
 
     # PRNU: (s^2 / signal^2) of the dark-subtracted flat averages (EMVA 8.2, the dark of the same or nearest exposure
     # subtracted pixel by pixel), combined over the linear levels and the one nearest half saturation, each weighted
@@ -338,6 +358,50 @@ def quantisation_step(stacks, min_distinct: int = 32) -> int:
     return acc.step(min_distinct)
 
 
+def dithered_quantiser_variance(sigma_q) -> np.ndarray:
+    """The variance, in units of the quantisation step q squared, of ``round(sigma Z + u)`` for a Gaussian noise of
+    ``sigma_q`` steps (Z standard normal), averaged over offsets u uniform in [0, 1): the mean pixel-wise dark
+    variance of pixels whose fixed offsets (DSNU) spread over a step or more. It tends to sigma^2 + 1/12 (Sheppard's
+    correction; EMVA 1288 eq. 5) from about sigma = 0.3 and to 0 as sigma -> 0 (0.056 at 0.1, 0.113 at 0.2). By the
+    probabilities of the codes, Phi((k + 1/2 - u) / sigma) - Phi((k - 1/2 - u) / sigma), on 256 offsets."""
+    from scipy.stats import norm
+
+    sig = np.atleast_1d(np.asarray(sigma_q, dtype=np.float64))
+    u = (np.arange(256) + 0.5) / 256
+    out = np.empty_like(sig)
+    for i, sg in enumerate(sig):
+        if sg <= 0:
+            out[i] = 0.0
+            continue
+        k = np.arange(-int(math.ceil(8 * sg)) - 2, int(math.ceil(8 * sg)) + 3)[:, None]
+        p = norm.cdf((k + 0.5 - u) / sg) - norm.cdf((k - 0.5 - u) / sg)  # [codes, offsets]
+        m = (k * p).sum(0)
+        out[i] = float(((k * k * p).sum(0) - m * m).mean())
+    return out.reshape(np.shape(sigma_q))
+
+
+_DITHER_SIGMA_Q = np.linspace(0.0, 0.6, 241)
+
+
+def dithered_quantiser_sigma(variance_q2: float) -> float:
+    """The noise (in steps) whose :func:`dithered_quantiser_variance` is ``variance_q2`` (in steps squared): its
+    inverse on [0, 0.6] (monotonic there), linear in between its 241 nodes; Sheppard's sqrt(v - 1/12) above."""
+    table = _dither_table()
+    if variance_q2 >= table[-1]:
+        return math.sqrt(max(variance_q2 - 1 / 12, 0.0))
+    return float(np.interp(max(variance_q2, 0.0), table, _DITHER_SIGMA_Q))
+
+
+def _dither_table() -> np.ndarray:
+    global _DITHER_TABLE
+    if _DITHER_TABLE is None:
+        _DITHER_TABLE = dithered_quantiser_variance(_DITHER_SIGMA_Q)
+    return _DITHER_TABLE
+
+
+_DITHER_TABLE: np.ndarray | None = None
+
+
 def _hot_pixels(capture) -> dict[str, Any] | None:
     """Hot pixels: per-pixel slope of the frame-averaged dark against exposure (DN/s), above the median slope by more
     than ``_HOT_MADS`` robust standard deviations (1.4826 MAD, Leys et al. 2013), the robust spread floored at the
@@ -405,7 +469,16 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     from .._progress import progress as progress_bar
 
     warnings: list[str] = list(getattr(capture, "warnings", []))
-    step = quantisation_step(list(capture.dark.values()) + list(capture.flat.values()))
+    acc = QuantisationStep()
+    for st in list(capture.dark.values()) + list(capture.flat.values()):
+        acc.add(st)
+    step = acc.step()
+    # frames of non-integer values (float .npy) have no quantiser of one DN: no q^2/12 to remove, no EMVA floor (a
+    # 0.6 e- read noise read 12 % low, 0.4 e- was reported as the floor's "upper limit")
+    quantisation_dn2 = step ** 2 / 12 if acc.whole else 0.0
+    if not acc.whole:
+        warnings.append("the frames hold non-integer values (no ADC step): no quantisation variance is removed from "
+                        "the dark noise")
     bits_eff = int(capture.bit_depth) - int(math.log2(step))
     if step > 1:
         warnings.append(f"every value of every frame is a multiple of {step} DN (left-aligned {bits_eff}-bit data in "
@@ -434,7 +507,7 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
         if frac > 1e-3:
             warnings.append(f"{capture.folders.get(('dark', ms), f'dark_{ms:g}ms')}: {100 * frac:.2g} % of the pixels "
                             f"are at 0 DN (clipped below the black level); dark statistics are biased")
-    per = {n: _channel(n, d, f, capture.photons_per_pixel, capture.folders, warnings, step ** 2 / 12)
+    per = {n: _channel(n, d, f, capture.photons_per_pixel, capture.folders, warnings, quantisation_dn2)
            for n, (d, f) in stats.items()}
     out: dict[str, Any] = {"cfa": capture.cfa, "bit_depth": capture.bit_depth, "pixel_size_m": capture.pixel_size_m,
                            "frame_shape": list(next(iter(capture.dark.values())).shape[-2:]),

@@ -25,14 +25,17 @@ def sensor_maps(truth: dict, shape, seed: int = 0):
     return rng, prnu, dsnu
 
 
-def expose(truth: dict, mean_e: np.ndarray, dsnu: np.ndarray, rng) -> np.ndarray:
+def expose(truth: dict, mean_e: np.ndarray, dsnu: np.ndarray, rng, quantise: bool = True) -> np.ndarray:
     """One frame in DN (uint16) of a sensor with DSNU ``dsnu`` for the mean electrons ``mean_e`` per pixel (PRNU
-    and dark current already in it): Poisson, the well, read and row noise, gain, black level, rounding, clipping."""
+    and dark current already in it): Poisson, the well, read and row noise, gain, black level, rounding, clipping
+    (``quantise=False``: float64, not rounded: an analog readout)."""
     h, w = mean_e.shape
     e = np.minimum(rng.poisson(mean_e).astype(np.float64), truth["full_well_e"])
     row = truth["row_noise_e"] * rng.standard_normal((h, 1))
     dn = (truth["gain_dn_per_e"] * (e + dsnu + truth["read_noise_e"] * rng.standard_normal((h, w)) + row)
           + truth["black_level_dn"])
+    if not quantise:
+        return np.clip(dn, 0, 2 ** truth["bits"] - 1)
     return np.clip(np.round(dn), 0, 2 ** truth["bits"] - 1).astype(np.uint16)
 
 
@@ -56,7 +59,8 @@ def hot_pixel_mask(shape, count: int, seed: int = 0) -> np.ndarray:
 
 
 def simulate(truth: dict, *, shape=(256, 256), cfa: str | None = None, exposures_ms=None, frames: int = 3,
-             saturate_ms: float = 45.0, seed: int = 0, hot_pixels: int = 0, hot_factor: float = 500.0):
+             saturate_ms: float = 45.0, seed: int = 0, hot_pixels: int = 0, hot_factor: float = 500.0,
+             quantise: bool = True):
     """Returns (dark, flat, photons_per_pixel): {ms: (frames, H, W) uint16 DN}, {ms: photons}. The photon flux
     fills the well of the most sensitive channel at ``saturate_ms``. ``hot_pixels`` pixels (:func:`hot_pixel_mask`)
     have ``hot_factor`` x the dark current."""
@@ -70,9 +74,9 @@ def simulate(truth: dict, *, shape=(256, 256), cfa: str | None = None, exposures
     dark, flat, photons = {}, {}, {}
     for ms in exposures_ms:
         t = ms * 1e-3
-        dark[float(ms)] = np.stack([expose(truth, dc * t, dsnu, rng) for _ in range(frames)])
+        dark[float(ms)] = np.stack([expose(truth, dc * t, dsnu, rng, quantise) for _ in range(frames)])
         mean = qe * flux * t * prnu + dc * t
-        flat[float(ms)] = np.stack([expose(truth, mean, dsnu, rng) for _ in range(frames)])
+        flat[float(ms)] = np.stack([expose(truth, mean, dsnu, rng, quantise) for _ in range(frames)])
         photons[float(ms)] = flux * t
     return dark, flat, photons
 

@@ -398,6 +398,26 @@ def test_eight_bit_png_frames_are_accepted(capsys, tmp_path):
     assert res["black_level_dn"] == pytest.approx(16.0, abs=0.5)
 
 
+def test_eight_bit_frames_in_a_deeper_capture_are_refused(capsys, tmp_path):
+    """An 8-bit PNG (a display export, value >> 4) among a 12-bit capture's frames was read as 12-bit DN: with every
+    frame so, the gain came out 0.13 for 2.0 and the black level 3.5 for 64, exit 0; one such frame skewed the PRNU.
+    Refused naming the file, as isettorch process refuses it; capture.yaml's booleans are not numbers."""
+    from PIL import Image
+
+    truth = dict(nc.TRUTH, dark_current_e_per_s=5.0)
+    dark, flat, _ = nc.simulate(truth, shape=(32, 48), frames=2, seed=4, exposures_ms=_E_MS)
+    root = nc.write_capture(tmp_path / "cap", dark, flat, bits=12)
+    bad = root / "flat_20ms" / "frame_001.png"
+    Image.fromarray((flat[20.0][1] >> 4).astype(np.uint8)).save(bad)
+    err = _error(capsys, root)
+    assert err.startswith(f"isettorch calibrate: {bad}: 8-bit samples cannot hold the capture's 12-bit DN"), err
+    root2 = nc.write_capture(tmp_path / "cap2", dark, flat, bits=12)
+    (root2 / "capture.yaml").write_text("bit_depth: true\npixel_size_m: 3.45e-6\n")
+    assert "bit_depth: expected an integer in 1..32, got True" in _error(capsys, root2)
+    (root2 / "capture.yaml").write_text("bit_depth: 12\npixel_size_m: 3.45e-6\nblack_level_dn: true\n")
+    assert "black_level_dn: expected a number in [0, 2^12), got True" in _error(capsys, root2)
+
+
 def test_lzw_tiff_is_read_through_pillow(tmp_path):
     """tifffile needs imagecodecs for LZW; Pillow decodes it: the frame read equals the frame written."""
     from PIL import Image
@@ -543,6 +563,67 @@ def test_quantisation_limited_read_noise_is_the_emva_upper_limit():
     res = calibrate_capture(_memory_capture())
     assert res["read_noise_e"] == pytest.approx(nc.TRUTH["read_noise_e"], rel=0.03)
     assert not any("6.4" in w for w in res["warnings"])
+
+
+def test_dithered_quantiser_variance_against_a_simulation():
+    """The mean pixel-wise variance of round(sigma z + u) over offsets u spread across a step (pixels whose DSNU
+    dithers the quantiser): a NumPy simulation of 400,000 pixels agrees; it is sigma^2 + 1/12 (Sheppard) only from
+    sigma ~ 0.3 step, and far less below (0.056 at 0.1, where sigma^2 + 1/12 is 0.093)."""
+    from isettorch.sensor.calibration import dithered_quantiser_sigma, dithered_quantiser_variance
+
+    rng = np.random.default_rng(0)
+    u = rng.random(400_000)
+    for sigma in (0.05, 0.1, 0.2, 0.3, 0.5):
+        frames = np.round(sigma * rng.standard_normal((8, u.size)) + u)
+        sim = float(frames.var(axis=0, ddof=1).mean())
+        assert float(dithered_quantiser_variance(sigma)) == pytest.approx(sim, rel=0.01, abs=2e-4), sigma
+        assert dithered_quantiser_sigma(sim) == pytest.approx(sigma, rel=0.02, abs=2e-3)
+    assert float(dithered_quantiser_variance(0.5)) == pytest.approx(0.25 + 1 / 12, rel=1e-3)
+    assert float(dithered_quantiser_variance(0.1)) < 0.7 * (0.01 + 1 / 12)
+
+
+@pytest.mark.parametrize("read_noise_dn", [0.1, 0.2])
+def test_read_noise_below_a_third_of_a_step_under_dsnu(read_noise_dn):
+    """Under DSNU dithering, the measured dark variance is the dithered quantiser's, not sigma^2 + q^2/12 below
+    ~0.3 DN: a 0.1 DN read noise was reported as 0 (and written into the sensor config), 0.2 DN 14 % low."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    truth = dict(nc.TRUTH, gain_dn_per_e=1.0, read_noise_e=read_noise_dn, dsnu_e=2.0, row_noise_e=0.0,
+                 dark_current_e_per_s=5.0, full_well_e=3000.0)
+    dark, flat, photons = nc.simulate(truth, shape=(64, 96), frames=4, seed=5, exposures_ms=_E_MS)
+    res = calibrate_capture(_capture_from(dark, flat, photons=photons))
+    assert res["read_noise_e"] == pytest.approx(read_noise_dn, rel=0.1)
+
+
+def test_unquantised_float_frames_remove_no_quantisation_variance():
+    """Frames of non-integer values (an analog readout saved as float .npy) have no one-DN quantiser: no q^2/12 is
+    removed and no EMVA floor applies (a 0.6 e- read noise read 12 % low, 0.4 e- was reported as the floor)."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    for read_e in (0.6, 0.4):
+        truth = dict(nc.TRUTH, gain_dn_per_e=1.0, read_noise_e=read_e, dsnu_e=0.0, row_noise_e=0.0,
+                     dark_current_e_per_s=5.0, full_well_e=3000.0)
+        dark, flat, photons = nc.simulate(truth, shape=(64, 96), frames=4, seed=5, exposures_ms=_E_MS,
+                                          quantise=False)
+        res = calibrate_capture(_capture_from(dark, flat, photons=photons))
+        assert res["read_noise_e"] == pytest.approx(read_e, rel=0.05), read_e
+        assert any("non-integer values" in w for w in res["warnings"])
+        assert not any("upper limit" in w for w in res["warnings"])
+
+
+def test_a_dark_signal_falling_with_exposure_is_warned_about():
+    """Dark means that fall with exposure (drift, a black level changed between folders) gave a negative dark
+    current, written as 0 e-/s without a word."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    truth = dict(nc.TRUTH, dark_current_e_per_s=5.0)
+    dark, flat, photons = nc.simulate(truth, shape=(64, 96), frames=2, seed=5, exposures_ms=_E_MS)
+    res = calibrate_capture(_capture_from(dark, flat, photons=photons))
+    assert not any("falls with exposure" in w for w in res["warnings"])
+    drift = {ms: st.astype(float) - 0.02 * ms for ms, st in dark.items()}  # -0.02 DN per ms
+    res = calibrate_capture(_capture_from(drift, flat, photons=photons))
+    assert res["dark_current_e_per_s"] < 0
+    assert any("the dark signal falls with exposure" in w for w in res["warnings"])
 
 
 def _high_dark_current_capture(dark_ms, seed=4):
