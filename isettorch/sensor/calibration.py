@@ -188,6 +188,9 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     dvar = vp_f - np.array([dark_at(k, "var_pixel") for k in ms_f])
     folder = lambda ms: folders.get(("flat", ms), f"flat_{ms:g}ms")  # noqa: E731
 
+    if not (signal > 0).any():  # (reported as "only 0 flat exposures in the linear range")
+        raise ValueError(f"channel {name}: every flat's mean is at or below the dark's (the largest difference "
+                         f"{float(signal.max()):.4g} DN); are dark and flat folders swapped?")
     # saturation: flats at the top level whose temporal variance has collapsed (all pixels clipped)
     top = mu_f.max()
     peak = int(np.argmax(vp_f))
@@ -745,6 +748,10 @@ def photon_transfer_curve(flat: dict[float, np.ndarray], dark: dict[float, np.nd
                           ) -> dict[str, list[tuple[float, float]]]:
     """{channel: [(dark-subtracted mean DN, temporal variance DN^2 incl. row noise)] per flat exposure}, darks
     matched by exposure (EMVA 1288 photon-transfer data)."""
+    missing = sorted(ms for ms in flat if ms not in dark)
+    if missing:  # (a bare KeyError)
+        raise ValueError(f"dark: no dark stack at the flat exposure(s) {missing} ms; this curve subtracts the dark of "
+                         f"the same exposure (calibrate_capture fits the dark over exposure instead)")
     out: dict[str, list] = {}
     for ms in sorted(flat):
         fp, dp = _planes(flat[ms], cfa), _planes(dark[ms], cfa)

@@ -620,6 +620,12 @@ def test_a_dark_signal_falling_with_exposure_is_warned_about():
     dark, flat, photons = nc.simulate(truth, shape=(64, 96), frames=2, seed=5, exposures_ms=_E_MS)
     res = calibrate_capture(_capture_from(dark, flat, photons=photons))
     assert not any("falls with exposure" in w for w in res["warnings"])
+    # dark and flat swapped: said so (it read "only 0 flat exposure(s) in the linear range"); the photon-transfer
+    # curve without a dark at a flat's exposure names it (a bare KeyError)
+    with pytest.raises(ValueError, match="are dark and flat folders swapped"):
+        calibrate_capture(_capture_from(flat, dark, photons=photons))
+    with pytest.raises(ValueError, match=r"dark: no dark stack at the flat exposure\(s\) \[5.0\] ms"):
+        photon_transfer_curve({5.0: flat[5.0].astype(float)}, {1.0: dark[1.0].astype(float)}, None)
     drift = {ms: st.astype(float) - 0.02 * ms for ms, st in dark.items()}  # -0.02 DN per ms
     res = calibrate_capture(_capture_from(drift, flat, photons=photons))
     assert res["dark_current_e_per_s"] < 0
