@@ -298,29 +298,10 @@ def dye_concentration(reflectance: torch.Tensor, concentration) -> torch.Tensor:
 # Illuminants (energy units, relative)
 
 
-@functools.lru_cache(maxsize=64)
-def _daylight_basis(grid: tuple) -> np.ndarray:
-    """CIE daylight basis S0, S1, S2 on a grid, float64 [3, L]."""
-    from colour.colorimetry import SDS_BASIS_FUNCTIONS_CIE_ILLUMINANT_D_SERIES as S
-
-    src = torch.tensor(np.asarray(S["S0"].wavelengths, float))
-    vals = torch.tensor(np.stack([np.asarray(S[k].values, float) for k in ("S0", "S1", "S2")]))
-    return spectral.resample(vals, src, torch.tensor(grid, dtype=torch.float64)).numpy()
-
-
 def _daylight(t, grid: tuple, xp):
-    """CIE daylight [N, L] for CCTs ``t`` [N] (float64, numpy or torch ``xp``)."""
-    if not ((t >= 4000) & (t <= 25000)).all():  # NaN fails this too
-        raise ValueError(f"cct_k: expected daylight CCTs in [4000, 25000] K, got {t.tolist()}")
-    xd = xp.where(t <= 7000,
-                  -4.6070e9 / t**3 + 2.9678e6 / t**2 + 0.09911e3 / t + 0.244063,
-                  -2.0064e9 / t**3 + 1.9018e6 / t**2 + 0.24748e3 / t + 0.237040)
-    yd = -3.0 * xd**2 + 2.870 * xd - 0.275
-    m = 0.0241 + 0.2562 * xd - 0.7341 * yd
-    m1 = (-1.3515 - 1.7703 * xd + 5.9114 * yd) / m
-    m2 = (0.0300 - 31.4424 * xd + 30.0717 * yd) / m
-    b = _const(_daylight_basis(grid), xp, t)
-    return b[0] + m1[:, None] * b[1] + m2[:, None] * b[2]
+    """CIE daylight [N, L] for CCTs ``t`` [N] (float64, numpy or torch ``xp``): :func:`isettorch.spectral.
+    daylight_curves`, the library's one daylight formula."""
+    return spectral.daylight_curves(t, grid, xp)
 
 
 def daylight_spd(cct_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
