@@ -257,7 +257,12 @@ class ShiftInvariantLens(nn.Module):
         return plain
 
     def _otf_key_for(self, fy, fx, wavelengths_nm, f_number, dx) -> tuple:
-        return (fy.shape[-1], fx.shape[-1], tuple(dx.tolist()), tuple(wavelengths_nm.tolist()),
+        # the buffer's width, not the rFFT's Mx // 2 + 1 columns: widths 2k and 2k + 1 have as many columns on other
+        # frequencies (1 / (Mx dx) apart), and shared an OTF (4 % of the peak off for 24 and 25)
+        n = fx.shape[-1]
+        even = n > 1 and abs(float(fx.reshape(-1, n)[0, -1]) * float(dx.reshape(-1)[0]) - 0.5) < 1e-6
+        width = 2 * (n - 1) + (0 if even else 1)
+        return (fy.shape[-1], width, tuple(dx.tolist()), tuple(wavelengths_nm.tolist()),
                 tuple(f_number.tolist()), self._otf_key(), fy.dtype, str(fy.device))
 
     def _item_otf_rows(self, fy, fx, wavelengths_nm, f_number, dx, key=None) -> list | None:

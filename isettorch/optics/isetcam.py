@@ -144,6 +144,8 @@ def _half_otf(wave, n, f, hfov_pad, dx_c, h2: int, w2: int, dtype) -> torch.Tens
     The OTF is real and even on ISETCam's grid (a radial function sampled at ``±f``; ``unitFrequencyList`` is
     symmetric), so ``OTF * rfft2(img)`` is the half spectrum of ``OTF * fft2(img)`` and ``irfft2`` returns the
     real part of ``ifft2`` exactly."""
+    if records_grad(wave, n, f, hfov_pad, dx_c):  # (a cached graph: the second backward through it raised)
+        return dl_otf_isetcam(wave, n, f, hfov_pad, dx_c, h2, w2)[0][..., : w2 // 2 + 1].to(dtype)
     key = ("otf", tuple(wave.tolist()), tuple(n.tolist()), tuple(f.tolist()), tuple(hfov_pad.tolist()),
            tuple(dx_c.tolist()), h2, w2, dtype, str(wave.device))
     hit = _CACHE.get(key)
@@ -232,12 +234,15 @@ def _setup(b, nl, h, w, wavelengths_nm, hfov_deg, distance_m, f_number, focal_le
         ys = (torch.arange(h, dtype=dt, device=dev) - (h - 1) / 2)[None, :] * dx_c[:, None]
         xs = (torch.arange(w, dtype=dt, device=dev) - (w - 1) / 2)[None, :] * dx_c[:, None]
         # opticsGet 'magnification' without a selected scene is 0 (FORMAT.md 4.3)
-        key = ("cos4", h, w, tuple(dx_c.tolist()), tuple(f.tolist()), tuple(n.tolist()), str(dev))
-        cos4 = _CACHE.get(key)
-        if cos4 is None:
-            cos4 = _remember(key, cos4th_isetcam(ys, xs, f, n, 0.0))  # [B, 1, H, W]
+        if records_grad(dx_c, f, n):  # a learnable f-number or focal length: not cached (its graph would be)
+            cos4 = cos4th_isetcam(ys, xs, f, n, 0.0)
         else:
-            _CACHE.move_to_end(key)
+            key = ("cos4", h, w, tuple(dx_c.tolist()), tuple(f.tolist()), tuple(n.tolist()), str(dev))
+            cos4 = _CACHE.get(key)
+            if cos4 is None:
+                cos4 = _remember(key, cos4th_isetcam(ys, xs, f, n, 0.0))  # [B, 1, H, W]
+            else:
+                _CACHE.move_to_end(key)
     # oiPad: round(size/8) per side
     pr, pc = pad_sizes(h, w)
     h2, w2 = h + 2 * pr, w + 2 * pc
@@ -251,7 +256,7 @@ def _finish(spectrum, g, out_dtype, return_details, pad_val):
     returned OpticalImage (ISETCam ``oiApplyOTF``, FORMAT.md 4.4)."""
     h2, w2 = g["h2"], g["w2"]
     otf = _half_otf(g["wave"], g["n"], g["f"], g["hfov_pad"], g["dx_c"], h2, w2, spectrum.real.dtype)
-    if spectrum.requires_grad:
+    if spectrum.requires_grad or otf.requires_grad:
         spectrum = spectrum * otf
     else:
         torch.view_as_real(spectrum).mul_(otf[..., None])  # real x complex as a real product, in place
@@ -324,7 +329,7 @@ def compute_oi(scene_photons, wavelengths_nm, hfov_deg, distance_m, f_number, fo
     scale = (g["k"][:, None] * g["t"][None, :]).to(work)  # [B, L]
     pr, pc, h2, w2 = g["pr"], g["pc"], g["h2"], g["w2"]
     cos4 = None if g["cos4"] is None else g["cos4"].to(work)
-    if records_grad(p):  # differentiable: no in-place writes
+    if records_grad(p, scale, cos4):  # differentiable (the photons or the optics): no in-place writes
         irr = p.to(work) * scale[:, :, None, None]
         irr = irr if cos4 is None else irr * cos4
         pad_val = irr.amax(dim=(1, 2, 3)) * 1e-9

@@ -117,6 +117,12 @@ class WavefrontOptics(ShiftInvariantLens):
     autocorrelation (:meth:`otf`), and :meth:`psf_native` is ``|FFT|^2`` at spacing ``lambda N / 2``.
     Differentiable with respect to ``zernike_um`` and ``f_number``.
 
+    Orientation: theta is measured from +x (increasing columns) towards +y (increasing rows, i.e. down the image)
+    and the phase enters with a + sign. ISETCam's ``wvfComputePupilFunction`` (by its code) uses
+    ``exp(-2 pi i W / lambda)`` with y pointing up (OSA/ANSI): the y-terms act alike (a y-tilt ``c_1^-1`` moves the
+    PSF 4 N c rows down in both), terms odd in x act mirrored left-right (an x-tilt moves it +x here, -x there).
+    Give mirrored odd-in-x coefficients to reproduce an ISETCam or OSA wavefront's PSF.
+
     The interpolation replicates the PSF at a period of ``P lambda N`` (P samples across the pupil), a ghost whose
     weight grows with the wavefront's change between pupil samples: the grid is refined (``pupil_samples``
     doubled, up to ``max_pupil_samples``) until neighbouring samples differ by at most ``max_step_waves``. At f/2
@@ -231,7 +237,7 @@ class WavefrontOptics(ShiftInvariantLens):
         return psf, spacing
 
     def otf(self, fy, fx, wavelengths_nm, f_number, *, extra_defocus_diopters=None):
-        """OTF at ``fy [B, My]``, ``fx [B, Mx]`` (cycles/m): ``OTF_DL(f) * <exp(i (phi(u + s) - phi(u)))>``
+        """OTF at ``fy [B, My]``, ``fx [B, Mx]`` (cycles/m): ``OTF_DL(f) * <exp(i (phi(u) - phi(u + s)))>``
         (``extra_defocus_diopters``: for an object that far off the focus plane, see :meth:`defocus_maps`).
 
         The OTF of a pupil ``A exp(i phi)`` is the diffraction-limited OTF (the overlap area of two shifted
@@ -286,7 +292,9 @@ class WavefrontOptics(ShiftInvariantLens):
         Depth-aware blur for layered scenes: a factored scene's abundance maps, or a layer's coverage, sampled at
         ``spacing_m`` on the image plane (e.g. one scene sample per pixel: the pixel pitch). The PSF is this optics'
         (its Zernike terms, f-number and own defocus, plus ``defocus_diopters`` as ``c_2^0``, Thibos et al. 2004)
-        at one wavelength, ``psf_size`` samples wide (odd), from the OTF (:func:`isettorch.optics.analysis.psf`);
+        at one wavelength, ``psf_size`` samples wide (odd; widened where needed to hold the geometric blur disc,
+        radius ``f^2 |D| / (2 N)``, and the Airy core: the PSF from the OTF repeats every ``psf_size`` samples, and a
+        wider blur wrapped around), from the OTF (:func:`isettorch.optics.analysis.psf`);
         the maps are convolved with it with reflected borders (:func:`isettorch.optics.blur.convolve_psf`), in
         the maps' dtype. Non-negative maps stay non-negative. Sampled finer than ``lambda N / 2`` the PSF is
         non-negative and the blur keeps the maps' sum; coarser, the band-limited PSF has small negative lobes that
@@ -308,6 +316,18 @@ class WavefrontOptics(ShiftInvariantLens):
             raise ValueError(f"spacing_m: expected a positive sample spacing in m, got {spacing_m!r}")
         if self.f_number.numel() != 1:
             raise ValueError(f"f_number: defocus_maps needs one f-number, got {self.f_number.numel()}")
+        # the PSF from the OTF repeats every psf_size samples: a blur wider than the window wrapped around (5 diopters
+        # at f/2, 4 mm, 0.5 um: 30 % of the light within 5 um where the geometric disc holds 6 %). The window holds
+        # the geometric blur disc, radius f^2 |D| / (2 N) (the optics' own defocus added), and the Airy core's
+        # first two rings, 2.2 lambda N, on each side
+        if isinstance(defocus_diopters, bool) or not (isinstance(defocus_diopters, (int, float))
+                                                       and math.isfinite(defocus_diopters)):
+            raise ValueError(f"defocus_diopters: expected a finite number of diopters, got {defocus_diopters!r}")
+        n_f = float(self.f_number.reshape(-1)[0])
+        f_m = float(self.focal_length_m.reshape(-1)[0])
+        dioptres = abs(float(defocus_diopters)) + float(self.defocus_diopters.abs().max())
+        reach_m = f_m ** 2 * dioptres / (2 * n_f) + 2.2 * float(wavelength_nm) * 1e-9 * n_f
+        psf_size = max(psf_size, 2 * math.ceil(reach_m / spacing_m) + 1)
         kernel = psf(self, torch.tensor([float(wavelength_nm)], dtype=torch.float64), spacing_m, psf_size,
                      extra_defocus_diopters=defocus_diopters)[0, 0]
         return convolve_psf(maps, kernel.to(maps.dtype))

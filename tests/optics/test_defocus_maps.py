@@ -69,3 +69,18 @@ def test_bad_arguments_are_named():
         optics.defocus_maps(x, 0.0, 1.0)
     with pytest.raises(ValueError, match="defocus_diopters"):
         optics.defocus_maps(x, 1e-6, float("nan"))
+
+
+def test_the_default_window_holds_a_large_blur():
+    """The PSF from the OTF repeats every psf_size samples: with the default 33 samples of 0.5 um a 5-diopter blur
+    (geometric disc of radius 20 um at f/2, 4 mm) wrapped around (30 % of the light within 5 um, where the disc holds
+    (5 / 20)^2 = 6 %). The window widens to hold the disc: the default gives the wide window's answer."""
+    f, n_f, d, pitch = 4e-3, 2.0, 5.0, 0.5e-6
+    optics = WavefrontOptics(f_number=n_f, focal_length_m=f, pupil_samples=128)
+    n = 201
+    yy, xx = torch.meshgrid(torch.arange(n) - n // 2, torch.arange(n) - n // 2, indexing="ij")
+    r = torch.sqrt((xx**2 + yy**2).double()) * pitch
+    default = optics.defocus_maps(_point(n), pitch, d)[0]
+    wide = optics.defocus_maps(_point(n), pitch, d, psf_size=n)[0]
+    assert float(default[r <= 5e-6].sum()) == pytest.approx((5 / 20) ** 2, abs=0.02)
+    assert float(default[r <= 5e-6].sum()) == pytest.approx(float(wide[r <= 5e-6].sum()), abs=0.01)

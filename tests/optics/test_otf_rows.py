@@ -105,3 +105,30 @@ def test_accelerator_path_equals_the_per_item_path(monkeypatch):
     assert batched.factors.otf_rows is None and batched.factors.terms is None
     torch.testing.assert_close(batched.project(w), per_item.project(w), rtol=1e-12, atol=0)
     torch.testing.assert_close(batched.photons, per_item.photons, rtol=1e-12, atol=0)
+
+
+def test_a_module_reused_across_buffer_widths_of_either_parity_is_a_fresh_one():
+    """The OTF cache keyed the rFFT's Mx // 2 + 1 columns, which widths 2k and 2k + 1 share on other frequencies:
+    a module that had blurred a 20-wide scene (buffer 24) blurred a 21-wide one (buffer 25) with the 24-wide OTF,
+    4 % of the peak off. The same module equals a fresh one on both."""
+    import math
+
+    from isettorch import Scene
+    from isettorch.optics import DiffractionLimitedOptics
+
+    w_nm = torch.tensor([550.0], dtype=torch.float64)
+    d_i, dx = 1 / (1 / 4e-3 - 1 / 1.2), 1.1e-6
+
+    def scene(w):
+        x = torch.zeros(1, 1, 16, w, dtype=torch.float64)
+        x[0, 0, 8, w // 2] = 1.0
+        return Scene(x, w_nm, hfov_deg=2 * math.degrees(math.atan(w * dx / (2 * d_i))), distance_m=1.2)
+
+    def optics():
+        return DiffractionLimitedOptics(4.0, 4e-3, margin=2, relative_illumination=None)
+
+    o = optics()
+    for w in (20, 21, 20):
+        got = o(scene(w)).photons
+        want = optics()(scene(w)).photons
+        assert torch.equal(got, want), w
