@@ -724,7 +724,8 @@ def _noise_at_mean(raw: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor
     """``(sigma, m)`` ``[B]`` float64: the noise at the mosaic's mean level and that level ``m``."""
     a, b = noise_parameters(noise.to(torch.float64))
     level = raw.detach().to(torch.float64).clamp_min(0).mean((1, 2, 3))
-    return (b + a * level).sqrt(), level
+    # (sqrt at 0 gave the noise features NaN gradients at noise 0)
+    return (b + a * level).clamp_min(torch.finfo(torch.float64).tiny).sqrt(), level
 
 
 def level_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_max: float | None = None, *,
@@ -868,7 +869,10 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
             width of at least 4 (an odd one is completed to whole Bayer cells by reflection, then cropped back).
         pattern: Bayer pattern, one of ``RGGB``, ``BGGR``, ``GRBG``, ``GBRG``.
         model: a network; ``None`` loads :func:`load_pretrained` ``(variant)`` (cached).
-        noise: ``(B, noise_inputs)`` noise parameters for a joint denoise+demosaic network.
+        noise: ``(B, noise_inputs)`` noise parameters for a joint denoise+demosaic network (``(1,
+            noise_inputs)``: the same for every item; None: a noise-free mosaic's, ``noise_features(0, 0)``). The
+            joint model's classical expert (nlmeans, then Menon) is not differentiable: where its gate weighs it
+            in (from sigma 0.01 on, flat regions), the output's gradient is the network's share only.
         self_ensemble: average the network on the mosaic and on its transpose (transposed back): an RGGB
             mosaic transposes to an RGGB mosaic, so both passes are valid inputs (geometric self-ensemble:
             Timofte, Rothe & Van Gool, CVPR 2016; Lim et al., EDSR+, CVPRW 2017). Two network passes; the result
@@ -914,6 +918,12 @@ def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> 
         model = _pretrained(_check_variant(variant), str(raw.device), raw.dtype, True)
     if raw.shape[0] == 0:  # an empty batch: no network pass
         return raw.new_zeros((0, 3, *raw.shape[-2:]))
+    n_in = getattr(model, "noise_inputs", 0)
+    if n_in and noise is None:  # a joint network without noise features: those of a noise-free mosaic, and its
+        # gates (the network alone read zeros but skipped the gates: up to 0.26 off the noise-free answer)
+        noise = torch.zeros(raw.shape[0], n_in, dtype=raw.dtype, device=raw.device)
+    elif n_in and noise.dim() == 2 and noise.shape[0] == 1 and raw.shape[0] > 1:  # one set for the batch
+        noise = noise.expand(raw.shape[0], -1)  # (noise_features of two numbers is [1, 2]: a batch raised)
     x, dy, dx = _to_rggb(raw, pattern)
     if x.shape[-2] % 2 or x.shape[-1] % 2:
         # an odd height or width: one more row / column, the reflection of the one before the last (the same

@@ -243,6 +243,29 @@ def test_never_below_malvar_on_green_magenta_patterns():
     assert _floor_failures(images) == {}
 
 
+def _chromatic_high_frequency(n: int = 96):
+    """Synthetic content found below MHC by an audit (2026-11-30; not in the stress set): a red-green grating of
+    0.15 cycles/pixel, and colour noise of 32 x 32 samples upsampled bilinearly to n (8-bit)."""
+    import math
+
+    import torch.nn.functional as F
+
+    y, x = torch.meshgrid(torch.arange(n, dtype=torch.float64), torch.arange(n, dtype=torch.float64), indexing="ij")
+    s = 0.5 + 0.5 * torch.cos(2 * math.pi * 0.15 * (x + 0.3 * y))
+    noise = F.interpolate(torch.rand(1, 3, 32, 32, generator=torch.Generator().manual_seed(1), dtype=torch.float64),
+                          size=(n, n), mode="bilinear", align_corners=False)[0]
+    return [("red_green_grating", (torch.stack([1 - s, s, 0 * s]) * 255).round() / 255),
+            ("smooth_colour_noise", (noise * 255).round() / 255)]
+
+
+@pytest.mark.xfail(strict=True, reason="known: chromatic high-frequency synthetic content (model card)")
+def test_never_below_malvar_on_chromatic_high_frequency_content():
+    """Measured: -3.2 dB on the red-green grating (MHC 17.3 dB), -1.0 dB on the upsampled colour noise (MHC 22.0):
+    like the green-magenta patterns, fine chroma the mosaic cannot tell from other content; every photograph
+    scored (the stress set's, the held-out ones of benchmarks/) stays above the floor."""
+    assert _floor_failures(_chromatic_high_frequency()) == {}
+
+
 def test_joint_low_noise_gate():
     """The shipped joint network's low-noise gate (learned.PRETRAINED_GATES): a mosaic's noise against its mean
     level, r = sqrt(b + a m) / m, weighs in the noise-free network with w = 1 - r / relative_max (clamped): exactly
@@ -477,3 +500,22 @@ def test_relative_level_gate_is_exposure_invariant():
     for bad in ({}, {"sigma_max": 0.01, "relative_max": 0.01}):
         with pytest.raises(ValueError, match="sigma_max, relative_max"):
             learned.level_gate_weight(raw, learned.noise_features(a, b), **bad)
+
+
+def test_joint_model_noise_none_and_one_row_of_noise():
+    """The joint model with noise=None read zeros in the network but skipped its gates (up to 0.26 off the
+    noise-free answer); now it is the noise-free mosaic's answer, the noise-free network's. One row of noise
+    features (noise_features of two numbers) serves the whole batch (a batch of 3 raised a reshape error). At noise 0
+    the noise features' gradient is finite (sqrt at 0 gave NaN)."""
+    raw = torch.rand(3, 1, 16, 16, generator=torch.Generator().manual_seed(0))
+    zero = learned.noise_features(0.0, 0.0).float()
+    none = learned.demosaic_learned(raw, variant="joint_denoise")
+    assert torch.equal(none, learned.demosaic_learned(raw, variant="joint_denoise", noise=zero.expand(3, -1)))
+    torch.testing.assert_close(none, learned.demosaic_learned(raw, variant="noise_free"), rtol=0, atol=1e-6)
+    nz = learned.noise_features(1e-3, 1e-4).float()
+    assert nz.shape == (1, 2)
+    assert torch.equal(learned.demosaic_learned(raw, variant="joint_denoise", noise=nz),
+                       learned.demosaic_learned(raw, variant="joint_denoise", noise=nz.expand(3, -1)))
+    z = zero.clone().requires_grad_(True)
+    learned.demosaic_learned(raw[:1], variant="joint_denoise", noise=z).sum().backward()
+    assert torch.isfinite(z.grad).all()
