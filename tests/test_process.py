@@ -170,6 +170,11 @@ def test_left_aligned_frames_are_right_aligned(camera, tmp_path, capsys):
     assert err.startswith(f"isettorch process: RAW: {tmp_path / 'left.npy'} holds 12-bit data left-aligned in 16-bit "
                           f"words"), err
     assert not (tmp_path / "g").exists()
+    # an all-zero frame (a black dark) tells nothing: it follows the left-aligned frame (it was refused as mixed)
+    np.save(tmp_path / "black.npy", np.zeros((16, 16), np.uint16))
+    assert main(["process", str(tmp_path / "left.npy"), str(tmp_path / "black.npy"), *args, "--out",
+                 str(tmp_path / "h")]) == 0
+    assert np.array_equal(np.load(tmp_path / "b" / "left.npy"), np.load(tmp_path / "h" / "left.npy"))
 
 
 def test_each_frame_is_read_twice_at_most(camera, tmp_path, monkeypatch):

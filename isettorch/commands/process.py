@@ -225,7 +225,8 @@ def _left_alignment(raws, adc_bits: int) -> dict:
         # a frame with enough values decides for itself; frames of both kinds in one run are refused (one
         # right-aligned frame took the division from every left-aligned one: 24x too bright, exit 0)
         left = [f for f in group if own[f].step() >= step]
-        right = [f for f in group if own[f].step(min_distinct=1) < step]  # a value off the step: right-aligned
+        # a nonzero value off the step: right-aligned (an all-zero frame, a black dark, tells nothing)
+        right = [f for f in group if own[f].acc != 0 and own[f].step(min_distinct=1) < step]
         if left and right:
             raise ValueError(f"RAW: {left[0]} holds {adc_bits}-bit data left-aligned in {width}-bit words (every "
                              f"value a multiple of {step} DN) and {right[0]} does not; process them in separate runs")
@@ -267,6 +268,7 @@ def run(args) -> int:
     import numpy as np
 
     from .._progress import progress
+    from ..io.frames import check_sample_bits
     from ..io.images import write_image
     from ._outputs import Outputs, check_dir, check_not_input
 
@@ -303,9 +305,10 @@ def run(args) -> int:
             dn, file_cfa, file_blacks, stored_bits = _read(f)
             if shifts[f] > 1:
                 dn = dn / shifts[f]
-            if stored_bits is not None and stored_bits < adc_bits:  # (an 8-bit PNG read as 12-bit DN)
-                raise ValueError(f"RAW: {f}: {stored_bits}-bit samples cannot hold the camera's {adc_bits}"
-                                 f"-bit DN (a display image, not a raw frame?); give the 16-bit PNG/TIFF or .npy frame")
+            try:  # (an 8-bit PNG read as 12-bit DN)
+                check_sample_bits(f, stored_bits, adc_bits, "camera's")
+            except ValueError as err:
+                raise ValueError(f"RAW: {err}") from err
             # a camera raw's own metadata must be the camera config's: the network, the CFA phase and the black
             # level it is given are the config's (a GRBG DNG through an RGGB config came out grey, exit 0)
             if file_cfa is not None and file_cfa != pattern:

@@ -90,6 +90,15 @@ def _read_tiff(path: Path) -> np.ndarray:
             raise ValueError(f"tifffile: {err}; Pillow: {pil_err}") from err
 
 
+def check_sample_bits(path, stored_bits: int | None, bits: int, whose: str) -> None:
+    """A frame stored in integer samples narrower than the ADC's ``bits`` (an 8-bit PNG of 12-bit data: a display
+    export, its values shifted or clipped) is refused naming the file; ``whose`` names the bit depth's owner
+    (``"camera's"``, ``"capture's"``). Floats and camera raws (``stored_bits`` None) pass."""
+    if stored_bits is not None and stored_bits < bits:
+        raise ValueError(f"{path}: {stored_bits}-bit samples cannot hold the {whose} {bits}-bit DN (a display image, "
+                         f"not a raw frame?); give the 16-bit PNG/TIFF or .npy frame")
+
+
 def read_frame_data(path: str | Path) -> FrameData:
     """:func:`read_frame`'s frame with the CFA and per-channel black levels (DN) of a camera raw's metadata."""
     path = Path(path)
@@ -291,10 +300,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
             frames = []
             for f in files:
                 arr, cfa, _, stored_bits = read_frame_data(f)
-                if stored_bits is not None and stored_bits < cfg["bit_depth"]:  # (as isettorch process refuses it)
-                    raise ValueError(f"{f}: {stored_bits}-bit samples cannot hold the capture's {cfg['bit_depth']}-bit "
-                                     f"DN (bit_depth in capture.yaml; a display export of the frame?); give the 16-bit "
-                                     f"PNG/TIFF or .npy frame")
+                check_sample_bits(f, stored_bits, cfg["bit_depth"], "capture's")  # (as isettorch process does)
                 if f.suffix.lower() in RAW_SUFFIXES:
                     frame_cfa.setdefault(cfa, f)
                 if shape is None:

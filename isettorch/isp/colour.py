@@ -363,6 +363,13 @@ def _check_reference_channel(reference_channel, channels: int | None = None) -> 
     return int(reference_channel)
 
 
+def _check_criterion(criterion) -> float:
+    """White world's bright-pixel ``criterion``, a fraction in (0, 1], else a ValueError naming it."""
+    if not (is_real(criterion) and 0 < criterion <= 1):
+        raise ValueError(f"criterion: expected a fraction in (0, 1], got {criterion!r}")
+    return float(criterion)
+
+
 def _check_gains(gains, *, like: torch.Tensor | None = None) -> torch.Tensor:
     """Manual white-balance ``gains`` (C,) or (B, C): finite and positive, else a ValueError naming them."""
     g = as_tensor(gains, "gains") if like is None else as_tensor(gains, "gains", dtype=like.dtype, device=like.device)
@@ -408,8 +415,7 @@ def white_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0,
     Reference: ISETCam ``imageIlluminantCorrection`` (whiteWorld, criterion 0.7).
     """
     _check_image(img)
-    if not 0 < criterion <= 1:
-        raise ValueError(f"criterion: expected a fraction in (0, 1], got {criterion}")
+    _check_criterion(criterion)
     flat = img.flatten(2)  # B, C, N
     peak = flat.detach().amax(dim=2)  # B, C
     plane = peak.argmax(dim=1)  # B
@@ -526,9 +532,7 @@ class IlluminantCorrection(nn.Module):
         self.space = space
         # checked against the channel count with the gains
         self.reference_channel = _check_reference_channel(reference_channel)
-        if not (is_real(criterion) and 0 < criterion <= 1):  # (checked only at the first forward)
-            raise ValueError(f"criterion: expected a fraction in (0, 1], got {criterion!r}")
-        self.criterion = float(criterion)
+        self.criterion = _check_criterion(criterion)  # (checked only at the first forward)
         self.register_buffer("gains", gains)
         self.register_buffer("last_gains", None, persistent=False)
 

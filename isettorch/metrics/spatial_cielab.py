@@ -120,9 +120,9 @@ def scielab(xyz1: torch.Tensor, xyz2: torch.Tensor, white, samples_per_degree: f
             literature reports: a spread is a Gaussian's half-width, FWHM + 1 samples, so a spread under one sample
             is no blur) or "paper" (Zhang and Wandell 1997 eq. 4, exp(-r^2 / spread^2), with the paper's table 1:
             spreads about half the distribution's, :data:`SCIELAB_FILTERS_PAPER`). They differ much: between two
-            40 x 57 images of uniform random XYZ (``torch.rand``, seeds 0 and 1) the mean dE76 is 100.3 ("isetcam")
-            against 46.2 ("paper") at 23 samples per degree and 42.0 against 24.1 at 40; compare only numbers of one
-            convention.
+            1 x 3 x 40 x 57 float64 images of uniform random XYZ (``torch.rand`` with ``torch.Generator`` seeds 0 and
+            1, X scaled by 0.9), white ``"D65"``, the mean dE76 is 100.3 ("isetcam") against 46.2 ("paper") at 23
+            samples per degree and 42.0 against 24.1 at 40; compare only numbers of one convention.
         support_deg: filter support in degrees (ISETCam: 1).
 
     Returns:

@@ -320,12 +320,13 @@ class WavefrontOptics(ShiftInvariantLens):
         # at f/2, 4 mm, 0.5 um: 30 % of the light within 5 um where the geometric disc holds 6 %). The window holds
         # the geometric blur disc, radius f^2 |D| / (2 N) (the optics' own defocus added), and the Airy core's
         # first two rings, 2.2 lambda N, on each side
-        if isinstance(defocus_diopters, bool) or not (isinstance(defocus_diopters, (int, float))
-                                                       and math.isfinite(defocus_diopters)):
+        d = defocus_diopters  # a number or a one-value tensor (the PSF is differentiable in it)
+        if isinstance(d, bool) or not (is_real(d) or isinstance(d, torch.Tensor) and d.numel() == 1
+                                       and d.is_floating_point() and bool(torch.isfinite(d.detach()).all())):
             raise ValueError(f"defocus_diopters: expected a finite number of diopters, got {defocus_diopters!r}")
         n_f = float(self.f_number.reshape(-1)[0])
         f_m = float(self.focal_length_m.reshape(-1)[0])
-        dioptres = abs(float(defocus_diopters)) + float(self.defocus_diopters.abs().max())
+        dioptres = abs(float(torch.as_tensor(d).detach())) + float(self.defocus_diopters.abs().max())
         reach_m = f_m ** 2 * dioptres / (2 * n_f) + 2.2 * float(wavelength_nm) * 1e-9 * n_f
         psf_size = max(psf_size, 2 * math.ceil(reach_m / spacing_m) + 1)
         kernel = psf(self, torch.tensor([float(wavelength_nm)], dtype=torch.float64), spacing_m, psf_size,

@@ -251,11 +251,13 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     step = math.sqrt(quantisation_dn2 / S2_QUANTIZATION_DN2)
     read_var = vicpt - quantisation_dn2
     dsnu_dn = math.sqrt(max(dsnu2, 0.0))
-    if vicpt < floor and dsnu_dn >= 0.5 * step:
+    if quantisation_dn2 > 0 and vicpt < floor and dsnu_dn >= 0.5 * step:
         # the dithered quantiser's variance is sigma^2 + q^2/12 only from sigma ~ 0.3 q; below, it is less (0.056 q^2
         # at sigma 0.1 q, where sigma^2 + q^2/12 is 0.093): invert it (a 0.1 q read noise read 0, 0.2 q read 14 % low)
         read_var = (dithered_quantiser_sigma(vicpt / step ** 2) * step) ** 2
-    if vicpt < floor:
+    if quantisation_dn2 <= 0:  # non-integer frames: no quantiser, no floor (a negative intercept read as 0)
+        read_var = max(read_var, 0.0)
+    elif vicpt < floor:
         if dsnu_dn < 0.5 * step:
             read_var = floor - quantisation_dn2
             warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
@@ -353,12 +355,18 @@ def quantisation_step(stacks, min_distinct: int = 32) -> int:
     in 16-bit words are multiples of 16), else 1. Needs integer values and at least ``min_distinct`` distinct ones (a
     chance common factor 2 of n distinct noisy values has probability 2^-n). One pass: ``stacks`` may be a generator
     reading frames one at a time."""
+    return _quantisation(stacks, min_distinct).step(min_distinct)
+
+
+def _quantisation(stacks, min_distinct: int = 32) -> QuantisationStep:
+    """The :class:`QuantisationStep` of ``stacks`` read once (it stops at the first non-integer frame): its
+    ``step()`` and whether every value is whole (``whole``)."""
     acc = QuantisationStep(min_distinct)
     for st in stacks:
         acc.add(st)
         if not acc.whole:
-            return 1
-    return acc.step(min_distinct)
+            break
+    return acc
 
 
 def dithered_quantiser_variance(sigma_q) -> np.ndarray:
@@ -472,9 +480,7 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     from .._progress import progress as progress_bar
 
     warnings: list[str] = list(getattr(capture, "warnings", []))
-    acc = QuantisationStep()
-    for st in list(capture.dark.values()) + list(capture.flat.values()):
-        acc.add(st)
+    acc = _quantisation(list(capture.dark.values()) + list(capture.flat.values()))
     step = acc.step()
     # frames of non-integer values (float .npy) have no quantiser of one DN: no q^2/12 to remove, no EMVA floor (a
     # 0.6 e- read noise read 12 % low, 0.4 e- was reported as the floor's "upper limit")

@@ -778,7 +778,7 @@ class PixelOptics(nn.Module):
         _pos(h, "stack_height_m")
         if not is_real(offset_per_image_height):  # (True was read as 1 m per m)
             raise ValueError(f"offset_per_image_height: expected a finite number, got {offset_per_image_height!r}")
-        if self.method == "none" and (offset_per_image_height != 0 or learnable):
+        if self.method == "none" and offset_per_image_height != 0:
             raise ValueError("offset_per_image_height: method 'none' has no microlens to offset (it was ignored); "
                              "use method 'centred' or 'optimal'")
         if convention == "isetcam" and exit_pupil_distance_m == math.inf and offset_per_image_height != 0:
@@ -790,7 +790,10 @@ class PixelOptics(nn.Module):
         o_t = torch.tensor(float(offset_per_image_height), dtype=torch.float64)
         if learnable:
             self.log_stack_height_m = nn.Parameter(h_t)
-            self.offset_per_image_height = nn.Parameter(o_t)
+            if self.method == "none":  # no microlens to offset: the stack height learns alone
+                self.register_buffer("offset_per_image_height", o_t)
+            else:
+                self.offset_per_image_height = nn.Parameter(o_t)
         else:
             self.register_buffer("log_stack_height_m", h_t)
             self.register_buffer("offset_per_image_height", o_t)

@@ -69,6 +69,17 @@ def test_bad_arguments_are_named():
         optics.defocus_maps(x, 0.0, 1.0)
     with pytest.raises(ValueError, match="defocus_diopters"):
         optics.defocus_maps(x, 1e-6, float("nan"))
+    # numpy scalars and a one-value tensor are diopters too, the tensor's gradient kept
+    import numpy as np
+
+    ref = optics.defocus_maps(x, 1e-6, 1.0)
+    torch.testing.assert_close(optics.defocus_maps(x, 1e-6, np.float32(1.0)), ref)
+    d = torch.tensor(1.0, dtype=torch.float64, requires_grad=True)
+    out = optics.defocus_maps(x.double(), 1e-6, d)
+    torch.testing.assert_close(out.float(), ref, rtol=0, atol=1e-6)
+    (g,) = torch.autograd.grad((out * torch.rand(out.shape, generator=torch.Generator().manual_seed(0),
+                                                 dtype=out.dtype)).sum(), d)
+    assert torch.isfinite(g) and float(g) != 0.0
 
 
 def test_the_default_window_holds_a_large_blur():

@@ -609,6 +609,13 @@ def test_unquantised_float_frames_remove_no_quantisation_variance():
         assert res["read_noise_e"] == pytest.approx(read_e, rel=0.05), read_e
         assert any("non-integer values" in w for w in res["warnings"])
         assert not any("upper limit" in w for w in res["warnings"])
+    # no read noise: the extrapolated intercept can fall below 0 (it divided by the zero step: ZeroDivisionError)
+    truth = dict(truth, read_noise_e=0.0, dsnu_e=2.0)
+    for seed in range(6):
+        dark, flat, photons = nc.simulate(truth, shape=(64, 96), frames=4, seed=seed, exposures_ms=_E_MS,
+                                          quantise=False)
+        res = calibrate_capture(_capture_from(dark, flat, photons=photons))
+        assert 0.0 <= res["read_noise_e"] < 0.1, seed
 
 
 def test_a_dark_signal_falling_with_exposure_is_warned_about():

@@ -795,6 +795,10 @@ def test_pixel_optics_offsets_and_refusals():
     assert abs(float(m[0, 0]) - float(plain[0, 0])) > 0.01
     with pytest.raises(ValueError, match="offset_per_image_height: method 'none' has no microlens"):
         PixelOptics("none", offset_per_image_height=0.1)
+    bare = PixelOptics("none", learnable=True)  # the stack height still learns (it was refused, naming the offset)
+    assert [n for n, _ in bare.named_parameters()] == ["log_stack_height_m"]
+    bare.etendue_map(oi, rows, cols, pitch).sum().backward()
+    assert float(bare.log_stack_height_m.grad.abs()) > 0
     with pytest.raises(ValueError, match="offset_per_image_height: expected a finite number"):
         PixelOptics("centred", offset_per_image_height=True)
     with pytest.raises(ValueError, match="offset_m: method 'none' has no microlens"):
