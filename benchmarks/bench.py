@@ -1004,9 +1004,12 @@ def check_arguments(args) -> str | None:
                f"{args.threads}"
     if args.repeats is not None and args.repeats < 1:
         return f"--repeats: expected a positive number of timed repeats, got {args.repeats}"
-    for name, value in (("--stable-size", args.stable_size), ("--knob-patch", args.knob_patch)):
-        if value is not None and value < 1:
-            return f"{name}: expected a positive integer, got {value}"
+    # the --sizes bounds for the stable rows' image, the knob scene's 6 x 4 patches within them (1 px made an empty
+    # image, 10^8 px a failed allocation: tracebacks)
+    for name, value, lo, hi in (("--stable-size", args.stable_size, MIN_SIZE, MAX_SIZE),
+                                ("--knob-patch", args.knob_patch, 1, MAX_SIZE // 6)):
+        if value is not None and not lo <= value <= hi:
+            return f"{name}: expected an integer in {lo}..{hi}, got {value}"
     try:
         check_device(args.device)
     except ValueError as exc:

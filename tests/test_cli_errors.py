@@ -38,8 +38,12 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
               (["--repeats", "-1"], "--repeats"), (["--device", "fpga"], "--device: cannot compute on"),
               (["--sizes", "1000000"], "--sizes"), (["--plot", "{tmp}/no/dir/p.png"], "--plot"),
               (["--plot", "{garbage}/p.png"], "--plot"), (["--repeats", "abc"], "--repeats"),
-              (["--bogus"], "--bogus")],
+              (["--bogus"], "--bogus"),
+              (["--stable-size", "1"], "--stable-size: expected an integer in 16..4096"),  # (tracebacks)
+              (["--stable-size", "100000000"], "--stable-size"), (["--knob-patch", "100000"], "--knob-patch")],
     "calibrate": [([MISSING], "DIR"), (["{images}/a.png"], "a.png: cannot read the frame"),
+                  (["{cap}", "--report", "{cap}/r"], "--report: {cap}/r is inside the capture folder {cap}"),
+                  (["{cap}", "--out", "{tmp}/x", "--report", "{tmp}/x"], "--out: {tmp}/x is the --report folder"),
                   (["{tmp}", "--cfa", "RGGB"], "--cfa: applies to a single raw frame"),
                   (["{tmp}", "--black-level", "64"], "--black-level: applies to a single raw frame"),
                   (["{images}/a.png", "--out", "{tmp}/s.yaml"], "--out: a sensor config needs a capture folder"),
@@ -134,7 +138,10 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                 (["{raw}/frame.npy", *PROC[:4], "--out", "{raw}", "-q"], "--out"),  # would overwrite the frame
                 (["{raw}/frame.npy", "{broken}/b.png", *PROC[:4], "--out", "{tmp}/p"], "b.png"),  # no -q: one line
                 (["{raw}/frame.npy", "--model", "{joint}"], "--camera"),  # argparse: one line
-                (["{grey8}/g.png", *PROC], "RAW: {grey8}/g.png: 8-bit samples cannot hold the camera's 12-bit DN")],
+                (["{grey8}/g.png", *PROC], "RAW: {grey8}/g.png: 8-bit samples cannot hold the camera's 12-bit DN"),
+                # an output file's name taken by a folder (found at the final move: the others were in place)
+                (["{raw}/frame.npy", *PROC[:4], "--out", "{clash}", "-q"],
+                 "--out: {clash}/frame.npy is a folder")],
     "synth": [(["--config", "{tmp}/no_such.yaml", "--out", "{tmp}/out", "--count", "2"], "--config"),
               (["--out", "{tmp}/out", "--count", "0"], "--count"),
               (["--out", "{tmp}/out"], "--count"),  # required unless --verify
@@ -182,9 +189,10 @@ def places(tmp_path) -> dict:
     Image.fromarray(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)).save(images / "a.png")
     (broken / "b.png").write_bytes(b"not a png")
     (tmp_path / "garbage.pt").write_bytes(b"neither TorchScript nor weights")
-    folders = {name: tmp_path / name for name in ("strip", "mixed", "keyed", "pages", "raw", "grey8")}
+    folders = {name: tmp_path / name for name in ("strip", "mixed", "keyed", "pages", "raw", "grey8", "clash")}
     for folder in folders.values():
         folder.mkdir()
+    (folders["clash"] / "frame.npy").mkdir()
     Image.fromarray(rng.integers(0, 256, (1, 96, 3), dtype=np.uint8)).save(folders["strip"] / "strip.png")
     Image.fromarray(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)).save(folders["mixed"] / "a.png")
     Image.fromarray(rng.integers(0, 256, (8, 8, 3), dtype=np.uint8)).save(folders["mixed"] / "b.png")
@@ -240,6 +248,8 @@ LEFTOVERS = [
     (["process", "{raw}/frame.npy", *PROC[:4], "--out", "{raw}", "-q"], [], ["{raw}/frame.npy"]),
     (["calibrate", "{cap}", "-q", "--out", "{tmp}/s.yaml", "--report", "{garbage}/r"], ["{tmp}/s.yaml"], []),
     (["calibrate", "{cap}", "-q", "--out", "{cap}/capture.yaml"], [], ["{cap}/capture.yaml"]),
+    (["calibrate", "{cap}", "-q", "--report", "{cap}/r"], ["{cap}/r"], []),  # (its figures became capture files)
+    (["process", "{raw}/frame.npy", *PROC[:4], "--out", "{clash}", "-q"], [], []),
     (["demo", "--seed", "-1", "--out", "{tmp}/o"], ["{tmp}/o"], []),
     (["demo", "--seed", "18446744073709551616", "--out", "{tmp}/o"], ["{tmp}/o"], []),
     (["demo", "--size", "1000000000", "--out", "{tmp}/o"], ["{tmp}/o"], []),

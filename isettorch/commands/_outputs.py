@@ -104,6 +104,8 @@ class Outputs:
     def temporary(self, path) -> Path:
         """A temporary name beside ``path`` (same suffix, so writers that go by the suffix still work)."""
         path = Path(path)
+        if path.is_dir():  # (found at the final move: the other outputs were in place, a temporary file left)
+            raise ValueError(f"out: {path} is a folder; an output file of that name cannot replace it")
         tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
         self.pending.append((tmp, path))
         return tmp

@@ -134,6 +134,13 @@ def run(args) -> int:
     if args.out:
         check_file(args.out, "out", inputs=inputs)
     if args.report:
+        report, capture_dir = Path(args.report).resolve(), Path(args.directory).resolve()
+        if report == capture_dir or capture_dir in report.parents:  # (the figures became frames of the capture:
+            # every later calibration refused it)
+            raise ValueError(f"report: {args.report} is inside the capture folder {args.directory}; its figures "
+                             f"would become files of the capture; give a folder outside it")
+        if args.out and Path(args.out).resolve() == report:  # (the report was written, then --out failed)
+            raise ValueError(f"out: {args.out} is the --report folder; give the sensor YAML a file name of its own")
         check_dir(args.report, "report")
     capture = read_capture(args.directory, progress=not args.quiet)
     result = calibrate_capture(capture, progress=not args.quiet)

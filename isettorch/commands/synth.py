@@ -42,7 +42,7 @@ def run(args) -> int:
         if not (Path(args.out) / "manifest.json").is_file():
             raise ValueError(f"out: {args.out} is not a dataset written by isettorch synth (no manifest.json)")
         problems = verify_dataset(args.out)
-        if problems and problems[0].startswith("manifest.json: unreadable"):
+        if problems and problems[0].startswith(("manifest.json: unreadable", "manifest.json: malformed")):
             raise ValueError(f"out: {args.out}/{problems[0]}")
         if args.count is not None:  # checked against the manifest (it was required and then ignored)
             import json

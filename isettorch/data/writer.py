@@ -223,22 +223,52 @@ def _write_manifest(out: Path, cfg: dict, chash: str, count: int, size: int, n_f
     return manifest
 
 
+def _manifest_index(manifest) -> tuple[int, int, dict, dict]:
+    """``(count, shard_size, {file: name}, {file: sha256})`` of a manifest (file = first index // shard_size): its
+    structure checked, else a ValueError saying what is malformed (a list, a record without ``file``, a null
+    count gave tracebacks). Read by :func:`verify_dataset` and :class:`ShardDataset`."""
+    if not isinstance(manifest, dict):
+        raise ValueError(f"a JSON {type(manifest).__name__}, expected an object")
+    try:
+        count, size = int(manifest["count"]), int(manifest["shard_size"])
+        if count < 0 or size < 1:
+            raise ValueError(f"count {count}, shard_size {size}: expected >= 0 and >= 1")
+        records = manifest["shards"]
+        if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
+            raise TypeError(f"shards: expected a list of records, got {type(records).__name__}")
+        files = {int(rec["first_index"]) // size: str(rec["file"]) for rec in records}
+        sha = {int(rec["first_index"]) // size: rec.get("sha256") for rec in records}
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{type(err).__name__}: {err}") from err
+    return count, size, files, sha
+
+
 def verify_dataset(out) -> list[str]:
-    """Check every shard listed in ``out/manifest.json`` against its sha256; returns the problems found."""
+    """Check every shard listed in ``out/manifest.json`` against its sha256, and that a complete dataset lists a
+    shard for every file (``"complete": true`` with shards missing was 'ok'); returns the problems found."""
     out = Path(out)
     try:
         manifest = json.loads((out / "manifest.json").read_text())
     except (OSError, ValueError) as err:
         return [f"manifest.json: unreadable ({err})"]
+    try:
+        count, size, files, sha = _manifest_index(manifest)
+    except ValueError as err:
+        return [f"manifest.json: malformed ({err})"]
     problems = []
-    for rec in manifest.get("shards", []):
-        p = out / rec["file"]
+    for f, name in sorted(files.items()):
+        p = out / name
         if not p.is_file():
-            problems.append(f"{rec['file']}: missing")
-        elif sha256_file(p) != rec["sha256"]:
-            problems.append(f"{rec['file']}: checksum mismatch")
+            problems.append(f"{name}: missing")
+        elif sha256_file(p) != sha[f]:
+            problems.append(f"{name}: checksum mismatch")
     if not manifest.get("complete"):
-        problems.append(f"incomplete: {len(manifest.get('shards', []))} of {manifest.get('num_files')} shards")
+        problems.append(f"incomplete: {len(files)} of {manifest.get('num_files')} shards")
+    else:
+        unlisted = sorted(set(range(-(-count // size))) - set(files))
+        if unlisted:
+            problems.append(f"manifest.json: complete, but lists no shard for files {unlisted[:8]} (of "
+                            f"{-(-count // size)})")
     return problems
 
 
@@ -281,9 +311,10 @@ class ShardDataset(torch.utils.data.Dataset):
             manifest = json.loads((self.root / "manifest.json").read_text())
         except (OSError, ValueError) as err:
             raise ValueError(f"root: {str(self.root)!r} has no readable manifest.json ({err})") from err
-        if not isinstance(manifest, dict):
-            raise ValueError(f"root: {str(self.root)!r} has a malformed manifest.json (a JSON "
-                             f"{type(manifest).__name__}, expected an object)")
+        try:
+            self.count, self.shard_size, self.files, self.sha256 = _manifest_index(manifest)
+        except ValueError as err:
+            raise ValueError(f"root: {str(self.root)!r} has a malformed manifest.json ({err})") from err
         if not manifest.get("complete"):
             raise ValueError(f"root: {str(self.root)!r} holds an incomplete dataset ({len(manifest.get('shards', []))}"
                              f" of {manifest.get('num_files')} shards); run the same synth command again to finish it")
@@ -293,16 +324,6 @@ class ShardDataset(torch.utils.data.Dataset):
                 raise ValueError(f"root: {str(self.root)!r} failed verification: {'; '.join(problems[:5])}")
         cache_shards = check_integer(cache_shards, "cache_shards", 1)
         self.manifest = manifest
-        try:
-            self.count, self.shard_size = int(manifest["count"]), int(manifest["shard_size"])
-            if self.count < 0 or self.shard_size < 1:
-                raise ValueError(f"count {self.count}, shard_size {self.shard_size}: expected >= 0 and >= 1")
-            self.files = {int(rec["first_index"]) // self.shard_size: rec["file"] for rec in manifest["shards"]}
-            self.sha256 = {int(rec["first_index"]) // self.shard_size: rec.get("sha256")
-                           for rec in manifest["shards"]}
-        except (KeyError, TypeError, ValueError) as err:
-            raise ValueError(f"root: {str(self.root)!r} has a malformed manifest.json ({type(err).__name__}: "
-                             f"{err})") from err
         missing = sorted(set(range(-(-self.count // self.shard_size))) - set(self.files))
         if missing:
             raise ValueError(f"root: {str(self.root)!r}'s manifest.json is complete but lists no shard for files "

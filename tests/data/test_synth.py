@@ -273,3 +273,30 @@ def test_an_edited_shard_is_refused_and_another_configs_shards_are_never_rewritt
     with pytest.raises(ValueError, match="holds shards made with another config"):
         write_dataset({**CFG, "seed": 6}, other, COUNT, progress=False)
     assert _checksums(other) == before
+
+
+def test_verify_names_a_malformed_or_short_manifest(reference, tmp_path, capsys):
+    """A manifest that is a list, a record without 'file', shards that are not records, a null count gave
+    tracebacks (exit 1); a manifest that says complete but lists fewer shards than the count needs verified 'ok'
+    (ShardDataset then refused the folder). Now: one line naming --out, exit 2; the short one is a problem (exit 1)."""
+    import shutil
+
+    out, manifest = reference
+    bad = {"list": [], "no_file": {**manifest, "shards": [{k: v for k, v in r.items() if k != "file"}
+                                                          for r in manifest["shards"]]},
+           "strings": {**manifest, "shards": ["a", "b"]}, "int": {**manifest, "shards": 5},
+           "null_count": {**manifest, "count": None}}
+    for name, m in bad.items():
+        d = tmp_path / name
+        shutil.copytree(out, d)
+        (d / "manifest.json").write_text(json.dumps(m))
+        assert verify_dataset(d)[0].startswith("manifest.json: malformed"), name
+        capsys.readouterr()
+        assert main(["synth", "--out", str(d), "--verify"]) == 2, name
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"isettorch synth: --out: {d}/manifest.json: malformed"), err
+    d = tmp_path / "short"
+    shutil.copytree(out, d)
+    (d / "manifest.json").write_text(json.dumps({**manifest, "shards": manifest["shards"][:1]}))
+    assert verify_dataset(d) == ["manifest.json: complete, but lists no shard for files [1, 2, 3] (of 4)"]
+    assert main(["synth", "--out", str(d), "--verify"]) == 1

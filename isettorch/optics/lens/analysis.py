@@ -619,6 +619,7 @@ def lens_report(lens, fields=(0.0, 0.7, 1.0), wavelengths_nm=None, frequencies_c
         for k, v in r.items():
             vals = v if isinstance(v, list) else [v]
             if any(not math.isfinite(x) for x in vals):
-                raise TraceError(f"lens-report: non-finite {k} at field {r['field']}, {r['wavelength_nm']} nm")
+                raise TraceError(f"{a.prescription.name or 'lens'}: non-finite {k} at field {r['field']}, "
+                                 f"{r['wavelength_nm']} nm (rays missing a surface or the image?)")
     return {"effective_focal_length_mm": float(a.effective_focal_length_mm), "f_number": float(a.f_number),
             "max_field_deg": float(a.max_field_deg), "image_plane": a.image_plane, "rows": rows}

@@ -173,9 +173,9 @@ class Prescription:
                                                                      (self.primary_wavelength_nm,))):
             if not vals or not all(math.isfinite(w) and w > 0 for w in vals):
                 raise PrescriptionError(f"{lens}: {name}: expected finite wavelengths > 0 nm, got {vals}")
-        if not all(math.isfinite(f) and abs(f) < 90 for f in self.field_angles_deg):
-            raise PrescriptionError(f"{lens}: field_angles_deg: expected angles within (-90, 90) deg, got "
-                                    f"{self.field_angles_deg}")
+        if not self.field_angles_deg or not all(math.isfinite(f) and abs(f) < 90 for f in self.field_angles_deg):
+            raise PrescriptionError(f"{lens}: field_angles_deg: expected one or more angles within (-90, 90) deg, "
+                                    f"got {list(self.field_angles_deg)}")  # ([] failed later: max() of nothing)
 
     @property
     def stop_index(self) -> int:

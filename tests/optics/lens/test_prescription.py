@@ -360,3 +360,12 @@ def test_yaml_standard_surface_refuses_aspheric_terms_and_glass_needs_a_thicknes
     with pytest.raises(PrescriptionError, match="surface 1: thickness_mm: a surface followed by glass .N-BK7."):
         read_lens_yaml({**base, "surfaces": [{"radius_mm": 50, "material": "N-BK7", "stop": True},
                                              {"radius_mm": -50}]})
+
+
+def test_an_empty_field_list_is_named():
+    """field_angles_deg: [] passed the check and failed later as 'max() arg is an empty sequence'."""
+    with pytest.raises(PrescriptionError, match=r"field_angles_deg: expected one or more angles"):
+        read_lens_yaml({"aperture": {"entrance_pupil_diameter_mm": 8.0}, "catalogs": ["SCHOTT"],
+                        "field_angles_deg": [], "surfaces": [
+                            {"radius_mm": 50, "thickness_mm": 3, "material": "N-BK7", "stop": True},
+                            {"radius_mm": -50, "thickness_mm": 90}]})
