@@ -42,7 +42,8 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
               (["--stable-size", "1"], "--stable-size: expected an integer in 16..4096"),  # (tracebacks)
               (["--stable-size", "100000000"], "--stable-size"), (["--knob-patch", "100000"], "--knob-patch")],
     "calibrate": [([MISSING], "DIR"), (["{images}/a.png"], "a.png: cannot read the frame"),
-                  (["{cap}", "--report", "{cap}/r"], "--report: {cap}/r is inside the capture folder {cap}"),
+                  (["{cap}", "--report", "{cap}"], "--report: {cap} is the capture folder {cap}"),
+                  (["{cap}", "--report", "{cap}/dark_1ms/r"], "--report: {cap}/dark_1ms/r is the capture folder"),
                   (["{cap}", "--out", "{tmp}/x", "--report", "{tmp}/x"], "--out: {tmp}/x is the --report folder"),
                   (["{tmp}", "--cfa", "RGGB"], "--cfa: applies to a single raw frame"),
                   (["{tmp}", "--black-level", "64"], "--black-level: applies to a single raw frame"),
@@ -230,7 +231,8 @@ def places(tmp_path) -> dict:
             "cam": str(tmp_path / "cam.yaml"), "darkcam": str(tmp_path / "darkcam.yaml"),
             "badyaml": str(tmp_path / "bad.yaml"), "joint": str(PRETRAINED["joint_denoise"]), "cap": str(cap),
             "binyaml": str(tmp_path / "bin.yaml"), "emptylist": str(tmp_path / "emptylist.yaml"),
-            "listyaml": str(tmp_path / "list.yaml"), "unknownyaml": str(tmp_path / "unknown.yaml")}
+            "listyaml": str(tmp_path / "list.yaml"), "unknownyaml": str(tmp_path / "unknown.yaml"),
+            "pid": str(os.getpid())}  # (the commands run in this process: their temporary files' names)
 
 
 def _main(argv: list[str]) -> int:
@@ -248,8 +250,8 @@ LEFTOVERS = [
     (["process", "{raw}/frame.npy", *PROC[:4], "--out", "{raw}", "-q"], [], ["{raw}/frame.npy"]),
     (["calibrate", "{cap}", "-q", "--out", "{tmp}/s.yaml", "--report", "{garbage}/r"], ["{tmp}/s.yaml"], []),
     (["calibrate", "{cap}", "-q", "--out", "{cap}/capture.yaml"], [], ["{cap}/capture.yaml"]),
-    (["calibrate", "{cap}", "-q", "--report", "{cap}/r"], ["{cap}/r"], []),  # (its figures became capture files)
-    (["process", "{raw}/frame.npy", *PROC[:4], "--out", "{clash}", "-q"], [], []),
+    (["process", "{raw}/frame.npy", *PROC[:4], "--out", "{clash}", "-q"], ["{clash}/.frame.partial-{pid}.npy"],
+     []),  # (a temporary file was left beside the folder that took the output's name)
     (["demo", "--seed", "-1", "--out", "{tmp}/o"], ["{tmp}/o"], []),
     (["demo", "--seed", "18446744073709551616", "--out", "{tmp}/o"], ["{tmp}/o"], []),
     (["demo", "--size", "1000000000", "--out", "{tmp}/o"], ["{tmp}/o"], []),

@@ -135,10 +135,13 @@ def run(args) -> int:
         check_file(args.out, "out", inputs=inputs)
     if args.report:
         report, capture_dir = Path(args.report).resolve(), Path(args.directory).resolve()
-        if report == capture_dir or capture_dir in report.parents:  # (the figures became frames of the capture:
-            # every later calibration refused it)
-            raise ValueError(f"report: {args.report} is inside the capture folder {args.directory}; its figures "
-                             f"would become files of the capture; give a folder outside it")
+        # the capture folder itself or one of its dark_/flat_ stacks: the figures became frames there, which every
+        # later calibration refused (a report folder of its own inside the capture is skipped, with a warning)
+        inside = capture_dir in report.parents or report == capture_dir
+        if inside and (report == capture_dir or report.relative_to(capture_dir).parts[0].lower().startswith(
+                ("dark", "flat"))):
+            raise ValueError(f"report: {args.report} is the capture folder {args.directory} or one of its frame "
+                             f"folders; its figures would become frames of the capture; give a folder of its own")
         if args.out and Path(args.out).resolve() == report:  # (the report was written, then --out failed)
             raise ValueError(f"out: {args.out} is the --report folder; give the sensor YAML a file name of its own")
         check_dir(args.report, "report")

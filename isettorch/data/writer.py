@@ -236,7 +236,9 @@ def _manifest_index(manifest) -> tuple[int, int, dict, dict]:
         records = manifest["shards"]
         if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
             raise TypeError(f"shards: expected a list of records, got {type(records).__name__}")
-        files = {int(rec["first_index"]) // size: str(rec["file"]) for rec in records}
+        if not all(isinstance(rec["file"], str) for rec in records):  # (null was read as the file "None")
+            raise TypeError("shards: a record's file is not a name")
+        files = {int(rec["first_index"]) // size: rec["file"] for rec in records}
         sha = {int(rec["first_index"]) // size: rec.get("sha256") for rec in records}
     except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{type(err).__name__}: {err}") from err
@@ -265,11 +267,16 @@ def verify_dataset(out) -> list[str]:
     if not manifest.get("complete"):
         problems.append(f"incomplete: {len(files)} of {manifest.get('num_files')} shards")
     else:
-        unlisted = sorted(set(range(-(-count // size))) - set(files))
+        unlisted = _unlisted(count, size, files)
         if unlisted:
             problems.append(f"manifest.json: complete, but lists no shard for files {unlisted[:8]} (of "
                             f"{-(-count // size)})")
     return problems
+
+
+def _unlisted(count: int, size: int, files: dict) -> list[int]:
+    """The file numbers a dataset of ``count`` items in shards of ``size`` needs and ``files`` does not list."""
+    return sorted(set(range(-(-count // size))) - set(files))
 
 
 class ShardDataset(torch.utils.data.Dataset):
@@ -324,7 +331,7 @@ class ShardDataset(torch.utils.data.Dataset):
                 raise ValueError(f"root: {str(self.root)!r} failed verification: {'; '.join(problems[:5])}")
         cache_shards = check_integer(cache_shards, "cache_shards", 1)
         self.manifest = manifest
-        missing = sorted(set(range(-(-self.count // self.shard_size))) - set(self.files))
+        missing = _unlisted(self.count, self.shard_size, self.files)
         if missing:
             raise ValueError(f"root: {str(self.root)!r}'s manifest.json is complete but lists no shard for files "
                              f"{missing[:8]}; run isettorch synth --verify, or the same synth command again")

@@ -90,13 +90,14 @@ def _read_tiff(path: Path) -> np.ndarray:
             raise ValueError(f"tifffile: {err}; Pillow: {pil_err}") from err
 
 
-def check_sample_bits(path, stored_bits: int | None, bits: int, whose: str) -> None:
+def check_sample_bits(path, stored_bits: int | None, bits: int, whose: str, hint: str = "") -> None:
     """A frame stored in integer samples narrower than the ADC's ``bits`` (an 8-bit PNG of 12-bit data: a display
     export, its values shifted or clipped) is refused naming the file; ``whose`` names the bit depth's owner
-    (``"camera's"``, ``"capture's"``). Floats and camera raws (``stored_bits`` None) pass."""
+    (``"camera's"``, ``"capture's"``), ``hint`` where it is set. Floats and camera raws (``stored_bits`` None)
+    pass."""
     if stored_bits is not None and stored_bits < bits:
-        raise ValueError(f"{path}: {stored_bits}-bit samples cannot hold the {whose} {bits}-bit DN (a display image, "
-                         f"not a raw frame?); give the 16-bit PNG/TIFF or .npy frame")
+        raise ValueError(f"{path}: {stored_bits}-bit samples cannot hold the {whose} {bits}-bit DN{hint} (a display "
+                         f"image, not a raw frame?); give the 16-bit PNG/TIFF or .npy frame")
 
 
 def read_frame_data(path: str | Path) -> FrameData:
@@ -300,7 +301,8 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
             frames = []
             for f in files:
                 arr, cfa, _, stored_bits = read_frame_data(f)
-                check_sample_bits(f, stored_bits, cfg["bit_depth"], "capture's")  # (as isettorch process does)
+                check_sample_bits(f, stored_bits, cfg["bit_depth"], "capture's",  # (as isettorch process does)
+                                  " (bit_depth in capture.yaml)")
                 if f.suffix.lower() in RAW_SUFFIXES:
                     frame_cfa.setdefault(cfa, f)
                 if shape is None:

@@ -713,7 +713,8 @@ class PixelOptics(nn.Module):
         offset_per_image_height: a further microlens offset of this many metres per metre of image height (the
             microlens array's pitch shrink), added to the method's.
         learnable: the stack height (as ``log_stack_height_m``, so it stays positive) and
-            ``offset_per_image_height`` as ``nn.Parameter`` s (``'physical'`` only).
+            ``offset_per_image_height`` as ``nn.Parameter`` s (``'physical'`` only; under method ``'none'`` the
+            offset stays a buffer: no microlens to offset).
         exit_pupil_distance_m: overrides the distance of the chief rays' origin (the optical image's image
             distance under ``'physical'``, its focal length under ``'isetcam'``); ``math.inf`` for an image-space
             telecentric lens (every chief ray parallel to the axis, CRA 0).

@@ -130,8 +130,8 @@ class LensAnalysis:
 
     @property
     def f_number(self) -> torch.Tensor:
-        """Paraxial image-space f-number |EFL| / EPD at the primary wavelength (object at infinity); positive for a
-        negative lens too, as the FNUM aperture's EPD = |EFL| / F# and the working f-number read it."""
+        """Paraxial image-space f-number ``|EFL| / EPD`` at the primary wavelength (object at infinity); positive
+        for a negative lens too, as the FNUM aperture's ``EPD = |EFL| / F#`` and the working f-number read it."""
         return self.ref["efl"].abs() / self.ref["epd"]
 
     @property
