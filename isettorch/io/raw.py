@@ -36,6 +36,8 @@ def read_raw(path: str | Path) -> RawFrame:
     except ImportError as err:
         raise ImportError("read_raw: camera raws need rawpy; pip install 'isettorch[raw]'") from err
     path = Path(path)
+    if path.suffix.lower() == ".dng":  # LibRaw read a plain TIFF named .dng as an RGGB raw of black 0 (exit 0)
+        _check_dng_version(path)
     try:
         with rawpy.imread(str(path)) as r:
             data = np.array(r.raw_image_visible, dtype=np.float64)
@@ -45,11 +47,36 @@ def read_raw(path: str | Path) -> RawFrame:
             white = float(r.white_level) if r.white_level else None
     except Exception as err:
         raise ValueError(f"{path}: cannot read the raw file with rawpy/LibRaw ({err})") from err
+    if data.ndim != 2:  # (a LinearRaw DNG came back (H, W, 4))
+        raise ValueError(f"{path}: a demosaiced raw (shape {data.shape}, e.g. a LinearRaw DNG); expected a colour "
+                         f"filter array mosaic")
     cfa = None
     if pattern is not None and pattern.size > 1:
         cfa = "".join(desc[int(i)] for i in pattern.reshape(-1))
+        if not set(cfa) <= set("RGB"):  # LibRaw labels every 4-colour CFA GMCY, whatever its colours
+            raise ValueError(f"{path}: a {cfa} colour filter array, whose colours LibRaw does not report (it names "
+                             f"every 4-colour CFA GMCY); only R, G, B mosaics are read: give the frames as .npy with "
+                             f"cfa in capture.yaml")
         blacks = [blacks[int(i)] for i in pattern.reshape(-1)]
+    if white is not None and max(blacks) >= white:  # (the DNG specification asks black < white)
+        raise ValueError(f"{path}: black level {max(blacks):g} DN is not below the white level {white:g} DN")
     return RawFrame(data=data, cfa=cfa, black_level_dn=blacks, white_level_dn=white)
+
+
+def _check_dng_version(path: Path) -> None:
+    """A ``.dng`` file is a DNG: its first IFD has the DNGVersion tag (Adobe DNG Specification 1.4, chapter 4);
+    a file tifffile cannot parse is left to LibRaw's own message."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(str(path)) as tif:
+            tags = tif.pages[0].tags
+            has_version = tags.get(50706) is not None
+    except Exception:  # not a TIFF, truncated: LibRaw says so below
+        return
+    if not has_version:
+        raise ValueError(f"{path}: not a DNG (no DNGVersion tag: a TIFF named .dng?); give the camera's DNG, or the "
+                         f"frame as a 16-bit TIFF/PNG or .npy")
 
 
 _DNG_CFA_CODES = {"R": 0, "G": 1, "B": 2}

@@ -221,3 +221,43 @@ def test_poisson_gaussian_estimate_checks_its_levels():
                      ({"min_blocks": 0}, "min_blocks"), ({"min_blocks": 2.5}, "min_blocks"), ({"levels": 1}, "levels")):
         with pytest.raises(ValueError, match=f"^{name}: expected"):
             estimate_poisson_gaussian(z, **kw)
+
+
+def _dng_by_hand(path, mosaic, *, cfa_codes=(0, 1, 1, 2), plane_colors=None, black=64, white=4095, version=True):
+    """An uncompressed CFA DNG written with tifffile's tags directly (Adobe DNG Specification 1.4, chapters 4-6),
+    not through isettorch.io.raw.write_dng, which refuses what these files hold."""
+    import tifffile
+
+    tags = [(33421, "H", 2, (2, 2), True), (33422, "B", 4, tuple(cfa_codes), True),
+            (50714, "H", 1, (black,), True), (50717, "H", 1, (white,), True),
+            (50721, "2i", 9, (1, 1, 0, 1, 0, 1, 0, 1, 1, 1, 0, 1, 0, 1, 0, 1, 1, 1), True)]
+    if version:
+        tags = [(50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 1, 0, 0), True),
+                (50708, "s", 0, "test", True)] + tags
+    if plane_colors is not None:
+        tags.append((50710, "B", len(plane_colors), tuple(plane_colors), True))  # CFAPlaneColor
+    tifffile.imwrite(str(path), np.asarray(mosaic, np.uint16), photometric=32803, subfiletype=0, extratags=tags,
+                     metadata=None)
+
+
+def test_raws_that_read_back_wrong_are_refused(tmp_path):
+    """What LibRaw reads back silently wrong is refused naming the file (an audit with hand-written DNGs): a plain
+    TIFF named .dng (read as an RGGB raw of black 0), a 4-colour CFA (LibRaw names every one GMCY: a CYGM file read
+    as 'GMCY'), a black level not below the white level (the DNG specification asks black < white)."""
+    pytest.importorskip("rawpy")
+    import tifffile
+
+    from isettorch.io.raw import read_raw
+
+    m = (np.arange(32 * 48).reshape(32, 48) % 3000 + 100).astype(np.uint16)
+    _dng_by_hand(tmp_path / "ok.dng", m)
+    assert read_raw(tmp_path / "ok.dng").cfa == "RGGB"  # the hand-written form reads (the tests below can fail)
+    tifffile.imwrite(str(tmp_path / "plain.dng"), m)
+    with pytest.raises(ValueError, match="plain.dng: not a DNG .no DNGVersion tag"):
+        read_raw(tmp_path / "plain.dng")
+    _dng_by_hand(tmp_path / "cygm.dng", m, cfa_codes=(0, 1, 2, 3), plane_colors=(3, 4, 1, 5))  # C Y G M
+    with pytest.raises(ValueError, match="cygm.dng: a [A-Z]{4} colour filter array, whose colours LibRaw"):
+        read_raw(tmp_path / "cygm.dng")
+    _dng_by_hand(tmp_path / "black.dng", np.minimum(m, 4095), black=5000, white=4095)
+    with pytest.raises(ValueError, match="black.dng: black level 5000 DN is not below the white level 4095 DN"):
+        read_raw(tmp_path / "black.dng")
