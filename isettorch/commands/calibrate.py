@@ -114,7 +114,7 @@ def run(args) -> int:
     import sys
     from pathlib import Path
 
-    from ..io.frames import read_capture
+    from ..io.frames import is_exposure_folder_name, read_capture
     from ..sensor.calibration import calibrate_capture, write_sensor_config
     from ._outputs import check_dir, check_file
 
@@ -135,11 +135,10 @@ def run(args) -> int:
         check_file(args.out, "out", inputs=inputs)
     if args.report:
         report, capture_dir = Path(args.report).resolve(), Path(args.directory).resolve()
-        # the capture folder itself or one of its dark_/flat_ stacks: the figures became frames there, which every
+        # the capture folder itself or one of its exposure folders: the figures became frames there, which every
         # later calibration refused (a report folder of its own inside the capture is skipped, with a warning)
-        inside = capture_dir in report.parents or report == capture_dir
-        if inside and (report == capture_dir or report.relative_to(capture_dir).parts[0].lower().startswith(
-                ("dark", "flat"))):
+        if report == capture_dir or (capture_dir in report.parents
+                                     and is_exposure_folder_name(report.relative_to(capture_dir).parts[0])):
             raise ValueError(f"report: {args.report} is the capture folder {args.directory} or one of its frame "
                              f"folders; its figures would become frames of the capture; give a folder of its own")
         if args.out and Path(args.out).resolve() == report:  # (the report was written, then --out failed)

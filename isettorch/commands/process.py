@@ -206,21 +206,20 @@ def _left_alignment(raws, adc_bits: int) -> dict:
     was read up to four times)."""
     from ..sensor.calibration import QuantisationStep
 
-    groups: dict = {}  # word width -> (frames, their values' step accumulator, their largest value, per frame)
+    groups: dict = {}  # word width -> ({frame: its values' step accumulator}, their largest value)
     for f in raws:
         frame = _read(f)
         width = frame.stored_bits
         if width is None or width <= adc_bits:
             continue
-        frames, acc, top, own = groups.setdefault(width, ([], QuantisationStep(), [0.0], {}))
-        frames.append(f)
-        acc.add(frame.dn)
+        own, top = groups.setdefault(width, ({}, [0.0]))
         own[f] = QuantisationStep()
         own[f].add(frame.dn)
         top[0] = max(top[0], float(frame.dn.max()))
     steps = dict.fromkeys(raws, 1)
     for width in sorted(groups):
-        group, acc, top, own = groups[width]
+        own, top = groups[width]
+        group, acc = list(own), QuantisationStep.pooled(own.values())
         step = 2 ** (width - adc_bits)
         # a frame with enough values decides for itself; frames of both kinds in one run are refused (one
         # right-aligned frame took the division from every left-aligned one: 24x too bright, exit 0)

@@ -90,6 +90,12 @@ def _read_tiff(path: Path) -> np.ndarray:
             raise ValueError(f"tifffile: {err}; Pillow: {pil_err}") from err
 
 
+def is_exposure_folder_name(name: str) -> bool:
+    """A capture subfolder :func:`read_capture` reads as an exposure folder (or refuses as a misnamed one): its name
+    begins with ``dark`` or ``flat``, in any case; other subfolders are skipped with a warning."""
+    return name.lower().startswith(("dark", "flat"))
+
+
 def check_sample_bits(path, stored_bits: int | None, bits: int, whose: str, hint: str = "") -> None:
     """A frame stored in integer samples narrower than the ADC's ``bits`` (an 8-bit PNG of 12-bit data: a display
     export, its values shifted or clipped) is refused naming the file; ``whose`` names the bit depth's owner
@@ -275,7 +281,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
                 if key in folders:
                     raise ValueError(f"{p}: the same exposure as {folders[key]}")
                 folders[key] = p
-            elif p.name.lower().startswith(("dark", "flat")):  # meant as an exposure folder: a naming error
+            elif is_exposure_folder_name(p.name):  # meant as an exposure folder: a naming error
                 raise ValueError(f"{p}: unexpected folder name; expected dark_<exposure_ms>ms or flat_<exposure_ms>ms")
             else:  # e.g. the --report folder of an earlier run
                 skipped.append(p)

@@ -131,8 +131,17 @@ _CACHE: OrderedDict = OrderedDict()
 _CACHE_SIZE = 16
 
 
-def _remember(key, value: torch.Tensor) -> torch.Tensor:
-    _CACHE[key] = value
+def _cached(key_of, make, *inputs) -> torch.Tensor:
+    """``make()``, remembered under ``key_of()`` (least recently used out first) unless one of ``inputs`` records a
+    gradient: a cached graph made the second backward through it raise."""
+    if records_grad(*inputs):
+        return make()
+    key = key_of()
+    hit = _CACHE.get(key)
+    if hit is not None:
+        _CACHE.move_to_end(key)
+        return hit
+    _CACHE[key] = value = make()
     while len(_CACHE) > _CACHE_SIZE:
         _CACHE.popitem(last=False)
     return value
@@ -144,29 +153,21 @@ def _half_otf(wave, n, f, hfov_pad, dx_c, h2: int, w2: int, dtype) -> torch.Tens
     The OTF is real and even on ISETCam's grid (a radial function sampled at ``±f``; ``unitFrequencyList`` is
     symmetric), so ``OTF * rfft2(img)`` is the half spectrum of ``OTF * fft2(img)`` and ``irfft2`` returns the
     real part of ``ifft2`` exactly."""
-    if records_grad(wave, n, f, hfov_pad, dx_c):  # (a cached graph: the second backward through it raised)
-        return dl_otf_isetcam(wave, n, f, hfov_pad, dx_c, h2, w2)[0][..., : w2 // 2 + 1].to(dtype)
-    key = ("otf", tuple(wave.tolist()), tuple(n.tolist()), tuple(f.tolist()), tuple(hfov_pad.tolist()),
-           tuple(dx_c.tolist()), h2, w2, dtype, str(wave.device))
-    hit = _CACHE.get(key)
-    if hit is not None:
-        _CACHE.move_to_end(key)
-        return hit
-    otf = dl_otf_isetcam(wave, n, f, hfov_pad, dx_c, h2, w2)[0]
-    return _remember(key, otf[..., : w2 // 2 + 1].to(dtype).contiguous())
+    return _cached(lambda: ("otf", tuple(wave.tolist()), tuple(n.tolist()), tuple(f.tolist()),
+                            tuple(hfov_pad.tolist()), tuple(dx_c.tolist()), h2, w2, dtype, str(wave.device)),
+                   lambda: dl_otf_isetcam(wave, n, f, hfov_pad, dx_c, h2, w2)[0][..., : w2 // 2 + 1].to(dtype)
+                   .contiguous(), wave, n, f, hfov_pad, dx_c)
 
 
 def _pad_spectrum(h: int, w: int, pr: int, pc: int, dtype, device) -> torch.Tensor:
     """``rfft2`` of the indicator of ISETCam's padding (1 outside the ``h x w`` scene, ``oiPad``) ``[1, 1, H2,
     W2 // 2 + 1]``, cached: one forward FFT fewer per factored call."""
-    key = ("pad", h, w, pr, pc, dtype, str(device))
-    hit = _CACHE.get(key)
-    if hit is not None:
-        _CACHE.move_to_end(key)
-        return hit
-    ind = torch.ones(1, 1, h + 2 * pr, w + 2 * pc, dtype=dtype, device=device)
-    ind[..., pr:pr + h, pc:pc + w] = 0
-    return _remember(key, _rfft2(ind))
+    def make():
+        ind = torch.ones(1, 1, h + 2 * pr, w + 2 * pc, dtype=dtype, device=device)
+        ind[..., pr:pr + h, pc:pc + w] = 0
+        return _rfft2(ind)
+
+    return _cached(lambda: ("pad", h, w, pr, pc, dtype, str(device)), make)
 
 
 def _use_scipy(x: torch.Tensor) -> bool:
@@ -234,15 +235,8 @@ def _setup(b, nl, h, w, wavelengths_nm, hfov_deg, distance_m, f_number, focal_le
         ys = (torch.arange(h, dtype=dt, device=dev) - (h - 1) / 2)[None, :] * dx_c[:, None]
         xs = (torch.arange(w, dtype=dt, device=dev) - (w - 1) / 2)[None, :] * dx_c[:, None]
         # opticsGet 'magnification' without a selected scene is 0 (FORMAT.md 4.3)
-        if records_grad(dx_c, f, n):  # a learnable f-number or focal length: not cached (its graph would be)
-            cos4 = cos4th_isetcam(ys, xs, f, n, 0.0)
-        else:
-            key = ("cos4", h, w, tuple(dx_c.tolist()), tuple(f.tolist()), tuple(n.tolist()), str(dev))
-            cos4 = _CACHE.get(key)
-            if cos4 is None:
-                cos4 = _remember(key, cos4th_isetcam(ys, xs, f, n, 0.0))  # [B, 1, H, W]
-            else:
-                _CACHE.move_to_end(key)
+        cos4 = _cached(lambda: ("cos4", h, w, tuple(dx_c.tolist()), tuple(f.tolist()), tuple(n.tolist()), str(dev)),
+                       lambda: cos4th_isetcam(ys, xs, f, n, 0.0), dx_c, f, n)  # [B, 1, H, W]
     # oiPad: round(size/8) per side
     pr, pc = pad_sizes(h, w)
     h2, w2 = h + 2 * pr, w + 2 * pc

@@ -340,6 +340,17 @@ class QuantisationStep:
         if len(self.distinct) < self._needed:
             self.distinct.update(np.unique(st).tolist())
 
+    @classmethod
+    def pooled(cls, parts) -> QuantisationStep:
+        """One accumulator of the frames of several (``add`` each frame once, then pool)."""
+        out = cls(max((p._needed for p in parts), default=32))
+        for p in parts:
+            out.whole = out.whole and p.whole
+            out.acc |= p.acc
+            if len(out.distinct) < out._needed:
+                out.distinct |= p.distinct
+        return out
+
     def step(self, min_distinct: int = 32) -> int:
         if min_distinct > self._needed:
             raise ValueError(f"min_distinct: this accumulator keeps {self._needed} distinct values, asked "
