@@ -947,9 +947,8 @@ class PixelOptics(nn.Module):
             hit = self._memo.get(key)
             if hit is not None:
                 return hit
-        r = self._radii(rows, cols, pixel_size_m, oi)  # [rows, cols]
         if self.convention == "isetcam":
-            out = self._isetcam_radial(oi, r, pixel)
+            out = self._isetcam_radial(oi, self._radii(rows, cols, pixel_size_m, oi), pixel)
             if key is not None:
                 if len(self._memo) > 8:
                     self._memo.clear()
@@ -957,18 +956,19 @@ class PixelOptics(nn.Module):
             return out
         # separable along the pixel's rows and columns (ISETCam's pixel irradiance, mlRadiance: the x-profile's
         # outer product): the pixel at (x, y) gets T(|x|) T(|y|), T(u) the 1-D etendue at image height u on an axis
-        ax = [(torch.arange(n, dtype=torch.float64, device=r.device) - (n - 1) / 2).abs() * pixel_size_m
+        dev = oi.sample_spacing_m.device
+        ax = [(torch.arange(n, dtype=torch.float64, device=dev) - (n - 1) / 2).abs() * pixel_size_m
               for n in (cols, rows)]
-        u_max = max(float(ax[0].max()), float(ax[1].max()))
+        u_max = (max(rows, cols) - 1) / 2 * pixel_size_m  # the farthest pixel centre's column or row coordinate
         k = self.angle_samples
-        rk = torch.linspace(0.0, max(u_max, 1e-12), k, dtype=torch.float64, device=r.device)
+        rk = torch.linspace(0.0, max(u_max, 1e-12), k, dtype=torch.float64, device=dev)
         cra_k = self._cra_of_radius(oi, rk)  # [B, K]
         b = cra_k.shape[0]
         offset = self.offset_per_image_height.to(rk.device) * rk  # [K]
         offset = offset.expand(b, k).reshape(-1)
         wl = pixel.pop("wavelength_nm", _DEFAULTS["wavelength_nm"])
         if self.diffraction:  # every (wavelength, radius) pair in one batched call
-            wl = torch.tensor(waves, dtype=torch.float64, device=r.device)[None, :, None].expand(b, -1, k)
+            wl = torch.tensor(waves, dtype=torch.float64, device=dev)[None, :, None].expand(b, -1, k)
         nw = len(waves)
         cra_w = cra_k[:, None, :].expand(b, nw, k)
         off = None if self.method == "none" else offset.reshape(b, 1, k).expand(b, nw, k)
