@@ -103,6 +103,13 @@ def test_a_camera_raws_own_cfa_and_black_level_must_be_the_configs(camera, tmp_p
         err = capsys.readouterr().err
         assert err.startswith(f"isettorch process: RAW: {tmp_path / name}: {message}"), err
     assert not (tmp_path / "c").exists()
+    # per-column black levels (a DNG's BlackLevelDeltaH, averaging 0 over each channel's columns) are subtracted
+    from dng_by_hand import dng_by_hand
+
+    delta = np.array([2, 1, -2, -1] * 6)
+    dng_by_hand(tmp_path / "delta.dng", mosaic + delta, extra=[(50715, "h", 24, tuple(int(d) for d in delta), True)])
+    assert main(["process", str(tmp_path / "delta.dng"), *args, "--out", str(tmp_path / "d")]) == 0
+    assert np.array_equal(np.load(tmp_path / "d" / "delta.npy"), np.load(tmp_path / "b" / "ok.npy"))
 
 
 def test_the_shipped_joint_checkpoint_runs_as_it_ships(camera, tmp_path):

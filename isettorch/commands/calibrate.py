@@ -71,7 +71,7 @@ def _single(args) -> int:
         from ..io.raw import read_raw
 
         raw = read_raw(args.directory)
-        data = raw.data
+        data = raw.data if raw.black_level_delta_dn is None else raw.data - raw.black_level_delta_dn
         black = float(sum(raw.black_level_dn) / len(raw.black_level_dn)) if black is None else black
         white, cfa = raw.white_level_dn, cfa or raw.cfa
     else:

@@ -301,7 +301,9 @@ def run(args) -> int:
     with Outputs(out_dir) as staged, \
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
-            dn, file_cfa, file_blacks, stored_bits = _read(f)
+            dn, file_cfa, file_blacks, stored_bits, delta = _read(f)
+            if delta is not None:  # a DNG's per-row / per-column black level: its departure from the channel's
+                dn = dn - delta
             if shifts[f] > 1:
                 dn = dn / shifts[f]
             try:  # (an 8-bit PNG read as 12-bit DN)

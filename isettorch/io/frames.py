@@ -57,15 +57,18 @@ class FrameData(NamedTuple):
     """A raw frame and what its file says about it (camera raws only; ``None`` for PNG, TIFF and ``.npy``)."""
 
     dn: np.ndarray  # (H, W) float64 DN
-    cfa: str | None  # the mosaic's 2x2 pattern, e.g. "RGGB"
+    cfa: str | None  # the mosaic's repeating cell, e.g. "RGGB" (RawFrame.cfa)
     black_level_dn: list[float] | None  # per-channel black levels (DN)
     stored_bits: int | None = None  # the file's integer sample size (8 for an 8-bit PNG); None for floats and raws
+    # a DNG's black level's departure from black_level_dn per pixel (RawFrame.black_level_delta_dn), or None; ``dn``
+    # is the file's codes (a capture's dark frames measure the offsets as they are)
+    black_level_delta_dn: np.ndarray | None = None
 
 
 def read_frame(path: str | Path) -> np.ndarray:
     """One raw frame in DN as a 2-D float64 array: 8- or 16-bit greyscale PNG/TIFF (tifffile, or Pillow for TIFF
     compressions tifffile cannot decode without imagecodecs, e.g. LZW), ``.npy`` (no pickle) or a camera raw (DNG,
-    CR2, NEF, ... via rawpy: the unprocessed mosaic ``raw_image_visible``)."""
+    CR2, NEF, ... via rawpy: the unprocessed mosaic, :func:`isettorch.io.raw.read_raw`)."""
     return read_frame_data(path).dn
 
 
@@ -110,7 +113,7 @@ def read_frame_data(path: str | Path) -> FrameData:
     """:func:`read_frame`'s frame with the CFA and per-channel black levels (DN) of a camera raw's metadata."""
     path = Path(path)
     suffix = path.suffix.lower()
-    cfa, blacks = None, None
+    cfa, blacks, delta = None, None, None
     try:
         if suffix == ".npy":
             arr = np.load(path, allow_pickle=False)
@@ -122,7 +125,7 @@ def read_frame_data(path: str | Path) -> FrameData:
             from .raw import read_raw
 
             raw = read_raw(path)
-            arr, cfa, blacks = raw.data, raw.cfa, raw.black_level_dn
+            arr, cfa, blacks, delta = raw.data, raw.cfa, raw.black_level_dn, raw.black_level_delta_dn
         else:
             raise ValueError(f"unknown frame type {suffix!r}; expected one of {FRAME_SUFFIXES + RAW_SUFFIXES}")
     except ImportError:
@@ -137,7 +140,7 @@ def read_frame_data(path: str | Path) -> FrameData:
     arr = arr.astype(np.float64)
     if not np.isfinite(arr).all() or arr.min() < 0:
         raise ValueError(f"{path}: expected finite non-negative DN values")
-    return FrameData(arr, cfa, blacks, bits)
+    return FrameData(arr, cfa, blacks, bits, delta)
 
 
 def write_frame(path: str | Path, frame) -> None:
@@ -306,7 +309,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
         for (kind, ms), folder, files in jobs:
             frames = []
             for f in files:
-                arr, cfa, _, stored_bits = read_frame_data(f)
+                arr, cfa, _, stored_bits, _ = read_frame_data(f)
                 check_sample_bits(f, stored_bits, cfg["bit_depth"], "capture's",  # (as isettorch process does)
                                   " (bit_depth in capture.yaml)")
                 if f.suffix.lower() in RAW_SUFFIXES:

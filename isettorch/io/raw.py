@@ -1,8 +1,9 @@
 """Camera raw files: DNG and vendor raws read through rawpy / LibRaw (optional extra ``raw``), and a minimal DNG
 writer (tifffile) for mosaics simulated by isettorch.
 
-``read_raw`` returns the unprocessed mosaic in DN (``raw_image_visible``: no demosaic, no black subtraction, no
-scaling) with its CFA, black and white levels, so a folder of raws feeds ``isettorch calibrate`` like 16-bit PNGs.
+``read_raw`` returns the unprocessed mosaic in DN (no demosaic, no black subtraction, no scaling; a DNG's window,
+CFA and black levels from its own tags) with its CFA, black and white levels, so a folder of raws feeds
+``isettorch calibrate`` like 16-bit PNGs.
 """
 
 from __future__ import annotations
@@ -19,28 +20,43 @@ __all__ = ["RawFrame", "read_raw", "write_dng"]
 
 @dataclasses.dataclass
 class RawFrame:
-    """A raw mosaic in DN ``(H, W)`` float64 with its CFA (e.g. ``'RGGB'``; None for monochrome), per-channel black
-    levels in the order of the CFA letters (row-major over the 2 x 2 cell), and the white level."""
+    """A raw mosaic in DN ``(H, W)`` float64 with its CFA (row-major letters of its repeating cell, ``'RGGB'`` or a
+    6 x 6 X-Trans string; rows separated by ``'/'`` where the cell is not square; None for monochrome), per-channel
+    black levels in the order of the CFA letters, and the white level. ``black_level_delta_dn`` is None, or an
+    ``(H, W)`` map of the black level's departure from its per-channel value where a DNG's black level varies
+    beyond the CFA cell (BlackLevelDeltaH / BlackLevelDeltaV, or a BlackLevelRepeatDim the cell does not hold): the
+    black level of pixel ``(y, x)`` is its channel's ``black_level_dn`` plus ``black_level_delta_dn[y, x]``."""
 
     data: np.ndarray
     cfa: str | None
     black_level_dn: list[float]
     white_level_dn: float | None
+    black_level_delta_dn: np.ndarray | None = None
 
 
 def read_raw(path: str | Path) -> RawFrame:
     """Read a DNG or camera raw with rawpy (LibRaw). Raises ImportError naming the extra when rawpy is missing and
-    ValueError naming the file when LibRaw cannot read it."""
+    ValueError naming the file when LibRaw cannot read it.
+
+    A DNG's pixels are LibRaw's (decompressed, linearised) but its window, CFA and black levels are read from its
+    raw IFD's tags (Adobe DNG Specification 1.4.0.0, chapter 4: ActiveArea, CFARepeatPatternDim, CFAPattern,
+    CFAPlaneColor, BlackLevelRepeatDim, BlackLevel, BlackLevelDeltaH/V, all relative to the ActiveArea's top-left
+    corner), where LibRaw 0.22 is wrong without a word: it rounds an odd ActiveArea margin up (a row or column
+    lost), shifts an X-Trans pattern by the margins (the wrong phase unless they are multiples of 6), reads a 4 x 4
+    (Quad-Bayer) pattern as its 2 x 2 corner, names every 4-colour CFA GMCY, floors a fractional black level and
+    averages per-row and per-column deltas into one value. The whole ActiveArea is returned (DefaultCrop is not
+    applied) in the sensor's orientation (the Orientation tag is not applied: data and CFA stay consistent).
+    Other raws are LibRaw's ``raw_image_visible`` with its pattern and black levels."""
     try:
         import rawpy
     except ImportError as err:
         raise ImportError("read_raw: camera raws need rawpy; pip install 'isettorch[raw]'") from err
     path = Path(path)
-    if path.suffix.lower() == ".dng":  # LibRaw read a plain TIFF named .dng as an RGGB raw of black 0 (exit 0)
-        _check_dng_version(path)
+    dng = _read_dng_tags(path) if path.suffix.lower() == ".dng" else None
     try:
         with rawpy.imread(str(path)) as r:
-            data = np.array(r.raw_image_visible, dtype=np.float64)
+            full = r.raw_image if dng is not None else r.raw_image_visible
+            data = np.array(full, dtype=np.float64)
             pattern = np.asarray(r.raw_pattern) if r.raw_pattern is not None else None
             desc = r.color_desc.decode("ascii", "replace")
             blacks = [float(b) for b in r.black_level_per_channel]
@@ -50,6 +66,8 @@ def read_raw(path: str | Path) -> RawFrame:
     if data.ndim != 2:  # (a LinearRaw DNG came back (H, W, 4))
         raise ValueError(f"{path}: a demosaiced raw (shape {data.shape}, e.g. a LinearRaw DNG); expected a colour "
                          f"filter array mosaic")
+    if dng is not None:
+        return dng.frame(path, data, white)
     cfa = None
     if pattern is not None and pattern.size > 1:
         cfa = "".join(desc[int(i)] for i in pattern.reshape(-1))
@@ -58,25 +76,139 @@ def read_raw(path: str | Path) -> RawFrame:
                              f"every 4-colour CFA GMCY); only R, G, B mosaics are read: give the frames as .npy with "
                              f"cfa in capture.yaml")
         blacks = [blacks[int(i)] for i in pattern.reshape(-1)]
-    if white is not None and max(blacks) >= white:  # (the DNG specification asks black < white)
-        raise ValueError(f"{path}: black level {max(blacks):g} DN is not below the white level {white:g} DN")
+    _check_black_below_white(path, blacks, white)
     return RawFrame(data=data, cfa=cfa, black_level_dn=blacks, white_level_dn=white)
 
 
-def _check_dng_version(path: Path) -> None:
-    """A ``.dng`` file is a DNG: its first IFD has the DNGVersion tag (Adobe DNG Specification 1.4, chapter 4);
-    a file tifffile cannot parse is left to LibRaw's own message."""
+def _check_black_below_white(path: Path, blacks, white: float | None) -> None:
+    if white is not None and max(blacks) >= white:  # (the DNG specification asks black < white)
+        raise ValueError(f"{path}: black level {max(blacks):g} DN is not below the white level {white:g} DN")
+
+
+_DNG_PLANE_LETTERS = "RGBCMYW"  # CFAPlaneColor codes 0..6 (DNG 1.4, CFAPlaneColor: red ... white)
+
+
+@dataclasses.dataclass
+class _DngRaw:
+    """What a DNG's raw IFD says about its mosaic (tags relative to the ActiveArea's top-left corner)."""
+
+    shape: tuple[int, int]  # the raw IFD's ImageLength, ImageWidth
+    active: tuple[int, int, int, int]  # ActiveArea top, left, bottom, right
+    cell: list[list[str]] | None  # CFA letters per row of the repeating cell; None: monochrome
+    black: np.ndarray  # BlackLevel, (repeat rows, repeat cols)
+    delta_v: np.ndarray  # BlackLevelDeltaV, one per ActiveArea row
+    delta_h: np.ndarray  # BlackLevelDeltaH, one per ActiveArea column
+
+    def frame(self, path: Path, full: np.ndarray, white: float | None) -> RawFrame:
+        if full.shape != self.shape:
+            raise ValueError(f"{path}: LibRaw read a {full.shape[0]} x {full.shape[1]} raw where the DNG's raw IFD is "
+                             f"{self.shape[0]} x {self.shape[1]}; cannot place its ActiveArea and CFA")
+        top, left, bottom, right = self.active
+        data = full[top:bottom, left:right]
+        h, w = data.shape
+        rows, cols = self.black.shape
+        level = (np.tile(self.black, (-(-h // rows), -(-w // cols)))[:h, :w] + self.delta_v[:, None]
+                 + self.delta_h[None, :])  # the black level of every pixel
+        p, q = (len(self.cell), len(self.cell[0])) if self.cell is not None else (1, 1)
+        if h < p or w < q:
+            raise ValueError(f"{path}: an ActiveArea of {h} x {w} pixels holds no whole {p} x {q} CFA cell")
+        per_cell = np.array([[level[i::p, j::q].mean() for j in range(q)] for i in range(p)])
+        delta = level - np.tile(per_cell, (-(-h // p), -(-w // q)))[:h, :w]
+        blacks = [float(b) for b in per_cell.reshape(-1)]
+        _check_black_below_white(path, blacks, white)
+        cfa = None
+        if self.cell is not None:
+            cfa = ("".join(sum(self.cell, [])) if p == q else "/".join("".join(r) for r in self.cell))
+        return RawFrame(data=data, cfa=cfa, black_level_dn=blacks, white_level_dn=white,
+                        black_level_delta_dn=delta if np.any(delta != 0) else None)
+
+
+def _tag_values(page, code: int, default=None):
+    """A tag's values as a float64 array (RATIONAL / SRATIONAL as numerator / denominator), or ``default``."""
+    tag = page.tags.get(code)
+    if tag is None:
+        return default
+    value = tag.value
+    value = tuple(value) if isinstance(value, (tuple, list, bytes)) else (value,)
+    arr = np.asarray(value, dtype=np.float64)
+    if int(tag.dtype) in (5, 10):  # RATIONAL, SRATIONAL: pairs
+        arr = arr[0::2] / arr[1::2]
+    return arr
+
+
+def _read_dng_tags(path: Path) -> _DngRaw | None:
+    """The raw IFD's tags of a DNG: IFD 0 or one of its SubIFDs with NewSubFileType 0 and a CFA (or a one-sample
+    LinearRaw: monochrome) photometric interpretation. A file that is not a DNG (no DNGVersion tag in IFD 0) is
+    refused; one that tifffile cannot parse, or without such an IFD, is left to LibRaw's own message (None)."""
     import tifffile
 
     try:
         with tifffile.TiffFile(str(path)) as tif:
-            tags = tif.pages[0].tags
-            has_version = tags.get(50706) is not None
-    except Exception:  # not a TIFF, truncated: LibRaw says so below
-        return
-    if not has_version:
+            first = tif.pages[0]
+            is_dng = first.tags.get(50706) is not None
+            raw = None
+            for page in [first, *(getattr(first, "pages", None) or [])]:
+                kind = page.tags.get(254)
+                if (0 if kind is None else int(kind.value)) == 0 and int(page.photometric) in (32803, 34892):
+                    raw = page
+                    break
+            if not is_dng or raw is None:
+                tags = None
+            elif int(raw.photometric) == 34892 and int(raw.samplesperpixel) != 1:
+                tags = "linear"
+            else:
+                tags = _dng_raw(path, raw)
+    except _DngTagError as err:
+        raise ValueError(str(err)) from None
+    except Exception:  # not a TIFF, truncated: LibRaw says so
+        return None
+    if not is_dng:
         raise ValueError(f"{path}: not a DNG (no DNGVersion tag: a TIFF named .dng?); give the camera's DNG, or the "
                          f"frame as a 16-bit TIFF/PNG or .npy")
+    if tags == "linear":
+        raise ValueError(f"{path}: a demosaiced raw (a LinearRaw DNG of {int(raw.samplesperpixel)} samples a "
+                         f"pixel); expected a colour filter array mosaic")
+    return tags
+
+
+class _DngTagError(ValueError):
+    """A DNG's raw IFD tags that do not fit together (raised while tifffile's file is open)."""
+
+
+def _dng_raw(path: Path, page) -> _DngRaw:
+    shape = (int(page.imagelength), int(page.imagewidth))
+    area = _tag_values(page, 50829, np.array([0, 0, *shape], dtype=np.float64))
+    top, left, bottom, right = (int(v) for v in area)
+    if not (len(area) == 4 and 0 <= top < bottom <= shape[0] and 0 <= left < right <= shape[1]):
+        raise _DngTagError(f"{path}: ActiveArea {tuple(area)} is not inside the {shape[0]} x {shape[1]} raw")
+    cell = None
+    if int(page.photometric) == 32803:
+        dim = _tag_values(page, 33421)
+        codes = _tag_values(page, 33422)
+        planes = _tag_values(page, 50710, np.arange(3.0))  # the colours of the planes (default red, green, blue)
+        if dim is None or codes is None or len(dim) != 2 or min(dim) < 1 or len(codes) != int(dim[0]) * int(dim[1]):
+            raise _DngTagError(f"{path}: a CFA raw without a CFARepeatPatternDim / CFAPattern pair that fits")
+        # CFAPattern holds colour codes, each one of CFAPlaneColor's (TIFF/EP 4.6.4; DNG 1.4 CFAPlaneColor)
+        if not set(codes) <= set(planes) or not set(planes) <= set(range(len(_DNG_PLANE_LETTERS))):
+            raise _DngTagError(f"{path}: CFAPattern {tuple(int(c) for c in codes)} with CFAPlaneColor "
+                               f"{tuple(int(c) for c in planes)}: expected colour codes 0-6 ({_DNG_PLANE_LETTERS}), "
+                               f"the pattern's among the planes'")
+        letters = [_DNG_PLANE_LETTERS[int(c)] for c in codes]
+        q = int(dim[1])
+        cell = [letters[i:i + q] for i in range(0, len(letters), q)]
+    h, w = bottom - top, right - left
+    repeat = _tag_values(page, 50713, np.array([1.0, 1.0])).astype(int)
+    black = _tag_values(page, 50714, np.zeros(1))
+    if len(repeat) != 2 or min(repeat) < 1 or len(black) != repeat[0] * repeat[1]:
+        raise _DngTagError(f"{path}: BlackLevel has {len(black)} values for a BlackLevelRepeatDim of "
+                         f"{tuple(int(r) for r in repeat)} (one sample per pixel)")
+    delta_v = _tag_values(page, 50716, np.zeros(h))
+    delta_h = _tag_values(page, 50715, np.zeros(w))
+    if len(delta_v) != h or len(delta_h) != w:
+        raise _DngTagError(f"{path}: BlackLevelDeltaV / DeltaH have {len(delta_v)} / {len(delta_h)} values for an "
+                         f"ActiveArea of {h} rows and {w} columns")
+    return _DngRaw(shape=shape, active=(top, left, bottom, right), cell=cell, black=black.reshape(repeat),
+                   delta_v=delta_v, delta_h=delta_h)
 
 
 _DNG_CFA_CODES = {"R": 0, "G": 1, "B": 2}

@@ -9,6 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 import numpy_capture as nc  # noqa: E402
+from dng_by_hand import dng_by_hand  # noqa: E402
 
 from isettorch.sensor.noise_estimation import estimate_poisson_gaussian  # noqa: E402
 
@@ -223,23 +224,6 @@ def test_poisson_gaussian_estimate_checks_its_levels():
             estimate_poisson_gaussian(z, **kw)
 
 
-def _dng_by_hand(path, mosaic, *, cfa_codes=(0, 1, 1, 2), plane_colors=None, black=64, white=4095, version=True):
-    """An uncompressed CFA DNG written with tifffile's tags directly (Adobe DNG Specification 1.4, chapters 4-6),
-    not through isettorch.io.raw.write_dng, which refuses what these files hold."""
-    import tifffile
-
-    tags = [(33421, "H", 2, (2, 2), True), (33422, "B", 4, tuple(cfa_codes), True),
-            (50714, "H", 1, (black,), True), (50717, "H", 1, (white,), True),
-            (50721, "2i", 9, (1, 1, 0, 1, 0, 1, 0, 1, 1, 1, 0, 1, 0, 1, 0, 1, 1, 1), True)]
-    if version:
-        tags = [(50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 1, 0, 0), True),
-                (50708, "s", 0, "test", True)] + tags
-    if plane_colors is not None:
-        tags.append((50710, "B", len(plane_colors), tuple(plane_colors), True))  # CFAPlaneColor
-    tifffile.imwrite(str(path), np.asarray(mosaic, np.uint16), photometric=32803, subfiletype=0, extratags=tags,
-                     metadata=None)
-
-
 def test_raws_that_read_back_wrong_are_refused(tmp_path):
     """What LibRaw reads back silently wrong is refused naming the file (an audit with hand-written DNGs): a plain
     TIFF named .dng (read as an RGGB raw of black 0), a 4-colour CFA (LibRaw names every one GMCY: a CYGM file read
@@ -250,14 +234,68 @@ def test_raws_that_read_back_wrong_are_refused(tmp_path):
     from isettorch.io.raw import read_raw
 
     m = (np.arange(32 * 48).reshape(32, 48) % 3000 + 100).astype(np.uint16)
-    _dng_by_hand(tmp_path / "ok.dng", m)
+    dng_by_hand(tmp_path / "ok.dng", m)
     assert read_raw(tmp_path / "ok.dng").cfa == "RGGB"  # the hand-written form reads (the tests below can fail)
     tifffile.imwrite(str(tmp_path / "plain.dng"), m)
     with pytest.raises(ValueError, match="plain.dng: not a DNG .no DNGVersion tag"):
         read_raw(tmp_path / "plain.dng")
-    _dng_by_hand(tmp_path / "cygm.dng", m, cfa_codes=(0, 1, 2, 3), plane_colors=(3, 4, 1, 5))  # C Y G M
-    with pytest.raises(ValueError, match="cygm.dng: a [A-Z]{4} colour filter array, whose colours LibRaw"):
-        read_raw(tmp_path / "cygm.dng")
-    _dng_by_hand(tmp_path / "black.dng", np.minimum(m, 4095), black=5000, white=4095)
+    # CFAPattern holds colour codes among CFAPlaneColor's (TIFF/EP; LibRaw names every 4-colour CFA GMCY)
+    dng_by_hand(tmp_path / "cygm.dng", m, cfa_codes=(3, 5, 1, 4), plane_colors=(3, 5, 1, 4))
+    assert read_raw(tmp_path / "cygm.dng").cfa == "CYGM"
+    dng_by_hand(tmp_path / "planes.dng", m, cfa_codes=(0, 1, 2, 3), plane_colors=(3, 4, 1, 5))
+    with pytest.raises(ValueError, match=r"planes.dng: CFAPattern \(0, 1, 2, 3\) with CFAPlaneColor \(3, 4, 1, 5\)"):
+        read_raw(tmp_path / "planes.dng")
+    dng_by_hand(tmp_path / "black.dng", np.minimum(m, 4095), black=5000, white=4095)
     with pytest.raises(ValueError, match="black.dng: black level 5000 DN is not below the white level 4095 DN"):
         read_raw(tmp_path / "black.dng")
+
+
+def test_dng_window_cfa_and_black_levels_come_from_its_tags(tmp_path):
+    """A DNG's ActiveArea, CFA and black levels are its tags' (DNG 1.4 chapter 4: CFAPattern, BlackLevel and the
+    deltas count from the ActiveArea's top-left corner), where LibRaw 0.22 silently differs (an audit with
+    hand-written DNGs): an odd ActiveArea margin lost a row, an X-Trans pattern took the wrong phase, a Quad-Bayer
+    cell read as its 2 x 2 corner, a RATIONAL black level was floored, per-column deltas were averaged."""
+    pytest.importorskip("rawpy")
+    from isettorch.io.frames import read_frame_data
+    from isettorch.io.raw import read_raw
+
+    m = (np.arange(48 * 60).reshape(48, 60) * 7 % 3000 + 300).astype(np.uint16)
+    area = (50829, "I", 4, (3, 5, 45, 56), True)  # ActiveArea top, left, bottom, right
+    dng_by_hand(tmp_path / "odd.dng", m, extra=[area])  # RGGB from the ActiveArea's corner
+    r = read_raw(tmp_path / "odd.dng")
+    assert np.array_equal(r.data, m[3:45, 5:56]) and r.cfa == "RGGB" and r.black_level_delta_dn is None
+    xtrans = "GGRGGB" "GGBGGR" "BRGRBG" "GGBGGR" "GGRGGB" "RBGBRG"
+    codes = tuple("RGB".index(c) for c in xtrans)
+    for top, left in ((1, 0), (0, 1), (5, 3), (3, 3)):
+        dng_by_hand(tmp_path / "x.dng", m, cfa_codes=codes, dim=(6, 6),
+                     extra=[(50829, "I", 4, (top, left, 44, 56), True)])
+        r = read_raw(tmp_path / "x.dng")
+        assert r.cfa == xtrans and np.array_equal(r.data, m[top:44, left:56]), (top, left)
+    quad = "RRGG" "RRGG" "GGBB" "GGBB"
+    dng_by_hand(tmp_path / "quad.dng", m, cfa_codes=tuple("RGB".index(c) for c in quad), dim=(4, 4))
+    assert read_raw(tmp_path / "quad.dng").cfa == quad
+    # RATIONAL black levels, one per position of a 2 x 2 repeat: 60.5, 61.25, 62.75, 63.5 DN
+    blacks = [(50713, "H", 2, (2, 2), True), (50714, "2I", 4, (121, 2, 245, 4, 251, 4, 127, 2), True)]
+    dng_by_hand(tmp_path / "frac.dng", m, black=None, cfa_codes=(1, 0, 2, 1), extra=blacks)
+    r = read_raw(tmp_path / "frac.dng")
+    assert r.cfa == "GRBG" and r.black_level_dn == [60.5, 61.25, 62.75, 63.5] and r.black_level_delta_dn is None
+    # per-column (SRATIONAL) and per-row deltas over the ActiveArea: pixel (y, x)'s black is 64 + x % 7 - y % 3 / 4
+    h, w = 42, 51
+    deltas = [(50715, "2i", w, sum(((x % 7, 1) for x in range(w)), ()), True),
+              (50716, "2i", h, sum(((-(y % 3), 4) for y in range(h)), ()), True)]
+    dng_by_hand(tmp_path / "delta.dng", m, extra=[area, *deltas])
+    r = read_raw(tmp_path / "delta.dng")
+    y, x = np.mgrid[:h, :w]
+    level = 64 + x % 7 - (y % 3) / 4
+    per_channel = np.array(r.black_level_dn).reshape(2, 2)
+    assert np.allclose(np.tile(per_channel, (21, 26))[:h, :w] + r.black_level_delta_dn, level, atol=1e-12)
+    assert np.allclose(per_channel, [[level[i::2, j::2].mean() for j in range(2)] for i in range(2)])
+    assert read_frame_data(tmp_path / "delta.dng").black_level_delta_dn is not None
+    # a black level that does not fit its repeat, deltas of the wrong length: refused naming the file
+    dng_by_hand(tmp_path / "bad.dng", m, black=None, extra=[(50713, "H", 2, (2, 2), True),
+                                                            (50714, "H", 3, (1, 2, 3), True)])
+    with pytest.raises(ValueError, match="bad.dng: BlackLevel has 3 values for a BlackLevelRepeatDim of"):
+        read_raw(tmp_path / "bad.dng")
+    dng_by_hand(tmp_path / "bad.dng", m, extra=[area, (50715, "2i", 3, (1, 1) * 3, True)])
+    with pytest.raises(ValueError, match="bad.dng: BlackLevelDeltaV / DeltaH have 42 / 3 values"):
+        read_raw(tmp_path / "bad.dng")
