@@ -338,11 +338,15 @@ def check_illuminant_name(name, key: str = "illuminant") -> None:
 
 
 def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channel: int, name: str) -> torch.Tensor:
-    # ISETCam grayWorld/whiteWorld: D_c = (white_c / white_ref) * (avg_ref / avg_c).
+    # ISETCam grayWorld/whiteWorld: D_c = (white_c / white_ref) * (avg_ref / avg_c). An image that is black in
+    # every channel has nothing to balance: it gets the white's own gains (its output stays black; a black frame
+    # of a dim scene, or one black item, failed the whole batch)
     m = means.detach()
-    if not bool(((m > 0) & torch.isfinite(m)).all()):  # (a NaN or Inf pixel gave NaN gains)
-        raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced, got channel means "
-                         f"{means.detach().tolist()}")
+    black = (m == 0).all(dim=-1, keepdim=True)
+    if not bool((((m > 0) & torch.isfinite(m)) | black).all()):  # (a NaN or Inf pixel gave NaN gains)
+        raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced (or the whole image "
+                         f"black), got channel means {means.detach().tolist()}")
+    means = torch.where(black, torch.ones_like(means), means)
     wt = white.to(device=means.device, dtype=means.dtype)
     if wt.dim() == 1:
         wt = wt.unsqueeze(0)

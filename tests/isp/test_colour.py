@@ -120,6 +120,32 @@ def test_gray_world_gains_follow_isetcam_formula():
                                rtol=1e-12)
 
 
+def test_a_black_image_is_balanced_by_the_whites_gains():
+    """An image black in every channel has nothing to balance: gray and white world give it the white's own gains
+    (its output stays black), and the other items of its batch keep their own gains. A black or very dim scene
+    through the gray-world cameras (imx363, paper2004_cds, phone_microlens) raised, failing the whole batch."""
+    g = torch.Generator().manual_seed(4)
+    img = torch.rand(2, 3, 6, 7, generator=g, dtype=torch.float64) + 0.05
+    white = torch.tensor([0.95, 1.0, 1.09], dtype=torch.float64)
+    batch = img.clone()
+    batch[1] = 0
+    for fn in (gray_world_gains, white_world_gains):
+        gains = fn(batch, white)
+        np.testing.assert_allclose(gains[0].numpy(), fn(img[:1], white)[0].numpy(), rtol=1e-12)
+        np.testing.assert_allclose(gains[1].numpy(), (white / white[0]).numpy(), rtol=1e-12)
+    partly = img[:1].clone()
+    partly[0, 2] = 0  # one channel without signal (a single-hue image): no gray-world gain exists
+    with pytest.raises(ValueError, match="img: every channel needs a finite, positive mean"):
+        gray_world_gains(partly)
+    from isettorch.camera import Camera
+    from isettorch.scene import Scene
+
+    cam = Camera.from_config("paper2004_cds")
+    cam.noise = False
+    out = cam(Scene(torch.zeros(1, 31, 24, 32, dtype=torch.float64), torch.arange(400.0, 701.0, 10.0), hfov_deg=1.0))
+    assert torch.equal(out, torch.zeros_like(out))
+
+
 def test_white_world_uses_bright_pixels_of_brightest_plane():
     img = torch.zeros(1, 3, 1, 4, dtype=torch.float64)
     img[0, :, 0] = torch.tensor([[1.0, 0.8, 0.1, 0.2], [0.5, 0.4, 0.2, 0.1], [0.25, 0.2, 0.9, 0.05]]).T.T
@@ -139,7 +165,7 @@ def test_illuminant_gains_methods_and_errors():
     with pytest.raises(ValueError, match="gains"):
         illuminant_gains(img, "manual")
     with pytest.raises(ValueError, match="positive mean"):
-        gray_world_gains(torch.zeros(1, 3, 2, 2))
+        gray_world_gains(torch.zeros(1, 3, 2, 2).index_fill(1, torch.tensor([0]), 1.0))  # G and B black
     with pytest.raises(ValueError, match="space"):
         IlluminantCorrection("gray_world", space="lab")
 
