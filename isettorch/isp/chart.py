@@ -13,6 +13,7 @@ import warnings
 
 import torch
 
+from .._checks import check_finite, is_integer
 from .colour import reflectance_set, white_xyz, xyz_responses
 
 __all__ = ["patch_means", "macbeth_true_xyz", "macbeth_delta_e", "gray_patch_snr", "gray_patch_snr_db",
@@ -25,14 +26,15 @@ WHITE_PATCH = 18
 def patch_means(img: torch.Tensor, grid: tuple[int, int] = (4, 6), fraction: float = 0.5) -> torch.Tensor:
     """Mean of the central ``fraction`` of each cell of a ``grid`` chart filling the image: (B, C, H, W) ->
     (B, P, C), patches in reading order."""
-    if img.dim() != 4:
-        raise ValueError(f"img: expected (B, C, H, W), got shape {tuple(img.shape)}")
+    if not isinstance(img, torch.Tensor) or img.dim() != 4 or not img.is_floating_point():
+        raise ValueError(f"img: expected a floating-point tensor (B, C, H, W), got "
+                         f"{(img.dtype, tuple(img.shape)) if isinstance(img, torch.Tensor) else type(img).__name__}")
+    check_finite(img.detach(), "img")  # (a NaN pixel made NaN patch means)
     if not 0 < fraction <= 1:
         raise ValueError(f"fraction: expected a value in (0, 1], got {fraction}")
-    try:
-        rows, cols = (int(v) for v in grid)
-    except (TypeError, ValueError):
-        raise ValueError(f"grid: expected (rows, cols), got {grid!r}") from None
+    if not (isinstance(grid, (tuple, list)) and len(grid) == 2 and all(is_integer(v) for v in grid)):
+        raise ValueError(f"grid: expected (rows, cols) integers, got {grid!r}")  # (4.7 rows were 4)
+    rows, cols = (int(v) for v in grid)
     h, w = img.shape[-2:]
     if not (1 <= rows <= h and 1 <= cols <= w):
         raise ValueError(f"grid: expected 1 <= rows <= {h} and 1 <= cols <= {w} (a cell per patch, at least a pixel "

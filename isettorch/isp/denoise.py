@@ -62,8 +62,11 @@ def _anscombe(z, a, b):
 
 
 def _anscombe_inverse(y, a, b):
-    """Algebraic inverse of :func:`_anscombe` (biased at very low counts; Makitalo & Foi 2013 give the exact
-    unbiased one)."""
+    """Algebraic inverse of :func:`_anscombe`: exact on noise-free values (a clean constant stays itself, which the
+    joint model's constant-field guarantee rests on), but a denoised ``y`` estimates ``E[f(z)]``, whose square is
+    below ``f(E[z])^2`` by the stabilised variance 1, so noisy data come back low by ``a / 4`` at every level
+    (0.6 of an 8-bit code at ``a`` = 0.01; Makitalo & Foi 2013, section III: their asymptotically unbiased inverse
+    is ``a y^2 / 4 - a / 8 - b / a``). Kept: the shipped joint model's high-noise gate was chosen with it."""
     return 0.25 * a * y * y - 0.375 * a - b / a
 
 
@@ -86,12 +89,17 @@ def denoise_mosaic(raw: torch.Tensor, method: str, noise_sigma: float = 0.0, noi
     sub-plane holds one colour, so a grey-level denoiser applies), for noise ``var = noise_shot x + noise_sigma^2``.
 
     Signal-dependent noise (``noise_shot > 0``) is stabilised with the generalised Anscombe transform first
-    (Makitalo & Foi 2013) and denoised at unit sigma. Returns the same shape, dtype and device.
+    (Makitalo & Foi 2013; its square root's argument is clipped at 0, as theirs, for the darkest samples of
+    Gaussian noise, below ``-(3 a / 8 + sigma^2 / a)``), denoised at unit sigma and mapped back by the
+    algebraic inverse (its output's level is ``a / 4`` low on noisy data: ``_anscombe_inverse``). Returns the same
+    shape, dtype and device.
     """
     check_denoiser(method)
     s, a = _check_noise(noise_sigma, noise_shot)
     if s == 0 and a == 0:
         raise ValueError(f"denoise: {method!r} needs a noise level (noise_sigma or noise_shot > 0)")
+    if not isinstance(raw, torch.Tensor):
+        raise TypeError(f"raw: expected a torch.Tensor (B, 1, H, W), got {type(raw).__name__}")
     if raw.dim() != 4 or raw.shape[1] != 1 or raw.shape[-2] < 2 or raw.shape[-1] < 2:
         # (an odd H or W is fine: each sub-plane still holds one colour, the last row / column's planes are shorter)
         raise ValueError(f"raw: expected a Bayer mosaic (B, 1, H, W) with H, W >= 2, got {tuple(raw.shape)}")

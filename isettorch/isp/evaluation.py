@@ -46,13 +46,17 @@ def available_methods() -> list[str]:
     return sorted(set(METHODS) | set(_LAZY_METHODS))
 
 
-def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: float = 1.0) -> torch.Tensor:
-    """Colour PSNR per image: 10 log10(peak^2 / MSE), the MSE over all channels and pixels, a ``crop``-pixel
-    border excluded.
+def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: float | None = None
+          ) -> torch.Tensor:
+    """Colour PSNR per image: 10 log10(peak^2 / MSE), the MSE over the three channels and all pixels, a
+    ``crop``-pixel border excluded (:func:`isettorch.metrics.fidelity.cpsnr`, with ``crop`` third as the
+    benchmarks call it).
 
     Args:
-        estimate, reference: (B, C, H, W) of the same shape.
+        estimate, reference: (B, 3, H, W) of the same shape.
         crop: border width excluded on each side (pixels).
+        peak: the full scale; None: 1 for floating-point images (a reference outside [0, 1] is refused), 255 for
+            uint8.
 
     Returns:
         (B,) in dB (inf where the images are equal).
@@ -65,9 +69,9 @@ def cpsnr(estimate: torch.Tensor, reference: torch.Tensor, crop: int = 0, peak: 
     if estimate.shape != reference.shape or estimate.dim() != 4:
         raise ValueError(f"estimate, reference: expected equal shapes (B, C, H, W), got {tuple(estimate.shape)} "
                          f"and {tuple(reference.shape)}")
-    from ..metrics.fidelity import psnr  # one PSNR implementation (per image, MSE over C, H, W)
+    from ..metrics.fidelity import cpsnr as fidelity_cpsnr  # one PSNR implementation (per image, MSE over C, H, W)
 
-    return psnr(estimate, reference, data_range=peak, crop=crop)
+    return fidelity_cpsnr(estimate, reference, data_range=peak, crop=crop)
 
 
 #: the side of the corner of the first image a timed evaluation warms the method up on (pixels)
@@ -80,7 +84,10 @@ def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
     read by :func:`isettorch.io.images.read_rgb8`: gray, palette and opaque-alpha images converted losslessly,
     anything else refused naming the file) or an iterable of (name, array) pairs."""
     if not isinstance(source, (str, Path)):
-        return [(str(n), np.asarray(a)) for n, a in source]
+        pairs = [(str(n), np.asarray(a)) for n, a in source]
+        if not pairs:  # (evaluate_demosaic scored nothing as mean_cpsnr inf)
+            raise ValueError("images: expected at least one (name, image) pair, got none")
+        return pairs
     folder = Path(source)
     if not folder.is_dir():
         raise ValueError(f"images: expected a folder of {'/'.join(PHOTO_SUFFIXES)} images, {str(folder)!r} is not "
@@ -142,6 +149,8 @@ def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float 
     if not isinstance(raw, torch.Tensor) or not raw.is_floating_point():
         raise TypeError(f"raw: expected a floating-point mosaic tensor (B, 1, H, W) in [0, 1], got "
                         f"{raw.dtype if isinstance(raw, torch.Tensor) else type(raw).__name__}")
+    if raw.dim() != 4 or raw.shape[1] != 1:  # ((1, 3, H, W) was taken as a mosaic)
+        raise ValueError(f"raw: expected a mosaic (B, 1, H, W), got shape {tuple(raw.shape)}")
     check_finite(raw.detach(), "raw")  # (torch's 'invalid Poisson rate' named nothing)
     if s == 0 and a == 0:
         return raw

@@ -157,12 +157,19 @@ def xy_to_xyz(xy: torch.Tensor, Y=1.0, dim: int = -3) -> torch.Tensor:
     d = dim % xy.dim()
     if xy.shape[d] != 2:
         raise ValueError(f"xy: expected 2 components along dim={dim}, got shape {tuple(xy.shape)}")
+    check_finite(xy.detach(), "xy")  # (NaN passed the y > 0 test and came out as NaN XYZ)
     c = xy.movedim(d, -1)
     x, y = c.unbind(-1)
     if (y <= 0).any():
         raise ValueError(f"xy: expected y > 0, got minimum {y.min().item():.6g}")
     Yt = as_tensor(Y, "Y", dtype=c.dtype, device=c.device)
-    return torch.stack((x * Yt / y, Yt.expand_as(x), (1 - x - y) * Yt / y), dim=-1).movedim(-1, d)
+    check_finite(Yt.detach(), "Y")
+    try:
+        Yt = Yt.expand_as(x)
+    except RuntimeError:
+        raise ValueError(f"Y: expected a luminance broadcastable to xy's {tuple(x.shape)} points, got shape "
+                         f"{tuple(Yt.shape)}") from None
+    return torch.stack((x * Yt / y, Yt, (1 - x - y) * Yt / y), dim=-1).movedim(-1, d)
 
 
 def srgb_to_xyz(srgb: torch.Tensor, dim: int = -3) -> torch.Tensor:

@@ -21,7 +21,7 @@ import math
 import numpy as np
 import torch
 
-from .._checks import check_finite
+from .._checks import check_finite, is_integer
 
 __all__ = ["power_spectrum_slope", "gradient_kurtosis", "cross_channel_gradient_correlation",
            "detail_ratio_exponent", "power_law_exponent_mle", "radial_power_spectrum"]
@@ -32,7 +32,7 @@ def _check_image(img: torch.Tensor, name: str = "image") -> torch.Tensor:
         raise ValueError(f"{name}: expected a 2-D tensor [H, W] of at least 8 x 8, got "
                          f"{tuple(img.shape) if isinstance(img, torch.Tensor) else type(img).__name__}")
     check_finite(img.detach(), name)
-    return img.to(torch.float64)
+    return img.detach().to(torch.float64)  # (statistics, not differentiable: .numpy() of a graph raised)
 
 
 def radial_power_spectrum(img: torch.Tensor, *, window: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -85,6 +85,8 @@ def cross_channel_gradient_correlation(rgb: torch.Tensor, a: int = 0, b: int = 1
     ``rgb`` [C, H, W]."""
     if not isinstance(rgb, torch.Tensor):
         raise TypeError(f"rgb: expected a torch.Tensor [C, H, W], got {type(rgb).__name__}")
+    if not (is_integer(a) and is_integer(b) and a >= 0 and b >= 0):  # (-1 read as the last channel)
+        raise ValueError(f"a, b: expected channel indices >= 0, got {a!r} and {b!r}")
     if rgb.dim() != 3 or rgb.shape[0] <= max(a, b):
         raise ValueError(f"rgb: expected [C, H, W] with channels {a} and {b}, got {tuple(rgb.shape)}")
     check_finite(rgb.detach(), "rgb")

@@ -7,7 +7,7 @@ import numbers
 
 import torch
 
-from .._checks import as_tensor, check_finite, check_nonnegative
+from .._checks import as_tensor, check_finite, check_nonnegative, is_integer
 
 
 def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, db: bool = False) -> torch.Tensor:
@@ -26,11 +26,15 @@ def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = Non
         raise ValueError(f"image: expected a tensor (..., H, W), got "
                          f"{tuple(image.shape) if isinstance(image, torch.Tensor) else type(image).__name__}")
     if roi is not None:
+        if not (isinstance(roi, (tuple, list)) and len(roi) == 4 and all(is_integer(v) for v in roi)):
+            raise ValueError(f"roi: expected four integers (row0, row1, col0, col1), got {roi!r}")  # (2.7 was 2)
         r0, r1, c0, c1 = (int(v) for v in roi)
         if not (0 <= r0 < r1 <= image.shape[-2] and 0 <= c0 < c1 <= image.shape[-1]) or (r1 - r0) * (c1 - c0) < 2:
             raise ValueError(f"roi: expected (row0, row1, col0, col1) inside {tuple(image.shape[-2:])} with at least "
                              f"2 pixels, got {roi}")
         image = image[..., r0:r1, c0:c1]
+    elif image.shape[-2] * image.shape[-1] < 2:  # (one pixel has no standard deviation: NaN)
+        raise ValueError(f"image: expected at least 2 pixels, got shape {tuple(image.shape)}")
     x = image.flatten(-2)
     if not x.is_floating_point():
         x = x.to(torch.get_default_dtype())
@@ -165,4 +169,7 @@ def dynamic_range_from_curve(signal: torch.Tensor, snr: torch.Tensor, max_signal
     ls0, ls1, lr0, lr1 = math.log(s[i - 1]), math.log(s[i]), math.log(r[i - 1]), math.log(r[i])
     s_min = math.exp(ls0 + (0 - lr0) * (ls1 - ls0) / (lr1 - lr0))
     top = float(s.max()) if max_signal is None else float(max_signal)
+    if not top > s_min:  # (a negative dynamic range was returned)
+        raise ValueError(f"max_signal: expected a signal above the noise floor {s_min:.6g} (where SNR = 1), got "
+                         f"{top:.6g}")
     return dynamic_range_db(top, s_min)

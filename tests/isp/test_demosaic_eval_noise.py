@@ -122,7 +122,10 @@ def test_anscombe_stabilises_poisson_gaussian_variance():
         x = torch.full((200_000,), level, dtype=torch.float64)
         z = poisson_gaussian(x, a, b**0.5, g).numpy()
         assert np.var(_anscombe(z, a, b)) == pytest.approx(1.0, abs=0.03)  # Makitalo & Foi 2013: ~1
-    y = np.linspace(0.1, 0.9, 9)
+        # the algebraic inverse of the transformed samples' mean (what a denoiser's output estimates) is the level
+        # less a / 4 (E[f]^2 = f(E)^2 - 1; Makitalo & Foi 2013, section III), as its docstring says
+        assert _anscombe_inverse(np.mean(_anscombe(z, a, b)), a, b) == pytest.approx(level - a / 4, abs=0.05 * a)
+    y = np.linspace(0.1, 0.9, 9)  # and exact on noise-free values
     np.testing.assert_allclose(_anscombe_inverse(_anscombe(y, a, b), a, b), y, atol=1e-12)
 
 
