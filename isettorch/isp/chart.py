@@ -65,13 +65,18 @@ def macbeth_true_xyz(illuminant="D65", wavelengths_nm=None, observer: str = "193
     return xyz / white[1]
 
 
+LAB_WHITES = ("perfect", "white_patch")
+
+
 def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = "2000", wavelengths_nm=None,
-                    scale_to_white: bool = True):
+                    scale_to_white: bool = True, lab_white: str = "perfect"):
     """dE of rendered patch XYZ (..., 24, 3) (e.g. (B, 24, 3) or (24, 3)) against the true chart under ``illuminant``.
 
     With ``scale_to_white`` the rendered values are scaled so the white patch's Y equals its true Y (the
-    camera's exposure is arbitrary). CIELAB white: the illuminant's perfect white (Y = 1) on the chart's grid, so a
-    perfect reflector is (100, 0, 0).
+    camera's exposure is arbitrary). CIELAB white (``lab_white``): ``'perfect'``, the illuminant's perfect white
+    (Y = 1) on the chart's grid, so a perfect reflector is (100, 0, 0); or ``'white_patch'``, the chart's true
+    white patch (ISETCam ``macbethColorError``'s ``whiteIdealXYZ``: the white patch is L* 100), which reads dE
+    about 2 % higher.
     Returns :class:`isettorch.metrics.difference.ColorAccuracy` (per-patch ``delta_e``, ``mean``, ``max``).
     """
     from ..metrics import color_accuracy
@@ -80,6 +85,8 @@ def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = 
             or tuple(rendered_xyz.shape[-2:]) != (24, 3):
         raise ValueError(f"rendered_xyz: expected the 24 patches' XYZ, (..., 24, 3), got "
                          f"{tuple(rendered_xyz.shape) if isinstance(rendered_xyz, torch.Tensor) else rendered_xyz!r}")
+    if lab_white not in LAB_WHITES:
+        raise ValueError(f"lab_white: expected one of {LAB_WHITES}, got {lab_white!r}")
     x = rendered_xyz.to(torch.float64)
     ref = macbeth_true_xyz(illuminant, wavelengths_nm).to(x.device)
     if scale_to_white:
@@ -88,7 +95,12 @@ def macbeth_delta_e(rendered_xyz: torch.Tensor, illuminant="D65", method: str = 
             raise ValueError(f"rendered_xyz: scale_to_white needs a white patch (patch {WHITE_PATCH + 1}) with Y > "
                              f"0, got Y = {y_white.detach().reshape(-1).tolist()}")
         x = x * (ref[WHITE_PATCH, 1] / y_white)
-    white = white_xyz(illuminant, _chart_grid(wavelengths_nm)).to(x.device)  # the chart's own grid: its white is L* 100
+    if lab_white == "white_patch":
+        # colour_accuracy takes Y_white = 1: both charts on the white patch's scale, its XYZ the white
+        x, ref = x / ref[WHITE_PATCH, 1], ref / ref[WHITE_PATCH, 1]
+        white = ref[WHITE_PATCH]
+    else:
+        white = white_xyz(illuminant, _chart_grid(wavelengths_nm)).to(x.device)  # the chart's own grid: L* 100
     with warnings.catch_warnings():  # the reference is under the render's illuminant by construction
         warnings.filterwarnings("ignore", message="rendered: the white patch", category=UserWarning)
         return color_accuracy(x, ref, white=white, method=method)

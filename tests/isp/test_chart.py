@@ -3,6 +3,7 @@ never inf or NaN."""
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -74,3 +75,25 @@ def test_macbeth_delta_e_names_its_argument_and_a_black_white_patch():
     dark[WHITE_PATCH] = 0.0
     with pytest.raises(ValueError, match="rendered_xyz: scale_to_white needs a white patch"):
         macbeth_delta_e(dark)
+
+
+def test_macbeth_delta_e_with_isetcams_white_patch_as_the_lab_white():
+    """``lab_white='white_patch'`` is ISETCam ``macbethColorError``'s CIELAB white (the chart's ideal white patch at
+    L* 100): equal to colour-science's CIEDE2000 with that white; the perfect white (the default) reads lower."""
+    import colour
+
+    from isettorch.isp.chart import WHITE_PATCH, macbeth_delta_e, macbeth_true_xyz
+
+    ref = macbeth_true_xyz("D65").numpy()
+    g = torch.Generator().manual_seed(1)
+    rendered = torch.from_numpy(ref) * (1 + 0.1 * torch.rand(24, 3, generator=g, dtype=torch.float64))
+    x = rendered.numpy() * (ref[WHITE_PATCH, 1] / rendered.numpy()[WHITE_PATCH, 1])
+    white = ref[WHITE_PATCH]
+    xy = colour.XYZ_to_xy(white)
+    expected = colour.delta_E(colour.XYZ_to_Lab(x / white[1], xy), colour.XYZ_to_Lab(ref / white[1], xy),
+                              method="CIE 2000")
+    acc = macbeth_delta_e(rendered, "D65", lab_white="white_patch")
+    np.testing.assert_allclose(acc.delta_e.numpy(), expected, rtol=1e-10, atol=1e-12)
+    assert float(macbeth_delta_e(rendered, "D65").mean) < float(acc.mean)
+    with pytest.raises(ValueError, match="lab_white: expected one of"):
+        macbeth_delta_e(rendered, lab_white="isetcam")
