@@ -224,3 +224,20 @@ def check_device(device) -> torch.device:
         raise ValueError(f"device: cannot compute on {str(device)!r} with this torch build on this machine "
                          f"({first_line(err).split('. ')[0]})") from err
     return dev
+
+
+def check_zip_crc(path, name: str) -> None:
+    """A ``torch.save`` file (a zip archive) whose members fail their CRC-32 is refused naming ``name``:
+    ``torch.load`` does not check them, so a damaged file loaded with changed weights. Files that are not zip
+    archives are left to ``torch.load``'s own message."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError):
+        return
+    except Exception as err:  # noqa: BLE001 - zlib errors of a damaged compressed member
+        bad = f"({type(err).__name__})"
+    if bad is not None:
+        raise ValueError(f"{name}: {str(path)!r} is damaged (member {bad} fails its CRC-32 check)")

@@ -138,6 +138,23 @@ def test_design_file_rejects_what_cannot_be_built(design_file, tmp_path, monkeyp
     torch.save(d, bad)
     with pytest.raises(ValueError, match="format version 99"):
         D.load_design(bad)
+    # what loaded silently (an audit): a QE of 300 %, two networks at one light level (the last one kept), a
+    # fractional mosaic (truncated), a damaged file (torch.load does not check the zip's CRCs: a weight changed)
+    for edit, message in ((lambda d: d.__setitem__("pixel_qe", d["pixel_qe"] * 3), "pixel_qe: expected a fraction"),
+                          (lambda d: d["levels"][1].__setitem__("lux", 1.0), "levels: more than one network"),
+                          (lambda d: d.__setitem__("mosaic", d["mosaic"].double() + 0.5),
+                           "mosaic: expected integer filter indices")):
+        d = torch.load(design_file, weights_only=True)
+        edit(d)
+        torch.save(d, bad)
+        with pytest.raises(ValueError, match=message):
+            D.load_design(bad)
+    data = bytearray(design_file.read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 64] = bytes(64)
+    bad.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="design: .* is damaged"):
+        D.load_design(bad)
     with monkeypatch.context() as m:  # an installation without the assets (the package's files elsewhere)
         m.setattr(D, "__file__", str(tmp_path / "isettorch" / "design.py"))
         with pytest.raises(FileNotFoundError, match="shipped design 'learned' is not in this installation yet"):

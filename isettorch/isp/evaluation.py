@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._checks import check_device, check_finite, check_float_dtype, first_line, is_integer
+from .._checks import check_device, check_finite, check_float_dtype, check_zip_crc, first_line, is_integer
 from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 from .denoise import DENOISERS, _check_noise, check_denoiser, denoise_mosaic
@@ -176,6 +176,7 @@ def load_demosaic_model(path: str | Path, class_path: str | None = None, *, kwar
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"model: expected a TorchScript or state-dict file, {str(path)!r} does not exist")
+    check_zip_crc(path, "model")
     is_script = False
     if zipfile.is_zipfile(path):
         with zipfile.ZipFile(path) as zf:

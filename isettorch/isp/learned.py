@@ -47,7 +47,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .._autograd import records_grad
-from .._checks import FLOAT_DTYPES, check_bool, check_finite
+from .._checks import FLOAT_DTYPES, check_bool, check_finite, check_zip_crc
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
 from .demosaicing.linear import demosaic_malvar2004
 from .demosaicing.menon2007 import demosaic_menon2007
@@ -971,6 +971,7 @@ def load_checkpoint(path: str | Path, *, device=None, dtype=None) -> tuple[Demos
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"path: no checkpoint at {path}")
+    check_zip_crc(path, "path")
     ckpt = torch.load(path, map_location="cpu", weights_only=True)
     if not isinstance(ckpt, dict) or "model" not in ckpt or "net_config" not in ckpt:
         raise ValueError(f"path: {path} is not a DemosaicNet checkpoint (expected keys 'model' and 'net_config')")

@@ -164,6 +164,9 @@ class SpectralQE(nn.Module):
                 if s.numel() != w.numel():
                     raise ValueError(f"{label}: expected {w.numel()} values on wavelengths_nm, got {s.numel()}")
                 check_nonnegative(s, label)
+                if float(s.max()) > 1 + 1e-9:  # (a design file's QE x 3 read three times the electrons)
+                    raise ValueError(f"{label}: expected a fraction in [0, 1] at every wavelength (a transmittance "
+                                     f"or quantum efficiency), got a maximum of {float(s.max()):.6g}")
                 extra = extra * s
         self.channel_names = list(channel_names)
         self.learnable = bool(learnable)
