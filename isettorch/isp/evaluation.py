@@ -84,10 +84,7 @@ def load_images(source: str | Path | Iterable) -> list[tuple[str, np.ndarray]]:
     read by :func:`isettorch.io.images.read_rgb8`: gray, palette and opaque-alpha images converted losslessly,
     anything else refused naming the file) or an iterable of (name, array) pairs."""
     if not isinstance(source, (str, Path)):
-        pairs = [(str(n), np.asarray(a)) for n, a in source]
-        if not pairs:  # (evaluate_demosaic scored nothing as mean_cpsnr inf)
-            raise ValueError("images: expected at least one (name, image) pair, got none")
-        return pairs
+        return [(str(n), np.asarray(a)) for n, a in source]
     folder = Path(source)
     if not folder.is_dir():
         raise ValueError(f"images: expected a folder of {'/'.join(PHOTO_SUFFIXES)} images, {str(folder)!r} is not "
@@ -287,6 +284,8 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
                              f"got method {method!r}")
         name += " + self-ensemble" if kwargs["self_ensemble"] in (True, "transpose") else " + dihedral self-ensemble"
     items = load_images(images)
+    if not items:  # (nothing scored was reported as mean_cpsnr inf)
+        raise ValueError("images: expected at least one (name, image) pair, got none")
     check_photos(items, crop)  # every image before the first is scored (a bad one late in a folder fails early)
 
     call = _demosaic_call(method, model, pattern, noise_sigma, noise_shot, device, dtype, kwargs)
