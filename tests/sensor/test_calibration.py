@@ -565,6 +565,24 @@ def test_quantisation_limited_read_noise_is_the_emva_upper_limit():
     assert not any("6.4" in w for w in res["warnings"])
 
 
+def test_a_floor_crossed_only_by_the_extrapolation_keeps_the_measured_points():
+    """EMVA 1288 4.0's 0.24 DN^2 floor is about measured dark variances. A 0.36 DN read noise under 0.25 DN of DSNU
+    with 53 DN/s of dark signal: every exposure's dark variance is above the floor (the dark shot noise dithers each
+    one) and only the extrapolation to zero exposure falls under it; the read noise was reported as the 0.40 DN
+    upper limit, 11 % high (benchmarks/calibration_bench.py, mono case 4). The extrapolation is kept: within 3 %."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    truth = dict(nc.TRUTH, gain_dn_per_e=0.21, read_noise_e=1.69, dsnu_e=1.19, row_noise_e=0.48, prnu_percent=1.25,
+                 dark_current_e_per_s=254.0, full_well_e=13900.0, black_level_dn=64.0, bits=14, qe={"W": 0.61})
+    exposures = np.round(np.linspace(0.02, 2.7, 15) * 285.0, 3)  # the shortest: 1.4 e- of dark signal
+    dark, flat, photons = nc.simulate(truth, shape=(128, 128), frames=3, seed=4, exposures_ms=exposures,
+                                      saturate_ms=285.0)
+    res = calibrate_capture(_capture_from(dark, flat, bits=14, photons=photons))
+    assert res["read_noise_e"] == pytest.approx(truth["read_noise_e"], rel=0.03)
+    assert any("the extrapolation of the measured points is kept" in w for w in res["warnings"])
+    assert not any("upper limit" in w for w in res["warnings"])
+
+
 def test_dithered_quantiser_variance_against_a_simulation():
     """The mean pixel-wise variance of round(sigma z + u) over offsets u spread across a step (pixels whose DSNU
     dithers the quantiser): a NumPy simulation of 400,000 pixels agrees; it is sigma^2 + 1/12 (Sheppard) only from
