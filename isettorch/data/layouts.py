@@ -20,7 +20,7 @@ Statistics (documented, and what the defaults produce):
   the arrangement takes its own colour (sharp, 1-sample transitions).
 * ``lines``: 3-12 thin lines (0.5-3 px wide) and 2-6 text-like glyphs of 2-5 short strokes each
   (stroke 0.7-2.5 px), anti-aliased by the distance to each segment.
-* ``textures``: 1-3 regions (split by straight edges) each holding a fine periodic pattern: sine or
+* ``textures``: 1 or 2 regions (split by straight edges) each holding a fine periodic pattern: sine or
   square gratings and checkerboards at 0.15-0.95 cycles/px (beyond the 0.5 cycles/px Nyquist limit and
   beyond a Bayer sensor's 0.25 cycles/px per-colour limit, to provoke aliasing), or a zone plate.
 """
@@ -306,7 +306,7 @@ def lines(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.f
 
 
 def textures(h: int, w: int, k: int, g: torch.Generator, device=None, dtype=torch.float32):
-    """Fine periodic textures (gratings, checkerboards, zone plates) in 1-3 regions."""
+    """Fine periodic textures (gratings, checkerboards, zone plates) in 1 or 2 regions."""
     n_split = int(_ri(g, 0, 1))
     code = _cells(h, w, g, n_split, device, dtype) if n_split else torch.zeros(h, w, dtype=torch.long,
                                                                                device=device)

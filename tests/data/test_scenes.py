@@ -175,3 +175,22 @@ def test_scalar_draw_helpers_equal_torch_draws_and_state():
         assert torch.equal(torch.randn(5, generator=a), torch.randn(5, generator=b))
     u = [uniform01(a) for _ in range(1000)]
     assert 0.0 <= min(u) and max(u) < 1.0 and abs(sum(u) / len(u) - 0.5) < 0.05  # U[0, 1): mean 1/2
+
+
+def test_overrides_edited_defaults_and_dtypes():
+    """An audit of the generators: a config holding every key of SCENE_DEFAULTS skipped validation (an edited copy
+    of the defaults with mean luminance [0, 0] gave an all-zero scene); float16 gave an all-NaN scene (the radiance
+    reaches ~5e15); overriding hfov_deg moved the distance draw (1.12 m became 8.58 m), against the docstring."""
+    import copy
+
+    cfg = copy.deepcopy(SCENE_DEFAULTS)
+    cfg.update(height=16, width=16, mean_luminance_cd_m2=[0.0, 0.0])
+    with pytest.raises(ValueError, match="mean_luminance_cd_m2"):
+        generate_scene(0, 0, cfg)
+    with pytest.raises(ValueError, match="dtype: expected torch.float32 or torch.float64"):
+        generate_scene(0, 0, SMALL, dtype=torch.float16)
+    for i in range(3):
+        free = generate_scene(i, 5, SMALL, dtype=torch.float64)
+        fixed = generate_scene(i, 5, SMALL, dtype=torch.float64, hfov_deg=33.0)
+        assert fixed.hfov_deg == 33.0 and fixed.distance_m == free.distance_m
+        assert torch.equal(fixed.photons, free.photons)  # every other draw unchanged
