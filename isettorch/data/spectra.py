@@ -338,9 +338,21 @@ def blackbody_spd(temperature_k: torch.Tensor, wavelengths_nm) -> torch.Tensor:
     if (t <= 0).any() or not xp.isfinite(t).all():
         raise ValueError(f"temperature_k: expected positive temperatures, got {t.flatten().tolist()}")
     if xp is torch:
-        return _blackbody(t, key, xp).to(dtype=_out_dtype(w), device=w.device)
-    with np.errstate(over="ignore"):  # exp overflow (a cold body, short wavelengths) gives 0 power, as in torch
-        return _to_torch(_blackbody(t, key, xp), _out_dtype(w), w.device)
+        out = _blackbody(t, key, xp).to(dtype=_out_dtype(w), device=w.device)
+    else:
+        with np.errstate(over="ignore"):  # exp overflow (a cold body, short wavelengths) gives 0 power, as in torch
+            out = _to_torch(_blackbody(t, key, xp), _out_dtype(w), w.device)
+    return _check_planck_range(out, "temperature_k", t.flatten().tolist())
+
+
+def _check_planck_range(spd: torch.Tensor, name: str, temperatures) -> torch.Tensor:
+    """``spd`` if finite; a blackbody too cold for its dtype (Planck's ratio to 560 nm overflows at the long
+    wavelengths: inf, as :func:`isettorch.spectral.blackbody` refuses) is a ValueError naming ``name``."""
+    if not bool(torch.isfinite(spd.detach()).all()):
+        raise ValueError(f"{name}: the blackbody spectrum relative to 560 nm overflows {spd.dtype} at "
+                         f"{[round(float(v), 6) for v in temperatures][:4]} K (Planck's ratio exceeds the format's "
+                         f"range); use a higher temperature, a shorter grid or float64")
+    return spd
 
 
 @functools.lru_cache(maxsize=16)
@@ -590,7 +602,8 @@ def random_illuminant(kind: str, wavelengths_nm, generator: torch.Generator, cct
             spd = _blackbody(t[:, None], key, np)
         else:
             spd = _led(t, *_led_params(t, None, None, None, np), key, None, np)
-    return _to_torch(spd[0], dtype, w.device), cct, kind
+    out = _to_torch(spd[0], dtype, w.device)
+    return (_check_planck_range(out, "cct_range_k", [cct]) if kind == "blackbody" else out), cct, kind
 
 
 # ------------------------------------------------------------------------------------------------

@@ -266,3 +266,18 @@ def test_recovery_reflectances_refuse_invalid_beta_parameters():
         with pytest.raises(ValueError, match="chroma_beta: expected two positive Beta parameters"):
             spectra.recovery_reflectances(2, w, torch.Generator().manual_seed(0), chroma_beta=beta)
     assert torch.isfinite(spectra.recovery_reflectances(2, w, torch.Generator().manual_seed(0))).all()
+
+
+def test_a_blackbody_too_cold_for_the_dtype_is_refused():
+    """Planck's ratio to 560 nm overflows float32 at 700 nm below about 60 K: random_illuminant and blackbody_spd
+    returned inf (spectral.blackbody refused it), found by an audit of the generators."""
+    from isettorch.data.spectra import blackbody_spd, random_illuminant
+
+    w = torch.arange(400.0, 701.0, 10.0)
+    g = torch.Generator().manual_seed(0)
+    with pytest.raises(ValueError, match="cct_range_k: the blackbody spectrum relative to 560 nm overflows"):
+        random_illuminant("blackbody", w, g, (50.0, 50.0))
+    with pytest.raises(ValueError, match="temperature_k: the blackbody spectrum relative to 560 nm overflows"):
+        blackbody_spd(torch.tensor([40.0]), w)
+    assert torch.isfinite(blackbody_spd(torch.tensor([40.0]), w.double())).all()  # float64 holds it
+    assert torch.isfinite(random_illuminant("blackbody", w, g, (100.0, 100.0))[0]).all()
