@@ -139,7 +139,11 @@ def _check_rate(rate, mosaic: bool) -> torch.Tensor:
     check_float_dtype(rate.dtype, "electron_rate")
     lo, hi = torch.aminmax(rate.detach())  # one pass; NaN propagates to both (a check: no graph, no warning)
     if not (float(lo) >= 0 and math.isfinite(float(hi))):
-        raise ValueError("electron_rate: expected finite, non-negative electrons/s")
+        hint = ("; an optical image's photons that overflow the dtype when integrated over wavelength (about 3e37 "
+                "in float32) give inf here: render in float64" if rate.dtype == torch.float32 and float(lo) >= 0
+                else "")
+        raise ValueError(f"electron_rate: expected finite, non-negative electrons/s, got values in [{float(lo):.6g}, "
+                         f"{float(hi):.6g}]{hint}")
     return rate
 
 
