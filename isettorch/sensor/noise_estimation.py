@@ -66,6 +66,19 @@ def _fit(pts) -> tuple[float, float]:
     return float(a), float(b)
 
 
+def _fit_quality(pts, a: float, b: float) -> tuple[float, float, float]:
+    """``(standard errors of a and of b, chi^2 per degree of freedom)`` of the line through the level variances, each
+    with its sampling variance ``2 v^2 / n`` under the model (a sample variance of n Gaussian values): a large standard
+    error is a signal range too narrow to separate a from b; a chi^2 far above 1 is variance the model does not
+    hold (texture or edges the detail coefficients did not cancel, non-linearity)."""
+    y, v, n = (np.array(c, dtype=np.float64) for c in zip(*pts))
+    var = 2 * np.maximum(a * y + b, 1e-12) ** 2 / n
+    x = np.stack([y, np.ones_like(y)], axis=1)
+    cov = np.linalg.pinv(x.T @ (x / var[:, None]))
+    chi2 = float(((v - (a * y + b)) ** 2 / var).sum()) / max(len(y) - 2, 1)
+    return float(math.sqrt(max(cov[0, 0], 0.0))), float(math.sqrt(max(cov[1, 1], 0.0))), chi2
+
+
 def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: float = 0.0,
                               white_level_dn: float | None = None, levels: int = 24,
                               min_blocks: int = 200) -> dict:
@@ -80,8 +93,13 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
 
     Returns:
         ``{'a': K in DN/e-, 'b': DN^2, 'conversion_gain_dn_per_e': a, 'read_noise_dn': sqrt(b),
-        'read_noise_e': sqrt(b) / a, 'levels': [(mean DN, variance DN^2, blocks)], 'warnings': [...]}`` (a negative
-        b gives read noise 0, with a warning).
+        'read_noise_e': sqrt(b) / a, 'a_standard_error', 'b_standard_error', 'fit_chi2_per_dof' (the line through
+        the levels' variances, each with its sampling variance 2 v^2 / n), 'levels': [(mean DN, variance DN^2,
+        blocks)], 'warnings': [...]}`` (a negative b gives read noise 0, with a warning). Warned: a narrow signal
+        range (a's standard error over 5 %), variance the line does not hold (chi^2 per degree of freedom over 3:
+        texture biases a high, up to several times on natural photographs: a flat-field or smooth frame is what
+        this estimate is for), a poorly determined b, a frame clipped at 0 DN, and a saturated plateau taken as
+        the white level when ``white_level_dn`` is None.
     """
     z = np.asarray(raw.detach().cpu() if hasattr(raw, "detach") else raw, dtype=np.float64)
     if z.ndim != 2:
@@ -103,6 +121,18 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         ph, pw = CFA(str(cfa)).shape
         planes = [z[dy::ph, dx::pw] for dy in range(ph) for dx in range(pw)]
     low_clipped = bool(z.min() == 0)  # a frame clipped at 0 DN has no negative values and some at 0
+    warnings = []
+    if white_level_dn is None:
+        # a frame that saturates piles its clipped pixels on its largest value; counted as bright noise-free levels
+        # they pulled a down (0.25 for 0.5 with 23 % saturated, through the CLI, which has no white level for a
+        # PNG or .npy frame)
+        top = float(z.max())
+        at_top = int((z == top).sum())
+        if at_top >= max(32, 1e-3 * z.size):
+            white_level_dn = top
+            warnings.append(f"{at_top} pixels ({100 * at_top / z.size:.3g} %) sit at the frame's largest value, "
+                            f"{top:g} DN: taken as its white level (saturated) and left out; give the white level "
+                            f"if it saturates elsewhere")
     means, details, laps = [], [], []
     for p in planes:
         m, d, lap = _blocks(p)
@@ -133,15 +163,34 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
     for _ in range(2):
         noise_var = np.maximum(a * m + b, 1e-12)
         smooth = np.abs(lap) < 3 * np.sqrt(noise_var * 5 / 16)
+        if low_clipped:  # blocks within 3 noise sigmas of the clip at 0 DN: their noise is truncated (a +27..42 % on a
+            # dark photograph with no pedestal, read noise -45 %, when only blocks holding a 0 were left out)
+            smooth &= m + black_level_dn > 3 * np.sqrt(noise_var)
         pts, (a, b) = fit(smooth)
-    warnings = []
+    se_a, se_b, chi2 = _fit_quality(pts, a, b)
+    if low_clipped:
+        warnings.append("the frame is clipped at 0 DN (no pedestal): blocks within 3 noise sigmas of 0 DN are left out "
+                        "and the read noise is extrapolated from brighter levels")
+    if a > 0 and se_a > 0.05 * a:
+        warnings.append(f"the signal levels span too narrow a range to separate a from b: a = {a:.4g} +- {se_a:.2g} "
+                        f"DN/e- (a frame with a range of brightness, e.g. a gradient, separates them)")
+    if chi2 > 3:  # (for ~20 levels, a chi^2 per degree of freedom above 3 has a probability under 1e-5)
+        warnings.append(f"the level variances depart from a line by {chi2:.3g} times their sampling variance: texture "
+                        f"or edges that the 2 x 2 details do not cancel add variance, so a and the read noise are "
+                        f"biased high (x1.2-3 on natural photographs in an audit); a flat-field or smooth frame, or a "
+                        f"calibration capture (isettorch calibrate DIR), is reliable")
+    if b > 0 and se_b > 0.5 * b:
+        warnings.append(f"the signal-independent variance is poorly determined, b = {b:.4g} +- {se_b:.2g} DN^2 (few "
+                        f"dark levels: it is extrapolated from {float(np.min([p[0] for p in pts])):.4g} DN up)")
     if b < 0:  # a black level below the frame's by d DN moves the intercept to b - a d (Foi et al. eq. 3 at y + d)
+        cause = ("texture (above), or " if chi2 > 3 else "") + \
+            f"a black level ({black_level_dn:g} DN) below the frame's"
         warnings.append(f"the fitted signal-independent variance b = {b:.4g} DN^2 is negative, so read_noise_dn and "
-                        f"read_noise_e are reported as 0; is the black level ({black_level_dn:g} DN) below the "
-                        f"frame's? (d DN too low moves b by -a d)")
+                        f"read_noise_e are reported as 0; its cause may be {cause} (d DN too low moves b by -a d)")
     if not a > 0:
         warnings.append(f"the fitted slope a = {a:.4g} DN/e- is not positive: no conversion gain; read_noise_e is "
                         f"null")
     return {"a": a, "b": b, "conversion_gain_dn_per_e": a, "read_noise_dn": math.sqrt(max(b, 0.0)),
             "read_noise_e": math.sqrt(max(b, 0.0)) / a if a > 0 else None,
+            "a_standard_error": se_a, "b_standard_error": se_b, "fit_chi2_per_dof": chi2,
             "levels": [list(p) for p in pts], "method": "Foi et al. 2008 Poisson-Gaussian fit", "warnings": warnings}

@@ -47,6 +47,41 @@ def test_foi_fit_on_a_bayer_mosaic_with_black_level_and_clipping():
     assert res["b"] == pytest.approx(b + 1 / 12, rel=0.10)  # + the quantisation variance of the rounding
 
 
+def test_foi_fit_saturation_zero_clipping_and_its_reliability_warnings():
+    """An audit against a NumPy truth (a = 0.5 DN/e-, read noise 2 DN): a frame saturated on 23-46 % of its pixels
+    with no white level given (the CLI has none for PNG / .npy) read a = 0.25 or negative; one clipped at 0 DN with
+    no pedestal a +27..42 % high. Now a saturated plateau at the frame's largest value is the white level, blocks
+    within 3 noise sigmas of 0 DN are left out, and the fit says when it cannot be trusted: a narrow signal range
+    (a flat frame: a 6-20 % off) and variance the line does not hold (texture: +78 % on a fine Bayer pattern)."""
+    rng = np.random.default_rng(7)
+    h = w = 512
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    a, read = 0.5, 2.0
+
+    def capture(electrons, black):
+        z = a * rng.poisson(electrons) + read * rng.standard_normal(electrons.shape) + black
+        return np.clip(np.round(z), 0, 4095)
+
+    saturated = capture(20 + 14000 * xx / w, 256.0)  # 46 % of the pixels at 4095
+    res = estimate_poisson_gaussian(saturated, black_level_dn=256.0)
+    assert res["a"] == pytest.approx(a, rel=0.02)
+    assert any("taken as its white level" in m for m in res["warnings"])
+    dark = capture(200 * (xx / w) * (0.5 + 0.5 * yy / h), 0.0)  # no pedestal: 1 % of the pixels at 0 DN
+    res = estimate_poisson_gaussian(dark)
+    assert res["a"] == pytest.approx(a, rel=0.05) and res["read_noise_dn"] == pytest.approx(read, rel=0.1)
+    assert any("clipped at 0 DN" in m for m in res["warnings"])
+    smooth = estimate_poisson_gaussian(capture(20 + 3000 * xx / w, 256.0), black_level_dn=256.0)
+    assert smooth["a"] == pytest.approx(a, rel=0.02) and smooth["warnings"] == []
+    assert smooth["a_standard_error"] < 0.01 * a and smooth["fit_chi2_per_dof"] < 3
+    flat = estimate_poisson_gaussian(capture(np.full((h, w), 1000.0), 256.0), black_level_dn=256.0)
+    assert any("too narrow a range" in m for m in flat["warnings"])
+    fine = 200 + 1500 * (0.5 + 0.5 * np.sin(xx / 8) * np.cos(yy / 6))
+    fine = fine * np.tile([[0.55, 1.0], [1.0, 0.4]], (h // 2, w // 2))  # a Bayer mosaic of it
+    textured = estimate_poisson_gaussian(capture(fine, 256.0), cfa="RGGB", black_level_dn=256.0)
+    assert textured["a"] > 1.3 * a  # the inherent limit: texture leaks into the details
+    assert any("depart from a line" in m for m in textured["warnings"])
+
+
 def test_foi_fit_needs_a_range_of_signal():
     with pytest.raises(ValueError, match="range of signal"):
         estimate_poisson_gaussian(np.full((64, 64), 100.0) + np.random.default_rng(0).standard_normal((64, 64)),
