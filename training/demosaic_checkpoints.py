@@ -55,9 +55,11 @@ def distill_target(raw: torch.Tensor, rgb: torch.Tensor, feats: torch.Tensor | N
 
 
 def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, history: list, wall_s: float,
-                    clip=None) -> None:
-    """Write the run's state (weights, optimizer, step, configs, best score, history, wall time and ``clip``'s state,
-    a :class:`training.train_demosaic.AdaptiveGradClip`) to ``path`` atomically (a temporary file renamed). A network
+                    clip=None, running_loss: tuple[float, int] = (0.0, 0)) -> None:
+    """Write the run's state (weights, optimizer, step, configs, best score, history, wall time, ``clip``'s state,
+    a :class:`training.train_demosaic.AdaptiveGradClip`, and the training loss summed since the last validation row
+    with its step count, so a resumed run's next row is an uninterrupted run's) to ``path`` atomically (a temporary
+    file renamed). A network
     trained expanded (:mod:`training.expand`) is written collapsed under ``model`` (the plain network, as the library
     loads it) and as its factors under ``model_expanded``."""
     expanded = is_expanded(net)
@@ -66,7 +68,8 @@ def save_checkpoint(path: Path, net, opt, step: int, cfg: dict, best: float, his
                         "optimizer": opt.state_dict(), "step": step,
                         "net_config": net.config(), "train_config": json.dumps(cfg), "best_val_cpsnr": best,
                         "history": json.dumps(history), "wall_s": wall_s,
-                        "grad_clip": json.dumps(clip.state() if clip else {})}, path)
+                        "grad_clip": json.dumps(clip.state() if clip else {}),
+                        "running_loss": [float(running_loss[0]), int(running_loss[1])]}, path)
 
 
 def describe_data(cfg: dict) -> str:

@@ -26,6 +26,7 @@ if str(ROOT) not in sys.path:
 import torch  # noqa: E402
 
 from isettorch._yaml import load_yaml  # noqa: E402
+from training import common  # noqa: E402
 
 #: how far below MHC an image may be before it counts against a candidate (dB)
 FLOOR_DB = 0.1
@@ -113,6 +114,7 @@ def main(argv=None) -> int:
         guard[key] = load_yaml(value)
     if (args.start is None) != (args.alphas is None):
         ap.error("--start, --alphas: expected both (weight interpolation) or neither")
+    common.refuse_test_images(args.photos, "--photos")  # (the ship rule selects on these: never a test image)
     rows = score(_candidates(args.checkpoint, args.variant, args.scales, guard, args.start, args.alphas), args.photos,
                  not args.no_stress)
     for name, row in rows.items():

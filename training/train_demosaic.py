@@ -93,6 +93,7 @@ from training.demosaic_checkpoints import (  # noqa: E402, F401  (re-exported: t
     save_checkpoint,
     write_model_card,
 )
+from training.demosaic_config import check_config  # noqa: E402
 from training.demosaic_data import (  # noqa: E402, F401
     BANK_CHUNK,
     COLOUR_SPACES,
@@ -251,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = common.load_config(args.config, args.set)
     if args.steps is not None:
         cfg.setdefault("optim", {})["steps"] = args.steps
+    check_config(cfg)
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     rank, world, is_dist = common.dist_setup(device)
     threads = args.threads or int(cfg.get("threads", 0))
@@ -282,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"warning: optim.precision bf16 on a CPU without AVX-512 ({torch.backends.cpu.get_cpu_capability()})"
                   f" runs about 14x slower than fp32 here; set optim.precision: fp32", file=sys.stderr, flush=True)
     step, best, history, wall0 = 0, -math.inf, [], 0.0
-    clip_state = None
+    clip_state, run_loss0, run_n0 = None, 0.0, 0
     resume = Path(args.resume) if args.resume else out / "last.pt"
     init = cfg.get("init")
     if init and not resume.is_file():  # start from another checkpoint's weights (fresh optimizer and schedule)
@@ -306,6 +308,7 @@ def main(argv: list[str] | None = None) -> int:
         step, best = int(ck["step"]), float(ck["best_val_cpsnr"])
         history, wall0 = json.loads(ck["history"]), float(ck.get("wall_s", 0.0))
         clip_state = json.loads(ck.get("grad_clip", "{}"))
+        run_loss0, run_n0 = ck.get("running_loss", (0.0, 0))
         changed = resume_changes(json.loads(ck["train_config"]), cfg)
         if changed:  # (a new seed, lr, loss or data ran on, the two runs' histories and best scores mixed)
             raise SystemExit(f"--resume: {resume} is a checkpoint of another config ({', '.join(changed)} changed); "
@@ -338,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
     t_start = time.time()
     # the bar on stderr (rank 0 only); the validation rows go to stdout through pbar.write (kept under --quiet)
     pbar = progress_bar(total=total, initial=step, desc="train", unit="step", quiet=rank != 0 or args.quiet)
-    run_loss, run_n = 0.0, 0
+    run_loss, run_n = float(run_loss0), int(run_n0)  # (a resumed run's first row averages the steps before the stop)
     frac = progress(step, wall0, cfg)
     stop_at = step + args.stop_after if args.stop_after else None
     while frac < 1.0 and (stop_at is None or step < stop_at):
@@ -373,7 +376,10 @@ def main(argv: list[str] | None = None) -> int:
             f = torch.tensor([frac], dtype=torch.float64)
             dist.all_reduce(f, op=dist.ReduceOp.MAX)
             frac = float(f)
-        last = frac >= 1.0 or step == stop_at
+        last = frac >= 1.0
+        # a --stop-after stop checkpoints without a validation row of its own: a row there made best.pt's choice
+        # (and the history) differ from an uninterrupted run's
+        stopping = step == stop_at
         if rank == 0 and (step % val_every == 0 or last):
             row = {"step": step, "wall_s": round(wall0 + time.time() - t_start, 1), "lr": lr,
                    "train_loss": float(run_loss) / max(run_n, 1)}
@@ -395,9 +401,9 @@ def main(argv: list[str] | None = None) -> int:
             cols += [(f"{k}_crop10", f"{k} CPSNR crop10 (dB)") for k in bench if any(f"{k}_crop10" in r
                                                                                    for r in history)]
             common.plot_curves(out / "curves.png", history, cols, f"DemosaicNet {net.config()}")
-        if rank == 0 and (step % ckpt_every == 0 or last):
+        if rank == 0 and (step % ckpt_every == 0 or last or stopping):
             save_checkpoint(out / "last.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start,
-                            clip)
+                            clip, (float(run_loss), run_n))
     pbar.close()
     if rank == 0:
         record = {"command": " ".join(["python training/train_demosaic.py", *sys.argv[1:]]) if argv is None else argv,

@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from training import codesign, common, fit_joint_gate, heldout_screen  # noqa: E402
+from training import codesign, common, fit_joint_gate, heldout_screen, photo_select  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 
@@ -45,6 +45,8 @@ def test_a_test_image_is_refused_by_every_script_that_learns_or_selects(planted)
         heldout_screen.main(["--incumbent", "a.pt", "--candidate", "b.pt", "--sets", str(planted)])
     with pytest.raises(SystemExit):  # argparse's error (exit 2) naming --sets
         fit_joint_gate.main(["--sets", str(planted)])
+    with pytest.raises(ValueError, match="--photos: holiday.tif"):  # (the ship rule's photographs were unchecked)
+        photo_select.main(["a.pt", "--variant", "tiny", "--photos", str(planted), "--scales", "0.5"])
     (planted / "holiday.tif").unlink()
     common.refuse_test_images(planted, "data.folder")  # other photographs pass
 

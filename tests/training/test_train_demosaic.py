@@ -156,6 +156,40 @@ def test_smoke_training_resume(tmp_path, capsys):
     assert "steps: 4" in card and "never Kodak/McMaster" in card
     # the trained weights moved away from the zero-initialised head
     assert ref["model"]["head.weight"].abs().sum() > 0
+    # a stop off the validation steps (step 3) checkpoints without a row of its own, and carries the running loss:
+    # the resumed run's history is the uninterrupted one's (an extra row at the stop could move best.pt's choice)
+    odd = tmp_path / "odd"
+    odd_args = ["--config", str(SMOKE), "--out", str(odd), "--quiet", "--threads", "1", "--steps", "4"]
+    assert train_demosaic.main(odd_args + ["--stop-after", "3"]) == 0
+    assert [int(r["step"]) for r in csv.DictReader(open(odd / "history.csv"))] == [2]
+    assert train_demosaic.main(odd_args) == 0
+    for a, b in zip(csv.DictReader(open(odd / "history.csv")), rows, strict=True):
+        assert (a["step"], a["train_loss"], a["val_cpsnr"]) == (b["step"], b["train_loss"], b["val_cpsnr"])
+
+
+def test_config_keys_and_values_are_checked_before_a_run(tmp_path):
+    """A misspelt key ran with its default (optim.lrr, data.batchsize), optim.loss l3 trained with L2,
+    checkpoint_every 0 divided by zero later (an audit of training/): refused before anything runs, naming the key.
+    Every shipped training config passes, and a config that starts from a shipped model declares its size."""
+    args = ["--config", str(SMOKE), "--out", str(tmp_path / "x"), "--quiet", "--threads", "1", "--set"]
+    for override, message in (("optim.lrr=0.1", "config.optim.lrr: unknown key"),
+                              ("data.batchsize=4", "config.data.batchsize: unknown key"),
+                              ("valid={every: 2}", "config.valid: unknown key"),
+                              ("optim.loss=l3", "config.optim.loss: expected one of"),
+                              ("checkpoint_every=0", "config.checkpoint_every: expected a positive integer"),
+                              ("optim.lr=abc", "config.optim.lr: expected a positive number")):
+        with pytest.raises(ValueError, match=message):
+            train_demosaic.main(args + [override])
+    assert not (tmp_path / "x" / "last.pt").exists()
+    from training.demosaic_config import check_config
+
+    for path in sorted((ROOT / "configs" / "train").glob("demosaic_*.yaml")):
+        cfg = check_config(common.load_config(path))
+        init = cfg.get("init")
+        if init and str(init).startswith("isettorch/assets/"):
+            shipped = torch.load(ROOT / init, map_location="cpu", weights_only=True)["net_config"]
+            for key in ("channels", "depth"):
+                assert cfg["net"].get(key) == shipped[key], (path.name, key)
 
 
 def test_full_sensor_noise_variance_is_ax_plus_b():

@@ -1,0 +1,62 @@
+"""The config keys :mod:`training.train_demosaic` reads, checked before a run starts: a misspelt key
+(``optim.lrr``, ``data.batchsize``) ran silently with its default, ``optim.loss: l3`` trained with L2, and
+``checkpoint_every: 0`` failed later with a division by zero. The ``net`` section is :class:`DemosaicNet`'s
+arguments (it names an unknown one); ``data.scene``, ``data.camera`` and ``data.natural`` are the library's
+configs, checked where they are used."""
+
+from __future__ import annotations
+
+import math
+
+#: every key of each section the trainer or its parts (demosaic_data, demosaic_pairs, demosaic_noise,
+#: demosaic_checkpoints) read
+SECTION_KEYS = {
+    "data": {"bank", "bank_dir", "bank_workers", "batch", "camera", "camera_config", "colour_space", "device",
+             "disable", "domain", "encoded_fraction", "hard_mining", "natural", "patch", "pool", "refresh", "scene",
+             "scene_config", "scene_seed", "scene_size", "sensitivities", "source", "stream_chunk"},
+    "noise": {"bits", "clean_fraction", "dark_e", "dsnu_e", "enabled", "full_well_e", "gain_max", "gain_min",
+              "gaussian_fraction", "prnu_percent", "read_noise_e", "sigma_max", "sigma_min"},
+    "optim": {"clip_grad_factor", "loss", "lr", "lr_min", "precision", "steps", "time_budget_s", "warmup"},
+    "val": {"every", "images", "size"},
+    "eval": {"benchmarks", "every"},
+    "distill": {"self_ensemble", "shipped", "teacher", "weight"},
+    "net": None,
+}
+TOP_KEYS = {"checkpoint_every", "expand", "init", "out", "seed", "threads", *SECTION_KEYS}
+LOSSES = ("l1", "l2")
+
+
+def _positive(value, name: str, integer: bool = False) -> None:
+    ok = (not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+          and (not integer or float(value).is_integer()))
+    if not ok:
+        what = "a positive integer" if integer else "a positive number"
+        raise ValueError(f"config.{name}: expected {what}, got {value!r}")
+
+
+def check_config(cfg: dict) -> dict:
+    """``cfg`` if every key is one the trainer reads and the values it divides or counts by are in range, else a
+    ValueError naming the key (``config.optim.lrr: unknown key; expected one of [...]``)."""
+    for key, value in cfg.items():
+        if key not in TOP_KEYS:
+            raise ValueError(f"config.{key}: unknown key; expected one of {sorted(TOP_KEYS)}")
+        keys = SECTION_KEYS.get(key)
+        if key in SECTION_KEYS and value is not None:
+            if not isinstance(value, dict):
+                raise ValueError(f"config.{key}: expected a mapping, got {value!r}")
+            unknown = [k for k in value if keys is not None and k not in keys]
+            if unknown:
+                raise ValueError(f"config.{key}.{unknown[0]}: unknown key; expected one of {sorted(keys)}")
+    optim = cfg.get("optim") or {}
+    if "steps" not in optim or "lr" not in optim:
+        raise ValueError(f"config.optim: expected steps and lr, got {sorted(optim)}")
+    _positive(optim["steps"], "optim.steps", integer=True)
+    _positive(optim["lr"], "optim.lr")
+    if optim.get("loss", "l2") not in LOSSES:
+        raise ValueError(f"config.optim.loss: expected one of {LOSSES}, got {optim['loss']!r}")
+    for name, value in (("checkpoint_every", cfg.get("checkpoint_every", 100)),
+                        ("data.batch", (cfg.get("data") or {}).get("batch", 16)),
+                        ("val.every", (cfg.get("val") or {}).get("every", 200)),
+                        ("val.images", (cfg.get("val") or {}).get("images", 32))):
+        _positive(value, name, integer=True)
+    return cfg
