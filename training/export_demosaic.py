@@ -84,8 +84,11 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     pt = out / f"{args.name}.pt"
+    # the file holds the guard it is scored with (a --model load of it ran the bare network its card does not score;
+    # the registry's load_pretrained sets the same guard)
+    net_config = {**ck["net_config"], "guard": dict(net.guard)}
     torch.save({"model": {k: v.to(store).contiguous() for k, v in net.state_dict().items()},
-                "net_config": ck["net_config"], "step": int(ck["step"]),
+                "net_config": net_config, "step": int(ck["step"]),
                 "best_val_cpsnr": float(ck["best_val_cpsnr"])}, pt)
 
     from isettorch.isp.evaluation import evaluate_demosaic
@@ -122,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         "stored_dtype": str(store),
         "command": command,
         "config": cfg,
-        "net_config": ck["net_config"],
+        "net_config": net_config,
         "parameters": sum(p.numel() for p in net.parameters()),
         "data": args.data or cfg.get("data"),
         "checkpoint": {"which": args.which, "step": int(ck["step"]), "selected_by": selected_by},
@@ -150,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
                      f"`{json.dumps(learned.PRETRAINED_GATES[variant])}`")
     if cfg.get("init"):
         lines.append(f"- initialised from: `{cfg['init']}` (an earlier run's checkpoint: train that run first)")
-    lines += [f"- network: DemosaicNet {ck['net_config']}, "
+    lines += [f"- network: DemosaicNet {net_config}, "
              f"{info['parameters']} parameters", f"- data: {json.dumps(info['data'], default=str)}",
              f"- checkpoint: {args.which} by {selected_by}, step {ck['step']}, "
              f"training wall time {info['wall_s']} s", f"- hardware: {json.dumps(info['hardware'], default=str)}",

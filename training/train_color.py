@@ -56,16 +56,10 @@ def bradford_to_d65(xyz: torch.Tensor, white_xyz: torch.Tensor) -> torch.Tensor:
 
 
 def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor) -> torch.Tensor:
-    """CIEDE2000 (Sharma, Wu, Dalal 2005) along the last dim: isettorch.metrics when present."""
-    try:
-        from isettorch.metrics import delta_e
-    except ImportError:  # pragma: no cover - the metrics module is optional for this script
-        delta_e = None
-    if delta_e is not None:
-        return delta_e(lab1, lab2, "2000", dim=-1)
-    import colour  # pragma: no cover
+    """CIEDE2000 (Sharma, Wu, Dalal 2005) along the last dim: :func:`isettorch.metrics.delta_e`."""
+    from isettorch.metrics import delta_e
 
-    return torch.from_numpy(colour.delta_E(lab1.detach().numpy(), lab2.detach().numpy(), method="CIE 2000"))
+    return delta_e(lab1, lab2, "2000", dim=-1)
 
 
 def xyz_to_lab_d65(xyz: torch.Tensor) -> torch.Tensor:
