@@ -405,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
             save_checkpoint(out / "last.pt", net, opt, step, cfg, best, history, wall0 + time.time() - t_start,
                             clip, (float(run_loss), run_n))
     pbar.close()
-    if rank == 0:
+    if rank == 0 and frac >= 1.0:  # a --stop-after stop is no finished run: its record's final row was an earlier step
         record = {"command": " ".join(["python training/train_demosaic.py", *sys.argv[1:]]) if argv is None else argv,
                   "config": cfg, "world_size": world, "steps": step, "best_val_cpsnr": best,
                   "wall_s": round(wall0 + time.time() - t_start, 1), "hardware": common.hardware(),

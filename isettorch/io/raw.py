@@ -123,11 +123,11 @@ class _DngRaw:
                         black_level_delta_dn=delta if np.any(delta != 0) else None)
 
 
-def _tag_values(page, code: int, default=None):
-    """A tag's values as a float64 array (RATIONAL / SRATIONAL as numerator / denominator), or ``default``."""
+def _tag_values(page, code: int):
+    """A tag's values as a float64 array (RATIONAL / SRATIONAL as numerator / denominator), or None."""
     tag = page.tags.get(code)
     if tag is None:
-        return default
+        return None
     value = tag.value
     value = tuple(value) if isinstance(value, (tuple, list, bytes)) else (value,)
     arr = np.asarray(value, dtype=np.float64)
@@ -136,76 +136,79 @@ def _tag_values(page, code: int, default=None):
     return arr
 
 
+#: the raw IFD tags read: ActiveArea, CFARepeatPatternDim, CFAPattern, CFAPlaneColor, BlackLevelRepeatDim,
+#: BlackLevel, BlackLevelDeltaH, BlackLevelDeltaV
+_DNG_TAGS = (50829, 33421, 33422, 50710, 50713, 50714, 50715, 50716)
+
+
 def _read_dng_tags(path: Path) -> _DngRaw | None:
     """The raw IFD's tags of a DNG: IFD 0 or one of its SubIFDs with NewSubFileType 0 and a CFA (or a one-sample
     LinearRaw: monochrome) photometric interpretation. A file that is not a DNG (no DNGVersion tag in IFD 0) is
-    refused; one that tifffile cannot parse, or without such an IFD, is left to LibRaw's own message (None)."""
+    refused; one that tifffile cannot parse, or without such an IFD, is left to LibRaw's own message (None). The
+    tags are read while the file is open and checked after it, so a malformed tag is named, not taken for a file
+    tifffile cannot parse."""
     import tifffile
 
     try:
         with tifffile.TiffFile(str(path)) as tif:
             first = tif.pages[0]
             is_dng = first.tags.get(50706) is not None
-            raw = None
+            info = None
             for page in [first, *(getattr(first, "pages", None) or [])]:
                 kind = page.tags.get(254)
                 if (0 if kind is None else int(kind.value)) == 0 and int(page.photometric) in (32803, 34892):
-                    raw = page
+                    info = {"shape": (int(page.imagelength), int(page.imagewidth)),
+                            "photometric": int(page.photometric), "samples": int(page.samplesperpixel),
+                            "tags": {code: _tag_values(page, code) for code in _DNG_TAGS}}
                     break
-            if not is_dng or raw is None:
-                tags = None
-            elif int(raw.photometric) == 34892 and int(raw.samplesperpixel) != 1:
-                tags = "linear"
-            else:
-                tags = _dng_raw(path, raw)
-    except _DngTagError as err:
-        raise ValueError(str(err)) from None
     except Exception:  # not a TIFF, truncated: LibRaw says so
         return None
     if not is_dng:
         raise ValueError(f"{path}: not a DNG (no DNGVersion tag: a TIFF named .dng?); give the camera's DNG, or the "
                          f"frame as a 16-bit TIFF/PNG or .npy")
-    if tags == "linear":
-        raise ValueError(f"{path}: a demosaiced raw (a LinearRaw DNG of {int(raw.samplesperpixel)} samples a "
-                         f"pixel); expected a colour filter array mosaic")
-    return tags
+    if info is None:
+        return None
+    if info["photometric"] == 34892 and info["samples"] != 1:
+        raise ValueError(f"{path}: a demosaiced raw (a LinearRaw DNG of {info['samples']} samples a pixel); expected "
+                         f"a colour filter array mosaic")
+    return _dng_raw(path, info)
 
 
-class _DngTagError(ValueError):
-    """A DNG's raw IFD tags that do not fit together (raised while tifffile's file is open)."""
-
-
-def _dng_raw(path: Path, page) -> _DngRaw:
-    shape = (int(page.imagelength), int(page.imagewidth))
-    area = _tag_values(page, 50829, np.array([0, 0, *shape], dtype=np.float64))
+def _dng_raw(path: Path, info: dict) -> _DngRaw:
+    shape, tags = info["shape"], info["tags"]
+    for code, values in tags.items():
+        if values is not None and not np.isfinite(values).all():  # (a RATIONAL with a zero denominator)
+            raise ValueError(f"{path}: DNG tag {code} holds non-finite values {values.tolist()[:4]}")
+    area = tags[50829] if tags[50829] is not None else np.array([0, 0, *shape], dtype=np.float64)
+    if len(area) != 4:
+        raise ValueError(f"{path}: ActiveArea holds {len(area)} values; expected top, left, bottom, right")
     top, left, bottom, right = (int(v) for v in area)
-    if not (len(area) == 4 and 0 <= top < bottom <= shape[0] and 0 <= left < right <= shape[1]):
-        raise _DngTagError(f"{path}: ActiveArea {tuple(area)} is not inside the {shape[0]} x {shape[1]} raw")
+    if not (0 <= top < bottom <= shape[0] and 0 <= left < right <= shape[1]):
+        raise ValueError(f"{path}: ActiveArea {tuple(area)} is not inside the {shape[0]} x {shape[1]} raw")
     cell = None
-    if int(page.photometric) == 32803:
-        dim = _tag_values(page, 33421)
-        codes = _tag_values(page, 33422)
-        planes = _tag_values(page, 50710, np.arange(3.0))  # the colours of the planes (default red, green, blue)
+    if info["photometric"] == 32803:
+        dim, codes = tags[33421], tags[33422]
+        planes = tags[50710] if tags[50710] is not None else np.arange(3.0)  # the planes' colours (default RGB)
         if dim is None or codes is None or len(dim) != 2 or min(dim) < 1 or len(codes) != int(dim[0]) * int(dim[1]):
-            raise _DngTagError(f"{path}: a CFA raw without a CFARepeatPatternDim / CFAPattern pair that fits")
+            raise ValueError(f"{path}: a CFA raw without a CFARepeatPatternDim / CFAPattern pair that fits")
         # CFAPattern holds colour codes, each one of CFAPlaneColor's (TIFF/EP 4.6.4; DNG 1.4 CFAPlaneColor)
         if not set(codes) <= set(planes) or not set(planes) <= set(range(len(_DNG_PLANE_LETTERS))):
-            raise _DngTagError(f"{path}: CFAPattern {tuple(int(c) for c in codes)} with CFAPlaneColor "
-                               f"{tuple(int(c) for c in planes)}: expected colour codes 0-6 ({_DNG_PLANE_LETTERS}), "
-                               f"the pattern's among the planes'")
+            raise ValueError(f"{path}: CFAPattern {tuple(int(c) for c in codes)} with CFAPlaneColor "
+                             f"{tuple(int(c) for c in planes)}: expected colour codes 0-6 ({_DNG_PLANE_LETTERS}), "
+                             f"the pattern's among the planes'")
         letters = [_DNG_PLANE_LETTERS[int(c)] for c in codes]
         q = int(dim[1])
         cell = [letters[i:i + q] for i in range(0, len(letters), q)]
     h, w = bottom - top, right - left
-    repeat = _tag_values(page, 50713, np.array([1.0, 1.0])).astype(int)
-    black = _tag_values(page, 50714, np.zeros(1))
+    repeat = (tags[50713] if tags[50713] is not None else np.array([1.0, 1.0])).astype(int)
+    black = tags[50714] if tags[50714] is not None else np.zeros(1)
     if len(repeat) != 2 or min(repeat) < 1 or len(black) != repeat[0] * repeat[1]:
-        raise _DngTagError(f"{path}: BlackLevel has {len(black)} values for a BlackLevelRepeatDim of "
+        raise ValueError(f"{path}: BlackLevel has {len(black)} values for a BlackLevelRepeatDim of "
                          f"{tuple(int(r) for r in repeat)} (one sample per pixel)")
-    delta_v = _tag_values(page, 50716, np.zeros(h))
-    delta_h = _tag_values(page, 50715, np.zeros(w))
+    delta_v = tags[50716] if tags[50716] is not None else np.zeros(h)
+    delta_h = tags[50715] if tags[50715] is not None else np.zeros(w)
     if len(delta_v) != h or len(delta_h) != w:
-        raise _DngTagError(f"{path}: BlackLevelDeltaV / DeltaH have {len(delta_v)} / {len(delta_h)} values for an "
+        raise ValueError(f"{path}: BlackLevelDeltaV / DeltaH have {len(delta_v)} / {len(delta_h)} values for an "
                          f"ActiveArea of {h} rows and {w} columns")
     return _DngRaw(shape=shape, active=(top, left, bottom, right), cell=cell, black=black.reshape(repeat),
                    delta_v=delta_v, delta_h=delta_h)

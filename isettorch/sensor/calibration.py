@@ -255,13 +255,15 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     step = math.sqrt(quantisation_dn2 / S2_QUANTIZATION_DN2)
     read_var = vicpt - quantisation_dn2
     dsnu_dn = math.sqrt(max(dsnu2, 0.0))
-    measured_above = bool(vp_d.min() >= floor)
+    # ... and only where the extrapolation resolves a read noise of 0.3 q or more, where Sheppard's q^2/12 holds (a
+    # 0.1 DN read noise under strong dark current extrapolated to 0 e- or +30-58 % with the quantiser's phase)
+    measured_above = bool(vp_d.min() >= floor) and read_var >= (0.3 * step) ** 2
     if quantisation_dn2 > 0 and vicpt < floor and measured_above:
         warnings.append(f"channel {name}: the dark variance extrapolated to zero exposure ({vicpt:.4g} DN^2) is "
                         f"below {floor:.4g} DN^2, where quantisation would dominate it (EMVA 1288 4.0 section 6.4), "
                         f"but every measured dark variance is above it (the shortest exposure's "
-                        f"{float(vp_d.min()):.4g} DN^2): the extrapolation of the measured points is kept")
-        read_var = max(read_var, 0.0)  # (an intercept under q^2 / 12: no read noise resolved)
+                        f"{float(vp_d.min()):.4g} DN^2) and it resolves a read noise of 0.3 q or more: the "
+                        f"extrapolation of the measured points is kept")
     elif quantisation_dn2 > 0 and vicpt < floor and dsnu_dn >= 0.5 * step:
         # the dithered quantiser's variance is sigma^2 + q^2/12 only from sigma ~ 0.3 q; below, it is less (0.056 q^2
         # at sigma 0.1 q, where sigma^2 + q^2/12 is 0.093): invert it (a 0.1 q read noise read 0, 0.2 q read 14 % low)

@@ -128,7 +128,11 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         # PNG or .npy frame)
         top = float(z.max())
         at_top = int((z == top).sum())
-        if at_top >= max(32, 1e-3 * z.size):
+        lower = z[z < top]
+        below = int((z == lower.max()).sum()) if lower.size else 0
+        # a pile-up, not a tail: more pixels on the top value than 4x the next one down (a low-noise frame that never
+        # saturates has a few pixels on its largest value, fewer than on the next)
+        if at_top >= max(32, 1e-3 * z.size) and at_top > 4 * below:
             white_level_dn = top
             warnings.append(f"{at_top} pixels ({100 * at_top / z.size:.3g} %) sit at the frame's largest value, "
                             f"{top:g} DN: taken as its white level (saturated) and left out; give the white level "
@@ -168,9 +172,10 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
             smooth &= m + black_level_dn > 3 * np.sqrt(noise_var)
         pts, (a, b) = fit(smooth)
     se_a, se_b, chi2 = _fit_quality(pts, a, b)
-    if low_clipped:
-        warnings.append("the frame is clipped at 0 DN (no pedestal): blocks within 3 noise sigmas of 0 DN are left out "
-                        "and the read noise is extrapolated from brighter levels")
+    zeros = int((z == 0).sum()) if low_clipped else 0
+    if zeros >= max(32, 1e-3 * z.size):  # (a dead pixel or two at 0 DN is no clipped frame)
+        warnings.append(f"the frame is clipped at 0 DN (no pedestal; {zeros} pixels at 0): blocks within 3 noise "
+                        f"sigmas of 0 DN are left out and the read noise is extrapolated from brighter levels")
     if a > 0 and se_a > 0.05 * a:
         warnings.append(f"the signal levels span too narrow a range to separate a from b: a = {a:.4g} +- {se_a:.2g} "
                         f"DN/e- (a frame with a range of brightness, e.g. a gradient, separates them)")

@@ -581,6 +581,16 @@ def test_a_floor_crossed_only_by_the_extrapolation_keeps_the_measured_points():
     assert res["read_noise_e"] == pytest.approx(truth["read_noise_e"], rel=0.03)
     assert any("the extrapolation of the measured points is kept" in w for w in res["warnings"])
     assert not any("upper limit" in w for w in res["warnings"])
+    # but not where the extrapolation resolves under 0.3 q, below Sheppard's correction (a 0.1 DN read noise read 0
+    # e- or +30-58 % with the black level's fraction, a re-read found): the upper limit, as EMVA 1288 reports it
+    small = dict(truth, gain_dn_per_e=0.2, read_noise_e=0.5, dsnu_e=0.5, row_noise_e=0.0, prnu_percent=1.0,
+                 dark_current_e_per_s=500.0, full_well_e=10000.0, black_level_dn=64.25, bits=12, qe={"W": 0.6})
+    dark, flat, photons = nc.simulate(small, shape=(128, 128), frames=3, seed=0, saturate_ms=300.0,
+                                      exposures_ms=np.round(np.linspace(10, 300, 15), 3))
+    res = calibrate_capture(_capture_from(dark, flat, bits=12, photons=photons))
+    upper = math.sqrt(0.24 - 1 / 12) / 0.2
+    assert res["read_noise_e"] == pytest.approx(upper, rel=0.02) and res["read_noise_e"] > small["read_noise_e"]
+    assert any("upper limit" in w for w in res["warnings"])
 
 
 def test_dithered_quantiser_variance_against_a_simulation():

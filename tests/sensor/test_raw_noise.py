@@ -70,9 +70,18 @@ def test_foi_fit_saturation_zero_clipping_and_its_reliability_warnings():
     res = estimate_poisson_gaussian(dark)
     assert res["a"] == pytest.approx(a, rel=0.05) and res["read_noise_dn"] == pytest.approx(read, rel=0.1)
     assert any("clipped at 0 DN" in m for m in res["warnings"])
-    smooth = estimate_poisson_gaussian(capture(20 + 3000 * xx / w, 256.0), black_level_dn=256.0)
+    smooth_frame = capture(20 + 3000 * xx / w, 256.0)
+    smooth_frame[5, 7] = 0.0  # a dead pixel at 0 DN is no clipped frame
+    smooth = estimate_poisson_gaussian(smooth_frame, black_level_dn=256.0)
     assert smooth["a"] == pytest.approx(a, rel=0.02) and smooth["warnings"] == []
     assert smooth["a_standard_error"] < 0.01 * a and smooth["fit_chi2_per_dof"] < 3
+    # a low-noise frame far from saturation has few pixels on its largest value, fewer than on the next one down: no
+    # white level is taken from it
+    level = 2 + 38 * np.minimum(xx / 0.67, w - 1) / (w - 1)  # 2-40 DN, its brightest third uniform (a white patch)
+    quiet = np.round(0.002 * rng.poisson(level / 0.002) + 0.1 * rng.standard_normal((h, w)) + 16)
+    top = quiet.max()
+    assert (quiet == top).sum() >= 1e-3 * quiet.size  # (enough pixels on it to have been taken for saturation)
+    assert not any("white level" in m for m in estimate_poisson_gaussian(quiet, black_level_dn=16.0)["warnings"])
     flat = estimate_poisson_gaussian(capture(np.full((h, w), 1000.0), 256.0), black_level_dn=256.0)
     assert any("too narrow a range" in m for m in flat["warnings"])
     fine = 200 + 1500 * (0.5 + 0.5 * np.sin(xx / 8) * np.cos(yy / 6))
