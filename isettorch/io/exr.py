@@ -171,7 +171,7 @@ def write_scene_exr(path, scene, index: int | None = None, *, compression: str =
 def read_scene_exr(path, *, hfov_deg: float | None = None, distance_m: float | None = None, dtype=torch.float32):
     """Read an emissive spectral EXR as a `Scene` (radiance W/sr/m^2/nm -> photons/s/sr/m^2/nm).
 
-    FOV and distance come from the ``isettorch.*`` attributes, else from the arguments, else ISETCam's
+    FOV and distance come from the arguments, else from the file's ``isettorch.*`` attributes, else ISETCam's
     defaults (10 deg, 1.2 m; recorded in ``metadata['defaulted']``).
     """
     from ..scene import Scene

@@ -5,7 +5,10 @@ benchmarks and the photo lifter read them.
 Value conventions (what a tensor holds, what a file holds):
 
 - Tensors are ``[B, C, H, W]`` float, **linear** and relative (white = 1), as the ISP produces (``linear_srgb``
-  targets, ``ImageProcessor`` output before encoding) and as ``isettorch.scene.from_rgb`` expects.
+  targets, ``ImageProcessor`` output before encoding). ``isettorch.scene.from_rgb`` takes *encoded* values (it
+  applies the display's EOTF): give it ``read_image(path, encoding="linear")``, the code values / (2^bits - 1).
+- An alpha channel (the last of 2 or 4) is coverage, linear in every file format: it is never sRGB-encoded or
+  decoded (PNG specification, 12.2; it was, so a linear 0.5 was stored as code 188).
 - Integer files (PNG, 8/16-bit TIFF) hold **sRGB-encoded** code values, the convention of every viewer:
   reading decodes them with the IEC 61966-2-1 sRGB curve (``encoding="linear"`` returns the code values
   / (2^bits - 1) unchanged instead, e.g. for data already linear such as raw mosaics); writing encodes.
@@ -163,8 +166,9 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
         dtype: the returned floating dtype.
 
     Example:
-        >>> img = read_image("photo.png")  # doctest: +SKIP
-        >>> scene = isettorch.scene.from_rgb(img)  # doctest: +SKIP
+        >>> img = read_image("photo.png")  # linear  # doctest: +SKIP
+        >>> codes = read_image("photo.png", encoding="linear")  # the code values, for from_rgb  # doctest: +SKIP
+        >>> scene = isettorch.scene.from_rgb(codes)  # doctest: +SKIP
     """
     from ..image import srgb_decode
 
@@ -188,8 +192,9 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
     if a.dtype.kind in "ui":
         bits = 8 * a.dtype.itemsize
         t = t.to(torch.float64) / (2**bits - 1)
-        if encoding == "srgb":
-            t = srgb_decode(t)
+        if encoding == "srgb":  # the colour channels; an alpha channel (the last of 2 or 4) is linear coverage
+            colour = t.shape[1] - (1 if t.shape[1] in (2, 4) else 0)
+            t = torch.cat([srgb_decode(t[:, :colour]), t[:, colour:]], dim=1)
     elif a.dtype.kind == "f":
         t = t.to(torch.float64)
         if not torch.isfinite(t).all():
@@ -296,8 +301,9 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
             raise ValueError(f"image: values span [{lo:.4g}, {hi:.4g}], outside [0, 1] for a {bits}-bit file; scale "
                              "the image (white = 1), pass clip=True, or write a float file (EXR, 32-bit TIFF)")
         x = x.clamp(0, 1)
-        if encoding == "srgb":
-            x = srgb_encode(x)
+        if encoding == "srgb":  # the colour channels; an alpha channel (C = 4) is linear coverage
+            colour = 3 if x.shape[1] == 4 else x.shape[1]
+            x = torch.cat([srgb_encode(x[:, :colour]), x[:, colour:]], dim=1)
         x = (x * (2**bits - 1)).round().to(torch.int64)
     # the whole batch in the file's sample type before any file is written; a float file is checked for overflow
     # only: values below half's 6e-8 (of white = 1) rounding to 0 is its precision, not lost data

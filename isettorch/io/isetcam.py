@@ -113,6 +113,7 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
         raise ValueError(f"path: {str(p)!r}: expected scene.data.photons and scene.spectrum.wave (ISETCam layout)")
     photons = np.asarray(photons)
     wave = np.atleast_1d(np.asarray(wave, dtype=float)).reshape(-1)
+    _check_nanometres(wave, "scene.spectrum.wave")
     if photons.ndim == 2 and wave.size == 1:
         photons = photons[:, :, None]
     if photons.ndim != 3 or photons.shape[2] != wave.size:
@@ -281,8 +282,16 @@ def _vector(case, key: str, n: int, what: str = "one per wavelength in wavelengt
     return v
 
 
+def _check_nanometres(w: np.ndarray, name: str) -> None:
+    """ISETCam's wavelengths are nanometres: a grid outside 100-100,000 nm (e.g. 0.4-0.7: micrometres) is refused
+    naming ``name`` (it loaded as a scene of 0.4-0.7 nm light, without a word)."""
+    if w.size and (float(w.min()) < 100 or float(w.max()) > 1e5):
+        raise ValueError(f"{name}: expected wavelengths in nm (ISETCam's unit), got {float(w.min()):g}-"
+                         f"{float(w.max()):g} (micrometres? times 1000)")
+
+
 def _wavelengths(case) -> np.ndarray:
-    """``wavelengths_nm`` ``[L]`` (float64): finite, positive, strictly increasing."""
+    """``wavelengths_nm`` ``[L]`` (float64): finite, positive, strictly increasing, in nm."""
     from .._checks import check_wavelengths
 
     a = _numeric(case, "wavelengths_nm")
@@ -290,6 +299,7 @@ def _wavelengths(case) -> np.ndarray:
         raise ValueError(f"wavelengths_nm: expected a vector [L] of wavelengths (nm), got shape {a.shape}")
     w = a.astype(np.float64).reshape(-1)
     check_wavelengths(torch.as_tensor(w))
+    _check_nanometres(w, "wavelengths_nm")
     return w
 
 

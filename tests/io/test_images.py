@@ -317,3 +317,19 @@ def test_photo_scene_dataset_checks_size_and_length(tmp_path):
                      ({"seed": 1.5}, "seed")):
         with pytest.raises(ValueError, match=rf"^{name}: expected"):
             PhotoSceneDataset(tmp_path, **kw)
+
+
+def test_alpha_is_linear_coverage_in_integer_files(tmp_path):
+    """The alpha channel went through the sRGB curve both ways (a linear 0.5 was stored as code 188 and code 128 read
+    back as 0.216; an audit against Pillow): alpha is coverage, stored as is (PNG 1.2 section 12.2)."""
+    img = torch.full((4, 2, 3), 0.5, dtype=torch.float64)
+    write_image(tmp_path / "a.png", img)
+    codes = np.asarray(Image.open(tmp_path / "a.png"))
+    assert codes.shape == (2, 3, 4)
+    assert (codes[..., :3] == 188).all() and (codes[..., 3] == 128).all()  # sRGB(0.5) = 0.7354 -> 188; alpha 128
+    back = read_image(tmp_path / "a.png", dtype=torch.float64)
+    torch.testing.assert_close(back[0, 3], torch.full((2, 3), 128 / 255, dtype=torch.float64))
+    torch.testing.assert_close(back[0, :3], torch.full((3, 2, 3), 0.5, dtype=torch.float64), atol=4e-3, rtol=0)
+    Image.fromarray(np.full((2, 3, 2), 128, dtype=np.uint8), mode="LA").save(tmp_path / "la.png")
+    la = read_image(tmp_path / "la.png", dtype=torch.float64)
+    assert float(la[0, 1, 0, 0]) == pytest.approx(128 / 255) and float(la[0, 0, 0, 0]) < 0.22  # grey decoded

@@ -74,6 +74,10 @@ def test_bad_files(tmp_path):
     scipy.io.savemat(tmp_path / "neg.mat", {"scene": _scene_struct(-np.ones((2, 2, 4)), wave)})
     with pytest.raises(ValueError, match="photons"):
         read_isetcam_scene(tmp_path / "neg.mat")
+    # wavelengths in micrometres loaded as a scene of 0.4-0.7 nm light (an audit of the readers)
+    scipy.io.savemat(tmp_path / "um.mat", {"scene": _scene_struct(np.ones((2, 2, 4)), wave / 1000)})
+    with pytest.raises(ValueError, match=r"scene.spectrum.wave: expected wavelengths in nm .*got 0.4-0.7"):
+        read_isetcam_scene(tmp_path / "um.mat")
 
 
 def test_malformed_fields_are_named(tmp_path):
