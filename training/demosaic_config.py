@@ -41,7 +41,7 @@ def check_config(cfg: dict) -> dict:
         if key not in TOP_KEYS:
             raise ValueError(f"config.{key}: unknown key; expected one of {sorted(TOP_KEYS)}")
         keys = SECTION_KEYS.get(key)
-        if key in SECTION_KEYS and value is not None:
+        if key in SECTION_KEYS and (value is not None or key != "distill"):  # (null distill: none; null noise crashed)
             if not isinstance(value, dict):
                 raise ValueError(f"config.{key}: expected a mapping, got {value!r}")
             unknown = [k for k in value if keys is not None and k not in keys]

@@ -124,15 +124,29 @@ class _DngRaw:
 
 
 def _tag_values(page, code: int):
-    """A tag's values as a float64 array (RATIONAL / SRATIONAL as numerator / denominator), or None."""
+    """A tag's ``(values, TIFF type)`` as stored, or None (converted by :func:`_as_numbers` once the file is closed)."""
     tag = page.tags.get(code)
     if tag is None:
         return None
     value = tag.value
-    value = tuple(value) if isinstance(value, (tuple, list, bytes)) else (value,)
-    arr = np.asarray(value, dtype=np.float64)
-    if int(tag.dtype) in (5, 10):  # RATIONAL, SRATIONAL: pairs
-        arr = arr[0::2] / arr[1::2]
+    return (tuple(value) if isinstance(value, (tuple, list, bytes)) else (value,)), int(tag.dtype)
+
+
+def _as_numbers(path: Path, code: int, stored) -> np.ndarray | None:
+    """A tag's values as a finite float64 array (RATIONAL / SRATIONAL as numerator / denominator), or None; a
+    non-numeric or non-finite value (an ASCII BlackLevel, a zero denominator) is a ValueError naming the tag."""
+    if stored is None:
+        return None
+    value, kind = stored
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{path}: DNG tag {code} holds {value[:4]!r}; expected numbers") from None
+    if kind in (5, 10):  # RATIONAL, SRATIONAL: pairs
+        with np.errstate(divide="ignore", invalid="ignore"):
+            arr = arr[0::2] / arr[1::2]
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{path}: DNG tag {code} holds non-finite values {arr.tolist()[:4]} (a zero denominator?)")
     return arr
 
 
@@ -175,10 +189,8 @@ def _read_dng_tags(path: Path) -> _DngRaw | None:
 
 
 def _dng_raw(path: Path, info: dict) -> _DngRaw:
-    shape, tags = info["shape"], info["tags"]
-    for code, values in tags.items():
-        if values is not None and not np.isfinite(values).all():  # (a RATIONAL with a zero denominator)
-            raise ValueError(f"{path}: DNG tag {code} holds non-finite values {values.tolist()[:4]}")
+    shape = info["shape"]
+    tags = {code: _as_numbers(path, code, stored) for code, stored in info["tags"].items()}
     area = tags[50829] if tags[50829] is not None else np.array([0, 0, *shape], dtype=np.float64)
     if len(area) != 4:
         raise ValueError(f"{path}: ActiveArea holds {len(area)} values; expected top, left, bottom, right")

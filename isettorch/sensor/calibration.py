@@ -277,8 +277,10 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
                             f"{floor:.4g} DN^2, where quantisation dominates it, and the pixels' offsets (DSNU "
                             f"{dsnu_dn:.3g} DN) are too uniform to dither it (EMVA 1288 4.0 "
                             f"section 6.4): read noise reported as the upper limit {math.sqrt(read_var):.3g} DN (the "
-                            f"floor less q^2/12); the dark current and DSNU of a dark signal this far under one DN are "
-                            f"biased low")
+                            f"floor less q^2/12); " + (
+                                "the measured dark variances are above the floor, but their extrapolation resolves "
+                                "a read noise under 0.3 q, below Sheppard's correction" if vp_d.min() >= floor else
+                                "the dark current and DSNU of a dark signal this far under one DN are biased low"))
         else:
             warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
                             f"{floor:.4g} DN^2 (EMVA 1288 4.0 section 6.4 would report the upper limit "

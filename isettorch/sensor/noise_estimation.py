@@ -66,6 +66,29 @@ def _fit(pts) -> tuple[float, float]:
     return float(a), float(b)
 
 
+def _saturation_plateau(z: np.ndarray) -> float | None:
+    """The lowest code of a saturation pile-up at a frame's largest values, or None. An unclipped distribution thins
+    towards its largest value (fewer pixels on the top code than on the next one down, even for a low-noise bright
+    patch); clipped pixels pile up on it, or on the few codes the clip spreads them over (an analog clip followed by
+    ADC noise): from the top code down, each code holding at least 0.1 % of the pixels (and 32) and more than the
+    next code down belongs to the pile-up (at most 8 codes)."""
+    values, counts, rest = [], [], z.ravel()
+    for _ in range(9):  # the nine largest codes and their counts, from the top down
+        if rest.size == 0:
+            break
+        top = rest.max()
+        values.append(float(top))
+        counts.append(int((rest == top).sum()))
+        rest = rest[rest < top]
+    need = max(32, 1e-3 * z.size)
+    white = None
+    for i in range(min(8, len(values) - 1)):
+        if counts[i] < need or counts[i] <= counts[i + 1]:
+            break
+        white = float(values[i])
+    return white
+
+
 def _fit_quality(pts, a: float, b: float) -> tuple[float, float, float]:
     """``(standard errors of a and of b, chi^2 per degree of freedom)`` of the line through the level variances, each
     with its sampling variance ``2 v^2 / n`` under the model (a sample variance of n Gaussian values): a large standard
@@ -126,17 +149,12 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         # a frame that saturates piles its clipped pixels on its largest value; counted as bright noise-free levels
         # they pulled a down (0.25 for 0.5 with 23 % saturated, through the CLI, which has no white level for a
         # PNG or .npy frame)
-        top = float(z.max())
-        at_top = int((z == top).sum())
-        lower = z[z < top]
-        below = int((z == lower.max()).sum()) if lower.size else 0
-        # a pile-up, not a tail: more pixels on the top value than 4x the next one down (a low-noise frame that never
-        # saturates has a few pixels on its largest value, fewer than on the next)
-        if at_top >= max(32, 1e-3 * z.size) and at_top > 4 * below:
-            white_level_dn = top
-            warnings.append(f"{at_top} pixels ({100 * at_top / z.size:.3g} %) sit at the frame's largest value, "
-                            f"{top:g} DN: taken as its white level (saturated) and left out; give the white level "
-                            f"if it saturates elsewhere")
+        white_level_dn = _saturation_plateau(z)
+        if white_level_dn is not None:
+            n = int((z >= white_level_dn).sum())
+            warnings.append(f"{n} pixels ({100 * n / z.size:.3g} %) pile up at the frame's largest values, "
+                            f"{white_level_dn:g} DN and up: taken as its white level (saturated) and left out; give "
+                            f"the white level if it saturates elsewhere")
     means, details, laps = [], [], []
     for p in planes:
         m, d, lap = _blocks(p)
@@ -173,9 +191,13 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         pts, (a, b) = fit(smooth)
     se_a, se_b, chi2 = _fit_quality(pts, a, b)
     zeros = int((z == 0).sum()) if low_clipped else 0
-    if zeros >= max(32, 1e-3 * z.size):  # (a dead pixel or two at 0 DN is no clipped frame)
+    # (a dead pixel or two at 0 DN is no clipped frame; nor are dead pixels under a pedestal)
+    if zeros >= max(32, 1e-3 * z.size) and black_level_dn < 3 * math.sqrt(max(b, 1.0)):
         warnings.append(f"the frame is clipped at 0 DN (no pedestal; {zeros} pixels at 0): blocks within 3 noise "
                         f"sigmas of 0 DN are left out and the read noise is extrapolated from brighter levels")
+    elif zeros:
+        warnings.append(f"{zeros} pixels at 0 DN under a black level of {black_level_dn:g} DN (dead pixels?): their "
+                        f"blocks are left out")
     if a > 0 and se_a > 0.05 * a:
         warnings.append(f"the signal levels span too narrow a range to separate a from b: a = {a:.4g} +- {se_a:.2g} "
                         f"DN/e- (a frame with a range of brightness, e.g. a gradient, separates them)")

@@ -389,7 +389,8 @@ class ViewerSession:
 
     def sensor_stats(self, roi: ROI, bins: int = 40) -> dict:
         """Pixel values of a raw region by CFA channel: histogram (from the lower of the black level and the darkest
-        value, so no value falls outside it), mean, standard deviation and SNR of the signal above the black level
+        value, so no value falls outside it), mean and standard deviation of the values (black level included) and SNR
+        of the signal above the black level
         (:func:`isettorch.metrics.snr_uniform` of the values less the raw's zero level, mean / std with ddof = 1, in
         dB: a DN raw's black level of 64 had been counted as signal, 39.6 dB for 6.6)."""
         from ..metrics import snr_uniform

@@ -73,8 +73,17 @@ def test_foi_fit_saturation_zero_clipping_and_its_reliability_warnings():
     smooth_frame = capture(20 + 3000 * xx / w, 256.0)
     smooth_frame[5, 7] = 0.0  # a dead pixel at 0 DN is no clipped frame
     smooth = estimate_poisson_gaussian(smooth_frame, black_level_dn=256.0)
-    assert smooth["a"] == pytest.approx(a, rel=0.02) and smooth["warnings"] == []
+    assert smooth["a"] == pytest.approx(a, rel=0.02)
+    assert smooth["warnings"] == ["1 pixels at 0 DN under a black level of 256 DN (dead pixels?): their blocks are "
+                                  "left out"]
     assert smooth["a_standard_error"] < 0.01 * a and smooth["fit_chi2_per_dof"] < 3
+    # saturation spread over a few codes (an analog clip, then ADC noise): the pile-up's lowest code is the white
+    # level (it took none: a = 0.004 for 0.5)
+    spread = np.clip(np.round(np.minimum(a * rng.poisson((20 + 6000 * xx / w) / a) + read * rng.standard_normal((h, w))
+                                         + 256, 4094.6) + 0.6 * rng.standard_normal((h, w))), 0, 4095)
+    assert (spread == 4094).mean() > 0.05 and (spread == 4095).mean() > 0.05
+    res = estimate_poisson_gaussian(spread, black_level_dn=256.0)
+    assert res["a"] == pytest.approx(a, rel=0.03) and any("taken as its white level" in m for m in res["warnings"])
     # a low-noise frame far from saturation has few pixels on its largest value, fewer than on the next one down: no
     # white level is taken from it
     level = 2 + 38 * np.minimum(xx / 0.67, w - 1) / (w - 1)  # 2-40 DN, its brightest third uniform (a white patch)
@@ -339,6 +348,12 @@ def test_dng_window_cfa_and_black_levels_come_from_its_tags(tmp_path):
     dng_by_hand(tmp_path / "bad.dng", m, black=None, extra=[(50713, "H", 2, (2, 2), True),
                                                             (50714, "H", 3, (1, 2, 3), True)])
     with pytest.raises(ValueError, match="bad.dng: BlackLevel has 3 values for a BlackLevelRepeatDim of"):
+        read_raw(tmp_path / "bad.dng")
+    dng_by_hand(tmp_path / "bad.dng", m, black=None, extra=[(50714, "s", 0, "n/a", True)])  # an ASCII BlackLevel
+    with pytest.raises(ValueError, match="bad.dng: DNG tag 50714 holds"):  # (read by LibRaw alone, black 0)
+        read_raw(tmp_path / "bad.dng")
+    dng_by_hand(tmp_path / "bad.dng", m, black=None, extra=[(50714, "2I", 1, (64, 0), True)])  # a zero denominator
+    with pytest.raises(ValueError, match="bad.dng: DNG tag 50714 holds non-finite values"):
         read_raw(tmp_path / "bad.dng")
     dng_by_hand(tmp_path / "bad.dng", m, extra=[area, (50715, "2i", 3, (1, 1) * 3, True)])
     with pytest.raises(ValueError, match="bad.dng: BlackLevelDeltaV / DeltaH have 42 / 3 values"):

@@ -177,7 +177,8 @@ def test_config_keys_and_values_are_checked_before_a_run(tmp_path):
                               ("valid={every: 2}", "config.valid: unknown key"),
                               ("optim.loss=l3", "config.optim.loss: expected one of"),
                               ("checkpoint_every=0", "config.checkpoint_every: expected a positive integer"),
-                              ("optim.lr=abc", "config.optim.lr: expected a positive number")):
+                              ("optim.lr=abc", "config.optim.lr: expected a positive number"),
+                              ("noise=null", "config.noise: expected a mapping")):
         with pytest.raises(ValueError, match=message):
             train_demosaic.main(args + [override])
     assert not (tmp_path / "x" / "last.pt").exists()
