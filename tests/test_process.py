@@ -110,6 +110,18 @@ def test_a_camera_raws_own_cfa_and_black_level_must_be_the_configs(camera, tmp_p
     dng_by_hand(tmp_path / "delta.dng", mosaic + delta, extra=[(50715, "h", 24, tuple(int(d) for d in delta), True)])
     assert main(["process", str(tmp_path / "delta.dng"), *args, "--out", str(tmp_path / "d")]) == 0
     assert np.array_equal(np.load(tmp_path / "d" / "delta.npy"), np.load(tmp_path / "b" / "ok.npy"))
+    # the file's own per-channel black levels, within 0.5 DN of the config's, are the ones subtracted (the
+    # differences were left in the output): R at 64.5, B at 63.5 is the frame with R 0.5 DN down and B 0.5 up
+    blacks = [(50713, "H", 2, (2, 2), True), (50714, "2I", 4, (129, 2, 64, 1, 64, 1, 127, 2), True)]
+    dng_by_hand(tmp_path / "cells.dng", mosaic, black=None, extra=blacks)
+    shifted = mosaic.astype(np.float64)
+    shifted[0::2, 0::2] -= 0.5
+    shifted[1::2, 1::2] += 0.5
+    np.save(tmp_path / "cells_twin.npy", shifted)
+    assert main(["process", str(tmp_path / "cells.dng"), *args, "--out", str(tmp_path / "e")]) == 0
+    assert main(["process", str(tmp_path / "cells_twin.npy"), *args, "--out", str(tmp_path / "e")]) == 0
+    np.testing.assert_allclose(np.load(tmp_path / "e" / "cells.npy"), np.load(tmp_path / "e" / "cells_twin.npy"),
+                               rtol=0, atol=1e-6)
 
 
 def test_the_shipped_joint_checkpoint_runs_as_it_ships(camera, tmp_path):

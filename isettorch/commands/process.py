@@ -302,8 +302,6 @@ def run(args) -> int:
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
             dn, file_cfa, file_blacks, stored_bits, delta = _read(f)
-            if delta is not None:  # a DNG's per-row / per-column black level: its departure from the channel's
-                dn = dn - delta
             if shifts[f] > 1:
                 dn = dn / shifts[f]
             try:  # (an 8-bit PNG read as 12-bit DN)
@@ -321,8 +319,20 @@ def run(args) -> int:
                         f"sensor.black_level_dn {sensor.black_level_dn:g} plus analog_offset_v "
                         f"{sensor.analog_offset_v:g} V after the gain")
                 at = "" if args.analog_gain is None else f" at --analog-gain {args.analog_gain:g}"
-                raise ValueError(f"RAW: {f}: the file's black levels {[round(b, 3) for b in file_blacks]} DN differ "
-                                 f"from the camera config's {black:g} DN{at} (--camera: {what})")
+                deltas = "" if delta is None else " (with the means of its per-row / per-column deltas)"
+                raise ValueError(f"RAW: {f}: the file's black levels {[round(b, 3) for b in file_blacks]} DN{deltas} "
+                                 f"differ from the camera config's {black:g} DN{at} (--camera: {what})")
+            if file_blacks:
+                # the frame's own black level, per channel and per pixel (a DNG's BlackLevel and its per-row /
+                # per-column deltas), replaced by the config's: its differences from the config's, up to 0.5 DN a
+                # channel, were left in the output
+                from ..sensor.cfa import CFA
+
+                shape = CFA(file_cfa).shape if file_cfa is not None else (1, 1)
+                cell = np.asarray(file_blacks, dtype=np.float64).reshape(shape)
+                h, w = dn.shape
+                own = np.tile(cell, (-(-h // shape[0]), -(-w // shape[1])))[:h, :w]
+                dn = dn - (own if delta is None else own + delta) + black
             if min(dn.shape) < 4:  # (an odd height or width is completed to whole cells by demosaic_learned)
                 raise ValueError(f"RAW: {f}: expected a {pattern} mosaic of at least 4 x 4 pixels, got "
                                  f"{dn.shape[0]} x {dn.shape[1]}")

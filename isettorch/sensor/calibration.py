@@ -439,10 +439,12 @@ def _dither_table() -> np.ndarray:
 _DITHER_TABLE: np.ndarray | None = None
 
 
-def _hot_pixels(capture) -> dict[str, Any] | None:
+def _hot_pixels(capture, quantisation_dn2: float = 0.0) -> dict[str, Any] | None:
     """Hot pixels: per-pixel slope of the frame-averaged dark against exposure (DN/s), above the median slope by more
     than ``_HOT_MADS`` robust standard deviations (1.4826 MAD, Leys et al. 2013), the robust spread floored at the
-    slope's own temporal standard error. None with fewer than 2 dark exposures. Returns the mask and slopes."""
+    slope's own temporal standard error, each frame's variance at least the quantiser's ``quantisation_dn2`` (a
+    read noise of 0.2 DN reads one code in most frames: the spread collapsed and pixels one code up in two frames
+    were 'hot'). None with fewer than 2 dark exposures. Returns the mask and slopes."""
     ms = sorted(capture.dark)
     if len(ms) < 2:
         return None
@@ -457,7 +459,8 @@ def _hot_pixels(capture) -> dict[str, Any] | None:
         st = capture.dark[k]
         slope += w * st.mean(axis=0, dtype=np.float64)
         # temporal residue of the average
-        var_slope += w ** 2 * float(st.var(axis=0, ddof=1, dtype=np.float64).mean()) / st.shape[0]
+        frame_var = max(float(st.var(axis=0, ddof=1, dtype=np.float64).mean()), quantisation_dn2)
+        var_slope += w ** 2 * frame_var / st.shape[0]
     slope /= stt
     med = float(np.median(slope))
     spread = max(_MAD_TO_SIGMA * float(np.median(np.abs(slope - med))), math.sqrt(var_slope) / stt)
@@ -574,7 +577,8 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
         out["sensor"] = sensor
         out["photon_transfer"] = {n: per[n]["photon_transfer"] for n in names}
         _warn_channels_differ(per, names, warnings)
-    _hot_pixel_result(capture, out, stats if capture.cfa is None else {"all": (allp, None)}, warnings)
+    _hot_pixel_result(capture, out, stats if capture.cfa is None else {"all": (allp, None)}, warnings,
+                      quantisation_dn2)
     nominal, measured = capture.black_level_dn, _scalars(out)["black_level_dn"]
     if nominal is not None and abs(measured - float(nominal)) > step:
         warnings.append(f"the measured black level {measured:.2f} DN differs from the nominal black_level_dn "
@@ -644,10 +648,10 @@ def _check_plane_shape(capture) -> None:
                          f"separated from the pixel noise; line-scan sensors are not supported)")
 
 
-def _hot_pixel_result(capture, out: dict, stats: dict, warnings: list[str]) -> None:
+def _hot_pixel_result(capture, out: dict, stats: dict, warnings: list[str], quantisation_dn2: float = 0.0) -> None:
     """Count the hot pixels into ``out`` (``hot_pixels``) and, if any, the dark terms of the other pixels
     (``sensor_config_dark``), with a warning."""
-    hot = _hot_pixels(capture)
+    hot = _hot_pixels(capture, quantisation_dn2)
     out["hot_pixels"] = None
     if hot is None:
         return

@@ -145,16 +145,16 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         planes = [z[dy::ph, dx::pw] for dy in range(ph) for dx in range(pw)]
     low_clipped = bool(z.min() == 0)  # a frame clipped at 0 DN has no negative values and some at 0
     warnings = []
-    if white_level_dn is None:
-        # a frame that saturates piles its clipped pixels on its largest value; counted as bright noise-free levels
-        # they pulled a down (0.25 for 0.5 with 23 % saturated, through the CLI, which has no white level for a
-        # PNG or .npy frame)
-        white_level_dn = _saturation_plateau(z)
-        if white_level_dn is not None:
-            n = int((z >= white_level_dn).sum())
-            warnings.append(f"{n} pixels ({100 * n / z.size:.3g} %) pile up at the frame's largest values, "
-                            f"{white_level_dn:g} DN and up: taken as its white level (saturated) and left out; give "
-                            f"the white level if it saturates elsewhere")
+    # a frame that saturates piles its clipped pixels on its largest values; counted as bright noise-free levels
+    # they pulled a down (0.25 for 0.5 with 23 % saturated, through the CLI, which has no white level for a PNG or
+    # .npy frame; 0.49 for 2.0 from a DNG whose WhiteLevel, 65535, is above where the sensor clips, 4095)
+    plateau = _saturation_plateau(z)
+    if plateau is not None and (white_level_dn is None or plateau < white_level_dn):
+        n = int((z >= plateau).sum())
+        given = "" if white_level_dn is None else f", below the given white level {white_level_dn:g} DN"
+        warnings.append(f"{n} pixels ({100 * n / z.size:.3g} %) pile up at the frame's largest values, {plateau:g} "
+                        f"DN and up{given}: taken as its white level (saturated) and left out")
+        white_level_dn = plateau
     means, details, laps = [], [], []
     for p in planes:
         m, d, lap = _blocks(p)
@@ -210,8 +210,8 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         warnings.append(f"the signal-independent variance is poorly determined, b = {b:.4g} +- {se_b:.2g} DN^2 (few "
                         f"dark levels: it is extrapolated from {float(np.min([p[0] for p in pts])):.4g} DN up)")
     if b < 0:  # a black level below the frame's by d DN moves the intercept to b - a d (Foi et al. eq. 3 at y + d)
-        cause = ("texture (above), or " if chi2 > 3 else "") + \
-            f"a black level ({black_level_dn:g} DN) below the frame's"
+        cause = ("a signal range too narrow to separate a from b (above), or " if a > 0 and se_a > 0.05 * a else "") \
+            + ("texture (above), or " if chi2 > 3 else "") + f"a black level ({black_level_dn:g} DN) below the frame's"
         warnings.append(f"the fitted signal-independent variance b = {b:.4g} DN^2 is negative, so read_noise_dn and "
                         f"read_noise_e are reported as 0; its cause may be {cause} (d DN too low moves b by -a d)")
     if not a > 0:

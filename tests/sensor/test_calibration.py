@@ -593,6 +593,20 @@ def test_a_floor_crossed_only_by_the_extrapolation_keeps_the_measured_points():
     assert any("upper limit" in w for w in res["warnings"])
 
 
+def test_a_quantised_dark_of_one_code_has_no_hot_pixels():
+    """A 0.2 DN read noise without dark current reads one code in most frames: the hot-pixel rule's robust spread
+    collapsed, and pixels one code up in two frames were 'hot' (written into the sensor config; an integration
+    audit). The slope's spread is floored by the quantiser's variance: none."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    truth = dict(nc.TRUTH, gain_dn_per_e=0.1, read_noise_e=2.0, dsnu_e=0.0, row_noise_e=0.0, prnu_percent=1.0,
+                 dark_current_e_per_s=0.0, full_well_e=20000.0, black_level_dn=64.0, bits=12, qe={"W": 0.6})
+    dark, flat, photons = nc.simulate(truth, shape=(128, 192), frames=2, seed=3, saturate_ms=120.0,
+                                      exposures_ms=[1.0, 2.0, 5.0, 10.0, 20.0, 40.0, 60.0, 80.0, 100.0, 120.0])
+    res = calibrate_capture(_capture_from(dark, flat, bits=12, photons=photons))
+    assert res["hot_pixels"]["count"] == 0
+
+
 def test_dithered_quantiser_variance_against_a_simulation():
     """The mean pixel-wise variance of round(sigma z + u) over offsets u spread across a step (pixels whose DSNU
     dithers the quantiser): a NumPy simulation of 400,000 pixels agrees; it is sigma^2 + 1/12 (Sheppard) only from

@@ -66,6 +66,10 @@ def test_foi_fit_saturation_zero_clipping_and_its_reliability_warnings():
     res = estimate_poisson_gaussian(saturated, black_level_dn=256.0)
     assert res["a"] == pytest.approx(a, rel=0.02)
     assert any("taken as its white level" in m for m in res["warnings"])
+    # and below a given white level above it (a DNG's WhiteLevel 65535 on a sensor that clips at 4095: a = 0.49 for 2)
+    res = estimate_poisson_gaussian(saturated, black_level_dn=256.0, white_level_dn=65535.0)
+    assert res["a"] == pytest.approx(a, rel=0.02)
+    assert any("below the given white level 65535 DN" in m for m in res["warnings"])
     dark = capture(200 * (xx / w) * (0.5 + 0.5 * yy / h), 0.0)  # no pedestal: 1 % of the pixels at 0 DN
     res = estimate_poisson_gaussian(dark)
     assert res["a"] == pytest.approx(a, rel=0.05) and res["read_noise_dn"] == pytest.approx(read, rel=0.1)
