@@ -37,7 +37,8 @@ CFA_LIBRARY: dict[str, str] = {
     "RCCB": "RW/WB", "RCCC": "RW/WW",
     # Quad Bayer (Sony, 2x2 same-colour blocks of an RGGB Bayer).
     "QUAD_BAYER": "RRGG/RRGG/GGBB/GGBB",
-    # Fujifilm X-Trans 6x6 (layout as in dcraw / darktable's xtrans).
+    # Fujifilm X-Trans 6x6: a valid X-Trans cell (20 G, 8 R, 8 B), one row and one column off rawspeed's absolute
+    # array; a camera's phase depends on its sensor crop (isettorch.io.raw.read_raw gives a raw file's own).
     "XTRANS": "GBGGRG/RGRBGB/GBGGRG/GRGGBG/BGBRGR/GRGGBG",
     "MONO": "W", "MONOCHROME": "W", "W": "W",
 }
