@@ -121,8 +121,8 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         blocks)], 'warnings': [...]}`` (a negative b gives read noise 0, with a warning). Warned: a narrow signal
         range (a's standard error over 5 %), variance the line does not hold (chi^2 per degree of freedom over 3:
         texture biases a high, up to several times on natural photographs: a flat-field or smooth frame is what
-        this estimate is for), a poorly determined b, a frame clipped at 0 DN, and a saturated plateau taken as
-        the white level when ``white_level_dn`` is None.
+        this estimate is for), a poorly determined b, a frame clipped at 0 DN, and a saturation pile-up at the
+        frame's largest values taken as the white level when ``white_level_dn`` is None or above it.
     """
     z = np.asarray(raw.detach().cpu() if hasattr(raw, "detach") else raw, dtype=np.float64)
     if z.ndim != 2:
