@@ -80,13 +80,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--variant: {variant} needs a network {'with' if variant == 'joint_denoise' else 'without'} "
                  f"noise inputs; this one has noise_inputs={ck['net_config'].get('noise_inputs', 0)}")
     args.name = args.name or learned.PRETRAINED[variant].stem
-    net.guard = dict(learned.PRETRAINED_GUARDS[variant])  # scored as it ships (load_pretrained sets this guard)
+    # scored as it ships: the variant's guard, correction scale and classical blend (load_pretrained sets them; the
+    # joint network's noise gates are load_pretrained's alone)
+    learned.apply_shipped_settings(net, variant)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     pt = out / f"{args.name}.pt"
-    # the file holds the guard it is scored with (a --model load of it ran the bare network its card does not score;
-    # the registry's load_pretrained sets the same guard)
-    net_config = {**ck["net_config"], "guard": dict(net.guard)}
+    # the file holds the settings it is scored with (a --model load of it ran the bare network its card does not
+    # score; the registry's load_pretrained sets the same)
+    net_config = net.config()
     torch.save({"model": {k: v.to(store).contiguous() for k, v in net.state_dict().items()},
                 "net_config": net_config, "step": int(ck["step"]),
                 "best_val_cpsnr": float(ck["best_val_cpsnr"])}, pt)
@@ -146,7 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     shown = "" if variant == "noise_free" else f'"{variant}"'
     lines = [f"# Shipped learned demosaic (`isettorch.isp.learned.load_pretrained({shown})`)", "",
              f"- command: `{info['command']}`", f"- guard (part of what ships, scored with it): "
-             f"`{json.dumps(learned.PRETRAINED_GUARDS[variant])}`"]
+             f"`{json.dumps(learned.PRETRAINED_GUARDS[variant])}`",
+             f"- correction scale {net.correction_scale:g} and classical blend `{json.dumps(net.blend)}` (part of "
+             f"what ships, scored with them)"]
     if variant in learned.PRETRAINED_GATES:
         lines.append(f"- noise gates (part of what ships, `learned.PRETRAINED_GATES`: the low-noise gate to the "
                      f"noise-free network, and the high-noise gate to the classical expert, `classical`): "

@@ -80,6 +80,15 @@ def test_export_records_given_command_and_selection(tmp_path):
     assert card["command"] == "python w.py" and card["checkpoint"]["selected_by"] == "a held-out screen"
     text = (out / "demosaic_learned.md").read_text()
     assert "- command: `python w.py`" in text and "best by a held-out screen" in text
+    # the exported file and its card hold what the variant ships with around the weights: guard, correction scale
+    # and classical blend (a --model load of it ran the bare network, which the card does not score)
+    from isettorch.isp import learned
+
+    exported, _ = load_checkpoint(out / "demosaic_learned.pt")
+    assert exported.guard == learned.PRETRAINED_GUARDS["noise_free"]
+    assert exported.correction_scale == learned.PRETRAINED_CORRECTION_SCALES["noise_free"] != 1.0
+    assert exported.blend == learned.PRETRAINED_BLENDS["noise_free"] is not None
+    assert f"correction scale {learned.PRETRAINED_CORRECTION_SCALES['noise_free']:g}" in text
 
 
 def test_export_refuses_a_variant_the_network_does_not_fit_and_a_missing_run(tmp_path, capsys):
