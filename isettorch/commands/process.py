@@ -326,13 +326,9 @@ def run(args) -> int:
                 # the frame's own black level, per channel and per pixel (a DNG's BlackLevel and its per-row /
                 # per-column deltas), replaced by the config's: its differences from the config's, up to 0.5 DN a
                 # channel, were left in the output
-                from ..sensor.cfa import CFA
+                from ..io.raw import black_level_map
 
-                shape = CFA(file_cfa).shape if file_cfa is not None else (1, 1)
-                cell = np.asarray(file_blacks, dtype=np.float64).reshape(shape)
-                h, w = dn.shape
-                own = np.tile(cell, (-(-h // shape[0]), -(-w // shape[1])))[:h, :w]
-                dn = dn - (own if delta is None else own + delta) + black
+                dn = dn - black_level_map(file_cfa, file_blacks, delta, dn.shape) + black
             if min(dn.shape) < 4:  # (an odd height or width is completed to whole cells by demosaic_learned)
                 raise ValueError(f"RAW: {f}: expected a {pattern} mosaic of at least 4 x 4 pixels, got "
                                  f"{dn.shape[0]} x {dn.shape[1]}")

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._checks import is_integer
 
-__all__ = ["RawFrame", "read_raw", "write_dng"]
+__all__ = ["RawFrame", "black_level_map", "read_raw", "write_dng"]
 
 
 @dataclasses.dataclass
@@ -32,6 +32,22 @@ class RawFrame:
     black_level_dn: list[float]
     white_level_dn: float | None
     black_level_delta_dn: np.ndarray | None = None
+
+
+def _tile(cell: np.ndarray, h: int, w: int) -> np.ndarray:
+    """A repeating ``cell`` ``[p, q]`` over ``h x w`` pixels, from its top-left corner."""
+    p, q = cell.shape
+    return np.tile(cell, (-(-h // p), -(-w // q)))[:h, :w]
+
+
+def black_level_map(cfa: str | None, black_level_dn, black_level_delta_dn, shape: tuple[int, int]) -> np.ndarray:
+    """The black level of every pixel ``(H, W)`` of a raw frame: its per-channel ``black_level_dn`` (in the order of
+    the CFA cell's letters, :class:`RawFrame`) over the cell, plus ``black_level_delta_dn`` where given."""
+    from ..sensor.cfa import CFA
+
+    cell_shape = CFA(cfa).shape if cfa is not None else (1, 1)
+    level = _tile(np.asarray(black_level_dn, dtype=np.float64).reshape(cell_shape), *shape)
+    return level if black_level_delta_dn is None else level + black_level_delta_dn
 
 
 def read_raw(path: str | Path) -> RawFrame:
@@ -106,14 +122,12 @@ class _DngRaw:
         top, left, bottom, right = self.active
         data = full[top:bottom, left:right]
         h, w = data.shape
-        rows, cols = self.black.shape
-        level = (np.tile(self.black, (-(-h // rows), -(-w // cols)))[:h, :w] + self.delta_v[:, None]
-                 + self.delta_h[None, :])  # the black level of every pixel
+        level = _tile(self.black, h, w) + self.delta_v[:, None] + self.delta_h[None, :]  # every pixel's black
         p, q = (len(self.cell), len(self.cell[0])) if self.cell is not None else (1, 1)
         if h < p or w < q:
             raise ValueError(f"{path}: an ActiveArea of {h} x {w} pixels holds no whole {p} x {q} CFA cell")
         per_cell = np.array([[level[i::p, j::q].mean() for j in range(q)] for i in range(p)])
-        delta = level - np.tile(per_cell, (-(-h // p), -(-w // q)))[:h, :w]
+        delta = level - _tile(per_cell, h, w)
         blacks = [float(b) for b in per_cell.reshape(-1)]
         _check_black_below_white(path, blacks, white)
         cfa = None

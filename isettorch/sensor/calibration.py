@@ -258,36 +258,34 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     # ... and only where the extrapolation resolves a read noise of 0.3 q or more, where Sheppard's q^2/12 holds (a
     # 0.1 DN read noise under strong dark current extrapolated to 0 e- or +30-58 % with the quantiser's phase)
     measured_above = bool(vp_d.min() >= floor) and read_var >= (0.3 * step) ** 2
-    if quantisation_dn2 > 0 and vicpt < floor and measured_above:
+    if quantisation_dn2 <= 0:  # non-integer frames: no quantiser, no floor (a negative intercept read as 0)
+        read_var = max(read_var, 0.0)
+    elif vicpt < floor and measured_above:
         warnings.append(f"channel {name}: the dark variance extrapolated to zero exposure ({vicpt:.4g} DN^2) is "
                         f"below {floor:.4g} DN^2, where quantisation would dominate it (EMVA 1288 4.0 section 6.4), "
                         f"but every measured dark variance is above it (the shortest exposure's "
                         f"{float(vp_d.min()):.4g} DN^2) and it resolves a read noise of 0.3 q or more: the "
                         f"extrapolation of the measured points is kept")
-    elif quantisation_dn2 > 0 and vicpt < floor and dsnu_dn >= 0.5 * step:
+    elif vicpt < floor and dsnu_dn >= 0.5 * step:
         # the dithered quantiser's variance is sigma^2 + q^2/12 only from sigma ~ 0.3 q; below, it is less (0.056 q^2
         # at sigma 0.1 q, where sigma^2 + q^2/12 is 0.093): invert it (a 0.1 q read noise read 0, 0.2 q read 14 % low)
         read_var = (dithered_quantiser_sigma(vicpt / step ** 2) * step) ** 2
-    if quantisation_dn2 <= 0:  # non-integer frames: no quantiser, no floor (a negative intercept read as 0)
-        read_var = max(read_var, 0.0)
-    elif vicpt < floor and not measured_above:
-        if dsnu_dn < 0.5 * step:
-            read_var = floor - quantisation_dn2
-            warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
-                            f"{floor:.4g} DN^2, where quantisation dominates it, and the pixels' offsets (DSNU "
-                            f"{dsnu_dn:.3g} DN) are too uniform to dither it (EMVA 1288 4.0 "
-                            f"section 6.4): read noise reported as the upper limit {math.sqrt(read_var):.3g} DN (the "
-                            f"floor less q^2/12); " + (
-                                "the measured dark variances are above the floor, but their extrapolation resolves "
-                                "a read noise under 0.3 q, below Sheppard's correction" if vp_d.min() >= floor else
-                                "the dark current and DSNU of a dark signal this far under one DN are biased low"))
-        else:
-            warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
-                            f"{floor:.4g} DN^2 (EMVA 1288 4.0 section 6.4 would report the upper limit "
-                            f"{math.sqrt(floor - quantisation_dn2):.3g} DN); the pixels' offsets (DSNU "
-                            f"{dsnu_dn:.3g} DN) dither the quantiser, so the measurement is kept: "
-                            f"{math.sqrt(max(read_var, 0.0)):.3g} DN, the noise whose quantised variance averaged "
-                            f"over the offsets is the measured one")
+        warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
+                        f"{floor:.4g} DN^2 (EMVA 1288 4.0 section 6.4 would report the upper limit "
+                        f"{math.sqrt(floor - quantisation_dn2):.3g} DN); the pixels' offsets (DSNU "
+                        f"{dsnu_dn:.3g} DN) dither the quantiser, so the measurement is kept: "
+                        f"{math.sqrt(max(read_var, 0.0)):.3g} DN, the noise whose quantised variance averaged "
+                        f"over the offsets is the measured one")
+    elif vicpt < floor:
+        read_var = floor - quantisation_dn2
+        warnings.append(f"channel {name}: the dark variance at zero exposure ({vicpt:.4g} DN^2) is below "
+                        f"{floor:.4g} DN^2, where quantisation dominates it, and the pixels' offsets (DSNU "
+                        f"{dsnu_dn:.3g} DN) are too uniform to dither it (EMVA 1288 4.0 "
+                        f"section 6.4): read noise reported as the upper limit {math.sqrt(read_var):.3g} DN (the "
+                        f"floor less q^2/12); " + (
+                            "the measured dark variances are above the floor, but their extrapolation resolves "
+                            "a read noise under 0.3 q, below Sheppard's correction" if vp_d.min() >= floor else
+                            "the dark current and DSNU of a dark signal this far under one DN are biased low"))
 
     # PRNU: (s^2 / signal^2) of the dark-subtracted flat averages (EMVA 8.2, the dark of the same or nearest exposure
     # subtracted pixel by pixel), combined over the linear levels and the one nearest half saturation, each weighted

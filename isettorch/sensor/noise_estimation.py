@@ -72,14 +72,13 @@ def _saturation_plateau(z: np.ndarray) -> float | None:
     patch); clipped pixels pile up on it, or on the few codes the clip spreads them over (an analog clip followed by
     ADC noise): from the top code down, each code holding at least 0.1 % of the pixels (and 32) and more than the
     next code down belongs to the pile-up (at most 8 codes)."""
-    values, counts, rest = [], [], z.ravel()
-    for _ in range(9):  # the nine largest codes and their counts, from the top down
-        if rest.size == 0:
+    values, counts, top = [], [], math.inf
+    for _ in range(9):  # the nine largest codes and their counts, from the top down (no copy of the frame)
+        top = float(np.max(z, where=z < top, initial=-math.inf))
+        if top == -math.inf:
             break
-        top = rest.max()
-        values.append(float(top))
-        counts.append(int((rest == top).sum()))
-        rest = rest[rest < top]
+        values.append(top)
+        counts.append(int(np.count_nonzero(z == top)))
     need = max(32, 1e-3 * z.size)
     white = None
     for i in range(min(8, len(values) - 1)):
