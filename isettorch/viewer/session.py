@@ -84,7 +84,8 @@ def resolve_config(config) -> Path | dict:
 
 
 def _read_scene_file(path: Path, hfov_deg: float):
-    """A user's scene file: ISETCam ``.mat``, spectral ``.exr``, or an RGB image shown on an sRGB LCD."""
+    """A user's scene file: ISETCam ``.mat``, spectral ``.exr``, or an RGB image shown on an sRGB LCD, at the
+    viewer's field of view ``hfov_deg`` (the file's own is replaced: the scene's width fits the sensor)."""
     suffix = path.suffix.lower()
     if suffix == ".mat":
         from ..io.isetcam import read_isetcam_scene
