@@ -10,9 +10,10 @@ the same targets, units and metadata as a ``CameraPairDataset`` batch. Items are
 random numbers) but are drawn from the same distribution (``tests/data/test_stream.py`` compares summary
 statistics).
 
-Batch ``k`` is a pure function of ``(seed, k, config, device type)``, bitwise for a fixed device type and intra-op
-thread count (see :class:`PairStream`, "Repeatability"). Under ``torch.distributed``, rank ``r`` of ``W`` iterates
-over batches ``r, W + r, 2 W + r, ...``, so ranks never draw the same batch.
+Batch ``k`` is a pure function of ``(seed, k, config, targets, device type)``, bitwise for a fixed device type and
+intra-op thread count (a colour target projects the camera channels with the XYZ weightings: float rounding) (see
+:class:`PairStream`, "Repeatability"). Under ``torch.distributed``, rank ``r`` of ``W`` iterates over batches ``r, W +
+r, 2 W + r, ...``, so ranks never draw the same batch.
 """
 
 from __future__ import annotations
@@ -423,8 +424,8 @@ class PairStream:
         return int(k)
 
     def batch(self, k: int) -> dict:
-        """Batch ``k`` (a pure function of ``(seed, k, config, device type)``), rendered on the stream's device;
-        ``k`` an integer in ``[0, max_batch_index]``."""
+        """Batch ``k`` (a pure function of ``(seed, k, config, targets, device type)``), rendered on the stream's
+        device; ``k`` an integer in ``[0, max_batch_index]``."""
         k = self._check_k(k)
         n_threads = self._thread_count()
         if n_threads == 1:
