@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from .._checks import as_tensor, check_wavelengths, is_integer, is_real
+from .._checks import as_tensor, check_finite, check_wavelengths, is_integer, is_real
 
 __all__ = ["psf", "lsf", "mtf", "encircled_energy", "plot_psf", "plot_lsf", "plot_mtf", "plot_encircled_energy"]
 
@@ -56,7 +56,9 @@ def psf(optics, wavelengths_nm, spacing_m: float, size: int = 64, **otf_kwargs) 
 def mtf(optics, wavelengths_nm, frequencies_cpm, axis: str = "x") -> torch.Tensor:
     """Modulation transfer ``|OTF|`` ``[B, L, F]`` at ``frequencies_cpm`` (cycles/m) along ``axis`` ('x' or 'y')."""
     w, n = _prep(optics, wavelengths_nm)
-    fr = as_tensor(frequencies_cpm, "frequencies_cpm", dtype=w.dtype).reshape(1, -1).expand(n.numel(), -1)
+    fr = as_tensor(frequencies_cpm, "frequencies_cpm", dtype=w.dtype).reshape(1, -1)
+    check_finite(fr, "frequencies_cpm")  # (NaN gave an MTF of NaN)
+    fr = fr.expand(n.numel(), -1)
     zero = torch.zeros(n.numel(), 1, dtype=w.dtype)
     if axis == "x":
         return optics.otf(zero, fr, w, n).abs()[:, :, 0, :]
@@ -96,6 +98,8 @@ def encircled_energy(psf_img: torch.Tensor, spacing_m: float, radii_m) -> torch.
         raise ValueError(f"radii_m: expected radii >= 0 (m), got {radii.tolist()}")
     inside = (r[None] <= radii[:, None, None]).to(psf_img.dtype)  # [R, H, W]
     tot = psf_img.sum(dim=(-2, -1))
+    if not bool((torch.isfinite(tot) & (tot > 0)).all()):  # (an all-zero PSF gave NaN)
+        raise ValueError("psf_img: expected finite PSFs with a positive sum (the fraction is of their total)")
     return torch.einsum("...hw,rhw->...r", psf_img, inside) / tot[..., None]
 
 
@@ -110,8 +114,9 @@ def plot_psf(optics, wavelength_nm: float = 550.0, spacing_m: float | None = Non
 
     p = psf(optics, [wavelength_nm], dx, size)[index, 0]
     fig, ax = _fig_ax(ax)
-    ext = [(-size // 2) * dx * 1e6, (size - size // 2) * dx * 1e6] * 2
-    im = ax.imshow(p.numpy() / p.max().item(), extent=[ext[0], ext[1], ext[3], ext[2]], cmap="magma")
+    # sample k sits at (k - size // 2) dx (psf's origin): cells span half a sample either side of it
+    lo, hi = (-(size // 2) - 0.5) * dx * 1e6, (size - size // 2 - 0.5) * dx * 1e6
+    im = ax.imshow(p.numpy() / p.max().item(), extent=[lo, hi, hi, lo], cmap="magma")
     fig.colorbar(im, ax=ax, label="relative PSF")
     ax.set_xlabel("x (um)")
     ax.set_ylabel("y (um)")

@@ -30,7 +30,7 @@ from torch import nn
 
 from .. import spectral
 from .._autograd import records_grad
-from .._checks import as_tensor, batch_param, check_bool, check_nonnegative, check_wavelengths
+from .._checks import as_tensor, batch_param, check_bool, check_nonnegative, check_wavelengths, is_real
 from ..image import SpectralFactors, angle_for_extent
 from ..scene.scene import Scene
 from . import geometry
@@ -152,10 +152,10 @@ class ShiftInvariantLens(nn.Module):
             # a number is the value (in the image's units) beyond the scene's edges: a radiance, finite and >= 0
             raise ValueError(f"pad_mode: expected one of {PAD_MODES} or a finite non-negative number (the radiance "
                              f"beyond the scene's edges), got {pad_mode!r}")
-        if not (0 < psf_tolerance < 1):
-            raise ValueError(f"psf_tolerance: expected a value in (0, 1), got {psf_tolerance}")
-        if not (0 <= blur_skip_tolerance < 1):
-            raise ValueError(f"blur_skip_tolerance: expected a value in [0, 1), got {blur_skip_tolerance}")
+        if not (is_real(psf_tolerance) and 0 < psf_tolerance < 1):  # (a string raised a bare TypeError)
+            raise ValueError(f"psf_tolerance: expected a number in (0, 1), got {psf_tolerance!r}")
+        if not (is_real(blur_skip_tolerance) and 0 <= blur_skip_tolerance < 1):
+            raise ValueError(f"blur_skip_tolerance: expected a number in [0, 1), got {blur_skip_tolerance!r}")
         if margin is not None and (not isinstance(margin, int) or isinstance(margin, bool) or margin < 0):
             raise ValueError(f"margin: expected None or a non-negative int, got {margin!r}")
         if not (isinstance(max_margin_factor, (int, float)) and not isinstance(max_margin_factor, bool)

@@ -69,7 +69,9 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         focal_length_m: focal length (m), scalar or ``[B]``. Default ISETCam's 3.862755 mm.
         pad_mode: ``'zero'`` (default), ``'mean'``, ``'edge'``, a number, or ``'isetcam'``: ISETCam's
             ``oiCompute`` exactly (:func:`isettorch.optics.isetcam.compute_oi`: ``round(size/8)`` padding with
-            ``max * 1e-9``, its grids, ``abs(ifft2)``, cos4th with ``d = f, m = 0``; ``crop`` then slices). A factored
+            ``max * 1e-9``, its grids, ``abs(ifft2)``, ISETCam's ``cos4th.m`` with ``d = f, m = 0`` for any
+            ``relative_illumination`` but None; ``crop`` then slices; ``camera_equation``, ``margin`` and the
+            tolerances, which ISETCam fixes, are refused). A factored
             scene's OI is returned in the Fourier domain (:class:`~isettorch.optics.isetcam.IsetcamFourierFactors`):
             the sensor projects it on its QE (K inverse FFTs, not L); ``.photons`` gives the dense cube.
         Other arguments: see :class:`~isettorch.optics.base.ShiftInvariantLens`.
@@ -97,6 +99,15 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         pad_mode = kwargs.get("pad_mode", "zero")
         self.isetcam = pad_mode == "isetcam"
         if self.isetcam:
+            # ISETCam's oiCompute fixes the camera equation and the padding (round(size / 8)): an option that would
+            # change them was silently ignored (camera_equation='paraxial' rendered as ISETCam's)
+            ignored = [k for k in ("margin", "psf_tolerance", "max_margin_factor", "blur_skip_tolerance")
+                       if k in kwargs]
+            if kwargs.get("camera_equation", "isetcam") != "isetcam":
+                ignored.insert(0, "camera_equation")
+            if ignored:
+                raise ValueError(f"{ignored[0]}: pad_mode='isetcam' is ISETCam's oiCompute, whose camera equation "
+                                 f"and padding are fixed; leave {', '.join(ignored)} out (or use another pad_mode)")
             kwargs["pad_mode"] = "zero"
         super().__init__(f_number, focal_length_m, transmittance, transmittance_wavelengths_nm, **kwargs)
 

@@ -31,6 +31,20 @@ def _t(x, like: torch.Tensor | None = None) -> torch.Tensor:
     return torch.as_tensor(x, dtype=torch.float64)
 
 
+def _check_range(t: torch.Tensor, name: str, what: str, lo: float | None = 0.0, hi: float | None = None
+                 ) -> torch.Tensor:
+    """``t`` when every value is finite, above ``lo`` and below ``hi`` (one host read), else a ValueError naming
+    ``name`` (a negative distance gave a negative spacing, f/0 NaN: the sibling helpers' rule)."""
+    ok = torch.isfinite(t)
+    if lo is not None:
+        ok = ok & (t > lo)
+    if hi is not None:
+        ok = ok & (t < hi)
+    if not bool(ok.all()):
+        raise ValueError(f"{name}: expected {what}, got {t.detach().reshape(-1).tolist()}")
+    return t
+
+
 def image_distance(focal_length_m, object_distance_m) -> torch.Tensor:
     """Thin-lens image distance ``d_i = 1 / (1/f - 1/d_o)`` (m); Gaussian lens equation (Hecht, Optics, 5.17).
 
@@ -64,8 +78,10 @@ def image_sample_spacing(hfov_deg, n_cols: int, image_distance_m) -> torch.Tenso
     """
     if not (is_integer(n_cols) and n_cols >= 1):  # (0 gave inf, 2.7 and negative counts were taken)
         raise ValueError(f"n_cols: expected an integer number of samples >= 1, got {n_cols!r}")
-    d = _t(image_distance_m, hfov_deg if isinstance(hfov_deg, torch.Tensor) else None)
-    return 2 * d * torch.tan(torch.deg2rad(_t(hfov_deg, d)) / 2) / n_cols
+    d = _check_range(_t(image_distance_m, hfov_deg if isinstance(hfov_deg, torch.Tensor) else None),
+                     "image_distance_m", "finite distances > 0 (m)")
+    hfov = _check_range(_t(hfov_deg, d), "hfov_deg", "finite fields of view in (0, 180) degrees", hi=180.0)
+    return 2 * d * torch.tan(torch.deg2rad(hfov) / 2) / n_cols
 
 
 def camera_equation_factor(f_number, magnification_=0.0, *, paraxial: bool = False) -> torch.Tensor:
@@ -84,8 +100,9 @@ def camera_equation_factor(f_number, magnification_=0.0, *, paraxial: bool = Fal
 
     Multiply by the lens transmittance ``T(lambda)`` for the full camera equation.
     """
-    n = _t(f_number)
-    nw2 = 4 * n**2 * (1 + _t(magnification_, n).abs()) ** 2
+    n = _check_range(_t(f_number), "f_number", "finite f-numbers > 0")
+    m = _check_range(_t(magnification_, n), "magnification_", "finite magnifications", lo=None)
+    nw2 = 4 * n**2 * (1 + m.abs()) ** 2
     return math.pi / nw2 if paraxial else math.pi / (1 + nw2)
 
 
@@ -95,7 +112,8 @@ def cos4th(y_m: torch.Tensor, x_m: torch.Tensor, image_distance_m) -> torch.Tens
     ``y_m [B, H]``, ``x_m [B, W]`` are sample positions from the axis; ``image_distance_m`` ``[B]``.
     Returns ``[B, 1, H, W]``.
     """
-    d2 = torch.as_tensor(image_distance_m, dtype=x_m.dtype, device=x_m.device).reshape(-1, 1, 1, 1) ** 2
+    d = torch.as_tensor(image_distance_m, dtype=x_m.dtype, device=x_m.device)
+    d2 = _check_range(d, "image_distance_m", "finite distances > 0 (m)").reshape(-1, 1, 1, 1) ** 2
     r2 = y_m[:, None, :, None] ** 2 + x_m[:, None, None, :] ** 2
     return (d2 / (d2 + r2)) ** 2
 
@@ -111,9 +129,13 @@ def cos4th_isetcam(y_m: torch.Tensor, x_m: torch.Tensor, image_distance_m, f_num
     Returns ``[B, 1, H, W]``.
     """
     dt = x_m.dtype
-    d = torch.as_tensor(image_distance_m, dtype=dt, device=x_m.device).reshape(-1, 1, 1, 1)
-    n = torch.as_tensor(f_number, dtype=dt, device=x_m.device).reshape(-1, 1, 1, 1)
-    m = torch.as_tensor(magnification_, dtype=dt, device=x_m.device).reshape(-1, 1, 1, 1)
+    d = _check_range(torch.as_tensor(image_distance_m, dtype=dt, device=x_m.device), "image_distance_m",
+                     "finite distances > 0 (m)").reshape(-1, 1, 1, 1)
+    # (f/0 gave NaN everywhere: sin(theta) = 1)
+    n = _check_range(torch.as_tensor(f_number, dtype=dt, device=x_m.device), "f_number",
+                     "finite f-numbers > 0").reshape(-1, 1, 1, 1)
+    m = _check_range(torch.as_tensor(magnification_, dtype=dt, device=x_m.device), "magnification_",
+                     "finite magnifications", lo=None).reshape(-1, 1, 1, 1)
     h, w = y_m.shape[-1], x_m.shape[-1]
     dx = (x_m[:, 1] - x_m[:, 0]) if w > 1 else (y_m[:, 1] - y_m[:, 0]) if h > 1 else torch.zeros_like(x_m[:, 0])
     diagonal = torch.hypot(h * dx, w * dx).reshape(-1, 1, 1, 1)

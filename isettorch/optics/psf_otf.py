@@ -25,7 +25,18 @@ def otf_from_psf(psf: torch.Tensor, spacing_m: torch.Tensor, fy: torch.Tensor, f
     """
     k, kk = psf.shape[-2:]
     rdt = psf.dtype
-    psf = psf / psf.sum(dim=(-2, -1), keepdim=True)
+    total = psf.sum(dim=(-2, -1), keepdim=True)
+    # one host read: a PSF summing to 0 gave a NaN OTF, a spacing <= 0 an OTF of 0 at every frequency (the band
+    # limit 1 / (2 spacing) below 0), DC included: a black image
+    ok = torch.isfinite(total).all() & (total > 0).all()
+    sp_ok = (torch.isfinite(spacing_m) & (spacing_m > 0)).all()
+    if not bool(ok & sp_ok.to(ok.device)):
+        if not bool(sp_ok):
+            raise ValueError(f"spacing_m: expected finite sample spacings > 0 (m), got "
+                             f"{spacing_m.detach().reshape(-1)[:8].tolist()}")
+        raise ValueError("psf: expected finite PSFs with a positive sum in every plane (the OTF is the PSF "
+                         "normalised to sum 1)")
+    psf = psf / total
     ds = spacing_m.to(rdt)[..., None, None]  # [B, L, 1, 1]
     yk = (torch.arange(k, dtype=rdt, device=psf.device) - k // 2)
     xk = (torch.arange(kk, dtype=rdt, device=psf.device) - kk // 2)
