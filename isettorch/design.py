@@ -315,11 +315,14 @@ class DesignCamera(nn.Module):
         # by default detached: the rule is a decision taken from the current design, not a path for gradients
         # (module docstring; the shipped designs were trained so); the sensor's auto-exposure itself is
         # differentiable, which config.exposure.differentiable keeps
-        t_white = sensor.exposure_for(None, white_mosaic, 1.0)
+        # (up to the longest exposure the rule can use, max exposure x max gain: auto-exposure's own 10 s cap held a
+        # config allowing 60 s at 10 s, gain 1, the white card at 0.16 of full scale for 0.9)
+        t_max, g_max = float(rule["max_exposure_s"]), float(rule["max_analog_gain"])
+        t_white = sensor.exposure_for(None, white_mosaic, 1.0, max_exposure_s=t_max * g_max)
         if not rule.get("differentiable", False):
             t_white = t_white.detach()
-        t = t_white.clamp(max=float(rule["max_exposure_s"]))
-        gain = (t_white / t).clamp(max=float(rule["max_analog_gain"]))
+        t = t_white.clamp(max=t_max)
+        gain = (t_white / t).clamp(max=g_max)
         # Sensor.forward with the exposure given: its electron rate, then the capture (kept apart so that the
         # noise-free readout can reuse the rate)
         rate = sensor.electron_rate(oi)

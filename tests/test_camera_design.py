@@ -108,6 +108,24 @@ def test_exposure_rule_caps_dim_scenes_and_shortens_with_clear_pixels():
     assert t["bayer_rgb", 1000.0] / t["rgbw", 1000.0] == pytest.approx(ratio, rel=5e-3)
 
 
+def test_exposure_rule_is_not_capped_by_auto_exposures_own_limit():
+    """A config allowing a longer exposure or a higher gain than auto-exposure's default 10 s cap gets the stated rule:
+    t = min(t_white, max_exposure_s), gain = min(t_white / t, max_analog_gain), with t_white the exposure that puts
+    the white card at ``target`` of the usable swing (it read 0.16 of full scale at 0.1 lux with a 60 s limit)."""
+    flat = (torch.ones(1, 1, 8, 8, dtype=torch.float64), torch.ones(1, 31, dtype=torch.float64))
+    for limits, lux in (({"max_exposure_s": 60.0}, 0.1), ({"max_analog_gain": 1000.0}, 0.01)):
+        cam = D.make_design("bayer_rgb", {**TINY, "exposure": limits})
+        rule = cam.config["exposure"]
+        scene = cam.scene(*flat, lux)
+        cap = cam.capture(scene, noise=False)
+        volts = cam.sensor.electron_rate(cam.optics(scene)) * cam.config["sensor"]["conversion_gain_v_per_e"]
+        t_white = rule["target"] * cam.sensor.usable_swing_v / float(volts.amax())
+        assert t_white > 10.0  # beyond auto-exposure's default cap
+        t = min(t_white, rule["max_exposure_s"])
+        assert float(cap["exposure_s"]) == pytest.approx(t, rel=1e-6)
+        assert float(cap["analog_gain"]) == pytest.approx(min(t_white / t, rule["max_analog_gain"]), rel=1e-6)
+
+
 def test_design_file_round_trip(design_file):
     cam = D.load_design(design_file)
     d = torch.load(design_file, weights_only=True)  # plain tensors and values only

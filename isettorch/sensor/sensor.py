@@ -900,8 +900,9 @@ class Sensor(nn.Module):
         return x
 
     def exposure_for(self, oi: OpticalImage | None, rate: torch.Tensor | None = None, analog_gain=None, *,
-                     exposure_ev=None, conversion_gain_v_per_e=None) -> torch.Tensor:
-        """The exposure ``[B]`` (s): fixed, or from auto-exposure on the noise-free volts (after gain), times
+                     exposure_ev=None, conversion_gain_v_per_e=None, max_exposure_s: float = 10.0) -> torch.Tensor:
+        """The exposure ``[B]`` (s): fixed, or from auto-exposure on the noise-free volts (after gain), at most
+        ``max_exposure_s`` (:func:`~isettorch.sensor.exposure.auto_exposure`'s cap; a black image gets it), times
         ``2^exposure_ev`` (exposure compensation in stops, scalar or ``[B]``; default 0).
 
         ``oi`` may be None when ``rate`` (the mosaic's electrons/s ``[B, 1, rows, cols]``) is given.
@@ -929,7 +930,7 @@ class Sensor(nn.Module):
                                      f"gain) leaves no room for light below the saturation "
                                      f"({self.saturation_v(gain, cg)} V)")
             t = auto_exposure(v1, room, self.auto_exposure, target=self.ae_target,
-                              percentile=self.ae_percentile).to(dt)
+                              percentile=self.ae_percentile, max_exposure_s=max_exposure_s).to(dt)
         if exposure_ev is not None:
             ev = batch_param(exposure_ev, "exposure_ev", b, dtype=torch.float64, device=dev)
             t = t * torch.exp2(ev).to(dt)
