@@ -93,7 +93,9 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                         "--model-kwargs", '{{"bogus": 1}}'], "--model-kwargs: isettorch.isp.learned:DemosaicNet"),
                       (["{images}", "--model", "{joint}", "--model-class", "isettorch.isp.learned:DemosaicNet"],
                        "does not fit isettorch.isp.learned:DemosaicNet"),
-                      (["{images}", "--method", "nearest", "--dihedral-ensemble"], "(--dihedral-ensemble)")]
+                      (["{images}", "--method", "nearest", "--dihedral-ensemble"], "(--dihedral-ensemble)"),
+                      # (both: the last one silently won)
+                      (["{images}", "--self-ensemble", "--dihedral-ensemble"], "not allowed with")]
                      + ([] if importlib.util.find_spec("bm3d") else  # the user's package, when it is not installed
                         [(["{images}", "--noise-sigma", "0.1", "--denoise", "bm3d"], "--denoise: 'bm3d' needs")]),
     "design-eval": [([MISSING, "{images}"], "DESIGN"), (["learned", "{images}"], "--crop"),

@@ -156,6 +156,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--assets", default="out/reproduced", help="where the exported weights and card go")
     ap.add_argument("--dry-run", action="store_true", help="print the commands and check the chain; run nothing")
     args = ap.parse_args(argv)
+    if Path.cwd().resolve() != ROOT:
+        # the chain's training runs write out/... under the working directory, its selection screen and held-out
+        # sets are read under the repository: run from anywhere else, it trained for hours, then failed (or screened
+        # a stale out/ of the repository)
+        ap.error(f"run it from the repository root (cd {ROOT}); the chain's paths (out/..., configs/...) are "
+                 f"relative to it, and the working directory is {Path.cwd()}")
     cmds = plan(args.model, args.assets)
     if args.dry_run:
         print("\n".join(cmds))

@@ -300,6 +300,11 @@ def main(argv: list[str] | None = None) -> int:
     opt = torch.optim.Adam(net.parameters(), lr=float(cfg["optim"]["lr"]))
     if resume.is_file():
         ck = torch.load(resume, map_location="cpu", weights_only=True)
+        changed = resume_changes(json.loads(ck["train_config"]), cfg)
+        if changed:  # (a new seed, lr, loss or data ran on, the two runs' histories and best scores mixed; a new
+            # network's shape was a raw load_state_dict size mismatch, before this check)
+            raise SystemExit(f"--resume: {resume} is a checkpoint of another config ({', '.join(changed)} changed); "
+                             f"start a new out folder, or begin from its weights with init: {resume}")
         if cfg.get("expand") and "model_expanded" not in ck:
             raise ValueError(f"--resume: {resume} holds no expanded weights (model_expanded) for this run's "
                              f"expand: {cfg['expand']}")
@@ -309,10 +314,6 @@ def main(argv: list[str] | None = None) -> int:
         history, wall0 = json.loads(ck["history"]), float(ck.get("wall_s", 0.0))
         clip_state = json.loads(ck.get("grad_clip", "{}"))
         run_loss0, run_n0 = ck.get("running_loss", (0.0, 0))
-        changed = resume_changes(json.loads(ck["train_config"]), cfg)
-        if changed:  # (a new seed, lr, loss or data ran on, the two runs' histories and best scores mixed)
-            raise SystemExit(f"--resume: {resume} is a checkpoint of another config ({', '.join(changed)} changed); "
-                             f"start a new out folder, or begin from its weights with init: {resume}")
         if rank == 0:
             print(f"resumed from {resume} at step {step}", flush=True)
     clip = AdaptiveGradClip(float(cfg["optim"].get("clip_grad_factor", 0.0) or 0.0), clip_state)

@@ -42,11 +42,13 @@ def register(sub) -> None:
     p.add_argument("--dtype", choices=("float32", "float64"), default="float32", help="compute dtype (float32)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
-    p.add_argument("--self-ensemble", action="store_const", const="transpose", default=None,
-                   help="learned method or a DemosaicNet --model: average the network on the mosaic and its transpose "
-                        "(two passes)")
-    p.add_argument("--dihedral-ensemble", dest="self_ensemble", action="store_const", const="dihedral",
-                   help="like --self-ensemble, over the eight flips and transposes of the mosaic (eight passes)")
+    ensemble = p.add_mutually_exclusive_group()  # (both given: the last one silently won)
+    ensemble.add_argument("--self-ensemble", action="store_const", const="transpose", default=None,
+                          help="learned method or a DemosaicNet --model: average the network on the mosaic and its "
+                               "transpose (two passes)")
+    ensemble.add_argument("--dihedral-ensemble", dest="self_ensemble", action="store_const", const="dihedral",
+                          help="like --self-ensemble, over the eight flips and transposes of the mosaic (eight "
+                               "passes)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_quiet_argument(p)
     p.set_defaults(func=run)

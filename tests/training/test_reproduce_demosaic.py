@@ -40,7 +40,8 @@ def test_broken_chain_is_refused(tmp_path):
         reproduce_demosaic.check_chain(["a", "missing"], tmp_path)
 
 
-def test_dry_run_lists_the_steps(capsys):
+def test_dry_run_lists_the_steps(capsys, monkeypatch):
+    monkeypatch.chdir(reproduce_demosaic.ROOT)
     assert reproduce_demosaic.main(["noise_free", "--dry-run"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].endswith("configs/train/demosaic_noise_free.yaml --no-progress")
@@ -96,3 +97,13 @@ def test_wise_select_ships_the_best_passing_alpha(tmp_path, tiny_heldout_sets, d
     assert res["decision"] == "incumbent" and "passed no alpha" in how
     written = torch.load(tmp_path / "w2" / "best.pt", weights_only=True)["model"]
     assert all(torch.equal(written[k], good["model"][k]) for k in good["model"])
+
+
+def test_runs_only_from_the_repository_root(tmp_path, monkeypatch, capsys):
+    """The chain's training runs write out/... under the working directory, its selection screen reads under the
+    repository: run elsewhere it trained for hours, then failed (or screened a stale out/). Refused at the start."""
+    monkeypatch.chdir(tmp_path)
+    for argv in (["tiny", "--dry-run"], ["noise_free"]):
+        with pytest.raises(SystemExit) as err:
+            reproduce_demosaic.main(argv)
+        assert err.value.code == 2 and "repository root" in capsys.readouterr().err

@@ -131,6 +131,10 @@ def test_smoke_training_resume(tmp_path, capsys):
     # another run's config is refused (a new seed and lr ran on, mixing the two runs' histories); a longer one is not
     with pytest.raises(SystemExit, match=r"another config \(optim.lr, seed changed\)"):
         train_demosaic.main(args + ["--steps", "6", "--set", "seed=7", "optim.lr=0.05"])
+    # a network of another shape too (it was a raw load_state_dict size mismatch, before the config check)
+    width = json.loads(resumed["train_config"])["net"]["channels"]
+    with pytest.raises(SystemExit, match=r"another config \(net.channels changed\)"):
+        train_demosaic.main(args + ["--steps", "6", "--set", f"net.channels={width + 4}"])
     assert train_demosaic.resume_changes(json.loads(resumed["train_config"]),
                                          {**json.loads(resumed["train_config"]), "threads": 2}) == []
     straight = tmp_path / "straight"
