@@ -8,7 +8,8 @@ network's mean CPSNR on the noise-free capture.
 Each photograph sets the sensor's size (one scene sample per pixel), so a large one is a wide-angle capture whose
 corners get little light through the design's lens (cos^4: 0.81 of the centre's at 768 x 512, 0.06 at 4000 x 3000);
 the command notes photographs whose corners get less than half, whose low-light scores then measure that falloff
-as much as the sensor.
+as much as the sensor. It also notes photographs whose embedded ICC profile is not sRGB (Display P3, Adobe RGB):
+their code values are lifted as sRGB.
 
 DESIGN is a shipped name (bayer_rgb, ycmy, rgbw, learned) or a design file's path (``./name`` for a file named like
 a shipped design).
@@ -52,6 +53,19 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _note_profiles(folder) -> None:
+    """A note naming the photographs whose embedded ICC profile is not sRGB (Display P3, Adobe RGB, ...): the lift
+    reads every photograph's code values as sRGB, so their colours are not the photograph's."""
+    from ..io.images import non_srgb_profile, photo_files
+
+    other = [(f.name, name) for f in photo_files(folder) if (name := non_srgb_profile(f)) is not None]
+    if other:
+        shown = ", ".join(f"{f} ({name})" for f, name in other[:3]) + (" ..." if len(other) > 3 else "")
+        print(f"isettorch design-eval: note: {len(other)} photograph(s) carry an ICC profile that is not sRGB: "
+              f"{shown}; their code values are lifted as sRGB, so their colours are not the photograph's (convert "
+              f"them to sRGB first)", file=sys.stderr)
+
+
 def run(args) -> int:
     from ..design import evaluate_design
     from .demosaic_eval import as_dir_error
@@ -63,6 +77,7 @@ def run(args) -> int:
         if not str(err).startswith("images: "):
             raise
         raise as_dir_error(err) from err
+    _note_profiles(args.folder)
     dark = [item for item in res["images"] if item["corner_light"] < DARK_CORNER]
     if dark:
         worst = min(dark, key=lambda item: item["corner_light"])

@@ -29,8 +29,8 @@ import torch
 
 from .._checks import narrow_float
 
-__all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "photo_files", "IMAGE_SUFFIXES",
-           "PHOTO_SUFFIXES", "UNREAD_IMAGE_SUFFIXES"]
+__all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "photo_files", "non_srgb_profile",
+           "IMAGE_SUFFIXES", "PHOTO_SUFFIXES", "UNREAD_IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = {".png": "png", ".tif": "tiff", ".tiff": "tiff", ".exr": "exr"}
 _ENCODINGS = ("srgb", "linear")
@@ -120,6 +120,33 @@ def read_rgb8(path) -> np.ndarray:
     except Image.DecompressionBombError as err:  # over twice Pillow's pixel limit (not an OSError)
         raise ValueError(f"cannot read {p.name}: {err}; reduce the photograph first") from err
     return a
+
+
+def non_srgb_profile(path) -> str | None:
+    """The description of a photograph's embedded ICC profile when it is not sRGB, else None (no profile: read as
+    sRGB, as :func:`read_rgb8`'s callers do; or an sRGB one). A matrix profile is sRGB when its red, green and blue
+    colorants (D50 XYZ) are littleCMS's sRGB's within 0.005 (Display P3's red is 0.08 off, Adobe RGB's 0.17); a
+    profile without colorants (a LUT profile) is not recognised as sRGB. Pillow's ImageCms (littleCMS) reads it."""
+    import io
+
+    from PIL import Image, ImageCms
+
+    with Image.open(path) as im:
+        data = im.info.get("icc_profile")
+    if not data:
+        return None
+    try:
+        prof = ImageCms.ImageCmsProfile(io.BytesIO(data)).profile
+    except (OSError, ImageCms.PyCMSError):
+        return "an unreadable ICC profile"
+    name = (prof.profile_description or "an unnamed ICC profile").strip()
+    ours = [getattr(prof, f"{c}_colorant") for c in ("red", "green", "blue")]
+    if any(c is None for c in ours):
+        return name
+    srgb = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).profile
+    ref = [getattr(srgb, f"{c}_colorant") for c in ("red", "green", "blue")]
+    off = max(abs(a - b) for c, r in zip(ours, ref) for a, b in zip(c[0], r[0]))
+    return None if off <= 0.005 else name
 
 
 def _tiff_sample_type(p: Path):

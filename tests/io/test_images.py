@@ -333,3 +333,41 @@ def test_alpha_is_linear_coverage_in_integer_files(tmp_path):
     Image.fromarray(np.full((2, 3, 2), 128, dtype=np.uint8), mode="LA").save(tmp_path / "la.png")
     la = read_image(tmp_path / "la.png", dtype=torch.float64)
     assert float(la[0, 1, 0, 0]) == pytest.approx(128 / 255) and float(la[0, 0, 0, 0]) < 0.22  # grey decoded
+
+
+def _profile_with_colorants(colorants) -> bytes:
+    """littleCMS's sRGB profile with its rXYZ, gXYZ and bXYZ tags set to ``colorants`` (D50 XYZ, s15Fixed16: ICC.1
+    section 10.31), e.g. Display P3's."""
+    import struct
+
+    from PIL import ImageCms
+
+    data = bytearray(ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes())
+    (count,) = struct.unpack(">I", data[128:132])
+    for k in range(count):
+        sig, off, _ = struct.unpack(">4sII", data[132 + 12 * k:144 + 12 * k])
+        if sig in (b"rXYZ", b"gXYZ", b"bXYZ"):
+            xyz = colorants["rgb".index(sig[:1].decode())]
+            data[off + 8:off + 20] = struct.pack(">3i", *(round(v * 65536) for v in xyz))
+    return bytes(data)
+
+
+def test_non_srgb_profile_names_display_p3_and_passes_srgb(tmp_path, capsys):
+    from PIL import Image, ImageCms
+
+    from isettorch.commands.design_eval import _note_profiles
+    from isettorch.io.images import non_srgb_profile
+
+    img = Image.fromarray(np.full((8, 8, 3), 100, np.uint8))
+    srgb = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
+    # Display P3's colorants, Bradford-adapted to D50 (Apple's Display P3 profile)
+    p3 = _profile_with_colorants([(0.5151, 0.2412, -0.0011), (0.2919, 0.6922, 0.0419), (0.1571, 0.0666, 0.7841)])
+    img.save(tmp_path / "plain.png")
+    img.save(tmp_path / "srgb.png", icc_profile=srgb)
+    img.save(tmp_path / "p3.png", icc_profile=p3)
+    img.save(tmp_path / "p3.jpg", icc_profile=p3)
+    assert non_srgb_profile(tmp_path / "plain.png") is None and non_srgb_profile(tmp_path / "srgb.png") is None
+    assert non_srgb_profile(tmp_path / "p3.png") == non_srgb_profile(tmp_path / "p3.jpg") == "sRGB built-in"
+    _note_profiles(tmp_path)
+    err = capsys.readouterr().err
+    assert "2 photograph(s) carry an ICC profile that is not sRGB: p3.jpg" in err and "srgb.png" not in err
