@@ -23,6 +23,12 @@ def as_tensor(value, name: str, *, dtype=None, device=None) -> torch.Tensor:
         raise TypeError(f"{name}: expected a number or tensor, got {type(value).__name__} ({value!r})") from err
 
 
+def tensor_version(t: torch.Tensor):
+    """``t``'s in-place version counter, for cache keys; a tensor made under ``torch.inference_mode`` has none (reading
+    it raised, so a camera failed on a scene built there): a new object each call, so a key holding it never hits."""
+    return object() if t.is_inference() else t._version
+
+
 def is_real(v) -> bool:
     """A finite real number: int or float (or a NumPy scalar), not a bool (``True`` is no pixel size) or a string."""
     return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)

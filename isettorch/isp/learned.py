@@ -527,6 +527,15 @@ class DemosaicNet(nn.Module):
             cfg["blend"] = dict(self.blend)
         return cfg
 
+    def _apply(self, fn, *args, **kwargs):
+        # .to / .double / .cuda move the low-noise gate's expert network too (load_pretrained('joint_denoise')
+        # keeps it in the plain dict level_gate: after .double() it stayed float32 and demosaic_learned failed)
+        super()._apply(fn, *args, **kwargs)
+        expert = (getattr(self, "level_gate", None) or {}).get("expert")
+        if isinstance(expert, nn.Module):
+            expert._apply(fn, *args, **kwargs)
+        return self
+
     def forward(self, raw: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
         raw = _check_raw(raw)
         # the MHC base at the input's precision even under autocast (a bfloat16 base would cap the output's

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .._checks import as_tensor, check_nonnegative, check_wavelengths
+from .._checks import as_tensor, check_nonnegative, check_wavelengths, tensor_version
 from .base import ShiftInvariantLens, check_not_detached
 from .psf_otf import otf_from_psf
 
@@ -73,7 +73,7 @@ class ShiftInvariantOptics(ShiftInvariantLens):
 
     def _otf_key(self) -> tuple:
         # the spacing and wavelengths too: changing psf_spacing_m kept the first OTF (a 2x wider PSF blurred as before)
-        return (id(self.psf), self.psf._version, tuple(self.psf_spacing_m.tolist()),
+        return (id(self.psf), tensor_version(self.psf), tuple(self.psf_spacing_m.tolist()),
                 None if self.psf_wavelengths_nm is None else tuple(self.psf_wavelengths_nm.tolist()))
 
     def _weights(self, wavelengths_nm: torch.Tensor) -> torch.Tensor:

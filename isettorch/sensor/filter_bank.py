@@ -37,7 +37,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from .._checks import check_bool
+from .._checks import check_bool, tensor_version
 from .filters import _W_ISETCAM, SpectralQE, filter_set
 
 __all__ = ["FIXED_FILTERS", "MAX_SLOPE_PER_NM", "FilterBank", "check_manufacturable", "max_slope_per_nm",
@@ -254,10 +254,11 @@ class FilterBank(SpectralQE):
         if self.num_learned:
             amp, off = self.raw_amplitudes, self.raw_offsets
             key = self.__dict__.get("_written_key")
-            if key is None or key[0] is not amp or key[1] is not off or key[2:] != (amp._version, off._version):
+            versions = (tensor_version(amp), tensor_version(off))
+            if key is None or key[0] is not amp or key[1] is not off or key[2:] != versions:
                 with torch.no_grad():
                     self.fixed_filters.copy_(self.filters)
-                self._written_key = (amp, off, amp._version, off._version)
+                self._written_key = (amp, off, *versions)
         return super().forward(wavelengths_nm, dtype=dtype, device=device)
 
     def cache_state(self) -> tuple[tuple, tuple]:
@@ -265,7 +266,7 @@ class FilterBank(SpectralQE):
         filters when its forward runs: a cache read before it saw the old rows after a change of the parameters)."""
         token, tensors = super().cache_state()
         extra = (self.raw_amplitudes, self.raw_offsets)
-        return token + tuple((id(t), t._version) for t in extra), tensors + extra
+        return token + tuple((id(t), tensor_version(t)) for t in extra), tensors + extra
 
     def freeze(self) -> FilterBank:
         """Stop learning: the filters become fixed at their current values (returns self)."""

@@ -28,7 +28,7 @@ import torch
 from torch import nn
 
 from .. import spectral
-from .._checks import as_tensor, check_nonnegative, check_wavelengths
+from .._checks import as_tensor, check_nonnegative, check_wavelengths, tensor_version
 from .cfa import CFA
 
 __all__ = ["SpectralQE", "filter_set", "filter_set_names", "ir_cut_filter", "photodiode_qe", "shifted_qe"]
@@ -244,7 +244,7 @@ class SpectralQE(nn.Module):
         their ids are not reused) sees a new tensor assigned to any of them and any in-place edit."""
         f = self._buffers["fixed_filters"] if "fixed_filters" in self._buffers else self.raw_filters
         tensors = (f, self.extra, self.wavelengths_nm)
-        return tuple((id(t), t._version) for t in tensors), tensors
+        return tuple((id(t), tensor_version(t)) for t in tensors), tensors
 
     def native(self) -> torch.Tensor:
         """Combined QE on the native grid ``[C, Ln]`` (``[B, C, Ln]`` per item)."""

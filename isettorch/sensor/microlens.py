@@ -934,6 +934,7 @@ class PixelOptics(nn.Module):
         waves = tuple(float(w) for w in oi.wavelengths_nm.reshape(-1).tolist()) if self.diffraction else (None,)
         grad = records_grad(self.log_stack_height_m, self.offset_per_image_height, pixel["source_f_number"])
         key = None
+        table = oi.metadata.get("chief_ray_angle") if isinstance(oi.metadata, dict) else None
         if not grad:
             geo = tuple(None if g is None else tuple(torch.as_tensor(g).reshape(-1).tolist())
                         for g in (oi.image_distance_m, oi.focal_length_m))
@@ -941,18 +942,20 @@ class PixelOptics(nn.Module):
                    self.exit_pupil_distance_m, rows, cols, float(pixel_size_m), fill_factor, waves,
                    tuple(sorted(pixel.items())), geo,
                    oi.batch_size,
-                   id(oi.metadata.get("chief_ray_angle")) if isinstance(oi.metadata, dict) else None,
+                   id(table),
                    float(self.log_stack_height_m.detach()), float(self.offset_per_image_height.detach()),
                    str(oi.device))
             hit = self._memo.get(key)
-            if hit is not None:
-                return hit
+            # the entry holds the chief-ray table whose id is in the key: a new table at a freed one's address (a
+            # lens swapped on the sensor) got the old table's etendue map
+            if hit is not None and hit[0] is table:
+                return hit[1]
         if self.convention == "isetcam":
             out = self._isetcam_radial(oi, self._radii(rows, cols, pixel_size_m, oi), pixel)
             if key is not None:
                 if len(self._memo) > 8:
                     self._memo.clear()
-                self._memo[key] = out
+                self._memo[key] = (table, out)
             return out
         # separable along the pixel's rows and columns (ISETCam's pixel irradiance, mlRadiance: the x-profile's
         # outer product): the pixel at (x, y) gets T(|x|) T(|y|), T(u) the 1-D etendue at image height u on an axis
@@ -981,7 +984,7 @@ class PixelOptics(nn.Module):
         if key is not None:
             if len(self._memo) > 8:
                 self._memo.clear()
-            self._memo[key] = out
+            self._memo[key] = (table, out)
         return out
 
 

@@ -35,6 +35,7 @@ from .._checks import (
     is_integer,
     is_real,
     round_half_away,
+    tensor_version,
 )
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
@@ -62,6 +63,9 @@ ISETCAM_CONVENTIONS: dict[str, str] = {"sampling": "isetcam", "gain_convention":
                                        "noise_model": "isetcam", "fpn_mode": "per_frame", "spectral_rule": "isetcam"}
 
 SAMPLING_MODES = ("area", "area_linear", "isetcam")
+
+#: the fixed-pattern maps' buffers (:meth:`Sensor.fixed_pattern`; the seed's, never saved)
+FIXED_PATTERN_BUFFERS = ("fpn_dsnu", "fpn_prnu", "fpn_column")
 
 # Presets. Values in SI; dark current in e-/s (ISETCam gives V/s: 1 mV/s / 1e-4 V/e- = 10 e-/s).
 PRESETS: dict[str, dict[str, Any]] = {
@@ -359,12 +363,18 @@ class Sensor(nn.Module):
         if noise_model == "isetcam" and self.noise_terms.active:
             raise ValueError(f"noise_model: 'isetcam' has none of the noise terms {self.noise_terms.as_dict()}; use "
                              f"noise_model='physical'")
-        # Fixed-pattern maps (standard normal), drawn from the seed on first use for a given size.
-        self.register_buffer("fpn_dsnu", None)
-        self.register_buffer("fpn_prnu", None)
-        self.register_buffer("fpn_column", None)
+        # Fixed-pattern maps (standard normal), drawn from the seed on first use for a given size: functions of
+        # (seed, size), so not in the state_dict (a camera that had rendered could not be loaded into a new one)
+        for name in FIXED_PATTERN_BUFFERS:
+            self.register_buffer(name, None, persistent=False)
         self._generators: dict[str, torch.Generator] = {}
         self._weights_cache: dict = {}
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # checkpoints saved before the maps left the state_dict hold them: they are the seed's, drawn again
+        for name in FIXED_PATTERN_BUFFERS:
+            state_dict.pop(prefix + name, None)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     # --- construction helpers ------------------------------------------------------------
     @classmethod
@@ -592,7 +602,9 @@ class Sensor(nn.Module):
         """The sensor's fixed-pattern standard-normal maps (drawn once from ``seed``, stored as buffers)."""
         if self.fpn_dsnu is None or tuple(self.fpn_dsnu.shape) != (rows, cols):
             d = _noise.fixed_pattern_draws(rows, cols, self.seed, dtype=torch.float64)
-            self.fpn_dsnu, self.fpn_prnu, self.fpn_column = d["dsnu"], d["prnu"], d["column"]
+            # kept on the device of the call (the same draws on every device): they were on the CPU, a host to
+            # device copy per batch on a GPU
+            self.fpn_dsnu, self.fpn_prnu, self.fpn_column = (d[k].to(device) for k in ("dsnu", "prnu", "column"))
         return {"dsnu": self.fpn_dsnu.to(dtype=dtype, device=device),
                 "prnu": self.fpn_prnu.to(dtype=dtype, device=device),
                 "column": self.fpn_column.to(dtype=dtype, device=device)}
@@ -638,10 +650,10 @@ class Sensor(nn.Module):
         """A wavelength grid's values as a tuple, memoised for the last grid tensor seen (a batch's calls share
         one; the entry keeps it alive, so its id is not reused)."""
         memo = self.__dict__.get("_grid_key_memo")
-        if memo is not None and memo[0] is wavelengths_nm and memo[1] == wavelengths_nm._version:
+        if memo is not None and memo[0] is wavelengths_nm and memo[1] == tensor_version(wavelengths_nm):
             return memo[2]
         key = tuple(wavelengths_nm.tolist())
-        self.__dict__["_grid_key_memo"] = (wavelengths_nm, wavelengths_nm._version, key)
+        self.__dict__["_grid_key_memo"] = (wavelengths_nm, tensor_version(wavelengths_nm), key)
         return key
 
     def _qe_cache_put(self, key: tuple | None, qe_mod, out: torch.Tensor) -> None:
@@ -785,7 +797,7 @@ class Sensor(nn.Module):
             return torch.cat([qe_w, extra.expand(qe_w.shape[0], *extra.shape)], dim=2)
         if qe_w.requires_grad or extra.requires_grad:
             return torch.cat([qe_w, extra.to(device=oi.device, dtype=oi.dtype)], dim=1)
-        key = (id(qe_w), id(extra), extra._version, oi.dtype, str(oi.device))
+        key = (id(qe_w), id(extra), tensor_version(extra), oi.dtype, str(oi.device))
         memo = self.__dict__.setdefault("_joint_memo", {})
         hit = memo.get(key)
         if hit is None or hit[0] is not qe_w or hit[1] is not extra:

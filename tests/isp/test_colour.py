@@ -231,6 +231,31 @@ def test_sensor_to_xyz_module_normalised_white_and_gradients():
     assert torch.autograd.gradcheck(lambda s: fit_colour_matrix(s, tgt), (src,))
 
 
+def test_a_loaded_fitted_matrix_keeps_following_the_qe_and_a_given_one_stays():
+    """A checkpoint's matrix loaded into a fresh module: a fitted one refits when the QE changes, as the module it
+    came from does (it was taken as given and froze: a resumed run with learnable filters drifted from the
+    uninterrupted one); a given one (set_matrix) stays given."""
+    qe = _nikon_qe()
+    other = qe * torch.linspace(0.5, 1.5, W.numel(), dtype=torch.float64)  # the filters after a step
+    fitted = SensorToXYZ().fit(qe, W)
+    loaded = SensorToXYZ()
+    loaded.load_state_dict(fitted.state_dict())
+    assert torch.equal(loaded.fit(qe, W).matrix, fitted.matrix)
+    torch.testing.assert_close(loaded.fit(other, W).matrix, SensorToXYZ().fit(other, W).matrix, rtol=1e-12, atol=0)
+    # the same through a graph fit (learnable filters, grad enabled: refitted every call)
+    q = other.clone().requires_grad_(True)
+    graph = SensorToXYZ()
+    graph.load_state_dict(fitted.state_dict())
+    graph.fit(qe, W)
+    m = graph.fit(q, W).matrix
+    assert m.requires_grad
+    torch.testing.assert_close(m.detach(), SensorToXYZ().fit(other, W).matrix, rtol=1e-12, atol=0)
+    given = torch.eye(3, dtype=torch.float64) * 0.5
+    kept = SensorToXYZ()
+    kept.load_state_dict(SensorToXYZ(matrix=given).state_dict() | {"sensor_white": torch.ones(3)}, strict=False)
+    assert torch.equal(kept.fit(qe, W).matrix, given) and torch.equal(kept.fit(other, W).matrix, given)
+
+
 def test_bradford_adaptation_matches_colour_science_and_whitens_display():
     from isettorch.isp.colour import bradford_matrix
 

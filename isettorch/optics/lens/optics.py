@@ -89,6 +89,10 @@ class LensOptics(nn.Module):
             analysis's.
         object_distance: ``"infinity"`` (default: every scene imaged as if at infinity), ``"scene"`` (each
             scene's ``distance_m``) or a distance in m.
+
+    Buffers ``focal_length_m`` and ``f_number`` report the traced lens's (its prescription's stop and powers set
+    them): they are read, not settable; the camera equation and the PSFs use the lens's own (an edit of the buffer
+    changed the camera equation until the first render cached it, and never the PSFs).
     """
 
     def __init__(self, lens, *, field_samples: int = 13, azimuth_samples: int = 24, components: int | None = 16,
@@ -198,7 +202,7 @@ class LensOptics(nn.Module):
         for f in (fields[0], fields[-1], fields[len(fields) // 2]):
             for wl in (wavelengths_nm[0], wavelengths_nm[-1]):
                 reach = max(reach, spot_radius_mm(a, float(f), wl))
-        reach += 3.0 * max(wavelengths_nm) * 1e-6 * float(self.f_number)
+        reach += 3.0 * max(wavelengths_nm) * 1e-6 * float(self.analysis.f_number)
         size = max(2 * int(math.ceil(reach / dx_mm)) + 1, 3)
         if size > self.max_kernel:
             raise ValueError(f"max_kernel: the lens's PSF spans {size} samples at {dx_mm * 1e3:.3g} um pitch, more "
@@ -296,7 +300,7 @@ class LensOptics(nn.Module):
         grid = torch.stack([src_x / (w / 2), src_y / (h / 2)], -1)[None].to(dt).to(dev)
         # camera equation on axis (ISETCam oiCalculateIrradiance, |m| of the object plane) x transmittance x RI
         mag = float(self._a.magnification())
-        k0 = float(geometry.camera_equation_factor(self.f_number.to(torch.float64), mag)) * self.transmittance
+        k0 = float(geometry.camera_equation_factor(self.analysis.f_number.detach().double(), mag)) * self.transmittance
         band = {"grid": grid, "gain": (k0 * ri).to(dt).to(dev)}
         if plan["bank"]["basis"] is not None:
             band["weights"] = _bilinear_polar(plan["bank"]["coeff"][li], *plan["polar"]).to(dt).to(dev)
