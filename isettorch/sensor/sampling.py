@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 
 from .. import spectral
-from .._checks import is_integer
+from .._checks import _small_values, is_integer, is_real
 
 __all__ = [
     "electron_rate_density",
@@ -138,11 +138,15 @@ def _check_sampling(x, oi_sample_spacing_m, pixel_size_m, rows, cols) -> None:
     if not isinstance(oi_sample_spacing_m, torch.Tensor) or oi_sample_spacing_m.numel() not in (1, x.shape[0]):
         raise ValueError(f"oi_sample_spacing_m: expected a tensor of 1 or {x.shape[0]} (the batch) spacings, got "
                          f"{oi_sample_spacing_m!r}")
+    # the values where reading them costs no device sync (a CPU batch's few spacings; an OpticalImage checks its
+    # own when it is made): a negative spacing gave zeros or a mirrored image, 0 or inf NaN
+    values = _small_values(oi_sample_spacing_m.detach())
+    if values is not None and not all(math.isfinite(v) and v > 0 for v in values):
+        raise ValueError(f"oi_sample_spacing_m: expected finite spacings > 0 (m), got {values}")
     for name, n in (("rows", rows), ("cols", cols)):
         if not (is_integer(n) and n >= 1):
             raise ValueError(f"{name}: expected an integer number of pixels >= 1, got {n!r}")
-    if isinstance(pixel_size_m, bool) or not isinstance(pixel_size_m, (int, float)) \
-            or not (math.isfinite(pixel_size_m) and pixel_size_m > 0):
+    if not (is_real(pixel_size_m) and pixel_size_m > 0):  # (a NumPy float32 was refused as not finite)
         raise ValueError(f"pixel_size_m: expected a finite pitch > 0 in metres, got {pixel_size_m!r}")
 
 
@@ -172,7 +176,12 @@ def _box_mean_constant(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> t
     if lo.shape[-1] * n <= _BOX_MATRIX_MAX:
         m = torch.arange(n, dtype=torch.float64, device=x.device)
         lo64, hi64 = lo.to(torch.float64)[..., None], hi.to(torch.float64)[..., None]
-        overlap = (torch.minimum(hi64, m + 0.5) - torch.maximum(lo64, m - 0.5)).clamp_min(0)  # [B, n_out, n]
+        overlap = torch.minimum(hi64, m + 0.5) - torch.maximum(lo64, m - 0.5)  # [B, n_out, n]
+        # the positive part as (v + |v|) / 2: the same values, and at a pixel edge on a sample edge (v = 0 for the
+        # next sample, minimum / maximum tied for this one) each side's derivative weighs half, the mean of the
+        # one-sided derivatives; clamp_min passed the next sample's whole, which with the tie's half gave the
+        # spacing's gradient a wrong sign at pitch = 2 x spacing (-0.106 for one-sided +1.29 / +1.13)
+        overlap = 0.5 * (overlap + overlap.abs())
         weights = (overlap / (hi64 - lo64)).transpose(-1, -2).to(x.dtype)  # [B, n, n_out]
         return torch.matmul(x, weights.reshape(b, *(1,) * (x.dim() - 3), n, -1))
     work = x.to(torch.float64)

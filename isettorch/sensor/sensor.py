@@ -155,7 +155,9 @@ class Sensor(nn.Module):
     """An image sensor: pixel geometry, CFA and spectral QE, exposure, noise, analog gain and ADC.
 
     Args:
-        rows, cols: sensor size in pixels (None: as many pixels as fit in the OI's unpadded area).
+        rows, cols: sensor size in pixels (None: as many pixels as fit in the OI's unpadded area). Centred on the
+            optical image; where a larger sensor extends beyond it, its pixels read no light (0, as ISETCam's
+            ``regridOI2ISA``; a pixel on the edge its covered fraction), then dark signal and noise.
         pixel_size_m: pixel pitch (square pixels, no gaps); fill_factor: photodiode area / pixel area.
         cfa: a :class:`CFA` or pattern string.
         spectral_qe: a :class:`SpectralQE` (default: ``filters`` for the CFA's letters x ``ir_filter`` x
@@ -585,8 +587,10 @@ class Sensor(nn.Module):
         ph, pw = self.cfa.shape
         h = (oi.height - 2 * oi.pad_rows) * dx
         w = (oi.width - 2 * oi.pad_cols) * dx
-        rows = self.rows or max(ph, int(h / self.pixel_size_m) // ph * ph)
-        cols = self.cols or max(pw, int(w / self.pixel_size_m) // pw * pw)
+        # whole pixels to 1e-6 relative: a float32 OI of 32 samples at the pitch spans 31.9999994 pitches, which
+        # lost a whole CFA cell (30 x 30)
+        rows = self.rows or max(ph, math.floor(h / self.pixel_size_m * (1 + 1e-6)) // ph * ph)
+        cols = self.cols or max(pw, math.floor(w / self.pixel_size_m * (1 + 1e-6)) // pw * pw)
         return rows, cols
 
     # --- randomness -----------------------------------------------------------------------
@@ -825,7 +829,8 @@ class Sensor(nn.Module):
             # One OI sample per pixel, pixel centres on sample centres (both grids centred on the axis): the
             # photodiode (inside its cell) averages a constant, so area sampling returns the samples under the
             # sensor (exact; the spacings may differ by the geometry's own float rounding, a few eps)
-            if self._same_grid(dx):
+            # (not for a spacing that records a gradient: the slice has none, sample_area the area's)
+            if self._same_grid(dx) and not records_grad(dx):
                 return density[..., dr // 2:dr // 2 + rows, dc // 2:dc // 2 + cols]
         recon = "linear" if self.sampling == "area_linear" else "constant"
         return sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor, recon)

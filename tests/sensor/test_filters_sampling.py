@@ -227,9 +227,53 @@ def test_the_public_samplers_check_their_arguments(sampler):
     assert f(x, dx, 2e-6, 4, 4).shape == (1, 3, 4, 4)
     for args, name in (((x.expand(2, -1, -1, -1), torch.tensor([1e-6] * 3), 2e-6, 4, 4), "oi_sample_spacing_m"),
                        ((x, dx, 2e-6, 2.7, 4), "rows"), ((x, dx, 2e-6, 4, True), "cols"),
-                       ((x, dx, -2e-6, 4, 4), "pixel_size_m"), (((x * 10).long(), dx, 2e-6, 4, 4), "x")):
+                       ((x, dx, -2e-6, 4, 4), "pixel_size_m"), (((x * 10).long(), dx, 2e-6, 4, 4), "x"),
+                       # (a negative spacing gave zeros or a mirror, 0 or inf NaN)
+                       ((x, torch.tensor([-1e-6]), 2e-6, 4, 4), "oi_sample_spacing_m"),
+                       ((x, torch.tensor([0.0]), 2e-6, 4, 4), "oi_sample_spacing_m"),
+                       ((x, torch.tensor([float("inf")]), 2e-6, 4, 4), "oi_sample_spacing_m")):
         with pytest.raises(ValueError, match=f"^{name}: expected"):
             f(*args)
+    assert torch.equal(f(x, dx, np.float32(2e-6), 4, 4), f(x, dx, float(np.float32(2e-6)), 4, 4))  # NumPy scalars
+
+
+@pytest.mark.parametrize("ratio", [2.0, 1.0, 0.5])
+def test_the_spacing_gradient_at_aligned_edges_is_the_mean_of_the_one_sided_derivatives(ratio):
+    """Pixel edges on OI sample edges (pitch = 2, 1 or 1/2 spacings): the area's derivative in the spacing has two
+    one-sided values; autograd gives their mean (it gave -0.106 for +1.29 / +1.13 at pitch = 2 spacings, a wrong
+    sign, and none through the Sensor's slice at pitch = spacing)."""
+    from isettorch.optics.optical_image import OpticalImage
+    from isettorch.sensor import Sensor
+
+    x = torch.rand(1, 1, 16, 16, dtype=torch.float64, generator=torch.Generator().manual_seed(0)) * 1e15
+    pitch = ratio * 1e-6
+    rows = 6 if ratio >= 1 else 14
+    sensor = Sensor(rows=rows, cols=rows, pixel_size_m=pitch, fill_factor=1.0, cfa="W", read_noise_v=0,
+                    dark_current_e_per_s=0, shot_noise="off")
+    wl = torch.tensor([550.0], dtype=torch.float64)
+
+    def total(d):
+        return sensor.electron_rate(OpticalImage(x, wl.clone(), sample_spacing_m=d)).sum()
+
+    d = torch.tensor([1e-6], dtype=torch.float64, requires_grad=True)
+    (grad,) = torch.autograd.grad(total(d), d)
+    h = 1e-13
+    at = float(total(torch.tensor([1e-6], dtype=torch.float64)))
+    up = (float(total(torch.tensor([1e-6 + h], dtype=torch.float64))) - at) / h
+    down = (at - float(total(torch.tensor([1e-6 - h], dtype=torch.float64)))) / h
+    assert float(grad) == pytest.approx(0.5 * (up + down), rel=2e-3)
+
+
+def test_a_sensor_sized_by_the_oi_keeps_every_whole_pixel():
+    """A float32 OI of 32 samples at the pixel pitch spans 31.9999994 pitches: int() lost a CFA cell (30 x 30)."""
+    from isettorch.optics.optical_image import OpticalImage
+    from isettorch.sensor import Sensor
+
+    for n, pitch in ((32, 2.8e-6), (16, 1.1e-6), (24, 1.9e-6)):
+        for dt in (torch.float32, torch.float64):
+            oi = OpticalImage(torch.ones(1, 1, n, n, dtype=dt), torch.tensor([550.0], dtype=dt),
+                              sample_spacing_m=torch.tensor([pitch], dtype=dt))
+            assert Sensor(pixel_size_m=pitch).size_for(oi) == (n, n)
 
 
 def test_the_preblur_size_refuses_a_zero_or_negative_length():
