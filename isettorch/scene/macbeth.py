@@ -44,7 +44,8 @@ def _native_reflectances() -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
 
 
 def macbeth_patch_names() -> list[str]:
-    """The 24 patch names in the standard order (row-major, 'dark skin' top-left, 'black' bottom-right)."""
+    """The 24 patch names in the standard order (row-major, 'dark skin' top-left, 'black' bottom-right; ISETCam
+    numbers the patches down the columns instead, its white patch 4 being index 18 here)."""
     return list(_native_reflectances()[0])
 
 

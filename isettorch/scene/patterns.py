@@ -5,6 +5,13 @@ so the scene carries ``illuminant_photons`` and ``scene.reflectance()`` returns 
 returns a batch of one, scaled to ``mean_luminance_cd_m2`` (default 100 cd/m^2; None keeps the raw scale),
 on the wavelength grid ``wavelengths`` (default 400:10:700 nm). Pixel coordinates are measured from the
 image centre, ``(n - 1) / 2``, with rows growing downwards.
+
+The defaults are this library's, not ``sceneCreate``'s: every pattern is lit by D65 at a 10 degree field of view,
+where ISETCam lights the slanted bar with equal energy at 2 degrees, the zone plate with equal photons at 4, the
+point array with D65 at 40 and the sweep, checkerboard, grid lines and star with equal photons; the sweep's
+default top frequency is ``W / 4`` cycles per image (ISETCam's ``size / 16``); ISETCam's slanted bar of slope
+``s`` (bright lower left, ``Y > s X``) is ``slanted_edge(angle_deg=-degrees(atan(1 / s)))`` mirrored left to
+right. Pass ``illuminant``, ``hfov_deg`` and the pattern's own arguments to reproduce an ISETCam scene.
 """
 
 from __future__ import annotations

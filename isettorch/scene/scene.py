@@ -58,7 +58,25 @@ class Scene(SpectralImage):
                 )
             if validate:
                 check_nonnegative(ill.detach(), "illuminant_photons")
+                self._check_lit(ill.detach().expand(self.batch_size, -1))
             self.illuminant_photons = ill.expand(self.batch_size, -1)
+
+    def _check_lit(self, ill: torch.Tensor) -> None:
+        """An illuminant is the light the radiance reflects: some light, and light in every band that holds
+        radiance (reflectance = radiance / illuminant gave inf there, and an unlit scene an sRGB preview of NaN)."""
+        if not bool((ill > 0).any(dim=-1).all()):
+            raise ValueError("illuminant_photons: expected some light (a positive value) in each scene's "
+                             "illuminant, got all zeros")
+        dark = ill == 0
+        if bool(dark.any()):
+            peak = (self.factors.spectra.detach().abs().amax(dim=1) if self.factors is not None
+                    else self.photons.detach().amax(dim=(2, 3)))  # [B, L]
+            bad = dark & (peak > 0)
+            if bool(bad.any()):
+                b, lam = (int(v) for v in torch.nonzero(bad)[0])
+                raise ValueError(f"illuminant_photons: 0 at {float(self.wavelengths_nm[lam]):g} nm (scene {b}), where "
+                                 f"the radiance is not: expected light in every band the scene reflects (the "
+                                 f"reflectance there would be infinite)")
 
     def replace(self, **changes) -> Scene:
         """A copy with some fields changed, checked like a new scene (NaN, inf or negative radiance raise).
@@ -110,8 +128,8 @@ class Scene(SpectralImage):
         if target.numel() not in (1, self.batch_size):
             raise ValueError(f"cd_m2: expected a scalar or one luminance per scene ({self.batch_size}), got "
                              f"{target.numel()} values")
-        if (target < 0).any() or not torch.isfinite(target).all():
-            raise ValueError(f"cd_m2: expected a non-negative finite luminance, got {target.tolist()}")
+        if (target <= 0).any() or not torch.isfinite(target).all():  # (0 zeroed the illuminant too)
+            raise ValueError(f"cd_m2: expected a positive finite luminance, got {target.tolist()}")
         current = self.mean_luminance()
         if (current <= 0).any():
             raise ValueError("set_mean_luminance: the scene is black (mean luminance 0), it cannot be scaled")

@@ -42,6 +42,30 @@ def test_set_mean_luminance_scales_illuminant():
     assert s2.illuminant_luminance().item() == pytest.approx(100.0, rel=1e-9)
 
 
+def test_an_illuminant_lights_every_band_the_scene_reflects():
+    """An illuminant 0 where the radiance is not gave an infinite reflectance, an all-zero one an sRGB preview of
+    NaN; both refused, naming it. Bands dark in both (a monochromatic scene) stay allowed; a mean luminance of 0
+    (which zeroed the illuminant too) is refused."""
+    w = spectral.default_wavelengths(dtype=torch.float64)
+    ill = torch.full((31,), 1e15, dtype=torch.float64)
+    ill[5] = 0.0
+    with pytest.raises(ValueError, match="illuminant_photons: 0 at 450 nm"):
+        Scene(torch.full((1, 31, 2, 2), 1e15, dtype=torch.float64), w, illuminant_photons=ill)
+    with pytest.raises(ValueError, match="illuminant_photons: expected some light"):
+        Scene(torch.full((1, 31, 2, 2), 1e15, dtype=torch.float64), w, illuminant_photons=torch.zeros(31))
+    photons = torch.full((1, 31, 2, 2), 1e15, dtype=torch.float64)
+    photons[:, 5] = 0.0
+    s = Scene(photons, w, illuminant_photons=ill)
+    assert torch.isfinite(s.reflectance()).all() and float(s.reflectance()[0, 6, 0, 0]) == 1.0
+    # a factored scene: its spectra say which bands hold radiance
+    f = Scene.from_factors(torch.ones(1, 1, 2, 2, dtype=torch.float64), torch.full((1, 1, 31), 1e15,
+                                                                                  dtype=torch.float64), w)
+    with pytest.raises(ValueError, match="illuminant_photons: 0 at 450 nm"):
+        f.replace(illuminant_photons=ill)
+    with pytest.raises(ValueError, match="cd_m2: expected a positive"):
+        _scene().set_mean_luminance(0.0)
+
+
 def test_xyz_y_is_luminance_and_srgb_range():
     s = _scene()
     assert torch.allclose(s.xyz()[:, 1:2], s.luminance(), rtol=1e-9)
