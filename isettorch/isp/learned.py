@@ -142,12 +142,11 @@ PRETRAINED_GATES = {"joint_denoise": {
 def _check_raw(raw: torch.Tensor, name: str = "raw", even: bool = True) -> torch.Tensor:
     if not isinstance(raw, torch.Tensor):
         raise TypeError(f"{name}: expected a torch.Tensor [B, 1, H, W], got {type(raw).__name__}")
-    if raw.dim() == 2:
+    if raw.dim() == 2:  # one mosaic [H, W]
         raw = raw[None, None]
-    elif raw.dim() == 3:
-        raw = raw[:, None]
+    # (a [B, H, W] batch was taken too: an RGB image [3, H, W] given by mistake came back as three mosaics)
     if raw.dim() != 4 or raw.shape[1] != 1:
-        raise ValueError(f"{name}: expected shape [B, 1, H, W], got {tuple(raw.shape)}")
+        raise ValueError(f"{name}: expected shape [B, 1, H, W] (or one mosaic [H, W]), got {tuple(raw.shape)}")
     if raw.dtype not in FLOAT_DTYPES:  # (float16 / bfloat16 lose the colour differences the
         # networks correct: learned_tiny was off by 0.7 on a float16 mosaic; under autocast the input stays float32)
         raise TypeError(f"{name}: expected a float32 or float64 tensor, got {raw.dtype}")
@@ -382,7 +381,10 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
     constant colour field is reproduced as exactly as MHC reproduces it (to float rounding) at any level and
     colour; the high-pass (the correction minus its Gaussian blur of ``highpass_sigma_px`` pixels, replicate
     border; ``None``: none) keeps each channel's local mean MHC's, so the network adds no colour bias of its own
-    (MHC, being linear and exact on constants, has none in expectation). ``highpass_decimation`` d computes that
+    (MHC, being linear and exact on constants, has none in expectation). The mosaic's own samples, which a
+    noise-free network does not correct, are moved by the high-pass's blur of the correction (up to 0.014 of full
+    scale on a 128 x 128 photograph, 0.06 on small crops; an audit of 2026-12-01): the shipped learned methods do not
+    return the measured samples exactly, as MHC and Menon do. ``highpass_decimation`` d computes that
     blur on d x d means (:func:`_lowpass`), for the fast networks where the full-resolution blur would cost more
     than the network.
 
@@ -647,7 +649,8 @@ def _head_forward(head: nn.Conv2d, x: torch.Tensor, scale: float = 1.0) -> tuple
     """``scale * head(x)`` (the scale folded into the weights) for inference, and which of the head's output
     channels the result holds: only those with a nonzero weight or bias are computed (None: all). A noise-free
     network's head has exact zeros for the four corrections at the mosaic's own samples (each 2 x 2 cell's R, two
-    G and B, which the noise-free networks never change), so it computes 8 of 12. On CPU the count is rounded up to
+    G and B, which the noise-free networks' heads never change; the guard's high-pass then moves them, see
+    :func:`guard_residual`), so it computes 8 of 12. On CPU the count is rounded up to
     a multiple of 8 with zero weights (the extra channels dropped, a view): oneDNN runs such counts faster (16 -> 12
     channels, 3 x 3, 2 threads, AVX2: 10.5 ms/MP; as 16: 7.8; 8: 5.2). The same values as ``head(x)``, the
     channels not computed being exact zeros there."""

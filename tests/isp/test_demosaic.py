@@ -390,3 +390,17 @@ def test_a_mosaic_without_a_whole_cell_is_refused(method):
     # a 1 x 8 Bayer strip has no B (or no R) sample: every method refuses it alike
     with pytest.raises(ValueError, match="at least 2x2 pixels"):
         demosaic(torch.rand(1, 1, 1, 8), "RGGB", method=method)
+
+
+def test_every_method_returns_an_empty_batch_and_the_learned_ones_refuse_a_3d_tensor():
+    """Malvar raised on an empty batch where the others return (0, 3, H, W); the learned methods took [B, H, W], so
+    an RGB image [3, H, W] given by mistake came back as three demosaicked mosaics."""
+    from isettorch.isp.demosaicing import demosaic
+
+    empty = torch.zeros(0, 1, 8, 10)
+    for method in ("bilinear", "malvar2004", "menon2007", "learned_tiny"):
+        assert demosaic(empty, "RGGB", method).shape == (0, 3, 8, 10)
+    rgb = torch.rand(3, 16, 16, generator=torch.Generator().manual_seed(0))
+    for method in ("learned", "learned_small", "learned_tiny"):
+        with pytest.raises(ValueError, match=r"raw: expected shape \[B, 1, H, W\]"):
+            demosaic(rgb, "RGGB", method)

@@ -39,7 +39,7 @@ def demosaic_menon2007(raw: torch.Tensor, pattern: str = "RGGB", *, refine: bool
     zeros for the decision window), so results agree with ``demosaicing_CFA_Bayer_Menon2007`` to rounding, except
     where the two directional criteria tie exactly (common on quantised, e.g. 8-bit, data): there the summation
     order of the decision window breaks the tie, and the other direction's green spreads through the refining
-    step (0.05 % of the pixels of an 8-bit photograph, up to ~0.03 of full scale there).
+    step (up to 0.12 % of the pixels of an 8-bit photograph, up to ~0.03 of full scale there).
     Differentiable almost everywhere (the directional choice is a hard selection, as in the paper).
 
     Args:
