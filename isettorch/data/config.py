@@ -140,6 +140,22 @@ def natural_config(config: dict | None = None, **overrides) -> dict:
     size = out["size"]
     if isinstance(size, bool) or not isinstance(size, int) or size < 16:
         raise ValueError(f"config: 'size' expected an integer >= 16 pixels, got {size!r}")
+    comp = out["components"]
+    # what the per-item generator refuses at draw time (without the key's name) and the batched one drew anyway (an
+    # audit of 2026-12-01): a zero total of palette kinds (the stream drew 'recovery' only), a grating beyond
+    # 2 cycles/pixel, leaves whose largest radius is below the smallest (the stream drew radii under r_min_px)
+    pal = comp["palette"]
+    if pal["enabled"] and pal["measured"] + pal["recovery"] + pal["random"] <= 0:
+        raise ValueError("config: 'components.palette' expected a positive total of the kind weights measured, "
+                         f"recovery, random, got {pal['measured']}, {pal['recovery']}, {pal['random']}")
+    if comp["textured_leaves"]["grating_cpp"][1] > 2:
+        raise ValueError(f"config: 'components.textured_leaves.grating_cpp' expected frequencies in (0, 2] cycles "
+                         f"per pixel, got {comp['textured_leaves']['grating_cpp']!r}")
+    dl = comp["dead_leaves"]
+    if not dl["r_max_fraction"] * size > dl["r_min_px"]:
+        raise ValueError(f"config: 'components.dead_leaves.r_max_fraction' x size ({dl['r_max_fraction']} x {size} "
+                         f"px) expected above r_min_px ({dl['r_min_px']} px): the leaves' largest radius below their "
+                         f"smallest")
     _check_optional(out["components"]["palette"]["dye"], "palette.dye", "concentration")
     _check_optional(out["components"]["grain"]["relative"], "grain.relative", "contrast")
     _check_optional(out["components"]["specular"], "specular", "amplitude")
@@ -167,7 +183,8 @@ _NATURAL_LOWER = {"mean_radiance_scale": (0.0, True), "components.palette.materi
                   "components.depth_layers.pixel_size_m": (0.0, True),
                   "components.fine_detail.grating_cpp": (0.0, True),
                   "components.fine_detail.line_width_px": (0.0, True),
-                  "components.fine_detail.supersample": (1, False), "components.grain.dye_width_nm": (0.0, True)}
+                  "components.fine_detail.supersample": (1, False), "components.grain.dye_width_nm": (0.0, True),
+                  "components.grain.amplitude": (0.0, True)}
 
 
 def _check_natural_values(cfg: dict, defaults: dict, path: str) -> None:
@@ -454,8 +471,8 @@ def _check_scene(scene: dict, sp: str, camera: dict | None = None) -> None:
             raise ValueError(f"{sp}.natural.{key}: the natural scene's {key} follows {follows}; remove it "
                              f"(got {scene['natural'][key]!r})")
     if scene["natural"]:
-        try:
-            natural_config(scene["natural"])
+        try:  # at the size the scene is generated at (square, at least 16: camera_pairs._natural_scene)
+            natural_config(dict(scene["natural"], size=max(16, h + 2 * margin, w + 2 * margin)))
         except ValueError as err:
             raise ValueError(f"{sp}.natural: {err}") from err
 

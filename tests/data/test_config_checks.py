@@ -179,6 +179,17 @@ BAD = [  # (section, key, value, start of the message)
      "scene.natural: config: 'components.illuminant.kinds': 'candle': unknown kind"),
     ("scene", "natural", {"components": {"textured_leaves": {"min_size_px": -3}}},
      "scene.natural: config: 'components.textured_leaves.min_size_px': expected an integer >= 0, got -3"),
+    # accepted, then refused by the per-item generator without the key's name and drawn anyway by the stream (a
+    # stream of 'recovery' materials only, radii below r_min_px)
+    ("scene", "natural", {"components": {"palette": {"measured": 0.0, "recovery": 0.0, "random": 0.0}}},
+     "scene.natural: config: 'components.palette' expected a positive total of the kind weights"),
+    ("scene", "natural", {"components": {"textured_leaves": {"grating_cpp": [0.02, 3.0]}}},
+     "scene.natural: config: 'components.textured_leaves.grating_cpp' expected frequencies in (0, 2]"),
+    ("scene", "natural", {"components": {"dead_leaves": {"r_max_fraction": 0.01}}},
+     "scene.natural: config: 'components.dead_leaves.r_max_fraction' x size"),
+    ("scene", "natural", {"components": {"grain": {"amplitude": [0.0, 0.01]}}},
+     "scene.natural: config: 'components.grain.amplitude': expected a range [lo, hi] of two finite numbers with "
+     "0 < lo <= hi"),
     ("scene", "natural", {"wavelengths_nm": [400.0, 700.0, 5.0]},
      "scene.natural.wavelengths_nm: the natural scene's wavelengths_nm follows scene.wavelengths_nm; remove it"),
     ("scene", "natural", {"mean_radiance_scale": 2.0},
