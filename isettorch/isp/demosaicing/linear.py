@@ -227,9 +227,9 @@ def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str 
             'reflect': d c b | a b c d), the extension the shipped learned networks were trained with. The
             half-sample reflection moves a Bayer mosaic's colour phase at the border, so with 'symmetric' a constant
             colour field is not reproduced in the outer two rows and columns (errors up to 0.55 of a (0.1, 0.5, 0.9)
-            field, 0.70 on a mosaic two pixels high); 'mirror' keeps the phase and reproduces it exactly (2e-16). The pipeline's demosaic stage
-            (:class:`isettorch.isp.pipeline.DemosaicStage`) and the learned networks' base use 'mirror'; the
-            default stays colour-demosaicing's, so that the benchmark numbers match it.
+            field, 0.70 on a mosaic two pixels high); 'mirror' keeps the phase and reproduces it exactly (2e-16).
+            The pipeline's demosaic stage (:class:`isettorch.isp.pipeline.DemosaicStage`) and the learned networks'
+            base use 'mirror'; the default stays colour-demosaicing's, so that the benchmark numbers match it.
 
     Returns:
         RGB (B, 3, H, W), not clipped.
