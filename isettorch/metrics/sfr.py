@@ -209,7 +209,9 @@ def _esfr_single(a: torch.Tensor, max_bin_fill: float, min_cnr: float = 0.0, geo
     gaps = int(empty[lo:hi + 1].sum())
     if gaps > max_bin_fill * (hi - lo + 1):
         raise ValueError(f"image: {gaps} of the {hi - lo + 1} ESF bins the ROI reaches are empty; the edge slant or "
-                         "the ROI height is too small to fill the 4x oversampled ESF")
+                         "the ROI height is too small to fill the 4x oversampled ESF, or the slope is a simple "
+                         "fraction (45 degrees: every row shifts by one whole pixel, so all pixels fall on the same "
+                         "quarter-pixel phases; ISO 12233 asks for a slant of about 5 degrees)")
     counts_d = counts.to(device=a.device, dtype=a.dtype)
     esf = sums / torch.where(empty.to(a.device), torch.ones_like(counts_d), counts_d)
     if empty.any():  # fill empty bins from their neighbours (sfrmat4 projection fill)

@@ -88,7 +88,8 @@ PUBLISHED_XYZ2OPP = ((278.7336, 721.8031, -106.5520), (-448.7736, 289.8056, 77.1
 def test_scielab_filters_transfer_function_is_the_published_sum_of_gaussians(convention, f_cpd):
     """A sine grating of f cycles/degree in one opponent channel comes out of the S-CIELAB filter scaled by the
     Fourier transform of its sum of Gaussians: sum_i w_i exp(-(pi s_i f)^2) for the paper's kernels exp(-x^2/s^2),
-    and with the spread s spd - 1 samples taken as a FWHM (isetcam: exp(-(2 sqrt(ln 2) x / (s spd - 1))^2)). The
+    and with the spread s spd - 1 samples taken as a FWHM (isetcam: exp(-(2 sqrt(ln 2) x / (s spd - 1))^2), built at
+    4 x 64 samples per degree and folded back with a triangle, as S-CIELAB does below 224). The
     weights and spreads are the published ones, written here, not read from the module (the paper's weights
     normalised to sum 1 per channel, so that a uniform field is unchanged); the other channels stay
     flat (the opponent transform and its inverse are the published matrix). Kernels span 1.5 degrees here, which
@@ -111,9 +112,12 @@ def test_scielab_filters_transfer_function_is_the_published_sum_of_gaussians(con
         gain = float(((row[c] - row[c].mean()) * grating[mid]).sum() / (grating[mid] ** 2).sum()) / 0.1
         if convention == "paper":
             want = sum(w * math.exp(-(math.pi * sd * f_cpd) ** 2) for w, sd in terms) / sum(w for w, _ in terms)
-        else:
-            want = sum(w * math.exp(-(math.pi * (f_cpd / spd) * (sd * spd - 1) / (2 * math.sqrt(math.log(2)))) ** 2)
-                       for w, sd in terms)
+        else:  # built at up = ceil(224 / spd) times the rate and folded back with a triangle (S-CIELAB's
+            # separableFilters): the fine Gaussian's transfer times the triangle's, sinc^2(f / spd)
+            up = math.ceil(224 / spd)
+            tri = (math.sin(math.pi * f_cpd / spd) / (math.pi * f_cpd / spd)) ** 2
+            want = tri * sum(w * math.exp(-(math.pi * (f_cpd / spd) * (sd * spd * up - 1) / up
+                                            / (2 * math.sqrt(math.log(2)))) ** 2) for w, sd in terms)
         assert gain == pytest.approx(want, abs=2e-3), (c, gain, want)
         others = [k for k in range(3) if k != c]
         assert float((row[others] - row[others].mean(-1, keepdim=True)).abs().max()) < 1e-9
@@ -374,3 +378,32 @@ def test_default_data_range_reads_the_scored_pixels_and_saturated_snr_is_kept():
                                                                                         dtype=torch.float64), snr])
     assert float(dynamic_range_from_curve(*dark)) == pytest.approx(float(dynamic_range_from_curve(sig, snr)),
                                                                     abs=1e-12)
+
+
+def test_scielab_isetcam_kernels_keep_their_blur_at_display_sampling():
+    """Below 224 samples per degree S-CIELAB's separableFilters builds the kernels at ceil(224 / spd) times the rate
+    and folds them back with a triangle; without it the 0.05 degree luminance Gaussian was a delta at 23 samples per
+    degree (centre 1.0000) and the docstring's random pair read mean dE76 100.3. The reference here: the gauss.m
+    formula at the fine rate (exp(-(2 sqrt(ln 2) x / (hw - 1))^2), hw = 0.05 x 23 x 10 samples), summed with NumPy
+    through the triangle at the coarse samples."""
+    from isettorch.metrics.spatial_cielab import scielab_filters
+
+    spd, up = 23.0, 10
+    width = 25  # ceil(23 / 2) x 2 + 1
+    xf = np.arange((width - 1) * up + 1) - (width - 1) * up / 2
+    g = np.exp(-(2 * math.sqrt(math.log(2)) * xf / (0.05 * spd * up - 1)) ** 2)
+    g /= g.sum()
+    n = (np.arange(width) - (width - 1) / 2) * up
+    ref = (np.clip(1 - np.abs(n[:, None] - xf[None, :]) / up, 0, None) * g).sum(1)
+    ref /= ref.sum()
+    got = scielab_filters(spd)[0][0][1].numpy()
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+    assert 0.6 < got[width // 2] < 0.7  # a blur, not a delta
+    gen = [torch.Generator().manual_seed(s) for s in (0, 1)]
+    a, b = (torch.rand(1, 3, 40, 57, dtype=torch.float64, generator=g_) for g_ in gen)
+    a[:, 0] *= 0.9
+    b[:, 0] *= 0.9
+    assert float(scielab(a, b, "D65", 23.0).mean()) == pytest.approx(36.1, abs=0.05)  # the docstring's numbers
+    assert float(scielab(a, b, "D65", 40.0).mean()) == pytest.approx(22.9, abs=0.05)
+    with pytest.raises(ValueError, match=r"xyz1: expected \(B, 3, H, W\)"):
+        scielab(torch.rand(4, 5, 5), torch.rand(4, 5, 5), "D65", 23.0)
