@@ -587,6 +587,8 @@ class SensorToXYZ(nn.Module):
         self._fit_key = None
         self.register_buffer("matrix", None)
         self.register_buffer("sensor_white", None)
+        # whether the matrix is the fit's (it follows the QE) or given (set_matrix): a checkpoint says which
+        self.register_buffer("fitted", torch.tensor(False))
         if matrix is not None:
             self.set_matrix(as_tensor(matrix, "matrix"))
 
@@ -603,6 +605,7 @@ class SensorToXYZ(nn.Module):
         else:
             self.register_buffer("matrix", matrix.detach().clone())
         self._fit_key = "fixed"
+        self.fitted = torch.tensor(False, device=self.fitted.device)
         return self
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
@@ -612,13 +615,18 @@ class SensorToXYZ(nn.Module):
             if key in state_dict and getattr(self, name) is None:
                 if name == "matrix":
                     self.set_matrix(state_dict[key])
-                    # whether the checkpoint's matrix was fitted or given is told by the next fit (the checkpoint
-                    # does not say): marked given, a fitted matrix stopped following learnable filters after a
-                    # resume (outputs 0.22 off the uninterrupted run after one filter step)
-                    self._fit_key = None if self.learnable else "loaded"
                 else:
                     self.sensor_white = state_dict[key].clone()
+        flag = state_dict.get(prefix + "fitted")
+        if flag is None:  # a checkpoint from before the flag: this module's own
+            state_dict[prefix + "fitted"] = self.fitted.clone()
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        if prefix + "matrix" in state_dict:
+            # a fitted matrix keeps following the QE, refitted at the next call (taken as given, it stopped following
+            # learnable filters after a resume: 0.22 off the uninterrupted run after one filter step); a checkpoint
+            # without the flag is told by the next fit (the fit's own matrix, or another: given)
+            self._fit_key = (None if self.learnable or (flag is not None and bool(flag))
+                             else "loaded" if flag is None else "fixed")
 
     def fit(self, qe: torch.Tensor, wavelengths_nm) -> SensorToXYZ:
         """Fit the matrix to a sensor's QE (C, L) on ``wavelengths_nm`` (cached per QE and grid).
@@ -656,6 +664,7 @@ class SensorToXYZ(nn.Module):
             loaded = self.matrix.detach()
             if loaded.shape != m.shape or not torch.allclose(m.detach().to(loaded), loaded, rtol=1e-5, atol=1e-8):
                 self._fit_key = "fixed"
+                self.fitted = torch.tensor(False, device=self.fitted.device)
                 return self
         if graph:  # the fitted matrix keeps its graph to the QE (set_matrix would detach it)
             check_finite(m.detach(), "matrix")
@@ -665,6 +674,7 @@ class SensorToXYZ(nn.Module):
             self.set_matrix(m)
         self.sensor_white = white.to(device=qe.device, dtype=dtype)
         self._fit_key = key
+        self.fitted = torch.tensor(True, device=self.fitted.device)
         return self
 
     def release_graph(self) -> None:

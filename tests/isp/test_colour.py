@@ -242,6 +242,16 @@ def test_a_loaded_fitted_matrix_keeps_following_the_qe_and_a_given_one_stays():
     loaded.load_state_dict(fitted.state_dict())
     assert torch.equal(loaded.fit(qe, W).matrix, fitted.matrix)
     torch.testing.assert_close(loaded.fit(other, W).matrix, SensorToXYZ().fit(other, W).matrix, rtol=1e-12, atol=0)
+    # a training run's resume: the checkpoint's matrix is the QE's before the last filter step
+    resumed = SensorToXYZ()
+    resumed.load_state_dict(fitted.state_dict())
+    torch.testing.assert_close(resumed.fit(other, W).matrix, SensorToXYZ().fit(other, W).matrix, rtol=1e-12, atol=0)
+    # a checkpoint from before the module said whether its matrix was fitted: the next fit tells
+    old = {k: v for k, v in fitted.state_dict().items() if k != "fitted"}
+    legacy = SensorToXYZ()
+    legacy.load_state_dict(old)
+    assert torch.equal(legacy.fit(qe, W).matrix, fitted.matrix)
+    torch.testing.assert_close(legacy.fit(other, W).matrix, SensorToXYZ().fit(other, W).matrix, rtol=1e-12, atol=0)
     # the same through a graph fit (learnable filters, grad enabled: refitted every call)
     q = other.clone().requires_grad_(True)
     graph = SensorToXYZ()
@@ -254,6 +264,9 @@ def test_a_loaded_fitted_matrix_keeps_following_the_qe_and_a_given_one_stays():
     kept = SensorToXYZ()
     kept.load_state_dict(SensorToXYZ(matrix=given).state_dict() | {"sensor_white": torch.ones(3)}, strict=False)
     assert torch.equal(kept.fit(qe, W).matrix, given) and torch.equal(kept.fit(other, W).matrix, given)
+    refitted = SensorToXYZ().fit(qe, W)  # a module that had fitted, loading a given matrix, keeps it
+    refitted.load_state_dict(SensorToXYZ(matrix=given).state_dict() | {"sensor_white": torch.ones(3)}, strict=False)
+    assert torch.equal(refitted.fit(qe, W).matrix, given)
 
 
 def test_bradford_adaptation_matches_colour_science_and_whitens_display():
