@@ -264,6 +264,29 @@ def test_the_spacing_gradient_at_aligned_edges_is_the_mean_of_the_one_sided_deri
     assert float(grad) == pytest.approx(0.5 * (up + down), rel=2e-3)
 
 
+def test_the_large_image_path_has_the_matrix_paths_values_and_gradients(monkeypatch):
+    """Above the overlap matrix's size the area comes from the cumulative integral: the same values, the same
+    derivative in the samples, and at aligned edges (pitch = 2 spacings) the same mean of the one-sided derivatives
+    in the spacing (it took one side's: -5.9 for the mean +125.0)."""
+    import isettorch.sensor.sampling as sampling
+
+    x = torch.rand(1, 1, 32, 32, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    w = torch.linspace(0.3, 1.7, 256, dtype=torch.float64).reshape(1, 1, 16, 16)
+
+    def run():
+        xs = x.clone().requires_grad_(True)
+        d = torch.full((1,), 1e-6, dtype=torch.float64, requires_grad=True)
+        y = sampling.sample_area(xs, d, 2e-6, 16, 16)
+        return (y.detach(), *torch.autograd.grad((y * w).sum(), (xs, d)))
+
+    matrix = run()
+    monkeypatch.setattr(sampling, "_BOX_MATRIX_MAX", 0)
+    cumulative = run()
+    for a, b in zip(matrix, cumulative):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+    assert float(matrix[2]) * 1e-6 == pytest.approx(125.0331, abs=1e-3)  # the one-sided -6.745 / +256.811's mean
+
+
 def test_a_sensor_sized_by_the_oi_keeps_every_whole_pixel():
     """A float32 OI of 32 samples at the pixel pitch spans 31.9999994 pitches: int() lost a CFA cell (30 x 30)."""
     from isettorch.optics.optical_image import OpticalImage
