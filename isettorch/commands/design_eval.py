@@ -58,7 +58,18 @@ def _note_profiles(folder) -> None:
     reads every photograph's code values as sRGB, so their colours are not the photograph's."""
     from ..io.images import non_srgb_profile, photo_files
 
-    other = [(f.name, name) for f in photo_files(folder) if (name := non_srgb_profile(f)) is not None]
+    try:
+        files = photo_files(folder)
+    except ValueError:  # a folder the evaluation refuses, naming it as DIR
+        return
+    other = []
+    for f in files:
+        try:
+            name = non_srgb_profile(f)
+        except (OSError, ValueError):  # not an image: the evaluation names it
+            continue
+        if name is not None:
+            other.append((f.name, name))
     if other:
         shown = ", ".join(f"{f} ({name})" for f, name in other[:3]) + (" ..." if len(other) > 3 else "")
         print(f"isettorch design-eval: note: {len(other)} photograph(s) carry an ICC profile that is not sRGB: "
@@ -67,9 +78,13 @@ def _note_profiles(folder) -> None:
 
 
 def run(args) -> int:
+    from pathlib import Path
+
     from ..design import evaluate_design
     from .demosaic_eval import as_dir_error
 
+    if Path(args.folder).is_dir():  # (before the renders: a photograph the note cannot open fails at once)
+        _note_profiles(args.folder)
     try:
         res = evaluate_design(args.design, args.folder, args.lux, seed=args.seed, crop=args.crop, device=args.device,
                               noise_free=args.noise_free, progress=not args.quiet)
@@ -77,7 +92,6 @@ def run(args) -> int:
         if not str(err).startswith("images: "):
             raise
         raise as_dir_error(err) from err
-    _note_profiles(args.folder)
     dark = [item for item in res["images"] if item["corner_light"] < DARK_CORNER]
     if dark:
         worst = min(dark, key=lambda item: item["corner_light"])

@@ -45,9 +45,9 @@ def _lift_grid(wavelengths_nm) -> torch.Tensor:
                              f"stop - start, or a tensor of the wavelengths themselves, got {wavelengths_nm!r}")
         w = default_wavelengths(*(float(v) for v in seq), dtype=torch.float64)
     lo, hi = BASIS_RANGE_NM
-    if float(w.min()) < lo or float(w.max()) > hi:
+    if not bool(((w >= lo) & (w <= hi)).any()):  # (a grid of 300-380 nm lifted a white to nothing)
         raise ValueError(f"wavelengths_nm: expected wavelengths within {lo:g}-{hi:g} nm (the sRGB basis' range; "
-                         f"beyond it the basis is 0 and a white reflects nothing), got {float(w.min()):g}-"
+                         f"beyond it the basis is 0: a photograph carries no light there), got {float(w.min()):g}-"
                          f"{float(w.max()):g} nm")
     return w
 
@@ -63,7 +63,8 @@ def lift_srgb(image, wavelengths_nm=(400.0, 700.0, 10.0)) -> dict:
     8-bit cube in steps of 5; a white reads linear (0.998, 1.001, 0.998), dE2000 0.31: the truncated grid's white is
     not quite D65's), the largest code-value errors in near-zero channels of saturated colours, where the sRGB curve
     is steep (up to 25 codes: (25, 240, 245) returns as (0, 240, 245)). Colours outside sRGB cannot be represented.
-    ``wavelengths_nm``: ``(start, stop, step)`` in nm, inclusive, or a tensor of the wavelengths, within 380-780 nm.
+    ``wavelengths_nm``: ``(start, stop, step)`` in nm, inclusive, or a tensor of the wavelengths, some of them within
+    380-780 nm (beyond, the basis and so the reflectance are 0: a photograph carries no light there).
     Returns ``{"maps": [3, H, W] float64 linear sRGB, "reflectance": [3, L] float64 basis, "wavelengths_nm": [L]}``;
     multiply the reflectance by an illuminant's photons for a scene's spectra.
     """

@@ -128,10 +128,12 @@ def non_srgb_profile(path) -> str | None:
     colorants (D50 XYZ) are littleCMS's sRGB's within 0.005 (Display P3's red is 0.08 off, Adobe RGB's 0.17); a
     profile without colorants (a LUT profile) is not recognised as sRGB. Pillow's ImageCms (littleCMS) reads it."""
     import io
+    import warnings
 
     from PIL import Image, ImageCms
 
-    with Image.open(path) as im:
+    with warnings.catch_warnings(), Image.open(path) as im:  # (the header only; Pillow's size warning names no file)
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
         data = im.info.get("icc_profile")
     if not data:
         return None

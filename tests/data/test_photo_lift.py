@@ -43,9 +43,12 @@ def test_wavelengths_are_a_range_or_a_tensor_never_misread():
     assert torch.equal(lift_srgb(img, three)["wavelengths_nm"], three)
     # three wavelengths as a list were read as (start, stop, step): a one-sample grid
     for bad in ([450.0, 550.0, 650.0], np.arange(400.0, 701.0, 10.0), (700.0, 400.0, 10.0), (400.0, 700.0, 0.0),
-                (400.0, 700.0, -10.0), (300.0, 380.0, 10.0), torch.tensor([300.0, 400.0]), "400-700"):
+                (400.0, 700.0, -10.0), (300.0, 370.0, 10.0), torch.tensor([300.0, 800.0]), "400-700"):
         with pytest.raises(ValueError, match="wavelengths_nm"):
             lift_srgb(img, bad)
+    # a grid reaching beyond the basis (a design's 370-700 nm): 0 reflectance there, the rest lifted
+    wide = lift_srgb(img, (370.0, 700.0, 10.0))
+    assert float(wide["reflectance"][:, 0].abs().max()) == 0.0 and float(wide["reflectance"][:, 1:].min()) > 0
 
 
 def test_photo_dataset_reads_its_grid_the_same_way(tmp_path):
