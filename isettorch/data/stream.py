@@ -80,7 +80,8 @@ class PairStream:
             module to render every item through as it is (its own optics, sensor, QE, exposure and noise settings;
             its learnable parameters receive gradients with ``grad=True``). The scene's field of view puts one scene
             sample on one pixel of that camera (at the thin-lens image distance of the scene distance; a ray-traced
-            lens, ``LensOptics``, at its focal length, as the drawn ``optics: {type: lens}``). A module's sensor must
+            lens, ``LensOptics``, at its ``image_distance_m``, as the drawn ``optics: {type: lens}``, which takes
+            one pixel pitch and, with ``object_distance: scene``, one scene distance). A module's sensor must
             have ``rows, cols`` = ``scene.height, scene.width`` (a batch is the scene's size, as a
             ``CameraPairDataset`` batch; the shipped camera YAMLs leave them None: set them) and colour channels
             (not monochrome: the white balance and colour targets are relative to its second channel); checked at
@@ -144,10 +145,12 @@ class PairStream:
         self.camera_module = camera if isinstance(camera, torch.nn.Module) else None
         self.scene_config, self.camera_config = pair_config(scene, None if self.camera_module is not None else camera)
         self.targets = check_targets(targets)
-        # a camera module's ray-traced lens images the scene at its focal length, as a drawn camera's (_draw_part)
+        # a camera module's ray-traced lens images the scene at its image_distance_m, as a drawn camera's (_draw_part)
         self._module_lens = False
         if self.camera_module is not None:
             self.camera_module, self._module_lens = _check_camera_module(self.camera_module, self.scene_config)
+        else:
+            _check_drawn_lens(self.camera_config, self.scene_config)
         if not isinstance(grad, bool):
             raise ValueError(f"grad: expected True or False, got {grad!r}")
         self.grad = grad
@@ -304,7 +307,8 @@ class PairStream:
             pitch = float(camera.sensor.pixel_size_m)
             focal = camera.optics.focal_length_m.detach().reshape(-1)[0].to(torch.float64)
             if self._module_lens:  # the drawn path's geometry for a ray-traced lens (below)
-                hfov = _hfov_for(pitch, focal, w + 2 * m).expand(nb)
+                hfov = _hfov_for(pitch, torch.tensor(camera.optics.image_distance_m, dtype=torch.float64),
+                                 w + 2 * m).expand(nb)
             else:
                 hfov = self._hfov(pitch, focal, d["distance"], w + 2 * m, dt)
             scene = self._scene(drawn, slice(None), wl, hfov, d["distance"], k)
@@ -329,7 +333,7 @@ class PairStream:
             optics_cfg = self.camera_config.get("optics") or {}
             if optics_cfg:
                 optics = cache.get_built_optics(optics_cfg)
-                image_distance = optics.focal_length_m.detach().reshape(-1)[0].to(torch.float64) \
+                image_distance = torch.tensor(optics.image_distance_m, dtype=torch.float64) \
                     if optics_cfg.get("type") == "lens" else None
                 focal = optics.focal_length_m.detach().reshape(-1)[0].to(torch.float64)
             else:
@@ -646,7 +650,7 @@ def _check_camera_module(camera, scene_cfg: dict):
     is ``scene.height x scene.width``, as ``CameraPairDataset``'s). A sensor sized to each optical image (``rows``
     and ``cols`` None, as in every shipped camera config) renders at the scene's size through :func:`_sized_view`.
     Returns the camera to render with and whether its optics are a ray-traced lens
-    (:class:`~isettorch.optics.lens.optics.LensOptics`, imaging at its focal length)."""
+    (:class:`~isettorch.optics.lens.optics.LensOptics`, imaging at its ``image_distance_m``)."""
     from ..camera import Camera
     from ..optics.lens.optics import LensOptics
 
@@ -676,6 +680,24 @@ def _draw_range(values, g: torch.Generator, nb: int, device, log: bool = False) 
     """``[B]`` float64 draws uniform (or log-uniform) in ``[lo, hi]``; a number is a constant."""
     u = torch.rand(nb, generator=g, device=device, dtype=torch.float64)
     return (_log_uniform if log else _uniform)(values, u)
+
+
+def _check_drawn_lens(camera_config: dict, scene_config: dict) -> None:
+    """A drawn ray-traced lens renders a batch's items at one field of view and one object distance (LensOptics):
+    several pixel pitches (one field of view each) or, with ``object_distance: scene``, a range of scene distances
+    failed at the first batch, naming ``scene.hfov_deg``, a key the config does not set. ``CameraPairDataset``
+    renders item by item and takes them."""
+    optics = camera_config.get("optics") or {}
+    if optics.get("type") != "lens":
+        return
+    pitches = camera_config["pixel_size_m"]
+    if isinstance(pitches, (list, tuple)) and len({float(p) for p in pitches}) > 1:
+        raise ValueError(f"camera.pixel_size_m: a ray-traced lens renders a stream batch at one field of view, so one "
+                         f"pixel pitch; got {list(pitches)} (CameraPairDataset renders several)")
+    dist = scene_config["distance_m"]
+    if optics.get("object_distance") == "scene" and isinstance(dist, (list, tuple)) and dist[0] != dist[-1]:
+        raise ValueError(f"scene.distance_m: a ray-traced lens with object_distance 'scene' renders a stream batch at "
+                         f"one object distance; got the range {list(dist)} (CameraPairDataset renders it)")
 
 
 def _hfov_for(pitch: float, image_distance_m, width: int) -> torch.Tensor:

@@ -82,3 +82,36 @@ def test_shipped_lens_config_is_valid_and_inside_the_lens_field():
     half_diag_m = max(cam["pixel_size_m"]) * math.hypot(sc["height"] + 2 * cam["margin_px"],
                                                         sc["width"] + 2 * cam["margin_px"]) / 2
     assert 8.0 < math.degrees(math.atan(half_diag_m / 0.050)) < 20.0
+
+
+def test_a_lens_focused_near_keeps_one_scene_sample_per_pixel():
+    """Focused at 1.2 m the Cooke triplet's image plane moves back: image height per tan(angle) 52.1 mm for its
+    50.0 mm focal length. The pairs sized the field of view with the focal length, so the optical image came out
+    4.2 % coarser than the pixels (the sensor resampled it); now with the lens's image_distance_m, for the dataset
+    and the stream."""
+    from isettorch.data import PairStream
+    from isettorch.data.config import pair_config
+
+    cam = dict(CAMERA, optics=dict(LENS, focus_distance_m=1.2))
+    scene = {"height": 32, "width": 32, "wavelengths_nm": [400.0, 700.0, 50.0]}
+    scene_cfg, cam_cfg = pair_config(scene, cam)
+    camera, sc, _ = camera_for(0, 1, scene_cfg, cam_cfg)
+    assert camera.optics.image_distance_m == pytest.approx(0.052125, rel=1e-4)
+    assert float(camera.optical_image(sc).sample_spacing_m.reshape(-1)[0]) == pytest.approx(PITCH_M, rel=1e-6)
+    stream = PairStream(1, seed=1, scene=scene, camera=cam, targets=("camera_rgb",), dtype=torch.float64)
+    (group,) = stream._draw_part(0, 0)
+    oi = group.camera.optical_image(group.scene)
+    assert float(oi.sample_spacing_m.reshape(-1)[0]) == pytest.approx(PITCH_M, rel=1e-6)
+
+
+def test_the_stream_refuses_lens_configs_it_renders_at_one_field_of_view():
+    """A drawn lens renders a stream batch at one field of view and one object distance: several pitches, or a
+    distance range with object_distance 'scene', failed at the first batch naming scene.hfov_deg."""
+    from isettorch.data import PairStream
+
+    scene = {"height": 32, "width": 32, "wavelengths_nm": [400.0, 700.0, 50.0]}
+    with pytest.raises(ValueError, match="camera.pixel_size_m: a ray-traced lens"):
+        PairStream(2, scene=scene, camera=dict(CAMERA, pixel_size_m=[4e-4, 5e-4]))
+    with pytest.raises(ValueError, match="scene.distance_m: a ray-traced lens"):
+        PairStream(2, scene=dict(scene, distance_m=[1.0, 3.0]), camera=dict(CAMERA, optics=dict(
+            LENS, object_distance="scene")))

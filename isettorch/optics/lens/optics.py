@@ -169,6 +169,14 @@ class LensOptics(nn.Module):
             self._c[key] = (fr * a.max_field_deg, y, ri)
         return self._c[key]
 
+    @property
+    def image_distance_m(self) -> float:
+        """Image height on the sensor per tan(field angle) of an object at infinity (m): the focal length when the lens
+        is focused at infinity, more when focused nearer (its image plane moves back), as the optical image's
+        ``image_distance_m`` reports it; the image distance a scene's field of view is sized with for one scene
+        sample per pixel."""
+        return float(self.analysis.image_height_per_tan_mm()) * 1e-3
+
     def chief_ray_angle_table(self, wavelength_nm: float | None = None) -> dict:
         """The traced image-space chief-ray angle against image height on the sensor plane, at ``wavelength_nm``
         (default: the lens's primary wavelength) and ``distortion_samples`` fields (cached):
