@@ -71,17 +71,22 @@ FIXED_PATTERN_BUFFERS = ("fpn_dsnu", "fpn_prnu", "fpn_column")
 PRESETS: dict[str, dict[str, Any]] = {
     # ISETCam sensorCreate default (sensorCreate.m / pixelCreate.m, commit 3b10ec1): 2.8 um, fill 0.75,
     # 1e-4 V/e-, 1 V swing, dark 1 mV/s, read noise 1 mV, GRBG Bayer, analog readout.
+    # ISETCam's sensorCreate default. As in ISETCam, no pedestal: the pixel voltage is clipped at 0 V, so half the
+    # pixels of a dark frame read 0 and read noise and dark current cannot be measured from its dark frames (an
+    # audit: 5.7 e- and 8 e-/s for 10 and 10); give analog_offset_v (e.g. 0.02 V) to calibrate a capture of it.
     "isetcam_default": dict(pixel_size_m=2.8e-6, fill_factor=0.75, conversion_gain_v_per_e=1e-4, voltage_swing_v=1.0,
                             dark_current_e_per_s=10.0, read_noise_v=1e-3, cfa="GRBG", adc_bits=None,
                             rows=72, cols=88),
     # IMX363-like phone sensor (1.4 um BSI dual-pixel, 12 MP; typical public numbers for this pixel class:
-    # ~6000 e- full well, ~2 e- read noise, 10-bit raw). Not manufacturer-measured values.
+    # ~6000 e- full well, ~2 e- read noise, 10-bit raw). Not manufacturer-measured values. The raw clips at 5619 e-:
+    # the 64 DN black level is added after the ADC, so the top code is reached at 0.4495 V of the 0.48 V swing.
     "imx363": dict(pixel_size_m=1.4e-6, fill_factor=1.0, conversion_gain_v_per_e=8e-5, voltage_swing_v=0.48,
                    dark_current_e_per_s=5.0, read_noise_v=1.6e-4, dsnu_sigma_v=8e-5, prnu_sigma_percent=0.6,
                    cfa="RGGB", adc_bits=10, black_level_dn=64, rows=3024, cols=4032),
     # Farrell, Xiao, Catrysse, Wandell, "A simulation tool for evaluating digital camera image quality",
     # SPIE 5294 (2004), CDS sensor: 4 um, 50 % fill, dark 10 e-/s, read 50 e-, 15 uV/e-, DSNU 2 mV,
-    # PRNU 0, 1 V swing, 16 ms.
+    # PRNU 0, 1 V swing, 16 ms. With CDS (ISETCam's), the reset frame cancels the DSNU and the read noise is drawn
+    # in both frames: the raw shows 50 sqrt(2) = 70.7 e- of read noise and no DSNU.
     "iset2004_cds": dict(pixel_size_m=4e-6, fill_factor=0.5, conversion_gain_v_per_e=15e-6, voltage_swing_v=1.0,
                          dark_current_e_per_s=10.0, read_noise_v=50 * 15e-6, dsnu_sigma_v=2e-3,
                          prnu_sigma_percent=0.0, exposure_s=0.016, cds=True, cfa="GRBG", adc_bits=None),
@@ -381,7 +386,8 @@ class Sensor(nn.Module):
     # --- construction helpers ------------------------------------------------------------
     @classmethod
     def preset(cls, name: str, **overrides) -> Sensor:
-        """A named sensor (``PRESETS``: 'isetcam_default', 'imx363', 'iset2004_cds'), with overrides."""
+        """A named sensor (:data:`PRESETS`: 'isetcam_default', 'imx363', 'iset2004_cds' and the EMVA 1288 ones of
+        :mod:`~isettorch.sensor.presets_emva`), with overrides."""
         key = str(name).lower()
         if key not in PRESETS:
             raise ValueError(f"name: unknown sensor preset {name!r}; expected one of {sorted(PRESETS)}")
