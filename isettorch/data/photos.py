@@ -31,8 +31,9 @@ BASIS_RANGE_NM = (380.0, 780.0)
 
 def _lift_grid(wavelengths_nm) -> torch.Tensor:
     """The lift's wavelength grid (float64): a tensor is the grid itself; anything else ``(start, stop, step)``,
-    inclusive (the configs' form), within :data:`BASIS_RANGE_NM`. A list of three wavelengths read as ``(start,
-    stop, step)`` gave a one-sample grid, 31 values a bare unpacking error, a reversed range torch's own."""
+    inclusive (the configs' form), with some wavelength within :data:`BASIS_RANGE_NM`. A list of three wavelengths
+    read as ``(start, stop, step)`` gave a one-sample grid, 31 values a bare unpacking error, a reversed range
+    torch's own."""
     from ..spectral import default_wavelengths
 
     if isinstance(wavelengths_nm, torch.Tensor):
@@ -45,7 +46,7 @@ def _lift_grid(wavelengths_nm) -> torch.Tensor:
                              f"stop - start, or a tensor of the wavelengths themselves, got {wavelengths_nm!r}")
         w = default_wavelengths(*(float(v) for v in seq), dtype=torch.float64)
     lo, hi = BASIS_RANGE_NM
-    if not bool(((w >= lo) & (w <= hi)).any()):  # (a grid of 300-380 nm lifted a white to nothing)
+    if not bool(((w >= lo) & (w <= hi)).any()):  # (a grid of 300-370 nm lifted a white to nothing)
         raise ValueError(f"wavelengths_nm: expected wavelengths within {lo:g}-{hi:g} nm (the sRGB basis' range; "
                          f"beyond it the basis is 0: a photograph carries no light there), got {float(w.min()):g}-"
                          f"{float(w.max()):g} nm")

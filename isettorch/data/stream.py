@@ -149,8 +149,6 @@ class PairStream:
         self._module_lens = False
         if self.camera_module is not None:
             self.camera_module, self._module_lens = _check_camera_module(self.camera_module, self.scene_config)
-        else:
-            _check_drawn_lens(self.camera_config, self.scene_config)
         if not isinstance(grad, bool):
             raise ValueError(f"grad: expected True or False, got {grad!r}")
         self.grad = grad
@@ -184,6 +182,8 @@ class PairStream:
         sizes = [batch_size // parts + (p < batch_size % parts) for p in range(parts)]
         self._part_starts = [sum(sizes[:p]) for p in range(parts)]
         self._part_sizes = sizes
+        if self.camera_module is None and max(sizes) > 1:  # (a part of one item renders it alone)
+            _check_drawn_lens(self.camera_config, self.scene_config)
         self._caches = [_Cache() for _ in range(parts)]  # per part: parts may render concurrently
         self._otf_rows: OrderedDict = OrderedDict()  # shared by the groups' optics (DiffractionLimitedOptics)
         self._negligible_memo: dict = {}  # their blur tests, keyed on plain numbers (blur_negligible), shared too
@@ -683,10 +683,10 @@ def _draw_range(values, g: torch.Generator, nb: int, device, log: bool = False) 
 
 
 def _check_drawn_lens(camera_config: dict, scene_config: dict) -> None:
-    """A drawn ray-traced lens renders a batch's items at one field of view and one object distance (LensOptics):
+    """A drawn ray-traced lens renders a part's items at one field of view and one object distance (LensOptics):
     several pixel pitches (one field of view each) or, with ``object_distance: scene``, a range of scene distances
-    failed at the first batch, naming ``scene.hfov_deg``, a key the config does not set. ``CameraPairDataset``
-    renders item by item and takes them."""
+    failed at the first batch (the pitches naming ``scene.hfov_deg``, a key the config does not set).
+    ``CameraPairDataset`` renders item by item and takes them, as does a stream of one item per part."""
     optics = camera_config.get("optics") or {}
     if optics.get("type") != "lens":
         return

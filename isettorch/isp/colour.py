@@ -565,7 +565,8 @@ class SensorToXYZ(nn.Module):
         white_preserving: fit under the constraint that that white maps to the illuminant's white chromaticity
             exactly (:func:`sensor_to_xyz_matrix`); default False, ISETCam's unconstrained fit.
 
-    Buffers: ``matrix`` (3, C) and ``sensor_white`` (C,), the sensor's response to that white (max 1).
+    Buffers: ``matrix`` (3, C), ``sensor_white`` (C,), the sensor's response to that white (max 1), and ``fitted``:
+    whether the matrix is the fit's (it follows the QE, also after a checkpoint is loaded) or given.
 
     Example:
         >>> w = torch.arange(400., 701., 10.)
@@ -618,8 +619,8 @@ class SensorToXYZ(nn.Module):
                 else:
                     self.sensor_white = state_dict[key].clone()
         flag = state_dict.get(prefix + "fitted")
-        if flag is None:  # a checkpoint from before the flag: this module's own
-            state_dict[prefix + "fitted"] = self.fitted.clone()
+        if flag is None:  # a checkpoint from before the flag: given until the next fit tells ("loaded" below)
+            state_dict[prefix + "fitted"] = torch.tensor(False)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         if prefix + "matrix" in state_dict:
             # a fitted matrix keeps following the QE, refitted at the next call (taken as given, it stopped following
@@ -691,7 +692,8 @@ class SensorToXYZ(nn.Module):
         return _apply_matrix(img, self.matrix)
 
     def extra_repr(self) -> str:
-        return f"illuminant={self.illuminant!r}, surfaces={self.surfaces!r}, fitted={self.matrix is not None}"
+        return (f"illuminant={self.illuminant!r}, surfaces={self.surfaces!r}, matrix="
+                f"{'none' if self.matrix is None else 'fitted' if bool(self.fitted) else 'given'}")
 
 
 def _display_primaries(display) -> tuple[torch.Tensor, torch.Tensor]:

@@ -67,7 +67,8 @@ def _gauss1d(spread_px: float, width: int, convention: str, dtype, device) -> to
 
 def scielab_filters(samples_per_degree_: float, convention: str = "isetcam", support_deg: float = 1.0,
                     dtype=torch.float64, device=None) -> list[list[tuple[float, torch.Tensor]]]:
-    """Per opponent channel, a list of (weight, 1-D unit-sum Gaussian) terms; the 2-D filter of a channel is
+    """Per opponent channel, a list of (weight, 1-D unit-sum Gaussian kernel) terms (the "isetcam" ones folded from a
+    finer rate below :data:`MIN_SAMPLES_PER_DEGREE`, :func:`_folded_gauss1d`); the 2-D filter of a channel is
     sum_i w_i g_i(x) g_i(y) and sums to 1. The kernels span ``support_deg`` degrees (odd width; ISETCam uses one
     degree, which truncates the 7-degree luminance surround)."""
     if convention not in ("isetcam", "paper"):
@@ -75,7 +76,8 @@ def scielab_filters(samples_per_degree_: float, convention: str = "isetcam", sup
     spd = float(check_positive(samples_per_degree_, "samples_per_degree"))
     width = max(int(math.ceil(spd * float(check_positive(support_deg, "support_deg")) / 2.0)) * 2 + 1, 3)
     table = SCIELAB_FILTERS if convention == "isetcam" else SCIELAB_FILTERS_PAPER
-    up = math.ceil(MIN_SAMPLES_PER_DEGREE / spd) if convention == "isetcam" else 1
+    # (at most 1024: below 0.22 samples per degree every kernel is a delta; uncapped, 1e-4 took 6 s and 0.6 GB)
+    up = min(math.ceil(MIN_SAMPLES_PER_DEGREE / spd), 1024) if convention == "isetcam" else 1
     return [[(w / sum(wi for wi, _ in terms), _folded_gauss1d(s * spd, width, up, convention, dtype, device))
              for w, s in terms] for terms in table]
 

@@ -195,14 +195,15 @@ def _box_mean_constant(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> t
         frac = (e - i.to(e.dtype)).reshape(view)
         idx = i.reshape(view).expand(shape)
         at = work.gather(-1, idx)
-        if not frac.requires_grad:
+        tie = (frac == 0) | (frac == 1)  # [B, 1.., n_out]: the edges alone, not the image
+        if not frac.requires_grad or not bool(tie.any()):
             return s.gather(-1, idx) + frac * at
         # an edge on a sample edge: the derivative in the edge is the mean of the slopes either side (0 beyond the
         # image), as the matrix path's (one side's slope gave the spacing's gradient a wrong sign at pitch = 2
         # spacings); the values, and the derivative in the samples, stay the integral's
         before = work.gather(-1, (i - 1).clamp_min(0).reshape(view).expand(shape))
         before = torch.where((i > 0).reshape(view), before, torch.zeros_like(before))
-        slope = torch.where(frac == 0, 0.5 * (at + before), torch.where(frac == 1, 0.5 * at, at))
+        slope = torch.where(tie, torch.where(frac == 0, 0.5 * (at + before), 0.5 * at), at)
         return s.gather(-1, idx) + frac.detach() * at + (frac - frac.detach()) * slope
 
     width = (hi - lo).to(torch.float64).reshape(view)

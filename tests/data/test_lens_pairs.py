@@ -115,3 +115,6 @@ def test_the_stream_refuses_lens_configs_it_renders_at_one_field_of_view():
     with pytest.raises(ValueError, match="scene.distance_m: a ray-traced lens"):
         PairStream(2, scene=dict(scene, distance_m=[1.0, 3.0]), camera=dict(CAMERA, optics=dict(
             LENS, object_distance="scene")))
+    # one item per part renders it alone: taken
+    PairStream(2, scene=scene, camera=dict(CAMERA, pixel_size_m=[4e-4, 5e-4]), parts=2)
+    PairStream(1, scene=scene, camera=dict(CAMERA, pixel_size_m=[4e-4, 5e-4]))

@@ -84,7 +84,7 @@ STAGE_IMPORTS_ALLOWED: dict[str, set[str]] = {
     # Camera.from_config does, without a sensor and ISP (config.py checks camera.optics by building it; natural.py
     # builds the depth layers' wavefront lens)
     "isettorch.optics.factory": {"*"},
-    # LensOptics: a PairStream's camera module with a ray-traced lens images at its focal length, as the drawn
+    # LensOptics: a PairStream's camera module with a ray-traced lens images at its image_distance_m, as the drawn
     # cameras with optics: {type: lens} (the scene field of view of one sample per pixel); a type test, no building
     "isettorch.optics.lens.optics": {"stream.py"},
     # the thin-lens image distance (image_distance, Hecht 5.17): the scene's field of view of one sample per pixel

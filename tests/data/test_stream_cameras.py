@@ -155,8 +155,9 @@ def test_a_camera_module_has_the_scenes_size():
 
 def test_a_lens_module_images_at_its_focal_length_as_a_drawn_lens():
     """A ray-traced lens given as a module gets the scene field of view of the drawn ``optics: {type: lens}`` path
-    (the lens images at its focal length): its optical image has one sample per pixel. Before, the thin-lens image
-    distance at the scene distance: 0.958 x the pitch here (1.917 um for 2 um pixels in the audit)."""
+    (the lens images at its image_distance_m, its focal length when focused at infinity): its optical image has one
+    sample per pixel. Before, the thin-lens image distance at the scene distance: 0.958 x the pitch here (1.917 um
+    for 2 um pixels in the audit)."""
     pytest.importorskip("opticalglass")
     lens = {"type": "lens", "lens": "cooke_triplet", "components": 2, "field_samples": 3, "azimuth_samples": 4,
             "pupil_samples": 16, "max_pupil_samples": 64, "ri_samples": 16, "distortion_samples": 4}

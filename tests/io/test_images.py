@@ -371,3 +371,16 @@ def test_non_srgb_profile_names_display_p3_and_passes_srgb(tmp_path, capsys):
     _note_profiles(tmp_path)
     err = capsys.readouterr().err
     assert "2 photograph(s) carry an ICC profile that is not sRGB: p3.jpg" in err and "srgb.png" not in err
+
+
+def test_design_eval_names_an_oversized_photograph_as_before(tmp_path, monkeypatch, capsys):
+    """The ICC note runs before the renders; a photograph over twice Pillow's pixel limit raised its
+    DecompressionBombError (neither OSError nor ValueError) out of the note: the command's one line again."""
+    from PIL import Image
+
+    from isettorch.cli import main
+
+    Image.fromarray(np.full((40, 40, 3), 100, np.uint8)).save(tmp_path / "big.png")
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 500)  # 1600 px: over twice the limit
+    assert main(["design-eval", "bayer_rgb", str(tmp_path), "--quiet"]) == 2
+    assert "DIR: cannot read big.png" in capsys.readouterr().err

@@ -264,6 +264,13 @@ def test_a_loaded_fitted_matrix_keeps_following_the_qe_and_a_given_one_stays():
     kept = SensorToXYZ()
     kept.load_state_dict(SensorToXYZ(matrix=given).state_dict() | {"sensor_white": torch.ones(3)}, strict=False)
     assert torch.equal(kept.fit(qe, W).matrix, given) and torch.equal(kept.fit(other, W).matrix, given)
+    # an old checkpoint of a given matrix loaded into a module that had fitted, saved before its next fit: still given
+    before = SensorToXYZ().fit(qe, W)
+    before.load_state_dict({k: v for k, v in SensorToXYZ(matrix=given).state_dict().items() if k != "fitted"}
+                           | {"sensor_white": torch.ones(3)})
+    after = SensorToXYZ()
+    after.load_state_dict(before.state_dict())
+    assert torch.equal(after.fit(other, W).matrix, given)
     refitted = SensorToXYZ().fit(qe, W)  # a module that had fitted, loading a given matrix, keeps it
     refitted.load_state_dict(SensorToXYZ(matrix=given).state_dict() | {"sensor_white": torch.ones(3)}, strict=False)
     assert torch.equal(refitted.fit(qe, W).matrix, given)

@@ -405,5 +405,7 @@ def test_scielab_isetcam_kernels_keep_their_blur_at_display_sampling():
     b[:, 0] *= 0.9
     assert float(scielab(a, b, "D65", 23.0).mean()) == pytest.approx(36.1, abs=0.05)  # the docstring's numbers
     assert float(scielab(a, b, "D65", 40.0).mean()) == pytest.approx(22.9, abs=0.05)
+    # a tiny rate folds from at most 1024 x it (uncapped, 1e-4 samples per degree built 0.6 GB of kernels)
+    assert all(float(k.sum()) == pytest.approx(1.0) for terms in scielab_filters(1e-4) for _, k in terms)
     with pytest.raises(ValueError, match=r"xyz1: expected \(B, 3, H, W\)"):
         scielab(torch.rand(4, 5, 5), torch.rand(4, 5, 5), "D65", 23.0)
