@@ -39,8 +39,12 @@ def percentile_linear(x: torch.Tensor, percentile: float) -> torch.Tensor:
     return a + (b - a) * frac
 
 
+#: auto-exposure's longest exposure by default (s): what a black image gets
+MAX_EXPOSURE_S = 10.0
+
+
 def auto_exposure(volts_per_s: torch.Tensor, voltage_swing_v: float, method: str = "luminance", *,
-                  target: float | None = None, percentile: float = 99.0, max_exposure_s: float = 10.0
+                  target: float | None = None, percentile: float = 99.0, max_exposure_s: float = MAX_EXPOSURE_S
                   ) -> torch.Tensor:
     """Exposure times ``[B]`` (s) from the noise-free volts of a 1 s exposure ``[B, 1, H, W]``.
 

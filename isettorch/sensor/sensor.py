@@ -40,7 +40,7 @@ from .._checks import (
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
 from .cfa import CFA
-from .exposure import AE_METHODS, auto_exposure
+from .exposure import AE_METHODS, MAX_EXPOSURE_S, auto_exposure
 from .filters import SpectralQE
 from .microlens import PixelOptics
 from .noise_terms import NoiseTerms
@@ -923,7 +923,8 @@ class Sensor(nn.Module):
         return x
 
     def exposure_for(self, oi: OpticalImage | None, rate: torch.Tensor | None = None, analog_gain=None, *,
-                     exposure_ev=None, conversion_gain_v_per_e=None, max_exposure_s: float = 10.0) -> torch.Tensor:
+                     exposure_ev=None, conversion_gain_v_per_e=None,
+                     max_exposure_s: float = MAX_EXPOSURE_S) -> torch.Tensor:
         """The exposure ``[B]`` (s): fixed, or from auto-exposure on the noise-free volts (after gain), at most
         ``max_exposure_s`` (:func:`~isettorch.sensor.exposure.auto_exposure`'s cap; a black image gets it), times
         ``2^exposure_ev`` (exposure compensation in stops, scalar or ``[B]``; default 0).
