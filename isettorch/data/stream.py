@@ -11,9 +11,9 @@ random numbers) but are drawn from the same distribution (``tests/data/test_stre
 statistics).
 
 Batch ``k`` is a pure function of ``(seed, k, config, targets, device type)``, bitwise for a fixed device type and
-intra-op thread count (a colour target projects the camera channels with the XYZ weightings: float rounding) (see
-:class:`PairStream`, "Repeatability"). Under ``torch.distributed``, rank ``r`` of ``W`` iterates over batches ``r, W +
-r, 2 W + r, ...``, so ranks never draw the same batch.
+intra-op thread count (see :class:`PairStream`, "Repeatability"; the targets count because a colour target projects
+the camera channels together with the XYZ weightings: float rounding). Under ``torch.distributed``, rank ``r`` of
+``W`` iterates over batches ``r, W + r, 2 W + r, ...``, so ranks never draw the same batch.
 """
 
 from __future__ import annotations
