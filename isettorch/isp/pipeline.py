@@ -35,7 +35,11 @@ __all__ = ["ImageProcessor", "ISPResult", "DemosaicStage", "SCALINGS"]
 #: ``"adaptive"``: ISETCam ``displayRender``: for an analog (volts/electrons) raw the image maximum becomes the
 #: ratio of the raw maximum to the white level (a dark capture stays dark); for a quantized (DN) raw it becomes 1.
 #: ``"exposure"``: no image-dependent scaling; the sensor -> XYZ matrix maps a white at the white level to Y = 1
-#: (needs a normalised SensorToXYZ).
+#: (needs a normalised SensorToXYZ). A gray- or white-world correction's gains keep one channel at 1 (ISETCam, which
+#: then rescales to the image maximum), so under "exposure" the image's brightness follows the scene's colours: a
+#: Macbeth chart's warm mean made gray world lift its white patch to Y = 1.23 through the imx363 config (8 % of the
+#: pixels clipped; an audit of 2026-12-01), a D65 white at the white level rendered at Y = 0.90. Use "percentile"
+#: (or "max") where the white balance is estimated from the image.
 #: ``"max"``: the image maximum becomes 1. ``"percentile"``: the ``scaling_percentile`` (default 99) of the
 #: linear display values becomes 1 (robust to noise and demosaic outliers).
 SCALINGS = ("adaptive", "exposure", "max", "percentile")
