@@ -20,6 +20,7 @@ from torch import nn
 from ._checks import check_bool, is_integer, is_real
 from ._yaml import load_yaml
 from .isp.pipeline import DemosaicStage, ImageProcessor, ISPResult
+from .scene.scene import Scene
 
 __all__ = ["Camera", "CameraOutput", "load_config", "load_yaml", "check_config_values", "check_sensor_values",
            "camera_config_names", "CONFIG_SECTIONS"]
@@ -85,6 +86,8 @@ class Camera(nn.Module):
             if not isinstance(module, nn.Module):
                 raise TypeError(f"{label}: expected an nn.Module (an optics or sensor stage), got "
                                 f"{type(module).__name__}")
+        if isp is not None and not isinstance(isp, nn.Module):  # (isp='x' was taken and failed at the first call)
+            raise TypeError(f"isp: expected None or an nn.Module (an image processor), got {type(isp).__name__}")
         self.optics = optics
         self.sensor = sensor
         self.isp = isp if isp is not None else ImageProcessor()
@@ -103,6 +106,10 @@ class Camera(nn.Module):
         ``sensor_kwargs``: per-call sensor settings (``analog_gain``, ``exposure_ev``, noise levels as scalars or
         ``[B]`` tensors: :data:`isettorch.sensor.sensor.PER_CALL_LEVELS`).
         """
+        # (a tensor or None raised an AttributeError about 'height'; 'no' read as true)
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene: expected an isettorch Scene, got {type(scene).__name__}")
+        check_bool(return_intermediates, "return_intermediates")
         oi = self.optical_image(scene, pixel_size_m=sensor_kwargs.get("pixel_size_m"))
         out = self.from_optical_image(oi, True, exposure_s=exposure_s, generator=generator, **sensor_kwargs)
         out.scene = scene

@@ -306,3 +306,18 @@ def test_sensor_values_of_the_wrong_type_are_named():
         Camera.from_config({**base, "sensor": {"exposure_s": [0.01, "a"]}})
     with pytest.raises(ValueError, match="sensor.preset: expected a preset name"):
         Camera.from_config({**base, "sensor": {"preset": 5}})
+
+
+def test_camera_call_arguments_name_themselves():
+    """A tensor or None given as the scene raised an AttributeError about 'height'; return_intermediates='no' read
+    as true; isp='x' was accepted and failed at the first call."""
+    from isettorch.optics import DiffractionLimitedOptics
+
+    cam = Camera(DiffractionLimitedOptics(), Sensor(rows=8, cols=8, exposure_s=1e-3), noise=False)
+    for bad in (torch.ones(1, 31, 8, 8), None):
+        with pytest.raises(TypeError, match="scene: expected an isettorch Scene"):
+            cam(bad)
+    with pytest.raises(TypeError, match="return_intermediates"):
+        cam(uniform("D65", 8), "no")
+    with pytest.raises(TypeError, match="isp: expected None or an nn.Module"):
+        Camera(DiffractionLimitedOptics(), Sensor(rows=8, cols=8), isp="x")
