@@ -34,7 +34,15 @@ __all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "photo_fi
 
 IMAGE_SUFFIXES = {".png": "png", ".tif": "tiff", ".tiff": "tiff", ".exr": "exr"}
 _ENCODINGS = ("srgb", "linear")
-_EXR_CHANNELS = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+_EXR_CHANNELS = {1: ("Y",), 2: ("Y", "A"), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+#: a TIFF's photometric interpretations (tag 262) whose samples are the image's values as they are; palette,
+#: min-is-white, CMYK, YCbCr and CIELab files are refused by name rather than read as their stored numbers
+_TIFF_PHOTOMETRIC = ("MINISBLACK", "RGB")
+#: EXIF / TIFF orientation (tag 0x0112, TIFF 6.0 and EXIF 2.3) -> the stored array turned to the displayed one, as
+#: Pillow's ``ImageOps.exif_transpose`` turns it
+_ORIENT = {2: lambda a: a[:, ::-1], 3: lambda a: a[::-1, ::-1], 4: lambda a: a[::-1],
+           5: lambda a: a.swapaxes(0, 1), 6: lambda a: np.rot90(a, -1), 7: lambda a: a[::-1, ::-1].swapaxes(0, 1),
+           8: lambda a: np.rot90(a, 1)}
 
 
 #: the 8-bit photographs :func:`read_rgb8` reads (the benchmark and photo-lifting folders; Pillow decodes them)
@@ -186,7 +194,10 @@ def _check_encoding(encoding: str) -> None:
 
 
 def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float32) -> torch.Tensor:
-    """Read an image file as a linear tensor ``[1, C, H, W]`` (C = the file's channels: 1, 3 or 4).
+    """Read an image file as a linear tensor ``[1, C, H, W]`` (C = the file's channels: 1, 2 (grey and alpha), 3 or 4),
+    shown as it is displayed: a PNG's or TIFF's EXIF / TIFF orientation tag is applied, as :func:`read_rgb8` applies
+    it. A PNG's stored samples are read at their full depth (an ``sBIT`` chunk, the significant bits of the source,
+    is ignored as the PNG specification allows: the samples are already scaled to the full range).
 
     Args:
         path: a ``.png``, ``.tif``/``.tiff`` or ``.exr`` file.
@@ -210,9 +221,11 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
         a = _read_exr(p)
     else:
         try:
-            a = _read_png(p) if kind == "png" else _read_tiff(p)
+            a, orientation = _read_png(p) if kind == "png" else _read_tiff(p)
         except (ValueError, OSError) as err:
             raise ValueError(f"path: {str(p)!r} is not a readable {kind.upper()} image ({err})") from err
+        if a.ndim in (2, 3) and orientation in _ORIENT:
+            a = _ORIENT[orientation](a)
     if a.ndim == 2:
         a = a[:, :, None]
     if a.ndim != 3 or a.shape[-1] not in (1, 2, 3, 4):
@@ -233,27 +246,50 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
     return t.to(dtype)
 
 
-def _read_png(p: Path) -> np.ndarray:
+def _read_png(p: Path) -> tuple[np.ndarray, int | None]:
+    """The samples ``[H, W, C]`` (uint8 or uint16) and the EXIF orientation (None without one)."""
     import png  # pypng: 16-bit RGB, which Pillow reads as 8-bit
 
     try:
-        w, h, rows, info = png.Reader(filename=str(p)).asDirect()  # palette and low bit depths expanded
+        reader = png.Reader(filename=str(p))
+        reader.preamble()
+        reader.sbit = None  # asDirect would shift the samples down to the sBIT depth (a 12-bit file's white: 4095)
+        w, h, rows, info = reader.asDirect()  # palette and transparency expanded
         planes = info["planes"]
         a = np.vstack([np.asarray(r, dtype=np.uint16 if info["bitdepth"] > 8 else np.uint8) for r in rows])
     except (png.Error, EOFError) as err:  # (an empty file: EOFError, which named no path)
         raise ValueError(str(err) or type(err).__name__) from err
     a = a.reshape(h, w, planes)
-    if info["bitdepth"] not in (8, 16):  # 1, 2, 4 bit gray: rescale to 8 bits
-        a = (a.astype(np.uint16) * 255 // (2 ** info["bitdepth"] - 1)).astype(np.uint8)
-    return a
+    if info["bitdepth"] not in (8, 16):  # 1, 2, 4 bit gray: rescale to 8 bits (PNG 1.2, 12.5: code * 255 / max)
+        a = np.round(a.astype(np.float64) * 255 / (2 ** info["bitdepth"] - 1)).astype(np.uint8)
+    return a, _png_orientation(p)
 
 
-def _read_tiff(p: Path) -> np.ndarray:
+def _png_orientation(p: Path) -> int | None:
+    """A PNG's EXIF orientation (its eXIf chunk, read by Pillow), or None."""
+    from PIL import Image
+
+    try:
+        with Image.open(p) as im:
+            return im.getexif().get(0x0112)
+    except Exception:  # an EXIF block Pillow cannot parse: no orientation, as read_rgb8 then shows the rows stored
+        return None
+
+
+def _read_tiff(p: Path, photometric: tuple[str, ...] = _TIFF_PHOTOMETRIC) -> tuple[np.ndarray, int]:
+    """The samples ``[H, W(, S)]`` and the orientation tag (1 = as stored); a photometric interpretation outside
+    ``photometric`` (tifffile's names) raises."""
     import tifffile
 
     with tifffile.TiffFile(str(p)) as tif:
         series = tif.series[0]
         axes, a = series.axes, series.asarray()
+        page = tif.pages[0]
+        tag = page.tags.get("Orientation")
+        kind, orientation = page.photometric.name, int(tag.value) if tag is not None else 1
+    if kind not in photometric:
+        raise ValueError(f"expected photometric interpretation {' or '.join(photometric)}, got {kind} (its stored "
+                         "numbers are not the image's values); convert the file first")
     # one image, samples last: a planar ('SYX') file came back channels first and two grey pages as one RGB image
     # when they were 4 pixels wide or less
     if any(ax not in "YXS" for ax in axes):
@@ -265,7 +301,7 @@ def _read_tiff(p: Path) -> np.ndarray:
         a = a.astype(np.float32)
     if a.dtype not in (np.uint8, np.uint16, np.float32):
         raise ValueError(f"expected uint8, uint16 or float32 samples, got {a.dtype}")
-    return a
+    return a, orientation
 
 
 def _read_exr(p: Path) -> np.ndarray:
@@ -279,7 +315,7 @@ def _read_exr(p: Path) -> np.ndarray:
     for group in ("RGBA", "RGB"):
         if group in chans:
             return chans[group].astype(np.float32)
-    for names in (("R", "G", "B", "A"), ("R", "G", "B"), ("Y",)):
+    for names in (("R", "G", "B", "A"), ("R", "G", "B"), ("Y", "A"), ("Y",)):
         if all(n in chans for n in names):
             return np.stack([chans[n] for n in names], axis=-1).astype(np.float32)
     raise ValueError(f"path: {str(p)!r} has no R, G, B (or Y) channels (channels: {sorted(chans)[:8]}); a spectral "
@@ -288,7 +324,8 @@ def _read_exr(p: Path) -> np.ndarray:
 
 def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int | None = None,
                 clip: bool = False) -> list[Path]:
-    """Write a linear image ``[C, H, W]`` or ``[B, C, H, W]`` (C = 1, 3 or 4) to PNG, TIFF or EXR.
+    """Write a linear image ``[C, H, W]`` or ``[B, C, H, W]`` to PNG, TIFF or EXR: C = 1 (grey), 3 (RGB), or 2 or 4
+    with a last alpha channel.
 
     Args:
         path: the file; for a batch (B > 1) a pattern with an ``{i}`` field, one file per sample
@@ -309,8 +346,9 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
     x = image.detach()
     if x.dim() == 3:
         x = x[None]
-    if x.dim() != 4 or x.shape[1] not in (1, 3, 4):
-        raise ValueError(f"image: expected [C, H, W] or [B, C, H, W] with C in (1, 3, 4), got {tuple(image.shape)}")
+    if x.dim() != 4 or x.shape[1] not in (1, 2, 3, 4):
+        raise ValueError(f"image: expected [C, H, W] or [B, C, H, W] with C in (1, 2, 3, 4), got "
+                         f"{tuple(image.shape)}")
     if not torch.isfinite(x).all():
         raise ValueError("image: expected finite values (found NaN or inf)")
     template = os.fspath(path)
@@ -330,8 +368,8 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
             raise ValueError(f"image: values span [{lo:.4g}, {hi:.4g}], outside [0, 1] for a {bits}-bit file; scale "
                              "the image (white = 1), pass clip=True, or write a float file (EXR, 32-bit TIFF)")
         x = x.clamp(0, 1)
-        if encoding == "srgb":  # the colour channels; an alpha channel (C = 4) is linear coverage
-            colour = 3 if x.shape[1] == 4 else x.shape[1]
+        if encoding == "srgb":  # the colour channels; an alpha channel (the last of C = 2 or 4) is linear coverage
+            colour = x.shape[1] - (1 if x.shape[1] in (2, 4) else 0)
             x = torch.cat([srgb_encode(x[:, :colour]), x[:, colour:]], dim=1)
         x = (x * (2**bits - 1)).round().to(torch.int64)
     # the whole batch in the file's sample type before any file is written; a float file is checked for overflow
@@ -348,8 +386,9 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
         elif kind == "tiff":
             import tifffile
 
-            tifffile.imwrite(str(p), a[..., 0] if a.shape[-1] == 1 else a,
-                             photometric="minisblack" if a.shape[-1] == 1 else "rgb")
+            c = a.shape[-1]
+            tifffile.imwrite(str(p), a[..., 0] if c == 1 else a, photometric="minisblack" if c <= 2 else "rgb",
+                             extrasamples=["unassalpha"] if c in (2, 4) else None)
         else:
             _write_exr(p, a)
         written.append(p)
@@ -360,7 +399,7 @@ def _write_png(p: Path, a: np.ndarray, bits: int) -> None:
     import png
 
     h, w, c = a.shape
-    writer = png.Writer(width=w, height=h, greyscale=c == 1, alpha=c == 4, bitdepth=bits)
+    writer = png.Writer(width=w, height=h, greyscale=c <= 2, alpha=c in (2, 4), bitdepth=bits)
     with open(p, "wb") as fh:
         writer.write(fh, a.reshape(h, w * c))
 

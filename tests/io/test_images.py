@@ -384,3 +384,69 @@ def test_design_eval_names_an_oversized_photograph_as_before(tmp_path, monkeypat
     monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 500)  # 1600 px: over twice the limit
     assert main(["design-eval", "bayer_rgb", str(tmp_path), "--quiet"]) == 2
     assert "DIR: cannot read big.png" in capsys.readouterr().err
+
+
+def test_png_with_an_sbit_chunk_reads_its_stored_samples(tmp_path):
+    # pypng writes a 12-bit grey file as 16-bit samples scaled to the full range plus an sBIT chunk of 12; the
+    # stored samples (Pillow's reading) are the image, sBIT only records the source's precision (PNG 1.2, 4.2.6.4).
+    import png
+
+    codes = np.array([[0, 1, 2048, 4095]], np.uint16)
+    with open(tmp_path / "s12.png", "wb") as fh:
+        png.Writer(width=4, height=1, greyscale=True, bitdepth=12).write(fh, codes.tolist())
+    stored = np.asarray(Image.open(tmp_path / "s12.png")).astype(np.float64) / 65535
+    got = read_image(tmp_path / "s12.png", encoding="linear", dtype=torch.float64)
+    np.testing.assert_allclose(got[0, 0].numpy(), stored, rtol=0, atol=1e-12)
+    assert got[0, 0, 0, -1] == 1.0  # white stays white (it read 0.055: the 12-bit codes times 255 overflowed uint16)
+
+
+def test_tiff_colour_models_other_than_grey_and_rgb_are_refused_by_name(tmp_path):
+    tifffile.imwrite(tmp_path / "mw.tif", np.array([[0, 255]], np.uint8), photometric="miniswhite")
+    tifffile.imwrite(tmp_path / "cmyk.tif", np.array([[[0, 255, 255, 0]]], np.uint8), photometric="separated")
+    pal = Image.new("P", (3, 1))
+    pal.putpalette([255, 0, 0, 0, 255, 0, 0, 0, 255] + [0] * 759)
+    pal.putdata([0, 1, 2])
+    pal.save(tmp_path / "pal.tif")  # read as its indices 0, 1, 2 (grey), min-is-white inverted, CMYK as RGBA
+    for name, model in (("mw", "MINISWHITE"), ("cmyk", "SEPARATED"), ("pal", "PALETTE")):
+        with pytest.raises(ValueError, match=rf"{name}\.tif.*interpretation MINISBLACK or RGB, got {model}"):
+            read_image(tmp_path / f"{name}.tif")
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_read_image_applies_the_orientation_tag_as_pillow_does(tmp_path, orientation):
+    from PIL import ImageOps
+
+    from isettorch.io.images import read_rgb8
+
+    stored = (np.random.default_rng(orientation).random((4, 6, 3)) * 255).astype(np.uint8)
+    im = Image.fromarray(stored)
+    exif = im.getexif()
+    exif[0x0112] = orientation
+    im.save(tmp_path / "o.png", exif=exif.tobytes())
+    tifffile.imwrite(tmp_path / "o.tif", stored, photometric="rgb", extratags=[(274, "H", 1, orientation, False)])
+    for name in ("o.png", "o.tif"):
+        with Image.open(tmp_path / name) as raw:
+            shown = np.asarray(ImageOps.exif_transpose(raw))
+        got = read_image(tmp_path / name, encoding="linear", dtype=torch.float64)[0].permute(1, 2, 0).numpy()
+        np.testing.assert_array_equal(np.round(got * 255).astype(np.uint8), shown)
+    np.testing.assert_array_equal(read_rgb8(tmp_path / "o.png"), shown)  # the two readers agree
+
+
+def test_grey_and_alpha_round_trips_in_every_format(tmp_path):
+    x = torch.rand(2, 5, 7, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    for name, bits, tol in (("la.png", 16, 0.5 / 65535 * 2.5), ("la.tif", 16, 0.5 / 65535 * 2.5), ("la.exr", 32, 1e-7)):
+        write_image(tmp_path / name, x, bits=bits)
+        back = read_image(tmp_path / name, dtype=torch.float64)
+        assert back.shape == (1, 2, 5, 7)
+        torch.testing.assert_close(back[0], x, rtol=0, atol=tol)  # half a code through sRGB's decode (slope <= 2.4)
+        np.testing.assert_allclose(back[0, 1].numpy(), np.round(x[1].numpy() * (2**bits - 1)) / (2**bits - 1)
+                                   if bits == 16 else x[1].numpy(), atol=1e-7)  # alpha: linear coverage
+    import png
+
+    info = png.Reader(filename=str(tmp_path / "la.png")).read()[3]
+    assert info["greyscale"] and info["alpha"] and info["bitdepth"] == 16
+    assert tifffile.TiffFile(tmp_path / "la.tif").pages[0].extrasamples == (2,)  # unassociated alpha
+    channels = {"Y": np.full((2, 2), 0.5, np.float32), "A": np.full((2, 2), 0.25, np.float32)}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, channels).write(str(tmp_path / "ya.exr"))
+    ya = read_image(tmp_path / "ya.exr")  # its alpha was dropped: one channel
+    assert ya.shape == (1, 2, 2, 2) and ya[0, 0].eq(0.5).all() and ya[0, 1].eq(0.25).all()
