@@ -95,8 +95,8 @@ def test_a_camera_raws_own_cfa_and_black_level_must_be_the_configs(camera, tmp_p
     for name, kw, message in (("grbg.dng", {"cfa": "GRBG", "black_level_dn": 64}, "the file's CFA GRBG differs from "
                                                                                   "the camera config's RGGB"),
                               ("black.dng", {"cfa": "RGGB", "black_level_dn": 200},
-                               "the file's black levels [200.0, 200.0, 200.0, 200.0] DN differ from the camera "
-                               "config's 64 DN")):
+                               "the file's black levels [200.0, 200.0, 200.0, 200.0] DN (mean 200) differ from the "
+                               "camera config's 64 DN by more than 0.5 DN")):
         write_dng(tmp_path / name, mosaic, white_level_dn=4095, **kw)
         capsys.readouterr()
         assert main(["process", str(tmp_path / name), *args, "--out", str(tmp_path / "c")]) == 2
@@ -121,6 +121,16 @@ def test_a_camera_raws_own_cfa_and_black_level_must_be_the_configs(camera, tmp_p
     assert main(["process", str(tmp_path / "cells.dng"), *args, "--out", str(tmp_path / "e")]) == 0
     assert main(["process", str(tmp_path / "cells_twin.npy"), *args, "--out", str(tmp_path / "e")]) == 0
     np.testing.assert_allclose(np.load(tmp_path / "e" / "cells.npy"), np.load(tmp_path / "e" / "cells_twin.npy"),
+                               rtol=0, atol=1e-6)
+    # channels with their own black levels around the config's (62, 66, 63, 65: mean 64, as calibrate measures the
+    # one level from all pixels) are the camera's: each channel's own level is subtracted (the raw was refused,
+    # R 2 DN from the config's)
+    blacks = [(50713, "H", 2, (2, 2), True), (50714, "2I", 4, (62, 1, 66, 1, 63, 1, 65, 1), True)]
+    dng_by_hand(tmp_path / "spread.dng", mosaic, black=None, extra=blacks)
+    np.save(tmp_path / "spread_twin.npy", mosaic - np.tile([[62.0, 66.0], [63.0, 65.0]], (12, 12)) + 64)
+    assert main(["process", str(tmp_path / "spread.dng"), *args, "--out", str(tmp_path / "f")]) == 0
+    assert main(["process", str(tmp_path / "spread_twin.npy"), *args, "--out", str(tmp_path / "f")]) == 0
+    np.testing.assert_allclose(np.load(tmp_path / "f" / "spread.npy"), np.load(tmp_path / "f" / "spread_twin.npy"),
                                rtol=0, atol=1e-6)
 
 
@@ -194,6 +204,24 @@ def test_left_aligned_frames_are_right_aligned(camera, tmp_path, capsys):
     assert main(["process", str(tmp_path / "left.npy"), str(tmp_path / "black.npy"), *args, "--out",
                  str(tmp_path / "h")]) == 0
     assert np.array_equal(np.load(tmp_path / "b" / "left.npy"), np.load(tmp_path / "h" / "left.npy"))
+
+
+def test_a_left_aligned_camera_raw_is_right_aligned_with_its_black_level(camera, tmp_path, capsys):
+    """A DNG of 12-bit codes in 16-bit words (its BlackLevel tag 64 x 16): calibrate writes the right-aligned
+    config, and process refused the camera's own raw ("black levels [1024.0, ...] differ from 64"). It is divided by
+    16, codes and black level, and processed as its right-aligned twin is."""
+    pytest.importorskip("rawpy")
+    from isettorch.io.raw import write_dng
+
+    mosaic = np.random.default_rng(4).integers(300, 2000, (24, 24)).astype(np.uint16)
+    write_dng(tmp_path / "right.dng", mosaic, cfa="RGGB", black_level_dn=64, white_level_dn=4095)
+    write_dng(tmp_path / "left.dng", mosaic * 16, cfa="RGGB", black_level_dn=64 * 16, white_level_dn=65535)
+    args = ["--camera", str(camera), "--model", str(PRETRAINED["joint_denoise"]), "--quiet"]
+    assert main(["process", str(tmp_path / "right.dng"), *args, "--out", str(tmp_path / "a")]) == 0
+    capsys.readouterr()
+    assert main(["process", str(tmp_path / "left.dng"), *args, "--out", str(tmp_path / "b")]) == 0
+    assert "in 16-bit words is a multiple of 16 DN: 12-bit data left-aligned, divided by 16" in capsys.readouterr().err
+    assert np.array_equal(np.load(tmp_path / "a" / "right.npy"), np.load(tmp_path / "b" / "left.npy"))
 
 
 def test_each_frame_is_read_twice_at_most(camera, tmp_path, monkeypatch):

@@ -204,12 +204,17 @@ def _left_alignment(raws, adc_bits: int) -> dict:
     A dim left-aligned frame, under the largest code, came out 11x too bright, exit 0. Where every value is a
     multiple of the step but the values are too few to tell, a warning says so. Each frame is read once here (it
     was read up to four times)."""
+    from pathlib import Path
+
+    from ..io.frames import RAW_SUFFIXES
     from ..sensor.calibration import QuantisationStep
 
     groups: dict = {}  # word width -> ({frame: its values' step accumulator}, their largest value)
     for f in raws:
         frame = _read(f)
-        width = frame.stored_bits
+        # a camera raw's codes come in 16-bit words (LibRaw's raw image): a left-aligned DNG's black level tags
+        # are left-aligned too (its 128 DN read 2048) and are divided with the codes
+        width = 16 if frame.stored_bits is None and Path(f).suffix.lower() in RAW_SUFFIXES else frame.stored_bits
         if width is None or width <= adc_bits:
             continue
         own, top = groups.setdefault(width, ({}, [0.0]))
@@ -267,7 +272,7 @@ def run(args) -> int:
     import numpy as np
 
     from .._progress import progress
-    from ..io.frames import check_sample_bits
+    from ..io.frames import RAW_BLACK_TOLERANCE_DN, check_sample_bits
     from ..io.images import write_image
     from ._outputs import Outputs, check_dir, check_not_input
 
@@ -304,6 +309,8 @@ def run(args) -> int:
             dn, file_cfa, file_blacks, stored_bits, delta = _read(f)
             if shifts[f] > 1:
                 dn = dn / shifts[f]
+                file_blacks = None if file_blacks is None else [b / shifts[f] for b in file_blacks]
+                delta = None if delta is None else delta / shifts[f]
             try:  # (an 8-bit PNG read as 12-bit DN)
                 check_sample_bits(f, stored_bits, adc_bits, "camera's")
             except ValueError as err:
@@ -314,18 +321,21 @@ def run(args) -> int:
                 raise ValueError(f"RAW: {f}: the file's CFA {file_cfa} differs from the camera config's {pattern} "
                                  f"(--camera); process it with its own camera's config")
             black = levels(sensor, args.analog_gain)[0]  # with an analog offset, the dark reading it makes
-            if file_blacks and max(abs(b - black) for b in file_blacks) > 0.5:
+            # the config's one black level is the mean over the CFA cell (calibrate measures it from all pixels): a
+            # raw whose channels have their own levels around it (128, 130, 126, 132) is the camera's (was refused)
+            if file_blacks and abs(float(np.mean(file_blacks)) - black) > RAW_BLACK_TOLERANCE_DN:
                 what = ("sensor.black_level_dn" if sensor.analog_offset_v == 0 else
                         f"sensor.black_level_dn {sensor.black_level_dn:g} plus analog_offset_v "
                         f"{sensor.analog_offset_v:g} V after the gain")
                 at = "" if args.analog_gain is None else f" at --analog-gain {args.analog_gain:g}"
                 deltas = "" if delta is None else " (with the means of its per-row / per-column deltas)"
                 raise ValueError(f"RAW: {f}: the file's black levels {[round(b, 3) for b in file_blacks]} DN{deltas} "
-                                 f"differ from the camera config's {black:g} DN{at} (--camera: {what})")
+                                 f"(mean {float(np.mean(file_blacks)):g}) differ from the camera config's {black:g} "
+                                 f"DN{at} by more than {RAW_BLACK_TOLERANCE_DN:g} DN (--camera: {what})")
             if file_blacks:
                 # the frame's own black level, per channel and per pixel (a DNG's BlackLevel and its per-row /
-                # per-column deltas), replaced by the config's: its differences from the config's, up to 0.5 DN a
-                # channel, were left in the output
+                # per-column deltas), replaced by the config's: its differences from the config's, up to the
+                # tolerance, were left in the output
                 from ..io.raw import black_level_map
 
                 dn = dn - black_level_map(file_cfa, file_blacks, delta, dn.shape) + black

@@ -28,6 +28,10 @@ __all__ = ["Capture", "FrameData", "read_capture", "read_frame", "read_frame_dat
            "RAW_SUFFIXES"]
 
 FRAME_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
+#: how far (DN) a camera raw's own black level (the mean of its BlackLevel tags over the CFA cell) may be from its
+#: camera config's: ``isettorch process`` refuses a raw beyond it (the output would carry the difference), and
+#: calibration warns when a capture's raws are beyond it from the measured black level
+RAW_BLACK_TOLERANCE_DN = 0.5
 # Camera raws read through rawpy (optional extra ``raw``): DNG and the common vendor formats.
 RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".rw2", ".orf", ".pef", ".srw")
 CAPTURE_KEYS = {"bit_depth", "pixel_size_m", "black_level_dn", "cfa", "photons_per_pixel"}
