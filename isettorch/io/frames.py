@@ -55,6 +55,9 @@ class Capture:
     flat: dict[float, np.ndarray]
     folders: dict[tuple[str, float], str]  # (kind, ms) -> folder path, for error messages
     warnings: list[str] = dataclasses.field(default_factory=list)  # what was skipped or inferred while reading
+    # camera raws' own black level: the mean over the frames of their BlackLevel tags' mean over the CFA cell (DN, as
+    # stored), None without raws carrying one; what ``isettorch process`` will compare with the config's
+    raw_black_level_dn: float | None = None
 
 
 class FrameData(NamedTuple):
@@ -309,11 +312,14 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
     shape = None
     first = None
     frame_cfa: dict[str | None, Path] = {}  # CFA of the files' metadata (camera raws) -> first file with it
+    raw_blacks: list[float] = []  # each raw's black level tags' mean over the CFA cell
     with progress_bar(total=total, desc="reading frames", unit="frame", quiet=not progress) as bar:
         for (kind, ms), folder, files in jobs:
             frames = []
             for f in files:
-                arr, cfa, _, stored_bits, _ = read_frame_data(f)
+                arr, cfa, blacks, stored_bits, _ = read_frame_data(f)
+                if blacks:
+                    raw_blacks.append(float(np.mean(blacks)))
                 check_sample_bits(f, stored_bits, cfg["bit_depth"], "capture's",  # (as isettorch process does)
                                   " (bit_depth in capture.yaml)")
                 if f.suffix.lower() in RAW_SUFFIXES:
@@ -355,4 +361,5 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
                             f"using capture.yaml's")
     return Capture(bit_depth=cfg["bit_depth"], pixel_size_m=cfg["pixel_size_m"], cfa=cfa,
                    black_level_dn=cfg["black_level_dn"], photons_per_pixel=ppp, dark=stacks["dark"],
-                   flat=stacks["flat"], folders={k: str(v) for k, v in folders.items()}, warnings=warnings)
+                   flat=stacks["flat"], folders={k: str(v) for k, v in folders.items()}, warnings=warnings,
+                   raw_black_level_dn=float(np.mean(raw_blacks)) if raw_blacks else None)

@@ -188,6 +188,9 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     dvar = vp_f - np.array([dark_at(k, "var_pixel") for k in ms_f])
     folder = lambda ms: folders.get(("flat", ms), f"flat_{ms:g}ms")  # noqa: E731
 
+    if len(ms_f) < 3:  # (one flat at 17 % of the range read "every flat is saturated": it is the top one)
+        raise ValueError(f"channel {name}: {len(ms_f)} flat exposure(s) ({[folder(m) for m in ms_f]}); the gain needs "
+                         f"at least 3 in the linear range (signal above the dark and below 70 % of saturation)")
     if not (signal > 0).any():  # (reported as "only 0 flat exposures in the linear range")
         raise ValueError(f"channel {name}: every flat's mean is at or below the dark's (the largest difference "
                          f"{float(signal.max()):.4g} DN); are dark and flat folders swapped?")
@@ -550,6 +553,7 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
                            "black_level_dn_nominal": capture.black_level_dn, "quantisation_step_dn": step,
                            "effective_bits": bits_eff}
     if capture.cfa is None:
+        _warn_mosaic_as_mono(capture, warnings)
         res = per["W"]
         out.update({k: res[k] for k in CALIBRATION_FIELDS})
         out["photon_transfer"] = res["photon_transfer"]
@@ -575,12 +579,14 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
         out["sensor"] = sensor
         out["photon_transfer"] = {n: per[n]["photon_transfer"] for n in names}
         _warn_channels_differ(per, names, warnings)
+        _warn_positions_differ(dark_p, capture.cfa, warnings, step)
     _hot_pixel_result(capture, out, stats if capture.cfa is None else {"all": (allp, None)}, warnings,
                       quantisation_dn2)
     nominal, measured = capture.black_level_dn, _scalars(out)["black_level_dn"]
     if nominal is not None and abs(measured - float(nominal)) > step:
         warnings.append(f"the measured black level {measured:.2f} DN differs from the nominal black_level_dn "
                         f"{float(nominal):g} of capture.yaml by more than {step} DN; the measured one is used")
+    _warn_raw_black_level(capture.raw_black_level_dn, measured, step, warnings)
     out["warnings"] = warnings
     return out
 
@@ -588,6 +594,67 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
 #: channels whose gains differ by more than this (relative) or whose black levels differ by more than this (DN) are
 #: warned about: the sensor config has one of each (issue 17's bounds are 2 % and 0.5 DN per channel)
 _CHANNEL_GAIN_SPREAD, _CHANNEL_BLACK_SPREAD_DN = 0.05, 0.5
+
+
+def _warn_raw_black_level(tagged: float | None, measured: float, step: int, warnings: list[str]) -> None:
+    """Warn when the raws' own black level (their BlackLevel tags, :attr:`Capture.raw_black_level_dn`) is further
+    from the one the dark frames measure than ``isettorch process`` allows between a raw and its config
+    (:data:`isettorch.io.frames.RAW_BLACK_TOLERANCE_DN`, in right-aligned DN): it would refuse this camera's raws."""
+    from ..io.frames import RAW_BLACK_TOLERANCE_DN
+
+    if tagged is not None and abs(tagged - measured) > RAW_BLACK_TOLERANCE_DN * step:
+        warnings.append(f"the raws' BlackLevel tags (mean over the CFA cell {tagged:.2f} DN) differ from the black "
+                        f"level the dark frames measure, {measured:.2f} DN, by more than "
+                        f"{RAW_BLACK_TOLERANCE_DN * step:g} DN: isettorch process will refuse this camera's raws "
+                        f"carrying those tags (the difference would stay in its output); check the darks (a light "
+                        f"leak?) and the camera's black level setting")
+
+
+#: a monochrome capture whose flats' 2 x 2 phases differ by more than this (relative signal) and by more than 10
+#: standard errors is warned about as a colour mosaic read without its ``cfa``
+_MOSAIC_PHASE_SPREAD = 0.02
+
+
+def _warn_mosaic_as_mono(capture, warnings: list[str]) -> None:
+    """Warn when a capture without ``cfa`` has flats whose 2 x 2 phases differ (a Bayer mosaic in PNG / TIFF / .npy
+    frames, which carry no CFA): calibrated as monochrome, its PRNU holds the colours' differences (23 % for a 1 %
+    sensor) and its full well the least sensitive channel's. Measured on the flat whose mean signal (over the
+    shortest dark's mean) is nearest half the brightest flat's: below any channel's saturation."""
+    h, w = next(iter(capture.dark.values())).shape[-2:]
+    if h < 4 or w < 4:
+        return
+    black = float(capture.dark[min(capture.dark)].mean())
+    signals = {ms: float(st.mean()) - black for ms, st in capture.flat.items()}
+    ms = min(signals, key=lambda k: abs(signals[k] - 0.5 * max(signals.values())))
+    mean = capture.flat[ms].astype(np.float64).mean(axis=0) - black
+    phases = [mean[dy::2, dx::2] for dy in (0, 1) for dx in (0, 1)]
+    signal = np.array([float(q.mean()) for q in phases])
+    se = max(float(q.std()) / math.sqrt(q.size) for q in phases)
+    if signal.mean() <= 0:
+        return
+    spread = float(signal.max() - signal.min())
+    if spread > _MOSAIC_PHASE_SPREAD * signal.mean() and spread > 10 * se:
+        folder = capture.folders.get(("flat", ms), f"flat_{ms:g}ms")
+        warnings.append(f"the flats' 2 x 2 phases differ by {100 * spread / signal.mean():.0f} % (signals "
+                        f"{', '.join(f'{v:.1f}' for v in signal)} DN in {folder}): a colour mosaic read as "
+                        f"monochrome? set cfa in capture.yaml (as monochrome, the PRNU and full well pool the colours)")
+
+
+def _warn_positions_differ(dark_p: dict, cfa: str, warnings: list[str], step: int) -> None:
+    """Warn when the CFA positions of one colour (a Bayer cell's two greens) have black levels further apart than
+    the channels may be (:data:`_CHANNEL_BLACK_SPREAD_DN`): the channel statistics pool them, the sensor config has
+    one black level, so the difference stays in processed frames (a maze pattern in flat areas). Measured at the
+    shortest dark exposure (the dark current adds the same to both)."""
+    shortest = dark_p[min(dark_p)]
+    for name, planes in shortest.items():
+        if len(planes) < 2:
+            continue
+        means = [float(np.mean(p)) for p in planes]
+        if max(means) - min(means) > _CHANNEL_BLACK_SPREAD_DN * step:
+            warnings.append(f"the {len(planes)} {name} positions of the {cfa} cell have black levels "
+                            f"{', '.join(f'{m:.2f}' for m in means)} DN (more than {_CHANNEL_BLACK_SPREAD_DN * step:g}"
+                            f" DN apart): the channel statistics pool them and the sensor config has one black "
+                            f"level, so the difference stays in processed frames")
 
 
 def _warn_channels_differ(per: dict, names: list[str], warnings: list[str]) -> None:

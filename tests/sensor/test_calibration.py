@@ -826,3 +826,78 @@ def test_frames_deeper_than_24_bits_stay_float64(tmp_path):
     st = cap.dark[1.0]
     assert st.dtype == np.float64
     np.testing.assert_array_equal(st[0], np.load(root / "dark_1ms" / "f0.npy"))
+
+
+# --- audit of calibrate on unseen captures (2026-12-01): one flat, a mosaic without its cfa, the two greens' black
+# levels, raws' black level tags ------------------------------------------------------------------------------------
+
+def test_one_flat_exposure_says_the_gain_needs_three():
+    """One flat at 17 % of the range read "every flat is saturated" (it is the brightest, so 'at the top')."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    dark, flat, photons = nc.simulate(nc.TRUTH, shape=(32, 32), frames=2, seed=2, exposures_ms=[5.0, 10.0])
+    with pytest.raises(ValueError, match=r"channel W: 1 flat exposure\(s\) .*the gain needs at least 3"):
+        calibrate_capture(_capture_from(dark, {10.0: flat[10.0]}))
+
+
+def test_a_bayer_mosaic_without_its_cfa_is_warned_about():
+    """PNG / TIFF / .npy frames carry no CFA: an RGGB capture without ``cfa`` was calibrated as monochrome without
+    a word, its PRNU the colours' spread (about 23 % for a 1 % sensor). The flats' 2 x 2 phases (QE 0.35 / 0.55 /
+    0.55 / 0.3) say so; a monochrome sensor's (1 % PRNU, 1536 pixels a phase) do not."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    truth = dict(nc.TRUTH, qe=nc.BAYER_QE)
+    dark, flat, photons = nc.simulate(truth, cfa="RGGB", shape=(64, 96), frames=2, seed=6, exposures_ms=_E_MS)
+    res = calibrate_capture(_capture_from(dark, flat, photons=photons))
+    assert res["prnu_percent"] > 10  # the pooled colours, as the warning says
+    warning = [w for w in res["warnings"] if "2 x 2 phases differ" in w]
+    assert len(warning) == 1 and "set cfa in capture.yaml" in warning[0], res["warnings"]
+    dark, flat, photons = nc.simulate(nc.TRUTH, shape=(64, 96), frames=2, seed=6, exposures_ms=_E_MS)
+    res = calibrate_capture(_capture_from(dark, flat, photons=photons))
+    assert not any("2 x 2 phases" in w for w in res["warnings"]), res["warnings"]
+
+
+def test_the_two_greens_black_levels_are_compared():
+    """Gr 103 and Gb 97 DN pool to G 100: the channel check saw nothing, and the 6 DN stayed in processed frames."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = _rggb_capture()
+    for stacks in (cap.dark, cap.flat):
+        for st in stacks.values():
+            st[:, 0::2, 1::2] += 3.0  # Gr
+            st[:, 1::2, 0::2] -= 3.0  # Gb
+    res = calibrate_capture(cap)
+    assert res["black_level_dn"]["G"] == pytest.approx(100.0, abs=0.5)
+    warning = [w for w in res["warnings"] if "G positions of the RGGB cell" in w]
+    assert len(warning) == 1, res["warnings"]
+    gr, gb = (float(v) for v in warning[0].split("black levels ")[1].split(" DN")[0].split(", "))
+    assert gr == pytest.approx(103.0 + 60 * 1e-3 * 0.4, abs=0.3) and gb == pytest.approx(97.0, abs=0.3)
+    assert not any("positions" in w for w in calibrate_capture(_rggb_capture())["warnings"])
+
+
+def test_raws_black_level_tags_far_from_the_measured_one_are_warned_about(tmp_path):
+    """A DNG capture whose BlackLevel tag is 1 DN off the dark frames' level calibrated without a word, then
+    ``isettorch process`` refused the camera's raws. Tags within the tolerance pass."""
+    pytest.importorskip("rawpy")
+    import yaml
+
+    from isettorch.io.raw import write_dng
+    from isettorch.sensor.calibration import calibrate_directory
+
+    truth = dict(nc.TRUTH, qe=nc.BAYER_QE)
+    dark, flat, _ = nc.simulate(truth, cfa="RGGB", shape=(64, 96), frames=2, seed=6, exposures_ms=_E_MS)
+    for tag, warned in ((99, True), (100, False)):
+        root = tmp_path / f"tag{tag}"
+        for kind, stacks in (("dark", dark), ("flat", flat)):
+            for ms, st in stacks.items():
+                (root / f"{kind}_{ms:g}ms").mkdir(parents=True)
+                for i, frame in enumerate(st):
+                    write_dng(root / f"{kind}_{ms:g}ms" / f"f{i}.dng", frame, cfa="RGGB", black_level_dn=tag,
+                              white_level_dn=4095)
+        (root / "capture.yaml").write_text(yaml.safe_dump({"bit_depth": 12, "pixel_size_m": 3.45e-6}))
+        res = calibrate_directory(root)
+        assert res["sensor"]["black_level_dn"] == pytest.approx(100.0, abs=0.1)
+        found = [w for w in res["warnings"] if "BlackLevel tags" in w]
+        assert bool(found) == warned, res["warnings"]
+        if warned:
+            assert f"mean over the CFA cell {tag:.2f} DN" in found[0] and "isettorch process will refuse" in found[0]
