@@ -33,14 +33,15 @@ def run(args) -> int:
 
     from .._yaml import check_yaml_mapping
     from ..data.config import load_config
-    from ..data.writer import verify_dataset, write_dataset
+    from ..data.writer import unfinished, verify_dataset, write_dataset
     from ._outputs import check_dir
 
     if args.verify:
         if not Path(args.out).is_dir():
             raise FileNotFoundError(f"--out: no such dataset folder {args.out!r} to --verify")
         if not (Path(args.out) / "manifest.json").is_file():
-            raise ValueError(f"out: {args.out} is not a dataset written by isettorch synth (no manifest.json)")
+            why = unfinished(args.out) or " (not a dataset written by isettorch synth)"
+            raise ValueError(f"out: {args.out} has no manifest.json{why}")
         problems = verify_dataset(args.out)
         if problems and problems[0].startswith(("manifest.json: unreadable", "manifest.json: malformed")):
             raise ValueError(f"out: {args.out}/{problems[0]}")

@@ -464,6 +464,13 @@ def _check_scene(scene: dict, sp: str, camera: dict | None = None) -> None:
                          f"width at the image distance), so this key has no effect on them; remove it (got "
                          f"{scene['hfov_deg']!r})")
     _check_range(scene, "distance_m", sp, 0.0, lo_open=True)
+    if camera is not None and not camera["optics"]:  # a thin lens images only objects beyond its focal length (a
+        # range reaching below it failed at the first such draw, after 53 shards, and again on every rerun)
+        near = scene["distance_m"] if _is_number(scene["distance_m"]) else scene["distance_m"][0]
+        if not near > camera["focal_length_m"]:
+            cp = sp[:-len("scene")] + "camera" if sp.endswith("scene") else "camera"
+            raise ValueError(f"{sp}.distance_m: expected object distances beyond {cp}.focal_length_m "
+                             f"({camera['focal_length_m']:g} m), got {scene['distance_m']!r}")
     for key in ("size", "wavelengths_nm", "mean_radiance_scale"):
         if key in scene["natural"]:  # set by the scene: the generator's own value would be ignored
             follows = {"size": f"{sp}.height/width and the camera margin", "wavelengths_nm": f"{sp}.wavelengths_nm",

@@ -3,7 +3,7 @@
 Layout of ``out/``:
 
 * ``shard-00000.pt`` ...: ``torch.save`` of a dict of plain tensors (load with ``torch.load(weights_only=True)``):
-  ``raw [n, 1, H, W]``, ``noise_free_raw``, ``camera_rgb``, ``xyz``, ``linear_srgb``, ``srgb [n, 3, H, W]`` and
+  ``raw``, ``noise_free_raw [n, 1, H, W]``, ``camera_rgb``, ``xyz``, ``linear_srgb``, ``srgb [n, 3, H, W]`` and
   ``meta`` (a dict of ``[n, ...]`` tensors, see ``camera_pairs.META_KEYS``). Shard ``f`` holds items
   ``f * shard_size`` ... ``min((f + 1) * shard_size, count) - 1`` in order.
 * ``shard-00000.json``: sidecar with the shard's sha256, item range and the config hash; written (atomically)
@@ -46,11 +46,13 @@ __all__ = ["write_dataset", "config_hash", "sha256_file", "verify_dataset", "Sha
 FORMAT_VERSION = 1
 
 
-def config_hash(config: dict, count: int) -> str:
+def config_hash(config: dict, count: int, generator_version: int | None = None) -> str:
     """sha256 of the canonical JSON of the (validated) config, the item count, the file format and the generator
-    version (``camera_pairs.GENERATOR_VERSION``: shards written by a generator that draws other items never match)."""
+    version (``camera_pairs.GENERATOR_VERSION``: shards written by a generator that draws other items never match;
+    a manifest's own ``generator_version`` to check the manifest)."""
     blob = json.dumps({"config": config, "count": int(count), "format": FORMAT_VERSION,
-                       "generator": GENERATOR_VERSION}, sort_keys=True)
+                       "generator": GENERATOR_VERSION if generator_version is None else int(generator_version)},
+                      sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -138,12 +140,15 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
     # integers, not truncated (shard=0.5 matched no file and wrote nothing; num_shards=1.5 wrote half)
     shard, num_shards = check_integer(shard, "shard", 0), check_integer(num_shards, "num_shards", 1)
     workers = check_integer(workers, "workers", 0)
+    from_env = [name for name, given in (("RANK", rank), ("WORLD_SIZE", world_size)) if given is None]
     rank = _env_int("RANK", 0) if rank is None else check_integer(rank, "rank", 0)
     world_size = _env_int("WORLD_SIZE", 1) if world_size is None else check_integer(world_size, "world_size", 1)
     if not shard < num_shards:
         raise ValueError(f"shard: expected 0 <= shard < num_shards ({num_shards}), got {shard}")
     if not (world_size >= 1 and 0 <= rank < world_size):
-        raise ValueError(f"rank: expected 0 <= rank < world_size ({world_size}), got {rank}")
+        where = (f" (from the environment: {', '.join(f'{n}={os.environ.get(n)!r}' for n in from_env)}; "
+                 f"torchrun sets both)") if from_env else ""
+        raise ValueError(f"rank: expected 0 <= rank < world_size ({world_size}), got {rank}{where}")
     size = int(cfg["shard_size"])
     if size < 1:
         raise ValueError(f"shard_size: expected a positive number of items per shard, got {size}")
@@ -208,18 +213,28 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
 
 
 def _write_manifest(out: Path, cfg: dict, chash: str, count: int, size: int, n_files: int) -> dict:
-    shards = []
-    for f in range(n_files):
-        try:
-            rec = json.loads((out / _shard_names(f)[1]).read_text())
-        except (OSError, ValueError):
-            continue
-        if rec.get("config_sha256") == chash:
-            shards.append(rec)
-    manifest = {"format_version": FORMAT_VERSION, "generator_version": GENERATOR_VERSION, "config": cfg,
-                "config_sha256": chash, "count": count,
-                "shard_size": size, "num_files": n_files, "shards": shards, "complete": len(shards) == n_files}
-    _atomic_write_bytes(out / "manifest.json", json.dumps(manifest, indent=1, sort_keys=True).encode())
+    """Scan the sidecars and write ``manifest.json``, under an exclusive lock on ``out/.manifest.lock`` where the
+    platform has one (``fcntl.flock``): two ranks finishing together wrote their scans in either order, so a
+    finished dataset could be left marked incomplete (8 of 12 shards) by the rank that scanned first."""
+    try:
+        import fcntl
+    except ImportError:  # (Windows: no ranks sharing a folder there)
+        fcntl = None
+    with open(out / ".manifest.lock", "a") as lock:
+        if fcntl is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        shards = []
+        for f in range(n_files):
+            try:
+                rec = json.loads((out / _shard_names(f)[1]).read_text())
+            except (OSError, ValueError):
+                continue
+            if rec.get("config_sha256") == chash:
+                shards.append(rec)
+        manifest = {"format_version": FORMAT_VERSION, "generator_version": GENERATOR_VERSION, "config": cfg,
+                    "config_sha256": chash, "count": count,
+                    "shard_size": size, "num_files": n_files, "shards": shards, "complete": len(shards) == n_files}
+        _atomic_write_bytes(out / "manifest.json", json.dumps(manifest, indent=1, sort_keys=True).encode())
     return manifest
 
 
@@ -229,10 +244,15 @@ def _manifest_index(manifest) -> tuple[int, int, dict, dict]:
     count gave tracebacks). Read by :func:`verify_dataset` and :class:`ShardDataset`."""
     if not isinstance(manifest, dict):
         raise ValueError(f"a JSON {type(manifest).__name__}, expected an object")
+    if manifest.get("format_version") != FORMAT_VERSION:  # (a format_version 99 was read as this one)
+        raise ValueError(f"format_version {manifest.get('format_version')!r}, this isettorch reads {FORMAT_VERSION}")
     try:
         count, size = int(manifest["count"]), int(manifest["shard_size"])
         if count < 0 or size < 1:
             raise ValueError(f"count {count}, shard_size {size}: expected >= 0 and >= 1")
+        # the hash of its own config and count (a count edited from 8 to 9 gave 9 items, the last an IndexError)
+        if config_hash(manifest["config"], count, manifest.get("generator_version", 1)) != manifest["config_sha256"]:
+            raise ValueError("config_sha256 is not the hash of its config and count (edited?)")
         records = manifest["shards"]
         if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
             raise TypeError(f"shards: expected a list of records, got {type(records).__name__}")
@@ -245,6 +265,17 @@ def _manifest_index(manifest) -> tuple[int, int, dict, dict]:
     return count, size, files, sha
 
 
+def unfinished(out) -> str:
+    """``"; ... unfinished ..."`` where ``out`` holds shard sidecars but no manifest.json (a run stopped before its
+    end, which writes the manifest), else ``""``: the words to add to a missing manifest's message."""
+    out = Path(out)
+    n = len(list(out.glob("shard-*.json")))
+    if n == 0 or (out / "manifest.json").is_file():
+        return ""
+    return (f"; it holds {n} shard(s) of an unfinished isettorch synth run: run the same synth command again to "
+            f"finish it")
+
+
 def verify_dataset(out) -> list[str]:
     """Check every shard listed in ``out/manifest.json`` against its sha256, and that a complete dataset lists a
     shard for every file (``"complete": true`` with shards missing was 'ok'); returns the problems found."""
@@ -252,7 +283,7 @@ def verify_dataset(out) -> list[str]:
     try:
         manifest = json.loads((out / "manifest.json").read_text())
     except (OSError, ValueError) as err:
-        return [f"manifest.json: unreadable ({err})"]
+        return [f"manifest.json: unreadable ({err}){unfinished(out)}"]
     try:
         count, size, files, sha = _manifest_index(manifest)
     except ValueError as err:
@@ -283,9 +314,12 @@ class ShardDataset(torch.utils.data.Dataset):
     """The items of a dataset written by :func:`write_dataset` / ``isettorch synth``, read back from its shards.
 
     Item ``i`` is item ``i % shard_size`` of shard ``i // shard_size``: the same dict (images, ``meta``) as
-    ``CameraPairDataset(count, seed, scene, camera, targets=...)[i]`` with the dataset's config, bitwise. Shards are
-    loaded lazily (``torch.load(weights_only=True)``) and the last ``cache_shards`` loaded are kept per process, so
-    a shuffled loader reads each shard about ``count / (shard_size x cache_shards)``-fold less often than items.
+    ``CameraPairDataset(count, seed, scene, camera, targets=..., dtype=...)[i]`` with the dataset's config, bitwise
+    (its ``targets`` and ``dtype`` too). Shards are opened lazily, memory-mapped (``torch.load(weights_only=True,
+    mmap=True)``), and the last ``cache_shards`` opened are kept per process: an item reads its own bytes, not the
+    whole shard, so a shuffled loader (which finds an item's shard open about ``cache_shards / num_files`` of the
+    time) reads about what it uses, after each shard's checksum (below). Items are copies: editing one in place
+    changes nothing else.
 
     Args:
         root: the dataset folder (with ``manifest.json``).
@@ -317,7 +351,8 @@ class ShardDataset(torch.utils.data.Dataset):
         try:
             manifest = json.loads((self.root / "manifest.json").read_text())
         except (OSError, ValueError) as err:
-            raise ValueError(f"root: {str(self.root)!r} has no readable manifest.json ({err})") from err
+            raise ValueError(f"root: {str(self.root)!r} has no readable manifest.json ({err}){unfinished(self.root)}"
+                             ) from err
         try:
             self.count, self.shard_size, self.files, self.sha256 = _manifest_index(manifest)
         except ValueError as err:
@@ -357,8 +392,8 @@ class ShardDataset(torch.utils.data.Dataset):
                     raise ValueError(f"{path}: the shard's sha256 differs from manifest.json's; the file was changed "
                                      f"after it was written (isettorch synth --verify lists every such shard)")
                 self._checked.add(f)
-            try:
-                shard = torch.load(path, weights_only=True)
+            try:  # memory-mapped: an item reads its own pages, not the whole shard
+                shard = torch.load(path, weights_only=True, mmap=True)
             except Exception as err:  # torch raises several types for truncated / foreign files
                 raise ValueError(f"{path}: not a readable shard ({type(err).__name__}: {err})") from err
             while len(self._cache) >= self.cache_shards:
@@ -367,9 +402,12 @@ class ShardDataset(torch.utils.data.Dataset):
         return shard
 
     def __getitem__(self, index):
+        """Item ``index``: copies (an in-place edit of a view changed the cached shard, so every later read of its
+        items; and a view kept the whole shard alive)."""
         f, j = divmod(dataset_index(index, self.count), self.shard_size)
         shard = self._shard(f)
-        return {k: ({m: t[j] for m, t in v.items()} if isinstance(v, dict) else v[j]) for k, v in shard.items()}
+        return {k: ({m: t[j].clone() for m, t in v.items()} if isinstance(v, dict) else v[j].clone())
+                for k, v in shard.items()}
 
     def get_batch(self, indices) -> dict:
         """Items ``indices`` collated (:func:`camera_pairs.collate_pairs` format)."""

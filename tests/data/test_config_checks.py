@@ -138,6 +138,11 @@ BAD = [  # (section, key, value, start of the message)
     ("scene", "distance_m", 0.0, "scene.distance_m: expected a number > 0, got 0.0"),
     ("scene", "distance_m", [0.0, 2.0], "scene.distance_m: expected a range [lo, hi] of two finite numbers with "
                                         "lo <= hi, both > 0"),
+    # a thin lens images nothing nearer than its focal length: a range reaching below it failed at its first such
+    # draw (after 53 shards of a synth run, and again on every rerun)
+    ("scene", "distance_m", [0.001, 1.2], "scene.distance_m: expected object distances beyond camera.focal_length_m "
+                                          "(0.004 m), got [0.001, 1.2]"),
+    ("scene", "distance_m", 0.003, "scene.distance_m: expected object distances beyond camera.focal_length_m"),
     ("scene", "mean_luminance_cd_m2", [0.0, 100.0], "scene.mean_luminance_cd_m2: expected a range [lo, hi]"),
     # float32 overflowed from 1e22 cd/m2 with an error naming the sensor's electron_rate; a 1 K blackbody gave 0 / 0
     ("scene", "mean_luminance_cd_m2", [1e22, 1e22], "scene.mean_luminance_cd_m2: expected a range [lo, hi] of two "

@@ -300,3 +300,68 @@ def test_verify_names_a_malformed_or_short_manifest(reference, tmp_path, capsys)
     (d / "manifest.json").write_text(json.dumps({**manifest, "shards": manifest["shards"][:1]}))
     assert verify_dataset(d) == ["manifest.json: complete, but lists no shard for files [1, 2, 3] (of 4)"]
     assert main(["synth", "--out", str(d), "--verify"]) == 1
+
+
+def test_shard_items_are_copies_and_the_manifest_is_checked(reference, tmp_path):
+    """An in-place edit of an item changed the cached shard (the next read of it returned the edit); a manifest of
+    another format version was read as this one; a count edited from 7 to 8 gave 8 items, the last an IndexError."""
+    import shutil
+
+    from isettorch.data.writer import ShardDataset
+
+    out, manifest = reference
+    ds = ShardDataset(out)
+    first = ds[1]["raw"].clone()
+    ds[1]["raw"].mul_(0).add_(7)
+    ds[1]["meta"]["index"].add_(100)
+    assert torch.equal(ds[1]["raw"], first) and int(ds[1]["meta"]["index"]) == 1
+    assert torch.equal(ds[1]["raw"], CameraPairDataset(COUNT, seed=CFG["seed"], scene=CFG["scene"])[1]["raw"])
+    for name, edit, message in (("version", {"format_version": 99}, "format_version 99, this isettorch reads 1"),
+                                ("count", {"count": COUNT + 1}, "config_sha256 is not the hash of its config and "
+                                                                "count")):
+        d = tmp_path / name
+        shutil.copytree(out, d)
+        (d / "manifest.json").write_text(json.dumps({**manifest, **edit}))
+        with pytest.raises(ValueError, match=f"malformed manifest.json .*{message}"):
+            ShardDataset(d)
+        assert verify_dataset(d)[0].startswith("manifest.json: malformed") and message in verify_dataset(d)[0]
+
+
+def test_an_unfinished_run_is_named_and_the_manifest_is_written_under_a_lock(tmp_path, monkeypatch, capsys):
+    """A run stopped before its end leaves shards but no manifest: it was called 'not a dataset written by
+    isettorch synth'. Two ranks finishing together wrote their sidecar scans in either order (a finished dataset
+    left marked 8 of 12): the scan and the write hold an exclusive lock."""
+    fcntl = pytest.importorskip("fcntl")
+    from isettorch.data import writer
+    from isettorch.data.writer import ShardDataset
+
+    def stop(f):
+        raise Abort
+
+    with pytest.raises(Abort):
+        write_dataset(CFG, tmp_path / "cut", COUNT, progress=False, on_shard_written=stop)
+    with pytest.raises(ValueError, match=r"holds 1 shard\(s\) of an unfinished isettorch synth run: run the same"):
+        ShardDataset(tmp_path / "cut")
+    assert main(["synth", "--out", str(tmp_path / "cut"), "--verify"]) == 2
+    assert "has no manifest.json; it holds 1 shard(s) of an unfinished isettorch synth run" in capsys.readouterr().err
+    held = []
+    write = writer._atomic_write_bytes
+
+    def probe(path, data):  # another process's attempt to take the lock while this one writes the manifest
+        if path.name == "manifest.json":
+            with open(path.parent / ".manifest.lock", "a") as other:
+                with pytest.raises(BlockingIOError):
+                    fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            held.append(True)
+        write(path, data)
+
+    monkeypatch.setattr(writer, "_atomic_write_bytes", probe)
+    assert write_dataset(CFG, tmp_path / "cut", COUNT, progress=False)["complete"] and held == [True]
+
+
+def test_a_rank_from_the_environment_says_so(tmp_path, monkeypatch):
+    monkeypatch.setenv("RANK", "1")
+    monkeypatch.delenv("WORLD_SIZE", raising=False)
+    with pytest.raises(ValueError, match=r"rank: expected 0 <= rank < world_size \(1\), got 1 \(from the environment: "
+                                         r"RANK='1', WORLD_SIZE=None; torchrun sets both\)"):
+        write_dataset(CFG, tmp_path / "r", COUNT, progress=False)
