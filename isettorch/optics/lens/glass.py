@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import functools
 import math
+from pathlib import Path
 
 __all__ = ["GlassError", "CATALOGS", "refractive_index", "resolve_glass", "valid_range_nm"]
 
@@ -72,12 +73,14 @@ def resolve_glass(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS):
         except Exception:  # opticalglass raises GlassNotFoundError (not exported uniformly across versions)
             continue
     others = [c for c in catalogs if c.upper() not in CATALOGS]
+    hint = ""
     if others:
-        g = _optiland_material(name)
-        if g is not None:
+        g, maker = _optiland_material(name)
+        if g is not None and (maker is None or maker.upper() in {c.upper() for c in catalogs}):
             return g
         tried.append("optiland database (for " + "/".join(others) + ")")
-    hint = ""
+        if g is not None:  # a maker's glass the file did not declare (N-SF10 for GCAT OHARA MISC was Schott's)
+            hint = f"; it is a {maker.upper()} glass: add {maker.upper()} to GCAT to use it"
     if any(c.upper() == "SCHOTT" for c in catalogs) and not name.upper().startswith("N-"):
         try:
             gf.create_glass(f"N-{name}", "Schott")
@@ -103,6 +106,8 @@ class _OptilandGlass:
 
 
 def _optiland_material(name: str):
+    """``(glass, maker)``: the optiland material ``name`` (None when it has none) and, for a maker's catalogue glass
+    of its database (``data-nk/glass/<maker>/``, not ``misc``), the maker's name, else None."""
     try:
         import warnings
 
@@ -110,9 +115,15 @@ def _optiland_material(name: str):
             warnings.simplefilter("ignore")
             from optiland.materials import Material
 
-            return _OptilandGlass(Material(name))
+            material = Material(name)
     except Exception:  # not installed, or no such material
-        return None
+        return None, None
+    path = Path(str(getattr(material, "filename", "")))
+    maker = path.parts[path.parts.index("glass") + 1] if "glass" in path.parts[:-2] else None
+    if maker in (None, "misc"):
+        return _OptilandGlass(material), None
+    # a maker's glass is that glass only under its own name (optiland reads BK7 as Schott's N-BK7 data)
+    return (_OptilandGlass(material) if path.stem.upper() == name.upper() else None), maker
 
 
 #: how far beyond its tabulated lines a catalogue glass's formula is used, as a fraction of the end wavelength (module

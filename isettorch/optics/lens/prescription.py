@@ -213,6 +213,8 @@ def _decode(raw: bytes) -> str:
         return raw[3:].decode("utf-8")
     if len(raw) > 1 and raw[1:2] == b"\x00":  # UTF-16 LE without BOM
         return raw.decode("utf-16-le")
+    if len(raw) > 1 and raw[0:1] == b"\x00":  # UTF-16 BE without BOM (read as 'no SURF blocks')
+        return raw.decode("utf-16-be")
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError:
@@ -526,7 +528,8 @@ def _ybool(v, what: str) -> bool:
 def read_lens_yaml(path_or_dict) -> Prescription:
     """Read a lens prescription in the plain YAML form (a file path or an already-parsed dict).
 
-    The form (lengths in mm; the primary wavelength defaults to 587.6 nm)::
+    The form (lengths in mm; the primary wavelength, one of ``wavelengths_nm``, defaults to the listed one nearest
+    587.6 nm, the d line; ``material`` is a glass name, air when absent or ``air`` in any case)::
 
         name: Cooke triplet
         source: ...
@@ -577,17 +580,21 @@ def read_lens_yaml(path_or_dict) -> Prescription:
         mat = s.get("material")
         if mat is not None and not isinstance(mat, str):
             raise PrescriptionError(f"{at}: material: expected a glass name, got {mat!r}")
+        if mat is not None and mat.upper() == "MIRROR":  # (as the .zmx reader: it read as a glass not found)
+            raise PrescriptionError(f"{at}: material: mirrors are not supported (refractive lenses only)")
+        if mat is not None and mat.upper() == "AIR":  # in any case, as the glass lookup and the .zmx reader
+            mat = None
         kind = s.get("type", "EVENASPH" if asph else "STANDARD")
         if not isinstance(kind, str):
             raise PrescriptionError(f"{at}: type: expected STANDARD or EVENASPH, got {kind!r}")
         opt = {k: None if s.get(k) is None else _ynum(s[k], f"{at}: {k}")
                for k in ("semi_diameter_mm", "aperture_mm")}
-        if mat not in (None, "AIR", "air") and "thickness_mm" not in s:  # (a glass of thickness 0, unsaid)
+        if mat is not None and "thickness_mm" not in s:  # (a glass of thickness 0, unsaid)
             raise PrescriptionError(f"{at}: thickness_mm: a surface followed by glass ({mat}) needs its thickness "
                                     f"(mm to the next surface)")
         t = _ynum(s.get("thickness_mm", 0.0), f"{at}: thickness_mm")
         surfaces.append(Surface(curvature_per_mm=c, thickness_mm=t,
-                                material=None if mat in (None, "AIR", "air") else mat,
+                                material=mat,
                                 conic=_ynum(s.get("conic", 0.0), f"{at}: conic"), aspheric=asph,
                                 is_stop=_ybool(s.get("stop", False), f"{at}: stop"), kind=kind.upper(), **opt))
     surfaces.append(Surface())
@@ -605,12 +612,19 @@ def read_lens_yaml(path_or_dict) -> Prescription:
     epd, fno = (None if ap.get(k) is None else _ynum(ap[k], f"{where}: aperture: {k}")
                 for k in ("entrance_pupil_diameter_mm", "image_f_number"))
     name = str(d.get("name", where))
+    if "primary_wavelength_nm" in d:
+        primary = _ynum(d["primary_wavelength_nm"], f"{where}: primary_wavelength_nm")
+        if primary not in wl:  # (OpticStudio's primary is one of the system's wavelengths)
+            raise PrescriptionError(f"{where}: primary_wavelength_nm: expected one of wavelengths_nm {list(wl)}, got "
+                                    f"{primary}")
+    else:  # the d line where listed, else the listed wavelength nearest it (587.6 was used for a 550 nm-only lens:
+        # its focus, EFL and distortion reference at a wavelength it does not list)
+        primary = min(wl, key=lambda w: abs(w - DEFAULT_PRIMARY_NM)) if wl else DEFAULT_PRIMARY_NM
     try:
         return Prescription(surfaces=surfaces, entrance_pupil_diameter_mm=epd, image_f_number=fno,
                             float_by_stop=_ybool(ap.get("float_by_stop", False), f"{where}: aperture: float_by_stop"),
                             field_angles_deg=fields, wavelengths_nm=wl,
-                            primary_wavelength_nm=_ynum(d.get("primary_wavelength_nm", DEFAULT_PRIMARY_NM),
-                                                        f"{where}: primary_wavelength_nm"),
+                            primary_wavelength_nm=primary,
                             name=name, source=str(d.get("source", "")), **kw)
     except PrescriptionError as e:
         raise PrescriptionError(str(e) if name == where else f"{where}: {e}") from None

@@ -82,7 +82,10 @@ class LensGeometry:
             try:
                 out.append(refractive_index(m, float(wavelength_nm), cats))
             except GlassError as e:
-                raise GlassError(f"{self.prescription.name}, the medium after surface {i}: {e}") from None
+                where = self.prescription.name
+                if self.prescription.source and self.prescription.source != where:  # (a .zmx file's NAME only)
+                    where = f"{where} ({self.prescription.source})"
+                raise GlassError(f"{where}, the medium after surface {i}: {e}") from None
         return out
 
     # --- paraxial -----------------------------------------------------------------------------------

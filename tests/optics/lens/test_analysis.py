@@ -10,7 +10,7 @@ pytest.importorskip("opticalglass")
 
 from isettorch.optics.lens import GlassError, LensAnalysis, TraceError, lens_report, read_lens_yaml  # noqa: E402
 from isettorch.optics.lens.glass import refractive_index  # noqa: E402
-from isettorch.optics.lens.prescription import DATA_DIR  # noqa: E402
+from isettorch.optics.lens.prescription import DATA_DIR, PrescriptionError  # noqa: E402
 
 
 def test_catalogue_indices_and_gcat_order():
@@ -31,6 +31,13 @@ def test_catalogues_opticalglass_lacks_fall_back_to_optiland_only_when_declared(
     assert refractive_index("PMMA", 587.6, ("SCHOTT", "MISC")) == pytest.approx(1.4918, abs=2e-3)
     with pytest.raises(GlassError, match="PMMA"):
         refractive_index("PMMA", 587.6, ("SCHOTT",))
+    # a maker's glass only from its own declared catalogue, under its own name: N-SF10 (Schott) for GCAT OHARA MISC
+    # and BK7 (read by optiland as Schott's N-BK7 data) for GCAT SCHOTT MISC were taken from the database silently
+    with pytest.raises(GlassError, match="N-SF10.*it is a SCHOTT glass: add SCHOTT to GCAT"):
+        refractive_index("N-SF10", 587.6, ("OHARA", "MISC"))
+    with pytest.raises(GlassError, match="'BK7'.*rename the glass to N-BK7"):
+        refractive_index("BK7", 587.6, ("SCHOTT", "MISC"))
+    assert refractive_index("N-SF10", 587.5618, ("SCHOTT", "MISC")) == pytest.approx(1.72828, abs=2e-5)  # datasheet
 
 
 def _singlet(t=6.0, r1=50.0, r2=-80.0, stop_after=None, float_by_stop=False):
@@ -253,7 +260,7 @@ def test_paraxial_efl_is_the_small_ray_limit_with_r2_asphere_term():
     a = LensAnalysis("aspheric_singlet")
     assert a.prescription.surfaces[1].aspheric[0] != 0
     h = torch.tensor([1e-4], dtype=torch.float64)
-    b = a.rays(0.0, torch.zeros_like(h), h / (float(a.ref["epd"]) / 2), 587.6, clip=False)
+    b = a.rays(0.0, torch.zeros_like(h), h / (float(a.ref["epd"]) / 2), a.reference_wavelength_nm, clip=False)
     tan_u = b.direction[0, 1] / b.direction[0, 2]
     assert float(a.effective_focal_length_mm) == pytest.approx(float(-h / tan_u), rel=1e-7)
 
@@ -356,7 +363,18 @@ def test_paraxial_data_at_the_files_primary_wavelength(tmp_path):
 def test_bundled_zemax_lenses_report_at_their_primary_wavelength():
     a = LensAnalysis("cooke_triplet")
     assert a.reference_wavelength_nm == pytest.approx(587.5618, rel=1e-12)  # WAVM 2 0.5875618, PWAV 2
-    assert LensAnalysis("aspheric_singlet").reference_wavelength_nm == 587.6  # YAML without a primary: 587.6
+    # a YAML lens without a primary: its listed wavelength nearest the d line (587.6 nm was used where the lens
+    # lists 587.5618; a lens listing 550 nm alone had its focus, EFL and distortion reference at 587.6)
+    assert LensAnalysis("aspheric_singlet").reference_wavelength_nm == 587.5618
+    lens = {"aperture": {"entrance_pupil_diameter_mm": 10}, "wavelengths_nm": [550],
+            "surfaces": [{"radius_mm": 51.5, "thickness_mm": 3.6, "material": "N-BK7", "stop": True},
+                         {"radius_mm": -51.5, "thickness_mm": 48}]}
+    a = LensAnalysis(lens)
+    assert a.reference_wavelength_nm == 550.0
+    n = refractive_index("N-BK7", 550.0, ("SCHOTT",))
+    assert float(a.effective_focal_length_mm) == pytest.approx(_thick_lens(n, 51.5, -51.5, 3.6)[0], rel=1e-10)
+    with pytest.raises(PrescriptionError, match=r"primary_wavelength_nm: expected one of wavelengths_nm \[550\.0\]"):
+        LensAnalysis({**lens, "primary_wavelength_nm": 587.6})
 
 
 def _units_lines(mm_per_unit, unit):

@@ -30,7 +30,7 @@ def test_utf16_zmx_with_bom_read():
 
 def test_utf8_and_latin1_zmx_read_the_same(tmp_path):
     src = (DATA_DIR / "cooke_triplet.zmx").read_bytes().decode("utf-16")
-    for enc in ("utf-8", "latin-1", "utf-16-le"):
+    for enc in ("utf-8", "latin-1", "utf-16-le", "utf-16-be"):  # (BE without a BOM read as 'no SURF blocks')
         f = tmp_path / f"l_{enc}.zmx"
         f.write_bytes(src.lstrip("\ufeff").encode(enc))
         p = read_zmx(f)
@@ -369,3 +369,31 @@ def test_an_empty_field_list_is_named():
                         "field_angles_deg": [], "surfaces": [
                             {"radius_mm": 50, "thickness_mm": 3, "material": "N-BK7", "stop": True},
                             {"radius_mm": -50, "thickness_mm": 90}]})
+
+
+def test_yaml_air_in_any_case_and_mirrors_are_named():
+    """``material: Air`` was taken as a glass (a thickness demanded, a negative air gap refused); a YAML mirror read as
+    a glass not found or glass of negative thickness, where the .zmx reader says mirrors are not supported."""
+    lens = {"aperture": {"entrance_pupil_diameter_mm": 10},
+            "surfaces": [{"radius_mm": 40, "thickness_mm": 4, "material": "N-BK7", "stop": True},
+                         {"radius_mm": -40, "material": "Air"},
+                         {"radius_mm": 30, "thickness_mm": 3, "material": "N-BK7"},
+                         {"radius_mm": 60, "thickness_mm": 40, "material": "AiR"}]}
+    p = read_lens_yaml(lens)
+    assert [s.material for s in p.surfaces[1:5]] == ["N-BK7", None, "N-BK7", None] and p.surfaces[2].thickness_mm == 0
+    lens["surfaces"][1]["thickness_mm"] = -1.0  # a negative air gap is allowed
+    assert read_lens_yaml(lens).surfaces[2].thickness_mm == -1.0
+    for t in (-50.0, 5.0):
+        mirror = {"surfaces": [{"radius_mm": -100, "thickness_mm": t, "material": "MIRROR", "stop": True}]}
+        with pytest.raises(PrescriptionError, match=r"surface 1: material: mirrors are not supported"):
+            read_lens_yaml(mirror)
+
+
+def test_an_unknown_glass_in_a_zmx_names_the_file(tmp_path):
+    from isettorch.optics.lens import GlassError, LensAnalysis
+
+    f = tmp_path / "t.zmx"
+    f.write_text(_zmx(tmp_path).read_text().replace("GLAS N-BK7", "GLAS XYZGLASS1").replace("MODE SEQ",
+                                                                                          "NAME My singlet\nMODE SEQ"))
+    with pytest.raises(GlassError, match=rf"My singlet \({f}\), the medium after surface 1: glass 'XYZGLASS1'"):
+        LensAnalysis(f).paraxial(587.6)
