@@ -124,7 +124,7 @@ def finish(photons, w: torch.Tensor, *, hfov_deg, distance_m, mean_luminance_cd_
         raise ValueError(f"{name or 'scene'}: the radiance has zero luminance on this wavelength grid "
                          f"({w[0].item():g}..{w[-1].item():g} nm), it cannot be scaled to "
                          f"mean_luminance_cd_m2={target.tolist()}; pass mean_luminance_cd_m2=None")
-    return scene.set_mean_luminance(target)
+    return scene.set_mean_luminance(target, name="mean_luminance_cd_m2")
 
 
 def pattern_scene(pattern: torch.Tensor, illuminant, w: torch.Tensor, *, hfov_deg, distance_m,

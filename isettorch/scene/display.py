@@ -36,6 +36,12 @@ def srgb_inverse_eotf(linear: torch.Tensor) -> torch.Tensor:
     return srgb_encode(linear, clip=False)
 
 
+def flat_screen_hfov_deg(width_px: int, dpi: float, viewing_distance_m: float) -> float:
+    """The angle (deg) ``width_px`` pixels at ``dpi`` subtend at ``viewing_distance_m`` on a flat screen,
+    2 atan(w p / 2 d) with p = 0.0254 / dpi m."""
+    return math.degrees(2 * math.atan(width_px * _METERS_PER_INCH / dpi / (2 * viewing_distance_m)))
+
+
 def display_names() -> list[str]:
     """Names accepted by :meth:`Display.create`."""
     return ["crt", "lcd", "apple"]
@@ -115,14 +121,24 @@ class Display(nn.Module):
         self.name = name
         self.register_buffer("wavelengths_nm", w.clone())
         self.register_buffer("primaries_spd", spd.clone())
+        y_white = float(self.xyz_matrix()[1].sum())
+        if not y_white > 0 and (white_xy is not None or max_luminance_cd_m2 is not None):
+            # (a ZeroDivisionError or a singular-matrix error)
+            raise ValueError(f"primaries_spd: the primaries have no luminance on wavelengths_nm "
+                             f"{float(w[0]):g}..{float(w[-1]):g} nm, so white_xy / max_luminance_cd_m2 cannot set it")
         if white_xy is not None:
+            if isinstance(white_xy, (str, bytes)) or not hasattr(white_xy, "__len__") or len(white_xy) != 2:
+                raise ValueError(f"white_xy: expected a chromaticity (x, y), got {white_xy!r}")
             xy = [check_float(v, f"white_xy[{i}]", low=0.0, high=1.0, low_open=True) for i, v in enumerate(white_xy)]
-            if len(xy) != 2 or xy[0] + xy[1] >= 1:
+            if xy[0] + xy[1] >= 1:
                 raise ValueError(f"white_xy: expected a chromaticity (x, y) with x + y < 1, got {white_xy}")
             m = self.xyz_matrix().double()
-            y_white = float(m[1].sum())
             target = torch.tensor([xy[0] / xy[1], 1.0, (1 - xy[0] - xy[1]) / xy[1]], dtype=torch.float64) * y_white
-            gains = torch.linalg.solve(m, target)
+            try:
+                gains = torch.linalg.solve(m, target)
+            except RuntimeError as err:  # (torch's LinAlgError)
+                raise ValueError("white_xy: the primaries' XYZ are linearly dependent (primaries_spd), so no gains "
+                                 "give a white point") from err
             if (gains <= 0).any():
                 raise ValueError(f"white_xy: {tuple(xy)} is outside the primaries' gamut (gains {gains.tolist()})")
             self.primaries_spd = self.primaries_spd * gains[:, None].to(self.primaries_spd)
@@ -133,15 +149,23 @@ class Display(nn.Module):
     # --- presets ---------------------------------------------------------------------------
     @classmethod
     def create(cls, name: str = "lcd", *, max_luminance_cd_m2: float = 100.0, **kwargs) -> Display:
-        """A preset display, white scaled to ``max_luminance_cd_m2`` (default 100 cd/m^2).
+        """A preset display, white scaled to ``max_luminance_cd_m2`` (default 100 cd/m^2; the presets' spectra are
+        relative, so an absolute level is always set: None is refused).
 
         * ``"crt"``: 'Typical CRT Brainard 1997' primaries (colour-science), gamma 2.2.
-        * ``"lcd"``: sRGB-chromaticity LCD (primaries built from Gaussian bands to match IEC 61966-2-1 xy
-          exactly, D65 white), sRGB EOTF.
-        * ``"apple"``: 'Apple Studio Display' primaries (colour-science), gamma 2.2.
+        * ``"lcd"`` (or ``"srgb"``): sRGB-chromaticity LCD (primaries built from Gaussian bands to match IEC
+          61966-2-1 xy exactly, D65 white), sRGB EOTF.
+        * ``"apple"``: 'Apple Studio Display' primaries (colour-science), gamma 2.2. Not ISETCam's
+          ``displayCreate('LCD-Apple')`` (101 samples, a measured 10-bit gamma table): its own primaries, a pure
+          gamma.
+
+        ISETCam's measured gamma tables are not modelled: the EOTF is sRGB, linear or a gamma exponent.
 
         Other keyword arguments (``dpi``, ``viewing_distance_m``, ``eotf``, ``white_xy``) go to the constructor.
         """
+        if max_luminance_cd_m2 is None:  # (a 37,261 cd/m^2 CRT: colour-science's spectra are relative)
+            raise ValueError("max_luminance_cd_m2: expected the white's luminance (cd/m^2); the presets' spectra are "
+                             "relative, so they have no absolute level of their own")
         key = str(name).lower()
         if key == "crt":
             w, spd = _colour_primaries("Typical CRT Brainard 1997")
@@ -168,6 +192,8 @@ class Display(nn.Module):
         narrow emission lines on coarse grids (CRT white on 400:10:700: luminance -1.9 % with point sampling,
         -0.06 % averaged). On the display's own grid the primaries are returned as they are.
         """
+        if sampling not in ("average", "point"):  # (accepted on the display's own grid)
+            raise ValueError(f"sampling: expected 'average' or 'point', got {sampling!r}")
         spd = self.primaries_spd
         if wavelengths_nm is not None:
             w = check_wavelengths(as_tensor(wavelengths_nm, "wavelengths_nm"), "wavelengths_nm")
@@ -176,10 +202,8 @@ class Display(nn.Module):
             if not (w.numel() == src.numel() and torch.allclose(w, src, rtol=0, atol=1e-9)):
                 if sampling == "point":
                     spd = spectral.resample(spd, src, w)
-                elif sampling == "average":
-                    spd = spectral.band_average(spd, src, w)
                 else:
-                    raise ValueError(f"sampling: expected 'average' or 'point', got {sampling!r}")
+                    spd = spectral.band_average(spd, src, w)
         return spd.to(dtype=dtype or spd.dtype, device=device or spd.device)
 
     def xyz_matrix(self, wavelengths_nm=None, observer: str = "1931") -> torch.Tensor:
@@ -209,12 +233,19 @@ class Display(nn.Module):
         return _METERS_PER_INCH / self.dpi
 
     def hfov_deg(self, width_px: int) -> float:
-        """Horizontal field of view (deg) of an image ``width_px`` pixels wide: 2 atan(w p / 2 d)."""
-        return math.degrees(2 * math.atan(width_px * self.pixel_pitch_m / (2 * self.viewing_distance_m)))
+        """Horizontal field of view (deg) of an image ``width_px`` pixels wide: 2 atan(w p / 2 d), a flat screen's
+        (ISETCam's ``sceneFromFile`` takes w atan(p / d), the pixels' angle times their number: 58.2 against 53.9
+        degrees for 1920 pixels at 96 dpi and 0.5 m, within 0.01 % for 64 pixels)."""
+        return flat_screen_hfov_deg(width_px, self.dpi, self.viewing_distance_m)
 
     # --- transfer function ----------------------------------------------------------------
     def eotf(self, encoded: torch.Tensor) -> torch.Tensor:
-        """Encoded drive values in [0, 1] -> linear primary intensities in [0, 1]."""
+        """Encoded drive values in [0, 1] -> linear primary intensities in [0, 1] (values outside are refused: each
+        transfer function extended them its own way)."""
+        check_finite(encoded.detach(), "encoded")
+        if bool((encoded.detach() < 0).any()) or bool((encoded.detach() > 1).any()):
+            raise ValueError(f"encoded: expected drive values in [0, 1], got range [{float(encoded.min()):.6g}, "
+                             f"{float(encoded.max()):.6g}]")
         if self.eotf_kind == "srgb":
             return srgb_eotf(encoded)
         if self.eotf_kind == "linear":
@@ -267,8 +298,8 @@ def _check_rgb(rgb, name: str, encoded: bool = False) -> None:
         raise TypeError(f"{name}: expected a torch.Tensor [B, 3, H, W], got {type(rgb).__name__}")
     if rgb.dim() != 4 or rgb.shape[1] != 3:
         raise ValueError(f"{name}: expected shape [B, 3, H, W], got {tuple(rgb.shape)}")
-    if not rgb.is_floating_point():
-        raise TypeError(f"{name}: expected a floating tensor with values in [0, 1], got {rgb.dtype}")
+    if rgb.dtype not in (torch.float32, torch.float64):  # (float16 radiance underflowed to 0 photons)
+        raise TypeError(f"{name}: expected a float32 or float64 tensor with values in [0, 1], got {rgb.dtype}")
     check_finite(rgb.detach(), name)
     lo, hi = rgb.detach().min().item(), rgb.detach().max().item()
     if encoded and (lo < 0 or hi > 1):

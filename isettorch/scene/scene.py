@@ -122,14 +122,15 @@ class Scene(SpectralImage):
         """Mean luminance (cd/m^2) [B]."""
         return self.luminance().mean(dim=(1, 2, 3))
 
-    def set_mean_luminance(self, cd_m2) -> Scene:
-        """Scale radiance (and illuminant) so the mean luminance is ``cd_m2`` (scalar or [B])."""
-        target = as_tensor(cd_m2, "cd_m2", dtype=self.dtype, device=self.device).reshape(-1)
+    def set_mean_luminance(self, cd_m2, *, name: str = "cd_m2") -> Scene:
+        """Scale radiance (and illuminant) so the mean luminance is ``cd_m2`` (scalar or [B]); ``name``: the
+        argument's name in errors (a caller's own, e.g. ``mean_luminance_cd_m2``)."""
+        target = as_tensor(cd_m2, name, dtype=self.dtype, device=self.device).reshape(-1)
         if target.numel() not in (1, self.batch_size):
-            raise ValueError(f"cd_m2: expected a scalar or one luminance per scene ({self.batch_size}), got "
+            raise ValueError(f"{name}: expected a scalar or one luminance per scene ({self.batch_size}), got "
                              f"{target.numel()} values")
         if (target <= 0).any() or not torch.isfinite(target).all():  # (0 zeroed the illuminant too)
-            raise ValueError(f"cd_m2: expected a positive finite luminance, got {target.tolist()}")
+            raise ValueError(f"{name}: expected a positive finite luminance, got {target.tolist()}")
         current = self.mean_luminance()
         if (current <= 0).any():
             raise ValueError("set_mean_luminance: the scene is black (mean luminance 0), it cannot be scaled")

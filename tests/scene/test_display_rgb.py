@@ -177,6 +177,23 @@ def test_reflectance_scene_gradient_and_grid():
     (lambda: Display(-torch.ones(3, 31), spectral.default_wavelengths()), ValueError, "primaries_spd"),
     (lambda: Display(torch.ones(3, 31), spectral.default_wavelengths(), eotf="pq"), ValueError, "eotf"),
     (lambda: Display.create("crt", white_xy=(0.1, 0.8)), ValueError, "white_xy"),
+    # display audit (2026-12-01): each read a message naming no argument, or gave a silent zero
+    (lambda: from_rgb(torch.ones(1, 3, 2, 2, dtype=torch.float16), "crt"), TypeError,
+     "rgb: expected a float32 or float64 tensor"),  # (float16 photons underflowed to 0)
+    (lambda: Display.create("crt")(torch.ones(1, 3, 2, 2, dtype=torch.float16)), TypeError, "rgb: expected a float32"),
+    (lambda: from_rgb(torch.ones(1, 3, 2, 2, dtype=F64), "crt", torch.arange(800.0, 901.0, 10.0)), ValueError,
+     r"wavelengths: 800\.\.900 nm holds no light of display 'crt''s primaries \(380\.\.780 nm\)"),
+    (lambda: Display(torch.ones(3, 11), torch.arange(900.0, 1001.0, 10.0), max_luminance_cd_m2=100), ValueError,
+     "primaries_spd: the primaries have no luminance"),  # (ZeroDivisionError)
+    (lambda: Display(torch.ones(3, 31), spectral.default_wavelengths(), white_xy=(0.31, 0.33)), ValueError,
+     "white_xy: the primaries' XYZ are linearly dependent"),  # (torch's LinAlgError)
+    (lambda: Display.create("crt", white_xy=0.3), ValueError, r"white_xy: expected a chromaticity \(x, y\)"),
+    (lambda: from_rgb(torch.rand(2, 3, 2, 2, dtype=F64), "lcd", mean_luminance_cd_m2=[10.0, 20.0, 30.0]),
+     ValueError, r"mean_luminance_cd_m2: expected a scalar or one luminance per scene \(2\), got 3"),  # (cd_m2)
+    (lambda: Display.create("crt").eotf(torch.tensor([-0.1, 1.5])), ValueError,
+     r"encoded: expected drive values in \[0, 1\]"),  # (each transfer function extended them its own way)
+    (lambda: Display.create("crt", max_luminance_cd_m2=None), ValueError, "max_luminance_cd_m2"),  # (37,261 cd/m2)
+    (lambda: Display.create("crt").primaries_on(W5, sampling="nearest"), ValueError, "sampling"),  # (own grid)
     (lambda: reflectance_scene(torch.ones(30, 2, 2)), ValueError, "reflectance: expected 31 wavelengths"),
     (lambda: reflectance_scene(-torch.ones(31, 2, 2)), ValueError, "reflectance"),
     (lambda: reflectance_scene(torch.ones(2, 2)), ValueError, "reflectance"),
