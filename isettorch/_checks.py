@@ -127,6 +127,15 @@ def check_wavelengths(w: torch.Tensor, name: str = "wavelengths_nm") -> torch.Te
     return w
 
 
+def check_nanometres(w, name: str) -> None:
+    """Wavelengths read from a file are nanometres: a grid outside 100-100,000 nm (0.4-0.7: micrometres; 4e-7:
+    metres) is refused naming ``name`` (such files loaded as scenes of 0.4-0.7 nm light without a word)."""
+    a = torch.as_tensor(w, dtype=torch.float64).reshape(-1)
+    if a.numel() and (float(a.min()) < 100 or float(a.max()) > 1e5):
+        raise ValueError(f"{name}: expected wavelengths in nm, got {float(a.min()):g}-{float(a.max()):g} "
+                         f"(micrometres? times 1000; metres? times 1e9)")
+
+
 def check_in_dtype_range(value: float, name: str, dtype) -> None:
     """ValueError unless a nonzero Python number keeps its value in ``dtype`` (the data's): no overflow to inf, no
     underflow of a positive level to 0 (an analog gain of 1e-50 in float32 is 0, and a division by it NaN)."""

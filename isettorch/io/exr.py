@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from .. import constants, spectral
-from .._checks import narrow_float
+from .._checks import check_nanometres, check_wavelengths, narrow_float
 
 __all__ = ["write_spectral_exr", "read_spectral_exr", "write_scene_exr", "read_scene_exr", "channel_name",
            "parse_channel_name"]
@@ -81,6 +81,9 @@ def write_spectral_exr(path, data, wavelengths_nm, *, component: str = "S0", att
     w = np.asarray(torch.as_tensor(wavelengths_nm, dtype=torch.float64).cpu(), dtype=float).reshape(-1)
     if w.size != a.shape[0]:
         raise ValueError(f"wavelengths_nm: expected {a.shape[0]} wavelengths (one per band), got {w.size}")
+    # (metres or micrometres were written as channels of 0-1 nm; NaN or negative ones as names its reader refuses)
+    check_wavelengths(torch.as_tensor(np.sort(w)), "wavelengths_nm")
+    check_nanometres(w, "wavelengths_nm")
     if component not in ("S0", "T"):
         raise ValueError(f"component: expected 'S0' (emissive) or 'T' (reflective), got {component!r}")
     comp = {"zip": OpenEXR.ZIP_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}

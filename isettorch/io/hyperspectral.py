@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from .. import spectral
+from .._checks import check_nanometres
 
 __all__ = ["load_cave", "load_kaist", "load_icvl", "load_arad"]
 
@@ -119,6 +120,7 @@ def load_kaist(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 10
                          f"channels are {sorted(chans)[:8]}")
     bands.sort(key=lambda x: x[0])
     wave = np.array([b[0] for b in bands])
+    check_nanometres(wave, f"path: {str(p)!r}'s channel wavelengths")
     if np.any(np.diff(wave) <= 0):
         raise ValueError(f"path: duplicate band wavelengths {wave.tolist()}")
     cube = np.stack([b[1].astype(np.float64) for b in bands])
@@ -153,6 +155,7 @@ def _load_h5_cube(path, keys: tuple[str, ...]):
         bands = 400.0 + 10.0 * np.arange(cube.shape[0])  # ICVL / ARAD's grid (Arad & Ben-Shahar 2016; NTIRE 2020)
     if bands.size != cube.shape[0]:
         raise ValueError(f"bands: expected {cube.shape[0]} wavelengths to match {key}, got {bands.size}")
+    check_nanometres(bands, f"bands ({str(p)!r})")  # (0.4-0.7 um read "the scene is black", or a 0.4 nm scene)
     return p, cube, bands
 
 

@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._checks import check_nanometres
+
 __all__ = ["read_isetcam_scene", "read_parity_case", "check_parity_case", "write_parity_case", "case_cfa",
            "case_adc_bits", "case_sensor", "case_spectral_qe", "case_offaxis", "case_regrid_kernel",
            "case_optical_image", "case_scene_oi", "REQUIRED", "SCENE_KEYS", "NOISE_KEYS", "OFFAXIS"]
@@ -74,6 +76,8 @@ def _load_h5(p: Path) -> dict:
         if isinstance(node, h5py.Group):
             return _H5Struct({k: conv(node[k]) for k in node.keys() if not k.startswith("#")})
         a = np.asarray(node[()])
+        if node.attrs.get("MATLAB_empty", 0):  # MATLAB stores an empty value as its dimensions, e.g. uint64 [0 0]
+            return "" if node.attrs.get("MATLAB_class", b"") in (b"char", "char") else np.empty((0, 0))
         if node.attrs.get("MATLAB_class", b"") in (b"char", "char"):
             return "".join(chr(c) for c in a.flatten())
         return a.T  # HDF5 stores MATLAB's column-major arrays transposed
@@ -88,8 +92,13 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
     Args:
         path: the .mat file.
         variable: name of the struct in the file (``'scene'`` for ``save(fname, 'scene')``).
+
+    Without ``wAngular`` / ``distance`` the scene has ISETCam's defaults, 10 deg and 1.2 m (listed in
+    ``metadata['defaulted']``). An ISETCam optical image or sensor (``type`` other than ``'scene'``) is refused.
+
     Raises:
-        ValueError: unreadable or truncated file, missing struct or fields, inconsistent shapes.
+        ValueError: unreadable or truncated file, missing struct or fields, inconsistent shapes, an illuminant on
+            other wavelengths than the scene's.
     """
     from ..scene import Scene
 
@@ -106,6 +115,10 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
     if scene is None:
         names = sorted(k for k in mat if not k.startswith("__"))
         raise ValueError(f"variable: no {variable!r} in {str(p)!r}; it holds {names}")
+    kind = _field(scene, "type")
+    kind = None if kind is None else str(_unwrap(kind))
+    if kind is not None and kind.lower() != "scene":  # (an optical image's irradiance was read as radiance)
+        raise ValueError(f"variable: {variable!r} in {str(p)!r} is an ISETCam {kind!r}, not a scene (type 'scene')")
     data = _field(scene, "data")
     photons = _field(data, "photons")
     wave = _field(_field(scene, "spectrum"), "wave")
@@ -113,7 +126,7 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
         raise ValueError(f"path: {str(p)!r}: expected scene.data.photons and scene.spectrum.wave (ISETCam layout)")
     photons = np.asarray(photons)
     wave = np.atleast_1d(np.asarray(wave, dtype=float)).reshape(-1)
-    _check_nanometres(wave, "scene.spectrum.wave")
+    check_nanometres(wave, "scene.spectrum.wave")
     if photons.ndim == 2 and wave.size == 1:
         photons = photons[:, :, None]
     if photons.ndim != 3 or photons.shape[2] != wave.size:
@@ -132,12 +145,20 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
     hfov = _field(scene, "wAngular")
     dist = _field(scene, "distance")
     ill = _field(_field(_field(scene, "illuminant"), "data"), "photons")
+    ill_wave = _field(_field(_field(scene, "illuminant"), "spectrum"), "wave")
     ill_t = None
     if ill is not None:
         try:
             ill = np.asarray(ill, dtype=float)
         except (TypeError, ValueError) as err:
             raise ValueError(f"scene.illuminant.data.photons: expected numbers in {str(p)!r} ({err})") from err
+        if ill_wave is not None and np.asarray(ill_wave).size:  # (one on 400-500 nm was attached to a 500-600 nm
+            # scene as it was)
+            iw = np.asarray(ill_wave, dtype=float).reshape(-1)
+            if iw.shape != wave.shape or not np.allclose(iw, wave, rtol=0, atol=1e-6):
+                raise ValueError(f"scene.illuminant.spectrum.wave: expected the scene's wavelengths "
+                                 f"({wave.min():g}-{wave.max():g} nm, {wave.size}) in {str(p)!r}, got "
+                                 f"{iw.min():g}-{iw.max():g} nm ({iw.size})")
         if ill.size == wave.size:
             ill_t = torch.as_tensor(ill.reshape(-1), dtype=dtype)
         elif ill.shape != photons.shape:  # spatially varying illuminants (rows, cols, wave): metadata only
@@ -145,12 +166,18 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
                              f"the photons' shape {photons.shape} in {str(p)!r}, got shape {ill.shape}")
     name = _field(scene, "name")
     cube = torch.as_tensor(np.ascontiguousarray(np.transpose(photons, (2, 0, 1))), dtype=dtype)[None]
-    meta = {"source": str(p), "format": "isetcam"}
+    # ISETCam's defaults where the file has no wAngular / distance, recorded as read_scene_exr records them
+    meta = {"source": str(p), "format": "isetcam",
+            "defaulted": [k for k, v in (("hfov_deg", hfov), ("distance_m", dist)) if v is None]}
     if ill is not None and ill_t is None:
         meta["illuminant_photons_map"] = torch.as_tensor(np.transpose(ill, (2, 0, 1)).copy(), dtype=dtype)
-    return Scene(cube, torch.as_tensor(wave, dtype=dtype), name=str(name) if name is not None else p.stem,
-                 metadata=meta, hfov_deg=10.0 if hfov is None else _named_scalar(hfov, "scene.wAngular", p),
-                 distance_m=1.2 if dist is None else _named_scalar(dist, "scene.distance", p), illuminant_photons=ill_t)
+    try:
+        return Scene(cube, torch.as_tensor(wave, dtype=dtype), name=str(name) if name else p.stem, metadata=meta,
+                     hfov_deg=10.0 if hfov is None else _named_scalar(hfov, "scene.wAngular", p),
+                     distance_m=1.2 if dist is None else _named_scalar(dist, "scene.distance", p),
+                     illuminant_photons=ill_t)
+    except ValueError as err:  # a value the scene refuses (a descending wave): say which file
+        raise ValueError(f"path: {str(p)!r}: {err}") from err
 
 
 def _named_scalar(x, name: str, path: Path) -> float:
@@ -282,14 +309,6 @@ def _vector(case, key: str, n: int, what: str = "one per wavelength in wavelengt
     return v
 
 
-def _check_nanometres(w: np.ndarray, name: str) -> None:
-    """ISETCam's wavelengths are nanometres: a grid outside 100-100,000 nm (e.g. 0.4-0.7: micrometres) is refused
-    naming ``name`` (it loaded as a scene of 0.4-0.7 nm light, without a word)."""
-    if w.size and (float(w.min()) < 100 or float(w.max()) > 1e5):
-        raise ValueError(f"{name}: expected wavelengths in nm (ISETCam's unit), got {float(w.min()):g}-"
-                         f"{float(w.max()):g} (micrometres? times 1000)")
-
-
 def _wavelengths(case) -> np.ndarray:
     """``wavelengths_nm`` ``[L]`` (float64): finite, positive, strictly increasing, in nm."""
     from .._checks import check_wavelengths
@@ -299,7 +318,7 @@ def _wavelengths(case) -> np.ndarray:
         raise ValueError(f"wavelengths_nm: expected a vector [L] of wavelengths (nm), got shape {a.shape}")
     w = a.astype(np.float64).reshape(-1)
     check_wavelengths(torch.as_tensor(w))
-    _check_nanometres(w, "wavelengths_nm")
+    check_nanometres(w, "wavelengths_nm")
     return w
 
 
@@ -476,7 +495,8 @@ def write_parity_case(path, case: dict) -> None:
         if a.dtype == object:
             raise ValueError(f"case[{k!r}]: expected a numeric or string array, got an object array")
         arrays[k] = a
-    np.savez(path, **arrays)
+    with open(path, "wb") as f:  # (np.savez appends .npz to a name without it: 'mycase' was not read back)
+        np.savez(f, **arrays)
 
 
 def case_cfa(case: dict):

@@ -127,3 +127,13 @@ def test_a_scene_in_other_radiance_units_is_refused(tmp_path):
     mw = write_spectral_exr(tmp_path / "mw.exr", data, w, attributes={"emissiveUnits": "mW.m^-2.sr^-1"})
     with pytest.raises(ValueError, match=r"gives its radiance in 'mW.m\^-2.sr\^-1'; expected 'W.m\^-2.sr\^-1'"):
         read_scene_exr(mw)
+
+
+@pytest.mark.parametrize("wavelengths, match", [([5e-7, 6e-7], r"expected wavelengths in nm, got 5e-07-6e-07"),
+                                                ([0.45, 0.55], r"expected wavelengths in nm, got 0.45-0.55"),
+                                                ([float("nan")], "wavelengths_nm"), ([-550.0], "wavelengths_nm")])
+def test_spectral_exr_refuses_wavelengths_that_are_not_nanometres(tmp_path, wavelengths, match):
+    """Metres and micrometres were written as channels of 0-1 nm; NaN or negative ones as names its reader refuses."""
+    with pytest.raises(ValueError, match=match):
+        write_spectral_exr(tmp_path / "w.exr", np.ones((len(wavelengths), 2, 2), np.float32), wavelengths)
+    assert not (tmp_path / "w.exr").exists()

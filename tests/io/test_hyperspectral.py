@@ -121,3 +121,13 @@ def test_kaist_takes_only_wavelength_names(tmp_path):
              "430": np.ones((2, 2), np.float32)}
     OpenEXR.File({"type": OpenEXR.scanlineimage}, chans).write(str(tmp_path / "k.exr"))
     assert load_kaist(tmp_path / "k.exr").wavelengths_nm.tolist() == [420.0, 430.0]
+
+
+def test_bands_in_micrometres_are_refused(tmp_path):
+    """ICVL-like bands of 0.4-0.7 (micrometres) read "the scene is black", or as a 0.4 nm scene unscaled."""
+    with h5py.File(tmp_path / "um.mat", "w") as f:
+        f.create_dataset("rad", data=np.random.default_rng(0).random((3, 4, 31)).T)
+        f.create_dataset("bands", data=(np.arange(400.0, 701.0, 10.0) / 1000)[None, :].T)
+    for scale in (100.0, None):
+        with pytest.raises(ValueError, match=r"bands .*um\.mat'\): expected wavelengths in nm, got 0.4-0.7"):
+            load_icvl(tmp_path / "um.mat", mean_luminance_cd_m2=scale)

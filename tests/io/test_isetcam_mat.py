@@ -76,7 +76,7 @@ def test_bad_files(tmp_path):
         read_isetcam_scene(tmp_path / "neg.mat")
     # wavelengths in micrometres loaded as a scene of 0.4-0.7 nm light (an audit of the readers)
     scipy.io.savemat(tmp_path / "um.mat", {"scene": _scene_struct(np.ones((2, 2, 4)), wave / 1000)})
-    with pytest.raises(ValueError, match=r"scene.spectrum.wave: expected wavelengths in nm .*got 0.4-0.7"):
+    with pytest.raises(ValueError, match=r"scene.spectrum.wave: expected wavelengths in nm.*got 0.4-0.7"):
         read_isetcam_scene(tmp_path / "um.mat")
 
 
@@ -102,3 +102,49 @@ def test_malformed_fields_are_named(tmp_path):
                                              | {"data": {"photons": codes, "dmin": 1.0, "dmax": 0.5}}})
     with pytest.raises(ValueError, match="scene.data.dmin, dmax: expected dmin <= dmax"):
         read_isetcam_scene(tmp_path / "dmax.mat")
+
+
+def test_defaults_type_illuminant_grid_and_empty_names_are_read_as_isetcam_means_them(tmp_path):
+    """io audit (2026-12-01): a scene without wAngular / distance got 10 deg / 1.2 m with no record; an optical image
+    (irradiance) was read as a scene (radiance); an illuminant on 400-500 nm was attached to a 500-600 nm scene; a
+    v7.3 file's empty name (MATLAB_empty) became the name '\\x00\\x00'; a descending wave named no file."""
+    ph, w3 = np.ones((2, 2, 3)), np.array([500.0, 550.0, 600.0])
+    scipy.io.savemat(tmp_path / "nofov.mat", {"scene": {"data": {"photons": ph}, "spectrum": {"wave": w3}}})
+    s = read_isetcam_scene(tmp_path / "nofov.mat")
+    assert s.metadata["defaulted"] == ["hfov_deg", "distance_m"] and float(s.hfov_deg[0]) == 10.0
+    scipy.io.savemat(tmp_path / "fov.mat", {"scene": {"data": {"photons": ph}, "spectrum": {"wave": w3},
+                                                      "wAngular": 4.0, "distance": 2.0}})
+    assert read_isetcam_scene(tmp_path / "fov.mat").metadata["defaulted"] == []
+    scipy.io.savemat(tmp_path / "oi.mat", {"oi": {"type": "opticalimage", "data": {"photons": ph},
+                                                  "spectrum": {"wave": w3}}})
+    with pytest.raises(ValueError, match=r"variable: 'oi' in .*oi\.mat' is an ISETCam 'opticalimage', not a scene"):
+        read_isetcam_scene(tmp_path / "oi.mat", variable="oi")
+    ill = {"data": {"photons": np.array([1.0, 2.0, 3.0])}, "spectrum": {"wave": np.array([400.0, 450.0, 500.0])}}
+    scipy.io.savemat(tmp_path / "ill.mat", {"scene": {"data": {"photons": ph}, "spectrum": {"wave": w3},
+                                                      "illuminant": ill}})
+    with pytest.raises(ValueError, match=r"scene.illuminant.spectrum.wave: expected the scene's wavelengths "
+                                         r"\(500-600 nm, 3\) in .*got 400-500 nm \(3\)"):
+        read_isetcam_scene(tmp_path / "ill.mat")
+    ill["spectrum"]["wave"] = w3  # on the scene's grid: attached
+    scipy.io.savemat(tmp_path / "ill_ok.mat", {"scene": {"data": {"photons": ph}, "spectrum": {"wave": w3},
+                                                         "illuminant": ill}})
+    assert read_isetcam_scene(tmp_path / "ill_ok.mat").illuminant_photons[0].tolist() == [1.0, 2.0, 3.0]
+    with h5py.File(tmp_path / "empty_name.mat", "w") as f:
+        g = f.create_group("scene")
+        g.create_group("data").create_dataset("photons", data=ph.T)
+        g.create_group("spectrum").create_dataset("wave", data=w3[None, :].T)
+        name = g.create_dataset("name", data=np.array([0, 0], dtype=np.uint64))  # MATLAB's '' in a v7.3 file
+        name.attrs["MATLAB_class"] = np.bytes_(b"char")
+        name.attrs["MATLAB_empty"] = np.uint8(1)
+    assert read_isetcam_scene(tmp_path / "empty_name.mat").name == "empty_name"
+    scipy.io.savemat(tmp_path / "down.mat", {"scene": {"data": {"photons": ph}, "spectrum": {"wave": w3[::-1]}}})
+    with pytest.raises(ValueError, match=r"path: .*down\.mat': wavelengths_nm: expected a strictly increasing"):
+        read_isetcam_scene(tmp_path / "down.mat")
+
+
+def test_a_parity_case_written_without_its_suffix_reads_back(tmp_path):
+    from isettorch.io.isetcam import read_parity_case, write_parity_case
+
+    write_parity_case(tmp_path / "mycase", {"a": np.ones(2)})  # (np.savez wrote mycase.npz)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mycase"]
+    assert read_parity_case(tmp_path / "mycase", check=False)["a"].tolist() == [1.0, 1.0]
