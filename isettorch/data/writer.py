@@ -46,13 +46,15 @@ __all__ = ["write_dataset", "config_hash", "sha256_file", "verify_dataset", "Sha
 FORMAT_VERSION = 1
 
 
-def config_hash(config: dict, count: int, generator_version: int | None = None) -> str:
+def config_hash(config: dict, count: int, generator_version: int | None = None, *, legacy: bool = False) -> str:
     """sha256 of the canonical JSON of the (validated) config, the item count, the file format and the generator
     version (``camera_pairs.GENERATOR_VERSION``: shards written by a generator that draws other items never match;
-    a manifest's own ``generator_version`` to check the manifest)."""
-    blob = json.dumps({"config": config, "count": int(count), "format": FORMAT_VERSION,
-                       "generator": GENERATOR_VERSION if generator_version is None else int(generator_version)},
-                      sort_keys=True)
+    a manifest's own ``generator_version`` to check the manifest). ``legacy``: the hash of manifests written before
+    the generator version was recorded (without it)."""
+    fields = {"config": config, "count": int(count), "format": FORMAT_VERSION}
+    if not legacy:
+        fields["generator"] = GENERATOR_VERSION if generator_version is None else int(generator_version)
+    blob = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -222,7 +224,10 @@ def _write_manifest(out: Path, cfg: dict, chash: str, count: int, size: int, n_f
         fcntl = None
     with open(out / ".manifest.lock", "a") as lock:
         if fcntl is not None:
-            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+            except OSError:  # a file system without locks (Lustre without -o flock): unlocked, as before
+                pass
         shards = []
         for f in range(n_files):
             try:
@@ -251,7 +256,8 @@ def _manifest_index(manifest) -> tuple[int, int, dict, dict]:
         if count < 0 or size < 1:
             raise ValueError(f"count {count}, shard_size {size}: expected >= 0 and >= 1")
         # the hash of its own config and count (a count edited from 8 to 9 gave 9 items, the last an IndexError)
-        if config_hash(manifest["config"], count, manifest.get("generator_version", 1)) != manifest["config_sha256"]:
+        if config_hash(manifest["config"], count, manifest.get("generator_version"),
+                       legacy="generator_version" not in manifest) != manifest["config_sha256"]:
             raise ValueError("config_sha256 is not the hash of its config and count (edited?)")
         records = manifest["shards"]
         if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):

@@ -286,8 +286,10 @@ def _read_tiff(p: Path, photometric: tuple[str, ...] = _TIFF_PHOTOMETRIC) -> tup
         axes, a = series.axes, series.asarray()
         page = tif.pages[0]
         tag = page.tags.get("Orientation")
-        kind, orientation = page.photometric.name, int(tag.value) if tag is not None else 1
-    if kind not in photometric:
+        orientation = int(tag.value) if tag is not None else 1
+        # no PhotometricInterpretation tag (tifffile's 0): the samples as they are, as read before
+        kind = getattr(page.photometric, "name", None) if page.tags.get("PhotometricInterpretation") else None
+    if kind is not None and kind not in photometric:
         raise ValueError(f"expected photometric interpretation {' or '.join(photometric)}, got {kind} (its stored "
                          "numbers are not the image's values); convert the file first")
     # one image, samples last: a planar ('SYX') file came back channels first and two grey pages as one RGB image

@@ -643,8 +643,9 @@ def _warn_mosaic_as_mono(capture, warnings: list[str]) -> None:
 def _warn_positions_differ(dark_p: dict, cfa: str, warnings: list[str], step: int) -> None:
     """Warn when the CFA positions of one colour (a Bayer cell's two greens) have black levels further apart than
     the channels may be (:data:`_CHANNEL_BLACK_SPREAD_DN`): the channel statistics pool them, the sensor config has
-    one black level, so the difference stays in processed frames (a maze pattern in flat areas). Measured at the
-    shortest dark exposure (the dark current adds the same to both)."""
+    one black level, so frames without levels of their own (PNG, TIFF, .npy) keep the difference when processed (a
+    maze pattern in flat areas; ``isettorch process`` subtracts a camera raw's per-position BlackLevel tags).
+    Measured at the shortest dark exposure (the dark current adds the same to both)."""
     shortest = dark_p[min(dark_p)]
     for name, planes in shortest.items():
         if len(planes) < 2:
@@ -654,7 +655,8 @@ def _warn_positions_differ(dark_p: dict, cfa: str, warnings: list[str], step: in
             warnings.append(f"the {len(planes)} {name} positions of the {cfa} cell have black levels "
                             f"{', '.join(f'{m:.2f}' for m in means)} DN (more than {_CHANNEL_BLACK_SPREAD_DN * step:g}"
                             f" DN apart): the channel statistics pool them and the sensor config has one black "
-                            f"level, so the difference stays in processed frames")
+                            f"level, so PNG, TIFF and .npy frames keep the difference when processed (a camera "
+                            f"raw's own BlackLevel per position is subtracted)")
 
 
 def _warn_channels_differ(per: dict, names: list[str], warnings: list[str]) -> None:

@@ -365,3 +365,30 @@ def test_a_rank_from_the_environment_says_so(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match=r"rank: expected 0 <= rank < world_size \(1\), got 1 \(from the environment: "
                                          r"RANK='1', WORLD_SIZE=None; torchrun sets both\)"):
         write_dataset(CFG, tmp_path / "r", COUNT, progress=False)
+
+
+def test_a_manifest_from_before_the_generator_version_and_a_file_system_without_locks(reference, tmp_path,
+                                                                                     monkeypatch):
+    """A manifest written before the generator version was recorded (hashed without it) was refused as edited; a file
+    system without flock (Lustre without -o flock: ENOSYS) stopped every run before its manifest."""
+    import errno
+    import hashlib
+    import shutil
+
+    fcntl = pytest.importorskip("fcntl")
+    from isettorch.data.writer import FORMAT_VERSION, ShardDataset
+
+    out, manifest = reference
+    old = tmp_path / "old"
+    shutil.copytree(out, old)
+    legacy = {k: v for k, v in manifest.items() if k != "generator_version"}
+    blob = json.dumps({"config": manifest["config"], "count": COUNT, "format": FORMAT_VERSION}, sort_keys=True)
+    legacy["config_sha256"] = hashlib.sha256(blob.encode()).hexdigest()
+    (old / "manifest.json").write_text(json.dumps(legacy))
+    assert len(ShardDataset(old)) == COUNT and verify_dataset(old) == []
+
+    def no_locks(fd, op):
+        raise OSError(errno.ENOSYS, "Function not implemented")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    assert write_dataset(CFG, tmp_path / "nolock", COUNT, progress=False)["complete"]

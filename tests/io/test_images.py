@@ -450,3 +450,21 @@ def test_grey_and_alpha_round_trips_in_every_format(tmp_path):
     OpenEXR.File({"type": OpenEXR.scanlineimage}, channels).write(str(tmp_path / "ya.exr"))
     ya = read_image(tmp_path / "ya.exr")  # its alpha was dropped: one channel
     assert ya.shape == (1, 2, 2, 2) and ya[0, 0].eq(0.5).all() and ya[0, 1].eq(0.25).all()
+
+
+def test_a_tiff_without_a_photometric_tag_reads_its_samples(tmp_path):
+    """The tag is required by TIFF 6.0 but some writers omit it: tifffile gives 0 (no name), which crashed the
+    photometric check with an AttributeError; such files read as their samples, as before."""
+    import struct
+
+    grey = (np.arange(24, dtype=np.uint16).reshape(4, 6) * 1000)
+    tifffile.imwrite(tmp_path / "nophot.tif", grey, photometric="minisblack")
+    data = bytearray((tmp_path / "nophot.tif").read_bytes())
+    with tifffile.TiffFile(tmp_path / "nophot.tif") as tif:
+        offset = tif.pages[0].tags["PhotometricInterpretation"].offset
+    struct.pack_into("<H", data, offset, 65000)  # the tag's code renamed to an unknown one: no photometric tag
+    (tmp_path / "nophot.tif").write_bytes(bytes(data))
+    with tifffile.TiffFile(tmp_path / "nophot.tif") as tif:
+        assert tif.pages[0].tags.get("PhotometricInterpretation") is None
+    got = read_image(tmp_path / "nophot.tif", encoding="linear", dtype=torch.float64)
+    np.testing.assert_array_equal(got[0, 0].numpy(), grey / 65535)

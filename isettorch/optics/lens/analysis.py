@@ -7,8 +7,9 @@ optiland file leaves the r^2 asphere term out of the paraxial focus); the double
 focus. ``LensOptics`` renders on this plane too.
 
 * Paraxial data (EFL, F-number, back focal length, pupils, the focus) at the lens's primary wavelength, as
-  OpticStudio reports them (the file's ``PWAV``; :data:`REFERENCE_WAVELENGTH_NM` = 587.6 nm for a lens that states
-  none, e.g. a YAML lens without ``primary_wavelength_nm``). Below, "primary" means that wavelength.
+  OpticStudio reports them (the file's ``PWAV``, OpticStudio's default the first wavelength; a YAML lens without
+  ``primary_wavelength_nm``: its listed wavelength nearest :data:`REFERENCE_WAVELENGTH_NM` = 587.6 nm, the d line).
+  Below, "primary" means that wavelength.
 * Rays fill the paraxial entrance pupil (diameter and position from the paraxial trace at the primary wavelength)
   for every field and wavelength; the chief ray passes through its centre; clear apertures clip, the stop does not.
   With an ``FNUM`` aperture the EPD is EFL / F# at the primary wavelength (OpticStudio's image-space F/#).

@@ -76,7 +76,10 @@ def resolve_glass(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS):
     hint = ""
     if others:
         g, maker = _optiland_material(name)
-        if g is not None and (maker is None or maker.upper() in {c.upper() for c in catalogs}):
+        if g is not None and (maker is None or maker.upper() in {c.upper() for c in catalogs}
+                              or not _in_maker_catalogue(gf, name, maker)):
+            # a maker's special material (ZERODUR, B270, IRG22, IG2, AMTIR-1: in OpticStudio's MISC / INFRARED,
+            # not in the maker's optical-glass catalogue) is the MISC catalogue's to give
             return g
         tried.append("optiland database (for " + "/".join(others) + ")")
         if g is not None:  # a maker's glass the file did not declare (N-SF10 for GCAT OHARA MISC was Schott's)
@@ -103,6 +106,19 @@ class _OptilandGlass:
         import numpy as np
 
         return float(np.asarray(self.material.n(wavelength_nm / 1000.0)).ravel()[0])
+
+
+def _in_maker_catalogue(gf, name: str, maker: str) -> bool:
+    """Whether ``name`` is in ``maker``'s optical-glass catalogue (opticalglass), a catalogue the file did not
+    declare: N-SF10 is Schott's, so GCAT OHARA MISC does not give it."""
+    key = CATALOGS.get(maker.upper())
+    if key is None:
+        return False
+    try:
+        gf.create_glass(name, key)
+        return True
+    except Exception:
+        return False
 
 
 def _optiland_material(name: str):

@@ -11,6 +11,7 @@ Distances in mm. The tracer's parameters (curvatures, thicknesses) are tensors: 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import torch
 
@@ -83,8 +84,9 @@ class LensGeometry:
                 out.append(refractive_index(m, float(wavelength_nm), cats))
             except GlassError as e:
                 where = self.prescription.name
-                if self.prescription.source and self.prescription.source != where:  # (a .zmx file's NAME only)
-                    where = f"{where} ({self.prescription.source})"
+                source = self.prescription.source  # a .zmx file's path (a YAML lens's is a citation)
+                if source and source != where and Path(source).is_file():  # (a .zmx file's NAME only)
+                    where = f"{where} ({source})"
                 raise GlassError(f"{where}, the medium after surface {i}: {e}") from None
         return out
 

@@ -38,6 +38,11 @@ def test_catalogues_opticalglass_lacks_fall_back_to_optiland_only_when_declared(
     with pytest.raises(GlassError, match="'BK7'.*rename the glass to N-BK7"):
         refractive_index("BK7", 587.6, ("SCHOTT", "MISC"))
     assert refractive_index("N-SF10", 587.5618, ("SCHOTT", "MISC")) == pytest.approx(1.72828, abs=2e-5)  # datasheet
+    # a maker's special material, in OpticStudio's MISC / INFRARED and not in the maker's optical-glass catalogue,
+    # stays the MISC fallback's (Schott ZERODUR n_d 1.5424 and B270 1.5230, Vitron IG2 n(10 um) 2.4967 datasheets)
+    assert refractive_index("ZERODUR", 587.5618, ("MISC",)) == pytest.approx(1.5424, abs=2e-4)
+    assert refractive_index("B270", 587.5618, ("INFRARED",)) == pytest.approx(1.5230, abs=2e-4)
+    assert refractive_index("IG2", 10000.0, ("INFRARED",)) == pytest.approx(2.4967, abs=1e-3)
 
 
 def _singlet(t=6.0, r1=50.0, r2=-80.0, stop_after=None, float_by_stop=False):
