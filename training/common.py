@@ -14,6 +14,22 @@ import torch
 from isettorch._yaml import load_yaml
 
 
+def check_keys(cfg: dict, top_keys, section_keys: dict, nullable: tuple[str, ...] = ()) -> None:
+    """A ValueError naming the first key a training script does not read (``config.optim.lrr: unknown key; expected
+    one of [...]``: a misspelt key ran silently with its default). ``section_keys``: each section's keys (None: not
+    checked here); a section in ``nullable`` may be null."""
+    for key, value in cfg.items():
+        if key not in top_keys:
+            raise ValueError(f"config.{key}: unknown key; expected one of {sorted(top_keys)}")
+        keys = section_keys.get(key)
+        if key in section_keys and (value is not None or key not in nullable):
+            if not isinstance(value, dict):
+                raise ValueError(f"config.{key}: expected a mapping, got {value!r}")
+            unknown = [k for k in value if keys is not None and k not in keys]
+            if unknown:
+                raise ValueError(f"config.{key}.{unknown[0]}: unknown key; expected one of {sorted(keys)}")
+
+
 def load_config(path: str | Path, overrides: list[str] | None = None) -> dict:
     """Read a YAML config and apply ``key.sub=value`` overrides (values parsed as YAML), both with the library's
     reader (:func:`isettorch._yaml.load_yaml`: YAML 1.2 floats, so ``optim.lr=1e-3`` is a number, not the string

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 
+from training.common import check_keys
+
 #: every key of each section the trainer or its parts (demosaic_data, demosaic_pairs, demosaic_noise,
 #: demosaic_checkpoints) read
 SECTION_KEYS = {
@@ -37,16 +39,7 @@ def _positive(value, name: str, integer: bool = False) -> None:
 def check_config(cfg: dict) -> dict:
     """``cfg`` if every key is one the trainer reads and the values it divides or counts by are in range, else a
     ValueError naming the key (``config.optim.lrr: unknown key; expected one of [...]``)."""
-    for key, value in cfg.items():
-        if key not in TOP_KEYS:
-            raise ValueError(f"config.{key}: unknown key; expected one of {sorted(TOP_KEYS)}")
-        keys = SECTION_KEYS.get(key)
-        if key in SECTION_KEYS and (value is not None or key != "distill"):  # (null distill: none; null noise crashed)
-            if not isinstance(value, dict):
-                raise ValueError(f"config.{key}: expected a mapping, got {value!r}")
-            unknown = [k for k in value if keys is not None and k not in keys]
-            if unknown:
-                raise ValueError(f"config.{key}.{unknown[0]}: unknown key; expected one of {sorted(keys)}")
+    check_keys(cfg, TOP_KEYS, SECTION_KEYS, nullable=("distill",))  # (null distill: none; null noise crashed)
     optim = cfg.get("optim") or {}
     if "steps" not in optim or "lr" not in optim:
         raise ValueError(f"config.optim: expected steps and lr, got {sorted(optim)}")

@@ -5,7 +5,7 @@ Usage::
     python training/train_color.py --config configs/train/color.yaml [--out DIR] [--steps N]
 
 Data (on the fly, isettorch.data's random spectra): each sample is a random illuminant (CIE daylight, Planck,
-phosphor LED or F1-F12) and random smooth reflectances. The camera (``camera.filters``, an isettorch.sensor
+phosphor LED or F1-F12) and random smooth reflectances. The camera (``data.filters``, an isettorch.sensor
 filter set) gives ``rgb = sum_l R E S dl`` (photon units), white-balanced with the perfect white's response (von
 Kries). The target is the surface's XYZ under the same illuminant (white Y = 1), adapted to D65 with the Bradford
 transform (Lam 1985; the ISO 17321 / camera-pipeline convention: white balance, then one matrix to D65 XYZ), so
@@ -196,6 +196,12 @@ def evaluate(models: dict, val) -> dict:
     return out
 
 
+#: the config keys this script reads, by section
+COLOR_SECTION_KEYS = {"data": {"filters", "illuminants", "scenes_per_batch", "reflectances_per_scene"},
+                      "optim": {"lr", "steps"}, "val": {"scenes", "reflectances_per_scene", "every"}}
+COLOR_TOP_KEYS = {"seed", "threads", "out", "models", "hidden", "condition", *COLOR_SECTION_KEYS}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", required=True)
@@ -206,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     add_quiet_argument(ap)
     args = ap.parse_args(argv)
     cfg = common.load_config(args.config, args.set)
+    common.check_keys(cfg, COLOR_TOP_KEYS, COLOR_SECTION_KEYS)  # (a misspelt key ran with its default)
     if args.steps is not None:
         cfg["optim"]["steps"] = args.steps
     if args.threads or cfg.get("threads"):

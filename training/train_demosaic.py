@@ -253,6 +253,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.steps is not None:
         cfg.setdefault("optim", {})["steps"] = args.steps
     check_config(cfg)
+    # the reporting folders found before anything runs, not when the first row falls due (step 10000, or the end of
+    # a 6000 s run, died on an unset $ISETTORCH_DATA)
+    bench_every = int(cfg.get("eval", {}).get("every", 0))
+    bench = {name: data_path(folder) for name, folder in (cfg.get("eval", {}).get("benchmarks") or {}).items()
+             } if bench_every else {}
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     rank, world, is_dist = common.dist_setup(device)
     threads = args.threads or int(cfg.get("threads", 0))
@@ -337,8 +342,6 @@ def main(argv: list[str] | None = None) -> int:
     loss_kind = cfg["optim"].get("loss", "l2")
     val_every = int(cfg.get("val", {}).get("every", 200))
     ckpt_every = int(cfg.get("checkpoint_every", 100))
-    bench = cfg.get("eval", {}).get("benchmarks", {}) or {}
-    bench_every = int(cfg.get("eval", {}).get("every", 0))
     t_start = time.time()
     # the bar on stderr (rank 0 only); the validation rows go to stdout through pbar.write (kept under --quiet)
     pbar = progress_bar(total=total, initial=step, desc="train", unit="step", quiet=rank != 0 or args.quiet)
@@ -388,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
             row.update(validate(net, val, device))
             if bench and bench_every and (step % bench_every == 0 or last):
                 for name, folder in bench.items():
-                    row[f"{name}_crop10"] = benchmark(net, data_path(folder), device)
+                    row[f"{name}_crop10"] = benchmark(net, folder, device)
             history.append(row)
             msg = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items())
             pbar.write(msg, file=sys.stdout)

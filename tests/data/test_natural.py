@@ -279,6 +279,11 @@ def test_shipped_generator_config_is_the_defaults():
     cfg = yaml.safe_load(path.read_text())
     assert nat.natural_config(cfg) == nat.NATURAL_DEFAULTS
 
+    def keys(d, prefix=""):  # every key it documents, nested (a key left out passed: the defaults filled it)
+        return {prefix + k for k in d} | {x for k, v in d.items() if isinstance(v, dict) for x in keys(v, f"{k}.")}
+
+    assert keys(cfg) == keys(nat.NATURAL_DEFAULTS)
+
 
 def test_mixed_illuminants_blend_two_lights_smoothly():
     """Two lights: the maps split into two halves (light 1, light 2) whose per-pixel shares are the same for every

@@ -80,3 +80,17 @@ def test_color_smoke_run(tmp_path, capsys):
     assert rec["final"]["step"] == 2 and np.isfinite(rec["final"]["matrix"])
     ck = torch.load(tmp_path / "o" / "color_models.pt", weights_only=True)
     assert "matrix" in ck["models"]
+
+
+def test_a_misspelt_key_is_named_and_the_shipped_config_passes(tmp_path):
+    """A typo (data.filter, optim.step) ran with its default without a word; the shipped color.yaml's keys pass."""
+    from pathlib import Path
+
+    from training import common
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("seed: 0\ndata: {filter: sony}\noptim: {lr: 1.0e-3, steps: 2}\n")
+    with pytest.raises(ValueError, match=r"config.data.filter: unknown key; expected one of \['filters', "):
+        train_color.main(["--config", str(cfg), "--out", str(tmp_path / "o")])
+    shipped = common.load_config(Path(__file__).resolve().parents[2] / "configs" / "train" / "color.yaml")
+    common.check_keys(shipped, train_color.COLOR_TOP_KEYS, train_color.COLOR_SECTION_KEYS)

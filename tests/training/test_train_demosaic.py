@@ -171,7 +171,7 @@ def test_smoke_training_resume(tmp_path, capsys):
         assert (a["step"], a["train_loss"], a["val_cpsnr"]) == (b["step"], b["train_loss"], b["val_cpsnr"])
 
 
-def test_config_keys_and_values_are_checked_before_a_run(tmp_path):
+def test_config_keys_and_values_are_checked_before_a_run(tmp_path, monkeypatch):
     """A misspelt key ran with its default (optim.lrr, data.batchsize), optim.loss l3 trained with L2,
     checkpoint_every 0 divided by zero later (an audit of training/): refused before anything runs, naming the key.
     Every shipped training config passes, and a config that starts from a shipped model declares its size."""
@@ -186,6 +186,15 @@ def test_config_keys_and_values_are_checked_before_a_run(tmp_path):
         with pytest.raises(ValueError, match=message):
             train_demosaic.main(args + [override])
     assert not (tmp_path / "x" / "last.pt").exists()
+    # a reporting folder that does not exist stopped the run when its first row fell due (step 10000 of the
+    # noise-free config, or the end of a 6000 s run): found before the first step
+    def no_step(*a, **k):
+        raise AssertionError("a training step ran before the reporting folders were found")
+
+    with monkeypatch.context() as m:
+        m.setattr(train_demosaic, "make_batch", no_step)
+        with pytest.raises(FileNotFoundError, match="no_such_benchmark"):
+            train_demosaic.main(args + ["eval={every: 1000, benchmarks: {kodak: no_such_benchmark}}"])
     from training.demosaic_config import check_config
 
     for path in sorted((ROOT / "configs" / "train").glob("demosaic_*.yaml")):
