@@ -165,6 +165,7 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
             raise ValueError(f"scene.illuminant.data.photons: expected {wave.size} values (one per wavelength) or "
                              f"the photons' shape {photons.shape} in {str(p)!r}, got shape {ill.shape}")
     name = _field(scene, "name")
+    name = name if isinstance(name, str) and name else p.stem  # (MATLAB's '' is an empty array in a v5 file)
     cube = torch.as_tensor(np.ascontiguousarray(np.transpose(photons, (2, 0, 1))), dtype=dtype)[None]
     # ISETCam's defaults where the file has no wAngular / distance, recorded as read_scene_exr records them
     meta = {"source": str(p), "format": "isetcam",
@@ -172,7 +173,7 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
     if ill is not None and ill_t is None:
         meta["illuminant_photons_map"] = torch.as_tensor(np.transpose(ill, (2, 0, 1)).copy(), dtype=dtype)
     try:
-        return Scene(cube, torch.as_tensor(wave, dtype=dtype), name=str(name) if name else p.stem, metadata=meta,
+        return Scene(cube, torch.as_tensor(wave, dtype=dtype), name=name, metadata=meta,
                      hfov_deg=10.0 if hfov is None else _named_scalar(hfov, "scene.wAngular", p),
                      distance_m=1.2 if dist is None else _named_scalar(dist, "scene.distance", p),
                      illuminant_photons=ill_t)

@@ -137,6 +137,9 @@ def test_defaults_type_illuminant_grid_and_empty_names_are_read_as_isetcam_means
         name.attrs["MATLAB_class"] = np.bytes_(b"char")
         name.attrs["MATLAB_empty"] = np.uint8(1)
     assert read_isetcam_scene(tmp_path / "empty_name.mat").name == "empty_name"
+    v5 = {"scene": {"name": "", "data": {"photons": ph}, "spectrum": {"wave": w3}}}
+    scipy.io.savemat(tmp_path / "empty_v5.mat", v5)
+    assert read_isetcam_scene(tmp_path / "empty_v5.mat").name == "empty_v5"  # (it was named '[]')
     scipy.io.savemat(tmp_path / "down.mat", {"scene": {"data": {"photons": ph}, "spectrum": {"wave": w3[::-1]}}})
     with pytest.raises(ValueError, match=r"path: .*down\.mat': wavelengths_nm: expected a strictly increasing"):
         read_isetcam_scene(tmp_path / "down.mat")
