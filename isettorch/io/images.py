@@ -46,12 +46,13 @@ _ORIENT = {2: lambda a: a[:, ::-1], 3: lambda a: a[::-1, ::-1], 4: lambda a: a[:
 
 
 #: the 8-bit photographs :func:`read_rgb8` reads (the benchmark and photo-lifting folders; Pillow decodes them)
-PHOTO_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".webp", ".gif", ".ppm", ".pgm", ".pnm", ".tga")
+PHOTO_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".jpe", ".jfif", ".mpo", ".bmp", ".dib", ".webp", ".gif",
+                  ".apng", ".ppm", ".pgm", ".pbm", ".pnm", ".tga", ".qoi")
 
 #: image files a photo folder may hold that :func:`read_rgb8` does not read (HDR, camera raw, other codecs):
 #: :func:`photo_files` refuses a folder holding one rather than leaving it out of a mean unsaid
-UNREAD_IMAGE_SUFFIXES = (".heic", ".heif", ".avif", ".jxl", ".jp2", ".j2k", ".exr", ".hdr", ".dng", ".cr2", ".cr3",
-                         ".nef", ".arw", ".orf", ".rw2", ".raf", ".psd")
+UNREAD_IMAGE_SUFFIXES = (".heic", ".heif", ".avif", ".jxl", ".jp2", ".j2k", ".jpf", ".jpx", ".j2c", ".jpc", ".exr",
+                         ".hdr", ".dng", ".cr2", ".cr3", ".nef", ".arw", ".orf", ".rw2", ".raf", ".psd")
 
 
 def photo_files(folder) -> list[Path]:
@@ -82,18 +83,21 @@ def read_rgb8(path) -> np.ndarray:
     other colour spaces, several pages or frames (a multi-page TIFF, an animation: which one is the photograph?), a
     file that is not an image.
     """
+    import contextlib
     import warnings
 
     from PIL import Image, ImageOps
 
     p = Path(path)
     try:
-        with warnings.catch_warnings(), Image.open(p) as im:
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(warnings.catch_warnings())
             # Pillow's warnings name no file and change nothing: a DecompressionBombWarning above 89 MP (twice that
             # raises, below), "Corrupt EXIF data" (the orientation is then not applied); they printed file:line
-            # lines amid the command's output
+            # lines amid the command's output (set before the file is opened: Image.open warns)
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             warnings.filterwarnings("ignore", message="Corrupt EXIF data")
+            im = stack.enter_context(Image.open(p))
             rawmode = im.tile[0][3] if im.tile else ""
             rawmode = rawmode[0] if isinstance(rawmode, tuple) else rawmode
             if im.mode in ("I", "I;16", "I;16B", "I;16L", "F") or ";16" in str(rawmode) or ";32" in str(rawmode):
@@ -140,9 +144,10 @@ def non_srgb_profile(path) -> str | None:
 
     from PIL import Image, ImageCms
 
-    with warnings.catch_warnings(), Image.open(path) as im:  # (the header only; Pillow's size warning names no file)
+    with warnings.catch_warnings():  # (the header only; Pillow's size warning names no file: set before opening)
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-        data = im.info.get("icc_profile")
+        with Image.open(path) as im:
+            data = im.info.get("icc_profile")
     if not data:
         return None
     try:
