@@ -143,14 +143,14 @@ def natural_config(config: dict | None = None, **overrides) -> dict:
     comp = out["components"]
     # what the per-item generator refuses at draw time (without the key's name) and the batched one drew anyway (an
     # audit of 2026-12-01): a zero total of palette kinds (the stream drew 'recovery' only), a grating beyond
-    # 2 cycles/pixel, leaves whose largest radius is below the smallest (the stream drew radii under r_min_px)
+    # Nyquist, leaves whose largest radius is below the smallest (the stream drew radii under r_min_px)
     pal = comp["palette"]
     if pal["enabled"] and pal["measured"] + pal["recovery"] + pal["random"] <= 0:
         raise ValueError("config: 'components.palette' expected a positive total of the kind weights measured, "
                          f"recovery, random, got {pal['measured']}, {pal['recovery']}, {pal['random']}")
-    if comp["textured_leaves"]["grating_cpp"][1] > 2:
-        raise ValueError(f"config: 'components.textured_leaves.grating_cpp' expected frequencies in (0, 2] cycles "
-                         f"per pixel, got {comp['textured_leaves']['grating_cpp']!r}")
+    if comp["textured_leaves"]["grating_cpp"][1] > 0.5:  # sampled at pixel centres: aliased above (1 and 2: flat)
+        raise ValueError(f"config: 'components.textured_leaves.grating_cpp' expected frequencies in (0, 0.5] cycles "
+                         f"per pixel (the Nyquist frequency), got {comp['textured_leaves']['grating_cpp']!r}")
     dl = comp["dead_leaves"]
     if not dl["r_max_fraction"] * size > dl["r_min_px"]:
         raise ValueError(f"config: 'components.dead_leaves.r_max_fraction' x size ({dl['r_max_fraction']} x {size} "

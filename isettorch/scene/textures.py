@@ -93,9 +93,12 @@ def normal_cdf(x: torch.Tensor) -> torch.Tensor:
 def warped_grating(h: int, w: int, frequency_cpp: float, angle_rad: float, warp_px: float,
                    generator: torch.Generator, *, warp_exponent: float = 2.0, dtype=torch.float32) -> torch.Tensor:
     """``0.5 + 0.5 sin(2 pi f (u + d(x)) + phi)`` in [0, 1], ``u`` the coordinate along ``angle_rad``, ``d`` a
-    smooth power-law displacement field (``|f|^-warp_exponent``) of std ``warp_px`` pixels, ``phi`` uniform."""
-    if not 0 < frequency_cpp <= 2:
-        raise ValueError(f"frequency_cpp: expected (0, 2] cycles/pixel, got {frequency_cpp}")
+    smooth power-law displacement field (``|f|^-warp_exponent``) of std ``warp_px`` pixels, ``phi`` uniform. Sampled
+    at the pixel centres, so up to the Nyquist frequency, 0.5 cycles/pixel (above it the grating aliases: 0.75 came
+    out as 0.25, 1 and 2 as a constant: refused)."""
+    if not 0 < frequency_cpp <= 0.5:
+        raise ValueError(f"frequency_cpp: expected (0, 0.5] cycles/pixel (sampled at pixel centres), got "
+                         f"{frequency_cpp}")
     y = torch.arange(h, dtype=torch.float64)[:, None]
     x = torch.arange(w, dtype=torch.float64)[None, :]
     u = x * math.cos(angle_rad) + y * math.sin(angle_rad)

@@ -552,3 +552,12 @@ def test_dye_component_draws_its_specified_probability_and_concentration_law():
         nat.generate_natural(0, seed=0, config={"components": {"palette": {"dye": {"probability": 1.5}}}})
     with pytest.raises(ValueError, match="components.palette.dye"):
         nat.generate_natural(0, seed=0, config={"components": {"palette": {"dye": {"concentration": 2.0}}}})
+
+
+def test_a_grating_beyond_nyquist_is_refused():
+    """Sampled at pixel centres, a grating of 1 or 2 cycles/pixel was a flat field and 0.75 came out as 0.25."""
+    g = torch.Generator().manual_seed(0)
+    assert float(tex.warped_grating(16, 16, 0.5, 0.0, 0.0, g).std()) > 0.3  # Nyquist: still a grating
+    for f in (0.75, 1.0, 2.0):
+        with pytest.raises(ValueError, match=r"frequency_cpp: expected \(0, 0.5\] cycles/pixel"):
+            tex.warped_grating(16, 16, f, 0.0, 0.0, g)

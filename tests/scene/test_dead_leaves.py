@@ -114,3 +114,28 @@ def test_errors(kwargs, exc, match):
     kwargs = {"size": 8, **kwargs}
     with pytest.raises(exc, match=match):
         dead_leaves(**kwargs)
+
+
+def test_large_images_are_covered_and_bad_draws_are_named():
+    """texture audit (2026-12-01): at the fixed 200,000 disks a 512-pixel image kept about 312 black pixels (the
+    Boolean model above; 347 drawn); the default now draws what the image needs. Too few disks, a default rmax
+    below rmin, an all-black range and radii too small to ever cover the image are named; equal radii have an
+    expected area (it divided by zero)."""
+    rows = cols = 512
+    rmin, rmax, alpha = 1.0, 256.0, 3.0
+    area = (rows - 1 + 2 * rmax) * (cols - 1 + 2 * rmax)
+    uncovered = lambda n: rows * cols * (1 - _expected_disk_area(alpha, rmin, rmax) / area) ** n  # noqa: E731
+    from isettorch.scene.dead_leaves import max_disks_for
+
+    assert uncovered(200_000) > 100 and uncovered(max_disks_for(rows, cols, alpha, rmin, rmax)) < 1e-6
+    with pytest.raises(ValueError, match=r"max_disks: 3 disks left \d+ of 256 pixels uncovered"):
+        dead_leaves(16, max_disks=3)
+    with pytest.raises(ValueError, match=r"size: a 1 x 8 image's default rmax_px, min\(H, W\) / 2 = 0.5, is below"):
+        dead_leaves((1, 8))
+    with pytest.raises(ValueError, match=r"reflectance_range: \(0, 0\) makes every leaf black"):
+        dead_leaves(16, reflectance_range=(0, 0))
+    with pytest.raises(ValueError, match=r"rmin_px, alpha: disks of 0.01 to 8 px with exponent 200 are too small"):
+        dead_leaves(16, alpha=200.0, rmin_px=0.01)  # (an OverflowError)
+    assert expected_disk_area_px2(3.0, 2.0, 2.0) == pytest.approx(np.pi * 4.0)
+    # rmax -> infinity: pi rmin^2 (alpha - 1) / (alpha - 3); (8 / 0.01)^-197 is nothing (rmin^-199 overflowed)
+    assert expected_disk_area_px2(200.0, 0.01, 8.0) == pytest.approx(np.pi * 1e-4 * 199 / 197, rel=1e-12)
