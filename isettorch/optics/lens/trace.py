@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 
 from .glass import GlassError, refractive_index
-from .prescription import Prescription
+from .prescription import DATA_DIR, Prescription
 
 __all__ = ["LensGeometry", "RayBundle", "TraceError"]
 
@@ -84,8 +84,9 @@ class LensGeometry:
                 out.append(refractive_index(m, float(wavelength_nm), cats))
             except GlassError as e:
                 where = self.prescription.name
-                source = self.prescription.source  # a .zmx file's path (a YAML lens's is a citation)
-                if source and source != where and Path(source).is_file():  # (a .zmx file's NAME only)
+                source = self.prescription.source  # a .zmx file's path (a YAML lens's is a citation; a bundled
+                # lens is named by its name)
+                if source and source != where and Path(source).is_file() and Path(source).parent != DATA_DIR:
                     where = f"{where} ({source})"
                 raise GlassError(f"{where}, the medium after surface {i}: {e}") from None
         return out
