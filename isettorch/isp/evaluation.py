@@ -151,6 +151,9 @@ def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float 
     check_finite(raw.detach(), "raw")  # (torch's 'invalid Poisson rate' named nothing)
     if s == 0 and a == 0:
         return raw
+    if a > 0 and bool((raw.detach() < 0).any()):  # (named poisson_gaussian's 'signal')
+        raise ValueError(f"raw: expected values >= 0 for shot noise (noise_shot {a:g} > 0), got minimum "
+                         f"{float(raw.min()):.4g}")
     g = torch.Generator().manual_seed(_image_seed(seed, index))
     x = raw.detach().to("cpu", torch.float64)
     return poisson_gaussian(x, a, s, g).to(device=raw.device, dtype=raw.dtype)
