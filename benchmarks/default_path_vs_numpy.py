@@ -9,6 +9,7 @@ import importlib.util
 import math
 import statistics
 import time
+from pathlib import Path
 
 import torch
 
@@ -20,7 +21,7 @@ from isettorch.sensor import Sensor
 PITCH_M, FOCAL_M, DISTANCE_M = 2.8e-6, 3.862755099e-3, 1.2
 argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()  # (--help ran the whole benchmark)
 torch.set_num_threads(2)
-spec = importlib.util.spec_from_file_location("nref", "benchmarks/numpy_reference.py")
+spec = importlib.util.spec_from_file_location("nref", Path(__file__).with_name("numpy_reference.py"))  # (any cwd)
 ref = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(ref)
 n = 512

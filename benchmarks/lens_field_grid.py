@@ -7,7 +7,7 @@ Usage: OMP_NUM_THREADS=1 python benchmarks/lens_field_grid.py [--lenses cooke_tr
 For each interval of the grid (image radius 0 to the chief-ray height of the lens's largest field, at the primary
 wavelength), the PSF computed at a quarter, half and three quarters of the interval (the same sampler LensOptics
 uses: ``otf_sampler`` + ``psf_on_grid``, azimuths 0 and 45 deg) is compared with the linear interpolation of the
-interval's end PSFs; the table gives the largest L1 difference per interval (PSFs sum to 1, so 100 % is disjoint).
+interval's end PSFs; the table gives the largest L1 difference per interval (PSFs sum to 1, so 200 % is disjoint).
 """
 
 from __future__ import annotations

@@ -109,8 +109,8 @@ class PairStream:
             (``benchmarks/THROUGHPUT.md``): three iterator threads against two, batch 64 1.25x against 1.04x,
             batch 128 1.23x against 1.09x, but batch 16 0.99x against 1.01x and batch 32 0.90x against 0.99x
             (more torch calls per pair: a third thread adds GIL contention). Each batch in flight holds its
-            temporaries: batch 64 at 256^2 peaked at 3.6 GB resident on three threads against 2.0 GB on one
-            (``threads=1``: in turn, on the caller's thread), for 138 against 95 pairs/s.
+            temporaries: batch 64 at 256^2 peaked at 3.7-3.8 GiB resident on three threads against 1.8 GiB on
+            one (``threads=1``: in turn, on the caller's thread; docs/training_in_the_loop.md).
 
     Each batch is a dict with ``raw`` ``[B, 1, H, W]`` and the targets in normalised raw units (0 = black,
     1 = white level), as :func:`~isettorch.data.camera_pairs.render_pairs`, and ``meta`` (``[B, ...]`` tensors of
