@@ -39,12 +39,14 @@ def ip_result_from_case(case, use_case_matrices: bool = True, dtype=torch.float6
     import numpy as np
 
     from .._checks import round_half_away
-    from ..io.isetcam import case_adc_bits, case_cfa
+    from ..io.isetcam import _scalar, _wavelengths, case_adc_bits, case_cfa
     from ..sensor.raw import RawImage
 
     case = {k: case[k] for k in (case.files if hasattr(case, "files") else case.keys())}
     get = case.get
-    swing = float(get("sensor_voltage_swing_v", 1.0))
+    # scalars as a MATLAB export writes them too (1 x 1 arrays: float() of them failed), the case reader's rule
+    scalar = lambda key, default: _scalar(case, key) if key in case else default  # noqa: E731
+    swing = scalar("sensor_voltage_swing_v", 1.0)
     dv = get("sensor_dv")
     bits = case_adc_bits(case)
     if bits is not None and dv is not None:
@@ -55,9 +57,9 @@ def ip_result_from_case(case, use_case_matrices: bool = True, dtype=torch.float6
     # ISETCam's ipCompute subtracts a colour sensor's zero level (sensorGet 'zero level': a noise-free black capture,
     # the analog offset after gain, clipped and quantised) before demosaicking; a monochrome one keeps it
     zero = 0.0
-    offset = float(np.asarray(get("sensor_analog_offset", 0.0)).reshape(-1)[0])
+    offset = scalar("sensor_analog_offset", 0.0)
     if offset != 0 and not cfa.is_monochrome:
-        volts = min(max(offset / float(np.asarray(get("sensor_analog_gain", 1.0)).reshape(-1)[0]), 0.0), swing)
+        volts = min(max(offset / scalar("sensor_analog_gain", 1.0), 0.0), swing)
         zero = float(round_half_away(volts / (swing / 2 ** bits))) if units == "dn" else volts
     raw = RawImage(torch.as_tensor(data, dtype=dtype)[None, None], units, cfa, black_level=zero, white_level=white,
                    voltage_swing_v=swing)
@@ -67,7 +69,7 @@ def ip_result_from_case(case, use_case_matrices: bool = True, dtype=torch.float6
     ip = isetcam_image_processor(display, None if t_sensor is None else
                                  torch.as_tensor(t_sensor, dtype=torch.float64).T).to(dtype)
     if t_sensor is None and not cfa.is_monochrome:
-        w = torch.as_tensor(get("wavelengths_nm"), dtype=torch.float64)
+        w = torch.as_tensor(_wavelengths(case), dtype=torch.float64)
         qe = torch.as_tensor(get("sensor_spectral_qe"), dtype=torch.float64)
         ip.fit_wavelengths_nm = w
         ip.fit(qe)

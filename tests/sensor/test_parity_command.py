@@ -285,6 +285,7 @@ def test_matlab_exported_case_passes(tmp_path, base):
     res = parity.run_case(path)
     assert verdicts(res) == {"oi_photons": True, "mean_illuminance": True, "sensor_current": True,
                              "sensor_volts": True, "sensor_dv": None}
+    assert res["stages"]["ip_result"]["ok"] and res["stages"]["scene_mean_luminance"]["ok"]  # (ip: float() of 1x1)
     assert res["ok"] and res["name"] == str(base["case_name"])
     assert res["stages"]["sensor_volts"]["max_err"] == parity.run_case(CASE)["stages"]["sensor_volts"]["max_err"]
 
@@ -394,3 +395,34 @@ def test_nonuniform_wavelengths_use_isetcams_bin_width(tmp_path, base):
     mid = np.array([20.0, 25.0, 40.0, 50.0, 50.0, 50.0, 50.0, 50.0]) / 20.0
     _, volts_mid, _ = reference_sensor(*args[:2], args[2] * mid, *args[3:])
     assert np.abs(volts_mid.astype(np.float64) - volts).max() > 0.1
+
+
+@needs_case
+def test_every_reference_the_case_holds_is_compared(tmp_path, base):
+    """parity audit (2026-12-01): a case whose ip_result were zeros, whose scene mean luminance read 200 or whose OI
+    field of view read 20 degrees passed (those keys were never compared); each now fails its own stage."""
+    res = parity.run_case(CASE)["stages"]
+    assert res["ip_result"]["ok"] and res["ip_result"]["max_err"] < 1e-5  # ISETCam's ipCompute, the case matrices
+    assert res["scene_mean_luminance"]["max_err"] < 1e-6 and res["oi_hfov"]["max_err"] < 1e-9
+    for key, value, stage in (("ip_result", np.zeros_like(base["ip_result"]), "ip_result"),
+                              ("scene_mean_luminance_cdm2", np.float64(200.0), "scene_mean_luminance"),
+                              ("oi_hfov_deg", np.float64(20.0), "oi_hfov")):
+        path = tmp_path / f"{key}.npz"
+        np.savez(path, **dict(base, **{key: value}))
+        out = parity.run_case(path)
+        assert out["stages"][stage]["ok"] is False and not out["ok"], stage
+
+
+def test_dv_exactness_allows_what_the_volts_difference_moves():
+    """At 16 bits a step is 1.5e-5 V: volts that agree to 3.4e-7 V (float32 rounding) move about 4 % of the pixels
+    across a rounding edge, and ISETCam's own volts reached only 99.919 % exact against the 99.9 % rule."""
+    rng = np.random.default_rng(0)
+    ref = rng.integers(0, 65536, (100, 100)).astype(np.float64)
+    ours = ref.copy()
+    ours.flat[rng.choice(ours.size, 300, replace=False)] += 1  # 3 % one DN off
+    step = 1.0 / 65536
+    assert parity._dv_stats(ours, ref, 3.4e-7, step)["ok"]  # 2 x 3.4e-7 / 1.5e-5 = 4.5 % allowed
+    assert not parity._dv_stats(ours, ref, 1e-8, step)["ok"]  # volts this close move 0.13 %: 3 % is a fault
+    assert not parity._dv_stats(ours, ref)["ok"]  # the 99.9 % rule without a volts difference
+    ours.flat[0] += 2  # two DN off anywhere: never
+    assert not parity._dv_stats(ours, ref, 3.4e-7, step)["ok"]
