@@ -92,13 +92,10 @@ DEFAULTS: dict = {
 def merged_config(cfg: dict) -> dict:
     """``cfg`` over :data:`DEFAULTS` (one level deep for the sections); unknown top-level keys raise."""
     out = json.loads(json.dumps(DEFAULTS))
+    sections = {k: (None if k == "camera" else set(v)) for k, v in out.items() if isinstance(v, dict)}
+    common.check_keys({k: v for k, v in cfg.items() if k not in sections or isinstance(v, dict)}, set(out), sections)
     for key, value in cfg.items():
-        if key not in out:
-            raise ValueError(f"config.{key}: unknown key; expected one of {sorted(out)}")
         if isinstance(out[key], dict) and key not in ("camera",) and isinstance(value, dict):
-            unknown = [k for k in value if k not in out[key]]
-            if unknown:
-                raise ValueError(f"config.{key}.{unknown[0]}: unknown key; expected one of {sorted(out[key])}")
             out[key].update(value)
         else:
             out[key] = value

@@ -253,13 +253,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.steps is not None:
         cfg.setdefault("optim", {})["steps"] = args.steps
     check_config(cfg)
-    # the reporting folders found before anything runs, not when the first row falls due (step 10000, or the end of
-    # a 6000 s run, died on an unset $ISETTORCH_DATA)
-    bench_every = int(cfg.get("eval", {}).get("every", 0))
-    bench = {name: data_path(folder) for name, folder in (cfg.get("eval", {}).get("benchmarks") or {}).items()
-             } if bench_every else {}
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     rank, world, is_dist = common.dist_setup(device)
+    # the reporting folders, which rank 0 scores, found before anything runs, not when the first row falls due (step
+    # 10000, or the end of a 6000 s run, died on an unset $ISETTORCH_DATA)
+    bench_every = int(cfg.get("eval", {}).get("every", 0))
+    bench = {name: data_path(folder) for name, folder in (cfg.get("eval", {}).get("benchmarks") or {}).items()
+             } if bench_every and rank == 0 else {}
     threads = args.threads or int(cfg.get("threads", 0))
     if threads:
         torch.set_num_threads(threads)

@@ -116,7 +116,7 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
         names = sorted(k for k in mat if not k.startswith("__"))
         raise ValueError(f"variable: no {variable!r} in {str(p)!r}; it holds {names}")
     kind = _field(scene, "type")
-    kind = None if kind is None else str(_unwrap(kind))
+    kind = kind if isinstance(kind, str) and kind else None  # (MATLAB's '' is an empty array in a v5 file)
     if kind is not None and kind.lower() != "scene":  # (an optical image's irradiance was read as radiance)
         raise ValueError(f"variable: {variable!r} in {str(p)!r} is an ISETCam {kind!r}, not a scene (type 'scene')")
     data = _field(scene, "data")
@@ -155,10 +155,14 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
         if ill_wave is not None and np.asarray(ill_wave).size:  # (one on 400-500 nm was attached to a 500-600 nm
             # scene as it was)
             iw = np.asarray(ill_wave, dtype=float).reshape(-1)
-            if iw.shape != wave.shape or not np.allclose(iw, wave, rtol=0, atol=1e-6):
+            # the same grid to a tenth of its spacing (a single-precision or 0.01 nm-rounded copy is the same grid)
+            tol = 0.1 * float(np.diff(wave).min()) if wave.size > 1 else 0.1
+            if iw.shape != wave.shape or not np.allclose(iw, wave, rtol=0, atol=tol):
+                off = float(np.abs(iw - wave).max()) if iw.shape == wave.shape else None
                 raise ValueError(f"scene.illuminant.spectrum.wave: expected the scene's wavelengths "
                                  f"({wave.min():g}-{wave.max():g} nm, {wave.size}) in {str(p)!r}, got "
-                                 f"{iw.min():g}-{iw.max():g} nm ({iw.size})")
+                                 f"{iw.min():g}-{iw.max():g} nm ({iw.size})"
+                                 + ("" if off is None else f", up to {off:.3g} nm off"))
         if ill.size == wave.size:
             ill_t = torch.as_tensor(ill.reshape(-1), dtype=dtype)
         elif ill.shape != photons.shape:  # spatially varying illuminants (rows, cols, wave): metadata only

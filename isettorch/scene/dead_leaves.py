@@ -25,7 +25,7 @@ from .scene import Scene
 __all__ = ["dead_leaves", "sample_power_law_radii", "expected_disk_area_px2", "max_disks_for"]
 
 _CHUNK = 4096  # disks drawn per call to the generator
-_MAX_DEFAULT_DISKS = 20_000_000  # the most :func:`max_disks_for` may ask for (about 10 minutes of drawing)
+_MAX_DEFAULT_DISKS = 20_000_000  # the most disks an image may need by default (about 10 minutes of drawing)
 
 
 def sample_power_law_radii(n: int, alpha: float, rmin_px: float, rmax_px: float,
@@ -130,11 +130,12 @@ def dead_leaves(size=128, *, alpha: float = 3.0, rmin_px: float = 1.0, rmax_px: 
     if num_disks is not None:
         num_disks = check_int(num_disks, "num_disks")
     if max_disks is None:
-        max_disks = max_disks_for(rows, cols, a, rmin, rmax)
-        if max_disks > _MAX_DEFAULT_DISKS:  # (it would run for hours)
+        need = _disks_per_cover(rows, cols, a, rmin, rmax) * math.log(rows * cols)  # the expected need (Boolean)
+        if need > _MAX_DEFAULT_DISKS:  # (it would run for hours)
             raise ValueError(f"rmin_px, alpha: disks of {rmin:g} to {rmax:g} px with exponent {a:g} are too small to "
-                             f"cover a {rows} x {cols} image (about {max_disks:.3g} needed); raise rmin_px or lower "
-                             f"alpha, or pass num_disks")
+                             f"cover a {rows} x {cols} image (about {need:.3g} needed); raise rmin_px or lower alpha, "
+                             f"or pass max_disks to draw that many anyway")
+        max_disks = max_disks_for(rows, cols, a, rmin, rmax)
     else:
         max_disks = check_int(max_disks, "max_disks")
     b = check_int(batch_size, "batch_size")
@@ -232,6 +233,9 @@ def max_disks_for(rows: int, cols: int, alpha: float, rmin_px: float, rmax_px: f
     fall on the image extended by ``rmax`` (where they are drawn) needed to cover each point ``ln(pixels) + 20`` times
     on average, so every pixel is covered unless with probability about ``exp(-20)`` per image (a Boolean model:
     a point stays uncovered by N disks with probability exp(-N E[area] / extended area)); at least 200,000."""
-    extended = (rows + 2 * rmax_px) * (cols + 2 * rmax_px)
-    per_cover = extended / expected_disk_area_px2(alpha, rmin_px, rmax_px)
-    return max(200_000, math.ceil(per_cover * (math.log(rows * cols) + 20)))
+    return max(200_000, math.ceil(_disks_per_cover(rows, cols, alpha, rmin_px, rmax_px) * (math.log(rows * cols) + 20)))
+
+
+def _disks_per_cover(rows: int, cols: int, alpha: float, rmin_px: float, rmax_px: float) -> float:
+    """Disks drawn per mean cover of a point: the extended area the centres fall on over a disk's expected area."""
+    return (rows + 2 * rmax_px) * (cols + 2 * rmax_px) / expected_disk_area_px2(alpha, rmin_px, rmax_px)

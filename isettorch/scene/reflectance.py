@@ -123,7 +123,8 @@ def from_rgb(rgb: torch.Tensor, display="lcd", wavelengths=None, *, dpi: float |
     _check_rgb(rgb, "rgb", encoded=True)
     linear = display.eotf(rgb)
     primaries = spectral.energy_to_photons(display.primaries_on(w, dtype=w.dtype, device=w.device), w, dim=-1)
-    if not bool((primaries.sum(dim=-1) > 0).all()):  # (read "illuminant_photons: ... all zeros")
+    if not bool((primaries.sum(dim=-1) > 0).any()):  # no primary's light on it (read "illuminant_photons: ... all
+        # zeros"); a grid holding some primaries' light (620-700 nm: red only) renders, as before
         dw = display.wavelengths_nm
         raise ValueError(f"wavelengths: {float(w[0]):g}..{float(w[-1]):g} nm holds no light of display "
                          f"{display.name!r}'s primaries ({float(dw[0]):g}..{float(dw[-1]):g} nm)")

@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..io.images import PHOTO_SUFFIXES
+
 __all__ = ["ViewerSession", "Settings", "ROI", "SCENES", "WINDOWS", "F_NUMBERS", "PIXEL_SIZES_UM", "EXPOSURES_MS",
            "CFAS", "resolve_config"]
 
@@ -95,7 +97,7 @@ def _read_scene_file(path: Path, hfov_deg: float):
         from ..io.exr import read_scene_exr
 
         scene = read_scene_exr(path, hfov_deg=hfov_deg)
-    elif suffix in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"):
+    elif suffix in PHOTO_SUFFIXES:  # (the photo folders' list: a .webp or .jfif was 'not a readable file')
         from ..io.images import read_rgb8, rgb8_to_tensor
         from ..scene import from_rgb
 
@@ -104,7 +106,7 @@ def _read_scene_file(path: Path, hfov_deg: float):
         scene = from_rgb(rgb8_to_tensor(read_rgb8(path)).float())
     else:
         raise ValueError(f"scene: {str(path)!r} is not a built-in scene {list(SCENES)} nor a readable file "
-                         "(.mat, .exr, .png, .jpg, .tif)")
+                         f"(.mat, .exr, {', '.join(PHOTO_SUFFIXES)})")
     return scene.replace(hfov_deg=hfov_deg)
 
 

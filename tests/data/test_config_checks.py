@@ -189,10 +189,10 @@ BAD = [  # (section, key, value, start of the message)
     ("scene", "natural", {"components": {"palette": {"measured": 0.0, "recovery": 0.0, "random": 0.0}}},
      "scene.natural: config: 'components.palette' expected a positive total of the kind weights"),
     ("scene", "natural", {"components": {"textured_leaves": {"grating_cpp": [0.02, 3.0]}}},
-     "scene.natural: config: 'components.textured_leaves.grating_cpp' expected frequencies in \\(0, 0.5\\]"),
+     "scene.natural: config: 'components.textured_leaves.grating_cpp' expected frequencies in (0, 0.5]"),
     # sampled at pixel centres: 0.75 cycles/pixel came out as 0.25, 1 and 2 as a flat field (texture audit)
     ("scene", "natural", {"components": {"textured_leaves": {"grating_cpp": [0.02, 1.0]}}},
-     "scene.natural: config: 'components.textured_leaves.grating_cpp' expected frequencies in \\(0, 0.5\\]"),
+     "scene.natural: config: 'components.textured_leaves.grating_cpp' expected frequencies in (0, 0.5]"),
     ("scene", "natural", {"components": {"dead_leaves": {"r_max_fraction": 0.01}}},
      "scene.natural: config: 'components.dead_leaves.r_max_fraction' x size"),
     ("scene", "natural", {"components": {"grain": {"amplitude": [0.0, 0.01]}}},

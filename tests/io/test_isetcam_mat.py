@@ -151,3 +151,15 @@ def test_a_parity_case_written_without_its_suffix_reads_back(tmp_path):
     write_parity_case(tmp_path / "mycase", {"a": np.ones(2)})  # (np.savez wrote mycase.npz)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mycase"]
     assert read_parity_case(tmp_path / "mycase", check=False)["a"].tolist() == [1.0, 1.0]
+
+
+def test_an_illuminant_grid_in_single_precision_is_the_scenes_and_an_empty_type_is_none(tmp_path):
+    """The illuminant-grid check (1e-6 nm) refused a grid stored in single precision or rounded to 0.01 nm; an empty
+    type field read as an ISETCam '[]' type (review of 2026-12-01)."""
+    w = np.linspace(398.29, 1001.39, 61)
+    ph = np.ones((2, 2, 61))
+    ill = {"data": {"photons": np.ones(61)}, "spectrum": {"wave": w.astype(np.float32).astype(np.float64).round(2)}}
+    scipy.io.savemat(tmp_path / "f32.mat", {"scene": {"type": "", "data": {"photons": ph}, "spectrum": {"wave": w},
+                                                      "illuminant": ill}})
+    s = read_isetcam_scene(tmp_path / "f32.mat")
+    assert s.illuminant_photons.shape[-1] == 61

@@ -134,8 +134,9 @@ def test_large_images_are_covered_and_bad_draws_are_named():
         dead_leaves((1, 8))
     with pytest.raises(ValueError, match=r"reflectance_range: \(0, 0\) makes every leaf black"):
         dead_leaves(16, reflectance_range=(0, 0))
-    with pytest.raises(ValueError, match=r"rmin_px, alpha: disks of 0.01 to 8 px with exponent 200 are too small"):
-        dead_leaves(16, alpha=200.0, rmin_px=0.01)  # (an OverflowError)
+    with pytest.raises(ValueError, match=r"rmin_px, alpha: disks of 0.01 to 32 px with exponent 200 are too small .*"
+                                         r"about 4.29e\+08 needed.*pass max_disks"):
+        dead_leaves(64, alpha=200.0, rmin_px=0.01)  # (an OverflowError)
     assert expected_disk_area_px2(3.0, 2.0, 2.0) == pytest.approx(np.pi * 4.0)
     # rmax -> infinity: pi rmin^2 (alpha - 1) / (alpha - 3); (8 / 0.01)^-197 is nothing (rmin^-199 overflowed)
     assert expected_disk_area_px2(200.0, 0.01, 8.0) == pytest.approx(np.pi * 1e-4 * 199 / 197, rel=1e-12)

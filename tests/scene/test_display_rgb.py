@@ -215,3 +215,10 @@ def test_a_gamma_below_one_has_finite_gradients_at_black():
     assert torch.isfinite(g).all(), g
     torch.testing.assert_close(y.detach(), torch.tensor([0.0, 0.5, 1.0], dtype=torch.float64), rtol=0, atol=1e-18)
     assert float(g[1]) == pytest.approx(0.5 * 0.25 ** -0.5)
+
+
+def test_a_grid_holding_some_primaries_light_renders():
+    """The grid check refused a grid where any primary had no light (620-700 nm on the Apple display: red only);
+    it refuses only a grid holding none."""
+    s = from_rgb(torch.ones(1, 3, 2, 2, dtype=F64), "apple", torch.arange(620.0, 701.0, 10.0))
+    assert float(s.photons.sum()) > 0
