@@ -508,7 +508,7 @@ def case_cfa(case: dict):
     """The case's CFA: the pattern (``sensor_cfa_pattern``, 1-based) over the filter order of
     ``sensor_filter_names``, letters from ``sensor_filter_letters`` (or the names' first letters); the full
     filter names become the channel names when the letters are not distinct known CFA letters."""
-    from ..sensor.cfa import CFA, KNOWN_LETTERS
+    from ..sensor.cfa import KNOWN_LETTERS
 
     names = _strings(case, "sensor_filter_names")
     if "sensor_filter_letters" in case:
@@ -527,13 +527,29 @@ def case_cfa(case: dict):
             raise ValueError(f"sensor_cfa_pattern: expected a [pr, pc] array of 1-based indices into "
                              f"{len(names)} filters, got {raw.tolist()}")
         cell = [[letters[int(i) - 1] for i in row] for row in pat]
-        cfa = CFA(cell, channel_names=letters)
+        cfa = _case_cfa(cell, letters)
         if s and all(len(x) == 1 for x in letters) and cfa.pattern != s.upper():
             raise ValueError(f"sensor_cfa: {s!r} disagrees with sensor_cfa_pattern ({cfa.pattern!r})")
         return cfa
     if not s:
         raise _missing("sensor_cfa")
-    return CFA(s, channel_names=letters)
+    side = math.isqrt(len(s))
+    if side * side != len(s):  # (CFA's message named its own 'cell' argument and an 'RG/GB' syntax a case cannot hold)
+        raise ValueError(f"sensor_cfa: {s!r} is not a square cell ({len(s)} letters) and the case has no "
+                         f"sensor_cfa_pattern to give its shape (FORMAT.md section 2)")
+    return _case_cfa(s, letters)
+
+
+def _case_cfa(cell, letters):
+    """The case's CFA, a disagreement between its cell and its filters named by the case's keys (the library's
+    message named its own ``channel_names``)."""
+    from ..sensor.cfa import CFA
+
+    try:
+        return CFA(cell, channel_names=letters)
+    except ValueError as err:
+        raise ValueError(f"sensor_cfa / sensor_cfa_pattern, sensor_filter_names / sensor_filter_letters: the cell and "
+                         f"the filters disagree ({err})") from err
 
 
 def case_adc_bits(case: dict) -> int | None:

@@ -311,3 +311,17 @@ def test_sensor_spectral_rule_is_checked_and_in_isetcams_conventions():
     assert Sensor(rows=2, cols=2).spectral_rule == "midpoint"
     with pytest.raises(ValueError, match=r"spectral_rule: expected one of \('midpoint', 'isetcam'\), got 'trapezoid'"):
         Sensor(rows=2, cols=2, spectral_rule="trapezoid")
+
+
+def test_cfa_errors_name_the_case_keys(base):
+    """A 3-letter cell without its pattern named the library's 'cell' argument and an 'RG/GB' syntax a case cannot
+    hold; filters that disagree with the cell named 'channel_names' (parity audit, 2026-12-01)."""
+    from isettorch.io.isetcam import case_cfa
+
+    case = {k: v for k, v in base.items() if k != "sensor_cfa_pattern"}
+    with pytest.raises(ValueError, match=r"sensor_cfa: 'RGB' is not a square cell \(3 letters\) and the case has no "
+                                         r"sensor_cfa_pattern"):
+        case_cfa(dict(case, sensor_cfa=np.str_("RGB")))
+    with pytest.raises(ValueError, match=r"^sensor_cfa / sensor_cfa_pattern, sensor_filter_names / "
+                                         r"sensor_filter_letters: the cell and the filters disagree"):
+        case_cfa(dict(case, sensor_cfa=np.str_("RGGX")))
