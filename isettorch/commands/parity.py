@@ -16,13 +16,13 @@ stage                      compared quantity                                    
 ``sensor_current``         pixel current (A) from the case OI vs ``sensor_signal_current_a``    1e-4 rel.
 ``sensor_volts``           volts from the **case** OI vs ``sensor_volts`` (absolute V)          1e-5 V
 ``sensor_dv``              DN from the case OI vs ``sensor_dv``: within 1 everywhere, and exact  1 DN
-                           at >= 99.9 % of pixels, or at all but the share the volts' own
-                           difference (max, ``sensor_volts``) can move across a rounding edge,
-                           2 x max / step (a 16-bit step is 1.5e-5 V: float32 volts' 1e-7 moves
-                           about 1 % of the pixels)
+                           at >= 99.9 % of pixels, a pixel counting as exact where the case's
+                           volts lie nearer a rounding edge than ours differ from them (a 16-bit
+                           step is 1.5e-5 V: float32 volts' 1e-7 moves about 1 % of the pixels)
 ``ip_result``              ISETCam's default processor (:func:`isettorch.isp.ip_result_from_case`,  1e-5
                            the case's matrices) on ``sensor_dv`` (or volts) vs ``ip_result``
-                           (absolute, over the reference's peak)
+                           (absolute, over the reference's peak; skipped for a colour case
+                           without ``ip_T_sensor`` / ``ip_T_display``)
 ``*_from_our_oi``          the same sensor stages run on our OI (informational: not in verdict)
 =========================  ==================================================================  ===========
 
@@ -107,21 +107,27 @@ def _abs_stats(ours, ref, tol):
             "tolerance": tol, "ok": bool(err.max() <= tol)}
 
 
-def _dv_stats(ours, ref, volts_err: float | None = None, step_v: float | None = None):
-    """DN within 1 everywhere and exact at :data:`DV_EXACT_FRACTION` of the pixels, or at all but the share a volts
-    difference of ``volts_err`` can move across a rounding edge of ``step_v`` (2 x err / step: at 16 bits the
-    float32 volts' own 1e-7 moved 0.8 % of the pixels, and ISETCam's own volts reached 99.919 % against 99.9)."""
+def _dv_stats(ours, ref, ours_v=None, ref_v=None, step_v: float | None = None):
+    """DN within 1 everywhere, and exact at :data:`DV_EXACT_FRACTION` of the pixels, counting as exact a pixel whose
+    reference volts ``ref_v`` lie nearer a rounding edge (``(k + 1/2) step_v``) than our volts ``ours_v`` differ from
+    them there: that pixel's DN is decided by the volts' own difference (at 16 bits a step is 1.5e-5 V and the float32
+    volts' 1e-7 moved 0.8 % of the pixels; ISETCam's own volts reached 99.919 % against 99.9). Per pixel, so one far
+    pixel excuses nothing else (a rule by the largest volts error passed a map off by one everywhere)."""
     import numpy as np
 
     out = _abs_stats(ours, ref, TOL["sensor_dv"])
     if "error" in out:
         return out
-    exact = float((np.asarray(ours, np.float64) == np.asarray(ref, np.float64)).mean())
-    need = DV_EXACT_FRACTION
-    if volts_err is not None and step_v:
-        need = min(need, 1.0 - 2.0 * volts_err / step_v)
-    out["exact_fraction"], out["exact_fraction_needed"] = exact, need
-    out["ok"] = bool(out["max_err"] <= 1.0 and exact >= need)
+    off = np.asarray(ours, np.float64) != np.asarray(ref, np.float64)
+    exact = 1.0 - float(off.mean())
+    if ours_v is not None and ref_v is not None and step_v:
+        r = np.asarray(ref_v, np.float64) / step_v
+        to_edge = np.abs(r - np.floor(r) - 0.5) * step_v  # the reference volts' distance to the nearest edge
+        excused = off & (to_edge <= np.abs(np.asarray(ours_v, np.float64) - np.asarray(ref_v, np.float64)))
+        off = off & ~excused
+        out["excused_fraction"] = float(excused.mean())
+    out["exact_fraction"] = exact
+    out["ok"] = bool(out["max_err"] <= 1.0 and 1.0 - float(off.mean()) >= DV_EXACT_FRACTION)
     return out
 
 
@@ -153,6 +159,7 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
         _string,
         _vector,
         _wavelengths,
+        case_cfa,
         case_optical_image,
         case_regrid_kernel,
         case_scene_oi,
@@ -234,14 +241,20 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
             # ISETCam quantizes its single-precision volts (FORMAT 4.7)
             dn = sensor.volts_to_dn(volts.to(torch.float32).to(torch.float64))
             step = _scalar(case, "sensor_voltage_swing_v") / 2 ** sensor.adc_bits
-            res["sensor_dv"] = _dv_stats(dn.numpy(), case["sensor_dv"], res["sensor_volts"].get("max_err"), step)
+            res["sensor_dv"] = _dv_stats(dn.numpy(), case["sensor_dv"], volts.to(torch.float32).numpy(),
+                                         case["sensor_volts"], step)
         else:
             res["sensor_dv"] = {"skipped": "analog sensor (no sensor_dv)", "ok": None}
         for st, v in res.items():
             if label and "skipped" not in v:
                 v["informational"] = True
             stages[st + label] = v
-    if "ip_result" in case:  # ISETCam's ipCompute on the case's sensor data, with its matrices
+    colour = not case_cfa(case).is_monochrome
+    if "ip_result" in case and colour and not ("ip_T_sensor" in case and "ip_T_display" in case):
+        # ISETCam's MCC-optimised sensor matrix and LCD-Apple display matrix are the case's to give (FORMAT.md: a
+        # colour case holds them); fitted here instead, the result differs by 6e-3 to 9e-2
+        stages["ip_result"] = {"skipped": "a colour case without ip_T_sensor / ip_T_display", "ok": None}
+    elif "ip_result" in case:  # ISETCam's ipCompute on the case's sensor data, with its matrices
         from ..isp.isetcam import ip_result_from_case
 
         ours_ip, ref_ip = ip_result_from_case(case)

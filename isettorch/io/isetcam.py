@@ -155,9 +155,8 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
         if ill_wave is not None and np.asarray(ill_wave).size:  # (one on 400-500 nm was attached to a 500-600 nm
             # scene as it was)
             iw = np.asarray(ill_wave, dtype=float).reshape(-1)
-            # the same grid to a tenth of its spacing (a single-precision or 0.01 nm-rounded copy is the same grid)
-            tol = 0.1 * float(np.diff(wave).min()) if wave.size > 1 else 0.1
-            if iw.shape != wave.shape or not np.allclose(iw, wave, rtol=0, atol=tol):
+            # the same grid to 0.05 nm (a single-precision or 0.01 nm-rounded copy is the same grid; a shifted one not)
+            if iw.shape != wave.shape or not np.allclose(iw, wave, rtol=0, atol=0.05):
                 off = float(np.abs(iw - wave).max()) if iw.shape == wave.shape else None
                 raise ValueError(f"scene.illuminant.spectrum.wave: expected the scene's wavelengths "
                                  f"({wave.min():g}-{wave.max():g} nm, {wave.size}) in {str(p)!r}, got "

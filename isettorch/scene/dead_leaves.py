@@ -25,7 +25,7 @@ from .scene import Scene
 __all__ = ["dead_leaves", "sample_power_law_radii", "expected_disk_area_px2", "max_disks_for"]
 
 _CHUNK = 4096  # disks drawn per call to the generator
-_MAX_DEFAULT_DISKS = 20_000_000  # the most disks an image may need by default (about 10 minutes of drawing)
+_MAX_DEFAULT_DISKS = 20_000_000  # the most disks an image may need by default (drawn to 2-4x that: minutes)
 
 
 def sample_power_law_radii(n: int, alpha: float, rmin_px: float, rmax_px: float,
@@ -129,13 +129,15 @@ def dead_leaves(size=128, *, alpha: float = 3.0, rmin_px: float = 1.0, rmax_px: 
         raise ValueError(f"rmax_px: expected rmax_px >= rmin_px ({rmin}), got {rmax}")
     if num_disks is not None:
         num_disks = check_int(num_disks, "num_disks")
-    if max_disks is None:
+    if max_disks is None and num_disks is None:
         need = _disks_per_cover(rows, cols, a, rmin, rmax) * math.log(rows * cols)  # the expected need (Boolean)
         if need > _MAX_DEFAULT_DISKS:  # (it would run for hours)
             raise ValueError(f"rmin_px, alpha: disks of {rmin:g} to {rmax:g} px with exponent {a:g} are too small to "
                              f"cover a {rows} x {cols} image (about {need:.3g} needed); raise rmin_px or lower alpha, "
                              f"or pass max_disks to draw that many anyway")
         max_disks = max_disks_for(rows, cols, a, rmin, rmax)
+    elif max_disks is None:  # num_disks given: exactly that many
+        max_disks = num_disks
     else:
         max_disks = check_int(max_disks, "max_disks")
     b = check_int(batch_size, "batch_size")

@@ -163,3 +163,13 @@ def test_an_illuminant_grid_in_single_precision_is_the_scenes_and_an_empty_type_
                                                       "illuminant": ill}})
     s = read_isetcam_scene(tmp_path / "f32.mat")
     assert s.illuminant_photons.shape[-1] == 61
+
+
+def test_an_illuminant_on_a_shifted_grid_is_refused(tmp_path):
+    """A grid 1 nm off the scene's (10 nm spacing) is another grid: refused, naming how far off."""
+    w = np.arange(400.0, 701.0, 10.0)
+    ill = {"data": {"photons": np.ones(w.size)}, "spectrum": {"wave": w + 1.0}}
+    scipy.io.savemat(tmp_path / "shift.mat", {"scene": {"data": {"photons": np.ones((2, 2, w.size))},
+                                                        "spectrum": {"wave": w}, "illuminant": ill}})
+    with pytest.raises(ValueError, match=r"scene.illuminant.spectrum.wave: .*up to 1 nm off"):
+        read_isetcam_scene(tmp_path / "shift.mat")

@@ -140,3 +140,9 @@ def test_large_images_are_covered_and_bad_draws_are_named():
     assert expected_disk_area_px2(3.0, 2.0, 2.0) == pytest.approx(np.pi * 4.0)
     # rmax -> infinity: pi rmin^2 (alpha - 1) / (alpha - 3); (8 / 0.01)^-197 is nothing (rmin^-199 overflowed)
     assert expected_disk_area_px2(200.0, 0.01, 8.0) == pytest.approx(np.pi * 1e-4 * 199 / 197, rel=1e-12)
+
+
+def test_num_disks_draws_exactly_that_many_whatever_the_coverage_need():
+    """With num_disks the need-based refusal does not apply (it refused tiny radii drawn a fixed number of times)."""
+    s = dead_leaves(64, alpha=200.0, rmin_px=0.01, num_disks=50, seed=0, mean_luminance_cd_m2=None)
+    assert s.metadata["radii_px"][0].numel() == 50 and s.metadata["uncovered_fraction"][0] > 0.99
