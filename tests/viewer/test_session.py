@@ -100,6 +100,11 @@ def test_a_photograph_scene_is_read_as_the_library_reads_photographs(tmp_path):
     Image.fromarray(np.full((4, 4), 60000, dtype=np.uint16)).save(tmp_path / "deep.png")
     with pytest.raises(ValueError, match="expected 8-bit samples"):
         _read_scene_file(tmp_path / "deep.png", 10.0)
+    # the photo folders' formats (a .webp or .jfif was "not a readable file" here)
+    Image.fromarray(codes).save(tmp_path / "p.webp", lossless=True)
+    webp = _read_scene_file(tmp_path / "p.webp", 10.0)
+    flat = from_rgb(torch.from_numpy(codes.astype(np.float64) / 255).permute(2, 0, 1)[None].float())
+    torch.testing.assert_close(webp.to_dense().photons, flat.to_dense().photons)
 
 
 def test_a_rejected_change_leaves_the_session_and_its_caches_consistent():
