@@ -118,10 +118,6 @@ def denoise_mosaic(raw: torch.Tensor, method: str, noise_sigma: float = 0.0, noi
     if not raw.is_floating_point():  # (a uint8 mosaic was denoised on a 0-255 scale and truncated back)
         raise TypeError(f"raw: expected a floating-point mosaic on the [0, 1] scale, got {raw.dtype}")
     check_finite(raw.detach(), "raw")  # (a NaN sample spread over its non-local search window)
-    top = float(raw.detach().max())
-    if top > 1.5 + 10 * math.sqrt(a + s * s):  # (a 0-255 float mosaic was returned changed by 3e-14)
-        raise ValueError(f"raw: expected a mosaic on the [0, 1] scale (noise takes it a little beyond), got values up "
-                         f"to {top:.4g}")
     x = raw.detach().to("cpu", torch.float64).numpy().copy()
     b = s * s
     if 0 < a <= SHOT_NEGLIGIBLE * b:  # shot noise below the transform's precision: Gaussian of the total variance

@@ -383,6 +383,9 @@ def _demosaic_call(method, model, pattern, noise_sigma, noise_shot, device, dtyp
             raise ValueError(f"model: options {sorted(kwargs)} are for a DemosaicNet or the learned method, not "
                              f"{type(net).__name__}")
         return lambda raw: net(raw)
+    if method == "learned" and "variant" in kwargs:  # (variant='tiny' scored the default network, labelled noise_free)
+        raise ValueError(f"variant: the learned method scores the shipped default network (the joint one with noise); "
+                         f"for another use method 'learned_small' or 'learned_tiny', got variant {kwargs['variant']!r}")
     if method == "learned" and "model" not in kwargs:
         net = learned.load_pretrained("joint_denoise" if noisy else "noise_free", device=device, dtype=dtype)
         return lambda raw: learned.demosaic_learned(raw, pattern, model=net, noise=feats if noisy else None, **kwargs)

@@ -383,10 +383,13 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
     border; ``None``: none) keeps each channel's local mean MHC's, so the network adds no colour bias of its own
     (MHC, being linear and exact on constants, has none in expectation). The mosaic's own samples, which a
     noise-free network does not correct, are moved by the high-pass's blur of the correction (up to 0.014 of full
-    scale on a 128 x 128 photograph, 0.06 on small crops; an audit of 2026-12-01): the shipped learned methods do not
-    return the measured samples exactly, as MHC and Menon do. ``highpass_decimation`` d computes that
-    blur on d x d means (:func:`_lowpass`), for the fast networks where the full-resolution blur would cost more
-    than the network.
+    scale on a 128 x 128 photograph for ``learned``, 0.025 / 0.016 for ``learned_small`` / ``learned_tiny``, 0.06 on
+    small crops and up to 0.26 on 4 x 4 inputs; audits of 2026-12-01): the shipped learned methods do not return the
+    measured samples exactly, as MHC and Menon do. ``highpass_decimation`` d computes that blur on d x d means
+    (:func:`_lowpass`), for the fast networks where the full-resolution blur would cost more than the network; those
+    means are anchored at the image's origin, so the fast networks are equivariant to shifts of 4 pixels only (a crop
+    at offset 2 changes the interior by up to 5e-3; tiles processed apart show seams unless their origins are
+    multiples of 4).
 
     Args:
         raw: (B, 1, H, W) RGGB mosaic.

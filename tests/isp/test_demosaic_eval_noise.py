@@ -355,16 +355,15 @@ def test_denoise_and_noisy_mosaic_refuse_what_they_took_silently():
 
 def test_denoiser_edge_cases_found_by_the_denoise_audit(tmp_path, monkeypatch):
     """Shot noise far below the Gaussian floor (a = 1e-20 beside sigma 0.02) lost the signal in the Anscombe
-    transform (values 129 off): denoised as the Gaussian noise it is; a 0-255 float mosaic came back unchanged (to
-    3e-14): refused; shot noise on a negative mosaic named poisson_gaussian's 'signal'; bm3d installed without its
-    dependency said 'needs the bm3d package'."""
+    transform (values 129 off): denoised as the Gaussian noise it is; shot noise on a negative mosaic named
+    poisson_gaussian's 'signal'; bm3d installed without its dependency said 'needs the bm3d package'. (A bound
+    refusing 0-255 float mosaics was tried and removed: the joint network's classical expert gets bright, white-
+    balanced highlights above 1.5 legitimately.)"""
     truth = mosaic(_truth(_image(32, 32)), "RGGB")
     raw = ev.noisy_mosaic(truth, 0.02, 1e-20, seed=3)
     torch.testing.assert_close(ev.denoise_mosaic(raw, "nlmeans", 0.02, 1e-20), ev.denoise_mosaic(raw, "nlmeans", 0.02),
                                rtol=0, atol=1e-12)
     assert float((ev.denoise_mosaic(raw, "nlmeans", 0.02, 1e-20) - truth).abs().max()) < 0.2
-    with pytest.raises(ValueError, match=r"raw: expected a mosaic on the \[0, 1\] scale .*up to 2\d\d"):
-        ev.denoise_mosaic(truth * 255, "nlmeans", 0.02)
     with pytest.raises(ValueError, match=r"raw: expected values >= 0 for shot noise \(noise_shot 0.01 > 0\)"):
         ev.noisy_mosaic(truth - 0.5, 0.0, 0.01)
     fake = tmp_path / "bm3d"
@@ -375,3 +374,10 @@ def test_denoiser_edge_cases_found_by_the_denoise_audit(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match=r"'bm3d' is installed but cannot be imported: its dependency "
                                          r"'bm4d_not_installed_here' is missing"):
         ev.denoise_mosaic(raw, "bm3d", 0.02)
+
+
+def test_the_learned_method_refuses_a_variant_it_would_ignore():
+    """evaluate_demosaic(..., "learned", variant="tiny") scored the default network, labelled noise_free."""
+    with pytest.raises(ValueError, match=r"variant: the learned method scores the shipped default network.*"
+                                         r"'learned_tiny', got variant 'tiny'"):
+        ev.evaluate_demosaic([("a", _image(16, 16))], "learned", variant="tiny")
