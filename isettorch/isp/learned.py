@@ -904,18 +904,23 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
     """
     check_finite(_check_raw(raw, even=False), "raw")  # (a NaN sample would spread over the whole image through the
     # guard's local means)
-    _check_noise_features(noise)
+    _check_noise_features(noise, raw.shape[0])
     return _demosaic_learned(raw, pattern, model=model, noise=noise, self_ensemble=self_ensemble, variant=variant)
 
 
-def _check_noise_features(noise) -> None:
+def _check_noise_features(noise, batch: int) -> None:
     """A joint network's noise features, once per call at the entry points (not per flip of the dihedral ensemble:
-    two host reads): None or a floating-point tensor of finite values >= 0 (NaN gave an all-NaN image)."""
+    two host reads): None or a floating-point tensor ``[B, k]`` or ``[1, k]`` for a batch of ``batch``
+    mosaics, of finite values >= 0 (NaN gave an all-NaN image; a ``[3, 2]`` for two mosaics was reported as the
+    ``(2, 3)`` it was reshaped to, a ``[4]`` failed with an IndexError after the network had run)."""
     if noise is None:
         return
     if not isinstance(noise, torch.Tensor) or not noise.is_floating_point():
         raise TypeError(f"noise: expected a floating-point tensor (B, noise_inputs), got "
                         f"{noise.dtype if isinstance(noise, torch.Tensor) else type(noise).__name__}")
+    if noise.dim() != 2 or noise.shape[0] not in (1, batch):
+        raise ValueError(f"noise: expected shape [B, noise_inputs] (or [1, noise_inputs]) for {batch} mosaic(s), got "
+                         f"{tuple(noise.shape)}")
     check_finite(noise, "noise")
     if bool((noise < 0).any()):
         raise ValueError(f"noise: expected non-negative noise parameters [sqrt(a) * 10, sqrt(b) * 100], got "
@@ -1090,7 +1095,7 @@ def _register() -> None:
     for name, variant in LEARNED_METHODS.items():
         def _learned(raw, pattern="RGGB", *, _variant=variant, model=None, noise=None, self_ensemble=False):
             # reached through demosaic(), which has checked the values finite
-            _check_noise_features(noise)
+            _check_noise_features(noise, raw.shape[0] if isinstance(raw, torch.Tensor) and raw.dim() == 4 else 1)
             return _demosaic_learned(raw, pattern, model=model, noise=noise, self_ensemble=self_ensemble,
                                      variant=_variant)
 

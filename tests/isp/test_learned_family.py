@@ -4,6 +4,7 @@ DemosaicNet on top of Menon et al. (2007), and the guard's decimated high-pass."
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 import torch
@@ -373,3 +374,12 @@ def test_head_computes_only_its_nonzero_channels_with_the_same_values():
         head.bias[[0, 5, 6, 11]] = 1.0  # every channel used: all computed, None
         y, channels = learned._head_forward(head, x)
         assert channels is None and y.shape[1] == 12
+
+
+@pytest.mark.parametrize("shape", [(3, 2), (2,), (4,), (2, 1, 2)])
+def test_noise_features_of_the_wrong_shape_are_named_before_the_network_runs(shape):
+    """A [3, 2] for two mosaics was reported as the (2, 3) it was reshaped to; a [4] or [2, 1, 2] failed with an
+    IndexError after the network had run (learned-model audit, 2026-12-01)."""
+    with pytest.raises(ValueError, match=rf"noise: expected shape \[B, noise_inputs\] .* for 2 mosaic\(s\), got "
+                                         rf"{re.escape(str(shape))}"):
+        learned.demosaic_learned(torch.rand(2, 1, 16, 16), variant="joint_denoise", noise=torch.full(shape, 0.5))
