@@ -936,6 +936,11 @@ def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> 
     check_self_ensemble(self_ensemble)
     if model is None:  # the shared cached instance (load_pretrained gives callers their own copy)
         model = _pretrained(_check_variant(variant), str(raw.device), raw.dtype, True)
+    elif isinstance(model, nn.Module):  # (torch's "Input type (double) and bias type (float)" named neither)
+        param = next(model.parameters(), None)
+        if param is not None and param.dtype != raw.dtype:
+            raise ValueError(f"model: its weights are {param.dtype}, the mosaic raw is {raw.dtype}; convert one "
+                             f"(model.to({raw.dtype}), or load_pretrained(..., dtype={raw.dtype}))")
     if raw.shape[0] == 0:  # an empty batch: no network pass
         return raw.new_zeros((0, 3, *raw.shape[-2:]))
     n_in = getattr(model, "noise_inputs", 0)

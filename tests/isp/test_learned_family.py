@@ -383,3 +383,9 @@ def test_noise_features_of_the_wrong_shape_are_named_before_the_network_runs(sha
     with pytest.raises(ValueError, match=rf"noise: expected shape \[B, noise_inputs\] .* for 2 mosaic\(s\), got "
                                          rf"{re.escape(str(shape))}"):
         learned.demosaic_learned(torch.rand(2, 1, 16, 16), variant="joint_denoise", noise=torch.full(shape, 0.5))
+
+
+def test_a_model_of_another_dtype_is_named():
+    """torch's "Input type (double) and bias type (float) should be the same" named neither argument."""
+    with pytest.raises(ValueError, match=r"model: its weights are torch.float32, the mosaic raw is torch.float64"):
+        learned.demosaic_learned(torch.rand(1, 1, 16, 16, dtype=torch.float64), model=learned.load_pretrained())
