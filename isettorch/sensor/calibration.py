@@ -553,7 +553,7 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
                            "black_level_dn_nominal": capture.black_level_dn, "quantisation_step_dn": step,
                            "effective_bits": bits_eff}
     if capture.cfa is None:
-        _warn_mosaic_as_mono(capture, warnings)
+        _warn_mosaic_as_mono(*stats["W"], capture.folders, warnings)
         res = per["W"]
         out.update({k: res[k] for k in CALIBRATION_FIELDS})
         out["photon_transfer"] = res["photon_transfer"]
@@ -615,18 +615,18 @@ def _warn_raw_black_level(tagged: float | None, measured: float, step: int, warn
 _MOSAIC_PHASE_SPREAD = 0.02
 
 
-def _warn_mosaic_as_mono(capture, warnings: list[str]) -> None:
+def _warn_mosaic_as_mono(dark: dict, flat: dict, folders: dict, warnings: list[str]) -> None:
     """Warn when a capture without ``cfa`` has flats whose 2 x 2 phases differ (a Bayer mosaic in PNG / TIFF / .npy
     frames, which carry no CFA): calibrated as monochrome, its PRNU holds the colours' differences (23 % for a 1 %
     sensor) and its full well the least sensitive channel's. Measured on the flat whose mean signal (over the
-    shortest dark's mean) is nearest half the brightest flat's: below any channel's saturation."""
-    h, w = next(iter(capture.dark.values())).shape[-2:]
-    if h < 4 or w < 4:
-        return
-    black = float(capture.dark[min(capture.dark)].mean())
-    signals = {ms: float(st.mean()) - black for ms, st in capture.flat.items()}
+    shortest dark's mean) is nearest half the brightest flat's: below any channel's saturation. ``dark`` / ``flat``:
+    the monochrome channel's statistics (:func:`_stats`: their means and frame-mean images, not read again)."""
+    black = dark[min(dark)]["mean"]
+    signals = {ms: st["mean"] - black for ms, st in flat.items()}
     ms = min(signals, key=lambda k: abs(signals[k] - 0.5 * max(signals.values())))
-    mean = capture.flat[ms].astype(np.float64).mean(axis=0) - black
+    mean = np.asarray(flat[ms]["averages"][0], dtype=np.float64) - black  # the frames' mean image
+    if min(mean.shape) < 4:
+        return
     phases = [mean[dy::2, dx::2] for dy in (0, 1) for dx in (0, 1)]
     signal = np.array([float(q.mean()) for q in phases])
     se = max(float(q.std()) / math.sqrt(q.size) for q in phases)
@@ -634,7 +634,7 @@ def _warn_mosaic_as_mono(capture, warnings: list[str]) -> None:
         return
     spread = float(signal.max() - signal.min())
     if spread > _MOSAIC_PHASE_SPREAD * signal.mean() and spread > 10 * se:
-        folder = capture.folders.get(("flat", ms), f"flat_{ms:g}ms")
+        folder = folders.get(("flat", ms), f"flat_{ms:g}ms")
         warnings.append(f"the flats' 2 x 2 phases differ by {100 * spread / signal.mean():.0f} % (signals "
                         f"{', '.join(f'{v:.1f}' for v in signal)} DN in {folder}): a colour mosaic read as "
                         f"monochrome? set cfa in capture.yaml (as monochrome, the PRNU and full well pool the colours)")
