@@ -42,7 +42,7 @@ def sample_power_law_radii(n: int, alpha: float, rmin_px: float, rmax_px: float,
 
 
 def _leaf_labels(rows: int, cols: int, *, alpha: float, rmin: float, rmax: float, num_disks: int | None,
-                 max_disks: int, generator: torch.Generator):
+                 max_disks: int | None, generator: torch.Generator):
     """Index of the front-most disk at each pixel [H, W] (-1 if none), and the disks' centres and radii.
 
     Disks are drawn front to back (Lee, Mumford & Huang 2001): a pixel shows the first disk that covers its
@@ -129,17 +129,15 @@ def dead_leaves(size=128, *, alpha: float = 3.0, rmin_px: float = 1.0, rmax_px: 
         raise ValueError(f"rmax_px: expected rmax_px >= rmin_px ({rmin}), got {rmax}")
     if num_disks is not None:
         num_disks = check_int(num_disks, "num_disks")
-    if max_disks is None and num_disks is None:
+    if max_disks is not None:
+        max_disks = check_int(max_disks, "max_disks")
+    elif num_disks is None:  # until covered: the image's own bound (with num_disks, exactly that many are drawn)
         need = _disks_per_cover(rows, cols, a, rmin, rmax) * math.log(rows * cols)  # the expected need (Boolean)
         if need > _MAX_DEFAULT_DISKS:  # (it would run for hours)
             raise ValueError(f"rmin_px, alpha: disks of {rmin:g} to {rmax:g} px with exponent {a:g} are too small to "
                              f"cover a {rows} x {cols} image (about {need:.3g} needed); raise rmin_px or lower alpha, "
                              f"or pass max_disks to draw that many anyway")
         max_disks = max_disks_for(rows, cols, a, rmin, rmax)
-    elif max_disks is None:  # num_disks given: exactly that many
-        max_disks = num_disks
-    else:
-        max_disks = check_int(max_disks, "max_disks")
     b = check_int(batch_size, "batch_size")
     if generator is None:
         if seed is None:

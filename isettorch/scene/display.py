@@ -121,7 +121,8 @@ class Display(nn.Module):
         self.name = name
         self.register_buffer("wavelengths_nm", w.clone())
         self.register_buffer("primaries_spd", spd.clone())
-        y_white = float(self.xyz_matrix()[1].sum())
+        m = self.xyz_matrix().double()
+        y_white = float(m[1].sum())
         if not y_white > 0 and (white_xy is not None or max_luminance_cd_m2 is not None):
             # (a ZeroDivisionError or a singular-matrix error)
             raise ValueError(f"primaries_spd: the primaries have no luminance on wavelengths_nm "
@@ -132,7 +133,6 @@ class Display(nn.Module):
             xy = [check_float(v, f"white_xy[{i}]", low=0.0, high=1.0, low_open=True) for i, v in enumerate(white_xy)]
             if xy[0] + xy[1] >= 1:
                 raise ValueError(f"white_xy: expected a chromaticity (x, y) with x + y < 1, got {white_xy}")
-            m = self.xyz_matrix().double()
             target = torch.tensor([xy[0] / xy[1], 1.0, (1 - xy[0] - xy[1]) / xy[1]], dtype=torch.float64) * y_white
             try:
                 gains = torch.linalg.solve(m, target)
@@ -242,10 +242,11 @@ class Display(nn.Module):
     def eotf(self, encoded: torch.Tensor) -> torch.Tensor:
         """Encoded drive values in [0, 1] -> linear primary intensities in [0, 1] (values outside are refused: each
         transfer function extended them its own way)."""
-        check_finite(encoded.detach(), "encoded")
-        if bool((encoded.detach() < 0).any()) or bool((encoded.detach() > 1).any()):
-            raise ValueError(f"encoded: expected drive values in [0, 1], got range [{float(encoded.min()):.6g}, "
-                             f"{float(encoded.max()):.6g}]")
+        _check_drive(encoded, "encoded", "drive values")
+        return self._eotf(encoded)
+
+    def _eotf(self, encoded: torch.Tensor) -> torch.Tensor:
+        """:meth:`eotf` of values its caller checked (:func:`_check_rgb`: one pass over them, not two)."""
         if self.eotf_kind == "srgb":
             return srgb_eotf(encoded)
         if self.eotf_kind == "linear":
@@ -282,7 +283,7 @@ class Display(nn.Module):
     def rgb_to_radiance(self, rgb: torch.Tensor, wavelengths_nm=None, *, units: str = "photons") -> torch.Tensor:
         """Encoded RGB [B, 3, H, W] in [0, 1] -> spectral radiance [B, L, H, W] (see linear_rgb_to_radiance)."""
         _check_rgb(rgb, "rgb", encoded=True)
-        return self.linear_rgb_to_radiance(self.eotf(rgb), wavelengths_nm, units=units)
+        return self.linear_rgb_to_radiance(self._eotf(rgb), wavelengths_nm, units=units)
 
     def forward(self, rgb: torch.Tensor) -> torch.Tensor:
         return self.rgb_to_radiance(rgb)
@@ -300,9 +301,18 @@ def _check_rgb(rgb, name: str, encoded: bool = False) -> None:
         raise ValueError(f"{name}: expected shape [B, 3, H, W], got {tuple(rgb.shape)}")
     if rgb.dtype not in (torch.float32, torch.float64):  # (float16 radiance underflowed to 0 photons)
         raise TypeError(f"{name}: expected a float32 or float64 tensor with values in [0, 1], got {rgb.dtype}")
+    if encoded:
+        _check_drive(rgb, name)
+        return
     check_finite(rgb.detach(), name)
-    lo, hi = rgb.detach().min().item(), rgb.detach().max().item()
-    if encoded and (lo < 0 or hi > 1):
-        raise ValueError(f"{name}: expected encoded values in [0, 1], got range [{lo:.6g}, {hi:.6g}]")
-    if not encoded and lo < 0:
+    lo = rgb.detach().min().item()
+    if lo < 0:
         raise ValueError(f"{name}: expected non-negative linear values, got minimum {lo:.6g}")
+
+
+def _check_drive(x: torch.Tensor, name: str, what: str = "encoded values") -> None:
+    """Encoded drive values: finite and in [0, 1], else a ValueError naming ``name`` (``what`` they are called)."""
+    check_finite(x.detach(), name)
+    lo, hi = x.detach().min().item(), x.detach().max().item()
+    if lo < 0 or hi > 1:
+        raise ValueError(f"{name}: expected {what} in [0, 1], got range [{lo:.6g}, {hi:.6g}]")

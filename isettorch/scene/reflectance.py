@@ -121,7 +121,7 @@ def from_rgb(rgb: torch.Tensor, display="lcd", wavelengths=None, *, dpi: float |
         viewing_distance_m, "viewing_distance_m", low=0.0, low_open=True)
     # rank 3 (Display.rgb_to_radiance factored): linear RGB maps x the primaries' photon spectra
     _check_rgb(rgb, "rgb", encoded=True)
-    linear = display.eotf(rgb)
+    linear = display._eotf(rgb)  # (checked just above)
     primaries = spectral.energy_to_photons(display.primaries_on(w, dtype=w.dtype, device=w.device), w, dim=-1)
     if not bool((primaries.sum(dim=-1) > 0).any()):  # no primary's light on it (read "illuminant_photons: ... all
         # zeros"); a grid holding some primaries' light (620-700 nm: red only) renders, as before
