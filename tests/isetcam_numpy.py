@@ -26,10 +26,11 @@ def _ufl(n):
     return (k - mid) / np.max(np.abs(k - mid))
 
 
-def numpy_oi(radiance, wave, hfov, dist, fnum, f, trans):
+def numpy_oi(radiance, wave, hfov, dist, fnum, f, trans, details=None):
     """oiCompute of a radiance cube ``[L, H, W]`` (photons/s/sr/m^2/nm) through a diffraction-limited lens: the
     irradiance ``[L, H2, W2]`` on the padded grid, the pads ``(rows, cols)``, the sample spacing (m) and the padded
-    horizontal field of view (deg)."""
+    horizontal field of view (deg). A dict passed as ``details`` receives the off-axis factor ``cos4th`` [H, W] and
+    the OTF at 550 nm ``otf_550`` [H2, W2] (DC at [0, 0]), the case's optional keys."""
     nl, h, w = radiance.shape
     dimg = 1 / (1 / f - 1 / dist)
     m = dimg / dist
@@ -60,13 +61,17 @@ def numpy_oi(radiance, wave, hfov, dist, fnum, f, trans):
     fx = _ufl(w2) * (w2 / 2) / hfov2
     fy = _ufl(h2) * (h2 / 2) / vfov2
     width = 2 * f * math.tan(math.radians(hfov2 / 2))
-    out = np.empty_like(pad)
-    for i, lam in enumerate(wave):
+
+    def otf_at(lam):
         fc = (1 / fnum) / (lam * 1e-9) * width / hfov2
         rho = np.sqrt(fx[None, :] ** 2 + fy[:, None] ** 2) / fc
         r = np.minimum(rho, 1)
-        otf = np.where(rho < 1, 2 / np.pi * (np.arccos(r) - r * np.sqrt(1 - r**2)), 0.0)
-        otf = np.fft.ifftshift(otf)
-        out[i] = np.abs(np.fft.ifft2(otf * np.fft.fft2(pad[i])))
+        return np.fft.ifftshift(np.where(rho < 1, 2 / np.pi * (np.arccos(r) - r * np.sqrt(1 - r**2)), 0.0))
+
+    out = np.empty_like(pad)
+    for i, lam in enumerate(wave):
+        out[i] = np.abs(np.fft.ifft2(otf_at(lam) * np.fft.fft2(pad[i])))
+    if details is not None:
+        details.update(cos4th=fall, otf_550=otf_at(550.0))
     spacing = 2 * dimg * math.tan(math.radians(hfov2 / 2)) / w2
     return out, (pr, pc), spacing, hfov2

@@ -10,6 +10,10 @@ stage                      compared quantity                                    
 ``scene_mean_luminance``   the case scene's mean luminance vs ``scene_mean_luminance_cdm2``      1e-5
                            (relative; FORMAT.md 4.7: exact to 1e-7)
 ``oi_hfov``                our OI's field of view vs ``oi_hfov_deg`` (relative)                 1e-6
+``optics_cos4th``          our off-axis factor vs the optional ``optics_cos4th_factor``          1e-6
+                           (relative; all ones for ``optics_offaxis`` 'skip')
+``otf_550``                our diffraction-limited OTF at 550 nm on the padded grid vs the      1e-6
+                           optional ``otf_550`` (absolute; DC at [0, 0])
 ``oi_photons``             our ISETCam-compatible OI vs ``oi_photons`` (relative, pixels above  1e-4
                            1 % of the max)
 ``mean_illuminance``       mean illuminance of our OI vs ``oi_mean_illuminance_lux`` (relative)  2e-3
@@ -29,9 +33,9 @@ stage                      compared quantity                                    
 ``mean_rel_err`` is the mean of ``|ours - ref| / |ref|`` over reference values above 1 % of the max;
 ``max_err`` is the stage's tolerance quantity (max relative error for OI/current/illuminance, max
 absolute volts, max absolute DN). Stages without data in a case are reported as skipped: ``sensor_current``
-without the optional ``sensor_signal_current_a``, ``sensor_dv`` for an analog sensor, ``ip_result`` without it.
-Not compared: the optional ``optics_cos4th_factor`` and ``otf_550``, and the noise keys outside the informational
-``noise_stats``.
+without the optional ``sensor_signal_current_a``, ``sensor_dv`` for an analog sensor, ``ip_result`` without it;
+``optics_cos4th`` and ``otf_550`` are left out of a case without their keys. Not compared: ``otf_550_posthoc``
+(FORMAT.md: not for parity) and the noise keys outside the informational ``noise_stats``.
 
 A case is read and checked first (:func:`isettorch.io.isetcam.check_parity_case`): every key FORMAT.md section 3
 requires must be there (``sensor_dv`` too when the sensor is quantized), scalars and strings are also read as a
@@ -50,7 +54,8 @@ from pathlib import Path
 from ._outputs import strict_json
 
 TOL = {"scene_mean_luminance": 1e-5, "oi_hfov": 1e-6, "oi_photons": 1e-4, "mean_illuminance": 2e-3,
-       "sensor_current": 1e-4, "sensor_volts": 1e-5, "sensor_dv": 1.0, "ip_result": 1e-5}
+       "sensor_current": 1e-4, "sensor_volts": 1e-5, "sensor_dv": 1.0, "ip_result": 1e-5, "optics_cos4th": 1e-6,
+       "otf_550": 1e-6}
 DV_EXACT_FRACTION = 0.999
 MAX_REPEAT = 1000  # a median of more timings moves by less than the machine's noise
 
@@ -182,8 +187,9 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
                                                    TOL["scene_mean_luminance"])
 
     # Optics stage
-    our_oi = case_scene_oi(case)
+    our_oi, details = case_scene_oi(case, return_details=True)
     stages["oi_hfov"] = _scalar_stats(float(our_oi.hfov_deg[0]), _scalar(case, "oi_hfov_deg"), TOL["oi_hfov"])
+    stages.update(_optics_factor_stages(case, our_oi, details))
     stages["oi_photons"] = _rel_stats(our_oi.photons[0].numpy(), case["oi_photons"], TOL["oi_photons"])
     if repeat > 0:
         stages["oi_photons"]["seconds"] = _median_seconds(lambda: case_scene_oi(case), repeat)
@@ -267,6 +273,31 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
         stages["noise_stats"] = noise_stats(case, sensor, case_optical_image(case))
     ok = all(v["ok"] for v in stages.values() if v.get("ok") is not None and not v.get("informational"))
     return {"name": name, "path": str(path), "stages": stages, "notes": notes, "ok": ok}
+
+
+def _optics_factor_stages(case: dict, oi, details: dict) -> dict:
+    """The optional ``optics_cos4th_factor`` and ``otf_550`` (FORMAT.md section 3, extra keys) against ours: the
+    off-axis factor on the unpadded grid (4.3; all ones for ``optics_offaxis`` 'skip') and the diffraction-limited
+    OTF at 550 nm as ``oiApplyOTF`` used it (4.4, DC at [0, 0]), computed at 550 nm with the padded image's geometry
+    whether or not 550 nm is one of the case's wavelengths."""
+    import numpy as np
+    import torch
+
+    from ..optics.isetcam import dl_otf_isetcam
+
+    out = {}
+    if "optics_cos4th_factor" in case:
+        ref = np.asarray(case["optics_cos4th_factor"], np.float64)
+        cos4 = details["cos4th_factor"]
+        ours = np.ones(ref.shape) if cos4 is None else cos4[0].numpy()
+        out["optics_cos4th"] = _rel_stats(ours, ref, TOL["optics_cos4th"])
+    if "otf_550" in case:
+        h2, w2 = details["otf"].shape[-2:]
+        otf, _, _ = dl_otf_isetcam(torch.tensor([550.0], dtype=torch.float64), oi.f_number,
+                                   details["focal_plane_distance_during_compute_m"],
+                                   details["hfov_pad_deg"], details["sample_spacing_during_compute_m"], h2, w2)
+        out["otf_550"] = _abs_stats(otf[0, 0].numpy(), case["otf_550"], TOL["otf_550"])
+    return out
 
 
 NOISE_STD_TOL = 0.03  # relative, per channel (statistics of different random streams)

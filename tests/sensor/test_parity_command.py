@@ -88,8 +88,9 @@ def scene_and_oi(rng, wave, scene_size, dx):
     hfov = 2 * math.degrees(math.atan(dx * w / (2 * d_img)))
     wave = np.asarray(wave, np.float64)
     # the references independent of isettorch: the NumPy oiCompute and colour-science's CIE 1924 V(lambda)
+    extra = {}
     oi, (pad_rows, pad_cols), spacing, hfov2 = numpy_oi(scene.astype(np.float64), wave, hfov, DISTANCE_M, F_NUMBER,
-                                                        FOCAL_M, np.ones(n_l))
+                                                        FOCAL_M, np.ones(n_l), details=extra)
     vl = colour.colorimetry.SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"][wave]
     return dict(scene_photons=scene, scene_hfov_deg=np.float64(hfov), scene_distance_m=np.float64(DISTANCE_M),
                 scene_mean_luminance_cdm2=np.float64(mean_illuminance(scene, wave, vl)),
@@ -97,7 +98,8 @@ def scene_and_oi(rng, wave, scene_size, dx):
                 optics_offaxis=np.str_("cos4th"), optics_transmittance=np.ones(n_l), oi_photons=oi.astype(np.float32),
                 oi_hfov_deg=np.float64(hfov2), oi_sample_spacing_m=np.float64(spacing), oi_pad_rows=np.int64(pad_rows),
                 oi_pad_cols=np.int64(pad_cols), oi_mean_illuminance_lux=np.float64(mean_illuminance(oi, wave, vl)),
-                vlambda=vl)
+                vlambda=vl, optics_cos4th_factor=extra["cos4th"].astype(np.float32),
+                otf_550=extra["otf_550"].astype(np.float32))
 
 
 def make_case(path, *, cfa, pattern, names, letters, bits, gain, offset, pitch, dx, rows, cols, scene_size, wave,
@@ -158,6 +160,10 @@ def test_synthetic_cases_sensor_stage(tmp_path, name):
     st = res["stages"]
     # the OI and its illuminance against the NumPy oiCompute and colour-science's V(lambda) (FORMAT.md 4.1-4.4)
     assert st["oi_photons"]["ok"] and st["mean_illuminance"]["ok"], (st["oi_photons"], st["mean_illuminance"])
+    # the optional off-axis factor and 550 nm OTF against the same NumPy oiCompute, stored as float32 as ISETCam
+    # writes them (the 400:45:670 and 400:50:700 grids hold no 550 nm band: the OTF is computed at 550 nm itself)
+    assert st["optics_cos4th"]["ok"] and st["optics_cos4th"]["max_err"] < 1e-7, st["optics_cos4th"]
+    assert st["otf_550"]["ok"] and st["otf_550"]["max_err"] < 1e-7, st["otf_550"]
     assert st["sensor_volts"]["ok"], st["sensor_volts"]
     assert st["sensor_volts"]["max_err"] < 1e-6
     assert st["sensor_current"]["ok"] and st["sensor_current"]["max_err"] < 1e-5
@@ -404,9 +410,14 @@ def test_every_reference_the_case_holds_is_compared(tmp_path, base):
     res = parity.run_case(CASE)["stages"]
     assert res["ip_result"]["ok"] and res["ip_result"]["max_err"] < 1e-5  # ISETCam's ipCompute, the case matrices
     assert res["scene_mean_luminance"]["max_err"] < 1e-6 and res["oi_hfov"]["max_err"] < 1e-9
+    assert res["optics_cos4th"]["max_err"] < 1e-7 and res["otf_550"]["max_err"] < 1e-7
     for key, value, stage in (("ip_result", np.zeros_like(base["ip_result"]), "ip_result"),
                               ("scene_mean_luminance_cdm2", np.float64(200.0), "scene_mean_luminance"),
-                              ("oi_hfov_deg", np.float64(20.0), "oi_hfov")):
+                              ("oi_hfov_deg", np.float64(20.0), "oi_hfov"),
+                              # the optional keys (FORMAT.md 3, extras): a fall-off 1e-5 off, and the OTF centred
+                              # (DC in the middle) where oiApplyOTF has it at [0, 0]
+                              ("optics_cos4th_factor", (1 + 1e-5) * base["optics_cos4th_factor"], "optics_cos4th"),
+                              ("otf_550", np.fft.fftshift(base["otf_550"]), "otf_550")):
         path = tmp_path / f"{key}.npz"
         np.savez(path, **dict(base, **{key: value}))
         out = parity.run_case(path)
