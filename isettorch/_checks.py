@@ -256,3 +256,47 @@ def check_zip_crc(path, name: str) -> None:
         bad = f"({type(err).__name__})"
     if bad is not None:
         raise ValueError(f"{name}: {str(path)!r} is damaged (member {bad} fails its CRC-32 check)")
+
+
+def check_integer(value, name: str, minimum: int | None = None) -> int:
+    """``value`` if it is an integer (>= ``minimum``); a float such as 1.7 is not truncated, a bool is not an
+    integer: ValueError naming ``name``."""
+    if not is_integer(value) or (minimum is not None and value < minimum):
+        what = {None: "an integer", 0: "a non-negative integer", 1: "a positive integer"}.get(
+            minimum, f"an integer >= {minimum}")
+        raise ValueError(f"{name}: expected {what}, got {value!r}")
+    return int(value)
+
+
+#: seeds are reduced modulo 2^64 by :func:`seed_for` (SplitMix64 state): seeds outside ``[0, 2^64)`` would alias
+SEED_LIMIT = 2 ** 64
+
+
+def check_seed(seed, name: str = "seed") -> int:
+    """A seed (the data sets and streams, ``isettorch synth``, sensors, scene generators, evaluations): an integer in
+    ``[0, 2^64)``, the 64-bit word :func:`seed_for` mixes it as (outside it, seeds alias: ``2^64`` draws what ``0``
+    draws, ``-1`` what ``2^64 - 1`` draws); ValueError naming ``seed`` otherwise."""
+    seed = check_integer(seed, name)
+    if not 0 <= seed < SEED_LIMIT:
+        raise ValueError(f"{name}: expected an integer in [0, 2**64) (seeds are mixed as 64-bit words: {seed} would "
+                         f"repeat the items of seed {seed % SEED_LIMIT}), got {seed!r}")
+    return seed
+
+
+_MASK64 = (1 << 64) - 1
+
+
+def seed_for(seed: int, index: int, stream: int = 0) -> int:
+    """A 63-bit seed for item ``index`` of a dataset seeded with ``seed`` (SplitMix64 finaliser, Steele et al.,
+    "Fast splittable pseudorandom number generators", OOPSLA 2014). Depends only on its arguments, so an item
+    is identical on any worker or rank."""
+    return splitmix64(int(seed) * 0x9E3779B97F4A7C15 + int(index) * 0xD1B54A32D192ED03
+                      + int(stream) * 0x8CB92BA72F3D8DD7 + 0x632BE59BD9B4E019)
+
+
+def splitmix64(z: int) -> int:
+    """SplitMix64's finaliser of the 64-bit word ``z mod 2^64``, to 63 bits (a torch seed of every sign)."""
+    z &= _MASK64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
+    return (z ^ (z >> 31)) & ((1 << 63) - 1)

@@ -46,7 +46,7 @@ import torch
 from torch import nn
 
 from . import spectral
-from ._checks import check_bool, check_float_dtype, check_zip_crc, first_line
+from ._checks import check_bool, check_float_dtype, check_seed, check_zip_crc, first_line
 from .image import XYZ_TO_LINEAR_SRGB
 from .isp.mosaic_net import MosaicReconstructionNet
 from .optics import DiffractionLimitedOptics
@@ -348,7 +348,8 @@ class DesignCamera(nn.Module):
 
     def reconstruct(self, cap: dict, lux: float, *, key: str = "input") -> torch.Tensor:
         """Linear sRGB ``[B, 3, H, W]`` (white = 1): the network of ``lux`` applied to ``cap[key]`` of a
-        :meth:`capture` (``"input"``, or ``"input_noise_free"``)."""
+        :meth:`capture` (``"input"``, or ``"input_noise_free"``), in the network's dtype (float32 as shipped: a
+        float64 capture is rounded to it; ``camera.double()`` reconstructs in float64)."""
         if key not in ("input", "input_noise_free") or key not in cap:
             raise ValueError(f"key: expected 'input' or 'input_noise_free' (a capture made with with_noise_free=True), "
                              f"got {key!r}; the capture holds {sorted(k for k in cap if k.startswith('input'))}")
@@ -440,7 +441,7 @@ def bound_patches(wavelengths_nm: torch.Tensor, fit_patches: int = 256, test_col
         if not (isinstance(v, int) and v > 0):
             raise ValueError(f"{name}: expected a positive integer, got {v!r}")
     wl = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
-    g = torch.Generator().manual_seed(int(seed))
+    g = torch.Generator().manual_seed(check_seed(seed))  # (int() took 1.5, -1 and "3")
     fit = random_reflectances(fit_patches, wl.float(), g).to(torch.float64)
     colours = torch.rand(test_colours, 3, generator=g, dtype=torch.float64) ** 2.2
     return {"fit": fit, "macbeth": macbeth_reflectances(wl, dtype=torch.float64),
@@ -684,7 +685,8 @@ def load_design(design, *, device=None) -> DesignCamera:
             raise ValueError(f"levels: more than one network at one light level, "
                              f"{[float(v['lux']) for v in d['levels']]} lux")
         for level in d["levels"]:
-            net = MosaicReconstructionNet(**level["network"]["kwargs"])
+            with torch.random.fork_rng(devices=[]):  # the initial weights, replaced by the file's, drew from the
+                net = MosaicReconstructionNet(**level["network"]["kwargs"])  # global generator
             net.load_state_dict(level["network"]["state_dict"])
             camera.add_level(float(level["lux"]), net)
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
@@ -703,6 +705,7 @@ def make_design(spec, config: dict | None = None, lux=(), *, seed: int = 0, name
     of a design file or shipped name as a fixed design (new networks): a designed sensor's networks trained again
     with a fixed design's budget."""
     scale = _design_config(config)["filters"]["fixed_scale"]
+    seed = check_seed(seed)  # (1.5 and True were seed 1; 2^64 - 1 overflowed the mosaic's seed + 1, unnamed)
     if isinstance(spec, str):
         bank, mosaic = fixed_design(spec, fixed_scale=scale)
         return DesignCamera(bank, mosaic, config, lux, name=name or spec)
@@ -758,7 +761,9 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     """Score a design on 8-bit RGB photographs: each is lifted to spectra (:func:`isettorch.data.photos.lift_srgb`:
     the photograph as reflectance, Mallett & Yuksel's sRGB basis) under ``config.scene.illuminant`` (D65) at each
     light level, rendered through the design's camera with the noise of generator ``seed_for(seed, image index,
-    stream=round(1000 lux))`` (the same for every design), reconstructed by the level's network and compared
+    stream=round(1000 lux))`` (the same generator for every design: repeatable, but not common random numbers, since
+    Poisson shot noise takes a number of draws that depends on the signal, so two designs' later draws differ),
+    reconstructed by the level's network and compared
     with the photograph in sRGB (output clipped to [0, 1] and encoded, IEC 61966-2-1): CPSNR (MSE over the
     channels, a ``crop``-pixel border excluded: :func:`isettorch.isp.evaluation.cpsnr`) and the mean CIEDE2000
     (CIELAB D65) over the same pixels.
@@ -785,6 +790,7 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
 
     check_float_dtype(dtype)
     check_bool(noise_free, "noise_free")
+    seed = check_seed(seed)  # (2^64 ran as seed 0 and was reported as 2^64; 1.5 ran as 1)
     camera = design if isinstance(design, DesignCamera) else load_design(design)
     levels = camera.lux_levels if lux is None else [float(v) for v in lux]
     if not levels:

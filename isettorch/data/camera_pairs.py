@@ -77,7 +77,7 @@ from .config import (
     tune_allocator,
 )
 from .scenes import _uniform, generate_scene
-from .shm_slots import SlotArena, SlotBatchSampler, SlotLoader, SlotRequest
+from .shm_slots import EpochLoader, SlotArena, SlotBatchSampler, SlotLoader, SlotRequest
 
 __all__ = ["CameraPairDataset", "collate_pairs", "render_pair", "render_pairs", "batch_loader", "META_KEYS",
            "TARGETS", "GENERATOR_VERSION", "check_targets", "nikon_d5100_qe", "camera_for"]
@@ -764,7 +764,7 @@ def batch_loader(dataset: CameraPairDataset, batch_size: int, *, shuffle: bool =
     else:
         batches = torch.utils.data.BatchSampler(sampler, batch_size, drop_last)
     # the loader draws its workers' base seed from the same generator first, exactly as DataLoader(shuffle=True)
-    return (SlotLoader if slots else torch.utils.data.DataLoader)(
+    return (SlotLoader if slots else EpochLoader)(
         dataset, sampler=batches, batch_size=None, num_workers=num_workers, generator=generator, **loader_kwargs)
 
 

@@ -17,7 +17,7 @@ from typing import Any
 import torch
 import yaml
 
-from .._checks import is_integer
+from .._checks import SEED_LIMIT, check_integer, check_seed, is_integer, seed_for  # noqa: F401 (re-exported)
 
 __all__ = ["SCENE_DEFAULTS", "CAMERA_DEFAULTS", "SYNTH_DEFAULTS", "NATURAL_DEFAULTS", "COMPONENTS",
            "DEFAULT_COMPONENTS", "WAVELENGTH_RANGE_NM", "TARGETS", "check_targets", "merge_config", "pair_config",
@@ -545,31 +545,6 @@ def merge_config(user: dict | None, defaults: dict = SYNTH_DEFAULTS, path: str =
     return cfg
 
 
-def check_integer(value, name: str, minimum: int | None = None) -> int:
-    """``value`` if it is an integer (>= ``minimum``); a float such as 1.7 is not truncated, a bool is not an
-    integer: ValueError naming ``name``."""
-    if not is_integer(value) or (minimum is not None and value < minimum):
-        what = {None: "an integer", 0: "a non-negative integer", 1: "a positive integer"}.get(
-            minimum, f"an integer >= {minimum}")
-        raise ValueError(f"{name}: expected {what}, got {value!r}")
-    return int(value)
-
-
-#: seeds are reduced modulo 2^64 by :func:`seed_for` (SplitMix64 state): seeds outside ``[0, 2^64)`` would alias
-SEED_LIMIT = 2 ** 64
-
-
-def check_seed(seed) -> int:
-    """A data seed (``CameraPairDataset``, ``PairStream``, the scene datasets, ``isettorch synth``): an integer in
-    ``[0, 2^64)``, the 64-bit word :func:`seed_for` mixes it as (outside it, seeds alias: ``2^64`` draws what ``0``
-    draws, ``-1`` what ``2^64 - 1`` draws); ValueError naming ``seed`` otherwise."""
-    seed = check_integer(seed, "seed")
-    if not 0 <= seed < SEED_LIMIT:
-        raise ValueError(f"seed: expected an integer in [0, 2**64) (seeds are mixed as 64-bit words: {seed} would "
-                         f"repeat the items of seed {seed % SEED_LIMIT}), got {seed!r}")
-    return seed
-
-
 def pair_config(scene: dict | None, camera: dict | None) -> tuple[dict, dict]:
     """The merged, validated ``(scene, camera)`` configs of camera pairs (keys of :data:`SCENE_DEFAULTS` and
     :data:`CAMERA_DEFAULTS`): :func:`merge_config`'s checks of each section, and of the two together as ``isettorch
@@ -593,20 +568,6 @@ def load_config(path: str | Path) -> dict:
     except (OSError, yaml.YAMLError) as err:
         raise ValueError(f"config: could not read YAML from {str(p)!r}: {err}") from err
     return merge_config(data or {})
-
-
-_MASK64 = (1 << 64) - 1
-
-
-def seed_for(seed: int, index: int, stream: int = 0) -> int:
-    """A 63-bit seed for item ``index`` of a dataset seeded with ``seed`` (SplitMix64 finaliser, Steele et al.,
-    "Fast splittable pseudorandom number generators", OOPSLA 2014). Depends only on its arguments, so an item
-    is identical on any worker or rank."""
-    z = (int(seed) * 0x9E3779B97F4A7C15 + int(index) * 0xD1B54A32D192ED03 + int(stream) * 0x8CB92BA72F3D8DD7
-         + 0x632BE59BD9B4E019) & _MASK64
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
-    return (z ^ (z >> 31)) & ((1 << 63) - 1)
 
 
 _DRAW = threading.local()

@@ -413,7 +413,8 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
         (torch.Size([32, 32]), 31)
     """
     cfg = config if config is not None and config.get("_checked") else natural_config(config)
-    g = torch.Generator().manual_seed(seed_for(seed, index))
+    # the item's identity (-1 drew the scene of 2^64 - 1, 1.5 that of 1, "3" that of 3)
+    g = torch.Generator().manual_seed(seed_for(check_seed(seed), check_integer(index, "index", 0)))
     h = w = int(cfg["size"])
     wl = _wavelengths(cfg)
     comp = cfg["components"]

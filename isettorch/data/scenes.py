@@ -125,6 +125,8 @@ def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, dev
         (1, 31, 32, 32)
     """
     check_float_dtype(dtype)  # (float16 overflowed the radiance, about 5e15, to an all-NaN scene)
+    # the item's identity (-1 drew the scene of 2^64 - 1, 1.5 that of 1, "3" that of 3)
+    seed, index = check_seed(seed), check_integer(index, "index", 0)
     with one_thread():
         return _generate_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size,
                                distance_m=distance_m)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["SlotArena", "SlotBatch", "SlotRequest", "SlotBatchSampler", "SlotLoader", "unpack"]
+__all__ = ["SlotArena", "SlotBatch", "SlotRequest", "SlotBatchSampler", "EpochLoader", "SlotLoader", "unpack"]
 
 _ALIGN = 64  # bytes: every tensor starts on a cache line (and on a multiple of any element size)
 _HEADER = 64  # bytes before the first tensor; int32 flag at 0: 1 while the main process has not copied the batch
@@ -196,7 +196,19 @@ class SlotBatchSampler(torch.utils.data.BatchSampler):
             yield request
 
 
-class SlotLoader(torch.utils.data.DataLoader):
+class EpochLoader(torch.utils.data.DataLoader):
+    """A ``DataLoader`` whose persistent workers' later epochs draw the base seed from ``generator`` that a fresh
+    iterator draws (torch draws it only when it starts the workers): a sampler on the same generator then shuffles
+    every epoch as it does with ``num_workers=0`` or without persistent workers (from the second epoch, the orders
+    differed)."""
+
+    def __iter__(self):
+        if self.persistent_workers and self.num_workers > 0 and self._iterator is not None:
+            torch.empty((), dtype=torch.int64).random_(generator=self.generator)  # _BaseDataLoaderIter's base seed
+        return super().__iter__()
+
+
+class SlotLoader(EpochLoader):
     """A ``DataLoader`` whose batches may arrive as :class:`SlotBatch` handles: it yields them copied out (plain
     dicts of tensors). The main process keeps each slot's mapping for the iterator's life (no remapping per
     batch). ``shipped``: how the last iteration's batches came, ``{"slot": n, "stock": m}``."""

@@ -16,7 +16,7 @@ import itertools
 
 import torch
 
-from .config import tune_allocator
+from .config import seed_for, tune_allocator
 from .shm_slots import SlotArena, SlotLoader, SlotRequest
 
 __all__ = ["stream_loader"]
@@ -94,5 +94,9 @@ def stream_loader(stream, num_workers: int = 2, *, prefetch_factor: int = 2) -> 
         raise ValueError("stream: a stream with grad=True builds an autograd graph, which worker processes cannot "
                          "hand back; iterate it directly")
     sampler = _BatchIndices(stream.rank, stream.world_size, prefetch_factor + 1)
+    # the workers' base seed from a generator of the stream's own (the batches do not use it): the loader drew it
+    # from the global generator on every iter(), moving a training run's own draws
+    base = torch.Generator().manual_seed(seed_for(stream.seed, -1))  # (index -1: no batch's generator)
     return SlotLoader(_StreamBatches(stream), sampler=sampler, batch_size=None, num_workers=num_workers,
-                      prefetch_factor=prefetch_factor, persistent_workers=True, worker_init_fn=_init_worker)
+                      prefetch_factor=prefetch_factor, persistent_workers=True, worker_init_fn=_init_worker,
+                      generator=base)

@@ -25,7 +25,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._checks import check_device, check_finite, check_float_dtype, check_zip_crc, first_line, is_integer
+from .._checks import (
+    check_device,
+    check_finite,
+    check_float_dtype,
+    check_integer,
+    check_seed,
+    check_zip_crc,
+    first_line,
+    is_integer,
+    splitmix64,
+)
 from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
 from .denoise import DENOISERS, _check_noise, check_denoiser, denoise_mosaic
@@ -126,10 +136,7 @@ def check_photos(items, crop: int, *, min_side: int = 2) -> None:
 def _image_seed(seed: int, index: int) -> int:
     """A 63-bit seed for image ``index`` of a run seeded ``seed`` (splitmix64 finaliser; distinct for distinct
     pairs in practice, independent of the image order of other runs)."""
-    z = (int(seed) * 0x9E3779B97F4A7C15 + int(index) + 1) & (2**64 - 1)
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & (2**64 - 1)
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & (2**64 - 1)
-    return (z ^ (z >> 31)) & (2**63 - 1)
+    return splitmix64(int(seed) * 0x9E3779B97F4A7C15 + int(index) + 1)
 
 
 def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float = 0.0, *, seed: int = 0,
@@ -143,6 +150,8 @@ def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float 
     for name, v in (("seed", seed), ("index", index)):
         if not is_integer(v):  # (1.5 was 1)
             raise TypeError(f"{name}: expected an integer, got {v!r}")
+    check_seed(seed)  # (-1 drew the noise of 2^64 - 1, 2^64 that of 0)
+    check_integer(index, "index", 0)
     if not isinstance(raw, torch.Tensor) or not raw.is_floating_point():
         raise TypeError(f"raw: expected a floating-point mosaic tensor (B, 1, H, W) in [0, 1], got "
                         f"{raw.dtype if isinstance(raw, torch.Tensor) else type(raw).__name__}")
@@ -259,6 +268,8 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
     noise_sigma, noise_shot = _check_noise(noise_sigma, noise_shot)
     noisy = noise_sigma > 0 or noise_shot > 0
     check_float_dtype(dtype)
+    if noisy:
+        check_seed(seed)  # before the images are read (noisy_mosaic checks it per image)
     if denoise is not None:
         check_denoiser(denoise)  # one of DENOISERS, and runnable here
         if not noisy:

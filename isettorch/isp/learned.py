@@ -1000,7 +1000,8 @@ def load_checkpoint(path: str | Path, *, device=None, dtype=None) -> tuple[Demos
     ckpt = torch.load(path, map_location="cpu", weights_only=True)
     if not isinstance(ckpt, dict) or "model" not in ckpt or "net_config" not in ckpt:
         raise ValueError(f"path: {path} is not a DemosaicNet checkpoint (expected keys 'model' and 'net_config')")
-    net = DemosaicNet(**ckpt["net_config"])
+    with torch.random.fork_rng(devices=[]):  # the initial weights, replaced by the checkpoint's, drew from the
+        net = DemosaicNet(**ckpt["net_config"])  # global generator (a first evaluate_demosaic moved a run's draws)
     net.load_state_dict(ckpt["model"])
     net.eval().requires_grad_(False)
     if device is not None or dtype is not None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from .._checks import SEED_LIMIT, check_seed
 from .cfa import CFA
 from .filter_bank import FilterBank
 from .mosaic import LearnedMosaic
@@ -58,8 +59,11 @@ def learned_design(filters: Sequence[str] = ("learned", "learned", "learned", "W
                    seed: int = 0, relax: str = "softmax", bank_kwargs: dict | None = None,
                    mosaic_kwargs: dict | None = None) -> tuple[FilterBank, LearnedMosaic]:
     """A learnable bank (``filters``: ``'learned'`` entries and fixed letters) and a learnable ``shape`` mosaic."""
+    seed = check_seed(seed)
     bank = FilterBank(filters, seed=seed, **(bank_kwargs or {}))
-    mosaic = LearnedMosaic(bank.channel_names, tuple(shape), seed=seed + 1, relax=relax, **(mosaic_kwargs or {}))
+    # the mosaic's seed is the next one, in [0, 2^64) (2^64 - 1 + 1 overflowed torch's seed, unnamed)
+    mosaic = LearnedMosaic(bank.channel_names, tuple(shape), seed=(seed + 1) % SEED_LIMIT, relax=relax,
+                           **(mosaic_kwargs or {}))
     return bank, mosaic
 
 

@@ -37,7 +37,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from .._checks import check_bool, tensor_version
+from .._checks import check_bool, check_seed, tensor_version
 from .filters import _W_ISETCAM, SpectralQE, filter_set
 
 __all__ = ["FIXED_FILTERS", "MAX_SLOPE_PER_NM", "FilterBank", "check_manufacturable", "max_slope_per_nm",
@@ -204,7 +204,7 @@ class FilterBank(SpectralQE):
         lo, hi = float(self.wavelengths_nm.min()), float(self.wavelengths_nm.max())
         peaks = lo + (torch.arange(n, dtype=torch.float64) + 0.5) * (hi - lo) / n
         shape = 2 * torch.exp(-((centres[None] - peaks[:, None]) / (0.6 * (hi - lo) / n + 1e-9)) ** 2) - 1
-        g = torch.Generator().manual_seed(int(seed))
+        g = torch.Generator().manual_seed(check_seed(seed))  # (int() took 1.5, True and "3")
         raw = 0.8 * shape + 0.1 * torch.randn(n, centres.numel(), generator=g, dtype=torch.float64)
         return torch.atanh(raw.clamp(-0.95, 0.95))
 

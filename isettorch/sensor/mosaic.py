@@ -25,7 +25,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from .._checks import is_integer
+from .._checks import check_seed, is_integer
 from .cfa import CFA, tile
 
 __all__ = ["RELAX_MODES", "LearnedMosaic", "temperature_schedule"]
@@ -110,7 +110,7 @@ class LearnedMosaic(nn.Module, CFA):
         else:
             if not (isinstance(init_scale, (int, float)) and math.isfinite(init_scale) and init_scale >= 0):
                 raise ValueError(f"init_scale: expected a finite number >= 0, got {init_scale!r}")
-            g = torch.Generator().manual_seed(int(seed))
+            g = torch.Generator().manual_seed(check_seed(seed))  # (int() took 1.5, True and "3")
             logits = init_scale * torch.randn(len(names), p, q, generator=g, dtype=torch.float64)
         self.logits = nn.Parameter(logits, requires_grad=learnable)
         self.learnable = bool(learnable)  # a flag, not the logits' requires_grad: a fixed mosaic is never relaxed

@@ -27,14 +27,15 @@ import math
 
 import torch
 
-from .._checks import is_integer
+from .._checks import check_seed, seed_for
 
 __all__ = ["NoiseTerms", "tukey_lambda_quantile", "tukey_lambda_variance", "tukey_lambda_noise", "row_noise",
            "column_noise"]
 
-# Offsets of the fixed-pattern seeds of these terms from the sensor seed, so that they are independent of the
-# DSNU/PRNU/column draws of ``noise.fixed_pattern_draws`` (which use ``seed`` itself).
-_SEED_OFFSET = 7_919
+# The random stream (``_checks.seed_for``) of these terms' fixed patterns, independent of the DSNU/PRNU/column draws
+# of ``noise.fixed_pattern_draws`` (which use ``seed`` itself) and of the sensor's temporal noise (its own stream).
+# (seed + 7919 was the fixed pattern of sensor seed + 7919.)
+PATTERN_STREAM = 2
 
 
 def tukey_lambda_quantile(u: torch.Tensor, lam: float | torch.Tensor) -> torch.Tensor:
@@ -119,8 +120,7 @@ class NoiseTerms:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if not (is_integer(self.seed) and self.seed >= 0):  # (1.5 was taken, as int(1.5) = 1)
-            raise ValueError(f"seed: expected an integer >= 0, got {self.seed!r}")
+        check_seed(self.seed)  # (1.5 was taken, as int(1.5) = 1)
         for name in ("row_noise_v", "column_noise_v", "dark_shading_e_per_s", "hot_pixel_dark_current_e_per_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0):
@@ -157,7 +157,7 @@ class NoiseTerms:
         ``'shading'`` (standard normal), ``'hot'`` and ``'dead'`` (0/1 masks with the configured fractions)."""
         key = (rows, cols)
         if key not in self._patterns:
-            g = torch.Generator().manual_seed(int(self.seed) + _SEED_OFFSET)
+            g = torch.Generator().manual_seed(seed_for(self.seed, 0, stream=PATTERN_STREAM))
             shading = torch.randn(rows, cols, generator=g, dtype=torch.float64)
             u_hot = torch.rand(rows, cols, generator=g, dtype=torch.float64)
             u_dead = torch.rand(rows, cols, generator=g, dtype=torch.float64)

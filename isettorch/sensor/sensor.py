@@ -32,9 +32,11 @@ from .._checks import (
     check_bool,
     check_float_dtype,
     check_in_dtype_range,
+    check_seed,
     is_integer,
     is_real,
     round_half_away,
+    seed_for,
     tensor_version,
 )
 from ..optics.optical_image import OpticalImage
@@ -64,6 +66,8 @@ ISETCAM_CONVENTIONS: dict[str, str] = {"sampling": "isetcam", "gain_convention":
 
 SAMPLING_MODES = ("area", "area_linear", "isetcam")
 
+#: the random stream (:func:`isettorch._checks.seed_for`) of the default temporal-noise generator of a sensor's seed
+TEMPORAL_STREAM = 1
 #: the fixed-pattern maps' buffers (:meth:`Sensor.fixed_pattern`; the seed's, never saved)
 FIXED_PATTERN_BUFFERS = ("fpn_dsnu", "fpn_prnu", "fpn_column")
 
@@ -248,8 +252,7 @@ class Sensor(nn.Module):
         _check_prnu(prnu_sigma_percent)
         if not is_real(analog_offset_v):
             raise ValueError(f"analog_offset_v: expected a finite number (volts), got {analog_offset_v!r}")
-        if not is_integer(seed):
-            raise ValueError(f"seed: expected an integer, got {seed!r}")
+        seed = check_seed(seed)  # [0, 2^64): torch's seeds (2^64 failed at the first capture, naming no argument)
         choices = {"gain_convention": (gain_convention, ("multiply", "isetcam")),
                    "adc_mode": (adc_mode, ("clamp", "isetcam")),
                    "shot_noise": (shot_noise, _noise.SHOT_NOISE_MODES),
@@ -604,7 +607,9 @@ class Sensor(nn.Module):
         key = str(device)
         g = self._generators.get(key)
         if g is None:
-            g = torch.Generator(device=device).manual_seed(self.seed + 1)
+            # a stream of its own (seed + 1 was the next seed's fixed pattern: Sensor(seed=0)'s first frame of read
+            # noise equalled Sensor(seed=1)'s DSNU map)
+            g = torch.Generator(device=device).manual_seed(seed_for(self.seed, 0, stream=TEMPORAL_STREAM))
             self._generators[key] = g
         return g
 

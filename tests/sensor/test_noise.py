@@ -116,10 +116,10 @@ def test_fixed_pattern_seeds_are_integers():
     from isettorch.sensor.noise_terms import NoiseTerms
 
     assert torch.equal(fixed_pattern_draws(4, 4, 1)["dsnu"], fixed_pattern_draws(4, 4, 1)["dsnu"])
-    for seed in (1.5, True, -1):
-        with pytest.raises(ValueError, match="seed: expected an integer >= 0"):
+    for seed in (1.5, True, -1, 2**64):
+        with pytest.raises(ValueError, match="seed: expected an integer"):
             fixed_pattern_draws(4, 4, seed)
-        with pytest.raises(ValueError, match="seed: expected an integer >= 0"):
+        with pytest.raises(ValueError, match="seed: expected an integer"):
             NoiseTerms(seed=seed)
     with pytest.raises(ValueError, match="rows: expected an integer number of pixels"):
         fixed_pattern_draws(2.5, 4, 1)
