@@ -67,6 +67,28 @@ def camera_configs(dev):
         _finite_on(out, dev)
 
 
+def configured_optics(dev):
+    """Paths a device audit of 2026-12-01 found building CPU tensors (fixed; the CPU-side tests are
+    tests/test_device_paths.py): a wavefront defocus, a stream's configured optics, the lens' full-PSF path, e-SFR."""
+    from isettorch import metrics
+    from isettorch.camera import Camera
+    from isettorch.data import PairStream
+    from isettorch.optics import WavefrontOptics
+    from isettorch.scene import slanted_edge
+    from isettorch.scene.macbeth import macbeth
+
+    wf = WavefrontOptics(zernike_um=torch.zeros(15), f_number=4.0, focal_length_m=3.86e-3, defocus_diopters=2.0)
+    _finite_on(wf.to(dev)(macbeth(patch_size=4, device=dev)).photons, dev)
+    b = PairStream(2, seed=0, device=dev, scene={"height": 32, "width": 32}, targets=("camera_rgb",),
+                   camera={"optics": {"type": "wavefront", "zernike_um": [0, 0, 0, 0, 0.2], "defocus_diopters": 1.0}}
+                   ).batch(0)
+    _finite_on(b["camera_rgb"], dev)
+    cam = Camera.from_config("cooke_lens").to(dev)
+    _finite_on(cam(macbeth(patch_size=8, device=dev, dtype=torch.float64),
+                   generator=torch.Generator(device=dev).manual_seed(0)), dev)
+    _finite_on(metrics.esfr(slanted_edge(size=96, device=dev).photons[0].sum(0)).mtf50, dev)
+
+
 def camera_gradients(dev):
     from isettorch.camera import Camera
     from isettorch.scene.macbeth import macbeth
@@ -137,7 +159,7 @@ def codesign_sources(dev):
 
 
 CHECKS = [stream_natural, stream_grad, stream_chunked_targets, camera_configs, camera_gradients, design_eval,
-          demosaic_eval, train_stream, codesign_sources]
+          demosaic_eval, train_stream, codesign_sources, configured_optics]
 
 
 def main() -> int:

@@ -162,7 +162,15 @@ def _paint_leaves(cfg, g, maps, alpha, active, n_leaves, n_mat, r_min, r_max, ex
     t_phase = _u(g, (nb, nmax), 0, 2 * math.pi, device=dev)
     t_line = _u(g, (nb, nmax), 0.5, 2.0, device=dev)  # colour_line contrast
     second = _second_material_draws(cfg, g, (nb, nmax), n_mat, dev)
-    wins = torch.stack([hh.amax(0), ww.amax(0), textured.any(0).long(), paint.any(0).long()]).tolist()  # host read
+    # one host read for the slots' windows and the textured items' boxes (per slot: their largest box and their
+    # number; a read per textured slot stalled a GPU's queue three times per leaf)
+    wins = torch.stack([hh.amax(0), ww.amax(0), textured.any(0).long(), paint.any(0).long(),
+                        torch.where(textured, hh, 0).amax(0), torch.where(textured, ww, 0).amax(0),
+                        textured.sum(0)]).tolist()
+    tex_items = textured.T.nonzero()[:, 1] if any(wins[2]) else None  # by slot, items ascending
+    tex_start = [0]
+    for n_tex in wins[6]:
+        tex_start.append(tex_start[-1] + n_tex)
     bidx = torch.arange(nb, device=dev)
     kidx = torch.arange(kmax, device=dev)
     flat = maps.view(-1)
@@ -202,10 +210,11 @@ def _paint_leaves(cfg, g, maps, alpha, active, n_leaves, n_mat, r_min, r_max, ex
         if any_tex:  # one slot (j): the textured items' fields on their boxes (natural._leaf_texture)
             tj = textured[:, j]
             ly, lx = iy[0] - y0[:, j, None], ix[0] - x0[:, j, None]
-            sel = tj.nonzero().reshape(-1)  # the fields of the textured items only
+            sel = tex_items[tex_start[j]:tex_start[j + 1]]  # the fields of the textured items only
             n_ = torch.zeros(nb, wy, wx, dtype=torch.float64, device=dev)
             n_[sel] = _tex.power_law_noise_on_boxes(hh[sel, j], ww[sel, j], ly[sel], lx[sel], inside[0][sel],
-                                                    torch.where(t_kind[sel, j] == 1, 2.0, t_s[sel, j]), g)
+                                                    torch.where(t_kind[sel, j] == 1, 2.0, t_s[sel, j]), g,
+                                                    size=(wins[4][j], wins[5][j]))
             ang = t_angle[:, j, None, None]
             uu = lx.to(torch.float64)[:, None, :] * torch.cos(ang) + ly.to(torch.float64)[:, :, None] * torch.sin(ang)
             grating = 0.5 + 0.5 * torch.sin(2 * math.pi * t_freq[:, j, None, None]

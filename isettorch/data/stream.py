@@ -333,6 +333,8 @@ class PairStream:
             optics_cfg = self.camera_config.get("optics") or {}
             if optics_cfg:
                 optics = cache.get_built_optics(optics_cfg)
+                if optics_cfg.get("type") != "lens":  # built on the CPU (a lens keeps its tables there on purpose)
+                    optics = optics.to(dev)
                 image_distance = torch.tensor(optics.image_distance_m, dtype=torch.float64) \
                     if optics_cfg.get("type") == "lens" else None
                 focal = optics.focal_length_m.detach().reshape(-1)[0].to(torch.float64)

@@ -106,7 +106,7 @@ def _centroid(v: torch.Tensor) -> torch.Tensor:
 
 def _fit_line(loc: torch.Tensor) -> tuple[float, float]:
     """Least-squares x = slope * y + offset through per-row edge positions (sfrmat3 ``findedge``)."""
-    y = torch.arange(loc.numel(), dtype=loc.dtype)
+    y = torch.arange(loc.numel(), dtype=loc.dtype, device=loc.device)
     ym, xm = y.mean(), loc.mean()
     slope = ((y - ym) * (loc - xm)).sum() / ((y - ym) ** 2).sum()
     return float(slope), float(xm - slope * ym)
@@ -148,7 +148,9 @@ def _esfr_single(a: torch.Tensor, max_bin_fill: float, min_cnr: float = 0.0, geo
     ``geo``: the image that locates the edge (default ``a``); ``mask`` [R, N] bool: only these pixels of ``a``
     enter the ESF (one CFA channel of a mosaic, located with the balanced mosaic as ``geo``).
     """
-    geo = a.detach().to(torch.float64) if geo is None else geo.detach().to(torch.float64)
+    # the edge is located on the CPU (a host read per row; the CPU grids below met a CUDA image), the ESF summed
+    # on the ROI's device, differentiably
+    geo = (a if geo is None else geo).detach().to("cpu", torch.float64)
     if mask is None:
         mask = torch.ones(geo.shape, dtype=torch.bool)
     mask = mask.cpu()
@@ -273,7 +275,7 @@ def find_edge_roi(image: torch.Tensor, margin_px: int = 20, trim: float = 0.1) -
     """
     if image.dim() != 2:
         raise ValueError(f"image: expected [H, W] for find_edge_roi, got shape {tuple(image.shape)}")
-    a = image.detach().to(torch.float64)
+    a = image.detach().to("cpu", torch.float64)  # a search of host reads (its CPU kernel met a CUDA image)
     H, W = a.shape
     k = torch.tensor([1.0, 2.0, 1.0], dtype=torch.float64) / 4
     sm = torch.nn.functional.conv2d(a[None, None], (k[:, None] * k[None, :])[None, None], padding=1)[0, 0]

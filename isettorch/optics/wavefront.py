@@ -224,7 +224,8 @@ class WavefrontOptics(ShiftInvariantLens):
         if bool((dd != 0).any()):
             diam = self.batch_focal_length(batch, f_number.dtype, f_number.device) / f_number
             c4 = defocus_diopters_to_zernike_um(dd, diam)
-            z = z + torch.nn.functional.one_hot(torch.tensor(4), z.shape[-1]).to(z.dtype) * c4.reshape(-1, 1)
+            defocus = torch.nn.functional.one_hot(torch.tensor(4, device=z.device), z.shape[-1]).to(z.dtype)
+            z = z + defocus * c4.reshape(-1, 1)  # (a CPU one-hot failed against a CUDA pupil)
         return z
 
     def psf_native(self, wavelengths_nm: torch.Tensor, f_number: torch.Tensor):

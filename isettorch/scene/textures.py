@@ -52,8 +52,8 @@ def power_law_noise(h: int, w: int, exponent, generator: torch.Generator, *, dty
 
 
 def power_law_noise_on_boxes(hh: torch.Tensor, ww: torch.Tensor, ly: torch.Tensor, lx: torch.Tensor,
-                             inside: torch.Tensor, exponent: torch.Tensor, generator: torch.Generator
-                             ) -> torch.Tensor:
+                             inside: torch.Tensor, exponent: torch.Tensor, generator: torch.Generator,
+                             size: tuple[int, int] | None = None) -> torch.Tensor:
     """:func:`power_law_noise` on each item's own ``hh_b x ww_b`` periodic grid (boxes of different sizes in one
     batch), evaluated at local coordinates ``ly [B, wy]``, ``lx [B, wx]`` (integers, the box's pixels at
     0..hh-1) and normalised to unit std over the box pixels (``inside [B, wy, wx]``). Returns ``[B, wy, wx]``
@@ -62,9 +62,10 @@ def power_law_noise_on_boxes(hh: torch.Tensor, ww: torch.Tensor, ly: torch.Tenso
     Synthesis ``Re sum_k A(k) Z_k exp(2 pi i (ky y / hh + kx x / ww))`` with ``Z_k`` standard complex Gaussians
     over each item's full DFT grid (``k`` from ``-(n // 2)`` to ``(n - 1) // 2``, the frequencies of
     ``torch.fft.fftfreq``): covariance ``(1/2) sum_k A^2 cos(2 pi f d)``, proportional to the FFT synthesis'
-    (Field 1987's 1/f^s spectrum on the same grid), so the normalised fields have the same distribution."""
+    (Field 1987's 1/f^s spectrum on the same grid), so the normalised fields have the same distribution.
+    ``size``: ``(hh.max(), ww.max())`` when the caller has read them (two host reads fewer)."""
     dev = ly.device
-    my, mx = int(hh.max()), int(ww.max())
+    my, mx = (int(hh.max()), int(ww.max())) if size is None else size
     jy, jx = torch.arange(my, device=dev), torch.arange(mx, device=dev)
     ky = (jy[None] - torch.div(hh, 2, rounding_mode="floor")[:, None]).to(torch.float64)
     kx = (jx[None] - torch.div(ww, 2, rounding_mode="floor")[:, None]).to(torch.float64)

@@ -439,7 +439,11 @@ def _apply_full(irr, psfs, i_r, w_r, i_a0, i_a1, w_a, m, block_rows: int = 64):
     """Every source sample spread with its own interpolated PSF (the reference the eigen-PSFs approximate),
     in blocks of source rows to bound memory."""
     s = 2 * m + 1
-    coeff = psfs.reshape(psfs.shape[0], psfs.shape[1], s * s)
+    # the PSF table and the polar interpolation live on the CPU (the plan's): moved to the image's device once per
+    # band (the products of CUDA sources and CPU kernels failed)
+    dev = irr.device
+    coeff = psfs.reshape(psfs.shape[0], psfs.shape[1], s * s).to(dev)
+    i_r, w_r, i_a0, i_a1, w_a = (t.to(dev) for t in (i_r, w_r, i_a0, i_a1, w_a))
     b, hh, ww = irr.shape
     out = torch.zeros(b, hh + 2 * m, ww + 2 * m, dtype=irr.dtype, device=irr.device)
     for r0 in range(0, hh, block_rows):
