@@ -382,7 +382,9 @@ class SpectralImage:
                      **kwargs) -> SpectralImage:
         """A factored image ``sum_j maps[:, j] spectra[:, j, l]``: ``maps [B, J, H, W]`` (or ``[J, H, W]``),
         ``spectra [B, J, L]`` (or ``[J, L]``), both non-negative; ``terms`` (optional, B counts): item ``b``'s maps
-        from ``terms[b]`` on are 0 (:class:`SpectralFactors`); other fields as for the dense constructor.
+        from ``terms[b]`` on are 0 (:class:`SpectralFactors`); other fields as for the dense constructor. The image
+        has the maps' dtype and device: the spectra are cast to them (float32 maps round float64 spectra; the
+        generators' float64 spectra beside float32 maps are meant so: the maps hold the pixels, the memory).
 
         Example:
             >>> from isettorch.scene import Scene

@@ -218,6 +218,8 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
     from ..image import srgb_decode
 
     _check_encoding(encoding)
+    if not (isinstance(dtype, torch.dtype) and dtype.is_floating_point):  # (uint8 returned zeros: values in [0, 1])
+        raise TypeError(f"dtype: expected a floating torch.dtype, got {dtype!r}")
     p = Path(path)
     kind = _kind(p)
     if not p.is_file():
@@ -248,7 +250,11 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
             raise ValueError(f"path: {str(p)!r} holds non-finite values (NaN or inf)")
     else:
         raise ValueError(f"path: {str(p)!r}: unsupported sample type {a.dtype}")
-    return t.to(dtype)
+    out = t.to(dtype)
+    if dtype.itemsize < 4 and not bool(torch.isfinite(out).all()):  # (an EXR's 1e5 read as float16 was inf)
+        raise ValueError(f"dtype: {str(p)!r} holds values up to {float(t.abs().max()):.6g}, beyond {dtype}'s "
+                         f"range (max {torch.finfo(dtype).max:g}); read it as torch.float32")
+    return out
 
 
 def _read_png(p: Path) -> tuple[np.ndarray, int | None]:

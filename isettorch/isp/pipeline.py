@@ -22,6 +22,7 @@ from .._checks import check_finite, check_wavelengths
 from ..sensor.exposure import percentile_linear
 from .colour import (
     DisplayEncode,
+    ExactConstants,
     IlluminantCorrection,
     SensorToXYZ,
     XYZToDisplay,
@@ -168,7 +169,7 @@ def _sensor_qe(sensor, wavelengths_nm: torch.Tensor) -> torch.Tensor:
                     f"{type(sensor).__name__}")
 
 
-class ImageProcessor(nn.Module):
+class ImageProcessor(ExactConstants):
     """Image processor: raw mosaic -> encoded display image.
 
     Args:
@@ -244,7 +245,7 @@ class ImageProcessor(nn.Module):
         self.clip_negative_xyz = bool(clip_negative_xyz)
         self.monochrome_divisor = monochrome_divisor
         self.correction_white = correction_white
-        self.register_buffer("white_xyz", white_xyz(correction_white).to(torch.get_default_dtype()))
+        self.register_constant("white_xyz", white_xyz(correction_white))
         w = torch.arange(400.0, 701.0, 10.0) if fit_wavelengths_nm is None else torch.as_tensor(fit_wavelengths_nm)
         self.fit_wavelengths_nm = check_wavelengths(w.to(torch.float64))
 

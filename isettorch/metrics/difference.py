@@ -33,8 +33,9 @@ def _safe_atan2_deg(y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 
 
 def _split(lab1: torch.Tensor, lab2: torch.Tensor, dim: int):
-    """The L, a, b components of both colours (broadcast), and the dtype to return. Half-precision input (float16,
-    bfloat16) is computed in float32 and returned in its own dtype: dE2000's 25^7 and 7th powers of chroma overflow
+    """The L, a, b components of both colours (broadcast, in their promoted dtype), and the dtype to return.
+    Half-precision input (float16, bfloat16) is computed in float32 and returned in its own dtype: dE2000's 25^7 and
+    7th powers of chroma overflow
     float16 (max 65504: every difference NaN), and dE94's hue term subtracts nearly equal squares."""
     a, _ = _channel_last(lab1, dim, "lab1")
     b, _ = _channel_last(lab2, dim, "lab2")
@@ -45,9 +46,18 @@ def _split(lab1: torch.Tensor, lab2: torch.Tensor, dim: int):
     except RuntimeError as err:
         raise ValueError(f"lab2: shape {tuple(lab2.shape)} does not broadcast with lab1 {tuple(lab1.shape)}") from err
     out = torch.promote_types(a.dtype, b.dtype) if a.is_floating_point() or b.is_floating_point() else None
-    if out in (torch.float16, torch.bfloat16):
-        a, b = a.float(), b.float()
+    if out is not None:  # both in the working precision: a half colour beside a float64 one was computed in float16
+        # (dE2000 NaN, dE94 inf once |a| or |b| passed ~181)
+        a, b = a.to(working_dtype(out)), b.to(working_dtype(out))
     return a.unbind(-1), b.unbind(-1), out
+
+
+def working_dtype(dtype: torch.dtype) -> torch.dtype:
+    """The precision a colour difference computes in for inputs of (promoted) ``dtype``: float32 for half precision
+    (float16, bfloat16), torch's default for integers, else the dtype itself."""
+    if not dtype.is_floating_point:
+        return torch.get_default_dtype()
+    return torch.float32 if dtype in (torch.float16, torch.bfloat16) else dtype
 
 
 def _as(de: torch.Tensor, dtype) -> torch.Tensor:
@@ -252,7 +262,9 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
         raise ValueError(f"reference: expected {rendered.shape[-2]} patches like rendered, got {reference.shape[-2]}")
     check_finite(rendered.detach(), "rendered")  # (named here: xyz_to_lab's error would name 'xyz')
     check_finite(reference.detach(), "reference")
-    reference = reference.to(rendered.dtype)
+    # both in their promoted dtype (half precision in float32: its median raised in torch.quantile)
+    work = working_dtype(torch.promote_types(rendered.dtype, reference.dtype))
+    rendered, reference = rendered.to(work), reference.to(work)
     if space == "xyz":
         lab_r = xyz_to_lab(rendered, white, dim=-1)
         lab_ref = xyz_to_lab(reference, white, dim=-1)

@@ -14,7 +14,7 @@ import torch.nn.functional as F
 
 from .._checks import check_finite, check_positive, check_rank
 from .color import xyz_to_lab
-from .difference import delta_e
+from .difference import delta_e, working_dtype
 
 # XYZ -> opponent, S-CIELAB's cmatrix('xyz2opp') (ISETCam colorTransformMatrix 'xyz2opp', column form).
 XYZ_TO_OPPONENT = (
@@ -169,12 +169,17 @@ def scielab(xyz1: torch.Tensor, xyz2: torch.Tensor, white, samples_per_degree: f
         raise ValueError(f"xyz2: expected the shape of xyz1 {tuple(xyz1.shape)}, got {tuple(xyz2.shape)}")
     if xyz1.dim() not in (3, 4) or xyz1.shape[-3] != 3:  # (named 'xyz' and the two images' stacked shape)
         raise ValueError(f"xyz1: expected (B, 3, H, W) or (3, H, W) XYZ images, got shape {tuple(xyz1.shape)}")
-    both = torch.cat([xyz1.unsqueeze(0), xyz2.unsqueeze(0).to(xyz1.dtype)], 0)
+    # both in their promoted dtype (xyz2 was cast to xyz1's); half precision computed in float32 and returned in
+    # its own dtype, as delta_e does (torch's linalg.inv refused it)
+    out = torch.promote_types(xyz1.dtype, xyz2.dtype)
+    out = out if out.is_floating_point else torch.get_default_dtype()
+    work = working_dtype(out)
+    both = torch.cat([xyz1.unsqueeze(0).to(work), xyz2.unsqueeze(0).to(work)], 0)
     flat = both.reshape(-1, *xyz1.shape[-3:])
     filtered = scielab_filter(flat, samples_per_degree, convention, support_deg).reshape(both.shape)
     lab1 = xyz_to_lab(filtered[0], white, dim=-3)
     lab2 = xyz_to_lab(filtered[1], white, dim=-3)
-    return delta_e(lab1, lab2, method, dim=-3)
+    return delta_e(lab1, lab2, method, dim=-3).to(out)
 
 
 class SCIELAB(torch.nn.Module):

@@ -18,13 +18,20 @@ DEFAULT_MEAN_LUMINANCE_CD_M2 = 100.0
 
 
 def resolve_dtype(dtype, wavelengths=None) -> torch.dtype:
+    """A scene's dtype: ``dtype``, else the wavelengths' floating dtype, else torch's default; float32 or float64."""
+    name = "dtype"
     if dtype is not None:
         if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
             raise TypeError(f"dtype: expected a floating torch.dtype, got {dtype!r}")
-        return dtype
-    if isinstance(wavelengths, torch.Tensor) and wavelengths.is_floating_point():
-        return wavelengths.dtype
-    return torch.get_default_dtype()
+    elif isinstance(wavelengths, torch.Tensor) and wavelengths.is_floating_point():
+        dtype, name = wavelengths.dtype, "wavelengths (the scene's dtype)"
+    else:
+        dtype, name = torch.get_default_dtype(), "torch.get_default_dtype() (the scene's dtype)"
+    if dtype.itemsize < 4:  # (named as 'spectra: expected finite values, found 744 NaN/Inf entries')
+        raise ValueError(f"{name}: expected torch.float32 or torch.float64, got {dtype}: a radiance of about 1e16 "
+                         f"photons/s/sr/m^2/nm overflows float16, and bfloat16 rounds the wavelengths (550 nm to "
+                         f"552)")
+    return dtype
 
 
 def resolve_grid(wavelengths, dtype=None, device=None) -> torch.Tensor:

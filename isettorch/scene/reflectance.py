@@ -110,6 +110,9 @@ def from_rgb(rgb: torch.Tensor, display="lcd", wavelengths=None, *, dpi: float |
     if not rgb.is_floating_point():
         raise TypeError(f"rgb: expected a floating tensor of encoded values in [0, 1], got {rgb.dtype} "
                         "(convert 8-bit images with rgb.float() / 255)")
+    if dtype is None and rgb.dtype not in (torch.float32, torch.float64):  # (named the scene's dtype)
+        raise TypeError(f"rgb: expected a float32 or float64 tensor with values in [0, 1], got {rgb.dtype} (or give "
+                        f"the scene's dtype)")
     if isinstance(display, str):
         display = Display.create(display)
     elif not isinstance(display, Display):
