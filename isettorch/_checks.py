@@ -207,6 +207,15 @@ def round_half_away(x: float) -> int:
     return int(math.copysign(math.floor(abs(x) + 0.5), x))
 
 
+def item_index(index, name: str = "index") -> int:
+    """An item's identity index: a non-negative integer (Python, NumPy, or a 0-d integer tensor as a sampler gives);
+    ValueError naming ``name`` otherwise (1.5 was item 1)."""
+    if isinstance(index, torch.Tensor) and index.dim() == 0 and not index.is_floating_point() \
+            and index.dtype != torch.bool:
+        index = int(index)
+    return check_integer(index, name, 0)
+
+
 def dataset_index(index, length: int) -> int:
     """A map-style dataset's item index as an int in ``[0, length)`` (negative indices count from the end):
     TypeError unless an integer (Python, numpy or a 0-d integer tensor), IndexError outside ``[-length, length)``."""
@@ -300,3 +309,16 @@ def splitmix64(z: int) -> int:
     z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
     z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
     return (z ^ (z >> 31)) & ((1 << 63) - 1)
+
+
+def warn_caller(message: str, category=UserWarning) -> None:
+    """``warnings.warn`` attributed to the first frame outside isettorch and torch: the user's line that called the
+    library (a fixed ``stacklevel`` pointed into the library, the more so behind wrappers such as
+    ``_autograd.full_precision`` and ``Module.__call__``)."""
+    import sys
+    import warnings
+
+    frame, level = sys._getframe(1), 2
+    while frame is not None and frame.f_globals.get("__name__", "").split(".")[0] in ("isettorch", "torch"):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, category, stacklevel=level)

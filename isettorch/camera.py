@@ -17,7 +17,8 @@ from typing import Any
 import torch
 from torch import nn
 
-from ._checks import check_bool, is_integer, is_real
+from ._autograd import full_precision
+from ._checks import check_bool, is_integer, is_real, warn_caller
 from ._yaml import load_yaml
 from .isp.pipeline import DemosaicStage, ImageProcessor, ISPResult
 from .scene.scene import Scene
@@ -95,6 +96,7 @@ class Camera(nn.Module):
         self.name = name
 
     # --- pipeline ------------------------------------------------------------------------------
+    @full_precision
     def forward(self, scene, return_intermediates: bool = False, *, exposure_s=None, generator=None,
                 **sensor_kwargs):
         """Render a :class:`~isettorch.scene.Scene` (dense or factored); returns the image (B, 3, H, W) or a
@@ -184,6 +186,7 @@ class Camera(nn.Module):
             return None
         return top, left, height, width
 
+    @full_precision
     def from_optical_image(self, oi, return_intermediates: bool = False, *, exposure_s=None, generator=None,
                            **sensor_kwargs):
         """Resume from an optical image (e.g. one a user modified)."""
@@ -259,13 +262,11 @@ def warn_if_coarser_than_pixels(oi, sensor, pixel_size_m=None) -> None:
         k = int((pairs[0] / pairs[1]).argmax())
         dx, pitch = float(pairs[0][k]), float(pairs[1][k])
     if dx > pitch * (1 + 1e-6):
-        import warnings
-
-        warnings.warn(
+        warn_caller(
             f"the scene is coarser than the pixel grid: optical image samples every {dx * 1e6:.4g} um, pixel pitch "
             f"{pitch * 1e6:.4g} um ({dx / pitch:.4g} pixels per sample); the sensor interpolates, which blurs the "
             f"image beyond the optics (lower MTF). Sample the scene at least {dx / pitch:.4g}x more finely "
-            "(more samples across the same field of view).", UserWarning, stacklevel=3)
+            "(more samples across the same field of view).")
 
 
 # ---------------------------------------------------------------------------------------------

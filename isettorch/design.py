@@ -46,6 +46,7 @@ import torch
 from torch import nn
 
 from . import spectral
+from ._autograd import full_precision
 from ._checks import check_bool, check_float_dtype, check_seed, check_zip_crc, first_line
 from .image import XYZ_TO_LINEAR_SRGB
 from .isp.mosaic_net import MosaicReconstructionNet
@@ -282,6 +283,7 @@ class DesignCamera(nn.Module):
                                   validate=False)
 
     # --- capture --------------------------------------------------------------------------------
+    @full_precision
     def capture(self, scene: Scene, *, generator: torch.Generator | None = None, noise: bool = True,
                 with_noise_free: bool = False) -> dict:
         """Render ``scene`` through the optics and the design's sensor with the exposure rule.

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from . import constants
+from ._autograd import tensor_cache
 from ._checks import as_tensor, check_float_dtype, check_rank, check_wavelengths, is_real
 
 __all__ = [
@@ -275,7 +276,7 @@ def _key(w: torch.Tensor) -> tuple:
     return tuple(float(x) for x in w.detach().double().cpu().tolist())
 
 
-@functools.lru_cache(maxsize=256)
+@tensor_cache(maxsize=256)
 def _cached_on_grid(kind: str, arg, grid: tuple, dtype: torch.dtype, device: str) -> torch.Tensor:
     dst = torch.tensor(grid, dtype=torch.float64)
     if kind == "cmfs":
@@ -411,7 +412,7 @@ def daylight(cct_k: float, wavelengths_nm, *, dtype=None, device=None) -> torch.
     return _daylight_cached(float(cct_k), _key(w), dtype, str(device)).clone()
 
 
-@functools.lru_cache(maxsize=256)
+@tensor_cache(maxsize=256)
 def _daylight_cached(cct_k: float, grid: tuple, dtype, device: str) -> torch.Tensor:
     return torch.from_numpy(daylight_curves(np.array([cct_k]), grid, np, cie_rounding=True)[0]).to(dtype=dtype,
                                                                                                      device=device)

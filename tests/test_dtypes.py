@@ -95,3 +95,49 @@ def test_scielab_and_colour_accuracy_take_half_and_mixed_precision():
     acc = metrics.color_accuracy(rendered.half(), chart.half(), white="D65")
     acc64 = metrics.color_accuracy(rendered, chart, white="D65")
     assert np.isclose(float(acc.median), float(acc64.median), rtol=2e-2)
+
+
+def test_moving_keeps_a_constant_that_was_replaced():
+    """The float64 constants are cast again only while a buffer still holds its constant: an assigned matrix or a
+    checkpoint's white survives .to() / .double() (the first fix brought the constructor's values back)."""
+    p = ImageProcessor()
+    m = 2 * torch.eye(3)
+    p.xyz_to_display.matrix = m.clone()
+    p.to("cpu")
+    assert torch.equal(p.xyz_to_display.matrix, m)
+    p.double()
+    assert torch.equal(p.xyz_to_display.matrix, m.double())
+    q = ImageProcessor()
+    state = q.state_dict()
+    state["white_xyz"] = torch.tensor([0.9, 1.0, 1.1])
+    q.load_state_dict(state)
+    q.double()
+    assert torch.equal(q.white_xyz, torch.tensor([0.9, 1.0, 1.1]).double())
+
+
+def test_half_colour_accuracy_is_returned_in_half():
+    chart, _ = macbeth_reference_xyz("D65")
+    acc = metrics.color_accuracy(chart.half() * 1.01, chart.half(), white="D65")
+    assert acc.delta_e.dtype == acc.median.dtype == torch.float16
+
+
+def test_the_physics_keeps_its_precision_under_autocast():
+    """Under CPU bfloat16 autocast a camera failed ('electron_rate: expected torch.float32 or torch.float64, got
+    torch.bfloat16', from the sensor's sampling product) and a stream's OTF product moved its float32 batch by
+    3.5e-4 unsaid; the physics now runs in its inputs' precision, a network after it still autocasts."""
+    from isettorch.data import PairStream
+
+    scene = macbeth(patch_size=6)
+    cam = Camera.from_config("default")
+    cam.noise = False
+    ref = cam(scene)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        got = cam(scene)
+    assert got.dtype == torch.float32 and torch.equal(got, ref)
+    stream = PairStream(2, seed=0, scene={"height": 32, "width": 32}, camera=Camera.from_config("default"),
+                        grad=True, targets=("camera_rgb",))
+    ref = stream.batch(0)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        got = stream.batch(0)
+    for key in ("raw", "camera_rgb"):
+        assert got[key].dtype == torch.float32 and torch.equal(got[key].detach(), ref[key].detach()), key

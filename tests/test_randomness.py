@@ -105,3 +105,50 @@ def test_loading_models_and_stream_loaders_leave_the_global_generator_alone():
     stream = PairStream(2, seed=0, scene={"height": 16, "width": 16}, targets=("camera_rgb",))
     next(iter(stream.loader(1)))
     assert torch.equal(torch.get_rng_state(), before)
+
+
+def test_scene_datasets_take_a_samplers_tensor_index():
+    """The new index check refused a 0-d tensor index, which the scene datasets took before (a sampler may give one);
+    the datasets read their index as CameraPairDataset does (negative ones count from the end)."""
+    from isettorch.data.natural import NaturalSceneDataset
+    from isettorch.data.scenes import SyntheticSceneDataset
+
+    ds = SyntheticSceneDataset(4, seed=1, config={"height": 16, "width": 16})
+    assert torch.equal(ds[torch.tensor(2)].photons, ds[2].photons)
+    assert torch.equal(ds[-1].photons, ds[3].photons)
+    nat = NaturalSceneDataset(4, seed=1, config={"size": 16})
+    assert torch.equal(nat[torch.tensor(2)]["maps"], nat[2]["maps"])
+    with pytest.raises(TypeError, match="index: expected an integer"):
+        nat[1.5]
+    assert torch.equal(generate_scene(torch.tensor(3), 1, {"height": 16, "width": 16}).photons,
+                       generate_scene(3, 1, {"height": 16, "width": 16}).photons)
+
+
+def test_more_seed_entry_points(tmp_path, capsys):
+    """A photo dataset's seed -1 gave the items of 2^64 - 1, dead_leaves(seed=2**64) overflowed unnamed, and the demo
+    command's --seed -1 failed in torch."""
+    from isettorch.cli import main
+    from isettorch.data.photos import PhotoSceneDataset
+    from isettorch.io.images import write_image
+    from isettorch.scene.dead_leaves import dead_leaves
+
+    write_image(tmp_path / "a.png", torch.rand(1, 3, 32, 32, generator=torch.Generator().manual_seed(0)))
+    with pytest.raises(ValueError, match=r"seed: expected an integer in \[0, 2\*\*64\)"):
+        PhotoSceneDataset(tmp_path, 16, seed=-1)
+    with pytest.raises(ValueError, match=r"seed: expected an integer in \[0, 2\*\*64\)"):
+        dead_leaves(16, seed=2**64)
+    assert main(["demo", "--seed", "-1", "--out", str(tmp_path / "demo")]) == 2
+    assert "--seed: expected an integer in [0, 2**64)" in capsys.readouterr().err
+
+
+def test_stock_transport_loader_epochs_without_a_generator():
+    """EpochLoader on the stock transport (no shared-memory slots) and without a generator: the global generator
+    gives the same order for 0 and 2 workers in every epoch, as stock non-persistent loaders do."""
+    ds = CameraPairDataset(6, seed=3, scene={"height": 16, "width": 16, "wavelengths_nm": [400.0, 700.0, 50.0]},
+                           targets=("camera_rgb",))
+    orders = []
+    for workers in (0, 2):
+        torch.manual_seed(11)
+        loader = batch_loader(ds, 2, shuffle=True, num_workers=workers, shm_slots=False)
+        orders.append([[b["meta"]["index"].tolist() for b in loader] for _ in range(3)])
+    assert orders[0] == orders[1] and orders[0][0] != orders[0][1]

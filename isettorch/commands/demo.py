@@ -14,6 +14,7 @@ import math
 import time
 from pathlib import Path
 
+from .._checks import check_seed
 from .._progress import add_quiet_argument, progress
 from ._outputs import strict_json
 
@@ -59,6 +60,7 @@ def run(args) -> int:
 
     if not MIN_SIZE <= args.size <= MAX_SIZE:
         raise ValueError(f"--size: expected {MIN_SIZE} to {MAX_SIZE} pixels, got {args.size}")
+    check_seed(args.seed, "--seed")  # (-1 failed in torch's manual_seed, unnamed)
     out = check_dir(args.out, "out")
     config = args.config
     try:  # a user's config error is one line and exit code 2 (isettorch.cli), not a traceback

@@ -27,12 +27,12 @@ intervals, linear interpolation).
 
 from __future__ import annotations
 
-import functools
 import math
 
 import torch
 import torch.nn.functional as F
 
+from .._autograd import tensor_cache
 from ..scene import textures as _tex
 from . import spectra as _spectra
 from .batched import ILLUMINANT_KIND_CODES, _choice, _illuminants, _log_uniform, _reflectances, _white_photons
@@ -56,7 +56,7 @@ def _rng(r):
 
 # --- palette ------------------------------------------------------------------------------------------------------
 
-@functools.lru_cache(maxsize=8)
+@tensor_cache(maxsize=8)
 def _beta_quantiles(a: float, b: float, n: int = 16384) -> torch.Tensor:
     from scipy.stats import beta
 

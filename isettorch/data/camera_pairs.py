@@ -54,7 +54,6 @@ target learns to subtract (its inputs are in the metadata).
 
 from __future__ import annotations
 
-import functools
 import math
 import threading
 import time
@@ -62,6 +61,7 @@ import time
 import torch
 
 from .. import spectral
+from .._autograd import tensor_cache
 from .._checks import dataset_index
 from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, angle_for_extent, bradford_matrix, srgb_encode
 from ..optics.geometry import image_distance
@@ -117,7 +117,7 @@ def nikon_d5100_qe(wavelengths_nm, peak_qe: float = 0.5, shift_nm=(0.0, 0.0, 0.0
                         for c, s in enumerate(shift_nm)]) * peak_qe
 
 
-@functools.lru_cache(maxsize=16)
+@tensor_cache(maxsize=16)
 def _xyz_weights(grid: tuple) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(W [3, L], dl [L], W.T)`` in float64 with ``XYZ = W @ photons``: 683 cmf(l) h c / l dl (CIE 015:2018)
     (``W.T``: the same tensor object on every call, so the sensor's memo of its joint weightings hits)."""
@@ -347,7 +347,7 @@ def _d5100_qe(pattern: str, shifts_nm: torch.Tensor):
     return shifted_qe(cfa, "nikon_5100", shifts_nm[..., [CHANNELS.index(c) for c in cfa.channel_names]])
 
 
-@functools.lru_cache(maxsize=64)
+@tensor_cache(maxsize=64)
 def _unit_qe(pattern: str, shifts: tuple):
     """:func:`_d5100_qe` of one item's shifts (a tuple, R G B), cached: the module resamples once per grid."""
     return _d5100_qe(pattern, torch.tensor([float(v) for v in shifts], dtype=torch.float64))

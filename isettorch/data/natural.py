@@ -95,6 +95,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .._checks import dataset_index, item_index
 from ..scene import textures as _tex
 from . import spectra as _spectra
 from .config import (
@@ -414,7 +415,7 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
     """
     cfg = config if config is not None and config.get("_checked") else natural_config(config)
     # the item's identity (-1 drew the scene of 2^64 - 1, 1.5 that of 1, "3" that of 3)
-    g = torch.Generator().manual_seed(seed_for(check_seed(seed), check_integer(index, "index", 0)))
+    g = torch.Generator().manual_seed(seed_for(check_seed(seed), item_index(index)))
     h = w = int(cfg["size"])
     wl = _wavelengths(cfg)
     comp = cfg["components"]
@@ -580,6 +581,4 @@ class NaturalSceneDataset(torch.utils.data.Dataset):
         return self.length
 
     def __getitem__(self, index: int) -> dict:
-        if not 0 <= index < self.length:
-            raise IndexError(f"index: expected 0 <= index < {self.length}, got {index}")
-        return generate_natural(index, self.seed, self.config)
+        return generate_natural(dataset_index(index, self.length), self.seed, self.config)

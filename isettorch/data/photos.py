@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._checks import check_wavelengths, is_integer, is_real
+from .._checks import check_seed, check_wavelengths, dataset_index, is_integer, is_real
 from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from . import spectra as _spectra
 from .config import seed_for
@@ -109,8 +109,7 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
             raise ValueError(f"size: expected an integer crop size >= 2 pixels, got {size!r}")
         if length is not None and not (is_integer(length) and length >= 1):  # (-3 failed later, inside len())
             raise ValueError(f"length: expected None or an integer >= 1, got {length!r}")
-        if not is_integer(seed):
-            raise ValueError(f"seed: expected an integer, got {seed!r}")
+        check_seed(seed)  # (-1 gave the items of 2^64 - 1)
         self.files = photo_files(folder)
         if not self.files:
             raise ValueError(f"folder: no {'/'.join(self.SUFFIXES)} files in {str(folder)!r}")
@@ -136,8 +135,7 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
         return srgb_decode(torch.from_numpy(a).permute(2, 0, 1))
 
     def __getitem__(self, index: int) -> dict:
-        if not 0 <= index < self.length:
-            raise IndexError(f"index: expected 0 <= index < {self.length}, got {index}")
+        index = dataset_index(index, self.length)
         g = torch.Generator().manual_seed(seed_for(self.seed, index))
         path = self.files[index % len(self.files)]
         lin = self._photo(path)

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from .. import spectral
-from .._checks import check_float_dtype
+from .._checks import check_float_dtype, dataset_index, item_index
 from ..scene import Scene
 from . import layouts as _layouts
 from . import spectra as _spectra
@@ -126,7 +126,7 @@ def generate_scene(index: int, seed: int = 0, config: dict | None = None, *, dev
     """
     check_float_dtype(dtype)  # (float16 overflowed the radiance, about 5e15, to an all-NaN scene)
     # the item's identity (-1 drew the scene of 2^64 - 1, 1.5 that of 1, "3" that of 3)
-    seed, index = check_seed(seed), check_integer(index, "index", 0)
+    seed, index = check_seed(seed), item_index(index)
     with one_thread():
         return _generate_scene(index, seed, config, device=device, dtype=dtype, hfov_deg=hfov_deg, size=size,
                                distance_m=distance_m)
@@ -289,9 +289,7 @@ class SyntheticSceneDataset(torch.utils.data.Dataset):
         return self.length
 
     def __getitem__(self, index: int) -> Scene:
-        if not -self.length <= index < self.length:
-            raise IndexError(f"index: expected 0 <= index < {self.length}, got {index}")
-        index = index % self.length
+        index = dataset_index(index, self.length)  # (a 0-d tensor index, as a sampler may give, is an int)
         return generate_scene(index, self.seed, self.config, device=self.device, dtype=self.dtype)
 
 

@@ -197,10 +197,10 @@ class SlotBatchSampler(torch.utils.data.BatchSampler):
 
 
 class EpochLoader(torch.utils.data.DataLoader):
-    """A ``DataLoader`` whose persistent workers' later epochs draw the base seed from ``generator`` that a fresh
-    iterator draws (torch draws it only when it starts the workers): a sampler on the same generator then shuffles
-    every epoch as it does with ``num_workers=0`` or without persistent workers (from the second epoch, the orders
-    differed)."""
+    """A ``DataLoader`` whose persistent workers' later epochs take from ``generator`` the draw a fresh iterator
+    takes for its workers' base seed (torch draws it only when it starts the workers; the draw is discarded, the
+    workers keep their first seeds): a sampler on the same generator then shuffles every epoch as it does with
+    ``num_workers=0`` or without persistent workers (from the second epoch, the orders differed)."""
 
     def __iter__(self):
         if self.persistent_workers and self.num_workers > 0 and self._iterator is not None:

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from .. import spectral
-from .._autograd import records_grad
+from .._autograd import records_grad, tensor_cache
 from .._checks import check_wavelengths
 from .config import WAVELENGTH_RANGE_NM, randint_scalar, uniform01
 
@@ -144,7 +144,7 @@ def _pca_native(n_components: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return wave, mean, basis, std
 
 
-@functools.lru_cache(maxsize=64)
+@tensor_cache(maxsize=64)
 def _pca_on_grid(n_components: int, grid: tuple, dtype, device: str):
     wave, mean, basis, std = _pca_native(n_components)
     src = torch.from_numpy(wave)

@@ -21,11 +21,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
-from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 
 import torch
 
+from .._autograd import full_precision
+from .._cache import BoundedCache
 from .._checks import check_device, check_float_dtype, is_integer
 from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, angle_for_extent, bradford_matrix, srgb_encode
 from ..optics.geometry import image_distance
@@ -185,7 +186,7 @@ class PairStream:
         if self.camera_module is None and max(sizes) > 1:  # (a part of one item renders it alone)
             _check_drawn_lens(self.camera_config, self.scene_config)
         self._caches = [_Cache() for _ in range(parts)]  # per part: parts may render concurrently
-        self._otf_rows: OrderedDict = OrderedDict()  # shared by the groups' optics (DiffractionLimitedOptics)
+        self._otf_rows = BoundedCache(64)  # shared by the groups' optics (DiffractionLimitedOptics)
         self._negligible_memo: dict = {}  # their blur tests, keyed on plain numbers (blur_negligible), shared too
         self._pool = None
 
@@ -429,6 +430,7 @@ class PairStream:
                              f"k x batch_size + i in meta['index'], an int64), got {k!r}")
         return int(k)
 
+    @full_precision
     def batch(self, k: int) -> dict:
         """Batch ``k`` (a pure function of ``(seed, k, config, targets, device type)``), rendered on the stream's
         device; ``k`` an integer in ``[0, max_batch_index]``."""

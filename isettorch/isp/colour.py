@@ -713,7 +713,8 @@ def _display_primaries(display) -> tuple[torch.Tensor, torch.Tensor]:
 class ExactConstants(nn.Module):
     """A module whose constant buffers are computed in float64 (a display's matrices, a white's XYZ): a change of
     dtype casts them again from the float64 values, so a module built in float32 and moved to float64 holds the
-    float64 constants (``.double()`` kept their float32 roundings: 1.2-2e-7 of a camera's final image)."""
+    float64 constants (``.double()`` kept their float32 roundings: 1.2-2e-7 of a camera's final image). A buffer
+    that no longer holds its constant (loaded, assigned or edited) is moved as any buffer is."""
 
     def register_constant(self, name: str, value: torch.Tensor) -> None:
         """Register buffer ``name`` in torch's default dtype, remembering ``value`` in float64."""
@@ -721,11 +722,19 @@ class ExactConstants(nn.Module):
         self.register_buffer(name, value.detach().to(torch.get_default_dtype()))
 
     def _apply(self, fn, *args, **kwargs):
-        super()._apply(fn, *args, **kwargs)
-        for name, exact in self.__dict__.get("_constants64", {}).items():
+        # the constants still holding their value (not loaded from a checkpoint, assigned or edited since)
+        consts = self.__dict__.get("_constants64", {})
+        held = {}
+        for name, exact in consts.items():
             b = self._buffers.get(name)
-            if b is not None and b.is_floating_point():  # cast from the float64 value, not from the rounding
-                self._buffers[name] = exact.to(device=b.device, dtype=b.dtype)
+            if b is not None and b.is_floating_point() and b.shape == exact.shape and torch.equal(
+                    b.detach().cpu(), exact.to(b.dtype)):
+                held[name] = b.dtype
+        super()._apply(fn, *args, **kwargs)
+        for name, dtype in held.items():
+            b = self._buffers.get(name)
+            if b is not None and b.dtype != dtype:  # a new dtype: cast from the float64 value, not the rounding
+                self._buffers[name] = consts[name].to(device=b.device, dtype=b.dtype)
         return self
 
 

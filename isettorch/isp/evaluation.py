@@ -139,6 +139,14 @@ def _image_seed(seed: int, index: int) -> int:
     return splitmix64(int(seed) * 0x9E3779B97F4A7C15 + int(index) + 1)
 
 
+def _check_noise_seed(seed) -> int:
+    """The noise seed: TypeError for a non-integer (1.5 was 1), ValueError outside ``[0, 2^64)`` (-1 drew the noise of
+    2^64 - 1, 2^64 that of 0)."""
+    if not is_integer(seed):
+        raise TypeError(f"seed: expected an integer, got {seed!r}")
+    return check_seed(seed)
+
+
 def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float = 0.0, *, seed: int = 0,
                  index: int = 0) -> torch.Tensor:
     """The benchmark's noisy mosaic: ``raw`` (B, 1, H, W) in [0, 1] plus noise of variance ``noise_shot * x +
@@ -147,10 +155,9 @@ def noisy_mosaic(raw: torch.Tensor, noise_sigma: float = 0.0, noise_shot: float 
     from ..sensor.noise import poisson_gaussian
 
     s, a = _check_noise(noise_sigma, noise_shot)
-    for name, v in (("seed", seed), ("index", index)):
-        if not is_integer(v):  # (1.5 was 1)
-            raise TypeError(f"{name}: expected an integer, got {v!r}")
-    check_seed(seed)  # (-1 drew the noise of 2^64 - 1, 2^64 that of 0)
+    _check_noise_seed(seed)
+    if not is_integer(index):  # (1.5 was 1)
+        raise TypeError(f"index: expected an integer, got {index!r}")
     check_integer(index, "index", 0)
     if not isinstance(raw, torch.Tensor) or not raw.is_floating_point():
         raise TypeError(f"raw: expected a floating-point mosaic tensor (B, 1, H, W) in [0, 1], got "
@@ -218,7 +225,8 @@ def load_demosaic_model(path: str | Path, class_path: str | None = None, *, kwar
     if not isinstance(cls, type):  # ('os:path' is a module: "'module' object is not callable")
         raise ValueError(f"model_class: {class_path!r} is a {type(cls).__name__}, not a class")
     try:
-        net = cls(**(kwargs or {}))
+        with torch.random.fork_rng(devices=[]):  # initial weights, replaced by the file's: not the global generator's
+            net = cls(**(kwargs or {}))
     except Exception as err:  # noqa: BLE001 - the constructor refused the kwargs: a user error, named
         raise ValueError(f"model_kwargs: {class_path}({kwargs or {}}) failed ({type(err).__name__}: "
                          f"{first_line(err)})") from err
@@ -269,7 +277,7 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
     noisy = noise_sigma > 0 or noise_shot > 0
     check_float_dtype(dtype)
     if noisy:
-        check_seed(seed)  # before the images are read (noisy_mosaic checks it per image)
+        _check_noise_seed(seed)  # before the images are read (noisy_mosaic checks it per image)
     if denoise is not None:
         check_denoiser(denoise)  # one of DENOISERS, and runnable here
         if not noisy:

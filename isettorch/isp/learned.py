@@ -46,7 +46,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .._autograd import records_grad
+from .._autograd import records_grad, tensor_cache
 from .._checks import FLOAT_DTYPES, check_bool, check_finite, check_zip_crc
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
 from .demosaicing.linear import demosaic_malvar2004
@@ -1021,7 +1021,7 @@ def apply_shipped_settings(net: DemosaicNet, variant: str) -> DemosaicNet:
     return net
 
 
-@functools.lru_cache(maxsize=8)
+@tensor_cache(maxsize=8)
 def _pretrained(variant: str, device: str, dtype: torch.dtype, guard: bool = True) -> DemosaicNet:
     net = load_checkpoint(PRETRAINED[variant], device=device, dtype=dtype)[0]
     if guard:

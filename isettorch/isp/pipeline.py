@@ -18,6 +18,7 @@ import dataclasses
 import torch
 from torch import nn
 
+from .._autograd import full_precision
 from .._checks import check_finite, check_wavelengths
 from ..sensor.exposure import percentile_linear
 from .colour import (
@@ -315,6 +316,7 @@ class ImageProcessor(ExactConstants):
             self.__dict__["_raw_fit"] = ((id(qe), token), qe, tensors, getattr(s2x, "_fit_key", None))
         return self
 
+    @full_precision
     def forward(self, raw) -> ISPResult:
         """Process a :class:`~isettorch.sensor.raw.RawImage`; returns an :class:`ISPResult`. The colour matrix is
         fitted from the raw's ``spectral_qe`` when it carries one (:meth:`fit_raw`); a matrix fitted inside the

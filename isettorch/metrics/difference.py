@@ -10,7 +10,7 @@ import dataclasses
 
 import torch
 
-from .._checks import check_finite, is_real
+from .._checks import check_finite, is_real, warn_caller
 from .color import _channel_last, xyz_to_lab
 
 
@@ -263,7 +263,8 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
     check_finite(rendered.detach(), "rendered")  # (named here: xyz_to_lab's error would name 'xyz')
     check_finite(reference.detach(), "reference")
     # both in their promoted dtype (half precision in float32: its median raised in torch.quantile)
-    work = working_dtype(torch.promote_types(rendered.dtype, reference.dtype))
+    out = torch.promote_types(rendered.dtype, reference.dtype)
+    work = working_dtype(out)
     rendered, reference = rendered.to(work), reference.to(work)
     if space == "xyz":
         lab_r = xyz_to_lab(rendered, white, dim=-1)
@@ -274,8 +275,10 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
     if space == "xyz":
         _check_chart_whites(rendered, reference, white)
     lab_ref = lab_ref.expand_as(lab_r) if lab_ref.dim() < lab_r.dim() else lab_ref
-    return ColorAccuracy(delta_e=de, mean=de.mean(-1), max=de.amax(-1), median=de.quantile(0.5, dim=-1),
-                         lab_rendered=lab_r, lab_reference=lab_ref, method=str(method), patch_names=patch_names)
+    out = out if out.is_floating_point else work  # returned in the inputs' (promoted) dtype, as delta_e does
+    return ColorAccuracy(delta_e=de.to(out), mean=de.mean(-1).to(out), max=de.amax(-1).to(out),
+                         median=de.quantile(0.5, dim=-1).to(out), lab_rendered=lab_r.to(out),
+                         lab_reference=lab_ref.to(out), method=str(method), patch_names=patch_names)
 
 
 #: Index of the ColorChecker's white patch (row 4, column 1) in reading order.
@@ -307,13 +310,11 @@ def _check_chart_whites(rendered: torch.Tensor, reference: torch.Tensor, white) 
             "and white=... of the render's illuminant")
     d_r = float((_xy(rendered.detach()[..., _WHITE_PATCH, :]) - ref_xy).norm(dim=-1).max())
     if d_r > _WHITE_XY_TOLERANCE:
-        import warnings
-
-        warnings.warn(
+        warn_caller(
             f"rendered: the white patch's chromaticity is {d_r:.3f} (xy) from the reference's: if the scene was "
             "rendered under another illuminant than the reference's, compare with "
             "macbeth_reference_xyz(illuminant=<the render's>) and its white (a D65 render scored against the D50 "
-            "chart reads mean dE2000 7.2 instead of 3.7)", UserWarning, stacklevel=3)
+            "chart reads mean dE2000 7.2 instead of 3.7)")
 
 
 def macbeth_reference_xyz(illuminant=None, dtype=torch.float64,

@@ -23,14 +23,14 @@ test for a negligible blur (:meth:`blur_negligible`).
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 
 import torch
 from torch import nn
 
 from .. import spectral
-from .._autograd import records_grad
-from .._checks import as_tensor, batch_param, check_bool, check_nonnegative, check_wavelengths, is_real
+from .._autograd import full_precision, records_grad
+from .._cache import BoundedCache
+from .._checks import as_tensor, batch_param, check_bool, check_nonnegative, check_wavelengths, is_real, warn_caller
 from ..image import SpectralFactors, angle_for_extent
 from ..scene.scene import Scene
 from . import geometry
@@ -93,7 +93,8 @@ class ShiftInvariantLens(nn.Module):
             frequency of the grid (only where the optics can tell cheaply, e.g. diffraction-limited).
         margin: force the padding margin (samples per side) instead of deriving it from ``psf_tolerance``.
         max_margin_factor: cap of the derived margin, in units of the scene's larger side.
-        learn_f_number: make ``f_number`` a trainable ``nn.Parameter``.
+        learn_f_number: make ``f_number`` a trainable ``nn.Parameter`` (it is a parameter either way, frozen without
+            this flag: ``module.requires_grad_(True)`` unfreezes it too).
     """
 
     def __init__(self, f_number=4.0, focal_length_m=3.862755099e-3, transmittance=None,
@@ -169,10 +170,10 @@ class ShiftInvariantLens(nn.Module):
         self.blur_skip_tolerance = float(blur_skip_tolerance)
         self.margin = margin
         self.max_margin_factor = float(max_margin_factor)
-        self._otf_cache: OrderedDict = OrderedDict()
-        self._otf_rows: OrderedDict = OrderedDict()
-        self._interleaved_cache: dict = {}
-        self._geometry_cache: dict = {}
+        self._otf_cache = BoundedCache(_CACHE_SIZE)
+        self._otf_rows = BoundedCache(8 * _CACHE_SIZE)
+        self._interleaved_cache = BoundedCache(_CACHE_SIZE)
+        self._geometry_cache = BoundedCache(4 * _CACHE_SIZE)
 
     # --- to override --------------------------------------------------------------------------------
     # True when item b of :meth:`otf` depends only on ``fy[b], fx[b], f_number[b]`` and the module's fixed settings
@@ -234,9 +235,7 @@ class ShiftInvariantLens(nn.Module):
             hit = self._otf_cache.get(key)
             if hit is None:
                 hit = self._otf_by_item(fy, fx, wavelengths_nm, f_number, dx, key)
-                self._otf_cache[key] = hit
-                if len(self._otf_cache) > _CACHE_SIZE:
-                    self._otf_cache.popitem(last=False)
+                self._otf_cache[key] = hit  # (bounded in entries and bytes)
             return hit
         return fn
 
@@ -251,8 +250,6 @@ class ShiftInvariantLens(nn.Module):
         if out.is_complex():
             return out
         plain = out[..., 0]  # a view: the interleaved batch is registered as its interleaved copy
-        if len(self._interleaved_cache) >= _CACHE_SIZE:
-            self._interleaved_cache.clear()
         self._interleaved_cache[id(plain)] = (plain, out)
         return plain
 
@@ -283,9 +280,7 @@ class ShiftInvariantLens(nn.Module):
                 row = self.otf(fy[b:b + 1], fx[b:b + 1], wavelengths_nm, n[b:b + 1]).detach()
                 if not row.is_complex():  # kept interleaved (see _interleaved): the batch is one copy of rows
                     row = row[..., None].expand(*row.shape, 2).contiguous()
-                self._otf_rows[row_key] = row
-                if len(self._otf_rows) > 8 * _CACHE_SIZE:
-                    self._otf_rows.popitem(last=False)
+                self._otf_rows[row_key] = row  # (bounded in entries and bytes)
             rows.append(row)
         return rows
 
@@ -305,15 +300,12 @@ class ShiftInvariantLens(nn.Module):
             # The PSF reaches far beyond the capped padding: the FFT's circular convolution folds the light beyond
             # the margin back onto the image (for diffraction, whose line-spread tail falls as 1 / distance, about
             # psf_tolerance x samples / cap of it: over 10x the tolerance here). Say so rather than render it.
-            import warnings
-
-            warnings.warn(
+            warn_caller(
                 f"optics: the PSF reaches {samples} samples beyond the scene at psf_tolerance {self.psf_tolerance:g} "
                 f"(sample spacing {float(dx.detach().min()) * 1e6:.4g} um), but the padding is capped at {cap} "
                 f"(max_margin_factor {self.max_margin_factor:g} x the scene's {max(scene_shape)} samples): light "
                 "beyond the margin wraps around onto the image. The blur is larger than the scene: sample the scene "
-                "more coarsely (a wider field of view), or raise max_margin_factor / give margin.",
-                UserWarning, stacklevel=3)
+                "more coarsely (a wider field of view), or raise max_margin_factor / give margin.")
         return min(samples, cap)
 
     def _geometry(self, scene: Scene):
@@ -348,6 +340,7 @@ class ShiftInvariantLens(nn.Module):
                                  "image_distance_m": d_i, "margin": margin}
         return dict(out)
 
+    @full_precision
     def forward(self, scene: Scene, crop: tuple[int, int, int, int] | None = None) -> OpticalImage:
         """Scene -> optical image.
 
@@ -404,8 +397,6 @@ class ShiftInvariantLens(nn.Module):
                self.blur_skip_tolerance, self.max_margin_factor, self._otf_key())
         hit = self._geometry_cache.get(key)
         if hit is None:
-            if len(self._geometry_cache) >= 4 * _CACHE_SIZE:
-                self._geometry_cache.clear()
             hit = self._geometry_cache[key] = (self._compute_spatial_factors(scene), {})
         return hit
 
@@ -550,8 +541,6 @@ class ShiftInvariantLens(nn.Module):
             return otf
         hit = self._interleaved_cache.get(id(otf))
         if hit is None or hit[0] is not otf:
-            if len(self._interleaved_cache) >= _CACHE_SIZE:
-                self._interleaved_cache.clear()
             hit = self._interleaved_cache[id(otf)] = (otf, otf[..., None].expand(*otf.shape, 2).contiguous())
         return hit[1]
 

@@ -23,12 +23,12 @@ the PSF, no ``abs``); see its docstring for the measured difference.
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 
 import torch
 
 from .. import constants
 from .._autograd import records_grad
+from .._cache import BoundedCache
 from .._checks import (
     as_tensor,
     batch_param,
@@ -127,8 +127,7 @@ def mean_illuminance(photons: torch.Tensor, wavelengths_nm: torch.Tensor, vlambd
 # OTF half-spectra (rfft layout) and cos4th factors by geometry (wavelengths, f-numbers, focal lengths, FOVs,
 # spacings, shape, dtype, device): a repeated call with the same optics and scene geometry reuses them
 # (DESIGN principle 2: nothing recomputed that can be cached). Least recently used entries go first.
-_CACHE: OrderedDict = OrderedDict()
-_CACHE_SIZE = 16
+_CACHE = BoundedCache(16)
 
 
 def _cached(key_of, make, *inputs) -> torch.Tensor:
@@ -137,13 +136,10 @@ def _cached(key_of, make, *inputs) -> torch.Tensor:
     if records_grad(*inputs):
         return make()
     key = key_of()
-    hit = _CACHE.get(key)
+    hit = _CACHE.get(key)  # (a hit becomes the newest)
     if hit is not None:
-        _CACHE.move_to_end(key)
         return hit
-    _CACHE[key] = value = make()
-    while len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
+    _CACHE[key] = value = make()  # (bounded in entries and bytes)
     return value
 
 

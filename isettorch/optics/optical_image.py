@@ -30,7 +30,8 @@ def _scratch(shape: tuple[int, ...], dtype: torch.dtype, device: torch.device, s
         return torch.empty(shape, dtype=dtype, device=device)
     buf = getattr(_SCRATCH, slot, None)
     if buf is None or buf.dtype != dtype or buf.device != device or buf.numel() < n:
-        buf = torch.empty(n, dtype=dtype, device=device)
+        with torch.inference_mode(False):  # a normal tensor even when first made under inference_mode (an inference
+            buf = torch.empty(n, dtype=dtype, device=device)  # buffer failed every later call outside it)
         setattr(_SCRATCH, slot, buf)
     return buf[:n].view(shape)
 

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import math
-import warnings
 
 import torch
 from torch import nn
 
 from .._autograd import records_grad
-from .._checks import as_tensor, is_integer, is_real
+from .._checks import as_tensor, is_integer, is_real, warn_caller
 from .base import ShiftInvariantLens, check_not_detached
 from .diffraction import dl_otf
 
@@ -369,9 +368,9 @@ class WavefrontOptics(ShiftInvariantLens):
                 p = min(p * 2 ** math.ceil(math.log2(step / self.max_step_waves)), self.max_pupil_samples)
                 step = self._step_waves(z[i:i + 1], w, p)[0]
             if step > 0.25:
-                warnings.warn(f"WavefrontOptics: the wavefront changes by {step:.2f} waves between pupil samples at "
-                              f"max_pupil_samples ({p}); raise max_pupil_samples (the OTF's phase average is coarse "
-                              f"and the PSF has ghost copies {p} lambda N apart)", stacklevel=4)
+                warn_caller(f"WavefrontOptics: the wavefront changes by {step:.2f} waves between pupil samples at "
+                            f"max_pupil_samples ({p}); raise max_pupil_samples (the OTF's phase average is coarse "
+                            f"and the PSF has ghost copies {p} lambda N apart)")
             out.append(p)
         return out
 

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from .. import spectral
+from .._checks import check_seed
 from ._common import (
     DEFAULT_DISTANCE_M,
     DEFAULT_HFOV_DEG,
@@ -142,7 +143,7 @@ def dead_leaves(size=128, *, alpha: float = 3.0, rmin_px: float = 1.0, rmax_px: 
     if generator is None:
         if seed is None:
             raise ValueError("seed: expected an int seed or a torch.Generator (randomness must be explicit), got None")
-        generator = torch.Generator().manual_seed(check_int(seed, "seed", minimum=0))
+        generator = torch.Generator().manual_seed(check_seed(seed))  # ([0, 2^64): 2^64 overflowed, unnamed)
     elif not isinstance(generator, torch.Generator):
         raise TypeError(f"generator: expected a torch.Generator, got {type(generator).__name__}")
     if generator.device.type != "cpu":

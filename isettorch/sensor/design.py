@@ -61,7 +61,8 @@ def learned_design(filters: Sequence[str] = ("learned", "learned", "learned", "W
     """A learnable bank (``filters``: ``'learned'`` entries and fixed letters) and a learnable ``shape`` mosaic."""
     seed = check_seed(seed)
     bank = FilterBank(filters, seed=seed, **(bank_kwargs or {}))
-    # the mosaic's seed is the next one, in [0, 2^64) (2^64 - 1 + 1 overflowed torch's seed, unnamed)
+    # the mosaic's seed is the next one, in [0, 2^64) (2^64 - 1 + 1 overflowed torch's seed, unnamed); kept so (the
+    # bank of seed s + 1 draws the same numbers) because the shipped designs were trained from these starts
     mosaic = LearnedMosaic(bank.channel_names, tuple(shape), seed=(seed + 1) % SEED_LIMIT, relax=relax,
                            **(mosaic_kwargs or {}))
     return bank, mosaic

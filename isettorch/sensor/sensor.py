@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from .. import spectral
-from .._autograd import records_grad
+from .._autograd import full_precision, records_grad
 from .._checks import (
     batch_param,
     check_bool,
@@ -205,7 +205,8 @@ class Sensor(nn.Module):
             ``'midpoint'`` (each band its own width; default) or ``'isetcam'`` (the first bin's width for every band,
             ISETCam's rectangle rule). The two agree on a uniform grid.
         output_units: ``'dn'`` (default when ``adc_bits``), ``'volts'`` (default otherwise) or ``'electrons'``.
-        seed: seed of the fixed patterns and of the default temporal-noise generator.
+        seed: seed of the fixed patterns and of the default temporal-noise generator. The patterns are functions
+            of (seed, size), not saved in the state_dict: a checkpoint restores a sensor built with the same seed.
 
     Example:
         >>> s = Sensor.preset('isetcam_default', rows=4, cols=6, read_noise_v=0, dark_current_e_per_s=0)
@@ -1035,6 +1036,7 @@ class Sensor(nn.Module):
         return photo_e if fw is None else photo_e.clamp(max=fw)
 
     # --- forward -----------------------------------------------------------------------------
+    @full_precision
     def forward(self, oi: OpticalImage, *, exposure_s=None, analog_gain=None, noise: bool = True,
                 generator: torch.Generator | None = None, exposure_ev=None, qe_scale=None,
                 spectral_qe: SpectralQE | None = None, pixel_size_m=None, **levels) -> RawImage:
@@ -1065,6 +1067,7 @@ class Sensor(nn.Module):
         return self.capture(rate, exposure_s=exposure_s, analog_gain=analog_gain, noise=noise, generator=generator,
                             spectral_qe=spectral_qe, pixel_size_m=pixel_size_m, **levels)
 
+    @full_precision
     def capture(self, electron_rate: torch.Tensor, *, exposure_s=None, analog_gain=None, noise: bool = True,
                 generator: torch.Generator | None = None, spectral_qe: SpectralQE | None = None,
                 pixel_size_m=None, **levels) -> RawImage:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._checks import check_seed
 from ..io.images import PHOTO_SUFFIXES
 
 __all__ = ["ViewerSession", "Settings", "ROI", "SCENES", "WINDOWS", "F_NUMBERS", "PIXEL_SIZES_UM", "EXPOSURES_MS",
@@ -179,7 +180,7 @@ class ViewerSession:
         self.config_name = str(self.base_config.get("name") or (Path(source).stem if not isinstance(source, dict)
                                                                 else "camera"))
         self.size = size
-        self.seed = int(seed)
+        self.seed = check_seed(seed)  # (int() took 1.5 and -1)
         self.settings = Settings(scene=scene)
         self._scenes: dict[str, object] = {}
         self._cameras: dict[tuple, object] = {}

@@ -8,6 +8,7 @@ import functools
 import torch
 import torch.nn.functional as F
 
+from ..._autograd import tensor_cache
 from ..._checks import FLOAT_DTYPES
 from ...sensor.cfa import BAYER_PATTERNS, CFA, tile  # the one CFA-pattern table and its tiling
 
@@ -76,11 +77,10 @@ def idx_key(index_map: torch.Tensor) -> tuple:
     return tuple(map(tuple, index_map.tolist()))
 
 
-@functools.lru_cache(maxsize=4)  # full-size masks: keep few (a 24 MP frame is ~0.1-0.3 GB)
+@tensor_cache(maxsize=4)  # full-size masks: keep few (a 24 MP frame is ~0.1-0.3 GB)
 def _channel_masks(key: tuple, num_channels: int, height: int, width: int, dtype, device) -> torch.Tensor:
-    with torch.inference_mode(False):  # cached: must stay usable by autograd after a call in inference mode
-        full = tile(torch.tensor(key, device=device), height, width)
-        return (full[None] == torch.arange(num_channels, device=device)[:, None, None]).to(dtype)[None]
+    full = tile(torch.tensor(key, device=device), height, width)
+    return (full[None] == torch.arange(num_channels, device=device)[:, None, None]).to(dtype)[None]
 
 
 def channel_masks(index_map: torch.Tensor, num_channels: int, height: int, width: int, *, dtype, device
@@ -89,20 +89,19 @@ def channel_masks(index_map: torch.Tensor, num_channels: int, height: int, width
     return _channel_masks(idx_key(index_map), num_channels, height, width, dtype, torch.device(device))
 
 
-@functools.lru_cache(maxsize=4)  # full-size masks: keep few (a 24 MP frame is ~0.1-0.3 GB)
+@tensor_cache(maxsize=4)  # full-size masks: keep few (a 24 MP frame is ~0.1-0.3 GB)
 def bayer_masks(pattern: str, height: int, width: int, device) -> dict[str, torch.Tensor]:
     """Boolean masks (1, 1, H, W) of a Bayer mosaic: R, G, B sites and the rows/columns that hold R or B
     (cached; do not modify in place)."""
-    with torch.inference_mode(False):  # cached: must stay usable by autograd after a call in inference mode
-        full = tile(bayer_index_map(pattern, device=device), height, width)[None, None]
-        r, g, b = full == 0, full == 1, full == 2
-        m = {
-            "R": r, "G": g, "B": b,
-            "R_row": r.any(dim=-1, keepdim=True).expand_as(r), "R_col": r.any(dim=-2, keepdim=True).expand_as(r),
-            "B_row": b.any(dim=-1, keepdim=True).expand_as(b), "B_col": b.any(dim=-2, keepdim=True).expand_as(b),
-        }
-        m["G_in_R_row"], m["G_in_B_row"] = g & m["R_row"], g & m["B_row"]
-        return m
+    full = tile(bayer_index_map(pattern, device=device), height, width)[None, None]
+    r, g, b = full == 0, full == 1, full == 2
+    m = {
+        "R": r, "G": g, "B": b,
+        "R_row": r.any(dim=-1, keepdim=True).expand_as(r), "R_col": r.any(dim=-2, keepdim=True).expand_as(r),
+        "B_row": b.any(dim=-1, keepdim=True).expand_as(b), "B_col": b.any(dim=-2, keepdim=True).expand_as(b),
+    }
+    m["G_in_R_row"], m["G_in_B_row"] = g & m["R_row"], g & m["B_row"]
+    return m
 
 
 def _fold(n: int, before: int, after: int, mode: str, device) -> torch.Tensor:

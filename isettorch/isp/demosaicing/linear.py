@@ -4,11 +4,11 @@ Malvar-He-Cutler (2004)."""
 from __future__ import annotations
 
 import contextlib
-import functools
 
 import torch
 import torch.nn.functional as F
 
+from ..._autograd import tensor_cache
 from ._cfa import (
     bayer_index_map,
     channel_masks,
@@ -166,12 +166,11 @@ def demosaic_bilinear(raw: torch.Tensor, pattern: str = "RGGB", *, normalize_bor
     return out
 
 
-@functools.lru_cache(maxsize=4)  # full-size masks: keep few (a 24 MP frame is ~0.1-0.3 GB)
+@tensor_cache(maxsize=4)  # full-size masks: keep few (a 24 MP frame is ~0.1-0.3 GB)
 def _bilinear_weight(key: tuple, h: int, w: int, dtype, device) -> torch.Tensor:
     """Kernel weight that falls on samples of each channel: exactly 1 away from the one-pixel border."""
-    with torch.inference_mode(False):  # cached: must stay usable by autograd after a call in inference mode
-        masks = channel_masks(torch.tensor(key), 3, h, w, dtype=dtype, device=device)
-        return correlate(masks, [_H_RB, _H_G, _H_RB], "symmetric")
+    masks = channel_masks(torch.tensor(key), 3, h, w, dtype=dtype, device=device)
+    return correlate(masks, [_H_RB, _H_G, _H_RB], "symmetric")
 
 
 # Malvar, He & Cutler (2004), Fig. 2: gradient-corrected bilinear kernels (x 1/8).
@@ -188,13 +187,13 @@ _MALVAR = [_scaled(_G_AT_RB, 1 / 8), _scaled(_RB_AT_G_ROW, 1 / 8), _scaled(list(
            _scaled(_RB_AT_BR, 1 / 8)]
 
 
-@functools.lru_cache(maxsize=16)
+@tensor_cache(maxsize=16)
 def _malvar_polyphase(pattern: str, dtype, device) -> tuple[torch.Tensor, tuple, tuple]:
     """:func:`demosaic_malvar2004`'s kernels on the polyphase planes of the mosaic padded by 2: a (8, 4, 3, 3) weight
     (each cell position's two estimates), for each output channel the colour and cell position it fills, and each
     cell position's sampled colour ``((colour, py, px), ...)``. Tap
     (ky, kx) of 0..4 at position (py, px) reads padded pixel (py + ky, px + kx): plane 2 (y % 2) + x % 2 at cell
-    offset (y // 2, x // 2). (Cached; built outside inference mode so autograd may use it.)"""
+    offset (y // 2, x // 2). (Cached, by tensor_cache: outside inference mode, so autograd may use it.)"""
     idx = bayer_index_map(pattern).tolist()
     weight, writes = [[[[0.0] * 3 for _ in range(3)] for _ in range(4)] for _ in range(8)], []
     for py, px in ((0, 0), (0, 1), (1, 0), (1, 1)):
@@ -210,8 +209,7 @@ def _malvar_polyphase(pattern: str, dtype, device) -> tuple[torch.Tensor, tuple,
                     weight[len(writes)][2 * (y % 2) + x % 2][y // 2][x // 2] = float(wt)
             writes.append((c, py, px))
     samples = tuple((idx[py][px], py, px) for py, px in ((0, 0), (0, 1), (1, 0), (1, 1)))
-    with torch.inference_mode(False):  # (a tensor made in inference mode could not be saved for backward later)
-        return torch.tensor(weight, dtype=dtype, device=device), tuple(writes), samples
+    return torch.tensor(weight, dtype=dtype, device=device), tuple(writes), samples
 
 
 def demosaic_malvar2004(raw: torch.Tensor, pattern: str = "RGGB", boundary: str = "symmetric") -> torch.Tensor:

@@ -39,6 +39,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..._autograd import full_precision
 from ...scene.scene import Scene
 from .. import geometry
 from ..optical_image import OpticalImage
@@ -315,6 +316,7 @@ class LensOptics(nn.Module):
         return band
 
     # --- forward ----------------------------------------------------------------------------------------
+    @full_precision
     def forward(self, scene: Scene, crop: tuple[int, int, int, int] | None = None) -> OpticalImage:
         """Scene -> `OpticalImage` ``(B, L, H + 2 m, W + 2 m)``, m = PSF half-width, photons/s/m^2/nm."""
         if not isinstance(scene, Scene):
@@ -356,13 +358,14 @@ class LensOptics(nn.Module):
         self.geometric_psfs = list(plan["bank"]["geometric"])
         m, hh, ww, fft_shape = plan["m"], plan["hh"], plan["ww"], plan["fft_shape"]
         out = torch.zeros(b, nl, hh, ww, dtype=dt, device=dev)
+        # the full-PSF path's polar interpolation (the plan's, on the CPU) on the image's device, once per call
+        pol = None if plan["bank"]["basis"] is not None else tuple(t.to(dev) for t in plan["polar"])
         for li in range(nl):
             band = plan["bands"][li] if plan["bands"] is not None else self._band(plan, li)
             img = F.grid_sample(x[:, li:li + 1], band["grid"].expand(b, -1, -1, -1), mode="bilinear",
                                 padding_mode="zeros", align_corners=False)[:, 0]  # [B, hh, ww]
             irr = img * band["gain"]
-            if plan["bank"]["basis"] is None:
-                pol = plan["polar"]
+            if pol is not None:
                 out[:, li] = _apply_full(irr, plan["bank"]["psfs"][li], *pol, m)
                 continue
             src = irr[:, None] * band["weights"][None]  # [B, K, hh, ww]
@@ -439,11 +442,9 @@ def _apply_full(irr, psfs, i_r, w_r, i_a0, i_a1, w_a, m, block_rows: int = 64):
     """Every source sample spread with its own interpolated PSF (the reference the eigen-PSFs approximate),
     in blocks of source rows to bound memory."""
     s = 2 * m + 1
-    # the PSF table and the polar interpolation live on the CPU (the plan's): moved to the image's device once per
-    # band (the products of CUDA sources and CPU kernels failed)
-    dev = irr.device
-    coeff = psfs.reshape(psfs.shape[0], psfs.shape[1], s * s).to(dev)
-    i_r, w_r, i_a0, i_a1, w_a = (t.to(dev) for t in (i_r, w_r, i_a0, i_a1, w_a))
+    # the band's PSF table lives on the CPU (the plan's): moved to the image's device (the products of CUDA sources
+    # and CPU kernels failed); the polar weights come on it
+    coeff = psfs.reshape(psfs.shape[0], psfs.shape[1], s * s).to(irr.device)
     b, hh, ww = irr.shape
     out = torch.zeros(b, hh + 2 * m, ww + 2 * m, dtype=irr.dtype, device=irr.device)
     for r0 in range(0, hh, block_rows):
