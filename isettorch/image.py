@@ -8,12 +8,12 @@ photons' dtype and device, so they broadcast over the batch.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import Any, ClassVar
 
 import torch
 
 from . import spectral
+from ._autograd import tensor_cache
 from ._checks import as_tensor, batch_param, check_finite, check_nonnegative, check_rank, check_wavelengths, is_integer
 
 #: IEC 61966-2-1:1999 sRGB: the primaries' and the D65 white's CIE 1931 chromaticities
@@ -101,7 +101,7 @@ def bradford_matrix(source_white: torch.Tensor, target_white: torch.Tensor) -> t
     return _bradford_inverse().to(ws.device) @ (gain[..., :, None] * m)
 
 
-@functools.cache
+@tensor_cache(maxsize=None)
 def _bradford_inverse() -> torch.Tensor:
     return torch.linalg.inv(torch.tensor(_BRADFORD, dtype=torch.float64))
 

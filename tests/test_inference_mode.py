@@ -33,3 +33,29 @@ SCRIPT = textwrap.dedent("""
 def test_an_inference_mode_call_leaves_later_training_calls_working():
     out = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+
+
+SCENE_GRADIENT = textwrap.dedent("""
+    import torch, warnings
+    warnings.simplefilter("ignore")
+    from isettorch import metrics, scene
+    from isettorch.optics import DiffractionLimitedOptics
+
+    s = scene.macbeth(patch_size=6, dtype=torch.float64)
+    with torch.inference_mode():
+        DiffractionLimitedOptics(f_number=4.0)(s)
+        metrics.xyz_to_srgb(torch.rand(1, 3, 4, 4, dtype=torch.float64))
+    photons = s.photons.clone().requires_grad_(True)  # the cached OTF was an inference tensor here
+    DiffractionLimitedOptics(f_number=4.0)(scene.Scene(photons, s.wavelengths_nm)).photons.sum().backward()
+    x = torch.rand(1, 3, 4, 4, dtype=torch.float64, requires_grad=True)
+    metrics.xyz_to_srgb(x).sum().backward()  # (the cached sRGB matrix likewise)
+    assert photons.grad is not None and x.grad is not None
+    print("ok")
+""")
+
+
+def test_cached_otfs_and_matrices_made_under_inference_mode_take_gradients():
+    """The re-read of the first fix: the optics' OTF caches and the sRGB matrices cached under inference mode still
+    refused a later gradient to the scene."""
+    out = subprocess.run([sys.executable, "-c", SCENE_GRADIENT], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]

@@ -8,10 +8,9 @@ infinite slopes).
 
 from __future__ import annotations
 
-import functools
-
 import torch
 
+from .._autograd import tensor_cache
 from .._checks import as_tensor, check_finite
 from ..image import D65_XY, SRGB_PRIMARIES_XY, XYZ_TO_LINEAR_SRGB, rgb_to_xyz_matrix  # noqa: F401 (re-exported)
 
@@ -26,7 +25,7 @@ _WHITE_XY = {"D65": D65_XY, "D50": (0.3457, 0.3585), "A": (0.44758, 0.40745), "E
 WHITE_POINTS = {k: (x / y, 1.0, (1.0 - x - y) / y) for k, (x, y) in _WHITE_XY.items()}
 
 
-@functools.cache
+@tensor_cache(maxsize=None)
 def _srgb_matrices() -> tuple[torch.Tensor, torch.Tensor]:
     """The sRGB -> XYZ matrix and its inverse, float64: the library's one definition (isettorch.image)."""
     inv = torch.tensor(XYZ_TO_LINEAR_SRGB, dtype=torch.float64)
