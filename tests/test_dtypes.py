@@ -141,3 +141,11 @@ def test_the_physics_keeps_its_precision_under_autocast():
         got = stream.batch(0)
     for key in ("raw", "camera_rgb"):
         assert got[key].dtype == torch.float32 and torch.equal(got[key].detach(), ref[key].detach()), key
+
+
+def test_a_processor_moves_through_the_meta_device():
+    """ExactConstants read each buffer back on the host to see whether it still held its constant: a processor moved
+    to 'meta' (no values) raised 'Cannot copy out of meta tensor' in to_empty()."""
+    p = ImageProcessor().to("meta")
+    p.to_empty(device="cpu")
+    assert p.white_xyz.device.type == "cpu"

@@ -727,8 +727,9 @@ class ExactConstants(nn.Module):
         held = {}
         for name, exact in consts.items():
             b = self._buffers.get(name)
-            if b is not None and b.is_floating_point() and b.shape == exact.shape and torch.equal(
-                    b.detach().cpu(), exact.to(b.dtype)):
+            # compared on the buffer's device (a meta buffer has no values: it is moved as any buffer is)
+            if b is not None and b.is_floating_point() and b.shape == exact.shape and not b.is_meta and torch.equal(
+                    b.detach(), exact.to(device=b.device, dtype=b.dtype)):
                 held[name] = b.dtype
         super()._apply(fn, *args, **kwargs)
         for name, dtype in held.items():
