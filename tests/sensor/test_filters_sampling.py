@@ -264,10 +264,10 @@ def test_the_spacing_gradient_at_aligned_edges_is_the_mean_of_the_one_sided_deri
     assert float(grad) == pytest.approx(0.5 * (up + down), rel=2e-3)
 
 
-def test_the_large_image_path_has_the_matrix_paths_values_and_gradients(monkeypatch):
-    """Above the overlap matrix's size the area comes from the cumulative integral: the same values, the same
+def test_the_blocked_overlap_matrix_has_the_single_blocks_values_and_gradients(monkeypatch):
+    """The overlap matrix is applied in blocks of pixels, each over the samples it touches: the same values, the same
     derivative in the samples, and at aligned edges (pitch = 2 spacings) the same mean of the one-sided derivatives
-    in the spacing (it took one side's: -5.9 for the mean +125.0)."""
+    in the spacing (the cumulative-integral path this replaced took one side's: -5.9 for the mean +125.0)."""
     import isettorch.sensor.sampling as sampling
 
     x = torch.rand(1, 1, 32, 32, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
@@ -279,12 +279,39 @@ def test_the_large_image_path_has_the_matrix_paths_values_and_gradients(monkeypa
         y = sampling.sample_area(xs, d, 2e-6, 16, 16)
         return (y.detach(), *torch.autograd.grad((y * w).sum(), (xs, d)))
 
-    matrix = run()
-    monkeypatch.setattr(sampling, "_BOX_MATRIX_MAX", 0)
-    cumulative = run()
-    for a, b in zip(matrix, cumulative):
+    whole = run()
+    monkeypatch.setattr(sampling, "_BOX_CHUNK", 3)  # 6 blocks, the last one short
+    blocked = run()
+    for a, b in zip(whole, blocked):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
-    assert float(matrix[2]) * 1e-6 == pytest.approx(125.0331, abs=1e-3)  # the one-sided -6.745 / +256.811's mean
+    assert float(whole[2]) * 1e-6 == pytest.approx(125.0331, abs=1e-3)  # the one-sided -6.745 / +256.811's mean
+
+
+def test_area_sampling_of_a_large_image_against_numpy_overlaps():
+    """Sensors wider than a block of pixels (here 150 x 260): per-item spacings, a photodiode smaller than the pixel and
+    a sensor larger than the optical image (the second item's first block of columns lies outside it), against the
+    overlap of each photodiode with each sample computed densely in NumPy; aligned 3 x 3 pixels against
+    scikit-image's block means."""
+    rng = np.random.default_rng(4)
+    img = rng.random((2, 2, 130, 140))
+    dx = np.array([1.0e-6, 0.5e-6])
+    pitch, rows, cols, ff = 1.1e-6, 150, 260, 0.6
+    out = sample_area(torch.from_numpy(img), torch.from_numpy(dx), pitch, rows, cols, ff).numpy()
+
+    def overlaps(n_oi, n_px, spacing):
+        centre = (n_oi - 1) / 2 + (np.arange(n_px) - (n_px - 1) / 2) * pitch / spacing
+        half = pitch * np.sqrt(ff) / 2 / spacing
+        m = np.arange(n_oi)
+        lo, hi = centre[:, None] - half, centre[:, None] + half
+        return np.clip(np.minimum(hi, m + 0.5) - np.maximum(lo, m - 0.5), 0, None) / (2 * half)
+
+    for i in range(2):
+        ref = overlaps(130, rows, dx[i]) @ img[i] @ overlaps(140, cols, dx[i]).T
+        np.testing.assert_allclose(out[i], ref, rtol=1e-10, atol=1e-13)
+    assert (out[1, ..., :64] == 0).all()  # (the case of a block outside the image is met)
+    big = rng.random((1, 1, 300, 330))
+    blocks = sample_area(torch.from_numpy(big), torch.tensor([1e-6], dtype=torch.float64), 3e-6, 100, 110)
+    np.testing.assert_allclose(blocks[0, 0].numpy(), block_reduce(big[0, 0], (3, 3), np.mean), rtol=1e-12)
 
 
 def test_a_sensor_sized_by_the_oi_keeps_every_whole_pixel():
