@@ -134,11 +134,13 @@ class Display(nn.Module):
             if xy[0] + xy[1] >= 1:
                 raise ValueError(f"white_xy: expected a chromaticity (x, y) with x + y < 1, got {white_xy}")
             target = torch.tensor([xy[0] / xy[1], 1.0, (1 - xy[0] - xy[1]) / xy[1]], dtype=torch.float64) * y_white
-            try:
-                gains = torch.linalg.solve(m, target)
-            except RuntimeError as err:  # (torch's LinAlgError)
+            # dependent primaries by their singular values, not by solve's exact-zero pivot: equal primaries whose
+            # XYZ differ by round-off passed it and read 'outside the gamut' with gains of 1e34
+            sv = torch.linalg.svdvals(m)
+            if not float(sv[-1]) > 1e-10 * float(sv[0]):
                 raise ValueError("white_xy: the primaries' XYZ are linearly dependent (primaries_spd), so no gains "
-                                 "give a white point") from err
+                                 "give a white point")
+            gains = torch.linalg.solve(m, target)
             if (gains <= 0).any():
                 raise ValueError(f"white_xy: {tuple(xy)} is outside the primaries' gamut (gains {gains.tolist()})")
             self.primaries_spd = self.primaries_spd * gains[:, None].to(self.primaries_spd)
