@@ -59,3 +59,35 @@ def test_cached_otfs_and_matrices_made_under_inference_mode_take_gradients():
     refused a later gradient to the scene."""
     out = subprocess.run([sys.executable, "-c", SCENE_GRADIENT], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+
+
+LIFT = textwrap.dedent("""
+    import torch
+    from isettorch.data import photos, spectra
+    from isettorch.data.scenes import _luminance_weights
+
+    wl = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    with torch.inference_mode():
+        spectra.srgb_basis_spectra(wl)
+        _luminance_weights(wl)  # (the natural scenes' luminance weights, likewise)
+        photos.lift_srgb(torch.full((3, 4, 4), 0.5, dtype=torch.float64))
+    gain = torch.tensor(2.0, dtype=torch.float64, requires_grad=True)
+    lifted = photos.lift_srgb(torch.full((3, 4, 4), 0.5, dtype=torch.float64))
+    (lifted["reflectance"] * gain).sum().backward()  # the basis cached under inference mode failed here
+    (_luminance_weights(wl) * gain).sum().backward()
+    basis = spectra.srgb_basis_spectra(wl)
+    first = basis.clone()
+    basis.mul_(0.0)  # the caller's own copy: the next call's basis is unchanged
+    assert torch.equal(spectra.srgb_basis_spectra(wl), first) and float(first.sum()) > 0
+    want = float(first.sum() + _luminance_weights(wl).sum())
+    assert abs(float(gain.grad) - want) <= 1e-12 * want
+    print("ok")
+""")
+
+
+def test_the_photo_lifts_basis_made_under_inference_mode_takes_gradients():
+    """An audit of the data-path caches (2026-12-01): the sRGB basis of the photo lifter was an lru_cache of a
+    tensor, handed to the caller: first made under inference mode it refused later gradients, and an in-place edit of
+    a returned basis changed every later lift."""
+    out = subprocess.run([sys.executable, "-c", LIFT], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]

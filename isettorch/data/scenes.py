@@ -19,7 +19,6 @@ Every draw comes from a ``torch.Generator`` seeded by ``seed_for(seed, index)``:
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 
@@ -27,6 +26,7 @@ import numpy as np
 import torch
 
 from .. import spectral
+from .._autograd import tensor_cache
 from .._checks import check_float_dtype, dataset_index, item_index
 from ..scene import Scene
 from . import layouts as _layouts
@@ -95,10 +95,10 @@ def _white_photons(spd_energy: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 
 def _luminance_weights(w: torch.Tensor) -> torch.Tensor:
     """Row vector v [L] with luminance = v . photons: 683 V(l) h c / l dl (CIE 015:2018; photons -> watts)."""
-    return _luminance_weights_cached(tuple(w.tolist()), w.dtype, str(w.device))
+    return _luminance_weights_cached(tuple(w.tolist()), w.dtype, str(w.device)).clone()
 
 
-@functools.lru_cache(maxsize=32)
+@tensor_cache(maxsize=32)  # (outside inference mode, as the other cached spectra)
 def _luminance_weights_cached(grid: tuple, dtype, device: str) -> torch.Tensor:
     w = torch.tensor(grid, dtype=torch.float64)
     ones = torch.eye(w.numel(), dtype=torch.float64)

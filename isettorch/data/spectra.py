@@ -619,7 +619,7 @@ def measured_reflectances(wavelengths_nm, *, dtype=torch.float64) -> torch.Tenso
     return out.clamp(0.0, 1.0).to(dtype)
 
 
-@functools.lru_cache(maxsize=16)
+@tensor_cache(maxsize=16)  # (outside inference mode: a basis first made under it refused every later gradient)
 def _srgb_basis(grid: tuple) -> torch.Tensor:
     from colour.recovery import MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019 as basis
 
@@ -634,7 +634,7 @@ def srgb_basis_spectra(wavelengths_nm) -> torch.Tensor:
     ``c @ basis``, in [0, 1] at every wavelength, whose sRGB under D65 is ``c`` (the decomposition is linear, so
     an RGB image lifts to a factored spectral image of three maps)."""
     _, key = _grid(wavelengths_nm)
-    return _srgb_basis(key)
+    return _srgb_basis(key).clone()  # (the caller's own: an in-place edit changed every later call's basis)
 
 
 #: the default saturation Beta(a, b) and albedo range of :func:`recovery_reflectances` (and its batched draw)
