@@ -9,7 +9,7 @@ over rounds (each a median of repeats) and the ratio, and the largest difference
 
 Usage::
 
-    python benchmarks/sampling_bench.py --other /path/to/old/checkout [--rounds 3] [--markdown]
+    python benchmarks/sampling_bench.py --other /path/to/old/checkout [--rounds 3] [--markdown] [--camera-only]
 """
 
 from __future__ import annotations
@@ -57,9 +57,9 @@ CASES = {"area": [[n, c, r] for n, c in ((512, 3), (1024, 3), (2048, 3), (1024, 
          "camera": [512, 1024]}
 
 
-def run(checkout: str) -> dict:
+def run(checkout: str, cases: dict) -> dict:
     env = dict(os.environ, PYTHONPATH=checkout, OMP_NUM_THREADS="2", MKL_NUM_THREADS="2", PYTHONWARNINGS="ignore")
-    out = subprocess.run([sys.executable, "-c", CHILD, json.dumps(CASES)], env=env, capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-c", CHILD, json.dumps(cases)], env=env, capture_output=True, text=True,
                          check=True, cwd=checkout)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -69,12 +69,14 @@ def main() -> None:
     p.add_argument("--other", required=True, help="the checkout to compare with (e.g. a worktree of the old commit)")
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    p.add_argument("--camera-only", action="store_true", help="only the phone_microlens captures")
     args = p.parse_args()
+    cases = dict(CASES, area=[]) if args.camera_only else CASES
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     new, old = [], []
     for _ in range(args.rounds):
-        old.append(run(args.other))
-        new.append(run(here))
+        old.append(run(args.other, cases))
+        new.append(run(here, cases))
     rows = []
     for key in new[0]:
         t_old = statistics.median(r[key][0] for r in old)

@@ -882,8 +882,12 @@ class PixelOptics(nn.Module):
         w = w.to(e.dtype)
         k = e.shape[-1]
         if self.convention == "physical":
-            ex, ey = (e[..., i0[a]] * (1 - w[a]) + e[..., (i0[a] + 1).clamp(max=k - 1)] * w[a] for a in (0, 1))
-            return ex * ey
+            # separable: a pixel's column coordinate is its column's (the same down every row) and its row
+            # coordinate its row's, so each 1-D profile is interpolated once per column / row and the map is their
+            # outer product (the same products as per pixel, without gathering rows x cols values per band twice)
+            ix, wx, iy, wy = i0[0, 0], w[0, 0], i0[1, :, 0], w[1, :, 0]
+            ex, ey = (e[..., i] * (1 - ww) + e[..., (i + 1).clamp(max=k - 1)] * ww for i, ww in ((ix, wx), (iy, wy)))
+            return ex[..., None, :] * ey[..., :, None]
         b, mid = e.shape[0], e.shape[1:-1]
         idx = i0.reshape(b, *([1] * len(mid)), -1).expand(b, *mid, -1)
         ww = w.reshape(b, *([1] * len(mid)), -1)

@@ -796,8 +796,10 @@ class Sensor(nn.Module):
         out = None
         for band in range(bands.shape[1]):  # one band's etendue map at a time (no [B, L, rows, cols] map)
             emap = self.pixel_optics.interpolate(e[:, band], i0, w).to(bands.dtype)  # [B, rows, cols]
-            term = (bands[:, band] * emap)[:, None] * qe_w[..., band, :].to(bands.dtype).reshape(-1, n_c, 1, 1)
-            out = term if out is None else out + term
+            weighted = (bands[:, band] * emap)[:, None]
+            qe_band = qe_w[..., band, :].to(bands.dtype).reshape(-1, n_c, 1, 1)
+            # accumulated in place (one pass per band, not three; autograd keeps the product's inputs, not ``out``)
+            out = weighted * qe_band if out is None else out.addcmul_(weighted, qe_band)
         if extra_weights is not None:
             extra = torch.einsum("blrc,lk->bkrc", bands, extra_weights.to(device=oi.device, dtype=bands.dtype))
             out = torch.cat([out, extra], 1)

@@ -806,3 +806,40 @@ def test_pixel_optics_offsets_and_refusals():
     t = torch.tensor([2e-6, 5e-6], dtype=torch.float64, requires_grad=True)
     with pytest.raises(ValueError, match="sampling: 'isetcam'"):
         microlens_etendue(15.0, "centred", layer_thicknesses_m=t)
+
+
+def test_spectral_etendue_rates_are_each_bands_1d_profiles_at_the_pixels_coordinates():
+    # 'physical': a pixel at column coordinate x and row coordinate y gets T_l(|x|) T_l(|y|) in band l, T_l linear
+    # between the radial samples (NumPy's interp here); the channel rates are sum_l sample_l * map_l * qe_l, with a
+    # gradient to the stack height equal to the central difference (a non-square sensor, a non-uniform image)
+    rows, cols, pitch = 5, 9, 1.4e-6
+    waves = torch.tensor([450.0, 550.0, 650.0])
+    g = torch.Generator().manual_seed(3)
+    photons = 1e15 * (0.5 + torch.rand(1, 3, rows, cols, generator=g, dtype=torch.float64))
+    oi = OpticalImage(photons, waves, sample_spacing_m=torch.tensor([pitch], dtype=torch.float64),
+                      focal_length_m=torch.tensor([40e-6]), image_distance_m=torch.tensor([40e-6]),
+                      f_number=torch.tensor([2.0]))
+    po = {"method": "centred", "diffraction": True, "layer_thicknesses_m": [1e-6, 2e-6],
+          "layer_indices": [1.46, 1.6], "microlens_focal_length_m": 3e-6, "angle_samples": 7, "learnable": True}
+    s = Sensor(rows=rows, cols=cols, pixel_size_m=pitch, cfa="RGGB", pixel_optics=po).double()
+    e, _, _ = s.pixel_optics.radial_etendue(oi, rows, cols, pitch, s.fill_factor)
+    e = e.detach()[0].numpy()  # [L, K]
+    rk = np.linspace(0.0, (max(rows, cols) - 1) / 2 * pitch, e.shape[-1])
+    x = np.abs(np.arange(cols) - (cols - 1) / 2) * pitch
+    y = np.abs(np.arange(rows) - (rows - 1) / 2) * pitch
+    want = np.stack([np.interp(y, rk, e[i])[:, None] * np.interp(x, rk, e[i])[None, :] for i in range(3)])
+    emap = s.etendue_map(oi)[0].detach().numpy()
+    np.testing.assert_allclose(emap, want, rtol=1e-12)
+    assert emap[0, 2, 4] > emap[0, 0, 0]  # (not flat: the field falls off)
+    sampled = s.sample(oi.photons, oi)[0].detach().numpy()  # [L, rows, cols]
+    qe = s.spectral_weights(oi).detach().numpy()  # [L, C]
+    rates, _ = s.channel_rates(oi)
+    area = pitch ** 2  # 'physical': the whole pixel's light meets the etendue (which holds the photodiode's width)
+    np.testing.assert_allclose(rates[0].detach().numpy(), area * np.einsum("lrc,lk->krc", sampled * want, qe),
+                               rtol=1e-12)
+
+    h = s.pixel_optics.log_stack_height_m
+    total = s.channel_rates(oi)[0].sum()
+    (grad,) = torch.autograd.grad(total, h)
+    assert float(grad) == pytest.approx(central_difference(lambda: s.channel_rates(oi)[0].sum(), h, 1e-5), rel=1e-5)
+    assert abs(float(grad)) > 0
