@@ -207,20 +207,27 @@ def round_half_away(x: float) -> int:
     return int(math.copysign(math.floor(abs(x) + 0.5), x))
 
 
+def _integer_tensor_as_int(index):
+    """A 0-d integer tensor (as a sampler gives) as a Python int; anything else (a bool, floating or complex tensor
+    included) unchanged, for the caller's check to refuse. Shared by :func:`item_index` and :func:`dataset_index`."""
+    if isinstance(index, torch.Tensor) and index.dim() == 0 and not (
+            index.is_floating_point() or index.is_complex() or index.dtype == torch.bool):
+        return int(index)
+    return index
+
+
 def item_index(index, name: str = "index") -> int:
     """An item's identity index: a non-negative integer (Python, NumPy, or a 0-d integer tensor as a sampler gives);
     ValueError naming ``name`` otherwise (1.5 was item 1)."""
-    if isinstance(index, torch.Tensor) and index.dim() == 0 and not index.is_floating_point() \
-            and index.dtype != torch.bool:
-        index = int(index)
-    return check_integer(index, name, 0)
+    return check_integer(_integer_tensor_as_int(index), name, 0)
 
 
 def dataset_index(index, length: int) -> int:
     """A map-style dataset's item index as an int in ``[0, length)`` (negative indices count from the end):
-    TypeError unless an integer (Python, numpy or a 0-d integer tensor), IndexError outside ``[-length, length)``."""
-    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) and not (
-            isinstance(index, torch.Tensor) and index.dim() == 0 and not index.is_floating_point()):
+    TypeError unless an integer (Python, numpy or a 0-d integer tensor; a bool tensor was item 0 or 1), IndexError
+    outside ``[-length, length)``."""
+    index = _integer_tensor_as_int(index)
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)):
         raise TypeError(f"index: expected an integer, got {index!r}")
     index = int(index)
     if not -length <= index < length:

@@ -312,3 +312,20 @@ def test_noise_metadata_leaves_out_prnu_which_adds_its_square():
     assert 0.45 < xm < 0.55 and float(x.max()) < 0.9  # below white: no clipping
     assert measured == pytest.approx(model + prnu, rel=0.06)  # sampling error of 16384 pixels: ~1 %
     assert measured > 2 * model  # without the PRNU term the model falls well short
+
+
+def test_dataset_indices_are_integers_and_bool_tensors_are_refused():
+    # a 0-d integer tensor (a sampler's) is that item; a 0-d bool tensor was item 0 or 1 without a word
+    import numpy as np
+
+    from isettorch.data.natural import NaturalSceneDataset
+
+    for ds in (SyntheticSceneDataset(3, seed=1, config={"height": 8, "width": 8}), NaturalSceneDataset(3, seed=1)):
+        for bad in (torch.tensor(True), torch.tensor(1 + 0j), torch.tensor(1.0), np.bool_(True)):
+            with pytest.raises(TypeError, match=r"^index: expected an integer, got "):
+                ds[bad]
+        with pytest.raises(IndexError, match=r"^index: expected 0 <= index < 3, got 3$"):
+            ds[torch.tensor(3)]
+    ds = SyntheticSceneDataset(3, seed=1, config={"height": 8, "width": 8})
+    assert torch.equal(ds[torch.tensor(2)].photons, ds[2].photons)
+    assert torch.equal(ds[torch.tensor(-1, dtype=torch.int8)].photons, ds[2].photons)
