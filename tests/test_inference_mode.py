@@ -81,6 +81,17 @@ LIFT = textwrap.dedent("""
     assert torch.equal(spectra.srgb_basis_spectra(wl), first) and float(first.sum()) > 0
     want = float(first.sum() + _luminance_weights(wl).sum())
     assert abs(float(gain.grad) - want) <= 1e-12 * want
+    v = _luminance_weights(wl)
+    v_first = v.clone()
+    v.mul_(0.0)  # (the luminance weights, likewise)
+    assert torch.equal(_luminance_weights(wl), v_first) and float(v_first.sum()) > 0
+    drawn = spectra.random_reflectances(5, wl, torch.Generator().manual_seed(3), model="pca")
+    for x in spectra.reflectance_basis(wl, 8, dtype=torch.float64):
+        x.mul_(0.0)  # (the public PCA model, likewise: the seeded PCA reflectances are drawn from the cached one)
+    mean, basis, _ = spectra.reflectance_basis(wl, 8, dtype=torch.float64)
+    assert float(mean.sum()) > 0 and float(basis.abs().sum()) > 0
+    again = spectra.random_reflectances(5, wl, torch.Generator().manual_seed(3), model="pca")
+    assert torch.equal(again, drawn)
     print("ok")
 """)
 
@@ -90,4 +101,27 @@ def test_the_photo_lifts_basis_made_under_inference_mode_takes_gradients():
     tensor, handed to the caller: first made under inference mode it refused later gradients, and an in-place edit of
     a returned basis changed every later lift."""
     out = subprocess.run([sys.executable, "-c", LIFT], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+
+
+DRAWS = textwrap.dedent("""
+    import torch
+    from isettorch.data.config import randint_scalar, uniform01
+
+    g = torch.Generator().manual_seed(5)
+    with torch.inference_mode():
+        uniform01(g), randint_scalar(0, 10, g)  # the per-thread draw buffers are first made here
+    g = torch.Generator().manual_seed(7)
+    u, i = uniform01(g), randint_scalar(0, 10, g)  # an inference buffer failed here
+    ref = torch.Generator().manual_seed(7)
+    assert u == float(torch.rand((), generator=ref, dtype=torch.float64))
+    assert i == int(torch.randint(0, 10, (), generator=ref))
+    print("ok")
+""")
+
+
+def test_scalar_draws_first_made_under_inference_mode_still_draw_outside_it():
+    """A re-read of the inference-mode fixes (2026-12-01): the scene generator's scalar draws reuse a per-thread 0-d
+    tensor; first made under inference mode, every later draw outside it failed."""
+    out = subprocess.run([sys.executable, "-c", DRAWS], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]

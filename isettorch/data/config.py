@@ -578,7 +578,8 @@ def uniform01(g: torch.Generator) -> float:
     (the same state advance), through a per-thread reused 0-d tensor (half the per-call cost: no allocation)."""
     buf = getattr(_DRAW, "u", None)
     if buf is None:
-        buf = _DRAW.u = torch.empty((), dtype=torch.float64)
+        with torch.inference_mode(False):  # a normal tensor even when the first draw is under inference_mode
+            buf = _DRAW.u = torch.empty((), dtype=torch.float64)
     return buf.uniform_(generator=g).item()
 
 
@@ -587,7 +588,8 @@ def randint_scalar(low: int, high: int, g: torch.Generator) -> int:
     (``torch.randint`` is ``random_(low, high)`` on a fresh tensor), through a per-thread reused 0-d tensor."""
     buf = getattr(_DRAW, "i", None)
     if buf is None:
-        buf = _DRAW.i = torch.empty((), dtype=torch.long)
+        with torch.inference_mode(False):  # (as above: an inference buffer refused every later in-place draw)
+            buf = _DRAW.i = torch.empty((), dtype=torch.long)
     return buf.random_(low, high, generator=g).item()
 
 

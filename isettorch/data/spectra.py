@@ -158,13 +158,14 @@ def _pca_on_grid(n_components: int, grid: tuple, dtype, device: str):
 def reflectance_basis(wavelengths_nm, n_components: int = 8, *, dtype=None, device=None):
     """Linear model of measured reflectances on a grid: ``(mean [L], basis [K, L], coefficient std [K])``.
 
-    The basis is fitted (SVD) on 400-700 nm; outside that range it is 0 (see `spectral.resample`).
+    The basis is fitted (SVD) on 400-700 nm; outside that range it is 0 (see `spectral.resample`). The tensors are
+    the caller's copies (an in-place edit leaves the cached model, and the PCA reflectances drawn from it, alone).
     """
     w, key = _grid(wavelengths_nm)
     if not 1 <= n_components <= 12:
         raise ValueError(f"n_components: expected 1..12 principal components, got {n_components}")
     dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
-    return _pca_on_grid(int(n_components), key, dtype, str(device or w.device))
+    return tuple(x.clone() for x in _pca_on_grid(int(n_components), key, dtype, str(device or w.device)))
 
 
 _NP_DTYPES = {torch.float32: np.float32, torch.float64: np.float64}
