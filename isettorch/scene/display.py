@@ -135,8 +135,10 @@ class Display(nn.Module):
                 raise ValueError(f"white_xy: expected a chromaticity (x, y) with x + y < 1, got {white_xy}")
             target = torch.tensor([xy[0] / xy[1], 1.0, (1 - xy[0] - xy[1]) / xy[1]], dtype=torch.float64) * y_white
             # dependent primaries by their singular values, not by solve's exact-zero pivot: equal primaries whose
-            # XYZ differ by round-off passed it and read 'outside the gamut' with gains of 1e34
-            sv = torch.linalg.svdvals(m)
+            # XYZ differ by round-off passed it and read 'outside the gamut' with gains of 1e34. Each primary's XYZ
+            # is scaled to unit length first, so a dim primary is not read as a dependent one (its gain is free).
+            norms = m.norm(dim=0)
+            sv = torch.linalg.svdvals(m / torch.where(norms > 0, norms, torch.ones_like(norms)))
             if not float(sv[-1]) > 1e-10 * float(sv[0]):
                 raise ValueError("white_xy: the primaries' XYZ are linearly dependent (primaries_spd), so no gains "
                                  "give a white point")

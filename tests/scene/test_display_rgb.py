@@ -141,6 +141,19 @@ def test_display_white_point_and_luminance():
         assert torch.allclose(_xy(d.xyz_matrix()[:, k]), _xy(raw.xyz_matrix()[:, k]), atol=1e-12)
 
 
+def test_a_dim_primary_is_balanced_not_refused_as_dependent():
+    """The dependence check is on each primary's XYZ scaled to unit length: with the raw XYZ, the apple display's
+    blue primary dimmed by 1e-11 read as 'linearly dependent' (its smallest singular value is below 1e-10 of the
+    largest), though the white-point gains absorb any scale of one primary: the balanced display is the same."""
+    raw = Display.create("apple")
+    ref = Display(raw.primaries_spd, raw.wavelengths_nm, white_xy=D65_XY, max_luminance_cd_m2=250.0)
+    spd = raw.primaries_spd.clone()
+    spd[2] *= 1e-11
+    dim = Display(spd, raw.wavelengths_nm, white_xy=D65_XY, max_luminance_cd_m2=250.0)
+    assert torch.allclose(dim.primaries_spd, ref.primaries_spd, rtol=1e-9, atol=0)
+    assert torch.allclose(dim.white_xy, torch.tensor(D65_XY, dtype=F64), atol=1e-12)
+
+
 def test_reflectance_scene_recovers_reflectance():
     g = torch.Generator().manual_seed(3)
     refl = torch.rand(2, 31, 3, 4, dtype=F64, generator=g)
