@@ -165,6 +165,7 @@ def sample_point(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_
 
 
 _BOX_CHUNK = 64  # output pixels per block of the overlap matrix (fastest of 32-512 on 2 CPU cores at 512-2048 px)
+_BOX_DENSE_SAMPLES = 4096  # one block of at most _BOX_CHUNK pixels spans every sample up to this many
 
 
 def _box_mean_constant(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
@@ -176,8 +177,8 @@ def _box_mean_constant(x: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> t
     n, b, n_out = x.shape[-1], x.shape[0], lo.shape[-1]
     lo64, hi64 = lo.to(torch.float64), hi.to(torch.float64)
     width = hi64 - lo64
-    if n_out <= _BOX_CHUNK:
-        bounds = None  # one block over every sample: no host read
+    if n_out <= _BOX_CHUNK and n <= _BOX_DENSE_SAMPLES:
+        bounds = None  # one block over every sample: no host read (a few pixels over many samples read their range)
     else:
         bounds = torch.stack([lo64.detach().amin(0), hi64.detach().amax(0)]).cpu().tolist()
     parts = []
@@ -252,6 +253,8 @@ def sample_area(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_m
     if reconstruction not in RECONSTRUCTIONS:
         raise ValueError(f"reconstruction: expected one of {sorted(RECONSTRUCTIONS)}, got {reconstruction!r}")
     box = RECONSTRUCTIONS[reconstruction]
+    # one spacing for a batch is every item's (the box means take one row of pixel edges per item)
+    oi_sample_spacing_m = oi_sample_spacing_m.reshape(-1).expand(x.shape[0])
     dx = oi_sample_spacing_m.reshape(-1, 1).to(torch.float64)
     half = pixel_size_m * math.sqrt(fill_factor) / 2 / dx
     px = pixel_centre_index(x.shape[-1], cols, pixel_size_m, oi_sample_spacing_m.to(torch.float64))

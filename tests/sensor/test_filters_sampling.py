@@ -314,6 +314,36 @@ def test_area_sampling_of_a_large_image_against_numpy_overlaps():
     np.testing.assert_allclose(blocks[0, 0].numpy(), block_reduce(big[0, 0], (3, 3), np.mean), rtol=1e-12)
 
 
+@pytest.mark.parametrize("reconstruction", ["constant", "linear"])
+def test_one_spacing_for_a_batch_samples_every_item_with_it(reconstruction):
+    """One spacing (the checks allow 1 or one per item) is every item's: area sampling of a batch of 2 with one
+    spacing failed in a reshape, and before the blocked overlap matrix returned a wrongly shaped result."""
+    x = torch.rand(2, 3, 40, 50, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    d = torch.tensor([1e-6], dtype=torch.float64)
+    out = sample_area(x, d, 2.3e-6, 10, 12, 0.7, reconstruction)
+    for i in range(2):
+        assert torch.equal(out[i:i + 1], sample_area(x[i:i + 1], d, 2.3e-6, 10, 12, 0.7, reconstruction))
+
+
+def test_a_few_pixels_over_a_long_optical_image_against_numpy_overlaps():
+    """A sensor of fewer pixels than a block over an optical image of more samples than one block spans densely
+    (9 pixels over 6000 samples) reads the samples its pixels touch, with the dense overlaps' values."""
+    rng = np.random.default_rng(6)
+    img = rng.random((1, 2, 3, 6000))
+    pitch, ff = 1.7e-6, 0.8
+    out = sample_area(torch.from_numpy(img), torch.tensor([1e-6], dtype=torch.float64), pitch, 3, 9, ff).numpy()
+    centre = (6000 - 1) / 2 + (np.arange(9) - 4) * pitch / 1e-6
+    half = pitch * np.sqrt(ff) / 2 / 1e-6
+    m = np.arange(6000)
+    cols = np.clip(np.minimum(centre[:, None] + half, m + 0.5) - np.maximum(centre[:, None] - half, m - 0.5), 0, None)
+    centre_r = 1 + (np.arange(3) - 1) * pitch / 1e-6
+    m_r = np.arange(3)
+    rows = np.clip(np.minimum(centre_r[:, None] + half, m_r + 0.5) - np.maximum(centre_r[:, None] - half, m_r - 0.5),
+                   0, None)
+    ref = rows / (2 * half) @ img[0] @ (cols / (2 * half)).T
+    np.testing.assert_allclose(out[0], ref, rtol=1e-10, atol=1e-13)
+
+
 def test_a_sensor_sized_by_the_oi_keeps_every_whole_pixel():
     """A float32 OI of 32 samples at the pixel pitch spans 31.9999994 pitches: int() lost a CFA cell (30 x 30)."""
     from isettorch.optics.optical_image import OpticalImage
