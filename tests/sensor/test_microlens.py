@@ -10,7 +10,7 @@ from finite_difference import central_difference
 from scipy import integrate
 
 from isettorch.optics.optical_image import OpticalImage
-from isettorch.sensor import Sensor
+from isettorch.sensor import CFA, Sensor, SpectralQE
 from isettorch.sensor.microlens import (
     ISETCAM_PIXEL,
     PixelOptics,
@@ -843,3 +843,17 @@ def test_spectral_etendue_rates_are_each_bands_1d_profiles_at_the_pixels_coordin
     (grad,) = torch.autograd.grad(total, h)
     assert float(grad) == pytest.approx(central_difference(lambda: s.channel_rates(oi)[0].sum(), h, 1e-5), rel=1e-5)
     assert abs(float(grad)) > 0
+
+    # the filters' gradient through the per-band accumulation: d rates_c / d qe[l, c] = area * sampled_l * map_l,
+    # so a learnable QE's raw parameters get autograd's value, each entry against its central difference
+    qe_mod = SpectralQE.from_cfa(CFA("RGGB"), learnable=True, wavelengths_nm=waves).double()
+    wgt = torch.rand(1, 3, rows, cols, generator=g, dtype=torch.float64)  # (a weighted loss: every pixel counts)
+
+    def loss():
+        return (s.channel_rates(oi, spectral_qe=qe_mod)[0] * wgt).sum()
+
+    (g_raw,) = torch.autograd.grad(loss(), qe_mod.raw_filters)
+    for c, band in ((0, 0), (1, 1), (2, 2), (0, 2)):
+        fd = central_difference(loss, qe_mod.raw_filters.data[c, band], 1e-6)
+        assert float(g_raw[c, band]) == pytest.approx(fd, rel=1e-6)
+        assert abs(fd) > 0
