@@ -17,6 +17,8 @@ def as_tensor(value, name: str, *, dtype=None, device=None) -> torch.Tensor:
         if dtype is not None or device is not None:
             t = t.to(dtype=dtype or t.dtype, device=device or t.device)
         return t
+    if isinstance(value, (bool, np.bool_)):  # (mean_luminance_cd_m2=True was a 1 cd/m^2 scene, data_range=True 1)
+        raise TypeError(f"{name}: expected a number or tensor, got {value!r}")
     try:
         return torch.as_tensor(value, dtype=dtype or torch.get_default_dtype(), device=device)
     except (TypeError, ValueError, RuntimeError) as err:
@@ -305,7 +307,12 @@ _MASK64 = (1 << 64) - 1
 def seed_for(seed: int, index: int, stream: int = 0) -> int:
     """A 63-bit seed for item ``index`` of a dataset seeded with ``seed`` (SplitMix64 finaliser, Steele et al.,
     "Fast splittable pseudorandom number generators", OOPSLA 2014). Depends only on its arguments, so an item
-    is identical on any worker or rank."""
+    is identical on any worker or rank. ``seed`` as :func:`check_seed` (1.5, "1" or True read as seed 1, -1 as
+    2^64 - 1); ``index`` and ``stream`` integers (of any sign: the library's own streams use index -1)."""
+    seed = check_seed(seed)
+    for name, v in (("index", index), ("stream", stream)):
+        if not is_integer(v):
+            raise ValueError(f"{name}: expected an integer, got {v!r}")
     return splitmix64(int(seed) * 0x9E3779B97F4A7C15 + int(index) * 0xD1B54A32D192ED03
                       + int(stream) * 0x8CB92BA72F3D8DD7 + 0x632BE59BD9B4E019)
 

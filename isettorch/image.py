@@ -14,7 +14,16 @@ import torch
 
 from . import spectral
 from ._autograd import tensor_cache
-from ._checks import as_tensor, batch_param, check_finite, check_nonnegative, check_rank, check_wavelengths, is_integer
+from ._checks import (
+    as_tensor,
+    batch_param,
+    check_bool,
+    check_finite,
+    check_nonnegative,
+    check_rank,
+    check_wavelengths,
+    is_integer,
+)
 
 #: IEC 61966-2-1:1999 sRGB: the primaries' and the D65 white's CIE 1931 chromaticities
 SRGB_PRIMARIES_XY = ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06))
@@ -59,7 +68,7 @@ def srgb_encode(linear: torch.Tensor, *, clip: bool = True, inplace: bool = Fals
     """
     if not linear.is_floating_point():  # (8-bit codes taken as linear values: 128 and 255 encoded to 1)
         raise TypeError(f"linear: expected a floating-point tensor of linear values, got {linear.dtype}")
-    hi = 1.0 if clip else None
+    hi = 1.0 if check_bool(clip, "clip") else None  # (clip='no' clipped)
     low = linear <= 0.0031308
     if out is not None:
         torch.clamp(linear, 0.0031308, hi, out=out).pow_(1 / 2.4).mul_(1.055).sub_(0.055)
@@ -518,8 +527,12 @@ class SpectralImage:
 
     def __getitem__(self, index) -> SpectralImage:
         """Select batch samples: ``img[0]``, ``img[1:3]``; the batch dimension is kept."""
-        if isinstance(index, int):
-            index = slice(index, index + 1 if index != -1 else None)
+        if is_integer(index):
+            b = self.batch_size
+            if not -b <= index < b:  # (an empty slice failed in a reshape, or as 'photons: expected a non-empty')
+                raise IndexError(f"index: {index} is out of range for a batch of {b}")
+            index = int(index) % b
+            index = slice(index, index + 1)
         if self.factors is not None:
             changes = {"factors": self.factors.select(index)}
         else:
@@ -586,6 +599,9 @@ class SpectralImage:
                                 f"{type(s).__name__} {s!r}")
         r = slice(None) if rows is None else rows
         c = slice(None) if cols is None else cols
+        for name, s, n in (("rows", r, self.height), ("cols", c, self.width)):
+            if len(range(*s.indices(n))) == 0:  # (the mean of no pixels was NaN)
+                raise ValueError(f"{name}: {s} selects no pixels of {n}")
         f = self.factors
         if isinstance(f, SpectralFactors) and self.__dict__.get("_photons") is None:
             return (f.maps[:, :, r, c].mean(dim=(-2, -1))[:, :, None] * f.spectra).sum(dim=1)

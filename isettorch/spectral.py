@@ -28,7 +28,7 @@ import torch
 
 from . import constants
 from ._autograd import tensor_cache
-from ._checks import as_tensor, check_float_dtype, check_rank, check_wavelengths, is_real
+from ._checks import as_tensor, check_float_dtype, check_rank, check_wavelengths, is_integer, is_real
 
 __all__ = [
     "default_wavelengths",
@@ -96,6 +96,8 @@ def wavelength_weights(wavelengths_nm: torch.Tensor, rule: str = "midpoint") -> 
     if rule not in WEIGHT_RULES:
         raise ValueError(f"rule: expected one of {WEIGHT_RULES}, got {rule!r}")
     w = check_wavelengths(wavelengths_nm)
+    if not w.is_floating_point():  # (an integer grid's midpoint weights were truncated: 1.5 nm became 1)
+        w = w.to(torch.get_default_dtype())
     if w.numel() == 1:
         return torch.ones_like(w)
     if rule == "isetcam":
@@ -119,6 +121,7 @@ def resample(values: torch.Tensor, src_nm, dst_nm, dim: int = -1) -> torch.Tenso
         tensor([0.5000, 0.0000])
     """
     _check_float_values(values)
+    _check_dim(values, dim, "values")
     src = check_wavelengths(torch.as_tensor(src_nm), "src_nm").to(values.device, torch.float64)
     dst = check_wavelengths(torch.as_tensor(dst_nm), "dst_nm").to(values.device, torch.float64)
     if values.shape[dim] != src.numel():
@@ -134,6 +137,13 @@ def resample(values: torch.Tensor, src_nm, dst_nm, dim: int = -1) -> torch.Tenso
     idx, t, inside = _linear_weights(src, dst, v.dtype)
     out = (v[..., idx] * (1 - t) + v[..., idx + 1] * t) * inside
     return out.movedim(-1, dim)
+
+
+def _check_dim(x: torch.Tensor, dim, name: str) -> None:
+    """``dim`` names one of ``x``'s axes (an IndexError deep in a shape lookup otherwise)."""
+    if not (is_integer(dim) and -x.dim() <= dim < x.dim()):
+        raise ValueError(f"dim: expected the spectral axis of {name} (an integer in [-{x.dim()}, {x.dim() - 1}]), got "
+                         f"{dim!r} for shape {tuple(x.shape)}")
 
 
 def _check_float_values(values: torch.Tensor) -> None:
@@ -163,12 +173,18 @@ def resample_rows(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tens
     _check_float_values(values)
     if src_nm.shape[-1] != values.shape[-1]:  # (3 values on 2 knots gave 0.5)
         raise ValueError(f"src_nm: expected {values.shape[-1]} knots per row like values, got {src_nm.shape[-1]}")
+    if src_nm.shape[:-1] != values.shape[:-1]:  # one grid for every row (a [Ls] grid failed in a reshape)
+        try:
+            src_nm = src_nm.expand(values.shape)
+        except RuntimeError:
+            raise ValueError(f"src_nm: expected one grid per row of values {tuple(values.shape)} (or one for all), "
+                             f"got shape {tuple(src_nm.shape)}") from None
     knots = src_nm.detach()
     if not bool(torch.isfinite(knots).all() & (knots[..., 1:] > knots[..., :-1]).all()):  # (decreasing: 0)
         raise ValueError("src_nm: expected finite, strictly increasing knots in every row")
     lead = values.shape[:-1]
     v = values.reshape(-1, values.shape[-1])
-    src = src_nm.to(torch.float64).reshape(-1, src_nm.shape[-1])
+    src = src_nm.to(torch.float64).reshape(-1, src_nm.shape[-1]).contiguous()
     dst = dst_nm.to(device=src.device, dtype=torch.float64).expand(src.shape[0], -1).contiguous()
     idx, t, inside = _linear_weights(src, dst, v.dtype)
     out = (v.gather(-1, idx) * (1 - t) + v.gather(-1, idx + 1) * t) * inside
@@ -188,6 +204,7 @@ def photons_to_energy(photons: torch.Tensor, wavelengths_nm, dim: int = -3, *, h
     Source: Planck-Einstein relation; h, c from CODATA 2018 unless given (ISETCam ``Quanta2Energy``).
     """
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    _check_dim(photons, dim, "photons")
     if photons.shape[dim] != w.numel():
         raise ValueError(f"photons: expected {w.numel()} wavelengths along dim {dim}, got {photons.shape[dim]}")
     h, c = _planck_constants(h, c)
@@ -198,6 +215,7 @@ def energy_to_photons(energy: torch.Tensor, wavelengths_nm, dim: int = -3, *, h:
                       c: float | None = None) -> torch.Tensor:
     """Energy spectral quantity (W/...) to photons (photons/s/...): ``N = E lambda / (h c)``."""
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
+    _check_dim(energy, dim, "energy")
     if energy.shape[dim] != w.numel():
         raise ValueError(f"energy: expected {w.numel()} wavelengths along dim {dim}, got {energy.shape[dim]}")
     h, c = _planck_constants(h, c)
@@ -333,6 +351,8 @@ def band_average(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tenso
 
 def _grid_args(wavelengths_nm, dtype, device):
     w = check_wavelengths(as_tensor(wavelengths_nm, "wavelengths_nm"))
+    if dtype is not None:  # (an integer dtype truncated the tables to 0 and 1)
+        check_float_dtype(dtype)
     dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
     device = device or w.device
     return w, dtype, device

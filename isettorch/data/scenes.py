@@ -145,6 +145,8 @@ def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size, distance_
     cfg = merge_config(config, SCENE_DEFAULTS, "scene")
     _check_layouts_generator(cfg)
     g = torch.Generator().manual_seed(seed_for(seed, index))
+    if size is not None and not (isinstance(size, (tuple, list)) and len(size) == 2):  # (size=16: 'cannot unpack')
+        raise ValueError(f"size: expected (height, width) in pixels, got {size!r}")
     h, wd = size if size is not None else (cfg["height"], cfg["width"])
     wl = scene_wavelengths(cfg, dtype=torch.float64)
     k = int(cfg["palette_size"])

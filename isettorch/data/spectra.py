@@ -26,7 +26,7 @@ import torch
 
 from .. import spectral
 from .._autograd import records_grad, tensor_cache
-from .._checks import check_wavelengths
+from .._checks import check_float_dtype, check_wavelengths
 from .config import WAVELENGTH_RANGE_NM, randint_scalar, uniform01
 
 __all__ = [
@@ -164,7 +164,7 @@ def reflectance_basis(wavelengths_nm, n_components: int = 8, *, dtype=None, devi
     w, key = _grid(wavelengths_nm)
     if not 1 <= n_components <= 12:
         raise ValueError(f"n_components: expected 1..12 principal components, got {n_components}")
-    dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
+    dtype = check_float_dtype(dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype()))
     return tuple(x.clone() for x in _pca_on_grid(int(n_components), key, dtype, str(device or w.device)))
 
 
@@ -614,6 +614,7 @@ def random_illuminant(kind: str, wavelengths_nm, generator: torch.Generator, cct
 def measured_reflectances(wavelengths_nm, *, dtype=torch.float64) -> torch.Tensor:
     """The measured reflectances shipped by colour-science (ColorCheckers: BabelColor, N Ohta, ISO 17321-1, PMC;
     CIE 1995 TCS; NIST CQS 9.0 VS) resampled to the grid: ``[N, L]`` in [0, 1]."""
+    check_float_dtype(dtype)
     w, _ = _grid(wavelengths_nm)
     wave, r = _measured_reflectances()
     out = spectral.resample(torch.from_numpy(r), torch.from_numpy(wave), w.to(torch.float64))

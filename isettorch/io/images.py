@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._checks import narrow_float
+from .._checks import check_bool, narrow_float
 
 __all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "photo_files", "non_srgb_profile",
            "IMAGE_SUFFIXES", "PHOTO_SUFFIXES", "UNREAD_IMAGE_SUFFIXES"]
@@ -377,7 +377,7 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
     x = x.to(torch.float64).cpu()
     if integer:
         lo, hi = float(x.min()), float(x.max())
-        if (lo < 0 or hi > 1) and not clip:
+        if (lo < 0 or hi > 1) and not check_bool(clip, "clip"):  # (clip='no' clipped)
             raise ValueError(f"image: values span [{lo:.4g}, {hi:.4g}], outside [0, 1] for a {bits}-bit file; scale "
                              "the image (white = 1), pass clip=True, or write a float file (EXR, 32-bit TIFF)")
         x = x.clamp(0, 1)

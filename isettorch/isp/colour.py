@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from .. import spectral
-from .._checks import as_tensor, check_finite, check_rank, check_wavelengths, is_real
+from .._checks import as_tensor, check_bool, check_finite, check_float_dtype, check_rank, check_wavelengths, is_real
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_decode, srgb_encode  # re-exported here
 
 __all__ = [
@@ -210,7 +210,7 @@ def reflectance_set(name: str, wavelengths_nm, *, dtype=None, device=None) -> to
     Reference: ISETCam ``imageSensorTransform`` surfaces ``'mcc'`` / ``'multisurface'``.
     """
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
-    dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
+    dtype = check_float_dtype(dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype()))
     key = str(name).lower()
     if key in ("macbeth", "mcc"):
         r = _macbeth_reflectances(w)
@@ -583,8 +583,8 @@ class SensorToXYZ(nn.Module):
         self.illuminant = illuminant
         self.surfaces = surfaces
         self.observer = observer
-        self.learnable = bool(learnable)
-        self.normalize = bool(normalize)
+        self.learnable = check_bool(learnable, "learnable")
+        self.normalize = check_bool(normalize, "normalize")
         self._fit_key = None
         self.register_buffer("matrix", None)
         self.register_buffer("sensor_white", None)
@@ -843,7 +843,7 @@ class DisplayEncode(nn.Module):
                 isinstance(encoding, (int, float)) and math.isfinite(encoding) and encoding > 0):
             raise ValueError(f"encoding: expected 'srgb', 'linear', a positive gamma or a display, got {encoding!r}")
         self.encoding = encoding
-        self.clip = bool(clip)
+        self.clip = check_bool(clip, "clip")
 
     def forward(self, linear: torch.Tensor) -> torch.Tensor:
         x = linear.clamp(0, 1) if self.clip else linear

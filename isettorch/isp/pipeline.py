@@ -19,7 +19,7 @@ import torch
 from torch import nn
 
 from .._autograd import full_precision
-from .._checks import check_finite, check_wavelengths
+from .._checks import batch_param, check_bool, check_finite, check_wavelengths
 from ..sensor.exposure import percentile_linear
 from .colour import (
     DisplayEncode,
@@ -243,7 +243,7 @@ class ImageProcessor(ExactConstants):
                                  f"(set scaling: percentile, or drop scaling_percentile)")
         self.scaling = scaling
         self.scaling_percentile = 99.0 if scaling_percentile is None else float(scaling_percentile)
-        self.clip_negative_xyz = bool(clip_negative_xyz)
+        self.clip_negative_xyz = check_bool(clip_negative_xyz, "clip_negative_xyz")
         self.monochrome_divisor = monochrome_divisor
         self.correction_white = correction_white
         self.register_constant("white_xyz", white_xyz(correction_white))
@@ -266,6 +266,11 @@ class ImageProcessor(ExactConstants):
 
     # --- stages ------------------------------------------------------------------------------
     def _normalized_input(self, raw) -> torch.Tensor:
+        from ..sensor.raw import RawImage
+
+        if not isinstance(raw, RawImage):  # (a bare mosaic failed with "'Tensor' object has no attribute ...")
+            raise TypeError(f"raw: expected a RawImage (a sensor's capture; a demosaiced image goes to "
+                            f"from_demosaiced), got {type(raw).__name__}")
         if raw.white_level is None:
             raise ValueError("raw: the image processor needs raw.white_level (the saturation value) to scale the "
                              "mosaic, got None")
@@ -361,6 +366,11 @@ class ImageProcessor(ExactConstants):
             raise ValueError(f"sensor: expected a demosaiced image (B, C, H, W), got shape {tuple(sensor.shape)}")
         if _input is None:  # the raw path checked its input; a user's image is checked here (a NaN would spread)
             check_finite(sensor.detach(), "sensor")
+            if input_max is not None:  # (a [3] input_max for one image returned three; NaN gave a NaN image)
+                input_max = batch_param(input_max, "input_max", sensor.shape[0], dtype=sensor.dtype,
+                                        device=sensor.device)
+                if bool((input_max.detach() < 0).any()):
+                    raise ValueError(f"input_max: expected raw maxima >= 0, got {input_max.detach().tolist()}")
         m = self.sensor_to_xyz.matrix if hasattr(self.sensor_to_xyz, "matrix") else None
         if m is None:
             raise RuntimeError("ImageProcessor: the sensor -> XYZ matrix is not set; call ip.fit(sensor) (Camera "

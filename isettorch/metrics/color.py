@@ -45,6 +45,8 @@ def _channel_last(x: torch.Tensor, dim: int, name: str) -> tuple[torch.Tensor, i
     if not -x.dim() <= dim < x.dim() or x.shape[dim % x.dim()] != 3:
         raise ValueError(f"{name}: expected 3 colour components along dim={dim}, got shape {tuple(x.shape)}")
     d = dim % x.dim()
+    if x.is_complex() or x.dtype == torch.bool:  # (a complex value lost its imaginary part in the cast below)
+        raise TypeError(f"{name}: expected a real tensor, got {x.dtype}")
     if not x.is_floating_point():
         x = x.to(torch.get_default_dtype())
     return x.movedim(d, -1), d
@@ -180,6 +182,9 @@ def srgb_to_xyz(srgb: torch.Tensor, dim: int = -3) -> torch.Tensor:
     """
     from ..image import srgb_decode
 
+    if isinstance(srgb, torch.Tensor) and not srgb.is_floating_point():  # (8-bit codes read as [0, 1]: grey 200 at
+        raise TypeError(f"srgb: expected a floating-point tensor in [0, 1] units (8-bit codes: divide by 255 "  # Y 3e5)
+                        f"first), got {srgb.dtype}")
     x, d = _channel_last(srgb, dim, "srgb")
     check_finite(x.detach(), "srgb")
     return (srgb_decode(x) @ _srgb_matrix(False, x).T).movedim(-1, d)

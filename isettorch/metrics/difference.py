@@ -10,7 +10,7 @@ import dataclasses
 
 import torch
 
-from .._checks import check_finite, is_real, warn_caller
+from .._checks import check_bool, check_finite, check_float_dtype, is_real, warn_caller
 from .color import _channel_last, xyz_to_lab
 
 
@@ -77,7 +77,7 @@ def delta_e_94(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, textiles: 
     as in colour-science's ``delta_E_CIE1994``.
     """
     (L1, a1, b1), (L2, a2, b2), out = _split(lab1, lab2, dim)
-    k_L, K1, K2 = (2.0, 0.048, 0.014) if textiles else (1.0, 0.045, 0.015)
+    k_L, K1, K2 = (2.0, 0.048, 0.014) if check_bool(textiles, "textiles") else (1.0, 0.045, 0.015)
     C1 = _safe_sqrt(a1**2 + b1**2)
     C2 = _safe_sqrt(a2**2 + b2**2)
     dL = L1 - L2
@@ -330,6 +330,7 @@ def macbeth_reference_xyz(illuminant=None, dtype=torch.float64,
     """
     import colour
 
+    check_float_dtype(dtype)  # (an integer dtype truncated every value to 0)
     cc = colour.CCS_COLOURCHECKERS["ColorChecker24 - After November 2014"]
     names = tuple(cc.data.keys())
     if illuminant is not None:

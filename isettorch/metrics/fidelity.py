@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import torch
 
-from .._checks import check_finite, check_positive, is_integer
+from .._checks import check_bool, check_finite, check_positive, is_integer
 
 
 def _pair(image: torch.Tensor, target: torch.Tensor, crop: int, data_range=None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -23,8 +23,8 @@ def _pair(image: torch.Tensor, target: torch.Tensor, crop: int, data_range=None)
             raise TypeError(f"{name}: expected a torch.Tensor, got {type(t).__name__}")
     if image.shape != target.shape:
         raise ValueError(f"target: expected the shape of image {tuple(image.shape)}, got {tuple(target.shape)}")
-    if image.dim() not in (3, 4):
-        raise ValueError(f"image: expected (B, C, H, W) or (C, H, W), got shape {tuple(image.shape)}")
+    if image.dim() not in (3, 4) or image.numel() == 0:  # (an empty batch failed in min())
+        raise ValueError(f"image: expected a non-empty (B, C, H, W) or (C, H, W), got shape {tuple(image.shape)}")
     for name, t in (("image", image), ("target", target)):
         if t.dtype == torch.bool or t.is_complex():
             raise TypeError(f"{name}: expected real pixel values, got {t.dtype}")
@@ -133,7 +133,7 @@ def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
     # for data_range below ~1e-2 (identical images scored 0.075 at data_range 1e-3); C1, C2 > 0 keep it positive
     m = kornia_ssim(a, b, window_size, max_val=_data_range(data_range, image, b), eps=0.0,
                     padding="valid")
-    if return_map:
+    if check_bool(return_map, "return_map"):
         return m[0] if squeeze else m
     out = m.mean(dim=(-3, -2, -1))
     return out[0] if squeeze else out

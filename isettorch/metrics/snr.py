@@ -7,7 +7,7 @@ import numbers
 
 import torch
 
-from .._checks import as_tensor, check_finite, check_nonnegative, is_integer
+from .._checks import as_tensor, check_bool, check_finite, check_nonnegative, is_integer
 
 
 def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, db: bool = False) -> torch.Tensor:
@@ -40,7 +40,7 @@ def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = Non
         x = x.to(torch.get_default_dtype())
     check_finite(x.detach(), "image")
     snr = x.mean(-1) / x.std(-1)
-    return 20.0 * torch.log10(snr) if db else snr
+    return 20.0 * torch.log10(snr) if check_bool(db, "db") else snr
 
 
 def snr_curve(frames: torch.Tensor, dark: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
@@ -97,7 +97,7 @@ def noise_variance_e(signal_e, read_noise_e=0.0, dsnu_e=0.0, *, prnu_percent=0.0
         (dark_current_e, "dark_current_e"), (column_fpn_e, "column_fpn_e")))
     lsb = 0.0 if lsb_e is None else _noise_level(lsb_e, "lsb_e")
     var = dark + read ** 2 + dsnu ** 2 + column ** 2 + (prnu / 100 * s) ** 2 + lsb ** 2 / 12
-    return var + s if shot else var + torch.zeros_like(s)
+    return var + s if check_bool(shot, "shot") else var + torch.zeros_like(s)
 
 
 def _noise_level(value, name: str) -> float:
@@ -126,7 +126,7 @@ def pixel_snr(signal_e, read_noise_e=0.0, dsnu_e=0.0, *, prnu_percent=0.0, dark_
                            column_fpn_e=column_fpn_e, lsb_e=lsb_e, shot=shot)
     snr = torch.where(var > 0, s / torch.sqrt(var.clamp_min(torch.finfo(s.dtype).tiny)),
                       torch.where(s > 0, math.inf, 0.0))
-    return 20.0 * torch.log10(snr) if db else snr
+    return 20.0 * torch.log10(snr) if check_bool(db, "db") else snr
 
 
 def dynamic_range_db(max_signal, noise_floor) -> torch.Tensor:

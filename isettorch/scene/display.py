@@ -308,6 +308,8 @@ def _check_rgb(rgb, name: str, encoded: bool = False) -> None:
     if encoded:
         _check_drive(rgb, name)
         return
+    if rgb.numel() == 0:  # (an empty batch failed in min())
+        raise ValueError(f"{name}: expected a non-empty image, got shape {tuple(rgb.shape)}")
     check_finite(rgb.detach(), name)
     lo = rgb.detach().min().item()
     if lo < 0:
@@ -316,6 +318,8 @@ def _check_rgb(rgb, name: str, encoded: bool = False) -> None:
 
 def _check_drive(x: torch.Tensor, name: str, what: str = "encoded values") -> None:
     """Encoded drive values: finite and in [0, 1], else a ValueError naming ``name`` (``what`` they are called)."""
+    if x.numel() == 0:  # (an empty batch failed in min())
+        raise ValueError(f"{name}: expected a non-empty image, got shape {tuple(x.shape)}")
     check_finite(x.detach(), name)
     lo, hi = x.detach().min().item(), x.detach().max().item()
     if lo < 0 or hi > 1:

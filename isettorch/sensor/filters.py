@@ -28,7 +28,7 @@ import torch
 from torch import nn
 
 from .. import spectral
-from .._checks import as_tensor, check_nonnegative, check_wavelengths, tensor_version
+from .._checks import as_tensor, check_float_dtype, check_nonnegative, check_wavelengths, is_real, tensor_version
 from .cfa import CFA
 
 __all__ = ["SpectralQE", "filter_set", "filter_set_names", "ir_cut_filter", "photodiode_qe", "shifted_qe"]
@@ -87,6 +87,8 @@ def filter_set(name: str, wavelengths_nm=None, *, dtype=None, device=None):
 
     With ``wavelengths_nm`` the spectra are resampled onto that grid (linear, 0 outside).
     """
+    if dtype is not None:  # (an integer dtype truncated the spectra to 0)
+        check_float_dtype(dtype)
     w, v, letters = _filter_set_np(str(name).lower())
     wt = torch.tensor(w, dtype=torch.float64)
     vt = torch.tensor(v, dtype=torch.float64)
@@ -108,15 +110,16 @@ def ir_cut_filter(wavelengths_nm, cutoff_nm: float = 650.0, edge_width_nm: float
         raise ValueError(f"edge_width_nm: expected a positive width, got {edge_width_nm}")
     w = check_wavelengths(torch.as_tensor(wavelengths_nm)).to(torch.float64)
     out = torch.sigmoid(-(w - cutoff_nm) / edge_width_nm)
-    return out.to(dtype=dtype or torch.get_default_dtype(), device=device)
+    return out.to(dtype=check_float_dtype(dtype or torch.get_default_dtype()), device=device)
 
 
 def photodiode_qe(wavelengths_nm, value: float = 1.0, *, dtype=None, device=None) -> torch.Tensor:
     """Photodiode QE [L]: a constant (ISETCam's default pixel QE is 1 at every wavelength)."""
-    if not 0 <= value <= 1:
-        raise ValueError(f"value: expected a quantum efficiency in [0, 1], got {value}")
+    if not (is_real(value) and 0 <= value <= 1):  # (True was a QE of 1)
+        raise ValueError(f"value: expected a quantum efficiency in [0, 1], got {value!r}")
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
-    return torch.full((w.numel(),), float(value), dtype=dtype or torch.get_default_dtype(), device=device)
+    return torch.full((w.numel(),), float(value), dtype=check_float_dtype(dtype or torch.get_default_dtype()),
+                      device=device)
 
 
 def _inv_softplus(x: torch.Tensor, floor: float = 1e-8) -> torch.Tensor:

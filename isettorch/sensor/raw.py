@@ -8,7 +8,7 @@ from typing import Any
 
 import torch
 
-from .._checks import is_integer
+from .._checks import _small_values, is_integer
 from .cfa import CFA
 
 __all__ = ["RawImage", "RAW_UNITS"]
@@ -81,10 +81,27 @@ class RawImage:
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ValueError(f"{name}: expected a finite number (or a [B] tensor) in {self.units}, got {v!r}")
-        if isinstance(self.white_level, (int, float)) and isinstance(self.black_level, (int, float)) \
-                and not self.white_level > self.black_level:
-            raise ValueError(f"white_level: expected a level above black_level {self.black_level!r}, got "
-                             f"{self.white_level!r}")
+        levels = {}  # each level's values where reading them costs no device sync (a float; a CPU [B] tensor)
+        for name in ("black_level", "white_level"):
+            v = getattr(self, name)
+            if isinstance(v, torch.Tensor):
+                # (a per-item level was not checked at all: 3 levels for a batch of 2 failed in a broadcast, white
+                # below black gave a NaN image)
+                if v.dtype == torch.bool or v.is_complex() or v.dim() > 1 or v.numel() not in (1, self.batch_size):
+                    raise ValueError(f"{name}: expected a number or a [B] tensor of 1 or {self.batch_size} real "
+                                     f"levels, got {v.dtype} of shape {tuple(v.shape)}")
+                vals = _small_values(v.detach())
+                if vals is not None and not all(math.isfinite(x) for x in vals):
+                    raise ValueError(f"{name}: expected finite levels in {self.units}, got {vals}")
+                levels[name] = vals
+            elif v is not None:
+                levels[name] = [v]
+        black, white = levels.get("black_level"), levels.get("white_level")
+        if black is not None and white is not None:
+            pairs = zip(black * len(white), white) if len(black) == 1 else zip(black, white * len(black))
+            if not all(w > b for b, w in pairs):
+                raise ValueError(f"white_level: expected a level above black_level {self.black_level!r}, got "
+                                 f"{self.white_level!r}")
         if self.adc_bits is not None and not (is_integer(self.adc_bits) and self.adc_bits >= 1):
             raise ValueError(f"adc_bits: expected None or an integer >= 1, got {self.adc_bits!r}")
         for name in ("noise_free", "electrons"):

@@ -349,7 +349,10 @@ class Sensor(nn.Module):
             vignetting = torch.as_tensor(vignetting, dtype=torch.float64)
             if (vignetting < 0).any() or not torch.isfinite(vignetting).all():
                 raise ValueError("vignetting: expected finite non-negative factors")
-            if vignetting.dim() > 2 or rows is not None and cols is not None and vignetting.dim() == 2 \
+            if vignetting.dim() == 1 and vignetting.numel() == 1:
+                vignetting = vignetting.reshape(())
+            # (a 1-D profile was applied along the columns whatever it was meant along)
+            if vignetting.dim() not in (0, 2) or rows is not None and cols is not None and vignetting.dim() == 2 \
                     and tuple(vignetting.shape) != (rows, cols):
                 raise ValueError(f"vignetting: expected a scalar or a [rows, cols] = [{rows}, {cols}] map, got "
                                  f"shape {tuple(vignetting.shape)}")
@@ -1051,7 +1054,7 @@ class Sensor(nn.Module):
             noise: False gives the noise-free capture (no dark signal, noise or fixed pattern).
             generator: torch.Generator for the temporal noise (default: the sensor's own, seeded from ``seed``).
             exposure_ev: exposure compensation (stops, scalar or ``[B]``) applied to the fixed or auto exposure
-                (not to an explicit ``exposure_s``).
+                (with an explicit ``exposure_s`` it is a ValueError).
             qe_scale: per-sample factor on the spectral QE (see :meth:`channel_rates`).
             spectral_qe: a per-call :class:`SpectralQE` (one, or per item ``[B, C, Ln]``) used instead of the
                 sensor's (see :meth:`channel_rates`); the raw carries it.
@@ -1062,6 +1065,9 @@ class Sensor(nn.Module):
         """
         if not isinstance(oi, OpticalImage):
             raise TypeError(f"oi: expected an OpticalImage, got {type(oi).__name__}")
+        if exposure_s is not None and exposure_ev is not None:  # (the compensation was silently dropped)
+            raise ValueError("exposure_ev: compensates the sensor's fixed or auto exposure; with an explicit "
+                             "exposure_s give the exposure you want (exposure_s * 2 ** exposure_ev) instead")
         rate = self.electron_rate(oi, qe_scale=qe_scale, spectral_qe=spectral_qe, pixel_size_m=pixel_size_m)
         if exposure_s is None:
             exposure_s = self.exposure_for(oi, rate, analog_gain, exposure_ev=exposure_ev,

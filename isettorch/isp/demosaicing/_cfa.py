@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as F
 
 from ..._autograd import tensor_cache
-from ..._checks import FLOAT_DTYPES
+from ..._checks import FLOAT_DTYPES, check_finite
 from ...sensor.cfa import BAYER_PATTERNS, CFA, tile  # the one CFA-pattern table and its tiling
 
 
@@ -21,6 +21,9 @@ def check_raw(raw, name: str = "raw") -> torch.Tensor:
         raise ValueError(f"{name}: expected a tensor of shape (B, 1, H, W), got shape {tuple(raw.shape)}")
     if raw.dtype not in FLOAT_DTYPES:  # (float16 / bfloat16: Menon's decisions flipped, 0.27 off)
         raise TypeError(f"{name}: expected a floating-point tensor (float32 or float64), got dtype {raw.dtype}")
+    # a NaN or Inf sample is refused, not spread (called directly, bilinear spread one NaN sample to 23 outputs,
+    # MHC to 73, Menon to 40; demosaic() refused it)
+    check_finite(raw.detach(), name)
     return raw
 
 

@@ -9,6 +9,7 @@ import torch
 import torch.nn.functional as F
 
 from ..._autograd import tensor_cache
+from ..._checks import check_bool
 from ._cfa import (
     bayer_index_map,
     channel_masks,
@@ -161,7 +162,7 @@ def demosaic_bilinear(raw: torch.Tensor, pattern: str = "RGGB", *, normalize_bor
     masks = channel_masks(idx, 3, h, w, dtype=raw.dtype, device=raw.device)
     kernel = [_H_RB, _H_G, _H_RB]
     out = correlate(raw * masks, kernel, "symmetric")
-    if normalize_border:
+    if check_bool(normalize_border, "normalize_border"):
         out = out / _bilinear_weight(idx_key(idx), h, w, raw.dtype, raw.device)
     return out
 
