@@ -143,12 +143,18 @@ def cos4th_isetcam(y_m: torch.Tensor, x_m: torch.Tensor, image_distance_m, f_num
     s2 = d**2 + r2
     simple = (d**2 / s2) ** 2
     tan2_phi = r2 / d**2  # tan^2 = sin^2 / cos^2 = r^2 / d^2
-    sin_t = 1 / (1 + 4 * (n * (1 - m)) ** 2)
-    cos2_t = 1 - sin_t**2
+    q4 = 4 * (n * (1 - m)) ** 2
+    sin_t = 1 / (1 + q4)
+    cos2_t = q4 / (1 + q4) * (1 + sin_t)  # 1 - sin^2 as (1 - sin)(1 + sin): no cancellation for a small sin
     tan2_t = sin_t**2 / cos2_t
-    full = (math.pi / 2) * (1 - (1 - tan2_t + tan2_phi)
-                            / torch.sqrt(tan2_phi**2 + 2 * tan2_phi * (1 - tan2_t) + 1 / cos2_t**2))
-    full = full / (math.pi * sin_t**2)
+    # ISETCam's fall = (1 - a / sqrt(b)) / (2 sin^2 theta), a = 1 - tan^2 theta + tan^2 phi, b the root's argument,
+    # cancels catastrophically for a slow lens (sin^2 theta below the float's epsilon from about f/16 in float32:
+    # 0.5 on axis at f/32, negative irradiance at f/64). Since b - a^2 = 4 sin^2 theta / cos^2 theta exactly, for
+    # a >= 0 it equals 2 / (cos^2 theta sqrt(b) (sqrt(b) + a)), a sum of positive terms (1 on axis exactly); for
+    # a < 0 (a fast lens far off axis) the original form has no cancellation
+    a = 1 - tan2_t + tan2_phi
+    root = torch.sqrt(tan2_phi**2 + 2 * tan2_phi * (1 - tan2_t) + 1 / cos2_t**2)
+    full = torch.where(a >= 0, 2 / (cos2_t * root * (root + a)), (1 - a / root) / (2 * sin_t**2))
     return torch.where(d > 10 * diagonal, simple, full)
 
 
