@@ -25,7 +25,16 @@ import torch
 from torch import nn
 
 from .. import spectral
-from .._checks import as_tensor, check_bool, check_finite, check_float_dtype, check_rank, check_wavelengths, is_real
+from .._checks import (
+    as_tensor,
+    check_bool,
+    check_finite,
+    check_float_dtype,
+    check_rank,
+    check_wavelengths,
+    is_real,
+    warn_caller,
+)
 from ..image import XYZ_TO_LINEAR_SRGB, bradford_matrix, srgb_decode, srgb_encode  # re-exported here
 
 __all__ = [
@@ -337,16 +346,37 @@ def check_illuminant_name(name, key: str = "illuminant") -> None:
 # Illuminant correction (white balance)
 
 
-def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channel: int, name: str) -> torch.Tensor:
+NO_SIGNAL = ("raise", "white")  # what gray / white world do with an item that has a channel mean <= 0
+
+
+def _check_no_signal(no_signal) -> str:
+    if no_signal not in NO_SIGNAL:
+        raise ValueError(f"no_signal: expected one of {NO_SIGNAL}, got {no_signal!r}")
+    return no_signal
+
+
+def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channel: int, name: str,
+                      no_signal: str = "raise") -> torch.Tensor:
     # ISETCam grayWorld/whiteWorld: D_c = (white_c / white_ref) * (avg_ref / avg_c). An image that is black in
     # every channel has nothing to balance: it gets the white's own gains (its output stays black; a black frame
-    # of a dim scene, or one black item, failed the whole batch)
+    # of a dim scene, or one black item, failed the whole batch). An item with a channel mean <= 0 but not all
+    # black (a single-hue image; a dim noisy frame, whose means above black are noise of either sign) has no
+    # gray-world gain: an error, or with no_signal='white' the white's own gains too, with a warning
     m = means.detach()
+    if not bool(torch.isfinite(m).all()):  # (a NaN or Inf pixel gave NaN gains)
+        raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced, got channel means "
+                         f"{means.detach().tolist()}")
     black = (m == 0).all(dim=-1, keepdim=True)
-    if not bool((((m > 0) & torch.isfinite(m)) | black).all()):  # (a NaN or Inf pixel gave NaN gains)
-        raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced (or the whole image "
-                         f"black), got channel means {means.detach().tolist()}")
-    means = torch.where(black, torch.ones_like(means), means)
+    unbalanced = (m <= 0).any(dim=-1, keepdim=True) & ~black
+    if bool(unbalanced.any()):
+        items = unbalanced[:, 0].nonzero()[:, 0].tolist()
+        if _check_no_signal(no_signal) == "raise":
+            raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced (or the whole "
+                             f"image black), got channel means {means.detach().tolist()}")
+        warn_caller(f"white balance: item(s) {items} have a channel whose mean is <= 0 (no signal above black there: a "
+                    f"dark noisy frame or a single-hue image), so no gray-world gains exist; they get the white's "
+                    f"own gains (not balanced)")
+    means = torch.where(black | unbalanced, torch.ones_like(means), means)
     wt = white.to(device=means.device, dtype=means.dtype)
     if wt.dim() == 1:
         wt = wt.unsqueeze(0)
@@ -389,7 +419,8 @@ def _default_white(img: torch.Tensor, white) -> torch.Tensor:
     return as_tensor(white, "white", dtype=img.dtype, device=img.device)
 
 
-def gray_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0) -> torch.Tensor:
+def gray_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0, *, no_signal: str = "raise",
+                     ) -> torch.Tensor:
     """Gray-world gains (B, C): after them every channel mean is proportional to ``white``.
 
     Args:
@@ -397,6 +428,11 @@ def gray_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0) 
         white: (C,) or (B, C) channel values of the target white in the image's space (default all ones,
             ISETCam's assumption in sensor space; in XYZ use :func:`white_xyz`).
         reference_channel: the channel whose gain is 1 (ISETCam keeps the first).
+        no_signal: an item with a channel mean <= 0 and not black in every channel (a single-hue image; a dim
+            noisy frame, whose means above black are noise of either sign) has no gray-world gains: ``"raise"``
+            (default) a ValueError, ``"white"`` the white's own gains for that item, with a warning (the ISP's
+            :class:`IlluminantCorrection`, so that one dark item does not fail a batch). A black item always gets
+            the white's own gains.
 
     Every pixel counts, saturated ones too (as in ISETCam): clip or mask a raw's saturated pixels first if they
     should not pull the means.
@@ -404,13 +440,14 @@ def gray_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0) 
     Reference: Buchsbaum, J. Franklin Inst. 310 (1980); ISETCam ``imageIlluminantCorrection`` (grayWorld).
     """
     _check_image(img)
-    return _gains_from_means(img.mean(dim=(-2, -1)), _default_white(img, white), reference_channel, "img")
+    return _gains_from_means(img.mean(dim=(-2, -1)), _default_white(img, white), reference_channel, "img", no_signal)
 
 
 def white_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0,
-                      criterion: float = 0.7) -> torch.Tensor:
+                      criterion: float = 0.7, *, no_signal: str = "raise") -> torch.Tensor:
     """White-world gains (B, C): the mean of the bright pixels (those where the channel with the
-    highest maximum is >= ``criterion`` x its maximum) is mapped to ``white``.
+    highest maximum is >= ``criterion`` x its maximum) is mapped to ``white``. ``no_signal``: as in
+    :func:`gray_world_gains`.
 
     Saturated pixels are among the bright ones and count with their values (as in ISETCam): clip them to the white
     level first, or a clipped highlight's channels pull the gains (one pixel at (1.6, 0.9, 0.8) moves them from
@@ -426,23 +463,25 @@ def white_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0,
     bright_plane = flat.detach()[torch.arange(img.shape[0], device=img.device), plane]  # B, N
     mask = (bright_plane >= criterion * peak.amax(dim=1, keepdim=True)).to(img.dtype)  # B, N
     means = (flat * mask[:, None]).sum(2) / mask.sum(1, keepdim=True).clamp_min(1)
-    return _gains_from_means(means, _default_white(img, white), reference_channel, "img")
+    return _gains_from_means(means, _default_white(img, white), reference_channel, "img", no_signal)
 
 
 ILLUMINANT_CORRECTION_METHODS = ("none", "gray_world", "white_world", "manual")
 
 
 def illuminant_gains(img: torch.Tensor, method: str = "gray_world", white=None, gains=None,
-                     reference_channel: int = 0, criterion: float = 0.7) -> torch.Tensor:
-    """Gains (B, C) for an illuminant-correction ``method`` in ``ILLUMINANT_CORRECTION_METHODS``."""
+                     reference_channel: int = 0, criterion: float = 0.7, *, no_signal: str = "raise") -> torch.Tensor:
+    """Gains (B, C) for an illuminant-correction ``method`` in ``ILLUMINANT_CORRECTION_METHODS`` (``no_signal``: as
+    in :func:`gray_world_gains`)."""
     _check_image(img)
+    _check_no_signal(no_signal)
     key = str(method).lower().replace(" ", "_").replace("-", "_")
     if key == "none":
         return torch.ones(img.shape[0], img.shape[1], dtype=img.dtype, device=img.device)
     if key in ("gray_world", "grey_world"):
-        return gray_world_gains(img, white, reference_channel)
+        return gray_world_gains(img, white, reference_channel, no_signal=no_signal)
     if key == "white_world":
-        return white_world_gains(img, white, reference_channel, criterion)
+        return white_world_gains(img, white, reference_channel, criterion, no_signal=no_signal)
     if key == "manual":
         if gains is None:
             raise ValueError("gains: method 'manual' needs gains (C,) or (B, C), got None")
@@ -504,7 +543,9 @@ class IlluminantCorrection(nn.Module):
         criterion: bright-pixel threshold of white world (ISETCam: 0.7).
 
     ``forward(img, white)`` returns the corrected (B, C, H, W) image; the gains it used are kept in
-    ``last_gains`` (B, C).
+    ``last_gains`` (B, C). An item that gray or white world cannot balance (a channel mean <= 0: a dark noisy
+    frame, a single-hue image) keeps the white's own gains, with a warning (``no_signal='white'`` of
+    :func:`gray_world_gains`): one such item does not fail a batch.
 
     Example:
         >>> ic = IlluminantCorrection("gray_world", space="sensor")
@@ -541,7 +582,8 @@ class IlluminantCorrection(nn.Module):
         self.register_buffer("last_gains", None, persistent=False)
 
     def forward(self, img: torch.Tensor, white=None) -> torch.Tensor:
-        g = illuminant_gains(img, self.method, white, self.gains, self.reference_channel, self.criterion)
+        g = illuminant_gains(img, self.method, white, self.gains, self.reference_channel, self.criterion,
+                             no_signal="white")
         self.last_gains = g.detach()
         return img if self.method == "none" else _apply_gains(img, g)
 
