@@ -88,6 +88,16 @@ def delta_e_94(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, textiles: 
     return _as(_safe_sqrt((dL / k_L) ** 2 + (dC / s_C) ** 2 + dH2 / s_H**2), out)
 
 
+def _c7_ratio(c: torch.Tensor) -> torch.Tensor:
+    """CIEDE2000's ``C^7 / (C^7 + 25^7)`` (Sharma et al. 2005, eqs. 4 and 20) without overflow: above C = 25 as
+    ``1 / (1 + (25 / C)^7)`` (C^7 overflowed float32 from C = 3.1e5: dE2000 NaN), below as written; each branch
+    sees only its own range, so neither gives an infinite gradient."""
+    big = c > 25.0
+    high = 1.0 / (1.0 + (25.0 / torch.where(big, c, torch.full_like(c, 25.0))) ** 7)
+    c7 = torch.where(big, torch.full_like(c, 25.0), c) ** 7
+    return torch.where(big, high, c7 / (c7 + 25.0**7))
+
+
 def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: float = 1.0, k_C: float = 1.0,
                  k_H: float = 1.0) -> torch.Tensor:
     """CIEDE2000 colour difference (CIE 142-2001), implemented as in Sharma, Wu and Dalal, "The CIEDE2000
@@ -102,11 +112,9 @@ def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: flo
         if not is_real(k) or not k > 0:
             raise ValueError(f"{name}: expected a positive parametric factor (a number), got {k!r}")
     (L1, a1, b1), (L2, a2, b2), out = _split(lab1, lab2, dim)
-    p7 = 25.0**7
     C1 = _safe_sqrt(a1**2 + b1**2)
     C2 = _safe_sqrt(a2**2 + b2**2)
-    Cb7 = ((C1 + C2) / 2.0) ** 7
-    G = 0.5 * (1.0 - _safe_sqrt(Cb7 / (Cb7 + p7)))
+    G = 0.5 * (1.0 - _safe_sqrt(_c7_ratio((C1 + C2) / 2.0)))
     a1p, a2p = (1.0 + G) * a1, (1.0 + G) * a2
     C1p, C2p = _safe_sqrt(a1p**2 + b1**2), _safe_sqrt(a2p**2 + b2**2)
     h1p, h2p = _safe_atan2_deg(b1, a1p), _safe_atan2_deg(b2, a2p)
@@ -129,8 +137,7 @@ def delta_e_2000(lab1: torch.Tensor, lab2: torch.Tensor, dim: int = -3, k_L: flo
     T = (1.0 - 0.17 * torch.cos(rad(hbp - 30.0)) + 0.24 * torch.cos(rad(2.0 * hbp))
          + 0.32 * torch.cos(rad(3.0 * hbp + 6.0)) - 0.20 * torch.cos(rad(4.0 * hbp - 63.0)))
     dtheta = 30.0 * torch.exp(-(((hbp - 275.0) / 25.0) ** 2))
-    Cbp7 = Cbp**7
-    R_C = 2.0 * _safe_sqrt(Cbp7 / (Cbp7 + p7))
+    R_C = 2.0 * _safe_sqrt(_c7_ratio(Cbp))
     Lm2 = (Lbp - 50.0) ** 2
     S_L = 1.0 + 0.015 * Lm2 / torch.sqrt(20.0 + Lm2)
     S_C = 1.0 + 0.045 * Cbp
