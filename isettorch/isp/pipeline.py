@@ -407,13 +407,15 @@ class ImageProcessor(ExactConstants):
         else:
             peak = rgb.flatten(1).amax(1)
         # A black render (peak <= 0: no light, or everything outside the display gamut) stays black: scale 0.
+        # The [B] scale is computed in float64: a float32 peak below ~5e-20 (a nearly black render) overflowed the
+        # reciprocal's derivative, 1 / peak^2, to inf, and the gradient to the scene was NaN
         lit = peak > 0
-        safe = torch.where(lit, peak, torch.ones_like(peak))
+        safe = torch.where(lit, peak, torch.ones_like(peak)).double()
         if self.scaling in ("max", "percentile"):
-            return torch.where(lit, ones / safe, torch.zeros_like(peak))
+            return torch.where(lit, 1.0 / safe, 0.0).to(rgb.dtype)
         # ISETCam displayRender ('analog'): img / max(img) * (max volts / voltage swing).
         ratio = sensor.flatten(1).amax(1) if input_max is None else input_max.to(device=rgb.device, dtype=rgb.dtype)
-        return torch.where(lit, ratio.clamp_min(0) / safe, torch.zeros_like(peak))
+        return torch.where(lit, ratio.double().clamp_min(0) / safe, 0.0).to(rgb.dtype)
 
     def extra_repr(self) -> str:
         return f"scaling={self.scaling!r}, clip_negative_xyz={self.clip_negative_xyz}"

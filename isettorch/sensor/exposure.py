@@ -80,8 +80,12 @@ def auto_exposure(volts_per_s: torch.Tensor, voltage_swing_v: float, method: str
         stat = flat.mean(dim=1)
     else:
         stat = percentile_linear(flat, percentile)
-    t = target * voltage_swing_v / stat.clamp_min(torch.finfo(stat.dtype).tiny)
+    # target swing / stat, capped at max_exposure_s, as target swing / max(stat, target swing / max_exposure_s): the
+    # same values, and a dim image's statistic never meets a tiny divisor (its 1 / stat^2 overflowed float32 below
+    # 5e-20 V/s and the capped exposure's zero gradient was 0 x inf = NaN)
+    floor = target * voltage_swing_v / max_exposure_s
+    t = target * voltage_swing_v / torch.maximum(stat, torch.as_tensor(floor, dtype=stat.dtype, device=stat.device))
     # a black image (statistic 0) gets the longest exposure; a NaN or negative statistic gives NaN (it was the
     # longest exposure too, hiding the bad input: a capture then refuses the NaN exposure, naming it), no host sync
-    t = torch.where(stat > 0, t.clamp(max=max_exposure_s), torch.full_like(t, max_exposure_s))
+    t = torch.where(stat > floor, t, torch.full_like(t, max_exposure_s))
     return torch.where(stat >= 0, t, torch.full_like(t, math.nan))

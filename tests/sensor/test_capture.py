@@ -34,3 +34,38 @@ def test_capture_rejects_bad_rates_and_missing_auto_exposure():
         s.capture(-torch.ones(1, 1, 6, 8), exposure_s=0.01)
     with pytest.raises(ValueError, match="exposure_s"):
         _sensor(auto_exposure="mean").capture(torch.ones(1, 1, 6, 8))
+
+
+def test_nearly_black_captures_have_finite_float32_gradients():
+    """d(1 / x) / dx = -1 / x^2 overflows float32 below x ~ 5e-20: auto-exposure's capped exposure (gradient 0)
+    gave 0 x inf = NaN for a statistic of 1e-25 V/s, and the ISP's max / percentile scaling NaN gradients to a
+    1e-20 cd/m^2 scene. Now the capped exposure's gradient is exactly 0, and a camera's float32 gradient to the scene
+    is finite and agrees with float64's."""
+    import warnings
+
+    from isettorch import Camera, scene
+    from isettorch.scene import Scene
+    from isettorch.sensor.exposure import auto_exposure
+
+    v = torch.full((1, 1, 2, 2), 1e-25, requires_grad=True)
+    t = auto_exposure(v, 1.0)
+    t.sum().backward()
+    assert float(t.detach()) == 10.0 and torch.equal(v.grad, torch.zeros_like(v))
+    for config in ("default", "paper2004_cds"):  # auto-exposure; a fixed exposure with percentile scaling
+        grads = {}
+        for dtype in (torch.float32, torch.float64):
+            cam = Camera.from_config(config)
+            cam.noise = False
+            cam.sensor.rows = cam.sensor.cols = 16
+            s0 = scene.macbeth(patch_size=8, mean_luminance_cd_m2=1e-20, dtype=dtype)
+            ph = s0.photons.detach().clone().requires_grad_(True)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                img = cam(Scene(ph, s0.wavelengths_nm, hfov_deg=s0.hfov_deg, distance_m=s0.distance_m))
+            weights = torch.linspace(0, 1, img.numel(), dtype=dtype).reshape(img.shape)
+            (img * weights).sum().backward()
+            grads[dtype] = (ph.grad * ph).detach().double()  # (relative sensitivities: O(1) to O(1e-19))
+        assert torch.isfinite(grads[torch.float32]).all(), config
+        scale = grads[torch.float64].abs().max()
+        assert float(scale) > 0
+        assert float((grads[torch.float32] - grads[torch.float64]).abs().max()) <= 1e-3 * float(scale), config
