@@ -9,7 +9,7 @@ import torch
 
 from .. import spectral
 from .._checks import as_tensor, check_nonnegative, check_rank
-from ..image import SpectralImage, angle_for_extent, extent_for_angle
+from ..image import SpectralFactors, SpectralImage, angle_for_extent, extent_for_angle
 
 
 @dataclasses.dataclass(eq=False, repr=False)
@@ -135,6 +135,17 @@ class Scene(SpectralImage):
         if (current <= 0).any():
             raise ValueError("set_mean_luminance: the scene is black (mean luminance 0), it cannot be scaled")
         k = (target / current).reshape(-1, 1, 1, 1)
+        # the radiance must stay in the dtype's range (float32 returned inf or NaN radiance for 3e24 cd/m^2): the
+        # peak, or for factors the bound sum_j max(map_j) max(spectrum_j), times k
+        f = self.factors
+        if isinstance(f, SpectralFactors):
+            peak = (f.maps.detach().abs().amax(dim=(-2, -1)) * f.spectra.detach().abs().amax(dim=-1)).sum(-1)
+        else:
+            peak = self.photons.detach().abs().flatten(1).amax(1)
+        if not bool(torch.isfinite(peak * k.detach().reshape(-1)).all()):
+            raise ValueError(f"{name}: {target.tolist()} cd/m^2 puts this scene's radiance beyond the range of "
+                             f"{self.dtype} (peak {peak.max().item():.3g} photons/s/sr/m^2/nm at its present "
+                             f"{current.max().item():.3g} cd/m^2); ask a smaller luminance or render in float64")
         ill = None if self.illuminant_photons is None else self.illuminant_photons * k.reshape(-1, 1)
         if self.factors is not None:
             return self.replace(factors=self.factors.scale(k.reshape(-1)), illuminant_photons=ill, validate=False)

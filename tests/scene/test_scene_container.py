@@ -33,6 +33,23 @@ def test_set_mean_luminance_exact():
     assert torch.allclose(s32.mean_luminance(), torch.tensor([100.0, 3.0]), rtol=1e-5)
 
 
+def test_a_luminance_beyond_the_dtypes_range_is_refused():
+    """float32 radiance overflows near 3.4e38 photons/s/sr/m^2/nm (about 1e22-1e24 cd/m^2 for these scenes): the
+    scaled scene was inf or NaN, unsaid. Refused naming the argument, dense and factored; float64 holds it, with the
+    luminance asked."""
+    from isettorch import scene
+
+    for make in (lambda dt: scene.macbeth(patch_size=4, dtype=dt), lambda dt: _scene().to(dtype=dt)):
+        with pytest.raises(ValueError, match="cd_m2: .* beyond the range of torch.float32"):
+            make(torch.float32).set_mean_luminance(1e25)
+        big = make(torch.float64).set_mean_luminance(1e25)
+        assert torch.allclose(big.mean_luminance(), torch.tensor(1e25, dtype=torch.float64), rtol=1e-9)
+        ok = make(torch.float32).set_mean_luminance(1e9)  # (the sun's disc is about 1.6e9 cd/m^2)
+        assert torch.isfinite(ok.photons).all()
+    with pytest.raises(ValueError, match="mean_luminance_cd_m2: .* beyond the range"):
+        scene.uniform(size=4, mean_luminance_cd_m2=1e25)
+
+
 def test_set_mean_luminance_scales_illuminant():
     w = spectral.default_wavelengths(dtype=torch.float64)
     ill = spectral.energy_to_photons(spectral.illuminant("D65", w), w, dim=0)
