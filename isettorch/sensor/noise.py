@@ -64,12 +64,15 @@ def shot_noise(mean_e: torch.Tensor, mode: str = "poisson", generator: torch.Gen
         # sync, and the same random numbers as before wherever m <= T
         t = POISSON_GAUSSIAN_ABOVE_E
         draw = torch.poisson(m.clamp(max=t), generator=generator)
-        draw = torch.where(m > t, m + (draw - t) * torch.sqrt(m / t), draw)
+        # (an infinite mean, rate x exposure beyond float32, stays infinite and saturates: inf + (draw - t) inf
+        # was NaN for a draw below t)
+        draw = torch.where(m > t, torch.where(torch.isinf(m), m, m + (draw - t) * torch.sqrt(m / t)), draw)
         # a straight-through estimator only when autograd records (here and in quantize_ste): x + (y - x) can differ
         # from y by a rounding step, so without a gradient the exact draw is returned
         return mean_e + (draw - mean_e).detach() if records_grad(mean_e) else draw
     if mode == "gaussian":
-        return mean_e + safe_sqrt(mean_e) * normal(mean_e, generator)
+        out = mean_e + safe_sqrt(mean_e) * normal(mean_e, generator)
+        return torch.where(torch.isinf(mean_e), mean_e, out)  # (inf + inf z was NaN for z < 0; as 'poisson')
     raise ValueError(f"shot_noise: expected mode in {SHOT_NOISE_MODES}, got {mode!r}")
 
 

@@ -132,3 +132,18 @@ def test_shot_noise_gradient_of_a_noise_dependent_loss():
         m = torch.full((400_000,), 2.0, dtype=torch.float64, requires_grad=True)
         (shot_noise(m, mode, torch.Generator().manual_seed(1)) ** 2).sum().backward()
         assert float(m.grad.mean()) == pytest.approx(expected, abs=0.03)
+
+
+@pytest.mark.parametrize("mode", ["poisson", "gaussian"])
+def test_an_infinite_mean_saturates_instead_of_turning_nan(mode):
+    """Electrons beyond float32 (1e6 e-/s for 1e33 s) are an infinite mean: the Gaussian tail's inf + (draw - T) inf
+    (and inf + inf z) was NaN for a draw below the mean, and the capture's raw NaN where its noise-free raw saturates.
+    Now inf stays inf and the pixel is full, as without noise; finite means draw as before."""
+    from isettorch.sensor import Sensor
+
+    mean = torch.tensor([1e3, float("inf"), 5e9, float("inf")])
+    out = shot_noise(mean, mode, generator=torch.Generator().manual_seed(0))
+    assert torch.isinf(out[[1, 3]]).all() and (out[[1, 3]] > 0).all() and torch.isfinite(out[[0, 2]]).all()
+    sen = Sensor.preset("isetcam_default", rows=2, cols=2, shot_noise=mode)
+    r = sen.capture(torch.full((1, 1, 2, 2), 1e6), exposure_s=1e33, generator=torch.Generator().manual_seed(0))
+    assert torch.equal(r.data, r.noise_free) and torch.equal(r.noise_free, torch.ones_like(r.noise_free))
