@@ -39,7 +39,9 @@ def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = Non
     if not x.is_floating_point():
         x = x.to(torch.get_default_dtype())
     check_finite(x.detach(), "image")
-    snr = x.mean(-1) / x.std(-1)
+    mean, sd = x.mean(-1), x.std(-1)
+    black = (mean == 0) & (sd == 0)  # a black region has SNR 0, as pixel_snr at zero signal (0 / 0 was NaN)
+    snr = torch.where(black, 0.0, mean / torch.where(black, 1.0, sd))
     return 20.0 * torch.log10(snr) if check_bool(db, "db") else snr
 
 

@@ -198,6 +198,9 @@ def test_snr_helpers():
     np.testing.assert_allclose(s.numpy(), [p.mean() / p.std(ddof=1) for p in patch.numpy()], rtol=1e-12)
     assert float(snr_uniform(patch, roi=(0, 32, 0, 32), db=True)[0]) == pytest.approx(
         20 * math.log10(float(patch[0, :32, :32].mean() / patch[0, :32, :32].std())), rel=1e-12)
+    # a black region has SNR 0 (as pixel_snr at zero signal; 0 / 0 was NaN), a noiseless lit one infinite SNR
+    flat = torch.stack([torch.zeros(8, 8, dtype=torch.float64), torch.full((8, 8), 0.5, dtype=torch.float64)])
+    assert snr_uniform(flat).tolist() == [0.0, math.inf] and float(pixel_snr(0.0)) == 0.0
     # Poisson frames: temporal SNR = sqrt(mean) (shot-noise limit); with read noise it follows the pixel model
     means = torch.tensor([2.0, 10.0, 100.0, 1000.0], dtype=torch.float64)
     frames = torch.poisson(means.reshape(4, 1, 1, 1).expand(4, 8, 32, 32), generator=g)
