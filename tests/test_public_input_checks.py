@@ -9,7 +9,7 @@ from isettorch import metrics, scene, spectral
 from isettorch.data import seed_for, spectra
 from isettorch.data.scenes import generate_scene
 from isettorch.io import write_image
-from isettorch.isp import ImageProcessor, demosaic, reflectance_set
+from isettorch.isp import ImageProcessor, demosaic, illuminant_gains, reflectance_set
 from isettorch.isp.demosaicing import demosaic_bilinear, demosaic_malvar2004, demosaic_menon2007
 from isettorch.optics import OpticalImage, WavefrontOptics
 from isettorch.sensor import RawImage, Sensor, filter_set, ir_cut_filter, photodiode_qe
@@ -101,6 +101,8 @@ def _oi():
     (lambda: scene.macbeth(patch_size=4).to_dense()[-2], IndexError, "index: -2 is out of range"),
     (lambda: scene.macbeth(patch_size=4).mean_spectrum(slice(100, 200)), ValueError,
      "rows: slice\\(100, 200, None\\) selects no pixels"),  # (NaN)
+    (lambda: illuminant_gains(torch.rand(1, 3, 4, 4) + 0.1, "gray_world", gains=[1.0, 2.0, 3.0]), ValueError,
+     "gains: only illuminant correction 'manual' uses gains"),  # (ignored)
     # low-level crashes
     (lambda: spectral.resample(torch.ones(2), [400.0, 500.0], [450.0], dim=3), ValueError,
      "dim: expected the spectral axis of values"),  # (IndexError)

@@ -476,6 +476,8 @@ def illuminant_gains(img: torch.Tensor, method: str = "gray_world", white=None, 
     _check_image(img)
     _check_no_signal(no_signal)
     key = str(method).lower().replace(" ", "_").replace("-", "_")
+    if gains is not None and key != "manual":  # (ignored; the IlluminantCorrection constructor refuses it)
+        raise ValueError(f"gains: only illuminant correction 'manual' uses gains; method {method!r} computes its own")
     if key == "none":
         return torch.ones(img.shape[0], img.shape[1], dtype=img.dtype, device=img.device)
     if key in ("gray_world", "grey_world"):
