@@ -374,6 +374,9 @@ class Sensor(nn.Module):
                                       dark_shading_e_per_s=dark_shading_e_per_s, hot_pixel_fraction=hot_pixel_fraction,
                                       hot_pixel_dark_current_e_per_s=hot_pixel_dark_current_e_per_s,
                                       dead_pixel_fraction=dead_pixel_fraction, full_well_e=full_well_e, seed=self.seed)
+        if noise_model == "isetcam" and self.cds:  # (ignored: ISETCam's order samples the read noise once, adds DSNU)
+            raise ValueError("cds: noise_model 'isetcam' has no correlated double sampling (its order samples the read "
+                             "noise once and adds the DSNU); use noise_model='physical' with cds=True")
         if noise_model == "isetcam" and self.noise_terms.active:
             raise ValueError(f"noise_model: 'isetcam' has none of the noise terms {self.noise_terms.as_dict()}; use "
                              f"noise_model='physical'")
@@ -453,11 +456,13 @@ class Sensor(nn.Module):
         raw records, the one quantity auto-exposure aims below and the raw's white level reports
         (:attr:`white_level_dn`, :meth:`white_level`).
 
-        ``min(usable_swing_v, (full_well_e x conversion gain + offset) x analog gain)``: the voltage swing (ISETCam
-        ``sensorGet(sensor, 'max output')``, whose well capacity is swing / conversion gain, ``pixelGet(pixel, 'well
-        capacity')``), less when a black level puts the ADC's top code below it (:attr:`usable_swing_v`) or when the
-        photodiode's full well ``full_well_e`` saturates first (EMVA 1288 release 4.0, section 4.1: the saturation
-        capacity; the noisy chain clips there, :meth:`NoiseTerms.after_shot`). ISETCam's gain convention divides.
+        ``min(usable_swing_v, (min(full_well_e x conversion gain, swing) + offset) x analog gain)``: the voltage
+        swing (ISETCam ``sensorGet(sensor, 'max output')``, whose well capacity is swing / conversion gain,
+        ``pixelGet(pixel, 'well capacity')``), less when a black level puts the ADC's top code below it
+        (:attr:`usable_swing_v`), when the photodiode's full well ``full_well_e`` saturates first (EMVA 1288 release
+        4.0, section 4.1: the saturation capacity; the noisy chain clips there, :meth:`NoiseTerms.after_shot`) or
+        when a multiplying gain below 1 scales the pixel's saturated swing down. ISETCam's gain convention divides
+        (and clips after the gain only: its pixel is not clipped at the swing first, FORMAT 4.6 steps 7-8).
 
         Args:
             analog_gain: None (the sensor's), a number or ``[B]``.
@@ -467,15 +472,21 @@ class Sensor(nn.Module):
         """
         top = self.usable_swing_v
         fw = self.noise_terms.full_well_e
-        if fw is None:
+        gain = self.analog_gain if analog_gain is None else analog_gain
+        multiply = self.gain_convention != "isetcam"
+        if fw is None and (not multiply or is_real(gain) and gain >= 1):
             return top
         cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
-        gain = self.analog_gain if analog_gain is None else analog_gain
         # per-call tensors keep their dtype and device (no float64 on devices without it); lists become tensors
         cg, gain = (x if is_real(x) else x.reshape(-1) if isinstance(x, torch.Tensor)
                     else torch.as_tensor(x, dtype=torch.float64).reshape(-1) for x in (cg, gain))
-        v = fw * cg + self.analog_offset_v
-        v = v / gain if self.gain_convention == "isetcam" else v * gain
+        if fw is None:  # the pixel saturates at the swing, then the gain (below 1: :meth:`_readout`)
+            v = self.voltage_swing_v
+        else:  # (in the multiply convention the pixel is also clipped at the swing before the gain)
+            v = fw * cg if not multiply else (fw * cg).clamp(max=self.voltage_swing_v) \
+                if isinstance(cg, torch.Tensor) else min(fw * cg, self.voltage_swing_v)
+        v = v + self.analog_offset_v
+        v = v / gain if not multiply else v * gain
         if isinstance(v, torch.Tensor):
             return v.clamp(max=top)
         return min(top, float(v))
@@ -483,8 +494,9 @@ class Sensor(nn.Module):
     def saturation_e(self, conversion_gain_v_per_e=None) -> float | torch.Tensor:
         """Electrons at which a pixel saturates: its well capacity, swing / conversion gain (ISETCam
         ``pixelGet('well capacity')``, :attr:`well_capacity_e`), or the photodiode's own full well ``full_well_e``
-        (EMVA 1288 release 4.0, section 4.1) where that is lower. ``conversion_gain_v_per_e``: None (the sensor's),
-        a number or a per-call tensor (then ``[B]``)."""
+        (EMVA 1288 release 4.0, section 4.1) where that is lower: a property of the pixel (a DN raw whose black level
+        lowers the ADC's top code clips below it, at :meth:`saturation_v`). ``conversion_gain_v_per_e``: None (the
+        sensor's), a number or a per-call tensor (then ``[B]``)."""
         cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
         cg = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
         well = self.voltage_swing_v / cg
@@ -497,7 +509,9 @@ class Sensor(nn.Module):
         """The raw's saturation value in :attr:`output_units` (its ``white_level``): :meth:`saturation_v` in DN (the
         ADC's code for it, ``round(v / lsb) + black``, at most the top code) or volts; for electrons, the swing /
         conversion gain or the full well, whichever is lower. A float, or ``[B]`` for per-call tensors (see
-        :meth:`saturation_v`). Without ``full_well_e``: the top code, the swing, swing / conversion gain. With
+        :meth:`saturation_v`). Without ``full_well_e``: the top code (``2^N + black`` with ``adc_mode='isetcam'``,
+        which does not clamp), the swing, swing / conversion gain (a multiplying gain below 1 lowers the first two:
+        the pixel saturates at the swing before the gain). With
         ``full_well_e`` below the swing, the read noise is added after the photodiode clips, so saturated pixels
         scatter around this level (about half above it): normalise by it and clip, or take a high percentile of a
         flat, saturated frame."""
@@ -505,15 +519,15 @@ class Sensor(nn.Module):
             return self.saturation_e(conversion_gain_v_per_e)
         cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
         cg = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
-        fw = self.noise_terms.full_well_e
         if self.output_units == "volts":
-            return self.voltage_swing_v if fw is None else self.saturation_v(analog_gain, cg)
+            return self.saturation_v(analog_gain, cg)
         return self._white_dn(analog_gain, cg)
 
     @property
     def white_level_dn(self) -> float | None:
-        """The DN of :meth:`saturation_v` at the sensor's own gains: the ADC's top code (``2^N - 1``; ``2^N`` with
-        ``adc_mode='isetcam'``), or less when ``full_well_e`` saturates first. None for an analog readout."""
+        """The DN of :meth:`saturation_v` at the sensor's own gains: the ADC's top code (``2^N - 1``; ``2^N`` plus
+        the black level with ``adc_mode='isetcam'``, whose codes are not clamped), or less when ``full_well_e`` (or a
+        multiplying gain below 1) saturates first. None for an analog readout."""
         return None if self.adc_bits is None else self._white_dn(None, None)
 
     def zero_level(self, analog_gain=None) -> float | torch.Tensor:
@@ -553,9 +567,9 @@ class Sensor(nn.Module):
     def _white_dn(self, analog_gain, conversion_gain_v_per_e) -> float | torch.Tensor:
         """The code the ADC gives :meth:`saturation_v`: ``round(v / lsb) + black`` (MATLAB round, as
         :meth:`volts_to_dn`), at most the top code."""
-        top = float(2 ** self.adc_bits) if self.adc_mode == "isetcam" else float(2 ** self.adc_bits - 1)
-        if self.noise_terms.full_well_e is None:
-            return top
+        # ISETCam's ADC does not clamp at the top code (adc_mode 'isetcam'): its saturated pixels read
+        # round(swing / lsb) + black (a 10-bit raw with black 64 read 1088 against a white level of 1024)
+        top = math.inf if self.adc_mode == "isetcam" else float(2 ** self.adc_bits - 1)
         x = self.saturation_v(analog_gain, conversion_gain_v_per_e) / self.lsb_v
         whole, part = self._black_parts()
         if isinstance(x, torch.Tensor):
@@ -908,6 +922,11 @@ class Sensor(nn.Module):
         """Pixel volts -> clipped volts at the ADC input (electrons output: pixel volts clipped to the swing)."""
         if self.output_units == "electrons":
             return pixel_volts.clamp(0, self.voltage_swing_v)
+        if self.gain_convention != "isetcam":
+            # the pixel's output saturates at the swing (its well capacity is swing / conversion gain) before the
+            # amplifier: a gain below 1 read 15,000 e- from a 10,000 e- well (ISETCam's convention gains first,
+            # FORMAT 4.6 steps 7-8)
+            pixel_volts = pixel_volts.clamp(max=self.voltage_swing_v)
         return self._analog(pixel_volts, gain).clamp(self._clip_low_v(), self.voltage_swing_v)
 
     def _to_units(self, volts: torch.Tensor, *, quantize: bool, cg=None) -> torch.Tensor:

@@ -7,7 +7,8 @@ from isettorch.data.config import one_thread, seed_for
 
 
 def _normalised(raw, values):
-    return (values - raw.black_level) / (raw.white_level - raw.black_level)
+    black, white = raw.levels()  # (floats, or [B] levels as [B, 1, 1, 1]: per-call gains)
+    return (values - black) / (white - black)
 
 
 @pytest.fixture

@@ -96,7 +96,8 @@ def test_parts_render_on_threads_without_changing_the_batch(stream_equals_camera
     with one_thread():  # (as the stream renders a CPU part)
         raw = grp.camera(grp.scene, return_intermediates=True, generator=two._generator(5, 2, 1), **grp.kwargs).raw
     got = two.batch(5)["raw"][grp.index]
-    assert torch.equal((raw.data - raw.black_level) / (raw.white_level - raw.black_level), got)
+    black, white = raw.levels()
+    assert torch.equal((raw.data - black) / (white - black), got)
     # the two parts are independent draws, not copies
     assert not torch.equal(a["noise_free_raw"][:4], a["noise_free_raw"][4:])
     # the default on a CPU: one part per 32 items (at least one); one with a camera module

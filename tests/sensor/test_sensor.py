@@ -242,8 +242,9 @@ def test_auto_exposure_leaves_room_for_the_analog_offset(convention):
     # was counted as room, so a 0.3 V offset put the brightest pixel at the swing (clipped, 0.70 V of light)
     torch.manual_seed(3)
     oi = OpticalImage(torch.rand(1, 3, 16, 16, dtype=torch.float64) * 1e15, W3, sample_spacing_m=2e-6)
-    gain = 0.5 if convention == "multiply" else 2.0  # the offset after gain is 0.15 V either way
-    s = simple_sensor(auto_exposure="luminance", analog_offset_v=0.3, analog_gain=gain, gain_convention=convention)
+    # the offset after gain is 0.15 V either way (a multiplying gain above 1: below 1 the pixel's swing limits first)
+    gain, offset = (1.5, 0.1) if convention == "multiply" else (2.0, 0.3)
+    s = simple_sensor(auto_exposure="luminance", analog_offset_v=offset, analog_gain=gain, gain_convention=convention)
     raw = s(oi, noise=False)
     assert float(raw.noise_free.max()) == pytest.approx(0.15 + 0.95 * (1.0 - 0.15), rel=1e-9)
     with pytest.raises(ValueError, match="analog_offset_v"):
@@ -423,12 +424,12 @@ def test_sensor_snr_is_the_metrics_noise_model():
     assert metrics.dynamic_range_db(quiet) == math.inf
 
 
-@pytest.mark.parametrize("levels", [{"cds": True, "noise_model": "isetcam"}, {"cds": True},
+@pytest.mark.parametrize("levels", [{"noise_model": "isetcam"}, {"cds": True},
                                     {"row_noise_v": 5e-4, "column_noise_v": 3e-4}, {"shot_noise": "off"},
                                     {"dark_shading_e_per_s": 20.0}])
 def test_sensor_noise_floor_is_the_captures(levels):
     """The figures of merit's dark floor is the variance of the sensor's own dark captures (64 frames of 64 x 64,
-    12-bit): ISETCam's noise model samples the read noise once with CDS, temporal row/column noise and dark shading
+    12-bit): ISETCam's noise model samples the read noise once and adds DSNU, temporal row/column noise and dark shading
     count, a sensor without shot noise has no dark-current shot noise. A parameter formula of its own gave 3.94,
     3.10, 3.10 and 3.10 DN^2 for the first, third, fourth and fifth sensors against 3.12, 8.77, 2.27 and 3.77
     measured. The variance's standard error here is under 1 % (row/column noise: 64 x 64 draws a frame)."""
@@ -513,3 +514,28 @@ def test_sensor_cfa_and_filter_errors_name_the_sensors_arguments():
         Sensor(cfa=5)
     with pytest.raises(ValueError, match="^filters: unknown filter set 'x'"):
         Sensor(filters="x")
+
+
+def test_saturation_is_the_wells_whatever_the_readout_gain_and_black_level():
+    """An audit of the sensor's numbers (2026-12-02): (a) at a multiplying analog gain below 1 the DN and volts raws
+    recorded 15,000 e- from a 10,000 e- well (swing / conversion gain), the electrons raw 10,000; (b) an ISETCam ADC
+    (no clamp at the top code) with a black level reported a white level of 2^N while its saturated pixels read
+    2^N + black (normalized 1.067); (c) cds=True with the ISETCam noise model was ignored."""
+
+    rate = torch.full((1, 1, 2, 2), 15000.0, dtype=torch.float64)  # 15,000 e- in 1 s
+    kw = dict(rows=2, cols=2, cfa="W", conversion_gain_v_per_e=1e-4, voltage_swing_v=1.0)
+    dn = Sensor(**kw, adc_bits=12).capture(rate, exposure_s=1.0, analog_gain=0.5, noise=False)
+    volts = Sensor(**kw).capture(rate, exposure_s=1.0, analog_gain=0.5, noise=False)
+    electrons = Sensor(**kw, output_units="electrons").capture(rate, exposure_s=1.0, analog_gain=0.5, noise=False)
+    assert float(dn.data.max()) == 2048.0 and float(dn.white_level) == 2048.0  # 10,000 e- x 1e-4 V x 0.5 / (1/4096)
+    assert float(volts.data.max()) == 0.5 and float(volts.white_level) == 0.5
+    assert float(electrons.data.max()) == 10000.0
+    assert float(dn.normalized().max()) == 1.0 and float(volts.normalized().max()) == 1.0
+    below = Sensor(**kw, adc_bits=12).capture(rate / 3, exposure_s=1.0, analog_gain=0.5, noise=False)
+    assert float(below.data.max()) == pytest.approx(5000 * 1e-4 * 0.5 * 4096, abs=0.5)  # unclipped below the well
+    for fw, want in ((None, 1024 + 64), (5000.0, 512 + 64), (20000.0, 1024 + 64)):
+        s = Sensor(**kw, adc_bits=10, adc_mode="isetcam", black_level_dn=64, full_well_e=fw)
+        r = s.capture(torch.full((1, 1, 2, 2), 3e4, dtype=torch.float64), exposure_s=1.0, noise=False)
+        assert float(r.data.max()) == want and float(r.white_level) == want and float(r.normalized().max()) == 1.0
+    with pytest.raises(ValueError, match="cds: noise_model 'isetcam' has no correlated double sampling"):
+        Sensor(cds=True, noise_model="isetcam")
