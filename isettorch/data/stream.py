@@ -51,7 +51,8 @@ _SCENE_DRAWS = {"layouts": draw_layout_scenes, "natural": draw_natural_scenes}
 
 @dataclasses.dataclass
 class StreamGroup:
-    """The items of a batch that share one CFA: ``index`` ``[b]`` (positions in the batch), the ``camera``
+    """The items of a batch that share one CFA: ``index`` ``[b]`` (their positions in the batch, not necessarily
+    consecutive: an item's CFA does not depend on its position), the ``camera``
     (:class:`isettorch.Camera` whose optics hold the items' ``[b]`` f-numbers), the factored ``scene`` ``[b]`` and
     the per-call sensor settings ``kwargs`` (``[b]`` tensors, the pixel pitch among them). ``camera(scene,
     return_intermediates=True, generator=g, **kwargs)`` renders exactly what the stream renders (with the noise of
@@ -147,9 +148,9 @@ class PairStream:
         self.scene_config, self.camera_config = pair_config(scene, None if self.camera_module is not None else camera)
         self.targets = check_targets(targets)
         # a camera module's ray-traced lens images the scene at its image_distance_m, as a drawn camera's (_draw_part)
-        self._module_lens = False
+        self._module_lens, self._module_view_size = False, None
         if self.camera_module is not None:
-            self.camera_module, self._module_lens = _check_camera_module(self.camera_module, self.scene_config)
+            self._module_lens, self._module_view_size = _check_camera_module(self.camera_module, self.scene_config)
         if not isinstance(grad, bool):
             raise ValueError(f"grad: expected True or False, got {grad!r}")
         self.grad = grad
@@ -305,6 +306,9 @@ class PairStream:
         groups = []
         if self.camera_module is not None:
             camera = self.camera_module
+            if self._module_view_size is not None:  # a view made at each batch: the camera as it is now (a view
+                # made once kept the noise flag, gains, optics and buffers of the stream's construction)
+                camera = _sized_view(camera, *self._module_view_size)
             pitch = float(camera.sensor.pixel_size_m)
             focal = camera.optics.focal_length_m.detach().reshape(-1)[0].to(torch.float64)
             if self._module_lens:  # the drawn path's geometry for a ray-traced lens (below)
@@ -318,9 +322,10 @@ class PairStream:
         pitches = self.camera_config["pixel_size_m"]
         pitches = pitches if isinstance(pitches, (list, tuple)) else [pitches]
         # groups: the CFAs of this part (the pixel pitch is a per-item sensor setting: one sample per pixel, the
-        # sensor's per-call pixel_size_m). The part's items are put in CFA order (stable), so each group is a run
-        # of consecutive items: its scenes are views of the draw and the batch is its groups' outputs in order
-        # (items are i.i.d.: the order changes no item's distribution)
+        # sensor's per-call pixel_size_m). The part's camera draws are put in CFA order (stable), so each group is a
+        # run of them, rendered with a run of the part's scenes (views of the draw); its outputs go back to the
+        # positions of its camera draws (StreamGroup.index), so that position i holds the i-th CFA draw: placed in
+        # CFA order, the positions held the draws' order statistics (a batch's first slices one CFA only)
         camera_key = d["pattern_index"]
         order = torch.argsort(camera_key, stable=True)
         d = {key: v[order] for key, v in d.items()}
@@ -363,8 +368,7 @@ class PairStream:
                   "prnu_sigma_percent": d["prnu"][idx]}
             if "shifts" in d:  # the items' shifted QE curves (per call; the sensor keeps the unshifted QE)
                 kw["spectral_qe"] = _d5100_qe(pattern, d["shifts"][idx])
-            groups.append(StreamGroup(torch.arange(start + idx.start, start + idx.stop, device=dev), camera, scene,
-                                      kw, k, part))
+            groups.append(StreamGroup(start + order[idx].to(dev), camera, scene, kw, k, part))
         return groups
 
     def _optics_for(self, pitch: float, f_number: torch.Tensor, focal_length_m: torch.Tensor, margin: int):
@@ -460,9 +464,14 @@ class PairStream:
         parts = [out for part in done for out in part[1]]
         if len(parts) == 1:
             return parts[0]
-        # the groups are consecutive runs of items in batch order (see _draw_part): the batch is their outputs in turn
+        # the groups' outputs in turn, then each item at its position (StreamGroup.index, see _draw_part)
         out = {key: torch.cat([p[key] for p in parts]) for key in parts[0] if key != "meta"}
         out["meta"] = {key: torch.cat([p["meta"][key] for p in parts]) for key in parts[0]["meta"]}
+        index = out["meta"]["index"]
+        if bool((index[1:] < index[:-1]).any()):
+            where = torch.argsort(index)
+            out = {key: v[where] for key, v in out.items() if key != "meta"} | {
+                "meta": {key: v[where] for key, v in out["meta"].items()}}
         return out
 
     def _render_part(self, k: int, part: int) -> tuple[list, list]:
@@ -652,9 +661,10 @@ def _check_camera_module(camera, scene_cfg: dict):
     :class:`isettorch.Camera` whose :class:`~isettorch.sensor.Sensor` has colour channels (the metadata's
     ``white_camera_rgb`` and the colour targets are relative to its second channel) and the scene's size (a batch
     is ``scene.height x scene.width``, as ``CameraPairDataset``'s). A sensor sized to each optical image (``rows``
-    and ``cols`` None, as in every shipped camera config) renders at the scene's size through :func:`_sized_view`.
-    Returns the camera to render with and whether its optics are a ray-traced lens
-    (:class:`~isettorch.optics.lens.optics.LensOptics`, imaging at its ``image_distance_m``)."""
+    and ``cols`` None, as in every shipped camera config) renders at the scene's size through :func:`_sized_view`,
+    made at each batch. Returns whether its optics are a ray-traced lens
+    (:class:`~isettorch.optics.lens.optics.LensOptics`, imaging at its ``image_distance_m``) and the size of that
+    view (None: the sensor is the scene's size)."""
     from ..camera import Camera
     from ..optics.lens.optics import LensOptics
 
@@ -671,13 +681,14 @@ def _check_camera_module(camera, scene_cfg: dict):
                          f"and srgb are relative to the camera's second (green) channel, and CameraPairDataset "
                          f"draws Bayer sensors only (camera.cfa_patterns); expected a sensor with colour channels")
     h, w = scene_cfg["height"], scene_cfg["width"]
+    view = None
     if sensor.rows is None and sensor.cols is None:
-        camera = _sized_view(camera, h, w)
+        view = (h, w)
     elif (sensor.rows, sensor.cols) != (h, w):
         raise ValueError(f"camera: its sensor is {sensor.rows}x{sensor.cols} pixels, but scene.height x scene.width "
                          f"is {h}x{w}: a batch is the scene's size, as CameraPairDataset's; build the sensor with "
                          f"rows={h}, cols={w} (or both None: sized to the scene)")
-    return camera, isinstance(camera.optics, LensOptics)
+    return isinstance(camera.optics, LensOptics), view
 
 
 def _draw_range(values, g: torch.Generator, nb: int, device, log: bool = False) -> torch.Tensor:

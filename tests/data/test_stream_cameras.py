@@ -269,3 +269,81 @@ def test_colour_targets_follow_the_cameras_response_before_its_pixel_optics(monk
     green, y = batch["camera_rgb"][0, 1], batch["xyz"][0, 1]
     assert float(green.max()) < 0.99  # unclipped
     torch.testing.assert_close(y * etendue / green, torch.ones_like(y), rtol=0, atol=1e-3)
+
+
+def test_a_camera_sized_to_the_scene_is_rendered_as_it_is_at_each_batch():
+    """A camera whose sensor is sized to the optical image (rows / cols None, as every shipped camera config) was
+    rendered through a view made when the stream was built: the noise switched off, a new analog gain or new optics
+    on the user's camera afterwards were ignored, unsaid (a camera with its size set followed them). Now both do,
+    and the user's own sensor keeps its size."""
+    import warnings
+
+    for sized in (False, True):
+        cam = Camera.from_config("imx363")
+        if sized:
+            cam.sensor.rows, cam.sensor.cols = 32, 32
+        stream = PairStream(2, seed=0, scene=SMALL, camera=cam, targets=("noise_free_raw",))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            noisy = stream.batch(0)
+            assert float((noisy["raw"] - noisy["noise_free_raw"]).abs().max()) > 0.02
+            cam.noise = False  # then the raw is the noise-free one's ADC codes: within half a code of 959
+            quiet = stream.batch(0)
+            assert float((quiet["raw"] - quiet["noise_free_raw"]).abs().max()) <= 0.5 / 959 + 1e-6, sized
+            cam.sensor.analog_gain = 4.0
+            assert stream.batch(0)["meta"]["analog_gain"].tolist() == [4.0, 4.0], sized
+            cam.optics = DiffractionLimitedOptics(f_number=16.0, focal_length_m=4.38e-3)
+            assert stream.batch(0)["meta"]["f_number"].tolist() == [16.0, 16.0], sized
+        assert (cam.sensor.rows, cam.sensor.cols) == ((32, 32) if sized else (None, None))
+
+
+@pytest.mark.parametrize("margin_px", [0, 2])
+def test_a_small_margin_does_not_wrap_the_blur_around(margin_px):
+    """The pairs' optics buffer their FFT by twice the margin (edge-continued); at margin_px 0 that was no buffer,
+    the blur circular: a lit left border put 47 % of its level on the raw's right border at f/8 and 1.4 um (the
+    diffraction tail there is about 1 %). The buffer is at least 16 samples: the right border's light then falls
+    off from the middle's, as at the default margin of 8."""
+    from isettorch.scene import Scene
+
+    profiles = {}
+    for m in (margin_px, 8):
+        stream = PairStream(2, scene=SMALL, camera={"margin_px": m, "f_number": [8.0], "pixel_size_m": [1.4e-6]})
+        grp = stream.draw(0)[0]
+        n = 32 + 2 * m
+        maps = torch.zeros(2, 1, n, n, dtype=grp.scene.dtype)
+        maps[..., :, :m + 4] = 1.0  # the sensor's first 4 columns lit
+        spectra = torch.full((2, 1, grp.scene.wavelengths_nm.numel()), 1e16, dtype=grp.scene.dtype)
+        scene = Scene.from_factors(maps, spectra, grp.scene.wavelengths_nm, hfov_deg=grp.scene.hfov_deg,
+                                   distance_m=grp.scene.distance_m, validate=False)
+        raw = grp.camera(scene, return_intermediates=True, noise=False, **grp.kwargs).raw
+        prof = (raw.noise_free[0, 0].double() - float(raw.black_level)).mean(0)
+        profiles[m] = prof / prof[1]
+    assert float(profiles[margin_px][-1]) < float(profiles[margin_px][16]) < 0.05
+    np.testing.assert_allclose(profiles[margin_px][8:].numpy(), profiles[8][8:].numpy(), atol=5e-3)
+
+
+def test_an_items_cfa_does_not_depend_on_its_position_in_the_batch():
+    """A part's items were placed in the order of their drawn CFAs: position i held the i-th order statistic, so a
+    batch's first item was always the first CFA and consecutive slices of a batch (what a trainer hands out) saw
+    one CFA each. Each group's outputs now go to its camera draws' positions: over 20 batches of 8 the first item
+    takes every CFA, a batch of 64 is no longer sorted, and each group still renders its items as its camera does."""
+    cams = {"cfa_patterns": ["RGGB", "GRBG", "GBRG", "BGGR"]}
+    stream = PairStream(8, seed=0, scene={"height": 16, "width": 16}, camera=cams, targets=("noise_free_raw",),
+                        parts=1)
+
+    def codes(batch):
+        return (batch["meta"]["cfa"].reshape(batch["meta"]["cfa"].shape[0], 4) == 0).float().argmax(1)
+
+    first = {int(codes(stream.batch(k))[0]) for k in range(20)}
+    assert first == {0, 1, 2, 3}  # (before: {0})
+    big = codes(PairStream(64, seed=0, scene={"height": 16, "width": 16}, camera=cams, targets=("camera_rgb",),
+                           parts=1).batch(0))
+    assert bool((big[1:] < big[:-1]).any())
+    batch = stream.batch(3)
+    assert batch["meta"]["index"].tolist() == list(range(24, 32))
+    for grp in stream.draw(3):  # the group's own camera on its scenes gives the items at the group's positions
+        raw = grp.camera(grp.scene, return_intermediates=True, **grp.kwargs).raw
+        black, white = raw.levels()
+        torch.testing.assert_close((raw.noise_free - black) / (white - black), batch["noise_free_raw"][grp.index],
+                                   rtol=2e-5, atol=2e-6)
+        assert len(set(codes(batch)[grp.index].tolist())) == 1
