@@ -49,6 +49,11 @@ SCENE_DEFAULTS: dict[str, Any] = {
     "distance_m": 1.2,
 }
 
+#: the scene keys only the layouts generator reads (the natural one takes its options from ``natural``)
+LAYOUTS_ONLY_KEYS = ("palette_size", "layouts", "reflectance_model", "pca_fraction", "illuminants", "cct_range_k",
+                     "two_light_probability", "shadow_probability", "shadow_ambient", "second_light_ratio",
+                     "hdr_decades")
+
 CAMERA_DEFAULTS: dict[str, Any] = {
     "f_number": [2.0, 2.8, 4.0, 5.6, 8.0],  # discrete stops: OTFs are cached per (stop, pixel size)
     "focal_length_m": 4e-3,
@@ -482,6 +487,16 @@ def _check_scene(scene: dict, sp: str, camera: dict | None = None) -> None:
             natural_config(dict(scene["natural"], size=max(16, h + 2 * margin, w + 2 * margin)))
         except ValueError as err:
             raise ValueError(f"{sp}.natural: {err}") from err
+    # a key the chosen generator does not read is an error, as hfov_deg is above (accepted, it changed nothing)
+    if scene["generator"] == "natural":
+        unread = [key for key in LAYOUTS_ONLY_KEYS if scene[key] != SCENE_DEFAULTS[key]]
+        if unread:
+            raise ValueError(f"{sp}.{unread[0]}: the natural generator does not read it (its options are "
+                             f"{sp}.natural: NATURAL_DEFAULTS keys), so it has no effect; remove it "
+                             f"(set: {unread})")
+    elif scene["natural"]:
+        raise ValueError(f"{sp}.natural: options of the natural generator, which {sp}.generator 'layouts' does not "
+                         f"read; set {sp}.generator: natural, or remove them (got {scene['natural']!r})")
 
 
 def _check_camera(cam: dict, cp: str) -> None:

@@ -46,6 +46,23 @@ def test_pairs_reject_a_field_of_view_they_would_ignore(hfov):
         assert "remove it" in msg
 
 
+@pytest.mark.parametrize("scene, key", [
+    ({"generator": "natural", "illuminants": {"led": 1.0}}, "scene.illuminants: the natural generator does not "),
+    ({"generator": "natural", "hdr_decades": [3.0, 3.0]}, "scene.hdr_decades: the natural generator does not "),
+    ({"generator": "natural", "palette_size": 3}, "scene.palette_size: the natural generator does not "),
+    ({"natural": {"components": {"grain": {"probability": 1.0}}}}, "scene.natural: options of the natural generator"),
+])
+def test_a_key_the_scene_generator_does_not_read_is_refused(scene, key):
+    """The layouts generator's keys with the natural generator (LED lights, 3 decades of HDR, a palette of 3) and
+    natural options with the layouts generator were accepted and changed nothing (a batch equal to the default
+    config's); refused like hfov_deg, by synth's check, the dataset and the stream alike."""
+    for msg in _pair_errors({**SMALL, **scene}, CAM):
+        assert msg.startswith(key), msg
+    ok = merge_config({"scene": {**SMALL, "generator": "natural", "natural": {"components": {"grain": {
+        "probability": 1.0}}}}})  # (what each generator reads is accepted)
+    assert ok["scene"]["natural"]["components"]["grain"]["probability"] == 1.0
+
+
 def test_pairs_accept_the_default_field_of_view_as_the_shipped_config_sets_it():
     """configs/synth/default.yaml spells out the default ``hfov_deg`` (commented "ignored by camera pairs"): it loads,
     and an item with it is bitwise the item without it."""
