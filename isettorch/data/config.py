@@ -71,8 +71,8 @@ CAMERA_DEFAULTS: dict[str, Any] = {
     "peak_qe": [0.35, 0.6],
     "cfa_patterns": ["RGGB"],  # any of RGGB, GRBG, GBRG, BGGR; one drawn per sample
     "qe_variation": 0.0,  # 0 = the nominal curves; > 0 shifts each channel by up to this many x 10 nm
-    "margin_px": 8,  # scene border beyond the sensor (blur support; the optics' buffer reaches twice as far, the
-    # scene's edge continued); 128 + 2 x 8 = 144 is an FFT-friendly size
+    "margin_px": 8,  # scene border beyond the sensor (blur support; the optics' buffer reaches twice as far, at
+    # least 16 samples, the scene's edge continued); 128 + 2 x 8 = 144 is an FFT-friendly size
     # optics: {} = diffraction-limited at the drawn f_number / focal_length_m; else a mapping for
     # isettorch.optics.factory.build_optics (e.g. {type: lens, lens: cooke_triplet}), whose own f-number and focal
     # length then replace the drawn ones (f_number / focal_length_m lists are still drawn, so other draws keep
