@@ -349,13 +349,16 @@ def band_average(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tenso
     return (primitive(hi) - primitive(lo)) / (hi - lo)
 
 
+def table_dtype(w: torch.Tensor, dtype=None) -> torch.dtype:
+    """The dtype of a table computed on grid ``w``: ``dtype``, else the grid's if floating, else torch's default;
+    float32 or float64 (:func:`~isettorch._checks.check_float_dtype`: an integer dtype truncated the tables to 0 and
+    1). The one rule of the library's spectral tables (CMFs, illuminants, filters, reflectance sets and models)."""
+    return check_float_dtype(dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype()))
+
+
 def _grid_args(wavelengths_nm, dtype, device):
     w = check_wavelengths(as_tensor(wavelengths_nm, "wavelengths_nm"))
-    if dtype is not None:  # (an integer dtype truncated the tables to 0 and 1)
-        check_float_dtype(dtype)
-    dtype = dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype())
-    device = device or w.device
-    return w, dtype, device
+    return w, table_dtype(w, dtype), device or w.device
 
 
 def cmfs(wavelengths_nm, observer: str = "1931", *, dtype=None, device=None) -> torch.Tensor:

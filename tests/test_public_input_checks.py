@@ -9,7 +9,7 @@ from isettorch import metrics, scene, spectral
 from isettorch.data import seed_for, spectra
 from isettorch.data.scenes import generate_scene
 from isettorch.io import write_image
-from isettorch.isp import ImageProcessor, demosaic, illuminant_gains, reflectance_set
+from isettorch.isp import ImageProcessor, demosaic, gray_world_gains, illuminant_gains, reflectance_set
 from isettorch.isp.demosaicing import demosaic_bilinear, demosaic_malvar2004, demosaic_menon2007
 from isettorch.optics import OpticalImage, WavefrontOptics
 from isettorch.sensor import RawImage, Sensor, filter_set, ir_cut_filter, photodiode_qe
@@ -67,6 +67,8 @@ def _oi():
      "textiles: expected True or False"),
     (lambda: write_image("/nonexistent/x.png", torch.full((3, 2, 2), 1.5), clip="no"), TypeError,
      "clip: expected True or False"),
+    (lambda: write_image("/nonexistent/x.png", torch.full((3, 2, 2), 0.5), clip="no"), TypeError,
+     "clip: expected True or False"),  # (values in range: the flag is checked all the same)
     (lambda: ImageProcessor(clip_negative_xyz="no"), TypeError, "clip_negative_xyz: expected True or False"),
     (lambda: demosaic_bilinear(torch.rand(1, 1, 4, 4), normalize_border="no"), TypeError, "normalize_border"),
     (lambda: metrics.ssim(torch.rand(1, 3, 16, 16), torch.rand(1, 3, 16, 16), return_map="no"), TypeError,
@@ -101,6 +103,8 @@ def _oi():
     (lambda: scene.macbeth(patch_size=4).to_dense()[-2], IndexError, "index: -2 is out of range"),
     (lambda: scene.macbeth(patch_size=4).mean_spectrum(slice(100, 200)), ValueError,
      "rows: slice\\(100, 200, None\\) selects no pixels"),  # (NaN)
+    (lambda: gray_world_gains(torch.rand(1, 3, 4, 4) + 0.1, no_signal="clip"), ValueError,
+     "no_signal: expected one of"),  # (a balanced image: checked all the same)
     (lambda: illuminant_gains(torch.rand(1, 3, 4, 4) + 0.1, "gray_world", gains=[1.0, 2.0, 3.0]), ValueError,
      "gains: only illuminant correction 'manual' uses gains"),  # (ignored)
     # low-level crashes

@@ -86,7 +86,7 @@ def _checked(wavelengths_nm) -> torch.Tensor:
 
 
 def _out_dtype(w: torch.Tensor) -> torch.dtype:
-    return w.dtype if w.is_floating_point() else torch.get_default_dtype()
+    return spectral.table_dtype(w)
 
 
 def _to_torch(a: np.ndarray, dtype: torch.dtype, device) -> torch.Tensor:
@@ -164,7 +164,7 @@ def reflectance_basis(wavelengths_nm, n_components: int = 8, *, dtype=None, devi
     w, key = _grid(wavelengths_nm)
     if not 1 <= n_components <= 12:
         raise ValueError(f"n_components: expected 1..12 principal components, got {n_components}")
-    dtype = check_float_dtype(dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype()))
+    dtype = spectral.table_dtype(w, dtype)
     return tuple(x.clone() for x in _pca_on_grid(int(n_components), key, dtype, str(device or w.device)))
 
 

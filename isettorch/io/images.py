@@ -354,6 +354,7 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
     from ..image import srgb_encode
 
     _check_encoding(encoding)
+    check_bool(clip, "clip")  # (clip='no' clipped; checked whatever the values, not only when they need it)
     if not isinstance(image, torch.Tensor):
         raise TypeError(f"image: expected a torch.Tensor [C, H, W] or [B, C, H, W], got {type(image).__name__}")
     x = image.detach()
@@ -377,7 +378,7 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
     x = x.to(torch.float64).cpu()
     if integer:
         lo, hi = float(x.min()), float(x.max())
-        if (lo < 0 or hi > 1) and not check_bool(clip, "clip"):  # (clip='no' clipped)
+        if (lo < 0 or hi > 1) and not clip:
             raise ValueError(f"image: values span [{lo:.4g}, {hi:.4g}], outside [0, 1] for a {bits}-bit file; scale "
                              "the image (white = 1), pass clip=True, or write a float file (EXR, 32-bit TIFF)")
         x = x.clamp(0, 1)

@@ -29,7 +29,6 @@ from .._checks import (
     as_tensor,
     check_bool,
     check_finite,
-    check_float_dtype,
     check_rank,
     check_wavelengths,
     is_real,
@@ -219,7 +218,7 @@ def reflectance_set(name: str, wavelengths_nm, *, dtype=None, device=None) -> to
     Reference: ISETCam ``imageSensorTransform`` surfaces ``'mcc'`` / ``'multisurface'``.
     """
     w = check_wavelengths(torch.as_tensor(wavelengths_nm))
-    dtype = check_float_dtype(dtype or (w.dtype if w.is_floating_point() else torch.get_default_dtype()))
+    dtype = spectral.table_dtype(w, dtype)
     key = str(name).lower()
     if key in ("macbeth", "mcc"):
         r = _macbeth_reflectances(w)
@@ -362,6 +361,7 @@ def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channe
     # of a dim scene, or one black item, failed the whole batch). An item with a channel mean <= 0 but not all
     # black (a single-hue image; a dim noisy frame, whose means above black are noise of either sign) has no
     # gray-world gain: an error, or with no_signal='white' the white's own gains too, with a warning
+    _check_no_signal(no_signal)  # (checked on every call, not only when an item needs it)
     m = means.detach()
     if not bool(torch.isfinite(m).all()):  # (a NaN or Inf pixel gave NaN gains)
         raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced, got channel means "
@@ -370,7 +370,7 @@ def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channe
     unbalanced = (m <= 0).any(dim=-1, keepdim=True) & ~black
     if bool(unbalanced.any()):
         items = unbalanced[:, 0].nonzero()[:, 0].tolist()
-        if _check_no_signal(no_signal) == "raise":
+        if no_signal == "raise":
             raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced (or the whole "
                              f"image black), got channel means {means.detach().tolist()}")
         warn_caller(f"white balance: item(s) {items} have a channel whose mean is <= 0 (no signal above black there: a "

@@ -120,6 +120,7 @@ def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
     """
     from kornia.metrics import ssim as kornia_ssim
 
+    check_bool(return_map, "return_map")
     if isinstance(window_size, bool) or not isinstance(window_size, int) or window_size < 1 or window_size % 2 == 0:
         raise ValueError(f"window_size: expected an odd number of pixels >= 1, got {window_size!r}")
     a, b = _pair(image, target, crop, data_range)
@@ -133,7 +134,7 @@ def ssim(image: torch.Tensor, target: torch.Tensor, data_range: float | None = N
     # for data_range below ~1e-2 (identical images scored 0.075 at data_range 1e-3); C1, C2 > 0 keep it positive
     m = kornia_ssim(a, b, window_size, max_val=_data_range(data_range, image, b), eps=0.0,
                     padding="valid")
-    if check_bool(return_map, "return_map"):
+    if return_map:
         return m[0] if squeeze else m
     out = m.mean(dim=(-3, -2, -1))
     return out[0] if squeeze else out
