@@ -42,7 +42,8 @@ def psf(optics, wavelengths_nm, spacing_m: float, size: int = 64, **otf_kwargs) 
     The origin is sample ``(size // 2, size // 2)``. Computed as the inverse DFT of the OTF on the matching
     frequency grid, so it is the PSF periodised with period ``size * spacing_m`` (choose it wide enough).
     ``otf_kwargs``: passed to ``optics.otf`` (e.g. :class:`~isettorch.optics.WavefrontOptics`'
-    ``extra_defocus_diopters``).
+    ``extra_defocus_diopters``). The lens focused at infinity: focused at an object distance, a pupil-limited
+    lens (``optics.blur_at_image_distance``) has this PSF magnified by ``d_i / f`` (its working f-number).
     """
     _check_grid(spacing_m, size)
     w, n = _prep(optics, wavelengths_nm)
@@ -54,7 +55,8 @@ def psf(optics, wavelengths_nm, spacing_m: float, size: int = 64, **otf_kwargs) 
 
 
 def mtf(optics, wavelengths_nm, frequencies_cpm, axis: str = "x") -> torch.Tensor:
-    """Modulation transfer ``|OTF|`` ``[B, L, F]`` at ``frequencies_cpm`` (cycles/m) along ``axis`` ('x' or 'y')."""
+    """Modulation transfer ``|OTF|`` ``[B, L, F]`` at ``frequencies_cpm`` (cycles/m) along ``axis`` ('x' or 'y'),
+    the lens focused at infinity (as :func:`psf`)."""
     w, n = _prep(optics, wavelengths_nm)
     fr = as_tensor(frequencies_cpm, "frequencies_cpm", dtype=w.dtype).reshape(1, -1)
     check_finite(fr, "frequencies_cpm")  # (NaN gave an MTF of NaN)

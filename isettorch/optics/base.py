@@ -195,6 +195,20 @@ class ShiftInvariantLens(nn.Module):
     def _otf_key(self) -> tuple:
         return ()
 
+    # True when the blur is the pupil's (diffraction, aberrations given on the pupil): :meth:`otf`,
+    # :meth:`psf_margin_m` and :meth:`blur_negligible` then describe the lens focused at infinity, and a lens
+    # focused at a finite distance has that PSF magnified by d_i / f (the converging wave's radius is the exit
+    # pupil-to-image distance, d_i for a thin lens, not f: the incoherent cutoff is D / (lambda d_i) =
+    # 1 / (lambda N (1 + |m|)), the working f-number; Goodman, Introduction to Fourier Optics, 3rd ed., 6.3.2,
+    # the cutoff 2 w / (lambda z_i)). False for a PSF given on the image plane as it is (a measured PSF).
+    blur_at_image_distance = False
+
+    def _blur_spacing(self, dx: torch.Tensor, f: torch.Tensor, d_i: torch.Tensor) -> torch.Tensor:
+        """The sample spacing at which the infinity-focused blur (:meth:`otf`, :meth:`psf_margin_m`,
+        :meth:`blur_negligible`) is evaluated: ``dx f / d_i`` when :attr:`blur_at_image_distance` (the OTF at
+        frequency ``nu`` of a lens focused at ``d_i`` is the infinity OTF at ``nu d_i / f``), else ``dx``."""
+        return dx * (f / d_i) if self.blur_at_image_distance else dx
+
     # --- shared ---------------------------------------------------------------------------------------
     def batch_f_number(self, batch: int, dtype, device) -> torch.Tensor:
         n = batch_param(self.f_number.to(dtype=dtype, device=device), "f_number", batch, dtype=dtype, device=device,
@@ -325,16 +339,17 @@ class ShiftInvariantLens(nn.Module):
         needs this much of the scene beyond it, which ``forward`` takes care of).
         """
         h, w = scene.height, scene.width
-        (_, _, _, n, _, d_i, dx), derived = self._geometry_entry(scene)
+        (_, _, _, n, f, d_i, dx), derived = self._geometry_entry(scene)
         hit = derived.get("plan")
         if hit is not None:
             return dict(hit)
         wave = scene.wavelengths_nm
-        if self._negligible(derived, dx, wave, n):
+        dxb = self._blur_spacing(dx, f, d_i)
+        if self._negligible(derived, dxb, wave, n):
             margin = 0 if self.margin is None else self.margin
             pr = pc = margin
         else:
-            margin = self._margin(derived, (h, w), dx, wave, n)
+            margin = self._margin(derived, (h, w), dxb, wave, n)
             pr, pc = full_padding(h, margin), full_padding(w, margin)
         out = derived["plan"] = {"full_shape": (h + 2 * pr, w + 2 * pc), "pad": (pr, pc), "sample_spacing_m": dx,
                                  "image_distance_m": d_i, "margin": margin}
@@ -435,13 +450,14 @@ class ShiftInvariantLens(nn.Module):
         spectra = spectra * k.reshape(-1, 1, 1)
         if t is not None:
             spectra = spectra * t.to(device=spectra.device).reshape(1, 1, -1)
-        negligible = self._negligible(derived, dx, wave, n)
+        dxb = self._blur_spacing(dx, f, d_i)
+        negligible = self._negligible(derived, dxb, wave, n)
         terms = scene.factors.terms
         if not negligible and self._by_used_terms(maps, ri, terms):
             # on CPU each item's used maps only, weighted, padded and transformed (the rest of its spectra are 0)
-            margin = self._margin(derived, (h, w), dx, wave, n)
+            margin = self._margin(derived, (h, w), dxb, wave, n)
             spec, (my, mx), (pr, pc), window = self._used_term_spectra(maps, ri, terms, margin, crop)
-            otf, inter = self._factored_otf(derived, my, mx, maps.dtype, maps.device, wave, n, dx)
+            otf, inter = self._factored_otf(derived, my, mx, maps.dtype, maps.device, wave, n, dxb)
             factors = FourierFactors(spec, spectra, inter, (my, mx), window,
                                      None if otf is None or otf.is_complex() else otf, terms=terms)
             return self._oi(None, factors, wave, dx, n, f, d_i, crop, h, w, pr, pc, scene.name, derived)
@@ -456,10 +472,10 @@ class ShiftInvariantLens(nn.Module):
             out, pr, pc = self._extend_unblurred(maps, crop)
             factors = SpectralFactors(out, spectra, validate=False, terms=scene.factors.terms)
         else:
-            margin = self._margin(derived, (h, w), dx, wave, n)
+            margin = self._margin(derived, (h, w), dxb, wave, n)
             buf, (pr, pc), window = fft_buffer(maps, (margin, margin), self.pad_mode, window=crop)
             my, mx = buf.shape[-2:]
-            otf, inter = self._factored_otf(derived, my, mx, buf.dtype, buf.device, wave, n, dx)
+            otf, inter = self._factored_otf(derived, my, mx, buf.dtype, buf.device, wave, n, dxb)
             if (terms is None or len(terms) == 1 or not per_item_products(buf.device)
                     or records_grad(buf)):
                 spec, terms = torch.fft.rfft2(buf), None  # (on an accelerator the padded batch in one launch)
@@ -559,10 +575,11 @@ class ShiftInvariantLens(nn.Module):
 
     def _blur_to_oi(self, irr, wave, dx, n, f, d_i, crop, name=""):
         h, w = irr.shape[-2:]
-        if self.blur_negligible(dx, wave, n):
+        dxb = self._blur_spacing(dx, f, d_i)
+        if self.blur_negligible(dxb, wave, n):
             out, pr, pc = self._extend_unblurred(irr, crop)
         else:
-            margin = self.margin_samples((h, w), dx, wave, n)
-            out, (pr, pc) = blur_fft(irr, self._otf_fn(wave, n, dx), dx, (margin, margin), self.pad_mode,
+            margin = self.margin_samples((h, w), dxb, wave, n)
+            out, (pr, pc) = blur_fft(irr, self._otf_fn(wave, n, dxb), dxb, (margin, margin), self.pad_mode,
                                      window=crop)
         return self._oi(out, None, wave, dx, n, f, d_i, crop, h, w, pr, pc, name)

@@ -76,16 +76,18 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
             the sensor projects it on its QE (K inverse FFTs, not L); ``.photons`` gives the dense cube.
         Other arguments: see :class:`~isettorch.optics.base.ShiftInvariantLens`.
 
-    The default (physically sound) mode uses the thin-lens image distance everywhere (sample spacing, cos^4),
-    the textbook FFT frequency grid, no ``abs``, and pads by ``2 lambda_max N / (pi^3 tol)`` (the distance
-    beyond which the diffraction line-spread function holds less than ``tol`` of its energy; its tail is
-    ``2 lambda N / (pi^3 a)``, from the MTF's slope ``-4/pi`` at 0). Measured against ISETCam on the Macbeth case
-    (64x96x31, f/4, f = 3.86 mm, 1.2 m; ``tests/optics/test_isetcam_parity.py``): both give the same sample
-    spacing (ISETCam computes cos4th and the OTF with ``d = f`` but returns the thin-lens spacing, 0.32 %
-    larger, which is the one used here throughout); over the scene region, at pixels above 1 % of the max,
-    the irradiance differs by median 0.082 %, max 1.13 %. The cos^4 law vs ISETCam's finite-aperture formula
-    accounts for < 0.01 % of that; the rest is the blur near strong edges and the image border (ISETCam's
-    circular convolution over a ``size/8`` pad, its grids and cutoff in cycles/deg, ``abs``).
+    The default (physically sound) mode uses the thin-lens image distance everywhere (sample spacing, cos^4, and the
+    diffraction cutoff ``1 / (lambda N d_i / f)``, the working f-number: Goodman 6.3.2; ISETCam's uses ``N``, 0.32 %
+    apart on its Macbeth case), the textbook FFT frequency grid, no ``abs``, and pads by ``2 lambda_max N / (pi^3
+    tol)`` (the distance beyond which the diffraction line-spread function holds less than ``tol`` of its energy;
+    its tail is ``2 lambda N / (pi^3 a)``, from the MTF's slope ``-4/pi`` at 0). Measured against ISETCam on the
+    Macbeth case (64x96x31, f/4, f = 3.86 mm, 1.2 m; ``tests/optics/test_isetcam_parity.py``): both give the same
+    sample spacing (ISETCam computes cos4th and the OTF with ``d = f`` but returns the thin-lens spacing, 0.32 %
+    larger, which is the one used here throughout); over the scene region, at pixels above 1 % of the max, the
+    irradiance differs by median 0.081 %, max 1.17 % (0.082 % and 1.13 % with ISETCam's cutoff, at N). The cos^4 law
+    vs ISETCam's finite-aperture formula accounts for < 0.01 % of that; the rest is the blur near strong edges and
+    the image border (ISETCam's circular convolution over a ``size/8`` pad, its grids and cutoff in cycles/deg,
+    ``abs``).
 
     Example:
         >>> optics = DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3)
@@ -112,6 +114,7 @@ class DiffractionLimitedOptics(ShiftInvariantLens):
         super().__init__(f_number, focal_length_m, transmittance, transmittance_wavelengths_nm, **kwargs)
 
     otf_rows_independent = True  # the OTF of item b depends only on its frequencies and f-number
+    blur_at_image_distance = True  # a pupil's diffraction: cutoff 1 / (lambda N (1 + |m|)) at a finite distance
 
     def otf(self, fy, fx, wavelengths_nm, f_number):
         return dl_otf(fy, fx, wavelengths_nm, f_number)

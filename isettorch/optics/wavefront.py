@@ -196,6 +196,8 @@ class WavefrontOptics(ShiftInvariantLens):
         self.register_buffer("basis", basis)
         self._grids: dict = {}
 
+    blur_at_image_distance = True  # the pupil's wavefront: its PSF scales with the image distance
+
     def _otf_key(self) -> tuple:
         return (tuple(self.zernike_um.detach().reshape(-1).tolist()), tuple(self.defocus_diopters.reshape(-1).tolist()),
                 self.pupil_samples, self.max_pupil_samples, self.max_step_waves,

@@ -30,13 +30,15 @@ def _camera(**sensor) -> Camera:
 
 # Three readouts whose signal-independent noise differs in kind (electrons at the pixel; ``ae_target`` puts the mean
 # signal at a fraction of the swing, where shot noise and the floor are of one order):
-# * volts (no ADC): read 30 e- and DSNU 20 e-, no quantisation;
+# * volts (no ADC): read 30 e- and DSNU 20 e-, no quantisation, a 0.05 V analog offset (the dimmest channel's
+#   mean is 2.6 read-noise sigmas above 0 V in some draws: without the pedestal a pixel clipped at 0 V);
 # * DN (10 bits, black level 64; IMX363-like 0.48 V swing, 80 uV/e-: 5.9 e- per DN): read 6 e-, DSNU 2 e-, and the
 #   rounding to whole DN (1/12 DN^2);
 # * CDS (Farrell et al. 2004's sensor, preset iset2004_cds): read 50 e- sampled twice (reset and signal), DSNU 2 mV
 #   (133 e-) cancelled.
 SENSORS = {
-    "volts": dict(conversion_gain_v_per_e=1e-4, read_noise_v=3e-3, dsnu_sigma_v=2e-3, ae_target=0.2),
+    "volts": dict(conversion_gain_v_per_e=1e-4, read_noise_v=3e-3, dsnu_sigma_v=2e-3, ae_target=0.2,
+                  analog_offset_v=0.05),
     "dn": dict(conversion_gain_v_per_e=8e-5, voltage_swing_v=0.48, adc_bits=10, black_level_dn=64.0,
                read_noise_v=6 * 8e-5, dsnu_sigma_v=2 * 8e-5, ae_target=0.05),
 }
@@ -77,10 +79,12 @@ def test_noise_metadata_is_the_measured_noise_of_the_sensor(kind):
         want = torch.full((8,), 2 * (50 * 15e-6) ** 2, dtype=torch.float64)
         torch.testing.assert_close(meta["noise_floor_var"].double(), want, rtol=1e-6, atol=0)
     # the coefficients from the sensor's parameters (Foi et al. 2008 in normalised units, unit gain): volts, a 1 V
-    # swing: a = cg, b = read^2 + DSNU^2; DN, K = cg / (swing / 2^10) DN per electron over span = 1023 - 64 DN:
-    # a = K / span, b = (K^2 (6^2 + 2^2) e^2 + 1/12 DN^2) / span^2
+    # swing above a 0.05 V offset, span 0.95 V: a = cg / span, b = (read^2 + DSNU^2) / span^2; DN,
+    # K = cg / (swing / 2^10) DN per electron over span = 1023 - 64 DN: a = K / span,
+    # b = (K^2 (6^2 + 2^2) e^2 + 1/12 DN^2) / span^2
     k_dn = 8e-5 / (0.48 / 1024)
-    want_ab = {"volts": (1e-4, 3e-3**2 + 2e-3**2), "dn": (k_dn / 959, (k_dn**2 * 40 + 1 / 12) / 959**2)}.get(kind)
+    want_ab = {"volts": (1e-4 / 0.95, (3e-3**2 + 2e-3**2) / 0.95**2),
+               "dn": (k_dn / 959, (k_dn**2 * 40 + 1 / 12) / 959**2)}.get(kind)
     if want_ab is not None:
         torch.testing.assert_close(meta["analog_gain"].double(), torch.ones(8, dtype=torch.float64))
         for key, want in zip(("noise_gain", "noise_floor_var"), want_ab, strict=True):

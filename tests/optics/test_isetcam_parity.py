@@ -78,7 +78,7 @@ def test_module_isetcam_mode_and_default_difference(case):
     b = ref[:, rr:rr + h, rc:rc + w]
     m = b > 0.01 * b.max()
     rel = np.abs(a / b - 1)[m]
-    assert np.median(rel) < 2e-3 and rel.max() < 2e-2  # measured: median 8.2e-4, max 1.13e-2
+    assert np.median(rel) < 2e-3 and rel.max() < 2e-2  # measured: median 8.1e-4, max 1.17e-2
 
 
 def test_unit_frequency_list_and_pads():

@@ -52,6 +52,33 @@ def test_zero_coefficients_match_diffraction_limit():
         assert ((a - b).abs().amax(dim=(-2, -1)) / b.amax(dim=(-2, -1))).max() < 1e-3
 
 
+@pytest.mark.parametrize("dense", [True, False])
+def test_zero_coefficients_match_diffraction_limit_at_a_finite_distance(dense):
+    # Both blurs are the pupil's, so a lens focused at 12 mm (d_i = 1.5 f) works at 1.5 N in both (Goodman 6.3.2);
+    # the same in a factored scene's Fourier-domain path (dense False) as in the dense one.
+    torch.manual_seed(0)
+    wave = torch.tensor([450.0, 650.0], dtype=torch.float64)
+    maps = torch.rand(1, 2, 40, 40, dtype=torch.float64)
+    spectra = torch.tensor([[[1.0, 0.3], [0.2, 1.0]]], dtype=torch.float64)
+    scene = Scene.from_factors(maps, spectra, wave, hfov_deg=1.0, distance_m=12e-3)
+    if dense:
+        scene = Scene(scene.photons, wave, hfov_deg=1.0, distance_m=12e-3)
+    wf = WavefrontOptics(torch.zeros(15), f_number=N, focal_length_m=F, pupil_samples=64,
+                         relative_illumination=None)
+    dl = DiffractionLimitedOptics(N, F, relative_illumination=None)
+    wider = DiffractionLimitedOptics(1.5 * N, F, relative_illumination=None)  # the working f-number, far away
+    a, b = wf(scene).photons, dl(scene).photons
+    assert ((a - b).abs().max() / b.max()).item() < 2e-3
+    # far away, on the same image-plane grid (the field 1.5 times as wide at d_i = f): the same blur, up to the
+    # camera equation's constant factor
+    far = Scene(scene.photons, wave, hfov_deg=2 * math.degrees(math.atan(1.5 * math.tan(math.radians(0.5)))),
+                distance_m=1e9)
+    oc = wider(far)
+    torch.testing.assert_close(oc.sample_spacing_m, dl(scene).sample_spacing_m, rtol=1e-8, atol=0)
+    c = oc.photons * (b.sum() / oc.photons.sum())
+    assert ((b - c).abs().max() / b.max()).item() < 1e-6
+
+
 def _fraunhofer_profile(c4_um, r_m):
     """Independent reference: PSF(r) / PSF_DL(0) = |int_0^1 exp(i 2 pi W / lambda) J0(pi r rho / (lambda N)) 2 rho
     d rho|^2 for the rotationally symmetric pupil with W = c4 sqrt(3)(2 rho^2 - 1) (Born & Wolf 8.8)."""
