@@ -26,6 +26,7 @@ import torch
 
 from .. import constants, spectral
 from .._checks import check_nanometres, check_wavelengths, narrow_float
+from .._files import Outputs
 
 __all__ = ["write_spectral_exr", "read_spectral_exr", "write_scene_exr", "read_scene_exr", "channel_name",
            "parse_channel_name"]
@@ -98,8 +99,25 @@ def write_spectral_exr(path, data, wavelengths_nm, *, component: str = "S0", att
         header["emissiveUnits"] = EMISSIVE_UNITS
     header.update(attributes or {})
     p = Path(path)
-    OpenEXR.File(header, {n: a[i] for i, n in enumerate(names)}).write(str(p))
+    with Outputs() as staged:  # under a temporary name, moved into place when whole (a failure leaves none)
+        OpenEXR.File(header, {n: a[i] for i, n in enumerate(names)}).write(str(staged.temporary(p)))
     return p
+
+
+def _exr_channels(p: Path) -> tuple[dict, dict[str, np.ndarray]]:
+    """An OpenEXR file's header and its channels, each under its own name (half and float as stored, UINT as
+    float64: exact, where float32 holds integers exactly only to 2^24). Opened with ``separate_channels``: the
+    package's default groups R, G, B(, A) into one array and refused a file mixing half and float channels
+    ("cannot coalesce"). An unreadable file raises a ValueError naming it."""
+    import OpenEXR
+
+    try:
+        f = OpenEXR.File(str(p), separate_channels=True)
+        header = dict(f.header())
+        chans = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
+    except Exception as err:  # OpenEXR raises RuntimeError / others for corrupt or truncated files
+        raise ValueError(f"path: {str(p)!r} is not a readable OpenEXR file ({err})") from err
+    return header, {k: a.astype(np.float64) if a.dtype.kind in "ui" else a for k, a in chans.items()}
 
 
 def read_spectral_exr(path) -> tuple[torch.Tensor, torch.Tensor, dict]:
@@ -108,17 +126,10 @@ def read_spectral_exr(path) -> tuple[torch.Tensor, torch.Tensor, dict]:
     Emissive (``S0``) channels are returned when present, else reflective (``T``) ones; bands are sorted by
     wavelength. Raises ValueError for unreadable files and files without spectral channels.
     """
-    import OpenEXR
-
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"path: no such file {str(p)!r}")
-    try:
-        f = OpenEXR.File(str(p))
-        header = dict(f.header())
-        chans = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
-    except Exception as err:  # OpenEXR raises RuntimeError / others for corrupt or truncated files
-        raise ValueError(f"path: {str(p)!r} is not a readable OpenEXR file ({err})") from err
+    header, chans = _exr_channels(p)
     parsed = {}
     for name in chans:
         r = parse_channel_name(name)

@@ -24,6 +24,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._files import Outputs
+
 __all__ = ["Capture", "FrameData", "read_capture", "read_frame", "read_frame_data", "write_frame", "FRAME_SUFFIXES",
            "RAW_SUFFIXES"]
 
@@ -160,21 +162,21 @@ def write_frame(path: str | Path, frame) -> None:
     if arr.ndim != 2 or arr.size == 0 or not (np.issubdtype(arr.dtype, np.number) and not np.iscomplexobj(arr)):
         raise ValueError(f"frame: expected a non-empty 2-D array of real numbers (one frame in DN), got "
                          f"{arr.dtype} of shape {arr.shape}")
-    if suffix == ".npy":
-        with open(path, "wb") as f:  # (np.save adds '.npy' to a name that does not end in it: 'UP.NPY.npy')
-            np.save(f, arr, allow_pickle=False)
-        return
-    if arr.min() < 0 or arr.max() > 65535 or not np.array_equal(arr, np.round(arr)):
+    if suffix != ".npy" and (arr.min() < 0 or arr.max() > 65535 or not np.array_equal(arr, np.round(arr))):
         raise ValueError(f"frame: a 16-bit {suffix} needs integers in 0..65535, got {arr.min()}..{arr.max()}")
-    arr16 = arr.astype(np.uint16)
-    if suffix == ".png":
-        from PIL import Image
+    with Outputs() as staged:  # under a temporary name, moved into place when whole (a failure leaves none)
+        tmp = staged.temporary(path)
+        if suffix == ".npy":
+            with open(tmp, "wb") as f:  # (np.save adds '.npy' to a name that does not end in it: 'UP.NPY.npy')
+                np.save(f, arr, allow_pickle=False)
+        elif suffix == ".png":
+            from PIL import Image
 
-        Image.fromarray(arr16).save(path)
-    else:
-        import tifffile
+            Image.fromarray(arr.astype(np.uint16)).save(tmp)
+        else:
+            import tifffile
 
-        tifffile.imwrite(path, arr16)
+            tifffile.imwrite(tmp, arr.astype(np.uint16))
 
 
 def _read_yaml(path: Path) -> dict:

@@ -50,7 +50,7 @@ def _radiance_scene(energy: np.ndarray, wave: np.ndarray, name: str, source: str
 def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0,
               dtype=torch.float32):
     """Read a CAVE scene folder (PNG per band) as a `Scene` lit by ``illuminant``."""
-    from PIL import Image
+    from .images import _read_png
 
     root = Path(folder)
     if not root.is_dir():
@@ -64,19 +64,13 @@ def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float = 10.0, mean_l
                          f"{numbers}")
     bands = []
     for _, f in files:
-        try:
-            with Image.open(f) as im:
-                im.load()
-                mode = im.mode
-                a = np.asarray(im)
-        except Exception as err:
+        try:  # pypng, at the file's bit depth: Pillow read a 16-bit RGB(A) band as 8-bit (code 200 became 0)
+            a = _read_png(f)[0]
+        except (ValueError, OSError) as err:
             raise ValueError(f"{str(f)!r}: not a readable PNG ({type(err).__name__}: {err})") from err
-        if a.ndim == 3:  # a few CAVE bands are stored as RGB(A); the channels are equal
-            a = a[..., 0]
-        # the file's bit depth (its PIL mode: 16-bit grey is I;16, or I in older Pillow), not the data's maximum (a
-        # dark 16-bit band read as 8-bit was 257x too bright)
-        scale = 65535.0 if mode.startswith("I") else 255.0
-        bands.append(a.astype(np.float64) / scale)
+        a = a[..., 0]  # grey; a few CAVE bands are stored as RGB(A), whose channels are equal
+        # the file's bit depth, not the data's maximum (a dark 16-bit band read as 8-bit was 257x too bright)
+        bands.append(a.astype(np.float64) / (65535.0 if a.dtype == np.uint16 else 255.0))
     shapes = {b.shape for b in bands}
     if len(shapes) != 1:
         raise ValueError(f"folder: CAVE bands differ in size: {sorted(shapes)}")
@@ -95,17 +89,12 @@ _KAIST_NAME = re.compile(r"^w?(\d+(?:[.,]\d+)?)(?:nm)?$", re.IGNORECASE)
 
 def load_kaist(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
     """Read a KAIST hyperspectral EXR (one channel per band, wavelength in the channel name) as a `Scene`."""
-    import OpenEXR
-
-    from .exr import parse_channel_name
+    from .exr import _exr_channels, parse_channel_name
 
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"path: no such file {str(p)!r}")
-    try:
-        chans = {k: np.asarray(v.pixels) for k, v in OpenEXR.File(str(p)).channels().items()}
-    except Exception as err:
-        raise ValueError(f"path: {str(p)!r} is not a readable OpenEXR file ({err})") from err
+    chans = _exr_channels(p)[1]
     bands = []
     for name, a in chans.items():
         fichet = parse_channel_name(name)

@@ -1,4 +1,5 @@
-"""Reading and writing users' RGB images: PNG (8/16-bit), TIFF (8/16-bit, float32) and OpenEXR (float); and
+"""Reading and writing users' RGB images: PNG (8/16-bit), TIFF (8/16-bit, float32; float16/64 read too) and
+OpenEXR (float); and
 :func:`read_rgb8`, the 8-bit code values of a photograph (PNG, TIFF, JPEG, BMP, WebP, GIF, PPM/PGM or TGA) as the
 benchmarks and the photo lifter read them.
 
@@ -11,7 +12,9 @@ Value conventions (what a tensor holds, what a file holds):
   decoded (PNG specification, 12.2; it was, so a linear 0.5 was stored as code 188).
 - Integer files (PNG, 8/16-bit TIFF) hold **sRGB-encoded** code values, the convention of every viewer:
   reading decodes them with the IEC 61966-2-1 sRGB curve (``encoding="linear"`` returns the code values
-  / (2^bits - 1) unchanged instead, e.g. for data already linear such as raw mosaics); writing encodes.
+  / (2^bits - 1) unchanged instead, e.g. for data already linear such as raw mosaics); writing encodes. A PNG's
+  own gAMA chunk is honoured (1.0: linear samples); one tagged with other colours than sRGB's (an ICC profile,
+  cHRM) raises rather than being decoded as sRGB.
 - Float files (EXR, float32 TIFF) are **linear** (scene-referred, no encoding) in both directions.
 
 Nothing is clipped silently: writing values outside [0, 1] to an integer file raises unless ``clip=True``.
@@ -28,6 +31,7 @@ import numpy as np
 import torch
 
 from .._checks import check_bool, narrow_float
+from .._files import Outputs
 
 __all__ = ["read_image", "write_image", "read_rgb8", "rgb8_to_tensor", "photo_files", "non_srgb_profile",
            "IMAGE_SUFFIXES", "PHOTO_SUFFIXES", "UNREAD_IMAGE_SUFFIXES"]
@@ -224,13 +228,16 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
     kind = _kind(p)
     if not p.is_file():
         raise FileNotFoundError(f"path: no such file {str(p)!r}")
+    exponent = None  # decoded with the sRGB curve, or code ^ exponent (a PNG's gAMA)
     if kind == "exr":
         a = _read_exr(p)
     else:
         try:
-            a, orientation = _read_png(p) if kind == "png" else _read_tiff(p)
+            a, orientation, *colour = _read_png(p) if kind == "png" else _read_tiff(p)
         except (ValueError, OSError) as err:
             raise ValueError(f"path: {str(p)!r} is not a readable {kind.upper()} image ({err})") from err
+        if colour and encoding == "srgb":
+            exponent = _png_decode_exponent(p, colour[0])
         if a.ndim in (2, 3) and orientation in _ORIENT:
             a = _ORIENT[orientation](a)
     if a.ndim == 2:
@@ -242,8 +249,9 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
         bits = 8 * a.dtype.itemsize
         t = t.to(torch.float64) / (2**bits - 1)
         if encoding == "srgb":  # the colour channels; an alpha channel (the last of 2 or 4) is linear coverage
-            colour = t.shape[1] - (1 if t.shape[1] in (2, 4) else 0)
-            t = torch.cat([srgb_decode(t[:, :colour]), t[:, colour:]], dim=1)
+            c = t.shape[1] - (1 if t.shape[1] in (2, 4) else 0)
+            decoded = srgb_decode(t[:, :c]) if exponent is None else t[:, :c] ** exponent
+            t = torch.cat([decoded, t[:, c:]], dim=1)
     elif a.dtype.kind == "f":
         t = t.to(torch.float64)
         if not torch.isfinite(t).all():
@@ -251,40 +259,84 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
     else:
         raise ValueError(f"path: {str(p)!r}: unsupported sample type {a.dtype}")
     out = t.to(dtype)
-    if dtype.itemsize < 4 and not bool(torch.isfinite(out).all()):  # (an EXR's 1e5 read as float16 was inf)
+    if dtype.itemsize < 8 and not bool(torch.isfinite(out).all()):  # (an EXR's 1e5 read as float16 was inf)
         raise ValueError(f"dtype: {str(p)!r} holds values up to {float(t.abs().max()):.6g}, beyond {dtype}'s "
                          f"range (max {torch.finfo(dtype).max:g}); read it as torch.float32")
     return out
 
 
-def _read_png(p: Path) -> tuple[np.ndarray, int | None]:
-    """The samples ``[H, W, C]`` (uint8 or uint16) and the EXIF orientation (None without one)."""
+def _read_png(p: Path) -> tuple[np.ndarray, int | None, dict]:
+    """The samples ``[H, W, C]`` (uint8 or uint16), the EXIF orientation (None without one) and the colour chunks
+    Pillow reads (:func:`_png_info`)."""
     import png  # pypng: 16-bit RGB, which Pillow reads as 8-bit
 
     try:
-        reader = png.Reader(filename=str(p))
-        reader.preamble()
-        reader.sbit = None  # asDirect would shift the samples down to the sBIT depth (a 12-bit file's white: 4095)
-        w, h, rows, info = reader.asDirect()  # palette and transparency expanded
-        planes = info["planes"]
-        a = np.vstack([np.asarray(r, dtype=np.uint16 if info["bitdepth"] > 8 else np.uint8) for r in rows])
+        with open(p, "rb") as fh:  # (Reader(filename=) left the file open until the reader was collected)
+            reader = png.Reader(file=fh)
+            reader.preamble()
+            reader.sbit = None  # asDirect would shift the samples down to the sBIT depth (a 12-bit file's white: 4095)
+            w, h, rows, info = reader.asDirect()  # palette and transparency expanded
+            planes = info["planes"]
+            a = np.vstack([np.asarray(r, dtype=np.uint16 if info["bitdepth"] > 8 else np.uint8) for r in rows])
     except (png.Error, EOFError) as err:  # (an empty file: EOFError, which named no path)
         raise ValueError(str(err) or type(err).__name__) from err
     a = a.reshape(h, w, planes)
     if info["bitdepth"] not in (8, 16):  # 1, 2, 4 bit gray: rescale to 8 bits (PNG 1.2, 12.5: code * 255 / max)
         a = np.round(a.astype(np.float64) * 255 / (2 ** info["bitdepth"] - 1)).astype(np.uint8)
-    return a, _png_orientation(p)
+    return (a, *_png_info(p))
 
 
-def _png_orientation(p: Path) -> int | None:
-    """A PNG's EXIF orientation (its eXIf chunk, read by Pillow), or None."""
-    from PIL import Image
+def _png_info(p: Path) -> tuple[int | None, dict]:
+    """A PNG's EXIF orientation (its eXIf chunk, or None) and its colour chunks as Pillow reads them:
+    ``srgb`` (sRGB), ``icc_profile`` (iCCP), ``chromaticity`` (cHRM: white, red, green, blue x, y) and ``gamma``
+    (gAMA)."""
+    from PIL import PngImagePlugin
 
-    try:
-        with Image.open(p) as im:
-            return im.getexif().get(0x0112)
-    except Exception:  # an EXIF block Pillow cannot parse: no orientation, as read_rgb8 then shows the rows stored
+    # the header only, by the PNG plugin itself: Image.open refuses a file over twice its pixel limit
+    # (DecompressionBombError), which pypng reads
+    with PngImagePlugin.PngImageFile(p) as im:
+        colour = {k: im.info[k] for k in ("srgb", "icc_profile", "chromaticity", "gamma") if k in im.info}
+        try:
+            return im.getexif().get(0x0112), colour
+        except Exception:  # an EXIF block Pillow cannot parse: no orientation, as read_rgb8 then shows the stored rows
+            return None, colour
+
+
+#: gAMA 0.45455, the value sRGB files carry (PNG 3rd ed., 11.3.3.5): decoded with the sRGB curve
+_SRGB_PNG_GAMMA = 0.45455
+
+
+def _png_decode_exponent(p: Path, colour: dict) -> float | None:
+    """How a PNG's code values decode to linear light: None for the sRGB curve (an sRGB chunk, an sRGB ICC profile,
+    a gAMA of 0.45455 or no colour chunk: the convention of every viewer), else the exponent ``1 / gamma`` of its
+    gAMA chunk (PNG 3rd ed., 11.3.3.2 and 13.13: linear = code ^ (1 / gamma); a gamma of 1 is linear). The sRGB
+    chunk, then an ICC profile, take precedence over gAMA and cHRM (11.3.3.5). Colours other than sRGB's (a
+    non-sRGB ICC profile, cHRM primaries or white beyond 0.001 of sRGB's) raise: decoding them with the sRGB
+    curve and matrix would give wrong linear values, unsaid."""
+    from ..image import D65_XY, SRGB_PRIMARIES_XY
+
+    if "srgb" in colour:
         return None
+    if "icc_profile" in colour:
+        name = non_srgb_profile(p)
+        if name is not None:
+            raise ValueError(f"path: {str(p)!r} carries the ICC profile {name!r}, not sRGB; read it with "
+                             f"encoding='linear' (its code values) and convert them with that profile, or save the "
+                             f"image as sRGB")
+        return None
+    chrm = colour.get("chromaticity")
+    if chrm is not None:
+        want = (*D65_XY, *(v for xy in SRGB_PRIMARIES_XY for v in xy))
+        if max(abs(float(a) - b) for a, b in zip(chrm, want, strict=True)) > 1e-3:
+            raise ValueError(f"path: {str(p)!r} has cHRM chromaticities {tuple(round(float(v), 4) for v in chrm)} "
+                             f"(white, red, green, blue x, y), not sRGB's {want}; read it with encoding='linear' "
+                             f"and convert its colours, or save the image as sRGB")
+    gamma = colour.get("gamma")
+    if gamma is None or abs(float(gamma) - _SRGB_PNG_GAMMA) <= 1e-5:
+        return None
+    if not float(gamma) > 0:
+        raise ValueError(f"path: {str(p)!r} has a gAMA of {gamma!r}; expected a positive gamma")
+    return 1.0 / float(gamma)
 
 
 def _read_tiff(p: Path, photometric: tuple[str, ...] = _TIFF_PHOTOMETRIC) -> tuple[np.ndarray, int]:
@@ -310,27 +362,22 @@ def _read_tiff(p: Path, photometric: tuple[str, ...] = _TIFF_PHOTOMETRIC) -> tup
                          f"(pages, planes or depth); save each image as its own file")
     if "S" in axes:
         a = np.moveaxis(a, axes.index("S"), -1)
-    if a.dtype == np.float16 or a.dtype == np.float64:
+    if a.dtype == np.float16:
         a = a.astype(np.float32)
-    if a.dtype not in (np.uint8, np.uint16, np.float32):
-        raise ValueError(f"expected uint8, uint16 or float32 samples, got {a.dtype}")
+    if a.dtype not in (np.uint8, np.uint16, np.float32, np.float64):  # (float64 kept: 1e39 narrowed to inf)
+        raise ValueError(f"expected uint8, uint16, float16, float32 or float64 samples, got {a.dtype}")
     return a, orientation
 
 
 def _read_exr(p: Path) -> np.ndarray:
-    import OpenEXR
+    """The R, G, B(, A) or Y(, A) channels ``[H, W, C]``: float32, or float64 where a channel is (UINT)."""
+    from .exr import _exr_channels
 
-    try:
-        chans = {k: np.asarray(v.pixels) for k, v in OpenEXR.File(str(p)).channels().items()}
-    except Exception as err:  # OpenEXR raises RuntimeError / others for corrupt or truncated files
-        raise ValueError(f"path: {str(p)!r} is not a readable OpenEXR file ({err})") from err
-    # OpenEXR may group R, G, B(, A) into one 'RGB' / 'RGBA' channel of shape [H, W, C]
-    for group in ("RGBA", "RGB"):
-        if group in chans:
-            return chans[group].astype(np.float32)
+    chans = _exr_channels(p)[1]
     for names in (("R", "G", "B", "A"), ("R", "G", "B"), ("Y", "A"), ("Y",)):
         if all(n in chans for n in names):
-            return np.stack([chans[n] for n in names], axis=-1).astype(np.float32)
+            a = np.stack([chans[n] for n in names], axis=-1)  # (half and float channels together: float32)
+            return a if a.dtype == np.float64 else a.astype(np.float32)
     raise ValueError(f"path: {str(p)!r} has no R, G, B (or Y) channels (channels: {sorted(chans)[:8]}); a spectral "
                      "EXR reads with isettorch.io.read_spectral_exr")
 
@@ -393,19 +440,23 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
     samples = x.permute(0, 2, 3, 1).numpy()
     samples = samples.astype(file_type) if integer else narrow_float(samples, file_type, "image")
     written = []
-    for i, a in enumerate(samples):
-        p = Path(template.format(i=i)) if "{i" in template else Path(template)
-        if kind == "png":
-            _write_png(p, a, bits)
-        elif kind == "tiff":
-            import tifffile
+    # each file under a temporary name, all moved into place at the end: a failure (a missing folder for file 3,
+    # a full disk) leaves no file of the batch written and none overwritten
+    with Outputs() as staged:
+        for i, a in enumerate(samples):
+            p = Path(template.format(i=i)) if "{i" in template else Path(template)
+            tmp = staged.temporary(p)
+            if kind == "png":
+                _write_png(tmp, a, bits)
+            elif kind == "tiff":
+                import tifffile
 
-            c = a.shape[-1]
-            tifffile.imwrite(str(p), a[..., 0] if c == 1 else a, photometric="minisblack" if c <= 2 else "rgb",
-                             extrasamples=["unassalpha"] if c in (2, 4) else None)
-        else:
-            _write_exr(p, a)
-        written.append(p)
+                c = a.shape[-1]
+                tifffile.imwrite(str(tmp), a[..., 0] if c == 1 else a, photometric="minisblack" if c <= 2 else "rgb",
+                                 extrasamples=["unassalpha"] if c in (2, 4) else None)
+            else:
+                _write_exr(tmp, a)
+            written.append(p)
     return written
 
 

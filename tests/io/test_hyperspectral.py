@@ -115,6 +115,25 @@ def test_cave_needs_its_31_bands_and_reads_16_bits_as_16_bits(tmp_path):
         load_cave(_write_cave(tmp_path / "part", dark[:3]))
 
 
+def test_cave_bands_stored_as_16_bit_rgb_keep_their_16_bits(tmp_path):
+    """A few CAVE bands are stored as RGB(A) with equal channels; at 16 bits Pillow decoded them to 8 bits (a
+    code of 200 of 65535 read as 0, the band black). pypng reads them at the file's depth, as a grey band."""
+    import png
+
+    dark = np.full((31, 4, 4), 200, dtype=np.uint16)
+    root = _write_cave(tmp_path, dark)
+    for band, alpha in ((3, False), (9, True)):
+        rgb = np.repeat(np.full((4, 4, 1), 200 * (band + 1), dtype=np.uint16), 4 if alpha else 3, axis=-1)
+        if alpha:
+            rgb[..., 3] = 65535
+        with open(root / "toy_ms" / f"toy_ms_{band:02d}.png", "wb") as fh:
+            png.Writer(4, 4, greyscale=False, alpha=alpha, bitdepth=16).write(fh, rgb.reshape(4, -1))
+    r = load_cave(root, dtype=torch.float64).reflectance()[0].numpy()
+    np.testing.assert_allclose(r[2], 800 / 65535.0, rtol=1e-10)
+    np.testing.assert_allclose(r[8], 2000 / 65535.0, rtol=1e-10)
+    np.testing.assert_allclose(r[0], 200 / 65535.0, rtol=1e-10)
+
+
 def test_kaist_takes_only_wavelength_names(tmp_path):
     """Any channel with a number in 300-1100 was a band: 'frame_0512' became 512 nm."""
     chans = {"frame_0512": np.ones((2, 2), np.float32), "w420nm": np.ones((2, 2), np.float32),

@@ -495,3 +495,102 @@ def test_photo_folders_read_jfif_jpe_pbm_dib_qoi_and_name_jpeg2000(tmp_path, rec
     finally:
         PILImage.MAX_IMAGE_PIXELS = old
     assert not [w for w in recwarn if issubclass(w.category, PILImage.DecompressionBombWarning)]
+
+
+def _png_with_chunks(path, codes, chunks):
+    """An 8-bit RGB PNG of ``codes`` [H, W, 3] carrying the given ancillary chunks (Pillow's PngInfo)."""
+    from PIL import PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    for kind, data in chunks:
+        info.add(kind, data)
+    Image.fromarray(codes).save(path, pnginfo=info)
+    return path
+
+
+def test_png_colour_chunks_decide_the_decoding(tmp_path):
+    """read_image decoded every integer PNG with the sRGB curve, whatever it said of itself (PNG 3rd ed. 11.3.3):
+    a gAMA of 1.0 (linear samples: code 128 is 0.502 of white, not 0.216) now reads as linear, another gamma as
+    code ^ (1 / gamma); an sRGB chunk takes precedence over gAMA; colours other than sRGB's (cHRM primaries, a
+    non-sRGB ICC profile) raise naming the file. encoding='linear' returns the code values whatever the tags."""
+    import struct
+
+    from PIL import ImageCms
+
+    codes = np.full((2, 3, 3), 128, np.uint8)
+    gama = lambda g: (b"gAMA", struct.pack(">I", round(g * 1e5)))  # noqa: E731
+    srgb_128 = colour.cctf_decoding(128 / 255, function="sRGB")
+    cases = {"linear": ([gama(1.0)], 128 / 255), "srgb_gamma": ([gama(0.45455)], srgb_128),
+             "mac": ([gama(0.55556)], (128 / 255) ** (1 / 0.55556)),
+             "srgb_chunk": ([(b"sRGB", b"\0"), gama(1.0)], srgb_128),
+             "srgb_chrm": ([(b"cHRM", struct.pack(">8I", 31270, 32900, 64000, 33000, 30000, 60000, 15000, 6000))],
+                           srgb_128)}
+    for name, (chunks, want) in cases.items():
+        got = read_image(_png_with_chunks(tmp_path / f"{name}.png", codes, chunks), dtype=torch.float64)
+        torch.testing.assert_close(got, torch.full((1, 3, 2, 3), want, dtype=torch.float64), rtol=1e-12, atol=0,
+                                   msg=name)
+    wide = _png_with_chunks(tmp_path / "wide.png", codes,
+                            [(b"cHRM", struct.pack(">8I", 31270, 32900, 68000, 32000, 26500, 69000, 15000, 6000))])
+    with pytest.raises(ValueError, match=r"path: .*wide\.png' has cHRM chromaticities .*not sRGB's"):
+        read_image(wide)
+    lab = tmp_path / "lab.png"
+    Image.fromarray(codes).save(lab, icc_profile=ImageCms.ImageCmsProfile(ImageCms.createProfile("LAB")).tobytes())
+    with pytest.raises(ValueError, match=r"path: .*lab\.png' carries the ICC profile .*not sRGB"):
+        read_image(lab)
+    srgb_icc = tmp_path / "srgb_icc.png"
+    Image.fromarray(codes).save(srgb_icc,
+                                icc_profile=ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes())
+    assert read_image(srgb_icc, dtype=torch.float64).unique().item() == pytest.approx(srgb_128, rel=1e-12)
+    for p in (wide, lab, tmp_path / "mac.png"):
+        assert read_image(p, encoding="linear", dtype=torch.float64).unique().item() == 128 / 255
+
+
+def test_float64_tiff_keeps_its_range_and_exr_mixes_half_and_float(tmp_path):
+    """A float64 TIFF was narrowed to float32 on reading: 1e39 became inf and the file was refused as non-finite;
+    it now reads as float64 (and a float32 result beyond float32's range raises naming dtype). An EXR whose
+    channels mix half and float was refused ("cannot coalesce"); a UINT channel reads exactly above 2^24."""
+    a = np.array([[[1e39, 0.1, 1.0 + 2**-40]]])
+    tifffile.imwrite(tmp_path / "d.tif", a, photometric="rgb")
+    got = read_image(tmp_path / "d.tif", dtype=torch.float64)
+    assert got.dtype == torch.float64 and got.flatten().tolist() == a.flatten().tolist()
+    with pytest.raises(ValueError, match="dtype: .*beyond torch.float32's range"):
+        read_image(tmp_path / "d.tif")
+    chans = {"R": np.full((2, 3), 0.5, np.float16), "G": np.full((2, 3), 0.1, np.float32),
+             "B": np.full((2, 3), 3.0, np.float32)}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, chans).write(str(tmp_path / "mix.exr"))
+    got = read_image(tmp_path / "mix.exr")
+    assert got[0, :, 0, 0].tolist() == [0.5, float(np.float32(0.1)), 3.0]
+    big = np.full((2, 3), 2**24 + 1, np.uint32)
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, {"Y": big}).write(str(tmp_path / "u.exr"))
+    assert read_image(tmp_path / "u.exr", dtype=torch.float64).unique().item() == 2**24 + 1
+
+
+def test_read_image_closes_the_png_it_reads(tmp_path):
+    """pypng's Reader(filename=) opened the file and left it to the garbage collector (a ResourceWarning per
+    read, and open handles in a loop over a folder)."""
+    import gc
+    import warnings
+
+    (p,) = write_image(tmp_path / "a.png", torch.full((3, 4, 4), 0.25))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        read_image(p)
+        gc.collect()
+    assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
+
+
+def test_a_batch_that_fails_at_a_later_file_leaves_every_file_as_it_was(tmp_path):
+    """Files were written one after another: a batch whose third file could not be written (its folder missing)
+    left the first two written and an older file of that name overwritten. Now each is written under a temporary
+    name and all are moved into place only at the end."""
+    (tmp_path / "d0").mkdir()
+    (tmp_path / "d1").mkdir()
+    old = (tmp_path / "d0" / "img.png")
+    old.write_bytes(b"older file")
+    with pytest.raises(OSError):
+        write_image(tmp_path / "d{i}" / "img.png", torch.full((3, 3, 4, 4), 0.5))
+    assert old.read_bytes() == b"older file"
+    assert sorted(p.name for p in (tmp_path / "d0").iterdir()) == ["img.png"]
+    assert not list((tmp_path / "d1").iterdir())
+    write_image(tmp_path / "d{i}" / "img.png", torch.full((2, 3, 4, 4), 0.5))
+    assert read_image(old).shape == (1, 3, 4, 4)
