@@ -25,11 +25,13 @@ def test_demo_writes_images_and_report(tmp_path):
     assert 0 < m["delta_e2000_mean"] < 10 and m["delta_e2000_max"] >= m["delta_e2000_mean"]
     # Gray patches, white (reflectance 0.9) to black (0.03): shot noise alone would lower the SNR by
     # 10 log10(0.9 / 0.03) = 14.8 dB, read noise by more; measured over >= 12 pixels a patch (a standard error of
-    # about 1.7 dB each), so at least 10 dB apart and falling across the row but for that error.
+    # about 1.7 dB each, 2.4 dB on a difference), so at least 10 dB apart, and falling across the row: the least-
+    # squares slope below -1 dB a patch (about -3 measured over noise seeds 0-5; its standard error is about 0.6).
+    # A bound on each step (a rise under 3.5 dB: 1.5 standard errors) failed once the blur changed (30.7, 34.4 dB).
     snr = m["gray_patch_snr_db"]
     assert min(m["gray_patch_pixels"]) >= 12
     assert snr[0] - snr[-1] > 10
-    assert all(b < a + 3.5 for a, b in zip(snr, snr[1:]))
+    assert np.polyfit(np.arange(len(snr)), snr, 1)[0] < -1.0
     md = (out / "report.md").read_text()
     assert "dE" in md or "CIEDE2000" in md
 
