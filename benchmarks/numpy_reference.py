@@ -4,7 +4,7 @@ as the reference peer in ``isettorch bench`` (speed and agreement, same inputs, 
 scene radiance L [L, H, W] (photons/s/sr/m^2/nm)
   -> camera equation  E = pi L / (1 + 4 N^2 (1 + |m|)^2)                 (ISETCam oiCalculateIrradiance)
   -> cos^4 relative illumination at the image distance                    (cos4th law)
-  -> zero padding, diffraction-limited OTF  (2/pi)(acos s - s sqrt(1-s^2)), s = rho lambda N   (Goodman 6.31)
+  -> zero padding, diffraction-limited OTF (2/pi)(acos s - s sqrt(1-s^2)), s = rho lambda N d_i/f (Goodman 6.31, 6.3.2)
   -> QE integration  sum_lambda E QE_c dlambda (rectangle rule with ISETCam's bin widths)    (SignalCurrentDensity)
   -> area sampling over the photodiode (centred square of side pitch sqrt(ff)) or bilinear point sampling
   -> Bayer mosaic, x fill factor x pixel area x exposure x conversion gain, clipped to the swing  (sensorCompute)
@@ -142,8 +142,10 @@ def simulate(photons: np.ndarray, wavelengths_nm: np.ndarray, *, hfov_deg: float
     """Noise-free sensor volts [rows, cols] of a scene [L, H, W]; see the module docstring."""
     photons = np.asarray(photons, dtype=np.float64)
     wave = np.asarray(wavelengths_nm, dtype=np.float64)
-    irr, dx, _ = irradiance(photons, hfov_deg, distance_m, f_number, focal_length_m)
-    oi = blur(irr, wave, dx, f_number, pad)
+    irr, dx, d_i = irradiance(photons, hfov_deg, distance_m, f_number, focal_length_m)
+    # diffraction at the working f-number N d_i / f: the converging wave's radius is d_i (Goodman, Introduction to
+    # Fourier Optics, 3rd ed., 6.3.2)
+    oi = blur(irr, wave, dx, f_number * d_i / focal_length_m, pad)
     dens = integrate_qe(oi, np.asarray(qe, dtype=np.float64), wave)
     if sampling == "area":
         sampled = sample_area(dens, dx, pixel_size_m, rows, cols, fill_factor)
