@@ -1,11 +1,12 @@
 """A folder of the user's own RGB photos as a source of spectral scenes (for users who want their own domain; the
 shipped models use no real photo).
 
-Each photo is decoded from sRGB (IEC 61966-2-1) to linear values, taken as the reflectance of a surface seen
-under a random illuminant, and lifted to spectra with ``colour.recovery``'s linear sRGB basis (Mallett & Yuksel,
-EGSR 2019, :func:`.spectra.srgb_basis_spectra`): ``R(x, l) = sum_c rgb_c(x) B_c(l)``, in [0, 1]. The scene is
-factored (three maps, three spectra), like :func:`.natural.generate_natural`, so :func:`.natural.to_scene` makes
-it a factored :class:`~isettorch.scene.Scene` for a :class:`~isettorch.camera.Camera`.
+Each photo is decoded from sRGB (IEC 61966-2-1) to linear values, taken as the reflectance of a surface seen under a
+random illuminant, and lifted to spectra with ``colour.recovery``'s linear sRGB basis (Mallett & Yuksel, EGSR 2019,
+:func:`.spectra.srgb_basis_spectra`): ``R(x, l) = sum_c rgb_c(x) B_c(l)``, in [0, 1] to 1e-8 (the basis' three spectra
+sum to 1 + 6.2e-9 at most, colour-science's tabulated values: a white reads 1.0000000062). The scene is factored (three
+maps, three spectra), like :func:`.natural.generate_natural`, so :func:`.natural.to_scene` makes it a factored
+:class:`~isettorch.scene.Scene` for a :class:`~isettorch.camera.Camera`.
 """
 
 from __future__ import annotations
@@ -56,16 +57,16 @@ def _lift_grid(wavelengths_nm) -> torch.Tensor:
 def lift_srgb(image, wavelengths_nm=(400.0, 700.0, 10.0)) -> dict:
     """A photograph as a factored reflectance (the lift :class:`PhotoSceneDataset` applies to its crops).
 
-    ``image``: 8-bit ``uint8 [H, W, 3]`` (as read from a file) or encoded sRGB in [0, 1] ``[3, H, W]``. It is
-    decoded (IEC 61966-2-1) to linear sRGB ``c(x)`` and lifted with Mallett & Yuksel's basis (EGSR 2019,
-    :func:`.spectra.srgb_basis_spectra`): ``R(x, l) = sum_c c_c(x) B_c(l)``, in [0, 1], whose sRGB under D65 is
-    ``c`` on the basis' own 380-780 nm grid (mean dE2000 0.001); on the 400-700 nm, 10 nm grid of the configs the
-    round trip (D65, CIE 1931 CMFs on that grid, white normalised by Y) is within dE2000 0.73 (mean 0.22 over the
-    8-bit cube in steps of 5; a white reads linear (0.998, 1.001, 0.998), dE2000 0.31: the truncated grid's white is
-    not quite D65's), the largest code-value errors in near-zero channels of saturated colours, where the sRGB curve
-    is steep (up to 25 codes: (25, 240, 245) returns as (0, 240, 245)). Colours outside sRGB cannot be represented.
-    ``wavelengths_nm``: ``(start, stop, step)`` in nm, inclusive, or a tensor of the wavelengths, some of them within
-    380-780 nm (beyond, the basis and so the reflectance are 0: a photograph carries no light there).
+    ``image``: 8-bit ``uint8 [H, W, 3]`` (as read from a file) or encoded sRGB in [0, 1] ``[3, H, W]``. It is decoded
+    (IEC 61966-2-1) to linear sRGB ``c(x)`` and lifted with Mallett & Yuksel's basis (EGSR 2019,
+    :func:`.spectra.srgb_basis_spectra`): ``R(x, l) = sum_c c_c(x) B_c(l)``, in [0, 1] (to 1e-8, as above), whose sRGB
+    under D65 is ``c`` on the basis' own 380-780 nm grid (mean dE2000 0.001); on the 400-700 nm, 10 nm grid of the
+    configs the round trip (D65, CIE 1931 CMFs on that grid, white normalised by Y) is within dE2000 0.73 (mean 0.22
+    over the 8-bit cube in steps of 5; a white reads linear (0.998, 1.001, 0.998), dE2000 0.31: the truncated grid's
+    white is not quite D65's), the largest code-value errors in near-zero channels of saturated colours, where the sRGB
+    curve is steep (up to 25 codes: (25, 240, 245) returns as (0, 240, 245)). Colours outside sRGB cannot be
+    represented. ``wavelengths_nm``: ``(start, stop, step)`` in nm, inclusive, or a tensor of the wavelengths, some of
+    them within 380-780 nm (beyond, the basis and so the reflectance are 0: a photograph carries no light there).
     Returns ``{"maps": [3, H, W] float64 linear sRGB, "reflectance": [3, L] float64 basis, "wavelengths_nm": [L]}``;
     multiply the reflectance by an illuminant's photons for a scene's spectra.
     """

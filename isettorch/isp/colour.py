@@ -453,6 +453,12 @@ def white_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0,
     level first, or a clipped highlight's channels pull the gains (one pixel at (1.6, 0.9, 0.8) moves them from
     (1, 1.11, 1.25) to (1, 1.78, 2)).
 
+    The bright pixels are chosen on one plane (ISETCam's rule), so under a coloured light they include bright
+    saturated surfaces of that light's hue, not whites only: the Macbeth chart under illuminant A in XYZ (one pixel a
+    patch, target the D65 white) selects the yellow patch beside the white one, and the white renders at b* -30
+    (gains (0.84, 1, 4.84) against the white patch's own (0.87, 1, 3.17)). Gray world, or a white known to be in
+    the scene, is the safer choice under a strongly coloured light.
+
     Reference: ISETCam ``imageIlluminantCorrection`` (whiteWorld, criterion 0.7).
     """
     _check_image(img)

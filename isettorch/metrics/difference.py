@@ -273,6 +273,13 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
     out = torch.promote_types(rendered.dtype, reference.dtype)
     work = working_dtype(out)
     rendered, reference = rendered.to(work), reference.to(work)
+    try:  # one shape for both: a shared reference [P, 3] against a batch [B, P, 3] with a white per item [B, 3]
+        # took white i for patch i of the reference (B = P), not white b for item b
+        shape = torch.broadcast_shapes(rendered.shape, reference.shape)
+    except RuntimeError as err:
+        raise ValueError(f"reference: expected a shape that broadcasts with rendered's {tuple(rendered.shape)}, got "
+                         f"{tuple(reference.shape)}") from err
+    rendered, reference = rendered.expand(shape), reference.expand(shape)
     if space == "xyz":
         lab_r = xyz_to_lab(rendered, white, dim=-1)
         lab_ref = xyz_to_lab(reference, white, dim=-1)
@@ -281,7 +288,6 @@ def color_accuracy(rendered: torch.Tensor, reference: torch.Tensor, white="D65",
     de = delta_e(lab_ref, lab_r, method, dim=-1)
     if space == "xyz":
         _check_chart_whites(rendered, reference, white)
-    lab_ref = lab_ref.expand_as(lab_r) if lab_ref.dim() < lab_r.dim() else lab_ref
     out = out if out.is_floating_point else work  # returned in the inputs' (promoted) dtype, as delta_e does
     return ColorAccuracy(delta_e=de.to(out), mean=de.mean(-1).to(out), max=de.amax(-1).to(out),
                          median=de.quantile(0.5, dim=-1).to(out), lab_rendered=lab_r.to(out),

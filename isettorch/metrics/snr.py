@@ -21,6 +21,7 @@ def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = Non
     Returns:
         :math:`(...)`. The noise is the total (temporal + fixed-pattern) spatial noise of one frame; for the temporal
         part alone use :func:`snr_curve` on a frame stack. (ISO 15739:2013 section 6 without its high-pass step.)
+        A region without noise has SNR inf (0 when it is black; in dB inf and -inf), with a zero gradient.
     """
     if not isinstance(image, torch.Tensor) or image.dim() < 2:
         raise ValueError(f"image: expected a tensor (..., H, W), got "
@@ -39,10 +40,14 @@ def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = Non
     if not x.is_floating_point():
         x = x.to(torch.get_default_dtype())
     check_finite(x.detach(), "image")
-    mean, sd = x.mean(-1), x.std(-1)
-    black = (mean == 0) & (sd == 0)  # a black region has SNR 0, as pixel_snr at zero signal (0 / 0 was NaN)
-    snr = torch.where(black, 0.0, mean / torch.where(black, 1.0, sd))
-    return 20.0 * torch.log10(snr) if check_bool(db, "db") else snr
+    db = check_bool(db, "db")
+    mean, var = x.mean(-1), x.var(-1)
+    flat = var == 0  # no noise: SNR inf, and 0 for a black region as pixel_snr at zero signal (0 / 0 was NaN)
+    # the standard deviation of the noisy regions only: std's gradient at zero variance is 0 / 0 (a noise-free
+    # region's SNR had an inf value and a NaN gradient); a flat region's SNR is a constant, of zero gradient
+    sd = torch.where(flat, 1.0, var).sqrt()
+    snr = torch.where(flat, torch.where(mean == 0, 0.0, math.inf), mean / sd)
+    return 20.0 * torch.log10(snr) if db else snr
 
 
 def snr_curve(frames: torch.Tensor, dark: torch.Tensor | None = None) -> dict[str, torch.Tensor]:

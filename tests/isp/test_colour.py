@@ -182,6 +182,25 @@ def test_white_world_uses_bright_pixels_of_brightest_plane():
     np.testing.assert_allclose(gains[0].numpy(), (brt[0] / brt).numpy(), rtol=1e-12)
 
 
+def test_white_world_under_a_coloured_light_takes_a_saturated_surface_as_documented():
+    """The documented limit of ISETCam's rule: the Macbeth chart under illuminant A in XYZ selects the yellow patch
+    (15) beside the white (18), so the white renders blue, b* about -30 (colour-science's Lab)."""
+    from isettorch.metrics import macbeth_reference_xyz
+
+    ref = macbeth_reference_xyz("A")[0].double()
+    img = (ref / ref[18, 1]).T.reshape(1, 3, 1, 24)
+    d65 = white_xyz("D65").double()
+    gains = white_world_gains(img, d65, reference_channel=1)
+    flat = img.flatten(2)[0]
+    assert (flat[0] >= 0.7 * flat.amax()).nonzero().flatten().tolist() == [15, 18]
+    bright = flat[:, [15, 18]].mean(-1)  # the rule by hand: the bright pixels' mean mapped to the white, Y gain 1
+    expect = (d65 / bright) / (d65[1] / bright[1])
+    np.testing.assert_allclose(gains[0].numpy(), expect.numpy(), rtol=1e-12)
+    np.testing.assert_allclose(gains[0].numpy(), [0.84, 1.0, 4.84], atol=0.01)
+    lab = colour.XYZ_to_Lab((flat[:, 18] * gains[0]).numpy(), colour.XYZ_to_xy(d65.numpy()))
+    assert lab[2] == pytest.approx(-30.4, abs=0.1)
+
+
 def test_illuminant_gains_methods_and_errors():
     img = torch.rand(1, 3, 4, 4, dtype=torch.float64) + 0.1
     assert torch.equal(illuminant_gains(img, "none"), torch.ones(1, 3, dtype=torch.float64))

@@ -239,6 +239,25 @@ def test_gradients_finite_and_gradcheck():
     assert torch.isfinite(gx).all()
 
 
+def test_color_accuracy_pairs_a_white_per_item_with_its_item_not_with_a_patch():
+    """A batch [B, P, 3] scored against a shared reference [P, 3] with a white per item [B, 3]: the reference was
+    converted to Lab on its own, so with B = P its patch i took white i (19 dE2000 off here). Each item is
+    scored as it is alone, against colour-science."""
+    g = torch.Generator().manual_seed(3)
+    ref = 0.2 + 0.6 * torch.rand(3, 3, generator=g, dtype=torch.float64)  # 3 patches
+    rendered = ref * (1 + 0.05 * torch.randn(3, 3, 3, generator=g, dtype=torch.float64))  # 3 items
+    whites = torch.tensor([[0.9505, 1.0, 1.089], [1.0985, 1.0, 0.3558], [0.9642, 1.0, 0.8252]], dtype=torch.float64)
+    acc = color_accuracy(rendered, ref, white=whites)
+    for b in range(3):
+        alone = color_accuracy(rendered[b], ref, white=whites[b])
+        torch.testing.assert_close(acc.delta_e[b], alone.delta_e, rtol=1e-12, atol=0)
+        xy = colour.XYZ_to_xy(whites[b].numpy())
+        expect = colour.difference.delta_E_CIE2000(colour.XYZ_to_Lab(ref.numpy(), xy),
+                                                   colour.XYZ_to_Lab(rendered[b].numpy(), xy))
+        np.testing.assert_allclose(acc.delta_e[b].numpy(), expect, atol=1e-6)
+        torch.testing.assert_close(acc.lab_reference[b], alone.lab_reference, rtol=1e-12, atol=0)
+
+
 def test_color_accuracy_report():
     ref, names = macbeth_reference_xyz()
     assert ref.shape == (24, 3) and len(names) == 24

@@ -201,6 +201,13 @@ def test_snr_helpers():
     # a black region has SNR 0 (as pixel_snr at zero signal; 0 / 0 was NaN), a noiseless lit one infinite SNR
     flat = torch.stack([torch.zeros(8, 8, dtype=torch.float64), torch.full((8, 8), 0.5, dtype=torch.float64)])
     assert snr_uniform(flat).tolist() == [0.0, math.inf] and float(pixel_snr(0.0)) == 0.0
+    # with a zero gradient there (std's gradient at zero variance is 0 / 0: the lit region's was NaN), in dB too,
+    # and the noisy regions' gradient is the analytic one
+    for db in (False, True):
+        leaf = torch.cat([flat, patch[:1, :8, :8]]).requires_grad_(True)
+        snr_uniform(leaf, db=db).sum().backward()
+        assert torch.equal(leaf.grad[:2], torch.zeros_like(leaf.grad[:2])) and bool(torch.isfinite(leaf.grad).all())
+    torch.autograd.gradcheck(lambda t: snr_uniform(t, db=True), (patch[:2, :4, :4].clone().requires_grad_(True),))
     # Poisson frames: temporal SNR = sqrt(mean) (shot-noise limit); with read noise it follows the pixel model
     means = torch.tensor([2.0, 10.0, 100.0, 1000.0], dtype=torch.float64)
     frames = torch.poisson(means.reshape(4, 1, 1, 1).expand(4, 8, 32, 32), generator=g)
