@@ -198,13 +198,17 @@ class PairStream:
     def batches(self, start: int = 0):
         """Batches ``(start + i) * world_size + rank`` for ``i = 0, 1, ...`` without end, each bitwise
         ``batch(k)`` (``iter(stream)`` is ``batches(0)``; a resumed training run starts where it stopped)."""
+        return self._iterate(self._first_batch(start))
+
+    def _first_batch(self, start) -> int:
+        """The batch index of this rank's ``start``-th batch, checked (``start`` of :meth:`batches`, :meth:`loader`)."""
         if not is_integer(start) or start < 0:
             raise ValueError(f"start: expected a non-negative index into this rank's batches, got {start!r}")
         k = int(start) * self.world_size + self.rank
         if k > self.max_batch_index:
             raise ValueError(f"start: batch {k} of this rank's share is beyond the last batch index "
                              f"{self.max_batch_index} (meta['index'] holds item numbers as int64), got {start!r}")
-        return self._iterate(k)
+        return k
 
     def _iterate(self, k: int):
         """Batches ``k, k + world_size, ...``, each bitwise ``batch(k)``. On a CPU (no camera module, no gradients)
@@ -233,14 +237,15 @@ class PairStream:
             for f in pending:
                 f.cancel()
 
-    def loader(self, num_workers: int = 2, *, prefetch_factor: int = 2):
-        """This stream's batches rendered by worker processes, bitwise those of ``iter(self)`` in the same order
-        (:func:`~isettorch.data.stream_workers.stream_loader`; a CPU stream without gradients): on 2 CPU cores
+    def loader(self, num_workers: int = 2, *, prefetch_factor: int = 2, start: int = 0):
+        """This stream's batches rendered by worker processes, bitwise those of ``batches(start)`` in the same order
+        (:func:`~isettorch.data.stream_workers.stream_loader`; a CPU stream without gradients; ``start``: a resumed
+        run's first batch, as in :meth:`batches`): on 2 CPU cores
         0.9-1.0x :func:`~isettorch.data.camera_pairs.batch_loader` with as many workers at batch 16, where the
         stream's own iterator runs at 1.00-1.03x it (1.1-1.3x from batch 64; ``benchmarks/THROUGHPUT.md``)."""
         from .stream_workers import stream_loader
 
-        return stream_loader(self, num_workers, prefetch_factor=prefetch_factor)
+        return stream_loader(self, num_workers, prefetch_factor=prefetch_factor, start=start)
 
     def _generator(self, k: int, stream: int, part: int = 0) -> torch.Generator:
         """The generator of random ``stream`` (0 scenes and cameras, 2 noise) of part ``part`` of batch ``k``."""

@@ -50,18 +50,18 @@ class _StreamBatches(torch.utils.data.Dataset):
 
 
 class _BatchIndices(torch.utils.data.Sampler):
-    """The batch indices a stream's iterator takes, ``k * world_size + rank`` for k = 0, 1, ..., without end, as
+    """The batch indices a stream's iterator takes, ``first + i * world_size`` for i = 0, 1, ..., without end, as
     :class:`SlotRequest` s (``slots`` per worker). Each new iterator is a new epoch, so slots still holding batches
     that an abandoned iterator never took are freed (:meth:`SlotArena.acquire`)."""
 
-    def __init__(self, rank: int, world_size: int, slots: int):
-        self.rank, self.world_size, self.slots, self.epoch = rank, world_size, slots, 0
+    def __init__(self, first: int, world_size: int, slots: int):
+        self.first, self.world_size, self.slots, self.epoch = first, world_size, slots, 0
 
     def __iter__(self):
         self.epoch += 1
         epoch = self.epoch
-        for k in itertools.count():
-            request = SlotRequest([k * self.world_size + self.rank])
+        for i in itertools.count():
+            request = SlotRequest([self.first + i * self.world_size])
             request.slots, request.epoch = self.slots, epoch
             yield request
 
@@ -70,11 +70,11 @@ def _init_worker(_: int) -> None:
     tune_allocator()  # large temporaries stay in the worker's heap (isettorch.data.config.tune_allocator)
 
 
-def stream_loader(stream, num_workers: int = 2, *, prefetch_factor: int = 2) -> SlotLoader:
-    """An endless iterable of ``stream``'s batches, in the order of ``iter(stream)`` and bitwise the same, rendered
-    by ``num_workers`` worker processes (see the module docstring). For a CPU stream without gradients: a stream
-    that builds the autograd graph (``grad=True``) or lives on another device renders in its own process
-    (``iter(stream)``).
+def stream_loader(stream, num_workers: int = 2, *, prefetch_factor: int = 2, start: int = 0) -> SlotLoader:
+    """An endless iterable of ``stream``'s batches, in the order of ``stream.batches(start)`` and bitwise the same
+    (``start`` 0: ``iter(stream)``; a resumed training run's next batch), rendered by ``num_workers`` worker
+    processes (see the module docstring). For a CPU stream without gradients: a stream that builds the autograd
+    graph (``grad=True``) or lives on another device renders in its own process (``iter(stream)``).
 
     Example:
         >>> from isettorch.data import PairStream
@@ -93,7 +93,8 @@ def stream_loader(stream, num_workers: int = 2, *, prefetch_factor: int = 2) -> 
     if stream.grad:
         raise ValueError("stream: a stream with grad=True builds an autograd graph, which worker processes cannot "
                          "hand back; iterate it directly")
-    sampler = _BatchIndices(stream.rank, stream.world_size, prefetch_factor + 1)
+    first = stream._first_batch(start)  # checked before any worker starts
+    sampler = _BatchIndices(first, stream.world_size, prefetch_factor + 1)
     # the workers' base seed from a generator of the stream's own (the batches do not use it): the loader drew it
     # from the global generator on every iter(), moving a training run's own draws
     base = torch.Generator().manual_seed(seed_for(stream.seed, -1))  # (index -1: no batch's generator)

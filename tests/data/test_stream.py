@@ -203,6 +203,13 @@ def test_worker_loader_yields_the_streams_batches():
     got = list(itertools.islice(iter(share.loader(1)), 2))
     assert [b["meta"]["index"].tolist() for b in got] == [[4, 5, 6, 7], [12, 13, 14, 15]]
     assert torch.equal(got[1]["raw"], share.batch(3)["raw"])
+    # a resumed run's loader starts at its next batch, as batches(start) (the loader had no start: a resumed run
+    # saw batches 0, 1, ... again)
+    resumed = list(itertools.islice(iter(share.loader(1, start=5)), 2))
+    assert [b["meta"]["index"].tolist() for b in resumed] == [[44, 45, 46, 47], [52, 53, 54, 55]]
+    assert torch.equal(resumed[1]["raw"], next(share.batches(6))["raw"])
+    with pytest.raises(ValueError, match="start: expected a non-negative index"):
+        stream.loader(1, start=-1)
     with pytest.raises(ValueError, match="grad=True"):
         PairStream(4, scene=SMALL, grad=True).loader(2)
     with pytest.raises(ValueError, match="num_workers"):
