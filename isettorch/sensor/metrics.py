@@ -27,25 +27,43 @@ def well_capacity_e(sensor: Sensor) -> float:
     return sensor.well_capacity_e
 
 
+def _pixel_volts_per_adc_volt(sensor: Sensor) -> float:
+    """The inverse of the sensor's own analog gain (pixel volts per volt at the ADC input): ``1 / gain``, or ``gain``
+    in ISETCam's convention, which divides by it."""
+    gain = sensor.analog_gain
+    g = float(gain.detach()) if isinstance(gain, torch.Tensor) else float(gain)
+    return g if sensor.gain_convention == "isetcam" else 1.0 / g
+
+
 def saturation_e(sensor: Sensor) -> float:
-    """Electrons at saturation (:meth:`Sensor.saturation_e`): :func:`well_capacity_e`, or the photodiode's full well
-    ``full_well_e`` where that is lower (EMVA 1288 release 4.0, section 4.1)."""
-    return float(sensor.saturation_e())
+    """Electrons at which the sensor's raw saturates, at its own analog gain and offset: the pixel's
+    (:meth:`Sensor.saturation_e`: :func:`well_capacity_e`, or the photodiode's full well ``full_well_e`` where that
+    is lower, EMVA 1288 release 4.0, section 4.1), or fewer where the readout clips first: the raw's white level
+    (:meth:`Sensor.saturation_v`: the ADC's top code, lowered by a black level, or the amplified swing) referred to
+    the pixel, ``(saturation_v / gain - offset) / conversion gain``. The IMX363-like preset's 10-bit raw with a
+    black level of 64 DN clips at 5619 e- of its 6000 e- well; at analog gain 8 a 10,000 e- pixel's raw clips at
+    1250 e-. An electrons readout clips at the pixel's."""
+    if sensor.output_units == "electrons":
+        return float(sensor.saturation_e())
+    v = float(sensor.saturation_v()) * _pixel_volts_per_adc_volt(sensor) - sensor.analog_offset_v
+    return v / sensor.conversion_gain_v_per_e
 
 
 def _noise_parameters_e(sensor: Sensor, exposure_s: float | None) -> dict:
-    """The sensor's noise in electrons at analog gain 1, as :func:`isettorch.metrics.snr.noise_variance_e` takes it:
+    """The sensor's noise in electrons at the pixel, as :func:`isettorch.metrics.snr.noise_variance_e` takes it:
     the whole dark floor of a capture (the sensor's :meth:`~Sensor.poisson_gaussian` terms in pixel volts over the
     conversion gain: read noise, twice with CDS in the physical chain, dark-current shot noise, DSNU and column offsets
-    where CDS does not cancel them, temporal row/column noise, dark shading) as ``read_noise_e``, the ADC step (a DN
-    readout), PRNU, and whether the signal has shot noise."""
+    where CDS does not cancel them, temporal row/column noise, dark shading) as ``read_noise_e``, the ADC step of a
+    DN readout referred to the pixel through the sensor's analog gain (at gain 8 an eighth of the step; it was taken
+    at gain 1 whatever the gain), PRNU, and whether the signal has shot noise."""
     t = float(sensor.exposure_s if exposure_s is None else exposure_s)
     if not (math.isfinite(t) and t >= 0):
         raise ValueError(f"exposure_s: expected a finite exposure >= 0 in seconds, got {exposure_s!r}")
     cg = sensor.conversion_gain_v_per_e
     shot, var_v = sensor._dark_variance_v2(sensor.noise_parameters(enabled=True), t, cg)
     return dict(read_noise_e=math.sqrt(var_v) / cg, prnu_percent=sensor.prnu_sigma_percent,
-                lsb_e=sensor.lsb_v / cg if sensor.output_units == "dn" else None, shot=shot)
+                lsb_e=sensor.lsb_v * _pixel_volts_per_adc_volt(sensor) / cg if sensor.output_units == "dn" else None,
+                shot=shot)
 
 
 def noise_e(sensor: Sensor, signal_e, exposure_s: float | None = None) -> torch.Tensor:
@@ -99,8 +117,8 @@ def electrons_per_lux_second(sensor: Sensor, illuminant: str = "D65", wavelength
 def iso_saturation(sensor: Sensor, illuminant: str = "D65", wavelengths_nm=None) -> float:
     """ISO 12232:2019 saturation-based speed ``S_sat = 78 / H_sat`` (H_sat in lux s).
 
-    H_sat is the focal-plane exposure that saturates (:func:`saturation_e`) the most sensitive channel (analog
-    gain 1).
+    H_sat is the focal-plane exposure that saturates the raw (:func:`saturation_e`, at the sensor's analog gain) in
+    its most sensitive channel.
     """
     k = electrons_per_lux_second(sensor, illuminant, wavelengths_nm).max().item()
     if k <= 0:

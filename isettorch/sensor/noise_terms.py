@@ -145,8 +145,10 @@ class NoiseTerms:
 
     @property
     def active(self) -> bool:
-        """Whether any term is on."""
-        return any(getattr(self, f.name) not in (0, 0.0, None) for f in dataclasses.fields(self) if f.name != "seed")
+        """Whether any term is on (a Tukey-lambda shape of 0, the logistic distribution, is on: it counted as off, so
+        ``noise_model='isetcam'`` accepted it and read Gaussian noise)."""
+        return any((v is not None) if f.name == "read_noise_tukey_lambda" else v not in (0, 0.0, None)
+                   for f in dataclasses.fields(self) if f.name != "seed" for v in (getattr(self, f.name),))
 
     @property
     def has_fixed_patterns(self) -> bool:

@@ -474,7 +474,9 @@ class Sensor(nn.Module):
         fw = self.noise_terms.full_well_e
         gain = self.analog_gain if analog_gain is None else analog_gain
         multiply = self.gain_convention != "isetcam"
-        if fw is None and (not multiply or is_real(gain) and gain >= 1):
+        # the swing, unless the pixel's clip (at the swing, before the gain) lands below it: a gain below 1 or a
+        # negative offset (-0.1 V reported a white of 1.0 V, 1023 DN where the raw held at most 0.9 V, 922 DN)
+        if fw is None and (not multiply or is_real(gain) and gain >= 1 and self.analog_offset_v >= 0):
             return top
         cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
         # per-call tensors keep their dtype and device (no float64 on devices without it); lists become tensors
@@ -973,9 +975,17 @@ class Sensor(nn.Module):
             gain = batch_param(self.analog_gain if analog_gain is None else analog_gain, "analog_gain", b,
                                dtype=dt, device=dev, positive=True)
             cg = self._level("conversion_gain_v_per_e", conversion_gain_v_per_e, b, dt, dev)
-            v1 = self._analog(rate * cg, gain)
-            room = self.saturation_v(gain, cg)
-            if self.analog_offset_v != 0:  # the response to light, aimed below the saturation less the offset
+            if self.output_units == "electrons":
+                # the electrons chain clips the pixel volts at the swing or the full well, with no analog gain or
+                # offset (_readout): aimed there (gain and offset scaled the aim: at gain 4 the brightest pixel got
+                # 0.24 of the saturation for a target of 0.95, with a 0.3 V offset 0.67)
+                v1 = rate * cg
+                room = self.saturation_e(cg) * (cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg)
+            else:
+                v1 = self._analog(rate * cg, gain)
+                room = self.saturation_v(gain, cg)
+            if self.analog_offset_v != 0 and self.output_units != "electrons":
+                # the response to light, aimed below the saturation less the offset
                 off = self._analog(torch.zeros_like(rate[:, :, :1, :1]), gain)  # the offset after gain, [B,1,1,1]
                 v1 = v1 - off
                 room = room - off.reshape(-1)  # (the offset was counted as light's room: a 0.3 V offset clipped

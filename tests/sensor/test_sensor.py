@@ -417,7 +417,9 @@ def test_sensor_snr_is_the_metrics_noise_model():
     torch.testing.assert_close(metrics.pixel_snr(s, sig), expect, rtol=1e-12, atol=0)
     torch.testing.assert_close(snr.pixel_snr(sig, 2.0, 3.0, prnu_percent=1.0, dark_current_e=1.0, column_fpn_e=1.0,
                                              lsb_e=lsb_e), expect, rtol=1e-12, atol=0)
-    assert metrics.dynamic_range_db(s) == pytest.approx(float(snr.dynamic_range_db(1e4, var[0].sqrt())))
+    # saturation: the raw's top code, 1023 of 1024 steps of the 1e4 e- swing (the ADC clips before the pixel)
+    assert metrics.dynamic_range_db(s) == pytest.approx(float(snr.dynamic_range_db(1e4 * 1023 / 1024,
+                                                                                   var[0].sqrt())), rel=1e-12)
     # a noise-free pixel: SNR inf above zero signal, 0 at zero; dynamic range inf
     quiet = simple_sensor()
     assert metrics.pixel_snr(quiet, sig).tolist() == [0.0, math.inf, math.inf, math.inf]
