@@ -18,8 +18,10 @@ scene off the focus distance is defocused, by a wavelength-dependent amount (lon
 ``"infinity"`` images every scene as if at infinity (ISETCam's default scene distance, 1.2 m, is only ~24 focal
 lengths from a 50 mm lens: a lens focused at infinity would blur it by ~0.2 mm). Tables and PSF banks are cached
 per (object distance, focus), distances rounded to 1 um. The image pitch follows the focus: the paraxial
-chief-ray height per tan(field angle) on the sensor plane (the EFL at infinity focus); the camera equation takes
-the paraxial magnification of the object plane (ISETCam oiCalculateIrradiance: ``pi / (1 + 4 N^2 (1 + |m|)^2)``).
+chief-ray height per tan(field angle) on the sensor plane, h (the EFL at infinity focus); the camera equation
+takes ISETCam's form (oiCalculateIrradiance: ``pi / (1 + 4 N_w^2)``) at the sensor plane's working f-number
+``N_w = N h / f`` (in focus ``N (1 + |m| / m_p)``, m_p the pupil magnification), so the flux on the sensor is the
+pupil's whatever the focus and object distance.
 
 Accuracy knob: ``field_samples`` (radial PSF samples), ``azimuth_samples`` and ``components`` (K); the speed and
 error of each setting are in ``benchmarks/LENS.md``.
@@ -307,9 +309,15 @@ class LensOptics(nn.Module):
         src_x = plan["gx"] * scale / plan["t_pitch"]  # scene samples from the centre
         src_y = plan["gy"] * scale / plan["t_pitch"]
         grid = torch.stack([src_x / (w / 2), src_y / (h / 2)], -1)[None].to(dt).to(dev)
-        # camera equation on axis (ISETCam oiCalculateIrradiance, |m| of the object plane) x transmittance x RI
-        mag = float(self._a.magnification())
-        k0 = float(geometry.camera_equation_factor(self.analysis.f_number.detach().double(), mag)) * self.transmittance
+        # camera equation on axis (ISETCam oiCalculateIrradiance's form) x transmittance x RI, at the sensor plane's
+        # working f-number N h / f: h, the chief-ray height per tan(field angle) on the sensor (the pitch's), is
+        # f (1 + |m| / m_p) in focus (m_p the pupil magnification; Smith, Modern Optical Engineering, ch. 9) and grows
+        # with a back-focus shift, so the flux on the sensor, E x pitch^2, is that of the pupil whatever the focus.
+        # The object plane's 1 + |m| (ISETCam's) did not follow the sensor: an object at infinity with the Cooke
+        # triplet focused at 0.5 m put 1.22x the flux on the sensor, an object at 0.5 m focused at infinity 0.82x.
+        h_over_f = plan["efl_mm"] / float(self._a.effective_focal_length_mm)
+        n_w = self.analysis.f_number.detach().double() * h_over_f
+        k0 = float(geometry.camera_equation_factor(n_w, 0.0)) * self.transmittance
         band = {"grid": grid, "gain": (k0 * ri).to(dt).to(dev)}
         if plan["bank"]["basis"] is not None:
             band["weights"] = _bilinear_polar(plan["bank"]["coeff"][li], *plan["polar"]).to(dt).to(dev)

@@ -208,6 +208,36 @@ def test_lens_optics_blurs_scenes_off_the_focus_distance():
         LensOptics("cooke_triplet", object_distance="near")
 
 
+def test_the_flux_on_the_sensor_is_the_pupils_whatever_the_focus():
+    """A uniform scene of a fixed field of view sends the same flux through the pupil at any object distance; on the
+    sensor it spreads over a pitch that follows the chief-ray height per tan(field angle), h. With the camera
+    equation at the sensor's working f-number N h / f the flux E x pitch^2 is the pupil's, up to the ISETCam form's
+    finite-aperture term: (h/f)^2 (1 + 4 N^2) / (1 + 4 N^2 (h/f)^2). With the object plane's 1 + |m| it followed
+    the object, not the sensor (the Cooke triplet: 1.22x for an object at infinity and focus at 0.5 m, 0.82x for an
+    object at 0.5 m and focus at infinity)."""
+    kw = {"field_samples": 2, "azimuth_samples": 1, "components": None, "pupil_samples": 16, "max_pupil_samples": 32,
+          "max_kernel": 65}
+    scene = Scene(torch.ones(1, 1, 9, 13, dtype=torch.float64), torch.tensor([587.5618]), hfov_deg=10.0,
+                  distance_m=1.0)
+    lens = _singlet()
+
+    def flux(opt):
+        oi = opt(scene)
+        return float(oi.photons.sum()) * float(oi.sample_spacing_m[0]) ** 2, oi
+
+    ref, _ = flux(LensOptics(lens, **kw))
+    for focus, obj in ((1.0, "infinity"), (math.inf, "scene"), (1.0, "scene")):
+        opt = LensOptics(lens, focus_distance_m=focus, object_distance=obj, **kw)
+        got, oi = flux(opt)
+        a = opt._use(math.inf if obj == "infinity" else 1.0)
+        n, r = float(a.f_number), float(a.image_height_per_tan_mm() / a.effective_focal_length_mm)
+        assert float(oi.sample_spacing_m[0]) / (float(a.effective_focal_length_mm) * 1e-3) == pytest.approx(
+            r * 2 * math.tan(math.radians(5.0)) / 13, rel=1e-12)
+        if focus == 1.0:
+            assert r > 1.05  # the sensor 5 % farther than at infinity focus: the old factor was off there
+        assert got / ref == pytest.approx(r * r * (1 + 4 * n * n) / (1 + 4 * n * n * r * r), rel=2e-4), (focus, obj)
+
+
 def test_build_optics_accepts_focus_distance():
     from isettorch.optics.factory import build_optics
 
