@@ -413,6 +413,10 @@ def load_config(path) -> dict:
         raise ValueError(f"path: {str(path)!r} is not valid YAML{where} ({problem})") from err
     if not isinstance(cfg, dict):
         raise ValueError(f"path: {str(path)!r} must hold a YAML mapping with sections {list(CONFIG_SECTIONS)}")
+    if not _is_name(path) and "optics" in cfg:  # its files relative to the YAML's folder, not the current one
+        from .optics.factory import resolve_config_paths
+
+        cfg["optics"] = resolve_config_paths(cfg["optics"], Path(path).parent)
     return cfg
 
 
@@ -454,13 +458,15 @@ def _build_sensor(cfg: dict) -> nn.Module:
             raise ValueError(f"sensor.exposure_s: expected a number or a list of numbers (s), got "
                              f"{cfg['exposure_s']!r}")  # (torch's "new(): invalid data type 'str'")
         cfg["exposure_s"] = torch.tensor(cfg["exposure_s"])
-    if preset is None:
-        return Sensor(**cfg)
-    if not isinstance(preset, str):  # (5 was reported as an unknown key)
+    if preset is not None and not isinstance(preset, str):  # (5 was reported as an unknown key)
         raise ValueError(f"sensor.preset: expected a preset name (one of {sorted(PRESETS)}), got {preset!r}")
-    if preset not in PRESETS:
+    if preset is not None and preset not in PRESETS:
         raise _unknown(preset, PRESETS, "sensor.preset")
-    return Sensor.preset(preset, **cfg)
+    ae = cfg.get("auto_exposure", None if preset is None else PRESETS[preset].get("auto_exposure"))
+    if cfg.get("exposure_s") is not None and ae is not None:  # (accepted; every capture auto-exposed as without it)
+        raise ValueError(f"config: sensor.exposure_s {cfg['exposure_s']!r} is not used with sensor.auto_exposure "
+                         f"{ae!r} (auto-exposure chooses each capture's exposure); drop one of them")
+    return Sensor(**cfg) if preset is None else Sensor.preset(preset, **cfg)
 
 
 #: the keys of ``isp.sensor_conversion`` that only fitting a matrix uses (``method`` mcc_optimized / multisurface)
@@ -524,5 +530,37 @@ def build_camera(cfg: dict) -> Camera:
     _check_keys(cam_cfg, CAMERA_KEYS, "camera")
     from .optics.factory import build_optics  # every optics type (isettorch.optics.factory)
 
-    return Camera(build_optics(cfg["optics"] or {}), _build_sensor(cfg["sensor"] or {}),
-                  _build_isp(cfg.get("isp") or {}), noise=cam_cfg.get("noise", True), name=str(cfg.get("name", "")))
+    camera = Camera(build_optics(cfg["optics"] or {}), _build_sensor(cfg["sensor"] or {}),
+                    _build_isp(cfg.get("isp") or {}), noise=cam_cfg.get("noise", True), name=str(cfg.get("name", "")))
+    _check_isp_for_sensor(camera)
+    return camera
+
+
+def _check_isp_for_sensor(camera: Camera) -> None:
+    """What the first render would refuse in the ISP for this sensor, refused at build naming the config key (an
+    unknown reflectance set or observer of the colour fit, a mirrored border with a CFA cell over 2x2, a matrix or
+    gains of another width failed mid-render, naming an argument of no config): the demosaic border against the CFA
+    cell, and the colour matrix fitted (what the first render does; cached, so it costs that render nothing)."""
+    isp, cfa = camera.isp, camera.sensor.cfa
+    if isp is None:
+        return
+    border = getattr(isp.demosaic, "border", None)
+    if border == "reflect" and max(cfa.shape) > 2:
+        raise ValueError(f"config: isp.demosaic_border 'reflect' needs a CFA cell of at most 2x2, and sensor.cfa has "
+                         f"a {cfa.shape[0]}x{cfa.shape[1]} cell; use demosaic_border: method")
+    try:
+        isp.fit(camera.sensor)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"config: isp.sensor_conversion: {err}") from err
+    matrix = getattr(isp.sensor_to_xyz, "matrix", None)
+    if isinstance(matrix, torch.Tensor) and matrix.dim() == 2 and matrix.shape[1] != cfa.num_channels:
+        raise ValueError(f"config: isp.sensor_conversion.matrix has {matrix.shape[1]} columns, and sensor.cfa has "
+                         f"{cfa.num_channels} channels ({cfa.channel_names}); give a 3 x {cfa.num_channels} matrix")
+    ic = getattr(isp, "illuminant_correction", None)
+    gains = getattr(ic, "gains", None)
+    if isinstance(gains, torch.Tensor):
+        want = cfa.num_channels if ic.space == "sensor" else 3
+        if gains.shape[-1] != want:
+            raise ValueError(f"config: isp.gains has {gains.shape[-1]} values, and the correction in "
+                             f"{ic.space} space (isp.correction_space) takes {want}"
+                             f"{f' (sensor.cfa: {cfa.channel_names})' if ic.space == 'sensor' else ' (X, Y, Z)'}")

@@ -93,7 +93,8 @@ def max_threads() -> int:
 def check_common(args) -> None:
     """The options several subcommands share, by one rule, before a command runs (so before it makes any folder):
     ``--seed`` an integer in ``[0, 2**64)`` (:func:`isettorch.data.config.check_seed`), ``--threads`` in
-    ``[1, max_threads()]``."""
+    ``[1, max_threads()]``, ``--workers`` (processes) in ``[0, max_threads()]`` (``--workers 100000`` started
+    processes until the machine stalled)."""
     if getattr(args, "seed", None) is not None:
         from .data.config import check_seed
 
@@ -102,6 +103,10 @@ def check_common(args) -> None:
     if threads is not None and not 1 <= threads <= max_threads():
         raise ValueError(f"threads: expected a number of CPU threads in [1, {max_threads()}] (4 per core, at least "
                          f"64), got {threads}")
+    workers = getattr(args, "workers", None)
+    if workers is not None and not 0 <= workers <= max_threads():
+        raise ValueError(f"workers: expected a number of worker processes in [0, {max_threads()}] (4 per core, at "
+                         f"least 64; 0: the main process), got {workers}")
 
 
 def main(argv: list[str] | None = None) -> int:

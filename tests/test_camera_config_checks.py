@@ -152,9 +152,9 @@ def test_fastest_lens_and_full_transmittance_are_accepted():
 def test_auto_exposure_target_checked_when_built():
     # at build, as ae_target (it was reported at the first render as 'target:')
     with pytest.raises(ValueError, match=r"ae_target: expected a fraction .* in \(0, 1\], got 2\.0"):
-        Camera.from_config(_cfg(sensor={"auto_exposure": "mean", "ae_target": 2.0}))
+        Camera.from_config(_cfg(sensor={"exposure_s": None, "auto_exposure": "mean", "ae_target": 2.0}))
     with pytest.raises(TypeError, match=r"sensor\.ae_percentile must be a number .*got str \('99'\)"):
-        Camera.from_config(_cfg(sensor={"auto_exposure": "percentile", "ae_percentile": "99"}))
+        Camera.from_config(_cfg(sensor={"exposure_s": None, "auto_exposure": "percentile", "ae_percentile": "99"}))
 
 
 # --- 3: a named filter set is used as named ---------------------------------------------------------------------
@@ -185,7 +185,7 @@ def test_without_filters_each_letter_takes_the_library_default():
 # --- 4: keys nothing would use are errors -------------------------------------------------------------------------
 @pytest.mark.parametrize("sections,error,match", [
     ({"sensor": {"ae_target": 0.5}}, ValueError, r"ae_target: 0\.5 tunes auto-exposure, but auto_exposure is None"),
-    ({"sensor": {"auto_exposure": "luminance", "ae_percentile": 90}}, ValueError,
+    ({"sensor": {"exposure_s": None, "auto_exposure": "luminance", "ae_percentile": 90}}, ValueError,
      r"ae_percentile: only auto_exposure='percentile' uses it, got auto_exposure='luminance'"),
     ({"sensor": {"adc_bits": None, "black_level_dn": 10.0}}, ValueError,
      r"black_level_dn: 10\.0 DN needs an ADC, but adc_bits is None"),
@@ -210,8 +210,9 @@ def test_keys_that_would_be_ignored_are_errors(sections, error, match):
 
 
 def test_the_same_keys_where_they_are_used_load():
-    Camera.from_config(_cfg(sensor={"auto_exposure": "percentile", "ae_percentile": 98.0, "ae_target": 0.8}))
-    Camera.from_config(_cfg(sensor={"auto_exposure": "luminance", "ae_target": 0.5}))
+    Camera.from_config(_cfg(sensor={"exposure_s": None, "auto_exposure": "percentile", "ae_percentile": 98.0,
+                                    "ae_target": 0.8}))
+    Camera.from_config(_cfg(sensor={"exposure_s": None, "auto_exposure": "luminance", "ae_target": 0.5}))
     Camera.from_config(_cfg(sensor={"black_level_dn": 64}))
     Camera.from_config(_cfg(isp={"illuminant_correction": "manual", "gains": [1.0, 2.0, 1.0]}))
     Camera.from_config(_cfg(isp={"scaling": "percentile", "scaling_percentile": 50}))
@@ -321,3 +322,68 @@ def test_camera_call_arguments_name_themselves():
         cam(uniform("D65", 8), "no")
     with pytest.raises(TypeError, match="isp: expected None or an nn.Module"):
         Camera(DiffractionLimitedOptics(), Sensor(rows=8, cols=8), isp="x")
+
+
+@pytest.mark.parametrize("sections, match", [
+    ({"sensor": {"auto_exposure": "mean"}},  # (BASE has exposure_s 0.01: accepted, every capture auto-exposed)
+     r"config: sensor\.exposure_s 0\.01 is not used with sensor\.auto_exposure 'mean'"),
+    ({"sensor": {"exposure_s": []}}, r"exposure_s: expected a number or one per batch item, got an empty list"),
+    ({"isp": {"sensor_conversion": {"method": "mcc_optimized", "surfaces": "macbth"}}},
+     r"config: isp\.sensor_conversion: .*'macbth'"),
+    ({"isp": {"sensor_conversion": {"method": "mcc_optimized", "observer": "1931x"}}},
+     r"config: isp\.sensor_conversion: observer"),
+    ({"sensor": {"cfa": "QUAD_BAYER"}, "isp": {"demosaic_border": "reflect"}},
+     r"config: isp\.demosaic_border 'reflect' needs a CFA cell of at most 2x2, and sensor\.cfa has a 4x4 cell"),
+    ({"isp": {"illuminant_correction": "manual", "gains": [1.0, 1.0]}},
+     r"config: isp\.gains has 2 values, and the correction in xyz space"),
+    ({"isp": {"sensor_conversion": {"method": "matrix", "matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]]}}},
+     r"config: isp\.sensor_conversion\.matrix has 4 columns, and sensor\.cfa has 3 channels"),
+])
+def test_what_a_render_would_refuse_is_refused_at_build_naming_the_key(sections, match):
+    """These passed from_config and failed in the first render, naming an internal argument (border, gains, name,
+    min() of an empty sequence) or nothing of the config (2026-12-02 CLI audit)."""
+    with pytest.raises(ValueError, match=match):
+        Camera.from_config(_cfg(**sections))
+
+
+def test_a_configs_files_are_relative_to_its_folder(tmp_path, monkeypatch):
+    """A psf_file's path in a camera YAML (or a synth config's camera.optics) is relative to the YAML's folder: it
+    was relative to the current folder, so the config failed from elsewhere, or read another file of that name."""
+    import numpy as np
+    import yaml
+
+    from isettorch.data.config import load_config as load_synth_config
+    from isettorch.optics.factory import resolve_config_paths
+
+    folder = tmp_path / "cams"
+    folder.mkdir()
+    psf = np.zeros((5, 5))
+    psf[2, 2] = 1.0
+    np.savez(folder / "psf.npz", psf=psf, psf_spacing_m=1e-6)
+    cfg = _cfg(optics={"type": "psf_file", "path": "psf.npz", "f_number": None, "focal_length_m": None})
+    (folder / "cam.yaml").write_text(yaml.safe_dump(cfg))
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    cam = Camera.from_config(str(folder / "cam.yaml"))
+    assert type(cam.optics).__name__ == "ShiftInvariantOptics"
+    (folder / "synth.yaml").write_text(yaml.safe_dump({"camera": {"optics": {"type": "psf_file", "path": "psf.npz"}}}))
+    assert load_synth_config(folder / "synth.yaml")["camera"]["optics"]["path"] == str(folder / "psf.npz")
+    # a bundled lens's name stays a name, a lens file is a path; absolute paths and other types are left alone
+    assert resolve_config_paths({"type": "lens", "lens": "cooke_triplet"}, folder)["lens"] == "cooke_triplet"
+    assert resolve_config_paths({"type": "lens", "lens": "my.zmx"}, folder)["lens"] == str(folder / "my.zmx")
+    assert resolve_config_paths({"type": "psf_file", "path": "/abs/p.npz"}, folder)["path"] == "/abs/p.npz"
+    assert resolve_config_paths({"type": "diffraction_limited", "path": "x"}, folder) == {
+        "type": "diffraction_limited", "path": "x"}
+
+
+def test_synth_refuses_an_f_number_beside_configured_optics():
+    """camera.f_number / focal_length_m were ignored when camera.optics was set (the optics' own were used) though
+    the manifest recorded them."""
+    from isettorch.data.config import merge_config
+
+    optics = {"type": "diffraction_limited", "f_number": 8.0}
+    with pytest.raises(ValueError, match=r"camera\.f_number: camera\.optics is set"):
+        merge_config({"camera": {"optics": optics, "f_number": [1.4]}})
+    with pytest.raises(ValueError, match=r"camera\.focal_length_m: camera\.optics is set"):
+        merge_config({"camera": {"optics": optics, "focal_length_m": 0.05}})
+    assert merge_config({"camera": {"optics": optics}})["camera"]["optics"] == optics

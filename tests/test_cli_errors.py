@@ -154,6 +154,7 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
               (["--config", "{binyaml}", "--out", "{tmp}/out", "--count", "1"], "--config"),
               (["--out", "{garbage}", "--count", "1"], "--out"),
               (["--out", "{tmp}/out", "--count", "1", "--num-shards", "0"], "--num-shards"),
+              (["--out", "{tmp}/out", "--count", "2", "--workers", "100000"], "--workers"),  # (it started them)
               (["--out", "{tmp}/out", "--count", "abc"], "--count"),
               (["--out", "{tmp}/out", "--count", "1000000000000000"], "--count"),  # (a silent hang)
               (["--config", "{unknownyaml}", "--out", "{tmp}/out", "--count", "1"],

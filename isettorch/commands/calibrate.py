@@ -110,13 +110,37 @@ def _single(args) -> int:
     return 0
 
 
+def _stage_figures(result: dict, capture, report, out, staged) -> None:
+    """The report's figures drawn in a temporary folder inside ``report`` and staged for their final names there
+    (``result["report_figures"]``); ``out`` (the sensor YAML) may not be one of them."""
+    import os
+    import tempfile
+    from pathlib import Path
+
+    from ..metrics.emva import calibration_figures
+
+    try:
+        with tempfile.TemporaryDirectory(dir=report, prefix=".figures-") as tmp:
+            names = []
+            for f in calibration_figures(result, capture, tmp):
+                final = Path(report) / Path(f).name
+                if out and Path(out).resolve() == final.resolve():
+                    raise ValueError(f"out: {out} is the --report figure {final.name}; give the sensor YAML a name "
+                                     f"of its own")
+                os.replace(f, staged.temporary(final))
+                names.append(str(final))
+    except OSError as err:
+        raise OSError(f"report: cannot write the figures into {report} ({err.strerror or err})") from err
+    result["report_figures"] = names
+
+
 def run(args) -> int:
     import sys
     from pathlib import Path
 
     from ..io.frames import is_exposure_folder_name, read_capture
     from ..sensor.calibration import calibrate_capture, write_sensor_config
-    from ._outputs import check_dir, check_file
+    from ._outputs import Outputs, check_dir, check_file
 
     if not Path(args.directory).exists():
         raise FileNotFoundError(f"DIR: no such capture folder or raw frame {args.directory!r}")
@@ -146,18 +170,17 @@ def run(args) -> int:
         check_dir(args.report, "report")
     capture = read_capture(args.directory, progress=not args.quiet)
     result = calibrate_capture(capture, progress=not args.quiet)
-    if args.report:
-        from ..metrics.emva import calibration_figures
-
-        try:
-            result["report_figures"] = calibration_figures(result, capture, args.report)
-        except OSError as err:
-            raise OSError(f"report: cannot write the figures into {args.report} ({err.strerror or err})") from err
-    if args.out:
-        try:
-            write_sensor_config(result, args.out)
-        except OSError as err:
-            raise OSError(f"out: cannot write {args.out} ({err.strerror or err})") from err
+    # the figures and the YAML under temporary names, moved into place together when all are written: a failure
+    # leaves neither (and no report folder made for them), and the YAML never replaces a figure (an --out named
+    # like one overwrote it, exit 0)
+    with Outputs(args.report) as staged:
+        if args.report:
+            _stage_figures(result, capture, args.report, args.out, staged)
+        if args.out:
+            try:
+                write_sensor_config(result, staged.temporary(args.out))
+            except OSError as err:
+                raise OSError(f"out: cannot write {args.out} ({err.strerror or err})") from err
     if args.json:
         print(strict_json(result, indent=2))
     else:

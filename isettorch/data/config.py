@@ -527,6 +527,13 @@ def _check_camera(cam: dict, cp: str) -> None:
     if cam["optics"]:  # checked by building it (then dropped): the factory's own checks of type, keys, files
         from ..optics.factory import build_optics
 
+        # the configured optics' own f-number and focal length are used (the drawn ones only keep the draws): a
+        # value given beside it had no effect, though the manifest recorded it
+        unread = [key for key in ("f_number", "focal_length_m") if cam[key] != CAMERA_DEFAULTS[key]]
+        if unread:
+            raise ValueError(f"{cp}.{unread[0]}: {cp}.optics is set, whose own f-number and focal length are used, so "
+                             f"{cp}.{unread[0]} has no effect; set it in {cp}.optics, or remove it")
+
         try:
             build_optics(cam["optics"])
         except (TypeError, ValueError, OSError) as err:
@@ -582,6 +589,10 @@ def load_config(path: str | Path) -> dict:
         data = load_yaml(p.read_text())
     except (OSError, yaml.YAMLError) as err:
         raise ValueError(f"config: could not read YAML from {str(p)!r}: {err}") from err
+    if isinstance(data, dict) and isinstance(data.get("camera"), dict) and "optics" in data["camera"]:
+        from ..optics.factory import resolve_config_paths  # its files relative to the YAML's folder
+
+        data["camera"] = {**data["camera"], "optics": resolve_config_paths(data["camera"]["optics"], p.parent)}
     return merge_config(data or {})
 
 

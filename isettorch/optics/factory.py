@@ -4,7 +4,9 @@ Types: ``diffraction_limited`` (DiffractionLimitedOptics), ``wavefront`` / ``zer
 ``psf_file`` (ShiftInvariantOptics from an ``.npz`` with ``psf`` [(L,) K, K], ``psf_spacing_m`` and optionally
 ``psf_wavelengths_nm``), ``lens`` (LensOptics from a ``.zmx``/``.yaml`` prescription or a bundled lens name;
 ``focus_distance_m`` sets the focus, ``object_distance: scene`` images each scene at its ``distance_m``).
-Keys are checked against each constructor's arguments; a mistyped key names the closest valid one.
+Keys are checked against each constructor's arguments; a mistyped key names the closest valid one. In a YAML file,
+a relative file path (``psf_file``'s ``path``, a ``lens`` file) is relative to that file's folder
+(:func:`resolve_config_paths`), wherever the command runs.
 """
 
 from __future__ import annotations
@@ -16,7 +18,25 @@ from pathlib import Path
 
 from torch import nn
 
-__all__ = ["build_optics", "OPTICS_TYPES"]
+__all__ = ["build_optics", "OPTICS_TYPES", "resolve_config_paths"]
+
+
+def resolve_config_paths(optics, base_dir):
+    """``optics`` (a config's ``optics:`` mapping, read from a YAML file in ``base_dir``) with its relative file
+    paths taken relative to ``base_dir``: a ``psf_file``'s ``path`` and a ``lens`` given as a file (a name with a
+    folder or a suffix: ``my_lens.zmx``; a bundled lens name such as ``cooke_triplet`` stays a name). They were
+    relative to the current folder: the same config failed from another folder, or read another file of that
+    name. Anything else is returned as it is (the builder checks it)."""
+    if not isinstance(optics, dict):
+        return optics
+    key = {"psf_file": "path", "lens": "lens"}.get(optics.get("type"))
+    value = optics.get(key)
+    if key is None or not isinstance(value, str) or not value:
+        return optics
+    p = Path(value).expanduser()
+    if p.is_absolute() or (key == "lens" and not p.suffix and len(p.parts) == 1):
+        return optics
+    return {**optics, key: str(Path(base_dir) / p)}
 
 OPTICS_TYPES = ("diffraction_limited", "wavefront", "zernike", "psf_file", "lens")
 

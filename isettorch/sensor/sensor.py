@@ -266,6 +266,8 @@ class Sensor(nn.Module):
         for label, v in (("exposure_s", exposure_s), ("analog_gain", analog_gain)):
             if v is not None:  # checked here as in forward (a config typo fails at construction, naming the key)
                 n = v.numel() if isinstance(v, torch.Tensor) else len(v) if isinstance(v, (list, tuple)) else 1
+                if n == 0:  # (min() of an empty sequence, naming nothing)
+                    raise ValueError(f"{label}: expected a number or one per batch item, got an empty list")
                 batch_param(v.detach() if isinstance(v, torch.Tensor) else v, label, n, dtype=None, device=None,
                             positive=True)
         if auto_exposure is not None and auto_exposure not in AE_METHODS:

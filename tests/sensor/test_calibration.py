@@ -267,6 +267,21 @@ def test_report_figures(tmp_path, capsys, good_capture):
             assert im.size[0] > 300 and im.format == "PNG"
 
 
+def test_report_and_sensor_yaml_are_written_together_and_never_over_each_other(tmp_path, capsys, good_capture):
+    """The figures and the YAML are staged and moved into place together: an --out named like a figure was written
+    over it (exit 0, the PNG now YAML); now it is refused naming --out, and nothing is written."""
+    rep = tmp_path / "rep"
+    rep.mkdir()
+    rc = main(["calibrate", str(good_capture), "--quiet", "--report", str(rep), "--out", str(rep / "snr.png")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--out" in err and "snr.png" in err and len(err.splitlines()) == 1, err
+    assert not list(rep.iterdir())
+    res = _cli_json(capsys, good_capture, "--report", rep, "--out", rep / "sensor.yaml")
+    assert sorted(p.name for p in rep.iterdir()) == ["linearity.png", "photon_transfer.png", "sensor.yaml", "snr.png",
+                                                      "spectrogram_dsnu.png", "spectrogram_prnu.png"]
+    assert sorted(res["report_figures"]) == sorted(str(p) for p in rep.glob("*.png"))
+
+
 def test_spectrogram_finds_a_periodic_column_pattern():
     """EMVA 8.3 spectrogram: a column pattern of period 8 gives a horizontal peak at 1/8 cycles/pixel, nothing
     vertical; white noise of std s gives a flat amplitude s."""
