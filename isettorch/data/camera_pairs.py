@@ -62,7 +62,7 @@ import torch
 
 from .. import spectral
 from .._autograd import tensor_cache
-from .._checks import dataset_index
+from .._checks import dataset_index, item_index
 from ..image import SRGB_WHITE_XYZ, XYZ_TO_LINEAR_SRGB, angle_for_extent, bradford_matrix, srgb_encode
 from ..optics.geometry import image_distance
 from .config import (
@@ -410,8 +410,8 @@ def render_pair(index: int, seed: int, scene_cfg: dict, camera_cfg: dict, *, dty
     """
     targets = check_targets(targets)
     with one_thread():
-        batch = _render_pairs([int(index)], seed, scene_cfg, camera_cfg, dtype=dtype, cache=cache, timings=timings,
-                              targets=targets, dense=True)
+        batch = _render_pairs([item_index(index)], seed, scene_cfg, camera_cfg, dtype=dtype, cache=cache,
+                              timings=timings, targets=targets, dense=True)
     return {k: ({m: t[0] for m, t in v.items()} if isinstance(v, dict) else v[0]) for k, v in batch.items()}
 
 
@@ -434,8 +434,9 @@ def render_pairs(indices, seed: int, scene_cfg: dict, camera_cfg: dict, *, dtype
     """
     targets = check_targets(targets)
     with one_thread():
-        return _render_pairs([int(i) for i in indices], seed, scene_cfg, camera_cfg, dtype=dtype, cache=cache,
-                             timings=timings, targets=targets)
+        # (1.7 rendered item 1, '0' item 0, True item 1)
+        return _render_pairs([item_index(i, "indices") for i in indices], seed, scene_cfg, camera_cfg, dtype=dtype,
+                             cache=cache, timings=timings, targets=targets)
 
 
 def _render_pairs(indices, seed, scene_cfg, camera_cfg, *, dtype, cache, timings, targets=TARGETS,

@@ -309,7 +309,7 @@ def _merge(defaults: dict, user: dict, path: str) -> dict:
             out[key] = value
         elif isinstance(ref, (int, float)):
             if isinstance(value, (list, tuple)) and key in _NUMBER_OR_RANGE:
-                out[key] = list(value)
+                out[key] = _like(list(value), ref)
             elif not isinstance(value, (int, float)):
                 raise ValueError(f"{where}: expected a number, got {value!r}")
             elif isinstance(ref, int):  # an integer key: an integral float (YAML 12.0) is that integer, 12.5 is not
@@ -317,14 +317,14 @@ def _merge(defaults: dict, user: dict, path: str) -> dict:
                     raise ValueError(f"{where}: expected an integer, got {value!r}")
                 out[key] = int(value)
             else:
-                out[key] = value
+                out[key] = float(value)
         elif isinstance(ref, list):
             if isinstance(value, (int, float)) and len(ref) == 2:
-                out[key] = [value, value]
+                out[key] = _like([value, value], ref[0])
             elif not isinstance(value, (list, tuple)):
                 raise ValueError(f"{where}: expected a list, got {value!r}")
             else:
-                out[key] = list(value)
+                out[key] = _like(list(value), ref[0] if ref else None)
         elif isinstance(ref, str):
             if not isinstance(value, str):
                 raise ValueError(f"{where}: expected a string, got {value!r}")
@@ -332,6 +332,15 @@ def _merge(defaults: dict, user: dict, path: str) -> dict:
         else:  # pragma: no cover
             out[key] = value
     return out
+
+
+def _like(values: list, ref) -> list:
+    """``values`` with whole numbers as floats where the default ``ref`` is a float: ``black_level_dn: 64`` and the
+    default 64.0 are one config, and hash as one (``writer.config_hash``; an int hashed apart, so a resumed or
+    second-rank write of the same items was refused as another config)."""
+    if not isinstance(ref, float):
+        return values
+    return [float(v) if isinstance(v, int) and not isinstance(v, bool) else v for v in values]
 
 
 #: number keys that also take a range ``[lo, hi]`` (drawn per item); other number keys take one number

@@ -141,12 +141,15 @@ def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size, distance_
     ``distance``, ``wl`` (float64), ``meta``. :func:`generate_scene` and the factored camera-pair path
     (``camera_pairs.render_pairs``) both build on it, so they draw exactly the same scene.
     """
-    # validated every call (0.2 ms): a full config skipped it, so an edited copy of the defaults was taken unchecked
-    cfg = merge_config(config, SCENE_DEFAULTS, "scene")
-    _check_layouts_generator(cfg)
-    g = torch.Generator().manual_seed(seed_for(seed, index))
     if size is not None and not (isinstance(size, (tuple, list)) and len(size) == 2):  # (size=16: 'cannot unpack')
         raise ValueError(f"size: expected (height, width) in pixels, got {size!r}")
+    # validated every call (0.2 ms): a full config skipped it, so an edited copy of the defaults was taken unchecked;
+    # at the size drawn (a camera pair's sensor + 2 x margin): the sensor's alone refused a 4 x 4 sensor whose
+    # 20 x 20 scene the camera-pair config had accepted
+    cfg = merge_config(config if size is None else {**(config or {}), "height": size[0], "width": size[1]},
+                       SCENE_DEFAULTS, "scene")
+    _check_layouts_generator(cfg)
+    g = torch.Generator().manual_seed(seed_for(seed, index))
     h, wd = size if size is not None else (cfg["height"], cfg["width"])
     wl = scene_wavelengths(cfg, dtype=torch.float64)
     k = int(cfg["palette_size"])

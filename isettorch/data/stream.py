@@ -55,8 +55,10 @@ class StreamGroup:
     consecutive: an item's CFA does not depend on its position), the ``camera``
     (:class:`isettorch.Camera` whose optics hold the items' ``[b]`` f-numbers), the factored ``scene`` ``[b]`` and
     the per-call sensor settings ``kwargs`` (``[b]`` tensors, the pixel pitch among them). ``camera(scene,
-    return_intermediates=True, generator=g, **kwargs)`` renders exactly what the stream renders (with the noise of
-    ``g``)."""
+    return_intermediates=True, generator=g, **kwargs)`` renders what the stream renders (with the noise of ``g``):
+    bitwise with ``qe_variation`` 0; with per-item QE shifts, to float rounding (the stream projects on the shifted
+    QEs along another path: the exposure 1 ulp apart, the noise-free raw 2e-5 relative, so a rounding may move one
+    DN of the noisy raw)."""
 
     index: torch.Tensor
     camera: torch.nn.Module

@@ -346,3 +346,41 @@ def test_dataset_indices_are_integers_and_bool_tensors_are_refused():
     ds = SyntheticSceneDataset(3, seed=1, config={"height": 8, "width": 8})
     assert torch.equal(ds[torch.tensor(2)].photons, ds[2].photons)
     assert torch.equal(ds[torch.tensor(-1, dtype=torch.int8)].photons, ds[2].photons)
+
+
+def test_whole_numbers_for_float_keys_are_the_same_config():
+    """``black_level_dn: 64`` is the default 64.0, and a range of ints the same range of floats: an int hashed apart
+    (writer.config_hash), so a resumed or second-rank write of the same items was refused as another config."""
+    from isettorch.data import writer
+    from isettorch.data.config import SYNTH_DEFAULTS, merge_config
+
+    base = merge_config({})
+    same = merge_config({"camera": {"black_level_dn": 64,
+                                    "full_well_e": [int(v) for v in SYNTH_DEFAULTS["camera"]["full_well_e"]]}})
+    assert same == base and writer.config_hash(same, 4) == writer.config_hash(base, 4)
+    assert isinstance(same["camera"]["black_level_dn"], float)
+    ints, floats = merge_config({"scene": {"distance_m": [1, 5]}}), merge_config({"scene": {"distance_m": [1.0, 5.0]}})
+    assert writer.config_hash(ints, 4) == writer.config_hash(floats, 4)
+    other = merge_config({"camera": {"black_level_dn": 65}})
+    assert writer.config_hash(other, 4) != writer.config_hash(base, 4)
+
+
+def test_tiny_sensors_a_pair_config_accepts_render_and_indices_are_integers():
+    """A 4 x 4 sensor (a 20 x 20 scene with the default margin) passed pair_config and rendered in the stream, but
+    CameraPairDataset re-checked the sensor's size alone and refused it ("at least 5 pixels ... got 4x4");
+    render_pair(s) rounded 1.7 to item 1 and read '0' and True as items."""
+    import torch
+
+    from isettorch.data.camera_pairs import CameraPairDataset, render_pair, render_pairs
+    from isettorch.data.config import pair_config
+
+    for scene, camera in (({"height": 4, "width": 4}, {}), ({"height": 2, "width": 2}, {"margin_px": 2})):
+        pair_config(scene, camera)
+        item = CameraPairDataset(1, seed=0, scene=scene, camera=camera)[0]
+        assert item["raw"].shape[-2:] == (scene["height"], scene["width"]) and bool(torch.isfinite(item["raw"]).all())
+    s, c = pair_config({"height": 8, "width": 8}, {})
+    for bad in (1.7, "0", True):
+        with pytest.raises((ValueError, TypeError), match="indices"):
+            render_pairs([0, bad], 0, s, c)
+        with pytest.raises((ValueError, TypeError), match="index"):
+            render_pair(bad, 0, s, c)
