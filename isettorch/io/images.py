@@ -143,15 +143,23 @@ def non_srgb_profile(path) -> str | None:
     sRGB, as :func:`read_rgb8`'s callers do; or an sRGB one). A matrix profile is sRGB when its red, green and blue
     colorants (D50 XYZ) are littleCMS's sRGB's within 0.005 (Display P3's red is 0.08 off, Adobe RGB's 0.17); a
     profile without colorants (a LUT profile) is not recognised as sRGB. Pillow's ImageCms (littleCMS) reads it."""
-    import io
     import warnings
 
-    from PIL import Image, ImageCms
+    from PIL import Image
 
     with warnings.catch_warnings():  # (the header only; Pillow's size warning names no file: set before opening)
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)
         with Image.open(path) as im:
             data = im.info.get("icc_profile")
+    return _non_srgb_icc(data)
+
+
+def _non_srgb_icc(data: bytes | None) -> str | None:
+    """:func:`non_srgb_profile` of an embedded profile's bytes (None or empty: no profile)."""
+    import io
+
+    from PIL import ImageCms
+
     if not data:
         return None
     try:
@@ -294,7 +302,11 @@ def _png_info(p: Path) -> tuple[int | None, dict]:
 
     # the header only, by the PNG plugin itself: Image.open refuses a file over twice its pixel limit
     # (DecompressionBombError), which pypng reads
-    with PngImagePlugin.PngImageFile(p) as im:
+    try:
+        im = PngImagePlugin.PngImageFile(p)
+    except SyntaxError as err:  # (Pillow's word for a chunk it cannot parse)
+        raise ValueError(f"its chunks: {err}") from err
+    with im:
         colour = {k: im.info[k] for k in ("srgb", "icc_profile", "chromaticity", "gamma") if k in im.info}
         try:
             return im.getexif().get(0x0112), colour
@@ -318,7 +330,7 @@ def _png_decode_exponent(p: Path, colour: dict) -> float | None:
     if "srgb" in colour:
         return None
     if "icc_profile" in colour:
-        name = non_srgb_profile(p)
+        name = _non_srgb_icc(colour["icc_profile"])
         if name is not None:
             raise ValueError(f"path: {str(p)!r} carries the ICC profile {name!r}, not sRGB; read it with "
                              f"encoding='linear' (its code values) and convert them with that profile, or save the "
