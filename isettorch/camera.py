@@ -532,7 +532,8 @@ def build_camera(cfg: dict) -> Camera:
 
     camera = Camera(build_optics(cfg["optics"] or {}), _build_sensor(cfg["sensor"] or {}),
                     _build_isp(cfg.get("isp") or {}), noise=cam_cfg.get("noise", True), name=str(cfg.get("name", "")))
-    _check_isp_for_sensor(camera)
+    if cfg.get("isp"):  # (the default ISP fits any colour sensor: no fit at build, e.g. for the camera pairs' cameras)
+        _check_isp_for_sensor(camera)
     return camera
 
 
@@ -548,8 +549,9 @@ def _check_isp_for_sensor(camera: Camera) -> None:
     if border == "reflect" and max(cfa.shape) > 2:
         raise ValueError(f"config: isp.demosaic_border 'reflect' needs a CFA cell of at most 2x2, and sensor.cfa has "
                          f"a {cfa.shape[0]}x{cfa.shape[1]} cell; use demosaic_border: method")
-    try:
-        isp.fit(camera.sensor)
+    try:  # (not for a sensor with learnable parameters: its fit belongs in the training graph)
+        if not any(p.requires_grad for p in camera.sensor.parameters()):
+            isp.fit(camera.sensor)
     except (ValueError, TypeError) as err:
         raise ValueError(f"config: isp.sensor_conversion: {err}") from err
     matrix = getattr(isp.sensor_to_xyz, "matrix", None)
