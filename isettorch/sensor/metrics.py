@@ -31,7 +31,10 @@ def _pixel_volts_per_adc_volt(sensor: Sensor) -> float:
     """The inverse of the sensor's own analog gain (pixel volts per volt at the ADC input): ``1 / gain``, or ``gain``
     in ISETCam's convention, which divides by it."""
     gain = sensor.analog_gain
-    g = float(gain.detach()) if isinstance(gain, torch.Tensor) else float(gain)
+    if isinstance(gain, torch.Tensor | list | tuple) and torch.as_tensor(gain).numel() != 1:
+        raise ValueError(f"sensor.analog_gain: the sensor's figures of merit take one gain, got "
+                         f"{torch.as_tensor(gain).numel()} (one per item); set the sensor's gain to the one to report")
+    g = float(torch.as_tensor(gain).detach().reshape(()))
     return g if sensor.gain_convention == "isetcam" else 1.0 / g
 
 
@@ -45,7 +48,8 @@ def saturation_e(sensor: Sensor) -> float:
     1250 e-. An electrons readout clips at the pixel's."""
     if sensor.output_units == "electrons":
         return float(sensor.saturation_e())
-    v = float(sensor.saturation_v()) * _pixel_volts_per_adc_volt(sensor) - sensor.analog_offset_v
+    per_adc_volt = _pixel_volts_per_adc_volt(sensor)
+    v = float(sensor.saturation_v()) * per_adc_volt - sensor.analog_offset_v
     return v / sensor.conversion_gain_v_per_e
 
 

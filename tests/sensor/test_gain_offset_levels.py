@@ -56,6 +56,8 @@ def test_sensor_metrics_are_those_of_the_raw_at_the_sensors_own_gain():
                                                         rel=1e-12)
     iso1 = metrics.iso_saturation(Sensor(**kw))
     assert metrics.iso_saturation(s) == pytest.approx(8 * iso1, rel=1e-12)  # an eighth of the light saturates
+    with pytest.raises(ValueError, match="sensor.analog_gain: the sensor's figures of merit take one gain"):
+        metrics.saturation_e(Sensor(**kw, analog_gain=[1.0, 2.0]))
     imx = Sensor.preset("imx363", rows=8, cols=8)
     assert metrics.saturation_e(imx) == pytest.approx(959 * 0.48 / 1024 / 8e-5, rel=1e-12)
     assert metrics.saturation_e(imx) < float(imx.saturation_e()) == pytest.approx(6000.0)
