@@ -403,7 +403,10 @@ def load_config(path) -> dict:
         if not p.is_file():
             raise FileNotFoundError(f"path: camera config {str(path)!r} does not exist "
                                     f"(built-in configs, by name: {camera_config_names()})")
-        text = p.read_text()
+        try:
+            text = p.read_bytes().decode("utf-8")
+        except UnicodeDecodeError as err:  # (the codec's own message, naming no file)
+            raise ValueError(f"path: {str(path)!r}: not UTF-8 text ({err.reason} at byte {err.start})") from err
     try:
         cfg = load_yaml(text)
     except yaml.YAMLError as err:  # a malformed file is bad input: say where, in one line

@@ -387,3 +387,11 @@ def test_synth_refuses_an_f_number_beside_configured_optics():
     with pytest.raises(ValueError, match=r"camera\.focal_length_m: camera\.optics is set"):
         merge_config({"camera": {"optics": optics, "focal_length_m": 0.05}})
     assert merge_config({"camera": {"optics": optics}})["camera"]["optics"] == optics
+
+
+def test_a_config_that_is_not_utf8_is_named(tmp_path):
+    """The codec's own message named no file ("'utf-8' codec can't decode byte 0xff ...")."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_bytes(b"\xff\xfe sensor: 1")
+    with pytest.raises(ValueError, match=r"path: '.*bad\.yaml': not UTF-8 text"):
+        Camera.from_config(str(bad))
