@@ -49,6 +49,11 @@ __all__ = ["PairStream", "StreamGroup"]
 _SCENE_DRAWS = {"layouts": draw_layout_scenes, "natural": draw_natural_scenes}
 
 
+#: the first random-stream number of PairStream's generators (``seed_for``'s ``stream``): CameraPairDataset's
+#: items use streams 0-3, a stream's parts 16 apart from here
+STREAM_DOMAIN = 1 << 20
+
+
 @dataclasses.dataclass
 class StreamGroup:
     """The items of a batch that share one CFA: ``index`` ``[b]`` (their positions in the batch, not necessarily
@@ -250,8 +255,12 @@ class PairStream:
         return stream_loader(self, num_workers, prefetch_factor=prefetch_factor, start=start)
 
     def _generator(self, k: int, stream: int, part: int = 0) -> torch.Generator:
-        """The generator of random ``stream`` (0 scenes and cameras, 2 noise) of part ``part`` of batch ``k``."""
-        return torch.Generator(device=self.device).manual_seed(seed_for(self.seed, int(k), stream=stream + 16 * part))
+        """The generator of random ``stream`` (0 scenes and cameras, 2 noise) of part ``part`` of batch ``k``, in
+        streams of their own (:data:`STREAM_DOMAIN` on): at the numbers of CameraPairDataset's item streams (0-3), a
+        stream and a dataset of one seed drew batch k's part 0 from item k's generators (their scenes and noise
+        correlated, r 0.1-0.2: a validation set of the training seed was not independent of training)."""
+        return torch.Generator(device=self.device).manual_seed(
+            seed_for(self.seed, int(k), stream=STREAM_DOMAIN + stream + 16 * part))
 
     # --- drawing --------------------------------------------------------------------------------------------
     def _draw_camera(self, g: torch.Generator, nb: int) -> dict:

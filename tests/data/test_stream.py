@@ -494,3 +494,16 @@ def test_batches_do_not_keep_their_groups_optics():
     again = stream.batch(1)
     for key in ("raw", *stream.targets):
         assert torch.equal(first[key], again[key])
+
+
+def test_a_stream_and_a_dataset_of_one_seed_draw_from_different_generators():
+    """PairStream's batch k, part 0, was seeded as CameraPairDataset's item k (the streams 0 and 2 of seed_for): a
+    validation dataset of the training seed shared scenes and noise with the training stream (r 0.1-0.2)."""
+    from isettorch.data.config import seed_for
+
+    stream = PairStream(4, seed=7, scene=SMALL)
+    dataset = {seed_for(7, i, s) for i in range(64) for s in range(4)}
+    for k in range(8):
+        for kind in (0, 2):
+            for part in range(2):
+                assert stream._generator(k, kind, part).initial_seed() not in dataset, (k, kind, part)
