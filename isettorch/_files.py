@@ -1,9 +1,11 @@
 """Files written so that a failure leaves nothing half-written: :class:`Outputs` writes each file under a temporary
-name beside it and moves them all into place (``os.replace``, atomic on POSIX) only when the block succeeds."""
+name beside it and moves them all into place (``os.replace``, atomic on POSIX) only when the block succeeds;
+:func:`write_atomic` is the one-file form."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -26,10 +28,15 @@ class Outputs:
         with Outputs(out_dir) as outputs:
             np.save(outputs.temporary(out_dir / "a.npy"), a)
         # a.npy is in place only if the block succeeded
+
+    ``durable=True`` flushes each file to disk (``os.fsync``) before it is moved into place, so that a crash of the
+    machine (not only of the process) cannot leave a renamed but empty file: for shards and checkpoints that a resumed
+    run trusts.
     """
 
-    def __init__(self, folder=None):
+    def __init__(self, folder=None, *, durable: bool = False):
         self.folder = None if folder is None else Path(folder)
+        self.durable = durable
         self.made: list[Path] = []
         self.pending: list[tuple[Path, Path]] = []
 
@@ -50,6 +57,10 @@ class Outputs:
         return tmp
 
     def commit(self) -> None:
+        if self.durable:
+            for tmp, _ in self.pending:
+                with open(tmp, "rb+") as f:
+                    os.fsync(f.fileno())
         for tmp, path in self.pending:
             os.replace(tmp, path)
         self.pending = []
@@ -68,3 +79,23 @@ class Outputs:
                 folder.rmdir()
             except OSError:
                 break
+
+
+def write_atomic(path, write: Callable[[Path], object], *, durable: bool = False) -> None:
+    """Write one file through :class:`Outputs`: ``write(temporary_path)`` writes it, and it replaces ``path`` only if
+    that succeeded (``durable``: flushed to disk first). Example: ``write_atomic(p, lambda t: torch.save(obj, t))``."""
+    with Outputs(durable=durable) as outputs:
+        write(outputs.temporary(path))
+
+
+def torch_save_atomic(obj, path, *, durable: bool = True) -> None:
+    """``torch.save(obj)`` to ``path`` through :func:`write_atomic`, into an open file: given a path, ``torch.save``
+    names the archive's inner folder after the file (here the temporary name, with the process id), so the bytes,
+    and a shard's checksum, would differ between runs; given a file it names it ``archive``."""
+    import torch
+
+    def save(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            torch.save(obj, f)
+
+    write_atomic(path, save, durable=durable)

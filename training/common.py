@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from isettorch._files import torch_save_atomic
 from isettorch._yaml import load_yaml
 
 
@@ -88,10 +89,7 @@ def cpsnr(pred: torch.Tensor, target: torch.Tensor, crop: int = 0) -> torch.Tens
 def save_atomic(obj, path: Path) -> None:
     """``torch.save(obj)`` to ``path`` through a temporary file renamed over it: an interrupted write never leaves a
     truncated checkpoint or chunk where a resumed run would read it."""
-    path = Path(path)
-    tmp = path.with_suffix(".tmp")
-    torch.save(obj, tmp)
-    tmp.replace(path)
+    torch_save_atomic(obj, path)
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:

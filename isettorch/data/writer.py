@@ -11,8 +11,8 @@ Layout of ``out/``:
 * ``manifest.json``: the config, its hash, ``count``, ``shard_size`` and every finished shard's record;
   ``"complete": true`` when all shards are there.
 
-Each file is written to a temporary name and renamed (``os.replace``, atomic on POSIX), so a run killed at
-any point leaves only complete shards (and possibly a stale ``*.tmp*`` file). Items depend only on
+Each file is written to a temporary name, flushed to disk and renamed (``isettorch._files.write_atomic``), so a run
+killed at any point leaves only complete shards (and possibly a stale ``.*.partial-*`` file). Items depend only on
 ``(seed, index)``, so a resumed run writes byte-identical shards.
 
 Reading back: :class:`ShardDataset` (map-style; item ``i`` equals ``CameraPairDataset(...)[i]`` of the same
@@ -36,6 +36,7 @@ from pathlib import Path
 import torch
 
 from .._checks import dataset_index
+from .._files import torch_save_atomic, write_atomic
 from .camera_pairs import GENERATOR_VERSION, CameraPairDataset, collate_pairs
 from .config import check_integer, merge_config
 
@@ -66,21 +67,9 @@ def sha256_file(path) -> str:
     return h.hexdigest()
 
 
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def _atomic_save(obj, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    torch.save(obj, tmp)
-    with open(tmp, "rb+") as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+def _write_json(path: Path, obj) -> None:
+    text = json.dumps(obj, indent=1, sort_keys=True)
+    write_atomic(path, lambda tmp: tmp.write_text(text), durable=True)
 
 
 def _shard_names(f: int) -> tuple[str, str]:
@@ -198,10 +187,10 @@ def write_dataset(config: dict | None, out, count: int, *, shard: int = 0, num_s
         with progress_bar(total=len(todo), unit="shard", desc=f"synth rank {me}/{procs}", quiet=not progress) as bar:
             for i, (f, batch) in enumerate(zip(todo, loader)):
                 pt, js = _shard_names(f)
-                _atomic_save(batch, out / pt)
+                torch_save_atomic(batch, out / pt)
                 rec = {"file": pt, "sha256": sha256_file(out / pt), "first_index": f * size,
                        "count": int(batch["raw"].shape[0]), "config_sha256": chash, "format_version": FORMAT_VERSION}
-                _atomic_write_bytes(out / js, json.dumps(rec, indent=1, sort_keys=True).encode())
+                _write_json(out / js, rec)
                 bar.update(1)
                 if on_shard_written is not None:
                     on_shard_written(f)
@@ -239,7 +228,7 @@ def _write_manifest(out: Path, cfg: dict, chash: str, count: int, size: int, n_f
         manifest = {"format_version": FORMAT_VERSION, "generator_version": GENERATOR_VERSION, "config": cfg,
                     "config_sha256": chash, "count": count,
                     "shard_size": size, "num_files": n_files, "shards": shards, "complete": len(shards) == n_files}
-        _atomic_write_bytes(out / "manifest.json", json.dumps(manifest, indent=1, sort_keys=True).encode())
+        _write_json(out / "manifest.json", manifest)
     return manifest
 
 

@@ -345,7 +345,7 @@ def test_an_unfinished_run_is_named_and_the_manifest_is_written_under_a_lock(tmp
     assert main(["synth", "--out", str(tmp_path / "cut"), "--verify"]) == 2
     assert "has no manifest.json; it holds 1 shard(s) of an unfinished isettorch synth run" in capsys.readouterr().err
     held = []
-    write = writer._atomic_write_bytes
+    write = writer._write_json
 
     def probe(path, data):  # another process's attempt to take the lock while this one writes the manifest
         if path.name == "manifest.json":
@@ -355,7 +355,7 @@ def test_an_unfinished_run_is_named_and_the_manifest_is_written_under_a_lock(tmp
             held.append(True)
         write(path, data)
 
-    monkeypatch.setattr(writer, "_atomic_write_bytes", probe)
+    monkeypatch.setattr(writer, "_write_json", probe)
     assert write_dataset(CFG, tmp_path / "cut", COUNT, progress=False)["complete"] and held == [True]
 
 
