@@ -127,10 +127,7 @@ class ShiftInvariantLens(nn.Module):
             if isinstance(transmittance, bool):
                 raise TypeError(f"transmittance: expected a number or values in [0, 1], got {transmittance!r}")
             t = as_tensor(transmittance, "transmittance", dtype=dtype).detach().clone().reshape(-1)
-            check_nonnegative(t, "transmittance")
-            if bool((t > 1).any()):  # a passive lens transmits at most the light it receives
-                raise ValueError(f"transmittance: expected values in [0, 1] (the fraction of the light the lens "
-                                 f"passes), got a maximum of {t.max().item():.6g}")
+            check_transmittance(t)
             self.register_buffer("transmittance", t)
         if transmittance_wavelengths_nm is None:
             self.transmittance_wavelengths_nm = None
@@ -583,3 +580,11 @@ class ShiftInvariantLens(nn.Module):
             out, (pr, pc) = blur_fft(irr, self._otf_fn(wave, n, dxb), dxb, (margin, margin), self.pad_mode,
                                      window=crop)
         return self._oi(out, None, wave, dx, n, f, d_i, crop, h, w, pr, pc, name)
+
+
+def check_transmittance(t: torch.Tensor, name: str = "transmittance") -> None:
+    """A lens transmittance: values in [0, 1] (a passive lens transmits at most the light it receives)."""
+    check_nonnegative(t, name)
+    if bool((t > 1).any()):
+        raise ValueError(f"{name}: expected values in [0, 1] (the fraction of the light the lens passes), got a "
+                         f"maximum of {t.max().item():.6g}")

@@ -34,11 +34,11 @@ from .._checks import (
     batch_param,
     check_finite,
     check_float_dtype,
-    check_nonnegative,
     check_rank,
     check_wavelengths,
     round_half_away,
 )
+from .base import check_transmittance
 from .geometry import cos4th_isetcam
 from .optical_image import FourierFactors, OpticalImage
 
@@ -92,7 +92,11 @@ def dl_otf_isetcam(wavelengths_nm: torch.Tensor, f_number: torch.Tensor, focal_l
     width_m = 2 * f * torch.tan(torch.deg2rad(hfov) / 2)
     lam = wavelengths_nm.to(dt) * 1e-9
     fc = (1 / n)[:, None] / lam[None, :] * (width_m / hfov)[:, None]  # [B, L]
-    rho = torch.sqrt(fy[:, :, None] ** 2 + fx[:, None, :] ** 2)  # [B, H, W]
+    r2 = fy[:, :, None] ** 2 + fx[:, None, :] ** 2  # [B, H, W]
+    # rho = sqrt(r2), with a finite gradient at DC: sqrt'(0) is infinite, times the 0 of d(r2) gave NaN for every
+    # input the frequency grid depends on (hfov_deg, focal_length_m)
+    dc = r2 == 0
+    rho = torch.where(dc, torch.zeros_like(r2), torch.where(dc, torch.ones_like(r2), r2).sqrt())
     s = rho[:, None] / fc[:, :, None, None]
     inside = s < 1
     sc = s.clamp(max=1.0)
@@ -215,7 +219,7 @@ def _setup(b, nl, h, w, wavelengths_nm, hfov_deg, distance_m, f_number, focal_le
         transmittance, "transmittance", dtype=dt, device=dev).reshape(-1)
     if t.numel() != nl:
         raise ValueError(f"transmittance: expected {nl} values (one per wavelength), got {t.numel()}")
-    check_nonnegative(t, "transmittance")
+    check_transmittance(t)
     if offaxis not in ("cos4th", "skip"):
         raise ValueError(f"offaxis: expected 'cos4th' or 'skip', got {offaxis!r}")
 
@@ -423,6 +427,8 @@ def compute_oi_factored(maps, spectra, wavelengths_nm, hfov_deg, distance_m, f_n
     if s.shape[1] != m.shape[1] or s.shape[0] not in (1, m.shape[0]) or m.shape[0] not in (1, s.shape[0]):
         raise ValueError(f"spectra: expected (B, J, L) matching maps (B, J, H, W) = {tuple(m.shape)}, "
                          f"got {tuple(s.shape)}")
+    check_finite(m.detach(), "maps")
+    check_finite(s.detach(), "spectra")
     out_dtype = dtype or (m.dtype if m.is_floating_point() else torch.get_default_dtype())
     work = _work_dtype(compute_dtype, m)
     b = max(m.shape[0], s.shape[0])
@@ -435,13 +441,22 @@ def compute_oi_factored(maps, spectra, wavelengths_nm, hfov_deg, distance_m, f_n
     if g["cos4"] is not None:
         mw = mw * g["cos4"].to(work)
     sw = s.to(work) * (g["k"][:, None] * g["t"][None, :]).to(work)[:, None, :]  # [B, J, L]
-    # max over (x, l) of sum_j M_j(x) S_j(l); rank 1 with non-negative factors: max M x max S
-    if nj == 1 and bool((mw >= 0).all()) and bool((sw >= 0).all()):
+    # max over (x, l) of sum_j M_j(x) S_j(l); rank 1 with non-negative factors: max M x max S. Signed factors: the
+    # product's minimum too (a radiance negative somewhere was let through by a check of the maximum, and the final
+    # abs of oiCompute turned it into positive irradiance)
+    signed = not (bool((mw >= 0).all()) and bool((sw >= 0).all()))
+    if nj == 1 and not signed:
         peak = mw.flatten(1).amax(1) * sw.flatten(1).amax(1)
-    else:
+    elif not signed:
         peak = torch.stack([torch.einsum("jp,jl->pl", mw[i].flatten(1), sw[i]).amax() for i in range(b)])
-    if bool((peak < 0).any()):
-        raise ValueError("maps, spectra: expected a non-negative radiance (sum_j maps_j spectra_j)")
+    else:
+        lo, peak = torch.stack([torch.stack(torch.aminmax(torch.einsum("jp,jl->pl", mw[i].flatten(1), sw[i])))
+                                for i in range(b)]).unbind(1)
+        # signed terms that cancel to 0 round to either side: a negative beyond the sum's rounding is refused
+        scale = (mw.detach().abs().flatten(2).amax(-1) * sw.detach().abs().amax(-1)).sum(-1)
+        if bool((lo < -64 * torch.finfo(work).eps * scale).any()):
+            raise ValueError(f"maps, spectra: expected a non-negative radiance (sum_j maps_j spectra_j), minimum is "
+                             f"{float(lo.min()):.6g}")
     pad_val = peak * 1e-9
     pr, pc, h2, w2 = g["pr"], g["pc"], g["h2"], g["w2"]
     planes = torch.zeros(b, nj, h2, w2, dtype=work, device=m.device)
