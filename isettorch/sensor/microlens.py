@@ -680,8 +680,9 @@ class PixelOptics(nn.Module):
       distance: the thin lens's pupil is the lens). The etendue is the continuous (differentiable) integral
       (:func:`microlens_etendue` with ``sampling='continuous'``), the 1-D model applied separably along the pixel's
       columns and rows as ISETCam's pixel irradiance is (``mlRadiance``: the x-profile's outer product): the pixel
-      at (x, y) gets ``T(|x|) T(|y|)``, ``T(u)`` the 1-D etendue at the chief ray and microlens offset of the image
-      point at height u on an axis (for a thin lens, the chief ray's angle projected on the pixel's axes). A pixel
+      at (x, y) gets ``T(|x|) T(|y|)`` (``model='geometric'``, already a 2-D efficiency: ``T(|x|) T(|y|) / T(0)``,
+      exact on the axes), ``T(u)`` the 1-D etendue at the chief ray and microlens offset of the image point at
+      height u on an axis (for a thin lens, the chief ray's angle projected on the pixel's axes). A pixel
       on a diagonal thus keeps more light than one on an axis at the same chief-ray angle, as a square photodiode
       does (centred microlens, 20 deg, ISETCam's pixel at f/4: a 2-D trace gives 0.355 and 0.123, this model 0.316
       and 0.188; the radially symmetric ``E(CRA) E(0)`` used before 2026-11-30 gave 0.188 for both). The map
@@ -887,7 +888,15 @@ class PixelOptics(nn.Module):
             # outer product (the same products as per pixel, without gathering rows x cols values per band twice)
             ix, wx, iy, wy = i0[0, 0], w[0, 0], i0[1, :, 0], w[1, :, 0]
             ex, ey = (e[..., i] * (1 - ww) + e[..., (i + 1).clamp(max=k - 1)] * ww for i, ww in ((ix, wx), (iy, wy)))
-            return ex[..., None, :] * ey[..., :, None]
+            out = ex[..., None, :] * ey[..., :, None]
+            if self.model == "geometric":
+                # the geometric model is already the 2-D efficiency (pixel_vignetting: both axes' overlaps over the
+                # beam's disk): T(|x|) T(|y|) counted the other axis's on-axis share twice (the centre pixel got
+                # T(0)^2, 0.485 for a bare pixel instead of 0.696). Separable about the axis: T(|x|) T(|y|) / T(0),
+                # exact on the axes
+                e0 = e[..., :1]
+                out = out / torch.where(e0 > 0, e0, torch.ones_like(e0))[..., None]
+            return out
         b, mid = e.shape[0], e.shape[1:-1]
         idx = i0.reshape(b, *([1] * len(mid)), -1).expand(b, *mid, -1)
         ww = w.reshape(b, *([1] * len(mid)), -1)

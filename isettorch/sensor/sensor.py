@@ -847,7 +847,8 @@ class Sensor(nn.Module):
 
     def sample(self, density: torch.Tensor, oi: OpticalImage) -> torch.Tensor:
         """Per-m^2 planes on the OI grid ``[B, K, H, W]`` -> their value at each pixel ``[B, K, rows, cols]``
-        (the sensor's ``sampling``: area over the photodiode, or ISETCam's pre-blur + point sampling)."""
+        (the sensor's ``sampling``: area over the photodiode, or over the whole pixel under pixel optics in the
+        physical convention (the microlens's aperture), or ISETCam's pre-blur + point sampling)."""
         rows, cols = self.size_for(oi)
         dx = oi.sample_spacing_m
         if self.sampling == "isetcam":
@@ -868,7 +869,12 @@ class Sensor(nn.Module):
             if self._same_grid(dx) and not records_grad(dx):
                 return density[..., dr // 2:dr // 2 + rows, dc // 2:dc // 2 + cols]
         recon = "linear" if self.sampling == "area_linear" else "constant"
-        return sample_area(density, dx, self.pixel_size_m, rows, cols, self.fill_factor, recon)
+        # pixel optics in the physical convention: the microlens (as wide as the pixel) gathers the light over the
+        # whole pixel and its etendue holds the photodiode's share (collecting_area_m2); the photodiode's window
+        # dropped the light between photodiodes (an edge, the sampling MTF and aliasing were a bare pixel's)
+        po = self.pixel_optics
+        window = 1.0 if po is not None and po.convention == "physical" else self.fill_factor
+        return sample_area(density, dx, self.pixel_size_m, rows, cols, window, recon)
 
     def _call_pitch(self, pixel_size_m, oi: OpticalImage) -> torch.Tensor:
         """A per-call pixel pitch as ``[B]`` float64 on the OI's device, checked: every item has one OI sample

@@ -446,14 +446,14 @@ def test_camera_with_pixel_optics_and_gradients():
     optics = DiffractionLimitedOptics(f_number=4.0, focal_length_m=40e-6)  # short: CRAs up to ~38 deg
     kw = dict(rows=16, cols=16, cfa="RGGB", pixel_size_m=2.8e-6, exposure_s=1e-3)
     sensor = Sensor(pixel_optics={"method": "centred", "learnable": True}, **kw)  # physical: differentiable
-    cam, ref = Camera(optics, sensor, noise=False), Camera(optics, Sensor(**kw), noise=False)
+    # the physical convention takes the whole pixel's light (the window and the area of a bare pixel of fill 1)
+    cam, ref = Camera(optics, sensor, noise=False), Camera(optics, Sensor(**kw, fill_factor=1.0), noise=False)
     scene = uniform("D65", size=32, hfov_deg=2 * math.degrees(math.atan(16 * 2.8e-6 / 2 / 40e-6)) * 2,
                     dtype=torch.float64)
     out, base = cam(scene, return_intermediates=True), ref(scene, return_intermediates=True)
     ratio = (out.raw.noise_free / base.raw.noise_free)[0, 0]
     emap = sensor.etendue_map(out.optical_image)[0].detach()
-    # the physical convention takes the whole pixel's light (the plain sensor its fill factor, 0.75)
-    assert torch.allclose(ratio.detach() * sensor.fill_factor, emap.to(ratio), atol=1e-6)
+    assert torch.allclose(ratio.detach(), emap.to(ratio), rtol=1e-12, atol=0)
     assert float(emap[8, 8]) > 0.99 and float(emap[0, 0]) < 0.9  # centre vs corner fall-off
     loss = out.raw.noise_free.mean()
     loss.backward()
@@ -785,7 +785,7 @@ def test_pixel_optics_offsets_and_refusals():
         return float(microlens_etendue(math.degrees(math.atan(u / d)), "centred", model="geometric",
                                        offset_m=o * u))
 
-    assert float(m[0, 0]) == pytest.approx(geo(x) * geo(y), abs=3e-3)
+    assert float(m[0, 0]) == pytest.approx(geo(x) * geo(y) / geo(0.0), abs=3e-3)
     assert abs(float(m[0, 0]) - float(plain[0, 0])) > 0.01
     with pytest.raises(ValueError, match="offset_per_image_height: method 'none' has no microlens"):
         PixelOptics("none", offset_per_image_height=0.1)
@@ -857,3 +857,55 @@ def test_spectral_etendue_rates_are_each_bands_1d_profiles_at_the_pixels_coordin
         fd = central_difference(loss, qe_mod.raw_filters.data[c, band], 1e-6)
         assert float(g_raw[c, band]) == pytest.approx(fd, rel=1e-6)
         assert abs(fd) > 0
+
+
+def test_the_geometric_model_is_not_counted_twice_under_the_physical_convention():
+    """The geometric model is already a 2-D efficiency (both axes' overlaps); the separable map multiplied the other
+    axis's on-axis share in again: a bare pixel's centre got T(0)^2 = 0.485 instead of T(0) = 0.696."""
+    rows, cols, pitch, d = 9, 9, 2.8e-6, 30e-6
+    oi = _uniform_oi(rows, cols, pitch, d)
+    for method in ("none", "centred"):
+        m = PixelOptics(method, model="geometric").etendue_map(oi, rows, cols, pitch)[0]
+
+        def geo(u, method=method):
+            return float(microlens_etendue(math.degrees(math.atan(u / d)), method, model="geometric",
+                                           pixel_size_m=pitch))
+
+        assert float(m[4, 4]) == pytest.approx(geo(0.0), rel=1e-9)  # the axis: the 2-D model itself
+        assert float(m[4, 8]) == pytest.approx(geo(4 * pitch), rel=1e-3)  # (interpolated between heights)
+        assert float(m[0, 4]) == pytest.approx(float(m[4, 0]), rel=1e-12)
+        if method == "centred":
+            assert float(m[4, 4]) == pytest.approx(1.0)  # a centred microlens keeps all the light at normal incidence
+
+
+def test_physical_pixel_optics_gather_the_light_over_the_whole_pixel():
+    """The microlens (as wide as the pixel) gathers the light on the whole pixel, and the physical convention scales by
+    the whole pixel's area, but the irradiance was averaged over the photodiode's square only: light falling between
+    the photodiodes (19 % of the area at fill 0.75) was dropped and light on them counted 1/0.75 times."""
+    from isettorch.sensor import Sensor
+
+    rows = cols = 4
+    pitch, sub = 2.8e-6, 20
+    dx, n = pitch / sub, (rows + 2) * sub  # 20 samples per pixel, one pixel of margin
+    c = (torch.arange(n, dtype=torch.float64) - (n - 1) / 2) * dx
+    cell = torch.remainder(c + (rows - 1) / 2 * pitch + pitch / 2, pitch) - pitch / 2  # offset from the pixel centre
+    half = math.sqrt(0.75) * pitch / 2
+    on1 = cell.abs() < half - dx / 2
+    off1 = cell.abs() > half + dx / 2
+    masks = {"all": torch.ones(n, n, dtype=torch.bool), "on": on1[:, None] & on1[None, :],
+             "between": off1[:, None] | off1[None, :]}
+
+    def rate(mask):
+        oi = OpticalImage((1e15 * mask.double())[None, None], torch.tensor([550.0]),
+                          sample_spacing_m=torch.tensor([dx], dtype=torch.float64), focal_length_m=torch.tensor([1.0]),
+                          image_distance_m=torch.tensor([1.0]), f_number=torch.tensor([8.0]))  # chief rays ~ 0 deg
+        s = Sensor(rows=rows, cols=cols, pixel_size_m=pitch, fill_factor=0.75, exposure_s=1e-3,
+                   pixel_optics={"method": "centred"})
+        assert float(s.etendue_map(oi)[0, 1, 1]) == pytest.approx(1.0, abs=1e-6)
+        return float(s.electron_rate(oi)[0, 0, 1, 1])
+
+    lit = {k: float(m[2 * sub:3 * sub, 2 * sub:3 * sub].double().mean()) for k, m in masks.items()}  # pixel (1, 1)
+    assert lit["on"] == pytest.approx(0.64) and lit["between"] == pytest.approx(0.19)  # (samples on the edge: neither)
+    full = rate(masks["all"])
+    for k in ("on", "between"):  # the signal is the lit share of the pixel's
+        assert rate(masks[k]) == pytest.approx(full * lit[k], rel=1e-9), k
