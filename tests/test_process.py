@@ -295,3 +295,48 @@ def test_a_camera_without_an_adc_is_one_line(tmp_path, capsys):
                  str(PRETRAINED["joint_denoise"]), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert capsys.readouterr().err == ("isettorch process: --camera: the sensor has no ADC (adc_bits null); expected a "
                                        "sensor that outputs DN\n")
+
+
+def test_a_camera_raws_white_level_and_a_monochrome_raw_must_be_the_configs(camera, tmp_path, capsys):
+    """A 10-bit DNG (WhiteLevel 1023) through the 12-bit config: its clipped pixels came out at 0.238 of white, exit 0
+    (the white level was read but never compared); a monochrome DNG was demosaiced as the config's Bayer (grey stripes
+    came out orange)."""
+    pytest.importorskip("rawpy")
+    from isettorch.io.raw import write_dng
+
+    args = ["--camera", str(camera), "--model", str(PRETRAINED["joint_denoise"]), "--quiet"]
+    write_dng(tmp_path / "ten.dng", np.full((24, 24), 1023, np.uint16), cfa="RGGB", black_level_dn=64,
+              white_level_dn=1023)
+    assert main(["process", str(tmp_path / "ten.dng"), *args, "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err
+    assert "RAW: " in err and "the file's white level 1023 DN is below the camera config's 4095 DN" in err
+    assert "would come out at 0.238 of white" in err and not (tmp_path / "a").exists()
+    write_dng(tmp_path / "sixteen.dng", np.full((24, 24), 1000, np.uint16), cfa="RGGB", black_level_dn=64,
+              white_level_dn=65535)  # (values in range: the codes alone did not tell)
+    assert main(["process", str(tmp_path / "sixteen.dng"), *args, "--out", str(tmp_path / "b")]) == 2
+    assert "white level 65535 DN is above the camera config's largest ADC code 4095 DN (12 bits" in \
+        capsys.readouterr().err
+    write_dng(tmp_path / "clip.dng", np.full((24, 24), 4000, np.uint16), cfa="RGGB", black_level_dn=64,
+              white_level_dn=4050)  # within 2 % of the span: the camera's own clip
+    assert main(["process", str(tmp_path / "clip.dng"), *args, "--out", str(tmp_path / "c")]) == 0
+    capsys.readouterr()
+    _write_monochrome_dng(tmp_path / "mono.dng", np.tile(np.array([500, 1500], np.uint16), (24, 12)))
+    assert main(["process", str(tmp_path / "mono.dng"), *args, "--out", str(tmp_path / "d")]) == 2
+    assert "the file is a monochrome raw (no colour filter array); the camera config's CFA is RGGB" in \
+        capsys.readouterr().err
+
+
+def _write_monochrome_dng(path, mosaic):
+    """A LinearRaw DNG of one sample per pixel (a monochrome camera's raw): BlackLevel 64, WhiteLevel 4095 (tifffile
+    writes it as grey; the PhotometricInterpretation entry is then set to LinearRaw, 34892; DNG 1.4 p. 19)."""
+    import tifffile
+
+    tags = [(50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 1, 0, 0), True), (50708, "s", 0, "mono", True),
+            (50714, "H", 1, (64,), True), (50717, "H", 1, (4095,), True)]
+    tifffile.imwrite(path, mosaic, photometric="minisblack", subfiletype=0, extratags=tags, metadata=None)
+    data = bytearray(path.read_bytes())
+    entry = bytes.fromhex("0601030001000000") + (1).to_bytes(2, "little")  # tag 262, SHORT, count 1, value 1
+    i = data.find(entry)
+    assert i > 0
+    data[i + 8:i + 10] = (34892).to_bytes(2, "little")
+    path.write_bytes(bytes(data))

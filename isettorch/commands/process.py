@@ -8,11 +8,13 @@ Example::
 ``training/train_demosaic.py``; its ``sensor:`` section written by ``isettorch calibrate --out``). Each frame (DN:
 16-bit PNG/TIFF, ``.npy`` or a camera raw, read by :func:`isettorch.io.frames.read_frame`) is normalised with the
 sensor's black and white levels at the frames' gain, ``x = (DN - black) / (white - black)``, black being the
-sensor's zero level (its black level plus any analog offset, as the training pairs normalise; a camera raw's own CFA
-and black levels must be the config's: a file that disagrees is refused), and given to the network with the noise
-inputs of the sensor's Poisson-Gaussian model ``var(x) = a x + b`` (:func:`noise_params`), as in training. Output:
+sensor's zero level (its black level plus any analog offset, as the training pairs normalise; a camera raw's own CFA,
+black levels and white level must be the config's: a file that disagrees, or a monochrome raw, is refused), and given
+to the network with the noise inputs of the sensor's Poisson-Gaussian model ``var(x) = a x + b``
+(:func:`noise_params`), as in training. Output:
 camera RGB relative to the white level (not white-balanced), ``<stem>.npy`` (float32 ``[3, H, W]``), ``.exr``
-(linear) or ``.png`` (clipped to [0, 1] and sRGB-encoded, for viewing).
+(linear) or ``.png`` (clipped to [0, 1] and sRGB-encoded, for viewing), in the sensor's orientation, as the mosaic is
+stored (a DNG's Orientation tag is not applied: rotate a portrait frame afterwards).
 """
 
 from __future__ import annotations
@@ -184,6 +186,23 @@ def process_frame(dn, sensor, pattern: str, net, *, analog_gain=None, exposure_s
     return out[0]
 
 
+def _check_white_level(f, file_white: float, sensor, analog_gain, adc_bits: int) -> None:
+    """A camera raw's white level against the camera config's: above the config's largest ADC code the file has more
+    bits than the camera; more than 2 % of the span below the config's white level it clips where the config does
+    not (a 10-bit DNG through a 12-bit config: a clipped frame came out at 0.24 of white, exit 0). Above the
+    config's white level is the camera's (a DNG states the ADC's top code where the full well clips first)."""
+    black, span = levels(sensor, analog_gain)
+    code_max = float(2 ** adc_bits - 1)
+    at = "" if analog_gain is None else f" at --analog-gain {analog_gain:g}"
+    if file_white >= code_max + 1:  # (left-aligned: 65535 / 16 = 4095.94 for 12 bits)
+        raise ValueError(f"RAW: {f}: the file's white level {file_white:g} DN is above the camera config's largest "
+                         f"ADC code {code_max:g} DN ({adc_bits} bits; --camera: sensor.adc_bits)")
+    if file_white < black + 0.98 * span:
+        raise ValueError(f"RAW: {f}: the file's white level {file_white:g} DN is below the camera config's "
+                         f"{black + span:g} DN{at} (its clipped pixels would come out at "
+                         f"{(file_white - black) / span:.3g} of white); process it with its own camera's config")
+
+
 def _read(f):
     """:func:`isettorch.io.frames.read_frame_data` of a RAW argument, its errors naming RAW."""
     from ..io.frames import read_frame_data
@@ -306,11 +325,12 @@ def run(args) -> int:
     with Outputs(out_dir) as staged, \
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
-            dn, file_cfa, file_blacks, stored_bits, delta = _read(f)
+            dn, file_cfa, file_blacks, stored_bits, delta, file_white = _read(f)
             if shifts[f] > 1:
                 dn = dn / shifts[f]
                 file_blacks = None if file_blacks is None else [b / shifts[f] for b in file_blacks]
                 delta = None if delta is None else delta / shifts[f]
+                file_white = None if file_white is None else file_white / shifts[f]
             try:  # (an 8-bit PNG read as 12-bit DN)
                 check_sample_bits(f, stored_bits, adc_bits, "camera's")
             except ValueError as err:
@@ -320,6 +340,11 @@ def run(args) -> int:
             if file_cfa is not None and file_cfa != pattern:
                 raise ValueError(f"RAW: {f}: the file's CFA {file_cfa} differs from the camera config's {pattern} "
                                  f"(--camera); process it with its own camera's config")
+            if file_cfa is None and file_blacks is not None:  # a camera raw without a mosaic (grey came out orange)
+                raise ValueError(f"RAW: {f}: the file is a monochrome raw (no colour filter array); the camera "
+                                 f"config's CFA is {pattern} (--camera)")
+            if file_white is not None:
+                _check_white_level(f, file_white, sensor, args.analog_gain, adc_bits)
             black = levels(sensor, args.analog_gain)[0]  # with an analog offset, the dark reading it makes
             # the config's one black level is the mean over the CFA cell (calibrate measures it from all pixels): a
             # raw whose channels have their own levels around it (128, 130, 126, 132) is the camera's (was refused)

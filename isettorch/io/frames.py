@@ -72,6 +72,7 @@ class FrameData(NamedTuple):
     # a DNG's black level's departure from black_level_dn per pixel (RawFrame.black_level_delta_dn), or None; ``dn``
     # is the file's codes (a capture's dark frames measure the offsets as they are)
     black_level_delta_dn: np.ndarray | None = None
+    white_level_dn: float | None = None  # a camera raw's white level (DN; RawFrame.white_level_dn)
 
 
 def read_frame(path: str | Path) -> np.ndarray:
@@ -122,7 +123,7 @@ def read_frame_data(path: str | Path) -> FrameData:
     """:func:`read_frame`'s frame with the CFA and per-channel black levels (DN) of a camera raw's metadata."""
     path = Path(path)
     suffix = path.suffix.lower()
-    cfa, blacks, delta = None, None, None
+    cfa, blacks, delta, white = None, None, None, None
     try:
         if suffix == ".npy":
             arr = np.load(path, allow_pickle=False)
@@ -135,6 +136,7 @@ def read_frame_data(path: str | Path) -> FrameData:
 
             raw = read_raw(path)
             arr, cfa, blacks, delta = raw.data, raw.cfa, raw.black_level_dn, raw.black_level_delta_dn
+            white = raw.white_level_dn
         else:
             raise ValueError(f"unknown frame type {suffix!r}; expected one of {FRAME_SUFFIXES + RAW_SUFFIXES}")
     except ImportError:
@@ -149,7 +151,7 @@ def read_frame_data(path: str | Path) -> FrameData:
     arr = arr.astype(np.float64)
     if not np.isfinite(arr).all() or arr.min() < 0:
         raise ValueError(f"{path}: expected finite non-negative DN values")
-    return FrameData(arr, cfa, blacks, bits, delta)
+    return FrameData(arr, cfa, blacks, bits, delta, white)
 
 
 def write_frame(path: str | Path, frame) -> None:
@@ -319,7 +321,7 @@ def read_capture(directory: str | Path, *, progress: bool = False) -> Capture:
         for (kind, ms), folder, files in jobs:
             frames = []
             for f in files:
-                arr, cfa, blacks, stored_bits, _ = read_frame_data(f)
+                arr, cfa, blacks, stored_bits, *_ = read_frame_data(f)
                 if blacks:
                     raw_blacks.append(float(np.mean(blacks)))
                 check_sample_bits(f, stored_bits, cfg["bit_depth"], "capture's",  # (as isettorch process does)
