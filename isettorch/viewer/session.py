@@ -420,10 +420,32 @@ class ViewerSession:
         out["exposure_ms"] = float(raw.exposure_s.reshape(-1)[0]) * 1e3
         return out
 
+    def chart_window(self) -> tuple[int, int, int, int] | None:
+        """``(row0, row1, col0, col1)``: the scene's footprint in the processed image (the chart's, for the Macbeth
+        scene), the image plane's ``d_i tan(fov / 2)`` either side of the axis in pixels; None when the sensor does
+        not hold all of it (by more than a pixel a side) or the optical image has no geometry. A sensor larger than
+        the scene's image (a config's fixed rows and cols) holds the chart in its middle: patch means over the whole
+        image put the dark-skin patch under purplish blue (mean dE2000 73 for 3.7); a smaller one crops it."""
+        out = self.output
+        h, w = out.isp.xyz.shape[-2:]
+        oi = out.optical_image
+        d = oi.image_distance_m if oi.image_distance_m is not None else oi.focal_length_m
+        if d is None:
+            return None
+        d = float(torch.as_tensor(d).reshape(-1)[0])
+        pitch = float(self.camera.sensor.pixel_size_m)
+        half_w = d * math.tan(math.radians(float(out.scene.hfov_deg.reshape(-1)[0])) / 2) / pitch
+        half_h = d * math.tan(math.radians(float(out.scene.vfov_deg.reshape(-1)[0])) / 2) / pitch
+        r0, r1, c0, c1 = (round(h / 2 - half_h), round(h / 2 + half_h), round(w / 2 - half_w), round(w / 2 + half_w))
+        if r0 < -1 or c0 < -1 or r1 > h + 1 or c1 > w + 1:
+            return None
+        return max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
+
     def colour_stats(self, roi: ROI) -> dict:
         """Chromaticity of a processed-image region (mean of the ISP's XYZ, :func:`isettorch.metrics.xyz_to_xy`),
         the spectral locus, and, for the Macbeth scene, CIEDE2000 per patch against the chart's true colours
-        under D65 (:func:`isettorch.isp.chart.macbeth_delta_e`, white-patch scaled) and the patch under the ROI."""
+        under D65 (:func:`isettorch.isp.chart.macbeth_delta_e`, white-patch scaled) and the patch under the ROI, when
+        the sensor holds the whole chart (:meth:`chart_window`)."""
         from .. import spectral
         from ..isp.chart import macbeth_delta_e, macbeth_true_xyz, patch_means
         from ..metrics import xyz_to_xy
@@ -435,12 +457,14 @@ class ViewerSession:
         w = torch.arange(380.0, 701.0, 5.0, dtype=torch.float64)
         locus = xyz_to_xy(spectral.cmfs(w, dtype=torch.float64), dim=0).T.cpu().numpy()  # [L, 2]
         out = {"roi_xy": xyz_to_xy(roi_xyz, dim=0).cpu().numpy(), "locus_xy": locus}
-        if self.settings.scene == "macbeth":
-            rendered = patch_means(xyz.double())
+        window = self.chart_window() if self.settings.scene == "macbeth" else None
+        if window is not None:  # (a chart the sensor crops has no patch means)
+            r0, r1, c0, c1 = window
+            rendered = patch_means(xyz[..., r0:r1, c0:c1].double())
             acc = macbeth_delta_e(rendered, "D65")
-            h, w_px = xyz.shape[-2:]
-            cy, cx = (roi.row0 + roi.row1) / 2, (roi.col0 + roi.col1) / 2
-            patch = min(int(cy * 4 // h), 3) * 6 + min(int(cx * 6 // w_px), 5)
+            h, w_px = r1 - r0, c1 - c0
+            cy, cx = (roi.row0 + roi.row1) / 2 - r0, (roi.col0 + roi.col1) / 2 - c0
+            patch = min(max(int(cy * 4 // h), 0), 3) * 6 + min(max(int(cx * 6 // w_px), 0), 5)
             out.update({"delta_e": acc.delta_e[0].cpu().numpy(), "delta_e_mean": float(acc.mean[0]),
                         "delta_e_max": float(acc.max[0]), "patch_names": macbeth_patch_names(),
                         "roi_patch": patch,

@@ -157,3 +157,37 @@ def test_sensor_stats_measure_the_signal_above_black_and_count_every_pixel():
         assert int(ch["counts"].sum()) == ch["n"] == v.size
         expected = 20 * np.log10((v.mean() - black) / v.std(ddof=1))
         assert ch["snr_db"] == pytest.approx(expected, abs=1e-9)
+
+
+def test_colour_stats_find_the_chart_in_a_sensor_larger_than_its_image(tmp_path):
+    """A config with fixed rows and cols holds the Macbeth chart in the middle of a larger image; the patch means and
+    the patch under the ROI took the chart to fill the image (mean dE2000 73 instead of 3.7; the dark-skin patch was
+    named purplish blue). A sensor that crops the chart reports no dE (its cells were other patches)."""
+    import warnings
+
+    body = ("optics: {type: diffraction_limited, f_number: 4.0, focal_length_m: 0.003862755099}\n"
+            "sensor: {preset: isetcam_default, rows: %d, cols: %d, auto_exposure: luminance}\ncamera: {noise: false}\n"
+            "isp: {demosaic: bilinear, illuminant_correction: none, correction_space: xyz, sensor_conversion: "
+            "{method: mcc_optimized, illuminant: D65, surfaces: macbeth}, display: srgb, encoding: srgb, "
+            "scaling: adaptive}\n")
+    stats = {}
+    for rows, cols in ((86, 128), (240, 320), (72, 88)):  # the chart's own size at size=128, larger, smaller
+        (tmp_path / "cam.yaml").write_text(body % (rows, cols))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            session = ViewerSession(str(tmp_path / "cam.yaml"), "macbeth", size=128)
+        window = session.chart_window()
+        roi = ROI(0, 4, 0, 4)
+        if window is not None:  # the top-left patch's centre: an eighth of the chart down, a twelfth across
+            r0, r1, c0, c1 = window
+            cy, cx = r0 + (r1 - r0) // 8, c0 + (c1 - c0) // 12
+            roi = ROI(cy - 2, cy + 2, cx - 2, cx + 2)
+        stats[cols] = session.colour_stats(roi), window
+    (fits, win_fits), (large, win_large), (small, win_small) = stats[128], stats[320], stats[88]
+    assert win_fits == pytest.approx((0, 86, 0, 128), abs=1) and win_small is None
+    assert (win_large[1] - win_large[0], win_large[3] - win_large[2]) == pytest.approx((86, 128), abs=1)
+    assert win_large[0] == pytest.approx(240 / 2 - 43, abs=1) and win_large[2] == pytest.approx(320 / 2 - 64, abs=1)
+    for s in (fits, large):
+        assert s["patch_names"][s["roi_patch"]] == "dark skin"
+    assert large["delta_e_mean"] == pytest.approx(fits["delta_e_mean"], abs=0.3) and fits["delta_e_mean"] < 6
+    assert "delta_e" not in small and "roi_xy" in small
