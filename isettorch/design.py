@@ -690,6 +690,9 @@ def load_design(design, *, device=None) -> DesignCamera:
             with torch.random.fork_rng(devices=[]):  # the initial weights, replaced by the file's, drew from the
                 net = MosaicReconstructionNet(**level["network"]["kwargs"])  # global generator
             net.load_state_dict(level["network"]["state_dict"])
+            bad = [k for k, v in net.state_dict().items() if v.is_floating_point() and not bool(v.isfinite().all())]
+            if bad:  # (reported at the first image as "image: expected finite values")
+                raise ValueError(f"the network at {float(level['lux']):g} lux has non-finite weights ({bad[0]})")
             camera.add_level(float(level["lux"]), net)
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
         raise ValueError(f"design: {str(path)!r} is not a valid design file ({type(err).__name__}: {err})") from err

@@ -161,7 +161,10 @@ def test_design_file_rejects_what_cannot_be_built(design_file, tmp_path, monkeyp
     for edit, message in ((lambda d: d.__setitem__("pixel_qe", d["pixel_qe"] * 3), "pixel_qe: expected a fraction"),
                           (lambda d: d["levels"][1].__setitem__("lux", 1.0), "levels: more than one network"),
                           (lambda d: d.__setitem__("mosaic", d["mosaic"].double() + 0.5),
-                           "mosaic: expected integer filter indices")):
+                           "mosaic: expected integer filter indices"),
+                          # (NaN weights were blamed on the first photograph: "image: expected finite values")
+                          (lambda d: next(iter(d["levels"][0]["network"]["state_dict"].values())).fill_(math.nan),
+                           r"the network at [0-9.]+ lux has non-finite weights")):
         d = torch.load(design_file, weights_only=True)
         edit(d)
         torch.save(d, bad)
