@@ -190,6 +190,7 @@ class Camera(nn.Module):
     def from_optical_image(self, oi, return_intermediates: bool = False, *, exposure_s=None, generator=None,
                            **sensor_kwargs):
         """Resume from an optical image (e.g. one a user modified)."""
+        check_bool(return_intermediates, "return_intermediates")  # ('no' returned the intermediates)
         kwargs = {"noise": self.noise, **sensor_kwargs}
         if exposure_s is not None:
             kwargs["exposure_s"] = exposure_s
@@ -203,6 +204,7 @@ class Camera(nn.Module):
 
     def from_raw(self, raw, return_intermediates: bool = False):
         """Resume from a raw image (the sensor's output, possibly modified)."""
+        check_bool(return_intermediates, "return_intermediates")
         # the ISP reads the sensor's QE from the raw (ImageProcessor.fit_raw); a raw without it (made by hand)
         # gets the camera's sensor
         fit = getattr(self.isp, "fit", None)
@@ -215,6 +217,7 @@ class Camera(nn.Module):
 
     def from_demosaiced(self, demosaiced: torch.Tensor, return_intermediates: bool = False):
         """Resume from a demosaiced sensor image (B, C, H, W), relative to the white level."""
+        check_bool(return_intermediates, "return_intermediates")
         self.isp.fit(self.sensor)
         res = self.isp.from_demosaiced(demosaiced)
         out = CameraOutput(image=res.image, isp=res)

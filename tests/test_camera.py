@@ -159,3 +159,15 @@ def test_flags_and_the_window_margin_are_checked_not_coerced():
             Sensor(**kw)
     with pytest.raises(TypeError, match="noise: expected True or False, got 'yes'"):
         sensor.capture(torch.ones(1, 1, 8, 8), exposure_s=0.01, noise="yes")
+
+
+def test_resuming_checks_return_intermediates_as_forward_does():
+    """from_optical_image(oi, 'no') and from_raw(raw, 'no') returned the intermediates and from_raw(raw, 0) the image,
+    where forward refuses anything but True or False."""
+    cam = Camera(DiffractionLimitedOptics(), Sensor(rows=8, cols=8, cfa="RGGB", pixel_size_m=2.8e-6, exposure_s=1e-3),
+                 noise=False)
+    out = cam(uniform("D65", size=32, dtype=torch.float64), return_intermediates=True)
+    for call in (lambda: cam.from_optical_image(out.optical_image, "no"), lambda: cam.from_raw(out.raw, "no"),
+                 lambda: cam.from_raw(out.raw, 0), lambda: cam.from_demosaiced(out.demosaiced, "yes")):
+        with pytest.raises(TypeError, match="return_intermediates: expected True or False"):
+            call()

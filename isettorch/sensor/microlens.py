@@ -252,6 +252,8 @@ def _params(chief_ray_angle_deg, method, offset_m, kw):
                          f"{float(f_ml):.6g} m / microlens_f_number) is wider than the pixel (pixel_size_m={pixel:.6g} "
                          f"m); give microlens_diameter_m <= pixel_size_m or microlens_f_number >= "
                          f"{float(f_ml) / pixel:.4g}, or neither for a microlens as wide as the pixel")
+    if isinstance(offset_m, bool) or (isinstance(offset_m, torch.Tensor) and offset_m.dtype == torch.bool):
+        raise ValueError(f"offset_m: expected finite offsets (m), got {offset_m!r}")  # (True was a 1 m offset)
     if method == "optimal":
         s = torch.sin(torch.deg2rad(cra))[..., None]
         off = (t * torch.tan(torch.asin(s / n))).sum(-1)
@@ -266,7 +268,11 @@ def _params(chief_ray_angle_deg, method, offset_m, kw):
     if not bool(torch.isfinite(off.detach()).all()):
         raise ValueError(f"offset_m: expected finite offsets (m), got {off.detach().flatten()[:6].tolist()}")
     lam = torch.as_tensor(kw["wavelength_nm"], dtype=dtype, device=device) * 1e-9
-    shape_geo = torch.broadcast_shapes(cra.shape, off.shape)  # the rays' geometry; the wavelength only blurs
+    try:  # the rays' geometry; the wavelength only blurs
+        shape_geo = torch.broadcast_shapes(cra.shape, off.shape)
+    except RuntimeError as err:
+        raise ValueError(f"offset_m: shape {tuple(off.shape)} does not broadcast with the chief-ray angles' "
+                         f"{tuple(cra.shape)}") from err
     shape = torch.broadcast_shapes(shape_geo, lam.shape)
     cra, off = (v.expand(shape_geo).reshape(-1) for v in (cra, off))
     fnum = kw["source_f_number"]  # a tensor (a learnable f-number) keeps its gradient: the source's NA

@@ -33,15 +33,23 @@ __all__ = ["pixel_vignetting", "microlens_offset_m"]
 
 
 def _check_pos(v, name):
-    if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+    if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):  # (True was f/1)
         raise ValueError(f"{name}: expected a positive number, got {v!r}")
+
+
+def _check_index(n) -> None:
+    """A stack's refractive index, at least 1 (below it Snell's law has no refracted ray past sin(theta) = n: a NaN
+    efficiency at 40 deg for n = 0.5, and math's unnamed domain error)."""
+    _check_pos(n, "stack_index")
+    if n < 1:
+        raise ValueError(f"stack_index: expected a refractive index >= 1, got {n!r}")
 
 
 def microlens_offset_m(chief_ray_angle_deg: float, stack_height_m: float, stack_index: float = 1.5) -> float:
     """Microlens shift (m, towards the optical axis is negative) that centres the chief ray's focus on the
     detector: -h tan(asin(sin(theta_c) / n))."""
     _check_pos(stack_height_m, "stack_height_m")
-    _check_pos(stack_index, "stack_index")
+    _check_index(stack_index)
     if isinstance(chief_ray_angle_deg, bool) or not isinstance(chief_ray_angle_deg, (int, float)) \
             or not abs(chief_ray_angle_deg) < 90:  # (NaN fails too: it gave a NaN offset)
         raise ValueError(f"chief_ray_angle_deg: expected a number with |angle| < 90, got {chief_ray_angle_deg!r}")
@@ -65,8 +73,9 @@ def pixel_vignetting(chief_ray_angle_deg, f_number: float, stack_height_m: float
             aperture it shifts the entrance aperture.
     """
     for v, n in ((f_number, "f_number"), (stack_height_m, "stack_height_m"), (pixel_size_m, "pixel_size_m"),
-                 (detector_size_m, "detector_size_m"), (stack_index, "stack_index")):
+                 (detector_size_m, "detector_size_m")):
         _check_pos(v, n)
+    _check_index(stack_index)
     if f_number < 0.5:
         raise ValueError(f"f_number: expected >= 0.5 (beam half-angle below 90 deg), got {f_number}")
     if detector_size_m > pixel_size_m:

@@ -909,3 +909,26 @@ def test_physical_pixel_optics_gather_the_light_over_the_whole_pixel():
     full = rate(masks["all"])
     for k in ("on", "between"):  # the signal is the lit share of the pixel's
         assert rate(masks[k]) == pytest.approx(full * lit[k], rel=1e-9), k
+
+
+def test_pixel_optics_refuse_an_index_below_one_a_boolean_and_a_mismatched_offset():
+    """stack_index 0.5 gave NaN at 40 deg and silent zeros (no refracted ray past sin(theta) = n), f_number True was
+    f/1, microlens_offset_m raised math's unnamed 'math domain error', offset_m=True was a 1 m offset, and offsets
+    of another shape raised torch's broadcast error naming no argument."""
+    from isettorch.sensor.pixel_optics import microlens_offset_m
+
+    for microlens in (False, True):
+        with pytest.raises(ValueError, match=r"stack_index: expected a refractive index >= 1, got 0.5"):
+            pixel_vignetting(torch.tensor([0.0, 20.0, 40.0]), 4.0, 7e-6, 2.8e-6, 2.42e-6, stack_index=0.5,
+                             microlens=microlens)
+    with pytest.raises(ValueError, match=r"f_number: expected a positive number, got True"):
+        pixel_vignetting(0.0, True, 7e-6, 2.8e-6, 2.42e-6)
+    with pytest.raises(ValueError, match=r"stack_index: expected a refractive index >= 1"):
+        microlens_offset_m(40.0, 7e-6, 0.5)
+    # Snell: the offset is -h tan(asin(sin(theta) / n))
+    assert microlens_offset_m(30.0, 7e-6, 1.0) == pytest.approx(-7e-6 * math.tan(math.radians(30.0)), rel=1e-12)
+    for sampling in ("isetcam", "continuous"):
+        with pytest.raises(ValueError, match=r"offset_m: expected finite offsets \(m\), got True"):
+            microlens_etendue(torch.tensor([0.0]), "centred", offset_m=True, sampling=sampling)
+    with pytest.raises(ValueError, match=r"offset_m: shape \(3,\) does not broadcast with the chief-ray angles'"):
+        microlens_etendue(torch.tensor([0.0, 10.0]), "centred", offset_m=torch.tensor([0.0, 1e-7, 2e-7]))
