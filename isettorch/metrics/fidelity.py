@@ -32,6 +32,11 @@ def _pair(image: torch.Tensor, target: torch.Tensor, crop: int, data_range=None)
         # (uint8 against [0, 1] floats scored -42 dB: which range?)
         raise TypeError(f"target: expected the kind of image's dtype {image.dtype} (both integer codes or both "
                         f"floating point) or a data_range, got {target.dtype}")
+    if data_range is None and not image.is_floating_point() and image.dtype != target.dtype:
+        # (the peak is the integer dtype's largest value: uint8 against uint16 scored -42.6 dB, int32 against uint8
+        # 95.9 dB)
+        raise TypeError(f"target: integer codes of another width than image's {image.dtype} ({target.dtype}); give "
+                        f"both the same dtype or a data_range")
     check_finite(image.detach(), "image")  # a NaN pixel would make the score NaN without saying where it came from
     check_finite(target.detach(), "target")
     if isinstance(crop, float) and crop.is_integer():

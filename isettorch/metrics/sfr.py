@@ -25,6 +25,7 @@ import math
 import torch
 
 from .._checks import check_finite
+from .difference import working_dtype
 
 OVERSAMPLING = 4
 
@@ -340,8 +341,9 @@ def esfr(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, auto
         raise ValueError(f"min_cnr: expected a non-negative number, got {min_cnr!r}")
     if not (isinstance(max_empty_bins, (int, float)) and 0 <= max_empty_bins <= 1):
         raise ValueError(f"max_empty_bins: expected a fraction in [0, 1], got {max_empty_bins!r}")
-    if not image.is_floating_point():
-        image = image.to(torch.get_default_dtype())
+    # integers in torch's default dtype, half precision in float32 (the CPU's FFT takes neither: an unnamed
+    # "Unsupported dtype Half")
+    image = image.to(working_dtype(image.dtype))
     lead = image.shape[:-2]
     flat = image.reshape(-1, *image.shape[-2:])
     results, rois = [], []
@@ -449,8 +451,7 @@ def esfr_cfa(mosaic: torch.Tensor, cfa, mode: str = "luminance", roi: tuple[int,
     if mosaic.dim() != 2:
         raise ValueError(f"mosaic: expected one raw mosaic (H, W) or (1, 1, H, W), got shape {tuple(mosaic.shape)}")
     check_finite(mosaic.detach(), "mosaic")
-    if not mosaic.is_floating_point():
-        mosaic = mosaic.to(torch.get_default_dtype())
+    mosaic = mosaic.to(working_dtype(mosaic.dtype))  # (as esfr's image)
     cfa = cfa if isinstance(cfa, CFA) else CFA(cfa)
     ph, pw = cfa.shape
     if ph != pw:

@@ -285,6 +285,12 @@ def test_psnr_and_ssim_take_the_range_of_integer_images_as_scikit_image_does():
     assert float(psnr(x, y)) == pytest.approx(float(psnr(x.double() / 255, y.double() / 255)), rel=1e-6)
     with pytest.raises(TypeError, match="target: expected the kind of image's dtype"):
         psnr(x.double() / 255, y)
+    # integer codes of two widths: the peak was image's dtype's (uint8 against uint16 of the same picture: -42.6 dB)
+    for score in (psnr, ssim):
+        with pytest.raises(TypeError, match=r"target: integer codes of another width than image's torch.uint8"):
+            score(x, y.to(torch.int32) * 257)
+    assert float(psnr(x.to(torch.int32) * 257, y.to(torch.int32) * 257, data_range=65535.0)) == \
+        pytest.approx(float(psnr(x, y)), rel=1e-6)
     # with a data_range the two kinds share it (as before); a whole float crop is a crop
     assert float(psnr(x.double(), y, data_range=255.0)) == pytest.approx(float(psnr(x, y)), rel=1e-6)
     assert float(psnr(x, y, crop=2.0)) == float(psnr(x, y, crop=2))
