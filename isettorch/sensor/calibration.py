@@ -203,11 +203,16 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
         raise ValueError(f"channel {name}: every flat is saturated (mean {top:.1f} DN, no temporal variance), e.g. "
                          f"{folder(ms_f[0])}; add shorter exposures")
     sat_signal = float(signal[saturated].mean()) if saturated.any() else float(signal[peak])
-    linear = (signal <= _LINEAR_FRACTION * sat_signal) & (np.arange(len(ms_f)) <= peak) & ~saturated & (signal > 0)
+    # no flat saturated and the variance still rising at the brightest flat: no saturation in the capture, whose
+    # flats are all in the linear range (the 70 % cut of the brightest refused 4 flats at 10-40 % of the well); the
+    # ratio test below still leaves out a level departing from the line
+    unsaturated = not saturated.any() and peak == int(np.argmax(mu_f))
+    cut = np.inf if unsaturated else _LINEAR_FRACTION * sat_signal
+    linear = (signal <= cut) & (np.arange(len(ms_f)) <= peak) & ~saturated & (signal > 0)
     if linear.sum() < 3:
-        raise ValueError(f"channel {name}: only {int(linear.sum())} flat exposure(s) in the linear range (signal above"
-                         f" the dark and below 70 % of saturation: {[folder(m) for m in ms_f[linear]]}); the gain "
-                         f"needs at least 3")
+        where = "above the dark" if unsaturated else "above the dark and below 70 % of saturation"
+        raise ValueError(f"channel {name}: only {int(linear.sum())} flat exposure(s) in the linear range (signal "
+                         f"{where}: {[folder(m) for m in ms_f[linear]]}); the gain needs at least 3")
     # robust start: the median of the per-level ratios variance / signal (EMVA eq. 9: var = K signal), over the levels
     # with a temporal variance above the dark's (a level with none, e.g. copied frames, cannot be on the line); then
     # levels departing from it by more than 5 % (or 4 standard errors of their ratio: the variance of a sample variance

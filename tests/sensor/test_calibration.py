@@ -916,3 +916,17 @@ def test_raws_black_level_tags_far_from_the_measured_one_are_warned_about(tmp_pa
         assert bool(found) == warned, res["warnings"]
         if warned:
             assert f"mean over the CFA cell {tag:.2f} DN" in found[0] and "isettorch process will refuse" in found[0]
+
+
+def test_a_capture_that_never_saturates_fits_all_its_flats():
+    """Flats at 10-40 % of the well (TRUTH saturates at 45 ms) and none saturated: the 70 % linearity cut was taken of
+    the brightest flat as if it were saturation, refusing 4 linear levels ("only 2 flat exposure(s)") and dropping the
+    top 30 % of longer series. With no flat saturated and the variance still rising, every level is linear."""
+    from isettorch.sensor.calibration import calibrate_capture
+
+    for exposures in ([4.5, 9.0, 13.5, 18.0], [4.5, 9.0, 13.5, 18.0, 22.5]):
+        res = calibrate_capture(_memory_capture(exposures_ms=exposures, frames=4))
+        pt = res["photon_transfer"]
+        assert [e for e, lin in zip(pt["exposure_ms"], pt["linear"]) if lin] == exposures
+        assert res["conversion_gain_dn_per_e"] == pytest.approx(nc.TRUTH["gain_dn_per_e"], rel=0.02)
+        assert res["full_well_e"] is None
