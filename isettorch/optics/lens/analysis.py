@@ -315,7 +315,9 @@ class LensAnalysis:
         from the chief ray matter), the F/193 lens cos^4 to 1e-3, the bundled aspheric singlet 0.947 at 10 deg
         (Monte-Carlo 0.971: its coma moves the light's centroid off the chief ray). NaN where the chief ray's height
         stops growing with field (the image folds back, as at the edge of a strongly barrel-distorted wide angle:
-        the 100 deg retrofocus of the tests beyond 0.9 of its field), where no such ratio exists.
+        the 100 deg retrofocus of the tests beyond 0.9 of its field), where no such ratio exists. Not
+        differentiable: its slope and pupil areas are measured by finite differences and ray counts, so the result
+        carries no gradient to the prescription (``"rimmer"`` does).
 
         Rays that miss a surface or are totally reflected inside the pupil count as vignetted here (the
         marginal-ray check of :func:`lens_report` refuses such a lens): a block that totally reflects 29 % of its

@@ -24,11 +24,14 @@ Wavelengths (um in the file): ``WAVM n value weight`` (current; the number in us
 carry 24 ``WAVM`` slots) or ``WAVL v1 v2 ...`` (older). ``PWAV n`` is the primary wavelength (default 1); the
 analysis reports paraxial data there, as OpticStudio does.
 
+Glasses: catalogue names (``GCAT``; :mod:`isettorch.optics.lens.glass`) and model glasses ``GLAS ___BLANK 1 0 n_d
+V_d ...`` (an index and Abbe number, as designs from patents give them: Buchdahl's model, see the glass module).
+
 Refused with a :class:`PrescriptionError` naming the keyword: a truncated or non-numeric operand (``line 12:
-CURV: expected a value``), non-sequential mode, surface types other than STANDARD and EVENASPH, mirrors, model
-glasses, decentred or non-circular apertures, field types other than angles, object-space telecentricity and
-afocal image space (``FTYP`` flags), nonzero vignetting factors (``VDXN VDYN VCXN VCYN VANN``: OpticStudio would
-trace a vignetted pupil; zeros, as files usually write, are accepted), ``OBNA``, a curved image surface, a
+CURV: expected a value``), non-sequential mode, surface types other than STANDARD and EVENASPH, mirrors,
+decentred or non-circular apertures, field types other than angles, object-space telecentricity and afocal image
+space (``FTYP`` flags), nonzero vignetting factors (``VDXN VDYN VCXN VCYN VANN``: OpticStudio would trace a
+vignetted pupil; zeros, as files usually write, are accepted), ``OBNA``, a curved image surface, a
 negative thickness inside glass (a negative air gap is legitimate), and both dialects of the field or
 wavelength lines in one file. Purely cosmetic or unrecognised operands are ignored.
 """
@@ -42,6 +45,7 @@ from pathlib import Path
 import yaml
 
 from ..._yaml import load_yaml
+from .glass import model_glass_name, parse_model_glass
 
 __all__ = ["Surface", "Prescription", "PrescriptionError", "read_zmx", "read_lens_yaml", "load_lens",
            "bundled_lenses", "INFINITE_OBJECT_MM", "LENS_UNITS_MM"]
@@ -246,6 +250,8 @@ def read_zmx(path: str | Path) -> Prescription:
     cur: Surface | None = None
     parms: dict[int, dict[int, tuple[float, str]]] = {}  # surface -> PARM k -> (value, where)
     floating: dict[int, str] = {}  # surfaces with FLAP and no explicit semi-aperture
+    surface_at: dict[int, str] = {}  # surface -> its SURF line
+    disz_at: dict[int, str] = {}  # surfaces with a DISZ line
     apertures: dict[str, float | None] = {}
     fields: dict[tuple[str, str], list[float]] = {}
     vignetting: dict[str, tuple[list[float], str]] = {}
@@ -338,6 +344,7 @@ def read_zmx(path: str | Path) -> Prescription:
         elif op == "SURF":
             cur = Surface()
             surfaces.append(cur)
+            surface_at[len(surfaces) - 1] = at
         elif cur is not None:
             si = len(surfaces) - 1
             if op == "TYPE":
@@ -349,6 +356,7 @@ def read_zmx(path: str | Path) -> Prescription:
                 cur.curvature_per_mm = val()
             elif op == "DISZ":
                 cur.thickness_mm = val(infinite_ok=True)
+                disz_at[si] = at
             elif op == "CONI":
                 cur.conic = val()
             elif op == "PARM":
@@ -359,8 +367,14 @@ def read_zmx(path: str | Path) -> Prescription:
                 if g.upper() == "MIRROR":
                     raise PrescriptionError(f"{at}: mirrors are not supported (refractive lenses only)")
                 if g.startswith("___BLANK"):
-                    raise PrescriptionError(f"{at}: model glass {g!r} (index/Abbe solve) is not supported; "
-                                            f"expected a catalogue glass name")
+                    # a model glass, GLAS ___BLANK <solve type> <flag> n_d V_d [dPgF ...] (glass.py: Buchdahl's
+                    # model of n_d and V_d)
+                    nd, vd = val(4, "the model glass's n_d"), val(5, "the model glass's V_d after n_d")
+                    g = model_glass_name(nd, vd)
+                    try:
+                        parse_model_glass(g)
+                    except ValueError as err:
+                        raise PrescriptionError(f"{at}: {err}") from err
                 cur.material = None if g.upper() == "AIR" else g
             elif op == "DIAM":
                 cur.semi_diameter_mm = val(1, "the semi-diameter")
@@ -417,6 +431,10 @@ def read_zmx(path: str | Path) -> Prescription:
             s.aperture_min_mm *= unit
             s.aspheric = tuple(a * unit ** (1 - 2 * k) for k, a in enumerate(s.aspheric, 1))
         epd = None if epd is None else epd * unit
+    for si, s in enumerate(surfaces[:-1]):
+        if s.material is not None and si not in disz_at:  # (read as glass of thickness 0; the YAML reader refuses it)
+            raise PrescriptionError(f"{surface_at[si]}: surface {si} is followed by glass ({s.material}) but has no "
+                                    f"DISZ; expected its thickness (lens units to the next surface)")
     if math.isfinite(surfaces[0].thickness_mm) and abs(surfaces[0].thickness_mm) >= INFINITE_OBJECT_MM:
         surfaces[0].thickness_mm = math.inf  # changes paraxial data by ~ f / DISZ relative (module docstring)
     # --- fields -------------------------------------------------------------------------------------------------
@@ -529,7 +547,8 @@ def read_lens_yaml(path_or_dict) -> Prescription:
     """Read a lens prescription in the plain YAML form (a file path or an already-parsed dict).
 
     The form (lengths in mm; the primary wavelength, one of ``wavelengths_nm``, defaults to the listed one nearest
-    587.6 nm, the d line; ``material`` is a glass name, air when absent or ``air`` in any case)::
+    587.6 nm, the d line; ``material`` is a glass name, air when absent or ``air`` in any case, or a model glass
+    ``"n_d/V_d"`` such as ``"1.5168/64.17"``)::
 
         name: Cooke triplet
         source: ...

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from isettorch.optics.lens import PrescriptionError, bundled_lenses, load_lens, read_lens_yaml, read_zmx
+from isettorch.optics.lens import LensAnalysis, PrescriptionError, bundled_lenses, load_lens, read_lens_yaml, read_zmx
 from isettorch.optics.lens.prescription import DATA_DIR
 
 
@@ -397,3 +397,44 @@ def test_an_unknown_glass_in_a_zmx_names_the_file(tmp_path):
                                                                                           "NAME My singlet\nMODE SEQ"))
     with pytest.raises(GlassError, match=rf"My singlet \({f}\), the medium after surface 1: glass 'XYZGLASS1'"):
         LensAnalysis(f).paraxial(587.6)
+
+
+def test_model_glasses_read_as_buchdahls_model_of_nd_and_vd(tmp_path):
+    """A model glass (GLAS ___BLANK 1 0 n_d V_d ..., as designs from patents give their glasses; YAML "n_d/V_d") was
+    refused. It is Buchdahl's model of n_d and V_d: n_d exact at the d line, n_F - n_C = (n_d - 1) / V_d, and within
+    2.5e-4 of N-BK7 (n_d 1.5168, V_d 64.17) over 450-700 nm (opticalglass 1.1.1's own model glass has V_d 68.0)."""
+    from isettorch.optics.lens.glass import GlassError, refractive_index
+
+    name = "1.5168/64.17"
+    assert refractive_index(name, 587.5618) == pytest.approx(1.5168, abs=1e-12)
+    nf_nc = refractive_index(name, 486.1327) - refractive_index(name, 656.2725)
+    assert nf_nc == pytest.approx(0.5168 / 64.17, rel=1e-9)
+    for w in (450.0, 550.0, 700.0):
+        assert refractive_index(name, w) == pytest.approx(refractive_index("N-BK7", w), abs=2.5e-4)
+    with pytest.raises(GlassError, match="outside its valid range"):
+        refractive_index(name, 2000.0)
+    with pytest.raises(GlassError, match=r"model glass n_d/V_d needs 1 < n_d < 3"):
+        refractive_index("0.9/64", 550.0)
+    model = read_zmx(_zmx(tmp_path, ["  GLAS ___BLANK 1 0 1.5168 6.417E+1 0 0 0 0 0 0"]))
+    assert model.surfaces[1].material == name
+    catalogue = read_zmx(_zmx(tmp_path))
+    f_model = float(LensAnalysis(model).effective_focal_length_mm)
+    assert f_model == pytest.approx(float(LensAnalysis(catalogue).effective_focal_length_mm), rel=1e-5)
+    # the thin-lens power (n - 1)(c1 - c2) of a 5 mm thick biconvex lens: the lensmaker's equation at n_d
+    n, c1, c2, t = 1.5168, 0.02, -0.02, 5.0
+    power = (n - 1) * (c1 - c2) + (n - 1) ** 2 * t * c1 * c2 / n
+    assert f_model == pytest.approx(1 / power, rel=1e-4)  # (at the primary 587.6 nm, not quite the d line)
+    yaml_lens = read_lens_yaml({"aperture": {"entrance_pupil_diameter_mm": 10}, "surfaces": [
+        {"radius_mm": 50, "thickness_mm": 5, "material": name, "stop": True}, {"radius_mm": -50, "thickness_mm": 40}]})
+    assert float(LensAnalysis(yaml_lens).effective_focal_length_mm) == pytest.approx(f_model, rel=1e-12)
+    with pytest.raises(PrescriptionError, match=r"line 13: GLAS: expected the model glass's V_d after n_d"):
+        read_zmx(_zmx(tmp_path, ["  GLAS ___BLANK 1 0 1.5168"]))
+
+
+def test_a_zmx_glass_without_its_thickness_is_refused(tmp_path):
+    """A surface followed by glass with no DISZ was read as glass 0 mm thick (the YAML reader refuses it)."""
+    f = _zmx(tmp_path)
+    f.write_text(f.read_text().replace("  DISZ 5\n", ""))
+    with pytest.raises(PrescriptionError, match=r"line 8: SURF: surface 1 is followed by glass \(N-BK7\) but has no "
+                                                 r"DISZ"):
+        read_zmx(f)
