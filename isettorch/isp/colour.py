@@ -385,7 +385,16 @@ def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channe
     if not bool(torch.isfinite(wt.detach()).all()) or (wt.detach() <= 0).any():
         raise ValueError(f"white: expected positive, finite channel values of the target white, got {wt.tolist()}")
     r = _check_reference_channel(reference_channel, means.shape[-1])
-    return (wt / wt[:, r:r + 1]) * (means[:, r:r + 1] / means)
+    gains = (wt / wt[:, r:r + 1]) * (means[:, r:r + 1] / means)
+    over = ~torch.isfinite(gains.detach()).all(dim=-1, keepdim=True)  # (a channel mean of 1e-39 in float32: inf)
+    if bool(over.any()):
+        if no_signal == "raise":
+            raise ValueError(f"{name}: the channel means {means.detach().tolist()} give gains beyond "
+                             f"{means.dtype}'s range ({gains.detach().tolist()}); a channel has next to no signal")
+        warn_caller(f"white balance: item(s) {over[:, 0].nonzero()[:, 0].tolist()} have a channel mean so small "
+                    f"that its gain is beyond {means.dtype}'s range; they get the white's own gains (not balanced)")
+        gains = torch.where(over, (wt / wt[:, r:r + 1]).expand_as(gains), gains)
+    return gains
 
 
 def _check_reference_channel(reference_channel, channels: int | None = None) -> int:

@@ -739,8 +739,11 @@ def _noise_at_mean(raw: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor
     """``(sigma, m)`` ``[B]`` float64: the noise at the mosaic's mean level and that level ``m``."""
     a, b = noise_parameters(noise.to(torch.float64))
     level = raw.detach().to(torch.float64).clamp_min(0).mean((1, 2, 3))
-    # (sqrt at 0 gave the noise features NaN gradients at noise 0)
-    return (b + a * level).clamp_min(torch.finfo(torch.float64).tiny).sqrt(), level
+    # (sqrt at 0 gave the noise features NaN gradients at noise 0; the clamp alone left sigma 1.5e-154 at noise 0,
+    # which switched the high-noise gate's classical expert on for a float64 mosaic: "'nlmeans' needs a noise level")
+    var = b + a * level
+    sigma = var.clamp_min(torch.finfo(torch.float64).tiny).sqrt()
+    return torch.where(var > 0, sigma, torch.zeros_like(sigma)), level
 
 
 def level_gate_weight(raw: torch.Tensor, noise: torch.Tensor, sigma_max: float | None = None, *,

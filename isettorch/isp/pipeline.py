@@ -274,6 +274,9 @@ class ImageProcessor(ExactConstants):
         if raw.white_level is None:
             raise ValueError("raw: the image processor needs raw.white_level (the saturation value) to scale the "
                              "mosaic, got None")
+        # (checked here, not only by the built-in demosaics: through a user's demosaic module a NaN raw came out as a
+        # black image with NaN pixels and scale 0, no error)
+        check_finite(raw.data.detach(), "raw")
         return raw.normalized()
 
     def _sensor_white_target(self, matrix: torch.Tensor) -> torch.Tensor:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import torch
 
 from .._checks import check_bool, check_finite, check_positive, is_integer
+from .difference import working_dtype
 
 
 def _pair(image: torch.Tensor, target: torch.Tensor, crop: int, data_range=None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -68,10 +69,12 @@ def _data_range(data_range, image: torch.Tensor, target: torch.Tensor) -> float:
 
 
 def mse(image: torch.Tensor, target: torch.Tensor, crop: int = 0, *, data_range=None) -> torch.Tensor:
-    """Mean squared error per image over (C, H, W): :math:`(B)` (or a scalar for (C, H, W)). ``data_range``: only
-    to accept an integer image against a floating-point one (their common scale)."""
+    """Mean squared error per image over (C, H, W): :math:`(B)` (or a scalar for (C, H, W)), computed in at least
+    float32 (half precision returns float32). ``data_range``: only to accept an integer image against a
+    floating-point one (their common scale)."""
     a, b = _pair(image, target, crop, data_range)
-    return ((a - b) ** 2).mean(dim=(-3, -2, -1))
+    work = working_dtype(a.dtype)  # (in float16, 1 / MSE overflowed past 48 dB: a PSNR of inf for unequal images)
+    return ((a.to(work) - b.to(work)) ** 2).mean(dim=(-3, -2, -1))
 
 
 def psnr(image: torch.Tensor, target: torch.Tensor, data_range: float | None = None, crop: int = 0) -> torch.Tensor:

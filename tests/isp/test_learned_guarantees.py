@@ -519,3 +519,18 @@ def test_joint_model_noise_none_and_one_row_of_noise():
     z = zero.clone().requires_grad_(True)
     learned.demosaic_learned(raw[:1], variant="joint_denoise", noise=z).sum().backward()
     assert torch.isfinite(z.grad).all()
+
+
+def test_the_joint_network_runs_a_noise_free_float64_mosaic_as_float32():
+    """At noise 0 the noise sigma was clamped to 1.5e-154, not 0: in float64 the high-noise gate's ramp came out
+    1.5e-152 > 0 and switched the classical expert on, which refused a mosaic without noise ("'nlmeans' needs a noise
+    level"); float32 rounded it to 0."""
+    raw = mosaic(torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0)), "RGGB")
+    zero = learned.noise_features(0, 0)
+    assert learned.mosaic_noise_sigma(raw, zero).tolist() == [0.0]
+    assert learned.classical_gate_weight(raw, zero, 0.0, 0.01, 1.0).tolist() == [0.0]
+    out32 = learned.demosaic_learned(raw, variant="joint_denoise")
+    for noise in (None, zero.double()):
+        out64 = learned.demosaic_learned(raw.double(), variant="joint_denoise", noise=noise)
+        assert out64.dtype == torch.float64
+        assert torch.allclose(out64.float(), out32, atol=1e-5), float((out64.float() - out32).abs().max())

@@ -385,3 +385,37 @@ def test_one_colour_matrix_is_not_fitted_to_per_item_qes_and_fits_follow_new_fil
     ip.fit(base.filters.detach().to(torch.float64))
     ip.fit_raw(RawImage(torch.zeros(1, 1, 8, 8), "volts", CFA("RGGB"), white_level=1.0, spectral_qe=qe))
     torch.testing.assert_close(ip.sensor_to_xyz.matrix.detach(), swapped)
+
+
+def test_a_nan_raw_is_refused_before_a_users_demosaic_and_tiny_channel_means_are_named():
+    """Through a user's demosaic module (which the pipeline allows) a NaN raw came out as a black image with NaN pixels
+    and scale 0, no error; a channel mean of 1e-39 in float32 gave gray-world gains of inf and a non-finite image."""
+    import warnings
+
+    from torch import nn
+
+    from isettorch.isp.colour import gray_world_gains
+
+    class Copy(nn.Module):
+        def forward(self, mosaic, cfa):
+            return mosaic.expand(-1, 3, -1, -1) * 1.0
+
+    data = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
+    data[0, 0, 3, 3] = float("nan")
+    for stage in ("bilinear", Copy()):
+        ip = ImageProcessor(demosaic=stage, scaling="max")
+        ip.sensor_to_xyz.set_matrix(torch.eye(3))
+        with pytest.raises(ValueError, match=r"raw: expected finite values, found 1 NaN/Inf entries"):
+            ip(RawImage(data, "volts", "RGGB", white_level=1.0))
+    img = torch.zeros(1, 3, 8, 8)
+    img[:, :2] = 0.5
+    img[0, 2, 0, 0] = 64e-39  # a blue mean of 1e-39 (subnormal in float32)
+    with pytest.raises(ValueError, match=r"img: the channel means .* give gains beyond torch.float32's range"):
+        gray_world_gains(img)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        gains = gray_world_gains(img, no_signal="white")
+    assert torch.equal(gains, torch.ones(1, 3))
+    assert any("beyond torch.float32's range" in str(w.message) for w in caught)
+    img[0, 2, 0, 0] = 64e-30  # tiny but within range: balanced
+    assert float(gray_world_gains(img)[0, 2]) == pytest.approx(0.5 / 1e-30, rel=1e-5)

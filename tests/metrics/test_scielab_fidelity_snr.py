@@ -425,3 +425,15 @@ def test_scielab_isetcam_kernels_keep_their_blur_at_display_sampling():
     assert all(float(k.sum()) == pytest.approx(1.0) for terms in scielab_filters(1e-4) for _, k in terms)
     with pytest.raises(ValueError, match=r"xyz1: expected \(B, 3, H, W\)"):
         scielab(torch.rand(4, 5, 5), torch.rand(4, 5, 5), "D65", 23.0)
+
+
+def test_half_precision_psnr_is_computed_in_float32():
+    """In float16, 1 / MSE overflowed past about 48 dB: 0.5 against 0.5 + 2^-10 scored inf ("identical")."""
+    a = torch.full((1, 3, 8, 8), 0.5, dtype=torch.float16)
+    b = a + 2.0 ** -10
+    want = peak_signal_noise_ratio(a.double().numpy(), b.double().numpy(), data_range=1.0)
+    assert want == pytest.approx(60.206, abs=1e-3)
+    for dtype, step in ((torch.float16, 2.0 ** -10), (torch.bfloat16, 2.0 ** -7)):  # (bfloat16: 8-bit mantissa)
+        x, y = a.to(dtype), (a.double() + step).to(dtype)
+        ref = peak_signal_noise_ratio(x.double().numpy(), y.double().numpy(), data_range=1.0)
+        assert float(psnr(x, y)) == pytest.approx(ref, rel=1e-6) and math.isfinite(float(psnr(x, y)))
