@@ -151,7 +151,7 @@ def validate(camera: DesignCamera, cfg: dict, source) -> dict:
             for b in range(int(v["batches"])):
                 seed = int(cfg["seed"]) + int(v["seed_offset"])
                 maps, refl = (t.to(device) for t in source(b, int(cfg["data"]["batch"]), int(cfg["data"]["size"]),
-                                                          camera, cfg, seed))
+                                                          camera, cfg, seed, split="val"))
                 scene = camera.scene(maps, refl, float(lux))
                 g = torch.Generator(device=device).manual_seed(seed_for(seed, b, stream=round(1000 * float(lux))))
                 pred = camera(scene, float(lux), generator=g)
@@ -235,6 +235,11 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
             predesigned = predesign(camera, cfg, quiet=quiet)
     camera.to(device)
     o = cfg["optim"]
+    # (steps <= 0 were blamed on design_warmup/design_until or failed with an IndexError; batch 0 in a reshape)
+    for key, value in (("optim.steps", o["steps"]), ("data.batch", cfg["data"]["batch"]),
+                       ("data.size", cfg["data"]["size"])):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{key}: expected an integer >= 1, got {value!r}")
     steps = int(o["steps"])
     design_params = [p for n, p in camera.named_parameters() if p.requires_grad and not n.startswith("networks.")]
     groups = [{"params": list(camera.networks.parameters()), "lr": float(o["lr"])}]

@@ -18,7 +18,8 @@ def _reflectance_of(spectra: torch.Tensor, white: torch.Tensor) -> torch.Tensor:
     return spectra / white[:, None, :].clamp_min(torch.finfo(white.dtype).tiny)
 
 
-def source_layouts(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, seed: int):
+def source_layouts(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, seed: int,
+                   split: str = "train"):
     """PairStream's scenes (:func:`isettorch.data.batched.draw_layout_scenes`), one light, no shadows or HDR."""
     from isettorch.data.batched import draw_layout_scenes
     from isettorch.data.config import SCENE_DEFAULTS, merge_config
@@ -32,7 +33,8 @@ def source_layouts(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, s
     return drawn["maps"], _reflectance_of(drawn["spectra"], drawn["white"]).float()
 
 
-def source_natural(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, seed: int):
+def source_natural(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, seed: int,
+                   split: str = "train"):
     """:func:`isettorch.data.natural.generate_natural` scenes under one daylight (their reflectances)."""
     from isettorch.data.natural import generate_natural, natural_config
 
@@ -50,8 +52,11 @@ def source_natural(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, s
     return maps, refl.float()
 
 
-def source_photos(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, seed: int):
-    """Random ``size`` crops (and flips) of the photographs in ``data.folder``, lifted to spectra."""
+def source_photos(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, seed: int,
+                  split: str = "train"):
+    """Random ``size`` crops (and flips) of the photographs in ``data.folder``, lifted to spectra: ``split``
+    ``'train'`` from all but every fifth photograph (by name), ``'val'`` from those (the validation crops came from the
+    training photographs, under a card that called them held out). The other sources draw fresh scenes per seed."""
     import numpy as np
 
     from isettorch.data.photos import lift_srgb
@@ -65,7 +70,14 @@ def source_photos(k: int, n: int, size: int, camera: DesignCamera, cfg: dict, se
         photos = load_images(common_path(folder))
         common.refuse_test_images(photos, "data.folder")  # trained and validated on: never a test set
         cache[folder] = photos
-    photos = cache[folder]
+    photos = sorted(cache[folder], key=lambda item: item[0])
+    if len(photos) < 2:
+        raise ValueError(f"data.folder: the photos source needs at least 2 photographs (every fifth is held out for "
+                         f"validation), {folder!r} has {len(photos)}")
+    held = {i for i in range(len(photos)) if i % 5 == 4} or {len(photos) - 1}
+    if split not in ("train", "val"):
+        raise ValueError(f"split: expected 'train' or 'val', got {split!r}")
+    photos = [ph for i, ph in enumerate(photos) if (i in held) == (split == "val")]
     g = torch.Generator().manual_seed(seed_for(seed, k, stream=0))
     maps, refl = [], None
     for _ in range(n):

@@ -155,9 +155,13 @@ BANK_CHUNK = 128  # scenes per file of a scene bank (the unit of resuming and of
 def _render_chunk(args):
     """Worker of :class:`SceneBank`: scenes ``[lo, hi)`` of one pool, float16 ``[n, 3, S, S]`` (one thread)."""
     cfg, seed, scene_size, lo, hi = args
-    torch.set_num_threads(1)
-    pool = ScenePool(cfg, seed, scene_size)
-    return torch.stack([pool.render(i) for i in range(lo, hi)]).half()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # (the same rounding in a worker and in the trainer's own process)
+    try:
+        pool = ScenePool(cfg, seed, scene_size)
+        return torch.stack([pool.render(i) for i in range(lo, hi)]).half()
+    finally:  # rendered in the trainer's process (one worker or one chunk left), it trained on one thread after
+        torch.set_num_threads(threads)
 
 
 class SceneBank(ScenePool):

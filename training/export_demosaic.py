@@ -112,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
             scores.setdefault(name, {})[f"sigma{sigma:g}_crop10"] = round(res["mean_cpsnr"], 3)
             print(name, sigma, scores[name], flush=True)
     history = json.loads(ck["history"])
+    interpolated = ck.get("interpolated")  # (heldout_screen.interpolate_checkpoints)
     rec_path = run / "record.json"
     rec = json.loads(rec_path.read_text()) if rec_path.is_file() else {}
     cfg = json.loads(ck["train_config"])
@@ -130,13 +131,19 @@ def main(argv: list[str] | None = None) -> int:
         "net_config": net_config,
         "parameters": sum(p.numel() for p in net.parameters()),
         "data": args.data or cfg.get("data"),
-        "checkpoint": {"which": args.which, "step": int(ck["step"]), "selected_by": selected_by},
+        "checkpoint": {"which": args.which, "step": int(ck["step"]), "selected_by": selected_by,
+                       **({"interpolated": interpolated} if interpolated else {})},
         "wall_s": round(float(ck.get("wall_s", 0.0)), 1),
         "total_run_wall_s": rec.get("wall_s"),
         "hardware": rec.get("hardware"),
-        "validation_synthetic": {k: v for k, v in (history[-1] if history else {}).items()
-                                 if k.startswith("val_")},
-        "best_val_cpsnr": float(ck["best_val_cpsnr"]),
+        # the training run's validation rows score the network as trained, before the variant's guard, correction
+        # scale and blend (the benchmarks score it as it ships); an interpolated checkpoint has none of its own
+        "validation_synthetic": {} if interpolated else {k: v for k, v in (history[-1] if history else {}).items()
+                                                         if k.startswith("val_")},
+        "validation_of": ("none: weights interpolated between two checkpoints, whose runs' validation rows do not "
+                          "describe them" if interpolated else
+                          "the network as trained (bare: before the shipped guard, correction scale and blend)"),
+        "best_val_cpsnr": None if interpolated else float(ck["best_val_cpsnr"]),
         "benchmarks_cpsnr_db": scores,
         "benchmark_convention": "shared/data/README.md: RGGB, noise-free, 8-bit/255 as linear, clip, CPSNR per "
                                 "image averaged; Kodak/McMaster were never used for training or selection",
@@ -159,9 +166,11 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"- initialised from: `{cfg['init']}` (an earlier run's checkpoint: train that run first)")
     lines += [f"- network: DemosaicNet {net_config}, "
              f"{info['parameters']} parameters", f"- data: {json.dumps(info['data'], default=str)}",
-             f"- checkpoint: {args.which} by {selected_by}, step {ck['step']}, "
-             f"training wall time {info['wall_s']} s", f"- hardware: {json.dumps(info['hardware'], default=str)}",
-             f"- validation (held out): {json.dumps(info['validation_synthetic'])}"]
+             f"- checkpoint: {args.which} by {selected_by}, "
+             + (f"weights interpolated {json.dumps(interpolated)} (the step and wall time are the start's)"
+                if interpolated else f"step {ck['step']}")
+             + f", training wall time {info['wall_s']} s", f"- hardware: {json.dumps(info['hardware'], default=str)}",
+             f"- validation (held out; {info['validation_of']}): {json.dumps(info['validation_synthetic'])}"]
     if heldout:
         lines += ["", f"Held-out camera pairs ({heldout['items']} items {heldout['size']}x{heldout['size']}, dataset "
                   f"seed {heldout['dataset_seed']}, input {heldout['input']} -> camera_rgb, CPSNR dB, crop "

@@ -175,6 +175,10 @@ def interpolate_checkpoints(alpha: float, start: dict, finetuned: dict) -> dict:
     out["model"] = {k: (1 - alpha) * start["model"][k].float() + alpha * finetuned["model"][k].float()
                     for k in start["model"]}
     out.pop("optimizer", None)
+    # the record (step, history, config, wall time) stays start's: said here, so that a card made of it does not
+    # report start's step and validation as the interpolated network's
+    out["interpolated"] = {"alpha": float(alpha), "start_step": start.get("step"),
+                           "finetuned_step": finetuned.get("step")}
     return out
 
 

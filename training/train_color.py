@@ -214,7 +214,12 @@ def main(argv: list[str] | None = None) -> int:
     cfg = common.load_config(args.config, args.set)
     common.check_keys(cfg, COLOR_TOP_KEYS, COLOR_SECTION_KEYS)  # (a misspelt key ran with its default)
     if args.steps is not None:
-        cfg["optim"]["steps"] = args.steps
+        cfg.setdefault("optim", {})["steps"] = args.steps
+    # (steps 0 wrote untrained models with exit 0, a missing one was a KeyError, val.every 0 a ZeroDivisionError)
+    for key, value in (("optim.steps", (cfg.get("optim") or {}).get("steps")),
+                       ("val.every", (cfg.get("val") or {}).get("every", 100))):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{key}: expected an integer >= 1, got {value!r}")
     if args.threads or cfg.get("threads"):
         torch.set_num_threads(int(args.threads or cfg["threads"]))
     out = Path(args.out or cfg.get("out", "out/train_color"))
@@ -243,7 +248,8 @@ def main(argv: list[str] | None = None) -> int:
     bar = progress(total=steps, desc="train", unit="step", quiet=args.quiet)  # stderr; rows go to stdout
     for step in range(1, steps + 1):
         rgb, wht, tgt, mrgb, mtgt = data.batch(n_scenes, n_refl, seed * 1_000_003 + step)
-        lr = float(o["lr"]) * 0.5 * (1 + math.cos(math.pi * step / steps))
+        # cosine from the full rate at step 1 (step / steps made the last step's rate 0 and the first's below lr)
+        lr = float(o["lr"]) * 0.5 * (1 + math.cos(math.pi * (step - 1) / steps))
         losses = {}
         for k, m in models.items():
             for grp in opts[k].param_groups:

@@ -248,7 +248,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="stop (with a checkpoint) after this many steps in this invocation; resume later")
     add_quiet_argument(ap, "--no-progress")
     args = ap.parse_args(argv)
-
+    if args.stop_after is not None and args.stop_after < 1:  # (0 ran the whole run, -2 did nothing with exit 0)
+        raise SystemExit(f"--stop-after: expected a number of steps >= 1, got {args.stop_after}")
     cfg = common.load_config(args.config, args.set)
     if args.steps is not None:
         cfg.setdefault("optim", {})["steps"] = args.steps

@@ -59,6 +59,14 @@ def test_config_rejects_unknown_keys():
         codesign.merged_config({"lux": [0]})
     with pytest.raises(ValueError, match="data.source"):
         codesign.train({"data": {"source": "nope"}, "optim": {"steps": 1}})
+    # (steps 0 failed with an IndexError, -5 was blamed on design_warmup/design_until, batch 0 on a reshape)
+    for edit, message in (({"optim": {"steps": 0}}, "optim.steps: expected an integer >= 1, got 0"),
+                          ({"optim": {"steps": -5}}, "optim.steps: expected an integer >= 1, got -5"),
+                          ({"data": {"batch": 0}}, "data.batch: expected an integer >= 1, got 0")):
+        cfg = {"out": "/nonexistent/never_written", "optim": {"steps": 2}, **edit}
+        cfg["optim"] = {"steps": 2, **edit.get("optim", {})}
+        with pytest.raises(ValueError, match=message):
+            codesign.train(cfg, quiet=True)
 
 
 def test_tiny_run_exports_a_manufacturable_design(tmp_path, photos):
@@ -299,3 +307,37 @@ def test_losses_against_colour_science():
     assert float(codesign._loss(out, target, 2, 0.5, "l1")) == pytest.approx(expected_l1, rel=1e-9)
     with pytest.raises(ValueError, match="optim.loss"):
         codesign.train({"optim": {"steps": 1, "loss": "l2"}})
+
+
+def test_the_photos_source_validates_on_photographs_it_does_not_train_on(monkeypatch):
+    """codesign with data.source photos drew its validation crops from the training photographs (only the seed
+    differed) under a card that called them held out: every fifth photograph (by name) is now validation only."""
+    from training import codesign_sources
+
+    rng = np.random.default_rng(0)
+    photos = [(f"p{i}", rng.integers(0, 256, (40, 40, 3), dtype=np.uint8)) for i in range(10)]
+    monkeypatch.setattr(codesign_sources.source_photos, "cache", {"/photos": photos}, raising=False)
+    cfg = codesign.merged_config({"data": {"source": "photos", "folder": "/photos", "size": 32, "batch": 4}})
+    cam = make_design("bayer_rgb", {}, [10.0], seed=0)
+    seen = {"train": set(), "val": set()}
+    for split in seen:
+        for k in range(12):
+            maps, _ = codesign_sources.source_photos(k, 4, 32, cam, cfg, 0, split=split)
+            for crop in maps:  # which photograph each crop came from: the lifted crop's match
+                seen[split].add(min(range(10), key=lambda i: _crop_distance(photos[i][1], crop)))
+    assert seen["val"] == {4, 9} and seen["train"] == {0, 1, 2, 3, 5, 6, 7, 8}
+
+
+def _crop_distance(photo, maps) -> float:
+    """How far ``maps``' first map is from any 32 x 32 crop (or its mirror) of ``photo``'s luminance, coarsely: the
+    means of the crop's quarters against the photo's."""
+    lum = photo.astype(np.float64).mean(-1)
+    m = maps.numpy().sum(0)
+    best = math.inf
+    for y in range(0, 9):
+        for x in range(0, 9):
+            c = lum[y:y + 32, x:x + 32]
+            for cc in (c, c[:, ::-1]):
+                r = np.corrcoef(cc.ravel(), m.ravel())[0, 1]
+                best = min(best, 1 - r)
+    return best

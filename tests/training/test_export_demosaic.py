@@ -140,3 +140,30 @@ def test_shipped_cards_name_the_start_the_reproduction_chain_uses():
             assert card["config"]["init_in_chain"].split(" ")[0] == last["init"], model
         else:
             assert init == last.get("init"), model
+
+
+def test_an_interpolated_checkpoints_card_does_not_report_the_starts_validation(tmp_path):
+    """A WiSE interpolation keeps its start's record: its card gave the start's step and validation rows as the
+    interpolated network's. It now says it is interpolated and reports no validation of its own; a trained
+    checkpoint's validation is labelled as the bare network's (the benchmarks score it as it ships)."""
+    from training import heldout_screen
+
+    nets = [DemosaicNet(channels=8, depth=2) for _ in range(2)]
+    runs = []
+    for i, net in enumerate(nets):
+        run = tmp_path / f"run{i}"
+        run.mkdir()
+        train_demosaic.save_checkpoint(run / "best.pt", net, torch.optim.Adam(net.parameters()), 3 + i,
+                                       {"data": {"source": "natural"}}, 30.0, [{"step": 3, "val_cpsnr": 33.6}], 33.6)
+        runs.append(run)
+    out = tmp_path / "assets"
+    assert export_demosaic.main(["--run", str(runs[0]), "--out", str(out), "--no-bench"]) == 0
+    card = json.loads((out / "demosaic_learned.json").read_text())
+    assert card["validation_synthetic"] == {"val_cpsnr": 33.6} and "bare" in card["validation_of"]
+    start, tuned = (torch.load(r / "best.pt", weights_only=True) for r in runs)
+    torch.save(heldout_screen.interpolate_checkpoints(0.5, start, tuned), runs[0] / "best.pt")
+    assert export_demosaic.main(["--run", str(runs[0]), "--out", str(out), "--no-bench"]) == 0
+    card = json.loads((out / "demosaic_learned.json").read_text())
+    assert card["validation_synthetic"] == {} and card["best_val_cpsnr"] is None
+    assert card["checkpoint"]["interpolated"] == {"alpha": 0.5, "start_step": 3, "finetuned_step": 4}
+    assert "weights interpolated" in (out / "demosaic_learned.md").read_text()

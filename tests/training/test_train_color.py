@@ -94,3 +94,23 @@ def test_a_misspelt_key_is_named_and_the_shipped_config_passes(tmp_path):
         train_color.main(["--config", str(cfg), "--out", str(tmp_path / "o")])
     shipped = common.load_config(Path(__file__).resolve().parents[2] / "configs" / "train" / "color.yaml")
     common.check_keys(shipped, train_color.COLOR_TOP_KEYS, train_color.COLOR_SECTION_KEYS)
+
+
+def test_one_step_trains_at_the_full_rate_and_bad_steps_are_named(tmp_path, capsys):
+    """The cosine schedule was lr (1 + cos(pi step / steps)) / 2 for step 1..steps: the last step's rate was 0, so a
+    1-step run left the zero-initialised last layer of the conditioning at 0. Steps 0 wrote untrained models with
+    exit 0, a missing one was a KeyError, val.every 0 a ZeroDivisionError."""
+    cfg = tmp_path / "c.yaml"
+    body = ("seed: 0\nmodels: [matrix]\nhidden: 8\ndata: {scenes_per_batch: 4, reflectances_per_scene: 8}\n"
+            "optim: {lr: 1.0e-2%s}\nval: {scenes: 4, reflectances_per_scene: 8, every: %d}\n")
+    cfg.write_text(body % (", steps: 1", 1))
+    assert train_color.main(["--config", str(cfg), "--out", str(tmp_path / "o"), "--threads", "1", "--quiet"]) == 0
+    last = [v for k, v in torch.load(tmp_path / "o" / "color_models.pt", weights_only=True)["models"]["matrix"].items()
+            if k.startswith("cond.") and k.endswith(".weight")][-1]
+    assert float(last.abs().sum()) > 0
+    for steps, every, message in ((", steps: 0", 1, r"optim.steps: expected an integer >= 1, got 0"),
+                                  ("", 1, r"optim.steps: expected an integer >= 1, got None"),
+                                  (", steps: 2", 0, r"val.every: expected an integer >= 1, got 0")):
+        cfg.write_text(body % (steps, every))
+        with pytest.raises(ValueError, match=message):
+            train_color.main(["--config", str(cfg), "--out", str(tmp_path / "p"), "--quiet"])

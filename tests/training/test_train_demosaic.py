@@ -358,6 +358,18 @@ def test_scene_bank_holds_the_pools_scenes_and_resumes(tmp_path, monkeypatch):
     assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
 
 
+def test_rendering_the_bank_in_process_leaves_the_trainers_threads(tmp_path):
+    """A bank rendered in the trainer's own process (one worker, or one chunk left) set torch to one thread for the
+    rest of the run: slower, and not bitwise a resumed run (which loads the cached bank)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        train_demosaic.make_sampler(_bank_cfg(tmp_path, 2))
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_scene_bank_is_keyed_on_the_scenes(tmp_path):
     """Another scene seed or generator config is another bank; batch, patch and domain keys share one."""
     cfg = _bank_cfg(tmp_path, 2)
