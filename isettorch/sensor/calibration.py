@@ -80,6 +80,32 @@ def _stats(planes: list[np.ndarray]) -> dict[str, Any]:
     return out
 
 
+#: a flat folder's frames whose signals (mean over the shortest dark's) differ by more than this ratio are refused
+#: (mixed exposures or settings), by more than the warning ratio warned about (a flickering light)
+FRAME_SIGNAL_RATIO_ERROR, FRAME_SIGNAL_RATIO_WARNING = 1.25, 1.05
+
+
+def _check_frame_means(capture, warnings: list[str]) -> None:
+    """Every flat folder's frames at one signal: each frame's mean is taken out before the temporal statistics
+    (flicker tolerance, EMVA 1288), so a folder of 12.9 ms and 24.7 ms frames (means 1130 and 2080 DN) was read as one
+    level at their average, 46 % too bright, without a word."""
+    black = float(capture.dark[min(capture.dark)].mean())
+    for ms, stack in sorted(capture.flat.items()):
+        signal = stack.reshape(stack.shape[0], -1).mean(axis=1, dtype=np.float64) - black
+        lo, hi = float(signal.min()), float(signal.max())
+        if lo <= 0 or len(signal) < 2:
+            continue
+        folder = capture.folders.get(("flat", ms), f"flat_{ms:g}ms")
+        shown = [round(float(v), 1) for v in signal]
+        if hi / lo > FRAME_SIGNAL_RATIO_ERROR:
+            raise ValueError(f"{folder}: its frames' mean signals (DN over the shortest dark) {shown} differ by "
+                             f"{hi / lo:.3g}x: frames of other exposures or settings in one folder? (a flickering "
+                             f"light varies by a few %); expected one exposure per folder")
+        if hi / lo > FRAME_SIGNAL_RATIO_WARNING:
+            warnings.append(f"{folder}: its frames' mean signals {shown} DN differ by {100 * (hi / lo - 1):.3g} % "
+                            f"(a flickering light?); the level is their mean")
+
+
 def _inverse_sd(sd) -> np.ndarray | None:
     """Weights 1 / sd for np.polyfit, safe against a zero (or non-finite) standard error, which would give infinite
     weights (LAPACK then fails and prints to stdout): such an sd is raised to 1e-6 of the largest finite one; None
@@ -529,8 +555,15 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
                         f"{capture.bit_depth}-bit words?): the quantisation variance is {step}^2/12 DN^2 (EMVA 1288 "
                         f"eq. 5 for a step of {step} DN); results are in the files' DN, the sensor config is written "
                         f"for {bits_eff} bits (DN / {step})")
+    if not acc.whole and capture.bit_depth > 1:
+        top = max(float(st.max()) for st in (*capture.dark.values(), *capture.flat.values()))
+        if top <= 1.0:  # (DN / 4095 as float32: a conversion gain 4000x too small, a black level of 0.02 DN)
+            raise ValueError(f"the frames' values are all within 0..{top:.3g}, not DN: normalised frames of a "
+                             f"{capture.bit_depth}-bit capture? expected DN (0..{2 ** capture.bit_depth - 1}); "
+                             f"multiply by 2^bit_depth - 1")
     capture = _without_clipped_darks(capture, step, warnings)
     _check_plane_shape(capture)
+    _check_frame_means(capture, warnings)
     dark_p = {ms: _planes(s, capture.cfa) for ms, s in capture.dark.items()}
     flat_p = {ms: _planes(s, capture.cfa) for ms, s in capture.flat.items()}
     names = list(next(iter(dark_p.values())))
@@ -583,7 +616,7 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
                   "black_level_dn": black, "quantum_efficiency": None}
         out["sensor"] = sensor
         out["photon_transfer"] = {n: per[n]["photon_transfer"] for n in names}
-        _warn_channels_differ(per, names, warnings)
+        _warn_channels_differ(per, names, warnings, step)
         _warn_positions_differ(dark_p, capture.cfa, warnings, step)
     _hot_pixel_result(capture, out, stats if capture.cfa is None else {"all": (allp, None)}, warnings,
                       quantisation_dn2)
@@ -664,7 +697,7 @@ def _warn_positions_differ(dark_p: dict, cfa: str, warnings: list[str], step: in
                             f"raw's own BlackLevel per position is subtracted)")
 
 
-def _warn_channels_differ(per: dict, names: list[str], warnings: list[str]) -> None:
+def _warn_channels_differ(per: dict, names: list[str], warnings: list[str], step: int = 1) -> None:
     """Warn when the CFA channels disagree on the conversion gain or the black level beyond the calibration's own
     accuracy: the written sensor config has one gain (their mean) and one black level (all pixels'), so such a raw
     (per-channel digital gains, e.g. a white balance applied before the file was written; per-channel black levels)
@@ -676,8 +709,10 @@ def _warn_channels_differ(per: dict, names: list[str], warnings: list[str]) -> N
                         f"the raw?): the sensor values and the sensor config use their mean, "
                         f"{float(np.mean(list(gains.values()))):.4g} DN/e-, for every channel")
     blacks = {n: per[n]["black_level_dn"] for n in names}
-    if max(blacks.values()) - min(blacks.values()) > _CHANNEL_BLACK_SPREAD_DN:
-        warnings.append(f"the channels' black levels differ by more than {_CHANNEL_BLACK_SPREAD_DN:g} DN "
+    # in the files' DN: a quantisation step of 16 (left-aligned 12-bit data) makes 0.5 right-aligned DN 8 (the
+    # channels of one black level, 0.09 DN apart right-aligned, were warned about at 1.4 file DN)
+    if max(blacks.values()) - min(blacks.values()) > _CHANNEL_BLACK_SPREAD_DN * step:
+        warnings.append(f"the channels' black levels differ by more than {_CHANNEL_BLACK_SPREAD_DN * step:g} DN "
                         f"({', '.join(f'{n} {b:.2f}' for n, b in blacks.items())} DN): the sensor values and the "
                         f"sensor config have one black level for every channel")
 

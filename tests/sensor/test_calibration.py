@@ -930,3 +930,46 @@ def test_a_capture_that_never_saturates_fits_all_its_flats():
         assert [e for e, lin in zip(pt["exposure_ms"], pt["linear"]) if lin] == exposures
         assert res["conversion_gain_dn_per_e"] == pytest.approx(nc.TRUTH["gain_dn_per_e"], rel=0.02)
         assert res["full_well_e"] is None
+
+
+def test_a_folder_of_mixed_exposures_and_normalised_frames_are_refused():
+    """Each frame's mean is taken out of the temporal statistics (flicker), so a flat folder holding two exposures was
+    read as one level at their average (+46 % signal, no warning); frames of DN / 4095 as floats were calibrated into
+    a conversion gain 4000x too small."""
+    import dataclasses
+
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = _memory_capture(frames=4)
+    mixed = cap.flat[15.0].copy()
+    mixed[2:] = cap.flat[30.0][2:]
+    with pytest.raises(ValueError, match=r"flat_15ms: its frames' mean signals .* differ by 2x: frames of "
+                                         r"other exposures"):
+        calibrate_capture(dataclasses.replace(cap, flat={**cap.flat, 15.0: mixed}))
+    flicker = cap.flat[15.0].copy()
+    flicker[1] = flicker[1] * 1.08  # (a few % is a light's flicker: warned, kept)
+    res = calibrate_capture(dataclasses.replace(cap, flat={**cap.flat, 15.0: flicker}))
+    assert any(w.startswith("flat_15ms: its frames' mean signals") and "flickering" in w for w in res["warnings"])
+    scale = 2.0 ** nc.TRUTH["bits"] - 1
+    normalised = dataclasses.replace(cap, dark={k: v / scale for k, v in cap.dark.items()},
+                                     flat={k: v / scale for k, v in cap.flat.items()})
+    with pytest.raises(ValueError, match=r"the frames' values are all within 0\.\.0\.9[0-9]*, not DN: normalised"):
+        calibrate_capture(normalised)
+
+
+def test_channel_black_levels_are_compared_in_right_aligned_dn():
+    """Left-aligned 12-bit data (x 16): channels of one black level, a fraction of a DN apart by noise, were warned
+    about as differing by more than 0.5 DN in the files' DN (0.5 DN is 8 file DN there); 3 DN apart still are."""
+    import dataclasses
+
+    from isettorch.sensor.calibration import calibrate_capture
+
+    def left_aligned(cap):
+        return dataclasses.replace(cap, dark={k: v.astype(np.uint16) * 16 for k, v in cap.dark.items()},
+                                   flat={k: v.astype(np.uint16) * 16 for k, v in cap.flat.items()}, bit_depth=16)
+
+    res = calibrate_capture(left_aligned(_rggb_capture()))
+    assert res["quantisation_step_dn"] == 16
+    assert not any("black levels differ" in w for w in res["warnings"])
+    res = calibrate_capture(left_aligned(_rggb_capture(blacks={"R": 98.0, "G": 100.0, "B": 103.0})))
+    assert any("black levels differ by more than 8 DN" in w for w in res["warnings"])
