@@ -18,8 +18,10 @@ image is the stop's semi-diameter ``DIAM``, a **semi**-diameter in the file; opt
 diameter) or ``FNUM N 0`` (image-space F/#, OpticStudio's definition: paraxial EFL / paraxial EPD at the primary
 wavelength, object at infinity, so EPD = EFL / N; resolved by ``LensAnalysis``).
 
-Fields (angles only, ``FTYP 0``): ``XFLN``/``YFLN`` (current dialect; the number of fields is FTYP's third value)
-or ``XFLD``/``YFLD`` (older dialect, e.g. ``FTYP 0 0`` / ``XFLD 0 0 0`` / ``YFLD 0 5 10``: one value per field).
+Fields: angles (``FTYP 0``), or paraxial (``FTYP 2``) or real (``FTYP 3``) image heights in lens units, converted to
+the field angles that reach them (:func:`field_angles_of_image_heights`); ``XFLN``/``YFLN`` (current dialect; the
+number of fields is FTYP's third value) or ``XFLD``/``YFLD`` (older dialect, e.g. ``FTYP 0 0`` / ``XFLD 0 0 0`` /
+``YFLD 0 5 10``: one value per field).
 Wavelengths (um in the file): ``WAVM n value weight`` (current; the number in use is FTYP's fourth value: files
 carry 24 ``WAVM`` slots) or ``WAVL v1 v2 ...`` (older). ``PWAV n`` is the primary wavelength (default 1); the
 analysis reports paraxial data there, as OpticStudio does.
@@ -29,10 +31,10 @@ V_d ...`` (an index and Abbe number, as designs from patents give them: Buchdahl
 
 Refused with a :class:`PrescriptionError` naming the keyword: a truncated or non-numeric operand (``line 12:
 CURV: expected a value``), non-sequential mode, surface types other than STANDARD and EVENASPH, mirrors,
-decentred or non-circular apertures, field types other than angles, object-space telecentricity and afocal image
-space (``FTYP`` flags), nonzero vignetting factors (``VDXN VDYN VCXN VCYN VANN``: OpticStudio would trace a
-vignetted pupil; zeros, as files usually write, are accepted), ``OBNA``, a curved image surface, a
-negative thickness inside glass (a negative air gap is legitimate), and both dialects of the field or
+decentred or non-circular apertures, object heights and other field types (``FTYP`` 1, 4, ...), object-space
+telecentricity and afocal image space (``FTYP`` flags), nonzero vignetting factors (``VDXN VDYN VCXN VCYN VANN``:
+OpticStudio would trace a vignetted pupil; zeros, as files usually write, are accepted), ``OBNA``, a curved image
+surface, a negative thickness inside glass (a negative air gap is legitimate), and both dialects of the field or
 wavelength lines in one file. Purely cosmetic or unrecognised operands are ignored.
 """
 
@@ -251,6 +253,7 @@ def read_zmx(path: str | Path) -> Prescription:
     parms: dict[int, dict[int, tuple[float, str]]] = {}  # surface -> PARM k -> (value, where)
     floating: dict[int, str] = {}  # surfaces with FLAP and no explicit semi-aperture
     surface_at: dict[int, str] = {}  # surface -> its SURF line
+    field_type, field_type_at = 0, where  # FTYP's first value (FIELD_TYPES)
     disz_at: dict[int, str] = {}  # surfaces with a DISZ line
     apertures: dict[str, float | None] = {}
     fields: dict[tuple[str, str], list[float]] = {}
@@ -313,8 +316,10 @@ def read_zmx(path: str | Path) -> Prescription:
             catalogs = tuple(t.upper() for t in tok[1:])
         elif op == "FTYP":
             ftype = _int(arg(1, "the field type"), at)
-            if ftype != 0:
-                raise PrescriptionError(f"{at}: field type {ftype}; only angles (FTYP 0) are supported")
+            if ftype not in FIELD_TYPES:
+                raise PrescriptionError(f"{at}: field type {ftype}; expected angles (FTYP 0) or image heights (2: "
+                                        f"paraxial, 3: real)")
+            field_type, field_type_at = ftype, at
             # FTYP type telecentric nfields nwaves normalisation ? afocal (older files: FTYP type telecentric)
             flag = {i: _int(tok[i], at) for i in (2, 3, 4, 7) if i < len(tok)}
             if flag.get(2, 0) != 0:
@@ -494,13 +499,69 @@ def read_zmx(path: str | Path) -> Prescription:
     if bad:
         raise PrescriptionError(f"{where}: wavelengths {bad} nm; expected finite values > 0 (um in the file)")
     kw = {"catalogs": catalogs} if catalogs else {}
+    heights = [v * unit for v in field_angles] if field_type else None  # image heights (mm), FTYP 2 or 3
     try:
-        return Prescription(surfaces=surfaces, entrance_pupil_diameter_mm=epd, float_by_stop="FLOA" in apertures,
-                            image_f_number=apertures.get("FNUM"), field_angles_deg=field_angles or (0.0,),
+        lens = Prescription(surfaces=surfaces, entrance_pupil_diameter_mm=epd, float_by_stop="FLOA" in apertures,
+                            image_f_number=apertures.get("FNUM"),
+                            field_angles_deg=(field_angles if heights is None else ()) or (0.0,),
                             wavelengths_nm=tuple(wl), primary_wavelength_nm=primary, name=name, source=str(path),
                             **kw)
     except PrescriptionError as e:
         raise PrescriptionError(f"{where}: {e}") from None
+    if heights:
+        angles = field_angles_of_image_heights(lens, heights, real=field_type == 3, where=field_type_at)
+        lens = dataclasses.replace(lens, field_angles_deg=tuple(angles))
+    return lens
+
+
+#: Zemax field types read (FTYP's first value): 0 angles (deg), 2 paraxial and 3 real image heights (lens units)
+FIELD_TYPES = (0, 2, 3)
+
+
+def field_angles_of_image_heights(lens: Prescription, heights_mm, *, real: bool, where: str = "") -> list[float]:
+    """The field angles (deg, object at infinity) whose chief rays reach the image ``heights_mm`` on the paraxial
+    image plane of the primary wavelength: paraxial heights (Zemax ``FTYP 2``) ``y = f tan(theta)``, f the
+    effective focal length; real heights (``FTYP 3``) by Newton's method on the traced chief ray's height, from the
+    paraxial angle (the distortion makes them differ)."""
+    import torch
+
+    from .analysis import LensAnalysis
+
+    a = LensAnalysis(lens)
+    f = float(a.effective_focal_length_mm)
+    wl = lens.primary_wavelength_nm
+    z0 = torch.zeros(1, dtype=a.dtype)
+    image_z = a.image_plane_z(wl)
+
+    def traced(theta: float) -> float:
+        b = a.rays(theta, z0, z0, wl, clip=False)
+        if not bool(b.valid.all()):
+            raise PrescriptionError(f"{where}: the chief ray at {theta:.4g} deg misses a surface on the way to the "
+                                    f"real image height asked for; the field is beyond the lens")
+        return float(a.to_plane(b, image_z)[0][0, 1])
+
+    out = []
+    for h in heights_mm:
+        h = abs(float(h))
+        theta = math.degrees(math.atan(h / f))
+        if not (h > 0 and real):
+            out.append(theta)
+            continue
+        for _ in range(40):
+            y = traced(theta)
+            dt = 1e-5 * max(theta, 1.0)
+            slope = (traced(theta + dt) - y) / dt
+            if not slope > 0:
+                raise PrescriptionError(f"{where}: the real image height stops growing with the field angle at "
+                                        f"{theta:.4g} deg ({y:.6g} mm) before {h:g} mm")
+            step = (h - y) / slope
+            theta = min(theta + step, 89.0)
+            if abs(step) < 1e-10 * max(theta, 1.0):
+                break
+        else:
+            raise PrescriptionError(f"{where}: no field angle found whose real chief ray reaches {h:g} mm")
+        out.append(theta)
+    return out
 
 
 _YAML_KEYS = ("name", "source", "aperture", "field_angles_deg", "wavelengths_nm", "primary_wavelength_nm", "catalogs",

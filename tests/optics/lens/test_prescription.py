@@ -438,3 +438,28 @@ def test_a_zmx_glass_without_its_thickness_is_refused(tmp_path):
     with pytest.raises(PrescriptionError, match=r"line 8: SURF: surface 1 is followed by glass \(N-BK7\) but has no "
                                                  r"DISZ"):
         read_zmx(f)
+
+
+def test_image_height_fields_are_read_as_the_angles_that_reach_them(tmp_path):
+    """Zemax files of camera lenses often give their fields as image heights (FTYP 2 paraxial, 3 real), which were
+    refused. A real height is the traced chief ray's at the paraxial image plane (Newton's method on the trace), a
+    paraxial one f tan(theta); heights are in lens units like every length."""
+    def lens(ftype, value, unit="MM"):
+        f = _zmx(tmp_path, header=[f"FTYP {ftype} 0 2 1"])
+        text = f.read_text().replace("UNIT MM", f"UNIT {unit}").replace("YFLN 0 5", f"YFLN 0 {value}")
+        if unit == "CM":  # the same lens in cm
+            text = (text.replace("CURV 0.02", "CURV 0.2").replace("CURV -0.02", "CURV -0.2")
+                    .replace("DISZ 5", "DISZ 0.5").replace("DISZ 40", "DISZ 4").replace("ENPD 10", "ENPD 1"))
+        f.write_text(text)
+        return read_zmx(f)
+
+    by_angle = LensAnalysis(lens(0, 12))
+    real_mm = float(by_angle.image_height_mm(1.0, by_angle.prescription.primary_wavelength_nm))
+    efl = float(by_angle.effective_focal_length_mm)
+    assert abs(real_mm - efl * math.tan(math.radians(12))) > 1e-3  # (the lens distorts: the two kinds differ)
+    assert lens(3, real_mm).field_angles_deg == pytest.approx((0.0, 12.0), abs=1e-9)
+    assert lens(3, real_mm / 10, "CM").field_angles_deg == pytest.approx((0.0, 12.0), abs=1e-9)
+    paraxial = lens(2, efl * math.tan(math.radians(12))).field_angles_deg
+    assert paraxial == pytest.approx((0.0, 12.0), abs=1e-9)
+    with pytest.raises(PrescriptionError, match=r"FTYP: field type 1; expected angles \(FTYP 0\) or image heights"):
+        lens(1, 5)
