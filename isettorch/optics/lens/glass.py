@@ -23,7 +23,8 @@ states 370-2500 nm for its formula, 8.6 % and 7.5 % beyond; without it a camera'
 through such a glass. So N-BK7 is valid over 281.3-2558.0 nm and N-SF11 over 364.1-2558.0 nm. For the optiland
 fallback it is the material file's own range (its tabulated data or its formula's stated range), widened the same
 way (optiland's PMMA, measured over 436.8-1052 nm: 393.1-1157.2 nm). A wavelength
-outside raises :class:`GlassError`.
+outside raises :class:`GlassError`. An obsolete Schott name (``SK16``, ``BK7``: still in OpticStudio's SCHOTT.AGF) is
+its lead-free successor ``N-SK16``, ``N-BK7`` (made to the same n_d and V_d), with a warning.
 
 Model glasses (a glass given by its index and Abbe number, as designs taken from patents give it: Zemax's
 ``GLAS ___BLANK 1 0 nd vd ...``, or ``material: "1.5168/64.17"`` in a YAML lens) use Buchdahl's quadratic dispersion
@@ -145,12 +146,18 @@ def resolve_glass(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS):
             hint = f"; it is a {maker.upper()} glass: add {maker.upper()} to GCAT to use it"
     if any(c.upper() == "SCHOTT" for c in catalogs) and not name.upper().startswith("N-"):
         try:
-            gf.create_glass(f"N-{name}", "Schott")
-            hint = (f"; the catalogue data are Schott's current ones, where {name} (an obsolete glass, still in "
-                    f"OpticStudio's SCHOTT.AGF) has the successor N-{name}, whose indices differ slightly: rename "
-                    f"the glass to N-{name} to use it")
+            successor = gf.create_glass(f"N-{name}", "Schott")
         except Exception:
-            pass
+            successor = None
+        if successor is not None:
+            # an obsolete Schott glass (still in OpticStudio's SCHOTT.AGF: SK16 of Zemax's Cooke sample, BK7 of
+            # older files) is its lead-free successor, made to the same n_d and V_d (SK16 1.62041 / 60.33, N-SK16
+            # 1.62041 / 60.32): refusing it refused such files whole
+            from ..._checks import warn_caller
+
+            warn_caller(f"glass {name!r}: an obsolete Schott glass, not in the current catalogue data; using its "
+                        f"successor N-{name} (made to the same n_d and V_d; indices differ by about 1e-4)")
+            return successor
     raise GlassError(f"glass {name!r}: not found in the prescription's glass catalogues {tried}; expected a "
                      f"glass of one of them (add its catalogue to GCAT, or use a known glass name){hint}")
 

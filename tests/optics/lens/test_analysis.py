@@ -35,8 +35,14 @@ def test_catalogues_opticalglass_lacks_fall_back_to_optiland_only_when_declared(
     # and BK7 (read by optiland as Schott's N-BK7 data) for GCAT SCHOTT MISC were taken from the database silently
     with pytest.raises(GlassError, match="N-SF10.*it is a SCHOTT glass: add SCHOTT to GCAT"):
         refractive_index("N-SF10", 587.6, ("OHARA", "MISC"))
-    with pytest.raises(GlassError, match="'BK7'.*rename the glass to N-BK7"):
-        refractive_index("BK7", 587.6, ("SCHOTT", "MISC"))
+    # (BK7 is now Schott's successor N-BK7 by name, with a warning: test_an_obsolete_schott_name_is_its_successor;
+    # the lookups are memoised: cleared so that this call warns whatever ran before)
+    from isettorch.optics.lens.glass import resolve_glass, valid_range_nm
+
+    for cached in (resolve_glass, valid_range_nm, refractive_index):
+        cached.cache_clear()
+    with pytest.warns(UserWarning, match="'BK7': an obsolete Schott glass"):
+        assert refractive_index("BK7", 587.6, ("SCHOTT", "MISC")) == refractive_index("N-BK7", 587.6, ("SCHOTT",))
     assert refractive_index("N-SF10", 587.5618, ("SCHOTT", "MISC")) == pytest.approx(1.72828, abs=2e-5)  # datasheet
     # a maker's special material, in OpticStudio's MISC / INFRARED and not in the maker's optical-glass catalogue,
     # stays the MISC fallback's (Schott ZERODUR n_d 1.5424 and B270 1.5230, Vitron IG2 n(10 um) 2.4967 datasheets)
@@ -564,14 +570,28 @@ def test_flux_relative_illumination_matches_a_monte_carlo_irradiance_of_a_field_
     assert float(a.relative_illumination(1.0, wl, 128)) > 1.2
 
 
-def test_an_obsolete_schott_name_is_refused_naming_the_surface_and_its_successor():
+def test_an_obsolete_schott_name_is_its_successor_with_a_warning():
     """OpticStudio's SCHOTT.AGF still lists obsolete glasses (SK16 of Zemax's Cooke sample); the catalogue data here
-    are Schott's current ones: the error names the surface and the lead-free successor N-SK16 (not substituted)."""
-    p = read_lens_yaml({"aperture": {"entrance_pupil_diameter_mm": 4}, "catalogs": ["SCHOTT"],
-                        "surfaces": [{"radius_mm": 20, "thickness_mm": 3, "material": "SK16", "stop": True},
-                                     {"radius_mm": -20, "thickness_mm": 20}]})
-    with pytest.raises(GlassError, match=r"the medium after surface 1: glass 'SK16'.*successor N-SK16"):
-        _ = LensAnalysis(p).effective_focal_length_mm
+    are Schott's current ones. Such a file was refused whole; the glass is now its lead-free successor N-SK16 (made
+    to the same n_d 1.62041 and V_d, 60.33 for SK16 in Schott's 1990s catalogue), with a warning. A glass with no
+    successor is still refused."""
+    from isettorch.optics.lens.glass import refractive_index, resolve_glass
+
+    def lens(glass):
+        return read_lens_yaml({"aperture": {"entrance_pupil_diameter_mm": 4}, "catalogs": ["SCHOTT"],
+                               "surfaces": [{"radius_mm": 20, "thickness_mm": 3, "material": glass, "stop": True},
+                                            {"radius_mm": -20, "thickness_mm": 20}]})
+
+    from isettorch.optics.lens.glass import valid_range_nm
+
+    for cached in (resolve_glass, valid_range_nm, refractive_index):  # (memoised: this call must warn)
+        cached.cache_clear()
+    with pytest.warns(UserWarning, match=r"glass 'SK16': an obsolete Schott glass.*using its successor N-SK16"):
+        f_old = float(LensAnalysis(lens("SK16")).effective_focal_length_mm)
+    assert f_old == float(LensAnalysis(lens("N-SK16")).effective_focal_length_mm)
+    assert refractive_index("SK16", 587.5618, ("SCHOTT",)) == pytest.approx(1.62041, abs=1e-5)
+    with pytest.raises(GlassError, match=r"the medium after surface 1: glass 'NOSUCH16'"):
+        _ = LensAnalysis(lens("NOSUCH16")).effective_focal_length_mm
 
 
 def test_zero_decentre_operands_are_accepted_others_refused(tmp_path):
