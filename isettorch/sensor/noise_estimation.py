@@ -88,6 +88,32 @@ def _saturation_plateau(z: np.ndarray) -> float | None:
     return white
 
 
+def _saturation_bump(z: np.ndarray, need: float) -> tuple[float, float, float] | None:
+    """A saturation pile-up spread into a bump below the frame's largest value (an analog clip at the full well,
+    then read noise: the codes above the clip hold its upper tail, so :func:`_saturation_plateau`'s count from the
+    top finds nothing): ``(lowest code of the bump, its mode, the variance of its pixels)``, or None. A bump is a
+    mode of the top codes (64 DN, or 1024 for coarse codes) holding at least ``need`` pixels whose counts fall to
+    under a quarter of it below as well as above; its lower edge mirrors its upper one about the mode. A bright
+    uniform patch makes such a bump too: the caller tells them apart by its variance (a clip keeps the read noise
+    only)."""
+    top = float(z.max())
+    for window in (64.0, 1024.0):
+        vals, counts = np.unique(z[z >= top - window], return_counts=True)
+        if len(vals) >= 8:
+            break
+    else:
+        return None
+    i = int(np.argmax(counts))
+    if counts[i] < need or i == 0 or i == len(vals) - 1:
+        return None
+    above = len(vals) - 1 - i
+    below = counts[max(i - 2 * above - 2, 0):i]
+    if below.min() >= counts[i] / 4:  # no fall below the mode: the rising tail of the frame's values, not a bump
+        return None
+    lo = float(vals[max(i - above - 1, 0)])
+    return lo, float(vals[i]), float(np.var(z[z >= lo]))
+
+
 def _fit_quality(pts, a: float, b: float) -> tuple[float, float, float]:
     """``(standard errors of a and of b, chi^2 per degree of freedom)`` of the line through the level variances, each
     with its sampling variance ``2 v^2 / n`` under the model (a sample variance of n Gaussian values): a large standard
@@ -103,7 +129,7 @@ def _fit_quality(pts, a: float, b: float) -> tuple[float, float, float]:
 
 def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: float = 0.0,
                               white_level_dn: float | None = None, levels: int = 24,
-                              min_blocks: int = 200) -> dict:
+                              min_blocks: int = 200, _bump: bool = True) -> dict:
     """Fit sigma^2(y) = a y + b to one raw frame (DN) with the Poisson-Gaussian method of Foi et al. 2008.
 
     Args:
@@ -154,6 +180,12 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         warnings.append(f"{n} pixels ({100 * n / z.size:.3g} %) pile up at the frame's largest values, {plateau:g} "
                         f"DN and up{given}: taken as its white level (saturated) and left out")
         white_level_dn = plateau
+    bump = _saturation_bump(z, max(32, 1e-3 * z.size)) if plateau is None and _bump else None
+    given_white = white_level_dn
+    if bump is not None and (white_level_dn is None or bump[0] < white_level_dn):
+        white_level_dn = bump[0]  # left out for the fit; kept below if its variance says it is clipped
+    else:
+        bump = None
     means, details, laps = [], [], []
     for p in planes:
         m, d, lap = _blocks(p)
@@ -188,6 +220,17 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
             # dark photograph with no pedestal, read noise -45 %, when only blocks holding a 0 were left out)
             smooth &= m + black_level_dn > 3 * np.sqrt(noise_var)
         pts, (a, b) = fit(smooth)
+    if bump is not None:
+        # a clipped pile-up keeps the read noise after the clip only; a bright patch the shot noise of its level too
+        # (clipped at 25 % of the pixels, the bump read as a bright noise-free level took a to 0.155 for 0.4)
+        expected = a * (bump[1] - black_level_dn) + b
+        if not (a > 0 and bump[2] < 0.5 * expected):
+            return estimate_poisson_gaussian(raw, cfa=cfa, black_level_dn=black_level_dn, white_level_dn=given_white,
+                                             levels=levels, min_blocks=min_blocks, _bump=False)
+        n = int((z >= bump[0]).sum())
+        warnings.append(f"{n} pixels ({100 * n / z.size:.3g} %) form a pile-up below the frame's largest value, "
+                        f"{bump[0]:g} DN and up (mode {bump[1]:g} DN, variance {bump[2]:.3g} DN^2 where the noise at "
+                        f"that level would be {expected:.3g}): taken as its white level (saturated) and left out")
     se_a, se_b, chi2 = _fit_quality(pts, a, b)
     zeros = int((z == 0).sum()) if low_clipped else 0
     # (a dead pixel or two at 0 DN is no clipped frame; nor are dead pixels under a pedestal)

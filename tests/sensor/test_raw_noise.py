@@ -362,3 +362,33 @@ def test_dng_window_cfa_and_black_levels_come_from_its_tags(tmp_path):
     dng_by_hand(tmp_path / "bad.dng", m, extra=[area, (50715, "2i", 3, (1, 1) * 3, True)])
     with pytest.raises(ValueError, match="bad.dng: BlackLevelDeltaV / DeltaH have 42 / 3 values"):
         read_raw(tmp_path / "bad.dng")
+
+
+def test_a_clip_at_the_full_well_spread_by_read_noise_is_left_out():
+    """The library's own sensor clips at the full well and adds read noise after (EMVA 4.1): the saturated pixels
+    spread over about 9 codes below the frame's largest value, whose top code holds the fewest, so no pile-up was
+    found and the clipped bump was fitted as a bright noise-free level: a = 0.155 for 0.4 with 25 % saturated. A
+    uniform bright patch (not clipped) makes the same bump but keeps its shot noise: it is fitted, not left out."""
+    import torch
+
+    from isettorch.sensor import Sensor
+
+    k, read_e, well = 0.4, 3.0, 9000.0
+    cg = k / 2 ** 12
+    sensor = Sensor(rows=512, cols=512, cfa="mono", adc_bits=12, voltage_swing_v=1.0, conversion_gain_v_per_e=cg,
+                    read_noise_v=read_e * cg, black_level_dn=100, full_well_e=well, fill_factor=1.0)
+    for saturated in (0.05, 0.25):
+        rate = torch.linspace(5, well / (1 - saturated), 512, dtype=torch.float64).expand(1, 1, 512, 512) / 0.01
+        z = sensor.capture(rate, exposure_s=0.01, generator=torch.Generator().manual_seed(0)).data[0, 0].numpy()
+        top = z.max()
+        assert (z == top).sum() < (z == top - 3).sum()  # (the top code is the bump's thin upper tail)
+        res = estimate_poisson_gaussian(z, black_level_dn=100, white_level_dn=4095)
+        assert res["a"] == pytest.approx(k, rel=0.02)
+        assert any("form a pile-up below the frame's largest value" in w for w in res["warnings"])
+    rng = np.random.default_rng(3)
+    xx = np.mgrid[0:512, 0:512][1].astype(np.float64)
+    electrons = np.where(xx < 384, 20 + 6000 * xx / 384, 6000.0)  # a ramp, then a uniform bright quarter
+    patch = np.round(k * rng.poisson(electrons) + 1.2 * rng.standard_normal(electrons.shape) + 100)
+    res = estimate_poisson_gaussian(patch, black_level_dn=100)
+    assert res["a"] == pytest.approx(k, rel=0.02) and not any("pile-up" in w for w in res["warnings"])
+    assert max(level[0] for level in res["levels"]) > 0.9 * k * 6000  # the patch's level was fitted
