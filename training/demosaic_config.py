@@ -47,9 +47,30 @@ def check_config(cfg: dict) -> dict:
     _positive(optim["lr"], "optim.lr")
     if optim.get("loss", "l2") not in LOSSES:
         raise ValueError(f"config.optim.loss: expected one of {LOSSES}, got {optim['loss']!r}")
+    data, val, noise = cfg.get("data") or {}, cfg.get("val") or {}, cfg.get("noise") or {}
     for name, value in (("checkpoint_every", cfg.get("checkpoint_every", 100)),
-                        ("data.batch", (cfg.get("data") or {}).get("batch", 16)),
-                        ("val.every", (cfg.get("val") or {}).get("every", 200)),
-                        ("val.images", (cfg.get("val") or {}).get("images", 32))):
+                        ("data.batch", data.get("batch", 16)),
+                        ("val.every", val.get("every", 200)),
+                        ("val.images", val.get("images", 32)),
+                        # (read by int(): 'abc' failed unnamed, 0 pool in torch.randint, -8 was blamed on data.patch)
+                        ("data.patch", data.get("patch", 80)),
+                        ("data.pool", data.get("pool", 64)),
+                        ("val.size", val.get("size", 128))):
         _positive(value, name, integer=True)
+    for name, value in (("optim.warmup", optim.get("warmup", 50)), ("data.refresh", data.get("refresh", 2)),
+                        ("seed", cfg.get("seed", 0))):
+        if not (_is_int(value) and value >= 0):  # (-5 and -1 ran silently)
+            raise ValueError(f"config.{name}: expected an integer >= 0, got {value!r}")
+    _positive(optim.get("lr_min", 1e-5), "optim.lr_min")
+    fraction = data.get("encoded_fraction", 0.8)
+    if not (isinstance(fraction, (int, float)) and not isinstance(fraction, bool) and 0 <= fraction <= 1):
+        raise ValueError(f"config.data.encoded_fraction: expected a fraction in [0, 1], got {fraction!r}")
+    if noise.get("enabled", False):
+        for key in ("gain_min", "gain_max"):  # (gain_min 0: a ZeroDivisionError)
+            if key in noise:
+                _positive(noise[key], f"noise.{key}")
     return cfg
+
+
+def _is_int(value) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int)

@@ -182,10 +182,24 @@ def test_config_keys_and_values_are_checked_before_a_run(tmp_path, monkeypatch):
                               ("optim.loss=l3", "config.optim.loss: expected one of"),
                               ("checkpoint_every=0", "config.checkpoint_every: expected a positive integer"),
                               ("optim.lr=abc", "config.optim.lr: expected a positive number"),
-                              ("noise=null", "config.noise: expected a mapping")):
+                              ("noise=null", "config.noise: expected a mapping"),
+                              # (int('big') failed unnamed; pool 0 in torch.randint; -8 was blamed on data.patch;
+                              # negative warmup / refresh and a fraction of 2 ran; gain_min 0 divided by zero)
+                              ("data.patch=big", "config.data.patch: expected a positive integer, got 'big'"),
+                              ("data.pool=0", "config.data.pool: expected a positive integer, got 0"),
+                              ("val.size=-8", "config.val.size: expected a positive integer, got -8"),
+                              ("optim.warmup=-5", r"config.optim.warmup: expected an integer >= 0, got -5"),
+                              ("data.refresh=-1", r"config.data.refresh: expected an integer >= 0"),
+                              ("seed=abc", r"config.seed: expected an integer >= 0, got 'abc'"),
+                              ("optim.lr_min=abc", "config.optim.lr_min: expected a positive number"),
+                              ("data.encoded_fraction=2", r"config.data.encoded_fraction: expected a fraction in"),
+                              ("noise={enabled: true, gain_min: 0}", "config.noise.gain_min: expected a positive")):
         with pytest.raises(ValueError, match=message):
             train_demosaic.main(args + [override])
     assert not (tmp_path / "x" / "last.pt").exists()
+    for bad in ("0", "-2"):  # (0 ran the whole run, -2 did nothing with exit 0)
+        with pytest.raises(SystemExit, match=rf"--stop-after: expected a number of steps >= 1, got {bad}"):
+            train_demosaic.main(args[:-1] + ["--stop-after", bad])
     # a reporting folder that does not exist stopped the run when its first row fell due (step 10000 of the
     # noise-free config, or the end of a 6000 s run): found before the first step
     def no_step(*a, **k):
