@@ -54,8 +54,8 @@ def register(sub) -> None:
 
 
 def _note_profiles(folder) -> None:
-    """A note naming the photographs whose embedded ICC profile is not sRGB (Display P3, Adobe RGB, ...): the lift
-    reads every photograph's code values as sRGB, so their colours are not the photograph's."""
+    """A note naming the photographs whose embedded ICC profile (Display P3, Adobe RGB, ...) or PNG gAMA / cHRM is not
+    sRGB's: the lift reads every photograph's code values as sRGB, so their colours are not the photograph's."""
     from ..io.images import non_srgb_profile, photo_files
 
     try:
@@ -72,7 +72,8 @@ def _note_profiles(folder) -> None:
             other.append((f.name, name))
     if other:
         shown = ", ".join(f"{f} ({name})" for f, name in other[:3]) + (" ..." if len(other) > 3 else "")
-        print(f"isettorch design-eval: note: {len(other)} photograph(s) carry an ICC profile that is not sRGB: "
+        print(f"isettorch design-eval: note: {len(other)} photograph(s) carry colour tags (an ICC profile, a PNG's "
+              f"gAMA or cHRM) that are not sRGB's: "
               f"{shown}; their code values are lifted as sRGB, so their colours are not the photograph's (convert "
               f"them to sRGB first)", file=sys.stderr)
 

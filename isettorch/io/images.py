@@ -102,11 +102,18 @@ def read_rgb8(path) -> np.ndarray:
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             warnings.filterwarnings("ignore", message="Corrupt EXIF data")
             im = stack.enter_context(Image.open(p))
-            rawmode = im.tile[0][3] if im.tile else ""
-            rawmode = rawmode[0] if isinstance(rawmode, tuple) else rawmode
-            if im.mode in ("I", "I;16", "I;16B", "I;16L", "F") or ";16" in str(rawmode) or ";32" in str(rawmode):
-                raise ValueError(f"{p.name}: expected 8-bit samples, got a {im.mode}/{rawmode} image (16 or 32 bits); "
-                                 f"convert it to 8-bit first")
+            modes = [t[3][0] if isinstance(t[3], tuple) else t[3] for t in (im.tile or [])] or [""]
+            rawmode = modes[0]
+            deep = [m for m in modes if ";16" in str(m) or ";32" in str(m)]
+            if im.mode in ("I", "I;16", "I;16B", "I;16L", "F") or deep:
+                raise ValueError(f"{p.name}: expected 8-bit samples, got a {im.mode}/{deep[0] if deep else rawmode} "
+                                 f"image (16 or 32 bits); convert it to 8-bit first")
+            wide = _tiff_sample_type(p) if im.format == "TIFF" else None
+            if wide is not None and (wide.kind == "f" or wide.itemsize > 1):  # (1-bit is bool, 4-bit uint8)
+                # (a TIFF of one plane per colour, PlanarConfiguration 2, has tiles 'R', 'G', 'B' whatever their
+                # depth: its 16-bit samples were decoded as bytes, and scored 15 dB where the photograph gets 32)
+                raise ValueError(f"{p.name}: expected 8-bit samples, got {wide} samples (TIFF); convert it to 8-bit "
+                                 f"first")
             frames = getattr(im, "n_frames", 1)
             # an MPO (a phone's JPEG with a depth map or preview appended) is the photograph in its first frame, by
             # the CIPA DC-007 format; other several-frame files do not say which frame is the photograph
@@ -139,7 +146,8 @@ def read_rgb8(path) -> np.ndarray:
 
 
 def non_srgb_profile(path) -> str | None:
-    """The description of a photograph's embedded ICC profile when it is not sRGB, else None (no profile: read as
+    """The description of a photograph's embedded ICC profile when it is not sRGB, or of a PNG's gAMA or cHRM that
+    are not sRGB's (without an sRGB or ICC chunk, as :func:`read_image` decodes them), else None (no profile: read as
     sRGB, as :func:`read_rgb8`'s callers do; or an sRGB one). A matrix profile is sRGB when its red, green and blue
     colorants (D50 XYZ) are littleCMS's sRGB's within 0.005 (Display P3's red is 0.08 off, Adobe RGB's 0.17); a
     profile without colorants (a LUT profile) is not recognised as sRGB. Pillow's ImageCms (littleCMS) reads it."""
@@ -151,6 +159,15 @@ def non_srgb_profile(path) -> str | None:
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)
         with Image.open(path) as im:
             data = im.info.get("icc_profile")
+            png = im.format == "PNG" and not data and "srgb" not in im.info
+            colour = {k: im.info[k] for k in ("chromaticity", "gamma") if k in im.info} if png else {}
+    if colour:  # a PNG's gAMA / cHRM, as read_image reads them (a linear gAMA 1.0 PNG was lifted as sRGB, unsaid)
+        try:
+            exponent = _png_decode_exponent(Path(path), colour)
+        except ValueError:
+            return "PNG cHRM chromaticities other than sRGB's"
+        if exponent is not None:
+            return f"PNG gAMA {float(colour['gamma']):g} (code values decode as code^{exponent:.3g}, not sRGB)"
     return _non_srgb_icc(data)
 
 
@@ -178,6 +195,11 @@ def _non_srgb_icc(data: bytes | None) -> str | None:
 
 def _tiff_sample_type(p: Path):
     """The sample dtype of a TIFF's first image (tifffile reads what Pillow cannot), None for another file."""
+    import logging
+
+    log = logging.getLogger("tifffile")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)  # (its own error lines went to stderr beside the command's one line)
     try:
         import tifffile
 
@@ -185,6 +207,8 @@ def _tiff_sample_type(p: Path):
             return np.dtype(tif.series[0].dtype)
     except Exception:  # not a TIFF, or unreadable: the caller's message stands
         return None
+    finally:
+        log.setLevel(level)
 
 
 def rgb8_to_tensor(array: np.ndarray) -> torch.Tensor:

@@ -370,7 +370,26 @@ def test_non_srgb_profile_names_display_p3_and_passes_srgb(tmp_path, capsys):
     assert non_srgb_profile(tmp_path / "p3.png") == non_srgb_profile(tmp_path / "p3.jpg") == "sRGB built-in"
     _note_profiles(tmp_path)
     err = capsys.readouterr().err
-    assert "2 photograph(s) carry an ICC profile that is not sRGB: p3.jpg" in err and "srgb.png" not in err
+    assert "2 photograph(s) carry colour tags (an ICC profile, a PNG's gAMA or cHRM) that are not sRGB's: p3.jpg" \
+        in err and "srgb.png" not in err
+
+
+def test_non_srgb_profile_names_a_pngs_gama_and_chrm(tmp_path):
+    """design-eval lifts every photograph's codes as sRGB; a PNG tagged gAMA 1.0 (linear samples) or with other
+    primaries (cHRM) was lifted so without a note, where read_image decodes the one as linear and refuses the
+    other."""
+    import struct
+
+    from isettorch.io.images import non_srgb_profile
+
+    codes = np.full((8, 8, 3), 128, np.uint8)
+    _png_with_chunks(tmp_path / "linear.png", codes, [(b"gAMA", struct.pack(">I", 100000))])
+    _png_with_chunks(tmp_path / "srgb_gamma.png", codes, [(b"gAMA", struct.pack(">I", 45455))])
+    _png_with_chunks(tmp_path / "wide.png", codes,
+                     [(b"cHRM", struct.pack(">8I", 31270, 32900, 68000, 32000, 26500, 69000, 15000, 6000))])
+    assert non_srgb_profile(tmp_path / "linear.png") == "PNG gAMA 1 (code values decode as code^1, not sRGB)"
+    assert non_srgb_profile(tmp_path / "srgb_gamma.png") is None
+    assert non_srgb_profile(tmp_path / "wide.png") == "PNG cHRM chromaticities other than sRGB's"
 
 
 def test_design_eval_names_an_oversized_photograph_as_before(tmp_path, monkeypatch, capsys):
@@ -594,3 +613,34 @@ def test_a_batch_that_fails_at_a_later_file_leaves_every_file_as_it_was(tmp_path
     assert not list((tmp_path / "d1").iterdir())
     write_image(tmp_path / "d{i}" / "img.png", torch.full((2, 3, 4, 4), 0.5))
     assert read_image(old).shape == (1, 3, 4, 4)
+
+
+def test_read_rgb8_refuses_a_planar_16_bit_tiff_and_a_corrupt_tiff_prints_nothing(tmp_path, capfd):
+    """A 16-bit TIFF of one plane per colour (PlanarConfiguration 2) has Pillow tiles 'R', 'G', 'B' whatever the
+    depth: the 16-bit check passed and its samples were decoded as bytes (a photograph scored 15 dB for 32). A TIFF
+    Pillow cannot open sent tifffile's own error lines to stderr beside the command's one line."""
+    from isettorch.io.images import read_rgb8
+
+    img = np.random.default_rng(0).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    planar = tmp_path / "planar16.tif"
+    tifffile.imwrite(planar, np.moveaxis(img.astype(np.uint16) * 257, -1, 0), photometric="rgb",
+                     planarconfig="separate")
+    assert [t[3][0] if isinstance(t[3], tuple) else t[3] for t in Image.open(planar).tile] == ["R", "G", "B"]
+    with pytest.raises(ValueError, match=r"planar16.tif: expected 8-bit samples, got uint16 samples \(TIFF\)"):
+        read_rgb8(planar)
+    for name, kw in (("lzw.tif", {"compression": "tiff_lzw"}), ("plain.tif", {})):  # 8-bit TIFFs still read
+        Image.fromarray(img).save(tmp_path / name, **kw)
+        assert np.array_equal(read_rgb8(tmp_path / name), img)
+    Image.fromarray(img[..., 0] > 128).save(tmp_path / "bilevel.tif")  # (1-bit: bool samples)
+    assert read_rgb8(tmp_path / "bilevel.tif").shape == (24, 32, 3)
+    data = bytearray((tmp_path / "plain.tif").read_bytes())
+    ifd = int.from_bytes(data[4:8], "little")
+    for k in range(int.from_bytes(data[ifd:ifd + 2], "little")):  # StripOffsets given a type that does not exist
+        entry = ifd + 2 + 12 * k
+        if int.from_bytes(data[entry:entry + 2], "little") == 273:
+            data[entry + 2:entry + 4] = (29956).to_bytes(2, "little")
+    (tmp_path / "bad.tif").write_bytes(bytes(data))
+    capfd.readouterr()
+    with pytest.raises(ValueError, match=r"cannot read bad.tif as an image"):
+        read_rgb8(tmp_path / "bad.tif")
+    assert capfd.readouterr().err == ""
