@@ -339,12 +339,12 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
                 out = run(raw)
                 ms = 1e3 * (time.perf_counter() - t0)
             except ValueError as err:  # e.g. a learned method on an image under 4 pixels: say which image
-                raise ValueError(f"images: {name_i} ({array.shape[0]} x {array.shape[1]} px): {err}") from err
+                raise ValueError(f"images: {name_i} ({array.shape[1]} x {array.shape[0]} px, W x H): {err}") from err
             except RuntimeError as err:
                 if model is None:  # the library's own methods: a bug, not the user's input
                     raise
                 # the user's network failed (a TorchScript error, a shape it cannot take): named, not a traceback
-                raise ValueError(f"model: {name} failed on {name_i} ({array.shape[0]} x {array.shape[1]} px): "
+                raise ValueError(f"model: {name} failed on {name_i} ({array.shape[1]} x {array.shape[0]} px, W x H): "
                                  f"{' '.join(str(err).split())[:300]}") from err
             label = "model" if model is not None else "method"
             if out.shape != (1, 3) + tuple(truth.shape[-2:]):

@@ -106,8 +106,8 @@ def test_cli_errors(tmp_path, capsys):
     Image.fromarray(np.full((3, 9, 3), 128, np.uint8)).save(tmp_path / "thin.png")
     assert main(["demosaic-eval", str(tmp_path), "--method", "learned_tiny", "--quiet", "--crop", "0"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and re.search(r"DIR: thin\.png \(3 x 9 px\): raw: expected a height and width of at "
-                                             r"least 4", err)
+    assert err.count("\n") == 1 and re.search(r"DIR: thin\.png \(9 x 3 px, W x H\): raw: expected a height and "
+                                             r"width of at least 4", err)
 
 
 def test_an_exactly_reproduced_image_is_counted_not_averaged(tmp_path, capsys):
