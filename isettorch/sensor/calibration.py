@@ -106,6 +106,23 @@ def _check_frame_means(capture, warnings: list[str]) -> None:
                             f"(a flickering light?); the level is their mean")
 
 
+def _column_fpn_dn2(averages) -> float:
+    """The variance (DN^2) of a per-column offset in frame-averaged darks (one image per CFA position, the columns
+    of each one of the sensor's): the column means' variance less what the pixels' own spread ``s_r^2`` (DSNU and
+    the averages' temporal residue, about the columns) puts in a mean of H rows, ``s_r^2 / H`` (EMVA 1288 4.0, 8.2:
+    the spatial variance split into column, row and pixel parts), over the images; 0 when negative."""
+    est = []
+    for a in averages:
+        a = np.asarray(a.detach().cpu() if hasattr(a, "detach") else a, dtype=np.float64)
+        h = a.shape[0]
+        if h < 2 or a.shape[1] < 2:
+            continue
+        cols = a.mean(axis=0)
+        resid = a - cols[None, :]
+        est.append(float(cols.var(ddof=1)) - float((resid ** 2).sum() / (a.size - a.shape[1])) / h)
+    return max(float(np.mean(est)), 0.0) if est else 0.0
+
+
 def _inverse_sd(sd) -> np.ndarray | None:
     """Weights 1 / sd for np.polyfit, safe against a zero (or non-finite) standard error, which would give infinite
     weights (LAPACK then fails and prints to stdout): such an sd is raised to 1e-6 of the largest finite one; None
@@ -618,6 +635,12 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
         out["photon_transfer"] = {n: per[n]["photon_transfer"] for n in names}
         _warn_channels_differ(per, names, warnings, step)
         _warn_positions_differ(dark_p, capture.cfa, warnings, step)
+    # column fixed pattern (EMVA 1288 4.0 section 8.2 splits the spatial variance into column, row and pixel parts):
+    # in the sensor config it was pixel DSNU, so the simulated camera had no column stripes
+    shortest = min(capture.dark)
+    k_dn = _scalars(out)["conversion_gain_dn_per_e"]
+    out["column_fpn_e"] = math.sqrt(_column_fpn_dn2([a for n in names for a in stats[n][0][shortest]["averages"]]))\
+        / k_dn
     _hot_pixel_result(capture, out, stats if capture.cfa is None else {"all": (allp, None)}, warnings,
                       quantisation_dn2)
     nominal, measured = capture.black_level_dn, _scalars(out)["black_level_dn"]
@@ -818,6 +841,7 @@ def sensor_config(result: dict) -> dict[str, Any]:
     dsnu_t_s = min(result["photon_transfer"][n]["dark_exposure_ms"][0] for n in result["photon_transfer"]) * 1e-3 \
         if result.get("cfa") else result["photon_transfer"]["dark_exposure_ms"][0] * 1e-3
     dark = dict(s)
+    col_fpn_e = float(result.get("column_fpn_e") or 0.0)  # (results written before it have none)
     hot = {}
     if result.get("sensor_config_dark"):
         dark.update({k: result["sensor_config_dark"][k] for k in ("dark_current_e_per_s", "dsnu_e",
@@ -829,9 +853,10 @@ def sensor_config(result: dict) -> dict[str, Any]:
            "read_noise_v": s["read_noise_e"] * cg, "row_noise_v": s["row_noise_e"] * cg,
            "column_noise_v": s["column_noise_e"] * cg,
            "dark_current_e_per_s": max(0.0, dark["dark_current_e_per_s"] or 0.0),
-           # the DSNU at t = 0: the shortest exposure's minus the dark shading grown by then
-           "dsnu_sigma_v": math.sqrt(max(dark["dsnu_e"] ** 2 - (dark["dark_shading_e_per_s"] * dsnu_t_s) ** 2, 0.0))
-           * cg,
+           # the DSNU at t = 0: the shortest exposure's minus the dark shading grown by then and the column part
+           "dsnu_sigma_v": math.sqrt(max(dark["dsnu_e"] ** 2 - (dark["dark_shading_e_per_s"] * dsnu_t_s) ** 2
+                                         - col_fpn_e ** 2, 0.0)) * cg,
+           "column_fpn_sigma_v": col_fpn_e * cg,
            "dark_shading_e_per_s": dark["dark_shading_e_per_s"], "prnu_sigma_percent": s["prnu_percent"],
            "full_well_e": s["full_well_e"], "shot_noise": "poisson", **hot}
     return {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in cfg.items()}

@@ -973,3 +973,25 @@ def test_channel_black_levels_are_compared_in_right_aligned_dn():
     assert not any("black levels differ" in w for w in res["warnings"])
     res = calibrate_capture(left_aligned(_rggb_capture(blacks={"R": 98.0, "G": 100.0, "B": 103.0})))
     assert any("black levels differ by more than 8 DN" in w for w in res["warnings"])
+
+
+def test_column_fixed_pattern_is_its_own_term_in_the_sensor_config():
+    """A per-column dark offset (EMVA 1288 4.0, 8.2: column, row and pixel parts of the spatial variance) was folded
+    into the pixel DSNU of the sensor config, which has a column term: the simulated camera had no stripes. NumPy
+    truth: DSNU 4 e- per pixel plus 3 e- per column (K 0.4 DN/e-)."""
+    import dataclasses
+
+    from isettorch.sensor.calibration import calibrate_capture, sensor_config
+
+    cap = _memory_capture(shape=(64, 256), frames=4)
+    plain = calibrate_capture(cap)
+    columns = 0.4 * 3.0 * np.random.default_rng(5).standard_normal(256)  # DN
+    striped = calibrate_capture(dataclasses.replace(
+        cap, dark={k: v + columns for k, v in cap.dark.items()}, flat={k: v + columns for k, v in cap.flat.items()}))
+    # the columns' own sample spread is the truth of this draw (256 columns)
+    assert striped["column_fpn_e"] == pytest.approx(float(columns.std(ddof=1)) / 0.4, rel=0.1)
+    assert plain["column_fpn_e"] < 0.5  # (no column pattern: the estimate's noise only)
+    assert striped["dsnu_e"] == pytest.approx(math.hypot(nc.TRUTH["dsnu_e"], striped["column_fpn_e"]), rel=0.05)
+    cfg, cg = sensor_config(striped), sensor_config(striped)["conversion_gain_v_per_e"]
+    assert cfg["column_fpn_sigma_v"] / cg == pytest.approx(striped["column_fpn_e"], rel=1e-9)
+    assert cfg["dsnu_sigma_v"] / cg == pytest.approx(sensor_config(plain)["dsnu_sigma_v"] / cg, rel=0.05)
