@@ -106,6 +106,40 @@ def _check_frame_means(capture, warnings: list[str]) -> None:
                             f"(a flickering light?); the level is their mean")
 
 
+#: the dark's fixed pattern found in a flat at other than this ratio (beyond 4 standard errors) is warned about
+_DARK_PATTERN_RATIO_SPREAD = 0.2
+
+
+def _warn_dark_gain(name: str, dark: dict, flat: dict, folders: dict, warnings: list[str]) -> None:
+    """Warn when the darks' fixed pattern (DSNU) reappears in the dimmest flat at another scale: the regression slope
+    of the flat's frame average on the dark's (same or nearest exposure), divided by the share of the dark's spatial
+    variance that is pattern, not temporal residue (errors in variables), is the flats' gain over the darks'. Darks
+    at twice the flats' gain gave twice the read noise and dark current without a word (the gain is fitted through
+    flat minus dark variances). Needs a pattern well above the residue (else nothing is said)."""
+    ms_f = min(flat)
+    ms_d = ms_f if ms_f in dark else min(dark, key=lambda k: abs(k - ms_f))
+    dd, ff = dark[ms_d], flat[ms_f]
+    xs, ys = [], []
+    for a_d, a_f in zip(dd["averages"], ff["averages"]):
+        x = np.asarray(a_d.detach().cpu() if hasattr(a_d, "detach") else a_d, dtype=np.float64).ravel()
+        y = np.asarray(a_f.detach().cpu() if hasattr(a_f, "detach") else a_f, dtype=np.float64).ravel()
+        xs.append(x - x.mean())
+        ys.append(y - y.mean())
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    var_x = float((x * x).mean())
+    pattern = var_x - float(dd["var"]) / int(dd["frames"])  # less the frame average's temporal residue
+    if not (var_x > 0 and pattern > 0.5 * var_x):
+        return
+    beta = float((x * y).mean()) / var_x
+    ratio = beta * var_x / pattern
+    se = math.sqrt(float(((y - beta * x) ** 2).mean()) / (x.size * var_x)) * var_x / pattern
+    if abs(ratio - 1) > max(_DARK_PATTERN_RATIO_SPREAD, 4 * se):
+        warnings.append(f"channel {name}: the dark's fixed pattern ({folders.get(('dark', ms_d), f'dark_{ms_d:g}ms')}) "
+                        f"appears in {folders.get(('flat', ms_f), f'flat_{ms_f:g}ms')} at {ratio:.3g} x its size: "
+                        f"darks and flats at other gains (or other settings)? the read noise and dark current are "
+                        f"in the darks' gain")
+
+
 def _column_fpn_dn2(averages) -> float:
     """The variance (DN^2) of a per-column offset in frame-averaged darks (one image per CFA position, the columns
     of each one of the sensor's): the column means' variance less what the pixels' own spread ``s_r^2`` (DSNU and
@@ -635,6 +669,8 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
         out["photon_transfer"] = {n: per[n]["photon_transfer"] for n in names}
         _warn_channels_differ(per, names, warnings, step)
         _warn_positions_differ(dark_p, capture.cfa, warnings, step)
+    for n, (d, f) in stats.items():
+        _warn_dark_gain(n, d, f, capture.folders, warnings)
     # column fixed pattern (EMVA 1288 4.0 section 8.2 splits the spatial variance into column, row and pixel parts):
     # in the sensor config it was pixel DSNU, so the simulated camera had no column stripes
     shortest = min(capture.dark)

@@ -995,3 +995,19 @@ def test_column_fixed_pattern_is_its_own_term_in_the_sensor_config():
     cfg, cg = sensor_config(striped), sensor_config(striped)["conversion_gain_v_per_e"]
     assert cfg["column_fpn_sigma_v"] / cg == pytest.approx(striped["column_fpn_e"], rel=1e-9)
     assert cfg["dsnu_sigma_v"] / cg == pytest.approx(sensor_config(plain)["dsnu_sigma_v"] / cg, rel=0.05)
+
+
+def test_darks_at_another_gain_than_the_flats_are_warned_about():
+    """Darks at twice the flats' gain (the same sensor, its DSNU pattern twice as many DN) gave twice the read noise
+    and dark current without a word: the darks' fixed pattern appears in the flats at half its size."""
+    import dataclasses
+
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = _memory_capture(frames=4)
+    assert not any("fixed pattern" in w for w in calibrate_capture(cap)["warnings"])
+    doubled = _memory_capture(truth=dict(nc.TRUTH, gain_dn_per_e=2 * nc.TRUTH["gain_dn_per_e"]), frames=4)
+    res = calibrate_capture(dataclasses.replace(cap, dark=doubled.dark))
+    warned = [w for w in res["warnings"] if "fixed pattern" in w]
+    assert len(warned) == 1 and "darks and flats at other gains" in warned[0]
+    assert float(warned[0].split(" at ")[1].split(" x ")[0]) == pytest.approx(0.5, abs=0.05)
