@@ -48,6 +48,17 @@ def test_demo_config_typo_is_a_message_and_exit_code_2(tmp_path, capsys):
     assert "did you mean 'default'" in capsys.readouterr().err
 
 
+def test_demo_names_a_size_too_small_for_a_wide_sensor(tmp_path, capsys):
+    """A fixed 2 x 1000 sensor resized to --size 16 columns has 2 rows: the error named patch_means' 'grid'."""
+    cfg = tmp_path / "wide.yaml"
+    cfg.write_text("optics: {f_number: 4.0}\nsensor: {preset: isetcam_default, rows: 2, cols: 1000}\n")
+    assert main(["demo", "--out", str(tmp_path / "out"), "--size", "16", "--config", str(cfg), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--size: 16 columns give this config's 2 x 1000 sensor 2 rows; the Macbeth chart needs at least 4 " \
+           "(--size 2000 or more)" in err and "grid" not in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_demo_runs_from_any_directory_with_the_builtin_config(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["demo", "--out", "o", "--size", "32", "--quiet"]) == 0

@@ -82,6 +82,10 @@ def _render(args, cam, config, out, staged) -> int:
     rows, cols = getattr(cam.sensor, "rows", None), getattr(cam.sensor, "cols", None)
     if rows and cols:  # a fixed sensor: resized to about n columns (aspect kept), so the scenes below fill it
         cam.sensor.rows, cam.sensor.cols = max(2, 2 * round(n * rows / cols / 2)), n
+        if cam.sensor.rows < 4:  # (patch_means' error named its 'grid')
+            need = 2 * math.ceil(4 * cols / rows / 2)
+            raise ValueError(f"--size: {n} columns give this config's {rows} x {cols} sensor {cam.sensor.rows} "
+                             f"rows; the Macbeth chart needs at least 4 (--size {need} or more)")
     # Field of view for a sensor about n pixels wide: 2 atan(n p / 2 f).
     f = float(cam.optics.focal_length_m.reshape(-1)[0])
     hfov = math.degrees(2 * math.atan(n * cam.sensor.pixel_size_m / (2 * f)))
