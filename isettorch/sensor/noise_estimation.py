@@ -182,6 +182,10 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         white_level_dn = plateau
     bump = _saturation_bump(z, max(32, 1e-3 * z.size)) if plateau is None and _bump else None
     given_white = white_level_dn
+
+    def _without_bump() -> dict:
+        return estimate_poisson_gaussian(raw, cfa=cfa, black_level_dn=black_level_dn, white_level_dn=given_white,
+                                         levels=levels, min_blocks=min_blocks, _bump=False)
     if bump is not None and (white_level_dn is None or bump[0] < white_level_dn):
         white_level_dn = bump[0]  # left out for the fit; kept below if its variance says it is clipped
     else:
@@ -201,6 +205,8 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
         laps.append(lap[ok])
     m, d, lap = np.concatenate(means), np.concatenate(details), np.concatenate(laps)
     if m.size < 2 * min_blocks:
+        if bump is not None:  # (the bump was most of the frame: a uniform one, not a clip)
+            return _without_bump()
         raise ValueError(f"raw: only {m.size} unclipped 2 x 2 blocks; need at least {2 * min_blocks}")
 
     def fit(sel):
@@ -210,23 +216,28 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
                              f"of signal (a uniform frame cannot separate a from b)")
         return pts, _fit(pts)
 
-    pts, (a, b) = fit(np.ones(m.shape, dtype=bool))
-    # smooth blocks only (Foi et al. 2008 section 3.1 use an edge detector): the Laplacian of the block means has
-    # variance sigma^2 / 4 x 5 / 4 where the signal is locally planar; edges and texture exceed 3 of its std
-    for _ in range(2):
-        noise_var = np.maximum(a * m + b, 1e-12)
-        smooth = np.abs(lap) < 3 * np.sqrt(noise_var * 5 / 16)
-        if low_clipped:  # blocks within 3 noise sigmas of the clip at 0 DN: their noise is truncated (a +27..42 % on a
-            # dark photograph with no pedestal, read noise -45 %, when only blocks holding a 0 were left out)
-            smooth &= m + black_level_dn > 3 * np.sqrt(noise_var)
-        pts, (a, b) = fit(smooth)
+    try:  # (with a bump left out, a frame that was mostly the bump has too few levels: not a clip)
+        pts, (a, b) = fit(np.ones(m.shape, dtype=bool))
+        # smooth blocks only (Foi et al. 2008 section 3.1 use an edge detector): the Laplacian of the block means has
+        # variance sigma^2 / 4 x 5 / 4 where the signal is locally planar; edges and texture exceed 3 of its std
+        for _ in range(2):
+            noise_var = np.maximum(a * m + b, 1e-12)
+            smooth = np.abs(lap) < 3 * np.sqrt(noise_var * 5 / 16)
+            if low_clipped:  # blocks within 3 noise sigmas of the clip at 0 DN: their noise is truncated (a
+                # +27..42 % on a dark photograph with no pedestal, read noise -45 %, when only blocks holding a 0 were
+                # left out)
+                smooth &= m + black_level_dn > 3 * np.sqrt(noise_var)
+            pts, (a, b) = fit(smooth)
+    except ValueError:
+        if bump is None:
+            raise
+        return _without_bump()
     if bump is not None:
         # a clipped pile-up keeps the read noise after the clip only; a bright patch the shot noise of its level too
         # (clipped at 25 % of the pixels, the bump read as a bright noise-free level took a to 0.155 for 0.4)
         expected = a * (bump[1] - black_level_dn) + b
         if not (a > 0 and bump[2] < 0.5 * expected):
-            return estimate_poisson_gaussian(raw, cfa=cfa, black_level_dn=black_level_dn, white_level_dn=given_white,
-                                             levels=levels, min_blocks=min_blocks, _bump=False)
+            return _without_bump()
         n = int((z >= bump[0]).sum())
         warnings.append(f"{n} pixels ({100 * n / z.size:.3g} %) form a pile-up below the frame's largest value, "
                         f"{bump[0]:g} DN and up (mode {bump[1]:g} DN, variance {bump[2]:.3g} DN^2 where the noise at "

@@ -392,3 +392,8 @@ def test_a_clip_at_the_full_well_spread_by_read_noise_is_left_out():
     res = estimate_poisson_gaussian(patch, black_level_dn=100)
     assert res["a"] == pytest.approx(k, rel=0.02) and not any("pile-up" in w for w in res["warnings"])
     assert max(level[0] for level in res["levels"]) > 0.9 * k * 6000  # the patch's level was fitted
+    # a uniform low-noise frame is one bump: left out, nothing would be left to fit; it is fitted, with the warning
+    # that one level cannot separate a from b
+    uniform = np.round(0.05 * rng.poisson(np.full((256, 256), 2000.0)) + 0.5 * rng.standard_normal((256, 256)) + 64)
+    res = estimate_poisson_gaussian(uniform, black_level_dn=64)
+    assert any("too narrow a range" in w for w in res["warnings"]) and not any("pile-up" in w for w in res["warnings"])
