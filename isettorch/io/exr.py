@@ -26,7 +26,7 @@ import torch
 
 from .. import constants, spectral
 from .._checks import check_nanometres, check_wavelengths, narrow_float
-from .._files import Outputs
+from .._files import write_atomic
 
 __all__ = ["write_spectral_exr", "read_spectral_exr", "write_scene_exr", "read_scene_exr", "channel_name",
            "parse_channel_name"]
@@ -99,8 +99,8 @@ def write_spectral_exr(path, data, wavelengths_nm, *, component: str = "S0", att
         header["emissiveUnits"] = EMISSIVE_UNITS
     header.update(attributes or {})
     p = Path(path)
-    with Outputs() as staged:  # under a temporary name, moved into place when whole (a failure leaves none)
-        OpenEXR.File(header, {n: a[i] for i, n in enumerate(names)}).write(str(staged.temporary(p)))
+    # under a temporary name, moved into place when whole (a failure leaves none)
+    write_atomic(p, lambda tmp: OpenEXR.File(header, {n: a[i] for i, n in enumerate(names)}).write(str(tmp)))
     return p
 
 

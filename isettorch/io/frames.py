@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._files import Outputs
+from .._files import write_atomic
 
 __all__ = ["Capture", "FrameData", "read_capture", "read_frame", "read_frame_data", "write_frame", "FRAME_SUFFIXES",
            "RAW_SUFFIXES"]
@@ -166,8 +166,7 @@ def write_frame(path: str | Path, frame) -> None:
                          f"{arr.dtype} of shape {arr.shape}")
     if suffix != ".npy" and (arr.min() < 0 or arr.max() > 65535 or not np.array_equal(arr, np.round(arr))):
         raise ValueError(f"frame: a 16-bit {suffix} needs integers in 0..65535, got {arr.min()}..{arr.max()}")
-    with Outputs() as staged:  # under a temporary name, moved into place when whole (a failure leaves none)
-        tmp = staged.temporary(path)
+    def save(tmp: Path) -> None:
         if suffix == ".npy":
             with open(tmp, "wb") as f:  # (np.save adds '.npy' to a name that does not end in it: 'UP.NPY.npy')
                 np.save(f, arr, allow_pickle=False)
@@ -179,6 +178,8 @@ def write_frame(path: str | Path, frame) -> None:
             import tifffile
 
             tifffile.imwrite(tmp, arr.astype(np.uint16))
+
+    write_atomic(path, save)  # under a temporary name, moved into place when whole (a failure leaves none)
 
 
 def _read_yaml(path: Path) -> dict:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from .._checks import check_nanometres
-from .._files import Outputs
+from .._files import write_atomic
 
 __all__ = ["read_isetcam_scene", "read_parity_case", "check_parity_case", "write_parity_case", "case_cfa",
            "case_adc_bits", "case_sensor", "case_spectral_qe", "case_offaxis", "case_regrid_kernel",
@@ -500,9 +500,11 @@ def write_parity_case(path, case: dict) -> None:
         if a.dtype == object:
             raise ValueError(f"case[{k!r}]: expected a numeric or string array, got an object array")
         arrays[k] = a
-    with Outputs() as staged:  # under a temporary name, moved into place when whole (a failure leaves none)
-        with open(staged.temporary(path), "wb") as f:  # (np.savez appends .npz to a name without it)
+    def save(tmp):
+        with open(tmp, "wb") as f:  # (np.savez appends .npz to a name without it)
             np.savez(f, **arrays)
+
+    write_atomic(path, save)  # under a temporary name, moved into place when whole (a failure leaves none)
 
 
 def case_cfa(case: dict):

@@ -284,8 +284,8 @@ def write_dng(path: str | Path, mosaic, *, cfa: str = "RGGB", black_level_dn: in
         (50721, "2i", 9, identity, True),  # ColorMatrix1
         (50778, "H", 1, (21,), True),  # CalibrationIlluminant1: D65
     ]
-    from .._files import Outputs
+    from .._files import write_atomic
 
-    with Outputs() as staged:  # under a temporary name, moved into place when whole (a failure leaves none)
-        tifffile.imwrite(str(staged.temporary(path)), arr.astype(np.uint16), photometric=32803, subfiletype=0,
-                         extratags=tags, metadata=None)
+    # under a temporary name, moved into place when whole (a failure leaves none)
+    write_atomic(path, lambda tmp: tifffile.imwrite(str(tmp), arr.astype(np.uint16), photometric=32803, subfiletype=0,
+                                                    extratags=tags, metadata=None))

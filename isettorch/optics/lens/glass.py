@@ -253,7 +253,7 @@ def valid_range_nm(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS) -> t
 def _source(g) -> str:
     if isinstance(g, _OptilandGlass):
         return "optiland material database"
-    if getattr(g, "_catalog_name", None) == "model glass" or type(g).__name__ == "Buchdahl":
+    if getattr(g, "_catalog_name", None) == "model glass":  # (_model_glass)
         return "model glass n_d/V_d"
     try:
         return f"{g.catalog_name()} catalogue"
