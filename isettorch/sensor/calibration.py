@@ -124,8 +124,7 @@ def _warn_dark_gain(name: str, dark: dict, flat: dict, folders: dict, warnings: 
     dd, ff = dark[ms_d], flat[ms_f]
     xs, ys = [], []
     for a_d, a_f in zip(dd["averages"], ff["averages"]):
-        x = np.asarray(a_d.detach().cpu() if hasattr(a_d, "detach") else a_d, dtype=np.float64).ravel()
-        y = np.asarray(a_f.detach().cpu() if hasattr(a_f, "detach") else a_f, dtype=np.float64).ravel()
+        x, y = (np.asarray(a, dtype=np.float64).ravel() for a in (a_d, a_f))  # (CPU tensors, as _stats made them)
         xs.append(x - x.mean())
         ys.append(y - y.mean())
     x, y = np.concatenate(xs), np.concatenate(ys)
@@ -150,7 +149,7 @@ def _column_fpn_dn2(averages) -> float:
     the spatial variance split into column, row and pixel parts), over the images; 0 when negative."""
     est = []
     for a in averages:
-        a = np.asarray(a.detach().cpu() if hasattr(a, "detach") else a, dtype=np.float64)
+        a = np.asarray(a, dtype=np.float64)
         h = a.shape[0]
         if h < 2 or a.shape[1] < 2:
             continue

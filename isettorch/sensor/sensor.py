@@ -437,9 +437,15 @@ class Sensor(nn.Module):
         and vignetting."""
         if pixel_size_m is not None:
             return self.fill_factor * pixel_size_m * pixel_size_m
+        return self.pixel_area_m2 if self._microlens_aperture else self.fill_factor * self.pixel_area_m2
+
+    @property
+    def _microlens_aperture(self) -> bool:
+        """Whether the light of the whole pixel meets the pixel optics' etendue (the physical convention: the microlens,
+        as wide as the pixel, gathers it; the etendue holds the photodiode's share), not the photodiode's alone: the
+        area of :meth:`collecting_area_m2` and the window of :meth:`sample`."""
         po = self.pixel_optics
-        return self.pixel_area_m2 if po is not None and po.convention == "physical" else \
-            self.fill_factor * self.pixel_area_m2
+        return po is not None and po.convention == "physical"
 
     @property
     def lsb_v(self) -> float | None:
@@ -872,8 +878,7 @@ class Sensor(nn.Module):
         # pixel optics in the physical convention: the microlens (as wide as the pixel) gathers the light over the
         # whole pixel and its etendue holds the photodiode's share (collecting_area_m2); the photodiode's window
         # dropped the light between photodiodes (an edge, the sampling MTF and aliasing were a bare pixel's)
-        po = self.pixel_optics
-        window = 1.0 if po is not None and po.convention == "physical" else self.fill_factor
+        window = 1.0 if self._microlens_aperture else self.fill_factor
         return sample_area(density, dx, self.pixel_size_m, rows, cols, window, recon)
 
     def _call_pitch(self, pixel_size_m, oi: OpticalImage) -> torch.Tensor:
