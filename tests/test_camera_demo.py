@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from isettorch.cli import main
@@ -99,3 +100,22 @@ def test_demo_snr_names_its_channel_and_never_reports_inf(tmp_path):
     assert None in m["gray_patch_snr_db"]
     md = (out / "report.md").read_text()
     assert "G pixels" in md and "green pixels" not in md and "n/a" in md
+
+
+@pytest.mark.parametrize("rows, cols", [(300, 300), (270, 480)])
+def test_demo_measures_the_chart_where_a_fixed_sensor_holds_it(tmp_path, rows, cols):
+    # A config's fixed sensor keeps its aspect. A square one holds the 6:4 chart, which fills its width, in the middle
+    # two thirds of its rows: patch windows over the whole image measured the black border under the top and bottom
+    # rows (mean dE2000 22.2, the gray row's 'black' patch at 13 dB). A 16:9 one cropped the chart's top and bottom
+    # (its windows straddled patches): the chart is now fitted to the sensor's height. In the chart's footprint the
+    # colour error is the sensor-sized camera's (about 4; the 16:9 one was 4.9) and the gray row falls from white
+    # to black by shot and read noise (about 28 -> 11 dB, 15 pixels a patch).
+    path = tmp_path / "fixed.yaml"
+    path.write_text(f"optics: {{f_number: 4.0}}\nsensor: {{preset: isetcam_default, rows: {rows}, cols: {cols}}}\n")
+    out = tmp_path / "out"
+    assert main(["demo", "--out", str(out), "--size", "64", "--config", str(path), "--quiet"]) == 0
+    m = json.loads((out / "report.json").read_text())["scenes"]["macbeth"]
+    assert m["sensor_pixels"] == [round(64 * rows / cols / 2) * 2, 64]
+    assert m["delta_e2000_mean"] < 6
+    snr = m["gray_patch_snr_db"]
+    assert snr[0] > 25 and snr[0] - snr[-1] > 8

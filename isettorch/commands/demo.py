@@ -4,7 +4,8 @@ Scenes: Macbeth ColorChecker (D65), slanted edge, frequency sweep and dead leave
 chosen so the sensor is about ``--size`` pixels wide (a config that fixes the sensor's rows and cols is resized to
 ``--size`` columns, its aspect kept, so that the scenes fill it). Outputs in ``--out``: ``<scene>.png`` (the camera's
 sRGB image), ``<scene>_scene.png`` (the scene's ideal sRGB preview), ``report.json`` and ``report.md``
-(Macbeth mean/max dE2000, exposure, per-scene sensor illuminance, and the SNR of the gray patches). A monochrome
+(Macbeth mean/max dE2000, exposure, per-scene sensor illuminance, and the SNR of the gray patches, measured in the
+chart's footprint on the sensor: :func:`isettorch.isp.chart.scene_window`). A monochrome
 camera has no colour: its report has no colour error (``colour_error`` says so) and the rest as for colour.
 """
 
@@ -74,7 +75,7 @@ def run(args) -> int:
 def _render(args, cam, config, out, staged) -> int:
     import torch
 
-    from ..isp.chart import gray_patch_snr, macbeth_delta_e, patch_means
+    from ..isp.chart import gray_patch_snr, macbeth_delta_e, patch_means, scene_window
     from ..scene import frequency_sweep, macbeth, slanted_edge
     from ..scene.dead_leaves import dead_leaves
 
@@ -92,8 +93,12 @@ def _render(args, cam, config, out, staged) -> int:
     # Two scene samples per pixel: a scene coarser than the pixel grid would be interpolated by the sensor
     # (and Camera warns); the optical image keeps the scene's sampling, the sensor has about n pixels across.
     s = 2 * n
+    # The 6:4 chart fills the sensor's width, or its height on a sensor wider than 6:4 (a fixed 16:9 one)
+    aspect = cam.sensor.rows / cam.sensor.cols if rows and cols else None
+    chart_hfov = hfov if aspect is None or aspect >= 4 / 6 else math.degrees(
+        2 * math.atan(n * aspect * 1.5 * cam.sensor.pixel_size_m / (2 * f)))
     scenes = {
-        "macbeth": macbeth("D65", patch_size=max(4, s // 6), hfov_deg=hfov),
+        "macbeth": macbeth("D65", patch_size=max(4, s // 6), hfov_deg=chart_hfov),
         "slanted_edge": slanted_edge(s, hfov_deg=hfov),
         "frequency_sweep": frequency_sweep(s, hfov_deg=hfov),
         "dead_leaves": dead_leaves(s, seed=args.seed, hfov_deg=hfov),
@@ -116,14 +121,21 @@ def _render(args, cam, config, out, staged) -> int:
             "render_seconds": round(elapsed, 3),
         }
         if name == "macbeth":
+            # the chart's footprint: the sensor keeps its aspect, so a near-square one holds the 6:4 chart in its
+            # middle rows (patch windows over the whole image measured the border)
+            window = scene_window(res, float(cam.sensor.pixel_size_m))
+            if window is None:
+                raise ValueError(f"--config {config}: the sensor does not hold the whole Macbeth chart, whose colour "
+                                 "error needs every patch")
+            r0, r1, c0, c1 = window
             if res.raw.cfa.is_monochrome or res.isp is None or res.isp.xyz is None:
                 # a monochrome sensor: the ISP renders gray (no XYZ), so there is no colour to compare
                 entry["colour_error"] = "not measured: a monochrome sensor has no colour"
             else:
-                acc = macbeth_delta_e(patch_means(res.isp.xyz), "D65")
+                acc = macbeth_delta_e(patch_means(res.isp.xyz[..., r0:r1, c0:c1]), "D65")
                 entry.update({"delta_e2000_mean": float(acc.mean[0]), "delta_e2000_max": float(acc.max[0]),
                               "delta_e2000_per_patch": [round(float(v), 3) for v in acc.delta_e[0]]})
-            snr = gray_patch_snr(res.raw)
+            snr = gray_patch_snr(res.raw, window=window)
             entry.update({"gray_patch_snr_db": [None if v is None else round(v, 2) for v in snr["snr_db"]],
                           "gray_patch_snr_channel": snr["channel"], "gray_patch_pixels": snr["pixels"]})
             if any(snr["notes"]):

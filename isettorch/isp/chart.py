@@ -17,7 +17,7 @@ from .._checks import check_finite, is_integer
 from .colour import reflectance_set, white_xyz, xyz_responses
 
 __all__ = ["patch_means", "macbeth_true_xyz", "macbeth_delta_e", "gray_patch_snr", "gray_patch_snr_db",
-           "snr_channel", "WHITE_PATCH"]
+           "snr_channel", "scene_window", "WHITE_PATCH"]
 
 #: Index of the white patch (row 4, column 1) in reading order.
 WHITE_PATCH = 18
@@ -48,6 +48,30 @@ def patch_means(img: torch.Tensor, grid: tuple[int, int] = (4, 6), fraction: flo
             x0, x1 = int(round(cx - hx)), max(int(round(cx - hx)) + 1, int(round(cx + hx)))
             out.append(img[:, :, y0:y1, x0:x1].mean(dim=(-2, -1)))
     return torch.stack(out, dim=1)
+
+
+def scene_window(result, pixel_size_m: float) -> tuple[int, int, int, int] | None:
+    """``(row0, row1, col0, col1)``: the scene's footprint on the sensor (the chart's, for a chart scene), the image
+    plane's ``d_i tan(fov / 2)`` either side of the axis in pixels of ``pixel_size_m``; None when the sensor does not
+    hold all of it (by more than a pixel a side) or the optical image has no geometry.
+
+    A sensor larger than the scene's image (a config's fixed rows and cols) holds the chart in its middle: patch
+    means over the whole image put the dark-skin patch under purplish blue (mean dE2000 73 for 3.7); a smaller one
+    crops the chart. ``result`` is a camera's output with ``scene``, ``optical_image`` and ``raw``
+    (:class:`isettorch.camera.CameraOutput`); item 0 is measured, on a sensor centred on the optical axis.
+    """
+    h, w = result.raw.data.shape[-2:]
+    oi = result.optical_image
+    d = oi.image_distance_m if oi.image_distance_m is not None else oi.focal_length_m
+    if d is None:
+        return None
+    d = float(torch.as_tensor(d).reshape(-1)[0])
+    half_w = d * math.tan(math.radians(float(result.scene.hfov_deg.reshape(-1)[0])) / 2) / pixel_size_m
+    half_h = d * math.tan(math.radians(float(result.scene.vfov_deg.reshape(-1)[0])) / 2) / pixel_size_m
+    r0, r1, c0, c1 = (round(h / 2 - half_h), round(h / 2 + half_h), round(w / 2 - half_w), round(w / 2 + half_w))
+    if r0 < -1 or c0 < -1 or r1 > h + 1 or c1 > w + 1:
+        return None
+    return max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
 
 
 def _chart_grid(wavelengths_nm) -> torch.Tensor:
@@ -117,8 +141,9 @@ def snr_channel(cfa) -> int:
     return counts.index(max(counts))
 
 
-def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5) -> dict:
-    """SNR (dB) of the six gray patches (white -> black) of a Macbeth raw that fills the sensor, with what it measured.
+def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5,
+                   window: tuple[int, int, int, int] | None = None) -> dict:
+    """SNR (dB) of the six gray patches (white -> black) of a Macbeth raw, with what it measured.
 
     ``20 log10(mean noise-free signal / std(noisy - noise-free))`` over one CFA channel's pixels in each patch's
     central ``fraction``; using the noise-free signal keeps lens shading and blur out of the noise. Needs
@@ -128,6 +153,8 @@ def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5)
         raw: a :class:`~isettorch.sensor.raw.RawImage` (item 0 is measured).
         channel: a channel index or CFA letter (``'G'``); None: :func:`snr_channel` (G, else the most frequent).
         fraction: the central part of each patch measured.
+        window: ``(row0, row1, col0, col1)``, the chart's footprint on the sensor (:func:`scene_window`); None: the
+            chart fills the sensor.
 
     Returns:
         ``{"channel": letter, "snr_db": [6 x float or None], "pixels": [6 x int], "notes": [6 x str or None]}``.
@@ -151,10 +178,12 @@ def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5)
     else:
         raise ValueError(f"channel: expected None, a CFA letter of {names} or an index in 0..{len(names) - 1}, "
                          f"got {channel!r}")
+    h, w = raw.data.shape[-2:]
+    r0, r1, c0, c1 = _check_window(window, h, w)
     masks = raw.channel_masks()
-    sig = (raw.noise_free.double() - raw.levels()[0])[0, 0]
-    res = raw.data[0, 0].double() - raw.noise_free[0, 0].double()
-    mask = masks[c].bool()
+    sig = (raw.noise_free.double() - raw.levels()[0])[0, 0, r0:r1, c0:c1]
+    res = (raw.data[0, 0].double() - raw.noise_free[0, 0].double())[r0:r1, c0:c1]
+    mask = masks[c].bool()[r0:r1, c0:c1]
     h, w = sig.shape
     snr, pixels, notes = [], [], []
     for k in range(6):
@@ -179,6 +208,18 @@ def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5)
             snr.append(20 * math.log10(s_mean / n_std))
             notes.append(None)
     return {"channel": names[c], "snr_db": snr, "pixels": pixels, "notes": notes}
+
+
+def _check_window(window, h: int, w: int) -> tuple[int, int, int, int]:
+    """A ``(row0, row1, col0, col1)`` window inside an ``h x w`` image (None: all of it)."""
+    if window is None:
+        return 0, h, 0, w
+    if not (isinstance(window, (tuple, list)) and len(window) == 4 and all(is_integer(v) for v in window)):
+        raise ValueError(f"window: expected (row0, row1, col0, col1) integers, got {window!r}")
+    r0, r1, c0, c1 = (int(v) for v in window)
+    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
+        raise ValueError(f"window: expected 0 <= row0 < row1 <= {h} and 0 <= col0 < col1 <= {w}, got {window!r}")
+    return r0, r1, c0, c1
 
 
 def gray_patch_snr_db(raw, channel: int | str | None = None, fraction: float = 0.5) -> list[float | None]:

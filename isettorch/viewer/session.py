@@ -422,24 +422,10 @@ class ViewerSession:
 
     def chart_window(self) -> tuple[int, int, int, int] | None:
         """``(row0, row1, col0, col1)``: the scene's footprint in the processed image (the chart's, for the Macbeth
-        scene), the image plane's ``d_i tan(fov / 2)`` either side of the axis in pixels; None when the sensor does
-        not hold all of it (by more than a pixel a side) or the optical image has no geometry. A sensor larger than
-        the scene's image (a config's fixed rows and cols) holds the chart in its middle: patch means over the whole
-        image put the dark-skin patch under purplish blue (mean dE2000 73 for 3.7); a smaller one crops it."""
-        out = self.output
-        h, w = out.isp.xyz.shape[-2:]
-        oi = out.optical_image
-        d = oi.image_distance_m if oi.image_distance_m is not None else oi.focal_length_m
-        if d is None:
-            return None
-        d = float(torch.as_tensor(d).reshape(-1)[0])
-        pitch = float(self.camera.sensor.pixel_size_m)
-        half_w = d * math.tan(math.radians(float(out.scene.hfov_deg.reshape(-1)[0])) / 2) / pitch
-        half_h = d * math.tan(math.radians(float(out.scene.vfov_deg.reshape(-1)[0])) / 2) / pitch
-        r0, r1, c0, c1 = (round(h / 2 - half_h), round(h / 2 + half_h), round(w / 2 - half_w), round(w / 2 + half_w))
-        if r0 < -1 or c0 < -1 or r1 > h + 1 or c1 > w + 1:
-            return None
-        return max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
+        scene; :func:`isettorch.isp.chart.scene_window`); None when the sensor does not hold all of it."""
+        from ..isp.chart import scene_window
+
+        return scene_window(self.output, float(self.camera.sensor.pixel_size_m))
 
     def colour_stats(self, roi: ROI) -> dict:
         """Chromaticity of a processed-image region (mean of the ISP's XYZ, :func:`isettorch.metrics.xyz_to_xy`),
