@@ -45,7 +45,12 @@ def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_n
         if not bool(n_ok):
             raise ValueError(f"f_number: expected positive values, got {f_number.detach().reshape(-1).tolist()}")
         raise ValueError(f"wavelengths_nm: expected finite positive wavelengths, got {w.reshape(-1).tolist()}")
-    rho = torch.sqrt(fy[:, :, None] ** 2 + fx[:, None, :] ** 2)  # [B, My, Mx]
+    r2 = fy[:, :, None] ** 2 + fx[:, None, :] ** 2  # [B, My, Mx]
+    if records_grad(r2):  # sqrt's derivative at DC is 0/0: NaN through the spacing (hfov, distance) even there
+        pos = r2 > 0
+        rho = torch.where(pos, torch.sqrt(torch.where(pos, r2, torch.ones_like(r2))), torch.zeros_like(r2))
+    else:
+        rho = torch.sqrt(r2)
     lam_n = wavelengths_nm.to(rho.dtype)[None, :] * 1e-9 * f_number.to(rho.dtype).reshape(-1, 1)  # [B, L]
     step = max(1, _OTF_CHUNK_ELEMENTS // rho.numel())
     if step >= lam_n.shape[1] or records_grad(rho, lam_n):

@@ -423,3 +423,38 @@ def test_the_mtf_is_even_and_a_nan_frequency_or_bad_wavelength_is_not_hidden():
     for w in (math.nan, -550.0, 0.0):
         with pytest.raises(ValueError, match="wavelengths_nm: expected finite positive wavelengths"):
             dl_otf(torch.zeros(1, 2), torch.zeros(1, 2), torch.tensor([w]), torch.tensor([4.0]))
+
+
+def _fov_optics(kind, ri):
+    from isettorch.optics import ShiftInvariantOptics, WavefrontOptics
+
+    kw = {} if ri else {"relative_illumination": None}
+    if kind == "dl":
+        return DiffractionLimitedOptics(2.8, 4e-3, **kw)
+    if kind == "dl_learn":
+        return DiffractionLimitedOptics(2.8, 4e-3, learn_f_number=True, **kw)
+    if kind == "wavefront":
+        return WavefrontOptics(torch.tensor([0.0, 0, 0, 0, 0.1]), f_number=2.8, focal_length_m=4e-3, **kw)
+    psf = torch.exp(-(torch.arange(-4.0, 5.0)[:, None] ** 2 + torch.arange(-4.0, 5.0) ** 2) / 4)
+    return ShiftInvariantOptics(psf, 1e-6, f_number=2.8, focal_length_m=4e-3, **kw)
+
+
+@pytest.mark.parametrize("kind", ["dl", "dl_learn", "wavefront", "psf"])
+@pytest.mark.parametrize("what", ["hfov_deg", "distance_m"])
+@pytest.mark.parametrize("ri", [True, False])
+def test_gradient_to_the_scene_field_of_view_and_distance_includes_the_blur(kind, what, ri):
+    # The sample spacing, hence the OTF's frequencies, depends on the scene's field of view and distance. A cached,
+    # detached OTF dropped the blur's term (d sum(photons^2) / d hfov -2.4e-4 for +0.495; without relative
+    # illumination no gradient at all), and dl_otf's sqrt at DC made it NaN with a learnable f-number. Autograd
+    # against central differences (torch.autograd.gradcheck), float64.
+    x = torch.rand(1, 2, 12, 12, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    wave = torch.tensor([450.0, 650.0], dtype=torch.float64)
+    optics = _fov_optics(kind, ri)
+    fixed = {"hfov_deg": torch.tensor([0.5], dtype=torch.float64),
+             "distance_m": torch.tensor([1.0], dtype=torch.float64)}
+
+    def fn(v):  # a scalar: a failing gradcheck's full Jacobian would take a backward pass per output sample
+        return (optics(Scene(x, wave, **{**fixed, what: v})).photons ** 2).sum()
+
+    v = fixed[what].clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(fn, (v,), eps=1e-7, atol=1e-8, rtol=1e-5, fast_mode=True)
