@@ -33,6 +33,17 @@ def _check_grid(spacing_m, size: int) -> None:
 def _prep(optics, wavelengths_nm, dtype=torch.float64):
     w = check_wavelengths(as_tensor(wavelengths_nm, "wavelengths_nm", dtype=dtype)).to(dtype)
     n = optics.f_number.detach().to(dtype).reshape(-1)
+    # the module's batch: its largest per-item parameter (WavefrontOptics' Zernike rows [B, J] beside one f-number
+    # were refused: 'expected 1 or 1 rows')
+    rows = [n.numel()]
+    for name in ("focal_length_m", "defocus_diopters"):
+        v = getattr(optics, name, None)
+        rows.append(v.numel() if isinstance(v, torch.Tensor) else 1)
+    z = getattr(optics, "zernike_um", None)
+    rows.append(z.shape[0] if isinstance(z, torch.Tensor) and z.dim() == 2 else 1)
+    b = max(rows)
+    if n.numel() == 1 and b > 1:
+        n = n.expand(b)
     return w, n
 
 

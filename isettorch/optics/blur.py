@@ -10,7 +10,8 @@ Two cases:
   an FFT-friendly size), the OTF is applied on that padded grid and the **whole padded grid is returned**.
   The transfer function at every FFT frequency is exactly the OTF, and power is conserved exactly (the kernel
   sums to OTF(0) = 1 and nothing is cropped). Light further than ``margin`` from the image would wrap around
-  to the other side; ``margin`` is chosen so that this is below the optics' ``psf_tolerance``.
+  to the other side; ``margin`` is chosen so that this is below the optics' ``psf_tolerance``. With ``'edge'``
+  padding, whose border continues beyond the padding, the whole output is computed as a window (below).
 * **window** ``(top, left, height, width)`` in the coordinates of that full output: only the window is
   computed, from the sources within ``margin`` of it, on a buffer large enough that nothing wraps around into
   the window (the error is the PSF energy beyond ``margin``).
@@ -123,8 +124,13 @@ def fft_buffer(x: torch.Tensor, margin: tuple[int, int], pad_mode="zero",
     pr, pc = full_padding(h, margin[0]), full_padding(w, margin[1])
     _check_pad_mode(pad_mode)
     if window is None:
-        buf = extend(x, (-pr, h + pr), (-pc, w + pc), pad_mode)
-        return buf, (pr, pc), (0, 0, h + 2 * pr, w + 2 * pc)
+        if pad_mode != "edge" or max(margin) <= 0:
+            buf = extend(x, (-pr, h + pr), (-pc, w + pc), pad_mode)
+            return buf, (pr, pc), (0, 0, h + 2 * pr, w + 2 * pc)
+        # 'edge': the border's values continue beyond the padding, where a circular FFT of the padded grid alone
+        # wraps the opposite border's light into the outer margin (0.40 of a 0 | 1 step's far side where it is 0,
+        # 0.77 where it is 1): the whole output as a window, whose buffer reaches the margin further
+        window = (0, 0, h + 2 * pr, w + 2 * pc)
     top, left, wh, ww = window
     if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr and left + ww <= w + 2 * pc):
         raise ValueError(f"crop: window (top={top}, left={left}, height={wh}, width={ww}) does not fit in the "
@@ -164,7 +170,7 @@ def blur_fft(x: torch.Tensor, otf_fn, dx: torch.Tensor, margin: tuple[int, int],
     """
     buf, pad, (r0, c0, oh, ow) = fft_buffer(x, margin, pad_mode, window)
     out = _convolve(buf, otf_fn, dx)
-    if window is None:
+    if (r0, c0, oh, ow) == (0, 0, *out.shape[-2:]):
         return out, pad
     return out[..., r0:r0 + oh, c0:c0 + ow], pad
 

@@ -200,6 +200,29 @@ def test_crop_window_matches_full():
     torch.testing.assert_close(iso(scene, crop=(2, 3, 10, 12)).photons, iso(scene).photons[..., 2:12, 3:15])
 
 
+@pytest.mark.parametrize("factored", [False, True])
+def test_edge_padding_full_output_is_the_window_computation(factored):
+    # A 0 | 1 step, f/8, 'edge' padding: the scene continues as 0 to the left and 1 to the right, so the full
+    # optical image's outer columns are about 0 and 1 (the diffraction tail of the step 64 samples away: 0.006). The
+    # full output was a circular FFT of the padded grid alone: the opposite border's light wrapped into its outer
+    # margin (0.40, 0.24 on the left; 0.92 on the right), 0.397 away from forward(crop=) on the same samples.
+    n, far = 32, 1e4
+    d_i = 1 / (1 / F - 1 / far)
+    x = torch.zeros(1, 1, n, n, dtype=torch.float64)
+    x[..., n // 2:] = 1.0
+    wave = torch.tensor([550.0], dtype=torch.float64)
+    hfov = 2 * math.degrees(math.atan(n * 1e-6 / (2 * d_i)))
+    scene = (Scene.from_factors(x, torch.ones(1, 1, 1, dtype=torch.float64), wave, hfov_deg=hfov, distance_m=far)
+             if factored else Scene(x, wave, hfov_deg=hfov, distance_m=far))
+    optics = DiffractionLimitedOptics(8.0, F, pad_mode="edge", relative_illumination=None)
+    full = optics(scene).photons[0, 0]
+    k = math.pi / (1 + 4 * 64 * (1 + d_i / far) ** 2)
+    h, w = full.shape
+    window = optics(scene, crop=(0, 0, h, w)).photons[0, 0]
+    torch.testing.assert_close(full, window, rtol=0, atol=1e-9 * k)
+    assert full[:, :3].max() < 0.01 * k and full[:, -3:].min() > 0.99 * k
+
+
 @pytest.mark.parametrize("mode", ["edge", "mean"])
 def test_uniform_scene_stays_uniform_with_edge_and_mean_padding(mode):
     x = torch.full((1, 2, 12, 14), 3e15, dtype=torch.float64)

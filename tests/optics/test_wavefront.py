@@ -254,3 +254,19 @@ def test_otf_cache_follows_the_focal_length():
     wf.focal_length_m = torch.tensor(8e-3, dtype=torch.float64)
     fresh = WavefrontOptics(None, f_number=4.0, focal_length_m=8e-3, defocus_diopters=5.0, margin=8)
     torch.testing.assert_close(wf(scene(8e-3)).photons, fresh(scene(8e-3)).photons, rtol=1e-12, atol=0)
+
+
+def test_analysis_of_per_item_zernike_rows_is_each_rows_own():
+    # Zernike rows [2, J] beside one f-number: psf / mtf / lsf took the batch from the f-number (1) and were refused
+    # ('zernike_um: expected 1 or 1 rows'); each item is now the optics of its own row.
+    from isettorch.optics import analysis
+
+    rows = torch.tensor([[0, 0, 0, 0, 0.0], [0, 0, 0, 0, 0.2]])
+    both = WavefrontOptics(rows, f_number=4.0, focal_length_m=4e-3)
+    for fn, args in ((analysis.psf, ([550.0], 0.5e-6, 32)), (analysis.mtf, ([550.0], [0.0, 1e5, 2e5])),
+                     (analysis.lsf, ([550.0], 0.5e-6, 64))):
+        got = fn(both, *args)
+        assert got.shape[0] == 2
+        for i in range(2):
+            one = WavefrontOptics(rows[i], f_number=4.0, focal_length_m=4e-3)
+            torch.testing.assert_close(got[i:i + 1], fn(one, *args), rtol=1e-10, atol=1e-12)
