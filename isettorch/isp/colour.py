@@ -700,8 +700,9 @@ class SensorToXYZ(nn.Module):
         w = check_wavelengths(torch.as_tensor(wavelengths_nm))
         graph = qe.requires_grad and torch.is_grad_enabled() and not self.learnable
         # the QE's values themselves (its sum alone took a QE with two channels swapped for the same sensor)
+        # and the fit's settings (an assigned illuminant 'A' kept the D65 fit)
         key = None if graph else (tuple(qe.shape), qe.detach().double().cpu().numpy().tobytes(),
-                                  tuple(w.detach().double().cpu().tolist()))
+                                  tuple(w.detach().double().cpu().tolist()), self._settings_key())
         if self._fit_key == "fixed" or key is not None and self._fit_key == key:
             return self
         q = qe.to(torch.float64) if graph else qe.detach().to(torch.float64)
@@ -736,6 +737,15 @@ class SensorToXYZ(nn.Module):
         self._fit_key = key
         self.fitted = torch.tensor(True, device=self.fitted.device)
         return self
+
+    def _settings_key(self) -> tuple:
+        """The fit's settings as a cache key (a spectrum by its values)."""
+        def one(v):
+            if isinstance(v, torch.Tensor):
+                return tuple(v.shape), v.detach().double().cpu().numpy().tobytes()
+            return repr(v)
+        return tuple(one(v) for v in (self.illuminant, self.surfaces, self.observer, self.white_preserving,
+                                      self.normalize))
 
     def release_graph(self) -> None:
         """Keep the detached values of a matrix fitted inside the graph (:meth:`fit` of a QE that requires grad):

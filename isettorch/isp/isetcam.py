@@ -73,6 +73,8 @@ def ip_result_from_case(case, use_case_matrices: bool = True, dtype=torch.float6
         qe = torch.as_tensor(get("sensor_spectral_qe"), dtype=torch.float64)
         ip.fit_wavelengths_nm = w
         ip.fit(qe)
-    ours = ip(raw).image[0].permute(1, 2, 0).detach().cpu().numpy()
+    res = ip(raw)
+    # a monochrome sensor's ip_result is input / voltage swing, unclipped (FORMAT.md 4.10): the display-linear image
+    ours = (res.display_linear if cfa.is_monochrome else res.image)[0].permute(1, 2, 0).detach().cpu().numpy()
     ref = get("ip_result")
     return ours, None if ref is None else np.asarray(ref)

@@ -349,7 +349,10 @@ class ImageProcessor(ExactConstants):
                 mono = (raw.data - raw.broadcast(raw.black_level - raw.offset_level)) / raw.voltage_swing_v
             else:
                 mono = x
-            return ISPResult(image=mono.expand(-1, 3, -1, -1), input=x, display_linear=mono.expand(-1, 3, -1, -1))
+            # encoded as a colour image is (a linear, unclipped image from an sRGB processor: 0.25 for 0.537); ISETCam's
+            # ip_result, unclipped input / voltage swing, is display_linear
+            mono3 = mono.expand(-1, 3, -1, -1)
+            return ISPResult(image=self.encode(mono3), input=x, display_linear=mono3)
         sensor = self.demosaic(x, raw.cfa)
         if raw.units == "dn":
             # ISETCam displayRender, quantized sensor ('linear'): the image maximum becomes 1.
@@ -383,7 +386,10 @@ class ImageProcessor(ExactConstants):
         balanced = sensor
         gains = None
         if space == "sensor":
-            balanced = ic(sensor, white=self._sensor_white_target(m))
+            # only gray and white world use the white ('none' and 'manual' refused a 4-channel sensor for want of one;
+            # ISETCam imageIlluminantCorrection 'none': D = eye(N), for N ~= 3 too)
+            uses_white = getattr(ic, "method", None) not in ("none", "manual")  # (a user's module: given it)
+            balanced = ic(sensor, white=self._sensor_white_target(m) if uses_white else None)
             gains = getattr(ic, "last_gains", None)
         xyz = self.sensor_to_xyz(balanced)
         if self.clip_negative_xyz:

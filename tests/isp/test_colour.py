@@ -525,3 +525,18 @@ def test_colour_stage_arguments_are_checked_where_given():
         XYZToDisplay("srgb", adapt_from="D66")
     with pytest.raises(ValueError, match="adapt_from: expected an illuminant name or a white's XYZ"):
         XYZToDisplay("srgb", adapt_from=[1.0, -1.0, 1.0])
+
+
+@pytest.mark.parametrize("setting, value", [("illuminant", "A"), ("white_preserving", True), ("normalize", False),
+                                            ("observer", "1964")])
+def test_a_changed_fit_setting_refits_the_matrix(setting, value):
+    # The fit's cache was keyed by the QE and grid only: after s.illuminant = 'A' a fit of the same QE returned the
+    # D65 matrix (0.33 from the fit under A). Each setting now refits: the matrix is a fresh module's.
+    w = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    qe = spectral.cmfs(w, dtype=torch.float64) / w * 300 + 0.05 * torch.rand(3, w.numel(), dtype=torch.float64,
+                                                                             generator=torch.Generator().manual_seed(1))
+    s = SensorToXYZ().fit(qe, w)
+    setattr(s, setting, value)
+    fresh = SensorToXYZ(**{setting: value}).fit(qe, w)
+    assert not torch.allclose(fresh.matrix, SensorToXYZ().fit(qe, w).matrix, rtol=1e-3, atol=0)
+    torch.testing.assert_close(s.fit(qe, w).matrix, fresh.matrix, rtol=1e-12, atol=0)

@@ -87,10 +87,25 @@ def test_monochrome_skips_colour():
     raw = RawImage(torch.rand(1, 1, 4, 4, dtype=torch.float64) * 0.8, "volts", CFA("W"), white_level=2.0,
                    voltage_swing_v=1.0)
     out = ImageProcessor()(raw)
-    torch.testing.assert_close(out.image, (raw.data / 2.0).expand(-1, 3, -1, -1))
+    torch.testing.assert_close(out.display_linear, (raw.data / 2.0).expand(-1, 3, -1, -1))
     out = ImageProcessor(monochrome_divisor="voltage_swing")(raw)  # ISETCam: input / voltage swing
-    torch.testing.assert_close(out.image, raw.data.expand(-1, 3, -1, -1))
+    torch.testing.assert_close(out.display_linear, raw.data.expand(-1, 3, -1, -1))
     assert out.xyz is None
+
+
+@pytest.mark.parametrize("encoding", ["srgb", "linear", 2.2])
+def test_a_monochrome_image_is_encoded_as_a_colour_one(encoding):
+    # The monochrome branch returned the linear, unclipped image as the encoded one: an sRGB processor gave 0.25 for
+    # a grey at 0.25 (IEC 61966-2-1: 0.5371) and 3.0 above the white. Now the processor's encoding, as for colour.
+    import colour
+
+    raw = RawImage(torch.tensor([0.0, 0.05, 0.25, 0.8, 3.0], dtype=torch.float64).reshape(1, 1, 1, 5), "volts",
+                   CFA("W"), white_level=1.0)
+    out = ImageProcessor(encoding=encoding)(raw).image
+    x = np.clip(raw.data[0, 0, 0].numpy(), 0, 1)
+    want = {"srgb": colour.cctf_encoding(x, "sRGB"), "linear": x, 2.2: x ** (1 / 2.2)}[encoding]
+    for c in range(3):
+        np.testing.assert_allclose(out[0, c, 0].numpy(), want, rtol=1e-12, atol=1e-12)
 
 
 def test_needs_matrix_and_white_level():
@@ -419,3 +434,28 @@ def test_a_nan_raw_is_refused_before_a_users_demosaic_and_tiny_channel_means_are
     assert any("beyond torch.float32's range" in str(w.message) for w in caught)
     img[0, 2, 0, 0] = 64e-30  # tiny but within range: balanced
     assert float(gray_world_gains(img)[0, 2]) == pytest.approx(0.5 / 1e-30, rel=1e-5)
+
+
+@pytest.mark.parametrize("method", ["none", "manual"])
+def test_sensor_space_corrections_without_a_white_take_a_four_channel_sensor(method):
+    # 'none' and 'manual' use no white, yet in sensor space the processor solved for one, refused for an RGBW matrix
+    # without the sensor's own white ('needs the sensor's own white'). ISETCam imageIlluminantCorrection 'none':
+    # D = eye(N) for any N. 'none' in sensor space is the image in XYZ space; 'manual' gains g scale the channels.
+    m = torch.tensor([[0.5, 0.3, 0.1, 0.1], [0.2, 0.6, 0.1, 0.1], [0.0, 0.1, 0.8, 0.1]], dtype=torch.float64)
+    cfa = CFA([["R", "G"], ["W", "B"]], ["R", "G", "B", "W"])
+    raw = RawImage(torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0), dtype=torch.float64), "volts",
+                   cfa, white_level=1.0)
+    gains = torch.tensor([1.5, 1.0, 0.5, 2.0], dtype=torch.float64) if method == "manual" else None
+    kw = {"illuminant_correction": method, "sensor_to_xyz": m, "scaling": "exposure", "encoding": "linear",
+          "clip_negative_xyz": False}
+    if gains is not None:
+        from isettorch.isp.colour import IlluminantCorrection
+
+        kw["illuminant_correction"] = IlluminantCorrection("manual", space="sensor", gains=gains)
+        out = ImageProcessor(**kw)(raw)
+    else:
+        out = ImageProcessor(correction_space="sensor", **kw)(raw)
+    ref = ImageProcessor(illuminant_correction="none", correction_space="xyz", sensor_to_xyz=m, scaling="exposure",
+                         encoding="linear", clip_negative_xyz=False)
+    want = ref.from_demosaiced(out.demosaiced * (1 if gains is None else gains[None, :, None, None])).xyz
+    torch.testing.assert_close(out.xyz, want, rtol=1e-12, atol=1e-14)

@@ -161,7 +161,7 @@ def test_isetcam_monochrome_processing_keeps_the_offset():
 
     s = _sensor(adc_bits=None, black_level_dn=0.0, output_units="volts")
     raw = s.capture(torch.full((1, 1, 64, 64), 1e5, dtype=torch.float64), noise=False)
-    iset = ImageProcessor(monochrome_divisor="voltage_swing")(raw).image
+    iset = ImageProcessor(monochrome_divisor="voltage_swing")(raw).display_linear
     torch.testing.assert_close(iset, (raw.data / 1.0).expand(-1, 3, -1, -1))
     assert float(raw.data.mean()) == pytest.approx(1e5 * 0.01 * CG * 2 + OFFSET * 2, rel=1e-12)
     own = ImageProcessor()(raw).input  # white-level scaling: from the zero level
