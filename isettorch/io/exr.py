@@ -140,6 +140,13 @@ def read_spectral_exr(path) -> tuple[torch.Tensor, torch.Tensor, dict]:
         raise ValueError(f"path: {str(p)!r} has no spectral channels in the Fichet et al. 2021 layout "
                          f"(names like 'S0.550,000000nm'); channels are {sorted(chans)[:8]}")
     bands = sorted(parsed[comp])
+    # nanometres, each once (channels of 0.4-0.7 loaded a scene of 0.4-0.7 nm light; 'S0.550nm' beside
+    # 'S0.550,000000nm' was a grid that failed later, naming no file)
+    check_nanometres([w for w, _ in bands], f"path: {str(p)!r}'s {comp} channels")
+    same = [(a[1], b[1]) for a, b in zip(bands, bands[1:]) if a[0] == b[0]]
+    if same:
+        raise ValueError(f"path: {str(p)!r} has two {comp} channels at one wavelength: {same[0][0]!r} and "
+                         f"{same[0][1]!r}")
     data = np.stack([chans[n].astype(np.float32, copy=False) for _, n in bands])
     header["component"] = comp
     return torch.from_numpy(data), torch.tensor([w for w, _ in bands], dtype=torch.float64), header

@@ -9,13 +9,18 @@ Value conventions (what a tensor holds, what a file holds):
   targets, ``ImageProcessor`` output before encoding). ``isettorch.scene.from_rgb`` takes *encoded* values (it
   applies the display's EOTF): give it ``read_image(path, encoding="linear")``, the code values / (2^bits - 1).
 - An alpha channel (the last of 2 or 4) is coverage, linear in every file format: it is never sRGB-encoded or
-  decoded (PNG specification, 12.2; it was, so a linear 0.5 was stored as code 188).
+  decoded (PNG specification, 12.2; it was, so a linear 0.5 was stored as code 188). Tensors hold straight
+  (unassociated) alpha, PNG's convention: an EXR's colour, premultiplied by alpha in the file (OpenEXR Technical
+  Introduction), and a TIFF's with associated alpha (ExtraSamples 1, TIFF 6.0) are divided by it on reading (where
+  it is above 0), and an EXR's multiplied by it on writing.
 - Integer files (PNG, 8/16-bit TIFF) hold **sRGB-encoded** code values, the convention of every viewer:
   reading decodes them with the IEC 61966-2-1 sRGB curve (``encoding="linear"`` returns the code values
   / (2^bits - 1) unchanged instead, e.g. for data already linear such as raw mosaics); writing encodes. A PNG's
   own gAMA chunk is honoured (1.0: linear samples); one tagged with other colours than sRGB's (an ICC profile,
   cHRM) raises rather than being decoded as sRGB.
 - Float files (EXR, float32 TIFF) are **linear** (scene-referred, no encoding) in both directions.
+- A file tagged with other colours than sRGB's (a PNG's or TIFF's ICC profile, a PNG's cHRM, an EXR's
+  chromaticities) raises with ``encoding="srgb"``; ``encoding="linear"`` returns its stored values unconverted.
 
 Nothing is clipped silently: writing values outside [0, 1] to an integer file raises unless ``clip=True``.
 A batch (B > 1) is written one file per sample through a ``{i}`` field in the path
@@ -261,15 +266,17 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
     if not p.is_file():
         raise FileNotFoundError(f"path: no such file {str(p)!r}")
     exponent = None  # decoded with the sRGB curve, or code ^ exponent (a PNG's gAMA)
+    associated = kind == "exr"  # premultiplied alpha: OpenEXR's convention, a TIFF's ExtraSamples 1
     if kind == "exr":
-        a = _read_exr(p)
+        a = _read_exr(p, check_colours=encoding == "srgb")
     else:
         try:
-            a, orientation, *colour = _read_png(p) if kind == "png" else _read_tiff(p)
+            a, orientation, colour = _read_png(p) if kind == "png" else _read_tiff(p)
         except (ValueError, OSError) as err:
             raise ValueError(f"path: {str(p)!r} is not a readable {kind.upper()} image ({err})") from err
+        associated = bool(colour.pop("associated_alpha", False))
         if colour and encoding == "srgb":
-            exponent = _png_decode_exponent(p, colour[0])
+            exponent = _png_decode_exponent(p, colour)
         if a.ndim in (2, 3) and orientation in _ORIENT:
             a = _ORIENT[orientation](a)
     if a.ndim == 2:
@@ -290,6 +297,12 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
             raise ValueError(f"path: {str(p)!r} holds non-finite values (NaN or inf)")
     else:
         raise ValueError(f"path: {str(p)!r}: unsupported sample type {a.dtype}")
+    if associated and t.shape[1] in (2, 4):
+        # straight alpha, as PNG's (the tensor's convention): colour / alpha where covered; a transparent pixel's
+        # colour (alpha 0) is as stored (an emission-only pixel keeps its light)
+        c = t.shape[1] - 1
+        alpha = t[:, c:]
+        t = torch.cat([torch.where(alpha > 0, t[:, :c] / torch.where(alpha > 0, alpha, 1.0), t[:, :c]), alpha], dim=1)
     out = t.to(dtype)
     if dtype.itemsize < 8 and not bool(torch.isfinite(out).all()):  # (an EXR's 1e5 read as float16 was inf)
         raise ValueError(f"dtype: {str(p)!r} holds values up to {float(t.abs().max()):.6g}, beyond {dtype}'s "
@@ -375,9 +388,10 @@ def _png_decode_exponent(p: Path, colour: dict) -> float | None:
     return 1.0 / float(gamma)
 
 
-def _read_tiff(p: Path, photometric: tuple[str, ...] = _TIFF_PHOTOMETRIC) -> tuple[np.ndarray, int]:
-    """The samples ``[H, W(, S)]`` and the orientation tag (1 = as stored); a photometric interpretation outside
-    ``photometric`` (tifffile's names) raises."""
+def _read_tiff(p: Path, photometric: tuple[str, ...] = _TIFF_PHOTOMETRIC) -> tuple[np.ndarray, int, dict]:
+    """The samples ``[H, W(, S)]``, the orientation tag (1 = as stored) and the colour tags (``icc_profile``;
+    ``associated_alpha`` where the alpha is premultiplied); a photometric interpretation outside ``photometric``
+    (tifffile's names) raises."""
     import tifffile
 
     with tifffile.TiffFile(str(p)) as tif:
@@ -386,6 +400,10 @@ def _read_tiff(p: Path, photometric: tuple[str, ...] = _TIFF_PHOTOMETRIC) -> tup
         page = tif.pages[0]
         tag = page.tags.get("Orientation")
         orientation = int(tag.value) if tag is not None else 1
+        icc = page.tags.get(34675)  # InterColorProfile (TIFF/EP; ICC.1 annex B): a 16-bit Adobe RGB or ProPhoto
+        icc = bytes(icc.value) if icc is not None else None
+        extra = page.tags.get("ExtraSamples")  # TIFF 6.0: 1 is associated (premultiplied) alpha, 2 unassociated
+        associated = extra is not None and 1 in np.atleast_1d(np.asarray(extra.value)).tolist()
         # no PhotometricInterpretation tag (tifffile's 0): the samples as they are, as read before
         kind = getattr(page.photometric, "name", None) if page.tags.get("PhotometricInterpretation") else None
     if kind is not None and kind not in photometric:
@@ -402,14 +420,35 @@ def _read_tiff(p: Path, photometric: tuple[str, ...] = _TIFF_PHOTOMETRIC) -> tup
         a = a.astype(np.float32)
     if a.dtype not in (np.uint8, np.uint16, np.float32, np.float64):  # (float64 kept: 1e39 narrowed to inf)
         raise ValueError(f"expected uint8, uint16, float16, float32 or float64 samples, got {a.dtype}")
-    return a, orientation
+    colour = {"icc_profile": icc} if icc is not None else {}
+    if associated:
+        colour["associated_alpha"] = True
+    return a, orientation, colour
 
 
-def _read_exr(p: Path) -> np.ndarray:
-    """The R, G, B(, A) or Y(, A) channels ``[H, W, C]``: float32, or float64 where a channel is (UINT)."""
+def _read_exr(p: Path, check_colours: bool = True) -> np.ndarray:
+    """The R, G, B(, A) or Y(, A) channels ``[H, W, C]``: float32, or float64 where a channel is (UINT).
+
+    A luminance / chroma file (``Y``, ``RY``, ``BY``: OpenEXR's ``WRITE_YC``) raises (its colour was dropped as
+    grey); so do, with ``check_colours``, ``chromaticities`` other than Rec. 709 / sRGB's (ACES2065-1's AP0 read as
+    sRGB was 0.38 off in red), as a PNG's cHRM does."""
     from .exr import _exr_channels
 
-    chans = _exr_channels(p)[1]
+    header, chans = _exr_channels(p)
+    if "RY" in chans or "BY" in chans:
+        raise ValueError(f"path: {str(p)!r} is a luminance / chroma OpenEXR (channels Y, RY, BY); convert it to R, G, "
+                         "B channels first (e.g. OpenEXR's RgbaInputFile)")
+    chrm = header.get("chromaticities")
+    if check_colours and chrm is not None:
+        from ..image import D65_XY, SRGB_PRIMARIES_XY
+
+        # OpenEXR's order: red, green, blue, white (x, y)
+        want = (*(v for xy in SRGB_PRIMARIES_XY for v in xy), *D65_XY)
+        if max(abs(float(a) - b) for a, b in zip(chrm, want, strict=True)) > 1e-3:
+            raise ValueError(f"path: {str(p)!r} has chromaticities {tuple(round(float(v), 4) for v in chrm)} (red, "
+                             f"green, blue, white x, y), not Rec. 709 / sRGB's {tuple(round(v, 4) for v in want)}; "
+                             "read it with encoding='linear' (its stored values) and convert its colours, or save "
+                             "it in sRGB primaries")
     for names in (("R", "G", "B", "A"), ("R", "G", "B"), ("Y", "A"), ("Y",)):
         if all(n in chans for n in names):
             a = np.stack([chans[n] for n in names], axis=-1)  # (half and float channels together: float32)
@@ -509,5 +548,7 @@ def _write_exr(p: Path, a: np.ndarray) -> None:
     import OpenEXR
 
     names = _EXR_CHANNELS[a.shape[-1]]
+    if a.shape[-1] in (2, 4):  # OpenEXR stores colour premultiplied by alpha (Technical Introduction)
+        a = np.concatenate([a[..., :-1] * a[..., -1:], a[..., -1:]], axis=-1).astype(a.dtype, copy=False)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     OpenEXR.File(header, {n: np.ascontiguousarray(a[..., k]) for k, n in enumerate(names)}).write(str(p))

@@ -170,6 +170,11 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
                              f"the photons' shape {photons.shape} in {str(p)!r}, got shape {ill.shape}")
     name = _field(scene, "name")
     name = name if isinstance(name, str) and name else p.stem  # (MATLAB's '' is an empty array in a v5 file)
+    if photons.dtype.kind == "f" and np.isfinite(photons).all() and dtype.is_floating_point and photons.size:
+        big = float(np.abs(photons).max())
+        if big > torch.finfo(dtype).max:  # (finite values were refused as 'NaN/Inf entries')
+            raise ValueError(f"dtype: {str(p)!r} holds photons up to {big:.6g}, beyond {dtype}'s range (max "
+                             f"{torch.finfo(dtype).max:g}); read it with dtype=torch.float64")
     cube = torch.as_tensor(np.ascontiguousarray(np.transpose(photons, (2, 0, 1))), dtype=dtype)[None]
     # ISETCam's defaults where the file has no wAngular / distance, recorded as read_scene_exr records them
     meta = {"source": str(p), "format": "isetcam",

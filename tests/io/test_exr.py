@@ -137,3 +137,17 @@ def test_spectral_exr_refuses_wavelengths_that_are_not_nanometres(tmp_path, wave
     with pytest.raises(ValueError, match=match):
         write_spectral_exr(tmp_path / "w.exr", np.ones((len(wavelengths), 2, 2), np.float32), wavelengths)
     assert not (tmp_path / "w.exr").exists()
+
+
+def test_reading_refuses_channels_not_in_nanometres_or_at_one_wavelength_twice(tmp_path):
+    # Channels 'S0.0,400000nm' (micrometres written as nm) loaded a scene of 0.4-0.7 nm light, 1000x too few photons;
+    # 'S0.550nm' beside 'S0.550,000000nm' gave the grid [550, 550, 600], refused later naming no file.
+    px = np.ones((2, 2), np.float32)
+    um = {f"S0.0,{w}nm": px for w in ("400000", "550000", "700000")}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, um).write(str(tmp_path / "um.exr"))
+    with pytest.raises(ValueError, match=r"um.exr.*S0 channels: expected wavelengths in nm, got 0.4-0.7"):
+        read_scene_exr(tmp_path / "um.exr")
+    dup = {"S0.550nm": px, "S0.550,000000nm": px, "S0.600nm": px}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, dup).write(str(tmp_path / "dup.exr"))
+    with pytest.raises(ValueError, match=r"dup.exr' has two S0 channels at one wavelength"):
+        read_spectral_exr(tmp_path / "dup.exr")

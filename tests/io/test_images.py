@@ -467,8 +467,8 @@ def test_grey_and_alpha_round_trips_in_every_format(tmp_path):
     assert tifffile.TiffFile(tmp_path / "la.tif").pages[0].extrasamples == (2,)  # unassociated alpha
     channels = {"Y": np.full((2, 2), 0.5, np.float32), "A": np.full((2, 2), 0.25, np.float32)}
     OpenEXR.File({"type": OpenEXR.scanlineimage}, channels).write(str(tmp_path / "ya.exr"))
-    ya = read_image(tmp_path / "ya.exr")  # its alpha was dropped: one channel
-    assert ya.shape == (1, 2, 2, 2) and ya[0, 0].eq(0.5).all() and ya[0, 1].eq(0.25).all()
+    ya = read_image(tmp_path / "ya.exr")  # its alpha was dropped: one channel; grey premultiplied (OpenEXR)
+    assert ya.shape == (1, 2, 2, 2) and ya[0, 0].eq(2.0).all() and ya[0, 1].eq(0.25).all()
 
 
 def test_a_tiff_without_a_photometric_tag_reads_its_samples(tmp_path):
@@ -644,3 +644,50 @@ def test_read_rgb8_refuses_a_planar_16_bit_tiff_and_a_corrupt_tiff_prints_nothin
     with pytest.raises(ValueError, match=r"cannot read bad.tif as an image"):
         read_rgb8(tmp_path / "bad.tif")
     assert capfd.readouterr().err == ""
+
+
+def test_premultiplied_alpha_of_exr_and_associated_tiff_reads_as_straight(tmp_path):
+    # OpenEXR stores colour premultiplied by alpha (Technical Introduction); TIFF ExtraSamples 1 is associated alpha
+    # (TIFF 6.0). A half-covered red pixel, premultiplied (0.5, 0, 0, 0.5), is straight (1, 0, 0, 0.5), as the PNG
+    # of it reads: both read (0.5, 0, 0, 0.5), and write_image stored straight red 1 in an EXR (red 2 to a reader).
+    px = np.array([0.5, 0.0, 0.0, 0.5], np.float32)
+    chans = {c: np.full((2, 2), v, np.float32) for c, v in zip("RGBA", px)}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, chans).write(str(tmp_path / "p.exr"))
+    tifffile.imwrite(tmp_path / "p.tif", np.tile(px, (2, 2, 1)), photometric="rgb", extrasamples=["assocalpha"])
+    transparent = {**chans, "A": np.zeros((2, 2), np.float32)}  # alpha 0: the stored light as it is
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, transparent).write(str(tmp_path / "t.exr"))
+    for name in ("p.exr", "p.tif"):
+        np.testing.assert_array_equal(read_image(tmp_path / name)[0, :, 0, 0].numpy(), [1.0, 0.0, 0.0, 0.5])
+    np.testing.assert_array_equal(read_image(tmp_path / "t.exr")[0, :, 0, 0].numpy(), [0.5, 0.0, 0.0, 0.0])
+    write_image(tmp_path / "w.exr", torch.tensor([1.0, 0.0, 0.0, 0.5]).reshape(4, 1, 1).expand(4, 2, 2))
+    stored = OpenEXR.File(str(tmp_path / "w.exr"), separate_channels=True).channels()
+    assert float(stored["R"].pixels[0, 0]) == 0.5 and float(stored["A"].pixels[0, 0]) == 0.5
+
+
+def test_files_in_other_colours_than_srgb_are_refused_unless_read_linear(tmp_path):
+    # An ACES2065-1 EXR (AP0 chromaticities) read as linear sRGB (0.2, 0.4, 0.6 for colour-science's
+    # (-0.18, 0.44, 0.64)); a TIFF's Display P3 ICC profile ignored (a PNG's is refused); a luminance / chroma EXR
+    # (Y, RY, BY) read as grey. encoding='linear' returns a tagged file's stored values.
+    from PIL import ImageCms
+
+    ap0 = (0.7347, 0.2653, 0.0, 1.0, 0.0001, -0.077, 0.32168, 0.33767)
+    rgb = {c: np.full((2, 2), v, np.float32) for c, v in zip("RGB", (0.2, 0.4, 0.6))}
+    OpenEXR.File({"type": OpenEXR.scanlineimage, "chromaticities": ap0}, rgb).write(str(tmp_path / "aces.exr"))
+    with pytest.raises(ValueError, match="aces.exr.*chromaticities"):
+        read_image(tmp_path / "aces.exr")
+    np.testing.assert_allclose(read_image(tmp_path / "aces.exr", encoding="linear")[0, :, 0, 0].numpy(),
+                               [0.2, 0.4, 0.6], rtol=1e-7)
+    srgb = (0.64, 0.33, 0.3, 0.6, 0.15, 0.06, 0.3127, 0.329)
+    OpenEXR.File({"type": OpenEXR.scanlineimage, "chromaticities": srgb}, rgb).write(str(tmp_path / "srgb.exr"))
+    assert read_image(tmp_path / "srgb.exr").shape == (1, 3, 2, 2)
+    lab = ImageCms.ImageCmsProfile(ImageCms.createProfile("LAB")).tobytes()  # a profile that is not sRGB
+    tifffile.imwrite(tmp_path / "lab.tif", np.full((2, 2, 3), 200, np.uint8), photometric="rgb",
+                     extratags=[(34675, 7, len(lab), lab, True)])
+    with pytest.raises(ValueError, match="lab.tif.*ICC profile"):
+        read_image(tmp_path / "lab.tif")
+    assert read_image(tmp_path / "lab.tif", encoding="linear")[0, 0, 0, 0] == pytest.approx(200 / 255)
+    yc = {"Y": np.full((2, 2), 0.5, np.float32), "RY": np.ones((2, 2), np.float32),
+          "BY": np.full((2, 2), -0.5, np.float32)}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, yc).write(str(tmp_path / "yc.exr"))
+    with pytest.raises(ValueError, match="yc.exr.*luminance / chroma"):
+        read_image(tmp_path / "yc.exr")

@@ -173,3 +173,12 @@ def test_an_illuminant_on_a_shifted_grid_is_refused(tmp_path):
                                                         "spectrum": {"wave": w}, "illuminant": ill}})
     with pytest.raises(ValueError, match=r"scene.illuminant.spectrum.wave: .*up to 1 nm off"):
         read_isetcam_scene(tmp_path / "shift.mat")
+
+
+def test_photons_beyond_the_dtypes_range_name_the_dtype(tmp_path):
+    # A finite float64 file of 1e40 photons was refused as holding 'NaN/Inf entries' (float32's overflow).
+    p = tmp_path / "big.mat"
+    scipy.io.savemat(p, {"scene": _scene_struct(np.full((2, 3, 4), 1e40), np.arange(400.0, 701.0, 100.0))})
+    with pytest.raises(ValueError, match=r"dtype: .*big.mat' holds photons up to 1e\+40, beyond torch.float32"):
+        read_isetcam_scene(p)
+    assert float(read_isetcam_scene(p, dtype=torch.float64).photons.max()) == 1e40
