@@ -302,6 +302,9 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
     sigma_y_dark = torch.sqrt(s2_dark)
     sigma_d = torch.sqrt(s2_dark - S2_QUANTIZATION_DN2) / K
     if mu_p is not None:
+        if not bool((mu_p[sel] > 0).any()):  # (QE, R, saturation capacity and DR were NaN: 0 / 0)
+            raise ValueError(f"photons_per_pixel: expected photons above 0 at some of the fitted levels 0..{fit_max}, "
+                             f"got {mu_p[sel].tolist()}")
         R = _fit_origin(mu_p[sel], signal[sel])
         eta = R / K
         mu_p_sat = mu_p[sat]
@@ -318,6 +321,12 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
     s2_y, mean_b = _spatial_var(b[si].to(torch.float64))
     s2_yd, mean_d = _spatial_var(d[si if d.shape[0] == M else 0].to(torch.float64))
     s2_y, s2_yd, mean_b, mean_d = (t.cpu() for t in (s2_y, s2_yd, mean_b, mean_d))
+    if not bool(mean_b - mean_d > sigma_y_dark):
+        # PRNU1288 divides by the signal (EMVA 1288 4.0, 8): below the sensitivity threshold (SNR 1, a signal of the
+        # dark noise) it is noise over noise (-1277 % at an unlit level 0)
+        raise ValueError(f"spatial_index: level {si}'s signal, {float(mean_b - mean_d):.4g} DN above the dark level, "
+                         f"is not above the dark noise ({float(sigma_y_dark):.4g} DN); PRNU needs a lit level (about "
+                         f"50 % of saturation)")
     dsnu_dn = torch.sqrt(s2_yd.clamp_min(0.0))
     prnu = 100.0 * torch.sqrt((s2_y - s2_yd).clamp_min(0.0)) / (mean_b - mean_d)
 

@@ -24,7 +24,7 @@ import math
 
 import torch
 
-from .._checks import check_finite
+from .._checks import check_finite, is_integer
 from .difference import working_dtype
 
 OVERSAMPLING = 4
@@ -132,13 +132,20 @@ def _edge_contrast_to_noise(geo: torch.Tensor) -> tuple[float, float, float]:
 
     Levels: means of the outer quarters of the columns. Noise: the robust (MAD) standard deviation of the
     differences between vertically adjacent pixels, which cancel the edge except where it crosses a row:
-    sigma = 1.4826 median|d| / sqrt(2) (d has twice the pixel variance).
+    sigma = 1.4826 median|d| / sqrt(2) (d has twice the pixel variance); where that median is 0 (quantised data),
+    the RMS of the outer quarters' differences / sqrt(2).
     """
     R, N = geo.shape
     q = max(N // 4, 1)
     dark, bright = float(geo[:, :q].mean()), float(geo[:, -q:].mean())
-    d = (geo[1:] - geo[:-1]).reshape(-1)
+    d = geo[1:] - geo[:-1]
     sigma = 1.4826 * float(d.abs().median()) / math.sqrt(2) if d.numel() else 0.0
+    if sigma == 0 and d.numel():
+        # integer data with noise below about 0.45 DN: most differences are 0, so is their median, and the noise
+        # check was skipped (a CNR of 4 passed min_cnr 10; MTF50 16 % low). The RMS of the flat outer quarters'
+        # differences then (0 only for a noise-free edge)
+        flat = torch.cat([d[:, :q], d[:, -q:]], dim=1)
+        sigma = math.sqrt(float((flat * flat).mean()) / 2)
     return dark, bright, sigma
 
 
@@ -266,6 +273,17 @@ def _mtf_level(freq: torch.Tensor, sfr: torch.Tensor, level: float = 0.5) -> tor
     return f0 + (s0 - level) / (s0 - s1) * (f1 - f0)
 
 
+def _check_roi(roi, h: int, w: int) -> tuple[int, int, int, int]:
+    """An end-exclusive ``(row0, row1, col0, col1)`` of integers inside an ``h x w`` image (0.5 was truncated to 0)."""
+    if not (isinstance(roi, (tuple, list)) and len(roi) == 4 and all(is_integer(v) for v in roi)):
+        raise ValueError(f"roi: expected (row0, row1, col0, col1) integers, got {roi!r}")
+    r = tuple(int(v) for v in roi)
+    if not (0 <= r[0] < r[1] <= h and 0 <= r[2] < r[3] <= w):
+        raise ValueError(f"roi: expected (row0, row1, col0, col1), end-exclusive, with 0 <= row0 < row1 <= {h} and "
+                         f"0 <= col0 < col1 <= {w}, got {roi}")
+    return r
+
+
 def find_edge_roi(image: torch.Tensor, margin_px: int = 20, trim: float = 0.1) -> tuple[int, int, int, int]:
     """Automatic ROI around the dominant straight edge of a slanted-edge image [H, W].
 
@@ -356,10 +374,7 @@ def esfr(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, auto
         elif roi is None:
             r = (0, flat.shape[-2], 0, flat.shape[-1])
         else:
-            r = tuple(int(v) for v in roi)
-            if len(r) != 4 or not (0 <= r[0] < r[1] <= flat.shape[-2] and 0 <= r[2] < r[3] <= flat.shape[-1]):
-                raise ValueError(f"roi: expected (row0, row1, col0, col1), end-exclusive, with 0 <= row0 < row1 <= "
-                                 f"{flat.shape[-2]} and 0 <= col0 < col1 <= {flat.shape[-1]}, got {roi}")
+            r = _check_roi(roi, flat.shape[-2], flat.shape[-1])
         rois.append(r)
         results.append(_esfr_single(flat[i, r[0]:r[1], r[2]:r[3]], max_empty_bins, min_cnr))
     freq = results[0]["freq"].to(device=image.device, dtype=image.dtype)
@@ -460,16 +475,16 @@ def esfr_cfa(mosaic: torch.Tensor, cfa, mode: str = "luminance", roi: tuple[int,
     H, W = mosaic.shape
     if roi is None and auto_roi:
         roi = find_edge_roi(_balanced_mosaic(mosaic.detach(), index_map))
+    used = (0, H, 0, W)
     if roi is not None:
-        r = tuple(int(v) for v in roi)
-        if len(r) != 4 or not (0 <= r[0] < r[1] <= H and 0 <= r[2] < r[3] <= W):
-            raise ValueError(f"roi: expected (row0, row1, col0, col1), end-exclusive, with 0 <= row0 < row1 <= {H} "
-                             f"and 0 <= col0 < col1 <= {W}, got {roi}")
+        r = _check_roi(roi, H, W)
         r0, c0 = r[0] - r[0] % ph, r[2] - r[2] % pw  # whole cells: the cropped mosaic keeps the CFA phase
         mosaic = mosaic[r0:r[1], c0:r[3]]
+        used = (r0, r[1], c0, r[3])  # (the ROI asked for was reported, not the cells measured)
     if mode == "luminance":
-        return esfr(_balanced_mosaic(mosaic, index_map), auto_roi=False, max_empty_bins=max_empty_bins,
-                    min_cnr=min_cnr)
+        res = esfr(_balanced_mosaic(mosaic, index_map), auto_roi=False, max_empty_bins=max_empty_bins,
+                   min_cnr=min_cnr)
+        return dataclasses.replace(res, roi=[used])  # (it reported the crop's own extent)
     # Channels: every channel's pixels at their true positions, projected on the edge fitted to the balanced
     # mosaic, binned at 1/4 sensor pixel (sub-sampling each channel would bin at 1/4 of the cell instead).
     idx = tile(index_map, *mosaic.shape)
@@ -487,7 +502,7 @@ def esfr_cfa(mosaic: torch.Tensor, cfa, mode: str = "luminance", roi: tuple[int,
     return SFRResult(frequencies=freq, sfr=torch.stack(curves), mtf50=torch.stack(m50), mtf_nyquist=torch.stack(nyq),
                      angle_deg=torch.tensor([r["angle"] for r in results], **dev),
                      horizontal=torch.tensor([r["horizontal"] for r in results], device=mosaic.device),
-                     esf=[r["esf"] for r in results], lsf=[r["lsf"] for r in results], roi=[roi] * len(chans),
+                     esf=[r["esf"] for r in results], lsf=[r["lsf"] for r in results], roi=[used] * len(chans),
                      channels=tuple(cfa.channel_names[c] for c in chans))
 
 

@@ -159,3 +159,16 @@ def test_a_series_that_stops_below_saturation_is_refused(frames):
             emva1288(bright, dark, **{name: 2.5})
         with pytest.raises(ValueError, match=f"{name}: expected None or an integer level"):
             emva1288(bright, dark, **{name: 20})
+
+
+def test_undefined_prnu_and_responsivity_are_errors(frames):
+    # PRNU1288 = sqrt(s2_y - s2_y.dark) / (mu_y - mu_y.dark) (EMVA 1288 4.0, 8) is noise over noise below the
+    # sensitivity threshold (a signal of the dark noise): a forced spatial_index at the unlit level 0 gave -1277 %.
+    # All-zero photons gave NaN QE, R, saturation capacity and dynamic range (0 / 0).
+    bright, dark, mu_p, _, _ = frames
+    with pytest.raises(ValueError, match="spatial_index: level 0's signal, .* is not above the dark noise"):
+        emva1288(bright, dark, photons_per_pixel=mu_p, spatial_index=0)
+    with pytest.raises(ValueError, match="photons_per_pixel: expected photons above 0"):
+        emva1288(bright, dark, photons_per_pixel=torch.zeros_like(mu_p))
+    assert float(emva1288(bright, dark, photons_per_pixel=mu_p, spatial_index=5).prnu1288_percent) == \
+        pytest.approx(100 * PRNU, rel=0.2)

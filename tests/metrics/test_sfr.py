@@ -252,3 +252,40 @@ def test_half_precision_edges_are_measured_in_float32(edges, dtype):
     compute half precision in float32."""
     res = esfr(edges[4].to(dtype), auto_roi=False)
     assert float(res.mtf50) == pytest.approx(0.4353, rel=0.03)  # the analytic value (rounding of the input: 1e-3)
+
+
+def test_the_noise_check_holds_on_integer_data():
+    # A 2 DN edge on 100 DN (Gaussian blur 1 px, 5 deg), 0.4 DN noise, rounded to integers: most vertical
+    # differences are 0, so the MAD noise estimate was 0 and min_cnr's check was skipped (MTF50 up to 16 % low,
+    # CNR about 4.3). The same frame in float was refused. A 60 DN edge with the same noise is measured: MTF50 within
+    # 3 % of exp(-2 pi^2 s^2 f^2)'s.
+    from scipy.special import erf
+
+    h, w, th = 128, 64, math.radians(5)
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    d = (xx - (w - 1) / 2) * math.cos(th) + (yy - (h - 1) / 2) * math.sin(th)
+    ramp = 0.5 * (1 + erf(d / math.sqrt(2)))
+    noise = 0.4 * np.random.default_rng(0).standard_normal((h, w))
+    with pytest.raises(ValueError, match="too noisy"):
+        esfr(torch.tensor(np.round(100 + 2 * ramp + noise)), auto_roi=False)
+    res = esfr(torch.tensor(np.round(100 + 60 * ramp + noise)), auto_roi=False)
+    assert float(res.mtf50) == pytest.approx(math.sqrt(math.log(2) / (2 * math.pi ** 2)), rel=0.03)
+
+
+def test_a_roi_is_whole_pixels_and_the_cfa_roi_reported_is_the_one_measured():
+    # esfr truncated roi=(0.5, 100.7, 0, 64) to (0, 100, 0, 64) (snr_uniform refuses it); esfr_cfa widened
+    # (3, 128, 33, 97) to whole 2 x 2 cells, (2, 128, 32, 97), and reported the ROI asked for (luminance mode: the
+    # crop's own extent, (0, 126, 0, 65)).
+    from isettorch.metrics import esfr_cfa
+    from isettorch.scene import slanted_edge as scene_edge
+    from isettorch.sensor import CFA
+
+    edge = scene_edge(128, 5.0).reflectance()[0, 15]
+    with pytest.raises(ValueError, match=r"roi: expected \(row0, row1, col0, col1\) integers"):
+        esfr(edge, roi=(0.5, 100.7, 0, 64))
+    mosaic = edge * (CFA("GRBG").index_map.repeat(64, 64).double() * 0.5 + 1)
+    for mode in ("luminance", "channels"):
+        res = esfr_cfa(mosaic, "GRBG", mode=mode, roi=(3, 128, 33, 97))
+        assert all(r == (2, 128, 32, 97) for r in res.roi)
+    with pytest.raises(ValueError, match="roi"):
+        esfr_cfa(mosaic, "GRBG", roi=(3.5, 128, 33, 97))
