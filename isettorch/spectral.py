@@ -317,11 +317,12 @@ def _cached_on_grid(kind: str, arg, grid: tuple, dtype: torch.dtype, device: str
 
 
 def band_average(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tensor) -> torch.Tensor:
-    """Spectra ``values [K, N]`` on knots ``src_nm`` (piecewise linear, 0 outside) on the grid ``dst_nm [L]``, each
-    sample the mean over its band (its integration weight, :func:`wavelength_weights`: edges halfway to its
-    neighbours), so the power in every band is kept: narrow emission lines (fluorescent lamps' mercury lines, CRT
-    phosphors) survive a coarse grid, where point samples (:func:`resample`) miss them. On a finer grid it is
-    linear interpolation smoothed over the band."""
+    """Spectra ``values [K, N]`` on knots ``src_nm`` (piecewise linear) on the grid ``dst_nm [L]``, each sample the
+    mean over its band (its integration weight, :func:`wavelength_weights`: edges halfway to its neighbours; the
+    data's end values held where the band of a sample inside them overhangs their ends; a sample outside them is 0),
+    so the power in every band is kept: narrow emission lines (fluorescent lamps' mercury lines, CRT phosphors)
+    survive a coarse grid, where point samples (:func:`resample`) miss them. On a finer grid it is linear
+    interpolation smoothed over the band."""
     src = check_wavelengths(torch.as_tensor(src_nm), "src_nm").to(values.dtype)  # (a decreasing grid gave zeros)
     dst = check_wavelengths(torch.as_tensor(dst_nm), "dst_nm").to(values.dtype)
     if values.dim() != 2 or values.shape[-1] != src.numel():
@@ -346,7 +347,14 @@ def band_average(values: torch.Tensor, src_nm: torch.Tensor, dst_nm: torch.Tenso
         dx = x - src[k]
         return cum[:, k] + values[:, k] * dx + 0.5 * slope[:, k] * dx**2
 
-    return (primitive(hi) - primitive(lo)) / (hi - lo)
+    def held(x):  # the primitive with the end values held beyond the data (CIE 015:2018, 7.2.2: extrapolate by the
+        # nearest value): a sample on the data's range whose band overhangs its end (380 nm's 377.5-382.5 nm on
+        # 380:5:785 for a 380-780 nm table) was the mean with 0 beyond it, about half the table's value (F2 at 380
+        # nm: 0.63 for 1.18), and then depended on whether the grid had a sample beyond the table
+        return primitive(x) + values[:, :1] * (x - src[0]).clamp(max=0) + values[:, -1:] * (x - src[-1]).clamp(min=0)
+
+    inside = (dst >= src[0]) & (dst <= src[-1])  # a sample beyond the data is 0, as resample's
+    return torch.where(inside, (held(hi) - held(lo)) / (hi - lo), torch.zeros_like(dst))
 
 
 def table_dtype(w: torch.Tensor, dtype=None) -> torch.dtype:

@@ -293,3 +293,19 @@ def test_spectral_inputs_that_gave_wrong_numbers_are_refused():
     assert torch.isfinite(spectral.blackbody(80.0, w, dtype=torch.float32)).all()
     with pytest.raises(ValueError, match=r"weights: expected \[K, 3\] on the 3 wavelengths"):
         spectral.spectral_integral(torch.ones(3, 1, 1), torch.ones(2, 4), torch.tensor([500.0, 550.0, 600.0]))
+
+
+def test_band_average_holds_the_end_values_where_a_band_overhangs_the_data():
+    # A constant table averages to itself in every band, the end samples' too (they were the mean with 0 beyond the
+    # data: half). F2 (CIE 015, 380-780 nm at 5 nm) at 380 nm on 380:5:785 is the band 377.5-382.5 nm: 1.18 held
+    # below 380, linear to 1.33 at 382.5 (halfway to 385 nm's 1.48): (7 x 1.18 + 1.48) / 8 = 1.2175, whatever
+    # the grid beyond (it was 0.63 with a 785 nm sample, the table's 1.18 without). A sample beyond the data is 0.
+    src = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    dst = torch.tensor([400.0, 403.0, 550.0, 697.0, 700.0, 705.0], dtype=torch.float64)
+    out = spectral.band_average(torch.full((1, src.numel()), 2.5, dtype=torch.float64), src, dst)[0]
+    torch.testing.assert_close(out, torch.tensor([2.5] * 5 + [0.0], dtype=torch.float64), rtol=1e-12, atol=0)
+    for stop in (785.0, 790.0):
+        w = torch.arange(380.0, stop + 1, 5.0, dtype=torch.float64)
+        f2 = spectral.illuminant("F2", w, dtype=torch.float64)
+        assert float(f2[0]) == pytest.approx((7 * 1.18 + 1.48) / 8, rel=1e-9)
+        assert float(f2[-1]) == 0.0 and float(f2[w == 785.0][0]) == 0.0

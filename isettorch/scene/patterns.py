@@ -8,10 +8,12 @@ image centre, ``(n - 1) / 2``, with rows growing downwards.
 
 The defaults are this library's, not ``sceneCreate``'s: every pattern is lit by D65 at a 10 degree field of view,
 where ISETCam lights the slanted bar with equal energy at 2 degrees, the zone plate with equal photons at 4, the
-point array with D65 at 40 and the sweep, checkerboard, grid lines and star with equal photons; the sweep's
-default top frequency is ``W / 4`` cycles per image (ISETCam's ``size / 16``); ISETCam's slanted bar of slope
-``s`` (bright lower left, ``Y > s X``) is ``slanted_edge(angle_deg=-degrees(atan(1 / s)))`` mirrored left to
-right. Pass ``illuminant``, ``hfov_deg`` and the pattern's own arguments to reproduce an ISETCam scene.
+point array with D65 at 40 and the sweep, checkerboard, grid lines and star with equal photons. ISETCam's slanted
+bar of slope ``s`` (``sceneSlantedBar``: ``Y > s X``) is ``slanted_edge(angle_deg=degrees(atan(1 / s)))`` mirrored
+left to right (to its anti-aliased edge pixels). Pass ``illuminant``, ``hfov_deg`` and the pattern's own arguments
+to reproduce those ISETCam scenes. The frequency sweep is not ISETCam's: ``imgSweep`` has the phase
+``2 pi f x^3`` (local frequency ``3 f x^2`` cycles per image, ``3 f`` at the right edge), this one a phase
+quadratic in ``x`` (frequency rising linearly, :func:`frequency_sweep`).
 """
 
 from __future__ import annotations
@@ -118,7 +120,9 @@ def monochromatic(wavelength_nm: float = 550.0, size=32, wavelengths=None, *, me
         w = resolve_grid(torch.tensor([lam], dtype=torch.float64), resolve_dtype(dtype), device)
     else:
         w = resolve_grid(wavelengths, dtype, device)
-    hit = (w.double() - lam).abs() < 1e-6
+    # to the grid's precision: 632.8 nm in float32 is 632.79999 (a 1e-6 nm tolerance refused it at the default dtype)
+    tol = max(1e-6, 4 * torch.finfo(w.dtype).eps * lam)
+    hit = (w.double() - lam).abs() < tol
     if not hit.any():
         raise ValueError(f"wavelength_nm: expected one of the grid's samples {w.tolist()}, got {lam}")
     if spectral.luminosity(w.double()[hit]).item() <= 0:
@@ -175,8 +179,9 @@ def frequency_sweep(size=128, max_frequency_cpi: float | None = None, *, contras
     Reflectance ``0.5 (1 + c(y) cos(pi f_max u^2))`` with ``u = col / W``: the phase derivative gives the local
     frequency ``f_max u`` cycles per image width. ``c(y)`` falls linearly from ``contrast`` (top row) to
     ``contrast / H`` (bottom row) when ``contrast_ramp``, else is constant.
-    ISETCam: ``sceneCreate('sweep frequency', size, maxFreq)`` (sweepFrequency: frequency along x,
-    contrast along y).
+    Like ISETCam's ``sceneCreate('sweep frequency', size, maxFreq)`` (frequency along x, contrast along y) but not
+    the same pattern: ISETCam's ``imgSweep`` phase ``2 pi maxFreq x^3`` (``x`` in [0, 1]) has the local frequency
+    ``3 maxFreq x^2``, rising quadratically to ``3 maxFreq`` cycles per image.
 
     Args:
         max_frequency_cpi: local frequency at the right edge, cycles per image width; default W / 4

@@ -112,6 +112,20 @@ def test_monochromatic_absolute_radiance():
     assert s2.mean_luminance().item() == pytest.approx(100.0, rel=1e-5)
 
 
+
+@pytest.mark.parametrize("lam", [632.8, 589.3, 550.1])
+def test_monochromatic_at_a_wavelength_float32_rounds(lam):
+    # A laser's 632.8 nm is 632.79999 in float32: the 1e-6 nm match refused it at the default dtype ('expected one
+    # of the grid's samples [632.7999877929688]'); float64 worked. Both give 100 cd/m^2 at that wavelength.
+    for dtype in (torch.float32, F64):
+        s = sg.monochromatic(lam, 2, dtype=dtype)
+        assert s.wavelengths_nm.tolist() == pytest.approx([lam], abs=1e-4)
+        assert s.mean_luminance().item() == pytest.approx(100.0, rel=1e-5)
+    grid = torch.tensor([500.0, lam, 700.0])
+    p = sg.monochromatic(lam, 2, wavelengths=grid).photons[0, :, 0, 0]
+    assert p[0] == 0 and p[2] == 0 and p[1] > 0
+
+
 # ---------------------------------------------------------------------------------------------
 # Ramps, sweep, edge
 
@@ -136,7 +150,7 @@ def test_exponential_ramp():
 
 def test_frequency_sweep_local_frequency():
     """Zero crossings of the top row are where pi f u^2 = pi/2 + k pi, u = col / W: the local frequency is
-    f u cycles per image width (ISETCam sweepFrequency)."""
+    f u cycles per image width (a linear sweep; ISETCam's imgSweep rises as 3 f u^2)."""
     cols, f = 128, 32.0
     r = _refl(sg.frequency_sweep((8, cols), f, dtype=F64))
     x = _crossings(r[0], 0.5)
