@@ -454,8 +454,10 @@ class Sensor(nn.Module):
 
     @property
     def usable_swing_v(self) -> float:
-        """Volts that reach the top code: the swing, or less when a black level pushes ``2^N - 1`` below it."""
-        if self.adc_bits is None or self.adc_mode == "isetcam":
+        """Volts that reach the top code: the swing, or less when a black level pushes ``2^N - 1`` below it (a DN
+        readout only: volts and electrons are read before the ADC, up to the swing; a volts raw of saturated pixels
+        at 0.48 V reported a white level of 0.4495 V, normalized 1.068)."""
+        if self.adc_bits is None or self.adc_mode == "isetcam" or self.output_units != "dn":
             return self.voltage_swing_v
         return min(self.voltage_swing_v, (2 ** self.adc_bits - 1 - self.black_level_dn) * self.lsb_v)
 

@@ -73,3 +73,18 @@ def test_a_tukey_lambda_of_zero_is_a_noise_term():
     d = s.capture(torch.zeros(1, 1, 256, 256, dtype=torch.float64), exposure_s=0.01).data.flatten()
     z = (d - d.mean()) / d.std()
     assert float((z**4).mean() - 3) == pytest.approx(1.2, abs=0.15)  # 65,536 samples: standard error about 0.04
+
+
+@pytest.mark.parametrize("units", ["volts", "electrons"])
+def test_a_readout_before_the_adc_saturates_at_the_swing_whatever_the_dn_black_level(units):
+    # imx363 (10 bits, black 64 DN, swing 0.48 V): the volts raw's saturated pixels read the swing, 0.48 V, but its
+    # white level was (1023 - 64) LSB = 0.4495 V (normalized 1.068; 1023 LSB with black 0) and auto-exposure aimed at
+    # 0.89 of the real saturation. The black level and the top code are the ADC's, which a volts readout is before.
+    s = Sensor.preset("imx363", rows=4, cols=4, output_units=units)
+    raw = s.capture(torch.full((1, 1, 4, 4), 1e9, dtype=torch.float64), exposure_s=0.01, noise=False)
+    assert float(raw.normalized().max()) == pytest.approx(1.0, abs=1e-12)
+    if units == "volts":
+        assert float(raw.data.max()) == pytest.approx(s.voltage_swing_v) == pytest.approx(raw.white_level)
+    dn = Sensor.preset("imx363", rows=4, cols=4)  # the DN readout: the top code, 1023 - 64 above black
+    assert float(dn.capture(torch.full((1, 1, 4, 4), 1e9, dtype=torch.float64), exposure_s=0.01,
+                            noise=False).normalized().max()) == pytest.approx(1.0)
