@@ -31,8 +31,10 @@ __all__ = ["load_cave", "load_kaist", "load_icvl", "load_arad"]
 _CAVE_BAND = re.compile(r"_ms_(\d{2})\.png$", re.IGNORECASE)
 
 
-def _radiance_scene(energy: np.ndarray, wave: np.ndarray, name: str, source: str, hfov_deg: float,
-                    mean_luminance_cd_m2: float | None, dtype, illuminant_photons=None):
+def _radiance_scene(energy: np.ndarray, wave: np.ndarray, name: str, source: str, hfov_deg: float | None,
+                    mean_luminance_cd_m2: float | None, dtype, illuminant_photons=None, distance_m=None):
+    """The scene of a radiance cube; a field of view or distance not given is ISETCam's default (10 deg, 1.2 m),
+    recorded in ``metadata['defaulted']`` as the EXR and ISETCam readers record theirs (the files hold neither)."""
     from ..scene import Scene
 
     e = torch.as_tensor(np.ascontiguousarray(energy), dtype=torch.float64)
@@ -40,15 +42,17 @@ def _radiance_scene(energy: np.ndarray, wave: np.ndarray, name: str, source: str
         raise ValueError(f"{source}: expected finite non-negative values, got min {float(e.min()):.6g}")
     w = torch.as_tensor(wave, dtype=torch.float64)
     photons = spectral.energy_to_photons(e, w, dim=0)[None]
-    s = Scene(photons.to(dtype), w.to(dtype), name=name, metadata={"source": source}, hfov_deg=hfov_deg,
+    defaulted = [k for k, v in (("hfov_deg", hfov_deg), ("distance_m", distance_m)) if v is None]
+    s = Scene(photons.to(dtype), w.to(dtype), name=name, metadata={"source": source, "defaulted": defaulted},
+              hfov_deg=10.0 if hfov_deg is None else hfov_deg, distance_m=1.2 if distance_m is None else distance_m,
               illuminant_photons=illuminant_photons)
     if mean_luminance_cd_m2 is not None:
         s = s.set_mean_luminance(mean_luminance_cd_m2)
     return s
 
 
-def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0,
-              dtype=torch.float32):
+def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float | None = None, distance_m: float | None = None,
+              mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
     """Read a CAVE scene folder (PNG per band) as a `Scene` lit by ``illuminant``."""
     from .images import _read_png
 
@@ -81,13 +85,14 @@ def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float = 10.0, mean_l
     energy = refl * ill_e.numpy()[:, None, None]
     ill_p = spectral.energy_to_photons(ill_e, w, dim=0).to(dtype)
     name = files[0][1].name[: _CAVE_BAND.search(files[0][1].name).start()]
-    return _radiance_scene(energy, wave, name, str(root), hfov_deg, mean_luminance_cd_m2, dtype, ill_p)
+    return _radiance_scene(energy, wave, name, str(root), hfov_deg, mean_luminance_cd_m2, dtype, ill_p, distance_m)
 
 
 _KAIST_NAME = re.compile(r"^w?(\d+(?:[.,]\d+)?)(?:nm)?$", re.IGNORECASE)
 
 
-def load_kaist(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
+def load_kaist(path, *, hfov_deg: float | None = None, distance_m: float | None = None,
+               mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
     """Read a KAIST hyperspectral EXR (one channel per band, wavelength in the channel name) as a `Scene`."""
     from .exr import _exr_channels, parse_channel_name
 
@@ -113,7 +118,7 @@ def load_kaist(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 10
     if np.any(np.diff(wave) <= 0):
         raise ValueError(f"path: duplicate band wavelengths {wave.tolist()}")
     cube = np.stack([b[1].astype(np.float64) for b in bands])
-    return _radiance_scene(cube, wave, p.stem, str(p), hfov_deg, mean_luminance_cd_m2, dtype)
+    return _radiance_scene(cube, wave, p.stem, str(p), hfov_deg, mean_luminance_cd_m2, dtype, distance_m=distance_m)
 
 
 def _load_h5_cube(path, keys: tuple[str, ...]):
@@ -148,11 +153,13 @@ def _load_h5_cube(path, keys: tuple[str, ...]):
     return p, cube, bands
 
 
-def load_icvl(path, *, hfov_deg: float = 10.0, mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
+def load_icvl(path, *, hfov_deg: float | None = None, distance_m: float | None = None,
+              mean_luminance_cd_m2: float = 100.0, dtype=torch.float32):
     """Read an ICVL (``rad`` + ``bands``) or ARAD (``cube`` + ``bands``) MATLAB v7.3 file as a `Scene`. A file without
     ``bands`` is read on their 400:10:700 nm grid if it has 31 bands (else an error naming ``bands``)."""
     p, cube, bands = _load_h5_cube(path, ("rad", "cube"))
-    return _radiance_scene(cube, bands, p.stem, str(p), hfov_deg, mean_luminance_cd_m2, dtype)
+    return _radiance_scene(cube, bands, p.stem, str(p), hfov_deg, mean_luminance_cd_m2, dtype,
+                           distance_m=distance_m)
 
 
 load_arad = load_icvl

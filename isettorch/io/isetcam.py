@@ -163,6 +163,9 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
                                  f"({wave.min():g}-{wave.max():g} nm, {wave.size}) in {str(p)!r}, got "
                                  f"{iw.min():g}-{iw.max():g} nm ({iw.size})"
                                  + ("" if off is None else f", up to {off:.3g} nm off"))
+        if not np.isfinite(ill).all() or (ill < 0).any():  # (a spatially varying one of -5 was kept as metadata)
+            raise ValueError(f"scene.illuminant.data.photons: expected finite non-negative photons in {str(p)!r}, got "
+                             f"values from {np.nanmin(ill):.6g} to {np.nanmax(ill):.6g}")
         if ill.size == wave.size:
             ill_t = torch.as_tensor(ill.reshape(-1), dtype=dtype)
         elif ill.shape != photons.shape:  # spatially varying illuminants (rows, cols, wave): metadata only

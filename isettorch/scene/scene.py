@@ -133,7 +133,10 @@ class Scene(SpectralImage):
             raise ValueError(f"{name}: expected a positive finite luminance, got {target.tolist()}")
         current = self.mean_luminance()
         if (current <= 0).any():
-            raise ValueError("set_mean_luminance: the scene is black (mean luminance 0), it cannot be scaled")
+            # (a scene of 850 nm light alone was called black: its light is where V(lambda) is 0)
+            raise ValueError(f"set_mean_luminance: the scene has no luminance (mean 0 cd/m^2: black, or light only "
+                             f"where V(lambda) is 0, here {self.wavelengths_nm.min().item():g}-"
+                             f"{self.wavelengths_nm.max().item():g} nm), so it cannot be scaled to a luminance")
         k = (target / current).reshape(-1, 1, 1, 1)
         # the radiance must stay in the dtype's range (float32 returned inf or NaN radiance for 3e24 cd/m^2): the
         # peak, or for factors the bound sum_j max(map_j) max(spectrum_j), times k

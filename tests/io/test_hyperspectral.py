@@ -83,6 +83,12 @@ def test_icvl_arad_v73(tmp_path, key, loader):
     k = e / np.transpose(cube, (2, 0, 1))
     assert k.max() / k.min() == pytest.approx(1.0, abs=1e-9)
     assert s.wavelengths_nm.tolist() == bands.tolist()
+    # the files hold no geometry: ISETCam's 10 deg and 1.2 m, recorded as defaulted (as the EXR and .mat readers
+    # record theirs; they were not), or the caller's
+    assert s.metadata["defaulted"] == ["hfov_deg", "distance_m"]
+    assert float(s.hfov_deg) == 10.0 and float(s.distance_m) == 1.2
+    given = loader(tmp_path / "f.mat", hfov_deg=20.0, distance_m=3.0, dtype=torch.float64)
+    assert given.metadata["defaulted"] == [] and float(given.hfov_deg) == 20.0 and float(given.distance_m) == 3.0
 
 
 def test_icvl_errors(tmp_path):

@@ -182,3 +182,20 @@ def test_photons_beyond_the_dtypes_range_name_the_dtype(tmp_path):
     with pytest.raises(ValueError, match=r"dtype: .*big.mat' holds photons up to 1e\+40, beyond torch.float32"):
         read_isetcam_scene(p)
     assert float(read_isetcam_scene(p, dtype=torch.float64).photons.max()) == 1e40
+
+
+def test_a_negative_or_nan_illuminant_is_refused_spatially_varying_too(tmp_path):
+    # A spatially varying illuminant (rows, cols, wave), kept as metadata['illuminant_photons_map'], was not checked:
+    # -5 photons was accepted.
+    wave = np.array([400.0, 500.0, 600.0])
+    photons = np.ones((2, 3, 3))
+    for name, ill in (("map", -5 * np.ones((2, 3, 3))), ("nan", np.array([1.0, np.nan, 2.0]))):
+        p = tmp_path / f"{name}.mat"
+        scipy.io.savemat(p, {"scene": _scene_struct(photons, wave, illuminant={"data": {"photons": ill},
+                                                                               "spectrum": {"wave": wave}})})
+        with pytest.raises(ValueError, match=rf"scene.illuminant.data.photons: expected finite non-negative .*{name}"):
+            read_isetcam_scene(p)
+    ok = tmp_path / "ok.mat"
+    scipy.io.savemat(ok, {"scene": _scene_struct(photons, wave, illuminant={"data": {"photons": 2 * np.ones((2, 3, 3))},
+                                                                            "spectrum": {"wave": wave}})})
+    assert float(read_isetcam_scene(ok).metadata["illuminant_photons_map"].min()) == 2.0

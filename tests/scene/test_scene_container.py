@@ -179,3 +179,11 @@ def test_batch_luminances_geometry_and_illuminants_are_checked():
     with pytest.raises(ValueError, match=r"scenes\[1\]: expected every scene with an illuminant or none"):
         Scene.cat([a, b])
     assert Scene.cat([b, b]).illuminant_photons is None
+
+
+def test_a_scene_of_invisible_light_is_not_called_black():
+    # Only infrared light: its luminance is 0 (V(lambda) = 0 beyond 830 nm), and set_mean_luminance said "the scene is
+    # black".
+    s = Scene(torch.full((1, 2, 2, 2), 1e16, dtype=torch.float64), torch.tensor([850.0, 940.0], dtype=torch.float64))
+    with pytest.raises(ValueError, match=r"no luminance .*light only where V\(lambda\) is 0, here 850-940 nm"):
+        s.set_mean_luminance(100.0)
