@@ -77,8 +77,12 @@ def lift_srgb(image, wavelengths_nm=(400.0, 700.0, 10.0)) -> dict:
             raise ValueError(f"image: expected a uint8 [H, W, 3] array, got {image.dtype} {image.shape}")
         enc = rgb8_to_tensor(image)[0]
     else:
+        if isinstance(image, torch.Tensor) and not image.is_floating_point():
+            # (uint8 codes 0 and 1 passed the [0, 1] check as values: code 1 was lifted as white; from_rgb's rule)
+            raise TypeError(f"image: expected encoded sRGB floats in [0, 1] [3, H, W] (or a uint8 [H, W, 3] numpy "
+                            f"array), got a {image.dtype} tensor; convert 8-bit codes with image.double() / 255")
         enc = torch.as_tensor(image, dtype=torch.float64)
-        if enc.dim() != 3 or enc.shape[0] != 3:
+        if enc.dim() != 3 or enc.shape[0] != 3 or min(enc.shape[1:]) < 1:
             raise ValueError(f"image: expected encoded sRGB [3, H, W], got shape {tuple(enc.shape)}")
         if not bool(((enc >= 0) & (enc <= 1)).all()):
             raise ValueError("image: expected encoded sRGB values in [0, 1]")

@@ -185,8 +185,10 @@ def _read_dng_tags(path: Path) -> _DngRaw | None:
             for page in [first, *(getattr(first, "pages", None) or [])]:
                 kind = page.tags.get(254)
                 if (0 if kind is None else int(kind.value)) == 0 and int(page.photometric) in (32803, 34892):
+                    fmt = page.tags.get(339)  # SampleFormat: 3 is floating point (DNG 1.4; HDRMerge's files)
                     info = {"shape": (int(page.imagelength), int(page.imagewidth)),
                             "photometric": int(page.photometric), "samples": int(page.samplesperpixel),
+                            "float": fmt is not None and 3 in np.atleast_1d(np.asarray(fmt.value)).tolist(),
                             "tags": {code: _tag_values(page, code) for code in _DNG_TAGS}}
                     break
     except Exception:  # not a TIFF, truncated: LibRaw says so
@@ -196,6 +198,9 @@ def _read_dng_tags(path: Path) -> _DngRaw | None:
                          f"frame as a 16-bit TIFF/PNG or .npy")
     if info is None:
         return None
+    if info["float"]:  # (LibRaw scaled the floats to 14-bit codes beside the tags' float black level: unsaid)
+        raise ValueError(f"{path}: a floating-point DNG (SampleFormat 3, e.g. an HDR merge) is not supported; expected "
+                         f"integer samples as the camera wrote them")
     if info["photometric"] == 34892 and info["samples"] != 1:
         raise ValueError(f"{path}: a demosaiced raw (a LinearRaw DNG of {info['samples']} samples a pixel); expected "
                          f"a colour filter array mosaic")

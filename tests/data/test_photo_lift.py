@@ -58,3 +58,17 @@ def test_photo_dataset_reads_its_grid_the_same_way(tmp_path):
     assert PhotoSceneDataset(tmp_path, 4, wavelengths_nm=(400.0, 700.0, 10.0)).wl.numel() == 31
     with pytest.raises(ValueError, match="wavelengths_nm"):
         PhotoSceneDataset(tmp_path, 4, wavelengths_nm=[450.0, 550.0, 650.0])
+
+
+def test_lift_refuses_integer_tensors_and_empty_images():
+    # A uint8 tensor of codes 0 and 1 passed the [0, 1] check as values (code 1 lifted as white, 1.0, for the
+    # numpy array's 3.04e-4 = (1/255) / 12.92, IEC 61966-2-1); a bool mask too; an empty image returned empty maps.
+    from isettorch.data.photos import lift_srgb
+
+    codes = np.ones((4, 4, 3), np.uint8)
+    assert float(lift_srgb(codes)["maps"].max()) == pytest.approx(1 / 255 / 12.92, rel=1e-9)
+    for bad in (torch.from_numpy(codes).permute(2, 0, 1), torch.ones(3, 4, 4, dtype=torch.bool)):
+        with pytest.raises(TypeError, match=r"image: expected encoded sRGB floats .* got a torch\.(uint8|bool) tensor"):
+            lift_srgb(bad)
+    with pytest.raises(ValueError, match="image: expected encoded sRGB"):
+        lift_srgb(torch.zeros(3, 0, 4))

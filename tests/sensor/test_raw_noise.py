@@ -397,3 +397,18 @@ def test_a_clip_at_the_full_well_spread_by_read_noise_is_left_out():
     uniform = np.round(0.05 * rng.poisson(np.full((256, 256), 2000.0)) + 0.5 * rng.standard_normal((256, 256)) + 64)
     res = estimate_poisson_gaussian(uniform, black_level_dn=64)
     assert any("too narrow a range" in w for w in res["warnings"]) and not any("pile-up" in w for w in res["warnings"])
+
+
+def test_a_floating_point_dng_is_refused_naming_the_file(tmp_path):
+    # DNG 1.4 allows float samples (SampleFormat 3: HDR merges). LibRaw scales them to 14-bit codes (1.0 -> 16383)
+    # while the black level came from the tag in float units (0.05): normalised, black was ignored, unsaid.
+    pytest.importorskip("rawpy")
+    import tifffile
+
+    from isettorch.io.raw import read_raw
+
+    dng = [(50706, "B", 4, (1, 4, 0, 0), False), (33421, "H", 2, (2, 2), False), (33422, "B", 4, (0, 1, 1, 2), False),
+           (50714, "d", 1, 0.05, False)]
+    tifffile.imwrite(tmp_path / "hdr.dng", np.full((8, 8), 0.5, np.float32), photometric=32803, extratags=dng)
+    with pytest.raises(ValueError, match=r"hdr.dng: a floating-point DNG \(SampleFormat 3"):
+        read_raw(tmp_path / "hdr.dng")
