@@ -55,27 +55,16 @@ def register(sub) -> None:
 
 def _note_profiles(folder) -> None:
     """A note naming the photographs whose embedded ICC profile (Display P3, Adobe RGB, ...) or PNG gAMA / cHRM is not
-    sRGB's: the lift reads every photograph's code values as sRGB, so their colours are not the photograph's."""
-    from ..io.images import non_srgb_profile, photo_files
+    sRGB's (:func:`isettorch.io.images.non_srgb_photos`)."""
+    from ..io.images import non_srgb_photos, photo_files
 
     try:
         files = photo_files(folder)
     except ValueError:  # a folder the evaluation refuses, naming it as DIR
         return
-    other = []
-    for f in files:
-        try:
-            name = non_srgb_profile(f)
-        except Exception:  # noqa: BLE001  (a note only: an unreadable or oversized file is the evaluation's to name)
-            continue
-        if name is not None:
-            other.append((f.name, name))
-    if other:
-        shown = ", ".join(f"{f} ({name})" for f, name in other[:3]) + (" ..." if len(other) > 3 else "")
-        print(f"isettorch design-eval: note: {len(other)} photograph(s) carry colour tags (an ICC profile, a PNG's "
-              f"gAMA or cHRM) that are not sRGB's: "
-              f"{shown}; their code values are lifted as sRGB, so their colours are not the photograph's (convert "
-              f"them to sRGB first)", file=sys.stderr)
+    note = non_srgb_photos(files)
+    if note is not None:
+        print(f"isettorch design-eval: note: {note}", file=sys.stderr)
 
 
 def run(args) -> int:

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._checks import check_seed, check_wavelengths, dataset_index, is_integer, is_real
-from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
+from .._checks import check_seed, check_wavelengths, dataset_index, is_integer, is_real, warn_caller
+from ..io.images import PHOTO_SUFFIXES, non_srgb_photos, photo_files, read_rgb8, rgb8_to_tensor
 from . import spectra as _spectra
 from .config import seed_for
 from .natural import _choice, natural_config
@@ -118,6 +118,9 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
         self.files = photo_files(folder)
         if not self.files:
             raise ValueError(f"folder: no {'/'.join(self.SUFFIXES)} files in {str(folder)!r}")
+        note = non_srgb_photos(self.files)  # (design-eval said so; training on them did not)
+        if note is not None:
+            warn_caller(f"folder: {note}")
         self.size, self.seed = int(size), int(seed)
         self.length = len(self.files) if length is None else int(length)
         self.wl = _lift_grid(wavelengths_nm)

@@ -176,6 +176,26 @@ def non_srgb_profile(path) -> str | None:
     return _non_srgb_icc(data)
 
 
+def non_srgb_photos(files) -> str | None:
+    """A sentence naming the photographs among ``files`` whose colour tags are not sRGB's (:func:`non_srgb_profile`;
+    the first three), or None: the photo lifter reads every photograph's code values as sRGB, so their colours are not
+    the photograph's. Unreadable files are skipped (their reader names them)."""
+    other = []
+    for f in files:
+        try:
+            name = non_srgb_profile(f)
+        except Exception:  # noqa: BLE001  (a note only: an unreadable or oversized file is the reader's to name)
+            continue
+        if name is not None:
+            other.append((Path(f).name, name))
+    if not other:
+        return None
+    shown = ", ".join(f"{f} ({name})" for f, name in other[:3]) + (" ..." if len(other) > 3 else "")
+    return (f"{len(other)} photograph(s) carry colour tags (an ICC profile, a PNG's gAMA or cHRM) that are not sRGB's: "
+            f"{shown}; their code values are lifted as sRGB, so their colours are not the photograph's (convert them "
+            f"to sRGB first)")
+
+
 def _non_srgb_icc(data: bytes | None) -> str | None:
     """:func:`non_srgb_profile` of an embedded profile's bytes (None or empty: no profile)."""
     import io

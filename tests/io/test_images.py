@@ -3,6 +3,8 @@
 Files written here are read back with independent readers (Pillow, tifffile, OpenEXR) and the sRGB curve is
 checked against colour-science."""
 
+import warnings
+
 import colour
 import numpy as np
 import OpenEXR
@@ -372,6 +374,16 @@ def test_non_srgb_profile_names_display_p3_and_passes_srgb(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "2 photograph(s) carry colour tags (an ICC profile, a PNG's gAMA or cHRM) that are not sRGB's: p3.jpg" \
         in err and "srgb.png" not in err
+    # training on them says so too (design-eval's note alone did): the photo dataset warns at construction
+    from isettorch.data.photos import PhotoSceneDataset
+
+    with pytest.warns(UserWarning, match=r"folder: 2 photograph\(s\) carry colour tags .*p3.jpg"):
+        PhotoSceneDataset(tmp_path, size=4)
+    (tmp_path / "p3.png").unlink()
+    (tmp_path / "p3.jpg").unlink()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        PhotoSceneDataset(tmp_path, size=4)
 
 
 def test_non_srgb_profile_names_a_pngs_gama_and_chrm(tmp_path):
