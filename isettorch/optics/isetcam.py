@@ -55,6 +55,8 @@ def pad_sizes(height: int, width: int) -> tuple[int, int]:
 def unit_frequency_list(n: int, *, dtype=torch.float64, device=None) -> torch.Tensor:
     """ISETCam ``unitFrequencyList(n)``: ``(k - k_mid) / max|k - k_mid|``, k = 1..n, ``k_mid = n/2 + 1`` (even n)
     or ``(n + 1) / 2`` (odd n). For odd n this is the FFT grid stretched by ``n / (n - 1)``."""
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:  # (0 failed in max() of an empty tensor)
+        raise ValueError(f"n: expected a whole number of samples >= 1, got {n!r}")
     k = torch.arange(1, n + 1, dtype=dtype, device=device)
     mid = n / 2 + 1 if n % 2 == 0 else (n + 1) / 2
     c = k - mid
@@ -84,6 +86,15 @@ def dl_otf_isetcam(wavelengths_nm: torch.Tensor, f_number: torch.Tensor, focal_l
     f = focal_length_m.to(dt)
     hfov = hfov_deg.to(dt)
     dx = dx_m.to(dt)
+    # as dl_otf: f/0 gave an OTF of 1 everywhere, a negative f-number or wavelength values above 1, a NaN wavelength 0
+    for name, v in (("wavelengths_nm", wavelengths_nm), ("f_number", n), ("focal_length_m", f), ("hfov_deg", hfov),
+                    ("dx_m", dx)):
+        d = torch.as_tensor(v).detach()
+        if d.numel() == 0 or not bool(((d > 0) & torch.isfinite(d)).all()):
+            raise ValueError(f"{name}: expected finite positive values, got {d.reshape(-1).tolist()}")
+    for name, v in (("height", height), ("width", width)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ValueError(f"{name}: expected a whole number of samples >= 1, got {v!r}")
     # oiGet 'vfov': 2 atand(0.5 * height_m / d), d = f (no depth map inside oiCompute)
     vfov = 2 * torch.rad2deg(torch.atan(0.5 * height * dx / f))
     fx = unit_frequency_list(width, device=dev)[None, :] * (width / 2) / hfov[:, None]
@@ -112,7 +123,8 @@ def mean_illuminance(photons: torch.Tensor, wavelengths_nm: torch.Tensor, vlambd
 
     ``683 * binwidth * sum_l V(l) E(l)`` with ``E = photons h c / lambda`` (ISETCam ``vcConstants``), binwidth
     ``w[1] - w[0]`` (1 nm for a single wavelength). With ``float32_sequential`` the mean is a float32
-    running sum over the column-major flattened image, as Octave's ``mean`` of single data (error up to 1e-3).
+    running sum over the column-major flattened image, as Octave's ``mean`` of single data (error up to 1e-3; no
+    gradient).
     """
     w = wavelengths_nm.to(torch.float64)
     if vlambda.numel() != w.numel() or photons.dim() != 4 or photons.shape[1] != w.numel():
@@ -124,8 +136,13 @@ def mean_illuminance(photons: torch.Tensor, wavelengths_nm: torch.Tensor, vlambd
     lux = constants.KM_LM_PER_W * bw * torch.einsum("blhw,l->bhw", e, vlambda.to(torch.float64))
     if not float32_sequential:
         return lux.mean(dim=(1, 2))
-    v = lux.to(torch.float32).transpose(1, 2).reshape(lux.shape[0], -1)  # column-major order
-    return torch.cumsum(v, dim=1)[:, -1].double() / v.shape[1]
+    import numpy as np
+
+    v = lux.detach().to(torch.float32).transpose(1, 2).reshape(lux.shape[0], -1).cpu().numpy()  # column-major order
+    # a sequential float32 sum (NumPy's accumulate adds in the array's dtype, in order; torch's CPU cumsum adds float32
+    # in double, which gave the exact mean: 1 + 10^6 x 1e-8 was 1.0099999, not float32's 1.0)
+    total = np.add.accumulate(v, axis=1, dtype=np.float32)[:, -1]
+    return torch.from_numpy(total.astype(np.float64)).to(lux.device) / v.shape[1]
 
 
 # OTF half-spectra (rfft layout) and cos4th factors by geometry (wavelengths, f-numbers, focal lengths, FOVs,
@@ -309,7 +326,12 @@ def compute_oi(scene_photons, wavelengths_nm, hfov_deg, distance_m, f_number, fo
         scene_photons = torch.as_tensor(scene_photons)
     p = scene_photons.unsqueeze(0) if scene_photons.dim() == 3 else scene_photons
     check_rank(p, 4, "scene_photons", "(L, H, W) or (B, L, H, W)")
-    out_dtype = dtype or (p.dtype if p.is_floating_point() else torch.get_default_dtype())
+    if p.is_complex() or p.numel() == 0:  # (aminmax's error named no argument)
+        raise ValueError(f"scene_photons: expected real radiance of at least one wavelength and sample, got "
+                         f"{p.dtype} of shape {tuple(p.shape)}")
+    # (an integer dtype returned -2147483648 for 4.8e13 photons, or 0 for 0.18)
+    out_dtype = check_float_dtype(dtype) if dtype is not None else (
+        p.dtype if p.is_floating_point() else torch.get_default_dtype())
     lo, hi = torch.aminmax(p.detach())  # one pass; NaN propagates to both
     if not (math.isfinite(float(lo)) and math.isfinite(float(hi))):
         check_finite(p.detach(), "scene_photons")  # names the count of NaN/Inf entries
@@ -427,9 +449,14 @@ def compute_oi_factored(maps, spectra, wavelengths_nm, hfov_deg, distance_m, f_n
     if s.shape[1] != m.shape[1] or s.shape[0] not in (1, m.shape[0]) or m.shape[0] not in (1, s.shape[0]):
         raise ValueError(f"spectra: expected (B, J, L) matching maps (B, J, H, W) = {tuple(m.shape)}, "
                          f"got {tuple(s.shape)}")
+    for name, t in (("maps", m), ("spectra", s)):
+        if t.is_complex() or t.numel() == 0:  # (an IndexError, or torch's NotImplementedError)
+            raise ValueError(f"{name}: expected real values, at least one term, wavelength and sample, got {t.dtype} "
+                             f"of shape {tuple(t.shape)}")
     check_finite(m.detach(), "maps")
     check_finite(s.detach(), "spectra")
-    out_dtype = dtype or (m.dtype if m.is_floating_point() else torch.get_default_dtype())
+    out_dtype = check_float_dtype(dtype) if dtype is not None else (
+        m.dtype if m.is_floating_point() else torch.get_default_dtype())
     work = _work_dtype(compute_dtype, m)
     b = max(m.shape[0], s.shape[0])
     m, s = m.expand(b, *m.shape[1:]), s.expand(b, *s.shape[1:])

@@ -56,3 +56,34 @@ def test_gradients_to_the_field_of_view_and_focal_length_are_finite_and_match_fi
     assert float(otf.detach()[0, :, 0, 0].min()) == 1.0  # the DC value is exact
     (g,) = torch.autograd.grad(otf.sum(), hfov)
     assert math.isfinite(float(g)) and float(g) != 0.0
+
+
+def test_isetcam_functions_name_bad_dtypes_otf_inputs_and_empty_images():
+    # dtype=torch.int32 returned -2147483648 for 4.8e13 photons (int64: 0 for 0.18); dl_otf_isetcam's f/0 gave an
+    # OTF of 1 everywhere, f/-4 or a negative wavelength values above 1, a NaN wavelength 0; empty images failed in
+    # aminmax / with an IndexError; unit_frequency_list(0) in max().
+    from isettorch.optics.isetcam import compute_oi, compute_oi_factored, dl_otf_isetcam, unit_frequency_list
+
+    w = torch.tensor([450.0, 550.0, 650.0], dtype=torch.float64)
+    x = torch.ones(1, 3, 8, 10, dtype=torch.float64)
+    for dt in (torch.int32, torch.int64, torch.float16):
+        with pytest.raises(ValueError, match=r"dtype: expected torch.float32 or torch.float64"):
+            compute_oi(x, w, 10, 1.2, 4, 4e-3, dtype=dt)
+        with pytest.raises(ValueError, match=r"dtype: expected torch.float32 or torch.float64"):
+            compute_oi_factored(x[:, :1], torch.ones(1, 1, 3), w, 10, 1.2, 4, 4e-3, dtype=dt)
+    with pytest.raises(ValueError, match="scene_photons: expected real radiance"):
+        compute_oi(torch.ones(1, 3, 0, 5), w, 10, 1.2, 4, 4e-3)
+    with pytest.raises(ValueError, match="maps: expected real values, at least one term"):
+        compute_oi_factored(torch.ones(1, 0, 8, 10), torch.ones(1, 0, 3), w, 10, 1.2, 4, 4e-3)
+    one = torch.ones(1, dtype=torch.float64)
+    ok = dict(wavelengths_nm=w, f_number=4 * one, focal_length_m=4e-3 * one, hfov_deg=10 * one, dx_m=1e-6 * one,
+              height=8, width=10)
+    assert dl_otf_isetcam(**ok)[0].max() <= 1
+    for key, bad in (("f_number", 0 * one), ("f_number", -4 * one), ("wavelengths_nm", -w),
+                     ("wavelengths_nm", torch.tensor([float("nan")])), ("hfov_deg", -10 * one)):
+        with pytest.raises(ValueError, match=f"{key}: expected finite positive values"):
+            dl_otf_isetcam(**{**ok, key: bad})
+    with pytest.raises(ValueError, match="height: expected a whole number of samples >= 1"):
+        dl_otf_isetcam(**{**ok, "height": 0})
+    with pytest.raises(ValueError, match="n: expected a whole number"):
+        unit_frequency_list(0)
