@@ -132,6 +132,18 @@ def test_a_camera_raws_own_cfa_and_black_level_must_be_the_configs(camera, tmp_p
     assert main(["process", str(tmp_path / "spread_twin.npy"), *args, "--out", str(tmp_path / "f")]) == 0
     np.testing.assert_allclose(np.load(tmp_path / "f" / "spread.npy"), np.load(tmp_path / "f" / "spread_twin.npy"),
                                rtol=0, atol=1e-6)
+    # a DNG's Orientation (IFD 0 tag 274; 6: rotate 90 degrees clockwise to display) turns the processed image, not
+    # the mosaic (its CFA phase would change): a portrait frame came out on its side
+    from isettorch.io.raw import read_raw
+
+    for turn, expect in ((6, lambda a: np.rot90(a, -1, axes=(1, 2))), (3, lambda a: a[:, ::-1, ::-1]),
+                         (8, lambda a: np.rot90(a, 1, axes=(1, 2)))):
+        name = f"turn{turn}.dng"
+        dng_by_hand(tmp_path / name, mosaic, extra=[(274, "H", 1, (turn,), False)])
+        assert read_raw(tmp_path / name).orientation == turn
+        assert main(["process", str(tmp_path / name), *args, "--out", str(tmp_path / "g")]) == 0
+        np.testing.assert_array_equal(np.load(tmp_path / "g" / f"turn{turn}.npy"), expect(np.load(tmp_path / "a" /
+                                                                                                  "ok.npy")))
 
 
 def test_the_shipped_joint_checkpoint_runs_as_it_ships(camera, tmp_path):

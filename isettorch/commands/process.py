@@ -13,8 +13,9 @@ black levels and white level must be the config's: a file that disagrees, or a m
 to the network with the noise inputs of the sensor's Poisson-Gaussian model ``var(x) = a x + b``
 (:func:`noise_params`), as in training. Output:
 camera RGB relative to the white level (not white-balanced), ``<stem>.npy`` (float32 ``[3, H, W]``), ``.exr``
-(linear) or ``.png`` (clipped to [0, 1] and sRGB-encoded, for viewing), in the sensor's orientation, as the mosaic is
-stored (a DNG's Orientation tag is not applied: rotate a portrait frame afterwards).
+(linear) or ``.png`` (clipped to [0, 1] and sRGB-encoded, for viewing), turned as a camera raw's orientation says
+(a DNG's Orientation tag, LibRaw's flip for other raws: a portrait frame comes out upright; PNG, TIFF and ``.npy``
+frames as stored).
 """
 
 from __future__ import annotations
@@ -289,6 +290,7 @@ def run(args) -> int:
     from pathlib import Path
 
     import numpy as np
+    import torch
 
     from .._progress import progress
     from ..io.frames import RAW_BLACK_TOLERANCE_DN, check_sample_bits
@@ -325,7 +327,7 @@ def run(args) -> int:
     with Outputs(out_dir) as staged, \
             progress(total=len(args.raw), desc="process", unit="frame", quiet=args.quiet) as bar:
         for f, path in zip(args.raw, outputs):
-            dn, file_cfa, file_blacks, stored_bits, delta, file_white = _read(f)
+            dn, file_cfa, file_blacks, stored_bits, delta, file_white, orientation = _read(f)
             if shifts[f] > 1:
                 dn = dn / shifts[f]
                 file_blacks = None if file_blacks is None else [b / shifts[f] for b in file_blacks]
@@ -381,6 +383,11 @@ def run(args) -> int:
                 if not str(err).startswith("raw: "):
                     raise
                 raise ValueError(f"RAW: {f}: {str(err).removeprefix('raw: ')}") from err
+            if orientation != 1:  # as the camera displays it (a portrait frame upright), the mosaic processed as stored
+                from ..io.images import _ORIENT
+
+                rgb = torch.from_numpy(np.ascontiguousarray(_ORIENT[orientation](rgb.permute(1, 2, 0).numpy())))
+                rgb = rgb.permute(2, 0, 1)
             tmp = staged.temporary(path)
             if args.format == "npy":
                 np.save(tmp, rgb.numpy().astype(np.float32), allow_pickle=False)

@@ -73,6 +73,7 @@ class FrameData(NamedTuple):
     # is the file's codes (a capture's dark frames measure the offsets as they are)
     black_level_delta_dn: np.ndarray | None = None
     white_level_dn: float | None = None  # a camera raw's white level (DN; RawFrame.white_level_dn)
+    orientation: int = 1  # a camera raw's display orientation (RawFrame.orientation; not applied to dn)
 
 
 def read_frame(path: str | Path) -> np.ndarray:
@@ -123,7 +124,7 @@ def read_frame_data(path: str | Path) -> FrameData:
     """:func:`read_frame`'s frame with the CFA and per-channel black levels (DN) of a camera raw's metadata."""
     path = Path(path)
     suffix = path.suffix.lower()
-    cfa, blacks, delta, white = None, None, None, None
+    cfa, blacks, delta, white, orientation = None, None, None, None, 1
     try:
         if suffix == ".npy":
             arr = np.load(path, allow_pickle=False)
@@ -136,7 +137,7 @@ def read_frame_data(path: str | Path) -> FrameData:
 
             raw = read_raw(path)
             arr, cfa, blacks, delta = raw.data, raw.cfa, raw.black_level_dn, raw.black_level_delta_dn
-            white = raw.white_level_dn
+            white, orientation = raw.white_level_dn, raw.orientation
         else:
             raise ValueError(f"unknown frame type {suffix!r}; expected one of {FRAME_SUFFIXES + RAW_SUFFIXES}")
     except ImportError:
@@ -151,7 +152,7 @@ def read_frame_data(path: str | Path) -> FrameData:
     arr = arr.astype(np.float64)
     if not np.isfinite(arr).all() or arr.min() < 0:
         raise ValueError(f"{path}: expected finite non-negative DN values")
-    return FrameData(arr, cfa, blacks, bits, delta, white)
+    return FrameData(arr, cfa, blacks, bits, delta, white, orientation)
 
 
 def write_frame(path: str | Path, frame) -> None:

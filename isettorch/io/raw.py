@@ -32,6 +32,9 @@ class RawFrame:
     black_level_dn: list[float]
     white_level_dn: float | None
     black_level_delta_dn: np.ndarray | None = None
+    #: how the mosaic is displayed: the TIFF / EXIF Orientation (1 as stored, 6 rotated 90 degrees clockwise, ...;
+    #: a DNG's IFD 0 tag, LibRaw's flip for other raws), not applied to ``data`` (its CFA phase would change)
+    orientation: int = 1
 
 
 def _tile(cell: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -61,7 +64,8 @@ def read_raw(path: str | Path) -> RawFrame:
     lost), shifts an X-Trans pattern by the margins (the wrong phase unless they are multiples of 6), reads a 4 x 4
     (Quad-Bayer) pattern as its 2 x 2 corner, names every 4-colour CFA GMCY, floors a fractional black level and
     averages per-row and per-column deltas into one value. The whole ActiveArea is returned (DefaultCrop is not
-    applied) in the sensor's orientation (the Orientation tag is not applied: data and CFA stay consistent).
+    applied) in the sensor's orientation (the Orientation tag is not applied: data and CFA stay consistent; it is
+    ``orientation``, for the processed image).
     Other raws are LibRaw's ``raw_image_visible`` with its pattern and black levels."""
     try:
         import rawpy
@@ -77,6 +81,7 @@ def read_raw(path: str | Path) -> RawFrame:
             desc = r.color_desc.decode("ascii", "replace")
             blacks = [float(b) for b in r.black_level_per_channel]
             white = float(r.white_level) if r.white_level else None
+            flip = int(getattr(r.sizes, "flip", 0))
     except Exception as err:
         raise ValueError(f"{path}: cannot read the raw file with rawpy/LibRaw ({err})") from err
     if data.ndim != 2:  # (a LinearRaw DNG came back (H, W, 4))
@@ -93,7 +98,9 @@ def read_raw(path: str | Path) -> RawFrame:
                              f"cfa in capture.yaml")
         blacks = [blacks[int(i)] for i in pattern.reshape(-1)]
     _check_black_below_white(path, blacks, white)
-    return RawFrame(data=data, cfa=cfa, black_level_dn=blacks, white_level_dn=white)
+    # LibRaw's flip (dcraw's: 3 rotated 180 degrees, 5 90 counter-clockwise, 6 90 clockwise) as TIFF Orientation
+    return RawFrame(data=data, cfa=cfa, black_level_dn=blacks, white_level_dn=white,
+                    orientation={3: 3, 5: 8, 6: 6}.get(flip, 1))
 
 
 def _check_black_below_white(path: Path, blacks, white: float | None) -> None:
@@ -114,6 +121,7 @@ class _DngRaw:
     black: np.ndarray  # BlackLevel, (repeat rows, repeat cols)
     delta_v: np.ndarray  # BlackLevelDeltaV, one per ActiveArea row
     delta_h: np.ndarray  # BlackLevelDeltaH, one per ActiveArea column
+    orientation: int = 1  # IFD 0's Orientation (DNG 1.4: it applies to the raw image)
 
     def frame(self, path: Path, full: np.ndarray, white: float | None) -> RawFrame:
         if full.shape != self.shape:
@@ -134,7 +142,7 @@ class _DngRaw:
         if self.cell is not None:
             cfa = ("".join(sum(self.cell, [])) if p == q else "/".join("".join(r) for r in self.cell))
         return RawFrame(data=data, cfa=cfa, black_level_dn=blacks, white_level_dn=white,
-                        black_level_delta_dn=delta if np.any(delta != 0) else None)
+                        black_level_delta_dn=delta if np.any(delta != 0) else None, orientation=self.orientation)
 
 
 def _tag_values(page, code: int):
@@ -181,6 +189,8 @@ def _read_dng_tags(path: Path) -> _DngRaw | None:
         with tifffile.TiffFile(str(path)) as tif:
             first = tif.pages[0]
             is_dng = first.tags.get(50706) is not None
+            turn = first.tags.get(274)
+            orientation = int(turn.value) if turn is not None else 1
             info = None
             for page in [first, *(getattr(first, "pages", None) or [])]:
                 kind = page.tags.get(254)
@@ -198,6 +208,7 @@ def _read_dng_tags(path: Path) -> _DngRaw | None:
                          f"frame as a 16-bit TIFF/PNG or .npy")
     if info is None:
         return None
+    info["orientation"] = orientation if orientation in range(1, 9) else 1  # (0 and others: TIFF's default)
     if info["float"]:  # (LibRaw scaled the floats to 14-bit codes beside the tags' float black level: unsaid)
         raise ValueError(f"{path}: a floating-point DNG (SampleFormat 3, e.g. an HDR merge) is not supported; expected "
                          f"integer samples as the camera wrote them")
@@ -242,7 +253,7 @@ def _dng_raw(path: Path, info: dict) -> _DngRaw:
         raise ValueError(f"{path}: BlackLevelDeltaV / DeltaH have {len(delta_v)} / {len(delta_h)} values for an "
                          f"ActiveArea of {h} rows and {w} columns")
     return _DngRaw(shape=shape, active=(top, left, bottom, right), cell=cell, black=black.reshape(repeat),
-                   delta_v=delta_v, delta_h=delta_h)
+                   delta_v=delta_v, delta_h=delta_h, orientation=info.get("orientation", 1))
 
 
 _DNG_CFA_CODES = {"R": 0, "G": 1, "B": 2}
