@@ -67,33 +67,46 @@ def _gauss1d(spread_px: float, width: int, convention: str, dtype, device) -> to
 
 def scielab_filters(samples_per_degree_: float, convention: str = "isetcam", support_deg: float = 1.0,
                     dtype=torch.float64, device=None) -> list[list[tuple[float, torch.Tensor]]]:
-    """Per opponent channel, a list of (weight, 1-D unit-sum Gaussian kernel) terms (the "isetcam" ones folded from a
-    finer rate below :data:`MIN_SAMPLES_PER_DEGREE`, :func:`_folded_gauss1d`); the 2-D filter of a channel is
-    sum_i w_i g_i(x) g_i(y) and sums to 1. The kernels span ``support_deg`` degrees (odd width; ISETCam uses one
-    degree, which truncates the 7-degree luminance surround)."""
+    """Per opponent channel, a list of (weight, 1-D unit-sum Gaussian kernel) terms; the 2-D filter of a channel is
+    sum_i w_i g_i(x) g_i(y) and sums to 1 (a uniform field is unchanged).
+
+    ``"isetcam"``: S-CIELAB's ``separableFilters`` (Zhang's distribution): below :data:`MIN_SAMPLES_PER_DEGREE` the
+    Gaussians are built at ``up = ceil(224 / spd)`` times the rate over ``ceil(su support / 2) 2 - 1`` fine samples
+    (``su = spd up``; the unrounded rate) and folded back with the linear-interpolation (triangle) kernel at the fine
+    samples ``0, +-up, ...`` inside that support (:func:`_folded_gauss1d`): 23 taps at 23 samples per degree. One
+    deliberate difference: each folded term is renormalised to sum 1 (Zhang's sum to 1.002 / 0.997 / 0.998 per
+    channel at 23 samples per degree, so a uniform field would change). ``"paper"``: Zhang and Wandell 1997 eq. 4 at
+    the image's rate, ``ceil(spd support / 2) 2 + 1`` samples. The kernels span ``support_deg`` degrees (S-CIELAB
+    uses one degree, which truncates the 7-degree luminance surround)."""
     if convention not in ("isetcam", "paper"):
         raise ValueError(f"convention: expected 'isetcam' or 'paper', got {convention!r}")
     spd = float(check_positive(samples_per_degree_, "samples_per_degree"))
-    width = max(int(math.ceil(spd * float(check_positive(support_deg, "support_deg")) / 2.0)) * 2 + 1, 3)
+    support = float(check_positive(support_deg, "support_deg"))
     table = SCIELAB_FILTERS if convention == "isetcam" else SCIELAB_FILTERS_PAPER
+    if convention == "paper":
+        width = max(int(math.ceil(spd * support / 2.0)) * 2 + 1, 3)
+        return [[(w / sum(wi for wi, _ in terms), _gauss1d(s * spd, width, convention, dtype, device))
+                 for w, s in terms] for terms in table]
     # (at most 1024: below 0.22 samples per degree every kernel is a delta; uncapped, 1e-4 took 6 s and 0.6 GB)
-    up = min(math.ceil(MIN_SAMPLES_PER_DEGREE / spd), 1024) if convention == "isetcam" else 1
-    return [[(w / sum(wi for wi, _ in terms), _folded_gauss1d(s * spd, width, up, convention, dtype, device))
+    up = min(math.ceil(MIN_SAMPLES_PER_DEGREE / spd), 1024) if spd < MIN_SAMPLES_PER_DEGREE else 1
+    fine_width = max(int(math.ceil(spd * up * support / 2.0)) * 2 - 1, 1)  # separableFilters.m: odd, at su
+    return [[(w / sum(wi for wi, _ in terms), _folded_gauss1d(s * spd, fine_width, up, dtype, device))
              for w, s in terms] for terms in table]
 
 
-def _folded_gauss1d(spread_px: float, width: int, up: int, convention: str, dtype, device) -> torch.Tensor:
-    """:func:`_gauss1d` built at ``up`` times the rate and folded back to it with the linear-interpolation
-    (triangle) kernel, as S-CIELAB's ``separableFilters`` does below :data:`MIN_SAMPLES_PER_DEGREE` (in the centred
-    form of ISETCam's ``scPrepareFilters``): ``k[n] = sum_m g_up[m] max(0, 1 - |n up - m| / up)``. Without it the
-    gauss.m formula, whose half maximum is at (spread - 1) / 2 samples, made the 0.05 degree luminance Gaussian a
-    delta below about 100 samples per degree (mean dE76 100.3 for S-CIELAB's 36.2 at 23 samples per degree)."""
+def _folded_gauss1d(spread_px: float, fine_width: int, up: int, dtype, device) -> torch.Tensor:
+    """gauss.m's Gaussian (half maximum at (spread - 1) / 2 samples) built at ``up`` times the rate over
+    ``fine_width`` samples and folded back to the rate with the linear-interpolation (triangle) kernel, as S-CIELAB's
+    ``separableFilters`` does: ``k[n] = sum_m g_up[m] max(0, 1 - |n up - m| / up)`` at ``n up`` inside the fine
+    support, then renormalised to sum 1. Without the fold the 0.05 degree luminance Gaussian was a delta below about
+    100 samples per degree (mean dE76 100.3 for 36.2 at 23 samples per degree)."""
+    fine = _gauss1d(spread_px * up, fine_width, "isetcam", torch.float64, None)
     if up <= 1:
-        return _gauss1d(spread_px, width, convention, dtype, device)
-    fine = _gauss1d(spread_px * up, (width - 1) * up + 1, convention, torch.float64, None)
-    m = torch.arange(fine.numel(), dtype=torch.float64) - (fine.numel() - 1) / 2
-    n = (torch.arange(width, dtype=torch.float64) - (width - 1) / 2) * up
-    tri = (1 - (n[:, None] - m[None, :]).abs() / up).clamp_min(0)  # [width, fine]
+        return fine.to(dtype=dtype, device=device)
+    half = fine_width // 2
+    m = torch.arange(-half, half + 1, dtype=torch.float64)
+    n = torch.arange(-(half // up), half // up + 1, dtype=torch.float64) * up
+    tri = (1 - (n[:, None] - m[None, :]).abs() / up).clamp_min(0)  # [taps, fine]
     k = tri @ fine
     return (k / k.sum()).to(dtype=dtype, device=device)
 
@@ -142,11 +155,13 @@ def scielab(xyz1: torch.Tensor, xyz2: torch.Tensor, white, samples_per_degree: f
         method: dE formula applied to the filtered CIELAB images ("76" as in S-CIELAB, "94", "2000").
         convention: "isetcam" (the default: the S-CIELAB distribution's code, Zhang's ``gauss.m`` and
             ``separableFilters``, whose numbers the literature reports: a spread is a Gaussian's half-width, FWHM + 1
-            samples, the kernels built at :data:`MIN_SAMPLES_PER_DEGREE` or more and folded back to the image's
-            rate with a triangle) or "paper" (Zhang and Wandell 1997 eq. 4, exp(-r^2 / spread^2), with the paper's
-            table 1: spreads about half the distribution's, :data:`SCIELAB_FILTERS_PAPER`). Between two
+            samples, the kernels built at :data:`MIN_SAMPLES_PER_DEGREE` or more over its support and folded back
+            to the image's rate with a triangle, :func:`scielab_filters`; two differences: each term renormalised to
+            sum 1, and borders replicated where Zhang's code reflects them) or "paper" (Zhang and Wandell 1997
+            eq. 4, exp(-r^2 / spread^2), with the paper's table 1: spreads about half the distribution's,
+            :data:`SCIELAB_FILTERS_PAPER`). Between two
             1 x 3 x 40 x 57 float64 images of uniform random XYZ (``torch.rand`` with ``torch.Generator`` seeds 0 and
-            1, X scaled by 0.9), white ``"D65"``, the mean dE76 is 36.1 ("isetcam") against 46.2 ("paper") at 23
+            1, X scaled by 0.9), white ``"D65"``, the mean dE76 is 36.2 ("isetcam") against 46.2 ("paper") at 23
             samples per degree and 22.9 against 24.1 at 40; compare only numbers of one convention. ISETCam's
             current ``scielab`` differs from both (an audit of 2026-12-01): it reads a spread as the half-width at
             half maximum (kernels about twice as broad), uses the 10 degree observer's opponent matrix, dE2000 and

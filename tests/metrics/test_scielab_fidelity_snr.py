@@ -118,7 +118,11 @@ def test_scielab_filters_transfer_function_is_the_published_sum_of_gaussians(con
             tri = (math.sin(math.pi * f_cpd / spd) / (math.pi * f_cpd / spd)) ** 2
             want = tri * sum(w * math.exp(-(math.pi * (f_cpd / spd) * (sd * spd * up - 1) / up
                                             / (2 * math.sqrt(math.log(2)))) ** 2) for w, sd in terms)
-        assert gain == pytest.approx(want, abs=2e-3), (c, gain, want)
+        # isetcam: the 7-degree surround cut at 1.5 degrees and its term renormalised (separableFilters' support,
+        # 95 taps here) moves the luminance transfer by up to about 3e-3 from the untruncated sum at 8 cycles/degree;
+        # the kernels themselves are checked sample by sample in
+        # test_scielab_isetcam_kernels_keep_their_blur_at_display_sampling
+        assert gain == pytest.approx(want, abs=2e-3 if convention == "paper" else 4e-3), (c, gain, want)
         others = [k for k in range(3) if k != c]
         assert float((row[others] - row[others].mean(-1, keepdim=True)).abs().max()) < 1e-9
 
@@ -399,27 +403,35 @@ def test_default_data_range_reads_the_scored_pixels_and_saturated_snr_is_kept():
 def test_scielab_isetcam_kernels_keep_their_blur_at_display_sampling():
     """Below 224 samples per degree S-CIELAB's separableFilters builds the kernels at ceil(224 / spd) times the rate
     and folds them back with a triangle; without it the 0.05 degree luminance Gaussian was a delta at 23 samples per
-    degree (centre 1.0000) and the docstring's random pair read mean dE76 100.3. The reference here: the gauss.m
-    formula at the fine rate (exp(-(2 sqrt(ln 2) x / (hw - 1))^2), hw = 0.05 x 23 x 10 samples), summed with NumPy
-    through the triangle at the coarse samples."""
+    degree (centre 1.0000) and the docstring's random pair read mean dE76 100.3. The reference here follows
+    separableFilters.m step by step: gauss.m at the fine rate su = 230 over ceil(su / 2) 2 - 1 = 229 samples
+    (exp(-(2 sqrt(ln 2) x / (hw - 1))^2), hw = 0.05 su), convolved ('same') with the triangle (1..up..1) / up and
+    sampled at the centre +- k up: 23 taps (the library's 25 came from a wider support: the 7-degree term's centre
+    4.9 % low); then renormalised, the library's one stated difference."""
     from isettorch.metrics.spatial_cielab import scielab_filters
 
     spd, up = 23.0, 10
-    width = 25  # ceil(23 / 2) x 2 + 1
-    xf = np.arange((width - 1) * up + 1) - (width - 1) * up / 2
-    g = np.exp(-(2 * math.sqrt(math.log(2)) * xf / (0.05 * spd * up - 1)) ** 2)
-    g /= g.sum()
-    n = (np.arange(width) - (width - 1) / 2) * up
-    ref = (np.clip(1 - np.abs(n[:, None] - xf[None, :]) / up, 0, None) * g).sum(1)
-    ref /= ref.sum()
+    fine = math.ceil(spd * up / 2) * 2 - 1
+    for spread in (0.05, 7.0):
+        xf = np.arange(1, fine + 1) - math.floor(fine / 2 + 0.5)  # MATLAB round: -114..114
+        g = np.exp(-(2 * math.sqrt(math.log(2)) * xf / (spread * spd * up - 1)) ** 2)
+        g /= g.sum()
+        u = np.convolve(g, np.r_[np.arange(1, up + 1), np.arange(up - 1, 0, -1)] / up, mode="same")
+        mid = fine // 2
+        ref = u[np.r_[np.arange(mid, -1, -up)[::-1], np.arange(mid + up, fine, up)]]
+        ref /= ref.sum()
+        term = 0 if spread == 0.05 else 2
+        got = scielab_filters(spd)[0][term][1].numpy()
+        assert got.size == ref.size == 23
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
     got = scielab_filters(spd)[0][0][1].numpy()
-    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+    width = got.size
     assert 0.6 < got[width // 2] < 0.7  # a blur, not a delta
     gen = [torch.Generator().manual_seed(s) for s in (0, 1)]
     a, b = (torch.rand(1, 3, 40, 57, dtype=torch.float64, generator=g_) for g_ in gen)
     a[:, 0] *= 0.9
     b[:, 0] *= 0.9
-    assert float(scielab(a, b, "D65", 23.0).mean()) == pytest.approx(36.1, abs=0.05)  # the docstring's numbers
+    assert float(scielab(a, b, "D65", 23.0).mean()) == pytest.approx(36.2, abs=0.05)  # the docstring's numbers
     assert float(scielab(a, b, "D65", 40.0).mean()) == pytest.approx(22.9, abs=0.05)
     # a tiny rate folds from at most 1024 x it (uncapped, 1e-4 samples per degree built 0.6 GB of kernels)
     assert all(float(k.sum()) == pytest.approx(1.0) for terms in scielab_filters(1e-4) for _, k in terms)
