@@ -11,7 +11,9 @@ the :class:`~isettorch.camera.Camera`, which projects each spectrum once), and
 Components (each a key of ``NATURAL_DEFAULTS["components"]``; ``enabled: false`` switches it off, the ablation
 script ``benchmarks/generator_ablation.py`` does that one at a time), named after their source:
 
-* ``palette``: materials from the measured reflectances shipped by colour-science, natural chromaticities
+* ``palette``: materials from the measured reflectances shipped by colour-science (each scaled by U(0.3, 1.2) and
+  limited to 1, a physical reflectance: about 0.3 % of draws reach 1 at some wavelength, a colour shift of up to
+  dE2000 3 from the scaled spectrum), natural chromaticities
   upsampled with ``colour.recovery`` (Mallett & Yuksel, EGSR 2019), and smooth random spectra (PCA of the measured
   set / sigmoid polynomials, Jakob & Hanika, EG 2019); ``materials`` per scene, few, as in natural scenes. With
   ``dye.probability`` (0 in version 5, so its scenes are unchanged) a non-grey material is made purer by a
