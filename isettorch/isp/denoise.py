@@ -126,6 +126,11 @@ def denoise_mosaic(raw: torch.Tensor, method: str, noise_sigma: float = 0.0, noi
         for dy in (0, 1):
             for dx in (0, 1):
                 plane = x[i, 0, dy::2, dx::2]
+                if plane.min() == plane.max():
+                    # a constant is its own estimate (every denoiser here averages), kept exactly: the Anscombe clip
+                    # took a constant below -(3a/8 + b/a) to 0, and the joint model's constant-field guarantee lost
+                    # (-0.5, -0.25, -0.125) to grey -0.10
+                    continue
                 if a > 0:
                     y = _denoise_plane(_anscombe(plane, a, b), 1.0, method)
                     x[i, 0, dy::2, dx::2] = _anscombe_inverse(y, a, b)

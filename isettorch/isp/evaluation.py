@@ -282,10 +282,13 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
         check_denoiser(denoise)  # one of DENOISERS, and runnable here
         if not noisy:
             raise ValueError(f"denoise: {denoise!r} needs noise (noise_sigma or noise_shot > 0)")
-        if model is not None or method in _LAZY_METHODS:
-            raise ValueError(f"denoise: the sequential baseline is for classical methods; the learned method "
-                             f"denoises itself (got denoise {denoise!r} with method "
-                             f"{'model' if model is not None else method!r})")
+        # only what denoises itself: the learned method (its joint network with noise) and a joint model; the
+        # noise-free networks (learned_small, learned_tiny, a noise-free model) take a denoised mosaic like a
+        # classical method (they were refused: 'the learned method denoises itself')
+        if (model is not None and getattr(model, "noise_inputs", False)) or (model is None and method == "learned"):
+            raise ValueError(f"denoise: the sequential baseline is for methods that do not denoise; the learned "
+                             f"method and a joint model denoise themselves (got denoise {denoise!r} with "
+                             f"{'a joint model' if model is not None else 'method ' + repr(method)})")
     if model is not None:
         if not callable(model):
             raise TypeError(f"model: expected a callable network, got {type(model).__name__}")

@@ -720,7 +720,12 @@ def noise_features(shot_gain, read_var) -> torch.Tensor:
     if not (bool((a >= 0).all()) and bool((b >= 0).all())):
         raise ValueError(f"shot_gain, read_var: expected values >= 0, got {a.tolist()}, {b.tolist()}")
     a, b = torch.broadcast_tensors(a, b)
-    return torch.stack([a.sqrt() * 10.0, b.sqrt() * 100.0], 1)
+
+    def root(t):  # sqrt with a finite derivative at 0 (d sqrt / dt there was inf: NaN through the network)
+        pos = t > 0
+        return torch.where(pos, torch.where(pos, t, torch.ones_like(t)).sqrt(), torch.zeros_like(t))
+
+    return torch.stack([root(a) * 10.0, root(b) * 100.0], 1)
 
 
 def noise_parameters(features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

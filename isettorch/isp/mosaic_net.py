@@ -83,8 +83,20 @@ class MosaicReconstructionNet(nn.Module):
         if weights.dim() != 4 or weights.shape[1] != self.num_filters or weights.shape[-2:] != raw.shape[-2:]:
             raise ValueError(f"weights: expected ({self.num_filters}, H, W) or (B, {self.num_filters}, H, W) with "
                              f"H, W = {tuple(raw.shape[-2:])}, got {tuple(weights.shape)}")
+        # named here (torch's own errors named no argument): the 3x3 reflect padding needs 2 samples a side, the
+        # context path 2 blocks; the network's dtype; one weights map or one per item
+        h, w_px = raw.shape[-2:]
+        least = max(self.context_scale + 1, 2)
+        if min(h, w_px) < least:
+            why = f", the context path 2 blocks of {self.context_scale}" if self.context_scale else ""
+            raise ValueError(f"raw: expected a mosaic of at least {least} x {least} pixels (the 3x3 convolutions need "
+                             f"2 a side{why}), got {h} x {w_px}")
+        dt = next(self.parameters()).dtype
+        if raw.dtype != dt:
+            raise ValueError(f"raw: expected the network's dtype {dt}, got {raw.dtype} (convert one to the other)")
+        if weights.shape[0] not in (1, raw.shape[0]):
+            raise ValueError(f"weights: expected 1 or {raw.shape[0]} maps (one per item), got {weights.shape[0]}")
         w = weights.to(raw.dtype).expand(raw.shape[0], -1, -1, -1)
-        h = raw.shape[-2]
         if (not self.context_scale and raw[0, 0].numel() > STRIP_PIXELS and h > 2 * STRIP_ROWS
                 and not records_grad(raw, w, self)):
             # a large image in inference: strips of STRIP_ROWS rows, each with `depth` more on both sides (the

@@ -147,6 +147,19 @@ def test_denoise_errors():
         ev.evaluate_demosaic(ims, "learned", denoise="nlmeans", noise_sigma=0.01)
 
 
+@pytest.mark.parametrize("method", ["learned_small", "learned_tiny"])
+def test_the_noise_free_networks_take_the_denoised_mosaic(method):
+    # learned_small and learned_tiny are noise-free networks (only 'learned' switches to the joint one with noise):
+    # they were refused a denoiser ('the learned method denoises itself'), so nlmeans-then-network could not be
+    # scored. Denoised, they score above the network on the noisy mosaic, as the classical methods do.
+    a = _image(64, 64, seed=2)
+    kw = dict(crop=4, noise_sigma=0.05, seed=1)
+    plain = ev.evaluate_demosaic([("a", a)], method, **kw)
+    den = ev.evaluate_demosaic([("a", a)], method, denoise="nlmeans", **kw)
+    assert den["denoise"] == "nlmeans" and den["network"] is None
+    assert den["mean_cpsnr"] > plain["mean_cpsnr"] + 2
+
+
 def test_noise_levels_whose_variance_overflows_are_refused():
     ims = [("a", _image(16, 16))]
     # sigma^2 of 1e300 overflows a float (max ~1.8e308), as does the a^2 of the Anscombe transform for a = 1e200

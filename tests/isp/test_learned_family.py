@@ -389,3 +389,34 @@ def test_a_model_of_another_dtype_is_named():
     """torch's "Input type (double) and bias type (float) should be the same" named neither argument."""
     with pytest.raises(ValueError, match=r"model: its weights are torch.float32, the mosaic raw is torch.float64"):
         learned.demosaic_learned(torch.rand(1, 1, 16, 16, dtype=torch.float64), model=learned.load_pretrained())
+
+
+def test_noise_features_have_finite_gradients_at_zero_noise():
+    # [sqrt(a) 10, sqrt(b) 100]: sqrt's derivative at 0 was inf (NaN through the network) for a = 0 or b = 0. Now 0
+    # there, and d/db sqrt(b) 100 = 50 / sqrt(b) elsewhere (5000 at b = 1e-4).
+    for av, bv, want in ((0.0, 1e-4, (0.0, 5000.0)), (1e-3, 0.0, (5 / math.sqrt(1e-3), 0.0)), (0.0, 0.0, (0.0, 0.0))):
+        a = torch.tensor(av, dtype=torch.float64, requires_grad=True)
+        b = torch.tensor(bv, dtype=torch.float64, requires_grad=True)
+        learned.noise_features(a, b).sum().backward()
+        assert (float(a.grad), float(b.grad)) == pytest.approx(want, rel=1e-12)
+
+
+def test_mosaic_reconstruction_net_names_what_it_cannot_take():
+    # each was a torch-internal RuntimeError naming no argument
+    from isettorch.isp.mosaic_net import MosaicReconstructionNet
+
+    def onehot(h, w):
+        idx = torch.tensor([[0, 1], [2, 3]]).repeat((h + 1) // 2, (w + 1) // 2)[:h, :w]
+        return torch.nn.functional.one_hot(idx, 4).permute(2, 0, 1).float()
+
+    net = MosaicReconstructionNet(4, width=8, depth=2).eval()
+    ctx = MosaicReconstructionNet(4, width=8, depth=2, context_scale=4).eval()
+    with pytest.raises(ValueError, match="raw: expected a mosaic of at least 2 x 2 pixels"):
+        net(torch.rand(1, 1, 1, 8), onehot(1, 8))
+    with pytest.raises(ValueError, match="raw: expected the network's dtype torch.float32, got torch.float64"):
+        net(torch.rand(1, 1, 8, 8, dtype=torch.float64), onehot(8, 8))
+    with pytest.raises(ValueError, match="weights: expected 1 or 2 maps"):
+        net(torch.rand(2, 1, 8, 8), onehot(8, 8)[None].expand(3, -1, -1, -1))
+    with pytest.raises(ValueError, match="raw: expected a mosaic of at least 5 x 5 pixels"):
+        ctx(torch.rand(1, 1, 3, 5), onehot(3, 5))
+    assert ctx(torch.rand(1, 1, 5, 5), onehot(5, 5)).shape == (1, 3, 5, 5)

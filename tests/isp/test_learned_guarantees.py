@@ -534,3 +534,18 @@ def test_the_joint_network_runs_a_noise_free_float64_mosaic_as_float32():
         out64 = learned.demosaic_learned(raw.double(), variant="joint_denoise", noise=noise)
         assert out64.dtype == torch.float64
         assert torch.allclose(out64.float(), out32, atol=1e-5), float((out64.float() - out32).abs().max())
+
+
+@pytest.mark.parametrize("noise", [(1e-3, 1e-4), (1e-3, 1e-6), (0.0, 1e-4)])
+def test_the_joint_model_keeps_a_constant_below_black_with_shot_noise(noise):
+    # A constant below black (noise below the black level) with shot noise: the classical expert's Anscombe transform
+    # clipped it at -(3a/8 + b/a) and the field came back grey, (-0.10, -0.10, -0.10) for (-0.5, -0.25, -0.125). A
+    # constant sub-plane is now its own denoised value.
+    from isettorch.isp.denoise import denoise_mosaic
+
+    field = torch.tensor([-0.5, -0.25, -0.125]).view(1, 3, 1, 1).expand(1, 3, 20, 22).contiguous()
+    out = learned.demosaic_learned(mosaic(field, "RGGB"), "RGGB", variant="joint_denoise",
+                                   noise=learned.noise_features(*noise).float())
+    torch.testing.assert_close(out, field, rtol=0, atol=1e-5)
+    flat = mosaic(field, "RGGB").double()
+    assert torch.equal(denoise_mosaic(flat, "nlmeans", noise_sigma=1e-3, noise_shot=1e-3), flat)
