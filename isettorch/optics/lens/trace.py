@@ -175,7 +175,8 @@ class LensGeometry:
             b_ = c * (x0 * dx + y0 * dy) - dz
             c_ = c * (x0 * x0 + y0 * y0)
             disc = b_ * b_ - a_ * c_
-            ok = disc >= 0
+            # (a ray grazing the sphere, disc 0, is a miss: sqrt's derivative there was inf, and NaN in a masked loss)
+            ok = disc > 0
             t1 = c_ / (-b_ + torch.sqrt(torch.where(ok, disc, torch.ones_like(disc))))
             if has_asph:
                 for _ in range(12):  # Newton on f(t) = z(t) - sag(rho^2(t))
@@ -188,8 +189,14 @@ class LensGeometry:
             rho2 = x * x + y * y
             if record:
                 heights.append(torch.sqrt(rho2))
-            _, ds, okd = self._sag_terms(i, rho2)
-            ok = ok & okd
+            sag, ds, okd = self._sag_terms(i, rho2)
+            # the point must lie on the surface: the quadric's root on the sphere's far side (a wide field through a
+            # strong meniscus: 2.4 mm off it) and an asphere's unconverged Newton steps (up to 262 mm off) were
+            # taken as hits, refracted by the surface's normal there
+            zl = t1 * dz
+            eps = torch.finfo(zl.dtype).eps
+            on = (zl - sag).abs() <= 1e3 * eps * (1 + zl.abs() + sag.abs() + rho2.sqrt())
+            ok = ok & okd & on
             t = t0 + t1
             opl = opl + n[i] * t
             p = torch.stack([x, y, zv + t1 * dz], -1)
