@@ -82,6 +82,20 @@ def first_line(err: BaseException) -> str:
     return (str(err).strip().splitlines() or [type(err).__name__])[0]
 
 
+def check_window(window, height: int, width: int, name: str, min_pixels: int = 1) -> tuple[int, int, int, int]:
+    """An end-exclusive ``(row0, row1, col0, col1)`` of integers inside a ``height x width`` image holding at least
+    ``min_pixels`` pixels (a region of interest; 0.5 was truncated to 0 and 2.7 to 2), else a ValueError naming
+    ``name``."""
+    if not (isinstance(window, (tuple, list)) and len(window) == 4 and all(is_integer(v) for v in window)):
+        raise ValueError(f"{name}: expected (row0, row1, col0, col1) integers, got {window!r}")
+    r0, r1, c0, c1 = (int(v) for v in window)
+    if not (0 <= r0 < r1 <= height and 0 <= c0 < c1 <= width) or (r1 - r0) * (c1 - c0) < min_pixels:
+        at_least = f" holding at least {min_pixels} pixels" if min_pixels > 1 else ""
+        raise ValueError(f"{name}: expected (row0, row1, col0, col1), end-exclusive, with 0 <= row0 < row1 <= "
+                         f"{height} and 0 <= col0 < col1 <= {width}{at_least}, got {window!r}")
+    return r0, r1, c0, c1
+
+
 def check_float_dtype(dtype, name: str = "dtype") -> torch.dtype:
     """``dtype`` if it is torch.float32 or torch.float64 (the precisions the library computes in), else a
     ValueError naming ``name``."""

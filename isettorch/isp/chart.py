@@ -13,7 +13,7 @@ import warnings
 
 import torch
 
-from .._checks import check_finite, is_integer
+from .._checks import check_finite, check_window, is_integer
 from .colour import reflectance_set, white_xyz, xyz_responses
 
 __all__ = ["patch_means", "macbeth_true_xyz", "macbeth_delta_e", "gray_patch_snr", "gray_patch_snr_db",
@@ -179,7 +179,7 @@ def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5,
         raise ValueError(f"channel: expected None, a CFA letter of {names} or an index in 0..{len(names) - 1}, "
                          f"got {channel!r}")
     h, w = raw.data.shape[-2:]
-    r0, r1, c0, c1 = _check_window(window, h, w)
+    r0, r1, c0, c1 = (0, h, 0, w) if window is None else check_window(window, h, w, "window")
     masks = raw.channel_masks()
     sig = (raw.noise_free.double() - raw.levels()[0])[0, 0, r0:r1, c0:c1]
     res = (raw.data[0, 0].double() - raw.noise_free[0, 0].double())[r0:r1, c0:c1]
@@ -208,18 +208,6 @@ def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5,
             snr.append(20 * math.log10(s_mean / n_std))
             notes.append(None)
     return {"channel": names[c], "snr_db": snr, "pixels": pixels, "notes": notes}
-
-
-def _check_window(window, h: int, w: int) -> tuple[int, int, int, int]:
-    """A ``(row0, row1, col0, col1)`` window inside an ``h x w`` image (None: all of it)."""
-    if window is None:
-        return 0, h, 0, w
-    if not (isinstance(window, (tuple, list)) and len(window) == 4 and all(is_integer(v) for v in window)):
-        raise ValueError(f"window: expected (row0, row1, col0, col1) integers, got {window!r}")
-    r0, r1, c0, c1 = (int(v) for v in window)
-    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
-        raise ValueError(f"window: expected 0 <= row0 < row1 <= {h} and 0 <= col0 < col1 <= {w}, got {window!r}")
-    return r0, r1, c0, c1
 
 
 def gray_patch_snr_db(raw, channel: int | str | None = None, fraction: float = 0.5) -> list[float | None]:

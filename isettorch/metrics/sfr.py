@@ -24,7 +24,7 @@ import math
 
 import torch
 
-from .._checks import check_finite, is_integer
+from .._checks import check_finite, check_window
 from .difference import working_dtype
 
 OVERSAMPLING = 4
@@ -273,17 +273,6 @@ def _mtf_level(freq: torch.Tensor, sfr: torch.Tensor, level: float = 0.5) -> tor
     return f0 + (s0 - level) / (s0 - s1) * (f1 - f0)
 
 
-def _check_roi(roi, h: int, w: int) -> tuple[int, int, int, int]:
-    """An end-exclusive ``(row0, row1, col0, col1)`` of integers inside an ``h x w`` image (0.5 was truncated to 0)."""
-    if not (isinstance(roi, (tuple, list)) and len(roi) == 4 and all(is_integer(v) for v in roi)):
-        raise ValueError(f"roi: expected (row0, row1, col0, col1) integers, got {roi!r}")
-    r = tuple(int(v) for v in roi)
-    if not (0 <= r[0] < r[1] <= h and 0 <= r[2] < r[3] <= w):
-        raise ValueError(f"roi: expected (row0, row1, col0, col1), end-exclusive, with 0 <= row0 < row1 <= {h} and "
-                         f"0 <= col0 < col1 <= {w}, got {roi}")
-    return r
-
-
 def find_edge_roi(image: torch.Tensor, margin_px: int = 20, trim: float = 0.1) -> tuple[int, int, int, int]:
     """Automatic ROI around the dominant straight edge of a slanted-edge image [H, W].
 
@@ -374,7 +363,7 @@ def esfr(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, auto
         elif roi is None:
             r = (0, flat.shape[-2], 0, flat.shape[-1])
         else:
-            r = _check_roi(roi, flat.shape[-2], flat.shape[-1])
+            r = check_window(roi, flat.shape[-2], flat.shape[-1], "roi")
         rois.append(r)
         results.append(_esfr_single(flat[i, r[0]:r[1], r[2]:r[3]], max_empty_bins, min_cnr))
     freq = results[0]["freq"].to(device=image.device, dtype=image.dtype)
@@ -477,7 +466,7 @@ def esfr_cfa(mosaic: torch.Tensor, cfa, mode: str = "luminance", roi: tuple[int,
         roi = find_edge_roi(_balanced_mosaic(mosaic.detach(), index_map))
     used = (0, H, 0, W)
     if roi is not None:
-        r = _check_roi(roi, H, W)
+        r = check_window(roi, H, W, "roi")
         r0, c0 = r[0] - r[0] % ph, r[2] - r[2] % pw  # whole cells: the cropped mosaic keeps the CFA phase
         mosaic = mosaic[r0:r[1], c0:r[3]]
         used = (r0, r[1], c0, r[3])  # (the ROI asked for was reported, not the cells measured)

@@ -7,7 +7,7 @@ import numbers
 
 import torch
 
-from .._checks import as_tensor, check_bool, check_finite, check_nonnegative, is_integer
+from .._checks import as_tensor, check_bool, check_finite, check_nonnegative, check_window
 
 
 def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = None, db: bool = False) -> torch.Tensor:
@@ -27,12 +27,7 @@ def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = Non
         raise ValueError(f"image: expected a tensor (..., H, W), got "
                          f"{tuple(image.shape) if isinstance(image, torch.Tensor) else type(image).__name__}")
     if roi is not None:
-        if not (isinstance(roi, (tuple, list)) and len(roi) == 4 and all(is_integer(v) for v in roi)):
-            raise ValueError(f"roi: expected four integers (row0, row1, col0, col1), got {roi!r}")  # (2.7 was 2)
-        r0, r1, c0, c1 = (int(v) for v in roi)
-        if not (0 <= r0 < r1 <= image.shape[-2] and 0 <= c0 < c1 <= image.shape[-1]) or (r1 - r0) * (c1 - c0) < 2:
-            raise ValueError(f"roi: expected (row0, row1, col0, col1) inside {tuple(image.shape[-2:])} with at least "
-                             f"2 pixels, got {roi}")
+        r0, r1, c0, c1 = check_window(roi, image.shape[-2], image.shape[-1], "roi", min_pixels=2)
         image = image[..., r0:r1, c0:c1]
     elif image.shape[-2] * image.shape[-1] < 2:  # (one pixel has no standard deviation: NaN)
         raise ValueError(f"image: expected at least 2 pixels, got shape {tuple(image.shape)}")

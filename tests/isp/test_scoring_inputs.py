@@ -51,7 +51,7 @@ def test_measurements_refuse_what_they_cannot_measure():
     assert xy_to_xyz(xy[:1], Y=2.0, dim=-1)[0, 1] == 2.0
     img = torch.rand(1, 1, 8, 8, dtype=torch.float64) + 0.5
     for roi in ((0.5, 2.7, 0, 4), (0, 4, 0)):
-        with pytest.raises(ValueError, match="roi: expected four integers"):
+        with pytest.raises(ValueError, match=r"roi: expected \(row0, row1, col0, col1\) integers"):
             snr_uniform(img, roi=roi)
     with pytest.raises(ValueError, match="image: expected at least 2 pixels"):
         snr_uniform(torch.ones(1, 1))
