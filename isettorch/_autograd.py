@@ -32,6 +32,12 @@ def records_grad(*values) -> bool:
     return False
 
 
+def safe_sqrt(x: torch.Tensor) -> torch.Tensor:
+    """sqrt with a finite gradient (0) at x <= 0: no sqrt(0) trap (zero light, an OTF's DC, a zero noise level)."""
+    pos = x > 0
+    return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.zeros_like(x))
+
+
 def tensor_cache(maxsize: int):
     """``functools.lru_cache(maxsize)`` whose misses are computed outside ``torch.inference_mode``: a tensor first
     cached under inference mode is an inference tensor, which autograd refuses to save for backward in every later

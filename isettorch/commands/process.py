@@ -294,7 +294,7 @@ def run(args) -> int:
 
     from .._progress import progress
     from ..io.frames import RAW_BLACK_TOLERANCE_DN, check_sample_bits
-    from ..io.images import write_image
+    from ..io.images import _ORIENT, write_image
     from ._outputs import Outputs, check_dir, check_not_input
 
     for f in args.raw:
@@ -384,8 +384,6 @@ def run(args) -> int:
                     raise
                 raise ValueError(f"RAW: {f}: {str(err).removeprefix('raw: ')}") from err
             if orientation != 1:  # as the camera displays it (a portrait frame upright), the mosaic processed as stored
-                from ..io.images import _ORIENT
-
                 rgb = torch.from_numpy(np.ascontiguousarray(_ORIENT[orientation](rgb.permute(1, 2, 0).numpy())))
                 rgb = rgb.permute(2, 0, 1)
             tmp = staged.temporary(path)

@@ -46,7 +46,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .._autograd import records_grad, tensor_cache
+from .._autograd import records_grad, safe_sqrt, tensor_cache
 from .._checks import FLOAT_DTYPES, check_bool, check_finite, check_zip_crc
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
 from .demosaicing.linear import demosaic_malvar2004
@@ -720,12 +720,8 @@ def noise_features(shot_gain, read_var) -> torch.Tensor:
     if not (bool((a >= 0).all()) and bool((b >= 0).all())):
         raise ValueError(f"shot_gain, read_var: expected values >= 0, got {a.tolist()}, {b.tolist()}")
     a, b = torch.broadcast_tensors(a, b)
-
-    def root(t):  # sqrt with a finite derivative at 0 (d sqrt / dt there was inf: NaN through the network)
-        pos = t > 0
-        return torch.where(pos, torch.where(pos, t, torch.ones_like(t)).sqrt(), torch.zeros_like(t))
-
-    return torch.stack([root(a) * 10.0, root(b) * 100.0], 1)
+    # (d sqrt / dt at 0 was inf: NaN through the network at a or b = 0)
+    return torch.stack([safe_sqrt(a) * 10.0, safe_sqrt(b) * 100.0], 1)
 
 
 def noise_parameters(features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from .._autograd import records_grad
+from .._autograd import records_grad, safe_sqrt
 from .base import ShiftInvariantLens, _check_crop
 from .isetcam import compute_oi_scene
 
@@ -46,11 +46,8 @@ def dl_otf(fy: torch.Tensor, fx: torch.Tensor, wavelengths_nm: torch.Tensor, f_n
             raise ValueError(f"f_number: expected positive values, got {f_number.detach().reshape(-1).tolist()}")
         raise ValueError(f"wavelengths_nm: expected finite positive wavelengths, got {w.reshape(-1).tolist()}")
     r2 = fy[:, :, None] ** 2 + fx[:, None, :] ** 2  # [B, My, Mx]
-    if records_grad(r2):  # sqrt's derivative at DC is 0/0: NaN through the spacing (hfov, distance) even there
-        pos = r2 > 0
-        rho = torch.where(pos, torch.sqrt(torch.where(pos, r2, torch.ones_like(r2))), torch.zeros_like(r2))
-    else:
-        rho = torch.sqrt(r2)
+    # sqrt's derivative at DC is 0/0: NaN through the spacing (hfov, distance) even there
+    rho = safe_sqrt(r2) if records_grad(r2) else torch.sqrt(r2)
     lam_n = wavelengths_nm.to(rho.dtype)[None, :] * 1e-9 * f_number.to(rho.dtype).reshape(-1, 1)  # [B, L]
     step = max(1, _OTF_CHUNK_ELEMENTS // rho.numel())
     if step >= lam_n.shape[1] or records_grad(rho, lam_n):

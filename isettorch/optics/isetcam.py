@@ -27,7 +27,7 @@ import math
 import torch
 
 from .. import constants
-from .._autograd import records_grad
+from .._autograd import records_grad, safe_sqrt
 from .._cache import BoundedCache
 from .._checks import (
     as_tensor,
@@ -106,8 +106,7 @@ def dl_otf_isetcam(wavelengths_nm: torch.Tensor, f_number: torch.Tensor, focal_l
     r2 = fy[:, :, None] ** 2 + fx[:, None, :] ** 2  # [B, H, W]
     # rho = sqrt(r2), with a finite gradient at DC: sqrt'(0) is infinite, times the 0 of d(r2) gave NaN for every
     # input the frequency grid depends on (hfov_deg, focal_length_m)
-    dc = r2 == 0
-    rho = torch.where(dc, torch.zeros_like(r2), torch.where(dc, torch.ones_like(r2), r2).sqrt())
+    rho = safe_sqrt(r2)
     s = rho[:, None] / fc[:, :, None, None]
     inside = s < 1
     sc = s.clamp(max=1.0)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import torch
 
-from .._autograd import records_grad
+from .._autograd import records_grad, safe_sqrt
 from .._checks import check_seed, is_integer
 
 __all__ = ["SHOT_NOISE_MODES", "safe_sqrt", "shot_noise", "isetcam_shot_noise", "normal", "round_half_away",
@@ -20,12 +20,6 @@ __all__ = ["SHOT_NOISE_MODES", "safe_sqrt", "shot_noise", "isetcam_shot_noise", 
 
 SHOT_NOISE_MODES = ("poisson", "gaussian", "off")
 POISSON_GAUSSIAN_ABOVE_E = 2.0 ** 31  # 'poisson' shot noise is Gaussian, N(mean, mean), above this mean (electrons)
-
-
-def safe_sqrt(x: torch.Tensor) -> torch.Tensor:
-    """sqrt with a finite gradient (0) at x <= 0: no sqrt(0) trap at zero light."""
-    pos = x > 0
-    return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.zeros_like(x))
 
 
 def normal(like: torch.Tensor, generator: torch.Generator | None, shape=None) -> torch.Tensor:
