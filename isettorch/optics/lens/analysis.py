@@ -1,4 +1,5 @@
-"""Lens analysis from real rays with OpticStudio's default conventions (object at infinity, no ray aiming), except
+"""Lens analysis from real rays with OpticStudio's default conventions (the file's object distance, infinity for
+camera lenses; no ray aiming), except
 for the image plane: here the primary wavelength's paraxial focus, where OpticStudio takes the file's image surface
 (the last thickness, which a designer sets to the best focus). The two differ for the bundled Cooke triplet by
 0.229 mm (its file focuses inside the paraxial focus: on-axis MTF at 20 / 40 cycles/mm 0.51 / 0.20 here against
@@ -29,7 +30,8 @@ focus. ``LensOptics`` renders on this plane too.
   Optics*, 3rd ed., ch. 6), image plane at the primary wavelength's paraxial focus; frequency scale from the real
   marginal rays' direction cosines: cutoff = n' |M(0, +1) - M(0, -1)| / lambda (tangential), the same with L (sagittal).
 
-Finite conjugates (``object_distance_mm``, ``focus_distance_mm``; both default to infinity, which is exactly the
+Finite conjugates (``object_distance_mm``, ``focus_distance_mm``; both default to the prescription's
+``object_distance_mm``, the conjugate the file was designed for: infinity for camera lenses, which is exactly the
 lens-report convention above). Distances are measured from the object (or focus) plane to the first lens vertex
 (OpticStudio's object-surface thickness). The field stays an angle theta from the entrance-pupil centre: the object
 point lies at height -(D + z_EP) tan(theta) on the plane z = -D, so the chief ray is the same ray as at infinity;
@@ -66,7 +68,8 @@ class LensAnalysis:
         lens: a :class:`Prescription`, a path or a bundled lens name.
         curvature_per_mm: optional ``[S]`` tensor of the lens surfaces' curvatures (for gradients).
         object_distance_mm, focus_distance_mm: the object and the distance focused at (mm to the first vertex;
-            ``math.inf`` for infinity; module docstring).
+            ``math.inf`` for infinity; module docstring); None (the default) for the prescription's
+            ``object_distance_mm``, the conjugate it was designed for (infinity for most camera lenses).
         image_plane: the sensor plane (:attr:`sensor_z`): ``'paraxial'`` (the primary wavelength's paraxial focus)
             or ``'prescription'`` (the file's image surface, :attr:`prescription_image_distance_mm`).
 
@@ -74,7 +77,7 @@ class LensAnalysis:
     """
 
     def __init__(self, lens, curvature_per_mm: torch.Tensor | None = None, dtype=torch.float64, *,
-                 object_distance_mm: float = math.inf, focus_distance_mm: float = math.inf,
+                 object_distance_mm: float | None = None, focus_distance_mm: float | None = None,
                  image_plane: str = "paraxial"):
         if isinstance(lens, LensAnalysis):
             self.prescription, self.geometry = lens.prescription, lens.geometry
@@ -87,6 +90,9 @@ class LensAnalysis:
             raise ValueError(f"image_plane: 'prescription' needs the file's image distance (the last surface's "
                              f"thickness > 0); {self.prescription.name!r} has none")
         self.image_plane = image_plane
+        design_mm = self.prescription.object_distance_mm
+        object_distance_mm = design_mm if object_distance_mm is None else object_distance_mm
+        focus_distance_mm = design_mm if focus_distance_mm is None else focus_distance_mm
         for name, v in (("object_distance_mm", object_distance_mm), ("focus_distance_mm", focus_distance_mm)):
             if not (isinstance(v, (int, float)) and float(v) > 0):
                 raise ValueError(f"{name}: expected a positive distance (mm, object plane to the first lens vertex; "
@@ -179,13 +185,13 @@ class LensAnalysis:
     def sensor_z(self) -> torch.Tensor:
         """The image plane the lens is focused on (mm from the surface-1 vertex): the paraxial image of
         ``focus_distance_mm`` at the primary wavelength; with ``image_plane='prescription'`` the file's image surface
-        (where its designer put the best focus, as OpticStudio evaluates it), moved by the same back-focus shift
-        for a finite ``focus_distance_mm``."""
-        z = self.geometry.vertex_z[-1] + self.paraxial_image_distance_mm(self.reference_wavelength_nm,
-                                                                         self.focus_distance_mm)
+        (where its designer put the best focus for the file's object distance, as OpticStudio evaluates it),
+        moved by the paraxial back-focus shift from that object distance to ``focus_distance_mm``."""
+        wl = self.reference_wavelength_nm
+        z = self.geometry.vertex_z[-1] + self.paraxial_image_distance_mm(wl, self.focus_distance_mm)
         if self.image_plane == "prescription":
             z = z + (self.prescription_image_distance_mm
-                     - self.paraxial_image_distance_mm(self.reference_wavelength_nm, math.inf))
+                     - self.paraxial_image_distance_mm(wl, self.prescription.object_distance_mm))
         return z
 
     def image_height_per_tan_mm(self) -> torch.Tensor:

@@ -86,7 +86,9 @@ class LensOptics(nn.Module):
         cache_elements: the per-geometry maps (warp grid, RI x camera equation, eigen-PSF weights, kernel
             spectra) are cached when they hold at most this many values (else recomputed every call).
         transmittance: scalar lens transmittance (absorption and Fresnel losses are not ray traced).
-        focus_distance_m: object distance the lens is focused at (m, to the first lens vertex; ``math.inf``).
+        focus_distance_m: object distance the lens is focused at (m, to the first lens vertex; ``math.inf``, the
+            default, also for a lens file designed for a finite object: pass its
+            ``prescription.object_distance_mm / 1000`` to focus where its designer did).
         image_plane: ``'paraxial'`` (the default: the primary wavelength's paraxial focus) or ``'prescription'``
             (the file's image surface, where its designer focused it; :class:`LensAnalysis`); None keeps a given
             analysis's.

@@ -5,10 +5,13 @@ converted on reading: radii (``CURV`` is 1/length), thicknesses, semi-diameters,
 the unit L (10, 25.4 or 1000 mm), and the even-asphere coefficient a_k of r^(2k) (units length^(1-2k), so that
 the sag is a length) by L^(1-2k).
 
-Surface 0 is the object, at infinity: ``DISZ INFINITY``, or a finite ``|DISZ| >=`` :data:`INFINITE_OBJECT_MM`
-(1e9 mm; files write 1.0E+10 for infinity). Reading such a distance as infinity changes the paraxial quantities
-by about f/DISZ relative (< 1e-7 for f < 100 mm). Nearer objects are refused. The last surface is the image and
-must be flat (the analysis works on paraxial image planes). The stop is a surface strictly between them.
+Surface 0 is the object: at infinity (``DISZ INFINITY``, or a finite ``|DISZ| >=`` :data:`INFINITE_OBJECT_MM`,
+1e9 mm: files write 1.0E+10 for infinity; reading such a distance as infinity changes the paraxial quantities by
+about f/DISZ relative, < 1e-7 for f < 100 mm) or at a finite distance ``DISZ > 0`` (the conjugate the lens was
+designed for, kept as :attr:`Prescription.object_distance_mm`: :class:`~isettorch.optics.lens.LensAnalysis` and the
+lens report work there by default, as OpticStudio does; the surface list itself always starts at infinity). A
+virtual object (``DISZ < 0``) or one on the first vertex (0) is refused. The last surface is the image and must be
+flat (the analysis works on paraxial image planes). The stop is a surface strictly between them.
 
 Surface types: ``STANDARD`` (sphere/conic) and ``EVENASPH`` (sag z = c r^2 / (1 + sqrt(1 - (1+k) c^2 r^2)) +
 sum_i a_i r^(2i), Zemax ``PARM 1..8`` = a_1..a_8). Apertures: ``CLAP rmin rmax`` (circular) and ``FLAP 0 semi``
@@ -18,8 +21,11 @@ image is the stop's semi-diameter ``DIAM``, a **semi**-diameter in the file; opt
 diameter) or ``FNUM N 0`` (image-space F/#, OpticStudio's definition: paraxial EFL / paraxial EPD at the primary
 wavelength, object at infinity, so EPD = EFL / N; resolved by ``LensAnalysis``).
 
-Fields: angles (``FTYP 0``), or paraxial (``FTYP 2``) or real (``FTYP 3``) image heights in lens units, converted to
-the field angles that reach them (:func:`field_angles_of_image_heights`); ``XFLN``/``YFLN`` (current dialect; the
+Fields: angles (``FTYP 0``); object heights (``FTYP 1``, lens units; a finite object only), converted to the angle
+theta = atan(h / (D + z_EP)) of the chief ray from the object point to the paraxial entrance pupil's centre, z_EP
+from the first vertex (the analysis places a field's object point there); or paraxial (``FTYP 2``) or real
+(``FTYP 3``) image heights in lens units, converted to the field angles that reach them on the paraxial image plane
+of the file's object (:func:`field_angles_of_image_heights`); ``XFLN``/``YFLN`` (current dialect; the
 number of fields is FTYP's third value) or ``XFLD``/``YFLD`` (older dialect, e.g. ``FTYP 0 0`` / ``XFLD 0 0 0`` /
 ``YFLD 0 5 10``: one value per field).
 Wavelengths (um in the file): ``WAVM n value weight`` (current; the number in use is FTYP's fourth value: files
@@ -31,7 +37,8 @@ V_d ...`` (an index and Abbe number, as designs from patents give them: Buchdahl
 
 Refused with a :class:`PrescriptionError` naming the keyword: a truncated or non-numeric operand (``line 12:
 CURV: expected a value``), non-sequential mode, surface types other than STANDARD and EVENASPH, mirrors,
-decentred or non-circular apertures, object heights and other field types (``FTYP`` 1, 4, ...), object-space
+decentred or non-circular apertures, object heights of an object at infinity, other field types (``FTYP`` 4,
+...), object-space
 telecentricity and afocal image space (``FTYP`` flags), nonzero vignetting factors (``VDXN VDYN VCXN VCYN VANN``:
 OpticStudio would trace a vignetted pupil; zeros, as files usually write, are accepted), ``OBNA``, a curved image
 surface, a negative thickness inside glass (a negative air gap is legitimate), and both dialects of the field or
@@ -84,11 +91,11 @@ class Surface:
 
 @dataclasses.dataclass
 class Prescription:
-    """A rotationally symmetric sequential lens, object at infinity.
+    """A rotationally symmetric sequential lens.
 
     Args:
-        surfaces: object, the lens surfaces, image (flat; its position is not used by the analysis, which works
-            on paraxial image planes).
+        surfaces: object (its thickness infinite: the object distance is ``object_distance_mm``), the lens
+            surfaces, image (flat; its position is used only with ``LensAnalysis(image_plane='prescription')``).
         entrance_pupil_diameter_mm: EPD, or None when ``float_by_stop`` or ``image_f_number`` gives the pupil.
         float_by_stop: the EPD is the stop's semi-diameter imaged into object space.
         image_f_number: image-space F/# (EPD = EFL / F/# at the primary wavelength).
@@ -96,6 +103,9 @@ class Prescription:
         wavelengths_nm, primary_wavelength_nm: the file's wavelengths; the paraxial data (EFL, F/#, pupils, the
             focus) are computed at the primary one.
         catalogs: GCAT catalogue names, in the file's order.
+        object_distance_mm: the object distance the lens was designed for (mm, object plane to the first vertex:
+            the file's object thickness; ``math.inf``, the default, for an object at infinity). The analysis and
+            the lens report default to it; ``LensOptics`` focuses where its ``focus_distance_m`` says.
     """
 
     surfaces: list[Surface]
@@ -108,6 +118,7 @@ class Prescription:
     name: str = ""
     source: str = ""
     image_f_number: float | None = None
+    object_distance_mm: float = math.inf
 
     def __post_init__(self):
         lens = self.name or "lens"
@@ -123,9 +134,13 @@ class Prescription:
             raise PrescriptionError(f"{lens}: STOP on the {where} surface ({stops[0]}); the stop must be a lens "
                                     f"surface strictly between the object (0) and the image ({last})")
         if not math.isinf(self.surfaces[0].thickness_mm):
-            raise PrescriptionError(f"{lens}: only objects at infinity are supported (object thickness "
-                                    f"{self.surfaces[0].thickness_mm} mm; |thickness| >= {INFINITE_OBJECT_MM:g} mm "
-                                    f"is read as infinity)")
+            raise PrescriptionError(f"{lens}: surface 0: the object surface's thickness is infinite (got "
+                                    f"{self.surfaces[0].thickness_mm} mm); a finite object distance is "
+                                    f"object_distance_mm")
+        d = self.object_distance_mm
+        if isinstance(d, bool) or not isinstance(d, (int, float)) or not d > 0:
+            raise PrescriptionError(f"{lens}: object_distance_mm: expected a distance > 0 mm (object plane to the "
+                                    f"first vertex; math.inf for infinity), got {d!r}")
         if self.surfaces[last].curvature_per_mm != 0:
             raise PrescriptionError(f"{lens}: image surface {last}: curvature {self.surfaces[last].curvature_per_mm} "
                                     f"per mm (CURV); only a flat image surface is supported")
@@ -309,16 +324,16 @@ def read_zmx(path: str | Path) -> Prescription:
                 raise PrescriptionError(f"{at}: F-number type {tok[2]} is not supported; expected 0 (image-space "
                                         f"F/#)")
         elif op == "OBNA":
-            raise PrescriptionError(f"{at}: system aperture type {op} (object-space NA) is not supported for an "
-                                    f"object at infinity; expected ENPD, FLOA or FNUM")
+            raise PrescriptionError(f"{at}: system aperture type {op} (object-space NA) is not supported; "
+                                    f"expected ENPD, FLOA or FNUM")
         elif op == "GCAT":
             arg(1, "one or more glass catalogue names")
             catalogs = tuple(t.upper() for t in tok[1:])
         elif op == "FTYP":
             ftype = _int(arg(1, "the field type"), at)
             if ftype not in FIELD_TYPES:
-                raise PrescriptionError(f"{at}: field type {ftype}; expected angles (FTYP 0) or image heights (2: "
-                                        f"paraxial, 3: real)")
+                raise PrescriptionError(f"{at}: field type {ftype}; expected angles (FTYP 0), object heights (1) or "
+                                        f"image heights (2: paraxial, 3: real)")
             field_type, field_type_at = ftype, at
             # FTYP type telecentric nfields nwaves normalisation ? afocal (older files: FTYP type telecentric)
             flag = {i: _int(tok[i], at) for i in (2, 3, 4, 7) if i < len(tok)}
@@ -440,8 +455,15 @@ def read_zmx(path: str | Path) -> Prescription:
         if s.material is not None and si not in disz_at:  # (read as glass of thickness 0; the YAML reader refuses it)
             raise PrescriptionError(f"{surface_at[si]}: surface {si} is followed by glass ({s.material}) but has no "
                                     f"DISZ; expected its thickness (lens units to the next surface)")
-    if math.isfinite(surfaces[0].thickness_mm) and abs(surfaces[0].thickness_mm) >= INFINITE_OBJECT_MM:
-        surfaces[0].thickness_mm = math.inf  # changes paraxial data by ~ f / DISZ relative (module docstring)
+    object_mm = surfaces[0].thickness_mm if surfaces else math.inf
+    if abs(object_mm) >= INFINITE_OBJECT_MM:  # (INFINITY, or 1e10 as files write it)
+        object_mm = math.inf  # changes paraxial data by ~ f / DISZ relative (module docstring)
+    elif not object_mm > 0:
+        raise PrescriptionError(f"{disz_at.get(0, surface_at.get(0, where))}: object distance (surface 0's DISZ) "
+                                f"{object_mm / unit:g}; expected a real object: a distance > 0 lens units, or "
+                                f"INFINITY (a virtual object or one on the first vertex is not supported)")
+    if surfaces:
+        surfaces[0].thickness_mm = math.inf
     # --- fields -------------------------------------------------------------------------------------------------
     dialects = {d for d, _ in fields}
     if len(dialects) > 1:
@@ -499,36 +521,63 @@ def read_zmx(path: str | Path) -> Prescription:
     if bad:
         raise PrescriptionError(f"{where}: wavelengths {bad} nm; expected finite values > 0 (um in the file)")
     kw = {"catalogs": catalogs} if catalogs else {}
-    heights = [v * unit for v in field_angles] if field_type else None  # image heights (mm), FTYP 2 or 3
+    heights = [v * unit for v in field_angles] if field_type else None  # object (FTYP 1) or image heights (mm)
+    if field_type == 1 and math.isinf(object_mm):
+        raise PrescriptionError(f"{field_type_at}: field type 1 (object heights) with the object at infinity; "
+                                f"expected angles (FTYP 0) or image heights (2, 3), or a finite object distance")
     try:
         lens = Prescription(surfaces=surfaces, entrance_pupil_diameter_mm=epd, float_by_stop="FLOA" in apertures,
                             image_f_number=apertures.get("FNUM"),
                             field_angles_deg=(field_angles if heights is None else ()) or (0.0,),
                             wavelengths_nm=tuple(wl), primary_wavelength_nm=primary, name=name, source=str(path),
-                            **kw)
+                            object_distance_mm=object_mm, **kw)
     except PrescriptionError as e:
         raise PrescriptionError(f"{where}: {e}") from None
     if heights:
-        angles = field_angles_of_image_heights(lens, heights, real=field_type == 3, where=field_type_at)
+        if field_type == 1:
+            angles = field_angles_of_object_heights(lens, heights)
+        else:
+            angles = field_angles_of_image_heights(lens, heights, real=field_type == 3, where=field_type_at)
         lens = dataclasses.replace(lens, field_angles_deg=tuple(angles))
     return lens
 
 
-#: Zemax field types read (FTYP's first value): 0 angles (deg), 2 paraxial and 3 real image heights (lens units)
-FIELD_TYPES = (0, 2, 3)
+#: Zemax field types read (FTYP's first value): 0 angles (deg), 1 object heights, 2 paraxial and 3 real image heights
+#: (lens units)
+FIELD_TYPES = (0, 1, 2, 3)
+
+
+def field_angles_of_object_heights(lens: Prescription, heights_mm) -> list[float]:
+    """The field angles (deg) of object points at ``heights_mm`` on the plane of the lens's finite object: theta =
+    atan(h / (D + z_EP)), the chief ray's slope from the object point to the centre of the paraxial entrance pupil
+    (primary wavelength; z_EP from the first vertex), where :meth:`LensAnalysis.rays` places a field's object
+    point (Zemax ``FTYP 1``)."""
+    from .analysis import LensAnalysis
+
+    d = lens.object_distance_mm
+    if math.isinf(d):
+        raise PrescriptionError(f"{lens.name or 'lens'}: object heights need a finite object distance "
+                                f"(object_distance_mm is infinite)")
+    ep_z = float(LensAnalysis(lens).ref["ep_z"])
+    if not d + ep_z > 0:
+        raise PrescriptionError(f"{lens.name or 'lens'}: the entrance pupil ({ep_z:g} mm from the first vertex) "
+                                f"lies at or before the object plane ({d:g} mm before it); object heights have no "
+                                f"field angle")
+    return [math.degrees(math.atan(abs(float(h)) / (d + ep_z))) for h in heights_mm]
 
 
 def field_angles_of_image_heights(lens: Prescription, heights_mm, *, real: bool, where: str = "") -> list[float]:
-    """The field angles (deg, object at infinity) whose chief rays reach the image ``heights_mm`` on the paraxial
-    image plane of the primary wavelength: paraxial heights (Zemax ``FTYP 2``) ``y = f tan(theta)``, f the
-    effective focal length; real heights (``FTYP 3``) by Newton's method on the traced chief ray's height, from the
-    paraxial angle (the distortion makes them differ)."""
+    """The field angles (deg) whose chief rays reach the image ``heights_mm`` on the paraxial image plane of the
+    primary wavelength, the object at the lens's ``object_distance_mm``: paraxial heights (Zemax ``FTYP 2``)
+    ``y = h' tan(theta)``, h' the paraxial chief-ray height per tan(theta) on that plane (the effective focal length
+    for an object at infinity); real heights (``FTYP 3``) by Newton's method on the traced chief ray's height, from
+    the paraxial angle (the distortion makes them differ)."""
     import torch
 
     from .analysis import LensAnalysis
 
     a = LensAnalysis(lens)
-    f = float(a.effective_focal_length_mm)
+    f = float(a.image_height_per_tan_mm())
     wl = lens.primary_wavelength_nm
     z0 = torch.zeros(1, dtype=a.dtype)
     image_z = a.image_plane_z(wl)
@@ -565,7 +614,7 @@ def field_angles_of_image_heights(lens: Prescription, heights_mm, *, real: bool,
 
 
 _YAML_KEYS = ("name", "source", "aperture", "field_angles_deg", "wavelengths_nm", "primary_wavelength_nm", "catalogs",
-              "surfaces")
+              "object_distance_mm", "surfaces")
 _YAML_SURFACE_KEYS = ("radius_mm", "curvature_per_mm", "thickness_mm", "material", "conic", "aspheric",
                       "semi_diameter_mm", "aperture_mm", "stop", "type")
 _YAML_APERTURE_KEYS = ("entrance_pupil_diameter_mm", "float_by_stop", "image_f_number")
@@ -618,7 +667,8 @@ def read_lens_yaml(path_or_dict) -> Prescription:
         wavelengths_nm: [486.1, 587.6, 656.3]
         primary_wavelength_nm: 587.6
         catalogs: [SCHOTT]
-        surfaces:            # lens surfaces in order (object at infinity and the flat image are implied)
+        object_distance_mm: .inf   # the object the lens is designed for (mm to the first vertex; default .inf)
+        surfaces:            # lens surfaces in order (the object surface and the flat image are implied)
           - {radius_mm: 22.01359, thickness_mm: 3.25896, material: N-SK16, semi_diameter_mm: 5}
           - {radius_mm: .inf, thickness_mm: 5, stop: true, semi_diameter_mm: 4}
           - {radius_mm: 20, conic: -1, aspheric: [0, 1e-5], thickness_mm: 40, aperture_mm: 6}
@@ -692,6 +742,8 @@ def read_lens_yaml(path_or_dict) -> Prescription:
     epd, fno = (None if ap.get(k) is None else _ynum(ap[k], f"{where}: aperture: {k}")
                 for k in ("entrance_pupil_diameter_mm", "image_f_number"))
     name = str(d.get("name", where))
+    if "object_distance_mm" in d:
+        kw["object_distance_mm"] = _ynum(d["object_distance_mm"], f"{where}: object_distance_mm")
     if "primary_wavelength_nm" in d:
         primary = _ynum(d["primary_wavelength_nm"], f"{where}: primary_wavelength_nm")
         if primary not in wl:  # (OpticStudio's primary is one of the system's wavelengths)

@@ -302,3 +302,74 @@ def test_kernel_matches_a_direct_transform_of_the_pupil(field, samples, bound):
     # checked by the chief-ray and centroid tests
     err = min(float((kernel - _pupil_dft_psf(a, field, wl, dx, half, s)).abs().sum()) for s in (1.0, -1.0))
     assert err < bound
+
+
+def _finite_object_file(tmp_path, ftyp, heights, object_mm=600.0, name="double_gauss"):
+    """The bundled lens's file rewritten with a finite object (surface 0's DISZ) and fields of type ``ftyp``."""
+    out, in_object = [], False
+    for line in (DATA_DIR / f"{name}.zmx").read_text().splitlines():
+        t = line.split()
+        if t[:1] == ["SURF"]:
+            in_object = t[1] == "0"
+        if t[:1] == ["FTYP"]:
+            line = f"FTYP {ftyp} 0 {len(heights)} 3 0 0 0"
+        elif t[:1] == ["XFLN"]:
+            line = "XFLN" + " 0" * len(heights)
+        elif t[:1] == ["YFLN"]:
+            line = "YFLN " + " ".join(str(h) for h in heights)
+        elif in_object and t[:1] == ["DISZ"]:
+            line = f"  DISZ {object_mm}"
+        out.append(line)
+    f = tmp_path / f"{name}_{ftyp}.zmx"
+    f.write_text("\n".join(out))
+    return f
+
+
+@pytest.mark.parametrize("ftyp, heights", [(1, (0, 70, 120)), (2, (0, 12, 20)), (3, (0, 12, 20))])
+def test_finite_object_file_fields_against_optiland(tmp_path, ftyp, heights):
+    """A file designed for an object 600 mm away is read at that conjugate (it was refused) with its fields as
+    object heights (FTYP 1) or paraxial / real image heights (2, 3): optiland 0.6.3 reads the same file and traces
+    its normalised fields; the chief rays land at the same image heights (1e-9 mm)."""
+    pytest.importorskip("optiland")
+    import warnings
+
+    warnings.filterwarnings("ignore")
+    from optiland.fileio import load_zemax_file
+
+    from isettorch.optics.lens import read_zmx
+
+    path = _finite_object_file(tmp_path, ftyp, heights)
+    p = read_zmx(path)
+    a = LensAnalysis(p)
+    assert p.object_distance_mm == 600.0 and math.isinf(p.surfaces[0].thickness_mm)
+    assert a.object_distance_mm == a.focus_distance_mm == 600.0  # the analysis defaults to the file's conjugate
+    assert float(a.magnification()) == pytest.approx(-0.1752, abs=1e-4)  # a 1:5.7 conjugate, not infinity's 0
+    o = load_zemax_file(str(path))
+    if p.float_by_stop:
+        o.set_aperture(aperture_type="EPD", value=float(a.ref["epd"]))
+    last = a.geometry.n_surfaces
+    wavelengths = (486.1, p.primary_wavelength_nm, 656.3) if ftyp == 1 else (p.primary_wavelength_nm,)
+    for wl in wavelengths:  # (image heights are defined at the primary wavelength)
+        o.set_thickness(float(a.paraxial_image_distance_mm(wl)), last)
+        for k in (1, 2):
+            y, _, _ = _chief_optiland(o, -heights[k] / heights[-1], wl)
+            assert float(a.image_height_mm(p.field_angles_deg[k] / p.max_field_deg, wl)) == pytest.approx(
+                abs(y), abs=1e-9)
+    if ftyp == 3:
+        assert float(a.image_height_mm(1.0, p.primary_wavelength_nm)) == pytest.approx(20.0, abs=1e-9)
+
+
+def test_finite_object_file_image_surface_is_the_designers_focus(tmp_path):
+    """``image_plane='prescription'`` is the file's image surface when focused at the file's object distance, and
+    moves by the paraxial back-focus shift from there (it was shifted as if the file were focused at infinity)."""
+    from isettorch.optics.lens import read_zmx
+
+    p = read_zmx(_finite_object_file(tmp_path, 0, (0, 10, 14)))
+    a = LensAnalysis(p, image_plane="prescription")
+    wl = p.primary_wavelength_nm
+    file_z = float(a.geometry.vertex_z[-1]) + a.prescription_image_distance_mm
+    assert float(a.sensor_z) == pytest.approx(file_z, abs=1e-12)
+    at_inf = a.at(math.inf, math.inf)
+    shift = float(a.paraxial_image_distance_mm(wl, math.inf) - a.paraxial_image_distance_mm(wl, 600.0))
+    assert shift < -10.0  # an object at 600 mm images 17.5 mm behind the infinity focus of this 100 mm lens
+    assert float(at_inf.sensor_z) == pytest.approx(file_z + shift, abs=1e-12)

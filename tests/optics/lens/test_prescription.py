@@ -208,12 +208,40 @@ def test_zero_vignetting_factors_and_ftyp_flags_accepted(tmp_path):
     assert p.field_angles_deg == (0.0, 5.0)
 
 
-def test_far_object_is_infinity_nearer_is_refused(tmp_path):
+def test_far_object_is_infinity_nearer_is_the_design_conjugate(tmp_path):
     far = [t.replace("DISZ INFINITY", "DISZ 1.0E+10") for t in _SINGLET_SURFACES]
-    assert math.isinf(read_zmx(_file(tmp_path, ["ENPD 10", *far])).surfaces[0].thickness_mm)
+    p = read_zmx(_file(tmp_path, ["ENPD 10", *far]))
+    assert math.isinf(p.surfaces[0].thickness_mm) and math.isinf(p.object_distance_mm)
+    # a finite object is the conjugate the file was designed for, in mm (it was refused); the surface list starts
+    # at infinity whatever the file's object distance
     near = [t.replace("DISZ INFINITY", "DISZ 1.0E+8") for t in _SINGLET_SURFACES]
-    with pytest.raises(PrescriptionError, match="only objects at infinity"):
-        read_zmx(_file(tmp_path, ["ENPD 10", *near]))
+    assert read_zmx(_file(tmp_path, ["ENPD 10", *near])).object_distance_mm == 1e8
+    cm = [t.replace("DISZ INFINITY", "DISZ 25") for t in _SINGLET_SURFACES]
+    p = read_zmx(_file(tmp_path, ["UNIT CM X W X CM MR CPMM", "ENPD 1", *cm]))
+    assert p.object_distance_mm == 250.0 and math.isinf(p.surfaces[0].thickness_mm)
+    # a virtual object, or one on the first vertex, is refused naming the line; object heights need a finite object
+    for bad in ("-300", "0"):
+        lines = [t.replace("DISZ INFINITY", f"DISZ {bad}") for t in _SINGLET_SURFACES]
+        with pytest.raises(PrescriptionError, match=rf"line 3: DISZ: object distance \(surface 0's DISZ\) {bad}; "):
+            read_zmx(_file(tmp_path, ["ENPD 10", *lines]))
+    with pytest.raises(PrescriptionError, match="line 2: FTYP: field type 1 .object heights. with the object at inf"):
+        read_zmx(_file(tmp_path, ["ENPD 10", "FTYP 1 0 2 1", "YFLN 0 5", *_SINGLET_SURFACES]))
+    # object heights of a finite object: theta = atan(h / (D + z_EP)), the stop (entrance pupil) on the first
+    # vertex here: z_EP = 0
+    obj = [t.replace("DISZ INFINITY", "DISZ 500") for t in _SINGLET_SURFACES]
+    p = read_zmx(_file(tmp_path, ["ENPD 10", "FTYP 1 0 2 1", "YFLN 0 40", *obj]))
+    assert p.field_angles_deg == pytest.approx((0.0, math.degrees(math.atan(40 / 500))), abs=1e-12)
+
+
+def test_yaml_object_distance(tmp_path):
+    base = {"aperture": {"entrance_pupil_diameter_mm": 10}, "catalogs": ["SCHOTT"],
+            "surfaces": [{"radius_mm": 50, "thickness_mm": 5, "material": "N-BK7", "stop": True},
+                         {"radius_mm": -50, "thickness_mm": 47}]}
+    assert math.isinf(read_lens_yaml(base).object_distance_mm)
+    assert read_lens_yaml({**base, "object_distance_mm": 800}).object_distance_mm == 800.0
+    for bad in (0, -5, "near", float("nan")):
+        with pytest.raises(PrescriptionError, match="object_distance_mm"):
+            read_lens_yaml({**base, "object_distance_mm": bad})
 
 
 def _asphere_lines(mm_per_unit, unit):
@@ -461,5 +489,5 @@ def test_image_height_fields_are_read_as_the_angles_that_reach_them(tmp_path):
     assert lens(3, real_mm / 10, "CM").field_angles_deg == pytest.approx((0.0, 12.0), abs=1e-9)
     paraxial = lens(2, efl * math.tan(math.radians(12))).field_angles_deg
     assert paraxial == pytest.approx((0.0, 12.0), abs=1e-9)
-    with pytest.raises(PrescriptionError, match=r"FTYP: field type 1; expected angles \(FTYP 0\) or image heights"):
-        lens(1, 5)
+    with pytest.raises(PrescriptionError, match=r"FTYP: field type 4; expected angles \(FTYP 0\), object heights"):
+        lens(4, 5)
