@@ -85,10 +85,48 @@ def _stats(planes: list[np.ndarray]) -> dict[str, Any]:
 FRAME_SIGNAL_RATIO_ERROR, FRAME_SIGNAL_RATIO_WARNING = 1.25, 1.05
 
 
+#: a dark folder's frame means spread by more than this many times the darks' per-pixel temporal noise (sigma_y) are
+#: refused (a lit frame among the darks); by more than ten times the noise of a frame mean, warned about
+DARK_SPREAD_PIXEL_SIGMAS = 3.0
+
+
+def _check_dark_frame_means(capture, step: float, warnings: list[str]) -> None:
+    """Every dark folder's frames at one level: a frame taken with the light on (or a leak) among the darks went into
+    the black level, dark current and DSNU without a word (a 2 % leak in one of four 10 ms darks: black 66.75 DN for
+    64, dark current 24 for 50 e-/s; a lit frame: black 198 DN). A frame mean varies by the temporal noise of a mean
+    of HW pixels, s_e^2 / HW + s_r^2 / H + s_c^2 / W (:func:`~isettorch.metrics.emva.temporal_noise_components`),
+    and a black level may drift by a step or two: a spread beyond 10 times that is warned about, beyond
+    :data:`DARK_SPREAD_PIXEL_SIGMAS` times a pixel's own temporal noise (light, not drift) refused."""
+    from ..metrics.emva import temporal_noise_components
+
+    for ms, stack in sorted(capture.dark.items()):
+        if stack.shape[0] < 2:
+            continue
+        means = stack.reshape(stack.shape[0], -1).mean(axis=1, dtype=np.float64)
+        spread = float(means.max() - means.min())
+        c = temporal_noise_components(torch.from_numpy(np.ascontiguousarray(stack, dtype=np.float64)))
+        h, w = stack.shape[-2:]
+        sd_mean = math.sqrt(max(float(c["var_pixel"]), 0.0) / (h * w) + max(float(c["var_row"]), 0.0) / h
+                            + max(float(c["var_col"]), 0.0) / w)
+        sd_pixel = math.sqrt(max(float(c["var"]), 0.0))
+        if spread <= max(2 * step, 10 * sd_mean):
+            continue
+        folder = capture.folders.get(("dark", ms), f"dark_{ms:g}ms")
+        shown = [round(float(v), 2) for v in means]
+        if spread > max(2 * step, DARK_SPREAD_PIXEL_SIGMAS * sd_pixel):
+            raise ValueError(f"{folder}: its frames' mean levels {shown} DN differ by {spread:.3g} DN, "
+                             f"{spread / max(sd_pixel, 1e-12):.3g} times a pixel's temporal noise ({sd_pixel:.3g} DN): "
+                             f"a lit frame among the darks? expected dark frames (no light) of one exposure")
+        warnings.append(f"{folder}: its frames' mean levels {shown} DN differ by {spread:.3g} DN, "
+                        f"{spread / sd_mean:.3g} times what their temporal noise allows ({sd_mean:.2g} DN): a light "
+                        f"leak in a frame or a drifting black level? the level is their mean")
+
+
 def _check_frame_means(capture, warnings: list[str]) -> None:
     """Every flat folder's frames at one signal: each frame's mean is taken out before the temporal statistics
     (flicker tolerance, EMVA 1288), so a folder of 12.9 ms and 24.7 ms frames (means 1130 and 2080 DN) was read as one
-    level at their average, 46 % too bright, without a word."""
+    level at their average, 46 % too bright, without a word; a frame without signal among lit ones (a failed
+    light) as well."""
     dark = capture.dark[min(capture.dark)]
     black = float(dark.mean())
     # a dark frame's mean wanders too (row noise, offset drift): a spread of a few times that is no exposure's
@@ -96,10 +134,14 @@ def _check_frame_means(capture, warnings: list[str]) -> None:
     for ms, stack in sorted(capture.flat.items()):
         signal = stack.reshape(stack.shape[0], -1).mean(axis=1, dtype=np.float64) - black
         lo, hi = float(signal.min()), float(signal.max())
-        if lo <= 0 or len(signal) < 2 or hi - lo <= max(0.5, 6 * drift):
+        if len(signal) < 2 or hi - lo <= max(0.5, 6 * drift):
             continue
         folder = capture.folders.get(("flat", ms), f"flat_{ms:g}ms")
         shown = [round(float(v), 1) for v in signal]
+        if lo <= 0:
+            raise ValueError(f"{folder}: its frames' mean signals (DN over the shortest dark) {shown} range from "
+                             f"none to {hi:.3g} DN: a frame without light (or of another exposure) in one folder? "
+                             f"expected one exposure per folder")
         if hi / lo > FRAME_SIGNAL_RATIO_ERROR:
             raise ValueError(f"{folder}: its frames' mean signals (DN over the shortest dark) {shown} differ by "
                              f"{hi / lo:.3g}x: frames of other exposures or settings in one folder? (a flickering "
@@ -142,20 +184,25 @@ def _warn_dark_gain(name: str, dark: dict, flat: dict, folders: dict, warnings: 
                         f"in the darks' gain")
 
 
-def _column_fpn_dn2(averages) -> float:
-    """The variance (DN^2) of a per-column offset in frame-averaged darks (one image per CFA position, the columns
-    of each one of the sensor's): the column means' variance less what the pixels' own spread ``s_r^2`` (DSNU and
-    the averages' temporal residue, about the columns) puts in a mean of H rows, ``s_r^2 / H`` (EMVA 1288 4.0, 8.2:
-    the spatial variance split into column, row and pixel parts), over the images; 0 when negative."""
+def _column_fpn_dn2(dark_stats) -> float:
+    """The variance (DN^2) of a fixed per-column offset in frame-averaged darks (the stats of one dark exposure per
+    channel, :func:`_stats`: one average per CFA position, the columns of each one of the sensor's): the column
+    means' variance less what the pixels' own spread ``s_r^2`` (DSNU and the averages' temporal residue, about the
+    columns) puts in a mean of H rows, ``s_r^2 / H``, and less the temporal column noise's residue in an average of
+    N frames, ``s_c^2 / N`` (EMVA 1288 4.0, 8.2: the spatial variance split into column, row and pixel parts, the
+    temporal residue removed), over the images; 0 when negative. (Without the last term, 1 e- of temporal column
+    noise read as 0.72 / 0.52 / 0.24 e- of column pattern from 2 / 4 / 16 frames.)"""
     est = []
-    for a in averages:
-        a = np.asarray(a, dtype=np.float64)
-        h = a.shape[0]
-        if h < 2 or a.shape[1] < 2:
-            continue
-        cols = a.mean(axis=0)
-        resid = a - cols[None, :]
-        est.append(float(cols.var(ddof=1)) - float((resid ** 2).sum() / (a.size - a.shape[1])) / h)
+    for st in dark_stats:
+        residue = max(float(st["var_col"]), 0.0) / int(st["frames"])
+        for a in st["averages"]:
+            a = np.asarray(a, dtype=np.float64)
+            h = a.shape[0]
+            if h < 2 or a.shape[1] < 2:
+                continue
+            cols = a.mean(axis=0)
+            resid = a - cols[None, :]
+            est.append(float(cols.var(ddof=1)) - float((resid ** 2).sum() / (a.size - a.shape[1])) / h - residue)
     return max(float(np.mean(est)), 0.0) if est else 0.0
 
 
@@ -594,6 +641,13 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     from .._progress import progress as progress_bar
 
     warnings: list[str] = list(getattr(capture, "warnings", []))
+    for kind in ("dark", "flat"):  # (the folder reader checks files; a Capture built in code was not: a NaN pixel
+        # hid the saturation, moved the gain 1.5 % and called the frames non-integer)
+        for ms, stack in getattr(capture, kind).items():
+            if not np.isfinite(np.asarray(stack)).all():
+                folder = capture.folders.get((kind, ms), f"{kind}_{ms:g}ms")
+                raise ValueError(f"capture.{kind}[{ms:g}] ({folder}): NaN or infinite values in its frames; "
+                                 f"expected finite DN")
     acc = _quantisation(list(capture.dark.values()) + list(capture.flat.values()))
     step = acc.step()
     # frames of non-integer values (float .npy) have no quantiser of one DN: no q^2/12 to remove, no EMVA floor (a
@@ -616,6 +670,7 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
                              f"multiply by 2^bit_depth - 1")
     capture = _without_clipped_darks(capture, step, warnings)
     _check_plane_shape(capture)
+    _check_dark_frame_means(capture, step, warnings)
     _check_frame_means(capture, warnings)
     dark_p = {ms: _planes(s, capture.cfa) for ms, s in capture.dark.items()}
     flat_p = {ms: _planes(s, capture.cfa) for ms, s in capture.flat.items()}
@@ -677,8 +732,7 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     # in the sensor config it was pixel DSNU, so the simulated camera had no column stripes
     shortest = min(capture.dark)
     k_dn = _scalars(out)["conversion_gain_dn_per_e"]
-    out["column_fpn_e"] = math.sqrt(_column_fpn_dn2([a for n in names for a in stats[n][0][shortest]["averages"]]))\
-        / k_dn
+    out["column_fpn_e"] = math.sqrt(_column_fpn_dn2([stats[n][0][shortest] for n in names])) / k_dn
     _hot_pixel_result(capture, out, stats if capture.cfa is None else {"all": (allp, None)}, warnings,
                       quantisation_dn2)
     nominal, measured = capture.black_level_dn, _scalars(out)["black_level_dn"]

@@ -997,6 +997,53 @@ def test_column_fixed_pattern_is_its_own_term_in_the_sensor_config():
     assert cfg["dsnu_sigma_v"] / cg == pytest.approx(sensor_config(plain)["dsnu_sigma_v"] / cg, rel=0.05)
 
 
+def test_temporal_column_noise_is_not_a_column_pattern():
+    """Column offsets drawn anew in every frame (temporal column noise, 1.5 e-) leave s_c^2 / N in the column means of
+    an N-frame average, which was read as a fixed column pattern (1.0 e- from 2 frames, the DSNU lowered to make
+    room for it); EMVA 1288 4.0, 8.2 removes the temporal residue. No fixed column pattern in the NumPy truth."""
+    import dataclasses
+
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = _memory_capture(shape=(64, 256), frames=2)
+    rng = np.random.default_rng(8)
+
+    def flicker(stacks):
+        return {k: v + 0.4 * 1.5 * rng.standard_normal((v.shape[0], 1, v.shape[2])) for k, v in stacks.items()}
+
+    res = calibrate_capture(dataclasses.replace(cap, dark=flicker(cap.dark), flat=flicker(cap.flat)))
+    assert res["column_noise_e"] == pytest.approx(1.5, rel=0.2)
+    assert res["column_fpn_e"] < 0.5  # (the estimate's noise only: 0.12 e-^2 of sampling error on 256 columns)
+    assert res["dsnu_e"] == pytest.approx(nc.TRUTH["dsnu_e"], rel=0.05)
+
+
+def test_a_lit_dark_frame_a_dark_flat_frame_and_nan_are_refused():
+    """A lit frame among the darks went into the black level and dark current without a word; a frame without light
+    among a flat folder's passed the frame-mean check whenever its noise made its signal <= 0; a NaN in a Capture built
+    in code hid the saturation. Each is now an error naming the folder (NumPy truth, 4 frames per level)."""
+    import dataclasses
+
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = _memory_capture(frames=4)
+    ms = sorted(cap.flat)[2]
+    d = min(cap.dark)
+    lit = {k: v.copy() for k, v in cap.dark.items()}
+    lit[d][3] = cap.flat[ms][3]
+    with pytest.raises(ValueError, match=rf"dark_{d:g}ms: its frames' mean levels .* a lit frame among the darks"):
+        calibrate_capture(dataclasses.replace(cap, dark=lit))
+    for sign in (1.0, -1.0):  # (a signal of +-0.1 DN: the check ran only for the positive one)
+        flat = {k: v.copy() for k, v in cap.flat.items()}
+        flat[ms][3] = cap.dark[d][0] - cap.dark[d][0].mean() + cap.dark[d].mean() + sign * 0.1
+        with pytest.raises(ValueError, match=rf"flat_{ms:g}ms: its frames' mean signals"):
+            calibrate_capture(dataclasses.replace(cap, flat=flat))
+    nan = {k: v.copy() for k, v in cap.flat.items()}
+    nan[ms][0, 3, 3] = np.nan
+    with pytest.raises(ValueError, match=rf"capture.flat\[{ms:g}\] .*NaN or infinite"):
+        calibrate_capture(dataclasses.replace(cap, flat=nan))
+    assert not any("mean levels" in w for w in calibrate_capture(cap)["warnings"])  # (clean darks: nothing said)
+
+
 def test_darks_at_another_gain_than_the_flats_are_warned_about():
     """Darks at twice the flats' gain (the same sensor, its DSNU pattern twice as many DN) gave twice the read noise
     and dark current without a word: the darks' fixed pattern appears in the flats at half its size."""
