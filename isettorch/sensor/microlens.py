@@ -139,7 +139,10 @@ def _stack(layer_thicknesses_m, layer_indices, stack_height_m, stack_index, dtyp
     if stack_height_m is not None:
         _pos(stack_height_m, "stack_height_m")
         h = torch.as_tensor(stack_height_m, dtype=dtype, device=device)
-        t = t * (h / t.sum())
+        if h.numel() != 1:  # (two heights scaled the two layers each by its own: a 3.14 um stack for [1, 4] um)
+            raise ValueError(f"stack_height_m: expected one value (the stack's total height, m), got shape "
+                             f"{tuple(h.shape)}")
+        t = t * (h.reshape(()) / t.sum())
     return t, idx
 
 
@@ -471,6 +474,12 @@ _DEFAULTS = dict(source_f_number=ISETCAM_PIXEL["source_f_number"], microlens_foc
 _ALIAS_KEYS = {"pixel_width_m": "pixel_size_m", "photodiode_width_m": "photodiode_size_m"}
 
 
+def _by_value(v):
+    """A cache-key form of a pixel value: a tensor by its values (by identity, an in-place update, an optimiser's
+    step, returned the etendue map of the old value)."""
+    return ("tensor", tuple(v.detach().reshape(-1).tolist())) if isinstance(v, torch.Tensor) else v
+
+
 def _pixel_kwargs(pixel: dict) -> dict:
     out = {}
     for k, v in pixel.items():
@@ -784,6 +793,9 @@ class PixelOptics(nn.Module):
         layers = self.pixel.get("layer_thicknesses_m", _DEFAULTS["layer_thicknesses_m"])
         h = float(sum(layers)) if stack_height_m is None else stack_height_m
         _pos(h, "stack_height_m")
+        if records_grad(stack_height_m):  # (read as a number: its gradient was dropped with a torch warning only)
+            raise ValueError("stack_height_m: the starting height, read as a number, not a tensor that requires "
+                             "grad; pass a number and learnable=True to learn it (log_stack_height_m)")
         if not is_real(offset_per_image_height):  # (True was read as 1 m per m)
             raise ValueError(f"offset_per_image_height: expected a finite number, got {offset_per_image_height!r}")
         if self.method == "none" and offset_per_image_height != 0:
@@ -951,7 +963,7 @@ class PixelOptics(nn.Module):
                                  f"dropped); use convention='physical', model='phase_space'")
             pixel["source_f_number"] = fn[0] if records_grad(fn) else float(fn[0])
         waves = tuple(float(w) for w in oi.wavelengths_nm.reshape(-1).tolist()) if self.diffraction else (None,)
-        grad = records_grad(self.log_stack_height_m, self.offset_per_image_height, pixel["source_f_number"])
+        grad = records_grad(self.log_stack_height_m, self.offset_per_image_height, *pixel.values())
         key = None
         table = oi.metadata.get("chief_ray_angle") if isinstance(oi.metadata, dict) else None
         if not grad:
@@ -959,7 +971,7 @@ class PixelOptics(nn.Module):
                         for g in (oi.image_distance_m, oi.focal_length_m))
             key = (self.method, self.model, self.convention, self.samples, self.angle_samples,
                    self.exit_pupil_distance_m, rows, cols, float(pixel_size_m), fill_factor, waves,
-                   tuple(sorted(pixel.items())), geo,
+                   tuple(sorted((k, _by_value(v)) for k, v in pixel.items())), geo,
                    oi.batch_size,
                    id(table),
                    float(self.log_stack_height_m.detach()), float(self.offset_per_image_height.detach()),

@@ -932,3 +932,39 @@ def test_pixel_optics_refuse_an_index_below_one_a_boolean_and_a_mismatched_offse
             microlens_etendue(torch.tensor([0.0]), "centred", offset_m=True, sampling=sampling)
     with pytest.raises(ValueError, match=r"offset_m: shape \(3,\) does not broadcast with the chief-ray angles'"):
         microlens_etendue(torch.tensor([0.0, 10.0]), "centred", offset_m=torch.tensor([0.0, 1e-7, 2e-7]))
+
+
+def test_pixel_values_given_as_tensors_are_cached_by_value():
+    """The etendue map was memoised by the pixel values' identity: an optimiser's in-place step on a learnable
+    microlens focal length returned the old map (0.53 off a fresh module's) and a graph already freed; an in-place
+    change of a source f-number tensor (4 -> 1.4) the old map too (0.51 off). Each now equals a fresh module's."""
+    oi = _uniform_oi(6, 8, 2.8e-6, 30e-6, waves=torch.tensor([550.0]))
+    f = torch.nn.Parameter(torch.tensor(7e-6, dtype=torch.float64))
+    po = PixelOptics("centred", microlens_focal_length_m=f)
+    po.etendue_map(oi, 6, 8, 2.8e-6).sum().backward()
+    with torch.no_grad():
+        f.fill_(3e-6)
+    again = po.etendue_map(oi, 6, 8, 2.8e-6)
+    fresh = PixelOptics("centred", microlens_focal_length_m=3e-6).etendue_map(oi, 6, 8, 2.8e-6)
+    assert float((again - fresh).abs().max()) == 0.0
+    again.sum().backward()  # (a new graph)
+    fn = torch.tensor(4.0, dtype=torch.float64)
+    po = PixelOptics("centred", source_f_number=fn)
+    old = po.etendue_map(oi, 6, 8, 2.8e-6)
+    fn.fill_(1.4)
+    fresh = PixelOptics("centred", source_f_number=1.4).etendue_map(oi, 6, 8, 2.8e-6)
+    assert float((po.etendue_map(oi, 6, 8, 2.8e-6) - fresh).abs().max()) == 0.0
+    assert float((old - fresh).abs().max()) > 0.1
+
+
+def test_stack_height_is_one_value_and_a_learnable_one_is_named():
+    """Two stack heights were applied to the two layers (a 3.14 um stack for [1, 4] um: 0.672 at both angles, where
+    1 um and 4 um give 0.858 and 0.618); a tensor that requires grad had its gradient dropped with a torch warning."""
+    with pytest.raises(ValueError, match=r"stack_height_m: expected one value .* got shape \(2,\)"):
+        microlens_etendue(torch.tensor([20.0, 20.0]), "none", stack_height_m=torch.tensor([1e-6, 4e-6]))
+    h = torch.tensor(4e-6, dtype=torch.float64, requires_grad=True)  # one value keeps its gradient
+    e = microlens_etendue(torch.tensor(20.0, dtype=torch.float64), "none", stack_height_m=h, sampling="continuous")
+    e.backward()
+    assert h.grad is not None and float(h.grad) < 0  # a taller stack loses more of an oblique beam
+    with pytest.raises(ValueError, match="stack_height_m: the starting height, .* learnable=True"):
+        PixelOptics("centred", stack_height_m=torch.tensor(5e-6, dtype=torch.float64, requires_grad=True))
