@@ -500,7 +500,10 @@ class Sensor(nn.Module):
         v = v + self.analog_offset_v
         v = v / gain if not multiply else v * gain
         if isinstance(v, torch.Tensor):
-            return v.clamp(max=top)
+            # the swing is a constant white level from the gain where it reaches it (as the number branch above):
+            # clamp passes the gradient at equality, so at gain 1 (the default) the white followed the gain and a
+            # signal divided by it had zero gradient in the gain
+            return torch.where(v < top, v, torch.full_like(v, top))
         return min(top, float(v))
 
     def saturation_e(self, conversion_gain_v_per_e=None) -> float | torch.Tensor:

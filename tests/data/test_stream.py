@@ -507,3 +507,30 @@ def test_a_stream_and_a_dataset_of_one_seed_draw_from_different_generators():
         for kind in (0, 2):
             for part in range(2):
                 assert stream._generator(k, kind, part).initial_seed() not in dataset, (k, kind, part)
+
+
+def test_a_learnable_analog_gain_at_one_gets_its_gradient():
+    """A volts readout's white level was clamp(gain x swing, max=swing): at gain 1, the Sensor's default, the clamp
+    passed the gradient, the white followed the gain and the targets (divided by it) had zero gradient in the gain.
+    Autograd now equals the right-hand finite difference (above 1 the white is the swing), as at gain 2."""
+    from isettorch import Camera
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.sensor import Sensor
+
+    dt = torch.float64
+
+    def mean_rgb(g0, grad):
+        gain = torch.nn.Parameter(torch.tensor(g0, dtype=dt)) if grad else torch.tensor(g0, dtype=dt)
+        sensor = Sensor(rows=16, cols=16, pixel_size_m=2e-6, cfa="RGGB", exposure_s=0.01, adc_bits=None,
+                        analog_gain=gain).to(dt)
+        cam = Camera(DiffractionLimitedOptics(f_number=4.0, focal_length_m=4e-3).to(dt), sensor)
+        s = PairStream(2, seed=1, scene={"height": 16, "width": 16}, camera=cam, grad=True, dtype=dt,
+                       targets=("noise_free_raw", "camera_rgb"))
+        m = s.batch(0)["camera_rgb"].mean()
+        return (m, torch.autograd.grad(m, sensor.analog_gain)[0]) if grad else m
+
+    for g0 in (1.0, 2.0):
+        m, g = mean_rgb(g0, True)
+        fd = float((mean_rgb(g0 + 1e-6, False) - m.detach()) / 1e-6)
+        assert fd > 0.1
+        assert float(g) == pytest.approx(fd, rel=0.02)  # (saturated pixels take the left derivative at gain 1)
