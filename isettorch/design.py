@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import copy
 import math
+import numbers
 from pathlib import Path
 from typing import Any
 
@@ -143,7 +144,7 @@ def lux_key(lux: float) -> str:
 
 def _check_lux(lux) -> float:
     """A light level: a positive finite number (not a bool), else a ValueError naming ``lux``."""
-    if isinstance(lux, bool) or not (isinstance(lux, (int, float)) and math.isfinite(lux) and lux > 0):
+    if isinstance(lux, bool) or not (isinstance(lux, numbers.Real) and math.isfinite(lux) and lux > 0):
         raise ValueError(f"lux: expected a positive finite illuminance, got {lux!r}")
     return float(lux)
 
@@ -601,7 +602,8 @@ def design_card(camera: DesignCamera, results: dict | None = None) -> str:
 
 def save_design(camera: DesignCamera, path, *, card: str | None = None) -> Path:
     """Write ``camera`` as a design file (module docstring): filters sampled on the bank's grid, the hard mosaic,
-    every level's network weights, the config and a card. ValueError when a filter is not manufacturable."""
+    every level's network weights, the config and a card (``card``; default the camera's own, a loaded design's
+    training record, else :func:`design_card`'s). ValueError when a filter is not manufacturable."""
     bank, mosaic = camera.bank, camera.mosaic
     filters = bank.filters.detach().to(torch.float64).cpu().clone()
     check_manufacturable(filters, bank.wavelengths_nm, "filters")
@@ -617,7 +619,8 @@ def save_design(camera: DesignCamera, path, *, card: str | None = None) -> Path:
                "config": _plain(camera.config), "wavelengths_nm": bank.wavelengths_nm.detach().cpu().clone(),
                "filter_names": list(bank.channel_names), "filter_spec": list(bank.spec), "filters": filters,
                "pixel_qe": bank.extra.detach().cpu().clone(), "mosaic": mosaic.index_map.clone(), "levels": levels,
-               "card": card if card is not None else design_card(camera)}
+               # a loaded design's card (its training record) is kept when it is saved again; a new one is written
+               "card": card if card is not None else getattr(camera, "card", None) or design_card(camera)}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save(payload, path)
@@ -677,7 +680,8 @@ def load_design(design, *, device=None) -> DesignCamera:
         bank = FilterBank.from_table(d["filters"], d["wavelengths_nm"], names, pixel_qe=d["pixel_qe"])
         bank.spec = list(d.get("filter_spec", bank.spec))
         index = torch.as_tensor(d["mosaic"])
-        if index.is_floating_point() or index.is_complex():  # (0.5 was cast to 0)
+        if index.is_floating_point() or index.is_complex() or index.dtype == torch.bool:  # (0.5 was cast to 0;
+            # True / False read as filters 1 / 0)
             raise ValueError(f"mosaic: expected integer filter indices, got {index.dtype}")
         index = index.long()
         mosaic = LearnedMosaic(names, pattern=index, learnable=False)
@@ -797,7 +801,9 @@ def evaluate_design(design, images, lux=None, *, seed: int = 0, crop: int = 10, 
     check_bool(noise_free, "noise_free")
     seed = check_seed(seed)  # (2^64 ran as seed 0 and was reported as 2^64; 1.5 ran as 1)
     camera = design if isinstance(design, DesignCamera) else load_design(design)
-    levels = camera.lux_levels if lux is None else [float(v) for v in lux]
+    if lux is not None and (isinstance(lux, (str, bytes)) or not hasattr(lux, "__iter__")):
+        raise ValueError(f"lux: expected a list of light levels (lux) or None, got {lux!r}")
+    levels = camera.lux_levels if lux is None else [_check_lux(v) for v in lux]  # (True ran as 1 lux)
     if not levels:
         raise ValueError(f"lux: the design {camera.name!r} holds no network; give a design trained for a light level")
     # a level is its network's and its report's key (6 significant digits, lux_key): two levels given with one key

@@ -142,6 +142,10 @@ def test_design_file_round_trip(design_file):
     # the card of a reloaded design names its filters (as learned) and levels
     card = D.design_card(cam)
     assert "F0 (learned)" in card and "W (W)" in card and "1, 100 lux" in card
+    # saved again, a design keeps its own card (its training record was replaced by a generated one)
+    recorded = D.load_design(D.save_design(cam, design_file.parent / "recorded.pt", card="# trained: run 7"))
+    again = D.save_design(recorded, design_file.parent / "again.pt")
+    assert torch.load(again, weights_only=True)["card"] == "# trained: run 7"
 
 
 def test_design_file_rejects_what_cannot_be_built(design_file, tmp_path, monkeypatch):
@@ -162,6 +166,8 @@ def test_design_file_rejects_what_cannot_be_built(design_file, tmp_path, monkeyp
                           (lambda d: d["levels"][1].__setitem__("lux", 1.0), "levels: more than one network"),
                           (lambda d: d.__setitem__("mosaic", d["mosaic"].double() + 0.5),
                            "mosaic: expected integer filter indices"),
+                          (lambda d: d.__setitem__("mosaic", d["mosaic"] > 1),  # (loaded as filters 1 and 0)
+                           "mosaic: expected integer filter indices, got torch.bool"),
                           # (NaN weights were blamed on the first photograph: "image: expected finite values")
                           (lambda d: next(iter(d["levels"][0]["network"]["state_dict"].values())).fill_(math.nan),
                            r"the network at [0-9.]+ lux has non-finite weights")):
@@ -299,6 +305,11 @@ def test_evaluate_design_checks_levels_device_and_photos_first(design_file, tmp_
         D.evaluate_design(design_file, one, [100, 100.0000001], crop=0)
     with pytest.raises(ValueError, match=r"^device: cannot compute on 'fpga'"):
         D.evaluate_design(design_file, one, [100], crop=0, device="fpga")
+    # a bare number (a TypeError), True (ran as 1 lux) and a string (float()'s message) are named
+    for bad, message in ((100.0, r"^lux: expected a list of light levels"), ([True], r"^lux: .* got True"),
+                         (["abc"], r"^lux: .* got 'abc'"), ("100", r"^lux: expected a list")):
+        with pytest.raises(ValueError, match=message):
+            D.evaluate_design(design_file, one, bad, crop=0)
     Image.fromarray(np.full((1, 40, 3), 128, np.uint8)).save(one / "b.png")  # one pixel high
     with pytest.raises(ValueError, match=r"^images: b\.png is 40 x 1 px; expected at least 2 px each way"):
         D.evaluate_design(design_file, one, [100], crop=0)
