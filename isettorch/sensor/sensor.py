@@ -368,6 +368,14 @@ class Sensor(nn.Module):
             raise ValueError(f"pixel_optics.pixel_size_m: {po_pitch!r} m differs from the sensor's pixel_size_m "
                              f"{self.pixel_size_m!r} m (one pixel, one pitch); leave it out (it defaults to the "
                              f"sensor's) or make them equal")
+        po_diode = None if pixel_optics is None else pixel_optics.pixel.get("photodiode_size_m")
+        if po_diode is not None and not math.isclose((float(po_diode) / self.pixel_size_m) ** 2, self.fill_factor,
+                                                     rel_tol=1e-6):
+            # (two photodiodes: the etendue took this one, the rate the fill factor's; ISETCam's pixel has one)
+            raise ValueError(f"pixel_optics.photodiode_size_m: {float(po_diode)!r} m is a fill factor of "
+                             f"{(float(po_diode) / self.pixel_size_m) ** 2:.6g}, not the sensor's fill_factor "
+                             f"{self.fill_factor!r} (one pixel, one photodiode); leave it out (it defaults to "
+                             f"sqrt(fill_factor) x pixel_size_m) or make them agree")
         self.pixel_optics = pixel_optics
         # Real-raw noise terms (row/column banding, Tukey read noise, dark shading, defects, full well):
         # isettorch.sensor.noise_terms; all off by default.

@@ -968,3 +968,18 @@ def test_stack_height_is_one_value_and_a_learnable_one_is_named():
     assert h.grad is not None and float(h.grad) < 0  # a taller stack loses more of an oblique beam
     with pytest.raises(ValueError, match="stack_height_m: the starting height, .* learnable=True"):
         PixelOptics("centred", stack_height_m=torch.tensor(5e-6, dtype=torch.float64, requires_grad=True))
+
+
+def test_the_sensor_and_its_pixel_optics_have_one_photodiode():
+    """fill_factor 0.3 with pixel optics of a 75 % photodiode rendered 2.5x the plain sensor's rate through a
+    vanishing stack (the etendue took one photodiode, the rate the other; ISETCam's pixel has one): refused,
+    naming both; an agreeing photodiode is accepted and a vanishing stack then leaves the rate unchanged."""
+    kw = dict(rows=5, cols=7, read_noise_v=0.0, dark_current_e_per_s=0.0, pixel_size_m=2.8e-6, fill_factor=0.3)
+    po = {"method": "none", "stack_height_m": 1e-10}
+    with pytest.raises(ValueError, match=r"pixel_optics.photodiode_size_m: .* fill factor of 0.75, not the "
+                                         r"sensor's fill_factor 0.3"):
+        Sensor(pixel_optics={**po, "photodiode_size_m": 2.8e-6 * math.sqrt(0.75)}, **kw)
+    oi = _uniform_oi(5, 7, 2.8e-6, 30e-6, waves=torch.tensor([450.0, 550.0, 650.0]))
+    plain = Sensor(**kw).electron_rate(oi)
+    same = Sensor(pixel_optics={**po, "photodiode_size_m": 2.8e-6 * math.sqrt(0.3)}, **kw).electron_rate(oi)
+    assert float((same / plain)[0, 0, 2, 3]) == pytest.approx(1.0, abs=1e-6)
