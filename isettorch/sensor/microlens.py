@@ -173,7 +173,7 @@ def microlens_array_offsets_m(rows: int, cols: int, pixel_size_m: float, *,
         _pos(v, name)
     if float(microlens_index) < 1:
         raise ValueError(f"microlens_index: expected a refractive index >= 1, got {microlens_index!r}")
-    if not (isinstance(rows, int) and isinstance(cols, int) and rows > 0 and cols > 0):
+    if not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in (rows, cols)):  # (True: 1 row)
         raise ValueError(f"rows, cols: expected positive integers, got {rows!r}, {cols!r}")
     y = (torch.arange(rows, dtype=torch.float64) - (rows - 1) / 2) * pixel_size_m
     x = (torch.arange(cols, dtype=torch.float64) - (cols - 1) / 2) * pixel_size_m
@@ -492,6 +492,11 @@ def _pixel_kwargs(pixel: dict) -> dict:
         raise ValueError(f"{sorted(unknown)[0]}: not a microlens/pixel parameter; expected one of "
                          f"{sorted(set(_DEFAULTS) | set(_ALIAS_KEYS))}")
     _check_one_aperture(out)
+    for key in _SCALAR_PIXEL_KEYS:  # (as PixelOptics checks them: a NaN one the etendue does not read passed)
+        if out.get(key) is not None:
+            _pos(out[key], key)
+    if out.get("microlens_index") is not None and float(torch.as_tensor(out["microlens_index"]).min()) < 1:
+        raise ValueError(f"microlens_index: expected a refractive index >= 1, got {out['microlens_index']!r}")
     return {**_DEFAULTS, **out}
 
 

@@ -983,3 +983,16 @@ def test_the_sensor_and_its_pixel_optics_have_one_photodiode():
     plain = Sensor(**kw).electron_rate(oi)
     same = Sensor(pixel_optics={**po, "photodiode_size_m": 2.8e-6 * math.sqrt(0.3)}, **kw).electron_rate(oi)
     assert float((same / plain)[0, 0, 2, 3]) == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("kw, name", [(dict(source_focal_length_m=math.nan), "source_focal_length_m"),
+                                      (dict(microlens_index=0.3), "microlens_index"),
+                                      (dict(model="geometric", wavelength_nm=math.nan), "wavelength_nm"),
+                                      (dict(model="geometric", microlens_focal_length_m=math.nan),
+                                       "microlens_focal_length_m")])
+def test_pixel_values_the_etendue_does_not_read_are_checked_as_pixel_optics_checks_them(kw, name):
+    """microlens_etendue returned 1.0 for a NaN source focal length or an index of 0.3 (PixelOptics refuses both)."""
+    with pytest.raises(ValueError, match=f"^{name}: expected"):
+        microlens_etendue(0.0, "centred", **kw)
+    with pytest.raises(ValueError, match="rows, cols: expected positive integers, got True"):
+        microlens_array_offsets_m(True, 2, 2.8e-6)
