@@ -47,7 +47,7 @@ import torch
 from torch import nn
 
 from . import spectral
-from ._autograd import full_precision
+from ._autograd import full_precision, records_grad
 from ._checks import check_bool, check_float_dtype, check_seed, check_zip_crc, first_line
 from .image import XYZ_TO_LINEAR_SRGB
 from .isp.mosaic_net import MosaicReconstructionNet
@@ -424,7 +424,13 @@ def patch_signals(camera: DesignCamera, reflectance, lux: float, *, size: int | 
     s = camera.sensor
     a, b = (float(v[0]) for v in s.poisson_gaussian(exposure_s=t, analog_gain=gain))
     k = float(s.gain_per_electron(gain)[0])
-    var = (rho if a > 0 else torch.zeros_like(rho)) + b / k**2
+    floor = b / k**2
+    if s.output_units == "dn" and records_grad(cap["analog_gain"]):
+        # the ADC's 1/12 DN^2 is 1 / (12 k^2) electrons, k following the gain the rule chose (config.exposure.
+        # differentiable): kept in the graph (as a number, 1.2e-3 of the loss's gradient at 100 lux was lost)
+        k_t = s.gain_per_electron(cap["analog_gain"][:1])[0]
+        floor = floor + (1 / (12 * k_t**2) - 1 / (12 * k**2))
+    var = (rho if a > 0 else torch.zeros_like(rho)) + floor
     return {"rho": rho, "var": var, "frac": frac, "target": linear_srgb_of_reflectance(refl, wl),
             "names": [camera.bank.channel_names[c] for c in used], "exposure_s": t, "gain": gain}
 

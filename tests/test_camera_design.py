@@ -606,3 +606,25 @@ def test_evaluate_design_leaves_a_callers_camera_in_its_mode_and_names_a_bad_lev
     for bad in (-1.0, 0.0, math.nan):
         with pytest.raises(ValueError, match=r"^lux: expected a positive finite illuminance"):
             cam.network(bad)
+
+
+def test_colour_bound_gradient_keeps_the_rules_gain_in_the_adc_step():
+    """With the exposure rule in the graph, the colour bound's noise read the rule's gain as a number: the ADC step
+    1 / (12 k^2) electrons (k the DN per electron, following the gain) lost its share, 1.2e-3 relative of the gradient
+    at 100 lux, where the exposure is at its limit and the gain is the rule's (1.81). Against a central difference
+    that re-runs the rule, in a random direction of the filter parameters."""
+    torch.manual_seed(0)
+    cam = D.make_design({"filters": ["learned"] * 3, "mosaic_init": [["F1", "F0"], ["F2", "F1"]]},
+                        {"network": {"width": 4, "depth": 1}, "exposure": {"differentiable": True}}, seed=0).eval()
+    patches = D.bound_patches(cam.wavelengths_nm, 32, 16, 5)
+    p = cam.bank.raw_amplitudes
+    (g,) = torch.autograd.grad(D.colour_bound_loss(cam, patches, [100.0]), p)
+    d = torch.randn(p.shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    eps = 1e-5
+    with torch.no_grad():
+        p += eps * d
+        plus = float(D.colour_bound_loss(cam, patches, [100.0]))
+        p -= 2 * eps * d
+        minus = float(D.colour_bound_loss(cam, patches, [100.0]))
+        p += eps * d
+    assert float((g * d).sum()) == pytest.approx((plus - minus) / (2 * eps), rel=1e-6)
