@@ -426,10 +426,13 @@ def patch_signals(camera: DesignCamera, reflectance, lux: float, *, size: int | 
     k = float(s.gain_per_electron(gain)[0])
     floor = b / k**2
     if s.output_units == "dn" and records_grad(cap["analog_gain"]):
-        # the ADC's 1/12 DN^2 is 1 / (12 k^2) electrons, k following the gain the rule chose (config.exposure.
-        # differentiable): kept in the graph (as a number, 1.2e-3 of the loss's gradient at 100 lux was lost)
+        # the ADC's rounding, 1/12 DN^2 in b, is 1 / (12 k^2) electrons, k following the gain the rule chose
+        # (config.exposure.differentiable): kept in the graph (as a number, 1.2e-3 of the loss's gradient at 100 lux
+        # was lost)
+        from .metrics.emva import S2_QUANTIZATION_DN2
+
         k_t = s.gain_per_electron(cap["analog_gain"][:1])[0]
-        floor = floor + (1 / (12 * k_t**2) - 1 / (12 * k**2))
+        floor = floor + S2_QUANTIZATION_DN2 * (1 / k_t**2 - 1 / k**2)
     var = (rho if a > 0 else torch.zeros_like(rho)) + floor
     return {"rho": rho, "var": var, "frac": frac, "target": linear_srgb_of_reflectance(refl, wl),
             "names": [camera.bank.channel_names[c] for c in used], "exposure_s": t, "gain": gain}

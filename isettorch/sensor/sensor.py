@@ -39,6 +39,7 @@ from .._checks import (
     seed_for,
     tensor_version,
 )
+from ..metrics.emva import S2_QUANTIZATION_DN2
 from ..optics.optical_image import OpticalImage
 from . import noise as _noise
 from .cfa import CFA
@@ -1344,7 +1345,7 @@ class Sensor(nn.Module):
             per_v = torch.ones_like(gain) / cg
         else:
             per_v = gain / self.lsb_v if units == "dn" else gain
-        quant = 1.0 / 12.0 if units == "dn" else 0.0  # rounding to whole DN
+        quant = S2_QUANTIZATION_DN2 if units == "dn" else 0.0  # rounding to whole DN
         if not nz.get("enabled", True):  # the noise-free chain, rounded
             return torch.zeros_like(per_v), torch.full_like(per_v, quant)
         shot, var_v = self._dark_variance_v2(nz, t, cg, level)
