@@ -275,12 +275,22 @@ def _origin(x: np.ndarray, y: np.ndarray) -> float:
     return float((x * y).sum() / (x * x).sum())
 
 
+def _mean_se(images) -> float:
+    """Standard error of the mean over the pixels of ``images`` (frame-mean images of one channel's sub-images, or
+    frame stacks, averaged over their first axis): their pooled spread over the pixels (the fixed pattern and the
+    frames' averaged temporal noise) / sqrt(pixels). The black level of a channel is such a sample of its pixels' fixed
+    offsets, and two channels of one black level differ by about this much."""
+    values = np.concatenate([np.asarray(a, dtype=np.float64).ravel() for a in images])
+    return float(values.std(ddof=1) / math.sqrt(values.size)) if values.size > 1 else 0.0
+
+
 def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photons: dict[float, float] | None,
              folders: dict, warnings: list[str], quantisation_dn2: float = S2_QUANTIZATION_DN2) -> dict[str, Any]:
     t_d = np.array(sorted(dark)) * 1e-3
     mu_d = np.array([dark[k]["mean"] for k in sorted(dark)])
     vp_d = np.array([dark[k]["var_pixel"] for k in sorted(dark)])
     dc_dn, black = _line(t_d, mu_d)
+    black_se = _mean_se(dark[min(dark)]["averages"])
     # the pixel-wise dark variance grows with the dark shot noise; weights 1 / var^2 (the standard error of a
     # variance estimate is proportional to it), so the extrapolation to zero exposure rests on the short exposures
     vslope, vicpt = _line(t_d, vp_d, vp_d)
@@ -364,6 +374,10 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
                          f"{K0:.4g} DN/e-), the gain needs at least 3; the others depart by {off} (copied frames, "
                          f"flicker, a changed setting?)")
     K = _origin(signal[keep], dvar[keep])
+    # its standard error: K = sum(x^2 r) / sum(x^2) over the kept levels' ratios r = var / signal (x the signal),
+    # each with the relative standard error se above and independent between levels (their temporal variances)
+    x2 = signal[keep] ** 2
+    gain_se = K * float(np.sqrt((x2 ** 2 * se[keep] ** 2).sum()) / x2.sum())
     if keep.sum() < linear.sum():
         dropped = {folder(m): f"{r / K - 1:+.1%}" for m, r in zip(ms_f[linear & ~keep], ratio[linear & ~keep])}
         warnings.append(f"channel {name}: photon-transfer outliers left out of the gain fit (variance / signal off "
@@ -451,6 +465,7 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
             qe = _origin(mu_p[linear], signal[linear] / K)
     return {
         "conversion_gain_dn_per_e": K,
+        "conversion_gain_se_dn_per_e": gain_se,
         "read_noise_e": math.sqrt(max(read_var, 0.0)) / K,
         "row_noise_e": math.sqrt(max(row_var, 0.0)) / K,
         "column_noise_e": math.sqrt(max(col_var, 0.0)) / K,
@@ -460,6 +475,7 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
         "prnu_percent": 100 * math.sqrt(max(prnu2, 0.0)),
         "full_well_e": full_well,
         "black_level_dn": black,
+        "black_level_se_dn": black_se,
         "quantum_efficiency": qe,
         "photon_transfer": {"exposure_ms": ms_f.tolist(), "signal_dn": signal.tolist(),
                             "variance_dn2": vp_f.tolist(), "variance_minus_dark_dn2": dvar.tolist(),
@@ -630,8 +646,8 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     cannot be measured, with the reason in ``warnings``). Colour (``cfa`` set): every field is ``{channel: value}``
     (the sub-images of one letter pooled), and ``sensor`` holds one value per field for the whole sensor (gain,
     read/row/column noise, PRNU: means over channels; dark current, DSNU, black level: from all pixels); channels
-    whose gains differ by more than 5 % or black levels by more than 0.5 DN are warned about (the sensor config has
-    one of each).
+    whose gains differ by more than 5 % or black levels by more than 0.5 DN, and by more than 4 standard errors of
+    the difference (a small capture's sampling spread), are warned about (the sensor config has one of each).
 
     Also: ``quantisation_step_dn`` (1, or 2^s for left-aligned data; the read noise then removes step^2 / 12) and
     ``effective_bits`` (bit_depth - s); ``hot_pixels`` (count, fraction, threshold and mean dark current of the hot
@@ -804,10 +820,13 @@ def _warn_positions_differ(dark_p: dict, cfa: str, warnings: list[str], step: in
         if len(planes) < 2:
             continue
         means = [float(np.mean(p)) for p in planes]
-        if max(means) - min(means) > _CHANNEL_BLACK_SPREAD_DN * step:
+        hi, lo = int(np.argmax(means)), int(np.argmin(means))
+        se = math.hypot(_mean_se([planes[hi].mean(axis=0)]), _mean_se([planes[lo].mean(axis=0)]))
+        if means[hi] - means[lo] > max(_CHANNEL_BLACK_SPREAD_DN * step, 4 * se):
             warnings.append(f"the {len(planes)} {name} positions of the {cfa} cell have black levels "
                             f"{', '.join(f'{m:.2f}' for m in means)} DN (more than {_CHANNEL_BLACK_SPREAD_DN * step:g}"
-                            f" DN apart): the channel statistics pool them and the sensor config has one black "
+                            f" DN and 4 standard errors, {4 * se:.2g} DN, apart): the channel statistics pool them"
+                            f" and the sensor config has one black "
                             f"level, so PNG, TIFF and .npy frames keep the difference when processed (a camera "
                             f"raw's own BlackLevel per position is subtracted)")
 
@@ -818,17 +837,26 @@ def _warn_channels_differ(per: dict, names: list[str], warnings: list[str], step
     (per-channel digital gains, e.g. a white balance applied before the file was written; per-channel black levels)
     is not reproduced channel by channel."""
     gains = {n: per[n]["conversion_gain_dn_per_e"] for n in names}
-    if max(gains.values()) > (1 + _CHANNEL_GAIN_SPREAD) * min(gains.values()):
+    hi, lo = max(gains, key=gains.get), min(gains, key=gains.get)
+    se = math.hypot(per[hi]["conversion_gain_se_dn_per_e"], per[lo]["conversion_gain_se_dn_per_e"])
+    # beyond the spread and beyond 4 standard errors of the difference: a small capture (16 x 16 RGGB frames, 2 per
+    # level) measures one gain 10-50 % apart per channel from its photon transfer alone
+    if gains[hi] > (1 + _CHANNEL_GAIN_SPREAD) * gains[lo] and gains[hi] - gains[lo] > 4 * se:
         warnings.append(f"the channels' conversion gains differ by more than {100 * _CHANNEL_GAIN_SPREAD:g} % "
-                        f"({', '.join(f'{n} {k:.4g}' for n, k in gains.items())} DN/e-; per-channel digital gains in "
+                        f"and 4 standard errors ({', '.join(f'{n} {k:.4g}' for n, k in gains.items())} DN/e-, "
+                        f"{hi} - {lo} = {gains[hi] - gains[lo]:.3g} +- {se:.2g}; per-channel digital gains in "
                         f"the raw?): the sensor values and the sensor config use their mean, "
                         f"{float(np.mean(list(gains.values()))):.4g} DN/e-, for every channel")
     blacks = {n: per[n]["black_level_dn"] for n in names}
+    hi, lo = max(blacks, key=blacks.get), min(blacks, key=blacks.get)
+    se = math.hypot(per[hi]["black_level_se_dn"], per[lo]["black_level_se_dn"])
     # in the files' DN: a quantisation step of 16 (left-aligned 12-bit data) makes 0.5 right-aligned DN 8 (the
-    # channels of one black level, 0.09 DN apart right-aligned, were warned about at 1.4 file DN)
-    if max(blacks.values()) - min(blacks.values()) > _CHANNEL_BLACK_SPREAD_DN * step:
+    # channels of one black level, 0.09 DN apart right-aligned, were warned about at 1.4 file DN); and beyond 4
+    # standard errors: 16 x 16 RGGB frames with 1.6 DN of DSNU put one black level's channels 0.5 DN apart
+    if blacks[hi] - blacks[lo] > max(_CHANNEL_BLACK_SPREAD_DN * step, 4 * se):
         warnings.append(f"the channels' black levels differ by more than {_CHANNEL_BLACK_SPREAD_DN * step:g} DN "
-                        f"({', '.join(f'{n} {b:.2f}' for n, b in blacks.items())} DN): the sensor values and the "
+                        f"and 4 standard errors ({', '.join(f'{n} {b:.2f}' for n, b in blacks.items())} DN, "
+                        f"{hi} - {lo} = {blacks[hi] - blacks[lo]:.3g} +- {se:.2g}): the sensor values and the "
                         f"sensor config have one black level for every channel")
 
 
