@@ -83,7 +83,9 @@ class ShiftInvariantLens(nn.Module):
             (ISETCam's finite-aperture ``cos4th.m`` formula, with the thin-lens magnification) or None.
         camera_equation: ``'isetcam'`` (``pi / (1 + 4 N^2 (1 + |m|)^2)``) or ``'paraxial'``
             (``pi / (4 N^2 (1 + |m|)^2)``); see :func:`~isettorch.optics.geometry.camera_equation_factor`.
-        pad_mode: ``'zero'``, ``'mean'``, ``'edge'`` or a number: what lies beyond the scene's edges.
+        pad_mode: ``'zero'``, ``'mean'``, ``'edge'`` or a number: what lies beyond the scene's edges. A number is
+            a radiance (the scene's units), imaged like the scene's: camera equation and transmittance, with the
+            relative illumination held at the edges' value beyond them.
         psf_tolerance: fraction of the line-spread energy allowed beyond the padding margin (sets how far
             the image is padded; it bounds both the wrap-around and, for ``crop=``, the missed light). A batch is
             padded by the margin its widest PSF needs, so an item rendered beside one of a larger f-number or a
@@ -381,7 +383,16 @@ class ShiftInvariantLens(nn.Module):
             irr = irr * t.to(device=irr.device).reshape(1, -1, 1, 1)
         if ri is not None:
             irr = irr * ri
-        return self._blur_to_oi(irr, scene.wavelengths_nm, dx, n, f, d_i, crop, name=scene.name)
+        fill = None
+        if not isinstance(self.pad_mode, str):
+            # a number is a radiance beyond the scene's edges: imaged like the scene's (it was used as an irradiance,
+            # 1 / k of it: a uniform scene padded with its own radiance came out 20x brighter beyond it at f/4)
+            fill = irr.new_full((1, 1, 1, 1), float(self.pad_mode)) * k.reshape(-1, 1, 1, 1).to(irr.dtype)
+            if t is not None:
+                fill = fill * t.to(device=irr.device, dtype=irr.dtype).reshape(1, -1, 1, 1)
+            if ri is not None:
+                fill = fill * ri
+        return self._blur_to_oi(irr, scene.wavelengths_nm, dx, n, f, d_i, crop, name=scene.name, fill=fill)
 
     def _factored_ok(self, scene: Scene) -> bool:
         """The factored path needs maps x spectra and a pad mode that is linear in the image."""
@@ -538,17 +549,19 @@ class ShiftInvariantLens(nn.Module):
                 spec[i, t:].zero_()
         return spec, (my, mx), pads, window
 
-    def _extend_unblurred(self, x: torch.Tensor, crop) -> tuple[torch.Tensor, int, int]:
+    def _extend_unblurred(self, x: torch.Tensor, crop, pad_mode=None) -> tuple[torch.Tensor, int, int]:
         """``x`` (irradiance or maps) extended by the optics' margin like a blurred image would be, or the ``crop``
-        window of that extension, when the blur is negligible; returns ``(out, pad_rows, pad_cols)``."""
+        window of that extension, when the blur is negligible; returns ``(out, pad_rows, pad_cols)``. ``pad_mode``:
+        the optics' own by default."""
+        pad_mode = self.pad_mode if pad_mode is None else pad_mode
         h, w = x.shape[-2:]
         pr = pc = 0 if self.margin is None else self.margin
         if crop is None:
-            return extend(x, (-pr, h + pr), (-pc, w + pc), self.pad_mode), pr, pc
+            return extend(x, (-pr, h + pr), (-pc, w + pc), pad_mode), pr, pc
         top, left, wh, ww = crop
         if not (wh >= 1 and ww >= 1 and top >= 0 and left >= 0 and top + wh <= h + 2 * pr and left + ww <= w + 2 * pc):
             raise ValueError(f"crop: window {crop} does not fit in the {h + 2 * pr}x{w + 2 * pc} optical image")
-        return extend(x, (top - pr, top - pr + wh), (left - pc, left - pc + ww), self.pad_mode), pr, pc
+        return extend(x, (top - pr, top - pr + wh), (left - pc, left - pc + ww), pad_mode), pr, pc
 
     def _interleaved(self, otf: torch.Tensor) -> torch.Tensor:
         """A real OTF ``[B, L, My, Mx']`` as ``[B, L, My, Mx', 2]`` (the same value for the real and imaginary
@@ -573,16 +586,29 @@ class ShiftInvariantLens(nn.Module):
                             hfov_deg=hfov, focal_length_m=f, f_number=n, image_distance_m=d_i,
                             pad_rows=pr if crop is None else 0, pad_cols=pc if crop is None else 0, validate=False)
 
-    def _blur_to_oi(self, irr, wave, dx, n, f, d_i, crop, name=""):
+    def _blur_to_oi(self, irr, wave, dx, n, f, d_i, crop, name="", fill=None):
+        """The optical image of the irradiance ``irr``: blurred (or extended, where the blur is negligible) with the
+        optics' pad mode, or, given ``fill`` (the irradiance of a radiance beyond the scene's edges, ``[B, L, 1, 1]``
+        or with the relative illumination ``[B, L, H, W]``), by linearity ``irr - fill`` padded with zeros plus
+        ``fill`` extended from the edges."""
+        h, w = irr.shape[-2:]
+        if fill is None:
+            out, pr, pc = self._blurred(irr, wave, dx, n, f, d_i, crop, self.pad_mode)
+        else:
+            out, pr, pc = self._blurred(irr - fill, wave, dx, n, f, d_i, crop, "zero")
+            # a constant is kept by any blur (the OTF is 1 at zero frequency)
+            out = out + (fill if fill.shape[-2:] == (1, 1) else
+                         self._blurred(fill, wave, dx, n, f, d_i, crop, "edge")[0])
+        return self._oi(out, None, wave, dx, n, f, d_i, crop, h, w, pr, pc, name)
+
+    def _blurred(self, irr, wave, dx, n, f, d_i, crop, pad_mode) -> tuple[torch.Tensor, int, int]:
         h, w = irr.shape[-2:]
         dxb = self._blur_spacing(dx, f, d_i)
         if self.blur_negligible(dxb, wave, n):
-            out, pr, pc = self._extend_unblurred(irr, crop)
-        else:
-            margin = self.margin_samples((h, w), dxb, wave, n)
-            out, (pr, pc) = blur_fft(irr, self._otf_fn(wave, n, dxb), dxb, (margin, margin), self.pad_mode,
-                                     window=crop)
-        return self._oi(out, None, wave, dx, n, f, d_i, crop, h, w, pr, pc, name)
+            return self._extend_unblurred(irr, crop, pad_mode)
+        margin = self.margin_samples((h, w), dxb, wave, n)
+        out, (pr, pc) = blur_fft(irr, self._otf_fn(wave, n, dxb), dxb, (margin, margin), pad_mode, window=crop)
+        return out, pr, pc
 
 
 def check_transmittance(t: torch.Tensor, name: str = "transmittance") -> None:
