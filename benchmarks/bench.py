@@ -988,6 +988,10 @@ def add_arguments(p) -> None:
 
 def check_arguments(args) -> str | None:
     """The first problem with the options, as an error line naming the option, or None."""
+    for name in ("sizes", "only", "plot"):  # an empty value was read as the option not given (all sections ran)
+        value = getattr(args, name, None)
+        if value is not None and not str(value).strip():
+            return f"--{name}: expected a value, got {value!r}"
     try:
         if args.sizes:
             _sizes(args.sizes)

@@ -40,7 +40,10 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
               (["--plot", "{garbage}/p.png"], "--plot"), (["--repeats", "abc"], "--repeats"),
               (["--bogus"], "--bogus"),
               (["--stable-size", "1"], "--stable-size: expected an integer in 16..4096"),  # (tracebacks)
-              (["--stable-size", "100000000"], "--stable-size"), (["--knob-patch", "100000"], "--knob-patch")],
+              (["--stable-size", "100000000"], "--stable-size"), (["--knob-patch", "100000"], "--knob-patch"),
+              # an empty value was read as the option not given: every section ran, exit 0
+              (["--only", ""], "--only: expected a value"), (["--sizes", ""], "--sizes: expected a value"),
+              (["--plot", ""], "--plot: expected a value")],
     "calibrate": [([MISSING], "DIR"), (["{images}/a.png"], "a.png: cannot read the frame"),
                   (["{cap}", "--report", "{cap}"], "--report: {cap} is the capture folder {cap}"),
                   (["{cap}", "--report", "{cap}/dark_1ms/r"], "--report: {cap}/dark_1ms/r is the capture folder"),
@@ -100,6 +103,8 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                         [(["{images}", "--noise-sigma", "0.1", "--denoise", "bm3d"], "--denoise: 'bm3d' needs")]),
     "design-eval": [([MISSING, "{images}"], "DESIGN"), (["learned", "{images}"], "--crop"),
                     (["learned", "{images}", "--crop", "2", "--lux", "3"], "--lux"),
+                    # (repeated: both levels are checked; the last alone was, so 3 lux passed)
+                    (["learned", "{images}", "--crop", "2", "--lux", "3", "--lux", "10"], "--lux"),
                     (["{garbage}", "{images}"], "DESIGN"),
                     (["learned", MISSING], "DIR: expected a folder"), (["learned", "{images}/a.png"], "DIR: expected"),
                     (["learned", "{tmp}"], "DIR: no .png"), (["learned", "{broken}"], "DIR: cannot read b.png"),

@@ -39,7 +39,8 @@ def register(sub) -> None:
     p.add_argument("design", metavar="DESIGN",
                    help=f"a design file (.pt) or a shipped design: {', '.join(SHIPPED_NAMES)}")
     p.add_argument("folder", metavar="DIR", help="folder of 8-bit RGB .png/.tif/.jpg photographs")
-    p.add_argument("--lux", type=float, nargs="+", default=None, metavar="L",
+    # (extend: --lux 10 --lux 100 scores both; the last one alone was scored)
+    p.add_argument("--lux", type=float, nargs="+", action="extend", default=None, metavar="L",
                    help="scene illuminance(s) in lux, among the levels the design was trained for (it has a network "
                         "for each; the shipped designs: 1, 10, 100); default: all of them")
     p.add_argument("--seed", type=int, default=0, help="noise seed, the same for every design (default 0)")
