@@ -108,3 +108,7 @@ class ShiftInvariantOptics(ShiftInvariantLens):
         half = (torch.tensor(self.psf.shape[-2:], dtype=self.psf_spacing_m.dtype) // 2 + 1).max()
         m = (half * self.psf_spacing_m).max()
         return m.expand(f_number.shape[0]).to(f_number.dtype)
+
+    def psf_core_m(self, wavelengths_nm, f_number):
+        """The kernel's half size (:meth:`psf_margin_m`): all its light is within it."""
+        return self.psf_margin_m(wavelengths_nm, f_number)

@@ -386,7 +386,9 @@ class WavefrontOptics(ShiftInvariantLens):
         """Diffraction tail (as :class:`DiffractionLimitedOptics`) plus the geometric blur radius
         ``2 N max|grad_rho W|`` (the largest transverse ray aberration, Welford, Aberrations of Optical Systems)."""
         lam_n = wavelengths_nm.max() * 1e-9 * f_number
-        b = f_number.shape[0]
-        z = self.coefficients(b, f_number).detach()
-        grad_rho_m = self._max_step_um(z, self.pupil_samples) * 1e-6 * self.pupil_samples / 2
-        return 2 * lam_n / (math.pi**3 * self.psf_tolerance) + 2 * f_number.detach() * grad_rho_m
+        return 2 * lam_n / (math.pi**3 * self.psf_tolerance) + self.psf_core_m(wavelengths_nm, f_number)
+
+    def psf_core_m(self, wavelengths_nm, f_number):
+        """The geometric blur radius ``2 N max|grad_rho W|`` (:meth:`psf_margin_m`)."""
+        z = self.coefficients(f_number.shape[0], f_number).detach()
+        return 2 * f_number.detach() * self._max_step_um(z, self.pupil_samples) * 1e-6 * self.pupil_samples / 2
