@@ -13,7 +13,7 @@ Sets (``filter_set(name)``):
 
 :class:`SpectralQE` holds the spectra on their native grid and resamples them once per image
 wavelength grid (linear, 0 outside: ISETCam ``interp1(..., 'linear', 0)``), cached; with
-``learnable=True`` the filters are ``nn.Parameter`` s kept non-negative through a softplus. A per-item QE (one
+``learnable=True`` the filters are ``nn.Parameter`` s kept in [0, 1] through a sigmoid. A per-item QE (one
 curve set per batch item, e.g. of :func:`shifted_qe`) holds filters ``[B, C, Ln]`` and gives ``[B, C, L]``; the
 :class:`~isettorch.sensor.Sensor` takes it as a per-call ``spectral_qe``.
 """
@@ -122,24 +122,26 @@ def photodiode_qe(wavelengths_nm, value: float = 1.0, *, dtype=None, device=None
                       device=device)
 
 
-def _inv_softplus(x: torch.Tensor, floor: float = 1e-8) -> torch.Tensor:
-    x = x.clamp_min(floor)
-    return x + torch.log(-torch.expm1(-x))
+def _logit(x: torch.Tensor, floor: float = 1e-8) -> torch.Tensor:
+    """The inverse of the sigmoid, of ``x`` held in [floor, 1 - floor]."""
+    x = x.clamp(floor, 1 - floor)
+    return torch.log(x) - torch.log1p(-x)
 
 
 class SpectralQE(nn.Module):
     """Combined spectral QE ``[C, L]`` = colour filters x IR filter x photodiode QE.
 
     Args:
-        filters: ``[C, Ln]`` transmittances on ``wavelengths_nm`` (non-negative), or ``[B, C, Ln]`` for a per-item
+        filters: ``[C, Ln]`` transmittances on ``wavelengths_nm`` (in [0, 1]), or ``[B, C, Ln]`` for a per-item
             QE (one set of curves per batch item; the QE is then ``[B, C, L]``).
         wavelengths_nm: native grid ``[Ln]`` (nm).
         channel_names: C names (CFA letters such as 'R', 'G', 'B').
         ir_filter, pixel_qe: optional ``[Ln]`` spectra on the same grid (default 1).
-        learnable: make the filters ``nn.Parameter`` s, kept non-negative by a softplus. Values below 1e-8 start
-            at 1e-8, where the softplus's slope (the parameter's gradient factor) is also about 1e-8: an entry that
-            starts at 0 barely moves under plain SGD (Adam rescales its step). Start learnable filters from positive
-            values, or use :class:`~isettorch.sensor.FilterBank` (smooth bands through a sigmoid).
+        learnable: make the filters ``nn.Parameter`` s, kept in [0, 1] by a sigmoid (a filter that can be made at
+            every step, DESIGN.md; a softplus had let 50 Adam steps take a 0.9 filter to 5.7). Values start within
+            [1e-8, 1 - 1e-8], where the sigmoid's slope (the parameter's gradient factor) is about 1e-8: an entry
+            that starts at 0 or 1 barely moves under plain SGD (Adam rescales its step). Start learnable filters
+            inside (0, 1), or use :class:`~isettorch.sensor.FilterBank` (smooth bands through a sigmoid).
 
     Example:
         >>> qe = SpectralQE.from_cfa(CFA('GBRG'))
@@ -158,6 +160,9 @@ class SpectralQE(nn.Module):
             raise ValueError(f"filters: expected shape [C, {w.numel()}] (or [B, C, {w.numel()}] per item) to match "
                              f"wavelengths_nm, got {tuple(f.shape)}")
         check_nonnegative(f, "filters")
+        if float(f.max()) > 1 + 1e-9:  # (as ir_filter and pixel_qe: a filter of 3 read three times the electrons)
+            raise ValueError(f"filters: expected transmittances in [0, 1] at every wavelength, got a maximum of "
+                             f"{float(f.max()):.6g}")
         if len(channel_names) != f.shape[-2]:
             raise ValueError(f"channel_names: expected {f.shape[-2]} names, got {list(channel_names)}")
         extra = torch.ones_like(w)
@@ -176,7 +181,7 @@ class SpectralQE(nn.Module):
         self.register_buffer("wavelengths_nm", w)
         self.register_buffer("extra", extra)
         if learnable:
-            self.raw_filters = nn.Parameter(_inv_softplus(f))
+            self.raw_filters = nn.Parameter(_logit(f))
         else:
             self.register_buffer("fixed_filters", f)
         self._cache: dict = {}
@@ -221,7 +226,7 @@ class SpectralQE(nn.Module):
     def filters(self) -> torch.Tensor:
         """Colour filter transmittances on the native grid ``[C, Ln]``."""
         if self.learnable:
-            return nn.functional.softplus(self.raw_filters)
+            return torch.sigmoid(self.raw_filters)
         return self.fixed_filters
 
     @property

@@ -93,6 +93,24 @@ def test_learnable_filters_nonnegative_and_trainable():
     assert qe.native().sum() < native0.sum()
 
 
+def test_learnable_filters_stay_transmittances_and_fixed_ones_above_1_are_refused():
+    """A softplus kept learnable filters non-negative only: 50 Adam steps (lr 0.1) that maximise the signal took a
+    flat 0.9 filter to 5.68 (DESIGN.md: learnable physics is manufacturable at every step; design files refuse
+    filters above 1). Now a sigmoid holds them in [0, 1]; fixed filters above 1 are refused like ir_filter's."""
+    w = torch.arange(400.0, 701.0, 10.0)
+    qe = SpectralQE(torch.full((1, 31), 0.9, dtype=torch.float64), w, ["W"], learnable=True)
+    torch.testing.assert_close(qe.native(), torch.full((1, 31), 0.9, dtype=torch.float64), rtol=0, atol=1e-12)
+    opt = torch.optim.Adam(qe.parameters(), lr=0.1)
+    for _ in range(50):
+        opt.zero_grad()
+        (-qe(w).sum()).backward()
+        opt.step()
+    top = float(qe.native().max())
+    assert 0.99 < top <= 1.0
+    with pytest.raises(ValueError, match=r"^filters: expected transmittances in \[0, 1\] .* maximum of 3"):
+        SpectralQE(torch.full((1, 31), 3.0), w, ["W"])
+
+
 def test_preblur_kernel_is_fspecial():
     k = 5
     g = isetcam_preblur_kernel(k).numpy()
