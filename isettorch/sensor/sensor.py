@@ -972,6 +972,12 @@ class Sensor(nn.Module):
         before the rounding, so the DN are whole codes whose mean is the black level plus the signal."""
         if self.adc_bits is None:
             raise ValueError("volts_to_dn: the sensor has an analog readout (adc_bits is None)")
+        # whole numbers are exact up to 2^(mantissa bits + 1): 1 / eps = 2^mantissa bits
+        exact_bits = round(math.log2(1 / torch.finfo(volts.dtype).eps)) + 1 if volts.is_floating_point() else 64
+        if self.adc_bits > exact_bits:  # (float32 rounded a 25-bit top code 2^25 - 1 up to 2^25, above white)
+            raise ValueError(f"adc_bits: {self.adc_bits}-bit codes are not whole numbers in {volts.dtype} (exact up to "
+                             f"2^{exact_bits}); render in float64 (e.g. camera.double()) or use at most "
+                             f"{exact_bits} bits")
         whole, part = self._black_parts()
         x = volts / self.lsb_v + part if part else volts / self.lsb_v
         if quantize:

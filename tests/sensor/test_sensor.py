@@ -83,6 +83,24 @@ def test_gain_conventions_clipping_and_adc():
     assert ae.noise_free.max().item() == pytest.approx(16 + 0.95 * 239, rel=1e-9)
 
 
+def test_adc_codes_beyond_the_dtypes_whole_numbers_are_refused():
+    """float32 holds whole numbers up to 2^24: a 25-bit ADC's top code 2^25 - 1 read 2^25 (above white, normalized()
+    above 1) and a 32-bit mid code 530242489 read 530242496. Such an ADC now asks for float64, where the codes are
+    exact; 24 bits in float32 are."""
+    from isettorch.sensor import Sensor
+
+    for bits, dtype in ((24, torch.float32), (25, torch.float64), (32, torch.float64)):
+        s = Sensor(rows=4, cols=4, cfa="W", adc_bits=bits).to(dtype)
+        top = s.capture(torch.full((1, 1, 4, 4), 1e12, dtype=dtype), exposure_s=1.0, noise=False).data
+        assert bool((top == 2 ** bits - 1).all()), (bits, float(top.max()))
+        mid = s.capture(torch.full((1, 1, 4, 4), 1234.567, dtype=dtype), exposure_s=1.0, noise=False).data
+        v = 1234.567 * s.conversion_gain_v_per_e  # volts of 1234.567 e-
+        assert float(mid[0, 0, 0, 0]) == round(v / (s.voltage_swing_v / 2 ** bits)), bits
+    s = Sensor(rows=4, cols=4, cfa="W", adc_bits=25)
+    with pytest.raises(ValueError, match=r"^adc_bits: 25-bit codes are not whole numbers in torch.float32"):
+        s.capture(torch.full((1, 1, 4, 4), 1e3), exposure_s=1.0, noise=False)
+
+
 def test_batched_exposure_and_gain_equal_one_at_a_time():
     torch.manual_seed(0)
     photons = torch.rand(3, 3, 16, 16, dtype=torch.float64) * 1e15
