@@ -65,6 +65,10 @@ def _parse(cell) -> list[list[str]]:
             s = CFA_LIBRARY[key]
         if "/" in s:
             rows = [list(r.strip().upper()) for r in s.split("/")]
+            if any(len(r) != len(rows[0]) for r in rows) or not rows[0]:  # (torch's 'expected sequence of length')
+                raise ValueError(f"cell: expected rows of one length between the '/' separators (a rectangular "
+                                 f"N x M pattern such as 'RG/GB'), got {cell!r} (rows of "
+                                 f"{[len(r) for r in rows]} letters)")
         else:
             n = len(s)
             side = math.isqrt(n)

@@ -81,6 +81,9 @@ def test_errors():
         CFA("RGXB")
     with pytest.raises(ValueError, match="square number"):
         CFA("RGB")
+    for ragged in ("RG/G", "RG/GB/", "RGB/GB"):  # (torch's 'expected sequence of length 2 at dim 1 (got 1)')
+        with pytest.raises(ValueError, match=r"^cell: expected rows of one length .*\(rows of \["):
+            CFA(ragged)
     with pytest.raises(ValueError, match="rectangular"):
         CFA([["R", "G"], ["B"]])
     with pytest.raises(ValueError, match="lacks"):
