@@ -21,7 +21,8 @@ wrong) and high-passed (each channel's local mean stays MHC's). So a constant co
 gives it, at any level and colour and for every Bayer phase, and the network adds no channel bias of its own
 (issue #35; ``tests/isp/test_learned_guarantees.py``). The network is not scale-equivariant (it was trained at
 white = 1); below about 0.3 of white the gate's absolute threshold takes over, so dark mosaics tend to MHC, which is
-linear.
+linear; above white the noise-free networks' corrections fade out (off where a sample within 5 cells reaches 1.5,
+``white_fade``), so highlights above white, and a mosaic not normalised to white = 1 (in DN), get the reference.
 
 Before the guard, each shipped configuration may scale the network's correction (:data:`PRETRAINED_CORRECTION_SCALES`)
 and blend in a classical estimate (:data:`PRETRAINED_BLENDS`: ``learned`` is 0.7 times its network's output plus 0.3
@@ -47,7 +48,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .._autograd import records_grad, safe_sqrt, tensor_cache
-from .._checks import FLOAT_DTYPES, check_bool, check_finite, check_zip_crc
+from .._checks import FLOAT_DTYPES, check_bool, check_finite, check_zip_crc, is_real
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
 from .demosaicing.linear import demosaic_malvar2004
 from .demosaicing.menon2007 import demosaic_menon2007
@@ -87,8 +88,13 @@ LEARNED_METHODS = {"learned": "noise_free", "learned_tiny": "tiny", "learned_sma
 #: the guard each shipped network runs under (:func:`guard_residual`), part of what ``load_pretrained`` returns.
 #: The noise-free model's thresholds were chosen on ``training/stress_set.py`` only (no Kodak/McMaster); the joint
 #: model keeps its correction wherever the mosaic is not exactly constant (its noise is structure to remove).
+#: The noise-free networks' corrections fade out above white (``white_fade`` 1.5, :func:`_white_weight`): trained at
+#: white = 1, ``learned`` was 3.1 dB below MHC on a synthetic textured image x 2 (+2.4 above at x 1); with the
+#: fade it is +1.1 / +0.2 / +0.0 dB at x 1.5 / 2 / 3, and exactly MHC in a x 3 highlight (audit of 2026-12-03,
+#: ``tests/isp/test_learned_guarantees.py``); a mosaic within [0, 1] is unchanged. The joint model has none: noise
+#: takes a mosaic near white above it, which is its training domain.
 PRETRAINED_GUARDS = {
-    "noise_free": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 16.0},
+    "noise_free": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 16.0, "white_fade": 1.5},
     "joint_denoise": {"rel": 0.0, "abs": 1e-6, "window": 5, "power": 4, "highpass_sigma_px": 16.0},
     # the fast networks keep the noise-free gate; their high-pass is narrower (at 16 px the tiny network kept
     # 0.17/255 of red bias on a generator scene of the bias test) and computed on 4 x 4 means (the full-resolution
@@ -96,8 +102,10 @@ PRETRAINED_GUARDS = {
     # as the shifted sums of _separable); the small network's 4 px chosen on the bias test's images and the stress
     # set's photographs, the tiny network's 8 px (with its gate threshold and correction scale) on the 30 selection
     # photographs (docs/training_log.md#tiny_guard_photos_2026-11-29); never Kodak/McMaster
-    "tiny": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 8.0, "highpass_decimation": 4},
-    "small": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4},
+    "tiny": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 8.0, "highpass_decimation": 4,
+             "white_fade": 1.5},
+    "small": {"rel": 0.1, "abs": 0.03, "window": 5, "power": 4, "highpass_sigma_px": 4.0, "highpass_decimation": 4,
+              "white_fade": 1.5},
 }
 #: the scale of the network's correction in each shipped configuration (``DemosaicNet.correction_scale``; 1 where
 #: absent): the networks' corrections learned on synthetic scenes are partly too large for photographs, so each is
@@ -220,7 +228,7 @@ BASES = {
     "menon2007_norefine": lambda raw: demosaic_menon2007(raw, "RGGB", refine=False),
 }
 
-_GUARD_KEYS = ("rel", "abs", "window", "power", "highpass_sigma_px", "highpass_decimation", "reference")
+_GUARD_KEYS = ("rel", "abs", "window", "power", "highpass_sigma_px", "highpass_decimation", "white_fade", "reference")
 #: what a :class:`DemosaicNet`'s guard keeps where it gates the correction off (its ``guard["reference"]``): MHC
 #: (the default: linear, exact on constants, unbiased) or the network's own ``base`` (exact on constants too for
 #: every base in :data:`BASES`, and not computed twice)
@@ -237,7 +245,9 @@ def _split_guard(guard: dict) -> tuple[dict, str]:
 
 
 def _check_guard(rel=0.1, abs=0.03, window=5, power=4.0, highpass_sigma_px=None,  # noqa: A002
-                 highpass_decimation=None) -> None:
+                 highpass_decimation=None, white_fade=None) -> None:
+    if white_fade is not None and not (is_real(white_fade) and 1 < float(white_fade) < math.inf):
+        raise ValueError(f"white_fade: expected None or a finite level above white (1), got {white_fade!r}")
     if not (float(rel) >= 0 and float(abs) > 0):
         raise ValueError(f"rel, abs: expected rel >= 0 and abs > 0 (abs keeps the gate defined on black), got "
                          f"{rel}, {abs}")
@@ -346,9 +356,23 @@ def structure_gate(raw: torch.Tensor, rel: float = 0.1, abs: float = 0.03, windo
     return _pixel_gate(raw, rel, abs, window, power)
 
 
-def _pixel_gate(raw: torch.Tensor, rel: float, abs: float, window: int, power: float) -> torch.Tensor:  # noqa: A002
-    """:func:`structure_gate` on options already checked: each cell's value copied to its four pixels."""
-    return F.interpolate(_cell_gate(raw, rel, abs, window, power), scale_factor=2, mode="nearest")
+def _pixel_gate(raw: torch.Tensor, rel: float, abs: float, window: int, power: float,  # noqa: A002
+                white_fade: float | None = None) -> torch.Tensor:
+    """:func:`structure_gate` on options already checked: each cell's value copied to its four pixels; with
+    ``white_fade``, times :func:`_white_weight`."""
+    gate = _cell_gate(raw, rel, abs, window, power)
+    if white_fade is not None:
+        gate = gate * _white_weight(raw, window, white_fade).to(gate.dtype)
+    return F.interpolate(gate, scale_factor=2, mode="nearest")
+
+
+def _white_weight(raw: torch.Tensor, window: int, white_fade: float) -> torch.Tensor:
+    """Per 2 x 2 cell (B, 1, H/2, W/2): 1 where no sample within ``window`` cells is above white (1, the level the
+    networks were trained at), falling linearly to 0 where the largest reaches ``white_fade``. The networks are not
+    scale-equivariant: above white their corrections were measured below MHC (``learned`` on a textured image x 1.5:
+    -0.48 dB, x 2: -3.1 dB, x 3: -4.7 dB, and +0.13/255 of red bias; audit of 2026-12-03)."""
+    peak = F.max_pool2d(F.pixel_unshuffle(raw, 2).amax(1, keepdim=True), window, stride=1, padding=window // 2)
+    return ((white_fade - peak) / (white_fade - 1)).clamp_(0, 1)
 
 
 def _cell_gate(raw: torch.Tensor, rel: float, abs: float, window: int, power: float) -> torch.Tensor:  # noqa: A002
@@ -374,7 +398,8 @@ def _pow(x: torch.Tensor, power: float) -> torch.Tensor:
 
 def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.1, abs: float = 0.03,  # noqa: A002
                    window: int = 5, power: float = 4.0, highpass_sigma_px: float | None = 16.0,
-                   highpass_decimation: int | None = None, in_place: bool = False) -> torch.Tensor:
+                   highpass_decimation: int | None = None, white_fade: float | None = None,
+                   in_place: bool = False) -> torch.Tensor:
     """The guarded correction of a network on top of MHC: ``highpass(structure_gate(raw) * residual)``.
 
     The gate (:func:`structure_gate`) leaves MHC where the mosaic has no structure that MHC can get wrong, so a
@@ -394,6 +419,9 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
     Args:
         raw: (B, 1, H, W) RGGB mosaic.
         residual: (B, 3, H, W) the network's correction of MHC.
+        white_fade: None, or the level above white (1) at which the correction is off: between 1 and it, the gate is
+            scaled down linearly with the largest sample within ``window`` cells (:func:`_white_weight`), so a
+            highlight above white, or a mosaic not normalised to white = 1 (DN), gets the reference (MHC).
         in_place: write the result over ``residual`` (which no autograd graph may record), with no full-resolution
             temporary but the gate's one plane (:class:`DemosaicNet` does so in inference; with ``highpass_decimation``
             the low-pass is subtracted as it is interpolated, :func:`_highpass_`).
@@ -401,10 +429,10 @@ def guard_residual(raw: torch.Tensor, residual: torch.Tensor, *, rel: float = 0.
     Returns:
         (B, 3, H, W) the guarded correction.
     """
-    _check_guard(rel, abs, window, power, highpass_sigma_px, highpass_decimation)
+    _check_guard(rel, abs, window, power, highpass_sigma_px, highpass_decimation, white_fade)
     # each 2 x 2 cell's weight copied to its four pixels, one plane (multiplying through a broadcast view of the
     # cells instead, inner dimension 2, takes 4.1 against 1.0 ms/MP on 3 channels, 2 threads, AVX2)
-    gate = _pixel_gate(raw, rel, abs, window, power).to(residual.dtype)
+    gate = _pixel_gate(raw, rel, abs, window, power, white_fade).to(residual.dtype)
     if in_place:
         out = residual.mul_(gate)
         return out if highpass_sigma_px is None else _highpass_(out, float(highpass_sigma_px), highpass_decimation)
