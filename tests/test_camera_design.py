@@ -465,6 +465,15 @@ def test_network_checks_its_inputs():
         net(torch.rand(1, 2, 8, 8), torch.rand(3, 8, 8))
     with pytest.raises(ValueError, match="width"):
         MosaicReconstructionNet(3, width=0)
+    raw = torch.rand(1, 1, 32, 32)
+    raw[0, 0, 5, 7] = float("nan")  # came out as 147 NaN outputs (the whole image through the context path)
+    for context in (0, 8):
+        with pytest.raises(ValueError, match=r"^raw: expected finite values, found 1 NaN/Inf"):
+            MosaicReconstructionNet(3, width=4, depth=1, context_scale=context)(raw, torch.rand(3, 32, 32))
+    weights = torch.rand(3, 32, 32)
+    weights[0, 0, 0] = float("inf")
+    with pytest.raises(ValueError, match=r"^weights: expected finite values"):
+        net(torch.rand(1, 1, 32, 32), weights)
 
 
 def test_shipped_designs_load_by_name_and_can_be_built():

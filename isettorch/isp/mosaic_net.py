@@ -22,6 +22,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .._autograd import records_grad
+from .._checks import check_finite
 
 __all__ = ["MosaicReconstructionNet"]
 
@@ -96,6 +97,9 @@ class MosaicReconstructionNet(nn.Module):
             raise ValueError(f"raw: expected the network's dtype {dt}, got {raw.dtype} (convert one to the other)")
         if weights.shape[0] not in (1, raw.shape[0]):
             raise ValueError(f"weights: expected 1 or {raw.shape[0]} maps (one per item), got {weights.shape[0]}")
+        # (one NaN sample came out as 147 NaN outputs, and through the context path as the whole image)
+        check_finite(raw, "raw")
+        check_finite(weights, "weights")
         w = weights.to(raw.dtype).expand(raw.shape[0], -1, -1, -1)
         if (not self.context_scale and raw[0, 0].numel() > STRIP_PIXELS and h > 2 * STRIP_ROWS
                 and not records_grad(raw, w, self)):
