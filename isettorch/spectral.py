@@ -35,6 +35,7 @@ __all__ = [
     "wavelength_weights",
     "resample",
     "resample_rows",
+    "resample_held",
     "band_average",
     "photons_to_energy",
     "planck_relative",
@@ -137,6 +138,24 @@ def resample(values: torch.Tensor, src_nm, dst_nm, dim: int = -1) -> torch.Tenso
     idx, t, inside = _linear_weights(src, dst, v.dtype)
     out = (v[..., idx] * (1 - t) + v[..., idx + 1] * t) * inside
     return out.movedim(-1, dim)
+
+
+def resample_held(values: torch.Tensor, src_nm, dst_nm, dim: int = -1) -> torch.Tensor:
+    """:func:`resample` with the end values held outside ``src_nm`` instead of 0: for measured reflectances, which do
+    not drop to 0 beyond their data (CIE 015:2018 section 7.2.2, extrapolation by the nearest measured value;
+    colour-science's default constant extrapolation).
+
+    Example:
+        >>> resample_held(torch.tensor([0.2, 0.4]), torch.tensor([400., 500.]), torch.tensor([380., 450., 600.]))
+        tensor([0.2000, 0.3000, 0.4000])
+    """
+    src = check_wavelengths(torch.as_tensor(src_nm), "src_nm").to(torch.float64)
+    dst = check_wavelengths(torch.as_tensor(dst_nm), "dst_nm").detach().to(device=src.device, dtype=torch.float64)
+    # resample() needs a strictly increasing grid; clamping can repeat the end points, so interpolate on the unique
+    # values and scatter back
+    uniq, inverse = torch.unique(dst.clamp(float(src[0]), float(src[-1])), return_inverse=True)
+    out = resample(values, src, uniq.to(values.device), dim=dim)
+    return out.index_select(dim, inverse.to(out.device))
 
 
 def _check_dim(x: torch.Tensor, dim, name: str) -> None:

@@ -213,7 +213,8 @@ REFLECTANCE_SETS = ("macbeth", "rawtoaces190", "macbeth+rawtoaces190")
 def reflectance_set(name: str, wavelengths_nm, *, dtype=None, device=None) -> torch.Tensor:
     """Surface reflectances (N, L) on a grid: ``"macbeth"`` (24 ColorChecker patches,
     :func:`isettorch.scene.macbeth_reflectances`), ``"rawtoaces190"`` (the 190 training reflectances of
-    the Academy's rawtoaces IDT, via colour-science) or ``"macbeth+rawtoaces190"``.
+    the Academy's rawtoaces IDT, via colour-science) or ``"macbeth+rawtoaces190"``; both sets hold their end values
+    beyond their data (380-730 and 380-780 nm: :func:`~isettorch.spectral.resample_held`).
 
     Reference: ISETCam ``imageSensorTransform`` surfaces ``'mcc'`` / ``'multisurface'``.
     """
@@ -224,7 +225,9 @@ def reflectance_set(name: str, wavelengths_nm, *, dtype=None, device=None) -> to
         r = _macbeth_reflectances(w)
     elif key in ("rawtoaces190", "multisurface"):
         src, vals = _rawtoaces_native()
-        r = spectral.resample(torch.from_numpy(vals), torch.from_numpy(src), w.to(torch.float64).cpu())
+        # end values held beyond the data's 380-780 nm, as the Macbeth set's (they dropped to 0: a sensor with
+        # near-infrared response fitted on 380-830 nm got responses up to 82 % off)
+        r = spectral.resample_held(torch.from_numpy(vals), torch.from_numpy(src), w.to(torch.float64).cpu())
     elif key == "macbeth+rawtoaces190":
         r = torch.cat([reflectance_set("macbeth", w, dtype=torch.float64).cpu(),
                        reflectance_set("rawtoaces190", w, dtype=torch.float64).cpu()])
@@ -899,7 +902,9 @@ def _check_display_matrix(rgb_to_xyz: torch.Tensor) -> None:
 
 class DisplayEncode(nn.Module):
     """Encode linear display RGB for storage: ``"srgb"`` (IEC 61966-2-1), ``"linear"``, a gamma (float) or a
-    display object (its ``inverse_eotf``). Values are clipped to [0, 1] first (``clip=True``)."""
+    display object (its ``inverse_eotf``). Values are clipped to [0, 1] first (``clip=True``). With ``clip=False``
+    values above 1 keep their headroom (the same curve continues) and, for every encoding but ``"linear"``, values
+    below 0, outside the transfer curves' domain, encode as 0 (:func:`~isettorch.image.srgb_encode`'s rule)."""
 
     def __init__(self, encoding="srgb", clip: bool = True) -> None:
         super().__init__()
@@ -922,7 +927,10 @@ class DisplayEncode(nn.Module):
             return srgb_encode(x, clip=self.clip)
         if self.encoding == "linear":
             return x
-        return x.clamp_min(torch.finfo(x.dtype).tiny) ** (1.0 / float(self.encoding))
+        # 0 (and below) encodes as 0: the power of the smallest normal number left 5.7e-18 for gamma 2.2 in float32;
+        # the clamp keeps the gradient finite where the power's is not (at 0)
+        powered = x.clamp_min(torch.finfo(x.dtype).tiny) ** (1.0 / float(self.encoding))
+        return torch.where(x > 0, powered, torch.zeros_like(powered))
 
     def extra_repr(self) -> str:
         return f"encoding={self.encoding!r}, clip={self.clip}"

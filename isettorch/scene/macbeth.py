@@ -61,11 +61,7 @@ def macbeth_reflectances(wavelengths=None, *, dtype=None, device=None) -> torch.
     """
     w = resolve_grid(wavelengths, dtype, device)
     _, src, vals = _native_reflectances()
-    dst = w.detach().to(device="cpu", dtype=torch.float64).clamp(float(src[0]), float(src[-1]))
-    # resample() needs a strictly increasing grid; clamping can repeat the end points, so interpolate
-    # on the unique values and scatter back.
-    uniq, inverse = torch.unique(dst, return_inverse=True)
-    out = spectral.resample(torch.from_numpy(vals), torch.from_numpy(src), uniq, dim=-1)[:, inverse]
+    out = spectral.resample_held(torch.from_numpy(vals), torch.from_numpy(src), w.detach().cpu())
     return out.to(dtype=w.dtype, device=w.device)
 
 

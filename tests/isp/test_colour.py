@@ -225,6 +225,17 @@ def test_srgb_encoding_matches_colour_science():
     np.testing.assert_allclose(DisplayEncode(2.2)(torch.tensor([0.5], dtype=torch.float64)).numpy(), 0.5 ** (1 / 2.2))
 
 
+def test_gamma_encoding_without_clipping_keeps_headroom_and_encodes_zero_and_below_as_zero():
+    """clip=False: above white follows the curve (2 ** (1 / 2.2)); 0 and negatives encode as 0 as in srgb_encode (the
+    gamma path gave 5.7e-18 in float32, the power of the smallest normal number), with a finite gradient."""
+    x = torch.tensor([-0.2, -0.01, 0.0, 0.25, 2.0], requires_grad=True)
+    enc = DisplayEncode(2.2, clip=False)(x)
+    assert enc[:3].tolist() == [0.0, 0.0, 0.0]
+    np.testing.assert_allclose(enc[3:].detach().numpy(), np.array([0.25, 2.0]) ** (1 / 2.2), rtol=1e-6)
+    (g,) = torch.autograd.grad(enc.sum(), x)
+    assert bool(torch.isfinite(g).all()) and g[:3].tolist() == [0.0, 0.0, 0.0]
+
+
 def test_srgb_display_matrix_and_white():
     d = XYZToDisplay("srgb")
     ref = colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB
@@ -540,3 +551,22 @@ def test_a_changed_fit_setting_refits_the_matrix(setting, value):
     fresh = SensorToXYZ(**{setting: value}).fit(qe, w)
     assert not torch.allclose(fresh.matrix, SensorToXYZ().fit(qe, w).matrix, rtol=1e-3, atol=0)
     torch.testing.assert_close(s.fit(qe, w).matrix, fresh.matrix, rtol=1e-12, atol=0)
+
+
+def test_rawtoaces_reflectances_hold_their_end_values_beyond_their_data():
+    """The 190 training reflectances (380-780 nm) dropped to 0 beyond 780 nm (resample's 0 outside), so a
+    near-infrared-sensitive sensor fitted on 380-830 nm saw black surfaces there while the Macbeth set held its end
+    values. Now both hold them, as colour-science's default constant extrapolation does (CIE 015:2018 7.2.2)."""
+    from colour import SpectralShape
+    from colour.characterisation import read_training_data_rawtoaces_v1
+
+    from isettorch.isp.colour import reflectance_set
+
+    w = torch.arange(380.0, 831.0, 5.0, dtype=torch.float64)
+    ours = reflectance_set("rawtoaces190", w)
+    ref = read_training_data_rawtoaces_v1().copy().align(SpectralShape(380, 830, 5))  # Constant extrapolator
+    np.testing.assert_allclose(ours.numpy(), np.asarray(ref.values).T, atol=1e-12)
+    beyond = ours[:, w > 780]
+    assert torch.equal(beyond, ours[:, w == 780].expand_as(beyond)) and float(ours[:, w == 780].max()) > 0.5
+    both = reflectance_set("macbeth+rawtoaces190", w)
+    torch.testing.assert_close(both[24:], ours)
