@@ -47,21 +47,33 @@ def _prep(optics, wavelengths_nm, dtype=torch.float64):
     return w, n
 
 
-def psf(optics, wavelengths_nm, spacing_m: float, size: int = 64, **otf_kwargs) -> torch.Tensor:
+def psf(optics, wavelengths_nm, spacing_m: float, size: int = 64, oversample: int = 1, **otf_kwargs) -> torch.Tensor:
     """Point-spread function ``[B, L, size, size]`` sampled at ``spacing_m`` on the image plane, sum 1.
 
     The origin is sample ``(size // 2, size // 2)``. Computed as the inverse DFT of the OTF on the matching
     frequency grid, so it is the PSF periodised with period ``size * spacing_m`` (choose it wide enough).
+    That grid holds the OTF's frequencies up to ``1 / (2 spacing_m)`` only: where the OTF reaches beyond (a pupil's
+    cutoff is ``1 / (lambda N)``, so at a spacing coarser than ``lambda N / 2``) the result is the band-limited
+    PSF, not its point samples (at ``1.5 lambda N``: the Airy peak 0.68 of the sum for 0.91, with negative lobes).
+    ``oversample`` s computes it at ``spacing_m / s`` and keeps every s-th sample: point samples once
+    ``spacing_m / s`` resolves the OTF (:func:`defocus_maps` and the renderers blur with the band-limited one, which
+    is what a sampled image gets).
     ``otf_kwargs``: passed to ``optics.otf`` (e.g. :class:`~isettorch.optics.WavefrontOptics`'
     ``extra_defocus_diopters``). The lens focused at infinity: focused at an object distance, a pupil-limited
     lens (``optics.blur_at_image_distance``) has this PSF magnified by ``d_i / f`` (its working f-number).
     """
     _check_grid(spacing_m, size)
+    if isinstance(oversample, bool) or not isinstance(oversample, int) or oversample < 1:
+        raise ValueError(f"oversample: expected an integer >= 1, got {oversample!r}")
     w, n = _prep(optics, wavelengths_nm)
-    f = torch.fft.fftfreq(size, d=float(spacing_m), dtype=w.dtype)[None, :].expand(n.numel(), -1)
+    fine = size * oversample
+    f = torch.fft.fftfreq(fine, d=float(spacing_m) / oversample, dtype=w.dtype)[None, :].expand(n.numel(), -1)
     otf = optics.otf(f, f, w, n, **otf_kwargs)
     p = torch.fft.ifft2(otf).real
     p = torch.fft.fftshift(p, dim=(-2, -1))
+    if oversample > 1:  # the samples at multiples of spacing_m from the origin (fine // 2)
+        keep = fine // 2 + (torch.arange(size) - size // 2) * oversample
+        p = p[..., keep, :][..., keep]
     return p / p.sum(dim=(-2, -1), keepdim=True)
 
 

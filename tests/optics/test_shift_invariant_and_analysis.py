@@ -181,3 +181,22 @@ def test_analysis_helpers_refuse_bad_grids():
         focal_length_for_fov_mm("APS-C", 60.0, along="diag")
     with pytest.raises(ValueError, match="focal_length_mm"):  # (NaN)
         field_of_view_deg("APS-C", float("nan"))
+
+
+def test_psf_at_a_coarse_spacing_is_band_limited_and_oversample_gives_point_samples():
+    """At 1.5 lambda N the DFT grid holds only the OTF's base band: analysis.psf returned the band-limited PSF (peak
+    0.68 of the sum, negative lobes) under a docstring that said 'sampled at spacing_m'. The docstring now says so,
+    and oversample=4 gives the point samples of the Airy pattern (2 J1(v) / v)^2 (scipy), normalised to sum 1."""
+    n_f, lam = 4.0, 550e-9
+    dl = DiffractionLimitedOptics(n_f, 4e-3)
+    dx, size = 1.5 * lam * n_f, 64
+    k = (np.arange(size) - size // 2) * dx
+    v = math.pi * np.hypot(k[:, None], k[None, :]) / (lam * n_f)
+    airy = np.where(v == 0, 1.0, (2 * special.j1(np.where(v == 0, 1.0, v)) / np.where(v == 0, 1.0, v)) ** 2)
+    airy /= airy.sum()
+    band = analysis.psf(dl, [550.0], dx, size, oversample=1)[0, 0].numpy()
+    assert band.max() < 0.75 * airy.max() and band.min() < 0  # the band-limited PSF
+    point = analysis.psf(dl, [550.0], dx, size, oversample=4)[0, 0].numpy()
+    assert np.abs(point - airy).max() < 2e-3 * airy.max()
+    with pytest.raises(ValueError, match="^oversample: expected an integer >= 1"):
+        analysis.psf(dl, [550.0], dx, size, oversample=0)
