@@ -123,6 +123,7 @@ CASES: dict[str, list[tuple[list[str], str]]] = {
                     (["cooke_triplet", "--wavelengths-nm", "5", "--json"],
                      "--wavelengths-nm: Cooke triplet f/5 40 deg, the medium after surface 1: glass")],
     "parity": [([MISSING + ".npz"], "no_such_input.npz"), (["{tmp}/x.npz", "--repeat", "-1"], "--repeat"),
+               (["{tmp}"], "CASE {tmp}: '{tmp}' is a folder, expected a parity case .npz file"),  # ('no such case')
                (["{tmp}/x.npz", "--repeat", "1000000000"], "--repeat")],
     "process": [([MISSING, "--camera", "default", "--model", "{garbage}"], "RAW"),
                 (["{images}/a.png", "--camera", "{tmp}/no_such.yaml", "--model", "{garbage}"], "--camera"),

@@ -383,6 +383,7 @@ def run(args) -> int:
             # ValueError: what read_parity_case / check_parity_case and the stages' own checks say about the case
             # (its message names the key); other types come from elsewhere and keep their name
             message = " ".join(str(err).split())
+            message = message.removeprefix("path: ")  # (the reader's argument: CASE names it on the command line)
             if not isinstance(err, ValueError):
                 message = f"{type(err).__name__}: {message}"
             results.append({"name": Path(path).stem, "path": str(path), "error": message, "stages": {}, "ok": False})

@@ -473,6 +473,8 @@ def read_parity_case(path, *, check: bool = True) -> dict:
     import zipfile
 
     p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"path: {str(p)!r} is a folder, expected a parity case .npz file")
     if not p.is_file():
         raise ValueError(f"path: no such parity case {str(p)!r}")
     if not zipfile.is_zipfile(p):
