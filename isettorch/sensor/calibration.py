@@ -1053,6 +1053,9 @@ def simulate_capture(sensor, result: dict, frames: int = 2, generator: torch.Gen
                      ) -> tuple[dict[float, np.ndarray], dict[float, np.ndarray]]:
     """Simulate the calibrated capture with ``sensor`` (e.g. from :func:`load_sensor_config`): at every flat
     exposure, a uniform electron rate per channel equal to the measured mean signal (DN) / K / t, and dark frames.
+    At a saturated level the measured mean is the clipped one, so the rate is the linear levels' signal per second
+    (through the origin) instead: the sensor's full well then clips it as the camera's did (the clipped mean as a
+    rate put the well at the mean electron count, so half the pixels read below it).
     Returns ``(flat, dark)``: {exposure_ms: (frames, H, W) DN}."""
     from .cfa import CFA
 
@@ -1066,7 +1069,12 @@ def simulate_capture(sensor, result: dict, frames: int = 2, generator: torch.Gen
         k = _scalars(result)["conversion_gain_dn_per_e"]  # the simulated sensor has one gain
         for c, n in enumerate(cfa.channel_names):
             p = ptc[n] if result["cfa"] else ptc
-            rate[idx == c] = max(p["signal_dn"][i], 0.0) / k / (ms * 1e-3)
+            signal = max(p["signal_dn"][i], 0.0)
+            if p["saturated"][i]:
+                lin = [j for j, on in enumerate(p["linear"]) if on]
+                signal = ms * _origin(np.array([p["exposure_ms"][j] for j in lin]),
+                                      np.array([p["signal_dn"][j] for j in lin]))
+            rate[idx == c] = signal / k / (ms * 1e-3)
         rate = rate.expand(frames, 1, rows, cols)
         t = ms * 1e-3
         flat[ms] = sensor.capture(rate, exposure_s=t, generator=generator).data[:, 0].numpy()
