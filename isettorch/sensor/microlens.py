@@ -659,6 +659,18 @@ def microlens_etendue(chief_ray_angle_deg, method: str = "centred", *, model: st
                   torch.float64, torch.device("cpu"))
     h = float(t.sum())
     n_eq = h / float((t / n).sum())
+    # the closed form's microlens is ideal, as wide as the pixel and focused at the stack's depth: another aperture
+    # or focal length was accepted and ignored (a microlens half or twice the pixel's width gave the same etendue)
+    _pos(kw["pixel_size_m"], "pixel_size_m")
+    f_ml = kw.get("microlens_focal_length_m")
+    if f_ml is not None and abs(float(f_ml) - h) > 1e-9 * h:
+        raise ValueError(f"microlens_focal_length_m: model 'geometric' has an ideal microlens focused at the stack's "
+                         f"depth ({h:.6g} m), got {float(f_ml):.6g} m; leave it out, or use model='phase_space'")
+    diam, given = _microlens_diameter_m(kw, h if f_ml is None else float(f_ml), float(kw["pixel_size_m"]))
+    if given is not None and abs(diam - float(kw["pixel_size_m"])) > 1e-9 * float(kw["pixel_size_m"]):
+        raise ValueError(f"{given}: model 'geometric' has a microlens as wide as the pixel "
+                         f"({float(kw['pixel_size_m']):.6g} m), got a diameter of {diam:.6g} m; leave it out, or use "
+                         f"model='phase_space'")
     cra = torch.as_tensor(chief_ray_angle_deg, dtype=torch.float64)
     _check_cra(cra)
     _pos(kw["pixel_size_m"], "pixel_size_m")

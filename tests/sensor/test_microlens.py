@@ -996,3 +996,19 @@ def test_pixel_values_the_etendue_does_not_read_are_checked_as_pixel_optics_chec
         microlens_etendue(0.0, "centred", **kw)
     with pytest.raises(ValueError, match="rows, cols: expected positive integers, got True"):
         microlens_array_offsets_m(True, 2, 2.8e-6)
+
+
+def test_the_geometric_model_refuses_a_microlens_it_does_not_model():
+    """model='geometric' (Catrysse & Wandell's closed form) has an ideal microlens as wide as the pixel, focused at the
+    stack's depth; a microlens half or twice the pixel's width, or of f-number 1, gave the etendue of the default one
+    (0.3166 at 20 deg, f/2) without a word. Now each names its argument; the default and an explicit pixel-wide
+    microlens give pixel_vignetting's value."""
+    base = dict(pixel_size_m=2.8e-6, source_f_number=2.0)
+    cra = torch.tensor([0.0, 20.0])
+    ref = microlens_etendue(cra, "centred", model="geometric", **base)
+    same = microlens_etendue(cra, "centred", model="geometric", microlens_diameter_m=2.8e-6, **base)
+    torch.testing.assert_close(same, ref, rtol=0, atol=0)
+    for name, value in (("microlens_diameter_m", 1.4e-6), ("microlens_diameter_m", 5.6e-6),
+                        ("microlens_f_number", 1.0), ("microlens_focal_length_m", 1e-6)):
+        with pytest.raises(ValueError, match=rf"^{name}: model 'geometric' has "):
+            microlens_etendue(cra, "centred", model="geometric", **{name: value}, **base)
