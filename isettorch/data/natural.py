@@ -117,6 +117,13 @@ __all__ = ["NATURAL_DEFAULTS", "COMPONENTS", "DEFAULT_COMPONENTS", "natural_conf
 
 # ------------------------------------------------------------------------------------------------ draws
 
+
+def _uniform(g: torch.Generator) -> float:
+    """One uniform draw in [0, 1) from ``g``, in float32 whatever torch's default dtype (a float64 draw takes the
+    generator's stream differently: with set_default_dtype(float64) every later draw of an item moved)."""
+    return float(torch.rand((), generator=g, dtype=torch.float32))
+
+
 def _u(g, lo, hi):
     return lo + (hi - lo) * float(torch.rand((), generator=g, dtype=torch.float64))
 
@@ -162,9 +169,9 @@ def _palette(cfg, wl, g) -> tuple[torch.Tensor, list[str], list[float]]:
             r = _spectra.recovery_reflectances(1, wl, g)[0]
         else:
             r = _spectra.random_reflectances(1, wl, g, model="mixed")[0].to(torch.float64)
-        if p["enabled"] and float(torch.rand((), generator=g)) < p["grey_probability"]:
+        if p["enabled"] and _uniform(g) < p["grey_probability"]:
             r, kind = torch.full_like(r, math.exp(_u(g, math.log(0.03), math.log(0.9)))), "grey"
-        elif p["enabled"] and dye["probability"] > 0 and float(torch.rand((), generator=g)) < dye["probability"]:
+        elif p["enabled"] and dye["probability"] > 0 and _uniform(g) < dye["probability"]:
             conc[-1] = math.exp(_u(g, *map(math.log, dye["concentration"])))
             r = _spectra.dye_concentration(r, conc[-1])
         out.append(r)
@@ -179,7 +186,7 @@ def _illuminants(cfg, wl, g, h, w):
     e1, cct1, name1 = _spectra.random_illuminant(k1, wl, g, None if c["enabled"] else (6500.0, 6500.0))
     lights = [(_white_photons(e1, wl), None)]
     names = [name1]
-    if c["enabled"] and float(torch.rand((), generator=g)) < c["mixed_probability"]:
+    if c["enabled"] and _uniform(g) < c["mixed_probability"]:
         e2, _, name2 = _spectra.random_illuminant(_choice(kinds, g), wl, g)
         m = torch.sigmoid(_tex.power_law_noise(h, w, 2.5, g, dtype=torch.float64) * _u(g, 1.0, 4.0))
         ratio = math.exp(_u(g, math.log(0.3), math.log(3.0)))
@@ -226,7 +233,7 @@ def _leaf_texture(cfg, g, hh, ww, k, n_mat):
     texture on a few pixels is not one)."""
     c = cfg["components"]["textured_leaves"]
     if not c["enabled"] or min(hh, ww) < max(2, int(c["min_size_px"])) \
-            or float(torch.rand((), generator=g)) >= c["probability"]:
+            or _uniform(g) >= c["probability"]:
         return k, None, None
     kind = _choice(c["kinds"], g)
     s = _u(g, *c["noise_exponent"])
@@ -326,7 +333,7 @@ def _fine_detail(cfg, g, maps):
         if kind == "grating":  # a patch (half-plane-limited) of a square or sine grating
             f = _u(g, *c["grating_cpp"])
             wave = torch.sin(2 * math.pi * f * (u - u0))
-            pattern = (wave > 0).double() if float(torch.rand((), generator=g)) < 0.5 else 0.5 + 0.5 * wave
+            pattern = (wave > 0).double() if _uniform(g) < 0.5 else 0.5 + 0.5 * wave
             half = _u(g, 0.15, 0.5) * min(h, w)
             cover = ((u - u0).abs() < half) & ((v - v0).abs() < half)
             cov = cover.double() * pattern
@@ -391,7 +398,7 @@ def _specular(cfg, g, body: torch.Tensor) -> tuple[torch.Tensor, dict]:
     c = cfg["components"]["specular"]
     amp = math.exp(_u(g, *map(math.log, c["amplitude"])))
     s, contrast = _u(g, *c["exponent"]), _u(g, *c["contrast"])
-    glossy = (torch.rand(body.shape[0], generator=g) < float(c["glossy_fraction"])).float()
+    glossy = (torch.rand(body.shape[0], generator=g, dtype=torch.float32) < float(c["glossy_fraction"])).float()
     h, w = body.shape[-2:]
     t = torch.exp(contrast * _tex.power_law_noise(h, w, s, g) - 0.5 * contrast**2)
     spec = amp * t * (glossy[:, None, None] * body).sum(0)
@@ -435,7 +442,7 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
         radii = _paint_leaves(cfg, g, maps, 12, 0.25 * h, 0.2500001 * h, 0.0)
     depth = comp["depth_layers"]
     defocus = None
-    if depth["enabled"] and float(torch.rand((), generator=g)) < depth["probability"]:
+    if depth["enabled"] and _uniform(g) < depth["probability"]:
         levels = depth["defocus_diopters"]
         d_back, d_front = levels[_ri(g, 0, len(levels) - 1)], levels[_ri(g, 0, len(levels) - 1)]
         fg = torch.zeros_like(maps)
@@ -453,7 +460,7 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
         defocus = (float(d_back), float(d_front))
     fine: list[str] = []
     fd = comp["fine_detail"]
-    if fd["enabled"] and float(torch.rand((), generator=g)) < fd["probability"]:
+    if fd["enabled"] and _uniform(g) < fd["probability"]:
         fine = _fine_detail(cfg, g, maps)
     cc = comp["colour_correlation"]
     s, contrast = _u(g, *cc["exponent"]), _u(g, *cc["contrast"])
@@ -465,12 +472,12 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
     body = maps  # the materials' body-reflection maps (coverage x brightness x shading), for ``specular``
     grain_amp = None
     gr = comp["grain"]  # drawn last: with it off, every earlier draw is unchanged
-    if gr["enabled"] and float(torch.rand((), generator=g)) < gr["probability"]:
+    if gr["enabled"] and _uniform(g) < gr["probability"]:
         grain, grain_amp = _grain(cfg, g, h, w)
         maps = torch.cat([maps, grain])
         refl = torch.cat([refl, grain_dyes(cfg, wl)])
     rel, rel_contrast = gr["relative"], None
-    if gr["enabled"] and rel["probability"] > 0 and float(torch.rand((), generator=g)) < rel["probability"]:
+    if gr["enabled"] and rel["probability"] > 0 and _uniform(g) < rel["probability"]:
         # r(l) sum_k d_k(l) m_k(x) for every material: map j x layer k carries spectrum r_j d_k (exact, as the
         # layers sum to 1); the additive grain layers (after the n_mat materials) are left as they are
         rel_contrast = _u(g, *rel["contrast"])
@@ -482,7 +489,7 @@ def generate_natural(index: int, seed: int = 0, config: dict | None = None) -> d
         refl = torch.cat([(refl[:n_mat, None] * dyes[None]).flatten(0, 1), refl[n_mat:]])
     spec_meta = None
     sp = comp["specular"]  # drawn last: with probability 0 (version 5) no draw is made and the scene is unchanged
-    if sp["enabled"] and sp["probability"] > 0 and float(torch.rand((), generator=g)) < sp["probability"]:
+    if sp["enabled"] and sp["probability"] > 0 and _uniform(g) < sp["probability"]:
         spec, spec_meta = _specular(cfg, g, body)
         maps = torch.cat([maps, spec[None]])
         refl = torch.cat([refl, torch.ones(1, refl.shape[1], dtype=refl.dtype)])
@@ -564,11 +571,11 @@ def expose_and_encode(rgb: torch.Tensor, generator: torch.Generator, domain: str
         raise ValueError(f"rgb: expected [B, C, H, W], got {tuple(rgb.shape)}")
     b = rgb.shape[0]
     peak = rgb.flatten(1).quantile(0.98, dim=1).clamp_min(1e-3)
-    k = (exposure[0] + (exposure[1] - exposure[0]) * torch.rand(b, generator=generator)) / peak
+    k = (exposure[0] + (exposure[1] - exposure[0]) * torch.rand(b, generator=generator, dtype=torch.float32)) / peak
     x = (rgb * k[:, None, None, None]).clamp(0, 1)
-    gam = gamma[0] + (gamma[1] - gamma[0]) * torch.rand(b, generator=generator)
+    gam = gamma[0] + (gamma[1] - gamma[0]) * torch.rand(b, generator=generator, dtype=torch.float32)
     frac = {"linear": 0.0, "encoded": 1.0, "mixed": float(encoded_fraction)}[domain]
-    use = (torch.rand(b, generator=generator) < frac)[:, None, None, None]
+    use = (torch.rand(b, generator=generator, dtype=torch.float32) < frac)[:, None, None, None]
     return torch.where(use, x.clamp_min(1e-8) ** (1 / gam[:, None, None, None]), x)
 
 

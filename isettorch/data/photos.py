@@ -125,6 +125,14 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
         self.length = len(self.files) if length is None else int(length)
         self.wl = _lift_grid(wavelengths_nm)
         default = natural_config()["components"]["illuminant"]["kinds"]
+        if illuminants is not None:  # checked as the natural generator's kinds ('candle' and NaN failed in ds[0],
+            # naming 'kind' or 'weights'; a negative weight was read as 0)
+            if not isinstance(illuminants, dict):
+                raise ValueError(f"illuminants: expected a dict of kind weights, got {illuminants!r}")
+            try:
+                natural_config({"components": {"illuminant": {"kinds": dict(illuminants)}}})
+            except ValueError as err:
+                raise ValueError(f"illuminants: {str(err).split(': ', 2)[-1]}") from None
         self.illuminants = dict(illuminants or default)
         self.basis = _spectra.srgb_basis_spectra(self.wl)
 
@@ -151,7 +159,7 @@ class PhotoSceneDataset(torch.utils.data.Dataset):
         y = int(torch.randint(0, h - self.size + 1, (), generator=g))
         x = int(torch.randint(0, w - self.size + 1, (), generator=g))
         crop = lin[:, y:y + self.size, x:x + self.size]
-        if float(torch.rand((), generator=g)) < 0.5:
+        if float(torch.rand((), generator=g, dtype=torch.float32)) < 0.5:
             crop = crop.flip(-1)
         kind = _choice(self.illuminants, g)
         spd, cct, name = _spectra.random_illuminant(kind, self.wl, g)

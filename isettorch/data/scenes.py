@@ -186,7 +186,7 @@ def _draw_scene(index, seed, config, *, device, dtype, hfov_deg, size, distance_
             a, b = 1 - m, ratio * m
         else:  # shadow: half-plane or disk, soft edge 0.3-3 px (penumbra)
             soft = _uniform([0.3, 3.0], g)
-            if float(torch.rand((), generator=g)) < 0.5:
+            if float(torch.rand((), generator=g, dtype=torch.float32)) < 0.5:
                 rad = _uniform([0.15, 0.45], g) * min(h, wd)
                 signed = rad - torch.sqrt((x - px) ** 2 + (y - py) ** 2 + 1e-12)
             s = torch.sigmoid(signed / soft)

@@ -60,6 +60,21 @@ def test_photo_dataset_reads_its_grid_the_same_way(tmp_path):
         PhotoSceneDataset(tmp_path, 4, wavelengths_nm=[450.0, 550.0, 650.0])
 
 
+def test_photo_dataset_checks_its_illuminant_weights(tmp_path):
+    """'candle', a zero or NaN weight built a dataset that failed at ds[0] naming 'kind' or 'weights'; a negative
+    weight was read as 0. Each is now refused at construction naming illuminants, as natural_config refuses them."""
+    from PIL import Image
+
+    Image.fromarray(np.full((8, 8, 3), 100, np.uint8)).save(tmp_path / "a.png")
+    for bad, said in (({"candle": 1}, "'candle': unknown kind"), ({"daylight": 0}, "positive sum"),
+                      ({"daylight": float("nan")}, "non-negative weights"),
+                      ({"daylight": -1, "led": 1}, "non-negative"), ([1], "expected a dict")):
+        with pytest.raises(ValueError, match=rf"^illuminants: .*{said}"):
+            PhotoSceneDataset(tmp_path, 4, illuminants=bad)
+    ds = PhotoSceneDataset(tmp_path, 4, illuminants={"led": 1})
+    assert ds[0]["meta"]["illuminants"][0].startswith("led")
+
+
 def test_lift_refuses_integer_tensors_and_empty_images():
     # A uint8 tensor of codes 0 and 1 passed the [0, 1] check as values (code 1 lifted as white, 1.0, for the
     # numpy array's 3.04e-4 = (1/255) / 12.92, IEC 61966-2-1); a bool mask too; an empty image returned empty maps.
