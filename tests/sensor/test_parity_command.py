@@ -358,7 +358,7 @@ def test_not_an_npz_exits_2(tmp_path, capsys):
     for name in ("text.npz", "array.npz"):
         path = tmp_path / name
         assert main(["parity", str(path)]) == 2
-        assert capsys.readouterr().err == f"isettorch parity: CASE {path}: path: {str(path)!r} is not an .npz (zip) " \
+        assert capsys.readouterr().err == f"isettorch parity: CASE {path}: {str(path)!r} is not an .npz (zip) " \
                                           f"archive\n"
 
 
