@@ -610,8 +610,10 @@ class Sensor(nn.Module):
 
     def set_size_to_fov(self, hfov_deg: float, image_distance_m) -> Sensor:
         """Set cols so the sensor spans ``hfov_deg`` at ``image_distance_m`` (rows keep the aspect ratio),
-        rounded to whole CFA cells (ISETCam ``sensorSetSizeToFOV``). ``image_distance_m`` may be an
-        :class:`OpticalImage` (its image distance, else focal length). Returns self."""
+        rounded to the nearest whole CFA cells. The width is the exact ``2 d tan(hfov / 2)``; ISETCam's
+        ``sensorSetSizeToFOV`` scales the current size by the ratio of the angles instead and rounds up to whole
+        cells, so for wide fields, or a size that started far from the target, the two can differ by a cell or more.
+        ``image_distance_m`` may be an :class:`OpticalImage` (its image distance, else focal length). Returns self."""
         if isinstance(image_distance_m, OpticalImage):
             oi = image_distance_m
             d = oi.image_distance_m if oi.image_distance_m is not None else oi.focal_length_m
