@@ -93,15 +93,44 @@ def merged_config(cfg: dict) -> dict:
     """``cfg`` over :data:`DEFAULTS` (one level deep for the sections); unknown top-level keys raise."""
     out = json.loads(json.dumps(DEFAULTS))
     sections = {k: (None if k == "camera" else set(v)) for k, v in out.items() if isinstance(v, dict)}
-    common.check_keys({k: v for k, v in cfg.items() if k not in sections or isinstance(v, dict)}, set(out), sections)
+    # (a section given as a number, optim=5, was skipped here and failed later: 'int' object is not subscriptable)
+    common.check_keys(cfg, set(out), sections)
     for key, value in cfg.items():
         if isinstance(out[key], dict) and key not in ("camera",) and isinstance(value, dict):
             out[key].update(value)
         else:
             out[key] = value
-    if not out["lux"] or any(not (float(v) > 0) for v in out["lux"]):
-        raise ValueError(f"config.lux: expected positive light levels, got {out['lux']!r}")
+    lux = out["lux"]
+    if (not isinstance(lux, (list, tuple)) or not lux
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not (v > 0) for v in lux)):
+        raise ValueError(f"config.lux: expected a list of positive light levels, got {lux!r}")
+    _check_values(out)
     return out
+
+
+def _check_values(cfg: dict) -> None:
+    """The numbers a run divides, crops or counts by, named when out of range (a negative learning rate trained by
+    gradient ascent, a loss crop of half the image gave a NaN loss at every step and still wrote a design,
+    val.batches 0 failed after the last step leaving nothing)."""
+    num = common.check_number
+    num(cfg["seed"], "seed", integer=True, minimum=0)
+    o, v, d = cfg["optim"], cfg["val"], cfg["data"]
+    for key in ("steps",):
+        num(o[key], f"optim.{key}", integer=True, minimum=1)
+    num(d["size"], "data.size", integer=True, minimum=2)
+    num(d["batch"], "data.batch", integer=True, minimum=1)
+    for key in ("lr", "design_lr"):
+        num(o[key], f"optim.{key}", above=0)
+    num(o["lr_min"], "optim.lr_min", minimum=0)
+    num(o["srgb_weight"], "optim.srgb_weight", minimum=0)
+    half = d["size"] / 2
+    num(cfg["loss_crop"], "loss_crop", integer=True, minimum=0, below=half)
+    num(v["crop"], "val.crop", integer=True, minimum=0, below=half)
+    num(v["batches"], "val.batches", integer=True, minimum=1)
+    num(v["every"], "val.every", integer=True, minimum=0)
+    num(cfg["checkpoint_every"], "checkpoint_every", integer=True, minimum=0)
+    num(cfg["mosaic"]["anneal_fraction"], "mosaic.anneal_fraction", minimum=0)
+    num(cfg["predesign"]["steps"], "predesign.steps", integer=True, minimum=0)
 
 
 # ------------------------------------------------------------------------------------------------ predesign
@@ -235,11 +264,8 @@ def train(cfg: dict, *, quiet: bool = False) -> dict:
             predesigned = predesign(camera, cfg, quiet=quiet)
     camera.to(device)
     o = cfg["optim"]
-    # (steps <= 0 were blamed on design_warmup/design_until or failed with an IndexError; batch 0 in a reshape)
-    for key, value in (("optim.steps", o["steps"]), ("data.batch", cfg["data"]["batch"]),
-                       ("data.size", cfg["data"]["size"])):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{key}: expected an integer >= 1, got {value!r}")
+    # (optim.steps, data.batch, data.size: checked by merged_config; steps <= 0 were blamed on
+    # design_warmup/design_until or failed with an IndexError, batch 0 in a reshape)
     steps = int(o["steps"])
     design_params = [p for n, p in camera.named_parameters() if p.requires_grad and not n.startswith("networks.")]
     groups = [{"params": list(camera.networks.parameters()), "lr": float(o["lr"])}]

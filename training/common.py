@@ -31,6 +31,25 @@ def check_keys(cfg: dict, top_keys, section_keys: dict, nullable: tuple[str, ...
                 raise ValueError(f"config.{key}.{unknown[0]}: unknown key; expected one of {sorted(keys)}")
 
 
+def check_number(value, name: str, *, integer: bool = False, minimum: float | None = None,
+                 above: float | None = None, below: float | None = None) -> None:
+    """A ValueError naming ``config.<name>`` unless ``value`` is a finite number (an integer with ``integer``), at
+    least ``minimum``, above ``above`` and below ``below`` (a string, a negative learning rate or a crop wider than
+    the image failed deep in a run, or ran silently)."""
+    ok = (not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+          and (not integer or float(value).is_integer()) and (minimum is None or value >= minimum)
+          and (above is None or value > above) and (below is None or value < below))
+    if not ok:
+        bounds = [f">= {minimum:g}" if minimum is not None else "", f"> {above:g}" if above is not None else "",
+                  f"< {below:g}" if below is not None else ""]
+        if above == 0 and minimum is None and below is None:
+            what = "a positive integer" if integer else "a positive number"
+        else:
+            what = ("an integer" if integer else "a number") + (" " if any(bounds) else "") + " and ".join(
+                b for b in bounds if b)
+        raise ValueError(f"config.{name}: expected {what}, got {value!r}")
+
+
 def load_config(path: str | Path, overrides: list[str] | None = None) -> dict:
     """Read a YAML config and apply ``key.sub=value`` overrides (values parsed as YAML), both with the library's
     reader (:func:`isettorch._yaml.load_yaml`: YAML 1.2 floats, so ``optim.lr=1e-3`` is a number, not the string

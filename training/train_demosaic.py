@@ -337,6 +337,9 @@ def main(argv: list[str] | None = None) -> int:
     if 0 <= int(cfg.get("seed", 0)) + 2 * VAL_SEED_OFFSET - scene_seed * 1_000_003 < world:
         raise SystemExit(f"data.scene_seed: {scene_seed} draws the validation scenes of seed {cfg.get('seed', 0)} "
                          f"for training; choose another")
+    if int(cfg["data"].get("batch", 16)) < world:  # (each process's batch // world was 0: an empty torch.stack)
+        raise SystemExit(f"data.batch: {cfg['data'].get('batch', 16)} images split over {world} processes leaves "
+                         f"some without one; expected a batch of at least {world}")
     sampler = make_sampler(cfg, seed=scene_seed * 1_000_003 + rank, progress=rank == 0 and not args.quiet,
                            device=device, batch=int(cfg["data"].get("batch", 16)) // world)
     val = make_validation(cfg) if rank == 0 else None

@@ -67,6 +67,22 @@ def test_config_rejects_unknown_keys():
         cfg["optim"] = {"steps": 2, **edit.get("optim", {})}
         with pytest.raises(ValueError, match=message):
             codesign.train(cfg, quiet=True)
+    # (a negative learning rate trained by gradient ascent; a loss crop of half the image gave NaN losses and still
+    # wrote a design; val.batches 0 failed after the last step; a section or lux given as a number failed unnamed)
+    for edit, message in (({"optim": {"lr": -1}}, r"config.optim.lr: expected a positive number, got -1"),
+                          ({"optim": {"design_lr": 0}}, r"config.optim.design_lr: expected a positive number"),
+                          ({"optim": {"lr": "abc"}}, r"config.optim.lr: expected a positive number, got .abc."),
+                          ({"loss_crop": 100}, r"config.loss_crop: expected an integer >= 0 and < 32, got 100"),
+                          ({"loss_crop": -1}, r"config.loss_crop: expected an integer >= 0"),
+                          ({"val": {"batches": 0}}, r"config.val.batches: expected an integer >= 1, got 0"),
+                          ({"val": {"crop": 100}}, r"config.val.crop: expected an integer >= 0 and < 32"),
+                          ({"seed": "abc"}, r"config.seed: expected an integer"),
+                          ({"checkpoint_every": -1}, r"config.checkpoint_every: expected an integer >= 0"),
+                          ({"optim": 5}, r"config.optim: expected a mapping, got 5"),
+                          ({"lux": 5}, r"config.lux: expected a list of positive light levels, got 5"),
+                          ({"lux": "abc"}, r"config.lux: expected a list")):
+        with pytest.raises(ValueError, match=rf"^{message}"):
+            codesign.merged_config(edit)
 
 
 def test_tiny_run_exports_a_manufacturable_design(tmp_path, photos):

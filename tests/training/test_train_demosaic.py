@@ -193,7 +193,15 @@ def test_config_keys_and_values_are_checked_before_a_run(tmp_path, monkeypatch):
                               ("seed=abc", r"config.seed: expected an integer >= 0, got 'abc'"),
                               ("optim.lr_min=abc", "config.optim.lr_min: expected a positive number"),
                               ("data.encoded_fraction=2", r"config.data.encoded_fraction: expected a fraction in"),
-                              ("noise={enabled: true, gain_min: 0}", "config.noise.gain_min: expected a positive")):
+                              ("noise={enabled: true, gain_min: 0}", "config.noise.gain_min: expected a positive"),
+                              # (8 failed after val.every steps in the crop check; 33 was blamed on data.patch; a
+                              # gaussian_fraction of 2 failed in a tensor expand)
+                              ("val.size=8", "config.val.size: expected an even number of pixels >= 10"),
+                              ("val.size=33", "config.val.size: expected an even number"),
+                              ("noise={enabled: true, gaussian_fraction: 2}",
+                               r"config.noise.clean_fraction, config.noise.gaussian_fraction: expected fractions"),
+                              ("noise={enabled: true, clean_fraction: -0.5}",
+                               r"config.noise.clean_fraction: expected a number >= 0")):
         with pytest.raises(ValueError, match=message):
             train_demosaic.main(args + [override])
     assert not (tmp_path / "x" / "last.pt").exists()
