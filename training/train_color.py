@@ -220,6 +220,19 @@ def main(argv: list[str] | None = None) -> int:
                        ("val.every", (cfg.get("val") or {}).get("every", 100))):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{key}: expected an integer >= 1, got {value!r}")
+    # (an audit of training/: scenes 0 failed in torch.stack, 0 held-out reflectances scored NaN with exit 0, hidden 0
+    # ran and -3 failed unnamed, a negative lr was Adam's error, models [] wrote an empty file, 'matrix' read as 'm')
+    d, v, o = cfg.get("data") or {}, cfg.get("val") or {}, cfg.get("optim") or {}
+    for key, value in (("data.scenes_per_batch", d.get("scenes_per_batch", 32)),
+                       ("data.reflectances_per_scene", d.get("reflectances_per_scene", 64)),
+                       ("val.scenes", v.get("scenes", 200)),
+                       ("val.reflectances_per_scene", v.get("reflectances_per_scene", 100)),
+                       ("hidden", cfg.get("hidden", 32))):
+        common.check_number(value, key, integer=True, minimum=1)
+    common.check_number(o.get("lr"), "optim.lr", above=0)
+    names = cfg.get("models", ["matrix", "mlp"])
+    if not isinstance(names, list) or not names or any(n not in ("matrix", "mlp") for n in names):
+        raise ValueError(f"config.models: expected a non-empty list of 'matrix' and 'mlp', got {names!r}")
     if args.threads or cfg.get("threads"):
         torch.set_num_threads(int(args.threads or cfg["threads"]))
     out = Path(args.out or cfg.get("out", "out/train_color"))
