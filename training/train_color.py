@@ -120,7 +120,9 @@ class ColorData:
 
 def lstsq_matrix(rgb: torch.Tensor, xyz: torch.Tensor) -> torch.Tensor:
     """Least-squares 3x3 ``M`` with ``xyz ~ rgb @ M.T`` per scene: rgb, xyz [B, N, 3] -> [B, 3, 3]."""
-    return torch.linalg.lstsq(rgb, xyz).solution.transpose(-1, -2)
+    # driver 'gels' (QR; full-rank charts): the default 'gelsy' on CPU differed between identical calls by up to 3e-7
+    # (its pivoting under threads), so two runs of one seed drifted apart; 'gels' is also the one CUDA has
+    return torch.linalg.lstsq(rgb, xyz, driver="gels").solution.transpose(-1, -2)
 
 
 def chart_features(chart_rgb: torch.Tensor, white: torch.Tensor, condition: str) -> torch.Tensor:
@@ -247,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     val = data.batch(int(v.get("scenes", 200)), int(v.get("reflectances_per_scene", 100)), seed + VAL_SEED_OFFSET)
     # global least-squares matrix over a large training draw: the starting point of both models
     rgb0, _, tgt0, _, _ = data.batch(64, 200, seed * 7919 + 1)
-    m0 = torch.linalg.lstsq(rgb0.reshape(-1, 3), tgt0.reshape(-1, 3)).solution.T
+    m0 = lstsq_matrix(rgb0.reshape(-1, 3), tgt0.reshape(-1, 3))
     cond = cfg.get("condition", "chart")
     models = {name: ColorNet(m0, name, int(cfg.get("hidden", 32)), cond) for name in cfg.get("models",
                                                                                               ["matrix", "mlp"])}
