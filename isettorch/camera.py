@@ -463,7 +463,7 @@ def _build_sensor(cfg: dict) -> nn.Module:
         if not all(is_real(v) for v in cfg["exposure_s"]):
             raise ValueError(f"sensor.exposure_s: expected a number or a list of numbers (s), got "
                              f"{cfg['exposure_s']!r}")  # (torch's "new(): invalid data type 'str'")
-        cfg["exposure_s"] = torch.tensor(cfg["exposure_s"])
+        cfg["exposure_s"] = torch.tensor(cfg["exposure_s"], dtype=torch.float64)  # (float32 rounded 0.01 by 2e-8)
     if preset is not None and not isinstance(preset, str):  # (5 was reported as an unknown key)
         raise ValueError(f"sensor.preset: expected a preset name (one of {sorted(PRESETS)}), got {preset!r}")
     if preset is not None and preset not in PRESETS:
@@ -486,8 +486,15 @@ def _build_isp(cfg: dict) -> ImageProcessor:
     cfg = dict(cfg)
     method = cfg.pop("demosaic", "bilinear")
     method = DEMOSAIC_ALIASES.get(method, method)
-    demosaic = DemosaicStage(method, fallback=cfg.pop("demosaic_fallback", "bilinear"),
-                             border=cfg.pop("demosaic_border", "method"))
+    try:  # (the stage's errors named its arguments, method / fallback / border, not the config's keys)
+        demosaic = DemosaicStage(method, fallback=cfg.pop("demosaic_fallback", "bilinear"),
+                                 border=cfg.pop("demosaic_border", "method"))
+    except ValueError as err:
+        arg, _, rest = str(err).partition(": ")
+        key = {"method": "demosaic", "fallback": "demosaic_fallback", "border": "demosaic_border"}.get(arg)
+        if key is None:
+            raise
+        raise ValueError(f"config: isp.{key}: {rest}") from None
     conv = dict(cfg.pop("sensor_conversion", {}) or {})
     _check_keys(conv, SENSOR_CONVERSION_KEYS, "isp.sensor_conversion")
     method = conv.pop("method", "mcc_optimized")
@@ -515,7 +522,12 @@ def _build_isp(cfg: dict) -> ImageProcessor:
         cfg["display"] = _config_tensor(cfg["display"], "isp.display", torch.float64)
         if cfg["display"].shape != (3, 3):
             raise ValueError(f"config: isp.display as a matrix must be 3 x 3, got {list(cfg['display'].shape)}")
-    return ImageProcessor(demosaic=demosaic, sensor_to_xyz=s2x, **cfg)
+    try:
+        return ImageProcessor(demosaic=demosaic, sensor_to_xyz=s2x, **cfg)
+    except ValueError as err:  # (the illuminant correction's 'space: expected ...' named no config key)
+        if str(err).startswith("space: "):
+            raise ValueError(f"config: isp.correction_space: {str(err)[len('space: '):]}") from None
+        raise
 
 
 def build_camera(cfg: dict) -> Camera:

@@ -234,6 +234,12 @@ NAN = float("nan")
     ({"display": [[0.4, 0.4, 0.2], [0.2, 0.2, 0.6], [0.1, 0.1, 0.9]]}, r"display: the RGB -> XYZ matrix is singular"),
     ({"sensor_conversion": {"method": "matrix", "matrix": [[NAN, 0, 0], [0, 1, 0], [0, 0, 1]]}},
      r"matrix: expected finite values"),
+    # (named the stages' arguments, method / border / space, not the config's keys; a bad fallback was accepted and,
+    # with an RGBW sensor, refused at the first render)
+    ({"demosaic": "bilinar"}, r"^config: isp.demosaic: expected one of"),
+    ({"demosaic_border": "mirror"}, r"^config: isp.demosaic_border: expected 'method' or 'reflect'"),
+    ({"demosaic_fallback": "foo"}, r"^config: isp.demosaic_fallback: expected a method for index-map CFAs"),
+    ({"correction_space": "rgb"}, r"^config: isp.correction_space: expected 'xyz' or 'sensor', got 'rgb'"),
 ])
 def test_invalid_isp_values_are_errors(isp, match):
     with pytest.raises(ValueError, match=match):
@@ -395,3 +401,10 @@ def test_a_config_that_is_not_utf8_is_named(tmp_path):
     bad.write_bytes(b"\xff\xfe sensor: 1")
     with pytest.raises(ValueError, match=r"path: '.*bad\.yaml': not UTF-8 text"):
         Camera.from_config(str(bad))
+
+
+def test_a_per_item_exposure_list_keeps_its_values():
+    """exposure_s: [0.01, 0.01] was made a float32 tensor (0.009999999776), so a float64 render differed from the
+    scalar 0.01's by 2e-8 relative; the list is float64 now, the value given."""
+    cam = Camera.from_config(_cfg(sensor={"exposure_s": [0.01, 0.02]}))
+    assert cam.sensor.exposure_s.dtype == torch.float64 and cam.sensor.exposure_s.tolist() == [0.01, 0.02]

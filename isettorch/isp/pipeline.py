@@ -94,10 +94,13 @@ class DemosaicStage(nn.Module):
 
     def __init__(self, method="bilinear", fallback: str = "bilinear", border: str = "method", **kwargs) -> None:
         super().__init__()
-        from .demosaicing import Demosaic
+        from .demosaicing import _GENERIC, Demosaic
 
         if border not in ("method", "reflect"):
             raise ValueError(f"border: expected 'method' or 'reflect', got {border!r}")
+        if not isinstance(fallback, str) or fallback not in _GENERIC:  # (refused only at an RGBW sensor's render)
+            raise ValueError(f"fallback: expected a method for index-map CFAs, one of {sorted(_GENERIC)}, got "
+                             f"{fallback!r}")
         self.method = method if isinstance(method, str) else type(method).__name__
         if method == "malvar2004":
             kwargs.setdefault("boundary", "mirror")
