@@ -194,6 +194,11 @@ class ShiftInvariantLens(nn.Module):
         0 for a PSF of a diffraction tail alone (its light beyond a capped margin falls as 1 / distance)."""
         return 0.0
 
+    def psf_extent_m(self, wavelengths_nm: torch.Tensor, f_number: torch.Tensor) -> tuple:
+        """``(psf_margin_m, psf_core_m)`` in one call (a subclass whose margin contains its core computes the core
+        once)."""
+        return self.psf_margin_m(wavelengths_nm, f_number), self.psf_core_m(wavelengths_nm, f_number)
+
     def blur_negligible(self, dx: torch.Tensor, wavelengths_nm: torch.Tensor, f_number: torch.Tensor) -> bool:
         return False
 
@@ -315,10 +320,10 @@ class ShiftInvariantLens(nn.Module):
     def margin_samples(self, scene_shape: tuple[int, int], dx: torch.Tensor, wavelengths_nm, f_number) -> int:
         if self.margin is not None:
             return self.margin
-        m = self.psf_margin_m(wavelengths_nm, f_number).detach()
-        samples = int(math.ceil(float((m / dx.detach()).max())))
+        m, core = self.psf_extent_m(wavelengths_nm, f_number)
+        samples = int(math.ceil(float((m.detach() / dx.detach()).max())))
         cap = int(math.ceil(self.max_margin_factor * max(scene_shape)))
-        core = torch.as_tensor(self.psf_core_m(wavelengths_nm, f_number)).detach().to(dx.device, dx.dtype)
+        core = torch.as_tensor(core).detach().to(dx.device, dx.dtype)
         core_samples = int(math.ceil(float((core / dx.detach()).max())))
         if samples > 10 * cap or core_samples > cap:
             # The PSF reaches far beyond the capped padding: the FFT's circular convolution folds the light beyond
@@ -603,22 +608,26 @@ class ShiftInvariantLens(nn.Module):
         ``fill`` extended from the edges."""
         h, w = irr.shape[-2:]
         if fill is None:
-            out, pr, pc = self._blurred(irr, wave, dx, n, f, d_i, crop, self.pad_mode)
+            out, pr, pc, _ = self._blurred(irr, wave, dx, n, f, d_i, crop, self.pad_mode)
         else:
-            out, pr, pc = self._blurred(irr - fill, wave, dx, n, f, d_i, crop, "zero")
-            # a constant is kept by any blur (the OTF is 1 at zero frequency)
+            out, pr, pc, margin = self._blurred(irr - fill, wave, dx, n, f, d_i, crop, "zero")
+            # a constant is kept by any blur (the OTF is 1 at zero frequency); the fill's blur reuses the margin
+            # (and so gives the wrap-around warning, if any, once)
             out = out + (fill if fill.shape[-2:] == (1, 1) else
-                         self._blurred(fill, wave, dx, n, f, d_i, crop, "edge")[0])
+                         self._blurred(fill, wave, dx, n, f, d_i, crop, "edge", margin)[0])
         return self._oi(out, None, wave, dx, n, f, d_i, crop, h, w, pr, pc, name)
 
-    def _blurred(self, irr, wave, dx, n, f, d_i, crop, pad_mode) -> tuple[torch.Tensor, int, int]:
+    def _blurred(self, irr, wave, dx, n, f, d_i, crop, pad_mode, margin=None) -> tuple[torch.Tensor, int, int, int]:
+        """``(out, pad_rows, pad_cols, margin)``: ``irr`` blurred (or extended) with ``pad_mode``; ``margin``
+        (samples) as :meth:`margin_samples` gives it unless given."""
         h, w = irr.shape[-2:]
         dxb = self._blur_spacing(dx, f, d_i)
         if self.blur_negligible(dxb, wave, n):
-            return self._extend_unblurred(irr, crop, pad_mode)
-        margin = self.margin_samples((h, w), dxb, wave, n)
+            return (*self._extend_unblurred(irr, crop, pad_mode), 0)
+        if margin is None:
+            margin = self.margin_samples((h, w), dxb, wave, n)
         out, (pr, pc) = blur_fft(irr, self._otf_fn(wave, n, dxb), dxb, (margin, margin), pad_mode, window=crop)
-        return out, pr, pc
+        return out, pr, pc, margin
 
 
 def check_transmittance(t: torch.Tensor, name: str = "transmittance") -> None:

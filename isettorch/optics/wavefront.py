@@ -385,8 +385,12 @@ class WavefrontOptics(ShiftInvariantLens):
     def psf_margin_m(self, wavelengths_nm, f_number):
         """Diffraction tail (as :class:`DiffractionLimitedOptics`) plus the geometric blur radius
         ``2 N max|grad_rho W|`` (the largest transverse ray aberration, Welford, Aberrations of Optical Systems)."""
+        return self.psf_extent_m(wavelengths_nm, f_number)[0]
+
+    def psf_extent_m(self, wavelengths_nm, f_number):
+        core = self.psf_core_m(wavelengths_nm, f_number)
         lam_n = wavelengths_nm.max() * 1e-9 * f_number
-        return 2 * lam_n / (math.pi**3 * self.psf_tolerance) + self.psf_core_m(wavelengths_nm, f_number)
+        return 2 * lam_n / (math.pi**3 * self.psf_tolerance) + core, core
 
     def psf_core_m(self, wavelengths_nm, f_number):
         """The geometric blur radius ``2 N max|grad_rho W|`` (:meth:`psf_margin_m`)."""

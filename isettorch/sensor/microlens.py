@@ -673,7 +673,6 @@ def microlens_etendue(chief_ray_angle_deg, method: str = "centred", *, model: st
                          f"model='phase_space'")
     cra = torch.as_tensor(chief_ray_angle_deg, dtype=torch.float64)
     _check_cra(cra)
-    _pos(kw["pixel_size_m"], "pixel_size_m")
     photodiode = _photodiode_m(kw)
     extra = torch.zeros(()) if offset_m is None else torch.as_tensor(offset_m, dtype=torch.float64).cpu()
     if offset_m is not None:

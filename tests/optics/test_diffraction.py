@@ -455,6 +455,30 @@ def test_a_defocus_disc_beyond_the_capped_margin_warns_of_wrap_around():
             scene)
 
 
+def test_the_wrap_around_warning_comes_once_per_render(monkeypatch):
+    """A numeric pad_mode with relative illumination blurs the scene and the fill separately; the fill's blur reused
+    nothing, so the margin (and the wavefront's geometric blur radius, the Zernike coefficients and the pupil-gradient
+    maximum within it) was computed again and the warning was given twice per render (under an 'always' filter)."""
+    import warnings
+
+    from isettorch.optics import WavefrontOptics
+
+    x = torch.zeros(1, 1, 16, 16, dtype=torch.float64)
+    x[0, 0, 8, 8] = 1.0
+    scene = Scene(x, torch.tensor([550.0], dtype=torch.float64), hfov_deg=0.125, distance_m=10.0)
+    z = torch.zeros(5, dtype=torch.float64)
+    z[4] = 1.0
+    optics = WavefrontOptics(z, f_number=2.0, focal_length_m=4e-3, relative_illumination="cos4th", pad_mode=0.5)
+    calls = []
+    core = WavefrontOptics.psf_core_m
+    monkeypatch.setattr(WavefrontOptics, "psf_core_m", lambda self, *a: calls.append(1) or core(self, *a))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        optics(scene)
+    assert sum("wraps around" in str(w.message) for w in caught) == 1
+    assert len(calls) == 1
+
+
 @pytest.mark.parametrize("n", [0.5, 2.0, 2.8, 4.0, 11.0])
 def test_camera_equation_forms_are_pi_sin2_theta(n):
     """E / L = pi sin^2(theta): ISETCam's form with tan(theta) = 1 / (2 N_w), the paraxial one with sin(theta) =
