@@ -522,12 +522,25 @@ def _build_isp(cfg: dict) -> ImageProcessor:
         cfg["display"] = _config_tensor(cfg["display"], "isp.display", torch.float64)
         if cfg["display"].shape != (3, 3):
             raise ValueError(f"config: isp.display as a matrix must be 3 x 3, got {list(cfg['display'].shape)}")
+    return ImageProcessor(demosaic=demosaic, sensor_to_xyz=s2x, **cfg)
+
+
+def _in_section(section: str, scfg: dict, build):
+    """``build()``; its ValueError / TypeError that names an argument (``'key: ...'``) given as a key of the config
+    section ``scfg``, or of exactly one of its mappings (``sensor.pixel_optics``), is raised again naming the config
+    key (``config: sensor.adc_bits: ...``): the modules' errors name their arguments, which a config user does not
+    see."""
     try:
-        return ImageProcessor(demosaic=demosaic, sensor_to_xyz=s2x, **cfg)
-    except ValueError as err:  # (the illuminant correction's 'space: expected ...' named no config key)
-        if str(err).startswith("space: "):
-            raise ValueError(f"config: isp.correction_space: {str(err)[len('space: '):]}") from None
-        raise
+        return build()
+    except (ValueError, TypeError) as err:
+        arg, sep, rest = str(err).partition(": ")
+        if not sep or arg == "config" or not arg.isidentifier():
+            raise
+        where = [arg] if arg in scfg else [f"{k}.{arg}" for k, v in scfg.items() if isinstance(v, dict) and arg in v]
+        if len(where) != 1:
+            raise
+        cls = TypeError if isinstance(err, TypeError) else ValueError
+        raise cls(f"config: {section}.{where[0]}: {rest}") from err
 
 
 def build_camera(cfg: dict) -> Camera:
@@ -548,8 +561,10 @@ def build_camera(cfg: dict) -> Camera:
     _check_keys(cam_cfg, CAMERA_KEYS, "camera")
     from .optics.factory import build_optics  # every optics type (isettorch.optics.factory)
 
-    camera = Camera(build_optics(cfg["optics"] or {}), _build_sensor(cfg["sensor"] or {}),
-                    _build_isp(cfg.get("isp") or {}), noise=cam_cfg.get("noise", True), name=str(cfg.get("name", "")))
+    optics = _in_section("optics", cfg["optics"] or {}, lambda: build_optics(cfg["optics"] or {}))
+    sensor = _in_section("sensor", cfg["sensor"] or {}, lambda: _build_sensor(cfg["sensor"] or {}))
+    isp = _in_section("isp", cfg.get("isp") or {}, lambda: _build_isp(cfg.get("isp") or {}))
+    camera = Camera(optics, sensor, isp, noise=cam_cfg.get("noise", True), name=str(cfg.get("name", "")))
     if cfg.get("isp"):  # (the default ISP fits any colour sensor: no fit at build, e.g. for the camera pairs' cameras)
         _check_isp_for_sensor(camera)
     return camera

@@ -115,6 +115,20 @@ def test_config_errors_name_the_key(tmp_path):
     bad = dict(cfg, sensor=dict(cfg["sensor"], fill_factor="0.9"))
     with pytest.raises(TypeError, match=r"config: sensor\.fill_factor must be a number"):
         Camera.from_config(bad)
+    # the modules' range errors name their arguments; from a config they name the key (they said 'method: ...' for
+    # sensor.pixel_optics.method, 'f_number: ...' for optics.f_number, 'method: ...' for isp.illuminant_correction)
+    for section, key, value, match in [
+            ("sensor", "pixel_optics", {"method": "bogus"}, r"^config: sensor\.pixel_optics\.method: expected one"),
+            ("sensor", "pixel_optics", {"method": "optimal", "model": "x"}, r"^config: sensor\.pixel_optics\.model:"),
+            ("sensor", "adc_bits", 40, r"^config: sensor\.adc_bits: expected None \(analog\) or an integer"),
+            ("sensor", "read_noise_v", -1.0, r"^config: sensor\.read_noise_v: expected a non-negative number"),
+            ("optics", "f_number", 0.1, r"^config: optics\.f_number: expected a finite scalar"),
+            ("optics", "pad_mode", "x", r"^config: optics\.pad_mode: expected one of"),
+            ("isp", "illuminant_correction", "x", r"^config: isp\.illuminant_correction: unknown illuminant"),
+            ("isp", "correction_space", "lab", r"^config: isp\.correction_space: expected 'xyz' or 'sensor'")]:
+        bad = dict(cfg, **{section: dict(cfg[section], **{key: value})})
+        with pytest.raises(ValueError, match=match):
+            Camera.from_config(bad)
     # YAML 1.2 floats: 1e-2 is a number (PyYAML's YAML 1.1 resolver alone reads it as the string '1e-2')
     text = (CONFIGS / "default.yaml").read_text()
     path.write_text(text.replace("auto_exposure: luminance", "auto_exposure: null\n  exposure_s: 1e-2"))

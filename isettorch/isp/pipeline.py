@@ -221,7 +221,14 @@ class ImageProcessor(ExactConstants):
         if isinstance(illuminant_correction, nn.Module):
             self.illuminant_correction = illuminant_correction
         else:
-            self.illuminant_correction = IlluminantCorrection(illuminant_correction, correction_space, gains)
+            try:
+                self.illuminant_correction = IlluminantCorrection(illuminant_correction, correction_space, gains)
+            except ValueError as err:  # (the stage's arguments are method / space: name this one's)
+                arg, _, rest = str(err).partition(": ")
+                ours = {"method": "illuminant_correction", "space": "correction_space"}.get(arg)
+                if ours is None:
+                    raise
+                raise ValueError(f"{ours}: {rest}") from None
         if sensor_to_xyz is None:
             sensor_to_xyz = SensorToXYZ()
         elif not isinstance(sensor_to_xyz, nn.Module):
