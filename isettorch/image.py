@@ -286,6 +286,7 @@ def _get_photons(self) -> torch.Tensor:
         if f is not None:
             p = f.dense()
             self.__dict__["_photons"] = p
+            self.__dict__["_photons_built"] = (p, p._version)  # (see SpectralImage.factors_hold_image)
     return p
 
 
@@ -412,6 +413,21 @@ class SpectralImage:
         return self.factors is not None
 
     @property
+    def factors_hold_image(self) -> bool:
+        """True when the factors are the image: factored, and its dense cube, if read, still the one built from
+        them (not changed in place, not replaced). The fast paths (:meth:`project`, the optics' and the sensor's)
+        then use the factors whether or not ``.photons`` was read: reading it took the dense path, whose rounding
+        differs from the factors' (4e-8 relative in float32), and a Poisson draw with the same seed then came out
+        different (0.02 V in a viewer session). A cube changed in place is the image: the dense path uses it."""
+        if self.factors is None:
+            return False
+        p = self.__dict__.get("_photons")
+        if p is None:
+            return True
+        built = self.__dict__.get("_photons_built")
+        return built is not None and built[0] is p and built[1] == p._version
+
+    @property
     def maps(self) -> torch.Tensor:
         """The spatial maps ``[B, J, H, W]`` of a factored image (:class:`SpectralFactors`)."""
         if not isinstance(self.factors, SpectralFactors):
@@ -443,7 +459,7 @@ class SpectralImage:
             raise ValueError(f"weights: expected a [{self.num_wavelengths}, K] tensor (one row per wavelength) or "
                              f"[{self.batch_size}, {self.num_wavelengths}, K] per item, got "
                              f"{tuple(weights.shape) if isinstance(weights, torch.Tensor) else weights!r}")
-        if self.factors is not None and self.__dict__.get("_photons") is None:
+        if self.factors_hold_image:
             return self.factors.project(weights.to(device=self.device, dtype=self.dtype))
         p = self.photons
         b, n_l, h, w = p.shape
@@ -452,7 +468,7 @@ class SpectralImage:
     def _spectral_map(self, fn) -> torch.Tensor:
         """``fn(x, dim)``: a functional linear along ``dim`` (L -> K), applied to the image ``[B, K, H, W]``."""
         f = self.factors
-        if f is not None and self.__dict__.get("_photons") is None:
+        if self.factors_hold_image:
             if hasattr(f, "spectral_map"):
                 return f.spectral_map(fn)
             # a linear functional's weights: its response to each wavelength's delta
@@ -603,7 +619,7 @@ class SpectralImage:
             if len(range(*s.indices(n))) == 0:  # (the mean of no pixels was NaN)
                 raise ValueError(f"{name}: {s} selects no pixels of {n}")
         f = self.factors
-        if isinstance(f, SpectralFactors) and self.__dict__.get("_photons") is None:
+        if isinstance(f, SpectralFactors) and self.factors_hold_image:
             return (f.maps[:, :, r, c].mean(dim=(-2, -1))[:, :, None] * f.spectra).sum(dim=1)
         return self.photons[:, :, r, c].mean(dim=(-2, -1))
 

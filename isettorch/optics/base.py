@@ -389,7 +389,7 @@ class ShiftInvariantLens(nn.Module):
         if not isinstance(scene, Scene):
             raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
         _check_crop(crop)
-        if scene.is_factored and scene.__dict__.get("_photons") is None and self._factored_ok(scene):
+        if scene.factors_hold_image and self._factored_ok(scene):
             return self._forward_factored(scene, crop)
         # camera equation (ISETCam oiCalculateIrradiance), transmittance, relative illumination
         k, t, ri, n, f, d_i, dx = self._spatial_factors(scene)

@@ -513,6 +513,7 @@ def compute_oi_scene(scene, f_number, focal_length_m, transmittance=None, *, off
     ``return_details``), and ``lazy`` (:func:`compute_oi_factored`; a dense scene's OI is dense)."""
     args = (scene.wavelengths_nm, scene.hfov_deg, scene.distance_m, f_number, focal_length_m, transmittance)
     lazy = kwargs.pop("lazy", False)
-    if getattr(scene, "is_factored", False):
+    # (a Scene whose dense cube was changed in place is that cube; a duck-typed scene says is_factored)
+    if getattr(scene, "factors_hold_image", getattr(scene, "is_factored", False)):
         return compute_oi_factored(scene.maps, scene.spectra, *args, offaxis=offaxis, lazy=lazy, **kwargs)
     return compute_oi(scene.photons, *args, offaxis=offaxis, **kwargs)

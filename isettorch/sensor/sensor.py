@@ -743,7 +743,7 @@ class Sensor(nn.Module):
         A factored optical image is projected on the C QE weightings directly (C planes, never the L cube).
         ``spectral_qe``: as in :meth:`qe`.
         """
-        if oi.is_factored and oi.__dict__.get("_photons") is None:
+        if oi.factors_hold_image:
             return oi.project(self.spectral_weights(oi, spectral_qe))
         return electron_rate_density(oi.photons, self.qe(oi, spectral_qe), oi.wavelengths_nm, self.spectral_rule)
 
