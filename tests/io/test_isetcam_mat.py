@@ -45,6 +45,30 @@ def test_compressed_photons_are_decoded(tmp_path):
     np.testing.assert_allclose(s.photons[0, :, 0, 0].numpy(), expected, rtol=1e-12)
 
 
+def test_a_compressed_illuminant_is_decoded_as_isetcam_does(tmp_path):
+    """Old files keep the illuminant as uint32 codes with data.min / data.max (ISETCam illuminantGet 'photons':
+    ieUncompressData(photons, min, max, 32)); the codes were read as photons (3.2e9 for 3e15: 1e6x too dim)."""
+    wave = np.array([[400.0, 500.0, 600.0]])
+    codes = np.array([[[0, 100, 65535]] * 2] * 2, dtype=np.uint16)
+    lo, hi = 0.0, 4e15
+    ill_codes = np.array([[1073741824, 2147483648, 3221225471]], dtype=np.uint32)
+    scene = _scene_struct(codes, wave, data={"photons": codes, "dmin": 1e14, "dmax": 1e16, "bitDepth": 16.0},
+                          illuminant={"data": {"photons": ill_codes, "min": lo, "max": hi}, "spectrum": {"wave": wave}})
+    scipy.io.savemat(tmp_path / "old.mat", {"scene": scene})
+    s = read_isetcam_scene(tmp_path / "old.mat", dtype=torch.float64)
+    expected = lo + ill_codes[0].astype(float) * (hi - lo) / (2**32 - 1)  # 1e15, 2e15, 3e15 to 3e-10
+    np.testing.assert_allclose(s.illuminant_photons[0].numpy(), expected, rtol=1e-12)
+    np.testing.assert_allclose(expected, [1e15, 2e15, 3e15], rtol=1e-9)
+    scene["illuminant"]["data"] = {"photons": ill_codes}
+    scipy.io.savemat(tmp_path / "bad.mat", {"scene": scene})
+    with pytest.raises(ValueError, match=r"scene\.illuminant\.data: uint32 \(compressed\) photons need min and max"):
+        read_isetcam_scene(tmp_path / "bad.mat")
+    scene["illuminant"]["data"] = {"photons": ill_codes.astype(np.int16), "min": lo, "max": hi}
+    scipy.io.savemat(tmp_path / "bad16.mat", {"scene": scene})
+    with pytest.raises(ValueError, match=r"scene\.illuminant\.data\.photons: expected numbers, or uint32 codes"):
+        read_isetcam_scene(tmp_path / "bad16.mat")
+
+
 def test_v73_hdf5_file(tmp_path):
     wave = np.array([500.0, 600.0])
     photons = np.arange(2 * 3 * 2, dtype=np.float64).reshape(2, 3, 2) * 1e14 + 1.0
