@@ -307,10 +307,6 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
     if a.dtype.kind in "ui":
         bits = 8 * a.dtype.itemsize
         t = t.to(torch.float64) / (2**bits - 1)
-        if encoding == "srgb":  # the colour channels; an alpha channel (the last of 2 or 4) is linear coverage
-            c = t.shape[1] - (1 if t.shape[1] in (2, 4) else 0)
-            decoded = srgb_decode(t[:, :c]) if exponent is None else t[:, :c] ** exponent
-            t = torch.cat([decoded, t[:, c:]], dim=1)
     elif a.dtype.kind == "f":
         t = t.to(torch.float64)
         if not torch.isfinite(t).all():
@@ -319,10 +315,17 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
         raise ValueError(f"path: {str(p)!r}: unsupported sample type {a.dtype}")
     if associated and t.shape[1] in (2, 4):
         # straight alpha, as PNG's (the tensor's convention): colour / alpha where covered; a transparent pixel's
-        # colour (alpha 0) is as stored (an emission-only pixel keeps its light)
+        # colour (alpha 0) is as stored (an emission-only pixel keeps its light). TIFF premultiplies the stored
+        # values (TIFF 6.0, ExtraSamples; Pillow divides the codes), so this comes before the decoding: after it,
+        # linear 0.2 at alpha 0.5 read as 0.096
         c = t.shape[1] - 1
         alpha = t[:, c:]
         t = torch.cat([torch.where(alpha > 0, t[:, :c] / torch.where(alpha > 0, alpha, 1.0), t[:, :c]), alpha], dim=1)
+    if a.dtype.kind in "ui" and encoding == "srgb":
+        # the colour channels; an alpha channel (the last of 2 or 4) is linear coverage
+        c = t.shape[1] - (1 if t.shape[1] in (2, 4) else 0)
+        decoded = srgb_decode(t[:, :c]) if exponent is None else t[:, :c] ** exponent
+        t = torch.cat([decoded, t[:, c:]], dim=1)
     out = t.to(dtype)
     if dtype.itemsize < 8 and not bool(torch.isfinite(out).all()):  # (an EXR's 1e5 read as float16 was inf)
         raise ValueError(f"dtype: {str(p)!r} holds values up to {float(t.abs().max()):.6g}, beyond {dtype}'s "

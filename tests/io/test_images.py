@@ -676,6 +676,20 @@ def test_premultiplied_alpha_of_exr_and_associated_tiff_reads_as_straight(tmp_pa
     assert float(stored["R"].pixels[0, 0]) == 0.5 and float(stored["A"].pixels[0, 0]) == 0.5
 
 
+def test_an_associated_alpha_8_bit_tiff_is_divided_in_code_values_as_pillow_does(tmp_path):
+    # TIFF premultiplies the stored values: straight sRGB code 124 (linear 0.2) at alpha 128 is stored as 62. Pillow
+    # divides the codes (123 of 255); read_image divided after decoding, reading 0.096 for 0.2.
+    stored = np.array([[[62, 62, 62, 128]]], np.uint8)
+    tifffile.imwrite(tmp_path / "a.tif", stored, photometric="rgb", extrasamples=["assocalpha"])
+    straight = np.asarray(Image.open(tmp_path / "a.tif").convert("RGBA"))[0, 0]
+    got = read_image(tmp_path / "a.tif", dtype=torch.float64)[0, :, 0, 0]
+    expected = float(colour.cctf_decoding(62 / 128, "sRGB"))  # the codes divided, then decoded
+    np.testing.assert_allclose(got[:3].numpy(), expected, rtol=1e-12)
+    assert float(got[0]) == pytest.approx(0.2, abs=2e-3)  # linear 0.2, as written
+    assert abs(float(got[0]) - float(colour.cctf_decoding(straight[0] / 255, "sRGB"))) < 3e-3  # Pillow's, rounded
+    assert float(got[3]) == pytest.approx(128 / 255)
+
+
 def test_files_in_other_colours_than_srgb_are_refused_unless_read_linear(tmp_path):
     # An ACES2065-1 EXR (AP0 chromaticities) read as linear sRGB (0.2, 0.4, 0.6 for colour-science's
     # (-0.18, 0.44, 0.64)); a TIFF's Display P3 ICC profile ignored (a PNG's is refused); a luminance / chroma EXR
