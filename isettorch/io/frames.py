@@ -89,6 +89,12 @@ def _pil_grey(path: Path, what: str) -> np.ndarray:
     with Image.open(path) as im:
         if im.mode not in _GREY_MODES:
             raise ValueError(f"expected an 8- or 16-bit greyscale {what}, got PIL mode {im.mode!r}")
+        args = im.tile[0].args if im.tile else None
+        raw = args if isinstance(args, str) else args[0] if isinstance(args, tuple) and args else ""
+        packed = raw.split(";")[1][:1] if raw.startswith("L;") else ""
+        if packed in ("1", "2", "4"):  # (Pillow widens them to 8 bits: a 4-bit code 15 read as DN 255)
+            raise ValueError(f"expected 8- or 16-bit greyscale samples, got {packed}-bit ones (Pillow would widen "
+                             f"them to 8 bits, changing the DN); save the frame as 8/16-bit {what} or .npy")
         return np.asarray(im)
 
 

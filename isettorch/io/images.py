@@ -292,7 +292,7 @@ def read_image(path, *, encoding: str = "srgb", dtype: torch.dtype = torch.float
     else:
         try:
             a, orientation, colour = _read_png(p) if kind == "png" else _read_tiff(p)
-        except (ValueError, OSError) as err:
+        except (ValueError, OSError, NotImplementedError) as err:  # (tifffile: packed 4 / 12-bit need imagecodecs)
             raise ValueError(f"path: {str(p)!r} is not a readable {kind.upper()} image ({err})") from err
         associated = bool(colour.pop("associated_alpha", False))
         if colour and encoding == "srgb":

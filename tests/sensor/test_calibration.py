@@ -536,6 +536,23 @@ def test_empty_frame_is_an_error_naming_the_file(tmp_path, shape):
         read_frame(tmp_path / "z.npy")
 
 
+@pytest.mark.parametrize("bits", [2, 4])
+def test_a_frame_of_fewer_than_8_bits_is_refused_not_widened(tmp_path, bits):
+    """Pillow widens 2- and 4-bit greyscale to 8 bits (code 15 of 4 bits read as DN 255, stored_bits 8): the DN
+    changed without a word. Such a frame is refused naming the file and the bit depth (PNG here; a packed TIFF,
+    which tifffile cannot unpack without imagecodecs, goes to the same Pillow reader)."""
+    import png
+
+    from isettorch.io.frames import read_frame
+
+    top = 2**bits - 1
+    with open(tmp_path / "g.png", "wb") as fh:
+        png.Writer(4, 2, greyscale=True, bitdepth=bits).write(fh, [[0, 1, top - 1, top], [top] * 4])
+    with pytest.raises(ValueError, match=rf"g\.png: cannot read the frame \(expected 8- or 16-bit greyscale samples, "
+                                         rf"got {bits}-bit ones"):
+        read_frame(tmp_path / "g.png")
+
+
 @pytest.mark.parametrize("frame", [np.zeros((0, 0)), np.zeros((2, 3, 4)), "abc", np.array([[1 + 2j]])])
 def test_write_frame_refuses_what_is_not_a_frame(tmp_path, frame):
     """An empty, 3-D, string or complex frame was handed to numpy or PIL (their errors, or a .npy the reader then
