@@ -85,6 +85,10 @@ def write_spectral_exr(path, data, wavelengths_nm, *, component: str = "S0", att
     # (metres or micrometres were written as channels of 0-1 nm; NaN or negative ones as names its reader refuses)
     check_wavelengths(torch.as_tensor(np.sort(w)), "wavelengths_nm")
     check_nanometres(w, "wavelengths_nm")
+    if np.any(np.diff(w) <= 0):  # (the reader returns the bands increasing: a per-band attribute, e.g. the
+        # illuminant, written in another order came back out of step with them)
+        raise ValueError(f"wavelengths_nm: expected increasing wavelengths (one per band, in the data's order), got "
+                         f"{w.tolist()}")
     if component not in ("S0", "T"):
         raise ValueError(f"component: expected 'S0' (emissive) or 'T' (reflective), got {component!r}")
     comp = {"zip": OpenEXR.ZIP_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}

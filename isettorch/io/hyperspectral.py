@@ -107,7 +107,7 @@ def load_kaist(path, *, hfov_deg: float | None = None, distance_m: float | None 
             bands.append((fichet[1], a))
             continue
         m = _KAIST_NAME.match(name)  # '420', '420nm', 'w420nm' ('frame_0512' was a 512 nm band)
-        if m is not None and 300.0 <= float(m.group(1).replace(",", ".")) <= 1100.0:
+        if m is not None:  # (every one: bands beyond 300-1100 nm were dropped without a word; nanometres checked below)
             bands.append((float(m.group(1).replace(",", ".")), a))
     if not bands:
         raise ValueError(f"path: {str(p)!r} has no channels named by wavelength (e.g. '420', 'w420nm'); "

@@ -131,7 +131,10 @@ def test_a_scene_in_other_radiance_units_is_refused(tmp_path):
 
 @pytest.mark.parametrize("wavelengths, match", [([5e-7, 6e-7], r"expected wavelengths in nm, got 5e-07-6e-07"),
                                                 ([0.45, 0.55], r"expected wavelengths in nm, got 0.45-0.55"),
-                                                ([float("nan")], "wavelengths_nm"), ([-550.0], "wavelengths_nm")])
+                                                ([float("nan")], "wavelengths_nm"), ([-550.0], "wavelengths_nm"),
+                                                # the reader returns bands increasing: a per-band attribute (the
+                                                # illuminant) written 700, 550, 400 came back out of step with them
+                                                ([700.0, 550.0, 400.0], r"expected increasing wavelengths")])
 def test_spectral_exr_refuses_wavelengths_that_are_not_nanometres(tmp_path, wavelengths, match):
     """Metres and micrometres were written as channels of 0-1 nm; NaN or negative ones as names its reader refuses."""
     with pytest.raises(ValueError, match=match):

@@ -148,6 +148,19 @@ def test_kaist_takes_only_wavelength_names(tmp_path):
     assert load_kaist(tmp_path / "k.exr").wavelengths_nm.tolist() == [420.0, 430.0]
 
 
+def test_kaist_keeps_bands_beyond_300_to_1100_nm(tmp_path):
+    """Channels '1000' ... '1200' loaded as 1000-1100 nm: bands outside 300-1100 nm were dropped without a word
+    (the Fichet layout's were kept). Every band named by a wavelength is read; a channel of micrometres is refused."""
+    chans = {str(w): np.full((2, 2), w / 1000, np.float32) for w in (1000, 1050, 1100, 1150, 1200)}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, chans).write(str(tmp_path / "nir.exr"))
+    s = load_kaist(tmp_path / "nir.exr", mean_luminance_cd_m2=None, dtype=torch.float64)
+    assert s.wavelengths_nm.tolist() == [1000.0, 1050.0, 1100.0, 1150.0, 1200.0]
+    chans = {"0.42": np.ones((2, 2), np.float32), "0.43": np.ones((2, 2), np.float32)}
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, chans).write(str(tmp_path / "um.exr"))
+    with pytest.raises(ValueError, match=r"expected wavelengths in nm, got 0.42-0.43"):
+        load_kaist(tmp_path / "um.exr")
+
+
 def test_bands_in_micrometres_are_refused(tmp_path):
     """ICVL-like bands of 0.4-0.7 (micrometres) read "the scene is black", or as a 0.4 nm scene unscaled."""
     with h5py.File(tmp_path / "um.mat", "w") as f:
