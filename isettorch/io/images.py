@@ -545,7 +545,7 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
             p = Path(template.format(i=i)) if "{i" in template else Path(template)
             tmp = staged.temporary(p)
             if kind == "png":
-                _write_png(tmp, a, bits)
+                _write_png(tmp, a, bits, linear=encoding == "linear")
             elif kind == "tiff":
                 import tifffile
 
@@ -558,11 +558,14 @@ def write_image(path, image: torch.Tensor, *, encoding: str = "srgb", bits: int 
     return written
 
 
-def _write_png(p: Path, a: np.ndarray, bits: int) -> None:
+def _write_png(p: Path, a: np.ndarray, bits: int, linear: bool = False) -> None:
     import png
 
     h, w, c = a.shape
-    writer = png.Writer(width=w, height=h, greyscale=c <= 2, alpha=c in (2, 4), bitdepth=bits)
+    # linear code values carry a gAMA of 1 (PNG 3rd ed., 11.3.3.2), which read_image and viewers honour: without it
+    # every reader takes them as sRGB (a linear 0.5 read back as 0.216)
+    writer = png.Writer(width=w, height=h, greyscale=c <= 2, alpha=c in (2, 4), bitdepth=bits,
+                        gamma=1.0 if linear else None)
     with open(p, "wb") as fh:
         writer.write(fh, a.reshape(h, w * c))
 

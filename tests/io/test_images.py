@@ -37,6 +37,11 @@ def test_png_8bit_is_srgb_encoded(tmp_path):
     (r,) = write_image(tmp_path / "lin.png", torch.full((3, 2, 2), 0.5), encoding="linear")
     assert np.asarray(Image.open(r))[0, 0, 0] == 128
     assert float(read_image(r, encoding="linear")[0, 0, 0, 0]) == pytest.approx(128 / 255)
+    # ... and says so with a gAMA of 1 (PNG 3rd ed., 11.3.3.2), which Pillow reports and the default read honours:
+    # without it the linear file read back as sRGB, 0.216 for 0.5
+    assert Image.open(r).info.get("gamma") == pytest.approx(1.0)
+    assert float(read_image(r)[0, 0, 0, 0]) == pytest.approx(128 / 255)
+    assert "gamma" not in Image.open(q).info  # an sRGB file: no gAMA (the sRGB curve is every reader's default)
 
 
 def test_png_16bit_rgb_round_trip(tmp_path):
