@@ -110,9 +110,12 @@ def read_rgb8(path) -> np.ndarray:
             modes = [t[3][0] if isinstance(t[3], tuple) else t[3] for t in (im.tile or [])] or [""]
             rawmode = modes[0]
             deep = [m for m in modes if ";16" in str(m) or ";32" in str(m)]
+            # a PPM of maxval above 255 (10 / 16-bit samples): Pillow's tile says ('RGB', maxval) and keeps 8 bits
+            deep += [f"maxval {t.args[1]}" for t in (im.tile or []) if t.codec_name == "ppm" and isinstance(
+                t.args, tuple) and len(t.args) > 1 and isinstance(t.args[1], int) and t.args[1] > 255]
             if im.mode in ("I", "I;16", "I;16B", "I;16L", "F") or deep:
                 raise ValueError(f"{p.name}: expected 8-bit samples, got a {im.mode}/{deep[0] if deep else rawmode} "
-                                 f"image (16 or 32 bits); convert it to 8-bit first")
+                                 f"image (more than 8 bits per sample); convert it to 8-bit first")
             wide = _tiff_sample_type(p) if im.format == "TIFF" else None
             if wide is not None and (wide.kind == "f" or wide.itemsize > 1):  # (1-bit is bool, 4-bit uint8)
                 # (a TIFF of one plane per colour, PlanarConfiguration 2, has tiles 'R', 'G', 'B' whatever their

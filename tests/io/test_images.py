@@ -155,6 +155,11 @@ def test_read_rgb8_refuses_what_it_cannot_read_exactly(tmp_path):
     Image.fromarray(deep[:, :5]).save(tmp_path / "gray16.png")
     with pytest.raises(ValueError, match=r"gray16\.png: expected 8-bit samples"):
         read_rgb8(tmp_path / "gray16.png")
+    for maxval in (1023, 65535):  # a 10 / 16-bit PPM: Pillow kept 8 of its bits (code maxval / 2 read as 127)
+        (tmp_path / "deep.ppm").write_bytes(f"P6\n2 1\n{maxval}\n".encode()
+                                            + np.array([0, 1, 2, maxval // 2, maxval, 3], ">u2").tobytes())
+        with pytest.raises(ValueError, match=rf"deep\.ppm: expected 8-bit samples, got a RGB/maxval {maxval} image"):
+            read_rgb8(tmp_path / "deep.ppm")
     Image.fromarray(rgb).convert("CMYK").save(tmp_path / "cmyk.jpg")
     with pytest.raises(ValueError, match=r"cmyk\.jpg: .*mode 'CMYK'"):
         read_rgb8(tmp_path / "cmyk.jpg")
