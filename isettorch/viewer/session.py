@@ -240,7 +240,7 @@ class ViewerSession:
                 sensor.pop(key, None)
             sensor["exposure_s"] = float(s.exposure_ms) * 1e-3
         if s.noise is not None:
-            camera["noise"] = bool(s.noise)
+            camera["noise"] = s.noise  # (checked as the config's camera.noise: bool("no") was True)
         if s.demosaic is not None:
             isp["demosaic"] = s.demosaic
         return cfg

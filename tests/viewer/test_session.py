@@ -113,6 +113,10 @@ def test_a_rejected_change_leaves_the_session_and_its_caches_consistent():
     with pytest.raises(ValueError, match="exposure_s"):
         s.update(exposure_ms=-1.0)
     assert s.settings == before  # (it stayed, and every later change failed with the exposure's message)
+    for bad in ("yes", "no", 1):  # noise 'no' was bool('no'): noise on, and a second raw cache entry
+        with pytest.raises(TypeError, match=r"config: camera\.noise must be bool"):
+            s.update(noise=bad)
+        assert s.settings == before
     # one raw outliving its optical image in the caches (trimmed apart) was a KeyError on its reuse
     for f in (2.0, 2.8, 5.6):
         s.update(f_number=f)
