@@ -582,9 +582,13 @@ def _check_isp_for_sensor(camera: Camera) -> None:
     if border == "reflect" and max(cfa.shape) > 2:
         raise ValueError(f"config: isp.demosaic_border 'reflect' needs a CFA cell of at most 2x2, and sensor.cfa has "
                          f"a {cfa.shape[0]}x{cfa.shape[1]} cell; use demosaic_border: method")
-    try:  # (not for a sensor with learnable parameters: its fit belongs in the training graph)
-        if not any(p.requires_grad for p in camera.sensor.parameters()):
-            isp.fit(camera.sensor)
+    try:  # (not for a sensor with learnable parameters: its fit belongs in the training graph; but a learnable
+        # matrix is a parameter of its own, its first fit's values, made here so that an optimiser built from the
+        # camera's parameters before the first render has it: it had none until that render)
+        learnable_matrix = bool(getattr(isp.sensor_to_xyz, "learnable", False))
+        if learnable_matrix or not any(p.requires_grad for p in camera.sensor.parameters()):
+            with torch.no_grad():
+                isp.fit(camera.sensor)
     except (ValueError, TypeError) as err:
         raise ValueError(f"config: isp.sensor_conversion: {err}") from err
     matrix = getattr(isp.sensor_to_xyz, "matrix", None)

@@ -221,6 +221,25 @@ def test_the_same_keys_where_they_are_used_load():
     assert cam.isp.sensor_to_xyz.matrix.requires_grad
 
 
+def test_a_learnable_fitted_matrix_is_a_parameter_when_the_camera_is_built():
+    """With learnable filters, the colour fit waits for the training graph, and a learnable fitted matrix existed
+    only after the first render: an optimiser built from the camera's parameters before it never trained the matrix.
+    It is the first fit's values, made at build; the first render keeps it, and one step moves it."""
+    cam = Camera.from_config(_cfg(sensor={"learnable_filters": True},
+                                  isp={"sensor_conversion": {"method": "mcc_optimized", "learnable": True}}))
+    params = dict(cam.named_parameters())
+    assert "isp.sensor_to_xyz.matrix" in params
+    matrix = params["isp.sensor_to_xyz.matrix"]
+    start = matrix.detach().clone()
+    opt = torch.optim.SGD(cam.parameters(), lr=1e-2)
+    from isettorch.scene import macbeth
+
+    cam(macbeth(patch_size=8), generator=torch.Generator().manual_seed(0)).square().mean().backward()
+    assert cam.isp.sensor_to_xyz.matrix is matrix and matrix.grad is not None
+    opt.step()
+    assert not torch.equal(matrix.detach(), start)
+
+
 # --- 5: NaN, non-positive gains and singular matrices -----------------------------------------------------------
 NAN = float("nan")
 
