@@ -125,6 +125,11 @@ def _apply_gains(img: torch.Tensor, gains: torch.Tensor) -> torch.Tensor:
     return img * g[:, :, None, None]
 
 
+#: the condition number above which :func:`fit_colour_matrix` warns (a Bayer RGB sensor's fit on the Macbeth chart
+#: has about 7, an RGBW one about 400: W is nearly R + G + B)
+ILL_CONDITIONED = 1e6
+
+
 def fit_colour_matrix(source: torch.Tensor, target: torch.Tensor, white=None) -> torch.Tensor:
     """Least-squares colour matrix ``M`` (K, C) minimising ``||source @ M.T - target||_F``.
 
@@ -165,6 +170,14 @@ def fit_colour_matrix(source: torch.Tensor, target: torch.Tensor, white=None) ->
         raise ValueError(f"source: its {a.shape[1]} channels are linearly dependent over the samples (rank {rank}): "
                          "the colour matrix is not determined (two identical channels, a dark channel, or too few "
                          "distinct colours)")
+    sv = torch.linalg.svdvals(a.detach() / col)
+    cond = float(sv[0] / sv[-1])
+    if cond > ILL_CONDITIONED:  # determined, but barely: the matrix's large, opposed coefficients amplify noise
+        warn_caller(f"source: the colour fit is ill-conditioned (condition number {cond:.3g} of the source's "
+                    f"{a.shape[1]} channels over {a.shape[0]} samples, each channel scaled to max 1; an RGB sensor "
+                    f"on the Macbeth chart has about 7, RGBW about 400): the fitted matrix amplifies errors in the "
+                    f"sensor values up to that factor. Channels nearly proportional to each other or to a sum of "
+                    f"others, or too few distinct colours, do this")
     sol = torch.linalg.lstsq(a / col, b, driver="gelsd" if a.device.type == "cpu" else None).solution
     if white is not None:
         try:

@@ -4,6 +4,8 @@ References: numpy.linalg.lstsq (independent solver), colour-science (CIE data, s
 ISETCam imageIlluminantCorrection (gray/white world formulas).
 """
 
+import warnings
+
 import colour
 import numpy as np
 import pytest
@@ -414,6 +416,19 @@ def test_colour_stages_refuse_bad_input_naming_it():
     src = torch.rand(24, 2, dtype=torch.float64)
     with pytest.raises(ValueError, match=r"source: its 3 channels are linearly dependent .*rank 2"):
         fit_colour_matrix(torch.cat([src, src[:, :1]], dim=1), torch.rand(24, 3, dtype=torch.float64))
+    # nearly dependent (a third channel 1e-8 off the first): determined, but the matrix's opposed coefficients of
+    # ~1e7 amplify any error in the sensor values; it was fitted without a word. A condition number of 4e2 is fine.
+    g = torch.Generator().manual_seed(1)
+    near = torch.cat([src, src[:, :1] + 1e-8 * torch.rand(24, 1, generator=g, dtype=torch.float64)], dim=1)
+    with pytest.warns(UserWarning, match=r"source: the colour fit is ill-conditioned \(condition number [0-9.e+]+ of "
+                                         r"the source's 3 channels over 24 samples"):
+        m = fit_colour_matrix(near, torch.rand(24, 3, generator=g, dtype=torch.float64))
+    assert float(m.abs().max()) > 1e5  # what the warning is about
+    ok = torch.cat([src, src[:, :1] + 2e-3 * torch.rand(24, 1, generator=g, dtype=torch.float64)], dim=1)
+    assert 1e2 < float(torch.linalg.cond(ok / ok.amax(0))) < 1e5
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit_colour_matrix(ok, torch.rand(24, 3, generator=g, dtype=torch.float64))
     for bad in (True, float("inf"), -2.0):
         with pytest.raises(ValueError, match="encoding: expected"):
             DisplayEncode(bad)
