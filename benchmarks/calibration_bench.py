@@ -5,7 +5,10 @@ full-well and ADC clipping, black level, quantisation), mono and Bayer, 256 x 25
 saturation of every channel), 3 frames each; the worst-case error of every calibrated quantity is reported against
 the issue-17 bounds. Usage::
 
-    OMP_NUM_THREADS=1 python benchmarks/calibration_bench.py --cases 12 --out benchmarks/CALIBRATION.md
+    OMP_NUM_THREADS=1 python benchmarks/calibration_bench.py --cases 20 --out out/calibration.md
+
+``--out`` replaces its file: benchmarks/CALIBRATION.md (this run and a ``--frames 2`` run, with notes) is curated by
+hand from it.
 """
 
 from __future__ import annotations

@@ -162,13 +162,15 @@ CHECKS = [stream_natural, stream_grad, stream_chunked_targets, camera_configs, c
           demosaic_eval, train_stream, codesign_sources, configured_optics]
 
 
-def main() -> int:
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default="cuda")
-    ap.add_argument("--out", default=None, help="also write the lines to this file")
-    args = ap.parse_args()
+    ap.add_argument("--out", default=None,
+                    help="also write the lines to this file, each as its check ends (a timeout keeps the finished)")
+    args = ap.parse_args(argv)
     dev = torch.device(args.device)
-    lines = []
+    if args.out:
+        Path(args.out).write_text("")
     for check in CHECKS:
         t0 = time.perf_counter()
         try:
@@ -179,9 +181,9 @@ def main() -> int:
             line = (f"FAIL {check.__name__}: {type(err).__name__}: {str(err).splitlines()[0][:300] if str(err) else ''}"
                     f" [{Path(tb.filename).name}:{tb.lineno}]")
         print(line, flush=True)
-        lines.append(line)
-    if args.out:
-        Path(args.out).write_text("\n".join(lines) + "\n")
+        if args.out:
+            with open(args.out, "a") as f:
+                f.write(line + "\n")
     return 0
 
 

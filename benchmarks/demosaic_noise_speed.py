@@ -2,7 +2,8 @@
 
 * ``speed``: CPSNR (crop 10, noise-free) against milliseconds per megapixel (median over images, one call each after
   a warm-up, in ``--rounds`` interleaved passes over the methods, each image's median over them; float32, CPU threads
-  as given) for every classical and learned method, Kodak and McMaster; with
+  as given) and its ratio to menon2007's in the same run, for every classical and learned method, Kodak and
+  McMaster, then a few at ``--speed-sigma`` noise (in the same passes); with
   ``--plot PNG`` the Pareto chart of the noise-free rows (the speed-error family ``learned_tiny``,
   ``learned_small``, ``learned`` beside the classical methods; issue #35 item 3); with ``--bf16`` the learned
   members again with their convolutions in bfloat16 (``torch.autocast``: the base, blend and guard stay float32).
@@ -16,11 +17,14 @@
 
 Reporting only: Kodak and McMaster are test sets (nothing here selects or tunes anything).
 
-    OMP_NUM_THREADS=2 python benchmarks/demosaic_noise_speed.py speed --threads 2 --out benchmarks/DEMOSAIC_SPEED.md \
+    OMP_NUM_THREADS=2 python benchmarks/demosaic_noise_speed.py speed --threads 2 --out out/demosaic_speed.md \
         --plot docs/_static/demosaic_pareto.png
-    OMP_NUM_THREADS=1 python benchmarks/demosaic_noise_speed.py noise --out benchmarks/DEMOSAIC_NOISE.md
+    OMP_NUM_THREADS=1 python benchmarks/demosaic_noise_speed.py noise --out out/demosaic_noise.md
     OMP_NUM_THREADS=2 python benchmarks/demosaic_noise_speed.py tight --threads 2
-    python benchmarks/demosaic_noise_speed.py speed --device cuda --out benchmarks/DEMOSAIC_SPEED_CUDA.md
+    python benchmarks/demosaic_noise_speed.py speed --device cuda --out out/demosaic_speed_cuda.md
+
+``--out`` replaces its file: benchmarks/DEMOSAIC_SPEED.md, DEMOSAIC_NOISE.md and DEMOSAIC_SPEED_CUDA.md keep each
+run's history and notes, and are curated by hand from these outputs.
 
 On CUDA the timings include ``torch.cuda.synchronize`` (``evaluate_demosaic``); the denoisers (scikit-image) run on
 the CPU, with the mosaic copied there and back.
@@ -74,7 +78,8 @@ def _label(method: str, denoiser: str | None) -> str:
 def speed(args) -> list[str]:
     sets = {"Kodak": Path(args.kodak), "McMaster": Path(args.mcmaster)}
     sizes = {k: _sizes(v) for k, v in sets.items()}
-    header = ["| method | Kodak CPSNR | Kodak ms/MP | McMaster CPSNR | McMaster ms/MP |", "|---|---|---|---|---|"]
+    header = ["| method | Kodak CPSNR | Kodak ms/MP | Kodak x menon2007 (same run) | McMaster CPSNR | McMaster ms/MP | "
+              "McMaster x menon2007 (same run) |", "|---|---|---|---|---|---|---|"]
 
     points = {}  # noise-free rows: name -> {set: (cpsnr, ms/MP)}
 
@@ -88,41 +93,45 @@ def speed(args) -> list[str]:
                                            **kw)
         return out
 
-    def line(name: str, passes: list[dict], plot: bool) -> str:
-        """A row from one or more passes of the same method: the CPSNR (the same in every pass: the methods are
-        deterministic) and the median over images of each image's median time over the passes."""
-        cells, point = [], {}
-        for k in sets:
-            point[k] = (passes[0][k]["mean_cpsnr"], _median_ms_per_mp([p[k] for p in passes], sizes[k]))
-            cells += [f"{point[k][0]:.2f}", f"{point[k][1]:.1f}"]
-        if plot:
-            points[name] = point
-        text = f"| {name} | " + " | ".join(cells) + " |"
-        print(text, flush=True)
-        return text
+    def table(group: list[tuple], passes: dict) -> list[str]:
+        """The rows of ``group`` from their passes: the CPSNR (the same in every pass: the methods are deterministic),
+        the median over images of each image's median time over the passes, and that time over the group's
+        menon2007 row's (measured in the same passes)."""
+        pts = {name: {k: (passes[name][0][k]["mean_cpsnr"],
+                          _median_ms_per_mp([p[k] for p in passes[name]], sizes[k])) for k in sets}
+               for name, *_ in group}
+        out = []
+        for name, _m, _kw, plot in group:
+            if plot:
+                points[name] = pts[name]
+            cells = []
+            for k in sets:
+                cpsnr, ms = pts[name][k]
+                cells += [f"{cpsnr:.2f}", f"{ms:.1f}", f"{ms / pts['menon2007'][k][1]:.2f}"]
+            out.append(f"| {name} | " + " | ".join(cells) + " |")
+            print(out[-1], flush=True)
+        return out
 
-    def row(name: str, method: str, **kw) -> str:
-        return line(name, [measure(method, **kw)], plot=not kw.get("noise_sigma"))
-
-    # the noise-free rows in --rounds interleaved passes (every method once, then again), so that the machine's drift
-    # between minutes falls on every method alike; each image's time is its median over the passes
+    # every row in --rounds interleaved passes (every method once, then again), so that the machine's drift between
+    # minutes falls on every method alike; each image's time is its median over the passes
     specs = [(m, m, {}, True) for m in SPEED_METHODS]
     specs.append(("learned + self-ensemble (2 passes)", "learned", {"self_ensemble": True}, True))
     if args.bf16:  # the chart gets the accurate member's point only (the fast ones' fall on their float32 points)
         specs += [(f"{m} (bf16 autocast)", m, {"bf16": True}, m == "learned") for m in LEARNED_ROWS]
-    passes = {name: [] for name, *_ in specs}
+    # the noisy case: the sequential baselines against the joint network, at one noise level
+    s = args.speed_sigma
+    noisy = [(_label(m, d), m, {"noise_sigma": s, "seed": 0, "denoise": d}, False)
+             for m, d in (("menon2007", None), ("malvar2004", "nlmeans"), ("menon2007", "nlmeans"), ("learned", None))]
+    clean_passes, noisy_passes = {name: [] for name, *_ in specs}, {name: [] for name, *_ in noisy}
     for _ in range(args.rounds):
-        for name, method, kw, _plot in specs:
-            passes[name].append(measure(method, **kw))
-    rows = header + [line(name, passes[name], plot) for name, _m, _kw, plot in specs]
+        for group, passes in ((specs, clean_passes), (noisy, noisy_passes)):
+            for name, method, kw, _plot in group:
+                passes[name].append(measure(method, **kw))
+    rows = header + table(specs, clean_passes)
     if args.plot:
         rows += ["", f"Pareto chart: `{args.plot}`"]
         _plot_pareto(points, args.plot, args.threads, args.device)
-    # the noisy case: the sequential baselines against the joint network, at one noise level
-    s = args.speed_sigma
-    rows += ["", f"With white Gaussian noise, sigma {s:g} (seed 0):", "", *header]
-    rows += [row(_label(m, d), m, noise_sigma=s, seed=0, denoise=d)
-             for m, d in (("menon2007", None), ("malvar2004", "nlmeans"), ("menon2007", "nlmeans"), ("learned", None))]
+    rows += ["", f"With white Gaussian noise, sigma {s:g} (seed 0):", "", *header, *table(noisy, noisy_passes)]
     return rows
 
 
@@ -247,8 +256,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="write the markdown table here")
     ap.add_argument("--plot", default=None, metavar="PNG", help="speed: write the Pareto chart here")
     ap.add_argument("--rounds", type=int, default=3,
-                    help="speed: interleaved passes over every noise-free method (each image's time is its median "
-                         "over them; default 3)")
+                    help="speed: interleaved passes over every method, noise-free and noisy (each image's time is "
+                         "its median over them; default 3)")
     ap.add_argument("--bf16", action="store_true",
                     help="speed: also the learned members with their convolutions in bfloat16 (torch.autocast; fast on "
                          "CPUs with AVX512-BF16 or AMX, and on GPUs)")
@@ -266,7 +275,7 @@ def main(argv=None) -> int:
     t0 = time.time()
     rows = {"speed": speed, "noise": noise, "tight": tight}[args.table](args)
     hw = machine_info(args.device)
-    rounds = f"{args.rounds} interleaved passes (noise-free rows), " if args.table == "speed" else ""
+    rounds = f"{args.rounds} interleaved passes (every row), " if args.table == "speed" else ""
     text = "\n".join(rows) + (f"\n\nCrop 10, RGGB, float32, seed 0; {rounds}wall {time.time() - t0:.0f} s; "
                               f"{json.dumps(hw)}\n")
     if args.out:

@@ -7,8 +7,8 @@ gets a longer exposure or more gain". This script measures how far apart they ar
 training loss of ``training/codesign.py`` (L1 in linear sRGB plus L1 in encoded sRGB, crop 4), for every shipped
 design at each of its light levels.
 
-Each of ``--batches`` batches (``--batch`` PairStream layout scenes of ``--size`` pixels, the codesign trainer's
-default source, :func:`training.codesign_sources.source_layouts`) is rendered with the same noise for both
+Each of ``--batches`` batches (8 PairStream layout scenes of 64 x 64 pixels, ``measure``'s defaults; the codesign
+trainer's default source, :func:`training.codesign_sources.source_layouts`) is rendered with the same noise for both
 settings (common random numbers: one generator seed per batch). The table gives the f-number gradient summed over
 the batches with the rule detached and kept in the graph, their relative difference, and the exposure and gain the
 rule chose.

@@ -1,6 +1,8 @@
 """Speed and error of LensOptics (eigen-PSF shift-variant blur) against the brute-force per-source PSF render.
 
-Usage: OMP_NUM_THREADS=2 python benchmarks/lens_bench.py [--size 1024] [--repeats 5] [--out benchmarks/LENS.md]
+Usage: OMP_NUM_THREADS=2 python benchmarks/lens_bench.py [--size 1024] [--repeats 5] [--out out/lens.md]
+
+``--out`` replaces its file: benchmarks/LENS.md (the table and its hand-written notes) is curated by hand from it.
 
 Scene: a seeded random texture (band-limited noise + edges) covering 98 % of the Cooke triplet's 40 deg field,
 3 bands (486.1, 587.6, 656.3 nm), float32. Timings are medians of repeated renders with the PSF bank cached

@@ -2,8 +2,9 @@
 
 Writes ``<out>/pipeline.json`` (every row, the machine, the settings), ``<out>/pipeline_table.md`` (one table
 per section) and ``<out>/pareto.png`` (time vs sensor-volts error of the knob rows, Pareto front), and prints the table.
+``--quick`` needs an ``--out`` other than benchmarks/ (the committed files are a full run's).
 
-    python benchmarks/pipeline.py [--quick] [--device cpu|cuda] [--threads N] [--out benchmarks]
+    python benchmarks/pipeline.py [--quick --out DIR] [--device cpu|cuda] [--threads N] [--out benchmarks]
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=None)
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent))
     args = ap.parse_args(argv)
+    if args.quick and Path(args.out).resolve() == Path(__file__).resolve().parent:
+        ap.error("--quick would overwrite the committed full-run results in benchmarks/: give another --out")
     if args.threads:
         torch.set_num_threads(args.threads)
     out = Path(args.out)

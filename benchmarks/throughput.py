@@ -432,16 +432,22 @@ def main() -> None:
                                                 shm_slots=slots)[0])
             print(f"round {r}: slots {rates[True][-1]:.0f}, stock {rates[False][-1]:.0f} pairs/s, load {load()}",
                   flush=True)
+        ab_lines = [f"| README loader, {w} workers, transport | pairs/s per round | median |", "|---|---|---|"]
         for slots, label in ((True, "shared-memory slots (default)"), (False, "stock transport")):
             v = rates[slots]
-            print(f"| {label} | {', '.join(f'{x:.0f}' for x in v)} | **{statistics.median(v):.0f}** |")
+            ab_lines.append(f"| {label} | {', '.join(f'{x:.0f}' for x in v)} | **{statistics.median(v):.0f}** |")
         ratio = [a / c for a, c in zip(rates[True], rates[False])]
-        print(f"| slots / stock | {', '.join(f'{x:.3f}' for x in ratio)} | **{statistics.median(ratio):.3f}** |")
+        ab_lines.append(f"| slots / stock | {', '.join(f'{x:.3f}' for x in ratio)} | "
+                        f"**{statistics.median(ratio):.3f}** |")
+        print("\n".join(ab_lines), flush=True)
+        _append_markdown(args.markdown, [head, "", *ab_lines, "", f"load average at end {load()}"])
         return
     if args.loader_only:
         row("factored, batched (README loader)", w, loader_rate(31, args.size, n, w, batched=True, batch=b,
                                                                 repeats=reps))
-        print(f"load average at end {load()}")
+        end = f"load average at end {load()}"
+        print(end)
+        _append_markdown(args.markdown, [head, "", *lines, "", end])
         return
     row("reference, per item", 0, loader_rate(31, args.size, max(n // 4, b), 0, method="reference", batch=b,
                                              repeats=reps))
@@ -484,9 +490,14 @@ def main() -> None:
     text = "\n".join([head, "", *lines, "", *stage_lines, "", *ab_lines, "", *knob_lines, "",
                       f"load average at end {load()}"])
     print(text)
-    if args.markdown:
-        with open(args.markdown, "a") as f:
-            f.write(f"\n### {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}\n\n" + text + "\n")
+    _append_markdown(args.markdown, [text])
+
+
+def _append_markdown(path, parts: list[str]) -> None:
+    """Append ``parts`` (joined by lines) under a dated heading to ``path`` (--markdown), when one is given."""
+    if path:
+        with open(path, "a") as f:
+            f.write(f"\n### {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}\n\n" + "\n".join(parts) + "\n")
 
 
 if __name__ == "__main__":
