@@ -366,9 +366,10 @@ def _resume(path: Path, cfg: dict, camera: DesignCamera, opt, sched, device) -> 
     """Load a checkpoint of the same config (on any device) into ``camera``, ``opt`` and ``sched`` on ``device``:
     (next step, history, wall s, the predesign's record)."""
     ck = torch.load(path, weights_only=True, map_location=device)
-    saved = json.loads(ck["config"]) | {"device": cfg["device"]}  # the same run on any device
-    if json.dumps(saved, sort_keys=True) != json.dumps(cfg, sort_keys=True):
-        raise ValueError(f"out: {path} is a checkpoint of another config; remove it or choose another out folder")
+    changed = common.config_changes(json.loads(ck["config"]), cfg, ("device",))  # the same run on any device
+    if changed:
+        raise ValueError(f"out: {path} is a checkpoint of another config ({', '.join(changed)} changed); remove it "
+                         f"or choose another out folder")
     camera.load_state_dict(ck["camera"])
     opt.load_state_dict(ck["optimizer"])
     sched.load_state_dict(ck["scheduler"])

@@ -15,6 +15,25 @@ from isettorch._files import torch_save_atomic
 from isettorch._yaml import load_yaml
 
 
+def config_changes(old: dict, new: dict, allowed: tuple[str, ...] = ()) -> list[str]:
+    """The dotted keys of a run's config that differ between a checkpoint's run (``old``) and this one (``new``),
+    except those in ``allowed`` (a key or a whole section a resumed run may change)."""
+    import json
+
+    def flat(d, prefix=""):
+        out = {}
+        for k, v in (d or {}).items():
+            key = f"{prefix}{k}"
+            if isinstance(v, dict) and key not in allowed:
+                out.update(flat(v, key + "."))
+            else:
+                out[key] = v
+        return out
+
+    a, b = flat(old), flat(json.loads(json.dumps(new)))  # (as the checkpoint stores it: tuples are lists)
+    return sorted(k for k in a.keys() | b.keys() if k not in allowed and a.get(k) != b.get(k))
+
+
 def check_keys(cfg: dict, top_keys, section_keys: dict, nullable: tuple[str, ...] = ()) -> None:
     """A ValueError naming the first key a training script does not read (``config.optim.lrr: unknown key; expected
     one of [...]``: a misspelt key ran silently with its default). ``section_keys``: each section's keys (None: not

@@ -182,18 +182,7 @@ RESUMABLE_KEYS = ("out", "threads", "checkpoint_every", "eval", "optim.steps", "
 def resume_changes(old: dict, new: dict) -> list[str]:
     """The dotted keys of the config that differ between a checkpoint's run (``old``) and this one, except
     :data:`RESUMABLE_KEYS`."""
-    def flat(d, prefix=""):
-        out = {}
-        for k, v in (d or {}).items():
-            key = f"{prefix}{k}"
-            if isinstance(v, dict) and key not in RESUMABLE_KEYS:
-                out.update(flat(v, key + "."))
-            else:
-                out[key] = v
-        return out
-
-    a, b = flat(old), flat(json.loads(json.dumps(new)))  # (as the checkpoint stores it: tuples are lists)
-    return sorted(k for k in a.keys() | b.keys() if k not in RESUMABLE_KEYS and a.get(k) != b.get(k))
+    return common.config_changes(old, new, RESUMABLE_KEYS)
 
 
 def lr_at(step: int, frac: float, cfg: dict) -> float:
@@ -337,9 +326,10 @@ def main(argv: list[str] | None = None) -> int:
     if 0 <= int(cfg.get("seed", 0)) + 2 * VAL_SEED_OFFSET - scene_seed * 1_000_003 < world:
         raise SystemExit(f"data.scene_seed: {scene_seed} draws the validation scenes of seed {cfg.get('seed', 0)} "
                          f"for training; choose another")
-    if int(cfg["data"].get("batch", 16)) < world:  # (each process's batch // world was 0: an empty torch.stack)
-        raise SystemExit(f"data.batch: {cfg['data'].get('batch', 16)} images split over {world} processes leaves "
-                         f"some without one; expected a batch of at least {world}")
+    total = int(cfg["data"].get("batch", 16))
+    if total % world:  # (each process's batch // world was 0: an empty torch.stack; 10 over 4 trained 8 a step)
+        raise SystemExit(f"data.batch: {total} images do not split evenly over {world} processes (each would train "
+                         f"{total // world}, {total // world * world} a step); expected a multiple of {world}")
     sampler = make_sampler(cfg, seed=scene_seed * 1_000_003 + rank, progress=rank == 0 and not args.quiet,
                            device=device, batch=int(cfg["data"].get("batch", 16)) // world)
     val = make_validation(cfg) if rank == 0 else None

@@ -150,8 +150,10 @@ def test_an_interrupted_run_resumes_to_the_same_design(tmp_path, monkeypatch):
     rows = (tmp_path / "split" / "history.csv").read_text().splitlines()
     assert len(rows) == 1 + 6  # header and every step once
     _stop_at_the_first_checkpoint(monkeypatch, {**cfg, "out": str(tmp_path / "other")})
-    with pytest.raises(ValueError, match="another config"):
+    with pytest.raises(ValueError, match=r"another config \(seed changed\)"):  # (it named no key)
         codesign.train({**cfg, "seed": 5, "out": str(tmp_path / "other")}, quiet=True)
+    with pytest.raises(ValueError, match=r"another config \(optim\.lr changed\)"):
+        codesign.train({**cfg, "optim": {**cfg["optim"], "lr": 0.5}, "out": str(tmp_path / "other")}, quiet=True)
 
 
 def test_config_device_is_checked(tmp_path):

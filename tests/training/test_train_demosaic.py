@@ -117,6 +117,17 @@ def test_noise_model_variance():
     assert float((counts - counts.round()).abs().max()) < 1e-3 and float(counts.std()) > 10
 
 
+@pytest.mark.parametrize("batch", [2, 10])
+def test_a_batch_that_does_not_split_over_the_processes_is_refused(tmp_path, monkeypatch, batch):
+    """Under torchrun each process trains data.batch // world images: 2 over 4 processes was an empty stack, and 10
+    over 4 silently trained 8 a step. Both are refused naming data.batch (world size 4 stood in for torchrun)."""
+    monkeypatch.setattr(train_demosaic.common, "dist_setup", lambda device: (0, 4, False))
+    with pytest.raises(SystemExit, match=rf"data\.batch: {batch} images do not split evenly over 4 processes .*"
+                                         rf"expected a multiple of 4"):
+        train_demosaic.main(["--config", str(SMOKE), "--out", str(tmp_path / "run"), "--quiet", "--threads", "1",
+                             "--steps", "1", "--set", f"data.batch={batch}"])
+
+
 def test_smoke_training_resume(tmp_path, capsys):
     out = tmp_path / "run"
     args = ["--config", str(SMOKE), "--out", str(out), "--no-progress", "--threads", "1"]
