@@ -59,7 +59,11 @@ def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float | None = None,
     root = Path(folder)
     if not root.is_dir():
         raise ValueError(f"folder: no such directory {str(root)!r}")
-    files = sorted((int(m.group(1)), f) for f in root.rglob("*.png") if (m := _CAVE_BAND.search(f.name)))
+    # any case of '.png' (the band names match in any case); not macOS's '._' resource forks and __MACOSX copies of
+    # an unzipped archive, which doubled every band number
+    files = sorted((int(m.group(1)), f) for f in root.rglob("*") if f.suffix.lower() == ".png"
+                   and not f.name.startswith(".") and "__MACOSX" not in f.relative_to(root).parts
+                   and (m := _CAVE_BAND.search(f.name)))
     if not files:
         raise ValueError(f"folder: {str(root)!r} holds no CAVE band images (<name>_ms_NN.png)")
     numbers = [n for n, _ in files]
@@ -72,6 +76,8 @@ def load_cave(folder, *, illuminant: str = "D65", hfov_deg: float | None = None,
             a = _read_png(f)[0]
         except (ValueError, OSError) as err:
             raise ValueError(f"{str(f)!r}: not a readable PNG ({type(err).__name__}: {err})") from err
+        if a.shape[-1] >= 3 and not (np.array_equal(a[..., 0], a[..., 1]) and np.array_equal(a[..., 0], a[..., 2])):
+            raise ValueError(f"{str(f)!r}: a CAVE band stored as RGB has equal channels (grey), this one's differ")
         a = a[..., 0]  # grey; a few CAVE bands are stored as RGB(A), whose channels are equal
         # the file's bit depth, not the data's maximum (a dark 16-bit band read as 8-bit was 257x too bright)
         bands.append(a.astype(np.float64) / (65535.0 if a.dtype == np.uint16 else 255.0))

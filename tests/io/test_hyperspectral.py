@@ -169,3 +169,30 @@ def test_bands_in_micrometres_are_refused(tmp_path):
     for scale in (100.0, None):
         with pytest.raises(ValueError, match=r"bands .*um\.mat'\): expected wavelengths in nm, got 0.4-0.7"):
             load_icvl(tmp_path / "um.mat", mean_luminance_cd_m2=scale)
+
+
+def test_cave_reads_upper_case_names_skips_macos_copies_and_refuses_colour_bands(tmp_path):
+    """'toy_ms_01.PNG' was 'holds no CAVE band images' (a case-sensitive glob, though the band names match in any
+    case); an unzipped archive's __MACOSX/'._toy_ms_NN.png' resource forks doubled every band number; an RGB band
+    whose channels differ was read as its red channel."""
+    import shutil
+
+    import png
+
+    dark = np.full((31, 4, 4), 200, dtype=np.uint16)
+    root = _write_cave(tmp_path / "up", dark)
+    for f in sorted((root / "toy_ms").glob("*.png")):
+        f.rename(f.with_suffix(".PNG"))
+    np.testing.assert_allclose(load_cave(root, dtype=torch.float64).reflectance()[0].numpy(), 200 / 65535, rtol=1e-10)
+    root = _write_cave(tmp_path / "mac", dark)
+    forks = root / "__MACOSX" / "toy_ms"
+    forks.mkdir(parents=True)
+    for k in range(1, 32):
+        (forks / f"._toy_ms_{k:02d}.png").write_bytes(b"\x00\x05\x16\x07" + b"\0" * 80)
+        shutil.copy(root / "toy_ms" / f"toy_ms_{k:02d}.png", forks / f"toy_ms_{k:02d}.png")
+    assert load_cave(root, dtype=torch.float64).photons.shape == (1, 31, 4, 4)
+    rgb = np.stack([np.full((4, 4), 200), np.full((4, 4), 300), np.full((4, 4), 200)], -1).astype(np.uint16)
+    with open(root / "toy_ms" / "toy_ms_05.png", "wb") as fh:
+        png.Writer(4, 4, greyscale=False, bitdepth=16).write(fh, rgb.reshape(4, -1))
+    with pytest.raises(ValueError, match=r"toy_ms_05\.png': a CAVE band stored as RGB has equal channels"):
+        load_cave(root)
