@@ -119,8 +119,21 @@ def _exr_channels(p: Path) -> tuple[dict, dict[str, np.ndarray]]:
         f = OpenEXR.File(str(p), separate_channels=True)
         header = dict(f.header())
         chans = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
+        parts = len(f.parts)
     except Exception as err:  # OpenEXR raises RuntimeError / others for corrupt or truncated files
         raise ValueError(f"path: {str(p)!r} is not a readable OpenEXR file ({err})") from err
+    if parts > 1:  # (part 0 alone was read, the others dropped without a word)
+        raise ValueError(f"path: {str(p)!r} is a multi-part OpenEXR file ({parts} parts); expected one part (save "
+                         f"the image as a single-part file)")
+    data, shown = header.get("dataWindow"), header.get("displayWindow")
+    if data is not None and shown is not None and not all(
+            np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(data, shown, strict=True)):
+        # (the data window's pixels were returned as the image, its place in the display window dropped: a crop
+        # or an overscan read as the whole picture)
+        win = [tuple(int(v) for v in np.asarray(c)) for c in (*data, *shown)]
+        raise ValueError(f"path: {str(p)!r} has a data window {win[0]}-{win[1]} that is not its display window "
+                         f"{win[2]}-{win[3]} (x, y); expected the two to be equal (crop or pad the image to its "
+                         f"display window first)")
     return header, {k: a.astype(np.float64) if a.dtype.kind in "ui" else a for k, a in chans.items()}
 
 

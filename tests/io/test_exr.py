@@ -154,3 +154,25 @@ def test_reading_refuses_channels_not_in_nanometres_or_at_one_wavelength_twice(t
     OpenEXR.File({"type": OpenEXR.scanlineimage}, dup).write(str(tmp_path / "dup.exr"))
     with pytest.raises(ValueError, match=r"dup.exr' has two S0 channels at one wavelength"):
         read_spectral_exr(tmp_path / "dup.exr")
+
+
+def test_a_data_window_other_than_the_display_window_or_several_parts_are_refused(tmp_path):
+    """A 3 x 4 data window at (2, 1) of an 8 x 6 display window came back as a 3 x 4 image (its place dropped), and
+    a multi-part file as its part 0 alone; both are refused naming the file. Equal windows read as before."""
+    from isettorch.io import read_image
+
+    ones = np.ones((3, 4), np.float32)
+    chans = {c: ones for c in "RGB"}
+    header = {"type": OpenEXR.scanlineimage,
+              "dataWindow": (np.array([2, 1], np.int32), np.array([5, 3], np.int32)),
+              "displayWindow": (np.array([0, 0], np.int32), np.array([7, 5], np.int32))}
+    OpenEXR.File(header, chans).write(str(tmp_path / "crop.exr"))
+    with pytest.raises(ValueError, match=r"crop\.exr' has a data window \(2, 1\)-\(5, 3\) that is not its display "
+                                         r"window \(0, 0\)-\(7, 5\)"):
+        read_image(tmp_path / "crop.exr")
+    parts = [OpenEXR.Part({"type": OpenEXR.scanlineimage}, chans, name) for name in ("a", "b")]
+    OpenEXR.File(parts).write(str(tmp_path / "two.exr"))
+    with pytest.raises(ValueError, match=r"two\.exr' is a multi-part OpenEXR file \(2 parts\)"):
+        read_image(tmp_path / "two.exr")
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, chans).write(str(tmp_path / "plain.exr"))
+    assert read_image(tmp_path / "plain.exr").shape == (1, 3, 3, 4)
