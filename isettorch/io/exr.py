@@ -201,7 +201,8 @@ def write_scene_exr(path, scene, index: int | None = None, *, compression: str =
     if s.illuminant_photons is not None:
         ill = spectral.photons_to_energy(s.illuminant_photons[0].to(torch.float64),
                                          s.wavelengths_nm.to(torch.float64), dim=0)
-        attrs["isettorch.illuminant"] = ill.cpu().numpy().astype(np.float32)
+        attrs["isettorch.illuminant"] = narrow_float(ill.cpu().numpy(), np.float32, "scene.illuminant_photons",
+                                                     underflow=True)
     return write_spectral_exr(path, energy, s.wavelengths_nm, component="S0", attributes=attrs,
                               compression=compression)
 

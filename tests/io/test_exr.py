@@ -176,3 +176,14 @@ def test_a_data_window_other_than_the_display_window_or_several_parts_are_refuse
         read_image(tmp_path / "two.exr")
     OpenEXR.File({"type": OpenEXR.scanlineimage}, chans).write(str(tmp_path / "plain.exr"))
     assert read_image(tmp_path / "plain.exr").shape == (1, 3, 3, 4)
+
+
+def test_a_scene_illuminant_beyond_float32_is_refused_not_written_as_inf(tmp_path):
+    """The illuminant attribute was cast to float32 unchecked: 1e60 photons were written as inf (the radiance
+    itself is checked); refused naming it, and no file is written."""
+    w = torch.tensor([500.0, 600.0], dtype=torch.float64)
+    s = Scene(torch.full((1, 2, 2, 2), 1e15, dtype=torch.float64), w,
+              illuminant_photons=torch.tensor([1e60, 1e15], dtype=torch.float64))
+    with pytest.raises(ValueError, match=r"scene\.illuminant_photons: values up to .* overflow float32"):
+        write_scene_exr(tmp_path / "ill.exr", s)
+    assert not (tmp_path / "ill.exr").exists()
