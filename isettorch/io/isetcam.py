@@ -148,6 +148,8 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
     ill = _field(_field(_field(scene, "illuminant"), "data"), "photons")
     ill_wave = _field(_field(_field(scene, "illuminant"), "spectrum"), "wave")
     ill_t = None
+    if ill is not None and np.asarray(ill).size == 0:  # MATLAB's [] (ISETCam: no illuminant), not an error
+        ill = None
     if ill is not None and np.issubdtype(np.asarray(ill).dtype, np.integer):
         # old files keep the illuminant compressed too (ISETCam illuminantGet 'photons': a uint32 array decoded by
         # ieUncompressData with data.min / data.max and 32 bits); its codes were read as photons, 1e6x too dim

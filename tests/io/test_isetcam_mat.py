@@ -69,6 +69,17 @@ def test_a_compressed_illuminant_is_decoded_as_isetcam_does(tmp_path):
         read_isetcam_scene(tmp_path / "bad16.mat")
 
 
+def test_an_empty_illuminant_is_no_illuminant(tmp_path):
+    """MATLAB's [] for illuminant.data.photons (ISETCam's illuminantGet returns [] for it: none) was refused as
+    'expected 2 values (one per wavelength)'; it is a scene without an illuminant."""
+    wave = np.array([[500.0, 600.0]])
+    scene = _scene_struct(np.ones((2, 3, 2)), wave,
+                          illuminant={"data": {"photons": np.zeros((0, 0))}, "spectrum": {"wave": np.zeros((0, 0))}})
+    scipy.io.savemat(tmp_path / "e.mat", {"scene": scene})
+    s = read_isetcam_scene(tmp_path / "e.mat", dtype=torch.float64)
+    assert s.illuminant_photons is None and s.photons.shape == (1, 2, 2, 3)
+
+
 def test_v73_hdf5_file(tmp_path):
     wave = np.array([500.0, 600.0])
     photons = np.arange(2 * 3 * 2, dtype=np.float64).reshape(2, 3, 2) * 1e14 + 1.0
