@@ -362,6 +362,10 @@ def check_illuminant_name(name, key: str = "illuminant") -> None:
 
 
 NO_SIGNAL = ("raise", "white")  # what gray / white world do with an item that has a channel mean <= 0
+#: a channel mean at or below this fraction of the item's largest one is no signal for gray / white world (a gain
+#: beyond 1e4, or all others' below 1e-4: a menon2007 demosaic's leak of 1.8e-5 into a black red channel took the
+#: imx363 camera's gains to [1, 1.8e-5, 1.8e-5], the image crushed to black, where an exact 0 was refused)
+NO_SIGNAL_FRACTION = 1e-4
 
 
 def _check_no_signal(no_signal) -> str:
@@ -383,15 +387,18 @@ def _gains_from_means(means: torch.Tensor, white: torch.Tensor, reference_channe
         raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced, got channel means "
                          f"{means.detach().tolist()}")
     black = (m == 0).all(dim=-1, keepdim=True)
-    unbalanced = (m <= 0).any(dim=-1, keepdim=True) & ~black
+    floor = (NO_SIGNAL_FRACTION * m.amax(dim=-1, keepdim=True)).clamp_min(0)
+    unbalanced = (m <= floor).any(dim=-1, keepdim=True) & ~black
     if bool(unbalanced.any()):
         items = unbalanced[:, 0].nonzero()[:, 0].tolist()
         if no_signal == "raise":
-            raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced (or the whole "
-                             f"image black), got channel means {means.detach().tolist()}")
-        warn_caller(f"white balance: item(s) {items} have a channel whose mean is <= 0 (no signal above black there: a "
-                    f"dark noisy frame or a single-hue image), so no gray-world gains exist; they get the white's "
-                    f"own gains (not balanced)")
+            raise ValueError(f"{name}: every channel needs a finite, positive mean to be balanced (above "
+                             f"{NO_SIGNAL_FRACTION:g} of the largest channel's; or the whole image black), got channel "
+                             f"means {means.detach().tolist()}")
+        warn_caller(f"white balance: item(s) {items} have a channel whose mean is <= 0 or at most "
+                    f"{NO_SIGNAL_FRACTION:g} of the largest channel's (no signal above black there: a dark noisy "
+                    f"frame or a single-hue image), so no gray-world gains exist; they get the white's own gains (not "
+                    f"balanced)")
     means = torch.where(black | unbalanced, torch.ones_like(means), means)
     wt = white.to(device=means.device, dtype=means.dtype)
     if wt.dim() == 1:
@@ -453,8 +460,9 @@ def gray_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0, 
         white: (C,) or (B, C) channel values of the target white in the image's space (default all ones,
             ISETCam's assumption in sensor space; in XYZ use :func:`white_xyz`).
         reference_channel: the channel whose gain is 1 (ISETCam keeps the first).
-        no_signal: an item with a channel mean <= 0 and not black in every channel (a single-hue image; a dim
-            noisy frame, whose means above black are noise of either sign) has no gray-world gains: ``"raise"``
+        no_signal: an item with a channel mean <= 0 (or at most :data:`NO_SIGNAL_FRACTION` of its largest channel
+            mean) and not black in every channel (a single-hue image; a dim noisy frame, whose means above black
+            are noise of either sign) has no gray-world gains: ``"raise"``
             (default) a ValueError, ``"white"`` the white's own gains for that item, with a warning (the ISP's
             :class:`IlluminantCorrection`, so that one dark item does not fail a batch). A black item always gets
             the white's own gains.
@@ -576,8 +584,9 @@ class IlluminantCorrection(nn.Module):
         criterion: bright-pixel threshold of white world (ISETCam: 0.7).
 
     ``forward(img, white)`` returns the corrected (B, C, H, W) image; the gains it used are kept in
-    ``last_gains`` (B, C). An item that gray or white world cannot balance (a channel mean <= 0: a dark noisy
-    frame, a single-hue image) keeps the white's own gains, with a warning (``no_signal='white'`` of
+    ``last_gains`` (B, C). An item that gray or white world cannot balance (a channel mean <= 0, or at most
+    :data:`NO_SIGNAL_FRACTION` of the largest: a dark noisy frame, a single-hue image) keeps the white's own gains,
+    with a warning (``no_signal='white'`` of
     :func:`gray_world_gains`): one such item does not fail a batch.
 
     Example:

@@ -173,6 +173,24 @@ def test_an_item_without_signal_in_a_channel_keeps_the_whites_gains_in_the_isp()
         torch.testing.assert_close(direct, ic.last_gains, rtol=0, atol=0)
     with pytest.raises(ValueError, match="no_signal: expected one of"):
         gray_world_gains(img, no_signal="clip")
+    # a tiny positive mean is no signal either: a demosaic's leak of 1.8e-5 into a black red channel (the imx363
+    # camera, menon2007) gave gains [1, 1.8e-5, 1.8e-5] and crushed the image to black without a word, where an
+    # exact 0 was refused; a single-hue image's 1e-3 still balances (gain 1e3)
+    for r, balanced in ((1e-5, False), (-1e-5, False), (0.0, False), (1e-3, True)):
+        flat = torch.full((1, 3, 4, 4), 0.5, dtype=torch.float64)
+        flat[:, 0] = r
+        ic = IlluminantCorrection("gray_world", space="sensor")
+        if balanced:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                out = ic(flat, white=torch.ones(3, dtype=torch.float64))
+            np.testing.assert_allclose(out.mean((-2, -1))[0].numpy(), r, rtol=1e-12)
+        else:
+            with pytest.warns(UserWarning, match=r"a channel whose mean is <= 0 or at most 0.0001 of the largest"):
+                out = ic(flat, white=torch.ones(3, dtype=torch.float64))
+            torch.testing.assert_close(out, flat, rtol=0, atol=0)  # the white's own gains: 1, 1, 1
+            with pytest.raises(ValueError, match=r"above 0.0001 of the largest channel's"):
+                gray_world_gains(flat)
 
 
 def test_white_world_uses_bright_pixels_of_brightest_plane():
