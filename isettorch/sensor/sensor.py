@@ -161,6 +161,11 @@ def _check_rate(rate, mosaic: bool) -> torch.Tensor:
     return rate
 
 
+#: the most pixels :meth:`Sensor.size_for` sizes a sensor to (a 24 MP photograph's sensor is 2.4e7): beyond it the
+#: optical image is far wider than any sensor (a magnified scene), and the mosaic alone would not fit in memory
+MAX_AUTO_PIXELS = 250_000_000
+
+
 class Sensor(nn.Module):
     """An image sensor: pixel geometry, CFA and spectral QE, exposure, noise, analog gain and ADC.
 
@@ -644,6 +649,12 @@ class Sensor(nn.Module):
         # lost a whole CFA cell (30 x 30)
         rows = self.rows or max(ph, math.floor(h / self.pixel_size_m * (1 + 1e-6)) // ph * ph)
         cols = self.cols or max(pw, math.floor(w / self.pixel_size_m * (1 + 1e-6)) // pw * pw)
+        if rows * cols > MAX_AUTO_PIXELS:  # (a 5x magnification on the default camera: 375,000^2 pixels, a bare
+            # allocator error after 18 s and 8 GB)
+            raise ValueError(f"rows, cols: sized to the optical image ({w * 1e3:.4g} x {h * 1e3:.4g} mm at "
+                             f"pixel_size_m {self.pixel_size_m:.4g}), the sensor would have {rows} x {cols} pixels, "
+                             f"beyond the {MAX_AUTO_PIXELS:.3g} sized automatically; give rows and cols, or image a "
+                             f"smaller field (a narrower hfov_deg, a shorter focal length or a farther scene)")
         return rows, cols
 
     # --- randomness -----------------------------------------------------------------------

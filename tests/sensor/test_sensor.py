@@ -559,3 +559,17 @@ def test_saturation_is_the_wells_whatever_the_readout_gain_and_black_level():
         assert float(r.data.max()) == want and float(r.white_level) == want and float(r.normalized().max()) == 1.0
     with pytest.raises(ValueError, match="cds: noise_model 'isetcam' has no correlated double sampling"):
         Sensor(cds=True, noise_model="isetcam")
+
+
+def test_a_sensor_sized_to_a_magnified_image_is_refused_not_allocated():
+    """A 1 m lens imaging a 10 deg scene at 1.2 m (magnification 5) gave an optical image 1.05 m wide: the default
+    camera sized its sensor to 374,950^2 pixels and died in the allocator after 18 s and 8 GB, naming nothing. Beyond
+    2.5e8 pixels automatic sizing is refused naming rows / cols; given rows and cols still render."""
+    from isettorch.optics import DiffractionLimitedOptics
+    from isettorch.scene import uniform
+
+    oi = DiffractionLimitedOptics(f_number=4, focal_length_m=1.0)(uniform(size=8))
+    with pytest.raises(ValueError, match=r"rows, cols: sized to the optical image \(1050 x 1050 mm at pixel_size_m "
+                                         r"2.8e-06\), the sensor would have 374950 x 374950 pixels"):
+        Sensor(pixel_size_m=2.8e-6).size_for(oi)
+    assert Sensor(pixel_size_m=2.8e-6, rows=4, cols=6).size_for(oi) == (4, 6)
