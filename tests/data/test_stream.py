@@ -250,6 +250,10 @@ def test_bad_input_names_the_argument():
         PairStream(2, dtype=torch.float16)
     with pytest.raises(ValueError, match="rank"):
         PairStream(2, rank=2, world_size=2)
+    # world_size without rank (and no torch.distributed) became rank 0: every process trained the same share
+    with pytest.raises(ValueError, match=r"rank: world_size 2 given without rank .*its rank in 0\.\.1"):
+        PairStream(2, world_size=2)
+    assert PairStream(2, world_size=1).rank == 0
     with pytest.raises(ValueError, match="k:"):
         PairStream(2, scene=SMALL).batch(-1)
     with pytest.raises(ValueError, match="scene.height"):
