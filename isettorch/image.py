@@ -286,7 +286,8 @@ def _get_photons(self) -> torch.Tensor:
         if f is not None:
             p = f.dense()
             self.__dict__["_photons"] = p
-            self.__dict__["_photons_built"] = (p, p._version)  # (see SpectralImage.factors_hold_image)
+            # (see SpectralImage.factors_hold_image; an inference tensor has no version counter)
+            self.__dict__["_photons_built"] = (p, None if p.is_inference() else p._version)
     return p
 
 
@@ -418,14 +419,15 @@ class SpectralImage:
         them (not changed in place, not replaced). The fast paths (:meth:`project`, the optics' and the sensor's)
         then use the factors whether or not ``.photons`` was read: reading it took the dense path, whose rounding
         differs from the factors' (4e-8 relative in float32), and a Poisson draw with the same seed then came out
-        different (0.02 V in a viewer session). A cube changed in place is the image: the dense path uses it."""
+        different (0.02 V in a viewer session). A cube changed in place is the image: the dense path uses it. A
+        cube read under ``torch.inference_mode`` has no version counter to tell: the dense path then, as before."""
         if self.factors is None:
             return False
         p = self.__dict__.get("_photons")
         if p is None:
             return True
         built = self.__dict__.get("_photons_built")
-        return built is not None and built[0] is p and built[1] == p._version
+        return built is not None and built[0] is p and built[1] is not None and built[1] == p._version
 
     @property
     def maps(self) -> torch.Tensor:

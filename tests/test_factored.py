@@ -218,3 +218,16 @@ def test_reading_photons_does_not_change_a_later_render_of_the_same_seed():
         assert not image.factors_hold_image
         halved = render(image)
         torch.testing.assert_close(halved.noise_free, before.noise_free * 0.5, rtol=1e-5, atol=1e-7)
+
+
+def test_reading_photons_under_inference_mode_still_renders():
+    """An inference tensor has no version counter: reading a factored image's cube under torch.inference_mode must
+    not fail (it raised 'Inference tensors do not track version counter'); the dense path then, as before."""
+    with torch.inference_mode():
+        oi = DiffractionLimitedOptics(f_number=2.8, focal_length_m=4e-3)(sc.macbeth(patch_size=4))
+        dense = oi.photons
+        assert not oi.factors_hold_image
+        raw = Sensor(rows=8, cols=8, exposure_s=0.01)(oi, generator=torch.Generator().manual_seed(1))
+        ref = Sensor(rows=8, cols=8, exposure_s=0.01)(oi.replace(photons=dense, factors=None),
+                                                      generator=torch.Generator().manual_seed(1))
+    torch.testing.assert_close(raw.electrons, ref.electrons, rtol=0, atol=0)
