@@ -22,7 +22,8 @@ stage                      compared quantity                                    
 ``sensor_dv``              DN from the case OI vs ``sensor_dv``: within 1 everywhere, and exact  1 DN
                            at >= 99.9 % of pixels, a pixel counting as exact where the case's
                            volts lie nearer a rounding edge than ours differ from them (a 16-bit
-                           step is 1.5e-5 V: float32 volts' 1e-7 moves about 1 % of the pixels)
+                           step is 1.5e-5 V: float32 volts' 1e-7 moves about 1 % of the pixels);
+                           exact at every saturated pixel (the case's volts at the swing)
 ``ip_result``              ISETCam's default processor (:func:`isettorch.isp.ip_result_from_case`,  1e-5
                            the case's matrices) on ``sensor_dv`` (or volts) vs ``ip_result``
                            (absolute, over the reference's peak; skipped for a colour case
@@ -112,12 +113,14 @@ def _abs_stats(ours, ref, tol):
             "tolerance": tol, "ok": bool(err.max() <= tol)}
 
 
-def _dv_stats(ours, ref, ours_v=None, ref_v=None, step_v: float | None = None):
+def _dv_stats(ours, ref, ours_v=None, ref_v=None, step_v: float | None = None, swing_v: float | None = None):
     """DN within 1 everywhere, and exact at :data:`DV_EXACT_FRACTION` of the pixels, counting as exact a pixel whose
     reference volts ``ref_v`` lie nearer a rounding edge (``(k + 1/2) step_v``) than our volts ``ours_v`` differ from
     them there: that pixel's DN is decided by the volts' own difference (at 16 bits a step is 1.5e-5 V and the float32
     volts' 1e-7 moved 0.8 % of the pixels; ISETCam's own volts reached 99.919 % against 99.9). Per pixel, so one far
-    pixel excuses nothing else (a rule by the largest volts error passed a map off by one everywhere)."""
+    pixel excuses nothing else (a rule by the largest volts error passed a map off by one everywhere). A saturated
+    pixel (the case's volts at the swing ``swing_v``, clipped) has no rounding edge near it: its DN must be exact (an
+    ADC clamping at 2^N - 1 instead of ISETCam's 2^N passed while fewer than 0.1 % of the pixels saturated)."""
     import numpy as np
 
     out = _abs_stats(ours, ref, TOL["sensor_dv"])
@@ -132,7 +135,12 @@ def _dv_stats(ours, ref, ours_v=None, ref_v=None, step_v: float | None = None):
         off = off & ~excused
         out["excused_fraction"] = float(excused.mean())
     out["exact_fraction"] = exact
-    out["ok"] = bool(out["max_err"] <= 1.0 and 1.0 - float(off.mean()) >= DV_EXACT_FRACTION)
+    saturated_off = 0
+    if ref_v is not None and swing_v is not None:
+        saturated = np.asarray(ref_v, np.float64) >= swing_v
+        saturated_off = int((saturated & (np.asarray(ours, np.float64) != np.asarray(ref, np.float64))).sum())
+        out["saturated_mismatches"] = saturated_off
+    out["ok"] = bool(out["max_err"] <= 1.0 and 1.0 - float(off.mean()) >= DV_EXACT_FRACTION and not saturated_off)
     return out
 
 
@@ -246,9 +254,9 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
         if sensor.adc_bits is not None:  # then the case holds sensor_dv (read_parity_case checks it)
             # ISETCam quantizes its single-precision volts (FORMAT 4.7)
             dn = sensor.volts_to_dn(volts.to(torch.float32).to(torch.float64))
-            step = _scalar(case, "sensor_voltage_swing_v") / 2 ** sensor.adc_bits
+            swing = _scalar(case, "sensor_voltage_swing_v")
             res["sensor_dv"] = _dv_stats(dn.numpy(), case["sensor_dv"], volts.to(torch.float32).numpy(),
-                                         case["sensor_volts"], step)
+                                         case["sensor_volts"], swing / 2 ** sensor.adc_bits, swing)
         else:
             res["sensor_dv"] = {"skipped": "analog sensor (no sensor_dv)", "ok": None}
         for st, v in res.items():

@@ -448,3 +448,21 @@ def test_dv_exactness_allows_what_the_volts_difference_moves():
     far[0, 0] += 8e-6  # one pixel far off (under the 1e-5 V volts tolerance) ...
     assert not parity._dv_stats(ref + 1, ref, far, ref_v, step)["ok"]  # ... excuses no map off by one everywhere
     assert not parity._dv_stats(np.floor(ref_v / step), ref, far, ref_v, step)["ok"]  # nor a floor for a round
+
+
+def test_dv_exactness_requires_every_saturated_pixel_exact():
+    """ISETCam's ADC does not clamp: volts at the swing are 2^N (FORMAT 4.6). An ADC clamping at 2^N - 1 passed the
+    99.9 % rule while fewer than 0.1 % of the pixels saturated (5 of 10,000 here); a saturated pixel has no rounding
+    edge near it, so its DN must be exact."""
+    rng = np.random.default_rng(1)
+    bits, swing = 10, 1.0
+    step = swing / 2**bits
+    ref_v = rng.uniform(0.0, 0.9, (100, 100))
+    ref_v.flat[:5] = swing  # clipped at the swing
+    ref = np.round(ref_v / step)
+    assert ref.max() == 2**bits
+    clamped = np.minimum(ref, 2**bits - 1)
+    assert parity._dv_stats(clamped, ref, ref_v, ref_v, step)["ok"]  # the 99.9 % rule alone: passed
+    out = parity._dv_stats(clamped, ref, ref_v, ref_v, step, swing)
+    assert not out["ok"] and out["saturated_mismatches"] == 5
+    assert parity._dv_stats(ref, ref, ref_v, ref_v, step, swing)["ok"]
