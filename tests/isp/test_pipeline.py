@@ -424,16 +424,21 @@ def test_a_nan_raw_is_refused_before_a_users_demosaic_and_tiny_channel_means_are
             ip(RawImage(data, "volts", "RGGB", white_level=1.0))
     img = torch.zeros(1, 3, 8, 8)
     img[:, :2] = 0.5
-    img[0, 2, 0, 0] = 64e-39  # a blue mean of 1e-39 (subnormal in float32)
-    with pytest.raises(ValueError, match=r"img: the channel means .* give gains beyond torch.float32's range"):
+    img[0, 2, 0, 0] = 64e-39  # a blue mean of 1e-39 (subnormal in float32): no signal (at most 1e-4 of the largest)
+    with pytest.raises(ValueError, match=r"img: every channel needs a finite, positive mean .*above 0.0001 of the "
+                                         r"largest"):
         gray_world_gains(img)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         gains = gray_world_gains(img, no_signal="white")
     assert torch.equal(gains, torch.ones(1, 3))
-    assert any("beyond torch.float32's range" in str(w.message) for w in caught)
-    img[0, 2, 0, 0] = 64e-30  # tiny but within range: balanced
-    assert float(gray_world_gains(img)[0, 2]) == pytest.approx(0.5 / 1e-30, rel=1e-5)
+    assert any("at most 0.0001 of the largest" in str(w.message) for w in caught)
+    # gains beyond float32's range from the white's own ratio (a white of 1e30 against 1e-30): named, not inf
+    flat = torch.full((1, 3, 2, 2), 0.5)
+    with pytest.raises(ValueError, match=r"img: the channel means .* give gains beyond torch.float32's range"):
+        gray_world_gains(flat, white=torch.tensor([1e-30, 1.0, 1e30]))
+    img[0, 2, 0, 0] = 64e-3  # a blue mean of 1e-3: balanced
+    assert float(gray_world_gains(img)[0, 2]) == pytest.approx(0.5 / 1e-3, rel=1e-5)
 
 
 @pytest.mark.parametrize("method", ["none", "manual"])
