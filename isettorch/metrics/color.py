@@ -37,6 +37,19 @@ def _srgb_matrix(inverse: bool, like: torch.Tensor) -> torch.Tensor:
     return _srgb_matrices()[int(inverse)].to(dtype=like.dtype, device=like.device)
 
 
+def working_dtype(dtype: torch.dtype) -> torch.dtype:
+    """The precision a colour metric or conversion computes in for inputs of (promoted) ``dtype``: float32 for half
+    precision (float16, bfloat16), torch's default for integers, else the dtype itself."""
+    if not dtype.is_floating_point:
+        return torch.get_default_dtype()
+    return torch.float32 if dtype in (torch.float16, torch.bfloat16) else dtype
+
+
+def _in_dtype(out: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """A conversion's result (computed in :func:`working_dtype`) in the input's floating dtype."""
+    return out.to(like.dtype) if like.is_floating_point() else out
+
+
 def _channel_last(x: torch.Tensor, dim: int, name: str) -> tuple[torch.Tensor, int]:
     if not isinstance(x, torch.Tensor):
         raise TypeError(f"{name}: expected a torch.Tensor, got {type(x).__name__}")
@@ -47,8 +60,9 @@ def _channel_last(x: torch.Tensor, dim: int, name: str) -> tuple[torch.Tensor, i
     d = dim % x.dim()
     if x.is_complex() or x.dtype == torch.bool:  # (a complex value lost its imaginary part in the cast below)
         raise TypeError(f"{name}: expected a real tensor, got {x.dtype}")
-    if not x.is_floating_point():
-        x = x.to(torch.get_default_dtype())
+    # half precision computes in float32 and returns in its own dtype (in bfloat16 throughout, Lab was 3.7 off the
+    # float64 value of the same bfloat16 input, 3.7x the output's rounding; integers in torch's default)
+    x = x.to(working_dtype(x.dtype))
     return x.movedim(d, -1), d
 
 
@@ -109,7 +123,7 @@ def xyz_to_lab(xyz: torch.Tensor, white="D65", dim: int = -3) -> torch.Tensor:
     f = _lab_f(x / w)
     fx, fy, fz = f.unbind(-1)
     lab = torch.stack((116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)), dim=-1)
-    return lab.movedim(-1, d)
+    return _in_dtype(lab.movedim(-1, d), xyz)
 
 
 def lab_to_xyz(lab: torch.Tensor, white="D65", dim: int = -3) -> torch.Tensor:
@@ -120,7 +134,7 @@ def lab_to_xyz(lab: torch.Tensor, white="D65", dim: int = -3) -> torch.Tensor:
     L, a, b = x.unbind(-1)
     fy = (L + 16.0) / 116.0
     f = torch.stack((fy + a / 500.0, fy, fy - b / 200.0), dim=-1)
-    return (_lab_f_inv(f) * w).movedim(-1, d)
+    return _in_dtype((_lab_f_inv(f) * w).movedim(-1, d), lab)
 
 
 def _safe_denominator(s: torch.Tensor) -> torch.Tensor:
@@ -137,7 +151,7 @@ def xyz_to_xy(xyz: torch.Tensor, dim: int = -3) -> torch.Tensor:
     x, d = _channel_last(xyz, dim, "xyz")
     check_finite(x.detach(), "xyz")
     s = _safe_denominator(x.sum(-1, keepdim=True))
-    return (x[..., :2] / s).movedim(-1, d)
+    return _in_dtype((x[..., :2] / s).movedim(-1, d), xyz)
 
 
 def xyz_to_uv(xyz: torch.Tensor, dim: int = -3) -> torch.Tensor:
@@ -146,7 +160,7 @@ def xyz_to_uv(xyz: torch.Tensor, dim: int = -3) -> torch.Tensor:
     check_finite(x.detach(), "xyz")
     X, Y, Z = x.unbind(-1)
     s = _safe_denominator(X + 15.0 * Y + 3.0 * Z)
-    return torch.stack((4.0 * X / s, 9.0 * Y / s), dim=-1).movedim(-1, d)
+    return _in_dtype(torch.stack((4.0 * X / s, 9.0 * Y / s), dim=-1).movedim(-1, d), xyz)
 
 
 def xy_to_xyz(xy: torch.Tensor, Y=1.0, dim: int = -3) -> torch.Tensor:
@@ -187,7 +201,7 @@ def srgb_to_xyz(srgb: torch.Tensor, dim: int = -3) -> torch.Tensor:
                         f"first), got {srgb.dtype}")
     x, d = _channel_last(srgb, dim, "srgb")
     check_finite(x.detach(), "srgb")
-    return (srgb_decode(x) @ _srgb_matrix(False, x).T).movedim(-1, d)
+    return _in_dtype((srgb_decode(x) @ _srgb_matrix(False, x).T).movedim(-1, d), srgb)
 
 
 def xyz_to_srgb(xyz: torch.Tensor, dim: int = -3, clip: bool = True) -> torch.Tensor:
@@ -198,4 +212,4 @@ def xyz_to_srgb(xyz: torch.Tensor, dim: int = -3, clip: bool = True) -> torch.Te
 
     x, d = _channel_last(xyz, dim, "xyz")
     check_finite(x.detach(), "xyz")
-    return srgb_encode(x @ _srgb_matrix(True, x).T, clip=clip).movedim(-1, d)
+    return _in_dtype(srgb_encode(x @ _srgb_matrix(True, x).T, clip=clip).movedim(-1, d), xyz)

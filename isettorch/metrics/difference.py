@@ -11,7 +11,7 @@ import dataclasses
 import torch
 
 from .._checks import check_bool, check_finite, check_float_dtype, is_real, warn_caller
-from .color import _channel_last, xyz_to_lab
+from .color import _channel_last, working_dtype, xyz_to_lab  # noqa: F401 (working_dtype re-exported)
 
 
 def _safe_sqrt(x: torch.Tensor) -> torch.Tensor:
@@ -45,19 +45,14 @@ def _split(lab1: torch.Tensor, lab2: torch.Tensor, dim: int):
         a, b = torch.broadcast_tensors(a, b)
     except RuntimeError as err:
         raise ValueError(f"lab2: shape {tuple(lab2.shape)} does not broadcast with lab1 {tuple(lab1.shape)}") from err
-    out = torch.promote_types(a.dtype, b.dtype) if a.is_floating_point() or b.is_floating_point() else None
-    if out is not None:  # both in the working precision: a half colour beside a float64 one was computed in float16
-        # (dE2000 NaN, dE94 inf once |a| or |b| passed ~181)
-        a, b = a.to(working_dtype(out)), b.to(working_dtype(out))
+    # the dtype to return: the inputs' own (promoted; integers as torch's default), though _channel_last computes
+    # half precision in float32
+    out = torch.promote_types(*(t.dtype if t.is_floating_point() else torch.get_default_dtype()
+                                for t in (lab1, lab2)))
+    # both in the working precision: a half colour beside a float64 one was computed in float16 (dE2000 NaN, dE94 inf
+    # once |a| or |b| passed ~181)
+    a, b = a.to(working_dtype(out)), b.to(working_dtype(out))
     return a.unbind(-1), b.unbind(-1), out
-
-
-def working_dtype(dtype: torch.dtype) -> torch.dtype:
-    """The precision a colour difference computes in for inputs of (promoted) ``dtype``: float32 for half precision
-    (float16, bfloat16), torch's default for integers, else the dtype itself."""
-    if not dtype.is_floating_point:
-        return torch.get_default_dtype()
-    return torch.float32 if dtype in (torch.float16, torch.bfloat16) else dtype
 
 
 def _as(de: torch.Tensor, dtype) -> torch.Tensor:

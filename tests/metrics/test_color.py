@@ -17,7 +17,7 @@ from isettorch.metrics import (
     xyz_to_uv,
     xyz_to_xy,
 )
-from isettorch.metrics.color import D65_XY, SRGB_PRIMARIES_XY, rgb_to_xyz_matrix
+from isettorch.metrics.color import D65_XY, SRGB_PRIMARIES_XY, WHITE_POINTS, rgb_to_xyz_matrix
 
 # Sharma, Wu and Dalal, "The CIEDE2000 color-difference formula: implementation notes, supplementary test data,
 # and mathematical observations", Color Res. Appl. 30(1), 2005, table 1 (all 34 pairs; the same values as
@@ -357,3 +357,22 @@ def test_ciede2000_parametric_factors_are_checked():
         for bad in (0.0, -1.0, float("nan")):
             with pytest.raises(ValueError, match=f"{name}: expected a positive parametric factor"):
                 delta_e_2000(a, b, dim=-1, **{name: bad})
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
+def test_half_precision_conversions_compute_in_float32(dtype):
+    """xyz_to_lab and the other conversions computed in float16 / bfloat16 throughout: on the same (already half)
+    input, Lab came out 0.42 (float16) and 3.7 (bfloat16) off colour-science's float64 value, 3.5x the output's own
+    rounding. They compute in float32 (as the colour differences do) and return the input's dtype."""
+    g = torch.Generator().manual_seed(0)
+    xyz = (torch.rand(1, 3, 64, 64, generator=g) * torch.tensor([0.95, 1.0, 1.09])[:, None, None]).to(dtype)
+    ref = colour.XYZ_to_Lab(xyz.double()[0].permute(1, 2, 0).numpy(), colour.xyY_to_xy(colour.XYZ_to_xyY(
+        np.array(WHITE_POINTS["D65"]))))
+    lab = xyz_to_lab(xyz, "D65")
+    assert lab.dtype == dtype
+    rounding = np.abs(torch.from_numpy(ref).to(dtype).double().numpy() - ref).max()  # the output dtype's own error
+    assert np.abs(lab[0].permute(1, 2, 0).double().numpy() - ref).max() <= 1.01 * rounding
+    for fn, x in ((lab_to_xyz, lab), (xyz_to_srgb, xyz), (srgb_to_xyz, xyz.clamp(0, 1))):
+        out = fn(x)
+        assert out.dtype == dtype
+        torch.testing.assert_close(out.double(), fn(x.float()).to(dtype).double(), rtol=0, atol=0)
