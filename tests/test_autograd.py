@@ -26,7 +26,7 @@ def test_records_grad_tensors_modules_and_grad_mode():
 
 def test_fast_paths_follow_grad_mode():
     # a fast path taken under no_grad gives the training path's values (to rounding), and with a gradient the
-    # training path is taken: round_half_away's gradient through sign * floor is 0, its in-place path has none
+    # training path is taken: round_half_away's gradient (through round / trunc) is 0
     x = torch.tensor([-2.5, -0.5, 0.5, 1.5, 2.4999], dtype=torch.float64, requires_grad=True)
     y = round_half_away(x)
     assert y.requires_grad and y.tolist() == [-3.0, -1.0, 1.0, 2.0, 2.0]

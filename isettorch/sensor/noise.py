@@ -84,11 +84,12 @@ def isetcam_shot_noise(mean_e: torch.Tensor, generator: torch.Generator | None =
 
 
 def round_half_away(x: torch.Tensor) -> torch.Tensor:
-    """MATLAB ``round``: halves away from zero (``torch.round`` rounds halves to even)."""
-    if records_grad(x):
-        return torch.sign(x) * torch.floor(x.abs() + 0.5)
-    # the same values (up to the sign of a zero) in one fresh tensor, in place: floor(|x| + 1/2) with x's sign
-    return x.abs().add_(0.5).floor_().copysign_(x)
+    """MATLAB ``round``: halves away from zero (``torch.round`` rounds halves to even), exact for every float:
+    ``torch.round`` except at a tie (a fraction of exactly 1/2), which goes to ``trunc(x) + sign(x)``. The former
+    ``floor(|x| + 1/2)`` rounded in the addition: in float32 0.49999997 became 1 and 8388609 became 8388610."""
+    t = torch.trunc(x)
+    tie = (x - t).abs() == 0.5  # (exact: x - trunc(x) is representable)
+    return torch.where(tie, t + torch.sign(x), torch.round(x))
 
 
 def quantize_ste(x: torch.Tensor) -> torch.Tensor:

@@ -83,6 +83,12 @@ def test_round_half_away_and_ste():
     assert y.tolist() == [-3, -2, -1, 1, 2, 3, 2, 1024]
     y.sum().backward()
     assert torch.equal(x.grad, torch.ones_like(x))
+    # exact for every float32: floor(|x| + 1/2) rounded in the addition (0.49999997 -> 1, 8388609 -> 8388610);
+    # the reference is the same rule in float64, where those additions are exact
+    v = torch.tensor([0.49999997, -0.49999997, 8388609.0, -8388611.0, 4194304.5, 0.0, 1.0 - 2**-24],
+                     dtype=torch.float32)
+    ref = torch.sign(v.double()) * torch.floor(v.double().abs() + 0.5)
+    assert round_half_away(v).double().tolist() == ref.tolist() == [0, 0, 8388609, -8388611, 4194305, 0, 1]
 
 
 def test_poisson_gaussian_floor_is_the_dark_variance_of_a_numpy_camera():
