@@ -66,10 +66,12 @@ def _channel_last(x: torch.Tensor, dim: int, name: str) -> tuple[torch.Tensor, i
     return x.movedim(d, -1), d
 
 
-def _white(white, ref: torch.Tensor) -> torch.Tensor:
+def _white(white, ref: torch.Tensor, channel_dim: int | None = None) -> torch.Tensor:
     """White as [..., 3] broadcastable against ``ref`` moved to channel-last.
 
     ``white`` is a name in WHITE_POINTS, a [3] tensor, or [B, 3] (one white per leading batch sample).
+    ``channel_dim``: where the colour axis was in the input; a [B, 3] white needs one before it (a (3, H, W) image
+    has none: its whites were paired with its rows).
     """
     if isinstance(white, str):
         if white.upper() not in WHITE_POINTS:
@@ -82,6 +84,10 @@ def _white(white, ref: torch.Tensor) -> torch.Tensor:
     if (w <= 0).any():
         raise ValueError(f"white: expected positive XYZ, got {w.tolist()}")
     if w.dim() == 2:
+        if channel_dim == 0 and w.shape[0] != 1:
+            raise ValueError(f"white: a [B, 3] white needs a leading batch dimension before the colour axis, and "
+                             f"the input's colours are its first dimension (shape {tuple(ref.movedim(-1, 0).shape)}); "
+                             f"give a [3] white, or a batched input")
         if ref.dim() < 2 or (ref.shape[0] != w.shape[0] and w.shape[0] != 1):
             raise ValueError(
                 f"white: a [B, 3] white needs a leading batch dimension of {w.shape[0]}, got input shape "
@@ -119,7 +125,7 @@ def xyz_to_lab(xyz: torch.Tensor, white="D65", dim: int = -3) -> torch.Tensor:
     """
     x, d = _channel_last(xyz, dim, "xyz")
     check_finite(x.detach(), "xyz")
-    w = _white(white, x)
+    w = _white(white, x, d)
     f = _lab_f(x / w)
     fx, fy, fz = f.unbind(-1)
     lab = torch.stack((116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)), dim=-1)
@@ -130,7 +136,7 @@ def lab_to_xyz(lab: torch.Tensor, white="D65", dim: int = -3) -> torch.Tensor:
     """CIELAB to CIE XYZ (inverse of :func:`xyz_to_lab`, CIE 15:2004 section 8.2.1 / CIE 015 note 8)."""
     x, d = _channel_last(lab, dim, "lab")
     check_finite(x.detach(), "lab")
-    w = _white(white, x)
+    w = _white(white, x, d)
     L, a, b = x.unbind(-1)
     fy = (L + 16.0) / 116.0
     f = torch.stack((fy + a / 500.0, fy, fy - b / 200.0), dim=-1)

@@ -376,3 +376,19 @@ def test_half_precision_conversions_compute_in_float32(dtype):
         out = fn(x)
         assert out.dtype == dtype
         torch.testing.assert_close(out.double(), fn(x.float()).to(dtype).double(), rtol=0, atol=0)
+
+
+def test_a_per_item_white_needs_a_batch_dimension():
+    """A [B, 3] white with an unbatched (3, H, W) image was paired with the image's rows (H = B): each row got
+    another white, no error. It is refused; a batched image takes one white per item, as colour-science does."""
+    g = torch.Generator().manual_seed(2)
+    whites = torch.rand(4, 3, generator=g, dtype=torch.float64) + 0.5
+    with pytest.raises(ValueError, match=r"white: a \[B, 3\] white needs a leading batch dimension before the colour"):
+        xyz_to_lab(torch.rand(3, 4, 5, generator=g, dtype=torch.float64), whites)
+    batch = torch.rand(4, 3, 2, 2, generator=g, dtype=torch.float64)
+    lab = xyz_to_lab(batch, whites)
+    for i in range(4):
+        # colour-science's white has Y = 1: the same Lab for XYZ / Y_white
+        ref = colour.XYZ_to_Lab(batch[i].permute(1, 2, 0).numpy() / float(whites[i, 1]),
+                                colour.XYZ_to_xy(whites[i].numpy()))
+        np.testing.assert_allclose(lab[i].permute(1, 2, 0).numpy(), ref, rtol=1e-10, atol=1e-10)
