@@ -326,16 +326,16 @@ def main(argv: list[str] | None = None) -> int:
     if 0 <= int(cfg.get("seed", 0)) + 2 * VAL_SEED_OFFSET - scene_seed * 1_000_003 < world:
         raise SystemExit(f"data.scene_seed: {scene_seed} draws the validation scenes of seed {cfg.get('seed', 0)} "
                          f"for training; choose another")
-    total = int(cfg["data"].get("batch", 16))
-    if total % world:  # (each process's batch // world was 0: an empty torch.stack; 10 over 4 trained 8 a step)
-        raise SystemExit(f"data.batch: {total} images do not split evenly over {world} processes (each would train "
-                         f"{total // world}, {total // world * world} a step); expected a multiple of {world}")
+    images = int(cfg["data"].get("batch", 16))
+    batch = images // world  # each process's share
+    if images % world:  # (each process's batch // world was 0: an empty torch.stack; 10 over 4 trained 8 a step)
+        raise SystemExit(f"data.batch: {images} images do not split evenly over {world} processes (each would train "
+                         f"{batch}, {batch * world} a step); expected a multiple of {world}")
     sampler = make_sampler(cfg, seed=scene_seed * 1_000_003 + rank, progress=rank == 0 and not args.quiet,
-                           device=device, batch=int(cfg["data"].get("batch", 16)) // world)
+                           device=device, batch=batch)
     val = make_validation(cfg) if rank == 0 else None
     teacher, distill_w, distill_ens = load_teacher(cfg, device)
     total = int(cfg["optim"]["steps"])
-    batch = int(cfg["data"].get("batch", 16)) // world
     loss_kind = cfg["optim"].get("loss", "l2")
     val_every = int(cfg.get("val", {}).get("every", 200))
     ckpt_every = int(cfg.get("checkpoint_every", 100))
