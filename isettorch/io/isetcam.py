@@ -154,9 +154,10 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
         # old files keep the illuminant compressed too (ISETCam illuminantGet 'photons': a uint32 array decoded by
         # ieUncompressData with data.min / data.max and 32 bits); its codes were read as photons, 1e6x too dim
         ill_data = _field(_field(scene, "illuminant"), "data")
-        if np.asarray(ill).dtype != np.uint32:
+        ill = np.asarray(ill)
+        if ill.dtype != np.uint32:
             raise ValueError(f"scene.illuminant.data.photons: expected numbers, or uint32 codes (ISETCam's compressed "
-                             f"form), in {str(p)!r}, got {np.asarray(ill).dtype}")
+                             f"form), in {str(p)!r}, got {ill.dtype}")
         lo, hi = _field(ill_data, "min"), _field(ill_data, "max")
         if lo is None or hi is None:
             raise ValueError("scene.illuminant.data: uint32 (compressed) photons need min and max (ISETCam "
@@ -165,7 +166,7 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
         hi = _named_scalar(hi, "scene.illuminant.data.max", p)
         if not hi >= lo:
             raise ValueError(f"scene.illuminant.data.min, max: expected min <= max in {str(p)!r}, got {lo} and {hi}")
-        ill = lo + np.asarray(ill).astype(np.float64) * (hi - lo) / (2**32 - 1)
+        ill = lo + ill.astype(np.float64) * (hi - lo) / (2**32 - 1)
     if ill is not None:
         try:
             ill = np.asarray(ill, dtype=float)
