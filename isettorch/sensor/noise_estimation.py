@@ -168,6 +168,9 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
 
         ph, pw = CFA(str(cfa)).shape
         planes = [z[dy::ph, dx::pw] for dy in range(ph) for dx in range(pw)]
+    if min(min(p.shape) for p in planes) < 2:  # (an empty or 1 x 1 frame crashed in NumPy's min / pad)
+        raise ValueError(f"raw: expected a mosaic with at least one 2 x 2 block per colour plane, got shape "
+                         f"{z.shape}")
     low_clipped = bool(z.min() == 0)  # a frame clipped at 0 DN has no negative values and some at 0
     warnings = []
     # a frame that saturates piles its clipped pixels on its largest values; counted as bright noise-free levels
@@ -267,6 +270,16 @@ def estimate_poisson_gaussian(raw, *, cfa: str | None = None, black_level_dn: fl
             + ("texture (above), or " if chi2 > 3 else "") + f"a black level ({black_level_dn:g} DN) below the frame's"
         warnings.append(f"the fitted signal-independent variance b = {b:.4g} DN^2 is negative, so read_noise_dn and "
                         f"read_noise_e are reported as 0; its cause may be {cause} (d DN too low moves b by -a d)")
+    # A black level d DN above the frame's moves b by +a d (the other way round from the negative b above) and
+    # leaves the darkest levels below 0. Block means of pure read noise (a 4-pixel mean has sigma / 2) lie within
+    # 1.45 of their pixels' sigmas below black in the darkest of 48 levels (360 frames, 95 % dark); more than 3 below,
+    # the black level is wrong (500 DN for a frame at 64 gave b = 436 for 4, with no warning).
+    y_low, v_low = min(pts, key=lambda q: q[0])[:2]
+    if y_low < -3 * math.sqrt(max(v_low, 0.0)):
+        warnings.append(f"black_level_dn = {black_level_dn:g} DN is above the frame's black: its darkest level lies "
+                        f"{-y_low:.4g} DN below it, where its noise ({math.sqrt(max(v_low, 0.0)):.3g} DN) allows "
+                        f"3 sigma; d DN too high moves b by +a d, so b, read_noise_dn and read_noise_e are "
+                        f"biased high")
     if not a > 0:
         warnings.append(f"the fitted slope a = {a:.4g} DN/e- is not positive: no conversion gain; read_noise_e is "
                         f"null")

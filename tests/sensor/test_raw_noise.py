@@ -281,6 +281,32 @@ def test_poisson_gaussian_estimate_checks_its_levels():
             estimate_poisson_gaussian(z, **kw)
 
 
+def test_a_black_level_above_the_frame_is_warned_and_tiny_frames_refused():
+    """A black level d DN too high moves b by +a d: 500 DN for a frame at 64 gave b = 436 for 4, with no warning
+    (a too-low one already warns, through a negative b). The correct black level, and a frame that is 90 % pure read
+    noise, raise no such warning. An empty or 1 x 1 frame crashed in NumPy without naming ``raw``."""
+    rng = np.random.default_rng(0)
+    y = np.linspace(10, 1000, 256)[None].repeat(256, 0)
+    z = np.round(rng.poisson(y) + rng.normal(0, 2, y.shape)) + 64
+    ok = estimate_poisson_gaussian(z, black_level_dn=64)
+    assert ok["b"] == pytest.approx(4 + 1 / 12, abs=3) and not ok["warnings"]
+    high = estimate_poisson_gaussian(z, black_level_dn=500)
+    assert high["b"] == pytest.approx(4 + 436 * high["a"], rel=0.05)  # the +a d of the docstring
+    assert any(w.startswith("black_level_dn = 500 DN is above the frame's black") for w in high["warnings"])
+    dark = np.linspace(0, 300, 256)[None].repeat(256, 0)
+    dark[:, :230] = 0
+    for seed in range(3):
+        g = np.random.default_rng(seed)
+        zd = np.round(g.poisson(dark) + g.normal(0, 3, dark.shape)) + 200
+        res = estimate_poisson_gaussian(zd, black_level_dn=200, levels=48, min_blocks=50)
+        assert not any("above the frame" in w for w in res["warnings"])
+    for shape in ((0, 0), (1, 1), (3, 1)):
+        with pytest.raises(ValueError, match="^raw: expected a mosaic with at least one 2 x 2 block"):
+            estimate_poisson_gaussian(np.full(shape, 5.0))
+    with pytest.raises(ValueError, match="^raw: expected a mosaic with at least one 2 x 2 block"):
+        estimate_poisson_gaussian(np.full((3, 3), 5.0), cfa="RGGB")
+
+
 def test_raws_that_read_back_wrong_are_refused(tmp_path):
     """What LibRaw reads back silently wrong is refused naming the file (an audit with hand-written DNGs): a plain
     TIFF named .dng (read as an RGGB raw of black 0), a 4-colour CFA (LibRaw names every one GMCY: a CYGM file read
