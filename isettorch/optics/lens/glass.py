@@ -121,7 +121,7 @@ def resolve_glass(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS):
     model = parse_model_glass(name)
     if model is not None:
         return _model_glass(*model, name)
-    tried = []
+    tried, no_data = [], []
     for cat in catalogs:
         key = CATALOGS.get(cat.upper())
         if key is None:
@@ -129,9 +129,16 @@ def resolve_glass(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS):
             continue
         tried.append(cat)
         try:
-            return gf.create_glass(name, key)
-        except Exception:  # opticalglass raises GlassNotFoundError (not exported uniformly across versions)
+            g = _catalogue_glass(gf, name, key)
+        except ValueError as err:  # in the catalogue, without dispersion coefficients there
+            no_data.append(f"{cat} ({err})")
             continue
+        if g is not None:
+            return g
+    if no_data:
+        raise GlassError(f"glass {name!r}: listed in {no_data} without dispersion coefficients (the catalogue data "
+                         f"give no index for it); expected a glass with a dispersion formula, or a model glass "
+                         f"'n_d/V_d'")
     others = [c for c in catalogs if c.upper() not in CATALOGS]
     hint = ""
     if others:
@@ -160,6 +167,28 @@ def resolve_glass(name: str, catalogs: tuple[str, ...] = DEFAULT_CATALOGS):
             return successor
     raise GlassError(f"glass {name!r}: not found in the prescription's glass catalogues {tried}; expected a "
                      f"glass of one of them (add its catalogue to GCAT, or use a known glass name){hint}")
+
+
+def _catalogue_glass(gf, name: str, key: str):
+    """The glass ``name`` of opticalglass's catalogue ``key``, or None when it has none of that name. Names are
+    matched without surrounding spaces and case (opticalglass keeps Hoya's ``'FDS20-W '`` with its trailing space:
+    ``FDS20-W`` was not found). ValueError: the catalogue lists the glass without dispersion coefficients (Hikari's
+    J-PSKH8: ``'-'`` cells), which had read as "not found in the catalogue" too."""
+    try:
+        return gf.create_glass(name, key)
+    except ValueError:  # opticalglass reads the glass's coefficient cells as floats
+        raise
+    except Exception:  # opticalglass raises GlassNotFoundError (not exported uniformly across versions)
+        pass
+    try:
+        cat = gf.get_glass_catalog(key)
+    except Exception:  # pragma: no cover - every key of CATALOGS is an opticalglass catalogue
+        return None
+    want = name.strip().upper()
+    for gn, gc in cat.glass_lookup.values():
+        if str(gn).strip().upper() == want:
+            return cat.create_glass(gn, gc)
+    return None
 
 
 class _OptilandGlass:
@@ -261,18 +290,33 @@ def _source(g) -> str:
         return "catalogue"
 
 
-@functools.lru_cache(maxsize=4096)
 def refractive_index(name: str | None, wavelength_nm: float, catalogs: tuple[str, ...] = DEFAULT_CATALOGS) -> float:
     """Index of refraction (relative to air, as the catalogues give it) of ``name`` at ``wavelength_nm``.
 
     ``None``/``'AIR'`` is 1 (OpticStudio's convention: indices relative to air at the system temperature).
+    ``catalogs`` is a sequence of Zemax GCAT names, e.g. ``("SCHOTT", "OHARA")``.
 
     Raises:
         GlassError: the glass is not in the catalogues, or ``wavelength_nm`` is outside its :func:`valid_range_nm`.
+        ValueError: ``name`` is not a string, or ``catalogs`` is not a sequence of strings (a bare ``"SCHOTT"`` had
+            been searched letter by letter, a list had failed in the cache as unhashable).
     """
+    if name is not None and not isinstance(name, str):
+        raise ValueError(f"name: expected a glass name (str) or None for air, got {name!r}")
+    if isinstance(catalogs, str) or not all(isinstance(c, str) for c in catalogs):
+        raise ValueError(f"catalogs: expected a sequence of catalogue names such as ('SCHOTT', 'OHARA'), got "
+                         f"{catalogs!r}")
+    return _refractive_index(name, float(wavelength_nm), tuple(c.upper() for c in catalogs))
+
+
+refractive_index.cache_clear = lambda: _refractive_index.cache_clear()  # as the memoised lookups have
+
+
+@functools.lru_cache(maxsize=4096)
+def _refractive_index(name: str | None, wavelength_nm: float, cats: tuple[str, ...]) -> float:
+    """:func:`refractive_index` on checked arguments, memoised."""
     if name is None or name.upper() == "AIR":
         return 1.0
-    cats = tuple(c.upper() for c in catalogs)
     g = resolve_glass(name, cats)
     rng = valid_range_nm(name, cats)
     wl = float(wavelength_nm)

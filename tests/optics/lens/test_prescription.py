@@ -491,3 +491,26 @@ def test_image_height_fields_are_read_as_the_angles_that_reach_them(tmp_path):
     assert paraxial == pytest.approx((0.0, 12.0), abs=1e-9)
     with pytest.raises(PrescriptionError, match=r"FTYP: field type 4; expected angles \(FTYP 0\), object heights"):
         lens(4, 5)
+
+
+def test_catalogue_glass_names_and_arguments():
+    """An audit found Hoya's FDS20-W refused as "not found" (opticalglass keeps its name as 'FDS20-W '), Hikari's
+    J-PSKH8 (listed without dispersion coefficients) reported as "not found ... add its catalogue to GCAT" although
+    HIKARI was given, and refractive_index's catalogs as a list failing as unhashable, as a bare string searched
+    letter by letter."""
+    import warnings
+
+    from isettorch.optics.lens.glass import GlassError, refractive_index
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # opticalglass's own spreadsheet warnings
+        assert refractive_index("FDS20-W", 587.5618, ("HOYA",)) == pytest.approx(1.86966, abs=5e-6)  # Hoya n_d
+        assert refractive_index("fds20-w", 587.5618, ("HOYA",)) == refractive_index("FDS20-W", 587.5618, ("HOYA",))
+        with pytest.raises(GlassError, match=r"^glass 'J-PSKH8': listed in \[.HIKARI .*without dispersion "
+                                             r"coefficients"):
+            refractive_index("J-PSKH8", 587.5618, ("HIKARI",))
+        assert refractive_index("N-BK7", 587.5618, ["SCHOTT"]) == pytest.approx(1.5168, abs=1e-6)
+        with pytest.raises(ValueError, match=r"^catalogs: expected a sequence of catalogue names"):
+            refractive_index("N-BK7", 587.5618, "SCHOTT")
+        with pytest.raises(ValueError, match=r"^name: expected a glass name \(str\) or None"):
+            refractive_index(5, 587.5618)
