@@ -13,7 +13,7 @@ import warnings
 
 import torch
 
-from .._checks import check_finite, check_window, is_integer
+from .._checks import check_finite, check_window, is_integer, is_real
 from .colour import reflectance_set, white_xyz, xyz_responses
 
 __all__ = ["patch_means", "macbeth_true_xyz", "macbeth_delta_e", "gray_patch_snr", "gray_patch_snr_db",
@@ -30,8 +30,8 @@ def patch_means(img: torch.Tensor, grid: tuple[int, int] = (4, 6), fraction: flo
         raise ValueError(f"img: expected a floating-point tensor (B, C, H, W), got "
                          f"{(img.dtype, tuple(img.shape)) if isinstance(img, torch.Tensor) else type(img).__name__}")
     check_finite(img.detach(), "img")  # (a NaN pixel made NaN patch means)
-    if not 0 < fraction <= 1:
-        raise ValueError(f"fraction: expected a value in (0, 1], got {fraction}")
+    if not (is_real(fraction) and 0 < fraction <= 1):
+        raise ValueError(f"fraction: expected a number in (0, 1], got {fraction!r}")
     if not (isinstance(grid, (tuple, list)) and len(grid) == 2 and all(is_integer(v) for v in grid)):
         raise ValueError(f"grid: expected (rows, cols) integers, got {grid!r}")  # (4.7 rows were 4)
     rows, cols = (int(v) for v in grid)
@@ -60,6 +60,9 @@ def scene_window(result, pixel_size_m: float) -> tuple[int, int, int, int] | Non
     crops the chart. ``result`` is a camera's output with ``scene``, ``optical_image`` and ``raw``
     (:class:`isettorch.camera.CameraOutput`); item 0 is measured, on a sensor centred on the optical axis.
     """
+    if not (is_real(pixel_size_m) and pixel_size_m > 0):  # (a negative pitch gave an inverted window, 0 a bare
+        # ZeroDivisionError)
+        raise ValueError(f"pixel_size_m: expected a positive, finite pixel pitch in metres, got {pixel_size_m!r}")
     h, w = result.raw.data.shape[-2:]
     oi = result.optical_image
     d = oi.image_distance_m if oi.image_distance_m is not None else oi.focal_length_m
@@ -164,8 +167,8 @@ def gray_patch_snr(raw, channel: int | str | None = None, fraction: float = 0.5,
     """
     if raw.noise_free is None:
         raise ValueError("raw: gray_patch_snr needs raw.noise_free (the sensor's noise-free capture)")
-    if not 0 < fraction <= 1:
-        raise ValueError(f"fraction: expected a value in (0, 1], got {fraction}")
+    if not (is_real(fraction) and 0 < fraction <= 1):
+        raise ValueError(f"fraction: expected a number in (0, 1], got {fraction!r}")
     names = list(raw.cfa.channel_names)
     if channel is None:
         c = snr_channel(raw.cfa)

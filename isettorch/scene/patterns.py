@@ -158,11 +158,13 @@ def ramp(size=64, kind: str = "linear", *, dynamic_range: float = 1000.0, dark_l
         raise ValueError(f"size: a ramp needs at least 2 columns, got {cols}")
     w, dt, dev = _grid_and_dtype(wavelengths, dtype, device)
     t = torch.arange(cols, dtype=torch.float64) / (cols - 1)
+    # both checked whatever the kind (the kind's unused one had been taken unchecked: dark_level=5 refused for a
+    # linear ramp and accepted for an exponential one)
+    dark = _check_level(dark_level)
+    dr = check_float(dynamic_range, "dynamic_range", low=1.0, low_open=True)
     if kind == "linear":
-        dark = _check_level(dark_level)
         profile = dark + (1 - dark) * t
     elif kind == "exponential":
-        dr = check_float(dynamic_range, "dynamic_range", low=1.0, low_open=True)
         profile = dr ** (t - 1)
     else:
         raise ValueError(f"kind: expected 'linear' or 'exponential', got {kind!r}")

@@ -603,3 +603,26 @@ def test_rawtoaces_reflectances_hold_their_end_values_beyond_their_data():
     assert torch.equal(beyond, ours[:, w == 780].expand_as(beyond)) and float(ours[:, w == 780].max()) > 0.5
     both = reflectance_set("macbeth+rawtoaces190", w)
     torch.testing.assert_close(both[24:], ours)
+
+
+def test_scene_window_is_the_charts_footprint_and_checks_its_pitch():
+    """The chart's footprint d tan(fov / 2) / pitch either side of the centre. A negative pitch had given the inverted
+    window (317, 83, 475, 125) silently, 0 a bare ZeroDivisionError, NaN a float-to-int error; patch_means's
+    fraction as a tensor a TypeError from round()."""
+    import math
+    from types import SimpleNamespace
+
+    from isettorch.isp.chart import patch_means, scene_window
+
+    res = SimpleNamespace(raw=SimpleNamespace(data=torch.zeros(1, 1, 400, 600)),
+                          optical_image=SimpleNamespace(image_distance_m=torch.tensor([4e-3]), focal_length_m=None),
+                          scene=SimpleNamespace(hfov_deg=torch.tensor([10.0]), vfov_deg=torch.tensor([6.0])))
+    half_w = 4e-3 * math.tan(math.radians(5.0)) / 2e-6  # 174.98 pixels
+    half_h = 4e-3 * math.tan(math.radians(3.0)) / 2e-6  # 104.82 pixels
+    assert scene_window(res, 2e-6) == (round(200 - half_h), round(200 + half_h), round(300 - half_w),
+                                       round(300 + half_w)) == (95, 305, 125, 475)
+    for bad in (-2e-6, 0.0, float("nan"), "2e-6", True):
+        with pytest.raises(ValueError, match="^pixel_size_m: expected a positive, finite pixel pitch"):
+            scene_window(res, bad)
+    with pytest.raises(ValueError, match=r"^fraction: expected a number in \(0, 1\]"):
+        patch_means(torch.zeros(1, 3, 8, 12), fraction=torch.tensor(0.5))

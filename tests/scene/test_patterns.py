@@ -304,6 +304,8 @@ def test_hdr_chart_range():
     lambda: sg.ramp(-3),
     lambda: sg.ramp(8, "cubic"),
     lambda: sg.ramp(8, "exponential", dynamic_range=1.0),
+    lambda: sg.ramp(8, "exponential", dark_level=5.0),  # (the kind's unused argument had been taken unchecked)
+    lambda: sg.ramp(8, "linear", dynamic_range=-3.0),
     lambda: sg.frequency_sweep(16, 9.0),
     lambda: sg.frequency_sweep(16, -1.0),
     lambda: sg.slanted_edge(16, 90.0),
