@@ -21,7 +21,8 @@ def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = Non
     Returns:
         :math:`(...)`. The noise is the total (temporal + fixed-pattern) spatial noise of one frame; for the temporal
         part alone use :func:`snr_curve` on a frame stack. (ISO 15739:2013 section 6 without its high-pass step.)
-        A region without noise has SNR inf (0 when it is black; in dB inf and -inf), with a zero gradient.
+        A region without noise has SNR inf (0 when it is black; in dB inf and -inf), with a zero gradient. A
+        negative mean gives a negative SNR, and with ``db`` a ValueError.
     """
     if not isinstance(image, torch.Tensor) or image.dim() < 2:
         raise ValueError(f"image: expected a tensor (..., H, W), got "
@@ -42,6 +43,10 @@ def snr_uniform(image: torch.Tensor, roi: tuple[int, int, int, int] | None = Non
     # region's SNR had an inf value and a NaN gradient); a flat region's SNR is a constant, of zero gradient
     sd = torch.where(flat, 1.0, var).sqrt()
     snr = torch.where(flat, torch.where(mean == 0, 0.0, math.inf), mean / sd)
+    if db and bool((mean < 0).any()):  # (log10 of a negative SNR had been NaN, with no word)
+        raise ValueError(f"image: a region with a negative mean (down to {float(mean.min()):.4g}) has no SNR in dB; "
+                         f"expected regions with mean >= 0 for db=True (a dark-subtracted region can go below 0: use "
+                         f"db=False for its signed SNR)")
     return 20.0 * torch.log10(snr) if db else snr
 
 

@@ -413,7 +413,10 @@ class ViewerSession:
             if v.numel() == 0:
                 continue
             counts, _ = np.histogram(v.cpu().numpy(), bins=edges)
-            snr_db = float(snr_uniform((v - black).reshape(1, -1), db=True)) if v.numel() >= 2 else float("nan")
+            # (NaN, shown as such, for one value or a mean below the black level: no SNR in dB there)
+            above = (v - black).reshape(1, -1)
+            snr_db = float(snr_uniform(above, db=True)) if v.numel() >= 2 and float(above.mean()) >= 0 \
+                else float("nan")
             out["channels"].append({"name": name, "n": int(v.numel()), "mean": float(v.mean()),
                                     "std": float(v.std()) if v.numel() >= 2 else float("nan"), "snr_db": snr_db,
                                     "counts": counts})

@@ -212,6 +212,10 @@ def test_snr_helpers():
         snr_uniform(leaf, db=db).sum().backward()
         assert torch.equal(leaf.grad[:2], torch.zeros_like(leaf.grad[:2])) and bool(torch.isfinite(leaf.grad).all())
     torch.autograd.gradcheck(lambda t: snr_uniform(t, db=True), (patch[:2, :4, :4].clone().requires_grad_(True),))
+    # a dark-subtracted region below 0: a signed SNR, and in dB an error (log10 had given NaN silently)
+    assert float(snr_uniform(-patch[0])) == pytest.approx(-float(s[0]), rel=1e-12)
+    with pytest.raises(ValueError, match="^image: a region with a negative mean"):
+        snr_uniform(torch.stack([patch[0], -patch[1]]), db=True)
     # Poisson frames: temporal SNR = sqrt(mean) (shot-noise limit); with read noise it follows the pixel model
     means = torch.tensor([2.0, 10.0, 100.0, 1000.0], dtype=torch.float64)
     frames = torch.poisson(means.reshape(4, 1, 1, 1).expand(4, 8, 32, 32), generator=g)
