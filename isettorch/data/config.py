@@ -192,6 +192,19 @@ _NATURAL_LOWER = {"mean_radiance_scale": (0.0, True), "components.palette.materi
                   "components.grain.amplitude": (0.0, True)}
 
 
+def _same_value(v, ref) -> bool:
+    """``v`` is ``ref`` in value and type, throughout (``==`` alone holds for True, 1 and 1.0, and for dicts and lists
+    of them: ``enabled: 1``, ``probability: false`` and ``materials: [2.0, 8.0]`` had passed as defaults; NaN never
+    equals itself)."""
+    if type(v) is not type(ref):
+        return False
+    if isinstance(ref, dict):
+        return v.keys() == ref.keys() and all(_same_value(v[k], ref[k]) for k in ref)
+    if isinstance(ref, (list, tuple)):
+        return len(v) == len(ref) and all(_same_value(a, b) for a, b in zip(v, ref))
+    return v == ref
+
+
 def _check_natural_values(cfg: dict, defaults: dict, path: str) -> None:
     """Each value of a merged natural config of the kind of its default: a bool, a finite number (an integer where the
     default is one), a range ``[lo, hi]`` (two such numbers, lo <= hi) where the default is one, a non-empty list of
@@ -200,7 +213,7 @@ def _check_natural_values(cfg: dict, defaults: dict, path: str) -> None:
     exponent not 1 (their radii's inverse CDF divides by 1 - exponent)."""
     for key, ref in defaults.items():
         v = cfg[key]
-        if v == ref:  # the default (valid): most of a config, skipped at once (NaN never equals itself)
+        if _same_value(v, ref):  # the default (valid): most of a config, skipped at once
             continue
         where = f"config: {path + key!r}"
         lo, lo_open = _NATURAL_LOWER.get(path + key, (0.0, False))

@@ -361,6 +361,10 @@ def grain_dyes(cfg: dict, wl: torch.Tensor) -> torch.Tensor:
     width = float(c["dye_width_nm"])
     if not (lo < hi and width > 0):
         raise ValueError(f"grain: expected dye_edges_nm increasing and dye_width_nm > 0, got {[lo, hi]}, {width}")
+    w0, w1 = float(wl.min()), float(wl.max())
+    if not (w0 < lo and hi < w1):  # (edges at 100 and 900 nm had left one dye at 1 everywhere: achromatic grain)
+        raise ValueError(f"config: 'components.grain.dye_edges_nm': expected both edges inside the wavelength grid "
+                         f"({w0:g}-{w1:g} nm), so that each of the three dyes has a band; got {[lo, hi]}")
     a, b = torch.sigmoid((wl - lo) / width), torch.sigmoid((wl - hi) / width)
     return torch.stack([1 - a, a - b, b])
 

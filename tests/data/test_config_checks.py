@@ -2,6 +2,7 @@
 `CameraPairDataset`; a bad value raises one ValueError naming its dotted key, nothing is truncated or ignored."""
 
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -384,3 +385,27 @@ def test_tiny_sensors_a_pair_config_accepts_render_and_indices_are_integers():
             render_pairs([0, bad], 0, s, c)
         with pytest.raises((ValueError, TypeError), match="index"):
             render_pair(bad, 0, s, c)
+
+
+def test_natural_values_equal_to_a_default_but_of_another_type_are_checked():
+    """``True == 1 == 1.0`` and ``[2.0, 8.0] == [2, 8]``: a value equal to its default was skipped unchecked, so
+    ``enabled: 1``, ``probability: false`` and float ``materials`` passed (``enabled: 0`` was refused). Whole numbers
+    for float keys still pass. Grain dye edges outside the wavelength grid (100 / 900 nm on 400-700) had left one dye
+    at 1 everywhere: achromatic grain, with no word."""
+    from isettorch.data.natural import grain_dyes
+
+    for cfg, message in (({"components": {"grain": {"enabled": 1}}}, "'components.grain.enabled': expected true or "
+                                                                    "false, got 1"),
+                         ({"components": {"palette": {"dye": {"probability": False}}}},
+                          "'components.palette.dye.probability': expected a probability in [0, 1], got False"),
+                         ({"components": {"palette": {"materials": [2.0, 8.0]}}},
+                          "'components.palette.materials': expected a range [lo, hi] of two integers")):
+        with pytest.raises(ValueError, match="^config: " + re.escape(message)):
+            natural_config(cfg)
+    assert natural_config({"mean_radiance_scale": 1, "components": {"dead_leaves": {"exponent": 3}}})
+    wl = torch.arange(400.0, 701.0, 10.0)
+    dyes = grain_dyes(natural_config({}), wl)
+    assert torch.allclose(dyes.sum(0), torch.ones_like(wl)) and bool((dyes.amax(1) > 0.9).all())  # three bands
+    with pytest.raises(ValueError, match=r"^config: 'components.grain.dye_edges_nm': expected both edges inside the "
+                                         r"wavelength grid \(400-700 nm\)"):
+        grain_dyes(natural_config({"components": {"grain": {"dye_edges_nm": [100.0, 900.0]}}}), wl)
