@@ -318,10 +318,17 @@ class WavefrontOptics(ShiftInvariantLens):
         spacing_m = _spacing(spacing_m)  # a finite number > 0 or a one-value tensor (as the analysis functions)
         if self.f_number.numel() != 1:
             raise ValueError(f"f_number: defocus_maps needs one f-number, got {self.f_number.numel()}")
+        # one optics: a batch's other items had been dropped (the PSF of item 0 only, with no word)
+        items = {"zernike_um": self.zernike_um.shape[0] if self.zernike_um.dim() == 2 else 1,
+                 "defocus_diopters": self.defocus_diopters.numel(), "focal_length_m": self.focal_length_m.numel()}
+        for name, n in items.items():
+            if n != 1:
+                raise ValueError(f"{name}: defocus_maps needs one optics, got {n} batch items")
         # the PSF from the OTF repeats every psf_size samples: a blur wider than the window wrapped around (5 diopters
         # at f/2, 4 mm, 0.5 um: 30 % of the light within 5 um where the geometric disc holds 6 %). The window holds
-        # the geometric blur disc, radius f^2 |D| / (2 N) (the optics' own defocus added), and the Airy core's
-        # first two rings, 2.2 lambda N, on each side
+        # the geometric blur disc, radius f^2 |D| / (2 N) (the optics' own defocus added) or, for the other Zernike
+        # terms, 2 N max|grad W| (psf_core_m: 0.3 um of spherical at f/2 reaches 31 um, and had wrapped round a
+        # window sized for defocus alone), and the Airy core's first two rings, 2.2 lambda N, on each side
         d = defocus_diopters  # a number or a one-value tensor (the PSF is differentiable in it)
         if isinstance(d, bool) or not (is_real(d) or isinstance(d, torch.Tensor) and d.numel() == 1
                                        and d.is_floating_point() and bool(torch.isfinite(d.detach()).all())):
@@ -329,7 +336,10 @@ class WavefrontOptics(ShiftInvariantLens):
         n_f = float(self.f_number.reshape(-1)[0])
         f_m = float(self.focal_length_m.reshape(-1)[0])
         dioptres = abs(float(torch.as_tensor(d).detach())) + float(self.defocus_diopters.abs().max())
-        reach_m = f_m ** 2 * dioptres / (2 * n_f) + 2.2 * float(wavelength_nm) * 1e-9 * n_f
+        f_number = self.f_number.detach().reshape(1).to(torch.float64)
+        z = self.coefficients(1, f_number, torch.as_tensor(d, dtype=torch.float64).detach().reshape(-1)).detach()
+        core_m = 2 * n_f * float(self._max_step_um(z, self.pupil_samples)[0]) * 1e-6 * self.pupil_samples / 2
+        reach_m = max(f_m ** 2 * dioptres / (2 * n_f), core_m) + 2.2 * float(wavelength_nm) * 1e-9 * n_f
         psf_size = max(psf_size, 2 * math.ceil(reach_m / spacing_m) + 1)
         kernel = psf(self, torch.tensor([float(wavelength_nm)], dtype=torch.float64), spacing_m, psf_size,
                      extra_defocus_diopters=defocus_diopters)[0, 0]

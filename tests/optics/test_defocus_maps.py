@@ -95,3 +95,24 @@ def test_the_default_window_holds_a_large_blur():
     wide = optics.defocus_maps(_point(n), pitch, d, psf_size=n)[0]
     assert float(default[r <= 5e-6].sum()) == pytest.approx((5 / 20) ** 2, abs=0.02)
     assert float(default[r <= 5e-6].sum()) == pytest.approx(float(wide[r <= 5e-6].sum()), abs=0.01)
+
+
+def test_the_window_holds_every_zernike_terms_blur_and_a_batch_is_refused():
+    """The window was sized for defocus alone: 0.3 um of primary spherical at f/2, 4 mm (geometric blur radius
+    2 N max|grad W| = 31 um) wrapped round the default 33 samples of 0.5 um, 0.34 of the light within 5 um where a
+    wide window gives 0.245. A batched optics gave item 0's blur for all, with no word."""
+    z = torch.zeros(13, dtype=torch.float64)
+    z[12] = 0.3
+    optics = WavefrontOptics(z, f_number=2.0, focal_length_m=4e-3)
+    n, pitch = 201, 0.5e-6
+    yy, xx = torch.meshgrid(torch.arange(n) - n // 2, torch.arange(n) - n // 2, indexing="ij")
+    r = torch.sqrt((xx**2 + yy**2).double()) * pitch
+    default = optics.defocus_maps(_point(n), pitch, 0.0)[0]
+    wide = optics.defocus_maps(_point(n), pitch, 0.0, psf_size=n)[0]
+    for radius in (5e-6, 8e-6):
+        assert float(default[r <= radius].sum()) == pytest.approx(float(wide[r <= radius].sum()), abs=0.005)
+    for kw, name in (({"zernike_um": torch.zeros(2, 5, dtype=torch.float64)}, "zernike_um"),
+                     ({"defocus_diopters": [0.0, 2.0]}, "defocus_diopters"),
+                     ({"focal_length_m": [4e-3, 8e-3]}, "focal_length_m")):
+        with pytest.raises(ValueError, match=f"^{name}: defocus_maps needs one optics, got 2 batch items"):
+            WavefrontOptics(**{"f_number": 2.0, **kw}).defocus_maps(_point(9), pitch, 0.0)
