@@ -300,7 +300,9 @@ class WavefrontOptics(ShiftInvariantLens):
         wider blur wrapped around), from the OTF (:func:`isettorch.optics.analysis.psf`);
         the maps are convolved with it with reflected borders (:func:`isettorch.optics.blur.convolve_psf`), in
         the maps' dtype. Non-negative maps stay non-negative. Sampled finer than ``lambda N / 2`` the PSF is
-        non-negative and the blur keeps the maps' sum; coarser, the band-limited PSF has small negative lobes that
+        non-negative and the blur keeps the maps' sum away from the borders (the reflection, about the edge sample,
+        does not keep it within a PSF radius of an edge: in an audit a point on the edge pixel summed to 0.54, one
+        pixel in to 1.08); coarser, the band-limited PSF has small negative lobes that
         the convolution's clamp at 0 removes (e.g. +0.6 % energy at 1.4 um, f/2, 0.5 diopters).
 
         Example:

@@ -77,6 +77,17 @@ def test_analysis_refuses_nan_frequencies_and_a_psf_without_light():
         analysis.mtf(optics, [550.0], [1e5, math.nan])
     with pytest.raises(ValueError, match="psf_img"):
         analysis.encircled_energy(torch.zeros(9, 9, dtype=torch.float64), 1e-6, [1e-6])
+    # wavelengths in micrometres or metres are refused: 0.55 had given the f/4 MTF at 100 c/mm as 0.9997, not the
+    # analytic 2 / pi (acos v - v sqrt(1 - v^2)) = 0.722 at v = 100 / (1 / (550e-6 mm x 4))
+    f4 = DiffractionLimitedOptics(4.0, 4e-3)
+    v = 1e5 * 550e-9 * 4.0
+    assert float(analysis.mtf(f4, [550.0], [1e5]).reshape(-1)[0]) == pytest.approx(
+        2 / math.pi * (math.acos(v) - v * math.sqrt(1 - v * v)), abs=1e-6)
+    for wrong in ([0.55], [5.5e-7]):
+        with pytest.raises(ValueError, match=r"^wavelengths_nm: expected wavelengths in nm"):
+            analysis.mtf(f4, wrong, [1e5])
+        with pytest.raises(ValueError, match=r"^wavelengths_nm: expected wavelengths in nm"):
+            analysis.psf(f4, wrong, 1e-6, 16)
 
 
 def test_plot_psf_extent_centres_the_samples():
