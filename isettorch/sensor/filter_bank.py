@@ -37,7 +37,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from .._checks import check_bool, check_seed, tensor_version
+from .._checks import check_bool, check_nanometres, check_seed, tensor_version
 from .filters import _W_ISETCAM, SpectralQE, filter_set
 
 __all__ = ["FIXED_FILTERS", "MAX_SLOPE_PER_NM", "FilterBank", "check_manufacturable", "max_slope_per_nm",
@@ -190,6 +190,7 @@ class FilterBank(SpectralQE):
         w = torch.as_tensor(wavelengths_nm, dtype=torch.float64)
         if f.dim() != 2 or f.shape[1] != w.numel():
             raise ValueError(f"filters: expected shape [K, {w.numel()}] to match wavelengths_nm, got {tuple(f.shape)}")
+        check_nanometres(w, "wavelengths_nm")  # (a table in um had been refused only at first use, misleadingly)
         check_manufacturable(f, w, "filters")
         bank = cls(["W"] * f.shape[0], w, learnable=False, names=names, pixel_qe=pixel_qe)
         with torch.no_grad():

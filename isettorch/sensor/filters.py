@@ -28,7 +28,15 @@ import torch
 from torch import nn
 
 from .. import spectral
-from .._checks import as_tensor, check_float_dtype, check_nonnegative, check_wavelengths, is_real, tensor_version
+from .._checks import (
+    as_tensor,
+    check_float_dtype,
+    check_nanometres,
+    check_nonnegative,
+    check_wavelengths,
+    is_real,
+    tensor_version,
+)
 from .cfa import CFA
 
 __all__ = ["SpectralQE", "filter_set", "filter_set_names", "ir_cut_filter", "photodiode_qe", "shifted_qe"]
@@ -205,8 +213,15 @@ class SpectralQE(nn.Module):
                 if name not in filters:
                     raise ValueError(f"filters: no spectrum for CFA channel {name!r}; got keys {sorted(filters)}")
                 w_src, s_src = filters[name]
-                rows.append(spectral.resample(torch.as_tensor(s_src, dtype=torch.float64),
-                                              torch.as_tensor(w_src, dtype=torch.float64), grid))
+                w_src = torch.as_tensor(w_src, dtype=torch.float64)
+                # (wavelengths in um or m had resampled to an all-zero filter on the nm grid: a black channel)
+                check_nanometres(w_src, f"filters[{name!r}] wavelengths")
+                row = spectral.resample(torch.as_tensor(s_src, dtype=torch.float64), w_src, grid)
+                if not bool((row != 0).any()) and bool((torch.as_tensor(s_src) != 0).any()):
+                    raise ValueError(f"filters[{name!r}]: its {float(w_src.min()):g}-{float(w_src.max()):g} nm miss "
+                                     f"the sensor's grid ({float(grid.min()):g}-{float(grid.max()):g} nm): the "
+                                     f"channel would be black; expected a spectrum over the grid")
+                rows.append(row)
                 continue
             set_name = filters if filters is not None else _DEFAULT_SETS.get(name)
             defaults = "R, G, B from 'isetcam_rgb'; C, Y, M from 'isetcam_cmy'; W from 'clear'"

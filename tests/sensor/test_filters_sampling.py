@@ -456,3 +456,23 @@ def test_a_frozen_banks_new_rows_reach_the_sensor():
     torch.testing.assert_close(sensor.qe(oi), bank(w).to(torch.float64))
     fresh = FilterBank(["learned"] * 3, names=["R", "G", "B"])
     assert not torch.equal(sensor.qe(oi), Sensor(rows=4, cols=4, spectral_qe=fresh).qe(oi))
+
+
+def test_user_filter_spectra_and_tables_in_other_units_are_refused():
+    """A dict of user spectra on 0.40-0.70 (micrometres) or 4e-7-7e-7 (metres) resampled onto the nm grid as zeros:
+    every channel black, with no word. A design's filter table in micrometres was refused only at first use, as
+    'the image's 400-700 nm miss the sensor's spectral QE'. A spectrum wholly off the grid is refused too."""
+    from isettorch.sensor.filter_bank import FilterBank
+    from isettorch.sensor.filters import SpectralQE
+
+    w_nm = torch.arange(400.0, 701.0, 10.0, dtype=torch.float64)
+    flat = torch.full((31,), 0.5, dtype=torch.float64)
+    qe = SpectralQE.from_cfa(CFA("RGGB"), {k: (w_nm, flat) for k in "RGB"})
+    assert torch.allclose(qe.filters, torch.full_like(qe.filters, 0.5))
+    for scale in (1e-3, 1e-9):
+        with pytest.raises(ValueError, match=r"^filters\['R'\] wavelengths: expected wavelengths in nm"):
+            SpectralQE.from_cfa(CFA("RGGB"), {k: (w_nm * scale, flat) for k in "RGB"})
+    with pytest.raises(ValueError, match=r"^filters\['R'\]: its 800-1100 nm miss the sensor's grid \(400-700 nm\)"):
+        SpectralQE.from_cfa(CFA("RGGB"), {k: (w_nm + 400 if k == "R" else w_nm, flat) for k in "RGB"})
+    with pytest.raises(ValueError, match=r"^wavelengths_nm: expected wavelengths in nm"):
+        FilterBank.from_table(flat[None].repeat(3, 1), w_nm * 1e-3, ["a", "b", "c"])
