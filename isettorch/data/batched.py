@@ -95,10 +95,13 @@ def paint_leaves(h: int, w: int, batch: torch.Tensor, cy, cx, r, theta, aspect, 
     dev = cy.device
     if cy.numel() == 0:
         return torch.zeros(nb, h, w, dtype=torch.long, device=dev)
-    order = torch.zeros_like(batch)
     counts = torch.bincount(batch, minlength=nb)
     starts = torch.cumsum(counts, 0) - counts
-    order = torch.arange(batch.numel(), device=dev) - starts[batch]
+    # each leaf's rank among its item's leaves, also when the items' leaves are interleaved (arange - start alone
+    # assumed them grouped: [0, 1, 0, 1] had painted item 0's second leaf as 2 and item 1's first as none)
+    perm = torch.argsort(batch, stable=True)
+    order = torch.empty_like(batch)
+    order[perm] = torch.arange(batch.numel(), device=dev) - starts[batch[perm]]
     sn, cs = torch.sin(theta), torch.cos(theta)
     ra = r * aspect
     asn, acs = sn.abs(), cs.abs()

@@ -37,9 +37,15 @@ def sample_power_law_radii(n: int, alpha: float, rmin_px: float, rmax_px: float,
         return rmin_px * (rmax_px / rmin_px) ** u
     e = 1.0 - alpha
     try:
-        return (rmin_px**e + u * (rmax_px**e - rmin_px**e)) ** (1.0 / e)
-    except OverflowError:  # rmin^(1 - alpha) beyond a float (alpha 200, rmin 0.01): the same law relative to rmin
-        return rmin_px * (1.0 + u * ((rmax_px / rmin_px) ** e - 1.0)) ** (1.0 / e)
+        lo, hi = rmin_px**e, rmax_px**e
+    except OverflowError:  # rmin^(1 - alpha) beyond a float (alpha 200, rmin 0.01)
+        lo = hi = 0.0
+    if lo > 0 and hi > 0 and math.isfinite(lo) and math.isfinite(hi):
+        r = (lo + u * (hi - lo)) ** (1.0 / e)
+    else:  # beyond a float or under it (alpha 100, rmin 3000: 0 ** (1 / e) had given inf radii): relative to rmin
+        r = rmin_px * (1.0 + u * ((rmax_px / rmin_px) ** e - 1.0)) ** (1.0 / e)
+    # (rounding near alpha = 1 had reached 3e-5 beyond rmax)
+    return r.clamp(rmin_px, rmax_px)
 
 
 def _leaf_labels(rows: int, cols: int, *, alpha: float, rmin: float, rmax: float, num_disks: int | None,

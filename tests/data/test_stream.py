@@ -423,6 +423,14 @@ def test_batched_painter_equals_the_per_item_painter():
     cat = [torch.cat(v) for v in zip(*items)]
     got = paint_leaves(h, w, cat[0], *cat[1:], 3)
     assert torch.equal(got, torch.stack(want))
+    # the items' leaves interleaved (each item's in its drawing order): the same picture. The rank within an item
+    # had assumed them grouped (item 0's second leaf painted as 2, item 1's first as none)
+    slot_item = cat[0][torch.randperm(cat[0].numel(), generator=g)]  # the item of each position, shuffled
+    pos = torch.empty_like(slot_item)
+    for b in range(3):
+        pos[slot_item == b] = torch.nonzero(cat[0] == b).reshape(-1)  # item b's leaves, in order, into its slots
+    interleaved = paint_leaves(h, w, cat[0][pos], *[v[pos] for v in cat[1:]], 3)
+    assert not torch.equal(cat[0][pos], cat[0]) and torch.equal(interleaved, got)
 
 
 def test_layout_draw_puts_each_items_terms_first():

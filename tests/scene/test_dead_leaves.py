@@ -146,3 +146,21 @@ def test_num_disks_draws_exactly_that_many_whatever_the_coverage_need():
     """With num_disks the need-based refusal does not apply (it refused tiny radii drawn a fixed number of times)."""
     s = dead_leaves(64, alpha=200.0, rmin_px=0.01, num_disks=50, seed=0, mean_luminance_cd_m2=None)
     assert s.metadata["radii_px"][0].numel() == 50 and s.metadata["uncovered_fraction"][0] > 0.99
+
+
+def test_radii_stay_finite_and_in_range_at_extreme_exponents():
+    """rmin ** (1 - alpha) underflows to 0 at alpha 100, rmin 3000 px, and the radii came out inf (the overflow
+    side was handled). They are the truncated power law's: in [rmin, rmax] with its mean, (1 - alpha) / (2 - alpha)
+    x (rmax^(2 - alpha) - rmin^(2 - alpha)) / (rmax^(1 - alpha) - rmin^(1 - alpha)), here 1.0102 rmin. Near alpha 1,
+    rounding had reached 3e-5 beyond rmax."""
+    from isettorch.scene.dead_leaves import sample_power_law_radii
+
+    g = torch.Generator().manual_seed(0)
+    alpha, rmin, rmax = 100.0, 3000.0, 6000.0
+    r = sample_power_law_radii(20000, alpha, rmin, rmax, g)
+    assert bool(torch.isfinite(r).all()) and float(r.min()) >= rmin and float(r.max()) <= rmax
+    x = rmax / rmin  # the mean over rmin, in closed form relative to rmin (no under/overflow)
+    mean = (1 - alpha) / (2 - alpha) * (x ** (2 - alpha) - 1) / (x ** (1 - alpha) - 1)
+    assert float(r.mean()) / rmin == pytest.approx(mean, abs=5e-4) and mean == pytest.approx(1.0102, abs=1e-4)
+    near_one = sample_power_law_radii(100000, 1 + 1.5e-12, 1.0, 1e6, g)
+    assert float(near_one.max()) <= 1e6 and float(near_one.min()) >= 1.0
