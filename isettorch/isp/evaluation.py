@@ -38,6 +38,7 @@ from .._checks import (
 )
 from ..io.images import PHOTO_SUFFIXES, photo_files, read_rgb8, rgb8_to_tensor
 from .demosaicing import _LAZY_METHODS, METHODS, demosaic, get_method, mosaic
+from .demosaicing._cfa import check_bayer_pattern
 from .denoise import DENOISERS, _check_noise, check_denoiser, denoise_mosaic
 
 __all__ = ["DENOISERS", "IMAGE_SUFFIXES", "available_methods", "check_device", "check_photos", "cpsnr",
@@ -273,6 +274,9 @@ def evaluate_demosaic(images, method: str | Callable = "bilinear", pattern: str 
         ``exact_images`` counts the exact ones.
     """
     device = check_device(device)
+    # a Bayer string (an index-map tensor had been scored by demosaic_generic's rule under the method's name, and its
+    # result's "pattern" was not JSON)
+    pattern = check_bayer_pattern(pattern)
     noise_sigma, noise_shot = _check_noise(noise_sigma, noise_shot)
     noisy = noise_sigma > 0 or noise_shot > 0
     check_float_dtype(dtype)
