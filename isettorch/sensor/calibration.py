@@ -23,7 +23,9 @@ Per CFA channel (the sub-images of one colour; a monochrome sensor is one channe
   sigma^2 / N (EMVA section 8.2), over K;
 * PRNU (%): spatial std of the frame-averaged flat minus the dark average (pixel by pixel) at the level nearest half
   saturation, temporal residues removed, over its mean;
-* full well (e-): mean of the fully saturated flats above the black level, over K (the simulator's clip level);
+* full well (e-): mean of the fully saturated flats above the black level, over K (the simulator's clip level;
+  where the brightest saturated flat sits at the ADC's top code, ``saturation_at_adc_top``, the ADC clips and the
+  sensor config leaves the well out);
 * quantum efficiency: slope through the origin of the mean electrons against photons per pixel (linear range);
 * hot pixels: pixels whose dark-signal slope exceeds the median slope by more than 6 robust standard deviations
   (1.4826 MAD; the median-absolute-deviation outlier rule of Leys et al., J. Exp. Soc. Psychol. 49(4), 2013, at a
@@ -285,7 +287,8 @@ def _mean_se(images) -> float:
 
 
 def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photons: dict[float, float] | None,
-             folders: dict, warnings: list[str], quantisation_dn2: float = S2_QUANTIZATION_DN2) -> dict[str, Any]:
+             folders: dict, warnings: list[str], quantisation_dn2: float = S2_QUANTIZATION_DN2,
+             adc_top_dn: float | None = None, step_dn: float = 1.0) -> dict[str, Any]:
     t_d = np.array(sorted(dark)) * 1e-3
     mu_d = np.array([dark[k]["mean"] for k in sorted(dark)])
     vp_d = np.array([dark[k]["var_pixel"] for k in sorted(dark)])
@@ -455,6 +458,9 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     ms = ms_f[half]
 
     full_well = float((mu_f[saturated].mean() - black) / K) if saturated.any() else None
+    # the brightest saturated flat at the ADC's top code (every pixel): the ADC clips, not the photodiode's well
+    at_adc_top = bool(saturated.any()) and adc_top_dn is not None and \
+        float(mu_f[saturated].max()) >= adc_top_dn - 0.5 * step_dn
     if full_well is None:
         warnings.append(f"channel {name}: no flat reaches saturation (brightest {folder(ms_f[-1])}); full_well_e is "
                         f"null")
@@ -474,6 +480,7 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
         "dark_shading_e_per_s": math.sqrt(shading_b) / K,
         "prnu_percent": 100 * math.sqrt(max(prnu2, 0.0)),
         "full_well_e": full_well,
+        "saturation_at_adc_top": at_adc_top,
         "black_level_dn": black,
         "black_level_se_dn": black_se,
         "quantum_efficiency": qe,
@@ -708,12 +715,21 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
         if frac > 1e-3:
             warnings.append(f"{capture.folders.get(('dark', ms), f'dark_{ms:g}ms')}: {100 * frac:.2g} % of the pixels "
                             f"are at 0 DN (clipped below the black level); dark statistics are biased")
-    per = {n: _channel(n, d, f, capture.photons_per_pixel, capture.folders, warnings, quantisation_dn2)
+    top_dn = (2 ** bits_eff - 1) * step  # the ADC's top code in the files' DN (left-aligned: its multiple)
+    per = {n: _channel(n, d, f, capture.photons_per_pixel, capture.folders, warnings, quantisation_dn2,
+                       adc_top_dn=top_dn, step_dn=step)
            for n, (d, f) in stats.items()}
+    saturating = [n for n in per if per[n]["full_well_e"] is not None]
+    adc_clips = bool(saturating) and all(per[n]["saturation_at_adc_top"] for n in saturating)
+    if adc_clips:
+        warnings.append(f"the saturated flats sit at the ADC's top code ({top_dn:g} DN): the saturation is the "
+                        f"ADC's, so the sensor config leaves full_well_e out (the photodiode's well is above the ADC "
+                        f"range; a simulated well there would clip before the ADC and add read noise to blown "
+                        f"highlights); full_well_e in the results is the saturation in electrons")
     out: dict[str, Any] = {"cfa": capture.cfa, "bit_depth": capture.bit_depth, "pixel_size_m": capture.pixel_size_m,
                            "frame_shape": list(next(iter(capture.dark.values())).shape[-2:]),
                            "black_level_dn_nominal": capture.black_level_dn, "quantisation_step_dn": step,
-                           "effective_bits": bits_eff}
+                           "effective_bits": bits_eff, "saturation_at_adc_top": adc_clips}
     if capture.cfa is None:
         _warn_mosaic_as_mono(*stats["W"], capture.folders, warnings)
         res = per["W"]
@@ -978,7 +994,9 @@ def sensor_config(result: dict) -> dict[str, Any]:
                                          - col_fpn_e ** 2, 0.0)) * cg,
            "column_fpn_sigma_v": col_fpn_e * cg,
            "dark_shading_e_per_s": dark["dark_shading_e_per_s"], "prnu_sigma_percent": s["prnu_percent"],
-           "full_well_e": s["full_well_e"], "shot_noise": "poisson", **hot}
+           # (None where the ADC saturates first: it clips at its top code, with no noise after it, as the camera)
+           "full_well_e": None if result.get("saturation_at_adc_top") else s["full_well_e"],
+           "shot_noise": "poisson", **hot}
     return {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in cfg.items()}
 
 
@@ -990,8 +1008,13 @@ def write_sensor_config(result: dict, path) -> dict[str, Any]:
     header = ("# Sensor calibrated by `isettorch calibrate` (EMVA 1288 photon transfer); load with\n"
               "# Sensor.from_config(path) or paste the section into a camera YAML.\n")
     qe = result.get("quantum_efficiency")
+    if isinstance(qe, dict):  # per channel: the ones measured (a CFA capture without photon counts has none)
+        qe = {k: v for k, v in qe.items() if v is not None} or None
     if qe is not None:
         header += f"# measured quantum efficiency: {qe}\n"
+    if result.get("saturation_at_adc_top"):
+        header += ("# the saturated flats sit at the ADC's top code: full_well_e is left out, so the simulated ADC "
+                   "clips there as the camera's\n")
     step = int(result.get("quantisation_step_dn") or 1)
     if step > 1:
         header += (f"# the frames' values were multiples of {step} DN (left-aligned): written for adc_bits "

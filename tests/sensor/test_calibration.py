@@ -401,6 +401,36 @@ def test_saturated_identical_flats_are_not_copies(capsys, tmp_path):
     assert res["full_well_e"] == pytest.approx((4095 - truth["black_level_dn"]) / truth["gain_dn_per_e"], rel=0.02)
 
 
+def test_saturation_at_the_adc_top_code_leaves_the_well_to_the_adc(capsys, tmp_path):
+    """A capture whose ADC clips before the photodiode's well (flats at 4095 DN, no variance) had its ADC saturation
+    written as full_well_e: the simulated well clipped first and the read noise after it spread the blown
+    highlights (34 % of the pixels at 4095 and a std of a few DN where the camera reads a constant 4095). The config
+    now leaves the well out and the simulated flats saturate at the top code, as the camera's. A well that clips
+    below the top code keeps its full_well_e (test_sensor_config_reproduces_photon_transfer)."""
+    truth = dict(nc.TRUTH, full_well_e=20000.0)  # the ADC clips at (4095 - 100) / 0.4 = 9988 e- first
+    dark, flat, _ = nc.simulate(truth, shape=(32, 48), frames=2, seed=2,
+                                exposures_ms=[1.0, 5.0, 10.0, 15.0, 20.0, 40.0, 60.0])
+    assert (flat[40.0] == 4095).all() and (flat[60.0] == 4095).all()
+    root = nc.write_capture(tmp_path / "cap", dark, flat, bits=12, suffix=".npy")
+    out = tmp_path / "sensor.yaml"
+    res = _cli_json(capsys, root, "--out", out)
+    assert res["saturation_at_adc_top"] is True and res["full_well_e"] is not None  # the saturation, in e-
+    assert any("ADC's top code (4095 DN)" in w for w in res["warnings"])
+    text = out.read_text()
+    assert "full_well_e: null" in text and "# the saturated flats sit at the ADC's top code" in text
+    sensor = Sensor.from_config(out)
+    sim_flat, _ = simulate_capture(sensor, res, frames=2, generator=torch.Generator().manual_seed(1))
+    for ms in (40.0, 60.0):
+        assert (sim_flat[ms] == 4095).all()
+    # a per-channel QE with nothing measured (no photon counts) is no header line (it printed a dict of None)
+    from isettorch.sensor.calibration import write_sensor_config
+
+    write_sensor_config(dict(res, quantum_efficiency={"R": None, "G": None, "B": None}), out)
+    assert "quantum efficiency" not in out.read_text()
+    write_sensor_config(dict(res, quantum_efficiency={"R": 0.4, "G": None}), out)
+    assert "# measured quantum efficiency: {'R': 0.4}" in out.read_text()
+
+
 def test_eight_bit_png_frames_are_accepted(capsys, tmp_path):
     """8-bit greyscale PNG (PIL mode 'L') is read like 8-bit TIFF."""
     from PIL import Image
