@@ -303,6 +303,9 @@ class SpectralImage:
     :class:`SpectralFactors` (``maps [B, J, H, W]`` x ``spectra [B, J, L]``, see :meth:`from_factors`). A factored
     image answers ``project`` (and ``xyz``, luminance, ...) without forming the cube; reading ``.photons`` builds
     the dense cube once (:meth:`to_dense`), so code written for dense images keeps working.
+    ``metadata`` is carried as it is (each copy a shallow copy of the dict) by ``[i]``, ``crop``, ``to`` and the
+    other operations: per-item entries (e.g. :func:`~isettorch.scene.dead_leaves`' ``labels [B, H, W]``) are not
+    sliced, cropped or concatenated with the image.
     """
 
     photons: torch.Tensor | None
@@ -429,6 +432,14 @@ class SpectralImage:
         built = self.__dict__.get("_photons_built")
         return built is not None and built[0] is p and built[1] is not None and built[1] == p._version
 
+    def _current(self) -> SpectralImage:
+        """Self, or its dense form where the factors no longer hold the image (:attr:`factors_hold_image`: its cube
+        was changed in place or replaced, and that cube is the image). The operations that build a new image
+        (``to``, ``detach``, ``[i]``, ``crop``, ``resample_wavelengths``, ``set_mean_luminance``, ``Scene.cat``)
+        start from it: they had rebuilt from the unchanged factors (``photons.mul_(2)`` then
+        ``set_mean_luminance(100)`` gave 50 cd/m^2)."""
+        return self.to_dense() if self.factors is not None and not self.factors_hold_image else self
+
     @property
     def maps(self) -> torch.Tensor:
         """The spatial maps ``[B, J, H, W]`` of a factored image (:class:`SpectralFactors`)."""
@@ -510,6 +521,8 @@ class SpectralImage:
         (a factored image is not densified).
         """
         changes.setdefault("validate", False)
+        # a copy's own metadata dict (shallow: a key set on a crop had appeared on the original)
+        changes.setdefault("metadata", dict(self.metadata))
         if "photons" in changes and "factors" not in changes:
             changes["factors"] = None
         elif "photons" not in changes:
@@ -531,6 +544,11 @@ class SpectralImage:
 
     def to(self, device=None, dtype=None) -> SpectralImage:
         """Move to a device and/or floating dtype (all tensors together)."""
+        if dtype is not None and not (isinstance(dtype, torch.dtype) and dtype.is_floating_point):
+            # (int32 had truncated a dense image's radiance, and was ignored for a factored one)
+            raise ValueError(f"dtype: expected a floating torch dtype (e.g. torch.float64), got {dtype!r}")
+        if self._current() is not self:
+            return self._current().to(device=device, dtype=dtype)
         changes = self._map_tensors(lambda t: t.to(device=device, dtype=dtype)
                                     if t.is_floating_point() else t.to(device=device))
         if self.factors is not None:
@@ -538,6 +556,8 @@ class SpectralImage:
         return self.replace(**changes, validate=False)
 
     def detach(self) -> SpectralImage:
+        if self._current() is not self:
+            return self._current().detach()
         changes = self._map_tensors(lambda t: t.detach())
         if self.factors is not None:
             changes["factors"] = self.factors.detach()
@@ -545,6 +565,8 @@ class SpectralImage:
 
     def __getitem__(self, index) -> SpectralImage:
         """Select batch samples: ``img[0]``, ``img[1:3]``; the batch dimension is kept."""
+        if self._current() is not self:
+            return self._current()[index]
         if is_integer(index):
             b = self.batch_size
             if not -b <= index < b:  # (an empty slice failed in a reshape, or as 'photons: expected a non-empty')
@@ -553,6 +575,8 @@ class SpectralImage:
             index = slice(index, index + 1)
         if self.factors is not None:
             changes = {"factors": self.factors.select(index)}
+            if changes["factors"].shape[0] == 0:  # (as a dense image's: a factored one had taken an empty batch)
+                raise ValueError(f"index: {index!r} selects no items of the batch of {self.batch_size}")
         else:
             changes = {"photons": self.photons[index]}
         for f in self._batch_fields:
@@ -578,6 +602,8 @@ class SpectralImage:
     # --- spectral ----------------------------------------------------------------------
     def resample_wavelengths(self, wavelengths_nm) -> SpectralImage:
         """Linear interpolation onto another grid (0 outside the current range)."""
+        if self._current() is not self:
+            return self._current().resample_wavelengths(wavelengths_nm)
         new = check_wavelengths(torch.as_tensor(wavelengths_nm)).to(self.device, self.dtype)
         if self.factors is not None and hasattr(self.factors, "resample"):
             changes = {"factors": self.factors.resample(self.wavelengths_nm, new), "wavelengths_nm": new}
@@ -635,7 +661,7 @@ class SpectralImage:
     def _crop_changes(self, top: int, left: int, height: int, width: int) -> dict:
         """``photons`` (or ``factors``) of a window, for ``replace``."""
         f = self.factors
-        if f is not None and hasattr(f, "crop"):
+        if f is not None and hasattr(f, "crop") and self.factors_hold_image:  # (else its changed cube: _current)
             self._check_window(top, left, height, width)
             return {"factors": f.crop(top, left, height, width)}
         return {"photons": self._crop_photons(top, left, height, width)}

@@ -231,3 +231,44 @@ def test_reading_photons_under_inference_mode_still_renders():
         ref = Sensor(rows=8, cols=8, exposure_s=0.01)(oi.replace(photons=dense, factors=None),
                                                       generator=torch.Generator().manual_seed(1))
     torch.testing.assert_close(raw.electrons, ref.electrons, rtol=0, atol=0)
+
+
+def test_an_image_whose_cube_changed_in_place_keeps_the_change_in_every_operation():
+    """A factored image's cube changed in place is the image (factors_hold_image), but to, detach, [i], crop,
+    resample_wavelengths, set_mean_luminance and Scene.cat had rebuilt from the unchanged factors: after
+    photons.mul_(2), set_mean_luminance(100) gave 50 cd/m^2 and the others half the radiance. Also: a copy has its
+    own metadata dict (a key set on a crop had appeared on the original), to() refuses a non-float dtype (int32 had
+    truncated a dense image, and was ignored for a factored one), an empty selection of a factored image is
+    refused as a dense one's is, and Scene.cat names a non-Scene."""
+    s = sc.macbeth(patch_size=4).replace(hfov_deg=torch.tensor([10.0]))
+    s = Scene.cat([s, s.set_mean_luminance(50.0)])
+    lum = s.mean_luminance().clone()
+    s.photons.mul_(2)
+    assert not s.factors_hold_image
+    torch.testing.assert_close(s.mean_luminance(), 2 * lum)
+    for out, want in ((s.to(dtype=torch.float64).mean_luminance(), 2 * lum), (s.detach().mean_luminance(), 2 * lum),
+                      (s[1].mean_luminance(), 2 * lum[1:]),
+                      (s.resample_wavelengths(torch.arange(400.0, 701.0, 10.0)).mean_luminance(), 2 * lum),
+                      (Scene.cat([s, s]).mean_luminance(), 2 * lum.repeat(2)),
+                      (s.set_mean_luminance(100.0).mean_luminance(), torch.full_like(lum, 100.0))):
+        torch.testing.assert_close(out.to(lum.dtype), want, rtol=1e-5, atol=0)
+    crop = s.crop(0, 0, 8, 12)
+    torch.testing.assert_close(crop.photons, s.photons[:, :, :8, :12])
+    crop.metadata["note"] = 1
+    assert "note" not in s.metadata
+    with pytest.raises(ValueError, match=r"^dtype: expected a floating torch dtype"):
+        s.to(dtype=torch.int32)
+    with pytest.raises(ValueError, match=r"^index: slice\(5, 6, None\) selects no items of the batch of 2"):
+        Scene.cat([sc.macbeth(patch_size=4)] * 2)[5:6]
+    with pytest.raises(TypeError, match=r"^scenes\[1\]: expected a Scene, got int"):
+        Scene.cat([s, 3])
+
+
+def test_an_optical_image_crop_keeps_a_field_of_view_given_without_a_distance():
+    """With hfov_deg given and no focal length or image distance, a crop's field of view was None."""
+    from isettorch.optics.optical_image import OpticalImage
+
+    oi = OpticalImage(torch.ones(1, 3, 8, 8), torch.tensor([450.0, 550.0, 650.0]), hfov_deg=20.0)
+    crop = oi.crop(0, 0, 4, 4)
+    expected = 2 * torch.rad2deg(torch.atan(torch.tan(torch.deg2rad(torch.tensor(10.0))) * 4 / 8))
+    torch.testing.assert_close(crop.hfov_deg, expected.reshape(1))

@@ -402,5 +402,10 @@ class OpticalImage(SpectralImage):
         """
         data = self._crop_changes(top, left, height, width)
         d = self.image_distance_m if self.image_distance_m is not None else self.focal_length_m
-        hfov = None if d is None else angle_for_extent(self.sample_spacing_m * width, d)
+        if d is not None:
+            hfov = angle_for_extent(self.sample_spacing_m * width, d)
+        elif self.hfov_deg is not None:  # a field of view given without a distance: the window's share of it
+            hfov = torch.rad2deg(2 * torch.atan(torch.tan(torch.deg2rad(self.hfov_deg) / 2) * width / self.width))
+        else:
+            hfov = None
         return self.replace(**data, hfov_deg=hfov, pad_rows=0, pad_cols=0)

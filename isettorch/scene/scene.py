@@ -125,6 +125,8 @@ class Scene(SpectralImage):
     def set_mean_luminance(self, cd_m2, *, name: str = "cd_m2") -> Scene:
         """Scale radiance (and illuminant) so the mean luminance is ``cd_m2`` (scalar or [B]); ``name``: the
         argument's name in errors (a caller's own, e.g. ``mean_luminance_cd_m2``)."""
+        if self._current() is not self:
+            return self._current().set_mean_luminance(cd_m2, name=name)
         target = as_tensor(cd_m2, name, dtype=self.dtype, device=self.device).reshape(-1)
         if target.numel() not in (1, self.batch_size):
             raise ValueError(f"{name}: expected a scalar or one luminance per scene ({self.batch_size}), got "
@@ -176,6 +178,10 @@ class Scene(SpectralImage):
         """Concatenate scenes of the same size and wavelength grid along the batch."""
         if not scenes:
             raise ValueError("scenes: expected at least one Scene")
+        if not all(isinstance(s, Scene) for s in scenes):
+            bad = next(i for i, s in enumerate(scenes) if not isinstance(s, Scene))
+            raise TypeError(f"scenes[{bad}]: expected a Scene, got {type(scenes[bad]).__name__}")
+        scenes = [s._current() for s in scenes]  # (a factored scene's changed cube is the scene)
         first = scenes[0]
 
         def shape(s):
