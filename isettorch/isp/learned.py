@@ -957,6 +957,15 @@ def _check_noise_features(noise, batch: int) -> None:
     if bool((noise < 0).any()):
         raise ValueError(f"noise: expected non-negative noise parameters [sqrt(a) * 10, sqrt(b) * 100], got "
                          f"{noise.detach().reshape(-1)[:6].tolist()}")
+    if noise.shape[-1] == 2:
+        # a noise standard deviation at white, sqrt(a + b), above the [0, 1] mosaic's full scale is no camera's
+        # (the joint model trained to a = 0.0128 and sigma = 0.08): the shipped network's output grew with it, and
+        # from a = 100 its gate let the result through (-23.5..10.4 for a [0.4, 0.5] image) with no word
+        a, b = noise_parameters(noise.detach().to(torch.float64))
+        if bool((a + b > 1.0).any()):
+            raise ValueError(f"noise: expected a noise level within the mosaic's full scale, a + b <= 1 (sqrt(a + b) "
+                             f"the noise std at white), got a = {a.reshape(-1)[:4].tolist()}, b = "
+                             f"{b.reshape(-1)[:4].tolist()} (features [sqrt(a) * 10, sqrt(b) * 100])")
 
 
 def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> torch.Tensor:

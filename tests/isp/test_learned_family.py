@@ -385,6 +385,21 @@ def test_noise_features_of_the_wrong_shape_are_named_before_the_network_runs(sha
         learned.demosaic_learned(torch.rand(2, 1, 16, 16), variant="joint_denoise", noise=torch.full(shape, 0.5))
 
 
+def test_a_noise_level_beyond_the_mosaics_full_scale_is_refused():
+    """a = 1000 (features [316, 0]) was accepted: the shipped joint network's output grows with its noise input, and
+    its gate let the result through (-23.5..10.4 for a smooth image in [0.4, 0.5]). A noise std at white above the
+    full scale, a + b > 1, is refused; at a + b = 1 the classical expert still holds the output inside [0.4, 0.53]."""
+    g = torch.Generator().manual_seed(1)
+    img = torch.nn.functional.avg_pool2d(torch.rand(1, 3, 32, 32, generator=g), 3, 1, 1)
+    raw = mosaic(img, "RGGB")
+    for a, b in ((1000.0, 0.0), (0.0, 9.0), (0.6, 0.6)):
+        with pytest.raises(ValueError, match=r"^noise: expected a noise level within the mosaic's full scale, "
+                                             r"a \+ b <= 1"):
+            learned.demosaic_learned(raw, variant="joint_denoise", noise=learned.noise_features(a, b).float())
+    out = learned.demosaic_learned(raw, variant="joint_denoise", noise=learned.noise_features(1.0, 0.0).float())
+    assert float(out.min()) > img.min() - 0.05 and float(out.max()) < img.max() + 0.05
+
+
 def test_a_model_of_another_dtype_is_named():
     """torch's "Input type (double) and bias type (float) should be the same" named neither argument."""
     with pytest.raises(ValueError, match=r"model: its weights are torch.float32, the mosaic raw is torch.float64"):
