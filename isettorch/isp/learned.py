@@ -934,9 +934,9 @@ def demosaic_learned(raw: torch.Tensor, pattern: str = "RGGB", *, model: Demosai
     Returns:
         ``(B, 3, H, W)`` RGB (not clipped).
     """
-    check_finite(_check_raw(raw, even=False), "raw")  # (a NaN sample would spread over the whole image through the
-    # guard's local means)
-    _check_noise_features(noise, raw.shape[0])
+    checked = _check_raw(raw, even=False)  # [B, 1, H, W] (one [H, W] mosaic is a batch of 1)
+    check_finite(checked, "raw")  # (a NaN sample would spread over the whole image through the guard's local means)
+    _check_noise_features(noise, checked.shape[0])  # (the batch: an [H, W] mosaic's H had been taken for it)
     return _demosaic_learned(raw, pattern, model=model, noise=noise, self_ensemble=self_ensemble, variant=variant)
 
 

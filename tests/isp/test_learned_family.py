@@ -385,6 +385,13 @@ def test_noise_features_of_the_wrong_shape_are_named_before_the_network_runs(sha
         learned.demosaic_learned(torch.rand(2, 1, 16, 16), variant="joint_denoise", noise=torch.full(shape, 0.5))
 
 
+def test_one_mosaic_of_shape_h_w_is_a_batch_of_one_for_its_noise():
+    """An [H, W] mosaic's H was taken for the batch: a [16, 2] noise for a 16 x 16 mosaic passed the check."""
+    with pytest.raises(ValueError, match=r"noise: expected shape \[B, noise_inputs\] .* for 1 mosaic\(s\), got "
+                                         r"\(16, 2\)"):
+        learned.demosaic_learned(torch.rand(16, 16), variant="joint_denoise", noise=torch.full((16, 2), 0.5))
+
+
 def test_a_noise_level_beyond_the_mosaics_full_scale_is_refused():
     """a = 1000 (features [316, 0]) was accepted: the shipped joint network's output grows with its noise input, and
     its gate let the result through (-23.5..10.4 for a smooth image in [0.4, 0.5]). A noise std at white above the
