@@ -494,6 +494,10 @@ class Sensor(nn.Module):
 
         Returns a float, or ``[B]`` when a per-call gain is a tensor and ``full_well_e`` is set.
         """
+        return self._saturation_v(self._level_gain(analog_gain), conversion_gain_v_per_e)
+
+    def _saturation_v(self, analog_gain, conversion_gain_v_per_e) -> float | torch.Tensor:
+        """:meth:`saturation_v` for a checked gain (the capture's own calls: no host reads of a device gain)."""
         top = self.usable_swing_v
         fw = self.noise_terms.full_well_e
         gain = self.analog_gain if analog_gain is None else analog_gain
@@ -544,12 +548,16 @@ class Sensor(nn.Module):
         ``full_well_e`` below the swing, the read noise is added after the photodiode clips, so saturated pixels
         scatter around this level (about half above it): normalise by it and clip, or take a high percentile of a
         flat, saturated frame."""
+        return self._white_level(self._level_gain(analog_gain), conversion_gain_v_per_e)
+
+    def _white_level(self, analog_gain, conversion_gain_v_per_e) -> float | torch.Tensor:
+        """:meth:`white_level` for a checked gain (the capture's own call)."""
         if self.output_units == "electrons":  # the electrons chain clips the pixel volts (no analog gain)
             return self.saturation_e(conversion_gain_v_per_e)
         cg = self.conversion_gain_v_per_e if conversion_gain_v_per_e is None else conversion_gain_v_per_e
         cg = cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg
         if self.output_units == "volts":
-            return self.saturation_v(analog_gain, cg)
+            return self._saturation_v(analog_gain, cg)
         return self._white_dn(analog_gain, cg)
 
     @property
@@ -576,7 +584,7 @@ class Sensor(nn.Module):
 
         Returns a float, or ``[B]`` for a tensor or list gain when the sensor has an offset.
         """
-        return self._zero_and_offset(analog_gain)[0]
+        return self._zero_and_offset(self._level_gain(analog_gain))[0]
 
     def _zero_and_offset(self, analog_gain=None) -> tuple[float | torch.Tensor, float | torch.Tensor | None]:
         """``(zero level, the analog offset after the analog gain)`` in :attr:`output_units` (:meth:`zero_level`);
@@ -593,13 +601,27 @@ class Sensor(nn.Module):
         off = off if isinstance(off, torch.Tensor) else float(off)
         return black + off, off
 
+    def _level_gain(self, analog_gain):
+        """The analog gain the level methods (:meth:`saturation_v`, :meth:`white_level`, :meth:`zero_level`) use: the
+        sensor's, or a per-call one checked as :meth:`capture` checks it, finite and positive (a gain of -1 had
+        reported a white level of -1024 DN, 0 a bare ZeroDivisionError in the isetcam convention)."""
+        if analog_gain is None:
+            return self.analog_gain
+        if isinstance(analog_gain, bool):
+            raise TypeError(f"analog_gain: expected a number or a [B] tensor of numbers, got {analog_gain!r}")
+        t = analog_gain if isinstance(analog_gain, torch.Tensor) else torch.as_tensor(analog_gain, dtype=torch.float64)
+        t = t.detach()
+        if not bool(torch.isfinite(t).all()) or not bool((t > 0).all()):
+            raise ValueError(f"analog_gain: expected finite positive values, got {t.reshape(-1)[:4].tolist()}")
+        return analog_gain
+
     def _white_dn(self, analog_gain, conversion_gain_v_per_e) -> float | torch.Tensor:
         """The code the ADC gives :meth:`saturation_v`: ``round(v / lsb) + black`` (MATLAB round, as
         :meth:`volts_to_dn`), at most the top code."""
         # ISETCam's ADC does not clamp at the top code (adc_mode 'isetcam'): its saturated pixels read
         # round(swing / lsb) + black (a 10-bit raw with black 64 read 1088 against a white level of 1024)
         top = math.inf if self.adc_mode == "isetcam" else float(2 ** self.adc_bits - 1)
-        x = self.saturation_v(analog_gain, conversion_gain_v_per_e) / self.lsb_v
+        x = self._saturation_v(analog_gain, conversion_gain_v_per_e) / self.lsb_v
         whole, part = self._black_parts()
         if isinstance(x, torch.Tensor):
             x = x + part
@@ -1029,7 +1051,7 @@ class Sensor(nn.Module):
                 room = self.saturation_e(cg) * (cg.reshape(-1) if isinstance(cg, torch.Tensor) else cg)
             else:
                 v1 = self._analog(rate * cg, gain)
-                room = self.saturation_v(gain, cg)
+                room = self._saturation_v(gain, cg)
             if self.analog_offset_v != 0 and self.output_units != "electrons":
                 # the response to light, aimed below the saturation less the offset
                 off = self._analog(torch.zeros_like(rate[:, :, :1, :1]), gain)  # the offset after gain, [B,1,1,1]
@@ -1210,8 +1232,8 @@ class Sensor(nn.Module):
         # the call's own gains: a per-call tensor gives [B] levels only when the full well sets the saturation (a list
         # or array as the call's [B] gain tensor, on the data's device)
         sequence = analog_gain is not None and not is_real(analog_gain) and not isinstance(analog_gain, torch.Tensor)
-        white = self.white_level(self.analog_gain if analog_gain is None else gain.reshape(-1) if sequence
-                                 else analog_gain, cg_out)
+        white = self._white_level(self.analog_gain if analog_gain is None else gain.reshape(-1) if sequence
+                                  else analog_gain, cg_out)
         # the black level and the analog offset: no light (per item from the call's [B] gain, on its device)
         per_call = analog_gain if analog_gain is None or is_real(analog_gain) else gain.reshape(-1)
         black, offset = self._zero_and_offset(per_call)

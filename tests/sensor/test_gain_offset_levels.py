@@ -88,3 +88,19 @@ def test_a_readout_before_the_adc_saturates_at_the_swing_whatever_the_dn_black_l
     dn = Sensor.preset("imx363", rows=4, cols=4)  # the DN readout: the top code, 1023 - 64 above black
     assert float(dn.capture(torch.full((1, 1, 4, 4), 1e9, dtype=torch.float64), exposure_s=0.01,
                             noise=False).normalized().max()) == pytest.approx(1.0)
+
+
+def test_the_level_methods_check_a_per_call_gain_as_capture_does():
+    """white_level / saturation_v / zero_level took any analog_gain: -1 gave a white level of -1024 DN on a 10-bit
+    sensor, 0 a bare ZeroDivisionError with ISETCam's gain convention, NaN a NaN black level. They now refuse it as
+    capture() does; a valid per-call gain is the documented value (a 10-bit white of 1023 at gain 2 with no full
+    well; the offset scaled by the gain in the black level)."""
+    s = Sensor(rows=4, cols=4, adc_bits=10, analog_offset_v=0.01, black_level_dn=64)
+    assert s.white_level(analog_gain=2.0) == 1023
+    assert s.zero_level(analog_gain=2.0) == pytest.approx(64 + 0.01 * 2 / s.lsb_v)
+    iset = Sensor(rows=4, cols=4, adc_bits=10, gain_convention="isetcam", analog_offset_v=0.01, full_well_e=5000.0)
+    for sensor in (s, iset):
+        for bad in (-1.0, 0.0, math.nan, [1.0, -2.0]):
+            for method in (sensor.white_level, sensor.saturation_v, sensor.zero_level):
+                with pytest.raises(ValueError, match=r"^analog_gain: expected finite positive values"):
+                    method(analog_gain=bad)
