@@ -450,7 +450,14 @@ def _check_gains(gains, *, like: torch.Tensor | None = None) -> torch.Tensor:
 def _default_white(img: torch.Tensor, white) -> torch.Tensor:
     if white is None:
         return torch.ones(img.shape[1], dtype=img.dtype, device=img.device)
-    return as_tensor(white, "white", dtype=img.dtype, device=img.device)
+    w = as_tensor(white, "white", dtype=img.dtype, device=img.device)
+    # (C,) or (B, C) for the image's (B, C, ...): a (2, 1, 3) white had given (2, 2, 3) gains, a (3, 3) one for a
+    # batch of 2 a bare broadcasting error
+    b, c = img.shape[0], img.shape[1]
+    if not (w.shape == (c,) or w.shape == (b, c)):
+        raise ValueError(f"white: expected shape ({c},) or ({b}, {c}) for an image of {b} item(s) and {c} channels, "
+                         f"got {tuple(w.shape)}")
+    return w
 
 
 def gray_world_gains(img: torch.Tensor, white=None, reference_channel: int = 0, *, no_signal: str = "raise",
@@ -665,7 +672,7 @@ class SensorToXYZ(nn.Module):
                  learnable: bool = False, normalize: bool = True, white_preserving: bool = False) -> None:
         super().__init__()
         check_illuminant_name(illuminant)
-        self.white_preserving = bool(white_preserving)
+        self.white_preserving = check_bool(white_preserving, "white_preserving")  # (bool('False') was True)
         self.illuminant = illuminant
         self.surfaces = surfaces
         self.observer = observer

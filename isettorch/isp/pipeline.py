@@ -234,8 +234,9 @@ class ImageProcessor(ExactConstants):
         elif not isinstance(sensor_to_xyz, nn.Module):
             sensor_to_xyz = SensorToXYZ(matrix=sensor_to_xyz)
         self.sensor_to_xyz = sensor_to_xyz
+        adapt = check_bool(adapt_to_display_white, "adapt_to_display_white")  # ('no' had turned it on)
         self.xyz_to_display = display if isinstance(display, nn.Module) else XYZToDisplay(
-            display, adapt_from=correction_white if adapt_to_display_white else None)
+            display, adapt_from=correction_white if adapt else None)
         if isinstance(encoding, str) and encoding == "display":  # the display's own transfer function
             encoding = DisplayEncode(getattr(self.xyz_to_display, "display", None) or "srgb")
         self.encode = encoding if isinstance(encoding, nn.Module) else DisplayEncode(encoding)

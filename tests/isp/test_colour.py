@@ -626,3 +626,25 @@ def test_scene_window_is_the_charts_footprint_and_checks_its_pitch():
             scene_window(res, bad)
     with pytest.raises(ValueError, match=r"^fraction: expected a number in \(0, 1\]"):
         patch_means(torch.zeros(1, 3, 8, 12), fraction=torch.tensor(0.5))
+
+
+def test_white_balance_checks_its_white_and_flags():
+    """A (2, 1, 3) white gave (2, 2, 3) gains for a batch of 2 (documented (B, C)); a (3, 3) one a bare broadcasting
+    error. SensorToXYZ(white_preserving='False') was True (bool()), and ImageProcessor(adapt_to_display_white='no')
+    turned the Bradford adaptation on. A (B, C) white gives each item its own target."""
+    from isettorch.isp.colour import SensorToXYZ
+    from isettorch.isp.pipeline import ImageProcessor
+
+    img = torch.rand(2, 3, 4, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64) + 0.1
+    per_item = torch.tensor([[1.0, 2.0, 3.0], [3.0, 2.0, 1.0]], dtype=torch.float64)
+    gains = gray_world_gains(img, per_item)
+    means = img.mean(dim=(-2, -1)) * gains
+    torch.testing.assert_close(means / means[:, :1], per_item / per_item[:, :1])
+    for fn in (gray_world_gains, white_world_gains):
+        for bad in (torch.ones(2, 1, 3), torch.ones(3, 3), torch.ones(4)):
+            with pytest.raises(ValueError, match=r"^white: expected shape \(3,\) or \(2, 3\)"):
+                fn(img, bad)
+    with pytest.raises(TypeError, match=r"^white_preserving: expected True or False"):
+        SensorToXYZ(white_preserving="False")
+    with pytest.raises(TypeError, match=r"^adapt_to_display_white: expected True or False"):
+        ImageProcessor(adapt_to_display_white="no", display="crt")
