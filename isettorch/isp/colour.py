@@ -674,6 +674,11 @@ class SensorToXYZ(nn.Module):
         check_illuminant_name(illuminant)
         self.white_preserving = check_bool(white_preserving, "white_preserving")  # (bool('False') was True)
         self.illuminant = illuminant
+        if isinstance(surfaces, str):  # (an unknown name had failed only at the fit, as 'name: ...')
+            try:
+                reflectance_set(surfaces, torch.tensor([550.0], dtype=torch.float64))
+            except ValueError as err:
+                raise ValueError(f"surfaces: {str(err).partition(': ')[2]}") from err
         self.surfaces = surfaces
         self.observer = observer
         self.learnable = check_bool(learnable, "learnable")

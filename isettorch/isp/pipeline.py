@@ -235,8 +235,13 @@ class ImageProcessor(ExactConstants):
             sensor_to_xyz = SensorToXYZ(matrix=sensor_to_xyz)
         self.sensor_to_xyz = sensor_to_xyz
         adapt = check_bool(adapt_to_display_white, "adapt_to_display_white")  # ('no' had turned it on)
+        try:  # (a bad SPD was reported as 'illuminant: ...', an argument the caller never passed)
+            correction_xyz = white_xyz(correction_white)
+        except ValueError as err:
+            raise ValueError(f"correction_white: {str(err).partition(': ')[2]}") from err
+        # the white's XYZ (an SPD given as correction_white had been passed on as if it were an XYZ)
         self.xyz_to_display = display if isinstance(display, nn.Module) else XYZToDisplay(
-            display, adapt_from=correction_white if adapt else None)
+            display, adapt_from=correction_xyz if adapt else None)
         if isinstance(encoding, str) and encoding == "display":  # the display's own transfer function
             encoding = DisplayEncode(getattr(self.xyz_to_display, "display", None) or "srgb")
         self.encode = encoding if isinstance(encoding, nn.Module) else DisplayEncode(encoding)
@@ -257,7 +262,7 @@ class ImageProcessor(ExactConstants):
         self.clip_negative_xyz = check_bool(clip_negative_xyz, "clip_negative_xyz")
         self.monochrome_divisor = monochrome_divisor
         self.correction_white = correction_white
-        self.register_constant("white_xyz", white_xyz(correction_white))
+        self.register_constant("white_xyz", correction_xyz)
         w = torch.arange(400.0, 701.0, 10.0) if fit_wavelengths_nm is None else torch.as_tensor(fit_wavelengths_nm)
         self.fit_wavelengths_nm = check_wavelengths(w.to(torch.float64))
 

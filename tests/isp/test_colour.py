@@ -648,3 +648,24 @@ def test_white_balance_checks_its_white_and_flags():
         SensorToXYZ(white_preserving="False")
     with pytest.raises(TypeError, match=r"^adapt_to_display_white: expected True or False"):
         ImageProcessor(adapt_to_display_white="no", display="crt")
+
+
+def test_correction_white_and_surfaces_are_named_and_an_spd_white_adapts():
+    """correction_white=5 was reported as 'illuminant: ...'; an SPD correction_white with adapt_to_display_white
+    failed as 'adapt_from: expected ... a white's XYZ' (the SPD was passed on as an XYZ); SensorToXYZ(surfaces='foo')
+    was accepted and failed at the fit as 'name: ...'. An SPD white now adapts as its name does."""
+    from isettorch import spectral
+    from isettorch.isp.colour import SensorToXYZ
+    from isettorch.isp.pipeline import ImageProcessor
+
+    with pytest.raises(ValueError, match=r"^correction_white: expected an energy SPD with 81 samples"):
+        ImageProcessor(correction_white=5)
+    with pytest.raises(ValueError, match=r"^surfaces: unknown reflectance set 'foo'"):
+        SensorToXYZ(surfaces="foo")
+    w = spectral.default_wavelengths(380.0, 780.0, 5.0, dtype=torch.float64)
+    spd = spectral.illuminant("D65", w, dtype=torch.float64)
+    by_spd = ImageProcessor(correction_white=spd, adapt_to_display_white=True, display="crt")
+    by_name = ImageProcessor(correction_white="D65", adapt_to_display_white=True, display="crt")
+    torch.testing.assert_close(by_spd.xyz_to_display.adaptation, by_name.xyz_to_display.adaptation)
+    a = by_name.xyz_to_display.adaptation
+    assert not torch.allclose(a, torch.eye(3, dtype=a.dtype))
