@@ -884,6 +884,9 @@ class XYZToDisplay(ExactConstants):
             max_lum = None
             self.name = "sRGB"
         else:
+            if isinstance(display, (list, tuple)) or (hasattr(display, "__array__")
+                                                      and not isinstance(display, torch.Tensor)):
+                display = as_tensor(display, "display", dtype=torch.float64)  # (a NumPy or list matrix was refused)
             if isinstance(display, torch.Tensor) and display.shape == (3, 3):
                 rgb_to_xyz = display.to(torch.float64)
                 _check_display_matrix(rgb_to_xyz)

@@ -669,3 +669,15 @@ def test_correction_white_and_surfaces_are_named_and_an_spd_white_adapts():
     torch.testing.assert_close(by_spd.xyz_to_display.adaptation, by_name.xyz_to_display.adaptation)
     a = by_name.xyz_to_display.adaptation
     assert not torch.allclose(a, torch.eye(3, dtype=a.dtype))
+
+
+def test_a_display_matrix_may_be_a_numpy_array_or_a_list():
+    """XYZToDisplay's error lists a (3, 3) RGB->XYZ matrix as accepted, but only a torch tensor was: a NumPy array
+    or a list failed as a display without primaries."""
+    from isettorch.isp.colour import XYZToDisplay
+
+    m = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
+    ref = XYZToDisplay(torch.tensor(m)).matrix
+    torch.testing.assert_close(XYZToDisplay(m).matrix, ref, rtol=0, atol=0)
+    torch.testing.assert_close(XYZToDisplay(m.tolist()).matrix, ref, rtol=0, atol=0)
+    torch.testing.assert_close(ref.double() @ torch.tensor(m), torch.eye(3, dtype=torch.float64), atol=1e-6, rtol=0)
