@@ -354,7 +354,7 @@ def test_camera_call_arguments_name_themselves():
      r"config: sensor\.exposure_s 0\.01 is not used with sensor\.auto_exposure 'mean'"),
     ({"sensor": {"exposure_s": []}}, r"exposure_s: expected a number or one per batch item, got an empty list"),
     ({"isp": {"sensor_conversion": {"method": "mcc_optimized", "surfaces": "macbth"}}},
-     r"config: isp\.sensor_conversion: .*'macbth'"),
+     r"config: isp\.sensor_conversion\.surfaces: unknown reflectance set 'macbth'"),
     ({"isp": {"sensor_conversion": {"method": "mcc_optimized", "observer": "1931x"}}},
      r"config: isp\.sensor_conversion: observer"),
     ({"sensor": {"cfa": "QUAD_BAYER"}, "isp": {"demosaic_border": "reflect"}},
