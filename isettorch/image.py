@@ -547,8 +547,9 @@ class SpectralImage:
         if dtype is not None and not (isinstance(dtype, torch.dtype) and dtype.is_floating_point):
             # (int32 had truncated a dense image's radiance, and was ignored for a factored one)
             raise ValueError(f"dtype: expected a floating torch dtype (e.g. torch.float64), got {dtype!r}")
-        if self._current() is not self:
-            return self._current().to(device=device, dtype=dtype)
+        current = self._current()
+        if current is not self:
+            return current.to(device=device, dtype=dtype)
         changes = self._map_tensors(lambda t: t.to(device=device, dtype=dtype)
                                     if t.is_floating_point() else t.to(device=device))
         if self.factors is not None:
@@ -556,8 +557,9 @@ class SpectralImage:
         return self.replace(**changes, validate=False)
 
     def detach(self) -> SpectralImage:
-        if self._current() is not self:
-            return self._current().detach()
+        current = self._current()
+        if current is not self:
+            return current.detach()
         changes = self._map_tensors(lambda t: t.detach())
         if self.factors is not None:
             changes["factors"] = self.factors.detach()
@@ -565,8 +567,9 @@ class SpectralImage:
 
     def __getitem__(self, index) -> SpectralImage:
         """Select batch samples: ``img[0]``, ``img[1:3]``; the batch dimension is kept."""
-        if self._current() is not self:
-            return self._current()[index]
+        current = self._current()
+        if current is not self:
+            return current[index]
         if is_integer(index):
             b = self.batch_size
             if not -b <= index < b:  # (an empty slice failed in a reshape, or as 'photons: expected a non-empty')
@@ -602,8 +605,9 @@ class SpectralImage:
     # --- spectral ----------------------------------------------------------------------
     def resample_wavelengths(self, wavelengths_nm) -> SpectralImage:
         """Linear interpolation onto another grid (0 outside the current range)."""
-        if self._current() is not self:
-            return self._current().resample_wavelengths(wavelengths_nm)
+        current = self._current()
+        if current is not self:
+            return current.resample_wavelengths(wavelengths_nm)
         new = check_wavelengths(torch.as_tensor(wavelengths_nm)).to(self.device, self.dtype)
         if self.factors is not None and hasattr(self.factors, "resample"):
             changes = {"factors": self.factors.resample(self.wavelengths_nm, new), "wavelengths_nm": new}

@@ -10,7 +10,7 @@ import torch
 
 from .._autograd import records_grad
 from .._checks import is_integer
-from ..image import SpectralImage, angle_for_extent, select_items
+from ..image import SpectralImage, angle_for_extent, extent_for_angle, select_items
 
 __all__ = ["OpticalImage", "FourierFactors"]
 
@@ -404,8 +404,9 @@ class OpticalImage(SpectralImage):
         d = self.image_distance_m if self.image_distance_m is not None else self.focal_length_m
         if d is not None:
             hfov = angle_for_extent(self.sample_spacing_m * width, d)
-        elif self.hfov_deg is not None:  # a field of view given without a distance: the window's share of it
-            hfov = torch.rad2deg(2 * torch.atan(torch.tan(torch.deg2rad(self.hfov_deg) / 2) * width / self.width))
+        elif self.hfov_deg is not None:  # a field of view given without a distance: the window's share of its extent
+            unit = torch.ones_like(self.hfov_deg)  # (at any distance: a unit one)
+            hfov = angle_for_extent(extent_for_angle(self.hfov_deg, unit) * width / self.width, unit)
         else:
             hfov = None
         return self.replace(**data, hfov_deg=hfov, pad_rows=0, pad_cols=0)

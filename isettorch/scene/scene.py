@@ -125,8 +125,9 @@ class Scene(SpectralImage):
     def set_mean_luminance(self, cd_m2, *, name: str = "cd_m2") -> Scene:
         """Scale radiance (and illuminant) so the mean luminance is ``cd_m2`` (scalar or [B]); ``name``: the
         argument's name in errors (a caller's own, e.g. ``mean_luminance_cd_m2``)."""
-        if self._current() is not self:
-            return self._current().set_mean_luminance(cd_m2, name=name)
+        current = self._current()
+        if current is not self:
+            return current.set_mean_luminance(cd_m2, name=name)
         target = as_tensor(cd_m2, name, dtype=self.dtype, device=self.device).reshape(-1)
         if target.numel() not in (1, self.batch_size):
             raise ValueError(f"{name}: expected a scalar or one luminance per scene ({self.batch_size}), got "
