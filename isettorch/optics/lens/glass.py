@@ -210,9 +210,8 @@ def _in_maker_catalogue(gf, name: str, maker: str) -> bool:
     if key is None:
         return False
     try:
-        gf.create_glass(name, key)
-        return True
-    except Exception:
+        return _catalogue_glass(gf, name, key) is not None
+    except ValueError:  # listed there without dispersion coefficients: that catalogue cannot give it
         return False
 
 
