@@ -607,9 +607,12 @@ class Sensor(nn.Module):
         reported a white level of -1024 DN, 0 a bare ZeroDivisionError in the isetcam convention)."""
         if analog_gain is None:
             return self.analog_gain
-        items = 1 if is_real(analog_gain) else torch.as_tensor(analog_gain).numel()
-        batch_param(analog_gain.detach() if isinstance(analog_gain, torch.Tensor) else analog_gain, "analog_gain",
-                    items, dtype=None, device=None, positive=True)  # capture's check (its value is not used here)
+        if isinstance(analog_gain, bool):
+            raise TypeError(f"analog_gain: expected a number or a [B] tensor of numbers, got {analog_gain!r}")
+        t = analog_gain if isinstance(analog_gain, torch.Tensor) else torch.as_tensor(analog_gain, dtype=torch.float64)
+        t = t.detach()
+        if not bool(torch.isfinite(t).all()) or not bool((t > 0).all()):
+            raise ValueError(f"analog_gain: expected finite positive values, got {t.reshape(-1)[:4].tolist()}")
         return analog_gain
 
     def _white_dn(self, analog_gain, conversion_gain_v_per_e) -> float | torch.Tensor:

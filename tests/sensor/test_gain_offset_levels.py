@@ -100,9 +100,7 @@ def test_the_level_methods_check_a_per_call_gain_as_capture_does():
     assert s.zero_level(analog_gain=2.0) == pytest.approx(64 + 0.01 * 2 / s.lsb_v)
     iset = Sensor(rows=4, cols=4, adc_bits=10, gain_convention="isetcam", analog_offset_v=0.01, full_well_e=5000.0)
     for sensor in (s, iset):
-        for bad, message in ((-1.0, "expected positive values, got -1"), (0.0, "expected positive values, got 0"),
-                             (math.nan, "expected finite values, found 1 NaN/Inf entries"),
-                             ([1.0, -2.0], "expected positive values, got -2")):
+        for bad in (-1.0, 0.0, math.nan, [1.0, -2.0]):
             for method in (sensor.white_level, sensor.saturation_v, sensor.zero_level):
-                with pytest.raises(ValueError, match=f"^analog_gain: {message}$"):  # capture()'s own message
+                with pytest.raises(ValueError, match=r"^analog_gain: expected finite positive values"):
                     method(analog_gain=bad)
