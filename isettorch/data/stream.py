@@ -21,7 +21,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import torch
 
@@ -248,9 +248,11 @@ class PairStream:
                 if torch.get_num_threads() != intra:  # pragma: no cover - depends on the OpenMP runtime
                     torch.set_num_threads(intra)
                 yield out
-        finally:  # the consumer stopped: batches not started are dropped, running ones finish unseen
-            for f in pending:
-                f.cancel()
+        finally:  # the consumer stopped: batches not started are dropped, running ones are waited for
+            # (a render left running after the iterator is closed took cores from what the caller did next, and a
+            # fork meanwhile, e.g. a DataLoader's workers, copied whatever locks its torch kernels held)
+            running = [f for f in pending if not f.cancel()]
+            wait(running)
 
     def loader(self, num_workers: int = 2, *, prefetch_factor: int = 2, start: int = 0):
         """This stream's batches rendered by worker processes, bitwise those of ``batches(start)`` in the same order

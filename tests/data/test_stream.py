@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 
 import numpy as np
 import pytest
@@ -174,6 +175,34 @@ def test_iteration_renders_whole_batches_on_threads_bitwise():
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="start"):
             stream.batches(bad)
+
+
+class _SlowBatches(PairStream):
+    """Each whole batch but the first takes 0.5 s more, and says when it starts and ends."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.started, self.ended = [], []
+
+    def _whole_batch(self, k):
+        self.started.append(k)
+        time.sleep(0.5 if k else 0.0)
+        out = super()._whole_batch(k)
+        self.ended.append(k)
+        return out
+
+
+def test_closing_the_iterator_waits_for_the_batches_it_started():
+    """Closing ``iter(stream)`` returns once the batches its threads had started are rendered and drops those not
+    started: none renders on after it (they had run on unseen, taking cores from what the caller did next, and a
+    fork then, as a DataLoader's workers are made, copied the locks their kernels held)."""
+    stream = _SlowBatches(4, seed=5, scene=SMALL, threads=2)
+    it = iter(stream)
+    next(it)
+    it.close()
+    assert sorted(stream.started) == sorted(stream.ended) and len(stream.ended) >= 2
+    time.sleep(0.6)
+    assert sorted(stream.started) == sorted(stream.ended)  # nothing not yet started ran after close either
 
 
 def test_worker_loader_yields_the_streams_batches():
