@@ -50,6 +50,7 @@ from torch import nn
 from .._autograd import records_grad, safe_sqrt, tensor_cache
 from .._checks import FLOAT_DTYPES, check_bool, check_finite, check_zip_crc, is_real
 from ..sensor.cfa import BAYER_PATTERNS  # the one CFA-pattern table
+from .demosaicing._cfa import check_bayer_pattern
 from .demosaicing.linear import demosaic_malvar2004
 from .demosaicing.menon2007 import demosaic_menon2007
 
@@ -164,12 +165,6 @@ def _check_raw(raw: torch.Tensor, name: str = "raw", even: bool = True) -> torch
         raise ValueError(f"{name}: expected an even height and width (whole 2 x 2 Bayer cells; demosaic_learned "
                          f"takes any size), got {tuple(raw.shape[-2:])}")
     return raw
-
-
-def _check_pattern(pattern: str) -> str:
-    if not isinstance(pattern, str) or pattern.upper() not in BAYER_PATTERNS:
-        raise ValueError(f"pattern: expected one of {BAYER_PATTERNS}, got {pattern!r}")
-    return pattern.upper()
 
 
 def _to_rggb(raw: torch.Tensor, pattern: str) -> tuple[torch.Tensor, int, int]:
@@ -973,7 +968,7 @@ def _demosaic_learned(raw, pattern, *, model, noise, self_ensemble, variant) -> 
     :func:`isettorch.isp.demosaicing.demosaic` for the registered methods): one pass over the input, not one per
     entry and per flip of the dihedral ensemble."""
     raw = _check_raw(raw, even=False)
-    pattern = _check_pattern(pattern)
+    pattern = check_bayer_pattern(pattern)
     check_self_ensemble(self_ensemble)
     if model is None:  # the shared cached instance (load_pretrained gives callers their own copy)
         model = _pretrained(_check_variant(variant), str(raw.device), raw.dtype, True)

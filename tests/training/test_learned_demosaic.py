@@ -72,6 +72,12 @@ def test_bad_inputs():
         demosaic_malvar2004(torch.rand(1, 1, 8, 8), "RGBW")
     with pytest.raises(ValueError, match="raw"):
         demosaic_malvar2004(torch.rand(1, 3, 8, 8))
+    # the learned entry checks its pattern as every demosaicker does (a second check had raised ValueError for a
+    # non-string pattern where demosaic() raised TypeError)
+    with pytest.raises(ValueError, match="pattern: expected one of"):
+        demosaic_learned(torch.rand(1, 1, 8, 8), "RGBW")
+    with pytest.raises(TypeError, match="pattern: expected one of .* as a string"):
+        demosaic_learned(torch.rand(1, 1, 8, 8), 1)
     with pytest.raises(ValueError, match="boundary"):
         demosaic_malvar2004(torch.rand(1, 1, 8, 8), boundary="wrap")
     with pytest.raises(ValueError, match="raw"):
