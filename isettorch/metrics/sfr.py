@@ -167,6 +167,8 @@ def _esfr_single(a: torch.Tensor, max_bin_fill: float, min_cnr: float = 0.0, geo
         mask = torch.ones(geo.shape, dtype=torch.bool)
     mask = mask.cpu()
     R, N = geo.shape
+    if N < 8 or R < 8:  # (before the transpose below: the ROI's shape as given)
+        raise ValueError(f"image: expected an edge ROI of at least 8x8 pixels, got {R}x{N}")
     # sfrmat3 rotatev2: transpose when the intensity changes more top-to-bottom than left-to-right.
     horizontal = (geo[-1].mean() - geo[0].mean()).abs() > (geo[:, -1].mean() - geo[:, 0].mean()).abs()
     if horizontal:
@@ -175,13 +177,16 @@ def _esfr_single(a: torch.Tensor, max_bin_fill: float, min_cnr: float = 0.0, geo
     flip = geo[:, : max(N // 8, 1)].mean() > geo[:, -max(N // 8, 1):].mean()
     if flip:  # dark-to-bright from left to right
         a, geo, mask = a.flip(-1), geo.flip(-1), mask.flip(-1)
-    if N < 8 or R < 8:
-        raise ValueError(f"image: expected an edge ROI of at least 8x8 pixels, got {R}x{N}")
     dark, bright, sigma = _edge_contrast_to_noise(geo)
     step = bright - dark
     # flat within float rounding of the pedestal (a real low-contrast edge on a high black level, 1 DN on 1000, is
     # an edge; whether it stands above the noise is min_cnr's test)
     if not step > 1e-6 * max(abs(dark), abs(bright), torch.finfo(torch.float64).tiny):
+        lo, hi = float(geo.min()), float(geo.max())
+        if hi - lo > 0.1 * max(abs(lo), abs(hi)):  # both sides at one level, a feature between them
+            raise ValueError(f"image: no single edge in the ROI: its two sides have the same mean level ({dark:.6g}, "
+                             f"{bright:.6g}) while it spans {lo:.6g}..{hi:.6g} (a bar or a line, two edges?); crop "
+                             "it to one slanted edge between two uniform areas")
         raise ValueError(f"image: no edge in the ROI (flat: dark side mean {dark:.6g}, bright side mean {bright:.6g}); "
                          "expected a slanted edge between two uniform areas")
     if sigma > 0 and step / sigma < min_cnr:

@@ -234,6 +234,25 @@ def test_a_roi_with_two_edges_is_refused():
     with pytest.raises(ValueError, match="more than one edge"):
         esfr(up - down + 0.1, auto_roi=False)
     assert math.isfinite(float(esfr(up, auto_roi=False).mtf50))  # either edge alone is measured
+    # a bar whose two sides are at one level exactly was called "flat" (the mean levels of its outer quarters
+    # agree): it is named as what it is
+    from scipy.special import ndtr
+
+    y, x = np.mgrid[0:64, 0:64].astype(float)
+    t = math.tan(math.radians(5))
+
+    def soft(xc):
+        return ndtr(((x - xc) + t * (y - 31.5)) * math.cos(math.radians(5)))
+
+    bar = torch.from_numpy(0.2 + 0.6 * np.minimum(soft(20), 1 - soft(44)))
+    with pytest.raises(ValueError, match=r"no single edge in the ROI: its two sides have the same mean level .* "
+                                         r"spans 0\.2\.\.0\.8"):
+        esfr(bar, auto_roi=False)
+    with pytest.raises(ValueError, match="no edge in the ROI"):  # a truly flat ROI is still "flat"
+        esfr(torch.full((40, 40), 0.5), auto_roi=False)
+    # a too-small ROI is reported in the shape given, also for a near-horizontal edge (it was shown transposed)
+    with pytest.raises(ValueError, match="at least 8x8 pixels, got 64x7"):
+        esfr(torch.from_numpy(ndtr((y - 31.5) + t * (x - 31.5)))[:, 10:17], auto_roi=False)
     # one edge with what real ROIs carry is still one edge: a sharpened edge's halos (an unsharp mask of 15 px,
     # amount 3: 56 % overshoot each side) and a 70 % vignetting fall-off across the ROI
     e = slanted_edge(4)
