@@ -19,6 +19,10 @@ def as_tensor(value, name: str, *, dtype=None, device=None) -> torch.Tensor:
         return t
     if isinstance(value, (bool, np.bool_)):  # (mean_luminance_cd_m2=True was a 1 cd/m^2 scene, data_range=True 1)
         raise TypeError(f"{name}: expected a number or tensor, got {value!r}")
+    if np.iscomplexobj(value):  # (torch dropped the imaginary part with a warning)
+        raise TypeError(f"{name}: expected real numbers, got complex values")
+    if isinstance(value, np.ndarray):  # (a reversed view's negative strides were refused as 'not a number')
+        value = np.ascontiguousarray(value)
     try:
         return torch.as_tensor(value, dtype=dtype or torch.get_default_dtype(), device=device)
     except (TypeError, ValueError, RuntimeError) as err:

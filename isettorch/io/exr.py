@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from .. import constants, spectral
-from .._checks import check_nanometres, check_wavelengths, narrow_float
+from .._checks import as_tensor, check_nanometres, check_wavelengths, narrow_float
 from .._files import write_atomic
 
 __all__ = ["write_spectral_exr", "read_spectral_exr", "write_scene_exr", "read_scene_exr", "channel_name",
@@ -60,6 +60,8 @@ def parse_channel_name(name: str) -> tuple[str, float] | None:
 
 def _as_numpy_f32(data, name: str) -> np.ndarray:
     a = data.detach().cpu().numpy() if isinstance(data, torch.Tensor) else np.asarray(data)
+    if np.iscomplexobj(a):  # (written as its real part, with a warning only)
+        raise ValueError(f"{name}: expected real values, got a complex cube")
     if a.ndim != 3:
         raise ValueError(f"{name}: expected a cube [L, H, W], got shape {a.shape}")
     if not np.isfinite(a).all():
@@ -79,7 +81,7 @@ def write_spectral_exr(path, data, wavelengths_nm, *, component: str = "S0", att
     import OpenEXR
 
     a = _as_numpy_f32(data, "data")
-    w = np.asarray(torch.as_tensor(wavelengths_nm, dtype=torch.float64).cpu(), dtype=float).reshape(-1)
+    w = as_tensor(wavelengths_nm, "wavelengths_nm", dtype=torch.float64).detach().cpu().numpy().reshape(-1)
     if w.size != a.shape[0]:
         raise ValueError(f"wavelengths_nm: expected {a.shape[0]} wavelengths (one per band), got {w.size}")
     # (metres or micrometres were written as channels of 0-1 nm; NaN or negative ones as names its reader refuses)

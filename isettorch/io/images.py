@@ -421,6 +421,8 @@ def _read_tiff(p: Path, photometric: tuple[str, ...] = _TIFF_PHOTOMETRIC) -> tup
     import tifffile
 
     with tifffile.TiffFile(str(p)) as tif:
+        if not tif.series:  # (a corrupt file: tif.series[0] was a bare IndexError)
+            raise ValueError("no image in the file")
         series = tif.series[0]
         axes, a = series.axes, series.asarray()
         page = tif.pages[0]

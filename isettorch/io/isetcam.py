@@ -126,7 +126,12 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
     if photons is None or wave is None:
         raise ValueError(f"path: {str(p)!r}: expected scene.data.photons and scene.spectrum.wave (ISETCam layout)")
     photons = np.asarray(photons)
-    wave = np.atleast_1d(np.asarray(wave, dtype=float)).reshape(-1)
+    if photons.dtype.kind not in "fiu":  # (complex photons were read as their real part, with a warning only)
+        raise ValueError(f"scene.data.photons: expected real numbers in {str(p)!r}, got {photons.dtype}")
+    try:
+        wave = np.atleast_1d(np.asarray(wave, dtype=float)).reshape(-1)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"scene.spectrum.wave: expected numbers (nm) in {str(p)!r}, got {_unwrap(wave)!r}") from err
     check_nanometres(wave, "scene.spectrum.wave")
     if photons.ndim == 2 and wave.size == 1:
         photons = photons[:, :, None]
@@ -138,7 +143,12 @@ def read_isetcam_scene(path, *, variable: str = "scene", dtype=torch.float32):
         if dmin is None or dmax is None:
             raise ValueError("scene.data: integer (compressed) photons need dmin and dmax (ISETCam ieCompressData)")
         # without bitDepth, the integers' own width (uint16 was ieCompressData's; a uint8 read as 16-bit was 257x dim)
-        bits = 8 * photons.dtype.itemsize if bits is None else int(_named_scalar(bits, "scene.data.bitDepth", p))
+        width = 8 * photons.dtype.itemsize
+        bits = width if bits is None else _named_scalar(bits, "scene.data.bitDepth", p)
+        if not (float(bits).is_integer() and 1 <= bits <= width):  # ieCompressData: codes 0 .. 2^bitDepth - 1
+            raise ValueError(f"scene.data.bitDepth: expected an integer from 1 to {width} (the photons are "
+                             f"{photons.dtype}) in {str(p)!r}, got {bits}")
+        bits = int(bits)
         dmin, dmax = _named_scalar(dmin, "scene.data.dmin", p), _named_scalar(dmax, "scene.data.dmax", p)
         if not dmax >= dmin:
             raise ValueError(f"scene.data.dmin, dmax: expected dmin <= dmax in {str(p)!r}, got {dmin} and {dmax}")

@@ -102,6 +102,15 @@ def test_scene_exr_with_bad_contents_names_the_file(tmp_path):
     bad = write_spectral_exr(tmp_path / "neg.exr", -data.numpy().astype(np.float32), w.numpy(), component="S0")
     with pytest.raises(ValueError, match=r"path: .*neg\.exr.* negative or non-finite radiance"):
         read_scene_exr(bad)
+    # complex data were written as their real part (a warning only); wavelengths as text gave torch's own message,
+    # and an increasing grid held in a reversed NumPy view was refused with it
+    with pytest.raises(ValueError, match="data: expected real values"):
+        write_spectral_exr(tmp_path / "cx.exr", data.numpy() * (1 + 1j), w.numpy())
+    with pytest.raises(TypeError, match="wavelengths_nm: expected a number or tensor"):
+        write_spectral_exr(tmp_path / "txt.exr", data.numpy(), [str(v) for v in w.tolist()])
+    back, w2, _ = read_spectral_exr(write_spectral_exr(tmp_path / "view.exr", data.numpy(),
+                                                       w.numpy()[::-1].copy()[::-1]))
+    assert torch.equal(w2, w) and torch.equal(back, data)
 
 
 def test_values_a_float32_file_cannot_hold_are_refused_not_written(tmp_path):

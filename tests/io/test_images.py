@@ -727,3 +727,11 @@ def test_files_in_other_colours_than_srgb_are_refused_unless_read_linear(tmp_pat
     OpenEXR.File({"type": OpenEXR.scanlineimage}, yc).write(str(tmp_path / "yc.exr"))
     with pytest.raises(ValueError, match="yc.exr.*luminance / chroma"):
         read_image(tmp_path / "yc.exr")
+
+
+def test_read_image_names_a_tiff_with_no_image_in_it(tmp_path):
+    """A corrupt TIFF (a header and nothing readable) is a ValueError naming the path, as a corrupt PNG is; it was a
+    bare IndexError from tifffile's empty series list."""
+    (tmp_path / "x.tif").write_bytes(b"II*\x00garbage")
+    with pytest.raises(ValueError, match=r"path: .*x\.tif' is not a readable TIFF image \(no image in the file\)"):
+        read_image(tmp_path / "x.tif")

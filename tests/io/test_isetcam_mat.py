@@ -133,6 +133,21 @@ def test_malformed_fields_are_named(tmp_path):
                                            | {"data": {"photons": codes, "dmin": 0.0, "dmax": 255e12}}})
     s = read_isetcam_scene(tmp_path / "u8.mat", dtype=torch.float64)
     np.testing.assert_allclose(s.photons[0, :, 0, 0].numpy(), codes[0, 0] * 1e12, rtol=1e-12)
+    # a bitDepth the codes cannot have (ieCompressData: uint16 codes 0 .. 2^bitDepth - 1, bitDepth <= 16): 40 had
+    # read code 65535 as 1.0000059e14 for dmax 1e16, 0 as NaN photons, with no word of bitDepth
+    codes16 = np.array([[[0, 65535, 1, 2]]], dtype=np.uint16)
+    for bits in (40.0, 0.0, 12.5):
+        scipy.io.savemat(tmp_path / "bd.mat", {"scene": _scene_struct(codes16, wave) | {
+            "data": {"photons": codes16, "dmin": 1e14, "dmax": 1e16, "bitDepth": bits}}})
+        with pytest.raises(ValueError, match=r"scene\.data\.bitDepth: expected an integer from 1 to 16 .*bd\.mat"):
+            read_isetcam_scene(tmp_path / "bd.mat")
+    # complex photons were read as their real part (a warning only); a wave of text gave numpy's bare message
+    scipy.io.savemat(tmp_path / "cx.mat", {"scene": _scene_struct(np.ones((2, 2, 4)) * (1e15 + 5e15j), wave)})
+    with pytest.raises(ValueError, match=r"scene\.data\.photons: expected real numbers .*cx\.mat"):
+        read_isetcam_scene(tmp_path / "cx.mat")
+    scipy.io.savemat(tmp_path / "ws.mat", {"scene": _scene_struct(np.ones((2, 2, 1)), "five hundred")})
+    with pytest.raises(ValueError, match=r"scene\.spectrum\.wave: expected numbers \(nm\) .*ws\.mat"):
+        read_isetcam_scene(tmp_path / "ws.mat")
     scipy.io.savemat(tmp_path / "dmax.mat", {"scene": _scene_struct(codes, wave)
                                              | {"data": {"photons": codes, "dmin": 1.0, "dmax": 0.5}}})
     with pytest.raises(ValueError, match="scene.data.dmin, dmax: expected dmin <= dmax"):
