@@ -51,6 +51,9 @@ class EMVA1288Result:
     saturation_index: int
     fit_max_index: int  # last level used by the linear fits (<= 70 % of saturation)
     spatial_index: int  # level used for DSNU/PRNU (closest to 50 % of saturation)
+    # sigma^2_y.dark below 0.24 DN^2, floored there: the dark noise and the threshold are upper limits, the dynamic
+    # range a lower one (EMVA 1288 4.0 section 6.4: "sigma_d < 0.40 / K")
+    dark_noise_is_upper_limit: bool = False
 
     def snr_model(self, photons_per_pixel) -> torch.Tensor:
         """EMVA 1288 4.0 eq. 19: SNR(mu_p) = eta mu_p / sqrt(sigma_d^2 + sigma_q^2 / K^2 + eta mu_p).
@@ -67,8 +70,8 @@ class EMVA1288Result:
 
     def report(self) -> str:
         """The EMVA 1288 summary table as text."""
-        def f(v, fmt=".4g"):
-            return "n/a" if v is None else format(float(v), fmt)
+        def f(v, fmt=".4g", bound=""):
+            return "n/a" if v is None else (bound if self.dark_noise_is_upper_limit else "") + format(float(v), fmt)
 
         qe = None if self.quantum_efficiency is None else 100 * self.quantum_efficiency
         rows = [
@@ -76,13 +79,13 @@ class EMVA1288Result:
             ("Inverse system gain 1/K", f(1 / self.system_gain_dn_per_e), "e-/DN"),
             ("Quantum efficiency", f(qe), "%"),
             ("Responsivity R", f(self.responsivity_dn_per_p), "DN/p"),
-            ("Temporal dark noise", f(self.dark_noise_e), "e-"),
-            ("Temporal dark noise", f(self.dark_noise_dn), "DN"),
-            ("Absolute sensitivity threshold", f(self.sensitivity_threshold_e), "e-"),
+            ("Temporal dark noise", f(self.dark_noise_e, bound="< "), "e-"),
+            ("Temporal dark noise", f(self.dark_noise_dn, bound="< "), "DN"),
+            ("Absolute sensitivity threshold", f(self.sensitivity_threshold_e, bound="< "), "e-"),
             ("Saturation capacity", f(self.saturation_capacity_e), "e-"),
             ("Saturation capacity", f(self.saturation_capacity_p), "p"),
             ("Maximum SNR", f(self.snr_max_db, ".2f"), "dB"),
-            ("Dynamic range", f(self.dynamic_range_db, ".2f"), "dB"),
+            ("Dynamic range", f(self.dynamic_range_db, ".2f", bound="> "), "dB"),
             ("DSNU1288", f(self.dsnu1288_e), "e-"),
             ("DSNU1288", f(self.dsnu1288_dn), "DN"),
             ("PRNU1288", f(self.prnu1288_percent), "%"),
@@ -91,6 +94,9 @@ class EMVA1288Result:
         lines += [f"{name:<34}{val:>12}  {unit}" for name, val, unit in rows]
         lines.append(f"(saturation at level {self.saturation_index}, fits over levels 0..{self.fit_max_index}, "
                      f"DSNU/PRNU at level {self.spatial_index})")
+        if self.dark_noise_is_upper_limit:
+            lines.append(f"(dark variance below {S2_DARK_FLOOR_DN2} DN^2, quantisation-limited: the dark noise and the "
+                         "threshold are upper limits, the dynamic range a lower one)")
         return "\n".join(lines)
 
     def plot(self):
@@ -318,6 +324,9 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
     if spatial_index is None:
         spatial_index = int((signal[: sat + 1] - 0.5 * signal[sat]).abs().argmin())
     si = int(spatial_index)
+    if si > sat:  # (a saturated level's frames are flat: PRNU 0 %, reported without a word)
+        raise ValueError(f"spatial_index: level {si} is past saturation (level {sat}); DSNU/PRNU are measured at "
+                         f"about 50 % of saturation (EMVA 1288 4.0, section 8)")
     s2_y, mean_b = _spatial_var(b[si].to(torch.float64))
     s2_yd, mean_d = _spatial_var(d[si if d.shape[0] == M else 0].to(torch.float64))
     s2_y, s2_yd, mean_b, mean_d = (t.cpu() for t in (s2_y, s2_yd, mean_b, mean_d))
@@ -338,6 +347,7 @@ def emva1288(bright: torch.Tensor, dark: torch.Tensor, photons_per_pixel=None, s
         snr_max_db=10 * torch.log10(mu_e_sat), dsnu1288_e=dsnu_dn / K, dsnu1288_dn=dsnu_dn, prnu1288_percent=prnu,
         mean_dn=mu_y, mean_dark_dn=mu_d, var_dn2=var_y, var_dark_dn2=var_d, snr=snr, photons_per_pixel=mu_p,
         saturation_index=sat, fit_max_index=fit_max, spatial_index=si,
+        dark_noise_is_upper_limit=bool(var_d[0] < S2_DARK_FLOOR_DN2),
     )
 
 

@@ -172,3 +172,34 @@ def test_undefined_prnu_and_responsivity_are_errors(frames):
         emva1288(bright, dark, photons_per_pixel=torch.zeros_like(mu_p))
     assert float(emva1288(bright, dark, photons_per_pixel=mu_p, spatial_index=5).prnu1288_percent) == \
         pytest.approx(100 * PRNU, rel=0.2)
+
+
+def test_a_spatial_level_past_saturation_is_refused(frames):
+    """A forced spatial_index past saturation measured flat, clipped frames: PRNU 0 % (truth 1 %) without a word."""
+    bright, dark, mu_p, _, _ = frames
+    sat = emva1288(bright, dark, photons_per_pixel=mu_p).saturation_index
+    assert sat < 19
+    with pytest.raises(ValueError, match=f"spatial_index: level 19 is past saturation \\(level {sat}\\)"):
+        emva1288(bright, dark, photons_per_pixel=mu_p, spatial_index=19)
+
+
+def test_a_quantisation_limited_dark_noise_is_reported_as_an_upper_limit():
+    """K = 0.05 DN/e-, read noise 2 e-: the dark variance, K^2 2^2 + 1/12 = 0.093 DN^2, is below EMVA 1288's
+    0.24 DN^2 (section 6.4), where only sigma_d < 0.40 / K = 7.96 e- can be given. It was printed as a measured
+    7.962 e- (truth 2)."""
+    g = torch.Generator().manual_seed(3)
+    k, levels = 0.05, 16
+    mu_p = torch.linspace(0.0, 1.3 * 20000 / 0.6, levels, dtype=torch.float64)
+
+    def expose(p):
+        e = torch.poisson(torch.full((2, 32, 32), 0.6 * float(p), dtype=torch.float64), generator=g)
+        e = e.clamp_max(20000) + 2.0 * torch.randn(2, 32, 32, generator=g, dtype=torch.float64)
+        return torch.round(k * e + 10.0)
+
+    res = emva1288(torch.stack([expose(p) for p in mu_p]), torch.stack([expose(0) for _ in mu_p]),
+                   photons_per_pixel=mu_p)
+    assert res.dark_noise_is_upper_limit
+    assert float(res.dark_noise_e) == pytest.approx(math.sqrt(0.24 - 1 / 12) / float(res.system_gain_dn_per_e))
+    report = res.report()
+    assert f"< {float(res.dark_noise_e):.4g}" in report and "> " in report and "upper limits" in report
+    assert not emva1288(*make_frames(levels=12, n_frames=2)[:2]).dark_noise_is_upper_limit
