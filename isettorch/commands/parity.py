@@ -176,6 +176,7 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
     from .. import constants, spectral
     from ..io.isetcam import (
         _integer,
+        _positive,
         _scalar,
         _string,
         _vector,
@@ -210,7 +211,7 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
     if repeat > 0:
         stages["oi_photons"]["seconds"] = _median_seconds(lambda: case_scene_oi(case), repeat)
     dx = float(our_oi.sample_spacing_m[0])
-    ref_dx = _scalar(case, "oi_sample_spacing_m")
+    ref_dx = _positive(case, "oi_sample_spacing_m")
     if abs(dx - ref_dx) > 1e-9 * ref_dx:
         notes.append(f"our OI sample spacing {dx:.10g} m differs from the case's {ref_dx:.10g} m")
     lux = float(mean_illuminance(our_oi.photons[0][None], w, vl)[0])
@@ -223,7 +224,7 @@ def run_case(path: str | Path, repeat: int = 0) -> dict:
     # Sensor stage: ISETCam's pre-blur size from the case kernel when stored (FORMAT 4.6 step 2).
     from ..sensor.sampling import isetcam_preblur_kernel, isetcam_preblur_size
 
-    k_ours = isetcam_preblur_size(_scalar(case, "sensor_pixel_size_m"), ref_dx)
+    k_ours = isetcam_preblur_size(_positive(case, "sensor_pixel_size_m"), ref_dx)
     k = k_ours
     kern = case_regrid_kernel(case)
     if kern is not None:

@@ -289,6 +289,16 @@ def _scalar(case, key: str) -> float:
     return x
 
 
+def _positive(case, key: str, maximum: float | None = None) -> float:
+    """``case[key]`` (:func:`_scalar`) above 0 (and at most ``maximum``), or an error naming the key: the library's
+    own check named its argument (``analog_gain: expected positive values``), not the case's key."""
+    x = _scalar(case, key)
+    if not (x > 0 and (maximum is None or x <= maximum)):
+        bound = "a positive number" if maximum is None else f"a number in (0, {maximum:g}]"
+        raise ValueError(f"{key}: expected {bound}, got {x!r}")
+    return x
+
+
 def _integer(case, key: str) -> int:
     """``case[key]`` as an int (:func:`_scalar`, and integral: 198.5 is an error, not truncated)."""
     x = _scalar(case, key)
@@ -630,11 +640,11 @@ def case_sensor(case: dict, preblur_size: int | None = None):
     name = _case_string(case, "case_name") if "case_name" in case else ""
     return Sensor(
         rows=_integer(case, "sensor_rows"), cols=_integer(case, "sensor_cols"),
-        pixel_size_m=_scalar(case, "sensor_pixel_size_m"), fill_factor=_scalar(case, "sensor_fill_factor"), cfa=cfa,
-        spectral_qe=SpectralQE(qe, wave, cfa.channel_names),
-        conversion_gain_v_per_e=_scalar(case, "sensor_conversion_gain_v_per_e"),
-        voltage_swing_v=_scalar(case, "sensor_voltage_swing_v"), exposure_s=_scalar(case, "sensor_exposure_s"),
-        analog_gain=_scalar(case, "sensor_analog_gain"), analog_offset_v=_scalar(case, "sensor_analog_offset"),
+        pixel_size_m=_positive(case, "sensor_pixel_size_m"), fill_factor=_positive(case, "sensor_fill_factor", 1.0),
+        cfa=cfa, spectral_qe=SpectralQE(qe, wave, cfa.channel_names),
+        conversion_gain_v_per_e=_positive(case, "sensor_conversion_gain_v_per_e"),
+        voltage_swing_v=_positive(case, "sensor_voltage_swing_v"), exposure_s=_positive(case, "sensor_exposure_s"),
+        analog_gain=_positive(case, "sensor_analog_gain"), analog_offset_v=_scalar(case, "sensor_analog_offset"),
         adc_bits=case_adc_bits(case), shot_noise="off", preblur_size=preblur_size, output_units="volts", name=name,
         **ISETCAM_CONVENTIONS,
     )
@@ -667,6 +677,6 @@ def case_scene_oi(case: dict, **kwargs):
     scene = _photons(case, "scene_photons", "[L, H, W]", wave.size)
     return compute_oi(torch.as_tensor(scene, dtype=torch.float64), torch.as_tensor(wave),
                       _scalar(case, "scene_hfov_deg"), _scalar(case, "scene_distance_m"),
-                      _scalar(case, "optics_f_number"), _scalar(case, "optics_focal_length_m"),
+                      _positive(case, "optics_f_number"), _positive(case, "optics_focal_length_m"),
                       torch.as_tensor(_vector(case, "optics_transmittance", wave.size)),
                       offaxis=case_offaxis(case), **kwargs)

@@ -348,6 +348,17 @@ def test_malformed_values_exit_2(tmp_path, capsys, base):
     exits_2(tmp_path, capsys, dict(base, optics_offaxis=np.str_("bogus")),
             "optics_offaxis: expected one of 'cos4th', 'skip', 'none' (FORMAT.md section 3: 'cos4th' in every case), "
             "got 'bogus'")
+    # values the library refuses are named by the case's key (they had been named by the library's argument,
+    # "analog_gain: expected positive values")
+    for key, value, expected in (("sensor_analog_gain", 0.0, "a positive number"),
+                                 ("sensor_exposure_s", -1.0, "a positive number"),
+                                 ("sensor_fill_factor", 2.0, "a number in (0, 1]"),
+                                 ("sensor_pixel_size_m", 0.0, "a positive number"),
+                                 ("sensor_voltage_swing_v", 0.0, "a positive number"),
+                                 ("sensor_conversion_gain_v_per_e", 0.0, "a positive number"),
+                                 ("oi_sample_spacing_m", -1e-6, "a positive number"),
+                                 ("optics_f_number", 0.0, "a positive number")):
+        exits_2(tmp_path, capsys, dict(base, **{key: np.float64(value)}), f"{key}: expected {expected}, got {value!r}")
 
 
 def test_not_an_npz_exits_2(tmp_path, capsys):
