@@ -202,9 +202,10 @@ def make_document(doc, session_factory) -> None:
                 true_src.data = {"x": list(cs["true_xy"][:, 0]), "y": list(cs["true_xy"][:, 1])}
                 rend_src.data = {"x": list(cs["rendered_xy"][:, 0]), "y": list(cs["rendered_xy"][:, 1])}
                 p = cs["roi_patch"]
+                under = "ROI outside the chart" if p is None else \
+                    f"patch under ROI {p + 1} ({cs['patch_names'][p]}): {float(cs['delta_e'][p]):.2f}"
                 ip_div.text = (f"{label}; xy = ({cs['roi_xy'][0]:.4f}, {cs['roi_xy'][1]:.4f})<br>ΔE2000 vs Macbeth "
-                               f"(D65): mean {cs['delta_e_mean']:.2f}, max {cs['delta_e_max']:.2f}; patch under ROI "
-                               f"{p + 1} ({cs['patch_names'][p]}): {float(cs['delta_e'][p]):.2f}")
+                               f"(D65): mean {cs['delta_e_mean']:.2f}, max {cs['delta_e_max']:.2f}; {under}")
             else:
                 for src in (de_src,):
                     src.data = {"patch": [], "delta_e": []}

@@ -434,7 +434,8 @@ class ViewerSession:
         """Chromaticity of a processed-image region (mean of the ISP's XYZ, :func:`isettorch.metrics.xyz_to_xy`),
         the spectral locus, and, for the Macbeth scene, CIEDE2000 per patch against the chart's true colours
         under D65 (:func:`isettorch.isp.chart.macbeth_delta_e`, white-patch scaled) and the patch under the ROI, when
-        the sensor holds the whole chart (:meth:`chart_window`)."""
+        the sensor holds the whole chart (:meth:`chart_window`; ``roi_patch`` None for a ROI centred off the chart).
+        """
         from .. import spectral
         from ..isp.chart import macbeth_delta_e, macbeth_true_xyz, patch_means
         from ..metrics import xyz_to_xy
@@ -453,7 +454,9 @@ class ViewerSession:
             acc = macbeth_delta_e(rendered, "D65")
             h, w_px = r1 - r0, c1 - c0
             cy, cx = (roi.row0 + roi.row1) / 2 - r0, (roi.col0 + roi.col1) / 2 - c0
-            patch = min(max(int(cy * 4 // h), 0), 3) * 6 + min(max(int(cx * 6 // w_px), 0), 5)
+            # None when the ROI's centre is outside the chart (it was clamped to the nearest edge patch: the black
+            # surround was shown as 'dark skin' with that patch's delta E)
+            patch = int(cy * 4 // h) * 6 + int(cx * 6 // w_px) if 0 <= cy < h and 0 <= cx < w_px else None
             out.update({"delta_e": acc.delta_e[0].cpu().numpy(), "delta_e_mean": float(acc.mean[0]),
                         "delta_e_max": float(acc.max[0]), "patch_names": macbeth_patch_names(),
                         "roi_patch": patch,

@@ -174,7 +174,7 @@ def test_colour_stats_find_the_chart_in_a_sensor_larger_than_its_image(tmp_path)
             "isp: {demosaic: bilinear, illuminant_correction: none, correction_space: xyz, sensor_conversion: "
             "{method: mcc_optimized, illuminant: D65, surfaces: macbeth}, display: srgb, encoding: srgb, "
             "scaling: adaptive}\n")
-    stats = {}
+    stats, sessions = {}, {}
     for rows, cols in ((86, 128), (240, 320), (72, 88)):  # the chart's own size at size=128, larger, smaller
         (tmp_path / "cam.yaml").write_text(body % (rows, cols))
         with warnings.catch_warnings():
@@ -186,12 +186,17 @@ def test_colour_stats_find_the_chart_in_a_sensor_larger_than_its_image(tmp_path)
             r0, r1, c0, c1 = window
             cy, cx = r0 + (r1 - r0) // 8, c0 + (c1 - c0) // 12
             roi = ROI(cy - 2, cy + 2, cx - 2, cx + 2)
-        stats[cols] = session.colour_stats(roi), window
+        stats[cols], sessions[cols] = (session.colour_stats(roi), window), session
     (fits, win_fits), (large, win_large), (small, win_small) = stats[128], stats[320], stats[88]
     assert win_fits == pytest.approx((0, 86, 0, 128), abs=1) and win_small is None
     assert (win_large[1] - win_large[0], win_large[3] - win_large[2]) == pytest.approx((86, 128), abs=1)
     assert win_large[0] == pytest.approx(240 / 2 - 43, abs=1) and win_large[2] == pytest.approx(320 / 2 - 64, abs=1)
     for s in (fits, large):
         assert s["patch_names"][s["roi_patch"]] == "dark skin"
+    # a ROI centred off the chart (the large sensor's top-left corner, outside rows 77..163) has no patch: it was
+    # clamped to the nearest edge patch, the surround shown as 'dark skin' with that patch's delta E
+    assert sessions[320].colour_stats(ROI(0, 4, 0, 4))["roi_patch"] is None
+    assert sessions[320].colour_stats(ROI(0, 4, 300, 304))["roi_patch"] is None
+    assert sessions[128].colour_stats(ROI(82, 86, 124, 128))["roi_patch"] == 23  # inside: the last patch
     assert large["delta_e_mean"] == pytest.approx(fits["delta_e_mean"], abs=0.3) and fits["delta_e_mean"] < 6
     assert "delta_e" not in small and "roi_xy" in small
