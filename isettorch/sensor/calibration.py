@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .._checks import check_integer, is_real
 from ..metrics.emva import S2_DARK_FLOOR_DN2, S2_QUANTIZATION_DN2, spatial_variance, temporal_noise_components
 
 __all__ = ["calibrate_capture", "calibrate_directory", "sensor_config", "write_sensor_config", "load_sensor_config",
@@ -671,11 +672,32 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     from .._progress import progress as progress_bar
 
     warnings: list[str] = list(getattr(capture, "warnings", []))
+    check_integer(capture.bit_depth, "capture.bit_depth", minimum=1)
+    shape = None
     for kind in ("dark", "flat"):  # (the folder reader checks files; a Capture built in code was not: a NaN pixel
-        # hid the saturation, moved the gain 1.5 % and called the frames non-integer)
-        for ms, stack in getattr(capture, kind).items():
-            if not np.isfinite(np.asarray(stack)).all():
-                folder = capture.folders.get((kind, ms), f"{kind}_{ms:g}ms")
+        # hid the saturation, moved the gain 1.5 % and called the frames non-integer; an empty dict, 2-D stacks, a
+        # frame of another size or a flat without its photon count failed with StopIteration, "not enough values to
+        # unpack", a tensor size mismatch or a KeyError)
+        stacks = getattr(capture, kind)
+        if not isinstance(stacks, dict) or not stacks:
+            raise ValueError(f"capture.{kind}: expected a dict exposure (ms) -> (N, H, W) stack, with at least one "
+                             f"exposure, got {stacks!r:.80}")
+        for ms, stack in stacks.items():
+            if not (is_real(ms) and math.isfinite(ms) and ms >= 0):
+                raise ValueError(f"capture.{kind}: expected exposures in ms >= 0 as its keys, got {ms!r}")
+            folder = capture.folders.get((kind, ms), f"{kind}_{ms:g}ms")
+            a = np.asarray(stack)
+            if a.ndim != 3 or a.shape[0] < 2:
+                raise ValueError(f"capture.{kind}[{ms:g}] ({folder}): expected a stack (N, H, W) of at least 2 frames "
+                                 f"(temporal noise needs a stack), got shape {a.shape}")
+            if shape is not None and a.shape[1:] != shape:
+                raise ValueError(f"capture.{kind}[{ms:g}] ({folder}): expected frames of {shape[0]}x{shape[1]} "
+                                 f"pixels as the others, got {a.shape[1]}x{a.shape[2]}")
+            shape = a.shape[1:]
+            if kind == "flat" and capture.photons_per_pixel is not None and ms not in capture.photons_per_pixel:
+                raise ValueError(f"capture.photons_per_pixel: expected a photon count for every flat exposure, "
+                                 f"missing {ms:g} ms")
+            if not np.isfinite(a).all():
                 raise ValueError(f"capture.{kind}[{ms:g}] ({folder}): NaN or infinite values in its frames; "
                                  f"expected finite DN")
     acc = _quantisation(list(capture.dark.values()) + list(capture.flat.values()))

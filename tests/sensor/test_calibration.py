@@ -1166,3 +1166,30 @@ def test_a_sensor_yaml_from_darks_at_one_exposure_says_its_dark_current_is_unmea
     full = calibrate_capture(_memory_capture())
     write_sensor_config(full, tmp_path / "two.yaml")
     assert "not measured" not in (tmp_path / "two.yaml").read_text()
+
+
+def test_a_capture_built_in_code_is_checked_as_the_folder_reader_checks_one():
+    """An in-memory Capture with an empty dict, 2-D or one-frame stacks, frames of two sizes, a flat without its
+    photon count, a negative exposure or a bit depth of 0 is named; these failed with StopIteration, numpy's or
+    torch's own messages, a KeyError, a wrong diagnosis ("are dark and flat folders swapped?") or ran on."""
+    import dataclasses
+
+    from isettorch.sensor.calibration import calibrate_capture
+
+    cap = _memory_capture()
+    d, f = cap.dark, cap.flat
+    for change, message in (
+            ({"dark": {}}, r"capture\.dark: expected a dict exposure \(ms\) -> \(N, H, W\) stack, with at least one"),
+            ({"dark": {k: v[:1] for k, v in d.items()}},
+             r"capture\.dark\[1\] \(dark_1ms\): expected a stack \(N, H, W\) of at least 2 frames .* got shape "
+             r"\(1, 64, 96\)"),
+            ({"flat": {k: v[0] for k, v in f.items()}}, r"capture\.flat\[1\] .* got shape \(64, 96\)"),
+            ({"dark": {k: (v[:, :, :90] if k == 5.0 else v) for k, v in d.items()}},
+             r"capture\.dark\[5\] \(dark_5ms\): expected frames of 64x96 pixels as the others, got 64x90"),
+            ({"photons_per_pixel": {k: v for k, v in cap.photons_per_pixel.items() if k != 10.0}},
+             r"capture\.photons_per_pixel: expected a photon count for every flat exposure, missing 10 ms"),
+            ({"dark": {(-k if k == 1.0 else k): v for k, v in d.items()}},
+             r"capture\.dark: expected exposures in ms >= 0 as its keys, got -1\.0"),
+            ({"bit_depth": 0}, r"capture\.bit_depth: expected a positive integer, got 0")):
+        with pytest.raises(ValueError, match=message):
+            calibrate_capture(dataclasses.replace(cap, **change))
