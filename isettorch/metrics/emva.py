@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
 import torch
 
 from .._checks import as_tensor, check_finite, is_integer
@@ -392,6 +393,20 @@ def spatial_variance(average: torch.Tensor, temporal_var, frames: int, reference
     return img.var(unbiased=True) - resid
 
 
+def linearity_error(exposure, signal_dn) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    """EMVA 1288 4.0 section 6.6 linearity: the levels whose signal (mean less dark, DN) lies within 5-95 % of the
+    saturation signal (the largest), a least-squares line with offset through them against ``exposure`` (or
+    irradiance, any unit), and the relative deviation from it in percent. Returns (the levels' mask, their
+    deviations in %, (offset, slope)); no deviations with fewer than 3 levels in the band."""
+    t, x = np.asarray(exposure, dtype=np.float64), np.asarray(signal_dn, dtype=np.float64)
+    band = (x >= 0.05 * x.max()) & (x <= 0.95 * x.max())
+    if band.sum() < 3:
+        return band & False, np.empty(0), (math.nan, math.nan)
+    slope, offset = np.polyfit(t[band], x[band], 1)
+    fit = offset + slope * t[band]
+    return band, 100 * (x[band] - fit) / fit, (float(offset), float(slope))
+
+
 def spectrogram(image: torch.Tensor, axis: str = "horizontal") -> tuple[torch.Tensor, torch.Tensor]:
     """EMVA 1288 4.0 section 8.3 spectrogram of a frame-averaged image ``(H, W)``: the square root of the mean power
     spectrum of its rows (``'horizontal'``) or columns (``'vertical'``), mean removed, in the image's units.
@@ -418,7 +433,6 @@ def calibration_figures(result: dict, capture, out_dir) -> list[str]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
     if not hasattr(capture, "dark"):
         from ..io.frames import read_capture
@@ -465,14 +479,15 @@ def calibration_figures(result: dict, capture, out_dir) -> list[str]:
 
     fig, axes = plt.subplots(2, 1, figsize=(6, 6), sharex=True)
     for n, p in ptcs.items():
-        t, x, lin = np.array(p["exposure_ms"]), np.array(p["signal_dn"]), np.array(p["linear"])
-        slope = float((t[lin] * x[lin]).sum() / (t[lin] ** 2).sum())
+        # (the gain fit's levels, at most 70 % of saturation and without its outliers, had hidden the deviation near
+        # saturation that the figure is for)
+        t, x = np.array(p["exposure_ms"]), np.array(p["signal_dn"])
+        band, err, (offset, slope) = linearity_error(t, x)
         axes[0].plot(t, x, "o", ms=4, label=n)
-        axes[0].plot(t[lin], slope * t[lin], "-", lw=1)
-        sel = lin & (x > 0)
-        axes[1].plot(t[sel], 100 * (x[sel] / (slope * t[sel]) - 1), "o-", ms=4, label=n)
+        axes[0].plot(t[band], offset + slope * t[band], "-", lw=1)
+        axes[1].plot(t[band], err, "o-", ms=4, label=n)
     axes[0].set(ylabel="mu_y - mu_y.dark (DN)", title="Linearity")
-    axes[1].set(xlabel="exposure (ms)", ylabel="linearity error (%)")
+    axes[1].set(xlabel="exposure (ms)", ylabel="linearity error (%, 5-95 % of saturation)")
     for a in axes:
         a.grid(alpha=0.3)
         a.legend(fontsize=8)

@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -203,3 +204,22 @@ def test_a_quantisation_limited_dark_noise_is_reported_as_an_upper_limit():
     report = res.report()
     assert f"< {float(res.dark_noise_e):.4g}" in report and "> " in report and "upper limits" in report
     assert not emva1288(*make_frames(levels=12, n_frames=2)[:2]).dark_noise_is_upper_limit
+
+
+def test_linearity_error_uses_5_to_95_percent_of_saturation_with_an_offset_fit():
+    """EMVA 1288 4.0 section 6.6: a line with offset through the levels within 5-95 % of the saturation signal. A
+    compressive response e (1 - 0.06 e / fw) deviates most near saturation; the calibration figure had used the gain
+    fit's levels (<= 70 %), hiding it."""
+    from isettorch.metrics.emva import linearity_error
+
+    t = np.linspace(0.0, 1.2, 25)  # saturation (fw) reached at t = 1
+    e = np.minimum(t, 1.0)
+    x = 1000 * e * (1 - 0.06 * e)
+    band, err, (offset, slope) = linearity_error(t, x)
+    want = (x >= 0.05 * x.max()) & (x <= 0.95 * x.max())
+    assert np.array_equal(band, want) and band.sum() == 18
+    a1, a0 = np.polyfit(t[want], x[want], 1)  # numpy's least squares, independently
+    assert (offset, slope) == pytest.approx((a0, a1))
+    np.testing.assert_allclose(err, 100 * (x[want] / (a0 + a1 * t[want]) - 1), rtol=1e-12)
+    assert err.max() > 0.5 and err[-1] < -0.5  # bowed: the points near saturation fall below the line, in the band
+    assert not linearity_error([1.0, 2.0], [10.0, 20.0])[0].any()  # fewer than 3 levels: nothing
