@@ -394,10 +394,10 @@ def spatial_variance(average: torch.Tensor, temporal_var, frames: int, reference
 
 
 def linearity_error(exposure, signal_dn) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
-    """EMVA 1288 4.0 section 6.6 linearity: the levels whose signal (mean less dark, DN) lies within 5-95 % of the
-    saturation signal (the largest), a least-squares line with offset through them against ``exposure`` (or
-    irradiance, any unit), and the relative deviation from it in percent. Returns (the levels' mask, their
-    deviations in %, (offset, slope)); no deviations with fewer than 3 levels in the band."""
+    """EMVA 1288 linearity (Releases 3.1 and 4.0 Linear: 5-95 % of saturation): the levels whose signal (mean less
+    dark, DN) lies within 5-95 % of the saturation signal (the largest), a least-squares line with offset through
+    them against ``exposure`` (or irradiance, any unit), and the relative deviation from it in percent. Returns (the
+    levels' mask, their deviations in %, (offset, slope)); no deviations with fewer than 3 levels in the band."""
     t, x = np.asarray(exposure, dtype=np.float64), np.asarray(signal_dn, dtype=np.float64)
     band = (x >= 0.05 * x.max()) & (x <= 0.95 * x.max())
     if band.sum() < 3:

@@ -207,9 +207,9 @@ def test_a_quantisation_limited_dark_noise_is_reported_as_an_upper_limit():
 
 
 def test_linearity_error_uses_5_to_95_percent_of_saturation_with_an_offset_fit():
-    """EMVA 1288 4.0 section 6.6: a line with offset through the levels within 5-95 % of the saturation signal. A
-    compressive response e (1 - 0.06 e / fw) deviates most near saturation; the calibration figure had used the gain
-    fit's levels (<= 70 %), hiding it."""
+    """EMVA 1288 linearity (Releases 3.1 and 4.0 Linear): a line with offset through the levels within 5-95 % of
+    the saturation signal. A compressive response e (1 - 0.06 e / fw) deviates most near saturation; the
+    calibration figure had used the gain fit's levels (<= 70 %), hiding it."""
     from isettorch.metrics.emva import linearity_error
 
     t = np.linspace(0.0, 1.2, 25)  # saturation (fw) reached at t = 1
