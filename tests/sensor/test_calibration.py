@@ -1193,3 +1193,37 @@ def test_a_capture_built_in_code_is_checked_as_the_folder_reader_checks_one():
             ({"bit_depth": 0}, r"capture\.bit_depth: expected a positive integer, got 0")):
         with pytest.raises(ValueError, match=message):
             calibrate_capture(dataclasses.replace(cap, **change))
+
+
+@pytest.mark.parametrize("cfa", [None, "RGGB"])
+def test_dead_pixels_are_found_and_left_out_of_the_prnu(cfa):
+    """12 pixels without photo-response (they read what the darks read) took a 1 % PRNU to 4.5 % in the sensor
+    config, with no word. They are found, left out of prnu_percent and modelled as
+    dead_pixel_fraction; a capture without them finds none."""
+    import dataclasses
+
+    from isettorch.sensor.calibration import calibrate_capture, sensor_config
+
+    truth = dict(nc.TRUTH, prnu_percent=1.0, qe={"W": 0.6, "R": 0.45, "G": 0.6, "B": 0.4})
+    for seed in range(2):
+        cap = _memory_capture(truth=truth, seed=seed, cfa=cfa)
+        cap = dataclasses.replace(cap, cfa=cfa)
+        clean = calibrate_capture(cap)
+        assert clean["dead_pixels"]["count"] == 0 and "dead_pixel_fraction" not in sensor_config(clean)
+        dead = nc.hot_pixel_mask((64, 96), 12, seed + 100)
+        flat = {}
+        for ms, st in cap.flat.items():
+            flat[ms] = st.copy()
+            flat[ms][:, dead] = cap.dark[min(cap.dark, key=lambda k: abs(k - ms))][:, dead]
+        res = calibrate_capture(dataclasses.replace(cap, flat=flat))
+        assert res["dead_pixels"]["count"] == 12 and res["dead_pixels"]["fraction"] == pytest.approx(12 / 6144)
+        scalars = (res["sensor"], clean["sensor"]) if cfa else (res, clean)
+        assert scalars[0]["prnu_percent"] == pytest.approx(scalars[1]["prnu_percent"], rel=0.03)
+        assert sensor_config(res)["dead_pixel_fraction"] == pytest.approx(12 / 6144)
+        assert any("12 dead or weak pixel(s)" in w for w in res["warnings"])
+    # a flat's smooth fall-off (a lens's vignetting, half the light in the corners) is not a dead pixel
+    yy, xx = np.mgrid[0:64, 0:96]
+    fall = 1 - 0.5 * ((yy - 31.5) ** 2 + (xx - 47.5) ** 2) / (31.5 ** 2 + 47.5 ** 2)
+    black = truth["black_level_dn"]
+    vignetted = {ms: np.round(black + (st - black) * fall) for ms, st in cap.flat.items()}
+    assert calibrate_capture(dataclasses.replace(cap, flat=vignetted))["dead_pixels"]["count"] == 0
