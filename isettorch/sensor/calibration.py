@@ -855,7 +855,8 @@ def calibrate_capture(capture, *, progress: bool = False) -> dict[str, Any]:
     if dead is not None:
         nd = int(dead["mask"].sum())
         out["dead_pixels"] = {"count": nd, "fraction": nd / dead["mask"].size, "exposure_ms": dead["exposure_ms"],
-                              "rule": f"flat-minus-dark response < its CFA plane's median - {_HOT_MADS:g} x 1.4826 MAD"}
+                              "rule": f"flat-minus-dark response below its 5x5 CFA-plane neighbourhood's median by "
+                                      f"more than {_HOT_MADS:g} x 1.4826 MAD"}
         if nd:
             rows, cols = np.nonzero(dead["mask"])
             warnings.append(f"{nd} dead or weak pixel(s) ({100 * nd / dead['mask'].size:.2g} % of the pixels, e.g. "
