@@ -147,7 +147,8 @@ def _check_sampling(x, oi_sample_spacing_m, pixel_size_m, rows, cols) -> None:
         if not (is_integer(n) and n >= 1):
             raise ValueError(f"{name}: expected an integer number of pixels >= 1, got {n!r}")
     if not (is_real(pixel_size_m) and pixel_size_m > 0):  # (a NumPy float32 was refused as not finite)
-        raise ValueError(f"pixel_size_m: expected a finite pitch > 0 in metres, got {pixel_size_m!r}")
+        raise ValueError(f"pixel_size_m: expected a finite pitch > 0 in metres, got {pixel_size_m!r}"
+                         + ("; a number, not a tensor (pass float(...))" if torch.is_tensor(pixel_size_m) else ""))
 
 
 def sample_point(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_m: float, rows: int, cols: int,

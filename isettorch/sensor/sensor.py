@@ -247,10 +247,12 @@ class Sensor(nn.Module):
                 raise ValueError(f"{label}: expected a positive integer pixel count or None, got {v!r}")
         for label, v in (("pixel_size_m", pixel_size_m), ("conversion_gain_v_per_e", conversion_gain_v_per_e),
                          ("voltage_swing_v", voltage_swing_v)):
-            if not (is_real(v) and v > 0):
-                raise ValueError(f"{label}: expected a positive number, got {v!r}")
+            if not (is_real(v) and v > 0):  # (a positive tensor was told it was not positive)
+                raise ValueError(f"{label}: expected a positive number, got {v!r}"
+                                 + ("; a number, not a tensor (pass float(...))" if torch.is_tensor(v) else ""))
         if not (is_real(fill_factor) and 0 < fill_factor <= 1):
-            raise ValueError(f"fill_factor: expected a number in (0, 1], got {fill_factor!r}")
+            raise ValueError(f"fill_factor: expected a number in (0, 1], got {fill_factor!r}"
+                             + ("; a number, not a tensor (pass float(...))" if torch.is_tensor(fill_factor) else ""))
         for label, v in (("read_noise_v", read_noise_v), ("dark_current_e_per_s", dark_current_e_per_s),
                          ("dsnu_sigma_v", dsnu_sigma_v), ("prnu_sigma_percent", prnu_sigma_percent),
                          ("column_fpn_sigma_v", column_fpn_sigma_v), ("black_level_dn", black_level_dn)):
@@ -961,14 +963,14 @@ class Sensor(nn.Module):
         key = (id(dx), self.pixel_size_m)
         memo = self.__dict__.setdefault("_same_grid_memo", {})
         hit = memo.get(key)
-        if hit is not None and hit[0] is dx:
-            return hit[1]
+        if hit is not None and hit[0] is dx and hit[1] == tensor_version(dx):  # (a spacing changed in place had
+            return hit[2]  # kept its stale answer: raw samples for a grid twice the pitch, up to 92 % off)
         eps = torch.finfo(dx.dtype).eps
         same = bool(((dx.detach() / self.pixel_size_m - 1).abs() <= 4 * eps).all())
         if not dx.requires_grad:
             if len(memo) > 64:
                 memo.clear()
-            memo[key] = (dx, same)
+            memo[key] = (dx, tensor_version(dx), same)
         return same
 
     def _analog(self, volts: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:

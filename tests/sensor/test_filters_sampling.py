@@ -476,3 +476,29 @@ def test_user_filter_spectra_and_tables_in_other_units_are_refused():
         SpectralQE.from_cfa(CFA("RGGB"), {k: (w_nm + 400 if k == "R" else w_nm, flat) for k in "RGB"})
     with pytest.raises(ValueError, match=r"^wavelengths_nm: expected wavelengths in nm"):
         FilterBank.from_table(flat[None].repeat(3, 1), w_nm * 1e-3, ["a", "b", "c"])
+
+
+def test_an_oi_spacing_changed_in_place_is_resampled():
+    """The sensor memoises whether an OI's spacing equals its pitch (the one-sample-per-pixel shortcut); a spacing
+    changed in place kept the stale answer: raw samples for a grid twice the pitch (up to 92 % off)."""
+    from isettorch.optics.optical_image import OpticalImage
+    from isettorch.sensor import Sensor
+
+    wl = torch.tensor([450.0, 550.0, 650.0], dtype=torch.float64)
+    qe = SpectralQE(torch.tensor([0.5, 0.6, 0.7], dtype=torch.float64)[:, None].expand(3, 3).clone(), wl,
+                    ["R", "G", "B"])
+
+    def sensor():
+        return Sensor(rows=8, cols=8, pixel_size_m=1e-6, fill_factor=1.0, cfa="RGGB", spectral_qe=qe)
+
+    photons = torch.rand(1, 3, 16, 16, dtype=torch.float64, generator=torch.Generator().manual_seed(0)) * 1e15
+    oi = OpticalImage(photons, wl, sample_spacing_m=torch.tensor([1e-6], dtype=torch.float64))
+    s = sensor()
+    s.electron_rate(oi)
+    oi.sample_spacing_m.mul_(2)
+    torch.testing.assert_close(s.electron_rate(oi), sensor().electron_rate(oi), rtol=1e-12, atol=0)
+    # a positive pitch given as a tensor is refused for being a tensor, not told it is not positive
+    with pytest.raises(ValueError, match=r"pixel_size_m: expected a positive number, got tensor.*not a tensor"):
+        Sensor(rows=8, cols=8, pixel_size_m=torch.tensor(2e-6), spectral_qe=qe)
+    with pytest.raises(ValueError, match=r"pixel_size_m: expected a finite pitch > 0 .*not a tensor"):
+        sample_area(photons[:, :1], torch.tensor([1e-6], dtype=torch.float64), torch.tensor(2e-6), 4, 4)
