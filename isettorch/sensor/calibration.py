@@ -76,6 +76,11 @@ def _planes(stack: np.ndarray, cfa: str | None) -> dict[str, list[np.ndarray]]:
     return out
 
 
+def _nearest(exposures: dict, ms: float) -> float:
+    """The key of ``exposures`` (ms) nearest ``ms``: the same exposure when there is one (the dark of a flat)."""
+    return ms if ms in exposures else min(exposures, key=lambda k: abs(k - ms))
+
+
 def _stats(planes: list[np.ndarray]) -> dict[str, Any]:
     """Temporal components averaged over the sub-images of one channel (keeps the averages for spatial stats)."""
     comps = [temporal_noise_components(torch.from_numpy(np.ascontiguousarray(p, dtype=np.float64))) for p in planes]
@@ -169,7 +174,7 @@ def _warn_dark_gain(name: str, dark: dict, flat: dict, folders: dict, warnings: 
     at twice the flats' gain gave twice the read noise and dark current without a word (the gain is fitted through
     flat minus dark variances). Needs a pattern well above the residue (else nothing is said)."""
     ms_f = min(flat)
-    ms_d = ms_f if ms_f in dark else min(dark, key=lambda k: abs(k - ms_f))
+    ms_d = _nearest(dark, ms_f)
     dd, ff = dark[ms_d], flat[ms_f]
     xs, ys = [], []
     for a_d, a_f in zip(dd["averages"], ff["averages"]):
@@ -393,8 +398,7 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     K0 = float(np.median(ratio[positive]))
     dof = lambda st: st["pixels"] * (st["frames"] - 1)  # noqa: E731
     dof_f = np.array([dof(flat[m]) for m in ms_f], dtype=np.float64)
-    dof_d = np.array([dof(dark[m] if m in dark else dark[min(dark, key=lambda k: abs(k - m))]) for m in ms_f],
-                     dtype=np.float64)
+    dof_d = np.array([dof(dark[_nearest(dark, m)]) for m in ms_f], dtype=np.float64)
     # the ratio's relative standard error from the two variances' (a Gaussian sample variance's is 2 sigma^4 / dof,
     # the chi-square law of (dof) s^2 / sigma^2, as in _spatial_sd)
     se = np.sqrt(2 * vp_f ** 2 / dof_f + 2 * (vp_f - dvar) ** 2 / dof_d) / np.maximum(np.abs(dvar), 1e-300)
@@ -475,8 +479,7 @@ def _channel(name: str, dark: dict[float, dict], flat: dict[float, dict], photon
     est, sds = [], []
     for i in sorted(set(np.flatnonzero(linear).tolist()) | {half}):
         ms = ms_f[i]
-        dms = ms if ms in dark else min(dark, key=lambda k: abs(k - ms))
-        fd, dd = flat[ms], dark[dms]
+        fd, dd = flat[ms], dark[_nearest(dark, ms)]
         shift = dark_at(ms, "mean") - dd["mean"]
         v = np.mean([_response_variance(a, b + shift, fd, dd, m)
                      for a, b, m in zip(fd["averages"], dd["averages"], dead or [None] * len(fd["averages"]))])
@@ -660,14 +663,13 @@ def _dead_pixels(capture) -> dict[str, Any] | None:
     temporal noise. A pixel that does not respond reads the dark level: its deviation is the whole signal, and 12 such
     pixels in 6144 took a 1 % PRNU to 4.5 % in the sensor config. Returns the mask and the rule, or None when no flat
     stands above the dark noise."""
-    ms_d = sorted(capture.dark)
-    sig = {ms: float(st.mean(dtype=np.float64)) - float(capture.dark[min(ms_d, key=lambda k: abs(k - ms))]
-                                                       .mean(dtype=np.float64)) for ms, st in capture.flat.items()}
+    dark_mean = {ms: float(st.mean(dtype=np.float64)) for ms, st in capture.dark.items()}  # (each once)
+    sig = {ms: float(st.mean(dtype=np.float64)) - dark_mean[_nearest(dark_mean, ms)] for ms, st in capture.flat.items()}
     top = max(sig.values())
     if not top > 0:
         return None
     ms = min((m for m in sig if sig[m] > 0), key=lambda m: abs(sig[m] - 0.5 * top))
-    flat, dark = capture.flat[ms], capture.dark[min(ms_d, key=lambda k: abs(k - ms))]
+    flat, dark = capture.flat[ms], capture.dark[_nearest(capture.dark, ms)]
     resp = flat.mean(axis=0, dtype=np.float64) - dark.mean(axis=0, dtype=np.float64)
     noise = math.sqrt(float(flat.var(axis=0, ddof=1, dtype=np.float64).mean()) / flat.shape[0]
                       + float(dark.var(axis=0, ddof=1, dtype=np.float64).mean()) / dark.shape[0])
