@@ -40,6 +40,12 @@ def is_real(v) -> bool:
     return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
+def tensor_hint(v) -> str:
+    """What to add to a "got {v!r}" message when ``v`` is a tensor where a plain number is taken (a positive tensor
+    had been told it was not positive)."""
+    return "; a number, not a tensor (pass float(...))" if torch.is_tensor(v) else ""
+
+
 def is_integer(v) -> bool:
     """An integer (Python or NumPy), not a bool and not a float (``1.5`` is no seed or bit depth, ``True`` none)."""
     return isinstance(v, numbers.Integral) and not isinstance(v, bool)

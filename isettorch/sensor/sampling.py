@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 
 from .. import spectral
-from .._checks import _small_values, is_integer, is_real
+from .._checks import _small_values, is_integer, is_real, tensor_hint
 
 __all__ = [
     "electron_rate_density",
@@ -148,7 +148,7 @@ def _check_sampling(x, oi_sample_spacing_m, pixel_size_m, rows, cols) -> None:
             raise ValueError(f"{name}: expected an integer number of pixels >= 1, got {n!r}")
     if not (is_real(pixel_size_m) and pixel_size_m > 0):  # (a NumPy float32 was refused as not finite)
         raise ValueError(f"pixel_size_m: expected a finite pitch > 0 in metres, got {pixel_size_m!r}"
-                         + ("; a number, not a tensor (pass float(...))" if torch.is_tensor(pixel_size_m) else ""))
+                         f"{tensor_hint(pixel_size_m)}")
 
 
 def sample_point(x: torch.Tensor, oi_sample_spacing_m: torch.Tensor, pixel_size_m: float, rows: int, cols: int,

@@ -37,6 +37,7 @@ from .._checks import (
     is_real,
     round_half_away,
     seed_for,
+    tensor_hint,
     tensor_version,
 )
 from ..metrics.emva import S2_QUANTIZATION_DN2
@@ -247,12 +248,10 @@ class Sensor(nn.Module):
                 raise ValueError(f"{label}: expected a positive integer pixel count or None, got {v!r}")
         for label, v in (("pixel_size_m", pixel_size_m), ("conversion_gain_v_per_e", conversion_gain_v_per_e),
                          ("voltage_swing_v", voltage_swing_v)):
-            if not (is_real(v) and v > 0):  # (a positive tensor was told it was not positive)
-                raise ValueError(f"{label}: expected a positive number, got {v!r}"
-                                 + ("; a number, not a tensor (pass float(...))" if torch.is_tensor(v) else ""))
+            if not (is_real(v) and v > 0):
+                raise ValueError(f"{label}: expected a positive number, got {v!r}{tensor_hint(v)}")
         if not (is_real(fill_factor) and 0 < fill_factor <= 1):
-            raise ValueError(f"fill_factor: expected a number in (0, 1], got {fill_factor!r}"
-                             + ("; a number, not a tensor (pass float(...))" if torch.is_tensor(fill_factor) else ""))
+            raise ValueError(f"fill_factor: expected a number in (0, 1], got {fill_factor!r}{tensor_hint(fill_factor)}")
         for label, v in (("read_noise_v", read_noise_v), ("dark_current_e_per_s", dark_current_e_per_s),
                          ("dsnu_sigma_v", dsnu_sigma_v), ("prnu_sigma_percent", prnu_sigma_percent),
                          ("column_fpn_sigma_v", column_fpn_sigma_v), ("black_level_dn", black_level_dn)):
